@@ -1,0 +1,38 @@
+"""hybrid: differentiable physics-ML identification of IPMC soft actuators.
+
+The paper's hybrid model (an RC network turning the drive V_i into a tip
+voltage V_o, Eqs 4–14, and a windowed D-MLP mapping V_o to the tip displacement
+w) as one JAX program, fitted end to end.
+
+The library never changes `jax.config`: call
+``jax.config.update("jax_enable_x64", True)`` in your entry point for float64
+(the product of 46 RC sections needs it; the CLI and the tests do this).
+"""
+
+from ._drives import DRIVES as DRIVES, Drive as Drive, make_drive as make_drive
+from ._errors import InputError as InputError
+from ._fit import SOLVERS as SOLVERS, fit as fit
+from ._metrics import (
+    fitting as fitting,
+    metrics as metrics,
+    nmse as nmse,
+    nmse_target as nmse_target,
+    nmse_variance as nmse_variance,
+)
+from ._models import MODEL_KINDS as MODEL_KINDS, Model as Model, make_model as make_model
+from ._parameters import Positive as Positive, Real as Real, UnitInterval as UnitInterval
+from ._rc_network import RCNetwork as RCNetwork
+from ._readout import (
+    AbstractReadout as AbstractReadout,
+    LinearReadout as LinearReadout,
+    WindowedMLP as WindowedMLP,
+)
+from ._recording import Recording as Recording, Split as Split
+from ._reference import reference_response as reference_response
+from ._result import FitResult as FitResult
+from ._serialise import load_model as load_model, save_model as save_model
+from ._simulation import AbstractSimulation as AbstractSimulation, Passthrough as Passthrough
+from ._strip import Strip as Strip
+from ._windows import sliding_windows as sliding_windows
+
+__version__ = "0.1.0"

@@ -1,0 +1,277 @@
+"""`fit`: physical parameters and network weights fitted jointly, end to end.
+
+Solvers:
+
+- ``"lm"`` (default): Levenberg–Marquardt on the structured Jacobian
+  ([`hybrid._levenberg_marquardt`][]), several starts `vmap`-ed in one program.
+- ``"optimistix"``: `optimistix.LevenbergMarquardt` on the flattened parameters,
+  Jacobian by autodiff of the whole model — fine for the physics-only model
+  (a handful of parameters), slow for the D-MLP models.
+- ``"adam"``: `optax.adam` on ½‖r‖², with the same validation bookkeeping.
+
+The training split drives the optimiser; the validation split picks the best
+iterate of each start and the best start; the test split is only reported.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._errors import InputError
+from ._levenberg_marquardt import LMSettings, lm_init, lm_run
+from ._metrics import metrics as compute_metrics
+from ._models import Model
+from ._problem import Problem, Series, series_from_recording
+from ._readout import WindowedMLP
+from ._result import FitResult
+
+Solver = Literal["lm", "optimistix", "adam"]
+SOLVERS = ("lm", "optimistix", "adam")
+
+
+def fit(
+    model: Model,
+    recordings,
+    *,
+    solver: Solver = "lm",
+    starts: int = 1,
+    max_steps: int = 300,
+    frozen=frozenset(),
+    split=(0.3, 0.5, 0.2),
+    split_order=("train", "test", "validation"),
+    patience: int = 40,
+    learning_rate: float = 3e-3,
+    perturbation: float = 0.5,
+    seed: int = 0,
+    progress: bool = True,
+    report_every: int = 10,
+) -> FitResult:
+    """Fit `model` to one or several recordings of the same strip.
+
+    **Arguments:**
+
+    - `model`: starting model (e.g. from [`hybrid.make_model`][]); start 0 begins
+      exactly there, the others from fresh network weights and physical
+      parameters perturbed by `perturbation` (std of the unconstrained value).
+    - `recordings`: a Recording or a list of them; each is split contiguously.
+    - `solver`: ``"lm"``, ``"optimistix"`` or ``"adam"`` (see module docstring).
+    - `starts`: number of starts (vmapped together for ``"lm"`` and ``"adam"``).
+    - `max_steps`: iteration limit per start.
+    - `frozen`: parameter names kept at their starting values (e.g. ``{"xi_h"}``;
+      ``"network"`` freezes all D-MLP weights).
+    - `split`, `split_order`: fractions and order of the contiguous splits
+      (paper: train 30 %, test 50 %, validation 20 %).
+    - `patience`: LM stops after this many accepted steps without validation gain.
+    - `learning_rate`: Adam's step size.
+    - `seed`: seeds the extra starts.
+    - `progress`: show a progress bar on stderr.
+    - `report_every`: iterations between progress reports / history entries.
+
+    **Returns:** a [`FitResult`][].
+    """
+    t_start = time.perf_counter()
+    if solver not in SOLVERS:
+        raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
+    if not isinstance(starts, int) or starts < 1:
+        raise InputError(f"starts must be a positive integer, got {starts!r}")
+    if not isinstance(max_steps, int) or max_steps < 1:
+        raise InputError(f"max_steps must be a positive integer, got {max_steps!r}")
+    recordings = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
+    frozen = frozenset(frozen)
+    for i, recording in enumerate(recordings):
+        recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
+    series = [series_from_recording(r, split, split_order) for r in recordings]
+    has_validation = "validation" in split_order
+
+    initial = [_start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
+    problem = Problem(initial[0], series, frozen)
+    thetas = jnp.stack([problem.flatten(m, frozen) for m in initial])
+
+    if solver == "lm":
+        best, history, per_start = _run_lm(
+            problem, thetas, max_steps, patience, has_validation, progress, report_every
+        )
+    elif solver == "adam":
+        best, history, per_start = _run_adam(
+            problem, thetas, max_steps, learning_rate, has_validation, progress, report_every
+        )
+    else:
+        best, history, per_start = _run_optimistix(problem, thetas, max_steps, has_validation)
+
+    best_start = int(np.nanargmin([s["validation_loss"] for s in per_start]))
+    fitted = problem.model(best[best_start])
+    result_metrics = _metrics_by_split(problem, best[best_start], split_order)
+    settings = {
+        "solver": solver, "starts": starts, "max_steps": max_steps, "frozen": sorted(frozen),
+        "split": dict(zip(split_order, map(float, split))), "patience": patience,
+        "seed": seed, "perturbation": perturbation, "n_parameters": int(thetas.shape[1]),
+        "n_residuals": int(problem.target("train").shape[0]),
+        "recordings": [r.metadata.get("source", "") for r in recordings],
+    }
+    if solver == "adam":
+        settings["learning_rate"] = learning_rate
+    return FitResult(
+        model=fitted,
+        parameters={k: float(v) for k, v in fitted.parameters().items()},
+        units=fitted.units,
+        metrics=result_metrics,
+        history=history,
+        starts=per_start,
+        best_start=best_start,
+        settings=settings,
+        seconds=time.perf_counter() - t_start,
+    )
+
+
+def _start_model(model: Model, index, seed, frozen, perturbation, series) -> Model:
+    """Start `index`: 0 is `model` itself; others get new weights and perturbed physics."""
+    if index > 0:
+        key = jax.random.fold_in(jax.random.key(seed), index)
+        k_net, k_phys = jax.random.split(key)
+        readout = model.readout
+        if isinstance(readout, WindowedMLP):
+            depth = len(readout.mlp.layers) - 1
+            width = readout.mlp.width_size
+            readout = WindowedMLP(readout.window, depth, width, readout.mlp.activation, key=k_net)
+        raw = dict(model.simulation.raw)
+        for j, name in enumerate(sorted(raw)):
+            if name not in frozen:
+                noise = jax.random.normal(jax.random.fold_in(k_phys, j), raw[name].shape, raw[name].dtype)
+                raw[name] = raw[name] + perturbation * noise
+        simulation = eqx.tree_at(lambda s: s.raw, model.simulation, raw)
+        model = Model(simulation, readout, model.kind)
+    # Fixed scalings (and a least-squares gain for linear readouts) from the training data.
+    signal = jnp.concatenate([
+        jnp.concatenate([model.mediatory(s.v_in, s.dt)[a:b] for a, b in s.segments_of("train")])
+        for s in series
+    ])
+    target = jnp.concatenate([s.target("train") for s in series])
+    if "network" in frozen or (set(getattr(model.readout, "raw", {})) & frozen):
+        return model
+    return Model(model.simulation, model.readout.initialise(signal, target), model.kind)
+
+
+def _metrics_by_split(problem: Problem, theta, split_order):
+    out = {}
+    for split in ("train", "validation", "test"):
+        if split in split_order:
+            w = problem.target(split)
+            w_hat = problem.prediction(theta, split)
+            out[split] = compute_metrics(np.asarray(w), np.asarray(w_hat))
+    return out
+
+
+def _progress_bar(total, enabled, desc):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, disable=not enabled, desc=desc, unit="step", leave=False)
+
+
+@eqx.filter_jit
+def _lm_init_batch(problem, thetas, settings, has_validation):
+    return jax.vmap(lambda th: lm_init(problem, th, settings, has_validation))(thetas)
+
+
+@eqx.filter_jit
+def _lm_run_batch(problem, states, settings, n_steps, has_validation):
+    return jax.vmap(lambda s: lm_run(problem, s, settings, n_steps, has_validation))(states)
+
+
+def _run_lm(problem, thetas, max_steps, patience, has_validation, progress, report_every):
+    settings = LMSettings(max_steps=max_steps, patience=patience)
+    states = _lm_init_batch(problem, thetas, settings, has_validation)
+    history = []
+    with _progress_bar(max_steps, progress, f"LM {problem.kind}") as bar:
+        while not bool(jnp.all(states.done)):
+            states = _lm_run_batch(problem, states, settings, report_every, has_validation)
+            step = int(jnp.max(states.step))
+            history.append({
+                "step": step,
+                "train_cost": [float(c) for c in states.cost],
+                "validation_loss": [float(v) for v in states.best_val],
+            })
+            bar.n = step
+            bar.set_postfix(cost=f"{float(jnp.min(states.cost)):.3e}", val=f"{float(jnp.min(states.best_val)):.3e}")
+            bar.refresh()
+    per_start = [
+        {"validation_loss": float(states.best_val[i]), "steps": int(states.step[i]),
+         "accepted_steps": int(states.accepted[i]), "best_step": int(states.best_step[i]),
+         "train_cost": float(states.cost[i])}
+        for i in range(thetas.shape[0])
+    ]
+    return states.best_theta, history, per_start
+
+
+def _loss(problem, theta):
+    r = problem.residuals(theta)
+    return 0.5 * jnp.sum(r * r)
+
+
+def _val(problem, theta, has_validation):
+    split = "validation" if has_validation else "train"
+    return 0.5 * jnp.mean(problem.residuals(theta, split) ** 2)
+
+
+def _run_adam(problem, thetas, max_steps, learning_rate, has_validation, progress, report_every):
+    import optax
+
+    optimiser = optax.adam(learning_rate)
+    n = problem.target("train").shape[0]
+
+    @eqx.filter_jit
+    def run(problem, thetas, opt_states, best, best_val, n_steps):
+        def one(theta, opt_state, best, best_val):
+            def body(_, carry):
+                theta, opt_state, best, best_val = carry
+                grad = jax.grad(lambda th: _loss(problem, th) / n)(theta)
+                updates, opt_state = optimiser.update(grad, opt_state, theta)
+                theta = optax.apply_updates(theta, updates)
+                val = _val(problem, theta, has_validation)
+                better = val < best_val
+                return theta, opt_state, jnp.where(better, theta, best), jnp.where(better, val, best_val)
+
+            return jax.lax.fori_loop(0, n_steps, body, (theta, opt_state, best, best_val))
+
+        return jax.vmap(one)(thetas, opt_states, best, best_val)
+
+    opt_states = jax.vmap(optimiser.init)(thetas)
+    best = thetas
+    best_val = jax.vmap(lambda th: _val(problem, th, has_validation))(thetas)
+    history = []
+    step = 0
+    with _progress_bar(max_steps, progress, f"Adam {problem.kind}") as bar:
+        while step < max_steps:
+            chunk = min(report_every, max_steps - step)
+            thetas, opt_states, best, best_val = run(problem, thetas, opt_states, best, best_val, chunk)
+            step += chunk
+            costs = jax.vmap(lambda th: _loss(problem, th))(thetas)
+            history.append({"step": step, "train_cost": [float(c) for c in costs],
+                            "validation_loss": [float(v) for v in best_val]})
+            bar.n = step
+            bar.refresh()
+    per_start = [{"validation_loss": float(v), "steps": step} for v in best_val]
+    return best, history, per_start
+
+
+def _run_optimistix(problem, thetas, max_steps, has_validation):
+    import optimistix as optx
+
+    solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
+    best, per_start = [], []
+    for theta in thetas:
+        solution = optx.least_squares(
+            lambda th, _: problem.residuals(th), solver, theta, max_steps=max_steps, throw=False
+        )
+        best.append(solution.value)
+        per_start.append({
+            "validation_loss": float(_val(problem, solution.value, has_validation)),
+            "steps": int(solution.stats["num_steps"]),
+            "result": str(solution.result) if solution.result != optx.RESULTS.successful else "successful",
+        })
+    return jnp.stack(best), [], per_start

@@ -1,0 +1,226 @@
+"""The distributed RC network of the paper (Eqs 4–14), discretised for sampled drives.
+
+The strip is divided into compartments k = 0..N (N = 45 by default, so 46
+sections). Each compartment has an electrode resistance RE_k, an interface
+resistance RI_k in series with a double-layer capacitance C_k, and the membrane
+resistance R_M; RE_k, RI_k and C_k grow linearly from clamp to tip
+(Eqs 4–9, attenuation coefficients α_E, α_I, α_C ∈ (0, 1)). Each compartment is a
+first-order section (Eq 10)
+
+    H_k(s) = G_k (s + Z_k) / (s + P_k),
+    G_k = (1 + RE_k/R_M + RE_k/RI_k)^-1                 (Eq 11)
+    Z_k = 1 / (RI_k C_k)                                (Eq 12)
+    P_k = 1 / (C_k (RI_k + RE_k R_M / (RE_k + R_M)))    (Eq 13)
+
+and the network is their product H(s) = Π_k H_k(s) (Eq 14), from the drive
+V_i to the tip voltage V_o.
+
+Discretisation (`method`):
+
+- ``"tustin"`` (default): each section by the bilinear transform of its
+  zero-pole-gain form, s → (2/Δt)(1 − z⁻¹)/(1 + z⁻¹); the cascade runs stage by
+  stage, each stage a `lax.scan` over time (direct form II transposed, the same
+  recursion as `scipy.signal.sosfilt`). Scanning stage-major is ~30× faster than
+  a time-major scan with the 46-stage chain unrolled in its step.
+- ``"zoh"``: the exact response of the continuous network to a zero-order-hold
+  drive, by the matrix exponential of the cascade's state-space realisation.
+
+The network starts at rest (all states zero) before the first sample.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax import lax
+from jaxtyping import Array, Complex, Float
+
+from ._errors import InputError
+from ._parameters import Constraint, Positive, UnitInterval, encode
+from ._simulation import AbstractSimulation
+from ._strip import Strip
+
+Method = Literal["tustin", "zoh"]
+METHODS = ("tustin", "zoh")
+
+
+class RCNetwork(AbstractSimulation):
+    """The paper's RC network (Eqs 4–14) as a differentiable simulation.
+
+    **Arguments:**
+
+    - `xi_rho`: ξρ, interface/metal resistivity ratio (IMRR), dimensionless, > 0.
+    - `xi_h`: ξh, interface/metal thickness ratio (IMTR), dimensionless, > 0.
+      Only ξρ/ξh enters the network (through RI_clamp): fix one of the two.
+    - `alpha_E`, `alpha_I`, `alpha_C`: attenuation coefficients of electrode
+      resistance, interface resistance and capacitance, clamp/tip, in (0, 1).
+    - `C_clamp`: double-layer capacitance at the clamp (F); not given by the paper.
+    - `strip`: geometry and materials ([`hybrid.Strip`][], Table 1 by default).
+    - `n_stages`: N; the network has N + 1 compartments k = 0..N.
+    - `method`: ``"tustin"`` or ``"zoh"`` (see the module docstring).
+    """
+
+    raw: dict[str, Array]
+    strip: Strip = eqx.field(static=True)
+    n_stages: int = eqx.field(static=True)
+    method: str = eqx.field(static=True)
+
+    constraints: ClassVar[dict[str, Constraint]] = {
+        "xi_rho": Positive(),
+        "xi_h": Positive(),
+        "alpha_E": UnitInterval(),
+        "alpha_I": UnitInterval(),
+        "alpha_C": UnitInterval(),
+        "C_clamp": Positive(),
+    }
+    units: ClassVar[dict[str, str]] = {
+        "xi_rho": "1",
+        "xi_h": "1",
+        "alpha_E": "1",
+        "alpha_I": "1",
+        "alpha_C": "1",
+        "C_clamp": "F",
+    }
+
+    def __init__(
+        self,
+        xi_rho: float = 10.0,
+        xi_h: float = 1.0,
+        alpha_E: float = 0.5,
+        alpha_I: float = 0.5,
+        alpha_C: float = 0.5,
+        C_clamp: float = 0.05,
+        *,
+        strip: Strip = Strip(),
+        n_stages: int = 45,
+        method: Method = "tustin",
+    ):
+        if not isinstance(n_stages, int) or n_stages < 1:
+            raise InputError(f"n_stages (N) must be a positive integer, got {n_stages!r}")
+        if method not in METHODS:
+            raise InputError(f"discretisation method must be one of {METHODS}, got {method!r}")
+        values = dict(
+            xi_rho=xi_rho, xi_h=xi_h, alpha_E=alpha_E, alpha_I=alpha_I,
+            alpha_C=alpha_C, C_clamp=C_clamp,
+        )
+        self.raw = encode(values, self.constraints, "RCNetwork")
+        self.strip = strip
+        self.n_stages = n_stages
+        self.method = method
+
+    # --- Eqs 4–9 -------------------------------------------------------------
+    def stage_elements(self) -> dict[str, Float[Array, " stages"]]:
+        """RE_k, RI_k, C_k (Ω, Ω, F) for k = 0..N and R_M (Ω), Eqs 4–9 and Table 1."""
+        p = self.parameters()
+        k = jnp.arange(self.n_stages + 1, dtype=p["C_clamp"].dtype)
+        frac = k / self.n_stages
+        RE_clamp = self.strip.RE_clamp
+        RI_clamp = self.strip.RI_clamp(p["xi_rho"], p["xi_h"])
+        RE = (RE_clamp / p["alpha_E"] - RE_clamp) * frac + RE_clamp
+        RI = (RI_clamp / p["alpha_I"] - RI_clamp) * frac + RI_clamp
+        C = (p["C_clamp"] / p["alpha_C"] - p["C_clamp"]) * frac + p["C_clamp"]
+        return {"RE": RE, "RI": RI, "C": C, "RM": jnp.asarray(self.strip.R_M, RE.dtype)}
+
+    # --- Eqs 10–13 -----------------------------------------------------------
+    def stage_zpk(self) -> tuple[Float[Array, " stages"], Float[Array, " stages"], Float[Array, " stages"]]:
+        """Gain G_k (1), zero Z_k (rad/s) and pole P_k (rad/s) of each section, Eqs 11–13.
+
+        Each section is H_k(s) = G_k (s + Z_k)/(s + P_k): its zero is at s = −Z_k
+        and its pole at s = −P_k.
+        """
+        e = self.stage_elements()
+        RE, RI, C, RM = e["RE"], e["RI"], e["C"], e["RM"]
+        G = 1.0 / (1.0 + RE / RM + RE / RI)
+        Z = 1.0 / (RI * C)
+        P = 1.0 / (C * (RI + RE * RM / (RE + RM)))
+        return G, Z, P
+
+    # --- Eq 14 -----------------------------------------------------------------
+    def frequency_response(self, frequency: Float[Array, " freq"]) -> Complex[Array, " freq"]:
+        """H(j2πf) = Π_k G_k (j2πf + Z_k)/(j2πf + P_k) (Eq 14), `frequency` in Hz."""
+        G, Z, P = self.stage_zpk()
+        s = 2j * jnp.pi * jnp.asarray(frequency)[..., None]
+        return jnp.prod(G * (s + Z) / (s + P), axis=-1)
+
+    def state_space(self):
+        """Continuous realisation (A, B, C, D) of the cascade, one state per section.
+
+        Section k: ẋ_k = −P_k x_k + u_k, y_k = G_k (Z_k − P_k) x_k + G_k u_k, and
+        u_{k+1} = y_k. A is lower triangular; V_o = C x + D V_i.
+        """
+        G, Z, P = self.stage_zpk()
+        n = G.shape[0]
+
+        def section(carry, k):
+            c_in, d_in = carry  # u_k = c_in · x + d_in · V_i
+            row = c_in.at[k].add(-P[k])
+            c_out = G[k] * c_in.at[k].add(Z[k] - P[k])
+            d_out = G[k] * d_in
+            return (c_out, d_out), (row, d_in)
+
+        zero = jnp.zeros(n, G.dtype)
+        (C, D), (A, B) = lax.scan(section, (zero, jnp.ones((), G.dtype)), jnp.arange(n))
+        return A, B, C, D
+
+    # --- time domain -------------------------------------------------------------
+    def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
+        """Tip voltage V_o (V) for the drive `v_in` (V) sampled every `dt` s, from rest."""
+        v_in = jnp.asarray(v_in)
+        if self.method == "tustin":
+            b0, b1, a1 = tustin_sections(*self.stage_zpk(), dt)
+            return cascade_filter(b0, b1, a1, v_in)
+        return zoh_response(*self.state_space(), v_in, dt)
+
+
+def tustin_sections(G, Z, P, dt):
+    """Bilinear transform of G (s + Z)/(s + P) → (b0, b1, a1) of (b0 + b1 z⁻¹)/(1 + a1 z⁻¹).
+
+    With c = 2/Δt: b0 = G (c + Z)/(c + P), b1 = G (Z − c)/(c + P), a1 = (P − c)/(c + P).
+    The discrete zero and pole are (1 − ZΔt/2)/(1 + ZΔt/2) and (1 − PΔt/2)/(1 + PΔt/2),
+    as `scipy.signal.bilinear_zpk` gives.
+    """
+    c = 2.0 / dt
+    den = c + P
+    return G * (c + Z) / den, G * (Z - c) / den, (P - c) / den
+
+
+def _first_order_section(x, coefficients):
+    """One section y[n] = b0 x[n] + s[n−1], s[n] = b1 x[n] − a1 y[n] (DF-II transposed)."""
+    b0, b1, a1 = coefficients
+
+    def step(state, xn):
+        y = b0 * xn + state
+        return b1 * xn - a1 * y, y
+
+    _, y = lax.scan(step, jnp.zeros((), x.dtype), x)
+    return y, None
+
+
+def cascade_filter(b0, b1, a1, x: Float[Array, " time"]) -> Float[Array, " time"]:
+    """Run the first-order sections in series over `x`, stage-major, from rest."""
+    dtype = jnp.result_type(x, b0)
+    y, _ = lax.scan(_first_order_section, x.astype(dtype), (b0, b1, a1))
+    return y
+
+
+def zoh_discretise(A, B, dt):
+    """Exact ZOH discretisation: Ad = e^{AΔt}, Bd = ∫₀^Δt e^{Aτ} dτ B (augmented expm)."""
+    n = A.shape[0]
+    M = jnp.zeros((n + 1, n + 1), A.dtype)
+    M = M.at[:n, :n].set(A).at[:n, n].set(B)
+    E = jax.scipy.linalg.expm(M * dt)
+    return E[:n, :n], E[:n, n]
+
+
+def zoh_response(A, B, C, D, v_in, dt):
+    """Exact sampled response of ẋ = Ax + Bu, y = Cx + Du to a ZOH input, from rest."""
+    Ad, Bd = zoh_discretise(A, B, dt)
+
+    def step(x, u):
+        return Ad @ x + Bd * u, C @ x + D * u
+
+    _, y = lax.scan(step, jnp.zeros(A.shape[0], jnp.result_type(A, v_in)), v_in)
+    return y

@@ -1,0 +1,814 @@
+"""One experiment on the rig: drive voltage in, tip displacement out.
+
+A :class:`Recording` holds the time base ``t`` (s), the drive voltage ``v_in``
+(V) and the tip displacement ``w`` (mm) of one IPMC trial, sampled uniformly
+(the paper's camera runs at 30 frames per second), plus any extra channels and
+JSON-able metadata. It is validated once, when it is built, so everything
+downstream can assume finite, equally long, uniformly sampled arrays.
+
+:meth:`Recording.split` cuts it into the paper's contiguous train / test /
+validation parts (30 %, 50 %, 20 %, Section IV.B), and :meth:`Recording.load` /
+:meth:`Recording.save` read and write ``.csv`` (with a ``<file>.csv.json``
+metadata sidecar), ``.npz`` and ``.mat`` files that round-trip exactly.
+
+Row numbers in messages about arrays count samples from 0; messages about CSV
+files give the line number in the file (from 1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pathlib
+import re
+import zipfile
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from ._errors import InputError
+
+__all__ = ["REQUIRED", "SPLIT_PARTS", "SUFFIXES", "Recording", "Split", "sidecar"]
+
+#: Required channels, in file order.
+REQUIRED: tuple[str, ...] = ("t", "v_in", "w")
+#: Units of the required channels, stored in ``metadata["units"]``.
+UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "mm"}
+#: Names of the parts of a :class:`Split`.
+SPLIT_PARTS: tuple[str, ...] = ("train", "test", "validation")
+#: File suffixes :meth:`Recording.load` and :meth:`Recording.save` understand.
+SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
+#: Largest allowed ``max|dt - median dt| / median dt``; far above the rounding
+#: of 17-digit CSV text, far below a dropped camera frame.
+TIME_RTOL: float = 1e-3
+
+_RESERVED = frozenset((*REQUIRED, "metadata"))
+_NPZ_EXTRA = "extra_"
+_MAT_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")
+_SHOW_ROWS = 5
+
+
+# --------------------------------------------------------------------------- #
+# Small helpers
+# --------------------------------------------------------------------------- #
+
+
+def _rows_text(rows: np.ndarray, word: str = "rows") -> str:
+    """Format the first few of ``rows`` as ``"rows 12, 13 (2 in all)"``."""
+    shown = ", ".join(str(int(r)) for r in rows[:_SHOW_ROWS])
+    more = ", ..." if len(rows) > _SHOW_ROWS else ""
+    return f"{word} {shown}{more} ({len(rows)} in all)"
+
+
+def _as_vector(name: str, column: str, values: Any) -> np.ndarray:
+    """Convert one channel to a read-only float64 copy of shape ``(n,)``.
+
+    Arguments:
+        name: the recording's name, for messages.
+        column: the channel's name, for messages.
+        values: anything ``numpy.asarray`` turns into a 1-D real array.
+
+    Returns:
+        A read-only float64 vector that owns its data.
+    """
+    if values is None:
+        raise InputError(
+            f"recording '{name}' is missing column '{column}': give t, v_in and w"
+        )
+    try:
+        array = np.array(values, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as error:
+        raise InputError(
+            f"recording '{name}' has non-numeric values in column '{column}' "
+            f"({error}): give real numbers only"
+        ) from None
+    if array.ndim != 1:
+        raise InputError(
+            f"recording '{name}' has column '{column}' of shape {array.shape}, "
+            "not a vector: give one value per sample"
+        )
+    array.setflags(write=False)
+    return array
+
+
+def _check_extra_name(name: str, column: Any) -> None:
+    """Reject extra-channel names that no file format could store back."""
+    if not isinstance(column, str) or not column or column != column.strip():
+        raise InputError(
+            f"recording '{name}' has extra channel name {column!r}: use a "
+            "non-empty string without leading or trailing spaces"
+        )
+    if column in _RESERVED:
+        raise InputError(
+            f"recording '{name}' has an extra channel named '{column}', which is "
+            "reserved: rename it (t, v_in, w and metadata are taken)"
+        )
+    if any(c in column for c in ',"\n\r#'):
+        raise InputError(
+            f"recording '{name}' has extra channel name {column!r} with a comma, "
+            "quote, '#' or line break: rename it so it fits a CSV header"
+        )
+
+
+def _check_metadata(name: str, metadata: Any) -> dict:
+    """Return a JSON-normalised deep copy of ``metadata`` with defaults filled in."""
+    if metadata is None:
+        metadata = {}
+    if not isinstance(metadata, Mapping):
+        raise InputError(
+            f"recording '{name}' has metadata of type {type(metadata).__name__}: "
+            "give a dict"
+        )
+    try:
+        copy = json.loads(json.dumps(dict(metadata), allow_nan=False))
+    except (TypeError, ValueError) as error:
+        raise InputError(
+            f"recording '{name}' has metadata that is not JSON-able ({error}): "
+            "use only dicts, lists, strings, finite numbers, booleans and None"
+        ) from None
+    copy.setdefault("units", dict(UNITS))
+    copy.setdefault("source", name)
+    if "strip" in copy and not isinstance(copy["strip"], dict):
+        raise InputError(
+            f"recording '{name}' has metadata 'strip' of type "
+            f"{type(copy['strip']).__name__}: give the strip geometry as a dict"
+        )
+    return copy
+
+
+def _check_finite(name: str, column: str, values: np.ndarray) -> None:
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise InputError(
+            f"recording '{name}' has non-finite values in column '{column}' at "
+            f"{_rows_text(bad)}: remove or interpolate them"
+        )
+
+
+def _check_time(name: str, t: np.ndarray) -> None:
+    """Require strictly increasing, uniformly spaced sample times."""
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0) + 1
+    if bad.size:
+        raise InputError(
+            f"recording '{name}' has time that does not strictly increase at "
+            f"{_rows_text(bad)}: sort the samples and drop repeated times"
+        )
+    step = float(np.median(dt))
+    deviation = np.abs(dt - step)
+    worst = int(np.argmax(deviation))
+    if deviation[worst] > TIME_RTOL * step:
+        raise InputError(
+            f"recording '{name}' has non-uniform time steps: the step into row "
+            f"{worst + 1} is {dt[worst]:.6g} s but the median step is {step:.6g} s "
+            f"(tolerance {TIME_RTOL:.0e} relative): resample onto a uniform grid "
+            "or rebuild t from the sampling rate"
+        )
+
+
+def _source_name(metadata: Any) -> str:
+    if isinstance(metadata, Mapping) and isinstance(metadata.get("source"), str):
+        return metadata["source"]
+    return "<arrays>"
+
+
+# --------------------------------------------------------------------------- #
+# Recording
+# --------------------------------------------------------------------------- #
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Recording:
+    """One uniformly sampled IPMC experiment.
+
+    Arrays are copied to read-only float64 vectors and validated on
+    construction; every problem raises :class:`~hybrid._errors.InputError`.
+
+    Arguments:
+        t: sample times, s, shape ``(n,)``, strictly increasing and uniform
+            (steps within ``TIME_RTOL`` of their median).
+        v_in: drive voltage applied to the strip, V, shape ``(n,)``.
+        w: tip displacement, mm, shape ``(n,)`` (the target of Eqs 18-20).
+        extra: further channels by name, each shape ``(n,)``, in a fixed order
+            (e.g. measured current, temperature); names are case-sensitive.
+        metadata: JSON-able dict; ``"units"`` ({"t": "s", "v_in": "V",
+            "w": "mm"}) and ``"source"`` are filled in when missing, an optional
+            ``"strip"`` dict holds the strip geometry, anything else is kept.
+        name: how messages refer to this recording (the file path when
+            loaded); defaults to ``metadata["source"]``. Not part of equality.
+    """
+
+    t: np.ndarray
+    v_in: np.ndarray
+    w: np.ndarray
+    extra: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    metadata: dict = dataclasses.field(default_factory=dict)
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        name = self.name or _source_name(self.metadata)
+        object.__setattr__(self, "name", name)
+        columns = {c: _as_vector(name, c, getattr(self, c)) for c in REQUIRED}
+        if not isinstance(self.extra, Mapping):
+            raise InputError(
+                f"recording '{name}' has extra channels of type "
+                f"{type(self.extra).__name__}: give a dict of name -> array"
+            )
+        extra = {}
+        for column, values in self.extra.items():
+            _check_extra_name(name, column)
+            extra[column] = _as_vector(name, column, values)
+        lengths = {c: len(v) for c, v in {**columns, **extra}.items()}
+        if len(set(lengths.values())) > 1:
+            listed = ", ".join(f"{c}={k}" for c, k in lengths.items())
+            raise InputError(
+                f"recording '{name}' has columns of different lengths ({listed}): "
+                "give every channel one value per sample"
+            )
+        if lengths["t"] < 2:
+            raise InputError(
+                f"recording '{name}' has {lengths['t']} sample(s): a recording "
+                "needs at least 2 samples"
+            )
+        for column, values in {**columns, **extra}.items():
+            _check_finite(name, column, values)
+        _check_time(name, columns["t"])
+        for column, values in columns.items():
+            object.__setattr__(self, column, values)
+        object.__setattr__(self, "extra", extra)
+        object.__setattr__(self, "metadata", _check_metadata(name, self.metadata))
+
+    # ----------------------------------------------------------------- build
+
+    @classmethod
+    def from_arrays(
+        cls,
+        t: Any = None,
+        v_in: Any = None,
+        w: Any = None,
+        rate: float | None = None,
+        *,
+        t0: float = 0.0,
+        extra: Mapping[str, Any] | None = None,
+        metadata: Mapping[str, Any] | None = None,
+        name: str = "",
+    ) -> Recording:
+        """Build a recording, making the time base from ``rate`` when ``t`` is None.
+
+        Arguments:
+            t: sample times, s; give either this or ``rate``.
+            v_in: drive voltage, V.
+            w: tip displacement, mm.
+            rate: sampling rate, Hz; ``t = t0 + arange(n) / rate``.
+            t0: time of the first sample, s, when ``t`` is built from ``rate``.
+            extra: extra channels by name.
+            metadata: JSON-able metadata (see :class:`Recording`).
+            name: how messages refer to the recording.
+
+        Returns:
+            The validated :class:`Recording`.
+        """
+        label = name or _source_name(metadata)
+        if (t is None) == (rate is None):
+            raise InputError(
+                f"recording '{label}' needs exactly one of t and rate: give the "
+                "sample times or the sampling rate in Hz, not both or neither"
+            )
+        if t is None:
+            if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
+                raise InputError(
+                    f"recording '{label}' has sampling rate {rate!r}: give a "
+                    "positive number of Hz"
+                )
+            n = len(_as_vector(label, "w", w))
+            t = t0 + np.arange(n, dtype=np.float64) / float(rate)
+        return cls(t, v_in, w, dict(extra or {}), dict(metadata or {}), name)
+
+    # ------------------------------------------------------------ properties
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return len(self.t)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def dt(self) -> float:
+        """Sampling step, s: the median of the time steps."""
+        return float(np.median(np.diff(self.t)))
+
+    @property
+    def rate(self) -> float:
+        """Sampling rate, Hz: ``1 / dt``."""
+        return 1.0 / self.dt
+
+    @property
+    def duration(self) -> float:
+        """Time covered, s: ``n * dt`` (last minus first sample time, plus one step)."""
+        return self.n * self.dt
+
+    @property
+    def channels(self) -> dict[str, np.ndarray]:
+        """All channels in file order: t, v_in, w, then the extras."""
+        return {"t": self.t, "v_in": self.v_in, "w": self.w, **self.extra}
+
+    def __eq__(self, other: object) -> bool:
+        """Exact equality of every channel (names and order) and of the metadata."""
+        if not isinstance(other, Recording):
+            return NotImplemented
+        mine, theirs = self.channels, other.channels
+        return (
+            list(mine) == list(theirs)
+            and all(np.array_equal(mine[c], theirs[c]) for c in mine)
+            and self.metadata == other.metadata
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        extra = f", extra={list(self.extra)}" if self.extra else ""
+        return (
+            f"Recording(name={self.name!r}, n={self.n}, rate={self.rate:.6g} Hz, "
+            f"duration={self.duration:.6g} s{extra})"
+        )
+
+    # ---------------------------------------------------------------- checks
+
+    def check_length(
+        self,
+        min_samples: int,
+        what: str = "the model's input window",
+        fix: str = "record longer or use a shorter window (--window)",
+    ) -> Recording:
+        """Require at least ``min_samples`` samples.
+
+        Arguments:
+            min_samples: the fewest samples the caller can work with.
+            what: what needs them, for the message.
+            fix: how to fix a short recording, for the message.
+
+        Returns:
+            This recording, so the check can be chained.
+        """
+        if self.n < min_samples:
+            raise InputError(
+                f"recording '{self.name}' has {self.n} samples but {what} needs "
+                f"at least {min_samples}: {fix}"
+            )
+        return self
+
+    # ---------------------------------------------------------------- slicing
+
+    def segment(self, index: slice) -> Recording:
+        """The contiguous part of the recording selected by ``index``.
+
+        Arguments:
+            index: a slice with step 1 (or None), e.g. ``slice(100, 400)``.
+
+        Returns:
+            A new :class:`Recording`; its metadata gains ``"segment":
+            {"start", "stop"}``, sample indices into the original recording
+            (composed when segmenting a segment).
+        """
+        if not isinstance(index, slice) or index.step not in (None, 1):
+            raise InputError(
+                f"recording '{self.name}' was asked for segment {index!r}: give a "
+                "slice with step 1, e.g. slice(100, 400)"
+            )
+        start, stop, _ = index.indices(self.n)
+        if stop - start < 2:
+            raise InputError(
+                f"recording '{self.name}' segment {start}:{stop} has "
+                f"{max(stop - start, 0)} sample(s): a segment needs at least 2"
+            )
+        metadata = dict(self.metadata)
+        previous = metadata.get("segment")
+        offset = int(previous.get("start", 0)) if isinstance(previous, dict) else 0
+        metadata["segment"] = {"start": offset + start, "stop": offset + stop}
+        return Recording(
+            self.t[start:stop],
+            self.v_in[start:stop],
+            self.w[start:stop],
+            {c: v[start:stop] for c, v in self.extra.items()},
+            metadata,
+            self.name,
+        )
+
+    def split(
+        self,
+        fractions: Sequence[float] = (0.3, 0.5, 0.2),
+        order: Sequence[str] = ("train", "test", "validation"),
+    ) -> Split:
+        """Cut into contiguous train / test / validation parts, in time order.
+
+        The paper (Section IV.B) splits 30 % / 50 % / 20 %; by default the
+        first 30 % of the samples train, the next 50 % test and the last 20 %
+        validate. Boundaries are ``round(cumsum(fractions) * n)``.
+
+        Arguments:
+            fractions: positive shares of the samples, summing to 1, one per
+                entry of ``order``.
+            order: the parts in time order, a permutation of
+                ``("train", "test", "validation")``.
+
+        Returns:
+            A :class:`Split` with the three recordings and their index ranges.
+        """
+        order = tuple(order)
+        fractions = _check_fractions(self.name, fractions, order)
+        bounds = [0, *(round(f * self.n) for f in np.cumsum(fractions)[:-1]), self.n]
+        slices = {part: slice(bounds[i], bounds[i + 1]) for i, part in enumerate(order)}
+        short = {p: s.stop - s.start for p, s in slices.items() if s.stop - s.start < 2}
+        if short:
+            listed = ", ".join(f"{p} {k}" for p, k in short.items())
+            raise InputError(
+                f"recording '{self.name}' with {self.n} samples is too short to "
+                f"split by {list(fractions)} (samples: {listed}): every part needs "
+                "at least 2 samples, so record longer or change the fractions"
+            )
+        parts = {p: self._part(p, s) for p, s in slices.items()}
+        return Split(**parts, slices=slices)
+
+    def _part(self, part: str, index: slice) -> Recording:
+        segment = self.segment(index)
+        metadata = dict(segment.metadata)
+        metadata["split"] = part
+        return dataclasses.replace(segment, metadata=metadata)
+
+    # -------------------------------------------------------------------- I/O
+
+    @classmethod
+    def load(cls, path: str | pathlib.Path) -> Recording:
+        """Read a recording from a ``.csv``, ``.npz`` or ``.mat`` file.
+
+        * ``.csv``: lines starting with ``#`` and blank lines are skipped; the
+          first other line is the header, which must name ``t``, ``v_in`` and
+          ``w`` exactly (case-sensitive); other columns become extra channels
+          in order. Metadata comes from the sidecar ``<file>.csv.json`` when
+          it exists.
+        * ``.npz``: arrays ``t``, ``v_in``, ``w``; ``extra_<name>`` (and any
+          other array) become extra channels; ``metadata`` is a JSON string.
+        * ``.mat``: vector variables ``t``, ``v_in``, ``w``; other vector
+          variables become extra channels; ``metadata`` is a JSON string.
+
+        Arguments:
+            path: the file.
+
+        Returns:
+            The validated :class:`Recording`, named by ``path``.
+        """
+        path = pathlib.Path(path)
+        reader = {".csv": _load_csv, ".npz": _load_npz, ".mat": _load_mat}[
+            _suffix(path)
+        ]
+        if not path.exists():
+            raise InputError(f"recording file '{path}' does not exist: check the path")
+        if not path.is_file():
+            raise InputError(f"recording file '{path}' is not a file: give a file path")
+        if path.stat().st_size == 0:
+            raise InputError(
+                f"recording file '{path}' is empty: give a file with a header and data"
+            )
+        columns, metadata = reader(path)
+        metadata.setdefault("source", str(path))
+        extra = {c: v for c, v in columns.items() if c not in REQUIRED}
+        return cls(columns["t"], columns["v_in"], columns["w"], extra, metadata, str(path))
+
+    def save(self, path: str | pathlib.Path) -> pathlib.Path:
+        """Write the recording so that :meth:`load` gives it back exactly.
+
+        ``.csv`` files hold every channel at 17 significant digits and get a
+        ``<file>.csv.json`` metadata sidecar next to them; ``.mat`` files need
+        extra channel names that are MATLAB identifiers.
+
+        Arguments:
+            path: the file to write; its suffix picks the format.
+
+        Returns:
+            The path written.
+        """
+        path = pathlib.Path(path)
+        writer = {".csv": _save_csv, ".npz": _save_npz, ".mat": _save_mat}[_suffix(path)]
+        try:
+            writer(self, path)
+        except OSError as error:
+            raise InputError(
+                f"cannot write recording '{path}' ({error.strerror or error}): check "
+                "that the folder exists and is writable"
+            ) from None
+        return path
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Split:
+    """A recording cut into contiguous train / test / validation parts.
+
+    Arguments:
+        train: the part used to fit the model.
+        test: the part used to evaluate it.
+        validation: the part used for early stopping / model selection.
+        slices: each part's sample range in the original recording.
+    """
+
+    train: Recording
+    test: Recording
+    validation: Recording
+    slices: dict[str, slice]
+
+    def __getitem__(self, part: str) -> Recording:
+        if part not in SPLIT_PARTS:
+            raise InputError(
+                f"split has no part {part!r}: use one of {', '.join(SPLIT_PARTS)}"
+            )
+        return getattr(self, part)
+
+    def items(self) -> list[tuple[str, Recording]]:
+        """The parts as ``(name, recording)`` pairs, in time order."""
+        ordered = sorted(self.slices, key=lambda p: self.slices[p].start)
+        return [(p, getattr(self, p)) for p in ordered]
+
+
+def _check_fractions(
+    name: str, fractions: Sequence[float], order: tuple[str, ...]
+) -> tuple[float, ...]:
+    """Validate split fractions and order; return the fractions as floats."""
+    if sorted(order) != sorted(SPLIT_PARTS):
+        raise InputError(
+            f"split order {list(order)} for recording '{name}' is not a "
+            "permutation of train, test and validation: name each part once"
+        )
+    try:
+        values = tuple(float(f) for f in fractions)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"split fractions {fractions!r} for recording '{name}' are not "
+            "numbers: give three positive numbers that sum to 1"
+        ) from None
+    if len(values) != len(order):
+        raise InputError(
+            f"split has {len(values)} fractions for {len(order)} parts: give one "
+            "fraction per part of the order"
+        )
+    if not all(math.isfinite(f) and f > 0 for f in values):
+        raise InputError(
+            f"split fractions {list(values)} are not all positive: give every "
+            "part a positive share"
+        )
+    if abs(sum(values) - 1.0) > 1e-9:
+        raise InputError(
+            f"split fractions {list(values)} sum to {sum(values):.6g}, not 1: "
+            "scale them so they sum to 1"
+        )
+    return values
+
+
+# --------------------------------------------------------------------------- #
+# File formats
+# --------------------------------------------------------------------------- #
+
+
+def _suffix(path: pathlib.Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in SUFFIXES:
+        raise InputError(
+            f"recording '{path}' has unknown suffix '{path.suffix}': use "
+            + ", ".join(SUFFIXES)
+        )
+    return suffix
+
+
+def sidecar(path: str | pathlib.Path) -> pathlib.Path:
+    """The metadata sidecar of a CSV recording: ``run.csv`` -> ``run.csv.json``."""
+    path = pathlib.Path(path)
+    return path.with_name(path.name + ".json")
+
+
+def _require(path: pathlib.Path, found: Sequence[str], kind: str) -> None:
+    missing = [c for c in REQUIRED if c not in found]
+    if missing:
+        shown = ", ".join(f"'{c}'" for c in found) or "none"
+        raise InputError(
+            f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
+            f"{shown}): name them exactly t, v_in and w (case-sensitive)"
+        )
+
+
+def _parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:
+    try:
+        metadata = json.loads(text)
+    except ValueError as error:
+        raise InputError(
+            f"recording '{path}' has unreadable metadata in {where} ({error}): "
+            "fix the JSON or delete it"
+        ) from None
+    if not isinstance(metadata, dict):
+        raise InputError(
+            f"recording '{path}' has metadata in {where} that is not a JSON "
+            "object: write it as {...}"
+        )
+    return metadata
+
+
+# ------------------------------------------------------------------- CSV
+
+
+def _read_text(path: pathlib.Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8-sig")  # -sig: Excel's byte-order mark
+    except UnicodeDecodeError:
+        raise InputError(
+            f"recording '{path}' is not UTF-8 text: save it as a plain CSV file"
+        ) from None
+    except OSError as error:
+        raise InputError(
+            f"recording '{path}' cannot be read ({error.strerror or error}): check "
+            "its permissions"
+        ) from None
+
+
+def _csv_lines(path: pathlib.Path) -> list[tuple[int, str]]:
+    """Non-blank, non-comment lines with their line numbers (from 1)."""
+    lines = []
+    for number, line in enumerate(_read_text(path).splitlines(), start=1):
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            lines.append((number, stripped))
+    return lines
+
+
+def _csv_header(path: pathlib.Path, line: str) -> list[str]:
+    header = [cell.strip().strip('"').strip() for cell in line.split(",")]
+    if any(not cell for cell in header):
+        raise InputError(
+            f"recording '{path}' has an empty column name in its header: name "
+            "every column"
+        )
+    repeated = sorted({c for c in header if header.count(c) > 1})
+    if repeated:
+        raise InputError(
+            f"recording '{path}' names column(s) {', '.join(repeated)} more than "
+            "once: give each column a unique name"
+        )
+    _require(path, header, "column(s)")
+    return header
+
+
+def _csv_column(
+    path: pathlib.Path, column: str, cells: list[str], numbers: np.ndarray
+) -> np.ndarray:
+    """Convert one column of cells, naming the first bad cell and its line."""
+    try:
+        values = np.array(cells, dtype=np.float64)
+    except ValueError:
+        for cell, number in zip(cells, numbers):
+            try:
+                float(cell)
+            except ValueError:
+                raise InputError(
+                    f"recording '{path}' has non-numeric cell {cell!r} at line "
+                    f"{number}, column '{column}': fix or remove that line"
+                ) from None
+        raise  # pragma: no cover - numpy and float() disagree
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise InputError(
+            f"recording '{path}' has non-finite values in column '{column}' at "
+            f"{_rows_text(numbers[bad], 'lines')}: remove or interpolate them"
+        )
+    return values
+
+
+def _load_csv(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
+    lines = _csv_lines(path)
+    if not lines:
+        raise InputError(
+            f"recording '{path}' has no header or data: give a header line "
+            "t,v_in,w and one line per sample"
+        )
+    header = _csv_header(path, lines[0][1])
+    rows, numbers = [], []
+    for number, line in lines[1:]:
+        cells = [cell.strip() for cell in line.split(",")]
+        if len(cells) != len(header):
+            raise InputError(
+                f"recording '{path}' has {len(cells)} cells at line {number} but "
+                f"{len(header)} columns in its header: make every line match the header"
+            )
+        rows.append(cells)
+        numbers.append(number)
+    if not rows:
+        raise InputError(
+            f"recording '{path}' has a header but no data lines: add one line "
+            "per sample"
+        )
+    numbers = np.asarray(numbers)
+    columns = {
+        c: _csv_column(path, c, [row[i] for row in rows], numbers)
+        for i, c in enumerate(header)
+    }
+    meta_path = sidecar(path)
+    metadata = {}
+    if meta_path.exists():
+        metadata = _parse_metadata(path, _read_text(meta_path), f"'{meta_path.name}'")
+    return columns, metadata
+
+
+def _save_csv(recording: Recording, path: pathlib.Path) -> None:
+    channels = recording.channels
+    table = np.column_stack(list(channels.values()))
+    np.savetxt(path, table, fmt="%.17g", delimiter=",", header=",".join(channels), comments="")
+    sidecar(path).write_text(json.dumps(recording.metadata, indent=2) + "\n", encoding="utf-8")
+
+
+# ------------------------------------------------------------------- NPZ
+
+
+def _load_npz(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            arrays = {key: archive[key] for key in archive.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        raise InputError(
+            f"recording '{path}' is not a readable .npz archive ({error}): save it "
+            "with numpy.savez or Recording.save"
+        ) from None
+    metadata = {}
+    if "metadata" in arrays:
+        metadata = _parse_metadata(path, str(arrays.pop("metadata")[()]), "its 'metadata' entry")
+    _require(path, list(arrays), "array(s)")
+    columns = {}
+    for key, values in arrays.items():
+        column = key[len(_NPZ_EXTRA):] if key.startswith(_NPZ_EXTRA) else key
+        columns[column] = _file_vector(path, key, values)
+    return columns, metadata
+
+
+def _save_npz(recording: Recording, path: pathlib.Path) -> None:
+    arrays = {"t": recording.t, "v_in": recording.v_in, "w": recording.w}
+    arrays |= {_NPZ_EXTRA + c: v for c, v in recording.extra.items()}
+    arrays["metadata"] = np.array(json.dumps(recording.metadata))
+    with open(path, "wb") as handle:  # an open file stops numpy appending .npz
+        np.savez(handle, **arrays)
+
+
+# ------------------------------------------------------------------- MAT
+
+
+def _file_vector(path: pathlib.Path, key: str, values: np.ndarray) -> np.ndarray:
+    """Check that a stored variable is a real numeric vector; return it flat."""
+    values = np.asarray(values)
+    if values.dtype.kind not in "biuf":
+        raise InputError(
+            f"recording '{path}' has variable '{key}' of type {values.dtype} "
+            "rather than real numbers: store numeric vectors only"
+        )
+    if values.ndim > 1 and sum(k > 1 for k in values.shape) > 1:
+        raise InputError(
+            f"recording '{path}' has variable '{key}' of shape {values.shape}, "
+            "not a vector: store one value per sample"
+        )
+    return values.reshape(-1)
+
+
+def _load_mat(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
+    import scipy.io
+
+    try:
+        variables = scipy.io.loadmat(str(path))
+    except Exception as error:  # scipy raises many types for broken files
+        raise InputError(
+            f"recording '{path}' is not a readable .mat file ({error}): save it "
+            "with MATLAB's save or Recording.save"
+        ) from None
+    variables = {k: v for k, v in variables.items() if not k.startswith("__")}
+    metadata = {}
+    if "metadata" in variables:
+        text = variables.pop("metadata")
+        if text.dtype.kind != "U" or text.size != 1:
+            raise InputError(
+                f"recording '{path}' has a 'metadata' variable that is not one "
+                "string: store the metadata as a JSON char array"
+            )
+        metadata = _parse_metadata(path, str(text.reshape(-1)[0]), "its 'metadata' variable")
+    _require(path, list(variables), "variable(s)")
+    columns = {key: _file_vector(path, key, values) for key, values in variables.items()}
+    return columns, metadata
+
+
+def _save_mat(recording: Recording, path: pathlib.Path) -> None:
+    import scipy.io
+
+    bad = [c for c in recording.extra if not _MAT_NAME.fullmatch(c)]
+    if bad:
+        raise InputError(
+            f"recording '{recording.name}' has extra channel(s) {', '.join(bad)} "
+            "that are not MATLAB variable names: rename them (letter first, then "
+            "letters, digits or _, at most 63) or save as .csv or .npz"
+        )
+    variables: dict[str, Any] = dict(recording.channels)
+    variables["metadata"] = json.dumps(recording.metadata)  # ASCII: MATLAB-safe
+    scipy.io.savemat(str(path), variables, oned_as="column")

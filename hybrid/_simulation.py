@@ -1,0 +1,81 @@
+"""The physics-simulation interface: anything that turns a drive into a mediatory signal.
+
+A simulation is an `eqx.Module` with named, constrained parameters (see
+[`hybrid._parameters`][]) and `simulate(v_in, dt) -> signal`. The fitter, the
+models and the CLI only use this interface, so the paper's RC network is one
+implementation among others (an effect that wraps a simulation is itself one).
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._errors import InputError
+from ._parameters import Constraint, decode, encode
+
+
+class AbstractSimulation(eqx.Module):
+    """A physics simulation with named, constrained parameters.
+
+    Subclasses declare `constraints` (a class-level dict name → Constraint) and
+    hold the unconstrained values in `raw`.
+    """
+
+    raw: eqx.AbstractVar[dict[str, Array]]
+    constraints: ClassVar[dict[str, Constraint]]
+    units: ClassVar[dict[str, str]]
+
+    @abc.abstractmethod
+    def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
+        """Mediatory signal for the drive `v_in` (V) sampled every `dt` seconds."""
+
+    def parameters(self) -> dict[str, Array]:
+        """Physical values of the parameters, by name (units in `units`)."""
+        return decode(self.raw, self.constraints)
+
+    def replace(self, **values) -> "AbstractSimulation":
+        """A copy with some parameters set to new physical values."""
+        current = {k: v for k, v in self.parameters().items()}
+        unknown = set(values) - set(current)
+        if unknown:
+            raise InputError(
+                f"{type(self).__name__} has no parameter(s) {sorted(unknown)}: "
+                f"its parameters are {sorted(current)}"
+            )
+        current.update(values)
+        raw = encode(current, self.constraints, type(self).__name__)
+        return eqx.tree_at(lambda s: s.raw, self, raw)
+
+    def trainable(self, frozen: frozenset[str]) -> "AbstractSimulation":
+        """Filter spec (same structure, bools) marking the free parameters."""
+        spec = {name: name not in frozen for name in self.raw}
+        return eqx.tree_at(
+            lambda s: s.raw,
+            _all(self, False),
+            spec,
+        )
+
+
+class Passthrough(AbstractSimulation):
+    """No physics: the mediatory signal is the drive itself (the paper's Normal model)."""
+
+    raw: dict[str, Array]
+    constraints: ClassVar[dict[str, Constraint]] = {}
+    units: ClassVar[dict[str, str]] = {}
+
+    def __init__(self):
+        self.raw = {}
+
+    def simulate(self, v_in, dt):
+        return jnp.asarray(v_in)
+
+
+def _all(tree, value: bool):
+    import jax
+
+    return jax.tree_util.tree_map(lambda _: value, tree)
