@@ -220,8 +220,17 @@ def sine(
     frequency: float = 0.2,
     offset: float = 0.0,
     phase: float = 0.0,
+    modulation_depth: float = 0.0,
+    modulation_period: float = 60.0,
 ) -> Drive:
-    """A sine wave, ``v = offset + amplitude * sin(2 pi frequency t + phase)``.
+    """A sine wave, ``v = offset + a(t) * sin(2 pi frequency t + phase)``.
+
+    With the default ``modulation_depth = 0`` the amplitude is constant,
+    ``a(t) = amplitude``. Otherwise it is slowly modulated,
+    ``a(t) = amplitude * (1 - depth/2 * (1 - cos(2 pi t / modulation_period)))``,
+    between ``amplitude`` and ``(1 - depth) * amplitude``: at a periodic steady
+    state a 2 s window of a pure sine fixes its phase, so only a varying
+    amplitude makes history older than the window (slow charge dynamics) matter.
 
     Arguments:
         duration: length, s.
@@ -230,6 +239,8 @@ def sine(
         frequency: Hz, in (0, rate / 2).
         offset: DC offset, V.
         phase: phase at t = 0, rad.
+        modulation_depth: relative depth of the amplitude modulation, in [0, 1].
+        modulation_period: period of the amplitude modulation, s (> 0).
 
     Returns:
         The :class:`Drive`, name ``"sine"``.
@@ -239,10 +250,18 @@ def sine(
     frequency = _frequency("sine", "frequency", frequency, rate)
     offset = _number("sine", "offset", offset)
     phase = _number("sine", "phase", phase)
-    v = offset + amplitude * np.sin(2 * np.pi * frequency * t + phase)
+    modulation_depth = _number("sine", "modulation_depth", modulation_depth)
+    modulation_period = _number("sine", "modulation_period", modulation_period)
+    if not 0.0 <= modulation_depth <= 1.0:
+        raise InputError(f"sine drive modulation_depth must be in [0, 1], got {modulation_depth!r}")
+    if not modulation_period > 0:
+        raise InputError(f"sine drive modulation_period must be > 0 s, got {modulation_period!r}")
+    envelope = 1.0 - 0.5 * modulation_depth * (1.0 - np.cos(2 * np.pi * t / modulation_period))
+    v = offset + amplitude * envelope * np.sin(2 * np.pi * frequency * t + phase)
     params = dict(
         duration=duration, rate=rate, amplitude=amplitude, frequency=frequency,
-        offset=offset, phase=phase,
+        offset=offset, phase=phase, modulation_depth=modulation_depth,
+        modulation_period=modulation_period,
     )
     return Drive(t, v, "sine", params)
 
@@ -264,13 +283,17 @@ def chirp(
     f0: float = 0.02,
     f1: float = 2.0,
     method: str = "logarithmic",
+    sweep_period: float | None = None,
 ) -> Drive:
     """A swept sine, ``v = amplitude * sin(phi(t))``, starting at phase 0.
 
     The instantaneous frequency ``phi'(t) / 2 pi`` goes from ``f0`` at t = 0 to
-    ``f1`` at t = duration: linearly, ``f0 + (f1 - f0) t / T``, or
+    ``f1`` at t = T: linearly, ``f0 + (f1 - f0) t / T``, or
     logarithmically (exponentially in time), ``f0 (f1 / f0) ** (t / T)``,
     which spends equal time per decade (the default, for 0.02-2 Hz).
+    T is the whole duration (one sweep) unless ``sweep_period`` is given: then
+    the sweep restarts every ``sweep_period`` seconds (phase kept continuous),
+    so that every contiguous part of a long recording holds every frequency.
 
     Arguments:
         duration: length T, s.
@@ -279,6 +302,7 @@ def chirp(
         f0: start frequency, Hz, in (0, rate / 2).
         f1: end frequency, Hz, in (0, rate / 2); may be below f0.
         method: ``"logarithmic"`` or ``"linear"``.
+        sweep_period: seconds per sweep, or None for one sweep over the duration.
 
     Returns:
         The :class:`Drive`, name ``"chirp"``.
@@ -289,8 +313,15 @@ def chirp(
     f1 = _frequency("chirp", "f1", f1, rate)
     if method not in ("logarithmic", "linear"):
         raise InputError(f"chirp drive method={method!r} is unknown: use 'logarithmic' or 'linear'")
-    v = amplitude * np.sin(_chirp_phase(t, f0, f1, duration, method))
-    params = dict(duration=duration, rate=rate, amplitude=amplitude, f0=f0, f1=f1, method=method)
+    period = duration if sweep_period is None else _number("chirp", "sweep_period", sweep_period)
+    if not period > 0:
+        raise InputError(f"chirp drive sweep_period must be > 0 s, got {sweep_period!r}")
+    sweeps, within = np.divmod(t, period)
+    phase = _chirp_phase(within, f0, f1, period, method)
+    phase = phase + sweeps * _chirp_phase(np.array(period), f0, f1, period, method)
+    v = amplitude * np.sin(phase)
+    params = dict(duration=duration, rate=rate, amplitude=amplitude, f0=f0, f1=f1, method=method,
+                  sweep_period=sweep_period)
     return Drive(t, v, "chirp", params)
 
 

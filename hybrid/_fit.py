@@ -6,11 +6,13 @@ Solvers:
   ([`hybrid._levenberg_marquardt`][]), several starts `vmap`-ed in one program.
 - ``"optimistix"``: `optimistix.LevenbergMarquardt` on the flattened parameters,
   Jacobian by autodiff of the whole model — fine for the physics-only model
-  (a handful of parameters), slow for the D-MLP models.
+  (a handful of parameters), slow for the D-MLP models. It returns its final
+  iterate (validation only picks among starts).
 - ``"adam"``: `optax.adam` on ½‖r‖², with the same validation bookkeeping.
 
 The training split drives the optimiser; the validation split picks the best
 iterate of each start and the best start; the test split is only reported.
+The D-MLP's fixed input/output scalings are those of start 0 for every start.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ def fit(
     split=(0.3, 0.5, 0.2),
     split_order=("train", "test", "validation"),
     patience: int = 40,
+    weight_decay: float = 0.0,
     learning_rate: float = 3e-3,
     perturbation: float = 0.5,
     seed: int = 0,
@@ -68,6 +71,9 @@ def fit(
     - `split`, `split_order`: fractions and order of the contiguous splits
       (paper: train 30 %, test 50 %, validation 20 %).
     - `patience`: LM stops after this many accepted steps without validation gain.
+    - `weight_decay`: μ, ridge penalty ½ μ ‖θ_network‖² on black-box readout weights
+      (D-MLP); residuals are in units of the training std of w, so μ is relative
+      to one sample's squared error. 0 disables it.
     - `learning_rate`: Adam's step size.
     - `seed`: seeds the extra starts.
     - `progress`: show a progress bar on stderr.
@@ -83,14 +89,20 @@ def fit(
     if not isinstance(max_steps, int) or max_steps < 1:
         raise InputError(f"max_steps must be a positive integer, got {max_steps!r}")
     recordings = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
+    if not recordings:
+        raise InputError("no recordings to fit: pass at least one recording")
     frozen = frozenset(frozen)
     for i, recording in enumerate(recordings):
         recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
     series = [series_from_recording(r, split, split_order) for r in recordings]
+    train_w = np.concatenate([np.asarray(s.target("train")) for s in series])
+    if not np.ptp(train_w) > 0:
+        raise InputError("the training part of the recording(s) has constant w: "
+                         "there is nothing to fit (check the displacement column)")
     has_validation = "validation" in split_order
 
     initial = [_start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
-    problem = Problem(initial[0], series, frozen)
+    problem = Problem(initial[0], series, frozen, weight_decay)
     thetas = jnp.stack([problem.flatten(m, frozen) for m in initial])
 
     if solver == "lm":
@@ -110,7 +122,7 @@ def fit(
     settings = {
         "solver": solver, "starts": starts, "max_steps": max_steps, "frozen": sorted(frozen),
         "split": dict(zip(split_order, map(float, split))), "patience": patience,
-        "seed": seed, "perturbation": perturbation, "n_parameters": int(thetas.shape[1]),
+        "seed": seed, "perturbation": perturbation, "weight_decay": problem.weight_decay, "n_parameters": int(thetas.shape[1]),
         "n_residuals": int(problem.target("train").shape[0]),
         "recordings": [r.metadata.get("source", "") for r in recordings],
     }
@@ -209,8 +221,7 @@ def _run_lm(problem, thetas, max_steps, patience, has_validation, progress, repo
 
 
 def _loss(problem, theta):
-    r = problem.residuals(theta)
-    return 0.5 * jnp.sum(r * r)
+    return problem.cost(theta)
 
 
 def _val(problem, theta, has_validation):

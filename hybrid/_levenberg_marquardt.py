@@ -68,8 +68,14 @@ class LMState(eqx.Module):
 
 
 def _normal_equations(problem, theta):
+    """Cost, JᵀJ and Jᵀr, with the weight-decay rows √μ θ_network folded in."""
     r, J = problem.residuals_and_jacobian(theta)
-    return 0.5 * jnp.sum(r * r), J.T @ J, J.T @ r
+    JtJ, g = J.T @ J, J.T @ r
+    if problem.weight_decay:
+        mask = problem.penalty_mask(theta)
+        JtJ = JtJ + jnp.diag(problem.weight_decay * mask)
+        g = g + problem.weight_decay * mask * theta
+    return problem.cost(theta), JtJ, g
 
 
 def _validation_loss(problem, theta, has_validation):
@@ -103,8 +109,7 @@ def lm_step(problem, state: LMState, settings: LMSettings, has_validation=True) 
     factor = jax.scipy.linalg.cho_factor(A)
     delta = -jax.scipy.linalg.cho_solve(factor, state.g)
     theta_new = state.theta + delta
-    r_new = problem.residuals(theta_new)
-    cost_new = 0.5 * jnp.sum(r_new * r_new)
+    cost_new = problem.cost(theta_new)
     predicted = -(delta @ state.g) - 0.5 * delta @ (state.JtJ @ delta)
     rho = (state.cost - cost_new) / jnp.where(predicted > 0, predicted, jnp.inf)
     accept = jnp.isfinite(cost_new) & jnp.all(jnp.isfinite(delta)) & (rho > 1e-4)

@@ -63,6 +63,10 @@ class Problem(eqx.Module):
     - `model`: the model at its starting point (its fixed leaves stay as they are).
     - `series`: the recordings, as [`Series`][].
     - `frozen`: names of parameters to keep fixed (see `Model.parameter_names`).
+    - `weight_decay`: μ ≥ 0, adds ½ μ ‖θ_network‖² to the cost (only the weights of a
+      black-box readout such as the D-MLP; physical parameters and linear gains are
+      never penalised). It is the residual block √μ θ_network appended to r, i.e.
+      ridge regularisation as in MATLAB's Bayesian-regularised LM (`trainbr`).
     """
 
     sim_static: eqx.Module
@@ -74,8 +78,9 @@ class Problem(eqx.Module):
     kind: str = eqx.field(static=True)
     n_sim: int = eqx.field(static=True)
     n_readout: int = eqx.field(static=True)
+    weight_decay: float = eqx.field(static=True)
 
-    def __init__(self, model: Model, series, frozen=frozenset()):
+    def __init__(self, model: Model, series, frozen=frozenset(), weight_decay: float = 0.0):
         series = tuple(series)
         if not series:
             raise InputError("no recordings to fit: pass at least one recording")
@@ -92,6 +97,10 @@ class Problem(eqx.Module):
         train = jnp.concatenate([s.target("train") for s in series])
         self.scale = jnp.maximum(jnp.std(train), 1e-12)
         self.kind = model.kind
+        if not weight_decay >= 0:
+            raise InputError(f"weight_decay must be ≥ 0, got {weight_decay!r}")
+        penalised = not model.readout.parameters()  # black-box readouts only
+        self.weight_decay = float(weight_decay) if penalised else 0.0
 
     # --- θ ↔ model -------------------------------------------------------------
     def flatten(self, model: Model, frozen=frozenset()) -> jax.Array:
@@ -135,6 +144,18 @@ class Problem(eqx.Module):
 
     def residuals(self, theta, split="train"):
         return (self.target(split) - self.prediction(theta, split)) / self.scale
+
+    def penalty_mask(self, theta):
+        """1 for the penalised (network) entries of θ, 0 elsewhere."""
+        return jnp.concatenate([jnp.zeros(self.n_sim, theta.dtype), jnp.ones(self.n_readout, theta.dtype)])
+
+    def cost(self, theta):
+        """½‖r_train‖² + ½ μ ‖θ_network‖², the objective every solver minimises."""
+        r = self.residuals(theta)
+        cost = 0.5 * jnp.sum(r * r)
+        if self.weight_decay:
+            cost = cost + 0.5 * self.weight_decay * jnp.sum((self.penalty_mask(theta) * theta) ** 2)
+        return cost
 
     def residuals_and_jacobian(self, theta, split="train"):
         """r (m,) and J = ∂r/∂θ (m × n), built from the model's structure."""

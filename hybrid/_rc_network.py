@@ -30,6 +30,8 @@ The network starts at rest (all states zero) before the first sample.
 
 from __future__ import annotations
 
+import numbers
+
 from typing import ClassVar, Literal
 
 import equinox as eqx
@@ -98,7 +100,7 @@ class RCNetwork(AbstractSimulation):
         n_stages: int = 45,
         method: Method = "tustin",
     ):
-        if not isinstance(n_stages, int) or n_stages < 1:
+        if isinstance(n_stages, bool) or not isinstance(n_stages, numbers.Integral) or n_stages < 1:
             raise InputError(f"n_stages (N) must be a positive integer, got {n_stages!r}")
         if method not in METHODS:
             raise InputError(f"discretisation method must be one of {METHODS}, got {method!r}")
@@ -108,7 +110,7 @@ class RCNetwork(AbstractSimulation):
         )
         self.raw = encode(values, self.constraints, "RCNetwork")
         self.strip = strip
-        self.n_stages = n_stages
+        self.n_stages = int(n_stages)
         self.method = method
 
     # --- Eqs 4–9 -------------------------------------------------------------

@@ -12,9 +12,13 @@ import diffrax
 import jax.numpy as jnp
 from jax import lax
 
+from ._errors import InputError
+
 
 def reference_response(network, v_in, dt, *, hold="zoh", rtol=1e-10, atol=1e-12):
     """V_o at the sample times for the drive `v_in`, from rest, by adaptive Kvaerno5."""
+    if hold not in ("zoh", "linear"):
+        raise InputError(f"hold must be 'zoh' or 'linear', got {hold!r}")
     A, B, C, D = network.state_space()
     v_in = jnp.asarray(v_in, A.dtype)
     v_next = jnp.concatenate([v_in[1:], v_in[-1:]])

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import numpy as np
 
 from ._errors import InputError
 from ._models import Model
@@ -88,6 +89,16 @@ def load_model(path) -> Model:
         raise InputError(f"{meta} is not a hybrid model description (format {description.get('format')!r})")
     skeleton = _skeleton(description)
     try:
-        return eqx.tree_deserialise_leaves(path, skeleton)
+        model = eqx.tree_deserialise_leaves(path, skeleton)
     except Exception as error:  # equinox raises several types for a mismatched file
         raise InputError(f"model file {path} does not match its metadata ({error})") from None
+    # The metadata's parameters must be what the weights give: catches a file
+    # paired with another model's metadata (or an edited N, which lives only there).
+    expected = description.get("parameters", {})
+    for name, value in model.parameters().items():
+        if name in expected and not np.isclose(float(value), expected[name], rtol=1e-9, atol=0):
+            raise InputError(
+                f"model file {path} does not match its metadata: {name} is {float(value):.6g} in the "
+                f"weights but {expected[name]:.6g} in {meta}"
+            )
+    return model

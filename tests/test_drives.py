@@ -156,3 +156,36 @@ def test_bad_parameters(call, phrase):
     with pytest.raises(InputError) as error:
         call()
     assert phrase in str(error.value)
+
+
+# --------------------------------------------------------------------------- modulation / repeated sweeps
+def test_sine_amplitude_modulation_envelope():
+    from hybrid._drives import sine
+
+    d = sine(90.0, rate=30.0, amplitude=2.0, frequency=1.0, modulation_depth=0.75, modulation_period=45.0)
+    # Envelope a(t) = A (1 − m/2 (1 − cos 2πt/T)): full amplitude at t = 0 and t = T,
+    # (1 − m) A at t = T/2. Check peaks over one carrier period around those times.
+    def peak(t0):
+        sel = (d.t >= t0) & (d.t < t0 + 1.0)
+        return np.max(np.abs(d.v[sel]))
+    # Tolerance 0.03 V: sampling a 1 Hz peak at 30 Hz misses it by up to
+    # 1 − cos(π/30) ≈ 0.55 %, and the envelope moves ≤ 0.5 % within the second.
+    assert abs(peak(0.0) - 2.0) < 0.03
+    assert abs(peak(22.0) - 0.5) < 0.03
+    with pytest.raises(InputError, match="modulation_depth"):
+        sine(10.0, modulation_depth=1.5)
+
+
+def test_chirp_repeated_sweeps_are_continuous_and_periodic_in_frequency():
+    from hybrid._drives import chirp
+
+    d = chirp(240.0, rate=30.0, f0=0.05, f1=1.0, sweep_period=60.0)
+    # Continuity: no jump larger than the steepest slope of the fastest sweep allows.
+    max_step = 2.0 * 2 * np.pi * 1.0 / 30.0
+    assert np.max(np.abs(np.diff(d.v))) <= max_step * 1.01
+    # Each 60 s block holds the same sweep: zero-crossing counts per block agree.
+    blocks = d.v.reshape(4, -1)
+    crossings = [np.sum(np.diff(np.signbit(b).astype(int)) != 0) for b in blocks]
+    assert max(crossings) - min(crossings) <= 2
+    with pytest.raises(InputError, match="sweep_period"):
+        chirp(10.0, sweep_period=-1.0)

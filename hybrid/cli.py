@@ -1,0 +1,240 @@
+"""The `hybrid` command line.
+
+    hybrid simulate --drive prbs|sine|chirp|pulse --duration S --out F.csv
+    hybrid rc DRIVE.csv [--param NAME=VALUE ...] [--method tustin|zoh] --out F.csv
+    hybrid fit RECORDING... --model hybrid|normal|physics [--out MODEL]
+    hybrid table2 [--duration S] [--out-dir DIR]
+
+Bad input of any kind ends with exit status 2 and one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from pathlib import Path
+
+from ._errors import InputError
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2 (argparse would print the usage too)
+        raise InputError(f"{message} (see `{self.prog} --help`)")
+
+
+def _float_list(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(f"expected comma-separated numbers like 0.3,0.5,0.2, got {text!r}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from ._drives import DRIVES
+    from ._fit import SOLVERS
+    from ._models import MODEL_KINDS
+
+    parser = _Parser(prog="hybrid", description="Hybrid physics-ML identification of IPMC actuators.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("simulate", help="record the virtual IPMC under a drive (CSV t,v_in,w)")
+    p.add_argument("--drive", choices=DRIVES, required=True)
+    p.add_argument("--duration", type=float, required=True, help="seconds")
+    p.add_argument("--rate", type=float, default=30.0, help="samples per second (camera fps)")
+    p.add_argument("--amplitude", type=float, default=2.0, help="drive amplitude, V")
+    p.add_argument("--seed", type=int, default=0, help="seeds the drive (PRBS) and the noise")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="virtual IPMC parameter (see hybrid._virtual_ipmc.VirtualIPMCParameters)")
+    p.add_argument("--out", required=True, help="output .csv, .npz or .mat")
+
+    p = sub.add_parser("rc", help="the RC network's tip voltage V_o for a drive (CSV t,v_in,v_o)")
+    p.add_argument("drive", help="CSV with columns t,v_in (other columns ignored)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F)")
+    p.add_argument("--stages", type=int, default=45, help="N (the network has N+1 sections)")
+    p.add_argument("--method", choices=("tustin", "zoh"), default="tustin")
+    p.add_argument("--out", required=True)
+
+    p = sub.add_parser("fit", help="fit a model to recordings, print metrics, save it")
+    p.add_argument("recordings", nargs="+", help=".csv/.npz/.mat recordings of one strip")
+    p.add_argument("--model", choices=MODEL_KINDS, default="hybrid")
+    p.add_argument("--solver", choices=SOLVERS, default="lm")
+    p.add_argument("--starts", type=int, default=1)
+    p.add_argument("--max-steps", type=int, default=200)
+    p.add_argument("--freeze", action="append", default=[], metavar="NAME",
+                   help="keep a parameter fixed (repeatable; 'network' freezes the D-MLP); "
+                        "xi_h is frozen by default (only xi_rho/xi_h is identifiable)")
+    p.add_argument("--free", action="append", default=[], metavar="NAME",
+                   help="free a parameter frozen by default (e.g. xi_h)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="starting value of a physical parameter")
+    p.add_argument("--window", type=int, default=60)
+    p.add_argument("--depth", type=int, default=11)
+    p.add_argument("--width", type=int, default=10)
+    p.add_argument("--split", type=_float_list, default=(0.3, 0.5, 0.2),
+                   help="train,test,validation fractions (default 0.3,0.5,0.2)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None, help="save the model here (default: <first recording>.<model>.eqx)")
+    p.add_argument("--json", default=None, help="write the fit report (metrics, parameters) as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("table2", help="reproduce the paper's Table 2 on the virtual IPMC")
+    p.add_argument("--duration", type=float, default=None, help="seconds per recording")
+    p.add_argument("--starts", type=int, default=None)
+    p.add_argument("--max-steps", type=int, default=None)
+    p.add_argument("--out-dir", default="experiments/results")
+    p.add_argument("--quiet", action="store_true")
+    return parser
+
+
+def _parse_params(items):
+    from ._parameters import parse_assignment
+
+    return dict(parse_assignment(item) for item in items)
+
+
+def _cmd_simulate(args):
+    import dataclasses
+
+    from ._drives import make_drive
+    from ._virtual_ipmc import VirtualIPMCParameters, virtual_recording
+
+    overrides = _parse_params(args.param)
+    known = {f.name for f in dataclasses.fields(VirtualIPMCParameters)}
+    unknown = set(overrides) - known
+    if unknown:
+        raise InputError(f"unknown virtual IPMC parameter(s) {sorted(unknown)}: valid names are {sorted(known)}")
+    params = VirtualIPMCParameters(**overrides)
+    drive = make_drive(args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude)
+    recording = virtual_recording(drive, params, seed=args.seed)
+    path = recording.save(args.out)
+    print(f"wrote {path}: {len(recording)} samples at {recording.rate:g} Hz, "
+          f"w from {recording.w.min():.3f} to {recording.w.max():.3f} mm")
+
+
+def _read_drive(path):
+    """t and v_in from a CSV (w optional): the Recording checks apply to what is there."""
+    import numpy as np
+
+    from ._recording import Recording
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"drive file {path} does not exist")
+    with path.open(newline="") as handle:
+        rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
+    if not rows:
+        raise InputError(f"drive file {path} is empty: it needs a header t,v_in and one row per sample")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in ("t", "v_in") if c not in header]
+    if missing:
+        raise InputError(f"drive file {path} lacks column(s) {missing}: found {header}; the header must include t,v_in")
+    it, iv = header.index("t"), header.index("v_in")
+    t, v = [], []
+    for line, row in enumerate(rows[1:], start=2):
+        try:
+            t.append(float(row[it]))
+            v.append(float(row[iv]))
+        except (ValueError, IndexError):
+            raise InputError(f"drive file {path} line {line}: t and v_in must be numbers, got {row}") from None
+    t, v = np.asarray(t), np.asarray(v)
+    Recording(t=t, v_in=v, w=np.zeros_like(v), metadata={"source": str(path)}, name=str(path))
+    return t, v
+
+
+def _cmd_rc(args):
+    import jax.numpy as jnp
+    import numpy as np
+
+    from ._rc_network import RCNetwork
+
+    t, v = _read_drive(args.drive)
+    network = RCNetwork(n_stages=args.stages, method=args.method)
+    params = _parse_params(args.param)
+    if params:
+        network = network.replace(**params)
+    dt = float(np.median(np.diff(t)))
+    v_o = np.asarray(network.simulate(jnp.asarray(v), dt))
+    if not np.all(np.isfinite(v_o)):
+        raise InputError("the RC network produced non-finite values: check the parameters' magnitudes")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["t", "v_in", "v_o"])
+        for row in zip(t, v, v_o):
+            writer.writerow([f"{x:.17g}" for x in row])
+    print(f"wrote {out}: {len(t)} samples, V_o from {v_o.min():.6g} to {v_o.max():.6g} V "
+          f"({args.method}, N={args.stages}, dt={dt:g} s)")
+
+
+def _cmd_fit(args):
+    import jax
+
+    from ._fit import fit
+    from ._models import make_model
+    from ._rc_network import RCNetwork
+    from ._recording import Recording
+    from ._serialise import save_model
+
+    recordings = [Recording.load(p) for p in args.recordings]
+    simulation = None
+    if args.model != "normal":
+        simulation = RCNetwork()
+        params = _parse_params(args.param)
+        if params:
+            simulation = simulation.replace(**params)
+    elif args.param:
+        raise InputError("--param sets physical parameters; the normal model has none")
+    model = make_model(args.model, simulation=simulation, window=args.window, depth=args.depth,
+                       width=args.width, key=jax.random.key(args.seed))
+    frozen = set(args.freeze)
+    if args.model != "normal" and "xi_h" not in args.free:
+        frozen.add("xi_h")
+    frozen -= set(args.free) - set(args.freeze)
+    if len(args.split) != 3:
+        raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
+    result = fit(model, recordings, starts=args.starts, max_steps=args.max_steps, frozen=frozen,
+                 split=args.split, solver=args.solver, seed=args.seed, progress=not args.quiet)
+    print(result.summary())
+    out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
+    save_model(out, result.model, extra={"metrics": result.metrics, "settings": result.settings})
+    print(f"saved model to {out} (+ {out}.json)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result.to_dict(), indent=2))
+
+
+def _cmd_table2(args):
+    from ._table2 import Table2Settings, reproduce_table2
+
+    overrides = {k: v for k, v in (("duration", args.duration), ("starts", args.starts),
+                                   ("max_steps", args.max_steps)) if v is not None}
+    reproduce_table2(Table2Settings(**overrides), out_dir=args.out_dir, progress=not args.quiet)
+
+
+COMMANDS = {"simulate": _cmd_simulate, "rc": _cmd_rc, "fit": _cmd_fit, "table2": _cmd_table2}
+
+
+def main(argv=None) -> int:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)  # the entry point chooses float64
+    try:
+        args = build_parser().parse_args(argv)
+        COMMANDS[args.command](args)
+    except InputError as error:
+        print(f"hybrid: error: {error}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as error:  # unreadable files, bad numbers deep in numpy, …
+        print(f"hybrid: error: {type(error).__name__}: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("hybrid: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,126 @@
+"""The `hybrid` command line: outputs against independent references, and one-line errors."""
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+
+import helpers as h
+from hybrid import Recording
+from hybrid.cli import main
+
+
+def run(argv, capsys):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(code, err, phrase):
+    assert code == 2
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    assert phrase in lines[0], lines[0]
+
+
+@pytest.fixture(scope="module")
+def virtual_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "rec.csv"
+    assert main(["simulate", "--drive", "prbs", "--duration", "20", "--seed", "3", "--out", str(path)]) == 0
+    return path
+
+
+def test_simulate_writes_a_valid_recording(virtual_csv):
+    rec = Recording.load(virtual_csv)
+    assert len(rec) == 600 and abs(rec.rate - 30.0) < 1e-9
+    assert set(rec.extra) == {"w_true"}
+    # The virtual strip moves by millimetres under a ±2 V drive.
+    assert 1.0 < np.ptp(rec.w) < 30.0
+    assert np.max(np.abs(rec.v_in)) <= 3.0 + 1e-12
+
+
+def test_rc_matches_independent_implementation(virtual_csv, tmp_path, capsys):
+    params = dict(xi_rho=17.0, xi_h=1.3, alpha_E=0.7, alpha_I=0.4, alpha_C=0.55, C_clamp=0.012)
+    out = tmp_path / "vo.csv"
+    argv = ["rc", virtual_csv, "--out", out] + [f"--param={k}={v}" for k, v in params.items()]
+    code, _, err = run(argv, capsys)
+    assert code == 0, err
+    with out.open() as handle:
+        rows = list(csv.reader(handle))
+    assert rows[0] == ["t", "v_in", "v_o"]
+    data = np.array(rows[1:], float)
+    # Independent reference: Eqs 4–13 in numpy (tests/helpers.py), each section
+    # mapped by scipy's bilinear_zpk, filtered by sosfilt.
+    G, Z, P = h.stage_zpk_np(**params, n_stages=45)
+    dt = 1 / 30
+    sos = []
+    for g, z, p in zip(G, Z, P):
+        zd, pd, kd = signal.bilinear_zpk([-z], [-p], g, fs=1 / dt)
+        sos.append(signal.zpk2sos(zd, pd, kd)[0])
+    expected = signal.sosfilt(np.array(sos), data[:, 1])
+    # Issue 2: `hybrid rc` agrees with an independent implementation to ≤ 1e-9 relative.
+    assert np.max(np.abs(data[:, 2] - expected)) <= 1e-9 * np.max(np.abs(expected))
+
+
+def test_fit_physics_end_to_end(virtual_csv, tmp_path, capsys):
+    model_path = tmp_path / "m.eqx"
+    report = tmp_path / "fit.json"
+    code, out, err = run(["fit", virtual_csv, "--model", "physics", "--max-steps", "30", "--quiet",
+                          "--out", model_path, "--json", report], capsys)
+    assert code == 0, err
+    assert "test" in out and "gain" in out
+    assert model_path.exists() and Path(f"{model_path}.json").exists() and report.exists()
+
+
+def test_fit_nan_recording_exits_2_with_one_line(virtual_csv, tmp_path, capsys):
+    rows = virtual_csv.read_text().splitlines()
+    fields = rows[40].split(",")
+    fields[2] = "nan"
+    rows[40] = ",".join(fields)
+    bad = tmp_path / "nan.csv"
+    bad.write_text("\n".join(rows) + "\n")
+    code, _, err = run(["fit", bad, "--model", "hybrid", "--quiet"], capsys)
+    assert_one_line_error(code, err, "non-finite")
+
+
+@pytest.mark.parametrize(
+    "argv, phrase",
+    [
+        (["simulate", "--drive", "square", "--duration", "5", "--out", "x.csv"], "invalid choice"),
+        (["simulate", "--drive", "sine", "--duration", "-1", "--out", "x.csv"], "duration"),
+        (["simulate", "--drive", "sine", "--duration", "5", "--param", "bogus=1", "--out", "x.csv"], "bogus"),
+        (["rc", "missing.csv", "--out", "y.csv"], "does not exist"),
+        (["fit", "missing.csv"], "missing.csv"),
+        (["fit", "REC", "--split", "0.5,0.5"], "three fractions"),
+        (["fit", "REC", "--freeze", "nonsense", "--quiet"], "nonsense"),
+        (["rc", "REC", "--param", "xi_rho", "--out", "y.csv"], "NAME=VALUE"),
+        (["rc", "REC", "--param", "alpha_E=1.5", "--out", "y.csv"], "alpha_E"),
+        (["fit", "REC", "--window", "5000", "--quiet"], "window"),
+        ([], "required"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(argv, phrase, virtual_csv, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = [str(virtual_csv) if a == "REC" else a for a in argv]
+    code, _, err = run(argv, capsys)
+    assert_one_line_error(code, err, phrase)
+
+
+def test_rc_rejects_drive_without_columns(tmp_path, capsys):
+    drive = tmp_path / "d.csv"
+    drive.write_text("time,volts\n0,1\n0.1,1\n")
+    code, _, err = run(["rc", drive, "--out", tmp_path / "o.csv"], capsys)
+    assert_one_line_error(code, err, "v_in")
+
+
+def test_console_script_reports_errors_without_traceback(tmp_path):
+    # The installed entry point, as a user runs it.
+    exe = Path(sys.executable).with_name("hybrid")
+    proc = subprocess.run([str(exe), "fit", str(tmp_path / "nope.csv")], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
