@@ -31,7 +31,8 @@ def plot_mediatory_figure(recording, model, path, seconds: float = 60.0):
     ax.plot(t, _normalised(recording.v_in)[:n], lw=1, label=f"$V_i$ (corr. with w: {r_in:.3f})")
     ax.plot(t, _normalised(v_o)[:n], lw=1.5, label=f"$V_o$ (corr. with w: {r_out:.3f})")
     ax.plot(t, _normalised(recording.w)[:n], "k--", lw=1, label="w")
-    ax.set(xlabel="time (s)", ylabel="normalised", title="Computed $V_o$ is closer to w than $V_i$ (cf. Fig. 3)")
+    ax.set(xlabel="time (s)", ylabel="normalised",
+           title="Drive $V_i$, computed $V_o$ (fitted hybrid model) and w, each by its max |·| (cf. Fig. 3)")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

@@ -14,8 +14,9 @@ the whole pytree:
   gradients of ŵ_i with respect to the readout's weights, one `vmap` over the
   m input windows.
 
-For 3,000 residuals × 1,727 parameters this is ~100× faster and ~50× smaller in
-memory than `jax.jacfwd` of the whole model (see `benchmarks/lm_step.py`).
+For 3,000 residuals × 1,727 parameters a whole LM step built on it is ~18×
+faster and takes ~10× less peak memory than a step of
+`optimistix.LevenbergMarquardt` on the same residuals (`benchmarks/lm_step.py`).
 """
 
 from __future__ import annotations
