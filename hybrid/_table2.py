@@ -52,7 +52,7 @@ class Table2Settings:
         "pulse": {"amplitude": 2.0, "period": 8.0, "duty": 0.5},
     })
     starts: int = 1
-    max_steps: int = 120
+    max_steps: int = 200
     patience: int = 30
     weight_decay: float = 0.1
     seed: int = 0
