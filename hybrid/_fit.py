@@ -99,22 +99,17 @@ def fit(
     if not np.ptp(train_w) > 0:
         raise InputError("the training part of the recording(s) has constant w: "
                          "there is nothing to fit (check the displacement column)")
-    has_validation = "validation" in split_order
 
     initial = [_start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
     problem = Problem(initial[0], series, frozen, weight_decay)
     thetas = jnp.stack([problem.flatten(m, frozen) for m in initial])
 
     if solver == "lm":
-        best, history, per_start = _run_lm(
-            problem, thetas, max_steps, patience, has_validation, progress, report_every
-        )
+        best, history, per_start = _run_lm(problem, thetas, max_steps, patience, progress, report_every)
     elif solver == "adam":
-        best, history, per_start = _run_adam(
-            problem, thetas, max_steps, learning_rate, has_validation, progress, report_every
-        )
+        best, history, per_start = _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every)
     else:
-        best, history, per_start = _run_optimistix(problem, thetas, max_steps, has_validation)
+        best, history, per_start = _run_optimistix(problem, thetas, max_steps)
 
     best_start = int(np.nanargmin([s["validation_loss"] for s in per_start]))
     fitted = problem.model(best[best_start])
@@ -186,22 +181,22 @@ def _progress_bar(total, enabled, desc):
 
 
 @eqx.filter_jit
-def _lm_init_batch(problem, thetas, settings, has_validation):
-    return jax.vmap(lambda th: lm_init(problem, th, settings, has_validation))(thetas)
+def _lm_init_batch(problem, thetas, settings):
+    return jax.vmap(lambda th: lm_init(problem, th, settings))(thetas)
 
 
 @eqx.filter_jit
-def _lm_run_batch(problem, states, settings, n_steps, has_validation):
-    return jax.vmap(lambda s: lm_run(problem, s, settings, n_steps, has_validation))(states)
+def _lm_run_batch(problem, states, settings, n_steps):
+    return jax.vmap(lambda s: lm_run(problem, s, settings, n_steps))(states)
 
 
-def _run_lm(problem, thetas, max_steps, patience, has_validation, progress, report_every):
+def _run_lm(problem, thetas, max_steps, patience, progress, report_every):
     settings = LMSettings(max_steps=max_steps, patience=patience)
-    states = _lm_init_batch(problem, thetas, settings, has_validation)
+    states = _lm_init_batch(problem, thetas, settings)
     history = []
     with _progress_bar(max_steps, progress, f"LM {problem.kind}") as bar:
         while not bool(jnp.all(states.done)):
-            states = _lm_run_batch(problem, states, settings, report_every, has_validation)
+            states = _lm_run_batch(problem, states, settings, report_every)
             step = int(jnp.max(states.step))
             history.append({
                 "step": step,
@@ -220,16 +215,7 @@ def _run_lm(problem, thetas, max_steps, patience, has_validation, progress, repo
     return states.best_theta, history, per_start
 
 
-def _loss(problem, theta):
-    return problem.cost(theta)
-
-
-def _val(problem, theta, has_validation):
-    split = "validation" if has_validation else "train"
-    return 0.5 * jnp.mean(problem.residuals(theta, split) ** 2)
-
-
-def _run_adam(problem, thetas, max_steps, learning_rate, has_validation, progress, report_every):
+def _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every):
     import optax
 
     optimiser = optax.adam(learning_rate)
@@ -240,10 +226,10 @@ def _run_adam(problem, thetas, max_steps, learning_rate, has_validation, progres
         def one(theta, opt_state, best, best_val):
             def body(_, carry):
                 theta, opt_state, best, best_val = carry
-                grad = jax.grad(lambda th: _loss(problem, th) / n)(theta)
+                grad = jax.grad(lambda th: problem.cost(th) / n)(theta)
                 updates, opt_state = optimiser.update(grad, opt_state, theta)
                 theta = optax.apply_updates(theta, updates)
-                val = _val(problem, theta, has_validation)
+                val = problem.validation_loss(theta)
                 better = val < best_val
                 return theta, opt_state, jnp.where(better, theta, best), jnp.where(better, val, best_val)
 
@@ -253,7 +239,7 @@ def _run_adam(problem, thetas, max_steps, learning_rate, has_validation, progres
 
     opt_states = jax.vmap(optimiser.init)(thetas)
     best = thetas
-    best_val = jax.vmap(lambda th: _val(problem, th, has_validation))(thetas)
+    best_val = jax.vmap(problem.validation_loss)(thetas)
     history = []
     step = 0
     with _progress_bar(max_steps, progress, f"Adam {problem.kind}") as bar:
@@ -261,7 +247,7 @@ def _run_adam(problem, thetas, max_steps, learning_rate, has_validation, progres
             chunk = min(report_every, max_steps - step)
             thetas, opt_states, best, best_val = run(problem, thetas, opt_states, best, best_val, chunk)
             step += chunk
-            costs = jax.vmap(lambda th: _loss(problem, th))(thetas)
+            costs = jax.vmap(problem.cost)(thetas)
             history.append({"step": step, "train_cost": [float(c) for c in costs],
                             "validation_loss": [float(v) for v in best_val]})
             bar.n = step
@@ -270,18 +256,18 @@ def _run_adam(problem, thetas, max_steps, learning_rate, has_validation, progres
     return best, history, per_start
 
 
-def _run_optimistix(problem, thetas, max_steps, has_validation):
+def _run_optimistix(problem, thetas, max_steps):
     import optimistix as optx
 
     solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
     best, per_start = [], []
     for theta in thetas:
         solution = optx.least_squares(
-            lambda th, _: problem.residuals(th), solver, theta, max_steps=max_steps, throw=False
+            lambda th, _: problem.objective_residuals(th), solver, theta, max_steps=max_steps, throw=False
         )
         best.append(solution.value)
         per_start.append({
-            "validation_loss": float(_val(problem, solution.value, has_validation)),
+            "validation_loss": float(problem.validation_loss(solution.value)),
             "steps": int(solution.stats["num_steps"]),
             "result": str(solution.result) if solution.result != optx.RESULTS.successful else "successful",
         })

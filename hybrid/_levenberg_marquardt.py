@@ -78,15 +78,9 @@ def _normal_equations(problem, theta):
     return problem.cost(theta), JtJ, g
 
 
-def _validation_loss(problem, theta, has_validation):
-    if not has_validation:
-        return 0.5 * jnp.sum(problem.residuals(theta, "train") ** 2)
-    return 0.5 * jnp.mean(problem.residuals(theta, "validation") ** 2)
-
-
-def lm_init(problem, theta0, settings: LMSettings, has_validation=True) -> LMState:
+def lm_init(problem, theta0, settings: LMSettings) -> LMState:
     cost, JtJ, g = _normal_equations(problem, theta0)
-    val = _validation_loss(problem, theta0, has_validation)
+    val = problem.validation_loss(theta0)
     lam = jnp.asarray(settings.lambda0, cost.dtype)
     if settings.scaling != "marquardt":
         lam = lam * jnp.max(jnp.diag(JtJ))
@@ -98,7 +92,7 @@ def lm_init(problem, theta0, settings: LMSettings, has_validation=True) -> LMSta
     )
 
 
-def lm_step(problem, state: LMState, settings: LMSettings, has_validation=True) -> LMState:
+def lm_step(problem, state: LMState, settings: LMSettings) -> LMState:
     """One LM iteration (a no-op once `state.done`)."""
     diag = jnp.diag(state.JtJ)
     if settings.scaling == "marquardt":
@@ -116,7 +110,7 @@ def lm_step(problem, state: LMState, settings: LMSettings, has_validation=True) 
 
     def accepted(state):
         cost, JtJ, g = _normal_equations(problem, theta_new)
-        val = _validation_loss(problem, theta_new, has_validation)
+        val = problem.validation_loss(theta_new)
         better = val < state.best_val
         lam = state.lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
         relative_decrease = (state.cost - cost) / jnp.maximum(state.cost, jnp.finfo(cost.dtype).tiny)
@@ -147,7 +141,7 @@ def lm_step(problem, state: LMState, settings: LMSettings, has_validation=True) 
     return jax.tree_util.tree_map(lambda a, b: jnp.where(state.done, a, b), state, new)
 
 
-def lm_run(problem, state: LMState, settings: LMSettings, n_steps: int, has_validation=True):
+def lm_run(problem, state: LMState, settings: LMSettings, n_steps: int):
     """Up to `n_steps` more iterations, stopping early when done."""
 
     def cond(carry):
@@ -156,7 +150,7 @@ def lm_run(problem, state: LMState, settings: LMSettings, n_steps: int, has_vali
 
     def body(carry):
         i, s = carry
-        return i + 1, lm_step(problem, s, settings, has_validation)
+        return i + 1, lm_step(problem, s, settings)
 
     _, state = lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), state))
     return state

@@ -150,13 +150,29 @@ class Problem(eqx.Module):
         """1 for the penalised (network) entries of θ, 0 elsewhere."""
         return jnp.concatenate([jnp.zeros(self.n_sim, theta.dtype), jnp.ones(self.n_readout, theta.dtype)])
 
+    def objective_residuals(self, theta):
+        """[r_train, √μ θ_network]: the residuals every solver minimises the squares of."""
+        r = self.residuals(theta)
+        if not self.weight_decay:
+            return r
+        return jnp.concatenate([r, jnp.sqrt(self.weight_decay) * self.penalty_mask(theta) * theta])
+
     def cost(self, theta):
         """½‖r_train‖² + ½ μ ‖θ_network‖², the objective every solver minimises."""
-        r = self.residuals(theta)
-        cost = 0.5 * jnp.sum(r * r)
-        if self.weight_decay:
-            cost = cost + 0.5 * self.weight_decay * jnp.sum((self.penalty_mask(theta) * theta) ** 2)
-        return cost
+        r = self.objective_residuals(theta)
+        return 0.5 * jnp.sum(r * r)
+
+    @property
+    def has_validation(self) -> bool:
+        return all("validation" in dict(s.segments) for s in self.series)
+
+    def validation_loss(self, theta):
+        """½ mean r² on the validation split (the training split if there is none).
+
+        Picks the best iterate and the best start, whatever the solver.
+        """
+        split = "validation" if self.has_validation else "train"
+        return 0.5 * jnp.mean(self.residuals(theta, split) ** 2)
 
     def residuals_and_jacobian(self, theta, split="train"):
         """r (m,) and J = ∂r/∂θ (m × n), built from the model's structure."""

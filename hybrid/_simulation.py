@@ -40,7 +40,7 @@ class AbstractSimulation(eqx.Module):
 
     def replace(self, **values) -> "AbstractSimulation":
         """A copy with some parameters set to new physical values."""
-        current = {k: v for k, v in self.parameters().items()}
+        current = dict(self.parameters())
         unknown = set(values) - set(current)
         if unknown:
             raise InputError(

@@ -193,7 +193,6 @@ def _cmd_fit(args):
     frozen = set(args.freeze)
     if args.model != "normal" and "xi_h" not in args.free:
         frozen.add("xi_h")
-    frozen -= set(args.free) - set(args.freeze)
     if len(args.split) != 3:
         raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
     result = fit(model, recordings, starts=args.starts, max_steps=args.max_steps, frozen=frozen,
