@@ -1,0 +1,312 @@
+"""One experiment end to end: drive -> board -> camera -> tracking -> a synchronised recording.
+
+The board streams the drive from a thread; the main thread reads frames, tracks
+the tip, watches the sync LED and writes rows as soon as each row's drive
+voltage is known (the board's reports cover its time). Rows are flushed one by
+one and the JSON sidecar is rewritten every second, so a crash or a pulled
+cable loses at most about a second, and what is on disk is a valid recording
+flagged ``"complete": false`` with the error.
+
+Columns: ``t`` (s from sample 0 on the LED edge; uniform, ``slot / fps``),
+``v_in`` (V, the voltage the board had on the DAC at the start of the frame's
+exposure, through the calibration), ``w`` (mm, tracked), then ``quality``
+(1 good, 0 dropped/untracked: w interpolated or held), ``t_camera`` (the
+camera's own timestamp, s), ``sample`` (the drive sample on the DAC, -1 before
+sample 0) and, for the virtual rig, ``w_true`` (mm, the virtual strip's
+exposure-averaged displacement).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import pathlib
+import threading
+import time
+
+import numpy as np
+
+from hybrid import Recording
+
+from ._board import Board, PlayReport
+from ._calibration import Calibration
+from ._errors import RigError
+from ._scene import Scene
+from ._sync import LedDetector
+from ._tracker import TipTracker
+
+__all__ = ["RecordSettings", "record"]
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordSettings:
+    """How to run one experiment.
+
+    Arguments:
+        calibration: volts <-> DAC codes.
+        scene: the camera view (clamp, scale, axis).
+        led: (x, y, radius) px of the sync LED in the picture, or None (then the
+            host clock aligns camera and board, to about a frame).
+        exposure: camera exposure, s (None: a whole frame).
+        pre_roll: seconds of frames before START (the LED's off level).
+        sync_s: how long the LED stays on from sample 0, s.
+        dac_address: MCP4725 I2C address.
+        strip_px: visible strip thickness, px, for the tracker.
+    """
+
+    calibration: Calibration = Calibration()
+    scene: Scene = Scene()
+    led: tuple[float, float, float] | None = None
+    exposure: float | None = None
+    pre_roll: float = 0.5
+    sync_s: float = 0.5
+    dac_address: int = 0x60
+    strip_px: float = 4.0
+
+
+class _Writer:
+    """CSV rows flushed as written, plus a JSON sidecar rewritten atomically."""
+
+    def __init__(self, path: pathlib.Path, columns: list[str], metadata: dict):
+        self.path = path
+        self.sidecar = path.with_name(path.name + ".json")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.handle = path.open("w", newline="")
+        except OSError as error:
+            raise RigError(f"cannot write recording '{path}' ({error.strerror or error})") from None
+        self.handle.write(",".join(columns) + "\n")
+        self.handle.flush()
+        self.metadata = metadata
+        self.rows = 0
+        self._saved = 0.0
+        self.save_metadata(force=True)
+
+    def row(self, values) -> None:
+        self.handle.write(",".join(f"{float(v):.17g}" for v in values) + "\n")
+        self.handle.flush()
+        self.rows += 1
+        self.save_metadata()
+
+    def save_metadata(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._saved < 1.0:
+            return
+        self._saved = now
+        self.metadata["rows"] = self.rows
+        tmp = self.sidecar.with_name(self.sidecar.name + ".tmp")
+        tmp.write_text(json.dumps(self.metadata, indent=2, default=_jsonable) + "\n")
+        os.replace(tmp, self.sidecar)
+
+    def close(self) -> None:
+        self.save_metadata(force=True)
+        self.handle.close()
+
+
+def _jsonable(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON-able")
+
+
+def record(board: Board, camera, drive, settings: RecordSettings, out, metadata: dict | None = None,
+           truth: dict | None = None) -> dict:
+    """Run ``drive`` on ``board`` while filming with ``camera``; write the recording to ``out`` (CSV).
+
+    Arguments:
+        board: a :class:`~rig._board.Board` that has said hello.
+        camera: ``fps``, ``read() -> Frame | None``, ``clock()`` (now on the camera's clock).
+        drive: a :class:`hybrid.Drive`.
+        settings: :class:`RecordSettings`.
+        out: the CSV path (``out.json`` is the metadata sidecar).
+        metadata: extra JSON-able metadata.
+        truth: for the virtual rig, the camera's ``truth`` dict (frame index -> true w).
+
+    Returns:
+        The final metadata. Raises :class:`RigError` after saving a partial recording.
+    """
+    cal = settings.calibration
+    codes = cal.codes(drive.v)
+    clipped = int(np.count_nonzero(cal.clipped(drive.v)))
+    fps = float(camera.fps)
+    idle = int(cal.codes(0.0))
+    sync_samples = max(2, round(settings.sync_s * drive.rate))
+    timing = board.configure(drive.rate, idle_code=idle, sync_samples=sync_samples,
+                             dac_address=settings.dac_address)
+    period = timing.period
+    n = len(codes)
+    columns = ["t", "v_in", "w", "quality", "t_camera", "sample"] + (["w_true"] if truth is not None else [])
+    meta = {
+        "source": f"rig record, {drive.name} drive",
+        "units": {"t": "s", "v_in": "V", "w": "mm", "t_camera": "s", "w_true": "mm"},
+        "complete": False, "status": "recording", "error": None,
+        "drive": drive.metadata, "calibration": cal.to_dict(),
+        "clipped_samples": clipped,
+        "board": {"rate_hz": timing.rate, "period_s": period, "idle_code": idle,
+                  "sync_samples": sync_samples, "info": dataclasses.asdict(board.info) if board.info else None},
+        "camera": {"fps": fps, "exposure_s": settings.exposure},
+        "scene": dataclasses.asdict(settings.scene),
+        "sync": None, "dropped_frames": [], "duplicated_frames": 0, "untracked_frames": 0,
+        **(metadata or {}),
+    }
+    writer = _Writer(pathlib.Path(out), columns, meta)
+    tracker = TipTracker(settings.scene, strip_px=settings.strip_px)
+    led = None
+    if settings.led is not None:
+        led = LedDetector(*settings.led, fps=fps, exposure=settings.exposure)
+
+    result: dict = {}
+    stop = threading.Event()
+    started = threading.Event()
+    covered = [0.0]           # board time (s after sample 0) up to which the schedule is known
+    report_box: list[PlayReport] = []
+
+    def on_progress(report: PlayReport) -> None:
+        report_box[:] = [report]
+        covered[0] = (report.ticks - 1) * period
+
+    def on_start(host_t: float) -> None:
+        result["start_camera_t"] = camera.clock()
+        started.set()
+
+    def stream() -> None:
+        try:
+            result["report"] = board.play(codes, on_progress=on_progress, should_stop=stop.is_set,
+                                          on_start=on_start)
+        except RigError as error:
+            result["error"] = error
+            result["report"] = getattr(error, "report", None)
+        finally:
+            started.set()
+            board.stop()
+
+    thread = threading.Thread(target=stream, name="rig-board", daemon=True)
+    pending: list[list] = []          # [slot, t_camera, w, quality, w_true]
+    last_slot, last_t, last_good = None, None, 0.0
+    t_cam0 = None
+    sync_t = None
+    done_slots = -1
+    error: BaseException | None = None
+
+    def schedule():
+        rep = result.get("report") or (report_box[0] if report_box else None)
+        return rep.sample_ticks(n) * period if rep is not None else np.arange(n) * period
+
+    def flush(final: bool = False) -> None:
+        nonlocal done_slots
+        if sync_t is None:
+            return
+        play_times = schedule()
+        end_t = play_times[-1] + period
+        horizon = math.inf if final else covered[0] - 0.05
+        keep = []
+        for row in pending:
+            slot, t_cam, w, quality, w_true = row
+            t = t_cam0 + slot / fps - sync_t
+            if t < 0:
+                continue
+            if t >= end_t:
+                continue
+            if t > horizon:
+                keep.append(row)
+                continue
+            i = int(np.searchsorted(play_times, t + 1e-9, side="right")) - 1
+            volts = cal.volts(codes[i]) if i >= 0 else cal.volts(idle)
+            values = [t, volts, w, quality, t_cam, i]
+            if truth is not None:
+                values.append(w_true)
+            writer.row(values)
+            done_slots = slot
+        pending[:] = keep
+
+    try:
+        # Pre-roll: the LED's off level, before the board starts.
+        while True:
+            frame = camera.read()
+            if frame is None:
+                raise RigError("camera stopped delivering frames before the drive started")
+            if t_cam0 is None:
+                t_cam0 = frame.t
+            if led is not None:
+                led.update(frame.index, frame.t, frame.image)
+            if frame.t - t_cam0 >= settings.pre_roll:
+                break
+        thread.start()
+        sync_deadline = None
+        while True:
+            frame = camera.read()
+            if frame is None:
+                raise RigError(f"camera stopped delivering frames after {writer.rows} rows")
+            # Slots: dropped frames leave gaps, duplicates repeat a slot.
+            slot = round((frame.t - t_cam0) * fps)
+            if last_slot is not None and slot <= last_slot:
+                meta["duplicated_frames"] += 1
+                continue
+            result_track = tracker.track(frame.image)
+            w_true = truth.get(frame.index, math.nan) if truth is not None else math.nan
+            if result_track.quality:
+                w = result_track.w
+            else:
+                meta["untracked_frames"] += 1
+                w = last_good
+            if last_slot is not None and slot > last_slot + 1:
+                prev_w = pending[-1][2] if pending else last_good
+                for k in range(last_slot + 1, slot):
+                    meta["dropped_frames"].append(k)
+                    f = (k - last_slot) / (slot - last_slot)
+                    pending.append([k, t_cam0 + k / fps, prev_w + f * (w - prev_w), 0, math.nan])
+            if result_track.quality:
+                last_good = w
+            pending.append([slot, frame.t, w, result_track.quality, w_true])
+            last_slot, last_t = slot, frame.t
+            if led is not None and sync_t is None:
+                sync = led.update(frame.index, frame.t, frame.image)
+                if sync is not None:
+                    sync_t = sync.t
+                    meta["sync"] = {"method": "led", "t_camera": sync.t, "frame": sync.frame,
+                                    "fraction_lit": sync.fraction}
+            if sync_t is None and started.is_set() and "start_camera_t" in result:
+                if sync_deadline is None:
+                    sync_deadline = result["start_camera_t"] + settings.sync_s + 1.0
+                if led is None or frame.t > sync_deadline:
+                    sync_t = result["start_camera_t"] + period
+                    meta["sync"] = {"method": "host-clock", "t_camera": sync_t,
+                                    "note": "LED not configured" if led is None else
+                                    "LED edge not seen: aligned by the START acknowledgement (about one frame)"}
+            flush()
+            if "error" in result:
+                raise result["error"]
+            if not thread.is_alive() and "report" in result:
+                if sync_t is None:
+                    raise RigError("drive finished but no sync was established: is the LED position right?")
+                end_t = schedule()[-1] + period
+                if t_cam0 + slot / fps - sync_t >= end_t:
+                    break
+    except BaseException as caught:  # noqa: BLE001  (KeyboardInterrupt too: save what we have)
+        error = caught
+    finally:
+        stop.set()
+        if thread.is_alive():
+            thread.join(timeout=5)
+        try:
+            flush(final=error is None)
+        except Exception:  # the partial file must be closed whatever happened
+            pass
+        report = result.get("report")
+        meta["board"]["report"] = report.metadata() if report is not None else None
+        if error is None and report is not None and report.complete:
+            meta["complete"], meta["status"] = True, "complete"
+        else:
+            meta["status"] = "interrupted"
+            meta["error"] = str(error) if error is not None else (report.error if report else "unknown")
+        writer.close()
+    if error is not None:
+        if isinstance(error, RigError):
+            raise RigError(f"{error} (partial recording kept: {writer.rows} rows in {writer.path})") from None
+        raise error
+    if writer.rows < 2:
+        raise RigError(f"recording {writer.path} has {writer.rows} rows: too short to be valid")
+    Recording.load(writer.path)       # what was written is a valid recording
+    return meta

@@ -1,0 +1,310 @@
+"""The `rig` command line.
+
+    rig ports
+    rig track VIDEO --clamp X,Y --mm-per-px S [--axis DEG] [--led X,Y,R] --out F.csv
+    rig record (--port P --camera C | --virtual) --drive KIND --duration S --out F.csv
+    rig calibrate (--port P | --virtual) [--codes ...] [--readings ...] --out cal.json
+    rig simavr-timing [--rate HZ] [--duration S]
+
+Bad input and hardware faults end with exit status 2 and one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from hybrid import InputError
+
+from ._errors import RigError
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise InputError(f"{message} (see `{self.prog} --help`)")
+
+
+def _numbers(count_min: int, count_max: int, what: str):
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(x) for x in text.split(","))
+        except ValueError:
+            raise InputError(f"{what} must be comma-separated numbers, got {text!r}") from None
+        if not count_min <= len(values) <= count_max or not all(math.isfinite(v) for v in values):
+            raise InputError(f"{what} needs {count_min}-{count_max} finite numbers, got {text!r}")
+        return values
+    return parse
+
+
+def _scene_args(p, virtual_default: bool = False):
+    p.add_argument("--clamp", type=_numbers(2, 2, "--clamp X,Y"), default=None,
+                   help="clamp point in the picture, px (virtual default 40,120)")
+    p.add_argument("--mm-per-px", type=float, default=None, help="image scale, mm per pixel (virtual default 0.1)")
+    p.add_argument("--axis", type=float, default=0.0, help="rest axis angle, degrees (0 = strip points right)")
+    p.add_argument("--length", type=float, default=22.0, help="free strip length, mm (bounds the search)")
+    p.add_argument("--strip-px", type=float, default=4.0, help="visible strip thickness, px")
+    p.add_argument("--led", type=_numbers(2, 3, "--led X,Y[,R]"), default=None,
+                   help="sync LED position (and radius) in the picture, px")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from hybrid import DRIVES
+
+    parser = _Parser(prog="rig", description="IPMC rig: DAC streaming, camera, tip tracking, recordings.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    sub.add_parser("ports", help="list serial ports")
+
+    p = sub.add_parser("track", help="track the strip tip in a video (CSV t,w,quality)")
+    p.add_argument("video")
+    _scene_args(p)
+    p.add_argument("--exposure", type=float, default=None, help="exposure, s (for the LED sub-frame edge)")
+    p.add_argument("--out", required=True)
+
+    p = sub.add_parser("record", help="run a drive and film it: a synchronised recording")
+    p.add_argument("--port", help="serial port of the board")
+    p.add_argument("--camera", help="camera index, /dev/videoN or a video file")
+    p.add_argument("--virtual", action="store_true", help="emulated board and virtual camera")
+    p.add_argument("--drive", choices=DRIVES, required=True)
+    p.add_argument("--duration", type=float, required=True, help="seconds")
+    p.add_argument("--rate", type=float, default=30.0, help="drive samples per second")
+    p.add_argument("--amplitude", type=float, default=2.0, help="V")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--calibration", help="JSON from `rig calibrate` (default: gain 1.2, offset -3 V)")
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--exposure", type=float, default=None, help="s (virtual default 1/60)")
+    p.add_argument("--dac-address", type=lambda s: int(s, 0), default=0x60)
+    p.add_argument("--speed", type=float, default=1.0, help="virtual only: board seconds per second")
+    _scene_args(p)
+    p.add_argument("--out", required=True)
+
+    p = sub.add_parser("calibrate", help="measure the amplifier mapping with a multimeter")
+    p.add_argument("--port")
+    p.add_argument("--virtual", action="store_true", help="emulated board, a virtual multimeter")
+    p.add_argument("--codes", type=_numbers(3, 64, "--codes"), default=(0, 512, 1024, 1536, 2048, 2560, 3072, 3584, 4095))
+    p.add_argument("--readings", type=_numbers(3, 64, "--readings"), default=None,
+                   help="multimeter readings, V, one per code (else asked one by one)")
+    p.add_argument("--out", required=True)
+
+    p = sub.add_parser("simavr-timing", help="measure DAC update timing of the real firmware on simavr")
+    p.add_argument("--rate", type=float, default=30.0)
+    p.add_argument("--duration", type=float, default=10.0)
+    p.add_argument("--speed", type=float, default=4.0)
+    p.add_argument("--build-dir", default=None)
+    return parser
+
+
+def _cmd_ports(args):
+    from serial.tools import list_ports
+
+    ports = sorted(list_ports.comports(), key=lambda p: p.device)
+    if not ports:
+        print("no serial ports found (is the board plugged in?)")
+    for port in ports:
+        print(f"{port.device}\t{port.description}")
+
+
+def _scene(args, virtual: bool):
+    from ._scene import Scene
+
+    if not virtual and (args.clamp is None or args.mm_per_px is None):
+        raise InputError("give the clamp point and the scale: --clamp X,Y --mm-per-px S")
+    return Scene(clamp=tuple(args.clamp) if args.clamp else (40.0, 120.0),
+                 mm_per_px=args.mm_per_px if args.mm_per_px else 0.1,
+                 angle_deg=args.axis, length_mm=args.length)
+
+
+def _cmd_track(args):
+    import numpy as np
+
+    from ._camera import VideoSource
+    from ._sync import LedDetector
+    from ._tracker import TipTracker
+
+    scene = _scene(args, virtual=False)
+    tracker = TipTracker(scene, strip_px=args.strip_px)
+    with VideoSource(args.video) as video, open(args.out, "w", newline="") as out:
+        led = LedDetector(*args.led, fps=video.fps, exposure=args.exposure) if args.led else None
+        out.write("t,w,quality\n")
+        n = good = 0
+        last = math.nan
+        for frame in video:
+            result = tracker.track(frame.image)
+            if result.quality:
+                last = result.w
+                good += 1
+            w = result.w if result.quality else last
+            out.write(f"{frame.t:.17g},{w:.17g},{result.quality}\n")
+            out.flush()
+            n += 1
+            if led is not None:
+                led.update(frame.index, frame.t, frame.image)
+    print(f"wrote {args.out}: {n} frames at {video.fps:g} fps, {good} tracked"
+          + (f", sync LED edge at t = {led.sync.t:.4f} s (frame {led.sync.frame})"
+             if led is not None and led.sync else (", sync LED not seen" if led is not None else "")))
+    if good == 0:
+        raise RigError(f"the strip was not found in any frame of {args.video}: check --clamp, --mm-per-px, --axis")
+
+
+def _cmd_record(args):
+    import hybrid
+
+    from ._board import Board
+    from ._calibration import Calibration
+    from ._record import RecordSettings, record
+
+    if args.virtual == bool(args.port or args.camera):
+        raise InputError("give either --virtual or both --port and --camera")
+    if not args.virtual and not (args.port and args.camera):
+        raise InputError("a real recording needs both --port and --camera")
+    calibration = Calibration.load(args.calibration) if args.calibration else Calibration()
+    drive = hybrid.make_drive(args.drive, args.duration, rate=args.rate, seed=args.seed,
+                              amplitude=args.amplitude)
+    scene = _scene(args, virtual=args.virtual)
+    if args.virtual:
+        import serial
+
+        from ._emulator import EmulatedBoard
+        from ._render import Look
+        from ._virtual import VirtualCamera
+
+        if not args.speed > 0:
+            raise InputError("--speed must be positive")
+        look = Look()
+        led = tuple(args.led) if args.led else look.led
+        if len(led) == 2:
+            led = (*led, 5.0)
+        exposure = args.exposure if args.exposure is not None else 1 / 60
+        settings = RecordSettings(calibration=calibration, scene=scene, led=led, exposure=exposure,
+                                  strip_px=args.strip_px, dac_address=args.dac_address)
+        with EmulatedBoard(speed=args.speed) as emulated:
+            board = Board(serial.Serial(emulated.port, 250000, timeout=0.02), name=emulated.port)
+            board.hello()
+            camera = VirtualCamera(emulated, scene=scene, look=look, fps=args.fps, exposure=exposure,
+                                   seed=args.seed)
+            try:
+                meta = record(board, camera, drive, settings, args.out, truth=camera.truth,
+                              metadata={"virtual": True, "speed": args.speed})
+            finally:
+                board.close()
+    else:
+        from ._camera import VideoSource
+
+        led = tuple(args.led) if args.led else None
+        if led is not None and len(led) == 2:
+            led = (*led, 5.0)
+        settings = RecordSettings(calibration=calibration, scene=scene, led=led, exposure=args.exposure,
+                                  strip_px=args.strip_px, dac_address=args.dac_address)
+        board = Board.open(args.port)
+        try:
+            with VideoSource(args.camera, fps=args.fps) as camera:
+                import time
+
+                t0 = time.monotonic()
+                camera.clock = lambda: time.monotonic() - t0
+                meta = record(board, camera, drive, settings, args.out, metadata={"port": args.port,
+                                                                                   "camera": str(args.camera)})
+        finally:
+            board.close()
+    rec = hybrid.Recording.load(args.out)
+    report = meta["board"]["report"]
+    print(f"wrote {args.out}: {len(rec)} samples at {rec.rate:.4g} Hz, w from {rec.w.min():.3f} to "
+          f"{rec.w.max():.3f} mm; sync by {meta['sync']['method']}; underrun ticks "
+          f"{report['underrun_ticks']}, bad frames {report['bad_frames_board'] + report['bad_frames_host']}, "
+          f"dropped frames {len(meta['dropped_frames'])}, untracked frames {meta['untracked_frames']}")
+    if "w_true" in rec.extra:
+        import numpy as np
+
+        err = rec.w - rec.extra["w_true"]
+        good = np.isfinite(err) & (rec.extra["quality"] > 0)
+        print(f"tracker vs virtual strip: RMS error {np.sqrt(np.mean(err[good] ** 2)):.4f} mm, "
+              f"max {np.max(np.abs(err[good])):.4f} mm over {good.sum()} frames")
+
+
+def _cmd_calibrate(args):
+    import numpy as np
+
+    from ._board import Board
+    from ._calibration import Calibration, fit_calibration
+
+    if args.virtual == bool(args.port):
+        raise InputError("give either --virtual or --port")
+    codes = [int(c) for c in args.codes]
+    if any(not 0 <= c <= 4095 for c in codes):
+        raise InputError("--codes must be DAC codes in 0..4095")
+    if args.readings is not None and len(args.readings) != len(codes):
+        raise InputError(f"--readings has {len(args.readings)} values for {len(codes)} codes")
+    emulated = None
+    if args.virtual:
+        import serial
+
+        from ._emulator import EmulatedBoard
+
+        emulated = EmulatedBoard(speed=1.0)
+        board = Board(serial.Serial(emulated.port, 250000, timeout=0.02), name=emulated.port)
+        board.hello()
+        # A virtual amplifier a little off its nominal values, and a 3-digit multimeter.
+        truth = Calibration(gain=1.17, offset=-2.93, rail_low=-2.9, rail_high=3.05)
+    else:
+        board = Board.open(args.port)
+    readings = []
+    try:
+        for k, code in enumerate(codes):
+            board.hold(code)
+            if args.readings is not None:
+                value = args.readings[k]
+            elif emulated is not None:
+                value = round(float(truth.volts(emulated.dac_log[-1][1])), 3)
+            else:
+                text = input(f"DAC code {code}: multimeter reading at the strip terminals, V? ")
+                try:
+                    value = float(text)
+                except ValueError:
+                    raise InputError(f"reading {text!r} is not a number of volts") from None
+            readings.append(value)
+        board.hold(int(Calibration().codes(0.0)))
+    finally:
+        board.close()
+        if emulated is not None:
+            emulated.close()
+    calibration, report = fit_calibration(np.array(codes), np.array(readings))
+    data = {**calibration.to_dict(), "fit": report}
+    import json
+    from pathlib import Path
+
+    Path(args.out).write_text(json.dumps(data, indent=2) + "\n")
+    print(f"wrote {args.out}: gain {calibration.gain:.4f} V/V, offset {calibration.offset:.4f} V, rails "
+          f"[{calibration.rail_low:.3f}, {calibration.rail_high:.3f}] V, RMS residual "
+          f"{report['rms_residual_v'] * 1000:.1f} mV ({sum(report['clipped'])} readings at a rail)")
+
+
+def _cmd_simavr_timing(args):
+    from ._timing import measure_simavr_timing
+
+    print(measure_simavr_timing(rate=args.rate, duration=args.duration, speed=args.speed,
+                                build_dir=args.build_dir))
+
+
+COMMANDS = {"ports": _cmd_ports, "track": _cmd_track, "record": _cmd_record,
+            "calibrate": _cmd_calibrate, "simavr-timing": _cmd_simavr_timing}
+
+
+def main(argv=None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        COMMANDS[args.command](args)
+    except InputError as error:
+        print(f"rig: error: {error}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as error:
+        print(f"rig: error: {type(error).__name__}: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rig: interrupted (what was recorded so far is kept)", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
