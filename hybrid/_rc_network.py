@@ -216,9 +216,18 @@ def cascade_filter(b0, b1, a1, x: Float[Array, " time"], block: int = BLOCK) -> 
     per sample, as dense, vectorisable work instead of T·K dependent scalar steps.
     """
     dtype = jnp.result_type(x, b0)
-    x = x.astype(dtype)
-    n_sections, length = b0.shape[0], x.shape[0]
     H, O, A_L, C = _block_matrices(b0.astype(dtype), b1.astype(dtype), a1.astype(dtype), block)
+    return lifted_response(H, O, A_L, C, x.astype(dtype))
+
+
+def lifted_response(H, O, A_L, C, x):
+    """Run a linear system lifted to blocks of L samples over `x`, from rest.
+
+    y_j = O x_j + H u_j and x_{j+1} = A^L x_j + C u_j for the blocks u_j of L
+    samples (see [`cascade_filter`][]): two matrix products over all blocks and a
+    scan of T/L steps.
+    """
+    block, length = H.shape[0], x.shape[0]
     n_blocks = -(-length // block)
     u = jnp.pad(x, (0, n_blocks * block - length)).reshape(n_blocks, block)
     dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)  # no TF32 on GPUs
@@ -228,7 +237,7 @@ def cascade_filter(b0, b1, a1, x: Float[Array, " time"], block: int = BLOCK) -> 
     def advance(state, c):
         return dot(A_L, state) + c, state
 
-    _, states = lax.scan(advance, jnp.zeros(n_sections, dtype), state_input)
+    _, states = lax.scan(advance, jnp.zeros(A_L.shape[0], x.dtype), state_input)
     return (forced + dot(states, O.T)).reshape(-1)[:length]
 
 
@@ -291,12 +300,21 @@ def zoh_discretise(A, B, dt):
     return E[:n, :n], E[:n, n]
 
 
-def zoh_response(A, B, C, D, v_in, dt):
-    """Exact sampled response of ẋ = Ax + Bu, y = Cx + Du to a ZOH input, from rest."""
-    Ad, Bd = zoh_discretise(A, B, dt)
+def zoh_response(A, B, C, D, v_in, dt, block: int = BLOCK):
+    """Exact sampled response of ẋ = Ax + Bu, y = Cx + Du to a ZOH input, from rest.
+
+    The discretised system x[n+1] = A_d x[n] + B_d u[n], y[n] = C x[n] + D u[n]
+    runs lifted to blocks of `block` samples ([`lifted_response`][]); its block
+    matrices come from `block` steps of the recursion on unit excitations.
+    """
+    dtype = jnp.result_type(A, v_in)
+    Ad, Bd = zoh_discretise(A.astype(dtype), B.astype(dtype), dt)
+    n = A.shape[0]
+    eye = jnp.eye(block + n, dtype=dtype)
 
     def step(x, u):
-        return Ad @ x + Bd * u, C @ x + D * u
+        return Ad @ x + jnp.outer(Bd, u), C @ x + D * u
 
-    _, y = lax.scan(step, jnp.zeros(A.shape[0], jnp.result_type(A, v_in)), v_in)
-    return y
+    # Columns 0..L−1: a unit input at sample i from rest; columns L..L+n−1: unit states, no input.
+    final, y = lax.scan(step, eye[block:], eye[:block])
+    return lifted_response(y[:, :block], y[:, block:], final[:, block:], final[:, :block], v_in.astype(dtype))
