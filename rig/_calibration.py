@@ -108,14 +108,15 @@ class Calibration:
         return cls(**{k: v for k, v in data.items() if k in fields})
 
 
-def fit_calibration(codes, volts, v_ref: float = 5.0, bits: int = 12) -> tuple[Calibration, dict]:
+def fit_calibration(codes, volts, v_ref: float = 5.0, bits: int = 12,
+                    tolerance_v: float = 0.01) -> tuple[Calibration, dict]:
     """Fit gain, offset and rails to multimeter readings ``volts`` (V) at DAC ``codes``.
 
-    Readings at the rails sit below the straight line through the others. The
-    fit starts from all points and drops, one at a time, the extreme point
-    (lowest or highest code) whose residual is worst while it exceeds 3 % of
-    the span, so clipped points end up as rail estimates rather than bending
-    the line. At least three unclipped points are needed.
+    Readings at a rail fall short of the straight line through the others. The
+    fit takes the fewest end points off (lowest or highest codes) such that the
+    rest lie on a straight line within ``tolerance_v`` (the meter's accuracy)
+    and the removed ones fall short of it; the removed readings estimate the
+    rails. At least three points must remain on the line.
 
     Returns:
         ``(calibration, report)``; the report holds the residuals (V) and which
@@ -132,32 +133,36 @@ def fit_calibration(codes, volts, v_ref: float = 5.0, bits: int = 12) -> tuple[C
     codes, volts = codes[order], volts[order]
     top = 2**bits - 1
     v_dac = codes / top * v_ref
-    lo, hi = 0, len(codes)
-    span = float(np.ptp(volts)) or 1.0
-    while hi - lo > 3:
-        gain, offset = np.polyfit(v_dac[lo:hi], volts[lo:hi], 1)
-        resid = volts - (gain * v_dac + offset)
-        worst = max((abs(resid[lo]), lo), (abs(resid[hi - 1]), hi - 1))
-        if worst[0] <= 0.03 * span:
+    n = len(codes)
+    best = None
+    for trimmed in range(0, n - 2):
+        for lo in range(0, trimmed + 1):
+            hi = n - (trimmed - lo)
+            gain, offset = np.polyfit(v_dac[lo:hi], volts[lo:hi], 1)
+            line = gain * v_dac + offset
+            if np.max(np.abs(volts[lo:hi] - line[lo:hi])) > tolerance_v:
+                continue
+            short = np.abs(volts) < np.abs(line) - tolerance_v   # a clipped reading falls short
+            if np.all(short[:lo]) and np.all(short[hi:]):
+                best = (lo, hi, gain, offset)
+                break
+        if best:
             break
-        if worst[1] == lo:
-            lo += 1
-        else:
-            hi -= 1
-    gain, offset = np.polyfit(v_dac[lo:hi], volts[lo:hi], 1)
+    if best is None:
+        raise RigError(f"calibration readings are not a straight line (within {tolerance_v:g} V) with "
+                       "clipped ends: check the readings and the amplifier")
+    lo, hi, gain, offset = best
     if gain == 0:
         raise RigError("calibration readings do not change with the code: is the amplifier powered?")
-    rail_low = float(volts[:lo].mean()) if lo else -math.inf
-    rail_high = float(volts[hi:].mean()) if hi < len(codes) else math.inf
     ends = gain * np.array([0.0, v_ref]) + offset
-    rail_low = rail_low if math.isfinite(rail_low) else float(ends.min())
-    rail_high = rail_high if math.isfinite(rail_high) else float(ends.max())
-    if gain < 0:
-        rail_low, rail_high = min(rail_low, rail_high), max(rail_low, rail_high)
+    low_clip = volts[:lo] if gain > 0 else volts[hi:]
+    high_clip = volts[hi:] if gain > 0 else volts[:lo]
+    rail_low = float(low_clip.mean()) if low_clip.size else float(ends.min())
+    rail_high = float(high_clip.mean()) if high_clip.size else float(ends.max())
     calibration = Calibration(gain=float(gain), offset=float(offset), v_ref=v_ref, bits=bits,
                               rail_low=rail_low, rail_high=rail_high)
     residuals = volts - calibration.volts(codes)
     report = {"codes": codes.astype(int).tolist(), "volts": volts.tolist(),
-              "residuals_v": residuals.tolist(), "clipped": [bool(i < lo or i >= hi) for i in range(len(codes))],
+              "residuals_v": residuals.tolist(), "clipped": [bool(i < lo or i >= hi) for i in range(n)],
               "rms_residual_v": float(np.sqrt(np.mean(residuals**2)))}
     return calibration, report

@@ -51,6 +51,7 @@ class EmulatedBoard:
         self.dac_log: list[tuple[float, int]] = []
         self.led_log: list[tuple[float, int]] = []
         self.corrupt_tx = 0
+        self.fault_at: tuple[int, object] | None = None   # (samples played, callable(board)) for tests
         self._t0 = time.monotonic()
         self._stop = threading.Event()
         self._power_up()
@@ -322,6 +323,11 @@ class EmulatedBoard:
                 self.next_tick += self.period
                 self.timer_isr(tick_t)
                 self.loop(tick_t)
+                if self.fault_at is not None and self.played >= self.fault_at[0]:
+                    fault, self.fault_at = self.fault_at[1], None
+                    fault(self)
+                    if self._stop.is_set():
+                        return
             wait = 0.01
             if self.timer_running:
                 wait = min(wait, max(0.0, (self.next_tick - self.now()) / self.speed))
