@@ -27,7 +27,7 @@ from . import _protocol as P
 __all__ = ["EmulatedBoard"]
 
 F_CPU = 16_000_000
-DAC_LATENCY = 1172 / F_CPU       # tick -> DAC latch on simavr at 400 kHz I2C, s
+DAC_LATENCY = 1048 / F_CPU       # tick -> DAC latch measured on simavr (rig simavr-timing), s
 RX_RING = 128
 
 

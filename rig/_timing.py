@@ -41,7 +41,7 @@ def measure_simavr_timing(rate: float = 30.0, duration: float = 10.0, speed: flo
     rise = log.led_cycle[log.led_value == 1][-1]
     us = 1e6 / 16e6
     period_error_ppm = (timing.period - 1 / rate) * rate * 1e6
-    return (f"{len(codes)} samples at {timing.rate:.6f} Hz (asked {rate:g} Hz, {period_error_ppm:+.1f} ppm): "
+    return (f"{len(codes)} samples at {timing.rate:.6f} Hz (asked {rate:g} Hz; period error {period_error_ppm:+.1f} ppm): "
             f"all codes played in order; DAC latch vs tick grid: max |error| {np.max(np.abs(error)) * us:.2f} us, "
             f"RMS {np.sqrt(np.mean(error.astype(float) ** 2)) * us:.2f} us; LED edge -> sample 0 latch "
             f"{(cycles[0] - rise) * us:.1f} us ({cycles[0] - rise} cycles); underrun ticks {report.underrun_ticks}")
