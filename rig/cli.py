@@ -188,6 +188,10 @@ def _cmd_record(args):
                               metadata={"virtual": True, "speed": args.speed})
             finally:
                 board.close()
+            rises = [t for t, value in emulated.led_log if value == 1]
+            if rises and meta.get("sync"):
+                sync_error = meta["sync"]["t_camera"] - (rises[-1] - camera.t0)
+                print(f"sync: LED edge found {sync_error * 1000:+.2f} ms from the board's true edge")
     else:
         from ._camera import VideoSource
 
