@@ -316,7 +316,7 @@ class Board:
             should_stop: polled; True stops the board and ends the stream early.
             prefill: samples sent before START (default: the whole buffer).
             silence_timeout: seconds without any frame from the board that count
-                as a dead link (default: 1 s + 3 STATUS periods).
+                as a dead link (default: 2 s + 3 STATUS periods).
             on_start: called with the host time at which START was acknowledged.
 
         Raises:
@@ -349,7 +349,7 @@ class Board:
         capacity = self.info.capacity if self.info else P.RING_CAPACITY
         per_frame = self.info.max_samples if self.info else P.MAX_SAMPLES_PER_FRAME
         status_period = self.status_every * self.timing.period
-        silence = silence_timeout if silence_timeout is not None else 1.0 + 3 * status_period
+        silence = silence_timeout if silence_timeout is not None else 2.0 + 3 * status_period
         state = {"sent": 0, "limit": capacity, "acked": 0, "rewound": -1,
                  "last_progress": time.monotonic(), "heard": time.monotonic(), "started": False,
                  "end_sent": False, "done": None}

@@ -140,3 +140,38 @@ def test_missing_dac_is_a_clear_error(firmware, tmp_path):
 def test_missing_port_is_a_clear_error():
     with pytest.raises(RigError, match="cannot be opened"):
         Board.open("/dev/ttyNO_SUCH_PORT")
+
+
+def test_python_emulator_plays_like_the_firmware(firmware, tmp_path):
+    """The emulator (used by --virtual and where simavr is missing) against the real firmware."""
+    from rig._emulator import DAC_LATENCY, EmulatedBoard
+
+    codes = (np.arange(500) * 37) % 4096
+    with SimavrBoard(*firmware, tmp_path / "dac.log", speed=SPEED) as sim:
+        board = _open(sim, wrap=lambda p: CorruptingPort(p, P.T_DATA, nth=5))
+        board.configure(RATE, idle_code=1234, sync_samples=7)
+        real = board.play(codes)
+        board.close()
+    log = sim.log()
+    with EmulatedBoard(speed=SPEED) as emulated:
+        port = serial.Serial(emulated.port, 250000, timeout=0.02)
+        board = Board(CorruptingPort(port, P.T_DATA, nth=5), name=emulated.port)
+        board.hello()
+        board.configure(RATE, idle_code=1234, sync_samples=7)
+        emulated_report = board.play(codes)
+        board.close()
+        dac = np.array(emulated.dac_log)
+        led = np.array(emulated.led_log)
+    for report in (real, emulated_report):
+        assert report.complete and report.played == len(codes) and report.bad_frames_board >= 1
+    # Same codes in the same order, idle code included, on the same tick grid.
+    np.testing.assert_array_equal(dac[-len(codes) - 1:, 1], log.dac_code[-len(codes) - 1:])
+    assert log.dac_code[-len(codes) - 1] == 1234
+    emulated_ticks = (dac[-len(codes):, 0] - dac[-len(codes), 0]) / (PERIOD / 16e6)
+    np.testing.assert_allclose(emulated_ticks, real.sample_ticks(), atol=1e-6)
+    # Same LED pulse: on at sample 0's tick, off 7 ticks later; latch DAC_LATENCY after the tick.
+    on, off = led[led[:, 1] == 1][-1, 0], led[led[:, 1] == 0][-1, 0]
+    assert (off - on) * 16e6 == pytest.approx(7 * PERIOD, abs=1)
+    assert (dac[-len(codes), 0] - on) * 16e6 == pytest.approx(
+        log.dac_cycle[-len(codes)] - log.led_cycle[log.led_value == 1][-1], abs=1)
+    assert DAC_LATENCY * 16e6 == pytest.approx(1048, abs=1)
