@@ -4,6 +4,7 @@
     hybrid rc DRIVE.csv [--param NAME=VALUE ...] [--method tustin|zoh] --out F.csv
     hybrid fit RECORDING... --model hybrid|normal|physics [--out MODEL]
     hybrid table2 [--duration S] [--out-dir DIR]
+    hybrid sensitivity --out DIR [RECORDING] [--drive D] [--param NAME=VALUE ...] [--sobol N]
 
 Bad input of any kind ends with exit status 2 and one line on stderr.
 """
@@ -86,6 +87,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=int, default=None)
     p.add_argument("--out-dir", default="experiments/results")
     p.add_argument("--quiet", action="store_true")
+
+    p = sub.add_parser("sensitivity", help="sensitivities and identifiability of the RC network's parameters")
+    p.add_argument("recording", nargs="?", default=None, help="optional recording whose drive is the primary one")
+    p.add_argument("--out", required=True, help="output directory (sensitivity.json, sensitivity.md, PNGs)")
+    p.add_argument("--drive", choices=("prbs", "sine", "chirp", "pulse"), default="prbs", help="primary drive")
+    p.add_argument("--duration", type=float, default=120.0, help="seconds per drive")
+    p.add_argument("--rate", type=float, default=30.0, help="samples per second")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="nominal RC parameter: xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F)")
+    p.add_argument("--stages", type=int, default=45, help="N (the network has N+1 sections)")
+    p.add_argument("--noise", type=float, default=0.01, help="noise as a fraction of rms(w), for standard errors")
+    p.add_argument("--sobol", type=int, default=0, metavar="N", help="also Sobol indices from N base samples")
+    p.add_argument("--seed", type=int, default=0)
     return parser
 
 
@@ -213,7 +227,28 @@ def _cmd_table2(args):
     reproduce_table2(Table2Settings(**overrides), out_dir=args.out_dir, progress=not args.quiet)
 
 
-COMMANDS = {"simulate": _cmd_simulate, "rc": _cmd_rc, "fit": _cmd_fit, "table2": _cmd_table2}
+def _cmd_sensitivity(args):
+    from ._recording import Recording
+    from ._sensitivity_study import SensitivityStudySettings, run_sensitivity_study
+
+    recording = Recording.load(args.recording) if args.recording else None
+    settings = SensitivityStudySettings(
+        parameters=_parse_params(args.param), n_stages=args.stages, drive=args.drive,
+        duration=args.duration, rate=args.rate, noise=args.noise, sobol=args.sobol, seed=args.seed,
+    )
+    result = run_sensitivity_study(settings, out_dir=args.out, recording=recording)
+    values = ", ".join(f"{v:.2e}" for v in result["relative_singular_values"])
+    print(f"relative singular values ({result['primary_drive']}): {values}")
+    for direction in result["null_directions"]:
+        text = " ".join(f"{c:+.4f}·log {n}" for n, c in direction.items())
+        print(f"null direction (V_o does not change along it): {text}")
+    for pair in result["collinear_pairs"]:
+        print(f"near-collinear: {pair['pair'][0]} and {pair['pair'][1]} (cosine {pair['cosine']:+.4f})")
+    print(f"wrote {Path(args.out) / 'sensitivity.json'} and figures ({result['seconds']:.1f} s)")
+
+
+COMMANDS = {"simulate": _cmd_simulate, "rc": _cmd_rc, "fit": _cmd_fit, "table2": _cmd_table2,
+            "sensitivity": _cmd_sensitivity}
 
 
 def main(argv=None) -> int:
