@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench install clean rig-deps
+.PHONY: demo test bench bench-quick install clean rig-deps
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -24,8 +24,24 @@ demo: $(STAMP)
 test: $(STAMP) rig-deps
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP)
+# full benchmarks (~15 min on 2 cores) and the quick ratios (< 45 s); both write benchmarks/results/*.json
+BENCH_STAMP := $(VENV)/.installed-bench
+
+$(BENCH_STAMP): pyproject.toml | $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
+	touch $(BENCH_STAMP)
+
+bench: $(BENCH_STAMP)
+	$(BIN)/python benchmarks/quick.py
+	$(BIN)/python benchmarks/simulate.py
+	$(BIN)/python benchmarks/jacobian.py
 	$(BIN)/python benchmarks/lm_step.py
+	$(BIN)/python benchmarks/fitting.py
+	$(BIN)/python benchmarks/batch_fit.py
+	$(BIN)/python benchmarks/memory.py
+
+bench-quick: $(STAMP)
+	$(BIN)/python benchmarks/quick.py
 
 clean:
 	rm -rf $(VENV) *.egg-info .pytest_cache

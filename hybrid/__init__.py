@@ -11,7 +11,7 @@ The library never changes `jax.config`: call
 
 from ._drives import DRIVES as DRIVES, Drive as Drive, make_drive as make_drive
 from ._errors import InputError as InputError
-from ._batch import BatchFitResult as BatchFitResult, fit_batch as fit_batch
+from ._batch import BatchFitResult as BatchFitResult, fit_batch as fit_batch, simulate_batch as simulate_batch
 from ._fit import SOLVERS as SOLVERS, fit as fit
 from ._metrics import (
     fitting as fitting,

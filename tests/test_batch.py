@@ -119,3 +119,21 @@ def test_sharded_batch_over_four_cpu_devices_equals_unsharded():
     # equal to rounding (measured ≤ 1e-9 relative)
     for a, b in zip(out["sharded"], out["single"]):
         assert _max_relative_difference(a, b) < 1e-6
+
+
+def test_simulate_batch_equals_simulate_one_by_one():
+    from hybrid import simulate_batch
+
+    nets = [RCNetwork(xi_rho=5.0 + i, C_clamp=0.01 * (1 + i), n_stages=12) for i in range(5)]
+    v = h.step_drive(700, seed=2)
+    expected = np.stack([np.asarray(n.simulate(v, 1 / 30)) for n in nets])
+    for batch_size in (None, 2):  # 5 = 2 + 2 + 1: a ragged last chunk
+        got = np.asarray(simulate_batch(nets, v, 1 / 30, batch_size=batch_size))
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-13 * np.max(np.abs(expected)))
+    # one drive per simulation
+    drives = np.stack([v * (i + 1) for i in range(5)])
+    got = np.asarray(simulate_batch(nets, drives, 1 / 30))
+    np.testing.assert_allclose(got, expected * np.arange(1, 6)[:, None], rtol=0,
+                               atol=1e-12 * np.max(np.abs(expected)))
+    with pytest.raises(InputError):
+        simulate_batch([], v, 1 / 30)

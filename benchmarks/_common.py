@@ -1,0 +1,90 @@
+"""Shared helpers of the benchmarks: timing, the RC sections as scipy SOS, machine notes.
+
+Timing follows diffrax's `benchmarks/against_scan.py`: the minimum over repeats,
+`block_until_ready` on JAX results, compile time measured apart (first call
+minus a steady-state call, or `lower().compile()`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def setup_jax():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    return jax
+
+
+def best_of(fn, *args, repeats=5):
+    """Minimum wall time (s) of `fn(*args)` over `repeats` calls, and the last result."""
+    import jax
+
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn(*args)
+        jax.block_until_ready(out)
+        times.append(time.perf_counter() - t0)
+    return min(times), out
+
+
+def first_call(fn, *args):
+    """Wall time (s) of the first call (trace + compile + run)."""
+    import jax
+
+    t0 = time.perf_counter()
+    out = fn(*args)
+    jax.block_until_ready(out)
+    return time.perf_counter() - t0, out
+
+
+def sos_sections(network, dt):
+    """The network's Tustin sections as scipy SOS rows [b0, b1, 0, 1, a1, 0], written
+    from `scipy.signal.bilinear_zpk` of each section's zero, pole and gain (Eqs 11–13)."""
+    import scipy.signal
+
+    G, Z, P = (np.asarray(a) for a in network.stage_zpk())
+    rows = []
+    for g, z, p in zip(G, Z, P):
+        zd, pd, kd = scipy.signal.bilinear_zpk([-z], [-p], g, fs=1.0 / dt)
+        rows.append([kd, -kd * zd[0], 0.0, 1.0, -pd[0], 0.0])
+    return np.array(rows)
+
+
+def machine():
+    """Where the numbers were taken: CPU count, load average, JAX backend/devices."""
+    import jax
+
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    return {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "load_average_1_5_15": [round(x, 2) for x in load],
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "x64": bool(jax.config.jax_enable_x64),
+    }
+
+
+def write(name, data):
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / name
+    path.write_text(json.dumps(data, indent=2, default=float))
+    return path
+
+
+def relative_error(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
