@@ -117,6 +117,15 @@ def _free_names(D, names, tol=0.0):
     return [names[i] for i in rows], rows
 
 
+def _ordered_names(target) -> list[str]:
+    """Parameter names in their class's declaration order (pytree operations sort dict keys)."""
+    names = list(_named(target))
+    parts = (target.simulation, target.readout) if isinstance(target, Model) else (target,)
+    declared = [n for part in parts for n in getattr(type(part), "constraints", {})]
+    rank = {n: i for i, n in enumerate(declared)}
+    return sorted(names, key=lambda n: (rank.get(n, len(rank)), names.index(n)))
+
+
 def _raw_to_physical_columns(J_raw, D):
     """∂y/∂θ_phys from ∂y/∂θ_raw when D (named × raw) is square and invertible."""
     D = np.asarray(D)
@@ -215,7 +224,7 @@ def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensi
     theta, view = _free_theta(target, frozen)
     if theta.size == 0:
         raise InputError("no free named parameters: nothing to take sensitivities to")
-    all_names = list(named)
+    all_names = _ordered_names(target)
     D = _physical_map(view, theta, all_names)
     names, rows = _free_names(D, all_names)
     model_output = isinstance(target, Model)
@@ -484,7 +493,7 @@ def parameter_covariance(
     r, J = (np.asarray(a) for a in _fit_jacobian(problem, theta))
     m, n = J.shape
     named = _named(model)
-    all_names = list(named)
+    all_names = _ordered_names(model)
     D = np.asarray(_physical_map(_ProblemView(problem), theta, all_names))
     names, rows = _free_names(D, all_names)
     D = D[rows]
@@ -604,7 +613,7 @@ def frequency_sensitivity(simulation, frequency, *, frozen=frozenset()) -> dict[
     f = jnp.asarray(frequency, dtype=float)
     named = _named(simulation)
     theta, view = _free_theta(simulation, frozen)
-    all_names = list(named)
+    all_names = _ordered_names(simulation)
     D = _physical_map(view, theta, all_names)
     names, rows = _free_names(D, all_names)
 
@@ -681,7 +690,7 @@ def sobol_indices(
     theta, view = _free_theta(target, frozen)
     if theta.size == 0:
         raise InputError("no free named parameters to sample")
-    all_names = list(named)
+    all_names = _ordered_names(target)
     D = np.asarray(_physical_map(view, theta, all_names))
     names, rows = _free_names(D, all_names)
     if len(names) != theta.size:
@@ -701,12 +710,12 @@ def sobol_indices(
     first = jnp.mean(fB * (fAB - fA), axis=1)                               # Saltelli 2010
     total = 0.5 * jnp.mean((fA - fAB) ** 2, axis=1)                         # Jansen 1999
     denominator = jnp.maximum(jnp.sum(variance), jnp.finfo(variance.dtype).tiny)
-    S1 = np.asarray(jnp.sum(first, axis=1) / denominator)
-    ST = np.asarray(jnp.sum(total, axis=1) / denominator)
+    S1 = dict(zip(order, map(float, np.asarray(jnp.sum(first, axis=1) / denominator))))
+    ST = dict(zip(order, map(float, np.asarray(jnp.sum(total, axis=1) / denominator))))
     return SobolIndices(
-        names=tuple(order),
-        first_order=dict(zip(order, map(float, S1))),
-        total=dict(zip(order, map(float, ST))),
+        names=tuple(names),
+        first_order={n: S1[n] for n in names},
+        total={n: ST[n] for n in names},
         n_base=n_base, n_evaluations=int(samples.shape[0]), spread=float(spread),
     )
 
