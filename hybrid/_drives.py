@@ -22,7 +22,7 @@ import numpy as np
 
 from ._errors import InputError
 
-__all__ = ["DRIVES", "Drive", "chirp", "make_drive", "prbs", "pulse", "sine"]
+__all__ = ["DRIVES", "Drive", "chirp", "make_drive", "prbs", "pulse", "sine", "staircase", "triangle"]
 
 #: Default sampling rate, Hz: the paper's camera records 30 frames per second.
 DEFAULT_RATE: float = 30.0
@@ -222,6 +222,8 @@ def sine(
     phase: float = 0.0,
     modulation_depth: float = 0.0,
     modulation_period: float = 60.0,
+    modulation: str = "cosine",
+    seed: int = 0,
 ) -> Drive:
     """A sine wave, ``v = offset + a(t) * sin(2 pi frequency t + phase)``.
 
@@ -231,6 +233,11 @@ def sine(
     between ``amplitude`` and ``(1 - depth) * amplitude``: at a periodic steady
     state a 2 s window of a pure sine fixes its phase, so only a varying
     amplitude makes history older than the window (slow charge dynamics) matter.
+    With ``modulation="random"`` the amplitude instead takes a new random value
+    ``amplitude * (1 - depth * U)``, U uniform in [0, 1), at every zero crossing
+    (each half cycle), so the drive stays continuous but no window shorter than
+    the strip's memory predicts the past half cycles (`modulation_period` is then
+    unused).
 
     Arguments:
         duration: length, s.
@@ -241,6 +248,9 @@ def sine(
         phase: phase at t = 0, rad.
         modulation_depth: relative depth of the amplitude modulation, in [0, 1].
         modulation_period: period of the amplitude modulation, s (> 0).
+        modulation: ``"cosine"`` (slow periodic envelope) or ``"random"``
+            (a random amplitude per half cycle).
+        seed: seed of the random amplitudes.
 
     Returns:
         The :class:`Drive`, name ``"sine"``.
@@ -256,14 +266,28 @@ def sine(
         raise InputError(f"sine drive modulation_depth must be in [0, 1], got {modulation_depth!r}")
     if not modulation_period > 0:
         raise InputError(f"sine drive modulation_period must be > 0 s, got {modulation_period!r}")
-    envelope = 1.0 - 0.5 * modulation_depth * (1.0 - np.cos(2 * np.pi * t / modulation_period))
-    v = offset + amplitude * envelope * np.sin(2 * np.pi * frequency * t + phase)
+    if modulation not in ("cosine", "random"):
+        raise InputError(f"sine drive modulation={modulation!r} is unknown: use 'cosine' or 'random'")
+    angle = 2 * np.pi * frequency * t + phase
+    if modulation == "random":
+        envelope = _half_cycle_envelope(angle, modulation_depth, _seed("sine", seed))
+    else:
+        envelope = 1.0 - 0.5 * modulation_depth * (1.0 - np.cos(2 * np.pi * t / modulation_period))
+    v = offset + amplitude * envelope * np.sin(angle)
     params = dict(
         duration=duration, rate=rate, amplitude=amplitude, frequency=frequency,
         offset=offset, phase=phase, modulation_depth=modulation_depth,
-        modulation_period=modulation_period,
+        modulation_period=modulation_period, modulation=modulation, seed=seed,
     )
     return Drive(t, v, "sine", params)
+
+
+def _half_cycle_envelope(angle: np.ndarray, depth: float, seed: int) -> np.ndarray:
+    """A random level 1 − depth·U per half cycle of sin(angle), switching at its zero crossings."""
+    index = np.floor(angle / np.pi).astype(np.int64)
+    index -= index.min()
+    levels = 1.0 - depth * np.random.default_rng(seed).uniform(size=int(index.max()) + 1)
+    return levels[index]
 
 
 def _chirp_phase(t: np.ndarray, f0: float, f1: float, period: float, method: str) -> np.ndarray:
@@ -284,6 +308,8 @@ def chirp(
     f1: float = 2.0,
     method: str = "logarithmic",
     sweep_period: float | None = None,
+    modulation_depth: float = 0.0,
+    seed: int = 0,
 ) -> Drive:
     """A swept sine, ``v = amplitude * sin(phi(t))``, starting at phase 0.
 
@@ -303,6 +329,10 @@ def chirp(
         f1: end frequency, Hz, in (0, rate / 2); may be below f0.
         method: ``"logarithmic"`` or ``"linear"``.
         sweep_period: seconds per sweep, or None for one sweep over the duration.
+        modulation_depth: in [0, 1]; above 0 each half cycle gets a random
+            amplitude ``amplitude * (1 - depth * U)`` (switching at zero crossings),
+            so that a short window does not tell where in the sweep the drive is.
+        seed: seed of the random amplitudes.
 
     Returns:
         The :class:`Drive`, name ``"chirp"``.
@@ -319,9 +349,13 @@ def chirp(
     sweeps, within = np.divmod(t, period)
     phase = _chirp_phase(within, f0, f1, period, method)
     phase = phase + sweeps * _chirp_phase(np.array(period), f0, f1, period, method)
-    v = amplitude * np.sin(phase)
+    modulation_depth = _number("chirp", "modulation_depth", modulation_depth)
+    if not 0.0 <= modulation_depth <= 1.0:
+        raise InputError(f"chirp drive modulation_depth must be in [0, 1], got {modulation_depth!r}")
+    envelope = _half_cycle_envelope(phase, modulation_depth, _seed("chirp", seed)) if modulation_depth else 1.0
+    v = amplitude * envelope * np.sin(phase)
     params = dict(duration=duration, rate=rate, amplitude=amplitude, f0=f0, f1=f1, method=method,
-                  sweep_period=sweep_period)
+                  sweep_period=sweep_period, modulation_depth=modulation_depth, seed=seed)
     return Drive(t, v, "chirp", params)
 
 
@@ -383,11 +417,92 @@ def pulse(
     return Drive(t, v, "pulse", params)
 
 
+def staircase(
+    duration: float,
+    rate: float = DEFAULT_RATE,
+    amplitude: float = 2.0,
+    steps: int = 5,
+    step_time: float = 4.0,
+) -> Drive:
+    """Up-and-down staircase: ``steps`` levels from -amplitude to +amplitude and back.
+
+    The levels ``linspace(-A, A, steps)`` are visited up, then down (without
+    repeating the ends), each held ``step_time`` s, over and over: every level is
+    reached from below and from above, which separates hysteresis from
+    saturation and shows slow relaxation after each step.
+
+    Arguments:
+        duration: length, s.
+        rate: sampling rate, Hz.
+        amplitude: largest |level|, V (>= 0).
+        steps: number of levels (>= 2).
+        step_time: hold per level, s (at least one sample).
+
+    Returns:
+        The :class:`Drive`, name ``"staircase"``.
+    """
+    t, duration, rate = _time("staircase", duration, rate)
+    amplitude = _amplitude("staircase", amplitude)
+    step_time = _number("staircase", "step_time", step_time, positive=True)
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 2:
+        raise InputError(f"staircase drive steps must be an integer >= 2, got {steps!r}")
+    if step_time * rate < 1:
+        raise InputError(f"staircase drive step_time={step_time:g} s is shorter than one sample at {rate:g} Hz")
+    levels = np.linspace(-amplitude, amplitude, steps)
+    cycle = np.concatenate([levels, levels[-2:0:-1]])
+    index = np.floor(np.arange(len(t)) / (step_time * rate) + 1e-9).astype(int) % len(cycle)
+    v = cycle[index]
+    params = dict(duration=duration, rate=rate, amplitude=amplitude, steps=int(steps), step_time=step_time)
+    return Drive(t, v, "staircase", params)
+
+
+def triangle(
+    duration: float,
+    rate: float = DEFAULT_RATE,
+    amplitude: float = 2.0,
+    period: float = 10.0,
+    levels: int = 4,
+) -> Drive:
+    """Triangle sweeps of stepped amplitude: periods of peak A, then smaller ones.
+
+    Period k has peak ``A * (1 - (k mod levels) / levels)``; a triangle wave
+    starts at 0 V, rises to the peak, falls to minus the peak and returns to 0 V.
+    Sweeps of several amplitudes trace the minor loops of a hysteresis.
+
+    Arguments:
+        duration: length, s.
+        rate: sampling rate, Hz.
+        amplitude: largest peak, V (>= 0).
+        period: one triangle, s (at least 4 samples).
+        levels: number of peak amplitudes cycled through (>= 1).
+
+    Returns:
+        The :class:`Drive`, name ``"triangle"``.
+    """
+    t, duration, rate = _time("triangle", duration, rate)
+    amplitude = _amplitude("triangle", amplitude)
+    period = _number("triangle", "period", period, positive=True)
+    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 1:
+        raise InputError(f"triangle drive levels must be an integer >= 1, got {levels!r}")
+    if period * rate < 4:
+        raise InputError(f"triangle drive period={period:g} s needs at least 4 samples at {rate:g} Hz")
+    position = t / period
+    cycle = np.floor(position + 1e-12)
+    u = position - cycle
+    shape = np.where(u < 0.25, 4 * u, np.where(u < 0.75, 2 - 4 * u, 4 * u - 4))
+    peaks = amplitude * (1 - (cycle % levels) / levels)
+    v = peaks * shape
+    params = dict(duration=duration, rate=rate, amplitude=amplitude, period=period, levels=int(levels))
+    return Drive(t, v, "triangle", params)
+
+
 _GENERATORS: dict[str, Callable[..., Drive]] = {
     "prbs": prbs, "sine": sine, "chirp": chirp, "pulse": pulse,
+    "staircase": staircase, "triangle": triangle,
 }
 
-#: Names accepted by :func:`make_drive`, in the paper's order (Table 2).
+#: Names accepted by :func:`make_drive`: the paper's four (Table 2 order), then
+#: two more for identifying hysteresis and saturation.
 DRIVES: tuple[str, ...] = tuple(_GENERATORS)
 
 
@@ -398,10 +513,11 @@ def make_drive(
 
     Arguments:
         name: one of :data:`DRIVES` (``"prbs"``, ``"sine"``, ``"chirp"``,
-            ``"pulse"``).
+            ``"pulse"``, ``"staircase"``, ``"triangle"``).
         duration: length, s.
         rate: sampling rate, Hz.
-        seed: seed for the random drives (PRBS); the others ignore it.
+        seed: seed for the random drives (PRBS, randomly modulated sine and
+            chirp); the others ignore it.
         **params: the generator's other parameters (see each generator).
 
     Returns:

@@ -119,7 +119,7 @@ def test_pulse_unipolar_with_offset():
 def test_make_drive_passes_seed_and_params():
     drive = make_drive("prbs", 30.0, rate=20.0, seed=7, max_hold=2.0)
     np.testing.assert_array_equal(drive.v, prbs(30.0, rate=20.0, max_hold=2.0, seed=7).v)
-    assert make_drive("sine", 5.0, seed=9).params == sine(5.0).params
+    assert make_drive("sine", 5.0, seed=9).params == sine(5.0, seed=9).params
 
 
 @pytest.mark.parametrize(
@@ -189,3 +189,21 @@ def test_chirp_repeated_sweeps_are_continuous_and_periodic_in_frequency():
     assert max(crossings) - min(crossings) <= 2
     with pytest.raises(InputError, match="sweep_period"):
         chirp(10.0, sweep_period=-1.0)
+
+
+@pytest.mark.parametrize("name", ["sine", "chirp"])
+def test_random_half_cycle_amplitudes(name):
+    extra = {"modulation": "random"} if name == "sine" else {"sweep_period": 20.0, "f1": 1.0}
+    drive = make_drive(name, 120.0, rate=100.0, seed=3, amplitude=2.0, modulation_depth=0.6, **extra)
+    again = make_drive(name, 120.0, rate=100.0, seed=3, amplitude=2.0, modulation_depth=0.6, **extra)
+    other = make_drive(name, 120.0, rate=100.0, seed=4, amplitude=2.0, modulation_depth=0.6, **extra)
+    np.testing.assert_array_equal(drive.v, again.v)
+    assert not np.array_equal(drive.v, other.v)
+    # Each half cycle (between zero crossings) has its own peak in [(1 - depth) A, A].
+    crossings = np.flatnonzero(np.sign(drive.v[:-1]) * np.sign(drive.v[1:]) < 0)
+    peaks = np.array([np.max(np.abs(drive.v[a + 1:b + 1])) for a, b in zip(crossings[:-1], crossings[1:])
+                      if b - a > 20])
+    assert peaks.min() >= 0.4 * 2.0 - 1e-9 and peaks.max() <= 2.0 + 1e-12
+    assert np.std(peaks) > 0.1  # really random, not a constant envelope
+    # Continuous: the amplitude switches only where the sine is zero.
+    assert np.max(np.abs(np.diff(drive.v))) < 2.0 * 2 * np.pi * 1.0 / 100.0 * 1.05
