@@ -146,12 +146,7 @@ def _start_model(model: Model, index, seed, frozen, perturbation, series) -> Mod
             depth = len(readout.mlp.layers) - 1
             width = readout.mlp.width_size
             readout = WindowedMLP(readout.window, depth, width, readout.mlp.activation, key=k_net)
-        raw = dict(model.simulation.raw)
-        for j, name in enumerate(sorted(raw)):
-            if name not in frozen:
-                noise = jax.random.normal(jax.random.fold_in(k_phys, j), raw[name].shape, raw[name].dtype)
-                raw[name] = raw[name] + perturbation * noise
-        simulation = eqx.tree_at(lambda s: s.raw, model.simulation, raw)
+        simulation = model.simulation.perturbed(k_phys, perturbation, frozen)
         model = Model(simulation, readout, model.kind)
     # Fixed scalings (and a least-squares gain for linear readouts) from the training data.
     signal = jnp.concatenate([

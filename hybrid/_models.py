@@ -59,11 +59,11 @@ class Model(eqx.Module):
 
     @property
     def units(self) -> dict[str, str]:
-        return {**type(self.simulation).units, **getattr(type(self.readout), "units", {})}
+        return {**self.simulation.parameter_units(), **getattr(type(self.readout), "units", {})}
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
-        names = tuple(self.simulation.raw) + tuple(getattr(self.readout, "raw", {}))
+        names = self.simulation.parameter_names() + tuple(getattr(self.readout, "raw", {}))
         if isinstance(self.readout, WindowedMLP):
             names += ("network",)
         return names

@@ -68,6 +68,11 @@ class Problem(eqx.Module):
       black-box readout such as the D-MLP; physical parameters and linear gains are
       never penalised). It is the residual block √μ θ_network appended to r, i.e.
       ridge regularisation as in MATLAB's Bayesian-regularised LM (`trainbr`).
+    - `sim_tangents`: optional (k × n_sim) array of orthonormal directions in θ_sim:
+      the forward-mode Jacobian is built along these k directions only (zero rows
+      allowed as padding) and the rest of θ_sim gets zero Jacobian columns, so
+      Levenberg–Marquardt leaves it in place. An array, not a static option: lanes
+      of a batched fit can differ in it without recompiling.
     """
 
     sim_static: eqx.Module
@@ -80,8 +85,10 @@ class Problem(eqx.Module):
     n_sim: int = eqx.field(static=True)
     n_readout: int = eqx.field(static=True)
     weight_decay: float = eqx.field(static=True)
+    sim_tangents: jax.Array | None
 
-    def __init__(self, model: Model, series, frozen=frozenset(), weight_decay: float = 0.0):
+    def __init__(self, model: Model, series, frozen=frozenset(), weight_decay: float = 0.0,
+                 sim_tangents=None):
         series = tuple(series)
         if not series:
             raise InputError("no recordings to fit: pass at least one recording")
@@ -102,6 +109,7 @@ class Problem(eqx.Module):
             raise InputError(f"weight_decay must be ≥ 0, got {weight_decay!r}")
         penalised = not model.readout.parameters()  # black-box readouts only
         self.weight_decay = float(weight_decay) if penalised else 0.0
+        self.sim_tangents = sim_tangents
 
     # --- θ ↔ model -------------------------------------------------------------
     def flatten(self, model: Model, frozen=frozenset()) -> jax.Array:
@@ -186,7 +194,11 @@ class Problem(eqx.Module):
 
         if self.n_sim:
             r, linear, windows = jax.linearize(from_sim, a, has_aux=True)
-            J_sim = jax.vmap(linear, out_axes=1)(jnp.eye(self.n_sim, dtype=a.dtype))
+            if self.sim_tangents is None:
+                J_sim = jax.vmap(linear, out_axes=1)(jnp.eye(self.n_sim, dtype=a.dtype))
+            else:  # only these directions (rows); the others get zero columns
+                basis = self.sim_tangents.astype(a.dtype)
+                J_sim = jax.vmap(linear, out_axes=1)(basis) @ basis
         else:
             r, windows = from_sim(a)
             J_sim = jnp.zeros((r.shape[0], 0), r.dtype)

@@ -51,6 +51,25 @@ class AbstractSimulation(eqx.Module):
         raw = encode(current, self.constraints, type(self).__name__)
         return eqx.tree_at(lambda s: s.raw, self, raw)
 
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of the parameters (what `frozen` and `replace` accept)."""
+        return tuple(self.raw)
+
+    def parameter_units(self) -> dict[str, str]:
+        """Unit of each parameter, by name."""
+        return dict(type(self).units)
+
+    def perturbed(self, key, scale: float, frozen=frozenset()) -> "AbstractSimulation":
+        """A copy whose free raw (unconstrained) values get N(0, scale²) noise: a new start."""
+        import jax
+
+        raw = dict(self.raw)
+        for j, name in enumerate(sorted(raw)):
+            if name not in frozen:
+                noise = jax.random.normal(jax.random.fold_in(key, j), raw[name].shape, raw[name].dtype)
+                raw[name] = raw[name] + scale * noise
+        return eqx.tree_at(lambda s: s.raw, self, raw)
+
     def trainable(self, frozen: frozenset[str]) -> "AbstractSimulation":
         """Filter spec (same structure, bools) marking the free parameters."""
         spec = {name: name not in frozen for name in self.raw}

@@ -1,0 +1,582 @@
+"""What the simulation gets wrong, which physical effect causes it, and what adding it gains.
+
+`diagnose(recordings)`:
+
+1. **Baseline.** The physics simulation (any [`AbstractSimulation`][]; by default
+   the paper's RC network) with a linear gain and offset is fitted by
+   Levenberg–Marquardt on the training part of each recording (first 60 %),
+   from a grid of starting points (C_clamp, ξρ, α_I), all `vmap`-ed in one
+   compiled program; the validation part (next 10 %) picks the best.
+2. **Candidates.** The same simulation followed by each effect of
+   [`hybrid._effects`][] is refitted jointly (physical parameters, effect, gain
+   and offset), warm-started from the baseline, from a few data-scaled starting
+   values per effect. Every candidate is one lane of a single `vmap`-ed LM run:
+   an [`EffectStack`][] holds all effects, and a lane switches on one of them.
+3. **Evidence on held-out data** (the last 30 %, never used for fitting or
+   selection): held-out NMSE and its gain over the baseline, BIC on the
+   training part, the Ljung–Box whiteness statistic of the held-out residual,
+   and whether the fitted effect is physically material (e.g. a delay of at
+   least half a sample, a relaxation of at least 10 %).
+4. **Decision.** A cause is named only when its extension is material, improves
+   the held-out NMSE by at least `min_gain`, lowers BIC by at least `min_bic_drop`
+   and makes the held-out residual whiter; among those, the largest held-out
+   gain wins. Otherwise the answer is ``"none"``: a false discovery is worse than
+   a miss.
+5. **Extended model.** The named cause's fit, with standard errors of every
+   parameter in physical units (Gauss–Newton covariance σ²(JᵀJ)⁻¹ mapped through
+   the reparameterisation, inflated for residual autocorrelation). With
+   ``hybrid=True`` the hybrid model (simulation + D-MLP) is fitted with and
+   without the effect too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _residual_tests as rt
+from ._effects import EFFECTS, EffectStack
+from ._errors import InputError
+from ._levenberg_marquardt import LMSettings, lm_init, lm_run
+from ._metrics import metrics as compute_metrics
+from ._models import Model
+from ._problem import Problem, series_from_recording
+from ._rc_network import RCNetwork
+from ._readout import LinearReadout
+
+#: Names `diagnose` can return: an effect of `hybrid._effects`, or "none".
+CAUSES = ("none",) + tuple(EFFECTS)
+
+SPLIT_ORDER = ("train", "validation", "test")
+
+#: LM runs per stage (baseline starts; candidate starts, padded): one compiled program.
+N_LANES = 10
+
+
+@dataclasses.dataclass(frozen=True)
+class DiagnoseSettings:
+    """How `diagnose` fits and decides (every field is written to the report).
+
+    - `split`: train, validation, test fractions, contiguous in that order.
+    - `max_steps`, `patience`: LM limits per stage (baseline, candidates).
+    - `min_gain`: held-out NMSE ratio baseline/extended needed to name a cause.
+    - `min_bic_drop`: BIC decrease (training part) needed to name a cause.
+    - `materiality`: the smallest effect that counts as a cause, per effect (see
+      `_material`); below it the "effect" is within timing or modelling slack.
+    - `frozen`: parameters never fitted (ξh: only ξρ/ξh is identifiable).
+    """
+
+    split: tuple[float, float, float] = (0.6, 0.1, 0.3)
+    max_steps: int = 120
+    patience: int = 25
+    min_gain: float = 1.25
+    min_bic_drop: float = 10.0
+    materiality: dict = dataclasses.field(default_factory=lambda: {
+        "delay_samples": 0.5, "relaxation_percent": 10.0, "shortfall_percent": 5.0,
+        "loop_height_percent_of_range": 3.0, "gain_change_percent": 5.0, "max_damping": 0.5,
+        "min_frequency_hz": 0.5,
+    })
+    frozen: tuple[str, ...] = ("xi_h",)
+
+
+@dataclasses.dataclass
+class Candidate:
+    """One effect's extended fit and the evidence about it."""
+
+    name: str
+    parameters: dict
+    derived: dict
+    train_rss: float
+    n_parameters: int
+    bic: float
+    heldout: dict
+    ljung_box: dict
+    gain: float = float("nan")
+    delta_bic: float = float("nan")
+    material: bool = False
+    eligible: bool = False
+    reasons: list = dataclasses.field(default_factory=list)
+    theta: np.ndarray | None = None
+    active: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name, "heldout_nmse": self.heldout["nmse"], "heldout_fitting": self.heldout["fitting"],
+            "gain": self.gain, "criterion": {"bic": self.bic, "delta_bic": self.delta_bic},
+            "ljung_box": self.ljung_box, "parameters": self.parameters, "derived": self.derived,
+            "material": self.material, "eligible": self.eligible, "reasons": self.reasons,
+        }
+
+
+@dataclasses.dataclass
+class Diagnosis:
+    """What `diagnose` found; `to_dict()` is ``report.json``."""
+
+    cause: str
+    baseline: Candidate
+    extended: Candidate
+    candidates: list
+    uncertainties: dict
+    evidence: dict
+    hybrid: dict | None
+    settings: DiagnoseSettings
+    recordings: list
+    seconds: float
+
+    @property
+    def gain(self) -> float:
+        return self.baseline.heldout["nmse"] / self.extended.heldout["nmse"]
+
+    def to_dict(self) -> dict:
+        return {
+            "cause": self.cause,
+            "baseline": {"nmse": self.baseline.heldout["nmse"], "fitting": self.baseline.heldout["fitting"],
+                         "nmse_target": self.baseline.heldout["nmse_target"]},
+            "extended": {"nmse": self.extended.heldout["nmse"], "fitting": self.extended.heldout["fitting"],
+                         "nmse_target": self.extended.heldout["nmse_target"]},
+            "gain": self.gain,
+            "parameters": {k: {"value": v, "std_error": self.uncertainties.get(k, {}).get("std_error"),
+                               "unit": self.uncertainties.get(k, {}).get("unit", "")}
+                           for k, v in self.extended.parameters.items()},
+            "effect_derived": self.extended.derived,
+            "candidates": [c.to_dict() for c in self.candidates],
+            "baseline_fit": self.baseline.to_dict(),
+            "evidence": self.evidence,
+            "hybrid": self.hybrid,
+            "settings": dataclasses.asdict(self.settings),
+            "recordings": self.recordings,
+            "seconds": self.seconds,
+            "split": "train first 60 %, validation next 10 %, held-out (test) last 30 % of each recording",
+        }
+
+
+# --------------------------------------------------------------------------- #
+# Batched LM over lanes (one compiled program for every candidate)
+# --------------------------------------------------------------------------- #
+
+
+def _with_active(problem: Problem, active, tangents=None):
+    """The problem with the effects' switches (and Jacobian directions) of one lane."""
+    problem = eqx.tree_at(lambda p: p.sim_static.active, problem, active)
+    if tangents is not None:
+        problem = eqx.tree_at(lambda p: p.sim_tangents, problem, tangents, is_leaf=lambda x: x is None)
+    return problem
+
+
+def _lane_tangents(model: Model, frozen, effect: str | None, n_rows: int) -> np.ndarray:
+    """Unit directions in θ_sim for the inner simulation's free parameters and one effect's."""
+    stack = model.simulation
+    labels = _theta_labels(model, frozen)[: len(_theta_labels(model, frozen)) - len(
+        [n for n in model.readout.raw if n not in frozen])]
+    wanted = [n for n in stack.inner.parameter_names() if n not in frozen]
+    if effect is not None:
+        wanted += [n for n in EFFECTS[effect].constraints if n not in frozen]
+    basis = np.zeros((n_rows, len(labels)))
+    for row, name in enumerate(wanted):
+        basis[row, labels.index(name)] = 1.0
+    return basis
+
+
+@eqx.filter_jit
+def _fit_lanes_compiled(problem, actives, tangents, thetas, settings):
+    def one(lane):
+        active, basis, theta = lane
+        p = _with_active(problem, active, basis)
+        return lm_run(p, lm_init(p, theta, settings), settings, settings.max_steps)
+
+    # Lanes run one after another inside one program: each stops when it converges
+    # (a vmap would run every lane until the slowest is done).
+    return jax.lax.map(one, (actives, tangents, thetas))
+
+
+def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings):
+    """LM from each (switches, Jacobian directions, θ₀) lane; one compiled program per lane count."""
+    return _fit_lanes_compiled(problem, jnp.asarray(actives, float), jnp.asarray(tangents, float),
+                               jnp.asarray(thetas), settings)
+
+
+# --------------------------------------------------------------------------- #
+# Helpers
+# --------------------------------------------------------------------------- #
+
+
+def _universal_model(simulation) -> Model:
+    stack = EffectStack(simulation, tuple(EFFECTS), active=jnp.zeros(len(EFFECTS)))
+    return Model(stack, LinearReadout(), "physics")
+
+
+def _set(problem: Problem, model: Model, frozen, values: dict) -> jax.Array:
+    simulation = model.simulation.replace(**values)
+    return problem.flatten(Model(simulation, model.readout, model.kind), frozen)
+
+
+def _heldout(problem, theta, active):
+    p = _with_active(problem, jnp.asarray(active))
+    w = np.asarray(p.target("test"))
+    w_hat = np.asarray(p.prediction(theta, "test"))
+    return w, w_hat
+
+
+def _signals(problem, theta, active, split):
+    """(drive, w, ŵ) on `split`, all recordings concatenated."""
+    p = _with_active(problem, jnp.asarray(active))
+    v = np.concatenate([np.asarray(s.v_in)[a:b] for s in p.series for a, b in s.segments_of(split)])
+    return v, np.asarray(p.target(split)), np.asarray(p.prediction(theta, split))
+
+
+def _derived(problem, theta, active) -> dict:
+    model = problem.model(theta)
+    stack = eqx.tree_at(lambda s: s.active, model.simulation, jnp.asarray(active))
+    out = {}
+    for series in problem.series:
+        for name, values in stack.derived(series.v_in, series.dt).items():
+            out.setdefault(name, values)
+    return out
+
+
+def _material(name: str, derived: dict, parameters: dict, materiality: dict) -> tuple[bool, str]:
+    d = derived.get(name, {})
+    if name == "delay":
+        ok = d.get("delay_samples", 0.0) >= materiality["delay_samples"]
+        return ok, f"delay {d.get('delay_samples', 0):.2f} samples (needs ≥ {materiality['delay_samples']})"
+    if name == "back_relaxation":
+        ok = d.get("relaxation_percent", 0.0) >= materiality["relaxation_percent"]
+        return ok, f"relaxation {d.get('relaxation_percent', 0):.1f} % (needs ≥ {materiality['relaxation_percent']} %)"
+    if name == "saturation":
+        worst = max([v for k, v in d.items() if k.startswith("shortfall")] or [0.0])
+        return worst >= materiality["shortfall_percent"], f"shortfall {worst:.1f} % (needs ≥ {materiality['shortfall_percent']} %)"
+    if name == "hysteresis":
+        h = d.get("loop_height_percent_of_range", 0.0)
+        return h >= materiality["loop_height_percent_of_range"], f"loop {h:.1f} % of range (needs ≥ {materiality['loop_height_percent_of_range']} %)"
+    if name == "drift":
+        c = abs(d.get("gain_change_percent", 0.0))
+        return c >= materiality["gain_change_percent"], f"gain change {c:.1f} % (needs ≥ {materiality['gain_change_percent']} %)"
+    if name == "resonance":
+        f, z = parameters["resonance_frequency_hz"], parameters["resonance_damping"]
+        ok = z <= materiality["max_damping"] and f >= materiality["min_frequency_hz"]
+        return ok, f"mode {f:.2f} Hz, ζ {z:.3f} (needs ζ ≤ {materiality['max_damping']}, f ≥ {materiality['min_frequency_hz']} Hz)"
+    return True, ""
+
+
+def _starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
+    """Data-scaled starting values for an effect's parameters (a few per effect)."""
+    span = max(float(np.ptp(s_base)), 1e-9)
+    top = max(float(np.max(np.abs(s_base))), 1e-9)
+    pos = max(float(np.max(s_base)), 0.05 * top)
+    neg = max(float(-np.min(s_base)), 0.05 * top)
+    dt = 1.0 / rate
+    if name == "delay":
+        return [{"delay_s": max(lag_samples, 0.75) * dt}]
+    if name == "back_relaxation":
+        return [{"relaxation_time_s": 5.0, "relaxation_fraction": 0.3},
+                {"relaxation_time_s": min(30.0, duration / 3), "relaxation_fraction": 0.3}]
+    if name == "saturation":
+        return [{"saturation_pos_v": 1.5 * pos, "saturation_neg_v": 1.5 * neg}]
+    if name == "hysteresis":
+        return [{"hysteresis_height_v": 0.03 * span, "hysteresis_rate_per_v": 10.0 / span},
+                {"hysteresis_height_v": 0.1 * span, "hysteresis_rate_per_v": 40.0 / span}]
+    if name == "drift":
+        return [{"drift_rate_per_s": 0.0}]
+    if name == "resonance":
+        nyquist = 0.5 * rate
+        guess = resid_peak_hz if resid_peak_hz and 0.5 <= resid_peak_hz < nyquist else 0.3 * rate
+        return [{"resonance_frequency_hz": guess, "resonance_damping": 0.1},
+                {"resonance_frequency_hz": min(0.15 * rate, nyquist * 0.9), "resonance_damping": 0.2}]
+    raise InputError(f"unknown effect {name!r}")
+
+
+def _best_lag(w, w_hat, max_lag):
+    """Whole-sample lag of ŵ that best explains w by a gain and offset (0 if none helps)."""
+    best, best_err = 0, np.inf
+    for lag in range(0, max_lag + 1):
+        x = np.concatenate([np.full(lag, w_hat[0]), w_hat[: len(w_hat) - lag]])
+        design = np.stack([x, np.ones_like(x)], axis=1)
+        coef, *_ = np.linalg.lstsq(design, w, rcond=None)
+        err = np.mean((w - design @ coef) ** 2)
+        if err < best_err * (1 - 1e-6):
+            best, best_err = lag, err
+    return best
+
+
+def _bic(rss, n, k):
+    return n * math.log(max(rss, 1e-300) / n) + k * math.log(n)
+
+
+def _free_names(problem_model: Model, frozen, active_effect: str | None):
+    stack = problem_model.simulation
+    names = [n for n in stack.inner.parameter_names() if n not in frozen]
+    for effect in stack.effects:
+        if effect.name == active_effect:
+            names += list(effect.constraints)
+    return names + ["gain", "offset"]
+
+
+def _theta_labels(model: Model, frozen) -> list[str]:
+    """The parameter name of each entry of θ (`ravel_pytree` order: dict keys sorted)."""
+    stack = model.simulation
+    labels = [n for n in sorted(stack.inner.raw) if n not in frozen]
+    for effect in stack.effects:
+        labels += [n for n in sorted(effect.raw) if n not in frozen]
+    return labels + [n for n in sorted(model.readout.raw) if n not in frozen]
+
+
+def _constraints(model: Model) -> dict:
+    stack = model.simulation
+    out = dict(stack.inner.constraints)
+    for effect in stack.effects:
+        out.update(effect.constraints)
+    out.update(model.readout.constraints)
+    return out
+
+
+def _uncertainties(problem: Problem, theta, active, names, frozen, residual_heldout) -> dict:
+    """Standard errors, in physical units, of the named free parameters.
+
+    Gauss–Newton covariance σ²(JᵀJ)⁻¹ of the unconstrained values on the
+    training residuals, σ² = RSS/(n − k), inflated by the held-out residual's
+    autocorrelation (`effective_sample_factor`), mapped to physical values by
+    the delta method (each constraint acts on one parameter).
+    """
+    p = _with_active(problem, jnp.asarray(active), jnp.eye(problem.n_sim))
+    r, J = p.residuals_and_jacobian(theta)
+    r, J = np.asarray(r), np.asarray(J)
+    model = p.model(theta)
+    labels = _theta_labels(model, frozen)
+    keep = [i for i, label in enumerate(labels) if label in names]
+    Jk = J[:, keep]
+    n, k = Jk.shape
+    sigma2 = float(r @ r) / max(n - k, 1)
+    inflation = rt.effective_sample_factor(residual_heldout)
+    info = Jk.T @ Jk
+    cov = sigma2 * inflation * np.linalg.pinv(info, rcond=1e-12, hermitian=True)
+    constraints, units = _constraints(model), model.units
+    raw = {**model.simulation.raw, **model.readout.raw}
+    out = {}
+    for j, i in enumerate(keep):
+        label = labels[i]
+        slope = float(jax.grad(constraints[label].to_physical)(jnp.asarray(raw[label], float)))
+        variance = cov[j, j]
+        std = abs(slope) * math.sqrt(variance) if np.isfinite(variance) and variance >= 0 else float("nan")
+        out[label] = {"std_error": std, "unit": units.get(label, ""), "inflation": inflation}
+    return out
+
+
+# --------------------------------------------------------------------------- #
+# The search
+# --------------------------------------------------------------------------- #
+
+
+def _baseline_grid(n_lanes: int) -> list[dict]:
+    """Starting points spanning the issue's strips: C_clamp 1 mF–1 F, ξρ/ξh 1–100, α_I."""
+    grid = [
+        {"C_clamp": c, "xi_rho": x, "alpha_I": a}
+        for c, x, a in ((3e-2, 10.0, 0.5), (3e-3, 3.0, 0.3), (3e-3, 30.0, 0.7), (3e-1, 3.0, 0.7),
+                        (3e-1, 30.0, 0.3), (1e-2, 30.0, 0.3), (1e-1, 3.0, 0.5), (1e-2, 3.0, 0.7),
+                        (1e-1, 30.0, 0.7), (1.0, 10.0, 0.5))
+    ]
+    return (grid * (n_lanes // len(grid) + 1))[:n_lanes]
+
+
+def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen) -> Candidate:
+    p = _with_active(problem, jnp.asarray(active))
+    r_train = np.asarray(p.residuals(theta, "train")) * float(problem.scale)
+    rss = float(r_train @ r_train)
+    v, w, w_hat = _signals(problem, theta, active, "test")
+    heldout = compute_metrics(w, w_hat)
+    model = p.model(theta)
+    parameters = {k: float(v_) for k, v_ in model.parameters().items()
+                  if k in _free_names(model, model_frozen, name) or k in model.simulation.inner.parameter_names()}
+    derived = _derived(problem, theta, active) if name != "none" else {}
+    cand = Candidate(
+        name=name, parameters=parameters, derived=derived.get(name, {}), train_rss=rss,
+        n_parameters=n_free, bic=_bic(rss, n_train, n_free), heldout=heldout,
+        ljung_box=rt.ljung_box(w - w_hat), theta=np.asarray(theta), active=np.asarray(active),
+    )
+    if name != "none":
+        cand.material, why = _material(name, derived, parameters, materiality)
+        cand.reasons.append(why)
+    return cand
+
+
+def diagnose(
+    recordings,
+    *,
+    simulation=None,
+    hybrid: bool = False,
+    settings: DiagnoseSettings = DiagnoseSettings(),
+    hybrid_max_steps: int = 150,
+    progress: bool = False,
+) -> Diagnosis:
+    """Find what `simulation` (default: the paper's RC network) gets wrong on `recordings`.
+
+    **Arguments:**
+
+    - `recordings`: one Recording or several of the same strip (fitted jointly).
+    - `simulation`: the physics simulation to diagnose (default `RCNetwork()`).
+    - `hybrid`: also fit the hybrid model (simulation + D-MLP) with and without
+      the named effect and report both held-out errors.
+    - `settings`: see [`DiagnoseSettings`][].
+    - `progress`: print what is being fitted.
+
+    **Returns:** a [`Diagnosis`][]; ``Diagnosis.to_dict()`` is ``report.json``.
+    """
+    t0 = time.perf_counter()
+    recordings = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
+    if not recordings:
+        raise InputError("diagnose needs at least one recording")
+    rates = {round(r.rate, 9) for r in recordings}
+    if len(rates) > 1:
+        raise InputError(f"recordings of one strip must share a sample rate, got {sorted(rates)} Hz: resample first")
+    for r in recordings:
+        r.check_length(60, "diagnose (a held-out part long enough for residual tests)")
+    rate = recordings[0].rate
+    frozen = frozenset(settings.frozen)
+    simulation = RCNetwork(method="zoh") if simulation is None else simulation
+    model = _universal_model(simulation)
+    series = [series_from_recording(r, settings.split, SPLIT_ORDER) for r in recordings]
+    problem = Problem(model, series, frozen)
+    n_rows = len([n for n in simulation.parameter_names() if n not in frozen]) + max(
+        len(e.constraints) for e in EFFECTS.values())
+    problem = Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, problem.n_sim)))
+    n_train = int(problem.target("train").shape[0])
+    lm = LMSettings(max_steps=settings.max_steps, patience=settings.patience)
+    names = list(EFFECTS)
+    off = np.zeros(len(names))
+
+    def initial(values, base_model=model):
+        sim = base_model.simulation.replace(**values)
+        signal = jnp.concatenate([sim.simulate(s.v_in, s.dt)[a:b] for s in series for a, b in s.segments_of("train")])
+        readout = base_model.readout.initialise(signal, problem.target("train"))
+        return problem.flatten(Model(sim, readout, "physics"), frozen)
+
+    # 1. Baseline from a grid of starts (lanes), one compiled program.
+    n_lanes = N_LANES
+    grid = _baseline_grid(n_lanes)
+    thetas = jnp.stack([initial({k: v for k, v in g.items() if k in simulation.parameter_names()}) for g in grid])
+    base_tangents = _lane_tangents(model, frozen, None, n_rows)
+    if progress:
+        print(f"diagnose: baseline from {len(grid)} starts", flush=True)
+    states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm)
+    best = int(np.nanargmin(np.asarray(states.best_val)))
+    theta_base = states.best_theta[best]
+    n_base = len(_free_names(model, frozen, None))
+    baseline = _evaluate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
+
+    # 2. Candidates: each effect switched on, warm-started from the baseline.
+    base_model = problem.model(theta_base)
+    s_train = np.concatenate([np.asarray(base_model.simulation.inner.simulate(s.v_in, s.dt))[a:b]
+                              for s in series for a, b in s.segments_of("train")])
+    _, w_tr, w_hat_tr = _signals(problem, theta_base, off, "train")
+    lag = _best_lag(w_tr, w_hat_tr, max_lag=20)
+    f, psd = rt.spectrum(w_tr - w_hat_tr, rate)
+    band = f >= 0.5
+    peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
+    duration = recordings[0].duration
+    lanes, actives, labels, tangents = [], [], [], []
+    for i, name in enumerate(names):
+        for values in _starts(name, s_train, rate, lag, peak, duration):
+            lanes.append(initial(values, base_model))
+            active = off.copy()
+            active[i] = 1.0
+            actives.append(active)
+            labels.append(name)
+            tangents.append(_lane_tangents(model, frozen, name, n_rows))
+    if len(lanes) > n_lanes:
+        raise AssertionError("more candidate starts than lanes")
+    while len(lanes) < n_lanes:  # same lane count as the baseline stage: one compiled program
+        lanes.append(theta_base)
+        actives.append(off)
+        labels.append("none")
+        tangents.append(base_tangents)
+    if progress:
+        print(f"diagnose: {len(set(labels) - {'none'})} effects, {len(labels)} lanes", flush=True)
+    states = _fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), lm)
+    vals = np.asarray(states.best_val)
+    candidates = []
+    for i, name in enumerate(names):
+        idx = [j for j, lab in enumerate(labels) if lab == name]
+        j = idx[int(np.nanargmin(vals[idx]))]
+        cand = _evaluate(problem, states.best_theta[j], actives[j], name, n_train,
+                         n_base + len(EFFECTS[name].constraints), settings.materiality, frozen)
+        candidates.append(cand)
+
+    # 3–4. Evidence and decision.
+    for cand in candidates:
+        cand.gain = baseline.heldout["nmse"] / max(cand.heldout["nmse"], 1e-300)
+        cand.delta_bic = cand.bic - baseline.bic
+        whiter = cand.ljung_box["Q"] < baseline.ljung_box["Q"]
+        checks = [
+            (cand.material, "not material"),
+            (cand.gain >= settings.min_gain, f"held-out gain {cand.gain:.2f} < {settings.min_gain}"),
+            (cand.delta_bic <= -settings.min_bic_drop, f"ΔBIC {cand.delta_bic:.1f} > −{settings.min_bic_drop}"),
+            (whiter, "held-out residual not whiter"),
+        ]
+        cand.eligible = all(ok for ok, _ in checks)
+        cand.reasons += [why for ok, why in checks if not ok]
+    eligible = [c for c in candidates if c.eligible]
+    extended = max(eligible, key=lambda c: c.gain) if eligible else baseline
+    cause = extended.name
+
+    # 5. Uncertainties of the chosen fit, evidence for the report, optional hybrid fits.
+    v_te, w_te, w_hat_base = _signals(problem, theta_base, off, "test")
+    _, _, w_hat_ext = _signals(problem, extended.theta, extended.active, "test")
+    uncertainties = _uncertainties(problem, jnp.asarray(extended.theta), extended.active,
+                                   _free_names(model, frozen, None if cause == "none" else cause), frozen,
+                                   w_te - w_hat_ext)
+    evidence = _evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
+    hybrid_report = None
+    if hybrid:
+        hybrid_report = _hybrid_fits(recordings, simulation, extended, problem, cause, settings, hybrid_max_steps, progress)
+    return Diagnosis(
+        cause=cause, baseline=baseline, extended=extended, candidates=candidates,
+        uncertainties=uncertainties, evidence=evidence, hybrid=hybrid_report, settings=settings,
+        recordings=[r.name for r in recordings], seconds=time.perf_counter() - t0,
+    )
+
+
+def _evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> dict:
+    """Residual statistics of the baseline and the extended model on held-out data."""
+    out = {"n_heldout": int(len(w)), "rate_hz": float(rate), "bound_99": rt.confidence_bound(len(w))}
+    for key, w_hat in (("baseline", w_hat_base), ("extended", w_hat_ext)):
+        e = w - w_hat
+        lags, ccf = rt.cross_correlation(e, v, max_lag)
+        acf = rt.autocorrelation(e, max_lag)
+        out[key] = {
+            "ljung_box": rt.ljung_box(e),
+            "acf_outside_bound": int(np.sum(np.abs(acf[1:]) > out["bound_99"])),
+            "ccf_outside_bound": int(np.sum(np.abs(ccf) > out["bound_99"])),
+            "loop_separation_mm": rt.loops(e, v)["separation"],
+            "segment_nmse": rt.segment_errors(w, w_hat).tolist(),
+        }
+    return out
+
+
+def _hybrid_fits(recordings, simulation, extended, problem, cause, settings, max_steps, progress) -> dict:
+    """Hybrid model (simulation + D-MLP) without and with the named effect, held-out metrics."""
+    from ._fit import fit
+    from ._models import make_model
+
+    out = {}
+    fitted = problem.model(jnp.asarray(extended.theta)).simulation
+    variants = [("baseline", simulation)]
+    if cause != "none":
+        effect = next(e for e in fitted.effects if e.name == cause)
+        variants.append(("extended", EffectStack(fitted.inner, (effect,))))
+    for key, sim in variants:
+        if progress:
+            print(f"diagnose: hybrid model, {key}", flush=True)
+        result = fit(make_model("hybrid", simulation=sim), recordings, max_steps=max_steps,
+                     frozen=set(settings.frozen), split=settings.split, split_order=SPLIT_ORDER,
+                     weight_decay=0.1, progress=progress)
+        out[key] = {"nmse": result.metrics["test"]["nmse"], "fitting": result.metrics["test"]["fitting"],
+                    "parameters": result.parameters, "seconds": result.seconds}
+    if "extended" not in out:
+        out["extended"] = out["baseline"]
+    out["gain"] = out["baseline"]["nmse"] / out["extended"]["nmse"]
+    return out

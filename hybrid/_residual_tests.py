@@ -1,0 +1,130 @@
+"""Residual analysis of system identification: is what the model leaves out noise?
+
+For held-out residuals ε(t) = w − ŵ and the drive u(t):
+
+- `autocorrelation`: ρ_εε(k), k = 0..K. A model that captures the dynamics
+  leaves white residuals: |ρ_εε(k)| < z/√N for k ≥ 1 with z = 2.576 (99 %).
+- `cross_correlation`: ρ_εu(k), k = −K..K; residuals independent of the input
+  stay within the same ±z/√N band (Ljung, *System Identification*, §16.6).
+- `ljung_box`: the portmanteau statistic Q = N(N+2) Σ_{k=1}^{K} ρ_k²/(N−k)
+  and its χ²_K p-value: one number for "how far from white".
+- `spectrum`: Welch power spectral density (scipy).
+- `loops`: mean residual against drive level, separately for a rising and a
+  falling drive (direction of the last change), the signature of hysteresis
+  and saturation.
+- `segment_errors`: NMSE per consecutive segment, the signature of drift.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.signal
+import scipy.stats
+
+#: Two-sided 99 % normal quantile used for the confidence bounds.
+Z99 = float(scipy.stats.norm.ppf(0.995))
+
+
+def _standardise(x):
+    x = np.asarray(x, dtype=float)
+    x = x - x.mean()
+    scale = np.sqrt(np.mean(x * x))
+    return x / scale if scale > 0 else x
+
+
+def autocorrelation(residual, max_lag: int = 50) -> np.ndarray:
+    """ρ(k) for k = 0..max_lag (biased estimator, ρ(0) = 1)."""
+    e = _standardise(residual)
+    n = len(e)
+    max_lag = min(max_lag, n - 1)
+    return np.array([np.dot(e[: n - k], e[k:]) / n for k in range(max_lag + 1)])
+
+
+def cross_correlation(residual, drive, max_lag: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    """(lags, ρ_εu(k)) for k = −max_lag..max_lag; k > 0: the drive leads the residual."""
+    e, u = _standardise(residual), _standardise(drive)
+    n = len(e)
+    max_lag = min(max_lag, n - 1)
+    lags = np.arange(-max_lag, max_lag + 1)
+    values = np.array([
+        np.dot(e[k:], u[: n - k]) / n if k >= 0 else np.dot(e[: n + k], u[-k:]) / n for k in lags
+    ])
+    return lags, values
+
+
+def confidence_bound(n: int) -> float:
+    """Half-width of the 99 % band of a correlation estimate from n white samples."""
+    return Z99 / np.sqrt(n)
+
+
+def ljung_box(residual, lags: int = 30) -> dict:
+    """Portmanteau whiteness test: Q, degrees of freedom and p-value."""
+    rho = autocorrelation(residual, lags)[1:]
+    n = len(residual)
+    k = np.arange(1, len(rho) + 1)
+    q = float(n * (n + 2) * np.sum(rho**2 / (n - k)))
+    return {"Q": q, "lags": int(len(rho)), "p_value": float(scipy.stats.chi2.sf(q, len(rho)))}
+
+
+def spectrum(residual, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """(frequencies in Hz, power spectral density in unit²/Hz), Welch's method."""
+    residual = np.asarray(residual, dtype=float)
+    nperseg = int(min(len(residual), max(64, 2 ** int(np.log2(max(len(residual) // 8, 1))))))
+    return scipy.signal.welch(residual - residual.mean(), fs=rate, nperseg=nperseg)
+
+
+def travel_direction(drive) -> np.ndarray:
+    """+1 where the drive last changed upwards, −1 downwards (0 before any change)."""
+    drive = np.asarray(drive, dtype=float)
+    step = np.sign(np.diff(drive, prepend=drive[0]))
+    step[np.abs(np.diff(drive, prepend=drive[0])) < 1e-9 * max(np.ptp(drive), 1e-300)] = 0.0
+    direction = np.zeros_like(step)
+    last = 0.0
+    for i, s in enumerate(step):
+        if s != 0:
+            last = s
+        direction[i] = last
+    return direction
+
+
+def loops(residual, drive, bins: int = 12) -> dict:
+    """Mean residual by drive level, rising and falling separately.
+
+    Returns ``{"centres": (bins,), "rising": (bins,), "falling": (bins,),
+    "separation": float}`` where separation is the rms difference between the
+    rising and falling means over levels that have both (NaN where a bin is empty).
+    """
+    residual, drive = np.asarray(residual, dtype=float), np.asarray(drive, dtype=float)
+    direction = travel_direction(drive)
+    edges = np.linspace(drive.min(), drive.max() + 1e-12, bins + 1)
+    which = np.clip(np.digitize(drive, edges) - 1, 0, bins - 1)
+    out = {"centres": 0.5 * (edges[1:] + edges[:-1])}
+    for name, sign in (("rising", 1.0), ("falling", -1.0)):
+        means = np.full(bins, np.nan)
+        for b in range(bins):
+            sel = (which == b) & (direction == sign)
+            if sel.sum() >= 3:
+                means[b] = residual[sel].mean()
+        out[name] = means
+    both = np.isfinite(out["rising"]) & np.isfinite(out["falling"])
+    out["separation"] = float(np.sqrt(np.mean((out["rising"][both] - out["falling"][both]) ** 2))) if both.any() else 0.0
+    return out
+
+
+def segment_errors(w, w_hat, segments: int = 8) -> np.ndarray:
+    """Mean squared error per consecutive segment, divided by the mean square of w overall."""
+    w, w_hat = np.asarray(w, dtype=float), np.asarray(w_hat, dtype=float)
+    scale = np.mean(w * w)
+    parts = np.array_split(np.arange(len(w)), segments)
+    return np.array([np.mean((w[p] - w_hat[p]) ** 2) / scale for p in parts])
+
+
+def effective_sample_factor(residual, max_lag: int = 50) -> float:
+    """1 + 2 Σ ρ(k) over the lags before ρ first drops below zero (≥ 1).
+
+    Correlated residuals carry less information than white ones: standard
+    errors from (JᵀJ)⁻¹ are scaled by the square root of this factor.
+    """
+    rho = autocorrelation(residual, max_lag)[1:]
+    positive = np.cumprod(rho > 0).astype(bool)
+    return float(max(1.0, 1.0 + 2.0 * np.sum(rho[positive])))

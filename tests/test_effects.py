@@ -1,0 +1,206 @@
+"""Effects (hybrid._effects) against independent references, and the hidden-effect generator."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.signal
+
+from hybrid import InputError, RCNetwork, make_drive
+from hybrid._effects import (
+    EFFECTS, BackRelaxation, Delay, Drift, EffectStack, Hysteresis, Resonance, Saturation,
+    affine_recurrence, extend,
+)
+from hybrid._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
+
+DT = 1 / 30
+
+
+@pytest.fixture(scope="module")
+def signal():
+    rng = np.random.default_rng(0)
+    return np.cumsum(rng.standard_normal(600)) * 0.05
+
+
+def test_affine_recurrence_matches_a_loop():
+    rng = np.random.default_rng(1)
+    a, b = rng.uniform(0.2, 1.0, 257), rng.standard_normal(257)
+    x, expected = 0.7, []
+    for ai, bi in zip(a, b):
+        x = ai * x + bi
+        expected.append(x)
+    np.testing.assert_allclose(affine_recurrence(jnp.asarray(a), jnp.asarray(b), 0.7), expected, rtol=1e-12)
+
+
+def test_back_relaxation_is_a_lagged_first_order_lowpass(signal):
+    y = BackRelaxation(relaxation_time_s=2.0, relaxation_fraction=0.4).apply(jnp.asarray(signal), DT)
+    a = np.exp(-DT / 2.0)
+    slow = scipy.signal.lfilter([0.0, 1.0 - a], [1.0, -a], signal)  # exact ZOH of 1/(τs + 1)
+    np.testing.assert_allclose(y, signal - 0.4 * slow, atol=1e-12)
+
+
+def test_back_relaxation_step_relaxes_by_the_fraction():
+    step = jnp.ones(3000)
+    y = BackRelaxation(relaxation_time_s=3.0, relaxation_fraction=0.6).apply(step, 0.01)
+    assert float(y[0]) == pytest.approx(1.0)
+    assert float(y[300]) == pytest.approx(1 - 0.6 * (1 - np.exp(-300 * 0.01 / 3.0)), rel=1e-9)
+    assert float(y[-1]) == pytest.approx(0.4, abs=1e-4)
+
+
+def test_resonance_matches_scipy_lsim(signal):
+    """lsim interpolates the input linearly between samples: the first-order hold used here."""
+    f, z = 3.0, 0.08
+    w = 2 * np.pi * f
+    y = Resonance(resonance_frequency_hz=f, resonance_damping=z).apply(jnp.asarray(signal), DT)
+    system = scipy.signal.StateSpace([[0, 1], [-w * w, -2 * z * w]], [[0], [w * w]], [[1, 0]], [[0]])
+    _, expected, _ = scipy.signal.lsim(system, signal, np.arange(len(signal)) * DT, X0=[signal[0], 0.0])
+    np.testing.assert_allclose(y, expected, atol=1e-10)
+
+
+def test_resonance_rings_at_its_frequency():
+    rate = 200.0
+    y = np.asarray(Resonance(resonance_frequency_hz=7.0, resonance_damping=0.02).apply(
+        jnp.concatenate([jnp.zeros(10), jnp.ones(4000)]), 1 / rate))
+    f, p = scipy.signal.periodogram(y[10:] - 1.0, fs=rate)
+    assert f[np.argmax(p)] == pytest.approx(7.0 * np.sqrt(1 - 0.02**2), abs=0.1)
+
+
+def test_hysteresis_matches_the_exact_bouc_wen_recursion(signal):
+    k, height = 3.0, 0.2
+    z, prev, expected = 0.0, 0.0, []
+    for v in signal:
+        d = v - prev
+        prev = v
+        target = np.sign(d) / k
+        z = target + (z - target) * np.exp(-k * abs(d))
+        expected.append(v + height * k * z)
+    y = Hysteresis(hysteresis_height_v=height, hysteresis_rate_per_v=k).apply(jnp.asarray(signal), DT)
+    np.testing.assert_allclose(y, expected, atol=1e-12)
+
+
+def test_hysteresis_is_rate_independent():
+    t = np.linspace(0, 1, 400)
+    slow = np.sin(2 * np.pi * t)
+    effect = Hysteresis(hysteresis_height_v=0.1, hysteresis_rate_per_v=20.0)
+    # Same path of s at a different sampling rate dt: the output depends on s only.
+    a = np.asarray(effect.apply(jnp.asarray(slow), 0.001))
+    b = np.asarray(effect.apply(jnp.asarray(slow), 1.0))
+    np.testing.assert_array_equal(a, b)
+    # The loop: at s = 0 the rising branch lies 2W above the falling one (W > 0).
+    loop = np.asarray(effect.apply(jnp.asarray(np.concatenate([slow, slow])), 0.01))[400:]
+    falling_index = np.argmin(np.abs(t - 0.5))
+    assert loop[0] - loop[falling_index] == pytest.approx(0.2, rel=0.05)
+
+
+def test_saturation_slope_asymptotes_and_asymmetry():
+    effect = Saturation(saturation_pos_v=2.0, saturation_neg_v=0.5)
+    s = jnp.array([-100.0, -1e-6, 0.0, 1e-6, 100.0])
+    y = np.asarray(effect.apply(s, DT))
+    np.testing.assert_allclose(y, [-0.5, -1e-6, 0.0, 1e-6, 2.0], rtol=1e-6)
+    derived = effect.derived(jnp.array([-1.0, 2.0]), DT)
+    assert derived["shortfall_pos_percent"] == pytest.approx(100 * (1 - np.tanh(1.0)), rel=1e-9)
+    assert derived["shortfall_neg_percent"] == pytest.approx(100 * (1 - np.tanh(2.0) / 2.0), rel=1e-9)
+
+
+def test_delay_whole_and_fractional_samples(signal):
+    s = jnp.asarray(signal)
+    y = np.asarray(Delay(delay_s=3 * DT).apply(s, DT))
+    np.testing.assert_allclose(y[3:], signal[:-3], atol=1e-12)
+    np.testing.assert_allclose(y[:2], 0.0)  # at rest before the recording
+    y = np.asarray(Delay(delay_s=2.25 * DT).apply(s, DT))
+    n = np.arange(len(signal))
+    np.testing.assert_allclose(y[3:], np.interp(n - 2.25, n, signal)[3:], atol=1e-12)
+
+
+def test_drift_is_an_exponential_gain(signal):
+    y = np.asarray(Drift(drift_rate_per_s=-0.01).apply(jnp.asarray(signal), DT))
+    np.testing.assert_allclose(y, signal * np.exp(-0.01 * DT * np.arange(len(signal))), rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
+def test_effect_gradients_match_finite_differences(name, signal):
+    """Reverse-mode gradients of Σy² w.r.t. each raw parameter against central differences."""
+    effect = EFFECTS[name]()
+    s = jnp.asarray(signal[:200])
+    loss = jax.jit(lambda raw: jnp.sum(_apply(effect, raw, s) ** 2))
+    raw = effect.raw
+    grad = jax.grad(loss)(raw)
+    h = 1e-6
+    for key in raw:
+        fd = (loss({**raw, key: raw[key] + h}) - loss({**raw, key: raw[key] - h})) / (2 * h)
+        assert float(grad[key]) == pytest.approx(float(fd), rel=1e-5, abs=1e-8), key
+
+
+def _apply(effect, raw, s):
+    import equinox as eqx
+
+    return eqx.tree_at(lambda e: e.raw, effect, raw).apply(s, DT)
+
+
+def test_stack_switches_and_parameters():
+    v = jnp.asarray(make_drive("prbs", 20.0, seed=2).v)
+    inner = RCNetwork()
+    stack = extend(inner, *EFFECTS)
+    off = stack.with_active(jnp.zeros(len(EFFECTS)))
+    np.testing.assert_array_equal(off.simulate(v, DT), inner.simulate(v, DT))
+    only_delay = stack.with_active(jnp.eye(len(EFFECTS))[0])
+    np.testing.assert_allclose(only_delay.simulate(v, DT), Delay().apply(inner.simulate(v, DT), DT))
+    assert set(stack.parameters()) == set(inner.parameters()) | {n for e in EFFECTS.values() for n in e.constraints}
+    changed = stack.replace(delay_s=0.2, xi_rho=20.0)
+    assert float(changed.parameters()["delay_s"]) == pytest.approx(0.2)
+    assert float(changed.parameters()["xi_rho"]) == pytest.approx(20.0)
+    assert stack.parameter_units()["resonance_frequency_hz"] == "Hz"
+
+
+def test_stack_errors():
+    with pytest.raises(InputError, match="unknown effect"):
+        EffectStack(RCNetwork(), ("creep",))
+    with pytest.raises(InputError, match="collide"):
+        EffectStack(RCNetwork(), ("delay", "delay"))
+    with pytest.raises(InputError, match="relaxation_fraction must be strictly between 0 and 1"):
+        extend(RCNetwork(), "back_relaxation", relaxation_fraction=1.5)
+
+
+# --- the hidden-effect generator -------------------------------------------------------
+
+
+def _recording(effect, params, strip=SyntheticStrip(), seconds=30.0):
+    drive = make_drive("prbs", seconds, rate=30.0, seed=5, amplitude=2.0)
+    return synthetic_recording(drive, strip, effect, params, noise_fraction=0.0, seed=0)
+
+
+def test_synthetic_delay_shifts_the_clean_response():
+    clean = _recording("none", {}).extra["w_true"]
+    late = _recording("delay", {"delay_samples": 4}).extra["w_true"]
+    # (sample 4's exposure straddles the end of the dead time)
+    np.testing.assert_allclose(late[5:], clean[1:-4], atol=1e-12)
+    np.testing.assert_allclose(late[:4], 0.0, atol=1e-12)  # the strip rests during the dead time
+
+
+def test_synthetic_effect_free_matches_the_exact_zoh_of_the_network():
+    rec = synthetic_recording(make_drive("prbs", 20.0, rate=30.0, seed=1), SyntheticStrip(offset_mm=0.1),
+                              "none", noise_fraction=0.0, exposure_fraction=1 / 8)
+    # exposure of one fine sample: the camera sees the fine-grid value at each time stamp
+    v_o = np.asarray(RCNetwork(method="zoh").simulate(jnp.asarray(rec.v_in), 1 / 30))
+    np.testing.assert_allclose(rec.w, 2.0 * v_o + 0.1, rtol=1e-8, atol=1e-10)
+
+
+def test_synthetic_saturation_shortfall_is_as_asked():
+    base = _recording("none", {}).extra["w_true"]
+    sat = _recording("saturation", {"shortfall_pos": 0.3, "shortfall_neg": 0.1}).extra["w_true"]
+    top, bottom = np.argmax(base), np.argmin(base)
+    assert sat[top] / base[top] == pytest.approx(0.7, abs=0.02)
+    assert sat[bottom] / base[bottom] == pytest.approx(0.9, abs=0.02)
+
+
+def test_random_draws_stay_in_the_issue_ranges():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        strip = random_strip(rng)
+        assert 1.0 <= strip.xi_rho / strip.xi_h <= 100.0
+        assert 1e-3 <= strip.C_clamp <= 1.0 and 0.3 <= abs(strip.gain_mm_per_v) <= 5.0
+        assert 1 <= random_effect("delay", rng, 30.0)["delay_samples"] <= 15
+        res = random_effect("resonance", rng, 20.0)
+        assert 1.0 <= res["frequency_hz"] <= 7.0 and 0.02 <= res["damping"] <= 0.3
+    with pytest.raises(InputError, match="unknown hidden effect"):
+        random_effect("creep", rng, 30.0)
