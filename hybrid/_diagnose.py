@@ -211,18 +211,6 @@ def _universal_model(simulation) -> Model:
     return Model(stack, LinearReadout(), "physics")
 
 
-def _set(problem: Problem, model: Model, frozen, values: dict) -> jax.Array:
-    simulation = model.simulation.replace(**values)
-    return problem.flatten(Model(simulation, model.readout, model.kind), frozen)
-
-
-def _heldout(problem, theta, active):
-    p = _with_active(problem, jnp.asarray(active))
-    w = np.asarray(p.target("test"))
-    w_hat = np.asarray(p.prediction(theta, "test"))
-    return w, w_hat
-
-
 def _signals(problem, theta, active, split):
     """(drive, w, ŵ) on `split`, all recordings concatenated."""
     p = _with_active(problem, jnp.asarray(active))
