@@ -171,10 +171,8 @@ def _with_active(problem: Problem, active, tangents=None):
 
 def _lane_tangents(model: Model, frozen, effect: str | None, n_rows: int) -> np.ndarray:
     """Unit directions in θ_sim for the inner simulation's free parameters and one effect's."""
-    stack = model.simulation
-    labels = _theta_labels(model, frozen)[: len(_theta_labels(model, frozen)) - len(
-        [n for n in model.readout.raw if n not in frozen])]
-    wanted = [n for n in stack.inner.parameter_names() if n not in frozen]
+    labels = _sim_labels(model.simulation, frozen)
+    wanted = [n for n in model.simulation.inner.parameter_names() if n not in frozen]
     if effect is not None:
         wanted += [n for n in EFFECTS[effect].constraints if n not in frozen]
     basis = np.zeros((n_rows, len(labels)))
@@ -211,11 +209,16 @@ def _universal_model(simulation) -> Model:
     return Model(stack, LinearReadout(), "physics")
 
 
+@eqx.filter_jit
+def _prediction(problem, active, theta, split):
+    return _with_active(problem, active).prediction(theta, split)
+
+
 def _signals(problem, theta, active, split):
-    """(drive, w, ŵ) on `split`, all recordings concatenated."""
-    p = _with_active(problem, jnp.asarray(active))
-    v = np.concatenate([np.asarray(s.v_in)[a:b] for s in p.series for a, b in s.segments_of(split)])
-    return v, np.asarray(p.target(split)), np.asarray(p.prediction(theta, split))
+    """(drive, w, ŵ) on `split`, all recordings concatenated (one compiled program per split)."""
+    v = np.concatenate([np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.segments_of(split)])
+    w_hat = _prediction(problem, jnp.asarray(active, float), jnp.asarray(theta), split)
+    return v, np.asarray(problem.target(split)), np.asarray(w_hat)
 
 
 def _derived(problem, theta, active) -> dict:
@@ -305,54 +308,38 @@ def _free_names(problem_model: Model, frozen, active_effect: str | None):
     return names + ["gain", "offset"]
 
 
-def _theta_labels(model: Model, frozen) -> list[str]:
-    """The parameter name of each entry of θ (`ravel_pytree` order: dict keys sorted)."""
-    stack = model.simulation
+def _sim_labels(stack: EffectStack, frozen) -> list[str]:
+    """The parameter name of each entry of θ_sim (`ravel_pytree` order: dict keys sorted)."""
     labels = [n for n in sorted(stack.inner.raw) if n not in frozen]
     for effect in stack.effects:
         labels += [n for n in sorted(effect.raw) if n not in frozen]
-    return labels + [n for n in sorted(model.readout.raw) if n not in frozen]
+    return labels
 
 
-def _constraints(model: Model) -> dict:
+def _fitted_model(problem: Problem, theta, cause: str) -> Model:
+    """The fitted simulation with only the named effect (or none), and its gain and offset."""
+    model = problem.model(jnp.asarray(theta))
     stack = model.simulation
-    out = dict(stack.inner.constraints)
-    for effect in stack.effects:
-        out.update(effect.constraints)
-    out.update(model.readout.constraints)
-    return out
+    effects = tuple(e for e in stack.effects if e.name == cause)
+    simulation = EffectStack(stack.inner, effects) if effects else stack.inner
+    return Model(simulation, model.readout, "physics")
 
 
-def _uncertainties(problem: Problem, theta, active, names, frozen, residual_heldout) -> dict:
-    """Standard errors, in physical units, of the named free parameters.
+def _uncertainties(model: Model, recordings, settings, residual_heldout) -> dict:
+    """Standard errors, in physical units, of `model`'s free parameters.
 
-    Gauss–Newton covariance σ²(JᵀJ)⁻¹ of the unconstrained values on the
-    training residuals, σ² = RSS/(n − k), inflated by the held-out residual's
-    autocorrelation (`effective_sample_factor`), mapped to physical values by
-    the delta method (each constraint acts on one parameter).
+    The Gauss–Newton covariance of [`hybrid.sensitivity.parameter_covariance`][]
+    on the training part, inflated by the held-out residual's autocorrelation
+    (`effective_sample_factor`): correlated residuals carry less information.
     """
-    p = _with_active(problem, jnp.asarray(active), jnp.eye(problem.n_sim))
-    r, J = p.residuals_and_jacobian(theta)
-    r, J = np.asarray(r), np.asarray(J)
-    model = p.model(theta)
-    labels = _theta_labels(model, frozen)
-    keep = [i for i, label in enumerate(labels) if label in names]
-    Jk = J[:, keep]
-    n, k = Jk.shape
-    sigma2 = float(r @ r) / max(n - k, 1)
+    from .sensitivity import parameter_covariance
+
+    covariance = parameter_covariance(model, recordings, frozen=settings.frozen, split=settings.split,
+                                      split_order=SPLIT_ORDER)
     inflation = rt.effective_sample_factor(residual_heldout)
-    info = Jk.T @ Jk
-    cov = sigma2 * inflation * np.linalg.pinv(info, rcond=1e-12, hermitian=True)
-    constraints, units = _constraints(model), model.units
-    raw = {**model.simulation.raw, **model.readout.raw}
-    out = {}
-    for j, i in enumerate(keep):
-        label = labels[i]
-        slope = float(jax.grad(constraints[label].to_physical)(jnp.asarray(raw[label], float)))
-        variance = cov[j, j]
-        std = abs(slope) * math.sqrt(variance) if np.isfinite(variance) and variance >= 0 else float("nan")
-        out[label] = {"std_error": std, "unit": units.get(label, ""), "inflation": inflation}
-    return out
+    return {name: {"std_error": std * math.sqrt(inflation), "unit": covariance.units[name],
+                   "inflation": inflation}
+            for name, std in covariance.std_errors.items()}
 
 
 # --------------------------------------------------------------------------- #
@@ -372,12 +359,11 @@ def _baseline_grid(n_lanes: int) -> list[dict]:
 
 
 def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen) -> Candidate:
-    p = _with_active(problem, jnp.asarray(active))
-    r_train = np.asarray(p.residuals(theta, "train")) * float(problem.scale)
-    rss = float(r_train @ r_train)
-    v, w, w_hat = _signals(problem, theta, active, "test")
+    _, w_train, w_hat_train = _signals(problem, theta, active, "train")
+    rss = float(np.sum((w_train - w_hat_train) ** 2))
+    _, w, w_hat = _signals(problem, theta, active, "test")
     heldout = compute_metrics(w, w_hat)
-    model = p.model(theta)
+    model = problem.model(theta)
     parameters = {k: float(v_) for k, v_ in model.parameters().items()
                   if k in _free_names(model, model_frozen, name) or k in model.simulation.inner.parameter_names()}
     derived = _derived(problem, theta, active) if name != "none" else {}
@@ -428,10 +414,10 @@ def diagnose(
     simulation = RCNetwork(method="zoh") if simulation is None else simulation
     model = _universal_model(simulation)
     series = [series_from_recording(r, settings.split, SPLIT_ORDER) for r in recordings]
-    problem = Problem(model, series, frozen)
     n_rows = len([n for n in simulation.parameter_names() if n not in frozen]) + max(
         len(e.constraints) for e in EFFECTS.values())
-    problem = Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, problem.n_sim)))
+    n_sim = len(_sim_labels(model.simulation, frozen))
+    problem = Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim)))
     n_train = int(problem.target("train").shape[0])
     lm = LMSettings(max_steps=settings.max_steps, patience=settings.patience)
     names = list(EFFECTS)
@@ -514,8 +500,7 @@ def diagnose(
     # 5. Uncertainties of the chosen fit, evidence for the report, optional hybrid fits.
     v_te, w_te, w_hat_base = _signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = _signals(problem, extended.theta, extended.active, "test")
-    uncertainties = _uncertainties(problem, jnp.asarray(extended.theta), extended.active,
-                                   _free_names(model, frozen, None if cause == "none" else cause), frozen,
+    uncertainties = _uncertainties(_fitted_model(problem, extended.theta, cause), recordings, settings,
                                    w_te - w_hat_ext)
     evidence = _evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     hybrid_report = None
@@ -551,11 +536,9 @@ def _hybrid_fits(recordings, simulation, extended, problem, cause, settings, max
     from ._models import make_model
 
     out = {}
-    fitted = problem.model(jnp.asarray(extended.theta)).simulation
     variants = [("baseline", simulation)]
     if cause != "none":
-        effect = next(e for e in fitted.effects if e.name == cause)
-        variants.append(("extended", EffectStack(fitted.inner, (effect,))))
+        variants.append(("extended", _fitted_model(problem, extended.theta, cause).simulation))
     for key, sim in variants:
         if progress:
             print(f"diagnose: hybrid model, {key}", flush=True)

@@ -133,6 +133,12 @@ def _time(drive: str, duration: Any, rate: Any) -> tuple[np.ndarray, float, floa
     return np.arange(n, dtype=np.float64) / rate, duration, rate
 
 
+def _count(drive: str, param: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise InputError(f"{drive} drive {param} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
 def _seed(drive: str, seed: Any) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(
@@ -444,15 +450,14 @@ def staircase(
     t, duration, rate = _time("staircase", duration, rate)
     amplitude = _amplitude("staircase", amplitude)
     step_time = _number("staircase", "step_time", step_time, positive=True)
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 2:
-        raise InputError(f"staircase drive steps must be an integer >= 2, got {steps!r}")
+    steps = _count("staircase", "steps", steps, minimum=2)
     if step_time * rate < 1:
         raise InputError(f"staircase drive step_time={step_time:g} s is shorter than one sample at {rate:g} Hz")
     levels = np.linspace(-amplitude, amplitude, steps)
     cycle = np.concatenate([levels, levels[-2:0:-1]])
     index = np.floor(np.arange(len(t)) / (step_time * rate) + 1e-9).astype(int) % len(cycle)
     v = cycle[index]
-    params = dict(duration=duration, rate=rate, amplitude=amplitude, steps=int(steps), step_time=step_time)
+    params = dict(duration=duration, rate=rate, amplitude=amplitude, steps=steps, step_time=step_time)
     return Drive(t, v, "staircase", params)
 
 
@@ -482,8 +487,7 @@ def triangle(
     t, duration, rate = _time("triangle", duration, rate)
     amplitude = _amplitude("triangle", amplitude)
     period = _number("triangle", "period", period, positive=True)
-    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 1:
-        raise InputError(f"triangle drive levels must be an integer >= 1, got {levels!r}")
+    levels = _count("triangle", "levels", levels, minimum=1)
     if period * rate < 4:
         raise InputError(f"triangle drive period={period:g} s needs at least 4 samples at {rate:g} Hz")
     position = t / period
@@ -492,7 +496,7 @@ def triangle(
     shape = np.where(u < 0.25, 4 * u, np.where(u < 0.75, 2 - 4 * u, 4 * u - 4))
     peaks = amplitude * (1 - (cycle % levels) / levels)
     v = peaks * shape
-    params = dict(duration=duration, rate=rate, amplitude=amplitude, period=period, levels=int(levels))
+    params = dict(duration=duration, rate=rate, amplitude=amplitude, period=period, levels=levels)
     return Drive(t, v, "triangle", params)
 
 

@@ -48,7 +48,7 @@ from jaxtyping import Array, Float
 
 from ._errors import InputError
 from ._parameters import Constraint, Positive, Real, UnitInterval, decode, encode
-from ._simulation import AbstractSimulation
+from ._simulation import AbstractSimulation, perturb_raw
 
 
 class AbstractEffect(eqx.Module):
@@ -384,15 +384,9 @@ class EffectStack(AbstractSimulation):
     def perturbed(self, key, scale, frozen=frozenset()):
         keys = jax.random.split(key, len(self.effects) + 1)
         inner = self.inner.perturbed(keys[0], scale, frozen)
-        effects = []
-        for k, effect in zip(keys[1:], self.effects):
-            raw = {
-                name: value if name in frozen else value + scale * jax.random.normal(
-                    jax.random.fold_in(k, j), value.shape, value.dtype)
-                for j, (name, value) in enumerate(sorted(effect.raw.items()))
-            }
-            effects.append(eqx.tree_at(lambda e: e.raw, effect, raw))
-        return EffectStack(inner, tuple(effects), self.active)
+        effects = tuple(eqx.tree_at(lambda e: e.raw, effect, perturb_raw(effect.raw, k, scale, frozen))
+                        for k, effect in zip(keys[1:], self.effects))
+        return EffectStack(inner, effects, self.active)
 
     def trainable(self, frozen):
         spec = jax.tree_util.tree_map(lambda _: False, self)

@@ -61,14 +61,7 @@ class AbstractSimulation(eqx.Module):
 
     def perturbed(self, key, scale: float, frozen=frozenset()) -> "AbstractSimulation":
         """A copy whose free raw (unconstrained) values get N(0, scale²) noise: a new start."""
-        import jax
-
-        raw = dict(self.raw)
-        for j, name in enumerate(sorted(raw)):
-            if name not in frozen:
-                noise = jax.random.normal(jax.random.fold_in(key, j), raw[name].shape, raw[name].dtype)
-                raw[name] = raw[name] + scale * noise
-        return eqx.tree_at(lambda s: s.raw, self, raw)
+        return eqx.tree_at(lambda s: s.raw, self, perturb_raw(self.raw, key, scale, frozen))
 
     def trainable(self, frozen: frozenset[str]) -> "AbstractSimulation":
         """Filter spec (same structure, bools) marking the free parameters."""
@@ -92,6 +85,18 @@ class Passthrough(AbstractSimulation):
 
     def simulate(self, v_in, dt):
         return jnp.asarray(v_in)
+
+
+def perturb_raw(raw: dict, key, scale: float, frozen=frozenset()) -> dict:
+    """`raw` with N(0, scale²) noise added to every value not named in `frozen`."""
+    import jax
+
+    out = dict(raw)
+    for j, name in enumerate(sorted(out)):
+        if name not in frozen:
+            out[name] = out[name] + scale * jax.random.normal(jax.random.fold_in(key, j), out[name].shape,
+                                                              out[name].dtype)
+    return out
 
 
 def _all(tree, value: bool):

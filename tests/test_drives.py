@@ -207,3 +207,18 @@ def test_random_half_cycle_amplitudes(name):
     assert np.std(peaks) > 0.1  # really random, not a constant envelope
     # Continuous: the amplitude switches only where the sine is zero.
     assert np.max(np.abs(np.diff(drive.v))) < 2.0 * 2 * np.pi * 1.0 / 100.0 * 1.05
+
+
+@pytest.mark.parametrize("name,param,bad", [("staircase", "steps", 1), ("staircase", "steps", 2.5),
+                                            ("triangle", "levels", 0), ("triangle", "levels", True)])
+def test_count_parameters_must_be_integers(name, param, bad):
+    with pytest.raises(InputError, match=f"{name} drive {param} must be an integer"):
+        make_drive(name, 10.0, **{param: bad})
+
+
+def test_staircase_visits_every_level_from_both_sides():
+    v = make_drive("staircase", 64.0, rate=10.0, amplitude=2.0, steps=5, step_time=2.0).v
+    levels = np.unique(v)
+    np.testing.assert_allclose(levels, np.linspace(-2, 2, 5))
+    steps = np.diff(v)[np.diff(v) != 0]
+    assert np.all(np.isclose(np.abs(steps), 1.0)) and (steps > 0).any() and (steps < 0).any()

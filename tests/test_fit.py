@@ -317,3 +317,25 @@ def test_weight_decay_reaches_every_solver(solver, student, hybrid_recording):
     free = fit(student, hybrid_recording, weight_decay=0.0, **kwargs)
     decayed = fit(student, hybrid_recording, weight_decay=100.0, **kwargs)
     assert _network_norm(decayed.model) < 0.5 * _network_norm(free.model)
+
+
+def test_jacobian_along_chosen_directions_keeps_only_those_columns():
+    """Problem(sim_tangents=B): J_sim along the rows of B, the other columns zero (unit rows, one zero row)."""
+    from hybrid import make_drive
+    from hybrid._problem import series_from_recording
+
+    drive = make_drive("prbs", 20.0, seed=3)
+    v_o = np.asarray(RCNetwork().simulate(jnp.asarray(drive.v), DT))
+    recording = Recording(t=drive.t, v_in=drive.v, w=2.0 * v_o + 0.1)
+    model = Model(RCNetwork(), LinearReadout(), "physics")
+    series = [series_from_recording(recording)]
+    full = Problem(model, series, {"xi_h"})
+    theta = full.flatten(model, {"xi_h"})
+    _, J = full.residuals_and_jacobian(theta)
+    basis = np.zeros((3, full.n_sim))
+    basis[0, 1], basis[1, 3] = 1.0, 1.0
+    some = Problem(model, series, {"xi_h"}, sim_tangents=jnp.asarray(basis))
+    _, J_some = some.residuals_and_jacobian(theta)
+    expected = np.array(J)
+    expected[:, [i for i in range(full.n_sim) if i not in (1, 3)]] = 0.0
+    np.testing.assert_allclose(J_some, expected, rtol=1e-12, atol=1e-14)
