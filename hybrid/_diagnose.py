@@ -128,6 +128,10 @@ class Diagnosis:
     settings: DiagnoseSettings
     recordings: list
     seconds: float
+    #: Held-out signals (all recordings' test parts concatenated): ``t`` (s),
+    #: ``v_in`` (V), ``w``, ``baseline`` and ``extended`` predictions (recording
+    #: units), ``recording`` (index of the recording each sample comes from).
+    heldout: dict = dataclasses.field(default_factory=dict)
 
     @property
     def gain(self) -> float:
@@ -503,13 +507,19 @@ def diagnose(
     uncertainties = _uncertainties(_fitted_model(problem, extended.theta, cause), recordings, settings,
                                    w_te - w_hat_ext)
     evidence = _evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
+    segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
+    heldout = {
+        "t": np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),
+        "v_in": v_te, "w": w_te, "baseline": w_hat_base, "extended": w_hat_ext,
+        "recording": np.concatenate([np.full(b - a, i) for i, a, b in segments]),
+    }
     hybrid_report = None
     if hybrid:
         hybrid_report = _hybrid_fits(recordings, simulation, extended, problem, cause, settings, hybrid_max_steps, progress)
     return Diagnosis(
         cause=cause, baseline=baseline, extended=extended, candidates=candidates,
         uncertainties=uncertainties, evidence=evidence, hybrid=hybrid_report, settings=settings,
-        recordings=[r.name for r in recordings], seconds=time.perf_counter() - t0,
+        recordings=[r.name for r in recordings], seconds=time.perf_counter() - t0, heldout=heldout,
     )
 
 
