@@ -5,6 +5,7 @@
     hybrid fit RECORDING... --model hybrid|normal|physics [--out MODEL]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--drive D] [--param NAME=VALUE ...] [--sobol N]
+    hybrid diagnose RECORDING... --out DIR [--hybrid] [--max-steps N] [--quiet]
 
 Bad input of any kind ends with exit status 2 and one line on stderr.
 """
@@ -100,6 +101,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, default=0.01, help="noise as a fraction of rms(w), for standard errors")
     p.add_argument("--sobol", type=int, default=0, metavar="N", help="also Sobol indices from N base samples")
     p.add_argument("--seed", type=int, default=0)
+
+    p = sub.add_parser("diagnose", help="which physical effect the simulation misses (report.md, report.json, PNGs)")
+    p.add_argument("recordings", nargs="+", help=".csv/.npz/.mat recordings of one strip (fitted jointly)")
+    p.add_argument("--out", required=True, help="output directory (report.md, report.json, figures)")
+    p.add_argument("--hybrid", action="store_true",
+                   help="also fit the hybrid model (simulation + D-MLP) with and without the named effect")
+    p.add_argument("--max-steps", type=int, default=None,
+                   help="Levenberg-Marquardt steps per stage (default: DiagnoseSettings.max_steps)")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
     return parser
 
 
@@ -247,8 +257,38 @@ def _cmd_sensitivity(args):
     print(f"wrote {Path(args.out) / 'sensitivity.json'} and figures ({result['seconds']:.1f} s)")
 
 
+def _cmd_diagnose(args):
+    import dataclasses
+
+    from ._diagnose import DiagnoseSettings, diagnose
+    from ._diagnose_report import _pm, write_report
+    from ._effects import EFFECTS
+    from ._recording import Recording
+
+    recordings = [Recording.load(p) for p in args.recordings]
+    settings = DiagnoseSettings()
+    if args.max_steps is not None:
+        if args.max_steps < 1:
+            raise InputError(f"--max-steps must be at least 1, got {args.max_steps}")
+        settings = dataclasses.replace(settings, max_steps=args.max_steps)
+    diagnosis = diagnose(recordings, hybrid=args.hybrid, settings=settings, progress=not args.quiet)
+    paths = write_report(diagnosis, args.out)
+    report = diagnosis.to_dict()
+    base, ext = report["baseline"]["nmse"], report["extended"]["nmse"]
+    print(f"cause: {diagnosis.cause}")
+    print(f"held-out NMSE: baseline {base:.2e} -> extended {ext:.2e} (gain {diagnosis.gain:.2f}x)")
+    if diagnosis.cause != "none":
+        for name in EFFECTS[diagnosis.cause].constraints:
+            if name in report["parameters"]:
+                print(f"  {name} = {_pm(report['parameters'][name])}")
+    if diagnosis.hybrid is not None:
+        h = diagnosis.hybrid
+        print(f"hybrid model NMSE: {h['baseline']['nmse']:.2e} -> {h['extended']['nmse']:.2e}")
+    print(f"wrote {paths['report.md']}, report.json and {len(paths) - 2} figures ({diagnosis.seconds:.1f} s)")
+
+
 COMMANDS = {"simulate": _cmd_simulate, "rc": _cmd_rc, "fit": _cmd_fit, "table2": _cmd_table2,
-            "sensitivity": _cmd_sensitivity}
+            "sensitivity": _cmd_sensitivity, "diagnose": _cmd_diagnose}
 
 
 def main(argv=None) -> int:
