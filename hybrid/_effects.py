@@ -10,7 +10,7 @@ name               y(t)                                   parameters
 ``delay``          s(t − d)  (linear interpolation)       ``delay_s`` d (s)
 ``back_relaxation`` s − β·x,  τ ẋ = s − x                 ``relaxation_time_s`` τ (s),
                                                           ``relaxation_fraction`` β
-``saturation``     σ± tanh(s/σ±)  (σ+ for s ≥ 0)           ``saturation_pos_v``, ``saturation_neg_v`` (V)
+``saturation``     tanh(κ± s)/κ±  (κ₊ for s ≥ 0)          ``saturation_pos_per_v``, ``saturation_neg_per_v`` (1/V)
 ``hysteresis``     s + W·k·z,  dz/ds = 1 − k z sgn(ds)     ``hysteresis_height_v`` W (V),
                    (Bouc–Wen, n = 1, γ = 0)               ``hysteresis_rate_per_v`` k (1/V)
 ``drift``          s · exp(κ t)                           ``drift_rate_per_s`` κ (1/s)
@@ -151,33 +151,49 @@ class BackRelaxation(AbstractEffect):
         return {"relaxation_percent": 100.0 * float(self.parameters()["relaxation_fraction"])}
 
 
+def _soft_clip(s, k):
+    """tanh(k s)/k, even in k and equal to s at k = 0 (finite gradients there too)."""
+    x = k * s
+    small = jnp.abs(x) < 1e-4
+    k_safe = jnp.where(jnp.abs(k) < 1e-300, 1.0, k)
+    x_safe = jnp.where(small, 1.0, x)
+    return jnp.where(small, s * (1.0 - x * x / 3.0), jnp.tanh(x_safe) / k_safe)
+
+
 class Saturation(AbstractEffect):
-    """y = σ₊ tanh(s/σ₊) for s ≥ 0 and σ₋ tanh(s/σ₋) for s < 0 (slope 1 at s = 0)."""
+    """y = tanh(κ₊ s)/κ₊ for s ≥ 0 and tanh(κ₋ s)/κ₋ for s < 0: slope 1 at s = 0.
+
+    κ± (1/V) is the curvature of each side; κ = 0 is the linear response, so
+    the effect-free simulation lies inside the family (at a finite parameter,
+    where a saturation level σ = 1/κ would need σ → ∞). The response levels
+    off at ±1/|κ±| (V of s): ``derived`` reports those levels and the shortfall
+    below the linear extrapolation at the largest |s| of each sign.
+    """
 
     raw: dict[str, Array]
     name: ClassVar[str] = "saturation"
-    constraints: ClassVar = {"saturation_pos_v": Positive(), "saturation_neg_v": Positive()}
-    units: ClassVar = {"saturation_pos_v": "V", "saturation_neg_v": "V"}
-    defaults: ClassVar = {"saturation_pos_v": 1.0, "saturation_neg_v": 1.0}
+    constraints: ClassVar = {"saturation_pos_per_v": Real(), "saturation_neg_per_v": Real()}
+    units: ClassVar = {"saturation_pos_per_v": "1/V", "saturation_neg_per_v": "1/V"}
+    defaults: ClassVar = {"saturation_pos_per_v": 0.0, "saturation_neg_per_v": 0.0}
 
     def __init__(self, **values):
         _init(self, values)
 
     def apply(self, s, dt):
         p = self.parameters()
-        sigma = jnp.where(s >= 0, p["saturation_pos_v"], p["saturation_neg_v"])
-        return sigma * jnp.tanh(s / sigma)
+        k = jnp.where(s >= 0, p["saturation_pos_per_v"], p["saturation_neg_per_v"])
+        return _soft_clip(s, k)
 
     def derived(self, s, dt):
-        """Shortfall below the linear extrapolation at the largest |s| of each sign, %."""
+        """Level 1/|κ| (V) and shortfall below the linear extrapolation at the largest |s|, %."""
         p = self.parameters()
         out = {}
-        for side, peak, sigma in (("pos", jnp.max(s), p["saturation_pos_v"]),
-                                  ("neg", -jnp.min(s), p["saturation_neg_v"])):
-            peak = float(peak)
+        for side, peak, k in (("pos", jnp.max(s), p["saturation_pos_per_v"]),
+                              ("neg", -jnp.min(s), p["saturation_neg_per_v"])):
+            peak, k = float(peak), abs(float(k))
+            out[f"level_{side}_v"] = 1.0 / k if k > 0 else float("inf")
             if peak > 0:
-                x = peak / float(sigma)
-                out[f"shortfall_{side}_percent"] = 100.0 * (1.0 - float(jnp.tanh(x)) / x)
+                out[f"shortfall_{side}_percent"] = 100.0 * (1.0 - float(_soft_clip(jnp.asarray(peak), k)) / peak)
         return out
 
 
@@ -288,6 +304,34 @@ class Resonance(AbstractEffect):
 
         states = lax.associative_scan(compose, (phis, forcing))[1]  # x[1..T]
         return jnp.concatenate([x0[None, 0], states[:-1, 0]])
+
+
+class FrameTiming(AbstractEffect):
+    """The camera's sampling instant: y[n] = s(n − f) with 0 ≤ f ≤ 1 sample (linear interpolation).
+
+    Not a cause but part of every measurement: a frame averages the
+    displacement over its exposure, which ends at the frame's time stamp, so it
+    reads the strip about half an exposure late (a 1/60 s exposure at 30 fps:
+    f ≈ 0.25), and the drive's DAC updates need not line up with the frames.
+    The discrepancy search fits f in its baseline, so that a sub-sample timing
+    offset is not mistaken for a dead time.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "frame_timing"
+    constraints: ClassVar = {"frame_lag": UnitInterval()}
+    units: ClassVar = {"frame_lag": "samples"}
+    defaults: ClassVar = {"frame_lag": 0.25}
+
+    def __init__(self, **values):
+        _init(self, values)
+
+    def apply(self, s, dt):
+        f = self.parameters()["frame_lag"]
+        return s - f * (s - jnp.concatenate([s[:1], s[:-1]]))
+
+    def derived(self, s, dt):
+        return {"frame_lag_s": float(self.parameters()["frame_lag"]) * dt}
 
 
 #: The effects, by name, in the order they act on the signal.

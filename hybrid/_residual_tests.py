@@ -66,6 +66,11 @@ def ljung_box(residual, lags: int = 30) -> dict:
     return {"Q": q, "lags": int(len(rho)), "p_value": float(scipy.stats.chi2.sf(q, len(rho)))}
 
 
+def white_limit(lags: int = 30, level: float = 0.99) -> float:
+    """The Ljung–Box Q below which a residual passes as white at `level` (χ² quantile)."""
+    return float(scipy.stats.chi2.ppf(level, lags))
+
+
 def spectrum(residual, rate: float) -> tuple[np.ndarray, np.ndarray]:
     """(frequencies in Hz, power spectral density in unit²/Hz), Welch's method."""
     residual = np.asarray(residual, dtype=float)

@@ -1,5 +1,6 @@
 """Effects (hybrid._effects) against independent references, and the hidden-effect generator."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -93,13 +94,31 @@ def test_hysteresis_is_rate_independent():
 
 
 def test_saturation_slope_asymptotes_and_asymmetry():
-    effect = Saturation(saturation_pos_v=2.0, saturation_neg_v=0.5)
+    effect = Saturation(saturation_pos_per_v=0.5, saturation_neg_per_v=-2.0)  # κ is even: sign irrelevant
     s = jnp.array([-100.0, -1e-6, 0.0, 1e-6, 100.0])
     y = np.asarray(effect.apply(s, DT))
     np.testing.assert_allclose(y, [-0.5, -1e-6, 0.0, 1e-6, 2.0], rtol=1e-6)
     derived = effect.derived(jnp.array([-1.0, 2.0]), DT)
+    assert derived["level_pos_v"] == pytest.approx(2.0) and derived["level_neg_v"] == pytest.approx(0.5)
     assert derived["shortfall_pos_percent"] == pytest.approx(100 * (1 - np.tanh(1.0)), rel=1e-9)
     assert derived["shortfall_neg_percent"] == pytest.approx(100 * (1 - np.tanh(2.0) / 2.0), rel=1e-9)
+
+
+def test_saturation_contains_the_linear_response_with_finite_gradients():
+    s = jnp.linspace(-3.0, 3.0, 61)
+
+    def y(k):  # κ enters as the raw parameter (Real: raw = value), so it can be traced
+        effect = Saturation()
+        return eqx.tree_at(lambda e: e.raw, effect, {n: k for n in effect.raw}).apply(s, DT)
+
+    np.testing.assert_allclose(np.asarray(y(0.0)), np.asarray(s), atol=0.0)
+    grad = jax.jacfwd(y)(0.0)
+    assert np.all(np.isfinite(np.asarray(grad))) and np.max(np.abs(np.asarray(grad))) < 1e-12  # even in κ
+    k = 1e-3  # the series branch against tanh(κ s)/κ, and finite differences of it
+    np.testing.assert_allclose(np.asarray(y(k)), np.tanh(k * np.asarray(s)) / k, rtol=1e-12)
+    h = 1e-6
+    fd = (np.asarray(y(0.3 + h)) - np.asarray(y(0.3 - h))) / (2 * h)
+    np.testing.assert_allclose(np.asarray(jax.jacfwd(y)(0.3)), fd, rtol=1e-6, atol=1e-9)
 
 
 def test_delay_whole_and_fractional_samples(signal):
