@@ -22,7 +22,7 @@ demo: $(STAMP)
 	$(BIN)/python experiments/table2.py
 
 test: $(STAMP) rig-deps
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 # full benchmarks (~15 min on 2 cores) and the quick ratios (< 45 s); both write benchmarks/results/*.json
 BENCH_STAMP := $(VENV)/.installed-bench
@@ -39,6 +39,7 @@ bench: $(BENCH_STAMP)
 	$(BIN)/python benchmarks/fitting.py
 	$(BIN)/python benchmarks/batch_fit.py
 	$(BIN)/python benchmarks/memory.py
+	$(BIN)/python benchmarks/diagnose.py
 
 bench-quick: $(STAMP)
 	$(BIN)/python benchmarks/quick.py

@@ -34,9 +34,9 @@ def _drive(name: str, duration: float, rate: float, seed: int):
     from hybrid import make_drive
 
     if name == "prbs-multilevel":
-        from hybrid._drives import prbs
+        from hybrid._synthetic import discrepancy_drive
 
-        return prbs(duration, rate=rate, amplitude=2.0, min_hold=0.5, max_hold=10.0, levels="multilevel", seed=seed)
+        return discrepancy_drive(duration, rate, seed)
     return make_drive(name, duration, rate=rate, seed=seed) if name in ("prbs",) else make_drive(name, duration, rate=rate)
 
 

@@ -11,6 +11,20 @@ The library never changes `jax.config`: call
 
 from ._drives import DRIVES as DRIVES, Drive as Drive, make_drive as make_drive
 from ._errors import InputError as InputError
+from ._diagnose import (
+    CAUSES as CAUSES,
+    Diagnosis as Diagnosis,
+    DiagnoseSettings as DiagnoseSettings,
+    diagnose as diagnose,
+)
+from ._diagnose_report import write_report as write_report
+from ._effects import (
+    EFFECTS as EFFECTS,
+    AbstractEffect as AbstractEffect,
+    EffectStack as EffectStack,
+    FrameTiming as FrameTiming,
+    extend as extend,
+)
 from ._batch import BatchFitResult as BatchFitResult, fit_batch as fit_batch, simulate_batch as simulate_batch
 from ._fit import SOLVERS as SOLVERS, fit as fit
 from ._metrics import (

@@ -80,11 +80,11 @@ class DiagnoseSettings:
     split: tuple[float, float, float] = (0.6, 0.1, 0.3)
     max_steps: int = 120
     patience: int = 25
-    min_gain: float = 1.25
+    min_gain: float = 1.5
     min_bic_drop: float = 10.0
     materiality: dict = dataclasses.field(default_factory=lambda: {
         "delay_samples": 1.0, "relaxation_percent": 10.0, "shortfall_percent": 5.0,
-        "loop_height_percent_of_range": 3.0, "gain_change_percent": 5.0, "max_damping": 0.5,
+        "loop_height_percent_of_range": 3.0, "gain_change_percent": 5.0, "max_damping": 0.35,
         "min_frequency_hz": 0.5,
     })
     frozen: tuple[str, ...] = ("xi_h",)
@@ -394,15 +394,21 @@ def _uncertainties(model: Model, recordings, settings, residual_heldout) -> dict
 
 
 def _baseline_grid(n_lanes: int) -> list[dict]:
-    """Starting points spanning the issue's strips: C_clamp 1 mF–1 F, ξρ/ξh 1–100, α_I."""
-    grid = [
-        {"C_clamp": c, "xi_rho": x, "alpha_I": a}
-        for c, x, a in ((3e-2, 10.0, 0.5), (3e-3, 3.0, 0.3), (3e-3, 30.0, 0.7), (3e-1, 3.0, 0.7),
-                        (3e-1, 30.0, 0.3), (1e-2, 30.0, 0.3), (1e-1, 3.0, 0.5), (1e-2, 3.0, 0.7),
-                        (1e-1, 30.0, 0.7), (1.0, 10.0, 0.5), (1e-3, 10.0, 0.5), (3e-3, 100.0, 0.5),
-                        (3e-2, 1.5, 0.5), (3e-2, 60.0, 0.2), (3e-1, 60.0, 0.8), (1.0, 2.0, 0.3))
-    ]
-    return (grid * (n_lanes // len(grid) + 1))[:n_lanes]
+    """Starting points filling the issue's strips: C_clamp 1 mF–1 F, ξρ/ξh 1–100, each α 0.1–0.9.
+
+    A scrambled Sobol design (fixed seed: the same starts every run) over
+    log C_clamp, log ξρ and the three α's, with the paper-like centre first.
+    """
+    import scipy.stats
+
+    sobol = scipy.stats.qmc.Sobol(d=5, scramble=True, seed=20261122)
+    unit = sobol.random_base2(max(1, math.ceil(math.log2(max(n_lanes - 1, 1)))))
+    grid = [{"C_clamp": 3e-2, "xi_rho": 10.0, "alpha_E": 0.5, "alpha_I": 0.5, "alpha_C": 0.5}]
+    for u in unit:
+        u = [float(x) for x in u]
+        grid.append({"C_clamp": 10 ** (-3 + 3 * u[0]), "xi_rho": 10 ** (2 * u[1]), "alpha_E": 0.1 + 0.8 * u[2],
+                     "alpha_I": 0.1 + 0.8 * u[3], "alpha_C": 0.1 + 0.8 * u[4]})
+    return grid[:n_lanes]
 
 
 def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen) -> Candidate:

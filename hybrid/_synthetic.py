@@ -62,6 +62,18 @@ class SyntheticStrip:
     offset_mm: float = 0.0
 
 
+def discrepancy_drive(duration: float = 60.0, rate: float = 30.0, seed: int = 0, amplitude: float = 2.0):
+    """The drive of the discrepancy tests and experiment: multilevel PRBS, holds 0.5–10 s.
+
+    Steps reveal a dead time and excite a mode, holds show a relaxation, and
+    random levels reached from above and from below separate saturation from
+    hysteresis.
+    """
+    from ._drives import prbs
+
+    return prbs(duration, rate=rate, amplitude=amplitude, min_hold=0.5, max_hold=10.0, levels="multilevel", seed=seed)
+
+
 def random_strip(rng: np.random.Generator) -> SyntheticStrip:
     """A strip from the issue's ranges (log-uniform where the range spans decades)."""
     ratio = math.exp(rng.uniform(math.log(1.0), math.log(100.0)))

@@ -1,0 +1,67 @@
+"""`diagnose` on one 5-minute, 30 Hz recording: target ≤ 60 s on the 2-core machine.
+
+    python benchmarks/diagnose.py [--duration 300] [--rate 30]
+
+A synthetic strip (seed 0 of `hybrid._synthetic.random_strip`) with a hidden
+back-relaxation under the discrepancy drive (multilevel PRBS), 9,000 samples.
+Reported: the first call in a fresh process (compiling the search's programs
+included), a second call on another recording of the same length (compiled
+programs reused, as in a sweep or a lab session), and, as the peer in the same
+run, one physics-only `hybrid.fit` (one LM start) of the same recording — the
+cost of a single effect-free fit that the search (16 baseline starts, 15
+candidate lanes, 16 re-baseline lanes) is measured against.
+Writes `benchmarks/results/diagnose.json`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+import _common as c
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=300.0)
+    parser.add_argument("--rate", type=float, default=30.0)
+    args = parser.parse_args()
+    c.setup_jax()
+    from hybrid import RCNetwork, diagnose, fit, make_model
+    from hybrid._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+
+    def recording(seed):
+        rng = np.random.default_rng(seed)
+        strip, params = random_strip(rng), random_effect("back_relaxation", rng, args.rate)
+        return synthetic_recording(discrepancy_drive(args.duration, args.rate, seed), strip, "back_relaxation",
+                                   params, seed=seed)
+
+    first, second = recording(0), recording(1)
+    t0 = time.perf_counter()
+    found = diagnose(first)
+    cold = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    found2 = diagnose(second)
+    warm = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fit(make_model("physics", simulation=RCNetwork(method="zoh")), [second], max_steps=120, frozen={"xi_h"},
+        split=(0.6, 0.1, 0.3), split_order=("train", "validation", "test"), progress=False)
+    peer = time.perf_counter() - t0
+    out = {
+        "samples": len(first), "rate_hz": args.rate, "duration_s": args.duration,
+        "diagnose_first_call_s": cold, "diagnose_second_call_s": warm,
+        "physics_fit_first_call_s": peer, "second_call_over_one_fit": warm / peer,
+        "target_s": 60.0, "named": [found.cause, found2.cause],
+        "machine": c.machine(),
+        "command": "python benchmarks/diagnose.py",
+    }
+    c.RESULTS.mkdir(exist_ok=True)
+    (c.RESULTS / "diagnose.json").write_text(json.dumps(out, indent=2))
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
