@@ -114,7 +114,7 @@ def main(argv=None) -> int:
 
     virtual = []
     if args.virtual:
-        from hybrid import virtual_recording
+        from hybrid._virtual_ipmc import virtual_recording
 
         for drive_name in ("prbs-multilevel", "prbs"):
             recording = virtual_recording(_drive(drive_name, args.duration, args.rate, 0), seed=0)
