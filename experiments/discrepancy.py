@@ -22,6 +22,7 @@ IPMC (`hybrid.virtual_recording`), whose extra physics is a real discrepancy.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -32,12 +33,11 @@ import numpy as np
 
 def _drive(name: str, duration: float, rate: float, seed: int):
     from hybrid import make_drive
+    from hybrid._synthetic import discrepancy_drive
 
     if name == "prbs-multilevel":
-        from hybrid._synthetic import discrepancy_drive
-
         return discrepancy_drive(duration, rate, seed)
-    return make_drive(name, duration, rate=rate, seed=seed) if name in ("prbs",) else make_drive(name, duration, rate=rate)
+    return make_drive(name, duration, rate=rate, seed=seed)
 
 
 #: A hidden effect is *visible* when the best effect-free fit leaves a held-out MSE
@@ -101,7 +101,7 @@ def main(argv=None) -> int:
             print(f"{effect:16s} seed {seed}: named {found.cause:16s} gain {found.gain:7.2f}  baseline/noise "
                   f"{excess:6.1f}  ({found.seconds:.0f} s)  {params}", flush=True)
             rows.append({
-                "effect": effect, "seed": seed, "effect_params": params, "strip": vars(strip) if hasattr(strip, "__dict__") else {},
+                "effect": effect, "seed": seed, "effect_params": params, "strip": dataclasses.asdict(strip),
                 "named": found.cause, "gain": found.gain, "seconds": found.seconds,
                 "baseline_mse_over_noise": excess, "visible": bool(excess >= VISIBLE),
                 "baseline_nmse": found.baseline.heldout["nmse"], "extended_nmse": found.extended.heldout["nmse"],

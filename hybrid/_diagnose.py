@@ -223,11 +223,16 @@ def _universal_model(simulation) -> Model:
 
 
 @eqx.filter_jit
+def _train_signal(problem, simulation):
+    """`simulation`'s output on the training part of every recording, concatenated."""
+    return jnp.concatenate([simulation.simulate(s.v_in, s.dt)[a:b]
+                            for s in problem.series for a, b in s.segments_of("train")])
+
+
+@eqx.filter_jit
 def _initial_theta(problem, simulation, readout, frozen):
     """θ for `simulation` with the least-squares gain and offset on the training part (compiled once)."""
-    signal = jnp.concatenate([simulation.simulate(s.v_in, s.dt)[a:b]
-                              for s in problem.series for a, b in s.segments_of("train")])
-    readout = readout.initialise(signal, problem.target("train"))
+    readout = readout.initialise(_train_signal(problem, simulation), problem.target("train"))
     return problem.flatten(Model(simulation, readout, "physics"), frozen)
 
 
@@ -487,17 +492,15 @@ def diagnose(
     base_tangents = _lane_tangents(model, frozen, None, n_rows)
     if progress:
         print(f"diagnose: baseline from {len(grid)} starts", flush=True)
-    states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm)
-    best = int(np.nanargmin(np.asarray(states.best_val)))
-    theta_base = states.best_theta[best]
-    states_base_best_val = float(states.best_val[best])
+    base_states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm)
+    best = int(np.nanargmin(np.asarray(base_states.best_val)))
+    theta_base = base_states.best_theta[best]
     n_base = len(_free_names(model, frozen, None))
     baseline = _evaluate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
 
     # 2. Candidates: each effect switched on, warm-started from the baseline.
     base_model = problem.model(theta_base)
-    s_train = np.concatenate([np.asarray(base_model.simulation.inner.simulate(s.v_in, s.dt))[a:b]
-                              for s in series for a, b in s.segments_of("train")])
+    s_train = np.asarray(_train_signal(problem, base_model.simulation.inner))
     _, w_tr, w_hat_tr = _signals(problem, theta_base, off, "train")
     lag = _best_lag(w_tr, w_hat_tr, max_lag=20)
     f, psd = rt.spectrum(w_tr - w_hat_tr, rate)
@@ -535,7 +538,7 @@ def diagnose(
     restates = _fit_lanes(problem, np.tile(off, (n_lanes, 1)), np.stack([base_tangents] * n_lanes),
                           cand_thetas, lm)
     revals = np.asarray(restates.best_val)
-    if np.nanmin(revals) < float(states_base_best_val):
+    if np.nanmin(revals) < float(base_states.best_val[best]):
         j = int(np.nanargmin(revals))
         theta_base = restates.best_theta[j]
         baseline = _evaluate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
@@ -560,7 +563,7 @@ def diagnose(
             (cand.material, f"not material: {cand.materiality}"),
             (cand.gain >= settings.min_gain, f"held-out gain {cand.gain:.2f} < {settings.min_gain}"),
             (cand.delta_bic <= -settings.min_bic_drop, f"ΔBIC {cand.delta_bic:.1f} > −{settings.min_bic_drop}"),
-            (whiter, "held-out residual not whiter"),
+            (whiter, "held-out residual less white than the baseline's"),
         ]
         cand.eligible = all(ok for ok, _ in checks)
         cand.reasons += [why for ok, why in checks if not ok]

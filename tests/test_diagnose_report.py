@@ -12,13 +12,14 @@ import math
 import numpy as np
 import pytest
 
-from hybrid._diagnose import CAUSES
+from hybrid._diagnose import CAUSES, DiagnoseSettings
 from hybrid._diagnose_report import FIGURES, _correlations, _jsonable, _nmse
 from hybrid._effects import EFFECTS
 from hybrid._residual_tests import confidence_bound
 from hybrid._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
 from hybrid.cli import main
 
+MAX_STEPS = DiagnoseSettings().max_steps
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
@@ -36,7 +37,9 @@ def report(tmp_path_factory):
     out = tmp_path / "report"
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
-        code = main(["diagnose", str(path), "--out", str(out), "--quiet"])
+        # The default step limit, given explicitly: the option is exercised and the
+        # LM program compiled for tests/test_diagnose.py (max_steps is static) is reused.
+        code = main(["diagnose", str(path), "--out", str(out), "--max-steps", str(MAX_STEPS), "--quiet"])
     return {"code": code, "out": out, "path": path, "stdout": stdout.getvalue()}
 
 
@@ -62,7 +65,7 @@ def test_report_json_is_strict_and_consistent(report):
     text = (report["out"] / "report.json").read_text()
     data = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
     assert data["cause"] in CAUSES
-    assert data["settings"]["max_steps"] == 20  # --max-steps reaches DiagnoseSettings
+    assert data["settings"]["max_steps"] == MAX_STEPS  # --max-steps reaches DiagnoseSettings
     assert data["recordings"] == [str(report["path"])]
     for key in ("baseline", "extended"):
         assert math.isfinite(data[key]["nmse"]) and data[key]["nmse"] > 0
