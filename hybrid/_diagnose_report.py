@@ -285,6 +285,9 @@ def _pm(entry: dict) -> str:
     value, se, unit = entry.get("value"), entry.get("std_error"), entry.get("unit") or ""
     unit = "" if unit == "1" else unit  # dimensionless
     text = _num(value, 4) if se is None else f"{_num(value, 4)} ± {_num(se, 2)}"
+    given = entry.get("std_error_given_network")
+    if given is not None:
+        text += f" (± {_num(given, 2)} with the network fixed)"
     return f"{text} {unit}".rstrip()
 
 
@@ -339,7 +342,9 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
 
     lines += ["## Fitted parameters" + ("" if d["cause"] == "none" else f" (simulation + {d['cause']})"), "",
               "Standard errors: Gauss–Newton covariance on the training part, inflated for the held-out "
-              "residual's autocorrelation.", "", "| parameter | value ± std. error |", "|---|---|"]
+              "residual's autocorrelation. The network's parameters trade off against each other, and an effect "
+              "that trades off with them inherits their spread; in brackets, the error with the network's "
+              "parameters held at their fitted values (a lower bound).", "", "| parameter | value ± std. error |", "|---|---|"]
     frozen = set(d["settings"].get("frozen") or ())
     for name, entry in d["parameters"].items():
         text = f"{_num(entry['value'], 4)} (fixed)" if name in frozen else _pm(entry)
@@ -354,8 +359,15 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
               f"{_num(d['settings']['min_gain'])}, ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])} (training part), "
               "and a held-out residual no less white than the baseline's (Ljung–Box Q no higher, or below the 99 % "
               "white limit). The baseline is the best effect-free fit, refitted from every candidate's end point too, "
-              "so a candidate's gain is its effect's, not a better local minimum's.", "",
-              "| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
+              "so a candidate's gain is its effect's, not a better local minimum's.", ""]
+    spread = ev.get("equally_good_effect_free_fits")
+    if spread and spread.get("n"):
+        lines += [f"Effect-free fits as good as the baseline on training data (within ΔBIC "
+                  f"{_num(d['settings']['min_bic_drop'])}): {spread['n']}, held-out NMSE "
+                  f"{_nmse(spread['heldout_nmse_min'])} to {_nmse(spread['heldout_nmse_max'])}. A wide range means "
+                  "the training part does not pin the strip's slow dynamics; a candidate must also beat the best "
+                  "of them by the minimum gain.", ""]
+    lines += ["| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
               "|---|---|---|---|---|---|---|---|",
               f"| *baseline* | {_nmse(d['baseline']['nmse'])} | 1 | 0 | "
               f"{_fixed(d['baseline_fit']['ljung_box']['Q'])} | | | |"]

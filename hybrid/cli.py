@@ -291,10 +291,28 @@ COMMANDS = {"simulate": _cmd_simulate, "rc": _cmd_rc, "fit": _cmd_fit, "table2":
             "sensitivity": _cmd_sensitivity, "diagnose": _cmd_diagnose}
 
 
+def _use_compilation_cache(jax) -> None:
+    """Keep compiled programs between runs (JAX's persistent cache).
+
+    `hybrid diagnose` compiles its search (about 80 s on 2 cores) in every new
+    process; with the cache a lab's second recording starts at once. The cache
+    lives in ``$HYBRID_JAX_CACHE`` (default ``~/.cache/hybrid/jax``); set it to
+    ``off`` to compile afresh every time.
+    """
+    import os
+
+    where = os.environ.get("HYBRID_JAX_CACHE", str(Path.home() / ".cache" / "hybrid" / "jax"))
+    if where.strip().lower() in ("", "0", "off", "none", "false"):
+        return
+    jax.config.update("jax_compilation_cache_dir", where)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
 def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)  # the entry point chooses float64
+    _use_compilation_cache(jax)
     try:
         args = build_parser().parse_args(argv)
         COMMANDS[args.command](args)

@@ -223,3 +223,31 @@ def test_random_draws_stay_in_the_issue_ranges():
         assert 1.0 <= res["frequency_hz"] <= 7.0 and 0.02 <= res["damping"] <= 0.3
     with pytest.raises(InputError, match="unknown hidden effect"):
         random_effect("creep", rng, 30.0)
+
+
+def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
+    """`std_error_given_network` (a block of the full Fisher information) against an
+    independent covariance computed with the network's parameters frozen."""
+    from hybrid._diagnose import DiagnoseSettings, _uncertainties
+    from hybrid._models import Model
+    from hybrid._readout import LinearReadout
+    from hybrid.sensitivity import parameter_covariance
+
+    rec = synthetic_recording(make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0), SyntheticStrip(),
+                              "back_relaxation", {"tau_s": 4.0, "fraction": 0.5}, noise_fraction=0.01, seed=1)
+    inner = RCNetwork(method="zoh")
+    model = Model(extend(inner, "back_relaxation", relaxation_time_s=4.0, relaxation_fraction=0.4),
+                  LinearReadout(gain=2.0), "physics")
+    settings = DiagnoseSettings()
+    white = np.random.default_rng(0).normal(size=400)
+    found = _uncertainties(model, [rec], settings, white)
+    frozen = parameter_covariance(model, [rec], frozen=set(settings.frozen) | set(inner.parameter_names()),
+                                  split=settings.split, split_order=("train", "validation", "test"))
+    full = parameter_covariance(model, [rec], frozen=settings.frozen, split=settings.split,
+                                split_order=("train", "validation", "test"))
+    for name, se in frozen.std_errors.items():
+        # s² = RSS/dof differs between the two by the number of free parameters.
+        expected = se * np.sqrt(frozen.dof / full.dof * found[name]["inflation"])
+        assert found[name]["std_error_given_network"] == pytest.approx(expected, rel=1e-6), name
+        assert found[name]["std_error_given_network"] <= found[name]["std_error"] * (1 + 1e-9), name
+    assert "std_error_given_network" not in found["C_clamp"]
