@@ -8,8 +8,11 @@ Reported: the first call in a fresh process (compiling the search's programs
 included), a second call on another recording of the same length (compiled
 programs reused, as in a sweep or a lab session), and, as the peer in the same
 run, one physics-only `hybrid.fit` (one LM start) of the same recording — the
-cost of a single effect-free fit that the search (16 baseline starts, 15
-candidate lanes, 16 re-baseline lanes) is measured against.
+cost of a single effect-free fit that the search (512 screened points, 16
+baseline starts, 15 candidate lanes, 16 re-baseline lanes) is measured against.
+Then `hybrid diagnose` from the command line, twice in fresh processes sharing
+an empty persistent compilation cache (`HYBRID_JAX_CACHE`): the first fills it,
+the second is what a lab sees from its second recording on.
 Writes `benchmarks/results/diagnose.json`.
 """
 
@@ -17,7 +20,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -50,10 +58,21 @@ def main() -> None:
     fit(make_model("physics", simulation=RCNetwork(method="zoh")), [second], max_steps=120, frozen={"xi_h"},
         split=(0.6, 0.1, 0.3), split_order=("train", "validation", "test"), progress=False)
     peer = time.perf_counter() - t0
+    cli = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "recording.csv"
+        second.save(path)
+        env = {**os.environ, "HYBRID_JAX_CACHE": str(Path(tmp) / "cache")}
+        for run in range(2):
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "hybrid.cli", "diagnose", str(path), "--out", str(Path(tmp) / f"out{run}"),
+                            "--quiet"], env=env, check=True, capture_output=True)
+            cli.append(time.perf_counter() - t0)
     out = {
         "samples": len(first), "rate_hz": args.rate, "duration_s": args.duration,
         "diagnose_first_call_s": cold, "diagnose_second_call_s": warm,
         "physics_fit_first_call_s": peer, "second_call_over_one_fit": warm / peer,
+        "cli_empty_cache_s": cli[0], "cli_warm_cache_s": cli[1],
         "target_s": 60.0, "named": [found.cause, found2.cause],
         "machine": c.machine(),
         "command": "python benchmarks/diagnose.py",

@@ -1,6 +1,6 @@
 """Hidden effect × seed → what `diagnose` names: the confusion table, the gains, the time.
 
-    python experiments/discrepancy.py [--effects none,delay,...] [--seeds 10] [--duration 120]
+    python experiments/discrepancy.py [--effects none,delay,...] [--seeds 10 | --seed-list 2,3,7] [--duration 120]
                                       [--rate 30] [--drive prbs-multilevel] [--noise 0.01]
                                       [--virtual] [--out experiments/results/discrepancy.json]
 
@@ -80,6 +80,8 @@ def main(argv=None) -> int:
     parser.add_argument("--effects", default=",".join(HIDDEN_EFFECTS))
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--seed-list", default=None,
+                        help="comma-separated seeds (instead of --seeds/--first-seed), e.g. to rerun misses longer")
     parser.add_argument("--duration", type=float, default=120.0)
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--drive", default="prbs-multilevel")
@@ -89,9 +91,13 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     effects = args.effects.split(",")
+    if args.seed_list:
+        seeds = [int(x) for x in args.seed_list.split(",")]
+    else:
+        seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     rows = []
     for effect in effects:
-        for seed in range(args.first_seed, args.first_seed + args.seeds):
+        for seed in seeds:
             rng = np.random.default_rng([seed, len(effect), sum(map(ord, effect))])
             strip, params = random_strip(rng), random_effect(effect, rng, args.rate)
             drive = _drive(args.drive, args.duration, args.rate, seed)
@@ -139,7 +145,7 @@ def main(argv=None) -> int:
                               indent=2, default=float))
     summary = ["# Discrepancy search: hidden effect × named cause\n", f"Command: `{command}`\n",
                f"Drive {args.drive}, {args.duration:g} s at {args.rate:g} Hz, noise {100 * args.noise:g} % of range, "
-               f"seeds {args.first_seed}–{args.first_seed + args.seeds - 1}.\n", "All draws:\n", table, "",
+               f"seeds {', '.join(map(str, seeds))}.\n", "All draws:\n", table, "",
                f"Draws whose effect is visible (the best effect-free fit leaves a held-out MSE ≥ {VISIBLE:g}× the "
                "noise variance; all effect-free draws):\n", table_visible, ""]
     if seconds:
