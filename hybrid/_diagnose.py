@@ -246,14 +246,19 @@ def _initial_theta(problem, simulation, readout, frozen):
 
 
 @eqx.filter_jit
-def _prediction(problem, active, theta, split):
-    return _with_active(problem, active).prediction(theta, split)
+def _predictions(problem, active, theta):
+    """ŵ on the training and held-out parts from one simulation (one compiled program for both)."""
+    p = _with_active(problem, active)
+    sim_theta, readout_theta = p.split_theta(theta)
+    readout = p.readout(readout_theta)
+    signals = p._signals(sim_theta)
+    return {split: jax.vmap(readout.predict_window)(p._windows(readout, signals, split)) for split in ("train", "test")}
 
 
 def _signals(problem, theta, active, split):
-    """(drive, w, ŵ) on `split`, all recordings concatenated (one compiled program per split)."""
+    """(drive, w, ŵ) on `split` ("train" or "test"), all recordings concatenated."""
     v = np.concatenate([np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.segments_of(split)])
-    w_hat = _prediction(problem, jnp.asarray(active, float), jnp.asarray(theta), split)
+    w_hat = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
     return v, np.asarray(problem.target(split)), np.asarray(w_hat)
 
 
@@ -385,8 +390,12 @@ def _fitted_model(problem: Problem, theta, cause: str) -> Model:
     return Model(simulation, model.readout, "physics")
 
 
-def _uncertainties(model: Model, recordings, settings, residual_heldout) -> dict:
-    """Standard errors, in physical units, of `model`'s free parameters.
+def _uncertainties(model: Model, recordings, settings, residual_heldout, keep=None) -> dict:
+    """Standard errors, in physical units, of `model`'s free parameters (those in `keep`, if given).
+
+    `model` may be the search's universal model with some effects switched off:
+    their parameters have zero Jacobian columns, which leave the others'
+    covariance unchanged, and one compiled Jacobian serves every cause.
 
     ``std_error``: the Gauss–Newton covariance of
     [`hybrid.sensitivity.parameter_covariance`][] on the training part, inflated
@@ -405,11 +414,12 @@ def _uncertainties(model: Model, recordings, settings, residual_heldout) -> dict
     covariance = parameter_covariance(model, recordings, frozen=settings.frozen, split=settings.split,
                                       split_order=SPLIT_ORDER)
     inflation = rt.effective_sample_factor(residual_heldout)
+    keep = set(covariance.names) if keep is None else set(keep)
     out = {name: {"std_error": std * math.sqrt(inflation), "unit": covariance.units[name],
                   "inflation": inflation}
-           for name, std in covariance.std_errors.items()}
+           for name, std in covariance.std_errors.items() if name in keep}
     network = set(model.simulation.inner.parameter_names())
-    rest = [i for i, name in enumerate(covariance.names) if name not in network]
+    rest = [i for i, name in enumerate(covariance.names) if name not in network and name in keep]
     if rest:
         fisher = covariance.fisher[np.ix_(rest, rest)]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -666,8 +676,9 @@ def diagnose(
     # 5–6. Uncertainties of the chosen fit, evidence for the report, optional hybrid fits.
     v_te, w_te, w_hat_base = _signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = _signals(problem, extended.theta, extended.active, "test")
-    uncertainties = _uncertainties(_fitted_model(problem, extended.theta, cause), recordings, settings,
-                                   w_te - w_hat_ext)
+    fitted = _with_active(problem, jnp.asarray(extended.active, float)).model(jnp.asarray(extended.theta))
+    uncertainties = _uncertainties(fitted, recordings, settings, w_te - w_hat_ext,
+                                   keep=_fitted_model(problem, extended.theta, cause).parameters())
     evidence = _evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     evidence["equally_good_effect_free_fits"] = equally_good
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]

@@ -444,13 +444,24 @@ class EffectStack(AbstractSimulation):
 
     def derived(self, v_in, dt) -> dict[str, dict[str, float]]:
         """Each active effect's derived quantities (see `AbstractEffect.derived`), on this drive."""
-        s = self.inner.simulate(v_in, dt)
+        s = _simulate_compiled(self.inner, v_in, dt)
         out = {}
         for on, effect in zip(self.active, self.effects):
-            if float(on):
+            if float(on):  # a switched-off effect leaves s unchanged
                 out[effect.name] = effect.derived(s, dt)
-            s = s + on * (effect.apply(s, dt) - s)
+                s = s + on * (_apply_compiled(effect, s, dt) - s)
         return out
+
+
+# Compiled once per effect type: run eagerly, a scan dispatches (and compiles) op by op.
+@eqx.filter_jit
+def _simulate_compiled(simulation, v_in, dt):
+    return simulation.simulate(v_in, dt)
+
+
+@eqx.filter_jit
+def _apply_compiled(effect, s, dt):
+    return effect.apply(s, dt)
 
 
 def extend(simulation: AbstractSimulation, *effects, **values) -> EffectStack:

@@ -251,3 +251,13 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
         assert found[name]["std_error_given_network"] == pytest.approx(expected, rel=1e-6), name
         assert found[name]["std_error_given_network"] <= found[name]["std_error"] * (1 + 1e-9), name
     assert "std_error_given_network" not in found["C_clamp"]
+    # The search's universal model, every other effect switched off, gives the same errors.
+    active = jnp.asarray([1.0 if n == "back_relaxation" else 0.0 for n in EFFECTS])
+    universal = Model(extend(inner, *EFFECTS).replace(relaxation_time_s=4.0, relaxation_fraction=0.4)
+                      .with_active(active), LinearReadout(gain=2.0), "physics")
+    same = _uncertainties(universal, [rec], settings, white, keep=model.parameters())
+    assert set(same) == set(found)
+    for name, entry in found.items():
+        for key in ("std_error", "std_error_given_network"):
+            if key in entry:
+                assert same[name][key] == pytest.approx(entry[key], rel=1e-6), (name, key)
