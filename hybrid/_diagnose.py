@@ -500,12 +500,12 @@ def _equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_
     fits is the bar an effect's gain must clear to be the effect's own.
     """
     limit = rss_best * math.exp(bic_tolerance / n_train)
+    w_train, w_test = np.asarray(problem.target("train")), np.asarray(problem.target("test"))
     heldout = []
     for theta in thetas:
-        _, w, w_hat = _signals(problem, theta, off, "train")
-        if np.sum((w - w_hat) ** 2) <= limit:
-            _, w, w_hat = _signals(problem, theta, off, "test")
-            heldout.append(float(np.mean((w - w_hat) ** 2) / np.var(w)))
+        w_hat = _predictions(problem, jnp.asarray(off, float), jnp.asarray(theta))
+        if np.sum((w_train - np.asarray(w_hat["train"])) ** 2) <= limit:
+            heldout.append(float(np.mean((w_test - np.asarray(w_hat["test"])) ** 2) / np.var(w_test)))
     return {"n": len(heldout), "heldout_nmse_min": min(heldout, default=float("nan")),
             "heldout_nmse_max": max(heldout, default=float("nan")),
             "definition": f"effect-free fits (all starts and refits) within ΔBIC {bic_tolerance:g} of the "
