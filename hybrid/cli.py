@@ -294,8 +294,9 @@ COMMANDS = {"simulate": _cmd_simulate, "rc": _cmd_rc, "fit": _cmd_fit, "table2":
 def _use_compilation_cache(jax) -> None:
     """Keep compiled programs between runs (JAX's persistent cache).
 
-    `hybrid diagnose` compiles its search (about 80 s on 2 cores) in every new
-    process; with the cache a lab's second recording starts at once. The cache
+    `hybrid diagnose` compiles its search in every new process: on a 5-minute,
+    30 Hz recording on 2 cores it takes 97 s with an empty cache and 54 s with a
+    warm one (`python benchmarks/diagnose.py`). The cache
     lives in ``$HYBRID_JAX_CACHE`` (default ``~/.cache/hybrid/jax``); set it to
     ``off`` to compile afresh every time.
     """
