@@ -461,9 +461,8 @@ def _screen_losses(problem, simulation, raws):
     def one(raw):
         sim = eqx.tree_at(lambda s: s.raw, simulation, {**simulation.raw, **raw})
         s = _train_signal(problem, sim)
-        s_c, w_c = s - jnp.mean(s), w - jnp.mean(w)
-        gain = jnp.sum(s_c * w_c) / jnp.maximum(jnp.sum(s_c**2), jnp.finfo(s.dtype).tiny)
-        loss = jnp.mean((w_c - gain * s_c) ** 2)
+        fit = LinearReadout().initialise(s, w).parameters()
+        loss = jnp.mean((w - fit["gain"] * s - fit["offset"]) ** 2)
         return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
 
     return jax.lax.map(one, raws, batch_size=16)
@@ -513,9 +512,9 @@ def _equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_
 
 
 def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen) -> Candidate:
-    _, w_train, w_hat_train = _signals(problem, theta, active, "train")
-    rss = float(np.sum((w_train - w_hat_train) ** 2))
-    _, w, w_hat = _signals(problem, theta, active, "test")
+    w_hats = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))
+    rss = float(np.sum((np.asarray(problem.target("train")) - np.asarray(w_hats["train"])) ** 2))
+    w, w_hat = np.asarray(problem.target("test")), np.asarray(w_hats["test"])
     heldout = _heldout_metrics(w, w_hat)
     model = problem.model(theta)
     parameters = {k: float(v_) for k, v_ in model.parameters().items()
