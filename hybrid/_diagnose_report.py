@@ -140,15 +140,29 @@ def _save(fig, path: Path, plt) -> None:
         plt.close(fig)
 
 
+def _gaps(x) -> np.ndarray:
+    """Indices where the time axis jumps (between held-out blocks): lines break there."""
+    if len(x) < 3:
+        return np.array([], dtype=int)
+    step = np.diff(x)
+    return np.flatnonzero(step > 1.5 * np.median(step)) + 1
+
+
 def _figure_residual_time(held, d, path, plt):
     x, boundaries = _x_axis(held)
+    gaps = _gaps(x)
+
+    def broken(y):  # NaN between held-out blocks so that no line bridges the training data
+        return np.insert(np.asarray(y, float), gaps, np.nan)
+
     w = held["w"]
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    top.plot(x, w, "k", lw=1.0, label="measured w")
+    top.plot(broken(x), broken(w), "k", lw=1.0, label="measured w")
     for (key, label, colour), lw in zip(_MODELS, (1.8, 1.0)):  # baseline wider: visible where they coincide
-        top.plot(x, held[key], color=colour, lw=lw, alpha=0.85,
+        top.plot(broken(x), broken(held[key]), color=colour, lw=lw, alpha=0.85,
                  label=f"{label} (held-out NMSE {_nmse(d[key]['nmse'])})")
-        bottom.plot(x, w - held[key], color=colour, lw=0.8 * lw, alpha=0.85, label=f"{label} residual")
+        bottom.plot(broken(x), broken(w - held[key]), color=colour, lw=0.8 * lw, alpha=0.85,
+                    label=f"{label} residual")
     bottom.axhline(0.0, color="0.5", lw=0.6)
     for ax in (top, bottom):
         for b in boundaries:

@@ -47,6 +47,7 @@ def fit(
     frozen=frozenset(),
     split=(0.3, 0.5, 0.2),
     split_order=("train", "test", "validation"),
+    blocks: int = 1,
     patience: int = 40,
     weight_decay: float = 0.0,
     learning_rate: float = 3e-3,
@@ -70,6 +71,9 @@ def fit(
       ``"network"`` freezes all D-MLP weights).
     - `split`, `split_order`: fractions and order of the contiguous splits
       (paper: train 30 %, test 50 %, validation 20 %).
+    - `blocks`: cut each recording into this many equal chunks and split each
+      chunk by `split` (1: the paper's contiguous split; see
+      [`hybrid._problem.series_from_recording`][]).
     - `patience`: LM stops after this many accepted steps without validation gain.
     - `weight_decay`: μ, ridge penalty ½ μ ‖θ_network‖² on black-box readout weights
       (D-MLP); residuals are in units of the training std of w, so μ is relative
@@ -94,7 +98,7 @@ def fit(
     frozen = frozenset(frozen)
     for i, recording in enumerate(recordings):
         recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
-    series = [series_from_recording(r, split, split_order) for r in recordings]
+    series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
     train_w = np.concatenate([np.asarray(s.target("train")) for s in series])
     if not np.ptp(train_w) > 0:
         raise InputError("the training part of the recording(s) has constant w: "
@@ -116,7 +120,7 @@ def fit(
     result_metrics = _metrics_by_split(problem, best[best_start], split_order)
     settings = {
         "solver": solver, "starts": starts, "max_steps": max_steps, "frozen": sorted(frozen),
-        "split": dict(zip(split_order, map(float, split))), "patience": patience,
+        "split": dict(zip(split_order, map(float, split))), "blocks": blocks, "patience": patience,
         "seed": seed, "perturbation": perturbation, "weight_decay": problem.weight_decay, "n_parameters": int(thetas.shape[1]),
         "n_residuals": int(problem.target("train").shape[0]),
         "recordings": [r.metadata.get("source", "") for r in recordings],

@@ -5,7 +5,7 @@
     hybrid fit RECORDING... --model hybrid|normal|physics [--out MODEL]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--drive D] [--param NAME=VALUE ...] [--sobol N]
-    hybrid diagnose RECORDING... --out DIR [--hybrid] [--max-steps N] [--quiet]
+    hybrid diagnose RECORDING... --out DIR [--hybrid] [--max-steps N] [--blocks N] [--quiet]
 
 Bad input of any kind ends with exit status 2 and one line on stderr.
 """
@@ -109,6 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also fit the hybrid model (simulation + D-MLP) with and without the named effect")
     p.add_argument("--max-steps", type=int, default=None,
                    help="Levenberg-Marquardt steps per stage (default: DiagnoseSettings.max_steps)")
+    p.add_argument("--blocks", type=int, default=None,
+                   help="cut each recording into N blocks, each split train/validation/held-out "
+                        "(default: DiagnoseSettings.blocks; 1: one held-out tail)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     return parser
 
@@ -271,6 +274,10 @@ def _cmd_diagnose(args):
         if args.max_steps < 1:
             raise InputError(f"--max-steps must be at least 1, got {args.max_steps}")
         settings = dataclasses.replace(settings, max_steps=args.max_steps)
+    if args.blocks is not None:
+        if args.blocks < 1:
+            raise InputError(f"--blocks must be at least 1, got {args.blocks}")
+        settings = dataclasses.replace(settings, blocks=args.blocks)
     diagnosis = diagnose(recordings, hybrid=args.hybrid, settings=settings, progress=not args.quiet)
     paths = write_report(diagnosis, args.out)
     report = diagnosis.to_dict()

@@ -460,6 +460,7 @@ def parameter_covariance(
     frozen=frozenset(),
     split=(0.3, 0.5, 0.2),
     split_order=("train", "test", "validation"),
+    blocks: int = 1,
     weight_decay: float = 0.0,
     noise_std: float | None = None,
     rcond: float = 1e-10,
@@ -470,7 +471,7 @@ def parameter_covariance(
 
     - `model`: the fitted [`Model`][] (any simulation and readout).
     - `recordings`: the Recording(s) it was fitted to.
-    - `frozen`, `split`, `split_order`, `weight_decay`: as given to
+    - `frozen`, `split`, `split_order`, `blocks`, `weight_decay`: as given to
       [`hybrid.fit`][]; the covariance is that of the training-split fit.
     - `noise_std`: the known standard deviation of w's noise (mm); by default
       it is estimated from the residuals (s² = ‖r‖²/dof).
@@ -487,7 +488,7 @@ def parameter_covariance(
     if not isinstance(model, Model):
         raise InputError(f"parameter_covariance needs a Model, got {type(model).__name__}")
     frozen = frozenset(frozen)
-    series = [series_from_recording(r, split, split_order) for r in recordings]
+    series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
     problem = Problem(model, series, frozen, weight_decay)
     theta = problem.flatten(model, frozen)
     r, J = (np.asarray(a) for a in _fit_jacobian(problem, theta))

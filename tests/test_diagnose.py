@@ -25,7 +25,7 @@ DURATION, RATE, NOISE = 60.0, 30.0, 0.01
 
 #: (hidden effect, seed): effect-free on five seeds, every effect on draws whose effect is visible.
 CASES = [("none", seed) for seed in range(5)] + [
-    ("back_relaxation", 0), ("hysteresis", 0), ("saturation", 0), ("drift", 0),
+    ("back_relaxation", 1), ("hysteresis", 0), ("saturation", 0), ("drift", 0),
     ("delay", 2), ("resonance", 1),
 ]
 

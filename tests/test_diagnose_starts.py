@@ -19,8 +19,8 @@ SLOW = SyntheticStrip(xi_rho=2.5401, xi_h=1.1330, alpha_E=0.3618, alpha_I=0.8455
 def _train_mse(problem, simulation, values):
     """Training MSE with the least-squares gain and offset, computed here with numpy."""
     series = problem.series[0]
-    (a, b), = series.segments_of("train")
-    s = np.asarray(simulation.replace(**values).simulate(series.v_in, series.dt))[a:b]
+    signal = np.asarray(simulation.replace(**values).simulate(series.v_in, series.dt))
+    s = np.concatenate([signal[a:b] for a, b in series.segments_of("train")])
     w = np.asarray(problem.target("train"))
     design = np.stack([s, np.ones_like(s)], axis=1)
     coef, *_ = np.linalg.lstsq(design, w, rcond=None)
@@ -32,7 +32,7 @@ def test_screened_starts_reach_the_loss_of_the_true_parameters():
     recording = synthetic_recording(discrepancy_drive(60.0, 30.0, seed=5), SLOW, "none", {},
                                     noise_fraction=0.01, seed=5)
     simulation = RCNetwork(method="zoh")
-    series = [series_from_recording(recording, settings.split, SPLIT_ORDER)]
+    series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
     problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen))
     truth = {"C_clamp": SLOW.C_clamp, "xi_rho": SLOW.xi_rho / SLOW.xi_h, "alpha_E": SLOW.alpha_E,
              "alpha_I": SLOW.alpha_I, "alpha_C": SLOW.alpha_C}

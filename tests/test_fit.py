@@ -339,3 +339,33 @@ def test_jacobian_along_chosen_directions_keeps_only_those_columns():
     expected = np.array(J)
     expected[:, [i for i in range(full.n_sim) if i not in (1, 3)]] = 0.0
     np.testing.assert_allclose(J_some, expected, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("blocks", [1, 3])
+def test_blocked_split_partitions_every_block_by_the_fractions(blocks):
+    """series_from_recording(blocks=B): B equal chunks, each cut train/validation/test in order."""
+    from hybrid._problem import series_from_recording
+
+    n = 1000
+    recording = Recording.from_arrays(v_in=np.zeros(n), w=np.arange(float(n)), rate=30.0)
+    series = series_from_recording(recording, (0.6, 0.1, 0.3), ("train", "validation", "test"), blocks)
+    ranges = sorted((a, b, name) for name in ("train", "validation", "test") for a, b in series.segments_of(name))
+    # A partition of 0..n in time order, the three parts cycling once per block.
+    assert ranges[0][0] == 0 and ranges[-1][1] == n
+    assert all(prev[1] == nxt[0] for prev, nxt in zip(ranges, ranges[1:]))
+    assert [name for *_, name in ranges] == ["train", "validation", "test"] * blocks
+    for name, share in (("train", 0.6), ("validation", 0.1), ("test", 0.3)):
+        got = sum(b - a for a, b in series.segments_of(name))
+        assert abs(got - share * n) <= blocks, (name, got)
+        assert np.array_equal(np.asarray(series.target(name)),
+                              np.concatenate([np.arange(a, b, dtype=float) for a, b in series.segments_of(name)]))
+
+
+def test_blocked_split_rejects_a_bad_block_count():
+    from hybrid._problem import series_from_recording
+
+    recording = Recording.from_arrays(v_in=np.zeros(100), w=np.arange(100.0), rate=30.0)
+    with pytest.raises(InputError, match="blocks must be a whole number"):
+        series_from_recording(recording, blocks=0)
+    with pytest.raises(InputError, match="too short to split"):
+        series_from_recording(recording, (0.6, 0.1, 0.3), ("train", "validation", "test"), blocks=40)
