@@ -242,9 +242,9 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     white = np.random.default_rng(0).normal(size=400)
     found = _uncertainties(model, [rec], settings, white)
     frozen = parameter_covariance(model, [rec], frozen=set(settings.frozen) | set(inner.parameter_names()),
-                                  split=settings.split, split_order=("train", "validation", "test"))
+                                  split=settings.split, split_order=("train", "validation", "test"), blocks=settings.blocks)
     full = parameter_covariance(model, [rec], frozen=settings.frozen, split=settings.split,
-                                split_order=("train", "validation", "test"))
+                                split_order=("train", "validation", "test"), blocks=settings.blocks)
     for name, se in frozen.std_errors.items():
         # s² = RSS/dof differs between the two by the number of free parameters.
         expected = se * np.sqrt(frozen.dof / full.dof * found[name]["inflation"])
