@@ -473,6 +473,12 @@ def _baseline_design(n_points: int) -> list[dict]:
     return grid[:n_points]
 
 
+def _design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
+    """The design's parameters that `simulation` has, as columns of raw (unconstrained) values."""
+    names = [k for k in design[0] if k in simulation.parameter_names()]
+    return names, {k: jnp.asarray(simulation.constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
+
+
 @eqx.filter_jit
 def _screen_losses(problem, simulation, raws):
     """Training MSE of `simulation` at each row of `raws` (raw parameters), gain and offset by least squares."""
@@ -499,10 +505,9 @@ def _baseline_starts(problem, simulation, n_starts: int, n_screen: int) -> list[
     (`tests/test_diagnose_starts.py`).
     """
     design = _baseline_design(n_screen)
-    names = [k for k in design[0] if k in simulation.parameter_names()]
+    names, raws = _design_raws(simulation, design)
     if not names:
         return [{}]
-    raws = {k: jnp.asarray(simulation.constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
     losses = np.asarray(_screen_losses(problem, simulation, raws))
     order = np.argsort(losses, kind="stable")[:n_starts]
     return [{k: design[i][k] for k in names} for i in order]
@@ -528,10 +533,9 @@ def _delay_starts(problem, simulation, rate: float, n_starts: int) -> list[dict]
     the `n_starts` best pairs, with distinct shifts, are returned.
     """
     design = _baseline_design(N_SCREEN)[:N_DELAY_SCREEN]
-    names = [k for k in design[0] if k in simulation.parameter_names()]
+    names, raws = _design_raws(simulation, design)
     if not names:
         return []
-    raws = {k: jnp.asarray(simulation.constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
     best = []
     for shift in DELAY_SHIFTS:
         losses = np.asarray(_screen_losses(_delayed(problem, shift), simulation, raws))

@@ -56,19 +56,15 @@ def series_from_recording(recording, fractions=(0.3, 0.5, 0.2), order=("train", 
     alone, with the state the earlier samples left; it interpolates in time
     instead of extrapolating past the training data.
     """
-    if blocks == 1:
-        split = recording.split(fractions=fractions, order=order)
-        segments = tuple((name, ((s.start, s.stop),)) for name, s in split.slices.items())
-    else:
-        if int(blocks) != blocks or blocks < 1:
-            raise InputError(f"blocks must be a whole number ≥ 1, got {blocks!r}")
-        edges = [round(k * recording.n / blocks) for k in range(int(blocks) + 1)]
-        parts = {name: [] for name in order}
-        for lo, hi in zip(edges[:-1], edges[1:]):
-            chunk = recording.segment(slice(lo, hi))
-            for name, s in chunk.split(fractions=fractions, order=order).slices.items():
-                parts[name].append((lo + s.start, lo + s.stop))
-        segments = tuple((name, tuple(parts[name])) for name in order)
+    if int(blocks) != blocks or blocks < 1:
+        raise InputError(f"blocks must be a whole number ≥ 1, got {blocks!r}")
+    edges = [round(k * recording.n / blocks) for k in range(int(blocks) + 1)]
+    parts = {name: [] for name in order}
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        chunk = recording if (lo, hi) == (0, recording.n) else recording.segment(slice(lo, hi))
+        for name, s in chunk.split(fractions=fractions, order=order).slices.items():
+            parts[name].append((lo + s.start, lo + s.stop))
+    segments = tuple((name, tuple(parts[name])) for name in order)
     return Series(
         jnp.asarray(recording.v_in), jnp.asarray(recording.w), float(recording.dt), segments
     )
