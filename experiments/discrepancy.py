@@ -113,7 +113,8 @@ def main(argv=None) -> int:
                 "baseline_nmse": found.baseline.heldout["nmse"], "extended_nmse": found.extended.heldout["nmse"],
                 "parameters": found.to_dict()["parameters"] if found.cause != "none" else {},
                 "candidates": {c.name: {"gain": c.gain, "delta_bic": c.delta_bic, "Q": c.ljung_box["Q"],
-                                        "material": c.material, "eligible": c.eligible, "derived": c.derived}
+                                        "material": c.material, "eligible": c.eligible, "derived": c.derived,
+                                        "reasons": c.reasons}
                                for c in found.candidates},
                 "baseline_Q": found.baseline.ljung_box["Q"],
             })
@@ -132,7 +133,8 @@ def main(argv=None) -> int:
                             "extended_nmse": found.extended.heldout["nmse"],
                             "parameters": found.to_dict()["parameters"],
                             "candidates": {c.name: {"gain": c.gain, "delta_bic": c.delta_bic,
-                                                    "eligible": c.eligible, "derived": c.derived}
+                                                    "eligible": c.eligible, "derived": c.derived,
+                                                    "reasons": c.reasons}
                                            for c in found.candidates}})
 
     table = _table(rows, effects, CAUSES)

@@ -9,19 +9,31 @@ exponential drift, a ZOH mode against a first-order-hold one), then camera
 exposure and 1 % noise. Strips and effects are drawn from the issue's ranges.
 
 Every draw here is 60 s at 30 Hz with the same drive shape, so the search is
-compiled once for the module. Draws of a hidden effect are those whose effect is
+compiled once for the module, and the tests of the report that `hybrid
+diagnose` writes run in this module too: under `pytest --dist loadfile` a
+second module would compile the same search again on the other worker. Draws of a hidden effect are those whose effect is
 *visible* (`experiments/discrepancy.py`: the best effect-free fit leaves ≥ 3×
 the noise variance; below that the cascade absorbs the effect and no extension
 can gain 2×); the experiment runs every draw.
 """
 
+import contextlib
+import io
+import json
+import math
+
 import numpy as np
 import pytest
 
-from hybrid._diagnose import diagnose
+from hybrid._diagnose import CAUSES, DiagnoseSettings, diagnose
+from hybrid._diagnose_report import FIGURES, _nmse
+from hybrid._effects import EFFECTS
 from hybrid._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+from hybrid.cli import main
 
 DURATION, RATE, NOISE = 60.0, 30.0, 0.01
+MAX_STEPS = DiagnoseSettings().max_steps
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 #: (hidden effect, seed): effect-free on five seeds, every effect on draws whose effect is visible.
 CASES = [("none", seed) for seed in range(5)] + [
@@ -58,3 +70,89 @@ def test_diagnose_names_the_hidden_effect(effect, seed):
         assert found.extended.parameters["resonance_frequency_hz"] == pytest.approx(truth["frequency_hz"], rel=0.1)
     if effect == "drift":
         assert np.sign(derived["gain_change_percent"]) == np.sign(truth["change"])
+
+
+# --------------------------------------------------------------------------- #
+# The report `hybrid diagnose` writes: strict report.json, PNG figures, report.md
+# --------------------------------------------------------------------------- #
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    """Run `hybrid diagnose` once, through the CLI in process, on the drift case above."""
+    tmp_path = tmp_path_factory.mktemp("diagnose")
+    rec = hidden_effect_recording("drift", 0)
+    path = rec.save(tmp_path / "rec.csv")
+    out = tmp_path / "report"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        # The default step limit, given explicitly: the option is exercised and the
+        # LM program compiled for the cases above (max_steps is static) is reused.
+        code = main(["diagnose", str(path), "--out", str(out), "--max-steps", str(MAX_STEPS), "--quiet"])
+    return {"code": code, "out": out, "path": path, "stdout": stdout.getvalue()}
+
+
+def test_diagnose_exits_zero_and_writes_every_file(report):
+    assert report["code"] == 0
+    for name in ("report.json", "report.md") + FIGURES:
+        assert (report["out"] / name).is_file(), name
+    assert not [p for p in report["out"].iterdir() if p.name.endswith(".tmp")]
+
+
+def test_summary_names_cause_nmse_parameters_and_report(report):
+    data = json.loads((report["out"] / "report.json").read_text())
+    lines = report["stdout"].splitlines()
+    assert lines[0] == f"cause: {data['cause']}"
+    assert f"baseline {data['baseline']['nmse']:.2e} -> extended {data['extended']['nmse']:.2e}" in lines[1]
+    if data["cause"] != "none":
+        for name in EFFECTS[data["cause"]].constraints:
+            assert any(line.strip().startswith(f"{name} = ") and "±" in line for line in lines), name
+    assert str(report["out"] / "report.md") in lines[-1]
+
+
+def test_report_json_is_strict_and_consistent(report):
+    text = (report["out"] / "report.json").read_text()
+    data = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    assert data["cause"] in CAUSES
+    assert data["settings"]["max_steps"] == MAX_STEPS  # --max-steps reaches DiagnoseSettings
+    assert data["recordings"] == [str(report["path"])]
+    for key in ("baseline", "extended"):
+        assert math.isfinite(data[key]["nmse"]) and data[key]["nmse"] > 0
+        assert math.isfinite(data[key]["fitting"])
+    assert data["gain"] == pytest.approx(data["baseline"]["nmse"] / data["extended"]["nmse"], rel=1e-9)
+    names = [c["name"] for c in data["candidates"]]
+    assert sorted(names) == sorted(EFFECTS) and len(names) == len(EFFECTS)
+    for c in data["candidates"]:
+        assert {"name", "heldout_nmse", "criterion", "parameters"} <= set(c)
+        assert "delta_bic" in c["criterion"]
+    if data["cause"] != "none":
+        effect_names = set(EFFECTS[data["cause"]].constraints)
+        assert effect_names <= set(data["parameters"])
+    for entry in data["parameters"].values():
+        assert {"value", "std_error", "unit"} <= set(entry)
+
+
+def test_figures_are_png_images(report):
+    import matplotlib.image
+
+    for name in FIGURES:
+        path = report["out"] / name
+        assert path.read_bytes()[:8] == PNG_MAGIC, name
+        image = matplotlib.image.imread(path)
+        assert image.ndim == 3 and image.shape[1] > 400 and image.shape[0] > 200, (name, image.shape)
+
+
+def test_report_md_names_cause_figures_and_nmse(report):
+    data = json.loads((report["out"] / "report.json").read_text())
+    text = (report["out"] / "report.md").read_text()
+    assert text.startswith("# Diagnosis of ")
+    assert "rec.csv" in text.splitlines()[0]
+    assert data["cause"] in text
+    if data["cause"] == "none":
+        assert "none: the simulation is right within the measurement noise" in text
+    for name in FIGURES:
+        assert f"]({name})" in text, name
+    assert _nmse(data["baseline"]["nmse"]) in text
+    assert _nmse(data["extended"]["nmse"]) in text
+    for c in data["candidates"]:
+        assert c["name"] in text
