@@ -25,7 +25,8 @@
    least half a sample, a relaxation of at least 10 %). A cause is named only
    when its extension is material, improves the held-out NMSE by at least
    `min_gain`, lowers BIC by at least `min_bic_drop` and leaves a held-out
-   residual no less white than the baseline's (or white at 99 %); among those,
+   residual whose correlated part is no larger than the baseline's (Ljung–Box Q
+   in the baseline's units, or white at 99 %); among those,
    the largest held-out gain wins. The gain must also hold against every
    effect-free fit (from all starts and refits) that matches the baseline on
    training data within `min_bic_drop`: where the recording is too short to pin a
@@ -713,14 +714,20 @@ def diagnose(
     for cand in candidates:
         cand.gain = baseline.heldout["nmse"] / max(cand.heldout["nmse"], 1e-300)
         cand.delta_bic = cand.bic - baseline.bic
-        # Whiter, or white already: a baseline residual of isolated spikes (missed
-        # step responses) can pass a whiteness test that its extension then fails.
-        whiter = cand.ljung_box["Q"] <= max(baseline.ljung_box["Q"], rt.white_limit(cand.ljung_box["lags"]))
+        # Whiter: the residual's autocovariances at lags ≥ 1 (Q scaled by the squared
+        # variance ratio) no larger than the baseline's. Q alone compares correlations:
+        # when both residuals are far from white (Q in the thousands), an extension that
+        # removes most of the error can leave a smaller residual as correlated, relative
+        # to its own size, as before. Or white already: a baseline residual of isolated
+        # spikes (missed step responses) can pass a whiteness test its extension fails.
+        correlated = cand.ljung_box["Q"] * (cand.ljung_box["variance"] / baseline.ljung_box["variance"]) ** 2
+        whiter = correlated <= max(baseline.ljung_box["Q"], rt.white_limit(cand.ljung_box["lags"]))
         checks = [
             (cand.material, f"not material: {cand.materiality}"),
             (cand.gain >= settings.min_gain, f"held-out gain {cand.gain:.2f} < {settings.min_gain}"),
             (cand.delta_bic <= -settings.min_bic_drop, f"ΔBIC {cand.delta_bic:.1f} > −{settings.min_bic_drop}"),
-            (whiter, "held-out residual less white than the baseline's"),
+            (whiter, f"held-out residual more correlated than the baseline's: Q {correlated:.0f} in the "
+                     f"baseline's units > {baseline.ljung_box['Q']:.0f}"),
             (bar >= baseline.heldout["nmse"] or bar / max(cand.heldout["nmse"], 1e-300) >= settings.min_gain,
              f"an effect-free fit as good on training reaches held-out NMSE {bar:.3g}: "
              f"gain over it {bar / max(cand.heldout['nmse'], 1e-300):.2f} < {settings.min_gain}"),

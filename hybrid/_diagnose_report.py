@@ -326,7 +326,7 @@ def _verdict(d: dict) -> str:
     if d["cause"] == "none":
         return (f"**Cause: none: the simulation is right within the measurement noise.** No effect passed every "
                 f"test (material, held-out gain ≥ {_num(d['settings']['min_gain'])}, ΔBIC ≤ "
-                f"−{_num(d['settings']['min_bic_drop'])}, a residual no less white); the baseline simulation stands, "
+                f"−{_num(d['settings']['min_bic_drop'])}, a residual no more correlated); the baseline simulation stands, "
                 f"with held-out NMSE {_nmse(base['nmse'])} and Fitting {_pct(base['fitting'])}.")
     derived = ", ".join(" ".join(_quantity(k, v)) for k, v in d["effect_derived"].items())
     return (f"**Cause: {d['cause']}.** Adding it to the simulation lowers the held-out NMSE from "
@@ -371,8 +371,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     lines += ["## Candidates", "",
               "Each effect fitted jointly with the simulation; a cause needs all of: material, held-out gain ≥ "
               f"{_num(d['settings']['min_gain'])}, ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])} (training part), "
-              "and a held-out residual no less white than the baseline's (Ljung–Box Q no higher, or below the 99 % "
-              "white limit). The baseline is the best effect-free fit, refitted from every candidate's end point too, "
+              "and a held-out residual no more correlated than the baseline's (Ljung–Box Q, rescaled by the squared "
+              "ratio of the residual variances, no higher than the baseline's, or below the 99 % white limit). The baseline is the best effect-free fit, refitted from every candidate's end point too, "
               "so a candidate's gain is its effect's, not a better local minimum's.", ""]
     spread = ev.get("equally_good_effect_free_fits")
     if spread and spread.get("n"):

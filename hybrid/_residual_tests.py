@@ -7,7 +7,9 @@ For held-out residuals ε(t) = w − ŵ and the drive u(t):
 - `cross_correlation`: ρ_εu(k), k = −K..K; residuals independent of the input
   stay within the same ±z/√N band (Ljung, *System Identification*, §16.6).
 - `ljung_box`: the portmanteau statistic Q = N(N+2) Σ_{k=1}^{K} ρ_k²/(N−k)
-  and its χ²_K p-value: one number for "how far from white".
+  and its χ²_K p-value: one number for "how far from white"; with the
+  residual's variance γ_0, so that Q·(γ_0/γ_0')² compares the correlated part
+  of two residuals in the units of the second (ρ_k = γ_k/γ_0).
 - `spectrum`: Welch power spectral density (scipy).
 - `loops`: mean residual against drive level, separately for a rising and a
   falling drive (direction of the last change), the signature of hysteresis
@@ -58,12 +60,13 @@ def confidence_bound(n: int) -> float:
 
 
 def ljung_box(residual, lags: int = 30) -> dict:
-    """Portmanteau whiteness test: Q, degrees of freedom and p-value."""
+    """Portmanteau whiteness test: Q, degrees of freedom, p-value and the variance γ_0 that normalises ρ_k."""
     rho = autocorrelation(residual, lags)[1:]
     n = len(residual)
     k = np.arange(1, len(rho) + 1)
     q = float(n * (n + 2) * np.sum(rho**2 / (n - k)))
-    return {"Q": q, "lags": int(len(rho)), "p_value": float(scipy.stats.chi2.sf(q, len(rho)))}
+    return {"Q": q, "lags": int(len(rho)), "p_value": float(scipy.stats.chi2.sf(q, len(rho))),
+            "variance": float(np.var(residual))}
 
 
 def white_limit(lags: int = 30, level: float = 0.99) -> float:

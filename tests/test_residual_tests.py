@@ -67,3 +67,14 @@ def test_spectrum_peaks_at_a_hidden_tone():
     e = np.sin(2 * np.pi * 4.0 * t) + np.random.default_rng(4).standard_normal(6000)
     f, p = rt.spectrum(e, rate)
     assert f[np.argmax(p)] == pytest.approx(4.0, abs=rate / 256)
+
+
+def test_ljung_box_q_ignores_scale_and_reports_the_variance():
+    """Q compares correlations only; its variance puts two residuals' correlated parts in one unit."""
+    rng = np.random.default_rng(3)
+    x = scipy.signal.lfilter([1.0], [1.0, -0.8], rng.normal(size=2000))
+    big, small = rt.ljung_box(x), rt.ljung_box(0.25 * x)
+    assert small["Q"] == pytest.approx(big["Q"], rel=1e-12)
+    assert small["variance"] == pytest.approx(np.var(x) / 16, rel=1e-12)
+    # the quarter-size residual's autocovariances, in the big one's units: 1/16² of Q
+    assert small["Q"] * (small["variance"] / big["variance"]) ** 2 == pytest.approx(big["Q"] / 256, rel=1e-12)
