@@ -720,7 +720,8 @@ def diagnose(
         # removes most of the error can leave a smaller residual as correlated, relative
         # to its own size, as before. Or white already: a baseline residual of isolated
         # spikes (missed step responses) can pass a whiteness test its extension fails.
-        correlated = cand.ljung_box["Q"] * (cand.ljung_box["variance"] / baseline.ljung_box["variance"]) ** 2
+        shrink = cand.ljung_box["variance"] / max(baseline.ljung_box["variance"], 1e-300)
+        correlated = cand.ljung_box["Q"] * shrink**2
         whiter = correlated <= max(baseline.ljung_box["Q"], rt.white_limit(cand.ljung_box["lags"]))
         checks = [
             (cand.material, f"not material: {cand.materiality}"),

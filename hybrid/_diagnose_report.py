@@ -372,7 +372,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
               "Each effect fitted jointly with the simulation; a cause needs all of: material, held-out gain ≥ "
               f"{_num(d['settings']['min_gain'])}, ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])} (training part), "
               "and a held-out residual no more correlated than the baseline's (Ljung–Box Q, rescaled by the squared "
-              "ratio of the residual variances, no higher than the baseline's, or below the 99 % white limit). The baseline is the best effect-free fit, refitted from every candidate's end point too, "
+              "ratio of the residual variances, no higher than the baseline's, or below the 99 % white limit). "
+              "The baseline is the best effect-free fit, refitted from every candidate's end point too, "
               "so a candidate's gain is its effect's, not a better local minimum's.", ""]
     spread = ev.get("equally_good_effect_free_fits")
     if spread and spread.get("n"):
