@@ -18,7 +18,7 @@
    candidate's end point. An extension can "gain" only because its start led
    the shared RC parameters out of the baseline's local minimum; the refit
    takes that gain away, so what is left is the effect's own.
-4. **Evidence on held-out data** (the last 30 %, never used for fitting or
+4. **Evidence on held-out data** (the last 30 % of each block, never used for fitting or
    selection): held-out NMSE and its gain over the baseline, BIC on the
    training part, the Ljung–Box whiteness statistic of the held-out residual,
    and whether the fitted effect is physically material (e.g. a delay of at

@@ -274,9 +274,7 @@ def _cmd_diagnose(args):
         if args.max_steps < 1:
             raise InputError(f"--max-steps must be at least 1, got {args.max_steps}")
         settings = dataclasses.replace(settings, max_steps=args.max_steps)
-    if args.blocks is not None:
-        if args.blocks < 1:
-            raise InputError(f"--blocks must be at least 1, got {args.blocks}")
+    if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
     diagnosis = diagnose(recordings, hybrid=args.hybrid, settings=settings, progress=not args.quiet)
     paths = write_report(diagnosis, args.out)

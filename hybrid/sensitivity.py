@@ -585,8 +585,8 @@ def standard_errors(result, recordings, *, noise_std: float | None = None) -> Co
     """[`parameter_covariance`][] of a [`FitResult`][], with the fit's own settings.
 
     `recordings` are the recording(s) given to [`hybrid.fit`][] (a FitResult
-    keeps only their names). Frozen parameters, split and weight decay are read
-    from `result.settings`. ``standard_errors(result, rec).std_errors`` is a
+    keeps only their names). Frozen parameters, split (and its blocks) and weight
+    decay are read from `result.settings`. ``standard_errors(result, rec).std_errors`` is a
     dict name → standard error in physical units.
     """
     settings = result.settings
@@ -594,7 +594,7 @@ def standard_errors(result, recordings, *, noise_std: float | None = None) -> Co
     return parameter_covariance(
         result.model, recordings,
         frozen=frozenset(settings.get("frozen", ())),
-        split=tuple(split.values()), split_order=tuple(split.keys()),
+        split=tuple(split.values()), split_order=tuple(split.keys()), blocks=int(settings.get("blocks", 1)),
         weight_decay=float(settings.get("weight_decay", 0.0)),
         noise_std=noise_std,
     )

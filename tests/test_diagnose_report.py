@@ -37,12 +37,17 @@ def test_recording_with_nan_is_one_line_error(tmp_path, capsys):
     _one_line_error(code, capsys.readouterr().err)
 
 
-def test_max_steps_below_one_is_one_line_error(tmp_path, capsys):
+@pytest.mark.parametrize("option,match", [("--max-steps", "--max-steps must be at least 1"),
+                                          ("--blocks", "blocks must be a whole number")])
+def test_count_option_below_one_is_one_line_error(option, match, tmp_path, capsys):
     path = tmp_path / "ok.csv"
     rows = ["t,v_in,w"] + [f"{i / 30:.6f},{np.sin(i / 5):.6f},{np.cos(i / 5):.6f}" for i in range(200)]
     path.write_text("\n".join(rows) + "\n")
-    code = main(["diagnose", str(path), "--out", str(tmp_path / "d"), "--max-steps", "0"])
-    _one_line_error(code, capsys.readouterr().err)
+    code = main(["diagnose", str(path), "--out", str(tmp_path / "d"), option, "0"])
+    err = capsys.readouterr().err
+    _one_line_error(code, err)
+    assert match in err
+    assert not (tmp_path / "d").exists()
 
 
 def test_jsonable_writes_nan_as_null_and_converts_numpy():

@@ -155,6 +155,23 @@ def test_covariance_matches_curve_fit(curve_fit_reference):
     assert np.all(np.abs(popt - truth) < 3 * se_ref)
 
 
+def test_standard_errors_of_a_fit_use_its_frozen_set_split_and_blocks(curve_fit_reference):
+    """standard_errors(result) is parameter_covariance with the settings the fit recorded."""
+    from hybrid import fit, make_model
+
+    recording = curve_fit_reference[0]
+    split, order = (0.6, 0.1, 0.3), ("train", "validation", "test")
+    result = fit(make_model("physics", simulation=TRUE), [recording], max_steps=5, frozen=FROZEN,
+                 split=split, split_order=order, blocks=3, progress=False)
+    ours = S.standard_errors(result, recording).matrix
+    reference = S.parameter_covariance(result.model, recording, frozen=FROZEN, split=split, split_order=order,
+                                       blocks=3).matrix
+    np.testing.assert_array_equal(ours, reference)
+    # the blocks matter: the contiguous split's covariance is another matrix
+    contiguous = S.parameter_covariance(result.model, recording, frozen=FROZEN, split=split, split_order=order).matrix
+    assert not np.allclose(ours, contiguous, rtol=1e-3)
+
+
 def test_unidentifiable_parameters_get_infinite_variance(curve_fit_reference):
     recording, popt, _ = curve_fit_reference
     fitted = Model(TRUE.replace(xi_rho=popt[0], alpha_C=popt[1], C_clamp=popt[2]),
