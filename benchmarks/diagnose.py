@@ -10,9 +10,10 @@ programs reused, as in a sweep or a lab session), and, as the peer in the same
 run, one physics-only `hybrid.fit` (one LM start) of the same recording — the
 cost of a single effect-free fit that the search (512 screened points, 16
 baseline starts, 15 candidate lanes, 16 re-baseline lanes) is measured against.
-Then `hybrid diagnose` from the command line, twice in fresh processes sharing
-an empty persistent compilation cache (`HYBRID_JAX_CACHE`): the first fills it,
-the second is what a lab sees from its second recording on.
+Then `hybrid diagnose` from the command line, in two fresh processes sharing
+an empty persistent compilation cache (`HYBRID_JAX_CACHE`): the first (on the
+first recording) fills it, the second (on the other recording) is what a lab
+sees from its second recording on.
 Writes `benchmarks/results/diagnose.json`.
 """
 
@@ -60,10 +61,10 @@ def main() -> None:
     peer = time.perf_counter() - t0
     cli = []
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "recording.csv"
-        second.save(path)
         env = {**os.environ, "HYBRID_JAX_CACHE": str(Path(tmp) / "cache")}
-        for run in range(2):
+        for run, rec in enumerate((first, second)):  # the warm run reads another recording: no data in the cache key
+            path = Path(tmp) / f"recording{run}.csv"
+            rec.save(path)
             t0 = time.perf_counter()
             subprocess.run([sys.executable, "-m", "hybrid.cli", "diagnose", str(path), "--out", str(Path(tmp) / f"out{run}"),
                             "--quiet"], env=env, check=True, capture_output=True)

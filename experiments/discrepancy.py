@@ -40,19 +40,27 @@ def _drive(name: str, duration: float, rate: float, seed: int):
     return make_drive(name, duration, rate=rate, seed=seed)
 
 
-#: A hidden effect is *visible* when the best effect-free fit leaves a held-out MSE
-#: at least this many times the noise variance: below it the paper's cascade
-#: absorbs the effect within the noise (a slow strip's many stages mimic a dead
-#: time; a smooth V_o does not excite a mode), and no extension can gain 2×.
-VISIBLE = 3.0
+#: A hidden effect is *identifiable* when every effect-free fit leaves a held-out MSE
+#: of at least this many times the noise variance. The issue asks for a held-out gain
+#: ≥ 2, and no model's held-out MSE goes below the noise variance, so below 2× no
+#: extension can gain 2×: the paper's cascade absorbs the effect within the noise (a
+#: slow strip's many stages mimic a dead time; a smooth V_o does not excite a mode).
+#: The effect-free fits are the search's baseline and every effect-free fit as good
+#: on training (``evidence["equally_good_effect_free_fits"]``): each is a concrete
+#: effect-free simulation, fitted on training data only, so a draw counted as absorbed
+#: is shown to be absorbed. A search that missed a better effect-free fit can only
+#: count more draws as identifiable, never fewer.
+IDENTIFIABLE = 2.0
 
 
-def _excess_over_noise(recording, found) -> float:
-    """Held-out MSE of the baseline over the variance of the noise that was added."""
+def _excess_over_noise(recording, found) -> tuple[float, float]:
+    """Held-out MSE over the variance of the added noise: the baseline's, and the least of any effect-free fit."""
     hidden = recording.metadata["hidden"]
     noise_var = (hidden["noise_fraction"] * np.ptp(recording.extra["w_true"])) ** 2
-    mse = float(np.mean((found.heldout["w"] - found.heldout["baseline"]) ** 2))
-    return mse / noise_var
+    baseline = float(np.mean((found.heldout["w"] - found.heldout["baseline"]) ** 2)) / noise_var
+    others = found.evidence["equally_good_effect_free_fits"]["heldout_nmse_min"]
+    best = min(1.0, others / found.baseline.heldout["nmse"]) if np.isfinite(others) else 1.0
+    return baseline, baseline * best
 
 
 def _table(rows, effects, causes) -> str:
@@ -103,13 +111,14 @@ def main(argv=None) -> int:
             drive = _drive(args.drive, args.duration, args.rate, seed)
             recording = synthetic_recording(drive, strip, effect, params, noise_fraction=args.noise, seed=seed)
             found = diagnose(recording)
-            excess = _excess_over_noise(recording, found)
+            excess, least = _excess_over_noise(recording, found)
             print(f"{effect:16s} seed {seed}: named {found.cause:16s} gain {found.gain:7.2f}  baseline/noise "
-                  f"{excess:6.1f}  ({found.seconds:.0f} s)  {params}", flush=True)
+                  f"{excess:6.1f}  effect-free/noise {least:6.1f}  ({found.seconds:.0f} s)  {params}", flush=True)
             rows.append({
                 "effect": effect, "seed": seed, "effect_params": params, "strip": dataclasses.asdict(strip),
                 "named": found.cause, "gain": found.gain, "seconds": found.seconds,
-                "baseline_mse_over_noise": excess, "visible": bool(excess >= VISIBLE),
+                "baseline_mse_over_noise": excess, "effect_free_mse_over_noise": least,
+                "identifiable": bool(least >= IDENTIFIABLE),
                 "baseline_nmse": found.baseline.heldout["nmse"], "extended_nmse": found.extended.heldout["nmse"],
                 "parameters": found.to_dict()["parameters"] if found.cause != "none" else {},
                 "candidates": {c.name: {"gain": c.gain, "delta_bic": c.delta_bic, "Q": c.ljung_box["Q"],
@@ -138,7 +147,7 @@ def main(argv=None) -> int:
                                            for c in found.candidates}})
 
     table = _table(rows, effects, CAUSES)
-    table_visible = _table([r for r in rows if r["visible"] or r["effect"] == "none"], effects, CAUSES)
+    table_identifiable = _table([r for r in rows if r["identifiable"] or r["effect"] == "none"], effects, CAUSES)
     seconds = [r["seconds"] for r in rows]
     command = "python experiments/discrepancy.py " + " ".join(argv)
     out = Path(args.out)
@@ -148,8 +157,8 @@ def main(argv=None) -> int:
     summary = ["# Discrepancy search: hidden effect × named cause\n", f"Command: `{command}`\n",
                f"Drive {args.drive}, {args.duration:g} s at {args.rate:g} Hz, noise {100 * args.noise:g} % of range, "
                f"seeds {', '.join(map(str, seeds))}.\n", "All draws:\n", table, "",
-               f"Draws whose effect is visible (the best effect-free fit leaves a held-out MSE ≥ {VISIBLE:g}× the "
-               "noise variance; all effect-free draws):\n", table_visible, ""]
+               f"Draws whose effect is identifiable (every effect-free fit leaves a held-out MSE ≥ {IDENTIFIABLE:g}× "
+               "the noise variance, so a gain of 2 is possible; all effect-free draws):\n", table_identifiable, ""]
     if seconds:
         summary.append(f"diagnose time per recording: median {np.median(seconds):.1f} s, max {max(seconds):.1f} s "
                        "(the first includes compilation).\n")
@@ -157,7 +166,7 @@ def main(argv=None) -> int:
         summary.append(f"Virtual IPMC ({v['drive']}): named **{v['named']}**, held-out gain {v['gain']:.2f}.")
     out.with_suffix(".md").write_text("\n".join(summary) + "\n")
     print(table)
-    print(table_visible)
+    print(table_identifiable)
     hits = sum(r["named"] == r["effect"] for r in rows)
     print(f"named right: {hits}/{len(rows)}; wrote {out} and {out.with_suffix('.md')}")
     return 0

@@ -8,7 +8,6 @@ meant for checking the discretisations, not for fitting.
 
 from __future__ import annotations
 
-import diffrax
 import jax.numpy as jnp
 from jax import lax
 
@@ -17,6 +16,8 @@ from ._errors import InputError
 
 def reference_response(network, v_in, dt, *, hold="zoh", rtol=1e-10, atol=1e-12):
     """V_o at the sample times for the drive `v_in`, from rest, by adaptive Kvaerno5."""
+    import diffrax  # here, not at import: half a second of every CLI process that never solves an ODE
+
     if hold not in ("zoh", "linear"):
         raise InputError(f"hold must be 'zoh' or 'linear', got {hold!r}")
     A, B, C, D = network.state_space()

@@ -12,9 +12,9 @@ Every draw here is 60 s at 30 Hz with the same drive shape, so the search is
 compiled once for the module, and the tests of the report that `hybrid
 diagnose` writes run in this module too: under `pytest --dist loadfile` a
 second module would compile the same search again on the other worker. Draws of a hidden effect are those whose effect is
-*visible* (`experiments/discrepancy.py`: the best effect-free fit leaves ≥ 3×
-the noise variance; below that the cascade absorbs the effect and no extension
-can gain 2×); the experiment runs every draw.
+*identifiable* (`experiments/discrepancy.py`: every effect-free fit leaves a
+held-out MSE ≥ 2× the noise variance; below that the cascade absorbs the effect
+and no extension can gain 2×); the experiment runs every draw.
 """
 
 import contextlib
@@ -35,7 +35,7 @@ DURATION, RATE, NOISE = 60.0, 30.0, 0.01
 MAX_STEPS = DiagnoseSettings().max_steps
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
-#: (hidden effect, seed): effect-free on five seeds, every effect on draws whose effect is visible.
+#: (hidden effect, seed): effect-free on five seeds, every effect on draws whose effect is identifiable.
 CASES = [("none", seed) for seed in range(5)] + [
     ("back_relaxation", 1), ("hysteresis", 0), ("saturation", 0), ("drift", 0),
     ("delay", 2), ("resonance", 1),
