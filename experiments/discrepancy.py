@@ -8,9 +8,10 @@ Each draw: a strip and an effect from the issue's ranges (`hybrid._synthetic`:
 ξρ/ξh 1–100, α 0.1–0.9, C_clamp 1 mF–1 F, gain 0.3–5 mm/V; the effect made by
 code separate from the extensions that find it), a recording of the drive with
 camera exposure and noise, then `diagnose` on it. Prints one line per draw, then
-the confusion table (true effect × named cause) and the held-out gains, and
-writes every candidate's held-out gain, ΔBIC and Ljung–Box Q to the JSON file
-(and the table to the .md file beside it).
+the confusion table (true effect × named cause) and the held-out gains, over all
+draws and over the identifiable ones (see `IDENTIFIABLE`), and writes every
+candidate's held-out gain, ΔBIC, Ljung–Box Q and reasons to the JSON file (and
+both tables to the .md file beside it).
 
 `--drive` takes one of the drives of `hybrid.make_drive`, or `prbs-multilevel`
 (random levels in ±A held 0.5–10 s: steps for a delay and a mode, holds for a
