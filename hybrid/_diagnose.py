@@ -11,7 +11,8 @@
 2. **Candidates.** The same simulation followed by each effect of
    [`hybrid._effects`][] is refitted jointly (physical parameters, effect, gain
    and offset), warm-started from the baseline, from a few data-scaled starting
-   values per effect (a grid over 1–15 samples for the multimodal dead time).
+   values per effect, and for the dead time and the hysteresis loop from design
+   points screened jointly with the effect (`_delay_starts`, `_hysteresis_starts`).
    Every start is one lane of a single compiled LM program: an
    [`EffectStack`][] holds all effects, and a lane switches on one of them.
 3. **Re-baseline.** The effect-free simulation is refitted from every
@@ -52,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _residual_tests as rt
-from ._effects import EFFECTS, EffectStack, FrameTiming
+from ._effects import EFFECTS, EffectStack, FrameTiming, bouc_wen_state
 from ._errors import InputError
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
@@ -546,6 +547,78 @@ def _delay_starts(problem, simulation, rate: float, n_starts: int) -> list[dict]
     return [{**{k: design[i][k] for k in names}, "delay_s": shift / rate} for _, shift, i in best[:n_starts]]
 
 
+#: Bouc–Wen rates screened for the hysteresis candidate's starts, in units of 1/range of V_o:
+#: the loop closes after an excursion of about 3/k, 75 % to 3 % of the range.
+LOOP_RATES = (4.0, 10.0, 25.0, 100.0)
+
+
+@eqx.filter_jit
+def _loop_screen(problem, simulation, raws, rates):
+    """Training MSE of `simulation` plus a Bouc–Wen loop at each row of `raws` and each rate.
+
+    The loop is linear in its height and in its initial state: with z(s; k) from
+    a neutral start and e(n) = e^{−k Σ|Δs|} its memory of that start, w ≈ a·s +
+    b·z + d·e + c by least squares, so one simulation per row screens every rate
+    with the best height W = b/(a k) and initial state k·z₀ = d k/b. Returns
+    (loss, k, W, k·z₀) per row and rate, in the terms of
+    [`hybrid._effects.Hysteresis`][].
+    """
+    w = problem.target("train")
+
+    def one(raw):
+        sim = eqx.tree_at(lambda s: s.raw, simulation, {**simulation.raw, **raw})
+        signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
+        span = jnp.maximum(max(jnp.ptp(s) for s in signals), 1e-12)
+
+        def train(columns):
+            return jnp.concatenate([x[a:b] for x, series in zip(columns, problem.series)
+                                    for a, b in series.segments_of("train")])
+
+        s = train(signals)
+
+        def fit(k):
+            z = train([bouc_wen_state(x, k) for x in signals])
+            memory = train([jnp.exp(-k * jnp.cumsum(jnp.abs(jnp.diff(x, prepend=x[:1])))) for x in signals])
+            design = jnp.stack([s, z, memory, jnp.ones_like(s)], axis=1)
+            coef = jnp.linalg.lstsq(design, w)[0]
+            loss = jnp.mean((w - design @ coef) ** 2)
+            a, b, d = coef[0], coef[1], coef[2]
+            height = jnp.clip(b / (jnp.where(jnp.abs(a) > 0, a, 1.0) * k), -span, span)
+            initial = jnp.clip(d * k / jnp.where(jnp.abs(b) > 0, b, 1.0), -0.95, 0.95)
+            return jnp.where(jnp.isfinite(loss), loss, jnp.inf), k, height, initial
+
+        return jax.vmap(fit)(jnp.asarray(rates) / span)
+
+    return jax.lax.map(one, raws, batch_size=16)
+
+
+def _hysteresis_starts(problem, simulation, n_starts: int) -> list[dict]:
+    """Starts for the hysteresis candidate: the network screened jointly with a Bouc–Wen loop.
+
+    Effect-free, the baseline absorbs part of a loop as lag (other ξρ and α's):
+    the falling branch lies behind the rising one, as a slow stage's output
+    does. From there LM with the loop switched on can stay in the baseline's
+    basin (hysteresis seed 6 of `experiments/discrepancy.py`, C_clamp 2 mF, a
+    loop of 20 % of the range: held-out gain 1.8 from the data-scaled starts of
+    `_starts`, 16 with this one). Screening the design (its first
+    `N_DELAY_SCREEN` points) with the loop's best height and initial state at
+    each of `LOOP_RATES` puts the network and the loop in the same basin; the
+    `n_starts` best are returned.
+    """
+    design = _baseline_design(N_SCREEN)[:N_DELAY_SCREEN]
+    names, raws = _design_raws(simulation, design)
+    if not names:
+        return []
+    losses, ks, heights, initials = (np.asarray(x) for x in _loop_screen(problem, simulation, raws, LOOP_RATES))
+    order = np.argsort(losses, axis=None, kind="stable")[:n_starts]
+    starts = []
+    for flat in order:
+        i, j = np.unravel_index(flat, losses.shape)
+        starts.append({**{k: design[i][k] for k in names}, "hysteresis_height_v": float(heights[i, j]),
+                       "hysteresis_rate_per_v": float(ks[i, j]), "hysteresis_initial_state": float(initials[i, j])})
+    return starts
+
+
 def _equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_tolerance: float) -> dict:
     """Held-out spread of the effect-free fits that match the baseline on training data.
 
@@ -661,9 +734,10 @@ def diagnose(
     peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
     duration = recordings[0].duration
     lanes, actives, labels, tangents = [], [], [], []
-    screened_delays = _delay_starts(problem, simulation, rate, n_starts=3)
+    screened = {"delay": _delay_starts(problem, simulation, rate, n_starts=3),
+                "hysteresis": _hysteresis_starts(problem, simulation, n_starts=1)}
     for i, name in enumerate(names):
-        extra = screened_delays if name == "delay" else []
+        extra = screened.get(name, [])
         for values in _starts(name, s_train, rate, lag, peak, duration) + extra:
             active = off.copy()
             active[i] = 1.0

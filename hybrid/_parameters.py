@@ -72,6 +72,23 @@ class UnitInterval(Constraint):
         return bool(np.all((v > 0) & (v < 1)))
 
 
+class SignedUnitInterval(Constraint):
+    """value = tanh(raw) ∈ (−1, 1)."""
+
+    def to_physical(self, raw):
+        return jnp.tanh(raw)
+
+    def to_raw(self, value):
+        return jnp.arctanh(value)
+
+    def describe(self) -> str:
+        return "strictly between −1 and 1"
+
+    def contains(self, value) -> bool:
+        v = np.asarray(value)
+        return bool(np.all((v > -1) & (v < 1)))
+
+
 class Real(Constraint):
     """value = raw ∈ ℝ."""
 

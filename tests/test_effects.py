@@ -66,17 +66,30 @@ def test_resonance_rings_at_its_frequency():
     assert f[np.argmax(p)] == pytest.approx(7.0 * np.sqrt(1 - 0.02**2), abs=0.1)
 
 
-def test_hysteresis_matches_the_exact_bouc_wen_recursion(signal):
+@pytest.mark.parametrize("initial", [0.0, 0.6, -0.9])
+def test_hysteresis_matches_the_exact_bouc_wen_recursion(signal, initial):
     k, height = 3.0, 0.2
-    z, prev, expected = 0.0, 0.0, []
+    # k·z = `initial` at the first sample (no step into it), then the exact solution of
+    # dz = ds − k|ds| z over each sample, where ds is constant.
+    z, prev, expected = initial / k, signal[0], []
     for v in signal:
         d = v - prev
         prev = v
         target = np.sign(d) / k
         z = target + (z - target) * np.exp(-k * abs(d))
         expected.append(v + height * k * z)
-    y = Hysteresis(hysteresis_height_v=height, hysteresis_rate_per_v=k).apply(jnp.asarray(signal), DT)
+    effect = Hysteresis(hysteresis_height_v=height, hysteresis_rate_per_v=k, hysteresis_initial_state=initial)
+    y = effect.apply(jnp.asarray(signal), DT)
     np.testing.assert_allclose(y, expected, atol=1e-12)
+    assert float(y[0]) == pytest.approx(signal[0] + height * initial, abs=1e-12)
+
+
+def test_hysteresis_forgets_its_initial_state():
+    # After s has moved many 1/k one way, the loop state no longer depends on where it began.
+    s = jnp.concatenate([jnp.zeros(5), jnp.linspace(0.0, 2.0, 200)])
+    ends = [float(Hysteresis(hysteresis_height_v=0.1, hysteresis_rate_per_v=20.0,
+                             hysteresis_initial_state=z0).apply(s, DT)[-1]) for z0 in (-0.9, 0.0, 0.9)]
+    np.testing.assert_allclose(ends, 2.0 + 0.1, atol=1e-12)
 
 
 def test_hysteresis_is_rate_independent():
