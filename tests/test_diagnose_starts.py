@@ -46,3 +46,31 @@ def test_screened_starts_reach_the_loss_of_the_true_parameters():
     # The design's paper-like centre is not: screening is what finds the plateau.
     assert _train_mse(problem, simulation, _baseline_design(1)[0]) >= 5 * floor
     assert len(_baseline_design(512)) == 512
+
+
+def test_loop_screen_recovers_a_known_bouc_wen_loop():
+    """`_loop_screen` reads height and initial state off a least-squares solve: exact on an exact loop."""
+    import jax.numpy as jnp
+
+    from hybrid._diagnose import _design_raws, _loop_screen
+    from hybrid._effects import bouc_wen_state
+    from hybrid._recording import Recording
+
+    settings = DiagnoseSettings()
+    drive = discrepancy_drive(60.0, 30.0, seed=1)
+    point = _baseline_design(3)[2]
+    simulation = RCNetwork(method="zoh")
+    s = np.asarray(simulation.replace(**point).simulate(jnp.asarray(drive.v), 1 / 30.0))
+    k, height, initial = 10.0 / np.ptp(s), 0.15 * np.ptp(s), -0.4
+    w = 2.0 * (s + height * k * np.asarray(bouc_wen_state(jnp.asarray(s), k, initial))) - 0.3
+    recording = Recording(t=np.asarray(drive.t), v_in=np.asarray(drive.v), w=w)
+    series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
+    problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen))
+
+    _, raws = _design_raws(simulation, [point, _baseline_design(3)[1]])
+    losses, ks, heights, initials = (np.asarray(x) for x in _loop_screen(problem, simulation, raws, (10.0, 40.0)))
+    assert losses[0, 0] < 1e-20 * np.var(w)  # the true point and rate fit exactly
+    assert ks[0, 0] == pytest.approx(k, rel=1e-9)
+    assert heights[0, 0] == pytest.approx(height, rel=1e-6)
+    assert initials[0, 0] == pytest.approx(initial, rel=1e-6)
+    assert losses[0, 1] > 1e-6 * np.var(w) and losses[1, 0] > 1e-6 * np.var(w)  # wrong rate, wrong network
