@@ -11,8 +11,9 @@
 2. **Candidates.** The same simulation followed by each effect of
    [`hybrid._effects`][] is refitted jointly (physical parameters, effect, gain
    and offset), warm-started from the baseline, from a few data-scaled starting
-   values per effect, and for the dead time and the hysteresis loop from design
-   points screened jointly with the effect (`_delay_starts`, `_hysteresis_starts`).
+   values per effect, and for the dead time, the hysteresis loop and the mode
+   from design points screened jointly with the effect
+   ([`hybrid._diagnose_starts`][]).
    Every start is one lane of a single compiled LM program: an
    [`EffectStack`][] holds all effects, and a lane switches on one of them.
 3. **Re-baseline.** The effect-free simulation is refitted from every
@@ -53,7 +54,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _residual_tests as rt
-from ._effects import EFFECTS, EffectStack, FrameTiming, bouc_wen_state
+from ._diagnose_starts import N_SCREEN, baseline_starts, delay_starts, hysteresis_starts, resonance_starts, train_signal
+from ._effects import EFFECTS, EffectStack, FrameTiming
 from ._errors import InputError
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
@@ -69,11 +71,6 @@ SPLIT_ORDER = ("train", "validation", "test")
 
 #: LM runs per stage (baseline starts; candidate starts, padded): one compiled program.
 N_LANES = 16
-#: Points of the baseline design screened (one simulation each) for the N_LANES LM starts.
-N_SCREEN = 512
-#: Dead times (samples) and design points screened jointly for the delay candidate's starts.
-DELAY_SHIFTS = (2, 4, 7, 10, 13)
-N_DELAY_SCREEN = 128
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,7 +85,15 @@ class DiagnoseSettings:
       36 s stay below −2 mm, the held-out 18 s rise to +2.5 mm), and no fit —
       with or without the right effect — predicts it; blocks make the held-out
       error one of interpolation.
-    - `max_steps`, `patience`: LM limits per stage (baseline, candidates).
+    - `max_steps`, `patience`: LM limits of a candidate's lane (stop after
+      `patience` accepted steps without a better validation loss).
+    - `effect_free_patience`: the same for the baseline's and re-baseline's lanes.
+      Most effect-free lanes are done within a few steps of their best: on the
+      5-minute benchmark recording, 10 instead of 25 took the baseline stage
+      from 15 s to 5 s and the re-baseline from 9 s to 6 s, with the same fits
+      named. A candidate lane needs the longer patience: with 10, delay seed 10
+      of `experiments/discrepancy.py` stopped at a held-out gain of 1.6 that
+      25 steps take to 2.7.
     - `min_gain`: held-out NMSE ratio baseline/extended needed to name a cause.
     - `min_bic_drop`: BIC decrease (training part) needed to name a cause.
     - `materiality`: the smallest effect that counts as a cause, per effect (see
@@ -100,6 +105,7 @@ class DiagnoseSettings:
     blocks: int = 3
     max_steps: int = 120
     patience: int = 25
+    effect_free_patience: int = 10
     min_gain: float = 1.5
     min_bic_drop: float = 10.0
     materiality: dict = dataclasses.field(default_factory=lambda: {
@@ -223,21 +229,24 @@ def _lane_tangents(model: Model, frozen, effect: str | None, n_rows: int) -> np.
 
 
 @eqx.filter_jit
-def _fit_lanes_compiled(problem, actives, tangents, thetas, settings):
+def _fit_lanes_compiled(problem, actives, tangents, thetas, patience, settings):
     def one(lane):
         active, basis, theta = lane
         p = _with_active(problem, active, basis)
-        return lm_run(p, lm_init(p, theta, settings), settings, settings.max_steps)
+        return lm_run(p, lm_init(p, theta, settings), settings, settings.max_steps, patience)
 
     # Lanes run one after another inside one program: each stops when it converges
     # (a vmap would run every lane until the slowest is done).
     return jax.lax.map(one, (actives, tangents, thetas))
 
 
-def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings):
-    """LM from each (switches, Jacobian directions, θ₀) lane; one compiled program per lane count."""
+def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience: int):
+    """LM from each (switches, Jacobian directions, θ₀) lane; one compiled program per lane count.
+
+    `patience` is an argument of the program, not part of it: the stages share one compilation.
+    """
     return _fit_lanes_compiled(problem, jnp.asarray(actives, float), jnp.asarray(tangents, float),
-                               jnp.asarray(thetas), settings)
+                               jnp.asarray(thetas), jnp.asarray(patience, jnp.int32), settings)
 
 
 # --------------------------------------------------------------------------- #
@@ -252,19 +261,9 @@ def _universal_model(simulation) -> Model:
 
 
 @eqx.filter_jit
-def _train_signal(problem, simulation):
-    """`simulation`'s output on the training part of every recording, concatenated."""
-    parts = []
-    for series in problem.series:
-        signal = simulation.simulate(series.v_in, series.dt)  # once per recording, then its segments
-        parts += [signal[a:b] for a, b in series.segments_of("train")]
-    return jnp.concatenate(parts)
-
-
-@eqx.filter_jit
 def _initial_theta(problem, simulation, readout, frozen):
     """θ for `simulation` with the least-squares gain and offset on the training part (compiled once)."""
-    readout = readout.initialise(_train_signal(problem, simulation), problem.target("train"))
+    readout = readout.initialise(train_signal(problem, simulation), problem.target("train"))
     return problem.flatten(Model(simulation, readout, "physics"), frozen)
 
 
@@ -331,7 +330,7 @@ def _starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
     dt = 1.0 / rate
     if name == "delay":
         # The objective is multimodal in the dead time (one basin per few samples):
-        # the lag that best aligns the baseline; `_delay_starts` adds screened ones.
+        # the lag that best aligns the baseline; `delay_starts` adds screened ones.
         return [{"delay_s": max(lag_samples - 0.25, 0.75) * dt}]
     if name == "back_relaxation":
         return [{"relaxation_time_s": 5.0, "relaxation_fraction": 0.3},
@@ -350,9 +349,9 @@ def _starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
         return [{"drift_rate_per_s": 0.0}]
     if name == "resonance":
         nyquist = 0.5 * rate
+        # The residual's spectral peak; `resonance_starts` adds a screened one.
         guess = resid_peak_hz if resid_peak_hz and 0.5 <= resid_peak_hz < nyquist else 0.3 * rate
-        return [{"resonance_frequency_hz": guess, "resonance_damping": 0.1},
-                {"resonance_frequency_hz": min(0.15 * rate, nyquist * 0.9), "resonance_damping": 0.2}]
+        return [{"resonance_frequency_hz": guess, "resonance_damping": 0.1}]
     raise InputError(f"unknown effect {name!r}")
 
 
@@ -457,168 +456,6 @@ def _uncertainties(model: Model, recordings, settings, residual_heldout, keep=No
 # --------------------------------------------------------------------------- #
 
 
-def _baseline_design(n_points: int) -> list[dict]:
-    """Candidate starts filling the issue's strips: C_clamp 1 mF–1 F, ξρ/ξh 1–100, each α 0.1–0.9.
-
-    A scrambled Sobol design (fixed seed: the same points every run) over
-    log C_clamp, log ξρ and the three α's, with the paper-like centre first.
-    """
-    import scipy.stats
-
-    sobol = scipy.stats.qmc.Sobol(d=5, scramble=True, seed=20261122)
-    unit = sobol.random_base2(max(1, math.ceil(math.log2(max(n_points - 1, 1)))))
-    grid = [{"C_clamp": 3e-2, "xi_rho": 10.0, "alpha_E": 0.5, "alpha_I": 0.5, "alpha_C": 0.5}]
-    for u in unit:
-        u = [float(x) for x in u]
-        grid.append({"C_clamp": 10 ** (-3 + 3 * u[0]), "xi_rho": 10 ** (2 * u[1]), "alpha_E": 0.1 + 0.8 * u[2],
-                     "alpha_I": 0.1 + 0.8 * u[3], "alpha_C": 0.1 + 0.8 * u[4]})
-    return grid[:n_points]
-
-
-def _design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
-    """The design's parameters that `simulation` has, as columns of raw (unconstrained) values."""
-    names = [k for k in design[0] if k in simulation.parameter_names()]
-    return names, {k: jnp.asarray(simulation.constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
-
-
-@eqx.filter_jit
-def _screen_losses(problem, simulation, raws):
-    """Training MSE of `simulation` at each row of `raws` (raw parameters), gain and offset by least squares."""
-    w = problem.target("train")
-
-    def one(raw):
-        sim = eqx.tree_at(lambda s: s.raw, simulation, {**simulation.raw, **raw})
-        s = _train_signal(problem, sim)
-        fit = LinearReadout().initialise(s, w).parameters()
-        loss = jnp.mean((w - fit["gain"] * s - fit["offset"]) ** 2)
-        return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
-
-    return jax.lax.map(one, raws, batch_size=16)
-
-
-def _baseline_starts(problem, simulation, n_starts: int, n_screen: int) -> list[dict]:
-    """The `n_starts` best of an `n_screen`-point design, by training MSE with least-squares gain.
-
-    The RC network's loss surface has broad plateaus and LM does not cross
-    them: on a slow strip (α_C = 0.13, α_I = 0.85, C_clamp = 0.32 F), LM from 15
-    of 16 fixed Sobol starts ended with a validation loss about 400× that of
-    the true parameters. Screening costs one simulation per point; the best
-    screened point there starts at the true parameters' training loss
-    (`tests/test_diagnose_starts.py`).
-    """
-    design = _baseline_design(n_screen)
-    names, raws = _design_raws(simulation, design)
-    if not names:
-        return [{}]
-    losses = np.asarray(_screen_losses(problem, simulation, raws))
-    order = np.argsort(losses, kind="stable")[:n_starts]
-    return [{k: design[i][k] for k in names} for i in order]
-
-
-def _delayed(problem: Problem, shift: int) -> Problem:
-    """The problem with every drive delayed by `shift` samples (at rest, 0 V, before the recording)."""
-    series = tuple(eqx.tree_at(lambda s: s.v_in, s, jnp.concatenate([jnp.zeros(shift, s.v_in.dtype), s.v_in[:-shift]]))
-                   for s in problem.series)
-    return eqx.tree_at(lambda p: p.series, problem, series)
-
-
-def _delay_starts(problem, simulation, rate: float, n_starts: int) -> list[dict]:
-    """Starts for the delay candidate: the network screened jointly with the dead time.
-
-    Effect-free, the baseline mimics a dead time by slower stages; from there
-    LM with the delay switched on must undo the network and shift the delay at
-    once, across the delay objective's one-basin-per-few-samples ridges (delay
-    seed 3 of `experiments/discrepancy.py`: 12 samples, baseline 138× the noise
-    variance, the delay candidate from the baseline gained 1.6×). Screening
-    the design (its first `N_DELAY_SCREEN` points) with the drive shifted by each
-    of `DELAY_SHIFTS` samples puts the network and the delay in the same basin;
-    the `n_starts` best pairs, with distinct shifts, are returned.
-    """
-    design = _baseline_design(N_SCREEN)[:N_DELAY_SCREEN]
-    names, raws = _design_raws(simulation, design)
-    if not names:
-        return []
-    best = []
-    for shift in DELAY_SHIFTS:
-        losses = np.asarray(_screen_losses(_delayed(problem, shift), simulation, raws))
-        i = int(np.argmin(losses))
-        best.append((float(losses[i]), shift, i))
-    best.sort()
-    return [{**{k: design[i][k] for k in names}, "delay_s": shift / rate} for _, shift, i in best[:n_starts]]
-
-
-#: Bouc–Wen rates screened for the hysteresis candidate's starts, in units of 1/range of V_o:
-#: the loop closes after an excursion of about 3/k, 75 % to 3 % of the range.
-LOOP_RATES = (4.0, 10.0, 25.0, 100.0)
-
-
-@eqx.filter_jit
-def _loop_screen(problem, simulation, raws, rates):
-    """Training MSE of `simulation` plus a Bouc–Wen loop at each row of `raws` and each rate.
-
-    The loop is linear in its height and in its initial state: with z(s; k) from
-    a neutral start and e(n) = e^{−k Σ|Δs|} its memory of that start, w ≈ a·s +
-    b·z + d·e + c by least squares, so one simulation per row screens every rate
-    with the best height W = b/(a k) and initial state k·z₀ = d k/b. Returns
-    (loss, k, W, k·z₀) per row and rate, in the terms of
-    [`hybrid._effects.Hysteresis`][].
-    """
-    w = problem.target("train")
-
-    def one(raw):
-        sim = eqx.tree_at(lambda s: s.raw, simulation, {**simulation.raw, **raw})
-        signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
-        span = jnp.maximum(max(jnp.ptp(s) for s in signals), 1e-12)
-
-        def train(columns):
-            return jnp.concatenate([x[a:b] for x, series in zip(columns, problem.series)
-                                    for a, b in series.segments_of("train")])
-
-        s = train(signals)
-
-        def fit(k):
-            z = train([bouc_wen_state(x, k) for x in signals])
-            memory = train([jnp.exp(-k * jnp.cumsum(jnp.abs(jnp.diff(x, prepend=x[:1])))) for x in signals])
-            design = jnp.stack([s, z, memory, jnp.ones_like(s)], axis=1)
-            coef = jnp.linalg.lstsq(design, w)[0]
-            loss = jnp.mean((w - design @ coef) ** 2)
-            a, b, d = coef[0], coef[1], coef[2]
-            height = jnp.clip(b / (jnp.where(jnp.abs(a) > 0, a, 1.0) * k), -span, span)
-            initial = jnp.clip(d * k / jnp.where(jnp.abs(b) > 0, b, 1.0), -0.95, 0.95)
-            return jnp.where(jnp.isfinite(loss), loss, jnp.inf), k, height, initial
-
-        return jax.vmap(fit)(jnp.asarray(rates) / span)
-
-    return jax.lax.map(one, raws, batch_size=16)
-
-
-def _hysteresis_starts(problem, simulation, n_starts: int) -> list[dict]:
-    """Starts for the hysteresis candidate: the network screened jointly with a Bouc–Wen loop.
-
-    Effect-free, the baseline absorbs part of a loop as lag (other ξρ and α's):
-    the falling branch lies behind the rising one, as a slow stage's output
-    does. From there LM with the loop switched on can stay in the baseline's
-    basin (hysteresis seed 6 of `experiments/discrepancy.py`, C_clamp 2 mF, a
-    loop of 20 % of the range: held-out gain 1.8 from the data-scaled starts of
-    `_starts`, 16 with this one). Screening the design (its first
-    `N_DELAY_SCREEN` points) with the loop's best height and initial state at
-    each of `LOOP_RATES` puts the network and the loop in the same basin; the
-    `n_starts` best are returned.
-    """
-    design = _baseline_design(N_SCREEN)[:N_DELAY_SCREEN]
-    names, raws = _design_raws(simulation, design)
-    if not names:
-        return []
-    losses, ks, heights, initials = (np.asarray(x) for x in _loop_screen(problem, simulation, raws, LOOP_RATES))
-    order = np.argsort(losses, axis=None, kind="stable")[:n_starts]
-    starts = []
-    for flat in order:
-        i, j = np.unravel_index(flat, losses.shape)
-        starts.append({**{k: design[i][k] for k in names}, "hysteresis_height_v": float(heights[i, j]),
-                       "hysteresis_rate_per_v": float(ks[i, j]), "hysteresis_initial_state": float(initials[i, j])})
-    return starts
-
-
 def _equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_tolerance: float) -> dict:
     """Held-out spread of the effect-free fits that match the baseline on training data.
 
@@ -702,7 +539,7 @@ def diagnose(
     n_sim = len(_sim_labels(model.simulation, frozen))
     problem = Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim)))
     n_train = int(problem.target("train").shape[0])
-    lm = LMSettings(max_steps=settings.max_steps, patience=settings.patience)
+    lm = LMSettings(max_steps=settings.max_steps)
     names = list(EFFECTS)
     off = np.zeros(len(names) + 1)  # every effect off, the frame timing on
     off[-1] = 1.0
@@ -713,12 +550,13 @@ def diagnose(
 
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
     n_lanes = N_LANES
-    grid = _baseline_starts(problem, simulation, n_lanes, N_SCREEN)
+    grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN)
     thetas = jnp.stack([initial(g) for g in grid])
     base_tangents = _lane_tangents(model, frozen, None, n_rows)
     if progress:
         print(f"diagnose: baseline from {len(grid)} starts", flush=True)
-    base_states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm)
+    base_states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm,
+                             settings.effect_free_patience)
     best = int(np.nanargmin(np.asarray(base_states.best_val)))
     theta_base = base_states.best_theta[best]
     n_base = len(_free_names(model, frozen, None))
@@ -726,7 +564,7 @@ def diagnose(
 
     # 2. Candidates: each effect switched on, warm-started from the baseline.
     base_model = problem.model(theta_base)
-    s_train = np.asarray(_train_signal(problem, base_model.simulation.inner))
+    s_train = np.asarray(train_signal(problem, base_model.simulation.inner))
     _, w_tr, w_hat_tr = _signals(problem, theta_base, off, "train")
     lag = _best_lag(w_tr, w_hat_tr, max_lag=20)
     f, psd = rt.spectrum(w_tr - w_hat_tr, rate)
@@ -734,8 +572,9 @@ def diagnose(
     peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
     duration = recordings[0].duration
     lanes, actives, labels, tangents = [], [], [], []
-    screened = {"delay": _delay_starts(problem, simulation, rate, n_starts=3),
-                "hysteresis": _hysteresis_starts(problem, simulation, n_starts=1)}
+    screened = {"delay": delay_starts(problem, simulation, rate, n_starts=3),
+                "hysteresis": hysteresis_starts(problem, simulation, n_starts=1),
+                "resonance": resonance_starts(problem, simulation, rate, n_starts=1)}
     for i, name in enumerate(names):
         extra = screened.get(name, [])
         for values in _starts(name, s_train, rate, lag, peak, duration) + extra:
@@ -754,7 +593,7 @@ def diagnose(
         tangents.append(base_tangents)
     if progress:
         print(f"diagnose: {len(set(labels) - {'none'})} effects, {len(labels)} lanes", flush=True)
-    states = _fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), lm)
+    states = _fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), lm, settings.patience)
     vals = np.asarray(states.best_val)
     cand_thetas = states.best_theta
 
@@ -765,7 +604,7 @@ def diagnose(
     if progress:
         print("diagnose: baseline refitted from every candidate's end point", flush=True)
     restates = _fit_lanes(problem, np.tile(off, (n_lanes, 1)), np.stack([base_tangents] * n_lanes),
-                          cand_thetas, lm)
+                          cand_thetas, lm, settings.effect_free_patience)
     revals = np.asarray(restates.best_val)
     if np.nanmin(revals) < float(base_states.best_val[best]):
         j = int(np.nanargmin(revals))

@@ -92,8 +92,12 @@ def lm_init(problem, theta0, settings: LMSettings) -> LMState:
     )
 
 
-def lm_step(problem, state: LMState, settings: LMSettings) -> LMState:
-    """One LM iteration (a no-op once `state.done`)."""
+def lm_step(problem, state: LMState, settings: LMSettings, patience=None) -> LMState:
+    """One LM iteration (a no-op once `state.done`).
+
+    `patience`, if given, replaces `settings.patience` and may be a traced
+    integer (several stages with different patience share one compiled loop).
+    """
     diag = jnp.diag(state.JtJ)
     if settings.scaling == "marquardt":
         D = jnp.maximum(diag, 1e-9 * jnp.max(diag) + jnp.finfo(diag.dtype).tiny)
@@ -116,7 +120,9 @@ def lm_step(problem, state: LMState, settings: LMSettings) -> LMState:
         relative_decrease = (state.cost - cost) / jnp.maximum(state.cost, jnp.finfo(cost.dtype).tiny)
         since_best = jnp.where(better, 0, state.since_best + 1)
         converged = (relative_decrease < settings.ftol) | (jnp.max(jnp.abs(g)) < settings.gtol)
-        if settings.patience:
+        if patience is not None:
+            converged = converged | ((patience > 0) & (since_best >= patience))
+        elif settings.patience:
             converged = converged | (since_best >= settings.patience)
         return LMState(
             theta=theta_new, cost=cost, JtJ=JtJ, g=g, lam=lam,
@@ -141,8 +147,8 @@ def lm_step(problem, state: LMState, settings: LMSettings) -> LMState:
     return jax.tree_util.tree_map(lambda a, b: jnp.where(state.done, a, b), state, new)
 
 
-def lm_run(problem, state: LMState, settings: LMSettings, n_steps: int):
-    """Up to `n_steps` more iterations, stopping early when done."""
+def lm_run(problem, state: LMState, settings: LMSettings, n_steps: int, patience=None):
+    """Up to `n_steps` more iterations, stopping early when done (`patience`: see `lm_step`)."""
 
     def cond(carry):
         i, s = carry
@@ -150,7 +156,7 @@ def lm_run(problem, state: LMState, settings: LMSettings, n_steps: int):
 
     def body(carry):
         i, s = carry
-        return i + 1, lm_step(problem, s, settings)
+        return i + 1, lm_step(problem, s, settings, patience)
 
     _, state = lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), state))
     return state

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from hybrid import RCNetwork
-from hybrid._diagnose import SPLIT_ORDER, DiagnoseSettings, _baseline_design, _baseline_starts
+from hybrid._diagnose import SPLIT_ORDER, DiagnoseSettings
+from hybrid._diagnose_starts import baseline_design, baseline_starts
 from hybrid._models import Model
 from hybrid._problem import Problem, series_from_recording
 from hybrid._readout import LinearReadout
@@ -38,27 +39,27 @@ def test_screened_starts_reach_the_loss_of_the_true_parameters():
              "alpha_I": SLOW.alpha_I, "alpha_C": SLOW.alpha_C}
     floor = _train_mse(problem, simulation, truth)
 
-    starts = _baseline_starts(problem, simulation, 16, 512)
+    starts = baseline_starts(problem, simulation, 16, 512)
     assert len(starts) == 16
     losses = [_train_mse(problem, simulation, s) for s in starts]
     assert losses == sorted(losses) or np.allclose(losses, sorted(losses), rtol=1e-6)
     assert losses[0] <= 1.5 * floor  # on the true plateau before any LM step
     # The design's paper-like centre is not: screening is what finds the plateau.
-    assert _train_mse(problem, simulation, _baseline_design(1)[0]) >= 5 * floor
-    assert len(_baseline_design(512)) == 512
+    assert _train_mse(problem, simulation, baseline_design(1)[0]) >= 5 * floor
+    assert len(baseline_design(512)) == 512
 
 
 def test_loop_screen_recovers_a_known_bouc_wen_loop():
-    """`_loop_screen` reads height and initial state off a least-squares solve: exact on an exact loop."""
+    """`loop_screen` reads height and initial state off a least-squares solve: exact on an exact loop."""
     import jax.numpy as jnp
 
-    from hybrid._diagnose import _design_raws, _loop_screen
+    from hybrid._diagnose_starts import design_raws, loop_screen
     from hybrid._effects import bouc_wen_state
     from hybrid._recording import Recording
 
     settings = DiagnoseSettings()
     drive = discrepancy_drive(60.0, 30.0, seed=1)
-    point = _baseline_design(3)[2]
+    point = baseline_design(3)[2]
     simulation = RCNetwork(method="zoh")
     s = np.asarray(simulation.replace(**point).simulate(jnp.asarray(drive.v), 1 / 30.0))
     k, height, initial = 10.0 / np.ptp(s), 0.15 * np.ptp(s), -0.4
@@ -67,10 +68,50 @@ def test_loop_screen_recovers_a_known_bouc_wen_loop():
     series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
     problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen))
 
-    _, raws = _design_raws(simulation, [point, _baseline_design(3)[1]])
-    losses, ks, heights, initials = (np.asarray(x) for x in _loop_screen(problem, simulation, raws, (10.0, 40.0)))
+    _, raws = design_raws(simulation, [point, baseline_design(3)[1]])
+    losses, ks, heights, initials = (np.asarray(x) for x in loop_screen(problem, simulation, raws, (10.0, 40.0)))
     assert losses[0, 0] < 1e-20 * np.var(w)  # the true point and rate fit exactly
     assert ks[0, 0] == pytest.approx(k, rel=1e-9)
     assert heights[0, 0] == pytest.approx(height, rel=1e-6)
     assert initials[0, 0] == pytest.approx(initial, rel=1e-6)
     assert losses[0, 1] > 1e-6 * np.var(w) and losses[1, 0] > 1e-6 * np.var(w)  # wrong rate, wrong network
+
+
+def test_resonance_starts_find_a_known_mode_and_network():
+    """A mode on the screen's grid, after a design point's network, is found at that point, f and ζ.
+
+    The recording is made with scipy (`lsim`: the mode's state space, input linear
+    between samples), independently of `hybrid._effects.Resonance`.
+    """
+    import jax.numpy as jnp
+    import scipy.signal
+
+    from hybrid._diagnose_starts import (MODE_DAMPINGS, N_JOINT_SCREEN, N_SCREEN, design_raws,
+                                         mode_frequencies, mode_screen, resonance_starts)
+    from hybrid._recording import Recording
+
+    settings = DiagnoseSettings()
+    rate = 30.0
+    drive = discrepancy_drive(60.0, rate, seed=2)
+    design = baseline_design(N_SCREEN)[:N_JOINT_SCREEN]
+    point = design[37]
+    simulation = RCNetwork(method="zoh")
+    s = np.asarray(simulation.replace(**point).simulate(jnp.asarray(drive.v), 1 / rate))
+    f, zeta = float(mode_frequencies(rate)[9]), MODE_DAMPINGS[1]
+    omega = 2 * np.pi * f
+    mode = scipy.signal.StateSpace([[0.0, 1.0], [-omega**2, -2 * zeta * omega]], [[0.0], [omega**2]], [[1.0, 0.0]], [[0.0]])
+    t = np.arange(len(s)) / rate
+    _, y, _ = scipy.signal.lsim(mode, s, t, X0=[s[0], 0.0])
+    w = 1.7 * y + 0.2
+    recording = Recording(t=t, v_in=np.asarray(drive.v), w=w)
+    series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
+    problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen))
+
+    _, raws = design_raws(simulation, [point, design[5]])
+    losses = np.asarray(mode_screen(problem, simulation, raws, np.array([f, 1.3 * f, f]), np.array([zeta, zeta, 0.3])))
+    assert losses[0, 0] < 1e-12 * np.var(w)  # exact up to lsim's quadrature
+    assert min(losses[0, 1], losses[0, 2], losses[1, 0]) > 1e-4 * np.var(w)  # wrong f, wrong ζ, wrong network
+
+    (start,) = resonance_starts(problem, simulation, rate, n_starts=1)
+    assert start["resonance_frequency_hz"] == pytest.approx(f) and start["resonance_damping"] == zeta
+    assert all(start[k] == pytest.approx(v) for k, v in point.items())
