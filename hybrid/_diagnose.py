@@ -85,15 +85,16 @@ class DiagnoseSettings:
       36 s stay below −2 mm, the held-out 18 s rise to +2.5 mm), and no fit —
       with or without the right effect — predicts it; blocks make the held-out
       error one of interpolation.
-    - `max_steps`, `patience`: LM limits of a candidate's lane (stop after
-      `patience` accepted steps without a better validation loss).
+    - `max_steps`: most LM steps of any lane.
+    - `patience`: a candidate's lane stops after this many accepted steps
+      without a better validation loss.
     - `effect_free_patience`: the same for the baseline's and re-baseline's lanes.
-      Most effect-free lanes are done within a few steps of their best: on the
-      5-minute benchmark recording, 10 instead of 25 took the baseline stage
-      from 15 s to 5 s and the re-baseline from 9 s to 6 s, with the same fits
-      named. A candidate lane needs the longer patience: with 10, delay seed 10
-      of `experiments/discrepancy.py` stopped at a held-out gain of 1.6 that
-      25 steps take to 2.7.
+      Most effect-free lanes are done within a few steps of their best (on the
+      5-minute benchmark recording, timed ad hoc: 10 instead of 25 took the
+      baseline stage from 15 s to 5 s, the re-baseline from 9 s to 6 s, same
+      cause and gain). A candidate lane needs the longer patience: with 10,
+      delay seed 10 of `experiments/discrepancy.py` stopped at a held-out gain
+      of 1.6 that 25 steps take to 2.7.
     - `min_gain`: held-out NMSE ratio baseline/extended needed to name a cause.
     - `min_bic_drop`: BIC decrease (training part) needed to name a cause.
     - `materiality`: the smallest effect that counts as a cause, per effect (see
