@@ -255,6 +255,19 @@ def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patienc
 # --------------------------------------------------------------------------- #
 
 
+def _search_problem(model: Model, series, frozen) -> tuple[Problem, int]:
+    """The least-squares problem every lane shares, and its number of Jacobian directions.
+
+    A lane fits the inner simulation's free parameters, the frame timing and at
+    most one effect: `n_rows` directions, whichever effect a lane switches on.
+    """
+    simulation = model.simulation.inner
+    n_rows = len([n for n in simulation.parameter_names() if n not in frozen]) + len(FrameTiming.constraints) + max(
+        len(e.constraints) for e in EFFECTS.values())
+    n_sim = len(_sim_labels(model.simulation, frozen))
+    return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
+
+
 def _universal_model(simulation) -> Model:
     """Every effect (switched off) and, last and always on, the camera's frame timing."""
     stack = EffectStack(simulation, tuple(EFFECTS) + (FrameTiming(),), active=jnp.zeros(len(EFFECTS) + 1))
@@ -535,10 +548,7 @@ def diagnose(
     simulation = RCNetwork(method="zoh") if simulation is None else simulation
     model = _universal_model(simulation)
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
-    n_rows = len([n for n in simulation.parameter_names() if n not in frozen]) + len(FrameTiming.constraints) + max(
-        len(e.constraints) for e in EFFECTS.values())
-    n_sim = len(_sim_labels(model.simulation, frozen))
-    problem = Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim)))
+    problem, n_rows = _search_problem(model, series, frozen)
     n_train = int(problem.target("train").shape[0])
     lm = LMSettings(max_steps=settings.max_steps)
     names = list(EFFECTS)
