@@ -54,7 +54,18 @@ def _drive(name: str, duration: float, rate: float, seed: int):
 IDENTIFIABLE = 2.0
 
 
-def _excess_over_noise(recording, found) -> tuple[float, float]:
+def draw(effect: str, seed: int, duration: float, rate: float, drive: str, noise: float):
+    """(strip, effect parameters, recording) of one draw: the strip and effect from the issue's ranges."""
+    from hybrid._synthetic import random_effect, random_strip, synthetic_recording
+
+    rng = np.random.default_rng([seed, len(effect), sum(map(ord, effect))])
+    strip, params = random_strip(rng), random_effect(effect, rng, rate)
+    recording = synthetic_recording(_drive(drive, duration, rate, seed), strip, effect, params, noise_fraction=noise,
+                                    seed=seed)
+    return strip, params, recording
+
+
+def excess_over_noise(recording, found) -> tuple[float, float]:
     """Held-out MSE over the variance of the added noise: the baseline's, and the least of any effect-free fit."""
     hidden = recording.metadata["hidden"]
     noise_var = (hidden["noise_fraction"] * np.ptp(recording.extra["w_true"])) ** 2
@@ -83,7 +94,7 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     jax.config.update("jax_enable_x64", True)
     from hybrid._diagnose import CAUSES, diagnose
-    from hybrid._synthetic import HIDDEN_EFFECTS, random_effect, random_strip, synthetic_recording
+    from hybrid._synthetic import HIDDEN_EFFECTS
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--effects", default=",".join(HIDDEN_EFFECTS))
@@ -107,12 +118,9 @@ def main(argv=None) -> int:
     rows = []
     for effect in effects:
         for seed in seeds:
-            rng = np.random.default_rng([seed, len(effect), sum(map(ord, effect))])
-            strip, params = random_strip(rng), random_effect(effect, rng, args.rate)
-            drive = _drive(args.drive, args.duration, args.rate, seed)
-            recording = synthetic_recording(drive, strip, effect, params, noise_fraction=args.noise, seed=seed)
+            strip, params, recording = draw(effect, seed, args.duration, args.rate, args.drive, args.noise)
             found = diagnose(recording)
-            excess, least = _excess_over_noise(recording, found)
+            excess, least = excess_over_noise(recording, found)
             print(f"{effect:16s} seed {seed}: named {found.cause:16s} gain {found.gain:7.2f}  baseline/noise "
                   f"{excess:6.1f}  effect-free/noise {least:6.1f}  ({found.seconds:.0f} s)  {params}", flush=True)
             rows.append({

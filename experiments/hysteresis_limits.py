@@ -77,7 +77,7 @@ def main(argv=None) -> int:
     from hybrid._levenberg_marquardt import LMSettings
     from hybrid._problem import series_from_recording
     from hybrid._rc_network import RCNetwork
-    from hybrid._synthetic import _apply_hidden, random_effect, random_strip, rc_cascade_exact, synthetic_recording
+    from hybrid._synthetic import _apply_hidden, rc_cascade_exact
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed-list", default="2,7,9,13,14,5,6")
@@ -98,10 +98,8 @@ def main(argv=None) -> int:
     lm = LMSettings(max_steps=settings.max_steps)
     rows = []
     for seed in (int(x) for x in args.seed_list.split(",")):
-        rng = np.random.default_rng([seed, len("hysteresis"), sum(map(ord, "hysteresis"))])
-        strip, params = random_strip(rng), random_effect("hysteresis", rng, args.rate)
-        drive = discrepancy._drive(args.drive, args.duration, args.rate, seed)
-        recording = synthetic_recording(drive, strip, "hysteresis", params, noise_fraction=args.noise, seed=seed)
+        strip, params, recording = discrepancy.draw("hysteresis", seed, args.duration, args.rate, args.drive,
+                                                    args.noise)
         noise_var = (args.noise * np.ptp(recording.extra["w_true"])) ** 2
 
         simulation = RCNetwork(method="zoh")
@@ -119,7 +117,7 @@ def main(argv=None) -> int:
             return out
 
         # Oracle loop on the true V_o (camera grid, true strip).
-        v = np.asarray(drive.v, float)
+        v = np.asarray(recording.v_in, float)
         s_true = rc_cascade_exact(strip, v, 1.0 / args.rate)
         h = _apply_hidden("hysteresis", params, s_true, 1.0 / args.rate, None) - s_true
         noise_s = (args.noise * np.ptp(s_true + h)) ** 2
@@ -138,9 +136,7 @@ def main(argv=None) -> int:
         found = search.diagnose(recording)
         candidate = next(c for c in found.candidates if c.name == "hysteresis")
         baseline = over_noise(found.baseline.theta, off)
-        floor = found.evidence["equally_good_effect_free_fits"]["heldout_nmse_min"]
-        floor_test = baseline["test"] * min(1.0, floor / found.baseline.heldout["nmse"]) if np.isfinite(floor) \
-            else baseline["test"]
+        floor_test = discrepancy.excess_over_noise(recording, found)[1]
         loop_height = lambda theta, active: search._derived(problem, theta, active)["hysteresis"][
             "loop_height_percent_of_range"]
         row = {
