@@ -46,14 +46,14 @@ def _oracle_loop(s, h, fit_on, train, test, noise_var, rates):
     """Least-squares Bouc–Wen element (rate from `rates` × 1/span) for the hidden term h(s), fitted on `fit_on`."""
     import jax.numpy as jnp
 
-    from hybrid._effects import bouc_wen_state
+    from hybrid._effects import bouc_wen_memory, bouc_wen_state
 
     span = float(np.ptp(s))
     best = None
     for rate in rates:
         k = rate / span
         z = np.asarray(bouc_wen_state(jnp.asarray(s), k))
-        memory = np.exp(-k * np.cumsum(np.abs(np.diff(s, prepend=s[:1]))))
+        memory = np.asarray(bouc_wen_memory(jnp.asarray(s), k))
         design = np.stack([s, z, memory, np.ones_like(s)], axis=1)
         coef = np.linalg.lstsq(design[fit_on], h[fit_on], rcond=None)[0]
         resid = h - design @ coef

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._effects import Resonance, bouc_wen_state
+from ._effects import Resonance, bouc_wen_memory, bouc_wen_state
 from ._problem import Problem
 from ._readout import LinearReadout
 
@@ -166,7 +166,7 @@ def loop_screen(problem, simulation, raws, rates):
 
         def fit(k):
             z = train([bouc_wen_state(x, k) for x in signals])
-            memory = train([jnp.exp(-k * jnp.cumsum(jnp.abs(jnp.diff(x, prepend=x[:1])))) for x in signals])
+            memory = train([bouc_wen_memory(x, k) for x in signals])
             design = jnp.stack([s, z, memory, jnp.ones_like(s)], axis=1)
             coef = jnp.linalg.lstsq(design, w)[0]
             loss = jnp.mean((w - design @ coef) ** 2)

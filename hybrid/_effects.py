@@ -217,6 +217,15 @@ def bouc_wen_state(s, k, initial=0.0):
     return affine_recurrence(decay, jnp.sign(ds) * (1 - decay) / k, x0=initial / k)
 
 
+def bouc_wen_memory(s, k):
+    """How much of the initial state [`bouc_wen_state`][] keeps at each sample: e^{−k Σ|Δs|}.
+
+    z is affine in its initial value z₀, and this is ∂z/∂z₀ (dimensionless): the
+    state forgets its start after s has travelled a few 1/k volts in all.
+    """
+    return jnp.exp(-k * jnp.cumsum(jnp.abs(jnp.diff(s, prepend=s[:1]))))
+
+
 class Hysteresis(AbstractEffect):
     """y = s + W k z, Bouc–Wen (n = 1, γ = 0): dz = ds − k |ds| z, solved exactly per sample.
 

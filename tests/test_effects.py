@@ -10,7 +10,7 @@ import scipy.signal
 from hybrid import InputError, RCNetwork, make_drive
 from hybrid._effects import (
     EFFECTS, BackRelaxation, Delay, Drift, EffectStack, Hysteresis, Resonance, Saturation,
-    affine_recurrence, extend,
+    affine_recurrence, bouc_wen_memory, bouc_wen_state, extend,
 )
 from hybrid._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
 
@@ -90,6 +90,14 @@ def test_hysteresis_forgets_its_initial_state():
     ends = [float(Hysteresis(hysteresis_height_v=0.1, hysteresis_rate_per_v=20.0,
                              hysteresis_initial_state=z0).apply(s, DT)[-1]) for z0 in (-0.9, 0.0, 0.9)]
     np.testing.assert_allclose(ends, 2.0 + 0.1, atol=1e-12)
+
+
+def test_bouc_wen_memory_is_what_is_left_of_the_initial_state():
+    # z is affine in its start: z(z0) − z(0) = memory · z0/k exactly, sample by sample.
+    s = jnp.asarray(np.random.default_rng(3).normal(size=300).cumsum() * 0.05)
+    k, start = 7.0, 0.6
+    left = (bouc_wen_state(s, k, start) - bouc_wen_state(s, k, 0.0)) * k / start
+    np.testing.assert_allclose(bouc_wen_memory(s, k), left, rtol=1e-10, atol=1e-14)
 
 
 def test_hysteresis_is_rate_independent():
