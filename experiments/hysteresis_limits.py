@@ -52,17 +52,17 @@ def _oracle_loop(s, h, fit_on, train, test, noise_var, rates):
     best = None
     for rate in rates:
         k = rate / span
-        z = np.asarray(bouc_wen_state(jnp.asarray(s), k))
+        u = np.asarray(bouc_wen_state(jnp.asarray(s), k))
         memory = np.asarray(bouc_wen_memory(jnp.asarray(s), k))
-        design = np.stack([s, z, memory, np.ones_like(s)], axis=1)
+        design = np.stack([s, u, memory, np.ones_like(s)], axis=1)
         coef = np.linalg.lstsq(design[fit_on], h[fit_on], rcond=None)[0]
         resid = h - design @ coef
         score = float(np.mean(resid[fit_on] ** 2))
         if best is None or score < best[0]:
             a, b, d = coef[:3]
             best = (score, float(np.mean(resid[train] ** 2)), float(np.mean(resid[test] ** 2)), {
-                "hysteresis_rate_per_v": k, "hysteresis_height_v": b / ((1.0 + a) * k),
-                "hysteresis_initial_state": float(np.clip(d * k / b, -0.95, 0.95))})
+                "hysteresis_rate_per_v": k, "hysteresis_height_v": b / (1.0 + a),
+                "hysteresis_initial_state": float(np.clip(d / b, -0.95, 0.95))})
     return {"train": best[1] / noise_var, "test": best[2] / noise_var, "rate_times_range": best[3][
         "hysteresis_rate_per_v"] * span}, best[3]
 

@@ -136,7 +136,7 @@ def delay_starts(problem, simulation, rate: float, n_starts: int) -> list[dict]:
 
 
 #: Bouc–Wen rates screened for the hysteresis candidate's starts, in units of 1/range of V_o:
-#: the loop closes after an excursion of about 3/k, 75 % to 3 % of the range.
+#: the loop closes (within 4 %) after an excursion of about 2/k, 50 % to 2 % of the range.
 LOOP_RATES = (4.0, 10.0, 25.0, 100.0)
 
 
@@ -144,11 +144,11 @@ LOOP_RATES = (4.0, 10.0, 25.0, 100.0)
 def loop_screen(problem, simulation, raws, rates):
     """Training MSE of `simulation` plus a Bouc–Wen loop at each row of `raws` and each rate.
 
-    The loop is linear in its height and in its initial state: with z(s; k) from
-    a neutral start and e(n) = e^{−k Σ|Δs|} its memory of that start, w ≈ a·s +
-    b·z + d·e + c by least squares, so one simulation per row screens every rate
-    with the best height W = b/(a k) and initial state k·z₀ = d k/b. Returns
-    (loss, k, W, k·z₀) per row and rate, in the terms of
+    The loop is linear in its height and, to first order, in its initial state:
+    with u(s; k) from a neutral start and m = ∂u/∂u₀ its memory of that start,
+    w ≈ a·s + b·u + d·m + c by least squares, so one simulation per row screens
+    every rate with the best height W = b/a and initial state u₀ ≈ d/b. Returns
+    (loss, k, W, u₀) per row and rate, in the terms of
     [`hybrid._effects.Hysteresis`][].
     """
     w = problem.target("train")
@@ -165,14 +165,14 @@ def loop_screen(problem, simulation, raws, rates):
         s = train(signals)
 
         def fit(k):
-            z = train([bouc_wen_state(x, k) for x in signals])
+            u = train([bouc_wen_state(x, k) for x in signals])
             memory = train([bouc_wen_memory(x, k) for x in signals])
-            design = jnp.stack([s, z, memory, jnp.ones_like(s)], axis=1)
+            design = jnp.stack([s, u, memory, jnp.ones_like(s)], axis=1)
             coef = jnp.linalg.lstsq(design, w)[0]
             loss = jnp.mean((w - design @ coef) ** 2)
             a, b, d = coef[0], coef[1], coef[2]
-            height = jnp.clip(b / (jnp.where(jnp.abs(a) > 0, a, 1.0) * k), -span, span)
-            initial = jnp.clip(d * k / jnp.where(jnp.abs(b) > 0, b, 1.0), -0.95, 0.95)
+            height = jnp.clip(b / jnp.where(jnp.abs(a) > 0, a, 1.0), -span, span)
+            initial = jnp.clip(d / jnp.where(jnp.abs(b) > 0, b, 1.0), -0.95, 0.95)
             return jnp.where(jnp.isfinite(loss), loss, jnp.inf), k, height, initial
 
         return jax.vmap(fit)(jnp.asarray(rates) / span)
