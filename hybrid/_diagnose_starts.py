@@ -188,10 +188,10 @@ def hysteresis_starts(problem, simulation, n_starts: int) -> list[dict]:
     does. From there LM with the loop switched on can stay in the baseline's
     basin (hysteresis seed 6 of `experiments/discrepancy.py`, C_clamp 2 mF, a
     loop of 20 % of the range: held-out gain 1.8 from the data-scaled starts of
-    `_starts`, 16 with this one). Screening the design (its first
-    `N_JOINT_SCREEN` points) with the loop's best height and initial state at
-    each of `LOOP_RATES` puts the network and the loop in the same basin; the
-    `n_starts` best are returned.
+    `_starts`, 16 with this one; measured with the n = 1 element). Screening
+    the design (its first `N_JOINT_SCREEN` points) with the loop's best height
+    and initial state at each of `LOOP_RATES` puts the network and the loop in
+    the same basin; the `n_starts` best are returned.
     """
     design = baseline_design(N_SCREEN)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
