@@ -136,7 +136,8 @@ def delay_starts(problem, simulation, rate: float, n_starts: int) -> list[dict]:
 
 
 #: Bouc–Wen rates screened for the hysteresis candidate's starts, in units of 1/range of V_o:
-#: the loop closes (within 4 %) after an excursion of about 2/k, 50 % to 2 % of the range.
+#: after a reversal the loop reaches its other branch (within 4 %) after an excursion of about
+#: 2.8/k (π/4 to cross zero, 2 more), 70 % to 3 % of the range.
 LOOP_RATES = (4.0, 10.0, 25.0, 100.0)
 
 

@@ -284,7 +284,8 @@ class Hysteresis(AbstractEffect):
 
     def apply(self, s, dt):
         p = self.parameters()
-        return s + p["hysteresis_height_v"] * bouc_wen_state(s, p["hysteresis_rate_per_v"], p["hysteresis_initial_state"])
+        u = bouc_wen_state(s, p["hysteresis_rate_per_v"], p["hysteresis_initial_state"])
+        return s + p["hysteresis_height_v"] * u
 
     def derived(self, s, dt):
         """Loop height 2|W| as a percentage of the signal's range."""
