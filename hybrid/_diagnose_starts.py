@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._effects import Resonance, bouc_wen_memory, bouc_wen_state
+from ._effects import Resonance, bouc_wen_and_memory
 from ._problem import Problem
 from ._readout import LinearReadout
 
@@ -166,8 +166,8 @@ def loop_screen(problem, simulation, raws, rates):
         s = train(signals)
 
         def fit(k):
-            u = train([bouc_wen_state(x, k) for x in signals])
-            memory = train([bouc_wen_memory(x, k) for x in signals])
+            loops = [bouc_wen_and_memory(x, k) for x in signals]
+            u, memory = train([u for u, _ in loops]), train([m for _, m in loops])
             design = jnp.stack([s, u, memory, jnp.ones_like(s)], axis=1)
             coef = jnp.linalg.lstsq(design, w)[0]
             loss = jnp.mean((w - design @ coef) ** 2)

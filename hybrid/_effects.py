@@ -252,13 +252,14 @@ def bouc_wen_state(s, k, initial=0.0):
     return lax.scan(step, jnp.asarray(initial, s.dtype), (d, sign))[1]
 
 
-def bouc_wen_memory(s, k):
-    """∂u/∂u₀ of [`bouc_wen_state`][] at u₀ = 0: how much of its initial state the loop keeps.
+def bouc_wen_and_memory(s, k):
+    """(u, ∂u/∂u₀): [`bouc_wen_state`][] from u₀ = 0, and how much of its initial state the loop keeps.
 
-    Dimensionless, 1 at the first sample; it falls towards 0 as s travels: the
-    state forgets its start once s has moved a few 1/k volts in one direction.
+    Both from one pass (a jvp in u₀). The memory is dimensionless, 1 at the
+    first sample; it falls towards 0 as s travels: the state forgets its start
+    once s has moved a few 1/k volts in one direction.
     """
-    return jax.jvp(lambda u0: bouc_wen_state(s, k, u0), (jnp.zeros((), s.dtype),), (jnp.ones((), s.dtype),))[1]
+    return jax.jvp(lambda u0: bouc_wen_state(s, k, u0), (jnp.zeros((), s.dtype),), (jnp.ones((), s.dtype),))
 
 
 class Hysteresis(AbstractEffect):

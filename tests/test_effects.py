@@ -10,7 +10,7 @@ import scipy.signal
 from hybrid import InputError, RCNetwork, make_drive
 from hybrid._effects import (
     EFFECTS, BackRelaxation, Delay, Drift, EffectStack, Hysteresis, Resonance, Saturation,
-    affine_recurrence, bouc_wen_memory, bouc_wen_state, extend,
+    affine_recurrence, bouc_wen_and_memory, bouc_wen_state, extend,
 )
 from hybrid._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
 
@@ -113,7 +113,8 @@ def test_bouc_wen_memory_is_the_derivative_in_the_initial_state():
     s = jnp.asarray(np.random.default_rng(3).normal(size=300).cumsum() * 0.05)
     k, h = 7.0, 1e-6
     fd = (bouc_wen_state(s, k, h) - bouc_wen_state(s, k, -h)) / (2 * h)
-    memory = bouc_wen_memory(s, k)
+    state, memory = bouc_wen_and_memory(s, k)
+    np.testing.assert_array_equal(state, bouc_wen_state(s, k))
     np.testing.assert_allclose(memory, fd, rtol=1e-6, atol=1e-9)
     assert float(memory[0]) == 1.0 and float(memory[-1]) < 0.1  # it starts whole and is forgotten
 
