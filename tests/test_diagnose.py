@@ -25,7 +25,7 @@ import math
 import numpy as np
 import pytest
 
-from hybrid._diagnose import CAUSES, DiagnoseSettings, diagnose
+from hybrid._diagnose import CAUSES, DiagnoseSettings, _choose_lane, diagnose
 from hybrid._diagnose_report import FIGURES, _nmse
 from hybrid._effects import EFFECTS
 from hybrid._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
@@ -70,6 +70,28 @@ def test_diagnose_names_the_hidden_effect(effect, seed):
         assert found.extended.parameters["resonance_frequency_hz"] == pytest.approx(truth["frequency_hz"], rel=0.1)
     if effect == "drift":
         assert np.sign(derived["gain_change_percent"]) == np.sign(truth["change"])
+
+
+# --------------------------------------------------------------------------- #
+# Which of an effect's lanes stands for it
+# --------------------------------------------------------------------------- #
+
+
+def test_lane_choice_is_validation_unless_an_immaterial_lane_edges_out_a_material_one():
+    n_val = 200  # one standard error of a mean of 200 squared residuals: √(2/200) = 10 %
+    vals = np.array([9.0, 1.00, 1.05, 1.09, 1.11, np.nan])
+    idx = [1, 2, 3, 4, 5]
+    # The best lane on validation is kept when its effect is material.
+    assert _choose_lane(idx, vals, lambda j: True, n_val) == 1
+    # An immaterial best lane loses to the best material lane within 10 % of it ...
+    assert _choose_lane(idx, vals, lambda j: j != 1, n_val) == 2
+    assert _choose_lane(idx, vals, lambda j: j in (3, 4), n_val) == 3
+    # ... but not to one beyond it (1.11 > 1.10), nor to a lane that failed (NaN).
+    assert _choose_lane(idx, vals, lambda j: j in (4, 5), n_val) == 1
+    # Lanes of other effects (index 0) are never chosen.
+    assert _choose_lane(idx, vals, lambda j: j == 0, n_val) == 1
+    # The standard error shrinks with more validation samples: 5 % is beyond it at n = 2000.
+    assert _choose_lane(idx, vals, lambda j: j == 2, 2000) == 1
 
 
 # --------------------------------------------------------------------------- #
