@@ -169,6 +169,10 @@ class Diagnosis:
     #: ``v_in`` (V), ``w``, ``baseline`` and ``extended`` predictions (recording
     #: units), ``recording`` (index of the recording each sample comes from).
     heldout: dict = dataclasses.field(default_factory=dict)
+    #: Every candidate lane (not in ``report.json``): ``effect``, ``validation_loss``
+    #: (½ mean r²), ``chosen`` (it stands for its effect), ``theta`` and ``active``
+    #: (its end point and switches; ``experiments/diagnose_lanes.py`` evaluates them).
+    lanes: list = dataclasses.field(default_factory=list)
 
     @property
     def gain(self) -> float:
@@ -271,6 +275,18 @@ def _search_problem(model: Model, series, frozen) -> tuple[Problem, int]:
     return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
 
 
+def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
+    """(problem, n_rows, model, series): the least-squares problem `diagnose` fits on `recordings`.
+
+    Its θ is the layout of `Diagnosis.lanes[i]["theta"]`; `_signals(problem, theta,
+    active, split)` predicts a lane on a split.
+    """
+    model = _universal_model(simulation)
+    series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
+    problem, n_rows = _search_problem(model, series, frozenset(settings.frozen))
+    return problem, n_rows, model, series
+
+
 def _universal_model(simulation) -> Model:
     """Every effect (switched off) and, last and always on, the camera's frame timing."""
     stack = EffectStack(simulation, tuple(EFFECTS) + (FrameTiming(),), active=jnp.zeros(len(EFFECTS) + 1))
@@ -286,16 +302,16 @@ def _initial_theta(problem, simulation, readout, frozen):
 
 @eqx.filter_jit
 def _predictions(problem, active, theta):
-    """ŵ on the training and held-out parts from one simulation (one compiled program for both)."""
+    """ŵ on every part (`SPLIT_ORDER`) from one simulation (one compiled program for all)."""
     p = _with_active(problem, active)
     sim_theta, readout_theta = p.split_theta(theta)
     readout = p.readout(readout_theta)
     signals = p._signals(sim_theta)
-    return {split: jax.vmap(readout.predict_window)(p._windows(readout, signals, split)) for split in ("train", "test")}
+    return {split: jax.vmap(readout.predict_window)(p._windows(readout, signals, split)) for split in SPLIT_ORDER}
 
 
 def _signals(problem, theta, active, split):
-    """(drive, w, ŵ) on `split` ("train" or "test"), all recordings concatenated."""
+    """(drive, w, ŵ) on `split` ("train", "validation" or "test"), all recordings concatenated."""
     v = np.concatenate([np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.segments_of(split)])
     w_hat = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
     return v, np.asarray(problem.target(split)), np.asarray(w_hat)
@@ -578,9 +594,7 @@ def diagnose(
     rate = recordings[0].rate
     frozen = frozenset(settings.frozen)
     simulation = RCNetwork(method="zoh") if simulation is None else simulation
-    model = _universal_model(simulation)
-    series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
-    problem, n_rows = _search_problem(model, series, frozen)
+    problem, n_rows, model, series = lanes_problem(recordings, simulation, settings)
     n_train = int(problem.target("train").shape[0])
     lm = LMSettings(max_steps=settings.max_steps)
     names = list(EFFECTS)
@@ -655,14 +669,16 @@ def diagnose(
         baseline = _evaluate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
         baseline.reasons.append(f"refitted from the {labels[j]} candidate's end point")
 
-    candidates = []
+    candidates, chosen = [], set()
     n_val = int(problem.target("validation").shape[0])
     for i, name in enumerate(names):
         idx = [j for j, lab in enumerate(labels) if lab == name]
+
         def is_material(j, name=name):
             return _lane_is_material(problem, cand_thetas[j], actives[j], name, settings.materiality)
 
         j = _choose_lane(idx, vals, is_material, n_val)
+        chosen.add(j)
         cand = _evaluate(problem, cand_thetas[j], actives[j], name, n_train,
                          n_base + len(EFFECTS[name].constraints), settings.materiality, frozen)
         candidates.append(cand)
@@ -720,6 +736,9 @@ def diagnose(
         cause=cause, baseline=baseline, extended=extended, candidates=candidates,
         uncertainties=uncertainties, evidence=evidence, hybrid=hybrid_report, settings=settings,
         recordings=[r.name for r in recordings], seconds=time.perf_counter() - t0, heldout=heldout,
+        lanes=[{"effect": labels[j], "validation_loss": float(vals[j]), "chosen": j in chosen,
+                "theta": np.asarray(cand_thetas[j]), "active": np.asarray(actives[j])}
+               for j in range(len(labels)) if labels[j] != "none"],
     )
 
 

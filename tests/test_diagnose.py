@@ -55,6 +55,10 @@ def test_diagnose_names_the_hidden_effect(effect, seed):
     found = diagnose(recording)
     named = {c.name: f"gain {c.gain:.2f}, ΔBIC {c.delta_bic:.0f}, {c.reasons}" for c in found.candidates}
     assert found.cause == effect, f"hidden {effect} {recording.metadata['hidden']['effect_params']}, named {found.cause}: {named}"
+    # Each candidate is exactly one of its effect's lanes, the one marked chosen.
+    for cand in found.candidates:
+        chosen = [lane for lane in found.lanes if lane["effect"] == cand.name and lane["chosen"]]
+        assert len(chosen) == 1 and np.array_equal(chosen[0]["theta"], cand.theta), cand.name
     if effect == "none":
         assert found.gain == 1.0 and found.extended is found.baseline
         return
