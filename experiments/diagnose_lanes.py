@@ -20,6 +20,7 @@ import argparse
 import sys
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 
@@ -29,8 +30,7 @@ def main(argv=None) -> int:
     from discrepancy import draw
 
     from hybrid import RCNetwork
-    from hybrid._diagnose import (DiagnoseSettings, _derived, _lane_is_material, _signals, diagnose,
-                                  lanes_problem)
+    from hybrid._diagnose import SPLIT_ORDER, DiagnoseSettings, _lane_effect, _predictions, diagnose, lanes_problem
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("effect")
@@ -59,16 +59,14 @@ def main(argv=None) -> int:
     for i, lane in enumerate(found.lanes):
         if lane["effect"] not in wanted:
             continue
-        mse = {}
-        for split in ("train", "validation", "test"):
-            _, w, w_hat = _signals(problem, lane["theta"], lane["active"], split)
-            mse[split] = float(np.mean((w - w_hat) ** 2)) / noise_var
-        size = _derived(problem, lane["theta"], lane["active"]).get(lane["effect"], {})
-        material = _lane_is_material(problem, lane["theta"], lane["active"], lane["effect"], settings.materiality)
+        w_hats = _predictions(problem, jnp.asarray(lane["active"], float), jnp.asarray(lane["theta"]))
+        mse = {split: float(np.mean((np.asarray(problem.target(split)) - np.asarray(w_hats[split])) ** 2)) / noise_var
+               for split in SPLIT_ORDER}
+        material, size = _lane_effect(problem, lane["theta"], lane["active"], lane["effect"], settings.materiality)
         size_text = ", ".join(f"{k} {v:.3g}" for k, v in size.items()) or "—"
-        print(f"| {i} | {lane['effect']} | {lane['validation_loss']:.4g} | {mse['train']:.2f} | {mse['validation']:.2f} "
-              f"| {mse['test']:.2f} "
-              f"| {size_text} | {'yes' if material else 'no'} | {'**yes**' if lane['chosen'] else ''} |")
+        print(f"| {i} | {lane['effect']} | {lane['validation_loss']:.4g} | {mse['train']:.2f} "
+              f"| {mse['validation']:.2f} | {mse['test']:.2f} | {size_text} | {'yes' if material else 'no'} "
+              f"| {'**yes**' if lane['chosen'] else ''} |")
     return 0
 
 

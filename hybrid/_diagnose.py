@@ -536,9 +536,11 @@ def _choose_lane(idx, vals, is_material, n_val: int) -> int:
     return next((j for j in within if is_material(j)), best)
 
 
-def _lane_is_material(problem, theta, active, name, materiality) -> bool:
+def _lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]:
+    """(material, size) of effect `name` at a lane's end point; size as in `Candidate.derived`."""
     parameters = {k: float(v) for k, v in problem.model(theta).parameters().items()}
-    return _material(name, _derived(problem, theta, active), parameters, materiality)[0]
+    derived = _derived(problem, theta, active)
+    return _material(name, derived, parameters, materiality)[0], derived.get(name, {})
 
 
 def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen) -> Candidate:
@@ -675,7 +677,7 @@ def diagnose(
         idx = [j for j, lab in enumerate(labels) if lab == name]
 
         def is_material(j, name=name):
-            return _lane_is_material(problem, cand_thetas[j], actives[j], name, settings.materiality)
+            return _lane_effect(problem, cand_thetas[j], actives[j], name, settings.materiality)[0]
 
         j = _choose_lane(idx, vals, is_material, n_val)
         chosen.add(j)
