@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._effects import Resonance, bouc_wen_and_memory
+from ._loop_safe_linalg import lstsq
 from ._problem import Problem
 from ._readout import LinearReadout
 
@@ -157,7 +158,7 @@ def loop_screen(problem, simulation, raws, rates):
     def one(raw):
         sim = eqx.tree_at(lambda s: s.raw, simulation, {**simulation.raw, **raw})
         signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
-        span = jnp.maximum(max(jnp.ptp(s) for s in signals), 1e-12)
+        span = jnp.maximum(jnp.max(jnp.stack([jnp.ptp(x) for x in signals])), 1e-12)  # over every recording
 
         def train(columns):
             return jnp.concatenate([x[a:b] for x, series in zip(columns, problem.series)
@@ -169,8 +170,8 @@ def loop_screen(problem, simulation, raws, rates):
             loops = [bouc_wen_and_memory(x, k) for x in signals]
             u, memory = train([u for u, _ in loops]), train([m for _, m in loops])
             design = jnp.stack([s, u, memory, jnp.ones_like(s)], axis=1)
-            coef = jnp.linalg.lstsq(design, w)[0]
-            loss = jnp.mean((w - design @ coef) ** 2)
+            coef, rss = lstsq(design, w)  # no LAPACK in a batched loop (_loop_safe_linalg)
+            loss = rss / w.shape[0]
             a, b, d = coef[0], coef[1], coef[2]
             height = jnp.clip(b / jnp.where(jnp.abs(a) > 0, a, 1.0), -span, span)
             initial = jnp.clip(d / jnp.where(jnp.abs(b) > 0, b, 1.0), -0.95, 0.95)

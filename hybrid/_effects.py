@@ -53,6 +53,7 @@ from jax import lax
 from jaxtyping import Array, Float
 
 from ._errors import InputError
+from ._loop_safe_linalg import expm
 from ._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
 from ._simulation import AbstractSimulation, perturb_raw
 
@@ -326,7 +327,7 @@ def foh_matrices(a, b, dt):
     n = a.shape[0]
     m = jnp.zeros((n + 2, n + 2), a.dtype)
     m = m.at[:n, :n].set(a).at[:n, n].set(b).at[n, n + 1].set(1.0)
-    e = jax.scipy.linalg.expm(m * dt)
+    e = expm(m * dt)  # matmul-only: safe in batched loops (see _loop_safe_linalg)
     return e[:n, :n], e[:n, n], e[:n, n + 1] / dt
 
 

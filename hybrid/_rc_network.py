@@ -43,6 +43,7 @@ from jax import lax
 from jaxtyping import Array, Complex, Float
 
 from ._errors import InputError
+from ._loop_safe_linalg import expm
 from ._parameters import Constraint, Positive, UnitInterval, encode
 from ._simulation import AbstractSimulation
 from ._strip import Strip
@@ -292,11 +293,16 @@ def _first_order_section(x, coefficients):
 
 
 def zoh_discretise(A, B, dt):
-    """Exact ZOH discretisation: Ad = e^{AΔt}, Bd = ∫₀^Δt e^{Aτ} dτ B (augmented expm)."""
+    """Exact ZOH discretisation: Ad = e^{AΔt}, Bd = ∫₀^Δt e^{Aτ} dτ B (augmented expm).
+
+    The exponential is [`hybrid._loop_safe_linalg.expm`][] (matrix products only):
+    `jax.scipy.linalg.expm`'s LU solve deadlocks jaxlib 0.10's CPU runtime when
+    batched inside a compiled loop, as `diagnose`'s screens run it.
+    """
     n = A.shape[0]
     M = jnp.zeros((n + 1, n + 1), A.dtype)
     M = M.at[:n, :n].set(A).at[:n, n].set(B)
-    E = jax.scipy.linalg.expm(M * dt)
+    E = expm(M * dt)
     return E[:n, :n], E[:n, n]
 
 

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._errors import InputError
+from ._loop_safe_linalg import lstsq
 from ._parameters import Constraint, Real, decode, encode
 from ._windows import segment_windows
 
@@ -81,7 +82,7 @@ class LinearReadout(AbstractReadout):
         # Least-squares gain and offset for the current signal: a good LM start.
         s = jnp.asarray(signal)
         design = jnp.stack([s, jnp.ones_like(s)], axis=1)
-        (gain, offset), *_ = jnp.linalg.lstsq(design, jnp.asarray(w))
+        (gain, offset), _ = lstsq(design, jnp.asarray(w))  # no LAPACK: runs in diagnose's batched screens
         raw = {"gain": jnp.asarray(gain), "offset": jnp.asarray(offset)}
         return eqx.tree_at(lambda r: r.raw, self, raw)
 
