@@ -66,6 +66,7 @@ from ._models import Model
 from ._problem import Problem, series_from_recording
 from ._rc_network import RCNetwork
 from ._readout import LinearReadout
+from ._watchdog import stage
 
 #: Names `diagnose` can return: an effect of `hybrid._effects`, or "none".
 CAUSES = ("none",) + tuple(EFFECTS)
@@ -607,13 +608,18 @@ def diagnose(
         sim = base_model.simulation.replace(**values).with_active(active)
         return _initial_theta(problem, sim, base_model.readout, frozen)
 
+    def say(text):  # the watchdog's heartbeat names the stage; progress prints it
+        stage(f"diagnose: {text}")
+        if progress:
+            print(f"diagnose: {text}", flush=True)
+
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
     n_lanes = N_LANES
+    say(f"screening {N_SCREEN} network designs for the baseline's starts")
     grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN)
     thetas = jnp.stack([initial(g) for g in grid])
     base_tangents = _lane_tangents(model, frozen, None, n_rows)
-    if progress:
-        print(f"diagnose: baseline from {len(grid)} starts", flush=True)
+    say(f"baseline from {len(grid)} starts")
     base_states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm,
                              settings.effect_free_patience)
     best = int(np.nanargmin(np.asarray(base_states.best_val)))
@@ -631,6 +637,7 @@ def diagnose(
     peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
     duration = recordings[0].duration
     lanes, actives, labels, tangents = [], [], [], []
+    say("screening starts for the delay, hysteresis and resonance candidates")
     screened = {"delay": delay_starts(problem, simulation, rate, n_starts=3),
                 "hysteresis": hysteresis_starts(problem, simulation, n_starts=1),
                 "resonance": resonance_starts(problem, simulation, rate, n_starts=1)}
@@ -650,8 +657,7 @@ def diagnose(
         actives.append(off)
         labels.append("none")
         tangents.append(base_tangents)
-    if progress:
-        print(f"diagnose: {len(set(labels) - {'none'})} effects, {len(labels)} lanes", flush=True)
+    say(f"{len(set(labels) - {'none'})} effects, {len(labels)} lanes")
     states = _fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), lm, settings.patience)
     vals = np.asarray(states.best_val)
     cand_thetas = states.best_theta
@@ -660,8 +666,7 @@ def diagnose(
     # candidate can gain only because its start led the shared RC parameters out
     # of the baseline's local minimum; the effect-free refit takes that gain away,
     # so what is left is the effect's own.
-    if progress:
-        print("diagnose: baseline refitted from every candidate's end point", flush=True)
+    say("baseline refitted from every candidate's end point")
     restates = _fit_lanes(problem, np.tile(off, (n_lanes, 1)), np.stack([base_tangents] * n_lanes),
                           cand_thetas, lm, settings.effect_free_patience)
     revals = np.asarray(restates.best_val)
@@ -771,6 +776,7 @@ def _hybrid_fits(recordings, simulation, extended, problem, cause, settings, max
     if cause != "none":
         variants.append(("extended", _fitted_model(problem, extended.theta, cause).simulation))
     for key, sim in variants:
+        stage(f"diagnose: hybrid model, {key}")
         if progress:
             print(f"diagnose: hybrid model, {key}", flush=True)
         result = fit(make_model("hybrid", simulation=sim), recordings, max_steps=max_steps,

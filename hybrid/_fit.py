@@ -32,6 +32,7 @@ from ._models import Model
 from ._problem import Problem, Series, series_from_recording
 from ._readout import WindowedMLP
 from ._result import FitResult
+from ._watchdog import stage
 
 Solver = Literal["lm", "optimistix", "adam"]
 SOLVERS = ("lm", "optimistix", "adam")
@@ -191,12 +192,14 @@ def _lm_run_batch(problem, states, settings, n_steps):
 
 def _run_lm(problem, thetas, max_steps, patience, progress, report_every):
     settings = LMSettings(max_steps=max_steps, patience=patience)
+    stage(f"fit: compiling and starting LM on the {problem.kind} model ({thetas.shape[0]} start(s))")
     states = _lm_init_batch(problem, thetas, settings)
     history = []
     with _progress_bar(max_steps, progress, f"LM {problem.kind}") as bar:
         while not bool(jnp.all(states.done)):
             states = _lm_run_batch(problem, states, settings, report_every)
             step = int(jnp.max(states.step))
+            stage(f"fit: LM on the {problem.kind} model, step {step} of at most {max_steps}")
             history.append({
                 "step": step,
                 "train_cost": [float(c) for c in states.cost],

@@ -25,6 +25,7 @@ from ._drives import make_drive
 from ._fit import fit
 from ._models import make_model
 from ._virtual_ipmc import VirtualIPMCParameters, virtual_recording
+from ._watchdog import stage
 
 ROWS = (("PRBS", "prbs"), ("Sine", "sine"), ("Chirp", "chirp"), ("Pulse", "pulse"))
 FIGURES = {"Chirp": "fig10_chirp.png", "PRBS": "fig11_prbs.png", "Pulse": "fig12_pulse.png",
@@ -81,6 +82,7 @@ def reproduce_table2(settings: Table2Settings = Table2Settings(), out_dir="exper
         recordings[row] = recording
         results = {}
         for kind in ("hybrid", "normal"):
+            stage(f"table2: {row}, {kind} model")
             model = make_model(kind, key=jax.random.key(settings.seed))
             results[kind] = fit(
                 model, recording, starts=settings.starts, max_steps=settings.max_steps,

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from ._errors import InputError
+from ._watchdog import Watchdog
 
 
 class _Parser(argparse.ArgumentParser):
@@ -321,7 +322,9 @@ def main(argv=None) -> int:
     _use_compilation_cache(jax)
     try:
         args = build_parser().parse_args(argv)
-        COMMANDS[args.command](args)
+        # A heartbeat on stderr while it works, and exit status 3 instead of a silent hang (_watchdog).
+        with Watchdog(f"hybrid {args.command}", quiet=getattr(args, "quiet", False)):
+            COMMANDS[args.command](args)
     except InputError as error:
         print(f"hybrid: error: {error}", file=sys.stderr)
         return 2
