@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from hybrid import InputError
 
-__all__ = ["RigError"]
+__all__ = ["RigError", "Terminated"]
 
 
 class RigError(InputError):
@@ -13,3 +13,11 @@ class RigError(InputError):
     A subclass of :class:`hybrid.InputError`, so the command line prints it as
     one line and exits with status 2.
     """
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by the command line's handler so that the
+    clean-up written for Ctrl-C (close the recording, flag it interrupted) runs."""
+
+    def __str__(self) -> str:
+        return "terminated by SIGTERM"

@@ -101,8 +101,21 @@ class _Writer:
         os.replace(tmp, self.sidecar)
 
     def close(self) -> None:
+        """Flush the rows, count them in the file (an interruption between writing a row and
+        counting it must not leave a stale count), save the sidecar, close."""
+        self.handle.flush()
+        with self.path.open("rb") as written:
+            self.rows = max(0, sum(1 for _ in written) - 1)
         self.save_metadata(force=True)
         self.handle.close()
+
+
+def _describe(error: BaseException) -> str:
+    """The error's message; for Ctrl-C (which has none) what happened."""
+    text = str(error)
+    if not text and isinstance(error, KeyboardInterrupt):
+        return "interrupted by Ctrl-C (SIGINT)"
+    return text or type(error).__name__
 
 
 def _jsonable(value):
@@ -308,7 +321,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
             meta["complete"], meta["status"] = True, "complete"
         else:
             meta["status"] = "interrupted"
-            meta["error"] = str(error) if error is not None else (report.error if report else "unknown")
+            meta["error"] = _describe(error) if error is not None else (report.error if report else "unknown")
         writer.close()
     if error is not None:
         if isinstance(error, RigError):

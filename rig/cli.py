@@ -7,17 +7,21 @@
     rig simavr-timing [--rate HZ] [--duration S]
 
 Bad input and hardware faults end with exit status 2 and one line on stderr.
+SIGTERM is handled like Ctrl-C: a recording is closed, flagged ``interrupted``
+with its row count, and the exit status is 143 (130 for Ctrl-C).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
+import threading
 
 from hybrid import InputError
 
-from ._errors import RigError
+from ._errors import RigError, Terminated
 
 
 class _Parser(argparse.ArgumentParser):
@@ -294,7 +298,16 @@ COMMANDS = {"ports": _cmd_ports, "track": _cmd_track, "record": _cmd_record,
             "calibrate": _cmd_calibrate, "simavr-timing": _cmd_simavr_timing}
 
 
+def _on_sigterm(signum, frame):
+    """SIGTERM: raise :class:`Terminated` in the main thread (the clean-up of Ctrl-C runs); once."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)     # a second SIGTERM must not cut the clean-up short
+    raise Terminated()
+
+
 def main(argv=None) -> int:
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         args = build_parser().parse_args(argv)
         COMMANDS[args.command](args)
@@ -304,9 +317,15 @@ def main(argv=None) -> int:
     except (OSError, ValueError) as error:
         print(f"rig: error: {type(error).__name__}: {error}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as error:
+        if isinstance(error, Terminated):
+            print("rig: terminated by SIGTERM (what was recorded so far is kept)", file=sys.stderr)
+            return 143
         print("rig: interrupted (what was recorded so far is kept)", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
 
 

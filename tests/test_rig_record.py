@@ -159,3 +159,36 @@ def test_calibrate_virtual_recovers_the_virtual_amplifier(tmp_path):
     cal = Calibration.load(out)
     assert cal.gain == pytest.approx(1.17, rel=3e-3) and cal.offset == pytest.approx(-2.93, abs=5e-3)
     assert cal.rail_low == pytest.approx(-2.9, abs=2e-3) and cal.rail_high == pytest.approx(2.8, abs=2e-3)
+
+
+def test_sigterm_closes_the_recording_like_ctrl_c(tmp_path):
+    # SIGTERM (a service manager stopping rig, `kill`) used to leave the sidecar at "recording" with a
+    # stale row count; it is handled like Ctrl-C now.
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "rec.csv"
+    process = subprocess.Popen([sys.executable, "-m", "rig.cli", "record", "--virtual", "--drive", "prbs",
+                                "--duration", "30", "--speed", "3", "--out", str(out)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and process.poll() is None:
+            if out.exists() and out.read_text().count("\n") > 6:
+                break
+            time.sleep(0.1)
+        assert process.poll() is None, process.communicate()
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            os.kill(process.pid, signal.SIGKILL)
+    assert process.returncode == 143 and "terminated by SIGTERM" in err and "Traceback" not in err
+    meta = _meta(out)
+    rows = out.read_text().count("\n") - 1
+    assert meta["status"] == "interrupted" and meta["complete"] is False
+    assert meta["error"] == "terminated by SIGTERM" and meta["rows"] == rows >= 6
+    assert len(hybrid.Recording.load(out)) == rows
