@@ -20,7 +20,10 @@ Method, per frame (nothing here knows how the picture was made):
 
 Quality: 1 when the strip is found from the clamp to a tip inside the view with
 clear contrast, 0 otherwise (the reason is in ``TipResult.reason``); w is NaN
-when nothing could be measured.
+when nothing could be measured. A dark line that does not leave the clamp along
+the rest axis (met far from the clamp, or across the axis: the axis is wrong),
+or that ends before 40 % of the free length (the clamp's edge, a short mark),
+is not the strip.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ import numpy as np
 from ._errors import RigError
 from ._scene import Scene
 
-__all__ = ["TipResult", "TipTracker"]
+__all__ = ["Sections", "TipResult", "TipTracker"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +48,29 @@ class TipResult:
     quality: int
     reason: str
     tip_xy: tuple[float, float]
+
+
+def _climb(row: np.ndarray, j: int) -> int:
+    """From index ``j``, step to the higher neighbour until none is higher: the nearest peak."""
+    while True:
+        left = row[j - 1] if j > 0 else -np.inf
+        right = row[j + 1] if j + 1 < len(row) else -np.inf
+        if max(left, right) <= row[j]:
+            return j
+        j = j - 1 if left > right else j + 1
+
+
+@dataclasses.dataclass(frozen=True)
+class Sections:
+    """Cross-sections of the strip along the rest axis, px: position ``s`` from the clamp,
+    centre ``u`` across the axis (NaN where none was found), ``peak`` contrast, ``inside``
+    the picture; ``reached_end`` when the strip ran to the end of the search."""
+
+    s: np.ndarray
+    u: np.ndarray
+    peak: np.ndarray
+    inside: np.ndarray
+    reached_end: bool
 
 
 class TipTracker:
@@ -60,12 +86,15 @@ class TipTracker:
         min_contrast: below this relative contrast there is no strip.
     """
 
+    MIN_LENGTH = 0.4     # a tip nearer the clamp than this fraction of the free length is not the strip's
+
     def __init__(self, scene: Scene, strip_px: float = 4.0, start_px: float = 4.0,
                  half_width_px: float | None = None, min_contrast: float = 0.12):
         self.scene = scene
         self.strip_px = float(strip_px)
         self.start_px = float(start_px)
         length_px = (scene.length_mm or 40.0) / scene.mm_per_px
+        self.length_px = length_px
         self.max_s = 1.4 * length_px
         self.half_width = half_width_px if half_width_px is not None else 0.7 * length_px
         self.min_contrast = min_contrast
@@ -91,26 +120,32 @@ class TipTracker:
 
     # ------------------------------------------------------------------ tracking
 
-    def track(self, frame: np.ndarray) -> TipResult:
-        """Track one frame (gray or BGR, any dtype convertible to float)."""
-        if frame is None or frame.ndim not in (2, 3) or min(frame.shape[:2]) < 8:
-            raise RigError("frame is empty or not an image")
-        contrast = self.contrast(frame)
-        h, w = contrast.shape
+    def sections(self, contrast: np.ndarray) -> Sections:
+        """Follow the strip out from the clamp in a contrast image (see :meth:`contrast`).
+
+        Returns the cross-sections along the rest axis (px): their s, centre u
+        (NaN where none), peak contrast and whether the peak lay inside the picture.
+        """
         s = np.arange(self.start_px, self.max_s, 1.0)
         u = np.arange(-self.half_width, self.half_width + 0.25, 0.5)
         grid = self._sample(contrast, s[:, None] * np.ones_like(u)[None, :], np.ones_like(s)[:, None] * u[None, :])
         outside = grid < 0
         grid = np.where(outside, 0.0, grid)
 
-        # Follow the strip out from the clamp.
         centres, peaks, inside = [], [], []
         prev = None
         win = self._window * 2  # in 0.5 px steps
         for k in range(len(s)):
             row = grid[k]
             if prev is None:
-                j0 = int(np.argmax(row))
+                # The strip leaves the clamp along the axis: take the contrast peak nearest the
+                # axis (climbing from it), not a darker line elsewhere across the row.
+                # If the axis passes beside the strip (clamp point off by a few px), the darkest
+                # point near the axis instead.
+                j0 = _climb(row, int(np.argmin(np.abs(u))))
+                if abs(u[j0]) > self._near_axis(s[k]) or row[j0] < self.min_contrast:
+                    near = np.flatnonzero(np.abs(u) <= self._near_axis(s[k]))
+                    j0 = int(near[np.argmax(row[near])])
             else:
                 lo, hi = max(0, prev - 2 * win), min(len(u), prev + 2 * win + 1)
                 j0 = lo + int(np.argmax(row[lo:hi]))
@@ -129,24 +164,69 @@ class TipTracker:
             peaks.append(float(peak))
             inside.append(not outside[k, j0])
             prev = j0
-        centres = np.array(centres)
-        peaks = np.array(peaks)
-        reached_end = len(centres) == len(s)
-        s = s[: len(centres)]
-        good = np.isfinite(centres)
+        n = len(centres)
+        return Sections(s=s[:n], u=np.array(centres), peak=np.array(peaks), inside=np.array(inside, bool),
+                        reached_end=n == len(s))
+
+    def centreline_points(self, sections: Sections) -> tuple[np.ndarray, np.ndarray] | None:
+        """The sections a centreline is fitted to: (s, u) px, the end cap left out; None if too few."""
+        good = np.isfinite(sections.u)
         if good.sum() < 8:
-            return TipResult(math.nan, 0, "no strip found next to the clamp", (math.nan, math.nan))
-        plateau = float(np.median(peaks[good]))
-        strong = good & (peaks > 0.5 * plateau)
+            return None
+        plateau = float(np.median(sections.peak[good]))
+        strong = good & (sections.peak > 0.5 * plateau)
         last = int(np.flatnonzero(strong)[-1])
-        if not inside[min(last + 1, len(inside) - 1)] or (reached_end and last + 3 >= len(s)):
-            return TipResult(math.nan, 0, "tip out of view", (math.nan, math.nan))
-        # Centreline: cubic through the sections, the end cap excluded.
         use = strong.copy()
         use[max(0, last - int(self.strip_px) - 1):] = False
         if use.sum() < 6:
             use = strong
-        ss, uu = s[use], centres[use]
+        return sections.s[use], sections.u[use]
+
+    def leaves_clamp(self, sections: Sections) -> bool:
+        """Whether the strip starts at the clamp along the rest axis.
+
+        The first sections found must lie next to the clamp (within 2 strip
+        thicknesses + 10 % of the free length of where they start) and close to
+        the axis (within 2 thicknesses + 20 % of their distance, about 11
+        degrees): a strip met far from the clamp or across the axis is not this
+        strip along this axis.
+        """
+        good = np.flatnonzero(np.isfinite(sections.u))
+        if good.size == 0:
+            return False
+        first = good[:3]
+        s0 = sections.s[first[0]]
+        if s0 > self.start_px + 2 * self.strip_px + 0.1 * self.length_px:
+            return False
+        return bool(np.all(np.abs(sections.u[first]) <= self._near_axis(sections.s[first])))
+
+    def _near_axis(self, s):
+        """How far across the axis the strip may be at ``s`` px from the clamp where it starts, px."""
+        return self.strip_px + 0.1 * np.asarray(s)
+
+    def track(self, frame: np.ndarray) -> TipResult:
+        """Track one frame (gray or BGR, any dtype convertible to float)."""
+        if frame is None or frame.ndim not in (2, 3) or min(frame.shape[:2]) < 8:
+            raise RigError("frame is empty or not an image")
+        return self.track_contrast(self.contrast(frame))
+
+    def track_contrast(self, contrast: np.ndarray) -> TipResult:
+        """Track one frame given its contrast image (:meth:`contrast`)."""
+        h, w = contrast.shape
+        sec = self.sections(contrast)
+        s, centres, peaks, inside = sec.s, sec.u, sec.peak, sec.inside
+        good = np.isfinite(centres)
+        if good.sum() < 8:
+            return TipResult(math.nan, 0, "no strip found next to the clamp", (math.nan, math.nan))
+        if not self.leaves_clamp(sec):
+            return TipResult(math.nan, 0, "no strip leaves the clamp along the axis", (math.nan, math.nan))
+        plateau = float(np.median(peaks[good]))
+        strong = good & (peaks > 0.5 * plateau)
+        last = int(np.flatnonzero(strong)[-1])
+        if not inside[min(last + 1, len(inside) - 1)] or (sec.reached_end and last + 3 >= len(s)):
+            return TipResult(math.nan, 0, "tip out of view", (math.nan, math.nan))
+        # Centreline: cubic through the sections, the end cap excluded.
+        ss, uu = self.centreline_points(sec)
         degree = 3 if len(ss) > 12 else 1
         scale = max(ss.max(), 1.0)
         coef = np.polyfit(ss / scale, uu, degree)
@@ -172,6 +252,8 @@ class TipTracker:
         i = below[0]
         f = (along[i] - half) / (along[i] - along[i + 1])
         s_tip = s_fine[i] + f * (s_fine[i + 1] - s_fine[i])
+        if self.scene.length_mm is not None and s_tip * self.scene.mm_per_px < self.MIN_LENGTH * self.scene.length_mm:
+            return TipResult(math.nan, 0, "strip much shorter than its length", (math.nan, math.nan))
         u_tip = float(line(s_tip))
         x, y = self.scene.to_image(np.array([s_tip]), np.array([u_tip]))
         x, y = float(x[0]), float(y[0])

@@ -1,14 +1,15 @@
 """The `rig` command line.
 
     rig ports
-    rig track VIDEO --clamp X,Y --mm-per-px S [--axis DEG] [--led X,Y,R] --out F.csv
+    rig track VIDEO --clamp X,Y --mm-per-px S [--axis DEG] [--led X,Y,R] --out F.csv   (no --axis: found)
     rig record (--port P --camera C | --virtual) --drive KIND --duration S --out F.csv
     rig calibrate (--port P | --virtual) [--codes ...] [--readings ...] --out cal.json
     rig simavr-timing [--rate HZ] [--duration S]
 
-Bad input and hardware faults end with exit status 2 and one line on stderr.
-SIGTERM is handled like Ctrl-C: a recording is closed, flagged ``interrupted``
-with its row count, and the exit status is 143 (130 for Ctrl-C).
+Bad input and hardware faults end with exit status 2 and one line on stderr;
+every size argument is bounded (the bounds are in ``--help`` and in the
+message). SIGTERM is handled like Ctrl-C: a recording is closed, flagged
+``interrupted`` with its row count, and the exit status is 143 (130 for Ctrl-C).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import threading
 
 from hybrid import InputError
 
-from ._errors import RigError, Terminated
+from ._errors import Terminated
 
 
 class _Parser(argparse.ArgumentParser):
@@ -41,15 +42,61 @@ def _numbers(count_min: int, count_max: int, what: str):
     return parse
 
 
-def _scene_args(p, virtual_default: bool = False):
+def _bounded(low: float, high: float, unit: str, low_open: bool = True, convert=float):
+    """An argparse ``type``: a finite number in ``(low, high]`` (``[low, high]`` if not ``low_open``).
+
+    ``convert`` turns the text into the number (``float``, ``int``, ...); the
+    message names the bounds and the unit.
+    """
+    def parse(text: str):
+        try:
+            value = convert(text)
+        except ValueError:
+            value = None
+        inside = value is not None and math.isfinite(value) and value <= high and (
+            value > low if low_open else value >= low)
+        if not inside:
+            raise argparse.ArgumentTypeError(
+                f"must be {'a number' if convert is float else 'an integer'} {'>' if low_open else '>='} {low:g} "
+                f"and <= {high:g} {unit}, got {text!r}")
+        return value
+    return parse
+
+
+# Bounds of the size arguments: physical sense, and what the rig can do.
+MM_PER_PX = _bounded(0, 10, "mm per pixel")
+AXIS = _bounded(-360, 360, "degrees", low_open=False)
+LENGTH = _bounded(0, 1000, "mm")
+STRIP_PX = _bounded(0, 100, "px")
+EXPOSURE = _bounded(0, 10, "s")
+DURATION = _bounded(0, 86400, "s (one day)")
+RATE = _bounded(1, 5000, "samples per second (the serial link carries about 10 k/s)", low_open=False)
+AMPLITUDE = _bounded(0, 100, "V")
+FPS = _bounded(0, 1000, "frames per second")
+SPEED = _bounded(0, 100, "board seconds per second")
+SEED = _bounded(0, 2**32 - 1, "", low_open=False, convert=int)
+DAC_ADDRESS = _bounded(0x08, 0x77, "(a 7-bit I2C address, 0x08-0x77)", low_open=False,
+                       convert=lambda text: int(text, 0))
+LED_RADIUS_MAX = 200.0   # px
+
+
+def _scene_args(p, track: bool = False):
     p.add_argument("--clamp", type=_numbers(2, 2, "--clamp X,Y"), default=None,
                    help="clamp point in the picture, px (virtual default 40,120)")
-    p.add_argument("--mm-per-px", type=float, default=None, help="image scale, mm per pixel (virtual default 0.1)")
-    p.add_argument("--axis", type=float, default=0.0, help="rest axis angle, degrees (0 = strip points right)")
-    p.add_argument("--length", type=float, default=22.0, help="free strip length, mm (bounds the search)")
-    p.add_argument("--strip-px", type=float, default=4.0, help="visible strip thickness, px")
+    p.add_argument("--mm-per-px", type=MM_PER_PX, default=None,
+                   help="image scale, mm per pixel, in (0, 10] (virtual default 0.1)")
+    if track:
+        p.add_argument("--axis", type=AXIS, default=None,
+                       help="rest axis angle, degrees (0 = strip points right, 90 = down); "
+                            "default: found in the video and printed")
+    else:
+        p.add_argument("--axis", type=AXIS, default=0.0,
+                       help="rest axis angle, degrees (0 = strip points right, 90 = down)")
+    p.add_argument("--length", type=LENGTH, default=22.0,
+                   help="free strip length, mm, in (0, 1000] (bounds the search)")
+    p.add_argument("--strip-px", type=STRIP_PX, default=4.0, help="visible strip thickness, px, in (0, 100]")
     p.add_argument("--led", type=_numbers(2, 3, "--led X,Y[,R]"), default=None,
-                   help="sync LED position (and radius) in the picture, px")
+                   help=f"sync LED position (and radius, in (0, {LED_RADIUS_MAX:g}]) in the picture, px")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,10 +107,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("ports", help="list serial ports")
 
-    p = sub.add_parser("track", help="track the strip tip in a video (CSV t,w,quality)")
+    p = sub.add_parser("track", help="track the strip tip in a video (CSV t,w,quality and a JSON sidecar)")
     p.add_argument("video")
-    _scene_args(p)
-    p.add_argument("--exposure", type=float, default=None, help="exposure, s (for the LED sub-frame edge)")
+    _scene_args(p, track=True)
+    p.add_argument("--exposure", type=EXPOSURE, default=None,
+                   help="exposure, s, in (0, 10] (for the LED sub-frame edge)")
     p.add_argument("--out", required=True)
 
     p = sub.add_parser("record", help="run a drive and film it: a synchronised recording")
@@ -71,15 +119,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", help="camera index, /dev/videoN or a video file")
     p.add_argument("--virtual", action="store_true", help="emulated board and virtual camera")
     p.add_argument("--drive", choices=DRIVES, required=True)
-    p.add_argument("--duration", type=float, required=True, help="seconds")
-    p.add_argument("--rate", type=float, default=30.0, help="drive samples per second")
-    p.add_argument("--amplitude", type=float, default=2.0, help="V")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=DURATION, required=True, help="seconds, in (0, 86400]")
+    p.add_argument("--rate", type=RATE, default=30.0, help="drive samples per second, in [1, 5000]")
+    p.add_argument("--amplitude", type=AMPLITUDE, default=2.0, help="V, in (0, 100]")
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--calibration", help="JSON from `rig calibrate` (default: gain 1.2, offset -3 V)")
-    p.add_argument("--fps", type=float, default=30.0)
-    p.add_argument("--exposure", type=float, default=None, help="s (virtual default 1/60)")
-    p.add_argument("--dac-address", type=lambda s: int(s, 0), default=0x60)
-    p.add_argument("--speed", type=float, default=1.0, help="virtual only: board seconds per second")
+    p.add_argument("--fps", type=FPS, default=30.0, help="frames per second, in (0, 1000]")
+    p.add_argument("--exposure", type=EXPOSURE, default=None, help="s, in (0, 10] (virtual default 1/60)")
+    p.add_argument("--dac-address", type=DAC_ADDRESS, default=0x60, help="I2C address, 0x08-0x77")
+    p.add_argument("--speed", type=SPEED, default=1.0, help="virtual only: board seconds per second, in (0, 100]")
     _scene_args(p)
     p.add_argument("--out", required=True)
 
@@ -92,9 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
 
     p = sub.add_parser("simavr-timing", help="measure DAC update timing of the real firmware on simavr")
-    p.add_argument("--rate", type=float, default=30.0)
-    p.add_argument("--duration", type=float, default=10.0)
-    p.add_argument("--speed", type=float, default=4.0)
+    p.add_argument("--rate", type=RATE, default=30.0, help="samples per second, in [1, 5000]")
+    p.add_argument("--duration", type=DURATION, default=10.0, help="s, in (0, 86400]")
+    p.add_argument("--speed", type=SPEED, default=4.0, help="simulated seconds per second, in (0, 100]")
     p.add_argument("--build-dir", default=None)
     return parser
 
@@ -109,46 +157,33 @@ def _cmd_ports(args):
         print(f"{port.device}\t{port.description}")
 
 
+def _led(args, default=None):
+    """The --led X,Y[,R] argument as (x, y, r) px (r = 5 if not given), or ``default``."""
+    if args.led is None:
+        return default
+    led = tuple(args.led) if len(args.led) == 3 else (*args.led, 5.0)
+    if not 0 < led[2] <= LED_RADIUS_MAX:
+        raise InputError(f"argument --led: the radius must be > 0 and <= {LED_RADIUS_MAX:g} px, got {led[2]:g}")
+    return led
+
+
 def _scene(args, virtual: bool):
     from ._scene import Scene
 
     if not virtual and (args.clamp is None or args.mm_per_px is None):
         raise InputError("give the clamp point and the scale: --clamp X,Y --mm-per-px S")
-    return Scene(clamp=tuple(args.clamp) if args.clamp else (40.0, 120.0),
-                 mm_per_px=args.mm_per_px if args.mm_per_px else 0.1,
-                 angle_deg=args.axis, length_mm=args.length)
+    return Scene(clamp=tuple(args.clamp) if args.clamp is not None else (40.0, 120.0),
+                 mm_per_px=args.mm_per_px if args.mm_per_px is not None else 0.1,
+                 angle_deg=args.axis if args.axis is not None else 0.0, length_mm=args.length)
 
 
 def _cmd_track(args):
-    import numpy as np
-
-    from ._camera import VideoSource
-    from ._sync import LedDetector
-    from ._tracker import TipTracker
+    from ._trackvideo import TrackJob, track_video
 
     scene = _scene(args, virtual=False)
-    tracker = TipTracker(scene, strip_px=args.strip_px)
-    with VideoSource(args.video) as video, open(args.out, "w", newline="") as out:
-        led = LedDetector(*args.led, fps=video.fps, exposure=args.exposure) if args.led else None
-        out.write("t,w,quality\n")
-        n = good = 0
-        last = math.nan
-        for frame in video:
-            result = tracker.track(frame.image)
-            if result.quality:
-                last = result.w
-                good += 1
-            w = result.w if result.quality else last
-            out.write(f"{frame.t:.17g},{w:.17g},{result.quality}\n")
-            out.flush()
-            n += 1
-            if led is not None:
-                led.update(frame.index, frame.t, frame.image)
-    print(f"wrote {args.out}: {n} frames at {video.fps:g} fps, {good} tracked"
-          + (f", sync LED edge at t = {led.sync.t:.4f} s (frame {led.sync.frame})"
-             if led is not None and led.sync else (", sync LED not seen" if led is not None else "")))
-    if good == 0:
-        raise RigError(f"the strip was not found in any frame of {args.video}: check --clamp, --mm-per-px, --axis")
+    track_video(TrackJob(video=args.video, out=args.out, clamp=scene.clamp, mm_per_px=scene.mm_per_px,
+                         axis_deg=args.axis, length_mm=args.length, strip_px=args.strip_px,
+                         led=_led(args), exposure=args.exposure))
 
 
 def _cmd_record(args):
@@ -173,12 +208,8 @@ def _cmd_record(args):
         from ._render import Look
         from ._virtual import VirtualCamera
 
-        if not args.speed > 0:
-            raise InputError("--speed must be positive")
         look = Look()
-        led = tuple(args.led) if args.led else look.led
-        if len(led) == 2:
-            led = (*led, 5.0)
+        led = _led(args, default=look.led)
         exposure = args.exposure if args.exposure is not None else 1 / 60
         settings = RecordSettings(calibration=calibration, scene=scene, led=led, exposure=exposure,
                                   strip_px=args.strip_px, dac_address=args.dac_address)
@@ -199,9 +230,7 @@ def _cmd_record(args):
     else:
         from ._camera import VideoSource
 
-        led = tuple(args.led) if args.led else None
-        if led is not None and len(led) == 2:
-            led = (*led, 5.0)
+        led = _led(args)
         settings = RecordSettings(calibration=calibration, scene=scene, led=led, exposure=args.exposure,
                                   strip_px=args.strip_px, dac_address=args.dac_address)
         board = Board.open(args.port)
@@ -278,10 +307,9 @@ def _cmd_calibrate(args):
             emulated.close()
     calibration, report = fit_calibration(np.array(codes), np.array(readings))
     data = {**calibration.to_dict(), "fit": report}
-    import json
-    from pathlib import Path
+    from ._files import write_json_atomic
 
-    Path(args.out).write_text(json.dumps(data, indent=2) + "\n")
+    write_json_atomic(args.out, data)
     print(f"wrote {args.out}: gain {calibration.gain:.4f} V/V, offset {calibration.offset:.4f} V, rails "
           f"[{calibration.rail_low:.3f}, {calibration.rail_high:.3f}] V, RMS residual "
           f"{report['rms_residual_v'] * 1000:.1f} mV ({sum(report['clipped'])} readings at a rail)")

@@ -59,9 +59,11 @@ class LabVideo:
         cv2.fillPoly(canvas, [np.round((poly + 0.5) * SUPER - 0.5).astype(np.int32)], 255, cv2.LINE_8)
         cover = cv2.resize(canvas, self.size, interpolation=cv2.INTER_AREA).astype(np.float64) / 255
         image = self.background * (1 - cover[..., None]) + self.strip_level * cover[..., None]
-        cx, cy = self.scene.clamp
-        cv2.rectangle(image, (int(cx) - 30, int(cy) - 14), (int(cx), int(cy) + 14), (35, 38, 40), -1)
-        cv2.circle(image, (int(cx) - 15, int(cy)), 4, (200, 200, 205), -1)
+        # The clamp block behind the clamp point (turned with the rest axis), a bright screw on it.
+        block = np.array(self.scene.to_image(np.array([-30.0, 0.0, 0.0, -30.0]), np.array([14.0, 14.0, -14.0, -14.0])))
+        cv2.fillPoly(image, [np.round(block.T).astype(np.int32)], (35, 38, 40))
+        sx, sy = self.scene.to_image(np.array([-15.0]), np.array([0.0]))
+        cv2.circle(image, (int(round(sx[0])), int(round(sy[0]))), 4, (200, 200, 205), -1)
         cv2.line(image, (width - 40, height), (width - 10, height // 2 + 30), (50, 50, 50), 3, cv2.LINE_AA)
         if self.led is not None:
             lx, ly, lr = self.led

@@ -1,0 +1,274 @@
+"""Find the strip's rest axis (the direction it leaves the clamp in) from the video itself.
+
+The strip is clamped at one end, so whatever its deflection its centreline
+leaves the clamp point along the rest axis (an IPMC bends at nearly uniform
+curvature: ``u(s) ~ k s^2 / 2`` across the axis, no linear term). Three steps,
+each using only the tracker's dark-line contrast (nothing about colours or how
+the picture was made):
+
+1. **Angular profile.** The contrast of the first frames, averaged, is sampled
+   along rays from the clamp point, every 0.5 degree, from just past the
+   clamp to 30 % of the free length (where even a strongly bent strip is still
+   within a few pixels of its rest axis). Dark lines leaving the clamp are
+   peaks of the mean contrast along the ray; the few highest, at least 20
+   degrees apart, are the candidates.
+2. **Continuity.** For each candidate the tracker follows the strip along
+   that axis in five of the frames; it accepts a strip only if it leaves the
+   clamp along the axis and runs out to at least 40 % of the free length. The
+   candidate followed in the most frames (then: with the highest contrast) is
+   the strip; after step 3 it must be followed in at least half of all frames.
+3. **Refinement.** The sections the tracker found are fitted together, all
+   frames at once, with circular arcs that leave one point ``(0, e)`` near
+   the clamp along one tangent ``(1, a)``:
+   ``u = e + a s + k_f (s^2 + u^2) / 2`` (``e`` and ``a`` shared by every
+   frame, ``k_f`` each frame's curvature; exact for an arc, whatever its
+   bend, with ``a = tan(tilt)``). The axis turns by the tilt and the clamp
+   point moves ``e`` across it, onto the strip; four rounds bring the axis to
+   a few hundredths of a degree, which is what the tip needs (0.1 degree is
+   0.04 mm at the end of a 22 mm strip). Without ``e``, a clamp point given
+   2 px beside the strip tilts the axis by 2 degrees; a polynomial
+   ``a s + b s^2 + c s^3`` instead of the arcs leaks their ``s^4`` term into
+   ``a`` (0.3 degree for a 6 mm bend).
+
+Confidence: the mean contrast along the best direction against that along
+the darkest direction at least 20 degrees away from it (the clamp's edge, a
+cable). A ratio below 1 is possible: a longer dark line (a lead running out
+of the picture) is not a strip, whose tip must lie about a free length away.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ._scene import Scene
+from ._tracker import TipTracker
+
+__all__ = ["AxisEstimate", "angular_profile", "find_axis", "refine_axis", "strip_along"]
+
+PROFILE_STEP_DEG = 0.5
+SEPARATION_DEG = 20.0
+CANDIDATES = 3
+MIN_TRACKED = 0.5          # a strip must be followed in at least half the frames
+
+
+@dataclasses.dataclass(frozen=True)
+class AxisEstimate:
+    """The rest axis found in a video.
+
+    Attributes:
+        angle_deg: direction of the rest axis, degrees (0 = pointing right,
+            90 = down in the picture), in [0, 360); None when no strip was found.
+        contrast_best: mean relative contrast along the best direction (0..1).
+        contrast_next: the same for the best direction at least 20 degrees away.
+        next_deg: that direction, degrees (None if nothing else).
+        tracked: frames (of ``frames``) in which the tracker followed the strip along the axis.
+        frames: frames used.
+        reason: "ok" or why no strip was found.
+        clamp_xy: where the strip's rest line passes the given clamp point (x, y px): the
+            point moved across the axis onto the strip.
+        offset_px: how far it moved, px, positive along ``(sin a, -cos a)`` (the sign of w).
+    """
+
+    angle_deg: float | None
+    contrast_best: float
+    contrast_next: float
+    next_deg: float | None
+    tracked: int
+    frames: int
+    reason: str
+    clamp_xy: tuple[float, float] | None = None
+    offset_px: float = 0.0
+
+    @property
+    def confidence(self) -> float:
+        """Contrast of the best direction over the next best (inf when nothing else is dark)."""
+        if self.contrast_next <= 0:
+            return math.inf
+        return self.contrast_best / self.contrast_next
+
+    def metadata(self) -> dict:
+        """JSON-able summary (angles in degrees, contrasts relative)."""
+        return {"angle_deg": self.angle_deg, "contrast_best": self.contrast_best,
+                "contrast_next": self.contrast_next, "next_deg": self.next_deg,
+                "confidence": None if math.isinf(self.confidence) else self.confidence,
+                "tracked_frames": self.tracked, "frames": self.frames, "reason": self.reason,
+                "clamp_xy": list(self.clamp_xy) if self.clamp_xy is not None else None,
+                "offset_px": self.offset_px}
+
+    def describe(self) -> str:
+        """One line for people."""
+        if self.angle_deg is None:
+            return f"no strip found leaving the clamp ({self.reason})"
+        other = (f"next darkest direction {self.next_deg:.1f} deg at {self.contrast_next:.3f} "
+                 f"(ratio {self.confidence:.1f})" if self.next_deg is not None else "no other dark direction")
+        return (f"{round(self.angle_deg, 2) % 360:.2f} deg (0 = right, 90 = down), contrast {self.contrast_best:.3f} "
+                f"along it; {other}; strip followed in {self.tracked} of {self.frames} frames; "
+                f"it leaves the clamp {self.offset_px:+.2f} px across the axis from the given point")
+
+
+def angular_profile(contrast: np.ndarray, clamp, r_min: float, r_max: float,
+                    step_deg: float = PROFILE_STEP_DEG) -> tuple[np.ndarray, np.ndarray]:
+    """Mean contrast along rays from ``clamp`` (x, y px) between radii ``r_min`` and ``r_max`` px.
+
+    Returns (angles in degrees, 0 = +x, 90 = +y; mean contrast per ray). Rays
+    leaving the picture count the part outside as zero contrast.
+    """
+    import cv2
+
+    angles = np.arange(0.0, 360.0, step_deg)
+    radii = np.arange(r_min, r_max + 0.5, 1.0)
+    t = np.radians(angles)[:, None]
+    x = (clamp[0] + radii[None, :] * np.cos(t)).astype(np.float32)
+    y = (clamp[1] + radii[None, :] * np.sin(t)).astype(np.float32)
+    values = cv2.remap(contrast.astype(np.float32), x, y, cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    return angles, values.mean(axis=1)
+
+
+def _peaks(angles: np.ndarray, profile: np.ndarray, count: int, separation: float) -> list[int]:
+    """Indices of the ``count`` highest local maxima of a circular profile, ``separation`` degrees apart."""
+    order = np.argsort(profile)[::-1]
+    chosen: list[int] = []
+    for i in order:
+        if profile[i] <= 0:
+            break
+        if all(_angle_diff(angles[i], angles[j]) >= separation for j in chosen):
+            chosen.append(int(i))
+            if len(chosen) == count:
+                break
+    return chosen
+
+
+def _angle_diff(a: float, b: float) -> float:
+    """Absolute difference of two directions, degrees in [0, 180]."""
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def strip_along(contrasts, scene: Scene, strip_px: float) -> tuple[int, float]:
+    """How well a strip runs along ``scene``'s axis: (frames tracked, median contrast of those).
+
+    ``contrasts`` are the tracker's contrast images of the frames.
+    """
+    tracker = TipTracker(scene, strip_px=strip_px)
+    tracked, levels = 0, []
+    for contrast in contrasts:
+        result = tracker.track_contrast(contrast)
+        if result.quality:
+            tracked += 1
+            sec = tracker.sections(contrast)
+            levels.append(float(np.nanmedian(sec.peak[np.isfinite(sec.u)])))
+    return tracked, float(np.median(levels)) if levels else 0.0
+
+
+def refine_axis(contrasts, scene: Scene, strip_px: float, rounds: int = 4) -> Scene | None:
+    """The strip's rest line near ``scene``'s axis: ``scene`` with the angle and clamp point it really has.
+
+    Each round follows the strip in every frame along the current axis and
+    fits all frames' sections at once with arcs that share their start and
+    tangent (:func:`_shared_line`); the axis turns by ``-atan(a)`` and the
+    clamp point moves ``e`` px across it. None when no frame gives a strip.
+    """
+    for _ in range(rounds):
+        tracker = TipTracker(scene, strip_px=strip_px)
+        points = []
+        for contrast in contrasts:
+            sec = tracker.sections(contrast)
+            if not tracker.leaves_clamp(sec):
+                continue
+            found = tracker.centreline_points(sec)
+            if found is not None and len(found[0]) >= 12:
+                points.append(found)
+        if not points:
+            return None
+        tilt, offset = _shared_line(points)
+        x, y = scene.to_image(np.array([0.0]), np.array([offset]))
+        scene = dataclasses.replace(scene, clamp=(float(x[0]), float(y[0])),
+                                    angle_deg=(scene.angle_deg - math.degrees(math.atan(tilt))) % 360.0)
+        if abs(tilt) < 1e-5 and abs(offset) < 1e-3:
+            break
+    return scene
+
+
+def _shared_line(points) -> tuple[float, float]:
+    """Slope ``a`` and offset ``e`` (px) at the clamp shared by all frames' arcs, least squares.
+
+    A circle of radius r through ``(0, e)`` whose tangent there is ``(1, a)``
+    satisfies ``u = e + a s + k (s^2 + (u - e)^2) / 2`` exactly, with
+    ``k = sqrt(1 + a^2) / r`` (signed). With ``(u - e)`` on the right taken
+    as the measured ``u`` (``e`` is a few px at most, and shrinks to 0 over
+    the rounds), this is linear in ``e``, ``a`` and each frame's ``k``; the
+    measured ``u`` is exact enough there (its noise is ~0.05 px against ``s``
+    of tens to hundreds of px). The shared ``e`` keeps a clamp point given a
+    pixel or two beside the strip from tilting the axis (2 px would tilt it by
+    2 degrees). ``points`` is a list of (s, u) px per frame.
+    """
+    rows = sum(len(s) for s, _ in points)
+    scale = max(float(np.max(s)) for s, _ in points)
+    design = np.zeros((rows, 2 + len(points)))
+    target = np.zeros(rows)
+    at = 0
+    for f, (s, u) in enumerate(points):
+        x, v = s / scale, u / scale
+        n = len(s)
+        design[at:at + n, 0] = x
+        design[at:at + n, 1] = 1.0
+        design[at:at + n, 2 + f] = (x**2 + v**2) / 2
+        target[at:at + n] = v
+        at += n
+    coef, *_ = np.linalg.lstsq(design, target, rcond=None)
+    return float(coef[0]), float(coef[1]) * scale
+
+
+def find_axis(frames, clamp, mm_per_px: float, length_mm: float | None, strip_px: float = 4.0) -> AxisEstimate:
+    """Find the rest axis of the strip clamped at ``clamp`` (x, y px) in ``frames`` (a few, BGR or gray).
+
+    Arguments:
+        frames: images from the start of the video (10-20 are plenty).
+        mm_per_px: image scale, mm per pixel.
+        length_mm: free strip length, mm (None: 40 mm is searched).
+        strip_px: visible strip thickness, px.
+    """
+    frames = list(frames)
+    scene = Scene(clamp=tuple(clamp), mm_per_px=mm_per_px, angle_deg=0.0, length_mm=length_mm)
+    tracker = TipTracker(scene, strip_px=strip_px)
+    contrasts = [tracker.contrast(f) for f in frames]
+    length_px = (length_mm or 40.0) / mm_per_px
+    r_min = tracker.start_px + strip_px
+    r_max = max(r_min + 10.0, 0.3 * length_px)
+    angles, profile = angular_profile(np.mean(contrasts, axis=0), clamp, r_min, r_max)
+    # Rank the candidate directions on a few frames, refine the best on all of them.
+    few = contrasts[:: max(1, len(contrasts) // 5)][:5]
+    ranked = []
+    peaks = _peaks(angles, profile, CANDIDATES, SEPARATION_DEG)
+    for i in peaks:
+        tracked, level = strip_along(few, dataclasses.replace(scene, angle_deg=float(angles[i])), strip_px)
+        if tracked:
+            ranked.append(((tracked, level), float(angles[i])))
+    rest, tracked = None, 0
+    if ranked:
+        coarse = max(ranked)[1]
+        rest = refine_axis(contrasts, dataclasses.replace(scene, angle_deg=coarse), strip_px)
+        if rest is not None:
+            tracked, _ = strip_along(contrasts, rest, strip_px)
+    if rest is None or tracked < MIN_TRACKED * len(frames):
+        reason = (f"no strip was followed along any of the {len(ranked) or len(peaks)} darkest directions"
+                  if rest is None else f"a strip was followed in only {tracked} of {len(frames)} frames")
+        return AxisEstimate(None, float(profile.max(initial=0.0)), 0.0, None, tracked, len(frames), reason)
+    angle = rest.angle_deg
+    angles, profile = angular_profile(np.mean(contrasts, axis=0), rest.clamp, r_min, r_max)
+    best_value = _profile_at(angles, profile, angle)
+    far = np.array([_angle_diff(a, angle) >= SEPARATION_DEG for a in angles])
+    j = int(np.flatnonzero(far)[np.argmax(profile[far])])
+    next_value = float(profile[j])
+    offset = float(np.dot(np.subtract(rest.clamp, clamp), rest.normal))
+    return AxisEstimate(angle, best_value, next_value, float(angles[j]) if next_value > 0 else None,
+                        tracked, len(frames), "ok", clamp_xy=rest.clamp, offset_px=offset)
+
+
+def _profile_at(angles: np.ndarray, profile: np.ndarray, angle: float) -> float:
+    """The profile's highest value within one step of ``angle`` (degrees)."""
+    near = np.array([_angle_diff(a, angle) <= PROFILE_STEP_DEG for a in angles])
+    return float(profile[near].max())

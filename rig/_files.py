@@ -1,0 +1,67 @@
+"""Writing output files safely: whole or not at all, and never over an input.
+
+:func:`write_atomic` writes to a temporary file in the same folder and renames
+it over the target (``os.replace`` is atomic on one file system), so a reader
+or a crash never sees half a file. :func:`check_outputs` refuses outputs that
+are the input itself (``rig track v.avi --out v.avi``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import tempfile
+
+import numpy as np
+
+from ._errors import RigError
+
+__all__ = ["check_outputs", "jsonable", "write_atomic", "write_json_atomic"]
+
+
+def write_atomic(path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    path = pathlib.Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        raise RigError(f"cannot write '{path}' ({error.strerror or error})") from None
+    try:
+        with os.fdopen(handle, "w", newline="") as out:
+            out.write(text)
+        os.replace(tmp, path)
+    except BaseException as error:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(error, OSError):
+            raise RigError(f"cannot write '{path}' ({error.strerror or error})") from None
+        raise
+
+
+def jsonable(value):
+    """``json.dumps`` default for numpy scalars."""
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON-able")
+
+
+def write_json_atomic(path, data: dict) -> None:
+    """Write ``data`` as indented JSON, atomically (:func:`write_atomic`)."""
+    write_atomic(path, json.dumps(data, indent=2, default=jsonable) + "\n")
+
+
+def check_outputs(outputs, inputs) -> None:
+    """Raise :class:`RigError` if an output path is one of the inputs (the same file, however named)."""
+    for out in outputs:
+        out = pathlib.Path(out)
+        for source in inputs:
+            source = pathlib.Path(source)
+            same = out.resolve() == source.resolve()
+            if not same and out.exists() and source.exists():
+                same = os.path.samefile(out, source)
+            if same:
+                raise RigError(f"output '{out}' is the input '{source}': choose another --out")

@@ -1,0 +1,253 @@
+"""``rig track``: the tip displacement of every frame of a video, with an honest account of the video.
+
+Steps: the first frames find (or check) the rest axis (:mod:`rig._axis`);
+every frame is tracked; the frame times come from the video itself
+(:class:`rig._camera.VideoSource`), holes in them are gaps, and the frames
+read are compared with the frames the file announces. The CSV (``t,w,quality``)
+and its JSON sidecar (``F.csv.json``) are written atomically at the end, also
+when the video turns out damaged, so nothing read is lost and nothing is
+silently wrong:
+
+- a gap (frames lost inside the file, places known): the frames either side
+  get quality 0, the gap is listed, a warning is printed; exit 0;
+- frames missing at the end (a truncated file) or whose places are unknown:
+  ``"complete": false``, and a :class:`RigError` (exit 2) says how many of how
+  many frames were read;
+- no strip along any axis (or along the given one): every row has quality 0
+  and w NaN, and a :class:`RigError` says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+import sys
+
+import numpy as np
+
+from ._axis import AxisEstimate, find_axis
+from ._camera import VideoSource, find_gaps
+from ._errors import RigError
+from ._files import check_outputs, write_atomic, write_json_atomic
+from ._scene import Scene
+from ._sync import LedDetector
+from ._tracker import TipTracker
+
+__all__ = ["TrackJob", "track_video"]
+
+HEAD_FRAMES = 30          # frames read first to find the axis; every other one is used
+AXIS_WARN_DEG = 1.0       # a given axis this far from the detected one earns a warning
+CLAMP_WARN_PX = 1.0       # so does a given clamp point this far beside the strip
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackJob:
+    """What ``rig track`` was asked.
+
+    Arguments:
+        video, out: input video and output CSV paths (the sidecar is ``out + '.json'``).
+        clamp: clamp point (x, y), px.
+        mm_per_px: image scale, mm per pixel.
+        axis_deg: rest axis, degrees (0 = right, 90 = down); None: find it.
+        length_mm: free strip length, mm.
+        strip_px: visible strip thickness, px.
+        led: sync LED (x, y, radius) px, or None.
+        exposure: camera exposure, s (for the LED), or None.
+    """
+
+    video: str
+    out: str
+    clamp: tuple[float, float]
+    mm_per_px: float
+    axis_deg: float | None = None
+    length_mm: float | None = 22.0
+    strip_px: float = 4.0
+    led: tuple[float, ...] | None = None
+    exposure: float | None = None
+
+    @property
+    def sidecar(self) -> pathlib.Path:
+        out = pathlib.Path(self.out)
+        return out.with_name(out.name + ".json")
+
+
+def _warn(message: str) -> None:
+    print(f"rig: warning: {message}", file=sys.stderr)
+
+
+def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None, tuple[float, float]]:
+    """The axis estimate from the first frames, and the axis (None: no strip) and clamp point to track with.
+
+    Without --axis, the detected rest line: its angle, and the clamp point
+    moved across it onto the strip. With --axis, the given axis and clamp
+    point, and a warning when the strip leaves the clamp elsewhere.
+    """
+    images = [frame.image for frame in head[::2]]
+    estimate = find_axis(images, job.clamp, job.mm_per_px, job.length_mm, job.strip_px)
+    if job.axis_deg is None:
+        print(f"rest axis: {estimate.describe()}")
+        return estimate, estimate.angle_deg, estimate.clamp_xy or tuple(job.clamp)
+    if estimate.angle_deg is not None:
+        off = abs((estimate.angle_deg - job.axis_deg + 180.0) % 360.0 - 180.0)
+        if off > AXIS_WARN_DEG:
+            tip = (f": about {(job.length_mm or 22.0) * math.sin(math.radians(off)):.2f} mm at the tip"
+                   if off < 30 else "")
+            _warn(f"--axis {job.axis_deg:g} deg given, but the strip leaves the clamp at "
+                  f"{estimate.angle_deg:.2f} deg ({off:.1f} deg off{tip}); leave --axis out to use the detected axis")
+        elif abs(estimate.offset_px) > CLAMP_WARN_PX:
+            _warn(f"the strip leaves the clamp {estimate.offset_px:+.1f} px across the axis from --clamp: w is "
+                  f"offset by about {estimate.offset_px * job.mm_per_px:+.2f} mm; leave --axis out to measure "
+                  "from the strip's own rest line")
+    return estimate, job.axis_deg, tuple(job.clamp)
+
+
+def _track_rows(job: TrackJob, video: VideoSource, head, angle: float | None, clamp, meta: dict,
+                t, w, quality) -> None:
+    """Track every frame (the ``head`` already read, then the rest) along ``angle`` (degrees) from
+    ``clamp`` (x, y px), appending to the lists t (s), w (mm), quality."""
+    tracker = None
+    if angle is not None:
+        scene = Scene(clamp=tuple(clamp), mm_per_px=job.mm_per_px, angle_deg=angle, length_mm=job.length_mm)
+        tracker = TipTracker(scene, strip_px=job.strip_px)
+    led = LedDetector(*job.led, fps=video.fps, exposure=job.exposure) if job.led else None
+    reasons: dict[str, int] = {}
+    last = math.nan
+
+    def frames():
+        yield from head
+        while (frame := video.read()) is not None:
+            yield frame
+
+    try:
+        for frame in frames():
+            if tracker is not None:
+                result = tracker.track(frame.image)
+                ok, value, reason = result.quality, result.w, result.reason
+            else:
+                ok, value, reason = 0, math.nan, "no strip along any axis"
+            if ok:
+                last = value
+            else:
+                reasons[reason] = reasons.get(reason, 0) + 1
+            t.append(frame.t)
+            w.append(value if ok else last)
+            quality.append(ok)
+            if led is not None:
+                led.update(frame.index, frame.t, frame.image)
+    except KeyboardInterrupt as error:
+        meta["status"] = "interrupted"
+        meta["error"] = f"{error or 'interrupted by Ctrl-C (SIGINT)'} before the end of the video"
+        raise
+    finally:
+        meta["untracked_reasons"] = reasons
+        if led is not None and led.sync is not None:
+            meta["sync"] = {"method": "led", "t": led.sync.t, "frame": led.sync.frame,
+                            "fraction_lit": led.sync.fraction}
+        elif led is not None:
+            meta["sync"] = {"method": "led", "t": None, "note": "LED edge not seen"}
+
+
+def _account(video: VideoSource, t, quality) -> dict:
+    """Gaps, missing and unplaced frames: flags ``quality`` around gaps in place; returns the account."""
+    info = video.integrity()
+    gaps = find_gaps(t, video.fps)
+    for gap in gaps:
+        for k in (gap["after"], gap["after"] + 1):
+            quality[k] = 0
+    in_gaps = sum(g["missing"] for g in gaps)
+    expected = info["frames_expected"]
+    read = len(t)
+    missing = max(0, expected - read) if expected is not None else None
+    info.update(gaps=gaps, frames_missing=missing, frames_missing_in_gaps=in_gaps,
+                frames_missing_at_end=None if missing is None else max(0, missing - in_gaps))
+    unplaced = info.get("unplaced_frames", 0)
+    if unplaced:
+        first = info["first_unplaced_frame"]
+        for k in range(first, read):
+            quality[k] = 0
+    info["complete"] = bool(missing == 0 and not unplaced) if expected is not None else not gaps and not unplaced
+    return info
+
+
+def _write(job: TrackJob, t, w, quality, meta: dict) -> None:
+    """The CSV and its sidecar, each atomically (the CSV first)."""
+    rows = [f"{a:.17g},{b:.17g},{int(c)}" for a, b, c in zip(t, w, quality)]
+    write_atomic(job.out, "t,w,quality\n" + "".join(r + "\n" for r in rows))
+    meta["rows"] = len(rows)
+    meta["tracked_frames"] = int(np.sum(quality))
+    write_json_atomic(job.sidecar, meta)
+
+
+def _gap_warning(job: TrackJob, gaps) -> str:
+    total = sum(g["missing"] for g in gaps)
+    if len(gaps) == 1:
+        where = f"{total} frames lost after t = {gaps[0]['t_before']:.4f} s"
+    else:
+        where = f"{total} frames lost: " + "; ".join(f"{g['missing']} after t = {g['t_before']:.4f} s"
+                                                      for g in gaps[:5])
+        where += f" and {len(gaps) - 5} more gaps" if len(gaps) > 5 else ""
+    return (f"{job.video} has {len(gaps)} gap{'s' if len(gaps) > 1 else ''} ({where}); t keeps every frame's "
+            "own time and the frames either side of a gap have quality 0")
+
+
+def track_video(job: TrackJob) -> dict:
+    """Run ``rig track``: write ``job.out`` and its sidecar; return the sidecar's metadata.
+
+    Raises :class:`RigError` (after writing what was read) when no strip was
+    found, when frames are missing at the end of the file, or when frames'
+    places in time are unknown.
+    """
+    check_outputs([job.out, job.sidecar], [job.video])
+    meta = {"source": "rig track", "video": str(job.video), "columns": ["t", "w", "quality"],
+            "units": {"t": "s", "w": "mm"}, "complete": False, "status": "tracking", "error": None}
+    with VideoSource(job.video) as video:
+        head = []
+        while len(head) < HEAD_FRAMES and (frame := video.read()) is not None:
+            head.append(frame)
+        estimate, angle, clamp = _find_or_check_axis(job, head)
+        meta["axis"] = {"angle_deg": angle, "given": job.axis_deg is not None,
+                        "detection": estimate.metadata()}
+        meta["scene"] = {"clamp": list(clamp), "clamp_given": list(job.clamp), "mm_per_px": job.mm_per_px,
+                         "angle_deg": angle, "length_mm": job.length_mm, "strip_px": job.strip_px}
+        t, w, quality = [], [], []
+        try:
+            _track_rows(job, video, head, angle, clamp, meta, t, w, quality)
+        except KeyboardInterrupt:
+            meta["video_integrity"] = video.integrity()
+            _write(job, t, w, quality, meta)
+            raise
+        account = _account(video, t, quality)
+    meta["video_integrity"] = account
+    meta["complete"] = account["complete"]
+    good = int(np.sum(quality))
+    problems = []
+    if angle is None:
+        problems.append(f"no strip leaves the clamp at {job.clamp[0]:g},{job.clamp[1]:g} in any direction "
+                        f"({estimate.reason}): check --clamp, --mm-per-px, --length, --strip-px")
+    elif good == 0:
+        problems.append(f"the strip was not found along the axis {angle:g} deg in any frame of {job.video}: "
+                        "check --clamp, --mm-per-px, --axis, --length")
+    missing_end, unplaced = account.get("frames_missing_at_end"), account.get("unplaced_frames", 0)
+    if missing_end or unplaced:
+        expected = account["frames_expected"]
+        problems.append(f"read {len(t)} of {expected} frames of {job.video} (the file is truncated or damaged"
+                        + (f"; the places in time of the last {unplaced} are unknown, flagged quality 0"
+                           if unplaced else "") + f"): {job.out} holds only those, marked incomplete")
+    meta["status"] = ("no strip" if angle is None or good == 0 else
+                      "incomplete" if missing_end or unplaced else "gaps" if account["gaps"] else "complete")
+    meta["error"] = "; ".join(problems) or None
+    _write(job, t, w, quality, meta)
+    sync = meta.get("sync")
+    print(f"wrote {job.out}: {len(t)} frames at {account['fps']:g} fps, {int(np.sum(quality))} tracked"
+          + (f", sync LED edge at t = {sync['t']:.4f} s (frame {sync['frame']})" if sync and sync.get("t") is not None
+             else (", sync LED not seen" if sync else "")))
+    if account["gaps"]:
+        _warn(_gap_warning(job, account["gaps"]))
+    if account["timestamp_faults"]:
+        _warn(f"{account['timestamp_faults']} frames of {job.video} had no increasing decoder timestamp: "
+              "they were stamped one frame period after the previous frame")
+    if problems:
+        raise RigError("; ".join(problems))
+    return meta
+
