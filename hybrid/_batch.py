@@ -132,6 +132,7 @@ def fit_batch(
         )
     for recording in recordings:
         recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
+        recording.check_signals()
     series = [series_from_recording(r, split, split_order) for r in recordings]
     for i, s in enumerate(series):
         if not np.ptp(np.asarray(s.target("train"))) > 0:

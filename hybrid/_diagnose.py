@@ -592,8 +592,10 @@ def diagnose(
     rates = {round(r.rate, 9) for r in recordings}
     if len(rates) > 1:
         raise InputError(f"recordings of one strip must share a sample rate, got {sorted(rates)} Hz: resample first")
-    for r in recordings:
-        r.check_length(60, "diagnose (a held-out part long enough for residual tests)")
+    for r in recordings:  # before any fitting: a constant column would fail only after minutes
+        r.check_length(60, "diagnose (a held-out part long enough for residual tests)",
+                       "record at least 60 samples (2 s at 30 Hz), better several minutes")
+        r.check_signals()
     rate = recordings[0].rate
     frozen = frozenset(settings.frozen)
     simulation = RCNetwork(method="zoh") if simulation is None else simulation

@@ -99,6 +99,7 @@ def fit(
     frozen = frozenset(frozen)
     for i, recording in enumerate(recordings):
         recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
+        recording.check_signals()  # a constant drive or w: refused, not fitted to its start values
     series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
     train_w = np.concatenate([np.asarray(s.target("train")) for s in series])
     if not np.ptp(train_w) > 0:

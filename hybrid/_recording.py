@@ -40,9 +40,21 @@ UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "mm"}
 SPLIT_PARTS: tuple[str, ...] = ("train", "test", "validation")
 #: File suffixes :meth:`Recording.load` and :meth:`Recording.save` understand.
 SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
-#: Largest allowed ``max|dt - median dt| / median dt``; far above the rounding
+#: Largest ``max|dt - median dt| / median dt`` kept as it is; far above the rounding
 #: of 17-digit CSV text, far below a dropped camera frame.
 TIME_RTOL: float = 1e-3
+#: Timestamp jitter (max |t - closest uniform grid|, in steps) up to which t is rebuilt
+#: as that grid: every row is then unambiguously frame k of one clock. Millisecond
+#: timestamps of a 30 Hz camera are off by up to 0.015 step from rounding alone.
+#: Larger deviations (a frame rate that changed) are refused.
+JITTER_FRAMES: float = 0.25
+#: A step longer than this many median steps is a gap (dropped frames): refused.
+GAP_FRAMES: float = 1.5
+#: A median step of this many seconds or more (a rate below 0.1 Hz) is refused as t
+#: written in milliseconds (33.3 at 30 fps), unless the metadata given declares
+#: ``units: {"t": "s"}``. Slow legitimate recordings (a 1 Hz benchmark, dt = 1 s) pass;
+#: an IPMC's RC time constants (0.1-1 s) cannot be identified below 0.1 Hz anyway.
+MS_STEP_S: float = 10.0
 
 _RESERVED = frozenset((*REQUIRED, "metadata"))
 _NPZ_EXTRA = "extra_"
@@ -147,8 +159,17 @@ def _check_finite(name: str, column: str, values: np.ndarray) -> None:
         )
 
 
-def _check_time(name: str, t: np.ndarray) -> None:
-    """Require strictly increasing, uniformly spaced sample times."""
+def _check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarray, dict | None]:
+    """Require strictly increasing, uniformly spaced sample times in seconds.
+
+    Returns ``(t, None)`` when the steps are uniform within ``TIME_RTOL``. Otherwise,
+    with no gap (no step over ``GAP_FRAMES`` median steps, none under 1/``GAP_FRAMES``)
+    and every timestamp within ``JITTER_FRAMES`` of a step of the closest uniform grid,
+    the times are one frame clock read with jitter: they come back as that grid
+    t0 + k·dt (least squares over the frame index k; the median step would be biased
+    by millisecond rounding: 33, 33, 34 ms has median 33 ms, 1 % off 30 Hz) with a
+    ``time_base`` record of what was done. Gaps and larger irregularities are refused.
+    """
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0) + 1
     if bad.size:
@@ -157,15 +178,68 @@ def _check_time(name: str, t: np.ndarray) -> None:
             f"{_rows_text(bad)}: sort the samples and drop repeated times"
         )
     step = float(np.median(dt))
+    _check_seconds(name, step, metadata)
     deviation = np.abs(dt - step)
     worst = int(np.argmax(deviation))
-    if deviation[worst] > TIME_RTOL * step:
+    if deviation[worst] <= TIME_RTOL * step:
+        return t, None
+    gaps = np.flatnonzero(dt > GAP_FRAMES * step)
+    if gaps.size:
+        k = int(gaps[0])
         raise InputError(
-            f"recording '{name}' has non-uniform time steps: the step into row "
-            f"{worst + 1} is {dt[worst]:.6g} s but the median step is {step:.6g} s "
-            f"(tolerance {TIME_RTOL:.0e} relative): resample onto a uniform grid "
-            "or rebuild t from the sampling rate"
+            f"recording '{name}' has a gap in time at row {k + 1} (t = {t[k + 1]:.6g} s): the "
+            f"step into it is {dt[k]:.6g} s, {dt[k] / step:.3g} times the median step {step:.6g} s "
+            f"({gaps.size} gap(s) in all): frames are missing there; cut the recording at the "
+            "gap (Recording.segment) or fill the missing frames"
         )
+    short = np.flatnonzero(dt < step / GAP_FRAMES)
+    k = np.arange(t.size, dtype=np.float64)
+    k_mean, t_mean = float(np.mean(k)), float(np.mean(t))
+    slope = float(np.sum((k - k_mean) * (t - t_mean)) / np.sum((k - k_mean) ** 2))
+    grid = (t_mean - slope * k_mean) + slope * k
+    jitter = t - grid
+    far = int(np.argmax(np.abs(jitter)))
+    worst_jitter = abs(float(jitter[far]))
+    if short.size or worst_jitter >= JITTER_FRAMES * slope:
+        where = (f"the step into row {int(short[0]) + 1} is {dt[short[0]]:.6g} s against a median "
+                 f"step of {step:.6g} s" if short.size else
+                 f"row {far} (t = {t[far]:.6g} s) is {worst_jitter / slope:.2g} of a step off the "
+                 "closest uniform grid")
+        raise InputError(
+            f"recording '{name}' has non-uniform time: {where} (timestamp jitter below "
+            f"{JITTER_FRAMES:g} of a step is absorbed): did the frame rate change? Resample "
+            "onto a uniform grid or rebuild t from the sampling rate"
+        )
+    rms = float(np.sqrt(np.mean(jitter**2)))
+    note = (
+        f"t rebuilt as a uniform grid t0 + k·dt, dt = {slope:.9g} s ({1 / slope:.6g} Hz), "
+        f"the least-squares line through the logged times: their jitter was max "
+        f"{worst_jitter * 1e3:.3g} ms, rms {rms * 1e3:.3g} ms ({worst_jitter / slope:.2g} of a step)"
+    )
+    grid.setflags(write=False)
+    return grid, {"rebuilt": True, "dt_s": slope, "rate_hz": 1 / slope, "t0_s": float(grid[0]),
+                  "jitter_max_s": worst_jitter, "jitter_rms_s": rms, "note": note}
+
+
+def _check_seconds(name: str, step: float, metadata: Any) -> None:
+    """Refuse a time column that steps like milliseconds (see ``MS_STEP_S``)."""
+    if step < MS_STEP_S:
+        return
+    units = metadata.get("units") if isinstance(metadata, Mapping) else None
+    if isinstance(units, Mapping) and units.get("t") == "s":
+        return  # declared: a recording really sampled this slowly
+    raise InputError(
+        f"recording '{name}' has t stepping by {step:.4g}: t looks like milliseconds "
+        f"({1000 / step:.4g} Hz if so, {1 / step:.3g} Hz if seconds); write t in seconds "
+        f"(t/1000), or declare metadata units {{\"t\": \"s\"}} for a recording really "
+        f"sampled every {step:.4g} s"
+    )
+
+
+def _is_constant(values: np.ndarray) -> bool:
+    """True when values vary by no more than 1e-12 of their magnitude (or are all 0)."""
+    magnitude = float(np.max(np.abs(values))) if values.size else 0.0
+    return magnitude == 0.0 or float(np.std(values / magnitude)) <= 1e-12
 
 
 def _source_name(metadata: Any) -> str:
@@ -188,7 +262,11 @@ class Recording:
 
     Arguments:
         t: sample times, s, shape ``(n,)``, strictly increasing and uniform
-            (steps within ``TIME_RTOL`` of their median).
+            (steps within ``TIME_RTOL`` of their median). Timestamps with jitter
+            below ``JITTER_FRAMES`` of a step and no gap are replaced by the
+            closest uniform grid, recorded in ``metadata["time_base"]`` and
+            ``notes``; a median step of ``MS_STEP_S`` or more is refused as
+            milliseconds unless ``metadata["units"]["t"] == "s"``.
         v_in: drive voltage applied to the strip, V, shape ``(n,)``.
         w: tip displacement, mm, shape ``(n,)`` (the target of Eqs 18-20).
         extra: further channels by name, each shape ``(n,)``, in a fixed order
@@ -198,6 +276,9 @@ class Recording:
             ``"strip"`` dict holds the strip geometry, anything else is kept.
         name: how messages refer to this recording (the file path when
             loaded); defaults to ``metadata["source"]``. Not part of equality.
+        notes: what validation did to the data, in sentences (e.g. the time
+            base rebuilt from jittered timestamps), for callers to show; not
+            saved, not part of equality.
     """
 
     t: np.ndarray
@@ -206,6 +287,7 @@ class Recording:
     extra: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     metadata: dict = dataclasses.field(default_factory=dict)
     name: str = ""
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         name = self.name or _source_name(self.metadata)
@@ -234,11 +316,17 @@ class Recording:
             )
         for column, values in {**columns, **extra}.items():
             _check_finite(name, column, values)
-        _check_time(name, columns["t"])
+        columns["t"], time_base = _check_time(name, columns["t"], self.metadata)
         for column, values in columns.items():
             object.__setattr__(self, column, values)
         object.__setattr__(self, "extra", extra)
-        object.__setattr__(self, "metadata", _check_metadata(name, self.metadata))
+        metadata = _check_metadata(name, self.metadata)
+        notes = tuple(self.notes)
+        if time_base is not None:
+            metadata["time_base"] = time_base
+            notes += (f"recording '{name}': {time_base['note']}",)
+        object.__setattr__(self, "metadata", metadata)
+        object.__setattr__(self, "notes", notes)
 
     # ----------------------------------------------------------------- build
 
@@ -359,6 +447,31 @@ class Recording:
                 f"recording '{self.name}' has {self.n} samples but {what} needs "
                 f"at least {min_samples}: {fix}"
             )
+        return self
+
+    def check_signals(self) -> Recording:
+        """Require a drive and a displacement that vary.
+
+        A constant (or all-zero) column cannot be fitted, and a fit would print its
+        start values as fitted parameters; the likely causes are named. Constant
+        means a standard deviation of at most 1e-12 of the column's magnitude.
+        Loading does not require this (a rest recording or an interrupted one is
+        still a recording); `fit`, `fit_batch`, `diagnose` and `hybrid sensitivity`
+        check it first.
+
+        Returns:
+            This recording, so the check can be chained.
+        """
+        for column, what, cause in (
+            ("v_in", "drive", "is it the right column, or was the drive off?"),
+            ("w", "displacement", "is it the right column, or did the tracking fail?"),
+        ):
+            values = getattr(self, column)
+            if _is_constant(values):
+                raise InputError(
+                    f"recording '{self.name}': the {what} column {column} is constant "
+                    f"({values[0]:.6g} {UNITS[column]} in all {self.n} samples): {cause}"
+                )
         return self
 
     # ---------------------------------------------------------------- slicing
@@ -641,6 +754,7 @@ def _csv_lines(path: pathlib.Path) -> list[tuple[int, str]]:
 
 
 def _csv_header(path: pathlib.Path, line: str) -> list[str]:
+    _check_delimiter(path, line)
     header = [cell.strip().strip('"').strip() for cell in line.split(",")]
     if any(not cell for cell in header):
         raise InputError(
@@ -655,6 +769,19 @@ def _csv_header(path: pathlib.Path, line: str) -> list[str]:
         )
     _require(path, header, "column(s)")
     return header
+
+
+def _check_delimiter(path: pathlib.Path, line: str) -> None:
+    """Refuse a header split by ';', tabs or spaces: its columns would read as missing."""
+    if "," in line:
+        return
+    for mark, word in ((";", "';'"), ("\t", "tabs"), (None, "spaces")):
+        cells = [c.strip().strip('"') for c in line.split(mark)]
+        if len(cells) > 1 and set(cells) & set(REQUIRED):
+            raise InputError(
+                f"recording '{path}' uses {word} as its delimiter (header {line.strip()!r}): "
+                "save it comma-separated with '.' decimals (t,v_in,w)"
+            )
 
 
 def _csv_column(
@@ -694,9 +821,12 @@ def _load_csv(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     for number, line in lines[1:]:
         cells = [cell.strip() for cell in line.split(",")]
         if len(cells) != len(header):
+            hint = ""
+            if len(cells) > len(header) and "." not in line and re.search(r"\d,\d", line):
+                hint = " (decimal commas? write numbers with '.' decimals)"
             raise InputError(
                 f"recording '{path}' has {len(cells)} cells at line {number} but "
-                f"{len(header)} columns in its header: make every line match the header"
+                f"{len(header)} columns in its header{hint}: make every line match the header"
             )
         rows.append(cells)
         numbers.append(number)
@@ -774,15 +904,30 @@ def _file_vector(path: pathlib.Path, key: str, values: np.ndarray) -> np.ndarray
     return values.reshape(-1)
 
 
+def _is_hdf5(path: pathlib.Path) -> bool:
+    """MATLAB v7.3 files are HDF5: a 512-byte MATLAB header, then the HDF5 signature."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(520)
+    except OSError:
+        return False
+    return head[:10] == b"MATLAB 7.3" or head[512:520] == b"\x89HDF\r\n\x1a\n"
+
+
 def _load_mat(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     import scipy.io
 
     try:
         variables = scipy.io.loadmat(str(path))
     except Exception as error:  # scipy raises many types for broken files
+        if "7.3" in str(error) or _is_hdf5(path):
+            raise InputError(
+                f"recording '{path}' is a MATLAB v7.3 (HDF5) .mat file, which cannot be read "
+                "here: save it in the v7 format, save(file, 't', 'v_in', 'w', '-v7')"
+            ) from None
         raise InputError(
             f"recording '{path}' is not a readable .mat file ({error}): save it "
-            "with MATLAB's save or Recording.save"
+            "with MATLAB's save(file, 't', 'v_in', 'w', '-v7') or Recording.save"
         ) from None
     variables = {k: v for k, v in variables.items() if not k.startswith("__")}
     metadata = {}

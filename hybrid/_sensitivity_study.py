@@ -31,6 +31,10 @@ import numpy as np
 from ._errors import InputError
 
 DRIVE_ORDER = ("prbs", "sine", "chirp", "pulse")
+#: Fewest samples of a recording given as the primary drive: with fewer samples than
+#: parameters most directions are null by construction, and below ~2 s of a 30 Hz
+#: camera the network's 0.1-1 s time constants are not seen at all.
+MIN_RECORDING = 60
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,6 +109,10 @@ def run_sensitivity_study(settings: SensitivityStudySettings = SensitivityStudyS
         raise InputError(f"noise must be a positive fraction of rms(w), got {settings.noise!r}")
     if settings.sobol < 0 or settings.sobol == 1:
         raise InputError(f"sobol must be 0 (skip) or a number of base samples ≥ 2, got {settings.sobol!r}")
+    if recording is not None:  # a recording too short or constant to say anything is refused
+        recording.check_signals()
+        recording.check_length(MIN_RECORDING, "the sensitivity study (2 s at 30 Hz: the RC network's "
+                               "time constants are 0.1-1 s)", "give a longer recording")
     t_start = time.perf_counter()
     network = RCNetwork(n_stages=settings.n_stages)
     if settings.parameters:

@@ -117,6 +117,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _warn_notes(recordings):
+    """One stderr line per thing validation did to a recording (e.g. t rebuilt from jittered times)."""
+    for recording in recordings:
+        for note in recording.notes:
+            print(f"hybrid: warning: {note}", file=sys.stderr)
+
+
 def _parse_params(items):
     from ._parameters import parse_assignment
 
@@ -246,6 +253,7 @@ def _cmd_sensitivity(args):
     from ._sensitivity_study import SensitivityStudySettings, run_sensitivity_study
 
     recording = Recording.load(args.recording) if args.recording else None
+    _warn_notes([recording] if recording is not None else [])
     settings = SensitivityStudySettings(
         parameters=_parse_params(args.param), n_stages=args.stages, drive=args.drive,
         duration=args.duration, rate=args.rate, noise=args.noise, sobol=args.sobol, seed=args.seed,
@@ -270,6 +278,7 @@ def _cmd_diagnose(args):
     from ._recording import Recording
 
     recordings = [Recording.load(p) for p in args.recordings]
+    _warn_notes(recordings)
     settings = DiagnoseSettings()
     if args.max_steps is not None:
         if args.max_steps < 1:

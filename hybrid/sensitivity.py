@@ -260,7 +260,8 @@ class Identifiability:
     **Fields:**
 
     - `names`: parameter of each column of S.
-    - `singular_values`: σ_1 ≥ … ≥ σ_k of S.
+    - `singular_values`: σ_1 ≥ … ≥ σ_k of S; k values even when S has fewer
+      rows m than columns k (σ_{m+1} … σ_k are then 0, their directions null).
     - `directions`: (k, k), row i is the right singular vector v_i, a
       combination of parameters (log-parameter coordinates for normalised S);
       its sign is chosen so that its first coefficient of magnitude ≥ 0.1 is positive.
@@ -330,7 +331,10 @@ def identifiability(
         raise InputError(f"sensitivity matrix of shape {S.shape} does not match {len(names)} names")
     if not np.all(np.isfinite(S)):
         raise InputError("the sensitivity matrix has NaN or infinite entries")
-    _, sigma, Vt = np.linalg.svd(S, full_matrices=False)
+    # Fewer rows than parameters: an economy SVD returns only m directions and never
+    # shows the null space; the full one does, and the missing singular values are 0.
+    _, sigma, Vt = np.linalg.svd(S, full_matrices=S.shape[0] < S.shape[1])
+    sigma = np.concatenate([sigma, np.zeros(Vt.shape[0] - sigma.size)])
     if sigma.size == 0 or sigma[0] == 0:
         raise InputError("the output does not depend on any parameter (all sensitivities are zero)")
     Vt = np.array([_orient(v) for v in Vt])
@@ -507,7 +511,8 @@ def parameter_covariance(
     scale2 = float(problem.scale) ** 2
     rows_penalty = np.sqrt(mu * scale2) * np.diag(mask)[mask > 0] if mu else np.zeros((0, n))
     A = np.concatenate([J, rows_penalty])
-    _, sigma, Vt = np.linalg.svd(A, full_matrices=False)
+    _, sigma, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])  # all n directions
+    sigma = np.concatenate([sigma, np.zeros(Vt.shape[0] - sigma.size)])      # (fewer rows: 0s)
     keep = sigma > rcond * sigma[0]
     V, inv_s2 = Vt[keep].T, 1.0 / sigma[keep] ** 2
     cov_unit = (V * inv_s2) @ V.T                       # (JᵀJ + μP)⁻¹ on the identifiable subspace

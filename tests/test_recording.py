@@ -238,8 +238,11 @@ def test_time_not_increasing():
 
 def test_time_not_uniform():
     t = np.arange(20) / 30.0
-    t[12:] += 1 / 30.0  # one dropped frame before row 12
-    with pytest.raises(InputError, match="non-uniform time steps: the step into row 12"):
+    t[12:] += 1 / 30.0  # one dropped frame before row 12: a gap, said where it is
+    with pytest.raises(InputError, match=r"gap in time at row 12 \(t = 0.433333 s\)"):
+        Recording(t, np.zeros(20), np.zeros(20))
+    t = np.concatenate([np.arange(10) / 30.0, 9 / 30.0 + np.arange(1, 11) / 25.0])  # 30, then 25 fps
+    with pytest.raises(InputError, match=r"non-uniform time: row 9 \(t = 0.3 s\) is 0.45 of a step off the closest uniform grid"):
         Recording(t, np.zeros(20), np.zeros(20))
 
 

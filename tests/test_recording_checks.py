@@ -1,0 +1,266 @@
+"""Recordings that used to be answered wrong in silence, or refused with a message pointing the
+wrong way (issue 20): a constant drive, t in milliseconds, camera timestamps with jitter, a gap,
+';' / tab / space delimiters and decimal commas, MATLAB v7.3 files, diagnose's early checks, and
+the null space of a sensitivity matrix with fewer rows than parameters.
+
+Nothing here fits a model: every check runs before any compilation, so each test takes well
+under a second.
+"""
+
+import json
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from hybrid import InputError, Recording, diagnose, fit, make_model
+from hybrid import sensitivity as S
+from hybrid._rc_network import RCNetwork
+from hybrid._recording import JITTER_FRAMES, MS_STEP_S
+from hybrid.cli import main
+
+RATE = 30.0
+
+
+def _signals(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.sign(np.sin(np.arange(n) / 17.0)) * 2.0, rng.normal(size=n)
+
+
+def _write_csv(path, t, v, w, delimiter=",", decimal="."):
+    lines = [delimiter.join(("t", "v_in", "w"))]
+    for row in zip(t, v, w):
+        lines.append(delimiter.join(repr(float(x)).replace(".", decimal) for x in row))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _cli_error(argv, capsys):
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2, err
+    assert "Traceback" not in err
+    return lines
+
+
+# ----------------------------------------------------------------- 3. a constant drive
+
+
+@pytest.mark.parametrize("level", [0.0, 1.5])
+def test_constant_drive_is_refused_with_its_likely_cause(level):
+    _, w = _signals(300)
+    rec = Recording.from_arrays(v_in=np.full(300, level), w=w, rate=RATE, name="run")
+    with pytest.raises(InputError, match="the drive column v_in is constant .*right column, or was the drive off"):
+        rec.check_signals()
+    # and fit refuses it before any fitting, instead of printing its start values as fitted
+    with pytest.raises(InputError, match="v_in is constant"):
+        fit(make_model("physics"), rec, progress=False)
+
+
+def test_drive_varying_by_rounding_only_counts_as_constant():
+    _, w = _signals(300)
+    v = 2.0 + 1e-14 * np.random.default_rng(1).normal(size=300)  # std 5e-15 of its magnitude
+    with pytest.raises(InputError, match="v_in is constant"):
+        Recording.from_arrays(v_in=v, w=w, rate=RATE).check_signals()
+    v, w = _signals(300)
+    Recording.from_arrays(v_in=v, w=w, rate=RATE).check_signals()  # a real drive passes
+
+
+def test_constant_w_is_refused_by_check_signals_too():
+    v, _ = _signals(300)
+    with pytest.raises(InputError, match="displacement column w is constant"):
+        Recording.from_arrays(v_in=v, w=np.zeros(300), rate=RATE).check_signals()
+
+
+def test_loading_a_rest_recording_still_works(tmp_path):
+    # Loading does not refuse a constant column (an interrupted or rest recording is still data)
+    path = _write_csv(tmp_path / "rest.csv", np.arange(10) / RATE, np.zeros(10), np.zeros(10))
+    assert len(Recording.load(path)) == 10
+
+
+def test_cli_fit_refuses_a_constant_drive_in_one_line(tmp_path, capsys):
+    t = np.arange(300) / RATE
+    _, w = _signals(300)
+    path = _write_csv(tmp_path / "off.csv", t, np.zeros(300), w)
+    lines = _cli_error(["fit", path, "--model", "physics", "--quiet"], capsys)
+    assert len(lines) == 1 and "v_in is constant" in lines[0] and "was the drive off" in lines[0]
+
+
+# ----------------------------------------------------------------- 4. t in milliseconds
+
+
+def test_t_in_milliseconds_is_refused():
+    v, w = _signals(300)
+    t_ms = np.arange(300) * 1000.0 / RATE  # a 30 fps log written in ms: steps of 33.3
+    with pytest.raises(InputError, match=r"t stepping by 33.33: t looks like milliseconds \(30 Hz if so.*t/1000"):
+        Recording(t_ms, v, w)
+
+
+def test_slow_recordings_in_seconds_are_accepted():
+    v, w = _signals(300)
+    assert Recording(np.arange(300) * 1.0, v, w).rate == 1.0  # a 1 Hz benchmark: dt = 1 s
+    assert Recording(np.arange(300) * 5.0, v, w).rate == 0.2  # below MS_STEP_S
+    slow = np.arange(300) * MS_STEP_S * 2
+    with pytest.raises(InputError, match="milliseconds"):
+        Recording(slow, v, w)
+    # declared: a recording really sampled every 20 s
+    assert Recording(slow, v, w, metadata={"units": {"t": "s"}}).rate == pytest.approx(0.05)
+
+
+def test_t_in_milliseconds_in_a_csv_file(tmp_path, capsys):
+    v, w = _signals(300)
+    path = _write_csv(tmp_path / "ms.csv", np.arange(300) * 1000.0 / RATE, v, w)
+    lines = _cli_error(["fit", path, "--model", "physics", "--quiet"], capsys)
+    assert len(lines) == 1 and "looks like milliseconds" in lines[0]
+
+
+# ----------------------------------------------------------------- 5. timestamp jitter, gaps
+
+
+def _camera_log(n=3000, seed=0, jitter_s=0.004):
+    """A 30 Hz camera's timestamps: frame k at k/30 s plus jitter, logged in whole milliseconds."""
+    rng = np.random.default_rng(seed)
+    t = 12.0 + np.arange(n) / RATE + rng.uniform(-jitter_s, jitter_s, n)
+    return np.round(t * 1000.0) / 1000.0
+
+
+def test_millisecond_timestamps_with_jitter_become_a_uniform_grid():
+    t = _camera_log()
+    v, w = _signals(t.size)
+    rec = Recording(t, v, w, name="camera")
+    # the rate from the least-squares line (the median step, 33 ms, would be 30.3 Hz)
+    assert rec.rate == pytest.approx(RATE, rel=1e-5)
+    steps = np.diff(rec.t)
+    assert np.max(np.abs(steps - steps.mean())) < 1e-9 * steps.mean()
+    assert np.max(np.abs(rec.t - t)) < 0.005  # within the jitter (4 ms) + rounding (0.5 ms)
+    base = rec.metadata["time_base"]
+    assert base["rebuilt"] and base["rate_hz"] == pytest.approx(RATE, rel=1e-5)
+    assert 0.003 < base["jitter_max_s"] < 0.005 and 0.001 < base["jitter_rms_s"] < 0.003
+    assert len(rec.notes) == 1 and "t rebuilt as a uniform grid" in rec.notes[0] and "jitter" in rec.notes[0]
+    json.dumps(rec.metadata)
+
+
+def test_rebuilt_time_base_round_trips_and_is_not_noted_again(tmp_path):
+    t = _camera_log(600)
+    v, w = _signals(t.size)
+    path = Recording(t, v, w).save(tmp_path / "cam.csv")
+    again = Recording.load(path)
+    assert again.notes == () and again.metadata["time_base"]["rebuilt"]
+    assert again.rate == pytest.approx(RATE, rel=1e-4)
+
+
+def test_jitter_limit_and_gaps():
+    n = 600
+    v, w = _signals(n)
+    t = np.arange(n) / RATE
+    t_jitter = t.copy()
+    t_jitter[100] += 0.2 / RATE  # one timestamp 0.2 frame late: jitter, absorbed
+    assert Recording(t_jitter, v, w).metadata["time_base"]["rebuilt"]
+    t_bad = t.copy()
+    t_bad[100] += (JITTER_FRAMES + 0.05) / RATE  # 0.3 frame late: beyond jitter, not a gap
+    with pytest.raises(InputError, match=r"non-uniform time: row 100 \(t = 3.34333 s\) is 0.3 of a step off"):
+        Recording(t_bad, v, w)
+    t_rate = np.concatenate([t[:300], t[299] + np.arange(1, 301) / 27.0])  # 30 fps, then 27 fps
+    with pytest.raises(InputError, match=r"non-uniform time: row 299 \(t = 9.96667 s\) is 7.9 of a step off.*did the frame rate change"):
+        Recording(t_rate, v, w)
+    t_double = np.insert(t, 400, t[399] + 0.2 / RATE)  # an extra row 0.2 frame after row 399
+    with pytest.raises(InputError, match="non-uniform time: the step into row 400 is 0.00666667 s"):
+        Recording(t_double, np.append(v, 0.0), np.append(w, 0.0))
+    t_gap = t.copy()
+    t_gap[250:] += 2 / RATE  # two dropped frames before row 250
+    with pytest.raises(InputError, match=r"gap in time at row 250 \(t = 8.4 s\).*3 times the median step"):
+        Recording(t_gap, v, w)
+
+
+def test_exact_time_bases_are_kept_bit_for_bit():
+    t = np.round(np.arange(300) / RATE, 9)  # text rounding, far below TIME_RTOL
+    v, w = _signals(300)
+    rec = Recording(t, v, w)
+    assert np.array_equal(rec.t, t) and "time_base" not in rec.metadata and rec.notes == ()
+
+
+def test_cli_warns_when_it_rebuilds_the_time_base(tmp_path, capsys):
+    # diagnose prints the note first; its constant-w check then ends it before any fitting
+    t = _camera_log(600)
+    v, _ = _signals(t.size)
+    path = _write_csv(tmp_path / "cam.csv", t, v, np.zeros(t.size))
+    lines = _cli_error(["diagnose", path, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert lines[0].startswith("hybrid: warning:") and "t rebuilt as a uniform grid" in lines[0]
+    assert lines[-1].startswith("hybrid: error:") and "w is constant" in lines[-1]
+
+
+# ----------------------------------------------------------------- 6. messages that pointed the wrong way
+
+
+@pytest.mark.parametrize("delimiter, word", [(";", "';'"), ("\t", "tabs"), (" ", "spaces")])
+def test_other_delimiters_are_named(tmp_path, delimiter, word):
+    v, w = _signals(20)
+    path = _write_csv(tmp_path / "x.csv", np.arange(20) / RATE, v, w, delimiter=delimiter,
+                      decimal="," if delimiter == ";" else ".")
+    with pytest.raises(InputError, match=f"uses {word} as its delimiter.*comma-separated with '.' decimals"):
+        Recording.load(path)
+
+
+def test_decimal_commas_in_a_comma_file_are_named(tmp_path):
+    path = tmp_path / "x.csv"
+    path.write_text("t,v_in,w\n0,0,1,5,0,25\n0,033,1,5,0,3\n")
+    with pytest.raises(InputError, match="decimal commas"):
+        Recording.load(path)
+
+
+def test_matlab_v73_file_says_save_v7(tmp_path):
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+    data = header.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM"
+    data = data.ljust(512, b"\x00") + b"\x89HDF\r\n\x1a\n" + b"\x00" * 200
+    path = tmp_path / "run.mat"
+    path.write_bytes(data)
+    with pytest.raises(InputError, match=r"MATLAB v7.3 \(HDF5\).*'-v7'"):
+        Recording.load(path)
+
+
+def test_diagnose_checks_recordings_before_any_fitting():
+    v, w = _signals(40)
+    short = Recording.from_arrays(v_in=v, w=w, rate=RATE, name="short")
+    with pytest.raises(InputError, match="record at least 60 samples") as error:
+        diagnose(short)
+    assert "--window" not in str(error.value)  # diagnose has no --window
+    v, _ = _signals(600)
+    flat = Recording.from_arrays(v_in=v, w=np.full(600, 0.3), rate=RATE, name="flat")
+    with pytest.raises(InputError, match="w is constant"):
+        diagnose(flat)  # used to fail only after ~1 min of fitting
+    v, w = _signals(600)
+    with pytest.raises(InputError, match="v_in is constant"):
+        diagnose(Recording.from_arrays(v_in=np.zeros(600), w=w, rate=RATE))
+
+
+# ----------------------------------------------------------------- 7. null space with fewer rows than parameters
+
+
+@pytest.mark.parametrize("rows", [1, 2, 4])
+def test_identifiability_reports_the_null_space_of_a_wide_matrix(rows):
+    names = ("a", "b", "c", "d", "e", "f")
+    S_matrix = np.random.default_rng(rows).normal(size=(rows, len(names)))
+    ident = S.identifiability(S_matrix, names, keep=0.0)
+    reference = scipy.linalg.null_space(S_matrix)  # (6, 6 - rows), orthonormal
+    assert len(ident.singular_values) == len(names)
+    np.testing.assert_allclose(ident.singular_values[:rows], np.linalg.svd(S_matrix, compute_uv=False))
+    assert np.all(ident.singular_values[rows:] == 0)
+    assert len(ident.null_directions) == len(names) - rows
+    null = np.array([[d[n] for n in names] for d in ident.null_directions]).T
+    # the same subspace: projecting either basis on the other keeps it whole
+    np.testing.assert_allclose(reference @ (reference.T @ null), null, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.svd(reference.T @ null, compute_uv=False), 1.0, atol=1e-12)
+    np.testing.assert_allclose(S_matrix @ null, 0.0, atol=1e-12)
+
+
+def test_sensitivities_of_a_two_sample_drive_have_null_directions():
+    sens = S.local_sensitivities(RCNetwork(n_stages=3), np.array([0.0, 1.0]), 1 / RATE)
+    ident = sens.identifiability()
+    assert len(ident.null_directions) >= len(sens.names) - 2  # at least 4 of 6 (used to be [])
+
+
+def test_cli_sensitivity_refuses_a_two_row_recording(tmp_path, capsys):
+    path = _write_csv(tmp_path / "two.csv", [0.0, 1 / RATE], [0.0, 1.0], [0.0, 0.5])
+    lines = _cli_error(["sensitivity", path, "--out", tmp_path / "sens"], capsys)
+    assert len(lines) == 1 and "has 2 samples" in lines[0] and "at least 60" in lines[0]
