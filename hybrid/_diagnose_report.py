@@ -16,12 +16,10 @@ nothing is refitted.
 
 from __future__ import annotations
 
-import contextlib
 import datetime
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -70,18 +68,14 @@ def _jsonable(value):
     raise TypeError(f"report.json cannot hold a {type(value).__name__}: {value!r}")
 
 
-@contextlib.contextmanager
 def _atomic(path: Path, mode: str = "w"):
-    """A handle on a temporary file next to `path`, renamed over `path` once written whole."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, mode, **({"encoding": "utf-8"} if "b" not in mode else {})) as handle:
-            yield handle
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """A handle on a temporary file next to `path`, fsync-ed and renamed over `path` once written whole.
+
+    [`hybrid._atomic.atomic_open`][]: a full disk leaves the old file and no temporary.
+    """
+    from ._atomic import atomic_open
+
+    return atomic_open(path, mode)
 
 
 def _write_atomic(path: Path, text: str) -> None:
@@ -467,8 +461,19 @@ def write_report(diagnosis, out_dir) -> dict[str, Path]:
 
     **Returns:** ``{"report.json": path, "report.md": path, "<figure>.png": path, ...}``.
     """
+    from ._diagnose import Diagnosis
+    from ._errors import InputError
+
+    if not isinstance(diagnosis, Diagnosis):
+        raise InputError(f"write_report needs the Diagnosis that hybrid.diagnose returns, got {type(diagnosis).__name__}")
+    if not isinstance(out_dir, (str, os.PathLike)) or not str(out_dir).strip():
+        raise InputError(f"write_report needs a folder path (str or pathlib.Path), got {out_dir!r}")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"cannot create the report folder {out_dir} ({error.strerror or error}): "
+                         "give a folder you can write to") from None
     data = _jsonable(diagnosis.to_dict())
     paths = {"report.json": out_dir / "report.json"}
     _write_atomic(paths["report.json"], json.dumps(data, indent=2, allow_nan=False) + "\n")

@@ -4,6 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._atomic import atomic_open
+
+
+def save_png(fig, path, dpi: int = 120) -> None:
+    """Save `fig` as a PNG at `path` atomically (a temporary file, then a rename) and close it."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_open(path, "wb") as handle:
+            fig.savefig(handle, dpi=dpi, format="png")
+    finally:
+        plt.close(fig)
+
 
 def _pyplot():
     import matplotlib
@@ -35,8 +48,7 @@ def plot_mediatory_figure(recording, model, path, seconds: float = 60.0):
            title="Drive $V_i$, computed $V_o$ (fitted hybrid model) and w, each by its max |·| (cf. Fig. 3)")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path)
 
 
 def plot_fit_figure(recording, results, row: str, path, seconds: float = 90.0):
@@ -58,5 +70,4 @@ def plot_fit_figure(recording, results, row: str, path, seconds: float = 90.0):
            title=f"{row} drive, test split: target, Normal and Hybrid models")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path)

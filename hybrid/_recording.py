@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import pathlib
 import re
 import zipfile
@@ -555,7 +556,7 @@ class Recording:
     # -------------------------------------------------------------------- I/O
 
     @classmethod
-    def load(cls, path: str | pathlib.Path) -> Recording:
+    def load(cls, path: str | pathlib.Path, *, require_w: bool = True) -> Recording:
         """Read a recording from a ``.csv``, ``.npz`` or ``.mat`` file.
 
         * ``.csv``: lines starting with ``#`` and blank lines are skipped; the
@@ -570,11 +571,14 @@ class Recording:
 
         Arguments:
             path: the file.
+            require_w: False to read a drive (``t`` and ``v_in``) that may lack
+                ``w`` (e.g. ``hybrid rc``): a missing ``w`` is then filled
+                with zeros; every other check is the same.
 
         Returns:
             The validated :class:`Recording`, named by ``path``.
         """
-        path = pathlib.Path(path)
+        path = _path_argument(path, "Recording.load")
         reader = {".csv": _load_csv, ".npz": _load_npz, ".mat": _load_mat}[
             _suffix(path)
         ]
@@ -586,7 +590,9 @@ class Recording:
             raise InputError(
                 f"recording file '{path}' is empty: give a file with a header and data"
             )
-        columns, metadata = reader(path)
+        columns, metadata = reader(path, REQUIRED if require_w else REQUIRED[:2])
+        if "w" not in columns:
+            columns["w"] = np.zeros_like(columns["t"])
         metadata.setdefault("source", str(path))
         extra = {c: v for c, v in columns.items() if c not in REQUIRED}
         return cls(columns["t"], columns["v_in"], columns["w"], extra, metadata, str(path))
@@ -598,21 +604,23 @@ class Recording:
         ``<file>.csv.json`` metadata sidecar next to them; ``.mat`` files need
         extra channel names that are MATLAB identifiers.
 
+        The file (and the sidecar) are written to temporaries and renamed
+        over ``path`` once complete (:mod:`hybrid._atomic`): a full disk or
+        any other error leaves what was at ``path`` unchanged.
+
         Arguments:
             path: the file to write; its suffix picks the format.
 
         Returns:
             The path written.
         """
-        path = pathlib.Path(path)
+        from ._atomic import staged
+
+        path = _path_argument(path, "Recording.save")
         writer = {".csv": _save_csv, ".npz": _save_npz, ".mat": _save_mat}[_suffix(path)]
-        try:
-            writer(self, path)
-        except OSError as error:
-            raise InputError(
-                f"cannot write recording '{path}' ({error.strerror or error}): check "
-                "that the folder exists and is writable"
-            ) from None
+        targets = (path, sidecar(path)) if writer is _save_csv else (path,)
+        with staged(*targets) as temporaries:
+            writer(self, *temporaries)
         return path
 
 
@@ -700,8 +708,19 @@ def sidecar(path: str | pathlib.Path) -> pathlib.Path:
     return path.with_name(path.name + ".json")
 
 
-def _require(path: pathlib.Path, found: Sequence[str], kind: str) -> None:
-    missing = [c for c in REQUIRED if c not in found]
+def _path_argument(path: Any, where: str) -> pathlib.Path:
+    """``path`` as a Path; anything but a str or os.PathLike is an InputError."""
+    if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
+        raise InputError(
+            f"{where} needs a file path (str or pathlib.Path), got {path!r}: give e.g. 'run.csv'"
+        )
+    return pathlib.Path(path)
+
+
+def _require(
+    path: pathlib.Path, found: Sequence[str], kind: str, required: Sequence[str] = REQUIRED
+) -> None:
+    missing = [c for c in required if c not in found]
     if missing:
         shown = ", ".join(f"'{c}'" for c in found) or "none"
         raise InputError(
@@ -753,7 +772,9 @@ def _csv_lines(path: pathlib.Path) -> list[tuple[int, str]]:
     return lines
 
 
-def _csv_header(path: pathlib.Path, line: str) -> list[str]:
+def _csv_header(
+    path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED
+) -> list[str]:
     _check_delimiter(path, line)
     header = [cell.strip().strip('"').strip() for cell in line.split(",")]
     if any(not cell for cell in header):
@@ -767,7 +788,7 @@ def _csv_header(path: pathlib.Path, line: str) -> list[str]:
             f"recording '{path}' names column(s) {', '.join(repeated)} more than "
             "once: give each column a unique name"
         )
-    _require(path, header, "column(s)")
+    _require(path, header, "column(s)", required)
     return header
 
 
@@ -809,14 +830,16 @@ def _csv_column(
     return values
 
 
-def _load_csv(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
+def _load_csv(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict]:
     lines = _csv_lines(path)
     if not lines:
         raise InputError(
             f"recording '{path}' has no header or data: give a header line "
             "t,v_in,w and one line per sample"
         )
-    header = _csv_header(path, lines[0][1])
+    header = _csv_header(path, lines[0][1], required)
     rows, numbers = [], []
     for number, line in lines[1:]:
         cells = [cell.strip() for cell in line.split(",")]
@@ -847,17 +870,20 @@ def _load_csv(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     return columns, metadata
 
 
-def _save_csv(recording: Recording, path: pathlib.Path) -> None:
+def _save_csv(recording: Recording, path: pathlib.Path, meta_path: pathlib.Path | None = None) -> None:
     channels = recording.channels
     table = np.column_stack(list(channels.values()))
     np.savetxt(path, table, fmt="%.17g", delimiter=",", header=",".join(channels), comments="")
-    sidecar(path).write_text(json.dumps(recording.metadata, indent=2) + "\n", encoding="utf-8")
+    meta_path = sidecar(path) if meta_path is None else meta_path
+    meta_path.write_text(json.dumps(recording.metadata, indent=2) + "\n", encoding="utf-8")
 
 
 # ------------------------------------------------------------------- NPZ
 
 
-def _load_npz(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
+def _load_npz(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict]:
     try:
         with np.load(path, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
@@ -869,7 +895,7 @@ def _load_npz(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     metadata = {}
     if "metadata" in arrays:
         metadata = _parse_metadata(path, str(arrays.pop("metadata")[()]), "its 'metadata' entry")
-    _require(path, list(arrays), "array(s)")
+    _require(path, list(arrays), "array(s)", required)
     columns = {}
     for key, values in arrays.items():
         column = key[len(_NPZ_EXTRA):] if key.startswith(_NPZ_EXTRA) else key
@@ -914,7 +940,9 @@ def _is_hdf5(path: pathlib.Path) -> bool:
     return head[:10] == b"MATLAB 7.3" or head[512:520] == b"\x89HDF\r\n\x1a\n"
 
 
-def _load_mat(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
+def _load_mat(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict]:
     import scipy.io
 
     try:
@@ -939,7 +967,7 @@ def _load_mat(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
                 "string: store the metadata as a JSON char array"
             )
         metadata = _parse_metadata(path, str(text.reshape(-1)[0]), "its 'metadata' variable")
-    _require(path, list(variables), "variable(s)")
+    _require(path, list(variables), "variable(s)", required)
     columns = {key: _file_vector(path, key, values) for key, values in variables.items()}
     return columns, metadata
 

@@ -28,13 +28,18 @@ from pathlib import Path
 
 import numpy as np
 
+from ._atomic import write_text
 from ._errors import InputError
+from ._figures import save_png
 
 DRIVE_ORDER = ("prbs", "sine", "chirp", "pulse")
 #: Fewest samples of a recording given as the primary drive: with fewer samples than
 #: parameters most directions are null by construction, and below ~2 s of a 30 Hz
 #: camera the network's 0.1-1 s time constants are not seen at all.
 MIN_RECORDING = 60
+#: Every file written to `out_dir` (each atomically: hybrid._atomic).
+OUTPUT_FILES = ("sensitivity.json", "sensitivity.md", "sensitivity_time.png", "sensitivity_frequency.png",
+                "sensitivity_drives.png", "singular_values.png")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,8 +190,8 @@ def run_sensitivity_study(settings: SensitivityStudySettings = SensitivityStudyS
     }
     _figures(out_dir, vo_sens[primary], idents, freq, by_drive, primary)
     result["seconds"] = time.perf_counter() - t_start
-    (out_dir / "sensitivity.json").write_text(json.dumps(result, indent=2))
-    (out_dir / "sensitivity.md").write_text(_markdown(result))
+    write_text(out_dir / "sensitivity.json", json.dumps(result, indent=2))
+    write_text(out_dir / "sensitivity.md", _markdown(result))
     return result
 
 
@@ -245,8 +250,7 @@ def _figures(out_dir, sens, idents, freq, by_drive, primary):
     axes[1].legend(ncol=3, fontsize=8)
     axes[0].set_title(f"Normalised sensitivities of V_o ({primary}); ξh's curve is −ξρ's")
     fig.tight_layout()
-    fig.savefig(out_dir / "sensitivity_time.png", dpi=120)
-    plt.close(fig)
+    save_png(fig, out_dir / "sensitivity_time.png")
 
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     for j, n in enumerate(freq["names"]):
@@ -258,8 +262,7 @@ def _figures(out_dir, sens, idents, freq, by_drive, primary):
     axes[0].legend(ncol=3, fontsize=8)
     axes[0].set_title("Which frequencies carry each parameter (Eq 14)")
     fig.tight_layout()
-    fig.savefig(out_dir / "sensitivity_frequency.png", dpi=120)
-    plt.close(fig)
+    save_png(fig, out_dir / "sensitivity_frequency.png")
 
     drives = [d for d in by_drive if d in DRIVE_ORDER]
     names = list(by_drive[drives[0]]["relative_std_error"])
@@ -274,8 +277,7 @@ def _figures(out_dir, sens, idents, freq, by_drive, primary):
     ax.set_title("Which drive identifies which parameter (1 % noise, gain and offset unknown, ξh fixed)")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out_dir / "sensitivity_drives.png", dpi=120)
-    plt.close(fig)
+    save_png(fig, out_dir / "sensitivity_drives.png")
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for d, ident in idents.items():
@@ -288,5 +290,4 @@ def _figures(out_dir, sens, idents, freq, by_drive, primary):
     ax.set_title("Singular values of the normalised V_o sensitivities")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out_dir / "singular_values.png", dpi=120)
-    plt.close(fig)
+    save_png(fig, out_dir / "singular_values.png")

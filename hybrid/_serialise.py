@@ -4,17 +4,24 @@ A model saved to ``path`` is two files: ``path`` (the leaves, written by
 `eqx.tree_serialise_leaves`) and ``path.json`` (what is needed to rebuild the
 skeleton: model kind, simulation class and settings, readout shape; plus the
 fitted parameters in physical units and, when saved from a fit, its metrics).
+
+Both files are written together and atomically ([`hybrid._atomic.staged`][]):
+a failed save (a full disk) leaves a model already at ``path`` as it was. The
+leaves go through an open file, so ``path`` is used exactly as given (Equinox
+would append ``.eqx`` to a path without that suffix).
 """
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import equinox as eqx
 import jax
 import numpy as np
 
+from ._atomic import staged
 from ._errors import InputError
 from ._models import Model
 from ._rc_network import RCNetwork
@@ -61,23 +68,46 @@ def _skeleton(description: dict) -> Model:
     return Model(simulation, readout, description["kind"])
 
 
+def _path(path, where: str) -> Path:
+    if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
+        raise InputError(f"{where} needs a file path (str or pathlib.Path), got {path!r}: give e.g. 'fit.eqx'")
+    return Path(path)
+
+
 def save_model(path, model: Model, extra: dict | None = None) -> Path:
-    """Write `model` to `path` (+ `path.json`); `extra` (JSON-able) is stored alongside."""
-    path = Path(path)
+    """Write `model` to `path` (+ `path.json`); `extra` (JSON-able) is stored alongside.
+
+    Both files are replaced together only once both are written whole.
+    """
+    path = _path(path, "save_model")
+    if not isinstance(model, Model):
+        raise InputError(f"save_model needs a hybrid.Model (e.g. FitResult.model), got {type(model).__name__}")
+    if path.is_dir():
+        raise InputError(f"cannot save a model to {path}: it is a folder; give a file name such as {path / 'fit.eqx'}")
     description = _describe(model)
     description["parameters"] = {k: float(v) for k, v in model.parameters().items()}
     description["units"] = model.units
     if extra:
         description["extra"] = extra
-    path.parent.mkdir(parents=True, exist_ok=True)
-    eqx.tree_serialise_leaves(path, model)
-    Path(f"{path}.json").write_text(json.dumps(description, indent=2))
+    try:
+        text = json.dumps(description, indent=2, allow_nan=False)
+    except (TypeError, ValueError) as error:
+        raise InputError(f"save_model: extra is not JSON-able ({error}): use dicts, lists, strings, "
+                         "finite numbers, booleans and None") from None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"cannot create the folder {path.parent} for {path} ({error.strerror or error}): create it or choose another path") from None
+    with staged(path, Path(f"{path}.json")) as (leaves, meta):
+        with open(leaves, "wb") as handle:
+            eqx.tree_serialise_leaves(handle, model)
+        meta.write_text(text + "\n", encoding="utf-8")
     return path
 
 
 def load_model(path) -> Model:
     """Read a model written by [`save_model`][]."""
-    path = Path(path)
+    path = _path(path, "load_model")
     meta = Path(f"{path}.json")
     if not path.is_file() or not meta.is_file():
         raise InputError(f"model file {path} or its metadata {meta} is missing: save it with `hybrid fit --out`")
@@ -85,11 +115,17 @@ def load_model(path) -> Model:
         description = json.loads(meta.read_text())
     except json.JSONDecodeError as error:
         raise InputError(f"model metadata {meta} is not valid JSON ({error})") from None
-    if description.get("format") != FORMAT:
-        raise InputError(f"{meta} is not a hybrid model description (format {description.get('format')!r})")
-    skeleton = _skeleton(description)
+    if not isinstance(description, dict) or description.get("format") != FORMAT:
+        found = description.get("format") if isinstance(description, dict) else type(description).__name__
+        raise InputError(f"{meta} is not a hybrid model description (format {found!r})")
     try:
-        model = eqx.tree_deserialise_leaves(path, skeleton)
+        skeleton = _skeleton(description)
+    except (KeyError, TypeError, AttributeError) as error:
+        raise InputError(f"model metadata {meta} is incomplete ({type(error).__name__}: {error}): "
+                         "save the model again with save_model or `hybrid fit --out`") from None
+    try:
+        with open(path, "rb") as handle:
+            model = eqx.tree_deserialise_leaves(handle, skeleton)
     except Exception as error:  # equinox raises several types for a mismatched file
         raise InputError(f"model file {path} does not match its metadata ({error})") from None
     # The metadata's parameters must be what the weights give: catches a file

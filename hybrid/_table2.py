@@ -21,6 +21,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from ._atomic import write_text
 from ._drives import make_drive
 from ._fit import fit
 from ._models import make_model
@@ -30,6 +31,8 @@ from ._watchdog import stage
 ROWS = (("PRBS", "prbs"), ("Sine", "sine"), ("Chirp", "chirp"), ("Pulse", "pulse"))
 FIGURES = {"Chirp": "fig10_chirp.png", "PRBS": "fig11_prbs.png", "Pulse": "fig12_pulse.png",
            "Sine": "fig13_sine.png"}
+#: Every file written to `out_dir` (each atomically: hybrid._atomic).
+OUTPUT_FILES = ("table2.json", "table2.md", "fig3_mediatory.png", *FIGURES.values())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,8 +109,8 @@ def reproduce_table2(settings: Table2Settings = Table2Settings(), out_dir="exper
         "seconds": time.perf_counter() - t0,
         "command": "make demo  (python experiments/table2.py)",
     }
-    (out_dir / "table2.json").write_text(json.dumps(table, indent=2, default=str))
-    (out_dir / "table2.md").write_text(markdown_table(rows, table["seconds"]))
+    write_text(out_dir / "table2.json", json.dumps(table, indent=2, default=str))
+    write_text(out_dir / "table2.md", markdown_table(rows, table["seconds"]))
     from ._figures import plot_fit_figure, plot_mediatory_figure
 
     plot_mediatory_figure(recordings["PRBS"], fits["PRBS"]["hybrid"].model, out_dir / "fig3_mediatory.png")

@@ -35,6 +35,7 @@ def _float_list(text: str) -> tuple[float, ...]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import _bounds as B
     from ._drives import DRIVES
     from ._fit import SOLVERS
     from ._models import MODEL_KINDS
@@ -44,8 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="record the virtual IPMC under a drive (CSV t,v_in,w)")
     p.add_argument("--drive", choices=DRIVES, required=True)
-    p.add_argument("--duration", type=float, required=True, help="seconds")
-    p.add_argument("--rate", type=float, default=30.0, help="samples per second (camera fps)")
+    p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), required=True,
+                   help="seconds")
+    p.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0,
+                   help="samples per second (camera fps)")
     p.add_argument("--amplitude", type=float, default=2.0, help="drive amplitude, V")
     p.add_argument("--seed", type=int, default=0, help="seeds the drive (PRBS) and the noise")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -56,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("drive", help="CSV with columns t,v_in (other columns ignored)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F)")
-    p.add_argument("--stages", type=int, default=45, help="N (the network has N+1 sections)")
+    p.add_argument("--stages", type=B.integer(*B.STAGES), default=45, help="N (the network has N+1 sections)")
     p.add_argument("--method", choices=("tustin", "zoh"), default="tustin")
     p.add_argument("--out", required=True)
 
@@ -64,8 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("recordings", nargs="+", help=".csv/.npz/.mat recordings of one strip")
     p.add_argument("--model", choices=MODEL_KINDS, default="hybrid")
     p.add_argument("--solver", choices=SOLVERS, default="lm")
-    p.add_argument("--starts", type=int, default=1)
-    p.add_argument("--max-steps", type=int, default=200)
+    p.add_argument("--starts", type=B.integer(*B.STARTS), default=1)
+    p.add_argument("--max-steps", type=B.integer(*B.MAX_STEPS), default=200)
     p.add_argument("--freeze", action="append", default=[], metavar="NAME",
                    help="keep a parameter fixed (repeatable; 'network' freezes the D-MLP); "
                         "xi_h is frozen by default (only xi_rho/xi_h is identifiable)")
@@ -73,9 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="free a parameter frozen by default (e.g. xi_h)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="starting value of a physical parameter")
-    p.add_argument("--window", type=int, default=60)
-    p.add_argument("--depth", type=int, default=11)
-    p.add_argument("--width", type=int, default=10)
+    p.add_argument("--window", type=B.integer(*B.WINDOW), default=60)
+    p.add_argument("--depth", type=B.integer(*B.DEPTH), default=11)
+    p.add_argument("--width", type=B.integer(*B.WIDTH), default=10)
     p.add_argument("--split", type=_float_list, default=(0.3, 0.5, 0.2),
                    help="train,test,validation fractions (default 0.3,0.5,0.2)")
     p.add_argument("--seed", type=int, default=0)
@@ -84,9 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("table2", help="reproduce the paper's Table 2 on the virtual IPMC")
-    p.add_argument("--duration", type=float, default=None, help="seconds per recording")
-    p.add_argument("--starts", type=int, default=None)
-    p.add_argument("--max-steps", type=int, default=None)
+    p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), default=None,
+                   help="seconds per recording")
+    p.add_argument("--starts", type=B.integer(*B.STARTS), default=None)
+    p.add_argument("--max-steps", type=B.integer(*B.MAX_STEPS), default=None)
     p.add_argument("--out-dir", default="experiments/results")
     p.add_argument("--quiet", action="store_true")
 
@@ -94,13 +98,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("recording", nargs="?", default=None, help="optional recording whose drive is the primary one")
     p.add_argument("--out", required=True, help="output directory (sensitivity.json, sensitivity.md, PNGs)")
     p.add_argument("--drive", choices=("prbs", "sine", "chirp", "pulse"), default="prbs", help="primary drive")
-    p.add_argument("--duration", type=float, default=120.0, help="seconds per drive")
-    p.add_argument("--rate", type=float, default=30.0, help="samples per second")
+    p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), default=120.0,
+                   help="seconds per drive")
+    p.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0, help="samples per second")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="nominal RC parameter: xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F)")
-    p.add_argument("--stages", type=int, default=45, help="N (the network has N+1 sections)")
+    p.add_argument("--stages", type=B.integer(*B.STAGES), default=45, help="N (the network has N+1 sections)")
     p.add_argument("--noise", type=float, default=0.01, help="noise as a fraction of rms(w), for standard errors")
-    p.add_argument("--sobol", type=int, default=0, metavar="N", help="also Sobol indices from N base samples")
+    p.add_argument("--sobol", type=B.integer(*B.SOBOL), default=0, metavar="N", help="also Sobol indices from N base samples")
     p.add_argument("--seed", type=int, default=0)
 
     p = sub.add_parser("diagnose", help="which physical effect the simulation misses (report.md, report.json, PNGs)")
@@ -108,9 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory (report.md, report.json, figures)")
     p.add_argument("--hybrid", action="store_true",
                    help="also fit the hybrid model (simulation + D-MLP) with and without the named effect")
-    p.add_argument("--max-steps", type=int, default=None,
+    p.add_argument("--max-steps", type=B.integer(None, B.MAX_STEPS[1]), default=None,
                    help="Levenberg-Marquardt steps per stage (default: DiagnoseSettings.max_steps)")
-    p.add_argument("--blocks", type=int, default=None,
+    p.add_argument("--blocks", type=B.integer(None, B.BLOCKS[1]), default=None,
                    help="cut each recording into N blocks, each split train/validation/held-out "
                         "(default: DiagnoseSettings.blocks; 1: one held-out tail)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
@@ -130,12 +135,35 @@ def _parse_params(items):
     return dict(parse_assignment(item) for item in items)
 
 
+def _out_file(path, option="--out", suffixes=(".csv",), companions=None):
+    from ._outputs import OutputFile
+
+    return OutputFile(Path(path), option, tuple(suffixes), companions)
+
+
+def _out_folder(path, names, option="--out"):
+    from ._outputs import OutputFolder
+
+    return OutputFolder(Path(path), option, tuple(names))
+
+
+def _outputs(outputs, inputs=()):
+    """Check every output before any work (see hybrid._outputs); returns the lock to hold meanwhile."""
+    from ._outputs import prepare_outputs
+
+    return prepare_outputs([o for o in outputs if o is not None], inputs)
+
+
 def _cmd_simulate(args):
     import dataclasses
 
+    from ._bounds import check_samples
     from ._drives import make_drive
+    from ._recording import SUFFIXES
     from ._virtual_ipmc import VirtualIPMCParameters, virtual_recording
 
+    check_samples(args.duration, args.rate)
+    lock = _outputs([_out_file(args.out, suffixes=SUFFIXES)])
     overrides = _parse_params(args.param)
     known = {f.name for f in dataclasses.fields(VirtualIPMCParameters)}
     unknown = set(overrides) - known
@@ -143,65 +171,39 @@ def _cmd_simulate(args):
         raise InputError(f"unknown virtual IPMC parameter(s) {sorted(unknown)}: valid names are {sorted(known)}")
     params = VirtualIPMCParameters(**overrides)
     drive = make_drive(args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude)
-    recording = virtual_recording(drive, params, seed=args.seed)
-    path = recording.save(args.out)
+    with lock:
+        recording = virtual_recording(drive, params, seed=args.seed)
+        path = recording.save(args.out)
     print(f"wrote {path}: {len(recording)} samples at {recording.rate:g} Hz, "
           f"w from {recording.w.min():.3f} to {recording.w.max():.3f} mm")
-
-
-def _read_drive(path):
-    """t and v_in from a CSV (w optional): the Recording checks apply to what is there."""
-    import numpy as np
-
-    from ._recording import Recording
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"drive file {path} does not exist")
-    with path.open(newline="") as handle:
-        rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
-    if not rows:
-        raise InputError(f"drive file {path} is empty: it needs a header t,v_in and one row per sample")
-    header = [h.strip() for h in rows[0]]
-    missing = [c for c in ("t", "v_in") if c not in header]
-    if missing:
-        raise InputError(f"drive file {path} lacks column(s) {missing}: found {header}; the header must include t,v_in")
-    it, iv = header.index("t"), header.index("v_in")
-    t, v = [], []
-    for line, row in enumerate(rows[1:], start=2):
-        try:
-            t.append(float(row[it]))
-            v.append(float(row[iv]))
-        except (ValueError, IndexError):
-            raise InputError(f"drive file {path} line {line}: t and v_in must be numbers, got {row}") from None
-    t, v = np.asarray(t), np.asarray(v)
-    Recording(t=t, v_in=v, w=np.zeros_like(v), metadata={"source": str(path)}, name=str(path))
-    return t, v
 
 
 def _cmd_rc(args):
     import jax.numpy as jnp
     import numpy as np
 
+    from ._atomic import atomic_open
     from ._rc_network import RCNetwork
+    from ._recording import Recording
 
-    t, v = _read_drive(args.drive)
+    lock = _outputs([_out_file(args.out)], inputs=[args.drive])
+    # The same reader and checks as fit and diagnose; a drive needs no w.
+    drive = Recording.load(args.drive, require_w=False)
     network = RCNetwork(n_stages=args.stages, method=args.method)
     params = _parse_params(args.param)
     if params:
         network = network.replace(**params)
-    dt = float(np.median(np.diff(t)))
-    v_o = np.asarray(network.simulate(jnp.asarray(v), dt))
-    if not np.all(np.isfinite(v_o)):
-        raise InputError("the RC network produced non-finite values: check the parameters' magnitudes")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["t", "v_in", "v_o"])
-        for row in zip(t, v, v_o):
-            writer.writerow([f"{x:.17g}" for x in row])
-    print(f"wrote {out}: {len(t)} samples, V_o from {v_o.min():.6g} to {v_o.max():.6g} V "
+    t, v, dt = drive.t, drive.v_in, drive.dt
+    with lock:
+        v_o = np.asarray(network.simulate(jnp.asarray(v), dt))
+        if not np.all(np.isfinite(v_o)):
+            raise InputError("the RC network produced non-finite values: check the parameters' magnitudes")
+        with atomic_open(args.out, "w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(["t", "v_in", "v_o"])
+            for row in zip(t, v, v_o):
+                writer.writerow([f"{x:.17g}" for x in row])
+    print(f"wrote {args.out}: {len(t)} samples, V_o from {v_o.min():.6g} to {v_o.max():.6g} V "
           f"({args.method}, N={args.stages}, dt={dt:g} s)")
 
 
@@ -212,8 +214,13 @@ def _cmd_fit(args):
     from ._models import make_model
     from ._rc_network import RCNetwork
     from ._recording import Recording
+    from ._atomic import write_text
     from ._serialise import save_model
 
+    out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
+    lock = _outputs([_out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
+                     _out_file(args.json, "--json", (".json",)) if args.json else None],
+                    inputs=args.recordings)
     recordings = [Recording.load(p) for p in args.recordings]
     simulation = None
     if args.model != "normal":
@@ -230,35 +237,43 @@ def _cmd_fit(args):
         frozen.add("xi_h")
     if len(args.split) != 3:
         raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
-    result = fit(model, recordings, starts=args.starts, max_steps=args.max_steps, frozen=frozen,
-                 split=args.split, solver=args.solver, seed=args.seed, progress=not args.quiet)
-    print(result.summary())
-    out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
-    save_model(out, result.model, extra={"metrics": result.metrics, "settings": result.settings})
-    print(f"saved model to {out} (+ {out}.json)")
-    if args.json:
-        Path(args.json).write_text(json.dumps(result.to_dict(), indent=2))
+    with lock:
+        result = fit(model, recordings, starts=args.starts, max_steps=args.max_steps, frozen=frozen,
+                     split=args.split, solver=args.solver, seed=args.seed, progress=not args.quiet)
+        print(result.summary())
+        save_model(out, result.model, extra={"metrics": result.metrics, "settings": result.settings})
+        print(f"saved model to {out} (+ {out}.json)")
+        if args.json:
+            write_text(args.json, json.dumps(result.to_dict(), indent=2) + "\n")
 
 
 def _cmd_table2(args):
-    from ._table2 import Table2Settings, reproduce_table2
+    from ._bounds import check_samples
+    from ._table2 import OUTPUT_FILES, Table2Settings, reproduce_table2
 
     overrides = {k: v for k, v in (("duration", args.duration), ("starts", args.starts),
                                    ("max_steps", args.max_steps)) if v is not None}
-    reproduce_table2(Table2Settings(**overrides), out_dir=args.out_dir, progress=not args.quiet)
+    settings = Table2Settings(**overrides)
+    check_samples(settings.duration, settings.rate, "--duration × the rate")
+    with _outputs([_out_folder(args.out_dir, OUTPUT_FILES, "--out-dir")]):
+        reproduce_table2(settings, out_dir=args.out_dir, progress=not args.quiet)
 
 
 def _cmd_sensitivity(args):
+    from ._bounds import check_samples
     from ._recording import Recording
-    from ._sensitivity_study import SensitivityStudySettings, run_sensitivity_study
+    from ._sensitivity_study import OUTPUT_FILES, SensitivityStudySettings, run_sensitivity_study
 
+    check_samples(args.duration, args.rate)
+    lock = _outputs([_out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording] if args.recording else [])
     recording = Recording.load(args.recording) if args.recording else None
     _warn_notes([recording] if recording is not None else [])
     settings = SensitivityStudySettings(
         parameters=_parse_params(args.param), n_stages=args.stages, drive=args.drive,
         duration=args.duration, rate=args.rate, noise=args.noise, sobol=args.sobol, seed=args.seed,
     )
-    result = run_sensitivity_study(settings, out_dir=args.out, recording=recording)
+    with lock:
+        result = run_sensitivity_study(settings, out_dir=args.out, recording=recording)
     values = ", ".join(f"{v:.2e}" for v in result["relative_singular_values"])
     print(f"relative singular values ({result['primary_drive']}): {values}")
     for direction in result["null_directions"]:
@@ -273,10 +288,11 @@ def _cmd_diagnose(args):
     import dataclasses
 
     from ._diagnose import DiagnoseSettings, diagnose
-    from ._diagnose_report import _pm, write_report
+    from ._diagnose_report import FIGURES, _pm, write_report
     from ._effects import EFFECTS
     from ._recording import Recording
 
+    lock = _outputs([_out_folder(args.out, ("report.json", "report.md", *FIGURES))], inputs=args.recordings)
     recordings = [Recording.load(p) for p in args.recordings]
     _warn_notes(recordings)
     settings = DiagnoseSettings()
@@ -286,8 +302,9 @@ def _cmd_diagnose(args):
         settings = dataclasses.replace(settings, max_steps=args.max_steps)
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
-    diagnosis = diagnose(recordings, hybrid=args.hybrid, settings=settings, progress=not args.quiet)
-    paths = write_report(diagnosis, args.out)
+    with lock:
+        diagnosis = diagnose(recordings, hybrid=args.hybrid, settings=settings, progress=not args.quiet)
+        paths = write_report(diagnosis, args.out)
     report = diagnosis.to_dict()
     base, ext = report["baseline"]["nmse"], report["extended"]["nmse"]
     print(f"cause: {diagnosis.cause}")
