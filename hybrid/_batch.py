@@ -39,7 +39,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._arguments import as_recordings, check_dt, check_model
 from ._errors import InputError
+from ._simulation import AbstractSimulation
 from ._fit import _start_model
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
@@ -115,9 +117,8 @@ def fit_batch(
     ``hybrid.fit(model, recordings[i], ...)`` to rounding.
     """
     t_start = time.perf_counter()
-    recordings = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
-    if not recordings:
-        raise InputError("no recordings to fit: pass a list of recordings")
+    model = check_model(model, "fit_batch")
+    recordings = as_recordings(recordings, "fit_batch")  # a path is loaded; anything else is refused
     for name, value, low in (("starts", starts, 1), ("max_steps", max_steps, 1)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise InputError(f"{name} must be a positive integer, got {value!r}")
@@ -288,7 +289,15 @@ def simulate_batch(simulations, v_in, dt: float, *, batch_size: int | None = 8):
     if isinstance(simulations, (list, tuple)):
         if not simulations:
             raise InputError("no simulations: pass a non-empty list")
+        kinds = {type(s) for s in simulations}
+        if len(kinds) > 1 or not issubclass(kinds.pop(), AbstractSimulation):
+            raise InputError("simulate_batch needs simulations of one type such as hybrid.RCNetwork(), got "
+                             f"{', '.join(sorted({type(s).__name__ for s in simulations}))}")
         simulations = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *simulations)
+    if not isinstance(simulations, AbstractSimulation):
+        raise InputError(f"simulate_batch needs a list of simulations such as hybrid.RCNetwork(), got "
+                         f"{type(simulations).__name__}")
+    check_dt(dt, "simulate_batch")
     v_in = jnp.asarray(v_in)
     if v_in.ndim not in (1, 2):
         raise InputError(f"v_in must have shape (T,) or (B, T), got {v_in.shape}")

@@ -57,6 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _residual_tests as rt
+from ._arguments import as_recordings, check_simulation
 from ._diagnose_starts import N_SCREEN, baseline_starts, delay_starts, hysteresis_starts, resonance_starts, train_signal
 from ._effects import EFFECTS, EffectStack, FrameTiming
 from ._errors import InputError
@@ -586,9 +587,11 @@ def diagnose(
     **Returns:** a [`Diagnosis`][]; ``Diagnosis.to_dict()`` is ``report.json``.
     """
     t0 = time.perf_counter()
-    recordings = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
-    if not recordings:
-        raise InputError("diagnose needs at least one recording")
+    recordings = as_recordings(recordings, "diagnose")  # a path is loaded; anything else is refused
+    check_simulation(simulation, "diagnose")
+    if not isinstance(settings, DiagnoseSettings):
+        raise InputError(f"diagnose: settings must be a DiagnoseSettings, got {type(settings).__name__}: "
+                         "use dataclasses.replace(hybrid.DiagnoseSettings(), max_steps=...)")
     rates = {round(r.rate, 9) for r in recordings}
     if len(rates) > 1:
         raise InputError(f"recordings of one strip must share a sample rate, got {sorted(rates)} Hz: resample first")

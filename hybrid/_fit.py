@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._arguments import as_names, as_recordings, check_model, check_seed
 from ._errors import InputError
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
@@ -93,10 +94,10 @@ def fit(
         raise InputError(f"starts must be a positive integer, got {starts!r}")
     if not isinstance(max_steps, int) or max_steps < 1:
         raise InputError(f"max_steps must be a positive integer, got {max_steps!r}")
-    recordings = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
-    if not recordings:
-        raise InputError("no recordings to fit: pass at least one recording")
-    frozen = frozenset(frozen)
+    model = check_model(model, "fit")
+    recordings = as_recordings(recordings, "fit")  # a path is loaded; anything else is refused
+    frozen = as_names(frozen, "fit", "frozen", model.parameter_names)  # "xi_h" is one name
+    seed = check_seed(seed, "fit")
     for i, recording in enumerate(recordings):
         recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
         recording.check_signals()  # a constant drive or w: refused, not fitted to its start values

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._arguments import check_key, check_simulation
 from ._errors import InputError
 from ._rc_network import RCNetwork
 from ._readout import AbstractReadout, LinearReadout, WindowedMLP
@@ -100,8 +101,10 @@ def make_model(
     - `window`, `depth`, `width`: D-MLP shape (paper: 60, 11, 10).
     - `key`: PRNG key for the D-MLP weights (default `jax.random.key(0)`).
     """
-    if kind not in MODEL_KINDS:
+    if not isinstance(kind, str) or kind not in MODEL_KINDS:
         raise InputError(f"model must be one of {', '.join(MODEL_KINDS)}, got {kind!r}")
+    check_simulation(simulation, "make_model")
+    check_key(key, "make_model")
     if key is None:
         key = jax.random.key(0)
     if kind == "normal":

@@ -17,6 +17,7 @@ from __future__ import annotations
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -114,6 +115,15 @@ def encode(values: dict, constraints: dict, owner: str) -> dict:
                 f"{owner} has no parameter {name!r}: its parameters are {sorted(constraints)}"
             )
         constraint = constraints[name]
+        if not isinstance(value, jax.core.Tracer):
+            try:
+                if value is None or isinstance(value, (str, bytes)):
+                    raise TypeError(value)
+                np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                raise InputError(
+                    f"{owner} parameter {name} must be a number, got {type(value).__name__} {value!r:.60}"
+                ) from None
         if not constraint.contains(value):
             raise InputError(
                 f"{owner} parameter {name} must be {constraint.describe()}, got {value!r}"

@@ -42,6 +42,7 @@ import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Complex, Float
 
+from ._arguments import check_drive
 from ._errors import InputError
 from ._loop_safe_linalg import expm
 from ._parameters import Constraint, Positive, UnitInterval, encode
@@ -107,6 +108,8 @@ class RCNetwork(AbstractSimulation):
             raise InputError(f"n_stages (N) must be a positive integer, got {n_stages!r}")
         if method not in METHODS:
             raise InputError(f"discretisation method must be one of {METHODS}, got {method!r}")
+        if not isinstance(strip, Strip):
+            raise InputError(f"strip must be a hybrid.Strip (geometry and materials), got {type(strip).__name__}")
         values = dict(
             xi_rho=xi_rho, xi_h=xi_h, alpha_E=alpha_E, alpha_I=alpha_I,
             alpha_C=alpha_C, C_clamp=C_clamp,
@@ -172,8 +175,12 @@ class RCNetwork(AbstractSimulation):
 
     # --- time domain -------------------------------------------------------------
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
-        """Tip voltage V_o (V) for the drive `v_in` (V) sampled every `dt` s, from rest."""
-        v_in = jnp.asarray(v_in)
+        """Tip voltage V_o (V) for the drive `v_in` (V) sampled every `dt` s, from rest.
+
+        Concrete arguments are checked (InputError for dt ≤ 0, NaN, a non-finite
+        or non-vector drive); inside jit/vmap/grad they are not (`hybrid._arguments`).
+        """
+        v_in, dt = check_drive(v_in, dt, "RCNetwork.simulate")
         if self.method == "tustin":
             b0, b1, a1 = tustin_sections(*self.stage_zpk(), dt)
             return cascade_filter(b0, b1, a1, v_in)

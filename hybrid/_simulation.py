@@ -15,6 +15,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._arguments import check_drive
 from ._errors import InputError
 from ._parameters import Constraint, decode, encode
 
@@ -84,7 +85,7 @@ class Passthrough(AbstractSimulation):
         self.raw = {}
 
     def simulate(self, v_in, dt):
-        return jnp.asarray(v_in)
+        return check_drive(v_in, dt, "Passthrough.simulate")[0]
 
 
 def perturb_raw(raw: dict, key, scale: float, frozen=frozenset()) -> dict:
