@@ -274,7 +274,7 @@ def test_a_failed_command_leaves_no_folder_or_lock_behind(rec, capsys, monkeypat
 
     monkeypatch.setattr(hybrid._fit, "fit", bad_fit)
     before = snapshot(rec.parent)
-    code, _, err = run(["fit", rec, "--out", "new/deeper/m.eqx", "--quiet"], capsys)
+    code, _, err = run(["fit", rec, "--model", "physics", "--out", "new/deeper/m.eqx", "--quiet"], capsys)
     assert_one_line_error(code, err, "the fit failed")
     assert not (rec.parent / "new").exists() and snapshot(rec.parent) == before
 
