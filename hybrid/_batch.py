@@ -42,12 +42,12 @@ import numpy as np
 from ._arguments import as_recordings, check_dt, check_model
 from ._errors import InputError
 from ._simulation import AbstractSimulation
-from ._fit import _start_model
+from ._fit import _readout_back, _start_model, _units
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
-from ._problem import Problem, series_from_recording
-from ._result import FitResult
+from ._problem import Problem, Series, series_from_recording
+from ._result import FitResult, fit_warnings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,10 +140,16 @@ def fit_batch(
             raise InputError(f"recording {i} ({recordings[i].name}) has constant w on its training part")
 
     # One Problem per (recording, start), sharing the static parts of a template.
-    problems, thetas = [], []
+    # Each recording in its own units, as fit() does (w / std(w_train), v_in / rms(v_in)).
+    problems, thetas, units, starts_of = [], [], [], []
     template = None
     for s in series:
-        initial = [_start_jit(model, k, seed, frozen, perturbation, [s]) for k in range(starts)]
+        w_unit, v_unit = _units(model, [s], np.asarray(s.target("train")))
+        s = Series(s.v_in / v_unit, s.w / w_unit, s.dt, s.segments)
+        units.append((w_unit, v_unit))
+        scaled = Model(model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind)
+        initial = [_start_jit(scaled, k, seed, frozen, perturbation, [s]) for k in range(starts)]
+        starts_of.append(initial)
         problem = Problem(initial[0], [s], frozen, weight_decay)
         if template is None:
             template = problem
@@ -184,6 +190,9 @@ def fit_batch(
         i = r * starts + k
         problem = problems[i]
         fitted = problem.model(jnp.asarray(best_theta[i]))
+        w_unit, v_unit = units[r]
+        fitted = Model(fitted.simulation, _readout_back(fitted.readout, model.readout, frozen, v_unit, w_unit),
+                       fitted.kind)
         split_metrics = {}
         for name in ("train", "validation", "test"):
             if name in split_order:
@@ -211,6 +220,7 @@ def fit_batch(
                 "recordings": [recording.metadata.get("source", "")],
             },
             seconds=float("nan"),
+            warnings=list(recording.notes) + fit_warnings(starts_of[r][k], fitted, frozen, per_start[k]),
         ))
     seconds = time.perf_counter() - t_start
     for i, res in enumerate(results):  # each fit's share of the wall time

@@ -30,9 +30,9 @@ from ._errors import InputError
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
-from ._problem import Problem, Series, series_from_recording
-from ._readout import WindowedMLP
-from ._result import FitResult
+from ._problem import Problem, Series, robust_rms, robust_std, series_from_recording
+from ._readout import LinearReadout, WindowedMLP
+from ._result import FitResult, fit_warnings
 from ._watchdog import stage
 
 Solver = Literal["lm", "optimistix", "adam"]
@@ -107,6 +107,13 @@ def fit(
         raise InputError("the training part of the recording(s) has constant w: "
                          "there is nothing to fit (check the displacement column)")
 
+    # Fit in units where w and v_in are O(1), so that the result does not depend on the
+    # recording's units (LM's damping λI and the gain's Jacobian column do otherwise).
+    w_unit, v_unit = _units(model, series, train_w)
+    series = [Series(s.v_in / v_unit, s.w / w_unit, s.dt, s.segments) for s in series]
+    given = model
+    model = Model(model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind)
+
     initial = [_start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
     problem = Problem(initial[0], series, frozen, weight_decay)
     thetas = jnp.stack([problem.flatten(m, frozen) for m in initial])
@@ -120,7 +127,9 @@ def fit(
 
     best_start = int(np.nanargmin([s["validation_loss"] for s in per_start]))
     fitted = problem.model(best[best_start])
-    result_metrics = _metrics_by_split(problem, best[best_start], split_order)
+    fitted = Model(fitted.simulation, _readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit),
+                   fitted.kind)
+    result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
     settings = {
         "solver": solver, "starts": starts, "max_steps": max_steps, "frozen": sorted(frozen),
         "split": dict(zip(split_order, map(float, split))), "blocks": blocks, "patience": patience,
@@ -133,14 +142,61 @@ def fit(
     return FitResult(
         model=fitted,
         parameters={k: float(v) for k, v in fitted.parameters().items()},
-        units=fitted.units,
+        units=_unit_labels(fitted, recordings),
         metrics=result_metrics,
         history=history,
         starts=per_start,
         best_start=best_start,
         settings=settings,
         seconds=time.perf_counter() - t_start,
+        warnings=[note for r in recordings for note in r.notes]
+        + fit_warnings(initial[best_start], fitted, frozen, per_start[best_start]),
     )
+
+
+def _unit_labels(model: Model, recordings) -> dict[str, str]:
+    """`model.units`, with a linear readout's gain and offset in the recordings' declared units."""
+    units = dict(model.units)
+    tables = [r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings]
+    declared = {(str(u.get("w", "mm")), str(u.get("v_in", "V"))) for u in tables}
+    if len(declared) == 1 and isinstance(model.readout, LinearReadout):
+        w, v = declared.pop()
+        units.update(gain=f"{w}/{v}", offset=w)
+    return units
+
+
+def _units(model: Model, series, train_w) -> tuple[float, float]:
+    """(w_unit, v_unit): the std of the training w and the rms of v_in, the fit's units.
+
+    Dividing by them exactly (not by a nearby power of two) matters: LM's damping
+    λI sees the gain's Jacobian column, so a leftover factor √2 in the scale of w
+    already moves the end point along the RC network's near-null directions.
+    v_in is scaled only for a simulation linear in the drive (the RC network) and
+    a readout that can take it; otherwise its units are part of the physics.
+    """
+    try:
+        model.readout.rescaled(1.0, 1.0)
+    except NotImplementedError:
+        return 1.0, 1.0
+    w_unit = float(robust_std(jnp.asarray(train_w)))
+    v_unit = 1.0
+    if getattr(model.simulation, "linear_in_drive", False):
+        v_unit = float(robust_rms(jnp.concatenate([s.v_in for s in series])))
+    ok = lambda x: np.isfinite(x) and x > 0  # noqa: E731
+    return (w_unit if ok(w_unit) else 1.0), (v_unit if ok(v_unit) else 1.0)
+
+
+def _readout_back(fitted, given, frozen, v_unit, w_unit):
+    """The fitted readout in the recording's units; what was not fitted stays exactly as given.
+
+    A readout with a frozen part keeps its given fixed leaves (`_start_model` does not
+    re-initialise it), so those leaves come back bit for bit, not rescaled twice.
+    """
+    readout = fitted.rescaled(v_unit, w_unit)
+    if "network" in frozen or (set(getattr(given, "raw", {})) & frozen):
+        spec = given.trainable(frozen)
+        readout = eqx.combine(eqx.filter(readout, spec), eqx.filter(given, spec, inverse=True))
+    return readout
 
 
 def _start_model(model: Model, index, seed, frozen, perturbation, series) -> Model:

@@ -45,6 +45,27 @@ class Series(eqx.Module):
         return jnp.concatenate([self.w[a:b] for a, b in self.segments_of(split)])
 
 
+def robust_std(x):
+    """std(x), without overflow or underflow at any magnitude (w in m, mm or µm, ×1e±300).
+
+    x is divided by the power of two just above max |x| first: that division and
+    the multiplication back are exact, so for ordinary magnitudes the result is
+    bit for bit `jnp.std(x)`.
+    """
+    x = jnp.asarray(x)
+    _, exponent = jnp.frexp(jnp.max(jnp.abs(x)))
+    p = jnp.ldexp(jnp.ones((), x.dtype), exponent)
+    return jnp.std(x / p) * p
+
+
+def robust_rms(x):
+    """rms(x) without overflow or underflow (see `robust_std`)."""
+    x = jnp.asarray(x)
+    _, exponent = jnp.frexp(jnp.max(jnp.abs(x)))
+    p = jnp.ldexp(jnp.ones((), x.dtype), exponent)
+    return jnp.sqrt(jnp.mean((x / p) ** 2)) * p
+
+
 def series_from_recording(recording, fractions=(0.3, 0.5, 0.2), order=("train", "test", "validation"),
                           blocks: int = 1):
     """A [`Series`][] from a Recording, split in time (paper: 30/50/20 %, contiguous).
@@ -117,7 +138,8 @@ class Problem(eqx.Module):
             raise InputError("every parameter is frozen: free at least one to fit")
         self.series = series
         train = jnp.concatenate([s.target("train") for s in series])
-        self.scale = jnp.maximum(jnp.std(train), 1e-12)
+        std = robust_std(train)
+        self.scale = jnp.where(std > 0, std, jnp.ones_like(std))  # constant w: refused by fit
         self.kind = model.kind
         if not weight_decay >= 0:
             raise InputError(f"weight_decay must be ≥ 0, got {weight_decay!r}")

@@ -90,6 +90,20 @@ class RCNetwork(AbstractSimulation):
         "alpha_C": "1",
         "C_clamp": "F",
     }
+    # Plausible for an IPMC strip (a fitted value outside is warned about, not refused):
+    # an interface 0.1-1000x as resistive and 0.01-100x as thick as the electrode; a tip
+    # that keeps 1-99 % of the clamp's conductance or capacitance (0 and 1 are the edges
+    # the sigmoid never reaches); 0.1 mF to 10 F of double-layer capacitance at the clamp
+    # (a few cm² of Pt-Nafion at 0.1-10 mF/cm², with room either way).
+    plausible: ClassVar[dict[str, tuple[float, float]]] = {
+        "xi_rho": (0.1, 1e3),
+        "xi_h": (0.01, 1e2),
+        "alpha_E": (0.01, 0.99),
+        "alpha_I": (0.01, 0.99),
+        "alpha_C": (0.01, 0.99),
+        "C_clamp": (1e-4, 10.0),
+    }
+    linear_in_drive: ClassVar[bool] = True  # zero initial state: V_o is linear in V_i
 
     def __init__(
         self,

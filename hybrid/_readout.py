@@ -47,6 +47,15 @@ class AbstractReadout(eqx.Module):
     def initialise(self, signal, w) -> "AbstractReadout":
         """A copy whose fixed scalings / initial values suit the training data."""
 
+    def rescaled(self, input_scale, output_scale) -> "AbstractReadout":
+        """The same map in other units: R'(input_scale · x) = output_scale · R(x).
+
+        [`hybrid.fit`][] fits on data scaled to unit size and maps the readout
+        back with this, so that fitted physical parameters do not depend on the
+        units of w or v_in. A readout without it is fitted in the data's units.
+        """
+        raise NotImplementedError(f"{type(self).__name__} cannot be rescaled")
+
     def windows(self, signal, segments):
         return segment_windows(signal, self.window, segments)
 
@@ -77,6 +86,11 @@ class LinearReadout(AbstractReadout):
     def trainable(self, frozen):
         spec = jax.tree_util.tree_map(lambda _: False, self)
         return eqx.tree_at(lambda r: r.raw, spec, {k: k not in frozen for k in self.raw})
+
+    def rescaled(self, input_scale, output_scale):
+        raw = {"gain": self.raw["gain"] * (output_scale / input_scale),
+               "offset": self.raw["offset"] * output_scale}
+        return eqx.tree_at(lambda r: r.raw, self, raw)
 
     def initialise(self, signal, w):
         # Least-squares gain and offset for the current signal: a good LM start.
@@ -144,6 +158,10 @@ class WindowedMLP(AbstractReadout):
         return eqx.tree_at(
             lambda r: r.mlp, spec, jax.tree_util.tree_map(eqx.is_inexact_array, self.mlp)
         )
+
+    def rescaled(self, input_scale, output_scale):
+        factors = jnp.array([input_scale, input_scale, output_scale, output_scale], self.scales.dtype)
+        return eqx.tree_at(lambda r: r.scales, self, self.scales * factors)
 
     def initialise(self, signal, w):
         s, w = jnp.asarray(signal), jnp.asarray(w)

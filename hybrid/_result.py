@@ -26,6 +26,10 @@ class FitResult:
     - `best_start`: index of the start that was kept.
     - `settings`: solver, starts, frozen parameters, split, seed, … (JSON-able).
     - `seconds`: wall time of the fit, compile time included.
+    - `warnings`: sentences about results not to take at face value: a physical
+      parameter outside its plausible range (`AbstractSimulation.plausible`) or
+      still at its start value, a fit that made no accepted step, a recording
+      whose time base was rebuilt ([`fit_warnings`][]).
     """
 
     model: Model
@@ -37,6 +41,7 @@ class FitResult:
     best_start: int
     settings: dict[str, Any]
     seconds: float
+    warnings: list[str] = dataclasses.field(default_factory=list)
 
     def summary(self) -> str:
         """A few readable lines: metrics per split and the fitted parameters."""
@@ -49,6 +54,7 @@ class FitResult:
             )
         for name, value in self.parameters.items():
             lines.append(f"  {name:<8} = {value:.6g} {self.units.get(name, '')}".rstrip())
+        lines += [f"  warning: {text}" for text in self.warnings]
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -62,5 +68,57 @@ class FitResult:
             "best_start": self.best_start,
             "settings": self.settings,
             "seconds": self.seconds,
+            "warnings": list(self.warnings),
             "history": self.history,
         }
+
+
+#: A fitted value whose relative change from its start is below this "did not move".
+UNMOVED_RTOL = 1e-6
+
+
+def plausible_ranges(simulation) -> dict[str, tuple[float, float]]:
+    """`plausible` ranges of a simulation and of the simulations it wraps (an EffectStack's `inner`)."""
+    out: dict[str, tuple[float, float]] = {}
+    while simulation is not None:
+        out = {**getattr(type(simulation), "plausible", {}), **out}
+        simulation = getattr(simulation, "inner", None)
+    return out
+
+
+def fit_warnings(start: Model, fitted: Model, frozen, start_record: dict[str, Any]) -> list[str]:
+    """What about a fit should not be taken at face value (see `FitResult.warnings`).
+
+    **Arguments:**
+
+    - `start`: the model the kept start began from.
+    - `fitted`: the fitted model.
+    - `frozen`: names kept fixed (never warned about as unmoved).
+    - `start_record`: the kept start's entry of `FitResult.starts`.
+    """
+    warnings = []
+    units = fitted.units
+    before = {k: float(v) for k, v in start.simulation.parameters().items()}
+    after = {k: float(v) for k, v in fitted.simulation.parameters().items()}
+    free = [k for k in after if k not in frozen]
+    no_step = start_record.get("accepted_steps", start_record.get("steps")) == 0
+    if no_step and free:
+        warnings.append(
+            "the fit made no accepted step: every parameter is still at its start value (the "
+            "data may not constrain the model, or the fit failed: check the recording's columns "
+            "and units, or try other starts)")
+    for name in free:
+        value, initial = after[name], before[name]
+        unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
+        if not no_step and abs(value - initial) <= UNMOVED_RTOL * abs(initial):
+            warnings.append(
+                f"{name} = {value:.6g}{unit} did not move from its start value: the data may not "
+                "constrain it, or the fit failed")
+    for name, (low, high) in plausible_ranges(fitted.simulation).items():
+        if name in free and not (low <= after[name] <= high):
+            unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
+            warnings.append(
+                f"{name} = {after[name]:.6g}{unit} is outside its plausible range {low:g} to "
+                f"{high:g}{unit}: check the recording's units and columns, or the value is not "
+                "identifiable from this data")
+    return warnings

@@ -30,6 +30,12 @@ class AbstractSimulation(eqx.Module):
     raw: eqx.AbstractVar[dict[str, Array]]
     constraints: ClassVar[dict[str, Constraint]]
     units: ClassVar[dict[str, str]]
+    #: Physically plausible range (low, high) of each parameter, in its unit. A
+    #: fitted value outside it is warned about (`FitResult.warnings`), not refused.
+    plausible: ClassVar[dict[str, tuple[float, float]]] = {}
+    #: True when the output is linear in the drive (zero initial state), so that a
+    #: drive in mV gives the same parameters as one in V: `fit` then scales v_in.
+    linear_in_drive: ClassVar[bool] = False
 
     @abc.abstractmethod
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
@@ -80,6 +86,7 @@ class Passthrough(AbstractSimulation):
     raw: dict[str, Array]
     constraints: ClassVar[dict[str, Constraint]] = {}
     units: ClassVar[dict[str, str]] = {}
+    linear_in_drive: ClassVar[bool] = True
 
     def __init__(self):
         self.raw = {}

@@ -1,0 +1,128 @@
+"""A fit does not depend on the units of w or v_in (issue 20, "never answer wrong in silence").
+
+Before, the same recording gave ξρ = 0.027 with w in mm, 2.8e7 with w in µm, and with w × 1e300
+or × 1e-100 the fit never left its start values yet reported them as fitted: LM's damping λI
+saw the gain's Jacobian column in the recording's units, std(w) overflowed, and σ_w had an
+absolute floor of 1e-12. `fit` now works on w / std(w_train) and v_in / rms(v_in) and maps the
+readout back, so the physical parameters are the same whatever the units, and the gain is in
+the recording's units.
+
+The recording and model are those of `test_fit.py`'s planted physics fit (N = 10, 1,200
+samples, default LM settings), so in one pytest process they share its compiled LM program.
+"""
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import helpers as h
+from hybrid import RCNetwork, Recording, fit, make_model
+from hybrid._problem import robust_rms, robust_std
+
+TRUE_NETWORK = RCNetwork(xi_rho=6.0, xi_h=1.0, alpha_E=0.3, alpha_I=0.6, alpha_C=0.4,
+                         C_clamp=0.02, n_stages=10)
+PHYSICAL = ("xi_rho", "alpha_E", "alpha_I", "alpha_C", "C_clamp")
+# The scaled recordings differ from the reference by the rounding of w · factor (one ulp,
+# ~1e-16 relative), and the fit divides by std(w), so it sees the same numbers up to a few ulp.
+# Measured spread of the physical parameters: ≤ 1e-9 relative (virtual IPMC PRBS, all five
+# free); 1e-6 leaves three orders of magnitude for other machines and BLAS. Before the fix the
+# spread was O(1) (or the start values, for 1e300 and 1e-100).
+RTOL = 1e-6
+
+
+@pytest.fixture(scope="module")
+def recording():
+    return h.planted_physics_recording(TRUE_NETWORK, 1.7, 0.3, 0.005, seed=0)
+
+
+def _fit(recording):
+    start = make_model("physics", simulation=RCNetwork(n_stages=10))
+    return fit(start, recording, frozen={"xi_h"}, progress=False)
+
+
+@pytest.fixture(scope="module")
+def reference(recording):
+    return _fit(recording)
+
+
+@pytest.mark.parametrize("w_factor, v_factor", [
+    (1e-3, 1.0),     # w in m
+    (1e3, 1.0),      # w in µm
+    (1e-100, 1.0),
+    (1e300, 1.0),    # std(w) overflowed: every residual was 0
+    (1.0, 1e3),      # v_in in mV
+])
+def test_physical_parameters_do_not_depend_on_units(recording, reference, w_factor, v_factor):
+    scaled = Recording(recording.t, recording.v_in * v_factor, recording.w * w_factor)
+    result = _fit(scaled)
+    assert result.starts[0]["accepted_steps"] > 0
+    for name in PHYSICAL:
+        assert result.parameters[name] == pytest.approx(reference.parameters[name], rel=RTOL), name
+    # the gain (mm/V) and offset (mm) come back in the recording's own units
+    assert result.parameters["gain"] == pytest.approx(reference.parameters["gain"] * w_factor / v_factor, rel=RTOL)
+    assert result.parameters["offset"] == pytest.approx(reference.parameters["offset"] * w_factor, rel=RTOL)
+    for split, metrics in reference.metrics.items():
+        assert result.metrics[split]["fitting"] == pytest.approx(metrics["fitting"], abs=1e-6)
+    # and the returned model predicts in those units
+    w_hat = np.asarray(result.model.predict(scaled.v_in, scaled.dt))
+    w_ref = np.asarray(reference.model.predict(recording.v_in, recording.dt))
+    np.testing.assert_allclose(w_hat / w_factor, w_ref, rtol=1e-6, atol=1e-6 * np.max(np.abs(w_ref)))
+
+
+def test_the_reference_fit_recovers_the_planted_gain(reference):
+    assert reference.parameters["gain"] == pytest.approx(1.7, rel=0.01)
+    assert reference.metrics["test"]["fitting"] > 95.0
+
+
+@pytest.mark.parametrize("factor", [1.0, 1e-3, 1e300, 1e-100, 1e-300])
+def test_robust_std_and_rms_at_any_magnitude(factor):
+    x = np.random.default_rng(0).normal(size=1000) + 0.5
+    assert float(robust_std(x * factor)) == pytest.approx(np.std(x) * factor, rel=1e-12)
+    assert float(robust_rms(x * factor)) == pytest.approx(np.sqrt(np.mean(x**2)) * factor, rel=1e-12)
+    # ordinary magnitudes: bit for bit jnp.std (the power-of-two prescaling is exact), so
+    # every other user of Problem.scale (diagnose, fit_batch, sensitivity) is unchanged
+    if factor in (1.0, 1e-3):
+        assert float(robust_std(x * factor)) == float(jnp.std(x * factor))
+
+
+# --------------------------------------------------------------------------- warnings (FitResult.warnings)
+def test_warnings_name_implausible_unmoved_and_stuck_fits():
+    from hybrid._result import fit_warnings
+
+    start = make_model("physics", simulation=RCNetwork(n_stages=10))
+    moved = start.simulation.replace(xi_rho=357.0, alpha_E=0.4, alpha_I=0.6, alpha_C=0.3, C_clamp=5e-11)
+    fitted = make_model("physics", simulation=moved)
+    record = {"accepted_steps": 12}
+    warnings = fit_warnings(start, fitted, {"xi_h"}, record)
+    assert len(warnings) == 1 and warnings[0].startswith("C_clamp = 5e-11 F is outside its plausible range 0.0001 to 10 F")
+    # a parameter that did not move (relative change < 1e-6) is named; a frozen one is not
+    fitted = make_model("physics", simulation=start.simulation.replace(xi_rho=12.0, C_clamp=0.05 * (1 + 1e-9)))
+    warnings = fit_warnings(start, fitted, {"xi_h"}, record)
+    unmoved = sorted(w.split(" = ")[0] for w in warnings)
+    assert unmoved == ["C_clamp", "alpha_C", "alpha_E", "alpha_I"]
+    assert all("did not move from its start value: the data may not constrain it, or the fit failed" in w
+               for w in warnings)
+    # no accepted step: one warning says so (not one per parameter); plausible ranges still apply
+    stuck = make_model("physics", simulation=start.simulation.replace(alpha_E=0.999))
+    warnings = fit_warnings(stuck, stuck, {"xi_h"}, {"accepted_steps": 0})
+    assert "made no accepted step" in warnings[0] and len(warnings) == 2 and "alpha_E = 0.999" in warnings[1]
+
+
+def test_fit_reports_warnings_in_summary_and_json(recording):
+    # a strip with an implausible double-layer capacitance (20 µF), camera timestamps in whole ms
+    network = RCNetwork(xi_rho=6.0, alpha_E=0.3, alpha_I=0.6, alpha_C=0.4, C_clamp=2e-5, n_stages=10)
+    planted = h.planted_physics_recording(network, 1.7, 0.3, 0.005, seed=0)
+    t = np.round((planted.t + np.random.default_rng(0).uniform(-0.003, 0.003, planted.n)) * 1e3) / 1e3
+    notes = Recording(t, planted.v_in, planted.w, name="camera.csv").notes  # t rebuilt: what it says
+    # fitted on the planted time base (the rebuilt dt differs in its last digits, and dt is
+    # compiled into the LM program: this keeps the program test_units and test_fit share)
+    jittered = Recording(planted.t, planted.v_in, planted.w, name="camera.csv", notes=notes)
+    result = fit(make_model("physics", simulation=network), jittered, frozen={"xi_h"}, progress=False)
+    assert "t rebuilt as a uniform grid" in result.warnings[0] and "camera.csv" in result.warnings[0]
+    assert any(w.startswith("C_clamp = ") and "outside its plausible range" in w for w in result.warnings)
+    summary = result.summary()
+    assert all(f"warning: {w}" in summary for w in result.warnings)
+    record = json.loads(json.dumps(result.to_dict()))
+    assert record["warnings"] == result.warnings
