@@ -564,6 +564,28 @@ def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_
     return cand
 
 
+#: Spread (std) of w and v_in that `diagnose` takes, in any unit: it fits in the recording's own units.
+DIAGNOSE_SPREAD = (1e-6, 1e6)
+
+
+def _check_magnitudes(recording) -> None:
+    """Refuse a column whose spread is outside `DIAGNOSE_SPREAD`: the search would overflow or stall.
+
+    `hybrid.fit` normalises w and v_in inside the fit; `diagnose`'s search, its
+    screens and its standard errors still work in the recording's units, so a w
+    written ×1e300 (or in a unit a million times too small) is refused with the fix.
+    """
+    from ._problem import robust_std
+
+    low, high = DIAGNOSE_SPREAD
+    for column, typical in (("w", "a tip displacement in mm"), ("v_in", "a drive in V")):
+        spread = float(robust_std(jnp.asarray(getattr(recording, column))))
+        if not low <= spread <= high:
+            raise InputError(f"recording '{recording.name}': {column} has a standard deviation of {spread:.3g}, "
+                             f"outside the {low:g} to {high:g} that diagnose fits in the recording's own units: "
+                             f"rescale {column} (as {typical}, say)")
+
+
 def diagnose(
     recordings,
     *,
@@ -599,6 +621,7 @@ def diagnose(
         r.check_length(60, "diagnose (a held-out part long enough for residual tests)",
                        "record at least 60 samples (2 s at 30 Hz), better several minutes")
         r.check_signals()
+        _check_magnitudes(r)
     rate = recordings[0].rate
     frozen = frozenset(settings.frozen)
     simulation = RCNetwork(method="zoh") if simulation is None else simulation

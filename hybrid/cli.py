@@ -210,6 +210,7 @@ def _cmd_rc(args):
 def _cmd_fit(args):
     import jax
 
+    from ._arguments import as_names
     from ._fit import fit
     from ._models import make_model
     from ._rc_network import RCNetwork
@@ -233,6 +234,7 @@ def _cmd_fit(args):
     model = make_model(args.model, simulation=simulation, window=args.window, depth=args.depth,
                        width=args.width, key=jax.random.key(args.seed))
     frozen = set(args.freeze)
+    as_names(args.free, "--free", "parameter", model.parameter_names)  # an unknown name is refused, not ignored
     if args.model != "normal" and "xi_h" not in args.free:
         frozen.add("xi_h")
     if len(args.split) != 3:

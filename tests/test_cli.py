@@ -124,3 +124,22 @@ def test_console_script_reports_errors_without_traceback(tmp_path):
     proc = subprocess.run([str(exe), "fit", str(tmp_path / "nope.csv")], capture_output=True, text=True)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_fit_refuses_an_unknown_free_name(virtual_csv, tmp_path, capsys):
+    """`--free nope` used to be ignored (the fit ran with ξh frozen and said nothing)."""
+    code, _, err = run(["fit", virtual_csv, "--model", "physics", "--free", "nope", "--out", tmp_path / "m.eqx"],
+                       capsys)
+    assert_one_line_error(code, err, "--free: unknown parameter name(s) ['nope']")
+    assert not (tmp_path / "m.eqx").exists()
+
+
+@pytest.mark.parametrize("factor", [1e300, 1e-100])
+def test_diagnose_refuses_w_in_an_absurd_unit_before_fitting(virtual_csv, tmp_path, capsys, factor):
+    """diagnose fits in the recording's units: w × 1e300 ended in an OverflowError traceback after the search."""
+    rec = Recording.load(virtual_csv)
+    path = tmp_path / "scaled.csv"
+    Recording(t=rec.t, v_in=rec.v_in, w=rec.w * factor, metadata={}, name="scaled").save(path)
+    code, _, err = run(["diagnose", path, "--out", tmp_path / "d", "--quiet"], capsys)
+    assert_one_line_error(code, err, "w has a standard deviation of")
+    assert "rescale w" in err
