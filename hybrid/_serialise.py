@@ -133,6 +133,9 @@ def load_model(path) -> Model:
     expected = description.get("parameters", {})
     for name, value in model.parameters().items():
         if name in expected and not np.isclose(float(value), expected[name], rtol=1e-9, atol=0):
+            if not jax.config.jax_enable_x64 and np.isclose(float(value), expected[name], rtol=1e-6, atol=0):
+                raise InputError(f"model file {path} holds float64 weights and this session runs float32: call "
+                                 "jax.config.update('jax_enable_x64', True) before load_model (the CLI does)")
             raise InputError(
                 f"model file {path} does not match its metadata: {name} is {float(value):.6g} in the "
                 f"weights but {expected[name]:.6g} in {meta}"

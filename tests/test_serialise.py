@@ -151,3 +151,18 @@ def test_unsupported_models_cannot_be_saved(tmp_path):
     with pytest.raises(InputError):
         save_model(tmp_path / "r.eqx", relu)
     assert not (tmp_path / "c.eqx").exists() and not (tmp_path / "r.eqx").exists()
+
+
+def test_load_model_in_a_float32_session_says_to_enable_float64(tmp_path):
+    """It used to say 'C_clamp is 0.0132908 in the weights but 0.0132908 in the json'."""
+    import subprocess
+    import sys
+
+    from hybrid import RCNetwork, make_model, save_model
+
+    path = tmp_path / "m.eqx"
+    save_model(path, make_model("physics", simulation=RCNetwork(C_clamp=0.0132908123456789)))
+    code = f"from hybrid import load_model\nload_model({str(path)!r})\n"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert "jax.config.update('jax_enable_x64', True) before load_model" in proc.stderr
