@@ -329,7 +329,7 @@ def _use_compilation_cache(jax) -> None:
     """Keep compiled programs between runs (JAX's persistent cache).
 
     `hybrid diagnose` compiles its search in every new process: on a 5-minute,
-    30 Hz recording on 2 cores it takes 102 s with an empty cache and 52 s with a
+    30 Hz recording on 2 cores it takes 65 s with an empty cache and 32 s with a
     warm one (`python benchmarks/diagnose.py`). The cache
     lives in ``$HYBRID_JAX_CACHE`` (default ``~/.cache/hybrid/jax``); set it to
     ``off`` to compile afresh every time.
