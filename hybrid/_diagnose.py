@@ -64,7 +64,7 @@ from ._errors import InputError
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
-from ._problem import Problem, series_from_recording
+from ._problem import Problem, robust_std, series_from_recording
 from ._rc_network import RCNetwork
 from ._readout import LinearReadout
 from ._watchdog import stage
@@ -575,8 +575,6 @@ def _check_magnitudes(recording) -> None:
     screens and its standard errors still work in the recording's units, so a w
     written ×1e300 (or in a unit a million times too small) is refused with the fix.
     """
-    from ._problem import robust_std
-
     low, high = DIAGNOSE_SPREAD
     for column, typical in (("w", "a tip displacement in mm"), ("v_in", "a drive in V")):
         spread = float(robust_std(jnp.asarray(getattr(recording, column))))

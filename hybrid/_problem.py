@@ -52,18 +52,22 @@ def robust_std(x):
     the multiplication back are exact, so for ordinary magnitudes the result is
     bit for bit `jnp.std(x)`.
     """
-    x = jnp.asarray(x)
-    _, exponent = jnp.frexp(jnp.max(jnp.abs(x)))
-    p = jnp.ldexp(jnp.ones((), x.dtype), exponent)
-    return jnp.std(x / p) * p
+    x, p = _binary_scaled(x)
+    return jnp.std(x) * p
 
 
 def robust_rms(x):
     """rms(x) without overflow or underflow (see `robust_std`)."""
+    x, p = _binary_scaled(x)
+    return jnp.sqrt(jnp.mean(x ** 2)) * p
+
+
+def _binary_scaled(x):
+    """(x / p, p) with p the power of two just above max |x| (exact in floating point)."""
     x = jnp.asarray(x)
     _, exponent = jnp.frexp(jnp.max(jnp.abs(x)))
     p = jnp.ldexp(jnp.ones((), x.dtype), exponent)
-    return jnp.sqrt(jnp.mean((x / p) ** 2)) * p
+    return x / p, p
 
 
 def series_from_recording(recording, fractions=(0.3, 0.5, 0.2), order=("train", "test", "validation"),

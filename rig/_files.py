@@ -11,9 +11,10 @@ from __future__ import annotations
 import json
 import os
 import pathlib
-import tempfile
 
 import numpy as np
+
+from hybrid._atomic import atomic_open
 
 from ._errors import RigError
 
@@ -21,25 +22,14 @@ __all__ = ["check_outputs", "jsonable", "write_atomic", "write_json_atomic"]
 
 
 def write_atomic(path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    """Write ``text`` to ``path`` atomically, with `hybrid`'s writer (temporary file, fsync, ``os.replace``)."""
     path = pathlib.Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as error:
         raise RigError(f"cannot write '{path}' ({error.strerror or error})") from None
-    try:
-        with os.fdopen(handle, "w", newline="") as out:
-            out.write(text)
-        os.replace(tmp, path)
-    except BaseException as error:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(error, OSError):
-            raise RigError(f"cannot write '{path}' ({error.strerror or error})") from None
-        raise
+    with atomic_open(path, "w", newline="") as out:  # an OSError becomes one InputError line
+        out.write(text)
 
 
 def jsonable(value):
