@@ -22,12 +22,14 @@ Variants (`--variant`, default all):
 - ``jax_expm_one_core``: `jax_expm` pinned to one core (`os.sched_setaffinity`):
   a pool of one thread cannot deadlock.
 
-Measured on the 2-core machine (6 runs each, 30 s watchdog; jax 0.10.2 unless
-said): jax_expm hung 6/6; lu_solve_and_products 3/6; cholesky_and_products
-2/6; products_only 0/6; loop_safe_expm 0/6; jax_expm_one_core 0/6. The same
-jax_expm script with jax/jaxlib 0.4.35, 0.5.3, 0.6.2, 0.7.2, 0.8.3 and 0.9.2 in
-fresh venvs: 0/6 hangs each; with 0.10.0: 6/6. The rerun of this script
-writes its own counts to `--out`.
+Committed run (`--runs 4 --timeout 30`, jax 0.10.2, 2 cores, while the test suite
+ran beside it; `experiments/results/xla_cpu_deadlock.json`): jax_expm hung 3/4,
+lu_solve_and_products 3/4, cholesky_and_products 1/4, products_only 0/4,
+loop_safe_expm 0/4, jax_expm_one_core 0/4. Versions: the jax_expm construct, run
+6 times in fresh venvs of each release (an equivalent ad hoc script; rerun with
+`VENV/bin/python experiments/xla_cpu_deadlock.py --variant jax_expm --runs 6`),
+hung 0/6 on jax/jaxlib 0.4.35, 0.5.3, 0.6.2, 0.7.2, 0.8.3 and 0.9.2, and 6/6 on
+0.10.0 and 0.10.2.
 """
 
 from __future__ import annotations
