@@ -2,7 +2,7 @@
 
     python benchmarks/diagnose.py [--duration 300] [--rate 30]
 
-A synthetic strip (seed 0 of `hybrid._synthetic.random_strip`) with a hidden
+A synthetic strip (seed 0 of `hybrid.ipmc._synthetic.random_strip`) with a hidden
 back-relaxation under the discrepancy drive (multilevel PRBS), 9,000 samples.
 Reported: the first call in a fresh process (compiling the search's programs
 included), a second call on another recording of the same length (compiled
@@ -40,7 +40,7 @@ def main() -> None:
     args = parser.parse_args()
     c.setup_jax()
     from hybrid import RCNetwork, diagnose, fit, make_model
-    from hybrid._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
 
     def recording(seed):
         rng = np.random.default_rng(seed)

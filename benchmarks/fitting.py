@@ -51,7 +51,7 @@ def target_nmse():
 
 def recording(duration):
     import hybrid as hy
-    from hybrid._table2 import Table2Settings
+    from hybrid.ipmc._table2 import Table2Settings
 
     drive = hy.make_drive("prbs", duration, seed=0, **Table2Settings().drives["prbs"])
     v_o = np.asarray(hy.RCNetwork(**TRUTH).simulate(drive.v, 1 / 30))
@@ -93,9 +93,9 @@ def run(duration=600.0, max_seconds=120.0):
     import scipy.optimize
 
     import hybrid as hy
-    from hybrid._fit import _start_model
-    from hybrid._levenberg_marquardt import LMSettings, lm_init, lm_step
-    from hybrid._problem import Problem, series_from_recording
+    from hybrid.core._fit import _start_model
+    from hybrid.core._levenberg_marquardt import LMSettings, lm_init, lm_step
+    from hybrid.core._problem import Problem, series_from_recording
 
     rec = recording(duration)
     target, source = target_nmse()

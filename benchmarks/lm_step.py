@@ -38,7 +38,7 @@ def _problem(n_residuals):
     import numpy as np
 
     import hybrid as hy
-    from hybrid._problem import Problem, Series
+    from hybrid.core._problem import Problem, Series
 
     rng = np.random.default_rng(0)
     n = n_residuals
@@ -59,7 +59,7 @@ def run_structured(n_residuals, repeats=5):
     import equinox as eqx
     import jax
 
-    from hybrid._levenberg_marquardt import LMSettings, lm_init, lm_step
+    from hybrid.core._levenberg_marquardt import LMSettings, lm_init, lm_step
 
     problem, theta = _problem(n_residuals)
     # A strongly damped first step is always accepted; repeating it from the same

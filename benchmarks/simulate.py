@@ -11,7 +11,7 @@ Cases, float64, the paper's network (N = 45: 46 first-order sections) at 30 Hz:
 Contenders:
 
 - ``hybrid``: `RCNetwork.simulate` (block-lifted cascade, see
-  `hybrid._rc_network.cascade_filter`) under `jax.jit`, the parameters as
+  `hybrid.physics._rc_network.cascade_filter`) under `jax.jit`, the parameters as
   arguments, sections computed inside; the batch by `hybrid.simulate_batch`
   (`lax.map` over chunks of 8 `vmap`-ed networks);
 - ``stage_major``: the previous implementation (one `lax.scan` per section),
@@ -73,7 +73,7 @@ def single(repeats=20):
     import scipy.signal
 
     import hybrid as hy
-    from hybrid._rc_network import BLOCK, _block_matrices, cascade_filter_stage_major, tustin_sections
+    from hybrid.physics._rc_network import BLOCK, _block_matrices, cascade_filter_stage_major, tustin_sections
 
     x = drive()
     xj = jnp.asarray(x)
@@ -113,7 +113,7 @@ def batch(repeats=3, batch_size=8):
 
     import hybrid as hy
 
-    from hybrid._rc_network import BLOCK, _block_matrices, tustin_sections
+    from hybrid.physics._rc_network import BLOCK, _block_matrices, tustin_sections
 
     x = drive()
     xj = jnp.asarray(x)

@@ -20,7 +20,7 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from hybrid._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
     from hybrid.cli import main as hybrid
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -3,7 +3,7 @@
     python experiments/diagnose_multi.py [--recordings 2] [--runs 20] [--duration 240] [--timeout 600]
 
 Writes `--recordings` recordings of one strip (the paper's cascade from the
-independent generator `hybrid._synthetic`, a back-relaxation hidden, 30 Hz,
+independent generator `hybrid.ipmc._synthetic`, a back-relaxation hidden, 30 Hz,
 columns t,v_in,w with 6 decimals), then runs `hybrid diagnose A.csv B.csv …`
 `--runs` times, each in a fresh process with a timeout, with the persistent
 compilation cache of a normal user (a temporary folder, warm after the first
@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def write_recordings(folder: Path, count: int, duration: float) -> list[Path]:
-    from hybrid._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
+    from hybrid.ipmc._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
 
     paths = []
     for seed in range(1, count + 1):

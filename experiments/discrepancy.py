@@ -4,7 +4,7 @@
                                       [--rate 30] [--drive prbs-multilevel] [--noise 0.01]
                                       [--virtual] [--out experiments/results/discrepancy.json]
 
-Each draw: a strip and an effect from the issue's ranges (`hybrid._synthetic`:
+Each draw: a strip and an effect from the issue's ranges (`hybrid.ipmc._synthetic`:
 ξρ/ξh 1–100, α 0.1–0.9, C_clamp 1 mF–1 F, gain 0.3–5 mm/V; the effect made by
 code separate from the extensions that find it), a recording of the drive with
 camera exposure and noise, then `diagnose` on it. Prints one line per draw, then
@@ -34,7 +34,7 @@ import numpy as np
 
 def _drive(name: str, duration: float, rate: float, seed: int):
     from hybrid import make_drive
-    from hybrid._synthetic import discrepancy_drive
+    from hybrid.ipmc._synthetic import discrepancy_drive
 
     if name == "prbs-multilevel":
         return discrepancy_drive(duration, rate, seed)
@@ -56,7 +56,7 @@ IDENTIFIABLE = 2.0
 
 def draw(effect: str, seed: int, duration: float, rate: float, drive: str, noise: float):
     """(strip, effect parameters, recording) of one draw: the strip and effect from the issue's ranges."""
-    from hybrid._synthetic import random_effect, random_strip, synthetic_recording
+    from hybrid.ipmc._synthetic import random_effect, random_strip, synthetic_recording
 
     rng = np.random.default_rng([seed, len(effect), sum(map(ord, effect))])
     strip, params = random_strip(rng), random_effect(effect, rng, rate)
@@ -93,8 +93,8 @@ def _table(rows, effects, causes) -> str:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     jax.config.update("jax_enable_x64", True)
-    from hybrid._diagnose import CAUSES, diagnose
-    from hybrid._synthetic import HIDDEN_EFFECTS
+    from hybrid.discovery._diagnose import CAUSES, diagnose
+    from hybrid.ipmc._synthetic import HIDDEN_EFFECTS
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--effects", default=",".join(HIDDEN_EFFECTS))
@@ -139,7 +139,7 @@ def main(argv=None) -> int:
 
     virtual = []
     if args.virtual:
-        from hybrid._virtual_ipmc import virtual_recording
+        from hybrid.ipmc._virtual_ipmc import virtual_recording
 
         for drive_name in ("prbs-multilevel", "prbs"):
             recording = virtual_recording(_drive(drive_name, args.duration, args.rate, 0), seed=0)

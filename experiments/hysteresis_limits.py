@@ -46,7 +46,7 @@ def _loop_designs(s, rates):
     """Per rate (× 1/span): k and the least-squares design [s, u, ∂u/∂u₀, 1], one compiled pass each."""
     import jax.numpy as jnp
 
-    from hybrid._effects import bouc_wen_and_memory
+    from hybrid.discovery._effects import bouc_wen_and_memory
 
     span = float(np.ptp(s))
     loop = jax.jit(bouc_wen_and_memory)  # k traced: compiled once for every rate
@@ -78,12 +78,12 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
 
     import discrepancy
-    from hybrid import _diagnose as search
-    from hybrid._effects import EFFECTS
-    from hybrid._levenberg_marquardt import LMSettings
-    from hybrid._problem import series_from_recording
-    from hybrid._rc_network import RCNetwork
-    from hybrid._synthetic import _apply_hidden, rc_cascade_exact
+    from hybrid.discovery import _diagnose as search
+    from hybrid.discovery._effects import EFFECTS
+    from hybrid.core._levenberg_marquardt import LMSettings
+    from hybrid.core._problem import series_from_recording
+    from hybrid.physics._rc_network import RCNetwork
+    from hybrid.ipmc._synthetic import _apply_hidden, rc_cascade_exact
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed-list", default="2,7,9,13,14,5,6")

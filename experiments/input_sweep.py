@@ -271,7 +271,7 @@ def _loads(path: Path) -> bool:
 
             load_model(path)
         elif path.suffix in (".csv", ".npz", ".mat"):
-            from hybrid._recording import Recording
+            from hybrid.data._recording import Recording
 
             Recording.load(path)
         return True

@@ -17,7 +17,7 @@ Variants (`--variant`, default all):
   `jnp.linalg.solve` — the LU solve beside concurrent products is enough.
 - ``cholesky_and_products``: the same with `cho_solve`.
 - ``products_only``: the same products without a solve — never hangs.
-- ``loop_safe_expm``: `hybrid._loop_safe_linalg.expm` (Taylor, products only),
+- ``loop_safe_expm``: `hybrid.core._loop_safe_linalg.expm` (Taylor, products only),
   what `hybrid` uses now.
 - ``jax_expm_one_core``: `jax_expm` pinned to one core (`os.sched_setaffinity`):
   a pool of one thread cannot deadlock.
@@ -62,7 +62,7 @@ def block(m):
     if variant.startswith("jax_expm"):
         return jax.scipy.linalg.expm(a)
     if variant == "loop_safe_expm":
-        from hybrid._loop_safe_linalg import expm
+        from hybrid.core._loop_safe_linalg import expm
         return expm(a)
     x = a
     for _ in range(12):

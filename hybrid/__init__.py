@@ -9,45 +9,45 @@ The library never changes `jax.config`: call
 (the product of 46 RC sections needs it; the CLI and the tests do this).
 """
 
-from ._drives import DRIVES as DRIVES, Drive as Drive, make_drive as make_drive
-from ._errors import InputError as InputError
-from ._diagnose import (
+from .data._drives import DRIVES as DRIVES, Drive as Drive, make_drive as make_drive
+from .util._errors import InputError as InputError
+from .discovery._diagnose import (
     CAUSES as CAUSES,
     Diagnosis as Diagnosis,
     DiagnoseSettings as DiagnoseSettings,
     diagnose as diagnose,
 )
-from ._diagnose_report import write_report as write_report
-from ._effects import (
+from .discovery._report import write_report as write_report
+from .discovery._effects import (
     EFFECTS as EFFECTS,
     AbstractEffect as AbstractEffect,
     EffectStack as EffectStack,
     FrameTiming as FrameTiming,
     extend as extend,
 )
-from ._batch import BatchFitResult as BatchFitResult, fit_batch as fit_batch, simulate_batch as simulate_batch
-from ._fit import SOLVERS as SOLVERS, fit as fit
-from ._metrics import (
+from .core._batch import BatchFitResult as BatchFitResult, fit_batch as fit_batch, simulate_batch as simulate_batch
+from .core._fit import SOLVERS as SOLVERS, fit as fit
+from .core._metrics import (
     fitting as fitting,
     metrics as metrics,
     nmse as nmse,
     nmse_target as nmse_target,
     nmse_variance as nmse_variance,
 )
-from ._models import MODEL_KINDS as MODEL_KINDS, Model as Model, make_model as make_model
-from ._parameters import Positive as Positive, Real as Real, UnitInterval as UnitInterval
-from ._rc_network import RCNetwork as RCNetwork
-from ._readout import (
+from .core._models import MODEL_KINDS as MODEL_KINDS, Model as Model, make_model as make_model
+from .core._parameters import Positive as Positive, Real as Real, UnitInterval as UnitInterval
+from .physics._rc_network import RCNetwork as RCNetwork
+from .core._readout import (
     AbstractReadout as AbstractReadout,
     LinearReadout as LinearReadout,
     WindowedMLP as WindowedMLP,
 )
-from ._recording import Recording as Recording, Split as Split
-from ._reference import reference_response as reference_response
-from ._result import FitResult as FitResult
-from ._serialise import load_model as load_model, save_model as save_model
-from ._simulation import AbstractSimulation as AbstractSimulation, Passthrough as Passthrough
-from ._strip import Strip as Strip
-from ._windows import sliding_windows as sliding_windows
+from .data._recording import Recording as Recording, Split as Split
+from .physics._reference import reference_response as reference_response
+from .core._result import FitResult as FitResult
+from .core._serialise import load_model as load_model, save_model as save_model
+from .core._simulation import AbstractSimulation as AbstractSimulation, Passthrough as Passthrough
+from .physics._strip import Strip as Strip
+from .core._windows import sliding_windows as sliding_windows
 
 __version__ = "0.1.0"

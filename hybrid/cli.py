@@ -18,8 +18,8 @@ import json
 import sys
 from pathlib import Path
 
-from ._errors import InputError
-from ._watchdog import Watchdog
+from .util._errors import InputError
+from .util._watchdog import Watchdog
 
 
 class _Parser(argparse.ArgumentParser):
@@ -35,10 +35,10 @@ def _float_list(text: str) -> tuple[float, ...]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import _bounds as B
-    from ._drives import DRIVES
-    from ._fit import SOLVERS
-    from ._models import MODEL_KINDS
+    from .util import _bounds as B
+    from .data._drives import DRIVES
+    from .core._fit import SOLVERS
+    from .core._models import MODEL_KINDS
 
     parser = _Parser(prog="hybrid", description="Hybrid physics-ML identification of IPMC actuators.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--amplitude", type=float, default=2.0, help="drive amplitude, V")
     p.add_argument("--seed", type=int, default=0, help="seeds the drive (PRBS) and the noise")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="virtual IPMC parameter (see hybrid._virtual_ipmc.VirtualIPMCParameters)")
+                   help="virtual IPMC parameter (see hybrid.ipmc._virtual_ipmc.VirtualIPMCParameters)")
     p.add_argument("--out", required=True, help="output .csv, .npz or .mat")
 
     p = sub.add_parser("rc", help="the RC network's tip voltage V_o for a drive (CSV t,v_in,v_o)")
@@ -130,26 +130,26 @@ def _warn_notes(recordings):
 
 
 def _parse_params(items):
-    from ._parameters import parse_assignment
+    from .core._parameters import parse_assignment
 
     return dict(parse_assignment(item) for item in items)
 
 
 def _out_file(path, option="--out", suffixes=(".csv",), companions=None):
-    from ._outputs import OutputFile
+    from .util._outputs import OutputFile
 
     return OutputFile(Path(path), option, tuple(suffixes), companions)
 
 
 def _out_folder(path, names, option="--out"):
-    from ._outputs import OutputFolder
+    from .util._outputs import OutputFolder
 
     return OutputFolder(Path(path), option, tuple(names))
 
 
 def _outputs(outputs, inputs=()):
-    """Check every output before any work (see hybrid._outputs); returns the lock to hold meanwhile."""
-    from ._outputs import prepare_outputs
+    """Check every output before any work (see hybrid.util._outputs); returns the lock to hold meanwhile."""
+    from .util._outputs import prepare_outputs
 
     return prepare_outputs([o for o in outputs if o is not None], inputs)
 
@@ -157,10 +157,10 @@ def _outputs(outputs, inputs=()):
 def _cmd_simulate(args):
     import dataclasses
 
-    from ._bounds import check_samples
-    from ._drives import make_drive
-    from ._recording import SUFFIXES
-    from ._virtual_ipmc import VirtualIPMCParameters, virtual_recording
+    from .util._bounds import check_samples
+    from .data._drives import make_drive
+    from .data._recording import SUFFIXES
+    from .ipmc._virtual_ipmc import VirtualIPMCParameters, virtual_recording
 
     check_samples(args.duration, args.rate)
     lock = _outputs([_out_file(args.out, suffixes=SUFFIXES)])
@@ -182,9 +182,9 @@ def _cmd_rc(args):
     import jax.numpy as jnp
     import numpy as np
 
-    from ._atomic import atomic_open
-    from ._rc_network import RCNetwork
-    from ._recording import Recording
+    from .util._atomic import atomic_open
+    from .physics._rc_network import RCNetwork
+    from .data._recording import Recording
 
     lock = _outputs([_out_file(args.out)], inputs=[args.drive])
     # The same reader and checks as fit and diagnose; a drive needs no w.
@@ -210,13 +210,13 @@ def _cmd_rc(args):
 def _cmd_fit(args):
     import jax
 
-    from ._arguments import as_names
-    from ._fit import fit
-    from ._models import make_model
-    from ._rc_network import RCNetwork
-    from ._recording import Recording
-    from ._atomic import write_text
-    from ._serialise import save_model
+    from .core._arguments import as_names
+    from .core._fit import fit
+    from .core._models import make_model
+    from .physics._rc_network import RCNetwork
+    from .data._recording import Recording
+    from .util._atomic import write_text
+    from .core._serialise import save_model
 
     out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
     lock = _outputs([_out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
@@ -250,8 +250,8 @@ def _cmd_fit(args):
 
 
 def _cmd_table2(args):
-    from ._bounds import check_samples
-    from ._table2 import OUTPUT_FILES, Table2Settings, reproduce_table2
+    from .util._bounds import check_samples
+    from .ipmc._table2 import OUTPUT_FILES, Table2Settings, reproduce_table2
 
     overrides = {k: v for k, v in (("duration", args.duration), ("starts", args.starts),
                                    ("max_steps", args.max_steps)) if v is not None}
@@ -262,9 +262,9 @@ def _cmd_table2(args):
 
 
 def _cmd_sensitivity(args):
-    from ._bounds import check_samples
-    from ._recording import Recording
-    from ._sensitivity_study import OUTPUT_FILES, SensitivityStudySettings, run_sensitivity_study
+    from .util._bounds import check_samples
+    from .data._recording import Recording
+    from .ipmc._sensitivity_study import OUTPUT_FILES, SensitivityStudySettings, run_sensitivity_study
 
     check_samples(args.duration, args.rate)
     lock = _outputs([_out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording] if args.recording else [])
@@ -289,10 +289,10 @@ def _cmd_sensitivity(args):
 def _cmd_diagnose(args):
     import dataclasses
 
-    from ._diagnose import DiagnoseSettings, diagnose
-    from ._diagnose_report import FIGURES, _pm, write_report
-    from ._effects import EFFECTS
-    from ._recording import Recording
+    from .discovery._diagnose import DiagnoseSettings, diagnose
+    from .discovery._report import FIGURES, _pm, write_report
+    from .discovery._effects import EFFECTS
+    from .data._recording import Recording
 
     lock = _outputs([_out_folder(args.out, ("report.json", "report.md", *FIGURES))], inputs=args.recordings)
     recordings = [Recording.load(p) for p in args.recordings]

@@ -6,7 +6,7 @@ analog stage shifts and amplifies it onto the strip::
     V_strip = clip(gain * V_dac + offset, rail_low, rail_high)
 
 The defaults (gain 1.2, offset -3 V, rails +-3 V, V_ref 5 V, 12 bits) map
-codes 0..4095 onto -3..+3 V, the rig of ``hybrid._virtual_ipmc`` (its
+codes 0..4095 onto -3..+3 V, the rig of ``hybrid.ipmc._virtual_ipmc`` (its
 ``_dac``): ``code = round((v / 3 + 1) * 4095 / 2)``.
 """
 

@@ -14,7 +14,7 @@ import pathlib
 
 import numpy as np
 
-from hybrid._atomic import atomic_open
+from hybrid.util._atomic import atomic_open
 
 from ._errors import RigError
 

@@ -3,7 +3,7 @@
 The wires from the board onward are simulated: the DAC log of the emulated
 board (board seconds, codes) goes through the *true* amplifier (a
 :class:`~rig._calibration.Calibration`, which need not equal the host's) into
-``hybrid._virtual_ipmc`` (its RC line, back-relaxation, saturation and first
+``hybrid.ipmc._virtual_ipmc`` (its RC line, back-relaxation, saturation and first
 mode); the tip displacement is averaged over each exposure and rendered by
 :mod:`rig._render` with the sync LED lit for the fraction of the exposure it
 was on. The tracker sees only the pictures.
@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from hybrid._virtual_ipmc import VirtualIPMCParameters, simulate_virtual_ipmc
+from hybrid.ipmc._virtual_ipmc import VirtualIPMCParameters, simulate_virtual_ipmc
 
 from ._calibration import Calibration
 from ._camera import Frame

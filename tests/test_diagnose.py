@@ -1,6 +1,6 @@
 """`diagnose` names the effect hidden in a recording, or none, from held-out evidence.
 
-The recordings come from `hybrid._synthetic`: the paper's cascade by exact ZOH
+The recordings come from `hybrid.ipmc._synthetic`: the paper's cascade by exact ZOH
 on an 8× finer grid (scipy), the effect in a different functional form from the
 extension that finds it (two-exponential relaxation against one, a Preisach
 model of play operators against Bouc–Wen, algebraic against tanh saturation, a
@@ -25,10 +25,10 @@ import math
 import numpy as np
 import pytest
 
-from hybrid._diagnose import CAUSES, DiagnoseSettings, _choose_lane, diagnose
-from hybrid._diagnose_report import FIGURES, _nmse
-from hybrid._effects import EFFECTS
-from hybrid._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+from hybrid.discovery._diagnose import CAUSES, DiagnoseSettings, _choose_lane, diagnose
+from hybrid.discovery._report import FIGURES, _nmse
+from hybrid.discovery._effects import EFFECTS
+from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
 from hybrid.cli import main
 
 DURATION, RATE, NOISE = 60.0, 30.0, 0.01

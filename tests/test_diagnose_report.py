@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from hybrid._diagnose_report import _correlations, _jsonable
-from hybrid._residual_tests import confidence_bound
+from hybrid.discovery._report import _correlations, _jsonable
+from hybrid.discovery._residual_tests import confidence_bound
 from hybrid.cli import main
 
 

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 
 from hybrid import RCNetwork
-from hybrid._diagnose import SPLIT_ORDER, DiagnoseSettings
-from hybrid._diagnose_starts import baseline_design, baseline_starts
-from hybrid._models import Model
-from hybrid._problem import Problem, series_from_recording
-from hybrid._readout import LinearReadout
-from hybrid._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
+from hybrid.discovery._diagnose import SPLIT_ORDER, DiagnoseSettings
+from hybrid.discovery._starts import baseline_design, baseline_starts
+from hybrid.core._models import Model
+from hybrid.core._problem import Problem, series_from_recording
+from hybrid.core._readout import LinearReadout
+from hybrid.ipmc._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
 
 #: A slow strip (tip capacitance 8× the clamp's): from 15 of the 16 fixed Sobol starts used
 #: before screening, LM ended with a validation loss about 400× that of the true parameters.
@@ -53,9 +53,9 @@ def test_loop_screen_recovers_a_known_bouc_wen_loop():
     """`loop_screen` reads height and initial state off a least-squares solve: exact on a loop from a neutral start."""
     import jax.numpy as jnp
 
-    from hybrid._diagnose_starts import design_raws, loop_screen
-    from hybrid._effects import bouc_wen_state
-    from hybrid._recording import Recording
+    from hybrid.discovery._starts import design_raws, loop_screen
+    from hybrid.discovery._effects import bouc_wen_state
+    from hybrid.data._recording import Recording
 
     settings = DiagnoseSettings()
     drive = discrepancy_drive(60.0, 30.0, seed=1)
@@ -90,14 +90,14 @@ def test_resonance_starts_find_a_known_mode_and_network():
     """A mode on the screen's grid, after a design point's network, is found at that point, f and ζ.
 
     The recording is made with scipy (`lsim`: the mode's state space, input linear
-    between samples), independently of `hybrid._effects.Resonance`.
+    between samples), independently of `hybrid.discovery._effects.Resonance`.
     """
     import jax.numpy as jnp
     import scipy.signal
 
-    from hybrid._diagnose_starts import (MODE_DAMPINGS, N_JOINT_SCREEN, N_SCREEN, design_raws,
+    from hybrid.discovery._starts import (MODE_DAMPINGS, N_JOINT_SCREEN, N_SCREEN, design_raws,
                                          mode_frequencies, mode_screen, resonance_starts)
-    from hybrid._recording import Recording
+    from hybrid.data._recording import Recording
 
     settings = DiagnoseSettings()
     rate = 30.0

@@ -1,4 +1,4 @@
-"""Effects (hybrid._effects) against independent references, and the hidden-effect generator."""
+"""Effects (hybrid.discovery._effects) against independent references, and the hidden-effect generator."""
 
 import equinox as eqx
 import jax
@@ -8,11 +8,11 @@ import pytest
 import scipy.signal
 
 from hybrid import InputError, RCNetwork, make_drive
-from hybrid._effects import (
+from hybrid.discovery._effects import (
     EFFECTS, BackRelaxation, Delay, Drift, EffectStack, Hysteresis, Resonance, Saturation,
     affine_recurrence, bouc_wen_and_memory, bouc_wen_state, extend,
 )
-from hybrid._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
+from hybrid.ipmc._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
 
 DT = 1 / 30
 
@@ -268,9 +268,9 @@ def test_random_draws_stay_in_the_issue_ranges():
 def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     """`std_error_given_network` (a block of the full Fisher information) against an
     independent covariance computed with the network's parameters frozen."""
-    from hybrid._diagnose import DiagnoseSettings, _uncertainties
-    from hybrid._models import Model
-    from hybrid._readout import LinearReadout
+    from hybrid.discovery._diagnose import DiagnoseSettings, _uncertainties
+    from hybrid.core._models import Model
+    from hybrid.core._readout import LinearReadout
     from hybrid.sensitivity import parameter_covariance
 
     rec = synthetic_recording(make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0), SyntheticStrip(),

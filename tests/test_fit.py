@@ -15,7 +15,7 @@ import pytest
 
 import helpers as h
 from hybrid import InputError, LinearReadout, Model, RCNetwork, Recording, fit, make_model
-from hybrid._problem import Problem, Series
+from hybrid.core._problem import Problem, Series
 
 DT = 1.0 / h.RATE
 TINY = dict(window=5, depth=2, width=4)
@@ -272,7 +272,7 @@ def test_fit_rejects_no_recordings(small_physics):
 
 # --------------------------------------------------------------------------- weight decay
 def test_weight_decay_cost_and_normal_equations():
-    from hybrid._levenberg_marquardt import _normal_equations
+    from hybrid.core._levenberg_marquardt import _normal_equations
 
     series = _two_series()
     hybrid_model = make_model("hybrid", simulation=RCNetwork(n_stages=5), key=jax.random.key(3), **TINY)
@@ -322,7 +322,7 @@ def test_weight_decay_reaches_every_solver(solver, student, hybrid_recording):
 def test_jacobian_along_chosen_directions_keeps_only_those_columns():
     """Problem(sim_tangents=B): J_sim along the rows of B, the other columns zero (unit rows, one zero row)."""
     from hybrid import make_drive
-    from hybrid._problem import series_from_recording
+    from hybrid.core._problem import series_from_recording
 
     drive = make_drive("prbs", 20.0, seed=3)
     v_o = np.asarray(RCNetwork().simulate(jnp.asarray(drive.v), DT))
@@ -344,7 +344,7 @@ def test_jacobian_along_chosen_directions_keeps_only_those_columns():
 @pytest.mark.parametrize("blocks", [1, 3])
 def test_blocked_split_partitions_every_block_by_the_fractions(blocks):
     """series_from_recording(blocks=B): B equal chunks, each cut train/validation/test in order."""
-    from hybrid._problem import series_from_recording
+    from hybrid.core._problem import series_from_recording
 
     n = 1000
     recording = Recording.from_arrays(v_in=np.zeros(n), w=np.arange(float(n)), rate=30.0)
@@ -362,7 +362,7 @@ def test_blocked_split_partitions_every_block_by_the_fractions(blocks):
 
 
 def test_blocked_split_rejects_a_bad_block_count():
-    from hybrid._problem import series_from_recording
+    from hybrid.core._problem import series_from_recording
 
     recording = Recording.from_arrays(v_in=np.zeros(100), w=np.arange(100.0), rate=30.0)
     with pytest.raises(InputError, match="blocks must be a whole number"):

@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from hybrid._levenberg_marquardt import LMSettings, lm_init, lm_run
+from hybrid.core._levenberg_marquardt import LMSettings, lm_init, lm_run
 
 
 class _LinearProblem(eqx.Module):

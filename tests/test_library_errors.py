@@ -87,12 +87,12 @@ CASES = {
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_wrong_arguments_raise_one_input_error(name, model, recording, tmp_path, monkeypatch):
-    import hybrid._levenberg_marquardt
+    import hybrid.core._levenberg_marquardt
 
     monkeypatch.chdir(tmp_path)
     # Nothing may start fitting: each refusal comes from the argument checks.
-    monkeypatch.setattr(hybrid._fit, "lm_run", _never_called)
-    monkeypatch.setattr(hybrid._levenberg_marquardt, "lm_run", _never_called)
+    monkeypatch.setattr(hybrid.core._fit, "lm_run", _never_called)
+    monkeypatch.setattr(hybrid.core._levenberg_marquardt, "lm_run", _never_called)
     call, phrase = CASES[name]
     with pytest.raises(InputError) as caught:
         call(model, recording)
@@ -103,10 +103,10 @@ def test_wrong_arguments_raise_one_input_error(name, model, recording, tmp_path,
 
 def test_fit_reads_a_single_frozen_name_as_one_name(model, recording, monkeypatch):
     # "xi_h" used to be read as {"x", "i", "_", "h"}.
-    import hybrid._fit
+    import hybrid.core._fit
 
     seen = {}
-    as_names = hybrid._fit.as_names
+    as_names = hybrid.core._fit.as_names
 
     def spy(*args, **kwargs):
         seen["frozen"] = as_names(*args, **kwargs)
@@ -115,8 +115,8 @@ def test_fit_reads_a_single_frozen_name_as_one_name(model, recording, monkeypatc
     def stop(*args, **kwargs):
         raise InputError("stopped after the argument checks")
 
-    monkeypatch.setattr(hybrid._fit, "as_names", spy)
-    monkeypatch.setattr(hybrid._fit, "series_from_recording", stop)
+    monkeypatch.setattr(hybrid.core._fit, "as_names", spy)
+    monkeypatch.setattr(hybrid.core._fit, "series_from_recording", stop)
     with pytest.raises(InputError, match="stopped"):
         hybrid.fit(model, recording, frozen="xi_h", max_steps=1, progress=False)
     assert seen["frozen"] == frozenset({"xi_h"})
@@ -126,13 +126,13 @@ def test_fit_accepts_a_recording_path(model, recording, tmp_path, monkeypatch):
     path = recording.save(tmp_path / "tiny.csv")
     seen = {}
 
-    import hybrid._fit
+    import hybrid.core._fit
 
     def stop(r, *args):
         seen["recording"] = r
         raise InputError("stopped after loading")
 
-    monkeypatch.setattr(hybrid._fit, "series_from_recording", stop)
+    monkeypatch.setattr(hybrid.core._fit, "series_from_recording", stop)
     with pytest.raises(InputError, match="stopped after loading"):
         hybrid.fit(model, str(path), max_steps=1, progress=False)
     assert seen["recording"] == recording

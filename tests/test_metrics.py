@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hybrid._errors import InputError
-from hybrid._metrics import METRICS, fitting, metrics, nmse, nmse_target, nmse_variance
+from hybrid.util._errors import InputError
+from hybrid.core._metrics import METRICS, fitting, metrics, nmse, nmse_target, nmse_variance
 
 W = [1.0, 2.0, 4.0]
 W_HAT = [1.0, 2.0, 2.0]

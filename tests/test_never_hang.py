@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
-from hybrid._watchdog import STALL_EXIT_STATUS, Watchdog, stage
+from hybrid.ipmc._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
+from hybrid.util._watchdog import STALL_EXIT_STATUS, Watchdog, stage
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Seconds before a run counts as hung: ~5× a cold-cache run of the command here (2 cores).
@@ -77,7 +77,7 @@ def test_heartbeat_names_the_stage():
 
 
 def test_a_stalled_process_exits_with_status_3_and_one_line():
-    code = ("import time\nfrom hybrid._watchdog import Watchdog, stage\n"
+    code = ("import time\nfrom hybrid.util._watchdog import Watchdog, stage\n"
             "with Watchdog('hybrid diagnose', heartbeat=0, stall=1.0):\n"
             "    stage('diagnose: screening')\n    time.sleep(60)\n")
     start = time.monotonic()

@@ -63,27 +63,27 @@ def rec(recording_file, tmp_path, monkeypatch):
 
 def fast_network(monkeypatch):
     """V_o = V_i: these tests are about files, not the network (tests/test_cli.py checks V_o)."""
-    import hybrid._rc_network
+    import hybrid.physics._rc_network
 
-    monkeypatch.setattr(hybrid._rc_network.RCNetwork, "simulate", lambda self, v_in, dt: v_in)
+    monkeypatch.setattr(hybrid.physics._rc_network.RCNetwork, "simulate", lambda self, v_in, dt: v_in)
 
 
 def refuse_to_compute(monkeypatch):
     """Make the expensive step fail loudly: a check must refuse before it is reached."""
-    import hybrid._diagnose
-    import hybrid._fit
-    import hybrid._sensitivity_study
-    import hybrid._table2
-    import hybrid._virtual_ipmc
+    import hybrid.discovery._diagnose
+    import hybrid.core._fit
+    import hybrid.ipmc._sensitivity_study
+    import hybrid.ipmc._table2
+    import hybrid.ipmc._virtual_ipmc
 
     def boom(*args, **kwargs):
         raise AssertionError("computed before checking the outputs")
 
-    monkeypatch.setattr(hybrid._fit, "fit", boom)
-    monkeypatch.setattr(hybrid._diagnose, "diagnose", boom)
-    monkeypatch.setattr(hybrid._virtual_ipmc, "virtual_recording", boom)
-    monkeypatch.setattr(hybrid._table2, "reproduce_table2", boom)
-    monkeypatch.setattr(hybrid._sensitivity_study, "run_sensitivity_study", boom)
+    monkeypatch.setattr(hybrid.core._fit, "fit", boom)
+    monkeypatch.setattr(hybrid.discovery._diagnose, "diagnose", boom)
+    monkeypatch.setattr(hybrid.ipmc._virtual_ipmc, "virtual_recording", boom)
+    monkeypatch.setattr(hybrid.ipmc._table2, "reproduce_table2", boom)
+    monkeypatch.setattr(hybrid.ipmc._sensitivity_study, "run_sensitivity_study", boom)
 
 
 # --------------------------------------------------------------------------- 1. never write over an input
@@ -124,7 +124,7 @@ def full_disk(*args, **kwargs):
 
 
 def test_staged_write_on_a_full_disk_changes_nothing(tmp_path, monkeypatch):
-    from hybrid import _atomic
+    from hybrid.util import _atomic
 
     target = tmp_path / "old.txt"
     target.write_text("the previous, good content\n")
@@ -136,7 +136,7 @@ def test_staged_write_on_a_full_disk_changes_nothing(tmp_path, monkeypatch):
 
 
 def test_staged_pair_is_replaced_together_or_not_at_all(tmp_path):
-    from hybrid import _atomic
+    from hybrid.util import _atomic
 
     a, b = tmp_path / "m.eqx", tmp_path / "m.eqx.json"
     a.write_text("A0")
@@ -205,7 +205,7 @@ def test_figures_are_written_atomically(tmp_path, monkeypatch):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hybrid._figures import save_png
+    from hybrid.util._figures import save_png
 
     path = tmp_path / "fig.png"
     path.write_bytes(b"old png")
@@ -221,10 +221,12 @@ def test_figures_are_written_atomically(tmp_path, monkeypatch):
 
 
 def test_table2_and_sensitivity_write_through_the_atomic_helper():
-    # Their every write goes through hybrid._atomic (no bare write_text/savefig left).
+    # Their every write goes through hybrid.util._atomic (no bare write_text/savefig left).
     import inspect
 
-    from hybrid import _figures, _sensitivity_study, _table2
+    from hybrid.util import _figures
+    from hybrid.ipmc import _sensitivity_study
+    from hybrid.ipmc import _table2
 
     for module in (_table2, _sensitivity_study, _figures):
         source = inspect.getsource(module)
@@ -258,7 +260,7 @@ def test_bad_output_paths_are_refused_before_any_work(argv, phrase, rec, capsys,
 
 
 def test_output_folders_are_created_and_checked_writable(tmp_path):
-    from hybrid._outputs import OutputFile, prepare_outputs
+    from hybrid.util._outputs import OutputFile, prepare_outputs
 
     target = tmp_path / "new" / "deeper" / "m.eqx"
     with prepare_outputs([OutputFile(target, "--out", (".eqx",))]):
@@ -267,12 +269,12 @@ def test_output_folders_are_created_and_checked_writable(tmp_path):
 
 
 def test_a_failed_command_leaves_no_folder_or_lock_behind(rec, capsys, monkeypatch):
-    import hybrid._fit
+    import hybrid.core._fit
 
     def bad_fit(*args, **kwargs):
         raise InputError("the fit failed")
 
-    monkeypatch.setattr(hybrid._fit, "fit", bad_fit)
+    monkeypatch.setattr(hybrid.core._fit, "fit", bad_fit)
     before = snapshot(rec.parent)
     code, _, err = run(["fit", rec, "--model", "physics", "--out", "new/deeper/m.eqx", "--quiet"], capsys)
     assert_one_line_error(code, err, "the fit failed")

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import scipy.io
 
-from hybrid._errors import InputError
-from hybrid._recording import Recording, Split, sidecar
+from hybrid.util._errors import InputError
+from hybrid.data._recording import Recording, Split, sidecar
 
 
 def _recording(n=100, rate=30.0, extra=True, **metadata):

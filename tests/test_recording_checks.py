@@ -15,8 +15,8 @@ import scipy.linalg
 
 from hybrid import InputError, Recording, diagnose, fit, make_model
 from hybrid import sensitivity as S
-from hybrid._rc_network import RCNetwork
-from hybrid._recording import JITTER_FRAMES, MS_STEP_S
+from hybrid.physics._rc_network import RCNetwork
+from hybrid.data._recording import JITTER_FRAMES, MS_STEP_S
 from hybrid.cli import main
 
 RATE = 30.0

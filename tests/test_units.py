@@ -19,7 +19,7 @@ import pytest
 
 import helpers as h
 from hybrid import RCNetwork, Recording, fit, make_model
-from hybrid._problem import robust_rms, robust_std
+from hybrid.core._problem import robust_rms, robust_std
 
 TRUE_NETWORK = RCNetwork(xi_rho=6.0, xi_h=1.0, alpha_E=0.3, alpha_I=0.6, alpha_C=0.4,
                          C_clamp=0.02, n_stages=10)
@@ -89,7 +89,7 @@ def test_robust_std_and_rms_at_any_magnitude(factor):
 
 # --------------------------------------------------------------------------- warnings (FitResult.warnings)
 def test_warnings_name_implausible_unmoved_and_stuck_fits():
-    from hybrid._result import fit_warnings
+    from hybrid.core._result import fit_warnings
 
     start = make_model("physics", simulation=RCNetwork(n_stages=10))
     moved = start.simulation.replace(xi_rho=357.0, alpha_E=0.4, alpha_I=0.6, alpha_C=0.3, C_clamp=5e-11)

@@ -14,8 +14,8 @@ import scipy.integrate
 import scipy.optimize
 import scipy.signal
 
-from hybrid._errors import InputError
-from hybrid._virtual_ipmc import (
+from hybrid.util._errors import InputError
+from hybrid.ipmc._virtual_ipmc import (
     VirtualIPMCParameters,
     VirtualRecording,
     _build,

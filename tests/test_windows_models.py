@@ -19,8 +19,8 @@ from hybrid import (
     make_model,
     sliding_windows,
 )
-from hybrid._problem import Problem, series_from_recording
-from hybrid._windows import segment_windows
+from hybrid.core._problem import Problem, series_from_recording
+from hybrid.core._windows import segment_windows
 
 
 def _windows_reference(x, window):

@@ -1,0 +1,176 @@
+"""Checks on the library's arguments: a wrong type is an InputError that says what to pass.
+
+The public entry points (`fit`, `fit_batch`, `diagnose`, `simulate`, …) call
+these first, so that a path where a Recording belongs, a string where a set of
+names belongs, or a negative time step ends in one
+[`InputError`][hybrid.InputError] line instead of a raw TypeError or
+AttributeError deep inside, or a silently wrong answer.
+
+Checks on values (finite drive, positive dt) run only on concrete values:
+inside `jax.jit`, `jax.vmap` or `jax.grad` the arguments are tracers whose
+values are unknown, and they are passed through untouched.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import os
+from collections.abc import Iterable
+
+import jax
+import numpy as np
+
+from ..util._errors import InputError
+
+__all__ = ["as_names", "as_recordings", "check_drive", "check_model", "check_seed", "is_tracer"]
+
+
+def is_tracer(x) -> bool:
+    """True inside `jit`/`vmap`/`grad`, where `x`'s value is not known."""
+    return isinstance(x, jax.core.Tracer)
+
+
+def check_model(model, where: str):
+    """`model` must be a [`hybrid.Model`][] (from `make_model`, `load_model` or a fit)."""
+    from ._models import Model
+
+    if not isinstance(model, Model):
+        raise InputError(
+            f"{where} needs a hybrid.Model as its model, got {type(model).__name__} {model!r:.60}: "
+            "build one with hybrid.make_model(...) or hybrid.load_model(path)"
+        )
+    return model
+
+
+def check_simulation(simulation, where: str, allow_none: bool = True):
+    """`simulation` must be an `AbstractSimulation` (e.g. `RCNetwork()`), or None where a default exists."""
+    from ._simulation import AbstractSimulation
+
+    if simulation is None and allow_none:
+        return None
+    if not isinstance(simulation, AbstractSimulation):
+        raise InputError(
+            f"{where} needs a simulation such as hybrid.RCNetwork(), got {type(simulation).__name__} "
+            f"{simulation!r:.60}"
+        )
+    return simulation
+
+
+def as_recordings(recordings, where: str) -> list:
+    """One or several recordings as a list; a file path is loaded with `Recording.load`.
+
+    Anything else (a number, a dict, an array) is an InputError that says to pass
+    Recording objects.
+    """
+    from ..data._recording import Recording
+
+    items = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
+    out = []
+    for i, item in enumerate(items):
+        if isinstance(item, Recording):
+            out.append(item)
+        elif isinstance(item, (str, os.PathLike)):
+            out.append(Recording.load(item))
+        else:
+            which = "" if len(items) == 1 else f" (item {i})"
+            raise InputError(
+                f"{where} needs Recording objects or file paths, got {type(item).__name__}{which}: "
+                "load files with hybrid.Recording.load(path) or build one with Recording.from_arrays(...)"
+            )
+    if not out:
+        raise InputError(f"{where} got no recordings: pass at least one Recording")
+    return out
+
+
+def as_names(names, where: str, what: str = "frozen", valid: Iterable[str] | None = None) -> frozenset[str]:
+    """Parameter names as a frozenset: one string is one name (not its letters).
+
+    `valid`, when given, are the names allowed: any other is an InputError that lists them.
+    """
+    if isinstance(names, str):
+        names = (names,)
+    elif names is None:
+        names = ()
+    elif not isinstance(names, Iterable) or isinstance(names, (bytes, dict)):
+        raise InputError(
+            f"{where}: {what} must be a parameter name or a set of names such as {{'xi_h'}}, "
+            f"got {type(names).__name__} {names!r:.60}"
+        )
+    names = tuple(names)
+    bad = [n for n in names if not isinstance(n, str)]
+    if bad:
+        raise InputError(f"{where}: {what} must hold parameter names (strings), got {bad[0]!r}")
+    if valid is not None:
+        valid = list(valid)
+        unknown = sorted(set(names) - set(valid))
+        if unknown:
+            raise InputError(f"{where}: unknown {what} name(s) {unknown}: valid names are {valid}")
+    return frozenset(names)
+
+
+def check_seed(seed, where: str) -> int:
+    """A seed is a non-negative integer."""
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise InputError(f"{where}: seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
+
+
+def check_dt(dt, where: str):
+    """The sample interval: a finite positive number of seconds (a tracer passes unchecked)."""
+    if is_tracer(dt):
+        return dt
+    if isinstance(dt, (bool, str, bytes)) or dt is None:
+        raise InputError(f"{where}: dt must be the sample interval in seconds (a number), got {dt!r}")
+    try:
+        value = float(dt)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: dt must be one number (seconds), got {type(dt).__name__} {dt!r:.60}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise InputError(f"{where}: dt must be a finite positive number of seconds, got {value!r}")
+    return dt
+
+
+def check_drive(v_in, dt, where: str):
+    """`v_in` (V, shape (T,)) and `dt` (s) of a simulation; returns them (v_in as a JAX array).
+
+    Concrete values must be real, finite and one-dimensional, and dt positive:
+    an error names the first bad sample. Tracers pass through unchecked.
+    """
+    import jax.numpy as jnp
+
+    dt = check_dt(dt, where)
+    if is_tracer(v_in):
+        return v_in, dt
+    if isinstance(v_in, (str, bytes)) or v_in is None:
+        raise InputError(f"{where}: v_in must be the drive voltage as an array of numbers, got {v_in!r:.60}")
+    try:
+        array = np.asarray(v_in)
+    except (TypeError, ValueError) as error:
+        raise InputError(f"{where}: v_in must be an array of numbers ({error})") from None
+    if array.dtype.kind not in "biuf":
+        raise InputError(f"{where}: v_in must hold real numbers, got dtype {array.dtype}")
+    if array.ndim != 1:
+        raise InputError(f"{where}: v_in must have shape (T,), one value per sample, got {array.shape}")
+    bad = np.flatnonzero(~np.isfinite(array))
+    if bad.size:
+        raise InputError(
+            f"{where}: v_in has {bad.size} non-finite value(s), the first at sample {int(bad[0])}: "
+            "remove or interpolate them"
+        )
+    return jnp.asarray(v_in), dt
+
+
+def check_key(key, where: str):
+    """A JAX PRNG key (``jax.random.key(0)``, or a legacy ``jax.random.PRNGKey(0)``), or None."""
+    if key is None or is_tracer(key):
+        return key
+    import jax.numpy as jnp
+
+    if isinstance(key, jax.Array):
+        if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+            return key
+        if key.dtype == jnp.uint32 and key.shape == (2,):
+            return key
+    raise InputError(f"{where}: key must be a JAX PRNG key such as jax.random.key(0), got {type(key).__name__} "
+                     f"{key!r:.60}")

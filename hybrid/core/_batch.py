@@ -1,0 +1,330 @@
+"""`fit_batch`: many recordings × many starts fitted in one compiled program.
+
+Each recording gets its own fit (its own model), exactly as [`hybrid.fit`][]
+would give it with ``solver="lm"``: the same starts, the same Levenberg–Marquardt
+loop, the validation split picking the best iterate and the best start. What
+changes is how the work is laid out:
+
+- every (recording, start) pair becomes one element of a batch axis: the
+  recordings' data, fixed scalings and starting θ are stacked, and one
+  `jax.vmap`-ed `lm_init` + `lm_run` (a `lax.while_loop`) runs them all;
+- `batch_size` bounds memory: the elements run in `lax.map` chunks of that
+  many, each chunk `vmap`-ed (a Hybrid model's Jacobian is ~75 MB per fit at
+  5,400 training samples);
+- with several devices (`jax.devices()`), the batch axis is sharded over a
+  1-D `Mesh` (`NamedSharding(mesh, P("batch"))`) and each device runs its own
+  part under `jax.shard_map`; nothing is communicated between devices.
+
+Multi-host: call ``jax.distributed.initialize()`` (coordinator address, number
+of processes and process id, or the cluster's environment) at the start of
+every process, before any other JAX call; `jax.devices()` then lists the
+devices of all hosts and the same `fit_batch` call, run by every process with
+the same recordings, shards the batch over all of them. Results come back as
+global arrays; this module gathers them with `jax.device_get`, which in a
+multi-host run needs ``jax.experimental.multihost_utils.process_allgather``
+instead (not exercised here: one machine).
+
+All recordings in one call must have the same number of samples and the same
+sample rate (their split segments are compiled into the program); group them
+by length otherwise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._arguments import as_recordings, check_dt, check_model
+from ..util._errors import InputError
+from ._simulation import AbstractSimulation
+from ._fit import _readout_back, _start_model, _units
+from ._levenberg_marquardt import LMSettings, lm_init, lm_run
+from ._metrics import metrics as compute_metrics
+from ._models import Model
+from ._problem import Problem, Series, series_from_recording
+from ._result import FitResult, fit_warnings
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchFitResult:
+    """What [`fit_batch`][] returns.
+
+    **Fields:**
+
+    - `results`: one [`FitResult`][] per recording, in order (`history` is
+      empty: the batch runs to the end in one call).
+    - `seconds`: wall time of the whole call.
+    - `compile_seconds`: of which compiling (tracing + XLA).
+    - `devices`: number of devices the batch was sharded over.
+    - `batch`: number of (recording, start) fits run.
+    """
+
+    results: list[FitResult]
+    seconds: float
+    compile_seconds: float
+    devices: int
+    batch: int
+
+    @property
+    def fits_per_second(self) -> float:
+        """Recordings fitted per second of run time, compilation excluded."""
+        run = max(self.seconds - self.compile_seconds, 1e-12)
+        return len(self.results) / run
+
+    def __len__(self):
+        return len(self.results)
+
+    def __getitem__(self, index) -> FitResult:
+        return self.results[index]
+
+
+def fit_batch(
+    model: Model,
+    recordings,
+    *,
+    starts: int = 1,
+    max_steps: int = 300,
+    frozen=frozenset(),
+    split=(0.3, 0.5, 0.2),
+    split_order=("train", "test", "validation"),
+    patience: int = 40,
+    weight_decay: float = 0.0,
+    perturbation: float = 0.5,
+    seed: int = 0,
+    batch_size: int | None = None,
+    devices=None,
+) -> BatchFitResult:
+    """Fit `model` separately to each recording, all fits in one compiled program.
+
+    **Arguments:**
+
+    - `model`, `starts`, `max_steps`, `frozen`, `split`, `split_order`,
+      `patience`, `weight_decay`, `perturbation`, `seed`: as in
+      [`hybrid.fit`][] (``solver="lm"``), applied to every recording.
+    - `recordings`: a list of Recordings of equal length and rate (e.g. 64
+      strips, or one strip recorded many times).
+    - `batch_size`: fits `vmap`-ed together per device (default: all of them);
+      lower it to bound memory.
+    - `devices`: the devices to shard the batch over (default: all of
+      `jax.devices()`; a list of one device runs unsharded).
+
+    **Returns:** a [`BatchFitResult`][]; ``result[i]`` equals
+    ``hybrid.fit(model, recordings[i], ...)`` to rounding.
+    """
+    t_start = time.perf_counter()
+    model = check_model(model, "fit_batch")
+    recordings = as_recordings(recordings, "fit_batch")  # a path is loaded; anything else is refused
+    for name, value, low in (("starts", starts, 1), ("max_steps", max_steps, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise InputError(f"{name} must be a positive integer, got {value!r}")
+    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
+        raise InputError(f"batch_size must be a positive integer or None, got {batch_size!r}")
+    frozen = frozenset(frozen)
+    shapes = {(r.n, round(float(r.rate), 9)) for r in recordings}
+    if len(shapes) > 1:
+        raise InputError(
+            f"fit_batch needs recordings of one length and rate, got (samples, Hz) {sorted(shapes)}: "
+            "group them by length, or crop them to a common length"
+        )
+    for recording in recordings:
+        recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
+        recording.check_signals()
+    series = [series_from_recording(r, split, split_order) for r in recordings]
+    for i, s in enumerate(series):
+        if not np.ptp(np.asarray(s.target("train"))) > 0:
+            raise InputError(f"recording {i} ({recordings[i].name}) has constant w on its training part")
+
+    # One Problem per (recording, start), sharing the static parts of a template.
+    # Each recording in its own units, as fit() does (w / std(w_train), v_in / rms(v_in)).
+    problems, thetas, units, starts_of = [], [], [], []
+    template = None
+    for s in series:
+        w_unit, v_unit = _units(model, [s], np.asarray(s.target("train")))
+        s = Series(s.v_in / v_unit, s.w / w_unit, s.dt, s.segments)
+        units.append((w_unit, v_unit))
+        scaled = Model(model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind)
+        initial = [_start_jit(scaled, k, seed, frozen, perturbation, [s]) for k in range(starts)]
+        starts_of.append(initial)
+        problem = Problem(initial[0], [s], frozen, weight_decay)
+        if template is None:
+            template = problem
+        problem = eqx.tree_at(
+            lambda p: (p.sim_static, p.readout_static, p.series, p.scale), template,
+            (problem.sim_static, problem.readout_static, problem.series, problem.scale),
+        )
+        for m in initial:
+            problems.append(problem)
+            thetas.append(problem.flatten(m, frozen))
+    n_fits = len(problems)
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[_arrays(p) for p in problems])
+    thetas = jnp.stack(thetas)
+
+    devices = list(jax.devices() if devices is None else devices)
+    n_dev = len(devices)
+    padded = -(-n_fits // n_dev) * n_dev
+    if padded > n_fits:  # repeat the last fit so that every device gets the same share
+        stacked = jax.tree_util.tree_map(lambda x: _pad(x, padded), stacked)
+        thetas = _pad(thetas, padded)
+    settings = LMSettings(max_steps=max_steps, patience=patience)
+    run = _compiled_runner(template, settings, batch_size, tuple(devices))
+    if n_dev > 1:
+        sharding = jax.sharding.NamedSharding(_mesh(tuple(devices)), jax.sharding.PartitionSpec("batch"))
+        stacked, thetas = jax.device_put((stacked, thetas), sharding)
+    t0 = time.perf_counter()
+    compiled = run.lower(stacked, thetas).compile()
+    compile_seconds = time.perf_counter() - t0
+    out = compiled(stacked, thetas)
+    out = jax.device_get(out)
+    best_theta, best_val, steps, accepted, best_step, cost, predictions = out
+
+    results = []
+    for r, recording in enumerate(recordings):
+        rows = range(r * starts, (r + 1) * starts)
+        vals = [float(best_val[i]) for i in rows]
+        k = int(np.nanargmin(vals))
+        i = r * starts + k
+        problem = problems[i]
+        fitted = problem.model(jnp.asarray(best_theta[i]))
+        w_unit, v_unit = units[r]
+        fitted = Model(fitted.simulation, _readout_back(fitted.readout, model.readout, frozen, v_unit, w_unit),
+                       fitted.kind)
+        split_metrics = {}
+        for name in ("train", "validation", "test"):
+            if name in split_order:
+                w = np.asarray(problem.target(name))
+                split_metrics[name] = compute_metrics(w, predictions[name][i][: w.shape[0]])
+        per_start = [
+            {"validation_loss": float(best_val[j]), "steps": int(steps[j]), "accepted_steps": int(accepted[j]),
+             "best_step": int(best_step[j]), "train_cost": float(cost[j])}
+            for j in rows
+        ]
+        results.append(FitResult(
+            model=fitted,
+            parameters={key: float(v) for key, v in fitted.parameters().items()},
+            units=fitted.units,
+            metrics=split_metrics,
+            history=[],
+            starts=per_start,
+            best_start=k,
+            settings={
+                "solver": "lm", "batch": True, "starts": starts, "max_steps": max_steps,
+                "frozen": sorted(frozen), "split": dict(zip(split_order, map(float, split))),
+                "patience": patience, "seed": seed, "perturbation": perturbation,
+                "weight_decay": problem.weight_decay, "n_parameters": int(thetas.shape[1]),
+                "n_residuals": int(problem.target("train").shape[0]),
+                "recordings": [recording.metadata.get("source", "")],
+            },
+            seconds=float("nan"),
+            warnings=list(recording.notes) + fit_warnings(starts_of[r][k], fitted, frozen, per_start[k]),
+        ))
+    seconds = time.perf_counter() - t_start
+    for i, res in enumerate(results):  # each fit's share of the wall time
+        results[i] = dataclasses.replace(res, seconds=seconds / len(results))
+    return BatchFitResult(results, seconds, compile_seconds, n_dev, n_fits)
+
+
+# --------------------------------------------------------------------------- internals
+# fit()'s start models, compiled once per start index and reused for every recording
+# (run eagerly, the simulation's scans and the least-squares gain compile op by op, per call)
+_start_jit = eqx.filter_jit(_start_model)
+
+_DYNAMIC = lambda p: (p.sim_static, p.readout_static, p.series, p.scale)  # noqa: E731
+
+
+def _arrays(problem):
+    """The per-recording arrays of a Problem: data, scale, fixed leaves (scalings, frozen values)."""
+    return eqx.filter(_DYNAMIC(problem), eqx.is_array)
+
+
+def _pad(x, n):
+    extra = n - x.shape[0]
+    return jnp.concatenate([x, jnp.repeat(x[-1:], extra, axis=0)])
+
+
+def _mesh(devices):
+    return jax.sharding.Mesh(np.array(devices), ("batch",))
+
+
+def _compiled_runner(template, settings, batch_size, devices):
+    """A jitted function (stacked problem arrays, θ's) → per-fit results."""
+    splits = tuple(name for name, _ in template.series[0].segments)
+
+    def one(arrays, theta):
+        sim_static, readout_static, series, scale = eqx.combine(arrays, eqx.filter(_DYNAMIC(template), eqx.is_array, inverse=True))
+        problem = eqx.tree_at(
+            lambda p: (p.sim_static, p.readout_static, p.series, p.scale), template,
+            (sim_static, readout_static, series, scale),
+        )
+        state = lm_init(problem, theta, settings)
+        state = lm_run(problem, state, settings, settings.max_steps)
+        predictions = {name: problem.prediction(state.best_theta, name) for name in splits}
+        return (state.best_theta, state.best_val, state.step, state.accepted, state.best_step,
+                state.cost, predictions)
+
+    def local(arrays, thetas):
+        if batch_size is None:
+            return jax.vmap(one)(arrays, thetas)
+        return jax.lax.map(lambda a: one(*a), (arrays, thetas), batch_size=batch_size)
+
+    if len(devices) == 1:
+        return jax.jit(local)
+    mesh = _mesh(devices)
+    spec = jax.sharding.PartitionSpec("batch")
+    # check_vma=False: the library's scans start from constants (not device-varying); no
+    # collectives are used, so the per-device programs are independent.
+    return jax.jit(jax.shard_map(local, mesh=mesh, in_specs=(spec, spec), out_specs=spec, check_vma=False))
+
+
+# --------------------------------------------------------------------------- many simulations
+def simulate_batch(simulations, v_in, dt: float, *, batch_size: int | None = 8):
+    """Mediatory signals of many parameter sets: (B, T), in one compiled program.
+
+    **Arguments:**
+
+    - `simulations`: a list of B simulations of one type and shape (e.g.
+      `RCNetwork`s with different parameters), or one simulation whose array
+      leaves all have a leading batch axis of size B (as `jax.vmap` makes them).
+    - `v_in`: the drive (V), shape (T,) shared by all, or (B, T).
+    - `dt`: sample interval (s).
+    - `batch_size`: simulations `vmap`-ed together; `lax.map` runs the chunks one
+      after the other, so each chunk's (batch_size, T) work stays in cache
+      (8 is ~2.5× faster than vmapping 1,000 RC networks at once on a CPU,
+      `benchmarks/simulate.py`). None vmaps all of them.
+    """
+    if isinstance(simulations, (list, tuple)):
+        if not simulations:
+            raise InputError("no simulations: pass a non-empty list")
+        kinds = {type(s) for s in simulations}
+        if len(kinds) > 1 or not issubclass(kinds.pop(), AbstractSimulation):
+            raise InputError("simulate_batch needs simulations of one type such as hybrid.RCNetwork(), got "
+                             f"{', '.join(sorted({type(s).__name__ for s in simulations}))}")
+        simulations = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *simulations)
+    if not isinstance(simulations, AbstractSimulation):
+        raise InputError(f"simulate_batch needs a list of simulations such as hybrid.RCNetwork(), got "
+                         f"{type(simulations).__name__}")
+    check_dt(dt, "simulate_batch")
+    v_in = jnp.asarray(v_in)
+    if v_in.ndim not in (1, 2):
+        raise InputError(f"v_in must have shape (T,) or (B, T), got {v_in.shape}")
+    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
+        raise InputError(f"batch_size must be a positive integer or None, got {batch_size!r}")
+    return _simulate_batch(simulations, v_in, float(dt), batch_size)
+
+
+@eqx.filter_jit
+def _simulate_batch(simulations, v_in, dt, batch_size):
+    shared = v_in.ndim == 1
+
+    def one(args):
+        simulation, v = args if not shared else (args, v_in)
+        return simulation.simulate(v, dt)
+
+    xs = simulations if shared else (simulations, v_in)
+    if batch_size is None:
+        return jax.vmap(one)(xs)
+    return jax.lax.map(one, xs, batch_size=batch_size)

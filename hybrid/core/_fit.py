@@ -1,0 +1,334 @@
+"""`fit`: physical parameters and network weights fitted jointly, end to end.
+
+Solvers:
+
+- ``"lm"`` (default): Levenberg–Marquardt on the structured Jacobian
+  ([`hybrid.core._levenberg_marquardt`][]), several starts `vmap`-ed in one program.
+- ``"optimistix"``: `optimistix.LevenbergMarquardt` on the flattened parameters,
+  Jacobian by autodiff of the whole model — fine for the physics-only model
+  (a handful of parameters), slow for the D-MLP models. It returns its final
+  iterate (validation only picks among starts).
+- ``"adam"``: `optax.adam` on ½‖r‖², with the same validation bookkeeping.
+
+The training split drives the optimiser; the validation split picks the best
+iterate of each start and the best start; the test split is only reported.
+The D-MLP's fixed input/output scalings are those of start 0 for every start.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._arguments import as_names, as_recordings, check_model, check_seed
+from ..util._errors import InputError
+from ._levenberg_marquardt import LMSettings, lm_init, lm_run
+from ._metrics import metrics as compute_metrics
+from ._models import Model
+from ._problem import Problem, Series, robust_rms, robust_std, series_from_recording
+from ._readout import LinearReadout, WindowedMLP
+from ._result import FitResult, fit_warnings
+from ..util._watchdog import stage
+
+Solver = Literal["lm", "optimistix", "adam"]
+SOLVERS = ("lm", "optimistix", "adam")
+
+
+def fit(
+    model: Model,
+    recordings,
+    *,
+    solver: Solver = "lm",
+    starts: int = 1,
+    max_steps: int = 300,
+    frozen=frozenset(),
+    split=(0.3, 0.5, 0.2),
+    split_order=("train", "test", "validation"),
+    blocks: int = 1,
+    patience: int = 40,
+    weight_decay: float = 0.0,
+    learning_rate: float = 3e-3,
+    perturbation: float = 0.5,
+    seed: int = 0,
+    progress: bool = True,
+    report_every: int = 10,
+) -> FitResult:
+    """Fit `model` to one or several recordings of the same strip.
+
+    **Arguments:**
+
+    - `model`: starting model (e.g. from [`hybrid.make_model`][]); start 0 begins
+      exactly there, the others from fresh network weights and physical
+      parameters perturbed by `perturbation` (std of the unconstrained value).
+    - `recordings`: a Recording or a list of them; each is split contiguously.
+    - `solver`: ``"lm"``, ``"optimistix"`` or ``"adam"`` (see module docstring).
+    - `starts`: number of starts (vmapped together for ``"lm"`` and ``"adam"``).
+    - `max_steps`: iteration limit per start.
+    - `frozen`: parameter names kept at their starting values (e.g. ``{"xi_h"}``;
+      ``"network"`` freezes all D-MLP weights).
+    - `split`, `split_order`: fractions and order of the contiguous splits
+      (paper: train 30 %, test 50 %, validation 20 %).
+    - `blocks`: cut each recording into this many equal chunks and split each
+      chunk by `split` (1: the paper's contiguous split; see
+      [`hybrid.core._problem.series_from_recording`][]).
+    - `patience`: LM stops after this many accepted steps without validation gain.
+    - `weight_decay`: μ, ridge penalty ½ μ ‖θ_network‖² on black-box readout weights
+      (D-MLP); residuals are in units of the training std of w, so μ is relative
+      to one sample's squared error. 0 disables it.
+    - `learning_rate`: Adam's step size.
+    - `seed`: seeds the extra starts.
+    - `progress`: show a progress bar on stderr.
+    - `report_every`: iterations between progress reports / history entries.
+
+    **Returns:** a [`FitResult`][].
+    """
+    t_start = time.perf_counter()
+    if solver not in SOLVERS:
+        raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
+    if not isinstance(starts, int) or starts < 1:
+        raise InputError(f"starts must be a positive integer, got {starts!r}")
+    if not isinstance(max_steps, int) or max_steps < 1:
+        raise InputError(f"max_steps must be a positive integer, got {max_steps!r}")
+    model = check_model(model, "fit")
+    recordings = as_recordings(recordings, "fit")  # a path is loaded; anything else is refused
+    frozen = as_names(frozen, "fit", "frozen", model.parameter_names)  # "xi_h" is one name
+    seed = check_seed(seed, "fit")
+    for i, recording in enumerate(recordings):
+        recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
+        recording.check_signals()  # a constant drive or w: refused, not fitted to its start values
+    series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
+    train_w = np.concatenate([np.asarray(s.target("train")) for s in series])
+    if not np.ptp(train_w) > 0:
+        raise InputError("the training part of the recording(s) has constant w: "
+                         "there is nothing to fit (check the displacement column)")
+
+    # Fit in units where w and v_in are O(1), so that the result does not depend on the
+    # recording's units (LM's damping λI and the gain's Jacobian column do otherwise).
+    w_unit, v_unit = _units(model, series, train_w)
+    series = [Series(s.v_in / v_unit, s.w / w_unit, s.dt, s.segments) for s in series]
+    given = model
+    model = Model(model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind)
+
+    initial = [_start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
+    problem = Problem(initial[0], series, frozen, weight_decay)
+    thetas = jnp.stack([problem.flatten(m, frozen) for m in initial])
+
+    if solver == "lm":
+        best, history, per_start = _run_lm(problem, thetas, max_steps, patience, progress, report_every)
+    elif solver == "adam":
+        best, history, per_start = _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every)
+    else:
+        best, history, per_start = _run_optimistix(problem, thetas, max_steps)
+
+    best_start = int(np.nanargmin([s["validation_loss"] for s in per_start]))
+    fitted = problem.model(best[best_start])
+    fitted = Model(fitted.simulation, _readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit),
+                   fitted.kind)
+    result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
+    settings = {
+        "solver": solver, "starts": starts, "max_steps": max_steps, "frozen": sorted(frozen),
+        "split": dict(zip(split_order, map(float, split))), "blocks": blocks, "patience": patience,
+        "seed": seed, "perturbation": perturbation, "weight_decay": problem.weight_decay, "n_parameters": int(thetas.shape[1]),
+        "n_residuals": int(problem.target("train").shape[0]),
+        "recordings": [r.metadata.get("source", "") for r in recordings],
+    }
+    if solver == "adam":
+        settings["learning_rate"] = learning_rate
+    return FitResult(
+        model=fitted,
+        parameters={k: float(v) for k, v in fitted.parameters().items()},
+        units=_unit_labels(fitted, recordings),
+        metrics=result_metrics,
+        history=history,
+        starts=per_start,
+        best_start=best_start,
+        settings=settings,
+        seconds=time.perf_counter() - t_start,
+        warnings=[note for r in recordings for note in r.notes]
+        + fit_warnings(initial[best_start], fitted, frozen, per_start[best_start]),
+    )
+
+
+def _unit_labels(model: Model, recordings) -> dict[str, str]:
+    """`model.units`, with a linear readout's gain and offset in the recordings' declared units."""
+    units = dict(model.units)
+    tables = [r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings]
+    declared = {(str(u.get("w", "mm")), str(u.get("v_in", "V"))) for u in tables}
+    if len(declared) == 1 and isinstance(model.readout, LinearReadout):
+        w, v = declared.pop()
+        units.update(gain=f"{w}/{v}", offset=w)
+    return units
+
+
+def _units(model: Model, series, train_w) -> tuple[float, float]:
+    """(w_unit, v_unit): the std of the training w and the rms of v_in, the fit's units.
+
+    Dividing by them exactly (not by a nearby power of two) matters: LM's damping
+    λI sees the gain's Jacobian column, so a leftover factor √2 in the scale of w
+    already moves the end point along the RC network's near-null directions.
+    v_in is scaled only for a simulation linear in the drive (the RC network) and
+    a readout that can take it; otherwise its units are part of the physics.
+    """
+    try:
+        model.readout.rescaled(1.0, 1.0)
+    except NotImplementedError:
+        return 1.0, 1.0
+    w_unit = float(robust_std(jnp.asarray(train_w)))
+    v_unit = 1.0
+    if getattr(model.simulation, "linear_in_drive", False):
+        v_unit = float(robust_rms(jnp.concatenate([s.v_in for s in series])))
+    ok = lambda x: np.isfinite(x) and x > 0  # noqa: E731
+    return (w_unit if ok(w_unit) else 1.0), (v_unit if ok(v_unit) else 1.0)
+
+
+def _readout_back(fitted, given, frozen, v_unit, w_unit):
+    """The fitted readout in the recording's units; what was not fitted stays exactly as given.
+
+    A readout with a frozen part keeps its given fixed leaves (`_start_model` does not
+    re-initialise it), so those leaves come back bit for bit, not rescaled twice.
+    """
+    readout = fitted.rescaled(v_unit, w_unit)
+    if "network" in frozen or (set(getattr(given, "raw", {})) & frozen):
+        spec = given.trainable(frozen)
+        readout = eqx.combine(eqx.filter(readout, spec), eqx.filter(given, spec, inverse=True))
+    return readout
+
+
+def _start_model(model: Model, index, seed, frozen, perturbation, series) -> Model:
+    """Start `index`: 0 is `model` itself; others get new weights and perturbed physics."""
+    if index > 0:
+        key = jax.random.fold_in(jax.random.key(seed), index)
+        k_net, k_phys = jax.random.split(key)
+        readout = model.readout
+        if isinstance(readout, WindowedMLP):
+            depth = len(readout.mlp.layers) - 1
+            width = readout.mlp.width_size
+            readout = WindowedMLP(readout.window, depth, width, readout.mlp.activation, key=k_net)
+        simulation = model.simulation.perturbed(k_phys, perturbation, frozen)
+        model = Model(simulation, readout, model.kind)
+    # Fixed scalings (and a least-squares gain for linear readouts) from the training data.
+    signal = jnp.concatenate([
+        jnp.concatenate([model.mediatory(s.v_in, s.dt)[a:b] for a, b in s.segments_of("train")])
+        for s in series
+    ])
+    target = jnp.concatenate([s.target("train") for s in series])
+    if "network" in frozen or (set(getattr(model.readout, "raw", {})) & frozen):
+        return model
+    return Model(model.simulation, model.readout.initialise(signal, target), model.kind)
+
+
+def _metrics_by_split(problem: Problem, theta, split_order):
+    out = {}
+    for split in ("train", "validation", "test"):
+        if split in split_order:
+            w = problem.target(split)
+            w_hat = problem.prediction(theta, split)
+            out[split] = compute_metrics(np.asarray(w), np.asarray(w_hat))
+    return out
+
+
+def _progress_bar(total, enabled, desc):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, disable=not enabled, desc=desc, unit="step", leave=False)
+
+
+@eqx.filter_jit
+def _lm_init_batch(problem, thetas, settings):
+    return jax.vmap(lambda th: lm_init(problem, th, settings))(thetas)
+
+
+@eqx.filter_jit
+def _lm_run_batch(problem, states, settings, n_steps):
+    return jax.vmap(lambda s: lm_run(problem, s, settings, n_steps))(states)
+
+
+def _run_lm(problem, thetas, max_steps, patience, progress, report_every):
+    settings = LMSettings(max_steps=max_steps, patience=patience)
+    stage(f"fit: compiling and starting LM on the {problem.kind} model ({thetas.shape[0]} start(s))")
+    states = _lm_init_batch(problem, thetas, settings)
+    history = []
+    with _progress_bar(max_steps, progress, f"LM {problem.kind}") as bar:
+        while not bool(jnp.all(states.done)):
+            states = _lm_run_batch(problem, states, settings, report_every)
+            step = int(jnp.max(states.step))
+            stage(f"fit: LM on the {problem.kind} model, step {step} of at most {max_steps}")
+            history.append({
+                "step": step,
+                "train_cost": [float(c) for c in states.cost],
+                "validation_loss": [float(v) for v in states.best_val],
+            })
+            bar.n = step
+            bar.set_postfix(cost=f"{float(jnp.min(states.cost)):.3e}", val=f"{float(jnp.min(states.best_val)):.3e}")
+            bar.refresh()
+    per_start = [
+        {"validation_loss": float(states.best_val[i]), "steps": int(states.step[i]),
+         "accepted_steps": int(states.accepted[i]), "best_step": int(states.best_step[i]),
+         "train_cost": float(states.cost[i])}
+        for i in range(thetas.shape[0])
+    ]
+    return states.best_theta, history, per_start
+
+
+def _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every):
+    import optax
+
+    optimiser = optax.adam(learning_rate)
+    n = problem.target("train").shape[0]
+
+    @eqx.filter_jit
+    def run(problem, thetas, opt_states, best, best_val, n_steps):
+        def one(theta, opt_state, best, best_val):
+            def body(_, carry):
+                theta, opt_state, best, best_val = carry
+                grad = jax.grad(lambda th: problem.cost(th) / n)(theta)
+                updates, opt_state = optimiser.update(grad, opt_state, theta)
+                theta = optax.apply_updates(theta, updates)
+                val = problem.validation_loss(theta)
+                better = val < best_val
+                return theta, opt_state, jnp.where(better, theta, best), jnp.where(better, val, best_val)
+
+            return jax.lax.fori_loop(0, n_steps, body, (theta, opt_state, best, best_val))
+
+        return jax.vmap(one)(thetas, opt_states, best, best_val)
+
+    opt_states = jax.vmap(optimiser.init)(thetas)
+    best = thetas
+    best_val = jax.vmap(problem.validation_loss)(thetas)
+    history = []
+    step = 0
+    with _progress_bar(max_steps, progress, f"Adam {problem.kind}") as bar:
+        while step < max_steps:
+            chunk = min(report_every, max_steps - step)
+            thetas, opt_states, best, best_val = run(problem, thetas, opt_states, best, best_val, chunk)
+            step += chunk
+            costs = jax.vmap(problem.cost)(thetas)
+            history.append({"step": step, "train_cost": [float(c) for c in costs],
+                            "validation_loss": [float(v) for v in best_val]})
+            bar.n = step
+            bar.refresh()
+    per_start = [{"validation_loss": float(v), "steps": step} for v in best_val]
+    return best, history, per_start
+
+
+def _run_optimistix(problem, thetas, max_steps):
+    import optimistix as optx
+
+    solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
+    best, per_start = [], []
+    for theta in thetas:
+        solution = optx.least_squares(
+            lambda th, _: problem.objective_residuals(th), solver, theta, max_steps=max_steps, throw=False
+        )
+        best.append(solution.value)
+        per_start.append({
+            "validation_loss": float(problem.validation_loss(solution.value)),
+            "steps": int(solution.stats["num_steps"]),
+            "result": str(solution.result) if solution.result != optx.RESULTS.successful else "successful",
+        })
+    return jnp.stack(best), [], per_start

@@ -1,0 +1,115 @@
+"""Models = a physics simulation followed by a readout (paper Fig. 2).
+
+- Hybrid: V_i → RC network → V_o → window → D-MLP → ŵ  (the paper's proposal)
+- Normal: V_i → window → D-MLP → ŵ                      (the paper's baseline)
+- Physics: V_i → RC network → V_o → gain · V_o + offset  (the simulation alone)
+
+All are non-autoregressive: the measured displacement is never an input.
+The simulation runs over the whole drive of a recording (the drive is known at
+all times and carries no target information); the readout's windows are formed
+inside each segment (see [`hybrid.core._windows`][]).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._arguments import check_key, check_simulation
+from ..util._errors import InputError
+from ..physics._rc_network import RCNetwork
+from ._readout import AbstractReadout, LinearReadout, WindowedMLP
+from ._simulation import AbstractSimulation, Passthrough
+
+ModelKind = Literal["hybrid", "normal", "physics"]
+MODEL_KINDS = ("hybrid", "normal", "physics")
+
+
+class Model(eqx.Module):
+    """A simulation and a readout, fitted together.
+
+    **Arguments:**
+
+    - `simulation`: the physics part (an [`AbstractSimulation`][]).
+    - `readout`: the per-sample map to w (an [`AbstractReadout`][]).
+    - `kind`: a label (``"hybrid"``, ``"normal"``, ``"physics"`` or your own).
+    """
+
+    simulation: AbstractSimulation
+    readout: AbstractReadout
+    kind: str = eqx.field(static=True, default="custom")
+
+    def mediatory(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
+        """The mediatory signal (V_o for the RC network) over the whole drive."""
+        return self.simulation.simulate(v_in, dt)
+
+    def predict(self, v_in, dt, segments=None) -> Float[Array, " samples"]:
+        """ŵ (mm) for each `(start, stop)` segment (default: the whole drive)."""
+        v_in = jnp.asarray(v_in)
+        if segments is None:
+            segments = ((0, v_in.shape[0]),)
+        return self.readout(self.mediatory(v_in, dt), segments)
+
+    def parameters(self) -> dict[str, Array]:
+        """Interpretable parameters by name, physical units (see `units`)."""
+        return {**self.simulation.parameters(), **self.readout.parameters()}
+
+    @property
+    def units(self) -> dict[str, str]:
+        return {**self.simulation.parameter_units(), **getattr(type(self.readout), "units", {})}
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        names = self.simulation.parameter_names() + tuple(getattr(self.readout, "raw", {}))
+        if isinstance(self.readout, WindowedMLP):
+            names += ("network",)
+        return names
+
+    def trainable(self, frozen=frozenset()) -> "Model":
+        """Filter spec (bools, same structure) of the free leaves; `frozen` names stay fixed."""
+        frozen = frozenset(frozen)
+        unknown = frozen - set(self.parameter_names)
+        if unknown:
+            raise InputError(
+                f"cannot freeze {sorted(unknown)}: this {self.kind} model's parameters are "
+                f"{list(self.parameter_names)}"
+            )
+        return Model(self.simulation.trainable(frozen), self.readout.trainable(frozen), self.kind)
+
+
+def make_model(
+    kind: ModelKind = "hybrid",
+    *,
+    simulation: AbstractSimulation | None = None,
+    window: int = 60,
+    depth: int = 11,
+    width: int = 10,
+    key=None,
+) -> Model:
+    """The paper's Hybrid or Normal model, or the physics-only simulation.
+
+    **Arguments:**
+
+    - `kind`: ``"hybrid"`` (RC network + D-MLP), ``"normal"`` (D-MLP on V_i) or
+      ``"physics"`` (RC network + linear gain and offset).
+    - `simulation`: the physics part for hybrid/physics (default: [`RCNetwork`][]
+      with its default parameters).
+    - `window`, `depth`, `width`: D-MLP shape (paper: 60, 11, 10).
+    - `key`: PRNG key for the D-MLP weights (default `jax.random.key(0)`).
+    """
+    if not isinstance(kind, str) or kind not in MODEL_KINDS:
+        raise InputError(f"model must be one of {', '.join(MODEL_KINDS)}, got {kind!r}")
+    check_simulation(simulation, "make_model")
+    check_key(key, "make_model")
+    if key is None:
+        key = jax.random.key(0)
+    if kind == "normal":
+        return Model(Passthrough(), WindowedMLP(window, depth, width, key=key), "normal")
+    simulation = RCNetwork() if simulation is None else simulation
+    if kind == "physics":
+        return Model(simulation, LinearReadout(), "physics")
+    return Model(simulation, WindowedMLP(window, depth, width, key=key), "hybrid")

@@ -1,0 +1,154 @@
+"""Constrained, named physical parameters.
+
+Physical parameters are stored unconstrained ("raw") so that any optimiser can
+move them freely, and mapped to their physical range on use:
+
+- `Positive`: value = exp(raw) — resistances ratios, capacitances, rates.
+- `UnitInterval`: value = sigmoid(raw) — the attenuation coefficients α ∈ (0, 1).
+- `Real`: value = raw — gains and offsets.
+
+A module holding parameters keeps them in a dict ``raw: dict[str, Array]``
+(names are the keys, so fitted parameters are labelled by name for free) and a
+static dict of constraints with the same keys.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..util._errors import InputError
+
+
+class Constraint(eqx.Module):
+    """Maps an unconstrained raw value to a physical value and back."""
+
+    @abc.abstractmethod
+    def to_physical(self, raw):
+        """Physical value of an unconstrained raw value."""
+
+    @abc.abstractmethod
+    def to_raw(self, value):
+        """Unconstrained raw value of a physical value (checks the range)."""
+
+    @abc.abstractmethod
+    def describe(self) -> str:
+        """The allowed range in words."""
+
+
+class Positive(Constraint):
+    """value = exp(raw) ∈ (0, ∞)."""
+
+    def to_physical(self, raw):
+        return jnp.exp(raw)
+
+    def to_raw(self, value):
+        return jnp.log(value)
+
+    def describe(self) -> str:
+        return "positive"
+
+    def contains(self, value) -> bool:
+        return bool(np.all(np.asarray(value) > 0) and np.all(np.isfinite(value)))
+
+
+class UnitInterval(Constraint):
+    """value = sigmoid(raw) ∈ (0, 1)."""
+
+    def to_physical(self, raw):
+        return 1.0 / (1.0 + jnp.exp(-raw))
+
+    def to_raw(self, value):
+        return jnp.log(value) - jnp.log1p(-value)
+
+    def describe(self) -> str:
+        return "strictly between 0 and 1"
+
+    def contains(self, value) -> bool:
+        v = np.asarray(value)
+        return bool(np.all((v > 0) & (v < 1)))
+
+
+class SignedUnitInterval(Constraint):
+    """value = tanh(raw) ∈ (−1, 1)."""
+
+    def to_physical(self, raw):
+        return jnp.tanh(raw)
+
+    def to_raw(self, value):
+        return jnp.arctanh(value)
+
+    def describe(self) -> str:
+        return "strictly between −1 and 1"
+
+    def contains(self, value) -> bool:
+        v = np.asarray(value)
+        return bool(np.all((v > -1) & (v < 1)))
+
+
+class Real(Constraint):
+    """value = raw ∈ ℝ."""
+
+    def to_physical(self, raw):
+        return raw
+
+    def to_raw(self, value):
+        return jnp.asarray(value)
+
+    def describe(self) -> str:
+        return "finite"
+
+    def contains(self, value) -> bool:
+        return bool(np.all(np.isfinite(np.asarray(value))))
+
+
+def encode(values: dict, constraints: dict, owner: str) -> dict:
+    """Raw (unconstrained) arrays for physical `values`, checking names and ranges."""
+    raw = {}
+    for name, value in values.items():
+        if name not in constraints:
+            raise InputError(
+                f"{owner} has no parameter {name!r}: its parameters are {sorted(constraints)}"
+            )
+        constraint = constraints[name]
+        if not isinstance(value, jax.core.Tracer):
+            try:
+                if value is None or isinstance(value, (str, bytes)):
+                    raise TypeError(value)
+                np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                raise InputError(
+                    f"{owner} parameter {name} must be a number, got {type(value).__name__} {value!r:.60}"
+                ) from None
+        if not constraint.contains(value):
+            raise InputError(
+                f"{owner} parameter {name} must be {constraint.describe()}, got {value!r}"
+            )
+        raw[name] = constraint.to_raw(jnp.asarray(value, dtype=float))
+    missing = set(constraints) - set(raw)
+    if missing:
+        raise InputError(f"{owner} is missing parameter(s) {sorted(missing)}")
+    return raw
+
+
+def decode(raw: dict, constraints: dict) -> dict:
+    """Physical values of raw parameters (traceable)."""
+    return {name: constraints[name].to_physical(value) for name, value in raw.items()}
+
+
+def parse_assignment(text: str) -> tuple[str, float]:
+    """Parse ``NAME=VALUE`` as given on the command line."""
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise InputError(f"parameter {text!r} must be written NAME=VALUE, e.g. xi_rho=12.5")
+    try:
+        number = float(value)
+    except ValueError:
+        raise InputError(
+            f"parameter {name.strip()} must be a number, got {value!r} (write NAME=VALUE)"
+        ) from None
+    return name.strip(), number

@@ -1,0 +1,143 @@
+"""Save and load models: Equinox serialisation of the arrays + JSON metadata.
+
+A model saved to ``path`` is two files: ``path`` (the leaves, written by
+`eqx.tree_serialise_leaves`) and ``path.json`` (what is needed to rebuild the
+skeleton: model kind, simulation class and settings, readout shape; plus the
+fitted parameters in physical units and, when saved from a fit, its metrics).
+
+Both files are written together and atomically ([`hybrid.util._atomic.staged`][]):
+a failed save (a full disk) leaves a model already at ``path`` as it was. The
+leaves go through an open file, so ``path`` is used exactly as given (Equinox
+would append ``.eqx`` to a path without that suffix).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import numpy as np
+
+from ..util._atomic import staged
+from ..util._errors import InputError
+from ._models import Model
+from ..physics._rc_network import RCNetwork
+from ._readout import LinearReadout, WindowedMLP
+from ._simulation import Passthrough
+from ..physics._strip import Strip
+
+FORMAT = "hybrid-model/1"
+
+
+def _describe(model: Model) -> dict:
+    sim, readout = model.simulation, model.readout
+    if isinstance(sim, RCNetwork):
+        simulation = {"type": "RCNetwork", "n_stages": sim.n_stages, "method": sim.method,
+                      "strip": sim.strip.to_dict()}
+    elif isinstance(sim, Passthrough):
+        simulation = {"type": "Passthrough"}
+    else:
+        raise InputError(f"cannot save a model with simulation {type(sim).__name__}: "
+                         "only RCNetwork and Passthrough are serialisable")
+    if isinstance(readout, WindowedMLP):
+        if readout.mlp.activation is not jax.numpy.tanh:
+            raise InputError("only tanh D-MLPs can be saved")
+        out = {"type": "WindowedMLP", "window": readout.window,
+               "depth": len(readout.mlp.layers) - 1, "width": readout.mlp.width_size}
+    elif isinstance(readout, LinearReadout):
+        out = {"type": "LinearReadout"}
+    else:
+        raise InputError(f"cannot save a model with readout {type(readout).__name__}")
+    return {"format": FORMAT, "kind": model.kind, "simulation": simulation, "readout": out}
+
+
+def _skeleton(description: dict) -> Model:
+    sim_d, out_d = description["simulation"], description["readout"]
+    if sim_d["type"] == "RCNetwork":
+        simulation = RCNetwork(strip=Strip.from_dict(sim_d["strip"]), n_stages=sim_d["n_stages"],
+                               method=sim_d["method"])
+    else:
+        simulation = Passthrough()
+    if out_d["type"] == "WindowedMLP":
+        readout = WindowedMLP(out_d["window"], out_d["depth"], out_d["width"], key=jax.random.key(0))
+    else:
+        readout = LinearReadout()
+    return Model(simulation, readout, description["kind"])
+
+
+def _path(path, where: str) -> Path:
+    if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
+        raise InputError(f"{where} needs a file path (str or pathlib.Path), got {path!r}: give e.g. 'fit.eqx'")
+    return Path(path)
+
+
+def save_model(path, model: Model, extra: dict | None = None) -> Path:
+    """Write `model` to `path` (+ `path.json`); `extra` (JSON-able) is stored alongside.
+
+    Both files are replaced together only once both are written whole.
+    """
+    path = _path(path, "save_model")
+    if not isinstance(model, Model):
+        raise InputError(f"save_model needs a hybrid.Model (e.g. FitResult.model), got {type(model).__name__}")
+    if path.is_dir():
+        raise InputError(f"cannot save a model to {path}: it is a folder; give a file name such as {path / 'fit.eqx'}")
+    description = _describe(model)
+    description["parameters"] = {k: float(v) for k, v in model.parameters().items()}
+    description["units"] = model.units
+    if extra:
+        description["extra"] = extra
+    try:
+        text = json.dumps(description, indent=2, allow_nan=False)
+    except (TypeError, ValueError) as error:
+        raise InputError(f"save_model: extra is not JSON-able ({error}): use dicts, lists, strings, "
+                         "finite numbers, booleans and None") from None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"cannot create the folder {path.parent} for {path} ({error.strerror or error}): create it or choose another path") from None
+    with staged(path, Path(f"{path}.json")) as (leaves, meta):
+        with open(leaves, "wb") as handle:
+            eqx.tree_serialise_leaves(handle, model)
+        meta.write_text(text + "\n", encoding="utf-8")
+    return path
+
+
+def load_model(path) -> Model:
+    """Read a model written by [`save_model`][]."""
+    path = _path(path, "load_model")
+    meta = Path(f"{path}.json")
+    if not path.is_file() or not meta.is_file():
+        raise InputError(f"model file {path} or its metadata {meta} is missing: save it with `hybrid fit --out`")
+    try:
+        description = json.loads(meta.read_text())
+    except json.JSONDecodeError as error:
+        raise InputError(f"model metadata {meta} is not valid JSON ({error})") from None
+    if not isinstance(description, dict) or description.get("format") != FORMAT:
+        found = description.get("format") if isinstance(description, dict) else type(description).__name__
+        raise InputError(f"{meta} is not a hybrid model description (format {found!r})")
+    try:
+        skeleton = _skeleton(description)
+    except (KeyError, TypeError, AttributeError) as error:
+        raise InputError(f"model metadata {meta} is incomplete ({type(error).__name__}: {error}): "
+                         "save the model again with save_model or `hybrid fit --out`") from None
+    try:
+        with open(path, "rb") as handle:
+            model = eqx.tree_deserialise_leaves(handle, skeleton)
+    except Exception as error:  # equinox raises several types for a mismatched file
+        raise InputError(f"model file {path} does not match its metadata ({error})") from None
+    # The metadata's parameters must be what the weights give: catches a file
+    # paired with another model's metadata (or an edited N, which lives only there).
+    expected = description.get("parameters", {})
+    for name, value in model.parameters().items():
+        if name in expected and not np.isclose(float(value), expected[name], rtol=1e-9, atol=0):
+            if not jax.config.jax_enable_x64 and np.isclose(float(value), expected[name], rtol=1e-6, atol=0):
+                raise InputError(f"model file {path} holds float64 weights and this session runs float32: call "
+                                 "jax.config.update('jax_enable_x64', True) before load_model (the CLI does)")
+            raise InputError(
+                f"model file {path} does not match its metadata: {name} is {float(value):.6g} in the "
+                f"weights but {expected[name]:.6g} in {meta}"
+            )
+    return model

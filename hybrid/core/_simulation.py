@@ -1,0 +1,113 @@
+"""The physics-simulation interface: anything that turns a drive into a mediatory signal.
+
+A simulation is an `eqx.Module` with named, constrained parameters (see
+[`hybrid.core._parameters`][]) and `simulate(v_in, dt) -> signal`. The fitter, the
+models and the CLI only use this interface, so the paper's RC network is one
+implementation among others (an effect that wraps a simulation is itself one).
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._arguments import check_drive
+from ..util._errors import InputError
+from ._parameters import Constraint, decode, encode
+
+
+class AbstractSimulation(eqx.Module):
+    """A physics simulation with named, constrained parameters.
+
+    Subclasses declare `constraints` (a class-level dict name → Constraint) and
+    hold the unconstrained values in `raw`.
+    """
+
+    raw: eqx.AbstractVar[dict[str, Array]]
+    constraints: ClassVar[dict[str, Constraint]]
+    units: ClassVar[dict[str, str]]
+    #: Physically plausible range (low, high) of each parameter, in its unit. A
+    #: fitted value outside it is warned about (`FitResult.warnings`), not refused.
+    plausible: ClassVar[dict[str, tuple[float, float]]] = {}
+    #: True when the output is linear in the drive (zero initial state), so that a
+    #: drive in mV gives the same parameters as one in V: `fit` then scales v_in.
+    linear_in_drive: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
+        """Mediatory signal for the drive `v_in` (V) sampled every `dt` seconds."""
+
+    def parameters(self) -> dict[str, Array]:
+        """Physical values of the parameters, by name (units in `units`)."""
+        return decode(self.raw, self.constraints)
+
+    def replace(self, **values) -> "AbstractSimulation":
+        """A copy with some parameters set to new physical values."""
+        current = dict(self.parameters())
+        unknown = set(values) - set(current)
+        if unknown:
+            raise InputError(
+                f"{type(self).__name__} has no parameter(s) {sorted(unknown)}: "
+                f"its parameters are {sorted(current)}"
+            )
+        current.update(values)
+        raw = encode(current, self.constraints, type(self).__name__)
+        return eqx.tree_at(lambda s: s.raw, self, raw)
+
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of the parameters (what `frozen` and `replace` accept)."""
+        return tuple(self.raw)
+
+    def parameter_units(self) -> dict[str, str]:
+        """Unit of each parameter, by name."""
+        return dict(type(self).units)
+
+    def perturbed(self, key, scale: float, frozen=frozenset()) -> "AbstractSimulation":
+        """A copy whose free raw (unconstrained) values get N(0, scale²) noise: a new start."""
+        return eqx.tree_at(lambda s: s.raw, self, perturb_raw(self.raw, key, scale, frozen))
+
+    def trainable(self, frozen: frozenset[str]) -> "AbstractSimulation":
+        """Filter spec (same structure, bools) marking the free parameters."""
+        spec = {name: name not in frozen for name in self.raw}
+        return eqx.tree_at(
+            lambda s: s.raw,
+            _all(self, False),
+            spec,
+        )
+
+
+class Passthrough(AbstractSimulation):
+    """No physics: the mediatory signal is the drive itself (the paper's Normal model)."""
+
+    raw: dict[str, Array]
+    constraints: ClassVar[dict[str, Constraint]] = {}
+    units: ClassVar[dict[str, str]] = {}
+    linear_in_drive: ClassVar[bool] = True
+
+    def __init__(self):
+        self.raw = {}
+
+    def simulate(self, v_in, dt):
+        return check_drive(v_in, dt, "Passthrough.simulate")[0]
+
+
+def perturb_raw(raw: dict, key, scale: float, frozen=frozenset()) -> dict:
+    """`raw` with N(0, scale²) noise added to every value not named in `frozen`."""
+    import jax
+
+    out = dict(raw)
+    for j, name in enumerate(sorted(out)):
+        if name not in frozen:
+            out[name] = out[name] + scale * jax.random.normal(jax.random.fold_in(key, j), out[name].shape,
+                                                              out[name].dtype)
+    return out
+
+
+def _all(tree, value: bool):
+    import jax
+
+    return jax.tree_util.tree_map(lambda _: value, tree)

@@ -1,0 +1,4 @@
+"""Measured and generated data: `Recording` (a drive and a displacement on one
+time grid, with its checks, loaders and splits) and the paper's drives (PRBS,
+sine, chirp, pulse). Depends only on `hybrid.util`.
+"""

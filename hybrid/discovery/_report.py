@@ -1,0 +1,485 @@
+"""The report of `hybrid diagnose`: ``report.json``, ``report.md`` and five figures.
+
+`write_report(diagnosis, out_dir)` writes
+
+- ``report.json``: ``Diagnosis.to_dict()``, strictly valid JSON (numpy values
+  converted, NaN and ±inf as ``null``), written atomically;
+- ``residual_time.png``, ``loops.png``, ``spectrum.png``, ``correlation.png``,
+  ``segments.png``: the held-out residuals of the baseline and of the extended
+  model (the one with the named effect), each figure showing both;
+- ``report.md``: a lab-notebook page that names the cause, tabulates the
+  evidence and embeds the figures with what to look for in each.
+
+Everything is computed from ``Diagnosis.to_dict()`` and ``Diagnosis.heldout``;
+nothing is refitted.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from . import _residual_tests as rt
+from ..util._figures import _pyplot
+
+#: Lags of the correlation figure and of ``evidence`` (``_diagnose._evidence``).
+MAX_LAG = 50
+#: Segments of the drift figure (``_residual_tests.segment_errors``' default).
+SEGMENTS = 8
+DPI = 120
+
+#: File names of the figures, in the order the report shows them.
+FIGURES = ("residual_time.png", "loops.png", "spectrum.png", "correlation.png", "segments.png")
+
+_MODELS = (("baseline", "baseline", "C0"), ("extended", "extended", "C3"))
+
+
+# --------------------------------------------------------------------------- #
+# JSON
+# --------------------------------------------------------------------------- #
+
+
+def _jsonable(value):
+    """`value` with numpy scalars/arrays as Python numbers/lists and NaN, ±inf as None."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    if value is None or isinstance(value, str):
+        return value
+    if isinstance(value, Path):
+        return str(value)
+    if hasattr(value, "__array__"):  # JAX arrays and other array-likes
+        return _jsonable(np.asarray(value))
+    raise TypeError(f"report.json cannot hold a {type(value).__name__}: {value!r}")
+
+
+def _atomic(path: Path, mode: str = "w"):
+    """A handle on a temporary file next to `path`, fsync-ed and renamed over `path` once written whole.
+
+    [`hybrid.util._atomic.atomic_open`][]: a full disk leaves the old file and no temporary.
+    """
+    from ..util._atomic import atomic_open
+
+    return atomic_open(path, mode)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    with _atomic(path) as handle:
+        handle.write(text)
+
+
+# --------------------------------------------------------------------------- #
+# Statistics behind the figures
+# --------------------------------------------------------------------------- #
+
+
+def _correlations(residual, drive, max_lag: int = MAX_LAG) -> dict:
+    """ACF (lags 1..max_lag), CCF with the drive (−max_lag..max_lag) and the 99 % bound."""
+    acf = rt.autocorrelation(residual, max_lag)
+    lags, ccf = rt.cross_correlation(residual, drive, max_lag)
+    return {"acf_lags": np.arange(1, len(acf)), "acf": acf[1:], "ccf_lags": lags, "ccf": ccf,
+            "bound": rt.confidence_bound(len(residual))}
+
+
+def _loop_levels(loop: dict) -> int:
+    """Drive levels (bins of `rt.loops`) with both a rising and a falling mean."""
+    return int(np.sum(np.isfinite(loop["rising"]) & np.isfinite(loop["falling"])))
+
+
+def _x_axis(held: dict) -> tuple[np.ndarray, list[float]]:
+    """Time axis for the held-out parts laid end to end, and the boundaries between recordings.
+
+    One recording keeps its own time stamps; later recordings follow the previous
+    one's last sample after one sample interval.
+    """
+    t = np.asarray(held["t"], float)
+    which = np.asarray(held["recording"])
+    x = t.copy()
+    boundaries = []
+    starts = np.flatnonzero(np.diff(which) != 0) + 1
+    for start in starts:
+        step = float(np.median(np.diff(t[max(start - 50, 0):start]))) if start > 1 else 0.0
+        x[start:] = t[start:] - t[start] + x[start - 1] + step
+        boundaries.append(float(x[start] - 0.5 * step))
+    return x, boundaries
+
+
+# --------------------------------------------------------------------------- #
+# Figures
+# --------------------------------------------------------------------------- #
+
+
+def _save(fig, path: Path, plt) -> None:
+    """Save as PNG through a temporary file and a rename, like the text files."""
+    fig.tight_layout()
+    try:
+        with _atomic(path, "wb") as handle:
+            fig.savefig(handle, dpi=DPI, format="png")
+    finally:
+        plt.close(fig)
+
+
+def _gaps(x) -> np.ndarray:
+    """Indices where the time axis jumps (between held-out blocks): lines break there."""
+    if len(x) < 3:
+        return np.array([], dtype=int)
+    step = np.diff(x)
+    return np.flatnonzero(step > 1.5 * np.median(step)) + 1
+
+
+def _figure_residual_time(held, d, path, plt):
+    x, boundaries = _x_axis(held)
+    gaps = _gaps(x)
+
+    def broken(y):  # NaN between held-out blocks so that no line bridges the training data
+        return np.insert(np.asarray(y, float), gaps, np.nan)
+
+    w = held["w"]
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    top.plot(broken(x), broken(w), "k", lw=1.0, label="measured w")
+    for (key, label, colour), lw in zip(_MODELS, (1.8, 1.0)):  # baseline wider: visible where they coincide
+        top.plot(broken(x), broken(held[key]), color=colour, lw=lw, alpha=0.85,
+                 label=f"{label} (held-out NMSE {_nmse(d[key]['nmse'])})")
+        bottom.plot(broken(x), broken(w - held[key]), color=colour, lw=0.8 * lw, alpha=0.85,
+                    label=f"{label} residual")
+    bottom.axhline(0.0, color="0.5", lw=0.6)
+    for ax in (top, bottom):
+        for b in boundaries:
+            ax.axvline(b, color="0.3", ls=":", lw=1.0)
+    top.set(ylabel="tip displacement w (mm)",
+            title=f"Held-out part: measured and predicted (cause: {d['cause']})")
+    bottom.set(xlabel="time (s)" + (", recordings end to end (dotted: boundaries)" if boundaries else ""),
+               ylabel="residual w − ŵ (mm)")
+    top.legend(loc="upper right", fontsize=8)
+    bottom.legend(loc="upper right", fontsize=8)
+    _save(fig, path, plt)
+
+
+def _figure_loops(held, d, path, plt):
+    v = np.asarray(held["v_in"], float)
+    direction = rt.travel_direction(v)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharex=True, sharey=True)
+    for ax, (key, label, _) in zip(axes, _MODELS):
+        e = held["w"] - held[key]
+        loop = rt.loops(e, v)
+        for sign, name, light, dark, marker in ((1.0, "rising", "tab:orange", "darkorange", "^"),
+                                                (-1.0, "falling", "tab:blue", "navy", "v")):
+            sel = direction == sign
+            ax.scatter(v[sel], e[sel], s=4, color=light, alpha=0.2, linewidths=0)
+            ax.plot(loop["centres"], loop[name], marker=marker, color=dark, lw=1.8, label=f"{name} drive (mean)")
+        ax.axhline(0.0, color="0.5", lw=0.6)
+        if _loop_levels(loop) == 0:
+            ax.text(0.5, 0.04, "no drive level is visited both rising and falling:\n"
+                    "loops cannot open with this drive (use a sine or chirp)",
+                    transform=ax.transAxes, ha="center", va="bottom", fontsize=8, color="0.3")
+        separation = "n/a" if _loop_levels(loop) == 0 else f"{loop['separation']:.3g} mm"
+        ax.set(xlabel="drive v_in (V)", title=f"{label}: rising − falling rms {separation}")
+        ax.legend(loc="best", fontsize=8)
+    axes[0].set_ylabel("residual w − ŵ (mm)")
+    fig.suptitle("Residual against drive level, by direction of travel (open loops: hysteresis; "
+                 "bent ends: saturation)", fontsize=10)
+    _save(fig, path, plt)
+
+
+def _figure_spectrum(held, d, rate, path, plt):
+    fig, ax = plt.subplots(figsize=(9, 4.2))
+    for (key, label, colour), lw in zip(_MODELS, (2.6, 1.2)):  # baseline wider: visible where they coincide
+        f, psd = rt.spectrum(held["w"] - held[key], rate)
+        ax.semilogy(f[1:], psd[1:], color=colour, lw=lw, label=f"{label} residual")
+    ax.set(xlabel="frequency (Hz)", ylabel="PSD of residual (mm²/Hz)",
+           title="Welch spectrum of the held-out residual (a peak: an unmodelled resonance)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    _save(fig, path, plt)
+
+
+def _figure_correlation(held, d, path, plt):
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    bound = None
+    for i, (key, label, colour) in enumerate(_MODELS):
+        c = _correlations(held["w"] - held[key], held["v_in"])
+        bound = c["bound"]
+        shift = 0.15 * (1 if i else -1)
+        left.vlines(c["acf_lags"] + shift, 0.0, c["acf"], color=colour, lw=1.2)
+        left.plot(c["acf_lags"] + shift, c["acf"], "o", ms=2.5, color=colour, label=f"{label} residual")
+        right.vlines(c["ccf_lags"] + shift, 0.0, c["ccf"], color=colour, lw=1.2)
+        right.plot(c["ccf_lags"] + shift, c["ccf"], "o", ms=2.5, color=colour, label=f"{label} residual")
+    for ax in (left, right):
+        ax.axhline(bound, color="k", ls="--", lw=1.0, label=f"±99 % bound ({bound:.3f})")
+        ax.axhline(-bound, color="k", ls="--", lw=1.0)
+        ax.axhline(0.0, color="0.5", lw=0.6)
+        ax.legend(fontsize=8, loc="upper right")
+    left.set(xlabel="lag (samples)", ylabel="autocorrelation ρ_εε(k)",
+             title="Residual autocorrelation (white: inside the band)")
+    right.set(xlabel="lag k (samples; k > 0: the drive leads)", ylabel="cross-correlation ρ_εu(k)",
+              title="Residual–drive cross-correlation (peak at k > 0: delay)")
+    _save(fig, path, plt)
+
+
+def _figure_segments(held, d, path, plt):
+    fig, ax = plt.subplots(figsize=(9, 4.2))
+    idx = np.arange(SEGMENTS)
+    width = 0.38
+    for i, (key, label, colour) in enumerate(_MODELS):
+        errors = rt.segment_errors(held["w"], held[key], SEGMENTS)
+        ax.bar(idx + (i - 0.5) * width, errors, width, color=colour, label=f"{label}")
+    ax.set_xticks(idx, [str(i + 1) for i in idx])
+    ax.set(xlabel="consecutive segment of the held-out part (1 = earliest)",
+           ylabel="segment MSE / mean(w²)",
+           title="Error by segment of the held-out part (a trend over segments: drift)")
+    ax.legend(fontsize=8)
+    _save(fig, path, plt)
+
+
+def _write_figures(diagnosis, data: dict, out_dir: Path) -> dict[str, Path]:
+    plt = _pyplot()
+    held = {k: np.asarray(v) for k, v in diagnosis.heldout.items()}
+    rate = float(data["evidence"].get("rate_hz") or 1.0)
+    paths = {name: out_dir / name for name in FIGURES}
+    _figure_residual_time(held, data, paths["residual_time.png"], plt)
+    _figure_loops(held, data, paths["loops.png"], plt)
+    _figure_spectrum(held, data, rate, paths["spectrum.png"], plt)
+    _figure_correlation(held, data, paths["correlation.png"], plt)
+    _figure_segments(held, data, paths["segments.png"], plt)
+    return paths
+
+
+# --------------------------------------------------------------------------- #
+# Markdown
+# --------------------------------------------------------------------------- #
+
+
+def _nmse(x) -> str:
+    """NMSE: three significant digits in e-notation."""
+    return "—" if x is None else f"{x:.2e}"
+
+
+def _num(x, digits: int = 3) -> str:
+    if x is None:
+        return "—"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, int):
+        return str(x)
+    return f"{x:.{digits}g}"
+
+
+def _fixed(x) -> str:
+    """One decimal (ΔBIC, Ljung–Box Q)."""
+    return "—" if x is None else f"{x:.1f}"
+
+
+def _pct(x) -> str:
+    return "—" if x is None else f"{x:.1f} %"
+
+
+def _pm(entry: dict) -> str:
+    """``value ± std_error unit`` with the standard error to 2 significant digits."""
+    value, se, unit = entry.get("value"), entry.get("std_error"), entry.get("unit") or ""
+    unit = "" if unit == "1" else unit  # dimensionless
+    text = _num(value, 4) if se is None else f"{_num(value, 4)} ± {_num(se, 2)}"
+    given = entry.get("std_error_given_network")
+    if given is not None:
+        text += f" (± {_num(given, 2)} with the network fixed)"
+    return f"{text} {unit}".rstrip()
+
+
+_SUFFIXES = (("_percent_of_range", "% of range"), ("_percent", "%"), ("_samples", "samples"), ("_hz", "Hz"),
+             ("_s", "s"), ("_v", "V"), ("_mm", "mm"))
+
+
+def _quantity(key: str, value) -> tuple[str, str]:
+    """(label, value with unit) of a derived quantity named like ``delay_samples``, ``over_s``."""
+    for suffix, unit in _SUFFIXES:
+        if key.endswith(suffix):
+            return key[: -len(suffix)].replace("_", " "), f"{_num(value, 4)} {unit}"
+    return key.replace("_", " "), _num(value, 4)
+
+
+def _cell(text) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def _verdict(d: dict) -> str:
+    base, ext = d["baseline"], d["extended"]
+    if d["cause"] == "none":
+        return (f"**Cause: none: the simulation is right within the measurement noise.** No effect passed every "
+                f"test (material, held-out gain ≥ {_num(d['settings']['min_gain'])}, ΔBIC ≤ "
+                f"−{_num(d['settings']['min_bic_drop'])}, a residual no more correlated); the baseline simulation stands, "
+                f"with held-out NMSE {_nmse(base['nmse'])} and Fitting {_pct(base['fitting'])}.")
+    derived = ", ".join(" ".join(_quantity(k, v)) for k, v in d["effect_derived"].items())
+    return (f"**Cause: {d['cause']}.** Adding it to the simulation lowers the held-out NMSE from "
+            f"{_nmse(base['nmse'])} to {_nmse(ext['nmse'])} (gain {d['gain']:.2f}×) and raises Fitting from "
+            f"{_pct(base['fitting'])} to {_pct(ext['fitting'])}"
+            + (f"; the fitted effect: {derived}" if derived else "") + ".")
+
+
+def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None) -> str:
+    """The report page from ``report.json``'s content; `loop_levels`: drive levels seen both ways."""
+    names = ", ".join(d["recordings"])
+    short = ", ".join(Path(n).name if ("/" in n or "\\" in n) else n for n in d["recordings"])
+    ev = d["evidence"]
+    lines = [
+        f"# Diagnosis of {short} — {datetime.date.today().isoformat()}",
+        "",
+        _verdict(d),
+        "",
+        "| model | held-out NMSE (MSE / var w) | NMSE, Eq 18 | Fitting |",
+        "|---|---|---|---|",
+    ]
+    extended_label = "extended (no cause named: the baseline)" if d["cause"] == "none" else f"extended (+ {d['cause']})"
+    for key, label in (("baseline", "baseline (simulation)"), ("extended", extended_label)):
+        m = d[key]
+        lines.append(f"| {label} | {_nmse(m['nmse'])} | {_nmse(m.get('nmse_eq18'))} | {_pct(m['fitting'])} |")
+    lines += ["", f"Gain (baseline NMSE / extended NMSE): **{d['gain']:.3g}**.", ""]
+
+    lines += ["## Fitted parameters" + ("" if d["cause"] == "none" else f" (simulation + {d['cause']})"), "",
+              "Standard errors: Gauss–Newton covariance on the training part, inflated for the held-out "
+              "residual's autocorrelation. The network's parameters trade off against each other, and an effect "
+              "that trades off with them inherits their spread; in brackets, the error with the network's "
+              "parameters held at their fitted values (a lower bound).", "", "| parameter | value ± std. error |", "|---|---|"]
+    frozen = set(d["settings"].get("frozen") or ())
+    for name, entry in d["parameters"].items():
+        text = f"{_num(entry['value'], 4)} (fixed)" if name in frozen else _pm(entry)
+        lines.append(f"| {name} | {text} |")
+    if d["effect_derived"]:
+        lines += ["", "Derived quantities of the effect:", ""]
+        lines += ["- {}: {}".format(*_quantity(k, v)) for k, v in d["effect_derived"].items()]
+    lines.append("")
+
+    lines += ["## Candidates", "",
+              "Each effect fitted jointly with the simulation; a cause needs all of: material, held-out gain ≥ "
+              f"{_num(d['settings']['min_gain'])}, ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])} (training part), "
+              "and a held-out residual no more correlated than the baseline's (Ljung–Box Q, rescaled by the squared "
+              "ratio of the residual variances, no higher than the baseline's, or below the 99 % white limit). "
+              "The baseline is the best effect-free fit, refitted from every candidate's end point too, "
+              "so a candidate's gain is its effect's, not a better local minimum's.", ""]
+    spread = ev.get("equally_good_effect_free_fits")
+    if spread and spread.get("n"):
+        lines += [f"Effect-free fits as good as the baseline on training data (within ΔBIC "
+                  f"{_num(d['settings']['min_bic_drop'])}): {spread['n']}, held-out NMSE "
+                  f"{_nmse(spread['heldout_nmse_min'])} to {_nmse(spread['heldout_nmse_max'])}. A wide range means "
+                  "the training part does not pin the strip's slow dynamics; a candidate must also beat the best "
+                  "of them by the minimum gain.", ""]
+    lines += ["| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
+              "|---|---|---|---|---|---|---|---|",
+              f"| *baseline* | {_nmse(d['baseline']['nmse'])} | 1 | 0 | "
+              f"{_fixed(d['baseline_fit']['ljung_box']['Q'])} | | | |"]
+    for c in d["candidates"]:
+        mark = f"**{c['name']}**" if c["name"] == d["cause"] else c["name"]
+        lines.append(
+            f"| {mark} | {_nmse(c['heldout_nmse'])} | {_num(c['gain'])} | {_fixed(c['criterion']['delta_bic'])} | "
+            f"{_fixed(c['ljung_box']['Q'])} | {_cell(c.get('materiality', ''))} | {_num(bool(c['eligible']))} | "
+            f"{_cell('; '.join(r for r in c['reasons'] if r))} |")
+    lines.append("")
+
+    lines += ["## Residual tests (held-out part)", "",
+              f"{ev['n_heldout']} samples at {_num(ev['rate_hz'])} Hz; 99 % bound on a correlation "
+              f"±{ev['bound_99']:.4f}; ACF over lags 1–{MAX_LAG}, CCF over lags −{MAX_LAG}–{MAX_LAG}.", "",
+              "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | loop separation (mm) |",
+              "|---|---|---|---|---|---|"]
+    for key in ("baseline", "extended"):
+        e = ev[key]
+        lb = e["ljung_box"]
+        lines.append(f"| {key} | {_fixed(lb['Q'])} ({lb['lags']}) | {_num(lb['p_value'], 2)} | "
+                     f"{e['acf_outside_bound']} / {MAX_LAG} | {e['ccf_outside_bound']} / {2 * MAX_LAG + 1} | "
+                     f"{'n/a' if loop_levels == 0 else _num(e['loop_separation_mm'])} |")
+    if loop_levels == 0:
+        lines += ["", "Loop separation n/a: no drive level of the held-out part is visited both rising and falling "
+                      "(a two-level drive such as PRBS), so hysteresis cannot show as open loops here."]
+    lines.append("")
+
+    if d.get("hybrid"):
+        h = d["hybrid"]
+        lines += ["## Hybrid model (simulation + D-MLP)", "", "| hybrid model | held-out NMSE | Fitting |",
+                  "|---|---|---|",
+                  f"| without the effect | {_nmse(h['baseline']['nmse'])} | {_pct(h['baseline']['fitting'])} |",
+                  f"| with {'the effect (none named)' if d['cause'] == 'none' else d['cause']} | {_nmse(h['extended']['nmse'])} | {_pct(h['extended']['fitting'])} |",
+                  "", f"Gain: {_num(h['gain'])}." + (" (No cause named: the same fit twice.)"
+                                                      if d["cause"] == "none" else ""), ""]
+
+    captions = {
+        "residual_time.png": ("Held-out prediction and residual over time",
+                              "Look for structure left in the residual: a slow trend (drift), ringing after "
+                              "steps (resonance) or a lag at each edge (delay); white noise is the goal."),
+        "loops.png": ("Residual against drive level, rising and falling",
+                      "Rising and falling means that separate (an open loop) point to hysteresis; ends that bend "
+                      "away from zero at large |v_in| point to saturation."),
+        "spectrum.png": ("Residual spectrum",
+                         "A peak standing above a flat floor points to an unmodelled resonance at that frequency; "
+                         "excess power at low frequency points to slow effects (drift, back-relaxation)."),
+        "correlation.png": ("Residual autocorrelation and residual–drive cross-correlation",
+                            "Bars outside the dashed 99 % bounds mean the model left dynamics out; a CCF peak at "
+                            "a positive lag points to a delay, one at small lags to a wrong dynamic response."),
+        "segments.png": ("Error by segment",
+                         "A trend across segments (error growing or shrinking over time) points to drift; "
+                         "flat bars mean the error is stationary."),
+    }
+    lines += ["## Figures", ""]
+    for name in figures:
+        title, look = captions[name]
+        lines += [f"![{title}]({name})", "", look, ""]
+
+    s = d["settings"]
+    lines += ["## Settings", "", f"- split: {d['split']} (fractions {', '.join(_num(x) for x in s['split'])})"]
+    for key, value in s.items():
+        if key == "split":
+            continue
+        if isinstance(value, dict):
+            value = ", ".join(f"{k} {_num(v)}" for k, v in value.items())
+        elif isinstance(value, list):
+            value = ", ".join(str(v) for v in value) or "—"
+        else:
+            value = _num(value)
+        lines.append(f"- {key.replace('_', ' ')}: {value}")
+    lines += [f"- recordings: {names}", f"- time: {d['seconds']:.1f} s", ""]
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- #
+# Entry point
+# --------------------------------------------------------------------------- #
+
+
+def write_report(diagnosis, out_dir) -> dict[str, Path]:
+    """Write ``report.json``, the figures and ``report.md`` of `diagnosis` into `out_dir`.
+
+    **Returns:** ``{"report.json": path, "report.md": path, "<figure>.png": path, ...}``.
+    """
+    from ._diagnose import Diagnosis
+    from ..util._errors import InputError
+
+    if not isinstance(diagnosis, Diagnosis):
+        raise InputError(f"write_report needs the Diagnosis that hybrid.diagnose returns, got {type(diagnosis).__name__}")
+    if not isinstance(out_dir, (str, os.PathLike)) or not str(out_dir).strip():
+        raise InputError(f"write_report needs a folder path (str or pathlib.Path), got {out_dir!r}")
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"cannot create the report folder {out_dir} ({error.strerror or error}): "
+                         "give a folder you can write to") from None
+    data = _jsonable(diagnosis.to_dict())
+    paths = {"report.json": out_dir / "report.json"}
+    _write_atomic(paths["report.json"], json.dumps(data, indent=2, allow_nan=False) + "\n")
+    paths.update(_write_figures(diagnosis, data, out_dir))
+    paths["report.md"] = out_dir / "report.md"
+    held = diagnosis.heldout
+    loop_levels = _loop_levels(rt.loops(np.asarray(held["w"]) - np.asarray(held["baseline"]), held["v_in"]))
+    _write_atomic(paths["report.md"], _markdown(data, {n: paths[n] for n in FIGURES}, loop_levels))
+    return paths
