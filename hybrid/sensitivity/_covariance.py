@@ -1,0 +1,247 @@
+"""Parameter uncertainty after a fit: Fisher information, covariance and standard errors (delta method)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import numpy as np
+
+from ..util._errors import InputError
+from ..core._models import Model
+from ._views import _free_names, _named, _ordered_names, _physical_map
+
+
+@dataclasses.dataclass(frozen=True)
+class Covariance:
+    """Uncertainty of fitted named parameters, in physical units.
+
+    With r = w − ŵ over the m fitted samples, J = ∂ŵ/∂θ (θ the free
+    unconstrained values, network weights included), s² = ‖r‖²/(m − p) the
+    residual variance (p the number of free values, or the effective number
+    tr((JᵀJ + μP)⁻¹JᵀJ) under weight decay μ), the covariance of θ is
+    s² (JᵀJ + μP)⁻¹ (the Gauss–Newton / Laplace approximation, as
+    `scipy.optimize.curve_fit` with ``absolute_sigma=False`` for μ = 0), and
+    that of the physical parameters θ_phys = g(θ) is D Cov_θ Dᵀ with
+    D = ∂g/∂θ (the delta method).
+
+    **Fields:**
+
+    - `names`: the free named parameters.
+    - `values`: their fitted values (physical units).
+    - `units`: unit of each.
+    - `matrix`: (k, k) covariance in physical units (unit_i · unit_j).
+      Entries of a parameter that moves along a null direction of J are
+      inf (variance) and nan (covariances).
+    - `fisher`: (k, k) Fisher information of the named parameters (1/(unit_i unit_j)),
+      J_physᵀJ_phys / s² with the network weights profiled out; finite even
+      where the covariance is not.
+    - `noise_variance`: s² (squared output units, mm² for ŵ).
+    - `n_residuals`, `n_free`: m and the number of free raw values.
+    - `dof`: m − p.
+    - `unidentifiable`: names whose variance is infinite.
+    """
+
+    names: tuple[str, ...]
+    values: dict[str, float]
+    units: dict[str, str]
+    matrix: np.ndarray
+    fisher: np.ndarray
+    noise_variance: float
+    n_residuals: int
+    n_free: int
+    dof: float
+    unidentifiable: tuple[str, ...]
+
+    @property
+    def std_errors(self) -> dict[str, float]:
+        """Standard error of each parameter, physical units (inf if unidentifiable)."""
+        return {n: float(np.sqrt(self.matrix[i, i])) for i, n in enumerate(self.names)}
+
+    @property
+    def relative_std_errors(self) -> dict[str, float]:
+        """Standard error / |value|."""
+        return {n: s / abs(self.values[n]) if self.values[n] else float("inf")
+                for n, s in self.std_errors.items()}
+
+    @property
+    def correlation(self) -> np.ndarray:
+        d = np.sqrt(np.diag(self.matrix))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.matrix / np.outer(d, d)
+
+    def to_dict(self) -> dict[str, Any]:
+        def clean(x):
+            x = float(x)
+            return x if np.isfinite(x) else str(x)
+
+        return {
+            "names": list(self.names),
+            "values": self.values,
+            "units": self.units,
+            "std_errors": {k: clean(v) for k, v in self.std_errors.items()},
+            "relative_std_errors": {k: clean(v) for k, v in self.relative_std_errors.items()},
+            "covariance": [[clean(x) for x in row] for row in self.matrix],
+            "correlation": [[clean(x) for x in row] for row in self.correlation],
+            "fisher": [[clean(x) for x in row] for row in self.fisher],
+            "noise_variance": self.noise_variance,
+            "n_residuals": self.n_residuals,
+            "n_free": self.n_free,
+            "dof": self.dof,
+            "unidentifiable": list(self.unidentifiable),
+        }
+
+
+@eqx.filter_jit
+def _fit_jacobian(problem, theta):
+    r, J = problem.residuals_and_jacobian(theta)
+    return r * problem.scale, J * problem.scale  # back to output units (mm)
+
+
+def parameter_covariance(
+    model: Model,
+    recordings,
+    *,
+    frozen=frozenset(),
+    split=(0.3, 0.5, 0.2),
+    split_order=("train", "test", "validation"),
+    blocks: int = 1,
+    weight_decay: float = 0.0,
+    noise_std: float | None = None,
+    rcond: float = 1e-10,
+) -> Covariance:
+    """Fisher information, covariance and standard errors of a fitted model's named parameters.
+
+    **Arguments:**
+
+    - `model`: the fitted [`Model`][] (any simulation and readout).
+    - `recordings`: the Recording(s) it was fitted to.
+    - `frozen`, `split`, `split_order`, `blocks`, `weight_decay`: as given to
+      [`hybrid.fit`][]; the covariance is that of the training-split fit.
+    - `noise_std`: the known standard deviation of w's noise (mm); by default
+      it is estimated from the residuals (s² = ‖r‖²/dof).
+    - `rcond`: singular values of J below `rcond` · σ_max are null directions:
+      parameters moving along them get an infinite variance.
+
+    **Returns:** a [`Covariance`][].
+    """
+    from ..core._problem import Problem, series_from_recording
+
+    recordings = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
+    if not recordings:
+        raise InputError("no recordings: pass the recording(s) the model was fitted to")
+    if not isinstance(model, Model):
+        raise InputError(f"parameter_covariance needs a Model, got {type(model).__name__}")
+    frozen = frozenset(frozen)
+    series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
+    problem = Problem(model, series, frozen, weight_decay)
+    theta = problem.flatten(model, frozen)
+    r, J = (np.asarray(a) for a in _fit_jacobian(problem, theta))
+    m, n = J.shape
+    named = _named(model)
+    all_names = _ordered_names(model)
+    D = np.asarray(_physical_map(_ProblemView(problem), theta, all_names))
+    names, rows = _free_names(D, all_names)
+    D = D[rows]
+    if not names:
+        raise InputError("no free named parameters: everything named is frozen")
+
+    # Regularised normal matrix (weight decay as ridge rows in units of the scaled residuals).
+    mask = np.asarray(problem.penalty_mask(theta))
+    mu = float(problem.weight_decay)
+    scale2 = float(problem.scale) ** 2
+    rows_penalty = np.sqrt(mu * scale2) * np.diag(mask)[mask > 0] if mu else np.zeros((0, n))
+    A = np.concatenate([J, rows_penalty])
+    _, sigma, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])  # all n directions
+    sigma = np.concatenate([sigma, np.zeros(Vt.shape[0] - sigma.size)])      # (fewer rows: 0s)
+    keep = sigma > rcond * sigma[0]
+    V, inv_s2 = Vt[keep].T, 1.0 / sigma[keep] ** 2
+    cov_unit = (V * inv_s2) @ V.T                       # (JᵀJ + μP)⁻¹ on the identifiable subspace
+    if mu:
+        JV = J @ V
+        p_eff = float(np.sum(inv_s2 * np.sum(JV * JV, axis=0)))  # tr((JᵀJ+μP)⁻¹ JᵀJ)
+    else:
+        p_eff = float(np.sum(keep))
+    dof = m - p_eff
+    if noise_std is None:
+        if dof <= 0:
+            raise InputError(f"{m} residuals for {p_eff:.0f} free parameters: no degrees of freedom "
+                             "left to estimate the noise; pass noise_std")
+        s2 = float(r @ r) / dof
+    else:
+        if not (np.isfinite(noise_std) and noise_std > 0):
+            raise InputError(f"noise_std must be a positive number (mm), got {noise_std!r}")
+        s2 = float(noise_std) ** 2
+    cov = s2 * (D @ cov_unit @ D.T)
+
+    null = Vt[~keep]
+    bad = np.zeros(len(names), bool)
+    if null.size:
+        leak = np.linalg.norm(D @ null.T, axis=1) / np.maximum(np.linalg.norm(D, axis=1), np.finfo(float).tiny)
+        bad = leak > 1e-6
+    cov[bad, :] = np.nan
+    cov[:, bad] = np.nan
+    cov[bad, bad] = np.inf
+
+    fisher = _efficient_fisher(J, rows_penalty, D, s2)
+    return Covariance(
+        names=tuple(names),
+        values={k: float(named[k]) for k in names},
+        units={k: model.units.get(k, "") for k in names},
+        matrix=cov,
+        fisher=fisher,
+        noise_variance=s2,
+        n_residuals=int(m),
+        n_free=int(n),
+        dof=float(dof),
+        unidentifiable=tuple(k for k, b in zip(names, bad) if b),
+    )
+
+
+class _ProblemView(eqx.Module):
+    problem: Any
+
+    def rebuild(self, theta):
+        return self.problem.model(theta)
+
+
+def _efficient_fisher(J, penalty_rows, D, s2):
+    """Fisher information of the named parameters, nuisance (unnamed) values profiled out.
+
+    Named columns of θ are those D depends on; D restricted to them is square
+    (one raw value per named parameter), so J_phys = J_named D_n⁻¹.
+    """
+    named_cols = np.flatnonzero(np.any(D != 0, axis=0))
+    other = np.setdiff1d(np.arange(J.shape[1]), named_cols)
+    A = np.concatenate([J, penalty_rows]) if penalty_rows.size else J
+    F = A.T @ A / s2
+    F_nn = F[np.ix_(named_cols, named_cols)]
+    if other.size:
+        F_no = F[np.ix_(named_cols, other)]
+        F_oo = F[np.ix_(other, other)]
+        F_nn = F_nn - F_no @ np.linalg.lstsq(F_oo, F_no.T, rcond=None)[0]
+    Dn = D[:, named_cols]
+    if Dn.shape[0] != Dn.shape[1]:
+        return np.full((D.shape[0], D.shape[0]), np.nan)
+    Dinv = np.linalg.inv(Dn)
+    return Dinv.T @ F_nn @ Dinv
+
+
+def standard_errors(result, recordings, *, noise_std: float | None = None) -> Covariance:
+    """[`parameter_covariance`][] of a [`FitResult`][], with the fit's own settings.
+
+    `recordings` are the recording(s) given to [`hybrid.fit`][] (a FitResult
+    keeps only their names). Frozen parameters, split (and its blocks) and weight
+    decay are read from `result.settings`. ``standard_errors(result, rec).std_errors`` is a
+    dict name → standard error in physical units.
+    """
+    settings = result.settings
+    split = settings.get("split", {"train": 0.3, "test": 0.5, "validation": 0.2})
+    return parameter_covariance(
+        result.model, recordings,
+        frozen=frozenset(settings.get("frozen", ())),
+        split=tuple(split.values()), split_order=tuple(split.keys()), blocks=int(settings.get("blocks", 1)),
+        weight_decay=float(settings.get("weight_decay", 0.0)),
+        noise_std=noise_std,
+    )

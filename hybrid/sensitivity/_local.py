@@ -1,0 +1,155 @@
+"""Local sensitivities: ∂y(t)/∂θ by forward mode, and ∂ log H(j2πf)/∂ log θ in the frequency domain."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..util._errors import InputError
+from ..core._models import Model
+from ._identifiability import Identifiability, identifiability
+from ._views import _free_names, _free_theta, _named, _ordered_names, _physical_map, _raw_to_physical_columns
+
+
+@dataclasses.dataclass(frozen=True)
+class Sensitivity:
+    """Local sensitivities of an output series to the named parameters.
+
+    **Fields:**
+
+    - `names`: the free named parameters, in column order.
+    - `values`: their physical values (units in `units`).
+    - `units`: unit of each parameter.
+    - `dt`: sample interval of the drive, s.
+    - `output`: y(t), the output series (V for a simulation's V_o, mm for ŵ).
+    - `output_unit`: ``"V"``, ``"mm"`` or ``""``.
+    - `jacobian`: (T, k) array, ∂y(t)/∂θ_j in output units per parameter unit.
+    """
+
+    names: tuple[str, ...]
+    values: dict[str, float]
+    units: dict[str, str]
+    dt: float
+    output: np.ndarray
+    output_unit: str
+    jacobian: np.ndarray
+
+    @property
+    def time(self) -> np.ndarray:
+        return np.arange(self.output.shape[0]) * self.dt
+
+    @property
+    def output_rms(self) -> float:
+        return float(np.sqrt(np.mean(self.output**2)))
+
+    def normalised(self) -> np.ndarray:
+        """(T, k): θ_j ∂y(t)/∂θ_j / rms(y), the change of y, in units of its rms,
+        per relative change of θ_j (i.e. ∂y/∂ log θ_j / rms y)."""
+        theta = np.array([self.values[n] for n in self.names])
+        return self.jacobian * theta / max(self.output_rms, np.finfo(float).tiny)
+
+    def rms_normalised(self) -> dict[str, float]:
+        """rms over time of each column of `normalised()`: one number per parameter."""
+        s = np.sqrt(np.mean(self.normalised() ** 2, axis=0))
+        return dict(zip(self.names, map(float, s)))
+
+    def identifiability(self, **tolerances) -> "Identifiability":
+        """[`identifiability`][] of the normalised sensitivities (log-parameter coordinates)."""
+        return identifiability(self.normalised() / np.sqrt(self.output.shape[0]), self.names, **tolerances)
+
+
+@eqx.filter_jit
+def _jacobian(view, theta, v_in, dt, model_output):
+    def output(th):
+        target = view.rebuild(th)
+        return target.predict(v_in, dt) if model_output else target.simulate(v_in, dt)
+
+    return output(theta), jax.jacfwd(output)(theta)
+
+
+def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensitivity:
+    """∂y(t)/∂θ for every free named parameter θ of `target`, by forward mode.
+
+    **Arguments:**
+
+    - `target`: an [`AbstractSimulation`][] (y = its mediatory signal over the
+      drive, e.g. V_o of the RC network, Eqs 4–14) or a [`Model`][] (y = ŵ over
+      the whole drive; a D-MLP's weights are held fixed).
+    - `v_in`: the drive voltage (V), shape (T,).
+    - `dt`: its sample interval (s).
+    - `frozen`: names of parameters to leave out.
+
+    **Returns:** a [`Sensitivity`][]. The derivative is taken by `jax.jacfwd`
+    (one tangent per unconstrained parameter, pushed through the simulation's
+    `lax.scan`) and mapped to physical units through the reparameterisation.
+    """
+    v_in = jnp.asarray(v_in)
+    if v_in.ndim != 1 or v_in.shape[0] < 2:
+        raise InputError(f"the drive must be a 1-D series of at least 2 samples, got shape {v_in.shape}")
+    if not np.all(np.isfinite(np.asarray(v_in))):
+        raise InputError("the drive contains NaN or infinite values")
+    if not (np.isfinite(dt) and dt > 0):
+        raise InputError(f"the sample interval dt must be a positive number of seconds, got {dt!r}")
+    named = _named(target)
+    theta, view = _free_theta(target, frozen)
+    if theta.size == 0:
+        raise InputError("no free named parameters: nothing to take sensitivities to")
+    all_names = _ordered_names(target)
+    D = _physical_map(view, theta, all_names)
+    names, rows = _free_names(D, all_names)
+    model_output = isinstance(target, Model)
+    y, J_raw = _jacobian(view, theta, v_in, float(dt), model_output)
+    J = _raw_to_physical_columns(J_raw, np.asarray(D)[rows])
+    units = target.units if isinstance(target, Model) else _simulation_units(target)
+    return Sensitivity(
+        names=tuple(names),
+        values={n: float(named[n]) for n in names},
+        units={n: units.get(n, "") for n in names},
+        dt=float(dt),
+        output=np.asarray(y),
+        output_unit="mm" if model_output else ("V" if _is_rc(target) else ""),
+        jacobian=J,
+    )
+
+
+def _simulation_units(simulation) -> dict[str, str]:
+    if hasattr(simulation, "parameter_units"):
+        return dict(simulation.parameter_units())
+    return dict(getattr(type(simulation), "units", {}))
+
+
+def _is_rc(simulation) -> bool:
+    return type(simulation).__name__ == "RCNetwork"
+
+
+# --------------------------------------------------------------------------- frequency domain
+def frequency_sensitivity(simulation, frequency, *, frozen=frozenset()) -> dict[str, Any]:
+    """∂ log|H(j2πf)|/∂ log θ and ∂∠H(j2πf)/∂ log θ (rad) of a linear simulation.
+
+    For a simulation with `frequency_response(frequency_hz)` (the RC network's
+    Eq 14). Returns ``{"frequency": (F,), "names": [...], "magnitude": (F, k),
+    "phase": (F, k)}``: the relative change of the gain, and the change of the
+    phase, per relative change of each parameter.
+    """
+    if not hasattr(simulation, "frequency_response"):
+        raise InputError(f"{type(simulation).__name__} has no frequency_response")
+    f = jnp.asarray(frequency, dtype=float)
+    named = _named(simulation)
+    theta, view = _free_theta(simulation, frozen)
+    all_names = _ordered_names(simulation)
+    D = _physical_map(view, theta, all_names)
+    names, rows = _free_names(D, all_names)
+
+    def log_h(th):
+        H = view.rebuild(th).frequency_response(f)
+        return jnp.concatenate([jnp.log(jnp.abs(H)), jnp.unwrap(jnp.angle(H))])
+
+    J = _raw_to_physical_columns(eqx.filter_jit(jax.jacfwd(log_h))(theta), np.asarray(D)[rows])
+    J = J * np.array([float(named[n]) for n in names])
+    F = f.shape[0]
+    return {"frequency": np.asarray(f), "names": names, "magnitude": J[:F], "phase": J[F:]}
