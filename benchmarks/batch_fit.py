@@ -34,7 +34,8 @@ import _common as c
 
 def strips(n, duration, seed=0):
     import hybrid as hy
-    from hybrid.ipmc._virtual_ipmc import VirtualIPMCParameters, virtual_recording
+    from hybrid.ipmc._virtual_ipmc import virtual_recording
+    from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
 
     rng = np.random.default_rng(seed)
     drive = hy.make_drive("prbs", duration, seed=0, min_hold=0.2, max_hold=4.0)

@@ -160,7 +160,8 @@ def _cmd_simulate(args):
     from .util._bounds import check_samples
     from .data._drives import make_drive
     from .data._recording import SUFFIXES
-    from .ipmc._virtual_ipmc import VirtualIPMCParameters, virtual_recording
+    from .ipmc._virtual_ipmc import virtual_recording
+    from .ipmc._virtual_parameters import VirtualIPMCParameters
 
     check_samples(args.duration, args.rate)
     lock = _outputs([_out_file(args.out, suffixes=SUFFIXES)])

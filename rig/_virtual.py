@@ -22,7 +22,8 @@ import time
 
 import numpy as np
 
-from hybrid.ipmc._virtual_ipmc import VirtualIPMCParameters, simulate_virtual_ipmc
+from hybrid.ipmc._virtual_ipmc import simulate_virtual_ipmc
+from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
 
 from ._calibration import Calibration
 from ._camera import Frame

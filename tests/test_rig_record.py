@@ -7,8 +7,8 @@ import pytest
 import serial
 
 import hybrid
-from hybrid.ipmc._virtual_ipmc import _dac
-from hybrid.ipmc._virtual_ipmc import VirtualIPMCParameters
+from hybrid.ipmc._virtual_elements import _dac
+from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
 from rig import Board, Calibration, RigError, fit_calibration
 from rig._emulator import EmulatedBoard
 from rig._record import RecordSettings, record

@@ -15,17 +15,9 @@ import scipy.optimize
 import scipy.signal
 
 from hybrid.util._errors import InputError
-from hybrid.ipmc._virtual_ipmc import (
-    VirtualIPMCParameters,
-    VirtualRecording,
-    _build,
-    _dac,
-    _electrical,
-    _fine_outputs,
-    _ladder,
-    _mechanics,
-    simulate_virtual_ipmc,
-)
+from hybrid.ipmc._virtual_elements import _build, _dac, _electrical, _ladder, _mechanics
+from hybrid.ipmc._virtual_ipmc import VirtualRecording, _fine_outputs, simulate_virtual_ipmc
+from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
 
 QUIET = VirtualIPMCParameters(noise_std_mm=0.0)
 

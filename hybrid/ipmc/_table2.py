@@ -25,7 +25,8 @@ from ..util._atomic import write_text
 from ..data._drives import make_drive
 from ..core._fit import fit
 from ..core._models import make_model
-from ._virtual_ipmc import VirtualIPMCParameters, virtual_recording
+from ._virtual_ipmc import virtual_recording
+from ._virtual_parameters import VirtualIPMCParameters
 from ..util._watchdog import stage
 
 ROWS = (("PRBS", "prbs"), ("Sine", "sine"), ("Chirp", "chirp"), ("Pulse", "pulse"))

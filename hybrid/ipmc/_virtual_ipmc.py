@@ -112,18 +112,8 @@ Signal chain (all units SI unless the name says otherwise)::
 
 The strip starts at rest (all states zero) at the first drive sample.
 
-Defaults (`VirtualIPMCParameters`)::
-
-    L = 22 mm, W = 5.5 mm, h_E = 1 µm, ρ_E = 1.06e-7 Ω·m,
-    h_M = 183 µm, σ_M = 10.26 S/m                         Table 1
-    ξρ/ξh = 20, α_E = 0.5, α_I = 0.6, α_C = 0.5            Eqs 4–9
-    C_clamp = 20 mF, R_s = 0.5 Ω, N + 1 = 46 compartments
-    τ_b = 6 s, β = 0.25                                   back-diffusion
-    gain = 2 mm/V (static), compression = 0.15 at 3 V     electromechanics
-    f_n = 12 Hz, ζ = 0.6                                  first mode
-    12-bit DAC, 0..5 V → ±3 V                             actuation
-    camera = drive rate (30 fps), T_exp = 1/60 s, oversample = 16
-    noise s = 0.02 mm, pixel rounding off
+The parameters, with their defaults, are `VirtualIPMCParameters`
+(`hybrid.ipmc._virtual_parameters`).
 """
 
 from __future__ import annotations
@@ -136,153 +126,14 @@ from typing import Callable
 
 import numpy as np
 import scipy.linalg
-import scipy.optimize
-import scipy.signal
 
 from ..util._errors import InputError
+from ._virtual_elements import _build, _dac, _mechanics, _quasi_static_tip
+from ._virtual_parameters import VirtualIPMCParameters
 
-__all__ = ["VirtualIPMCParameters", "VirtualRecording", "simulate_virtual_ipmc"]
+__all__ = ["VirtualRecording", "simulate_virtual_ipmc"]
 
 _CHUNK_INTERVALS = 1024  # drive intervals per block of the fine-grid output map
-
-
-def _check_real(name, value, low=None, high=None, low_open=False, high_open=False):
-    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-    if ok and low is not None:
-        ok = value > low if low_open else value >= low
-    if ok and high is not None:
-        ok = value < high if high_open else value <= high
-    if not ok:
-        lo = "" if low is None else f"{'>' if low_open else '≥'} {low}"
-        hi = "" if high is None else f"{'<' if high_open else '≤'} {high}"
-        rng = " and ".join(s for s in (lo, hi) if s)
-        raise InputError(f"{name} = {value!r} is invalid; give a finite number {rng}.")
-
-
-def _check_int(name, value, low, high=None):
-    ok = isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= low
-    if ok and high is not None:
-        ok = value <= high
-    if not ok:
-        bound = f"≥ {low}" + ("" if high is None else f" and ≤ {high}")
-        raise InputError(f"{name} = {value!r} is invalid; give an integer {bound}.")
-
-
-@dataclass(frozen=True)
-class VirtualIPMCParameters:
-    """Every parameter of the virtual IPMC strip (module docstring: the equations).
-
-    **Arguments:**
-
-    Strip, Table 1 of the paper:
-
-    - `length_m`, `width_m`: L = 22 mm, W = 5.5 mm.
-    - `electrode_thickness_m`: h_E = 1 µm.
-    - `electrode_resistivity_ohm_m`: ρ_E = 1.06e-7 Ω·m (Pt).
-    - `membrane_thickness_m`: h_M = 183 µm (Nafion 117).
-    - `membrane_conductivity_s_per_m`: σ_M = 10.26 S/m.
-    - `interface_ratio`: ξρ/ξh (IMRR/IMTR), RI_clamp = (ξρ/ξh) RE_clamp; > 0.
-
-    RC line (Eqs 4–9, whole-strip values split over the compartments):
-
-    - `alpha_e`, `alpha_i`, `alpha_c`: attenuation coefficients α_E, α_I, α_C
-      (clamp value / tip value), in (0, 1].
-    - `clamp_capacitance_f`: C_clamp, double-layer capacitance of the whole
-      strip with clamp-end properties (F).
-    - `source_resistance_ohm`: R_s, amplifier output + clamp contact resistance
-      in series with the line (Ω, ≥ 0).
-    - `n_compartments`: N + 1, the number of compartments k = 0..N (≥ 1).
-
-    Slow charge dynamics:
-
-    - `relaxation_time_s`: τ_b, back-diffusion time constant (s).
-    - `relaxation_fraction`: β ∈ [0, 1), fraction of the bending charge lost
-      under a held voltage.
-
-    Electromechanics and mechanics:
-
-    - `gain_mm_per_v`: small-signal static (DC, relaxed) tip displacement per
-      volt (mm/V, > 0).
-    - `compression`: static shortfall of the tip displacement at ±full_scale_v
-      relative to the small-signal slope, in [0, 0.9]; 0 is linear.
-    - `mode_frequency_hz`, `damping_ratio`: the first bending mode (Hz, > 0).
-
-    Actuation:
-
-    - `dac_bits`: DAC resolution (12: codes 0..4095).
-    - `dac_reference_v`: DAC output range 0..V_ref (V); the amplifier maps it
-      onto ±full_scale_v, so it only documents the rig.
-    - `full_scale_v`: V_fs, amplifier rails (V).
-
-    Camera and noise:
-
-    - `camera_fps`: frame rate (Hz); None = the drive's sample rate (frames at
-      the drive samples).
-    - `exposure_s`: exposure of each frame (s), 0 ≤ T_exp ≤ frame period;
-      0 samples instantaneously.
-    - `oversample`: internal simulation steps per drive interval (≥ 1).
-    - `noise_std_mm`: std of the Gaussian measurement noise (mm, ≥ 0).
-    - `pixel_mm`: camera pixel scale the measurement is rounded to (mm), or
-      None for no rounding.
-    """
-
-    length_m: float = 22e-3
-    width_m: float = 5.5e-3
-    electrode_thickness_m: float = 1e-6
-    electrode_resistivity_ohm_m: float = 1.06e-7
-    membrane_thickness_m: float = 183e-6
-    membrane_conductivity_s_per_m: float = 10.26
-    interface_ratio: float = 20.0
-    alpha_e: float = 0.5
-    alpha_i: float = 0.6
-    alpha_c: float = 0.5
-    clamp_capacitance_f: float = 20e-3
-    source_resistance_ohm: float = 0.5
-    n_compartments: int = 46
-    relaxation_time_s: float = 6.0
-    relaxation_fraction: float = 0.25
-    gain_mm_per_v: float = 2.0
-    compression: float = 0.15
-    mode_frequency_hz: float = 12.0
-    damping_ratio: float = 0.6
-    dac_bits: int = 12
-    dac_reference_v: float = 5.0
-    full_scale_v: float = 3.0
-    camera_fps: float | None = None
-    exposure_s: float = 1.0 / 60.0
-    oversample: int = 16
-    noise_std_mm: float = 0.02
-    pixel_mm: float | None = None
-
-    def __post_init__(self):
-        positive = (
-            "length_m", "width_m", "electrode_thickness_m",
-            "electrode_resistivity_ohm_m", "membrane_thickness_m",
-            "membrane_conductivity_s_per_m", "interface_ratio",
-            "clamp_capacitance_f", "relaxation_time_s", "gain_mm_per_v",
-            "mode_frequency_hz", "damping_ratio", "dac_reference_v", "full_scale_v",
-        )
-        for name in positive:
-            _check_real(name, getattr(self, name), low=0.0, low_open=True)
-        for name in ("source_resistance_ohm", "exposure_s", "noise_std_mm"):
-            _check_real(name, getattr(self, name), low=0.0)
-        for name in ("alpha_e", "alpha_i", "alpha_c"):
-            _check_real(name, getattr(self, name), low=0.0, low_open=True, high=1.0)
-        _check_real("relaxation_fraction", self.relaxation_fraction, low=0.0,
-                    high=1.0, high_open=True)
-        _check_real("compression", self.compression, low=0.0, high=0.9)
-        _check_int("n_compartments", self.n_compartments, low=1)
-        _check_int("oversample", self.oversample, low=1)
-        _check_int("dac_bits", self.dac_bits, low=1, high=24)
-        for name in ("camera_fps", "pixel_mm"):
-            if getattr(self, name) is not None:
-                _check_real(name, getattr(self, name), low=0.0, low_open=True)
-        if self.camera_fps is not None and self.exposure_s > 1.0 / self.camera_fps:
-            raise InputError(
-                f"exposure_s = {self.exposure_s} s is longer than the frame period "
-                f"1/camera_fps = {1.0 / self.camera_fps} s; use an exposure no longer "
-                "than one frame."
-            )
 
 
 @dataclass(frozen=True)
@@ -386,156 +237,7 @@ def simulate_virtual_ipmc(
 
 
 # ----------------------------------------------------------------------------------------
-# Building blocks (private; the tests check each against an independent reference).
-
-
-@dataclass(frozen=True)
-class _Ladder:
-    """Per-compartment elements of the loaded line (Ω, F, m), index k = 0..N."""
-
-    re: np.ndarray  # series electrode resistance of compartment k (node k−1 → k)
-    ri: np.ndarray  # interface resistance of the shunt branch k
-    c: np.ndarray  # double-layer capacitance of the shunt branch k
-    rm: np.ndarray  # membrane shunt resistance of compartment k
-    r_source: float  # series resistance before node 0
-    dx: float  # compartment length
-    x: np.ndarray  # compartment centres
-
-
-def _table1(p: VirtualIPMCParameters) -> dict[str, float]:
-    """Whole-strip clamp values of Table 1 (Ω, F)."""
-    re = p.electrode_resistivity_ohm_m * p.length_m / (p.width_m * p.electrode_thickness_m)
-    rm = p.length_m / (p.membrane_conductivity_s_per_m * p.width_m * p.membrane_thickness_m)
-    return {"re_clamp_ohm": re, "ri_clamp_ohm": p.interface_ratio * re, "rm_ohm": rm,
-            "c_clamp_f": p.clamp_capacitance_f}
-
-
-def _ladder(p: VirtualIPMCParameters) -> _Ladder:
-    """The line's elements: Eqs 4–9 profiles of whole-strip values, split over N+1."""
-    n = p.n_compartments
-    frac = np.arange(n) / (n - 1) if n > 1 else np.zeros(1)
-
-    def profile(clamp, alpha):  # Eqs 4–9: X(k) = X_clamp + (X_clamp/α − X_clamp) k/N
-        return clamp + (clamp / alpha - clamp) * frac
-
-    t1 = _table1(p)
-    dx = p.length_m / n
-    return _Ladder(
-        re=profile(t1["re_clamp_ohm"], p.alpha_e) / n,
-        ri=profile(t1["ri_clamp_ohm"], p.alpha_i) * n,
-        c=profile(t1["c_clamp_f"], p.alpha_c) / n,
-        rm=np.full(n, t1["rm_ohm"] * n),
-        r_source=float(p.source_resistance_ohm),
-        dx=dx,
-        x=(np.arange(n) + 0.5) * dx,
-    )
-
-
-def _electrical(lad: _Ladder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """State space of the loaded line: dv/dt = A_e v + B_e u, and the node map.
-
-    **Returns:** `(a_e, b_e, nodes)`, where `nodes` (n, n+1) gives the node
-    voltages V = nodes @ [v; u] from the tridiagonal KCL system G V = D v + b u.
-    """
-    n = len(lad.re)
-    g_series = 1.0 / lad.re
-    g_series[0] = 1.0 / (lad.r_source + lad.re[0])
-    g_right = np.append(g_series[1:], 0.0)  # tip node is open
-    diag = g_series + g_right + 1.0 / lad.rm + 1.0 / lad.ri
-    # G in banded storage for solve_banded: super-, main, sub-diagonal.
-    banded = np.zeros((3, n))
-    banded[0, 1:] = -g_series[1:]
-    banded[1] = diag
-    banded[2, :-1] = -g_series[1:]
-    rhs = np.zeros((n, n + 1))
-    rhs[np.arange(n), np.arange(n)] = 1.0 / lad.ri
-    rhs[0, n] = g_series[0]
-    nodes = scipy.linalg.solve_banded((1, 1), banded, rhs)
-    current = (nodes - np.eye(n, n + 1)) / lad.ri[:, None]  # branch currents per [v; u]
-    a_e = current[:, :n] / lad.c[:, None]
-    b_e = current[:, n] / lad.c
-    return a_e, b_e, nodes
-
-
-@dataclass(frozen=True)
-class _Model:
-    a: np.ndarray  # (2n, 2n) linear dynamics, states [v; ρ] (V)
-    b: np.ndarray  # (2n,)
-    c_out: np.ndarray  # (n, 2n): bending charge p_k = C_k (v_k − β ρ_k) (C)
-    ladder: _Ladder
-    derived: dict
-
-
-def _build(p: VirtualIPMCParameters) -> _Model:
-    lad = _ladder(p)
-    a_e, b_e, _ = _electrical(lad)
-    n = len(lad.re)
-    eye = np.eye(n)
-    a = np.block([[a_e, np.zeros((n, n))], [eye / p.relaxation_time_s, -eye / p.relaxation_time_s]])
-    b = np.concatenate([b_e, np.zeros(n)])
-    c_out = np.hstack([np.diag(lad.c), -p.relaxation_fraction * np.diag(lad.c)])
-    tau = np.sort(-1.0 / np.linalg.eigvals(a_e).real)[::-1]
-    t1 = _table1(p)
-    derived = {
-        "re_clamp_ohm": t1["re_clamp_ohm"],
-        "ri_clamp_ohm": t1["ri_clamp_ohm"],
-        "rm_ohm": t1["rm_ohm"],
-        "c_total_f": float(lad.c.sum()),
-        "branch_time_constants_s": [float(np.min(lad.ri * lad.c)), float(np.max(lad.ri * lad.c))],
-        "electrical_time_constants_s": [float(x) for x in tau],
-    }
-    return _Model(a=a, b=b, c_out=c_out, ladder=lad, derived=derived)
-
-
-class _TipMap:
-    """w_qs (mm) from the bending charges p_k (C): tanh curvature, cantilever sum."""
-
-    def __init__(self, weights: np.ndarray, p_sat: float, derived: dict):
-        self.weights = weights  # 1e3 K (L − x_k) Δx / (W Δx): mm of tip per coulomb of p_k
-        self.p_sat = p_sat  # σ_sat W Δx, saturation bending charge of one compartment (C)
-        self.derived = derived
-
-    def __call__(self, p_k: np.ndarray) -> np.ndarray:
-        if math.isinf(self.p_sat):
-            return p_k @ self.weights
-        return np.tanh(p_k / self.p_sat) @ (self.weights * self.p_sat)
-
-
-def _quasi_static_tip(p: VirtualIPMCParameters, model: _Model) -> _TipMap:
-    """Derive K and σ_sat from `gain_mm_per_v` and `compression` (static, relaxed)."""
-    lad = model.ladder
-    area = p.width_m * lad.dx
-    arm = (p.length_m - lad.x) * lad.dx  # (L − x_k) Δx, m²
-    p_static = model.c_out @ np.linalg.solve(model.a, -model.b)  # C per volt
-    sigma_static = p_static / area  # C/m² per volt
-    k_gain = p.gain_mm_per_v * 1e-3 / float(arm @ sigma_static)  # m/C
-    weights = 1e3 * k_gain * arm / area  # mm per coulomb of p_k
-    if p.compression == 0.0:
-        sigma_sat = np.inf
-    else:
-        s_fs = sigma_static * p.full_scale_v
-        r = s_fs / s_fs.max()
-        share = arm * s_fs / float(arm @ s_fs)
-
-        def shortfall(y):  # 1 − (static tip at V_fs)/(linear extrapolation), minus target
-            return 1.0 - float(share @ (np.tanh(y * r) / (y * r))) - p.compression
-
-        y = scipy.optimize.brentq(shortfall, 1e-9, 1.0 / ((1 - p.compression) * r.min()),
-                                  xtol=1e-14, rtol=1e-14)
-        sigma_sat = s_fs.max() / y  # C/m²
-    derived = {
-        "curvature_per_charge_density_m_per_c": k_gain,
-        "saturation_charge_density_c_per_m2": float(sigma_sat) if np.isfinite(sigma_sat) else None,
-        "static_gain_mm_per_v": p.gain_mm_per_v,
-    }
-    return _TipMap(weights, float(sigma_sat * area), derived)
-
-
-def _dac(v: np.ndarray, p: VirtualIPMCParameters) -> np.ndarray:
-    """Applied voltage (V): 2^b-level DAC codes mapped onto ±V_fs, clipped at the rails."""
-    top = 2**p.dac_bits - 1
-    code = np.clip(np.round((np.asarray(v, float) / p.full_scale_v + 1.0) * top / 2.0), 0, top)
-    return p.full_scale_v * (2.0 * code / top - 1.0)
+# Time stepping and camera (private; the tests check each against an independent reference).
 
 
 def _zoh(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -581,19 +283,6 @@ def _fine_outputs(a, b, c_out, u, h, oversample, reduce: Callable | None = None)
     last = (c_out @ x[m])[None, :]
     parts.append(last if reduce is None else reduce(last))
     return np.concatenate(parts, axis=0)
-
-
-def _mechanics(p: VirtualIPMCParameters, h: float, w_qs: np.ndarray) -> np.ndarray:
-    """First-mode response on the fine grid, exact for piecewise-linear w_qs (FOH)."""
-    wn = 2 * np.pi * p.mode_frequency_hz
-    zeta = p.damping_ratio
-    a = np.array([[0.0, 1.0], [-wn * wn, -2 * zeta * wn]])
-    b = np.array([[0.0], [wn * wn]])
-    ad, bd, cd, dd, _ = scipy.signal.cont2discrete(
-        (a, b, np.array([[1.0, 0.0]]), np.zeros((1, 1))), h, method="foh")
-    num, den = scipy.signal.ss2tf(ad, bd, cd, dd)
-    # At rest with w_qs(t_0) = 0: zero filter state is the exact initial condition.
-    return scipy.signal.lfilter(num[0], den, w_qs)
 
 
 def _expose(w: np.ndarray, start: np.ndarray, length: float) -> np.ndarray:
