@@ -9,7 +9,8 @@ The library never changes `jax.config`: call
 (the product of 46 RC sections needs it; the CLI and the tests do this).
 """
 
-from .data._drives import DRIVES as DRIVES, Drive as Drive, make_drive as make_drive
+from .data._drive import Drive as Drive
+from .data._drives import DRIVES as DRIVES, make_drive as make_drive
 from .util._errors import InputError as InputError
 from .discovery._diagnose import (
     CAUSES as CAUSES,
@@ -42,7 +43,8 @@ from .core._readout import (
     LinearReadout as LinearReadout,
     WindowedMLP as WindowedMLP,
 )
-from .data._recording import Recording as Recording, Split as Split
+from .data._recording import Recording as Recording
+from .data._split import Split as Split
 from .physics._reference import reference_response as reference_response
 from .core._result import FitResult as FitResult
 from .core._serialise import load_model as load_model, save_model as save_model

@@ -159,7 +159,7 @@ def _cmd_simulate(args):
 
     from .util._bounds import check_samples
     from .data._drives import make_drive
-    from .data._recording import SUFFIXES
+    from .data._loaders import SUFFIXES
     from .ipmc._virtual_ipmc import virtual_recording
     from .ipmc._virtual_parameters import VirtualIPMCParameters
 

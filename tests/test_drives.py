@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from hybrid.data._drives import DRIVES, Drive, chirp, make_drive, prbs, pulse, sine
+from hybrid.data._drive import Drive
+from hybrid.data._drives import DRIVES, make_drive
+from hybrid.data._paper_drives import chirp, prbs, pulse, sine
 from hybrid.util._errors import InputError
 
 
@@ -160,7 +162,7 @@ def test_bad_parameters(call, phrase):
 
 # --------------------------------------------------------------------------- modulation / repeated sweeps
 def test_sine_amplitude_modulation_envelope():
-    from hybrid.data._drives import sine
+    from hybrid.data._paper_drives import sine
 
     d = sine(90.0, rate=30.0, amplitude=2.0, frequency=1.0, modulation_depth=0.75, modulation_period=45.0)
     # Envelope a(t) = A (1 − m/2 (1 − cos 2πt/T)): full amplitude at t = 0 and t = T,
@@ -177,7 +179,7 @@ def test_sine_amplitude_modulation_envelope():
 
 
 def test_chirp_repeated_sweeps_are_continuous_and_periodic_in_frequency():
-    from hybrid.data._drives import chirp
+    from hybrid.data._paper_drives import chirp
 
     d = chirp(240.0, rate=30.0, f0=0.05, f1=1.0, sweep_period=60.0)
     # Continuity: no jump larger than the steepest slope of the fastest sweep allows.

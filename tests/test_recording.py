@@ -7,7 +7,9 @@ import pytest
 import scipy.io
 
 from hybrid.util._errors import InputError
-from hybrid.data._recording import Recording, Split, sidecar
+from hybrid.data._loaders import sidecar
+from hybrid.data._recording import Recording
+from hybrid.data._split import Split
 
 
 def _recording(n=100, rate=30.0, extra=True, **metadata):

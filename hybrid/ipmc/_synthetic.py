@@ -69,7 +69,7 @@ def discrepancy_drive(duration: float = 60.0, rate: float = 30.0, seed: int = 0,
     random levels reached from above and from below separate saturation from
     hysteresis.
     """
-    from ..data._drives import prbs
+    from ..data._paper_drives import prbs
 
     return prbs(duration, rate=rate, amplitude=amplitude, min_hold=0.5, max_hold=10.0, levels="multilevel", seed=seed)
 

@@ -1,0 +1,333 @@
+"""Reading recording files: ``.csv`` (with a ``<file>.csv.json`` metadata
+sidecar), ``.npz`` and ``.mat``.
+
+:func:`read_file` (behind :meth:`Recording.load
+<hybrid.data._recording.Recording.load>`) checks the path, picks the reader by
+suffix (:data:`SUFFIXES`) and returns the file's channels and metadata, for
+:class:`~hybrid.data._recording.Recording` to validate. The naming shared with
+:mod:`hybrid.data._writers` (suffixes, sidecar, ``extra_`` prefix) lives here.
+
+Messages about CSV files give the line number in the file (from 1).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import re
+import zipfile
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ..util._errors import InputError
+from ._recording_checks import REQUIRED, _rows_text
+
+__all__ = ["SUFFIXES", "read_file", "sidecar"]
+
+#: File suffixes :meth:`Recording.load` and :meth:`Recording.save` understand.
+SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
+
+_NPZ_EXTRA = "extra_"
+
+
+def read_file(
+    path: pathlib.Path, *, require_w: bool = True
+) -> tuple[dict[str, np.ndarray], dict]:
+    """Read the channels and metadata of a recording file; see :meth:`Recording.load`.
+
+    Arguments:
+        path: the file; its suffix picks the format.
+        require_w: False to accept a file without ``w``, which is then filled
+            with zeros.
+
+    Returns:
+        ``(columns, metadata)``: every channel by name (t, v_in and w first as
+        found in the file) and the metadata, with ``"source"`` set to ``path``
+        when missing.
+    """
+    reader = {".csv": _load_csv, ".npz": _load_npz, ".mat": _load_mat}[_suffix(path)]
+    if not path.exists():
+        raise InputError(f"recording file '{path}' does not exist: check the path")
+    if not path.is_file():
+        raise InputError(f"recording file '{path}' is not a file: give a file path")
+    if path.stat().st_size == 0:
+        raise InputError(
+            f"recording file '{path}' is empty: give a file with a header and data"
+        )
+    columns, metadata = reader(path, REQUIRED if require_w else REQUIRED[:2])
+    if "w" not in columns:
+        columns["w"] = np.zeros_like(columns["t"])
+    metadata.setdefault("source", str(path))
+    return columns, metadata
+
+
+# --------------------------------------------------------------------------- #
+# Paths and shared checks
+# --------------------------------------------------------------------------- #
+
+
+def _suffix(path: pathlib.Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in SUFFIXES:
+        raise InputError(
+            f"recording '{path}' has unknown suffix '{path.suffix}': use "
+            + ", ".join(SUFFIXES)
+        )
+    return suffix
+
+
+def sidecar(path: str | pathlib.Path) -> pathlib.Path:
+    """The metadata sidecar of a CSV recording: ``run.csv`` -> ``run.csv.json``."""
+    path = pathlib.Path(path)
+    return path.with_name(path.name + ".json")
+
+
+def _path_argument(path: Any, where: str) -> pathlib.Path:
+    """``path`` as a Path; anything but a str or os.PathLike is an InputError."""
+    if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
+        raise InputError(
+            f"{where} needs a file path (str or pathlib.Path), got {path!r}: give e.g. 'run.csv'"
+        )
+    return pathlib.Path(path)
+
+
+def _require(
+    path: pathlib.Path, found: Sequence[str], kind: str, required: Sequence[str] = REQUIRED
+) -> None:
+    missing = [c for c in required if c not in found]
+    if missing:
+        shown = ", ".join(f"'{c}'" for c in found) or "none"
+        raise InputError(
+            f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
+            f"{shown}): name them exactly t, v_in and w (case-sensitive)"
+        )
+
+
+def _parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:
+    try:
+        metadata = json.loads(text)
+    except ValueError as error:
+        raise InputError(
+            f"recording '{path}' has unreadable metadata in {where} ({error}): "
+            "fix the JSON or delete it"
+        ) from None
+    if not isinstance(metadata, dict):
+        raise InputError(
+            f"recording '{path}' has metadata in {where} that is not a JSON "
+            "object: write it as {...}"
+        )
+    return metadata
+
+
+# ------------------------------------------------------------------- CSV
+
+
+def _read_text(path: pathlib.Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8-sig")  # -sig: Excel's byte-order mark
+    except UnicodeDecodeError:
+        raise InputError(
+            f"recording '{path}' is not UTF-8 text: save it as a plain CSV file"
+        ) from None
+    except OSError as error:
+        raise InputError(
+            f"recording '{path}' cannot be read ({error.strerror or error}): check "
+            "its permissions"
+        ) from None
+
+
+def _csv_lines(path: pathlib.Path) -> list[tuple[int, str]]:
+    """Non-blank, non-comment lines with their line numbers (from 1)."""
+    lines = []
+    for number, line in enumerate(_read_text(path).splitlines(), start=1):
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            lines.append((number, stripped))
+    return lines
+
+
+def _csv_header(
+    path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED
+) -> list[str]:
+    _check_delimiter(path, line)
+    header = [cell.strip().strip('"').strip() for cell in line.split(",")]
+    if any(not cell for cell in header):
+        raise InputError(
+            f"recording '{path}' has an empty column name in its header: name "
+            "every column"
+        )
+    repeated = sorted({c for c in header if header.count(c) > 1})
+    if repeated:
+        raise InputError(
+            f"recording '{path}' names column(s) {', '.join(repeated)} more than "
+            "once: give each column a unique name"
+        )
+    _require(path, header, "column(s)", required)
+    return header
+
+
+def _check_delimiter(path: pathlib.Path, line: str) -> None:
+    """Refuse a header split by ';', tabs or spaces: its columns would read as missing."""
+    if "," in line:
+        return
+    for mark, word in ((";", "';'"), ("\t", "tabs"), (None, "spaces")):
+        cells = [c.strip().strip('"') for c in line.split(mark)]
+        if len(cells) > 1 and set(cells) & set(REQUIRED):
+            raise InputError(
+                f"recording '{path}' uses {word} as its delimiter (header {line.strip()!r}): "
+                "save it comma-separated with '.' decimals (t,v_in,w)"
+            )
+
+
+def _csv_column(
+    path: pathlib.Path, column: str, cells: list[str], numbers: np.ndarray
+) -> np.ndarray:
+    """Convert one column of cells, naming the first bad cell and its line."""
+    try:
+        values = np.array(cells, dtype=np.float64)
+    except ValueError:
+        for cell, number in zip(cells, numbers):
+            try:
+                float(cell)
+            except ValueError:
+                raise InputError(
+                    f"recording '{path}' has non-numeric cell {cell!r} at line "
+                    f"{number}, column '{column}': fix or remove that line"
+                ) from None
+        raise  # pragma: no cover - numpy and float() disagree
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise InputError(
+            f"recording '{path}' has non-finite values in column '{column}' at "
+            f"{_rows_text(numbers[bad], 'lines')}: remove or interpolate them"
+        )
+    return values
+
+
+def _load_csv(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict]:
+    lines = _csv_lines(path)
+    if not lines:
+        raise InputError(
+            f"recording '{path}' has no header or data: give a header line "
+            "t,v_in,w and one line per sample"
+        )
+    header = _csv_header(path, lines[0][1], required)
+    rows, numbers = [], []
+    for number, line in lines[1:]:
+        cells = [cell.strip() for cell in line.split(",")]
+        if len(cells) != len(header):
+            hint = ""
+            if len(cells) > len(header) and "." not in line and re.search(r"\d,\d", line):
+                hint = " (decimal commas? write numbers with '.' decimals)"
+            raise InputError(
+                f"recording '{path}' has {len(cells)} cells at line {number} but "
+                f"{len(header)} columns in its header{hint}: make every line match the header"
+            )
+        rows.append(cells)
+        numbers.append(number)
+    if not rows:
+        raise InputError(
+            f"recording '{path}' has a header but no data lines: add one line "
+            "per sample"
+        )
+    numbers = np.asarray(numbers)
+    columns = {
+        c: _csv_column(path, c, [row[i] for row in rows], numbers)
+        for i, c in enumerate(header)
+    }
+    meta_path = sidecar(path)
+    metadata = {}
+    if meta_path.exists():
+        metadata = _parse_metadata(path, _read_text(meta_path), f"'{meta_path.name}'")
+    return columns, metadata
+
+
+# ------------------------------------------------------------------- NPZ
+
+
+def _load_npz(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict]:
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            arrays = {key: archive[key] for key in archive.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        raise InputError(
+            f"recording '{path}' is not a readable .npz archive ({error}): save it "
+            "with numpy.savez or Recording.save"
+        ) from None
+    metadata = {}
+    if "metadata" in arrays:
+        metadata = _parse_metadata(path, str(arrays.pop("metadata")[()]), "its 'metadata' entry")
+    _require(path, list(arrays), "array(s)", required)
+    columns = {}
+    for key, values in arrays.items():
+        column = key[len(_NPZ_EXTRA):] if key.startswith(_NPZ_EXTRA) else key
+        columns[column] = _file_vector(path, key, values)
+    return columns, metadata
+
+
+# ------------------------------------------------------------------- MAT
+
+
+def _file_vector(path: pathlib.Path, key: str, values: np.ndarray) -> np.ndarray:
+    """Check that a stored variable is a real numeric vector; return it flat."""
+    values = np.asarray(values)
+    if values.dtype.kind not in "biuf":
+        raise InputError(
+            f"recording '{path}' has variable '{key}' of type {values.dtype} "
+            "rather than real numbers: store numeric vectors only"
+        )
+    if values.ndim > 1 and sum(k > 1 for k in values.shape) > 1:
+        raise InputError(
+            f"recording '{path}' has variable '{key}' of shape {values.shape}, "
+            "not a vector: store one value per sample"
+        )
+    return values.reshape(-1)
+
+
+def _is_hdf5(path: pathlib.Path) -> bool:
+    """MATLAB v7.3 files are HDF5: a 512-byte MATLAB header, then the HDF5 signature."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(520)
+    except OSError:
+        return False
+    return head[:10] == b"MATLAB 7.3" or head[512:520] == b"\x89HDF\r\n\x1a\n"
+
+
+def _load_mat(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict]:
+    import scipy.io
+
+    try:
+        variables = scipy.io.loadmat(str(path))
+    except Exception as error:  # scipy raises many types for broken files
+        if "7.3" in str(error) or _is_hdf5(path):
+            raise InputError(
+                f"recording '{path}' is a MATLAB v7.3 (HDF5) .mat file, which cannot be read "
+                "here: save it in the v7 format, save(file, 't', 'v_in', 'w', '-v7')"
+            ) from None
+        raise InputError(
+            f"recording '{path}' is not a readable .mat file ({error}): save it "
+            "with MATLAB's save(file, 't', 'v_in', 'w', '-v7') or Recording.save"
+        ) from None
+    variables = {k: v for k, v in variables.items() if not k.startswith("__")}
+    metadata = {}
+    if "metadata" in variables:
+        text = variables.pop("metadata")
+        if text.dtype.kind != "U" or text.size != 1:
+            raise InputError(
+                f"recording '{path}' has a 'metadata' variable that is not one "
+                "string: store the metadata as a JSON char array"
+            )
+        metadata = _parse_metadata(path, str(text.reshape(-1)[0]), "its 'metadata' variable")
+    _require(path, list(variables), "variable(s)", required)
+    columns = {key: _file_vector(path, key, values) for key, values in variables.items()}
+    return columns, metadata

@@ -1,0 +1,230 @@
+"""The checks a :class:`~hybrid.data._recording.Recording` passes when it is built.
+
+Each channel becomes a finite, read-only float64 vector of one common length;
+the time base ``t`` (s) must strictly increase and be uniform (30 Hz for the
+paper's camera): timestamp jitter below ``JITTER_FRAMES`` of a step is absorbed
+by rebuilding ``t`` as the closest uniform grid, gaps and a ``t`` written in
+milliseconds are refused. Metadata must be JSON-able and gains the units of
+the required channels. Every problem raises
+:class:`~hybrid.util._errors.InputError` with a message that names the
+recording, the column and the rows, and says how to fix it.
+
+Row numbers in messages about arrays count samples from 0.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ..util._errors import InputError
+
+__all__ = ["GAP_FRAMES", "JITTER_FRAMES", "MS_STEP_S", "REQUIRED", "TIME_RTOL", "UNITS"]
+
+#: Required channels, in file order.
+REQUIRED: tuple[str, ...] = ("t", "v_in", "w")
+#: Units of the required channels, stored in ``metadata["units"]``.
+UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "mm"}
+#: Largest ``max|dt - median dt| / median dt`` kept as it is; far above the rounding
+#: of 17-digit CSV text, far below a dropped camera frame.
+TIME_RTOL: float = 1e-3
+#: Timestamp jitter (max |t - closest uniform grid|, in steps) up to which t is rebuilt
+#: as that grid: every row is then unambiguously frame k of one clock. Millisecond
+#: timestamps of a 30 Hz camera are off by up to 0.015 step from rounding alone.
+#: Larger deviations (a frame rate that changed) are refused.
+JITTER_FRAMES: float = 0.25
+#: A step longer than this many median steps is a gap (dropped frames): refused.
+GAP_FRAMES: float = 1.5
+#: A median step of this many seconds or more (a rate below 0.1 Hz) is refused as t
+#: written in milliseconds (33.3 at 30 fps), unless the metadata given declares
+#: ``units: {"t": "s"}``. Slow legitimate recordings (a 1 Hz benchmark, dt = 1 s) pass;
+#: an IPMC's RC time constants (0.1-1 s) cannot be identified below 0.1 Hz anyway.
+MS_STEP_S: float = 10.0
+
+_RESERVED = frozenset((*REQUIRED, "metadata"))
+_SHOW_ROWS = 5
+
+
+def _rows_text(rows: np.ndarray, word: str = "rows") -> str:
+    """Format the first few of ``rows`` as ``"rows 12, 13 (2 in all)"``."""
+    shown = ", ".join(str(int(r)) for r in rows[:_SHOW_ROWS])
+    more = ", ..." if len(rows) > _SHOW_ROWS else ""
+    return f"{word} {shown}{more} ({len(rows)} in all)"
+
+
+def _as_vector(name: str, column: str, values: Any) -> np.ndarray:
+    """Convert one channel to a read-only float64 copy of shape ``(n,)``.
+
+    Arguments:
+        name: the recording's name, for messages.
+        column: the channel's name, for messages.
+        values: anything ``numpy.asarray`` turns into a 1-D real array.
+
+    Returns:
+        A read-only float64 vector that owns its data.
+    """
+    if values is None:
+        raise InputError(
+            f"recording '{name}' is missing column '{column}': give t, v_in and w"
+        )
+    try:
+        array = np.array(values, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as error:
+        raise InputError(
+            f"recording '{name}' has non-numeric values in column '{column}' "
+            f"({error}): give real numbers only"
+        ) from None
+    if array.ndim != 1:
+        raise InputError(
+            f"recording '{name}' has column '{column}' of shape {array.shape}, "
+            "not a vector: give one value per sample"
+        )
+    array.setflags(write=False)
+    return array
+
+
+def _check_extra_name(name: str, column: Any) -> None:
+    """Reject extra-channel names that no file format could store back."""
+    if not isinstance(column, str) or not column or column != column.strip():
+        raise InputError(
+            f"recording '{name}' has extra channel name {column!r}: use a "
+            "non-empty string without leading or trailing spaces"
+        )
+    if column in _RESERVED:
+        raise InputError(
+            f"recording '{name}' has an extra channel named '{column}', which is "
+            "reserved: rename it (t, v_in, w and metadata are taken)"
+        )
+    if any(c in column for c in ',"\n\r#'):
+        raise InputError(
+            f"recording '{name}' has extra channel name {column!r} with a comma, "
+            "quote, '#' or line break: rename it so it fits a CSV header"
+        )
+
+
+def _check_metadata(name: str, metadata: Any) -> dict:
+    """Return a JSON-normalised deep copy of ``metadata`` with defaults filled in."""
+    if metadata is None:
+        metadata = {}
+    if not isinstance(metadata, Mapping):
+        raise InputError(
+            f"recording '{name}' has metadata of type {type(metadata).__name__}: "
+            "give a dict"
+        )
+    try:
+        copy = json.loads(json.dumps(dict(metadata), allow_nan=False))
+    except (TypeError, ValueError) as error:
+        raise InputError(
+            f"recording '{name}' has metadata that is not JSON-able ({error}): "
+            "use only dicts, lists, strings, finite numbers, booleans and None"
+        ) from None
+    copy.setdefault("units", dict(UNITS))
+    copy.setdefault("source", name)
+    if "strip" in copy and not isinstance(copy["strip"], dict):
+        raise InputError(
+            f"recording '{name}' has metadata 'strip' of type "
+            f"{type(copy['strip']).__name__}: give the strip geometry as a dict"
+        )
+    return copy
+
+
+def _check_finite(name: str, column: str, values: np.ndarray) -> None:
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise InputError(
+            f"recording '{name}' has non-finite values in column '{column}' at "
+            f"{_rows_text(bad)}: remove or interpolate them"
+        )
+
+
+def _check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarray, dict | None]:
+    """Require strictly increasing, uniformly spaced sample times in seconds.
+
+    Returns ``(t, None)`` when the steps are uniform within ``TIME_RTOL``. Otherwise,
+    with no gap (no step over ``GAP_FRAMES`` median steps, none under 1/``GAP_FRAMES``)
+    and every timestamp within ``JITTER_FRAMES`` of a step of the closest uniform grid,
+    the times are one frame clock read with jitter: they come back as that grid
+    t0 + k·dt (least squares over the frame index k; the median step would be biased
+    by millisecond rounding: 33, 33, 34 ms has median 33 ms, 1 % off 30 Hz) with a
+    ``time_base`` record of what was done. Gaps and larger irregularities are refused.
+    """
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0) + 1
+    if bad.size:
+        raise InputError(
+            f"recording '{name}' has time that does not strictly increase at "
+            f"{_rows_text(bad)}: sort the samples and drop repeated times"
+        )
+    step = float(np.median(dt))
+    _check_seconds(name, step, metadata)
+    deviation = np.abs(dt - step)
+    worst = int(np.argmax(deviation))
+    if deviation[worst] <= TIME_RTOL * step:
+        return t, None
+    gaps = np.flatnonzero(dt > GAP_FRAMES * step)
+    if gaps.size:
+        k = int(gaps[0])
+        raise InputError(
+            f"recording '{name}' has a gap in time at row {k + 1} (t = {t[k + 1]:.6g} s): the "
+            f"step into it is {dt[k]:.6g} s, {dt[k] / step:.3g} times the median step {step:.6g} s "
+            f"({gaps.size} gap(s) in all): frames are missing there; cut the recording at the "
+            "gap (Recording.segment) or fill the missing frames"
+        )
+    short = np.flatnonzero(dt < step / GAP_FRAMES)
+    k = np.arange(t.size, dtype=np.float64)
+    k_mean, t_mean = float(np.mean(k)), float(np.mean(t))
+    slope = float(np.sum((k - k_mean) * (t - t_mean)) / np.sum((k - k_mean) ** 2))
+    grid = (t_mean - slope * k_mean) + slope * k
+    jitter = t - grid
+    far = int(np.argmax(np.abs(jitter)))
+    worst_jitter = abs(float(jitter[far]))
+    if short.size or worst_jitter >= JITTER_FRAMES * slope:
+        where = (f"the step into row {int(short[0]) + 1} is {dt[short[0]]:.6g} s against a median "
+                 f"step of {step:.6g} s" if short.size else
+                 f"row {far} (t = {t[far]:.6g} s) is {worst_jitter / slope:.2g} of a step off the "
+                 "closest uniform grid")
+        raise InputError(
+            f"recording '{name}' has non-uniform time: {where} (timestamp jitter below "
+            f"{JITTER_FRAMES:g} of a step is absorbed): did the frame rate change? Resample "
+            "onto a uniform grid or rebuild t from the sampling rate"
+        )
+    rms = float(np.sqrt(np.mean(jitter**2)))
+    note = (
+        f"t rebuilt as a uniform grid t0 + k·dt, dt = {slope:.9g} s ({1 / slope:.6g} Hz), "
+        f"the least-squares line through the logged times: their jitter was max "
+        f"{worst_jitter * 1e3:.3g} ms, rms {rms * 1e3:.3g} ms ({worst_jitter / slope:.2g} of a step)"
+    )
+    grid.setflags(write=False)
+    return grid, {"rebuilt": True, "dt_s": slope, "rate_hz": 1 / slope, "t0_s": float(grid[0]),
+                  "jitter_max_s": worst_jitter, "jitter_rms_s": rms, "note": note}
+
+
+def _check_seconds(name: str, step: float, metadata: Any) -> None:
+    """Refuse a time column that steps like milliseconds (see ``MS_STEP_S``)."""
+    if step < MS_STEP_S:
+        return
+    units = metadata.get("units") if isinstance(metadata, Mapping) else None
+    if isinstance(units, Mapping) and units.get("t") == "s":
+        return  # declared: a recording really sampled this slowly
+    raise InputError(
+        f"recording '{name}' has t stepping by {step:.4g}: t looks like milliseconds "
+        f"({1000 / step:.4g} Hz if so, {1 / step:.3g} Hz if seconds); write t in seconds "
+        f"(t/1000), or declare metadata units {{\"t\": \"s\"}} for a recording really "
+        f"sampled every {step:.4g} s"
+    )
+
+
+def _is_constant(values: np.ndarray) -> bool:
+    """True when values vary by no more than 1e-12 of their magnitude (or are all 0)."""
+    magnitude = float(np.max(np.abs(values))) if values.size else 0.0
+    return magnitude == 0.0 or float(np.std(values / magnitude)) <= 1e-12
+
+
+def _source_name(metadata: Any) -> str:
+    if isinstance(metadata, Mapping) and isinstance(metadata.get("source"), str):
+        return metadata["source"]
+    return "<arrays>"
+
