@@ -6,6 +6,10 @@ real ``serial.Serial``, a pty, or a test double) and speaks the protocol of
 through the board's 256-sample ring buffer and returns a :class:`PlayReport`
 with the board's own account of what it played and when (its timer ticks).
 
+The serial transport (frames in and out, waiting for a reply) is
+:class:`rig._link.SerialLink`; the timer setting and the report are in
+:mod:`rig._playback`.
+
 Faults raise :class:`~rig._errors.RigError` with one line: port missing or
 unplugged, no reply, board reset mid-stream, DAC not acknowledging. Bad frames
 and underruns are not fatal: they are counted and reported.
@@ -13,8 +17,6 @@ and underruns are not fatal: they are counted and reported.
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import time
 from collections.abc import Callable, Sequence
 
@@ -22,125 +24,13 @@ import numpy as np
 
 from . import _protocol as P
 from ._errors import RigError
+from ._link import BAUD, SerialLink, _reason
+from ._playback import F_CPU, PlayReport, Timing, sample_timing
 
-__all__ = ["BAUD", "Board", "PlayReport", "Timing", "sample_timing"]
-
-#: UART speed of the firmware: exact at 16 MHz (U2X, UBRR0 = 7).
-BAUD = 250000
-F_CPU = 16_000_000
+__all__ = ["Board"]
 
 
-@dataclasses.dataclass(frozen=True)
-class Timing:
-    """Timer1 setting for a sample rate: ``period = (top + 1) * prescaler / F_CPU``."""
-
-    prescaler_code: int
-    top: int
-    f_cpu: int = F_CPU
-
-    @property
-    def prescaler(self) -> int:
-        return P.PRESCALERS[self.prescaler_code]
-
-    @property
-    def period_cycles(self) -> int:
-        """Sample period in CPU cycles."""
-        return (self.top + 1) * self.prescaler
-
-    @property
-    def period(self) -> float:
-        """Sample period, s."""
-        return self.period_cycles / self.f_cpu
-
-    @property
-    def rate(self) -> float:
-        """Sample rate actually played, Hz."""
-        return 1.0 / self.period
-
-
-def sample_timing(rate: float, f_cpu: int = F_CPU) -> Timing:
-    """The Timer1 setting closest to ``rate`` Hz, using the finest prescaler that fits 16 bits.
-
-    At 30 Hz: prescaler 64, top 8332, so 30.0012 Hz (40 ppm fast).
-    """
-    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
-        raise RigError(f"sample rate {rate!r} Hz is not a positive number")
-    for code in sorted(P.PRESCALERS):
-        ticks = f_cpu / (rate * P.PRESCALERS[code])
-        top = round(ticks) - 1
-        if top <= 0xFFFF:
-            if top < 100:
-                raise RigError(f"sample rate {rate:g} Hz is too fast for the board: keep it below "
-                               f"{f_cpu / 101 / 8:.0f} Hz (the I2C write alone takes ~80 us)")
-            return Timing(code, top, f_cpu)
-    raise RigError(f"sample rate {rate:g} Hz is too slow for Timer1: give at least "
-                   f"{f_cpu / 1024 / 65536:.3f} Hz")
-
-
-@dataclasses.dataclass
-class PlayReport:
-    """What the board says it played.
-
-    Attributes:
-        n: samples in the drive.
-        played: samples the board played (``== n`` when complete).
-        ticks: timer periods from START to the last sample.
-        timing: the Timer1 setting (``timing.period`` s per tick).
-        underruns: episodes ``(index, length, tick)``: sample ``index`` came
-            ``length`` ticks late and played at ``tick``.
-        underrun_ticks: ticks in which no sample was ready (the last code held).
-        bad_frames_board: frames the board rejected (NAK) during the stream.
-        bad_frames_host: corrupt frames the host threw away.
-        dac_errors: DAC writes that were not acknowledged.
-        resent_samples: samples sent again after a NAK.
-        statuses: ``(host monotonic time, ticks, played)`` of each STATUS.
-        start_time: host monotonic time at which START was acknowledged.
-        complete: the board reported DONE.
-        error: the fault's message when the stream ended early, else None.
-    """
-
-    n: int
-    timing: Timing
-    played: int = 0
-    ticks: int = 0
-    underruns: list = dataclasses.field(default_factory=list)
-    underrun_ticks: int = 0
-    bad_frames_board: int = 0
-    bad_frames_host: int = 0
-    dac_errors: int = 0
-    resent_samples: int = 0
-    statuses: list = dataclasses.field(default_factory=list)
-    start_time: float = math.nan
-    complete: bool = False
-    error: str | None = None
-
-    def sample_ticks(self, n: int | None = None) -> np.ndarray:
-        """The timer tick at which each of the first ``n`` samples played.
-
-        Sample i plays at tick i plus the ticks lost in underruns before it;
-        its time after START is ``(tick + 1) * timing.period`` (sample 0 plays at
-        the first compare match, one period after START).
-        """
-        n = self.played if n is None else n
-        ticks = np.arange(n, dtype=np.int64)
-        for index, length, _tick in sorted(self.underruns):
-            ticks[index:] += length
-        return ticks
-
-    def metadata(self) -> dict:
-        """JSON-able summary for a recording's metadata."""
-        return {
-            "samples": self.n, "played": self.played, "ticks": self.ticks, "complete": self.complete,
-            "rate_hz": self.timing.rate, "period_s": self.timing.period,
-            "timer": {"prescaler": self.timing.prescaler, "top": self.timing.top},
-            "underruns": [list(u) for u in self.underruns], "underrun_ticks": self.underrun_ticks,
-            "bad_frames_board": self.bad_frames_board, "bad_frames_host": self.bad_frames_host,
-            "dac_errors": self.dac_errors, "resent_samples": self.resent_samples,
-            "error": self.error,
-        }
-
-
-class Board:
+class Board(SerialLink):
     """The DAC board on a serial port.
 
     Arguments:
@@ -150,17 +40,9 @@ class Board:
     """
 
     def __init__(self, port, name: str = "board", reply_timeout: float = 2.0):
-        self.port = port
-        self.name = name
-        self.reply_timeout = reply_timeout
-        self.parser = P.FrameParser()
+        super().__init__(port, name, reply_timeout)
         self.info: P.Info | None = None
         self.timing: Timing | None = None
-        self._seq = 0
-        try:
-            port.timeout = 0.02
-        except (AttributeError, ValueError):
-            pass
 
     # ------------------------------------------------------------- opening
 
@@ -181,58 +63,6 @@ class Board:
             board.close()
             raise
         return board
-
-    def close(self) -> None:
-        try:
-            self.port.close()
-        except Exception:  # closing a port that vanished must not hide the real error
-            pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    # ------------------------------------------------------------- low level
-
-    def send(self, type_: int, payload: bytes = b"") -> None:
-        """Write one frame."""
-        frame = P.encode_frame(type_, self._seq, payload)
-        self._seq = (self._seq + 1) & 0xFF
-        try:
-            self.port.write(frame)
-        except Exception as error:  # pyserial raises SerialException, ptys OSError
-            raise RigError(f"serial port {self.name} failed while writing ({_reason(error)}): "
-                           "was the board unplugged?") from None
-
-    def receive(self) -> list[P.Message]:
-        """Read what has arrived (waits up to the port timeout) and decode it."""
-        try:
-            data = self.port.read(4096)
-        except Exception as error:
-            raise RigError(f"serial port {self.name} failed while reading ({_reason(error)}): "
-                           "was the board unplugged?") from None
-        messages = []
-        for frame in self.parser.feed(data or b""):
-            try:
-                messages.append(P.decode_message(frame))
-            except ValueError:
-                self.parser.bad_frames += 1
-        return messages
-
-    def _wait_for(self, kinds: tuple[type, ...], what: str, timeout: float | None = None,
-                  on_other: Callable | None = None) -> P.Message:
-        deadline = time.monotonic() + (self.reply_timeout if timeout is None else timeout)
-        while time.monotonic() < deadline:
-            for message in self.receive():
-                if isinstance(message, kinds):
-                    return message
-                if on_other is not None:
-                    on_other(message)
-        raise RigError(f"no {what} from the board on {self.name} within "
-                       f"{self.reply_timeout if timeout is None else timeout:g} s: is the rig_dac "
-                       f"firmware flashed and the port at {BAUD} baud?")
 
     # ------------------------------------------------------------- commands
 
@@ -441,11 +271,6 @@ class Board:
         report.played, report.ticks = done.played, done.ticks
         report.underrun_ticks = done.underrun_ticks
         report.complete = done.played == n
-
-
-def _reason(error: Exception) -> str:
-    text = str(error).strip() or type(error).__name__
-    return text.splitlines()[0]
 
 
 def _dac_error_text(board: Board, message: P.DacError) -> str:

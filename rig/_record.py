@@ -30,7 +30,8 @@ import numpy as np
 
 from hybrid import Recording
 
-from ._board import Board, PlayReport
+from ._board import Board
+from ._playback import PlayReport
 from ._calibration import Calibration
 from ._errors import RigError
 from ._scene import Scene
