@@ -30,7 +30,8 @@ def main(argv=None) -> int:
     from discrepancy import draw
 
     from hybrid import RCNetwork
-    from hybrid.discovery._diagnose import SPLIT_ORDER, DiagnoseSettings, _lane_effect, _predictions, diagnose, lanes_problem
+    from hybrid import diagnose
+    from hybrid.discovery._diagnose import SPLIT_ORDER, DiagnoseSettings, _lane_effect, _predictions, lanes_problem
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("effect")

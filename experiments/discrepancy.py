@@ -93,7 +93,7 @@ def _table(rows, effects, causes) -> str:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     jax.config.update("jax_enable_x64", True)
-    from hybrid.discovery._diagnose import CAUSES, diagnose
+    from hybrid import CAUSES, diagnose
     from hybrid.ipmc._synthetic import HIDDEN_EFFECTS
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -78,6 +78,7 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
 
     import discrepancy
+    import hybrid
     from hybrid.discovery import _diagnose as search
     from hybrid.discovery._effects import EFFECTS
     from hybrid.core._levenberg_marquardt import LMSettings
@@ -95,7 +96,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     settings = search.DiagnoseSettings()
-    frozen = frozenset(settings.frozen)
+    frozen = frozenset(settings.frozen_for(RCNetwork()))
     names = list(EFFECTS)
     off = np.zeros(len(names) + 1)
     off[-1] = 1.0
@@ -141,7 +142,7 @@ def main(argv=None) -> int:
         state = search._fit_lanes(problem, on[None], tangents[None], truth[None], lm, settings.patience)
         from_truth = state.best_theta[0]
 
-        found = search.diagnose(recording)
+        found = hybrid.diagnose(recording)
         candidate = next(c for c in found.candidates if c.name == "hysteresis")
         baseline = over_noise(found.baseline.theta, off)
         floor_test = discrepancy.excess_over_noise(recording, found)[1]

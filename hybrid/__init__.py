@@ -16,7 +16,6 @@ from .discovery._diagnose import (
     CAUSES as CAUSES,
     Diagnosis as Diagnosis,
     DiagnoseSettings as DiagnoseSettings,
-    diagnose as diagnose,
 )
 from .discovery._report import write_report as write_report
 from .discovery._effects import (
@@ -35,7 +34,8 @@ from .core._metrics import (
     nmse_target as nmse_target,
     nmse_variance as nmse_variance,
 )
-from .core._models import MODEL_KINDS as MODEL_KINDS, Model as Model, make_model as make_model
+from .core._models import MODEL_KINDS as MODEL_KINDS, Model as Model
+from .ipmc._defaults import diagnose as diagnose, make_model as make_model
 from .core._parameters import Positive as Positive, Real as Real, UnitInterval as UnitInterval
 from .physics._rc_network import RCNetwork as RCNetwork
 from .core._readout import (

@@ -236,8 +236,7 @@ def _cmd_fit(args):
                        width=args.width, key=jax.random.key(args.seed))
     frozen = set(args.freeze)
     as_names(args.free, "--free", "parameter", model.parameter_names)  # an unknown name is refused, not ignored
-    if args.model != "normal" and "xi_h" not in args.free:
-        frozen.add("xi_h")
+    frozen |= set(model.simulation.default_frozen()) - set(args.free)  # the RC network's xi_h
     if len(args.split) != 3:
         raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
     with lock:
@@ -290,7 +289,8 @@ def _cmd_sensitivity(args):
 def _cmd_diagnose(args):
     import dataclasses
 
-    from .discovery._diagnose import DiagnoseSettings, diagnose
+    from .discovery._diagnose import DiagnoseSettings
+    from .ipmc._defaults import diagnose
     from .discovery._report import FIGURES, _pm, write_report
     from .discovery._effects import EFFECTS
     from .data._recording import Recording

@@ -25,7 +25,8 @@ import math
 import numpy as np
 import pytest
 
-from hybrid.discovery._diagnose import CAUSES, DiagnoseSettings, _choose_lane, diagnose
+from hybrid import diagnose
+from hybrid.discovery._diagnose import CAUSES, DiagnoseSettings, _choose_lane
 from hybrid.discovery._report import FIGURES, _nmse
 from hybrid.discovery._effects import EFFECTS
 from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording

@@ -34,19 +34,21 @@ def test_screened_starts_reach_the_loss_of_the_true_parameters():
                                     noise_fraction=0.01, seed=5)
     simulation = RCNetwork(method="zoh")
     series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
-    problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen))
+    problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation)))
     truth = {"C_clamp": SLOW.C_clamp, "xi_rho": SLOW.xi_rho / SLOW.xi_h, "alpha_E": SLOW.alpha_E,
              "alpha_I": SLOW.alpha_I, "alpha_C": SLOW.alpha_C}
     floor = _train_mse(problem, simulation, truth)
 
-    starts = baseline_starts(problem, simulation, 16, 512)
+    starts = baseline_starts(problem, simulation, 16, 512, settings.frozen_for(simulation))
     assert len(starts) == 16
     losses = [_train_mse(problem, simulation, s) for s in starts]
     assert losses == sorted(losses) or np.allclose(losses, sorted(losses), rtol=1e-6)
     assert losses[0] <= 1.5 * floor  # on the true plateau before any LM step
-    # The design's paper-like centre is not: screening is what finds the plateau.
-    assert _train_mse(problem, simulation, baseline_design(1)[0]) >= 5 * floor
-    assert len(baseline_design(512)) == 512
+    # The design's first point, the simulation as given, is not: screening is what finds the plateau.
+    first = baseline_design(simulation, 1, settings.frozen_for(simulation))[0]
+    assert first == {k: float(v) for k, v in simulation.parameters().items() if k != "xi_h"}
+    assert _train_mse(problem, simulation, first) >= 5 * floor
+    assert len(baseline_design(simulation, 512)) == 512
 
 
 def test_loop_screen_recovers_a_known_bouc_wen_loop():
@@ -59,17 +61,18 @@ def test_loop_screen_recovers_a_known_bouc_wen_loop():
 
     settings = DiagnoseSettings()
     drive = discrepancy_drive(60.0, 30.0, seed=1)
-    point = baseline_design(3)[2]
     simulation = RCNetwork(method="zoh")
+    design = baseline_design(simulation, 3, settings.frozen_for(simulation))
+    point = design[2]
     s = np.asarray(simulation.replace(**point).simulate(jnp.asarray(drive.v), 1 / 30.0))
     k, height = 10.0 / np.ptp(s), 0.15 * np.ptp(s)
-    _, raws = design_raws(simulation, [point, baseline_design(3)[1]])
+    _, raws = design_raws(simulation, [point, design[1]])
 
     def screen(initial):
         w = 2.0 * (s + height * np.asarray(bouc_wen_state(jnp.asarray(s), k, initial))) - 0.3
         recording = Recording(t=np.asarray(drive.t), v_in=np.asarray(drive.v), w=w)
         series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
-        problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen))
+        problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation)))
         return np.var(w), [np.asarray(x) for x in loop_screen(problem, simulation, raws, (10.0, 40.0))]
 
     var, (losses, ks, heights, initials) = screen(0.0)
@@ -102,9 +105,9 @@ def test_resonance_starts_find_a_known_mode_and_network():
     settings = DiagnoseSettings()
     rate = 30.0
     drive = discrepancy_drive(60.0, rate, seed=2)
-    design = baseline_design(N_SCREEN)[:N_JOINT_SCREEN]
-    point = design[37]
     simulation = RCNetwork(method="zoh")
+    design = baseline_design(simulation, N_SCREEN, settings.frozen_for(simulation))[:N_JOINT_SCREEN]
+    point = design[37]
     s = np.asarray(simulation.replace(**point).simulate(jnp.asarray(drive.v), 1 / rate))
     f, zeta = float(mode_frequencies(rate)[9]), MODE_DAMPINGS[1]
     omega = 2 * np.pi * f
@@ -114,13 +117,13 @@ def test_resonance_starts_find_a_known_mode_and_network():
     w = 1.7 * y + 0.2
     recording = Recording(t=t, v_in=np.asarray(drive.v), w=w)
     series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
-    problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen))
+    problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation)))
 
     _, raws = design_raws(simulation, [point, design[5]])
     losses = np.asarray(mode_screen(problem, simulation, raws, np.array([f, 1.3 * f, f]), np.array([zeta, zeta, 0.3])))
     assert losses[0, 0] < 1e-12 * np.var(w)  # exact up to lsim's quadrature
     assert min(losses[0, 1], losses[0, 2], losses[1, 0]) > 1e-4 * np.var(w)  # wrong f, wrong ζ, wrong network
 
-    (start,) = resonance_starts(problem, simulation, rate, n_starts=1)
+    (start,) = resonance_starts(problem, simulation, rate, n_starts=1, frozen=settings.frozen_for(simulation))
     assert start["resonance_frequency_hz"] == pytest.approx(f) and start["resonance_damping"] == zeta
     assert all(start[k] == pytest.approx(v) for k, v in point.items())

@@ -281,9 +281,9 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     settings = DiagnoseSettings()
     white = np.random.default_rng(0).normal(size=400)
     found = _uncertainties(model, [rec], settings, white)
-    frozen = parameter_covariance(model, [rec], frozen=set(settings.frozen) | set(inner.parameter_names()),
+    frozen = parameter_covariance(model, [rec], frozen=set(settings.frozen_for(inner)) | set(inner.parameter_names()),
                                   split=settings.split, split_order=("train", "validation", "test"), blocks=settings.blocks)
-    full = parameter_covariance(model, [rec], frozen=settings.frozen, split=settings.split,
+    full = parameter_covariance(model, [rec], frozen=settings.frozen_for(inner), split=settings.split,
                                 split_order=("train", "validation", "test"), blocks=settings.blocks)
     for name, se in frozen.std_errors.items():
         # s² = RSS/dof differs between the two by the number of free parameters.

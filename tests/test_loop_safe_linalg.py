@@ -111,7 +111,7 @@ def test_no_lapack_call_in_diagnoses_batched_screens_on_two_recordings():
     recordings = [virtual_recording(make_drive("prbs", 70.0, rate=30.0, seed=s), seed=s) for s in (1, 2)]
     sim = RCNetwork(method="zoh")
     problem, *_ = lanes_problem(recordings, sim, DiagnoseSettings())
-    _, raws = design_raws(sim, baseline_design(N_JOINT_SCREEN))
+    _, raws = design_raws(sim, baseline_design(sim, N_JOINT_SCREEN, {"xi_h"}))
     freqs = mode_frequencies(30.0)[:2]
     lowered = {
         "screen_losses": jax.jit(lambda r: screen_losses(problem, sim, r)).lower(raws),

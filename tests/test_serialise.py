@@ -71,7 +71,8 @@ def test_metadata_describes_the_model(tmp_path):
     path = save_model(tmp_path / "physics.eqx", model, extra={"metrics": {"test": {"nmse": 0.01}}})
     meta = json.loads((tmp_path / "physics.eqx.json").read_text())
     assert meta["kind"] == "physics"
-    assert meta["simulation"]["type"] == "RCNetwork" and meta["simulation"]["n_stages"] == 4
+    assert meta["simulation"]["type"] == "RCNetwork" and meta["simulation"]["config"]["n_stages"] == 4
+    assert meta["simulation"]["module"] == "hybrid.physics._rc_network"
     assert meta["readout"] == {"type": "LinearReadout"}
     expected = {"xi_rho": 10.0, "xi_h": 1.0, "alpha_E": 0.5, "alpha_I": 0.5, "alpha_C": 0.5,
                 "C_clamp": 0.05, "gain": 2.5, "offset": -0.125}
@@ -85,8 +86,8 @@ def test_hybrid_metadata_has_readout_shape(tmp_path):
     save_model(tmp_path / "m", _models()["hybrid"])
     meta = json.loads((tmp_path / "m.json").read_text())
     assert meta["readout"] == {"type": "WindowedMLP", "window": 5, "depth": 2, "width": 4}
-    assert meta["simulation"]["method"] == "zoh"
-    assert meta["simulation"]["strip"]["length"] == pytest.approx(30e-3, rel=1e-15)
+    assert meta["simulation"]["config"]["method"] == "zoh"
+    assert meta["simulation"]["config"]["strip"]["length"] == pytest.approx(30e-3, rel=1e-15)
     assert meta["parameters"]["xi_rho"] == pytest.approx(7.0, rel=1e-13)
 
 
@@ -142,9 +143,42 @@ class _Custom(AbstractSimulation):
         return 2.0 * jnp.asarray(v_in)
 
 
+class _Configured(_Custom):
+    gain: float = eqx.field(static=True)
+
+    def __init__(self, gain=2.0):
+        self.raw = {}
+        self.gain = gain
+
+    def simulate(self, v_in, dt):
+        return self.gain * jnp.asarray(v_in)
+
+
+def test_a_plug_in_simulation_round_trips(tmp_path):
+    """Any imported AbstractSimulation is saved by class and config, and loaded back as that class."""
+    custom = Model(_Custom(), LinearReadout(gain=1.5), "custom")
+    load = load_model(save_model(tmp_path / "c.eqx", custom))
+    assert type(load.simulation) is _Custom and load.kind == "custom"
+    assert float(load.readout.parameters()["gain"]) == 1.5
+    meta = json.loads((tmp_path / "c.eqx.json").read_text())
+    assert meta["simulation"] == {"type": "_Custom", "module": __name__, "config": {}}
+
+
+def test_legacy_metadata_without_config_still_loads(tmp_path):
+    """Models saved before `config` was recorded name the class only and hold N, method and strip at the top."""
+    model = _models()["physics"]
+    path = save_model(tmp_path / "old.eqx", model)
+    meta_path = tmp_path / "old.eqx.json"
+    meta = json.loads(meta_path.read_text())
+    meta["simulation"] = {"type": "RCNetwork", **meta["simulation"]["config"]}
+    meta_path.write_text(json.dumps(meta))
+    loaded = load_model(path)
+    assert loaded.simulation.n_stages == 4 and loaded.simulation.strip == model.simulation.strip
+
+
 def test_unsupported_models_cannot_be_saved(tmp_path):
-    custom = Model(_Custom(), LinearReadout(), "custom")
-    with pytest.raises(InputError):
+    custom = Model(_Configured(), LinearReadout(), "custom")
+    with pytest.raises(InputError, match="define config"):
         save_model(tmp_path / "c.eqx", custom)
     relu = Model(RCNetwork(n_stages=3),
                  WindowedMLP(3, 1, 2, activation=jax.nn.relu, key=jax.random.key(0)), "hybrid")

@@ -1,8 +1,11 @@
 """Models = a physics simulation followed by a readout (paper Fig. 2).
 
-- Hybrid: V_i → RC network → V_o → window → D-MLP → ŵ  (the paper's proposal)
+- Hybrid: V_i → simulation → V_o → window → D-MLP → ŵ  (the paper's proposal)
 - Normal: V_i → window → D-MLP → ŵ                      (the paper's baseline)
-- Physics: V_i → RC network → V_o → gain · V_o + offset  (the simulation alone)
+- Physics: V_i → simulation → V_o → gain · V_o + offset  (the simulation alone)
+
+The paper's simulation is its RC network (Eqs 4–14); `hybrid.make_model`
+supplies it by default (`hybrid.ipmc`), this module takes any.
 
 All are non-autoregressive: the measured displacement is never an input.
 The simulation runs over the whole drive of a recording (the drive is known at
@@ -21,7 +24,6 @@ from jaxtyping import Array, Float
 
 from ._arguments import check_key, check_simulation
 from ..util._errors import InputError
-from ..physics._rc_network import RCNetwork
 from ._readout import AbstractReadout, LinearReadout, WindowedMLP
 from ._simulation import AbstractSimulation, Passthrough
 
@@ -90,14 +92,15 @@ def make_model(
     width: int = 10,
     key=None,
 ) -> Model:
-    """The paper's Hybrid or Normal model, or the physics-only simulation.
+    """The paper's Hybrid or Normal model, or the physics-only simulation, for any physics.
 
     **Arguments:**
 
-    - `kind`: ``"hybrid"`` (RC network + D-MLP), ``"normal"`` (D-MLP on V_i) or
-      ``"physics"`` (RC network + linear gain and offset).
-    - `simulation`: the physics part for hybrid/physics (default: [`RCNetwork`][]
-      with its default parameters).
+    - `kind`: ``"hybrid"`` (simulation + D-MLP), ``"normal"`` (D-MLP on V_i) or
+      ``"physics"`` (simulation + linear gain and offset).
+    - `simulation`: the physics part, needed for hybrid and physics (an
+      [`AbstractSimulation`][]; `hybrid.make_model` defaults it to the paper's
+      RC network).
     - `window`, `depth`, `width`: D-MLP shape (paper: 60, 11, 10).
     - `key`: PRNG key for the D-MLP weights (default `jax.random.key(0)`).
     """
@@ -109,7 +112,9 @@ def make_model(
         key = jax.random.key(0)
     if kind == "normal":
         return Model(Passthrough(), WindowedMLP(window, depth, width, key=key), "normal")
-    simulation = RCNetwork() if simulation is None else simulation
+    if simulation is None:
+        raise InputError(f"make_model({kind!r}) needs a simulation: pass simulation=hybrid.RCNetwork() (the paper's "
+                         "physics) or any AbstractSimulation, or use hybrid.make_model, which defaults to the RC network")
     if kind == "physics":
         return Model(simulation, LinearReadout(), "physics")
     return Model(simulation, WindowedMLP(window, depth, width, key=key), "hybrid")

@@ -27,7 +27,7 @@ class FitResult:
     - `settings`: solver, starts, frozen parameters, split, seed, … (JSON-able).
     - `seconds`: wall time of the fit, compile time included.
     - `warnings`: sentences about results not to take at face value: a physical
-      parameter outside its plausible range (`AbstractSimulation.plausible`) or
+      parameter outside its plausible range (`AbstractSimulation.plausible_ranges`) or
       still at its start value, a fit that made no accepted step, a recording
       whose time base was rebuilt ([`fit_warnings`][]).
     """
@@ -77,15 +77,6 @@ class FitResult:
 UNMOVED_RTOL = 1e-6
 
 
-def plausible_ranges(simulation) -> dict[str, tuple[float, float]]:
-    """`plausible` ranges of a simulation and of the simulations it wraps (an EffectStack's `inner`)."""
-    out: dict[str, tuple[float, float]] = {}
-    while simulation is not None:
-        out = {**getattr(type(simulation), "plausible", {}), **out}
-        simulation = getattr(simulation, "inner", None)
-    return out
-
-
 def fit_warnings(start: Model, fitted: Model, frozen, start_record: dict[str, Any]) -> list[str]:
     """What about a fit should not be taken at face value (see `FitResult.warnings`).
 
@@ -114,7 +105,7 @@ def fit_warnings(start: Model, fitted: Model, frozen, start_record: dict[str, An
             warnings.append(
                 f"{name} = {value:.6g}{unit} did not move from its start value: the data may not "
                 "constrain it, or the fit failed")
-    for name, (low, high) in plausible_ranges(fitted.simulation).items():
+    for name, (low, high) in fitted.simulation.plausible_ranges().items():
         if name in free and not (low <= after[name] <= high):
             unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
             warnings.append(

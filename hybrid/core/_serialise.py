@@ -2,7 +2,7 @@
 
 A model saved to ``path`` is two files: ``path`` (the leaves, written by
 `eqx.tree_serialise_leaves`) and ``path.json`` (what is needed to rebuild the
-skeleton: model kind, simulation class and settings, readout shape; plus the
+skeleton: model kind, the simulation's class and its `config()`, readout shape; plus the
 fitted parameters in physical units and, when saved from a fit, its metrics).
 
 Both files are written together and atomically ([`hybrid.util._atomic.staged`][]):
@@ -24,24 +24,15 @@ import numpy as np
 from ..util._atomic import staged
 from ..util._errors import InputError
 from ._models import Model
-from ..physics._rc_network import RCNetwork
 from ._readout import LinearReadout, WindowedMLP
-from ._simulation import Passthrough
-from ..physics._strip import Strip
+from ._simulation import AbstractSimulation
 
 FORMAT = "hybrid-model/1"
 
 
 def _describe(model: Model) -> dict:
     sim, readout = model.simulation, model.readout
-    if isinstance(sim, RCNetwork):
-        simulation = {"type": "RCNetwork", "n_stages": sim.n_stages, "method": sim.method,
-                      "strip": sim.strip.to_dict()}
-    elif isinstance(sim, Passthrough):
-        simulation = {"type": "Passthrough"}
-    else:
-        raise InputError(f"cannot save a model with simulation {type(sim).__name__}: "
-                         "only RCNetwork and Passthrough are serialisable")
+    simulation = {"type": type(sim).__qualname__, "module": type(sim).__module__, "config": sim.config()}
     if isinstance(readout, WindowedMLP):
         if readout.mlp.activation is not jax.numpy.tanh:
             raise InputError("only tanh D-MLPs can be saved")
@@ -54,13 +45,38 @@ def _describe(model: Model) -> dict:
     return {"format": FORMAT, "kind": model.kind, "simulation": simulation, "readout": out}
 
 
+def _subclasses(cls) -> list[type]:
+    out = []
+    for sub in cls.__subclasses__():
+        out += [sub, *_subclasses(sub)]
+    return out
+
+
+def simulation_class(name: str, module: str | None = None) -> type[AbstractSimulation]:
+    """The imported `AbstractSimulation` subclass saved as `module:name` (or only `name`, if unique).
+
+    Only classes already imported are candidates: loading a model never imports
+    code named in a file. A model saved before the module was recorded names
+    only the class.
+    """
+    found = [c for c in _subclasses(AbstractSimulation) if c.__qualname__ == name]
+    exact = [c for c in found if c.__module__ == module]
+    if exact or len(found) == 1:
+        return (exact or found)[0]
+    where = f" (module {module})" if module else ""
+    if not found:
+        raise InputError(f"the model's simulation {name}{where} is not an imported AbstractSimulation: import the "
+                         "module that defines it before load_model")
+    raise InputError(f"several imported simulations are called {name} ({', '.join(c.__module__ for c in found)}): "
+                     "import only the one the model was saved with")
+
+
 def _skeleton(description: dict) -> Model:
     sim_d, out_d = description["simulation"], description["readout"]
-    if sim_d["type"] == "RCNetwork":
-        simulation = RCNetwork(strip=Strip.from_dict(sim_d["strip"]), n_stages=sim_d["n_stages"],
-                               method=sim_d["method"])
-    else:
-        simulation = Passthrough()
+    cls = simulation_class(sim_d["type"], sim_d.get("module"))
+    # Files saved before `config` was recorded hold the RC network's settings at the top level.
+    config = sim_d["config"] if "config" in sim_d else {k: v for k, v in sim_d.items() if k not in ("type", "module")}
+    simulation = cls.from_config(config)
     if out_d["type"] == "WindowedMLP":
         readout = WindowedMLP(out_d["window"], out_d["depth"], out_d["width"], key=jax.random.key(0))
     else:

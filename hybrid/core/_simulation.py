@@ -1,14 +1,21 @@
 """The physics-simulation interface: anything that turns a drive into a mediatory signal.
 
 A simulation is an `eqx.Module` with named, constrained parameters (see
-[`hybrid.core._parameters`][]) and `simulate(v_in, dt) -> signal`. The fitter, the
-models and the CLI only use this interface, so the paper's RC network is one
-implementation among others (an effect that wraps a simulation is itself one).
+`hybrid.core._parameters`) and `simulate(v_in, dt) -> signal`. It also says
+what the generic rooms need to know about its physics, so that none of them
+names a particular one: each parameter's unit, its plausible range (a fitted
+value outside is warned about), its typical range (where `diagnose`'s screened
+start design spreads), which parameters a fit keeps fixed by default and why,
+and how to rebuild it when a saved model is loaded (`config`/`from_config`).
+The fitter, the models, `diagnose` and the CLI only use this interface, so the
+paper's RC network is one implementation among others (an effect stack that
+wraps a simulation is itself one).
 """
 
 from __future__ import annotations
 
 import abc
+import dataclasses
 from typing import ClassVar
 
 import equinox as eqx
@@ -33,6 +40,14 @@ class AbstractSimulation(eqx.Module):
     #: Physically plausible range (low, high) of each parameter, in its unit. A
     #: fitted value outside it is warned about (`FitResult.warnings`), not refused.
     plausible: ClassVar[dict[str, tuple[float, float]]] = {}
+    #: Where most real systems lie (low, high), per parameter, in its unit: diagnose's
+    #: screened start design spreads over these ranges, in this order (log-spaced for a
+    #: `Positive` parameter). A parameter missing here falls back to `plausible`.
+    typical: ClassVar[dict[str, tuple[float, float]]] = {}
+    #: Parameters that `fit` (from the CLI) and `diagnose` keep at their given values
+    #: unless freed, each with the reason (e.g. one of two parameters that enter only
+    #: as a ratio).
+    frozen_by_default: ClassVar[dict[str, str]] = {}
     #: True when the output is linear in the drive (zero initial state), so that a
     #: drive in mV gives the same parameters as one in V: `fit` then scales v_in.
     linear_in_drive: ClassVar[bool] = False
@@ -65,6 +80,40 @@ class AbstractSimulation(eqx.Module):
     def parameter_units(self) -> dict[str, str]:
         """Unit of each parameter, by name."""
         return dict(type(self).units)
+
+    def parameter_constraints(self) -> dict[str, Constraint]:
+        """Constraint of each parameter, by name (e.g. `Positive`: optimised in log)."""
+        return dict(type(self).constraints)
+
+    def plausible_ranges(self) -> dict[str, tuple[float, float]]:
+        """Plausible (low, high) of each parameter that declares one, in its unit."""
+        return dict(type(self).plausible)
+
+    def typical_ranges(self) -> dict[str, tuple[float, float]]:
+        """Typical (low, high) of each parameter: `typical`, then `plausible` for the rest."""
+        own = dict(type(self).typical)
+        return {**own, **{k: v for k, v in self.plausible_ranges().items() if k not in own}}
+
+    def default_frozen(self) -> dict[str, str]:
+        """Parameters kept fixed unless freed, with the reason for each."""
+        return dict(type(self).frozen_by_default)
+
+    def config(self) -> dict:
+        """The JSON-able settings that rebuild this simulation's skeleton (`from_config`).
+
+        The default serves a simulation whose only field is `raw`; one with more
+        fields (a strip, a number of stages) overrides this and `from_config`.
+        """
+        extra = [f.name for f in dataclasses.fields(self) if f.name != "raw"]
+        if extra:
+            raise InputError(f"{type(self).__name__} cannot be saved: it has fields {extra} besides raw; define "
+                             "config() (its settings as a JSON-able dict) and the classmethod from_config(config)")
+        return {}
+
+    @classmethod
+    def from_config(cls, config: dict) -> "AbstractSimulation":
+        """A simulation with default parameter values built from `config()`'s settings."""
+        return cls(**config)
 
     def perturbed(self, key, scale: float, frozen=frozenset()) -> "AbstractSimulation":
         """A copy whose free raw (unconstrained) values get N(0, scale²) noise: a new start."""

@@ -2,11 +2,12 @@
 
 `diagnose(recordings)`:
 
-1. **Baseline.** The physics simulation (any [`AbstractSimulation`][]; by default
-   the paper's RC network) with a linear gain and offset is fitted by
-   Levenberg–Marquardt on the training part of each recording (first 60 %).
-   A 512-point Sobol design over the issue's strips (C_clamp, ξρ, the α's) is
-   screened by one simulation each; LM runs from the 16 best, one after the
+1. **Baseline.** The physics simulation (any [`AbstractSimulation`][];
+   `hybrid.diagnose` defaults to the paper's RC network) with a linear gain and
+   offset is fitted by Levenberg–Marquardt on the training part of each
+   recording (first 60 %). The simulation as given and a 511-point Sobol design
+   over its parameters' typical ranges (`AbstractSimulation.typical_ranges`:
+   for the RC network C_clamp, ξρ and the α's) are screened by one simulation each; LM runs from the 16 best, one after the
    other in one compiled program; the validation part (next 10 %) picks the best.
 2. **Candidates.** The same simulation followed by each effect of
    [`hybrid.discovery._effects`][] is refitted jointly (physical parameters, effect, gain
@@ -65,7 +66,6 @@ from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ..core._metrics import metrics as compute_metrics
 from ..core._models import Model
 from ..core._problem import Problem, robust_std, series_from_recording
-from ..physics._rc_network import RCNetwork
 from ..core._readout import LinearReadout
 from ..util._watchdog import stage
 
@@ -104,7 +104,9 @@ class DiagnoseSettings:
     - `min_bic_drop`: BIC decrease (training part) needed to name a cause.
     - `materiality`: the smallest effect that counts as a cause, per effect (see
       `_material`); below it the "effect" is within timing or modelling slack.
-    - `frozen`: parameters never fitted (ξh: only ξρ/ξh is identifiable).
+    - `frozen`: parameters never fitted; ``None`` (default) takes the
+      simulation's `default_frozen()` (the RC network's ξh: only ξρ/ξh is
+      identifiable).
     """
 
     split: tuple[float, float, float] = (0.6, 0.1, 0.3)
@@ -119,7 +121,11 @@ class DiagnoseSettings:
         "loop_height_percent_of_range": 3.0, "gain_change_percent": 5.0, "max_damping": 0.35,
         "min_frequency_hz": 0.5,
     })
-    frozen: tuple[str, ...] = ("xi_h",)
+    frozen: tuple[str, ...] | None = None
+
+    def frozen_for(self, simulation) -> tuple[str, ...]:
+        """`frozen`, or the simulation's parameters frozen by default when it is None."""
+        return tuple(simulation.default_frozen()) if self.frozen is None else tuple(self.frozen)
 
 
 @dataclasses.dataclass
@@ -285,7 +291,7 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     """
     model = _universal_model(simulation)
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
-    problem, n_rows = _search_problem(model, series, frozenset(settings.frozen))
+    problem, n_rows = _search_problem(model, series, frozenset(settings.frozen_for(simulation)))
     return problem, n_rows, model, series
 
 
@@ -467,7 +473,7 @@ def _uncertainties(model: Model, recordings, settings, residual_heldout, keep=No
     """
     from ..sensitivity import parameter_covariance
 
-    covariance = parameter_covariance(model, recordings, frozen=settings.frozen, split=settings.split,
+    covariance = parameter_covariance(model, recordings, frozen=settings.frozen_for(model.simulation), split=settings.split,
                                       split_order=SPLIT_ORDER, blocks=settings.blocks)
     inflation = rt.effective_sample_factor(residual_heldout)
     keep = set(covariance.names) if keep is None else set(keep)
@@ -593,12 +599,13 @@ def diagnose(
     hybrid_max_steps: int = 150,
     progress: bool = False,
 ) -> Diagnosis:
-    """Find what `simulation` (default: the paper's RC network) gets wrong on `recordings`.
+    """Find what `simulation` gets wrong on `recordings`.
 
     **Arguments:**
 
     - `recordings`: one Recording or several of the same strip (fitted jointly).
-    - `simulation`: the physics simulation to diagnose (default `RCNetwork()`).
+    - `simulation`: the physics simulation to diagnose, any [`AbstractSimulation`][]
+      (`hybrid.diagnose` defaults to the paper's RC network, discretised exactly).
     - `hybrid`: also fit the hybrid model (simulation + D-MLP) with and without
       the named effect and report both held-out errors.
     - `settings`: see [`DiagnoseSettings`][].
@@ -621,8 +628,11 @@ def diagnose(
         r.check_signals()
         _check_magnitudes(r)
     rate = recordings[0].rate
+    if simulation is None:
+        raise InputError("diagnose needs a simulation: pass simulation=hybrid.RCNetwork(method='zoh') (the paper's "
+                         "physics) or any AbstractSimulation, or use hybrid.diagnose, which defaults to the RC network")
+    settings = dataclasses.replace(settings, frozen=settings.frozen_for(simulation))  # the report shows what was fixed
     frozen = frozenset(settings.frozen)
-    simulation = RCNetwork(method="zoh") if simulation is None else simulation
     problem, n_rows, model, series = lanes_problem(recordings, simulation, settings)
     n_train = int(problem.target("train").shape[0])
     lm = LMSettings(max_steps=settings.max_steps)
@@ -642,7 +652,7 @@ def diagnose(
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
     n_lanes = N_LANES
     say(f"screening {N_SCREEN} network designs for the baseline's starts")
-    grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN)
+    grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN, frozen)
     thetas = jnp.stack([initial(g) for g in grid])
     base_tangents = _lane_tangents(model, frozen, None, n_rows)
     say(f"baseline from {len(grid)} starts")
@@ -664,9 +674,9 @@ def diagnose(
     duration = recordings[0].duration
     lanes, actives, labels, tangents = [], [], [], []
     say("screening starts for the delay, hysteresis and resonance candidates")
-    screened = {"delay": delay_starts(problem, simulation, rate, n_starts=3),
-                "hysteresis": hysteresis_starts(problem, simulation, n_starts=1),
-                "resonance": resonance_starts(problem, simulation, rate, n_starts=1)}
+    screened = {"delay": delay_starts(problem, simulation, rate, n_starts=3, frozen=frozen),
+                "hysteresis": hysteresis_starts(problem, simulation, n_starts=1, frozen=frozen),
+                "resonance": resonance_starts(problem, simulation, rate, n_starts=1, frozen=frozen)}
     for i, name in enumerate(names):
         extra = screened.get(name, [])
         for values in _starts(name, s_train, rate, lag, peak, duration) + extra:

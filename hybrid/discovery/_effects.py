@@ -479,6 +479,21 @@ class EffectStack(AbstractSimulation):
             out.update(effect.units)
         return out
 
+    def parameter_constraints(self):
+        out = dict(self.inner.parameter_constraints())
+        for effect in self.effects:
+            out.update(effect.constraints)
+        return out
+
+    def plausible_ranges(self):
+        return self.inner.plausible_ranges()
+
+    def typical_ranges(self):
+        return self.inner.typical_ranges()
+
+    def default_frozen(self):
+        return self.inner.default_frozen()
+
     def replace(self, **values):
         own = {e.name: {k: v for k, v in values.items() if k in e.constraints} for e in self.effects}
         rest = {k: v for k, v in values.items() if not any(k in e.constraints for e in self.effects)}

@@ -3,7 +3,7 @@
 The RC network's loss surface has broad plateaus, and an effect switched on
 from the effect-free fit often stays in that fit's basin (the baseline absorbs
 part of a dead time, a loop or a mode as extra lag). So the starts come from
-screening: a scrambled Sobol design over the issue's strips, each point
+screening: a scrambled Sobol design over the simulation's typical ranges, each point
 simulated once, with the gain and offset — and, jointly with an effect, the
 effect's linear parameters — by least squares.
 
@@ -25,6 +25,7 @@ import numpy as np
 
 from ._effects import Resonance, bouc_wen_and_memory
 from ..core._loop_safe_linalg import lstsq
+from ..core._parameters import Positive
 from ..core._problem import Problem
 from ..core._readout import LinearReadout
 
@@ -46,21 +47,34 @@ def train_signal(problem, simulation):
     return jnp.concatenate(parts)
 
 
-def baseline_design(n_points: int) -> list[dict]:
-    """Candidate starts filling the issue's strips: C_clamp 1 mF–1 F, ξρ/ξh 1–100, each α 0.1–0.9.
+def baseline_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]:
+    """Candidate starts over the free parameters' typical ranges, `simulation`'s values first.
 
-    A scrambled Sobol design (fixed seed: the same points every run) over
-    log C_clamp, log ξρ and the three α's, with the paper-like centre first.
+    The ranges come from the simulation (`AbstractSimulation.typical_ranges`,
+    in its order; for the RC network C_clamp 1 mF–1 F, ξρ 1–100, each α
+    0.1–0.9): a scrambled Sobol design (fixed seed: the same points every run),
+    log-spaced for a `Positive` parameter, linear otherwise. The first point is
+    the simulation as given, so a user's own guess is always screened. A
+    parameter without a range, or in `frozen`, stays at its given value.
     """
     import scipy.stats
 
-    sobol = scipy.stats.qmc.Sobol(d=5, scramble=True, seed=20261122)
+    given = {k: float(v) for k, v in simulation.parameters().items()}
+    ranges = {k: r for k, r in simulation.typical_ranges().items() if k in given and k not in frozen}
+    grid = [{k: given[k] for k in ranges}]
+    if not ranges:
+        return grid
+    sobol = scipy.stats.qmc.Sobol(d=len(ranges), scramble=True, seed=20261122)
     unit = sobol.random_base2(max(1, math.ceil(math.log2(max(n_points - 1, 1)))))
-    grid = [{"C_clamp": 3e-2, "xi_rho": 10.0, "alpha_E": 0.5, "alpha_I": 0.5, "alpha_C": 0.5}]
+    constraints = simulation.parameter_constraints()
+    logarithmic = {k: isinstance(constraints[k], Positive) for k in ranges}
     for u in unit:
-        u = [float(x) for x in u]
-        grid.append({"C_clamp": 10 ** (-3 + 3 * u[0]), "xi_rho": 10 ** (2 * u[1]), "alpha_E": 0.1 + 0.8 * u[2],
-                     "alpha_I": 0.1 + 0.8 * u[3], "alpha_C": 0.1 + 0.8 * u[4]})
+        point = {}
+        for x, (name, (low, high)) in zip(u, ranges.items()):
+            x = float(x)
+            point[name] = (10 ** (math.log10(low) + x * (math.log10(high) - math.log10(low))) if logarithmic[name]
+                           else low + x * (high - low))
+        grid.append(point)
     return grid[:n_points]
 
 
@@ -85,7 +99,7 @@ def screen_losses(problem, simulation, raws):
     return jax.lax.map(one, raws, batch_size=16)
 
 
-def baseline_starts(problem, simulation, n_starts: int, n_screen: int) -> list[dict]:
+def baseline_starts(problem, simulation, n_starts: int, n_screen: int, frozen=frozenset()) -> list[dict]:
     """The `n_starts` best of an `n_screen`-point design, by training MSE with least-squares gain.
 
     The RC network's loss surface has broad plateaus and LM does not cross
@@ -95,7 +109,7 @@ def baseline_starts(problem, simulation, n_starts: int, n_screen: int) -> list[d
     screened point there starts at the true parameters' training loss
     (`tests/test_diagnose_starts.py`).
     """
-    design = baseline_design(n_screen)
+    design = baseline_design(simulation, n_screen, frozen)
     names, raws = design_raws(simulation, design)
     if not names:
         return [{}]
@@ -111,7 +125,7 @@ def delayed(problem: Problem, shift: int) -> Problem:
     return eqx.tree_at(lambda p: p.series, problem, series)
 
 
-def delay_starts(problem, simulation, rate: float, n_starts: int) -> list[dict]:
+def delay_starts(problem, simulation, rate: float, n_starts: int, frozen=frozenset()) -> list[dict]:
     """Starts for the delay candidate: the network screened jointly with the dead time.
 
     Effect-free, the baseline mimics a dead time by slower stages; from there
@@ -123,7 +137,7 @@ def delay_starts(problem, simulation, rate: float, n_starts: int) -> list[dict]:
     of `DELAY_SHIFTS` samples puts the network and the delay in the same basin;
     the `n_starts` best pairs, with distinct shifts, are returned.
     """
-    design = baseline_design(N_SCREEN)[:N_JOINT_SCREEN]
+    design = baseline_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -182,7 +196,7 @@ def loop_screen(problem, simulation, raws, rates):
     return jax.lax.map(one, raws, batch_size=16)
 
 
-def hysteresis_starts(problem, simulation, n_starts: int) -> list[dict]:
+def hysteresis_starts(problem, simulation, n_starts: int, frozen=frozenset()) -> list[dict]:
     """Starts for the hysteresis candidate: the network screened jointly with a Bouc–Wen loop.
 
     Effect-free, the baseline absorbs part of a loop as lag (other ξρ and α's):
@@ -195,7 +209,7 @@ def hysteresis_starts(problem, simulation, n_starts: int) -> list[dict]:
     and initial state at each of `LOOP_RATES` puts the network and the loop in
     the same basin; the `n_starts` best are returned.
     """
-    design = baseline_design(N_SCREEN)[:N_JOINT_SCREEN]
+    design = baseline_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -249,7 +263,7 @@ def mode_screen(problem, simulation, raws, frequencies, dampings):
     return jax.lax.map(one, raws, batch_size=16)
 
 
-def resonance_starts(problem, simulation, rate: float, n_starts: int) -> list[dict]:
+def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=frozenset()) -> list[dict]:
     """Starts for the resonance candidate: the network screened jointly with a mode.
 
     Effect-free, the baseline absorbs a well-damped mode as lag (faster
@@ -261,7 +275,7 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int) -> list[di
     `mode_frequencies(rate)` × `MODE_DAMPINGS` puts the network and the mode in
     the same basin; the `n_starts` best are returned.
     """
-    design = baseline_design(N_SCREEN)[:N_JOINT_SCREEN]
+    design = baseline_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []

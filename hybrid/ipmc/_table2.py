@@ -24,7 +24,7 @@ import numpy as np
 from ..util._atomic import write_text
 from ..data._drives import make_drive
 from ..core._fit import fit
-from ..core._models import make_model
+from ._defaults import make_model
 from ._virtual_ipmc import virtual_recording
 from ._virtual_parameters import VirtualIPMCParameters
 from ..util._watchdog import stage
@@ -90,7 +90,7 @@ def reproduce_table2(settings: Table2Settings = Table2Settings(), out_dir="exper
             model = make_model(kind, key=jax.random.key(settings.seed))
             results[kind] = fit(
                 model, recording, starts=settings.starts, max_steps=settings.max_steps,
-                patience=settings.patience, weight_decay=settings.weight_decay, frozen={"xi_h"} if kind == "hybrid" else set(),
+                patience=settings.patience, weight_decay=settings.weight_decay, frozen=set(model.simulation.default_frozen()),
                 seed=settings.seed, progress=progress,
             )
             if progress:

@@ -103,6 +103,20 @@ class RCNetwork(AbstractSimulation):
         "alpha_C": (0.01, 0.99),
         "C_clamp": (1e-4, 10.0),
     }
+    # Where diagnose's screened start design spreads (log for the positive ones), in this
+    # order: the strips of the discrepancy experiments, 1 mF-1 F at the clamp, an interface
+    # 1-100x as resistive as the electrode, each alpha 0.1-0.9.
+    typical: ClassVar[dict[str, tuple[float, float]]] = {
+        "C_clamp": (1e-3, 1.0),
+        "xi_rho": (1.0, 1e2),
+        "alpha_E": (0.1, 0.9),
+        "alpha_I": (0.1, 0.9),
+        "alpha_C": (0.1, 0.9),
+    }
+    frozen_by_default: ClassVar[dict[str, str]] = {
+        "xi_h": "only xi_rho/xi_h enters the network (RI_clamp = xi_rho rho_E L / (W xi_h h_E)): "
+                "xi_h stays fixed and xi_rho carries the ratio",
+    }
     linear_in_drive: ClassVar[bool] = True  # zero initial state: V_o is linear in V_i
 
     def __init__(
@@ -132,6 +146,14 @@ class RCNetwork(AbstractSimulation):
         self.strip = strip
         self.n_stages = int(n_stages)
         self.method = method
+
+    def config(self) -> dict:
+        """The strip (Table 1), N and the discretisation: what rebuilds this network."""
+        return {"n_stages": self.n_stages, "method": self.method, "strip": self.strip.to_dict()}
+
+    @classmethod
+    def from_config(cls, config: dict) -> "RCNetwork":
+        return cls(strip=Strip.from_dict(config["strip"]), n_stages=config["n_stages"], method=config["method"])
 
     # --- Eqs 4–9 -------------------------------------------------------------
     def stage_elements(self) -> dict[str, Float[Array, " stages"]]:

@@ -1,0 +1,40 @@
+"""The paper's choices as defaults: its RC network is the physics unless one is given.
+
+The generic rooms take any simulation (`hybrid.core.make_model`,
+`hybrid.discovery.diagnose`) and name none. The package's front,
+`hybrid.make_model` and `hybrid.diagnose`, are these two functions: the same,
+with the paper's distributed RC network (Eqs 4–14, Table 1 strip, N = 45) in
+place of a missing simulation.
+"""
+
+from __future__ import annotations
+
+from ..core._models import make_model as make_any_model
+from ..discovery._diagnose import diagnose as diagnose_any
+from ..physics._rc_network import RCNetwork
+
+
+def make_model(kind="hybrid", *, simulation=None, **options):
+    """The paper's Hybrid, Normal or physics-only model (Fig. 2).
+
+    As `hybrid.core._models.make_model`, whose arguments (`window`, `depth`,
+    `width`, `key`) it passes on, with `simulation` defaulting to the paper's
+    [`RCNetwork`][hybrid.RCNetwork] with its default parameters (Tustin
+    sections). The Normal model has no simulation.
+    """
+    if simulation is None and kind != "normal":
+        simulation = RCNetwork()
+    return make_any_model(kind, simulation=simulation, **options)
+
+
+def diagnose(recordings, *, simulation=None, **options):
+    """What the simulation gets wrong on `recordings`, which effect causes it, and the gain.
+
+    As `hybrid.discovery._diagnose.diagnose`, whose arguments (`hybrid`,
+    `settings`, `hybrid_max_steps`, `progress`) it passes on, with `simulation`
+    defaulting to the paper's [`RCNetwork`][hybrid.RCNetwork] discretised
+    exactly (``method="zoh"``: the drive is held between samples). Returns a
+    `Diagnosis`; ``Diagnosis.to_dict()`` is ``report.json``.
+    """
+    return diagnose_any(recordings, simulation=RCNetwork(method="zoh") if simulation is None else simulation,
+                        **options)

@@ -1,0 +1,128 @@
+"""The house's shape: which room may import which, and how long a room may grow.
+
+Imports are read from the source (every `import` statement, at module level or
+inside a function), so a lazy import cannot hide a dependency that points the
+wrong way.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: Each sub-package of `hybrid` and the sub-packages it may import. The layers,
+#: bottom up: util ← data ← core ← physics, sensitivity ← discovery ← ipmc.
+#: `hybrid/__init__.py` and `hybrid/cli.py` (the entry points) may import any.
+ALLOWED = {
+    "util": set(),
+    "data": {"util"},
+    "core": {"util", "data"},
+    "physics": {"util", "data", "core"},
+    "sensitivity": {"util", "data", "core"},
+    "discovery": {"util", "data", "core", "sensitivity"},
+    "ipmc": {"util", "data", "core", "physics", "sensitivity", "discovery"},
+}
+
+#: The most lines a module of hybrid/ or rig/ may have: a room about one thing.
+MAX_LINES = 400
+
+
+def _modules(package: str) -> list[Path]:
+    return sorted((ROOT / package).rglob("*.py"))
+
+
+def _dotted(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _is_module(name: str) -> bool:
+    path = ROOT.joinpath(*name.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Absolute names of everything `path` imports (relative imports resolved)."""
+    module = _dotted(path)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            out.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module
+            for alias in node.names:  # `from package import module` imports the module, not all of package
+                candidate = f"{target}.{alias.name}"
+                out.add(candidate if _is_module(candidate) else target)
+    return out
+
+
+def _room(name: str) -> str | None:
+    """The sub-package of hybrid that module `name` belongs to, "" for hybrid itself, None outside."""
+    parts = name.split(".")
+    if parts[0] != "hybrid":
+        return None
+    return parts[1] if len(parts) > 1 and parts[1] in ALLOWED else ""
+
+
+def test_every_room_of_hybrid_is_declared():
+    packages = {p.parent.name for p in (ROOT / "hybrid").glob("*/__init__.py")}
+    assert packages == set(ALLOWED)
+
+
+@pytest.mark.parametrize("path", _modules("hybrid"), ids=lambda p: str(p.relative_to(ROOT)))
+def test_imports_point_down(path):
+    room = _room(_dotted(path))
+    if room == "":  # hybrid/__init__.py and hybrid/cli.py: the entry points
+        assert not any(name.split(".")[0] == "rig" for name in imported_modules(path))
+        return
+    wrong = []
+    for name in sorted(imported_modules(path)):
+        if name.split(".")[0] == "rig":
+            wrong.append(f"{name} (hybrid never imports the rig)")
+            continue
+        target = _room(name)
+        if target is None or target == room:
+            continue
+        if target == "":  # hybrid itself or hybrid.cli: that would import every room
+            wrong.append(f"{name} (a room imports rooms, not the package front)")
+        elif target not in ALLOWED[room]:
+            wrong.append(f"{name} ({room} may import only {sorted(ALLOWED[room]) or 'nothing of hybrid'})")
+    assert not wrong, f"{path.relative_to(ROOT)} imports against the layers: " + "; ".join(wrong)
+
+
+def test_generic_rooms_never_name_a_physics():
+    """core, data, discovery and sensitivity work with any simulation: none imports one by name."""
+    for room in ("util", "data", "core", "sensitivity", "discovery"):
+        for path in _modules(f"hybrid/{room}"):
+            physics = sorted(n for n in imported_modules(path) if _room(n) in ("physics", "ipmc"))
+            assert not physics, f"{path.relative_to(ROOT)} imports {physics}"
+
+
+def test_the_checker_sees_lazy_and_relative_imports(tmp_path, monkeypatch):
+    """The import reader resolves `..` and finds imports inside functions (else the layer test could not fail)."""
+    package = tmp_path / "hybrid" / "core"
+    package.mkdir(parents=True)
+    source = package / "_probe.py"
+    (package / "_fit.py").write_text("")
+    source.write_text("def f():\n    from ..physics._rc_network import RCNetwork\n    from . import _fit\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    names = imported_modules(source)
+    assert names == {"hybrid.physics._rc_network", "hybrid.core._fit"}
+
+
+@pytest.mark.parametrize("package", ["hybrid", "rig"])
+def test_rooms_are_about_one_thing(package):
+    long = {str(p.relative_to(ROOT)): n for p in _modules(package)
+            if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    assert not long, f"modules over {MAX_LINES} lines (split them by what they do): {long}"
