@@ -6,14 +6,14 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-quick install clean rig-deps
+.PHONY: demo test docs bench bench-quick install clean rig-deps
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,docs]'
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -23,6 +23,10 @@ demo: $(STAMP)
 
 test: $(STAMP) rig-deps
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+
+# the documentation (docs/, mkdocs.yml) into site/; a broken link or reference fails it
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict
 
 # full benchmarks (~15 min on 2 cores) and the quick ratios (< 45 s); both write benchmarks/results/*.json
 BENCH_STAMP := $(VENV)/.installed-bench
