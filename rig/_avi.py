@@ -284,7 +284,7 @@ def _resync(data, pos: int, end: int, ids: tuple[bytes, ...]) -> int:
 
 
 def open_mjpeg_avi(path) -> MjpegAvi | None:
-    """An :class:`MjpegAvi` for a Motion-JPEG AVI whose first frame decodes here; None for anything else.
+    """An `MjpegAvi` for a Motion-JPEG AVI whose first frame decodes here; None for anything else.
 
     None means: read it with OpenCV instead (another codec, another container,
     or a JPEG flavour this reader does not decode).

@@ -168,7 +168,7 @@ def refine_axis(contrasts, scene: Scene, strip_px: float, rounds: int = 4) -> Sc
 
     Each round follows the strip in every frame along the current axis and
     fits all frames' sections at once with arcs that share their start and
-    tangent (:func:`_shared_line`); the axis turns by ``-atan(a)`` and the
+    tangent (`_shared_line`); the axis turns by ``-atan(a)`` and the
     clamp point moves ``e`` px across it. None when no frame gives a strip.
     """
     for _ in range(rounds):

@@ -1,16 +1,16 @@
 """Host driver of the DAC board: handshake, configuration and credit-based streaming.
 
-:class:`Board` wraps a pyserial-like port (``read``, ``write``, ``close``; a
+`Board` wraps a pyserial-like port (``read``, ``write``, ``close``; a
 real ``serial.Serial``, a pty, or a test double) and speaks the protocol of
-:mod:`rig._protocol`. :meth:`Board.play` streams a whole drive of DAC codes
-through the board's 256-sample ring buffer and returns a :class:`PlayReport`
+`rig._protocol`. `Board.play` streams a whole drive of DAC codes
+through the board's 256-sample ring buffer and returns a `PlayReport`
 with the board's own account of what it played and when (its timer ticks).
 
 The serial transport (frames in and out, waiting for a reply) is
-:class:`rig._link.SerialLink`; the timer setting and the report are in
-:mod:`rig._playback`.
+`rig._link.SerialLink`; the timer setting and the report are in
+`rig._playback`.
 
-Faults raise :class:`~rig._errors.RigError` with one line: port missing or
+Faults raise `RigError` with one line: port missing or
 unplugged, no reply, board reset mid-stream, DAC not acknowledging. Bad frames
 and underruns are not fatal: they are counted and reported.
 """
@@ -48,7 +48,7 @@ class Board(SerialLink):
 
     @classmethod
     def open(cls, path: str, baud: int = BAUD, **kwargs) -> "Board":
-        """Open a serial port by path and say hello (see :meth:`hello`)."""
+        """Open a serial port by path and say hello (see `hello`)."""
         import serial
 
         try:
@@ -134,7 +134,7 @@ class Board(SerialLink):
     def play(self, codes: Sequence[int], on_progress: Callable[[PlayReport], None] | None = None,
              should_stop: Callable[[], bool] | None = None, prefill: int | None = None,
              silence_timeout: float | None = None, on_start: Callable[[float], None] | None = None) -> PlayReport:
-        """Stream ``codes`` (after :meth:`configure`) and play them; returns the board's report.
+        """Stream ``codes`` (after `configure`) and play them; returns the board's report.
 
         Prefills the ring buffer, sends START, keeps the buffer topped up within
         the credits, sends END after the last sample and waits for DONE. A NAK

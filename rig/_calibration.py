@@ -90,7 +90,7 @@ class Calibration:
 
     @classmethod
     def load(cls, path) -> "Calibration":
-        """Read a calibration written by :meth:`save` or ``rig calibrate``."""
+        """Read a calibration written by `save` or ``rig calibrate``."""
         path = pathlib.Path(path)
         try:
             data = json.loads(path.read_text())

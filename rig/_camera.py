@@ -1,13 +1,13 @@
 """Frames from a camera device or a video file, each with a timestamp.
 
-:class:`VideoSource` wraps ``cv2.VideoCapture``. A device (an integer index or
+`VideoSource` wraps ``cv2.VideoCapture``. A device (an integer index or
 ``/dev/videoN``) is asked for 30 fps; each frame is stamped with the driver's
 timestamp when it gives one, else the host's monotonic clock at grab time.
 
 A file's frames keep their places in time even when some are lost:
 
 - a Motion-JPEG AVI (what lab cameras record) is read chunk by chunk through
-  its index (:mod:`rig._avi`): frame k is stamped ``k / fps`` and a damaged
+  its index (`rig._avi`): frame k is stamped ``k / fps`` and a damaged
   frame leaves a gap, because OpenCV's FFmpeg backend skips damaged AVI chunks
   and keeps counting, so its timestamps hide the loss;
 - anything else is stamped with the decoder's timestamp
@@ -15,8 +15,8 @@ A file's frames keep their places in time even when some are lost:
   after the previous frame (counted in ``timestamp_faults``).
 
 ``expected_frames`` is what the container announces, so a short read (a
-truncated file) can be told; :meth:`VideoSource.integrity` sums it up and
-:func:`find_gaps` finds the holes in a run of timestamps. Every camera in the
+truncated file) can be told; `VideoSource.integrity` sums it up and
+`find_gaps` finds the holes in a run of timestamps. Every camera in the
 rig (the virtual one too) has the same small interface: ``fps``,
 ``read() -> Frame | None``, ``close()``.
 """
@@ -219,5 +219,5 @@ def find_gaps(t, fps: float, factor: float = 1.5) -> list[dict]:
 
 
 def open_camera(source, fps: float = 30.0) -> VideoSource:
-    """A :class:`VideoSource` for a device index, ``/dev/videoN`` or a file."""
+    """A `VideoSource` for a device index, ``/dev/videoN`` or a file."""
     return VideoSource(source, fps)

@@ -4,12 +4,12 @@ Used by ``rig record --virtual`` and wherever simavr is not installed. It
 serves the protocol on a pseudo-terminal (``port`` is its path, to open with
 pyserial like a real port) from a thread. Time is simulated: the board's clock
 runs ``speed`` times faster than the host's monotonic clock. Each timer tick
-runs :meth:`timer_isr` as the sketch's ISR would; the DAC latches
+runs `timer_isr` as the sketch's ISR would; the DAC latches
 ``DAC_LATENCY`` s after its tick (the I2C write, as measured on simavr).
 
-What the DAC and the LED did is kept in :attr:`dac_log` and :attr:`led_log`
+What the DAC and the LED did is kept in `dac_log` and `led_log`
 (board seconds) for the virtual world: the wires from the board to the strip.
-Faults for tests: :meth:`reset`, :meth:`unplug`, ``corrupt_tx`` (flip a byte of
+Faults for tests: `reset`, `unplug`, ``corrupt_tx`` (flip a byte of
 the next frame sent).
 """
 

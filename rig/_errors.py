@@ -1,4 +1,4 @@
-"""Errors of the rig: every fault becomes one :class:`RigError` with one clear line."""
+"""Errors of the rig: every fault becomes one `RigError` with one clear line."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ __all__ = ["RigError", "Terminated"]
 class RigError(InputError):
     """A hardware or acquisition fault (serial port, board, camera, tracking).
 
-    A subclass of :class:`hybrid.InputError`, so the command line prints it as
+    A subclass of `hybrid.InputError`, so the command line prints it as
     one line and exits with status 2.
     """
 

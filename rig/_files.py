@@ -1,8 +1,8 @@
 """Writing output files safely: whole or not at all, and never over an input.
 
-:func:`write_atomic` writes to a temporary file in the same folder and renames
+`write_atomic` writes to a temporary file in the same folder and renames
 it over the target (``os.replace`` is atomic on one file system), so a reader
-or a crash never sees half a file. :func:`check_outputs` refuses outputs that
+or a crash never sees half a file. `check_outputs` refuses outputs that
 are the input itself (``rig track v.avi --out v.avi``).
 """
 
@@ -40,12 +40,12 @@ def jsonable(value):
 
 
 def write_json_atomic(path, data: dict) -> None:
-    """Write ``data`` as indented JSON, atomically (:func:`write_atomic`)."""
+    """Write ``data`` as indented JSON, atomically (`write_atomic`)."""
     write_atomic(path, json.dumps(data, indent=2, default=jsonable) + "\n")
 
 
 def check_outputs(outputs, inputs) -> None:
-    """Raise :class:`RigError` if an output path is one of the inputs (the same file, however named)."""
+    """Raise `RigError` if an output path is one of the inputs (the same file, however named)."""
     for out in outputs:
         out = pathlib.Path(out)
         for source in inputs:

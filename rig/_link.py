@@ -1,11 +1,11 @@
 """Serial transport to the DAC board: frames written to and read from a pyserial-like port.
 
-:class:`SerialLink` wraps the port (``read``, ``write``, ``close``; a real
+`SerialLink` wraps the port (``read``, ``write``, ``close``; a real
 ``serial.Serial``, a pty, or a test double), numbers and encodes outgoing frames
-with :mod:`rig._protocol`, decodes what arrives (bad frames are counted, not
+with `rig._protocol`, decodes what arrives (bad frames are counted, not
 fatal) and waits for a reply of a given kind. A failing port raises
-:class:`~rig._errors.RigError` with one line. The commands the board
-understands are :class:`rig._board.Board`'s.
+`RigError` with one line. The commands the board
+understands are `rig._board.Board`'s.
 """
 
 from __future__ import annotations

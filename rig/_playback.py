@@ -1,8 +1,8 @@
 """What the board plays: the Timer1 setting for a sample rate, and the board's report of a stream.
 
-:class:`Timing` is the setting :meth:`rig.Board.configure` sends (and
-:func:`sample_timing` picks it); :class:`PlayReport` is what
-:meth:`rig.Board.play` returns: the board's own account of what it played and
+`Timing` is the setting `rig.Board.configure` sends (and
+`sample_timing` picks it); `PlayReport` is what
+`rig.Board.play` returns: the board's own account of what it played and
 when (its timer ticks), with the faults that were counted but not fatal.
 """
 

@@ -130,16 +130,16 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
     """Run ``drive`` on ``board`` while filming with ``camera``; write the recording to ``out`` (CSV).
 
     Arguments:
-        board: a :class:`~rig._board.Board` that has said hello.
+        board: a `Board` that has said hello.
         camera: ``fps``, ``read() -> Frame | None``, ``clock()`` (now on the camera's clock).
-        drive: a :class:`hybrid.Drive`.
-        settings: :class:`RecordSettings`.
+        drive: a `hybrid.Drive`.
+        settings: `RecordSettings`.
         out: the CSV path (``out.json`` is the metadata sidecar).
         metadata: extra JSON-able metadata.
         truth: for the virtual rig, the camera's ``truth`` dict (frame index -> true w).
 
     Returns:
-        The final metadata. Raises :class:`RigError` after saving a partial recording.
+        The final metadata. Raises `RigError` after saving a partial recording.
     """
     cal = settings.calibration
     codes = cal.codes(drive.v)

@@ -1,7 +1,7 @@
 """Render a bent strip as a camera would see it (the virtual camera's pictures).
 
 A dark strip of visible thickness ``thickness_mm`` bent along a circular arc
-(:func:`rig._scene.arc_centreline`), a clamp block behind the clamp point, an
+(`rig._scene.arc_centreline`), a clamp block behind the clamp point, an
 uneven background (gradient and vignetting), shading across the strip, a sync
 LED, Gaussian blur, lighting flicker and sensor noise. Anti-aliased exactly:
 each pixel's darkness is the strip's coverage from its distance to the arc.

@@ -1,7 +1,7 @@
 """The real firmware on simavr: build it, run it behind a pty, read its DAC log.
 
 Needs the Debian packages gcc-avr, avr-libc, simavr, libsimavr-dev (and gcc,
-pkg-config, libelf-dev); ``make rig-deps`` installs them. :func:`missing_tools`
+pkg-config, libelf-dev); ``make rig-deps`` installs them. `missing_tools`
 says what is absent so tests can skip with a clear reason.
 
 The harness ``rig/firmware/simavr/rig_sim.c`` bridges the ATmega328P's UART to a
@@ -99,7 +99,7 @@ class SimavrBoard:
     """The firmware running on simavr; ``port`` is the pty path to open with pyserial.
 
     Arguments:
-        elf, harness: from :func:`build`.
+        elf, harness: from `build`.
         log: the DAC/LED log file to write.
         speed: simulated seconds per wall-clock second (1 = real time).
         dac: False leaves the I2C bus empty (a wiring fault).

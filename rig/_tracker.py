@@ -121,7 +121,7 @@ class TipTracker:
     # ------------------------------------------------------------------ tracking
 
     def sections(self, contrast: np.ndarray) -> Sections:
-        """Follow the strip out from the clamp in a contrast image (see :meth:`contrast`).
+        """Follow the strip out from the clamp in a contrast image (see `contrast`).
 
         Returns the cross-sections along the rest axis (px): their s, centre u
         (NaN where none), peak contrast and whether the peak lay inside the picture.
@@ -211,7 +211,7 @@ class TipTracker:
         return self.track_contrast(self.contrast(frame))
 
     def track_contrast(self, contrast: np.ndarray) -> TipResult:
-        """Track one frame given its contrast image (:meth:`contrast`)."""
+        """Track one frame given its contrast image (`contrast`)."""
         h, w = contrast.shape
         sec = self.sections(contrast)
         s, centres, peaks, inside = sec.s, sec.u, sec.peak, sec.inside

@@ -1,8 +1,8 @@
 """``rig track``: the tip displacement of every frame of a video, with an honest account of the video.
 
-Steps: the first frames find (or check) the rest axis (:mod:`rig._axis`);
+Steps: the first frames find (or check) the rest axis (`rig._axis`);
 every frame is tracked; the frame times come from the video itself
-(:class:`rig._camera.VideoSource`), holes in them are gaps, and the frames
+(`rig._camera.VideoSource`), holes in them are gaps, and the frames
 read are compared with the frames the file announces. The CSV (``t,w,quality``)
 and its JSON sidecar (``F.csv.json``) are written atomically at the end, also
 when the video turns out damaged, so nothing read is lost and nothing is
@@ -11,10 +11,10 @@ silently wrong:
 - a gap (frames lost inside the file, places known): the frames either side
   get quality 0, the gap is listed, a warning is printed; exit 0;
 - frames missing at the end (a truncated file) or whose places are unknown:
-  ``"complete": false``, and a :class:`RigError` (exit 2) says how many of how
+  ``"complete": false``, and a `RigError` (exit 2) says how many of how
   many frames were read;
 - no strip along any axis (or along the given one): every row has quality 0
-  and w NaN, and a :class:`RigError` says so.
+  and w NaN, and a `RigError` says so.
 """
 
 from __future__ import annotations
@@ -194,7 +194,7 @@ def _gap_warning(job: TrackJob, gaps) -> str:
 def track_video(job: TrackJob) -> dict:
     """Run ``rig track``: write ``job.out`` and its sidecar; return the sidecar's metadata.
 
-    Raises :class:`RigError` (after writing what was read) when no strip was
+    Raises `RigError` (after writing what was read) when no strip was
     found, when frames are missing at the end of the file, or when frames'
     places in time are unknown.
     """

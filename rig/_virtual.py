@@ -2,10 +2,10 @@
 
 The wires from the board onward are simulated: the DAC log of the emulated
 board (board seconds, codes) goes through the *true* amplifier (a
-:class:`~rig._calibration.Calibration`, which need not equal the host's) into
+`Calibration`, which need not equal the host's) into
 ``hybrid.ipmc._virtual_ipmc`` (its RC line, back-relaxation, saturation and first
 mode); the tip displacement is averaged over each exposure and rendered by
-:mod:`rig._render` with the sync LED lit for the fraction of the exposure it
+`rig._render` with the sync LED lit for the fraction of the exposure it
 was on. The tracker sees only the pictures.
 
 The strip is simulated on a grid of ``fps * 8`` Hz from the board's power-up
@@ -38,7 +38,7 @@ class VirtualCamera:
     """Camera interface (``fps``, ``read``, ``close``, ``clock``) over an emulated board's world.
 
     Arguments:
-        board: an :class:`~rig._emulator.EmulatedBoard` (its ``dac_log``, ``led_log``, ``now``).
+        board: an `EmulatedBoard` (its ``dac_log``, ``led_log``, ``now``).
         scene, look: the view and how it looks.
         strip: parameters of the virtual IPMC (its camera and noise fields are ignored:
             the camera and the tracker make the measurement).

@@ -327,7 +327,7 @@ COMMANDS = {"ports": _cmd_ports, "track": _cmd_track, "record": _cmd_record,
 
 
 def _on_sigterm(signum, frame):
-    """SIGTERM: raise :class:`Terminated` in the main thread (the clean-up of Ctrl-C runs); once."""
+    """SIGTERM: raise `Terminated` in the main thread (the clean-up of Ctrl-C runs); once."""
     signal.signal(signal.SIGTERM, signal.SIG_IGN)     # a second SIGTERM must not cut the clean-up short
     raise Terminated()
 

@@ -8,11 +8,11 @@ The paper defines (Section IV.B)
 where ``w_n`` and ``w_hat_n`` are "calculated by dividing each value of w(t)
 and w_hat(t) by the maximum values observed". That sentence is ambiguous; we
 read it as each signal divided by *its own* maximum absolute value,
-``w_n = w / max|w|`` and ``w_hat_n = w_hat / max|w_hat|`` (:func:`nmse`,
-:func:`fitting`). Under that reading NMSE ignores the scale of the prediction:
-``w_hat`` and ``10 * w_hat`` score the same. :func:`nmse_target` divides both
+``w_n = w / max|w|`` and ``w_hat_n = w_hat / max|w_hat|`` ([`nmse`][hybrid.nmse],
+[`fitting`][hybrid.fitting]). Under that reading NMSE ignores the scale of the prediction:
+``w_hat`` and ``10 * w_hat`` score the same. [`nmse_target`][hybrid.nmse_target] divides both
 by ``max|w|`` instead, so a wrong gain is penalised, and
-:func:`nmse_variance` is the system-identification convention
+[`nmse_variance`][hybrid.nmse_variance] is the system-identification convention
 ``MSE(w, w_hat) / var(w)``.
 
 All functions take numpy or JAX arrays of equal shape (the mean runs over
@@ -35,7 +35,7 @@ from ..util._errors import InputError
 
 __all__ = ["METRICS", "fitting", "metrics", "nmse", "nmse_target", "nmse_variance"]
 
-#: Keys of :func:`metrics`.
+#: Keys of [`metrics`][hybrid.metrics].
 METRICS: tuple[str, ...] = ("nmse", "nmse_target", "nmse_variance", "fitting")
 
 
@@ -133,7 +133,7 @@ def nmse(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
 def nmse_target(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
     """NMSE with both signals divided by the target's peak, ``max|w|``.
 
-    ``mean((w - w_hat)**2) / max|w|**2``: unlike :func:`nmse`, a prediction
+    ``mean((w - w_hat)**2) / max|w|**2``: unlike [`nmse`][hybrid.nmse], a prediction
     with the right shape but the wrong gain is penalised.
 
     Arguments:
@@ -175,7 +175,7 @@ def nmse_variance(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
 
 
 def fitting(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
-    """Fitting in percent, Eq 20, on the signals normalised as in :func:`nmse`.
+    """Fitting in percent, Eq 20, on the signals normalised as in [`nmse`][hybrid.nmse].
 
     ``100 (1 - ||w_n - w_hat_n|| / ||w_n - mean(w_n)||)``: 100 for a perfect
     prediction, 0 for one no better than the target's mean, negative when

@@ -1,10 +1,10 @@
-"""What a drive is: :class:`Drive`, a sampled drive voltage, and the checks
+"""What a drive is: [`Drive`][hybrid.Drive], a sampled drive voltage, and the checks
 every generator applies to its parameters.
 
 A drive is sampled at ``rate`` Hz (30 Hz, the camera's frame rate, by default,
-:data:`DEFAULT_RATE`) for ``duration`` s, with ``n = round(duration * rate)``
-samples at ``t = arange(n) / rate`` (:func:`_time`). Bad parameters raise
-:class:`~hybrid.util._errors.InputError`.
+`DEFAULT_RATE`) for ``duration`` s, with ``n = round(duration * rate)``
+samples at ``t = arange(n) / rate`` (`_time`). Bad parameters raise
+[`InputError`][hybrid.InputError].
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ class Drive:
     Arguments:
         t: sample times, s, shape ``(n,)``, ``arange(n) / rate``.
         v: drive voltage, V, shape ``(n,)``.
-        name: the generator, one of :data:`DRIVES`.
+        name: the generator, one of [`DRIVES`][hybrid.DRIVES].
         params: every parameter that made it (duration, rate, amplitude, ...,
             seed where used), JSON-able, for a recording's metadata.
     """

@@ -1,17 +1,17 @@
-"""Drive voltages for identification experiments, by name: :data:`DRIVES` and
-:func:`make_drive`.
+"""Drive voltages for identification experiments, by name: [`DRIVES`][hybrid.DRIVES] and
+[`make_drive`][hybrid.make_drive].
 
 The paper trains and tests on four input voltages (Section IV.B, Table 2):
-PRBS, sine, chirp and pulse train (:mod:`hybrid.data._paper_drives`); a
-staircase and triangle sweeps (:mod:`hybrid.data._hysteresis_drives`) probe
+PRBS, sine, chirp and pulse train (`hybrid.data._paper_drives`); a
+staircase and triangle sweeps (`hybrid.data._hysteresis_drives`) probe
 hysteresis and saturation. Each generator returns a
-:class:`~hybrid.data._drive.Drive` sampled at ``rate`` Hz (30 Hz, the camera's
+[`Drive`][hybrid.Drive] sampled at ``rate`` Hz (30 Hz, the camera's
 frame rate, by default) for ``duration`` s, with ``n = round(duration * rate)``
 samples at ``t = arange(n) / rate``. Generators are deterministic: the only
 randomness (PRBS, randomly modulated sine and chirp) comes from
 ``numpy.random.default_rng(seed)``.
 
-Bad parameters raise :class:`~hybrid.util._errors.InputError`.
+Bad parameters raise [`InputError`][hybrid.InputError].
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ _GENERATORS: dict[str, Callable[..., Drive]] = {
     "staircase": staircase, "triangle": triangle,
 }
 
-#: Names accepted by :func:`make_drive`: the paper's four (Table 2 order), then
+#: Names accepted by [`make_drive`][hybrid.make_drive]: the paper's four (Table 2 order), then
 #: two more for identifying hysteresis and saturation.
 DRIVES: tuple[str, ...] = tuple(_GENERATORS)
 
@@ -44,7 +44,7 @@ def make_drive(
     """Build a drive by name.
 
     Arguments:
-        name: one of :data:`DRIVES` (``"prbs"``, ``"sine"``, ``"chirp"``,
+        name: one of [`DRIVES`][hybrid.DRIVES] (``"prbs"``, ``"sine"``, ``"chirp"``,
             ``"pulse"``, ``"staircase"``, ``"triangle"``).
         duration: length, s.
         rate: sampling rate, Hz.
@@ -53,7 +53,7 @@ def make_drive(
         **params: the generator's other parameters (see each generator).
 
     Returns:
-        The :class:`Drive`.
+        The [`Drive`][hybrid.Drive].
     """
     if name not in _GENERATORS:
         raise InputError(f"drive {name!r} is unknown: use one of {', '.join(DRIVES)}")

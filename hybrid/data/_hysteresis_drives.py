@@ -1,7 +1,7 @@
 """Two drives beyond the paper's four, for identifying hysteresis and
 saturation: an up-and-down staircase and triangle sweeps of stepped amplitude.
 
-Each generator returns a :class:`~hybrid.data._drive.Drive` sampled at ``rate``
+Each generator returns a [`Drive`][hybrid.Drive] sampled at ``rate``
 Hz for ``duration`` s; both are deterministic.
 """
 
@@ -37,7 +37,7 @@ def staircase(
         step_time: hold per level, s (at least one sample).
 
     Returns:
-        The :class:`Drive`, name ``"staircase"``.
+        The [`Drive`][hybrid.Drive], name ``"staircase"``.
     """
     t, duration, rate = _time("staircase", duration, rate)
     amplitude = _amplitude("staircase", amplitude)
@@ -74,7 +74,7 @@ def triangle(
         levels: number of peak amplitudes cycled through (>= 1).
 
     Returns:
-        The :class:`Drive`, name ``"triangle"``.
+        The [`Drive`][hybrid.Drive], name ``"triangle"``.
     """
     t, duration, rate = _time("triangle", duration, rate)
     amplitude = _amplitude("triangle", amplitude)

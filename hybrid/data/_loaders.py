@@ -1,11 +1,11 @@
 """Reading recording files: ``.csv`` (with a ``<file>.csv.json`` metadata
 sidecar), ``.npz`` and ``.mat``.
 
-:func:`read_file` (behind :meth:`Recording.load
+`read_file` (behind `Recording.load
 <hybrid.data._recording.Recording.load>`) checks the path, picks the reader by
-suffix (:data:`SUFFIXES`) and returns the file's channels and metadata, for
-:class:`~hybrid.data._recording.Recording` to validate. The naming shared with
-:mod:`hybrid.data._writers` (suffixes, sidecar, ``extra_`` prefix) lives here.
+suffix (`SUFFIXES`) and returns the file's channels and metadata, for
+[`Recording`][hybrid.Recording] to validate. The naming shared with
+`hybrid.data._writers` (suffixes, sidecar, ``extra_`` prefix) lives here.
 
 Messages about CSV files give the line number in the file (from 1).
 """
@@ -27,7 +27,7 @@ from ._recording_checks import REQUIRED, _rows_text
 
 __all__ = ["SUFFIXES", "read_file", "sidecar"]
 
-#: File suffixes :meth:`Recording.load` and :meth:`Recording.save` understand.
+#: File suffixes `Recording.load` and `Recording.save` understand.
 SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
 
 _NPZ_EXTRA = "extra_"
@@ -36,7 +36,7 @@ _NPZ_EXTRA = "extra_"
 def read_file(
     path: pathlib.Path, *, require_w: bool = True
 ) -> tuple[dict[str, np.ndarray], dict]:
-    """Read the channels and metadata of a recording file; see :meth:`Recording.load`.
+    """Read the channels and metadata of a recording file; see `Recording.load`.
 
     Arguments:
         path: the file; its suffix picks the format.

@@ -1,7 +1,7 @@
 """The paper's four drives (Section IV.B, Table 2): PRBS, sine, chirp and
 pulse train.
 
-Each generator returns a :class:`~hybrid.data._drive.Drive` sampled at ``rate``
+Each generator returns a [`Drive`][hybrid.Drive] sampled at ``rate``
 Hz for ``duration`` s. Generators are deterministic: the only randomness (PRBS,
 randomly modulated sine and chirp) comes from ``numpy.random.default_rng(seed)``.
 """
@@ -47,7 +47,7 @@ def prbs(
         seed: seed of ``numpy.random.default_rng``.
 
     Returns:
-        The :class:`Drive`, name ``"prbs"``.
+        The [`Drive`][hybrid.Drive], name ``"prbs"``.
     """
     t, duration, rate = _time("prbs", duration, rate)
     amplitude = _amplitude("prbs", amplitude)
@@ -125,7 +125,7 @@ def sine(
         seed: seed of the random amplitudes.
 
     Returns:
-        The :class:`Drive`, name ``"sine"``.
+        The [`Drive`][hybrid.Drive], name ``"sine"``.
     """
     t, duration, rate = _time("sine", duration, rate)
     amplitude = _amplitude("sine", amplitude)
@@ -207,7 +207,7 @@ def chirp(
         seed: seed of the random amplitudes.
 
     Returns:
-        The :class:`Drive`, name ``"chirp"``.
+        The [`Drive`][hybrid.Drive], name ``"chirp"``.
     """
     t, duration, rate = _time("chirp", duration, rate)
     amplitude = _amplitude("chirp", amplitude)
@@ -257,7 +257,7 @@ def pulse(
         bipolar: alternate the sign of successive pulses.
 
     Returns:
-        The :class:`Drive`, name ``"pulse"``.
+        The [`Drive`][hybrid.Drive], name ``"pulse"``.
     """
     t, duration, rate = _time("pulse", duration, rate)
     amplitude = _amplitude("pulse", amplitude)

@@ -1,17 +1,17 @@
 """One experiment on the rig: drive voltage in, tip displacement out.
 
-A :class:`Recording` holds the time base ``t`` (s), the drive voltage ``v_in``
+A [`Recording`][hybrid.Recording] holds the time base ``t`` (s), the drive voltage ``v_in``
 (V) and the tip displacement ``w`` (mm) of one IPMC trial, sampled uniformly
 (the paper's camera runs at 30 frames per second), plus any extra channels and
 JSON-able metadata. It is validated once, when it is built
-(:mod:`hybrid.data._recording_checks`), so everything downstream can assume
+(`hybrid.data._recording_checks`), so everything downstream can assume
 finite, equally long, uniformly sampled arrays.
 
-:meth:`Recording.split` cuts it into the paper's contiguous train / test /
-validation parts (30 %, 50 %, 20 %, Section IV.B; :mod:`hybrid.data._split`),
-and :meth:`Recording.load` / :meth:`Recording.save` read and write ``.csv``
+`Recording.split` cuts it into the paper's contiguous train / test /
+validation parts (30 %, 50 %, 20 %, Section IV.B; `hybrid.data._split`),
+and `Recording.load` / `Recording.save` read and write ``.csv``
 (with a ``<file>.csv.json`` metadata sidecar), ``.npz`` and ``.mat`` files that
-round-trip exactly (:mod:`hybrid.data._loaders`, :mod:`hybrid.data._writers`).
+round-trip exactly (`hybrid.data._loaders`, `hybrid.data._writers`).
 
 Row numbers in messages about arrays count samples from 0; messages about CSV
 files give the line number in the file (from 1).
@@ -51,7 +51,7 @@ class Recording:
     """One uniformly sampled IPMC experiment.
 
     Arrays are copied to read-only float64 vectors and validated on
-    construction; every problem raises :class:`~hybrid.util._errors.InputError`.
+    construction; every problem raises [`InputError`][hybrid.InputError].
 
     Arguments:
         t: sample times, s, shape ``(n,)``, strictly increasing and uniform
@@ -145,11 +145,11 @@ class Recording:
             rate: sampling rate, Hz; ``t = t0 + arange(n) / rate``.
             t0: time of the first sample, s, when ``t`` is built from ``rate``.
             extra: extra channels by name.
-            metadata: JSON-able metadata (see :class:`Recording`).
+            metadata: JSON-able metadata (see [`Recording`][hybrid.Recording]).
             name: how messages refer to the recording.
 
         Returns:
-            The validated :class:`Recording`.
+            The validated [`Recording`][hybrid.Recording].
         """
         label = name or _source_name(metadata)
         if (t is None) == (rate is None):
@@ -276,7 +276,7 @@ class Recording:
             index: a slice with step 1 (or None), e.g. ``slice(100, 400)``.
 
         Returns:
-            A new :class:`Recording`; its metadata gains ``"segment":
+            A new [`Recording`][hybrid.Recording]; its metadata gains ``"segment":
             {"start", "stop"}``, sample indices into the original recording
             (composed when segmenting a segment).
         """
@@ -322,7 +322,7 @@ class Recording:
                 ``("train", "test", "validation")``.
 
         Returns:
-            A :class:`Split` with the three recordings and their index ranges.
+            A [`Split`][hybrid.Split] with the three recordings and their index ranges.
         """
         return split_recording(self, fractions, order)
 
@@ -349,7 +349,7 @@ class Recording:
                 with zeros; every other check is the same.
 
         Returns:
-            The validated :class:`Recording`, named by ``path``.
+            The validated [`Recording`][hybrid.Recording], named by ``path``.
         """
         path = _path_argument(path, "Recording.load")
         columns, metadata = read_file(path, require_w=require_w)
@@ -357,14 +357,14 @@ class Recording:
         return cls(columns["t"], columns["v_in"], columns["w"], extra, metadata, str(path))
 
     def save(self, path: str | pathlib.Path) -> pathlib.Path:
-        """Write the recording so that :meth:`load` gives it back exactly.
+        """Write the recording so that `load` gives it back exactly.
 
         ``.csv`` files hold every channel at 17 significant digits and get a
         ``<file>.csv.json`` metadata sidecar next to them; ``.mat`` files need
         extra channel names that are MATLAB identifiers.
 
         The file (and the sidecar) are written to temporaries and renamed
-        over ``path`` once complete (:mod:`hybrid.util._atomic`): a full disk or
+        over ``path`` once complete (`hybrid.util._atomic`): a full disk or
         any other error leaves what was at ``path`` unchanged.
 
         Arguments:

@@ -1,4 +1,4 @@
-"""The checks a :class:`~hybrid.data._recording.Recording` passes when it is built.
+"""The checks a [`Recording`][hybrid.Recording] passes when it is built.
 
 Each channel becomes a finite, read-only float64 vector of one common length;
 the time base ``t`` (s) must strictly increase and be uniform (30 Hz for the
@@ -6,7 +6,7 @@ paper's camera): timestamp jitter below ``JITTER_FRAMES`` of a step is absorbed
 by rebuilding ``t`` as the closest uniform grid, gaps and a ``t`` written in
 milliseconds are refused. Metadata must be JSON-able and gains the units of
 the required channels. Every problem raises
-:class:`~hybrid.util._errors.InputError` with a message that names the
+[`InputError`][hybrid.InputError] with a message that names the
 recording, the column and the rows, and says how to fix it.
 
 Row numbers in messages about arrays count samples from 0.

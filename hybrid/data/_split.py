@@ -1,9 +1,9 @@
 """Cutting a recording into the paper's train / test / validation parts.
 
-:func:`split_recording` (behind :meth:`Recording.split
+`split_recording` (behind `Recording.split
 <hybrid.data._recording.Recording.split>`) cuts a recording into contiguous
 parts in time order, 30 %, 50 % and 20 % of the samples by default (Section
-IV.B), and returns them as a :class:`Split`.
+IV.B), and returns them as a [`Split`][hybrid.Split].
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 __all__ = ["SPLIT_PARTS", "Split", "split_recording"]
 
-#: Names of the parts of a :class:`Split`.
+#: Names of the parts of a [`Split`][hybrid.Split].
 SPLIT_PARTS: tuple[str, ...] = ("train", "test", "validation")
 
 
@@ -92,15 +92,15 @@ def _check_fractions(
 def split_recording(
     recording: Recording, fractions: Sequence[float], order: Sequence[str]
 ) -> Split:
-    """Cut ``recording`` into contiguous parts; see :meth:`Recording.split`.
+    """Cut ``recording`` into contiguous parts; see `Recording.split`.
 
     Arguments:
         recording: the recording to cut.
         fractions: positive shares of the samples, summing to 1, one per part.
-        order: the parts in time order, a permutation of :data:`SPLIT_PARTS`.
+        order: the parts in time order, a permutation of `SPLIT_PARTS`.
 
     Returns:
-        A :class:`Split`; each part's metadata gains ``"segment"`` and ``"split"``.
+        A [`Split`][hybrid.Split]; each part's metadata gains ``"segment"`` and ``"split"``.
     """
     name, n = recording.name, recording.n
     order = tuple(order)

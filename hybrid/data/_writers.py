@@ -1,10 +1,10 @@
-"""Writing recording files that :func:`~hybrid.data._loaders.read_file` reads
+"""Writing recording files that `read_file` reads
 back exactly: ``.csv`` (every channel at 17 significant digits, plus a
 ``<file>.csv.json`` metadata sidecar), ``.npz`` and ``.mat``.
 
-:func:`write_file` (behind :meth:`Recording.save
+`write_file` (behind `Recording.save
 <hybrid.data._recording.Recording.save>`) writes to temporaries and renames
-them over the targets once complete (:mod:`hybrid.util._atomic`), so a failed
+them over the targets once complete (`hybrid.util._atomic`), so a failed
 write leaves what was there unchanged.
 """
 
@@ -29,7 +29,7 @@ _MAT_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}")
 
 
 def write_file(recording: Recording, path: pathlib.Path) -> None:
-    """Write ``recording`` to ``path`` in the format its suffix names; see :meth:`Recording.save`."""
+    """Write ``recording`` to ``path`` in the format its suffix names; see `Recording.save`."""
     from ..util._atomic import staged
 
     writer = {".csv": _save_csv, ".npz": _save_npz, ".mat": _save_mat}[_suffix(path)]
