@@ -75,7 +75,7 @@ def fit(
       (paper: train 30 %, test 50 %, validation 20 %).
     - `blocks`: cut each recording into this many equal chunks and split each
       chunk by `split` (1: the paper's contiguous split; see
-      [`hybrid.core._problem.series_from_recording`][]).
+      `hybrid.core._problem.series_from_recording`).
     - `patience`: LM stops after this many accepted steps without validation gain.
     - `weight_decay`: μ, ridge penalty ½ μ ‖θ_network‖² on black-box readout weights
       (D-MLP); residuals are in units of the training std of w, so μ is relative

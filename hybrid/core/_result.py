@@ -29,7 +29,7 @@ class FitResult:
     - `warnings`: sentences about results not to take at face value: a physical
       parameter outside its plausible range (`AbstractSimulation.plausible_ranges`) or
       still at its start value, a fit that made no accepted step, a recording
-      whose time base was rebuilt ([`fit_warnings`][]).
+      whose time base was rebuilt (`hybrid.core._result.fit_warnings`).
     """
 
     model: Model
