@@ -4,7 +4,7 @@
                                          [--drive prbs-multilevel] [--noise 0.01]
 
 `diagnose` runs several LM starts (lanes) per effect and lets one stand for the
-effect (`hybrid.discovery._diagnose._choose_lane`: the validation part picks, and an
+effect (`hybrid.discovery._decision._choose_lane`: the validation part picks, and an
 immaterial lane gives way to a material one within a standard error). This
 prints, for each lane of the effects asked (default: the hidden one), its
 validation loss, its training, validation and held-out MSE over the variance of
@@ -31,7 +31,9 @@ def main(argv=None) -> int:
 
     from hybrid import RCNetwork
     from hybrid import diagnose
-    from hybrid.discovery._diagnose import SPLIT_ORDER, DiagnoseSettings, _lane_effect, _predictions, lanes_problem
+    from hybrid.discovery._decision import _lane_effect
+    from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
+    from hybrid.discovery._search import _predictions, lanes_problem
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("effect")

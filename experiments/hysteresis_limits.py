@@ -46,7 +46,7 @@ def _loop_designs(s, rates):
     """Per rate (× 1/span): k and the least-squares design [s, u, ∂u/∂u₀, 1], one compiled pass each."""
     import jax.numpy as jnp
 
-    from hybrid.discovery._effects import bouc_wen_and_memory
+    from hybrid.discovery._hysteresis import bouc_wen_and_memory
 
     span = float(np.ptp(s))
     loop = jax.jit(bouc_wen_and_memory)  # k traced: compiled once for every rate
@@ -79,7 +79,9 @@ def main(argv=None) -> int:
 
     import discrepancy
     import hybrid
-    from hybrid.discovery import _diagnose as search
+    from hybrid.discovery import _search as search
+    from hybrid.discovery._decision import _derived
+    from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
     from hybrid.discovery._effects import EFFECTS
     from hybrid.core._levenberg_marquardt import LMSettings
     from hybrid.core._problem import series_from_recording
@@ -95,7 +97,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default="experiments/results/hysteresis_limits.json")
     args = parser.parse_args(argv)
 
-    settings = search.DiagnoseSettings()
+    settings = DiagnoseSettings()
     frozen = frozenset(settings.frozen_for(RCNetwork()))
     names = list(EFFECTS)
     off = np.zeros(len(names) + 1)
@@ -111,7 +113,7 @@ def main(argv=None) -> int:
 
         simulation = RCNetwork(method="zoh")
         model = search._universal_model(simulation)
-        series = [series_from_recording(recording, settings.split, search.SPLIT_ORDER, settings.blocks)]
+        series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
         problem, n_rows = search._search_problem(model, series, frozen)
         parts = {split: np.concatenate([np.arange(a, b) for a, b in series[0].segments_of(split)])
                  for split in ("train", "test")}
@@ -146,7 +148,7 @@ def main(argv=None) -> int:
         candidate = next(c for c in found.candidates if c.name == "hysteresis")
         baseline = over_noise(found.baseline.theta, off)
         floor_test = discrepancy.excess_over_noise(recording, found)[1]
-        loop_height = lambda theta, active: search._derived(problem, theta, active)["hysteresis"][
+        loop_height = lambda theta, active: _derived(problem, theta, active)["hysteresis"][
             "loop_height_percent_of_range"]
         row = {
             "seed": seed, "hidden_loop_fraction": params["height_fraction"], "C_clamp": strip.C_clamp,

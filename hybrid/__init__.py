@@ -12,7 +12,7 @@ The library never changes `jax.config`: call
 from .data._drive import Drive as Drive
 from .data._drives import DRIVES as DRIVES, make_drive as make_drive
 from .util._errors import InputError as InputError
-from .discovery._diagnose import (
+from .discovery._diagnosis import (
     CAUSES as CAUSES,
     Diagnosis as Diagnosis,
     DiagnoseSettings as DiagnoseSettings,
@@ -21,10 +21,9 @@ from .discovery._report import write_report as write_report
 from .discovery._effects import (
     EFFECTS as EFFECTS,
     AbstractEffect as AbstractEffect,
-    EffectStack as EffectStack,
     FrameTiming as FrameTiming,
-    extend as extend,
 )
+from .discovery._effect_stack import EffectStack as EffectStack, extend as extend
 from .core._batch import BatchFitResult as BatchFitResult, fit_batch as fit_batch, simulate_batch as simulate_batch
 from .core._fit import SOLVERS as SOLVERS, fit as fit
 from .core._metrics import (

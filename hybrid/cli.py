@@ -289,9 +289,10 @@ def _cmd_sensitivity(args):
 def _cmd_diagnose(args):
     import dataclasses
 
-    from .discovery._diagnose import DiagnoseSettings
+    from .discovery._diagnosis import DiagnoseSettings
     from .ipmc._defaults import diagnose
-    from .discovery._report import FIGURES, _pm, write_report
+    from .discovery._report import _pm, write_report
+    from .discovery._report_figures import FIGURES
     from .discovery._effects import EFFECTS
     from .data._recording import Recording
 

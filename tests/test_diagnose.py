@@ -26,8 +26,9 @@ import numpy as np
 import pytest
 
 from hybrid import diagnose
-from hybrid.discovery._diagnose import CAUSES, DiagnoseSettings, _choose_lane
-from hybrid.discovery._report import FIGURES, _nmse
+from hybrid.discovery._decision import _choose_lane
+from hybrid.discovery._diagnosis import CAUSES, DiagnoseSettings
+from hybrid.discovery._report_figures import FIGURES, _nmse
 from hybrid.discovery._effects import EFFECTS
 from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
 from hybrid.cli import main

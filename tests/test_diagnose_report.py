@@ -10,7 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from hybrid.discovery._report import _correlations, _jsonable
+from hybrid.discovery._report import _jsonable
+from hybrid.discovery._report_figures import _correlations
 from hybrid.discovery._residual_tests import confidence_bound
 from hybrid.cli import main
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from hybrid import RCNetwork
-from hybrid.discovery._diagnose import SPLIT_ORDER, DiagnoseSettings
+from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
 from hybrid.discovery._starts import baseline_design, baseline_starts
 from hybrid.core._models import Model
 from hybrid.core._problem import Problem, series_from_recording
@@ -56,7 +56,7 @@ def test_loop_screen_recovers_a_known_bouc_wen_loop():
     import jax.numpy as jnp
 
     from hybrid.discovery._starts import design_raws, loop_screen
-    from hybrid.discovery._effects import bouc_wen_state
+    from hybrid.discovery._hysteresis import bouc_wen_state
     from hybrid.data._recording import Recording
 
     settings = DiagnoseSettings()

@@ -8,10 +8,11 @@ import pytest
 import scipy.signal
 
 from hybrid import InputError, RCNetwork, make_drive
+from hybrid.discovery._effect_stack import EffectStack, extend
 from hybrid.discovery._effects import (
-    EFFECTS, BackRelaxation, Delay, Drift, EffectStack, Hysteresis, Resonance, Saturation,
-    affine_recurrence, bouc_wen_and_memory, bouc_wen_state, extend,
+    EFFECTS, BackRelaxation, Delay, Drift, Hysteresis, Resonance, Saturation, affine_recurrence,
 )
+from hybrid.discovery._hysteresis import bouc_wen_and_memory, bouc_wen_state
 from hybrid.ipmc._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
 
 DT = 1 / 30
@@ -268,7 +269,8 @@ def test_random_draws_stay_in_the_issue_ranges():
 def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     """`std_error_given_network` (a block of the full Fisher information) against an
     independent covariance computed with the network's parameters frozen."""
-    from hybrid.discovery._diagnose import DiagnoseSettings, _uncertainties
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+    from hybrid.discovery._evidence import _uncertainties
     from hybrid.core._models import Model
     from hybrid.core._readout import LinearReadout
     from hybrid.sensitivity import parameter_covariance

@@ -101,7 +101,8 @@ def _lapack_calls(lowered) -> set[str]:
 def test_no_lapack_call_in_diagnoses_batched_screens_on_two_recordings():
     """The hang's construct cannot come back unseen: a batched LAPACK call inside these loops fails here."""
     from hybrid.ipmc._virtual_ipmc import virtual_recording
-    from hybrid.discovery._diagnose import DiagnoseSettings, lanes_problem
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+    from hybrid.discovery._search import lanes_problem
     from hybrid.discovery._starts import (
         LOOP_RATES, N_JOINT_SCREEN, baseline_design, design_raws, loop_screen, mode_frequencies, mode_screen,
         screen_losses,

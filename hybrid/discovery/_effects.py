@@ -33,12 +33,9 @@ name               y(t)                                   parameters
   (dehydration, temperature); t counts from the recording's first sample.
 - Resonance: a mechanical mode of the cantilever (unity DC gain).
 
-[`EffectStack`][] wraps a simulation with effects and is itself a
-[`AbstractSimulation`][]: the fitter fits it like the RC network. Each effect
-has a switch in ``active`` (1 on, 0 off; an array, not a static flag), so that
-the discrepancy search fits every candidate with one compiled program, `vmap`-ed
-over the switches: with a switch at 0 the effect's parameters have exactly zero
-Jacobian columns and Levenberg–Marquardt (λI damping) leaves them in place.
+Each effect is an [`AbstractEffect`][]; [`EffectStack`][]
+(`hybrid.discovery._effect_stack`) applies them to a simulation. The Bouc–Wen
+state of the hysteresis is solved in `hybrid.discovery._hysteresis`.
 """
 
 from __future__ import annotations
@@ -47,15 +44,13 @@ import abc
 from typing import ClassVar
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Float
 
-from ..util._errors import InputError
+from ._hysteresis import bouc_wen_state
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
-from ..core._simulation import AbstractSimulation, perturb_raw
 
 
 class AbstractEffect(eqx.Module):
@@ -204,65 +199,6 @@ class Saturation(AbstractEffect):
         return out
 
 
-#: Largest |u| the Bouc–Wen phase is taken at: atanh(1 − 1e−12) ≈ 14, past which tanh is 1 in float64.
-_SATURATED = 1.0 - 1e-12
-
-
-def _bouc_wen_phase(v):
-    """How far along its branch the state v = σu is, in units of k·s: atanh v (v ≥ 0), atan v (v < 0)."""
-    # No clip at 0 in either branch: a clip's derivative at its bound is halved, and u = 0 is a
-    # common state (the neutral start).
-    return jnp.where(v >= 0, jnp.arctanh(jnp.clip(v, -_SATURATED, _SATURATED)), jnp.arctan(v))
-
-
-def _bouc_wen_unphase(t):
-    """The inverse of `_bouc_wen_phase`: tanh t (t ≥ 0), tan t (t < 0; t > −π/4 here)."""
-    return jnp.where(t >= 0, jnp.tanh(t), jnp.tan(jnp.clip(t, -1.5, 0.0)))
-
-
-def bouc_wen_state(s, k, initial=0.0):
-    """Normalised Bouc–Wen state u ∈ (−1, 1) of `s` (n = 2, γ = 0, rate k in 1/V).
-
-    The Bouc–Wen law dz = ds − β |ds| |z|^{n−1} z with n = 2, in u = √β z and
-    k = √β: du = k (ds − |ds| |u| u). While s moves one way (σ = sgn ds) the
-    state moves along v = σu as dv/dx = 1 − v|v| with x = k|Δs|, whose solution
-    is v = tanh(x + atanh v₀) for v ≥ 0 and v = tan(x + atan v₀) until v reaches
-    0 (then tanh). The state is solved exactly per sample (Δs constant), one
-    `lax.scan` step each: after a reversal u crosses 0 after k|Δs| = atan|u|
-    (≤ π/4) and is within 4 % of the new branch after 2/k more.
-
-    n = 2 rather than the common n = 1 (u → σ + (u − σ)e^{−k|Δs|}): the loop's
-    branches bend into saturation like tanh rather than like an exponential,
-    closer to a loop made of many play operators or Preisach relays. Fitted by
-    least squares on the training part of 60 s recordings of hidden Preisach
-    loops (true V_o, no noise), n = 1 chose wide loops that left 6.2, 18, 8.5
-    and 2.8× the noise variance held out, n = 2 1.7, 3.2, 0.9 and 2.4× (seeds 2,
-    7, 9, 13 of `experiments/hysteresis_limits.py`; n = 1 at commit e2c28d6).
-
-    `initial` is u at the first sample: the loop state that the unknown history
-    before the recording left (0: midway between the branches).
-    """
-    d = k * jnp.diff(s, prepend=s[:1])
-    sign = jnp.where(d >= 0, 1.0, -1.0).astype(s.dtype)
-
-    def step(u, x):
-        dx, sg = x
-        u = sg * _bouc_wen_unphase(jnp.abs(dx) + _bouc_wen_phase(sg * u))
-        return u, u
-
-    return lax.scan(step, jnp.asarray(initial, s.dtype), (d, sign))[1]
-
-
-def bouc_wen_and_memory(s, k):
-    """(u, ∂u/∂u₀): [`bouc_wen_state`][] from u₀ = 0, and how much of its initial state the loop keeps.
-
-    Both from one pass (a jvp in u₀). The memory is dimensionless, 1 at the
-    first sample; it falls towards 0 as s travels: the state forgets its start
-    once s has moved a few 1/k volts in one direction.
-    """
-    return jax.jvp(lambda u0: bouc_wen_state(s, k, u0), (jnp.zeros((), s.dtype),), (jnp.ones((), s.dtype),))
-
-
 class Hysteresis(AbstractEffect):
     """y = s + W u, u the Bouc–Wen state (n = 2, γ = 0) of s, solved exactly per sample.
 
@@ -403,151 +339,3 @@ class FrameTiming(AbstractEffect):
 EFFECTS: dict[str, type[AbstractEffect]] = {
     cls.name: cls for cls in (Delay, BackRelaxation, Saturation, Hysteresis, Drift, Resonance)
 }
-
-
-class EffectStack(AbstractSimulation):
-    """A simulation followed by physical effects: y = e_K(…e_1(inner(v_in))…).
-
-    **Arguments:**
-
-    - `inner`: the simulation being extended (e.g. [`RCNetwork`][]).
-    - `effects`: effect instances or names (see [`EFFECTS`][]), applied in that order.
-    - `active`: per-effect switch, 1 on and 0 off (default all on): an effect
-      contributes ``active·(effect(s) − s)``.
-
-    Its parameters are the inner simulation's plus every effect's (names are
-    unique); freeze, replace and fit them like any simulation's.
-    """
-
-    inner: AbstractSimulation
-    effects: tuple[AbstractEffect, ...]
-    active: Array
-    constraints: ClassVar[dict[str, Constraint]] = {}
-    units: ClassVar[dict[str, str]] = {}
-
-    def __init__(self, inner: AbstractSimulation, effects=(), active=None):
-        built = []
-        for effect in effects:
-            if isinstance(effect, str):
-                if effect not in EFFECTS:
-                    raise InputError(f"unknown effect {effect!r}: choose from {', '.join(EFFECTS)}")
-                effect = EFFECTS[effect]()
-            if not isinstance(effect, AbstractEffect):
-                raise InputError(f"effects must be effect names or AbstractEffect instances, got {effect!r}")
-            built.append(effect)
-        names = [n for e in built for n in e.constraints] + list(inner.parameter_names())
-        if len(set(names)) != len(names):
-            raise InputError(f"parameter names collide in {names}: use each effect once")
-        self.inner = inner
-        self.effects = tuple(built)
-        if active is None:
-            active = jnp.ones(len(built))
-        self.active = jnp.asarray(active, dtype=float)
-        if self.active.shape != (len(built),):
-            raise InputError(f"active needs one switch per effect ({len(built)}), got shape {self.active.shape}")
-
-    @property
-    def raw(self) -> dict[str, Array]:
-        """Every unconstrained value, inner and effects (read-only view)."""
-        out = dict(self.inner.raw)
-        for effect in self.effects:
-            out.update(effect.raw)
-        return out
-
-    @property
-    def effect_names(self) -> tuple[str, ...]:
-        return tuple(e.name for e in self.effects)
-
-    def simulate(self, v_in, dt):
-        s = self.inner.simulate(v_in, dt)
-        for on, effect in zip(self.active, self.effects):
-            s = s + on * (effect.apply(s, dt) - s)
-        return s
-
-    def parameters(self):
-        out = dict(self.inner.parameters())
-        for effect in self.effects:
-            out.update(effect.parameters())
-        return out
-
-    def parameter_names(self):
-        return tuple(self.inner.parameter_names()) + tuple(n for e in self.effects for n in e.constraints)
-
-    def parameter_units(self):
-        out = dict(self.inner.parameter_units())
-        for effect in self.effects:
-            out.update(effect.units)
-        return out
-
-    def parameter_constraints(self):
-        out = dict(self.inner.parameter_constraints())
-        for effect in self.effects:
-            out.update(effect.constraints)
-        return out
-
-    def plausible_ranges(self):
-        return self.inner.plausible_ranges()
-
-    def typical_ranges(self):
-        return self.inner.typical_ranges()
-
-    def default_frozen(self):
-        return self.inner.default_frozen()
-
-    def replace(self, **values):
-        own = {e.name: {k: v for k, v in values.items() if k in e.constraints} for e in self.effects}
-        rest = {k: v for k, v in values.items() if not any(k in e.constraints for e in self.effects)}
-        inner = self.inner.replace(**rest) if rest else self.inner
-        effects = tuple(e.with_values(**own[e.name]) if own[e.name] else e for e in self.effects)
-        return EffectStack(inner, effects, self.active)
-
-    def with_active(self, active) -> "EffectStack":
-        """The same stack with other switches (an array of 0/1 per effect)."""
-        return eqx.tree_at(lambda s: s.active, self, jnp.asarray(active, dtype=float))
-
-    def perturbed(self, key, scale, frozen=frozenset()):
-        keys = jax.random.split(key, len(self.effects) + 1)
-        inner = self.inner.perturbed(keys[0], scale, frozen)
-        effects = tuple(eqx.tree_at(lambda e: e.raw, effect, perturb_raw(effect.raw, k, scale, frozen))
-                        for k, effect in zip(keys[1:], self.effects))
-        return EffectStack(inner, effects, self.active)
-
-    def trainable(self, frozen):
-        spec = jax.tree_util.tree_map(lambda _: False, self)
-        spec = eqx.tree_at(lambda s: s.inner, spec, self.inner.trainable(frozen))
-        effects = tuple(
-            eqx.tree_at(lambda e: e.raw, jax.tree_util.tree_map(lambda _: False, e),
-                        {k: k not in frozen for k in e.raw})
-            for e in self.effects
-        )
-        return eqx.tree_at(lambda s: s.effects, spec, effects)
-
-    def derived(self, v_in, dt) -> dict[str, dict[str, float]]:
-        """Each active effect's derived quantities (see `AbstractEffect.derived`), on this drive."""
-        s = _simulate_compiled(self.inner, v_in, dt)
-        out = {}
-        for on, effect in zip(self.active, self.effects):
-            if float(on):  # a switched-off effect leaves s unchanged
-                out[effect.name] = effect.derived(s, dt)
-                s = s + on * (_apply_compiled(effect, s, dt) - s)
-        return out
-
-
-# Compiled once per effect type: run eagerly, a scan dispatches (and compiles) op by op.
-@eqx.filter_jit
-def _simulate_compiled(simulation, v_in, dt):
-    return simulation.simulate(v_in, dt)
-
-
-@eqx.filter_jit
-def _apply_compiled(effect, s, dt):
-    return effect.apply(s, dt)
-
-
-def extend(simulation: AbstractSimulation, *effects, **values) -> EffectStack:
-    """`simulation` followed by the named effects, with optional starting values.
-
-    >>> extend(RCNetwork(), "delay", "back_relaxation", relaxation_time_s=20.0)
-    """
-    stack = EffectStack(simulation, effects)
-    return stack.replace(**values) if values else stack

@@ -23,7 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._effects import Resonance, bouc_wen_and_memory
+from ._effects import Resonance
+from ._hysteresis import bouc_wen_and_memory
 from ..core._loop_safe_linalg import lstsq
 from ..core._parameters import Positive
 from ..core._problem import Problem

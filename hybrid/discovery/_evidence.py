@@ -1,0 +1,88 @@
+"""What `diagnose` reports about the fit it names: the model, its standard errors, its residual statistics.
+
+`_fitted_model` (the fitted simulation with only the named effect),
+`_uncertainties` (standard errors in physical units, inflated for the
+residual's autocorrelation) and `_evidence` (held-out residual statistics of
+the baseline and the extended model).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import _residual_tests as rt
+from ._diagnosis import SPLIT_ORDER
+from ._effect_stack import EffectStack
+from ._effects import FrameTiming
+from ..core._models import Model
+from ..core._problem import Problem
+
+
+def _fitted_model(problem: Problem, theta, cause: str) -> Model:
+    """The fitted simulation with only the named effect (or none), the frame timing, gain and offset."""
+    model = problem.model(jnp.asarray(theta))
+    stack = model.simulation
+    effects = tuple(e for e in stack.effects if e.name in (cause, FrameTiming.name))
+    simulation = EffectStack(stack.inner, effects)
+    return Model(simulation, model.readout, "physics")
+
+
+def _uncertainties(model: Model, recordings, settings, residual_heldout, keep=None) -> dict:
+    """Standard errors, in physical units, of `model`'s free parameters (those in `keep`, if given).
+
+    `model` may be the search's universal model with some effects switched off:
+    their parameters have zero Jacobian columns, which leave the others'
+    covariance unchanged, and one compiled Jacobian serves every cause.
+
+    ``std_error``: the Gauss–Newton covariance of
+    [`hybrid.sensitivity.parameter_covariance`][] on the training part, inflated
+    by the held-out residual's autocorrelation (`effective_sample_factor`:
+    correlated residuals carry less information). The RC network's parameters
+    are nearly collinear (ξρ, C_clamp and the α's trade off), and an effect
+    whose parameter trades off with them inherits that spread.
+    ``std_error_given_network`` (effect, frame timing, gain and offset only) is
+    the standard error with the network's parameters held at their fitted
+    values, from the Fisher information of the other parameters alone: how well
+    the data fix the effect once the network is fixed — a lower bound on the
+    marginal error.
+    """
+    from ..sensitivity import parameter_covariance
+
+    covariance = parameter_covariance(model, recordings, frozen=settings.frozen_for(model.simulation), split=settings.split,
+                                      split_order=SPLIT_ORDER, blocks=settings.blocks)
+    inflation = rt.effective_sample_factor(residual_heldout)
+    keep = set(covariance.names) if keep is None else set(keep)
+    out = {name: {"std_error": std * math.sqrt(inflation), "unit": covariance.units[name],
+                  "inflation": inflation}
+           for name, std in covariance.std_errors.items() if name in keep}
+    network = set(model.simulation.inner.parameter_names())
+    rest = [i for i, name in enumerate(covariance.names) if name not in network and name in keep]
+    if rest:
+        fisher = covariance.fisher[np.ix_(rest, rest)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            variance = np.diag(np.linalg.pinv(fisher, rcond=1e-12, hermitian=True))
+        for i, v in zip(rest, variance):
+            se = math.sqrt(v * inflation) if np.isfinite(v) and v > 0 else float("inf")
+            out[covariance.names[i]]["std_error_given_network"] = se
+    return out
+
+
+def _evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> dict:
+    """Residual statistics of the baseline and the extended model on held-out data."""
+    out = {"n_heldout": int(len(w)), "rate_hz": float(rate), "bound_99": rt.confidence_bound(len(w))}
+    for key, w_hat in (("baseline", w_hat_base), ("extended", w_hat_ext)):
+        e = w - w_hat
+        lags, ccf = rt.cross_correlation(e, v, max_lag)
+        acf = rt.autocorrelation(e, max_lag)
+        out[key] = {
+            "ljung_box": rt.ljung_box(e),
+            "acf_outside_bound": int(np.sum(np.abs(acf[1:]) > out["bound_99"])),
+            "ccf_outside_bound": int(np.sum(np.abs(ccf) > out["bound_99"])),
+            "loop_separation_mm": rt.loops(e, v)["separation"],
+            "segment_nmse": rt.segment_errors(w, w_hat).tolist(),
+        }
+    return out
+

@@ -1,0 +1,188 @@
+"""The search of `diagnose`: Levenberg–Marquardt lanes, all in one compiled program.
+
+A lane is one LM run from its own start with its own switches: every effect
+lives in one [`EffectStack`][] (`_universal_model`), and a lane switches on at
+most one of them; `_fit_lanes` runs a batch of lanes one after another inside a
+single compiled program. Also here: the least-squares problem every lane shares
+(`lanes_problem`), its predictions on each part of the split (`_predictions`,
+`_signals`), and the data-scaled starting values of each effect (`_starts`,
+`_best_lag`); the screened starts are in `hybrid.discovery._starts`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._diagnosis import SPLIT_ORDER, DiagnoseSettings
+from ._effect_stack import EffectStack
+from ._effects import EFFECTS, FrameTiming
+from ._starts import train_signal
+from ..util._errors import InputError
+from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
+from ..core._models import Model
+from ..core._problem import Problem, series_from_recording
+from ..core._readout import LinearReadout
+
+#: LM runs per stage (baseline starts; candidate starts, padded): one compiled program.
+N_LANES = 16
+
+
+# --------------------------------------------------------------------------- #
+# Batched LM over lanes (one compiled program for every candidate)
+# --------------------------------------------------------------------------- #
+
+
+def _with_active(problem: Problem, active, tangents=None):
+    """The problem with the effects' switches (and Jacobian directions) of one lane."""
+    problem = eqx.tree_at(lambda p: p.sim_static.active, problem, active)
+    if tangents is not None:
+        problem = eqx.tree_at(lambda p: p.sim_tangents, problem, tangents, is_leaf=lambda x: x is None)
+    return problem
+
+
+def _lane_tangents(model: Model, frozen, effect: str | None, n_rows: int) -> np.ndarray:
+    """Unit directions in θ_sim for the inner simulation's free parameters and one effect's."""
+    labels = _sim_labels(model.simulation, frozen)
+    wanted = [n for n in model.simulation.inner.parameter_names() if n not in frozen]
+    wanted += [n for n in FrameTiming.constraints if n not in frozen]
+    if effect is not None:
+        wanted += [n for n in EFFECTS[effect].constraints if n not in frozen]
+    basis = np.zeros((n_rows, len(labels)))
+    for row, name in enumerate(wanted):
+        basis[row, labels.index(name)] = 1.0
+    return basis
+
+
+@eqx.filter_jit
+def _fit_lanes_compiled(problem, actives, tangents, thetas, patience, settings):
+    def one(lane):
+        active, basis, theta = lane
+        p = _with_active(problem, active, basis)
+        return lm_run(p, lm_init(p, theta, settings), settings, settings.max_steps, patience)
+
+    # Lanes run one after another inside one program: each stops when it converges
+    # (a vmap would run every lane until the slowest is done).
+    return jax.lax.map(one, (actives, tangents, thetas))
+
+
+def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience: int):
+    """LM from each (switches, Jacobian directions, θ₀) lane; one compiled program per lane count.
+
+    `patience` is an argument of the program, not part of it: the stages share one compilation.
+    """
+    return _fit_lanes_compiled(problem, jnp.asarray(actives, float), jnp.asarray(tangents, float),
+                               jnp.asarray(thetas), jnp.asarray(patience, jnp.int32), settings)
+
+
+def _search_problem(model: Model, series, frozen) -> tuple[Problem, int]:
+    """The least-squares problem every lane shares, and its number of Jacobian directions.
+
+    A lane fits the inner simulation's free parameters, the frame timing and at
+    most one effect: `n_rows` directions, whichever effect a lane switches on.
+    """
+    simulation = model.simulation.inner
+    n_rows = len([n for n in simulation.parameter_names() if n not in frozen]) + len(FrameTiming.constraints) + max(
+        len(e.constraints) for e in EFFECTS.values())
+    n_sim = len(_sim_labels(model.simulation, frozen))
+    return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
+
+
+def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
+    """(problem, n_rows, model, series): the least-squares problem `diagnose` fits on `recordings`.
+
+    Its θ is the layout of `Diagnosis.lanes[i]["theta"]`; `_signals(problem, theta,
+    active, split)` predicts a lane on a split.
+    """
+    model = _universal_model(simulation)
+    series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
+    problem, n_rows = _search_problem(model, series, frozenset(settings.frozen_for(simulation)))
+    return problem, n_rows, model, series
+
+
+def _universal_model(simulation) -> Model:
+    """Every effect (switched off) and, last and always on, the camera's frame timing."""
+    stack = EffectStack(simulation, tuple(EFFECTS) + (FrameTiming(),), active=jnp.zeros(len(EFFECTS) + 1))
+    return Model(stack, LinearReadout(), "physics")
+
+
+@eqx.filter_jit
+def _initial_theta(problem, simulation, readout, frozen):
+    """θ for `simulation` with the least-squares gain and offset on the training part (compiled once)."""
+    readout = readout.initialise(train_signal(problem, simulation), problem.target("train"))
+    return problem.flatten(Model(simulation, readout, "physics"), frozen)
+
+
+@eqx.filter_jit
+def _predictions(problem, active, theta):
+    """ŵ on every part (`SPLIT_ORDER`) from one simulation (one compiled program for all)."""
+    p = _with_active(problem, active)
+    sim_theta, readout_theta = p.split_theta(theta)
+    readout = p.readout(readout_theta)
+    signals = p._signals(sim_theta)
+    return {split: jax.vmap(readout.predict_window)(p._windows(readout, signals, split)) for split in SPLIT_ORDER}
+
+
+def _signals(problem, theta, active, split):
+    """(drive, w, ŵ) on `split` ("train", "validation" or "test"), all recordings concatenated."""
+    v = np.concatenate([np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.segments_of(split)])
+    w_hat = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
+    return v, np.asarray(problem.target(split)), np.asarray(w_hat)
+
+
+def _sim_labels(stack: EffectStack, frozen) -> list[str]:
+    """The parameter name of each entry of θ_sim (`ravel_pytree` order: dict keys sorted)."""
+    labels = [n for n in sorted(stack.inner.raw) if n not in frozen]
+    for effect in stack.effects:
+        labels += [n for n in sorted(effect.raw) if n not in frozen]
+    return labels
+
+
+def _starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
+    """Data-scaled starting values for an effect's parameters (a few per effect)."""
+    span = max(float(np.ptp(s_base)), 1e-9)
+    top = max(float(np.max(np.abs(s_base))), 1e-9)
+    pos = max(float(np.max(s_base)), 0.05 * top)
+    neg = max(float(-np.min(s_base)), 0.05 * top)
+    dt = 1.0 / rate
+    if name == "delay":
+        # The objective is multimodal in the dead time (one basin per few samples):
+        # the lag that best aligns the baseline; `delay_starts` adds screened ones.
+        return [{"delay_s": max(lag_samples - 0.25, 0.75) * dt}]
+    if name == "back_relaxation":
+        return [{"relaxation_time_s": 5.0, "relaxation_fraction": 0.3},
+                {"relaxation_time_s": min(30.0, duration / 3), "relaxation_fraction": 0.5},
+                {"relaxation_time_s": 3.0, "relaxation_fraction": 0.8}]
+    if name == "saturation":
+        # Curvatures whose shortfall at the largest |s| is about 3 % (next to the
+        # baseline, so LM can only improve on it), 13 % and 35 %.
+        return [{"saturation_pos_per_v": 0.3 / pos, "saturation_neg_per_v": 0.3 / neg},
+                {"saturation_pos_per_v": 1 / (1.5 * pos), "saturation_neg_per_v": 1 / (1.5 * neg)},
+                {"saturation_pos_per_v": 1 / (0.8 * pos), "saturation_neg_per_v": 1 / (0.8 * neg)}]
+    if name == "hysteresis":
+        return [{"hysteresis_height_v": 0.03 * span, "hysteresis_rate_per_v": 10.0 / span},
+                {"hysteresis_height_v": 0.1 * span, "hysteresis_rate_per_v": 40.0 / span}]
+    if name == "drift":
+        return [{"drift_rate_per_s": 0.0}]
+    if name == "resonance":
+        nyquist = 0.5 * rate
+        # The residual's spectral peak; `resonance_starts` adds a screened one.
+        guess = resid_peak_hz if resid_peak_hz and 0.5 <= resid_peak_hz < nyquist else 0.3 * rate
+        return [{"resonance_frequency_hz": guess, "resonance_damping": 0.1}]
+    raise InputError(f"unknown effect {name!r}")
+
+
+def _best_lag(w, w_hat, max_lag):
+    """Whole-sample lag of ŵ that best explains w by a gain and offset (0 if none helps)."""
+    best, best_err = 0, np.inf
+    for lag in range(0, max_lag + 1):
+        x = np.concatenate([np.full(lag, w_hat[0]), w_hat[: len(w_hat) - lag]])
+        design = np.stack([x, np.ones_like(x)], axis=1)
+        coef, *_ = np.linalg.lstsq(design, w, rcond=None)
+        err = np.mean((w - design @ coef) ** 2)
+        if err < best_err * (1 - 1e-6):
+            best, best_err = lag, err
+    return best
+
