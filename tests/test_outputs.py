@@ -80,7 +80,7 @@ def refuse_to_compute(monkeypatch):
         raise AssertionError("computed before checking the outputs")
 
     monkeypatch.setattr(hybrid.core._fit, "fit", boom)
-    monkeypatch.setattr(hybrid.discovery._diagnose, "diagnose", boom)
+    monkeypatch.setattr(hybrid.ipmc._defaults, "diagnose", boom)  # what the CLI calls
     monkeypatch.setattr(hybrid.ipmc._virtual_ipmc, "virtual_recording", boom)
     monkeypatch.setattr(hybrid.ipmc._table2, "reproduce_table2", boom)
     monkeypatch.setattr(hybrid.ipmc._sensitivity_study, "run_sensitivity_study", boom)
