@@ -1,0 +1,380 @@
+"""Where an unexplained remainder lives: cheap extensions fitted to the final residual.
+
+When the final model's held-out error stays above the measurement-noise floor,
+`describe_remainder` says what kind of thing the simulation still misses by
+fitting simple extensions to the residual r = w − ŵ and reporting how much of
+the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
+
+- **offset**: the training mean of r (the baseline every map includes).
+- **static, drive**: binned means of r on training quantile bins of the drive
+  level v (every level its own bin for a multilevel drive), interpolated
+  linearly. On a grid symmetric about v = 0 (both signs driven) the map's
+  variance splits exactly into an even and an odd part; **one-sidedness** is the
+  map's rms on positive vs negative drive; **flat near zero** compares the
+  slope of w (recording) and of ŵ (model) on v for |v| < ¼ max|v| with their
+  slope outside (a dead zone); **bend at the ends** is the change of the slope
+  of r on v from the middle to the outer third of each side, relative to the
+  model's gain (saturation, stiffening).
+- **static, output**: a map of the simulation's output, w ≈ g(ŵ), fitted
+  monotone (pool-adjacent-violators, increasing or decreasing, whichever fits
+  training better) and as free binned means of r on ŵ.
+- **rate**: binned means of r on dv/dt (differences within a segment × rate).
+- **time**: a cubic polynomial in absolute time (held-out blocks interleave
+  with training blocks, so a trend fitted on one applies to the other; held
+  out beyond the training span, it stays at its value at the end).
+- **linear filter**: ridge least squares of r on the lags 0..L of v, and of ŵ
+  (L ≈ rate × 1 s, at most 60), never across a segment change; its frequency
+  response up to Nyquist for the figure.
+
+Every extension is fitted on `train` and judged on `heldout`: a flexible fit
+always explains some of its training noise, so only a held-out gain shows
+structure. ``of_excess`` is a gain over the held-out MSE above the noise
+floor; ``kind`` names the simplest family within 0.05 of the best (static,
+time, dynamic), or "unstructured" below 20 % of the excess (2 % of the MSE).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MIN_SAMPLES = 50          # fewer held-out (or training) samples: no description
+MIN_BIN = 5               # samples a bin needs to be kept
+UNSTRUCTURED_EXCESS = 0.2  # below this fraction of the excess recovered: "unstructured"
+UNSTRUCTURED_MSE = 0.02    # ... or below this fraction of the held-out MSE
+MARGIN = 0.05             # a more complex family must beat a simpler one by this much
+SIGNIFICANT = 3.0         # standard errors the held-out MSE must exceed the floor by to have an excess
+KEYS = ("t", "v_in", "w", "w_hat", "segment")
+#: Each extension's family, in order of preference within its family (the first within MARGIN of the best).
+FAMILY = {"static_drive": "static", "static_output_monotone": "static", "static_output_free": "static",
+          "filter_drive": "dynamic", "rate": "dynamic", "filter_output": "dynamic", "time": "time"}
+ORDER = ("static", "time", "dynamic")
+
+
+def _num(x, digits: int = 4):
+    """A JSON float of `digits` significant digits (None for a non-finite value)."""
+    return float(f"{float(x):.{digits}g}") if np.isfinite(x) else None
+
+
+def _list(a) -> list:
+    return [_num(x) for x in np.asarray(a, float).ravel()]
+
+
+def _prepare(part: dict) -> dict:
+    """Arrays of finite samples, with a run id that changes at every segment change or dropped sample."""
+    a = {k: np.asarray(part[k], float).ravel() for k in KEYS}
+    n = len(a["t"])
+    if any(len(a[k]) != n for k in KEYS):
+        raise ValueError("t, v_in, w, w_hat and segment must have equal lengths")
+    ok = np.isfinite(np.column_stack([a[k] for k in KEYS])).all(axis=1) if n else np.zeros(0, bool)
+    brk = np.r_[True, (a["segment"][1:] != a["segment"][:-1]) | ~ok[:-1]][:n]
+    run = np.cumsum(brk)[ok]
+    out = {k: a[k][ok] for k in KEYS}
+    out["r"] = out["w"] - out["w_hat"]
+    starts = np.flatnonzero(np.r_[True, run[1:] != run[:-1]]) if len(run) else np.zeros(0, int)
+    out["pos"] = np.arange(len(run)) - np.repeat(starts, np.diff(np.r_[starts, len(run)]))
+    return out
+
+
+def _binned(x, y, max_bins: int):
+    """Bin centres (mean x) and mean y: each distinct level its own bin when few, else quantile bins."""
+    levels = np.unique(x)
+    if len(levels) <= max_bins:
+        b = np.searchsorted(levels, x)
+    else:
+        edges = np.unique(np.quantile(x, np.linspace(0, 1, max_bins + 1)[1:-1]))
+        b = np.searchsorted(edges, x, side="right")
+    count = np.bincount(b)
+    keep = count >= MIN_BIN
+    sx, sy = np.bincount(b, x)[keep], np.bincount(b, y)[keep]
+    return sx / count[keep], sy / count[keep], count[keep].astype(float)
+
+
+def _interp(x, centres, values):
+    return np.interp(x, centres, values) if len(centres) else np.zeros_like(x)
+
+
+def _pava(y, weight):
+    """Increasing isotonic regression of `y` (already ordered by x) with weights: pool adjacent violators."""
+    vals, wts, cnts = [], [], []
+    for yi, wi in zip(y, weight):
+        vals.append(float(yi)); wts.append(float(wi)); cnts.append(1)
+        while len(vals) > 1 and vals[-2] > vals[-1]:
+            v2, w2, c2 = vals.pop(), wts.pop(), cnts.pop()
+            v1, w1, c1 = vals.pop(), wts.pop(), cnts.pop()
+            vals.append((v1 * w1 + v2 * w2) / (w1 + w2)); wts.append(w1 + w2); cnts.append(c1 + c2)
+    return np.repeat(vals, cnts)
+
+
+def _lags(x, pos, lags: int):
+    """Rows (indices) with a full window of `lags` past samples inside their own run, and the lag matrix."""
+    rows = np.flatnonzero(pos >= lags)
+    return rows, x[rows[:, None] - np.arange(lags + 1)[None, :]]
+
+
+def _slope(x, y, extra=None):
+    """Least-squares slope of y on x (with an intercept and optional extra columns); None when x is constant."""
+    if len(x) < 20 or len(np.unique(x)) < 2:
+        return None
+    cols = [x, np.ones_like(x)] + ([] if extra is None else [extra])
+    coef = np.linalg.lstsq(np.column_stack(cols), y, rcond=None)[0]
+    return float(coef[0])
+
+
+class _Judge:
+    """Held-out gain of a prediction of r: fraction of the MSE removed, and of the excess over the floor."""
+
+    def __init__(self, r, floor):
+        self.r, self.mse = r, float(np.mean(r * r))
+        self.floor = float(floor) if floor is not None and np.isfinite(floor) and floor > 0 else None
+        self.excess, self.reason = None, None
+        if self.floor is not None:
+            excess = self.mse - self.floor
+            if excess <= SIGNIFICANT * self.mse * np.sqrt(2.0 / len(r)):  # sd of a mean square of white noise
+                self.reason = "the held-out MSE is within sampling error of the noise floor"
+            else:
+                self.excess = excess
+
+    def __call__(self, pred) -> dict:
+        removed = self.mse - float(np.mean((self.r - pred) ** 2))
+        of_excess = None if self.excess is None else _num(min(max(removed / self.excess, 0.0), 1.0))
+        return {"fraction": _num(removed / self.mse), "of_excess": of_excess}
+
+
+def _drive_shape(tr, centres, values) -> dict:
+    """Even/odd split, one-sidedness, flat near zero and bend at the ends of the drive map."""
+    v, out = tr["v_in"], {}
+    vmax = float(np.max(np.abs(v)))
+    a = min(float(v.max()), float(-v.min()))
+    if a <= 0.1 * vmax:
+        why = "the drive never takes both signs" if a <= 0 else "the drive barely takes one of its signs"
+        out["symmetry"] = out["one_sided"] = {"reason": why}
+    else:
+        g = np.linspace(0.0, a, 51)
+        fp, fn = _interp(g, centres, values), _interp(-g, centres, values)
+        even, odd = np.var((fp + fn) / 2), np.mean(((fp - fn) / 2) ** 2)
+        total = even + odd
+        out["symmetry"] = ({"even": _num(even / total), "odd": _num(odd / total)} if total > 0
+                           else {"reason": "the map of the drive is constant"})
+        pos, neg = np.sqrt(np.mean((fp - fp[0]) ** 2)), np.sqrt(np.mean((fn - fn[0]) ** 2))
+        ratio = max(pos, neg) / min(pos, neg) if min(pos, neg) > 0 else (np.inf if max(pos, neg) > 0 else 1.0)
+        out["one_sided"] = {"positive": _num(pos), "negative": _num(neg), "ratio": _num(min(ratio, 1e6)),
+                            "side": ("positive" if pos > neg else "negative") if ratio >= 3 else None,
+                            "flag": bool(ratio >= 3)}
+    near = np.abs(v) <= 0.25 * vmax
+    ratios = {}
+    for name, y in (("recording", tr["w"]), ("model", tr["w_hat"])):
+        inner = _slope(v[near], y[near])
+        outer = _slope(v[~near], y[~near], (v[~near] > 0).astype(float))
+        ratios[name] = inner / outer if inner is not None and outer not in (None, 0.0) else None
+    if None in ratios.values() or np.std(v[near]) < 0.05 * 0.25 * vmax:
+        out["flat_near_zero"] = {"reason": "too few distinct drive levels near zero"}
+    else:
+        rec, mod = ratios["recording"], ratios["model"]
+        which = "recording" if rec < 0.4 and mod > 0.6 else "model" if mod < 0.4 and rec > 0.6 else None
+        out["flat_near_zero"] = {"recording": _num(rec), "model": _num(mod), "which": which, "flag": which is not None}
+    gain = _slope(v, tr["w_hat"])
+    bend = {}
+    for side, s in (("positive", 1.0), ("negative", -1.0)):
+        x = s * v
+        top = float(x.max()) if len(x) else 0.0
+        mid, end = (x > top / 3) & (x <= 2 * top / 3), x > 2 * top / 3
+        sm, se = _slope(v[mid], tr["r"][mid]), _slope(v[end], tr["r"][end])
+        bend[side] = _num((se - sm) / gain) if top > 0 and None not in (sm, se) and gain else None
+    found = [b for b in bend.values() if b is not None]
+    out["bend_at_ends"] = (dict(bend, flag=bool(max(abs(b) for b in found) > 0.25)) if found
+                           else {"reason": "too few distinct drive levels at the ends"})
+    return out
+
+
+def _filter(tr, ho, key, lags, rate, judge) -> dict:
+    """Ridge FIR of r on lags 0..`lags` of `key`, within runs; held-out gain and frequency response."""
+    rows, x = _lags(tr[key], tr["pos"], lags)
+    hrows, hx = _lags(ho[key], ho["pos"], lags)
+    if len(rows) < 4 * (lags + 1) or len(hrows) < MIN_SAMPLES:
+        return {"reason": f"too few samples with {lags} past samples inside a segment"}
+    xm, ym = x.mean(axis=0), tr["r"][rows].mean()
+    xc = x - xm  # einsum, not BLAS: a multi-threaded BLAS is many times slower on a busy machine
+    gram = np.einsum("ni,nj->ij", xc, xc)
+    ridge = 1e-3 * np.trace(gram) / gram.shape[0] + 1e-300
+    h = np.linalg.solve(gram + ridge * np.eye(gram.shape[0]), np.einsum("ni,n->i", xc, tr["r"][rows] - ym))
+    pred = np.zeros_like(ho["r"])
+    pred[hrows] = np.einsum("ni,i->n", hx - xm, h) + ym
+    f = np.linspace(0.0, rate / 2, 100)
+    resp = np.exp(-2j * np.pi * np.outer(f / rate, np.arange(lags + 1))) @ h
+    db = 20 * np.log10(np.abs(resp) + 1e-300)
+    return dict(judge(pred), lags=int(lags), fit_rows=int(len(rows)),
+                response={"f_hz": _list(f), "magnitude_db": _list(np.maximum(db, db.max() - 120.0)),
+                          "phase_deg": _list(np.degrees(np.unwrap(np.angle(resp))))})
+
+
+def _unavailable(why: str, n_tr: int, n_ho: int) -> dict:
+    """The description when there is nothing to judge: every part a reason."""
+    return {"n_train": n_tr, "n_heldout": n_ho, "reason": why, "recovered": {"reason": why},
+            "kind": "unstructured", "summary": f"no description of the remainder: {why}"}
+
+
+def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: float) -> dict:
+    """Where the residual r = w − ŵ lives: each measure fitted on `train`, judged on `heldout`.
+
+    `train` and `heldout` hold 1-D arrays "t", "v_in", "w", "w_hat", "segment"
+    (samples of a segment are contiguous; lags and differences stay inside
+    one). `rate` is the sampling rate (Hz); `floor_variance` the measurement
+    noise variance of w (None or ≤ 0: unknown). Returns a JSON-able dict:
+    "offset", "static", "rate", "time", "linear_filter" (each with held-out
+    "fraction" and "of_excess"), "recovered" (best gain; "named": the one the
+    summary names), "kind" (the rate map and filters count as dynamic) and
+    "summary"; a part that cannot be computed carries a "reason" instead.
+    """
+    tr, ho = _prepare(train), _prepare(heldout)
+    n_tr, n_ho = len(tr["r"]), len(ho["r"])
+    if n_ho < MIN_SAMPLES or n_tr < MIN_SAMPLES:
+        return _unavailable(f"too few samples ({n_tr} training, {n_ho} held-out; {MIN_SAMPLES} needed)", n_tr, n_ho)
+    rate = float(rate)
+    if not np.isfinite(rate) or rate <= 0:
+        raise ValueError(f"rate must be a positive number of samples per second, not {rate}")
+    judge = _Judge(ho["r"], floor_variance)
+    if judge.mse == 0.0:
+        return _unavailable("the held-out residual is exactly zero", n_tr, n_ho)
+    bins = int(np.clip(np.sqrt(n_tr) / 2, 4, 30))
+    scores = {}
+
+    # Static: the drive level.
+    c, m, _ = _binned(tr["v_in"], tr["r"], bins)
+    drive = judge(_interp(ho["v_in"], c, m))
+    stride = -(-n_ho // 200)  # at most 200 points for the figure
+    drive.update(curve={"v": _list(c), "r": _list(m)},
+                 points={"v": _list(ho["v_in"][::stride]), "r": _list(ho["r"][::stride])})
+    static = {"drive": drive, **_drive_shape(tr, c, m)}
+    scores["static_drive"] = drive
+
+    # Static: the simulation's output, monotone (w ≈ g(ŵ)) and free.
+    xc, wy, wt = _binned(tr["w_hat"], tr["w"], 100)
+    fits = [(float(np.sum(wt * (g - wy) ** 2)), name, g) for sign, name in ((1.0, "increasing"), (-1.0, "decreasing"))
+            for g in [sign * _pava(sign * wy, wt)]]
+    _, direction, g = min(fits, key=lambda fit: fit[0])
+    mono = judge(_interp(ho["w_hat"], xc, g - xc))  # r̂ = g(ŵ) − ŵ, constant beyond the training range
+    static["output_monotone"] = dict(mono, direction=direction)
+    c2, m2, _ = _binned(tr["w_hat"], tr["r"], bins)
+    static["output_free"] = judge(_interp(ho["w_hat"], c2, m2))
+    scores["static_output_monotone"], scores["static_output_free"] = mono, static["output_free"]
+
+    # Rate: dv/dt within segments (no prediction for the first sample of a run).
+    ktr, kho = np.flatnonzero(tr["pos"] >= 1), np.flatnonzero(ho["pos"] >= 1)
+    if len(ktr) < MIN_SAMPLES or len(kho) < MIN_SAMPLES:
+        rate_part = {"reason": "too few samples inside segments to take differences"}
+    else:
+        c3, m3, _ = _binned((tr["v_in"][ktr] - tr["v_in"][ktr - 1]) * rate, tr["r"][ktr], bins)
+        pred = np.zeros(n_ho)
+        pred[kho] = _interp((ho["v_in"][kho] - ho["v_in"][kho - 1]) * rate, c3, m3)
+        rate_part = dict(judge(pred), curve={"dv_dt": _list(c3), "r": _list(m3)})
+        scores["rate"] = rate_part
+
+    # Time: a cubic in absolute time, scaled on the training span.
+    t0, t1 = float(tr["t"].min()), float(tr["t"].max())
+    if t1 <= t0:
+        time_part = {"reason": "the training samples share one time stamp"}
+    else:
+        scale = lambda t: (2.0 * t - t0 - t1) / (t1 - t0)  # noqa: E731
+        coef = np.polynomial.polynomial.polyfit(scale(tr["t"]), tr["r"], 3)
+        held = np.clip(scale(ho["t"]), -1.0, 1.0)  # constant beyond the training span, never extrapolated
+        time_part = dict(judge(np.polynomial.polynomial.polyval(held, coef)), degree=3)
+        scores["time"] = time_part
+
+    # Linear filter: lagged drive and lagged model output.
+    lags = int(min(60, max(1, round(rate * 1.0))))
+    filt = {"drive": _filter(tr, ho, "v_in", lags, rate, judge), "output": _filter(tr, ho, "w_hat", lags, rate, judge)}
+    scores.update({f"filter_{key}": part for key, part in filt.items() if "fraction" in part})
+
+    offset = judge(np.full(n_ho, tr["r"].mean()))
+    out = {"n_train": n_tr, "n_heldout": n_ho, "heldout_mse": _num(judge.mse),
+           "floor_variance": _num(judge.floor) if judge.floor is not None else None,
+           "offset": offset, "static": static, "rate": rate_part, "time": time_part, "linear_filter": filt}
+    out.update(_verdict(scores, judge, static, offset))
+    return out
+
+
+def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
+    """Best extension, kind (simplest family within MARGIN of the best) and the one-sentence summary."""
+    def score(p):
+        return p["of_excess"] if judge.excess is not None else max(p["fraction"] or 0.0, 0.0)
+
+    best = max(scores, key=lambda k: (scores[k]["fraction"] or -np.inf))
+    rec = {"best": best, "fraction": scores[best]["fraction"], "of_excess": scores[best]["of_excess"], "named": None}
+    if judge.reason:
+        rec["reason"] = judge.reason
+    family = {f: max((score(p) for k, p in scores.items() if FAMILY[k] == f), default=0.0) for f in ORDER}
+    top = max(family.values())
+    where = "of the held-out error above the noise floor" if judge.excess is not None else "of the held-out error"
+    frac = scores[best]["fraction"] or 0.0
+    if top < UNSTRUCTURED_EXCESS or frac < UNSTRUCTURED_MSE:
+        why = f" ({judge.reason})" if judge.reason else ""
+        return {"recovered": rec, "kind": "unstructured",
+                "summary": f"no simple structure: nothing recovers more than {100 * max(top, 0):.0f} % {where}{why}"}
+    kind = next(f for f in ORDER if family[f] >= top - MARGIN)
+    pct = lambda k: f"{100 * score(scores[k]):.0f} %"  # noqa: E731
+    inkind = next(k for k in FAMILY if k in scores and FAMILY[k] == kind and score(scores[k]) >= family[kind] - MARGIN)
+    rec["named"] = inkind
+    best_static = max((k for k in scores if FAMILY[k] == "static"), key=lambda k: score(scores[k]))
+    if kind == "static" and inkind == "static_drive":
+        sym = static.get("symmetry", {})
+        char = " and even" if (sym.get("even") or 0) > 0.8 else " and odd" if (sym.get("odd") or 0) > 0.8 else ""
+        text = f"static{char} in the drive: a function of the drive level recovers {pct(inkind)} {where}"
+        notes = [f"one-sided ({static['one_sided']['side']} drive)" if static["one_sided"].get("flag") else "",
+                 f"the {static['flat_near_zero']['which']} is flat near zero drive (dead zone)"
+                 if static["flat_near_zero"].get("flag") else "",
+                 "it bends at the largest drive levels" if static["bend_at_ends"].get("flag") else ""]
+        text += "".join(f"; {n}" for n in notes if n)
+    elif kind == "static":
+        how = "a monotone" if inkind == "static_output_monotone" else "a"
+        text = f"static on the model's output: {how} map of the simulation's output recovers {pct(inkind)} {where}"
+    elif kind == "dynamic":
+        what = {"filter_drive": "a linear filter of the drive", "filter_output": "a linear filter of the model's output",
+                "rate": "a function of the drive's rate dv/dt"}[inkind]
+        weak = score(scores[best_static]) < 0.5 * family["dynamic"]
+        text = (f"dynamic: {what} recovers {pct(inkind)} {where}; "
+                + (f"no static map does (best {pct(best_static)})" if weak else f"the best static map {pct(best_static)}"))
+    else:
+        text = f"a trend in time (drift): a smooth function of time recovers {pct(inkind)} {where}"
+    if score(offset) >= 0.8 * top:
+        text += f"; mostly a constant offset (the training mean alone recovers {100 * score(offset):.0f} %)"
+    return {"recovered": rec, "kind": kind, "summary": text}
+
+
+def plot_remainder(description: dict, path) -> None:
+    """Two panels: the residual against drive level with the learned map, and the filters' gain."""
+    from ..util._figures import _pyplot, save_png
+
+    plt = _pyplot()
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    drive = description.get("static", {}).get("drive", {})
+    if "curve" in drive:  # the held-out points and the map fitted on training
+        left.scatter(drive["points"]["v"], drive["points"]["r"], s=5, color="0.6", alpha=0.6, label="held-out residual")
+        left.plot(drive["curve"]["v"], drive["curve"]["r"], "C3-o", ms=3, lw=1.8, label="map fitted on training")
+        sym = description["static"].get("symmetry", {})
+        char = (f"even {100 * sym['even']:.0f} %, odd {100 * sym['odd']:.0f} %" if "even" in sym
+                else sym.get("reason", ""))
+        left.set_title(f"Residual against drive level ({char}); recovers {_pct(drive)}", fontsize=9)
+        left.legend(fontsize=8)
+    else:
+        left.text(0.5, 0.5, description.get("reason", "no map"), ha="center", transform=left.transAxes)
+    left.axhline(0.0, color="0.5", lw=0.6)
+    left.set(xlabel="drive v_in (V)", ylabel="residual w − ŵ")
+    for key, label, colour in (("drive", "of the drive (per V)", "C0"), ("output", "of the model's output", "C2")):
+        part = description.get("linear_filter", {}).get(key, {})
+        if "response" in part:
+            right.plot(part["response"]["f_hz"], part["response"]["magnitude_db"], color=colour,
+                       label=f"filter {label}: recovers {_pct(part)}")
+    if right.lines:
+        right.legend(fontsize=8)
+    right.set(xlabel="frequency (Hz)", ylabel="gain (dB)")
+    right.set_title("Linear filter of the residual fitted on training: frequency response\n(a constant offset alone "
+                    f"recovers {_pct(description.get('offset', {}))})", fontsize=9)
+    right.grid(True, alpha=0.3)
+    fig.suptitle(description.get("summary", ""), fontsize=9)
+    fig.tight_layout()
+    save_png(fig, path)
+
+
+def _pct(part: dict) -> str:
+    value = part.get("of_excess") if part.get("of_excess") is not None else part.get("fraction")
+    return "—" if value is None else f"{100 * value:.0f} %"

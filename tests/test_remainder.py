@@ -1,0 +1,191 @@
+"""`describe_remainder` names where a known remainder lives, on recordings built here.
+
+Each recording is a multilevel drive v (random levels held 20–80 samples,
+like a PRBS with many levels), a model prediction ŵ = 2v and a measurement
+w = ŵ + r + white noise (σ = 0.05) with a remainder r whose kind is known.
+It is cut into blocks of 500 samples, each its own segment; every fourth
+block is held out (interleaved in time, as `diagnose` splits). The expected
+values are worked out from the construction, not from the module's code.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from hybrid.discovery._remainder import describe_remainder, plot_remainder
+
+RATE = 50.0
+SIGMA = 0.05
+N = 10_000
+
+
+def multilevel(rng, n=N, low=-1.0, high=1.0):
+    """Levels drawn uniformly in [low, high], each held 20–80 samples."""
+    holds = rng.integers(20, 81, size=n // 20)
+    return np.repeat(rng.uniform(low, high, size=len(holds)), holds)[:n]
+
+
+def lowpass(x, a=0.9):
+    """First-order low-pass y[k] = a·y[k−1] + (1 − a)·x[k] (time constant ≈ 10 samples = 0.2 s)."""
+    return lfilter([1.0 - a], [1.0, -a], x)
+
+
+def recording(r_of, seed=0, drive=None, w_hat_of=lambda v: 2.0 * v, block=500):
+    """Train and held-out dicts for w = ŵ + r + noise, with r = r_of(v, t)."""
+    rng = np.random.default_rng(seed)
+    v = multilevel(rng) if drive is None else drive
+    t = np.arange(len(v)) / RATE
+    w_hat = w_hat_of(v)
+    w = w_hat + r_of(v, t) + SIGMA * rng.standard_normal(len(v))
+    segment = np.arange(len(v)) // block
+    held = segment % 4 == 3
+
+    def part(mask):
+        return {"t": t[mask], "v_in": v[mask], "w": w[mask], "w_hat": w_hat[mask], "segment": segment[mask]}
+
+    return part(~held), part(held)
+
+
+def describe(r_of, floor=SIGMA**2, **kw):
+    d = describe_remainder(*recording(r_of, **kw), RATE, floor)
+    json.dumps(d, allow_nan=False)  # JSON-able, and never a NaN
+    return d
+
+
+def test_even_static_map_of_the_drive():
+    # E[r²] = 0.09·E[v⁴] = 0.018 against noise 0.0025: a perfect map removes ≈ 88 % of the held-out
+    # MSE, so 0.7 leaves room for the binning error; 0.3v² has no odd part at all (0.8: binning noise).
+    d = describe(lambda v, t: 0.3 * v**2)
+    assert d["kind"] == "static"
+    assert d["static"]["symmetry"]["even"] > 0.8
+    assert d["static"]["drive"]["fraction"] > 0.7
+    assert d["recovered"]["fraction"] > 0.7
+    assert "even" in d["summary"]
+    assert d["static"]["one_sided"]["flag"] is False  # the same on both signs of the drive
+
+
+def test_odd_cubic_map_of_the_drive():
+    d = describe(lambda v, t: 0.4 * v**3)
+    assert d["kind"] == "static"
+    assert d["static"]["symmetry"]["odd"] > 0.8  # 0.4v³ is all odd; 0.8 allows for binning noise
+    assert d["recovered"]["fraction"] > 0.7
+    # A monotone map of ŵ = 2v also reaches it: w = 2v + 0.4v³ is increasing in ŵ.
+    assert d["static"]["output_monotone"]["direction"] == "increasing"
+    assert d["static"]["output_monotone"]["fraction"] > 0.7
+
+
+@pytest.mark.parametrize("remainder", [
+    lambda v, t: lowpass(v) - v,                       # a lag the model lacks
+    lambda v, t: np.r_[np.zeros(3), v[:-3]] - v,       # a 3-sample delay the model lacks
+], ids=["lowpass", "delay"])
+def test_dynamic_remainder_is_a_filter_not_a_map(remainder):
+    # r is an exact FIR (delay) or a fast-decaying IIR (time constant 10 samples against 50 lags) of
+    # v: the filter recovers all but the noise (≈ 85 % of the MSE); > 0.6 leaves room for the ridge.
+    # r is non-zero only after level changes, which a map of the level cannot know: < 0.3.
+    d = describe(remainder)
+    assert d["kind"] == "dynamic"
+    assert d["linear_filter"]["drive"]["fraction"] > 0.6
+    assert d["static"]["drive"]["fraction"] < 0.3
+    assert d["recovered"]["best"].startswith("filter")
+    response = d["linear_filter"]["drive"]["response"]
+    assert len(response["f_hz"]) == len(response["magnitude_db"]) <= 200
+    assert response["f_hz"][-1] == pytest.approx(RATE / 2)
+
+
+def test_slow_trend_in_time():
+    # r rises from 0 to 0.3 over the recording, independent of the drive: a cubic in time fits it
+    # exactly, so only the noise remains (≈ 90 % of the MSE; 0.8 for the fit's error).
+    d = describe(lambda v, t: 0.3 * (t / t[-1]) ** 2)
+    assert d["kind"] == "time"
+    assert d["time"]["fraction"] > 0.8
+    assert "time" in d["summary"]
+
+
+def test_white_noise_is_unstructured():
+    # Nothing but noise of the floor's variance: the held-out MSE is the floor up to its sampling error,
+    # and no extension can gain more than chance (a few tenths of a percent).
+    d = describe(lambda v, t: np.zeros_like(v))
+    assert d["kind"] == "unstructured"
+    of_excess = d["recovered"]["of_excess"]
+    assert of_excess is None and "reason" in d["recovered"] or of_excess < 0.2
+    assert d["recovered"]["fraction"] < 0.02
+
+
+def test_dead_zone_is_flat_near_zero():
+    # The recording has a dead zone of ±0.3 V (w = 2·dz(v)), the model is linear: near zero the
+    # recording's slope is ≈ 0 while outside it is 2, and the model's ratio is exactly 1.
+    def dead(v, t):
+        return 2.0 * np.sign(v) * np.maximum(np.abs(v) - 0.3, 0.0) - 2.0 * v
+    d = describe(dead)
+    flat = d["static"]["flat_near_zero"]
+    assert flat["flag"] and flat["which"] == "recording"
+    assert flat["recording"] < 0.2 and flat["model"] == pytest.approx(1.0, abs=1e-6)
+    assert d["kind"] == "static" and "dead zone" in d["summary"]
+
+
+def test_one_sided_remainder():
+    # 0.5·max(v, 0)²: zero on negative drive, so the ratio of the sides' rms is large (binning noise
+    # on the negative side only: the 3× threshold is passed by far).
+    d = describe(lambda v, t: 0.5 * np.maximum(v, 0.0) ** 2)
+    one = d["static"]["one_sided"]
+    assert one["flag"] and one["side"] == "positive"
+    assert "one-sided (positive drive)" in d["summary"]
+
+
+def test_parts_that_cannot_be_computed_give_reasons():
+    rng = np.random.default_rng(3)
+    positive = multilevel(rng, low=0.5, high=2.0)
+    d = describe(lambda v, t: 0.2 * v**2, drive=positive)
+    assert "reason" in d["static"]["symmetry"] and "reason" in d["static"]["one_sided"]
+    assert "reason" in d["static"]["flat_near_zero"]  # no drive near zero at all
+    train, held = recording(lambda v, t: 0.3 * v**2)
+    few = {k: a[:40] for k, a in held.items()}  # fewer than 50 held-out samples
+    d = describe_remainder(train, few, RATE, SIGMA**2)
+    json.dumps(d, allow_nan=False)
+    assert d["kind"] == "unstructured" and "too few" in d["reason"]
+    assert describe_remainder(train, held, RATE, SIGMA**2) == describe_remainder(train, held, RATE, SIGMA**2)
+
+
+def test_lags_never_cross_segments():
+    # Four training segments of 200 samples whose drives sit at +3 V and −3 V: laid end to end they
+    # jump by 6 V, and a lag window across a boundary would see that jump although r (a low-pass
+    # restarted in every segment, from its steady state) never does. With 50 lags, 50 of every 200
+    # rows would be such windows: reordering the segments would change the fit visibly. Kept inside
+    # segments, the fit uses the same rows in any order: identical up to rounding.
+    rng = np.random.default_rng(7)
+    segments = []
+    for k in range(8):
+        v = (3.0 if k % 2 else -3.0) + multilevel(rng, n=200, low=-0.5, high=0.5)
+        r = lfilter([0.1], [1.0, -0.9], v, zi=[0.9 * v[0]])[0] - v
+        w = 2.0 * v + r + SIGMA * rng.standard_normal(200)
+        segments.append({"t": 4.0 * k + np.arange(200) / RATE, "v_in": v, "w": w, "w_hat": 2.0 * v,
+                         "segment": np.full(200, k)})
+
+    def joined(order):
+        return {key: np.concatenate([segments[k][key] for k in order]) for key in segments[0]}
+
+    held = joined([1, 6])
+    forward = describe_remainder(joined([0, 2, 3, 4, 5, 7]), held, RATE, SIGMA**2)
+    shuffled = describe_remainder(joined([5, 0, 7, 3, 2, 4]), held, RATE, SIGMA**2)
+    f1, f2 = forward["linear_filter"]["drive"], shuffled["linear_filter"]["drive"]
+    lags = f1["lags"]
+    assert lags == 50 and f1["fit_rows"] == f2["fit_rows"] == 6 * (200 - lags)
+    assert f1["fraction"] == pytest.approx(f2["fraction"], rel=1e-3)  # 4-digit rounding
+    np.testing.assert_allclose(f1["response"]["magnitude_db"], f2["response"]["magnitude_db"], rtol=1e-3, atol=1e-2)
+    assert f1["fraction"] > 0.6  # and the filter does find the low-pass
+
+
+def test_plot_writes_a_png(tmp_path):
+    d = describe(lambda v, t: 0.3 * v**2)
+    path = tmp_path / "remainder.png"
+    plot_remainder(d, path)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    empty = describe_remainder(*[{k: a[:10] for k, a in p.items()} for p in recording(lambda v, t: 0 * v)],
+                               RATE, SIGMA**2)
+    plot_remainder(empty, tmp_path / "empty.png")  # a description made of reasons still plots
+    assert (tmp_path / "empty.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not list(tmp_path.glob("*.tmp"))  # written atomically: no temporary left
