@@ -291,12 +291,12 @@ def _cmd_diagnose(args):
 
     from .discovery._diagnosis import DiagnoseSettings
     from .ipmc._defaults import diagnose
-    from .discovery._report import _pm, write_report
+    from .discovery._report import REMAINDER_FIGURE, _pm, write_report
     from .discovery._report_figures import FIGURES
     from .discovery._effects import EFFECTS
     from .data._recording import Recording
 
-    lock = _outputs([_out_folder(args.out, ("report.json", "report.md", *FIGURES))], inputs=args.recordings)
+    lock = _outputs([_out_folder(args.out, ("report.json", "report.md", *FIGURES, REMAINDER_FIGURE))], inputs=args.recordings)
     recordings = [Recording.load(p) for p in args.recordings]
     _warn_notes(recordings)
     settings = DiagnoseSettings()
@@ -313,10 +313,17 @@ def _cmd_diagnose(args):
     base, ext = report["baseline"]["nmse"], report["extended"]["nmse"]
     print(f"cause: {diagnosis.cause}")
     print(f"held-out NMSE: baseline {base:.2e} -> extended {ext:.2e} (gain {diagnosis.gain:.2f}x)")
-    if diagnosis.cause != "none":
-        for name in EFFECTS[diagnosis.cause].constraints:
+    print(diagnosis.verdict)
+    for step in report["causes"]:
+        print(f"  {step['name']} (incremental gain {step['incremental_gain']:.2f}x)")
+        for name in EFFECTS[step["name"]].constraints:
             if name in report["parameters"]:
-                print(f"  {name} = {_pm(report['parameters'][name])}")
+                print(f"    {name} = {_pm(report['parameters'][name])}")
+    floor, left = report["noise_floor"], report["unexplained"]
+    print(f"noise floor: sigma = {floor['std']:.3g} ({floor['method']})")
+    if left is not None:
+        print(f"unexplained: {left['fraction_above_floor']:.0%} of the held-out error lies above the noise floor: "
+              f"{left['description'].get('summary', '')}")
     if diagnosis.hybrid is not None:
         h = diagnosis.hybrid
         print(f"hybrid model NMSE: {h['baseline']['nmse']:.2e} -> {h['extended']['nmse']:.2e}")

@@ -57,12 +57,16 @@ def test_diagnose_names_the_hidden_effect(effect, seed):
     found = diagnose(recording)
     named = {c.name: f"gain {c.gain:.2f}, ΔBIC {c.delta_bic:.0f}, {c.reasons}" for c in found.candidates}
     assert found.cause == effect, f"hidden {effect} {recording.metadata['hidden']['effect_params']}, named {found.cause}: {named}"
-    # Each candidate is exactly one of its effect's lanes, the one marked chosen.
+    # Each candidate of the first step is exactly one of its effect's lanes there, the one marked chosen.
     for cand in found.candidates:
-        chosen = [lane for lane in found.lanes if lane["effect"] == cand.name and lane["chosen"]]
+        chosen = [lane for lane in found.lanes if lane["effect"] == cand.name and lane["chosen"] and lane["step"] == 1]
         assert len(chosen) == 1 and np.array_equal(chosen[0]["theta"], cand.theta), cand.name
     if effect == "none":
         assert found.gain == 1.0 and found.extended is found.baseline
+        # Nothing named, and nothing left above the noise floor (estimated from the recording alone).
+        assert found.causes == [] and found.unexplained is None, found.verdict
+        true_noise = (NOISE * np.ptp(recording.extra["w_true"])) ** 2
+        assert 0.7 <= found.noise_floor.variance / true_noise <= 1.6
         return
     assert found.gain >= 2.0, named
     # The named extension's held-out residual is closer to white than the baseline's.

@@ -57,6 +57,9 @@ def _material(name: str, derived: dict, parameters: dict, materiality: dict) -> 
         f, z = parameters["resonance_frequency_hz"], parameters["resonance_damping"]
         ok = z <= materiality["max_damping"] and f >= materiality["min_frequency_hz"]
         return ok, f"mode {f:.2f} Hz, ζ {z:.3f} (needs ζ ≤ {materiality['max_damping']}, f ≥ {materiality['min_frequency_hz']} Hz)"
+    if name == "even_response":
+        e = d.get("even_percent_of_range", 0.0)
+        return e >= materiality["even_percent_of_range"], f"even part {e:.1f} % of range (needs ≥ {materiality['even_percent_of_range']} %)"
     return True, ""
 
 
@@ -77,11 +80,13 @@ def _bic(rss, n, k):
     return n * math.log(max(rss, 1e-300) / n) + k * math.log(n)
 
 
-def _free_names(problem_model: Model, frozen, active_effect: str | None):
+def _free_names(problem_model: Model, frozen, active_effects):
+    """Names fitted with `active_effects` (None, a name or a tuple of names) switched on."""
+    active = {active_effects} if isinstance(active_effects, str) else set(active_effects or ())
     stack = problem_model.simulation
     names = [n for n in stack.inner.parameter_names() if n not in frozen]
     for effect in stack.effects:
-        if effect.name in (active_effect, FrameTiming.name):
+        if effect.name in active or effect.name == FrameTiming.name:
             names += list(effect.constraints)
     return names + ["gain", "offset"]
 
@@ -140,14 +145,16 @@ def _lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]
     return _material(name, derived, parameters, materiality)[0], derived.get(name, {})
 
 
-def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen) -> Candidate:
+def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen, present=()) -> Candidate:
+    """The candidate adding effect `name` ("none": no effect) to a model with `present` switched on."""
     w_hats = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))
     rss = float(np.sum((np.asarray(problem.target("train")) - np.asarray(w_hats["train"])) ** 2))
     w, w_hat = np.asarray(problem.target("test")), np.asarray(w_hats["test"])
     heldout = _heldout_metrics(w, w_hat)
     model = problem.model(theta)
     parameters = {k: float(v_) for k, v_ in model.parameters().items()
-                  if k in _free_names(model, model_frozen, name) or k in model.simulation.inner.parameter_names()}
+                  if k in _free_names(model, model_frozen, tuple(present) + (name,))
+                  or k in model.simulation.inner.parameter_names()}
     derived = _derived(problem, theta, active) if name != "none" else {}
     cand = Candidate(
         name=name, parameters=parameters, derived=derived.get(name, {}), train_rss=rss,

@@ -54,16 +54,15 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
-from . import _residual_tests as rt
 from ..core._arguments import as_recordings, check_simulation
-from ._decision import _choose_lane, _equally_good_fits, _evaluate, _free_names, _lane_effect
-from ._diagnosis import SPLIT_ORDER, Diagnosis, DiagnoseSettings
+from ._decision import _evaluate, _free_names
+from ._diagnosis import Diagnosis, DiagnoseSettings
 from ._effects import EFFECTS
 from ._evidence import _evidence, _fitted_model, _uncertainties
-from ._search import (
-    N_LANES, _best_lag, _fit_lanes, _initial_theta, _lane_tangents, _signals, _starts, _with_active, lanes_problem,
-)
-from ._starts import N_SCREEN, baseline_starts, delay_starts, hysteresis_starts, resonance_starts, train_signal
+from ._search import N_LANES, _fit_lanes, _initial_theta, _lane_tangents, _signals, _with_active, lanes_problem
+from ._starts import N_SCREEN, baseline_starts
+from ._step import Search, search_step
+from ._unexplained import pooled_noise_floor, remainder
 from ..util._errors import InputError
 from ..core._levenberg_marquardt import LMSettings
 from ..core._problem import robust_std
@@ -163,137 +162,68 @@ def diagnose(
     n_base = len(_free_names(model, frozen, None))
     baseline = _evaluate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
 
-    # 2. Candidates: each effect switched on, warm-started from the baseline.
-    base_model = problem.model(theta_base)
-    s_train = np.asarray(train_signal(problem, base_model.simulation.inner))
-    _, w_tr, w_hat_tr = _signals(problem, theta_base, off, "train")
-    lag = _best_lag(w_tr, w_hat_tr, max_lag=20)
-    f, psd = rt.spectrum(w_tr - w_hat_tr, rate)
-    band = f >= 0.5
-    peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
-    duration = recordings[0].duration
-    lanes, actives, labels, tangents = [], [], [], []
-    say("screening starts for the delay, hysteresis and resonance candidates")
-    screened = {"delay": delay_starts(problem, simulation, rate, n_starts=3, frozen=frozen),
-                "hysteresis": hysteresis_starts(problem, simulation, n_starts=1, frozen=frozen),
-                "resonance": resonance_starts(problem, simulation, rate, n_starts=1, frozen=frozen)}
-    for i, name in enumerate(names):
-        extra = screened.get(name, [])
-        for values in _starts(name, s_train, rate, lag, peak, duration) + extra:
-            active = off.copy()
-            active[i] = 1.0
-            lanes.append(initial(values, base_model, active))
-            actives.append(active)
-            labels.append(name)
-            tangents.append(_lane_tangents(model, frozen, name, n_rows))
-    if len(lanes) > n_lanes:
-        raise AssertionError("more candidate starts than lanes")
-    while len(lanes) < n_lanes:  # same lane count as the baseline stage: one compiled program
-        lanes.append(theta_base)
-        actives.append(off)
-        labels.append("none")
-        tangents.append(base_tangents)
-    say(f"{len(set(labels) - {'none'})} effects, {len(labels)} lanes")
-    states = _fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), lm, settings.patience)
-    vals = np.asarray(states.best_val)
-    cand_thetas = states.best_theta
+    # 2–4. Stepwise: every remaining effect on top of the current model, weighed
+    # incrementally; stop at the first step that names nothing.
+    search = Search(problem=problem, model=model, series=series, simulation=simulation, settings=settings,
+                    frozen=frozen, lm=lm, rate=rate, duration=recordings[0].duration, n_train=n_train,
+                    n_val=int(problem.target("validation").shape[0]), say=say)
+    current, current_val, current_fits = baseline, float(base_states.best_val[best]), list(base_states.best_theta)
+    steps, present = [], ()
+    while len(present) < min(settings.max_causes, len(EFFECTS)):
+        step = search_step(search, current, current_val, current_fits, present)
+        steps.append(step)
+        if not present:
+            baseline = step.current  # refitted from a candidate's end point when that was better
+        if step.chosen is None:
+            break
+        present += (step.chosen.name,)
+        current, current_val, current_fits = step.chosen, step.chosen_val, step.chosen_fits
+    extended = current if present else steps[0].current
+    cause = present[0] if present else "none"
 
-    # 3. Re-baseline: refit without any effect from where each candidate ended. A
-    # candidate can gain only because its start led the shared RC parameters out
-    # of the baseline's local minimum; the effect-free refit takes that gain away,
-    # so what is left is the effect's own.
-    say("baseline refitted from every candidate's end point")
-    restates = _fit_lanes(problem, np.tile(off, (n_lanes, 1)), np.stack([base_tangents] * n_lanes),
-                          cand_thetas, lm, settings.effect_free_patience)
-    revals = np.asarray(restates.best_val)
-    if np.nanmin(revals) < float(base_states.best_val[best]):
-        j = int(np.nanargmin(revals))
-        theta_base = restates.best_theta[j]
-        baseline = _evaluate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
-        baseline.reasons.append(f"refitted from the {labels[j]} candidate's end point")
-
-    candidates, chosen = [], set()
-    n_val = int(problem.target("validation").shape[0])
-    for i, name in enumerate(names):
-        idx = [j for j, lab in enumerate(labels) if lab == name]
-
-        def is_material(j, name=name):
-            return _lane_effect(problem, cand_thetas[j], actives[j], name, settings.materiality)[0]
-
-        j = _choose_lane(idx, vals, is_material, n_val)
-        chosen.add(j)
-        cand = _evaluate(problem, cand_thetas[j], actives[j], name, n_train,
-                         n_base + len(EFFECTS[name].constraints), settings.materiality, frozen)
-        candidates.append(cand)
-
-    # 4. Evidence and decision.
-    equally_good = _equally_good_fits(problem, list(base_states.best_theta) + list(restates.best_theta), off,
-                                      baseline.train_rss, n_train, settings.min_bic_drop)
-    bar = min(baseline.heldout["nmse"], equally_good["heldout_nmse_min"])
-    for cand in candidates:
-        cand.gain = baseline.heldout["nmse"] / max(cand.heldout["nmse"], 1e-300)
-        cand.delta_bic = cand.bic - baseline.bic
-        # Whiter: the residual's autocovariances at lags ≥ 1 (Q scaled by the squared
-        # variance ratio) no larger than the baseline's. Q alone compares correlations:
-        # when both residuals are far from white (Q in the thousands), an extension that
-        # removes most of the error can leave a smaller residual as correlated, relative
-        # to its own size, as before. Or white already: a baseline residual of isolated
-        # spikes (missed step responses) can pass a whiteness test its extension fails.
-        shrink = cand.ljung_box["variance"] / max(baseline.ljung_box["variance"], 1e-300)
-        correlated = cand.ljung_box["Q"] * shrink**2
-        whiter = correlated <= max(baseline.ljung_box["Q"], rt.white_limit(cand.ljung_box["lags"]))
-        checks = [
-            (cand.material, f"not material: {cand.materiality}"),
-            (cand.gain >= settings.min_gain, f"held-out gain {cand.gain:.2f} < {settings.min_gain}"),
-            (cand.delta_bic <= -settings.min_bic_drop, f"ΔBIC {cand.delta_bic:.1f} > −{settings.min_bic_drop}"),
-            (whiter, f"held-out residual more correlated than the baseline's: Q {correlated:.0f} in the "
-                     f"baseline's units > {baseline.ljung_box['Q']:.0f}"),
-            (bar >= baseline.heldout["nmse"] or bar / max(cand.heldout["nmse"], 1e-300) >= settings.min_gain,
-             f"an effect-free fit as good on training reaches held-out NMSE {bar:.3g}: "
-             f"gain over it {bar / max(cand.heldout['nmse'], 1e-300):.2f} < {settings.min_gain}"),
-        ]
-        cand.eligible = all(ok for ok, _ in checks)
-        cand.reasons += [why for ok, why in checks if not ok]
-    eligible = [c for c in candidates if c.eligible]
-    extended = max(eligible, key=lambda c: c.gain) if eligible else baseline
-    cause = extended.name
-
-    # 5–6. Uncertainties of the chosen fit, evidence for the report, optional hybrid fits.
+    # 5. The final model: uncertainties, evidence, the noise floor and what is left above it.
+    theta_base = baseline.theta
     v_te, w_te, w_hat_base = _signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = _signals(problem, extended.theta, extended.active, "test")
     fitted = _with_active(problem, jnp.asarray(extended.active, float)).model(jnp.asarray(extended.theta))
     uncertainties = _uncertainties(fitted, recordings, settings, w_te - w_hat_ext,
-                                   keep=_fitted_model(problem, extended.theta, cause).parameters())
+                                   keep=_fitted_model(problem, extended.theta, present).parameters())
     evidence = _evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
-    evidence["equally_good_effect_free_fits"] = equally_good
+    evidence["equally_good_effect_free_fits"] = steps[0].equally_good
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
     heldout = {
         "t": np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),
         "v_in": v_te, "w": w_te, "baseline": w_hat_base, "extended": w_hat_ext,
         "recording": np.concatenate([np.full(b - a, i) for i, a, b in segments]),
     }
+    say("noise floor and what lies above it")
+    floor = pooled_noise_floor(recordings)
+    unexplained = remainder(problem, series, recordings, extended, floor, settings, rate,
+                            equally_good=steps[-1].equally_good)
     hybrid_report = None
     if hybrid:
-        hybrid_report = _hybrid_fits(recordings, simulation, extended, problem, cause, settings, hybrid_max_steps, progress)
+        hybrid_report = _hybrid_fits(recordings, simulation, extended, problem, present, settings, hybrid_max_steps,
+                                     progress)
     return Diagnosis(
-        cause=cause, baseline=baseline, extended=extended, candidates=candidates,
+        cause=cause, baseline=baseline, extended=extended, candidates=steps[0].candidates,
         uncertainties=uncertainties, evidence=evidence, hybrid=hybrid_report, settings=settings,
         recordings=[r.name for r in recordings], seconds=time.perf_counter() - t0, heldout=heldout,
-        lanes=[{"effect": labels[j], "validation_loss": float(vals[j]), "chosen": j in chosen,
-                "theta": np.asarray(cand_thetas[j]), "active": np.asarray(actives[j])}
-               for j in range(len(labels)) if labels[j] != "none"],
+        lanes=[lane for step in steps for lane in step.lanes],
+        steps=[{"cause": step.chosen.name if step.chosen else None, "current": step.current,
+                "candidates": step.candidates} for step in steps],
+        noise_floor=floor, unexplained=unexplained,
     )
 
 
-def _hybrid_fits(recordings, simulation, extended, problem, cause, settings, max_steps, progress) -> dict:
-    """Hybrid model (simulation + D-MLP) without and with the named effect, held-out metrics."""
+def _hybrid_fits(recordings, simulation, extended, problem, causes, settings, max_steps, progress) -> dict:
+    """Hybrid model (simulation + D-MLP) without and with the named effects, held-out metrics."""
     from ..core._fit import fit
     from ..core._models import make_model
 
     out = {}
     variants = [("baseline", simulation)]
-    if cause != "none":
-        variants.append(("extended", _fitted_model(problem, extended.theta, cause).simulation))
+    if causes:
+        variants.append(("extended", _fitted_model(problem, extended.theta, causes).simulation))
     for key, sim in variants:
         stage(f"diagnose: hybrid model, {key}")
         if progress:

@@ -46,6 +46,13 @@ class DiagnoseSettings:
     - `min_bic_drop`: BIC decrease (training part) needed to name a cause.
     - `materiality`: the smallest effect that counts as a cause, per effect (see
       `_material`); below it the "effect" is within timing or modelling slack.
+    - `max_causes`: most causes named, one per step of the stepwise search.
+    - `unexplained_ratio`: the final model's held-out MSE above this multiple of
+      the noise floor (taken at the top of its ±2 standard errors) is reported as
+      ``unexplained``: 2 means more than half of the held-out error lies above
+      the measurement noise. Fits of the right model in
+      `experiments/discrepancy.py` leave 0.9–1.5× the noise held out when the
+      recording pins the strip.
     - `frozen`: parameters never fitted; ``None`` (default) takes the
       simulation's `default_frozen()` (the RC network's ξh: only ξρ/ξh is
       identifiable).
@@ -61,9 +68,11 @@ class DiagnoseSettings:
     materiality: dict = dataclasses.field(default_factory=lambda: {
         "delay_samples": 1.0, "relaxation_percent": 10.0, "shortfall_percent": 5.0,
         "loop_height_percent_of_range": 3.0, "gain_change_percent": 5.0, "max_damping": 0.35,
-        "min_frequency_hz": 0.5,
+        "min_frequency_hz": 0.5, "even_percent_of_range": 5.0,
     })
     frozen: tuple[str, ...] | None = None
+    max_causes: int = 3
+    unexplained_ratio: float = 2.0
 
     def frozen_for(self, simulation) -> tuple[str, ...]:
         """`frozen`, or the simulation's parameters frozen by default when it is None."""
@@ -90,6 +99,7 @@ class Candidate:
     reasons: list = dataclasses.field(default_factory=list)
     theta: np.ndarray | None = None
     active: np.ndarray | None = None
+    validation_loss: float = float("nan")
 
     def to_dict(self) -> dict:
         return {
@@ -123,14 +133,52 @@ class Diagnosis:
     #: (½ mean r²), ``chosen`` (it stands for its effect), ``theta`` and ``active``
     #: (its end point and switches; ``experiments/diagnose_lanes.py`` evaluates them).
     lanes: list = dataclasses.field(default_factory=list)
+    #: Each step of the stepwise search: ``cause`` (the effect it named, or None),
+    #: ``current`` (the Candidate it extended) and ``candidates`` (weighed against it).
+    steps: list = dataclasses.field(default_factory=list)
+    #: The measurement noise of w, from the recordings alone (`NoiseFloor`).
+    noise_floor: object = None
+    #: None when the final model reaches the noise floor, else how much of its
+    #: held-out error lies above it and where (see `hybrid.discovery._unexplained`).
+    unexplained: dict | None = None
 
     @property
     def gain(self) -> float:
+        """Held-out NMSE of the baseline over that of the final model (all causes)."""
         return self.baseline.heldout["nmse"] / self.extended.heldout["nmse"]
+
+    @property
+    def causes(self) -> list[dict]:
+        """The named causes in the order found: name, parameters (of that effect), incremental held-out gain."""
+        out = []
+        for step in self.steps:
+            if step["cause"] is None:
+                continue
+            chosen = next(c for c in step["candidates"] if c.name == step["cause"])
+            own = {k: v for k, v in chosen.parameters.items() if k in _effect_parameters(chosen.name)}
+            out.append({"name": chosen.name, "incremental_gain": chosen.gain, "delta_bic": chosen.delta_bic,
+                        "derived": chosen.derived,
+                        "parameters": {k: {"value": v, "std_error": self.uncertainties.get(k, {}).get("std_error"),
+                                           "unit": self.uncertainties.get(k, {}).get("unit", "")}
+                                       for k, v in own.items()}})
+        return out
+
+    @property
+    def verdict(self) -> str:
+        """One sentence that states the answer: the causes, the gain, and what remains above the noise."""
+        from ._verdict import verdict
+
+        return verdict(self)
 
     def to_dict(self) -> dict:
         return {
+            "verdict": self.verdict,
             "cause": self.cause,
+            "causes": self.causes,
+            "noise_floor": self.noise_floor.to_dict() if self.noise_floor is not None else None,
+            "unexplained": self.unexplained,
+            "steps": [{"cause": step["cause"], "extends": step["current"].name,
+                       "candidates": [c.to_dict() for c in step["candidates"]]} for step in self.steps[1:]],
             "baseline": {k: self.baseline.heldout[k] for k in ("nmse", "fitting", "nmse_eq18", "nmse_target")},
             "extended": {k: self.extended.heldout[k] for k in ("nmse", "fitting", "nmse_eq18", "nmse_target")},
             "nmse_definition": "held-out MSE / var(w) (nmse_eq18: the paper's Eq 18, each signal by its max |.|)",
@@ -150,6 +198,10 @@ class Diagnosis:
             "seconds": self.seconds,
             "split": _split_description(self.settings),
         }
+
+
+def _effect_parameters(name: str) -> tuple[str, ...]:
+    return tuple(EFFECTS[name].constraints) if name in EFFECTS else ()
 
 
 def _split_description(settings: DiagnoseSettings) -> str:

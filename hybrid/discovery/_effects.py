@@ -17,6 +17,7 @@ name               y(t)                                   parameters
 ``drift``          s · exp(κ t)                           ``drift_rate_per_s`` κ (1/s)
 ``resonance``      ω²/(s² + 2ζωs + ω²) applied to s       ``resonance_frequency_hz`` f = ω/2π,
                    (exact first-order-hold discretisation) ``resonance_damping`` ζ
+``even_response``  s + c s²                               ``even_per_v`` c (1/V)
 =================  =====================================  =====================================
 
 - Back-relaxation: under a held voltage the bending charge diffuses back; the
@@ -32,6 +33,8 @@ name               y(t)                                   parameters
 - Drift: the actuation gain changes monotonically over a recording
   (dehydration, temperature); t counts from the recording's first sample.
 - Resonance: a mechanical mode of the cantilever (unity DC gain).
+- Even response: a displacement that follows the square of the drive, the
+  same for ±V, as an electrostatic actuator's does (an IPMC's is odd).
 
 Each effect is an [`AbstractEffect`][]; [`EffectStack`][]
 (`hybrid.discovery._effect_stack`) applies them to a simulation. The Bouc–Wen
@@ -335,7 +338,38 @@ class FrameTiming(AbstractEffect):
         return {"frame_lag_s": float(self.parameters()["frame_lag"]) * dt}
 
 
-#: The effects, by name, in the order they act on the signal.
+class EvenResponse(AbstractEffect):
+    """y = s + c s²: a response with a part even in the signal, c in 1/V.
+
+    An IPMC bends one way or the other with the sign of the drive (odd); an
+    electrostatic actuator (a dielectric elastomer, an electrostatic zipper)
+    is pulled by a force ∝ V², the same for +V and −V (even). c = 0 is the
+    linear response; with the readout's gain the model spans everything from
+    linear to purely quadratic (|c| large). ``derived`` reports the even part's
+    size, |c|·max s², as a percentage of the signal's range.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "even_response"
+    constraints: ClassVar = {"even_per_v": Real()}
+    units: ClassVar = {"even_per_v": "1/V"}
+    defaults: ClassVar = {"even_per_v": 0.0}
+
+    def __init__(self, **values):
+        _init(self, values)
+
+    def apply(self, s, dt):
+        return s + self.parameters()["even_per_v"] * s * s
+
+    def derived(self, s, dt):
+        """The even part's size, |c| max s², as a percentage of the range of s."""
+        span = float(jnp.ptp(s))
+        even = abs(float(self.parameters()["even_per_v"])) * float(jnp.max(s * s))
+        return {"even_percent_of_range": 100.0 * even / span if span > 0 else 0.0}
+
+
+#: The effects, by name, in the order they act on the signal (the even response,
+#: added last, keeps the others' places in the stack and so their fits' layout).
 EFFECTS: dict[str, type[AbstractEffect]] = {
-    cls.name: cls for cls in (Delay, BackRelaxation, Saturation, Hysteresis, Drift, Resonance)
+    cls.name: cls for cls in (Delay, BackRelaxation, Saturation, Hysteresis, Drift, Resonance, EvenResponse)
 }

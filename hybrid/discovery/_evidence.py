@@ -21,11 +21,12 @@ from ..core._models import Model
 from ..core._problem import Problem
 
 
-def _fitted_model(problem: Problem, theta, cause: str) -> Model:
-    """The fitted simulation with only the named effect (or none), the frame timing, gain and offset."""
+def _fitted_model(problem: Problem, theta, causes) -> Model:
+    """The fitted simulation with only the named effects (a name, a tuple, or none), frame timing, gain and offset."""
+    causes = {causes} if isinstance(causes, str) else set(causes)
     model = problem.model(jnp.asarray(theta))
     stack = model.simulation
-    effects = tuple(e for e in stack.effects if e.name in (cause, FrameTiming.name))
+    effects = tuple(e for e in stack.effects if e.name in causes or e.name == FrameTiming.name)
     simulation = EffectStack(stack.inner, effects)
     return Model(simulation, model.readout, "physics")
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _residual_tests as rt
-from ._report_figures import FIGURES, MAX_LAG, _atomic, _loop_levels, _nmse, _write_figures
+from ._report_figures import FIGURES, MAX_LAG, _atomic, _loop_levels, _nmse, _save, _write_figures
 
 
 # --------------------------------------------------------------------------- #
@@ -115,16 +115,62 @@ def _cell(text) -> str:
 
 def _verdict(d: dict) -> str:
     base, ext = d["baseline"], d["extended"]
-    if d["cause"] == "none":
-        return (f"**Cause: none: the simulation is right within the measurement noise.** No effect passed every "
-                f"test (material, held-out gain ≥ {_num(d['settings']['min_gain'])}, ΔBIC ≤ "
-                f"−{_num(d['settings']['min_bic_drop'])}, a residual no more correlated); the baseline simulation stands, "
-                f"with held-out NMSE {_nmse(base['nmse'])} and Fitting {_pct(base['fitting'])}.")
-    derived = ", ".join(" ".join(_quantity(k, v)) for k, v in d["effect_derived"].items())
-    return (f"**Cause: {d['cause']}.** Adding it to the simulation lowers the held-out NMSE from "
+    head = f"**{d['verdict']}**"
+    if not d["causes"]:
+        return (f"{head}\n\nNo effect passed every test (material, held-out gain ≥ {_num(d['settings']['min_gain'])}, "
+                f"ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])}, a residual no more correlated); the baseline "
+                f"simulation stands, with held-out NMSE {_nmse(base['nmse'])} and Fitting {_pct(base['fitting'])}.")
+    names = " + ".join(c["name"] for c in d["causes"])
+    return (f"{head}\n\nAdding {names} to the simulation lowers the held-out NMSE from "
             f"{_nmse(base['nmse'])} to {_nmse(ext['nmse'])} (gain {d['gain']:.2f}×) and raises Fitting from "
-            f"{_pct(base['fitting'])} to {_pct(ext['fitting'])}"
-            + (f"; the fitted effect: {derived}" if derived else "") + ".")
+            f"{_pct(base['fitting'])} to {_pct(ext['fitting'])}.")
+
+
+def _stepwise(d: dict) -> list[str]:
+    """The causes in the order found, each with its incremental gain and its parameters."""
+    lines = ["## Causes, step by step", "",
+             "Each step fits every remaining effect on top of the model before it and names one only if it passes "
+             "every test against that model (incremental held-out gain, ΔBIC, materiality, whiteness, the "
+             "as-good-fits guard); the search stops at the first step that names nothing.", "",
+             "| step | cause | incremental gain | ΔBIC | size | parameters |", "|---|---|---|---|---|---|"]
+    for i, c in enumerate(d["causes"], 1):
+        size = ", ".join(" ".join(_quantity(k, v)) for k, v in c["derived"].items())
+        params = ", ".join(f"{k} = {_pm(v)}" for k, v in c["parameters"].items())
+        lines.append(f"| {i} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
+                     f"{_cell(size)} | {_cell(params)} |")
+    return lines + [""]
+
+
+def _noise(d: dict) -> list[str]:
+    """The noise floor and, when the final model stays above it, where the rest lives."""
+    floor, left = d["noise_floor"], d["unexplained"]
+    lines = ["## Noise floor and what remains", "",
+             f"Measurement noise of w, from the recording alone ({floor['method']}): σ = {_num(floor['std'])} "
+             f"(variance {_num(floor['variance'])} ± {_num(floor['std_error'])}), "
+             f"{_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out.", ""]
+    if left is None:
+        return lines + ["The final model's held-out error is within "
+                        f"{_num(d['settings']['unexplained_ratio'])}× the floor: nothing is left unexplained.", ""]
+    desc = left["description"]
+    lines += [f"**Unexplained:** the final model's held-out MSE is {_num(left['ratio_to_floor'])}× the floor; "
+              f"{_pct(left['fraction_above_floor'])} of it lies above the noise "
+              f"({_nmse(left['excess_nmse'])} of var(w)). {desc.get('summary', '')}", ""]
+    if left.get("underdetermined"):
+        lines += [f"Note: {left['underdetermined']}.", ""]
+    recovered = desc.get("extensions") or {}
+    if recovered:
+        lines += ["What a flexible extension fitted to the residual on training data recovers held out:", "",
+                  "| extension | share of the held-out MSE | share of the error above the floor |", "|---|---|---|"]
+        for name, entry in recovered.items():
+            if isinstance(entry, dict) and "fraction" in entry:
+                lines.append(f"| {name.replace('_', ' ')} | {_pct(entry.get('fraction'))} | "
+                             f"{_pct(entry.get('of_excess'))} |")
+        lines.append("")
+    lines += [f"![Where the remainder lives]({REMAINDER_FIGURE})", "",
+              "Left: the residual against the drive level and the static map fitted to it (an even map points to a "
+              "response ∝ V², a flat middle to a dead zone, bent ends to saturation). Right: the linear filter "
+              "fitted to the residual (a dynamic remainder).", ""]
+    return lines
 
 
 def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None) -> str:
@@ -140,13 +186,17 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         "| model | held-out NMSE (MSE / var w) | NMSE, Eq 18 | Fitting |",
         "|---|---|---|---|",
     ]
-    extended_label = "extended (no cause named: the baseline)" if d["cause"] == "none" else f"extended (+ {d['cause']})"
+    causes = " + ".join(c["name"] for c in d["causes"])
+    extended_label = "extended (no cause named: the baseline)" if not causes else f"extended (+ {causes})"
     for key, label in (("baseline", "baseline (simulation)"), ("extended", extended_label)):
         m = d[key]
         lines.append(f"| {label} | {_nmse(m['nmse'])} | {_nmse(m.get('nmse_eq18'))} | {_pct(m['fitting'])} |")
     lines += ["", f"Gain (baseline NMSE / extended NMSE): **{d['gain']:.3g}**.", ""]
+    if d["causes"]:
+        lines += _stepwise(d)
+    lines += _noise(d)
 
-    lines += ["## Fitted parameters" + ("" if d["cause"] == "none" else f" (simulation + {d['cause']})"), "",
+    lines += ["## Fitted parameters" + ("" if not causes else f" (simulation + {causes})"), "",
               "Standard errors: Gauss–Newton covariance on the training part, inflated for the held-out "
               "residual's autocorrelation. The network's parameters trade off against each other, and an effect "
               "that trades off with them inherits their spread; in brackets, the error with the network's "
@@ -253,6 +303,27 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
 # Entry point
 # --------------------------------------------------------------------------- #
 
+#: What is left above the noise floor (a note that nothing is, when nothing is).
+REMAINDER_FIGURE = "remainder.png"
+
+
+def _remainder_figure(diagnosis, path: Path) -> None:
+    from ._remainder import plot_remainder
+
+    if diagnosis.unexplained is not None and "reason" not in diagnosis.unexplained["description"]:
+        plot_remainder(diagnosis.unexplained["description"], path)
+        return
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 1.6))
+    ax.axis("off")
+    ax.text(0.5, 0.5, "Nothing above the noise floor to describe:\nthe final model reaches the measurement noise.",
+            ha="center", va="center")
+    _save(fig, path, plt)
+
 
 def write_report(diagnosis, out_dir) -> dict[str, Path]:
     """Write ``report.json``, the figures and ``report.md`` of `diagnosis` into `out_dir`.
@@ -276,6 +347,8 @@ def write_report(diagnosis, out_dir) -> dict[str, Path]:
     paths = {"report.json": out_dir / "report.json"}
     _write_atomic(paths["report.json"], json.dumps(data, indent=2, allow_nan=False) + "\n")
     paths.update(_write_figures(diagnosis, data, out_dir))
+    paths[REMAINDER_FIGURE] = out_dir / REMAINDER_FIGURE
+    _remainder_figure(diagnosis, paths[REMAINDER_FIGURE])
     paths["report.md"] = out_dir / "report.md"
     held = diagnosis.heldout
     loop_levels = _loop_levels(rt.loops(np.asarray(held["w"]) - np.asarray(held["baseline"]), held["v_in"]))

@@ -2,7 +2,7 @@
 
 A lane is one LM run from its own start with its own switches: every effect
 lives in one [`EffectStack`][] (`_universal_model`), and a lane switches on at
-most one of them; `_fit_lanes` runs a batch of lanes one after another inside a
+most one of them beyond those already named; `_fit_lanes` runs a batch of lanes one after another inside a
 single compiled program. Also here: the least-squares problem every lane shares
 (`lanes_problem`), its predictions on each part of the split (`_predictions`,
 `_signals`), and the data-scaled starting values of each effect (`_starts`,
@@ -43,12 +43,16 @@ def _with_active(problem: Problem, active, tangents=None):
     return problem
 
 
-def _lane_tangents(model: Model, frozen, effect: str | None, n_rows: int) -> np.ndarray:
-    """Unit directions in θ_sim for the inner simulation's free parameters and one effect's."""
+def _lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
+    """Unit directions in θ_sim for the inner simulation's free parameters and those of `effects`.
+
+    `effects`: None, one effect's name, or a tuple of names (the effects a lane fits).
+    """
+    effects = () if effects is None else (effects,) if isinstance(effects, str) else tuple(effects)
     labels = _sim_labels(model.simulation, frozen)
     wanted = [n for n in model.simulation.inner.parameter_names() if n not in frozen]
     wanted += [n for n in FrameTiming.constraints if n not in frozen]
-    if effect is not None:
+    for effect in effects:
         wanted += [n for n in EFFECTS[effect].constraints if n not in frozen]
     basis = np.zeros((n_rows, len(labels)))
     for row, name in enumerate(wanted):
@@ -77,15 +81,17 @@ def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patienc
                                jnp.asarray(thetas), jnp.asarray(patience, jnp.int32), settings)
 
 
-def _search_problem(model: Model, series, frozen) -> tuple[Problem, int]:
+def _search_problem(model: Model, series, frozen, present: tuple[str, ...] = ()) -> tuple[Problem, int]:
     """The least-squares problem every lane shares, and its number of Jacobian directions.
 
-    A lane fits the inner simulation's free parameters, the frame timing and at
-    most one effect: `n_rows` directions, whichever effect a lane switches on.
+    A lane fits the inner simulation's free parameters, the frame timing, the
+    effects already named (`present`) and at most one more: `n_rows` directions,
+    whichever effect a lane adds.
     """
     simulation = model.simulation.inner
-    n_rows = len([n for n in simulation.parameter_names() if n not in frozen]) + len(FrameTiming.constraints) + max(
-        len(e.constraints) for e in EFFECTS.values())
+    n_rows = (len([n for n in simulation.parameter_names() if n not in frozen]) + len(FrameTiming.constraints)
+              + sum(len(EFFECTS[p].constraints) for p in present)
+              + max((len(e.constraints) for n, e in EFFECTS.items() if n not in present), default=0))
     n_sim = len(_sim_labels(model.simulation, frozen))
     return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
 
@@ -171,6 +177,9 @@ def _starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
         # The residual's spectral peak; `resonance_starts` adds a screened one.
         guess = resid_peak_hz if resid_peak_hz and 0.5 <= resid_peak_hz < nyquist else 0.3 * rate
         return [{"resonance_frequency_hz": guess, "resonance_damping": 0.1}]
+    if name == "even_response":
+        # An even part of 10 % of the range either way; LM takes it to a purely quadratic response if needed.
+        return [{"even_per_v": 0.1 * span / top**2}, {"even_per_v": -0.1 * span / top**2}]
     raise InputError(f"unknown effect {name!r}")
 
 

@@ -1,0 +1,152 @@
+"""The measurement noise of w, estimated from the recording alone (no model).
+
+`diagnose` may say that nothing is missing only when the final model's
+held-out error is consistent with how noisy the measurement is; this module
+says how noisy it is without trusting any model. Every estimator below reads
+the noise off a part of w where the signal is weak, so each is an upper bound
+on the variance of white noise (signal leaking in only adds), and the floor is
+the smallest of them:
+
+- **differences** of order k = 1..4: for white noise of variance σ²,
+  E[(Δᵏw)²] = C(2k, k) σ²; a slow signal's differences shrink like
+  (2 sin πf/f_s)²ᵏ, so a higher order removes more of it (Rice 1984; Hall,
+  Kay & Titterington 1990 use the same idea with optimal weights);
+- **spectrum**: the Welch power spectral density of w in the top fifth of the
+  band (0.8–1.0 × Nyquist), whose level for white noise is 2σ²/f_s (one-sided);
+  the median over that band ignores a narrow line (an aliased mode, mains);
+- **repeats** (only when the drive repeats itself exactly, e.g. a periodic
+  drive or a repeated test sequence): the spread of w across the repetitions
+  of each sample, which removes the signal however fast it is.
+
+The standard error is the spread of the chosen estimator over `blocks`
+contiguous blocks of the recording, divided by √blocks. Noise that is not
+white (a slow drift of the tracker, vibration) is not seen by these
+estimators and counts as something a model should explain.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+#: Orders of the difference estimators.
+DIFFERENCE_ORDERS = (1, 2, 3, 4)
+#: The band the spectral estimator reads, as fractions of the Nyquist frequency.
+SPECTRAL_BAND = (0.8, 1.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseFloor:
+    """The measurement noise of w, from the recording alone.
+
+    **Fields:**
+
+    - `variance`: σ², the noise variance (w's unit squared); `std` is its root.
+    - `std_error`: standard error of `variance`, from its spread over blocks.
+    - `method`: the estimator that gave the smallest value (see the module).
+    - `estimates`: every estimator's variance, by name.
+    - `fraction_of_variance`: σ² / var(w), the NMSE a perfect model would leave.
+    """
+
+    variance: float
+    std_error: float
+    method: str
+    estimates: dict
+    fraction_of_variance: float
+
+    @property
+    def std(self) -> float:
+        return math.sqrt(self.variance)
+
+    def to_dict(self) -> dict:
+        return {"variance": self.variance, "std": self.std, "std_error": self.std_error, "method": self.method,
+                "estimates": dict(self.estimates), "fraction_of_variance": self.fraction_of_variance}
+
+
+def difference_variance(w: np.ndarray, order: int) -> float:
+    """σ² from the k-th differences: mean((Δᵏw)²) / C(2k, k)."""
+    d = np.diff(np.asarray(w, float), n=order)
+    return float(np.mean(d**2) / math.comb(2 * order, order)) if d.size else float("nan")
+
+
+def spectral_variance(w: np.ndarray, rate: float, band=SPECTRAL_BAND) -> float:
+    """σ² from the Welch PSD's median level in `band` (fractions of Nyquist): σ² = level · f_s / 2."""
+    import scipy.signal
+
+    w = np.asarray(w, float)
+    nperseg = int(min(256, max(16, w.size // 8)))
+    if w.size < 2 * nperseg:
+        return float("nan")
+    f, pxx = scipy.signal.welch(w - np.mean(w), fs=rate, nperseg=nperseg, detrend="linear")
+    nyquist = rate / 2
+    top = pxx[(f >= band[0] * nyquist) & (f < band[1] * nyquist)]
+    if top.size == 0:
+        return float("nan")
+    # Each Welch bin is ~ level · χ²_ν/ν with ν ≈ 2 × segments (50 % overlap: fewer independent);
+    # the median of χ²_ν/ν is ≈ (1 − 2/(9ν))³ (Wilson–Hilferty).
+    segments = max(1, (w.size - nperseg) // (nperseg // 2) + 1)
+    nu = 2.0 * segments * 0.7
+    return float(np.median(top) / (1 - 2 / (9 * nu)) ** 3 * rate / 2)
+
+
+def repeat_variance(w: np.ndarray, v_in: np.ndarray, min_period: int = 8) -> tuple[float, int]:
+    """σ² from repetitions of the drive, and the period found (0 when the drive does not repeat exactly).
+
+    The period is the shortest lag at which the drive equals itself (to 1e-9 of its
+    range) for at least three whole periods; w's spread across the periods at each
+    phase, with P/(P − 1) for the mean removed, is the noise.
+    """
+    v = np.asarray(v_in, float)
+    w = np.asarray(w, float)
+    n = v.size
+    span = float(np.ptp(v)) or 1.0
+    tol = 1e-9 * span
+    head = min(64, n // 3)
+    # Candidates: lags at which the drive's first samples come back (cheap), then the whole check.
+    for period in np.nonzero(np.abs(v[min_period: n // 3 + 1] - v[0]) <= tol)[0] + min_period:
+        period = int(period)
+        if np.max(np.abs(v[period: period + head] - v[:head])) > tol:
+            continue
+        if np.max(np.abs(v[period:] - v[:-period])) <= tol:
+            reps = n // period
+            stack = w[: reps * period].reshape(reps, period)
+            # The first period carries the start-up transient from rest: leave it out when there are enough.
+            if reps >= 4:
+                stack = stack[1:]
+            p = stack.shape[0]
+            return float(np.mean(np.var(stack, axis=0)) * p / (p - 1)), period
+    return float("nan"), 0
+
+
+def _estimates(w, v_in, rate) -> dict:
+    out = {f"differences_{k}": difference_variance(w, k) for k in DIFFERENCE_ORDERS}
+    out["spectrum"] = spectral_variance(w, rate)
+    return out
+
+
+def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
+    """Estimate the measurement noise of `w` (sampled at `rate` Hz, driven by `v_in`) from the data alone."""
+    w = np.asarray(w, float)
+    v_in = np.asarray(v_in, float)
+    estimates = _estimates(w, v_in, rate)
+    repeats, period = repeat_variance(w, v_in)
+    if period:
+        estimates["repeats"] = repeats
+    finite = {k: v for k, v in estimates.items() if np.isfinite(v)}
+    method = min(finite, key=finite.get)
+    variance = finite[method]
+    # Spread over blocks: the same estimator on each contiguous block.
+    per_block = []
+    for part_w, part_v in zip(np.array_split(w, blocks), np.array_split(v_in, blocks)):
+        if method == "repeats":
+            value = repeat_variance(part_w, part_v)[0]
+        else:
+            value = _estimates(part_w, part_v, rate).get(method, float("nan"))
+        per_block.append(value)
+    per_block = np.asarray([x for x in per_block if np.isfinite(x)])
+    std_error = float(np.std(per_block, ddof=1) / math.sqrt(per_block.size)) if per_block.size > 1 else float("nan")
+    spread = float(np.var(w))
+    return NoiseFloor(variance=variance, std_error=std_error, method=method, estimates=estimates,
+                      fraction_of_variance=variance / spread if spread > 0 else float("nan"))

@@ -1,0 +1,217 @@
+"""One step of `diagnose`'s stepwise search: every effect not yet named, on top of the current model.
+
+Step 1 starts from the effect-free baseline; each later step from the model the
+step before it extended. A step
+
+1. fits every remaining effect switched on *in addition to* the named ones, as
+   lanes of one compiled LM program, warm-started from the current model (the
+   first step also from design points screened jointly with a dead time, a loop
+   or a mode: `hybrid.discovery._starts`);
+2. refits the current model (no new effect) from every lane's end point: a
+   lane can gain only because its start led the shared parameters out of the
+   current model's local minimum, and the refit takes that gain away;
+3. weighs each effect against the current model with the same rules at every
+   step — material, held-out gain ≥ `min_gain`, BIC drop ≥ `min_bic_drop`,
+   a residual no more correlated, and the gain holding against every fit of
+   the current model as good on training data — so a later cause is judged
+   *incrementally*.
+
+The step's answer is the eligible effect with the largest held-out gain, or
+none; `diagnose` stops at the first step without one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import _residual_tests as rt
+from ._decision import _choose_lane, _equally_good_fits, _evaluate, _lane_effect
+from ._diagnosis import Candidate, DiagnoseSettings
+from ._effects import EFFECTS
+from ._search import (
+    N_LANES, _best_lag, _fit_lanes, _initial_theta, _lane_tangents, _search_problem, _signals, _starts,
+)
+from ._starts import delay_starts, hysteresis_starts, resonance_starts, train_signal
+from ..core._levenberg_marquardt import LMSettings
+from ..core._models import Model
+from ..core._problem import Problem
+
+
+@dataclasses.dataclass
+class Search:
+    """What every step shares: the data, the universal model, the settings."""
+
+    problem: Problem
+    model: Model
+    series: list
+    simulation: object
+    settings: DiagnoseSettings
+    frozen: frozenset
+    lm: LMSettings
+    rate: float
+    duration: float
+    n_train: int
+    n_val: int
+    say: Callable[[str], None]
+
+    def problem_for(self, present: tuple[str, ...]) -> tuple[Problem, int]:
+        """The shared problem with room in its Jacobian for the named effects plus one more."""
+        if not present:
+            return self.problem, int(self.problem.sim_tangents.shape[0])
+        return _search_problem(self.model, self.series, self.frozen, present)
+
+
+@dataclasses.dataclass
+class Step:
+    """One step's outcome.
+
+    - `current`: the model the step extended, refitted if a lane's end point
+      led to a better fit of it (step 1: the baseline).
+    - `candidates`: every remaining effect's chosen lane, weighed against `current`.
+    - `chosen`: the eligible candidate with the largest held-out gain, or None.
+    - `chosen_val`, `chosen_fits`: its validation loss and every lane fitting its
+      effect (the next step's "as good on training" fits).
+    - `equally_good`: the fits of `current` as good on training data, and their
+      least held-out error (the bar a gain must clear).
+    - `lanes`: every lane of the step (not in report.json).
+    """
+
+    current: Candidate
+    candidates: list
+    chosen: Candidate | None
+    chosen_val: float
+    chosen_fits: list
+    equally_good: dict
+    lanes: list
+
+
+def search_step(search: Search, current: Candidate, current_val: float, current_fits: list,
+                present: tuple[str, ...]) -> Step:
+    """Every effect not in `present` added to `current` (which has exactly `present` switched on)."""
+    s, settings = search, search.settings
+    names = list(EFFECTS)
+    problem, n_rows = s.problem_for(present)
+    active_cur = np.asarray(current.active, float)
+    theta_cur = current.theta
+    cur_tangents = _lane_tangents(s.model, s.frozen, present, n_rows)
+    cur_model = problem.model(jnp.asarray(theta_cur))
+
+    def initial(values, active):
+        sim = cur_model.simulation.replace(**values).with_active(active)
+        return _initial_theta(problem, sim, cur_model.readout, s.frozen)
+
+    s_train = np.asarray(train_signal(problem, cur_model.simulation.inner))
+    _, w_tr, w_hat_tr = _signals(problem, theta_cur, active_cur, "train")
+    lag = _best_lag(w_tr, w_hat_tr, max_lag=20)
+    f, psd = rt.spectrum(w_tr - w_hat_tr, s.rate)
+    band = f >= 0.5
+    peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
+    screened = {}
+    if not present:  # the screens design the bare simulation with one effect: the first step's starts
+        s.say("screening starts for the delay, hysteresis and resonance candidates")
+        screened = {"delay": delay_starts(problem, s.simulation, s.rate, n_starts=3, frozen=s.frozen),
+                    "hysteresis": hysteresis_starts(problem, s.simulation, n_starts=1, frozen=s.frozen),
+                    "resonance": resonance_starts(problem, s.simulation, s.rate, n_starts=1, frozen=s.frozen)}
+    lanes, actives, labels, tangents = [], [], [], []
+    for i, name in enumerate(names):
+        if name in present:
+            continue
+        for values in _starts(name, s_train, s.rate, lag, peak, s.duration) + screened.get(name, []):
+            active = active_cur.copy()
+            active[i] = 1.0
+            lanes.append(initial(values, active))
+            actives.append(active)
+            labels.append(name)
+            tangents.append(_lane_tangents(s.model, s.frozen, present + (name,), n_rows))
+    n_lanes = max(N_LANES, len(lanes))
+    while len(lanes) < n_lanes:  # one lane count for every step: one compiled program
+        lanes.append(theta_cur)
+        actives.append(active_cur)
+        labels.append("none")
+        tangents.append(cur_tangents)
+    added = " + ".join(present) + " + " if present else ""
+    s.say(f"{added}each of {len(set(labels) - {'none'})} effects, {len(labels)} lanes")
+    states = _fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), s.lm, settings.patience)
+    vals = np.asarray(states.best_val)
+    cand_thetas = states.best_theta
+
+    # The current model refitted from where every lane ended.
+    s.say(f"{'baseline' if not present else ' + '.join(present)} refitted from every candidate's end point")
+    restates = _fit_lanes(problem, np.tile(active_cur, (n_lanes, 1)), np.stack([cur_tangents] * n_lanes),
+                          cand_thetas, s.lm, settings.effect_free_patience)
+    revals = np.asarray(restates.best_val)
+    current_name = present[-1] if present else "none"
+    if np.nanmin(revals) < current_val:
+        j = int(np.nanargmin(revals))
+        current_val = float(revals[j])
+        current = _evaluate(problem, restates.best_theta[j], active_cur, current_name, s.n_train,
+                            current.n_parameters, settings.materiality, s.frozen, present[:-1])
+        current.reasons.append(f"refitted from the {labels[j]} candidate's end point")
+
+    candidates, chosen_lanes, lanes_of = [], set(), {}
+    for i, name in enumerate(names):
+        if name in present:
+            continue
+        idx = [j for j, lab in enumerate(labels) if lab == name]
+        lanes_of[name] = idx
+
+        def is_material(j, name=name):
+            return _lane_effect(problem, cand_thetas[j], actives[j], name, settings.materiality)[0]
+
+        j = _choose_lane(idx, vals, is_material, s.n_val)
+        chosen_lanes.add(j)
+        cand = _evaluate(problem, cand_thetas[j], actives[j], name, s.n_train,
+                         current.n_parameters + len(EFFECTS[name].constraints), settings.materiality, s.frozen,
+                         present)
+        cand.validation_loss = float(vals[j])
+        candidates.append(cand)
+
+    equally_good = _equally_good_fits(problem, list(current_fits) + list(restates.best_theta), active_cur,
+                                      current.train_rss, s.n_train, settings.min_bic_drop)
+    _weigh(candidates, current, equally_good, settings)
+    eligible = [c for c in candidates if c.eligible]
+    chosen = max(eligible, key=lambda c: c.gain) if eligible else None
+    return Step(
+        current=current, candidates=candidates, chosen=chosen,
+        chosen_val=chosen.validation_loss if chosen else float("nan"),
+        chosen_fits=[cand_thetas[j] for j in lanes_of[chosen.name]] if chosen else [],
+        equally_good=equally_good,
+        lanes=[{"effect": labels[j], "step": len(present) + 1, "validation_loss": float(vals[j]),
+                "chosen": j in chosen_lanes, "theta": np.asarray(cand_thetas[j]), "active": np.asarray(actives[j])}
+               for j in range(len(labels)) if labels[j] != "none"],
+    )
+
+
+def _weigh(candidates, current: Candidate, equally_good: dict, settings: DiagnoseSettings) -> None:
+    """Set each candidate's gain, ΔBIC and eligibility against `current` (the model it extends)."""
+    bar = min(current.heldout["nmse"], equally_good["heldout_nmse_min"])
+    for cand in candidates:
+        cand.gain = current.heldout["nmse"] / max(cand.heldout["nmse"], 1e-300)
+        cand.delta_bic = cand.bic - current.bic
+        # Whiter: the residual's autocovariances at lags ≥ 1 (Q scaled by the squared
+        # variance ratio) no larger than the current model's. Q alone compares correlations:
+        # when both residuals are far from white (Q in the thousands), an extension that
+        # removes most of the error can leave a smaller residual as correlated, relative
+        # to its own size, as before. Or white already: a residual of isolated
+        # spikes (missed step responses) can pass a whiteness test its extension fails.
+        shrink = cand.ljung_box["variance"] / max(current.ljung_box["variance"], 1e-300)
+        correlated = cand.ljung_box["Q"] * shrink**2
+        whiter = correlated <= max(current.ljung_box["Q"], rt.white_limit(cand.ljung_box["lags"]))
+        first = current.name == "none"
+        model, fit = ("the baseline", "an effect-free fit") if first else ("the model before it", "a fit without it")
+        checks = [
+            (cand.material, f"not material: {cand.materiality}"),
+            (cand.gain >= settings.min_gain, f"held-out gain {cand.gain:.2f} < {settings.min_gain}"),
+            (cand.delta_bic <= -settings.min_bic_drop, f"ΔBIC {cand.delta_bic:.1f} > −{settings.min_bic_drop}"),
+            (whiter, f"held-out residual more correlated than {model}'s: Q {correlated:.0f} in "
+                     f"{model}'s units > {current.ljung_box['Q']:.0f}"),
+            (bar >= current.heldout["nmse"] or bar / max(cand.heldout["nmse"], 1e-300) >= settings.min_gain,
+             f"{fit} as good on training reaches held-out NMSE {bar:.3g}: "
+             f"gain over it {bar / max(cand.heldout['nmse'], 1e-300):.2f} < {settings.min_gain}"),
+        ]
+        cand.eligible = all(ok for ok, _ in checks)
+        cand.reasons += [why for ok, why in checks if not ok]

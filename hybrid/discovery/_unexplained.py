@@ -1,0 +1,79 @@
+"""What the final model leaves above the measurement noise, and where it lives.
+
+`diagnose` names causes from a closed list; measured data has effects no list
+names. So after the stepwise search, the final model's held-out error is set
+against the noise floor of w, estimated from the recordings alone
+(`hybrid.discovery._noise_floor`). When the held-out MSE is more than
+`DiagnoseSettings.unexplained_ratio` times the floor (by default: more than
+half of the held-out error lies above the noise, counting the floor at the top
+of its ±2 standard errors), the answer carries an ``unexplained`` part: how
+much of the error lies above the floor, and where it lives
+(`hybrid.discovery._remainder`: static or dynamic, even or odd in the drive,
+what a flexible extension recovers on held-out data). Otherwise
+``unexplained`` is None: the model is as good as the measurement allows.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._noise_floor import NoiseFloor, noise_floor
+from ._search import _signals
+
+
+def pooled_noise_floor(recordings) -> NoiseFloor:
+    """The noise floor of several recordings of one strip: variances pooled by sample count."""
+    floors = [noise_floor(r.w, r.v_in, r.rate) for r in recordings]
+    if len(floors) == 1:
+        return floors[0]
+    n = np.array([len(r.w) for r in recordings], float)
+    weights = n / n.sum()
+    variance = float(np.sum(weights * [f.variance for f in floors]))
+    std_error = float(math.sqrt(np.nansum((weights * [f.std_error for f in floors]) ** 2)))
+    spread = float(np.var(np.concatenate([np.asarray(r.w, float) for r in recordings])))
+    methods = sorted({f.method for f in floors})
+    return NoiseFloor(variance=variance, std_error=std_error, method=", ".join(methods),
+                      estimates={f"recording {i}": f.variance for i, f in enumerate(floors)},
+                      fraction_of_variance=variance / spread if spread > 0 else float("nan"))
+
+
+def _part(problem, series, recordings, candidate, split: str) -> dict:
+    """t, v_in, w, ŵ and a segment id per sample, for one part of the split (all recordings)."""
+    v, w, w_hat = _signals(problem, candidate.theta, candidate.active, split)
+    spans = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of(split)]
+    t = np.concatenate([np.asarray(recordings[i].t, float)[a:b] for i, a, b in spans])
+    segment = np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(spans)])
+    return {"t": t, "v_in": v, "w": w, "w_hat": w_hat, "segment": segment}
+
+
+def remainder(problem, series, recordings, final, floor: NoiseFloor, settings, rate: float,
+              equally_good: dict | None = None) -> dict | None:
+    """None when `final`'s held-out error is consistent with the noise floor, else what lies above it."""
+    from ._remainder import describe_remainder
+
+    held = _part(problem, series, recordings, final, "test")
+    residual = held["w"] - held["w_hat"]
+    mse = float(np.mean(residual**2))
+    var_w = float(np.var(held["w"]))
+    top = floor.variance + 2.0 * (floor.std_error if np.isfinite(floor.std_error) else 0.0)
+    if mse <= settings.unexplained_ratio * top:
+        return None
+    train = _part(problem, series, recordings, final, "train")
+    description = describe_remainder(train, held, rate, floor.variance)
+    out = {
+        "fraction_above_floor": 1.0 - floor.variance / mse,
+        "heldout_nmse": mse / var_w,
+        "floor_nmse": floor.variance / var_w,
+        "excess_nmse": (mse - floor.variance) / var_w,
+        "ratio_to_floor": mse / floor.variance,
+        "description": description,
+    }
+    if equally_good and np.isfinite(equally_good.get("heldout_nmse_min", float("nan"))):
+        best = equally_good["heldout_nmse_min"] * var_w
+        if best <= settings.unexplained_ratio * top:
+            out["underdetermined"] = (
+                f"a fit of the same model as good on training data reaches {best / floor.variance:.2f}× the noise "
+                "floor held out: the recording does not pin the model (record longer, or drive it harder)")
+    return out

@@ -1,0 +1,51 @@
+"""The one sentence that leads report.md: the causes, how much they explain, what remains above the noise.
+
+"How much they explain" is measured against what there was to explain: the
+baseline's held-out MSE above the noise floor. Saying that back-relaxation and
+saturation "explain 93 % of the error" means the final model's held-out MSE is
+7 % of the way from the noise floor back to the baseline's.
+"""
+
+from __future__ import annotations
+
+
+def _names(causes: list[dict]) -> str:
+    names = [c["name"].replace("_", "-") for c in causes]
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def explained_fraction(baseline_mse: float, final_mse: float, floor: float) -> float:
+    """Share of the baseline's held-out error above the floor that the final model removes, in [0, 1]."""
+    excess = baseline_mse - floor
+    if excess <= 0:
+        return 1.0
+    return min(1.0, max(0.0, (baseline_mse - final_mse) / excess))
+
+
+def verdict(diagnosis) -> str:
+    """One sentence stating the causes, the share of the error they explain, and what remains."""
+    causes = diagnosis.causes
+    var_w = float(diagnosis.heldout["w"].var()) if len(diagnosis.heldout.get("w", ())) else float("nan")
+    base_mse = diagnosis.baseline.heldout["nmse"] * var_w
+    final_mse = diagnosis.extended.heldout["nmse"] * var_w
+    floor = diagnosis.noise_floor.variance if diagnosis.noise_floor is not None else 0.0
+    left = diagnosis.unexplained
+    where = ""
+    if left is not None:
+        summary = left.get("description", {}).get("summary", "")
+        where = f": {summary}" if summary else ""
+        if left.get("underdetermined"):
+            where += f" ({left['underdetermined']})"
+    if causes:
+        share = explained_fraction(base_mse, final_mse, floor)
+        head = (f"{_names(causes)} {'explains' if len(causes) == 1 else 'explain'} {share:.0%} of the simulation's "
+                f"held-out error above the noise floor (gain {diagnosis.gain:.2g}×)")
+        if left is None:
+            return head + "; what remains is measurement noise."
+        return head + f"; {left['fraction_above_floor']:.0%} of what remains lies above the noise{where}."
+    if left is None:
+        ratio = final_mse / floor if floor > 0 else float("nan")
+        return (f"No effect is needed: the simulation's held-out error is {ratio:.2g}× the measurement noise floor, "
+                "as good as the data allow.")
+    return (f"No effect in the library explains what the simulation misses: {left['fraction_above_floor']:.0%} of its "
+            f"held-out error lies above the noise floor{where}.")
