@@ -1,8 +1,9 @@
 """Hidden effect × seed → what `diagnose` names: the confusion table, the gains, the time.
 
-    python experiments/discrepancy.py [--effects none,delay,...] [--seeds 10 | --seed-list 2,3,7] [--duration 120]
+    python experiments/discrepancy.py [--effects none,delay,back_relaxation+saturation,dead_zone,...]
+                                      [--seeds 10 | --seed-list 2,3,7] [--duration 120]
                                       [--rate 30] [--drive prbs-multilevel] [--noise 0.01]
-                                      [--virtual] [--out experiments/results/discrepancy.json]
+                                      [--virtual] [--dry-run] [--out experiments/results/discrepancy.json]
 
 Each draw: a strip and an effect from the issue's ranges (`hybrid.ipmc._synthetic`:
 ξρ/ξh 1–100, α 0.1–0.9, C_clamp 1 mF–1 F, gain 0.3–5 mm/V; the effect made by
@@ -12,6 +13,18 @@ the confusion table (true effect × named cause) and the held-out gains, over al
 draws and over the identifiable ones (see `IDENTIFIABLE`), and writes every
 candidate's held-out gain, ΔBIC, Ljung–Box Q and reasons to the JSON file (and
 both tables to the .md file beside it).
+
+`--effects` takes the library's hidden effects, effects outside the library
+(`hybrid.ipmc._outside_effects`: electrostatic, dead_zone, rate_dependent,
+self_heating) and several at once joined by ``+`` (``back_relaxation+saturation``:
+`hybrid.ipmc._hidden_pairs`). Beside the single-effect table, the summary has
+the open-world tables: pairs (both named, one named, wrong names, none), effects
+outside the library (flagged unexplained, forced into a known name, nothing
+said), false discoveries and false "unexplained" on effect-free draws, false
+all-clears (an effect hidden, nothing named, nothing unexplained, while the
+baseline leaves more than 2× the noise held out), and the noise floor `diagnose`
+estimated against the noise the generator added. `--dry-run` makes the
+recordings and prints their truth without running `diagnose`.
 
 `--drive` takes one of the drives of `hybrid.make_drive`, or `prbs-multilevel`
 (random levels in ±A held 0.5–10 s: steps for a delay and a mode, holds for a
@@ -70,7 +83,7 @@ def excess_over_noise(recording, found) -> tuple[float, float]:
     hidden = recording.metadata["hidden"]
     noise_var = (hidden["noise_fraction"] * np.ptp(recording.extra["w_true"])) ** 2
     baseline = float(np.mean((found.heldout["w"] - found.heldout["baseline"]) ** 2)) / noise_var
-    others = found.evidence["equally_good_effect_free_fits"]["heldout_nmse_min"]
+    others = found.evidence.get("equally_good_effect_free_fits", {}).get("heldout_nmse_min", float("nan"))
     best = min(1.0, others / found.baseline.heldout["nmse"]) if np.isfinite(others) else 1.0
     return baseline, baseline * best
 
@@ -90,14 +103,170 @@ def _table(rows, effects, causes) -> str:
     return "\n".join(lines)
 
 
+#: A draw with an effect hidden is a *false all-clear* when nothing is named, nothing is left
+#: unexplained, and the baseline's held-out MSE exceeds this many times the true noise variance.
+ALL_CLEAR = 2.0
+
+#: Effects outside the generator's library list that a later library describes: a hidden
+#: ``electrostatic`` is *found* when `diagnose` names this cause (when `CAUSES` has it).
+FOUND_AS = {"electrostatic": "even_response"}
+
+
+def expected_names(hidden: list[str], causes) -> tuple[list[str], list[str]]:
+    """(the causes that would name the hidden effects, the hidden effects no cause describes)."""
+    named, outside = [], []
+    for name in hidden:
+        cause = FOUND_AS.get(name, name)
+        (named if cause in causes else outside).append(cause if cause in causes else name)
+    return named, outside
+
+
+def kind_of(expected: list[str], outside: list[str]) -> str:
+    """none, single, pair (two or more library effects), outside (only unknown ones) or mixed."""
+    if not expected and not outside:
+        return "none"
+    if not outside:
+        return "single" if len(expected) == 1 else "pair"
+    return "outside" if not expected else "mixed"
+
+
+def open_world(found) -> tuple[list[dict], dict | None, object]:
+    """(causes, unexplained, noise floor) of a Diagnosis; today's (one cause, no more) reads as one or none."""
+    causes = getattr(found, "causes", None)
+    if causes is None:
+        causes = [] if found.cause == "none" else [{"name": found.cause, "parameters": {},
+                                                    "incremental_gain": found.gain}]
+    return list(causes), getattr(found, "unexplained", None), getattr(found, "noise_floor", None)
+
+
+def _plain(x):
+    """JSON-ready copy (numpy scalars and arrays to floats and lists)."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if hasattr(x, "__array__"):  # numpy and JAX arrays and scalars
+        return np.asarray(x).tolist()
+    return x
+
+
+def open_world_row(recording, found, excess: float, causes_known) -> dict:
+    """The open-world keys of a row: what was hidden, what was named, what was left unexplained, the noise."""
+    from hybrid.ipmc._hidden_pairs import hidden_effects, true_noise_variance
+
+    hidden = list(hidden_effects(recording))
+    expected, outside = expected_names(hidden, causes_known)
+    causes, unexplained, floor = open_world(found)
+    names = [c["name"] for c in causes]
+    true_var = true_noise_variance(recording)
+    row = {"hidden_effects": hidden, "expected_causes": expected, "outside_effects": outside,
+           "kind": kind_of(expected, outside), "causes": names, "cause_details": _plain(causes),
+           "unexplained": unexplained is not None,
+           "unexplained_fraction": None if unexplained is None else float(unexplained["fraction_above_floor"]),
+           "unexplained_summary": None if unexplained is None else
+           str((unexplained.get("description") or {}).get("summary", "")),
+           "true_noise_variance": true_var, "noise_floor": None if floor is None else _plain(floor.to_dict()),
+           "noise_floor_variance": None if floor is None else float(floor.variance),
+           "noise_floor_std_error": None if floor is None else float(floor.std_error),
+           "noise_floor_over_true": None if floor is None else float(floor.variance) / true_var}
+    row["false_all_clear"] = bool(hidden and not names and unexplained is None and excess > ALL_CLEAR)
+    return row
+
+
+def _named_set(r) -> str:
+    return "{" + ", ".join(sorted(r["causes"])) + "}" if r["causes"] else "∅"
+
+
+def _counts(items) -> str:
+    items = list(items)
+    return "; ".join(f"{k} ×{items.count(k)}" for k in sorted(set(items), key=lambda k: (-items.count(k), k))) or "·"
+
+
+def open_world_tables(rows, specs) -> str:
+    """The open-world summary: hidden → named set, pairs, outside effects, effect-free, all-clears, noise floor."""
+    out = ["Hidden → named set (every draw; ∅: nothing named; \"unexpl.\": `unexplained` set):\n",
+           "| hidden | draws | named sets | unexpl. |", "|---|---|---|---|"]
+    for spec in specs:
+        mine = [r for r in rows if r["effect"] == spec]
+        if mine:
+            out.append(f"| {spec} | {len(mine)} | {_counts(_named_set(r) for r in mine)} | "
+                       f"{sum(r['unexplained'] for r in mine)}/{len(mine)} |")
+    pairs = [s for s in specs if any(r["effect"] == s and r["kind"] == "pair" for r in rows)]
+    if pairs:
+        out += ["", "Pairs of library effects (both named: every hidden effect among the named, of which exactly: "
+                "nothing else named; one named: some but not all; wrong name(s): named, none of them hidden):\n",
+                "| hidden | both named | of which exactly | one named | wrong name(s) | none | unexpl. "
+                "| gain (median) |",
+                "|---" * 8 + "|"]
+        for spec in pairs:
+            mine = [r for r in rows if r["effect"] == spec]
+            hits = [len(set(r["expected_causes"]) & set(r["causes"])) for r in mine]
+            both = [r for r, h in zip(mine, hits) if h == len(r["expected_causes"])]
+            exact = sum(set(r["causes"]) == set(r["expected_causes"]) for r in mine)
+            one = sum(0 < h < len(r["expected_causes"]) for r, h in zip(mine, hits))
+            wrong = sum(h == 0 and bool(r["causes"]) for r, h in zip(mine, hits))
+            none = sum(not r["causes"] for r in mine)
+            out.append(f"| {spec} | {len(both)}/{len(mine)} | {exact} | {one} | {wrong} | {none} | "
+                       f"{sum(r['unexplained'] for r in mine)} | {np.median([r['gain'] for r in mine]):.2f} |")
+    outside = [s for s in specs if any(r["effect"] == s and r["kind"] in ("outside", "mixed") for r in rows)]
+    if outside:
+        out += ["", "Effects outside the library (unexplained: flagged, whatever was named beside; forced: a "
+                "known name and nothing flagged; none: nothing named, nothing flagged — a false all-clear):\n",
+                "| hidden | draws | unexplained (fraction above floor, median) | forced into a known name (which) "
+                "| none (false all-clear) | library part named |", "|---" * 6 + "|"]
+        for spec in outside:
+            mine = [r for r in rows if r["effect"] == spec]
+            flagged = [r for r in mine if r["unexplained"]]
+            forced = [r for r in mine if r["causes"] and not r["unexplained"]]
+            none = sum(not r["causes"] and not r["unexplained"] for r in mine)
+            frac = f" ({np.median([r['unexplained_fraction'] for r in flagged]):.2f})" if flagged else ""
+            library = [r for r in mine if r["expected_causes"]]
+            part = (f"{sum(set(r['expected_causes']) <= set(r['causes']) for r in library)}/{len(library)}"
+                    if library else "—")
+            out.append(f"| {spec} | {len(mine)} | {len(flagged)}{frac} | {len(forced)} "
+                       f"({_counts(_named_set(r) for r in forced)}) | {none} | {part} |")
+    free = [r for r in rows if r["kind"] == "none"]
+    if free:
+        named = [r for r in free if r["causes"]]
+        flagged = [r for r in free if r["unexplained"]]
+        out += ["", f"Effect-free draws: false discoveries (anything named) {len(named)}/{len(free)}"
+                + (f" ({_counts(_named_set(r) for r in named)})" if named else "")
+                + f"; false unexplained {len(flagged)}/{len(free)}"
+                + (" (seeds " + ", ".join(str(r["seed"]) for r in flagged) + ")" if flagged else "") + "."]
+    hidden = [r for r in rows if r["kind"] != "none"]
+    if hidden:
+        clear = [r for r in hidden if r["false_all_clear"]]
+        out += ["", f"False all-clears (an effect hidden, nothing named, `unexplained` None, while the baseline's "
+                f"held-out MSE is > {ALL_CLEAR:g}× the true noise variance): {len(clear)}/{len(hidden)}"
+                + (" — " + ", ".join(f"{r['effect']} seed {r['seed']}" for r in clear) if clear else "") + "."]
+    floors = [r for r in rows if r["noise_floor_variance"] is not None]
+    if floors:
+        ratio = np.array([r["noise_floor_over_true"] for r in floors])
+        within = sum(abs(r["noise_floor_variance"] - r["true_noise_variance"])
+                     <= 2 * r["noise_floor_std_error"] for r in floors if np.isfinite(r["noise_floor_std_error"]))
+        out += ["", f"Noise floor (estimated by `diagnose` from the recording) over the true noise variance: "
+                f"median {np.median(ratio):.3f}, range {ratio.min():.3f}–{ratio.max():.3f}; within 2 standard "
+                f"errors of the truth in {within}/{len(floors)} draws."]
+        for kind in ("none", "single", "pair", "outside", "mixed"):
+            some = [r["noise_floor_over_true"] for r in floors if r["kind"] == kind]
+            if some:
+                out.append(f"- {kind}: median {np.median(some):.3f}, range {min(some):.3f}–{max(some):.3f} "
+                           f"({len(some)} draws)")
+    return "\n".join(out)
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     jax.config.update("jax_enable_x64", True)
     from hybrid import CAUSES, diagnose
+    from hybrid.ipmc._hidden_pairs import HIDDEN_NAMES, canonical
     from hybrid.ipmc._synthetic import HIDDEN_EFFECTS
+    from hybrid.util._errors import InputError
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--effects", default=",".join(HIDDEN_EFFECTS))
+    parser.add_argument("--effects", default=",".join(HIDDEN_EFFECTS),
+                        help=f"comma-separated hidden specs: {', '.join(HIDDEN_NAMES)}, or several joined by '+' "
+                             "(e.g. back_relaxation+saturation,none,electrostatic)")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--seed-list", default=None,
@@ -107,10 +276,15 @@ def main(argv=None) -> int:
     parser.add_argument("--drive", default="prbs-multilevel")
     parser.add_argument("--noise", type=float, default=0.01, help="noise std / displacement range")
     parser.add_argument("--virtual", action="store_true", help="also diagnose the richer virtual IPMC")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="make the recordings and print their truth; no diagnose, nothing written")
     parser.add_argument("--out", default="experiments/results/discrepancy.json")
     args = parser.parse_args(argv)
 
-    effects = args.effects.split(",")
+    try:  # a spec's effects act in physical order: "saturation+back_relaxation" is "back_relaxation+saturation"
+        effects = [canonical(e) for e in args.effects.split(",")]
+    except InputError as err:
+        parser.error(str(err))
     if args.seed_list:
         seeds = [int(x) for x in args.seed_list.split(",")]
     else:
@@ -119,10 +293,25 @@ def main(argv=None) -> int:
     for effect in effects:
         for seed in seeds:
             strip, params, recording = draw(effect, seed, args.duration, args.rate, args.drive, args.noise)
+            if args.dry_run:
+                from hybrid.ipmc._hidden_pairs import hidden_effects, true_noise_variance
+
+                truth = recording.metadata["hidden"]
+                expected, outside = expected_names(list(hidden_effects(recording)), CAUSES)
+                print(f"{effect:16s} seed {seed}: {kind_of(expected, outside)}, found as {expected or '-'}, outside "
+                      f"{outside or '-'}, noise variance {true_noise_variance(recording):.3g}, {len(recording.w)} "
+                      f"samples; {params} {truth.get('derived', '')}", flush=True)
+                continue
             found = diagnose(recording)
             excess, least = excess_over_noise(recording, found)
+            world = open_world_row(recording, found, excess, CAUSES)
+            flagged = f"{world['unexplained_fraction']:.2f} above floor" if world["unexplained"] else "no"
+            floor = (f"{world['noise_floor_over_true']:5.2f}" if world["noise_floor_over_true"] is not None
+                     else "  n/a")
             print(f"{effect:16s} seed {seed}: named {found.cause:16s} gain {found.gain:7.2f}  baseline/noise "
                   f"{excess:6.1f}  effect-free/noise {least:6.1f}  ({found.seconds:.0f} s)  {params}", flush=True)
+            print(f"{'':16s}   causes {'+'.join(world['causes']) or '-'}; unexplained {flagged}; noise floor/true "
+                  f"{floor}{'; FALSE ALL-CLEAR' if world['false_all_clear'] else ''}", flush=True)
             rows.append({
                 "effect": effect, "seed": seed, "effect_params": params, "strip": dataclasses.asdict(strip),
                 "named": found.cause, "gain": found.gain, "seconds": found.seconds,
@@ -135,7 +324,10 @@ def main(argv=None) -> int:
                                         "reasons": c.reasons}
                                for c in found.candidates},
                 "baseline_Q": found.baseline.ljung_box["Q"],
+                **world,
             })
+    if args.dry_run:
+        return 0
 
     virtual = []
     if args.virtual:
@@ -155,8 +347,10 @@ def main(argv=None) -> int:
                                                     "reasons": c.reasons}
                                            for c in found.candidates}})
 
-    table = _table(rows, effects, CAUSES)
-    table_identifiable = _table([r for r in rows if r["identifiable"] or r["effect"] == "none"], effects, CAUSES)
+    single = [e for e in effects if e in HIDDEN_EFFECTS]  # the single-effect tables, as before pairs
+    table = _table(rows, single, CAUSES)
+    table_identifiable = _table([r for r in rows if r["identifiable"] or r["effect"] == "none"], single, CAUSES)
+    world = open_world_tables(rows, effects)
     seconds = [r["seconds"] for r in rows]
     command = "python experiments/discrepancy.py " + " ".join(argv)
     out = Path(args.out)
@@ -165,17 +359,23 @@ def main(argv=None) -> int:
                               indent=2, default=float))
     summary = ["# Discrepancy search: hidden effect × named cause\n", f"Command: `{command}`\n",
                f"Drive {args.drive}, {args.duration:g} s at {args.rate:g} Hz, noise {100 * args.noise:g} % of range, "
-               f"seeds {', '.join(map(str, seeds))}.\n", "All draws:\n", table, "",
-               f"Draws whose effect is identifiable (every effect-free fit leaves a held-out MSE ≥ {IDENTIFIABLE:g}× "
-               "the noise variance, so a gain of 2 is possible; all effect-free draws):\n", table_identifiable, ""]
+               f"seeds {', '.join(map(str, seeds))}.\n"]
+    if single:
+        summary += ["All draws:\n", table, "",
+                    f"Draws whose effect is identifiable (every effect-free fit leaves a held-out MSE ≥ "
+                    f"{IDENTIFIABLE:g}× the noise variance, so a gain of 2 is possible; all effect-free draws):\n",
+                    table_identifiable, ""]
+    summary += ["## Open world: several causes, effects outside the library, the noise floor\n", world, ""]
     if seconds:
         summary.append(f"diagnose time per recording: median {np.median(seconds):.1f} s, max {max(seconds):.1f} s "
                        "(the first includes compilation).\n")
     for v in virtual:
         summary.append(f"Virtual IPMC ({v['drive']}): named **{v['named']}**, held-out gain {v['gain']:.2f}.")
     out.with_suffix(".md").write_text("\n".join(summary) + "\n")
-    print(table)
-    print(table_identifiable)
+    if single:
+        print(table)
+        print(table_identifiable)
+    print(world)
     hits = sum(r["named"] == r["effect"] for r in rows)
     print(f"named right: {hits}/{len(rows)}; wrote {out} and {out.with_suffix('.md')}")
     return 0

@@ -27,6 +27,12 @@ models fitted to it:
 4. gain (mm/V) and offset; a camera that integrates over its exposure and
    samples at the recording rate; Gaussian noise.
 
+Several hidden effects at once (``"back_relaxation+saturation"``) and effects
+outside the library (``electrostatic``, ``dead_zone``, ``rate_dependent``,
+``self_heating``: `hybrid.ipmc._outside_effects`) are made by
+`hybrid.ipmc._hidden_pairs` with the same steps, the effects in physical order;
+`synthetic_recording` and `random_effect` send such specs there.
+
 Parameters are drawn from the ranges of the discrepancy issue: ξρ/ξh 1–100,
 α 0.1–0.9, C_clamp 1 mF–1 F, gain 0.3–5 mm/V; back-relaxation τ 3–60 s,
 20–100 %; hysteresis 5–30 % of the range; saturation 10–50 % below linear at
@@ -37,13 +43,13 @@ the largest drive; delay 1–15 samples; drift 15–60 %; resonance 1–10 Hz,
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from ..util._errors import InputError
 
 HIDDEN_EFFECTS = ("none", "back_relaxation", "hysteresis", "saturation", "delay", "drift", "resonance")
 
@@ -88,7 +94,7 @@ def random_strip(rng: np.random.Generator) -> SyntheticStrip:
 
 
 def random_effect(name: str, rng: np.random.Generator, rate: float) -> dict:
-    """Parameters of a hidden effect drawn from the issue's ranges."""
+    """Parameters of a hidden effect drawn from the issue's ranges (outside names and "a+b": `random_hidden`)."""
     if name == "none":
         return {}
     if name == "back_relaxation":
@@ -107,7 +113,10 @@ def random_effect(name: str, rng: np.random.Generator, rate: float) -> dict:
     if name == "resonance":
         top = min(10.0, 0.35 * rate)
         return {"frequency_hz": math.exp(rng.uniform(math.log(1.0), math.log(top))), "damping": rng.uniform(0.02, 0.3)}
-    raise InputError(f"unknown hidden effect {name!r}: choose from {', '.join(HIDDEN_EFFECTS)}")
+    # An effect outside the library or several at once ("a+b"): see `hybrid.ipmc._hidden_pairs`.
+    from ._hidden_pairs import random_hidden
+
+    return random_hidden(name, rng, rate)
 
 
 # --------------------------------------------------------------------------- #
@@ -123,12 +132,21 @@ def _zoh(a, b, dt):
     return e[:n, :n], e[:n, n]
 
 
-def rc_cascade_exact(strip: SyntheticStrip, v_fine: np.ndarray, dt_fine: float) -> np.ndarray:
-    """V_o of the paper's cascade on the fine grid, exact for a drive held per fine sample."""
+@functools.lru_cache(maxsize=64)
+def _state_space(strip: SyntheticStrip):
+    """The cascade's continuous (A, B, C, D) for `strip`, read-only numpy (cached: one strip, many effects)."""
     from ..physics._rc_network import RCNetwork
 
     network = RCNetwork(strip.xi_rho, strip.xi_h, strip.alpha_E, strip.alpha_I, strip.alpha_C, strip.C_clamp)
-    a, b, c, d = (np.asarray(x, dtype=float) for x in network.state_space())
+    matrices = tuple(np.asarray(x, dtype=float) for x in network.state_space())
+    for x in matrices:
+        x.flags.writeable = False
+    return matrices
+
+
+def rc_cascade_exact(strip: SyntheticStrip, v_fine: np.ndarray, dt_fine: float) -> np.ndarray:
+    """V_o of the paper's cascade on the fine grid, exact for a drive held per fine sample."""
+    a, b, c, d = _state_space(strip)
     phi, gamma = _zoh(a, b, dt_fine)
     # x[n+1] = Φ x[n] + Γ u[n] over the fine grid, outputs y[n] = C x[n] + D u[n].
     _, y, _ = scipy.signal.dlsim((phi, gamma[:, None], c[None, :], np.atleast_2d(d), dt_fine), v_fine)
@@ -187,6 +205,30 @@ def _apply_hidden(name, p, s, dt, t):
     return s
 
 
+def fine_drive(v: np.ndarray, oversample: int, delay_samples: int = 0) -> np.ndarray:
+    """The drive held on the fine grid, shifted by a dead time of `delay_samples` camera samples."""
+    v_fine = np.repeat(v, oversample)
+    shift = int(delay_samples) * oversample
+    if shift:
+        v_fine = np.concatenate([np.zeros(shift), v_fine[:-shift]])  # at rest before the drive
+    return v_fine
+
+
+def camera(w_fine, oversample: int, exposure_fraction: float, noise_fraction: float, seed: int):
+    """(w_true, noise): what the camera sees of the fine-grid displacement, and its Gaussian noise.
+
+    Sample n (time n/rate) averages the fine grid over the exposure ending at it.
+    """
+    m = int(oversample)
+    k = max(1, int(round(exposure_fraction * m)))
+    padded = np.concatenate([np.full(k - 1, w_fine[0]), w_fine])
+    averaged = np.convolve(padded, np.ones(k) / k, mode="valid")
+    w_true = averaged[::m]
+    rng = np.random.default_rng(seed)
+    noise = noise_fraction * np.ptp(w_true) * rng.standard_normal(len(w_true))
+    return w_true, noise
+
+
 def synthetic_recording(
     drive,
     strip: SyntheticStrip = SyntheticStrip(),
@@ -205,6 +247,8 @@ def synthetic_recording(
     - `drive`: a [`hybrid.Drive`][] (its rate is the camera's).
     - `strip`: RC parameters, gain and offset.
     - `effect`: one of `HIDDEN_EFFECTS`; `effect_params` as from [`random_effect`][].
+      An effect outside the library (``electrostatic``, …) or several at once
+      (``"back_relaxation+saturation"``) go to `hybrid.ipmc._hidden_pairs.compound_recording`.
     - `noise_fraction`: noise std as a fraction of the displacement's range.
     - `oversample`: fine-grid points per camera sample.
     - `exposure_fraction`: exposure time as a fraction of the frame interval; each
@@ -216,27 +260,21 @@ def synthetic_recording(
     """
     from ..data._recording import Recording
 
-    if effect not in HIDDEN_EFFECTS:
-        raise InputError(f"unknown hidden effect {effect!r}: choose from {', '.join(HIDDEN_EFFECTS)}")
+    if effect not in HIDDEN_EFFECTS:  # outside the library, or several at once
+        from ._hidden_pairs import compound_recording
+
+        return compound_recording(drive, strip, effect, effect_params, noise_fraction=noise_fraction,
+                                  oversample=oversample, exposure_fraction=exposure_fraction, seed=seed)
     params = dict(effect_params or {})
     rate, v = float(drive.rate), np.asarray(drive.v, dtype=float)
     m = int(oversample)
     dt_fine = 1.0 / (rate * m)
-    v_fine = np.repeat(v, m)
-    if effect == "delay":
-        shift = int(params["delay_samples"]) * m
-        v_fine = np.concatenate([np.zeros(shift), v_fine[:-shift]])  # at rest before the drive
+    v_fine = fine_drive(v, m, params["delay_samples"] if effect == "delay" else 0)
     t_fine = np.arange(len(v_fine)) * dt_fine
     s = rc_cascade_exact(strip, v_fine, dt_fine)
     s = _apply_hidden(effect, params, s, dt_fine, t_fine)
     w_fine = strip.gain_mm_per_v * s + strip.offset_mm
-    # Camera: sample n (time n/rate) averages the fine grid over the exposure ending at it.
-    k = max(1, int(round(exposure_fraction * m)))
-    padded = np.concatenate([np.full(k - 1, w_fine[0]), w_fine])
-    averaged = np.convolve(padded, np.ones(k) / k, mode="valid")
-    w_true = averaged[::m]
-    rng = np.random.default_rng(seed)
-    noise = noise_fraction * np.ptp(w_true) * rng.standard_normal(len(w_true))
+    w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed)
     hidden = {"effect": effect, "effect_params": params, "strip": dataclasses.asdict(strip),
               "noise_fraction": noise_fraction, "oversample": m, "exposure_fraction": exposure_fraction,
               "seed": seed}
