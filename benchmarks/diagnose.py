@@ -1,4 +1,8 @@
-"""`diagnose` on one 5-minute, 30 Hz recording: target ≤ 60 s on the 2-core machine.
+"""`diagnose` on one 5-minute, 30 Hz recording: the warm command line within 104 s on the 2-core machine.
+
+The target is issue 22's: the open-world (stepwise) search may take at most
+twice the 52 s the single-cause search took warm (the earlier target, 60 s,
+was the single-cause search's).
 
     python benchmarks/diagnose.py [--duration 300] [--rate 30]
 
@@ -74,7 +78,7 @@ def main() -> None:
         "diagnose_first_call_s": cold, "diagnose_second_call_s": warm,
         "physics_fit_first_call_s": peer, "second_call_over_one_fit": warm / peer,
         "cli_empty_cache_s": cli[0], "cli_warm_cache_s": cli[1],
-        "target_s": 60.0, "named": [found.cause, found2.cause],
+        "target_s": 104.0, "named": [found.cause, found2.cause],
         "machine": c.machine(),
         "command": "python benchmarks/diagnose.py",
     }

@@ -376,8 +376,9 @@ def main(argv=None) -> int:
         print(table)
         print(table_identifiable)
     print(world)
-    hits = sum(r["named"] == r["effect"] for r in rows)
-    print(f"named right: {hits}/{len(rows)}; wrote {out} and {out.with_suffix('.md')}")
+    single_rows = [r for r in rows if "+" not in r["effect"] and not r.get("outside_effects")]
+    hits = sum(r["named"] == r["effect"] for r in single_rows)
+    print(f"single effects (and none) named right: {hits}/{len(single_rows)}; wrote {out} and {out.with_suffix('.md')}")
     return 0
 
 
