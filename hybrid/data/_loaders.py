@@ -25,7 +25,7 @@ import numpy as np
 from ..util._errors import InputError
 from ._recording_checks import REQUIRED, _rows_text
 
-__all__ = ["SUFFIXES", "read_file", "sidecar"]
+__all__ = ["SUFFIXES", "check_file", "mat_variables", "npz_arrays", "read_file", "sidecar"]
 
 #: File suffixes `Recording.load` and `Recording.save` understand.
 SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
@@ -48,15 +48,7 @@ def read_file(
         found in the file) and the metadata, with ``"source"`` set to ``path``
         when missing.
     """
-    reader = {".csv": _load_csv, ".npz": _load_npz, ".mat": _load_mat}[_suffix(path)]
-    if not path.exists():
-        raise InputError(f"recording file '{path}' does not exist: check the path")
-    if not path.is_file():
-        raise InputError(f"recording file '{path}' is not a file: give a file path")
-    if path.stat().st_size == 0:
-        raise InputError(
-            f"recording file '{path}' is empty: give a file with a header and data"
-        )
+    reader = {".csv": _load_csv, ".npz": _load_npz, ".mat": _load_mat}[check_file(path)]
     columns, metadata = reader(path, REQUIRED if require_w else REQUIRED[:2])
     if "w" not in columns:
         columns["w"] = np.zeros_like(columns["t"])
@@ -67,6 +59,20 @@ def read_file(
 # --------------------------------------------------------------------------- #
 # Paths and shared checks
 # --------------------------------------------------------------------------- #
+
+
+def check_file(path: pathlib.Path) -> str:
+    """Require a non-empty file with a known suffix; return the suffix, lower case."""
+    suffix = _suffix(path)
+    if not path.exists():
+        raise InputError(f"recording file '{path}' does not exist: check the path")
+    if not path.is_file():
+        raise InputError(f"recording file '{path}' is not a file: give a file path")
+    if path.stat().st_size == 0:
+        raise InputError(
+            f"recording file '{path}' is empty: give a file with a header and data"
+        )
+    return suffix
 
 
 def _suffix(path: pathlib.Path) -> str:
@@ -250,9 +256,8 @@ def _load_csv(
 # ------------------------------------------------------------------- NPZ
 
 
-def _load_npz(
-    path: pathlib.Path, required: Sequence[str] = REQUIRED
-) -> tuple[dict[str, np.ndarray], dict]:
+def npz_arrays(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
+    """Every array of a ``.npz`` archive as stored, and its ``metadata`` entry parsed."""
     try:
         with np.load(path, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
@@ -264,6 +269,13 @@ def _load_npz(
     metadata = {}
     if "metadata" in arrays:
         metadata = _parse_metadata(path, str(arrays.pop("metadata")[()]), "its 'metadata' entry")
+    return arrays, metadata
+
+
+def _load_npz(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict]:
+    arrays, metadata = npz_arrays(path)
     _require(path, list(arrays), "array(s)", required)
     columns = {}
     for key, values in arrays.items():
@@ -301,9 +313,8 @@ def _is_hdf5(path: pathlib.Path) -> bool:
     return head[:10] == b"MATLAB 7.3" or head[512:520] == b"\x89HDF\r\n\x1a\n"
 
 
-def _load_mat(
-    path: pathlib.Path, required: Sequence[str] = REQUIRED
-) -> tuple[dict[str, np.ndarray], dict]:
+def mat_variables(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
+    """Every variable of a ``.mat`` file as stored, and its ``metadata`` variable parsed."""
     import scipy.io
 
     try:
@@ -328,6 +339,13 @@ def _load_mat(
                 "string: store the metadata as a JSON char array"
             )
         metadata = _parse_metadata(path, str(text.reshape(-1)[0]), "its 'metadata' variable")
+    return variables, metadata
+
+
+def _load_mat(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict]:
+    variables, metadata = mat_variables(path)
     _require(path, list(variables), "variable(s)", required)
     columns = {key: _file_vector(path, key, values) for key, values in variables.items()}
     return columns, metadata

@@ -329,8 +329,14 @@ class Recording:
     # -------------------------------------------------------------------- I/O
 
     @classmethod
-    def load(cls, path: str | pathlib.Path, *, require_w: bool = True) -> Recording:
+    def load(cls, path: str | pathlib.Path, *, require_w: bool = True, **mapping: Any) -> Recording:
         """Read a recording from a ``.csv``, ``.npz`` or ``.mat`` file.
+
+        With any of ``input``, ``output``, ``columns``, ``time``, ``rate``,
+        ``sample_range``, ``units`` or ``name`` given (not None), the file's own
+        column names are mapped instead: ``Recording.load("dataBenchmark.csv",
+        input="uEst", output="yEst")`` reads a benchmark file; see
+        `hybrid.data._mapping.load_mapped`. Without them, as follows.
 
         * ``.csv``: lines starting with ``#`` and blank lines are skipped; the
           first other line is the header, which must name ``t``, ``v_in`` and
@@ -351,6 +357,12 @@ class Recording:
         Returns:
             The validated [`Recording`][hybrid.Recording], named by ``path``.
         """
+        if mapping:
+            from ._mapping import load_mapped  # it builds Recordings: imported here, not at the top
+
+            unknown = not mapping.keys() <= load_mapped.__kwdefaults__.keys()  # its TypeError
+            if unknown or any(value is not None for value in mapping.values()):
+                return load_mapped(path, require_w=require_w, **mapping)
         path = _path_argument(path, "Recording.load")
         columns, metadata = read_file(path, require_w=require_w)
         extra = {c: v for c, v in columns.items() if c not in REQUIRED}

@@ -1,0 +1,241 @@
+"""A lab's own file as a [`Recording`][hybrid.Recording]: which column is the drive,
+which the measured output, where the time comes from.
+
+`load_mapped` (also `Recording.load(path, input=..., output=..., ...)`) reads a
+``.csv``, ``.npz`` or ``.mat`` file whose columns are not called ``t, v_in, w``;
+`load_pair` reads a benchmark's estimation and validation records. The mapping:
+
+* ``input`` / ``output`` / ``time``: the file's names (header names, array or
+  variable names; exact, case-sensitive) of the drive (-> ``v_in``), the
+  measured output (-> ``w``) and an optional time column in seconds (-> ``t``).
+* ``columns``: the same in one string, ``"input=uEst,output=yEst"`` or
+  ``"t=time,v_in=u,w=y"``. Grammar::
+
+      columns ::= pair { "," pair }
+      pair    ::= role "=" name
+      role    ::= "input" | "v_in" | "output" | "w" | "time" | "t"   (any case)
+      name    ::= a column name, spaces around it trimmed; in double quotes
+                  when it holds a comma, e.g. output="level, V"
+
+  ``units`` may be given as a string in the same grammar, ``"v_in=V,w=mm"``.
+  Each role at most once, here and in the keywords together; ``input=a,output=b``
+  and ``input="a", output="b"`` give the same recording.
+* ``rate`` (Hz): with no time column, ``t = (start + k) / rate``. A rate or
+  period field of the file (`RATE_FIELDS`: a ``Ts`` column whose first row holds
+  the period, as in Cascaded Tanks; ``fs``/``rate`` columns; the same keys in the
+  sidecar metadata) gives it too. Every rate given (argument, fields, metadata,
+  the time column's median step) must agree within `RATE_RTOL`, else one error;
+  the time column wins, then the file's fields, the metadata, the argument.
+* ``sample_range``: ``"start:stop"`` in samples from 0, Python-slice style,
+  either side optional (``"40650:"``, ``":40000"``, ``"100:200"``); negative,
+  out-of-range and empty ranges are refused. It is applied after mapping; the
+  time then keeps the file's clock: ``t[0] = start / rate`` (or the time
+  column's value), and ``metadata["segment"]`` records ``start`` and ``stop``,
+  as [`Recording.segment`][hybrid.Recording.segment] does.
+* ``units``: labels stored in ``metadata["units"]``, e.g. ``{"v_in": "V",
+  "w": "V"}``; nothing is converted except a time column given in ``ms``,
+  ``us``, ``min`` or ``h`` (`TIME_UNITS`). Defaults: the sidecar's units for the
+  column (or role), else ``V`` for the drive and ``a.u.`` for the output.
+
+Every bad mapping raises one [`InputError`][hybrid.InputError] saying what is
+wrong and how to fix it. Unmapped columns are not read (except rate fields)
+and may hold anything.
+"""
+
+from __future__ import annotations
+
+import numbers
+import pathlib
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ..util._errors import InputError
+from ._loaders import _path_argument, check_file
+from ._mapping_options import (
+    TIME_UNITS,
+    mapping_roles,
+    parse_sample_range,
+    range_bounds,
+    rate_argument,
+    units_argument,
+)
+from ._recording import Recording
+from ._recording_checks import MS_STEP_S
+from ._table import OPTION, RATE_FIELDS, rate_field, read_columns
+
+__all__ = ["DEFAULT_UNITS", "RATE_RTOL", "load_mapped", "load_pair"]
+
+#: Units stored when neither the call nor the file's metadata gives one.
+DEFAULT_UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "a.u."}
+#: Largest relative difference between two rates of one recording that still agree
+#: (610.35 Hz, the Silverbox's rate as usually quoted, against 10⁷/2¹⁴ Hz: 2.6e-6).
+RATE_RTOL: float = 1e-4
+
+
+
+def load_mapped(
+    path: str | pathlib.Path, *, input: str | None = None, output: str | None = None,
+    columns: str | None = None, rate: float | None = None, sample_range: str | slice | None = None,
+    time: str | None = None, units: Mapping[str, str] | None = None, name: str | None = None,
+    require_w: bool = True,
+) -> Recording:
+    """Read a file whose columns have the lab's names; see the module's rules.
+
+    Arguments:
+        path: a ``.csv`` (with an optional ``<file>.csv.json`` sidecar), ``.npz`` or ``.mat`` file.
+        input: the drive's column (-> ``v_in``).
+        output: the measured output's column (-> ``w``).
+        columns: the whole mapping in one string, ``"input=uEst,output=yEst"``.
+        rate: sampling rate, Hz, when there is no time column (or to check one).
+        sample_range: ``"start:stop"`` in samples from 0, either side optional.
+        time: a time column (-> ``t``), in seconds unless ``units["t"]`` says otherwise.
+        units: unit labels by role (``t``/``time``, ``v_in``/``input``, ``w``/``output``).
+        name: how messages refer to the recording; default the path and the mapping.
+        require_w: False to allow no output (``w`` is then zeros), as `Recording.load`.
+
+    Returns:
+        The validated recording; ``metadata`` holds ``units``, ``mapping`` (role -> the
+        file's name), ``rate_hz`` and ``rate_from``, and ``segment`` for a sample range.
+    """
+    path = _path_argument(path, "load_mapped")
+    roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
+    rate_arg = rate_argument(rate)
+    given_units = units_argument(units, "t" in roles)
+    bounds = parse_sample_range(sample_range)
+    if name is not None and (not isinstance(name, str) or not name.strip()):
+        raise InputError(f"load_mapped got name {name!r}: give a non-empty string or leave it out")
+    data, fields, file_meta = read_columns(path, check_file(path), roles)
+    lengths = {role: len(values) for role, values in data.items()}
+    if len(set(lengths.values())) > 1:
+        listed = ", ".join(f"the {OPTION[r]} '{roles[r]}' has {k}" for r, k in lengths.items())
+        raise InputError(
+            f"recording '{path}': {listed} values: map columns of one record, of one length"
+        )
+    n = lengths["v_in"]
+    start, stop = range_bounds(path, sample_range, bounds, n)
+    ranged = (start, stop) != (0, n)
+    label = name.strip() if name else (
+        f"{path} ({roles['v_in']} -> {roles.get('w', 'no output')}"
+        + (f", samples {start}:{stop})" if ranged else ")")
+    )
+    t = None
+    if "t" in data:
+        declared = "t" in given_units  # a time column in seconds unless its unit is given
+        t = data["t"][start:stop] * TIME_UNITS[given_units.pop("t", "s")]
+        step = float(np.median(np.diff(t)))
+        if not declared and step >= MS_STEP_S:
+            raise InputError(
+                f"recording '{label}' has a time column '{roles['t']}' stepping by {step:.4g}: it "
+                f"looks like milliseconds ({1000 / step:.4g} Hz if so): give its unit, units "
+                "t=ms (or t=s for a recording really sampled this slowly)"
+            )
+    hz, rate_from = _resolve_rate(label, rate_arg, t, fields, file_meta)
+    if t is None:
+        if hz is None:
+            raise InputError(
+                f"recording '{label}' has no time column and no sampling rate: pass the rate in "
+                "Hz (--rate HZ; rate= in Python) or name a time column (--time COLUMN; time=)"
+            )
+        t = (start + np.arange(stop - start, dtype=np.float64)) / hz
+    metadata = dict(file_meta)
+    metadata.update(
+        source=str(path), units=_units(roles, given_units, file_meta),
+        mapping={role: roles.get(role) for role in ("t", "v_in", "w")}, rate_hz=hz, rate_from=rate_from,
+    )
+    if ranged:
+        previous = file_meta.get("segment")
+        offset = int(previous.get("start", 0)) if isinstance(previous, dict) else 0
+        metadata["segment"] = {"start": offset + start, "stop": offset + stop}
+    w = data["w"][start:stop] if "w" in data else np.zeros(stop - start)
+    return Recording(t, data["v_in"][start:stop], w, {}, metadata, label)
+
+
+def load_pair(
+    path: str | pathlib.Path, *, test_input: str | None = None, test_output: str | None = None,
+    test_sample_range: str | slice | None = None, test_path: str | pathlib.Path | None = None,
+    **options: Any,
+) -> tuple[Recording, Recording]:
+    """A benchmark's estimation and validation records, e.g. Cascaded Tanks'
+    ``uEst -> yEst`` and ``uVal -> yVal``, or two sample ranges of the Silverbox.
+
+    Arguments:
+        path: the file of the estimation record.
+        test_input: the validation record's input column; default the estimation's.
+        test_output: the validation record's output column; default the estimation's.
+        test_sample_range: the validation record's samples; default all of them
+            (``sample_range`` is the estimation record's only).
+        test_path: the validation record's file; default ``path``.
+        options: the estimation record's options of `load_mapped`; all but
+            ``sample_range`` and ``name`` apply to the validation record too.
+
+    Returns:
+        ``(estimation, validation)``.
+    """
+    estimation = load_mapped(path, **options)
+    roles = mapping_roles(**{k: options.get(k) for k in ("input", "output", "time", "columns")},
+                          require_w=options.get("require_w", True))
+    if test_input is None and test_output is None and test_sample_range is None and test_path is None:
+        raise InputError(
+            f"recording '{estimation.name}' has no validation record: give its columns "
+            "(--test-input, --test-output), its samples (--test-sample-range) or its file"
+        )
+    test = {**options, "columns": None, "sample_range": test_sample_range, "name": None,
+            "input": test_input or roles["v_in"], "output": test_output or roles.get("w"),
+            "time": roles.get("t")}
+    validation = load_mapped(path if test_path is None else test_path, **test)
+    def same(r: Recording) -> tuple:
+        return r.metadata["source"], r.metadata["mapping"], r.metadata.get("segment")
+
+    if same(validation) == same(estimation):
+        raise InputError(
+            f"recording '{estimation.name}': the validation record is the estimation record "
+            "(same file, columns and samples): give other columns or another sample range"
+        )
+    return estimation, validation
+
+
+def _units(roles: Mapping[str, str], given: Mapping[str, str], file_meta: Mapping) -> dict[str, str]:
+    declared = file_meta.get("units")
+    declared = declared if isinstance(declared, Mapping) else {}
+    out = {"t": "s"}
+    for channel in ("v_in", "w"):
+        found = [given.get(channel), declared.get(roles.get(channel, "")), declared.get(channel)]
+        out[channel] = next((u for u in found if isinstance(u, str) and u), DEFAULT_UNITS[channel])
+    return out
+
+
+def _resolve_rate(
+    label: str, rate: float | None, t: np.ndarray | None, fields: Mapping[str, np.ndarray],
+    metadata: Mapping,
+) -> tuple[float | None, str]:
+    """The sampling rate and where it came from; every source must agree within RATE_RTOL."""
+    sources: list[tuple[str, float]] = []
+    if t is not None and len(t) > 1:
+        step = float(np.median(np.diff(t)))
+        if step > 0:
+            sources.append((f"the time column (step {step:.6g} s)", 1.0 / step))
+    found = [(f"the file's '{k}' field", rate_field(v), k) for k, v in fields.items()]
+    for k, v in metadata.items():
+        if isinstance(k, str) and k.lower() in RATE_FIELDS:
+            number = isinstance(v, numbers.Real) and not isinstance(v, bool)
+            found.append((f"metadata '{k}'", rate_field(v) if number else None, k))
+    for where, value, key in found:
+        if value is not None:
+            unit = RATE_FIELDS[key.lower()]
+            sources.append((f"{where} ({value:.6g} {unit})", value if unit == "Hz" else 1.0 / value))
+    if rate is not None:
+        sources.append(("the rate given", rate))
+    if not sources:
+        return None, ""
+    first_where, first = sources[0]
+    for where, hz in sources[1:]:
+        if abs(hz - first) > RATE_RTOL * first:
+            hint = (" (is the time column in milliseconds? give units {'t': 'ms'})"
+                    if t is not None and 9e-4 < first / hz < 1.1e-3 else "")
+            raise InputError(
+                f"recording '{label}' has sampling rates that disagree: {first_where} says "
+                f"{first:.6g} Hz, {where} says {hz:.6g} Hz{hint}: give one rate, or make them agree"
+            )
+    return first, first_where
