@@ -85,6 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="save the model here (default: <first recording>.<model>.eqx)")
     p.add_argument("--json", default=None, help="write the fit report (metrics, parameters) as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_mapping(p, B)
 
     p = sub.add_parser("table2", help="reproduce the paper's Table 2 on the virtual IPMC")
     p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), default=None,
@@ -119,7 +120,34 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cut each recording into N blocks, each split train/validation/held-out "
                         "(default: DiagnoseSettings.blocks; 1: one held-out tail)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
+    _add_mapping(p, B)
     return parser
+
+
+def _add_mapping(p, B) -> None:
+    """Options that read a lab's own file: which columns are the drive and the output, the rate, the samples."""
+    g = p.add_argument_group("files with other columns (hybrid.data._mapping)")
+    g.add_argument("--input", default=None, metavar="COLUMN", help="the drive's column (e.g. uEst)")
+    g.add_argument("--output", default=None, metavar="COLUMN", help="the measured output's column (e.g. yEst)")
+    g.add_argument("--time", default=None, metavar="COLUMN", help="a time column (default: none; t from the rate)")
+    g.add_argument("--columns", default=None, metavar="MAP", help="the mapping in one flag: input=uEst,output=yEst")
+    g.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=None,
+                   help="samples per second, when the file has no time column or Ts/fs field")
+    g.add_argument("--range", dest="sample_range", default=None, metavar="START:STOP",
+                   help="the samples to use, Python-slice style (e.g. 40650:)")
+    g.add_argument("--units", default=None, metavar="MAP", help="unit labels, e.g. v_in=V,w=V (labels only)")
+
+
+def _load_recordings(args, paths):
+    """Recordings from the command line's paths: the project's own columns, or the mapped ones."""
+    from .data._mapping import load_mapped
+    from .data._recording import Recording
+
+    options = {k: getattr(args, k, None) for k in ("input", "output", "time", "columns", "rate", "sample_range",
+                                                  "units")}
+    if not any(v is not None for v in options.values()):
+        return [Recording.load(p) for p in paths]
+    return [load_mapped(p, **options) for p in paths]
 
 
 def _warn_notes(recordings):
@@ -223,7 +251,7 @@ def _cmd_fit(args):
     lock = _outputs([_out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
                      _out_file(args.json, "--json", (".json",)) if args.json else None],
                     inputs=args.recordings)
-    recordings = [Recording.load(p) for p in args.recordings]
+    recordings = _load_recordings(args, args.recordings)
     simulation = None
     if args.model != "normal":
         simulation = RCNetwork()
@@ -297,7 +325,7 @@ def _cmd_diagnose(args):
     from .data._recording import Recording
 
     lock = _outputs([_out_folder(args.out, ("report.json", "report.md", *FIGURES, REMAINDER_FIGURE))], inputs=args.recordings)
-    recordings = [Recording.load(p) for p in args.recordings]
+    recordings = _load_recordings(args, args.recordings)
     _warn_notes(recordings)
     settings = DiagnoseSettings()
     if args.max_steps is not None:
