@@ -37,6 +37,8 @@ from .core._models import MODEL_KINDS as MODEL_KINDS, Model as Model
 from .ipmc._defaults import diagnose as diagnose, make_model as make_model
 from .core._parameters import Positive as Positive, Real as Real, UnitInterval as UnitInterval
 from .physics._rc_network import RCNetwork as RCNetwork
+from .physics._lti import LTI as LTI
+from .physics._plugins import resolve_physics as resolve_physics
 from .core._readout import (
     AbstractReadout as AbstractReadout,
     LinearReadout as LinearReadout,
