@@ -30,3 +30,17 @@ def _load_recordings(args, paths):
     if not any(v is not None for v in options.values()):
         return [Recording.load(p) for p in paths]
     return [load_mapped(p, **options) for p in paths]
+
+
+def _add_physics(p) -> None:
+    """--physics: the simulation, the paper's RC network by default (hybrid.physics._plugins)."""
+    p.add_argument("--physics", default="rc", metavar="SPEC",
+                   help="the simulation: rc (the paper's RC network, default), lti:N (a linear system of order N), "
+                        "path/to/file.py:Class or package.module:Class (your AbstractSimulation)")
+
+
+def _simulation(args, rc):
+    """The simulation `--physics` names; `rc()` builds the RC network the command uses by default."""
+    from .physics._plugins import resolve_physics
+
+    return rc() if args.physics == "rc" else resolve_physics(args.physics)

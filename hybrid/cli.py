@@ -2,11 +2,13 @@
 
     hybrid simulate --drive prbs|sine|chirp|pulse --duration S --out F.csv
     hybrid rc DRIVE.csv [--param NAME=VALUE ...] [--method tustin|zoh] --out F.csv
-    hybrid fit RECORDING... --model hybrid|normal|physics [--out MODEL]
+    hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--out MODEL]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--drive D] [--param NAME=VALUE ...] [--sobol N]
-    hybrid diagnose RECORDING... --out DIR [--hybrid] [--max-steps N] [--blocks N] [--quiet]
+    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
 
+fit and diagnose take --physics rc|lti:N|file.py:Class|module:Class and read a lab's own
+columns with --input/--output (or --columns), --rate, --range and --units.
 Bad input of any kind ends with exit status 2 and one line on stderr.
 """
 
@@ -18,7 +20,7 @@ import json
 import sys
 from pathlib import Path
 
-from ._cli_inputs import _add_mapping, _load_recordings
+from ._cli_inputs import _add_mapping, _add_physics, _load_recordings, _simulation
 from .util._errors import InputError
 from .util._watchdog import Watchdog
 
@@ -86,6 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="save the model here (default: <first recording>.<model>.eqx)")
     p.add_argument("--json", default=None, help="write the fit report (metrics, parameters) as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_physics(p)
     _add_mapping(p, B)
 
     p = sub.add_parser("table2", help="reproduce the paper's Table 2 on the virtual IPMC")
@@ -121,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cut each recording into N blocks, each split train/validation/held-out "
                         "(default: DiagnoseSettings.blocks; 1: one held-out tail)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
+    _add_physics(p)
     _add_mapping(p, B)
     return parser
 
@@ -229,7 +233,7 @@ def _cmd_fit(args):
     recordings = _load_recordings(args, args.recordings)
     simulation = None
     if args.model != "normal":
-        simulation = RCNetwork()
+        simulation = _simulation(args, RCNetwork)
         params = _parse_params(args.param)
         if params:
             simulation = simulation.replace(**params)
@@ -310,7 +314,9 @@ def _cmd_diagnose(args):
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
     with lock:
-        diagnosis = diagnose(recordings, hybrid=args.hybrid, settings=settings, progress=not args.quiet)
+        simulation = None if args.physics == "rc" else _simulation(args, None)  # rc: hybrid.diagnose's default
+        diagnosis = diagnose(recordings, simulation=simulation, hybrid=args.hybrid, settings=settings,
+                             progress=not args.quiet)
         paths = write_report(diagnosis, args.out)
     report = diagnosis.to_dict()
     base, ext = report["baseline"]["nmse"], report["extended"]["nmse"]

@@ -73,3 +73,44 @@ def test_bad_mappings_exit_2_with_one_line(lab_csv, tmp_path, capsys, flags, phr
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("hybrid: error:") and phrase in lines[0], err
     assert not (tmp_path / "d" / "report.json").exists()
+
+
+def test_fit_takes_a_plug_in_physics_from_a_file_and_lti(lab_csv, tmp_path, capsys):
+    """--physics lti:2 and --physics file.py:Class reach fit; the saved model loads back as that class."""
+    path, *_ = lab_csv
+    plugin = tmp_path / "lag.py"
+    plugin.write_text(
+        "from typing import ClassVar\n"
+        "import jax.numpy as jnp\n"
+        "from jax import lax\n"
+        "from hybrid import AbstractSimulation, Positive\n"
+        "from hybrid.core._parameters import encode\n\n"
+        "class Lag(AbstractSimulation):\n"
+        "    raw: dict\n"
+        "    constraints: ClassVar[dict] = {'tau_s': Positive()}\n"
+        "    units: ClassVar[dict] = {'tau_s': 's'}\n"
+        "    linear_in_drive: ClassVar[bool] = True\n\n"
+        "    def __init__(self, tau_s=2.0):\n"
+        "        self.raw = encode({'tau_s': tau_s}, self.constraints, 'Lag')\n\n"
+        "    def simulate(self, v_in, dt):\n"
+        "        a = jnp.exp(-dt / self.parameters()['tau_s'])\n"
+        "        return lax.scan(lambda y, u: (a * y + (1 - a) * u,) * 2, 0.0, jnp.asarray(v_in))[1]\n")
+    for spec, name in (("lti:2", "f_1"), (f"{plugin}:Lag", "tau_s")):
+        report = tmp_path / "fit.json"
+        code, out, err = run(["fit", path, "--columns", "input=u_cmd,output=level", "--physics", spec,
+                              "--model", "physics", "--max-steps", "20", "--quiet", "--out", tmp_path / "m.eqx",
+                              "--json", report], capsys)
+        assert code == 0, err
+        assert name in json.loads(report.read_text())["parameters"], spec
+    # the lag's time constant: the data's exponential kernel has tau = 6 samples = 3 s at Ts = 0.5 s
+    assert json.loads(report.read_text())["parameters"]["tau_s"] == pytest.approx(3.0, rel=0.2)
+
+
+@pytest.mark.parametrize("spec,phrase", [("lti:0", "lti"), ("nothere.py:X", "no file"), ("rc:3", "physics"),
+                                         ("hybrid.core._models:Model", "AbstractSimulation")])
+def test_a_bad_physics_spec_exits_2_with_one_line(lab_csv, tmp_path, capsys, spec, phrase):
+    path, *_ = lab_csv
+    code, _, err = run(["fit", path, "--columns", "input=u_cmd,output=level", "--physics", spec, "--model",
+                        "physics", "--out", tmp_path / "m.eqx"], capsys)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and phrase in lines[0], err
