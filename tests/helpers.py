@@ -185,3 +185,13 @@ def split_bounds(n, fractions=(0.3, 0.5, 0.2)):
     a = round(fractions[0] * n)
     b = round((fractions[0] + fractions[1]) * n)
     return (0, a), (a, b), (b, n)
+
+
+def hidden_recording(spec: str, seed: int, duration: float = 60.0, rate: float = 30.0, noise: float = 0.01):
+    """The draw `experiments/discrepancy.py` makes for a hidden spec ("a", "a+b", an outside form) and seed."""
+    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+
+    rng = np.random.default_rng([seed, len(spec), sum(map(ord, spec))])
+    strip, params = random_strip(rng), random_effect(spec, rng, rate)
+    return synthetic_recording(discrepancy_drive(duration, rate, seed), strip, spec, params,
+                               noise_fraction=noise, seed=seed)
