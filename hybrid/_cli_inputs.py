@@ -38,9 +38,3 @@ def _add_physics(p) -> None:
                    help="the simulation: rc (the paper's RC network, default), lti:N (a linear system of order N), "
                         "path/to/file.py:Class or package.module:Class (your AbstractSimulation)")
 
-
-def _simulation(args, rc):
-    """The simulation `--physics` names; `rc()` builds the RC network the command uses by default."""
-    from .physics._plugins import resolve_physics
-
-    return rc() if args.physics == "rc" else resolve_physics(args.physics)

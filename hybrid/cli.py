@@ -20,7 +20,7 @@ import json
 import sys
 from pathlib import Path
 
-from ._cli_inputs import _add_mapping, _add_physics, _load_recordings, _simulation
+from ._cli_inputs import _add_mapping, _add_physics, _load_recordings
 from .util._errors import InputError
 from .util._watchdog import Watchdog
 
@@ -221,8 +221,7 @@ def _cmd_fit(args):
     from .core._arguments import as_names
     from .core._fit import fit
     from .core._models import make_model
-    from .physics._rc_network import RCNetwork
-    from .data._recording import Recording
+    from .physics._plugins import resolve_physics
     from .util._atomic import write_text
     from .core._serialise import save_model
 
@@ -233,7 +232,7 @@ def _cmd_fit(args):
     recordings = _load_recordings(args, args.recordings)
     simulation = None
     if args.model != "normal":
-        simulation = _simulation(args, RCNetwork)
+        simulation = resolve_physics(args.physics)  # rc: the paper's RC network
         params = _parse_params(args.param)
         if params:
             simulation = simulation.replace(**params)
@@ -301,7 +300,7 @@ def _cmd_diagnose(args):
     from .discovery._report import REMAINDER_FIGURE, _pm, write_report
     from .discovery._report_figures import FIGURES
     from .discovery._effects import EFFECTS
-    from .data._recording import Recording
+    from .physics._plugins import resolve_physics
 
     lock = _outputs([_out_folder(args.out, ("report.json", "report.md", *FIGURES, REMAINDER_FIGURE))], inputs=args.recordings)
     recordings = _load_recordings(args, args.recordings)
@@ -314,7 +313,7 @@ def _cmd_diagnose(args):
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
     with lock:
-        simulation = None if args.physics == "rc" else _simulation(args, None)  # rc: hybrid.diagnose's default
+        simulation = None if args.physics == "rc" else resolve_physics(args.physics)  # rc: hybrid.diagnose's own
         diagnosis = diagnose(recordings, simulation=simulation, hybrid=args.hybrid, settings=settings,
                              progress=not args.quiet)
         paths = write_report(diagnosis, args.out)

@@ -66,3 +66,20 @@ def test_the_report_leads_with_one_sentence_and_carries_the_open_world_fields(tm
     assert markdown[2] == f"**{found.verdict}**"  # after the title and a blank line
     assert "lies above the noise floor" in markdown[2]
     assert paths["remainder.png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_hybrid_fits_of_a_diagnosis_run():
+    """`diagnose(hybrid=True)`'s last stage: the hybrid model fitted without the effect (no cause named).
+
+    Called directly on a short recording, so that the path (which once lost an import) runs in the suite
+    without a second search.
+    """
+    from hybrid import RCNetwork
+    from hybrid.discovery._diagnose import _hybrid_fits
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+
+    recording = hidden_recording("none", 0, duration=20.0)
+    settings = DiagnoseSettings(frozen=("xi_h",))
+    out = _hybrid_fits([recording], RCNetwork(n_stages=4, method="zoh"), None, None, (), settings, 2, False)
+    assert out["extended"] is out["baseline"] and out["gain"] == 1.0
+    assert np.isfinite(out["baseline"]["nmse"]) and out["baseline"]["nmse"] > 0

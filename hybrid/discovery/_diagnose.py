@@ -56,7 +56,7 @@ import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation
 from ._decision import _evaluate, _free_names
-from ._diagnosis import Diagnosis, DiagnoseSettings
+from ._diagnosis import SPLIT_ORDER, Diagnosis, DiagnoseSettings
 from ._effects import EFFECTS
 from ._evidence import _evidence, _fitted_model, _uncertainties
 from ._search import N_LANES, _fit_lanes, _initial_theta, _lane_tangents, _signals, _with_active, lanes_problem
@@ -195,10 +195,11 @@ def diagnose(
         "t": np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),
         "v_in": v_te, "w": w_te, "baseline": w_hat_base, "extended": w_hat_ext,
         "recording": np.concatenate([np.full(b - a, i) for i, a, b in segments]),
+        "segment": np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)]),
     }
     say("noise floor and what lies above it")
     floor = pooled_noise_floor(recordings)
-    unexplained = remainder(problem, series, recordings, extended, floor, settings, rate,
+    unexplained = remainder(problem, series, recordings, extended, heldout, floor, settings, rate,
                             equally_good=steps[-1].equally_good)
     hybrid_report = None
     if hybrid:

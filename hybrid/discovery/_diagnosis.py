@@ -127,7 +127,8 @@ class Diagnosis:
     seconds: float
     #: Held-out signals (all recordings' test parts concatenated): ``t`` (s),
     #: ``v_in`` (V), ``w``, ``baseline`` and ``extended`` predictions (recording
-    #: units), ``recording`` (index of the recording each sample comes from).
+    #: units), ``recording`` (index of the recording each sample comes from), ``segment``
+    #: (index of the contiguous test block it lies in).
     heldout: dict = dataclasses.field(default_factory=dict)
     #: Every candidate lane (not in ``report.json``): ``effect``, ``validation_loss``
     #: (½ mean r²), ``chosen`` (it stands for its effect), ``theta`` and ``active``

@@ -120,9 +120,11 @@ def repeat_variance(w: np.ndarray, v_in: np.ndarray, min_period: int = 8) -> tup
     return float("nan"), 0
 
 
-def _estimates(w, v_in, rate) -> dict:
-    out = {f"differences_{k}": difference_variance(w, k) for k in DIFFERENCE_ORDERS}
-    out["spectrum"] = spectral_variance(w, rate)
+def _estimators(rate: float) -> dict:
+    """Each model-free estimator by name: (w, v_in) -> σ²."""
+    out = {f"differences_{k}": (lambda w, v, k=k: difference_variance(w, k)) for k in DIFFERENCE_ORDERS}
+    out["spectrum"] = lambda w, v: spectral_variance(w, rate)
+    out["repeats"] = lambda w, v: repeat_variance(w, v)[0]
     return out
 
 
@@ -130,21 +132,16 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
     """Estimate the measurement noise of `w` (sampled at `rate` Hz, driven by `v_in`) from the data alone."""
     w = np.asarray(w, float)
     v_in = np.asarray(v_in, float)
-    estimates = _estimates(w, v_in, rate)
-    repeats, period = repeat_variance(w, v_in)
-    if period:
-        estimates["repeats"] = repeats
+    estimators = _estimators(rate)
+    estimates = {name: f(w, v_in) for name, f in estimators.items()}
+    if not np.isfinite(estimates["repeats"]):
+        del estimates["repeats"]  # the drive does not repeat itself
     finite = {k: v for k, v in estimates.items() if np.isfinite(v)}
     method = min(finite, key=finite.get)
     variance = finite[method]
-    # Spread over blocks: the same estimator on each contiguous block.
-    per_block = []
-    for part_w, part_v in zip(np.array_split(w, blocks), np.array_split(v_in, blocks)):
-        if method == "repeats":
-            value = repeat_variance(part_w, part_v)[0]
-        else:
-            value = _estimates(part_w, part_v, rate).get(method, float("nan"))
-        per_block.append(value)
+    # Spread over blocks: the chosen estimator on each contiguous block.
+    per_block = [estimators[method](part_w, part_v)
+                 for part_w, part_v in zip(np.array_split(w, blocks), np.array_split(v_in, blocks))]
     per_block = np.asarray([x for x in per_block if np.isfinite(x)])
     std_error = float(np.std(per_block, ddof=1) / math.sqrt(per_block.size)) if per_block.size > 1 else float("nan")
     spread = float(np.var(w))

@@ -16,8 +16,8 @@ the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
   of r on v from the middle to the outer third of each side, relative to the
   model's gain (saturation, stiffening).
 - **static, output**: a map of the simulation's output, w ≈ g(ŵ), fitted
-  monotone (pool-adjacent-violators, increasing or decreasing, whichever fits
-  training better) and as free binned means of r on ŵ.
+  monotone (`scipy.optimize.isotonic_regression`, increasing or decreasing,
+  whichever fits training better) and as free binned means of r on ŵ.
 - **rate**: binned means of r on dv/dt (differences within a segment × rate).
 - **time**: a cubic polynomial in absolute time (held-out blocks interleave
   with training blocks, so a trend fitted on one applies to the other; held
@@ -36,6 +36,7 @@ time, dynamic), or "unstructured" below 20 % of the excess (2 % of the MSE).
 from __future__ import annotations
 
 import numpy as np
+import scipy.optimize
 
 MIN_SAMPLES = 50          # fewer held-out (or training) samples: no description
 MIN_BIN = 5               # samples a bin needs to be kept
@@ -91,18 +92,6 @@ def _binned(x, y, max_bins: int):
 
 def _interp(x, centres, values):
     return np.interp(x, centres, values) if len(centres) else np.zeros_like(x)
-
-
-def _pava(y, weight):
-    """Increasing isotonic regression of `y` (already ordered by x) with weights: pool adjacent violators."""
-    vals, wts, cnts = [], [], []
-    for yi, wi in zip(y, weight):
-        vals.append(float(yi)); wts.append(float(wi)); cnts.append(1)
-        while len(vals) > 1 and vals[-2] > vals[-1]:
-            v2, w2, c2 = vals.pop(), wts.pop(), cnts.pop()
-            v1, w1, c1 = vals.pop(), wts.pop(), cnts.pop()
-            vals.append((v1 * w1 + v2 * w2) / (w1 + w2)); wts.append(w1 + w2); cnts.append(c1 + c2)
-    return np.repeat(vals, cnts)
 
 
 def _lags(x, pos, lags: int):
@@ -249,8 +238,8 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
 
     # Static: the simulation's output, monotone (w ≈ g(ŵ)) and free.
     xc, wy, wt = _binned(tr["w_hat"], tr["w"], 100)
-    fits = [(float(np.sum(wt * (g - wy) ** 2)), name, g) for sign, name in ((1.0, "increasing"), (-1.0, "decreasing"))
-            for g in [sign * _pava(sign * wy, wt)]]
+    fits = [(float(np.sum(wt * (g - wy) ** 2)), name, g) for up, name in ((True, "increasing"), (False, "decreasing"))
+            for g in [scipy.optimize.isotonic_regression(wy, weights=wt, increasing=up).x]]
     _, direction, g = min(fits, key=lambda fit: fit[0])
     mono = judge(_interp(ho["w_hat"], xc, g - xc))  # r̂ = g(ŵ) − ŵ, constant beyond the training range
     static["output_monotone"] = dict(mono, direction=direction)

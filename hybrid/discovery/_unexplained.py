@@ -48,12 +48,17 @@ def _part(problem, series, recordings, candidate, split: str) -> dict:
     return {"t": t, "v_in": v, "w": w, "w_hat": w_hat, "segment": segment}
 
 
-def remainder(problem, series, recordings, final, floor: NoiseFloor, settings, rate: float,
+def remainder(problem, series, recordings, final, heldout: dict, floor: NoiseFloor, settings, rate: float,
               equally_good: dict | None = None) -> dict | None:
-    """None when `final`'s held-out error is consistent with the noise floor, else what lies above it."""
+    """None when `final`'s held-out error is consistent with the noise floor, else what lies above it.
+
+    `heldout` is `Diagnosis.heldout` (its ``extended`` is `final`'s prediction); the
+    training part is predicted here only when there is something to describe.
+    """
     from ._remainder import describe_remainder
 
-    held = _part(problem, series, recordings, final, "test")
+    held = {"t": heldout["t"], "v_in": heldout["v_in"], "w": heldout["w"], "w_hat": heldout["extended"],
+            "segment": heldout["segment"]}
     residual = held["w"] - held["w_hat"]
     mse = float(np.mean(residual**2))
     var_w = float(np.var(held["w"]))
