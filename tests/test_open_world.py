@@ -66,6 +66,12 @@ def test_the_report_leads_with_one_sentence_and_carries_the_open_world_fields(tm
     assert markdown[2] == f"**{found.verdict}**"  # after the title and a blank line
     assert "lies above the noise floor" in markdown[2]
     assert paths["remainder.png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # what each flexible extension recovers held out, one row each, from the description in report.json
+    drive_filter = data["unexplained"]["description"]["linear_filter"]["drive"]["fraction"]
+    above = data["unexplained"]["fraction_above_floor"]
+    assert f"{100 * above:.1f} % of it lies above the noise" in "\n".join(markdown)  # a share, not 0.9 %
+    row = next(line for line in markdown if line.startswith("| linear filter of the drive |"))
+    assert row.split("|")[2].strip() == f"{100 * drive_filter:.1f} %"
 
 
 def test_the_hybrid_fits_of_a_diagnosis_run():

@@ -86,6 +86,11 @@ def _pct(x) -> str:
     return "—" if x is None else f"{x:.1f} %"
 
 
+def _share(x) -> str:
+    """A fraction (0–1) as a percentage."""
+    return "—" if x is None else f"{100 * x:.1f} %"
+
+
 def _pm(entry: dict) -> str:
     """``value ± std_error unit`` with the standard error to 2 significant digits."""
     value, se, unit = entry.get("value"), entry.get("std_error"), entry.get("unit") or ""
@@ -153,18 +158,22 @@ def _noise(d: dict) -> list[str]:
                         f"{_num(d['settings']['unexplained_ratio'])}× the floor: nothing is left unexplained.", ""]
     desc = left["description"]
     lines += [f"**Unexplained:** the final model's held-out MSE is {_num(left['ratio_to_floor'])}× the floor; "
-              f"{_pct(left['fraction_above_floor'])} of it lies above the noise "
+              f"{_share(left['fraction_above_floor'])} of it lies above the noise "
               f"({_nmse(left['excess_nmse'])} of var(w)). {desc.get('summary', '')}", ""]
     if left.get("underdetermined"):
         lines += [f"Note: {left['underdetermined']}.", ""]
-    recovered = desc.get("extensions") or {}
+    static, filters = desc.get("static", {}), desc.get("linear_filter", {})
+    recovered = {"map of the drive level": static.get("drive"), "monotone map of the model's output":
+                 static.get("output_monotone"), "free map of the model's output": static.get("output_free"),
+                 "map of the drive's rate": desc.get("rate"), "trend in time": desc.get("time"),
+                 "linear filter of the drive": filters.get("drive"),
+                 "linear filter of the model's output": filters.get("output")}
+    recovered = {k: v for k, v in recovered.items() if isinstance(v, dict) and "fraction" in v}
     if recovered:
-        lines += ["What a flexible extension fitted to the residual on training data recovers held out:", "",
+        lines += ["What each extension, fitted to the residual on the training part, recovers held out:", "",
                   "| extension | share of the held-out MSE | share of the error above the floor |", "|---|---|---|"]
-        for name, entry in recovered.items():
-            if isinstance(entry, dict) and "fraction" in entry:
-                lines.append(f"| {name.replace('_', ' ')} | {_pct(entry.get('fraction'))} | "
-                             f"{_pct(entry.get('of_excess'))} |")
+        lines += [f"| {name} | {_share(entry['fraction'])} | {_share(entry.get('of_excess'))} |"
+                  for name, entry in recovered.items()]
         lines.append("")
     lines += [f"![Where the remainder lives]({REMAINDER_FIGURE})", "",
               "Left: the residual against the drive level and the static map fitted to it (an even map points to a "
