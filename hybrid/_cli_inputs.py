@@ -6,28 +6,36 @@ Kept apart from `hybrid.cli` (the commands) so each stays a room about one thing
 from __future__ import annotations
 
 
-def _add_mapping(p, B) -> None:
-    """Options that read a lab's own file: which columns are the drive and the output, the rate, the samples."""
+def _add_mapping(p, B, rate: bool = True) -> None:
+    """Options that read a lab's own file: which columns are the drive and the output, the rate, the samples.
+
+    `rate` False leaves --rate out, for a command that has its own (`hybrid sensitivity`).
+    """
     g = p.add_argument_group("files with other columns (hybrid.data._mapping)")
     g.add_argument("--input", default=None, metavar="COLUMN", help="the drive's column (e.g. uEst)")
     g.add_argument("--output", default=None, metavar="COLUMN", help="the measured output's column (e.g. yEst)")
     g.add_argument("--time", default=None, metavar="COLUMN", help="a time column (default: none; t from the rate)")
     g.add_argument("--columns", default=None, metavar="MAP", help="the mapping in one flag: input=uEst,output=yEst")
-    g.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=None,
-                   help="samples per second, when the file has no time column or Ts/fs field")
+    if rate:
+        g.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=None,
+                       help="samples per second, when the file has no time column or Ts/fs field")
     g.add_argument("--range", dest="sample_range", default=None, metavar="START:STOP",
                    help="the samples to use, Python-slice style (e.g. 40650:)")
     g.add_argument("--units", default=None, metavar="MAP", help="unit labels, e.g. v_in=V,w=V (labels only)")
 
 
-def _load_recordings(args, paths):
-    """Recordings from the command line's paths: the project's own columns, or the mapped ones."""
+def _load_recordings(args, paths, rate_alone_maps: bool = True):
+    """Recordings from the command line's paths: the project's own columns, or the mapped ones.
+
+    `rate_alone_maps` False: --rate alone does not make a file mapped (`hybrid sensitivity`'s
+    --rate is its synthetic drives' rate too, and a file in the project's columns has its t).
+    """
     from .data._mapping import load_mapped
     from .data._recording import Recording
 
     options = {k: getattr(args, k, None) for k in ("input", "output", "time", "columns", "rate", "sample_range",
                                                   "units")}
-    if not any(v is not None for v in options.values()):
+    if not any(v is not None for k, v in options.items() if rate_alone_maps or k != "rate"):
         return [Recording.load(p) for p in paths]
     return [load_mapped(p, **options) for p in paths]
 

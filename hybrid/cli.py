@@ -2,12 +2,12 @@
 
     hybrid simulate --drive prbs|sine|chirp|pulse --duration S --out F.csv
     hybrid rc DRIVE.csv [--param NAME=VALUE ...] [--method tustin|zoh] --out F.csv
-    hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--out MODEL]
+    hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--out MODEL] [--test FILE...]
     hybrid table2 [--duration S] [--out-dir DIR]
-    hybrid sensitivity --out DIR [RECORDING] [--drive D] [--param NAME=VALUE ...] [--sobol N]
+    hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
     hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
 
-fit and diagnose take --physics rc|lti:N|file.py:Class|module:Class and read a lab's own
+fit, diagnose and sensitivity take --physics rc|lti:N|file.py:Class|module:Class and read a lab's own
 columns with --input/--output (or --columns), --rate, --range and --units.
 Bad input of any kind ends with exit status 2 and one line on stderr.
 """
@@ -21,6 +21,8 @@ import sys
 from pathlib import Path
 
 from ._cli_inputs import _add_mapping, _add_physics, _load_recordings
+from ._cli_sensitivity import add_sensitivity, cmd_sensitivity
+from ._cli_test import add_test_options, load_tests, print_scores, score_tests
 from .util._errors import InputError
 from .util._watchdog import Watchdog
 
@@ -83,13 +85,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--depth", type=B.integer(*B.DEPTH), default=11)
     p.add_argument("--width", type=B.integer(*B.WIDTH), default=10)
     p.add_argument("--split", type=_float_list, default=(0.3, 0.5, 0.2),
-                   help="train,test,validation fractions (default 0.3,0.5,0.2)")
+                   help="train,test,validation fractions of the fitted recordings (default 0.3,0.5,0.2; "
+                        "also with --test)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="save the model here (default: <first recording>.<model>.eqx)")
     p.add_argument("--json", default=None, help="write the fit report (metrics, parameters) as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_physics(p)
     _add_mapping(p, B)
+    add_test_options(p)
 
     p = sub.add_parser("table2", help="reproduce the paper's Table 2 on the virtual IPMC")
     p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), default=None,
@@ -99,19 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out-dir", default="experiments/results")
     p.add_argument("--quiet", action="store_true")
 
-    p = sub.add_parser("sensitivity", help="sensitivities and identifiability of the RC network's parameters")
-    p.add_argument("recording", nargs="?", default=None, help="optional recording whose drive is the primary one")
-    p.add_argument("--out", required=True, help="output directory (sensitivity.json, sensitivity.md, PNGs)")
-    p.add_argument("--drive", choices=("prbs", "sine", "chirp", "pulse"), default="prbs", help="primary drive")
-    p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), default=120.0,
-                   help="seconds per drive")
-    p.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0, help="samples per second")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="nominal RC parameter: xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F)")
-    p.add_argument("--stages", type=B.integer(*B.STAGES), default=45, help="N (the network has N+1 sections)")
-    p.add_argument("--noise", type=float, default=0.01, help="noise as a fraction of rms(w), for standard errors")
-    p.add_argument("--sobol", type=B.integer(*B.SOBOL), default=0, metavar="N", help="also Sobol indices from N base samples")
-    p.add_argument("--seed", type=int, default=0)
+    add_sensitivity(sub, B)
 
     p = sub.add_parser("diagnose", help="which physical effect the simulation misses (report.md, report.json, PNGs)")
     p.add_argument("recordings", nargs="+", help=".csv/.npz/.mat recordings of one strip (fitted jointly)")
@@ -228,7 +220,7 @@ def _cmd_fit(args):
     out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
     lock = _outputs([_out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
                      _out_file(args.json, "--json", (".json",)) if args.json else None],
-                    inputs=args.recordings)
+                    inputs=args.recordings + (args.test or []))
     recordings = _load_recordings(args, args.recordings)
     simulation = None
     if args.model != "normal":
@@ -245,14 +237,17 @@ def _cmd_fit(args):
     frozen |= set(model.simulation.default_frozen()) - set(args.free)  # the RC network's xi_h
     if len(args.split) != 3:
         raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
+    tests = load_tests(args, recordings, model.readout.window)  # --test: refused before fitting, not after
     with lock:
         result = fit(model, recordings, starts=args.starts, max_steps=args.max_steps, frozen=frozen,
                      split=args.split, solver=args.solver, seed=args.seed, progress=not args.quiet)
         print(result.summary())
-        save_model(out, result.model, extra={"metrics": result.metrics, "settings": result.settings})
+        scores = {"test": score_tests(result.model, tests)} if tests else {}
+        print_scores(scores.get("test", []))
+        save_model(out, result.model, extra={"metrics": result.metrics, "settings": result.settings, **scores})
         print(f"saved model to {out} (+ {out}.json)")
         if args.json:
-            write_text(args.json, json.dumps(result.to_dict(), indent=2) + "\n")
+            write_text(args.json, json.dumps({**result.to_dict(), **scores}, indent=2) + "\n")
 
 
 def _cmd_table2(args):
@@ -265,31 +260,6 @@ def _cmd_table2(args):
     check_samples(settings.duration, settings.rate, "--duration × the rate")
     with _outputs([_out_folder(args.out_dir, OUTPUT_FILES, "--out-dir")]):
         reproduce_table2(settings, out_dir=args.out_dir, progress=not args.quiet)
-
-
-def _cmd_sensitivity(args):
-    from .util._bounds import check_samples
-    from .data._recording import Recording
-    from .ipmc._sensitivity_study import OUTPUT_FILES, SensitivityStudySettings, run_sensitivity_study
-
-    check_samples(args.duration, args.rate)
-    lock = _outputs([_out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording] if args.recording else [])
-    recording = Recording.load(args.recording) if args.recording else None
-    _warn_notes([recording] if recording is not None else [])
-    settings = SensitivityStudySettings(
-        parameters=_parse_params(args.param), n_stages=args.stages, drive=args.drive,
-        duration=args.duration, rate=args.rate, noise=args.noise, sobol=args.sobol, seed=args.seed,
-    )
-    with lock:
-        result = run_sensitivity_study(settings, out_dir=args.out, recording=recording)
-    values = ", ".join(f"{v:.2e}" for v in result["relative_singular_values"])
-    print(f"relative singular values ({result['primary_drive']}): {values}")
-    for direction in result["null_directions"]:
-        text = " ".join(f"{c:+.4f}·log {n}" for n, c in direction.items())
-        print(f"null direction (V_o does not change along it): {text}")
-    for pair in result["collinear_pairs"]:
-        print(f"near-collinear: {pair['pair'][0]} and {pair['pair'][1]} (cosine {pair['cosine']:+.4f})")
-    print(f"wrote {Path(args.out) / 'sensitivity.json'} and figures ({result['seconds']:.1f} s)")
 
 
 def _cmd_diagnose(args):
@@ -339,7 +309,7 @@ def _cmd_diagnose(args):
 
 
 COMMANDS = {"simulate": _cmd_simulate, "rc": _cmd_rc, "fit": _cmd_fit, "table2": _cmd_table2,
-            "sensitivity": _cmd_sensitivity, "diagnose": _cmd_diagnose}
+            "sensitivity": cmd_sensitivity, "diagnose": _cmd_diagnose}
 
 
 def _use_compilation_cache(jax) -> None:

@@ -195,3 +195,19 @@ def hidden_recording(spec: str, seed: int, duration: float = 60.0, rate: float =
     strip, params = random_strip(rng), random_effect(spec, rng, rate)
     return synthetic_recording(discrepancy_drive(duration, rate, seed), strip, spec, params,
                                noise_fraction=noise, seed=seed)
+
+
+def lti2_zoh_response(params, u, dt):
+    """y of `LTI(2)` for the drive u held over each step, from rest, by scipy alone.
+
+    H(s) = (ω² + bandpass_1 ω s) / (s² + 2 zeta_1 ω s + ω²) + direct, ω = 2π f_1
+    (docs/plugins.md), discretised by `scipy.signal.cont2discrete(..., "zoh")`.
+    """
+    from scipy import signal
+
+    w = 2 * np.pi * params["f_1"]
+    d, b, z = params["direct"], params["bandpass_1"], params["zeta_1"]
+    num = [d, b * w + 2 * d * z * w, (1 + d) * w**2]
+    den = [1.0, 2 * z * w, w**2]
+    numd, dend, _ = signal.cont2discrete((num, den), dt, "zoh")
+    return signal.dlsim((numd[0], dend, dt), np.asarray(u, float))[1][:, 0]

@@ -321,7 +321,7 @@ def test_bad_files_and_pairs(tmp_path, lab):
     _bad(tmp_path / "x.txt", "unknown suffix", input="u", output="y")
     (tmp_path / "latin.csv").write_bytes(b"u,y\n1,2\n\xe9,3\n")
     _bad(tmp_path / "latin.csv", "not UTF-8", input="u", output="y", rate=1)
-    with pytest.raises(InputError, match="has no validation record.*--test-input"):
+    with pytest.raises(InputError, match="has no validation record.*test_input=.*--test-columns"):
         load_pair(lab, input="u", output="y", time="time")
     with pytest.raises(InputError, match="the validation record is the estimation record"):
         load_pair(lab, input="u", output="y", time="time", test_input="u")

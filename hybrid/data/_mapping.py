@@ -56,6 +56,7 @@ from ._loaders import _path_argument, check_file
 from ._mapping_options import (
     TIME_UNITS,
     mapping_roles,
+    parse_columns,
     parse_sample_range,
     range_bounds,
     rate_argument,
@@ -154,8 +155,8 @@ def load_mapped(
 
 def load_pair(
     path: str | pathlib.Path, *, test_input: str | None = None, test_output: str | None = None,
-    test_sample_range: str | slice | None = None, test_path: str | pathlib.Path | None = None,
-    **options: Any,
+    test_columns: str | None = None, test_sample_range: str | slice | None = None,
+    test_path: str | pathlib.Path | None = None, **options: Any,
 ) -> tuple[Recording, Recording]:
     """A benchmark's estimation and validation records, e.g. Cascaded Tanks'
     ``uEst -> yEst`` and ``uVal -> yVal``, or two sample ranges of the Silverbox.
@@ -164,6 +165,9 @@ def load_pair(
         path: the file of the estimation record.
         test_input: the validation record's input column; default the estimation's.
         test_output: the validation record's output column; default the estimation's.
+        test_columns: the validation record's mapping in the ``columns`` grammar
+            (``"input=uVal,output=yVal"``; a ``time`` role too); the roles it names
+            replace the estimation's, each role given once here and in ``test_input``/``test_output``.
         test_sample_range: the validation record's samples; default all of them
             (``sample_range`` is the estimation record's only).
         test_path: the validation record's file; default ``path``.
@@ -176,14 +180,24 @@ def load_pair(
     estimation = load_mapped(path, **options)
     roles = mapping_roles(**{k: options.get(k) for k in ("input", "output", "time", "columns")},
                           require_w=options.get("require_w", True))
-    if test_input is None and test_output is None and test_sample_range is None and test_path is None:
+    if all(x is None for x in (test_input, test_output, test_columns, test_sample_range, test_path)):
         raise InputError(
-            f"recording '{estimation.name}' has no validation record: give its columns "
-            "(--test-input, --test-output), its samples (--test-sample-range) or its file"
+            f"recording '{estimation.name}' has no validation record: give its columns (test_input=, "
+            "test_output= or test_columns=; --test-columns on the command line), its samples "
+            "(test_sample_range=; --test-range) or its file (test_path=; --test FILE)"
         )
+    given = parse_columns(test_columns) if test_columns is not None else {}
+    for channel, value in (("v_in", test_input), ("w", test_output)):
+        if value is not None and channel in given:
+            raise InputError(
+                f"the validation record's {OPTION[channel]} column is given twice, as {value!r} and in "
+                f"its columns ({given[channel]!r}): give it once"
+            )
+        if value is not None:
+            given[channel] = value
     test = {**options, "columns": None, "sample_range": test_sample_range, "name": None,
-            "input": test_input or roles["v_in"], "output": test_output or roles.get("w"),
-            "time": roles.get("t")}
+            "input": given.get("v_in", roles["v_in"]), "output": given.get("w", roles.get("w")),
+            "time": given.get("t", roles.get("t"))}
     validation = load_mapped(path if test_path is None else test_path, **test)
     def same(r: Recording) -> tuple:
         return r.metadata["source"], r.metadata["mapping"], r.metadata.get("segment")

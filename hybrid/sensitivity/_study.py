@@ -1,0 +1,242 @@
+"""The sensitivity study of any simulation on one drive: `hybrid sensitivity --physics SPEC RECORDING`.
+
+At the simulation's nominal parameters (its defaults, or the values given), on a
+recorded drive, for the free parameters (those not in `default_frozen()`, as `fit`
+leaves them fixed):
+
+- the local sensitivities ∂y(t)/∂θ of the simulation's output y
+  ([`local_sensitivities`][hybrid.sensitivity.local_sensitivities]);
+- identifiability: the SVD of the scaled sensitivities s_j ∂y/∂θ_j / rms(y)
+  ([`identifiability`][hybrid.sensitivity.identifiability]), with s_j = |θ_j| (log
+  coordinates, as the RC study) where θ_j ≠ 0 and, for a parameter at 0 (a
+  residue, a feedthrough), the half-width of its typical range (else 1): null and
+  near-null directions, near-collinear pairs;
+- the Cramér–Rao standard errors a recording of w = gain · y + offset with white
+  noise of `noise` × rms(w) would give, gain and offset unknown:
+  σ² (JᵀJ)⁻¹ with J = ∂w/∂θ in physical units at gain 1, offset 0. A parameter
+  that moves along a null direction of J (below `rcond` · σ_max) gets an
+  infinite standard error;
+- optionally Sobol indices ([`sobol_indices`][hybrid.sensitivity.sobol_indices]).
+
+No IPMC-specific view is applied: the RC network's frequency views and
+Table 1 names belong to `hybrid.ipmc._sensitivity_study` (`--physics rc`).
+Writes ``sensitivity.json``, ``sensitivity.md``, ``sensitivity_time.png`` and
+``singular_values.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core._models import Model
+from ..core._readout import LinearReadout
+from ..util._atomic import write_text
+from ..util._errors import InputError
+from ..util._figures import save_png
+from ._identifiability import identifiability
+from ._local import local_sensitivities
+
+#: Every file `write_simulation_study` writes.
+OUTPUT_FILES = ("sensitivity.json", "sensitivity.md", "sensitivity_time.png", "singular_values.png")
+
+
+def _clean(x):
+    x = float(x)
+    return x if np.isfinite(x) else str(x)
+
+
+def _scales(simulation, names, values) -> dict[str, float]:
+    """s_j: |θ_j|, or for θ_j = 0 the half-width of its typical range (else 1)."""
+    typical = simulation.typical_ranges()
+    out = {}
+    for n in names:
+        low, high = typical.get(n, (np.nan, np.nan))
+        width = 0.5 * (float(high) - float(low))
+        out[n] = abs(values[n]) if values[n] != 0 else (width if np.isfinite(width) and width > 0 else 1.0)
+    return out
+
+
+def cramer_rao(jacobian, names, noise_std: float, rcond: float = 1e-10) -> tuple[dict[str, float], list[str]]:
+    """Standard errors sqrt(diag σ²(JᵀJ)⁻¹) by name, and the names with an infinite one.
+
+    `jacobian` (T × k) is ∂w/∂θ in physical units. Its columns are scaled to unit norm
+    first (so that `rcond` does not depend on the parameters' units); directions whose
+    singular value is then below `rcond` · σ_max are null, and a parameter with a
+    component along one (or whose column is zero) is unidentifiable.
+    """
+    J = np.asarray(jacobian, dtype=float)
+    norms = np.linalg.norm(J, axis=0)
+    c = np.where(norms > 0, norms, 1.0)
+    _, s, vt = np.linalg.svd(J / c, full_matrices=J.shape[0] < J.shape[1])
+    s = np.concatenate([s, np.zeros(vt.shape[0] - s.size)])
+    keep = s > rcond * s[0] if s.size and s[0] > 0 else np.zeros(s.size, bool)
+    cov = noise_std**2 * (vt[keep].T / s[keep] ** 2) @ vt[keep] / np.outer(c, c)
+    se = np.sqrt(np.diag(cov))
+    null = vt[~keep]
+    bad = (np.linalg.norm(null, axis=0) > 1e-6 if null.size else np.zeros(len(names), bool)) | (norms == 0)
+    return ({n: (float("inf") if b else float(v)) for n, v, b in zip(names, se, bad)},
+            [n for n, b in zip(names, bad) if b])
+
+
+def simulation_study(simulation, v_in, dt: float, *, noise: float = 0.01, sobol: int = 0, seed: int = 0,
+                     drive: str = "drive", rcond: float = 1e-10) -> tuple[dict, object]:
+    """Sensitivities, identifiability and Cramér–Rao standard errors of `simulation` on the drive `v_in`.
+
+    **Arguments:**
+
+    - `simulation`: any [`AbstractSimulation`][hybrid.AbstractSimulation], at the parameters to study.
+    - `v_in`, `dt`: the drive and its sample interval (s).
+    - `noise`: the measurement noise as a fraction of rms(w), for the standard errors.
+    - `sobol`: base samples N for Sobol indices (0: none).
+    - `seed`: seeds the Sobol samples.
+    - `drive`: the drive's name in the report.
+    - `rcond`: relative singular value below which a direction of J is null.
+
+    **Returns:** (the content of ``sensitivity.json``, the [`Sensitivity`][hybrid.sensitivity.Sensitivity] of y).
+    """
+    from ._sobol import sobol_indices
+
+    t_start = time.perf_counter()
+    if not (np.isfinite(noise) and noise > 0):
+        raise InputError(f"noise must be a positive fraction of rms(w), got {noise!r}")
+    if sobol < 0 or sobol == 1:
+        raise InputError(f"sobol must be 0 (skip) or a number of base samples ≥ 2, got {sobol!r}")
+    frozen = dict(simulation.default_frozen())
+    physics = Model(simulation, LinearReadout(1.0, 0.0), "physics")  # w = y: the readout's J columns are y and 1
+    w_sens = local_sensitivities(physics, v_in, dt, frozen=frozenset(frozen))
+    names = [n for n in w_sens.names if n not in ("gain", "offset")]
+    if not names:
+        raise InputError(f"{type(simulation).__name__} has no free parameter (frozen by default: "
+                         f"{sorted(frozen)}): nothing to study")
+    columns = [w_sens.names.index(n) for n in names]
+    y, J = w_sens.output, w_sens.jacobian[:, columns]
+    rms = float(np.sqrt(np.mean(y**2)))
+    if not (np.isfinite(rms) and rms > 0):
+        raise InputError(f"{type(simulation).__name__}'s output is zero (or not finite) for this drive: "
+                         "nothing depends on its parameters")
+    values = {n: w_sens.values[n] for n in names}
+    scales = _scales(simulation, names, values)
+    S = J * np.array([scales[n] for n in names]) / rms
+    ident = identifiability(S / np.sqrt(S.shape[0]), names)
+    sigma = noise * rms  # rms(w) = rms(y) at gain 1, offset 0
+    se, unidentifiable = cramer_rao(w_sens.jacobian, w_sens.names, sigma, rcond)
+    relative = {n: (se[n] / abs(w_sens.values[n]) if w_sens.values[n] else None) for n in w_sens.names}
+    units = {**simulation.parameter_units(), "gain": "1", "offset": "(y)"}
+    result = {
+        "command": "hybrid sensitivity --physics SPEC RECORDING --out DIR",
+        "simulation": type(simulation).__name__,
+        "names": names,
+        "nominal": {k: float(v) for k, v in simulation.parameters().items()},
+        "units": {n: units.get(n, "") for n in w_sens.names},
+        "frozen": frozen,
+        "primary_drive": drive,
+        "samples": int(S.shape[0]),
+        "dt": float(dt),
+        "coordinates": "scaled: a direction {name: c} moves each parameter by c·scale (scale = |value|, a "
+                       "relative change, or for a parameter at 0 the half-width of its typical range)",
+        "scales": scales,
+        "output": "y, the simulation's output for the drive (for the standard errors: w = gain·y + offset)",
+        "rms_normalised_sensitivity": dict(zip(names, map(float, np.sqrt(np.mean(S**2, axis=0))))),
+        "singular_values": [float(s) for s in ident.singular_values],
+        "relative_singular_values": [float(s / ident.singular_values[0]) for s in ident.singular_values],
+        "null_directions": ident.null_directions,
+        "near_null_directions": ident.near_null_directions,
+        "collinear_pairs": [{"pair": [a, b], "cosine": c} for a, b, c in ident.collinear_pairs],
+        "cosines": ident.to_dict()["cosines"],
+        "tolerances": ident.tolerances,
+        "noise": {"fraction_of_rms_w": float(noise), "std": sigma, "rcond": rcond},
+        "std_error": {n: _clean(v) for n, v in se.items()},
+        "relative_std_error": {n: (None if v is None else _clean(v)) for n, v in relative.items()},
+        "unidentifiable": unidentifiable,
+        "sobol": (sobol_indices(simulation, v_in, dt, n_base=sobol, seed=seed, frozen=frozenset(frozen)).to_dict()
+                  if sobol else None),
+    }
+    result["seconds"] = time.perf_counter() - t_start
+    return result, w_sens
+
+
+def write_simulation_study(result: dict, sensitivity, out_dir) -> None:
+    """``sensitivity.json``, ``sensitivity.md`` and the two figures, each written atomically."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _figures(result, sensitivity, out_dir)
+    write_text(out_dir / "sensitivity.json", json.dumps(result, indent=2))
+    write_text(out_dir / "sensitivity.md", _markdown(result))
+
+
+def _markdown(result) -> str:
+    noise = result["noise"]["fraction_of_rms_w"]
+    lines = [
+        f"# Sensitivity of {result['simulation']} at its nominal parameters ({result['primary_drive']}, "
+        f"{result['samples']} samples)",
+        "",
+        f"Standard error each parameter would get from a recording of w = gain·y + offset with white noise "
+        f"{100 * noise:g} % of rms(w), gain and offset unknown (Cramér–Rao bound; inf: not identifiable). "
+        "Scaled sensitivity: rms of scale·∂y/∂θ / rms(y).",
+        "",
+        "| parameter | nominal | standard error | relative | scaled sensitivity |",
+        "|---|---|---|---|---|",
+    ]
+    for n, se in result["std_error"].items():
+        rel = result["relative_std_error"][n]
+        sens = result["rms_normalised_sensitivity"].get(n)
+        unit = result["units"].get(n, "")
+        se_text = se if isinstance(se, str) else f"{se:.3g} {'' if unit in ('1', '(y)') else unit}".rstrip()
+        rel_text = "—" if rel is None else (rel if isinstance(rel, str) else f"{rel:.2e}")
+        nominal = result["nominal"].get(n, 1.0 if n == "gain" else 0.0)
+        lines.append(f"| {n} | {nominal:.6g} | {se_text} | {rel_text} | "
+                     f"{'—' if sens is None else f'{sens:.3g}'} |")
+    frozen = ", ".join(f"{k} ({v})" for k, v in result["frozen"].items()) or "none"
+    values = ", ".join(f"{s:.1e}" for s in result["relative_singular_values"])
+    pairs = ", ".join(f"{p['pair'][0]}–{p['pair'][1]} ({p['cosine']:+.4f})" for p in result["collinear_pairs"])
+    lines += ["", f"Frozen (left out, as `fit` does): {frozen}.", "",
+              f"Relative singular values of the scaled sensitivities: {values}", "",
+              f"Null directions (scaled coordinates): {_directions(result['null_directions'])}", "",
+              f"Near-null directions: {_directions(result['near_null_directions'])}", "",
+              f"Near-collinear pairs (|cos| ≥ {result['tolerances']['collinearity']:g}): {pairs or 'none'}", ""]
+    return "\n".join(lines)
+
+
+def _directions(directions) -> str:
+    return "; ".join(" ".join(f"{c:+.4f}·{n}" for n, c in d.items()) for d in directions) or "none"
+
+
+def _figures(result, sensitivity, out_dir) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = result["names"]
+    t = sensitivity.time
+    y = sensitivity.output
+    rms = max(float(np.sqrt(np.mean(y**2))), np.finfo(float).tiny)
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    axes[0].plot(t, y, "k", lw=0.8)
+    axes[0].set_ylabel("y")
+    for n in names:
+        j = sensitivity.names.index(n)
+        axes[1].plot(t, sensitivity.jacobian[:, j] * result["scales"][n] / rms, lw=0.8, label=n)
+    axes[1].set_ylabel("scale · ∂y/∂θ / rms(y)")
+    axes[1].set_xlabel("t (s, from the drive's first sample)")
+    axes[1].legend(ncol=3, fontsize=8)
+    drive = result["primary_drive"]
+    drive = drive if len(drive) <= 60 else f"…{drive[-59:]}"
+    axes[0].set_title(f"Scaled sensitivities of {result['simulation']}'s output ({drive})", fontsize=10)
+    fig.tight_layout()
+    save_png(fig, out_dir / "sensitivity_time.png")
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    values = np.asarray(result["relative_singular_values"])
+    ax.semilogy(np.arange(1, values.size + 1), np.maximum(values, 1e-17), "o-")
+    ax.axhline(result["tolerances"]["null"], color="grey", ls=":", lw=0.8)
+    ax.axhline(result["tolerances"]["near_null"], color="grey", ls="--", lw=0.8)
+    ax.set_xlabel("index")
+    ax.set_ylabel("σ_i / σ_1")
+    ax.set_title("Singular values of the scaled sensitivities")
+    fig.tight_layout()
+    save_png(fig, out_dir / "singular_values.png")

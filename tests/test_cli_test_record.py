@@ -1,0 +1,120 @@
+"""`hybrid fit --test`: a model fitted on a benchmark's estimation record, scored on its validation record.
+
+The file mimics Cascaded Tanks' dataBenchmark.csv: uEst, uVal, yEst, yVal and a period column Ts in
+the first row only. The score is checked against an independent recomputation: the saved model's
+parameters (read back with `hybrid.load_model`), the LTI's transfer function written out by hand,
+scipy's ZOH discretisation, numpy's RMSE and Eq 18.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import helpers as h
+import hybrid
+from hybrid import InputError
+from hybrid.cli import main
+from hybrid.data._mapping import load_mapped, load_pair
+
+ROOT = Path(__file__).resolve().parents[1]
+TRUE = {"f_1": 0.05, "zeta_1": 0.9, "bandpass_1": 0.4, "direct": 0.05}
+N, TS = 400, 0.5  # samples per record, s
+
+
+def _write(path, columns, ts=TS):
+    names = list(columns)
+    lines = [",".join(names + ["Ts"])]
+    for i, row in enumerate(zip(*columns.values())):
+        lines.append(",".join(f"{x:.12g}" for x in row) + f",{ts if i == 0 else ''}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    """Estimation and validation records of one planted LTI(2), 2 % noise, gain 2, offset 1."""
+    folder = tmp_path_factory.mktemp("bench")
+    rng = np.random.default_rng(5)
+    u_est, u_val = h.step_drive(N, seed=1, low=4, high=30), h.step_drive(N, seed=2, low=4, high=30)
+
+    def measure(u):
+        y = 2.0 * h.lti2_zoh_response(TRUE, u, TS) + 1.0
+        return y + 0.02 * np.std(y) * rng.normal(size=y.size)
+
+    columns = {"uEst": u_est, "uVal": u_val, "yEst": measure(u_est), "yVal": measure(u_val)}
+    return _write(folder / "bench.csv", columns), _write(folder / "fast.csv", columns, ts=0.25)
+
+
+def _plain(path, *names):
+    with open(path, newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    return [np.array([float(r[n]) for r in rows]) for n in names]
+
+
+def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench, tmp_path):
+    """The real entry point in a subprocess (a timeout instead of a hang): --test's RMSE is numpy's."""
+    path, _ = bench
+    model, report = tmp_path / "m.eqx", tmp_path / "fit.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "hybrid.cli", "fit", str(path), "--model", "physics", "--physics", "lti:2",
+         "--columns", "input=uEst,output=yEst", "--units", "w=cm", "--max-steps", "40", "--quiet",
+         "--test", str(path), "--test-columns", "input=uVal,output=yVal", "--json", str(report), "--out", str(model)],
+        cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(report.read_text())
+    (score,) = data["test"]
+    assert score["samples"] == N and score["rate_hz"] == pytest.approx(1 / TS) and score["unit"] == "cm"
+    assert score["mapping"] == {"t": None, "v_in": "uVal", "w": "yVal"}
+    assert "test record" in proc.stdout and f"RMSE {score['rmse']:.6g} cm" in proc.stdout
+
+    fitted = hybrid.load_model(model)
+    p = {k: float(v) for k, v in fitted.parameters().items()}
+    u_val, y_val = _plain(path, "uVal", "yVal")
+    w_hat = p["gain"] * h.lti2_zoh_response(p, u_val, TS) + p["offset"]  # free run from rest, every sample
+    rmse = np.sqrt(np.mean((y_val - w_hat) ** 2))
+    nmse = np.mean((y_val / np.max(np.abs(y_val)) - w_hat / np.max(np.abs(w_hat))) ** 2)  # Eq 18
+    assert score["rmse"] == pytest.approx(rmse, rel=1e-9)
+    assert score["nmse"] == pytest.approx(nmse, rel=1e-9)
+    assert score["nmse_variance"] == pytest.approx(rmse**2 / np.var(y_val), rel=1e-9)
+    assert rmse < 0.1 * np.std(y_val)  # the planted system is recovered: it predicts the other record
+    saved = json.loads(Path(f"{model}.json").read_text())["extra"]
+    assert saved["test"] == data["test"] and "metrics" in saved
+
+
+@pytest.mark.parametrize("extra,phrase", [
+    (["--test", "{bench}", "--test-columns", "input=uVal,output=yVall"], "no column 'yVall'"),
+    (["--test", "{fast}", "--test-columns", "input=uVal,output=yVal"], "4 Hz but the model is fitted to"),
+    (["--test", "{bench}"], "the validation record is the estimation record"),
+    (["--test-columns", "input=uVal,output=yVal"], "give --test FILE"),
+    (["--test", "{bench}", "--test-range", "300:200"], "range"),
+])
+def test_bad_test_records_exit_2_with_one_line_before_fitting(bench, tmp_path, capsys, extra, phrase):
+    path, fast = bench
+    model = tmp_path / "m.eqx"
+    argv = ["fit", path, "--model", "physics", "--physics", "lti:2", "--columns", "input=uEst,output=yEst",
+            "--quiet", "--out", model] + [a.format(bench=path, fast=fast) for a in extra]
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("hybrid: error:"), err
+    assert phrase in lines[0], lines[0]
+    assert not model.exists()  # refused before the fit, nothing written
+    if "fast" in extra[1]:
+        assert "2 Hz" in lines[0]  # both rates named
+
+
+def test_load_pair_takes_the_validation_columns_in_one_string(bench):
+    path, _ = bench
+    _, validation = load_pair(path, columns="input=uEst,output=yEst", test_columns="input=uVal,output=yVal")
+    assert validation == load_mapped(path, input="uVal", output="yVal")
+    _, swapped = load_pair(path, input="uEst", output="yEst", test_columns="output=yVal")  # input stays uEst
+    assert swapped.metadata["mapping"] == {"t": None, "v_in": "uEst", "w": "yVal"}
+    with pytest.raises(InputError, match="given twice"):
+        load_pair(path, input="uEst", output="yEst", test_columns="output=yVal", test_output="yEst")
