@@ -33,6 +33,7 @@ from .core._metrics import (
     nmse_target as nmse_target,
     nmse_variance as nmse_variance,
 )
+from .core._held_start import HeldStart as HeldStart
 from .core._models import MODEL_KINDS as MODEL_KINDS, Model as Model
 from .ipmc._defaults import diagnose as diagnose, make_model as make_model
 from .core._parameters import Positive as Positive, Real as Real, UnitInterval as UnitInterval
@@ -44,6 +45,7 @@ from .core._readout import (
     LinearReadout as LinearReadout,
     WindowedMLP as WindowedMLP,
 )
+from .data._mapping import load_mapped as load_mapped, load_pair as load_pair
 from .data._recording import Recording as Recording
 from .data._split import Split as Split
 from .physics._reference import reference_response as reference_response

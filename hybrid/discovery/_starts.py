@@ -82,7 +82,8 @@ def baseline_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]
 def design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
     """The design's parameters that `simulation` has, as columns of raw (unconstrained) values."""
     names = [k for k in design[0] if k in simulation.parameter_names()]
-    return names, {k: jnp.asarray(simulation.constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
+    constraints = simulation.parameter_constraints()  # a wrapper's (HeldStart, EffectStack) include its inner's
+    return names, {k: jnp.asarray(constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
 
 
 @eqx.filter_jit

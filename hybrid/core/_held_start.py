@@ -1,0 +1,124 @@
+"""A simulation that starts where a constant drive has left it: `HeldStart`.
+
+A recording of a slow system rarely begins at rest: the tanks of Cascaded Tanks
+hold water when the pump's record starts, and an IPMC strip may still carry the
+charge of a previous drive. A simulation that starts at rest (or in equilibrium
+with the first sample) then spends its first time constants on a transient the
+system never had. `HeldStart` gives any simulation one more parameter, the
+constant drive ``initial_drive`` (in the drive's unit) that held the system
+before the record began: it simulates ``settle_samples`` samples of it, then
+the record, and returns the record's part only.
+
+Why a held drive and not the state itself: the state's size and meaning differ
+between simulations (two tank levels, 46 RC charges, the modal states of
+`LTI`), a held drive is one number with the drive's unit for all of them, and
+for a system that was resting at a steady input it is exact. For a record that
+begins mid-transient it is a one-parameter approximation of the initial state.
+
+A record scored on its own (a benchmark's validation record, which starts from
+another level than the estimation record) needs its own ``initial_drive``:
+re-fit that parameter alone on the record's first samples, every other one
+fixed, and say how many samples were used (``experiments/measured.py`` does).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ..util._errors import InputError
+from ._parameters import Constraint, Real, encode
+from ._simulation import AbstractSimulation
+
+#: The name of the added parameter.
+INITIAL_DRIVE = "initial_drive"
+
+
+class HeldStart(AbstractSimulation):
+    """`inner` run after `settle_samples` samples of the constant drive ``initial_drive``.
+
+    **Arguments:**
+
+    - `inner`: any simulation.
+    - `settle_samples`: how many samples of the held drive precede the record:
+      several of the slowest time constant (in samples) lets the state settle.
+    - `initial_drive`: its starting value, in the drive's unit (default 0).
+
+    The parameters are the inner simulation's plus ``initial_drive``.
+    """
+
+    inner: AbstractSimulation
+    settle_samples: int = eqx.field(static=True)
+    own: dict[str, Array]
+    constraints: ClassVar[dict[str, Constraint]] = {INITIAL_DRIVE: Real()}
+    units: ClassVar[dict[str, str]] = {INITIAL_DRIVE: "V"}
+    # The held drive is a parameter of the drive's own scale: rescaling the drive (what
+    # `fit` does for a simulation linear in it) would silently change its meaning.
+    linear_in_drive: ClassVar[bool] = False
+
+    def __init__(self, inner: AbstractSimulation, settle_samples: int, initial_drive: float = 0.0):
+        if not isinstance(inner, AbstractSimulation):
+            raise InputError(f"HeldStart wraps a simulation (an AbstractSimulation), got {type(inner).__name__}")
+        if isinstance(settle_samples, bool) or not isinstance(settle_samples, int) or settle_samples < 1:
+            raise InputError(f"settle_samples must be a positive whole number of samples, got {settle_samples!r}: "
+                             "take several of the slowest time constant, in samples")
+        if INITIAL_DRIVE in inner.parameter_names():
+            raise InputError(f"{type(inner).__name__} already has a parameter {INITIAL_DRIVE!r}")
+        self.inner = inner
+        self.settle_samples = settle_samples
+        self.own = encode({INITIAL_DRIVE: initial_drive}, self.constraints, "HeldStart")
+
+    @property
+    def raw(self) -> dict[str, Array]:
+        return {**self.inner.raw, **self.own}
+
+    def simulate(self, v_in, dt):
+        v_in = jnp.asarray(v_in)
+        held = self.parameters()[INITIAL_DRIVE]
+        prefix = jnp.full((self.settle_samples,), held, dtype=jnp.result_type(v_in.dtype, held.dtype))
+        return self.inner.simulate(jnp.concatenate([prefix, v_in.astype(prefix.dtype)]), dt)[self.settle_samples:]
+
+    def parameters(self):
+        return {**self.inner.parameters(), INITIAL_DRIVE: self.own[INITIAL_DRIVE]}
+
+    def parameter_names(self):
+        return tuple(self.inner.parameter_names()) + (INITIAL_DRIVE,)
+
+    def parameter_units(self):
+        return {**self.inner.parameter_units(), INITIAL_DRIVE: self.units[INITIAL_DRIVE]}
+
+    def parameter_constraints(self):
+        return {**self.inner.parameter_constraints(), **self.constraints}
+
+    def plausible_ranges(self):
+        return self.inner.plausible_ranges()
+
+    def typical_ranges(self):
+        return self.inner.typical_ranges()
+
+    def default_frozen(self):
+        return self.inner.default_frozen()
+
+    def replace(self, **values):
+        rest = {k: v for k, v in values.items() if k != INITIAL_DRIVE}
+        inner = self.inner.replace(**rest) if rest else self.inner
+        own = encode({INITIAL_DRIVE: values.get(INITIAL_DRIVE, self.parameters()[INITIAL_DRIVE])},
+                     self.constraints, "HeldStart")
+        return eqx.tree_at(lambda s: (s.inner, s.own), self, (inner, own))
+
+    def perturbed(self, key, scale, frozen=frozenset()):
+        return eqx.tree_at(lambda s: s.inner, self, self.inner.perturbed(key, scale, frozen))
+
+    def trainable(self, frozen):
+        import jax
+
+        spec = jax.tree_util.tree_map(lambda _: False, self)
+        spec = eqx.tree_at(lambda s: s.inner, spec, self.inner.trainable(frozen))
+        return eqx.tree_at(lambda s: s.own, spec, {INITIAL_DRIVE: INITIAL_DRIVE not in frozen})
+
+    def config(self) -> dict:
+        raise InputError("HeldStart cannot be saved with save_model yet: save the inner simulation's model and "
+                         "record initial_drive and settle_samples beside it")
