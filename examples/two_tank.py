@@ -66,10 +66,11 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 
-from hybrid import AbstractSimulation, Positive
+from hybrid import AbstractSimulation, Positive, UnitInterval
 from hybrid.core._arguments import check_drive
 from hybrid.core._parameters import encode
 
@@ -136,7 +137,11 @@ class TwoTank(AbstractSimulation):
 
     def simulate(self, v_in, dt):
         """h2 (cm) at each sample time for the pump drive `v_in` (V), held over each interval of `dt` s."""
-        v_in, dt = check_drive(v_in, dt, "TwoTank.simulate")  # InputError on bad concrete input
+        return self.levels(v_in, dt)[1]
+
+    def levels(self, v_in, dt):
+        """(h1, h2) (cm) at each sample time: both tanks' levels (`simulate` returns h2)."""
+        v_in, dt = check_drive(v_in, dt, f"{type(self).__name__}.simulate")  # InputError on bad concrete input
         p = self.parameters()
         inflow = p["pump_flow"] * jnp.maximum(jnp.asarray(v_in, p["area_1"].dtype), 0.0)  # cm³/s
         c1 = p["outlet_1"] * jnp.sqrt(2.0 * G)  # cm^2.5/s: outflow c·√h
@@ -161,12 +166,61 @@ class TwoTank(AbstractSimulation):
         def sample(h, q):
             h_next = h
             for _ in range(SUBSTEPS):  # unrolled: no loop nested in the scan
-                h_next = rk4(*h_next, q)
-            return h_next, h[1]  # the level at the start of the interval: the sample's reading
+                h_next = self.limit(*rk4(*h_next, q), p)
+            return h_next, h  # the levels at the start of the interval: the sample's reading
 
-        h0 = (equilibrium(c1, inflow[0]), equilibrium(c2, inflow[0]))
-        _, h2 = lax.scan(sample, h0, inflow / p["area_1"])
-        return h2
+        h0 = self.limit(equilibrium(c1, inflow[0]), equilibrium(c2, inflow[0]), p)
+        _, (h1, h2) = lax.scan(sample, h0, inflow / p["area_1"])
+        return h1, h2
+
+    def limit(self, h1, h2, p):
+        """The levels after what the tanks' walls do to them: nothing here (see `TwoTankOverflow`)."""
+        return h1, h2
+
+
+class TwoTankOverflow(TwoTank):
+    """Two tanks in cascade whose tanks overflow: the Cascaded Tanks benchmark's missing physics.
+
+    Added to `TwoTank`'s parameters:
+
+    - `level_max_1` (cm): the upper tank's rim. Water above it spills; the share
+      `spill_to_lower` of the spill falls into the lower tank, the rest is lost.
+    - `level_max_2` (cm): the lower tank's rim (or its level sensor's top),
+      above which water is lost.
+
+    After each RK4 step a level above its rim is brought back to it:
+    h ← L − δ·softplus((L − h)/δ), δ = `RIM_WIDTH` · L, a rim δ wide instead of
+    a sharp edge so that a fit sees a finite slope with respect to L before any
+    level reaches it (a hard `min` has zero slope there and LM could never move
+    L down to the data).
+    """
+
+    constraints: ClassVar[dict] = {**TwoTank.constraints, "level_max_1": Positive(), "level_max_2": Positive(),
+                                   "spill_to_lower": UnitInterval()}
+    units: ClassVar[dict] = {**TwoTank.units, "level_max_1": "cm", "level_max_2": "cm", "spill_to_lower": "1"}
+    plausible: ClassVar[dict] = {**TwoTank.plausible, "level_max_1": (1.0, 1e4), "level_max_2": (1.0, 1e4)}
+    typical: ClassVar[dict] = {**TwoTank.typical, "level_max_1": (5.0, 200.0), "level_max_2": (5.0, 200.0)}
+
+    def __init__(self, pump_flow=3.3, area_1=15.5, area_2=15.5, outlet_1=0.18, outlet_2=0.18,
+                 level_max_1=100.0, level_max_2=100.0, spill_to_lower=0.5):
+        values = dict(pump_flow=pump_flow, area_1=area_1, area_2=area_2, outlet_1=outlet_1, outlet_2=outlet_2,
+                      level_max_1=level_max_1, level_max_2=level_max_2, spill_to_lower=spill_to_lower)
+        self.raw = encode(values, self.constraints, "TwoTankOverflow")
+
+    def limit(self, h1, h2, p):
+        top1 = _rim(h1, p["level_max_1"])
+        h2 = h2 + p["spill_to_lower"] * (h1 - top1) * p["area_1"] / p["area_2"]
+        return top1, _rim(h2, p["level_max_2"])
+
+
+#: The rim's width as a share of its height (see `TwoTankOverflow`).
+RIM_WIDTH = 0.02
+
+
+def _rim(h, top):
+    """min(h, top) with a rim RIM_WIDTH·top wide: smooth, ≤ top, ≈ h well below it."""
+    width = RIM_WIDTH * top
+    return top - width * jax.nn.softplus((top - h) / width)
 
 
 def outflow(h):
