@@ -3,7 +3,9 @@
 A benchmark keeps an estimation record and a validation record (Cascaded Tanks:
 ``uEst -> yEst`` and ``uVal -> yVal`` in one CSV). `fit` fits the estimation
 record(s) and then runs the fitted model free on each ``--test`` record: the
-simulation from rest at the record's first sample, driven by its input only (the
+simulation from its own initial state (rest for ``lti:N`` and the RC network; a
+plug-in says, e.g. `TwoTank` starts in equilibrium with the first sample's
+drive), driven by the record's input only (the
 measured output is never fed back; every model here is non-autoregressive). A
 hybrid model's D-MLP needs ``window`` samples of history: as for the fit's own
 test split (`hybrid.core._windows`), the first window − 1 samples see the
@@ -31,8 +33,8 @@ def add_test_options(p) -> None:
     """--test, --test-columns, --test-range on `hybrid fit`."""
     g = p.add_argument_group("scoring on other records (a benchmark's validation record)")
     g.add_argument("--test", nargs="+", default=None, metavar="FILE",
-                   help="after the fit, run the fitted model free (the simulation from rest, driven by the input "
-                        "alone) on each FILE and report RMSE (in the output's unit), NMSE and the number of "
+                   help="after the fit, run the fitted model free (the simulation from its own initial state, rest "
+                        "for lti:N and rc, driven by the input alone) on each FILE and report RMSE (in the output's unit), NMSE and the number of "
                         "samples; a hybrid model's first window-1 samples see the first value held before "
                         "(edge padding, as the fit's own test split) and are scored. Read with the fit's "
                         "column options; --split still splits the fitted recordings only")
@@ -97,7 +99,7 @@ def score_tests(model, tests) -> list[dict]:
 
     scores = []
     for record in tests:
-        w_hat = np.asarray(model.predict(record.v_in, record.dt))  # the whole record: one segment, from rest
+        w_hat = np.asarray(model.predict(record.v_in, record.dt))  # the whole record: one segment
         w = np.asarray(record.w)
         if not np.all(np.isfinite(w_hat)):
             raise InputError(f"the fitted model's prediction for test record '{record.name}' is not finite: "
