@@ -25,6 +25,13 @@ the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
 - **linear filter**: ridge least squares of r on the lags 0..L of v, and of ŵ
   (L ≈ rate × 1 s, at most 60), never across a segment change; its frequency
   response up to Nyquist for the figure.
+- **power of the output, filtered**: the same filter of ŵ_c² and of ŵ_c³
+  (ŵ centred and scaled on training), each with ŵ's own lags beside it (a
+  refitted linear model leaves the power's part correlated with ŵ
+  in the residual): a static nonlinearity *inside* the
+  dynamics, e.g. an oscillator's cubic (odd) or quadratic (even) restoring
+  force, whose effect on w is its force passed through the resonance. The
+  first-order perturbation of a Duffing oscillator is exactly this.
 
 Every extension is fitted on `train` and judged on `heldout`: a flexible fit
 always explains some of its training noise, so only a held-out gain shows
@@ -47,8 +54,9 @@ SIGNIFICANT = 3.0         # standard errors the held-out MSE must exceed the flo
 KEYS = ("t", "v_in", "w", "w_hat", "segment")
 #: Each extension's family, in order of preference within its family (the first within MARGIN of the best).
 FAMILY = {"static_drive": "static", "static_output_monotone": "static", "static_output_free": "static",
-          "filter_drive": "dynamic", "rate": "dynamic", "filter_output": "dynamic", "time": "time"}
-ORDER = ("static", "time", "dynamic")
+          "filter_drive": "dynamic", "rate": "dynamic", "filter_output": "dynamic", "time": "time",
+          "filter_output_cube": "nonlinear_dynamic", "filter_output_square": "nonlinear_dynamic"}
+ORDER = ("static", "time", "dynamic", "nonlinear_dynamic")
 
 
 def _num(x, digits: int = 4):
@@ -176,10 +184,16 @@ def _drive_shape(tr, centres, values) -> dict:
 
 
 def _filter(tr, ho, key, lags, rate, judge) -> dict:
-    """Ridge FIR of r on lags 0..`lags` of `key`, within runs; held-out gain and frequency response."""
-    rows, x = _lags(tr[key], tr["pos"], lags)
-    hrows, hx = _lags(ho[key], ho["pos"], lags)
-    if len(rows) < 4 * (lags + 1) or len(hrows) < MIN_SAMPLES:
+    """Ridge FIR of r on lags 0..`lags` of `key` (or of several keys together), within runs.
+
+    Held-out gain and the frequency response of the first key's filter.
+    """
+    keys = (key,) if isinstance(key, str) else tuple(key)
+    lagged = [_lags(tr[k], tr["pos"], lags) for k in keys]
+    rows, x = lagged[0][0], np.hstack([m for _, m in lagged])
+    hlagged = [_lags(ho[k], ho["pos"], lags) for k in keys]
+    hrows, hx = hlagged[0][0], np.hstack([m for _, m in hlagged])
+    if len(rows) < 4 * x.shape[1] or len(hrows) < MIN_SAMPLES:
         return {"reason": f"too few samples with {lags} past samples inside a segment"}
     xm, ym = x.mean(axis=0), tr["r"][rows].mean()
     xc = x - xm  # einsum, not BLAS: a multi-threaded BLAS is many times slower on a busy machine
@@ -189,7 +203,7 @@ def _filter(tr, ho, key, lags, rate, judge) -> dict:
     pred = np.zeros_like(ho["r"])
     pred[hrows] = np.einsum("ni,i->n", hx - xm, h) + ym
     f = np.linspace(0.0, rate / 2, 100)
-    resp = np.exp(-2j * np.pi * np.outer(f / rate, np.arange(lags + 1))) @ h
+    resp = np.exp(-2j * np.pi * np.outer(f / rate, np.arange(lags + 1))) @ h[:lags + 1]
     db = 20 * np.log10(np.abs(resp) + 1e-300)
     return dict(judge(pred), lags=int(lags), fit_rows=int(len(rows)),
                 response={"f_hz": _list(f), "magnitude_db": _list(np.maximum(db, db.max() - 120.0)),
@@ -272,6 +286,12 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
     # Linear filter: lagged drive and lagged model output.
     lags = int(min(60, max(1, round(rate * 1.0))))
     filt = {"drive": _filter(tr, ho, "v_in", lags, rate, judge), "output": _filter(tr, ho, "w_hat", lags, rate, judge)}
+    centre, spread = float(np.mean(tr["w_hat"])), float(np.std(tr["w_hat"])) or 1.0
+    for part, power in ((tr, 2), (tr, 3), (ho, 2), (ho, 3)):
+        part[f"w_hat_{power}"] = ((part["w_hat"] - centre) / spread) ** power
+    # with the output's own lags: a refitted linear model leaves the power's part correlated with ŵ
+    filt["output_square"] = _filter(tr, ho, ("w_hat_2", "w_hat"), lags, rate, judge)
+    filt["output_cube"] = _filter(tr, ho, ("w_hat_3", "w_hat"), lags, rate, judge)
     scores.update({f"filter_{key}": part for key, part in filt.items() if "fraction" in part})
 
     offset = judge(np.full(n_ho, tr["r"].mean()))
@@ -322,6 +342,14 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
         weak = score(scores[best_static]) < 0.5 * family["dynamic"]
         text = (f"dynamic: {what} recovers {pct(inkind)} {where}; "
                 + (f"no static map does (best {pct(best_static)})" if weak else f"the best static map {pct(best_static)}"))
+    elif kind == "nonlinear_dynamic":
+        odd = inkind == "filter_output_cube"
+        best_linear = max((k for k in scores if FAMILY[k] == "dynamic"), key=lambda k: score(scores[k]))
+        text = (f"nonlinear inside the dynamics: the {'cube' if odd else 'square'} of the model's output through a "
+                f"linear filter recovers {pct(inkind)} {where} (an {'odd' if odd else 'even'} static nonlinearity "
+                f"fed back through the dynamics, e.g. a {'cubic (stiffening or softening)' if odd else 'quadratic'} "
+                f"restoring force); the best linear filter {pct(best_linear)}, the best static map "
+                f"{pct(best_static)}")
     else:
         text = f"a trend in time (drift): a smooth function of time recovers {pct(inkind)} {where}"
     if score(offset) >= 0.8 * top:

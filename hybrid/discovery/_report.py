@@ -167,7 +167,9 @@ def _noise(d: dict) -> list[str]:
                  static.get("output_monotone"), "free map of the model's output": static.get("output_free"),
                  "map of the drive's rate": desc.get("rate"), "trend in time": desc.get("time"),
                  "linear filter of the drive": filters.get("drive"),
-                 "linear filter of the model's output": filters.get("output")}
+                 "linear filter of the model's output": filters.get("output"),
+                 "linear filter of the output's square": filters.get("output_square"),
+                 "linear filter of the output's cube": filters.get("output_cube")}
     recovered = {k: v for k, v in recovered.items() if isinstance(v, dict) and "fraction" in v}
     if recovered:
         lines += ["What each extension, fitted to the residual on the training part, recovers held out:", "",
