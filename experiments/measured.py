@@ -157,15 +157,9 @@ def run_tanks(do_diagnose: bool, log) -> dict:
     add("(d) lti:2", lti_model, seconds)
 
     if do_diagnose:
-        for label, simulation, fitted in (("TwoTank", TwoTank(), base), ("lti:2", hybrid.LTI(2), lti_model)):
-            diagnosis = _diagnose(est, simulation, log, f"tanks {label}")
-            out[f"diagnose_{label}"] = diagnosis
-            names = [c["name"] for c in diagnosis["causes"]]
-            if names:
-                stack = _with_simulation(fitted, EffectStack(fitted.simulation, names))
-                model, seconds = _fit(stack, est, frozen if label == "TwoTank" else (), starts=4)
-                add(f"({'b' if label == 'TwoTank' else 'd'}) {label} + {'+'.join(names)}", model, seconds,
-                    "effects named by diagnose")
+        _diagnose_and_extend(out, add, est, est, [("TwoTank", TwoTank(), base, frozen, "b"),
+                                                  ("lti:2", hybrid.LTI(2), lti_model, (), "d")],
+                             log, "tanks", starts=4)
     out["rows"] = rows
     out["published"] = PUBLISHED["tanks"]
     _tanks_figure(est, val, predictions, base, overflow)
@@ -243,22 +237,27 @@ def run_silverbox(do_diagnose: bool, log) -> dict:
 
     if do_diagnose:
         segment = silverbox_record(SILVERBOX_DIAGNOSE_RANGE)
-        for label, simulation, fitted in (("MassSpringDamper", base.simulation, base),
-                                          ("lti:2", lti_model.simulation, lti_model)):
-            diagnosis = _diagnose(segment, simulation, log, f"silverbox {label}")
-            out[f"diagnose_{label}"] = diagnosis
-            names = [c["name"] for c in diagnosis["causes"]]
-            if names:
-                stack = _with_simulation(fitted, EffectStack(fitted.simulation, names))
-                model, seconds = _fit(stack, est, frozen if label == "MassSpringDamper" else (), max_steps=100)
-                add(f"({'b' if label == 'MassSpringDamper' else 'd'}) {label} + {'+'.join(names)}", model,
-                    seconds, "effects named by diagnose")
+        _diagnose_and_extend(out, add, segment, est,
+                             [("MassSpringDamper", base.simulation, base, frozen, "b"),
+                              ("lti:2", lti_model.simulation, lti_model, (), "d")], log, "silverbox", max_steps=100)
     out["rows"] = rows
     out["published"] = PUBLISHED["silverbox"]
     return out
 
 
 # --- diagnose ----------------------------------------------------------------------------------
+def _diagnose_and_extend(out, add, diagnosed, est, cases, log, dataset, **fit_options) -> None:
+    """For each (label, simulation, fitted model, frozen, row letter): diagnose, then fit the named effects."""
+    for label, simulation, fitted, frozen, letter in cases:
+        diagnosis = _diagnose(diagnosed, simulation, log, f"{dataset} {label}")
+        out[f"diagnose_{label}"] = diagnosis
+        names = [c["name"] for c in diagnosis["causes"]]
+        if names:
+            stack = _with_simulation(fitted, EffectStack(fitted.simulation, names))
+            model, seconds = _fit(stack, est, frozen, **fit_options)
+            add(f"({letter}) {label} + {'+'.join(names)}", model, seconds, "effects named by diagnose")
+
+
 def _diagnose(recording, simulation, log, label) -> dict:
     t0 = time.perf_counter()
     d = diagnose(recording, simulation=simulation, settings=DiagnoseSettings())

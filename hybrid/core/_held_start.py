@@ -31,13 +31,13 @@ from jaxtyping import Array
 
 from ..util._errors import InputError
 from ._parameters import Constraint, Real, encode
-from ._simulation import AbstractSimulation
+from ._simulation import AbstractSimulation, AbstractWrapper
 
 #: The name of the added parameter.
 INITIAL_DRIVE = "initial_drive"
 
 
-class HeldStart(AbstractSimulation):
+class HeldStart(AbstractWrapper):
     """`inner` run after `settle_samples` samples of the constant drive ``initial_drive``.
 
     **Arguments:**
@@ -92,15 +92,6 @@ class HeldStart(AbstractSimulation):
 
     def parameter_constraints(self):
         return {**self.inner.parameter_constraints(), **self.constraints}
-
-    def plausible_ranges(self):
-        return self.inner.plausible_ranges()
-
-    def typical_ranges(self):
-        return self.inner.typical_ranges()
-
-    def default_frozen(self):
-        return self.inner.default_frozen()
 
     def replace(self, **values):
         rest = {k: v for k, v in values.items() if k != INITIAL_DRIVE}

@@ -129,6 +129,25 @@ class AbstractSimulation(eqx.Module):
         )
 
 
+class AbstractWrapper(AbstractSimulation):
+    """A simulation built around another (`inner`): its ranges and default freezes are the inner's.
+
+    `HeldStart` and the discovery room's `EffectStack` are wrappers; each adds
+    parameters of its own and says how they are stored.
+    """
+
+    inner: eqx.AbstractVar[AbstractSimulation]
+
+    def plausible_ranges(self) -> dict[str, tuple[float, float]]:
+        return self.inner.plausible_ranges()
+
+    def typical_ranges(self) -> dict[str, tuple[float, float]]:
+        return self.inner.typical_ranges()
+
+    def default_frozen(self) -> dict[str, str]:
+        return self.inner.default_frozen()
+
+
 class Passthrough(AbstractSimulation):
     """No physics: the mediatory signal is the drive itself (the paper's Normal model)."""
 

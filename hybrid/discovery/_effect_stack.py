@@ -20,10 +20,10 @@ from jaxtyping import Array
 from ._effects import EFFECTS, AbstractEffect
 from ..util._errors import InputError
 from ..core._parameters import Constraint
-from ..core._simulation import AbstractSimulation, perturb_raw
+from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw
 
 
-class EffectStack(AbstractSimulation):
+class EffectStack(AbstractWrapper):
     """A simulation followed by physical effects: y = e_K(…e_1(inner(v_in))…).
 
     **Arguments:**
@@ -102,15 +102,6 @@ class EffectStack(AbstractSimulation):
         for effect in self.effects:
             out.update(effect.constraints)
         return out
-
-    def plausible_ranges(self):
-        return self.inner.plausible_ranges()
-
-    def typical_ranges(self):
-        return self.inner.typical_ranges()
-
-    def default_frozen(self):
-        return self.inner.default_frozen()
 
     def replace(self, **values):
         own = {e.name: {k: v for k, v in values.items() if k in e.constraints} for e in self.effects}
