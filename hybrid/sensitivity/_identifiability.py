@@ -10,6 +10,11 @@ import numpy as np
 from ..util._errors import InputError
 
 
+#: The keys of `Identifiability.to_dict` a study's report carries (all but names and directions).
+SUMMARY_KEYS = ("singular_values", "relative_singular_values", "null_directions", "near_null_directions",
+                "collinear_pairs", "cosines", "tolerances")
+
+
 @dataclasses.dataclass(frozen=True)
 class Identifiability:
     """What the SVD of a (normalised) sensitivity matrix S = U Σ Vᵀ says.
@@ -40,6 +45,11 @@ class Identifiability:
     cosines: np.ndarray
     collinear_pairs: list[tuple[str, str, float]]
     tolerances: dict[str, float]
+
+    def summary(self) -> dict[str, Any]:
+        """`to_dict` without names and directions: what a study's report carries."""
+        full = self.to_dict()
+        return {k: full[k] for k in SUMMARY_KEYS}
 
     def to_dict(self) -> dict[str, Any]:
         return {
