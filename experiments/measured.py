@@ -29,8 +29,10 @@ Splits and conventions (state them when quoting the numbers):
   (the ten odd multisines), test on 100:40575 (the arrow), as the
   ``nonlinear_benchmarks`` package splits it; the oscillator starts at rest.
   The hybrid model is fitted on the first two multisine periods only
-  (40650:57990, SILVERBOX_HYBRID_RANGE): its Levenberg–Marquardt Jacobian on all
-  86,750 samples (1,300 weights) would not fit the memory goal.
+  (40650:57990, SILVERBOX_HYBRID_RANGE), to keep the run short: its
+  Levenberg–Marquardt Jacobian on all 86,750 samples would hold 86,750 × ~1,300
+  weights in float64, 0.9 GB, and each step would take correspondingly long
+  (not measured).
 * Fits: ``hybrid.fit`` (LM), split 0.8/0.1/0.1 of the estimation record
   (train / early-stopping test / validation), 4 starts for the tanks, 1 for the
   Silverbox (whose fits start from the resonance read off the data's spectrum).
