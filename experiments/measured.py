@@ -56,10 +56,7 @@ import numpy as np  # noqa: E402
 import scipy.optimize  # noqa: E402
 
 import hybrid  # noqa: E402
-from hybrid.core._held_start import HeldStart  # noqa: E402
-from hybrid.discovery._diagnose import diagnose  # noqa: E402
-from hybrid.discovery._diagnosis import DiagnoseSettings  # noqa: E402
-from hybrid.discovery._effect_stack import EffectStack  # noqa: E402
+from hybrid import DiagnoseSettings, EffectStack, HeldStart  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -140,8 +137,8 @@ def run_tanks(do_diagnose: bool, log) -> dict:
 
     # (b') the overflow, started from (a)'s fit: rims at the highest levels (a) reaches
     p = _values(base)
-    h1, h2 = (np.asarray(x)[SETTLE:] for x in base.simulation.inner.levels(
-        np.concatenate([np.full(SETTLE, p["initial_drive"]), est.v_in]), est.dt))
+    h1, h2 = (np.asarray(x)[SETTLE:] for x in base.simulation.inner.levels(base.simulation.held_drive(est.v_in),
+                                                                            est.dt))
     start = {k: p[k] for k in TwoTank.constraints}
     overflow = HeldStart(TwoTankOverflow(**start, level_max_1=0.7 * float(h1.max()),
                                          level_max_2=float(h2.max()), spill_to_lower=0.5),
@@ -164,11 +161,11 @@ def run_tanks(do_diagnose: bool, log) -> dict:
                              log, "tanks", starts=4)
     out["rows"] = rows
     out["published"] = PUBLISHED["tanks"]
-    _tanks_figure(est, val, predictions, base, overflow)
+    _tanks_figure(val, predictions)
     return out
 
 
-def _tanks_figure(est, val, predictions, *_):
+def _tanks_figure(val, predictions):
     from hybrid.util._figures import _pyplot as pyplot
 
     plt = pyplot()
@@ -262,7 +259,7 @@ def _diagnose_and_extend(out, add, diagnosed, est, cases, log, dataset, **fit_op
 
 def _diagnose(recording, simulation, log, label) -> dict:
     t0 = time.perf_counter()
-    d = diagnose(recording, simulation=simulation, settings=DiagnoseSettings())
+    d = hybrid.diagnose(recording, simulation=simulation, settings=DiagnoseSettings())
     seconds = time.perf_counter() - t0
     summary = {"verdict": d.verdict, "causes": d.causes, "gain": d.gain, "unexplained": d.unexplained,
                "baseline_nmse": d.baseline.heldout["nmse"], "extended_nmse": d.extended.heldout["nmse"],

@@ -26,6 +26,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
@@ -75,11 +76,15 @@ class HeldStart(AbstractWrapper):
     def raw(self) -> dict[str, Array]:
         return {**self.inner.raw, **self.own}
 
-    def simulate(self, v_in, dt):
+    def held_drive(self, v_in):
+        """The drive the inner simulation runs on: `settle_samples` of ``initial_drive``, then `v_in`."""
         v_in = jnp.asarray(v_in)
         held = self.parameters()[INITIAL_DRIVE]
         prefix = jnp.full((self.settle_samples,), held, dtype=jnp.result_type(v_in.dtype, held.dtype))
-        return self.inner.simulate(jnp.concatenate([prefix, v_in.astype(prefix.dtype)]), dt)[self.settle_samples:]
+        return jnp.concatenate([prefix, v_in.astype(prefix.dtype)])
+
+    def simulate(self, v_in, dt):
+        return self.inner.simulate(self.held_drive(v_in), dt)[self.settle_samples:]
 
     def parameters(self):
         return {**self.inner.parameters(), INITIAL_DRIVE: self.own[INITIAL_DRIVE]}
@@ -104,8 +109,6 @@ class HeldStart(AbstractWrapper):
         return eqx.tree_at(lambda s: s.inner, self, self.inner.perturbed(key, scale, frozen))
 
     def trainable(self, frozen):
-        import jax
-
         spec = jax.tree_util.tree_map(lambda _: False, self)
         spec = eqx.tree_at(lambda s: s.inner, spec, self.inner.trainable(frozen))
         return eqx.tree_at(lambda s: s.own, spec, {INITIAL_DRIVE: INITIAL_DRIVE not in frozen})
