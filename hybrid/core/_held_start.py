@@ -76,6 +76,11 @@ class HeldStart(AbstractWrapper):
     def raw(self) -> dict[str, Array]:
         return {**self.inner.raw, **self.own}
 
+    def with_raw(self, raw):
+        inner = {k: v for k, v in raw.items() if k != INITIAL_DRIVE}
+        own = {INITIAL_DRIVE: raw.get(INITIAL_DRIVE, self.own[INITIAL_DRIVE])}
+        return eqx.tree_at(lambda s: (s.inner, s.own), self, (self.inner.with_raw(inner) if inner else self.inner, own))
+
     def held_drive(self, v_in):
         """The drive the inner simulation runs on: `settle_samples` of ``initial_drive``, then `v_in`."""
         v_in = jnp.asarray(v_in)

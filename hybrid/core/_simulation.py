@@ -19,6 +19,7 @@ import dataclasses
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -73,6 +74,14 @@ class AbstractSimulation(eqx.Module):
         raw = encode(current, self.constraints, type(self).__name__)
         return eqx.tree_at(lambda s: s.raw, self, raw)
 
+    def with_raw(self, raw: dict[str, Array]) -> "AbstractSimulation":
+        """A copy with some unconstrained values replaced (traceable: no decoding, no checks).
+
+        What a compiled screen uses to rebuild the simulation at each row of a
+        design; a wrapper routes each value to the part that holds it.
+        """
+        return eqx.tree_at(lambda s: s.raw, self, {**self.raw, **raw})
+
     def parameter_names(self) -> tuple[str, ...]:
         """Names of the parameters (what `frozen` and `replace` accept)."""
         return tuple(self.raw)
@@ -118,6 +127,19 @@ class AbstractSimulation(eqx.Module):
     def perturbed(self, key, scale: float, frozen=frozenset()) -> "AbstractSimulation":
         """A copy whose free raw (unconstrained) values get N(0, scale²) noise: a new start."""
         return eqx.tree_at(lambda s: s.raw, self, perturb_raw(self.raw, key, scale, frozen))
+
+    def free_parameter_order(self, frozen=frozenset()) -> list[str]:
+        """The free parameters' names in the order their values take in a flattened θ.
+
+        `Problem` ravels `eqx.filter(simulation, simulation.trainable(frozen))`:
+        this tags every raw value with its index (`with_raw`) and reads the tags
+        back in that order, so a wrapper's layout (inner first or last, sorted
+        keys or not) is never assumed.
+        """
+        names = list(self.parameter_names())
+        tagged = self.with_raw({n: jnp.asarray(float(i)) for i, n in enumerate(names)})
+        leaves = jax.tree_util.tree_leaves(eqx.filter(tagged, tagged.trainable(frozenset(frozen))))
+        return [names[int(leaf)] for leaf in leaves]
 
     def trainable(self, frozen: frozenset[str]) -> "AbstractSimulation":
         """Filter spec (same structure, bools) marking the free parameters."""

@@ -64,7 +64,6 @@ from ._starts import N_SCREEN, baseline_starts
 from ._step import Search, search_step
 from ._unexplained import pooled_noise_floor, remainder
 from ..util._errors import InputError
-from ..core._held_start import HeldStart
 from ..core._levenberg_marquardt import LMSettings
 from ..core._problem import robust_std
 from ..util._watchdog import stage
@@ -116,9 +115,6 @@ def diagnose(
     t0 = time.perf_counter()
     recordings = as_recordings(recordings, "diagnose")  # a path is loaded; anything else is refused
     check_simulation(simulation, "diagnose")
-    if isinstance(simulation, HeldStart):
-        raise InputError("diagnose does not take a HeldStart yet (its search rebuilds simulations from their raw "
-                         "values): diagnose the inner simulation, on a recording that starts near its initial state")
     if not isinstance(settings, DiagnoseSettings):
         raise InputError(f"diagnose: settings must be a DiagnoseSettings, got {type(settings).__name__}: "
                          "use dataclasses.replace(hybrid.DiagnoseSettings(), max_steps=...)")

@@ -110,6 +110,12 @@ class EffectStack(AbstractWrapper):
         effects = tuple(e.with_values(**own[e.name]) if own[e.name] else e for e in self.effects)
         return EffectStack(inner, effects, self.active)
 
+    def with_raw(self, raw):
+        inner = {k: v for k, v in raw.items() if k in self.inner.parameter_names()}
+        effects = tuple(eqx.tree_at(lambda e: e.raw, e, {**e.raw, **{k: raw[k] for k in e.raw if k in raw}})
+                        for e in self.effects)
+        return EffectStack(self.inner.with_raw(inner) if inner else self.inner, effects, self.active)
+
     def with_active(self, active) -> "EffectStack":
         """The same stack with other switches (an array of 0/1 per effect)."""
         return eqx.tree_at(lambda s: s.active, self, jnp.asarray(active, dtype=float))

@@ -140,7 +140,7 @@ def _signals(problem, theta, active, split):
 
 def _sim_labels(stack: EffectStack, frozen) -> list[str]:
     """The parameter name of each entry of θ_sim (`ravel_pytree` order: dict keys sorted)."""
-    labels = [n for n in sorted(stack.inner.raw) if n not in frozen]
+    labels = stack.inner.free_parameter_order(frozen)
     for effect in stack.effects:
         labels += [n for n in sorted(effect.raw) if n not in frozen]
     return labels

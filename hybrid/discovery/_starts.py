@@ -92,7 +92,7 @@ def screen_losses(problem, simulation, raws):
     w = problem.target("train")
 
     def one(raw):
-        sim = eqx.tree_at(lambda s: s.raw, simulation, {**simulation.raw, **raw})
+        sim = simulation.with_raw(raw)
         s = train_signal(problem, sim)
         fit = LinearReadout().initialise(s, w).parameters()
         loss = jnp.mean((w - fit["gain"] * s - fit["offset"]) ** 2)
@@ -172,7 +172,7 @@ def loop_screen(problem, simulation, raws, rates):
     w = problem.target("train")
 
     def one(raw):
-        sim = eqx.tree_at(lambda s: s.raw, simulation, {**simulation.raw, **raw})
+        sim = simulation.with_raw(raw)
         signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
         span = jnp.maximum(jnp.max(jnp.stack([jnp.ptp(x) for x in signals])), 1e-12)  # over every recording
 
@@ -247,7 +247,7 @@ def mode_screen(problem, simulation, raws, frequencies, dampings):
     w = problem.target("train")
 
     def one(raw):
-        sim = eqx.tree_at(lambda s: s.raw, simulation, {**simulation.raw, **raw})
+        sim = simulation.with_raw(raw)
         signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
 
         def fit(raw_f, raw_z):
