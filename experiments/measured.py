@@ -156,8 +156,11 @@ def run_tanks(do_diagnose: bool, log) -> dict:
     add("(d) lti:2", lti_model, seconds)
 
     if do_diagnose:
-        _diagnose_and_extend(out, add, est, est, [("TwoTank", TwoTank(), base, frozen, "b"),
-                                                  ("lti:2", hybrid.LTI(2), lti_model, (), "d")],
+        # diagnosed as fitted: from a held drive (the record starts with water in the tanks)
+        _diagnose_and_extend(out, add, est, est, [("TwoTank", HeldStart(TwoTank(), SETTLE, initial_drive=3.0), base,
+                                                   frozen, "b"),
+                                                  ("lti:2", HeldStart(hybrid.LTI(2), SETTLE, initial_drive=3.0),
+                                                   lti_model, (), "d")],
                              log, "tanks", starts=4)
     out["rows"] = rows
     out["published"] = PUBLISHED["tanks"]

@@ -9,7 +9,8 @@ half of the held-out error lies above the noise, counting the floor at the top
 of its ±2 standard errors), the answer carries an ``unexplained`` part: how
 much of the error lies above the floor, and where it lives
 (`hybrid.discovery._remainder`: static or dynamic, even or odd in the drive,
-what a flexible extension recovers on held-out data). Otherwise
+what a flexible extension recovers on held-out data; `hybrid.discovery._level_limit`:
+whether the record sits flat at an extreme while the model goes beyond it). Otherwise
 ``unexplained`` is None: the model is as good as the measurement allows.
 """
 
@@ -19,6 +20,7 @@ import math
 
 import numpy as np
 
+from ._level_limit import level_limits, limit_sentence
 from ._noise_floor import NoiseFloor, noise_floor
 from ._search import _signals
 
@@ -67,6 +69,11 @@ def remainder(problem, series, recordings, final, heldout: dict, floor: NoiseFlo
         return None
     train = _part(problem, series, recordings, final, "train")
     description = describe_remainder(train, held, rate, floor.variance)
+    # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
+    description["level_limit"] = level_limits([train, held], floor.variance)
+    clause = limit_sentence(description["level_limit"], len(train["w"]) + len(held["w"]))
+    if clause:
+        description["summary"] += f"; {clause}"
     out = {
         "fraction_above_floor": 1.0 - floor.variance / mse,
         "heldout_nmse": mse / var_w,
