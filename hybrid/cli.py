@@ -224,7 +224,7 @@ def _cmd_fit(args):
     recordings = _load_recordings(args, args.recordings)
     simulation = None
     if args.model != "normal":
-        simulation = resolve_physics(args.physics)  # rc: the paper's RC network
+        simulation = resolve_physics(args.physics, recordings)  # rc: the paper's RC network
         params = _parse_params(args.param)
         if params:
             simulation = simulation.replace(**params)
@@ -283,7 +283,7 @@ def _cmd_diagnose(args):
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
     with lock:
-        simulation = None if args.physics == "rc" else resolve_physics(args.physics)  # rc: hybrid.diagnose's own
+        simulation = None if args.physics == "rc" else resolve_physics(args.physics, recordings)  # rc: diagnose's own
         diagnosis = diagnose(recordings, simulation=simulation, hybrid=args.hybrid, settings=settings,
                              progress=not args.quiet)
         paths = write_report(diagnosis, args.out)

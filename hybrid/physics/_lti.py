@@ -212,12 +212,12 @@ class LTI(AbstractSimulation):
         return zoh_response(*self.state_space(), v_in, dt)
 
 
-def _defaults(order: int) -> dict[str, float]:
-    """Starting values: time scales half a decade apart around 1 s, fastest first."""
+def _defaults(order: int, centre_s: float = 1.0) -> dict[str, float]:
+    """Starting values: time scales half a decade apart around `centre_s` seconds, fastest first."""
     layout = sections(order)
     out = {}
     for j, (k, states) in enumerate(layout):
-        scale = 10.0 ** (0.5 * (j - (len(layout) - 1) / 2))  # s
+        scale = centre_s * 10.0 ** (0.5 * (j - (len(layout) - 1) / 2))  # s
         if states == 1:
             out[f"tau_{k}"] = scale
         else:

@@ -25,18 +25,22 @@ from pathlib import Path
 
 from ..core._simulation import AbstractSimulation
 from ..util._errors import InputError
+from ._lti_start import lti_for_recordings
 from ._lti import MAX_ORDER, LTI
 from ._rc_network import RCNetwork
 
 FORMS = "rc, lti:N, path/to/file.py:ClassName or package.module:ClassName"
 
 
-def resolve_physics(spec: str) -> AbstractSimulation:
+def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
     """The simulation named by `spec` (``rc``, ``lti:N``, ``file.py:Class``, ``module:Class``).
 
     **Arguments:**
 
     - `spec`: as given to ``--physics`` (see the module docstring).
+    - `recordings`: the recordings it will be fitted to, or None. An ``lti:N``
+      then starts with its time scales centred on theirs
+      (`hybrid.physics._lti_start`); every other physics ignores them.
 
     **Returns:** an instance with the class's default parameters.
 
@@ -49,7 +53,8 @@ def resolve_physics(spec: str) -> AbstractSimulation:
     if lowered == "rc":
         return RCNetwork()
     if lowered.startswith("lti:") or lowered == "lti":
-        return _lti(text)
+        lti = _lti(text)
+        return lti if not recordings else lti_for_recordings(lti.order, recordings)
     where, sep, name = text.rpartition(":")
     if not sep or not where:
         raise InputError(f"--physics {text}: not a physics I know; give {FORMS} "
