@@ -90,6 +90,23 @@ def test_structured_jacobian_physics_and_frozen_columns_disappear():
     assert len(matched) == 5
 
 
+def test_normal_equations_in_chunks_equal_those_of_the_whole_jacobian(monkeypatch):
+    """JᵀJ, Jᵀr folded 64 rows at a time (210 rows: 4 chunks, the last padded) equal those of jacfwd's J."""
+    import hybrid.core._problem as problem_module
+
+    model = make_model("hybrid", simulation=RCNetwork(n_stages=5), key=jax.random.key(3), **TINY)
+    problem = Problem(model, _two_series(), frozenset())
+    theta = problem.flatten(model, frozenset())
+    J = np.asarray(jax.jacfwd(problem.residuals)(theta))
+    r = np.asarray(problem.residuals(theta))
+    whole = [np.asarray(x) for x in problem.normal_equations(theta)]  # below the threshold: J whole
+    monkeypatch.setattr(problem_module, "JACOBIAN_CHUNK_BYTES", 8)  # every readout column chunked
+    chunked = [np.asarray(x) for x in problem.normal_equations(theta)]
+    for got in (whole, chunked):
+        assert np.max(np.abs(got[0] - J.T @ J)) <= 1e-10 * np.max(np.abs(J.T @ J))
+        assert np.max(np.abs(got[1] - J.T @ r)) <= 1e-10 * np.max(np.abs(J.T @ r))
+
+
 # --------------------------------------------------------------------------- planted physics
 TRUE_NETWORK = RCNetwork(xi_rho=6.0, xi_h=1.0, alpha_E=0.3, alpha_I=0.6, alpha_C=0.4,
                          C_clamp=0.02, n_stages=10)

@@ -69,8 +69,7 @@ class LMState(eqx.Module):
 
 def _normal_equations(problem, theta):
     """Cost, JᵀJ and Jᵀr, with the weight-decay rows √μ θ_network folded in."""
-    r, J = problem.residuals_and_jacobian(theta)
-    JtJ, g = J.T @ J, J.T @ r
+    JtJ, g = problem.normal_equations(theta)
     if problem.weight_decay:
         mask = problem.penalty_mask(theta)
         JtJ = JtJ + jnp.diag(problem.weight_decay * mask)

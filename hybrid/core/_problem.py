@@ -29,6 +29,10 @@ from jax.flatten_util import ravel_pytree
 from ..util._errors import InputError
 from ._models import Model
 
+#: Above this many bytes, J's readout columns are built a chunk of rows at a time (`normal_equations`).
+JACOBIAN_CHUNK_BYTES = 2**27
+MIN_CHUNK_ROWS = 64
+
 
 class Series(eqx.Module):
     """One recording prepared for fitting: drive, displacement, and its split segments."""
@@ -222,8 +226,8 @@ class Problem(eqx.Module):
         split = "validation" if self.has_validation else "train"
         return 0.5 * jnp.mean(self.residuals(theta, split) ** 2)
 
-    def residuals_and_jacobian(self, theta, split="train"):
-        """r (m,) and J = ∂r/∂θ (m × n), built from the model's structure."""
+    def _residuals_and_sim_jacobian(self, theta, split):
+        """r (m,), J_sim (m × k) by forward mode through the simulation, and the readout's input windows."""
         a, b = self.split_theta(theta)
         target = self.target(split)
 
@@ -242,9 +246,51 @@ class Problem(eqx.Module):
         else:
             r, windows = from_sim(a)
             J_sim = jnp.zeros((r.shape[0], 0), r.dtype)
+        return r, J_sim, windows
+
+    def _readout_jacobian(self, theta, windows):
+        """J_readout (rows × n): per window, the gradient of −ŵ/σ_w with respect to the readout's weights."""
+        _, b = self.split_theta(theta)
 
         def predict_one(theta_readout, window):
             return self.readout(theta_readout).predict_window(window)
 
-        J_readout = -jax.vmap(jax.grad(predict_one), (None, 0))(b, windows) / self.scale
-        return r, jnp.concatenate([J_sim, J_readout], axis=1)
+        return -jax.vmap(jax.grad(predict_one), (None, 0))(b, windows) / self.scale
+
+    def residuals_and_jacobian(self, theta, split="train"):
+        """r (m,) and J = ∂r/∂θ (m × n), built from the model's structure."""
+        r, J_sim, windows = self._residuals_and_sim_jacobian(theta, split)
+        return r, jnp.concatenate([J_sim, self._readout_jacobian(theta, windows)], axis=1)
+
+    def normal_equations(self, theta, split="train"):
+        """JᵀJ and Jᵀr, never holding J whole when it is large.
+
+        J's readout columns (m × n, 1,726 for the paper's D-MLP) are what grows
+        with the record: 10⁶ samples would need ~10 GB. Above `JACOBIAN_CHUNK_BYTES`
+        they are built `rows` windows at a time inside a `lax.scan` and folded
+        into JᵀJ and Jᵀr at once; J_sim (m × k, k ≈ 6) is kept whole. Below it,
+        the products of the whole J (the same numbers, summed in another order).
+        """
+        r, J_sim, windows = self._residuals_and_sim_jacobian(theta, split)
+        m, n = r.shape[0], self.n_readout
+        rows = max(MIN_CHUNK_ROWS, JACOBIAN_CHUNK_BYTES // (r.dtype.itemsize * max(n, 1)))
+        if n == 0 or m <= rows:
+            J = jnp.concatenate([J_sim, self._readout_jacobian(theta, windows)], axis=1)
+            return J.T @ J, J.T @ r
+        pad = (-m) % rows
+        chunks = -(-m // rows)
+
+        def padded(x):  # padding rows repeat the last window; their mask is 0
+            return jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]).reshape((chunks, rows) + x.shape[1:])
+
+        mask = jnp.concatenate([jnp.ones(m, r.dtype), jnp.zeros(pad, r.dtype)]).reshape(chunks, rows)
+
+        def fold(acc, chunk):
+            window, j_sim, res, keep = chunk
+            J_r = self._readout_jacobian(theta, window) * keep[:, None]
+            return (acc[0] + J_r.T @ J_r, acc[1] + J_r.T @ j_sim, acc[2] + J_r.T @ res), None
+
+        zeros = (jnp.zeros((n, n), r.dtype), jnp.zeros((n, J_sim.shape[1]), r.dtype), jnp.zeros(n, r.dtype))
+        (A_rr, A_rs, g_r), _ = jax.lax.scan(fold, zeros, (padded(windows), padded(J_sim), padded(r), mask))
+        JtJ = jnp.block([[J_sim.T @ J_sim, A_rs.T], [A_rs, A_rr]])
+        return JtJ, jnp.concatenate([J_sim.T @ r, g_r])
