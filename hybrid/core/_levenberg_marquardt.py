@@ -14,7 +14,9 @@ residual function as a whole (`jax.linearize`/`jacrev` of the full pytree) and
 its damped solve materialises `J @ I` through a `FunctionLinearOperator`; at
 3,000 residuals × 1,727 parameters that was ~6 s and 8 GB per step. Here the
 Jacobian comes from [`hybrid.core._problem.Problem`][] (per-sample network gradients,
-forward mode for the physics) and the step is a Cholesky solve. The solvers
+forward mode for the physics), folded into JᵀJ a chunk of rows at a time on long
+records (`Problem.normal_equations`; any problem that gives `residuals_and_jacobian`
+works too), and the step is a Cholesky solve. The solvers
 agree where both apply (physics-only models: `tests/test_fit.py`), and
 `solver="optimistix"` in [`hybrid.fit`][] runs optimistix's own LM.
 
@@ -69,7 +71,11 @@ class LMState(eqx.Module):
 
 def _normal_equations(problem, theta):
     """Cost, JᵀJ and Jᵀr, with the weight-decay rows √μ θ_network folded in."""
-    JtJ, g = problem.normal_equations(theta)
+    if hasattr(problem, "normal_equations"):  # `Problem`: J's network columns folded in chunks of rows
+        JtJ, g = problem.normal_equations(theta)
+    else:  # any least-squares problem that gives r and J
+        r, J = problem.residuals_and_jacobian(theta)
+        JtJ, g = J.T @ J, J.T @ r
     if problem.weight_decay:
         mask = problem.penalty_mask(theta)
         JtJ = JtJ + jnp.diag(problem.weight_decay * mask)
