@@ -91,17 +91,20 @@ def test_structured_jacobian_physics_and_frozen_columns_disappear():
 
 
 def test_normal_equations_in_chunks_equal_those_of_the_whole_jacobian(monkeypatch):
-    """JᵀJ, Jᵀr folded 64 rows at a time (210 rows: 4 chunks, the last padded) equal those of jacfwd's J."""
+    """JᵀJ, Jᵀr folded 64 rows at a time (210 rows: 4 chunks, the last padded) equal those of the whole J.
+
+    J itself is checked against `jax.jacfwd` above (`_check_jacobian`).
+    """
     import hybrid.core._problem as problem_module
 
     model = make_model("hybrid", simulation=RCNetwork(n_stages=5), key=jax.random.key(3), **TINY)
     problem = Problem(model, _two_series(), frozenset())
     theta = problem.flatten(model, frozenset())
-    J = np.asarray(jax.jacfwd(problem.residuals)(theta))
-    r = np.asarray(problem.residuals(theta))
-    whole = [np.asarray(x) for x in problem.normal_equations(theta)]  # below the threshold: J whole
+    r, J = (np.asarray(x) for x in eqx.filter_jit(problem.residuals_and_jacobian)(theta))
+    # a new function each time: the threshold is read when the program is traced
+    whole = [np.asarray(x) for x in jax.jit(lambda th: problem.normal_equations(th))(theta)]  # below it
     monkeypatch.setattr(problem_module, "JACOBIAN_CHUNK_BYTES", 8)  # every readout column chunked
-    chunked = [np.asarray(x) for x in problem.normal_equations(theta)]
+    chunked = [np.asarray(x) for x in jax.jit(lambda th: problem.normal_equations(th))(theta)]
     for got in (whole, chunked):
         assert np.max(np.abs(got[0] - J.T @ J)) <= 1e-10 * np.max(np.abs(J.T @ J))
         assert np.max(np.abs(got[1] - J.T @ r)) <= 1e-10 * np.max(np.abs(J.T @ r))

@@ -26,7 +26,7 @@ from hybrid import AbstractSimulation, HeldStart, Positive
 from hybrid.core._parameters import encode
 from hybrid.discovery._search import _sim_labels
 
-RATE, SECONDS, TAU, HELD, SETTLE, NOISE = 10.0, 100.0, 2.5, 1.2, 200, 0.01
+RATE, SECONDS, TAU, HELD, SETTLE, NOISE = 10.0, 60.0, 2.5, 1.2, 200, 0.01
 
 
 class Lag(AbstractSimulation):
