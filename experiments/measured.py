@@ -55,7 +55,6 @@ jax.config.update("jax_enable_x64", True)
 
 import equinox as eqx  # noqa: E402
 import numpy as np  # noqa: E402
-import scipy.optimize  # noqa: E402
 
 import hybrid  # noqa: E402
 from hybrid import DiagnoseSettings, EffectStack, HeldStart  # noqa: E402
@@ -116,13 +115,9 @@ def tanks_records():
 
 def tanks_score(model, val):
     """RMSE (V) on Val after re-fitting initial_drive alone on its first VAL_INITIAL samples."""
-    def run(u0):
-        return np.asarray(_with_simulation(model, model.simulation.replace(initial_drive=u0)).predict(val.v_in,
-                                                                                                  val.dt))
-    found = scipy.optimize.minimize_scalar(lambda u0: _rmse(run(u0)[:VAL_INITIAL], val.w[:VAL_INITIAL]),
-                                           bounds=(0.0, 10.0), method="bounded")
-    prediction = run(found.x)
-    return _rmse(prediction, val.w), float(found.x), prediction
+    model, u0 = hybrid.refit_initial_drive(model, val, VAL_INITIAL, bounds=(0.0, 10.0))
+    prediction = np.asarray(model.predict(val.v_in, val.dt))
+    return _rmse(prediction, val.w), u0, prediction
 
 
 def run_tanks(do_diagnose: bool, log) -> dict:

@@ -33,7 +33,7 @@ from .core._metrics import (
     nmse_target as nmse_target,
     nmse_variance as nmse_variance,
 )
-from .core._held_start import HeldStart as HeldStart
+from .core._held_start import HeldStart as HeldStart, refit_initial_drive as refit_initial_drive
 from .core._models import MODEL_KINDS as MODEL_KINDS, Model as Model
 from .ipmc._defaults import diagnose as diagnose, make_model as make_model
 from .core._parameters import Positive as Positive, Real as Real, UnitInterval as UnitInterval

@@ -5,6 +5,8 @@ Kept apart from `hybrid.cli` (the commands) so each stays a room about one thing
 
 from __future__ import annotations
 
+from .util._errors import InputError
+
 
 def _add_mapping(p, B, rate: bool = True) -> None:
     """Options that read a lab's own file: which columns are the drive and the output, the rate, the samples.
@@ -46,3 +48,26 @@ def _add_physics(p) -> None:
                    help="the simulation: rc (the paper's RC network, default), lti:N (a linear system of order N), "
                         "path/to/file.py:Class or package.module:Class (your AbstractSimulation)")
 
+
+
+def _add_settle(p, B) -> None:
+    """--settle N: the physics starts where a fitted constant drive left it (hybrid.HeldStart)."""
+    p.add_argument("--settle", type=B.integer(1, B.SETTLE_MAX), default=None, metavar="SAMPLES",
+                   help="the record does not start at rest: hold the physics at a constant drive (the fitted "
+                        "parameter initial_drive) for SAMPLES samples before it, several of its slowest time "
+                        "constant (one recording)")
+
+
+def _with_settle(simulation, args, recordings):
+    """The simulation wrapped in HeldStart for --settle, started at the record's first drive level."""
+    if getattr(args, "settle", None) is None:
+        return simulation
+    import numpy as np
+
+    from .core._held_start import HeldStart
+
+    if len(recordings) != 1:
+        raise InputError(f"--settle fits one held drive before the record, and {len(recordings)} recordings each "
+                         "start from their own state: give one recording")
+    start = float(np.mean(np.asarray(recordings[0].v_in)[:10]))
+    return HeldStart(simulation, args.settle, initial_drive=start)

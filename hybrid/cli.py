@@ -2,10 +2,10 @@
 
     hybrid simulate --drive prbs|sine|chirp|pulse --duration S --out F.csv
     hybrid rc DRIVE.csv [--param NAME=VALUE ...] [--method tustin|zoh] --out F.csv
-    hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--out MODEL] [--test FILE...]
+    hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--settle N] [--out MODEL] [--test FILE...]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
-    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
+    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--settle N] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
 
 fit, diagnose and sensitivity take --physics rc|lti:N|file.py:Class|module:Class and read a lab's own
 columns with --input/--output (or --columns), --rate, --range and --units.
@@ -20,7 +20,7 @@ import json
 import sys
 from pathlib import Path
 
-from ._cli_inputs import _add_mapping, _add_physics, _load_recordings
+from ._cli_inputs import _add_mapping, _add_physics, _add_settle, _load_recordings, _with_settle
 from ._cli_sensitivity import add_sensitivity, cmd_sensitivity
 from ._cli_test import add_test_options, load_tests, print_scores, score_tests
 from .util._errors import InputError
@@ -92,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", default=None, help="write the fit report (metrics, parameters) as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_physics(p)
+    _add_settle(p, B)
     _add_mapping(p, B)
     add_test_options(p)
 
@@ -117,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: DiagnoseSettings.blocks; 1: one held-out tail)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     _add_physics(p)
+    _add_settle(p, B)
     _add_mapping(p, B)
     return parser
 
@@ -228,6 +230,9 @@ def _cmd_fit(args):
         params = _parse_params(args.param)
         if params:
             simulation = simulation.replace(**params)
+        simulation = _with_settle(simulation, args, recordings)
+    elif args.settle is not None:
+        raise InputError("--settle holds the physics before the record; the normal model has none")
     elif args.param:
         raise InputError("--param sets physical parameters; the normal model has none")
     model = make_model(args.model, simulation=simulation, window=args.window, depth=args.depth,
@@ -266,7 +271,8 @@ def _cmd_diagnose(args):
     import dataclasses
 
     from .discovery._diagnosis import DiagnoseSettings
-    from .ipmc._defaults import diagnose
+    from .ipmc._defaults import DIAGNOSE_C_CLAMP, diagnose
+    from .physics._rc_network import RCNetwork
     from .discovery._report import REMAINDER_FIGURE, _pm, write_report
     from .discovery._report_figures import FIGURES
     from .discovery._effects import EFFECTS
@@ -283,7 +289,11 @@ def _cmd_diagnose(args):
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
     with lock:
-        simulation = None if args.physics == "rc" else resolve_physics(args.physics, recordings)  # rc: diagnose's own
+        if args.physics == "rc":  # hybrid.diagnose's own RC network (exact ZOH, its first screened C_clamp)
+            simulation = None if args.settle is None else RCNetwork(method="zoh", C_clamp=DIAGNOSE_C_CLAMP)
+        else:
+            simulation = resolve_physics(args.physics, recordings)
+        simulation = simulation if simulation is None else _with_settle(simulation, args, recordings)
         diagnosis = diagnose(recordings, simulation=simulation, hybrid=args.hybrid, settings=settings,
                              progress=not args.quiet)
         paths = write_report(diagnosis, args.out)

@@ -37,8 +37,9 @@ DURATION, RATE, NOISE = 60.0, 30.0, 0.01
 MAX_STEPS = DiagnoseSettings().max_steps
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
-#: (hidden effect, seed): effect-free on five seeds, every effect on draws whose effect is identifiable.
-CASES = [("none", seed) for seed in range(5)] + [
+#: (hidden effect, seed): effect-free on three seeds, every effect on draws whose effect is identifiable.
+#: (Five seeds until the suite neared its 10-minute budget; `experiments/discrepancy.py` runs many more.)
+CASES = [("none", seed) for seed in range(3)] + [
     ("back_relaxation", 1), ("hysteresis", 0), ("saturation", 0), ("drift", 0),
     ("delay", 2), ("resonance", 1),
 ]

@@ -5,7 +5,7 @@ The recordings come from `hybrid.ipmc` (`_synthetic`, `_hidden_pairs`,
 `diagnose` fits. A pair must be named in full (tests/test_open_world_pairs.py); an effect no extension
 describes must be reported as unexplained (or, where the library has the
 physics, by its right name), never as "none"; effect-free recordings
-(tests/test_diagnose.py, five seeds) name nothing and leave nothing unexplained.
+(tests/test_diagnose.py, three seeds) name nothing and leave nothing unexplained.
 The draws are those of `experiments/discrepancy.py` (same seeds, 60 s at 30 Hz),
 whose tables give the rates over many more.
 """

@@ -119,5 +119,48 @@ class HeldStart(AbstractWrapper):
         return eqx.tree_at(lambda s: s.own, spec, {INITIAL_DRIVE: INITIAL_DRIVE not in frozen})
 
     def config(self) -> dict:
-        raise InputError("HeldStart cannot be saved with save_model yet: save the inner simulation's model and "
-                         "record initial_drive and settle_samples beside it")
+        """The inner simulation's skeleton and `settle_samples` (what `load_model` rebuilds)."""
+        from ._serialise import describe_simulation
+
+        return {"inner": describe_simulation(self.inner), "settle_samples": self.settle_samples}
+
+    @classmethod
+    def from_config(cls, config: dict) -> "HeldStart":
+        from ._serialise import build_simulation
+
+        return cls(build_simulation(config["inner"]), int(config["settle_samples"]))
+
+
+def refit_initial_drive(model, recording, samples: int, bounds: tuple[float, float] | None = None):
+    """(model, value): `model` with ``initial_drive`` re-fitted alone on the first `samples` of `recording`.
+
+    A record scored on its own (a benchmark's validation record) starts from its
+    own state, which the fitted ``initial_drive`` of another record does not
+    know. Every other parameter stays fixed; a bounded scalar search
+    (`scipy.optimize.minimize_scalar`) over `bounds` (in the drive's unit;
+    default: the record's drive range) minimises the RMSE of the model's
+    free-run prediction over those samples. Say how many were used when
+    quoting a score over the whole record.
+    """
+    import numpy as np
+    import scipy.optimize
+
+    simulation = getattr(model, "simulation", None)
+    if not isinstance(simulation, HeldStart):
+        raise InputError("refit_initial_drive needs a model whose simulation is a HeldStart")
+    v, w = np.asarray(recording.v_in, float), np.asarray(recording.w, float)
+    if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= len(v):
+        raise InputError(f"samples must be a whole number from 1 to the record's {len(v)}, got {samples!r}")
+    low, high = bounds if bounds is not None else (float(v.min()), float(v.max()))
+    if not (np.isfinite(low) and np.isfinite(high) and low < high):
+        low, high = low - 1.0, high + 1.0  # a constant drive: search around it
+
+    def with_drive(u0):
+        return eqx.tree_at(lambda m: m.simulation, model, simulation.replace(initial_drive=float(u0)))
+
+    def rmse(u0):  # the model is causal: the first samples' prediction needs only the first samples' drive
+        predicted = np.asarray(with_drive(u0).predict(v[:samples], recording.dt))
+        return float(np.sqrt(np.mean((predicted - w[:samples]) ** 2)))
+
+    found = scipy.optimize.minimize_scalar(rmse, bounds=(low, high), method="bounded")
+    return with_drive(found.x), float(found.x)

@@ -30,9 +30,23 @@ from ._simulation import AbstractSimulation
 FORMAT = "hybrid-model/1"
 
 
+def describe_simulation(sim: AbstractSimulation) -> dict:
+    """The simulation's skeleton: its class (name and module) and its `config()`."""
+    return {"type": type(sim).__qualname__, "module": type(sim).__module__, "config": sim.config()}
+
+
+def build_simulation(description: dict) -> AbstractSimulation:
+    """A simulation with default parameters from `describe_simulation`'s dict (its class imported)."""
+    cls = simulation_class(description["type"], description.get("module"))
+    # Files saved before `config` was recorded hold the RC network's settings at the top level.
+    config = (description["config"] if "config" in description
+              else {k: v for k, v in description.items() if k not in ("type", "module")})
+    return cls.from_config(config)
+
+
 def _describe(model: Model) -> dict:
     sim, readout = model.simulation, model.readout
-    simulation = {"type": type(sim).__qualname__, "module": type(sim).__module__, "config": sim.config()}
+    simulation = describe_simulation(sim)
     if isinstance(readout, WindowedMLP):
         if readout.mlp.activation is not jax.numpy.tanh:
             raise InputError("only tanh D-MLPs can be saved")
@@ -72,11 +86,8 @@ def simulation_class(name: str, module: str | None = None) -> type[AbstractSimul
 
 
 def _skeleton(description: dict) -> Model:
-    sim_d, out_d = description["simulation"], description["readout"]
-    cls = simulation_class(sim_d["type"], sim_d.get("module"))
-    # Files saved before `config` was recorded hold the RC network's settings at the top level.
-    config = sim_d["config"] if "config" in sim_d else {k: v for k, v in sim_d.items() if k not in ("type", "module")}
-    simulation = cls.from_config(config)
+    out_d = description["readout"]
+    simulation = build_simulation(description["simulation"])
     if out_d["type"] == "WindowedMLP":
         readout = WindowedMLP(out_d["window"], out_d["depth"], out_d["width"], key=jax.random.key(0))
     else:
