@@ -8,6 +8,7 @@
   recordings keep its condition and 120 s halves the run (the suite's budget).
   `experiments/diagnose_multi.py` runs the 240 s case 20 times;
   `tests/test_loop_safe_linalg.py` fails if any screen lowers to a LAPACK call.
+  Three LM steps per lane: the hang was in the screens, before any lane runs.
   A hang now fails this test instead of stalling CI.
 - The heartbeat shows work being done, and the watchdog ends a stalled process
   with exit status 3 and one line, instead of waiting forever.
@@ -48,7 +49,7 @@ def test_cli_diagnose_on_two_recordings_completes(tmp_path):
     env = {**os.environ, "HYBRID_JAX_CACHE": "off", "HYBRID_HEARTBEAT_S": "10"}
     start = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "hybrid.cli", "diagnose", *map(str, paths), "--out",
-                           str(tmp_path / "diag"), "--max-steps", "8"],
+                           str(tmp_path / "diag"), "--max-steps", "3"],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=HANG_TIMEOUT)
     seconds = time.monotonic() - start
     assert proc.returncode == 0, proc.stderr[-3000:]

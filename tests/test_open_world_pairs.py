@@ -14,7 +14,9 @@ from hybrid.ipmc._hidden_pairs import true_noise_variance
 from helpers import hidden_recording
 
 
-@pytest.mark.parametrize("spec,seed", [("back_relaxation+saturation", 0), ("hysteresis+drift", 2)])
+# One pair here (hysteresis + drift, seed 2, ran here too until the suite neared its 10-minute budget);
+# `experiments/discrepancy.py` runs every pair on many draws.
+@pytest.mark.parametrize("spec,seed", [("back_relaxation+saturation", 0)])
 def test_both_effects_of_a_pair_are_named(spec, seed):
     recording = hidden_recording(spec, seed)
     found = diagnose(recording)
