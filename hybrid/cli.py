@@ -271,8 +271,7 @@ def _cmd_diagnose(args):
     import dataclasses
 
     from .discovery._diagnosis import DiagnoseSettings
-    from .ipmc._defaults import DIAGNOSE_C_CLAMP, diagnose
-    from .physics._rc_network import RCNetwork
+    from .ipmc._defaults import diagnose, diagnose_simulation
     from .discovery._report import REMAINDER_FIGURE, _pm, write_report
     from .discovery._report_figures import FIGURES
     from .discovery._effects import EFFECTS
@@ -289,11 +288,8 @@ def _cmd_diagnose(args):
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
     with lock:
-        if args.physics == "rc":  # hybrid.diagnose's own RC network (exact ZOH, its first screened C_clamp)
-            simulation = None if args.settle is None else RCNetwork(method="zoh", C_clamp=DIAGNOSE_C_CLAMP)
-        else:
-            simulation = resolve_physics(args.physics, recordings)
-        simulation = simulation if simulation is None else _with_settle(simulation, args, recordings)
+        simulation = diagnose_simulation() if args.physics == "rc" else resolve_physics(args.physics, recordings)
+        simulation = _with_settle(simulation, args, recordings)
         diagnosis = diagnose(recordings, simulation=simulation, hybrid=args.hybrid, settings=settings,
                              progress=not args.quiet)
         paths = write_report(diagnosis, args.out)

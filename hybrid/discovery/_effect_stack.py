@@ -111,7 +111,8 @@ class EffectStack(AbstractWrapper):
         return EffectStack(inner, effects, self.active)
 
     def with_raw(self, raw):
-        inner = {k: v for k, v in raw.items() if k in self.inner.parameter_names()}
+        names = set(self.inner.parameter_names())
+        inner = {k: v for k, v in raw.items() if k in names}
         effects = tuple(eqx.tree_at(lambda e: e.raw, e, {**e.raw, **{k: raw[k] for k in e.raw if k in raw}})
                         for e in self.effects)
         return EffectStack(self.inner.with_raw(inner) if inner else self.inner, effects, self.active)

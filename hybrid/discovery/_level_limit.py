@@ -42,16 +42,11 @@ def _noise_sd(w: np.ndarray, floor_variance) -> float:
 
 def _runs(at: np.ndarray, segment: np.ndarray) -> list[np.ndarray]:
     """Index arrays of the runs of True in `at` that stay inside one segment and have MIN_RUN samples."""
-    brk = np.r_[True, (segment[1:] != segment[:-1]) | ~at[:-1]] if len(at) else np.zeros(0, bool)
-    starts = np.flatnonzero(at & brk)
-    out = []
-    for s in starts:
-        e = s
-        while e + 1 < len(at) and at[e + 1] and segment[e + 1] == segment[s]:
-            e += 1
-        if e - s + 1 >= MIN_RUN:
-            out.append(np.arange(s, e + 1))
-    return out
+    idx = np.flatnonzero(at)
+    if not len(idx):
+        return []
+    new = np.r_[True, (np.diff(idx) != 1) | (segment[idx[1:]] != segment[idx[:-1]])]
+    return [run for run in np.split(idx, np.flatnonzero(new)[1:]) if len(run) >= MIN_RUN]
 
 
 def level_limits(parts: list[dict], floor_variance) -> dict:

@@ -139,11 +139,8 @@ def _signals(problem, theta, active, split):
 
 
 def _sim_labels(stack: EffectStack, frozen) -> list[str]:
-    """The parameter name of each entry of θ_sim (`ravel_pytree` order: dict keys sorted)."""
-    labels = stack.inner.free_parameter_order(frozen)
-    for effect in stack.effects:
-        labels += [n for n in sorted(effect.raw) if n not in frozen]
-    return labels
+    """The parameter name of each entry of θ_sim, in `ravel_pytree` order (read off the stack itself)."""
+    return stack.free_parameter_order(frozen)
 
 
 def _starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):

@@ -33,6 +33,11 @@ def make_model(kind="hybrid", *, simulation=None, **options):
     return make_any_model(kind, simulation=simulation, **options)
 
 
+def diagnose_simulation() -> RCNetwork:
+    """The RC network `diagnose` starts from: exact ZOH, C_clamp at `DIAGNOSE_C_CLAMP`."""
+    return RCNetwork(method="zoh", C_clamp=DIAGNOSE_C_CLAMP)
+
+
 def diagnose(recordings, *, simulation=None, **options):
     """What the simulation gets wrong on `recordings`, which effect causes it, and the gain.
 
@@ -44,5 +49,5 @@ def diagnose(recordings, *, simulation=None, **options):
     `Diagnosis`; ``Diagnosis.to_dict()`` is ``report.json``.
     """
     if simulation is None:
-        simulation = RCNetwork(method="zoh", C_clamp=DIAGNOSE_C_CLAMP)
+        simulation = diagnose_simulation()
     return diagnose_any(recordings, simulation=simulation, **options)

@@ -57,6 +57,4 @@ def lti_for_recordings(order: int, recordings, **values) -> LTI:
     freqs = [response_frequency(r.v_in, r.w, r.rate) for r in recordings]
     weights = [len(r.w) for r in recordings]
     centre_hz = float(np.exp(np.average(np.log(freqs), weights=weights)))
-    start = _defaults(order, 1.0 / (2.0 * math.pi * centre_hz))
-    names = set(LTI(order).parameter_names())
-    return LTI(order, **{**{k: v for k, v in start.items() if k in names}, **values})
+    return LTI(order, **{**_defaults(order, 1.0 / (2.0 * math.pi * centre_hz)), **values})
