@@ -39,8 +39,10 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 #: (hidden effect, seed): effect-free on three seeds, every effect on draws whose effect is identifiable.
 #: (Five seeds until the suite neared its 10-minute budget; `experiments/discrepancy.py` runs many more.)
+#: Back-relaxation alone is left out for the same budget: tests/test_open_world_pairs.py must name it
+#: beside a saturation, a harder case.
 CASES = [("none", seed) for seed in range(3)] + [
-    ("back_relaxation", 1), ("hysteresis", 0), ("saturation", 0), ("drift", 0),
+    ("hysteresis", 0), ("saturation", 0), ("drift", 0),
     ("delay", 2), ("resonance", 1),
 ]
 
