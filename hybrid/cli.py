@@ -15,9 +15,14 @@ Bad input of any kind ends with exit status 2 and one line on stderr.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
+import os
+import signal
 import sys
+import threading
+import traceback
 from pathlib import Path
 
 from ._cli_inputs import _add_mapping, _add_physics, _add_settle, _load_recordings, _with_settle
@@ -120,6 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_physics(p)
     _add_settle(p, B)
     _add_mapping(p, B)
+    _add_verbose(parser, sub)
     return parser
 
 
@@ -336,25 +342,82 @@ def _use_compilation_cache(jax) -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
+@contextlib.contextmanager
+def _sigint_watch(seen: list):
+    """Note a real Ctrl-C (SIGINT) in `seen`, so that a KeyboardInterrupt raised by a plug-in's code is told
+    apart from one (only where Python's own SIGINT handler is in place, in the main thread)."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+
+    def handler(signum, frame):
+        seen.append(signum)
+        signal.default_int_handler(signum, frame)
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _add_verbose(parser, sub) -> None:
+    """-v/--verbose, before or after the command: an error's traceback after its one line."""
+    help_ = "on an error, print the traceback after the one-line message"
+    parser.add_argument("-v", "--verbose", action="store_true", help=help_)
+    for command in sub.choices.values():
+        command.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=help_)
+
+
+def _report(error: BaseException, verbose: bool, ctrl_c: bool) -> int:
+    """The exit status for an error that ended a command, after one line on stderr (and, with -v, its traceback).
+
+    A failure in a plug-in's code, at load or at run time (an exception, sys.exit, os._exit in the main
+    thread, a KeyboardInterrupt that was no Ctrl-C) is one line naming the plug-in and its method, exit
+    status 2: never the plug-in's own status, so none can pass for success or for the watchdog's.
+    """
+    from .physics._plugins import HardExit, PluginError, describe_failure
+
+    if isinstance(error, KeyboardInterrupt) and ctrl_c:
+        print("hybrid: interrupted", file=sys.stderr)
+        return 130
+    message = describe_failure(error)
+    if message is None and isinstance(error, InputError):
+        message = str(error)
+    elif message is None and isinstance(error, (OSError, ValueError)):  # unreadable files, bad numbers deep in numpy
+        message = f"{type(error).__name__}: {error}"
+    if message is None:
+        if isinstance(error, KeyboardInterrupt):
+            print("hybrid: interrupted", file=sys.stderr)
+            return 130
+        if isinstance(error, HardExit):  # not from a plug-in's code: what was asked
+            os._exit(error.status)
+        raise error  # argparse's --help (SystemExit), or a bug: its traceback
+    print(f"hybrid: error: {' '.join(message.split())}", file=sys.stderr)
+    if verbose:
+        original = error.original if isinstance(error, PluginError) and error.original is not None else error
+        traceback.print_exception(original, file=sys.stderr)
+    return 2
+
+
 def main(argv=None) -> int:
     import jax
 
+    from .physics._plugins import exit_guard
+
     jax.config.update("jax_enable_x64", True)  # the entry point chooses float64
     _use_compilation_cache(jax)
+    args, ctrl_c = None, []
     try:
-        args = build_parser().parse_args(argv)
-        # A heartbeat on stderr while it works, and exit status 3 instead of a silent hang (_watchdog).
-        with Watchdog(f"hybrid {args.command}", quiet=getattr(args, "quiet", False)):
-            COMMANDS[args.command](args)
-    except InputError as error:
-        print(f"hybrid: error: {error}", file=sys.stderr)
-        return 2
-    except (OSError, ValueError) as error:  # unreadable files, bad numbers deep in numpy, …
-        print(f"hybrid: error: {type(error).__name__}: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("hybrid: interrupted", file=sys.stderr)
-        return 130
+        with _sigint_watch(ctrl_c), exit_guard():
+            args = build_parser().parse_args(argv)
+            # A heartbeat on stderr while it works, and exit status 3 instead of a silent hang (_watchdog).
+            with Watchdog(f"hybrid {args.command}", quiet=getattr(args, "quiet", False)):
+                COMMANDS[args.command](args)
+    except BaseException as error:  # noqa: BLE001  (a plug-in's sys.exit and os._exit too: _report)
+        verbose = bool(getattr(args, "verbose", False)) or any(a in ("-v", "--verbose") for a in (argv or sys.argv[1:]))
+        return _report(error, verbose, bool(ctrl_c))
     return 0
 
 

@@ -11,17 +11,39 @@
 The class must subclass [`AbstractSimulation`][hybrid.AbstractSimulation] and
 build with no arguments (its defaults are the starting values). Every failure
 is one [`InputError`][hybrid.InputError] that says what is wrong and how to fix it.
+
+A plug-in is checked once, eagerly, before anything is compiled: its
+``simulate`` runs on a short probe drive (the first samples of the recording,
+or a step) and must return one finite floating-point value per sample, and it
+must trace under `jax.jit` to the same shape ([`PluginError`][] names the
+class, the method and what was wrong). The compiled hot path is left as it is:
+a failure that only shows later (at run time, under `jit`, `vmap` or autodiff)
+is attributed by [`describe_failure`][] from the exception's traceback, which
+runs through the plug-in's own code, so the command line still names the
+plug-in and its method in one line (exit status 2).
+
+A plug-in is code that runs with the user's rights: ``sys.exit`` and
+``KeyboardInterrupt`` raised by it are caught and reported, and
+[`exit_guard`][] turns ``os._exit`` in the main thread into an exception while
+a command runs; an exit that bypasses Python (``posix._exit``, a signal)
+cannot be caught in-process.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib
 import importlib.util
 import inspect
+import os
 import re
 import sys
+import threading
+import traceback
 from pathlib import Path
+
+import numpy as np
 
 from ..core._simulation import AbstractSimulation
 from ..util._errors import InputError
@@ -29,7 +51,137 @@ from ._lti_start import lti_for_recordings
 from ._lti import MAX_ORDER, LTI
 from ._rc_network import RCNetwork
 
+__all__ = ["HardExit", "PluginError", "describe_failure", "exit_guard", "probe_simulation", "resolve_physics"]
+
 FORMS = "rc, lti:N, path/to/file.py:ClassName or package.module:ClassName"
+#: Samples of the probe drive a plug-in's `simulate` is checked on before any compilation.
+PROBE_SAMPLES = 32
+#: Where the user is sent for the whole story of a failure.
+TRACEBACK_HINT = "add -v to see the traceback"
+
+# Module name -> (the --physics spec, the parameter names) of every plug-in resolved in this process:
+# a traceback through one of these modules' code is that plug-in's failure (describe_failure).
+_SOURCES: dict[str, tuple[str, tuple[str, ...]]] = {}
+
+
+class PluginError(InputError):
+    """A plug-in's code failed or returned something unusable: one line naming the plug-in and its method.
+
+    `original` is the exception the plug-in raised (None for a wrong result),
+    kept for ``hybrid -v``.
+    """
+
+    def __init__(self, message: str, original: BaseException | None = None):
+        super().__init__(message)
+        self.original = original
+
+
+class HardExit(BaseException):
+    """``os._exit(status)`` called in the main thread while [`exit_guard`][] is active."""
+
+    def __init__(self, status):
+        super().__init__(status)
+        self.status = status
+
+    def __str__(self) -> str:
+        return f"os._exit({self.status!r})"
+
+
+@contextlib.contextmanager
+def exit_guard():
+    """While active, ``os._exit`` called in this process's main thread raises [`HardExit`][] instead.
+
+    Nothing of this package calls ``os._exit`` in the main thread (the
+    watchdog calls it from its own thread, and a forked child has another
+    pid: both still exit), so a plug-in that does is caught and reported
+    instead of ending the command with its status, in silence. Code that
+    bypasses ``os._exit`` (``posix._exit``, ``os.kill``) cannot be caught.
+    """
+    real = os._exit
+    pid, main = os.getpid(), threading.main_thread()
+
+    def guarded(status):
+        if os.getpid() == pid and threading.current_thread() is main:
+            raise HardExit(status)
+        real(status)
+
+    os._exit = guarded
+    try:
+        yield
+    finally:
+        os._exit = real
+
+
+def _first_line(error: BaseException) -> str:
+    text = next((line.strip() for line in str(error).splitlines() if line.strip()), "")
+    return text if len(text) <= 300 else text[:297] + "..."
+
+
+def _what(error: BaseException) -> str:
+    """What the plug-in did: 'raised KeyError: 'gain'', 'called sys.exit(0)', ..."""
+    if isinstance(error, SystemExit):
+        return f"called sys.exit({error.code!r})"
+    if isinstance(error, HardExit):
+        return f"called os._exit({error.status!r})"
+    if isinstance(error, KeyboardInterrupt):
+        return "raised KeyboardInterrupt (not a Ctrl-C)"
+    text = _first_line(error)
+    return f"raised {type(error).__name__}" + (f": {text}" if text else "")
+
+
+_OWN_PACKAGE = __name__.split(".")[0]
+
+
+def _register(module_name: str, text: str, names=()) -> None:
+    """Count `module_name`'s code as the plug-in `text`'s (this package's own modules never count)."""
+    if module_name.split(".")[0] != _OWN_PACKAGE:
+        _SOURCES[module_name] = (text, tuple(names))
+
+
+def _plugin_frames(error: BaseException):
+    """(frame summary, module name) of the plug-in code the traceback of `error` runs through, outermost first."""
+    frames = []
+    for frame, line in traceback.walk_tb(error.__traceback__):
+        module = frame.f_globals.get("__name__")
+        if module in _SOURCES:
+            frames.append((frame, line, module))
+    return frames
+
+
+def _chain(error: BaseException):
+    seen, todo = [], [error]
+    while todo and len(seen) < 20:
+        current = todo.pop(0)
+        if current is None or any(current is s for s in seen):
+            continue
+        seen.append(current)
+        todo += [current.__cause__, current.__context__]
+    return seen
+
+
+def describe_failure(error: BaseException) -> str | None:
+    """One line naming the plug-in, its method and what went wrong, if `error` came from a plug-in's code.
+
+    `error` is any exception that ended a command. It counts as the plug-in's
+    when its traceback (or that of an exception it was raised from) runs
+    through the code of a plug-in resolved in this process: the line names
+    the ``--physics`` spec, the method ``hybrid`` called (the outermost
+    plug-in frame), the exception or exit, and where in the plug-in's file it
+    happened. None otherwise (and for a [`PluginError`][], already one line).
+    """
+    if isinstance(error, PluginError):
+        return None
+    for current in _chain(error):
+        frames = _plugin_frames(current)
+        if frames:
+            text = _SOURCES[frames[0][2]][0]
+            return f"--physics {text}: {_failed_in(current, '')}; fix the plug-in ({TRACEBACK_HINT})"
+    return None
+
+
+def _method_name(code) -> str:
+    name = getattr(code, "co_qualname", code.co_name)
+    return "importing the module" if name == "<module>" else name
 
 
 def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
@@ -66,7 +218,9 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
         module, label = _module_from_file(text, where), Path(where).name
     else:
         module, label = _module_from_name(text, where), f"module {where}"
-    return _instantiate(text, module, label, name)
+    simulation = _instantiate(text, module, label, name)
+    probe_simulation(simulation, recordings, label=f"--physics {text}")
+    return simulation
 
 
 def _lti(text: str) -> LTI:
@@ -101,22 +255,25 @@ def _module_from_file(text: str, where: str):
     module = importlib.util.module_from_spec(spec)
     module.__hybrid_plugin_mtime__ = stamp
     sys.modules[name] = module
+    _register(name, text)
     try:
         spec.loader.exec_module(module)
     except SyntaxError as error:
         sys.modules.pop(name, None)
         raise InputError(f"--physics {text}: {where} has a syntax error at line {error.lineno}: {error.msg}; "
                          "fix the file (python -m py_compile shows it too)") from None
-    except BaseException as error:  # the file's own code failed: say so, in one line
+    except BaseException as error:  # the file's own code failed (sys.exit too): say so, in one line
         sys.modules.pop(name, None)
         if isinstance(error, KeyboardInterrupt):
-            raise
-        raise InputError(f"--physics {text}: importing {where} raised {type(error).__name__}: {error}; "
-                         "fix the file or install what it imports") from None
+            raise  # a Ctrl-C, or the plug-in's own: the command line tells them apart
+        raise PluginError(f"--physics {text}: importing {where} {_what(error)}; "
+                          f"fix the file or install what it imports ({TRACEBACK_HINT})", error) from None
     return module
 
 
 def _module_from_name(text: str, where: str):
+    if where not in sys.modules:
+        _register(where, text)  # its module-level code is the plug-in's
     try:
         return importlib.import_module(where)
     except ModuleNotFoundError as error:
@@ -125,9 +282,11 @@ def _module_from_name(text: str, where: str):
                              "to PYTHONPATH, or give a file as path/to/file.py:ClassName") from None
         raise InputError(f"--physics {text}: importing module {where} raised ModuleNotFoundError: {error}; "
                          "install what it imports") from None
-    except Exception as error:
-        raise InputError(f"--physics {text}: importing module {where} raised {type(error).__name__}: {error}; "
-                         "fix the module") from None
+    except KeyboardInterrupt:
+        raise
+    except BaseException as error:  # sys.exit in the module's code too
+        raise PluginError(f"--physics {text}: importing module {where} {_what(error)}; fix the module "
+                          f"({TRACEBACK_HINT})", error) from None
 
 
 def _instantiate(text: str, module, label: str, name: str) -> AbstractSimulation:
@@ -147,12 +306,20 @@ def _instantiate(text: str, module, label: str, name: str) -> AbstractSimulation
         missing = ", ".join(sorted(getattr(cls, "__abstractmethods__", ())))
         raise InputError(f"--physics {text}: {name} in {label} is abstract (it does not define {missing}); "
                          "define simulate(self, v_in, dt) returning the signal for each sample")
+    _register(cls.__module__, text)
+    if module.__name__ != cls.__module__:
+        _register(module.__name__, text)
     try:
         simulation = cls()
-    except Exception as error:
-        raise InputError(f"--physics {text}: {name}() raised {type(error).__name__}: {error}; the class must build "
-                         "with no arguments, its defaults being the starting values") from None
+    except KeyboardInterrupt:
+        raise
+    except BaseException as error:
+        raise PluginError(f"--physics {text}: {name}() {_what(error)}; the class must build "
+                          "with no arguments, its defaults being the starting values", error) from None
     _check(text, name, simulation)
+    names = tuple(simulation.raw)
+    for key in {cls.__module__, module.__name__}:
+        _register(key, text, names)
     return simulation
 
 
@@ -175,3 +342,91 @@ def _check(text: str, name: str, simulation: AbstractSimulation) -> None:
     if missing:
         raise InputError(f"--physics {text}: {name}.units has no unit for {missing}; add them "
                          '(e.g. "s", "cm^2", "1" for dimensionless)')
+
+
+def _probe_drive(recordings):
+    """A short drive and its step: the first samples of the first recording, or a step at 30 Hz."""
+    for recording in recordings or ():
+        v_in = np.asarray(getattr(recording, "v_in", ()), dtype=float)[:PROBE_SAMPLES]
+        dt = float(getattr(recording, "dt", 0.0) or 0.0)
+        if v_in.size >= 2 and dt > 0 and np.all(np.isfinite(v_in)):
+            return v_in, dt, f"the first {v_in.size} samples of the recording's drive"
+    v_in = np.r_[np.zeros(PROBE_SAMPLES // 4), np.ones(PROBE_SAMPLES - PROBE_SAMPLES // 4)]
+    return v_in, 1 / 30, f"a {PROBE_SAMPLES}-sample step from 0 to 1 V at 30 Hz"
+
+
+def _check_result(out, n: int) -> str | None:
+    """What is wrong with `out` as simulate's result for an n-sample drive, or None."""
+    import jax
+
+    if not isinstance(out, (jax.Array, np.ndarray, jax.ShapeDtypeStruct)):
+        return f"returned a {type(out).__name__}, not an array"
+    shape = tuple(out.shape)
+    if shape != (n,):
+        what = "a scalar (shape ())" if shape == () else f"shape {shape}"
+        return f"returned {what} for a drive of shape ({n},): it must return one value per sample, shape ({n},)"
+    if not np.issubdtype(np.dtype(out.dtype), np.floating):
+        return f"returned dtype {np.dtype(out.dtype)}: it must return real floating-point values"
+    return None
+
+
+def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str | None = None) -> None:
+    """Check a simulation's `simulate` once, eagerly, before anything is compiled.
+
+    It runs on a short drive (the first samples of `recordings`, or a step)
+    and must return one finite floating-point value per sample; it is then
+    traced under `jax.jit` (``eqx.filter_eval_shape``: no compilation), which
+    must succeed with the same shape. What `fit`, `diagnose` and
+    `sensitivity` would otherwise find later, deep in a compiled program.
+
+    **Raises:** [`PluginError`][] naming `label` (default: the class), the method and what was wrong.
+    """
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    cls = type(simulation).__name__
+    label = label or cls
+    v_in, dt, drive = _probe_drive(recordings)
+    n = v_in.size
+    try:
+        out = simulation.simulate(jnp.asarray(v_in), dt)
+        problem = _check_result(out, n)
+        if problem is None:
+            values = np.asarray(out)
+            bad = int(np.sum(~np.isfinite(values)))
+            if bad:
+                problem = (f"returned {bad} non-finite values (NaN or inf) of {n} at its default parameters on "
+                           f"{drive}: check its formulas and defaults")
+    except KeyboardInterrupt:
+        raise
+    except PluginError:
+        raise
+    except BaseException as error:
+        raise PluginError(f"{label}: {_failed_in(error, cls, 'on ' + drive)}; fix the plug-in "
+                          f"({TRACEBACK_HINT})", error) from None
+    if problem is not None:
+        raise PluginError(f"{label}: {cls}.simulate(v_in, dt) {problem}")
+    try:
+        traced = eqx.filter_eval_shape(lambda s, v: s.simulate(v, dt), simulation, jnp.asarray(v_in))
+    except KeyboardInterrupt:
+        raise
+    except BaseException as error:
+        raise PluginError(f"{label}: {_failed_in(error, cls, 'under jax.jit; it runs eagerly')}: simulate must be "
+                          "traceable (no float(), int() or Python if on values: use jnp.where, lax.cond) "
+                          f"({TRACEBACK_HINT})", error) from None
+    problem = _check_result(traced, n)
+    if problem is not None:
+        raise PluginError(f"{label}: {cls}.simulate(v_in, dt) under jax.jit {problem}")
+
+
+def _failed_in(error: BaseException, cls: str, context: str = "") -> str:
+    """'Cls.simulate raised X: msg (at file:line, context)', from the plug-in's own frames when there are any."""
+    frames = [(f, line) for f, line in traceback.walk_tb(error.__traceback__)
+              if f.f_globals.get("__name__") in _SOURCES]
+    method = _method_name(frames[0][0].f_code) if frames else f"{cls}.simulate"
+    where = [f"at {Path(frames[-1][0].f_code.co_filename).name}:{frames[-1][1]}"] if frames else []
+    names = _SOURCES[frames[0][0].f_globals["__name__"]][1] if frames else ()
+    hint = (f"; its parameters are {', '.join(names)}: a name not in raw?"
+            if isinstance(error, KeyError) and names else "")
+    detail = ", ".join(where + ([context] if context else []))
+    return f"{method} {_what(error)}{hint}" + (f" ({detail})" if detail else "")

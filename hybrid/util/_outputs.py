@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import os
 import tempfile
 import time
@@ -231,8 +232,19 @@ def _acquire(path: Path, what: Path, option: str) -> None:
         except OSError as error:
             raise InputError(f"{option} {what}: cannot create the lock file {path} "
                              f"({error.strerror or error}): choose a folder you can write to") from None
-        with os.fdopen(fd, "w") as handle:
-            handle.write(f"{os.getpid()}\n")
+        try:  # a lock without its pid would block the next run (FRESH_LOCK_S): all of it, or no lock
+            data = f"{os.getpid()}\n".encode()
+            if os.write(fd, data) != len(data):
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            os.close(fd)
+        except OSError as error:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            raise InputError(f"{option} {what}: cannot write the lock file {path} "
+                             f"({error.strerror or error}): free some space or choose another folder; "
+                             f"nothing was changed at {what}") from None
         return
     raise InputError(f"{option} {what}: could not take the lock {path}: try again")
 
