@@ -17,7 +17,9 @@ def _add_mapping(p, B, rate: bool = True) -> None:
     g.add_argument("--input", default=None, metavar="COLUMN", help="the drive's column (e.g. uEst)")
     g.add_argument("--output", default=None, metavar="COLUMN", help="the measured output's column (e.g. yEst)")
     g.add_argument("--time", default=None, metavar="COLUMN", help="a time column (default: none; t from the rate)")
-    g.add_argument("--columns", default=None, metavar="MAP", help="the mapping in one flag: input=uEst,output=yEst")
+    g.add_argument("--columns", default=None, metavar="MAP",
+                   help="the mapping in one flag: input=uEst,output=yEst; or files joined into one record, "
+                        "one per channel: input=u.txt,output=y.txt (FILE:COLUMN for a column of a wider file)")
     if rate:
         g.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=None,
                        help="samples per second, when the file has no time column or Ts/fs field")
@@ -32,13 +34,29 @@ def _load_recordings(args, paths, rate_alone_maps: bool = True):
     `rate_alone_maps` False: --rate alone does not make a file mapped (`hybrid sensitivity`'s
     --rate is its synthetic drives' rate too, and a file in the project's columns has its t).
     """
-    from .data._mapping import load_mapped
+    from pathlib import Path
+
+    from .data._mapping import file_references, load_mapped
+    from .data._mapping_options import mapping_roles
     from .data._recording import Recording
+    from .data._table import TEXT_SUFFIXES
 
     options = {k: getattr(args, k, None) for k in ("input", "output", "time", "columns", "rate", "sample_range",
                                                   "units")}
+    if not any(options[k] is not None for k in ("input", "output", "time", "columns")):
+        text = [p for p in paths if Path(p).suffix.lower() in TEXT_SUFFIXES]
+        if text:  # a text table has no t, v_in, w: say how to map it, or how to join one file per channel
+            example = (f"--columns input={paths[0]},output={paths[1]} (one file per channel, of one length)"
+                       if len(paths) > 1 else f"--columns input={paths[0]}:0,output={paths[0]}:1 (columns by "
+                       "number from 0, or by the header's names)")
+            raise InputError(f"'{text[0]}' is a text table without the columns t, v_in, w: say which is the drive "
+                             f"and which the output, e.g. {example}, with --rate HZ or --time COLUMN")
     if not any(v is not None for k, v in options.items() if rate_alone_maps or k != "rate"):
         return [Recording.load(p) for p in paths]
+    if len(paths) > 1 and any(options[k] is not None for k in ("input", "output", "time", "columns")):
+        roles = mapping_roles(**{k: options[k] for k in ("input", "output", "time", "columns")})
+        if file_references(roles, paths):  # the mapping names the files: one record joined from them
+            return [load_mapped(list(paths), **options)]
     return [load_mapped(p, **options) for p in paths]
 
 

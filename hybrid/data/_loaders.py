@@ -61,9 +61,9 @@ def read_file(
 # --------------------------------------------------------------------------- #
 
 
-def check_file(path: pathlib.Path) -> str:
-    """Require a non-empty file with a known suffix; return the suffix, lower case."""
-    suffix = _suffix(path)
+def check_file(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
+    """Require a non-empty file with a known suffix (one of `suffixes`); return the suffix, lower case."""
+    suffix = _suffix(path, suffixes)
     if not path.exists():
         raise InputError(f"recording file '{path}' does not exist: check the path")
     if not path.is_file():
@@ -75,12 +75,16 @@ def check_file(path: pathlib.Path) -> str:
     return suffix
 
 
-def _suffix(path: pathlib.Path) -> str:
+def _suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
     suffix = path.suffix.lower()
-    if suffix not in SUFFIXES:
+    if suffix not in suffixes:
+        hint = ""
+        if suffix in (".txt", ".dat") and suffix not in suffixes:
+            hint = (" (a text table is read with its columns mapped: --columns input=COLUMN,output=COLUMN "
+                    "--rate HZ, or one file per channel: --columns input=u.txt,output=y.txt)")
         raise InputError(
             f"recording '{path}' has unknown suffix '{path.suffix}': use "
-            + ", ".join(SUFFIXES)
+            + ", ".join(suffixes) + hint
         )
     return suffix
 
@@ -106,9 +110,13 @@ def _require(
     missing = [c for c in required if c not in found]
     if missing:
         shown = ", ".join(f"'{c}'" for c in found) or "none"
+        others = [c for c in found if c not in REQUIRED]
+        example = ",".join(f"{role}={name}" for role, name in zip(("input", "output"), others)) \
+            if len(others) >= 2 else "input=COLUMN,output=COLUMN"
         raise InputError(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
-            f"{shown}): name them exactly t, v_in and w (case-sensitive)"
+            f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
+            f"yours are which, e.g. --columns {example} with --rate HZ or --time COLUMN"
         )
 
 

@@ -37,6 +37,17 @@ which the measured output, where the time comes from.
   ``us``, ``min`` or ``h`` (`TIME_UNITS`). Defaults: the sidecar's units for the
   column (or role), else ``V`` for the drive and ``a.u.`` for the output.
 
+* **Several files, one record** (a logger that writes each channel to its own
+  file): ``path`` is a list of files and each name in the mapping is ``FILE``
+  (a file of one column: a text table, a one-column CSV, a ``.npz``/``.mat``
+  with one array) or ``FILE:COLUMN`` (a column of it, by name or by number
+  from 0), ``FILE`` being one of the files as given (or its name alone, when
+  no other file has it): ``load_mapped(["u.txt", "y.txt"],
+  columns="input=u.txt,output=y.txt", rate=100)``. The files must hold the
+  same number of samples; every file given must be named, and every name must
+  name a file. One file may also be named this way (``"input=run.txt:0,
+  output=run.txt:1"``).
+
 Every bad mapping raises one [`InputError`][hybrid.InputError] saying what is
 wrong and how to fix it. Unmapped columns are not read (except rate fields)
 and may hold anything.
@@ -45,8 +56,9 @@ and may hold anything.
 from __future__ import annotations
 
 import numbers
+import os
 import pathlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -64,9 +76,9 @@ from ._mapping_options import (
 )
 from ._recording import Recording
 from ._recording_checks import MS_STEP_S
-from ._table import OPTION, RATE_FIELDS, rate_field, read_columns
+from ._table import MAPPED_SUFFIXES, OPTION, RATE_FIELDS, only_column, rate_field, read_columns
 
-__all__ = ["DEFAULT_UNITS", "RATE_RTOL", "load_mapped", "load_pair"]
+__all__ = ["DEFAULT_UNITS", "RATE_RTOL", "file_references", "load_mapped", "load_pair"]
 
 #: Units stored when neither the call nor the file's metadata gives one.
 DEFAULT_UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "a.u."}
@@ -77,7 +89,7 @@ RATE_RTOL: float = 1e-4
 
 
 def load_mapped(
-    path: str | pathlib.Path, *, input: str | None = None, output: str | None = None,
+    path: str | pathlib.Path | Sequence[str | pathlib.Path], *, input: str | None = None, output: str | None = None,
     columns: str | None = None, rate: float | None = None, sample_range: str | slice | None = None,
     time: str | None = None, units: Mapping[str, str] | None = None, name: str | None = None,
     require_w: bool = True,
@@ -85,7 +97,8 @@ def load_mapped(
     """Read a file whose columns have the lab's names; see the module's rules.
 
     Arguments:
-        path: a ``.csv`` (with an optional ``<file>.csv.json`` sidecar), ``.npz`` or ``.mat`` file.
+        path: a ``.csv`` (with an optional ``<file>.csv.json`` sidecar), ``.npz``, ``.mat``, ``.txt`` or
+            ``.dat`` file; or a list of files joined into one record (each name ``FILE`` or ``FILE:COLUMN``).
         input: the drive's column (-> ``v_in``).
         output: the measured output's column (-> ``w``).
         columns: the whole mapping in one string, ``"input=uEst,output=yEst"``.
@@ -100,26 +113,41 @@ def load_mapped(
         The validated recording; ``metadata`` holds ``units``, ``mapping`` (role -> the
         file's name), ``rate_hz`` and ``rate_from``, and ``segment`` for a sample range.
     """
-    path = _path_argument(path, "load_mapped")
+    several = isinstance(path, (list, tuple))
+    paths = [_path_argument(p, "load_mapped") for p in (path if several else [path])]
+    if not paths:
+        raise InputError("load_mapped got an empty list of files: give a file, or the files of one record")
     roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
     rate_arg = rate_argument(rate)
     given_units = units_argument(units, "t" in roles)
     bounds = parse_sample_range(sample_range)
     if name is not None and (not isinstance(name, str) or not name.strip()):
         raise InputError(f"load_mapped got name {name!r}: give a non-empty string or leave it out")
-    data, fields, file_meta = read_columns(path, check_file(path), roles)
+    references = file_references(roles, paths)
+    if references:
+        data, fields, file_meta = _read_joined(references)
+        path = " + ".join(str(p) for p in dict.fromkeys(p for p, _ in references.values()))  # for messages
+    elif several and len(paths) > 1:
+        raise InputError(
+            f"load_mapped got {len(paths)} files, and the mapping names none of them: join them by naming each "
+            f"role's file, e.g. input={paths[0]},output={paths[1]} (FILE:COLUMN for a column of a wider file)"
+        )
+    else:
+        path = paths[0]
+        data, fields, file_meta = read_columns(path, check_file(path, MAPPED_SUFFIXES), roles)
     lengths = {role: len(values) for role, values in data.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"the {OPTION[r]} '{roles[r]}' has {k}" for r, k in lengths.items())
-        raise InputError(
-            f"recording '{path}': {listed} values: map columns of one record, of one length"
-        )
+        fix = ("join files of one record, one value per sample in each (cut them to the same samples)"
+               if references else "map columns of one record, of one length")
+        raise InputError(f"recording '{path}': {listed} values: {fix}")
     n = lengths["v_in"]
     start, stop = range_bounds(path, sample_range, bounds, n)
     ranged = (start, stop) != (0, n)
     label = name.strip() if name else (
-        f"{path} ({roles['v_in']} -> {roles.get('w', 'no output')}"
-        + (f", samples {start}:{stop})" if ranged else ")")
+        (f"{path} (" if not references else "")
+        + f"{roles['v_in']} -> {roles.get('w', 'no output')}"
+        + (f", samples {start}:{stop}" if ranged else "") + (")" if not references else "")
     )
     t = None
     if "t" in data:
@@ -151,6 +179,99 @@ def load_mapped(
         metadata["segment"] = {"start": offset + start, "stop": offset + stop}
     w = data["w"][start:stop] if "w" in data else np.zeros(stop - start)
     return Recording(t, data["v_in"][start:stop], w, {}, metadata, label)
+
+
+def file_references(
+    roles: Mapping[str, str], paths: Sequence[str | pathlib.Path]
+) -> dict[str, tuple[pathlib.Path, str | None]]:
+    """Role -> (file, column or None for its only column) when the mapping names files; {} when it names none.
+
+    A name refers to a file when it is one of `paths` as given, the same file, or the
+    file's name alone (one file of that name among `paths`); ``FILE:COLUMN`` names a
+    column of it. When one name refers to a file, every name must, and every file
+    of `paths` must be named.
+    """
+    paths = [pathlib.Path(p) for p in paths]
+    found: dict[str, tuple[pathlib.Path, str | None]] = {}
+    for role, value in roles.items():
+        target = _named_file(value, paths)
+        if target is not None:
+            found[role] = (target, None)
+            continue
+        head, colon, column = value.rpartition(":")
+        target = _named_file(head, paths) if colon else None
+        if target is not None:
+            if not column.strip():
+                raise InputError(
+                    f"the {OPTION[role]} '{value}' names no column after ':': give one (by name, or by number "
+                    f"from 0), e.g. {OPTION[role]}={head}:0, or leave ':' out for a file of one column"
+                )
+            found[role] = (target, column.strip())
+    if not found:
+        return {}
+    files = ", ".join(str(p) for p in paths)
+    for role, value in roles.items():
+        if role not in found:
+            raise InputError(
+                f"the {OPTION[role]} '{value}' names none of the files ({files}) while the "
+                f"{OPTION[next(iter(found))]} names one: name each role's file, {OPTION[role]}=FILE "
+                f"(a file of one column) or {OPTION[role]}=FILE:COLUMN"
+            )
+    used = {p for p, _ in found.values()}
+    for p in paths:
+        if p not in used:
+            named = ",".join(f"{OPTION[r]}={roles[r]}" for r in found)
+            raise InputError(
+                f"file '{p}' is given but the mapping ({named}) names none of its columns: the files it "
+                "names are joined into one record; drop the file, or name it in the mapping"
+            )
+    return found
+
+
+def _named_file(text: str, paths: Sequence[pathlib.Path]) -> pathlib.Path | None:
+    """The path among `paths` that `text` names (as given, the same file, or its name alone), or None."""
+    text = text.strip()
+    if not text:
+        return None
+    for p in paths:
+        if text == str(p) or pathlib.Path(text) == p:
+            return p
+    candidate = pathlib.Path(text)
+    if candidate.exists():
+        for p in paths:
+            try:
+                if p.exists() and os.path.samefile(candidate, p):
+                    return p
+            except OSError:
+                continue
+    same_name = [p for p in paths if p.name == text]
+    if len(same_name) > 1:
+        raise InputError(
+            f"'{text}' names {len(same_name)} files ({', '.join(str(p) for p in same_name)}): give the path "
+            "as on the command line"
+        )
+    return same_name[0] if same_name else None
+
+
+def _read_joined(
+    references: Mapping[str, tuple[pathlib.Path, str | None]]
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
+    """The columns of several files, one role each (or several of one file), their rate fields and metadata."""
+    data: dict[str, np.ndarray] = {}
+    fields: dict[str, np.ndarray] = {}
+    metadata: dict = {}
+    for file in dict.fromkeys(p for p, _ in references.values()):
+        suffix = check_file(file, MAPPED_SUFFIXES)
+        named = {role: column for role, (p, column) in references.items() if p == file and column is not None}
+        for role, (p, column) in references.items():
+            if p == file and column is None:
+                data[role] = only_column(file, suffix, role, str(file))
+        if named:
+            columns, found, meta = read_columns(file, suffix, named, flag_prefix=f"{file}:")
+            data.update(columns)
+            fields.update({k: v for k, v in found.items() if k not in fields})
+            metadata = {**meta, **metadata}
+    return {role: data[role] for role in references}, fields, metadata
 
 
 def load_pair(

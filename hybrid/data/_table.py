@@ -13,9 +13,18 @@
   columns take about a second and tens of MB. Other columns may hold anything,
   empty cells included. Blank lines and ``#`` comments are skipped. The
   metadata comes from the ``<file>.csv.json`` sidecar when there is one.
+* ``.txt`` / ``.dat`` (`TEXT_SUFFIXES`): a plain text table, as a logger or
+  MATLAB's ``save -ascii`` writes it: numbers separated by commas, semicolons,
+  tabs or spaces (the first data line decides), ``#`` comments and blank lines
+  skipped, an optional header line (a first line that is not all numbers). A
+  table without a header names its columns by number from 0 (``"0"``, ``"1"``).
+  Every column is read, so every cell must be a number.
 * ``.npz`` / ``.mat``: the arrays or variables named; only those must be real
   numeric vectors. The metadata is the ``metadata`` entry, as for
   `Recording.load`.
+
+A name that is not in a ``.csv`` or text table's header may be a column number
+from 0 (``"0"``, ``"2"``): the header's names come first.
 
 Every bad mapping or cell raises one [`InputError`][hybrid.InputError]: a name
 the file lacks (with the file's names listed), a name the header holds twice,
@@ -37,7 +46,8 @@ import numpy as np
 from ..util._errors import InputError
 from ._loaders import _file_vector, _parse_metadata, _read_text, mat_variables, npz_arrays, sidecar
 
-__all__ = ["OPTION", "RATE_FIELDS", "rate_field", "read_columns"]
+__all__ = ["MAPPED_SUFFIXES", "OPTION", "RATE_FIELDS", "TEXT_SUFFIXES", "only_column", "rate_field",
+           "read_columns", "read_text_table", "unknown_name"]
 
 #: How each role is asked for: the keyword of `load_mapped` (and the command-line flag).
 OPTION: dict[str, str] = {"t": "time", "v_in": "input", "w": "output"}
@@ -51,11 +61,16 @@ RATE_FIELDS: dict[str, str] = {
     "ts": "s", "dt": "s", "dt_s": "s", "sample_time": "s", "sampling_time": "s",
 }
 
+#: Suffixes of plain text tables, read by the mapped reader only (`read_text_table`).
+TEXT_SUFFIXES: tuple[str, ...] = (".txt", ".dat")
+#: Every suffix the mapped reader understands.
+MAPPED_SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat", *TEXT_SUFFIXES)
+
 _SHOW_NAMES = 20
 
 
 def read_columns(
-    path: pathlib.Path, suffix: str, wanted: Mapping[str, str]
+    path: pathlib.Path, suffix: str, wanted: Mapping[str, str], flag_prefix: str = ""
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
     """The mapped columns of a file, its rate fields and its metadata.
 
@@ -63,19 +78,26 @@ def read_columns(
         path: the file (already checked to exist, with a known suffix).
         suffix: ``".csv"``, ``".npz"`` or ``".mat"``.
         wanted: role (``t``, ``v_in``, ``w``) -> the file's name for it; distinct names.
+        flag_prefix: what a message's example puts before a name (``"u.txt:"`` for a file
+            joined by ``columns``; see `unknown_name`).
 
     Returns:
         ``(columns, fields, metadata)``: role -> float64 vector (all of one length for
         a CSV file), rate-field name -> its values, and the file's metadata.
     """
     if suffix == ".csv":
-        return _read_csv(path, wanted)
+        return _read_csv(path, wanted, flag_prefix)
+    if suffix in TEXT_SUFFIXES:
+        names, table = read_text_table(path)
+        columns = {role: table[:, _column_index(path, names, name, role, flag_prefix)]
+                   for role, name in wanted.items()}
+        return columns, {}, {}
     arrays, metadata = npz_arrays(path) if suffix == ".npz" else mat_variables(path)
     kind = "array" if suffix == ".npz" else "variable"
     columns = {}
     for role, name in wanted.items():
         if name not in arrays:
-            raise InputError(_unknown(path, name, role, list(arrays), kind))
+            raise InputError(unknown_name(path, name, role, list(arrays), kind, flag_prefix))
         columns[role] = _file_vector(path, name, arrays[name]).astype(np.float64)
     fields = {
         key: np.asarray(values, dtype=np.float64).reshape(-1)
@@ -109,12 +131,12 @@ def _open(path: pathlib.Path):
 
 
 def _read_csv(
-    path: pathlib.Path, wanted: Mapping[str, str]
+    path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
     try:
         with _open(path) as handle:
             header, header_line = _header(path, handle)
-            index = {role: _column_index(path, header, name, role) for role, name in wanted.items()}
+            index = {role: _column_index(path, header, name, role, flag_prefix) for role, name in wanted.items()}
             fields = {
                 name: i for i, name in enumerate(header)
                 if name.lower() in RATE_FIELDS and i not in index.values() and header.count(name) == 1
@@ -190,8 +212,10 @@ def _header(path: pathlib.Path, handle) -> tuple[list[str], int]:
     )
 
 
-def _column_index(path: pathlib.Path, header: Sequence[str], name: str, role: str) -> int:
+def _column_index(path: pathlib.Path, header: Sequence[str], name: str, role: str, flag_prefix: str = "") -> int:
     hits = [i for i, column in enumerate(header) if column == name]
+    if not hits and name.isdigit() and int(name) < len(header):
+        return int(name)  # a column number from 0
     if len(hits) > 1:
         raise InputError(
             f"recording '{path}' has {len(hits)} columns named '{name}' (columns "
@@ -199,22 +223,138 @@ def _column_index(path: pathlib.Path, header: Sequence[str], name: str, role: st
             "ambiguous: rename all but one in the header"
         )
     if not hits:
-        raise InputError(_unknown(path, name, role, [c for c in header if c], "column"))
+        raise InputError(unknown_name(path, name, role, [c for c in header if c], "column", flag_prefix))
     return hits[0]
 
 
-def _unknown(path: pathlib.Path, name: str, role: str, names: Sequence[str], kind: str) -> str:
-    """The message for a mapped name the file lacks: the file's names, and a likely one."""
+def unknown_name(path: pathlib.Path, name: str, role: str, names: Sequence[str], kind: str,
+                 prefix: str = "") -> str:
+    """The message for a mapped name the file lacks: the file's names, a likely one, and the flag to use.
+
+    `prefix` goes before the name in the flag shown (``"u.txt:"`` for a file joined by ``columns``).
+    """
     shown = ", ".join(names[:_SHOW_NAMES]) or "none"
     if len(names) > _SHOW_NAMES:
         shown += f", ... ({len(names)} in all)"
     same = [n for n in names if n.lower() == name.lower()]
     close = same or difflib.get_close_matches(name, list(names), n=1)
     hint = f"; did you mean '{close[0]}'?" if close else ""
+    example = close[0] if close else (names[0] if names else "NAME")
+    option = OPTION[role]
+    flag = (f"--columns {option}={prefix}{example}" if prefix
+            else f"--{option} {example} (or {option}={example} in --columns)")
     return (
-        f"recording '{path}' has no {kind} '{name}' for the {OPTION[role]} (its {kind}s: "
-        f"{shown}): give one of those names exactly (names are case-sensitive{hint})"
+        f"recording '{path}' has no {kind} '{name}' for the {option} (its {kind}s: "
+        f"{shown}): give one of those names exactly (names are case-sensitive{hint}), e.g. {flag}"
     )
+
+
+def only_column(path: pathlib.Path, suffix: str, role: str, reference: str) -> np.ndarray:
+    """The one column (array, variable) of a file named whole in ``columns``; `reference` is how it was named."""
+    if suffix in (".npz", ".mat"):
+        arrays = (npz_arrays(path) if suffix == ".npz" else mat_variables(path))[0]
+        names = list(arrays)
+        if len(names) == 1:
+            return _file_vector(path, names[0], arrays[names[0]]).astype(np.float64)
+    else:
+        names, table = read_text_table(path)
+        if table.shape[1] == 1:
+            return table[:, 0]
+    shown = ", ".join(names[:_SHOW_NAMES]) or "none"
+    example = names[0] if names else "NAME"
+    return_hint = (f"--columns {OPTION[role]}={reference}:{example}" if names
+                   else "a file with one column of numbers")
+    raise InputError(
+        f"recording '{path}' has {len(names)} columns ({shown}), so '{reference}' does not say which is the "
+        f"{OPTION[role]}: name the column after a ':', e.g. {return_hint} (columns by name, or by number from 0)"
+    )
+
+
+def read_text_table(path: pathlib.Path) -> tuple[list[str], np.ndarray]:
+    """A plain text table: its column names (the header's, or "0", "1", ... without one) and its numbers.
+
+    Returns:
+        ``(names, table)``, ``table`` of shape (rows, len(names)), float64, every cell finite.
+    """
+    lines = _text_lines(path)
+    if not lines:
+        raise InputError(f"recording '{path}' has no numbers: give one line per sample, one column per channel")
+    first = lines[0][1]
+    delimiter = _delimiter(first if len(lines) == 1 else lines[1][1])
+    cells = _cells(first, delimiter)
+    header = not all(_is_number(c) for c in cells)
+    names = [c.strip('"').strip() for c in cells] if header else [str(i) for i in range(len(cells))]
+    data = lines[1:] if header else lines
+    if header:
+        repeated = sorted({c for c in names if names.count(c) > 1 or not c})
+        if repeated:
+            raise InputError(
+                f"recording '{path}' has a header {first!r} with empty or repeated names: name each column once"
+            )
+    if not data:
+        raise InputError(f"recording '{path}' has a header but no numbers: add one line per sample")
+    table = np.empty((len(data), len(names)))
+    for row, (number, line) in enumerate(data):
+        values = _cells(line, delimiter)
+        if len(values) != len(names):
+            raise InputError(
+                f"recording '{path}' has {len(values)} value(s) at line {number} and {len(names)} "
+                f"{'names in its header' if header else 'on its first line'}: give every line the same columns"
+            )
+        for col, cell in enumerate(values):
+            try:
+                table[row, col] = float(cell)
+            except ValueError:
+                raise InputError(
+                    f"recording '{path}' has non-numeric cell {cell!r} at line {number}, column "
+                    f"{names[col]!r}: fix or remove that line (numbers with '.' decimals)"
+                ) from None
+    bad = np.argwhere(~np.isfinite(table))
+    if bad.size:
+        row, col = bad[0]
+        raise InputError(
+            f"recording '{path}' has a non-finite value at line {data[row][0]}, column {names[col]!r}: remove or "
+            "interpolate it"
+        )
+    return names, table
+
+
+def _text_lines(path: pathlib.Path) -> list[tuple[int, str]]:
+    """Non-blank, non-comment lines of a text table with their line numbers (from 1)."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise InputError(f"recording '{path}' is not UTF-8 text: save it as plain text") from None
+    except OSError as error:
+        raise InputError(f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions") from None
+    lines = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.split("#", 1)[0].strip()
+        if stripped:
+            lines.append((number, stripped))
+    return lines
+
+
+def _delimiter(line: str) -> str | None:
+    for mark in (",", ";", "\t"):
+        if mark in line:
+            return mark
+    return None  # spaces
+
+
+def _cells(line: str, delimiter: str | None) -> list[str]:
+    cells = [c.strip() for c in line.split(delimiter)]
+    while len(cells) > 1 and not cells[-1] and delimiter is not None:
+        cells.pop()  # a trailing delimiter
+    return cells
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
 
 
 def _diagnose(
