@@ -2,8 +2,13 @@
 
 `write_atomic` writes to a temporary file in the same folder and renames
 it over the target (``os.replace`` is atomic on one file system), so a reader
-or a crash never sees half a file. `check_outputs` refuses outputs that
-are the input itself (``rig track v.avi --out v.avi``).
+or a crash never sees half a file; `write_together` does so for files that
+belong together (a CSV and its sidecar: both or neither). Both are
+`hybrid`'s staged writes (`hybrid.util._atomic`): a full disk names the file,
+leaves the previous one byte for byte and no temporary. `partial_path` is
+where a failed command keeps what it read (``w.partial.csv``), never over the
+user's file. `check_outputs` refuses outputs that are the input itself
+(``rig track v.avi --out v.avi``).
 """
 
 from __future__ import annotations
@@ -14,22 +19,34 @@ import pathlib
 
 import numpy as np
 
-from hybrid.util._atomic import atomic_open
+from hybrid.util._atomic import atomic_open, partial_path, write_texts
 
 from ._errors import RigError
 
-__all__ = ["check_outputs", "jsonable", "write_atomic", "write_json_atomic"]
+__all__ = ["check_outputs", "jsonable", "partial_path", "write_atomic", "write_json_atomic", "write_together"]
+
+
+def _folder(path: pathlib.Path) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise RigError(f"cannot write '{path}' ({error.strerror or error})") from None
 
 
 def write_atomic(path, text: str) -> None:
     """Write ``text`` to ``path`` atomically, with `hybrid`'s writer (temporary file, fsync, ``os.replace``)."""
     path = pathlib.Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise RigError(f"cannot write '{path}' ({error.strerror or error})") from None
+    _folder(path)
     with atomic_open(path, "w", newline="") as out:  # an OSError becomes one InputError line
         out.write(text)
+
+
+def write_together(files: dict) -> None:
+    """Write each path's text, staged together: every file is replaced, or none (`hybrid`'s `write_texts`)."""
+    files = {pathlib.Path(path): text for path, text in files.items()}
+    for path in files:
+        _folder(path)
+    write_texts(files)  # an OSError becomes one InputError line naming the files
 
 
 def jsonable(value):

@@ -4,9 +4,11 @@ Steps: the first frames find (or check) the rest axis (`rig._axis`);
 every frame is tracked; the frame times come from the video itself
 (`rig._camera.VideoSource`), holes in them are gaps, and the frames
 read are compared with the frames the file announces. The CSV (``t,w,quality``)
-and its JSON sidecar (``F.csv.json``) are written atomically at the end, also
-when the video turns out damaged, so nothing read is lost and nothing is
-silently wrong:
+and its JSON sidecar (``F.csv.json``) are written together, atomically, at the
+end. When the run fails (below, or Ctrl-C) what was read is still written, so
+nothing read is lost, but under another name, ``F.partial.csv`` (``-2``, ...
+if taken: `hybrid.util._atomic.partial_path`), so that a file the user had at
+``F.csv`` is never replaced by a failed run; the error names it:
 
 - a gap (frames lost inside the file, places known): the frames either side
   get quality 0, the gap is listed, a warning is printed; exit 0;
@@ -20,6 +22,7 @@ silently wrong:
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import pathlib
 import sys
@@ -28,8 +31,10 @@ import numpy as np
 
 from ._axis import AxisEstimate, find_axis
 from ._camera import VideoSource, find_gaps
+from hybrid import InputError
+
 from ._errors import RigError
-from ._files import check_outputs, write_atomic, write_json_atomic
+from ._files import check_outputs, jsonable, partial_path, write_together
 from ._scene import Scene
 from ._sync import LedDetector
 from ._tracker import TipTracker
@@ -170,13 +175,27 @@ def _account(video: VideoSource, t, quality) -> dict:
     return info
 
 
-def _write(job: TrackJob, t, w, quality, meta: dict) -> None:
-    """The CSV and its sidecar, each atomically (the CSV first)."""
+def _write(job: TrackJob, t, w, quality, meta: dict, failed: bool = False) -> pathlib.Path:
+    """The CSV and its sidecar, staged together (both or neither); returns the CSV's path.
+
+    At ``job.out`` when the run succeeded; when it `failed`, at
+    `partial_path` (``w.partial.csv``), so a file the user had at ``job.out``
+    is never replaced by a failed run.
+    """
+    out = partial_path(job.out) if failed else pathlib.Path(job.out)
+    if failed:
+        meta["partial_of"] = str(job.out)
     rows = [f"{a:.17g},{b:.17g},{int(c)}" for a, b, c in zip(t, w, quality)]
-    write_atomic(job.out, "t,w,quality\n" + "".join(r + "\n" for r in rows))
     meta["rows"] = len(rows)
     meta["tracked_frames"] = int(np.sum(quality))
-    write_json_atomic(job.sidecar, meta)
+    write_together({out: "t,w,quality\n" + "".join(r + "\n" for r in rows),
+                    out.with_name(out.name + ".json"): json.dumps(meta, indent=2, default=jsonable) + "\n"})
+    return out
+
+
+def _kept(job: TrackJob, written: pathlib.Path, existed: bool) -> str:
+    return (f"what was read is kept in {written} (+ .json); {job.out} was "
+            + ("left as it was" if existed else "not written"))
 
 
 def _gap_warning(job: TrackJob, gaps) -> str:
@@ -199,6 +218,7 @@ def track_video(job: TrackJob) -> dict:
     places in time are unknown.
     """
     check_outputs([job.out, job.sidecar], [job.video])
+    existed = pathlib.Path(job.out).exists()
     meta = {"source": "rig track", "video": str(job.video), "columns": ["t", "w", "quality"],
             "units": {"t": "s", "w": "mm"}, "complete": False, "status": "tracking", "error": None}
     with VideoSource(job.video) as video:
@@ -215,7 +235,8 @@ def track_video(job: TrackJob) -> dict:
             _track_rows(job, video, head, angle, clamp, meta, t, w, quality)
         except KeyboardInterrupt:
             meta["video_integrity"] = video.integrity()
-            _write(job, t, w, quality, meta)
+            written = _write(job, t, w, quality, meta, failed=True)
+            _warn(f"interrupted: {_kept(job, written, existed)}")
             raise
         account = _account(video, t, quality)
     meta["video_integrity"] = account
@@ -233,10 +254,16 @@ def track_video(job: TrackJob) -> dict:
         expected = account["frames_expected"]
         problems.append(f"read {len(t)} of {expected} frames of {job.video} (the file is truncated or damaged"
                         + (f"; the places in time of the last {unplaced} are unknown, flagged quality 0"
-                           if unplaced else "") + f"): {job.out} holds only those, marked incomplete")
+                           if unplaced else "") + "): only those were tracked, marked incomplete")
     meta["status"] = ("no strip" if angle is None or good == 0 else
                       "incomplete" if missing_end or unplaced else "gaps" if account["gaps"] else "complete")
     meta["error"] = "; ".join(problems) or None
+    if problems:
+        try:
+            written = _write(job, t, w, quality, meta, failed=True)
+        except InputError as error:  # a full disk: the tracking problem, and why nothing was kept
+            raise RigError("; ".join(problems) + f"; what was read could not be kept either: {error}") from None
+        raise RigError("; ".join(problems) + f"; {_kept(job, written, existed)}")
     _write(job, t, w, quality, meta)
     sync = meta.get("sync")
     print(f"wrote {job.out}: {len(t)} frames at {account['fps']:g} fps, {int(np.sum(quality))} tracked"
@@ -247,7 +274,5 @@ def track_video(job: TrackJob) -> dict:
     if account["timestamp_faults"]:
         _warn(f"{account['timestamp_faults']} frames of {job.video} had no increasing decoder timestamp: "
               "they were stamped one frame period after the previous frame")
-    if problems:
-        raise RigError("; ".join(problems))
     return meta
 

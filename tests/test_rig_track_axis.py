@@ -86,9 +86,10 @@ def test_no_strip_anywhere_flags_every_frame_and_fails(tmp_path, capsys):
     assert main(["track", str(path), "--clamp", "330,230", "--mm-per-px", "0.1", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("rig: error: no strip leaves the clamp") and err.count("\n") == 1
+    out = out.with_name("w.partial.csv")  # a failed run keeps what it read, never at --out
     rows = list(csv.DictReader(out.open()))
     assert len(rows) == 12 and all(r["quality"] == "0" and r["w"] == "nan" for r in rows)
-    meta = json.loads(out.with_name("w.csv.json").read_text())
+    meta = json.loads(out.with_name("w.partial.csv.json").read_text())
     assert meta["status"] == "no strip" and meta["axis"]["angle_deg"] is None
 
 
@@ -102,4 +103,4 @@ def test_a_wrong_axis_is_not_tracked_silently(tmp_path, capsys):
     err = capsys.readouterr().err.splitlines()
     assert err[0].startswith("rig: warning: --axis 0 deg given, but the strip leaves the clamp at 90.0")
     assert err[1].startswith("rig: error: the strip was not found along the axis 0 deg") and len(err) == 2
-    assert all(r["quality"] == "0" for r in csv.DictReader(out.open()))
+    assert all(r["quality"] == "0" for r in csv.DictReader(out.with_name("w.partial.csv").open()))

@@ -12,6 +12,11 @@ target byte for byte and removes the temporary; the error becomes one
 Files that belong together (a model and its ``.json`` description, a CSV
 recording and its sidecar) are staged together: every temporary is written
 first and only then are all renamed, so a failure while writing changes none.
+
+A command that fails after reading something worth keeping (``rig track`` on a
+damaged video) writes it under [`partial_path`][]'s name (``w.partial.csv``),
+never over the output the user had: no command replaces a file unless it
+succeeded.
 """
 
 from __future__ import annotations
@@ -24,9 +29,12 @@ from pathlib import Path
 
 from ._errors import InputError
 
-__all__ = ["atomic_open", "staged", "write_bytes", "write_text"]
+__all__ = ["PARTIAL", "atomic_open", "describe_targets", "partial_path", "staged", "write_bytes",
+           "write_text", "write_texts"]
 
 TEMPORARY_SUFFIX = ".tmp"
+#: What a failed command's output is called instead: ``w.csv`` -> ``w.partial.csv``.
+PARTIAL = ".partial"
 _umask: int | None = None
 
 
@@ -77,7 +85,9 @@ def _remove(paths) -> None:
             os.unlink(path)
 
 
-def _names(targets: list[Path]) -> str:
+def describe_targets(targets) -> str:
+    """``a`` or ``a (and b, c)``: the files a staged write was for, for a message."""
+    targets = [Path(t) for t in targets]
     first = str(targets[0])
     rest = [str(t) for t in targets[1:]]
     return first + (f" (and {', '.join(rest)})" if rest else "")
@@ -118,7 +128,7 @@ def staged(*targets) -> Iterator[list[Path]]:
         _remove(temporaries)
         reason = error.strerror or str(error)
         raise InputError(
-            f"cannot write {_names(targets)}: {reason}; nothing was changed at {targets[0]} "
+            f"cannot write {describe_targets(targets)}: {reason}; nothing was changed at {targets[0]} "
             "(free some space or choose another folder with write permission)"
         ) from None
     except BaseException:
@@ -150,3 +160,33 @@ def write_bytes(target, data: bytes) -> Path:
     with atomic_open(target, "wb") as handle:
         handle.write(data)
     return Path(target)
+
+
+def write_texts(files: dict, *, encoding: str = "utf-8") -> list[Path]:
+    """Write several files, each path -> its text, staged together (all or none); returns the paths."""
+    targets = list(files)
+    with staged(*targets) as temporaries:
+        for temporary, target in zip(temporaries, targets):
+            with open(temporary, "w", encoding=encoding, newline="") as handle:
+                handle.write(files[target])
+    return [Path(t) for t in targets]
+
+
+def partial_path(target, *, taken=()) -> Path:
+    """Where a failed command keeps what it read instead of `target`: ``w.csv`` -> ``w.partial.csv``.
+
+    A name that exists already (or whose ``.json`` sidecar does), or is in
+    `taken`, is skipped for ``w.partial-2.csv``, ``-3``, ...: a file the
+    user had is never replaced, a previous partial output included.
+    """
+    target = Path(target)
+    stem, suffix = (target.stem, target.suffix) if target.suffix else (target.name, "")
+    taken = {Path(t) for t in taken}
+    for k in range(1, 10_000):
+        name = f"{stem}{PARTIAL}{'' if k == 1 else f'-{k}'}{suffix}"
+        candidate = target.with_name(name)
+        sidecar = candidate.with_name(candidate.name + ".json")
+        if candidate not in taken and not candidate.exists() and not sidecar.exists():
+            return candidate
+    raise InputError(f"cannot find a free name for the partial output next to {target}: "
+                     f"remove old {stem}{PARTIAL}*{suffix} files")
