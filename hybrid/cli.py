@@ -314,6 +314,8 @@ def _cmd_diagnose(args):
     if left is not None:
         print(f"unexplained: {left['fraction_above_floor']:.0%} of the held-out error lies above the noise floor: "
               f"{left['description'].get('summary', '')}")
+    for warning in [*floor.get("warnings", ()), *([left["floor_warning"]] if left and "floor_warning" in left else [])]:
+        print(f"noise floor: warning: {warning}")
     if diagnosis.hybrid is not None:
         h = diagnosis.hybrid
         print(f"hybrid model NMSE: {h['baseline']['nmse']:.2e} -> {h['extended']['nmse']:.2e}")
