@@ -22,6 +22,18 @@ The standard error is the spread of the chosen estimator over `blocks`
 contiguous blocks of the recording, divided by √blocks. Noise that is not
 white (a slow drift of the tracker, vibration) is not seen by these
 estimators and counts as something a model should explain.
+
+**What the floor can and cannot see.** Every estimator reads how much w varies
+from one sample to the next beyond a smooth signal. Data that were smoothed,
+low-pass filtered, interpolated or oversampled (a tracker's smoothing, a logger
+at 1 kHz watching a 1 Hz strip) have had that variation removed, so the floor
+then reads what is left (often the rounding of the stored values), not the
+measurement error: from w alone such data cannot be told from a smooth signal
+measured with little noise. So the floor says what it was estimated from
+(`NoiseFloor.source`), and warns (`NoiseFloor.warnings`) when it is below the
+data's quantisation step (`quantisation_step`: the values lie on a grid of that
+step, whose rounding alone is step/√12); `hybrid.discovery._unexplained` adds a
+warning when the model's held-out error is far above it.
 """
 
 from __future__ import annotations
@@ -35,6 +47,8 @@ import numpy as np
 DIFFERENCE_ORDERS = (1, 2, 3, 4)
 #: The band the spectral estimator reads, as fractions of the Nyquist frequency.
 SPECTRAL_BAND = (0.8, 1.0)
+#: Largest number of grid steps a recording's range may span for `quantisation_step` to call it a grid.
+MAX_GRID_STEPS = 10**7
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +62,9 @@ class NoiseFloor:
     - `method`: the estimator that gave the smallest value (see the module).
     - `estimates`: every estimator's variance, by name.
     - `fraction_of_variance`: σ² / var(w), the NMSE a perfect model would leave.
+    - `source`: what the floor was estimated from, in words.
+    - `quantum`: the step of the grid w's values lie on (`quantisation_step`), NaN when none.
+    - `warnings`: sentences, when the floor may not be the measurement noise.
     """
 
     variance: float
@@ -55,6 +72,9 @@ class NoiseFloor:
     method: str
     estimates: dict
     fraction_of_variance: float
+    source: str = ""
+    quantum: float = float("nan")
+    warnings: tuple = ()
 
     @property
     def std(self) -> float:
@@ -62,7 +82,61 @@ class NoiseFloor:
 
     def to_dict(self) -> dict:
         return {"variance": self.variance, "std": self.std, "std_error": self.std_error, "method": self.method,
-                "estimates": dict(self.estimates), "fraction_of_variance": self.fraction_of_variance}
+                "estimates": dict(self.estimates), "fraction_of_variance": self.fraction_of_variance,
+                "source": self.source, "quantum": self.quantum, "warnings": list(self.warnings)}
+
+
+def quantisation_step(w) -> float:
+    """The step of the grid the values of `w` lie on (e.g. 0.001 for values stored with 3 decimals), or NaN.
+
+    The candidates are the smallest non-zero difference between two sorted distinct values
+    and its whole fractions down to a tenth (values 2 and 3 steps apart have a step finer
+    than their smallest difference); the first that every value is a whole number of, from
+    the smallest (to 1 % of a step), is the step, when the range spans at most
+    `MAX_GRID_STEPS` steps. Values that vary continuously (floats from a model, a filter)
+    give NaN.
+    """
+    w = np.asarray(w, float).reshape(-1)
+    w = w[np.isfinite(w)]
+    values = np.unique(w)
+    if values.size < 3:
+        return float("nan")
+    smallest = float(np.min(np.diff(values)))
+    span = float(values[-1] - values[0])
+    for divisor in range(1, 11):
+        step = smallest / divisor
+        if not (step > 0 and span / step <= MAX_GRID_STEPS):
+            break
+        units = (values - values[0]) / step
+        if bool(np.all(np.abs(units - np.round(units)) <= 0.01)):
+            return step
+    return float("nan")
+
+
+def describe_source(method: str, n: int, rate: float, period: int = 0) -> str:
+    """What the estimator `method` read, in words, for `n` samples at `rate` Hz."""
+    if method.startswith("differences_"):
+        k = int(method.rsplit("_", 1)[1])
+        order = {1: "first", 2: "second", 3: "third", 4: "fourth"}.get(k, f"order-{k}")
+        return (f"the {order} differences of w over {n} samples (how much w varies from one sample to the next "
+                "beyond a smooth signal, white noise assumed)")
+    if method == "spectrum":
+        nyquist = rate / 2
+        return (f"w's spectrum at {SPECTRAL_BAND[0] * nyquist:.3g}–{SPECTRAL_BAND[1] * nyquist:.3g} Hz (the top "
+                f"fifth of the band below the Nyquist frequency, {nyquist:.3g} Hz) over {n} samples, white noise "
+                "assumed")
+    if method == "repeats":
+        return f"the spread of w over the {n // period} repetitions of the drive (period {period} samples)"
+    return method
+
+
+def floor_warnings(std: float, quantum: float) -> tuple[str, ...]:
+    """Sentences when a floor of σ = `std` cannot be the measurement noise of data on a grid of step `quantum`."""
+    if not (np.isfinite(quantum) and std < quantum):
+        return ()
+    return (f"the floor σ = {std:.3g} is below the data's quantisation step ({quantum:.3g}; rounding alone "
+            f"gives {quantum / math.sqrt(12):.3g}): the stored values do not resolve the noise, and smoothed or "
+            "oversampled data look this way too; the floor then reads the rounding, not the measurement error",)
 
 
 def difference_variance(w: np.ndarray, order: int) -> float:
@@ -145,5 +219,9 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
     per_block = np.asarray([x for x in per_block if np.isfinite(x)])
     std_error = float(np.std(per_block, ddof=1) / math.sqrt(per_block.size)) if per_block.size > 1 else float("nan")
     spread = float(np.var(w))
+    period = repeat_variance(w, v_in)[1] if method == "repeats" else 0
+    quantum = quantisation_step(w)
     return NoiseFloor(variance=variance, std_error=std_error, method=method, estimates=estimates,
-                      fraction_of_variance=variance / spread if spread > 0 else float("nan"))
+                      fraction_of_variance=variance / spread if spread > 0 else float("nan"),
+                      source=describe_source(method, w.size, rate, period), quantum=quantum,
+                      warnings=floor_warnings(math.sqrt(variance), quantum))

@@ -146,13 +146,19 @@ def _stepwise(d: dict) -> list[str]:
     return lines + [""]
 
 
-def _noise(d: dict) -> list[str]:
+def noise_section(d: dict) -> list[str]:
     """The noise floor and, when the final model stays above it, where the rest lives."""
     floor, left = d["noise_floor"], d["unexplained"]
+    source = floor.get("source") or floor["method"]
     lines = ["## Noise floor and what remains", "",
              f"Measurement noise of w, from the recording alone ({floor['method']}): σ = {_num(floor['std'])} "
              f"(variance {_num(floor['variance'])} ± {_num(floor['std_error'])}), "
-             f"{_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out.", ""]
+             f"{_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out. "
+             f"Estimated from {source}.", ""]
+    for warning in floor.get("warnings") or ():
+        lines += [f"**Warning:** {warning}.", ""]
+    if left is not None and left.get("floor_warning"):
+        lines += [f"**Warning:** {left['floor_warning']}.", ""]
     if left is None:
         return lines + ["The final model's held-out error is within "
                         f"{_num(d['settings']['unexplained_ratio'])}× the floor: nothing is left unexplained.", ""]
@@ -205,7 +211,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     lines += ["", f"Gain (baseline NMSE / extended NMSE): **{d['gain']:.3g}**.", ""]
     if d["causes"]:
         lines += _stepwise(d)
-    lines += _noise(d)
+    lines += noise_section(d)
 
     lines += ["## Fitted parameters" + ("" if not causes else f" (simulation + {causes})"), "",
               "Standard errors: Gauss–Newton covariance on the training part, inflated for the held-out "

@@ -12,6 +12,12 @@ much of the error lies above the floor, and where it lives
 what a flexible extension recovers on held-out data; `hybrid.discovery._level_limit`:
 whether the record sits flat at an extreme while the model goes beyond it). Otherwise
 ``unexplained`` is None: the model is as good as the measurement allows.
+
+When the held-out MSE is more than `FAR_ABOVE_FLOOR` times the floor (its RMS
+ten times the floor's σ), ``unexplained`` also carries a ``floor_warning``: the
+share "above the noise" then says only that the model misses by far more than
+w varies from sample to sample, and on smoothed or oversampled data that
+variation is not the measurement error (see `hybrid.discovery._noise_floor`).
 """
 
 from __future__ import annotations
@@ -23,6 +29,20 @@ import numpy as np
 from ._level_limit import level_limits, limit_sentence
 from ._noise_floor import NoiseFloor, noise_floor
 from ._search import _signals
+
+#: Held-out MSE over the floor above which ``unexplained`` warns that the floor is far below the error.
+FAR_ABOVE_FLOOR = 100.0
+
+
+def floor_caveat(mse: float, floor: NoiseFloor) -> str | None:
+    """A sentence when a held-out MSE is so far above the floor that the floor tells little, else None."""
+    if not (floor.variance > 0 and mse > FAR_ABOVE_FLOOR * floor.variance):
+        return None
+    return (f"the held-out error's RMS is {math.sqrt(mse / floor.variance):.3g}× the floor's σ: the floor, from "
+            f"{floor.source or floor.method}, is far below the model's error, so the share above it says only that the "
+            "model misses by far more than w varies from sample to sample; if w was smoothed, filtered, interpolated "
+            "or oversampled, that processing removed the variation the floor reads, and the measurement error is "
+            "not known from the data")
 
 
 def pooled_noise_floor(recordings) -> NoiseFloor:
@@ -36,9 +56,14 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
     std_error = float(math.sqrt(np.nansum((weights * [f.std_error for f in floors]) ** 2)))
     spread = float(np.var(np.concatenate([np.asarray(r.w, float) for r in recordings])))
     methods = sorted({f.method for f in floors})
+    sources = list(dict.fromkeys(f.source for f in floors))
+    quanta = [f.quantum for f in floors if np.isfinite(f.quantum)]
     return NoiseFloor(variance=variance, std_error=std_error, method=", ".join(methods),
                       estimates={f"recording {i}": f.variance for i, f in enumerate(floors)},
-                      fraction_of_variance=variance / spread if spread > 0 else float("nan"))
+                      fraction_of_variance=variance / spread if spread > 0 else float("nan"),
+                      source=f"{len(floors)} recordings pooled by sample count, each from " + "; ".join(sources),
+                      quantum=max(quanta) if len(quanta) == len(floors) else float("nan"),
+                      warnings=tuple(dict.fromkeys(w for f in floors for w in f.warnings)))
 
 
 def _part(problem, series, recordings, candidate, split: str) -> dict:
@@ -82,6 +107,9 @@ def remainder(problem, series, recordings, final, heldout: dict, floor: NoiseFlo
         "ratio_to_floor": mse / floor.variance,
         "description": description,
     }
+    caveat = floor_caveat(mse, floor)
+    if caveat:
+        out["floor_warning"] = caveat
     if equally_good and np.isfinite(equally_good.get("heldout_nmse_min", float("nan"))):
         best = equally_good["heldout_nmse_min"] * var_w
         if best <= settings.unexplained_ratio * top:

@@ -1,0 +1,77 @@
+"""The noise floor says what it was estimated from, and warns where it cannot be the measurement noise.
+
+On smoothed or oversampled data the model-free estimators read what the processing
+left of w's sample-to-sample variation (often only the rounding of the stored
+values), not the measurement error. The floor then warns; on ordinary data (white
+noise on a slow signal, stored with a few decimals) it does not. The data are built
+here with numpy and scipy, the rounding with numpy.round, so the quantisation step
+and the true noise are known independently of the code under test.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.signal
+
+from hybrid.discovery._noise_floor import noise_floor, quantisation_step
+from hybrid.discovery._report import noise_section
+from hybrid.discovery._unexplained import FAR_ABOVE_FLOOR, floor_caveat
+
+
+def _slow_signal(n, rate, seed, cutoff_hz=2.0, hold=15):
+    rng = np.random.default_rng(seed)
+    v = np.repeat(rng.choice([-2.0, -1.0, 0.0, 1.0, 2.0], size=n // hold + 1), hold)[:n]
+    b, a = scipy.signal.butter(2, cutoff_hz / (rate / 2))
+    return v, scipy.signal.lfilter(b, a, v)
+
+
+def test_the_quantisation_step_is_the_grid_the_values_were_rounded_to():
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-2.0, 2.0, 3000)
+    assert quantisation_step(np.round(x, 3)) == pytest.approx(1e-3, rel=1e-6)
+    assert quantisation_step(np.round(x * 4096) / 4096) == pytest.approx(1 / 4096, rel=1e-6)  # a 12-bit ADC
+    assert quantisation_step(np.round(x * 1000)) == 1.0  # counts
+    assert quantisation_step(0.001 * np.array([0, 2, 5, 7, 9])) == pytest.approx(1e-3)  # no two values 1 step apart
+    assert math.isnan(quantisation_step(x))  # continuous values are on no grid
+    assert math.isnan(quantisation_step(np.ones(10)))
+
+
+def test_smoothed_oversampled_data_warn_and_say_what_the_floor_read():
+    """A 1 kHz record of a 2 Hz strip in mm, noise 5 µm, smoothed over 20 samples, stored to 1 µm."""
+    rate, sigma = 1000.0, 0.005
+    v, clean = _slow_signal(30_000, rate, 0, hold=500)
+    noisy = 0.5 * clean + np.random.default_rng(1).normal(0.0, sigma, clean.size)
+    w = np.round(np.convolve(noisy, np.ones(20) / 20, mode="same"), 3)
+    floor = noise_floor(w, v, rate)
+    # what makes the warning necessary: the floor reads the rounding (1 µm / √12), far below the true 5 µm
+    assert floor.std < sigma / 3
+    assert floor.quantum == pytest.approx(1e-3, rel=1e-6)
+    assert len(floor.warnings) == 1 and "below the data's quantisation step (0.001" in floor.warnings[0]
+    assert "smoothed or oversampled" in floor.warnings[0]
+    assert floor.source and str(w.size) in floor.source
+    # a model as close as the true noise allows (5 µm RMS) is far above this floor: the caveat says so
+    caveat = floor_caveat(sigma**2, floor)
+    assert caveat is not None and f"{sigma / floor.std:.3g}× the floor's σ" in caveat
+    report = "\n".join(noise_section({"noise_floor": floor.to_dict(), "settings": {"unexplained_ratio": 2.0},
+                                      "unexplained": None}))
+    assert "Estimated from " + floor.source in report and "**Warning:** the floor σ" in report
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_ordinary_data_give_no_warning(seed):
+    """White noise (2 % of the range) on a slow strip at 30 Hz, stored with 4 decimals: the floor is the noise."""
+    v, clean = _slow_signal(3600, 30.0, seed)
+    sigma = 0.02 * np.ptp(clean)
+    w = np.round(clean + np.random.default_rng(100 + seed).normal(0.0, sigma, clean.size), 4)
+    floor = noise_floor(w, v, 30.0)
+    assert floor.variance == pytest.approx(sigma**2, rel=0.25)  # as tests/test_noise_floor.py
+    assert floor.quantum == pytest.approx(1e-4, rel=1e-6) and floor.warnings == ()
+    assert floor.method in floor.source or "differences" in floor.source or "spectrum" in floor.source
+    for ratio in (1.0, 3.0, 0.9 * FAR_ABOVE_FLOOR):  # a model at, near or well above the floor
+        assert floor_caveat(ratio * floor.variance, floor) is None
+    report = "\n".join(noise_section({"noise_floor": floor.to_dict(), "settings": {"unexplained_ratio": 2.0},
+                                      "unexplained": None}))
+    assert "Warning" not in report and "Estimated from " in report
