@@ -15,16 +15,16 @@ is one [`InputError`][hybrid.InputError] that says what is wrong and how to fix 
 A plug-in is checked once, eagerly, before anything is compiled: its
 ``simulate`` runs on a short probe drive (the first samples of the recording,
 or a step) and must return one finite floating-point value per sample, and it
-must trace under `jax.jit` to the same shape ([`PluginError`][] names the
+must trace under `jax.jit` to the same shape (`PluginError` names the
 class, the method and what was wrong). The compiled hot path is left as it is:
 a failure that only shows later (at run time, under `jit`, `vmap` or autodiff)
-is attributed by [`describe_failure`][] from the exception's traceback, which
+is attributed by `describe_failure` from the exception's traceback, which
 runs through the plug-in's own code, so the command line still names the
 plug-in and its method in one line (exit status 2).
 
 A plug-in is code that runs with the user's rights: ``sys.exit`` and
 ``KeyboardInterrupt`` raised by it are caught and reported, and
-[`exit_guard`][] turns ``os._exit`` in the main thread into an exception while
+`exit_guard` turns ``os._exit`` in the main thread into an exception while
 a command runs; an exit that bypasses Python (``posix._exit``, a signal)
 cannot be caught in-process.
 """
@@ -77,7 +77,7 @@ class PluginError(InputError):
 
 
 class HardExit(BaseException):
-    """``os._exit(status)`` called in the main thread while [`exit_guard`][] is active."""
+    """``os._exit(status)`` called in the main thread while `exit_guard` is active."""
 
     def __init__(self, status):
         super().__init__(status)
@@ -89,7 +89,7 @@ class HardExit(BaseException):
 
 @contextlib.contextmanager
 def exit_guard():
-    """While active, ``os._exit`` called in this process's main thread raises [`HardExit`][] instead.
+    """While active, ``os._exit`` called in this process's main thread raises `HardExit` instead.
 
     Nothing of this package calls ``os._exit`` in the main thread (the
     watchdog calls it from its own thread, and a forked child has another
@@ -167,7 +167,7 @@ def describe_failure(error: BaseException) -> str | None:
     through the code of a plug-in resolved in this process: the line names
     the ``--physics`` spec, the method ``hybrid`` called (the outermost
     plug-in frame), the exception or exit, and where in the plug-in's file it
-    happened. None otherwise (and for a [`PluginError`][], already one line).
+    happened. None otherwise (and for a `PluginError`, already one line).
     """
     if isinstance(error, PluginError):
         return None
@@ -379,7 +379,7 @@ def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str
     must succeed with the same shape. What `fit`, `diagnose` and
     `sensitivity` would otherwise find later, deep in a compiled program.
 
-    **Raises:** [`PluginError`][] naming `label` (default: the class), the method and what was wrong.
+    **Raises:** `PluginError` naming `label` (default: the class), the method and what was wrong.
     """
     import equinox as eqx
     import jax.numpy as jnp

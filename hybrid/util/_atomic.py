@@ -14,7 +14,7 @@ recording and its sidecar) are staged together: every temporary is written
 first and only then are all renamed, so a failure while writing changes none.
 
 A command that fails after reading something worth keeping (``rig track`` on a
-damaged video) writes it under [`partial_path`][]'s name (``w.partial.csv``),
+damaged video) writes it under `partial_path`'s name (``w.partial.csv``),
 never over the output the user had: no command replaces a file unless it
 succeeded.
 """

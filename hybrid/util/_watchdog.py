@@ -29,7 +29,9 @@ import sys
 import threading
 import time
 
-#: Exit status when a stall is detected (2 is bad input, 130 an interrupt).
+#: Exit status when a stall is detected (2 is bad input, 130 an interrupt). No plug-in can forge it:
+#: the command line reports a plug-in's ``sys.exit(3)`` or ``os._exit(3)`` with exit status 2
+#: (`hybrid.physics._plugins.exit_guard`), and a stall always prints its line first.
 STALL_EXIT_STATUS = 3
 
 _stage = {"text": "starting"}
