@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test docs bench bench-quick install clean rig-deps
+.PHONY: demo test docs bench bench-quick install clean rig-deps bench-peers bench-peers-quick
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -47,6 +47,29 @@ bench: $(BENCH_STAMP)
 
 bench-quick: $(STAMP)
 	$(BIN)/python benchmarks/quick.py
+
+# The tools a lab would pick instead (SysIdentPy, pysindy, jax-sysid), each in its own environment built
+# once from pinned requirements (jax-sysid pins an older JAX than ours); the project's .venv stays as it is.
+# bench-peers: the full side-by-side (< 30 min on 2 cores) writes benchmarks/results/peers.{md,json} and
+# experiments/results/table2_baselines.md; bench-peers-quick: every peer on a short slice (< 2 min).
+PEERS_STAMP := .venv-peers/.installed
+JAXSYSID_STAMP := .venv-jaxsysid/.installed
+
+$(PEERS_STAMP): benchmarks/peers/requirements.txt
+	$(PYTHON) -m venv .venv-peers
+	.venv-peers/bin/python -m pip install --quiet -r benchmarks/peers/requirements.txt
+	touch $(PEERS_STAMP)
+
+$(JAXSYSID_STAMP): benchmarks/peers/requirements-jaxsysid.txt
+	$(PYTHON) -m venv .venv-jaxsysid
+	.venv-jaxsysid/bin/python -m pip install --quiet -r benchmarks/peers/requirements-jaxsysid.txt
+	touch $(JAXSYSID_STAMP)
+
+bench-peers: $(STAMP) $(PEERS_STAMP) $(JAXSYSID_STAMP)
+	$(BIN)/python benchmarks/peers/run.py
+
+bench-peers-quick: $(STAMP) $(PEERS_STAMP) $(JAXSYSID_STAMP)
+	$(BIN)/python benchmarks/peers/run.py --quick --out benchmarks/results/peers_quick.json --table2-out benchmarks/results/table2_baselines_quick.md
 
 clean:
 	rm -rf $(VENV) *.egg-info .pytest_cache
