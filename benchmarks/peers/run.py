@@ -552,8 +552,6 @@ def _json_ready(x):
         return {k: _json_ready(v) for k, v in x.items() if k not in ("free",)}
     if isinstance(x, list):
         return [_json_ready(v) for v in x]
-    if isinstance(x, float) and not np.isfinite(x):
-        return str(x)
     if isinstance(x, (np.floating, np.integer)):
         return _json_ready(x.item())
     if isinstance(x, np.ndarray):
@@ -590,24 +588,31 @@ def main(argv=None) -> int:
     def log(s):
         print(s, flush=True)
 
-    t0 = time.perf_counter()
     command = "make bench-peers-quick" if args.quick else "make bench-peers"
-    result = {"quick": args.quick, "command": command, "versions": _versions(),
-              "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
-              "datasets": {}}
+    out = pathlib.Path(args.out)
     runners = {"tanks": tanks, "silverbox": silverbox, "table2": table2}
     for name in datasets:
-        result["datasets"][name] = runners[name](args.quick, tools, log)
+        t0 = time.perf_counter()
+        part = _json_ready(runners[name](args.quick, tools, log))
+        seconds = time.perf_counter() - t0
         jax.clear_caches()
-    result["seconds"] = time.perf_counter() - t0
-    result["grids"] = QUICK_GRIDS if args.quick else GRIDS
-    out = pathlib.Path(args.out)
-    write_text(out, json.dumps(_json_ready(result), indent=2) + "\n")
-    write_text(out.with_suffix(".md"), markdown(result))
-    log(f"wrote {out} and {out.with_suffix('.md')}")
-    if "table2" in datasets:
-        write_text(pathlib.Path(args.table2_out), table2_baselines(result))
-        log(f"wrote {args.table2_out}")
+        # each dataset is written as soon as it is done, merged with the others' rows of an earlier run of the
+        # same kind (full or quick): a run of one dataset, or one cut short, keeps what the others had
+        result = json.loads(out.read_text()) if out.exists() else {}
+        if result.get("quick") != args.quick:
+            result = {}
+        result.update({"quick": args.quick, "command": command, "versions": _versions(),
+                       "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
+                       "grids": QUICK_GRIDS if args.quick else GRIDS})
+        result.setdefault("datasets", {})[name] = part
+        result.setdefault("dataset_seconds", {})[name] = seconds
+        result["seconds"] = sum(result["dataset_seconds"].values())
+        write_text(out, json.dumps(result, indent=2) + "\n")
+        write_text(out.with_suffix(".md"), markdown(result))
+        log(f"wrote {out} and {out.with_suffix('.md')} ({name}: {seconds:.0f} s)")
+        if name == "table2":
+            write_text(pathlib.Path(args.table2_out), table2_baselines(result))
+            log(f"wrote {args.table2_out}")
     return 0
 
 
