@@ -1,6 +1,26 @@
-"""A lab's long file through the real command line: 10⁶ samples at 100 kHz (target: within 4 GB).
+"""Long records: seconds per LM step of the hybrid models, and a lab's long file through the command line.
 
+    python benchmarks/long_record.py --per-step [--sizes 100000 1000000] [--physics rc lti:2] [--steps 3]
     python benchmarks/long_record.py [--samples 1000000] [--steps 40]
+
+``--per-step`` (writes `benchmarks/results/long_record_steps.json`): for each
+physics (``rc``: the paper's RC network on the virtual IPMC at 30 Hz, a PRBS
+drive; ``lti:2``: a second-order LTI on the 100 kHz lab signal below) with the
+paper's D-MLP (11 × 10 tanh, window 60; 1,726 weights), and each record length,
+a child process builds the least-squares problem the way `hybrid.fit` does (the
+default 30/50/20 split: J has m = 0.3 n rows) and times, compile excluded
+(``lower().compile()`` first), the LM programs `fit` runs: one `lm_init` (one
+JᵀJ), then `--steps` LM iterations one call each, with the damping λ raised
+10⁶-fold first so that they are accepted steps (each forms a new JᵀJ: the
+costly kind; a rejected step only solves again). It reports the median wall
+and CPU seconds per step and how many were accepted. Beside it, the same child measures the
+machine's float64 matrix-product rate on a block of J's shape: numpy's ``A.T @
+A`` (OpenBLAS's symmetric rank-k update, m n²/2 multiply-adds) and XLA's
+``J.T @ J`` (m n², a general product), and reports how a step compares with
+``m n² / (XLA's rate)``, the time of one full JᵀJ product in XLA.
+
+Without ``--per-step``, a lab's long file through the real command line
+(10⁶ samples at 100 kHz, target: within 4 GB):
 
 Writes a CSV the way a lab's logger does (columns ``u_cmd,y_meas``, no time
 column, 7 significant digits): the response of a lightly damped second-order
@@ -24,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -94,11 +115,154 @@ def measure(n: int, steps: int, folder: Path) -> dict:
     return cases
 
 
+
+# --------------------------------------------------------------------------- seconds per LM step
+PER_STEP_OUT = "long_record_steps.json"
+
+
+def _recording(physics: str, n: int):
+    """n samples: the virtual IPMC at 30 Hz under a PRBS drive (``rc``), or the 100 kHz lab signal."""
+    import hybrid as hy
+
+    if physics == "rc":
+        from hybrid.data._drives import make_drive
+        from hybrid.ipmc._virtual_ipmc import virtual_recording
+
+        return virtual_recording(make_drive("prbs", n / 30.0, rate=30.0, seed=0), seed=0)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "long.csv"
+        write_csv(path, n)
+        return hy.load_mapped(path, columns="input=u_cmd,output=y_meas", rate=RATE)
+
+
+def _gemm_rates(m: int, n: int) -> dict:
+    """float64 multiply-adds per second of AᵀA on an (rows × n) block, numpy/OpenBLAS and XLA."""
+    import jax
+    import jax.numpy as jnp
+
+    rows = min(m, 8192)
+    A = np.random.default_rng(0).normal(size=(rows, n))
+    numpy_s, _ = c.best_of(lambda a: a.T @ a, A, repeats=3)
+    J = jnp.asarray(A)
+    product = jax.jit(lambda J: J.T @ J)
+    c.first_call(product, J)
+    xla_s, _ = c.best_of(product, J, repeats=3)
+    return {"rows": rows, "n": n,
+            "numpy_syrk_macs_per_s": rows * n * n / 2 / numpy_s,  # numpy calls ?syrk for a.T @ a
+            "numpy_effective_macs_per_s": rows * n * n / numpy_s,
+            "xla_gemm_macs_per_s": rows * n * n / xla_s}
+
+
+def _lm_programs():
+    """The batched LM init and run `hybrid.fit` compiles (named with a leading _ before issue 30)."""
+    from hybrid.core import _fit
+
+    return (getattr(_fit, "lm_init_batch", None) or getattr(_fit, "_lm_init_batch"),
+            getattr(_fit, "lm_run_batch", None) or getattr(_fit, "_lm_run_batch"))
+
+
+def per_step_case(physics: str, n: int, steps: int) -> dict:
+    """One case in this process: the problem `fit` builds, its LM program compiled, then timed."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    import hybrid as hy
+    from hybrid.core._levenberg_marquardt import LMSettings
+    from hybrid.core._models import Model
+    from hybrid.core._problem import Problem, series_from_recording
+
+    c.setup_jax()
+    t0 = time.perf_counter()
+    recording = _recording(physics, n)
+    simulation = hy.RCNetwork() if physics == "rc" else hy.resolve_physics(physics, [recording])
+    model = hy.make_model("hybrid", simulation=simulation, key=jax.random.key(0))
+    frozen = frozenset(model.simulation.default_frozen())
+    series = [series_from_recording(recording)]
+    signal = model.mediatory(series[0].v_in, series[0].dt)  # the D-MLP's fixed scalings, as `fit` sets them
+    signal = jnp.concatenate([signal[a:b] for a, b in series[0].segments_of("train")])
+    model = Model(model.simulation, model.readout.initialise(signal, series[0].target("train")), model.kind)
+    problem = Problem(model, series, frozen)
+    thetas = problem.flatten(model, frozen)[None]
+    settings = LMSettings(max_steps=10_000, patience=40)
+    init, run = _lm_programs()
+    prepare_s = time.perf_counter() - t0
+    out = {"physics": physics, "samples": n, "rows": int(problem.target("train").shape[0]),
+           "parameters": int(thetas.shape[1]), "prepare_s": prepare_s}
+
+    t0 = time.perf_counter()
+    init_c = init.lower(problem, thetas, settings).compile()
+    out["compile_init_s"] = time.perf_counter() - t0
+    cpu0, t0 = time.process_time(), time.perf_counter()
+    states = jax.block_until_ready(init_c(problem, thetas, settings))
+    out["init_s"], out["init_cpu_s"] = time.perf_counter() - t0, time.process_time() - cpu0
+    # λ × 10⁶: the steps timed are accepted ones (a short step along −g that lowers the cost as
+    # predicted), each forming a new JᵀJ — the costly kind; a rejected step only solves again.
+    states = eqx.tree_at(lambda s: s.lam, states, states.lam * 1e6)
+    t0 = time.perf_counter()
+    run_c = run.lower(problem, states, settings, 1).compile()  # one step per call
+    out["compile_run_s"] = time.perf_counter() - t0
+    walls, cpus, accepted = [], [], []
+    for _ in range(steps):
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        after = jax.block_until_ready(run_c(problem, states, settings, 1))
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - cpu0)
+        accepted.append(bool(after.accepted[0] > states.accepted[0]))
+        states = after
+    out.update(steps=steps, accepted=sum(accepted), step_wall_s=walls, step_cpu_s=cpus,
+               seconds_per_step=float(np.median(walls)), cpu_seconds_per_step=float(np.median(cpus)),
+               cost_after=float(states.cost[0]))
+    out["gemm"] = rates = _gemm_rates(out["rows"], out["parameters"])
+    full = out["rows"] * out["parameters"] ** 2
+    out["jtj_macs"] = full
+    out["xla_gemm_jtj_s"] = full / rates["xla_gemm_macs_per_s"]
+    out["numpy_syrk_jtj_s"] = full / 2 / rates["numpy_syrk_macs_per_s"]
+    out["step_over_xla_gemm_jtj"] = out["seconds_per_step"] / out["xla_gemm_jtj_s"]
+    out["step_over_numpy_syrk_jtj"] = out["seconds_per_step"] / out["numpy_syrk_jtj_s"]
+    out["load_average_1_5_15"] = list(os.getloadavg())
+    return out
+
+
+def per_step(args) -> None:
+    c.setup_jax()
+    results = {"command": "python benchmarks/long_record.py --per-step " + " ".join(
+        [f"--sizes {' '.join(map(str, args.sizes))}", f"--physics {' '.join(args.physics)}", f"--steps {args.steps}"]),
+        "machine": c.machine(), "cases": []}
+    for n in args.sizes:
+        for physics in args.physics:
+            proc = subprocess.run([sys.executable, __file__, "--case", physics, str(n), "--steps", str(args.steps)],
+                                  cwd=ROOT, capture_output=True, text=True)
+            lines = proc.stdout.strip().splitlines()
+            if proc.returncode or not lines:
+                case = {"physics": physics, "samples": n, "returncode": proc.returncode,
+                        "stderr": proc.stderr.strip().splitlines()[-3:]}
+            else:
+                case = json.loads(lines[-1])
+            results["cases"].append(case)
+            print(json.dumps(case), flush=True)
+    c.write(args.out or PER_STEP_OUT, results)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=1_000_000)
-    parser.add_argument("--steps", type=int, default=40)
+    parser.add_argument("--steps", type=int, default=None,
+                        help="LM steps: of the lti:2 fit (default 40), or timed per case with --per-step (default 3)")
+    parser.add_argument("--per-step", action="store_true", help="seconds per LM step of the hybrid models")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000])
+    parser.add_argument("--physics", nargs="+", default=["rc", "lti:2"])
+    parser.add_argument("--out", default=None, help="results file name under benchmarks/results")
+    parser.add_argument("--case", nargs=2, metavar=("PHYSICS", "SAMPLES"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.case:
+        print(json.dumps(per_step_case(args.case[0], int(args.case[1]), args.steps or 3)), flush=True)
+        return
+    if args.per_step:
+        args.steps = args.steps or 3
+        per_step(args)
+        return
+    args.steps = args.steps or 40
     out = {"command": "python benchmarks/long_record.py", "machine": c.machine(), "target_gb": 4.0,
            "rate_hz": RATE}
     with tempfile.TemporaryDirectory() as tmp:

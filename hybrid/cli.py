@@ -27,6 +27,7 @@ from pathlib import Path
 
 from ._cli_inputs import _add_mapping, _add_physics, _add_settle, _load_recordings, _with_settle
 from ._cli_sensitivity import add_sensitivity, cmd_sensitivity
+from ._cli_stop import FitStop, partial_path
 from ._cli_test import add_test_options, load_tests, print_scores, score_tests
 from .util._errors import InputError
 from .util._watchdog import Watchdog
@@ -96,6 +97,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="save the model here (default: <first recording>.<model>.eqx)")
     p.add_argument("--json", default=None, help="write the fit report (metrics, parameters) as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--time-limit", type=B.number(*B.DURATION, include_low=False, unit="s"), default=None,
+                   metavar="SECONDS",
+                   help="stop fitting after SECONDS (checked between LM steps) and save the best model so far "
+                        "to <out stem>.partial.eqx, exit status 124 (SIGINT/SIGTERM: the same, 130/143)")
     _add_physics(p)
     _add_settle(p, B)
     _add_mapping(p, B)
@@ -226,7 +231,9 @@ def _cmd_fit(args):
     from .core._serialise import save_model
 
     out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
+    partial = partial_path(out)  # a stopped fit's best model: never over --out
     lock = _outputs([_out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
+                     _out_file(partial, "the partial model (--out's .partial.eqx)", (".eqx",)),
                      _out_file(args.json, "--json", (".json",)) if args.json else None],
                     inputs=args.recordings + (args.test or []))
     recordings = _load_recordings(args, args.recordings)
@@ -250,9 +257,19 @@ def _cmd_fit(args):
         raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
     tests = load_tests(args, recordings, model.readout.window)  # --test: refused before fitting, not after
     with lock:
-        result = fit(model, recordings, starts=args.starts, max_steps=args.max_steps, frozen=frozen,
-                     split=args.split, solver=args.solver, seed=args.seed, progress=not args.quiet)
+        with FitStop(args.time_limit) as stop:  # SIGINT, SIGTERM, --time-limit: stop between steps
+            result = fit(model, recordings, starts=args.starts, max_steps=args.max_steps, frozen=frozen,
+                         split=args.split, solver=args.solver, seed=args.seed, progress=not args.quiet,
+                         stop=stop)
         print(result.summary())
+        if result.stopped:
+            steps = max(s.get("steps", 0) for s in result.starts)
+            save_model(partial, result.model, extra={"metrics": result.metrics, "settings": result.settings,
+                                                     "stopped": stop.reason, "steps": steps})
+            print(f"hybrid: fit stopped by {stop.reason} after {steps} steps: saved the best model so far to "
+                  f"{partial} (+ {partial}.json), {out} untouched; exit status {stop.exit_status}",
+                  file=sys.stderr, flush=True)
+            raise SystemExit(stop.exit_status)
         scores = {"test": score_tests(result.model, tests)} if tests else {}
         print_scores(scores.get("test", []))
         save_model(out, result.model, extra={"metrics": result.metrics, "settings": result.settings, **scores})

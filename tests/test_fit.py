@@ -91,7 +91,8 @@ def test_structured_jacobian_physics_and_frozen_columns_disappear():
 
 
 def test_normal_equations_in_chunks_equal_those_of_the_whole_jacobian(monkeypatch):
-    """JᵀJ, Jᵀr folded 64 rows at a time (210 rows: 4 chunks, the last padded) equal those of the whole J.
+    """JᵀJ, Jᵀr folded ≤ 64 rows at a time (210 rows: 3 chunks of 53, then 51), with XLA's product or the
+    host's symmetric rank-k update, equal those of the whole J.
 
     J itself is checked against `jax.jacfwd` above (`_check_jacobian`).
     """
@@ -105,7 +106,10 @@ def test_normal_equations_in_chunks_equal_those_of_the_whole_jacobian(monkeypatc
     whole = [np.asarray(x) for x in jax.jit(lambda th: problem.normal_equations(th))(theta)]  # below it
     monkeypatch.setattr(problem_module, "JACOBIAN_CHUNK_BYTES", 8)  # every readout column chunked
     chunked = [np.asarray(x) for x in jax.jit(lambda th: problem.normal_equations(th))(theta)]
-    for got in (whole, chunked):
+    monkeypatch.setattr(problem_module, "HOST_GRAM_MACS", 0)  # each chunk's JᵀJ by the host's BLAS ?syrk
+    host = [np.asarray(x) for x in jax.jit(lambda th: problem.normal_equations(th))(theta)]
+    assert np.array_equal(host[0], host[0].T)  # exactly symmetric
+    for got in (whole, chunked, host):
         assert np.max(np.abs(got[0] - J.T @ J)) <= 1e-10 * np.max(np.abs(J.T @ J))
         assert np.max(np.abs(got[1] - J.T @ r)) <= 1e-10 * np.max(np.abs(J.T @ r))
 

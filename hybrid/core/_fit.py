@@ -57,6 +57,7 @@ def fit(
     seed: int = 0,
     progress: bool = True,
     report_every: int = 10,
+    stop=None,
 ) -> FitResult:
     """Fit `model` to one or several recordings of the same strip.
 
@@ -84,6 +85,12 @@ def fit(
     - `seed`: seeds the extra starts.
     - `progress`: show a progress bar on stderr.
     - `report_every`: iterations between progress reports / history entries.
+    - `stop`: optional function of no arguments, called between LM steps (between
+      chunks of `report_every` steps for Adam; never inside a compiled step). When it
+      returns true the fit ends there and returns what it has: each start's best
+      iterate so far (by validation loss, never worse than its start), with
+      `FitResult.stopped` true. ``hybrid fit`` passes one that watches SIGINT,
+      SIGTERM and ``--time-limit``.
 
     **Returns:** a [`FitResult`][].
     """
@@ -118,10 +125,15 @@ def fit(
     problem = Problem(initial[0], series, frozen, weight_decay)
     thetas = jnp.stack([problem.flatten(m, frozen) for m in initial])
 
+    if stop is not None and not callable(stop):
+        raise InputError(f"stop must be a function of no arguments that returns True to stop, got {stop!r}")
+    stopped = False
     if solver == "lm":
-        best, history, per_start = _run_lm(problem, thetas, max_steps, patience, progress, report_every)
+        best, history, per_start, stopped = _run_lm(problem, thetas, max_steps, patience, progress, report_every,
+                                                    stop)
     elif solver == "adam":
-        best, history, per_start = _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every)
+        best, history, per_start, stopped = _run_adam(problem, thetas, max_steps, learning_rate, progress,
+                                                      report_every, stop)
     else:
         best, history, per_start = _run_optimistix(problem, thetas, max_steps)
 
@@ -151,6 +163,7 @@ def fit(
         seconds=time.perf_counter() - t_start,
         warnings=[note for r in recordings for note in r.notes]
         + fit_warnings(initial[best_start], fitted, frozen, per_start[best_start]),
+        stopped=stopped,
     )
 
 
@@ -238,44 +251,99 @@ def _progress_bar(total, enabled, desc):
     return tqdm(total=total, disable=not enabled, desc=desc, unit="step", leave=False)
 
 
+def _one_start(tree):
+    return jax.tree_util.tree_map(lambda x: x[0], tree)
+
+
+def _with_start_axis(tree):
+    return jax.tree_util.tree_map(lambda x: x[None], tree)
+
+
 @eqx.filter_jit
-def _lm_init_batch(problem, thetas, settings):
+def lm_init_batch(problem, thetas, settings):
+    """`lm_init` for each start (the rows of `thetas`); states with a leading start axis."""
+    if thetas.shape[0] == 1:  # see lm_run_batch
+        return _with_start_axis(lm_init(problem, thetas[0], settings))
     return jax.vmap(lambda th: lm_init(problem, th, settings))(thetas)
 
 
 @eqx.filter_jit
-def _lm_run_batch(problem, states, settings, n_steps):
+def lm_run_batch(problem, states, settings, n_steps):
+    """Up to `n_steps` more LM steps of each start (`lm_run`), in one compiled program.
+
+    Pass `n_steps` as a JAX integer: it is then traced, and any number of steps
+    reuses the one program. Several starts are `vmap`-ed; a single start runs
+    without `vmap`, because under `vmap` the accept/reject `lax.cond` of `lm_step`
+    becomes a select that evaluates both branches: every rejected step would
+    also form JᵀJ, the costliest part of a step on a long record.
+    """
+    if states.step.shape[0] == 1:
+        return _with_start_axis(lm_run(problem, _one_start(states), settings, n_steps))
     return jax.vmap(lambda s: lm_run(problem, s, settings, n_steps))(states)
 
 
-def _run_lm(problem, thetas, max_steps, patience, progress, report_every):
+#: `_run_lm` runs this many seconds of LM steps, at most, between two looks at `stop`.
+STOP_POLL_S = 1.0
+
+
+def _run_lm(problem, thetas, max_steps, patience, progress, report_every, stop=None):
+    """LM from each row of `thetas`: (best θ per start, history, per-start records, stopped).
+
+    Steps run in compiled chunks that end on every `report_every`-th step (a
+    history entry); on a long record, where one step takes seconds, a chunk is
+    as many steps as fit in `STOP_POLL_S` (at least one), so that `stop` is
+    looked at between steps.
+    """
     settings = LMSettings(max_steps=max_steps, patience=patience)
     stage(f"fit: compiling and starting LM on the {problem.kind} model ({thetas.shape[0]} start(s))")
-    states = _lm_init_batch(problem, thetas, settings)
+    states = lm_init_batch(problem, thetas, settings)
     history = []
+    requested = 0  # steps asked of every running start so far
+    seconds_per_step = None
+    stopped = False
     with _progress_bar(max_steps, progress, f"LM {problem.kind}") as bar:
         while not bool(jnp.all(states.done)):
-            states = _lm_run_batch(problem, states, settings, report_every)
+            if stop is not None and stop():
+                stopped = True
+                break
+            chunk = report_every - requested % report_every
+            if seconds_per_step is not None:
+                chunk = max(1, min(chunk, int(STOP_POLL_S / max(seconds_per_step, 1e-9))))
+            else:
+                chunk = 1  # the first chunk (compiling) measures nothing: one step
+            t0 = time.perf_counter()
+            before = int(jnp.max(states.step))
+            states = lm_run_batch(problem, states, settings, jnp.asarray(chunk, jnp.int32))
             step = int(jnp.max(states.step))
+            if requested:  # the first call also compiled the program: it measures nothing
+                seconds_per_step = (time.perf_counter() - t0) / max(step - before, 1)
+            requested += chunk
             stage(f"fit: LM on the {problem.kind} model, step {step} of at most {max_steps}")
-            history.append({
-                "step": step,
-                "train_cost": [float(c) for c in states.cost],
-                "validation_loss": [float(v) for v in states.best_val],
-            })
+            done = bool(jnp.all(states.done))
+            if requested % report_every == 0 or done:
+                history.append({
+                    "step": step,
+                    "train_cost": [float(c) for c in states.cost],
+                    "validation_loss": [float(v) for v in states.best_val],
+                })
             bar.n = step
             bar.set_postfix(cost=f"{float(jnp.min(states.cost)):.3e}", val=f"{float(jnp.min(states.best_val)):.3e}")
             bar.refresh()
+    if stopped:
+        step = int(jnp.max(states.step))
+        if not history or history[-1]["step"] != step:
+            history.append({"step": step, "train_cost": [float(c) for c in states.cost],
+                            "validation_loss": [float(v) for v in states.best_val]})
     per_start = [
         {"validation_loss": float(states.best_val[i]), "steps": int(states.step[i]),
          "accepted_steps": int(states.accepted[i]), "best_step": int(states.best_step[i]),
          "train_cost": float(states.cost[i])}
         for i in range(thetas.shape[0])
     ]
-    return states.best_theta, history, per_start
+    return states.best_theta, history, per_start, stopped
 
 
-def _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every):
+def _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every, stop=None):
     import optax
 
     optimiser = optax.adam(learning_rate)
@@ -302,18 +370,23 @@ def _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every)
     best_val = jax.vmap(problem.validation_loss)(thetas)
     history = []
     step = 0
+    stopped = False
     with _progress_bar(max_steps, progress, f"Adam {problem.kind}") as bar:
         while step < max_steps:
+            if stop is not None and stop():
+                stopped = True
+                break
             chunk = min(report_every, max_steps - step)
             thetas, opt_states, best, best_val = run(problem, thetas, opt_states, best, best_val, chunk)
             step += chunk
             costs = jax.vmap(problem.cost)(thetas)
             history.append({"step": step, "train_cost": [float(c) for c in costs],
                             "validation_loss": [float(v) for v in best_val]})
+            stage(f"fit: Adam on the {problem.kind} model, step {step} of at most {max_steps}")
             bar.n = step
             bar.refresh()
     per_start = [{"validation_loss": float(v), "steps": step} for v in best_val]
-    return best, history, per_start
+    return best, history, per_start, stopped
 
 
 def _run_optimistix(problem, thetas, max_steps):

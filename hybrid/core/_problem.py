@@ -24,6 +24,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from ..util._errors import InputError
@@ -32,21 +33,56 @@ from ._models import Model
 #: Above this many bytes, J's readout columns are built a chunk of rows at a time (`normal_equations`).
 JACOBIAN_CHUNK_BYTES = 2**27
 MIN_CHUNK_ROWS = 64
+#: At or above this many multiply-adds (rows × n²), a chunk's JᵀJ is BLAS's symmetric rank-k update
+#: on the host (`gram`); below it, XLA's product (a program with a host call is never cached on disk).
+HOST_GRAM_MACS = 2**33
 
 
 class Series(eqx.Module):
-    """One recording prepared for fitting: drive, displacement, and its split segments."""
+    """One recording prepared for fitting: drive, displacement, and its split segments.
+
+    `weights` (optional): per split, a 0/1 array over every sample. A series
+    padded to a bucket's length ([`bucketed_series`][]) has one segment per split,
+    the whole padded series, and the weights say which samples belong to the
+    split: residuals outside it are exactly zero. Its static layout then depends
+    only on the bucket's length, so one compiled program serves every recording
+    that falls in the bucket.
+    """
 
     v_in: jax.Array
     w: jax.Array
     dt: float = eqx.field(static=True)
     segments: tuple[tuple[str, tuple[tuple[int, int], ...]], ...] = eqx.field(static=True)
+    weights: tuple[tuple[str, jax.Array], ...] | None = None
+    spans: tuple[tuple[str, jax.Array], ...] | None = None
 
     def segments_of(self, split: str) -> tuple[tuple[int, int], ...]:
         return dict(self.segments)[split]
 
+    def recorded_segments_of(self, split: str) -> tuple[tuple[int, int], ...]:
+        """The split's (start, stop) samples of the recording itself, padding excluded (host side)."""
+        if self.spans is None:
+            return self.segments_of(split)
+        return tuple((int(a), int(b)) for a, b in np.asarray(dict(self.spans)[split]))
+
+    @property
+    def n_recorded(self) -> int:
+        """Samples of the recording itself (host side): the padded length less the padding."""
+        if self.spans is None:
+            return int(self.v_in.shape[0])
+        return max(int(np.max(np.asarray(spans)[:, 1])) for _, spans in self.spans if len(spans))
+
     def target(self, split: str) -> jax.Array:
         return jnp.concatenate([self.w[a:b] for a, b in self.segments_of(split)])
+
+    def weight(self, split: str) -> jax.Array | None:
+        """The split's 0/1 weights over `target(split)`, or None when every sample counts."""
+        return None if self.weights is None else dict(self.weights)[split]
+
+
+def _weight_of(series: Series, split: str) -> jax.Array:
+    weight = series.weight(split)
+    return jnp.ones(series.target(split).shape[0], series.w.dtype) if weight is None else weight
 
 
 def robust_std(x):
@@ -99,6 +135,53 @@ def series_from_recording(recording, fractions=(0.3, 0.5, 0.2), order=("train", 
     )
 
 
+#: Recordings are padded to the next of these multiples of a power of two (`bucket_length`).
+BUCKET_STEPS = (1.0, 1.25, 1.5, 1.75)
+#: The shortest bucket (samples).
+MIN_BUCKET = 256
+
+
+def bucket_length(n: int) -> int:
+    """The padded length of an `n`-sample series: the next m·2ᵏ with m in `BUCKET_STEPS`, at least `MIN_BUCKET`.
+
+    Consecutive buckets are at most 25 % apart, so padding costs at most a
+    quarter more samples, and recordings of a few minutes to a few hours fall
+    in a few dozen buckets.
+    """
+    n = max(int(n), MIN_BUCKET)
+    k = max(int(np.floor(np.log2(n))), 0)
+    for power in (k, k + 1):
+        for m in BUCKET_STEPS:
+            length = int(round(m * 2**power))
+            if length >= n:
+                return length
+    raise AssertionError(n)  # unreachable: 2^(k+1) > n
+
+
+def bucketed_series(series: Series, length: int) -> Series:
+    """`series` padded to `length` samples, its segments as per-split weights (see [`Series`][]).
+
+    The drive is padded with its last value (the simulation is causal: the
+    padding never changes a real sample's output), w with zeros; every split's
+    weight is 1 on its own samples and 0 elsewhere, the padding included.
+    """
+    n = int(series.v_in.shape[0])
+    if length < n:
+        raise ValueError(f"cannot pad {n} samples to {length}")
+    pad = length - n
+    v_in = jnp.concatenate([series.v_in, jnp.broadcast_to(series.v_in[-1:], (pad,))])
+    w = jnp.concatenate([series.w, jnp.zeros(pad, series.w.dtype)])
+    weights = []
+    for name, spans in series.segments:
+        mask = np.zeros(length, np.asarray(series.w).dtype)
+        for a, b in spans:
+            mask[a:b] = 1.0
+        weights.append((name, jnp.asarray(mask)))
+    segments = tuple((name, ((0, length),)) for name, _ in series.segments)
+    spans = tuple((name, np.asarray(spans, np.int64).reshape(-1, 2)) for name, spans in series.segments)
+    return Series(v_in, w, series.dt, segments, tuple(weights), spans)
+
+
 class Problem(eqx.Module):
     """Residuals and their structured Jacobian for fitting `model` to `series`.
 
@@ -145,7 +228,11 @@ class Problem(eqx.Module):
         if self.n_sim + self.n_readout == 0:
             raise InputError("every parameter is frozen: free at least one to fit")
         self.series = series
-        train = jnp.concatenate([s.target("train") for s in series])
+        if any(s.weights is not None for s in series):  # padded series: the training samples alone
+            train = jnp.asarray(np.concatenate([np.asarray(s.target("train"))[np.asarray(_weight_of(s, "train")) > 0]
+                                                for s in series]))
+        else:
+            train = jnp.concatenate([s.target("train") for s in series])
         std = robust_std(train)
         self.scale = jnp.where(std > 0, std, jnp.ones_like(std))  # constant w: refused by fit
         self.kind = model.kind
@@ -188,6 +275,33 @@ class Problem(eqx.Module):
     def target(self, split):
         return jnp.concatenate([s.target(split) for s in self.series])
 
+    def recorded(self, values, split):
+        """The entries of `values` (laid out as `target(split)`) that are recorded samples, on the host.
+
+        For padded series ([`bucketed_series`][]) the padding and the other
+        splits' samples are dropped; otherwise `values` is returned as it is.
+        """
+        values = np.asarray(values)
+        if all(s.spans is None for s in self.series):
+            return values
+        parts, start = [], 0
+        for s in self.series:
+            n = int(s.target(split).shape[0])
+            here = values[start : start + n]
+            parts += [here[a:b] for a, b in s.recorded_segments_of(split)] if s.spans is not None else [here]
+            start += n
+        return np.concatenate(parts)
+
+    def weights(self, split):
+        """0/1 per entry of `target(split)` (padded series), or None when every entry counts."""
+        if all(s.weights is None for s in self.series):
+            return None
+        return jnp.concatenate([_weight_of(s, split) for s in self.series])
+
+    def _weighted(self, r, split):
+        weights = self.weights(split)
+        return r if weights is None else r * weights.astype(r.dtype)
+
     def prediction(self, theta, split):
         """ŵ (mm) on `split`, all recordings concatenated."""
         a, b = self.split_theta(theta)
@@ -196,7 +310,7 @@ class Problem(eqx.Module):
         return jax.vmap(readout.predict_window)(windows)
 
     def residuals(self, theta, split="train"):
-        return (self.target(split) - self.prediction(theta, split)) / self.scale
+        return self._weighted((self.target(split) - self.prediction(theta, split)) / self.scale, split)
 
     def penalty_mask(self, theta):
         """1 for the penalised (network) entries of θ, 0 elsewhere."""
@@ -224,7 +338,11 @@ class Problem(eqx.Module):
         Picks the best iterate and the best start, whatever the solver.
         """
         split = "validation" if self.has_validation else "train"
-        return 0.5 * jnp.mean(self.residuals(theta, split) ** 2)
+        r = self.residuals(theta, split)
+        weights = self.weights(split)
+        if weights is None:
+            return 0.5 * jnp.mean(r**2)
+        return 0.5 * jnp.sum(r**2) / jnp.maximum(jnp.sum(weights), 1.0)
 
     def _residuals_and_sim_jacobian(self, theta, split):
         """r (m,), J_sim (m × k) by forward mode through the simulation, and the readout's input windows."""
@@ -234,7 +352,7 @@ class Problem(eqx.Module):
         def from_sim(theta_sim):
             readout = self.readout(b)
             windows = self._windows(readout, self._signals(theta_sim), split)
-            return (target - jax.vmap(readout.predict_window)(windows)) / self.scale, windows
+            return self._weighted((target - jax.vmap(readout.predict_window)(windows)) / self.scale, split), windows
 
         if self.n_sim:
             r, linear, windows = jax.linearize(from_sim, a, has_aux=True)
@@ -260,37 +378,89 @@ class Problem(eqx.Module):
     def residuals_and_jacobian(self, theta, split="train"):
         """r (m,) and J = ∂r/∂θ (m × n), built from the model's structure."""
         r, J_sim, windows = self._residuals_and_sim_jacobian(theta, split)
-        return r, jnp.concatenate([J_sim, self._readout_jacobian(theta, windows)], axis=1)
+        J_r = self._weighted(self._readout_jacobian(theta, windows).T, split).T
+        return r, jnp.concatenate([J_sim, J_r], axis=1)
 
     def normal_equations(self, theta, split="train"):
         """JᵀJ and Jᵀr, never holding J whole when it is large.
 
         J's readout columns (m × n, 1,726 for the paper's D-MLP) are what grows
         with the record: 10⁶ samples would need ~10 GB. Above `JACOBIAN_CHUNK_BYTES`
-        they are built `rows` windows at a time inside a `lax.scan` and folded
-        into JᵀJ and Jᵀr at once; J_sim (m × k, k ≈ 6) is kept whole. Below it,
-        the products of the whole J (the same numbers, summed in another order).
+        they are built in equal chunks of rows (`chunk_rows`: no padding, a
+        shorter last chunk if m does not divide) inside a `lax.scan`, each folded
+        into JᵀJ (`gram`: one symmetric rank-k update) and Jᵀ[J_sim r] (one
+        product) at once; J_sim (m × k, k ≈ 6) is kept whole. Below it, the
+        products of the whole J (the same numbers, summed in another order).
         """
         r, J_sim, windows = self._residuals_and_sim_jacobian(theta, split)
         m, n = r.shape[0], self.n_readout
-        rows = max(MIN_CHUNK_ROWS, JACOBIAN_CHUNK_BYTES // (r.dtype.itemsize * max(n, 1)))
-        if n == 0 or m <= rows:
-            J = jnp.concatenate([J_sim, self._readout_jacobian(theta, windows)], axis=1)
-            return J.T @ J, J.T @ r
-        pad = (-m) % rows
-        chunks = -(-m // rows)
-
-        def padded(x):  # padding rows repeat the last window; their mask is 0
-            return jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]).reshape((chunks, rows) + x.shape[1:])
-
-        mask = jnp.concatenate([jnp.ones(m, r.dtype), jnp.zeros(pad, r.dtype)]).reshape(chunks, rows)
+        rows, full = chunk_rows(m, n, r.dtype.itemsize)
+        if n == 0 or full == 0:
+            J_r = self._weighted(self._readout_jacobian(theta, windows).T, split).T  # padding rows: zero
+            J = jnp.concatenate([J_sim, J_r], axis=1)
+            return gram(J), J.T @ r
+        if self.weights(split) is not None:  # padded series: a chunk's rows weighted like its residuals
+            weights = self.weights(split).astype(r.dtype)
+            windows = (windows, weights)
+            readout_jacobian = lambda th, x: self._readout_jacobian(th, x[0]) * x[1][:, None]  # noqa: E731
+        else:
+            readout_jacobian = self._readout_jacobian
+        sim_r = jnp.concatenate([J_sim, r[:, None]], axis=1)  # one product folds Jᵀ J_sim and Jᵀ r
 
         def fold(acc, chunk):
-            window, j_sim, res, keep = chunk
-            J_r = self._readout_jacobian(theta, window) * keep[:, None]
-            return (acc[0] + J_r.T @ J_r, acc[1] + J_r.T @ j_sim, acc[2] + J_r.T @ res), None
+            window, rhs = chunk
+            J_r = readout_jacobian(theta, window)
+            return (acc[0] + gram(J_r), acc[1] + J_r.T @ rhs), None
 
-        zeros = (jnp.zeros((n, n), r.dtype), jnp.zeros((n, J_sim.shape[1]), r.dtype), jnp.zeros(n, r.dtype))
-        (A_rr, A_rs, g_r), _ = jax.lax.scan(fold, zeros, (padded(windows), padded(J_sim), padded(r), mask))
+        def whole_chunks(x):
+            return jax.tree_util.tree_map(lambda y: y[: full * rows].reshape((full, rows) + y.shape[1:]), x)
+
+        zeros = (jnp.zeros((n, n), r.dtype), jnp.zeros((n, sim_r.shape[1]), r.dtype))
+        (A_rr, B), _ = jax.lax.scan(fold, zeros, (whole_chunks(windows), whole_chunks(sim_r)))
+        if full * rows < m:  # the shorter last chunk
+            rest = jax.tree_util.tree_map(lambda y: y[full * rows :], windows)
+            (A_rr, B), _ = fold((A_rr, B), (rest, sim_r[full * rows :]))
+        A_rs, g_r = B[:, :-1], B[:, -1]
         JtJ = jnp.block([[J_sim.T @ J_sim, A_rs.T], [A_rs, A_rr]])
         return JtJ, jnp.concatenate([J_sim.T @ r, g_r])
+
+
+def chunk_rows(m: int, n: int, itemsize: int) -> tuple[int, int]:
+    """(rows, full): J's m × n readout block is folded as `full` chunks of `rows` rows, then the rest.
+
+    A chunk holds at most `JACOBIAN_CHUNK_BYTES` (and at least `MIN_CHUNK_ROWS` rows);
+    the chunks are as equal as that allows, so the last one is short by less than
+    their number, and nothing is padded. ``full == 0``: J is small enough to build whole.
+    """
+    most = max(MIN_CHUNK_ROWS, JACOBIAN_CHUNK_BYTES // (itemsize * max(n, 1)))
+    if n == 0 or m <= most:
+        return m, 0
+    chunks = -(-m // most)
+    rows = -(-m // chunks)
+    return rows, m // rows
+
+
+def gram(J):
+    """JᵀJ of a (rows × n) block, exactly symmetric.
+
+    On the CPU, for a float32/float64 block of at least `HOST_GRAM_MACS`
+    multiply-adds, it is BLAS's symmetric rank-k update (``?syrk``, half the
+    multiply-adds of a general product, at the rate of the host's optimised BLAS:
+    ~4× faster than XLA's float64 product on 2 cores, `benchmarks/long_record.py`)
+    through `jax.pure_callback`. Otherwise XLA's ``J.T @ J``.
+    """
+    rows, n = J.shape
+    if (J.dtype not in (jnp.float32, jnp.float64) or rows * n * n < HOST_GRAM_MACS
+            or jax.default_backend() != "cpu"):
+        return J.T @ J
+    return jax.pure_callback(_host_gram, jax.ShapeDtypeStruct((n, n), J.dtype), J,
+                             vmap_method="sequential")
+
+
+def _host_gram(J):
+    from scipy.linalg import blas
+
+    J = np.asarray(J)
+    syrk = blas.dsyrk if J.dtype == np.float64 else blas.ssyrk
+    lower = syrk(1.0, J.T, trans=0, lower=1)  # J.T is J's memory read column-major: no copy
+    return lower + np.tril(lower, -1).T

@@ -30,6 +30,9 @@ class FitResult:
       parameter outside its plausible range (`AbstractSimulation.plausible_ranges`) or
       still at its start value, a fit that made no accepted step, a recording
       whose time base was rebuilt (`hybrid.core._result.fit_warnings`).
+    - `stopped`: true when the fit was stopped before it ended (its `stop`
+      function said so: ``hybrid fit`` on SIGINT, SIGTERM or ``--time-limit``);
+      `model` is then the best iterate found so far.
     """
 
     model: Model
@@ -42,11 +45,13 @@ class FitResult:
     settings: dict[str, Any]
     seconds: float
     warnings: list[str] = dataclasses.field(default_factory=list)
+    stopped: bool = False
 
     def summary(self) -> str:
         """A few readable lines: metrics per split and the fitted parameters."""
         lines = [f"{self.model.kind} model, {self.settings.get('solver')} "
-                 f"({len(self.starts)} start(s), kept #{self.best_start}), {self.seconds:.1f} s"]
+                 f"({len(self.starts)} start(s), kept #{self.best_start}), {self.seconds:.1f} s"
+                 + (", stopped early: the best model so far" if self.stopped else "")]
         for split, m in self.metrics.items():
             lines.append(
                 f"  {split:<10} NMSE {m['nmse']:.3e}  NMSE(target) {m['nmse_target']:.3e}  "
@@ -69,6 +74,7 @@ class FitResult:
             "settings": self.settings,
             "seconds": self.seconds,
             "warnings": list(self.warnings),
+            "stopped": self.stopped,
             "history": self.history,
         }
 
