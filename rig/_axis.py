@@ -52,6 +52,8 @@ PROFILE_STEP_DEG = 0.5
 SEPARATION_DEG = 20.0
 CANDIDATES = 3
 MIN_TRACKED = 0.5          # a strip must be followed in at least half the frames
+SHAPE_MODELS = ((True, 0), (True, 1), (True, 2), (False, 2))   # (one shape for all frames, curvature degree)
+BETTER_FIT = 1.25          # the simplest shape whose residual RMS is within this factor of the lowest
 
 
 @dataclasses.dataclass(frozen=True)
@@ -192,34 +194,181 @@ def refine_axis(contrasts, scene: Scene, strip_px: float, rounds: int = 4) -> Sc
     return scene
 
 
+def _cumulative(values: np.ndarray, step: float) -> np.ndarray:
+    """Running trapezoid integral along the last axis, starting at 0."""
+    out = np.zeros_like(values)
+    out[..., 1:] = np.cumsum(0.5 * (values[..., 1:] + values[..., :-1]), axis=-1) * step
+    return out
+
+
+def _bent_strip(theta: np.ndarray, dtheta: np.ndarray, z: np.ndarray, s: np.ndarray, offset: float):
+    """A strip leaving ``(0, offset)`` whose tangent turns as ``theta`` along the arc lengths ``z``,
+    read where its axial coordinate is ``s``: (u, du/dp for the parameters whose dtheta/dp are the
+    rows of ``dtheta``), or None when it turns back (past 87 degrees) before the last ``s``.
+
+    The centreline is the integral of ``(cos theta, sin theta)`` (trapezoids); at fixed
+    ``s`` a parameter moves ``u`` by ``dy/dp - tan(theta) dx/dp``.
+    """
+    step = z[1] - z[0]
+    cos, sin = np.cos(theta), np.sin(theta)
+    turned = np.flatnonzero(cos <= 0.05)
+    end = int(turned[0]) if turned.size else len(z)
+    x = _cumulative(cos[:end], step)
+    if end < 2 or x[-1] < float(np.max(s)):
+        return None
+    y = offset + _cumulative(sin[:end], step)
+    dx = _cumulative(-sin[:end] * dtheta[:, :end], step)
+    dy = _cumulative(cos[:end] * dtheta[:, :end], step)
+    slope = np.tan(np.interp(s, x, theta[:end]))
+    jac = np.array([np.interp(s, x, dy[j]) - slope * np.interp(s, x, dx[j]) for j in range(len(dtheta))])
+    return np.interp(s, x, y), jac
+
+
+def _curvature_fit(data, shared_shape: bool, start, degree: int,
+                   iterations: int = 25, samples: int = 256):
+    """Least-squares strips with a common tangent at the clamp: (tilt rad, e, residual sum of squares,
+    parameter count), ``data`` in units of the longest ``s``; None if the fit fails.
+
+    Each frame's curvature along the strip is ``A_f (1 + b_1 z + .. + b_d z^d)``; the
+    shape ``b`` is each frame's own (``shared_shape`` False: any polynomial of degree d)
+    or the same in every frame (True: one kind of load whose size changes).
+    Gauss-Newton from ``start`` = (slope, e, per-frame curvature) of the arcs, with
+    steps halved until the residual falls.
+    """
+    frames = len(data)
+    per = 1 if shared_shape else degree + 1
+    count = 2 + (degree if shared_shape else 0) + per * frames
+    params = np.zeros(count)
+    params[0], params[1] = math.atan(start[0]), start[1]
+    first = 2 + (degree if shared_shape else 0)
+    params[first::per] = start[2]
+    grids = [np.linspace(0.0, 1.6 * float(np.max(s)) + 1e-3, samples) for s, _ in data]
+
+    def evaluate(p):
+        residuals, blocks = [], []
+        for f, (s, u) in enumerate(data):
+            z = grids[f]
+            powers = np.vstack([z ** (j + 1) / (j + 1) for j in range(degree + 1)])   # z, z^2/2, ..
+            block = np.zeros((len(s), count))
+            own = slice(first + per * f, first + per * (f + 1))
+            if shared_shape:
+                size, shape = p[own][0], np.concatenate([[1.0], p[2:first]])
+                turn = shape @ powers
+                dtheta = np.vstack([np.ones_like(z), size * powers[1:], turn[None, :]])
+                theta = p[0] + size * turn
+            else:
+                theta = p[0] + p[own] @ powers
+                dtheta = np.vstack([np.ones_like(z), powers])
+            found = _bent_strip(theta, dtheta, z, s, p[1])
+            if found is None:
+                return None, None
+            model, jac = found
+            block[:, 0], block[:, 1] = jac[0], 1.0
+            if shared_shape:
+                block[:, 2:first] = jac[1:first - 1].T
+                block[:, own] = jac[-1][:, None]
+            else:
+                block[:, own] = jac[1:].T
+            residuals.append(u - model)
+            blocks.append(block)
+        return np.concatenate(residuals), np.vstack(blocks)
+
+    residual, jacobian = evaluate(params)
+    if residual is None:
+        return None
+    for _ in range(iterations):
+        delta = _least_squares(jacobian, residual)
+        cost = float(residual @ residual)
+        for _ in range(20):
+            trial = params + delta
+            new_residual, new_jacobian = evaluate(trial)
+            if new_residual is not None and float(new_residual @ new_residual) <= cost:
+                break
+            delta = 0.5 * delta
+        else:
+            break
+        params, residual, jacobian = trial, new_residual, new_jacobian
+        if np.max(np.abs(delta)) < 1e-9:
+            break
+    return float(params[0]), float(params[1]), float(residual @ residual), count
+
+
 def _shared_line(points) -> tuple[float, float]:
-    """Slope ``a`` and offset ``e`` (px) at the clamp shared by all frames' arcs, least squares.
+    """Slope ``a = tan(tilt)`` and offset ``e`` (px) of the tangent at the clamp shared by all frames' strips.
+
+    Every frame's strip leaves the point ``(0, e)`` along the direction
+    ``tilt``; along it, its curvature is a polynomial in arc length
+    (`_curvature_fit`): constant for an IPMC's near-uniform bend (a circular
+    arc, exact however far bent), linear for a cantilever under a tip load,
+    quadratic under a distributed load (Euler-Bernoulli: curvature is the
+    bending moment over EI, zero slope at the clamp). The models, simplest
+    first (`SHAPE_MODELS`): arcs; one curvature shape of degree 1, then 2,
+    shared by all frames with each frame's own size (one kind of load); each
+    frame's own quadratic (loads that change their kind). The simplest one
+    whose residual RMS is within `BETTER_FIT` of the lowest is taken: a wrong
+    shape leaves residuals many times the sections' noise (0.04 px; an arc on
+    a cantilever 0.9 px, one shape for loads that change 0.2 px), whereas a more
+    flexible model than the strip needs bends to the few hundredths of a pixel
+    that a textured background or the clamp's edge adds next to the clamp,
+    and tilts (0.1-0.25 degree with every frame's own shape). An arc fitted
+    to a cantilever tilts the tangent by 3-5 degrees for a 2-7 mm bend of a
+    22 mm strip all to one side (issue 33: 1.9 degrees, 0.66 mm at the tip).
+    ``points`` is a list of (s, u) px per frame.
+    """
+    scale = max(float(np.max(s)) for s, _ in points)
+    data = [(np.asarray(s, float) / scale, np.asarray(u, float) / scale) for s, u in points]
+    start = _shared_arc(data)
+    fits = [_curvature_fit(data, shared, start, degree) for shared, degree in SHAPE_MODELS]
+    fits = [fit for fit in fits if fit is not None]
+    if not fits:
+        return start[0], start[1] * scale
+    floor = min(fit[2] for fit in fits)
+    chosen = next(fit for fit in fits if fit[2] <= BETTER_FIT**2 * floor)
+    return math.tan(chosen[0]), chosen[1] * scale
+
+
+def _shared_arc(data) -> tuple[float, float, np.ndarray]:
+    """Slope ``a``, offset ``e`` and each frame's curvature ``k`` of circular arcs through ``(0, e)``
+    along ``(1, a)``, linear least squares (``data`` in units of the longest ``s``).
 
     A circle of radius r through ``(0, e)`` whose tangent there is ``(1, a)``
     satisfies ``u = e + a s + k (s^2 + (u - e)^2) / 2`` exactly, with
-    ``k = sqrt(1 + a^2) / r`` (signed). With ``(u - e)`` on the right taken
-    as the measured ``u`` (``e`` is a few px at most, and shrinks to 0 over
-    the rounds), this is linear in ``e``, ``a`` and each frame's ``k``; the
-    measured ``u`` is exact enough there (its noise is ~0.05 px against ``s``
-    of tens to hundreds of px). The shared ``e`` keeps a clamp point given a
-    pixel or two beside the strip from tilting the axis (2 px would tilt it by
-    2 degrees). ``points`` is a list of (s, u) px per frame.
+    ``k = sqrt(1 + a^2) / r`` (signed); with the measured ``u`` in place of
+    ``u - e`` (``e`` is a few px at most) it is linear in ``e``, ``a`` and the
+    ``k``. Exact for arcs; the start of `_shared_line`'s fit for other shapes.
     """
-    rows = sum(len(s) for s, _ in points)
-    scale = max(float(np.max(s)) for s, _ in points)
-    design = np.zeros((rows, 2 + len(points)))
+    rows = sum(len(s) for s, _ in data)
+    design = np.zeros((rows, 2 + len(data)))
     target = np.zeros(rows)
     at = 0
-    for f, (s, u) in enumerate(points):
-        x, v = s / scale, u / scale
+    for f, (s, u) in enumerate(data):
         n = len(s)
-        design[at:at + n, 0] = x
+        design[at:at + n, 0] = s
         design[at:at + n, 1] = 1.0
-        design[at:at + n, 2 + f] = (x**2 + v**2) / 2
-        target[at:at + n] = v
+        design[at:at + n, 2 + f] = (s**2 + u**2) / 2
+        target[at:at + n] = u
         at += n
-    coef, *_ = np.linalg.lstsq(design, target, rcond=None)
-    return float(coef[0]), float(coef[1]) * scale
+    coef = _least_squares(design, target)
+    return float(coef[0]), float(coef[1]), coef[2:] * math.sqrt(1.0 + coef[0] ** 2)
+
+
+def _least_squares(design: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``x`` minimising ``|design x - target|``, by the normal equations with unit-scaled columns.
+
+    ``design`` is thousands of rows by a few dozen columns: a dense SVD of it
+    (``np.linalg.lstsq``) is fast on one thread but took 0.4 s a call with a
+    multi-threaded BLAS on a busy 2-core machine; the small square system does not.
+    """
+    norms = np.sqrt(np.einsum("ij,ij->j", design, design))
+    norms[norms == 0] = 1.0
+    scaled = design / norms
+    normal = np.einsum("ki,kj->ij", scaled, scaled)
+    rhs = np.einsum("ki,k->i", scaled, target)
+    try:
+        solution = np.linalg.solve(normal + 1e-12 * np.eye(len(normal)), rhs)
+    except np.linalg.LinAlgError:
+        solution = np.linalg.lstsq(normal, rhs, rcond=None)[0]
+    return solution / norms
 
 
 def find_axis(frames, clamp, mm_per_px: float, length_mm: float | None, strip_px: float = 4.0) -> AxisEstimate:
