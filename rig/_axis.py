@@ -1,8 +1,9 @@
 """Find the strip's rest axis (the direction it leaves the clamp in) from the video itself.
 
 The strip is clamped at one end, so whatever its deflection its centreline
-leaves the clamp point along the rest axis (an IPMC bends at nearly uniform
-curvature: ``u(s) ~ k s^2 / 2`` across the axis, no linear term). Three steps,
+leaves the clamp point along the rest axis (no linear term in ``u(s)`` across
+the axis, whatever the bend: an IPMC's near-uniform curvature, a cantilever's
+curvature falling from the clamp to its tip under a load). Three steps,
 each using only the tracker's dark-line contrast (nothing about colours or how
 the picture was made):
 
@@ -18,17 +19,21 @@ the picture was made):
    candidate followed in the most frames (then: with the highest contrast) is
    the strip; after step 3 it must be followed in at least half of all frames.
 3. **Refinement.** The sections the tracker found are fitted together, all
-   frames at once, with circular arcs that leave one point ``(0, e)`` near
-   the clamp along one tangent ``(1, a)``:
-   ``u = e + a s + k_f (s^2 + u^2) / 2`` (``e`` and ``a`` shared by every
-   frame, ``k_f`` each frame's curvature; exact for an arc, whatever its
-   bend, with ``a = tan(tilt)``). The axis turns by the tilt and the clamp
-   point moves ``e`` across it, onto the strip; four rounds bring the axis to
-   a few hundredths of a degree, which is what the tip needs (0.1 degree is
-   0.04 mm at the end of a 22 mm strip). Without ``e``, a clamp point given
-   2 px beside the strip tilts the axis by 2 degrees; a polynomial
-   ``a s + b s^2 + c s^3`` instead of the arcs leaks their ``s^4`` term into
-   ``a`` (0.3 degree for a 6 mm bend).
+   frames at once, with strips that leave one point ``(0, e)`` near the
+   clamp along one tangent at angle ``tilt`` and whose curvature along them is
+   a polynomial in arc length: arcs (an IPMC), one shape of degree 1 or 2 for
+   all frames with each frame's own size (a cantilever under a tip or a
+   distributed load, Euler-Bernoulli), or each frame's own quadratic; the
+   simplest that fits within 25 % of the best residual is kept
+   (`_shared_line`). The axis turns by the tilt and the clamp point moves
+   ``e`` across it, onto the strip; four rounds bring the axis to a few
+   hundredths of a degree, which is what the tip needs (0.1 degree is 0.04 mm
+   at the end of a 22 mm strip). Without ``e``, a clamp point given 2 px
+   beside the strip tilts the axis by 2 degrees; a polynomial
+   ``a s + b s^2 + c s^3`` in place of the curvature model leaks the shape's
+   ``s^4`` term into ``a`` (0.3 degree for a 6 mm bend); arcs alone on a
+   cantilever bent to one side in every frame used (a strip moving from the
+   first frame) tilt it by 3-5 degrees.
 
 Confidence: the mean contrast along the best direction against that along
 the darkest direction at least 20 degrees away from it (the clamp's edge, a
