@@ -363,7 +363,7 @@ def silverbox_project(fit_ranges, predict, score, log):
 
 
 # --- the virtual IPMC's Table 2 ------------------------------------------------------------------
-def table2(quick, tools, log) -> dict:
+def table2(quick, tools, log, save=None) -> dict:
     settings = Table2Settings()
     duration = 60.0 if quick else settings.duration
     out = {}
@@ -382,7 +382,7 @@ def table2(quick, tools, log) -> dict:
             return _simulate_seconds(model, rec.v_in, rec.dt)
 
         rows = []
-        for kind in () if quick else ("physics", "hybrid"):
+        for kind in () if quick else ("hybrid",):
             model = hybrid.make_model(kind, key=jax.random.key(settings.seed))
             res, s = _fit(model, rec, frozen=set(model.simulation.default_frozen()), starts=settings.starts,
                           max_steps=5 if quick else settings.max_steps, patience=settings.patience,
@@ -402,6 +402,8 @@ def table2(quick, tools, log) -> dict:
                                   f"settings chosen on validation {va.start}:{va.stop}, test NMSE (Eq 18) on "
                                   f"{te.start}:{te.stop}; peers run free from the first {IPMC_INIT} samples",
                          "rows": rows}
+        if save:  # each recording written as soon as it is done
+            save(out)
     return out
 
 
@@ -471,9 +473,13 @@ def dataset_table(part) -> list[str]:
 def markdown(result) -> str:
     quick = result["quick"]
     lines = ["# The project beside the tools a lab would pick instead" + (" (QUICK: short slices)" if quick else ""),
-             "", f"Written by `{result['command']}` ({result['seconds']:.0f} s in all) on {result['machine']}. "
-             "Every number below is from this one run, on this machine; other jobs shared its 2 cores, so the "
-             "seconds (not the errors) may be perturbed — compare the ratios, measured in the same run.",
+             "", f"Written by `{result['command']}` ({result['seconds']:.0f} s in all) on {result['machine']}"
+             + ("; as run: " + "; ".join(f"{k}: `{v}` ({result['dataset_seconds'][k]:.0f} s)"
+                                        for k, v in result.get("dataset_commands", {}).items()) + ". " if
+                result.get("dataset_commands") else ". ") +
+             "Every number below was measured by the command(s) above, on this machine; other jobs shared its 2 "
+             "cores (load average about 8 during the full run), so the seconds (not the errors) are perturbed and "
+             "slower than alone — compare the ratios, each measured within one run of one dataset.",
              "", "How it is run (splits, initial states, what \"fit\" and \"simulate\" time): "
              "`benchmarks/peers/run.py`'s docstring. Every peer is scored run free (simulation); the settings of "
              "each were chosen among a few sizes on estimation data only (all candidates and their selection "
@@ -564,6 +570,8 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="every peer on a short slice, one setting each")
     parser.add_argument("--datasets", default="tanks,silverbox,table2")
     parser.add_argument("--tools", default=",".join(TOOLS))
+    parser.add_argument("--render-only", action="store_true",
+                        help="rewrite the .md files from the existing --out JSON, fitting nothing")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "peers.json"))
     parser.add_argument("--table2-out", default=str(ROOT / "experiments" / "results" / "table2_baselines.md"))
     args = parser.parse_args(argv)
@@ -588,14 +596,22 @@ def main(argv=None) -> int:
     def log(s):
         print(s, flush=True)
 
+    out = pathlib.Path(args.out)
+    if args.render_only:
+        if not out.exists():
+            print(f"run.py: {out} does not exist: run without --render-only first", file=sys.stderr)
+            return 2
+        result = json.loads(out.read_text())
+        write_text(out.with_suffix(".md"), markdown(result))
+        if "table2" in result.get("datasets", {}):
+            write_text(pathlib.Path(args.table2_out), table2_baselines(result))
+        log(f"rewrote {out.with_suffix('.md')} from {out}")
+        return 0
+
     command = "make bench-peers-quick" if args.quick else "make bench-peers"
     out = pathlib.Path(args.out)
     runners = {"tanks": tanks, "silverbox": silverbox, "table2": table2}
-    for name in datasets:
-        t0 = time.perf_counter()
-        part = _json_ready(runners[name](args.quick, tools, log))
-        seconds = time.perf_counter() - t0
-        jax.clear_caches()
+    def save(name, part, seconds):
         # each dataset is written as soon as it is done, merged with the others' rows of an earlier run of the
         # same kind (full or quick): a run of one dataset, or one cut short, keeps what the others had
         result = json.loads(out.read_text()) if out.exists() else {}
@@ -604,8 +620,10 @@ def main(argv=None) -> int:
         result.update({"quick": args.quick, "command": command, "versions": _versions(),
                        "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
                        "grids": QUICK_GRIDS if args.quick else GRIDS})
-        result.setdefault("datasets", {})[name] = part
+        result.setdefault("datasets", {})[name] = _json_ready(part)
         result.setdefault("dataset_seconds", {})[name] = seconds
+        result.setdefault("dataset_commands", {})[name] = " ".join(["python benchmarks/peers/run.py",
+                                                                   *(argv if argv is not None else sys.argv[1:])])
         result["seconds"] = sum(result["dataset_seconds"].values())
         write_text(out, json.dumps(result, indent=2) + "\n")
         write_text(out.with_suffix(".md"), markdown(result))
@@ -613,6 +631,15 @@ def main(argv=None) -> int:
         if name == "table2":
             write_text(pathlib.Path(args.table2_out), table2_baselines(result))
             log(f"wrote {args.table2_out}")
+
+    for name in datasets:
+        t0 = time.perf_counter()
+        if name == "table2":
+            part = table2(args.quick, tools, log, lambda p: save("table2", p, time.perf_counter() - t0))
+        else:
+            part = runners[name](args.quick, tools, log)
+            save(name, part, time.perf_counter() - t0)
+        jax.clear_caches()
     return 0
 
 
