@@ -228,6 +228,9 @@ class Problem(eqx.Module):
         if self.n_sim + self.n_readout == 0:
             raise InputError("every parameter is frozen: free at least one to fit")
         self.series = series
+        if any(s.weights is not None for s in series) and getattr(model.readout, "window", 1) != 1:
+            raise InputError(f"padded series need a per-sample readout: a window of {model.readout.window} samples "
+                             "would reach across a split's start (use series_from_recording's segments)")
         if any(s.weights is not None for s in series):  # padded series: the training samples alone
             train = jnp.asarray(np.concatenate([np.asarray(s.target("train"))[np.asarray(_weight_of(s, "train")) > 0]
                                                 for s in series]))
@@ -328,6 +331,23 @@ class Problem(eqx.Module):
         r = self.objective_residuals(theta)
         return 0.5 * jnp.sum(r * r)
 
+    def cost_and_validation_loss(self, theta):
+        """(`cost`, `validation_loss`) from one simulation of the model."""
+        a, b = self.split_theta(theta)
+        readout = self.readout(b)
+        signals = self._signals(a)
+        split = "validation" if self.has_validation else "train"
+        losses = {}
+        for name in {"train", split}:
+            w_hat = jax.vmap(readout.predict_window)(self._windows(readout, signals, name))
+            losses[name] = self._weighted((self.target(name) - w_hat) / self.scale, name)
+        r = losses["train"]
+        if self.weight_decay:
+            r = jnp.concatenate([r, jnp.sqrt(self.weight_decay) * self.penalty_mask(theta) * theta])
+        weights = self.weights(split)
+        count = losses[split].shape[0] if weights is None else jnp.maximum(jnp.sum(weights), 1.0)
+        return 0.5 * jnp.sum(r * r), 0.5 * jnp.sum(losses[split] ** 2) / count
+
     @property
     def has_validation(self) -> bool:
         return all("validation" in dict(s.segments) for s in self.series)
@@ -388,8 +408,8 @@ class Problem(eqx.Module):
         with the record: 10⁶ samples would need ~10 GB. Above `JACOBIAN_CHUNK_BYTES`
         they are built in equal chunks of rows (`chunk_rows`: no padding, a
         shorter last chunk if m does not divide) inside a `lax.scan`, each folded
-        into JᵀJ (`gram`: one symmetric rank-k update) and Jᵀ[J_sim r] (one
-        product) at once; J_sim (m × k, k ≈ 6) is kept whole. Below it, the
+        into JᵀJ's lower triangle (`gram_lower`: one symmetric rank-k update) and
+        Jᵀ[J_sim r] (one product) at once; J_sim (m × k, k ≈ 6) is kept whole. Below it, the
         products of the whole J (the same numbers, summed in another order).
         """
         r, J_sim, windows = self._residuals_and_sim_jacobian(theta, split)
@@ -410,7 +430,7 @@ class Problem(eqx.Module):
         def fold(acc, chunk):
             window, rhs = chunk
             J_r = readout_jacobian(theta, window)
-            return (acc[0] + gram(J_r), acc[1] + J_r.T @ rhs), None
+            return (acc[0] + gram_lower(J_r), acc[1] + J_r.T @ rhs), None
 
         def whole_chunks(x):
             return jax.tree_util.tree_map(lambda y: y[: full * rows].reshape((full, rows) + y.shape[1:]), x)
@@ -421,7 +441,7 @@ class Problem(eqx.Module):
             rest = jax.tree_util.tree_map(lambda y: y[full * rows :], windows)
             (A_rr, B), _ = fold((A_rr, B), (rest, sim_r[full * rows :]))
         A_rs, g_r = B[:, :-1], B[:, -1]
-        JtJ = jnp.block([[J_sim.T @ J_sim, A_rs.T], [A_rs, A_rr]])
+        JtJ = jnp.block([[J_sim.T @ J_sim, A_rs.T], [A_rs, from_lower(A_rr)]])
         return JtJ, jnp.concatenate([J_sim.T @ r, g_r])
 
 
@@ -441,26 +461,37 @@ def chunk_rows(m: int, n: int, itemsize: int) -> tuple[int, int]:
 
 
 def gram(J):
-    """JᵀJ of a (rows × n) block, exactly symmetric.
+    """JᵀJ of a (rows × n) block, exactly symmetric (`gram_lower`, then `from_lower`)."""
+    return from_lower(gram_lower(J))
+
+
+def from_lower(A):
+    """The symmetric matrix whose lower triangle (diagonal included) is A's."""
+    return jnp.tril(A) + jnp.tril(A, -1).T
+
+
+def gram_lower(J):
+    """A matrix whose lower triangle (diagonal included) is that of JᵀJ; sums of them stay so.
 
     On the CPU, for a float32/float64 block of at least `HOST_GRAM_MACS`
-    multiply-adds, it is BLAS's symmetric rank-k update (``?syrk``, half the
-    multiply-adds of a general product, at the rate of the host's optimised BLAS:
-    ~4× faster than XLA's float64 product on 2 cores, `benchmarks/long_record.py`)
-    through `jax.pure_callback`. Otherwise XLA's ``J.T @ J``.
+    multiply-adds, it is BLAS's symmetric rank-k update (``?syrk``: half the
+    multiply-adds of a general product, each at the rate of the host's optimised
+    BLAS), through `jax.pure_callback`, and the strict upper triangle is 0.
+    Otherwise it is XLA's whole ``J.T @ J``.
     """
     rows, n = J.shape
     if (J.dtype not in (jnp.float32, jnp.float64) or rows * n * n < HOST_GRAM_MACS
             or jax.default_backend() != "cpu"):
         return J.T @ J
-    return jax.pure_callback(_host_gram, jax.ShapeDtypeStruct((n, n), J.dtype), J,
+    return jax.pure_callback(_host_gram_lower, jax.ShapeDtypeStruct((n, n), J.dtype), J,
                              vmap_method="sequential")
 
 
-def _host_gram(J):
+def _host_gram_lower(J):
     from scipy.linalg import blas
 
     J = np.asarray(J)
     syrk = blas.dsyrk if J.dtype == np.float64 else blas.ssyrk
-    lower = syrk(1.0, J.T, trans=0, lower=1)  # J.T is J's memory read column-major: no copy
-    return lower + np.tril(lower, -1).T
+    # J.T is J's memory read column-major (no copy); the upper triangle of JᵀJ, column-major,
+    # read row-major (.T, no copy) is its lower triangle.
+    return syrk(1.0, J.T, trans=0, lower=0).T
