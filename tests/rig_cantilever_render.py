@@ -16,9 +16,10 @@ highest curvature there, none at the tip -- not a circular arc. The load's
 scale is solved (bisection) so the tip sits ``w`` across the rest axis; that
 ``w`` is the truth a tracker must report.
 
-Picture. The strip (a flat-ended band of the given thickness) and a clamp
-block are filled as polygons on an 8x canvas and area-averaged down
-(anti-aliasing), over a background with a lamp's fall-off, a paper texture
+Picture. The strip (a flat-ended band of the given thickness) is
+anti-aliased from each sub-pixel's distance to its centreline (4 x 4 per
+pixel), the clamp's jaws are polygons filled on a 4x canvas and
+area-averaged down, over a background with a lamp's fall-off, a paper texture
 and a thin dark edge far from the clamp, then defocus blur, flicker and
 noise. Gray frames are written as Motion-JPEG AVI with OpenCV's VideoWriter.
 """
@@ -30,7 +31,7 @@ import math
 import cv2
 import numpy as np
 
-SUPER = 8          # supersampling of the drawing canvas
+SUPER = 4          # supersampling: sub-pixels per pixel side
 SHIFT = 4          # fractional bits of the polygon vertices on that canvas
 TEXTURE_PX = 3.0
 TEXTURE_LEVELS = 12.0
@@ -92,6 +93,8 @@ class CantileverVideo:
         fall = 1.0 / (1.0 + ((xx - lamp[0]) ** 2 + (yy - lamp[1]) ** 2) / (1.6 * max(size)) ** 2)
         texture = cv2.GaussianBlur(self.rng.normal(0.0, 1.0, (height, width)), (0, 0), TEXTURE_PX)
         self.background = 90.0 + 140.0 * fall + TEXTURE_LEVELS * texture / max(texture.std(), 1e-9)
+        self._rest_grid = ((xx - self.clamp[0]) * self.axis[0] + (yy - self.clamp[1]) * self.axis[1],
+                           (xx - self.clamp[0]) * self.normal[0] + (yy - self.clamp[1]) * self.normal[1])
         self.level = float(self.rng.uniform(30.0, 70.0))
         self.phase = float(self.rng.uniform(0.0, 2 * math.pi))
 
@@ -101,10 +104,10 @@ class CantileverVideo:
         return p
 
     def _fill(self, canvas, points, value):
-        # Canvas coordinates of image points (sub-pixel centres at integers), a quarter quantum
-        # (1/512 px) off so an edge never lies exactly on a row of sub-pixel centres: there,
-        # fillPoly's tie rule would widen the strip by a sub-pixel on one side only (1/16 px).
-        canvas_xy = points * SUPER + (SUPER - 1) / 2.0 - 0.5 + 0.25 / (1 << SHIFT)
+        # Canvas coordinates of image points (sub-pixel centres at integers). fillPoly samples
+        # sub-pixel centres, so an edge is placed to within a sub-pixel: good enough for the
+        # clamp's jaws, not for the strip (see `coverage`).
+        canvas_xy = points * SUPER + (SUPER - 1) / 2.0
         pts = np.round(canvas_xy * (1 << SHIFT)).astype(np.int32)
         cv2.fillPoly(canvas, [pts], value, cv2.LINE_8, SHIFT)
 
@@ -126,9 +129,7 @@ class CantileverVideo:
         h = 0.5 * self.thickness / self.mm                 # px
         xs, us = x / self.mm, u / self.mm                  # px, rest frame
         width, height = self.size
-        yy, xx = np.mgrid[0:height, 0:width].astype(np.float64)
-        rx = (xx - self.clamp[0]) * self.axis[0] + (yy - self.clamp[1]) * self.axis[1]
-        ru = (xx - self.clamp[0]) * self.normal[0] + (yy - self.clamp[1]) * self.normal[1]
+        rx, ru = self._rest_grid
         near = (rx > xs[0] - 2) & (rx < xs[-1] + h + 2) & (np.abs(ru - np.interp(rx, xs, us)) < 2 * h + 3)
         iy, ix = np.nonzero(near)
         offsets = (np.arange(SUPER) + 0.5) / SUPER - 0.5
