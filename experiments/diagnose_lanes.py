@@ -63,7 +63,8 @@ def main(argv=None) -> int:
         if lane["effect"] not in wanted:
             continue
         w_hats = _predictions(problem, jnp.asarray(lane["active"], float), jnp.asarray(lane["theta"]))
-        mse = {split: float(np.mean((np.asarray(problem.target(split)) - np.asarray(w_hats[split])) ** 2)) / noise_var
+        mse = {split: float(np.mean((problem.recorded(problem.target(split), split)
+                                     - problem.recorded(w_hats[split], split)) ** 2)) / noise_var
                for split in SPLIT_ORDER}
         material, size = _lane_effect(problem, lane["theta"], lane["active"], lane["effect"], settings.materiality)
         size_text = ", ".join(f"{k} {v:.3g}" for k, v in size.items()) or "—"

@@ -7,7 +7,9 @@ Minimises ½‖r(θ)‖² with the damped Gauss–Newton step
 accepting a step when the gain ratio ρ = (actual decrease)/(predicted decrease)
 is positive and updating λ by Nielsen's rule (λ ← λ·max(1/3, 1 − (2ρ − 1)³) on
 acceptance, λ ← λ·ν, ν ← 2ν on rejection). JᵀJ and Jᵀr are formed once per
-accepted point, so a rejected step costs one Cholesky solve and one residual.
+accepted point, at the start of the step after it (`LMState.fresh`), so a
+rejected step costs one Cholesky solve and one simulation, and a compiled run
+holds one copy of the Jacobian's program.
 
 Why not `optimistix.LevenbergMarquardt` directly: optimistix differentiates the
 residual function as a whole (`jax.linearize`/`jacrev` of the full pytree) and
@@ -67,6 +69,14 @@ class LMState(eqx.Module):
     accepted: jax.Array
     since_best: jax.Array
     done: jax.Array
+    fresh: jax.Array
+
+
+def _cost_and_validation(problem, theta):
+    """(cost, validation loss) at θ: from one simulation when the problem can (`Problem.cost_and_validation_loss`)."""
+    if hasattr(problem, "cost_and_validation_loss"):
+        return problem.cost_and_validation_loss(theta)
+    return problem.cost(theta), problem.validation_loss(theta)
 
 
 def _normal_equations(problem, theta):
@@ -84,16 +94,33 @@ def _normal_equations(problem, theta):
 
 
 def lm_init(problem, theta0, settings: LMSettings) -> LMState:
-    cost, JtJ, g = _normal_equations(problem, theta0)
-    val = problem.validation_loss(theta0)
-    lam = jnp.asarray(settings.lambda0, cost.dtype)
-    if settings.scaling != "marquardt":
-        lam = lam * jnp.max(jnp.diag(JtJ))
+    """The state at θ₀. JᵀJ and Jᵀr are formed by the first step (`fresh`), not here.
+
+    A compiled LM run (init, then a loop of steps) thus holds one copy of the
+    Jacobian's program, inside the loop: it compiles in about half the time of
+    one with the Jacobian in the init too, and does the same arithmetic.
+    """
+    cost, val = _cost_and_validation(problem, theta0)
+    n = theta0.shape[0]
     zero = jnp.zeros((), jnp.int32)
     return LMState(
-        theta=theta0, cost=cost, JtJ=JtJ, g=g, lam=lam, nu=jnp.asarray(2.0, cost.dtype),
+        theta=theta0, cost=cost, JtJ=jnp.zeros((n, n), cost.dtype), g=jnp.zeros(n, cost.dtype),
+        lam=jnp.asarray(jnp.nan, cost.dtype), nu=jnp.asarray(2.0, cost.dtype),
         best_theta=theta0, best_val=val, best_step=zero, step=zero, accepted=zero,
-        since_best=zero, done=~jnp.isfinite(cost),
+        since_best=zero, done=~jnp.isfinite(cost), fresh=jnp.asarray(True),
+    )
+
+
+def _refresh(problem, state: LMState, settings: LMSettings) -> LMState:
+    """JᵀJ and Jᵀr at the state's θ (after an accepted step, or at the start); λ₀ on the first."""
+    _, JtJ, g = _normal_equations(problem, state.theta)
+    lam0 = jnp.asarray(settings.lambda0, JtJ.dtype)
+    if settings.scaling != "marquardt":
+        lam0 = lam0 * jnp.max(jnp.diag(JtJ))
+    return eqx.tree_at(
+        lambda s: (s.JtJ, s.g, s.lam, s.fresh, s.done), state,
+        (JtJ, g, jnp.where(jnp.isnan(state.lam), lam0, state.lam), jnp.asarray(False),
+         state.done | (jnp.max(jnp.abs(g)) < settings.gtol)),
     )
 
 
@@ -103,6 +130,7 @@ def lm_step(problem, state: LMState, settings: LMSettings, patience=None) -> LMS
     `patience`, if given, replaces `settings.patience` and may be a traced
     integer (several stages with different patience share one compiled loop).
     """
+    state = lax.cond(state.fresh & ~state.done, lambda s: _refresh(problem, s, settings), lambda s: s, state)
     diag = jnp.diag(state.JtJ)
     if settings.scaling == "marquardt":
         D = jnp.maximum(diag, 1e-9 * jnp.max(diag) + jnp.finfo(diag.dtype).tiny)
@@ -112,25 +140,24 @@ def lm_step(problem, state: LMState, settings: LMSettings, patience=None) -> LMS
     factor = jax.scipy.linalg.cho_factor(A)
     delta = -jax.scipy.linalg.cho_solve(factor, state.g)
     theta_new = state.theta + delta
-    cost_new = problem.cost(theta_new)
+    cost_new, val = _cost_and_validation(problem, theta_new)
     predicted = -(delta @ state.g) - 0.5 * delta @ (state.JtJ @ delta)
     rho = (state.cost - cost_new) / jnp.where(predicted > 0, predicted, jnp.inf)
     accept = jnp.isfinite(cost_new) & jnp.all(jnp.isfinite(delta)) & (rho > 1e-4)
 
     def accepted(state):
-        cost, JtJ, g = _normal_equations(problem, theta_new)
-        val = problem.validation_loss(theta_new)
+        cost = cost_new
         better = val < state.best_val
         lam = state.lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
         relative_decrease = (state.cost - cost) / jnp.maximum(state.cost, jnp.finfo(cost.dtype).tiny)
         since_best = jnp.where(better, 0, state.since_best + 1)
-        converged = (relative_decrease < settings.ftol) | (jnp.max(jnp.abs(g)) < settings.gtol)
+        converged = relative_decrease < settings.ftol  # |Jᵀr| < gtol: checked when JᵀJ is formed (`_refresh`)
         if patience is not None:
             converged = converged | ((patience > 0) & (since_best >= patience))
         elif settings.patience:
             converged = converged | (since_best >= settings.patience)
         return LMState(
-            theta=theta_new, cost=cost, JtJ=JtJ, g=g, lam=lam,
+            theta=theta_new, cost=cost, JtJ=state.JtJ, g=state.g, lam=lam, fresh=jnp.asarray(True),
             nu=jnp.asarray(2.0, state.nu.dtype),
             best_theta=jnp.where(better, theta_new, state.best_theta),
             best_val=jnp.where(better, val, state.best_val),

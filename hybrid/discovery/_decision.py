@@ -28,7 +28,7 @@ def _derived(problem, theta, active) -> dict:
     stack = eqx.tree_at(lambda s: s.active, model.simulation, jnp.asarray(active))
     out = {}
     for series in problem.series:
-        for name, values in stack.derived(series.v_in, series.dt).items():
+        for name, values in stack.derived(series.v_in, series.dt, n=series.n_recorded).items():
             out.setdefault(name, values)
     return out
 
@@ -102,12 +102,12 @@ def _equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_
     fits is the bar an effect's gain must clear to be the effect's own.
     """
     limit = rss_best * math.exp(bic_tolerance / n_train)
-    w_train, w_test = np.asarray(problem.target("train")), np.asarray(problem.target("test"))
+    w_train, w_test = (problem.recorded(problem.target(split), split) for split in ("train", "test"))
     heldout = []
     for theta in thetas:
         w_hat = _predictions(problem, jnp.asarray(off, float), jnp.asarray(theta))
-        if np.sum((w_train - np.asarray(w_hat["train"])) ** 2) <= limit:
-            heldout.append(float(np.mean((w_test - np.asarray(w_hat["test"])) ** 2) / np.var(w_test)))
+        if np.sum((w_train - problem.recorded(w_hat["train"], "train")) ** 2) <= limit:
+            heldout.append(float(np.mean((w_test - problem.recorded(w_hat["test"], "test")) ** 2) / np.var(w_test)))
     return {"n": len(heldout), "heldout_nmse_min": min(heldout, default=float("nan")),
             "heldout_nmse_max": max(heldout, default=float("nan")),
             "definition": f"effect-free fits (all starts and refits) within ΔBIC {bic_tolerance:g} of the "
@@ -148,8 +148,9 @@ def _lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]
 def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen, present=()) -> Candidate:
     """The candidate adding effect `name` ("none": no effect) to a model with `present` switched on."""
     w_hats = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))
-    rss = float(np.sum((np.asarray(problem.target("train")) - np.asarray(w_hats["train"])) ** 2))
-    w, w_hat = np.asarray(problem.target("test")), np.asarray(w_hats["test"])
+    rss = float(np.sum((problem.recorded(problem.target("train"), "train")
+                        - problem.recorded(w_hats["train"], "train")) ** 2))
+    w, w_hat = problem.recorded(problem.target("test"), "test"), problem.recorded(w_hats["test"], "test")
     heldout = _heldout_metrics(w, w_hat)
     model = problem.model(theta)
     parameters = {k: float(v_) for k, v_ in model.parameters().items()

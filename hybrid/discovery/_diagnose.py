@@ -51,6 +51,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -59,18 +60,27 @@ from ._decision import _evaluate, _free_names
 from ._diagnosis import SPLIT_ORDER, Diagnosis, DiagnoseSettings
 from ._effects import EFFECTS
 from ._evidence import _evidence, _fitted_model, _uncertainties
-from ._search import N_LANES, _fit_lanes, _initial_theta, _lane_tangents, _signals, _with_active, lanes_problem
+from ._search import _fit_lanes, _lane_tangents, _signals, _with_active, initial_thetas, lanes_problem
 from ._starts import N_SCREEN, baseline_starts
 from ._step import Search, search_step
 from ._unexplained import pooled_noise_floor, remainder
 from ..util._errors import InputError
 from ..core._levenberg_marquardt import LMSettings
-from ..core._problem import robust_std
+from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
 
 
 #: Spread (std) of w and v_in that `diagnose` takes, in any unit: it fits in the recording's own units.
 DIAGNOSE_SPREAD = (1e-6, 1e6)
+
+
+def _host_std(x: np.ndarray) -> float:
+    """`robust_std` in numpy: no compiled program per recording length."""
+    top = float(np.max(np.abs(x))) if x.size else 0.0
+    if not np.isfinite(top) or top == 0.0:
+        return float(np.std(x)) if np.isfinite(top) else float("inf")
+    scale = np.ldexp(1.0, int(np.frexp(top)[1]))
+    return float(np.std(x / scale) * scale)
 
 
 def _check_magnitudes(recording) -> None:
@@ -82,11 +92,17 @@ def _check_magnitudes(recording) -> None:
     """
     low, high = DIAGNOSE_SPREAD
     for column, typical in (("w", "a tip displacement in mm"), ("v_in", "a drive in V")):
-        spread = float(robust_std(jnp.asarray(getattr(recording, column))))
+        spread = _host_std(np.asarray(getattr(recording, column), float))
         if not low <= spread <= high:
             raise InputError(f"recording '{recording.name}': {column} has a standard deviation of {spread:.3g}, "
                              f"outside the {low:g} to {high:g} that diagnose fits in the recording's own units: "
                              f"rescale {column} (as {typical}, say)")
+
+
+def shape_key(problem, settings) -> tuple:
+    """What the search's compiled programs depend on: `problem`'s structure, shapes and dtypes, and `settings`."""
+    leaves, treedef = jax.tree_util.tree_flatten(problem)
+    return treedef, tuple((getattr(x, "shape", None), str(getattr(x, "dtype", type(x)))) for x in leaves), settings
 
 
 def diagnose(
@@ -133,15 +149,13 @@ def diagnose(
     settings = dataclasses.replace(settings, frozen=settings.frozen_for(simulation))  # the report shows what was fixed
     frozen = frozenset(settings.frozen)
     problem, n_rows, model, series = lanes_problem(recordings, simulation, settings)
-    n_train = int(problem.target("train").shape[0])
     lm = LMSettings(max_steps=settings.max_steps)
+    if DIAGNOSE_PROGRAMS.admit(shape_key(problem, lm)) and progress:  # a long session never runs out of maps
+        print("diagnose: released the compiled programs of earlier recordings' shapes", flush=True)
+    n_train = sum(b - a for s in series for a, b in s.segments_of("train"))
     names = list(EFFECTS)
     off = np.zeros(len(names) + 1)  # every effect off, the frame timing on
     off[-1] = 1.0
-
-    def initial(values, base_model=model, active=off):
-        sim = base_model.simulation.replace(**values).with_active(active)
-        return _initial_theta(problem, sim, base_model.readout, frozen)
 
     def say(text):  # the watchdog's heartbeat names the stage; progress prints it
         stage(f"diagnose: {text}")
@@ -149,10 +163,15 @@ def diagnose(
             print(f"diagnose: {text}", flush=True)
 
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
-    n_lanes = N_LANES
+    search = Search(problem=problem, model=model, series=series, simulation=simulation, settings=settings,
+                    frozen=frozen, lm=lm, rate=rate, duration=recordings[0].duration, n_train=n_train,
+                    n_val=sum(b - a for s in series for a, b in s.segments_of("validation")), say=say)
+    n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
     say(f"screening {N_SCREEN} network designs for the baseline's starts")
     grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN, frozen)
-    thetas = jnp.stack([initial(g) for g in grid])
+    grid += grid[:1] * (n_lanes - len(grid))  # a design smaller than the lanes (few free parameters)
+    base = model.simulation.with_active(off)
+    thetas = initial_thetas(problem, [base.replace(**g) for g in grid], model.readout, frozen)
     base_tangents = _lane_tangents(model, frozen, None, n_rows)
     say(f"baseline from {len(grid)} starts")
     base_states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm,
@@ -164,9 +183,6 @@ def diagnose(
 
     # 2–4. Stepwise: every remaining effect on top of the current model, weighed
     # incrementally; stop at the first step that names nothing.
-    search = Search(problem=problem, model=model, series=series, simulation=simulation, settings=settings,
-                    frozen=frozen, lm=lm, rate=rate, duration=recordings[0].duration, n_train=n_train,
-                    n_val=int(problem.target("validation").shape[0]), say=say)
     current, current_val, current_fits = baseline, float(base_states.best_val[best]), list(base_states.best_theta)
     steps, present = [], ()
     while len(present) < min(settings.max_causes, len(EFFECTS)):
@@ -185,8 +201,9 @@ def diagnose(
     theta_base = baseline.theta
     v_te, w_te, w_hat_base = _signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = _signals(problem, extended.theta, extended.active, "test")
-    fitted = _with_active(problem, jnp.asarray(extended.active, float)).model(jnp.asarray(extended.theta))
-    uncertainties = _uncertainties(fitted, recordings, settings, w_te - w_hat_ext,
+    fitted = _with_active(problem, jnp.asarray(extended.active, float),
+                          jnp.asarray(_lane_tangents(model, frozen, present, n_rows), float))
+    uncertainties = _uncertainties(fitted, extended.theta, w_te - w_hat_ext,
                                    keep=_fitted_model(problem, extended.theta, present).parameters())
     evidence = _evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good

@@ -15,6 +15,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from ._effects import EFFECTS, AbstractEffect
@@ -138,13 +139,18 @@ class EffectStack(AbstractWrapper):
         )
         return eqx.tree_at(lambda s: s.effects, spec, effects)
 
-    def derived(self, v_in, dt) -> dict[str, dict[str, float]]:
-        """Each active effect's derived quantities (see `AbstractEffect.derived`), on this drive."""
+    def derived(self, v_in, dt, n: int | None = None) -> dict[str, dict[str, float]]:
+        """Each active effect's derived quantities (see `AbstractEffect.derived`), on this drive.
+
+        `n`: the samples of `v_in` that were recorded (a padded drive's first
+        `n`); each effect's quantities are taken over those alone.
+        """
         s = _simulate_compiled(self.inner, v_in, dt)
+        n = int(v_in.shape[0]) if n is None else int(n)
         out = {}
         for on, effect in zip(self.active, self.effects):
             if float(on):  # a switched-off effect leaves s unchanged
-                out[effect.name] = effect.derived(s, dt)
+                out[effect.name] = effect.derived(np.asarray(s)[:n], dt)
                 s = s + on * (_apply_compiled(effect, s, dt) - s)
         return out
 

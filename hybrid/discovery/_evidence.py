@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _residual_tests as rt
-from ._diagnosis import SPLIT_ORDER
 from ._effect_stack import EffectStack
 from ._effects import FrameTiming
 from ..core._models import Model
@@ -31,12 +30,13 @@ def _fitted_model(problem: Problem, theta, causes) -> Model:
     return Model(simulation, model.readout, "physics")
 
 
-def _uncertainties(model: Model, recordings, settings, residual_heldout, keep=None) -> dict:
+def _uncertainties(problem: Problem, theta, residual_heldout, keep=None) -> dict:
     """Standard errors, in physical units, of `model`'s free parameters (those in `keep`, if given).
 
-    `model` may be the search's universal model with some effects switched off:
-    their parameters have zero Jacobian columns, which leave the others'
-    covariance unchanged, and one compiled Jacobian serves every cause.
+    `problem` is the search's (padded) problem with the fitted lane's switches
+    and Jacobian directions: the switched-off effects' parameters have zero
+    Jacobian columns, which leave the others' covariance unchanged, and one
+    compiled Jacobian serves every cause and every recording of a bucket.
 
     ``std_error``: the Gauss–Newton covariance of
     [`hybrid.sensitivity.parameter_covariance`][] on the training part, inflated
@@ -50,10 +50,10 @@ def _uncertainties(model: Model, recordings, settings, residual_heldout, keep=No
     the data fix the effect once the network is fixed — a lower bound on the
     marginal error.
     """
-    from ..sensitivity import parameter_covariance
+    from ..sensitivity import problem_covariance
 
-    covariance = parameter_covariance(model, recordings, frozen=settings.frozen_for(model.simulation), split=settings.split,
-                                      split_order=SPLIT_ORDER, blocks=settings.blocks)
+    covariance = problem_covariance(problem, jnp.asarray(theta))
+    model = problem.model(jnp.asarray(theta))
     inflation = rt.effective_sample_factor(residual_heldout)
     keep = set(covariance.names) if keep is None else set(keep)
     out = {name: {"std_error": std * math.sqrt(inflation), "unit": covariance.units[name],

@@ -19,14 +19,14 @@ import numpy as np
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings
 from ._effect_stack import EffectStack
 from ._effects import EFFECTS, FrameTiming
-from ._starts import train_signal
 from ..util._errors import InputError
 from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ..core._models import Model
-from ..core._problem import Problem, series_from_recording
+from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording
 from ..core._readout import LinearReadout
 
-#: LM runs per stage (baseline starts; candidate starts, padded): one compiled program.
+#: Least LM runs per stage (baseline starts; candidate starts, padded): one compiled program.
+#: `lane_count` raises it to the first step's candidate lanes, so that every stage has one lane count.
 N_LANES = 16
 
 
@@ -81,17 +81,18 @@ def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patienc
                                jnp.asarray(thetas), jnp.asarray(patience, jnp.int32), settings)
 
 
-def _search_problem(model: Model, series, frozen, present: tuple[str, ...] = ()) -> tuple[Problem, int]:
-    """The least-squares problem every lane shares, and its number of Jacobian directions.
+def _search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[Problem, int]:
+    """The least-squares problem every lane of every step shares, and its number of Jacobian directions.
 
-    A lane fits the inner simulation's free parameters, the frame timing, the
-    effects already named (`present`) and at most one more: `n_rows` directions,
-    whichever effect a lane adds.
+    A lane fits the inner simulation's free parameters, the frame timing and
+    at most `max_causes` effects: `n_rows` directions, room for the
+    `max_causes` effects with the most parameters, so that every step of the
+    search runs the same compiled programs.
     """
     simulation = model.simulation.inner
+    sizes = sorted((len(e.constraints) for e in EFFECTS.values()), reverse=True)
     n_rows = (len([n for n in simulation.parameter_names() if n not in frozen]) + len(FrameTiming.constraints)
-              + sum(len(EFFECTS[p].constraints) for p in present)
-              + max((len(e.constraints) for n, e in EFFECTS.items() if n not in present), default=0))
+              + sum(sizes[:max(max_causes, 1)]))
     n_sim = len(_sim_labels(model.simulation, frozen))
     return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
 
@@ -99,13 +100,25 @@ def _search_problem(model: Model, series, frozen, present: tuple[str, ...] = ())
 def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     """(problem, n_rows, model, series): the least-squares problem `diagnose` fits on `recordings`.
 
-    Its θ is the layout of `Diagnosis.lanes[i]["theta"]`; `_signals(problem, theta,
-    active, split)` predicts a lane on a split.
+    Each recording is padded to its bucket's length (`bucket_length`) and its
+    split carried as weights (`bucketed_series`): the compiled programs of the
+    search depend on the buckets, not on the recordings' exact lengths, so a
+    session that diagnoses many recordings reuses them. `series` are the
+    recordings' own (unpadded) series. Its θ is the layout of
+    `Diagnosis.lanes[i]["theta"]`; `_signals(problem, theta, active, split)`
+    predicts a lane on a split.
     """
     model = _universal_model(simulation)
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
-    problem, n_rows = _search_problem(model, series, frozenset(settings.frozen_for(simulation)))
+    padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
+    problem, n_rows = _search_problem(model, padded, frozenset(settings.frozen_for(simulation)),
+                                      min(settings.max_causes, len(EFFECTS)))
     return problem, n_rows, model, series
+
+
+def lane_count(n_first_step: int) -> int:
+    """Lanes per stage: at least `N_LANES`, and room for every lane of the search's first step."""
+    return max(N_LANES, n_first_step)
 
 
 def _universal_model(simulation) -> Model:
@@ -114,11 +127,32 @@ def _universal_model(simulation) -> Model:
     return Model(stack, LinearReadout(), "physics")
 
 
-@eqx.filter_jit
 def _initial_theta(problem, simulation, readout, frozen):
-    """θ for `simulation` with the least-squares gain and offset on the training part (compiled once)."""
-    readout = readout.initialise(train_signal(problem, simulation), problem.target("train"))
-    return problem.flatten(Model(simulation, readout, "physics"), frozen)
+    """θ for `simulation` with the least-squares gain and offset on the training part."""
+    return initial_thetas(problem, [simulation], readout, frozen)[0]
+
+
+def initial_thetas(problem, simulations, readout, frozen):
+    """θ for each of `simulations` (one structure, other values), each with its least-squares gain and offset.
+
+    Each simulation's output comes from `_predictions` (the program every
+    stage already runs: gain 1, offset 0), and the gain and offset are fitted
+    on the recorded training samples by numpy: no program of its own.
+    """
+    unit = eqx.tree_at(lambda r: r.raw, readout, {k: jnp.asarray(v, float) for k, v in
+                                                   {"gain": 1.0, "offset": 0.0}.items()})
+    w = problem.recorded(problem.target("train"), "train")
+    thetas = []
+    for simulation in simulations:
+        theta = problem.flatten(Model(simulation, unit, "physics"), frozen)
+        s = problem.recorded(_predictions(problem, simulation.active, theta)["train"], "train")
+        (gain, offset), *_ = np.linalg.lstsq(np.stack([s, np.ones_like(s)], axis=1), w, rcond=None)
+        if not (np.isfinite(gain) and np.isfinite(offset)):
+            gain, offset = 1.0, 0.0
+        fitted = eqx.tree_at(lambda r: r.raw, readout, {"gain": jnp.asarray(gain, float),
+                                                         "offset": jnp.asarray(offset, float)})
+        thetas.append(problem.flatten(Model(simulation, fitted, "physics"), frozen))
+    return jnp.stack(thetas)
 
 
 @eqx.filter_jit
@@ -133,9 +167,9 @@ def _predictions(problem, active, theta):
 
 def _signals(problem, theta, active, split):
     """(drive, w, ŵ) on `split` ("train", "validation" or "test"), all recordings concatenated."""
-    v = np.concatenate([np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.segments_of(split)])
+    v = np.concatenate([np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.recorded_segments_of(split)])
     w_hat = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
-    return v, np.asarray(problem.target(split)), np.asarray(w_hat)
+    return v, problem.recorded(problem.target(split), split), problem.recorded(w_hat, split)
 
 
 def _sim_labels(stack: EffectStack, frozen) -> list[str]:

@@ -28,7 +28,6 @@ from ._hysteresis import bouc_wen_and_memory
 from ..core._loop_safe_linalg import lstsq
 from ..core._parameters import Positive
 from ..core._problem import Problem
-from ..core._readout import LinearReadout
 
 #: Points of the baseline design screened (one simulation each) for the N_LANES LM starts.
 N_SCREEN = 512
@@ -46,6 +45,23 @@ def train_signal(problem, simulation):
         signal = simulation.simulate(series.v_in, series.dt)  # once per recording, then its segments
         parts += [signal[a:b] for a, b in series.segments_of("train")]
     return jnp.concatenate(parts)
+
+
+def gain_offset(s, w, weights):
+    """(gain, offset, rss) of w ≈ gain·s + offset by least squares over the samples whose weight is 1.
+
+    `weights` is 0/1 (a padded series' split, `hybrid.core.bucketed_series`):
+    a weighted row is (w, s, 1)·weight, so a sample of weight 0 is a row of zeros.
+    """
+    design = jnp.stack([s * weights, weights], axis=1)
+    coef, rss = lstsq(design, w * weights)  # no LAPACK in a batched loop (_loop_safe_linalg)
+    return coef[0], coef[1], rss
+
+
+def train_weights(problem):
+    """The training part's 0/1 weights, laid out as `problem.target("train")` (all ones if unpadded)."""
+    weights = problem.weights("train")
+    return jnp.ones_like(problem.target("train")) if weights is None else weights
 
 
 def baseline_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]:
@@ -89,16 +105,28 @@ def design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
 @eqx.filter_jit
 def screen_losses(problem, simulation, raws):
     """Training MSE of `simulation` at each row of `raws` (raw parameters), gain and offset by least squares."""
-    w = problem.target("train")
+    w, weights = problem.target("train"), train_weights(problem)
 
     def one(raw):
         sim = simulation.with_raw(raw)
-        s = train_signal(problem, sim)
-        fit = LinearReadout().initialise(s, w).parameters()
-        loss = jnp.mean((w - fit["gain"] * s - fit["offset"]) ** 2)
+        *_, rss = gain_offset(train_signal(problem, sim), w, weights)
+        loss = rss / jnp.sum(weights)
         return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
 
     return jax.lax.map(one, raws, batch_size=16)
+
+
+def screen_design_losses(problem, simulation, raws) -> np.ndarray:
+    """`screen_losses` over a design of any size, `N_JOINT_SCREEN` rows at a time (one compiled program)."""
+    n = next(iter(raws.values())).shape[0]
+    losses = []
+    for start in range(0, n, N_JOINT_SCREEN):
+        chunk = {k: v[start : start + N_JOINT_SCREEN] for k, v in raws.items()}
+        short = N_JOINT_SCREEN - next(iter(chunk.values())).shape[0]
+        if short:  # the last rows repeat: one shape for every chunk
+            chunk = {k: jnp.concatenate([v, jnp.repeat(v[-1:], short, axis=0)]) for k, v in chunk.items()}
+        losses.append(np.asarray(screen_losses(problem, simulation, chunk))[: N_JOINT_SCREEN - short])
+    return np.concatenate(losses)
 
 
 def baseline_starts(problem, simulation, n_starts: int, n_screen: int, frozen=frozenset()) -> list[dict]:
@@ -115,9 +143,16 @@ def baseline_starts(problem, simulation, n_starts: int, n_screen: int, frozen=fr
     names, raws = design_raws(simulation, design)
     if not names:
         return [{}]
-    losses = np.asarray(screen_losses(problem, simulation, raws))
+    losses = screen_design_losses(problem, simulation, raws)
     order = np.argsort(losses, kind="stable")[:n_starts]
     return [{k: design[i][k] for k in names} for i in order]
+
+
+def _recorded_mask(series):
+    """1 on the recorded samples of a series (every split), 0 on a padded series' padding."""
+    if series.weights is None:
+        return jnp.ones_like(series.v_in)
+    return sum(weight for _, weight in series.weights)
 
 
 def delayed(problem: Problem, shift: int) -> Problem:
@@ -145,7 +180,7 @@ def delay_starts(problem, simulation, rate: float, n_starts: int, frozen=frozens
         return []
     best = []
     for shift in DELAY_SHIFTS:
-        losses = np.asarray(screen_losses(delayed(problem, shift), simulation, raws))
+        losses = screen_design_losses(delayed(problem, shift), simulation, raws)
         i = int(np.argmin(losses))
         best.append((float(losses[i]), shift, i))
     best.sort()
@@ -169,12 +204,13 @@ def loop_screen(problem, simulation, raws, rates):
     (loss, k, W, u₀) per row and rate, in the terms of
     [`hybrid.discovery._effects.Hysteresis`][].
     """
-    w = problem.target("train")
+    w, weights = problem.target("train"), train_weights(problem)
 
     def one(raw):
         sim = simulation.with_raw(raw)
         signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
-        span = jnp.maximum(jnp.max(jnp.stack([jnp.ptp(x) for x in signals])), 1e-12)  # over every recording
+        recorded = [jnp.where(_recorded_mask(series) > 0, x, x[0]) for x, series in zip(signals, problem.series)]
+        span = jnp.maximum(jnp.max(jnp.stack([jnp.ptp(x) for x in recorded])), 1e-12)  # over every recording
 
         def train(columns):
             return jnp.concatenate([x[a:b] for x, series in zip(columns, problem.series)
@@ -185,9 +221,9 @@ def loop_screen(problem, simulation, raws, rates):
         def fit(k):
             loops = [bouc_wen_and_memory(x, k) for x in signals]
             u, memory = train([u for u, _ in loops]), train([m for _, m in loops])
-            design = jnp.stack([s, u, memory, jnp.ones_like(s)], axis=1)
-            coef, rss = lstsq(design, w)  # no LAPACK in a batched loop (_loop_safe_linalg)
-            loss = rss / w.shape[0]
+            design = jnp.stack([s, u, memory, jnp.ones_like(s)], axis=1) * weights[:, None]
+            coef, rss = lstsq(design, w * weights)  # no LAPACK in a batched loop (_loop_safe_linalg)
+            loss = rss / jnp.sum(weights)
             a, b, d = coef[0], coef[1], coef[2]
             height = jnp.clip(b / jnp.where(jnp.abs(a) > 0, a, 1.0), -span, span)
             initial = jnp.clip(d / jnp.where(jnp.abs(b) > 0, b, 1.0), -0.95, 0.95)
@@ -244,7 +280,7 @@ def mode_screen(problem, simulation, raws, frequencies, dampings):
     every (f, ζ) pair (`frequencies` and `dampings`, paired element-wise).
     Returns the losses, shape (rows, pairs).
     """
-    w = problem.target("train")
+    w, weights = problem.target("train"), train_weights(problem)
 
     def one(raw):
         sim = simulation.with_raw(raw)
@@ -254,8 +290,8 @@ def mode_screen(problem, simulation, raws, frequencies, dampings):
             mode = eqx.tree_at(lambda m: m.raw, Resonance(), {"resonance_frequency_hz": raw_f, "resonance_damping": raw_z})
             s = jnp.concatenate([mode.apply(x, series.dt)[a:b] for x, series in zip(signals, problem.series)
                                  for a, b in series.segments_of("train")])
-            gain_offset = LinearReadout().initialise(s, w).parameters()
-            loss = jnp.mean((w - gain_offset["gain"] * s - gain_offset["offset"]) ** 2)
+            *_, rss = gain_offset(s, w, weights)
+            loss = rss / jnp.sum(weights)
             return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
 
         constraints = Resonance.constraints

@@ -32,9 +32,7 @@ from . import _residual_tests as rt
 from ._decision import _choose_lane, _equally_good_fits, _evaluate, _lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings
 from ._effects import EFFECTS
-from ._search import (
-    N_LANES, _best_lag, _fit_lanes, _initial_theta, _lane_tangents, _search_problem, _signals, _starts,
-)
+from ._search import _best_lag, _fit_lanes, _lane_tangents, _signals, _starts, initial_thetas, lane_count
 from ._starts import delay_starts, hysteresis_starts, resonance_starts, train_signal
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
@@ -57,12 +55,21 @@ class Search:
     n_train: int
     n_val: int
     say: Callable[[str], None]
+    n_lanes: int = 0
 
-    def problem_for(self, present: tuple[str, ...]) -> tuple[Problem, int]:
-        """The shared problem with room in its Jacobian for the named effects plus one more."""
-        if not present:
-            return self.problem, int(self.problem.sim_tangents.shape[0])
-        return _search_problem(self.model, self.series, self.frozen, present)
+    def __post_init__(self):
+        if not self.n_lanes:
+            self.n_lanes = lane_count(first_step_lanes(self.rate, self.duration))
+
+
+#: Screened starts of the first step, per effect (`hybrid.discovery._starts`).
+SCREENED_STARTS = {"delay": 3, "hysteresis": 1, "resonance": 1}
+
+
+def first_step_lanes(rate: float, duration: float) -> int:
+    """Lanes of the first step: every effect's data-scaled starts and its screened ones (counts only)."""
+    return sum(len(_starts(name, np.array([-1.0, 1.0]), rate, 1, None, duration)) + SCREENED_STARTS.get(name, 0)
+               for name in EFFECTS)
 
 
 @dataclasses.dataclass
@@ -94,15 +101,11 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
     """Every effect not in `present` added to `current` (which has exactly `present` switched on)."""
     s, settings = search, search.settings
     names = list(EFFECTS)
-    problem, n_rows = s.problem_for(present)
+    problem, n_rows = s.problem, int(s.problem.sim_tangents.shape[0])
     active_cur = np.asarray(current.active, float)
     theta_cur = current.theta
     cur_tangents = _lane_tangents(s.model, s.frozen, present, n_rows)
     cur_model = problem.model(jnp.asarray(theta_cur))
-
-    def initial(values, active):
-        sim = cur_model.simulation.replace(**values).with_active(active)
-        return _initial_theta(problem, sim, cur_model.readout, s.frozen)
 
     s_train = np.asarray(train_signal(problem, cur_model.simulation.inner))
     _, w_tr, w_hat_tr = _signals(problem, theta_cur, active_cur, "train")
@@ -116,18 +119,21 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
         screened = {"delay": delay_starts(problem, s.simulation, s.rate, n_starts=3, frozen=s.frozen),
                     "hysteresis": hysteresis_starts(problem, s.simulation, n_starts=1, frozen=s.frozen),
                     "resonance": resonance_starts(problem, s.simulation, s.rate, n_starts=1, frozen=s.frozen)}
-    lanes, actives, labels, tangents = [], [], [], []
+    starts, actives, labels, tangents = [], [], [], []
     for i, name in enumerate(names):
         if name in present:
             continue
         for values in _starts(name, s_train, s.rate, lag, peak, s.duration) + screened.get(name, []):
             active = active_cur.copy()
             active[i] = 1.0
-            lanes.append(initial(values, active))
+            starts.append(cur_model.simulation.replace(**values).with_active(active))
             actives.append(active)
             labels.append(name)
             tangents.append(_lane_tangents(s.model, s.frozen, present + (name,), n_rows))
-    n_lanes = max(N_LANES, len(lanes))
+    n_lanes = s.n_lanes
+    if len(starts) > n_lanes:
+        raise AssertionError(f"{len(starts)} candidate lanes for {n_lanes}: first_step_lanes is out of date")
+    lanes = list(initial_thetas(problem, starts, cur_model.readout, s.frozen))
     while len(lanes) < n_lanes:  # one lane count for every step: one compiled program
         lanes.append(theta_cur)
         actives.append(active_cur)

@@ -28,7 +28,7 @@ Float64 is needed for meaningful small singular values: call
 
 from __future__ import annotations
 
-from ._covariance import Covariance, parameter_covariance, standard_errors
+from ._covariance import Covariance, parameter_covariance, problem_covariance, standard_errors
 from ._identifiability import Identifiability, identifiability
 from ._local import Sensitivity, frequency_sensitivity, local_sensitivities
 from ._sobol import SobolIndices, sobol_indices
@@ -42,6 +42,7 @@ __all__ = [
     "identifiability",
     "local_sensitivities",
     "parameter_covariance",
+    "problem_covariance",
     "sobol_indices",
     "standard_errors",
 ]

@@ -136,8 +136,24 @@ def parameter_covariance(
     frozen = frozenset(frozen)
     series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
     problem = Problem(model, series, frozen, weight_decay)
-    theta = problem.flatten(model, frozen)
+    return problem_covariance(problem, problem.flatten(model, frozen), noise_std=noise_std, rcond=rcond)
+
+
+def problem_covariance(problem, theta, *, noise_std: float | None = None, rcond: float = 1e-10) -> Covariance:
+    """[`parameter_covariance`][] of the model `problem` fits, at `theta`, on its training split.
+
+    For a caller that holds the problem already (`diagnose`: its padded
+    problem, whose compiled Jacobian serves every recording of a bucket).
+    Padding rows (weight 0) are dropped; `problem.sim_tangents`, if set,
+    restricts the physical Jacobian to those directions (the others are null
+    directions: infinite variance).
+    """
+    model = problem.model(theta)
     r, J = (np.asarray(a) for a in _fit_jacobian(problem, theta))
+    weights = problem.weights("train")
+    if weights is not None:
+        recorded = np.asarray(weights) > 0
+        r, J = r[recorded], J[recorded]
     m, n = J.shape
     named = _named(model)
     all_names = _ordered_names(model)

@@ -1,0 +1,100 @@
+"""How many compiled programs a long-running process holds, and releasing them before they crash it.
+
+Every compiled XLA CPU program keeps its machine code in memory maps, and
+Linux allows a process `vm.max_map_count` of them (65,530 by default). A
+diagnosis compiles about a dozen large programs (~8,000 maps); a script that
+diagnoses recordings of many lengths in one process used to add that much
+per call until LLVM failed to allocate and the process died (SIGSEGV).
+
+`diagnose` pads recordings to a few lengths (`hybrid.core.bucket_length`),
+so its programs depend on a *shape key* — the simulation's structure, the
+sample rate and the padded lengths — rather than on each recording. A
+[`ProgramBudget`][] remembers the shape keys whose programs are held; when a
+call needs a new key and `held` keys already have programs, every compiled
+program is released (`jax.clear_caches()`) before the call compiles its own.
+It also releases them whenever the process holds more than `max_fraction` of
+its allowed maps, whoever compiled them. A released program is compiled again
+when it is needed next (or read back from the persistent compilation cache,
+which the command line turns on).
+"""
+
+from __future__ import annotations
+
+import gc
+import threading
+from pathlib import Path
+
+#: Shape keys whose programs a process keeps before releasing them all (`ProgramBudget`).
+HELD_SHAPES = 2
+#: Fraction of `vm.max_map_count` above which every compiled program is released.
+MAX_MAP_FRACTION = 0.5
+
+
+def memory_maps() -> int | None:
+    """Memory maps this process holds (Linux: lines of /proc/self/maps), or None where that cannot be read."""
+    try:
+        with open("/proc/self/maps", "rb") as maps:
+            return sum(1 for _ in maps)
+    except OSError:
+        return None
+
+
+def map_limit() -> int | None:
+    """`vm.max_map_count`, the most memory maps a process may hold (Linux), or None."""
+    try:
+        return int(Path("/proc/sys/vm/max_map_count").read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def release_programs() -> None:
+    """Drop every compiled program of this process (JAX's caches) and free their memory maps."""
+    import jax
+
+    jax.clear_caches()
+    gc.collect()
+
+
+class ProgramBudget:
+    """The shape keys whose compiled programs this process holds, and when to release them.
+
+    **Arguments:**
+
+    - `held`: shape keys kept; a call with a new key beyond them releases every program first.
+    - `max_fraction`: release everything when the process holds more than this
+      fraction of `vm.max_map_count` maps (where Linux tells).
+
+    `admit(key)` is called before a call compiles; it returns True when it released programs.
+    `releases` counts them (for tests and benchmarks).
+    """
+
+    def __init__(self, held: int = HELD_SHAPES, max_fraction: float = MAX_MAP_FRACTION):
+        self.held = int(held)
+        self.max_fraction = float(max_fraction)
+        self.keys: list = []
+        self.releases = 0
+        self._lock = threading.Lock()
+
+    def admit(self, key) -> bool:
+        with self._lock:
+            crowded = False
+            maps, limit = memory_maps(), map_limit()
+            if maps is not None and limit:
+                crowded = maps > self.max_fraction * limit
+            if key in self.keys and not crowded:
+                self.keys.remove(key)
+                self.keys.append(key)  # most recently used last
+                return False
+            released = crowded or len(self.keys) >= self.held
+            if released:
+                release_programs()
+                self.releases += 1
+                self.keys = []
+            if key in self.keys:
+                self.keys.remove(key)
+            self.keys.append(key)
+            return released
+
+
+#: The budget `diagnose` keeps (one per process).
+DIAGNOSE_PROGRAMS = ProgramBudget()

@@ -1,0 +1,86 @@
+"""Padded series (`bucketed_series`): one compiled program per bucket, the same numbers as unpadded.
+
+`diagnose` pads each recording to its bucket's length and carries its split
+as 0/1 weights, so that its compiled programs depend on the bucket and not on
+the exact length (issue 30: a script diagnosing recordings of many lengths
+died on its fifth call, out of memory maps). The reference for every number
+here is the same problem built on the unpadded series.
+"""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hybrid as hy
+from hybrid.core._problem import (
+    BUCKET_STEPS,
+    MIN_BUCKET,
+    Problem,
+    bucket_length,
+    bucketed_series,
+    series_from_recording,
+)
+from hybrid.util._programs import ProgramBudget, memory_maps
+
+
+def test_buckets_cover_every_length_within_a_quarter():
+    lengths = np.unique(np.geomspace(2, 2e6, 4000).astype(int))
+    buckets = np.array([bucket_length(n) for n in lengths])
+    assert np.all(buckets >= lengths)
+    big = lengths >= MIN_BUCKET
+    assert np.all(buckets[big] <= 1.25 * lengths[big])  # padding costs at most a quarter more samples
+    assert np.all(np.diff(buckets) >= 0)
+    # a few dozen buckets from 2 to 2·10⁶ samples, each a bucket of itself
+    assert len(set(buckets)) <= len(BUCKET_STEPS) * 24
+    assert all(bucket_length(b) == b for b in set(buckets))
+
+
+def _recording(n, seed=0):
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(-1, 1, n // 10 + 1), 10)[:n]
+    w = np.convolve(u, np.exp(-np.arange(30) / 6.0), mode="full")[:n] / 6 + 0.01 * rng.standard_normal(n)
+    return hy.Recording(t=np.arange(n) / 30.0, v_in=u, w=w, name=f"n{n}")
+
+
+def test_a_padded_problem_has_the_unpadded_costs_and_normal_equations():
+    recordings = [_recording(700, 1), _recording(530, 2)]
+    split, order = (0.6, 0.1, 0.3), ("train", "validation", "test")
+    model = hy.Model(hy.LTI(1), hy.LinearReadout(), "physics")
+    plain = [series_from_recording(r, split, order, blocks=3) for r in recordings]
+    padded = [bucketed_series(s, bucket_length(s.v_in.shape[0]) + 7) for s in plain]
+    a, b = Problem(model, plain), Problem(model, padded)
+    theta = a.flatten(model) * 1.01
+    assert float(a.scale) == pytest.approx(float(b.scale), rel=1e-12)
+    assert float(b.cost(theta)) == pytest.approx(float(a.cost(theta)), rel=1e-10)
+    assert float(b.validation_loss(theta)) == pytest.approx(float(a.validation_loss(theta)), rel=1e-10)
+    JtJ_a, g_a = a.normal_equations(theta)
+    JtJ_b, g_b = b.normal_equations(theta)
+    np.testing.assert_allclose(np.asarray(JtJ_b), np.asarray(JtJ_a), rtol=1e-9, atol=1e-9 * float(jnp.max(JtJ_a)))
+    np.testing.assert_allclose(np.asarray(g_b), np.asarray(g_a), rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(g_a))))
+    for split_name in order:  # the recorded samples, in the unpadded order
+        np.testing.assert_allclose(b.recorded(b.target(split_name), split_name), np.asarray(a.target(split_name)))
+        np.testing.assert_allclose(b.recorded(b.prediction(theta, split_name), split_name),
+                                   np.asarray(a.prediction(theta, split_name)), rtol=1e-12, atol=1e-12)
+
+
+def test_the_budget_releases_programs_beyond_its_shapes():
+    import jax
+
+    budget = ProgramBudget(held=2, max_fraction=1.0)
+    assert budget.admit("a") is False and budget.admit("b") is False and budget.admit("a") is False
+    f = jax.jit(lambda x: jnp.sin(x) * 2)
+    f(jnp.ones(3)).block_until_ready()
+    assert f._cache_size() == 1
+    assert budget.admit("c") is True  # a third shape: everything held so far is released
+    assert f._cache_size() == 0 and budget.releases == 1 and budget.keys == ["c"]
+    crowded = ProgramBudget(held=5, max_fraction=0.0)  # any maps at all count as crowded
+    if memory_maps() is not None:
+        assert crowded.admit("a") is True
+
+
+def test_a_windowed_readout_refuses_padded_series():
+    """A window reaches back across a split's start in a padded series: refused, not silently different."""
+    series = bucketed_series(series_from_recording(_recording(300)), 320)
+    model = hy.make_model("hybrid", simulation=hy.LTI(1), window=8, depth=2, width=4)
+    with pytest.raises(hy.InputError, match="per-sample readout"):
+        Problem(model, [series])

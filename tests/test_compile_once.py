@@ -1,0 +1,65 @@
+"""A long session never runs out of memory maps: `diagnose` compiles once per bucket of lengths (issue 30).
+
+A script called `hybrid.diagnose` on recordings of 600, 737, 874, 1,011 and
+1,148 samples in one process; each call compiled ~13,800 memory maps' worth of
+programs for its own length, and the fifth died (SIGSEGV) at Linux's 65,530.
+Here eight recordings of eight lengths that share a bucket are diagnosed in
+one process: after the first call no large program is compiled again and the
+maps stop growing. (That programs are released beyond two buckets is
+`tests/test_buckets.py`'s; `benchmarks/diagnose_many.py` runs 55 calls over
+many lengths and two simulations.)
+"""
+
+import collections
+
+import jax
+import numpy as np
+from jax import monitoring
+
+import hybrid as hy
+from hybrid.core._problem import bucket_length
+from hybrid.util._programs import memory_maps
+
+#: Eight lengths in one bucket (257–320 samples: ~10 s at 30 Hz).
+LENGTHS = (300, 263, 317, 281, 309, 290, 271, 312)
+
+_compiles = collections.Counter()
+
+
+def _listen(event, duration, **_):
+    if event == "/jax/core/compile/backend_compile_duration":
+        _compiles["n"] += 1
+        _compiles["large"] += duration > 1.0  # a search program, not an eager op's
+
+
+monitoring.register_event_duration_secs_listener(_listen)
+
+
+def _recording(n, seed):
+    """A first-order lag with a saturating output, 30 Hz (the issue's case), made here in numpy."""
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(-1, 1, n // 12 + 1), 12)[:n]
+    a = np.exp(-1.0 / (30.0 * 0.4))
+    y = np.zeros(n)
+    for k in range(1, n):
+        y[k] = a * y[k - 1] + (1 - a) * u[k - 1]
+    w = np.tanh(2.0 * y) / 2.0 + 0.003 * rng.standard_normal(n)
+    return hy.Recording(t=np.arange(n) / 30.0, v_in=u, w=w, name=f"lag {n}")
+
+
+def test_diagnose_on_eight_lengths_compiles_once_and_the_maps_stop_growing():
+    assert len({bucket_length(n) for n in LENGTHS}) == 1 and len(set(LENGTHS)) == len(LENGTHS)
+    settings = hy.DiagnoseSettings(max_steps=20)
+    jax.clear_caches()  # other tests' programs out of the count
+    maps, large, causes = [], [], []
+    for seed, n in enumerate(LENGTHS):
+        before = _compiles["large"]
+        found = hy.diagnose(_recording(n, seed), simulation=hy.LTI(1), settings=settings)
+        causes.append(found.cause)
+        large.append(_compiles["large"] - before)
+        maps.append(memory_maps())
+    assert large[0] > 0  # the first call compiled the search
+    assert large[2:] == [0] * (len(LENGTHS) - 2), large  # then nothing large, whatever the length
+    if maps[0] is not None:
+        assert maps[-1] < 1.1 * maps[1], maps  # the maps stop growing
+    assert causes.count("saturation") >= 6, causes  # and the answers are the search's, not a stub's
