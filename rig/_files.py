@@ -7,23 +7,27 @@ belong together (a CSV and its sidecar: both or neither). Both are
 `hybrid`'s staged writes (`hybrid.util._atomic`): a full disk names the file,
 leaves the previous one byte for byte and no temporary. `partial_path` is
 where a failed command keeps what it read (``w.partial.csv``), never over the
-user's file. `check_outputs` refuses outputs that are the input itself
+user's file; `rename_together` moves a file streamed there (``rig record``'s
+CSV and sidecar) onto the output once the command has succeeded, both or
+neither. `check_outputs` refuses outputs that are the input itself
 (``rig track v.avi --out v.avi``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import pathlib
 
 import numpy as np
 
-from hybrid.util._atomic import atomic_open, partial_path, write_texts
+from hybrid.util._atomic import atomic_open, describe_targets, partial_path, write_texts
 
 from ._errors import RigError
 
-__all__ = ["check_outputs", "jsonable", "partial_path", "write_atomic", "write_json_atomic", "write_together"]
+__all__ = ["check_outputs", "jsonable", "partial_path", "rename_together", "write_atomic", "write_json_atomic",
+           "write_together"]
 
 
 def _folder(path: pathlib.Path) -> None:
@@ -47,6 +51,41 @@ def write_together(files: dict) -> None:
     for path in files:
         _folder(path)
     write_texts(files)  # an OSError becomes one InputError line naming the files
+
+
+def _sync(path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def rename_together(moves: dict) -> None:
+    """Rename each source (a finished file, streamed elsewhere) onto its target, as `staged` does.
+
+    Every source is fsync-ed and given the permissions of the file it replaces
+    before any is renamed, so an error (a full disk, no permission) renames none:
+    the sources stay where they are, the targets as they were, and the error is
+    one `RigError` line naming the targets. The renames are in one folder
+    (``os.replace``, atomic each); the CSV goes first, as in `staged`.
+    """
+    moves = {pathlib.Path(source): pathlib.Path(target) for source, target in moves.items()}
+    try:
+        for source, target in moves.items():
+            _sync(source)
+            if target.exists():
+                os.chmod(source, target.stat().st_mode & 0o7777)
+        for source, target in moves.items():
+            os.replace(source, target)
+    except OSError as error:
+        raise RigError(f"cannot write {describe_targets(list(moves.values()))}: {error.strerror or error}") from None
+    with contextlib.suppress(OSError):  # the renames made durable (POSIX)
+        fd = os.open(next(iter(moves.values())).parent, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def jsonable(value):

@@ -7,6 +7,13 @@ one and the JSON sidecar is rewritten every second, so a crash or a pulled
 cable loses at most about a second, and what is on disk is a valid recording
 flagged ``"complete": false`` with the error.
 
+The rows stream into ``rec.partial.csv`` (``rec.partial-2.csv``, ... if taken:
+`hybrid.util._atomic.partial_path`), never into ``--out``: only a recording that
+succeeded (complete, valid, its sidecar written) is renamed onto ``rec.csv``,
+CSV and sidecar together (`rig._files.rename_together`). A failure, Ctrl-C or a
+full disk leaves the rows in the partial file (its sidecar says ``partial_of``)
+and the user's ``rec.csv`` byte for byte; the error names both.
+
 Columns: ``t`` (s from sample 0 on the LED edge; uniform, ``slot / fps``),
 ``v_in`` (V, the voltage the board had on the DAC at the start of the frame's
 exposure, through the calibration), ``w`` (mm, tracked), then ``quality``
@@ -18,8 +25,8 @@ exposure-averaged displacement).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-import json
 import math
 import os
 import pathlib
@@ -28,12 +35,13 @@ import time
 
 import numpy as np
 
-from hybrid import Recording
+from hybrid import InputError, Recording
 
 from ._board import Board
 from ._playback import PlayReport
 from ._calibration import Calibration
 from ._errors import RigError
+from ._files import partial_path, rename_together, write_json_atomic
 from ._scene import Scene
 from ._sync import LedDetector
 from ._tracker import TipTracker
@@ -68,47 +76,71 @@ class RecordSettings:
 
 
 class _Writer:
-    """CSV rows flushed as written, plus a JSON sidecar rewritten atomically."""
+    """CSV rows flushed as written, plus a JSON sidecar rewritten atomically (`hybrid`'s staged writes).
+
+    Any `OSError` (a full disk) becomes one `RigError` naming the file. When
+    the header or the first sidecar cannot be written, nothing is left behind.
+    """
 
     def __init__(self, path: pathlib.Path, columns: list[str], metadata: dict):
         self.path = path
         self.sidecar = path.with_name(path.name + ".json")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            self.handle = path.open("w", newline="")
-        except OSError as error:
-            raise RigError(f"cannot write recording '{path}' ({error.strerror or error})") from None
-        self.handle.write(",".join(columns) + "\n")
-        self.handle.flush()
         self.metadata = metadata
         self.rows = 0
         self._saved = 0.0
-        self.save_metadata(force=True)
+        self.handle = None
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.handle = open(path, "x", newline="")
+            self.handle.write(",".join(columns) + "\n")
+            self.handle.flush()
+            self.save_metadata(force=True)
+        except (OSError, InputError) as error:
+            if self.handle is not None:
+                with contextlib.suppress(OSError):
+                    self.handle.close()
+                for made in (path, self.sidecar):
+                    with contextlib.suppress(OSError):
+                        made.unlink()
+            if isinstance(error, InputError):
+                raise RigError(f"{error}; nothing was recorded") from None
+            raise RigError(f"cannot write recording '{path}' ({error.strerror or error}); nothing was recorded") from None
 
     def row(self, values) -> None:
-        self.handle.write(",".join(f"{float(v):.17g}" for v in values) + "\n")
-        self.handle.flush()
+        try:
+            self.handle.write(",".join(f"{float(v):.17g}" for v in values) + "\n")
+            self.handle.flush()
+        except OSError as error:
+            raise RigError(f"cannot write {self.path}: {error.strerror or error} (after {self.rows} rows)") from None
         self.rows += 1
         self.save_metadata()
 
     def save_metadata(self, force: bool = False) -> None:
+        """Rewrite the sidecar (at most once a second unless `force`); a failure is one `InputError` line."""
         now = time.monotonic()
         if not force and now - self._saved < 1.0:
             return
         self._saved = now
         self.metadata["rows"] = self.rows
-        tmp = self.sidecar.with_name(self.sidecar.name + ".tmp")
-        tmp.write_text(json.dumps(self.metadata, indent=2, default=_jsonable) + "\n")
-        os.replace(tmp, self.sidecar)
+        write_json_atomic(self.sidecar, self.metadata)
 
     def close(self) -> None:
-        """Flush the rows, count them in the file (an interruption between writing a row and
-        counting it must not leave a stale count), save the sidecar, close."""
-        self.handle.flush()
-        with self.path.open("rb") as written:
+        """Flush the rows, close, cut a row the disk took only part of, count the rows in the file (an
+        interruption between writing a row and counting it must not leave a stale count), save the
+        sidecar (an `InputError` if it cannot be written: the CSV is closed and valid all the same)."""
+        with contextlib.suppress(OSError):      # a full disk: what reached the file is what there is
+            self.handle.flush()
+        with contextlib.suppress(OSError):
+            self.handle.close()
+        with self.path.open("rb+") as written:
+            size = written.seek(0, os.SEEK_END)
+            written.seek(max(0, size - 65536))
+            tail = written.read()
+            if tail and not tail.endswith(b"\n") and b"\n" in tail:
+                written.truncate(size - len(tail) + tail.rfind(b"\n") + 1)
+            written.seek(0)
             self.rows = max(0, sum(1 for _ in written) - 1)
         self.save_metadata(force=True)
-        self.handle.close()
 
 
 def _describe(error: BaseException) -> str:
@@ -119,10 +151,11 @@ def _describe(error: BaseException) -> str:
     return text or type(error).__name__
 
 
-def _jsonable(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"{type(value).__name__} is not JSON-able")
+def _kept(out: pathlib.Path, writer: _Writer, existed: bool, unsaved: InputError | None) -> str:
+    """Where a failed recording is: ``what was recorded (N rows) is kept in rec.partial.csv ...``."""
+    sidecar = (f" (its sidecar could not be updated: {unsaved})" if unsaved is not None else " (+ .json)")
+    return (f"what was recorded ({writer.rows} rows) is kept in {writer.path}{sidecar}; {out} was "
+            + ("left as it was" if existed else "not written"))
 
 
 def record(board: Board, camera, drive, settings: RecordSettings, out, metadata: dict | None = None,
@@ -139,7 +172,9 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
         truth: for the virtual rig, the camera's ``truth`` dict (frame index -> true w).
 
     Returns:
-        The final metadata. Raises `RigError` after saving a partial recording.
+        The final metadata. Raises `RigError` (or re-raises Ctrl-C/SIGTERM, with
+        ``.kept`` saying where the rows are) after keeping a partial recording in
+        ``partial_path(out)``; ``out`` is written only when the recording succeeded.
     """
     cal = settings.calibration
     codes = cal.codes(drive.v)
@@ -165,7 +200,11 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
         "sync": None, "dropped_frames": [], "duplicated_frames": 0, "untracked_frames": 0,
         **(metadata or {}),
     }
-    writer = _Writer(pathlib.Path(out), columns, meta)
+    out = pathlib.Path(out)
+    existed = out.exists()
+    partial = partial_path(out)
+    meta["partial_of"] = str(out)   # until the recording has succeeded and is renamed onto `out`
+    writer = _Writer(partial, columns, meta)
     tracker = TipTracker(settings.scene, strip_px=settings.strip_px)
     led = None
     if settings.led is not None:
@@ -203,6 +242,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
     sync_t = None
     done_slots = -1
     error: BaseException | None = None
+    unsaved: InputError | None = None
 
     def schedule():
         rep = result.get("report") or (report_box[0] if report_box else None)
@@ -323,12 +363,35 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
         else:
             meta["status"] = "interrupted"
             meta["error"] = _describe(error) if error is not None else (report.error if report else "unknown")
-        writer.close()
+        try:
+            writer.close()
+        except (InputError, OSError) as caught:       # the sidecar: a full disk
+            unsaved = caught
+    # Anything but success leaves the rows in `partial` and `out` as it was; the error says so.
+    kept = _kept(out, writer, existed, unsaved)
     if error is not None:
         if isinstance(error, RigError):
-            raise RigError(f"{error} (partial recording kept: {writer.rows} rows in {writer.path})") from None
+            raise RigError(f"{error}; {kept}") from None
+        if isinstance(error, (OSError, ValueError)):
+            raise RigError(f"{type(error).__name__}: {error}; {kept}") from None
+        error.kept = kept                  # Ctrl-C, SIGTERM: the command line says where the rows are
+        if not isinstance(error, KeyboardInterrupt):
+            error.add_note(kept)           # a bug: its traceback, and where the rows are
         raise error
+    if unsaved is not None:
+        raise RigError(kept)
+    if not meta["complete"]:
+        raise RigError(f"the board did not play the whole drive ({meta['error']}); {kept}")
     if writer.rows < 2:
-        raise RigError(f"recording {writer.path} has {writer.rows} rows: too short to be valid")
-    Recording.load(writer.path)       # what was written is a valid recording
+        raise RigError(f"the recording has {writer.rows} rows: too short to be valid; {kept}")
+    try:
+        Recording.load(writer.path)       # what was written is a valid recording
+    except InputError as invalid:
+        raise RigError(f"the recording is not valid ({invalid}); {kept}") from None
+    del meta["partial_of"]
+    try:
+        writer.save_metadata(force=True)
+    except InputError as caught:
+        raise RigError(_kept(out, writer, existed, caught)) from None
+    rename_together({writer.path: out, writer.sidecar: out.with_name(out.name + ".json")})
     return meta

@@ -10,12 +10,15 @@ Bad input and hardware faults end with exit status 2 and one line on stderr;
 every size argument is bounded (the bounds are in ``--help`` and in the
 message). SIGTERM is handled like Ctrl-C: a recording is closed, flagged
 ``interrupted`` with its row count, and the exit status is 143 (130 for Ctrl-C).
+`rig record` writes ``--out`` only when it succeeded: a failed or interrupted
+recording is kept in ``F.partial.csv`` and the one-line error names it.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
 import threading
@@ -197,6 +200,10 @@ def _cmd_record(args):
         raise InputError("give either --virtual or both --port and --camera")
     if not args.virtual and not (args.port and args.camera):
         raise InputError("a real recording needs both --port and --camera")
+    from ._files import check_outputs
+
+    sources = [p for p in (args.calibration, args.camera) if p and os.path.exists(p)]
+    check_outputs([args.out, args.out + ".json"], sources)   # `--camera v.avi --out v.avi` is refused
     calibration = Calibration.load(args.calibration) if args.calibration else Calibration()
     drive = hybrid.make_drive(args.drive, args.duration, rate=args.rate, seed=args.seed,
                               amplitude=args.amplitude)
@@ -346,10 +353,11 @@ def main(argv=None) -> int:
         print(f"rig: error: {type(error).__name__}: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as error:
+        kept = getattr(error, "kept", None) or "what was recorded so far is kept"  # `rig record` names the file
         if isinstance(error, Terminated):
-            print("rig: terminated by SIGTERM (what was recorded so far is kept)", file=sys.stderr)
+            print(f"rig: terminated by SIGTERM ({kept})", file=sys.stderr)
             return 143
-        print("rig: interrupted (what was recorded so far is kept)", file=sys.stderr)
+        print(f"rig: interrupted ({kept})", file=sys.stderr)
         return 130
     finally:
         if previous is not None:

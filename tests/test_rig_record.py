@@ -49,6 +49,8 @@ def test_virtual_record_cli_gives_a_valid_synchronised_recording(tmp_path, capsy
     rec = hybrid.Recording.load(out)
     meta = _meta(out)
     assert meta["complete"] and meta["sync"]["method"] == "led"
+    # streamed into rec.partial.csv, renamed onto --out with its sidecar once it succeeded
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv", "rec.csv.json"] and "partial_of" not in meta
     assert abs(len(rec) - 150) <= 1 and rec.rate == pytest.approx(30.0, rel=1e-3)
     # Tracking against the virtual strip's exposure-averaged truth.
     error = rec.w - rec.extra["w_true"]
@@ -79,7 +81,12 @@ def _virtual(tmp_path, fault_at=None, duration=4.0, rate=30.0, **camera_kwargs):
         meta = record(board, camera, drive, SETTINGS, out, truth=camera.truth)
         error = None
     except RigError as caught:
-        meta, error = _meta(out), caught
+        # A failed recording is kept beside --out, never at it: the error names it.
+        partial = tmp_path / "rec.partial.csv"
+        assert not out.exists() and f"kept in {partial} (+ .json); {out} was not written" in str(caught)
+        out, error = partial, caught
+        meta = _meta(out)
+        assert meta["partial_of"] == str(tmp_path / "rec.csv")
     finally:
         board.close()
         emulated.close()
@@ -88,7 +95,7 @@ def _virtual(tmp_path, fault_at=None, duration=4.0, rate=30.0, **camera_kwargs):
 
 def test_board_reset_mid_record_keeps_a_flagged_partial_recording(tmp_path):
     out, meta, error = _virtual(tmp_path, fault_at=(60, lambda e: e.reset()))
-    assert error is not None and "reset during the stream" in str(error) and "partial recording kept" in str(error)
+    assert error is not None and "reset during the stream" in str(error) and "is kept in" in str(error)
     rec = hybrid.Recording.load(out)
     assert 30 <= len(rec) <= 66             # rows up to the reset at sample 60, less < 1 s
     assert meta["complete"] is False and meta["status"] == "interrupted" and "reset" in meta["error"]
@@ -170,14 +177,14 @@ def test_sigterm_closes_the_recording_like_ctrl_c(tmp_path):
     import sys
     import time
 
-    out = tmp_path / "rec.csv"
+    out, partial = tmp_path / "rec.csv", tmp_path / "rec.partial.csv"
     process = subprocess.Popen([sys.executable, "-m", "rig.cli", "record", "--virtual", "--drive", "prbs",
                                 "--duration", "30", "--speed", "3", "--out", str(out)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and process.poll() is None:
-            if out.exists() and out.read_text().count("\n") > 6:
+            if partial.exists() and partial.read_text().count("\n") > 6:
                 break
             time.sleep(0.1)
         assert process.poll() is None, process.communicate()
@@ -187,8 +194,11 @@ def test_sigterm_closes_the_recording_like_ctrl_c(tmp_path):
         if process.poll() is None:
             os.kill(process.pid, signal.SIGKILL)
     assert process.returncode == 143 and "terminated by SIGTERM" in err and "Traceback" not in err
-    meta = _meta(out)
-    rows = out.read_text().count("\n") - 1
+    assert err.count("\n") == 1 and f"is kept in {partial} (+ .json); {out} was not written" in err, err
+    assert not out.exists()        # an interrupted recording is never at --out
+    meta = _meta(partial)
+    rows = partial.read_text().count("\n") - 1
     assert meta["status"] == "interrupted" and meta["complete"] is False
     assert meta["error"] == "terminated by SIGTERM" and meta["rows"] == rows >= 6
-    assert len(hybrid.Recording.load(out)) == rows
+    assert f"({rows} rows)" in err
+    assert len(hybrid.Recording.load(partial)) == rows
