@@ -151,10 +151,14 @@ def _describe(error: BaseException) -> str:
     return text or type(error).__name__
 
 
-def _kept(out: pathlib.Path, writer: _Writer, existed: bool, unsaved: InputError | None) -> str:
+def _kept(out: pathlib.Path, writer: _Writer, existed: bool, unsaved: Exception | None,
+          what: str = "what was recorded") -> str:
     """Where a failed recording is: ``what was recorded (N rows) is kept in rec.partial.csv ...``."""
-    sidecar = (f" (its sidecar could not be updated: {unsaved})" if unsaved is not None else " (+ .json)")
-    return (f"what was recorded ({writer.rows} rows) is kept in {writer.path}{sidecar}; {out} was "
+    sidecar = " (+ .json)"
+    if unsaved is not None:     # hybrid's "cannot write F: REASON; nothing was changed at F (...)": the reason
+        reason = getattr(unsaved, "strerror", None) or str(unsaved).split("; nothing was changed")[0].split(": ")[-1]
+        sidecar = f" (its sidecar {writer.sidecar.name} could not be updated: {reason})"
+    return (f"{what} ({writer.rows} rows) is kept in {writer.path}{sidecar}; {out} was "
             + ("left as it was" if existed else "not written"))
 
 
@@ -392,6 +396,9 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
     try:
         writer.save_metadata(force=True)
     except InputError as caught:
-        raise RigError(_kept(out, writer, existed, caught)) from None
-    rename_together({writer.path: out, writer.sidecar: out.with_name(out.name + ".json")})
+        raise RigError(_kept(out, writer, existed, caught, 'the complete recording')) from None
+    try:
+        rename_together({writer.path: out, writer.sidecar: out.with_name(out.name + ".json")})
+    except RigError as failed:             # the recording is whole, but where it was streamed
+        raise RigError(f"{failed}; {_kept(out, writer, existed, None, 'the complete recording')}") from None
     return meta
