@@ -104,7 +104,8 @@ class _Writer:
                         made.unlink()
             if isinstance(error, InputError):
                 raise RigError(f"{error}; nothing was recorded") from None
-            raise RigError(f"cannot write recording '{path}' ({error.strerror or error}); nothing was recorded") from None
+            raise RigError(f"cannot write recording '{path}' ({error.strerror or error}); "
+                           "nothing was recorded") from None
 
     def row(self, values) -> None:
         try:
@@ -374,7 +375,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
     # Anything but success leaves the rows in `partial` and `out` as it was; the error says so.
     kept = _kept(out, writer, existed, unsaved)
     if error is not None:
-        if isinstance(error, RigError):
+        if isinstance(error, InputError):  # RigError, and a sidecar that could not be written
             raise RigError(f"{error}; {kept}") from None
         if isinstance(error, (OSError, ValueError)):
             raise RigError(f"{type(error).__name__}: {error}; {kept}") from None
