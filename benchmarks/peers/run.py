@@ -544,7 +544,8 @@ def table2_baselines(result) -> str:
         lines.append(f"| **{row_name}** | " + " | ".join(cells) + " |")
     if len(part) > 1:
         avg = [float(np.mean(v)) if all(x is not None for x in v) else None for v in totals.values()]
-        lines.append("| **Average** | " + " | ".join(_fmt(v, 4) for v in avg[:-1]) + " | |")
+        name = "Average" if len(part) == len(ROWS) else f"Average of {len(part)}"
+        lines.append(f"| **{name}** | " + " | ".join(_fmt(v, 4) for v in avg[:-1]) + " | |")
     if 0 < len(part) < len(ROWS):
         missing = [r for r, _ in ROWS if r not in part]
         lines += ["", f"Not run in the time this run had: {', '.join(missing)}."]
