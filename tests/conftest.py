@@ -9,6 +9,13 @@ the same shapes; with the cache each program is compiled once per run. Nothing
 is written into the user's ~/.cache, and every run starts cold, as CI does.
 A test that needs a cold compile in its own process (the hang guard) turns the
 cache off for its subprocess.
+
+Memory maps: every compiled program holds some, and a worker that runs many
+test files used to end a run with 43,000–53,000 of Linux's 65,530 (one crashed
+in a compilation-cache write). After each test file a worker that holds more
+than `hybrid.util._programs.MAX_MAP_FRACTION` of its limit releases its
+compiled programs (a later test reads them back from the run's cache), and
+each worker's maps at the end of the run are printed in the summary.
 """
 
 import os
@@ -16,6 +23,9 @@ import shutil
 import tempfile
 
 import jax
+import pytest
+
+from hybrid.util._programs import MAX_MAP_FRACTION, map_limit, memory_maps, release_programs
 
 CACHE_ENV = "HYBRID_JAX_CACHE"
 
@@ -35,3 +45,33 @@ def pytest_unconfigure(config):
     where = getattr(config, "_hybrid_jax_cache", None)
     if where:
         shutil.rmtree(where, ignore_errors=True)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_programs_when_crowded():
+    """After each test file: release the worker's compiled programs if it holds too many memory maps."""
+    yield
+    maps, limit = memory_maps(), map_limit()
+    if maps is not None and limit and maps > MAX_MAP_FRACTION * limit:
+        release_programs()
+
+
+def pytest_sessionfinish(session):
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:  # an xdist worker: tell the controller how many maps it holds
+        workeroutput["memory_maps"] = memory_maps()
+
+
+_worker_maps = {}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    _worker_maps[node.gateway.id] = getattr(node, "workeroutput", {}).get("memory_maps")
+
+
+def pytest_terminal_summary(terminalreporter):
+    maps = dict(_worker_maps) if _worker_maps else {"main": memory_maps()}
+    limit = map_limit()
+    text = ", ".join(f"{k} {v}" for k, v in sorted(maps.items()))
+    terminalreporter.write_line(f"memory maps at the end of the run: {text} (limit {limit})")

@@ -39,9 +39,9 @@ __all__ = ["METRICS", "fitting", "metrics", "nmse", "nmse_target", "nmse_varianc
 METRICS: tuple[str, ...] = ("nmse", "nmse_target", "nmse_variance", "fitting")
 
 
-def _pair(w: ArrayLike, w_hat: ArrayLike) -> tuple[Array, Array]:
-    """Both signals as floating JAX arrays, after checking shapes and values."""
-    w, w_hat = jnp.asarray(w), jnp.asarray(w_hat)
+def _pair(w: ArrayLike, w_hat: ArrayLike, xp=jnp) -> tuple[Array, Array]:
+    """Both signals as floating arrays of `xp` (JAX's, or numpy's for concrete values), after checks."""
+    w, w_hat = xp.asarray(w), xp.asarray(w_hat)
     if w.shape != w_hat.shape:
         raise InputError(
             f"target w has shape {w.shape} but prediction w_hat has shape "
@@ -49,9 +49,9 @@ def _pair(w: ArrayLike, w_hat: ArrayLike) -> tuple[Array, Array]:
         )
     if w.size == 0:
         raise InputError("target w and prediction w_hat are empty: compare non-empty signals")
-    dtype = jnp.result_type(w, w_hat)
-    if not jnp.issubdtype(dtype, jnp.inexact):
-        dtype = jnp.result_type(float)
+    dtype = xp.result_type(w, w_hat)
+    if not xp.issubdtype(dtype, xp.inexact):
+        dtype = xp.result_type(float)
     w, w_hat = w.astype(dtype), w_hat.astype(dtype)
     for label, x in (("target w", w), ("prediction w_hat", w_hat)):
         value = _concrete(x)
@@ -77,17 +77,17 @@ def _require_concrete(ok: bool | None, message: str) -> None:
         raise InputError(message)
 
 
-def _peak(x: Array) -> Array:
+def _peak(x: Array, xp=jnp) -> Array:
     """``max|x|``, replaced by 1 when x is all zero so that zero stays zero."""
-    peak = jnp.max(jnp.abs(x))
-    return jnp.where(peak > 0, peak, jnp.ones_like(peak))
+    peak = xp.max(xp.abs(x))
+    return xp.where(peak > 0, peak, xp.ones_like(peak))
 
 
-def _safe_norm(x: Array) -> Array:
+def _safe_norm(x: Array, xp=jnp) -> Array:
     """Euclidean norm whose gradient is 0, not nan, at x = 0."""
-    squares = jnp.sum(x**2)
+    squares = xp.sum(x**2)
     positive = squares > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, squares, 1.0)), 0.0)
+    return xp.where(positive, xp.sqrt(xp.where(positive, squares, 1.0)), 0.0)
 
 
 def _nonzero(w: Array) -> bool | None:
@@ -100,14 +100,14 @@ def _nonconstant(w: Array) -> bool | None:
     return None if value is None else bool(np.ptp(value) > 0)
 
 
-def _normalised(w: Array, w_hat: Array) -> tuple[Array, Array]:
+def _normalised(w: Array, w_hat: Array, xp=jnp) -> tuple[Array, Array]:
     """Eq 18's ``w_n, w_hat_n``: each signal over its own ``max|.|``."""
     _require_concrete(
         _nonzero(w),
         "target w is zero everywhere, so it cannot be normalised by its maximum: "
         "check that the displacement channel was recorded",
     )
-    return w / _peak(w), w_hat / _peak(w_hat)
+    return w / _peak(w, xp), w_hat / _peak(w_hat, xp)
 
 
 def nmse(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
@@ -125,9 +125,12 @@ def nmse(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
     Returns:
         The NMSE, dimensionless, 0 for a perfect prediction.
     """
-    w, w_hat = _pair(w, w_hat)
-    w_n, w_hat_n = _normalised(w, w_hat)
-    return jnp.mean((w_n - w_hat_n) ** 2)
+    return _nmse(*_pair(w, w_hat))
+
+
+def _nmse(w, w_hat, xp=jnp):
+    w_n, w_hat_n = _normalised(w, w_hat, xp)
+    return xp.mean((w_n - w_hat_n) ** 2)
 
 
 def nmse_target(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
@@ -143,14 +146,17 @@ def nmse_target(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
     Returns:
         The NMSE on the target's scale, dimensionless.
     """
-    w, w_hat = _pair(w, w_hat)
+    return _nmse_target(*_pair(w, w_hat))
+
+
+def _nmse_target(w, w_hat, xp=jnp):
     _require_concrete(
         _nonzero(w),
         "target w is zero everywhere, so it cannot scale the error: check that "
         "the displacement channel was recorded",
     )
-    scale = _peak(w)
-    return jnp.mean(((w - w_hat) / scale) ** 2)
+    scale = _peak(w, xp)
+    return xp.mean(((w - w_hat) / scale) ** 2)
 
 
 def nmse_variance(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
@@ -165,13 +171,16 @@ def nmse_variance(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
     Returns:
         The variance-normalised MSE, dimensionless.
     """
-    w, w_hat = _pair(w, w_hat)
+    return _nmse_variance(*_pair(w, w_hat))
+
+
+def _nmse_variance(w, w_hat, xp=jnp):
     _require_concrete(
         _nonconstant(w),
         "target w is constant, so its variance cannot scale the error: evaluate "
         "on a segment where the strip moves",
     )
-    return jnp.mean((w - w_hat) ** 2) / jnp.var(w)
+    return xp.mean((w - w_hat) ** 2) / xp.var(w)
 
 
 def fitting(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
@@ -188,14 +197,17 @@ def fitting(w: ArrayLike, w_hat: ArrayLike) -> Float[Array, ""]:
     Returns:
         The fitting, %.
     """
-    w, w_hat = _pair(w, w_hat)
+    return _fitting(*_pair(w, w_hat))
+
+
+def _fitting(w, w_hat, xp=jnp):
     _require_concrete(
         _nonconstant(w),
         "target w is constant, so the fitting of Eq 20 is undefined: evaluate "
         "on a segment where the strip moves",
     )
-    w_n, w_hat_n = _normalised(w, w_hat)
-    return 100 * (1 - _safe_norm(w_n - w_hat_n) / _safe_norm(w_n - jnp.mean(w_n)))
+    w_n, w_hat_n = _normalised(w, w_hat, xp)
+    return 100 * (1 - _safe_norm(w_n - w_hat_n, xp) / _safe_norm(w_n - xp.mean(w_n), xp))
 
 
 def metrics(w: ArrayLike, w_hat: ArrayLike) -> dict[str, float]:
@@ -209,8 +221,7 @@ def metrics(w: ArrayLike, w_hat: ArrayLike) -> dict[str, float]:
         ``{"nmse", "nmse_target", "nmse_variance", "fitting"}``; see the
         functions of the same names.
     """
-    functions = {
-        "nmse": nmse, "nmse_target": nmse_target, "nmse_variance": nmse_variance,
-        "fitting": fitting,
-    }
-    return {key: float(functions[key](w, w_hat)) for key in METRICS}
+    functions = {"nmse": _nmse, "nmse_target": _nmse_target, "nmse_variance": _nmse_variance, "fitting": _fitting}
+    # The same formulas in numpy: floats of concrete arrays need no compiled program (one per length).
+    w, w_hat = (np.asarray(x) for x in _pair(w, w_hat, np))
+    return {key: float(functions[key](w, w_hat, np)) for key in METRICS}

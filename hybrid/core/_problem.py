@@ -130,8 +130,10 @@ def series_from_recording(recording, fractions=(0.3, 0.5, 0.2), order=("train", 
         for name, s in chunk.split(fractions=fractions, order=order).slices.items():
             parts[name].append((lo + s.start, lo + s.stop))
     segments = tuple((name, tuple(parts[name])) for name in order)
+    # device_put, not jnp.asarray: no compiled program per recording length
     return Series(
-        jnp.asarray(recording.v_in), jnp.asarray(recording.w), float(recording.dt), segments
+        jax.device_put(np.asarray(recording.v_in)), jax.device_put(np.asarray(recording.w)), float(recording.dt),
+        segments,
     )
 
 
@@ -168,15 +170,15 @@ def bucketed_series(series: Series, length: int) -> Series:
     n = int(series.v_in.shape[0])
     if length < n:
         raise ValueError(f"cannot pad {n} samples to {length}")
-    pad = length - n
-    v_in = jnp.concatenate([series.v_in, jnp.broadcast_to(series.v_in[-1:], (pad,))])
-    w = jnp.concatenate([series.w, jnp.zeros(pad, series.w.dtype)])
+    v_in, w = np.asarray(series.v_in), np.asarray(series.w)  # padded on the host: no program per length
+    v_in = jax.device_put(np.concatenate([v_in, np.full(length - n, v_in[-1], v_in.dtype)]))
+    w = jax.device_put(np.concatenate([w, np.zeros(length - n, w.dtype)]))
     weights = []
     for name, spans in series.segments:
-        mask = np.zeros(length, np.asarray(series.w).dtype)
+        mask = np.zeros(length, w.dtype)
         for a, b in spans:
             mask[a:b] = 1.0
-        weights.append((name, jnp.asarray(mask)))
+        weights.append((name, jax.device_put(mask)))
     segments = tuple((name, ((0, length),)) for name, _ in series.segments)
     spans = tuple((name, np.asarray(spans, np.int64).reshape(-1, 2)) for name, spans in series.segments)
     return Series(v_in, w, series.dt, segments, tuple(weights), spans)
@@ -231,12 +233,14 @@ class Problem(eqx.Module):
         if any(s.weights is not None for s in series) and getattr(model.readout, "window", 1) != 1:
             raise InputError(f"padded series need a per-sample readout: a window of {model.readout.window} samples "
                              "would reach across a split's start (use series_from_recording's segments)")
-        if any(s.weights is not None for s in series):  # padded series: the training samples alone
-            train = jnp.asarray(np.concatenate([np.asarray(s.target("train"))[np.asarray(_weight_of(s, "train")) > 0]
-                                                for s in series]))
+        if any(s.weights is not None for s in series):  # padded series: the training samples alone, on the host
+            train = np.concatenate([np.asarray(s.target("train"))[np.asarray(_weight_of(s, "train")) > 0]
+                                    for s in series])
+            top = float(np.max(np.abs(train)))
+            power = np.ldexp(1.0, int(np.frexp(top)[1])) if np.isfinite(top) and top > 0 else 1.0
+            std = jax.device_put(np.asarray(np.std(train / power) * power))  # `robust_std` in numpy
         else:
-            train = jnp.concatenate([s.target("train") for s in series])
-        std = robust_std(train)
+            std = robust_std(jnp.concatenate([s.target("train") for s in series]))
         self.scale = jnp.where(std > 0, std, jnp.ones_like(std))  # constant w: refused by fit
         self.kind = model.kind
         if not weight_decay >= 0:

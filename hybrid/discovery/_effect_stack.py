@@ -145,25 +145,28 @@ class EffectStack(AbstractWrapper):
         `n`: the samples of `v_in` that were recorded (a padded drive's first
         `n`); each effect's quantities are taken over those alone.
         """
-        s = _simulate_compiled(self.inner, v_in, dt)
         n = int(v_in.shape[0]) if n is None else int(n)
+        signals = np.asarray(_signals_into_effects(self, v_in, dt))
         out = {}
-        for on, effect in zip(self.active, self.effects):
+        for on, effect, s in zip(self.active, self.effects, signals):
             if float(on):  # a switched-off effect leaves s unchanged
-                out[effect.name] = effect.derived(np.asarray(s)[:n], dt)
-                s = s + on * (_apply_compiled(effect, s, dt) - s)
+                out[effect.name] = effect.derived(s[:n], dt)
         return out
 
 
-# Compiled once per effect type: run eagerly, a scan dispatches (and compiles) op by op.
 @eqx.filter_jit
-def _simulate_compiled(simulation, v_in, dt):
-    return simulation.simulate(v_in, dt)
+def _signals_into_effects(stack, v_in, dt):
+    """The signal entering each effect of `stack` (rows in its order), in one compiled program.
 
-
-@eqx.filter_jit
-def _apply_compiled(effect, s, dt):
-    return effect.apply(s, dt)
+    The switches are data: every stack of one structure, whichever effects are
+    on, shares the program.
+    """
+    s = stack.inner.simulate(v_in, dt)
+    into = []
+    for on, effect in zip(stack.active, stack.effects):
+        into.append(s)
+        s = s + on * (effect.apply(s, dt) - s)
+    return jnp.stack(into)
 
 
 def extend(simulation: AbstractSimulation, *effects, **values) -> EffectStack:

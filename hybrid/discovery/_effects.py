@@ -48,6 +48,7 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 from jaxtyping import Array, Float
 
@@ -193,8 +194,8 @@ class Saturation(AbstractEffect):
         """Level 1/|κ| (V) and shortfall below the linear extrapolation at the largest |s|, %."""
         p = self.parameters()
         out = {}
-        for side, peak, k in (("pos", jnp.max(s), p["saturation_pos_per_v"]),
-                              ("neg", -jnp.min(s), p["saturation_neg_per_v"])):
+        for side, peak, k in (("pos", np.max(s), p["saturation_pos_per_v"]),
+                              ("neg", -np.min(s), p["saturation_neg_per_v"])):
             peak, k = float(peak), abs(float(k))
             out[f"level_{side}_v"] = 1.0 / k if k > 0 else float("inf")
             if peak > 0:
@@ -230,7 +231,7 @@ class Hysteresis(AbstractEffect):
 
     def derived(self, s, dt):
         """Loop height 2|W| as a percentage of the signal's range."""
-        span = float(jnp.ptp(s))
+        span = float(np.ptp(s))
         height = 2.0 * abs(float(self.parameters()["hysteresis_height_v"]))
         return {"loop_height_percent_of_range": 100.0 * height / span if span > 0 else 0.0}
 
@@ -363,8 +364,8 @@ class EvenResponse(AbstractEffect):
 
     def derived(self, s, dt):
         """The even part's size, |c| max s², as a percentage of the range of s."""
-        span = float(jnp.ptp(s))
-        even = abs(float(self.parameters()["even_per_v"])) * float(jnp.max(s * s))
+        span = float(np.ptp(s))
+        even = abs(float(self.parameters()["even_per_v"])) * float(np.max(np.square(s)))
         return {"even_percent_of_range": 100.0 * even / span if span > 0 else 0.0}
 
 

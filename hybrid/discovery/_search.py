@@ -139,13 +139,10 @@ def initial_thetas(problem, simulations, readout, frozen):
     stage already runs: gain 1, offset 0), and the gain and offset are fitted
     on the recorded training samples by numpy: no program of its own.
     """
-    unit = eqx.tree_at(lambda r: r.raw, readout, {k: jnp.asarray(v, float) for k, v in
-                                                   {"gain": 1.0, "offset": 0.0}.items()})
     w = problem.recorded(problem.target("train"), "train")
     thetas = []
     for simulation in simulations:
-        theta = problem.flatten(Model(simulation, unit, "physics"), frozen)
-        s = problem.recorded(_predictions(problem, simulation.active, theta)["train"], "train")
+        s = simulation_output(problem, simulation, readout, frozen, "train")
         (gain, offset), *_ = np.linalg.lstsq(np.stack([s, np.ones_like(s)], axis=1), w, rcond=None)
         if not (np.isfinite(gain) and np.isfinite(offset)):
             gain, offset = 1.0, 0.0
@@ -153,6 +150,17 @@ def initial_thetas(problem, simulations, readout, frozen):
                                                          "offset": jnp.asarray(offset, float)})
         thetas.append(problem.flatten(Model(simulation, fitted, "physics"), frozen))
     return jnp.stack(thetas)
+
+
+def simulation_output(problem, simulation, readout, frozen, split: str) -> np.ndarray:
+    """`simulation`'s output (a stack of the search's structure) on the recorded samples of `split`.
+
+    Read off `_predictions` with gain 1 and offset 0: the program every stage
+    runs already, so no program of its own.
+    """
+    unit = eqx.tree_at(lambda r: r.raw, readout, {"gain": jnp.asarray(1.0, float), "offset": jnp.asarray(0.0, float)})
+    theta = problem.flatten(Model(simulation, unit, "physics"), frozen)
+    return problem.recorded(_predictions(problem, simulation.active, theta)[split], split)
 
 
 @eqx.filter_jit

@@ -32,8 +32,10 @@ from . import _residual_tests as rt
 from ._decision import _choose_lane, _equally_good_fits, _evaluate, _lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings
 from ._effects import EFFECTS
-from ._search import _best_lag, _fit_lanes, _lane_tangents, _signals, _starts, initial_thetas, lane_count
-from ._starts import delay_starts, hysteresis_starts, resonance_starts, train_signal
+from ._search import (
+    _best_lag, _fit_lanes, _lane_tangents, _signals, _starts, initial_thetas, lane_count, simulation_output,
+)
+from ._starts import delay_starts, hysteresis_starts, resonance_starts
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
@@ -107,7 +109,8 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
     cur_tangents = _lane_tangents(s.model, s.frozen, present, n_rows)
     cur_model = problem.model(jnp.asarray(theta_cur))
 
-    s_train = np.asarray(train_signal(problem, cur_model.simulation.inner))
+    bare = cur_model.simulation.with_active(np.zeros_like(active_cur))  # the inner simulation alone
+    s_train = simulation_output(problem, bare, cur_model.readout, s.frozen, "train")
     _, w_tr, w_hat_tr = _signals(problem, theta_cur, active_cur, "train")
     lag = _best_lag(w_tr, w_hat_tr, max_lag=20)
     f, psd = rt.spectrum(w_tr - w_hat_tr, s.rate)
