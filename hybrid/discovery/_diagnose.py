@@ -60,7 +60,7 @@ from ._decision import _evaluate, _free_names
 from ._diagnosis import SPLIT_ORDER, Diagnosis, DiagnoseSettings
 from ._effects import EFFECTS
 from ._evidence import _evidence, _fitted_model, _uncertainties
-from ._search import _fit_lanes, _lane_tangents, _signals, _with_active, initial_thetas, lanes_problem
+from ._search import _fit_lanes, _lane_tangents, _signals, _with_active, initial_thetas, lanes_problem, padding_lane
 from ._starts import N_SCREEN, baseline_starts
 from ._step import Search, search_step
 from ._unexplained import pooled_noise_floor, remainder
@@ -169,9 +169,11 @@ def diagnose(
     n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
     say(f"screening {N_SCREEN} network designs for the baseline's starts")
     grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN, frozen)
-    grid += grid[:1] * (n_lanes - len(grid))  # a design smaller than the lanes (few free parameters)
     base = model.simulation.with_active(off)
     thetas = initial_thetas(problem, [base.replace(**g) for g in grid], model.readout, frozen)
+    if len(grid) < n_lanes:  # a design smaller than the lanes (few free parameters): the rest stop at once
+        thetas = jnp.concatenate([thetas, jnp.stack([padding_lane(thetas[0])] * (n_lanes - len(grid)))])
+        grid += grid[:1] * (n_lanes - len(grid))
     base_tangents = _lane_tangents(model, frozen, None, n_rows)
     say(f"baseline from {len(grid)} starts")
     base_states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm,
@@ -201,8 +203,9 @@ def diagnose(
     theta_base = baseline.theta
     v_te, w_te, w_hat_base = _signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = _signals(problem, extended.theta, extended.active, "test")
-    fitted = _with_active(problem, jnp.asarray(extended.active, float),
-                          jnp.asarray(_lane_tangents(model, frozen, present, n_rows), float))
+    final = search.problem_for(len(present))
+    fitted = _with_active(final, jnp.asarray(extended.active, float),
+                          jnp.asarray(_lane_tangents(model, frozen, present, int(final.sim_tangents.shape[0])), float))
     uncertainties = _uncertainties(fitted, extended.theta, w_te - w_hat_ext,
                                    keep=_fitted_model(problem, extended.theta, present).parameters())
     evidence = _evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)

@@ -25,6 +25,10 @@ from ..core._models import Model
 from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording
 from ..core._readout import LinearReadout
 
+#: Effects a lane's Jacobian has room for in the problem the search's first steps share. Each
+#: direction costs one tangent of the simulation, zero or not: room for more is paid on every
+#: step, so a step that needs more builds a larger problem (and compiles its programs) then.
+SHARED_ROOM = 2
 #: Least LM runs per stage (baseline starts; candidate starts, padded): one compiled program.
 #: `lane_count` raises it to the first step's candidate lanes, so that every stage has one lane count.
 N_LANES = 16
@@ -112,8 +116,13 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     problem, n_rows = _search_problem(model, padded, frozenset(settings.frozen_for(simulation)),
-                                      min(settings.max_causes, len(EFFECTS)))
+                                      min(SHARED_ROOM, settings.max_causes, len(EFFECTS)))
     return problem, n_rows, model, series
+
+
+def padding_lane(theta) -> jax.Array:
+    """θ of a lane that only fills a batch: not finite, so LM stops before its first step."""
+    return jnp.full_like(jnp.asarray(theta), jnp.nan)
 
 
 def lane_count(n_first_step: int) -> int:

@@ -33,7 +33,8 @@ from ._decision import _choose_lane, _equally_good_fits, _evaluate, _lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings
 from ._effects import EFFECTS
 from ._search import (
-    _best_lag, _fit_lanes, _lane_tangents, _signals, _starts, initial_thetas, lane_count, simulation_output,
+    SHARED_ROOM, _best_lag, _fit_lanes, _lane_tangents, _search_problem, _signals, _starts, initial_thetas,
+    lane_count, padding_lane, simulation_output,
 )
 from ._starts import delay_starts, hysteresis_starts, resonance_starts
 from ..core._levenberg_marquardt import LMSettings
@@ -58,10 +59,24 @@ class Search:
     n_val: int
     say: Callable[[str], None]
     n_lanes: int = 0
+    larger: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if not self.n_lanes:
             self.n_lanes = lane_count(first_step_lanes(self.rate, self.duration))
+
+    def problem_for(self, n_effects: int) -> Problem:
+        """The shared problem, or (beyond its room) one with room for `n_effects` effects in a lane."""
+        if n_effects <= self.room:
+            return self.problem
+        if n_effects not in self.larger:
+            self.larger[n_effects] = _search_problem(self.model, self.problem.series, self.frozen, n_effects)[0]
+        return self.larger[n_effects]
+
+    @property
+    def room(self) -> int:
+        """Effects a lane of the shared problem has Jacobian directions for."""
+        return min(SHARED_ROOM, self.settings.max_causes, len(EFFECTS))
 
 
 #: Screened starts of the first step, per effect (`hybrid.discovery._starts`).
@@ -103,7 +118,8 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
     """Every effect not in `present` added to `current` (which has exactly `present` switched on)."""
     s, settings = search, search.settings
     names = list(EFFECTS)
-    problem, n_rows = s.problem, int(s.problem.sim_tangents.shape[0])
+    problem = s.problem_for(len(present) + 1)
+    n_rows = int(problem.sim_tangents.shape[0])
     active_cur = np.asarray(current.active, float)
     theta_cur = current.theta
     cur_tangents = _lane_tangents(s.model, s.frozen, present, n_rows)
@@ -138,7 +154,7 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
         raise AssertionError(f"{len(starts)} candidate lanes for {n_lanes}: first_step_lanes is out of date")
     lanes = list(initial_thetas(problem, starts, cur_model.readout, s.frozen))
     while len(lanes) < n_lanes:  # one lane count for every step: one compiled program
-        lanes.append(theta_cur)
+        lanes.append(padding_lane(theta_cur))  # stops at once: no LM steps spent on it
         actives.append(active_cur)
         labels.append("none")
         tangents.append(cur_tangents)
