@@ -1,0 +1,58 @@
+"""Where a `diagnose` call spends its time, stage by stage (compiled programs reused).
+
+    python benchmarks/diagnose_stages.py [--duration 300] [--rate 30]
+
+Diagnoses one synthetic strip with a hidden back-relaxation (seed 0 of
+`hybrid.ipmc._synthetic.random_strip`, the discrepancy drive) to compile the
+search, then another of the same length with ``progress=True``, and prints
+each stage's seconds from the stage messages: what a lab sees from its second
+recording on. Prints only; nothing is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import builtins
+import time
+
+import numpy as np
+
+import _common as c
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=300.0)
+    parser.add_argument("--rate", type=float, default=30.0)
+    args = parser.parse_args()
+    c.setup_jax()
+    from hybrid import diagnose
+    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+
+    def recording(seed):
+        rng = np.random.default_rng(seed)
+        strip, params = random_strip(rng), random_effect("back_relaxation", rng, args.rate)
+        return synthetic_recording(discrepancy_drive(args.duration, args.rate, seed), strip, "back_relaxation",
+                                   params, seed=seed)
+
+    first, second = recording(0), recording(1)
+    diagnose(first)
+    start = time.perf_counter()
+    last = [start]
+    plain = builtins.print
+
+    def timed_print(*parts, **options):
+        now = time.perf_counter()
+        plain(f"[{now - start:6.1f} s, +{now - last[0]:5.1f}]", *parts, **options)
+        last[0] = now
+
+    builtins.print = timed_print
+    try:
+        found = diagnose(second, progress=True)
+    finally:
+        builtins.print = plain
+    print(f"second call: {time.perf_counter() - start:.1f} s, named {found.cause}")
+
+
+if __name__ == "__main__":
+    main()
