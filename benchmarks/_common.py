@@ -48,6 +48,15 @@ def first_call(fn, *args):
     return time.perf_counter() - t0, out
 
 
+def relaxing_strip(seed: int, duration: float, rate: float):
+    """A synthetic strip (seed `seed` of `random_strip`) with a hidden back-relaxation under the discrepancy drive."""
+    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+
+    rng = np.random.default_rng(seed)
+    strip, params = random_strip(rng), random_effect("back_relaxation", rng, rate)
+    return synthetic_recording(discrepancy_drive(duration, rate, seed), strip, "back_relaxation", params, seed=seed)
+
+
 def sos_sections(network, dt):
     """The network's Tustin sections as scipy SOS rows [b0, b1, 0, 1, a1, 0], written
     from `scipy.signal.bilinear_zpk` of each section's zero, pole and gain (Eqs 11–13)."""

@@ -34,7 +34,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 import _common as c
 
@@ -56,15 +55,8 @@ def main() -> None:
 
     monitoring.register_event_duration_secs_listener(listen)
     from hybrid import RCNetwork, diagnose, fit, make_model
-    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
 
-    def recording(seed):
-        rng = np.random.default_rng(seed)
-        strip, params = random_strip(rng), random_effect("back_relaxation", rng, args.rate)
-        return synthetic_recording(discrepancy_drive(args.duration, args.rate, seed), strip, "back_relaxation",
-                                   params, seed=seed)
-
-    first, second = recording(0), recording(1)
+    first, second = (c.relaxing_strip(seed, args.duration, args.rate) for seed in (0, 1))
 
     def timed(fn, *a, **k):
         before = dict(compiling)

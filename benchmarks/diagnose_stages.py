@@ -15,7 +15,6 @@ import argparse
 import builtins
 import time
 
-import numpy as np
 
 import _common as c
 
@@ -27,15 +26,8 @@ def main() -> None:
     args = parser.parse_args()
     c.setup_jax()
     from hybrid import diagnose
-    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
 
-    def recording(seed):
-        rng = np.random.default_rng(seed)
-        strip, params = random_strip(rng), random_effect("back_relaxation", rng, args.rate)
-        return synthetic_recording(discrepancy_drive(args.duration, args.rate, seed), strip, "back_relaxation",
-                                   params, seed=seed)
-
-    first, second = recording(0), recording(1)
+    first, second = (c.relaxing_strip(seed, args.duration, args.rate) for seed in (0, 1))
     diagnose(first)
     start = time.perf_counter()
     last = [start]
