@@ -114,7 +114,7 @@ def main(argv=None) -> int:
         simulation = RCNetwork(method="zoh")
         model = search._universal_model(simulation)
         series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
-        problem, n_rows = search._search_problem(model, series, frozen)
+        problem, n_rows = search.search_problem(model, series, frozen)
         parts = {split: np.concatenate([np.arange(a, b) for a, b in series[0].segments_of(split)])
                  for split in ("train", "test")}
 

@@ -12,6 +12,7 @@ case -> message in docs/plugins.md is these cases' messages.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -210,7 +211,12 @@ def test_a_module_that_exits_on_import_and_verbose_traceback(files, capsys, monk
 
 
 def test_a_real_ctrl_c_inside_a_plugin_is_still_an_interrupt(files, capsys):
-    assert main(_fit(files, "CtrlC")) == 130
+    # pytest-xdist's workers ignore SIGINT (the controller takes Ctrl-C): a terminal's handler here
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        assert main(_fit(files, "CtrlC")) == 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert capsys.readouterr().err.strip() == "hybrid: interrupted"
 
 

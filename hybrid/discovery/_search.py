@@ -85,7 +85,7 @@ def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patienc
                                jnp.asarray(thetas), jnp.asarray(patience, jnp.int32), settings)
 
 
-def _search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[Problem, int]:
+def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[Problem, int]:
     """The least-squares problem every lane of every step shares, and its number of Jacobian directions.
 
     A lane fits the inner simulation's free parameters, the frame timing and
@@ -115,7 +115,7 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     model = _universal_model(simulation)
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
-    problem, n_rows = _search_problem(model, padded, frozenset(settings.frozen_for(simulation)),
+    problem, n_rows = search_problem(model, padded, frozenset(settings.frozen_for(simulation)),
                                       min(SHARED_ROOM, settings.max_causes, len(EFFECTS)))
     return problem, n_rows, model, series
 

@@ -33,7 +33,7 @@ from ._decision import _choose_lane, _equally_good_fits, _evaluate, _lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings
 from ._effects import EFFECTS
 from ._search import (
-    SHARED_ROOM, _best_lag, _fit_lanes, _lane_tangents, _search_problem, _signals, _starts, initial_thetas,
+    SHARED_ROOM, _best_lag, _fit_lanes, _lane_tangents, search_problem, _signals, _starts, initial_thetas,
     lane_count, padding_lane, simulation_output,
 )
 from ._starts import delay_starts, hysteresis_starts, resonance_starts
@@ -70,7 +70,7 @@ class Search:
         if n_effects <= self.room:
             return self.problem
         if n_effects not in self.larger:
-            self.larger[n_effects] = _search_problem(self.model, self.problem.series, self.frozen, n_effects)[0]
+            self.larger[n_effects] = search_problem(self.model, self.problem.series, self.frozen, n_effects)[0]
         return self.larger[n_effects]
 
     @property
