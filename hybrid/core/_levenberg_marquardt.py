@@ -97,8 +97,8 @@ def lm_init(problem, theta0, settings: LMSettings) -> LMState:
     """The state at θ₀. JᵀJ and Jᵀr are formed by the first step (`fresh`), not here.
 
     A compiled LM run (init, then a loop of steps) thus holds one copy of the
-    Jacobian's program, inside the loop: it compiles in about half the time of
-    one with the Jacobian in the init too, and does the same arithmetic.
+    Jacobian's program, inside the loop, instead of a second one in the init;
+    it does the same arithmetic.
     """
     cost, val = _cost_and_validation(problem, theta0)
     n = theta0.shape[0]
