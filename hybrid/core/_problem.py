@@ -325,7 +325,10 @@ class Problem(eqx.Module):
 
     def objective_residuals(self, theta):
         """[r_train, √μ θ_network]: the residuals every solver minimises the squares of."""
-        r = self.residuals(theta)
+        return self._with_penalty(self.residuals(theta), theta)
+
+    def _with_penalty(self, r, theta):
+        """`r` followed by the weight decay's rows √μ θ_network (none without weight decay)."""
         if not self.weight_decay:
             return r
         return jnp.concatenate([r, jnp.sqrt(self.weight_decay) * self.penalty_mask(theta) * theta])
@@ -345,9 +348,7 @@ class Problem(eqx.Module):
         for name in {"train", split}:
             w_hat = jax.vmap(readout.predict_window)(self._windows(readout, signals, name))
             losses[name] = self._weighted((self.target(name) - w_hat) / self.scale, name)
-        r = losses["train"]
-        if self.weight_decay:
-            r = jnp.concatenate([r, jnp.sqrt(self.weight_decay) * self.penalty_mask(theta) * theta])
+        r = self._with_penalty(losses["train"], theta)
         weights = self.weights(split)
         count = losses[split].shape[0] if weights is None else jnp.maximum(jnp.sum(weights), 1.0)
         return 0.5 * jnp.sum(r * r), 0.5 * jnp.sum(losses[split] ** 2) / count

@@ -115,9 +115,13 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     model = _universal_model(simulation)
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
-    problem, n_rows = search_problem(model, padded, frozenset(settings.frozen_for(simulation)),
-                                      min(SHARED_ROOM, settings.max_causes, len(EFFECTS)))
+    problem, n_rows = search_problem(model, padded, frozenset(settings.frozen_for(simulation)), shared_room(settings))
     return problem, n_rows, model, series
+
+
+def shared_room(settings: DiagnoseSettings) -> int:
+    """Effects a lane of the search's shared problem has Jacobian directions for."""
+    return min(SHARED_ROOM, settings.max_causes, len(EFFECTS))
 
 
 def padding_lane(theta) -> jax.Array:

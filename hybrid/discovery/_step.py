@@ -33,8 +33,8 @@ from ._decision import _choose_lane, _equally_good_fits, _evaluate, _lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings
 from ._effects import EFFECTS
 from ._search import (
-    SHARED_ROOM, _best_lag, _fit_lanes, _lane_tangents, search_problem, _signals, _starts, initial_thetas,
-    lane_count, padding_lane, simulation_output,
+    _best_lag, _fit_lanes, _lane_tangents, search_problem, _signals, _starts, initial_thetas,
+    lane_count, padding_lane, shared_room, simulation_output,
 )
 from ._starts import delay_starts, hysteresis_starts, resonance_starts
 from ..core._levenberg_marquardt import LMSettings
@@ -76,7 +76,7 @@ class Search:
     @property
     def room(self) -> int:
         """Effects a lane of the shared problem has Jacobian directions for."""
-        return min(SHARED_ROOM, self.settings.max_causes, len(EFFECTS))
+        return shared_room(self.settings)
 
 
 #: Screened starts of the first step, per effect (`hybrid.discovery._starts`).
@@ -135,9 +135,11 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
     screened = {}
     if not present:  # the screens design the bare simulation with one effect: the first step's starts
         s.say("screening starts for the delay, hysteresis and resonance candidates")
-        screened = {"delay": delay_starts(problem, s.simulation, s.rate, n_starts=3, frozen=s.frozen),
-                    "hysteresis": hysteresis_starts(problem, s.simulation, n_starts=1, frozen=s.frozen),
-                    "resonance": resonance_starts(problem, s.simulation, s.rate, n_starts=1, frozen=s.frozen)}
+        n = SCREENED_STARTS
+        screened = {"delay": delay_starts(problem, s.simulation, s.rate, n_starts=n["delay"], frozen=s.frozen),
+                    "hysteresis": hysteresis_starts(problem, s.simulation, n_starts=n["hysteresis"], frozen=s.frozen),
+                    "resonance": resonance_starts(problem, s.simulation, s.rate, n_starts=n["resonance"],
+                                                  frozen=s.frozen)}
     starts, actives, labels, tangents = [], [], [], []
     for i, name in enumerate(names):
         if name in present:
