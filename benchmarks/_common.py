@@ -50,7 +50,7 @@ def first_call(fn, *args):
 
 def relaxing_strip(seed: int, duration: float, rate: float):
     """A synthetic strip (seed `seed` of `random_strip`) with a hidden back-relaxation under the discrepancy drive."""
-    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
+    from hybrid.ipmc import discrepancy_drive, random_effect, random_strip, synthetic_recording
 
     rng = np.random.default_rng(seed)
     strip, params = random_strip(rng), random_effect("back_relaxation", rng, rate)

@@ -27,15 +27,13 @@ import argparse
 import json
 import time
 
-import numpy as np
-
 import _common as c
+import numpy as np
 
 
 def strips(n, duration, seed=0):
     import hybrid as hy
-    from hybrid.ipmc._virtual_ipmc import virtual_recording
-    from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
+    from hybrid.ipmc import VirtualIPMCParameters, virtual_recording
 
     rng = np.random.default_rng(seed)
     drive = hy.make_drive("prbs", duration, seed=0, min_hold=0.2, max_hold=4.0)

@@ -34,7 +34,6 @@ import tempfile
 import time
 from pathlib import Path
 
-
 import _common as c
 
 

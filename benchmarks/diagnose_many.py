@@ -26,9 +26,8 @@ import argparse
 import collections
 import time
 
-import numpy as np
-
 import _common as c
+import numpy as np
 
 
 def lag_recording(n: int, seed: int, order: int = 1):
@@ -56,7 +55,7 @@ def main() -> None:
     from jax import monitoring
 
     import hybrid as hy
-    from hybrid.util._programs import DIAGNOSE_PROGRAMS, map_limit, memory_maps
+    from hybrid.util import DIAGNOSE_PROGRAMS, map_limit, memory_maps
 
     counts = collections.Counter()
 

@@ -15,7 +15,6 @@ import argparse
 import builtins
 import time
 
-
 import _common as c
 
 

@@ -33,9 +33,8 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
 import _common as c
+import numpy as np
 
 TRUTH = dict(xi_rho=20.0, xi_h=1.0, alpha_E=0.5, alpha_I=0.6, alpha_C=0.4, C_clamp=0.02)
 GAIN, OFFSET, NOISE = 2.0, 0.1, 0.01
@@ -51,7 +50,7 @@ def target_nmse():
 
 def recording(duration):
     import hybrid as hy
-    from hybrid.ipmc._table2 import Table2Settings
+    from hybrid.ipmc import Table2Settings
 
     drive = hy.make_drive("prbs", duration, seed=0, **Table2Settings().drives["prbs"])
     v_o = np.asarray(hy.RCNetwork(**TRUTH).simulate(drive.v, 1 / 30))
@@ -88,20 +87,17 @@ def numpy_model(strip, n_stages=45):
 def run(duration=600.0, max_seconds=120.0):
     jax = c.setup_jax()
     import equinox as eqx
-    import jax.numpy as jnp
     import optax
     import scipy.optimize
 
     import hybrid as hy
-    from hybrid.core._fit import _start_model
-    from hybrid.core._levenberg_marquardt import LMSettings, lm_init, lm_step
-    from hybrid.core._problem import Problem, series_from_recording
+    from hybrid.core import LMSettings, Problem, lm_init, lm_step, series_from_recording, start_model
 
     rec = recording(duration)
     target, source = target_nmse()
     series = series_from_recording(rec)
     frozen = frozenset({"xi_h"})
-    start = _start_model(hy.make_model("physics"), 0, 0, frozen, 0.0, [series])
+    start = start_model(hy.make_model("physics"), 0, 0, frozen, 0.0, [series])
     problem = Problem(start, [series], frozen)
     theta0 = problem.flatten(start, frozen)
     w_test = np.asarray(problem.target("test"))
@@ -123,7 +119,7 @@ def run(duration=600.0, max_seconds=120.0):
     t0 = time.perf_counter()
     state = jax.block_until_ready(init(problem, theta0, settings))
     clock, reached, trace = time.perf_counter() - t0, None, []
-    for i in range(200):
+    for _ in range(200):
         t0 = time.perf_counter()
         state = jax.block_until_ready(step(problem, state, settings))
         clock += time.perf_counter() - t0
@@ -176,8 +172,8 @@ def run(duration=600.0, max_seconds=120.0):
     free = [n_ for n_ in names if n_ not in frozen]
     fixed = {k: float(v) for k, v in start.parameters().items()}
     constraint = {**start.simulation.constraints, **start.readout.constraints}
-    to_phys = {k: (np.exp if type(constraint[k]).__name__ == "Positive" else
-                   (lambda r: 1 / (1 + np.exp(-r))) if type(constraint[k]).__name__ == "UnitInterval" else
+    to_phys = {k: (np.exp if isinstance(constraint[k], hy.Positive) else
+                   (lambda r: 1 / (1 + np.exp(-r))) if isinstance(constraint[k], hy.UnitInterval) else
                    (lambda r: r)) for k in free}
     raw0 = np.array([float(constraint[k].to_raw(fixed[k])) for k in free])
     (a, b), (ta, tb) = series.segments_of("train")[0], series.segments_of("test")[0]

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
-
 import _common as c
+import numpy as np
 from simulate import DT, drive
 
 

@@ -38,7 +38,7 @@ def _problem(n_residuals):
     import numpy as np
 
     import hybrid as hy
-    from hybrid.core._problem import Problem, Series
+    from hybrid.core import Problem, Series
 
     rng = np.random.default_rng(0)
     n = n_residuals
@@ -59,7 +59,7 @@ def run_structured(n_residuals, repeats=5):
     import equinox as eqx
     import jax
 
-    from hybrid.core._levenberg_marquardt import LMSettings, lm_init, lm_step
+    from hybrid.core import LMSettings, lm_init, lm_step
 
     problem, theta = _problem(n_residuals)
     # A strongly damped first step is always accepted; repeating it from the same
@@ -92,7 +92,7 @@ def run_optimistix(n_residuals, repeats=2):
 
     problem, theta = _problem(n_residuals)
     solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)
-    fn = lambda th, args: (problem.residuals(th), None)  # noqa: E731
+    fn = lambda th, args: (problem.residuals(th), None)
     f_struct = jax.eval_shape(lambda: problem.residuals(theta))
     state = eqx.filter_jit(solver.init)(fn, theta, None, {}, f_struct, None, frozenset())
     step = eqx.filter_jit(lambda y, s: solver.step(fn, y, None, {}, s, frozenset()))

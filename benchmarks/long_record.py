@@ -51,10 +51,9 @@ import tempfile
 import time
 from pathlib import Path
 
+import _common as c
 import numpy as np
 import scipy.signal
-
-import _common as c
 
 RATE = 100_000.0
 HYBRID_STEPS = 3  # each LM step of the hybrid model folds 1,726 columns of J over the record
@@ -125,8 +124,8 @@ def _recording(physics: str, n: int):
     import hybrid as hy
 
     if physics == "rc":
-        from hybrid.data._drives import make_drive
-        from hybrid.ipmc._virtual_ipmc import virtual_recording
+        from hybrid.data import make_drive
+        from hybrid.ipmc import virtual_recording
 
         return virtual_recording(make_drive("prbs", n / 30.0, rate=30.0, seed=0), seed=0)
     with tempfile.TemporaryDirectory() as tmp:
@@ -170,11 +169,10 @@ def _gemm_rates(m: int, n: int) -> dict:
 
 
 def _lm_programs():
-    """The batched LM init and run `hybrid.fit` compiles (named with a leading _ before issue 30)."""
-    from hybrid.core import _fit
+    """The batched LM init and run `hybrid.fit` compiles."""
+    from hybrid.core import lm_init_batch, lm_run_batch
 
-    return (getattr(_fit, "lm_init_batch", None) or getattr(_fit, "_lm_init_batch"),
-            getattr(_fit, "lm_run_batch", None) or getattr(_fit, "_lm_run_batch"))
+    return lm_init_batch, lm_run_batch
 
 
 def per_step_case(physics: str, n: int, steps: int) -> dict:
@@ -184,9 +182,7 @@ def per_step_case(physics: str, n: int, steps: int) -> dict:
     import jax.numpy as jnp
 
     import hybrid as hy
-    from hybrid.core._levenberg_marquardt import LMSettings
-    from hybrid.core._models import Model
-    from hybrid.core._problem import Problem, series_from_recording
+    from hybrid.core import LMSettings, Model, Problem, series_from_recording
 
     c.setup_jax()
     t0 = time.perf_counter()

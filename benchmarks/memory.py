@@ -27,7 +27,7 @@ import _common as c
 def child(samples, steps, kind):
     jax = c.setup_jax()
     import hybrid as hy
-    from hybrid.ipmc._virtual_ipmc import virtual_recording
+    from hybrid.ipmc import virtual_recording
 
     drive = hy.make_drive("prbs", samples / 30.0, seed=0, min_hold=0.2, max_hold=4.0)
     rec = virtual_recording(drive, seed=0)

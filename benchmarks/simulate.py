@@ -36,9 +36,8 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 import _common as c
+import numpy as np
 
 T = 10_000
 BATCH = 1000
@@ -73,7 +72,7 @@ def single(repeats=20):
     import scipy.signal
 
     import hybrid as hy
-    from hybrid.physics._rc_network import BLOCK, _block_matrices, cascade_filter_stage_major, tustin_sections
+    from hybrid.physics import BLOCK, block_matrices, cascade_filter_stage_major, tustin_sections
 
     x = drive()
     xj = jnp.asarray(x)
@@ -87,7 +86,7 @@ def single(repeats=20):
     t_old, y_old = c.best_of(old, net, xj, repeats=repeats)
     t_sos, ref = c.best_of(lambda v: scipy.signal.sosfilt(sos, v), x, repeats=repeats)
     # where our time goes: building the block matrices H, O, A^L, C alone
-    setup = jax.jit(lambda net: _block_matrices(*tustin_sections(*net.stage_zpk(), DT), BLOCK))
+    setup = jax.jit(lambda net: block_matrices(*tustin_sections(*net.stage_zpk(), DT), BLOCK))
     c.first_call(setup, net)
     t_setup, _ = c.best_of(setup, net, repeats=repeats)
     # interleave a second round so that a load spike on the shared machine hits all alike
@@ -112,8 +111,7 @@ def batch(repeats=3, batch_size=8):
     import scipy.signal
 
     import hybrid as hy
-
-    from hybrid.physics._rc_network import BLOCK, _block_matrices, tustin_sections
+    from hybrid.physics import BLOCK, block_matrices, tustin_sections
 
     x = drive()
     xj = jnp.asarray(x)
@@ -124,7 +122,7 @@ def batch(repeats=3, batch_size=8):
     def loop(v):
         return [scipy.signal.sosfilt(s, v) for s in soss]
 
-    run = lambda s, v: hy.simulate_batch(s, v, DT, batch_size=batch_size)  # noqa: E731
+    run = lambda s, v: hy.simulate_batch(s, v, DT, batch_size=batch_size)
     first, y = c.first_call(run, stacked, xj)
     t_ours, y = c.best_of(run, stacked, xj, repeats=repeats)
     t_loop, refs = c.best_of(loop, x, repeats=repeats)
@@ -138,12 +136,12 @@ def batch(repeats=3, batch_size=8):
         "relative_error_vs_sosfilt_max_of_28": error,
     }
     # the same batch vmapped all at once (memory-bound: every stage touches B × T)
-    run_all = lambda s, v: hy.simulate_batch(s, v, DT, batch_size=None)  # noqa: E731
+    run_all = lambda s, v: hy.simulate_batch(s, v, DT, batch_size=None)
     first_all, _ = c.first_call(run_all, stacked, xj)
     t_all, _ = c.best_of(run_all, stacked, xj, repeats=2)
     out.update(hybrid_vmap_all_s=t_all, speedup_vmap_all_vs_sosfilt_loop=t_loop / t_all)
     setup = jax.jit(lambda s: jax.lax.map(
-        lambda n: _block_matrices(*tustin_sections(*n.stage_zpk(), DT), BLOCK), s, batch_size=batch_size))
+        lambda n: block_matrices(*tustin_sections(*n.stage_zpk(), DT), BLOCK), s, batch_size=batch_size))
     c.first_call(setup, stacked)
     out["hybrid_block_matrices_only_s"] = c.best_of(setup, stacked, repeats=repeats)[0]
     return out

@@ -33,9 +33,7 @@ from typing import ClassVar
 import jax.numpy as jnp
 from jax import lax
 
-from hybrid import AbstractSimulation, Positive, Real
-from hybrid.core._arguments import check_drive
-from hybrid.core._parameters import encode
+from hybrid import AbstractSimulation, Positive, Real, check_drive, encode
 
 #: RK4 steps per sample.
 SUBSTEPS = 4

@@ -70,9 +70,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from hybrid import AbstractSimulation, Positive, UnitInterval
-from hybrid.core._arguments import check_drive
-from hybrid.core._parameters import encode
+from hybrid import AbstractSimulation, Positive, UnitInterval, check_drive, encode
 
 #: Gravity (cm/s²).
 G = 981.0

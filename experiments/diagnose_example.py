@@ -20,8 +20,8 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
     from hybrid.cli import main as hybrid
+    from hybrid.ipmc import discrepancy_drive, random_effect, random_strip, synthetic_recording
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--effect", default="hysteresis")

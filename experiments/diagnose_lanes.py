@@ -29,11 +29,8 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     from discrepancy import draw
 
-    from hybrid import RCNetwork
-    from hybrid import diagnose
-    from hybrid.discovery._decision import _lane_effect
-    from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
-    from hybrid.discovery._search import _predictions, lanes_problem
+    from hybrid import RCNetwork, diagnose
+    from hybrid.discovery import SPLIT_ORDER, DiagnoseSettings, lane_effect, lanes_problem, predictions
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("effect")
@@ -62,11 +59,11 @@ def main(argv=None) -> int:
     for i, lane in enumerate(found.lanes):
         if lane["effect"] not in wanted:
             continue
-        w_hats = _predictions(problem, jnp.asarray(lane["active"], float), jnp.asarray(lane["theta"]))
+        w_hats = predictions(problem, jnp.asarray(lane["active"], float), jnp.asarray(lane["theta"]))
         mse = {split: float(np.mean((problem.recorded(problem.target(split), split)
                                      - problem.recorded(w_hats[split], split)) ** 2)) / noise_var
                for split in SPLIT_ORDER}
-        material, size = _lane_effect(problem, lane["theta"], lane["active"], lane["effect"], settings.materiality)
+        material, size = lane_effect(problem, lane["theta"], lane["active"], lane["effect"], settings.materiality)
         size_text = ", ".join(f"{k} {v:.3g}" for k, v in size.items()) or "—"
         print(f"| {i} | {lane['effect']} | {lane['validation_loss']:.4g} | {mse['train']:.2f} "
               f"| {mse['validation']:.2f} | {mse['test']:.2f} | {size_text} | {'yes' if material else 'no'} "

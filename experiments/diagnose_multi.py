@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def write_recordings(folder: Path, count: int, duration: float) -> list[Path]:
-    from hybrid.ipmc._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
+    from hybrid.ipmc import SyntheticStrip, discrepancy_drive, synthetic_recording
 
     paths = []
     for seed in range(1, count + 1):

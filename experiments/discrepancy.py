@@ -47,7 +47,7 @@ import numpy as np
 
 def _drive(name: str, duration: float, rate: float, seed: int):
     from hybrid import make_drive
-    from hybrid.ipmc._synthetic import discrepancy_drive
+    from hybrid.ipmc import discrepancy_drive
 
     if name == "prbs-multilevel":
         return discrepancy_drive(duration, rate, seed)
@@ -69,7 +69,7 @@ IDENTIFIABLE = 2.0
 
 def draw(effect: str, seed: int, duration: float, rate: float, drive: str, noise: float):
     """(strip, effect parameters, recording) of one draw: the strip and effect from the issue's ranges."""
-    from hybrid.ipmc._synthetic import random_effect, random_strip, synthetic_recording
+    from hybrid.ipmc import random_effect, random_strip, synthetic_recording
 
     rng = np.random.default_rng([seed, len(effect), sum(map(ord, effect))])
     strip, params = random_strip(rng), random_effect(effect, rng, rate)
@@ -152,7 +152,7 @@ def _plain(x):
 
 def open_world_row(recording, found, excess: float, causes_known) -> dict:
     """The open-world keys of a row: what was hidden, what was named, what was left unexplained, the noise."""
-    from hybrid.ipmc._hidden_pairs import hidden_effects, true_noise_variance
+    from hybrid.ipmc import hidden_effects, true_noise_variance
 
     hidden = list(hidden_effects(recording))
     expected, outside = expected_names(hidden, causes_known)
@@ -259,9 +259,8 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     jax.config.update("jax_enable_x64", True)
     from hybrid import CAUSES, diagnose
-    from hybrid.ipmc._hidden_pairs import HIDDEN_NAMES, canonical
-    from hybrid.ipmc._synthetic import HIDDEN_EFFECTS
-    from hybrid.util._errors import InputError
+    from hybrid.ipmc import HIDDEN_EFFECTS, HIDDEN_NAMES, canonical
+    from hybrid.util import InputError
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--effects", default=",".join(HIDDEN_EFFECTS),
@@ -294,7 +293,7 @@ def main(argv=None) -> int:
         for seed in seeds:
             strip, params, recording = draw(effect, seed, args.duration, args.rate, args.drive, args.noise)
             if args.dry_run:
-                from hybrid.ipmc._hidden_pairs import hidden_effects, true_noise_variance
+                from hybrid.ipmc import hidden_effects, true_noise_variance
 
                 truth = recording.metadata["hidden"]
                 expected, outside = expected_names(list(hidden_effects(recording)), CAUSES)
@@ -331,7 +330,7 @@ def main(argv=None) -> int:
 
     virtual = []
     if args.virtual:
-        from hybrid.ipmc._virtual_ipmc import virtual_recording
+        from hybrid.ipmc import virtual_recording
 
         for drive_name in ("prbs-multilevel", "prbs"):
             recording = virtual_recording(_drive(drive_name, args.duration, args.rate, 0), seed=0)

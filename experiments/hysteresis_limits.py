@@ -46,7 +46,7 @@ def _loop_designs(s, rates):
     """Per rate (× 1/span): k and the least-squares design [s, u, ∂u/∂u₀, 1], one compiled pass each."""
     import jax.numpy as jnp
 
-    from hybrid.discovery._hysteresis import bouc_wen_and_memory
+    from hybrid.discovery import bouc_wen_and_memory
 
     span = float(np.ptp(s))
     loop = jax.jit(bouc_wen_and_memory)  # k traced: compiled once for every rate
@@ -78,15 +78,23 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
 
     import discrepancy
+
     import hybrid
-    from hybrid.discovery import _search as search
-    from hybrid.discovery._decision import _derived
-    from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
-    from hybrid.discovery._effects import EFFECTS
-    from hybrid.core._levenberg_marquardt import LMSettings
-    from hybrid.core._problem import series_from_recording
-    from hybrid.physics._rc_network import RCNetwork
-    from hybrid.ipmc._synthetic import _apply_hidden, rc_cascade_exact
+    from hybrid.core import LMSettings, series_from_recording
+    from hybrid.discovery import (
+        EFFECTS,
+        SPLIT_ORDER,
+        DiagnoseSettings,
+        derived_quantities,
+        fit_lanes,
+        initial_theta,
+        lane_tangents,
+        search_problem,
+        split_signals,
+        universal_model,
+    )
+    from hybrid.ipmc import apply_hidden, rc_cascade_exact
+    from hybrid.physics import RCNetwork
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed-list", default="2,7,9,13,14,5,6")
@@ -112,23 +120,23 @@ def main(argv=None) -> int:
         noise_var = (args.noise * np.ptp(recording.extra["w_true"])) ** 2
 
         simulation = RCNetwork(method="zoh")
-        model = search._universal_model(simulation)
+        model = universal_model(simulation)
         series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
-        problem, n_rows = search.search_problem(model, series, frozen)
+        problem, n_rows = search_problem(model, series, frozen)
         parts = {split: np.concatenate([np.arange(a, b) for a, b in series[0].segments_of(split)])
                  for split in ("train", "test")}
 
-        def over_noise(theta, active):
+        def over_noise(theta, active, problem=problem, noise_var=noise_var):
             out = {}
             for split in ("train", "test"):
-                _, w, w_hat = search._signals(problem, theta, active, split)
+                _, w, w_hat = split_signals(problem, theta, active, split)
                 out[split] = float(np.mean((w - w_hat) ** 2)) / noise_var
             return out
 
         # Oracle loop on the true V_o (camera grid, true strip).
         v = np.asarray(recording.v_in, float)
         s_true = rc_cascade_exact(strip, v, 1.0 / args.rate)
-        h = _apply_hidden("hysteresis", params, s_true, 1.0 / args.rate, None) - s_true
+        h = apply_hidden("hysteresis", params, s_true, 1.0 / args.rate, None) - s_true
         noise_s = (args.noise * np.ptp(s_true + h)) ** 2
         rates = np.geomspace(0.5, 300.0, 40)
         designs, span = _loop_designs(s_true, rates), float(np.ptp(s_true))
@@ -138,17 +146,17 @@ def main(argv=None) -> int:
 
         rc = {"xi_rho": strip.xi_rho / strip.xi_h, "alpha_E": strip.alpha_E, "alpha_I": strip.alpha_I,
               "alpha_C": strip.alpha_C, "C_clamp": strip.C_clamp}
-        truth = search._initial_theta(problem, model.simulation.replace(**rc, **loop).with_active(on),
+        truth = initial_theta(problem, model.simulation.replace(**rc, **loop).with_active(on),
                                       model.readout, frozen)
-        tangents = search._lane_tangents(model, frozen, "hysteresis", n_rows)
-        state = search._fit_lanes(problem, on[None], tangents[None], truth[None], lm, settings.patience)
+        tangents = lane_tangents(model, frozen, "hysteresis", n_rows)
+        state = fit_lanes(problem, on[None], tangents[None], truth[None], lm, settings.patience)
         from_truth = state.best_theta[0]
 
         found = hybrid.diagnose(recording)
         candidate = next(c for c in found.candidates if c.name == "hysteresis")
         baseline = over_noise(found.baseline.theta, off)
         floor_test = discrepancy.excess_over_noise(recording, found)[1]
-        loop_height = lambda theta, active: _derived(problem, theta, active)["hysteresis"][
+        loop_height = lambda theta, active, problem=problem: derived_quantities(problem, theta, active)["hysteresis"][
             "loop_height_percent_of_range"]
         row = {
             "seed": seed, "hidden_loop_fraction": params["height_fraction"], "C_clamp": strip.C_clamp,

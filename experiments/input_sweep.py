@@ -271,11 +271,11 @@ def _loads(path: Path) -> bool:
 
             load_model(path)
         elif path.suffix in (".csv", ".npz", ".mat"):
-            from hybrid.data._recording import Recording
+            from hybrid.data import Recording
 
             Recording.load(path)
         return True
-    except Exception:  # noqa: BLE001 - any failure means the file is not usable
+    except Exception:
         return False
 
 

@@ -199,7 +199,7 @@ def run_tanks_mlp(do_diagnose: bool, log) -> dict:
 
 
 def _tanks_figure(val, predictions):
-    from hybrid.util._figures import _pyplot as pyplot
+    from hybrid.util import pyplot as pyplot
 
     plt = pyplot()
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)

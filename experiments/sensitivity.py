@@ -36,8 +36,7 @@ def main():
 
     import hybrid as hy
     from hybrid import sensitivity as S
-    from hybrid.ipmc._sensitivity_study import SensitivityStudySettings, run_sensitivity_study
-    from hybrid.ipmc._virtual_ipmc import virtual_recording
+    from hybrid.ipmc import SensitivityStudySettings, run_sensitivity_study, virtual_recording
 
     out = Path(args.out_dir)
     t0 = time.perf_counter()

@@ -36,9 +36,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from rig._scene import Scene  # noqa: E402
 from rig_cantilever_render import CantileverVideo, write_avi  # noqa: E402
 from rig_labvideo import LabVideo, write_video  # noqa: E402
+
+from rig import Scene  # noqa: E402
 
 # (name, rest axis, clamp, cantilever load: None = the lab video's arcs, else the tip load's share)
 CASES = [("right", 0.0, (120.0, 240.0), None), ("down", 90.0, (320.0, 110.0), None),

@@ -5,10 +5,12 @@ Kept apart from `hybrid.cli` (the commands) so each stays a room about one thing
 
 from __future__ import annotations
 
+import sys
+
 from .util._errors import InputError
 
 
-def _add_mapping(p, B, rate: bool = True) -> None:
+def add_mapping(p, B, rate: bool = True) -> None:
     """Options that read a lab's own file: which columns are the drive and the output, the rate, the samples.
 
     `rate` False leaves --rate out, for a command that has its own (`hybrid sensitivity`).
@@ -28,7 +30,7 @@ def _add_mapping(p, B, rate: bool = True) -> None:
     g.add_argument("--units", default=None, metavar="MAP", help="unit labels, e.g. v_in=V,w=V (labels only)")
 
 
-def _load_recordings(args, paths, rate_alone_maps: bool = True):
+def load_recordings(args, paths, rate_alone_maps: bool = True):
     """Recordings from the command line's paths: the project's own columns, or the mapped ones.
 
     `rate_alone_maps` False: --rate alone does not make a file mapped (`hybrid sensitivity`'s
@@ -60,7 +62,7 @@ def _load_recordings(args, paths, rate_alone_maps: bool = True):
     return [load_mapped(p, **options) for p in paths]
 
 
-def _add_physics(p) -> None:
+def add_physics(p) -> None:
     """--physics: the simulation, the paper's RC network by default (hybrid.physics._plugins)."""
     p.add_argument("--physics", default="rc", metavar="SPEC",
                    help="the simulation: rc (the paper's RC network, default), lti:N (a linear system of order N), "
@@ -68,7 +70,7 @@ def _add_physics(p) -> None:
 
 
 
-def _add_settle(p, B) -> None:
+def add_settle(p, B) -> None:
     """--settle N: the physics starts where a fitted constant drive left it (hybrid.HeldStart)."""
     p.add_argument("--settle", type=B.integer(1, B.SETTLE_MAX), default=None, metavar="SAMPLES",
                    help="the record does not start at rest: hold the physics at a constant drive (the fitted "
@@ -76,7 +78,7 @@ def _add_settle(p, B) -> None:
                         "constant (one recording)")
 
 
-def _with_settle(simulation, args, recordings):
+def with_settle(simulation, args, recordings):
     """The simulation wrapped in HeldStart for --settle, started at the record's first drive level."""
     if getattr(args, "settle", None) is None:
         return simulation
@@ -89,3 +91,16 @@ def _with_settle(simulation, args, recordings):
                          "start from their own state: give one recording")
     start = float(np.mean(np.asarray(recordings[0].v_in)[:10]))
     return HeldStart(simulation, args.settle, initial_drive=start)
+
+
+def warn_notes(recordings):
+    """One stderr line per thing validation did to a recording (e.g. t rebuilt from jittered times)."""
+    for recording in recordings:
+        for note in recording.notes:
+            print(f"hybrid: warning: {note}", file=sys.stderr)
+
+
+def parse_params(items):
+    from .core._parameters import parse_assignment
+
+    return dict(parse_assignment(item) for item in items)

@@ -24,7 +24,7 @@ _RC_ONLY = ("drive", "duration", "stages")
 
 
 def add_sensitivity(sub, B) -> None:
-    from ._cli_inputs import _add_mapping, _add_physics
+    from ._cli_inputs import add_mapping, add_physics
 
     p = sub.add_parser("sensitivity", help="sensitivities and identifiability of a simulation's parameters "
                                            "(the RC network's by default)")
@@ -46,13 +46,13 @@ def add_sensitivity(sub, B) -> None:
     p.add_argument("--noise", type=float, default=0.01, help="noise as a fraction of rms(w), for standard errors")
     p.add_argument("--sobol", type=B.integer(*B.SOBOL), default=0, metavar="N", help="also Sobol indices from N base samples")
     p.add_argument("--seed", type=int, default=0)
-    _add_physics(p)
-    _add_mapping(p, B, rate=False)  # --rate is above: it serves both
+    add_physics(p)
+    add_mapping(p, B, rate=False)  # --rate is above: it serves both
 
 
 def cmd_sensitivity(args) -> None:
-    from .cli import _out_folder, _outputs, _parse_params, _warn_notes
-    from ._cli_inputs import _load_recordings
+    from ._cli_inputs import load_recordings, parse_params, warn_notes
+    from ._cli_outputs import check_outputs, out_folder
 
     rc = args.physics.strip().lower() == "rc"
     inputs = [args.recording] if args.recording else []
@@ -66,16 +66,16 @@ def cmd_sensitivity(args) -> None:
                              "--output for a lab's columns): the synthetic drives are an IPMC's voltages at 30 Hz, "
                              "studied only with --physics rc")
         return _generic(args)
-    from .util._bounds import check_samples
     from .ipmc._sensitivity_study import OUTPUT_FILES, SensitivityStudySettings, run_sensitivity_study
+    from .util.bounds import check_samples
 
     duration, rate = args.duration or 120.0, args.rate or 30.0
     check_samples(duration, rate)
-    lock = _outputs([_out_folder(args.out, OUTPUT_FILES)], inputs=inputs)
-    recording = _load_recordings(args, inputs, rate_alone_maps=False)[0] if inputs else None
-    _warn_notes([recording] if recording is not None else [])
+    lock = check_outputs([out_folder(args.out, OUTPUT_FILES)], inputs=inputs)
+    recording = load_recordings(args, inputs, rate_alone_maps=False)[0] if inputs else None
+    warn_notes([recording] if recording is not None else [])
     settings = SensitivityStudySettings(
-        parameters=_parse_params(args.param), n_stages=args.stages or 45, drive=args.drive or "prbs",
+        parameters=parse_params(args.param), n_stages=args.stages or 45, drive=args.drive or "prbs",
         duration=duration, rate=rate, noise=args.noise, sobol=args.sobol, seed=args.seed,
     )
     with lock:
@@ -87,22 +87,22 @@ def cmd_sensitivity(args) -> None:
 def _generic(args) -> None:
     import jax
 
-    from .cli import _out_folder, _outputs, _parse_params, _warn_notes
-    from ._cli_inputs import _load_recordings
+    from ._cli_inputs import load_recordings, parse_params, warn_notes
+    from ._cli_outputs import check_outputs, out_folder
     from .physics._plugins import resolve_physics
     from .sensitivity._study import OUTPUT_FILES, simulation_study, write_simulation_study
 
     simulation = resolve_physics(args.physics)
-    params = _parse_params(args.param)
+    params = parse_params(args.param)
     if params:
         simulation = simulation.replace(**params)
     mapped = any(getattr(args, k) is not None for k in ("input", "output", "time", "columns", "sample_range", "units"))
     if args.rate is not None and not mapped:
         raise InputError(f"--rate with --physics {args.physics} is the rate of a lab's file (with --input/--output or "
                          "--columns); a recording in the project's columns t, v_in, w has its own t")
-    lock = _outputs([_out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording])
-    recording = _load_recordings(args, [args.recording], rate_alone_maps=False)[0]
-    _warn_notes([recording])
+    lock = check_outputs([out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording])
+    recording = load_recordings(args, [args.recording], rate_alone_maps=False)[0]
+    warn_notes([recording])
     k = len(set(simulation.parameter_names()) - set(simulation.default_frozen())) + 2  # + gain and offset
     recording.check_length(max(MIN_SAMPLES, 2 * k), f"the study of {k} parameters (gain and offset included)",
                            "give a longer recording")

@@ -101,9 +101,8 @@ def _key(path, recording) -> tuple:
 
 def score_tests(model, tests) -> list[dict]:
     """Each test record's free-run score: rmse (the output's unit), the NMSEs of `hybrid.metrics`, samples."""
-    from .core._metrics import metrics
-
     from .core._held_start import HeldStart, refit_initial_drive
+    from .core._metrics import metrics
 
     scores = []
     for record in tests:

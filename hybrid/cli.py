@@ -25,7 +25,16 @@ import threading
 import traceback
 from pathlib import Path
 
-from ._cli_inputs import _add_mapping, _add_physics, _add_settle, _load_recordings, _with_settle
+from ._cli_inputs import (
+    add_mapping,
+    add_physics,
+    add_settle,
+    load_recordings,
+    parse_params,
+    warn_notes,
+    with_settle,
+)
+from ._cli_outputs import check_outputs, out_file, out_folder
 from ._cli_sensitivity import add_sensitivity, cmd_sensitivity
 from ._cli_stop import FitStop, partial_path
 from ._cli_test import add_test_options, load_tests, print_scores, score_tests
@@ -46,10 +55,10 @@ def _float_list(text: str) -> tuple[float, ...]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .util import _bounds as B
-    from .data._drives import DRIVES
     from .core._fit import SOLVERS
     from .core._models import MODEL_KINDS
+    from .data._drives import DRIVES
+    from .util import bounds as B
 
     parser = _Parser(prog="hybrid", description="Hybrid physics-ML identification of IPMC actuators.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -101,9 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="SECONDS",
                    help="stop fitting after SECONDS (checked between LM steps) and save the best model so far "
                         "to <out stem>.partial.eqx, exit status 124 (SIGINT/SIGTERM: the same, 130/143)")
-    _add_physics(p)
-    _add_settle(p, B)
-    _add_mapping(p, B)
+    add_physics(p)
+    add_settle(p, B)
+    add_mapping(p, B)
     add_test_options(p)
 
     p = sub.add_parser("table2", help="reproduce the paper's Table 2 on the virtual IPMC")
@@ -127,57 +136,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cut each recording into N blocks, each split train/validation/held-out "
                         "(default: DiagnoseSettings.blocks; 1: one held-out tail)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
-    _add_physics(p)
-    _add_settle(p, B)
-    _add_mapping(p, B)
+    add_physics(p)
+    add_settle(p, B)
+    add_mapping(p, B)
     _add_verbose(parser, sub)
     return parser
-
-
-def _warn_notes(recordings):
-    """One stderr line per thing validation did to a recording (e.g. t rebuilt from jittered times)."""
-    for recording in recordings:
-        for note in recording.notes:
-            print(f"hybrid: warning: {note}", file=sys.stderr)
-
-
-def _parse_params(items):
-    from .core._parameters import parse_assignment
-
-    return dict(parse_assignment(item) for item in items)
-
-
-def _out_file(path, option="--out", suffixes=(".csv",), companions=None):
-    from .util._outputs import OutputFile
-
-    return OutputFile(Path(path), option, tuple(suffixes), companions)
-
-
-def _out_folder(path, names, option="--out"):
-    from .util._outputs import OutputFolder
-
-    return OutputFolder(Path(path), option, tuple(names))
-
-
-def _outputs(outputs, inputs=()):
-    """Check every output before any work (see hybrid.util._outputs); returns the lock to hold meanwhile."""
-    from .util._outputs import prepare_outputs
-
-    return prepare_outputs([o for o in outputs if o is not None], inputs)
 
 
 def _cmd_simulate(args):
     import dataclasses
 
-    from .util._bounds import check_samples
     from .data._drives import make_drive
     from .data._loaders import SUFFIXES
     from .ipmc._virtual_ipmc import virtual_recording
     from .ipmc._virtual_parameters import VirtualIPMCParameters
+    from .util.bounds import check_samples
 
     check_samples(args.duration, args.rate)
-    lock = _outputs([_out_file(args.out, suffixes=SUFFIXES)])
-    overrides = _parse_params(args.param)
+    lock = check_outputs([out_file(args.out, suffixes=SUFFIXES)])
+    overrides = parse_params(args.param)
     known = {f.name for f in dataclasses.fields(VirtualIPMCParameters)}
     unknown = set(overrides) - known
     if unknown:
@@ -195,15 +172,15 @@ def _cmd_rc(args):
     import jax.numpy as jnp
     import numpy as np
 
-    from .util._atomic import atomic_open
-    from .physics._rc_network import RCNetwork
     from .data._recording import Recording
+    from .physics._rc_network import RCNetwork
+    from .util._atomic import atomic_open
 
-    lock = _outputs([_out_file(args.out)], inputs=[args.drive])
+    lock = check_outputs([out_file(args.out)], inputs=[args.drive])
     # The same reader and checks as fit and diagnose; a drive needs no w.
     drive = Recording.load(args.drive, require_w=False)
     network = RCNetwork(n_stages=args.stages, method=args.method)
-    params = _parse_params(args.param)
+    params = parse_params(args.param)
     if params:
         network = network.replace(**params)
     t, v, dt = drive.t, drive.v_in, drive.dt
@@ -226,24 +203,24 @@ def _cmd_fit(args):
     from .core._arguments import as_names
     from .core._fit import fit
     from .core._models import make_model
+    from .core._serialise import save_model
     from .physics._plugins import resolve_physics
     from .util._atomic import write_text
-    from .core._serialise import save_model
 
     out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
     partial = partial_path(out)  # a stopped fit's best model: never over --out
-    lock = _outputs([_out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
-                     _out_file(partial, "the partial model (--out's .partial.eqx)", (".eqx",)),
-                     _out_file(args.json, "--json", (".json",)) if args.json else None],
+    lock = check_outputs([out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
+                     out_file(partial, "the partial model (--out's .partial.eqx)", (".eqx",)),
+                     out_file(args.json, "--json", (".json",)) if args.json else None],
                     inputs=args.recordings + (args.test or []))
-    recordings = _load_recordings(args, args.recordings)
+    recordings = load_recordings(args, args.recordings)
     simulation = None
     if args.model != "normal":
         simulation = resolve_physics(args.physics, recordings)  # rc: the paper's RC network
-        params = _parse_params(args.param)
+        params = parse_params(args.param)
         if params:
             simulation = simulation.replace(**params)
-        simulation = _with_settle(simulation, args, recordings)
+        simulation = with_settle(simulation, args, recordings)
     elif args.settle is not None:
         raise InputError("--settle holds the physics before the record; the normal model has none")
     elif args.param:
@@ -279,14 +256,14 @@ def _cmd_fit(args):
 
 
 def _cmd_table2(args):
-    from .util._bounds import check_samples
     from .ipmc._table2 import OUTPUT_FILES, Table2Settings, reproduce_table2
+    from .util.bounds import check_samples
 
     overrides = {k: v for k, v in (("duration", args.duration), ("starts", args.starts),
                                    ("max_steps", args.max_steps)) if v is not None}
     settings = Table2Settings(**overrides)
     check_samples(settings.duration, settings.rate, "--duration × the rate")
-    with _outputs([_out_folder(args.out_dir, OUTPUT_FILES, "--out-dir")]):
+    with check_outputs([out_folder(args.out_dir, OUTPUT_FILES, "--out-dir")]):
         reproduce_table2(settings, out_dir=args.out_dir, progress=not args.quiet)
 
 
@@ -294,15 +271,15 @@ def _cmd_diagnose(args):
     import dataclasses
 
     from .discovery._diagnosis import DiagnoseSettings
-    from .ipmc._defaults import diagnose, diagnose_simulation
-    from .discovery._report import REMAINDER_FIGURE, _pm, write_report
-    from .discovery._report_figures import FIGURES
     from .discovery._effects import EFFECTS
+    from .discovery._report import REMAINDER_FIGURE, plus_minus, write_report
+    from .discovery._report_figures import FIGURES
+    from .ipmc._defaults import diagnose, diagnose_simulation
     from .physics._plugins import resolve_physics
 
-    lock = _outputs([_out_folder(args.out, ("report.json", "report.md", *FIGURES, REMAINDER_FIGURE))], inputs=args.recordings)
-    recordings = _load_recordings(args, args.recordings)
-    _warn_notes(recordings)
+    lock = check_outputs([out_folder(args.out, ("report.json", "report.md", *FIGURES, REMAINDER_FIGURE))], inputs=args.recordings)
+    recordings = load_recordings(args, args.recordings)
+    warn_notes(recordings)
     settings = DiagnoseSettings()
     if args.max_steps is not None:
         if args.max_steps < 1:
@@ -312,7 +289,7 @@ def _cmd_diagnose(args):
         settings = dataclasses.replace(settings, blocks=args.blocks)
     with lock:
         simulation = diagnose_simulation() if args.physics == "rc" else resolve_physics(args.physics, recordings)
-        simulation = _with_settle(simulation, args, recordings)
+        simulation = with_settle(simulation, args, recordings)
         diagnosis = diagnose(recordings, simulation=simulation, hybrid=args.hybrid, settings=settings,
                              progress=not args.quiet)
         paths = write_report(diagnosis, args.out)
@@ -325,7 +302,7 @@ def _cmd_diagnose(args):
         print(f"  {step['name']} (incremental gain {step['incremental_gain']:.2f}x)")
         for name in EFFECTS[step["name"]].constraints:
             if name in report["parameters"]:
-                print(f"    {name} = {_pm(report['parameters'][name])}")
+                print(f"    {name} = {plus_minus(report['parameters'][name])}")
     floor, left = report["noise_floor"], report["unexplained"]
     print(f"noise floor: sigma = {floor['std']:.3g} ({floor['method']})")
     if left is not None:
@@ -434,7 +411,7 @@ def main(argv=None) -> int:
             # A heartbeat on stderr while it works, and exit status 3 instead of a silent hang (_watchdog).
             with Watchdog(f"hybrid {args.command}", quiet=getattr(args, "quiet", False)):
                 COMMANDS[args.command](args)
-    except BaseException as error:  # noqa: BLE001  (a plug-in's sys.exit and os._exit too: _report)
+    except BaseException as error:
         verbose = bool(getattr(args, "verbose", False)) or any(a in ("-v", "--verbose") for a in (argv or sys.argv[1:]))
         return _report(error, verbose, bool(ctrl_c))
     return 0

@@ -86,7 +86,7 @@ class MjpegAvi:
         payload = bytes(self._data[chunk.offset: chunk.offset + chunk.size])
         if not _looks_like_jpeg(payload, self.requires_eoi):
             return None
-        image = cv2.imdecode(np.frombuffer(_with_huffman_tables(payload), np.uint8), cv2.IMREAD_COLOR)
+        image = cv2.imdecode(np.frombuffer(with_huffman_tables(payload), np.uint8), cv2.IMREAD_COLOR)
         if image is None or (image.shape[1], image.shape[0]) != self.size:
             return None
         return image
@@ -130,7 +130,7 @@ def _standard_huffman_tables() -> bytes:
     return _TABLES
 
 
-def _with_huffman_tables(payload: bytes) -> bytes:
+def with_huffman_tables(payload: bytes) -> bytes:
     """``payload`` with the standard Huffman tables put after SOI if it has none before its scan."""
     scan = payload.find(_SOS)
     if scan < 0 or payload.find(_DHT, 0, scan) >= 0:

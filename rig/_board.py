@@ -2,7 +2,7 @@
 
 `Board` wraps a pyserial-like port (``read``, ``write``, ``close``; a
 real ``serial.Serial``, a pty, or a test double) and speaks the protocol of
-`rig._protocol`. `Board.play` streams a whole drive of DAC codes
+`rig.protocol`. `Board.play` streams a whole drive of DAC codes
 through the board's 256-sample ring buffer and returns a `PlayReport`
 with the board's own account of what it played and when (its timer ticks).
 
@@ -22,9 +22,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from . import _protocol as P
+from . import protocol as P
 from ._errors import RigError
-from ._link import BAUD, SerialLink, _reason
+from ._link import BAUD, SerialLink, failure_reason
 from ._playback import F_CPU, PlayReport, Timing, sample_timing
 
 __all__ = ["Board"]
@@ -47,14 +47,14 @@ class Board(SerialLink):
     # ------------------------------------------------------------- opening
 
     @classmethod
-    def open(cls, path: str, baud: int = BAUD, **kwargs) -> "Board":
+    def open(cls, path: str, baud: int = BAUD, **kwargs) -> Board:
         """Open a serial port by path and say hello (see `hello`)."""
         import serial
 
         try:
             port = serial.Serial(path, baud, timeout=0.02)
         except (serial.SerialException, OSError, ValueError) as error:
-            raise RigError(f"serial port {path} cannot be opened ({_reason(error)}): check the cable "
+            raise RigError(f"serial port {path} cannot be opened ({failure_reason(error)}): check the cable "
                            "and the name (`rig ports` lists them)") from None
         board = cls(port, name=path, **kwargs)
         try:

@@ -89,7 +89,7 @@ class Calibration:
         return path
 
     @classmethod
-    def load(cls, path) -> "Calibration":
+    def load(cls, path) -> Calibration:
         """Read a calibration written by `save` or ``rig calibrate``."""
         path = pathlib.Path(path)
         try:

@@ -22,7 +22,7 @@ import threading
 import time
 import tty
 
-from . import _protocol as P
+from . import protocol as P
 
 __all__ = ["EmulatedBoard"]
 

@@ -22,7 +22,7 @@ import pathlib
 
 import numpy as np
 
-from hybrid.util._atomic import atomic_open, describe_targets, partial_path, write_texts
+from hybrid.util import atomic_open, describe_targets, partial_path, write_texts
 
 from ._errors import RigError
 

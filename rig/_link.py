@@ -2,7 +2,7 @@
 
 `SerialLink` wraps the port (``read``, ``write``, ``close``; a real
 ``serial.Serial``, a pty, or a test double), numbers and encodes outgoing frames
-with `rig._protocol`, decodes what arrives (bad frames are counted, not
+with `rig.protocol`, decodes what arrives (bad frames are counted, not
 fatal) and waits for a reply of a given kind. A failing port raises
 `RigError` with one line. The commands the board
 understands are `rig._board.Board`'s.
@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from . import _protocol as P
+from . import protocol as P
 from ._errors import RigError
 
 __all__ = ["BAUD", "SerialLink"]
@@ -63,7 +63,7 @@ class SerialLink:
         try:
             self.port.write(frame)
         except Exception as error:  # pyserial raises SerialException, ptys OSError
-            raise RigError(f"serial port {self.name} failed while writing ({_reason(error)}): "
+            raise RigError(f"serial port {self.name} failed while writing ({failure_reason(error)}): "
                            "was the board unplugged?") from None
 
     def receive(self) -> list[P.Message]:
@@ -71,7 +71,7 @@ class SerialLink:
         try:
             data = self.port.read(4096)
         except Exception as error:
-            raise RigError(f"serial port {self.name} failed while reading ({_reason(error)}): "
+            raise RigError(f"serial port {self.name} failed while reading ({failure_reason(error)}): "
                            "was the board unplugged?") from None
         messages = []
         for frame in self.parser.feed(data or b""):
@@ -95,6 +95,6 @@ class SerialLink:
                        f"firmware flashed and the port at {BAUD} baud?")
 
 
-def _reason(error: Exception) -> str:
+def failure_reason(error: Exception) -> str:
     text = str(error).strip() or type(error).__name__
     return text.splitlines()[0]

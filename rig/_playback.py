@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from . import _protocol as P
+from . import protocol as P
 from ._errors import RigError
 
 __all__ = ["F_CPU", "PlayReport", "Timing", "sample_timing"]

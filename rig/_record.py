@@ -38,10 +38,10 @@ import numpy as np
 from hybrid import InputError, Recording
 
 from ._board import Board
-from ._playback import PlayReport
 from ._calibration import Calibration
 from ._errors import RigError
 from ._files import partial_path, rename_together, write_json_atomic
+from ._playback import PlayReport
 from ._scene import Scene
 from ._sync import LedDetector
 from ._tracker import TipTracker
@@ -242,7 +242,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
 
     thread = threading.Thread(target=stream, name="rig-board", daemon=True)
     pending: list[list] = []          # [slot, t_camera, w, quality, w_true]
-    last_slot, last_t, last_good = None, None, 0.0
+    last_slot, last_good = None, 0.0
     t_cam0 = None
     sync_t = None
     done_slots = -1
@@ -321,7 +321,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
             if result_track.quality:
                 last_good = w
             pending.append([slot, frame.t, w, result_track.quality, w_true])
-            last_slot, last_t = slot, frame.t
+            last_slot = slot
             if led is not None and sync_t is None:
                 sync = led.update(frame.index, frame.t, frame.image)
                 if sync is not None:
@@ -351,7 +351,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
                 end_t = schedule()[-1] + period
                 if t_cam0 + slot / fps - sync_t >= end_t:
                     break
-    except BaseException as caught:  # noqa: BLE001  (KeyboardInterrupt too: save what we have)
+    except BaseException as caught:
         error = caught
     finally:
         stop.set()

@@ -10,7 +10,6 @@ each pixel's darkness is the strip's coverage from its distance to the arc.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import cv2
 import numpy as np

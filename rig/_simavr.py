@@ -12,7 +12,6 @@ with its CPU cycle (16 MHz).
 from __future__ import annotations
 
 import dataclasses
-import os
 import pathlib
 import shutil
 import signal
@@ -78,7 +77,7 @@ class SimavrLog:
     resets: list
 
     @classmethod
-    def read(cls, path) -> "SimavrLog":
+    def read(cls, path) -> SimavrLog:
         dac, led, resets = [], [], []
         for line in pathlib.Path(path).read_text().splitlines():
             parts = line.split()

@@ -14,7 +14,6 @@ best guess (error at most half the gap).
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import cv2
 import numpy as np

@@ -29,10 +29,10 @@ import sys
 
 import numpy as np
 
-from ._axis import AxisEstimate, find_axis
-from ._camera import VideoSource, find_gaps
 from hybrid import InputError
 
+from ._axis import AxisEstimate, find_axis
+from ._camera import VideoSource, find_gaps
 from ._errors import RigError
 from ._files import check_outputs, jsonable, partial_path, write_together
 from ._scene import Scene

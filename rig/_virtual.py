@@ -22,8 +22,7 @@ import time
 
 import numpy as np
 
-from hybrid.ipmc._virtual_ipmc import simulate_virtual_ipmc
-from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
+from hybrid.ipmc import VirtualIPMCParameters, simulate_virtual_ipmc
 
 from ._calibration import Calibration
 from ._camera import Frame

@@ -13,11 +13,11 @@ import textwrap
 from pathlib import Path
 
 import equinox as eqx
+import helpers as h
 import jax
 import numpy as np
 import pytest
 
-import helpers as h
 from hybrid import InputError, RCNetwork, fit, fit_batch, make_model
 
 TINY = dict(window=5, depth=2, width=4)
@@ -61,11 +61,11 @@ def test_a_plugin_physics_batch_equals_one_by_one():
 
     The records are numpy's exact ZOH response of 1/(1 + s·tau) from the held drive.
     """
-    from hybrid import HeldStart, LTI, Recording
+    from hybrid import LTI, HeldStart, Recording
 
     rng = np.random.default_rng(0)
     recordings = []
-    for i, (tau, held) in enumerate([(2.0, 0.5), (3.0, -0.4)]):
+    for tau, held in [(2.0, 0.5), (3.0, -0.4)]:
         u = np.repeat(rng.uniform(-1, 1, 20), 20)
         a, y, state = np.exp(-0.1 / tau), np.empty(u.size), held
         for k in range(u.size):

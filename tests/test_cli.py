@@ -5,11 +5,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import helpers as h
 import numpy as np
 import pytest
 from scipy import signal
 
-import helpers as h
 from hybrid import Recording
 from hybrid.cli import main
 

@@ -14,16 +14,16 @@ import json
 import numpy as np
 import pytest
 
+from hybrid import InputError
 from hybrid.cli import main
 from hybrid.data._mapping import load_mapped
-from hybrid.util._errors import InputError
 
 LAG = (
     "from typing import ClassVar\n"
     "import jax.numpy as jnp\n"
     "from jax import lax\n"
     "from hybrid import AbstractSimulation, Positive\n"
-    "from hybrid.core._parameters import encode\n\n"
+    "from hybrid import encode\n\n"
     "class Lag(AbstractSimulation):\n"
     "    raw: dict\n"
     "    constraints: ClassVar[dict] = {'tau_s': Positive()}\n"

@@ -84,7 +84,7 @@ def test_fit_takes_a_plug_in_physics_from_a_file_and_lti(lab_csv, tmp_path, caps
         "import jax.numpy as jnp\n"
         "from jax import lax\n"
         "from hybrid import AbstractSimulation, Positive\n"
-        "from hybrid.core._parameters import encode\n\n"
+        "from hybrid import encode\n\n"
         "class Lag(AbstractSimulation):\n"
         "    raw: dict\n"
         "    constraints: ClassVar[dict] = {'tau_s': Positive()}\n"

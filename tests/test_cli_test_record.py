@@ -14,10 +14,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import helpers as h
 import numpy as np
 import pytest
 
-import helpers as h
 import hybrid
 from hybrid import InputError
 from hybrid.cli import main

@@ -26,12 +26,12 @@ import numpy as np
 import pytest
 
 from hybrid import diagnose
-from hybrid.discovery._decision import _choose_lane
-from hybrid.discovery._diagnosis import CAUSES, DiagnoseSettings
-from hybrid.discovery._report_figures import FIGURES, _nmse
-from hybrid.discovery._effects import EFFECTS
-from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
 from hybrid.cli import main
+from hybrid.discovery._decision import choose_lane
+from hybrid.discovery._diagnosis import CAUSES, DiagnoseSettings
+from hybrid.discovery._effects import EFFECTS
+from hybrid.discovery._report_figures import FIGURES, format_nmse
+from hybrid.ipmc._synthetic import discrepancy_drive, random_effect, random_strip, synthetic_recording
 
 DURATION, RATE, NOISE = 60.0, 30.0, 0.01
 MAX_STEPS = DiagnoseSettings().max_steps
@@ -98,16 +98,16 @@ def test_lane_choice_is_validation_unless_an_immaterial_lane_edges_out_a_materia
     vals = np.array([9.0, 1.00, 1.05, 1.09, 1.11, np.nan])
     idx = [1, 2, 3, 4, 5]
     # The best lane on validation is kept when its effect is material.
-    assert _choose_lane(idx, vals, lambda j: True, n_val) == 1
+    assert choose_lane(idx, vals, lambda j: True, n_val) == 1
     # An immaterial best lane loses to the best material lane within 10 % of it ...
-    assert _choose_lane(idx, vals, lambda j: j != 1, n_val) == 2
-    assert _choose_lane(idx, vals, lambda j: j in (3, 4), n_val) == 3
+    assert choose_lane(idx, vals, lambda j: j != 1, n_val) == 2
+    assert choose_lane(idx, vals, lambda j: j in (3, 4), n_val) == 3
     # ... but not to one beyond it (1.11 > 1.10), nor to a lane that failed (NaN).
-    assert _choose_lane(idx, vals, lambda j: j in (4, 5), n_val) == 1
+    assert choose_lane(idx, vals, lambda j: j in (4, 5), n_val) == 1
     # Lanes of other effects (index 0) are never chosen.
-    assert _choose_lane(idx, vals, lambda j: j == 0, n_val) == 1
+    assert choose_lane(idx, vals, lambda j: j == 0, n_val) == 1
     # The standard error shrinks with more validation samples: 5 % is beyond it at n = 2000.
-    assert _choose_lane(idx, vals, lambda j: j == 2, 2000) == 1
+    assert choose_lane(idx, vals, lambda j: j == 2, 2000) == 1
 
 
 # --------------------------------------------------------------------------- #
@@ -190,7 +190,7 @@ def test_report_md_names_cause_figures_and_nmse(report):
         assert "none: the simulation is right within the measurement noise" in text
     for name in FIGURES:
         assert f"]({name})" in text, name
-    assert _nmse(data["baseline"]["nmse"]) in text
-    assert _nmse(data["extended"]["nmse"]) in text
+    assert format_nmse(data["baseline"]["nmse"]) in text
+    assert format_nmse(data["extended"]["nmse"]) in text
     for c in data["candidates"]:
         assert c["name"] in text

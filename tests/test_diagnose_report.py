@@ -10,10 +10,10 @@ import math
 import numpy as np
 import pytest
 
-from hybrid.discovery._report import _jsonable
-from hybrid.discovery._report_figures import _correlations
-from hybrid.discovery._residual_tests import confidence_bound
 from hybrid.cli import main
+from hybrid.discovery._report import jsonable
+from hybrid.discovery._report_figures import correlations
+from hybrid.discovery.residual_tests import confidence_bound
 
 
 def _one_line_error(code, err):
@@ -54,7 +54,7 @@ def test_count_option_below_one_is_one_line_error(option, match, tmp_path, capsy
 def test_jsonable_writes_nan_as_null_and_converts_numpy():
     value = {"a": float("nan"), "b": np.float64(1.5), "c": np.array([1.0, np.inf, 2.0]), "d": [np.int64(3), -np.inf],
              "e": np.bool_(True), "f": {"g": np.float32(0.25), "h": None, "i": "x"}}
-    text = json.dumps(_jsonable(value), allow_nan=False)
+    text = json.dumps(jsonable(value), allow_nan=False)
     assert json.loads(text) == {"a": None, "b": 1.5, "c": [1.0, None, 2.0], "d": [3, None], "e": True,
                                 "f": {"g": 0.25, "h": None, "i": "x"}}
 
@@ -62,7 +62,7 @@ def test_jsonable_writes_nan_as_null_and_converts_numpy():
 def test_correlation_figure_bound_is_the_99_percent_bound():
     rng = np.random.default_rng(0)
     e, v = rng.normal(size=777), rng.normal(size=777)
-    c = _correlations(e, v)
+    c = correlations(e, v)
     assert c["bound"] == confidence_bound(777)
     assert c["bound"] == pytest.approx(2.5758293035489 / math.sqrt(777), rel=1e-12)
     assert c["acf_lags"][0] == 1 and c["acf_lags"][-1] == 50 and len(c["acf"]) == 50

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from hybrid import RCNetwork
-from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
-from hybrid.discovery._starts import baseline_design, baseline_starts
 from hybrid.core._models import Model
 from hybrid.core._problem import Problem, series_from_recording
 from hybrid.core._readout import LinearReadout
+from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
+from hybrid.discovery._starts import baseline_design, baseline_starts
 from hybrid.ipmc._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
 
 #: A slow strip (tip capacitance 8× the clamp's): from 15 of the 16 fixed Sobol starts used
@@ -55,9 +55,9 @@ def test_loop_screen_recovers_a_known_bouc_wen_loop():
     """`loop_screen` reads height and initial state off a least-squares solve: exact on a loop from a neutral start."""
     import jax.numpy as jnp
 
-    from hybrid.discovery._starts import design_raws, loop_screen
-    from hybrid.discovery._hysteresis import bouc_wen_state
     from hybrid.data._recording import Recording
+    from hybrid.discovery._hysteresis import bouc_wen_state
+    from hybrid.discovery._starts import design_raws, loop_screen
 
     settings = DiagnoseSettings()
     drive = discrepancy_drive(60.0, 30.0, seed=1)
@@ -98,9 +98,16 @@ def test_resonance_starts_find_a_known_mode_and_network():
     import jax.numpy as jnp
     import scipy.signal
 
-    from hybrid.discovery._starts import (MODE_DAMPINGS, N_JOINT_SCREEN, N_SCREEN, design_raws,
-                                         mode_frequencies, mode_screen, resonance_starts)
     from hybrid.data._recording import Recording
+    from hybrid.discovery._starts import (
+        MODE_DAMPINGS,
+        N_JOINT_SCREEN,
+        N_SCREEN,
+        design_raws,
+        mode_frequencies,
+        mode_screen,
+        resonance_starts,
+    )
 
     settings = DiagnoseSettings()
     rate = 30.0

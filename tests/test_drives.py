@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
+from hybrid import InputError
 from hybrid.data._drive import Drive
 from hybrid.data._drives import DRIVES, make_drive
 from hybrid.data._paper_drives import chirp, prbs, pulse, sine
-from hybrid.util._errors import InputError
 
 
 def _holds(v):

@@ -10,7 +10,14 @@ import scipy.signal
 from hybrid import InputError, RCNetwork, make_drive
 from hybrid.discovery._effect_stack import EffectStack, extend
 from hybrid.discovery._effects import (
-    EFFECTS, BackRelaxation, Delay, Drift, Hysteresis, Resonance, Saturation, affine_recurrence,
+    EFFECTS,
+    BackRelaxation,
+    Delay,
+    Drift,
+    Hysteresis,
+    Resonance,
+    Saturation,
+    affine_recurrence,
 )
 from hybrid.discovery._hysteresis import bouc_wen_and_memory, bouc_wen_state
 from hybrid.ipmc._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
@@ -74,7 +81,7 @@ def _bouc_wen_by_ode(signal, k, initial):
     u, out = initial, [initial]
     for prev, v in zip(signal[:-1], signal[1:]):
         d = v - prev
-        u = scipy.integrate.solve_ivp(lambda _, x: k * (d - abs(d) * abs(x) * x), (0.0, 1.0), [u],
+        u = scipy.integrate.solve_ivp(lambda _, x, d=d: k * (d - abs(d) * abs(x) * x), (0.0, 1.0), [u],
                                       rtol=1e-11, atol=1e-13).y[0, -1]
         out.append(u)
     return np.array(out)
@@ -269,11 +276,11 @@ def test_random_draws_stay_in_the_issue_ranges():
 def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     """`std_error_given_network` (a block of the full Fisher information) against an
     independent covariance computed with the network's parameters frozen."""
-    from hybrid.discovery._diagnosis import DiagnoseSettings
-    from hybrid.discovery._evidence import _uncertainties
     from hybrid.core._models import Model
     from hybrid.core._problem import Problem, bucket_length, bucketed_series, series_from_recording
     from hybrid.core._readout import LinearReadout
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+    from hybrid.discovery._evidence import parameter_uncertainties
     from hybrid.sensitivity import parameter_covariance
 
     rec = synthetic_recording(make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0), SyntheticStrip(),
@@ -289,7 +296,7 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
         if padded:  # diagnose's padded problem: the padding must not change a standard error
             series = bucketed_series(series, bucket_length(rec.n) + 100)
         problem = Problem(model, [series], frozenset(settings.frozen_for(inner)))
-        return _uncertainties(problem, problem.flatten(model, frozenset(settings.frozen_for(inner))), white, keep=keep)
+        return parameter_uncertainties(problem, problem.flatten(model, frozenset(settings.frozen_for(inner))), white, keep=keep)
 
     found = uncertainties(model)
     frozen = parameter_covariance(model, [rec], frozen=set(settings.frozen_for(inner)) | set(inner.parameter_names()),

@@ -17,12 +17,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from rig_labvideo import LabVideo, write_video
 
 from hybrid.cli import main as hybrid_main
 from rig._scene import Scene
 from rig.cli import main as rig_main
-
-from rig_labvideo import LabVideo, write_video
 
 
 def snapshot(folder: Path) -> dict:
@@ -46,7 +45,7 @@ def test_a_failed_track_keeps_the_users_file_and_what_it_read_elsewhere(tmp_path
     (tmp_path / "wk.csv.json").write_text('{"good": true}\n')
     before = snapshot(tmp_path)
     argv = ["track", str(video), "--clamp", "160,20", "--mm-per-px", "0.1", "--out", str(out)]
-    for k, partial in enumerate(("wk.partial.csv", "wk.partial-2.csv")):
+    for partial in ("wk.partial.csv", "wk.partial-2.csv"):
         assert rig_main(argv) == 2
         err = capsys.readouterr().err.splitlines()
         assert len(err) == 1 and err[0].startswith("rig: error: no strip leaves the clamp"), err

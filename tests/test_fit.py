@@ -8,12 +8,12 @@ same shape are reused so compiled LM programs are shared between tests.
 import json
 
 import equinox as eqx
+import helpers as h
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import helpers as h
 from hybrid import InputError, LinearReadout, Model, RCNetwork, Recording, fit, make_model
 from hybrid.core._problem import Problem, Series
 
@@ -296,7 +296,7 @@ def test_fit_rejects_no_recordings(small_physics):
 
 # --------------------------------------------------------------------------- weight decay
 def test_weight_decay_cost_and_normal_equations():
-    from hybrid.core._levenberg_marquardt import _normal_equations
+    from hybrid.core._levenberg_marquardt import normal_equations
 
     series = _two_series()
     hybrid_model = make_model("hybrid", simulation=RCNetwork(n_stages=5), key=jax.random.key(3), **TINY)
@@ -307,7 +307,7 @@ def test_weight_decay_cost_and_normal_equations():
     @eqx.filter_jit
     def evaluate(problem, theta):
         return (problem.residuals(theta), problem.cost(theta), jax.grad(problem.cost)(theta),
-                jax.jacfwd(problem.residuals)(theta), _normal_equations(problem, theta))
+                jax.jacfwd(problem.residuals)(theta), normal_equations(problem, theta))
 
     r, cost, grad, J, (cost_ne, JtJ, g) = jax.tree_util.tree_map(np.asarray, evaluate(problem, theta))
     # ½‖r‖² + ½ μ ‖θ_network‖²; the 6 RC parameters come first and are not penalised

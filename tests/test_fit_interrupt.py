@@ -13,11 +13,11 @@ import signal
 import subprocess
 import sys
 
+import helpers as h
 import jax
 import numpy as np
 import pytest
 
-import helpers as h
 from hybrid import Recording, fit, load_model, make_model
 from hybrid.cli import main
 

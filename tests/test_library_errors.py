@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import hybrid
-from hybrid import InputError, Recording, RCNetwork
+from hybrid import InputError, RCNetwork, Recording
 
 
 @pytest.fixture(scope="module")

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 import scipy.io
 
+from hybrid import InputError
 from hybrid.data._loaders import sidecar
 from hybrid.data._mapping import load_mapped, load_pair
 from hybrid.data._mapping_options import parse_columns, parse_sample_range, parse_units
 from hybrid.data._recording import Recording
-from hybrid.util._errors import InputError
 
 DATA = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
 TANKS = DATA / "cascaded-tanks" / "dataBenchmark.csv"

@@ -100,14 +100,20 @@ def _lapack_calls(lowered) -> set[str]:
 
 def test_no_lapack_call_in_diagnoses_batched_screens_on_two_recordings():
     """The hang's construct cannot come back unseen: a batched LAPACK call inside these loops fails here."""
-    from hybrid.ipmc._virtual_ipmc import virtual_recording
+    from hybrid.data._drives import make_drive
     from hybrid.discovery._diagnosis import DiagnoseSettings
     from hybrid.discovery._search import lanes_problem
     from hybrid.discovery._starts import (
-        LOOP_RATES, N_JOINT_SCREEN, baseline_design, design_raws, loop_screen, mode_frequencies, mode_screen,
+        LOOP_RATES,
+        N_JOINT_SCREEN,
+        baseline_design,
+        design_raws,
+        loop_screen,
+        mode_frequencies,
+        mode_screen,
         screen_losses,
     )
-    from hybrid.data._drives import make_drive
+    from hybrid.ipmc._virtual_ipmc import virtual_recording
 
     recordings = [virtual_recording(make_drive("prbs", 70.0, rate=30.0, seed=s), seed=s) for s in (1, 2)]
     sim = RCNetwork(method="zoh")

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hybrid.util._errors import InputError
+from hybrid import InputError
 from hybrid.core._metrics import METRICS, fitting, metrics, nmse, nmse_target, nmse_variance
 
 W = [1.0, 2.0, 4.0]

@@ -16,10 +16,10 @@ import json
 
 import numpy as np
 import pytest
+from helpers import hidden_recording
 
 from hybrid import diagnose, write_report
 from hybrid.ipmc._hidden_pairs import true_noise_variance
-from helpers import hidden_recording
 
 _found = {}
 
@@ -81,11 +81,11 @@ def test_the_hybrid_fits_of_a_diagnosis_run():
     without a second search.
     """
     from hybrid import RCNetwork
-    from hybrid.discovery._diagnose import _hybrid_fits
+    from hybrid.discovery._diagnose import hybrid_fits
     from hybrid.discovery._diagnosis import DiagnoseSettings
 
     recording = hidden_recording("none", 0, duration=20.0)
     settings = DiagnoseSettings(frozen=("xi_h",))
-    out = _hybrid_fits([recording], RCNetwork(n_stages=4, method="zoh"), None, None, (), settings, 2, False)
+    out = hybrid_fits([recording], RCNetwork(n_stages=4, method="zoh"), None, None, (), settings, 2, False)
     assert out["extended"] is out["baseline"] and out["gain"] == 1.0
     assert np.isfinite(out["baseline"]["nmse"]) and out["baseline"]["nmse"] > 0

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import hidden_recording
 
 from hybrid import diagnose
 from hybrid.ipmc._hidden_pairs import true_noise_variance
-from helpers import hidden_recording
 
 
 # One pair here (hysteresis + drift, seed 2, ran here too until the suite neared its 10-minute budget);

@@ -70,8 +70,8 @@ def fast_network(monkeypatch):
 
 def refuse_to_compute(monkeypatch):
     """Make the expensive step fail loudly: a check must refuse before it is reached."""
-    import hybrid.discovery._diagnose
     import hybrid.core._fit
+    import hybrid.discovery._diagnose
     import hybrid.ipmc._sensitivity_study
     import hybrid.ipmc._table2
     import hybrid.ipmc._virtual_ipmc
@@ -224,9 +224,8 @@ def test_table2_and_sensitivity_write_through_the_atomic_helper():
     # Their every write goes through hybrid.util._atomic (no bare write_text/savefig left).
     import inspect
 
+    from hybrid.ipmc import _sensitivity_study, _table2
     from hybrid.util import _figures
-    from hybrid.ipmc import _sensitivity_study
-    from hybrid.ipmc import _table2
 
     for module in (_table2, _sensitivity_study, _figures):
         source = inspect.getsource(module)

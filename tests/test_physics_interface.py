@@ -16,9 +16,8 @@ import pytest
 from jax import lax
 
 import hybrid
-from hybrid import AbstractSimulation, InputError, Positive, RCNetwork, Real
+from hybrid import AbstractSimulation, InputError, Positive, RCNetwork, Real, encode
 from hybrid.core._models import make_model as make_any_model
-from hybrid.core._parameters import encode
 from hybrid.discovery._diagnose import diagnose as diagnose_any
 from hybrid.discovery._diagnosis import DiagnoseSettings
 from hybrid.discovery._starts import baseline_design

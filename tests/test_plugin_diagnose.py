@@ -22,9 +22,8 @@ from jax import lax
 from jax.flatten_util import ravel_pytree
 
 import hybrid
-from hybrid import AbstractSimulation, HeldStart, Positive
-from hybrid.core._parameters import encode
-from hybrid.discovery._search import _sim_labels
+from hybrid import AbstractSimulation, HeldStart, Positive, encode
+from hybrid.discovery._search import simulation_labels
 
 RATE, SECONDS, TAU, HELD, SETTLE, NOISE = 10.0, 60.0, 2.5, 1.2, 200, 0.01
 
@@ -82,7 +81,7 @@ def test_free_parameter_order_is_the_order_of_theta():
     for frozen in (frozenset(), frozenset({"f_1", "initial_drive"}), frozenset({"saturation_neg_per_v"})):
         names = inner.free_parameter_order(frozen)
         assert sorted(names) == sorted(set(inner.parameter_names()) - frozen)
-        labels = _sim_labels(stack, frozen)  # the inner's names, then each effect's
+        labels = simulation_labels(stack, frozen)  # the inner's names, then each effect's
         marks = {n: 100.0 + i for i, n in enumerate(labels)}
         marked = stack.with_raw({n: jnp.asarray(v) for n, v in marks.items()})
         theta, _ = ravel_pytree(eqx.filter(marked, marked.trainable(frozen)))

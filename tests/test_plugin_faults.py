@@ -32,7 +32,7 @@ from typing import ClassVar
 import jax.numpy as jnp
 
 from hybrid import AbstractSimulation, Positive
-from hybrid.core._parameters import encode
+from hybrid import encode
 
 
 class Good(AbstractSimulation):

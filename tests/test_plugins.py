@@ -109,7 +109,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from hybrid import AbstractSimulation, Positive
-from hybrid.core._parameters import encode
+from hybrid import encode
 
 
 class SqrtLag(AbstractSimulation):
@@ -216,7 +216,7 @@ def _valve_recording():
     for value in u:
         out.append(y)
         target = np.sqrt(value + TRUE["bias"])
-        y = solve_ivp(lambda t, x: (target - x) / TRUE["tau"], (0.0, 1.0 / rate), [y], rtol=1e-11, atol=1e-12).y[0, -1]
+        y = solve_ivp(lambda t, x, target=target: (target - x) / TRUE["tau"], (0.0, 1.0 / rate), [y], rtol=1e-11, atol=1e-12).y[0, -1]
     return hybrid.Recording.from_arrays(v_in=u, w=GAIN * np.array(out) + OFFSET, rate=rate)
 
 
@@ -265,7 +265,7 @@ def test_the_two_tank_example_matches_solve_ivp_and_differentiates_from_empty_ta
         expected.append(h[1])
         q = p["pump_flow"] * value
 
-        def rate(t, x):
+        def rate(t, x, q=q):
             return [(q - c1 * outflow(x[0])) / p["area_1"], (c1 * outflow(x[0]) - c2 * outflow(x[1])) / p["area_2"]]
 
         h = solve_ivp(rate, (0.0, dt), h, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]

@@ -7,13 +7,13 @@ input, the diffrax reference, and central finite differences.
 """
 
 import equinox as eqx
+import helpers as h
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.signal
 
-import helpers as h
 from hybrid import InputError, RCNetwork, Strip, reference_response
 
 PARAMETER_SETS = [

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.io
 
-from hybrid.util._errors import InputError
+from hybrid import InputError
 from hybrid.data._loaders import sidecar
 from hybrid.data._recording import Recording
 from hybrid.data._split import Split

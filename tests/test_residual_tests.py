@@ -1,10 +1,10 @@
-"""Residual analysis (hybrid.discovery._residual_tests) on signals with known statistics."""
+"""Residual analysis (hybrid.discovery.residual_tests) on signals with known statistics."""
 
 import numpy as np
 import pytest
 import scipy.signal
 
-from hybrid.discovery import _residual_tests as rt
+from hybrid.discovery import residual_tests as rt
 
 
 def _ar1(rho, n, seed=0):

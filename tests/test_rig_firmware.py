@@ -7,13 +7,12 @@ not wall-clock times, so the assertions do not depend on the machine's load.
 import numpy as np
 import pytest
 import serial
+from rig_helpers import CorruptingPort, firmware  # noqa: F401  (fixture)
 
 import hybrid
 from rig import Board, Calibration, RigError
-from rig import _protocol as P
+from rig import protocol as P
 from rig._simavr import SimavrBoard
-
-from rig_helpers import CorruptingPort, firmware  # noqa: F401  (fixture)
 
 RATE = 200.0        # Hz: 1.28 s of buffer, so 3 s of drive really streams
 PERIOD = 80_000     # cycles at 200 Hz: (9999 + 1) * 8

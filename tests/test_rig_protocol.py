@@ -8,7 +8,7 @@ import struct
 import hypothesis.strategies as st
 from hypothesis import given, settings
 
-from rig import _protocol as P
+from rig import protocol as P
 from rig._simavr import SKETCH
 
 
@@ -63,7 +63,7 @@ def test_one_corrupt_byte_loses_at_most_its_frame(items, data):
 
 def _random_message(cls, data):
     values = []
-    for code, field in zip(re.findall(r"[BHI]", cls.FORMAT), dataclasses.fields(cls)[1:]):
+    for code, _field in zip(re.findall(r"[BHI]", cls.FORMAT), dataclasses.fields(cls)[1:]):
         values.append(data.draw(st.integers(0, {"B": 255, "H": 65535, "I": 2**32 - 1}[code])))
     return cls(data.draw(st.integers(0, 255)), *values)
 

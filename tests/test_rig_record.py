@@ -7,7 +7,7 @@ import pytest
 import serial
 
 import hybrid
-from hybrid.ipmc._virtual_elements import _dac
+from hybrid.ipmc._virtual_elements import dac_output
 from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
 from rig import Board, Calibration, RigError, fit_calibration
 from rig._emulator import EmulatedBoard
@@ -28,7 +28,7 @@ def _meta(path):
 def test_calibration_default_is_the_virtual_rigs_dac():
     volts = np.linspace(-3.5, 3.5, 1001)
     cal = Calibration()
-    np.testing.assert_allclose(cal.volts(cal.codes(volts)), _dac(volts, VirtualIPMCParameters()), atol=1e-12)
+    np.testing.assert_allclose(cal.volts(cal.codes(volts)), dac_output(volts, VirtualIPMCParameters()), atol=1e-12)
 
 
 def test_fit_calibration_recovers_gain_offset_and_rails():

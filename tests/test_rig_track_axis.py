@@ -5,13 +5,12 @@ import json
 
 import numpy as np
 import pytest
+from rig_labvideo import LabVideo, write_video
 
 from rig._axis import find_axis
 from rig._render import Look, render_frame
 from rig._scene import Scene
 from rig.cli import main
-
-from rig_labvideo import LabVideo, write_video
 
 SIZE = (400, 300)
 FRAMES = 40

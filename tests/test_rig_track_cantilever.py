@@ -13,11 +13,10 @@ import math
 
 import numpy as np
 import pytest
+from rig_cantilever_render import CantileverVideo, cantilever_shape, write_avi
 
 from rig import _axis
 from rig.cli import main
-
-from rig_cantilever_render import CantileverVideo, cantilever_shape, write_avi
 
 FRAMES = 36                      # the 30 the axis is found from, and a few more
 LENGTH = 22.0                    # mm

@@ -6,13 +6,12 @@ import json
 import cv2
 import numpy as np
 import pytest
+from rig_labvideo import LabVideo, write_video
 
-from rig._avi import _with_huffman_tables, open_mjpeg_avi
+from rig._avi import open_mjpeg_avi, with_huffman_tables
 from rig._camera import find_gaps
 from rig._scene import Scene
 from rig.cli import main
-
-from rig_labvideo import LabVideo, write_video
 
 FRAMES = 60
 SWEEP = 6.2 * np.sin(np.linspace(0, 4 * np.pi, FRAMES))       # mm: fast, so a 133 ms slip is millimetres
@@ -143,7 +142,7 @@ def test_jpeg_without_huffman_tables_gets_the_standard_ones():
         pos += 2 + length
     stripped = bytes(stripped + jpeg[pos:])
     assert b"\xff\xc4" not in stripped[: stripped.find(b"\xff\xda")]
-    decoded = cv2.imdecode(np.frombuffer(_with_huffman_tables(stripped), np.uint8), cv2.IMREAD_COLOR)
+    decoded = cv2.imdecode(np.frombuffer(with_huffman_tables(stripped), np.uint8), cv2.IMREAD_COLOR)
     np.testing.assert_array_equal(decoded, cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR))
 
 

@@ -2,9 +2,9 @@
 
 import csv
 
-import cv2
 import numpy as np
 import pytest
+from rig_labvideo import LabVideo, write_video
 
 from rig import RigError
 from rig._camera import VideoSource
@@ -13,8 +13,6 @@ from rig._scene import Scene, arc_centreline
 from rig._sync import LedDetector
 from rig._tracker import TipTracker
 from rig.cli import main
-
-from rig_labvideo import LabVideo, write_video
 
 SCENE = Scene()                            # clamp (40, 120), 0.1 mm/px, strip along +x
 SWEEP = 6.2 * np.sin(np.linspace(0, 4 * np.pi, 75))   # deflections up to +-6.2 mm

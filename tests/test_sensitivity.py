@@ -13,16 +13,15 @@
 import json
 from typing import ClassVar
 
+import helpers as h
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.optimize
 import scipy.signal
 
-import helpers as h
-from hybrid import AbstractSimulation, InputError, LinearReadout, Model, RCNetwork, Real, make_drive
+from hybrid import AbstractSimulation, InputError, LinearReadout, Model, RCNetwork, Real, encode, make_drive
 from hybrid import sensitivity as S
-from hybrid.core._parameters import encode
 from hybrid.cli import main
 
 DT = 1.0 / h.RATE
@@ -157,8 +156,7 @@ def test_covariance_matches_curve_fit(curve_fit_reference):
 
 def test_standard_errors_of_a_fit_use_its_frozen_set_split_and_blocks(curve_fit_reference):
     """standard_errors(result) is parameter_covariance with the settings the fit recorded."""
-    from hybrid import fit
-    from hybrid import make_model
+    from hybrid import fit, make_model
 
     recording = curve_fit_reference[0]
     split, order = (0.6, 0.1, 0.3), ("train", "validation", "test")

@@ -12,10 +12,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import helpers as h
 import numpy as np
 import pytest
 
-import helpers as h
 from hybrid.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -84,7 +84,7 @@ from typing import ClassVar
 import jax.numpy as jnp
 from jax import lax
 from hybrid import AbstractSimulation, Positive
-from hybrid.core._parameters import encode
+from hybrid import encode
 
 class Lag(AbstractSimulation):
     """k · first-order lag; k is the readout's gain all over again, so it is frozen by default."""

@@ -4,12 +4,12 @@ import json
 from typing import ClassVar
 
 import equinox as eqx
+import helpers as h
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import helpers as h
 from hybrid import (
     AbstractSimulation,
     InputError,

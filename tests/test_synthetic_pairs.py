@@ -13,14 +13,29 @@ import math
 import numpy as np
 import pytest
 
-from hybrid import make_drive
-from hybrid.ipmc._hidden_pairs import (HIDDEN_NAMES, LIBRARY_EFFECTS, PHYSICAL_ORDER, canonical,
-                                       compound_recording, hidden_effects, random_hidden, split_hidden,
-                                       true_noise_variance)
+from hybrid import InputError, make_drive
+from hybrid.ipmc._hidden_pairs import (
+    HIDDEN_NAMES,
+    LIBRARY_EFFECTS,
+    PHYSICAL_ORDER,
+    canonical,
+    compound_recording,
+    hidden_effects,
+    random_hidden,
+    split_hidden,
+    true_noise_variance,
+)
 from hybrid.ipmc._outside_effects import OUTSIDE_EFFECTS
-from hybrid.ipmc._synthetic import (HIDDEN_EFFECTS, SyntheticStrip, _apply_hidden, discrepancy_drive, random_effect,
-                                    random_strip, rc_cascade_exact, synthetic_recording)
-from hybrid.util._errors import InputError
+from hybrid.ipmc._synthetic import (
+    HIDDEN_EFFECTS,
+    SyntheticStrip,
+    apply_hidden,
+    discrepancy_drive,
+    random_effect,
+    random_strip,
+    rc_cascade_exact,
+    synthetic_recording,
+)
 
 RATE, M = 30.0, 8
 DT = 1.0 / (RATE * M)
@@ -52,7 +67,7 @@ def _chain(drive, strip, steps, delay_samples=0):
 
 
 def _single(name, params):
-    return lambda s, t: _apply_hidden(name, params, s, DT, t)
+    return lambda s, t: apply_hidden(name, params, s, DT, t)
 
 
 # --- the single-effect path is the one it was ------------------------------------------------------------
@@ -175,7 +190,7 @@ def test_dead_zone_is_flat_below_the_threshold():
 
 def _two_ramps(level=1.0, slow_s=8.0, fast_s=0.2, hold_s=10.0):
     """Rest, a slow ramp to `level`, hold, back down slowly, rest, a fast ramp to `level`, hold."""
-    n = lambda seconds: int(round(seconds / DT))  # noqa: E731
+    n = lambda seconds: int(round(seconds / DT))
     parts = [np.zeros(n(2.0)), np.linspace(0, level, n(slow_s)), np.full(n(hold_s), level),
              np.linspace(level, 0, n(slow_s)), np.zeros(n(hold_s)), np.linspace(0, level, n(fast_s)),
              np.full(n(hold_s), level)]

@@ -13,11 +13,11 @@ samples, default LM settings), so in one pytest process they share its compiled 
 
 import json
 
+import helpers as h
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import helpers as h
 from hybrid import RCNetwork, Recording, fit, make_model
 from hybrid.core._problem import robust_rms, robust_std
 

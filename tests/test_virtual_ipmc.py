@@ -14,9 +14,9 @@ import scipy.integrate
 import scipy.optimize
 import scipy.signal
 
-from hybrid.util._errors import InputError
-from hybrid.ipmc._virtual_elements import _build, _dac, _electrical, _ladder, _mechanics
-from hybrid.ipmc._virtual_ipmc import VirtualRecording, _fine_outputs, simulate_virtual_ipmc
+from hybrid import InputError
+from hybrid.ipmc._virtual_elements import build_ladder, build_model, dac_output, electrical, mechanics
+from hybrid.ipmc._virtual_ipmc import VirtualRecording, fine_outputs, simulate_virtual_ipmc
 from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
 
 QUIET = VirtualIPMCParameters(noise_std_mm=0.0)
@@ -71,8 +71,8 @@ def _ladder_voltages(lad, s):
 
 def test_line_dc_charge_matches_resistive_network():
     # Tolerance 1e-12 relative: two exact linear solves of the same network.
-    lad = _ladder(QUIET)
-    a_e, b_e, nodes = _electrical(lad)
+    lad = build_ladder(QUIET)
+    a_e, b_e, nodes = electrical(lad)
     v_dc = np.linalg.solve(a_e, -b_e)
     expected = _ladder_voltages(lad, 0).real
     np.testing.assert_allclose(v_dc, expected, rtol=1e-12)
@@ -86,8 +86,8 @@ def test_line_dc_charge_matches_resistive_network():
 @pytest.mark.parametrize("omega", [0.3, 3.0, 30.0, 300.0])
 def test_line_frequency_response_matches_impedance_recursion(omega):
     # Tolerance 1e-10 relative: the loading of each section by the rest of the line.
-    lad = _ladder(QUIET)
-    a_e, b_e, _ = _electrical(lad)
+    lad = build_ladder(QUIET)
+    a_e, b_e, _ = electrical(lad)
     s = 1j * omega
     state_space = np.linalg.solve(s * np.eye(len(b_e)) - a_e, b_e)
     np.testing.assert_allclose(state_space, _ladder_voltages(lad, s), rtol=1e-10)
@@ -98,16 +98,16 @@ def test_single_compartment_step_matches_closed_form():
     # R1 = R_s + RE; the capacitor charges through RI + R_th:
     # v(t) = V_th (1 − exp(−t/τ)), τ = C (RI + R_th).  Tolerance 1e-12.
     p = dataclasses.replace(QUIET, n_compartments=1)
-    lad = _ladder(p)
+    lad = build_ladder(p)
     assert lad.re[0] == pytest.approx(0.424) and lad.ri[0] == pytest.approx(8.48)
-    a_e, b_e, _ = _electrical(lad)
+    a_e, b_e, _ = electrical(lad)
     r1 = lad.r_source + lad.re[0]
     rm, ri, c = lad.rm[0], lad.ri[0], lad.c[0]
     v_th = rm / (rm + r1)
     tau = c * (ri + r1 * rm / (r1 + rm))
     h, os_ = 1 / 480, 16
     u = np.full(20, 1.7)
-    v = _fine_outputs(a_e, b_e, np.eye(1), u, h, os_)[:, 0]
+    v = fine_outputs(a_e, b_e, np.eye(1), u, h, os_)[:, 0]
     t = np.arange(v.size) * h
     np.testing.assert_allclose(v, 1.7 * v_th * (1 - np.exp(-t / tau)), rtol=1e-12, atol=1e-15)
 
@@ -117,12 +117,12 @@ def test_exact_discretisation_matches_lsim_and_ode():
     # grid, tolerance 1e-10 of the peak; and vs an adaptive ODE solve restarted at
     # each DAC update, tolerance 1e-7 of the peak.
     p = QUIET
-    model = _build(p)
+    model = build_model(p)
     rng = np.random.default_rng(3)
-    u = _dac(rng.uniform(-3, 3, 12), p)
+    u = dac_output(rng.uniform(-3, 3, 12), p)
     dt, os_ = 1 / 30, 16
     h = dt / os_
-    y = _fine_outputs(model.a, model.b, model.c_out, u, h, os_)
+    y = fine_outputs(model.a, model.b, model.c_out, u, h, os_)
     t = np.arange(u.size * os_ + 1) * h
     u_fine = np.append(np.repeat(u, os_), u[-1])
     sys = (model.a, model.b[:, None], model.c_out, np.zeros((model.c_out.shape[0], 1)))
@@ -142,7 +142,7 @@ def test_exact_discretisation_matches_lsim_and_ode():
 
 
 def test_time_constants_in_plausible_range():
-    tau = _build(QUIET).derived["electrical_time_constants_s"]
+    tau = build_model(QUIET).derived["electrical_time_constants_s"]
     assert 0.1 < min(tau) and max(tau) < 1.0
 
 
@@ -153,13 +153,13 @@ def test_dac_quantisation_clipping_and_hold():
     p = QUIET
     step = 2 * p.full_scale_v / 4095
     v = np.random.default_rng(0).uniform(-2.9, 2.9, 1000)
-    u = _dac(v, p)
+    u = dac_output(v, p)
     codes = (u / p.full_scale_v + 1) * 4095 / 2
     np.testing.assert_allclose(codes, np.round(codes), atol=1e-9)  # on the 12-bit grid
     assert np.abs(u - v).max() <= step / 2 + 1e-12
-    assert np.unique(np.round(np.diff(np.unique(_dac(np.linspace(-1, 1, 20000), p))) / step, 9)
+    assert np.unique(np.round(np.diff(np.unique(dac_output(np.linspace(-1, 1, 20000), p))) / step, 9)
                      ).tolist() == [1.0]
-    np.testing.assert_array_equal(_dac(np.array([-10.0, -3.0, 3.0, 7.0]), p), [-3, -3, 3, 3])
+    np.testing.assert_array_equal(dac_output(np.array([-10.0, -3.0, 3.0, 7.0]), p), [-3, -3, 3, 3])
 
     # ZOH: a 60 fps camera on a 30 Hz drive sees each DAC value for two frames.
     t, v = _drive(4.0)
@@ -167,8 +167,8 @@ def test_dac_quantisation_clipping_and_hold():
     rec = simulate_virtual_ipmc(t, v, dataclasses.replace(p, camera_fps=60.0))
     assert rec.t.size == 2 * t.size
     np.testing.assert_allclose(rec.t, np.arange(rec.t.size) / 60.0, atol=1e-12)
-    np.testing.assert_array_equal(rec.v_in[0::2], _dac(v, p))
-    np.testing.assert_array_equal(rec.v_in[1::2], _dac(v, p))
+    np.testing.assert_array_equal(rec.v_in[0::2], dac_output(v, p))
+    np.testing.assert_array_equal(rec.v_in[1::2], dac_output(v, p))
     assert rec.v_in.max() == 3.0 and rec.v_in.min() == -3.0
 
 
@@ -228,7 +228,7 @@ def test_mechanics_is_exact_for_piecewise_linear_input():
     p = QUIET
     h = 1 / 480
     w_qs = np.concatenate([[0.0], np.random.default_rng(1).normal(size=600).cumsum() * 0.1])
-    w = _mechanics(p, h, w_qs)
+    w = mechanics(p, h, w_qs)
     wn, z = 2 * np.pi * p.mode_frequency_hz, p.damping_ratio
     sys = scipy.signal.lti([wn * wn], [1, 2 * z * wn, wn * wn])
     _, ref, _ = scipy.signal.lsim(sys, w_qs, np.arange(w_qs.size) * h, interp=True)

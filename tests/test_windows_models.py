@@ -2,12 +2,12 @@
 
 import inspect
 
+import helpers as h
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import helpers as h
 from hybrid import (
     InputError,
     LinearReadout,

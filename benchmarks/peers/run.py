@@ -23,7 +23,7 @@ Data and rules (the same for every model):
   first 50 samples. What each tool is fitted on is in SILVER_FIT (the slower
   fits on fewer multisines: said in the table).
 * The virtual IPMC's Table 2 recordings (PRBS, sine, chirp, pulse; 600 s at
-  30 Hz, `hybrid.ipmc._table2.Table2Settings`): the project's split (train the
+  30 Hz, `hybrid.ipmc.Table2Settings`): the project's split (train the
   first 30 %, test the middle 50 %, validation the last 20 %); each peer is
   fitted on train, its settings chosen on validation, the whole record
   simulated run free from its first 50 samples (the project's models start at
@@ -63,10 +63,13 @@ sys.path.insert(0, str(ROOT / "examples"))
 from oscillator import Duffing, MassSpringDamper  # noqa: E402
 from two_tank import TwoTank, TwoTankOverflow  # noqa: E402
 
-from hybrid.ipmc._table2 import ROWS, Table2Settings  # noqa: E402
-from hybrid.ipmc._virtual_ipmc import virtual_recording  # noqa: E402
-from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters  # noqa: E402
-from hybrid.util._atomic import write_text  # noqa: E402
+from hybrid.ipmc import TABLE2_ROWS as ROWS  # noqa: E402
+from hybrid.ipmc import (  # noqa: E402
+    Table2Settings,
+    VirtualIPMCParameters,
+    virtual_recording,
+)
+from hybrid.util import write_text  # noqa: E402
 
 PEERS_PY = ROOT / ".venv-peers" / "bin" / "python"
 JAXSYSID_PY = ROOT / ".venv-jaxsysid" / "bin" / "python"
@@ -398,7 +401,7 @@ def table2(quick, tools, log, save=None, rows_wanted=None) -> dict:
             log(f"{row_name:<10} {label:<52} test NMSE {r['score']:.4g} (fit's own {r['fit_metrics_test_nmse']:.4g})"
                 f" fit {s:.1f} s")
         grids = QUICK_GRIDS if quick else GRIDS["table2"]
-        rows += peers_on(row_name, tools, grids, lambda tool: (u[tr], w[tr]),
+        rows += peers_on(row_name, tools, grids, lambda tool, u=u, w=w, tr=tr: (u[tr], w[tr]),
                          (u, w, IPMC_INIT, va.start, va.stop), (u, w, IPMC_INIT), log, score)
         out[row_name] = {"title": f"Virtual IPMC, Table 2: {row_name}", "unit": "", "reference": "hybrid",
                          "split": f"{rec.n} samples at {settings.rate:g} Hz; fit on train {tr.start}:{tr.stop}, "
@@ -670,7 +673,7 @@ def main(argv=None) -> int:
     for name in datasets:
         t0 = time.perf_counter()
         if name == "table2":
-            part = table2(args.quick, tools, log, lambda p: save("table2", p, time.perf_counter() - t0),
+            part = table2(args.quick, tools, log, lambda p, t0=t0: save("table2", p, time.perf_counter() - t0),
                           [r for r in args.table2_rows.split(",") if r])
         else:
             part = runners[name](args.quick, tools, log)

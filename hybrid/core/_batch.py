@@ -39,15 +39,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._arguments import as_recordings, check_dt, check_model
 from ..util._errors import InputError
-from ._simulation import AbstractSimulation
-from ._fit import _readout_back, _start_model, _units
+from ._arguments import as_recordings, check_dt, check_model
+from ._fit import fit_units, readout_back, start_model
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
 from ._problem import Problem, Series, series_from_recording
 from ._result import FitResult, fit_warnings
+from ._simulation import AbstractSimulation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,7 +144,7 @@ def fit_batch(
     problems, thetas, units, starts_of = [], [], [], []
     template = None
     for s in series:
-        w_unit, v_unit = _units(model, [s], np.asarray(s.target("train")))
+        w_unit, v_unit = fit_units(model, [s], np.asarray(s.target("train")))
         s = Series(s.v_in / v_unit, s.w / w_unit, s.dt, s.segments)
         units.append((w_unit, v_unit))
         scaled = Model(model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind)
@@ -191,7 +191,7 @@ def fit_batch(
         problem = problems[i]
         fitted = problem.model(jnp.asarray(best_theta[i]))
         w_unit, v_unit = units[r]
-        fitted = Model(fitted.simulation, _readout_back(fitted.readout, model.readout, frozen, v_unit, w_unit),
+        fitted = Model(fitted.simulation, readout_back(fitted.readout, model.readout, frozen, v_unit, w_unit),
                        fitted.kind)
         split_metrics = {}
         for name in ("train", "validation", "test"):
@@ -231,9 +231,9 @@ def fit_batch(
 # --------------------------------------------------------------------------- internals
 # fit()'s start models, compiled once per start index and reused for every recording
 # (run eagerly, the simulation's scans and the least-squares gain compile op by op, per call)
-_start_jit = eqx.filter_jit(_start_model)
+_start_jit = eqx.filter_jit(start_model)
 
-_DYNAMIC = lambda p: (p.sim_static, p.readout_static, p.series, p.scale)  # noqa: E731
+_DYNAMIC = lambda p: (p.sim_static, p.readout_static, p.series, p.scale)
 
 
 def _arrays(problem):

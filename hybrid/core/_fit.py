@@ -25,15 +25,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._arguments import as_names, as_recordings, check_model, check_seed
 from ..util._errors import InputError
+from ..util._watchdog import stage
+from ._arguments import as_names, as_recordings, check_model, check_seed
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
 from ._problem import Problem, Series, robust_rms, robust_std, series_from_recording
 from ._readout import LinearReadout, WindowedMLP
 from ._result import FitResult, fit_warnings
-from ..util._watchdog import stage
 
 Solver = Literal["lm", "optimistix", "adam"]
 SOLVERS = ("lm", "optimistix", "adam")
@@ -105,7 +105,7 @@ def fit(
     recordings = as_recordings(recordings, "fit")  # a path is loaded; anything else is refused
     frozen = as_names(frozen, "fit", "frozen", model.parameter_names)  # "xi_h" is one name
     seed = check_seed(seed, "fit")
-    for i, recording in enumerate(recordings):
+    for recording in recordings:
         recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
         recording.check_signals()  # a constant drive or w: refused, not fitted to its start values
     series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
@@ -116,12 +116,12 @@ def fit(
 
     # Fit in units where w and v_in are O(1), so that the result does not depend on the
     # recording's units (LM's damping λI and the gain's Jacobian column do otherwise).
-    w_unit, v_unit = _units(model, series, train_w)
+    w_unit, v_unit = fit_units(model, series, train_w)
     series = [Series(s.v_in / v_unit, s.w / w_unit, s.dt, s.segments) for s in series]
     given = model
     model = Model(model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind)
 
-    initial = [_start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
+    initial = [start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
     problem = Problem(initial[0], series, frozen, weight_decay)
     thetas = jnp.stack([problem.flatten(m, frozen) for m in initial])
 
@@ -139,7 +139,7 @@ def fit(
 
     best_start = int(np.nanargmin([s["validation_loss"] for s in per_start]))
     fitted = problem.model(best[best_start])
-    fitted = Model(fitted.simulation, _readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit),
+    fitted = Model(fitted.simulation, readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit),
                    fitted.kind)
     result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
     settings = {
@@ -178,7 +178,7 @@ def _unit_labels(model: Model, recordings) -> dict[str, str]:
     return units
 
 
-def _units(model: Model, series, train_w) -> tuple[float, float]:
+def fit_units(model: Model, series, train_w) -> tuple[float, float]:
     """(w_unit, v_unit): the std of the training w and the rms of v_in, the fit's units.
 
     Dividing by them exactly (not by a nearby power of two) matters: LM's damping
@@ -195,14 +195,14 @@ def _units(model: Model, series, train_w) -> tuple[float, float]:
     v_unit = 1.0
     if getattr(model.simulation, "linear_in_drive", False):
         v_unit = float(robust_rms(jnp.concatenate([s.v_in for s in series])))
-    ok = lambda x: np.isfinite(x) and x > 0  # noqa: E731
+    ok = lambda x: np.isfinite(x) and x > 0
     return (w_unit if ok(w_unit) else 1.0), (v_unit if ok(v_unit) else 1.0)
 
 
-def _readout_back(fitted, given, frozen, v_unit, w_unit):
+def readout_back(fitted, given, frozen, v_unit, w_unit):
     """The fitted readout in the recording's units; what was not fitted stays exactly as given.
 
-    A readout with a frozen part keeps its given fixed leaves (`_start_model` does not
+    A readout with a frozen part keeps its given fixed leaves (`start_model` does not
     re-initialise it), so those leaves come back bit for bit, not rescaled twice.
     """
     readout = fitted.rescaled(v_unit, w_unit)
@@ -212,7 +212,7 @@ def _readout_back(fitted, given, frozen, v_unit, w_unit):
     return readout
 
 
-def _start_model(model: Model, index, seed, frozen, perturbation, series) -> Model:
+def start_model(model: Model, index, seed, frozen, perturbation, series) -> Model:
     """Start `index`: 0 is `model` itself; others get new weights and perturbed physics."""
     if index > 0:
         key = jax.random.fold_in(jax.random.key(seed), index)

@@ -125,7 +125,7 @@ class HeldStart(AbstractWrapper):
         return {"inner": describe_simulation(self.inner), "settle_samples": self.settle_samples}
 
     @classmethod
-    def from_config(cls, config: dict) -> "HeldStart":
+    def from_config(cls, config: dict) -> HeldStart:
         from ._serialise import build_simulation
 
         return cls(build_simulation(config["inner"]), int(config["settle_samples"]))

@@ -79,7 +79,7 @@ def _cost_and_validation(problem, theta):
     return problem.cost(theta), problem.validation_loss(theta)
 
 
-def _normal_equations(problem, theta):
+def normal_equations(problem, theta):
     """Cost, JᵀJ and Jᵀr, with the weight-decay rows √μ θ_network folded in."""
     if hasattr(problem, "normal_equations"):  # `Problem`: J's network columns folded in chunks of rows
         JtJ, g = problem.normal_equations(theta)
@@ -113,7 +113,7 @@ def lm_init(problem, theta0, settings: LMSettings) -> LMState:
 
 def _refresh(problem, state: LMState, settings: LMSettings) -> LMState:
     """JᵀJ and Jᵀr at the state's θ (after an accepted step, or at the start); λ₀ on the first."""
-    _, JtJ, g = _normal_equations(problem, state.theta)
+    _, JtJ, g = normal_equations(problem, state.theta)
     lam0 = jnp.asarray(settings.lambda0, JtJ.dtype)
     if settings.scaling != "marquardt":
         lam0 = lam0 * jnp.max(jnp.diag(JtJ))

@@ -22,8 +22,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._arguments import check_key, check_simulation
 from ..util._errors import InputError
+from ._arguments import check_key, check_simulation
 from ._readout import AbstractReadout, LinearReadout, WindowedMLP
 from ._simulation import AbstractSimulation, Passthrough
 
@@ -71,7 +71,7 @@ class Model(eqx.Module):
             names += ("network",)
         return names
 
-    def trainable(self, frozen=frozenset()) -> "Model":
+    def trainable(self, frozen=frozenset()) -> Model:
         """Filter spec (bools, same structure) of the free leaves; `frozen` names stay fixed."""
         frozen = frozenset(frozen)
         unknown = frozen - set(self.parameter_names)

@@ -427,7 +427,7 @@ class Problem(eqx.Module):
         if self.weights(split) is not None:  # padded series: a chunk's rows weighted like its residuals
             weights = self.weights(split).astype(r.dtype)
             windows = (windows, weights)
-            readout_jacobian = lambda th, x: self._readout_jacobian(th, x[0]) * x[1][:, None]  # noqa: E731
+            readout_jacobian = lambda th, x: self._readout_jacobian(th, x[0]) * x[1][:, None]
         else:
             readout_jacobian = self._readout_jacobian
         sim_r = jnp.concatenate([J_sim, r[:, None]], axis=1)  # one product folds Jᵀ J_sim and Jᵀ r

@@ -36,7 +36,7 @@ class AbstractReadout(eqx.Module):
         """w at the newest sample of `window`."""
 
     @abc.abstractmethod
-    def trainable(self, frozen: frozenset[str]) -> "AbstractReadout":
+    def trainable(self, frozen: frozenset[str]) -> AbstractReadout:
         """Filter spec (bools) of the free leaves."""
 
     @abc.abstractmethod
@@ -44,10 +44,10 @@ class AbstractReadout(eqx.Module):
         """Interpretable parameters by name (empty for a black box)."""
 
     @abc.abstractmethod
-    def initialise(self, signal, w) -> "AbstractReadout":
+    def initialise(self, signal, w) -> AbstractReadout:
         """A copy whose fixed scalings / initial values suit the training data."""
 
-    def rescaled(self, input_scale, output_scale) -> "AbstractReadout":
+    def rescaled(self, input_scale, output_scale) -> AbstractReadout:
         """The same map in other units: R'(input_scale · x) = output_scale · R(x).
 
         [`hybrid.fit`][] fits on data scaled to unit size and maps the readout
@@ -120,7 +120,7 @@ class WindowedMLP(AbstractReadout):
     """
 
     mlp: eqx.nn.MLP
-    scales: Float[Array, "4"]  # μ_x, σ_x, μ_w, σ_w — fixed, never fitted
+    scales: Float[Array, 4]  # μ_x, σ_x, μ_w, σ_w — fixed, never fitted
     window: int = eqx.field(static=True)
 
     def __init__(

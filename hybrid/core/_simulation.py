@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._arguments import check_drive
 from ..util._errors import InputError
+from ._arguments import check_drive
 from ._parameters import Constraint, decode, encode
 
 
@@ -52,6 +52,9 @@ class AbstractSimulation(eqx.Module):
     #: True when the output is linear in the drive (zero initial state), so that a
     #: drive in mV gives the same parameters as one in V: `fit` then scales v_in.
     linear_in_drive: ClassVar[bool] = False
+    #: The unit of the mediatory signal `simulate` returns ("V" for the RC network's V_o);
+    #: "" where the simulation does not say.
+    output_unit: ClassVar[str] = ""
 
     @abc.abstractmethod
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
@@ -61,7 +64,7 @@ class AbstractSimulation(eqx.Module):
         """Physical values of the parameters, by name (units in `units`)."""
         return decode(self.raw, self.constraints)
 
-    def replace(self, **values) -> "AbstractSimulation":
+    def replace(self, **values) -> AbstractSimulation:
         """A copy with some parameters set to new physical values."""
         current = dict(self.parameters())
         unknown = set(values) - set(current)
@@ -74,7 +77,7 @@ class AbstractSimulation(eqx.Module):
         raw = encode(current, self.constraints, type(self).__name__)
         return eqx.tree_at(lambda s: s.raw, self, raw)
 
-    def with_raw(self, raw: dict[str, Array]) -> "AbstractSimulation":
+    def with_raw(self, raw: dict[str, Array]) -> AbstractSimulation:
         """A copy with some unconstrained values replaced (traceable: no decoding, no checks).
 
         What a compiled screen uses to rebuild the simulation at each row of a
@@ -120,11 +123,11 @@ class AbstractSimulation(eqx.Module):
         return {}
 
     @classmethod
-    def from_config(cls, config: dict) -> "AbstractSimulation":
+    def from_config(cls, config: dict) -> AbstractSimulation:
         """A simulation with default parameter values built from `config()`'s settings."""
         return cls(**config)
 
-    def perturbed(self, key, scale: float, frozen=frozenset()) -> "AbstractSimulation":
+    def perturbed(self, key, scale: float, frozen=frozenset()) -> AbstractSimulation:
         """A copy whose free raw (unconstrained) values get N(0, scale²) noise: a new start."""
         return eqx.tree_at(lambda s: s.raw, self, perturb_raw(self.raw, key, scale, frozen))
 
@@ -141,7 +144,7 @@ class AbstractSimulation(eqx.Module):
         leaves = jax.tree_util.tree_leaves(eqx.filter(tagged, tagged.trainable(frozenset(frozen))))
         return [names[int(leaf)] for leaf in leaves]
 
-    def trainable(self, frozen: frozenset[str]) -> "AbstractSimulation":
+    def trainable(self, frozen: frozenset[str]) -> AbstractSimulation:
         """Filter spec (same structure, bools) marking the free parameters."""
         spec = {name: name not in frozen for name in self.raw}
         return eqx.tree_at(

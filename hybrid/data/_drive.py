@@ -3,7 +3,7 @@ every generator applies to its parameters.
 
 A drive is sampled at ``rate`` Hz (30 Hz, the camera's frame rate, by default,
 `DEFAULT_RATE`) for ``duration`` s, with ``n = round(duration * rate)``
-samples at ``t = arange(n) / rate`` (`_time`). Bad parameters raise
+samples at ``t = arange(n) / rate`` (`time_base`). Bad parameters raise
 [`InputError`][hybrid.InputError].
 """
 
@@ -75,7 +75,7 @@ class Drive:
 # --------------------------------------------------------------------------- #
 
 
-def _number(drive: str, param: str, value: Any, *, positive: bool = False) -> float:
+def checked_number(drive: str, param: str, value: Any, *, positive: bool = False) -> float:
     """``value`` as a finite float, non-negative (or positive) where asked."""
     try:
         number = float(value)
@@ -94,8 +94,8 @@ def _number(drive: str, param: str, value: Any, *, positive: bool = False) -> fl
     return number
 
 
-def _amplitude(drive: str, amplitude: Any) -> float:
-    amplitude = _number(drive, "amplitude", amplitude)
+def checked_amplitude(drive: str, amplitude: Any) -> float:
+    amplitude = checked_number(drive, "amplitude", amplitude)
     if amplitude < 0:
         raise InputError(
             f"{drive} drive amplitude {amplitude:g} V is negative: give a value >= 0 "
@@ -104,9 +104,9 @@ def _amplitude(drive: str, amplitude: Any) -> float:
     return amplitude
 
 
-def _frequency(drive: str, param: str, value: Any, rate: float) -> float:
+def checked_frequency(drive: str, param: str, value: Any, rate: float) -> float:
     """A frequency in (0, rate / 2): positive and below the Nyquist frequency."""
-    frequency = _number(drive, param, value, positive=True)
+    frequency = checked_number(drive, param, value, positive=True)
     if frequency >= rate / 2:
         raise InputError(
             f"{drive} drive {param}={frequency:g} Hz is not below the Nyquist "
@@ -115,10 +115,10 @@ def _frequency(drive: str, param: str, value: Any, rate: float) -> float:
     return frequency
 
 
-def _time(drive: str, duration: Any, rate: Any) -> tuple[np.ndarray, float, float]:
+def time_base(drive: str, duration: Any, rate: Any) -> tuple[np.ndarray, float, float]:
     """The time base ``arange(n) / rate``; returns ``(t, duration, rate)``."""
-    duration = _number(drive, "duration", duration, positive=True)
-    rate = _number(drive, "rate", rate, positive=True)
+    duration = checked_number(drive, "duration", duration, positive=True)
+    rate = checked_number(drive, "rate", rate, positive=True)
     n = round(duration * rate)
     if n < 2:
         raise InputError(
@@ -128,13 +128,13 @@ def _time(drive: str, duration: Any, rate: Any) -> tuple[np.ndarray, float, floa
     return np.arange(n, dtype=np.float64) / rate, duration, rate
 
 
-def _count(drive: str, param: str, value: Any, minimum: int) -> int:
+def checked_count(drive: str, param: str, value: Any, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise InputError(f"{drive} drive {param} must be an integer >= {minimum}, got {value!r}")
     return int(value)
 
 
-def _seed(drive: str, seed: Any) -> int:
+def checked_seed(drive: str, seed: Any) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(
             f"{drive} drive seed {seed!r} is not a non-negative integer: give e.g. seed=0"

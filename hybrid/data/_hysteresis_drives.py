@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..util._errors import InputError
-from ._drive import DEFAULT_RATE, Drive, _amplitude, _count, _number, _time
+from ._drive import DEFAULT_RATE, Drive, checked_amplitude, checked_count, checked_number, time_base
 
 __all__ = ["staircase", "triangle"]
 
@@ -39,10 +39,10 @@ def staircase(
     Returns:
         The [`Drive`][hybrid.Drive], name ``"staircase"``.
     """
-    t, duration, rate = _time("staircase", duration, rate)
-    amplitude = _amplitude("staircase", amplitude)
-    step_time = _number("staircase", "step_time", step_time, positive=True)
-    steps = _count("staircase", "steps", steps, minimum=2)
+    t, duration, rate = time_base("staircase", duration, rate)
+    amplitude = checked_amplitude("staircase", amplitude)
+    step_time = checked_number("staircase", "step_time", step_time, positive=True)
+    steps = checked_count("staircase", "steps", steps, minimum=2)
     if step_time * rate < 1:
         raise InputError(f"staircase drive step_time={step_time:g} s is shorter than one sample at {rate:g} Hz")
     levels = np.linspace(-amplitude, amplitude, steps)
@@ -76,10 +76,10 @@ def triangle(
     Returns:
         The [`Drive`][hybrid.Drive], name ``"triangle"``.
     """
-    t, duration, rate = _time("triangle", duration, rate)
-    amplitude = _amplitude("triangle", amplitude)
-    period = _number("triangle", "period", period, positive=True)
-    levels = _count("triangle", "levels", levels, minimum=1)
+    t, duration, rate = time_base("triangle", duration, rate)
+    amplitude = checked_amplitude("triangle", amplitude)
+    period = checked_number("triangle", "period", period, positive=True)
+    levels = checked_count("triangle", "levels", levels, minimum=1)
     if period * rate < 4:
         raise InputError(f"triangle drive period={period:g} s needs at least 4 samples at {rate:g} Hz")
     position = t / period

@@ -23,14 +23,14 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._recording_checks import REQUIRED, _rows_text
+from ._recording_checks import REQUIRED, rows_text
 
 __all__ = ["SUFFIXES", "check_file", "mat_variables", "npz_arrays", "read_file", "sidecar"]
 
 #: File suffixes `Recording.load` and `Recording.save` understand.
 SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
 
-_NPZ_EXTRA = "extra_"
+NPZ_EXTRA = "extra_"
 
 
 def read_file(
@@ -63,7 +63,7 @@ def read_file(
 
 def check_file(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
     """Require a non-empty file with a known suffix (one of `suffixes`); return the suffix, lower case."""
-    suffix = _suffix(path, suffixes)
+    suffix = file_suffix(path, suffixes)
     if not path.exists():
         raise InputError(f"recording file '{path}' does not exist: check the path")
     if not path.is_file():
@@ -75,7 +75,7 @@ def check_file(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
     return suffix
 
 
-def _suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
+def file_suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
     suffix = path.suffix.lower()
     if suffix not in suffixes:
         hint = ""
@@ -95,7 +95,7 @@ def sidecar(path: str | pathlib.Path) -> pathlib.Path:
     return path.with_name(path.name + ".json")
 
 
-def _path_argument(path: Any, where: str) -> pathlib.Path:
+def path_argument(path: Any, where: str) -> pathlib.Path:
     """``path`` as a Path; anything but a str or os.PathLike is an InputError."""
     if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
         raise InputError(
@@ -120,7 +120,7 @@ def _require(
         )
 
 
-def _parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:
+def parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:
     try:
         metadata = json.loads(text)
     except ValueError as error:
@@ -139,7 +139,7 @@ def _parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:
 # ------------------------------------------------------------------- CSV
 
 
-def _read_text(path: pathlib.Path) -> str:
+def read_text(path: pathlib.Path) -> str:
     try:
         return path.read_text(encoding="utf-8-sig")  # -sig: Excel's byte-order mark
     except UnicodeDecodeError:
@@ -156,7 +156,7 @@ def _read_text(path: pathlib.Path) -> str:
 def _csv_lines(path: pathlib.Path) -> list[tuple[int, str]]:
     """Non-blank, non-comment lines with their line numbers (from 1)."""
     lines = []
-    for number, line in enumerate(_read_text(path).splitlines(), start=1):
+    for number, line in enumerate(read_text(path).splitlines(), start=1):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):
             lines.append((number, stripped))
@@ -216,7 +216,7 @@ def _csv_column(
     if bad.size:
         raise InputError(
             f"recording '{path}' has non-finite values in column '{column}' at "
-            f"{_rows_text(numbers[bad], 'lines')}: remove or interpolate them"
+            f"{rows_text(numbers[bad], 'lines')}: remove or interpolate them"
         )
     return values
 
@@ -257,7 +257,7 @@ def _load_csv(
     meta_path = sidecar(path)
     metadata = {}
     if meta_path.exists():
-        metadata = _parse_metadata(path, _read_text(meta_path), f"'{meta_path.name}'")
+        metadata = parse_metadata(path, read_text(meta_path), f"'{meta_path.name}'")
     return columns, metadata
 
 
@@ -276,7 +276,7 @@ def npz_arrays(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
         ) from None
     metadata = {}
     if "metadata" in arrays:
-        metadata = _parse_metadata(path, str(arrays.pop("metadata")[()]), "its 'metadata' entry")
+        metadata = parse_metadata(path, str(arrays.pop("metadata")[()]), "its 'metadata' entry")
     return arrays, metadata
 
 
@@ -287,15 +287,15 @@ def _load_npz(
     _require(path, list(arrays), "array(s)", required)
     columns = {}
     for key, values in arrays.items():
-        column = key[len(_NPZ_EXTRA):] if key.startswith(_NPZ_EXTRA) else key
-        columns[column] = _file_vector(path, key, values)
+        column = key[len(NPZ_EXTRA):] if key.startswith(NPZ_EXTRA) else key
+        columns[column] = file_vector(path, key, values)
     return columns, metadata
 
 
 # ------------------------------------------------------------------- MAT
 
 
-def _file_vector(path: pathlib.Path, key: str, values: np.ndarray) -> np.ndarray:
+def file_vector(path: pathlib.Path, key: str, values: np.ndarray) -> np.ndarray:
     """Check that a stored variable is a real numeric vector; return it flat."""
     values = np.asarray(values)
     if values.dtype.kind not in "biuf":
@@ -346,7 +346,7 @@ def mat_variables(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
                 f"recording '{path}' has a 'metadata' variable that is not one "
                 "string: store the metadata as a JSON char array"
             )
-        metadata = _parse_metadata(path, str(text.reshape(-1)[0]), "its 'metadata' variable")
+        metadata = parse_metadata(path, str(text.reshape(-1)[0]), "its 'metadata' variable")
     return variables, metadata
 
 
@@ -355,5 +355,5 @@ def _load_mat(
 ) -> tuple[dict[str, np.ndarray], dict]:
     variables, metadata = mat_variables(path)
     _require(path, list(variables), "variable(s)", required)
-    columns = {key: _file_vector(path, key, values) for key, values in variables.items()}
+    columns = {key: file_vector(path, key, values) for key, values in variables.items()}
     return columns, metadata

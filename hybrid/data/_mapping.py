@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._loaders import _path_argument, check_file
+from ._loaders import check_file, path_argument
 from ._mapping_options import (
     TIME_UNITS,
     mapping_roles,
@@ -114,7 +114,7 @@ def load_mapped(
         file's name), ``rate_hz`` and ``rate_from``, and ``segment`` for a sample range.
     """
     several = isinstance(path, (list, tuple))
-    paths = [_path_argument(p, "load_mapped") for p in (path if several else [path])]
+    paths = [path_argument(p, "load_mapped") for p in (path if several else [path])]
     if not paths:
         raise InputError("load_mapped got an empty list of files: give a file, or the files of one record")
     roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)

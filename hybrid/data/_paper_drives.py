@@ -13,7 +13,15 @@ import math
 import numpy as np
 
 from ..util._errors import InputError
-from ._drive import DEFAULT_RATE, Drive, _amplitude, _frequency, _number, _seed, _time
+from ._drive import (
+    DEFAULT_RATE,
+    Drive,
+    checked_amplitude,
+    checked_frequency,
+    checked_number,
+    checked_seed,
+    time_base,
+)
 
 __all__ = ["chirp", "prbs", "pulse", "sine"]
 
@@ -49,11 +57,11 @@ def prbs(
     Returns:
         The [`Drive`][hybrid.Drive], name ``"prbs"``.
     """
-    t, duration, rate = _time("prbs", duration, rate)
-    amplitude = _amplitude("prbs", amplitude)
-    min_hold = _number("prbs", "min_hold", min_hold, positive=True)
-    max_hold = _number("prbs", "max_hold", max_hold, positive=True)
-    seed = _seed("prbs", seed)
+    t, duration, rate = time_base("prbs", duration, rate)
+    amplitude = checked_amplitude("prbs", amplitude)
+    min_hold = checked_number("prbs", "min_hold", min_hold, positive=True)
+    max_hold = checked_number("prbs", "max_hold", max_hold, positive=True)
+    seed = checked_seed("prbs", seed)
     if levels not in ("binary", "multilevel"):
         raise InputError(f"prbs drive levels={levels!r} is unknown: use 'binary' or 'multilevel'")
     if min_hold > max_hold:
@@ -127,13 +135,13 @@ def sine(
     Returns:
         The [`Drive`][hybrid.Drive], name ``"sine"``.
     """
-    t, duration, rate = _time("sine", duration, rate)
-    amplitude = _amplitude("sine", amplitude)
-    frequency = _frequency("sine", "frequency", frequency, rate)
-    offset = _number("sine", "offset", offset)
-    phase = _number("sine", "phase", phase)
-    modulation_depth = _number("sine", "modulation_depth", modulation_depth)
-    modulation_period = _number("sine", "modulation_period", modulation_period)
+    t, duration, rate = time_base("sine", duration, rate)
+    amplitude = checked_amplitude("sine", amplitude)
+    frequency = checked_frequency("sine", "frequency", frequency, rate)
+    offset = checked_number("sine", "offset", offset)
+    phase = checked_number("sine", "phase", phase)
+    modulation_depth = checked_number("sine", "modulation_depth", modulation_depth)
+    modulation_period = checked_number("sine", "modulation_period", modulation_period)
     if not 0.0 <= modulation_depth <= 1.0:
         raise InputError(f"sine drive modulation_depth must be in [0, 1], got {modulation_depth!r}")
     if not modulation_period > 0:
@@ -142,7 +150,7 @@ def sine(
         raise InputError(f"sine drive modulation={modulation!r} is unknown: use 'cosine' or 'random'")
     angle = 2 * np.pi * frequency * t + phase
     if modulation == "random":
-        envelope = _half_cycle_envelope(angle, modulation_depth, _seed("sine", seed))
+        envelope = _half_cycle_envelope(angle, modulation_depth, checked_seed("sine", seed))
     else:
         envelope = 1.0 - 0.5 * modulation_depth * (1.0 - np.cos(2 * np.pi * t / modulation_period))
     v = offset + amplitude * envelope * np.sin(angle)
@@ -209,22 +217,22 @@ def chirp(
     Returns:
         The [`Drive`][hybrid.Drive], name ``"chirp"``.
     """
-    t, duration, rate = _time("chirp", duration, rate)
-    amplitude = _amplitude("chirp", amplitude)
-    f0 = _frequency("chirp", "f0", f0, rate)
-    f1 = _frequency("chirp", "f1", f1, rate)
+    t, duration, rate = time_base("chirp", duration, rate)
+    amplitude = checked_amplitude("chirp", amplitude)
+    f0 = checked_frequency("chirp", "f0", f0, rate)
+    f1 = checked_frequency("chirp", "f1", f1, rate)
     if method not in ("logarithmic", "linear"):
         raise InputError(f"chirp drive method={method!r} is unknown: use 'logarithmic' or 'linear'")
-    period = duration if sweep_period is None else _number("chirp", "sweep_period", sweep_period)
+    period = duration if sweep_period is None else checked_number("chirp", "sweep_period", sweep_period)
     if not period > 0:
         raise InputError(f"chirp drive sweep_period must be > 0 s, got {sweep_period!r}")
     sweeps, within = np.divmod(t, period)
     phase = _chirp_phase(within, f0, f1, period, method)
     phase = phase + sweeps * _chirp_phase(np.array(period), f0, f1, period, method)
-    modulation_depth = _number("chirp", "modulation_depth", modulation_depth)
+    modulation_depth = checked_number("chirp", "modulation_depth", modulation_depth)
     if not 0.0 <= modulation_depth <= 1.0:
         raise InputError(f"chirp drive modulation_depth must be in [0, 1], got {modulation_depth!r}")
-    envelope = _half_cycle_envelope(phase, modulation_depth, _seed("chirp", seed)) if modulation_depth else 1.0
+    envelope = _half_cycle_envelope(phase, modulation_depth, checked_seed("chirp", seed)) if modulation_depth else 1.0
     v = amplitude * envelope * np.sin(phase)
     params = dict(duration=duration, rate=rate, amplitude=amplitude, f0=f0, f1=f1, method=method,
                   sweep_period=sweep_period, modulation_depth=modulation_depth, seed=seed)
@@ -259,11 +267,11 @@ def pulse(
     Returns:
         The [`Drive`][hybrid.Drive], name ``"pulse"``.
     """
-    t, duration, rate = _time("pulse", duration, rate)
-    amplitude = _amplitude("pulse", amplitude)
-    period = _number("pulse", "period", period, positive=True)
-    duty = _number("pulse", "duty", duty)
-    offset = _number("pulse", "offset", offset)
+    t, duration, rate = time_base("pulse", duration, rate)
+    amplitude = checked_amplitude("pulse", amplitude)
+    period = checked_number("pulse", "period", period, positive=True)
+    duty = checked_number("pulse", "duty", duty)
+    offset = checked_number("pulse", "offset", offset)
     if not 0 < duty < 1:
         raise InputError(
             f"pulse drive duty={duty:g} is outside (0, 1): give the pulse's share of "

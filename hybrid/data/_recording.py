@@ -28,17 +28,17 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._loaders import _path_argument, read_file
+from ._loaders import path_argument, read_file
 from ._recording_checks import (
     REQUIRED,
     UNITS,
-    _as_vector,
-    _check_extra_name,
-    _check_finite,
-    _check_metadata,
-    _check_time,
-    _is_constant,
-    _source_name,
+    as_vector,
+    check_extra_name,
+    check_finite,
+    check_metadata,
+    check_time,
+    is_constant,
+    source_name,
 )
 from ._split import Split, split_recording
 from ._writers import write_file
@@ -83,9 +83,9 @@ class Recording:
     notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        name = self.name or _source_name(self.metadata)
+        name = self.name or source_name(self.metadata)
         object.__setattr__(self, "name", name)
-        columns = {c: _as_vector(name, c, getattr(self, c)) for c in REQUIRED}
+        columns = {c: as_vector(name, c, getattr(self, c)) for c in REQUIRED}
         if not isinstance(self.extra, Mapping):
             raise InputError(
                 f"recording '{name}' has extra channels of type "
@@ -93,8 +93,8 @@ class Recording:
             )
         extra = {}
         for column, values in self.extra.items():
-            _check_extra_name(name, column)
-            extra[column] = _as_vector(name, column, values)
+            check_extra_name(name, column)
+            extra[column] = as_vector(name, column, values)
         lengths = {c: len(v) for c, v in {**columns, **extra}.items()}
         if len(set(lengths.values())) > 1:
             listed = ", ".join(f"{c}={k}" for c, k in lengths.items())
@@ -108,12 +108,12 @@ class Recording:
                 "needs at least 2 samples"
             )
         for column, values in {**columns, **extra}.items():
-            _check_finite(name, column, values)
-        columns["t"], time_base = _check_time(name, columns["t"], self.metadata)
+            check_finite(name, column, values)
+        columns["t"], time_base = check_time(name, columns["t"], self.metadata)
         for column, values in columns.items():
             object.__setattr__(self, column, values)
         object.__setattr__(self, "extra", extra)
-        metadata = _check_metadata(name, self.metadata)
+        metadata = check_metadata(name, self.metadata)
         notes = tuple(self.notes)
         if time_base is not None:
             metadata["time_base"] = time_base
@@ -151,7 +151,7 @@ class Recording:
         Returns:
             The validated [`Recording`][hybrid.Recording].
         """
-        label = name or _source_name(metadata)
+        label = name or source_name(metadata)
         if (t is None) == (rate is None):
             raise InputError(
                 f"recording '{label}' needs exactly one of t and rate: give the "
@@ -163,7 +163,7 @@ class Recording:
                     f"recording '{label}' has sampling rate {rate!r}: give a "
                     "positive number of Hz"
                 )
-            n = len(_as_vector(label, "w", w))
+            n = len(as_vector(label, "w", w))
             t = t0 + np.arange(n, dtype=np.float64) / float(rate)
         return cls(t, v_in, w, dict(extra or {}), dict(metadata or {}), name)
 
@@ -260,7 +260,7 @@ class Recording:
             ("w", "displacement", "is it the right column, or did the tracking fail?"),
         ):
             values = getattr(self, column)
-            if _is_constant(values):
+            if is_constant(values):
                 raise InputError(
                     f"recording '{self.name}': the {what} column {column} is constant "
                     f"({values[0]:.6g} {UNITS[column]} in all {self.n} samples): {cause}"
@@ -363,7 +363,7 @@ class Recording:
             unknown = not mapping.keys() <= load_mapped.__kwdefaults__.keys()  # its TypeError
             if unknown or any(value is not None for value in mapping.values()):
                 return load_mapped(path, require_w=require_w, **mapping)
-        path = _path_argument(path, "Recording.load")
+        path = path_argument(path, "Recording.load")
         columns, metadata = read_file(path, require_w=require_w)
         extra = {c: v for c, v in columns.items() if c not in REQUIRED}
         return cls(columns["t"], columns["v_in"], columns["w"], extra, metadata, str(path))
@@ -385,6 +385,6 @@ class Recording:
         Returns:
             The path written.
         """
-        path = _path_argument(path, "Recording.save")
+        path = path_argument(path, "Recording.save")
         write_file(self, path)
         return path

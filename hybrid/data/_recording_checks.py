@@ -48,14 +48,14 @@ _RESERVED = frozenset((*REQUIRED, "metadata"))
 _SHOW_ROWS = 5
 
 
-def _rows_text(rows: np.ndarray, word: str = "rows") -> str:
+def rows_text(rows: np.ndarray, word: str = "rows") -> str:
     """Format the first few of ``rows`` as ``"rows 12, 13 (2 in all)"``."""
     shown = ", ".join(str(int(r)) for r in rows[:_SHOW_ROWS])
     more = ", ..." if len(rows) > _SHOW_ROWS else ""
     return f"{word} {shown}{more} ({len(rows)} in all)"
 
 
-def _as_vector(name: str, column: str, values: Any) -> np.ndarray:
+def as_vector(name: str, column: str, values: Any) -> np.ndarray:
     """Convert one channel to a read-only float64 copy of shape ``(n,)``.
 
     Arguments:
@@ -86,7 +86,7 @@ def _as_vector(name: str, column: str, values: Any) -> np.ndarray:
     return array
 
 
-def _check_extra_name(name: str, column: Any) -> None:
+def check_extra_name(name: str, column: Any) -> None:
     """Reject extra-channel names that no file format could store back."""
     if not isinstance(column, str) or not column or column != column.strip():
         raise InputError(
@@ -105,7 +105,7 @@ def _check_extra_name(name: str, column: Any) -> None:
         )
 
 
-def _check_metadata(name: str, metadata: Any) -> dict:
+def check_metadata(name: str, metadata: Any) -> dict:
     """Return a JSON-normalised deep copy of ``metadata`` with defaults filled in."""
     if metadata is None:
         metadata = {}
@@ -131,16 +131,16 @@ def _check_metadata(name: str, metadata: Any) -> dict:
     return copy
 
 
-def _check_finite(name: str, column: str, values: np.ndarray) -> None:
+def check_finite(name: str, column: str, values: np.ndarray) -> None:
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
         raise InputError(
             f"recording '{name}' has non-finite values in column '{column}' at "
-            f"{_rows_text(bad)}: remove or interpolate them"
+            f"{rows_text(bad)}: remove or interpolate them"
         )
 
 
-def _check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarray, dict | None]:
+def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarray, dict | None]:
     """Require strictly increasing, uniformly spaced sample times in seconds.
 
     Returns ``(t, None)`` when the steps are uniform within ``TIME_RTOL``. Otherwise,
@@ -156,7 +156,7 @@ def _check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndar
     if bad.size:
         raise InputError(
             f"recording '{name}' has time that does not strictly increase at "
-            f"{_rows_text(bad)}: sort the samples and drop repeated times"
+            f"{rows_text(bad)}: sort the samples and drop repeated times"
         )
     step = float(np.median(dt))
     _check_seconds(name, step, metadata)
@@ -217,13 +217,13 @@ def _check_seconds(name: str, step: float, metadata: Any) -> None:
     )
 
 
-def _is_constant(values: np.ndarray) -> bool:
+def is_constant(values: np.ndarray) -> bool:
     """True when values vary by no more than 1e-12 of their magnitude (or are all 0)."""
     magnitude = float(np.max(np.abs(values))) if values.size else 0.0
     return magnitude == 0.0 or float(np.std(values / magnitude)) <= 1e-12
 
 
-def _source_name(metadata: Any) -> str:
+def source_name(metadata: Any) -> str:
     if isinstance(metadata, Mapping) and isinstance(metadata.get("source"), str):
         return metadata["source"]
     return "<arrays>"

@@ -44,7 +44,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from ..util._errors import InputError
-from ._loaders import _file_vector, _parse_metadata, _read_text, mat_variables, npz_arrays, sidecar
+from ._loaders import file_vector, mat_variables, npz_arrays, parse_metadata, read_text, sidecar
 
 __all__ = ["MAPPED_SUFFIXES", "OPTION", "RATE_FIELDS", "TEXT_SUFFIXES", "only_column", "rate_field",
            "read_columns", "read_text_table", "unknown_name"]
@@ -98,7 +98,7 @@ def read_columns(
     for role, name in wanted.items():
         if name not in arrays:
             raise InputError(unknown_name(path, name, role, list(arrays), kind, flag_prefix))
-        columns[role] = _file_vector(path, name, arrays[name]).astype(np.float64)
+        columns[role] = file_vector(path, name, arrays[name]).astype(np.float64)
     fields = {
         key: np.asarray(values, dtype=np.float64).reshape(-1)
         for key, values in arrays.items()
@@ -177,7 +177,7 @@ def _read_csv(
     metadata = {}
     meta_path = sidecar(path)
     if meta_path.exists():
-        metadata = _parse_metadata(path, _read_text(meta_path), f"'{meta_path.name}'")
+        metadata = parse_metadata(path, read_text(meta_path), f"'{meta_path.name}'")
     return columns, rates, metadata
 
 
@@ -255,7 +255,7 @@ def only_column(path: pathlib.Path, suffix: str, role: str, reference: str) -> n
         arrays = (npz_arrays(path) if suffix == ".npz" else mat_variables(path))[0]
         names = list(arrays)
         if len(names) == 1:
-            return _file_vector(path, names[0], arrays[names[0]]).astype(np.float64)
+            return file_vector(path, names[0], arrays[names[0]]).astype(np.float64)
     else:
         names, table = read_text_table(path)
         if table.shape[1] == 1:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._loaders import _NPZ_EXTRA, _suffix, sidecar
+from ._loaders import NPZ_EXTRA, file_suffix, sidecar
 
 if TYPE_CHECKING:
     from ._recording import Recording
@@ -32,7 +32,7 @@ def write_file(recording: Recording, path: pathlib.Path) -> None:
     """Write ``recording`` to ``path`` in the format its suffix names; see `Recording.save`."""
     from ..util._atomic import staged
 
-    writer = {".csv": _save_csv, ".npz": _save_npz, ".mat": _save_mat}[_suffix(path)]
+    writer = {".csv": _save_csv, ".npz": _save_npz, ".mat": _save_mat}[file_suffix(path)]
     targets = (path, sidecar(path)) if writer is _save_csv else (path,)
     with staged(*targets) as temporaries:
         writer(recording, *temporaries)
@@ -48,7 +48,7 @@ def _save_csv(recording: Recording, path: pathlib.Path, meta_path: pathlib.Path 
 
 def _save_npz(recording: Recording, path: pathlib.Path) -> None:
     arrays = {"t": recording.t, "v_in": recording.v_in, "w": recording.w}
-    arrays |= {_NPZ_EXTRA + c: v for c, v in recording.extra.items()}
+    arrays |= {NPZ_EXTRA + c: v for c, v in recording.extra.items()}
     arrays["metadata"] = np.array(json.dumps(recording.metadata))
     with open(path, "wb") as handle:  # an open file stops numpy appending .npz
         np.savez(handle, **arrays)

@@ -1,9 +1,9 @@
 """How `diagnose` weighs a fit: its size, its held-out error, its BIC, and which lane stands for an effect.
 
-`_evaluate` turns a lane's end point into a [`Candidate`][] (held-out metrics,
+`evaluate_candidate` turns a lane's end point into a [`Candidate`][] (held-out metrics,
 BIC on the training part, Ljung–Box of the held-out residual, whether the
-effect is material: `_material`); `_choose_lane` picks the lane that stands for
-an effect; `_equally_good_fits` is the bar set by effect-free fits that match
+effect is material: `_material`); `choose_lane` picks the lane that stands for
+an effect; `equally_good_fits` is the bar set by effect-free fits that match
 the baseline on training data.
 """
 
@@ -15,15 +15,15 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from . import _residual_tests as rt
-from ._diagnosis import Candidate
-from ._effects import FrameTiming
-from ._search import _predictions
 from ..core._metrics import metrics as compute_metrics
 from ..core._models import Model
+from . import residual_tests as rt
+from ._diagnosis import Candidate
+from ._effects import FrameTiming
+from ._search import predictions
 
 
-def _derived(problem, theta, active) -> dict:
+def derived_quantities(problem, theta, active) -> dict:
     model = problem.model(theta)
     stack = eqx.tree_at(lambda s: s.active, model.simulation, jnp.asarray(active))
     out = {}
@@ -80,7 +80,7 @@ def _bic(rss, n, k):
     return n * math.log(max(rss, 1e-300) / n) + k * math.log(n)
 
 
-def _free_names(problem_model: Model, frozen, active_effects):
+def free_names(problem_model: Model, frozen, active_effects):
     """Names fitted with `active_effects` (None, a name or a tuple of names) switched on."""
     active = {active_effects} if isinstance(active_effects, str) else set(active_effects or ())
     stack = problem_model.simulation
@@ -91,7 +91,7 @@ def _free_names(problem_model: Model, frozen, active_effects):
     return names + ["gain", "offset"]
 
 
-def _equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_tolerance: float) -> dict:
+def equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_tolerance: float) -> dict:
     """Held-out spread of the effect-free fits that match the baseline on training data.
 
     On a strip slower than the recording (stage poles near 0.005 Hz in 60 s),
@@ -105,7 +105,7 @@ def _equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_
     w_train, w_test = (problem.recorded(problem.target(split), split) for split in ("train", "test"))
     heldout = []
     for theta in thetas:
-        w_hat = _predictions(problem, jnp.asarray(off, float), jnp.asarray(theta))
+        w_hat = predictions(problem, jnp.asarray(off, float), jnp.asarray(theta))
         if np.sum((w_train - problem.recorded(w_hat["train"], "train")) ** 2) <= limit:
             heldout.append(float(np.mean((w_test - problem.recorded(w_hat["test"], "test")) ** 2) / np.var(w_test)))
     return {"n": len(heldout), "heldout_nmse_min": min(heldout, default=float("nan")),
@@ -114,7 +114,7 @@ def _equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_
                           "baseline on training data"}
 
 
-def _choose_lane(idx, vals, is_material, n_val: int) -> int:
+def choose_lane(idx, vals, is_material, n_val: int) -> int:
     """The lane (of `idx`, all fitting one effect) that stands for the effect.
 
     The validation loss `vals[j]` picks, as for the baseline, with one exception:
@@ -138,25 +138,25 @@ def _choose_lane(idx, vals, is_material, n_val: int) -> int:
     return next((j for j in within if is_material(j)), best)
 
 
-def _lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]:
+def lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]:
     """(material, size) of effect `name` at a lane's end point; size as in `Candidate.derived`."""
     parameters = {k: float(v) for k, v in problem.model(theta).parameters().items()}
-    derived = _derived(problem, theta, active)
+    derived = derived_quantities(problem, theta, active)
     return _material(name, derived, parameters, materiality)[0], derived.get(name, {})
 
 
-def _evaluate(problem, theta, active, name, n_train, n_free, materiality, model_frozen, present=()) -> Candidate:
+def evaluate_candidate(problem, theta, active, name, n_train, n_free, materiality, model_frozen, present=()) -> Candidate:
     """The candidate adding effect `name` ("none": no effect) to a model with `present` switched on."""
-    w_hats = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))
+    w_hats = predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))
     rss = float(np.sum((problem.recorded(problem.target("train"), "train")
                         - problem.recorded(w_hats["train"], "train")) ** 2))
     w, w_hat = problem.recorded(problem.target("test"), "test"), problem.recorded(w_hats["test"], "test")
     heldout = _heldout_metrics(w, w_hat)
     model = problem.model(theta)
     parameters = {k: float(v_) for k, v_ in model.parameters().items()
-                  if k in _free_names(model, model_frozen, tuple(present) + (name,))
+                  if k in free_names(model, model_frozen, tuple(present) + (name,))
                   or k in model.simulation.inner.parameter_names()}
-    derived = _derived(problem, theta, active) if name != "none" else {}
+    derived = derived_quantities(problem, theta, active) if name != "none" else {}
     cand = Candidate(
         name=name, parameters=parameters, derived=derived.get(name, {}), train_rss=rss,
         n_parameters=n_free, bic=_bic(rss, n_train, n_free), heldout=heldout,

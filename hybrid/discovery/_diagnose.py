@@ -56,19 +56,26 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation
-from ._decision import _evaluate, _free_names
-from ._diagnosis import SPLIT_ORDER, Diagnosis, DiagnoseSettings
+from ..core._levenberg_marquardt import LMSettings
+from ..util._errors import InputError
+from ..util._programs import DIAGNOSE_PROGRAMS
+from ..util._watchdog import stage
+from ._decision import evaluate_candidate, free_names
+from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis
 from ._effects import EFFECTS
-from ._evidence import _evidence, _fitted_model, _uncertainties
-from ._search import _fit_lanes, _lane_tangents, _signals, _with_active, initial_thetas, lanes_problem, padding_lane
+from ._evidence import fitted_model, heldout_evidence, parameter_uncertainties
+from ._search import (
+    fit_lanes,
+    initial_thetas,
+    lane_tangents,
+    lanes_problem,
+    padding_lane,
+    split_signals,
+    with_active,
+)
 from ._starts import N_SCREEN, baseline_starts
 from ._step import Search, search_step
 from ._unexplained import pooled_noise_floor, remainder
-from ..util._errors import InputError
-from ..core._levenberg_marquardt import LMSettings
-from ..util._programs import DIAGNOSE_PROGRAMS
-from ..util._watchdog import stage
-
 
 #: Spread (std) of w and v_in that `diagnose` takes, in any unit: it fits in the recording's own units.
 DIAGNOSE_SPREAD = (1e-6, 1e6)
@@ -174,14 +181,14 @@ def diagnose(
     if len(grid) < n_lanes:  # a design smaller than the lanes (few free parameters): the rest stop at once
         thetas = jnp.concatenate([thetas, jnp.stack([padding_lane(thetas[0])] * (n_lanes - len(grid)))])
         grid += grid[:1] * (n_lanes - len(grid))
-    base_tangents = _lane_tangents(model, frozen, None, n_rows)
+    base_tangents = lane_tangents(model, frozen, None, n_rows)
     say(f"baseline from {len(grid)} starts")
-    base_states = _fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm,
+    base_states = fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm,
                              settings.effect_free_patience)
     best = int(np.nanargmin(np.asarray(base_states.best_val)))
     theta_base = base_states.best_theta[best]
-    n_base = len(_free_names(model, frozen, None))
-    baseline = _evaluate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
+    n_base = len(free_names(model, frozen, None))
+    baseline = evaluate_candidate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
 
     # 2–4. Stepwise: every remaining effect on top of the current model, weighed
     # incrementally; stop at the first step that names nothing.
@@ -201,14 +208,14 @@ def diagnose(
 
     # 5. The final model: uncertainties, evidence, the noise floor and what is left above it.
     theta_base = baseline.theta
-    v_te, w_te, w_hat_base = _signals(problem, theta_base, off, "test")
-    _, _, w_hat_ext = _signals(problem, extended.theta, extended.active, "test")
+    v_te, w_te, w_hat_base = split_signals(problem, theta_base, off, "test")
+    _, _, w_hat_ext = split_signals(problem, extended.theta, extended.active, "test")
     final = search.problem_for(len(present))
-    fitted = _with_active(final, jnp.asarray(extended.active, float),
-                          jnp.asarray(_lane_tangents(model, frozen, present, int(final.sim_tangents.shape[0])), float))
-    uncertainties = _uncertainties(fitted, extended.theta, w_te - w_hat_ext,
-                                   keep=_fitted_model(problem, extended.theta, present).parameters())
-    evidence = _evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
+    fitted = with_active(final, jnp.asarray(extended.active, float),
+                          jnp.asarray(lane_tangents(model, frozen, present, int(final.sim_tangents.shape[0])), float))
+    uncertainties = parameter_uncertainties(fitted, extended.theta, w_te - w_hat_ext,
+                                   keep=fitted_model(problem, extended.theta, present).parameters())
+    evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
     heldout = {
@@ -223,7 +230,7 @@ def diagnose(
                             equally_good=steps[-1].equally_good)
     hybrid_report = None
     if hybrid:
-        hybrid_report = _hybrid_fits(recordings, simulation, extended, problem, present, settings, hybrid_max_steps,
+        hybrid_report = hybrid_fits(recordings, simulation, extended, problem, present, settings, hybrid_max_steps,
                                      progress)
     return Diagnosis(
         cause=cause, baseline=baseline, extended=extended, candidates=steps[0].candidates,
@@ -236,7 +243,7 @@ def diagnose(
     )
 
 
-def _hybrid_fits(recordings, simulation, extended, problem, causes, settings, max_steps, progress) -> dict:
+def hybrid_fits(recordings, simulation, extended, problem, causes, settings, max_steps, progress) -> dict:
     """Hybrid model (simulation + D-MLP) without and with the named effects, held-out metrics."""
     from ..core._fit import fit
     from ..core._models import make_model
@@ -244,7 +251,7 @@ def _hybrid_fits(recordings, simulation, extended, problem, causes, settings, ma
     out = {}
     variants = [("baseline", simulation)]
     if causes:
-        variants.append(("extended", _fitted_model(problem, extended.theta, causes).simulation))
+        variants.append(("extended", fitted_model(problem, extended.theta, causes).simulation))
     for key, sim in variants:
         stage(f"diagnose: hybrid model, {key}")
         if progress:

@@ -18,10 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._effects import EFFECTS, AbstractEffect
-from ..util._errors import InputError
 from ..core._parameters import Constraint
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw
+from ..util._errors import InputError
+from ._effects import EFFECTS, AbstractEffect
 
 
 class EffectStack(AbstractWrapper):
@@ -118,7 +118,7 @@ class EffectStack(AbstractWrapper):
                         for e in self.effects)
         return EffectStack(self.inner.with_raw(inner) if inner else self.inner, effects, self.active)
 
-    def with_active(self, active) -> "EffectStack":
+    def with_active(self, active) -> EffectStack:
         """The same stack with other switches (an array of 0/1 per effect)."""
         return eqx.tree_at(lambda s: s.active, self, jnp.asarray(active, dtype=float))
 

@@ -52,9 +52,9 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Float
 
-from ._hysteresis import bouc_wen_state
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
+from ._hysteresis import bouc_wen_state
 
 
 class AbstractEffect(eqx.Module):
@@ -73,7 +73,7 @@ class AbstractEffect(eqx.Module):
     def parameters(self) -> dict[str, Array]:
         return decode(self.raw, self.constraints)
 
-    def with_values(self, **values) -> "AbstractEffect":
+    def with_values(self, **values) -> AbstractEffect:
         current = {k: float(v) for k, v in self.parameters().items()}
         current.update(values)
         return eqx.tree_at(lambda e: e.raw, self, encode(current, self.constraints, self.name))

@@ -1,8 +1,8 @@
 """What `diagnose` reports about the fit it names: the model, its standard errors, its residual statistics.
 
-`_fitted_model` (the fitted simulation with only the named effect),
-`_uncertainties` (standard errors in physical units, inflated for the
-residual's autocorrelation) and `_evidence` (held-out residual statistics of
+`fitted_model` (the fitted simulation with only the named effect),
+`parameter_uncertainties` (standard errors in physical units, inflated for the
+residual's autocorrelation) and `heldout_evidence` (held-out residual statistics of
 the baseline and the extended model).
 """
 
@@ -13,14 +13,14 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from . import _residual_tests as rt
-from ._effect_stack import EffectStack
-from ._effects import FrameTiming
 from ..core._models import Model
 from ..core._problem import Problem
+from . import residual_tests as rt
+from ._effect_stack import EffectStack
+from ._effects import FrameTiming
 
 
-def _fitted_model(problem: Problem, theta, causes) -> Model:
+def fitted_model(problem: Problem, theta, causes) -> Model:
     """The fitted simulation with only the named effects (a name, a tuple, or none), frame timing, gain and offset."""
     causes = {causes} if isinstance(causes, str) else set(causes)
     model = problem.model(jnp.asarray(theta))
@@ -30,7 +30,7 @@ def _fitted_model(problem: Problem, theta, causes) -> Model:
     return Model(simulation, model.readout, "physics")
 
 
-def _uncertainties(problem: Problem, theta, residual_heldout, keep=None) -> dict:
+def parameter_uncertainties(problem: Problem, theta, residual_heldout, keep=None) -> dict:
     """Standard errors, in physical units, of `model`'s free parameters (those in `keep`, if given).
 
     `problem` is the search's (padded) problem with the fitted lane's switches
@@ -71,7 +71,7 @@ def _uncertainties(problem: Problem, theta, residual_heldout, keep=None) -> dict
     return out
 
 
-def _evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> dict:
+def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> dict:
     """Residual statistics of the baseline and the extended model on held-out data."""
     out = {"n_heldout": int(len(w)), "rate_hz": float(rate), "bound_99": rt.confidence_bound(len(w))}
     for key, w_hat in (("baseline", w_hat_base), ("extended", w_hat_ext)):

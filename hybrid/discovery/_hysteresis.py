@@ -12,7 +12,6 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-
 #: Largest |u| the Bouc–Wen phase is taken at: atanh(1 − 1e−12) ≈ 14, past which tanh is 1 in float64.
 _SATURATED = 1.0 - 1e-12
 

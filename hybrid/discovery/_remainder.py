@@ -277,7 +277,7 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
     if t1 <= t0:
         time_part = {"reason": "the training samples share one time stamp"}
     else:
-        scale = lambda t: (2.0 * t - t0 - t1) / (t1 - t0)  # noqa: E731
+        scale = lambda t: (2.0 * t - t0 - t1) / (t1 - t0)
         coef = np.polynomial.polynomial.polyfit(scale(tr["t"]), tr["r"], 3)
         held = np.clip(scale(ho["t"]), -1.0, 1.0)  # constant beyond the training span, never extrapolated
         time_part = dict(judge(np.polynomial.polynomial.polyval(held, coef)), degree=3)
@@ -320,7 +320,7 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
         return {"recovered": rec, "kind": "unstructured",
                 "summary": f"no simple structure: nothing recovers more than {100 * max(top, 0):.0f} % {where}{why}"}
     kind = next(f for f in ORDER if family[f] >= top - MARGIN)
-    pct = lambda k: f"{100 * score(scores[k]):.0f} %"  # noqa: E731
+    pct = lambda k: f"{100 * score(scores[k]):.0f} %"
     inkind = next(k for k in FAMILY if k in scores and FAMILY[k] == kind and score(scores[k]) >= family[kind] - MARGIN)
     rec["named"] = inkind
     best_static = max((k for k in scores if FAMILY[k] == "static"), key=lambda k: score(scores[k]))
@@ -359,9 +359,9 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
 
 def plot_remainder(description: dict, path) -> None:
     """Two panels: the residual against drive level with the learned map, and the filters' gain."""
-    from ..util._figures import _pyplot, save_png
+    from ..util._figures import pyplot, save_png
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     drive = description.get("static", {}).get("drive", {})
     if "curve" in drive:  # the held-out points and the map fitted on training

@@ -24,23 +24,23 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _residual_tests as rt
-from ._report_figures import FIGURES, MAX_LAG, _atomic, _loop_levels, _nmse, _save, _write_figures
-
+from ..util._atomic import atomic_open
+from . import residual_tests as rt
+from ._report_figures import FIGURES, MAX_LAG, count_loop_levels, format_nmse, save_figure, write_figures
 
 # --------------------------------------------------------------------------- #
 # JSON
 # --------------------------------------------------------------------------- #
 
 
-def _jsonable(value):
+def jsonable(value):
     """`value` with numpy scalars/arrays as Python numbers/lists and NaN, ±inf as None."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
+        return jsonable(value.tolist())
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     if isinstance(value, (int, np.integer)):
@@ -53,12 +53,12 @@ def _jsonable(value):
     if isinstance(value, Path):
         return str(value)
     if hasattr(value, "__array__"):  # JAX arrays and other array-likes
-        return _jsonable(np.asarray(value))
+        return jsonable(np.asarray(value))
     raise TypeError(f"report.json cannot hold a {type(value).__name__}: {value!r}")
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    with _atomic(path) as handle:
+    with atomic_open(path) as handle:
         handle.write(text)
 
 
@@ -91,7 +91,7 @@ def _share(x) -> str:
     return "—" if x is None else f"{100 * x:.1f} %"
 
 
-def _pm(entry: dict) -> str:
+def plus_minus(entry: dict) -> str:
     """``value ± std_error unit`` with the standard error to 2 significant digits."""
     value, se, unit = entry.get("value"), entry.get("std_error"), entry.get("unit") or ""
     unit = "" if unit == "1" else unit  # dimensionless
@@ -124,10 +124,10 @@ def _verdict(d: dict) -> str:
     if not d["causes"]:
         return (f"{head}\n\nNo effect passed every test (material, held-out gain ≥ {_num(d['settings']['min_gain'])}, "
                 f"ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])}, a residual no more correlated); the baseline "
-                f"simulation stands, with held-out NMSE {_nmse(base['nmse'])} and Fitting {_pct(base['fitting'])}.")
+                f"simulation stands, with held-out NMSE {format_nmse(base['nmse'])} and Fitting {_pct(base['fitting'])}.")
     names = " + ".join(c["name"] for c in d["causes"])
     return (f"{head}\n\nAdding {names} to the simulation lowers the held-out NMSE from "
-            f"{_nmse(base['nmse'])} to {_nmse(ext['nmse'])} (gain {d['gain']:.2f}×) and raises Fitting from "
+            f"{format_nmse(base['nmse'])} to {format_nmse(ext['nmse'])} (gain {d['gain']:.2f}×) and raises Fitting from "
             f"{_pct(base['fitting'])} to {_pct(ext['fitting'])}.")
 
 
@@ -140,7 +140,7 @@ def _stepwise(d: dict) -> list[str]:
              "| step | cause | incremental gain | ΔBIC | size | parameters |", "|---|---|---|---|---|---|"]
     for i, c in enumerate(d["causes"], 1):
         size = ", ".join(" ".join(_quantity(k, v)) for k, v in c["derived"].items())
-        params = ", ".join(f"{k} = {_pm(v)}" for k, v in c["parameters"].items())
+        params = ", ".join(f"{k} = {plus_minus(v)}" for k, v in c["parameters"].items())
         lines.append(f"| {i} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
                      f"{_cell(size)} | {_cell(params)} |")
     return lines + [""]
@@ -153,7 +153,7 @@ def noise_section(d: dict) -> list[str]:
     lines = ["## Noise floor and what remains", "",
              f"Measurement noise of w, from the recording alone ({floor['method']}): σ = {_num(floor['std'])} "
              f"(variance {_num(floor['variance'])} ± {_num(floor['std_error'])}), "
-             f"{_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out. "
+             f"{format_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out. "
              f"Estimated from {source}.", ""]
     for warning in floor.get("warnings") or ():
         lines += [f"**Warning:** {warning}.", ""]
@@ -165,7 +165,7 @@ def noise_section(d: dict) -> list[str]:
     desc = left["description"]
     lines += [f"**Unexplained:** the final model's held-out MSE is {_num(left['ratio_to_floor'])}× the floor; "
               f"{_share(left['fraction_above_floor'])} of it lies above the noise "
-              f"({_nmse(left['excess_nmse'])} of var(w)). {desc.get('summary', '')}", ""]
+              f"({format_nmse(left['excess_nmse'])} of var(w)). {desc.get('summary', '')}", ""]
     if left.get("underdetermined"):
         lines += [f"Note: {left['underdetermined']}.", ""]
     static, filters = desc.get("static", {}), desc.get("linear_filter", {})
@@ -207,7 +207,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     extended_label = "extended (no cause named: the baseline)" if not causes else f"extended (+ {causes})"
     for key, label in (("baseline", "baseline (simulation)"), ("extended", extended_label)):
         m = d[key]
-        lines.append(f"| {label} | {_nmse(m['nmse'])} | {_nmse(m.get('nmse_eq18'))} | {_pct(m['fitting'])} |")
+        lines.append(f"| {label} | {format_nmse(m['nmse'])} | {format_nmse(m.get('nmse_eq18'))} | {_pct(m['fitting'])} |")
     lines += ["", f"Gain (baseline NMSE / extended NMSE): **{d['gain']:.3g}**.", ""]
     if d["causes"]:
         lines += _stepwise(d)
@@ -220,7 +220,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
               "parameters held at their fitted values (a lower bound).", "", "| parameter | value ± std. error |", "|---|---|"]
     frozen = set(d["settings"].get("frozen") or ())
     for name, entry in d["parameters"].items():
-        text = f"{_num(entry['value'], 4)} (fixed)" if name in frozen else _pm(entry)
+        text = f"{_num(entry['value'], 4)} (fixed)" if name in frozen else plus_minus(entry)
         lines.append(f"| {name} | {text} |")
     if d["effect_derived"]:
         lines += ["", "Derived quantities of the effect:", ""]
@@ -238,17 +238,17 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     if spread and spread.get("n"):
         lines += [f"Effect-free fits as good as the baseline on training data (within ΔBIC "
                   f"{_num(d['settings']['min_bic_drop'])}): {spread['n']}, held-out NMSE "
-                  f"{_nmse(spread['heldout_nmse_min'])} to {_nmse(spread['heldout_nmse_max'])}. A wide range means "
+                  f"{format_nmse(spread['heldout_nmse_min'])} to {format_nmse(spread['heldout_nmse_max'])}. A wide range means "
                   "the training part does not pin the strip's slow dynamics; a candidate must also beat the best "
                   "of them by the minimum gain.", ""]
     lines += ["| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
               "|---|---|---|---|---|---|---|---|",
-              f"| *baseline* | {_nmse(d['baseline']['nmse'])} | 1 | 0 | "
+              f"| *baseline* | {format_nmse(d['baseline']['nmse'])} | 1 | 0 | "
               f"{_fixed(d['baseline_fit']['ljung_box']['Q'])} | | | |"]
     for c in d["candidates"]:
         mark = f"**{c['name']}**" if c["name"] == d["cause"] else c["name"]
         lines.append(
-            f"| {mark} | {_nmse(c['heldout_nmse'])} | {_num(c['gain'])} | {_fixed(c['criterion']['delta_bic'])} | "
+            f"| {mark} | {format_nmse(c['heldout_nmse'])} | {_num(c['gain'])} | {_fixed(c['criterion']['delta_bic'])} | "
             f"{_fixed(c['ljung_box']['Q'])} | {_cell(c.get('materiality', ''))} | {_num(bool(c['eligible']))} | "
             f"{_cell('; '.join(r for r in c['reasons'] if r))} |")
     lines.append("")
@@ -273,8 +273,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         h = d["hybrid"]
         lines += ["## Hybrid model (simulation + D-MLP)", "", "| hybrid model | held-out NMSE | Fitting |",
                   "|---|---|---|",
-                  f"| without the effect | {_nmse(h['baseline']['nmse'])} | {_pct(h['baseline']['fitting'])} |",
-                  f"| with {'the effect (none named)' if d['cause'] == 'none' else d['cause']} | {_nmse(h['extended']['nmse'])} | {_pct(h['extended']['fitting'])} |",
+                  f"| without the effect | {format_nmse(h['baseline']['nmse'])} | {_pct(h['baseline']['fitting'])} |",
+                  f"| with {'the effect (none named)' if d['cause'] == 'none' else d['cause']} | {format_nmse(h['extended']['nmse'])} | {_pct(h['extended']['fitting'])} |",
                   "", f"Gain: {_num(h['gain'])}." + (" (No cause named: the same fit twice.)"
                                                       if d["cause"] == "none" else ""), ""]
 
@@ -339,7 +339,7 @@ def _remainder_figure(diagnosis, path: Path) -> None:
     ax.axis("off")
     ax.text(0.5, 0.5, "Nothing above the noise floor to describe:\nthe final model reaches the measurement noise.",
             ha="center", va="center")
-    _save(fig, path, plt)
+    save_figure(fig, path, plt)
 
 
 def write_report(diagnosis, out_dir) -> dict[str, Path]:
@@ -347,8 +347,8 @@ def write_report(diagnosis, out_dir) -> dict[str, Path]:
 
     **Returns:** ``{"report.json": path, "report.md": path, "<figure>.png": path, ...}``.
     """
-    from ._diagnosis import Diagnosis
     from ..util._errors import InputError
+    from ._diagnosis import Diagnosis
 
     if not isinstance(diagnosis, Diagnosis):
         raise InputError(f"write_report needs the Diagnosis that hybrid.diagnose returns, got {type(diagnosis).__name__}")
@@ -360,14 +360,14 @@ def write_report(diagnosis, out_dir) -> dict[str, Path]:
     except OSError as error:
         raise InputError(f"cannot create the report folder {out_dir} ({error.strerror or error}): "
                          "give a folder you can write to") from None
-    data = _jsonable(diagnosis.to_dict())
+    data = jsonable(diagnosis.to_dict())
     paths = {"report.json": out_dir / "report.json"}
     _write_atomic(paths["report.json"], json.dumps(data, indent=2, allow_nan=False) + "\n")
-    paths.update(_write_figures(diagnosis, data, out_dir))
+    paths.update(write_figures(diagnosis, data, out_dir))
     paths[REMAINDER_FIGURE] = out_dir / REMAINDER_FIGURE
     _remainder_figure(diagnosis, paths[REMAINDER_FIGURE])
     paths["report.md"] = out_dir / "report.md"
     held = diagnosis.heldout
-    loop_levels = _loop_levels(rt.loops(np.asarray(held["w"]) - np.asarray(held["baseline"]), held["v_in"]))
+    loop_levels = count_loop_levels(rt.loops(np.asarray(held["w"]) - np.asarray(held["baseline"]), held["v_in"]))
     _write_atomic(paths["report.md"], _markdown(data, {n: paths[n] for n in FIGURES}, loop_levels))
     return paths

@@ -4,7 +4,7 @@
 ``segments.png`` (`FIGURES`): the held-out residuals of the baseline and of the
 extended model (the one with the named effect), each figure showing both,
 computed from ``Diagnosis.to_dict()`` and ``Diagnosis.heldout``. Each is written
-atomically (`_atomic`); `_nmse` is the NMSE format the figures and
+atomically (`atomic_open`); `format_nmse` is the NMSE format the figures and
 ``report.md`` share.
 """
 
@@ -14,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _residual_tests as rt
-from ..util._figures import _pyplot
+from ..util._atomic import atomic_open
+from ..util._figures import pyplot
+from . import residual_tests as rt
 
 #: Lags of the correlation figure and of ``evidence`` (``_evidence._evidence``).
 MAX_LAG = 50
-#: Segments of the drift figure (``_residual_tests.segment_errors``' default).
+#: Segments of the drift figure (``residual_tests.segment_errors``' default).
 SEGMENTS = 8
 DPI = 120
 
@@ -29,17 +30,7 @@ FIGURES = ("residual_time.png", "loops.png", "spectrum.png", "correlation.png", 
 _MODELS = (("baseline", "baseline", "C0"), ("extended", "extended", "C3"))
 
 
-def _atomic(path: Path, mode: str = "w"):
-    """A handle on a temporary file next to `path`, fsync-ed and renamed over `path` once written whole.
-
-    [`hybrid.util._atomic.atomic_open`][]: a full disk leaves the old file and no temporary.
-    """
-    from ..util._atomic import atomic_open
-
-    return atomic_open(path, mode)
-
-
-def _nmse(x) -> str:
+def format_nmse(x) -> str:
     """NMSE: three significant digits in e-notation."""
     return "—" if x is None else f"{x:.2e}"
 
@@ -49,7 +40,7 @@ def _nmse(x) -> str:
 # --------------------------------------------------------------------------- #
 
 
-def _correlations(residual, drive, max_lag: int = MAX_LAG) -> dict:
+def correlations(residual, drive, max_lag: int = MAX_LAG) -> dict:
     """ACF (lags 1..max_lag), CCF with the drive (−max_lag..max_lag) and the 99 % bound."""
     acf = rt.autocorrelation(residual, max_lag)
     lags, ccf = rt.cross_correlation(residual, drive, max_lag)
@@ -57,7 +48,7 @@ def _correlations(residual, drive, max_lag: int = MAX_LAG) -> dict:
             "bound": rt.confidence_bound(len(residual))}
 
 
-def _loop_levels(loop: dict) -> int:
+def count_loop_levels(loop: dict) -> int:
     """Drive levels (bins of `rt.loops`) with both a rising and a falling mean."""
     return int(np.sum(np.isfinite(loop["rising"]) & np.isfinite(loop["falling"])))
 
@@ -85,11 +76,11 @@ def _x_axis(held: dict) -> tuple[np.ndarray, list[float]]:
 # --------------------------------------------------------------------------- #
 
 
-def _save(fig, path: Path, plt) -> None:
+def save_figure(fig, path: Path, plt) -> None:
     """Save as PNG through a temporary file and a rename, like the text files."""
     fig.tight_layout()
     try:
-        with _atomic(path, "wb") as handle:
+        with atomic_open(path, "wb") as handle:
             fig.savefig(handle, dpi=DPI, format="png")
     finally:
         plt.close(fig)
@@ -115,7 +106,7 @@ def _figure_residual_time(held, d, path, plt):
     top.plot(broken(x), broken(w), "k", lw=1.0, label="measured w")
     for (key, label, colour), lw in zip(_MODELS, (1.8, 1.0)):  # baseline wider: visible where they coincide
         top.plot(broken(x), broken(held[key]), color=colour, lw=lw, alpha=0.85,
-                 label=f"{label} (held-out NMSE {_nmse(d[key]['nmse'])})")
+                 label=f"{label} (held-out NMSE {format_nmse(d[key]['nmse'])})")
         bottom.plot(broken(x), broken(w - held[key]), color=colour, lw=0.8 * lw, alpha=0.85,
                     label=f"{label} residual")
     bottom.axhline(0.0, color="0.5", lw=0.6)
@@ -128,7 +119,7 @@ def _figure_residual_time(held, d, path, plt):
                ylabel="residual w − ŵ (mm)")
     top.legend(loc="upper right", fontsize=8)
     bottom.legend(loc="upper right", fontsize=8)
-    _save(fig, path, plt)
+    save_figure(fig, path, plt)
 
 
 def _figure_loops(held, d, path, plt):
@@ -144,17 +135,17 @@ def _figure_loops(held, d, path, plt):
             ax.scatter(v[sel], e[sel], s=4, color=light, alpha=0.2, linewidths=0)
             ax.plot(loop["centres"], loop[name], marker=marker, color=dark, lw=1.8, label=f"{name} drive (mean)")
         ax.axhline(0.0, color="0.5", lw=0.6)
-        if _loop_levels(loop) == 0:
+        if count_loop_levels(loop) == 0:
             ax.text(0.5, 0.04, "no drive level is visited both rising and falling:\n"
                     "loops cannot open with this drive (use a sine or chirp)",
                     transform=ax.transAxes, ha="center", va="bottom", fontsize=8, color="0.3")
-        separation = "n/a" if _loop_levels(loop) == 0 else f"{loop['separation']:.3g} mm"
+        separation = "n/a" if count_loop_levels(loop) == 0 else f"{loop['separation']:.3g} mm"
         ax.set(xlabel="drive v_in (V)", title=f"{label}: rising − falling rms {separation}")
         ax.legend(loc="best", fontsize=8)
     axes[0].set_ylabel("residual w − ŵ (mm)")
     fig.suptitle("Residual against drive level, by direction of travel (open loops: hysteresis; "
                  "bent ends: saturation)", fontsize=10)
-    _save(fig, path, plt)
+    save_figure(fig, path, plt)
 
 
 def _figure_spectrum(held, d, rate, path, plt):
@@ -166,14 +157,14 @@ def _figure_spectrum(held, d, rate, path, plt):
            title="Welch spectrum of the held-out residual (a peak: an unmodelled resonance)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    _save(fig, path, plt)
+    save_figure(fig, path, plt)
 
 
 def _figure_correlation(held, d, path, plt):
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     bound = None
     for i, (key, label, colour) in enumerate(_MODELS):
-        c = _correlations(held["w"] - held[key], held["v_in"])
+        c = correlations(held["w"] - held[key], held["v_in"])
         bound = c["bound"]
         shift = 0.15 * (1 if i else -1)
         left.vlines(c["acf_lags"] + shift, 0.0, c["acf"], color=colour, lw=1.2)
@@ -189,7 +180,7 @@ def _figure_correlation(held, d, path, plt):
              title="Residual autocorrelation (white: inside the band)")
     right.set(xlabel="lag k (samples; k > 0: the drive leads)", ylabel="cross-correlation ρ_εu(k)",
               title="Residual–drive cross-correlation (peak at k > 0: delay)")
-    _save(fig, path, plt)
+    save_figure(fig, path, plt)
 
 
 def _figure_segments(held, d, path, plt):
@@ -204,11 +195,11 @@ def _figure_segments(held, d, path, plt):
            ylabel="segment MSE / mean(w²)",
            title="Error by segment of the held-out part (a trend over segments: drift)")
     ax.legend(fontsize=8)
-    _save(fig, path, plt)
+    save_figure(fig, path, plt)
 
 
-def _write_figures(diagnosis, data: dict, out_dir: Path) -> dict[str, Path]:
-    plt = _pyplot()
+def write_figures(diagnosis, data: dict, out_dir: Path) -> dict[str, Path]:
+    plt = pyplot()
     held = {k: np.asarray(v) for k, v in diagnosis.heldout.items()}
     rate = float(data["evidence"].get("rate_hz") or 1.0)
     paths = {name: out_dir / name for name in FIGURES}

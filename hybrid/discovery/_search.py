@@ -1,12 +1,12 @@
 """The search of `diagnose`: Levenberg–Marquardt lanes, all in one compiled program.
 
 A lane is one LM run from its own start with its own switches: every effect
-lives in one [`EffectStack`][] (`_universal_model`), and a lane switches on at
-most one of them beyond those already named; `_fit_lanes` runs a batch of lanes one after another inside a
+lives in one [`EffectStack`][] (`universal_model`), and a lane switches on at
+most one of them beyond those already named; `fit_lanes` runs a batch of lanes one after another inside a
 single compiled program. Also here: the least-squares problem every lane shares
-(`lanes_problem`), its predictions on each part of the split (`_predictions`,
-`_signals`), and the data-scaled starting values of each effect (`_starts`,
-`_best_lag`); the screened starts are in `hybrid.discovery._starts`.
+(`lanes_problem`), its predictions on each part of the split (`predictions`,
+`split_signals`), and the data-scaled starting values of each effect (`effect_starts`,
+`best_lag`); the screened starts are in `hybrid.discovery._starts`.
 """
 
 from __future__ import annotations
@@ -16,14 +16,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._diagnosis import SPLIT_ORDER, DiagnoseSettings
-from ._effect_stack import EffectStack
-from ._effects import EFFECTS, FrameTiming
-from ..util._errors import InputError
 from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ..core._models import Model
 from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording
 from ..core._readout import LinearReadout
+from ..util._errors import InputError
+from ._diagnosis import SPLIT_ORDER, DiagnoseSettings
+from ._effect_stack import EffectStack
+from ._effects import EFFECTS, FrameTiming
 
 #: Effects a lane's Jacobian has room for in the problem the search's first steps share. Each
 #: direction costs one tangent of the simulation, zero or not: room for more is paid on every
@@ -39,7 +39,7 @@ N_LANES = 16
 # --------------------------------------------------------------------------- #
 
 
-def _with_active(problem: Problem, active, tangents=None):
+def with_active(problem: Problem, active, tangents=None):
     """The problem with the effects' switches (and Jacobian directions) of one lane."""
     problem = eqx.tree_at(lambda p: p.sim_static.active, problem, active)
     if tangents is not None:
@@ -47,13 +47,13 @@ def _with_active(problem: Problem, active, tangents=None):
     return problem
 
 
-def _lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
+def lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
     """Unit directions in θ_sim for the inner simulation's free parameters and those of `effects`.
 
     `effects`: None, one effect's name, or a tuple of names (the effects a lane fits).
     """
     effects = () if effects is None else (effects,) if isinstance(effects, str) else tuple(effects)
-    labels = _sim_labels(model.simulation, frozen)
+    labels = simulation_labels(model.simulation, frozen)
     wanted = [n for n in model.simulation.inner.parameter_names() if n not in frozen]
     wanted += [n for n in FrameTiming.constraints if n not in frozen]
     for effect in effects:
@@ -68,7 +68,7 @@ def _lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
 def _fit_lanes_compiled(problem, actives, tangents, thetas, patience, settings):
     def one(lane):
         active, basis, theta = lane
-        p = _with_active(problem, active, basis)
+        p = with_active(problem, active, basis)
         return lm_run(p, lm_init(p, theta, settings), settings, settings.max_steps, patience)
 
     # Lanes run one after another inside one program: each stops when it converges
@@ -76,7 +76,7 @@ def _fit_lanes_compiled(problem, actives, tangents, thetas, patience, settings):
     return jax.lax.map(one, (actives, tangents, thetas))
 
 
-def _fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience: int):
+def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience: int):
     """LM from each (switches, Jacobian directions, θ₀) lane; one compiled program per lane count.
 
     `patience` is an argument of the program, not part of it: the stages share one compilation.
@@ -97,7 +97,7 @@ def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[P
     sizes = sorted((len(e.constraints) for e in EFFECTS.values()), reverse=True)
     n_rows = (len([n for n in simulation.parameter_names() if n not in frozen]) + len(FrameTiming.constraints)
               + sum(sizes[:max(max_causes, 1)]))
-    n_sim = len(_sim_labels(model.simulation, frozen))
+    n_sim = len(simulation_labels(model.simulation, frozen))
     return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
 
 
@@ -109,10 +109,10 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     search depend on the buckets, not on the recordings' exact lengths, so a
     session that diagnoses many recordings reuses them. `series` are the
     recordings' own (unpadded) series. Its θ is the layout of
-    `Diagnosis.lanes[i]["theta"]`; `_signals(problem, theta, active, split)`
+    `Diagnosis.lanes[i]["theta"]`; `split_signals(problem, theta, active, split)`
     predicts a lane on a split.
     """
-    model = _universal_model(simulation)
+    model = universal_model(simulation)
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     problem, n_rows = search_problem(model, padded, frozenset(settings.frozen_for(simulation)), shared_room(settings))
@@ -134,13 +134,13 @@ def lane_count(n_first_step: int) -> int:
     return max(N_LANES, n_first_step)
 
 
-def _universal_model(simulation) -> Model:
+def universal_model(simulation) -> Model:
     """Every effect (switched off) and, last and always on, the camera's frame timing."""
     stack = EffectStack(simulation, tuple(EFFECTS) + (FrameTiming(),), active=jnp.zeros(len(EFFECTS) + 1))
     return Model(stack, LinearReadout(), "physics")
 
 
-def _initial_theta(problem, simulation, readout, frozen):
+def initial_theta(problem, simulation, readout, frozen):
     """θ for `simulation` with the least-squares gain and offset on the training part."""
     return initial_thetas(problem, [simulation], readout, frozen)[0]
 
@@ -148,7 +148,7 @@ def _initial_theta(problem, simulation, readout, frozen):
 def initial_thetas(problem, simulations, readout, frozen):
     """θ for each of `simulations` (one structure, other values), each with its least-squares gain and offset.
 
-    Each simulation's output comes from `_predictions` (the program every
+    Each simulation's output comes from `predictions` (the program every
     stage already runs: gain 1, offset 0), and the gain and offset are fitted
     on the recorded training samples by numpy: no program of its own.
     """
@@ -168,37 +168,37 @@ def initial_thetas(problem, simulations, readout, frozen):
 def simulation_output(problem, simulation, readout, frozen, split: str) -> np.ndarray:
     """`simulation`'s output (a stack of the search's structure) on the recorded samples of `split`.
 
-    Read off `_predictions` with gain 1 and offset 0: the program every stage
+    Read off `predictions` with gain 1 and offset 0: the program every stage
     runs already, so no program of its own.
     """
     unit = eqx.tree_at(lambda r: r.raw, readout, {"gain": jnp.asarray(1.0, float), "offset": jnp.asarray(0.0, float)})
     theta = problem.flatten(Model(simulation, unit, "physics"), frozen)
-    return problem.recorded(_predictions(problem, simulation.active, theta)[split], split)
+    return problem.recorded(predictions(problem, simulation.active, theta)[split], split)
 
 
 @eqx.filter_jit
-def _predictions(problem, active, theta):
+def predictions(problem, active, theta):
     """ŵ on every part (`SPLIT_ORDER`) from one simulation (one compiled program for all)."""
-    p = _with_active(problem, active)
+    p = with_active(problem, active)
     sim_theta, readout_theta = p.split_theta(theta)
     readout = p.readout(readout_theta)
     signals = p._signals(sim_theta)
     return {split: jax.vmap(readout.predict_window)(p._windows(readout, signals, split)) for split in SPLIT_ORDER}
 
 
-def _signals(problem, theta, active, split):
+def split_signals(problem, theta, active, split):
     """(drive, w, ŵ) on `split` ("train", "validation" or "test"), all recordings concatenated."""
     v = np.concatenate([np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.recorded_segments_of(split)])
-    w_hat = _predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
+    w_hat = predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
     return v, problem.recorded(problem.target(split), split), problem.recorded(w_hat, split)
 
 
-def _sim_labels(stack: EffectStack, frozen) -> list[str]:
+def simulation_labels(stack: EffectStack, frozen) -> list[str]:
     """The parameter name of each entry of θ_sim, in `ravel_pytree` order (read off the stack itself)."""
     return stack.free_parameter_order(frozen)
 
 
-def _starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
+def effect_starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
     """Data-scaled starting values for an effect's parameters (a few per effect)."""
     span = max(float(np.ptp(s_base)), 1e-9)
     top = max(float(np.max(np.abs(s_base))), 1e-9)
@@ -235,7 +235,7 @@ def _starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
     raise InputError(f"unknown effect {name!r}")
 
 
-def _best_lag(w, w_hat, max_lag):
+def best_lag(w, w_hat, max_lag):
     """Whole-sample lag of ŵ that best explains w by a gain and offset (0 if none helps)."""
     best, best_err = 0, np.inf
     for lag in range(0, max_lag + 1):

@@ -23,11 +23,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._effects import Resonance
-from ._hysteresis import bouc_wen_and_memory
 from ..core._loop_safe_linalg import lstsq
 from ..core._parameters import Positive
 from ..core._problem import Problem
+from ._effects import Resonance
+from ._hysteresis import bouc_wen_and_memory
 
 #: Points of the baseline design screened (one simulation each) for the N_LANES LM starts.
 N_SCREEN = 512

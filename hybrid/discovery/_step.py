@@ -23,23 +23,32 @@ none; `diagnose` stops at the first step without one.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 import jax.numpy as jnp
 import numpy as np
 
-from . import _residual_tests as rt
-from ._decision import _choose_lane, _equally_good_fits, _evaluate, _lane_effect
-from ._diagnosis import Candidate, DiagnoseSettings
-from ._effects import EFFECTS
-from ._search import (
-    _best_lag, _fit_lanes, _lane_tangents, search_problem, _signals, _starts, initial_thetas,
-    lane_count, padding_lane, shared_room, simulation_output,
-)
-from ._starts import delay_starts, hysteresis_starts, resonance_starts
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
+from . import residual_tests as rt
+from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
+from ._diagnosis import Candidate, DiagnoseSettings
+from ._effects import EFFECTS
+from ._search import (
+    best_lag,
+    effect_starts,
+    fit_lanes,
+    initial_thetas,
+    lane_count,
+    lane_tangents,
+    padding_lane,
+    search_problem,
+    shared_room,
+    simulation_output,
+    split_signals,
+)
+from ._starts import delay_starts, hysteresis_starts, resonance_starts
 
 
 @dataclasses.dataclass
@@ -85,7 +94,7 @@ SCREENED_STARTS = {"delay": 3, "hysteresis": 1, "resonance": 1}
 
 def first_step_lanes(rate: float, duration: float) -> int:
     """Lanes of the first step: every effect's data-scaled starts and its screened ones (counts only)."""
-    return sum(len(_starts(name, np.array([-1.0, 1.0]), rate, 1, None, duration)) + SCREENED_STARTS.get(name, 0)
+    return sum(len(effect_starts(name, np.array([-1.0, 1.0]), rate, 1, None, duration)) + SCREENED_STARTS.get(name, 0)
                for name in EFFECTS)
 
 
@@ -122,13 +131,13 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
     n_rows = int(problem.sim_tangents.shape[0])
     active_cur = np.asarray(current.active, float)
     theta_cur = current.theta
-    cur_tangents = _lane_tangents(s.model, s.frozen, present, n_rows)
+    cur_tangents = lane_tangents(s.model, s.frozen, present, n_rows)
     cur_model = problem.model(jnp.asarray(theta_cur))
 
     bare = cur_model.simulation.with_active(np.zeros_like(active_cur))  # the inner simulation alone
     s_train = simulation_output(problem, bare, cur_model.readout, s.frozen, "train")
-    _, w_tr, w_hat_tr = _signals(problem, theta_cur, active_cur, "train")
-    lag = _best_lag(w_tr, w_hat_tr, max_lag=20)
+    _, w_tr, w_hat_tr = split_signals(problem, theta_cur, active_cur, "train")
+    lag = best_lag(w_tr, w_hat_tr, max_lag=20)
     f, psd = rt.spectrum(w_tr - w_hat_tr, s.rate)
     band = f >= 0.5
     peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
@@ -144,13 +153,13 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
     for i, name in enumerate(names):
         if name in present:
             continue
-        for values in _starts(name, s_train, s.rate, lag, peak, s.duration) + screened.get(name, []):
+        for values in effect_starts(name, s_train, s.rate, lag, peak, s.duration) + screened.get(name, []):
             active = active_cur.copy()
             active[i] = 1.0
             starts.append(cur_model.simulation.replace(**values).with_active(active))
             actives.append(active)
             labels.append(name)
-            tangents.append(_lane_tangents(s.model, s.frozen, present + (name,), n_rows))
+            tangents.append(lane_tangents(s.model, s.frozen, present + (name,), n_rows))
     n_lanes = s.n_lanes
     if len(starts) > n_lanes:
         raise AssertionError(f"{len(starts)} candidate lanes for {n_lanes}: first_step_lanes is out of date")
@@ -162,42 +171,42 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
         tangents.append(cur_tangents)
     added = " + ".join(present) + " + " if present else ""
     s.say(f"{added}each of {len(set(labels) - {'none'})} effects, {len(labels)} lanes")
-    states = _fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), s.lm, settings.patience)
+    states = fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), s.lm, settings.patience)
     vals = np.asarray(states.best_val)
     cand_thetas = states.best_theta
 
     # The current model refitted from where every lane ended.
     s.say(f"{'baseline' if not present else ' + '.join(present)} refitted from every candidate's end point")
-    restates = _fit_lanes(problem, np.tile(active_cur, (n_lanes, 1)), np.stack([cur_tangents] * n_lanes),
+    restates = fit_lanes(problem, np.tile(active_cur, (n_lanes, 1)), np.stack([cur_tangents] * n_lanes),
                           cand_thetas, s.lm, settings.effect_free_patience)
     revals = np.asarray(restates.best_val)
     current_name = present[-1] if present else "none"
     if np.nanmin(revals) < current_val:
         j = int(np.nanargmin(revals))
         current_val = float(revals[j])
-        current = _evaluate(problem, restates.best_theta[j], active_cur, current_name, s.n_train,
+        current = evaluate_candidate(problem, restates.best_theta[j], active_cur, current_name, s.n_train,
                             current.n_parameters, settings.materiality, s.frozen, present[:-1])
         current.reasons.append(f"refitted from the {labels[j]} candidate's end point")
 
     candidates, chosen_lanes, lanes_of = [], set(), {}
-    for i, name in enumerate(names):
+    for name in names:
         if name in present:
             continue
         idx = [j for j, lab in enumerate(labels) if lab == name]
         lanes_of[name] = idx
 
         def is_material(j, name=name):
-            return _lane_effect(problem, cand_thetas[j], actives[j], name, settings.materiality)[0]
+            return lane_effect(problem, cand_thetas[j], actives[j], name, settings.materiality)[0]
 
-        j = _choose_lane(idx, vals, is_material, s.n_val)
+        j = choose_lane(idx, vals, is_material, s.n_val)
         chosen_lanes.add(j)
-        cand = _evaluate(problem, cand_thetas[j], actives[j], name, s.n_train,
+        cand = evaluate_candidate(problem, cand_thetas[j], actives[j], name, s.n_train,
                          current.n_parameters + len(EFFECTS[name].constraints), settings.materiality, s.frozen,
                          present)
         cand.validation_loss = float(vals[j])
         candidates.append(cand)
 
-    equally_good = _equally_good_fits(problem, list(current_fits) + list(restates.best_theta), active_cur,
+    equally_good = equally_good_fits(problem, list(current_fits) + list(restates.best_theta), active_cur,
                                       current.train_rss, s.n_train, settings.min_bic_drop)
     _weigh(candidates, current, equally_good, settings)
     eligible = [c for c in candidates if c.eligible]

@@ -28,7 +28,7 @@ import numpy as np
 
 from ._level_limit import level_limits, limit_sentence
 from ._noise_floor import NoiseFloor, noise_floor
-from ._search import _signals
+from ._search import split_signals
 
 #: Held-out MSE over the floor above which ``unexplained`` warns that the floor is far below the error.
 FAR_ABOVE_FLOOR = 100.0
@@ -68,7 +68,7 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
 
 def _part(problem, series, recordings, candidate, split: str) -> dict:
     """t, v_in, w, ŵ and a segment id per sample, for one part of the split (all recordings)."""
-    v, w, w_hat = _signals(problem, candidate.theta, candidate.active, split)
+    v, w, w_hat = split_signals(problem, candidate.theta, candidate.active, split)
     spans = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of(split)]
     t = np.concatenate([np.asarray(recordings[i].t, float)[a:b] for i, a, b in spans])
     segment = np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(spans)])

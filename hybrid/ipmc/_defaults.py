@@ -13,7 +13,6 @@ from ..core._models import make_model as make_any_model
 from ..discovery._diagnose import diagnose as diagnose_any
 from ..physics._rc_network import RCNetwork
 
-
 #: C_clamp (F) of the network `hybrid.diagnose` starts from, the first point of its
 #: screened design: 30 mF, the virtual IPMC's total double-layer capacitance and the
 #: centre the design has used since the discrepancy experiments were run.

@@ -30,10 +30,17 @@ import dataclasses
 
 import numpy as np
 
-from ._outside_effects import OUTSIDE_EFFECTS
-from ._synthetic import HIDDEN_EFFECTS, SyntheticStrip, _apply_hidden, camera, fine_drive, random_effect, \
-    rc_cascade_exact
 from ..util._errors import InputError
+from ._outside_effects import OUTSIDE_EFFECTS
+from ._synthetic import (
+    HIDDEN_EFFECTS,
+    SyntheticStrip,
+    apply_hidden,
+    camera,
+    fine_drive,
+    random_effect,
+    rc_cascade_exact,
+)
 
 #: The library's hidden effects (those an extension is meant to find).
 LIBRARY_EFFECTS = tuple(e for e in HIDDEN_EFFECTS if e != "none")
@@ -131,7 +138,7 @@ def compound_recording(drive, strip: SyntheticStrip = SyntheticStrip(), effect="
         if is_outside(name):
             s, derived[name] = OUTSIDE_EFFECTS[name].apply(params[name], s, dt_fine, t_fine)
         elif name != "delay":
-            s = _apply_hidden(name, params[name], s, dt_fine, t_fine)
+            s = apply_hidden(name, params[name], s, dt_fine, t_fine)
     w_fine = strip.gain_mm_per_v * s + strip.offset_mm
     w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed)
     spec = "+".join(names) or "none"

@@ -105,8 +105,8 @@ def run_sensitivity_study(settings: SensitivityStudySettings = SensitivityStudyS
 
     from .. import sensitivity as S
     from ..core._models import Model
-    from ..physics._rc_network import RCNetwork
     from ..core._readout import LinearReadout
+    from ..physics._rc_network import RCNetwork
 
     if settings.drive not in DRIVE_ORDER:
         raise InputError(f"drive must be one of {', '.join(DRIVE_ORDER)}, got {settings.drive!r}")

@@ -50,7 +50,6 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-
 HIDDEN_EFFECTS = ("none", "back_relaxation", "hysteresis", "saturation", "delay", "drift", "resonance")
 
 
@@ -168,7 +167,7 @@ def _play(s, r):
     return out
 
 
-def _apply_hidden(name, p, s, dt, t):
+def apply_hidden(name, p, s, dt, t):
     if name == "back_relaxation":
         slow = 0.5 * _lowpass_exact(s, p["tau_s"] / 2, dt) + 0.5 * _lowpass_exact(s, 2 * p["tau_s"], dt)
         return s - p["fraction"] * slow
@@ -272,7 +271,7 @@ def synthetic_recording(
     v_fine = fine_drive(v, m, params["delay_samples"] if effect == "delay" else 0)
     t_fine = np.arange(len(v_fine)) * dt_fine
     s = rc_cascade_exact(strip, v_fine, dt_fine)
-    s = _apply_hidden(effect, params, s, dt_fine, t_fine)
+    s = apply_hidden(effect, params, s, dt_fine, t_fine)
     w_fine = strip.gain_mm_per_v * s + strip.offset_mm
     w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed)
     hidden = {"effect": effect, "effect_params": params, "strip": dataclasses.asdict(strip),

@@ -21,13 +21,13 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ..util._atomic import write_text
-from ..data._drives import make_drive
 from ..core._fit import fit
+from ..data._drives import make_drive
+from ..util._atomic import write_text
+from ..util._watchdog import stage
 from ._defaults import make_model
 from ._virtual_ipmc import virtual_recording
 from ._virtual_parameters import VirtualIPMCParameters
-from ..util._watchdog import stage
 
 ROWS = (("PRBS", "prbs"), ("Sine", "sine"), ("Chirp", "chirp"), ("Pulse", "pulse"))
 FIGURES = {"Chirp": "fig10_chirp.png", "PRBS": "fig11_prbs.png", "Pulse": "fig12_pulse.png",

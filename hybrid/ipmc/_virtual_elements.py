@@ -41,7 +41,7 @@ def _table1(p: VirtualIPMCParameters) -> dict[str, float]:
             "c_clamp_f": p.clamp_capacitance_f}
 
 
-def _ladder(p: VirtualIPMCParameters) -> _Ladder:
+def build_ladder(p: VirtualIPMCParameters) -> _Ladder:
     """The line's elements: Eqs 4–9 profiles of whole-strip values, split over N+1."""
     n = p.n_compartments
     frac = np.arange(n) / (n - 1) if n > 1 else np.zeros(1)
@@ -62,7 +62,7 @@ def _ladder(p: VirtualIPMCParameters) -> _Ladder:
     )
 
 
-def _electrical(lad: _Ladder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def electrical(lad: _Ladder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """State space of the loaded line: dv/dt = A_e v + B_e u, and the node map.
 
     **Returns:** `(a_e, b_e, nodes)`, where `nodes` (n, n+1) gives the node
@@ -97,9 +97,9 @@ class _Model:
     derived: dict
 
 
-def _build(p: VirtualIPMCParameters) -> _Model:
-    lad = _ladder(p)
-    a_e, b_e, _ = _electrical(lad)
+def build_model(p: VirtualIPMCParameters) -> _Model:
+    lad = build_ladder(p)
+    a_e, b_e, _ = electrical(lad)
     n = len(lad.re)
     eye = np.eye(n)
     a = np.block([[a_e, np.zeros((n, n))], [eye / p.relaxation_time_s, -eye / p.relaxation_time_s]])
@@ -132,7 +132,7 @@ class _TipMap:
         return np.tanh(p_k / self.p_sat) @ (self.weights * self.p_sat)
 
 
-def _quasi_static_tip(p: VirtualIPMCParameters, model: _Model) -> _TipMap:
+def quasi_static_tip(p: VirtualIPMCParameters, model: _Model) -> _TipMap:
     """Derive K and σ_sat from `gain_mm_per_v` and `compression` (static, relaxed)."""
     lad = model.ladder
     area = p.width_m * lad.dx
@@ -162,14 +162,14 @@ def _quasi_static_tip(p: VirtualIPMCParameters, model: _Model) -> _TipMap:
     return _TipMap(weights, float(sigma_sat * area), derived)
 
 
-def _dac(v: np.ndarray, p: VirtualIPMCParameters) -> np.ndarray:
+def dac_output(v: np.ndarray, p: VirtualIPMCParameters) -> np.ndarray:
     """Applied voltage (V): 2^b-level DAC codes mapped onto ±V_fs, clipped at the rails."""
     top = 2**p.dac_bits - 1
     code = np.clip(np.round((np.asarray(v, float) / p.full_scale_v + 1.0) * top / 2.0), 0, top)
     return p.full_scale_v * (2.0 * code / top - 1.0)
 
 
-def _mechanics(p: VirtualIPMCParameters, h: float, w_qs: np.ndarray) -> np.ndarray:
+def mechanics(p: VirtualIPMCParameters, h: float, w_qs: np.ndarray) -> np.ndarray:
     """First-mode response on the fine grid, exact for piecewise-linear w_qs (FOH)."""
     wn = 2 * np.pi * p.mode_frequency_hz
     zeta = p.damping_ratio

@@ -121,14 +121,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import scipy.linalg
 
 from ..util._errors import InputError
-from ._virtual_elements import _build, _dac, _mechanics, _quasi_static_tip
+from ._virtual_elements import build_model, dac_output, mechanics, quasi_static_tip
 from ._virtual_parameters import VirtualIPMCParameters
 
 __all__ = ["VirtualRecording", "simulate_virtual_ipmc"]
@@ -192,13 +192,13 @@ def simulate_virtual_ipmc(
             f"{frame_period} s; use an exposure no longer than one frame."
         )
 
-    u = _dac(v, params)
-    model = _build(params)
+    u = dac_output(v, params)
+    model = build_model(params)
     os_ = params.oversample
     h = dt / os_
-    reduce = _quasi_static_tip(params, model)
-    w_qs = _fine_outputs(model.a, model.b, model.c_out, u, h, os_, reduce)  # mm
-    w_fine = _mechanics(params, h, w_qs)
+    reduce = quasi_static_tip(params, model)
+    w_qs = fine_outputs(model.a, model.b, model.c_out, u, h, os_, reduce)  # mm
+    w_fine = mechanics(params, h, w_qs)
 
     # Frames: exposure windows [t_j, t_j + T_exp] in units of the fine step.
     m = len(t)
@@ -250,7 +250,7 @@ def _zoh(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray
     return e[:n, :n], e[:n, n]
 
 
-def _fine_outputs(a, b, c_out, u, h, oversample, reduce: Callable | None = None):
+def fine_outputs(a, b, c_out, u, h, oversample, reduce: Callable | None = None):
     """y = reduce(C x) on the fine grid t_0 + i h, i = 0..M·oversample, exact ZOH.
 
     The input u[n] (M values) is held over [t_n, t_n + oversample·h). States

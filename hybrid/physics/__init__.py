@@ -6,3 +6,24 @@ stable linear system of order N (`LTI`, ``--physics lti:N``), and
 `resolve_physics`, which turns a command line's ``--physics`` into a
 simulation (``rc``, ``lti:N``, ``file.py:Class``, ``module:Class``).
 """
+
+from ._lti import LTI as LTI
+from ._plugins import resolve_physics as resolve_physics
+from ._rc_network import (
+    BLOCK as BLOCK,
+)
+from ._rc_network import (
+    RCNetwork as RCNetwork,
+)
+from ._rc_network import (
+    block_matrices as block_matrices,
+)
+from ._rc_network import (
+    cascade_filter as cascade_filter,
+)
+from ._rc_network import (
+    cascade_filter_stage_major as cascade_filter_stage_major,
+)
+from ._rc_network import (
+    tustin_sections as tustin_sections,
+)

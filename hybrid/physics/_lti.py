@@ -137,7 +137,7 @@ class LTI(AbstractSimulation):
                              "e.g. LTI(2) (or --physics lti:2) for two poles")
         order = int(order)
         names = parameter_names_for(order)
-        defaults = _defaults(order)
+        defaults = default_values(order)
         unknown = sorted(set(values) - set(names))
         if unknown:
             raise InputError(f"LTI({order}) has no parameter(s) {unknown}: its parameters are {list(names)}")
@@ -150,7 +150,7 @@ class LTI(AbstractSimulation):
         return {"order": self.order}
 
     @classmethod
-    def from_config(cls, config: dict) -> "LTI":
+    def from_config(cls, config: dict) -> LTI:
         return cls(order=config["order"])
 
     def parameter_names(self) -> tuple[str, ...]:
@@ -168,7 +168,7 @@ class LTI(AbstractSimulation):
     def typical_ranges(self) -> dict[str, tuple[float, float]]:
         return {k: self.typical[k] for k in self.parameter_names()}  # time scales first, then residues
 
-    def replace(self, **values) -> "LTI":
+    def replace(self, **values) -> LTI:
         unknown = sorted(set(values) - set(self.raw))
         if unknown:
             raise InputError(f"LTI({self.order}) has no parameter(s) {unknown}: its parameters are "
@@ -212,7 +212,7 @@ class LTI(AbstractSimulation):
         return zoh_response(*self.state_space(), v_in, dt)
 
 
-def _defaults(order: int, centre_s: float = 1.0) -> dict[str, float]:
+def default_values(order: int, centre_s: float = 1.0) -> dict[str, float]:
     """Starting values: time scales half a decade apart around `centre_s` seconds, fastest first."""
     layout = sections(order)
     out = {}

@@ -23,7 +23,7 @@ import math
 import numpy as np
 import scipy.signal
 
-from ._lti import LTI, _defaults
+from ._lti import LTI, default_values
 
 RESONANCE = 2.0     # |H| above this many times its low-frequency level is a resonance
 MIN_POWER = 1e-3    # bins where the drive's power is below this fraction of its peak are ignored
@@ -57,4 +57,4 @@ def lti_for_recordings(order: int, recordings, **values) -> LTI:
     freqs = [response_frequency(r.v_in, r.w, r.rate) for r in recordings]
     weights = [len(r.w) for r in recordings]
     centre_hz = float(np.exp(np.average(np.log(freqs), weights=weights)))
-    return LTI(order, **{**_defaults(order, 1.0 / (2.0 * math.pi * centre_hz)), **values})
+    return LTI(order, **{**default_values(order, 1.0 / (2.0 * math.pi * centre_hz)), **values})

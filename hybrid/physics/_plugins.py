@@ -47,8 +47,8 @@ import numpy as np
 
 from ..core._simulation import AbstractSimulation
 from ..util._errors import InputError
+from ._lti import LTI, MAX_ORDER
 from ._lti_start import lti_for_recordings
-from ._lti import MAX_ORDER, LTI
 from ._rc_network import RCNetwork
 
 __all__ = ["HardExit", "PluginError", "describe_failure", "exit_guard", "probe_simulation", "resolve_physics"]

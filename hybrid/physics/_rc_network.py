@@ -33,20 +33,18 @@ from __future__ import annotations
 
 import functools
 import numbers
-
 from typing import ClassVar, Literal
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Complex, Float
 
 from ..core._arguments import check_drive
-from ..util._errors import InputError
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, UnitInterval, encode
 from ..core._simulation import AbstractSimulation
+from ..util._errors import InputError
 from ._strip import Strip
 
 Method = Literal["tustin", "zoh"]
@@ -82,6 +80,7 @@ class RCNetwork(AbstractSimulation):
         "alpha_C": UnitInterval(),
         "C_clamp": Positive(),
     }
+    output_unit: ClassVar[str] = "V"
     units: ClassVar[dict[str, str]] = {
         "xi_rho": "1",
         "xi_h": "1",
@@ -152,7 +151,7 @@ class RCNetwork(AbstractSimulation):
         return {"n_stages": self.n_stages, "method": self.method, "strip": self.strip.to_dict()}
 
     @classmethod
-    def from_config(cls, config: dict) -> "RCNetwork":
+    def from_config(cls, config: dict) -> RCNetwork:
         return cls(strip=Strip.from_dict(config["strip"]), n_stages=config["n_stages"], method=config["method"])
 
     # --- Eqs 4–9 -------------------------------------------------------------
@@ -260,7 +259,7 @@ def cascade_filter(b0, b1, a1, x: Float[Array, " time"], block: int = BLOCK) -> 
     per sample, as dense, vectorisable work instead of T·K dependent scalar steps.
     """
     dtype = jnp.result_type(x, b0)
-    H, O, A_L, C = _block_matrices(b0.astype(dtype), b1.astype(dtype), a1.astype(dtype), block)
+    H, O, A_L, C = block_matrices(b0.astype(dtype), b1.astype(dtype), a1.astype(dtype), block)
     return lifted_response(H, O, A_L, C, x.astype(dtype))
 
 
@@ -285,7 +284,7 @@ def lifted_response(H, O, A_L, C, x):
     return (forced + dot(states, O.T)).reshape(-1)[:length]
 
 
-def _block_matrices(b0, b1, a1, block):
+def block_matrices(b0, b1, a1, block):
     """H, O, A^L, C of `cascade_filter` by running the sections on unit excitations.
 
     Columns 0..L−1 are unit impulses at the input at samples 0..L−1 with every

@@ -80,7 +80,7 @@ class Strip:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "Strip":
+    def from_dict(cls, data: dict) -> Strip:
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - known
         if unknown:

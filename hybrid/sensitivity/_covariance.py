@@ -8,9 +8,9 @@ from typing import Any
 import equinox as eqx
 import numpy as np
 
-from ..util._errors import InputError
 from ..core._models import Model
-from ._views import _free_names, _named, _ordered_names, _physical_map
+from ..util._errors import InputError
+from ._views import free_names, named_parameters, ordered_names, physical_map
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,10 +155,10 @@ def problem_covariance(problem, theta, *, noise_std: float | None = None, rcond:
         recorded = np.asarray(weights) > 0
         r, J = r[recorded], J[recorded]
     m, n = J.shape
-    named = _named(model)
-    all_names = _ordered_names(model)
-    D = np.asarray(_physical_map(_ProblemView(problem), theta, all_names))
-    names, rows = _free_names(D, all_names)
+    named = named_parameters(model)
+    all_names = ordered_names(model)
+    D = np.asarray(physical_map(_ProblemView(problem), theta, all_names))
+    names, rows = free_names(D, all_names)
     D = D[rows]
     if not names:
         raise InputError("no free named parameters: everything named is frozen")

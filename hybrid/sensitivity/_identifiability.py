@@ -9,7 +9,6 @@ import numpy as np
 
 from ..util._errors import InputError
 
-
 #: The keys of `Identifiability.to_dict` a study's report carries (all but names and directions).
 SUMMARY_KEYS = ("singular_values", "relative_singular_values", "null_directions", "near_null_directions",
                 "collinear_pairs", "cosines", "tolerances")

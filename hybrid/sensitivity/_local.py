@@ -10,10 +10,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..util._errors import InputError
 from ..core._models import Model
+from ..util._errors import InputError
 from ._identifiability import Identifiability, identifiability
-from ._views import _free_names, _free_theta, _named, _ordered_names, _physical_map, _raw_to_physical_columns
+from ._views import (
+    free_names,
+    free_theta,
+    named_parameters,
+    ordered_names,
+    physical_map,
+    raw_to_physical_columns,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,7 +65,7 @@ class Sensitivity:
         s = np.sqrt(np.mean(self.normalised() ** 2, axis=0))
         return dict(zip(self.names, map(float, s)))
 
-    def identifiability(self, **tolerances) -> "Identifiability":
+    def identifiability(self, **tolerances) -> Identifiability:
         """[`identifiability`][] of the normalised sensitivities (log-parameter coordinates)."""
         return identifiability(self.normalised() / np.sqrt(self.output.shape[0]), self.names, **tolerances)
 
@@ -95,16 +102,16 @@ def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensi
         raise InputError("the drive contains NaN or infinite values")
     if not (np.isfinite(dt) and dt > 0):
         raise InputError(f"the sample interval dt must be a positive number of seconds, got {dt!r}")
-    named = _named(target)
-    theta, view = _free_theta(target, frozen)
+    named = named_parameters(target)
+    theta, view = free_theta(target, frozen)
     if theta.size == 0:
         raise InputError("no free named parameters: nothing to take sensitivities to")
-    all_names = _ordered_names(target)
-    D = _physical_map(view, theta, all_names)
-    names, rows = _free_names(D, all_names)
+    all_names = ordered_names(target)
+    D = physical_map(view, theta, all_names)
+    names, rows = free_names(D, all_names)
     model_output = isinstance(target, Model)
     y, J_raw = _jacobian(view, theta, v_in, float(dt), model_output)
-    J = _raw_to_physical_columns(J_raw, np.asarray(D)[rows])
+    J = raw_to_physical_columns(J_raw, np.asarray(D)[rows])
     units = target.units if isinstance(target, Model) else _simulation_units(target)
     return Sensitivity(
         names=tuple(names),
@@ -112,7 +119,7 @@ def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensi
         units={n: units.get(n, "") for n in names},
         dt=float(dt),
         output=np.asarray(y),
-        output_unit="mm" if model_output else ("V" if _is_rc(target) else ""),
+        output_unit="mm" if model_output else getattr(target, "output_unit", ""),
         jacobian=J,
     )
 
@@ -121,10 +128,6 @@ def _simulation_units(simulation) -> dict[str, str]:
     if hasattr(simulation, "parameter_units"):
         return dict(simulation.parameter_units())
     return dict(getattr(type(simulation), "units", {}))
-
-
-def _is_rc(simulation) -> bool:
-    return type(simulation).__name__ == "RCNetwork"
 
 
 # --------------------------------------------------------------------------- frequency domain
@@ -139,17 +142,17 @@ def frequency_sensitivity(simulation, frequency, *, frozen=frozenset()) -> dict[
     if not hasattr(simulation, "frequency_response"):
         raise InputError(f"{type(simulation).__name__} has no frequency_response")
     f = jnp.asarray(frequency, dtype=float)
-    named = _named(simulation)
-    theta, view = _free_theta(simulation, frozen)
-    all_names = _ordered_names(simulation)
-    D = _physical_map(view, theta, all_names)
-    names, rows = _free_names(D, all_names)
+    named = named_parameters(simulation)
+    theta, view = free_theta(simulation, frozen)
+    all_names = ordered_names(simulation)
+    D = physical_map(view, theta, all_names)
+    names, rows = free_names(D, all_names)
 
     def log_h(th):
         H = view.rebuild(th).frequency_response(f)
         return jnp.concatenate([jnp.log(jnp.abs(H)), jnp.unwrap(jnp.angle(H))])
 
-    J = _raw_to_physical_columns(eqx.filter_jit(jax.jacfwd(log_h))(theta), np.asarray(D)[rows])
+    J = raw_to_physical_columns(eqx.filter_jit(jax.jacfwd(log_h))(theta), np.asarray(D)[rows])
     J = J * np.array([float(named[n]) for n in names])
     F = f.shape[0]
     return {"frequency": np.asarray(f), "names": names, "magnitude": J[:F], "phase": J[F:]}

@@ -9,9 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..util._errors import InputError
 from ..core._models import Model
-from ._views import _free_names, _free_theta, _named, _ordered_names, _physical_map
+from ..util._errors import InputError
+from ._views import free_names, free_theta, named_parameters, ordered_names, physical_map
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,13 +72,13 @@ def sobol_indices(
     if not (np.isfinite(spread) and spread > 0):
         raise InputError(f"spread must be a positive number, got {spread!r}")
     v_in = jnp.asarray(v_in)
-    named = _named(target)
-    theta, view = _free_theta(target, frozen)
+    named_parameters(target)  # refuses a target that is neither a Model nor a simulation
+    theta, view = free_theta(target, frozen)
     if theta.size == 0:
         raise InputError("no free named parameters to sample")
-    all_names = _ordered_names(target)
-    D = np.asarray(_physical_map(view, theta, all_names))
-    names, rows = _free_names(D, all_names)
+    all_names = ordered_names(target)
+    D = np.asarray(physical_map(view, theta, all_names))
+    names, rows = free_names(D, all_names)
     if len(names) != theta.size:
         raise InputError("Sobol sampling needs one raw value per named parameter")
     # column order of θ ↔ name: the named parameter whose row of D is non-zero there

@@ -14,9 +14,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from ..util._errors import InputError
 from ..core._models import Model
 from ..core._simulation import AbstractSimulation
+from ..util._errors import InputError
 
 
 class _View(eqx.Module):
@@ -29,7 +29,7 @@ class _View(eqx.Module):
         return eqx.combine(self.unravel(theta), self.static)
 
 
-def _free_theta(target, frozen=frozenset()):
+def free_theta(target, frozen=frozenset()):
     """θ (free raw values, flattened) and a `_View` for a simulation or a model.
 
     A model's black-box readout weights (``"network"``) are always left out:
@@ -52,7 +52,7 @@ def _free_theta(target, frozen=frozenset()):
     return theta, _View(static, unravel)
 
 
-def _named(target) -> dict[str, jax.Array]:
+def named_parameters(target) -> dict[str, jax.Array]:
     if not isinstance(target, (Model, AbstractSimulation)):
         raise InputError(
             f"sensitivities need an AbstractSimulation or a Model, got {type(target).__name__}"
@@ -65,7 +65,7 @@ def _named(target) -> dict[str, jax.Array]:
     return values
 
 
-def _physical_map(view, theta, names):
+def physical_map(view, theta, names):
     """D = ∂θ_phys/∂θ_raw (k_named × n_raw) by forward mode (the reparameterisation's derivative)."""
     def physical(th):
         values = view.rebuild(th).parameters()
@@ -74,22 +74,22 @@ def _physical_map(view, theta, names):
     return jax.jacfwd(physical)(theta)
 
 
-def _free_names(D, names, tol=0.0):
+def free_names(D, names, tol=0.0):
     """Named parameters that depend on θ (rows of D that are not all zero)."""
     rows = np.flatnonzero(np.any(np.abs(np.asarray(D)) > tol, axis=1))
     return [names[i] for i in rows], rows
 
 
-def _ordered_names(target) -> list[str]:
+def ordered_names(target) -> list[str]:
     """Parameter names in their class's declaration order (pytree operations sort dict keys)."""
-    names = list(_named(target))
+    names = list(named_parameters(target))
     parts = (target.simulation, target.readout) if isinstance(target, Model) else (target,)
     declared = [n for part in parts for n in getattr(type(part), "constraints", {})]
     rank = {n: i for i, n in enumerate(declared)}
     return sorted(names, key=lambda n: (rank.get(n, len(rank)), names.index(n)))
 
 
-def _raw_to_physical_columns(J_raw, D):
+def raw_to_physical_columns(J_raw, D):
     """∂y/∂θ_phys from ∂y/∂θ_raw when D (named × raw) is square and invertible."""
     D = np.asarray(D)
     if D.shape[0] != D.shape[1]:

@@ -18,7 +18,7 @@ def save_png(fig, path, dpi: int = 120) -> None:
         plt.close(fig)
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -34,7 +34,7 @@ def _normalised(x):
 
 def plot_mediatory_figure(recording, model, path, seconds: float = 60.0):
     """Fig 3: V_i, the computed V_o and w, each divided by its max |·|, with correlations to w."""
-    plt = _pyplot()
+    plt = pyplot()
     v_o = np.asarray(model.mediatory(recording.v_in, recording.dt))
     n = min(len(recording), int(seconds * recording.rate))
     t = recording.t[:n]
@@ -53,7 +53,7 @@ def plot_mediatory_figure(recording, model, path, seconds: float = 60.0):
 
 def plot_fit_figure(recording, results, row: str, path, seconds: float = 90.0):
     """Figs 10–13: target and the Normal and Hybrid predictions on the test split."""
-    plt = _pyplot()
+    plt = pyplot()
     split = recording.split()
     test = split.slices["test"]
     start = test.start

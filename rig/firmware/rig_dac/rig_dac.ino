@@ -2,7 +2,7 @@
 //
 // Arduino UNO (ATmega328P, 16 MHz) + MCP4725 12-bit I2C DAC (SDA A4, SCL A5),
 // sync LED on D13 (PB5, the on-board LED). The protocol is documented in
-// rig/README.md and mirrored by rig/_protocol.py; the constants marked
+// rig/README.md and mirrored by rig/protocol.py; the constants marked
 // "protocol" below are checked against the Python side by the tests.
 //
 // Design (why it looks like this):

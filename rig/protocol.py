@@ -189,7 +189,7 @@ class Message:
     seq: int
 
     @classmethod
-    def decode(cls, frame: Frame) -> "Message":
+    def decode(cls, frame: Frame) -> Message:
         if len(frame.payload) != struct.calcsize(cls.FORMAT):
             raise ValueError(
                 f"{cls.__name__} frame has {len(frame.payload)} payload bytes, "
