@@ -54,7 +54,9 @@ def relaxing_strip(seed: int, duration: float, rate: float):
 
     rng = np.random.default_rng(seed)
     strip, params = random_strip(rng), random_effect("back_relaxation", rng, rate)
-    return synthetic_recording(discrepancy_drive(duration, rate, seed), strip, "back_relaxation", params, seed=seed)
+    return synthetic_recording(
+        discrepancy_drive(duration, rate, seed), strip, "back_relaxation", params, seed=seed
+    )
 
 
 def sos_sections(network, dt):

@@ -62,16 +62,24 @@ def compare(kind, recordings, n_loop, **options):
     loop_wall = time.perf_counter() - t0
     diff = max(
         abs(b.parameters[k] - s.parameters[k]) / max(abs(s.parameters[k]), 1e-12)
-        for b, s in zip(batch.results, singles) for k in s.parameters
+        for b, s in zip(batch.results, singles)
+        for k in s.parameters
     )
-    nmse_diff = max(abs(b.metrics["test"]["nmse"] - s.metrics["test"]["nmse"]) / s.metrics["test"]["nmse"]
-                    for b, s in zip(batch.results, singles))
+    nmse_diff = max(
+        abs(b.metrics["test"]["nmse"] - s.metrics["test"]["nmse"]) / s.metrics["test"]["nmse"]
+        for b, s in zip(batch.results, singles)
+    )
     per_fit_loop = loop_wall / n_loop
     return {
-        "recordings": len(recordings), "samples_each": recordings[0].n, "options": {k: str(v) for k, v in options.items()},
-        "batch_wall_s": batch_wall, "batch_compile_s": batch.compile_seconds,
+        "recordings": len(recordings),
+        "samples_each": recordings[0].n,
+        "options": {k: str(v) for k, v in options.items()},
+        "batch_wall_s": batch_wall,
+        "batch_compile_s": batch.compile_seconds,
         "batch_fits_per_s_after_compile": batch.fits_per_second,
-        "loop_fits_run": n_loop, "loop_wall_s": loop_wall, "loop_s_per_fit": per_fit_loop,
+        "loop_fits_run": n_loop,
+        "loop_wall_s": loop_wall,
+        "loop_s_per_fit": per_fit_loop,
         "loop_wall_s_extrapolated_to_all": per_fit_loop * len(recordings),
         "speedup_wall_vs_loop": per_fit_loop * len(recordings) / batch_wall,
         "max_relative_parameter_difference_batch_vs_loop": diff,
@@ -87,13 +95,23 @@ def main():
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args()
     c.setup_jax()
-    out = {"command": "python benchmarks/batch_fit.py" + (" --quick" if args.quick else ""), "machine": c.machine()}
+    out = {
+        "command": "python benchmarks/batch_fit.py" + (" --quick" if args.quick else ""),
+        "machine": c.machine(),
+    }
     n, n_loop = (16, 4) if args.quick else (64, 8)
     out["physics"] = compare("physics", strips(n, 120.0), n_loop, frozen={"xi_h"}, max_steps=100)
     print("physics", out["physics"], flush=True)
     if not args.quick:
-        out["hybrid"] = compare("hybrid", strips(16, 60.0, seed=1), 2, frozen={"xi_h"}, max_steps=10,
-                                weight_decay=0.1, batch_size=4)
+        out["hybrid"] = compare(
+            "hybrid",
+            strips(16, 60.0, seed=1),
+            2,
+            frozen={"xi_h"},
+            max_steps=10,
+            weight_decay=0.1,
+            batch_size=4,
+        )
         print("hybrid", out["hybrid"], flush=True)
     out["load_after"] = c.machine()["load_average_1_5_15"]
     c.write("batch_fit_quick.json" if args.quick else "batch_fit.json", out)

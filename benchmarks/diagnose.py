@@ -62,38 +62,88 @@ def main() -> None:
         t0 = time.perf_counter()
         out = fn(*a, **k)
         seconds = time.perf_counter() - t0
-        return out, {"s": seconds, "compiling_s": compiling["s"] - before["s"],
-                     "running_s": seconds - (compiling["s"] - before["s"]),
-                     "programs": compiling["programs"] - before["programs"]}
+        return out, {
+            "s": seconds,
+            "compiling_s": compiling["s"] - before["s"],
+            "running_s": seconds - (compiling["s"] - before["s"]),
+            "programs": compiling["programs"] - before["programs"],
+        }
 
     found, cold = timed(diagnose, first)
     found2, warm = timed(diagnose, second)
-    _, peer = timed(fit, make_model("physics", simulation=RCNetwork(method="zoh")), [second], max_steps=120,
-                    frozen={"xi_h"}, split=(0.6, 0.1, 0.3), split_order=("train", "validation", "test"),
-                    progress=False)
+    _, peer = timed(
+        fit,
+        make_model("physics", simulation=RCNetwork(method="zoh")),
+        [second],
+        max_steps=120,
+        frozen={"xi_h"},
+        split=(0.6, 0.1, 0.3),
+        split_order=("train", "validation", "test"),
+        progress=False,
+    )
     cli = []
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "HYBRID_JAX_CACHE": str(Path(tmp) / "cache")}
-        for run, rec in enumerate((first, second)):  # the warm run reads another recording: no data in the cache key
+        for run, rec in enumerate(
+            (first, second)
+        ):  # the warm run reads another recording: no data in the cache key
             path = Path(tmp) / f"recording{run}.csv"
             rec.save(path)
             t0 = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "hybrid.cli", "diagnose", str(path), "--out", str(Path(tmp) / f"out{run}"),
-                            "--quiet"], env=env, check=True, capture_output=True)
+            subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "hybrid.cli",
+                    "diagnose",
+                    str(path),
+                    "--out",
+                    str(Path(tmp) / f"out{run}"),
+                    "--quiet",
+                ],
+                env=env,
+                check=True,
+                capture_output=True,
+            )
             cli.append(time.perf_counter() - t0)
         t0 = time.perf_counter()  # the peer from the command line, with the same cache
-        subprocess.run([sys.executable, "-m", "hybrid.cli", "fit", str(Path(tmp) / "recording1.csv"), "--model",
-                        "physics", "--physics", "rc", "--out", str(Path(tmp) / "fit.eqx")],
-                       env=env, check=True, capture_output=True)
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "hybrid.cli",
+                "fit",
+                str(Path(tmp) / "recording1.csv"),
+                "--model",
+                "physics",
+                "--physics",
+                "rc",
+                "--out",
+                str(Path(tmp) / "fit.eqx"),
+            ],
+            env=env,
+            check=True,
+            capture_output=True,
+        )
         cli_fit = time.perf_counter() - t0
     out = {
-        "samples": len(first), "rate_hz": args.rate, "duration_s": args.duration,
-        "diagnose_first_call": cold, "diagnose_second_call": warm, "physics_fit_first_call": peer,
-        "diagnose_first_call_s": cold["s"], "diagnose_second_call_s": warm["s"],
-        "physics_fit_first_call_s": peer["s"], "second_call_over_one_fit": warm["s"] / peer["s"],
-        "cli_empty_cache_s": cli[0], "cli_warm_cache_s": cli[1], "cli_physics_fit_s": cli_fit,
-        "cli_empty_cache_over_cli_fit": cli[0] / cli_fit, "cli_warm_cache_over_cli_fit": cli[1] / cli_fit,
-        "targets_s": {"cli_warm_cache": 20.0, "cli_empty_cache": 40.0}, "named": [found.cause, found2.cause],
+        "samples": len(first),
+        "rate_hz": args.rate,
+        "duration_s": args.duration,
+        "diagnose_first_call": cold,
+        "diagnose_second_call": warm,
+        "physics_fit_first_call": peer,
+        "diagnose_first_call_s": cold["s"],
+        "diagnose_second_call_s": warm["s"],
+        "physics_fit_first_call_s": peer["s"],
+        "second_call_over_one_fit": warm["s"] / peer["s"],
+        "cli_empty_cache_s": cli[0],
+        "cli_warm_cache_s": cli[1],
+        "cli_physics_fit_s": cli_fit,
+        "cli_empty_cache_over_cli_fit": cli[0] / cli_fit,
+        "cli_warm_cache_over_cli_fit": cli[1] / cli_fit,
+        "targets_s": {"cli_warm_cache": 20.0, "cli_empty_cache": 40.0},
+        "named": [found.cause, found2.cause],
         "machine": c.machine(),
         "command": "python benchmarks/diagnose.py",
     }

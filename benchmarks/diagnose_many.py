@@ -77,25 +77,37 @@ def main() -> None:
         releases = DIAGNOSE_PROGRAMS.releases
         t0 = time.perf_counter()
         found = hy.diagnose(lag_recording(n, i, order), simulation=hy.LTI(order))
-        rows.append({
-            "call": i + 1, "samples": n, "simulation": f"LTI({order})", "cause": found.cause,
-            "seconds": time.perf_counter() - t0,
-            "compile_s": counts["compile_s"] - before.get("compile_s", 0.0),
-            "programs": counts["programs"] - before.get("programs", 0),
-            "large_programs": counts["large"] - before.get("large", 0),
-            "released": DIAGNOSE_PROGRAMS.releases > releases,
-            "maps": memory_maps(),
-        })
+        rows.append(
+            {
+                "call": i + 1,
+                "samples": n,
+                "simulation": f"LTI({order})",
+                "cause": found.cause,
+                "seconds": time.perf_counter() - t0,
+                "compile_s": counts["compile_s"] - before.get("compile_s", 0.0),
+                "programs": counts["programs"] - before.get("programs", 0),
+                "large_programs": counts["large"] - before.get("large", 0),
+                "released": DIAGNOSE_PROGRAMS.releases > releases,
+                "maps": memory_maps(),
+            }
+        )
         print(rows[-1], flush=True)
     maps = [r["maps"] for r in rows]
     out = {
-        "calls": len(rows), "distinct_lengths": len({r["samples"] for r in rows}),
+        "calls": len(rows),
+        "distinct_lengths": len({r["samples"] for r in rows}),
         "simulations": sorted({r["simulation"] for r in rows}),
-        "maps_after_2nd": maps[1], "maps_last": maps[-1], "maps_max": max(maps),
-        "growth_2nd_to_last": maps[-1] / maps[1] - 1.0, "target_growth": 0.25,
-        "max_map_count": map_limit(), "releases": DIAGNOSE_PROGRAMS.releases,
-        "seconds_total": sum(r["seconds"] for r in rows), "rows": rows,
-        "machine": c.machine(), "command": "python benchmarks/diagnose_many.py" + (" --quick" if args.quick else ""),
+        "maps_after_2nd": maps[1],
+        "maps_last": maps[-1],
+        "maps_max": max(maps),
+        "growth_2nd_to_last": maps[-1] / maps[1] - 1.0,
+        "target_growth": 0.25,
+        "max_map_count": map_limit(),
+        "releases": DIAGNOSE_PROGRAMS.releases,
+        "seconds_total": sum(r["seconds"] for r in rows),
+        "rows": rows,
+        "machine": c.machine(),
+        "command": "python benchmarks/diagnose_many.py" + (" --quick" if args.quick else ""),
     }
     del jax
     c.write("diagnose_many.json" if not args.quick else "diagnose_many_quick.json", out)

@@ -107,8 +107,13 @@ def run(duration=600.0, max_seconds=120.0):
     def nmse(theta):
         return float(hy.nmse(w_test, np.asarray(predict_test(problem, theta))))
 
-    out = {"target_test_nmse": target, "target_from": source, "samples": rec.n,
-           "start_test_nmse": nmse(theta0), "n_parameters": int(theta0.size)}
+    out = {
+        "target_test_nmse": target,
+        "target_from": source,
+        "samples": rec.n,
+        "start_test_nmse": nmse(theta0),
+        "n_parameters": int(theta0.size),
+    }
 
     # --- LM (ours) -------------------------------------------------------------
     settings = LMSettings(max_steps=10**6, patience=0)
@@ -129,8 +134,14 @@ def run(duration=600.0, max_seconds=120.0):
             reached = clock
         if bool(state.done):
             break
-    out["lm"] = {"seconds_to_target": reached, "compile_s": compile_lm, "steps": int(state.step),
-                 "final_test_nmse": trace[-1][1], "final_cost": trace[-1][2], "seconds_total": clock}
+    out["lm"] = {
+        "seconds_to_target": reached,
+        "compile_s": compile_lm,
+        "steps": int(state.step),
+        "final_test_nmse": trace[-1][1],
+        "final_cost": trace[-1][2],
+        "seconds_total": clock,
+    }
     lm_trace = trace
 
     # --- Adam (optax) -----------------------------------------------------------
@@ -161,9 +172,15 @@ def run(duration=600.0, max_seconds=120.0):
         trace.append((clock, e, float(cost(problem, theta))))
         if reached is None and e <= target:
             reached = clock
-    out["adam"] = {"seconds_to_target": reached, "compile_s": compile_adam, "steps": steps,
-                   "final_test_nmse": trace[-1][1], "final_cost": trace[-1][2], "seconds_total": clock,
-                   "learning_rate": 1e-2}
+    out["adam"] = {
+        "seconds_to_target": reached,
+        "compile_s": compile_adam,
+        "steps": steps,
+        "final_test_nmse": trace[-1][1],
+        "final_cost": trace[-1][2],
+        "seconds_total": clock,
+        "learning_rate": 1e-2,
+    }
     adam_trace = trace
 
     # --- scipy.optimize.least_squares on numpy + sosfilt --------------------------
@@ -172,9 +189,16 @@ def run(duration=600.0, max_seconds=120.0):
     free = [n_ for n_ in names if n_ not in frozen]
     fixed = {k: float(v) for k, v in start.parameters().items()}
     constraint = {**start.simulation.constraints, **start.readout.constraints}
-    to_phys = {k: (np.exp if isinstance(constraint[k], hy.Positive) else
-                   (lambda r: 1 / (1 + np.exp(-r))) if isinstance(constraint[k], hy.UnitInterval) else
-                   (lambda r: r)) for k in free}
+    to_phys = {
+        k: (
+            np.exp
+            if isinstance(constraint[k], hy.Positive)
+            else (lambda r: 1 / (1 + np.exp(-r)))
+            if isinstance(constraint[k], hy.UnitInterval)
+            else (lambda r: r)
+        )
+        for k in free
+    }
     raw0 = np.array([float(constraint[k].to_raw(fixed[k])) for k in free])
     (a, b), (ta, tb) = series.segments_of("train")[0], series.segments_of("test")[0]
     v, w = np.asarray(rec.v_in), np.asarray(rec.w)
@@ -201,10 +225,15 @@ def run(duration=600.0, max_seconds=120.0):
     scipy_clock["start"] = time.perf_counter()
     sol = scipy.optimize.least_squares(residuals, raw0, method="trf", max_nfev=2000)
     wall = time.perf_counter() - scipy_clock["start"] - scipy_clock["off"]
-    out["scipy"] = {"seconds_to_target": scipy_clock["reached"], "evaluations": int(sol.nfev),
-                    "jacobian_evaluations": int(sol.njev or 0),
-                    "final_test_nmse": float(hy.nmse(w[ta:tb], predict(sol.x)[ta:tb])),
-                    "final_cost": float(sol.cost), "seconds_total": wall, "status": int(sol.status)}
+    out["scipy"] = {
+        "seconds_to_target": scipy_clock["reached"],
+        "evaluations": int(sol.nfev),
+        "jacobian_evaluations": int(sol.njev or 0),
+        "final_test_nmse": float(hy.nmse(w[ta:tb], predict(sol.x)[ta:tb])),
+        "final_cost": float(sol.cost),
+        "seconds_total": wall,
+        "status": int(sol.status),
+    }
     scipy_trace = scipy_clock["trace"]
 
     best = min(out["lm"]["final_cost"], out["adam"]["final_cost"], out["scipy"]["final_cost"])
@@ -213,7 +242,9 @@ def run(duration=600.0, max_seconds=120.0):
         out[key]["seconds_to_cost_within_1pct"] = hits[0] if hits else None
     for key in ("adam", "scipy"):
         if out[key]["seconds_to_target"] and out["lm"]["seconds_to_target"]:
-            out[f"ratio_{key}_over_lm_to_target"] = out[key]["seconds_to_target"] / out["lm"]["seconds_to_target"]
+            out[f"ratio_{key}_over_lm_to_target"] = (
+                out[key]["seconds_to_target"] / out["lm"]["seconds_to_target"]
+            )
     return out
 
 
@@ -222,7 +253,10 @@ def main():
     parser.add_argument("--quick", action="store_true", help="120 s recording, 30 s cap for Adam")
     args = parser.parse_args()
     c.setup_jax()
-    out = {"command": "python benchmarks/fitting.py" + (" --quick" if args.quick else ""), "machine": c.machine()}
+    out = {
+        "command": "python benchmarks/fitting.py" + (" --quick" if args.quick else ""),
+        "machine": c.machine(),
+    }
     out.update(run(120.0, 30.0) if args.quick else run())
     print(json.dumps({k: v for k, v in out.items() if k != "machine"}, indent=1))
     c.write("fitting_quick.json" if args.quick else "fitting.json", out)

@@ -42,12 +42,22 @@ def run(repeats=5):
     for name in sens.names:
         value = sens.values[name]
         step = 1e-6 * value
-        perturbed.append((c.sos_sections(net.replace(**{name: value + step}), DT),
-                          c.sos_sections(net.replace(**{name: value - step}), DT), step))
+        perturbed.append(
+            (
+                c.sos_sections(net.replace(**{name: value + step}), DT),
+                c.sos_sections(net.replace(**{name: value - step}), DT),
+                step,
+            )
+        )
 
     def finite_differences():  # the filter runs only: the sections are precomputed
-        return np.stack([(scipy.signal.sosfilt(hi, x) - scipy.signal.sosfilt(lo, x)) / (2 * step)
-                         for hi, lo, step in perturbed], axis=1)
+        return np.stack(
+            [
+                (scipy.signal.sosfilt(hi, x) - scipy.signal.sosfilt(lo, x)) / (2 * step)
+                for hi, lo, step in perturbed
+            ],
+            axis=1,
+        )
 
     times = []
     for _ in range(3):
@@ -56,11 +66,13 @@ def run(repeats=5):
         times.append(time.perf_counter() - t0)
     errors = {n: c.relative_error(sens.jacobian[:, j], fd[:, j]) for j, n in enumerate(sens.names)}
     return {
-        "samples": int(x.size), "parameters": list(sens.names),
-        "jacfwd_s": ours, "jacfwd_first_call_s": first,
+        "samples": int(x.size),
+        "parameters": list(sens.names),
+        "jacfwd_s": ours,
+        "jacfwd_first_call_s": first,
         "finite_differences_sosfilt_s": min(times),
         "note": "finite differences: 12 sosfilt runs with precomputed sections; jacfwd: sections, "
-                "tangents and the mapping to physical units included",
+        "tangents and the mapping to physical units included",
         "max_relative_difference": max(errors.values()),
         "relative_difference_per_parameter": errors,
     }

@@ -44,8 +44,7 @@ def _problem(n_residuals):
     n = n_residuals
     v = np.repeat(rng.uniform(-2, 2, n // 30 + 1), 30)[:n]
     w = np.tanh(v) + 0.01 * rng.standard_normal(n)
-    series = Series(jnp.asarray(v), jnp.asarray(w), 1 / 30,
-                    (("train", ((0, n),)), ("validation", ((0, n),))))
+    series = Series(jnp.asarray(v), jnp.asarray(w), 1 / 30, (("train", ((0, n),)), ("validation", ((0, n),))))
     model = hy.make_model("hybrid", key=jax.random.key(0))
     problem = Problem(model, [series])
     return problem, problem.flatten(model)
@@ -80,9 +79,13 @@ def run_structured(n_residuals, repeats=5):
         times.append(time.perf_counter() - t0)
     if int(state.accepted) != 1:
         raise RuntimeError("the timed step was not accepted: the benchmark would time the cheap branch")
-    return {"seconds_per_step": min(times), "compile_and_first_step_s": compile_s,
-            "step": "accepted (Jacobian + normal equations + Cholesky + costs)",
-            "peak_gb": _peak_gb(), "n_parameters": int(theta.size)}
+    return {
+        "seconds_per_step": min(times),
+        "compile_and_first_step_s": compile_s,
+        "step": "accepted (Jacobian + normal equations + Cholesky + costs)",
+        "peak_gb": _peak_gb(),
+        "n_parameters": int(theta.size),
+    }
 
 
 def run_optimistix(n_residuals, repeats=2):
@@ -106,8 +109,12 @@ def run_optimistix(n_residuals, repeats=2):
         y, state, _ = step(y, state)
         jax.block_until_ready(y)
         times.append(time.perf_counter() - t0)
-    return {"seconds_per_step": min(times), "compile_and_first_step_s": compile_s,
-            "peak_gb": _peak_gb(), "n_parameters": int(theta.size)}
+    return {
+        "seconds_per_step": min(times),
+        "compile_and_first_step_s": compile_s,
+        "peak_gb": _peak_gb(),
+        "n_parameters": int(theta.size),
+    }
 
 
 def _child(which, n_residuals):
@@ -129,8 +136,11 @@ def main():
         return
     out = {"residuals": args.residuals, "command": "python benchmarks/lm_step.py"}
     for which in ("structured",) + (() if args.skip_optimistix else ("optimistix",)):
-        proc = subprocess.run([sys.executable, __file__, "--child", which, "--residuals", str(args.residuals)],
-                              capture_output=True, text=True)
+        proc = subprocess.run(
+            [sys.executable, __file__, "--child", which, "--residuals", str(args.residuals)],
+            capture_output=True,
+            text=True,
+        )
         if proc.returncode != 0:
             out[which] = {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr else "failed"}
         else:
@@ -138,12 +148,16 @@ def main():
         print(which, out[which], flush=True)
     if "seconds_per_step" in out.get("optimistix", {}):
         out["time_ratio_optimistix_over_structured"] = (
-            out["optimistix"]["seconds_per_step"] / out["structured"]["seconds_per_step"])
+            out["optimistix"]["seconds_per_step"] / out["structured"]["seconds_per_step"]
+        )
         out["memory_ratio_optimistix_over_structured"] = (
-            out["optimistix"]["peak_gb"] / out["structured"]["peak_gb"])
+            out["optimistix"]["peak_gb"] / out["structured"]["peak_gb"]
+        )
     s = out["structured"]
-    out["targets"] = {"step_le_0.5_s": s.get("seconds_per_step", 1e9) <= 0.5,
-                      "peak_le_1.5_GB": s.get("peak_gb", 1e9) <= 1.5}
+    out["targets"] = {
+        "step_le_0.5_s": s.get("seconds_per_step", 1e9) <= 0.5,
+        "peak_le_1.5_GB": s.get("peak_gb", 1e9) <= 1.5,
+    }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "lm_step.json").write_text(json.dumps(out, indent=2))
     print(json.dumps({k: v for k, v in out.items() if k not in ("structured", "optimistix")}, indent=2))

@@ -66,8 +66,9 @@ def write_csv(path: Path, n: int, seed: int = 0) -> None:
     u = scipy.signal.lfilter(b, a, rng.normal(size=n))
     u /= np.std(u)
     w0, zeta = 2 * np.pi * 800.0, 0.1  # a mode at 800 Hz
-    ad, bd, cd, dd, _ = scipy.signal.cont2discrete(scipy.signal.tf2ss([w0**2], [1.0, 2 * zeta * w0, w0**2]),
-                                                   1.0 / RATE, method="zoh")
+    ad, bd, cd, dd, _ = scipy.signal.cont2discrete(
+        scipy.signal.tf2ss([w0**2], [1.0, 2 * zeta * w0, w0**2]), 1.0 / RATE, method="zoh"
+    )
     y = scipy.signal.dlsim((ad, bd, cd, dd, 1.0 / RATE), u)[1][:, 0] + 0.01 * rng.normal(size=n)
     with open(path, "w") as f:
         f.write("u_cmd,y_meas\n")
@@ -75,8 +76,10 @@ def write_csv(path: Path, n: int, seed: int = 0) -> None:
 
 
 #: Runs argv[1:] and prints that one child's peak RSS (kB) last on stderr: a peak of its own.
-_PEAK = ("import resource, subprocess, sys; p = subprocess.run(sys.argv[1:]); "
-         "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); sys.exit(p.returncode)")
+_PEAK = (
+    "import resource, subprocess, sys; p = subprocess.run(sys.argv[1:]); "
+    "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); sys.exit(p.returncode)"
+)
 
 
 def child_peak(argv: list[str]) -> dict:
@@ -96,23 +99,62 @@ def measure(n: int, steps: int, folder: Path) -> dict:
     t0 = time.perf_counter()
     write_csv(path, n)
     cases = {"csv_mb": path.stat().st_size / 1e6, "write_seconds": time.perf_counter() - t0}
-    load = ("import hybrid, sys; r = hybrid.load_mapped(sys.argv[1], columns='input=u_cmd,output=y_meas', "
-            "rate=100000); print(r.n)")
+    load = (
+        "import hybrid, sys; r = hybrid.load_mapped(sys.argv[1], columns='input=u_cmd,output=y_meas', "
+        "rate=100000); print(r.n)"
+    )
     cases["load"] = child_peak([sys.executable, "-c", load, str(path)])
-    cases["fit lti:2"] = child_peak([sys.executable, "-m", "hybrid.cli", "fit", str(path), "--columns",
-                                     "input=u_cmd,output=y_meas", "--rate", "100000", "--physics", "lti:2",
-                                     "--model", "physics", "--max-steps", str(steps), "--quiet",
-                                     "--out", str(folder / f"m_{n}.eqx"), "--json", str(folder / f"fit_{n}.json")])
-    cases["fit hybrid"] = child_peak([sys.executable, "-m", "hybrid.cli", "fit", str(path), "--columns",
-                                      "input=u_cmd,output=y_meas", "--rate", "100000", "--physics", "lti:2",
-                                      "--model", "hybrid", "--max-steps", str(HYBRID_STEPS), "--quiet",
-                                      "--out", str(folder / f"h_{n}.eqx")])
+    cases["fit lti:2"] = child_peak(
+        [
+            sys.executable,
+            "-m",
+            "hybrid.cli",
+            "fit",
+            str(path),
+            "--columns",
+            "input=u_cmd,output=y_meas",
+            "--rate",
+            "100000",
+            "--physics",
+            "lti:2",
+            "--model",
+            "physics",
+            "--max-steps",
+            str(steps),
+            "--quiet",
+            "--out",
+            str(folder / f"m_{n}.eqx"),
+            "--json",
+            str(folder / f"fit_{n}.json"),
+        ]
+    )
+    cases["fit hybrid"] = child_peak(
+        [
+            sys.executable,
+            "-m",
+            "hybrid.cli",
+            "fit",
+            str(path),
+            "--columns",
+            "input=u_cmd,output=y_meas",
+            "--rate",
+            "100000",
+            "--physics",
+            "lti:2",
+            "--model",
+            "hybrid",
+            "--max-steps",
+            str(HYBRID_STEPS),
+            "--quiet",
+            "--out",
+            str(folder / f"h_{n}.eqx"),
+        ]
+    )
     report = folder / f"fit_{n}.json"
     if report.exists():
         fitted = json.loads(report.read_text())
         cases["fit lti:2"]["parameters"] = fitted.get("parameters")
     return cases
-
 
 
 # --------------------------------------------------------------------------- seconds per LM step
@@ -161,11 +203,14 @@ def _gemm_rates(m: int, n: int) -> dict:
 
     numpy_s, numpy_cpu = best(lambda a: a.T @ a, A)
     xla_s, xla_cpu = best(product, J)
-    return {"rows": rows, "n": n,
-            "numpy_syrk_macs_per_s": rows * n * n / 2 / numpy_s,
-            "numpy_syrk_macs_per_cpu_s": rows * n * n / 2 / numpy_cpu,
-            "xla_gemm_macs_per_s": rows * n * n / xla_s,
-            "xla_gemm_macs_per_cpu_s": rows * n * n / xla_cpu}
+    return {
+        "rows": rows,
+        "n": n,
+        "numpy_syrk_macs_per_s": rows * n * n / 2 / numpy_s,
+        "numpy_syrk_macs_per_cpu_s": rows * n * n / 2 / numpy_cpu,
+        "xla_gemm_macs_per_s": rows * n * n / xla_s,
+        "xla_gemm_macs_per_cpu_s": rows * n * n / xla_cpu,
+    }
 
 
 def _lm_programs():
@@ -199,8 +244,13 @@ def per_step_case(physics: str, n: int, steps: int) -> dict:
     settings = LMSettings(max_steps=10_000, patience=40)
     init, run = _lm_programs()
     prepare_s = time.perf_counter() - t0
-    out = {"physics": physics, "samples": n, "rows": int(problem.target("train").shape[0]),
-           "parameters": int(thetas.shape[1]), "prepare_s": prepare_s}
+    out = {
+        "physics": physics,
+        "samples": n,
+        "rows": int(problem.target("train").shape[0]),
+        "parameters": int(thetas.shape[1]),
+        "prepare_s": prepare_s,
+    }
 
     t0 = time.perf_counter()
     init_c = init.lower(problem, thetas, settings).compile()
@@ -227,9 +277,15 @@ def per_step_case(physics: str, n: int, steps: int) -> dict:
         cpus.append(time.process_time() - cpu0)
         accepted.append(bool(after.accepted[0] > states.accepted[0]))
         states = after
-    out.update(steps=steps, accepted=sum(accepted), step_wall_s=walls, step_cpu_s=cpus,
-               seconds_per_step=float(np.median(walls)), cpu_seconds_per_step=float(np.median(cpus)),
-               cost_after=float(states.cost[0]))
+    out.update(
+        steps=steps,
+        accepted=sum(accepted),
+        step_wall_s=walls,
+        step_cpu_s=cpus,
+        seconds_per_step=float(np.median(walls)),
+        cpu_seconds_per_step=float(np.median(cpus)),
+        cost_after=float(states.cost[0]),
+    )
     out["gemm"] = rates = _gemm_rates(out["rows"], out["parameters"])
     full = out["rows"] * out["parameters"] ** 2
     out["jtj_macs"] = full
@@ -245,17 +301,34 @@ def per_step_case(physics: str, n: int, steps: int) -> dict:
 
 def per_step(args) -> None:
     c.setup_jax()
-    results = {"command": "python benchmarks/long_record.py --per-step " + " ".join(
-        [f"--sizes {' '.join(map(str, args.sizes))}", f"--physics {' '.join(args.physics)}", f"--steps {args.steps}"]),
-        "machine": c.machine(), "cases": []}
+    results = {
+        "command": "python benchmarks/long_record.py --per-step "
+        + " ".join(
+            [
+                f"--sizes {' '.join(map(str, args.sizes))}",
+                f"--physics {' '.join(args.physics)}",
+                f"--steps {args.steps}",
+            ]
+        ),
+        "machine": c.machine(),
+        "cases": [],
+    }
     for n in args.sizes:
         for physics in args.physics:
-            proc = subprocess.run([sys.executable, __file__, "--case", physics, str(n), "--steps", str(args.steps)],
-                                  cwd=ROOT, capture_output=True, text=True)
+            proc = subprocess.run(
+                [sys.executable, __file__, "--case", physics, str(n), "--steps", str(args.steps)],
+                cwd=ROOT,
+                capture_output=True,
+                text=True,
+            )
             lines = proc.stdout.strip().splitlines()
             if proc.returncode or not lines:
-                case = {"physics": physics, "samples": n, "returncode": proc.returncode,
-                        "stderr": proc.stderr.strip().splitlines()[-3:]}
+                case = {
+                    "physics": physics,
+                    "samples": n,
+                    "returncode": proc.returncode,
+                    "stderr": proc.stderr.strip().splitlines()[-3:],
+                }
             else:
                 case = json.loads(lines[-1])
             results["cases"].append(case)
@@ -266,8 +339,12 @@ def per_step(args) -> None:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=1_000_000)
-    parser.add_argument("--steps", type=int, default=None,
-                        help="LM steps: of the lti:2 fit (default 40), or timed per case with --per-step (default 3)")
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="LM steps: of the lti:2 fit (default 40), or timed per case with --per-step (default 3)",
+    )
     parser.add_argument("--per-step", action="store_true", help="seconds per LM step of the hybrid models")
     parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000])
     parser.add_argument("--physics", nargs="+", default=["rc", "lti:2"])
@@ -282,15 +359,20 @@ def main():
         per_step(args)
         return
     args.steps = args.steps or 40
-    out = {"command": "python benchmarks/long_record.py", "machine": c.machine(), "target_gb": 4.0,
-           "rate_hz": RATE}
+    out = {
+        "command": "python benchmarks/long_record.py",
+        "machine": c.machine(),
+        "target_gb": 4.0,
+        "rate_hz": RATE,
+    }
     with tempfile.TemporaryDirectory() as tmp:
         for n in (args.samples // 10, args.samples):
             out[str(n)] = measure(n, args.steps, Path(tmp))
             print(n, json.dumps(out[str(n)]), flush=True)
     big = out[str(args.samples)]
-    out["within_target"] = all(big[k]["returncode"] == 0 and big[k]["peak_gb"] <= 4.0
-                                for k in ("load", "fit lti:2", "fit hybrid"))
+    out["within_target"] = all(
+        big[k]["returncode"] == 0 and big[k]["peak_gb"] <= 4.0 for k in ("load", "fit lti:2", "fit hybrid")
+    )
     c.write("long_record.json", out)
 
 

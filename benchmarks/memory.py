@@ -37,10 +37,20 @@ def child(samples, steps, kind):
     result = hy.fit(model, rec, frozen={"xi_h"}, max_steps=steps, weight_decay=0.1, progress=False)
     seconds = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
-    print(json.dumps({"kind": kind, "samples": rec.n, "steps": steps, "peak_gb": peak,
-                      "baseline_before_fit_gb": baseline, "fit_seconds": seconds,
-                      "n_parameters": result.settings["n_parameters"],
-                      "n_residuals": result.settings["n_residuals"]}))
+    print(
+        json.dumps(
+            {
+                "kind": kind,
+                "samples": rec.n,
+                "steps": steps,
+                "peak_gb": peak,
+                "baseline_before_fit_gb": baseline,
+                "fit_seconds": seconds,
+                "n_parameters": result.settings["n_parameters"],
+                "n_residuals": result.settings["n_residuals"],
+            }
+        )
+    )
 
 
 def main():
@@ -55,8 +65,20 @@ def main():
     c.setup_jax()
     out = {"command": "python benchmarks/memory.py", "machine": c.machine(), "target_gb": 4.0}
     for kind in ("hybrid", "physics"):
-        proc = subprocess.run([sys.executable, __file__, "--child", kind, "--samples", str(args.samples),
-                               "--steps", str(args.steps)], capture_output=True, text=True)
+        proc = subprocess.run(
+            [
+                sys.executable,
+                __file__,
+                "--child",
+                kind,
+                "--samples",
+                str(args.samples),
+                "--steps",
+                str(args.steps),
+            ],
+            capture_output=True,
+            text=True,
+        )
         if proc.returncode:
             out[kind] = {"error": proc.stderr.strip().splitlines()[-1]}
         else:

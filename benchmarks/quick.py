@@ -32,23 +32,32 @@ def main():
     single = simulate.single()
     batch = simulate.batch()
     jac = jacobian.run(repeats=3)
-    out.update({
-        "simulate_single_vs_sosfilt": single["ratio_hybrid_over_sosfilt"],
-        "simulate_batch_speedup_vs_sosfilt_loop": batch["speedup_vs_sosfilt_loop"],
-        "jacobian_max_relative_difference_vs_fd": jac["max_relative_difference"],
-        "targets": {
-            "single_le_1.5x_sosfilt": single["ratio_hybrid_over_sosfilt"] <= 1.5,
-            "single_goal_le_1.0x": single["ratio_hybrid_over_sosfilt"] <= 1.0,
-            "batch_ge_1x_sosfilt_loop": batch["speedup_vs_sosfilt_loop"] >= 1.0,
-            "batch_goal_ge_3x": batch["speedup_vs_sosfilt_loop"] >= 3.0,
-        },
-        "single": single, "batch": batch, "jacobian": jac,
-    })
+    out.update(
+        {
+            "simulate_single_vs_sosfilt": single["ratio_hybrid_over_sosfilt"],
+            "simulate_batch_speedup_vs_sosfilt_loop": batch["speedup_vs_sosfilt_loop"],
+            "jacobian_max_relative_difference_vs_fd": jac["max_relative_difference"],
+            "targets": {
+                "single_le_1.5x_sosfilt": single["ratio_hybrid_over_sosfilt"] <= 1.5,
+                "single_goal_le_1.0x": single["ratio_hybrid_over_sosfilt"] <= 1.0,
+                "batch_ge_1x_sosfilt_loop": batch["speedup_vs_sosfilt_loop"] >= 1.0,
+                "batch_goal_ge_3x": batch["speedup_vs_sosfilt_loop"] >= 3.0,
+            },
+            "single": single,
+            "batch": batch,
+            "jacobian": jac,
+        }
+    )
     out["seconds"] = time.perf_counter() - t0
     out["load_after"] = c.machine()["load_average_1_5_15"]
     c.write("quick.json", out)
-    for key in ("simulate_single_vs_sosfilt", "simulate_batch_speedup_vs_sosfilt_loop",
-                "jacobian_max_relative_difference_vs_fd", "targets", "seconds"):
+    for key in (
+        "simulate_single_vs_sosfilt",
+        "simulate_batch_speedup_vs_sosfilt_loop",
+        "jacobian_max_relative_difference_vs_fd",
+        "targets",
+        "seconds",
+    ):
         print(f"{key}: {out[key]}")
 
 

@@ -57,8 +57,10 @@ def networks(n=BATCH, seed=1):
     rng = np.random.default_rng(seed)
     return [
         hy.RCNetwork(
-            xi_rho=float(10 * np.exp(0.5 * rng.normal())), alpha_E=float(rng.uniform(0.3, 0.7)),
-            alpha_I=float(rng.uniform(0.3, 0.7)), alpha_C=float(rng.uniform(0.3, 0.7)),
+            xi_rho=float(10 * np.exp(0.5 * rng.normal())),
+            alpha_E=float(rng.uniform(0.3, 0.7)),
+            alpha_I=float(rng.uniform(0.3, 0.7)),
+            alpha_C=float(rng.uniform(0.3, 0.7)),
             C_clamp=float(0.05 * np.exp(0.5 * rng.normal())),
         )
         for _ in range(n)
@@ -93,9 +95,13 @@ def single(repeats=20):
     t_ours = min(t_ours, c.best_of(ours, net, xj, repeats=repeats)[0])
     t_sos = min(t_sos, c.best_of(lambda v: scipy.signal.sosfilt(sos, v), x, repeats=repeats)[0])
     return {
-        "samples": T, "sections": int(sos.shape[0]),
-        "hybrid_s": t_ours, "hybrid_compile_s": first - t_ours, "hybrid_block_matrices_only_s": t_setup,
-        "stage_major_s": t_old, "stage_major_compile_s": first_old - t_old,
+        "samples": T,
+        "sections": int(sos.shape[0]),
+        "hybrid_s": t_ours,
+        "hybrid_compile_s": first - t_ours,
+        "hybrid_block_matrices_only_s": t_setup,
+        "stage_major_s": t_old,
+        "stage_major_compile_s": first_old - t_old,
         "sosfilt_s": t_sos,
         "ratio_hybrid_over_sosfilt": t_ours / t_sos,
         "ratio_stage_major_over_sosfilt": t_old / t_sos,
@@ -130,8 +136,12 @@ def batch(repeats=3, batch_size=8):
     y = np.asarray(y)
     error = max(c.relative_error(y[i], refs[i]) for i in range(0, BATCH, 37))
     out = {
-        "parameter_sets": BATCH, "samples": T, "batch_size": batch_size,
-        "hybrid_s": t_ours, "hybrid_compile_s": first - t_ours, "sosfilt_loop_s": t_loop,
+        "parameter_sets": BATCH,
+        "samples": T,
+        "batch_size": batch_size,
+        "hybrid_s": t_ours,
+        "hybrid_compile_s": first - t_ours,
+        "sosfilt_loop_s": t_loop,
         "speedup_vs_sosfilt_loop": t_loop / t_ours,
         "relative_error_vs_sosfilt_max_of_28": error,
     }
@@ -140,8 +150,11 @@ def batch(repeats=3, batch_size=8):
     first_all, _ = c.first_call(run_all, stacked, xj)
     t_all, _ = c.best_of(run_all, stacked, xj, repeats=2)
     out.update(hybrid_vmap_all_s=t_all, speedup_vmap_all_vs_sosfilt_loop=t_loop / t_all)
-    setup = jax.jit(lambda s: jax.lax.map(
-        lambda n: block_matrices(*tustin_sections(*n.stage_zpk(), DT), BLOCK), s, batch_size=batch_size))
+    setup = jax.jit(
+        lambda s: jax.lax.map(
+            lambda n: block_matrices(*tustin_sections(*n.stage_zpk(), DT), BLOCK), s, batch_size=batch_size
+        )
+    )
     c.first_call(setup, stacked)
     out["hybrid_block_matrices_only_s"] = c.best_of(setup, stacked, repeats=repeats)[0]
     return out
@@ -174,8 +187,13 @@ def control_peer(sub=20):
     outs = [control.forced_response(s, T=t_in, U=x).outputs for s in systems]
     per = (time.perf_counter() - t0) / sub
     ref = scipy.signal.sosfilt(c.sos_sections(nets[0], DT), x)
-    return {"single_s": per, "build_system_s": build, "batch_s_extrapolated": per * BATCH,
-            "batch_measured_on": sub, "relative_error_vs_sosfilt": c.relative_error(outs[0], ref)}
+    return {
+        "single_s": per,
+        "build_system_s": build,
+        "batch_s_extrapolated": per * BATCH,
+        "batch_measured_on": sub,
+        "relative_error_vs_sosfilt": c.relative_error(outs[0], ref),
+    }
 
 
 def diffrax_peer(sub=8, rtol=1e-8):
@@ -198,7 +216,12 @@ def diffrax_peer(sub=8, rtol=1e-8):
             return A @ state + B * v[k]
 
         sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(field), diffrax.Tsit5(), 0.0, (T - 1) * DT, DT / 2, jnp.zeros(A.shape[0]),
+            diffrax.ODETerm(field),
+            diffrax.Tsit5(),
+            0.0,
+            (T - 1) * DT,
+            DT / 2,
+            jnp.zeros(A.shape[0]),
             saveat=diffrax.SaveAt(ts=t_samples),
             stepsize_controller=diffrax.PIDController(rtol=rtol, atol=rtol * 1e-2, jump_ts=t_samples),
             max_steps=20 * T,
@@ -214,9 +237,14 @@ def diffrax_peer(sub=8, rtol=1e-8):
     many = jax.jit(jax.vmap(solve, (0, None)))
     first_many, _ = c.first_call(many, stacked, x)
     t_many, _ = c.best_of(many, stacked, x, repeats=1)
-    return {"single_s": t_one, "compile_s": first - t_one, "rtol": rtol,
-            "relative_error_vs_exact_zoh": c.relative_error(y, reference),
-            "batch_vmap_s_extrapolated": t_many / sub * BATCH, "batch_measured_on": sub}
+    return {
+        "single_s": t_one,
+        "compile_s": first - t_one,
+        "rtol": rtol,
+        "relative_error_vs_exact_zoh": c.relative_error(y, reference),
+        "batch_vmap_s_extrapolated": t_many / sub * BATCH,
+        "batch_measured_on": sub,
+    }
 
 
 def main():

@@ -44,18 +44,32 @@ class MassSpringDamper(AbstractSimulation):
 
     raw: dict
 
-    constraints: ClassVar[dict] = {"frequency": Positive(), "zeta": Positive(), "cubic": Real(),
-                                   "drive_offset": Real()}
+    constraints: ClassVar[dict] = {
+        "frequency": Positive(),
+        "zeta": Positive(),
+        "cubic": Real(),
+        "drive_offset": Real(),
+    }
     units: ClassVar[dict] = {"frequency": "Hz", "zeta": "1", "cubic": "1/V^2", "drive_offset": "V"}
-    plausible: ClassVar[dict] = {"frequency": (1e-3, 1e5), "zeta": (1e-4, 10.0), "cubic": (-1e4, 1e4),
-                                 "drive_offset": (-10.0, 10.0)}
-    typical: ClassVar[dict] = {"frequency": (0.1, 1e3), "zeta": (0.01, 2.0), "cubic": (-10.0, 10.0),
-                               "drive_offset": (-0.1, 0.1)}
+    plausible: ClassVar[dict] = {
+        "frequency": (1e-3, 1e5),
+        "zeta": (1e-4, 10.0),
+        "cubic": (-1e4, 1e4),
+        "drive_offset": (-10.0, 10.0),
+    }
+    typical: ClassVar[dict] = {
+        "frequency": (0.1, 1e3),
+        "zeta": (0.01, 2.0),
+        "cubic": (-10.0, 10.0),
+        "drive_offset": (-0.1, 0.1),
+    }
     frozen_by_default: ClassVar[dict] = {
         "cubic": "the linear model: a spring with no cubic term (free it, or use Duffing)",
         "drive_offset": "with a linear spring a shift of the drive is a shift of y, which the readout's offset absorbs",
     }
-    linear_in_drive: ClassVar[bool] = False  # the cubic term and drive_offset, when freed, are in volts of drive
+    linear_in_drive: ClassVar[bool] = (
+        False  # the cubic term and drive_offset, when freed, are in volts of drive
+    )
 
     def __init__(self, frequency=50.0, zeta=0.1, cubic=0.0, drive_offset=0.0):
         values = dict(frequency=frequency, zeta=zeta, cubic=cubic, drive_offset=drive_offset)

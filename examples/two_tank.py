@@ -120,7 +120,7 @@ class TwoTank(AbstractSimulation):
     }
     frozen_by_default: ClassVar[dict] = {
         "pump_flow": "levels are seen only through the sensor's fitted gain: scaling the pump's flow rescales "
-                     "every level and the gain undoes it exactly; calibrate the pump and keep it fixed",
+        "every level and the gain undoes it exactly; calibrate the pump and keep it fixed",
         "area_1": "measured; scaled with outlet_1 it barely changes the output (the data hardly tell them apart)",
         "area_2": "measured; scaled with outlet_2 and the sensor's gain it changes only a nearly empty tank",
     }
@@ -139,7 +139,9 @@ class TwoTank(AbstractSimulation):
 
     def levels(self, v_in, dt):
         """(h1, h2) (cm) at each sample time: both tanks' levels (`simulate` returns h2)."""
-        v_in, dt = check_drive(v_in, dt, f"{type(self).__name__}.simulate")  # InputError on bad concrete input
+        v_in, dt = check_drive(
+            v_in, dt, f"{type(self).__name__}.simulate"
+        )  # InputError on bad concrete input
         p = self.parameters()
         inflow = p["pump_flow"] * jnp.maximum(jnp.asarray(v_in, p["area_1"].dtype), 0.0)  # cm³/s
         c1 = p["outlet_1"] * jnp.sqrt(2.0 * G)  # cm^2.5/s: outflow c·√h
@@ -158,8 +160,10 @@ class TwoTank(AbstractSimulation):
             k2 = rate(h1 + 0.5 * step * k1[0], h2 + 0.5 * step * k1[1], q)
             k3 = rate(h1 + 0.5 * step * k2[0], h2 + 0.5 * step * k2[1], q)
             k4 = rate(h1 + step * k3[0], h2 + step * k3[1], q)
-            return tuple(h + step / 6.0 * (a + 2.0 * b + 2.0 * c + d)
-                         for h, a, b, c, d in zip((h1, h2), k1, k2, k3, k4))
+            return tuple(
+                h + step / 6.0 * (a + 2.0 * b + 2.0 * c + d)
+                for h, a, b, c, d in zip((h1, h2), k1, k2, k3, k4)
+            )
 
         def sample(h, q):
             h_next = h
@@ -193,16 +197,37 @@ class TwoTankOverflow(TwoTank):
     L down to the data).
     """
 
-    constraints: ClassVar[dict] = {**TwoTank.constraints, "level_max_1": Positive(), "level_max_2": Positive(),
-                                   "spill_to_lower": UnitInterval()}
+    constraints: ClassVar[dict] = {
+        **TwoTank.constraints,
+        "level_max_1": Positive(),
+        "level_max_2": Positive(),
+        "spill_to_lower": UnitInterval(),
+    }
     units: ClassVar[dict] = {**TwoTank.units, "level_max_1": "cm", "level_max_2": "cm", "spill_to_lower": "1"}
     plausible: ClassVar[dict] = {**TwoTank.plausible, "level_max_1": (1.0, 1e4), "level_max_2": (1.0, 1e4)}
     typical: ClassVar[dict] = {**TwoTank.typical, "level_max_1": (5.0, 200.0), "level_max_2": (5.0, 200.0)}
 
-    def __init__(self, pump_flow=3.3, area_1=15.5, area_2=15.5, outlet_1=0.18, outlet_2=0.18,
-                 level_max_1=100.0, level_max_2=100.0, spill_to_lower=0.5):
-        values = dict(pump_flow=pump_flow, area_1=area_1, area_2=area_2, outlet_1=outlet_1, outlet_2=outlet_2,
-                      level_max_1=level_max_1, level_max_2=level_max_2, spill_to_lower=spill_to_lower)
+    def __init__(
+        self,
+        pump_flow=3.3,
+        area_1=15.5,
+        area_2=15.5,
+        outlet_1=0.18,
+        outlet_2=0.18,
+        level_max_1=100.0,
+        level_max_2=100.0,
+        spill_to_lower=0.5,
+    ):
+        values = dict(
+            pump_flow=pump_flow,
+            area_1=area_1,
+            area_2=area_2,
+            outlet_1=outlet_1,
+            outlet_2=outlet_2,
+            level_max_1=level_max_1,
+            level_max_2=level_max_2,
+            spill_to_lower=spill_to_lower,
+        )
         self.raw = encode(values, self.constraints, "TwoTankOverflow")
 
     def limit(self, h1, h2, p):

@@ -30,8 +30,14 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     rng = np.random.default_rng([args.seed, len(args.effect), sum(map(ord, args.effect))])
     strip, params = random_strip(rng), random_effect(args.effect, rng, 30.0)
-    recording = synthetic_recording(discrepancy_drive(120.0, 30.0, args.seed), strip, args.effect, params,
-                                    noise_fraction=0.01, seed=args.seed)
+    recording = synthetic_recording(
+        discrepancy_drive(120.0, 30.0, args.seed),
+        strip,
+        args.effect,
+        params,
+        noise_fraction=0.01,
+        seed=args.seed,
+    )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = recording.save(out / "recording.csv")

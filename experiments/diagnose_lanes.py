@@ -35,8 +35,11 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("effect")
     parser.add_argument("seed", type=int)
-    parser.add_argument("--effects", default=None, help="comma-separated effects whose lanes to print "
-                                                        "(default: the hidden effect)")
+    parser.add_argument(
+        "--effects",
+        default=None,
+        help="comma-separated effects whose lanes to print (default: the hidden effect)",
+    )
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--drive", default="prbs-multilevel")
@@ -52,22 +55,37 @@ def main(argv=None) -> int:
 
     print(f"{args.effect} seed {args.seed} ({args.duration:g} s at {args.rate:g} Hz), hidden {params}")
     baseline = float(np.mean((found.heldout["w"] - found.heldout["baseline"]) ** 2)) / noise_var
-    print(f"named {found.cause}, held-out gain {found.gain:.2f}; baseline held-out MSE / noise {baseline:.2f}")
-    print("| lane | effect | validation loss | MSE / noise: training | validation | held-out | effect size "
-          "| material | chosen |")
+    print(
+        f"named {found.cause}, held-out gain {found.gain:.2f}; baseline held-out MSE / noise {baseline:.2f}"
+    )
+    print(
+        "| lane | effect | validation loss | MSE / noise: training | validation | held-out | effect size "
+        "| material | chosen |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for i, lane in enumerate(found.lanes):
         if lane["effect"] not in wanted:
             continue
         w_hats = predictions(problem, jnp.asarray(lane["active"], float), jnp.asarray(lane["theta"]))
-        mse = {split: float(np.mean((problem.recorded(problem.target(split), split)
-                                     - problem.recorded(w_hats[split], split)) ** 2)) / noise_var
-               for split in SPLIT_ORDER}
-        material, size = lane_effect(problem, lane["theta"], lane["active"], lane["effect"], settings.materiality)
+        mse = {
+            split: float(
+                np.mean(
+                    (problem.recorded(problem.target(split), split) - problem.recorded(w_hats[split], split))
+                    ** 2
+                )
+            )
+            / noise_var
+            for split in SPLIT_ORDER
+        }
+        material, size = lane_effect(
+            problem, lane["theta"], lane["active"], lane["effect"], settings.materiality
+        )
         size_text = ", ".join(f"{k} {v:.3g}" for k, v in size.items()) or "—"
-        print(f"| {i} | {lane['effect']} | {lane['validation_loss']:.4g} | {mse['train']:.2f} "
-              f"| {mse['validation']:.2f} | {mse['test']:.2f} | {size_text} | {'yes' if material else 'no'} "
-              f"| {'**yes**' if lane['chosen'] else ''} |")
+        print(
+            f"| {i} | {lane['effect']} | {lane['validation_loss']:.4g} | {mse['train']:.2f} "
+            f"| {mse['validation']:.2f} | {mse['test']:.2f} | {size_text} | {'yes' if material else 'no'} "
+            f"| {'**yes**' if lane['chosen'] else ''} |"
+        )
     return 0
 
 

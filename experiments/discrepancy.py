@@ -73,8 +73,9 @@ def draw(effect: str, seed: int, duration: float, rate: float, drive: str, noise
 
     rng = np.random.default_rng([seed, len(effect), sum(map(ord, effect))])
     strip, params = random_strip(rng), random_effect(effect, rng, rate)
-    recording = synthetic_recording(_drive(drive, duration, rate, seed), strip, effect, params, noise_fraction=noise,
-                                    seed=seed)
+    recording = synthetic_recording(
+        _drive(drive, duration, rate, seed), strip, effect, params, noise_fraction=noise, seed=seed
+    )
     return strip, params, recording
 
 
@@ -89,8 +90,10 @@ def excess_over_noise(recording, found) -> tuple[float, float]:
 
 
 def _table(rows, effects, causes) -> str:
-    lines = ["| hidden \\ named | " + " | ".join(causes) + " | right | gain (median, min) |",
-             "|---" * (len(causes) + 3) + "|"]
+    lines = [
+        "| hidden \\ named | " + " | ".join(causes) + " | right | gain (median, min) |",
+        "|---" * (len(causes) + 3) + "|",
+    ]
     for effect in effects:
         mine = [r for r in rows if r["effect"] == effect]
         if not mine:
@@ -98,8 +101,11 @@ def _table(rows, effects, causes) -> str:
         counts = [sum(r["named"] == c for r in mine) for c in causes]
         right = sum(r["named"] == effect for r in mine)
         gains = [r["gain"] for r in mine]
-        lines.append(f"| {effect} | " + " | ".join(str(c) if c else "·" for c in counts)
-                     + f" | {right}/{len(mine)} | {np.median(gains):.2f}, {min(gains):.2f} |")
+        lines.append(
+            f"| {effect} | "
+            + " | ".join(str(c) if c else "·" for c in counts)
+            + f" | {right}/{len(mine)} | {np.median(gains):.2f}, {min(gains):.2f} |"
+        )
     return "\n".join(lines)
 
 
@@ -134,8 +140,11 @@ def open_world(found) -> tuple[list[dict], dict | None, object]:
     """(causes, unexplained, noise floor) of a Diagnosis; today's (one cause, no more) reads as one or none."""
     causes = getattr(found, "causes", None)
     if causes is None:
-        causes = [] if found.cause == "none" else [{"name": found.cause, "parameters": {},
-                                                    "incremental_gain": found.gain}]
+        causes = (
+            []
+            if found.cause == "none"
+            else [{"name": found.cause, "parameters": {}, "incremental_gain": found.gain}]
+        )
     return list(causes), getattr(found, "unexplained", None), getattr(found, "noise_floor", None)
 
 
@@ -159,16 +168,24 @@ def open_world_row(recording, found, excess: float, causes_known) -> dict:
     causes, unexplained, floor = open_world(found)
     names = [c["name"] for c in causes]
     true_var = true_noise_variance(recording)
-    row = {"hidden_effects": hidden, "expected_causes": expected, "outside_effects": outside,
-           "kind": kind_of(expected, outside), "causes": names, "cause_details": _plain(causes),
-           "unexplained": unexplained is not None,
-           "unexplained_fraction": None if unexplained is None else float(unexplained["fraction_above_floor"]),
-           "unexplained_summary": None if unexplained is None else
-           str((unexplained.get("description") or {}).get("summary", "")),
-           "true_noise_variance": true_var, "noise_floor": None if floor is None else _plain(floor.to_dict()),
-           "noise_floor_variance": None if floor is None else float(floor.variance),
-           "noise_floor_std_error": None if floor is None else float(floor.std_error),
-           "noise_floor_over_true": None if floor is None else float(floor.variance) / true_var}
+    row = {
+        "hidden_effects": hidden,
+        "expected_causes": expected,
+        "outside_effects": outside,
+        "kind": kind_of(expected, outside),
+        "causes": names,
+        "cause_details": _plain(causes),
+        "unexplained": unexplained is not None,
+        "unexplained_fraction": None if unexplained is None else float(unexplained["fraction_above_floor"]),
+        "unexplained_summary": None
+        if unexplained is None
+        else str((unexplained.get("description") or {}).get("summary", "")),
+        "true_noise_variance": true_var,
+        "noise_floor": None if floor is None else _plain(floor.to_dict()),
+        "noise_floor_variance": None if floor is None else float(floor.variance),
+        "noise_floor_std_error": None if floor is None else float(floor.std_error),
+        "noise_floor_over_true": None if floor is None else float(floor.variance) / true_var,
+    }
     row["false_all_clear"] = bool(hidden and not names and unexplained is None and excess > ALL_CLEAR)
     return row
 
@@ -179,25 +196,36 @@ def _named_set(r) -> str:
 
 def _counts(items) -> str:
     items = list(items)
-    return "; ".join(f"{k} ×{items.count(k)}" for k in sorted(set(items), key=lambda k: (-items.count(k), k))) or "·"
+    return (
+        "; ".join(f"{k} ×{items.count(k)}" for k in sorted(set(items), key=lambda k: (-items.count(k), k)))
+        or "·"
+    )
 
 
 def open_world_tables(rows, specs) -> str:
     """The open-world summary: hidden → named set, pairs, outside effects, effect-free, all-clears, noise floor."""
-    out = ["Hidden → named set (every draw; ∅: nothing named; \"unexpl.\": `unexplained` set):\n",
-           "| hidden | draws | named sets | unexpl. |", "|---|---|---|---|"]
+    out = [
+        'Hidden → named set (every draw; ∅: nothing named; "unexpl.": `unexplained` set):\n',
+        "| hidden | draws | named sets | unexpl. |",
+        "|---|---|---|---|",
+    ]
     for spec in specs:
         mine = [r for r in rows if r["effect"] == spec]
         if mine:
-            out.append(f"| {spec} | {len(mine)} | {_counts(_named_set(r) for r in mine)} | "
-                       f"{sum(r['unexplained'] for r in mine)}/{len(mine)} |")
+            out.append(
+                f"| {spec} | {len(mine)} | {_counts(_named_set(r) for r in mine)} | "
+                f"{sum(r['unexplained'] for r in mine)}/{len(mine)} |"
+            )
     pairs = [s for s in specs if any(r["effect"] == s and r["kind"] == "pair" for r in rows)]
     if pairs:
-        out += ["", "Pairs of library effects (both named: every hidden effect among the named, of which exactly: "
-                "nothing else named; one named: some but not all; wrong name(s): named, none of them hidden):\n",
-                "| hidden | both named | of which exactly | one named | wrong name(s) | none | unexpl. "
-                "| gain (median) |",
-                "|---" * 8 + "|"]
+        out += [
+            "",
+            "Pairs of library effects (both named: every hidden effect among the named, of which exactly: "
+            "nothing else named; one named: some but not all; wrong name(s): named, none of them hidden):\n",
+            "| hidden | both named | of which exactly | one named | wrong name(s) | none | unexpl. "
+            "| gain (median) |",
+            "|---" * 8 + "|",
+        ]
         for spec in pairs:
             mine = [r for r in rows if r["effect"] == spec]
             hits = [len(set(r["expected_causes"]) & set(r["causes"])) for r in mine]
@@ -206,14 +234,20 @@ def open_world_tables(rows, specs) -> str:
             one = sum(0 < h < len(r["expected_causes"]) for r, h in zip(mine, hits))
             wrong = sum(h == 0 and bool(r["causes"]) for r, h in zip(mine, hits))
             none = sum(not r["causes"] for r in mine)
-            out.append(f"| {spec} | {len(both)}/{len(mine)} | {exact} | {one} | {wrong} | {none} | "
-                       f"{sum(r['unexplained'] for r in mine)} | {np.median([r['gain'] for r in mine]):.2f} |")
+            out.append(
+                f"| {spec} | {len(both)}/{len(mine)} | {exact} | {one} | {wrong} | {none} | "
+                f"{sum(r['unexplained'] for r in mine)} | {np.median([r['gain'] for r in mine]):.2f} |"
+            )
     outside = [s for s in specs if any(r["effect"] == s and r["kind"] in ("outside", "mixed") for r in rows)]
     if outside:
-        out += ["", "Effects outside the library (unexplained: flagged, whatever was named beside; forced: a "
-                "known name and nothing flagged; none: nothing named, nothing flagged — a false all-clear):\n",
-                "| hidden | draws | unexplained (fraction above floor, median) | forced into a known name (which) "
-                "| none (false all-clear) | library part named |", "|---" * 6 + "|"]
+        out += [
+            "",
+            "Effects outside the library (unexplained: flagged, whatever was named beside; forced: a "
+            "known name and nothing flagged; none: nothing named, nothing flagged — a false all-clear):\n",
+            "| hidden | draws | unexplained (fraction above floor, median) | forced into a known name (which) "
+            "| none (false all-clear) | library part named |",
+            "|---" * 6 + "|",
+        ]
         for spec in outside:
             mine = [r for r in rows if r["effect"] == spec]
             flagged = [r for r in mine if r["unexplained"]]
@@ -221,37 +255,58 @@ def open_world_tables(rows, specs) -> str:
             none = sum(not r["causes"] and not r["unexplained"] for r in mine)
             frac = f" ({np.median([r['unexplained_fraction'] for r in flagged]):.2f})" if flagged else ""
             library = [r for r in mine if r["expected_causes"]]
-            part = (f"{sum(set(r['expected_causes']) <= set(r['causes']) for r in library)}/{len(library)}"
-                    if library else "—")
-            out.append(f"| {spec} | {len(mine)} | {len(flagged)}{frac} | {len(forced)} "
-                       f"({_counts(_named_set(r) for r in forced)}) | {none} | {part} |")
+            part = (
+                f"{sum(set(r['expected_causes']) <= set(r['causes']) for r in library)}/{len(library)}"
+                if library
+                else "—"
+            )
+            out.append(
+                f"| {spec} | {len(mine)} | {len(flagged)}{frac} | {len(forced)} "
+                f"({_counts(_named_set(r) for r in forced)}) | {none} | {part} |"
+            )
     free = [r for r in rows if r["kind"] == "none"]
     if free:
         named = [r for r in free if r["causes"]]
         flagged = [r for r in free if r["unexplained"]]
-        out += ["", f"Effect-free draws: false discoveries (anything named) {len(named)}/{len(free)}"
-                + (f" ({_counts(_named_set(r) for r in named)})" if named else "")
-                + f"; false unexplained {len(flagged)}/{len(free)}"
-                + (" (seeds " + ", ".join(str(r["seed"]) for r in flagged) + ")" if flagged else "") + "."]
+        out += [
+            "",
+            f"Effect-free draws: false discoveries (anything named) {len(named)}/{len(free)}"
+            + (f" ({_counts(_named_set(r) for r in named)})" if named else "")
+            + f"; false unexplained {len(flagged)}/{len(free)}"
+            + (" (seeds " + ", ".join(str(r["seed"]) for r in flagged) + ")" if flagged else "")
+            + ".",
+        ]
     hidden = [r for r in rows if r["kind"] != "none"]
     if hidden:
         clear = [r for r in hidden if r["false_all_clear"]]
-        out += ["", f"False all-clears (an effect hidden, nothing named, `unexplained` None, while the baseline's "
-                f"held-out MSE is > {ALL_CLEAR:g}× the true noise variance): {len(clear)}/{len(hidden)}"
-                + (" — " + ", ".join(f"{r['effect']} seed {r['seed']}" for r in clear) if clear else "") + "."]
+        out += [
+            "",
+            f"False all-clears (an effect hidden, nothing named, `unexplained` None, while the baseline's "
+            f"held-out MSE is > {ALL_CLEAR:g}× the true noise variance): {len(clear)}/{len(hidden)}"
+            + (" — " + ", ".join(f"{r['effect']} seed {r['seed']}" for r in clear) if clear else "")
+            + ".",
+        ]
     floors = [r for r in rows if r["noise_floor_variance"] is not None]
     if floors:
         ratio = np.array([r["noise_floor_over_true"] for r in floors])
-        within = sum(abs(r["noise_floor_variance"] - r["true_noise_variance"])
-                     <= 2 * r["noise_floor_std_error"] for r in floors if np.isfinite(r["noise_floor_std_error"]))
-        out += ["", f"Noise floor (estimated by `diagnose` from the recording) over the true noise variance: "
-                f"median {np.median(ratio):.3f}, range {ratio.min():.3f}–{ratio.max():.3f}; within 2 standard "
-                f"errors of the truth in {within}/{len(floors)} draws."]
+        within = sum(
+            abs(r["noise_floor_variance"] - r["true_noise_variance"]) <= 2 * r["noise_floor_std_error"]
+            for r in floors
+            if np.isfinite(r["noise_floor_std_error"])
+        )
+        out += [
+            "",
+            f"Noise floor (estimated by `diagnose` from the recording) over the true noise variance: "
+            f"median {np.median(ratio):.3f}, range {ratio.min():.3f}–{ratio.max():.3f}; within 2 standard "
+            f"errors of the truth in {within}/{len(floors)} draws.",
+        ]
         for kind in ("none", "single", "pair", "outside", "mixed"):
             some = [r["noise_floor_over_true"] for r in floors if r["kind"] == kind]
             if some:
-                out.append(f"- {kind}: median {np.median(some):.3f}, range {min(some):.3f}–{max(some):.3f} "
-                           f"({len(some)} draws)")
+                out.append(
+                    f"- {kind}: median {np.median(some):.3f}, range {min(some):.3f}–{max(some):.3f} "
+                    f"({len(some)} draws)"
+                )
     return "\n".join(out)
 
 
@@ -263,20 +318,29 @@ def main(argv=None) -> int:
     from hybrid.util import InputError
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--effects", default=",".join(HIDDEN_EFFECTS),
-                        help=f"comma-separated hidden specs: {', '.join(HIDDEN_NAMES)}, or several joined by '+' "
-                             "(e.g. back_relaxation+saturation,none,electrostatic)")
+    parser.add_argument(
+        "--effects",
+        default=",".join(HIDDEN_EFFECTS),
+        help=f"comma-separated hidden specs: {', '.join(HIDDEN_NAMES)}, or several joined by '+' "
+        "(e.g. back_relaxation+saturation,none,electrostatic)",
+    )
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--seed-list", default=None,
-                        help="comma-separated seeds (instead of --seeds/--first-seed), e.g. to rerun misses longer")
+    parser.add_argument(
+        "--seed-list",
+        default=None,
+        help="comma-separated seeds (instead of --seeds/--first-seed), e.g. to rerun misses longer",
+    )
     parser.add_argument("--duration", type=float, default=120.0)
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--drive", default="prbs-multilevel")
     parser.add_argument("--noise", type=float, default=0.01, help="noise std / displacement range")
     parser.add_argument("--virtual", action="store_true", help="also diagnose the richer virtual IPMC")
-    parser.add_argument("--dry-run", action="store_true",
-                        help="make the recordings and print their truth; no diagnose, nothing written")
+    parser.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="make the recordings and print their truth; no diagnose, nothing written",
+    )
     parser.add_argument("--out", default="experiments/results/discrepancy.json")
     args = parser.parse_args(argv)
 
@@ -297,34 +361,63 @@ def main(argv=None) -> int:
 
                 truth = recording.metadata["hidden"]
                 expected, outside = expected_names(list(hidden_effects(recording)), CAUSES)
-                print(f"{effect:16s} seed {seed}: {kind_of(expected, outside)}, found as {expected or '-'}, outside "
-                      f"{outside or '-'}, noise variance {true_noise_variance(recording):.3g}, {len(recording.w)} "
-                      f"samples; {params} {truth.get('derived', '')}", flush=True)
+                print(
+                    f"{effect:16s} seed {seed}: {kind_of(expected, outside)}, found as {expected or '-'}, outside "
+                    f"{outside or '-'}, noise variance {true_noise_variance(recording):.3g}, {len(recording.w)} "
+                    f"samples; {params} {truth.get('derived', '')}",
+                    flush=True,
+                )
                 continue
             found = diagnose(recording)
             excess, least = excess_over_noise(recording, found)
             world = open_world_row(recording, found, excess, CAUSES)
             flagged = f"{world['unexplained_fraction']:.2f} above floor" if world["unexplained"] else "no"
-            floor = (f"{world['noise_floor_over_true']:5.2f}" if world["noise_floor_over_true"] is not None
-                     else "  n/a")
-            print(f"{effect:16s} seed {seed}: named {found.cause:16s} gain {found.gain:7.2f}  baseline/noise "
-                  f"{excess:6.1f}  effect-free/noise {least:6.1f}  ({found.seconds:.0f} s)  {params}", flush=True)
-            print(f"{'':16s}   causes {'+'.join(world['causes']) or '-'}; unexplained {flagged}; noise floor/true "
-                  f"{floor}{'; FALSE ALL-CLEAR' if world['false_all_clear'] else ''}", flush=True)
-            rows.append({
-                "effect": effect, "seed": seed, "effect_params": params, "strip": dataclasses.asdict(strip),
-                "named": found.cause, "gain": found.gain, "seconds": found.seconds,
-                "baseline_mse_over_noise": excess, "effect_free_mse_over_noise": least,
-                "identifiable": bool(least >= IDENTIFIABLE),
-                "baseline_nmse": found.baseline.heldout["nmse"], "extended_nmse": found.extended.heldout["nmse"],
-                "parameters": found.to_dict()["parameters"] if found.cause != "none" else {},
-                "candidates": {c.name: {"gain": c.gain, "delta_bic": c.delta_bic, "Q": c.ljung_box["Q"],
-                                        "material": c.material, "eligible": c.eligible, "derived": c.derived,
-                                        "reasons": c.reasons}
-                               for c in found.candidates},
-                "baseline_Q": found.baseline.ljung_box["Q"],
-                **world,
-            })
+            floor = (
+                f"{world['noise_floor_over_true']:5.2f}"
+                if world["noise_floor_over_true"] is not None
+                else "  n/a"
+            )
+            print(
+                f"{effect:16s} seed {seed}: named {found.cause:16s} gain {found.gain:7.2f}  baseline/noise "
+                f"{excess:6.1f}  effect-free/noise {least:6.1f}  ({found.seconds:.0f} s)  {params}",
+                flush=True,
+            )
+            print(
+                f"{'':16s}   causes {'+'.join(world['causes']) or '-'}; unexplained {flagged}; noise floor/true "
+                f"{floor}{'; FALSE ALL-CLEAR' if world['false_all_clear'] else ''}",
+                flush=True,
+            )
+            rows.append(
+                {
+                    "effect": effect,
+                    "seed": seed,
+                    "effect_params": params,
+                    "strip": dataclasses.asdict(strip),
+                    "named": found.cause,
+                    "gain": found.gain,
+                    "seconds": found.seconds,
+                    "baseline_mse_over_noise": excess,
+                    "effect_free_mse_over_noise": least,
+                    "identifiable": bool(least >= IDENTIFIABLE),
+                    "baseline_nmse": found.baseline.heldout["nmse"],
+                    "extended_nmse": found.extended.heldout["nmse"],
+                    "parameters": found.to_dict()["parameters"] if found.cause != "none" else {},
+                    "candidates": {
+                        c.name: {
+                            "gain": c.gain,
+                            "delta_bic": c.delta_bic,
+                            "Q": c.ljung_box["Q"],
+                            "material": c.material,
+                            "eligible": c.eligible,
+                            "derived": c.derived,
+                            "reasons": c.reasons,
+                        }
+                        for c in found.candidates
+                    },
+                    "baseline_Q": found.baseline.ljung_box["Q"],
+                    **world,
+                }
+            )
     if args.dry_run:
         return 0
 
@@ -335,39 +428,71 @@ def main(argv=None) -> int:
         for drive_name in ("prbs-multilevel", "prbs"):
             recording = virtual_recording(_drive(drive_name, args.duration, args.rate, 0), seed=0)
             found = diagnose(recording)
-            print(f"virtual IPMC ({drive_name}): named {found.cause} gain {found.gain:.2f} "
-                  f"{found.extended.derived}", flush=True)
-            virtual.append({"drive": drive_name, "named": found.cause, "gain": found.gain,
-                            "baseline_nmse": found.baseline.heldout["nmse"],
-                            "extended_nmse": found.extended.heldout["nmse"],
-                            "parameters": found.to_dict()["parameters"],
-                            "candidates": {c.name: {"gain": c.gain, "delta_bic": c.delta_bic,
-                                                    "eligible": c.eligible, "derived": c.derived,
-                                                    "reasons": c.reasons}
-                                           for c in found.candidates}})
+            print(
+                f"virtual IPMC ({drive_name}): named {found.cause} gain {found.gain:.2f} "
+                f"{found.extended.derived}",
+                flush=True,
+            )
+            virtual.append(
+                {
+                    "drive": drive_name,
+                    "named": found.cause,
+                    "gain": found.gain,
+                    "baseline_nmse": found.baseline.heldout["nmse"],
+                    "extended_nmse": found.extended.heldout["nmse"],
+                    "parameters": found.to_dict()["parameters"],
+                    "candidates": {
+                        c.name: {
+                            "gain": c.gain,
+                            "delta_bic": c.delta_bic,
+                            "eligible": c.eligible,
+                            "derived": c.derived,
+                            "reasons": c.reasons,
+                        }
+                        for c in found.candidates
+                    },
+                }
+            )
 
     single = [e for e in effects if e in HIDDEN_EFFECTS]  # the single-effect tables, as before pairs
     table = _table(rows, single, CAUSES)
-    table_identifiable = _table([r for r in rows if r["identifiable"] or r["effect"] == "none"], single, CAUSES)
+    table_identifiable = _table(
+        [r for r in rows if r["identifiable"] or r["effect"] == "none"], single, CAUSES
+    )
     world = open_world_tables(rows, effects)
     seconds = [r["seconds"] for r in rows]
     command = "python experiments/discrepancy.py " + " ".join(argv)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"command": command, "settings": vars(args), "rows": rows, "virtual_ipmc": virtual},
-                              indent=2, default=float))
-    summary = ["# Discrepancy search: hidden effect × named cause\n", f"Command: `{command}`\n",
-               f"Drive {args.drive}, {args.duration:g} s at {args.rate:g} Hz, noise {100 * args.noise:g} % of range, "
-               f"seeds {', '.join(map(str, seeds))}.\n"]
+    out.write_text(
+        json.dumps(
+            {"command": command, "settings": vars(args), "rows": rows, "virtual_ipmc": virtual},
+            indent=2,
+            default=float,
+        )
+    )
+    summary = [
+        "# Discrepancy search: hidden effect × named cause\n",
+        f"Command: `{command}`\n",
+        f"Drive {args.drive}, {args.duration:g} s at {args.rate:g} Hz, noise {100 * args.noise:g} % of range, "
+        f"seeds {', '.join(map(str, seeds))}.\n",
+    ]
     if single:
-        summary += ["All draws:\n", table, "",
-                    f"Draws whose effect is identifiable (every effect-free fit leaves a held-out MSE ≥ "
-                    f"{IDENTIFIABLE:g}× the noise variance, so a gain of 2 is possible; all effect-free draws):\n",
-                    table_identifiable, ""]
+        summary += [
+            "All draws:\n",
+            table,
+            "",
+            f"Draws whose effect is identifiable (every effect-free fit leaves a held-out MSE ≥ "
+            f"{IDENTIFIABLE:g}× the noise variance, so a gain of 2 is possible; all effect-free draws):\n",
+            table_identifiable,
+            "",
+        ]
     summary += ["## Open world: several causes, effects outside the library, the noise floor\n", world, ""]
     if seconds:
-        summary.append(f"diagnose time per recording: median {np.median(seconds):.1f} s, max {max(seconds):.1f} s "
-                       "(the first includes compilation).\n")
+        summary.append(
+            f"diagnose time per recording: median {np.median(seconds):.1f} s, max {max(seconds):.1f} s "
+            "(the first includes compilation).\n"
+        )
     for v in virtual:
         summary.append(f"Virtual IPMC ({v['drive']}): named **{v['named']}**, held-out gain {v['gain']:.2f}.")
     out.with_suffix(".md").write_text("\n".join(summary) + "\n")
@@ -377,7 +502,9 @@ def main(argv=None) -> int:
     print(world)
     single_rows = [r for r in rows if "+" not in r["effect"] and not r.get("outside_effects")]
     hits = sum(r["named"] == r["effect"] for r in single_rows)
-    print(f"single effects (and none) named right: {hits}/{len(single_rows)}; wrote {out} and {out.with_suffix('.md')}")
+    print(
+        f"single effects (and none) named right: {hits}/{len(single_rows)}; wrote {out} and {out.with_suffix('.md')}"
+    )
     return 0
 
 

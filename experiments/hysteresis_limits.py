@@ -66,11 +66,21 @@ def _oracle_loop(designs, span, h, fit_on, train, test, noise_var):
         score = float(np.mean(resid[fit_on] ** 2))
         if best is None or score < best[0]:
             a, b, d = coef[:3]
-            best = (score, float(np.mean(resid[train] ** 2)), float(np.mean(resid[test] ** 2)), {
-                "hysteresis_rate_per_v": k, "hysteresis_height_v": b / (1.0 + a),
-                "hysteresis_initial_state": float(np.clip(d / b, -0.95, 0.95))})
-    return {"train": best[1] / noise_var, "test": best[2] / noise_var, "rate_times_range": best[3][
-        "hysteresis_rate_per_v"] * span}, best[3]
+            best = (
+                score,
+                float(np.mean(resid[train] ** 2)),
+                float(np.mean(resid[test] ** 2)),
+                {
+                    "hysteresis_rate_per_v": k,
+                    "hysteresis_height_v": b / (1.0 + a),
+                    "hysteresis_initial_state": float(np.clip(d / b, -0.95, 0.95)),
+                },
+            )
+    return {
+        "train": best[1] / noise_var,
+        "test": best[2] / noise_var,
+        "rate_times_range": best[3]["hysteresis_rate_per_v"] * span,
+    }, best[3]
 
 
 def main(argv=None) -> int:
@@ -115,16 +125,19 @@ def main(argv=None) -> int:
     lm = LMSettings(max_steps=settings.max_steps)
     rows = []
     for seed in (int(x) for x in args.seed_list.split(",")):
-        strip, params, recording = discrepancy.draw("hysteresis", seed, args.duration, args.rate, args.drive,
-                                                    args.noise)
+        strip, params, recording = discrepancy.draw(
+            "hysteresis", seed, args.duration, args.rate, args.drive, args.noise
+        )
         noise_var = (args.noise * np.ptp(recording.extra["w_true"])) ** 2
 
         simulation = RCNetwork(method="zoh")
         model = universal_model(simulation)
         series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
         problem, n_rows = search_problem(model, series, frozen)
-        parts = {split: np.concatenate([np.arange(a, b) for a, b in series[0].segments_of(split)])
-                 for split in ("train", "test")}
+        parts = {
+            split: np.concatenate([np.arange(a, b) for a, b in series[0].segments_of(split)])
+            for split in ("train", "test")
+        }
 
         def over_noise(theta, active, problem=problem, noise_var=noise_var):
             out = {}
@@ -142,12 +155,20 @@ def main(argv=None) -> int:
         designs, span = _loop_designs(s_true, rates), float(np.ptp(s_true))
         everywhere = np.arange(len(s_true))
         oracle_all, loop = _oracle_loop(designs, span, h, everywhere, parts["train"], parts["test"], noise_s)
-        oracle_train, _ = _oracle_loop(designs, span, h, parts["train"], parts["train"], parts["test"], noise_s)
+        oracle_train, _ = _oracle_loop(
+            designs, span, h, parts["train"], parts["train"], parts["test"], noise_s
+        )
 
-        rc = {"xi_rho": strip.xi_rho / strip.xi_h, "alpha_E": strip.alpha_E, "alpha_I": strip.alpha_I,
-              "alpha_C": strip.alpha_C, "C_clamp": strip.C_clamp}
-        truth = initial_theta(problem, model.simulation.replace(**rc, **loop).with_active(on),
-                                      model.readout, frozen)
+        rc = {
+            "xi_rho": strip.xi_rho / strip.xi_h,
+            "alpha_E": strip.alpha_E,
+            "alpha_I": strip.alpha_I,
+            "alpha_C": strip.alpha_C,
+            "C_clamp": strip.C_clamp,
+        }
+        truth = initial_theta(
+            problem, model.simulation.replace(**rc, **loop).with_active(on), model.readout, frozen
+        )
         tangents = lane_tangents(model, frozen, "hysteresis", n_rows)
         state = fit_lanes(problem, on[None], tangents[None], truth[None], lm, settings.patience)
         from_truth = state.best_theta[0]
@@ -156,18 +177,24 @@ def main(argv=None) -> int:
         candidate = next(c for c in found.candidates if c.name == "hysteresis")
         baseline = over_noise(found.baseline.theta, off)
         floor_test = discrepancy.excess_over_noise(recording, found)[1]
-        loop_height = lambda theta, active, problem=problem: derived_quantities(problem, theta, active)["hysteresis"][
-            "loop_height_percent_of_range"]
+        loop_height = lambda theta, active, problem=problem: derived_quantities(problem, theta, active)[
+            "hysteresis"
+        ]["loop_height_percent_of_range"]
         row = {
-            "seed": seed, "hidden_loop_fraction": params["height_fraction"], "C_clamp": strip.C_clamp,
+            "seed": seed,
+            "hidden_loop_fraction": params["height_fraction"],
+            "C_clamp": strip.C_clamp,
             "named": found.cause,
-            "oracle_loop_all": oracle_all, "oracle_loop_training": oracle_train,
+            "oracle_loop_all": oracle_all,
+            "oracle_loop_training": oracle_train,
             "truth_point": {**over_noise(truth, on), "loop_percent": loop_height(truth, on)},
             "lm_from_truth": {**over_noise(from_truth, on), "loop_percent": loop_height(from_truth, on)},
             "search_baseline": baseline,
-            "search_hysteresis": {**over_noise(candidate.theta, candidate.active),
-                                  "loop_percent": candidate.derived["loop_height_percent_of_range"],
-                                  "reasons": candidate.reasons},
+            "search_hysteresis": {
+                **over_noise(candidate.theta, candidate.active),
+                "loop_percent": candidate.derived["loop_height_percent_of_range"],
+                "reasons": candidate.reasons,
+            },
             "effect_free_floor_test": floor_test,
         }
         rows.append(row)
@@ -176,21 +203,28 @@ def main(argv=None) -> int:
     def cell(d):
         return f"{d['train']:.2f} / {d['test']:.2f}"
 
-    lines = ["| seed | loop (hidden) | C_clamp (F) | oracle loop, all [k·range] | oracle loop, training [k·range] | "
-             "truth point | LM from truth | search baseline | search hysteresis | effect-free floor (held-out) | named |",
-             "|---" * 11 + "|"]
+    lines = [
+        "| seed | loop (hidden) | C_clamp (F) | oracle loop, all [k·range] | oracle loop, training [k·range] | "
+        "truth point | LM from truth | search baseline | search hysteresis | effect-free floor (held-out) | named |",
+        "|---" * 11 + "|",
+    ]
     for r in rows:
-        oracle = "".join(f"| {cell(r[key])} [{r[key]['rate_times_range']:.1f}] "
-                         for key in ("oracle_loop_all", "oracle_loop_training"))
+        oracle = "".join(
+            f"| {cell(r[key])} [{r[key]['rate_times_range']:.1f}] "
+            for key in ("oracle_loop_all", "oracle_loop_training")
+        )
         lines.append(
             f"| {r['seed']} | {100 * r['hidden_loop_fraction']:.0f} % | {r['C_clamp']:.3f} {oracle}| "
             f"{cell(r['truth_point'])} | {cell(r['lm_from_truth'])} ({r['lm_from_truth']['loop_percent']:.0f} %) | "
             f"{cell(r['search_baseline'])} | {cell(r['search_hysteresis'])} "
-            f"({r['search_hysteresis']['loop_percent']:.0f} %) | {r['effect_free_floor_test']:.2f} | {r['named']} |")
+            f"({r['search_hysteresis']['loop_percent']:.0f} %) | {r['effect_free_floor_test']:.2f} | {r['named']} |"
+        )
     command = "python experiments/hysteresis_limits.py " + " ".join(argv)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"command": command, "settings": vars(args), "rows": rows}, indent=2, default=float))
+    out.write_text(
+        json.dumps({"command": command, "settings": vars(args), "rows": rows}, indent=2, default=float)
+    )
     out.with_suffix(".md").write_text(
         "# Hidden hysteresis: the search against the truth\n\n"
         f"Command: `{command}`\n\n"
@@ -198,7 +232,8 @@ def main(argv=None) -> int:
         "Cells: training / held-out MSE over the noise variance (1 is the floor); in brackets the fitted loop "
         "height in % of the range; in square brackets the oracle's rate times the range of V_o. The oracle loops "
         "are one Bouc–Wen element fitted to the hidden term on the true V_o (no camera, no noise), over the whole "
-        "recording or its training part only.\n\n" + "\n".join(lines) + "\n")
+        "recording or its training part only.\n\n" + "\n".join(lines) + "\n"
+    )
     print("\n".join(lines))
     print(f"wrote {out} and {out.with_suffix('.md')}")
     return 0

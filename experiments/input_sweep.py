@@ -50,11 +50,11 @@ _ROOT = {"path": ROOT}  # the checkout whose commands run (--root)
 @dataclasses.dataclass
 class Case:
     name: str
-    argv: list[str]                    # after the program name; {dir} is the case folder
-    files: dict[str, bytes]            # inputs written into the case folder
-    expect: str                        # "refuse" or "accept"
+    argv: list[str]  # after the program name; {dir} is the case folder
+    files: dict[str, bytes]  # inputs written into the case folder
+    expect: str  # "refuse" or "accept"
     program: str = "hybrid"
-    outputs: tuple[str, ...] = ()      # files that must load after an "accept"
+    outputs: tuple[str, ...] = ()  # files that must load after an "accept"
     timeout: float = 240.0
 
 
@@ -141,37 +141,107 @@ def build_cases() -> list[Case]:
         inp = f"rec{suffix}"
         files = {inp: data}
         cases += [
-            Case(f"fit/{name}", ["fit", inp, "--model", "physics", "--max-steps", "2", "--quiet", "--out",
-                                 "m.eqx"], files, "accept" if name in UNITS_ONLY else "refuse"),
-            Case(f"fit-hybrid/{name}", ["fit", inp, "--model", "hybrid", "--max-steps", "1", "--quiet", "--out",
-                                        "m.eqx"], files, "accept" if name in UNITS_ONLY else "refuse"),
-            Case(f"rc/{name}", ["rc", inp, "--out", "vo.csv"], files,
-                 "either" if name in W_ONLY + DRIVE_ONLY else "refuse"),
-            Case(f"diagnose/{name}", ["diagnose", inp, "--out", "diag", "--max-steps", "1", "--quiet"], files,
-                 "refuse"),
-            Case(f"sensitivity/{name}", ["sensitivity", inp, "--out", "sens", "--duration", "5"], files,
-                 "either" if name in W_ONLY else "refuse"),
+            Case(
+                f"fit/{name}",
+                ["fit", inp, "--model", "physics", "--max-steps", "2", "--quiet", "--out", "m.eqx"],
+                files,
+                "accept" if name in UNITS_ONLY else "refuse",
+            ),
+            Case(
+                f"fit-hybrid/{name}",
+                ["fit", inp, "--model", "hybrid", "--max-steps", "1", "--quiet", "--out", "m.eqx"],
+                files,
+                "accept" if name in UNITS_ONLY else "refuse",
+            ),
+            Case(
+                f"rc/{name}",
+                ["rc", inp, "--out", "vo.csv"],
+                files,
+                "either" if name in W_ONLY + DRIVE_ONLY else "refuse",
+            ),
+            Case(
+                f"diagnose/{name}",
+                ["diagnose", inp, "--out", "diag", "--max-steps", "1", "--quiet"],
+                files,
+                "refuse",
+            ),
+            Case(
+                f"sensitivity/{name}",
+                ["sensitivity", inp, "--out", "sens", "--duration", "5"],
+                files,
+                "either" if name in W_ONLY else "refuse",
+            ),
         ]
     # 2. arguments out of range
     files = {"rec.csv": good}
     bad_args = {
-        "simulate": [["--rate", "0"], ["--rate", "-30"], ["--rate", "1e9"], ["--rate", "nan"], ["--duration", "0"],
-                     ["--duration", "-5"], ["--duration", "inf"], ["--duration", "nan"], ["--duration", "1e9"],
-                     ["--amplitude", "nan"], ["--param", "tau_s=-1"], ["--param", "nope=1"],
-                     ["--param", "xi_rho"], ["--drive", "square"]],
-        "rc": [["--stages", "0"], ["--stages", "-1"], ["--stages", "100000"], ["--stages", "abc"],
-               ["--param", "xi_rho=-1"], ["--param", "xi_rho=nan"], ["--param", "alpha_E=1.5"],
-               ["--param", "C_clamp=abc"], ["--param", "nope=1"], ["--method", "euler"]],
-        "fit": [["--max-steps", "0"], ["--max-steps", "-1"], ["--starts", "0"], ["--starts", "-2"],
-                ["--window", "0"], ["--window", "1000000"], ["--depth", "0"], ["--width", "0"],
-                ["--split", "1,1,1"], ["--split", "0.3,0.5"], ["--split", "a,b,c"], ["--split", "-0.1,0.6,0.5"],
-                ["--param", "nope=1"], ["--param", "C_clamp=-1"], ["--freeze", "nope"], ["--free", "nope"],
-                ["--model", "nope"], ["--solver", "nope"], ["--model", "normal", "--param", "xi_rho=5"]],
-        "diagnose": [["--max-steps", "0"], ["--max-steps", "-3"], ["--blocks", "0"], ["--blocks", "-1"],
-                     ["--blocks", "100000"]],
-        "sensitivity": [["--stages", "0"], ["--stages", "100000"], ["--duration", "0"], ["--duration", "-1"],
-                        ["--rate", "0"], ["--noise", "-1"], ["--sobol", "-5"], ["--param", "nope=1"],
-                        ["--drive", "nope"]],
+        "simulate": [
+            ["--rate", "0"],
+            ["--rate", "-30"],
+            ["--rate", "1e9"],
+            ["--rate", "nan"],
+            ["--duration", "0"],
+            ["--duration", "-5"],
+            ["--duration", "inf"],
+            ["--duration", "nan"],
+            ["--duration", "1e9"],
+            ["--amplitude", "nan"],
+            ["--param", "tau_s=-1"],
+            ["--param", "nope=1"],
+            ["--param", "xi_rho"],
+            ["--drive", "square"],
+        ],
+        "rc": [
+            ["--stages", "0"],
+            ["--stages", "-1"],
+            ["--stages", "100000"],
+            ["--stages", "abc"],
+            ["--param", "xi_rho=-1"],
+            ["--param", "xi_rho=nan"],
+            ["--param", "alpha_E=1.5"],
+            ["--param", "C_clamp=abc"],
+            ["--param", "nope=1"],
+            ["--method", "euler"],
+        ],
+        "fit": [
+            ["--max-steps", "0"],
+            ["--max-steps", "-1"],
+            ["--starts", "0"],
+            ["--starts", "-2"],
+            ["--window", "0"],
+            ["--window", "1000000"],
+            ["--depth", "0"],
+            ["--width", "0"],
+            ["--split", "1,1,1"],
+            ["--split", "0.3,0.5"],
+            ["--split", "a,b,c"],
+            ["--split", "-0.1,0.6,0.5"],
+            ["--param", "nope=1"],
+            ["--param", "C_clamp=-1"],
+            ["--freeze", "nope"],
+            ["--free", "nope"],
+            ["--model", "nope"],
+            ["--solver", "nope"],
+            ["--model", "normal", "--param", "xi_rho=5"],
+        ],
+        "diagnose": [
+            ["--max-steps", "0"],
+            ["--max-steps", "-3"],
+            ["--blocks", "0"],
+            ["--blocks", "-1"],
+            ["--blocks", "100000"],
+        ],
+        "sensitivity": [
+            ["--stages", "0"],
+            ["--stages", "100000"],
+            ["--duration", "0"],
+            ["--duration", "-1"],
+            ["--rate", "0"],
+            ["--noise", "-1"],
+            ["--sobol", "-5"],
+            ["--param", "nope=1"],
+            ["--drive", "nope"],
+        ],
         "table2": [["--duration", "0"], ["--duration", "-10"], ["--starts", "0"], ["--max-steps", "0"]],
     }
     base = {
@@ -188,65 +258,170 @@ def build_cases() -> list[Case]:
             for i in range(0, len(extra) - 1, 2):  # an option given twice: argparse keeps the last
                 if extra[i] in argv and extra[i] not in ("--param", "--freeze", "--free"):
                     j = argv.index(extra[i])
-                    del argv[j:j + 2]
-            expect = "either" if extra == ["--depth", "0"] else "refuse"  # no hidden layer: a linear window map
+                    del argv[j : j + 2]
+            expect = (
+                "either" if extra == ["--depth", "0"] else "refuse"
+            )  # no hidden layer: a linear window map
             cases.append(Case(f"args/{command}/{' '.join(extra)}", argv + extra, dict(files), expect))
     # 3. outputs: onto an input, a folder, no suffix, a wrong suffix, nowhere writable
     out_cases = {
-        "fit --out input": (["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out",
-                             "rec.csv"], "refuse"),
-        "fit --out sidecar of input": (["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet",
-                                        "--out", "other.eqx", "--json", "rec.csv"], "refuse"),
-        "fit --out folder": (["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out",
-                              "folder"], "refuse"),
-        "fit --out no suffix": (["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out",
-                                 "out/strip1"], "refuse"),
-        "fit --out .csv": (["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out",
-                            "model.csv"], "refuse"),
-        "fit --out unwritable": (["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out",
-                                  "/proc/hybrid/m.eqx"], "refuse"),
+        "fit --out input": (
+            ["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out", "rec.csv"],
+            "refuse",
+        ),
+        "fit --out sidecar of input": (
+            [
+                "fit",
+                "rec.csv",
+                "--model",
+                "physics",
+                "--max-steps",
+                "2",
+                "--quiet",
+                "--out",
+                "other.eqx",
+                "--json",
+                "rec.csv",
+            ],
+            "refuse",
+        ),
+        "fit --out folder": (
+            ["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out", "folder"],
+            "refuse",
+        ),
+        "fit --out no suffix": (
+            ["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out", "out/strip1"],
+            "refuse",
+        ),
+        "fit --out .csv": (
+            ["fit", "rec.csv", "--model", "physics", "--max-steps", "2", "--quiet", "--out", "model.csv"],
+            "refuse",
+        ),
+        "fit --out unwritable": (
+            [
+                "fit",
+                "rec.csv",
+                "--model",
+                "physics",
+                "--max-steps",
+                "2",
+                "--quiet",
+                "--out",
+                "/proc/hybrid/m.eqx",
+            ],
+            "refuse",
+        ),
         "rc --out input": (["rc", "rec.csv", "--out", "rec.csv"], "refuse"),
         "rc --out folder": (["rc", "rec.csv", "--out", "folder"], "refuse"),
         "rc --out unwritable": (["rc", "rec.csv", "--out", "/proc/hybrid/vo.csv"], "refuse"),
-        "simulate --out folder": (["simulate", "--drive", "prbs", "--duration", "10", "--out", "folder"],
-                                  "refuse"),
-        "simulate --out bad suffix": (["simulate", "--drive", "prbs", "--duration", "10", "--out", "sim.xlsx"],
-                                      "refuse"),
+        "simulate --out folder": (
+            ["simulate", "--drive", "prbs", "--duration", "10", "--out", "folder"],
+            "refuse",
+        ),
+        "simulate --out bad suffix": (
+            ["simulate", "--drive", "prbs", "--duration", "10", "--out", "sim.xlsx"],
+            "refuse",
+        ),
         "diagnose --out a file": (["diagnose", "rec.csv", "--out", "rec.csv", "--quiet"], "refuse"),
-        "diagnose --out unwritable": (["diagnose", "rec.csv", "--out", "/proc/hybrid/diag", "--quiet"], "refuse"),
-        "sensitivity --out a file": (["sensitivity", "rec.csv", "--out", "rec.csv", "--duration", "5"], "refuse"),
-        "table2 --out-dir a file": (["table2", "--out-dir", "rec.csv", "--duration", "10", "--quiet"], "refuse"),
+        "diagnose --out unwritable": (
+            ["diagnose", "rec.csv", "--out", "/proc/hybrid/diag", "--quiet"],
+            "refuse",
+        ),
+        "sensitivity --out a file": (
+            ["sensitivity", "rec.csv", "--out", "rec.csv", "--duration", "5"],
+            "refuse",
+        ),
+        "table2 --out-dir a file": (
+            ["table2", "--out-dir", "rec.csv", "--duration", "10", "--quiet"],
+            "refuse",
+        ),
         "fit missing input": (["fit", "missing.csv", "--model", "physics", "--quiet"], "refuse"),
         "fit folder input": (["fit", "folder", "--model", "physics", "--quiet"], "refuse"),
-        "fit good": (["fit", "rec.csv", "--model", "physics", "--max-steps", "3", "--quiet", "--out", "m.eqx",
-                      "--json", "m.json"], "accept"),
+        "fit good": (
+            [
+                "fit",
+                "rec.csv",
+                "--model",
+                "physics",
+                "--max-steps",
+                "3",
+                "--quiet",
+                "--out",
+                "m.eqx",
+                "--json",
+                "m.json",
+            ],
+            "accept",
+        ),
         "rc good": (["rc", "rec.csv", "--out", "vo.csv"], "accept"),
         "simulate good": (["simulate", "--drive", "prbs", "--duration", "20", "--out", "sim.csv"], "accept"),
     }
     outputs = {"fit good": ("m.eqx",), "simulate good": ("sim.csv",)}
     for name, (argv, expect) in out_cases.items():
-        cases.append(Case(f"outputs/{name}", argv, {"rec.csv": good, "folder/.keep": b""}, expect,
-                          outputs=outputs.get(name, ())))
+        cases.append(
+            Case(
+                f"outputs/{name}",
+                argv,
+                {"rec.csv": good, "folder/.keep": b""},
+                expect,
+                outputs=outputs.get(name, ()),
+            )
+        )
     # 4. rig: arguments out of range
-    for extra in (["--mm-per-px", "0"], ["--mm-per-px", "-0.1"], ["--mm-per-px", "nan"], ["--clamp", "1"],
-                  ["--clamp", "a,b"], ["--axis", "nan"], ["--strip-px", "0"], ["--length", "0"]):
+    for extra in (
+        ["--mm-per-px", "0"],
+        ["--mm-per-px", "-0.1"],
+        ["--mm-per-px", "nan"],
+        ["--clamp", "1"],
+        ["--clamp", "a,b"],
+        ["--axis", "nan"],
+        ["--strip-px", "0"],
+        ["--length", "0"],
+    ):
         argv = ["track", "video.avi", "--clamp", "100,100", "--mm-per-px", "0.1", "--out", "w.csv"]
         j = argv.index(extra[0]) if extra[0] in argv else None
         if j is not None:
-            del argv[j:j + 2]
-        cases.append(Case(f"rig/track {' '.join(extra)}", argv + extra, {"video.avi": b"RIFF" + b"\0" * 64},
-                          "refuse", program="rig"))
-    cases.append(Case("rig/track missing video", ["track", "none.avi", "--clamp", "1,1", "--mm-per-px", "0.1",
-                                                  "--out", "w.csv"], {}, "refuse", program="rig"))
-    cases.append(Case("rig/track garbage video", ["track", "video.avi", "--clamp", "1,1", "--mm-per-px", "0.1",
-                                                  "--out", "w.csv"], {"video.avi": b"garbage" * 100}, "refuse",
-                      program="rig"))
-    for extra in (["--fps", "0"], ["--fps", "-30"], ["--rate", "0"], ["--duration", "0"], ["--duration", "-1"],
-                  ["--speed", "0"], ["--exposure", "-1"]):
+            del argv[j : j + 2]
+        cases.append(
+            Case(
+                f"rig/track {' '.join(extra)}",
+                argv + extra,
+                {"video.avi": b"RIFF" + b"\0" * 64},
+                "refuse",
+                program="rig",
+            )
+        )
+    cases.append(
+        Case(
+            "rig/track missing video",
+            ["track", "none.avi", "--clamp", "1,1", "--mm-per-px", "0.1", "--out", "w.csv"],
+            {},
+            "refuse",
+            program="rig",
+        )
+    )
+    cases.append(
+        Case(
+            "rig/track garbage video",
+            ["track", "video.avi", "--clamp", "1,1", "--mm-per-px", "0.1", "--out", "w.csv"],
+            {"video.avi": b"garbage" * 100},
+            "refuse",
+            program="rig",
+        )
+    )
+    for extra in (
+        ["--fps", "0"],
+        ["--fps", "-30"],
+        ["--rate", "0"],
+        ["--duration", "0"],
+        ["--duration", "-1"],
+        ["--speed", "0"],
+        ["--exposure", "-1"],
+    ):
         argv = ["record", "--virtual", "--drive", "prbs", "--duration", "2", "--out", "r.csv"]
         j = argv.index(extra[0]) if extra[0] in argv else None
         if j is not None:
-            del argv[j:j + 2]
+            del argv[j : j + 2]
         cases.append(Case(f"rig/record {' '.join(extra)}", argv + extra, {}, "refuse", program="rig"))
     return cases
 
@@ -286,28 +461,52 @@ def run_case(case: Case) -> dict:
             (folder / rel).parent.mkdir(parents=True, exist_ok=True)
             (folder / rel).write_bytes(data)
         before = {rel: _digest(folder / rel) for rel in case.files}
-        env = {**os.environ, "HYBRID_JAX_CACHE": str(Path(tempfile.gettempdir()) / "hybrid_sweep_cache"),
-               "PYTHONPATH": str(_ROOT["path"])}
+        env = {
+            **os.environ,
+            "HYBRID_JAX_CACHE": str(Path(tempfile.gettempdir()) / "hybrid_sweep_cache"),
+            "PYTHONPATH": str(_ROOT["path"]),
+        }
         module = "hybrid.cli" if case.program == "hybrid" else "rig.cli"
         start = time.monotonic()
         try:
-            proc = subprocess.run([sys.executable, "-m", module, *case.argv], cwd=folder, env=env,
-                                  capture_output=True, text=True, timeout=case.timeout, stdin=subprocess.DEVNULL)
+            proc = subprocess.run(
+                [sys.executable, "-m", module, *case.argv],
+                cwd=folder,
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=case.timeout,
+                stdin=subprocess.DEVNULL,
+            )
             code, stderr = proc.returncode, proc.stderr
         except subprocess.TimeoutExpired:
             code, stderr = "hang", ""
         seconds = time.monotonic() - start
-        destroyed = [rel for rel in case.files if not (folder / rel).exists() or _digest(folder / rel) != before[rel]]
-        leftovers = [str(p.relative_to(folder)) for p in folder.rglob("*")
-                     if p.is_file() and (".tmp" in p.name or p.name.endswith(".part"))]
+        destroyed = [
+            rel for rel in case.files if not (folder / rel).exists() or _digest(folder / rel) != before[rel]
+        ]
+        leftovers = [
+            str(p.relative_to(folder))
+            for p in folder.rglob("*")
+            if p.is_file() and (".tmp" in p.name or p.name.endswith(".part"))
+        ]
         unloadable = [out for out in case.outputs if (folder / out).exists() and not _loads(folder / out)]
         if code == 0 and case.expect == "accept":
             unloadable += [out for out in case.outputs if not (folder / out).exists()]
         traceback = "Traceback (most recent call last)" in stderr
-        return {"name": case.name, "program": case.program, "argv": case.argv, "expect": case.expect,
-                "exit": code, "seconds": round(seconds, 1), "traceback": traceback, "hang": code == "hang",
-                "half_written": leftovers + unloadable,
-                "inputs_destroyed": destroyed, "stderr": stderr[-600:]}
+        return {
+            "name": case.name,
+            "program": case.program,
+            "argv": case.argv,
+            "expect": case.expect,
+            "exit": code,
+            "seconds": round(seconds, 1),
+            "traceback": traceback,
+            "hang": code == "hang",
+            "half_written": leftovers + unloadable,
+            "inputs_destroyed": destroyed,
+            "stderr": stderr[-600:],
+        }
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
@@ -330,8 +529,12 @@ def main(argv=None) -> int:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--only", default=None, help="run the cases whose name contains this")
     parser.add_argument("--root", default=str(ROOT), help="checkout whose hybrid/ and rig/ run")
-    parser.add_argument("--rejudge", default=None, metavar="JSON",
-                        help="judge the runs saved in JSON again with today's expectations, run nothing")
+    parser.add_argument(
+        "--rejudge",
+        default=None,
+        metavar="JSON",
+        help="judge the runs saved in JSON again with today's expectations, run nothing",
+    )
     parser.add_argument("--out", default="experiments/results/input_sweep.json")
     args = parser.parse_args(argv)
     _ROOT["path"] = Path(args.root).resolve()
@@ -349,7 +552,8 @@ def main(argv=None) -> int:
     for result in runs:
         flags = [k for k in ("traceback", "hang", "silent_wrong") if result[k]]
         flags += ["half_written"] * bool(result["half_written"]) + ["input_destroyed"] * bool(
-            result["inputs_destroyed"])
+            result["inputs_destroyed"]
+        )
         print(f"{result['name']:60s} exit {result['exit']!s:5s} {','.join(flags) or 'ok'}", flush=True)
         results.append(result)
     counts = {
@@ -362,13 +566,31 @@ def main(argv=None) -> int:
     }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"command": "python experiments/input_sweep.py", "root": str(_ROOT["path"]),
-                               "counts": counts,
-                               "cases": results}, indent=2) + "\n")
-    bad = [r for r in results if r["traceback"] or r["hang"] or r["silent_wrong"] or r["half_written"]
-           or r["inputs_destroyed"]]
-    md = ["# Bad-input sweep (`python experiments/input_sweep.py`)", "",
-          " | ".join(f"{k} {v}" for k, v in counts.items()), "", "| case | exit | what went wrong |", "|---|---|---|"]
+    out.write_text(
+        json.dumps(
+            {
+                "command": "python experiments/input_sweep.py",
+                "root": str(_ROOT["path"]),
+                "counts": counts,
+                "cases": results,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    bad = [
+        r
+        for r in results
+        if r["traceback"] or r["hang"] or r["silent_wrong"] or r["half_written"] or r["inputs_destroyed"]
+    ]
+    md = [
+        "# Bad-input sweep (`python experiments/input_sweep.py`)",
+        "",
+        " | ".join(f"{k} {v}" for k, v in counts.items()),
+        "",
+        "| case | exit | what went wrong |",
+        "|---|---|---|",
+    ]
     for r in bad:
         what = [k for k in ("traceback", "hang", "silent_wrong") if r[k]]
         what += [f"half-written {r['half_written']}"] * bool(r["half_written"])

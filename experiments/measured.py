@@ -76,13 +76,22 @@ SMALL_MLP_DECAY = 0.01
 SILVERBOX_RATE = 610.35
 SILVERBOX_EST, SILVERBOX_TEST = "40650:127400", "100:40575"
 SILVERBOX_HYBRID_RANGE = "40650:57990"
-SILVERBOX_DIAGNOSE_RANGE = "40650:49325"  # one multisine realisation: diagnose's many lanes stay within minutes
+SILVERBOX_DIAGNOSE_RANGE = (
+    "40650:49325"  # one multisine realisation: diagnose's many lanes stay within minutes
+)
 PUBLISHED = {
-    "tanks": [("grey-box with overflow (Rogers et al. 2017)", "0.18-0.19 V"),
-              ("nonlinear state-space", "~0.34 V"), ("GRU/LSTM", "~0.40 V"), ("dynoNet", "0.42 V")],
-    "silverbox": [("best reported", "a few tenths of a mV"), ("polynomial NL state-space (Paduart et al. 2010)",
-                                                              "< 1 mV"),
-                  ("dynoNet", "~1.2 mV"), ("LSTM", "~1.5 mV")],
+    "tanks": [
+        ("grey-box with overflow (Rogers et al. 2017)", "0.18-0.19 V"),
+        ("nonlinear state-space", "~0.34 V"),
+        ("GRU/LSTM", "~0.40 V"),
+        ("dynoNet", "0.42 V"),
+    ],
+    "silverbox": [
+        ("best reported", "a few tenths of a mV"),
+        ("polynomial NL state-space (Paduart et al. 2010)", "< 1 mV"),
+        ("dynoNet", "~1.2 mV"),
+        ("LSTM", "~1.5 mV"),
+    ],
 }
 
 
@@ -92,8 +101,16 @@ def _rmse(a, b) -> float:
 
 def _fit(model, recording, frozen=(), starts=1, max_steps=300, weight_decay=0.0):
     t0 = time.perf_counter()
-    result = hybrid.fit(model, recording, frozen=set(frozen), split=SPLIT, starts=starts, max_steps=max_steps,
-                        weight_decay=weight_decay, progress=False)
+    result = hybrid.fit(
+        model,
+        recording,
+        frozen=set(frozen),
+        split=SPLIT,
+        starts=starts,
+        max_steps=max_steps,
+        weight_decay=weight_decay,
+        progress=False,
+    )
     return result.model, time.perf_counter() - t0
 
 
@@ -127,8 +144,17 @@ def run_tanks(do_diagnose: bool, log) -> dict:
     def add(label, model, seconds, note=""):
         rmse, u0, prediction = tanks_score(model, val)
         est_rmse = _rmse(model.predict(est.v_in, est.dt), est.w)
-        rows.append({"model": label, "rmse_val_v": rmse, "rmse_est_v": est_rmse, "seconds": seconds,
-                     "val_initial_drive_v": u0, "parameters": _values(model), "note": note})
+        rows.append(
+            {
+                "model": label,
+                "rmse_val_v": rmse,
+                "rmse_est_v": est_rmse,
+                "seconds": seconds,
+                "val_initial_drive_v": u0,
+                "parameters": _values(model),
+                "note": note,
+            }
+        )
         log(f"tanks  {label:<44} Val RMSE {rmse:.4f} V  (Est {est_rmse:.4f} V, {seconds:.1f} s)")
         return prediction
 
@@ -139,23 +165,37 @@ def run_tanks(do_diagnose: bool, log) -> dict:
 
     # (b') the overflow, started from (a)'s fit: rims at the highest levels (a) reaches
     p = _values(base)
-    h1, h2 = (np.asarray(x)[SETTLE:] for x in base.simulation.inner.levels(base.simulation.held_drive(est.v_in),
-                                                                            est.dt))
+    h1, h2 = (
+        np.asarray(x)[SETTLE:]
+        for x in base.simulation.inner.levels(base.simulation.held_drive(est.v_in), est.dt)
+    )
     start = {k: p[k] for k in TwoTank.constraints}
-    overflow = HeldStart(TwoTankOverflow(**start, level_max_1=0.7 * float(h1.max()),
-                                         level_max_2=float(h2.max()), spill_to_lower=0.5),
-                         SETTLE, initial_drive=p["initial_drive"])
+    overflow = HeldStart(
+        TwoTankOverflow(
+            **start, level_max_1=0.7 * float(h1.max()), level_max_2=float(h2.max()), spill_to_lower=0.5
+        ),
+        SETTLE,
+        initial_drive=p["initial_drive"],
+    )
     model = _with_simulation(base, overflow)
     model, seconds = _fit(model, est, frozen, starts=4)
     predictions["(b') TwoTankOverflow"] = add("(b') TwoTankOverflow (+ both rims, spill)", model, seconds)
 
-    hyb, seconds = _fit(hybrid.make_model("hybrid", simulation=base.simulation, key=jax.random.key(0)), est, frozen,
-                        max_steps=200)
+    hyb, seconds = _fit(
+        hybrid.make_model("hybrid", simulation=base.simulation, key=jax.random.key(0)),
+        est,
+        frozen,
+        max_steps=200,
+    )
     add("(c) hybrid: TwoTank + D-MLP", hyb, seconds)
     small = hybrid.make_model("hybrid", simulation=base.simulation, key=jax.random.key(0), **SMALL_MLP)
     hyb, seconds = _fit(small, est, frozen, max_steps=200, weight_decay=SMALL_MLP_DECAY)
-    add("(c') hybrid: TwoTank + small MLP (1 x 5, window 15)", hyb, seconds,
-        "network sized after six sizes were scored on Val: optimistic")
+    add(
+        "(c') hybrid: TwoTank + small MLP (1 x 5, window 15)",
+        hyb,
+        seconds,
+        "network sized after six sizes were scored on Val: optimistic",
+    )
 
     lti = HeldStart(hybrid.LTI(2), SETTLE, initial_drive=3.0)
     lti_model, seconds = _fit(hybrid.make_model("physics", simulation=lti), est, starts=4)
@@ -163,11 +203,19 @@ def run_tanks(do_diagnose: bool, log) -> dict:
 
     if do_diagnose:
         # diagnosed as fitted: from a held drive (the record starts with water in the tanks)
-        _diagnose_and_extend(out, add, est, est, [("TwoTank", HeldStart(TwoTank(), SETTLE, initial_drive=3.0), base,
-                                                   frozen, "b"),
-                                                  ("lti:2", HeldStart(hybrid.LTI(2), SETTLE, initial_drive=3.0),
-                                                   lti_model, (), "d")],
-                             log, "tanks", starts=4)
+        _diagnose_and_extend(
+            out,
+            add,
+            est,
+            est,
+            [
+                ("TwoTank", HeldStart(TwoTank(), SETTLE, initial_drive=3.0), base, frozen, "b"),
+                ("lti:2", HeldStart(hybrid.LTI(2), SETTLE, initial_drive=3.0), lti_model, (), "d"),
+            ],
+            log,
+            "tanks",
+            starts=4,
+        )
     out["rows"] = rows
     out["published"] = PUBLISHED["tanks"]
     _tanks_figure(val, predictions)
@@ -175,8 +223,14 @@ def run_tanks(do_diagnose: bool, log) -> dict:
 
 
 #: (depth, width, window, weight decay) of the tanks' network-size sweep (`--datasets tanks_mlp`).
-MLP_SWEEP = [(11, 10, 60, 0.0), (11, 10, 60, 0.01), (2, 8, 30, 0.0), (2, 8, 30, 0.01), (2, 8, 30, 0.1),
-             (1, 5, 15, 0.01)]
+MLP_SWEEP = [
+    (11, 10, 60, 0.0),
+    (11, 10, 60, 0.01),
+    (2, 8, 30, 0.0),
+    (2, 8, 30, 0.01),
+    (2, 8, 30, 0.1),
+    (1, 5, 15, 0.01),
+]
 
 
 def run_tanks_mlp(do_diagnose: bool, log) -> dict:
@@ -187,14 +241,31 @@ def run_tanks_mlp(do_diagnose: bool, log) -> dict:
     base, _ = _fit(hybrid.make_model("physics", simulation=physics), est, frozen, starts=4)
     rows = []
     for depth, width, window, decay in MLP_SWEEP:
-        start = hybrid.make_model("hybrid", simulation=base.simulation, key=jax.random.key(0), depth=depth,
-                                  width=width, window=window)
+        start = hybrid.make_model(
+            "hybrid",
+            simulation=base.simulation,
+            key=jax.random.key(0),
+            depth=depth,
+            width=width,
+            window=window,
+        )
         model, seconds = _fit(start, est, frozen, max_steps=200, weight_decay=decay)
         rmse = tanks_score(model, val)[0]
         est_rmse = _rmse(model.predict(est.v_in, est.dt), est.w)
-        rows.append({"depth": depth, "width": width, "window": window, "weight_decay": decay,
-                     "rmse_val_v": rmse, "rmse_est_v": est_rmse, "seconds": seconds})
-        log(f"tanks MLP {depth} x {width}, window {window}, decay {decay}: Val {rmse:.3f} V, Est {est_rmse:.3f} V")
+        rows.append(
+            {
+                "depth": depth,
+                "width": width,
+                "window": window,
+                "weight_decay": decay,
+                "rmse_val_v": rmse,
+                "rmse_est_v": est_rmse,
+                "seconds": seconds,
+            }
+        )
+        log(
+            f"tanks MLP {depth} x {width}, window {window}, decay {decay}: Val {rmse:.3f} V, Est {est_rmse:.3f} V"
+        )
     return {"rows": rows, "note": "selected on Val: the (c') row's Val RMSE is optimistic"}
 
 
@@ -219,8 +290,13 @@ def _tanks_figure(val, predictions):
 
 # --- Silverbox -------------------------------------------------------------------------------
 def silverbox_record(sample_range):
-    return hybrid.load_mapped(DATA / "silverbox" / "SNLS80mV.csv", columns="input=V1,output=V2", units="v_in=V,w=V",
-                              rate=SILVERBOX_RATE, sample_range=sample_range)
+    return hybrid.load_mapped(
+        DATA / "silverbox" / "SNLS80mV.csv",
+        columns="input=V1,output=V2",
+        units="v_in=V,w=V",
+        rate=SILVERBOX_RATE,
+        sample_range=sample_range,
+    )
 
 
 def _resonance(recording) -> float:
@@ -235,16 +311,29 @@ def _resonance(recording) -> float:
 
 def run_silverbox(do_diagnose: bool, log) -> dict:
     est, test = silverbox_record(SILVERBOX_EST), silverbox_record(SILVERBOX_TEST)
-    rows, out = [], {"split": f"estimation samples {SILVERBOX_EST} (ten odd multisines), test {SILVERBOX_TEST} "
-                              "(the arrow), SNLS80mV.csv at 610.35 Hz"}
+    rows, out = (
+        [],
+        {
+            "split": f"estimation samples {SILVERBOX_EST} (ten odd multisines), test {SILVERBOX_TEST} "
+            "(the arrow), SNLS80mV.csv at 610.35 Hz"
+        },
+    )
     predictions = {}
 
     def add(label, model, seconds, note=""):
         prediction = np.asarray(model.predict(test.v_in, test.dt))
         rmse = 1e3 * _rmse(prediction, test.w)
         est_rmse = 1e3 * _rmse(model.predict(est.v_in, est.dt), est.w)
-        rows.append({"model": label, "rmse_test_mv": rmse, "rmse_est_mv": est_rmse, "seconds": seconds,
-                     "parameters": _values(model), "note": note})
+        rows.append(
+            {
+                "model": label,
+                "rmse_test_mv": rmse,
+                "rmse_est_mv": est_rmse,
+                "seconds": seconds,
+                "parameters": _values(model),
+                "note": note,
+            }
+        )
         log(f"silverbox {label:<41} arrow RMSE {rmse:.3f} mV  (est {est_rmse:.3f} mV, {seconds:.1f} s)")
         predictions[label] = prediction
 
@@ -254,7 +343,9 @@ def run_silverbox(do_diagnose: bool, log) -> dict:
     base, seconds = _fit(hybrid.make_model("physics", simulation=physics), est, frozen, max_steps=100)
     add("(a) MassSpringDamper (linear)", base, seconds)
 
-    duffing = _with_simulation(base, Duffing(**{k: float(v) for k, v in base.simulation.parameters().items()}))
+    duffing = _with_simulation(
+        base, Duffing(**{k: float(v) for k, v in base.simulation.parameters().items()})
+    )
     model, seconds = _fit(duffing, est, max_steps=100)
     add("(b') Duffing (+ cubic stiffness)", model, seconds)
 
@@ -263,15 +354,26 @@ def run_silverbox(do_diagnose: bool, log) -> dict:
     hyb, seconds = _fit(start, short, frozen + ("frequency", "zeta"), max_steps=60)
     add("(c) hybrid: MassSpringDamper + D-MLP", hyb, seconds, f"fitted on samples {SILVERBOX_HYBRID_RANGE}")
 
-    lti_model, seconds = _fit(hybrid.make_model("physics", simulation=hybrid.LTI(2, f_1=f0, zeta_1=0.05)), est,
-                              max_steps=100)
+    lti_model, seconds = _fit(
+        hybrid.make_model("physics", simulation=hybrid.LTI(2, f_1=f0, zeta_1=0.05)), est, max_steps=100
+    )
     add("(d) lti:2", lti_model, seconds)
 
     if do_diagnose:
         segment = silverbox_record(SILVERBOX_DIAGNOSE_RANGE)
-        _diagnose_and_extend(out, add, segment, est,
-                             [("MassSpringDamper", base.simulation, base, frozen, "b"),
-                              ("lti:2", lti_model.simulation, lti_model, (), "d")], log, "silverbox", max_steps=100)
+        _diagnose_and_extend(
+            out,
+            add,
+            segment,
+            est,
+            [
+                ("MassSpringDamper", base.simulation, base, frozen, "b"),
+                ("lti:2", lti_model.simulation, lti_model, (), "d"),
+            ],
+            log,
+            "silverbox",
+            max_steps=100,
+        )
     out["rows"] = rows
     out["published"] = PUBLISHED["silverbox"]
     return out
@@ -294,39 +396,69 @@ def _diagnose(recording, simulation, log, label) -> dict:
     t0 = time.perf_counter()
     d = hybrid.diagnose(recording, simulation=simulation, settings=DiagnoseSettings())
     seconds = time.perf_counter() - t0
-    summary = {"verdict": d.verdict, "causes": d.causes, "gain": d.gain, "unexplained": d.unexplained,
-               "baseline_nmse": d.baseline.heldout["nmse"], "extended_nmse": d.extended.heldout["nmse"],
-               "seconds": seconds, "samples": len(recording.w)}
+    summary = {
+        "verdict": d.verdict,
+        "causes": d.causes,
+        "gain": d.gain,
+        "unexplained": d.unexplained,
+        "baseline_nmse": d.baseline.heldout["nmse"],
+        "extended_nmse": d.extended.heldout["nmse"],
+        "seconds": seconds,
+        "samples": len(recording.w),
+    }
     log(f"diagnose {label}: {d.verdict} ({seconds:.0f} s)")
     return json.loads(json.dumps(summary, default=float))
 
 
 # --- report ------------------------------------------------------------------------------------
 def markdown(result: dict) -> str:
-    lines = ["# Measured data: Cascaded Tanks and Silverbox", "",
-             "Written by `python experiments/measured.py`; the conventions are in its docstring.", ""]
+    lines = [
+        "# Measured data: Cascaded Tanks and Silverbox",
+        "",
+        "Written by `python experiments/measured.py`; the conventions are in its docstring.",
+        "",
+    ]
     if "tanks_mlp" in result:
-        lines += ["## Cascaded Tanks: the hybrid model's network size", "", result["tanks_mlp"]["note"], "",
-                  "| depth x width | window | weight decay | Val RMSE (V) | Est RMSE (V) | fit (s) |",
-                  "|---|---|---|---|---|---|"]
-        lines += [f"| {r['depth']} x {r['width']} | {r['window']} | {r['weight_decay']:g} | {r['rmse_val_v']:.3f} | "
-                  f"{r['rmse_est_v']:.3f} | {r['seconds']:.1f} |" for r in result["tanks_mlp"]["rows"]]
+        lines += [
+            "## Cascaded Tanks: the hybrid model's network size",
+            "",
+            result["tanks_mlp"]["note"],
+            "",
+            "| depth x width | window | weight decay | Val RMSE (V) | Est RMSE (V) | fit (s) |",
+            "|---|---|---|---|---|---|",
+        ]
+        lines += [
+            f"| {r['depth']} x {r['width']} | {r['window']} | {r['weight_decay']:g} | {r['rmse_val_v']:.3f} | "
+            f"{r['rmse_est_v']:.3f} | {r['seconds']:.1f} |"
+            for r in result["tanks_mlp"]["rows"]
+        ]
         lines.append("")
     for key, unit, column in (("tanks", "V", "rmse_val_v"), ("silverbox", "mV", "rmse_test_mv")):
         if key not in result:
             continue
         part = result[key]
-        lines += [f"## {'Cascaded Tanks' if key == 'tanks' else 'Silverbox'}", "", part["split"], "",
-                  f"| model | test RMSE ({unit}) | estimation RMSE ({unit}) | fit (s) | note |", "|---|---|---|---|---|"]
+        lines += [
+            f"## {'Cascaded Tanks' if key == 'tanks' else 'Silverbox'}",
+            "",
+            part["split"],
+            "",
+            f"| model | test RMSE ({unit}) | estimation RMSE ({unit}) | fit (s) | note |",
+            "|---|---|---|---|---|",
+        ]
         for row in part["rows"]:
             est = row["rmse_est_v"] if key == "tanks" else row["rmse_est_mv"]
-            lines.append(f"| {row['model']} | {row[column]:.3f} | {est:.3f} | {row['seconds']:.1f} | {row['note']} |")
+            lines.append(
+                f"| {row['model']} | {row[column]:.3f} | {est:.3f} | {row['seconds']:.1f} | {row['note']} |"
+            )
         for name, value in part["published"]:
             lines.append(f"| published: {name} | {value} | | | data README |")
         for label in [k for k in part if k.startswith("diagnose_")]:
             d = part[label]
-            lines += ["", f"**diagnose, {label[len('diagnose_'):]}** ({d['samples']} samples, {d['seconds']:.0f} s): "
-                      f"{d['verdict']}"]
+            lines += [
+                "",
+                f"**diagnose, {label[len('diagnose_') :]}** ({d['samples']} samples, {d['seconds']:.0f} s): "
+                f"{d['verdict']}",
+            ]
         lines.append("")
     return "\n".join(lines)
 
@@ -340,8 +472,12 @@ def main(argv=None) -> int:
     out = pathlib.Path(args.out)
     # one dataset at a time: a run of one keeps the other's rows from an earlier run
     result = json.loads(out.read_text()) if out.exists() else {}
-    result["settings"] = {"settle": SETTLE, "val_initial": VAL_INITIAL, "split": SPLIT,
-                          "diagnose": dataclasses.asdict(DiagnoseSettings())}
+    result["settings"] = {
+        "settle": SETTLE,
+        "val_initial": VAL_INITIAL,
+        "split": SPLIT,
+        "diagnose": dataclasses.asdict(DiagnoseSettings()),
+    }
     for name in args.datasets.split(","):
         runner = {"tanks": run_tanks, "silverbox": run_silverbox, "tanks_mlp": run_tanks_mlp}[name]
         result[name] = runner(not args.no_diagnose, lambda s: print(s, flush=True))

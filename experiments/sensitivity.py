@@ -42,15 +42,23 @@ def main():
     t0 = time.perf_counter()
     nominal = run_sensitivity_study(SensitivityStudySettings(sobol=args.sobol), out)
     unequal = run_sensitivity_study(
-        SensitivityStudySettings(parameters={"xi_rho": 20.0, "alpha_E": 0.3, "alpha_I": 0.6, "alpha_C": 0.45,
-                                             "C_clamp": 0.02}),
-        out / "unequal_alpha")
+        SensitivityStudySettings(
+            parameters={"xi_rho": 20.0, "alpha_E": 0.3, "alpha_I": 0.6, "alpha_C": 0.45, "C_clamp": 0.02}
+        ),
+        out / "unequal_alpha",
+    )
     for name, result in (("nominal", nominal), ("unequal α", unequal)):
-        print(f"{name}: relative singular values "
-              + ", ".join(f"{s:.1e}" for s in result["relative_singular_values"]))
+        print(
+            f"{name}: relative singular values "
+            + ", ".join(f"{s:.1e}" for s in result["relative_singular_values"])
+        )
         print(f"  null directions: {result['null_directions']}")
-        print("  collinear pairs: " + ", ".join(f"{p['pair'][0]}–{p['pair'][1]} {p['cosine']:+.4f}"
-                                                for p in result["collinear_pairs"]))
+        print(
+            "  collinear pairs: "
+            + ", ".join(
+                f"{p['pair'][0]}–{p['pair'][1]} {p['cosine']:+.4f}" for p in result["collinear_pairs"]
+            )
+        )
 
     drive = hy.make_drive("prbs", 120.0, seed=0, min_hold=0.2, max_hold=4.0)
     recording = virtual_recording(drive, seed=0)
@@ -69,8 +77,14 @@ def main():
     for n in cov.names:
         print(f"  {n:<8} {cov.values[n]:.4g} ± {cov.std_errors[n]:.2g} {cov.units[n]}")
     corr = cov.correlation
-    pairs = sorted(((abs(corr[i, j]), cov.names[i], cov.names[j], corr[i, j])
-                    for i in range(len(cov.names)) for j in range(i + 1, len(cov.names))), reverse=True)
+    pairs = sorted(
+        (
+            (abs(corr[i, j]), cov.names[i], cov.names[j], corr[i, j])
+            for i in range(len(cov.names))
+            for j in range(i + 1, len(cov.names))
+        ),
+        reverse=True,
+    )
     print("  largest correlations: " + ", ".join(f"{a}–{b} {c:+.3f}" for _, a, b, c in pairs[:3]))
     print(f"done in {time.perf_counter() - t0:.0f} s; noise std {np.sqrt(cov.noise_variance):.3g} mm")
 

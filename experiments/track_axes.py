@@ -42,15 +42,19 @@ from rig_labvideo import LabVideo, write_video  # noqa: E402
 from rig import Scene  # noqa: E402
 
 # (name, rest axis, clamp, cantilever load: None = the lab video's arcs, else the tip load's share)
-CASES = [("right", 0.0, (120.0, 240.0), None), ("down", 90.0, (320.0, 110.0), None),
-         ("left", 180.0, (520.0, 240.0), None), ("30 deg", 30.0, (160.0, 130.0), None),
-         ("cantilever down, tip load", 90.0, (320.0, 110.0), 1.0),
-         ("cantilever right, uniform load", 0.0, (120.0, 240.0), 0.0),
-         ("cantilever 135 deg, mixed load", 135.0, (400.0, 100.0), 0.5),
-         ("cantilever 300 deg, uniform load", 300.0, (240.0, 400.0), 0.0)]
+CASES = [
+    ("right", 0.0, (120.0, 240.0), None),
+    ("down", 90.0, (320.0, 110.0), None),
+    ("left", 180.0, (520.0, 240.0), None),
+    ("30 deg", 30.0, (160.0, 130.0), None),
+    ("cantilever down, tip load", 90.0, (320.0, 110.0), 1.0),
+    ("cantilever right, uniform load", 0.0, (120.0, 240.0), 0.0),
+    ("cantilever 135 deg, mixed load", 135.0, (400.0, 100.0), 0.5),
+    ("cantilever 300 deg, uniform load", 300.0, (240.0, 400.0), 0.0),
+]
 SIZE = (640, 480)
 MM_PER_PX = 0.1
-AMPLITUDE = 6.2          # mm
+AMPLITUDE = 6.2  # mm
 
 
 def _rig_command() -> list[str]:
@@ -71,18 +75,34 @@ def run_case(name: str, angle: float, clamp, load, frames: int, seed: int, folde
         video = CantileverVideo(clamp, angle, size=SIZE, mm_per_px=MM_PER_PX, tip_share=load, seed=seed)
         k = np.arange(frames)
         sign = -1.0 if seed % 2 else 1.0
-        truth = sign * (2.0 + 2.1 * (1.0 - np.cos(2 * np.pi * k / 60.0)))    # 2 mm off at frame 0, one side
+        truth = sign * (2.0 + 2.1 * (1.0 - np.cos(2 * np.pi * k / 60.0)))  # 2 mm off at frame 0, one side
         write_avi(path, [video.frame(w, i) for i, w in enumerate(truth)])
     out = folder / f"strip_{seed}.csv"
-    command = [*_rig_command(), "track", str(path), "--clamp", f"{clamp[0]:g},{clamp[1]:g}",
-               "--mm-per-px", f"{MM_PER_PX:g}", "--out", str(out)]
+    command = [
+        *_rig_command(),
+        "track",
+        str(path),
+        "--clamp",
+        f"{clamp[0]:g},{clamp[1]:g}",
+        "--mm-per-px",
+        f"{MM_PER_PX:g}",
+        "--out",
+        str(out),
+    ]
     start = time.monotonic()
     done = subprocess.run(command, capture_output=True, text=True, timeout=600)
     wall = time.monotonic() - start
     printed = next((line for line in done.stdout.splitlines() if line.startswith("rest axis")), "")
-    row = {"case": name, "renderer": "rig_labvideo (arcs)" if load is None else "rig_cantilever_render",
-           "true_axis_deg": angle, "clamp": list(clamp), "exit": done.returncode,
-           "printed": printed, "wall_s": wall, "frames": frames}
+    row = {
+        "case": name,
+        "renderer": "rig_labvideo (arcs)" if load is None else "rig_cantilever_render",
+        "true_axis_deg": angle,
+        "clamp": list(clamp),
+        "exit": done.returncode,
+        "printed": printed,
+        "wall_s": wall,
+        "frames": frames,
+    }
     if done.returncode != 0 or not out.exists():
         row.update(detected_axis_deg=None, rms_mm=None, max_mm=None, good=0, stderr=done.stderr.strip())
         return row
@@ -91,33 +111,45 @@ def run_case(name: str, angle: float, clamp, load, frames: int, seed: int, folde
     good = data["quality"] > 0
     error = data["w"][good] - truth[good]
     detected = meta["axis"]["angle_deg"]
-    row.update(detected_axis_deg=detected,
-               axis_error_deg=(detected - angle + 180.0) % 360.0 - 180.0,
-               confidence=meta["axis"]["detection"]["confidence"],
-               rms_mm=float(np.sqrt(np.mean(error**2))), max_mm=float(np.max(np.abs(error))),
-               good=int(good.sum()))
+    row.update(
+        detected_axis_deg=detected,
+        axis_error_deg=(detected - angle + 180.0) % 360.0 - 180.0,
+        confidence=meta["axis"]["detection"]["confidence"],
+        rms_mm=float(np.sqrt(np.mean(error**2))),
+        max_mm=float(np.max(np.abs(error))),
+        good=int(good.sum()),
+    )
     return row
 
 
 def markdown(rows, command: str) -> str:
-    lines = ["# `rig track` without --axis: the rest axis found in the video", "",
-             f"Command: `{command}`", "",
-             "640x480 MJPG AVI, 0.1 mm/px, 22 mm strip: the first four from tests/rig_labvideo.py (arcs, "
-             "+-6.2 mm sweep), the cantilevers from tests/rig_cantilever_render.py (Euler-Bernoulli shapes, "
-             "2 mm off the rest line at frame 0 and 2-6.2 mm to one side of it throughout); "
-             "`rig track VIDEO --clamp X,Y --mm-per-px 0.1 --out w.csv` in a subprocess, no --axis. "
-             "RMS / max error over the frames marked good, against the drawn tip displacement.", "",
-             "| strip | true axis (deg) | detected axis (deg) | axis error (deg) | confidence | RMS error (mm) "
-             "| max error (mm) | frames good | exit | wall (s) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# `rig track` without --axis: the rest axis found in the video",
+        "",
+        f"Command: `{command}`",
+        "",
+        "640x480 MJPG AVI, 0.1 mm/px, 22 mm strip: the first four from tests/rig_labvideo.py (arcs, "
+        "+-6.2 mm sweep), the cantilevers from tests/rig_cantilever_render.py (Euler-Bernoulli shapes, "
+        "2 mm off the rest line at frame 0 and 2-6.2 mm to one side of it throughout); "
+        "`rig track VIDEO --clamp X,Y --mm-per-px 0.1 --out w.csv` in a subprocess, no --axis. "
+        "RMS / max error over the frames marked good, against the drawn tip displacement.",
+        "",
+        "| strip | true axis (deg) | detected axis (deg) | axis error (deg) | confidence | RMS error (mm) "
+        "| max error (mm) | frames good | exit | wall (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         if r["detected_axis_deg"] is None:
-            lines.append(f"| {r['case']} | {r['true_axis_deg']:g} | not found | | | | | 0/{r['frames']} "
-                         f"| {r['exit']} | {r['wall_s']:.1f} |")
+            lines.append(
+                f"| {r['case']} | {r['true_axis_deg']:g} | not found | | | | | 0/{r['frames']} "
+                f"| {r['exit']} | {r['wall_s']:.1f} |"
+            )
             continue
-        lines.append(f"| {r['case']} | {r['true_axis_deg']:g} | {r['detected_axis_deg']:.3f} | "
-                     f"{r['axis_error_deg']:+.3f} | {r['confidence']:.1f}x | {r['rms_mm']:.4f} | {r['max_mm']:.4f} | "
-                     f"{r['good']}/{r['frames']} | {r['exit']} | {r['wall_s']:.1f} |")
+        lines.append(
+            f"| {r['case']} | {r['true_axis_deg']:g} | {r['detected_axis_deg']:.3f} | "
+            f"{r['axis_error_deg']:+.3f} | {r['confidence']:.1f}x | {r['rms_mm']:.4f} | {r['max_mm']:.4f} | "
+            f"{r['good']}/{r['frames']} | {r['exit']} | {r['wall_s']:.1f} |"
+        )
     lines += ["", "What `rig track` printed:", ""] + [f"- {r['case']}: `{r['printed']}`" for r in rows]
     return "\n".join(lines) + "\n"
 
@@ -134,10 +166,13 @@ def main(argv=None) -> int:
             rows.append(row)
             rms = "-" if row["rms_mm"] is None else f"{row['rms_mm']:.4f} mm"
             detected = "-" if row["detected_axis_deg"] is None else f"{row['detected_axis_deg']:.3f}"
-            print(f"{name:32s} true {angle:6.1f} deg  detected {detected:>8s} deg  RMS {rms}  "
-                  f"good {row['good']}/{row['frames']}  exit {row['exit']}")
-    command = "python experiments/track_axes.py" + (" " + " ".join(argv if argv is not None else sys.argv[1:])
-                                                      if (argv or sys.argv[1:]) else "")
+            print(
+                f"{name:32s} true {angle:6.1f} deg  detected {detected:>8s} deg  RMS {rms}  "
+                f"good {row['good']}/{row['frames']}  exit {row['exit']}"
+            )
+    command = "python experiments/track_axes.py" + (
+        " " + " ".join(argv if argv is not None else sys.argv[1:]) if (argv or sys.argv[1:]) else ""
+    )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"command": command, "rows": rows}, indent=2) + "\n")

@@ -42,8 +42,14 @@ import sys
 import time
 from pathlib import Path
 
-VARIANTS = ("jax_expm", "lu_solve_and_products", "cholesky_and_products", "products_only", "loop_safe_expm",
-            "jax_expm_one_core")
+VARIANTS = (
+    "jax_expm",
+    "lu_solve_and_products",
+    "cholesky_and_products",
+    "products_only",
+    "loop_safe_expm",
+    "jax_expm_one_core",
+)
 
 _CHILD = r"""
 import os, sys
@@ -90,8 +96,13 @@ def run_variant(variant: str, runs: int, timeout: float) -> dict:
     for _ in range(runs):
         start = time.perf_counter()
         try:
-            proc = subprocess.run([sys.executable, "-c", _CHILD, variant], capture_output=True, text=True,
-                                  timeout=timeout, cwd=Path(__file__).resolve().parents[1])
+            proc = subprocess.run(
+                [sys.executable, "-c", _CHILD, variant],
+                capture_output=True,
+                text=True,
+                timeout=timeout,
+                cwd=Path(__file__).resolve().parents[1],
+            )
         except subprocess.TimeoutExpired:
             hung += 1
             continue
@@ -101,8 +112,14 @@ def run_variant(variant: str, runs: int, timeout: float) -> dict:
         else:
             failed += 1
             print(proc.stderr[-2000:], file=sys.stderr)
-    return {"variant": variant, "runs": runs, "completed": done, "hung": hung, "failed": failed,
-            "seconds": seconds}
+    return {
+        "variant": variant,
+        "runs": runs,
+        "completed": done,
+        "hung": hung,
+        "failed": failed,
+        "seconds": seconds,
+    }
 
 
 def main(argv=None) -> int:
@@ -118,11 +135,19 @@ def main(argv=None) -> int:
     results = []
     for variant in args.variant or VARIANTS:
         result = run_variant(variant, args.runs, args.timeout)
-        print(f"{variant:24s} completed {result['completed']}/{args.runs}, hung {result['hung']}, "
-              f"failed {result['failed']}", flush=True)
+        print(
+            f"{variant:24s} completed {result['completed']}/{args.runs}, hung {result['hung']}, "
+            f"failed {result['failed']}",
+            flush=True,
+        )
         results.append(result)
-    record = {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "cpus": sorted(os.sched_getaffinity(0)),
-              "timeout_s": args.timeout, "results": results}
+    record = {
+        "jax": jax.__version__,
+        "jaxlib": jaxlib.__version__,
+        "cpus": sorted(os.sched_getaffinity(0)),
+        "timeout_s": args.timeout,
+        "results": results,
+    }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(record, indent=2) + "\n")

@@ -17,16 +17,33 @@ def add_mapping(p, B, rate: bool = True) -> None:
     """
     g = p.add_argument_group("files with other columns (hybrid.data._mapping)")
     g.add_argument("--input", default=None, metavar="COLUMN", help="the drive's column (e.g. uEst)")
-    g.add_argument("--output", default=None, metavar="COLUMN", help="the measured output's column (e.g. yEst)")
-    g.add_argument("--time", default=None, metavar="COLUMN", help="a time column (default: none; t from the rate)")
-    g.add_argument("--columns", default=None, metavar="MAP",
-                   help="the mapping in one flag: input=uEst,output=yEst; or files joined into one record, "
-                        "one per channel: input=u.txt,output=y.txt (FILE:COLUMN for a column of a wider file)")
+    g.add_argument(
+        "--output", default=None, metavar="COLUMN", help="the measured output's column (e.g. yEst)"
+    )
+    g.add_argument(
+        "--time", default=None, metavar="COLUMN", help="a time column (default: none; t from the rate)"
+    )
+    g.add_argument(
+        "--columns",
+        default=None,
+        metavar="MAP",
+        help="the mapping in one flag: input=uEst,output=yEst; or files joined into one record, "
+        "one per channel: input=u.txt,output=y.txt (FILE:COLUMN for a column of a wider file)",
+    )
     if rate:
-        g.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=None,
-                       help="samples per second, when the file has no time column or Ts/fs field")
-    g.add_argument("--range", dest="sample_range", default=None, metavar="START:STOP",
-                   help="the samples to use, Python-slice style (e.g. 40650:)")
+        g.add_argument(
+            "--rate",
+            type=B.number(*B.RATE, unit="Hz"),
+            default=None,
+            help="samples per second, when the file has no time column or Ts/fs field",
+        )
+    g.add_argument(
+        "--range",
+        dest="sample_range",
+        default=None,
+        metavar="START:STOP",
+        help="the samples to use, Python-slice style (e.g. 40650:)",
+    )
     g.add_argument("--units", default=None, metavar="MAP", help="unit labels, e.g. v_in=V,w=V (labels only)")
 
 
@@ -43,16 +60,23 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
     from .data._recording import Recording
     from .data._table import TEXT_SUFFIXES
 
-    options = {k: getattr(args, k, None) for k in ("input", "output", "time", "columns", "rate", "sample_range",
-                                                  "units")}
+    options = {
+        k: getattr(args, k, None)
+        for k in ("input", "output", "time", "columns", "rate", "sample_range", "units")
+    }
     if not any(options[k] is not None for k in ("input", "output", "time", "columns")):
         text = [p for p in paths if Path(p).suffix.lower() in TEXT_SUFFIXES]
         if text:  # a text table has no t, v_in, w: say how to map it, or how to join one file per channel
-            example = (f"--columns input={paths[0]},output={paths[1]} (one file per channel, of one length)"
-                       if len(paths) > 1 else f"--columns input={paths[0]}:0,output={paths[0]}:1 (columns by "
-                       "number from 0, or by the header's names)")
-            raise InputError(f"'{text[0]}' is a text table without the columns t, v_in, w: say which is the drive "
-                             f"and which the output, e.g. {example}, with --rate HZ or --time COLUMN")
+            example = (
+                f"--columns input={paths[0]},output={paths[1]} (one file per channel, of one length)"
+                if len(paths) > 1
+                else f"--columns input={paths[0]}:0,output={paths[0]}:1 (columns by "
+                "number from 0, or by the header's names)"
+            )
+            raise InputError(
+                f"'{text[0]}' is a text table without the columns t, v_in, w: say which is the drive "
+                f"and which the output, e.g. {example}, with --rate HZ or --time COLUMN"
+            )
     if not any(v is not None for k, v in options.items() if rate_alone_maps or k != "rate"):
         return [Recording.load(p) for p in paths]
     if len(paths) > 1 and any(options[k] is not None for k in ("input", "output", "time", "columns")):
@@ -64,18 +88,26 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
 
 def add_physics(p) -> None:
     """--physics: the simulation, the paper's RC network by default (hybrid.physics._plugins)."""
-    p.add_argument("--physics", default="rc", metavar="SPEC",
-                   help="the simulation: rc (the paper's RC network, default), lti:N (a linear system of order N), "
-                        "path/to/file.py:Class or package.module:Class (your AbstractSimulation)")
-
+    p.add_argument(
+        "--physics",
+        default="rc",
+        metavar="SPEC",
+        help="the simulation: rc (the paper's RC network, default), lti:N (a linear system of order N), "
+        "path/to/file.py:Class or package.module:Class (your AbstractSimulation)",
+    )
 
 
 def add_settle(p, B) -> None:
     """--settle N: the physics starts where a fitted constant drive left it (hybrid.HeldStart)."""
-    p.add_argument("--settle", type=B.integer(1, B.SETTLE_MAX), default=None, metavar="SAMPLES",
-                   help="the record does not start at rest: hold the physics at a constant drive (the fitted "
-                        "parameter initial_drive) for SAMPLES samples before it, several of its slowest time "
-                        "constant (one recording)")
+    p.add_argument(
+        "--settle",
+        type=B.integer(1, B.SETTLE_MAX),
+        default=None,
+        metavar="SAMPLES",
+        help="the record does not start at rest: hold the physics at a constant drive (the fitted "
+        "parameter initial_drive) for SAMPLES samples before it, several of its slowest time "
+        "constant (one recording)",
+    )
 
 
 def with_settle(simulation, args, recordings):
@@ -87,8 +119,10 @@ def with_settle(simulation, args, recordings):
     from .core._held_start import HeldStart
 
     if len(recordings) != 1:
-        raise InputError(f"--settle fits one held drive before the record, and {len(recordings)} recordings each "
-                         "start from their own state: give one recording")
+        raise InputError(
+            f"--settle fits one held drive before the record, and {len(recordings)} recordings each "
+            "start from their own state: give one recording"
+        )
     start = float(np.mean(np.asarray(recordings[0].v_in)[:10]))
     return HeldStart(simulation, args.settle, initial_drive=start)
 

@@ -26,25 +26,60 @@ _RC_ONLY = ("drive", "duration", "stages")
 def add_sensitivity(sub, B) -> None:
     from ._cli_inputs import add_mapping, add_physics
 
-    p = sub.add_parser("sensitivity", help="sensitivities and identifiability of a simulation's parameters "
-                                           "(the RC network's by default)")
-    p.add_argument("recording", nargs="?", default=None,
-                   help="a recording whose drive is the primary one (required unless --physics rc)")
+    p = sub.add_parser(
+        "sensitivity",
+        help="sensitivities and identifiability of a simulation's parameters (the RC network's by default)",
+    )
+    p.add_argument(
+        "recording",
+        nargs="?",
+        default=None,
+        help="a recording whose drive is the primary one (required unless --physics rc)",
+    )
     p.add_argument("--out", required=True, help="output directory (sensitivity.json, sensitivity.md, PNGs)")
-    p.add_argument("--drive", choices=("prbs", "sine", "chirp", "pulse"), default=None,
-                   help="primary drive (rc only; default prbs)")
-    p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), default=None,
-                   help="seconds per drive (rc only; default 120)")
-    p.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=None,
-                   help="samples per second: of the synthetic drives (rc; default 30), and of a recording in a "
-                        "lab's columns (--input/--output/--columns) whose file gives none")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="nominal parameter: for rc xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F); "
-                        "for other physics its own names (default: its defaults)")
-    p.add_argument("--stages", type=B.integer(*B.STAGES), default=None,
-                   help="N, the network has N+1 sections (rc only; default 45)")
-    p.add_argument("--noise", type=float, default=0.01, help="noise as a fraction of rms(w), for standard errors")
-    p.add_argument("--sobol", type=B.integer(*B.SOBOL), default=0, metavar="N", help="also Sobol indices from N base samples")
+    p.add_argument(
+        "--drive",
+        choices=("prbs", "sine", "chirp", "pulse"),
+        default=None,
+        help="primary drive (rc only; default prbs)",
+    )
+    p.add_argument(
+        "--duration",
+        type=B.number(*B.DURATION, include_low=False, unit="s"),
+        default=None,
+        help="seconds per drive (rc only; default 120)",
+    )
+    p.add_argument(
+        "--rate",
+        type=B.number(*B.RATE, unit="Hz"),
+        default=None,
+        help="samples per second: of the synthetic drives (rc; default 30), and of a recording in a "
+        "lab's columns (--input/--output/--columns) whose file gives none",
+    )
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="nominal parameter: for rc xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F); "
+        "for other physics its own names (default: its defaults)",
+    )
+    p.add_argument(
+        "--stages",
+        type=B.integer(*B.STAGES),
+        default=None,
+        help="N, the network has N+1 sections (rc only; default 45)",
+    )
+    p.add_argument(
+        "--noise", type=float, default=0.01, help="noise as a fraction of rms(w), for standard errors"
+    )
+    p.add_argument(
+        "--sobol",
+        type=B.integer(*B.SOBOL),
+        default=0,
+        metavar="N",
+        help="also Sobol indices from N base samples",
+    )
     p.add_argument("--seed", type=int, default=0)
     add_physics(p)
     add_mapping(p, B, rate=False)  # --rate is above: it serves both
@@ -59,12 +94,16 @@ def cmd_sensitivity(args) -> None:
     if not rc:
         given = [f"--{k}" for k in _RC_ONLY if getattr(args, k) is not None]
         if given:
-            raise InputError(f"{', '.join(given)} belong to the RC network's study (an IPMC's synthetic voltage "
-                             f"drives): with --physics {args.physics} the drive is the recording's")
+            raise InputError(
+                f"{', '.join(given)} belong to the RC network's study (an IPMC's synthetic voltage "
+                f"drives): with --physics {args.physics} the drive is the recording's"
+            )
         if args.recording is None:
-            raise InputError(f"--physics {args.physics}: give a recording of your system (RECORDING; --input/"
-                             "--output for a lab's columns): the synthetic drives are an IPMC's voltages at 30 Hz, "
-                             "studied only with --physics rc")
+            raise InputError(
+                f"--physics {args.physics}: give a recording of your system (RECORDING; --input/"
+                "--output for a lab's columns): the synthetic drives are an IPMC's voltages at 30 Hz, "
+                "studied only with --physics rc"
+            )
         return _generic(args)
     from .ipmc._sensitivity_study import OUTPUT_FILES, SensitivityStudySettings, run_sensitivity_study
     from .util.bounds import check_samples
@@ -75,8 +114,14 @@ def cmd_sensitivity(args) -> None:
     recording = load_recordings(args, inputs, rate_alone_maps=False)[0] if inputs else None
     warn_notes([recording] if recording is not None else [])
     settings = SensitivityStudySettings(
-        parameters=parse_params(args.param), n_stages=args.stages or 45, drive=args.drive or "prbs",
-        duration=duration, rate=rate, noise=args.noise, sobol=args.sobol, seed=args.seed,
+        parameters=parse_params(args.param),
+        n_stages=args.stages or 45,
+        drive=args.drive or "prbs",
+        duration=duration,
+        rate=rate,
+        noise=args.noise,
+        sobol=args.sobol,
+        seed=args.seed,
     )
     with lock:
         result = run_sensitivity_study(settings, out_dir=args.out, recording=recording)
@@ -96,25 +141,44 @@ def _generic(args) -> None:
     params = parse_params(args.param)
     if params:
         simulation = simulation.replace(**params)
-    mapped = any(getattr(args, k) is not None for k in ("input", "output", "time", "columns", "sample_range", "units"))
+    mapped = any(
+        getattr(args, k) is not None for k in ("input", "output", "time", "columns", "sample_range", "units")
+    )
     if args.rate is not None and not mapped:
-        raise InputError(f"--rate with --physics {args.physics} is the rate of a lab's file (with --input/--output or "
-                         "--columns); a recording in the project's columns t, v_in, w has its own t")
+        raise InputError(
+            f"--rate with --physics {args.physics} is the rate of a lab's file (with --input/--output or "
+            "--columns); a recording in the project's columns t, v_in, w has its own t"
+        )
     lock = check_outputs([out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording])
     recording = load_recordings(args, [args.recording], rate_alone_maps=False)[0]
     warn_notes([recording])
     k = len(set(simulation.parameter_names()) - set(simulation.default_frozen())) + 2  # + gain and offset
-    recording.check_length(max(MIN_SAMPLES, 2 * k), f"the study of {k} parameters (gain and offset included)",
-                           "give a longer recording")
+    recording.check_length(
+        max(MIN_SAMPLES, 2 * k),
+        f"the study of {k} parameters (gain and offset included)",
+        "give a longer recording",
+    )
     recording.check_signals()
     with lock:
-        result, sensitivity = simulation_study(simulation, recording.v_in, recording.dt, noise=args.noise,
-                                               sobol=args.sobol, seed=args.seed,
-                                               drive=f"recording:{recording.name}")
+        result, sensitivity = simulation_study(
+            simulation,
+            recording.v_in,
+            recording.dt,
+            noise=args.noise,
+            sobol=args.sobol,
+            seed=args.seed,
+            drive=f"recording:{recording.name}",
+        )
         result["physics"] = args.physics
-        result["settings"] = {"physics": args.physics, "parameters": params, "noise": args.noise,
-                              "sobol": args.sobol, "seed": args.seed, "recording": recording.name,
-                              "rate_hz": float(recording.rate)}
+        result["settings"] = {
+            "physics": args.physics,
+            "parameters": params,
+            "noise": args.noise,
+            "sobol": args.sobol,
+            "seed": args.seed,
+            "recording": recording.name,
+            "rate_hz": float(recording.rate),
+        }
         result["x64"] = bool(jax.config.jax_enable_x64)
         write_simulation_study(result, sensitivity, args.out)
     _print(result, "the output")

@@ -38,16 +38,29 @@ _MAPPING = ("input", "output", "time", "columns", "rate", "sample_range", "units
 def add_test_options(p) -> None:
     """--test, --test-columns, --test-range on `hybrid fit`."""
     g = p.add_argument_group("scoring on other records (a benchmark's validation record)")
-    g.add_argument("--test", nargs="+", default=None, metavar="FILE",
-                   help="after the fit, run the fitted model free (the simulation from its own initial state, rest "
-                        "for lti:N and rc, driven by the input alone) on each FILE and report RMSE (in the output's unit), NMSE and the number of "
-                        "samples; a hybrid model's first window-1 samples see the first value held before "
-                        "(edge padding, as the fit's own test split) and are scored. Read with the fit's "
-                        "column options; --split still splits the fitted recordings only")
-    g.add_argument("--test-columns", default=None, metavar="MAP",
-                   help="the test records' own columns, e.g. input=uVal,output=yVal (default: the fit's)")
-    g.add_argument("--test-range", default=None, metavar="START:STOP",
-                   help="the test records' samples, Python-slice style (default: the fit's --range, else all)")
+    g.add_argument(
+        "--test",
+        nargs="+",
+        default=None,
+        metavar="FILE",
+        help="after the fit, run the fitted model free (the simulation from its own initial state, rest "
+        "for lti:N and rc, driven by the input alone) on each FILE and report RMSE (in the output's unit), NMSE and the number of "
+        "samples; a hybrid model's first window-1 samples see the first value held before "
+        "(edge padding, as the fit's own test split) and are scored. Read with the fit's "
+        "column options; --split still splits the fitted recordings only",
+    )
+    g.add_argument(
+        "--test-columns",
+        default=None,
+        metavar="MAP",
+        help="the test records' own columns, e.g. input=uVal,output=yVal (default: the fit's)",
+    )
+    g.add_argument(
+        "--test-range",
+        default=None,
+        metavar="START:STOP",
+        help="the test records' samples, Python-slice style (default: the fit's --range, else all)",
+    )
 
 
 def load_tests(args, fitted, window: int) -> list:
@@ -62,8 +75,10 @@ def load_tests(args, fitted, window: int) -> list:
     options = {k: getattr(args, k, None) for k in _MAPPING}
     mapped = any(v is not None for v in options.values())
     if not mapped and (args.test_columns is not None or args.test_range is not None):
-        raise InputError("--test-columns and --test-range map a lab's file, and the fitted recordings are read in "
-                         "the project's own columns t, v_in, w: map them too, e.g. --columns t=t,input=v_in,output=w")
+        raise InputError(
+            "--test-columns and --test-range map a lab's file, and the fitted recordings are read in "
+            "the project's own columns t, v_in, w: map them too, e.g. --columns t=t,input=v_in,output=w"
+        )
     tests = []
     for path in args.test:
         if not mapped:
@@ -71,8 +86,13 @@ def load_tests(args, fitted, window: int) -> list:
         else:
             test_range = args.test_range if args.test_range is not None else args.sample_range
             try:  # the fitted recordings have loaded: what fails here is the test record's
-                _, record = load_pair(args.recordings[0], test_path=path, test_columns=args.test_columns,
-                                      test_sample_range=test_range, **options)
+                _, record = load_pair(
+                    args.recordings[0],
+                    test_path=path,
+                    test_columns=args.test_columns,
+                    test_sample_range=test_range,
+                    **options,
+                )
             except InputError as error:
                 raise InputError(f"--test {path}: {error}") from None
         for note in record.notes:
@@ -81,11 +101,16 @@ def load_tests(args, fitted, window: int) -> list:
             if abs(record.rate - recording.rate) > RATE_RTOL * recording.rate:
                 raise InputError(
                     f"test record '{record.name}' is sampled at {record.rate:.6g} Hz but the model is fitted to "
-                    f"'{recording.name}' at {recording.rate:.6g} Hz: score on records of the fitted rate")
+                    f"'{recording.name}' at {recording.rate:.6g} Hz: score on records of the fitted rate"
+                )
             if _key(path, record) == _key(fitted_path, recording):
-                raise InputError(f"test record '{record.name}' is a fitted record: give other columns "
-                                 "(--test-columns), other samples (--test-range) or another file")
-        record.check_length(window, f"the model's input window ({window} samples)", "give a longer test record")
+                raise InputError(
+                    f"test record '{record.name}' is a fitted record: give other columns "
+                    "(--test-columns), other samples (--test-range) or another file"
+                )
+        record.check_length(
+            window, f"the model's input window ({window} samples)", "give a longer test record"
+        )
         record.check_signals()
         tests.append(record)
     return tests
@@ -115,16 +140,26 @@ def score_tests(model, tests) -> list[dict]:
         w_hat = np.asarray(scored.predict(record.v_in, record.dt))  # the whole record: one segment
         w = np.asarray(record.w)
         if not np.all(np.isfinite(w_hat)):
-            raise InputError(f"the fitted model's prediction for test record '{record.name}' is not finite: "
-                             "the record drives it far outside the fitted range")
+            raise InputError(
+                f"the fitted model's prediction for test record '{record.name}' is not finite: "
+                "the record drives it far outside the fitted range"
+            )
         units = record.metadata.get("units") if isinstance(record.metadata.get("units"), dict) else {}
         meta = record.metadata
-        scores.append({
-            "name": record.name, "source": str(meta.get("source", "")), "mapping": meta.get("mapping"),
-            "segment": meta.get("segment"), "samples": int(record.n), "rate_hz": float(record.rate),
-            "unit": str(units.get("w", "mm")), "rmse": float(np.sqrt(np.mean((w - w_hat) ** 2))),
-            **metrics(w, w_hat), **held,
-        })
+        scores.append(
+            {
+                "name": record.name,
+                "source": str(meta.get("source", "")),
+                "mapping": meta.get("mapping"),
+                "segment": meta.get("segment"),
+                "samples": int(record.n),
+                "rate_hz": float(record.rate),
+                "unit": str(units.get("w", "mm")),
+                "rmse": float(np.sqrt(np.mean((w - w_hat) ** 2))),
+                **metrics(w, w_hat),
+                **held,
+            }
+        )
     return scores
 
 
@@ -135,7 +170,12 @@ def initial_samples(n: int) -> int:
 
 def print_scores(scores) -> None:
     for s in scores:
-        print(f"  test record {s['name']}: RMSE {s['rmse']:.6g} {s['unit']}  NMSE {s['nmse']:.3e}  "
-              f"NMSE(variance) {s['nmse_variance']:.3e}  Fitting {s['fitting']:6.2f} %  ({s['samples']} samples)"
-              + (f"; initial_drive {s['initial_drive']:.6g} re-fitted on its first {s['initial_samples']} samples"
-                 if "initial_drive" in s else ""))
+        print(
+            f"  test record {s['name']}: RMSE {s['rmse']:.6g} {s['unit']}  NMSE {s['nmse']:.3e}  "
+            f"NMSE(variance) {s['nmse_variance']:.3e}  Fitting {s['fitting']:6.2f} %  ({s['samples']} samples)"
+            + (
+                f"; initial_drive {s['initial_drive']:.6g} re-fitted on its first {s['initial_samples']} samples"
+                if "initial_drive" in s
+                else ""
+            )
+        )

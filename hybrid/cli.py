@@ -65,20 +65,32 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="record the virtual IPMC under a drive (CSV t,v_in,w)")
     p.add_argument("--drive", choices=DRIVES, required=True)
-    p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), required=True,
-                   help="seconds")
-    p.add_argument("--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0,
-                   help="samples per second (camera fps)")
+    p.add_argument(
+        "--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), required=True, help="seconds"
+    )
+    p.add_argument(
+        "--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0, help="samples per second (camera fps)"
+    )
     p.add_argument("--amplitude", type=float, default=2.0, help="drive amplitude, V")
     p.add_argument("--seed", type=int, default=0, help="seeds the drive (PRBS) and the noise")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="virtual IPMC parameter (see hybrid.ipmc._virtual_ipmc.VirtualIPMCParameters)")
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="virtual IPMC parameter (see hybrid.ipmc._virtual_ipmc.VirtualIPMCParameters)",
+    )
     p.add_argument("--out", required=True, help="output .csv, .npz or .mat")
 
     p = sub.add_parser("rc", help="the RC network's tip voltage V_o for a drive (CSV t,v_in,v_o)")
     p.add_argument("drive", help="CSV with columns t,v_in (other columns ignored)")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F)")
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="xi_rho, xi_h, alpha_E, alpha_I, alpha_C, C_clamp (F)",
+    )
     p.add_argument("--stages", type=B.integer(*B.STAGES), default=45, help="N (the network has N+1 sections)")
     p.add_argument("--method", choices=("tustin", "zoh"), default="tustin")
     p.add_argument("--out", required=True)
@@ -89,35 +101,62 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--solver", choices=SOLVERS, default="lm")
     p.add_argument("--starts", type=B.integer(*B.STARTS), default=1)
     p.add_argument("--max-steps", type=B.integer(*B.MAX_STEPS), default=200)
-    p.add_argument("--freeze", action="append", default=[], metavar="NAME",
-                   help="keep a parameter fixed (repeatable; 'network' freezes the D-MLP); "
-                        "xi_h is frozen by default (only xi_rho/xi_h is identifiable)")
-    p.add_argument("--free", action="append", default=[], metavar="NAME",
-                   help="free a parameter frozen by default (e.g. xi_h)")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="starting value of a physical parameter")
+    p.add_argument(
+        "--freeze",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="keep a parameter fixed (repeatable; 'network' freezes the D-MLP); "
+        "xi_h is frozen by default (only xi_rho/xi_h is identifiable)",
+    )
+    p.add_argument(
+        "--free",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="free a parameter frozen by default (e.g. xi_h)",
+    )
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="starting value of a physical parameter",
+    )
     p.add_argument("--window", type=B.integer(*B.WINDOW), default=60)
     p.add_argument("--depth", type=B.integer(*B.DEPTH), default=11)
     p.add_argument("--width", type=B.integer(*B.WIDTH), default=10)
-    p.add_argument("--split", type=_float_list, default=(0.3, 0.5, 0.2),
-                   help="train,test,validation fractions of the fitted recordings (default 0.3,0.5,0.2; "
-                        "also with --test)")
+    p.add_argument(
+        "--split",
+        type=_float_list,
+        default=(0.3, 0.5, 0.2),
+        help="train,test,validation fractions of the fitted recordings (default 0.3,0.5,0.2; "
+        "also with --test)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="save the model here (default: <first recording>.<model>.eqx)")
     p.add_argument("--json", default=None, help="write the fit report (metrics, parameters) as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--time-limit", type=B.number(*B.DURATION, include_low=False, unit="s"), default=None,
-                   metavar="SECONDS",
-                   help="stop fitting after SECONDS (checked between LM steps) and save the best model so far "
-                        "to <out stem>.partial.eqx, exit status 124 (SIGINT/SIGTERM: the same, 130/143)")
+    p.add_argument(
+        "--time-limit",
+        type=B.number(*B.DURATION, include_low=False, unit="s"),
+        default=None,
+        metavar="SECONDS",
+        help="stop fitting after SECONDS (checked between LM steps) and save the best model so far "
+        "to <out stem>.partial.eqx, exit status 124 (SIGINT/SIGTERM: the same, 130/143)",
+    )
     add_physics(p)
     add_settle(p, B)
     add_mapping(p, B)
     add_test_options(p)
 
     p = sub.add_parser("table2", help="reproduce the paper's Table 2 on the virtual IPMC")
-    p.add_argument("--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), default=None,
-                   help="seconds per recording")
+    p.add_argument(
+        "--duration",
+        type=B.number(*B.DURATION, include_low=False, unit="s"),
+        default=None,
+        help="seconds per recording",
+    )
     p.add_argument("--starts", type=B.integer(*B.STARTS), default=None)
     p.add_argument("--max-steps", type=B.integer(*B.MAX_STEPS), default=None)
     p.add_argument("--out-dir", default="experiments/results")
@@ -125,16 +164,29 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_sensitivity(sub, B)
 
-    p = sub.add_parser("diagnose", help="which physical effect the simulation misses (report.md, report.json, PNGs)")
+    p = sub.add_parser(
+        "diagnose", help="which physical effect the simulation misses (report.md, report.json, PNGs)"
+    )
     p.add_argument("recordings", nargs="+", help=".csv/.npz/.mat recordings of one strip (fitted jointly)")
     p.add_argument("--out", required=True, help="output directory (report.md, report.json, figures)")
-    p.add_argument("--hybrid", action="store_true",
-                   help="also fit the hybrid model (simulation + D-MLP) with and without the named effect")
-    p.add_argument("--max-steps", type=B.integer(None, B.MAX_STEPS[1]), default=None,
-                   help="Levenberg-Marquardt steps per stage (default: DiagnoseSettings.max_steps)")
-    p.add_argument("--blocks", type=B.integer(None, B.BLOCKS[1]), default=None,
-                   help="cut each recording into N blocks, each split train/validation/held-out "
-                        "(default: DiagnoseSettings.blocks; 1: one held-out tail)")
+    p.add_argument(
+        "--hybrid",
+        action="store_true",
+        help="also fit the hybrid model (simulation + D-MLP) with and without the named effect",
+    )
+    p.add_argument(
+        "--max-steps",
+        type=B.integer(None, B.MAX_STEPS[1]),
+        default=None,
+        help="Levenberg-Marquardt steps per stage (default: DiagnoseSettings.max_steps)",
+    )
+    p.add_argument(
+        "--blocks",
+        type=B.integer(None, B.BLOCKS[1]),
+        default=None,
+        help="cut each recording into N blocks, each split train/validation/held-out "
+        "(default: DiagnoseSettings.blocks; 1: one held-out tail)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     add_physics(p)
     add_settle(p, B)
@@ -158,14 +210,18 @@ def _cmd_simulate(args):
     known = {f.name for f in dataclasses.fields(VirtualIPMCParameters)}
     unknown = set(overrides) - known
     if unknown:
-        raise InputError(f"unknown virtual IPMC parameter(s) {sorted(unknown)}: valid names are {sorted(known)}")
+        raise InputError(
+            f"unknown virtual IPMC parameter(s) {sorted(unknown)}: valid names are {sorted(known)}"
+        )
     params = VirtualIPMCParameters(**overrides)
     drive = make_drive(args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude)
     with lock:
         recording = virtual_recording(drive, params, seed=args.seed)
         path = recording.save(args.out)
-    print(f"wrote {path}: {len(recording)} samples at {recording.rate:g} Hz, "
-          f"w from {recording.w.min():.3f} to {recording.w.max():.3f} mm")
+    print(
+        f"wrote {path}: {len(recording)} samples at {recording.rate:g} Hz, "
+        f"w from {recording.w.min():.3f} to {recording.w.max():.3f} mm"
+    )
 
 
 def _cmd_rc(args):
@@ -193,8 +249,10 @@ def _cmd_rc(args):
             writer.writerow(["t", "v_in", "v_o"])
             for row in zip(t, v, v_o):
                 writer.writerow([f"{x:.17g}" for x in row])
-    print(f"wrote {args.out}: {len(t)} samples, V_o from {v_o.min():.6g} to {v_o.max():.6g} V "
-          f"({args.method}, N={args.stages}, dt={dt:g} s)")
+    print(
+        f"wrote {args.out}: {len(t)} samples, V_o from {v_o.min():.6g} to {v_o.max():.6g} V "
+        f"({args.method}, N={args.stages}, dt={dt:g} s)"
+    )
 
 
 def _cmd_fit(args):
@@ -209,10 +267,14 @@ def _cmd_fit(args):
 
     out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
     partial = partial_path(out)  # a stopped fit's best model: never over --out
-    lock = check_outputs([out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
-                     out_file(partial, "the partial model (--out's .partial.eqx)", (".eqx",)),
-                     out_file(args.json, "--json", (".json",)) if args.json else None],
-                    inputs=args.recordings + (args.test or []))
+    lock = check_outputs(
+        [
+            out_file(out, "--out" if args.out else "the default --out", (".eqx",)),
+            out_file(partial, "the partial model (--out's .partial.eqx)", (".eqx",)),
+            out_file(args.json, "--json", (".json",)) if args.json else None,
+        ],
+        inputs=args.recordings + (args.test or []),
+    )
     recordings = load_recordings(args, args.recordings)
     simulation = None
     if args.model != "normal":
@@ -225,31 +287,61 @@ def _cmd_fit(args):
         raise InputError("--settle holds the physics before the record; the normal model has none")
     elif args.param:
         raise InputError("--param sets physical parameters; the normal model has none")
-    model = make_model(args.model, simulation=simulation, window=args.window, depth=args.depth,
-                       width=args.width, key=jax.random.key(args.seed))
+    model = make_model(
+        args.model,
+        simulation=simulation,
+        window=args.window,
+        depth=args.depth,
+        width=args.width,
+        key=jax.random.key(args.seed),
+    )
     frozen = set(args.freeze)
-    as_names(args.free, "--free", "parameter", model.parameter_names)  # an unknown name is refused, not ignored
+    as_names(
+        args.free, "--free", "parameter", model.parameter_names
+    )  # an unknown name is refused, not ignored
     frozen |= set(model.simulation.default_frozen()) - set(args.free)  # the RC network's xi_h
     if len(args.split) != 3:
         raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
     tests = load_tests(args, recordings, model.readout.window)  # --test: refused before fitting, not after
     with lock:
         with FitStop(args.time_limit) as stop:  # SIGINT, SIGTERM, --time-limit: stop between steps
-            result = fit(model, recordings, starts=args.starts, max_steps=args.max_steps, frozen=frozen,
-                         split=args.split, solver=args.solver, seed=args.seed, progress=not args.quiet,
-                         stop=stop)
+            result = fit(
+                model,
+                recordings,
+                starts=args.starts,
+                max_steps=args.max_steps,
+                frozen=frozen,
+                split=args.split,
+                solver=args.solver,
+                seed=args.seed,
+                progress=not args.quiet,
+                stop=stop,
+            )
         print(result.summary())
         if result.stopped:
             steps = max(s.get("steps", 0) for s in result.starts)
-            save_model(partial, result.model, extra={"metrics": result.metrics, "settings": result.settings,
-                                                     "stopped": stop.reason, "steps": steps})
-            print(f"hybrid: fit stopped by {stop.reason} after {steps} steps: saved the best model so far to "
-                  f"{partial} (+ {partial}.json), {out} untouched; exit status {stop.exit_status}",
-                  file=sys.stderr, flush=True)
+            save_model(
+                partial,
+                result.model,
+                extra={
+                    "metrics": result.metrics,
+                    "settings": result.settings,
+                    "stopped": stop.reason,
+                    "steps": steps,
+                },
+            )
+            print(
+                f"hybrid: fit stopped by {stop.reason} after {steps} steps: saved the best model so far to "
+                f"{partial} (+ {partial}.json), {out} untouched; exit status {stop.exit_status}",
+                file=sys.stderr,
+                flush=True,
+            )
             raise SystemExit(stop.exit_status)
         scores = {"test": score_tests(result.model, tests)} if tests else {}
         print_scores(scores.get("test", []))
-        save_model(out, result.model, extra={"metrics": result.metrics, "settings": result.settings, **scores})
+        save_model(
+            out, result.model, extra={"metrics": result.metrics, "settings": result.settings, **scores}
+        )
         print(f"saved model to {out} (+ {out}.json)")
         if args.json:
             write_text(args.json, json.dumps({**result.to_dict(), **scores}, indent=2) + "\n")
@@ -259,8 +351,11 @@ def _cmd_table2(args):
     from .ipmc._table2 import OUTPUT_FILES, Table2Settings, reproduce_table2
     from .util.bounds import check_samples
 
-    overrides = {k: v for k, v in (("duration", args.duration), ("starts", args.starts),
-                                   ("max_steps", args.max_steps)) if v is not None}
+    overrides = {
+        k: v
+        for k, v in (("duration", args.duration), ("starts", args.starts), ("max_steps", args.max_steps))
+        if v is not None
+    }
     settings = Table2Settings(**overrides)
     check_samples(settings.duration, settings.rate, "--duration × the rate")
     with check_outputs([out_folder(args.out_dir, OUTPUT_FILES, "--out-dir")]):
@@ -277,7 +372,10 @@ def _cmd_diagnose(args):
     from .ipmc._defaults import diagnose, diagnose_simulation
     from .physics._plugins import resolve_physics
 
-    lock = check_outputs([out_folder(args.out, ("report.json", "report.md", *FIGURES, REMAINDER_FIGURE))], inputs=args.recordings)
+    lock = check_outputs(
+        [out_folder(args.out, ("report.json", "report.md", *FIGURES, REMAINDER_FIGURE))],
+        inputs=args.recordings,
+    )
     recordings = load_recordings(args, args.recordings)
     warn_notes(recordings)
     settings = DiagnoseSettings()
@@ -288,10 +386,13 @@ def _cmd_diagnose(args):
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
     with lock:
-        simulation = diagnose_simulation() if args.physics == "rc" else resolve_physics(args.physics, recordings)
+        simulation = (
+            diagnose_simulation() if args.physics == "rc" else resolve_physics(args.physics, recordings)
+        )
         simulation = with_settle(simulation, args, recordings)
-        diagnosis = diagnose(recordings, simulation=simulation, hybrid=args.hybrid, settings=settings,
-                             progress=not args.quiet)
+        diagnosis = diagnose(
+            recordings, simulation=simulation, hybrid=args.hybrid, settings=settings, progress=not args.quiet
+        )
         paths = write_report(diagnosis, args.out)
     report = diagnosis.to_dict()
     base, ext = report["baseline"]["nmse"], report["extended"]["nmse"]
@@ -306,9 +407,14 @@ def _cmd_diagnose(args):
     floor, left = report["noise_floor"], report["unexplained"]
     print(f"noise floor: sigma = {floor['std']:.3g} ({floor['method']})")
     if left is not None:
-        print(f"unexplained: {left['fraction_above_floor']:.0%} of the held-out error lies above the noise floor: "
-              f"{left['description'].get('summary', '')}")
-    for warning in [*floor.get("warnings", ()), *([left["floor_warning"]] if left and "floor_warning" in left else [])]:
+        print(
+            f"unexplained: {left['fraction_above_floor']:.0%} of the held-out error lies above the noise floor: "
+            f"{left['description'].get('summary', '')}"
+        )
+    for warning in [
+        *floor.get("warnings", ()),
+        *([left["floor_warning"]] if left and "floor_warning" in left else []),
+    ]:
         print(f"noise floor: warning: {warning}")
     if diagnosis.hybrid is not None:
         h = diagnosis.hybrid
@@ -316,8 +422,14 @@ def _cmd_diagnose(args):
     print(f"wrote {paths['report.md']}, report.json and {len(paths) - 2} figures ({diagnosis.seconds:.1f} s)")
 
 
-COMMANDS = {"simulate": _cmd_simulate, "rc": _cmd_rc, "fit": _cmd_fit, "table2": _cmd_table2,
-            "sensitivity": cmd_sensitivity, "diagnose": _cmd_diagnose}
+COMMANDS = {
+    "simulate": _cmd_simulate,
+    "rc": _cmd_rc,
+    "fit": _cmd_fit,
+    "table2": _cmd_table2,
+    "sensitivity": cmd_sensitivity,
+    "diagnose": _cmd_diagnose,
+}
 
 
 def _use_compilation_cache(jax) -> None:
@@ -342,8 +454,10 @@ def _use_compilation_cache(jax) -> None:
 def _sigint_watch(seen: list):
     """Note a real Ctrl-C (SIGINT) in `seen`, so that a KeyboardInterrupt raised by a plug-in's code is told
     apart from one (only where Python's own SIGINT handler is in place, in the main thread)."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
         yield
         return
 
@@ -381,7 +495,9 @@ def _report(error: BaseException, verbose: bool, ctrl_c: bool) -> int:
     message = describe_failure(error)
     if message is None and isinstance(error, InputError):
         message = str(error)
-    elif message is None and isinstance(error, (OSError, ValueError)):  # unreadable files, bad numbers deep in numpy
+    elif message is None and isinstance(
+        error, (OSError, ValueError)
+    ):  # unreadable files, bad numbers deep in numpy
         message = f"{type(error).__name__}: {error}"
     if message is None:
         if isinstance(error, KeyboardInterrupt):
@@ -412,7 +528,9 @@ def main(argv=None) -> int:
             with Watchdog(f"hybrid {args.command}", quiet=getattr(args, "quiet", False)):
                 COMMANDS[args.command](args)
     except BaseException as error:
-        verbose = bool(getattr(args, "verbose", False)) or any(a in ("-v", "--verbose") for a in (argv or sys.argv[1:]))
+        verbose = bool(getattr(args, "verbose", False)) or any(
+            a in ("-v", "--verbose") for a in (argv or sys.argv[1:])
+        )
         return _report(error, verbose, bool(ctrl_c))
     return 0
 

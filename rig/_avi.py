@@ -49,7 +49,7 @@ class AviChunk:
 
     number: int | None
     offset: int
-    size: int          # -1 (and offset -1) when the index points at something that is not this chunk
+    size: int  # -1 (and offset -1) when the index points at something that is not this chunk
 
 
 class MjpegAvi:
@@ -65,8 +65,17 @@ class MjpegAvi:
         empty: frame numbers of empty chunks (the writer repeated the previous frame).
     """
 
-    def __init__(self, path, data, fps: float, expected: int, size: tuple[int, int],
-                 chunks: list[AviChunk], indexed: bool, requires_eoi: bool):
+    def __init__(
+        self,
+        path,
+        data,
+        fps: float,
+        expected: int,
+        size: tuple[int, int],
+        chunks: list[AviChunk],
+        indexed: bool,
+        requires_eoi: bool,
+    ):
         self.path = pathlib.Path(path)
         self._data = data
         self.fps, self.expected, self.size = fps, expected, size
@@ -83,7 +92,7 @@ class MjpegAvi:
         """The chunk's picture (BGR), or None when it is damaged."""
         if chunk.offset < 0:
             return None
-        payload = bytes(self._data[chunk.offset: chunk.offset + chunk.size])
+        payload = bytes(self._data[chunk.offset : chunk.offset + chunk.size])
         if not _looks_like_jpeg(payload, self.requires_eoi):
             return None
         image = cv2.imdecode(np.frombuffer(with_huffman_tables(payload), np.uint8), cv2.IMREAD_COLOR)
@@ -122,9 +131,9 @@ def _standard_huffman_tables() -> bytes:
         data = bytes(jpeg)
         tables, pos = [], 2
         while pos + 4 <= len(data) and data[pos] == 0xFF and data[pos + 1] != 0xDA:
-            length = struct.unpack(">H", data[pos + 2: pos + 4])[0]
+            length = struct.unpack(">H", data[pos + 2 : pos + 4])[0]
             if data[pos + 1] == 0xC4:
-                tables.append(data[pos: pos + 2 + length])
+                tables.append(data[pos : pos + 2 + length])
             pos += 2 + length
         _TABLES = b"".join(tables)
     return _TABLES
@@ -146,8 +155,8 @@ def _walk(data, start: int, end: int):
     """Yield ``(fourcc, data offset, size, list type or None)`` of the chunks in ``data[start:end]``."""
     pos = start
     while pos + 8 <= end:
-        fourcc, size = data[pos: pos + 4], _u32(data, pos + 4)
-        kind = data[pos + 8: pos + 12] if fourcc in (b"RIFF", b"LIST") else None
+        fourcc, size = data[pos : pos + 4], _u32(data, pos + 4)
+        kind = data[pos + 8 : pos + 12] if fourcc in (b"RIFF", b"LIST") else None
         yield fourcc, pos + 8, size, kind
         pos += 8 + size + (size & 1)
 
@@ -157,21 +166,21 @@ class _Headers:
     fps: float = 0.0
     expected: int = 0
     size: tuple[int, int] = (0, 0)
-    codec: tuple[bytes, bytes] = (b"", b"")                                  # strh handler, strf compression
-    stream: int | None = None                                                # number of the first video stream
+    codec: tuple[bytes, bytes] = (b"", b"")  # strh handler, strf compression
+    stream: int | None = None  # number of the first video stream
     streams: int = 0
-    movi: list[tuple[int, int]] = dataclasses.field(default_factory=list)   # ('movi' tag position, end)
-    idx1: tuple[int, int] | None = None                                      # (data offset, size)
-    extended: bool = False                                                   # OpenDML AVIX parts
+    movi: list[tuple[int, int]] = dataclasses.field(default_factory=list)  # ('movi' tag position, end)
+    idx1: tuple[int, int] | None = None  # (data offset, size)
+    extended: bool = False  # OpenDML AVIX parts
 
 
 def _read_headers(data) -> _Headers:
     head = _Headers()
     riff_pos = 0
-    while riff_pos + 12 <= len(data) and data[riff_pos: riff_pos + 4] == b"RIFF":
+    while riff_pos + 12 <= len(data) and data[riff_pos : riff_pos + 4] == b"RIFF":
         riff_size = _u32(data, riff_pos + 4)
         riff_end = min(len(data), riff_pos + 8 + riff_size)
-        head.extended |= data[riff_pos + 8: riff_pos + 12] == b"AVIX"
+        head.extended |= data[riff_pos + 8 : riff_pos + 12] == b"AVIX"
         for fourcc, offset, size, kind in _walk(data, riff_pos + 12, riff_end):
             if fourcc == b"LIST" and kind == b"movi":
                 head.movi.append((offset, min(riff_end, offset + size)))
@@ -204,7 +213,7 @@ def _read_stream(data, start: int, end: int, head: _Headers) -> None:
     if b"strh" not in fields or fields[b"strh"][1] < 36:
         return
     offset = fields[b"strh"][0]
-    if data[offset: offset + 4] != b"vids":
+    if data[offset : offset + 4] != b"vids":
         return
     head.stream = head.streams
     scale, rate, length = _u32(data, offset + 20), _u32(data, offset + 24), _u32(data, offset + 32)
@@ -216,8 +225,8 @@ def _read_stream(data, start: int, end: int, head: _Headers) -> None:
         at = fields[b"strf"][0]
         width, height = struct.unpack_from("<ii", data, at + 4)
         head.size = (abs(width), abs(height))
-        compression = bytes(data[at + 16: at + 20])
-    head.codec = (bytes(data[offset + 4: offset + 8]), compression)
+        compression = bytes(data[at + 16 : at + 20])
+    head.codec = (bytes(data[offset + 4 : offset + 8]), compression)
 
 
 def _indexed_chunks(data, head: _Headers, ids: tuple[bytes, ...]) -> list[AviChunk] | None:
@@ -233,7 +242,7 @@ def _indexed_chunks(data, head: _Headers, ids: tuple[bytes, ...]) -> list[AviChu
     for candidate in (movi, 0):
         cid, off, length = video[0]
         pos = candidate + off
-        if data[pos: pos + 4] == cid and (length == 0 or _u32(data, pos + 4) == length):
+        if data[pos : pos + 4] == cid and (length == 0 or _u32(data, pos + 4) == length):
             base = candidate
             break
     if base is None:
@@ -241,7 +250,9 @@ def _indexed_chunks(data, head: _Headers, ids: tuple[bytes, ...]) -> list[AviChu
     chunks = []
     for number, (cid, off, length) in enumerate(video):
         pos = base + off
-        intact = pos + 8 + length <= len(data) and data[pos: pos + 4] == cid and _u32(data, pos + 4) == length
+        intact = (
+            pos + 8 + length <= len(data) and data[pos : pos + 4] == cid and _u32(data, pos + 4) == length
+        )
         chunks.append(AviChunk(number, pos + 8 if intact else -1, length if intact else -1))
     return chunks
 
@@ -253,14 +264,14 @@ def _walked_chunks(data, head: _Headers, ids: tuple[bytes, ...]) -> list[AviChun
     for start, end in head.movi:
         pos = start + 4
         while pos + 8 <= end:
-            fourcc, size = data[pos: pos + 4], _u32(data, pos + 4)
+            fourcc, size = data[pos : pos + 4], _u32(data, pos + 4)
             if fourcc == b"LIST":
                 pos += 12
                 continue
             if not _CHUNK_ID.match(fourcc) or pos + 8 + size > len(data):
                 if pos + 8 + size > len(data) and _CHUNK_ID.match(fourcc):
-                    break                           # the file ends inside this chunk: truncated
-                numbered = False                    # damaged: resynchronise on the next frame chunk
+                    break  # the file ends inside this chunk: truncated
+                numbered = False  # damaged: resynchronise on the next frame chunk
                 pos = _resync(data, pos + 1, end, ids)
                 continue
             if fourcc in ids:
@@ -277,7 +288,7 @@ def _resync(data, pos: int, end: int, ids: tuple[bytes, ...]) -> int:
             return end
         pos = min(hits)
         size = _u32(data, pos + 4) if pos + 8 <= len(data) else 0
-        if pos + 8 + size <= len(data) and data[pos + 8: pos + 10] == _SOI:
+        if pos + 8 + size <= len(data) and data[pos + 8 : pos + 10] == _SOI:
             return pos
         pos += 1
     return end
@@ -314,12 +325,20 @@ def _open(path: pathlib.Path, data) -> MjpegAvi | None:
     indexed = chunks is not None
     if chunks is None:
         chunks = _walked_chunks(data, head, ids)
-    first = next((c for c in chunks if c.size > 0 and data[c.offset: c.offset + 2] == _SOI), None)
+    first = next((c for c in chunks if c.size > 0 and data[c.offset : c.offset + 2] == _SOI), None)
     if first is None or not head.fps:
         return None
-    requires_eoi = data[first.offset: first.offset + first.size].rstrip(b"\x00").endswith(_EOI)
-    avi = MjpegAvi(path, data, head.fps, max(head.expected, len(chunks) if indexed else 0), head.size,
-                   chunks, indexed, requires_eoi)
+    requires_eoi = data[first.offset : first.offset + first.size].rstrip(b"\x00").endswith(_EOI)
+    avi = MjpegAvi(
+        path,
+        data,
+        head.fps,
+        max(head.expected, len(chunks) if indexed else 0),
+        head.size,
+        chunks,
+        indexed,
+        requires_eoi,
+    )
     if avi.decode(first) is None:
-        return None                                 # a JPEG flavour OpenCV's imdecode cannot read
+        return None  # a JPEG flavour OpenCV's imdecode cannot read
     return avi

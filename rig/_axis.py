@@ -56,9 +56,9 @@ __all__ = ["AxisEstimate", "angular_profile", "find_axis", "refine_axis", "strip
 PROFILE_STEP_DEG = 0.5
 SEPARATION_DEG = 20.0
 CANDIDATES = 3
-MIN_TRACKED = 0.5          # a strip must be followed in at least half the frames
-SHAPE_MODELS = ((True, 0), (True, 1), (True, 2), (False, 2))   # (one shape for all frames, curvature degree)
-BETTER_FIT = 1.25          # the simplest shape whose residual RMS is within this factor of the lowest
+MIN_TRACKED = 0.5  # a strip must be followed in at least half the frames
+SHAPE_MODELS = ((True, 0), (True, 1), (True, 2), (False, 2))  # (one shape for all frames, curvature degree)
+BETTER_FIT = 1.25  # the simplest shape whose residual RMS is within this factor of the lowest
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,26 +98,39 @@ class AxisEstimate:
 
     def metadata(self) -> dict:
         """JSON-able summary (angles in degrees, contrasts relative)."""
-        return {"angle_deg": self.angle_deg, "contrast_best": self.contrast_best,
-                "contrast_next": self.contrast_next, "next_deg": self.next_deg,
-                "confidence": None if math.isinf(self.confidence) else self.confidence,
-                "tracked_frames": self.tracked, "frames": self.frames, "reason": self.reason,
-                "clamp_xy": list(self.clamp_xy) if self.clamp_xy is not None else None,
-                "offset_px": self.offset_px}
+        return {
+            "angle_deg": self.angle_deg,
+            "contrast_best": self.contrast_best,
+            "contrast_next": self.contrast_next,
+            "next_deg": self.next_deg,
+            "confidence": None if math.isinf(self.confidence) else self.confidence,
+            "tracked_frames": self.tracked,
+            "frames": self.frames,
+            "reason": self.reason,
+            "clamp_xy": list(self.clamp_xy) if self.clamp_xy is not None else None,
+            "offset_px": self.offset_px,
+        }
 
     def describe(self) -> str:
         """One line for people."""
         if self.angle_deg is None:
             return f"no strip found leaving the clamp ({self.reason})"
-        other = (f"next darkest direction {self.next_deg:.1f} deg at {self.contrast_next:.3f} "
-                 f"(ratio {self.confidence:.1f})" if self.next_deg is not None else "no other dark direction")
-        return (f"{round(self.angle_deg, 2) % 360:.2f} deg (0 = right, 90 = down), contrast {self.contrast_best:.3f} "
-                f"along it; {other}; strip followed in {self.tracked} of {self.frames} frames; "
-                f"it leaves the clamp {self.offset_px:+.2f} px across the axis from the given point")
+        other = (
+            f"next darkest direction {self.next_deg:.1f} deg at {self.contrast_next:.3f} "
+            f"(ratio {self.confidence:.1f})"
+            if self.next_deg is not None
+            else "no other dark direction"
+        )
+        return (
+            f"{round(self.angle_deg, 2) % 360:.2f} deg (0 = right, 90 = down), contrast {self.contrast_best:.3f} "
+            f"along it; {other}; strip followed in {self.tracked} of {self.frames} frames; "
+            f"it leaves the clamp {self.offset_px:+.2f} px across the axis from the given point"
+        )
 
 
-def angular_profile(contrast: np.ndarray, clamp, r_min: float, r_max: float,
-                    step_deg: float = PROFILE_STEP_DEG) -> tuple[np.ndarray, np.ndarray]:
+def angular_profile(
+    contrast: np.ndarray, clamp, r_min: float, r_max: float, step_deg: float = PROFILE_STEP_DEG
+) -> tuple[np.ndarray, np.ndarray]:
     """Mean contrast along rays from ``clamp`` (x, y px) between radii ``r_min`` and ``r_max`` px.
 
     Returns (angles in degrees, 0 = +x, 90 = +y; mean contrast per ray). Rays
@@ -130,8 +143,9 @@ def angular_profile(contrast: np.ndarray, clamp, r_min: float, r_max: float,
     t = np.radians(angles)[:, None]
     x = (clamp[0] + radii[None, :] * np.cos(t)).astype(np.float32)
     y = (clamp[1] + radii[None, :] * np.sin(t)).astype(np.float32)
-    values = cv2.remap(contrast.astype(np.float32), x, y, cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    values = cv2.remap(
+        contrast.astype(np.float32), x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0
+    )
     return angles, values.mean(axis=1)
 
 
@@ -192,8 +206,11 @@ def refine_axis(contrasts, scene: Scene, strip_px: float, rounds: int = 4) -> Sc
             return None
         tilt, offset = _shared_line(points)
         x, y = scene.to_image(np.array([0.0]), np.array([offset]))
-        scene = dataclasses.replace(scene, clamp=(float(x[0]), float(y[0])),
-                                    angle_deg=(scene.angle_deg - math.degrees(math.atan(tilt))) % 360.0)
+        scene = dataclasses.replace(
+            scene,
+            clamp=(float(x[0]), float(y[0])),
+            angle_deg=(scene.angle_deg - math.degrees(math.atan(tilt))) % 360.0,
+        )
         if abs(tilt) < 1e-5 and abs(offset) < 1e-3:
             break
     return scene
@@ -229,8 +246,7 @@ def _bent_strip(theta: np.ndarray, dtheta: np.ndarray, z: np.ndarray, s: np.ndar
     return np.interp(s, x, y), jac
 
 
-def _curvature_fit(data, shared_shape: bool, start, degree: int,
-                   iterations: int = 25, samples: int = 256):
+def _curvature_fit(data, shared_shape: bool, start, degree: int, iterations: int = 25, samples: int = 256):
     """Least-squares strips with a common tangent at the clamp: (tilt rad, e, residual sum of squares,
     parameter count), ``data`` in units of the longest ``s``; None if the fit fails.
 
@@ -253,7 +269,7 @@ def _curvature_fit(data, shared_shape: bool, start, degree: int,
         residuals, blocks = [], []
         for f, (s, u) in enumerate(data):
             z = grids[f]
-            powers = np.vstack([z ** (j + 1) / (j + 1) for j in range(degree + 1)])   # z, z^2/2, ..
+            powers = np.vstack([z ** (j + 1) / (j + 1) for j in range(degree + 1)])  # z, z^2/2, ..
             block = np.zeros((len(s), count))
             own = slice(first + per * f, first + per * (f + 1))
             if shared_shape:
@@ -270,7 +286,7 @@ def _curvature_fit(data, shared_shape: bool, start, degree: int,
             model, jac = found
             block[:, 0], block[:, 1] = jac[0], 1.0
             if shared_shape:
-                block[:, 2:first] = jac[1:first - 1].T
+                block[:, 2:first] = jac[1 : first - 1].T
                 block[:, own] = jac[-1][:, None]
             else:
                 block[:, own] = jac[1:].T
@@ -348,10 +364,10 @@ def _shared_arc(data) -> tuple[float, float, np.ndarray]:
     at = 0
     for f, (s, u) in enumerate(data):
         n = len(s)
-        design[at:at + n, 0] = s
-        design[at:at + n, 1] = 1.0
-        design[at:at + n, 2 + f] = (s**2 + u**2) / 2
-        target[at:at + n] = u
+        design[at : at + n, 0] = s
+        design[at : at + n, 1] = 1.0
+        design[at : at + n, 2 + f] = (s**2 + u**2) / 2
+        target[at : at + n] = u
         at += n
     coef = _least_squares(design, target)
     return float(coef[0]), float(coef[1]), coef[2:] * math.sqrt(1.0 + coef[0] ** 2)
@@ -376,7 +392,9 @@ def _least_squares(design: np.ndarray, target: np.ndarray) -> np.ndarray:
     return solution / norms
 
 
-def find_axis(frames, clamp, mm_per_px: float, length_mm: float | None, strip_px: float = 4.0) -> AxisEstimate:
+def find_axis(
+    frames, clamp, mm_per_px: float, length_mm: float | None, strip_px: float = 4.0
+) -> AxisEstimate:
     """Find the rest axis of the strip clamped at ``clamp`` (x, y px) in ``frames`` (a few, BGR or gray).
 
     Arguments:
@@ -408,8 +426,11 @@ def find_axis(frames, clamp, mm_per_px: float, length_mm: float | None, strip_px
         if rest is not None:
             tracked, _ = strip_along(contrasts, rest, strip_px)
     if rest is None or tracked < MIN_TRACKED * len(frames):
-        reason = (f"no strip was followed along any of the {len(ranked) or len(peaks)} darkest directions"
-                  if rest is None else f"a strip was followed in only {tracked} of {len(frames)} frames")
+        reason = (
+            f"no strip was followed along any of the {len(ranked) or len(peaks)} darkest directions"
+            if rest is None
+            else f"a strip was followed in only {tracked} of {len(frames)} frames"
+        )
         return AxisEstimate(None, float(profile.max(initial=0.0)), 0.0, None, tracked, len(frames), reason)
     angle = rest.angle_deg
     angles, profile = angular_profile(np.mean(contrasts, axis=0), rest.clamp, r_min, r_max)
@@ -418,8 +439,17 @@ def find_axis(frames, clamp, mm_per_px: float, length_mm: float | None, strip_px
     j = int(np.flatnonzero(far)[np.argmax(profile[far])])
     next_value = float(profile[j])
     offset = float(np.dot(np.subtract(rest.clamp, clamp), rest.normal))
-    return AxisEstimate(angle, best_value, next_value, float(angles[j]) if next_value > 0 else None,
-                        tracked, len(frames), "ok", clamp_xy=rest.clamp, offset_px=offset)
+    return AxisEstimate(
+        angle,
+        best_value,
+        next_value,
+        float(angles[j]) if next_value > 0 else None,
+        tracked,
+        len(frames),
+        "ok",
+        clamp_xy=rest.clamp,
+        offset_px=offset,
+    )
 
 
 def _profile_at(angles: np.ndarray, profile: np.ndarray, angle: float) -> float:

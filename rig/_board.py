@@ -54,8 +54,10 @@ class Board(SerialLink):
         try:
             port = serial.Serial(path, baud, timeout=0.02)
         except (serial.SerialException, OSError, ValueError) as error:
-            raise RigError(f"serial port {path} cannot be opened ({failure_reason(error)}): check the cable "
-                           "and the name (`rig ports` lists them)") from None
+            raise RigError(
+                f"serial port {path} cannot be opened ({failure_reason(error)}): check the cable "
+                "and the name (`rig ports` lists them)"
+            ) from None
         board = cls(port, name=path, **kwargs)
         try:
             board.hello()
@@ -76,12 +78,16 @@ class Board(SerialLink):
             except RigError:
                 continue
             if info.protocol != P.PROTOCOL_VERSION:
-                raise RigError(f"board on {self.name} speaks protocol {info.protocol}, this host "
-                               f"speaks {P.PROTOCOL_VERSION}: flash rig/firmware/rig_dac")
+                raise RigError(
+                    f"board on {self.name} speaks protocol {info.protocol}, this host "
+                    f"speaks {P.PROTOCOL_VERSION}: flash rig/firmware/rig_dac"
+                )
             self.info = info
             return info
-        raise RigError(f"no reply to HELLO from the board on {self.name} after {attempts} tries: is "
-                       f"the rig_dac firmware flashed and the port at {BAUD} baud?")
+        raise RigError(
+            f"no reply to HELLO from the board on {self.name} after {attempts} tries: is "
+            f"the rig_dac firmware flashed and the port at {BAUD} baud?"
+        )
 
     def _command(self, type_: int, payload: bytes, what: str) -> P.Ack:
         self.send(type_, payload)
@@ -99,15 +105,27 @@ class Board(SerialLink):
             if ack.acked == type_:
                 return ack
 
-    def configure(self, rate: float, idle_code: int, sync_samples: int = 15,
-                  dac_address: int = 0x60, status_hz: float = 10.0) -> Timing:
+    def configure(
+        self,
+        rate: float,
+        idle_code: int,
+        sync_samples: int = 15,
+        dac_address: int = 0x60,
+        status_hz: float = 10.0,
+    ) -> Timing:
         """Set the sample rate, the 0 V code (written to the DAC now), the LED length and the I2C address."""
         timing = sample_timing(rate, self.info.f_cpu if self.info else F_CPU)
         status_every = max(1, min(64, round(timing.rate / status_hz)))
         if not 0 <= idle_code <= P.CODE_MAX:
             raise RigError(f"idle code {idle_code} is outside 0..{P.CODE_MAX}")
-        payload = P.config_payload(timing.prescaler_code, timing.top, int(idle_code),
-                                   int(sync_samples), status_every, int(dac_address))
+        payload = P.config_payload(
+            timing.prescaler_code,
+            timing.top,
+            int(idle_code),
+            int(sync_samples),
+            status_every,
+            int(dac_address),
+        )
         self._command(P.T_CONFIG, payload, "CONFIG")
         self.status_every = status_every
         self.timing = timing
@@ -131,9 +149,15 @@ class Board(SerialLink):
 
     # ------------------------------------------------------------- streaming
 
-    def play(self, codes: Sequence[int], on_progress: Callable[[PlayReport], None] | None = None,
-             should_stop: Callable[[], bool] | None = None, prefill: int | None = None,
-             silence_timeout: float | None = None, on_start: Callable[[float], None] | None = None) -> PlayReport:
+    def play(
+        self,
+        codes: Sequence[int],
+        on_progress: Callable[[PlayReport], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
+        prefill: int | None = None,
+        silence_timeout: float | None = None,
+        on_start: Callable[[float], None] | None = None,
+    ) -> PlayReport:
         """Stream ``codes`` (after `configure`) and play them; returns the board's report.
 
         Prefills the ring buffer, sends START, keeps the buffer topped up within
@@ -180,16 +204,24 @@ class Board(SerialLink):
         per_frame = self.info.max_samples if self.info else P.MAX_SAMPLES_PER_FRAME
         status_period = self.status_every * self.timing.period
         silence = silence_timeout if silence_timeout is not None else 2.0 + 3 * status_period
-        state = {"sent": 0, "limit": capacity, "acked": 0, "rewound": -1,
-                 "last_progress": time.monotonic(), "heard": time.monotonic(), "started": False,
-                 "end_sent": False, "done": None}
+        state = {
+            "sent": 0,
+            "limit": capacity,
+            "acked": 0,
+            "rewound": -1,
+            "last_progress": time.monotonic(),
+            "heard": time.monotonic(),
+            "started": False,
+            "end_sent": False,
+            "done": None,
+        }
         self.parser.bad_frames = 0
 
         def send_some(upto: int) -> None:
             while state["sent"] < min(upto, state["limit"], n):
                 first = state["sent"]
                 count = min(per_frame, n - first, state["limit"] - first)
-                self.send(P.T_DATA, P.data_payload(first, codes[first:first + count]))
+                self.send(P.T_DATA, P.data_payload(first, codes[first : first + count]))
                 state["sent"] = first + count
             if state["started"] and state["sent"] == n and state["acked"] == n and not state["end_sent"]:
                 self.send(P.T_END, P.end_payload(n))
@@ -205,8 +237,9 @@ class Board(SerialLink):
             elif isinstance(message, P.Nak):
                 report.bad_frames_board += 1
                 if message.reason == 4 or message.reason == 5 or message.reason == 6:  # host bugs
-                    raise RigError(f"board rejected a frame: {message.reason_text} at sample "
-                                   f"{message.next_index}")
+                    raise RigError(
+                        f"board rejected a frame: {message.reason_text} at sample {message.next_index}"
+                    )
                 if message.next_index < state["sent"] and message.next_index != state["rewound"]:
                     report.resent_samples += state["sent"] - message.next_index
                     state["sent"] = message.next_index
@@ -224,8 +257,10 @@ class Board(SerialLink):
             elif isinstance(message, P.Done):
                 state["done"] = message
             elif isinstance(message, P.Boot):
-                raise RigError(f"board on {self.name} reset during the stream after "
-                               f"{report.played} of {n} samples (power glitch or reset button?)")
+                raise RigError(
+                    f"board on {self.name} reset during the stream after "
+                    f"{report.played} of {n} samples (power glitch or reset button?)"
+                )
             elif isinstance(message, P.DacError):
                 report.dac_errors = message.count
                 raise RigError(_dac_error_text(self, message))
@@ -239,8 +274,10 @@ class Board(SerialLink):
                 handle(message)
             send_some(target)
             if time.monotonic() > deadline:
-                raise RigError(f"board on {self.name} did not acknowledge the prefill "
-                               f"({state['acked']} of {target} samples) within {self.reply_timeout:g} s")
+                raise RigError(
+                    f"board on {self.name} did not acknowledge the prefill "
+                    f"({state['acked']} of {target} samples) within {self.reply_timeout:g} s"
+                )
         self._command(P.T_START, b"", "START")
         report.start_time = time.monotonic()
         state["started"] = True
@@ -265,8 +302,10 @@ class Board(SerialLink):
                 state["last_progress"] = now
             send_some(n)
             if now - state["heard"] > silence:
-                raise RigError(f"board on {self.name} went silent for {silence:.1f} s after "
-                               f"{report.played} of {n} samples: cable pulled or board hung?")
+                raise RigError(
+                    f"board on {self.name} went silent for {silence:.1f} s after "
+                    f"{report.played} of {n} samples: cable pulled or board hung?"
+                )
         done = state["done"]
         report.played, report.ticks = done.played, done.ticks
         report.underrun_ticks = done.underrun_ticks
@@ -274,5 +313,7 @@ class Board(SerialLink):
 
 
 def _dac_error_text(board: Board, message: P.DacError) -> str:
-    return (f"DAC did not acknowledge its I2C write (TWI status 0x{message.twi_status:02x}) at tick "
-            f"{message.tick}: check the MCP4725 wiring (SDA A4, SCL A5, power) and its address")
+    return (
+        f"DAC did not acknowledge its I2C write (TWI status 0x{message.twi_status:02x}) at tick "
+        f"{message.tick}: check the MCP4725 wiring (SDA A4, SCL A5, power) and its address"
+    )

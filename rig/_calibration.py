@@ -52,7 +52,8 @@ class Calibration:
         if self.gain == 0 or self.v_ref <= 0 or self.rail_low >= self.rail_high:
             raise RigError(
                 f"calibration gain={self.gain:g}, v_ref={self.v_ref:g} V, rails "
-                f"[{self.rail_low:g}, {self.rail_high:g}] V: need gain != 0, v_ref > 0, low < high rail")
+                f"[{self.rail_low:g}, {self.rail_high:g}] V: need gain != 0, v_ref > 0, low < high rail"
+            )
         if not isinstance(self.bits, int) or not 1 <= self.bits <= 16:
             raise RigError(f"calibration bits={self.bits!r}: give an integer 1..16")
 
@@ -103,13 +104,16 @@ class Calibration:
         fields = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - fields - {"fit"}
         if unknown:
-            raise RigError(f"calibration file '{path}' has unknown field(s) {sorted(unknown)}: "
-                           f"known are {sorted(fields)}")
+            raise RigError(
+                f"calibration file '{path}' has unknown field(s) {sorted(unknown)}: "
+                f"known are {sorted(fields)}"
+            )
         return cls(**{k: v for k, v in data.items() if k in fields})
 
 
-def fit_calibration(codes, volts, v_ref: float = 5.0, bits: int = 12,
-                    tolerance_v: float = 0.01) -> tuple[Calibration, dict]:
+def fit_calibration(
+    codes, volts, v_ref: float = 5.0, bits: int = 12, tolerance_v: float = 0.01
+) -> tuple[Calibration, dict]:
     """Fit gain, offset and rails to multimeter readings ``volts`` (V) at DAC ``codes``.
 
     Readings at a rail fall short of the straight line through the others. The
@@ -125,8 +129,10 @@ def fit_calibration(codes, volts, v_ref: float = 5.0, bits: int = 12,
     codes = np.asarray(codes, dtype=float)
     volts = np.asarray(volts, dtype=float)
     if codes.shape != volts.shape or codes.ndim != 1 or len(codes) < 3:
-        raise RigError(f"calibration needs one reading per code and at least 3 of them, got "
-                       f"{codes.size} codes and {volts.size} readings")
+        raise RigError(
+            f"calibration needs one reading per code and at least 3 of them, got "
+            f"{codes.size} codes and {volts.size} readings"
+        )
     if not np.all(np.isfinite(volts)):
         raise RigError("calibration readings must be finite numbers of volts")
     order = np.argsort(codes)
@@ -142,15 +148,17 @@ def fit_calibration(codes, volts, v_ref: float = 5.0, bits: int = 12,
             line = gain * v_dac + offset
             if np.max(np.abs(volts[lo:hi] - line[lo:hi])) > tolerance_v:
                 continue
-            short = np.abs(volts) < np.abs(line) - tolerance_v   # a clipped reading falls short
+            short = np.abs(volts) < np.abs(line) - tolerance_v  # a clipped reading falls short
             if np.all(short[:lo]) and np.all(short[hi:]):
                 best = (lo, hi, gain, offset)
                 break
         if best:
             break
     if best is None:
-        raise RigError(f"calibration readings are not a straight line (within {tolerance_v:g} V) with "
-                       "clipped ends: check the readings and the amplifier")
+        raise RigError(
+            f"calibration readings are not a straight line (within {tolerance_v:g} V) with "
+            "clipped ends: check the readings and the amplifier"
+        )
     lo, hi, gain, offset = best
     if gain == 0:
         raise RigError("calibration readings do not change with the code: is the amplifier powered?")
@@ -159,10 +167,15 @@ def fit_calibration(codes, volts, v_ref: float = 5.0, bits: int = 12,
     high_clip = volts[hi:] if gain > 0 else volts[:lo]
     rail_low = float(low_clip.mean()) if low_clip.size else float(ends.min())
     rail_high = float(high_clip.mean()) if high_clip.size else float(ends.max())
-    calibration = Calibration(gain=float(gain), offset=float(offset), v_ref=v_ref, bits=bits,
-                              rail_low=rail_low, rail_high=rail_high)
+    calibration = Calibration(
+        gain=float(gain), offset=float(offset), v_ref=v_ref, bits=bits, rail_low=rail_low, rail_high=rail_high
+    )
     residuals = volts - calibration.volts(codes)
-    report = {"codes": codes.astype(int).tolist(), "volts": volts.tolist(),
-              "residuals_v": residuals.tolist(), "clipped": [bool(i < lo or i >= hi) for i in range(n)],
-              "rms_residual_v": float(np.sqrt(np.mean(residuals**2)))}
+    report = {
+        "codes": codes.astype(int).tolist(),
+        "volts": volts.tolist(),
+        "residuals_v": residuals.tolist(),
+        "clipped": [bool(i < lo or i >= hi) for i in range(n)],
+        "rms_residual_v": float(np.sqrt(np.mean(residuals**2))),
+    }
     return calibration, report

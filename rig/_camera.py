@@ -64,8 +64,11 @@ class VideoSource:
 
     def __init__(self, source, fps: float = 30.0):
         self.source = source
-        is_file = isinstance(source, (str, pathlib.Path)) and not str(source).startswith("/dev/video") \
+        is_file = (
+            isinstance(source, (str, pathlib.Path))
+            and not str(source).startswith("/dev/video")
             and not str(source).isdigit()
+        )
         self.is_file = is_file
         self.capture = None
         self._avi = None
@@ -94,9 +97,14 @@ class VideoSource:
         else:
             if not self.capture.isOpened():
                 kind = "video file" if is_file else "camera"
-                raise RigError(f"{kind} '{source}' cannot be opened by OpenCV: "
-                               + ("is it a video (MJPG AVI, MP4) and not damaged?" if is_file
-                                  else "is it connected and not used by another program?"))
+                raise RigError(
+                    f"{kind} '{source}' cannot be opened by OpenCV: "
+                    + (
+                        "is it a video (MJPG AVI, MP4) and not damaged?"
+                        if is_file
+                        else "is it connected and not used by another program?"
+                    )
+                )
             reported = self.capture.get(cv2.CAP_PROP_FPS)
             self.fps = float(reported) if reported and 1.0 <= reported <= 1000.0 else float(fps)
             if is_file:
@@ -119,9 +127,14 @@ class VideoSource:
             ok, image = self._read_capture()
         if not ok or image is None:
             if self._first_read:
-                raise RigError(f"no frame could be read from '{self.source}': the "
-                               + ("file is empty or its codec is unsupported" if self.is_file
-                                  else "camera delivers nothing"))
+                raise RigError(
+                    f"no frame could be read from '{self.source}': the "
+                    + (
+                        "file is empty or its codec is unsupported"
+                        if self.is_file
+                        else "camera delivers nothing"
+                    )
+                )
             return None
         self._first_read = False
         if self._avi is not None:
@@ -177,13 +190,22 @@ class VideoSource:
 
     def integrity(self) -> dict:
         """What was read against what the file announced (JSON-able)."""
-        info = {"time_base": self.time_base, "fps": self.fps, "frames_expected": self.expected_frames,
-                "frames_read": self.index, "timestamp_faults": self.timestamp_faults,
-                "decode_failures": self.decode_failures}
+        info = {
+            "time_base": self.time_base,
+            "fps": self.fps,
+            "frames_expected": self.expected_frames,
+            "frames_read": self.index,
+            "timestamp_faults": self.timestamp_faults,
+            "decode_failures": self.decode_failures,
+        }
         if self._avi is not None:
-            info.update(indexed=self._avi.indexed, damaged_frames=list(self._avi.damaged),
-                        empty_chunks=len(self._avi.empty), unplaced_frames=self.unplaced,
-                        first_unplaced_frame=self.first_unplaced)
+            info.update(
+                indexed=self._avi.indexed,
+                damaged_frames=list(self._avi.damaged),
+                empty_chunks=len(self._avi.empty),
+                unplaced_frames=self.unplaced,
+                first_unplaced_frame=self.first_unplaced,
+            )
         return info
 
     def close(self) -> None:
@@ -213,9 +235,15 @@ def find_gaps(t, fps: float, factor: float = 1.5) -> list[dict]:
     t = np.asarray(t, float)
     period = 1.0 / fps
     steps = np.diff(t)
-    return [{"after": int(i), "t_before": float(t[i]), "t_after": float(t[i + 1]),
-             "missing": int(round(steps[i] / period)) - 1}
-            for i in np.flatnonzero(steps > factor * period)]
+    return [
+        {
+            "after": int(i),
+            "t_before": float(t[i]),
+            "t_after": float(t[i + 1]),
+            "missing": int(round(steps[i] / period)) - 1,
+        }
+        for i in np.flatnonzero(steps > factor * period)
+    ]
 
 
 def open_camera(source, fps: float = 30.0) -> VideoSource:

@@ -27,7 +27,7 @@ from . import protocol as P
 __all__ = ["EmulatedBoard"]
 
 F_CPU = 16_000_000
-DAC_LATENCY = 1048 / F_CPU       # tick -> DAC latch measured on simavr (rig simavr-timing), s
+DAC_LATENCY = 1048 / F_CPU  # tick -> DAC latch measured on simavr (rig simavr-timing), s
 RX_RING = 128
 
 
@@ -45,13 +45,13 @@ class EmulatedBoard:
         self.master, slave = os.openpty()
         tty.setraw(slave)
         self.port = os.ttyname(slave)
-        self._slave = slave      # kept open: no hang-up while the host reconnects
+        self._slave = slave  # kept open: no hang-up while the host reconnects
         os.set_blocking(self.master, False)
         self.lock = threading.Lock()
         self.dac_log: list[tuple[float, int]] = []
         self.led_log: list[tuple[float, int]] = []
         self.corrupt_tx = 0
-        self.fault_at: tuple[int, object] | None = None   # (samples played, callable(board)) for tests
+        self.fault_at: tuple[int, object] | None = None  # (samples played, callable(board)) for tests
         self._t0 = time.monotonic()
         self._stop = threading.Event()
         self._power_up()
@@ -110,7 +110,7 @@ class EmulatedBoard:
     def _twi_write(self, code: int, t: float) -> None:
         if not self.dac_present:
             self.dac_errors += 1
-            self.dac_error_status = 0x20       # SLA+W sent, NACK received
+            self.dac_error_status = 0x20  # SLA+W sent, NACK received
             self.dac_error_report = True
             return
         with self.lock:
@@ -161,7 +161,7 @@ class EmulatedBoard:
         try:
             os.write(self.master, bytes(data))
         except (BlockingIOError, OSError):
-            pass                                   # the host is not reading: bytes are lost, as on a UART
+            pass  # the host is not reading: bytes are lost, as on a UART
 
     def send_ack(self, type_: int) -> None:
         self.send_frame(P.T_ACK, struct.pack("<BII", type_, self.written, self.played + P.RING_CAPACITY))
@@ -175,14 +175,27 @@ class EmulatedBoard:
         if self.timer_running:
             into = (t - (self.next_tick - self.period)) / self.period
             tcnt = int(max(0.0, min(1.0, into)) * self.top)
-        self.send_frame(P.T_STATUS, struct.pack(
-            "<BIIHHHHHI", self.state, self.played, self.ticks, tcnt, self.written - self.played,
-            self.underrun_ticks & 0xFFFF, self.bad_frames & 0xFFFF, self.dac_errors & 0xFFFF,
-            self.played + P.RING_CAPACITY))
+        self.send_frame(
+            P.T_STATUS,
+            struct.pack(
+                "<BIIHHHHHI",
+                self.state,
+                self.played,
+                self.ticks,
+                tcnt,
+                self.written - self.played,
+                self.underrun_ticks & 0xFFFF,
+                self.bad_frames & 0xFFFF,
+                self.dac_errors & 0xFFFF,
+                self.played + P.RING_CAPACITY,
+            ),
+        )
 
     def send_info(self) -> None:
-        self.send_frame(P.T_INFO, struct.pack("<BBBHIB", P.PROTOCOL_VERSION, 1, 0, P.RING_CAPACITY,
-                                              F_CPU, P.MAX_SAMPLES_PER_FRAME))
+        self.send_frame(
+            P.T_INFO,
+            struct.pack("<BBBHIB", P.PROTOCOL_VERSION, 1, 0, P.RING_CAPACITY, F_CPU, P.MAX_SAMPLES_PER_FRAME),
+        )
 
     def idle_dac(self, t: float) -> None:
         self.timer_running = False
@@ -239,7 +252,7 @@ class EmulatedBoard:
             self.state = 2 if self.ended else 1
             self.send_ack(type_)
             self.timer_running = True
-            self.next_tick = t + self.period      # sample 0 plays at the first compare match
+            self.next_tick = t + self.period  # sample 0 plays at the first compare match
         elif type_ == P.T_END:
             if len(p) != 4:
                 return self.send_nak(2, type_)
@@ -301,24 +314,32 @@ class EmulatedBoard:
         self.rx.clear()
         if self.underrun_report:
             self.underrun_report = False
-            self.send_frame(P.T_UNDERRUN, struct.pack("<IHI", self.underrun_index,
-                                                      self.underrun_length & 0xFFFF, self.underrun_tick))
+            self.send_frame(
+                P.T_UNDERRUN,
+                struct.pack("<IHI", self.underrun_index, self.underrun_length & 0xFFFF, self.underrun_tick),
+            )
         if self.dac_error_report:
             self.dac_error_report = False
-            self.send_frame(P.T_DAC_ERROR, struct.pack("<IBH", self.ticks, self.dac_error_status,
-                                                       self.dac_errors & 0xFFFF))
+            self.send_frame(
+                P.T_DAC_ERROR,
+                struct.pack("<IBH", self.ticks, self.dac_error_status, self.dac_errors & 0xFFFF),
+            )
         if self.status_due:
             self.status_due = False
             self.send_status(t)
         if self.done_due:
             self.done_due = False
-            self.send_frame(P.T_DONE, struct.pack("<IIHH", self.played, self.ticks,
-                                                  self.underrun_ticks & 0xFFFF, self.bad_frames & 0xFFFF))
+            self.send_frame(
+                P.T_DONE,
+                struct.pack(
+                    "<IIHH", self.played, self.ticks, self.underrun_ticks & 0xFFFF, self.bad_frames & 0xFFFF
+                ),
+            )
 
     def _run(self) -> None:
         while not self._stop.is_set():
             t = self.now()
-            while self.timer_running and self.next_tick <= t:   # every tick due, in order
+            while self.timer_running and self.next_tick <= t:  # every tick due, in order
                 tick_t = self.next_tick
                 self.next_tick += self.period
                 self.timer_isr(tick_t)

@@ -26,8 +26,15 @@ from hybrid.util import atomic_open, describe_targets, partial_path, write_texts
 
 from ._errors import RigError
 
-__all__ = ["check_outputs", "jsonable", "partial_path", "rename_together", "write_atomic", "write_json_atomic",
-           "write_together"]
+__all__ = [
+    "check_outputs",
+    "jsonable",
+    "partial_path",
+    "rename_together",
+    "write_atomic",
+    "write_json_atomic",
+    "write_together",
+]
 
 
 def _folder(path: pathlib.Path) -> None:
@@ -79,7 +86,9 @@ def rename_together(moves: dict) -> None:
         for source, target in moves.items():
             os.replace(source, target)
     except OSError as error:
-        raise RigError(f"cannot write {describe_targets(list(moves.values()))}: {error.strerror or error}") from None
+        raise RigError(
+            f"cannot write {describe_targets(list(moves.values()))}: {error.strerror or error}"
+        ) from None
     with contextlib.suppress(OSError):  # the renames made durable (POSIX)
         fd = os.open(next(iter(moves.values())).parent, os.O_RDONLY)
         try:

@@ -63,16 +63,20 @@ class SerialLink:
         try:
             self.port.write(frame)
         except Exception as error:  # pyserial raises SerialException, ptys OSError
-            raise RigError(f"serial port {self.name} failed while writing ({failure_reason(error)}): "
-                           "was the board unplugged?") from None
+            raise RigError(
+                f"serial port {self.name} failed while writing ({failure_reason(error)}): "
+                "was the board unplugged?"
+            ) from None
 
     def receive(self) -> list[P.Message]:
         """Read what has arrived (waits up to the port timeout) and decode it."""
         try:
             data = self.port.read(4096)
         except Exception as error:
-            raise RigError(f"serial port {self.name} failed while reading ({failure_reason(error)}): "
-                           "was the board unplugged?") from None
+            raise RigError(
+                f"serial port {self.name} failed while reading ({failure_reason(error)}): "
+                "was the board unplugged?"
+            ) from None
         messages = []
         for frame in self.parser.feed(data or b""):
             try:
@@ -81,8 +85,13 @@ class SerialLink:
                 self.parser.bad_frames += 1
         return messages
 
-    def _wait_for(self, kinds: tuple[type, ...], what: str, timeout: float | None = None,
-                  on_other: Callable | None = None) -> P.Message:
+    def _wait_for(
+        self,
+        kinds: tuple[type, ...],
+        what: str,
+        timeout: float | None = None,
+        on_other: Callable | None = None,
+    ) -> P.Message:
         deadline = time.monotonic() + (self.reply_timeout if timeout is None else timeout)
         while time.monotonic() < deadline:
             for message in self.receive():
@@ -90,9 +99,11 @@ class SerialLink:
                     return message
                 if on_other is not None:
                     on_other(message)
-        raise RigError(f"no {what} from the board on {self.name} within "
-                       f"{self.reply_timeout if timeout is None else timeout:g} s: is the rig_dac "
-                       f"firmware flashed and the port at {BAUD} baud?")
+        raise RigError(
+            f"no {what} from the board on {self.name} within "
+            f"{self.reply_timeout if timeout is None else timeout:g} s: is the rig_dac "
+            f"firmware flashed and the port at {BAUD} baud?"
+        )
 
 
 def failure_reason(error: Exception) -> str:

@@ -61,11 +61,14 @@ def sample_timing(rate: float, f_cpu: int = F_CPU) -> Timing:
         top = round(ticks) - 1
         if top <= 0xFFFF:
             if top < 100:
-                raise RigError(f"sample rate {rate:g} Hz is too fast for the board: keep it below "
-                               f"{f_cpu / 101 / 8:.0f} Hz (the I2C write alone takes ~80 us)")
+                raise RigError(
+                    f"sample rate {rate:g} Hz is too fast for the board: keep it below "
+                    f"{f_cpu / 101 / 8:.0f} Hz (the I2C write alone takes ~80 us)"
+                )
             return Timing(code, top, f_cpu)
-    raise RigError(f"sample rate {rate:g} Hz is too slow for Timer1: give at least "
-                   f"{f_cpu / 1024 / 65536:.3f} Hz")
+    raise RigError(
+        f"sample rate {rate:g} Hz is too slow for Timer1: give at least {f_cpu / 1024 / 65536:.3f} Hz"
+    )
 
 
 @dataclasses.dataclass
@@ -121,11 +124,18 @@ class PlayReport:
     def metadata(self) -> dict:
         """JSON-able summary for a recording's metadata."""
         return {
-            "samples": self.n, "played": self.played, "ticks": self.ticks, "complete": self.complete,
-            "rate_hz": self.timing.rate, "period_s": self.timing.period,
+            "samples": self.n,
+            "played": self.played,
+            "ticks": self.ticks,
+            "complete": self.complete,
+            "rate_hz": self.timing.rate,
+            "period_s": self.timing.period,
             "timer": {"prescaler": self.timing.prescaler, "top": self.timing.top},
-            "underruns": [list(u) for u in self.underruns], "underrun_ticks": self.underrun_ticks,
-            "bad_frames_board": self.bad_frames_board, "bad_frames_host": self.bad_frames_host,
-            "dac_errors": self.dac_errors, "resent_samples": self.resent_samples,
+            "underruns": [list(u) for u in self.underruns],
+            "underrun_ticks": self.underrun_ticks,
+            "bad_frames_board": self.bad_frames_board,
+            "bad_frames_host": self.bad_frames_host,
+            "dac_errors": self.dac_errors,
+            "resent_samples": self.resent_samples,
             "error": self.error,
         }

@@ -104,15 +104,18 @@ class _Writer:
                         made.unlink()
             if isinstance(error, InputError):
                 raise RigError(f"{error}; nothing was recorded") from None
-            raise RigError(f"cannot write recording '{path}' ({error.strerror or error}); "
-                           "nothing was recorded") from None
+            raise RigError(
+                f"cannot write recording '{path}' ({error.strerror or error}); nothing was recorded"
+            ) from None
 
     def row(self, values) -> None:
         try:
             self.handle.write(",".join(f"{float(v):.17g}" for v in values) + "\n")
             self.handle.flush()
         except OSError as error:
-            raise RigError(f"cannot write {self.path}: {error.strerror or error} (after {self.rows} rows)") from None
+            raise RigError(
+                f"cannot write {self.path}: {error.strerror or error} (after {self.rows} rows)"
+            ) from None
         self.rows += 1
         self.save_metadata()
 
@@ -129,7 +132,7 @@ class _Writer:
         """Flush the rows, close, cut a row the disk took only part of, count the rows in the file (an
         interruption between writing a row and counting it must not leave a stale count), save the
         sidecar (an `InputError` if it cannot be written: the CSV is closed and valid all the same)."""
-        with contextlib.suppress(OSError):      # a full disk: what reached the file is what there is
+        with contextlib.suppress(OSError):  # a full disk: what reached the file is what there is
             self.handle.flush()
         with contextlib.suppress(OSError):
             self.handle.close()
@@ -152,19 +155,35 @@ def _describe(error: BaseException) -> str:
     return text or type(error).__name__
 
 
-def _kept(out: pathlib.Path, writer: _Writer, existed: bool, unsaved: Exception | None,
-          what: str = "what was recorded") -> str:
+def _kept(
+    out: pathlib.Path,
+    writer: _Writer,
+    existed: bool,
+    unsaved: Exception | None,
+    what: str = "what was recorded",
+) -> str:
     """Where a failed recording is: ``what was recorded (N rows) is kept in rec.partial.csv ...``."""
     sidecar = " (+ .json)"
-    if unsaved is not None:     # hybrid's "cannot write F: REASON; nothing was changed at F (...)": the reason
-        reason = getattr(unsaved, "strerror", None) or str(unsaved).split("; nothing was changed")[0].split(": ")[-1]
+    if unsaved is not None:  # hybrid's "cannot write F: REASON; nothing was changed at F (...)": the reason
+        reason = (
+            getattr(unsaved, "strerror", None)
+            or str(unsaved).split("; nothing was changed")[0].split(": ")[-1]
+        )
         sidecar = f" (its sidecar {writer.sidecar.name} could not be updated: {reason})"
-    return (f"{what} ({writer.rows} rows) is kept in {writer.path}{sidecar}; {out} was "
-            + ("left as it was" if existed else "not written"))
+    return f"{what} ({writer.rows} rows) is kept in {writer.path}{sidecar}; {out} was " + (
+        "left as it was" if existed else "not written"
+    )
 
 
-def record(board: Board, camera, drive, settings: RecordSettings, out, metadata: dict | None = None,
-           truth: dict | None = None) -> dict:
+def record(
+    board: Board,
+    camera,
+    drive,
+    settings: RecordSettings,
+    out,
+    metadata: dict | None = None,
+    truth: dict | None = None,
+) -> dict:
     """Run ``drive`` on ``board`` while filming with ``camera``; write the recording to ``out`` (CSV).
 
     Arguments:
@@ -187,28 +206,40 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
     fps = float(camera.fps)
     idle = int(cal.codes(0.0))
     sync_samples = max(2, round(settings.sync_s * drive.rate))
-    timing = board.configure(drive.rate, idle_code=idle, sync_samples=sync_samples,
-                             dac_address=settings.dac_address)
+    timing = board.configure(
+        drive.rate, idle_code=idle, sync_samples=sync_samples, dac_address=settings.dac_address
+    )
     period = timing.period
     n = len(codes)
     columns = ["t", "v_in", "w", "quality", "t_camera", "sample"] + (["w_true"] if truth is not None else [])
     meta = {
         "source": f"rig record, {drive.name} drive",
         "units": {"t": "s", "v_in": "V", "w": "mm", "t_camera": "s", "w_true": "mm"},
-        "complete": False, "status": "recording", "error": None,
-        "drive": drive.metadata, "calibration": cal.to_dict(),
+        "complete": False,
+        "status": "recording",
+        "error": None,
+        "drive": drive.metadata,
+        "calibration": cal.to_dict(),
         "clipped_samples": clipped,
-        "board": {"rate_hz": timing.rate, "period_s": period, "idle_code": idle,
-                  "sync_samples": sync_samples, "info": dataclasses.asdict(board.info) if board.info else None},
+        "board": {
+            "rate_hz": timing.rate,
+            "period_s": period,
+            "idle_code": idle,
+            "sync_samples": sync_samples,
+            "info": dataclasses.asdict(board.info) if board.info else None,
+        },
         "camera": {"fps": fps, "exposure_s": settings.exposure},
         "scene": dataclasses.asdict(settings.scene),
-        "sync": None, "dropped_frames": [], "duplicated_frames": 0, "untracked_frames": 0,
+        "sync": None,
+        "dropped_frames": [],
+        "duplicated_frames": 0,
+        "untracked_frames": 0,
         **(metadata or {}),
     }
     out = pathlib.Path(out)
     existed = out.exists()
     partial = partial_path(out)
-    meta["partial_of"] = str(out)   # until the recording has succeeded and is renamed onto `out`
+    meta["partial_of"] = str(out)  # until the recording has succeeded and is renamed onto `out`
     writer = _Writer(partial, columns, meta)
     tracker = TipTracker(settings.scene, strip_px=settings.strip_px)
     led = None
@@ -218,7 +249,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
     result: dict = {}
     stop = threading.Event()
     started = threading.Event()
-    covered = [0.0]           # board time (s after sample 0) up to which the schedule is known
+    covered = [0.0]  # board time (s after sample 0) up to which the schedule is known
     report_box: list[PlayReport] = []
 
     def on_progress(report: PlayReport) -> None:
@@ -231,8 +262,9 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
 
     def stream() -> None:
         try:
-            result["report"] = board.play(codes, on_progress=on_progress, should_stop=stop.is_set,
-                                          on_start=on_start)
+            result["report"] = board.play(
+                codes, on_progress=on_progress, should_stop=stop.is_set, on_start=on_start
+            )
         except RigError as error:
             result["error"] = error
             result["report"] = getattr(error, "report", None)
@@ -241,7 +273,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
             board.stop()
 
     thread = threading.Thread(target=stream, name="rig-board", daemon=True)
-    pending: list[list] = []          # [slot, t_camera, w, quality, w_true]
+    pending: list[list] = []  # [slot, t_camera, w, quality, w_true]
     last_slot, last_good = None, 0.0
     t_cam0 = None
     sync_t = None
@@ -316,8 +348,15 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
                 for k in range(last_slot + 1, slot):
                     meta["dropped_frames"].append(k)
                     f = (k - last_slot) / (slot - last_slot)
-                    pending.append([k, t_cam0 + k / fps, prev_w + f * (w - prev_w), 0,
-                                    prev_true + f * (w_true - prev_true)])
+                    pending.append(
+                        [
+                            k,
+                            t_cam0 + k / fps,
+                            prev_w + f * (w - prev_w),
+                            0,
+                            prev_true + f * (w_true - prev_true),
+                        ]
+                    )
             if result_track.quality:
                 last_good = w
             pending.append([slot, frame.t, w, result_track.quality, w_true])
@@ -326,16 +365,24 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
                 sync = led.update(frame.index, frame.t, frame.image)
                 if sync is not None:
                     sync_t = sync.t
-                    meta["sync"] = {"method": "led", "t_camera": sync.t, "frame": sync.frame,
-                                    "fraction_lit": sync.fraction}
+                    meta["sync"] = {
+                        "method": "led",
+                        "t_camera": sync.t,
+                        "frame": sync.frame,
+                        "fraction_lit": sync.fraction,
+                    }
             if sync_t is None and started.is_set() and "start_camera_t" in result:
                 if sync_deadline is None:
                     sync_deadline = result["start_camera_t"] + settings.sync_s + 1.0
                 if led is None or frame.t > sync_deadline:
                     sync_t = result["start_camera_t"] + period
-                    meta["sync"] = {"method": "host-clock", "t_camera": sync_t,
-                                    "note": "LED not configured" if led is None else
-                                    "LED edge not seen: aligned by the START acknowledgement (about one frame)"}
+                    meta["sync"] = {
+                        "method": "host-clock",
+                        "t_camera": sync_t,
+                        "note": "LED not configured"
+                        if led is None
+                        else "LED edge not seen: aligned by the START acknowledgement (about one frame)",
+                    }
             flush()
             if "error" in result:
                 # Keep filming up to where the board's reports reach, then stop: a camera
@@ -370,7 +417,7 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
             meta["error"] = _describe(error) if error is not None else (report.error if report else "unknown")
         try:
             writer.close()
-        except (InputError, OSError) as caught:       # the sidecar: a full disk
+        except (InputError, OSError) as caught:  # the sidecar: a full disk
             unsaved = caught
     # Anything but success leaves the rows in `partial` and `out` as it was; the error says so.
     kept = _kept(out, writer, existed, unsaved)
@@ -379,9 +426,9 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
             raise RigError(f"{error}; {kept}") from None
         if isinstance(error, (OSError, ValueError)):
             raise RigError(f"{type(error).__name__}: {error}; {kept}") from None
-        error.kept = kept                  # Ctrl-C, SIGTERM: the command line says where the rows are
+        error.kept = kept  # Ctrl-C, SIGTERM: the command line says where the rows are
         if not isinstance(error, KeyboardInterrupt):
-            error.add_note(kept)           # a bug: its traceback, and where the rows are
+            error.add_note(kept)  # a bug: its traceback, and where the rows are
         raise error
     if unsaved is not None:
         raise RigError(kept)
@@ -390,16 +437,16 @@ def record(board: Board, camera, drive, settings: RecordSettings, out, metadata:
     if writer.rows < 2:
         raise RigError(f"the recording has {writer.rows} rows: too short to be valid; {kept}")
     try:
-        Recording.load(writer.path)       # what was written is a valid recording
+        Recording.load(writer.path)  # what was written is a valid recording
     except InputError as invalid:
         raise RigError(f"the recording is not valid ({invalid}); {kept}") from None
     del meta["partial_of"]
     try:
         writer.save_metadata(force=True)
     except InputError as caught:
-        raise RigError(_kept(out, writer, existed, caught, 'the complete recording')) from None
+        raise RigError(_kept(out, writer, existed, caught, "the complete recording")) from None
     try:
         rename_together({writer.path: out, writer.sidecar: out.with_name(out.name + ".json")})
-    except RigError as failed:             # the recording is whole, but where it was streamed
+    except RigError as failed:  # the recording is whole, but where it was streamed
         raise RigError(f"{failed}; {_kept(out, writer, existed, None, 'the complete recording')}") from None
     return meta

@@ -55,7 +55,7 @@ def strip_coordinates(scene: Scene, w_mm: float, x: np.ndarray, y: np.ndarray):
     length = scene.length_mm
     px = scene.mm_per_px
     dx, dy = x - scene.clamp[0], y - scene.clamp[1]
-    s = (dx * scene.axis[0] + dy * scene.axis[1]) * px      # mm
+    s = (dx * scene.axis[0] + dy * scene.axis[1]) * px  # mm
     u = (dx * scene.normal[0] + dy * scene.normal[1]) * px
     if abs(w_mm) < 1e-9:
         return np.abs(u) / px, (s - length) / px
@@ -63,14 +63,20 @@ def strip_coordinates(scene: Scene, w_mm: float, x: np.ndarray, y: np.ndarray):
 
     s_arc, u_arc = arc_centreline(w_mm, length, n=3)
     tip_s, tip_u = s_arc[-1], u_arc[-1]
-    r = (tip_s**2 + tip_u**2) / (2 * tip_u)                  # signed radius, centre (0, r)
-    ang = np.arctan2(s, np.sign(r) * (r - u))                # arc angle of each point from the clamp
+    r = (tip_s**2 + tip_u**2) / (2 * tip_u)  # signed radius, centre (0, r)
+    ang = np.arctan2(s, np.sign(r) * (r - u))  # arc angle of each point from the clamp
     across = np.abs(np.hypot(s, u - r) - abs(r))
     return across / px, (ang * abs(r) - length) / px
 
 
-def render_frame(scene: Scene, look: Look, w_mm: float, led: float = 0.0, gain: float = 1.0,
-                 rng: np.random.Generator | None = None) -> np.ndarray:
+def render_frame(
+    scene: Scene,
+    look: Look,
+    w_mm: float,
+    led: float = 0.0,
+    gain: float = 1.0,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
     """One 8-bit gray frame of the strip with tip displacement ``w_mm``.
 
     Arguments:

@@ -37,8 +37,11 @@ def missing_tools() -> str | None:
     if not pathlib.Path("/usr/include/simavr/sim_avr.h").exists():
         missing.append("libsimavr-dev (/usr/include/simavr)")
     if missing:
-        return ("cannot build/run the firmware on simavr: missing " + ", ".join(missing)
-                + " (run `make rig-deps` as root on Debian: gcc-avr avr-libc simavr libsimavr-dev)")
+        return (
+            "cannot build/run the firmware on simavr: missing "
+            + ", ".join(missing)
+            + " (run `make rig-deps` as root on Debian: gcc-avr avr-libc simavr libsimavr-dev)"
+        )
     return None
 
 
@@ -57,12 +60,32 @@ def build(out_dir) -> tuple[pathlib.Path, pathlib.Path]:
     out.mkdir(parents=True, exist_ok=True)
     elf = out / "rig_dac.elf"
     harness = out / "rig_sim"
-    _run(["avr-g++", "-mmcu=atmega328p", f"-DF_CPU={F_CPU}UL", "-Os", "-Wall", "-Wextra",
-          "-x", "c++", str(SKETCH), "-x", "none", str(MAIN), "-o", str(elf)], "avr-g++ (firmware)")
-    flags = subprocess.run(["pkg-config", "--cflags", "--libs", "simavr"], capture_output=True,
-                           text=True).stdout.split() or ["-I/usr/include/simavr", "-lsimavr"]
-    _run(["gcc", "-O2", "-Wall", "-o", str(harness), str(HARNESS), *flags, "-lutil", "-lelf"],
-         "gcc (simavr harness)")
+    _run(
+        [
+            "avr-g++",
+            "-mmcu=atmega328p",
+            f"-DF_CPU={F_CPU}UL",
+            "-Os",
+            "-Wall",
+            "-Wextra",
+            "-x",
+            "c++",
+            str(SKETCH),
+            "-x",
+            "none",
+            str(MAIN),
+            "-o",
+            str(elf),
+        ],
+        "avr-g++ (firmware)",
+    )
+    flags = subprocess.run(
+        ["pkg-config", "--cflags", "--libs", "simavr"], capture_output=True, text=True
+    ).stdout.split() or ["-I/usr/include/simavr", "-lsimavr"]
+    _run(
+        ["gcc", "-O2", "-Wall", "-o", str(harness), str(HARNESS), *flags, "-lutil", "-lelf"],
+        "gcc (simavr harness)",
+    )
     return elf, harness
 
 

@@ -40,15 +40,22 @@ class LedDetector:
         baseline_frames: frames before the edge used for the off level (at least 3).
     """
 
-    def __init__(self, x: float, y: float, radius: float = 5.0, fps: float = 30.0,
-                 exposure: float | None = None, baseline_frames: int = 5):
+    def __init__(
+        self,
+        x: float,
+        y: float,
+        radius: float = 5.0,
+        fps: float = 30.0,
+        exposure: float | None = None,
+        baseline_frames: int = 5,
+    ):
         self.x, self.y, self.r = float(x), float(y), float(radius)
         self.period = 1.0 / fps
         self.exposure = self.period if exposure is None else float(exposure)
         if not 0 < self.exposure <= self.period * 1.0001:
             raise RigError(f"exposure {self.exposure:g} s must be in (0, {self.period:g}] s at {fps:g} fps")
         self.baseline_frames = max(3, baseline_frames)
-        self.levels: list[tuple[int, float, float]] = []   # (index, t, level)
+        self.levels: list[tuple[int, float, float]] = []  # (index, t, level)
         self.edge: tuple[int, float, float] | None = None
         self.sync: LedSync | None = None
         self._masks = None
@@ -90,7 +97,7 @@ class LedDetector:
         span = on_level - self.baseline
         fraction = 1.0 if span <= 0 else float(np.clip((level - self.baseline) / span, 0.0, 1.0))
         gap = self.period - self.exposure
-        if fraction > 0.97:      # lit for the whole exposure: the edge was in the gap before it
+        if fraction > 0.97:  # lit for the whole exposure: the edge was in the gap before it
             edge_t = t - 0.5 * gap if gap > 1e-6 else t
         else:
             edge_t = t + self.exposure * (1.0 - fraction)

@@ -88,10 +88,16 @@ class TipTracker:
         min_contrast: below this relative contrast there is no strip.
     """
 
-    MIN_LENGTH = 0.4     # a tip nearer the clamp than this fraction of the free length is not the strip's
+    MIN_LENGTH = 0.4  # a tip nearer the clamp than this fraction of the free length is not the strip's
 
-    def __init__(self, scene: Scene, strip_px: float = 4.0, start_px: float = 4.0,
-                 half_width_px: float | None = None, min_contrast: float = 0.12):
+    def __init__(
+        self,
+        scene: Scene,
+        strip_px: float = 4.0,
+        start_px: float = 4.0,
+        half_width_px: float | None = None,
+        min_contrast: float = 0.12,
+    ):
         self.scene = scene
         self.strip_px = float(strip_px)
         self.start_px = float(start_px)
@@ -117,8 +123,14 @@ class TipTracker:
 
     def _sample(self, contrast, s, u):
         x, y = self.scene.to_image(s, u)
-        return cv2.remap(contrast, x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+        return cv2.remap(
+            contrast,
+            x.astype(np.float32),
+            y.astype(np.float32),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=-1.0,
+        )
 
     # ------------------------------------------------------------------ tracking
 
@@ -130,7 +142,9 @@ class TipTracker:
         """
         s = np.arange(self.start_px, self.max_s, 1.0)
         u = np.arange(-self.half_width, self.half_width + 0.25, 0.5)
-        grid = self._sample(contrast, s[:, None] * np.ones_like(u)[None, :], np.ones_like(s)[:, None] * u[None, :])
+        grid = self._sample(
+            contrast, s[:, None] * np.ones_like(u)[None, :], np.ones_like(s)[:, None] * u[None, :]
+        )
         outside = grid < 0
         grid = np.where(outside, 0.0, grid)
 
@@ -167,8 +181,13 @@ class TipTracker:
             inside.append(not outside[k, j0])
             prev = j0
         n = len(centres)
-        return Sections(s=s[:n], u=np.array(centres), peak=np.array(peaks), inside=np.array(inside, bool),
-                        reached_end=n == len(s))
+        return Sections(
+            s=s[:n],
+            u=np.array(centres),
+            peak=np.array(peaks),
+            inside=np.array(inside, bool),
+            reached_end=n == len(s),
+        )
 
     def centreline_points(self, sections: Sections) -> tuple[np.ndarray, np.ndarray] | None:
         """The sections a centreline is fitted to: (s, u) px, the end cap left out; None if too few."""
@@ -179,7 +198,7 @@ class TipTracker:
         strong = good & (sections.peak > 0.5 * plateau)
         last = int(np.flatnonzero(strong)[-1])
         use = strong.copy()
-        use[max(0, last - int(self.strip_px) - 1):] = False
+        use[max(0, last - int(self.strip_px) - 1) :] = False
         if use.sum() < 6:
             use = strong
         return sections.s[use], sections.u[use]
@@ -239,8 +258,10 @@ class TipTracker:
         # Contrast along the centreline, averaged over +-1 px across it.
         s_fine = np.arange(s[last] - 3 * self.strip_px - 4, s[last] + 2 * self.strip_px + 4, 0.1)
         u_fine = line(s_fine)
-        along = np.mean([self._sample(contrast, s_fine[None, :], (u_fine + du)[None, :])[0]
-                         for du in (-1.0, 0.0, 1.0)], axis=0)
+        along = np.mean(
+            [self._sample(contrast, s_fine[None, :], (u_fine + du)[None, :])[0] for du in (-1.0, 0.0, 1.0)],
+            axis=0,
+        )
         along = np.where(along < 0, 0.0, along)
         body = along[s_fine < s[last] - self.strip_px]
         level = float(np.median(body)) if body.size else plateau
@@ -254,7 +275,10 @@ class TipTracker:
         i = below[0]
         f = (along[i] - half) / (along[i] - along[i + 1])
         s_tip = s_fine[i] + f * (s_fine[i + 1] - s_fine[i])
-        if self.scene.length_mm is not None and s_tip * self.scene.mm_per_px < self.MIN_LENGTH * self.scene.length_mm:
+        if (
+            self.scene.length_mm is not None
+            and s_tip * self.scene.mm_per_px < self.MIN_LENGTH * self.scene.length_mm
+        ):
             return TipResult(math.nan, 0, "strip much shorter than its length", (math.nan, math.nan))
         u_tip = float(line(s_tip))
         x, y = self.scene.to_image(np.array([s_tip]), np.array([u_tip]))

@@ -41,9 +41,9 @@ from ._tracker import TipTracker
 
 __all__ = ["TrackJob", "track_video"]
 
-HEAD_FRAMES = 30          # frames read first to find the axis; every other one is used
-AXIS_WARN_DEG = 1.0       # a given axis this far from the detected one earns a warning
-CLAMP_WARN_PX = 1.0       # so does a given clamp point this far beside the strip
+HEAD_FRAMES = 30  # frames read first to find the axis; every other one is used
+AXIS_WARN_DEG = 1.0  # a given axis this far from the detected one earns a warning
+CLAMP_WARN_PX = 1.0  # so does a given clamp point this far beside the strip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,19 +96,27 @@ def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None
     if estimate.angle_deg is not None:
         off = abs((estimate.angle_deg - job.axis_deg + 180.0) % 360.0 - 180.0)
         if off > AXIS_WARN_DEG:
-            tip = (f": about {(job.length_mm or 22.0) * math.sin(math.radians(off)):.2f} mm at the tip"
-                   if off < 30 else "")
-            _warn(f"--axis {job.axis_deg:g} deg given, but the strip leaves the clamp at "
-                  f"{estimate.angle_deg:.2f} deg ({off:.1f} deg off{tip}); leave --axis out to use the detected axis")
+            tip = (
+                f": about {(job.length_mm or 22.0) * math.sin(math.radians(off)):.2f} mm at the tip"
+                if off < 30
+                else ""
+            )
+            _warn(
+                f"--axis {job.axis_deg:g} deg given, but the strip leaves the clamp at "
+                f"{estimate.angle_deg:.2f} deg ({off:.1f} deg off{tip}); leave --axis out to use the detected axis"
+            )
         elif abs(estimate.offset_px) > CLAMP_WARN_PX:
-            _warn(f"the strip leaves the clamp {estimate.offset_px:+.1f} px across the axis from --clamp: w is "
-                  f"offset by about {estimate.offset_px * job.mm_per_px:+.2f} mm; leave --axis out to measure "
-                  "from the strip's own rest line")
+            _warn(
+                f"the strip leaves the clamp {estimate.offset_px:+.1f} px across the axis from --clamp: w is "
+                f"offset by about {estimate.offset_px * job.mm_per_px:+.2f} mm; leave --axis out to measure "
+                "from the strip's own rest line"
+            )
     return estimate, job.axis_deg, tuple(job.clamp)
 
 
-def _track_rows(job: TrackJob, video: VideoSource, head, angle: float | None, clamp, meta: dict,
-                t, w, quality) -> None:
+def _track_rows(
+    job: TrackJob, video: VideoSource, head, angle: float | None, clamp, meta: dict, t, w, quality
+) -> None:
     """Track every frame (the ``head`` already read, then the rest) along ``angle`` (degrees) from
     ``clamp`` (x, y px), appending to the lists t (s), w (mm), quality."""
     tracker = None
@@ -147,8 +155,12 @@ def _track_rows(job: TrackJob, video: VideoSource, head, angle: float | None, cl
     finally:
         meta["untracked_reasons"] = reasons
         if led is not None and led.sync is not None:
-            meta["sync"] = {"method": "led", "t": led.sync.t, "frame": led.sync.frame,
-                            "fraction_lit": led.sync.fraction}
+            meta["sync"] = {
+                "method": "led",
+                "t": led.sync.t,
+                "frame": led.sync.frame,
+                "fraction_lit": led.sync.fraction,
+            }
         elif led is not None:
             meta["sync"] = {"method": "led", "t": None, "note": "LED edge not seen"}
 
@@ -164,14 +176,20 @@ def _account(video: VideoSource, t, quality) -> dict:
     expected = info["frames_expected"]
     read = len(t)
     missing = max(0, expected - read) if expected is not None else None
-    info.update(gaps=gaps, frames_missing=missing, frames_missing_in_gaps=in_gaps,
-                frames_missing_at_end=None if missing is None else max(0, missing - in_gaps))
+    info.update(
+        gaps=gaps,
+        frames_missing=missing,
+        frames_missing_in_gaps=in_gaps,
+        frames_missing_at_end=None if missing is None else max(0, missing - in_gaps),
+    )
     unplaced = info.get("unplaced_frames", 0)
     if unplaced:
         first = info["first_unplaced_frame"]
         for k in range(first, read):
             quality[k] = 0
-    info["complete"] = bool(missing == 0 and not unplaced) if expected is not None else not gaps and not unplaced
+    info["complete"] = (
+        bool(missing == 0 and not unplaced) if expected is not None else not gaps and not unplaced
+    )
     return info
 
 
@@ -188,14 +206,19 @@ def _write(job: TrackJob, t, w, quality, meta: dict, failed: bool = False) -> pa
     rows = [f"{a:.17g},{b:.17g},{int(c)}" for a, b, c in zip(t, w, quality)]
     meta["rows"] = len(rows)
     meta["tracked_frames"] = int(np.sum(quality))
-    write_together({out: "t,w,quality\n" + "".join(r + "\n" for r in rows),
-                    out.with_name(out.name + ".json"): json.dumps(meta, indent=2, default=jsonable) + "\n"})
+    write_together(
+        {
+            out: "t,w,quality\n" + "".join(r + "\n" for r in rows),
+            out.with_name(out.name + ".json"): json.dumps(meta, indent=2, default=jsonable) + "\n",
+        }
+    )
     return out
 
 
 def _kept(job: TrackJob, written: pathlib.Path, existed: bool) -> str:
-    return (f"what was read is kept in {written} (+ .json); {job.out} was "
-            + ("left as it was" if existed else "not written"))
+    return f"what was read is kept in {written} (+ .json); {job.out} was " + (
+        "left as it was" if existed else "not written"
+    )
 
 
 def _gap_warning(job: TrackJob, gaps) -> str:
@@ -203,11 +226,14 @@ def _gap_warning(job: TrackJob, gaps) -> str:
     if len(gaps) == 1:
         where = f"{total} frames lost after t = {gaps[0]['t_before']:.4f} s"
     else:
-        where = f"{total} frames lost: " + "; ".join(f"{g['missing']} after t = {g['t_before']:.4f} s"
-                                                      for g in gaps[:5])
+        where = f"{total} frames lost: " + "; ".join(
+            f"{g['missing']} after t = {g['t_before']:.4f} s" for g in gaps[:5]
+        )
         where += f" and {len(gaps) - 5} more gaps" if len(gaps) > 5 else ""
-    return (f"{job.video} has {len(gaps)} gap{'s' if len(gaps) > 1 else ''} ({where}); t keeps every frame's "
-            "own time and the frames either side of a gap have quality 0")
+    return (
+        f"{job.video} has {len(gaps)} gap{'s' if len(gaps) > 1 else ''} ({where}); t keeps every frame's "
+        "own time and the frames either side of a gap have quality 0"
+    )
 
 
 def track_video(job: TrackJob) -> dict:
@@ -219,17 +245,33 @@ def track_video(job: TrackJob) -> dict:
     """
     check_outputs([job.out, job.sidecar], [job.video])
     existed = pathlib.Path(job.out).exists()
-    meta = {"source": "rig track", "video": str(job.video), "columns": ["t", "w", "quality"],
-            "units": {"t": "s", "w": "mm"}, "complete": False, "status": "tracking", "error": None}
+    meta = {
+        "source": "rig track",
+        "video": str(job.video),
+        "columns": ["t", "w", "quality"],
+        "units": {"t": "s", "w": "mm"},
+        "complete": False,
+        "status": "tracking",
+        "error": None,
+    }
     with VideoSource(job.video) as video:
         head = []
         while len(head) < HEAD_FRAMES and (frame := video.read()) is not None:
             head.append(frame)
         estimate, angle, clamp = _find_or_check_axis(job, head)
-        meta["axis"] = {"angle_deg": angle, "given": job.axis_deg is not None,
-                        "detection": estimate.metadata()}
-        meta["scene"] = {"clamp": list(clamp), "clamp_given": list(job.clamp), "mm_per_px": job.mm_per_px,
-                         "angle_deg": angle, "length_mm": job.length_mm, "strip_px": job.strip_px}
+        meta["axis"] = {
+            "angle_deg": angle,
+            "given": job.axis_deg is not None,
+            "detection": estimate.metadata(),
+        }
+        meta["scene"] = {
+            "clamp": list(clamp),
+            "clamp_given": list(job.clamp),
+            "mm_per_px": job.mm_per_px,
+            "angle_deg": angle,
+            "length_mm": job.length_mm,
+            "strip_px": job.strip_px,
+        }
         t, w, quality = [], [], []
         try:
             _track_rows(job, video, head, angle, clamp, meta, t, w, quality)
@@ -244,35 +286,60 @@ def track_video(job: TrackJob) -> dict:
     good = int(np.sum(quality))
     problems = []
     if angle is None:
-        problems.append(f"no strip leaves the clamp at {job.clamp[0]:g},{job.clamp[1]:g} in any direction "
-                        f"({estimate.reason}): check --clamp, --mm-per-px, --length, --strip-px")
+        problems.append(
+            f"no strip leaves the clamp at {job.clamp[0]:g},{job.clamp[1]:g} in any direction "
+            f"({estimate.reason}): check --clamp, --mm-per-px, --length, --strip-px"
+        )
     elif good == 0:
-        problems.append(f"the strip was not found along the axis {angle:g} deg in any frame of {job.video}: "
-                        "check --clamp, --mm-per-px, --axis, --length")
+        problems.append(
+            f"the strip was not found along the axis {angle:g} deg in any frame of {job.video}: "
+            "check --clamp, --mm-per-px, --axis, --length"
+        )
     missing_end, unplaced = account.get("frames_missing_at_end"), account.get("unplaced_frames", 0)
     if missing_end or unplaced:
         expected = account["frames_expected"]
-        problems.append(f"read {len(t)} of {expected} frames of {job.video} (the file is truncated or damaged"
-                        + (f"; the places in time of the last {unplaced} are unknown, flagged quality 0"
-                           if unplaced else "") + "): only those were tracked, marked incomplete")
-    meta["status"] = ("no strip" if angle is None or good == 0 else
-                      "incomplete" if missing_end or unplaced else "gaps" if account["gaps"] else "complete")
+        problems.append(
+            f"read {len(t)} of {expected} frames of {job.video} (the file is truncated or damaged"
+            + (
+                f"; the places in time of the last {unplaced} are unknown, flagged quality 0"
+                if unplaced
+                else ""
+            )
+            + "): only those were tracked, marked incomplete"
+        )
+    meta["status"] = (
+        "no strip"
+        if angle is None or good == 0
+        else "incomplete"
+        if missing_end or unplaced
+        else "gaps"
+        if account["gaps"]
+        else "complete"
+    )
     meta["error"] = "; ".join(problems) or None
     if problems:
         try:
             written = _write(job, t, w, quality, meta, failed=True)
         except InputError as error:  # a full disk: the tracking problem, and why nothing was kept
-            raise RigError("; ".join(problems) + f"; what was read could not be kept either: {error}") from None
+            raise RigError(
+                "; ".join(problems) + f"; what was read could not be kept either: {error}"
+            ) from None
         raise RigError("; ".join(problems) + f"; {_kept(job, written, existed)}")
     _write(job, t, w, quality, meta)
     sync = meta.get("sync")
-    print(f"wrote {job.out}: {len(t)} frames at {account['fps']:g} fps, {int(np.sum(quality))} tracked"
-          + (f", sync LED edge at t = {sync['t']:.4f} s (frame {sync['frame']})" if sync and sync.get("t") is not None
-             else (", sync LED not seen" if sync else "")))
+    print(
+        f"wrote {job.out}: {len(t)} frames at {account['fps']:g} fps, {int(np.sum(quality))} tracked"
+        + (
+            f", sync LED edge at t = {sync['t']:.4f} s (frame {sync['frame']})"
+            if sync and sync.get("t") is not None
+            else (", sync LED not seen" if sync else "")
+        )
+    )
     if account["gaps"]:
         _warn(_gap_warning(job, account["gaps"]))
     if account["timestamp_faults"]:
-        _warn(f"{account['timestamp_faults']} frames of {job.video} had no increasing decoder timestamp: "
-              "they were stamped one frame period after the previous frame")
+        _warn(
+            f"{account['timestamp_faults']} frames of {job.video} had no increasing decoder timestamp: "
+            "they were stamped one frame period after the previous frame"
+        )
     return meta
-

@@ -51,15 +51,33 @@ class VirtualCamera:
 
     OVERSAMPLE = 8
 
-    def __init__(self, board, scene: Scene = Scene(), look: Look = Look(),
-                 strip: VirtualIPMCParameters = VirtualIPMCParameters(),
-                 amplifier: Calibration = Calibration(), fps: float = 30.0, exposure: float = 1 / 60,
-                 seed: int = 0, flicker: float = 0.05, batch_s: float = 0.5,
-                 drop=(), duplicate=(), hide=()):
+    def __init__(
+        self,
+        board,
+        scene: Scene = Scene(),
+        look: Look = Look(),
+        strip: VirtualIPMCParameters = VirtualIPMCParameters(),
+        amplifier: Calibration = Calibration(),
+        fps: float = 30.0,
+        exposure: float = 1 / 60,
+        seed: int = 0,
+        flicker: float = 0.05,
+        batch_s: float = 0.5,
+        drop=(),
+        duplicate=(),
+        hide=(),
+    ):
         self.board, self.scene, self.look = board, scene, look
-        self.strip = dataclasses.replace(strip, camera_fps=None, exposure_s=0.0, noise_std_mm=0.0,
-                                         pixel_mm=None, dac_bits=24, oversample=2,
-                                         full_scale_v=max(abs(amplifier.rail_low), abs(amplifier.rail_high)))
+        self.strip = dataclasses.replace(
+            strip,
+            camera_fps=None,
+            exposure_s=0.0,
+            noise_std_mm=0.0,
+            pixel_mm=None,
+            dac_bits=24,
+            oversample=2,
+            full_scale_v=max(abs(amplifier.rail_low), abs(amplifier.rail_high)),
+        )
         self.amplifier = amplifier
         self.fps, self.exposure = float(fps), float(exposure)
         self.grid = 1.0 / (self.fps * self.OVERSAMPLE)
@@ -73,7 +91,7 @@ class VirtualCamera:
         self._pending_duplicate = None
         self._sim_t = np.zeros(0)
         self._sim_w = np.zeros(0)
-        self.truth: dict[int, float] = {}   # delivered index -> exposure-averaged true w, mm
+        self.truth: dict[int, float] = {}  # delivered index -> exposure-averaged true w, mm
 
     def clock(self) -> float:
         """Now on this camera's clock (s since it opened)."""
@@ -122,8 +140,14 @@ class VirtualCamera:
         try:
             image = render_frame(scene, self.look, w, led=led, gain=gain, rng=self.rng)
         except RigError:
-            image = render_frame(dataclasses.replace(scene, clamp=(-500.0, -500.0)), self.look, 0.0,
-                                 led=led, gain=gain, rng=self.rng)
+            image = render_frame(
+                dataclasses.replace(scene, clamp=(-500.0, -500.0)),
+                self.look,
+                0.0,
+                led=led,
+                gain=gain,
+                rng=self.rng,
+            )
         frame = Frame(self.delivered, start - self.t0, image)
         self.truth[self.delivered] = w
         self.delivered += 1

@@ -42,6 +42,7 @@ def _numbers(count_min: int, count_max: int, what: str):
         if not count_min <= len(values) <= count_max or not all(math.isfinite(v) for v in values):
             raise InputError(f"{what} needs {count_min}-{count_max} finite numbers, got {text!r}")
         return values
+
     return parse
 
 
@@ -51,18 +52,25 @@ def _bounded(low: float, high: float, unit: str, low_open: bool = True, convert=
     ``convert`` turns the text into the number (``float``, ``int``, ...); the
     message names the bounds and the unit.
     """
+
     def parse(text: str):
         try:
             value = convert(text)
         except ValueError:
             value = None
-        inside = value is not None and math.isfinite(value) and value <= high and (
-            value > low if low_open else value >= low)
+        inside = (
+            value is not None
+            and math.isfinite(value)
+            and value <= high
+            and (value > low if low_open else value >= low)
+        )
         if not inside:
             raise argparse.ArgumentTypeError(
                 f"must be {'a number' if convert is float else 'an integer'} {'>' if low_open else '>='} {low:g} "
-                f"and <= {high:g} {unit}, got {text!r}")
+                f"and <= {high:g} {unit}, got {text!r}"
+            )
         return value
+
     return parse
 
 
@@ -78,28 +86,50 @@ AMPLITUDE = _bounded(0, 100, "V")
 FPS = _bounded(0, 1000, "frames per second")
 SPEED = _bounded(0, 100, "board seconds per second")
 SEED = _bounded(0, 2**32 - 1, "", low_open=False, convert=int)
-DAC_ADDRESS = _bounded(0x08, 0x77, "(a 7-bit I2C address, 0x08-0x77)", low_open=False,
-                       convert=lambda text: int(text, 0))
-LED_RADIUS_MAX = 200.0   # px
+DAC_ADDRESS = _bounded(
+    0x08, 0x77, "(a 7-bit I2C address, 0x08-0x77)", low_open=False, convert=lambda text: int(text, 0)
+)
+LED_RADIUS_MAX = 200.0  # px
 
 
 def _scene_args(p, track: bool = False):
-    p.add_argument("--clamp", type=_numbers(2, 2, "--clamp X,Y"), default=None,
-                   help="clamp point in the picture, px (virtual default 40,120)")
-    p.add_argument("--mm-per-px", type=MM_PER_PX, default=None,
-                   help="image scale, mm per pixel, in (0, 10] (virtual default 0.1)")
+    p.add_argument(
+        "--clamp",
+        type=_numbers(2, 2, "--clamp X,Y"),
+        default=None,
+        help="clamp point in the picture, px (virtual default 40,120)",
+    )
+    p.add_argument(
+        "--mm-per-px",
+        type=MM_PER_PX,
+        default=None,
+        help="image scale, mm per pixel, in (0, 10] (virtual default 0.1)",
+    )
     if track:
-        p.add_argument("--axis", type=AXIS, default=None,
-                       help="rest axis angle, degrees (0 = strip points right, 90 = down); "
-                            "default: found in the video and printed")
+        p.add_argument(
+            "--axis",
+            type=AXIS,
+            default=None,
+            help="rest axis angle, degrees (0 = strip points right, 90 = down); "
+            "default: found in the video and printed",
+        )
     else:
-        p.add_argument("--axis", type=AXIS, default=0.0,
-                       help="rest axis angle, degrees (0 = strip points right, 90 = down)")
-    p.add_argument("--length", type=LENGTH, default=22.0,
-                   help="free strip length, mm, in (0, 1000] (bounds the search)")
+        p.add_argument(
+            "--axis",
+            type=AXIS,
+            default=0.0,
+            help="rest axis angle, degrees (0 = strip points right, 90 = down)",
+        )
+    p.add_argument(
+        "--length", type=LENGTH, default=22.0, help="free strip length, mm, in (0, 1000] (bounds the search)"
+    )
     p.add_argument("--strip-px", type=STRIP_PX, default=4.0, help="visible strip thickness, px, in (0, 100]")
-    p.add_argument("--led", type=_numbers(2, 3, "--led X,Y[,R]"), default=None,
-                   help=f"sync LED position (and radius, in (0, {LED_RADIUS_MAX:g}]) in the picture, px")
+    p.add_argument(
+        "--led",
+        type=_numbers(2, 3, "--led X,Y[,R]"),
+        default=None,
+        help=f"sync LED position (and radius, in (0, {LED_RADIUS_MAX:g}]) in the picture, px",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -113,8 +143,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("track", help="track the strip tip in a video (CSV t,w,quality and a JSON sidecar)")
     p.add_argument("video")
     _scene_args(p, track=True)
-    p.add_argument("--exposure", type=EXPOSURE, default=None,
-                   help="exposure, s, in (0, 10] (for the LED sub-frame edge)")
+    p.add_argument(
+        "--exposure", type=EXPOSURE, default=None, help="exposure, s, in (0, 10] (for the LED sub-frame edge)"
+    )
     p.add_argument("--out", required=True)
 
     p = sub.add_parser("record", help="run a drive and film it: a synchronised recording")
@@ -130,16 +161,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=FPS, default=30.0, help="frames per second, in (0, 1000]")
     p.add_argument("--exposure", type=EXPOSURE, default=None, help="s, in (0, 10] (virtual default 1/60)")
     p.add_argument("--dac-address", type=DAC_ADDRESS, default=0x60, help="I2C address, 0x08-0x77")
-    p.add_argument("--speed", type=SPEED, default=1.0, help="virtual only: board seconds per second, in (0, 100]")
+    p.add_argument(
+        "--speed", type=SPEED, default=1.0, help="virtual only: board seconds per second, in (0, 100]"
+    )
     _scene_args(p)
     p.add_argument("--out", required=True)
 
     p = sub.add_parser("calibrate", help="measure the amplifier mapping with a multimeter")
     p.add_argument("--port")
     p.add_argument("--virtual", action="store_true", help="emulated board, a virtual multimeter")
-    p.add_argument("--codes", type=_numbers(3, 64, "--codes"), default=(0, 512, 1024, 1536, 2048, 2560, 3072, 3584, 4095))
-    p.add_argument("--readings", type=_numbers(3, 64, "--readings"), default=None,
-                   help="multimeter readings, V, one per code (else asked one by one)")
+    p.add_argument(
+        "--codes", type=_numbers(3, 64, "--codes"), default=(0, 512, 1024, 1536, 2048, 2560, 3072, 3584, 4095)
+    )
+    p.add_argument(
+        "--readings",
+        type=_numbers(3, 64, "--readings"),
+        default=None,
+        help="multimeter readings, V, one per code (else asked one by one)",
+    )
     p.add_argument("--out", required=True)
 
     p = sub.add_parser("simavr-timing", help="measure DAC update timing of the real firmware on simavr")
@@ -166,7 +205,9 @@ def _led(args, default=None):
         return default
     led = tuple(args.led) if len(args.led) == 3 else (*args.led, 5.0)
     if not 0 < led[2] <= LED_RADIUS_MAX:
-        raise InputError(f"argument --led: the radius must be > 0 and <= {LED_RADIUS_MAX:g} px, got {led[2]:g}")
+        raise InputError(
+            f"argument --led: the radius must be > 0 and <= {LED_RADIUS_MAX:g} px, got {led[2]:g}"
+        )
     return led
 
 
@@ -175,18 +216,31 @@ def _scene(args, virtual: bool):
 
     if not virtual and (args.clamp is None or args.mm_per_px is None):
         raise InputError("give the clamp point and the scale: --clamp X,Y --mm-per-px S")
-    return Scene(clamp=tuple(args.clamp) if args.clamp is not None else (40.0, 120.0),
-                 mm_per_px=args.mm_per_px if args.mm_per_px is not None else 0.1,
-                 angle_deg=args.axis if args.axis is not None else 0.0, length_mm=args.length)
+    return Scene(
+        clamp=tuple(args.clamp) if args.clamp is not None else (40.0, 120.0),
+        mm_per_px=args.mm_per_px if args.mm_per_px is not None else 0.1,
+        angle_deg=args.axis if args.axis is not None else 0.0,
+        length_mm=args.length,
+    )
 
 
 def _cmd_track(args):
     from ._trackvideo import TrackJob, track_video
 
     scene = _scene(args, virtual=False)
-    track_video(TrackJob(video=args.video, out=args.out, clamp=scene.clamp, mm_per_px=scene.mm_per_px,
-                         axis_deg=args.axis, length_mm=args.length, strip_px=args.strip_px,
-                         led=_led(args), exposure=args.exposure))
+    track_video(
+        TrackJob(
+            video=args.video,
+            out=args.out,
+            clamp=scene.clamp,
+            mm_per_px=scene.mm_per_px,
+            axis_deg=args.axis,
+            length_mm=args.length,
+            strip_px=args.strip_px,
+            led=_led(args),
+            exposure=args.exposure,
+        )
+    )
 
 
 def _cmd_record(args):
@@ -203,10 +257,11 @@ def _cmd_record(args):
     from ._files import check_outputs
 
     sources = [p for p in (args.calibration, args.camera) if p and os.path.exists(p)]
-    check_outputs([args.out, args.out + ".json"], sources)   # `--camera v.avi --out v.avi` is refused
+    check_outputs([args.out, args.out + ".json"], sources)  # `--camera v.avi --out v.avi` is refused
     calibration = Calibration.load(args.calibration) if args.calibration else Calibration()
-    drive = hybrid.make_drive(args.drive, args.duration, rate=args.rate, seed=args.seed,
-                              amplitude=args.amplitude)
+    drive = hybrid.make_drive(
+        args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude
+    )
     scene = _scene(args, virtual=args.virtual)
     if args.virtual:
         import serial
@@ -218,16 +273,30 @@ def _cmd_record(args):
         look = Look()
         led = _led(args, default=look.led)
         exposure = args.exposure if args.exposure is not None else 1 / 60
-        settings = RecordSettings(calibration=calibration, scene=scene, led=led, exposure=exposure,
-                                  strip_px=args.strip_px, dac_address=args.dac_address)
+        settings = RecordSettings(
+            calibration=calibration,
+            scene=scene,
+            led=led,
+            exposure=exposure,
+            strip_px=args.strip_px,
+            dac_address=args.dac_address,
+        )
         with EmulatedBoard(speed=args.speed) as emulated:
             board = Board(serial.Serial(emulated.port, 250000, timeout=0.02), name=emulated.port)
             board.hello()
-            camera = VirtualCamera(emulated, scene=scene, look=look, fps=args.fps, exposure=exposure,
-                                   seed=args.seed)
+            camera = VirtualCamera(
+                emulated, scene=scene, look=look, fps=args.fps, exposure=exposure, seed=args.seed
+            )
             try:
-                meta = record(board, camera, drive, settings, args.out, truth=camera.truth,
-                              metadata={"virtual": True, "speed": args.speed})
+                meta = record(
+                    board,
+                    camera,
+                    drive,
+                    settings,
+                    args.out,
+                    truth=camera.truth,
+                    metadata={"virtual": True, "speed": args.speed},
+                )
             finally:
                 board.close()
             rises = [t for t, value in emulated.led_log if value == 1]
@@ -238,8 +307,14 @@ def _cmd_record(args):
         from ._camera import VideoSource
 
         led = _led(args)
-        settings = RecordSettings(calibration=calibration, scene=scene, led=led, exposure=args.exposure,
-                                  strip_px=args.strip_px, dac_address=args.dac_address)
+        settings = RecordSettings(
+            calibration=calibration,
+            scene=scene,
+            led=led,
+            exposure=args.exposure,
+            strip_px=args.strip_px,
+            dac_address=args.dac_address,
+        )
         board = Board.open(args.port)
         try:
             with VideoSource(args.camera, fps=args.fps) as camera:
@@ -247,23 +322,33 @@ def _cmd_record(args):
 
                 t0 = time.monotonic()
                 camera.clock = lambda: time.monotonic() - t0
-                meta = record(board, camera, drive, settings, args.out, metadata={"port": args.port,
-                                                                                   "camera": str(args.camera)})
+                meta = record(
+                    board,
+                    camera,
+                    drive,
+                    settings,
+                    args.out,
+                    metadata={"port": args.port, "camera": str(args.camera)},
+                )
         finally:
             board.close()
     rec = hybrid.Recording.load(args.out)
     report = meta["board"]["report"]
-    print(f"wrote {args.out}: {len(rec)} samples at {rec.rate:.4g} Hz, w from {rec.w.min():.3f} to "
-          f"{rec.w.max():.3f} mm; sync by {meta['sync']['method']}; underrun ticks "
-          f"{report['underrun_ticks']}, bad frames {report['bad_frames_board'] + report['bad_frames_host']}, "
-          f"dropped frames {len(meta['dropped_frames'])}, untracked frames {meta['untracked_frames']}")
+    print(
+        f"wrote {args.out}: {len(rec)} samples at {rec.rate:.4g} Hz, w from {rec.w.min():.3f} to "
+        f"{rec.w.max():.3f} mm; sync by {meta['sync']['method']}; underrun ticks "
+        f"{report['underrun_ticks']}, bad frames {report['bad_frames_board'] + report['bad_frames_host']}, "
+        f"dropped frames {len(meta['dropped_frames'])}, untracked frames {meta['untracked_frames']}"
+    )
     if "w_true" in rec.extra:
         import numpy as np
 
         err = rec.w - rec.extra["w_true"]
         good = np.isfinite(err) & (rec.extra["quality"] > 0)
-        print(f"tracker vs virtual strip: RMS error {np.sqrt(np.mean(err[good] ** 2)):.4f} mm, "
-              f"max {np.max(np.abs(err[good])):.4f} mm over {good.sum()} frames")
+        print(
+            f"tracker vs virtual strip: RMS error {np.sqrt(np.mean(err[good] ** 2)):.4f} mm, "
+            f"max {np.max(np.abs(err[good])):.4f} mm over {good.sum()} frames"
+        )
 
 
 def _cmd_calibrate(args):
@@ -317,25 +402,35 @@ def _cmd_calibrate(args):
     from ._files import write_json_atomic
 
     write_json_atomic(args.out, data)
-    print(f"wrote {args.out}: gain {calibration.gain:.4f} V/V, offset {calibration.offset:.4f} V, rails "
-          f"[{calibration.rail_low:.3f}, {calibration.rail_high:.3f}] V, RMS residual "
-          f"{report['rms_residual_v'] * 1000:.1f} mV ({sum(report['clipped'])} readings at a rail)")
+    print(
+        f"wrote {args.out}: gain {calibration.gain:.4f} V/V, offset {calibration.offset:.4f} V, rails "
+        f"[{calibration.rail_low:.3f}, {calibration.rail_high:.3f}] V, RMS residual "
+        f"{report['rms_residual_v'] * 1000:.1f} mV ({sum(report['clipped'])} readings at a rail)"
+    )
 
 
 def _cmd_simavr_timing(args):
     from ._timing import measure_simavr_timing
 
-    print(measure_simavr_timing(rate=args.rate, duration=args.duration, speed=args.speed,
-                                build_dir=args.build_dir))
+    print(
+        measure_simavr_timing(
+            rate=args.rate, duration=args.duration, speed=args.speed, build_dir=args.build_dir
+        )
+    )
 
 
-COMMANDS = {"ports": _cmd_ports, "track": _cmd_track, "record": _cmd_record,
-            "calibrate": _cmd_calibrate, "simavr-timing": _cmd_simavr_timing}
+COMMANDS = {
+    "ports": _cmd_ports,
+    "track": _cmd_track,
+    "record": _cmd_record,
+    "calibrate": _cmd_calibrate,
+    "simavr-timing": _cmd_simavr_timing,
+}
 
 
 def _on_sigterm(signum, frame):
     """SIGTERM: raise `Terminated` in the main thread (the clean-up of Ctrl-C runs); once."""
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)     # a second SIGTERM must not cut the clean-up short
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
     raise Terminated()
 
 
@@ -353,7 +448,9 @@ def main(argv=None) -> int:
         print(f"rig: error: {type(error).__name__}: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as error:
-        kept = getattr(error, "kept", None) or "what was recorded so far is kept"  # `rig record` names the file
+        kept = (
+            getattr(error, "kept", None) or "what was recorded so far is kept"
+        )  # `rig record` names the file
         if isinstance(error, Terminated):
             print(f"rig: terminated by SIGTERM ({kept})", file=sys.stderr)
             return 143

@@ -24,8 +24,20 @@ import struct
 from typing import ClassVar
 
 __all__ = [
-    "Frame", "FrameParser", "crc16", "encode_frame", "decode_message", "Message",
-    "Info", "Ack", "Nak", "Status", "Underrun", "Done", "Boot", "DacError",
+    "Frame",
+    "FrameParser",
+    "crc16",
+    "encode_frame",
+    "decode_message",
+    "Message",
+    "Info",
+    "Ack",
+    "Nak",
+    "Status",
+    "Underrun",
+    "Done",
+    "Boot",
+    "DacError",
 ]
 
 PROTOCOL_VERSION = 1
@@ -155,11 +167,11 @@ class FrameParser:
 # --------------------------------------------------------------------------- #
 
 
-def config_payload(prescaler_code: int, top: int, idle_code: int, sync_samples: int,
-                   status_every: int, dac_address: int) -> bytes:
+def config_payload(
+    prescaler_code: int, top: int, idle_code: int, sync_samples: int, status_every: int, dac_address: int
+) -> bytes:
     """CONFIG: Timer1 prescaler code and OCR1A, the 0 V code, LED samples, STATUS period, I2C address."""
-    return struct.pack("<BHHHHB", prescaler_code, top, idle_code, sync_samples, status_every,
-                       dac_address)
+    return struct.pack("<BHHHHB", prescaler_code, top, idle_code, sync_samples, status_every, dac_address)
 
 
 def data_payload(first_index: int, codes) -> bytes:
@@ -193,7 +205,8 @@ class Message:
         if len(frame.payload) != struct.calcsize(cls.FORMAT):
             raise ValueError(
                 f"{cls.__name__} frame has {len(frame.payload)} payload bytes, "
-                f"expected {struct.calcsize(cls.FORMAT)}")
+                f"expected {struct.calcsize(cls.FORMAT)}"
+            )
         return cls(frame.seq, *struct.unpack(cls.FORMAT, frame.payload))
 
 

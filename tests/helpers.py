@@ -155,8 +155,7 @@ def periodic_drive(periods=5, seed=1):
     """
     from hybrid import make_drive
 
-    one = make_drive("prbs", 8.0, rate=RATE, seed=seed, min_hold=0.2, max_hold=1.0,
-                     levels="multilevel").v
+    one = make_drive("prbs", 8.0, rate=RATE, seed=seed, min_hold=0.2, max_hold=1.0, levels="multilevel").v
     return np.tile(one, periods)
 
 
@@ -193,8 +192,9 @@ def hidden_recording(spec: str, seed: int, duration: float = 60.0, rate: float =
 
     rng = np.random.default_rng([seed, len(spec), sum(map(ord, spec))])
     strip, params = random_strip(rng), random_effect(spec, rng, rate)
-    return synthetic_recording(discrepancy_drive(duration, rate, seed), strip, spec, params,
-                               noise_fraction=noise, seed=seed)
+    return synthetic_recording(
+        discrepancy_drive(duration, rate, seed), strip, spec, params, noise_fraction=noise, seed=seed
+    )
 
 
 def lti2_zoh_response(params, u, dt):

@@ -31,8 +31,8 @@ import math
 import cv2
 import numpy as np
 
-SUPER = 4          # supersampling: sub-pixels per pixel side
-SHIFT = 4          # fractional bits of the polygon vertices on that canvas
+SUPER = 4  # supersampling: sub-pixels per pixel side
+SHIFT = 4  # fractional bits of the polygon vertices on that canvas
 TEXTURE_PX = 3.0
 TEXTURE_LEVELS = 12.0
 
@@ -45,7 +45,7 @@ def cantilever_shape(w_mm: float, length_mm: float, tip_share: float = 1.0, n: i
     """
     z = np.linspace(0.0, length_mm, n)
     rel = 1.0 - z / length_mm
-    moment = tip_share * rel + (1.0 - tip_share) * rel**2        # per unit clamp moment
+    moment = tip_share * rel + (1.0 - tip_share) * rel**2  # per unit clamp moment
 
     def curve(scale):
         kappa = scale * moment
@@ -57,7 +57,7 @@ def cantilever_shape(w_mm: float, length_mm: float, tip_share: float = 1.0, n: i
 
     if abs(w_mm) < 1e-12:
         return z.copy(), np.zeros_like(z), np.zeros_like(z)
-    lo, hi = 0.0, 3.0 / length_mm     # the tip turns by at most ~1.5 rad: far beyond any test's bend
+    lo, hi = 0.0, 3.0 / length_mm  # the tip turns by at most ~1.5 rad: far beyond any test's bend
     target = abs(w_mm)
     for _ in range(200):
         mid = 0.5 * (lo + hi)
@@ -78,8 +78,20 @@ class CantileverVideo:
     along ``(sin a, -cos a)``.
     """
 
-    def __init__(self, clamp, angle_deg, size=(200, 260), mm_per_px=0.1, length_mm=22.0, thickness_mm=0.35,
-                 tip_share=1.0, seed=0, noise=3.0, blur=0.9, flicker=0.06):
+    def __init__(
+        self,
+        clamp,
+        angle_deg,
+        size=(200, 260),
+        mm_per_px=0.1,
+        length_mm=22.0,
+        thickness_mm=0.35,
+        tip_share=1.0,
+        seed=0,
+        noise=3.0,
+        blur=0.9,
+        flicker=0.06,
+    ):
         self.clamp = np.asarray(clamp, float)
         a = math.radians(angle_deg)
         self.axis = np.array([math.cos(a), math.sin(a)])
@@ -93,8 +105,10 @@ class CantileverVideo:
         fall = 1.0 / (1.0 + ((xx - lamp[0]) ** 2 + (yy - lamp[1]) ** 2) / (1.6 * max(size)) ** 2)
         texture = cv2.GaussianBlur(self.rng.normal(0.0, 1.0, (height, width)), (0, 0), TEXTURE_PX)
         self.background = 90.0 + 140.0 * fall + TEXTURE_LEVELS * texture / max(texture.std(), 1e-9)
-        self._rest_grid = ((xx - self.clamp[0]) * self.axis[0] + (yy - self.clamp[1]) * self.axis[1],
-                           (xx - self.clamp[0]) * self.normal[0] + (yy - self.clamp[1]) * self.normal[1])
+        self._rest_grid = (
+            (xx - self.clamp[0]) * self.axis[0] + (yy - self.clamp[1]) * self.axis[1],
+            (xx - self.clamp[0]) * self.normal[0] + (yy - self.clamp[1]) * self.normal[1],
+        )
         self.level = float(self.rng.uniform(30.0, 70.0))
         self.phase = float(self.rng.uniform(0.0, 2 * math.pi))
 
@@ -123,11 +137,11 @@ class CantileverVideo:
         """
         x, u, theta = cantilever_shape(w_mm, self.length, self.tip_share)
         z = np.linspace(0.0, self.length, len(x))
-        lead = np.linspace(-3.0, 0.0, 31)[:-1]             # straight into the clamp
+        lead = np.linspace(-3.0, 0.0, 31)[:-1]  # straight into the clamp
         z, x = np.concatenate([lead, z]), np.concatenate([lead, x])
         u, theta = np.concatenate([np.zeros_like(lead), u]), np.concatenate([np.zeros_like(lead), theta])
-        h = 0.5 * self.thickness / self.mm                 # px
-        xs, us = x / self.mm, u / self.mm                  # px, rest frame
+        h = 0.5 * self.thickness / self.mm  # px
+        xs, us = x / self.mm, u / self.mm  # px, rest frame
         width, height = self.size
         rx, ru = self._rest_grid
         near = (rx > xs[0] - 2) & (rx < xs[-1] + h + 2) & (np.abs(ru - np.interp(rx, xs, us)) < 2 * h + 3)
@@ -139,7 +153,7 @@ class CantileverVideo:
         qx = (px - self.clamp[0]) * self.axis[0] + (py - self.clamp[1]) * self.axis[1]
         qu = (px - self.clamp[0]) * self.normal[0] + (py - self.clamp[1]) * self.normal[1]
         zs = z / self.mm
-        at = np.interp(qx, xs, zs)                          # arc length guess, px
+        at = np.interp(qx, xs, zs)  # arc length guess, px
         for _ in range(4):
             cx, cu, th = np.interp(at, zs, xs), np.interp(at, zs, us), np.interp(at, zs, theta)
             along = (qx - cx) * np.cos(th) + (qu - cu) * np.sin(th)
@@ -147,8 +161,9 @@ class CantileverVideo:
         cx, cu, th = np.interp(at, zs, xs), np.interp(at, zs, us), np.interp(at, zs, theta)
         across = -(qx - cx) * np.sin(th) + (qu - cu) * np.cos(th)
         end = zs[-1]
-        share = (np.clip(0.5 + SUPER * (h - np.abs(across)), 0.0, 1.0)
-                 * np.clip(0.5 + SUPER * (end - at), 0.0, 1.0))
+        share = np.clip(0.5 + SUPER * (h - np.abs(across)), 0.0, 1.0) * np.clip(
+            0.5 + SUPER * (end - at), 0.0, 1.0
+        )
         cover = np.zeros((height, width))
         cover[iy, ix] = share.reshape(len(iy), SUPER * SUPER).mean(axis=1)
         return cover
@@ -172,8 +187,9 @@ class CantileverVideo:
         image = image * (1 - block) + 25.0 * block
         # A thin dark table edge across one corner, far from the clamp.
         edge = np.zeros_like(strip)
-        cv2.line(edge, (0, int(0.85 * height * SUPER)), (int(0.35 * width * SUPER), height * SUPER), 255,
-                 2 * SUPER)
+        cv2.line(
+            edge, (0, int(0.85 * height * SUPER)), (int(0.35 * width * SUPER), height * SUPER), 255, 2 * SUPER
+        )
         image = image - 60.0 * cv2.resize(edge, (width, height), interpolation=cv2.INTER_AREA) / 255.0
         gain = 1.0 + self.flicker * math.sin(0.9 * k + self.phase)
         image = cv2.GaussianBlur(image * gain, (0, 0), self.blur)

@@ -141,11 +141,18 @@ def private_crossings(paths) -> list[str]:
                 base = path.parent
                 for _ in range(max(node.level - 1, 0)):
                     base = base.parent
-                where = base.joinpath(*(node.module or "").split(".")) if node.level else ROOT.joinpath(
-                    *(node.module or "").split("."))
+                where = (
+                    base.joinpath(*(node.module or "").split("."))
+                    if node.level
+                    else ROOT.joinpath(*(node.module or "").split("."))
+                )
                 parts = (node.module or "").split(".")
-                if not node.level and parts[0] in ("hybrid", "rig") and parts[0] != rel.parts[0] and any(
-                        p.startswith("_") for p in parts[1:]):
+                if (
+                    not node.level
+                    and parts[0] in ("hybrid", "rig")
+                    and parts[0] != rel.parts[0]
+                    and any(p.startswith("_") for p in parts[1:])
+                ):
                     found.append(f"{rel}:{node.lineno}: private module {node.module}")
                 for alias in node.names:
                     is_module = (where / f"{alias.name}.py").exists() or (where / alias.name).is_dir()
@@ -158,12 +165,20 @@ def private_crossings(paths) -> list[str]:
                     parts = alias.name.split(".")
                     if parts[0] in ("hybrid", "rig") and alias.asname:
                         aliases[alias.asname] = alias.name
-                    if parts[0] in ("hybrid", "rig") and parts[0] != rel.parts[0] and any(
-                            p.startswith("_") and not p.startswith("__") for p in parts[1:]):
+                    if (
+                        parts[0] in ("hybrid", "rig")
+                        and parts[0] != rel.parts[0]
+                        and any(p.startswith("_") and not p.startswith("__") for p in parts[1:])
+                    ):
                         found.append(f"{rel}:{node.lineno}: private module {alias.name}")
         for node in ast.walk(tree):
-            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases
-                    and node.attr.startswith("_") and not node.attr.startswith("__")):
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name)
+                and node.value.id in aliases
+                and node.attr.startswith("_")
+                and not node.attr.startswith("__")
+            ):
                 found.append(f"{rel}:{node.lineno}: {node.value.id}.{node.attr}")
     return found
 
@@ -172,7 +187,9 @@ def test_no_private_name_crosses_a_module_border():
     """One meaning for `_`: private to its module. A name another module uses is public in its module
     (the module itself may be private and re-exported from its package), as in optimistix and diffrax."""
     found = private_crossings([p for top in USERS for p in _modules(top)])
-    assert not found, "private names used across modules (make them public where they live):\n" + "\n".join(found)
+    assert not found, "private names used across modules (make them public where they live):\n" + "\n".join(
+        found
+    )
 
 
 def test_the_crossing_check_sees_private_names_modules_and_attributes(tmp_path, monkeypatch):
@@ -185,4 +202,7 @@ def test_the_crossing_check_sees_private_names_modules_and_attributes(tmp_path, 
     outside = tmp_path / "experiments" / "run.py"
     outside.write_text("from hybrid.core._fit import fit\n")
     assert private_crossings([source, outside]) == [
-        "pkg/user.py:2: _x", "pkg/user.py:3: _mod._x", "experiments/run.py:1: private module hybrid.core._fit"]
+        "pkg/user.py:2: _x",
+        "pkg/user.py:3: _mod._x",
+        "experiments/run.py:1: private module hybrid.core._fit",
+    ]

@@ -28,7 +28,11 @@ def _strips(n):
     return [
         h.planted_physics_recording(
             RCNetwork(xi_rho=6.0 * (1 + 0.1 * i), alpha_C=0.4, C_clamp=0.02 * (1 + 0.05 * i), n_stages=10),
-            1.7 - 0.1 * i, 0.3, 0.01, seed=i)
+            1.7 - 0.1 * i,
+            0.3,
+            0.01,
+            seed=i,
+        )
         for i in range(n)
     ]
 
@@ -70,7 +74,9 @@ def test_a_plugin_physics_batch_equals_one_by_one():
         a, y, state = np.exp(-0.1 / tau), np.empty(u.size), held
         for k in range(u.size):
             y[k], state = state, a * state + (1 - a) * u[k]
-        recordings.append(Recording(t=np.arange(u.size) * 0.1, v_in=u, w=1.5 * y + 0.01 * rng.normal(size=u.size)))
+        recordings.append(
+            Recording(t=np.arange(u.size) * 0.1, v_in=u, w=1.5 * y + 0.01 * rng.normal(size=u.size))
+        )
     start = make_model("physics", simulation=HeldStart(LTI(1), 100))
     options = dict(frozen={"direct"}, max_steps=30, split=(0.6, 0.2, 0.2))
     batch = fit_batch(start, recordings, **options)
@@ -134,8 +140,13 @@ SHARDED = textwrap.dedent("""
 def test_sharded_batch_over_four_cpu_devices_equals_unsharded():
     tests = str(Path(__file__).parent)
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
-    proc = subprocess.run([sys.executable, "-c", SHARDED.format(tests=tests)], capture_output=True,
-                          text=True, env=env, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", SHARDED.format(tests=tests)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert out["device_count"] == 4 and out["devices"] == 4
@@ -157,7 +168,8 @@ def test_simulate_batch_equals_simulate_one_by_one():
     # one drive per simulation
     drives = np.stack([v * (i + 1) for i in range(5)])
     got = np.asarray(simulate_batch(nets, drives, 1 / 30))
-    np.testing.assert_allclose(got, expected * np.arange(1, 6)[:, None], rtol=0,
-                               atol=1e-12 * np.max(np.abs(expected)))
+    np.testing.assert_allclose(
+        got, expected * np.arange(1, 6)[:, None], rtol=0, atol=1e-12 * np.max(np.abs(expected))
+    )
     with pytest.raises(InputError):
         simulate_batch([], v, 1 / 30)

@@ -55,12 +55,22 @@ def test_a_padded_problem_has_the_unpadded_costs_and_normal_equations():
     assert float(b.validation_loss(theta)) == pytest.approx(float(a.validation_loss(theta)), rel=1e-10)
     JtJ_a, g_a = a.normal_equations(theta)
     JtJ_b, g_b = b.normal_equations(theta)
-    np.testing.assert_allclose(np.asarray(JtJ_b), np.asarray(JtJ_a), rtol=1e-9, atol=1e-9 * float(jnp.max(JtJ_a)))
-    np.testing.assert_allclose(np.asarray(g_b), np.asarray(g_a), rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(g_a))))
+    np.testing.assert_allclose(
+        np.asarray(JtJ_b), np.asarray(JtJ_a), rtol=1e-9, atol=1e-9 * float(jnp.max(JtJ_a))
+    )
+    np.testing.assert_allclose(
+        np.asarray(g_b), np.asarray(g_a), rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(g_a)))
+    )
     for split_name in order:  # the recorded samples, in the unpadded order
-        np.testing.assert_allclose(b.recorded(b.target(split_name), split_name), np.asarray(a.target(split_name)))
-        np.testing.assert_allclose(b.recorded(b.prediction(theta, split_name), split_name),
-                                   np.asarray(a.prediction(theta, split_name)), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(
+            b.recorded(b.target(split_name), split_name), np.asarray(a.target(split_name))
+        )
+        np.testing.assert_allclose(
+            b.recorded(b.prediction(theta, split_name), split_name),
+            np.asarray(a.prediction(theta, split_name)),
+            rtol=1e-12,
+            atol=1e-12,
+        )
 
 
 def test_the_budget_releases_programs_beyond_its_shapes():

@@ -70,8 +70,22 @@ def test_rc_matches_independent_implementation(virtual_csv, tmp_path, capsys):
 def test_fit_physics_end_to_end(virtual_csv, tmp_path, capsys):
     model_path = tmp_path / "m.eqx"
     report = tmp_path / "fit.json"
-    code, out, err = run(["fit", virtual_csv, "--model", "physics", "--max-steps", "30", "--quiet",
-                          "--out", model_path, "--json", report], capsys)
+    code, out, err = run(
+        [
+            "fit",
+            virtual_csv,
+            "--model",
+            "physics",
+            "--max-steps",
+            "30",
+            "--quiet",
+            "--out",
+            model_path,
+            "--json",
+            report,
+        ],
+        capsys,
+    )
     assert code == 0, err
     assert "test" in out and "gain" in out
     assert model_path.exists() and Path(f"{model_path}.json").exists() and report.exists()
@@ -128,8 +142,9 @@ def test_console_script_reports_errors_without_traceback(tmp_path):
 
 def test_fit_refuses_an_unknown_free_name(virtual_csv, tmp_path, capsys):
     """`--free nope` used to be ignored (the fit ran with ξh frozen and said nothing)."""
-    code, _, err = run(["fit", virtual_csv, "--model", "physics", "--free", "nope", "--out", tmp_path / "m.eqx"],
-                       capsys)
+    code, _, err = run(
+        ["fit", virtual_csv, "--model", "physics", "--free", "nope", "--out", tmp_path / "m.eqx"], capsys
+    )
     assert_one_line_error(code, err, "--free: unknown parameter name(s) ['nope']")
     assert not (tmp_path / "m.eqx").exists()
 

@@ -61,9 +61,29 @@ def lab(tmp_path_factory):
 def test_two_single_column_files_join_and_fit(lab, tmp_path, capsys):
     folder, u, y = lab
     report = tmp_path / "fit.json"
-    code, out, err = run(["fit", folder / "u.txt", folder / "y.txt", "--columns", "input=u.txt,output=y.txt",
-                          "--rate", "2", "--physics", f"{folder / 'lag.py'}:Lag", "--model", "physics",
-                          "--max-steps", "20", "--quiet", "--out", tmp_path / "m.eqx", "--json", report], capsys)
+    code, out, err = run(
+        [
+            "fit",
+            folder / "u.txt",
+            folder / "y.txt",
+            "--columns",
+            "input=u.txt,output=y.txt",
+            "--rate",
+            "2",
+            "--physics",
+            f"{folder / 'lag.py'}:Lag",
+            "--model",
+            "physics",
+            "--max-steps",
+            "20",
+            "--quiet",
+            "--out",
+            tmp_path / "m.eqx",
+            "--json",
+            report,
+        ],
+        capsys,
+    )
     assert code == 0, err
     # the data's kernel exp(-k/6): tau = 6 samples = 3 s at 2 Hz (the same tolerance as tests/test_cli_mapping.py)
     assert json.loads(report.read_text())["parameters"]["tau_s"] == pytest.approx(3.0, rel=0.2)
@@ -87,26 +107,64 @@ def test_the_joined_record_is_the_files_samples(lab):
     assert load_mapped(folder / "both.txt", input="0", output="1", rate=2).v_in.tolist() == one.v_in.tolist()
 
 
-@pytest.mark.parametrize("files, flags, phrases", [
-    (["u.txt", "short.txt"], ["--columns", "input=u.txt,output=short.txt"],
-     ["the input 'u.txt' has 600", "the output 'short.txt' has 599 values", "join files of one record"]),
-    (["u.txt", "gone.txt"], ["--columns", "input=u.txt,output=gone.txt"], ["gone.txt' does not exist"]),
-    (["u.txt", "y.txt"], ["--columns", "input=u.txt,output=y.txt:lvl"],
-     ["no column 'lvl' for the output (its columns: level)", "did you mean 'level'", "--columns output=",
-      "y.txt:level"]),
-    (["u.txt", "both.txt"], ["--columns", "input=u.txt,output=both.txt"],
-     ["has 2 columns (0, 1)", "--columns output=", "both.txt:0"]),
-    (["u.txt", "y.txt"], ["--columns", "input=u.txt,output=level"],
-     ["the output 'level' names none of the files", "output=FILE:COLUMN"]),
-    (["u.txt", "y.txt", "both.txt"], ["--columns", "input=u.txt,output=y.txt"],
-     ["both.txt' is given but the mapping", "names none of its columns"]),
-    (["u.txt", "y.txt"], [], ["text table", "--columns input=", "u.txt,output=", "--rate HZ"]),
-    (["both.txt"], [], ["--columns input=", "both.txt:0,output=", "both.txt:1"]),
-])
+@pytest.mark.parametrize(
+    "files, flags, phrases",
+    [
+        (
+            ["u.txt", "short.txt"],
+            ["--columns", "input=u.txt,output=short.txt"],
+            [
+                "the input 'u.txt' has 600",
+                "the output 'short.txt' has 599 values",
+                "join files of one record",
+            ],
+        ),
+        (["u.txt", "gone.txt"], ["--columns", "input=u.txt,output=gone.txt"], ["gone.txt' does not exist"]),
+        (
+            ["u.txt", "y.txt"],
+            ["--columns", "input=u.txt,output=y.txt:lvl"],
+            [
+                "no column 'lvl' for the output (its columns: level)",
+                "did you mean 'level'",
+                "--columns output=",
+                "y.txt:level",
+            ],
+        ),
+        (
+            ["u.txt", "both.txt"],
+            ["--columns", "input=u.txt,output=both.txt"],
+            ["has 2 columns (0, 1)", "--columns output=", "both.txt:0"],
+        ),
+        (
+            ["u.txt", "y.txt"],
+            ["--columns", "input=u.txt,output=level"],
+            ["the output 'level' names none of the files", "output=FILE:COLUMN"],
+        ),
+        (
+            ["u.txt", "y.txt", "both.txt"],
+            ["--columns", "input=u.txt,output=y.txt"],
+            ["both.txt' is given but the mapping", "names none of its columns"],
+        ),
+        (["u.txt", "y.txt"], [], ["text table", "--columns input=", "u.txt,output=", "--rate HZ"]),
+        (["both.txt"], [], ["--columns input=", "both.txt:0,output=", "both.txt:1"]),
+    ],
+)
 def test_bad_joins_exit_2_with_one_line(lab, tmp_path, capsys, files, flags, phrases):
     folder, *_ = lab
-    code, _, err = run(["fit", *(folder / f for f in files), *flags, "--rate", "2", "--model", "physics",
-                        "--out", tmp_path / "m.eqx"], capsys)
+    code, _, err = run(
+        [
+            "fit",
+            *(folder / f for f in files),
+            *flags,
+            "--rate",
+            "2",
+            "--model",
+            "physics",
+            "--out",
+            tmp_path / "m.eqx",
+        ],
+        capsys,
+    )
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and lines[0].startswith("hybrid: error:"), err
     for phrase in phrases:

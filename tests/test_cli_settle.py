@@ -51,9 +51,32 @@ def run(argv, capsys):
 
 def test_fit_with_settle_recovers_the_held_drive_and_scores_a_test_record_from_its_own(lab, tmp_path, capsys):
     report, saved = tmp_path / "fit.json", tmp_path / "m.eqx"
-    code, out, err = run(["fit", lab["est"], "--columns", "input=u,output=y", "--rate", 1 / DT, "--physics", "lti:1",
-                          "--settle", 60, "--model", "physics", "--quiet", "--out", saved, "--json", report,
-                          "--test", lab["val"], "--split", "0.8,0.1,0.1"], capsys)
+    code, out, err = run(
+        [
+            "fit",
+            lab["est"],
+            "--columns",
+            "input=u,output=y",
+            "--rate",
+            1 / DT,
+            "--physics",
+            "lti:1",
+            "--settle",
+            60,
+            "--model",
+            "physics",
+            "--quiet",
+            "--out",
+            saved,
+            "--json",
+            report,
+            "--test",
+            lab["val"],
+            "--split",
+            "0.8,0.1,0.1",
+        ],
+        capsys,
+    )
     assert code == 0, err
     fitted = json.loads(report.read_text())
     assert fitted["parameters"]["initial_drive"] == pytest.approx(1.5, abs=0.02)
@@ -67,20 +90,51 @@ def test_fit_with_settle_recovers_the_held_drive_and_scores_a_test_record_from_i
     assert float(model.parameters()["initial_drive"]) == pytest.approx(fitted["parameters"]["initial_drive"])
 
 
-@pytest.mark.parametrize("extra, phrase", [
-    (["--settle", "0"], "--settle"),
-    (["--settle", "20", "--model", "normal"], "normal model has none"),
-    (["--settle", "20", "TWICE"], "give one recording"),
-])
+@pytest.mark.parametrize(
+    "extra, phrase",
+    [
+        (["--settle", "0"], "--settle"),
+        (["--settle", "20", "--model", "normal"], "normal model has none"),
+        (["--settle", "20", "TWICE"], "give one recording"),
+    ],
+)
 def test_bad_settle_exits_2_with_one_line(lab, tmp_path, capsys, extra, phrase):
     recordings = [lab["est"], lab["val"]] if "TWICE" in extra else [lab["est"]]
-    argv = ["fit", *recordings, "--columns", "input=u,output=y", "--rate", 1 / DT, "--physics", "lti:1",
-            "--model", "physics", "--quiet", "--out", tmp_path / "m.eqx", *(a for a in extra if a != "TWICE")]
+    argv = [
+        "fit",
+        *recordings,
+        "--columns",
+        "input=u,output=y",
+        "--rate",
+        1 / DT,
+        "--physics",
+        "lti:1",
+        "--model",
+        "physics",
+        "--quiet",
+        "--out",
+        tmp_path / "m.eqx",
+        *(a for a in extra if a != "TWICE"),
+    ]
     code, _, err = run(argv, capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1 and phrase in err, err
 
 
 def test_diagnose_refuses_settle_on_two_recordings(lab, tmp_path, capsys):
-    code, _, err = run(["diagnose", lab["est"], lab["val"], "--columns", "input=u,output=y", "--rate", 1 / DT,
-                        "--settle", 20, "--out", tmp_path / "d"], capsys)
+    code, _, err = run(
+        [
+            "diagnose",
+            lab["est"],
+            lab["val"],
+            "--columns",
+            "input=u,output=y",
+            "--rate",
+            1 / DT,
+            "--settle",
+            20,
+            "--out",
+            tmp_path / "d",
+        ],
+        capsys,
+    )
     assert code == 2 and len(err.strip().splitlines()) == 1 and "give one recording" in err, err

@@ -63,10 +63,37 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
     path, _ = bench
     model, report = tmp_path / "m.eqx", tmp_path / "fit.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "hybrid.cli", "fit", str(path), "--model", "physics", "--physics", "lti:2",
-         "--columns", "input=uEst,output=yEst", "--units", "w=cm", "--max-steps", "40", "--quiet",
-         "--test", str(path), "--test-columns", "input=uVal,output=yVal", "--json", str(report), "--out", str(model)],
-        cwd=ROOT, capture_output=True, text=True, timeout=120)
+        [
+            sys.executable,
+            "-m",
+            "hybrid.cli",
+            "fit",
+            str(path),
+            "--model",
+            "physics",
+            "--physics",
+            "lti:2",
+            "--columns",
+            "input=uEst,output=yEst",
+            "--units",
+            "w=cm",
+            "--max-steps",
+            "40",
+            "--quiet",
+            "--test",
+            str(path),
+            "--test-columns",
+            "input=uVal,output=yVal",
+            "--json",
+            str(report),
+            "--out",
+            str(model),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     data = json.loads(report.read_text())
     (score,) = data["test"]
@@ -88,18 +115,32 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
     assert saved["test"] == data["test"] and "metrics" in saved
 
 
-@pytest.mark.parametrize("extra,phrase", [
-    (["--test", "{bench}", "--test-columns", "input=uVal,output=yVall"], "no column 'yVall'"),
-    (["--test", "{fast}", "--test-columns", "input=uVal,output=yVal"], "4 Hz but the model is fitted to"),
-    (["--test", "{bench}"], "the validation record is the estimation record"),
-    (["--test-columns", "input=uVal,output=yVal"], "give --test FILE"),
-    (["--test", "{bench}", "--test-range", "300:200"], "range"),
-])
+@pytest.mark.parametrize(
+    "extra,phrase",
+    [
+        (["--test", "{bench}", "--test-columns", "input=uVal,output=yVall"], "no column 'yVall'"),
+        (["--test", "{fast}", "--test-columns", "input=uVal,output=yVal"], "4 Hz but the model is fitted to"),
+        (["--test", "{bench}"], "the validation record is the estimation record"),
+        (["--test-columns", "input=uVal,output=yVal"], "give --test FILE"),
+        (["--test", "{bench}", "--test-range", "300:200"], "range"),
+    ],
+)
 def test_bad_test_records_exit_2_with_one_line_before_fitting(bench, tmp_path, capsys, extra, phrase):
     path, fast = bench
     model = tmp_path / "m.eqx"
-    argv = ["fit", path, "--model", "physics", "--physics", "lti:2", "--columns", "input=uEst,output=yEst",
-            "--quiet", "--out", model] + [a.format(bench=path, fast=fast) for a in extra]
+    argv = [
+        "fit",
+        path,
+        "--model",
+        "physics",
+        "--physics",
+        "lti:2",
+        "--columns",
+        "input=uEst,output=yEst",
+        "--quiet",
+        "--out",
+        model,
+    ] + [a.format(bench=path, fast=fast) for a in extra]
     code = main([str(a) for a in argv])
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if line.strip()]

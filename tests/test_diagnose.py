@@ -45,8 +45,11 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 #: even response's 7.017, and after, the even response by 8.2 to 7.0 (the kind of tie issue 35 reports
 #: as ambiguous); seed 2 names drift at 6.6 with no other effect eligible.
 CASES = [("none", seed) for seed in range(3)] + [
-    ("hysteresis", 0), ("saturation", 0), ("drift", 2),
-    ("delay", 2), ("resonance", 1),
+    ("hysteresis", 0),
+    ("saturation", 0),
+    ("drift", 2),
+    ("delay", 2),
+    ("resonance", 1),
 ]
 
 
@@ -62,10 +65,16 @@ def test_diagnose_names_the_hidden_effect(effect, seed):
     recording = hidden_effect_recording(effect, seed)
     found = diagnose(recording)
     named = {c.name: f"gain {c.gain:.2f}, ΔBIC {c.delta_bic:.0f}, {c.reasons}" for c in found.candidates}
-    assert found.cause == effect, f"hidden {effect} {recording.metadata['hidden']['effect_params']}, named {found.cause}: {named}"
+    assert found.cause == effect, (
+        f"hidden {effect} {recording.metadata['hidden']['effect_params']}, named {found.cause}: {named}"
+    )
     # Each candidate of the first step is exactly one of its effect's lanes there, the one marked chosen.
     for cand in found.candidates:
-        chosen = [lane for lane in found.lanes if lane["effect"] == cand.name and lane["chosen"] and lane["step"] == 1]
+        chosen = [
+            lane
+            for lane in found.lanes
+            if lane["effect"] == cand.name and lane["chosen"] and lane["step"] == 1
+        ]
         assert len(chosen) == 1 and np.array_equal(chosen[0]["theta"], cand.theta), cand.name
     if effect == "none":
         assert found.gain == 1.0 and found.extended is found.baseline
@@ -83,7 +92,9 @@ def test_diagnose_names_the_hidden_effect(effect, seed):
         total = derived["delay_samples"] + found.extended.parameters["frame_lag"]
         assert abs(total - (truth["delay_samples"] + 0.25)) < 1.0, (total, truth)
     if effect == "resonance":
-        assert found.extended.parameters["resonance_frequency_hz"] == pytest.approx(truth["frequency_hz"], rel=0.1)
+        assert found.extended.parameters["resonance_frequency_hz"] == pytest.approx(
+            truth["frequency_hz"], rel=0.1
+        )
     if effect == "drift":
         assert np.sign(derived["gain_change_percent"]) == np.sign(truth["change"])
 

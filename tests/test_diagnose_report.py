@@ -31,15 +31,18 @@ def test_missing_recording_is_one_line_error(tmp_path, capsys):
 
 def test_recording_with_nan_is_one_line_error(tmp_path, capsys):
     path = tmp_path / "nan.csv"
-    rows = ["t,v_in,w"] + [f"{i / 30:.6f},{np.sin(i / 5):.6f},{'nan' if i == 40 else f'{np.cos(i / 5):.6f}'}"
-                           for i in range(200)]
+    rows = ["t,v_in,w"] + [
+        f"{i / 30:.6f},{np.sin(i / 5):.6f},{'nan' if i == 40 else f'{np.cos(i / 5):.6f}'}" for i in range(200)
+    ]
     path.write_text("\n".join(rows) + "\n")
     code = main(["diagnose", str(path), "--out", str(tmp_path / "d")])
     _one_line_error(code, capsys.readouterr().err)
 
 
-@pytest.mark.parametrize("option,match", [("--max-steps", "--max-steps must be at least 1"),
-                                          ("--blocks", "blocks must be a whole number")])
+@pytest.mark.parametrize(
+    "option,match",
+    [("--max-steps", "--max-steps must be at least 1"), ("--blocks", "blocks must be a whole number")],
+)
 def test_count_option_below_one_is_one_line_error(option, match, tmp_path, capsys):
     path = tmp_path / "ok.csv"
     rows = ["t,v_in,w"] + [f"{i / 30:.6f},{np.sin(i / 5):.6f},{np.cos(i / 5):.6f}" for i in range(200)]
@@ -52,11 +55,23 @@ def test_count_option_below_one_is_one_line_error(option, match, tmp_path, capsy
 
 
 def test_jsonable_writes_nan_as_null_and_converts_numpy():
-    value = {"a": float("nan"), "b": np.float64(1.5), "c": np.array([1.0, np.inf, 2.0]), "d": [np.int64(3), -np.inf],
-             "e": np.bool_(True), "f": {"g": np.float32(0.25), "h": None, "i": "x"}}
+    value = {
+        "a": float("nan"),
+        "b": np.float64(1.5),
+        "c": np.array([1.0, np.inf, 2.0]),
+        "d": [np.int64(3), -np.inf],
+        "e": np.bool_(True),
+        "f": {"g": np.float32(0.25), "h": None, "i": "x"},
+    }
     text = json.dumps(jsonable(value), allow_nan=False)
-    assert json.loads(text) == {"a": None, "b": 1.5, "c": [1.0, None, 2.0], "d": [3, None], "e": True,
-                                "f": {"g": 0.25, "h": None, "i": "x"}}
+    assert json.loads(text) == {
+        "a": None,
+        "b": 1.5,
+        "c": [1.0, None, 2.0],
+        "d": [3, None],
+        "e": True,
+        "f": {"g": 0.25, "h": None, "i": "x"},
+    }
 
 
 def test_correlation_figure_bound_is_the_99_percent_bound():

@@ -13,8 +13,16 @@ from hybrid.ipmc._synthetic import SyntheticStrip, discrepancy_drive, synthetic_
 
 #: A slow strip (tip capacitance 8× the clamp's): from 15 of the 16 fixed Sobol starts used
 #: before screening, LM ended with a validation loss about 400× that of the true parameters.
-SLOW = SyntheticStrip(xi_rho=2.5401, xi_h=1.1330, alpha_E=0.3618, alpha_I=0.8455, alpha_C=0.1251,
-                      C_clamp=0.3165, gain_mm_per_v=1.968, offset_mm=-0.076)
+SLOW = SyntheticStrip(
+    xi_rho=2.5401,
+    xi_h=1.1330,
+    alpha_E=0.3618,
+    alpha_I=0.8455,
+    alpha_C=0.1251,
+    C_clamp=0.3165,
+    gain_mm_per_v=1.968,
+    offset_mm=-0.076,
+)
 
 
 def _train_mse(problem, simulation, values):
@@ -30,13 +38,21 @@ def _train_mse(problem, simulation, values):
 
 def test_screened_starts_reach_the_loss_of_the_true_parameters():
     settings = DiagnoseSettings()
-    recording = synthetic_recording(discrepancy_drive(60.0, 30.0, seed=5), SLOW, "none", {},
-                                    noise_fraction=0.01, seed=5)
+    recording = synthetic_recording(
+        discrepancy_drive(60.0, 30.0, seed=5), SLOW, "none", {}, noise_fraction=0.01, seed=5
+    )
     simulation = RCNetwork(method="zoh")
     series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
-    problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation)))
-    truth = {"C_clamp": SLOW.C_clamp, "xi_rho": SLOW.xi_rho / SLOW.xi_h, "alpha_E": SLOW.alpha_E,
-             "alpha_I": SLOW.alpha_I, "alpha_C": SLOW.alpha_C}
+    problem = Problem(
+        Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation))
+    )
+    truth = {
+        "C_clamp": SLOW.C_clamp,
+        "xi_rho": SLOW.xi_rho / SLOW.xi_h,
+        "alpha_E": SLOW.alpha_E,
+        "alpha_I": SLOW.alpha_I,
+        "alpha_C": SLOW.alpha_C,
+    }
     floor = _train_mse(problem, simulation, truth)
 
     starts = baseline_starts(problem, simulation, 16, 512, settings.frozen_for(simulation))
@@ -72,7 +88,9 @@ def test_loop_screen_recovers_a_known_bouc_wen_loop():
         w = 2.0 * (s + height * np.asarray(bouc_wen_state(jnp.asarray(s), k, initial))) - 0.3
         recording = Recording(t=np.asarray(drive.t), v_in=np.asarray(drive.v), w=w)
         series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
-        problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation)))
+        problem = Problem(
+            Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation))
+        )
         return np.var(w), [np.asarray(x) for x in loop_screen(problem, simulation, raws, (10.0, 40.0))]
 
     var, (losses, ks, heights, initials) = screen(0.0)
@@ -118,16 +136,22 @@ def test_resonance_starts_find_a_known_mode_and_network():
     s = np.asarray(simulation.replace(**point).simulate(jnp.asarray(drive.v), 1 / rate))
     f, zeta = float(mode_frequencies(rate)[9]), MODE_DAMPINGS[1]
     omega = 2 * np.pi * f
-    mode = scipy.signal.StateSpace([[0.0, 1.0], [-omega**2, -2 * zeta * omega]], [[0.0], [omega**2]], [[1.0, 0.0]], [[0.0]])
+    mode = scipy.signal.StateSpace(
+        [[0.0, 1.0], [-(omega**2), -2 * zeta * omega]], [[0.0], [omega**2]], [[1.0, 0.0]], [[0.0]]
+    )
     t = np.arange(len(s)) / rate
     _, y, _ = scipy.signal.lsim(mode, s, t, X0=[s[0], 0.0])
     w = 1.7 * y + 0.2
     recording = Recording(t=t, v_in=np.asarray(drive.v), w=w)
     series = [series_from_recording(recording, settings.split, SPLIT_ORDER, settings.blocks)]
-    problem = Problem(Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation)))
+    problem = Problem(
+        Model(simulation, LinearReadout(), "physics"), series, frozenset(settings.frozen_for(simulation))
+    )
 
     _, raws = design_raws(simulation, [point, design[5]])
-    losses = np.asarray(mode_screen(problem, simulation, raws, np.array([f, 1.3 * f, f]), np.array([zeta, zeta, 0.3])))
+    losses = np.asarray(
+        mode_screen(problem, simulation, raws, np.array([f, 1.3 * f, f]), np.array([zeta, zeta, 0.3]))
+    )
     assert losses[0, 0] < 1e-12 * np.var(w)  # exact up to lsim's quadrature
     assert min(losses[0, 1], losses[0, 2], losses[1, 0]) > 1e-4 * np.var(w)  # wrong f, wrong ζ, wrong network
 

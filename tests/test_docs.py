@@ -28,9 +28,22 @@ def test_docs_build_strict(tmp_path):
     site = tmp_path / "site"
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
     done = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file", str(ROOT / "mkdocs.yml"),
-         "--site-dir", str(site)],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=BUILD_TIMEOUT,
+        [
+            sys.executable,
+            "-m",
+            "mkdocs",
+            "build",
+            "--strict",
+            "--config-file",
+            str(ROOT / "mkdocs.yml"),
+            "--site-dir",
+            str(site),
+        ],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=BUILD_TIMEOUT,
     )
     log = done.stdout + done.stderr
     warnings = [line for line in log.splitlines() if "WARNING" in line or "ERROR" in line]
@@ -42,6 +55,16 @@ def test_docs_build_strict(tmp_path):
     assert 'id="hybrid.fit"' in html, "hybrid.fit has no entry on its API page"
     assert 'id="hybrid.FitResult"' in html
     assert (site / "api" / "sensitivity" / "index.html").is_file()
-    for page in ("virtual-ipmc", "diagnose", "modelling", "command-line", "sensitivity", "benchmarks",
-                 "tests", "rig", "architecture", "table2"):
+    for page in (
+        "virtual-ipmc",
+        "diagnose",
+        "modelling",
+        "command-line",
+        "sensitivity",
+        "benchmarks",
+        "tests",
+        "rig",
+        "architecture",
+        "table2",
+    ):
         assert (site / page / "index.html").is_file(), f"docs/{page}.md was not built"

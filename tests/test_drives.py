@@ -165,11 +165,13 @@ def test_sine_amplitude_modulation_envelope():
     from hybrid.data._paper_drives import sine
 
     d = sine(90.0, rate=30.0, amplitude=2.0, frequency=1.0, modulation_depth=0.75, modulation_period=45.0)
+
     # Envelope a(t) = A (1 − m/2 (1 − cos 2πt/T)): full amplitude at t = 0 and t = T,
     # (1 − m) A at t = T/2. Check peaks over one carrier period around those times.
     def peak(t0):
         sel = (d.t >= t0) & (d.t < t0 + 1.0)
         return np.max(np.abs(d.v[sel]))
+
     # Tolerance 0.03 V: sampling a 1 Hz peak at 30 Hz misses it by up to
     # 1 − cos(π/30) ≈ 0.55 %, and the envelope moves ≤ 0.5 % within the second.
     assert abs(peak(0.0) - 2.0) < 0.03
@@ -203,16 +205,24 @@ def test_random_half_cycle_amplitudes(name):
     assert not np.array_equal(drive.v, other.v)
     # Each half cycle (between zero crossings) has its own peak in [(1 - depth) A, A].
     crossings = np.flatnonzero(np.sign(drive.v[:-1]) * np.sign(drive.v[1:]) < 0)
-    peaks = np.array([np.max(np.abs(drive.v[a + 1:b + 1])) for a, b in zip(crossings[:-1], crossings[1:])
-                      if b - a > 20])
+    peaks = np.array(
+        [np.max(np.abs(drive.v[a + 1 : b + 1])) for a, b in zip(crossings[:-1], crossings[1:]) if b - a > 20]
+    )
     assert peaks.min() >= 0.4 * 2.0 - 1e-9 and peaks.max() <= 2.0 + 1e-12
     assert np.std(peaks) > 0.1  # really random, not a constant envelope
     # Continuous: the amplitude switches only where the sine is zero.
     assert np.max(np.abs(np.diff(drive.v))) < 2.0 * 2 * np.pi * 1.0 / 100.0 * 1.05
 
 
-@pytest.mark.parametrize("name,param,bad", [("staircase", "steps", 1), ("staircase", "steps", 2.5),
-                                            ("triangle", "levels", 0), ("triangle", "levels", True)])
+@pytest.mark.parametrize(
+    "name,param,bad",
+    [
+        ("staircase", "steps", 1),
+        ("staircase", "steps", 2.5),
+        ("triangle", "levels", 0),
+        ("triangle", "levels", True),
+    ],
+)
 def test_count_parameters_must_be_integers(name, param, bad):
     with pytest.raises(InputError, match=f"{name} drive {param} must be an integer"):
         make_drive(name, 10.0, **{param: bad})

@@ -68,8 +68,11 @@ def test_resonance_matches_scipy_lsim(signal):
 
 def test_resonance_rings_at_its_frequency():
     rate = 200.0
-    y = np.asarray(Resonance(resonance_frequency_hz=7.0, resonance_damping=0.02).apply(
-        jnp.concatenate([jnp.zeros(10), jnp.ones(4000)]), 1 / rate))
+    y = np.asarray(
+        Resonance(resonance_frequency_hz=7.0, resonance_damping=0.02).apply(
+            jnp.concatenate([jnp.zeros(10), jnp.ones(4000)]), 1 / rate
+        )
+    )
     f, p = scipy.signal.periodogram(y[10:] - 1.0, fs=rate)
     assert f[np.argmax(p)] == pytest.approx(7.0 * np.sqrt(1 - 0.02**2), abs=0.1)
 
@@ -81,8 +84,9 @@ def _bouc_wen_by_ode(signal, k, initial):
     u, out = initial, [initial]
     for prev, v in zip(signal[:-1], signal[1:]):
         d = v - prev
-        u = scipy.integrate.solve_ivp(lambda _, x, d=d: k * (d - abs(d) * abs(x) * x), (0.0, 1.0), [u],
-                                      rtol=1e-11, atol=1e-13).y[0, -1]
+        u = scipy.integrate.solve_ivp(
+            lambda _, x, d=d: k * (d - abs(d) * abs(x) * x), (0.0, 1.0), [u], rtol=1e-11, atol=1e-13
+        ).y[0, -1]
         out.append(u)
     return np.array(out)
 
@@ -111,8 +115,14 @@ def test_bouc_wen_state_has_finite_gradients_from_a_saturated_start():
 def test_hysteresis_forgets_its_initial_state():
     # After s has moved many 1/k one way, the loop state no longer depends on where it began.
     s = jnp.concatenate([jnp.zeros(5), jnp.linspace(0.0, 2.0, 200)])
-    ends = [float(Hysteresis(hysteresis_height_v=0.1, hysteresis_rate_per_v=20.0,
-                             hysteresis_initial_state=z0).apply(s, DT)[-1]) for z0 in (-0.9, 0.0, 0.9)]
+    ends = [
+        float(
+            Hysteresis(
+                hysteresis_height_v=0.1, hysteresis_rate_per_v=20.0, hysteresis_initial_state=z0
+            ).apply(s, DT)[-1]
+        )
+        for z0 in (-0.9, 0.0, 0.9)
+    ]
     np.testing.assert_allclose(ends, 2.0 + 0.1, atol=1e-12)
 
 
@@ -212,7 +222,9 @@ def test_stack_switches_and_parameters():
     np.testing.assert_array_equal(off.simulate(v, DT), inner.simulate(v, DT))
     only_delay = stack.with_active(jnp.eye(len(EFFECTS))[0])
     np.testing.assert_allclose(only_delay.simulate(v, DT), Delay().apply(inner.simulate(v, DT), DT))
-    assert set(stack.parameters()) == set(inner.parameters()) | {n for e in EFFECTS.values() for n in e.constraints}
+    assert set(stack.parameters()) == set(inner.parameters()) | {
+        n for e in EFFECTS.values() for n in e.constraints
+    }
     changed = stack.replace(delay_s=0.2, xi_rho=20.0)
     assert float(changed.parameters()["delay_s"]) == pytest.approx(0.2)
     assert float(changed.parameters()["xi_rho"]) == pytest.approx(20.0)
@@ -245,8 +257,13 @@ def test_synthetic_delay_shifts_the_clean_response():
 
 
 def test_synthetic_effect_free_matches_the_exact_zoh_of_the_network():
-    rec = synthetic_recording(make_drive("prbs", 20.0, rate=30.0, seed=1), SyntheticStrip(offset_mm=0.1),
-                              "none", noise_fraction=0.0, exposure_fraction=1 / 8)
+    rec = synthetic_recording(
+        make_drive("prbs", 20.0, rate=30.0, seed=1),
+        SyntheticStrip(offset_mm=0.1),
+        "none",
+        noise_fraction=0.0,
+        exposure_fraction=1 / 8,
+    )
     # exposure of one fine sample: the camera sees the fine-grid value at each time stamp
     v_o = np.asarray(RCNetwork(method="zoh").simulate(jnp.asarray(rec.v_in), 1 / 30))
     np.testing.assert_allclose(rec.w, 2.0 * v_o + 0.1, rtol=1e-8, atol=1e-10)
@@ -283,11 +300,20 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     from hybrid.discovery._evidence import parameter_uncertainties
     from hybrid.sensitivity import parameter_covariance
 
-    rec = synthetic_recording(make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0), SyntheticStrip(),
-                              "back_relaxation", {"tau_s": 4.0, "fraction": 0.5}, noise_fraction=0.01, seed=1)
+    rec = synthetic_recording(
+        make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0),
+        SyntheticStrip(),
+        "back_relaxation",
+        {"tau_s": 4.0, "fraction": 0.5},
+        noise_fraction=0.01,
+        seed=1,
+    )
     inner = RCNetwork(method="zoh")
-    model = Model(extend(inner, "back_relaxation", relaxation_time_s=4.0, relaxation_fraction=0.4),
-                  LinearReadout(gain=2.0), "physics")
+    model = Model(
+        extend(inner, "back_relaxation", relaxation_time_s=4.0, relaxation_fraction=0.4),
+        LinearReadout(gain=2.0),
+        "physics",
+    )
     settings = DiagnoseSettings()
     white = np.random.default_rng(0).normal(size=400)
 
@@ -296,13 +322,27 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
         if padded:  # diagnose's padded problem: the padding must not change a standard error
             series = bucketed_series(series, bucket_length(rec.n) + 100)
         problem = Problem(model, [series], frozenset(settings.frozen_for(inner)))
-        return parameter_uncertainties(problem, problem.flatten(model, frozenset(settings.frozen_for(inner))), white, keep=keep)
+        return parameter_uncertainties(
+            problem, problem.flatten(model, frozenset(settings.frozen_for(inner))), white, keep=keep
+        )
 
     found = uncertainties(model)
-    frozen = parameter_covariance(model, [rec], frozen=set(settings.frozen_for(inner)) | set(inner.parameter_names()),
-                                  split=settings.split, split_order=("train", "validation", "test"), blocks=settings.blocks)
-    full = parameter_covariance(model, [rec], frozen=settings.frozen_for(inner), split=settings.split,
-                                split_order=("train", "validation", "test"), blocks=settings.blocks)
+    frozen = parameter_covariance(
+        model,
+        [rec],
+        frozen=set(settings.frozen_for(inner)) | set(inner.parameter_names()),
+        split=settings.split,
+        split_order=("train", "validation", "test"),
+        blocks=settings.blocks,
+    )
+    full = parameter_covariance(
+        model,
+        [rec],
+        frozen=settings.frozen_for(inner),
+        split=settings.split,
+        split_order=("train", "validation", "test"),
+        blocks=settings.blocks,
+    )
     for name, se in frozen.std_errors.items():
         # s² = RSS/dof differs between the two by the number of free parameters.
         expected = se * np.sqrt(frozen.dof / full.dof * found[name]["inflation"])
@@ -311,8 +351,11 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     assert "std_error_given_network" not in found["C_clamp"]
     # The search's universal model, every other effect switched off, gives the same errors.
     active = jnp.asarray([1.0 if n == "back_relaxation" else 0.0 for n in EFFECTS])
-    universal = Model(extend(inner, *EFFECTS).replace(relaxation_time_s=4.0, relaxation_fraction=0.4)
-                      .with_active(active), LinearReadout(gain=2.0), "physics")
+    universal = Model(
+        extend(inner, *EFFECTS).replace(relaxation_time_s=4.0, relaxation_fraction=0.4).with_active(active),
+        LinearReadout(gain=2.0),
+        "physics",
+    )
     same = uncertainties(universal, padded=True, keep=model.parameters())
     assert set(same) == set(found)
     for name, entry in found.items():

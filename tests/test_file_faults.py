@@ -34,8 +34,13 @@ def full_disk(*args, **kwargs):
 
 def _noise_video(path: Path, frames: int = 12) -> None:
     rng = np.random.default_rng(0)
-    write_video(path, [cv2.GaussianBlur(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8), (5, 5), 2)
-                       for _ in range(frames)])
+    write_video(
+        path,
+        [
+            cv2.GaussianBlur(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8), (5, 5), 2)
+            for _ in range(frames)
+        ],
+    )
 
 
 def test_a_failed_track_keeps_the_users_file_and_what_it_read_elsewhere(tmp_path, capsys):
@@ -55,8 +60,12 @@ def test_a_failed_track_keeps_the_users_file_and_what_it_read_elsewhere(tmp_path
         assert '"partial_of"' in (tmp_path / (partial + ".json")).read_text()
     after = snapshot(tmp_path)
     assert {k: after[k] for k in before} == before  # the user's wk.csv and its sidecar, byte for byte
-    assert sorted(set(after) - set(before)) == ["wk.partial-2.csv", "wk.partial-2.csv.json",
-                                                "wk.partial.csv", "wk.partial.csv.json"]
+    assert sorted(set(after) - set(before)) == [
+        "wk.partial-2.csv",
+        "wk.partial-2.csv.json",
+        "wk.partial.csv",
+        "wk.partial.csv.json",
+    ]
 
 
 def test_rig_track_on_a_full_disk_names_the_file_and_changes_nothing(tmp_path, capsys, monkeypatch):
@@ -69,7 +78,9 @@ def test_rig_track_on_a_full_disk_names_the_file_and_changes_nothing(tmp_path, c
     argv = ["track", str(video), "--clamp", "40,120", "--mm-per-px", "0.1", "--axis", "0", "--out", str(out)]
     assert rig_main(argv) == 2
     err = capsys.readouterr().err.splitlines()
-    assert len(err) == 1 and err[0].startswith(f"rig: error: cannot write {out} (and {out}.json): No space left")
+    assert len(err) == 1 and err[0].startswith(
+        f"rig: error: cannot write {out} (and {out}.json): No space left"
+    )
     assert snapshot(tmp_path) == before  # no temporary, no partial file, the previous output
     # a run that fails on a full disk: its problem, and why nothing was kept
     _noise_video(video)

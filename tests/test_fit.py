@@ -36,17 +36,25 @@ def _two_series():
     v = h.step_drive(200, seed=1)
     w = np.sin(np.arange(200) / 9.0)
     # recording 1: a training split made of two separate segments
-    s1 = Series(jnp.asarray(v), jnp.asarray(w), DT,
-                (("train", ((0, 80), (120, 200))), ("validation", ((80, 120),))))
-    s2 = Series(jnp.asarray(0.5 * v[:150]), jnp.asarray(w[:150] ** 2), DT,
-                (("train", ((10, 60),)), ("validation", ((60, 150),))))
+    s1 = Series(
+        jnp.asarray(v), jnp.asarray(w), DT, (("train", ((0, 80), (120, 200))), ("validation", ((80, 120),)))
+    )
+    s2 = Series(
+        jnp.asarray(0.5 * v[:150]),
+        jnp.asarray(w[:150] ** 2),
+        DT,
+        (("train", ((10, 60),)), ("validation", ((60, 150),))),
+    )
     return [s1, s2]
 
 
 @eqx.filter_jit
 def _both_jacobians(problem, theta):
-    return (problem.residuals_and_jacobian(theta), problem.residuals(theta),
-            jax.jacfwd(problem.residuals)(theta))
+    return (
+        problem.residuals_and_jacobian(theta),
+        problem.residuals(theta),
+        jax.jacfwd(problem.residuals)(theta),
+    )
 
 
 def _check_jacobian(model, frozen, n_expected):
@@ -83,8 +91,7 @@ def test_structured_jacobian_physics_and_frozen_columns_disappear():
     # every remaining column is one of the full Jacobian's columns, unchanged
     matched = set()
     for j in range(J_frozen.shape[1]):
-        hits = [k for k in range(8)
-                if np.allclose(J_full[:, k], J_frozen[:, j], rtol=1e-12, atol=0)]
+        hits = [k for k in range(8) if np.allclose(J_full[:, k], J_frozen[:, j], rtol=1e-12, atol=0)]
         assert len(hits) == 1
         matched.add(hits[0])
     assert len(matched) == 5
@@ -115,8 +122,9 @@ def test_normal_equations_in_chunks_equal_those_of_the_whole_jacobian(monkeypatc
 
 
 # --------------------------------------------------------------------------- planted physics
-TRUE_NETWORK = RCNetwork(xi_rho=6.0, xi_h=1.0, alpha_E=0.3, alpha_I=0.6, alpha_C=0.4,
-                         C_clamp=0.02, n_stages=10)
+TRUE_NETWORK = RCNetwork(
+    xi_rho=6.0, xi_h=1.0, alpha_E=0.3, alpha_I=0.6, alpha_C=0.4, C_clamp=0.02, n_stages=10
+)
 GAIN, OFFSET, NOISE = 1.7, 0.3, 0.005
 
 
@@ -184,8 +192,7 @@ def student(teacher):
 
 @pytest.fixture(scope="module")
 def hybrid_fit(student, hybrid_recording):
-    return fit(student, hybrid_recording, starts=2, max_steps=100, frozen={"xi_h", "alpha_C"},
-               progress=False)
+    return fit(student, hybrid_recording, starts=2, max_steps=100, frozen={"xi_h", "alpha_C"}, progress=False)
 
 
 def test_hybrid_lm_fits_planted_teacher(hybrid_fit, hybrid_recording, student):
@@ -243,14 +250,22 @@ def test_frozen_network_recovers_physics(teacher, hybrid_recording):
 
 
 def test_adam_improves_training_cost(student, hybrid_recording):
-    result = fit(student, hybrid_recording, solver="adam", max_steps=60, frozen={"xi_h"},
-                 report_every=20, progress=False)
+    result = fit(
+        student,
+        hybrid_recording,
+        solver="adam",
+        max_steps=60,
+        frozen={"xi_h"},
+        report_every=20,
+        progress=False,
+    )
     assert [entry["step"] for entry in result.history] == [20, 40, 60]
     # the starting point: the student with its fixed scalings from the training data
     (a, b), _, _ = h.split_bounds(hybrid_recording.n)
     mediatory = np.asarray(student.mediatory(hybrid_recording.v_in, DT))[a:b]
-    start = Model(student.simulation, student.readout.initialise(mediatory, hybrid_recording.w[a:b]),
-                  "hybrid")
+    start = Model(
+        student.simulation, student.readout.initialise(mediatory, hybrid_recording.w[a:b]), "hybrid"
+    )
     initial = _cost(start, hybrid_recording, "train")
     costs = [entry["train_cost"][0] for entry in result.history]
     assert costs[-1] < costs[0] < initial
@@ -306,8 +321,13 @@ def test_weight_decay_cost_and_normal_equations():
 
     @eqx.filter_jit
     def evaluate(problem, theta):
-        return (problem.residuals(theta), problem.cost(theta), jax.grad(problem.cost)(theta),
-                jax.jacfwd(problem.residuals)(theta), normal_equations(problem, theta))
+        return (
+            problem.residuals(theta),
+            problem.cost(theta),
+            jax.grad(problem.cost)(theta),
+            jax.jacfwd(problem.residuals)(theta),
+            normal_equations(problem, theta),
+        )
 
     r, cost, grad, J, (cost_ne, JtJ, g) = jax.tree_util.tree_map(np.asarray, evaluate(problem, theta))
     # ½‖r‖² + ½ μ ‖θ_network‖²; the 6 RC parameters come first and are not penalised
@@ -373,7 +393,9 @@ def test_blocked_split_partitions_every_block_by_the_fractions(blocks):
     n = 1000
     recording = Recording.from_arrays(v_in=np.zeros(n), w=np.arange(float(n)), rate=30.0)
     series = series_from_recording(recording, (0.6, 0.1, 0.3), ("train", "validation", "test"), blocks)
-    ranges = sorted((a, b, name) for name in ("train", "validation", "test") for a, b in series.segments_of(name))
+    ranges = sorted(
+        (a, b, name) for name in ("train", "validation", "test") for a, b in series.segments_of(name)
+    )
     # A partition of 0..n in time order, the three parts cycling once per block.
     assert ranges[0][0] == 0 and ranges[-1][1] == n
     assert all(prev[1] == nxt[0] for prev, nxt in zip(ranges, ranges[1:]))
@@ -381,8 +403,10 @@ def test_blocked_split_partitions_every_block_by_the_fractions(blocks):
     for name, share in (("train", 0.6), ("validation", 0.1), ("test", 0.3)):
         got = sum(b - a for a, b in series.segments_of(name))
         assert abs(got - share * n) <= blocks, (name, got)
-        assert np.array_equal(np.asarray(series.target(name)),
-                              np.concatenate([np.arange(a, b, dtype=float) for a, b in series.segments_of(name)]))
+        assert np.array_equal(
+            np.asarray(series.target(name)),
+            np.concatenate([np.arange(a, b, dtype=float) for a, b in series.segments_of(name)]),
+        )
 
 
 def test_blocked_split_rejects_a_bad_block_count():

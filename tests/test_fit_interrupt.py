@@ -74,8 +74,16 @@ def stopped_at_start(tmp_path_factory):
     recording.save(folder / "rec.csv")
     (folder / "m.eqx").write_bytes(b"the user's model")
     (folder / "m.eqx.json").write_text('{"mine": true}\n')
-    argv = ["fit", str(folder / "rec.csv"), *TINY_ARGS, "--time-limit", "1e-9", "--quiet", "--out",
-            str(folder / "m.eqx")]
+    argv = [
+        "fit",
+        str(folder / "rec.csv"),
+        *TINY_ARGS,
+        "--time-limit",
+        "1e-9",
+        "--quiet",
+        "--out",
+        str(folder / "m.eqx"),
+    ]
     with pytest.raises(SystemExit) as stopped:
         main(argv)
     return folder, recording, stopped.value.code
@@ -102,9 +110,25 @@ def test_sigterm_mid_fit_saves_the_best_model_so_far(stopped_at_start, tmp_path)
     out.write_bytes(b"the user's model")
     env = dict(os.environ, HYBRID_HEARTBEAT_S="0.2")  # a heartbeat line, naming the step, every 0.2 s
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hybrid.cli", "fit", str(tmp_path / "rec.csv"), *TINY_ARGS, "--solver", "adam",
-         "--max-steps", "1000000", "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        [
+            sys.executable,
+            "-m",
+            "hybrid.cli",
+            "fit",
+            str(tmp_path / "rec.csv"),
+            *TINY_ARGS,
+            "--solver",
+            "adam",
+            "--max-steps",
+            "1000000",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     seen = []
     for line in proc.stderr:  # Adam never ends by itself in 10⁶ steps here: it is mid-fit when we signal
         seen.append(line)

@@ -31,8 +31,10 @@ def lag_response(n=1200, seed=0, tau=15.0):
 def parts(w, w_hat, n_train):
     """A training part and a held-out part, each one segment, as diagnose hands them over."""
     seg = np.zeros(len(w))
-    return [{"w": w[:n_train], "w_hat": w_hat[:n_train], "segment": seg[:n_train]},
-            {"w": w[n_train:], "w_hat": w_hat[n_train:], "segment": seg[n_train:]}]
+    return [
+        {"w": w[:n_train], "w_hat": w_hat[:n_train], "segment": seg[:n_train]},
+        {"w": w[n_train:], "w_hat": w_hat[n_train:], "segment": seg[n_train:]},
+    ]
 
 
 def test_a_sensor_clipped_at_the_top_is_found_on_that_side_only():
@@ -58,22 +60,34 @@ def test_an_empty_tank_is_a_limit_at_the_bottom():
     assert "flat at its smallest value (2)" in limit_sentence(found, len(w))
 
 
-@pytest.mark.parametrize("case", ["no limit", "plateau the model follows", "a level error on a held plateau",
-                                  "smooth noisy peak", "quantised"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "no limit",
+        "plateau the model follows",
+        "a level error on a held plateau",
+        "smooth noisy peak",
+        "quantised",
+    ],
+)
 def test_no_flag_without_a_limit(case):
     y, rng = lag_response(seed=5)
     noise = NOISE * rng.normal(size=y.size)
     floor = NOISE**2
     if case == "no limit":
         w, w_hat = y + noise, y
-    elif case == "plateau the model follows":  # held at the top, noise-free (e.g. a record rounded to the level)
+    elif (
+        case == "plateau the model follows"
+    ):  # held at the top, noise-free (e.g. a record rounded to the level)
         y = np.r_[y, np.full(200, y.max() + 0.3)]
         w, w_hat = np.r_[y[:-200] + noise, y[-200:]], y
     elif case == "smooth noisy peak":
         t = np.linspace(0.0, 12.0, y.size)
         w_hat = np.sin(t)
         w = w_hat + noise
-    elif case == "a level error on a held plateau":  # the model flat too, only higher: a gain error, not a limit
+    elif (
+        case == "a level error on a held plateau"
+    ):  # the model flat too, only higher: a gain error, not a limit
         y = np.r_[y, np.full(200, y.max() + 0.3)]
         w, w_hat = np.r_[y[:-200] + noise, y[-200:]], y + 0.2 * (y > y.max() - 1e-9)
     else:  # steps of 0.05, 25× the noise floor given: the unquantised model moves within one step of them

@@ -42,7 +42,9 @@ SETTINGS = LMSettings(**OPTIONS, patience=0)
 @pytest.mark.parametrize("patience", [3, 7])
 def test_traced_patience_stops_after_that_many_steps_without_a_better_validation_loss(patience):
     problem, theta0 = _problem()
-    run = jax.jit(lambda p: lm_run(problem, lm_init(problem, theta0, SETTINGS), SETTINGS, SETTINGS.max_steps, p))
+    run = jax.jit(
+        lambda p: lm_run(problem, lm_init(problem, theta0, SETTINGS), SETTINGS, SETTINGS.max_steps, p)
+    )
     state = run(jnp.int32(patience))
     assert int(state.accepted) == patience and int(state.best_step) == 0
     assert jnp.array_equal(state.best_theta, theta0)
@@ -54,6 +56,8 @@ def test_traced_patience_stops_after_that_many_steps_without_a_better_validation
 
 def test_traced_patience_zero_never_stops_on_validation():
     problem, theta0 = _problem()
-    state = jax.jit(lambda p: lm_run(problem, lm_init(problem, theta0, SETTINGS), SETTINGS, 200, p))(jnp.int32(0))
+    state = jax.jit(lambda p: lm_run(problem, lm_init(problem, theta0, SETTINGS), SETTINGS, 200, p))(
+        jnp.int32(0)
+    )
     # It runs on towards the least-squares solution, every step worse on validation.
     assert int(state.accepted) > 7 and int(state.best_step) == 0

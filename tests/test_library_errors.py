@@ -18,8 +18,9 @@ from hybrid import InputError, RCNetwork, Recording
 @pytest.fixture(scope="module")
 def recording():
     n = 200
-    return Recording.from_arrays(v_in=np.sin(np.arange(n) / 5.0), w=np.cos(np.arange(n) / 4.0), rate=30.0,
-                                 name="tiny")
+    return Recording.from_arrays(
+        v_in=np.sin(np.arange(n) / 5.0), w=np.cos(np.arange(n) / 4.0), rate=30.0, name="tiny"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +46,10 @@ CASES = {
     "fit_batch(recordings int)": (lambda m, r: hybrid.fit_batch(m, 7), "Recording objects"),
     # diagnose
     "diagnose(int)": (lambda m, r: hybrid.diagnose(5), "Recording objects"),
-    "diagnose(settings dict)": (lambda m, r: hybrid.diagnose(r, settings={"max_steps": 1}), "DiagnoseSettings"),
+    "diagnose(settings dict)": (
+        lambda m, r: hybrid.diagnose(r, settings={"max_steps": 1}),
+        "DiagnoseSettings",
+    ),
     "diagnose(simulation str)": (lambda m, r: hybrid.diagnose(r, simulation="rc"), "simulation"),
     "write_report(str)": (lambda m, r: hybrid.write_report("x", "out"), "Diagnosis"),
     # simulate
@@ -55,12 +59,17 @@ CASES = {
     "simulate(dt str)": (lambda m, r: RCNetwork().simulate(jnp.ones(8), "0.1"), "dt"),
     "simulate(dt array)": (lambda m, r: RCNetwork().simulate(jnp.ones(8), np.ones(3)), "dt"),
     "simulate(NaN in v)": (lambda m, r: RCNetwork().simulate(jnp.array([1.0, np.nan, 1.0]), 0.1), "sample 1"),
-    "simulate(inf in v, zoh)": (lambda m, r: RCNetwork(method="zoh").simulate(np.array([np.inf, 0.0]), 0.1),
-                                "sample 0"),
+    "simulate(inf in v, zoh)": (
+        lambda m, r: RCNetwork(method="zoh").simulate(np.array([np.inf, 0.0]), 0.1),
+        "sample 0",
+    ),
     "simulate(v str)": (lambda m, r: RCNetwork().simulate("abc", 0.1), "v_in"),
     "simulate(v 2-D)": (lambda m, r: RCNetwork().simulate(jnp.ones((3, 8)), 0.1), "shape"),
     "predict(dt str)": (lambda m, r: m.predict(jnp.ones(8), "a"), "dt"),
-    "normal model predict(NaN)": (lambda m, r: hybrid.Passthrough().simulate(np.array([np.nan]), 0.1), "v_in"),
+    "normal model predict(NaN)": (
+        lambda m, r: hybrid.Passthrough().simulate(np.array([np.nan]), 0.1),
+        "v_in",
+    ),
     "simulate_batch(str)": (lambda m, r: hybrid.simulate_batch("rc", jnp.ones(8), 0.1), "simulations"),
     "simulate_batch([str])": (lambda m, r: hybrid.simulate_batch(["rc"], jnp.ones(8), 0.1), "simulations"),
     "simulate_batch(dt < 0)": (lambda m, r: hybrid.simulate_batch([RCNetwork()], jnp.ones(8), -1.0), "dt"),

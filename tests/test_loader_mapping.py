@@ -75,7 +75,12 @@ def test_cascaded_tanks_estimation_and_validation():
     assert est.v_in[0] == 3.2567 and est.w[0] == 5.205 and est.w[-1] == y[-1]
     assert est.metadata["mapping"] == {"t": None, "v_in": "uEst", "w": "yEst"}
     estimation, validation = load_pair(
-        TANKS, input="uEst", output="yEst", test_input="uVal", test_output="yVal", units={"v_in": "V", "w": "V"}
+        TANKS,
+        input="uEst",
+        output="yEst",
+        test_input="uVal",
+        test_output="yVal",
+        units={"v_in": "V", "w": "V"},
     )
     np.testing.assert_array_equal(estimation.w, est.w)
     assert estimation.name.endswith("(uEst -> yEst)") and validation.name.endswith("(uVal -> yVal)")
@@ -84,7 +89,9 @@ def test_cascaded_tanks_estimation_and_validation():
     np.testing.assert_array_equal(validation.w, y_val)
     assert validation.v_in[0] == 0.97619 and validation.w[0] == 4.9728
     assert validation.metadata["units"] == {"t": "s", "v_in": "V", "w": "V"}
-    assert load_mapped(TANKS, input="uVal", output="yVal") == load_mapped(TANKS, columns="input=uVal,output=yVal")
+    assert load_mapped(TANKS, input="uVal", output="yVal") == load_mapped(
+        TANKS, columns="input=uVal,output=yVal"
+    )
 
 
 @needs_data
@@ -102,14 +109,22 @@ def test_silverbox_with_rate_and_the_benchmark_ranges():
     np.testing.assert_array_equal(whole.v_in, v1)
     np.testing.assert_array_equal(whole.w, v2)
     assert (whole.v_in[0], whole.w[0]) == (0.0057756, 0.0093978)
-    train, arrow = load_pair(SNLS, input="V1", output="V2", rate=SILVERBOX_HZ,
-                             sample_range="40650:127400", test_sample_range="100:40575")
+    train, arrow = load_pair(
+        SNLS,
+        input="V1",
+        output="V2",
+        rate=SILVERBOX_HZ,
+        sample_range="40650:127400",
+        test_sample_range="100:40575",
+    )
     assert (train.n, arrow.n) == (86750, 40475)
     assert train.metadata["segment"] == {"start": 40650, "stop": 127400}
     assert train.t[0] == pytest.approx(40650 / SILVERBOX_HZ)  # the file's clock is kept
     np.testing.assert_array_equal(train.w, v2[40650:127400])
     np.testing.assert_array_equal(arrow.v_in, v1[100:40575])
-    with pytest.raises(InputError, match=r"no time column and no sampling rate: pass the rate in Hz \(--rate"):
+    with pytest.raises(
+        InputError, match=r"no time column and no sampling rate: pass the rate in Hz \(--rate"
+    ):
         load_mapped(SNLS, input="V1", output="V2")
 
 
@@ -126,11 +141,14 @@ def test_silverbox_schroeder_file_with_sparse_overload_columns():
 # ------------------------------------------------------------------------- options
 
 
-@pytest.mark.parametrize("keywords, columns", [
-    ({"input": "u", "output": "y", "time": "time"}, "t=time,v_in=u,w=y"),
-    ({"input": "u", "output": "y", "time": "time"}, "time=time, input = u ,OUTPUT=y"),
-    ({"input": "u", "output": "y", "time": "time"}, 'input="u",output="y",time=time'),
-])
+@pytest.mark.parametrize(
+    "keywords, columns",
+    [
+        ({"input": "u", "output": "y", "time": "time"}, "t=time,v_in=u,w=y"),
+        ({"input": "u", "output": "y", "time": "time"}, "time=time, input = u ,OUTPUT=y"),
+        ({"input": "u", "output": "y", "time": "time"}, 'input="u",output="y",time=time'),
+    ],
+)
 def test_both_spellings_give_the_same_recording(lab, keywords, columns):
     a = load_mapped(lab, **keywords)
     b = load_mapped(lab, columns=columns)
@@ -150,13 +168,17 @@ def test_mapped_grammar_units_and_ranges_parse():
 
 
 def test_quoted_name_with_a_comma_and_a_bom(tmp_path):
-    path = _write(tmp_path / "q.csv", '\ufeff# exported by the rig\n\n"drive (V)","level, V"\n1,2\n3,4\n\n# end\n5,6\n')
+    path = _write(
+        tmp_path / "q.csv", '\ufeff# exported by the rig\n\n"drive (V)","level, V"\n1,2\n3,4\n\n# end\n5,6\n'
+    )
     rec = load_mapped(path, columns='input=drive (V),output="level, V"', rate=2)
     np.testing.assert_array_equal(rec.v_in, [1, 3, 5])
     np.testing.assert_array_equal(rec.w, [2, 4, 6])
 
 
-@pytest.mark.parametrize("text, expected", [("10:20", (10, 20)), ("45:", (45, 50)), (":7", (0, 7)), ("0:50", (0, 50))])
+@pytest.mark.parametrize(
+    "text, expected", [("10:20", (10, 20)), ("45:", (45, 50)), (":7", (0, 7)), ("0:50", (0, 50))]
+)
 def test_sample_range_keeps_the_files_clock(lab, text, expected):
     start, stop = expected
     rec = load_mapped(lab, input="u", output="y", rate=20, sample_range=text)
@@ -173,17 +195,25 @@ def test_rate_fields_in_columns_and_sidecar_metadata(tmp_path):
     path = _write(tmp_path / "fs.csv", f"u,y,fs\n{rows}\n")
     assert load_mapped(path, input="u", output="y").rate == pytest.approx(1000.0)
     same = "\n".join(f"{i},{i * i},0.01" for i in range(10))  # a Ts repeated on every row
-    assert load_mapped(_write(tmp_path / "ts.csv", f"u,y,Ts\n{same}\n"), input="u", output="y").rate == pytest.approx(100)
+    assert load_mapped(
+        _write(tmp_path / "ts.csv", f"u,y,Ts\n{same}\n"), input="u", output="y"
+    ).rate == pytest.approx(100)
     meta = _write(tmp_path / "m.csv", "u,y\n1,2\n3,4\n5,7\n", {"rate_hz": 50.0, "units": {"y": "mm"}})
     rec = load_mapped(meta, input="u", output="y")
     assert rec.rate == pytest.approx(50.0) and rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"}
-    varying = "\n".join(f"{i},{i * i},{i + 1}" for i in range(10))  # a data column called rate: not a rate field
+    varying = "\n".join(
+        f"{i},{i * i},{i + 1}" for i in range(10)
+    )  # a data column called rate: not a rate field
     with pytest.raises(InputError, match="--rate"):
         load_mapped(_write(tmp_path / "r.csv", f"u,y,rate\n{varying}\n"), input="u", output="y")
 
 
 def test_units_default_and_given(lab):
-    assert load_mapped(lab, input="u", output="y", rate=20).metadata["units"] == {"t": "s", "v_in": "V", "w": "a.u."}
+    assert load_mapped(lab, input="u", output="y", rate=20).metadata["units"] == {
+        "t": "s",
+        "v_in": "V",
+        "w": "a.u.",
+    }
     rec = load_mapped(lab, input="u", output="y", time="time", units={"input": "mV", "w": "µm"})
     assert rec.metadata["units"] == {"t": "s", "v_in": "mV", "w": "µm"}
 
@@ -209,11 +239,15 @@ def test_npz_and_mat_files(tmp_path):
     rec = Recording.load(tmp_path / "a.npz", input="drive", output="out")
     assert rec.rate == pytest.approx(25.0)
     np.testing.assert_array_equal(rec.w, y)
-    scipy.io.savemat(tmp_path / "b.mat", {"uEst": u[:, None], "yEst": y[:, None], "Ts": np.array([[4.0]]),
-                                          "label": "not numeric"})
+    scipy.io.savemat(
+        tmp_path / "b.mat",
+        {"uEst": u[:, None], "yEst": y[:, None], "Ts": np.array([[4.0]]), "label": "not numeric"},
+    )
     rec = load_mapped(tmp_path / "b.mat", input="uEst", output="yEst", sample_range="10:")
     assert rec.rate == pytest.approx(0.25) and rec.n == 30 and rec.t[0] == pytest.approx(40.0)
-    with pytest.raises(InputError, match=r"has no variable 'yVal' for the output \(its variables: .*uEst.*\)"):
+    with pytest.raises(
+        InputError, match=r"has no variable 'yVal' for the output \(its variables: .*uEst.*\)"
+    ):
         load_mapped(tmp_path / "b.mat", input="uEst", output="yVal")
     with pytest.raises(InputError, match="has no array 'y' for the output.*drive, out"):
         load_mapped(tmp_path / "a.npz", input="drive", output="y")
@@ -261,57 +295,84 @@ def _bad(path, match, **options):
     return str(caught.value)
 
 
-@pytest.mark.parametrize("options, match", [
-    ({"input": "U", "output": "y"}, r"no column 'U' for the input \(its columns: time, u, y, note\): .*did you mean 'u'\?"),
-    ({"input": "u", "output": "yy"}, r"no column 'yy' for the output.*did you mean 'y'"),
-    ({"input": "u", "output": "u"}, "input and the output are the same column 'u'"),
-    ({"input": "u", "output": "y", "time": "u"}, "column 'u' is mapped twice, as the input and the time"),
-    ({"input": "u"}, r"no output column is named.*--output"),
-    ({"output": "y"}, r"no input column is named.*--input"),
-    ({"columns": "input=u", "input": "u", "output": "y"}, "input column is given twice"),
-    ({"columns": "input=u,output"}, "entry 'output' without '='"),
-    ({"columns": "drive=u,output=y"}, "names the role 'drive': the roles are input"),
-    ({"columns": "input=u,output="}, "gives output an empty column"),
-    ({"columns": "input=u,in=y"}, "names the role 'in'"),
-    ({"columns": "input=u;output=y"}, "with two '=': separate the pairs with commas"),
-    ({"columns": "input=u,v_in=y"}, "gives the input twice"),
-    ({"columns": 'input="u,output=y'}, "unclosed"),
-    ({"columns": " "}, "columns mapping ' ' is empty"),
-    ({"columns": {"input": "u"}}, "is not a string: give role=column pairs"),
-    ({"input": 3, "output": "y"}, "input column 3 is not a name"),
-    ({"input": "u", "output": "y", "rate": 0}, "not a positive number of Hz"),
-    ({"input": "u", "output": "y", "rate": "fast"}, "not a positive number of Hz"),
-    ({"input": "u", "output": "y", "rate": float("nan")}, "not a positive number of Hz"),
-    ({"input": "u", "output": "y", "rate": 10.0, "time": "time"}, r"disagree: the time column .* 20 Hz.* 10 Hz"),
-    ({"input": "u", "output": "y", "sample_range": "-5:"}, "negative bound"),
-    ({"input": "u", "output": "y", "sample_range": "5"}, "is not start:stop"),
-    ({"input": "u", "output": "y", "sample_range": "1:2:3"}, "is not start:stop"),
-    ({"input": "u", "output": "y", "sample_range": "30:10"}, "holds 0 sample"),
-    ({"input": "u", "output": "y", "sample_range": "10:11"}, "holds 1 sample"),
-    ({"input": "u", "output": "y", "sample_range": "0:51"}, r"out of range.*has 50 samples \(0 to 49\)"),
-    ({"input": "u", "output": "y", "sample_range": "50:"}, "out of range"),
-    ({"input": "u", "output": "y", "sample_range": slice(0, 10, 2)}, "is not start:stop"),
-    ({"input": "u", "output": "y", "units": {"x": "V"}}, "units names 'x'"),
-    ({"input": "u", "output": "y", "units": {"w": ""}}, "non-empty label"),
-    ({"input": "u", "output": "y", "rate": 1, "units": {"t": "ms"}}, "no time column is mapped"),
-    ({"input": "u", "output": "y", "time": "time", "units": {"t": "fortnight"}}, "use one of s, ms"),
-    ({"input": "u", "output": "y", "units": "w:mm"}, "without '='"),
-    ({"input": "u", "output": "y", "name": ""}, "non-empty string"),
-    ({"input": "u", "output": "note"}, r"non-numeric cell 'ok 0' in column 'note' \(mapped as output\) at line 2 \(sample 0\)"),
-])
+@pytest.mark.parametrize(
+    "options, match",
+    [
+        (
+            {"input": "U", "output": "y"},
+            r"no column 'U' for the input \(its columns: time, u, y, note\): .*did you mean 'u'\?",
+        ),
+        ({"input": "u", "output": "yy"}, r"no column 'yy' for the output.*did you mean 'y'"),
+        ({"input": "u", "output": "u"}, "input and the output are the same column 'u'"),
+        ({"input": "u", "output": "y", "time": "u"}, "column 'u' is mapped twice, as the input and the time"),
+        ({"input": "u"}, r"no output column is named.*--output"),
+        ({"output": "y"}, r"no input column is named.*--input"),
+        ({"columns": "input=u", "input": "u", "output": "y"}, "input column is given twice"),
+        ({"columns": "input=u,output"}, "entry 'output' without '='"),
+        ({"columns": "drive=u,output=y"}, "names the role 'drive': the roles are input"),
+        ({"columns": "input=u,output="}, "gives output an empty column"),
+        ({"columns": "input=u,in=y"}, "names the role 'in'"),
+        ({"columns": "input=u;output=y"}, "with two '=': separate the pairs with commas"),
+        ({"columns": "input=u,v_in=y"}, "gives the input twice"),
+        ({"columns": 'input="u,output=y'}, "unclosed"),
+        ({"columns": " "}, "columns mapping ' ' is empty"),
+        ({"columns": {"input": "u"}}, "is not a string: give role=column pairs"),
+        ({"input": 3, "output": "y"}, "input column 3 is not a name"),
+        ({"input": "u", "output": "y", "rate": 0}, "not a positive number of Hz"),
+        ({"input": "u", "output": "y", "rate": "fast"}, "not a positive number of Hz"),
+        ({"input": "u", "output": "y", "rate": float("nan")}, "not a positive number of Hz"),
+        (
+            {"input": "u", "output": "y", "rate": 10.0, "time": "time"},
+            r"disagree: the time column .* 20 Hz.* 10 Hz",
+        ),
+        ({"input": "u", "output": "y", "sample_range": "-5:"}, "negative bound"),
+        ({"input": "u", "output": "y", "sample_range": "5"}, "is not start:stop"),
+        ({"input": "u", "output": "y", "sample_range": "1:2:3"}, "is not start:stop"),
+        ({"input": "u", "output": "y", "sample_range": "30:10"}, "holds 0 sample"),
+        ({"input": "u", "output": "y", "sample_range": "10:11"}, "holds 1 sample"),
+        ({"input": "u", "output": "y", "sample_range": "0:51"}, r"out of range.*has 50 samples \(0 to 49\)"),
+        ({"input": "u", "output": "y", "sample_range": "50:"}, "out of range"),
+        ({"input": "u", "output": "y", "sample_range": slice(0, 10, 2)}, "is not start:stop"),
+        ({"input": "u", "output": "y", "units": {"x": "V"}}, "units names 'x'"),
+        ({"input": "u", "output": "y", "units": {"w": ""}}, "non-empty label"),
+        ({"input": "u", "output": "y", "rate": 1, "units": {"t": "ms"}}, "no time column is mapped"),
+        ({"input": "u", "output": "y", "time": "time", "units": {"t": "fortnight"}}, "use one of s, ms"),
+        ({"input": "u", "output": "y", "units": "w:mm"}, "without '='"),
+        ({"input": "u", "output": "y", "name": ""}, "non-empty string"),
+        (
+            {"input": "u", "output": "note"},
+            r"non-numeric cell 'ok 0' in column 'note' \(mapped as output\) at line 2 \(sample 0\)",
+        ),
+    ],
+)
 def test_every_bad_mapping_is_one_input_error(lab, options, match):
     _bad(lab, match, **options)
 
 
-@pytest.mark.parametrize("body, match", [
-    ("u,y\n1,2\n3,\n5,6\n", r"empty cell \(a missing value\) in column 'y' \(mapped as output\) at line 3 \(sample 1\)"),
-    ("u,y\n1,2\n3,4\nx,6\n", r"non-numeric cell 'x' in column 'u' \(mapped as input\) at line 4 \(sample 2\)"),
-    ("u,y\n1,2\n\n# note\n3,nan\n", r"non-finite value 'nan' in column 'y' \(mapped as output\) at line 5 \(sample 1\)"),
-    ("u,y\n1,2\n3\n", r"no cell \(the line has 1 cell\(s\), the column is number 2\) in column 'y'.*line 3"),
-    ("u,y\n", "has a header but no data lines"),
-    ("u;y\n1;2\n", "uses ';' as its delimiter"),
-    ("u,y,u\n1,2,3\n", r"has 2 columns named 'u' \(columns 1, 3\)"),
-])
+@pytest.mark.parametrize(
+    "body, match",
+    [
+        (
+            "u,y\n1,2\n3,\n5,6\n",
+            r"empty cell \(a missing value\) in column 'y' \(mapped as output\) at line 3 \(sample 1\)",
+        ),
+        (
+            "u,y\n1,2\n3,4\nx,6\n",
+            r"non-numeric cell 'x' in column 'u' \(mapped as input\) at line 4 \(sample 2\)",
+        ),
+        (
+            "u,y\n1,2\n\n# note\n3,nan\n",
+            r"non-finite value 'nan' in column 'y' \(mapped as output\) at line 5 \(sample 1\)",
+        ),
+        (
+            "u,y\n1,2\n3\n",
+            r"no cell \(the line has 1 cell\(s\), the column is number 2\) in column 'y'.*line 3",
+        ),
+        ("u,y\n", "has a header but no data lines"),
+        ("u;y\n1;2\n", "uses ';' as its delimiter"),
+        ("u,y,u\n1,2,3\n", r"has 2 columns named 'u' \(columns 1, 3\)"),
+    ],
+)
 def test_bad_cells_name_the_column_and_the_line(tmp_path, body, match):
     _bad(_write(tmp_path / "bad.csv", body), match, input="u", output="y", rate=1)
 
@@ -325,6 +386,8 @@ def test_bad_files_and_pairs(tmp_path, lab):
         load_pair(lab, input="u", output="y", time="time")
     with pytest.raises(InputError, match="the validation record is the estimation record"):
         load_pair(lab, input="u", output="y", time="time", test_input="u")
-    estimation, validation = load_pair(lab, columns="t=time,input=u,output=y", test_input="y", test_output="u")
+    estimation, validation = load_pair(
+        lab, columns="t=time,input=u,output=y", test_input="y", test_output="u"
+    )
     assert validation.metadata["mapping"] == {"t": "time", "v_in": "y", "w": "u"}
     np.testing.assert_array_equal(validation.v_in, estimation.w)

@@ -32,8 +32,10 @@ def _augmented(network, dt):
     return m * dt
 
 
-@pytest.mark.parametrize("c_clamp,xi_rho,dt", [(1e-3, 1.0, 1 / 30), (1e-3, 1.0, 10.0), (3e-2, 10.0, 1e-5),
-                                               (1.0, 100.0, 10.0), (3e-2, 100.0, 1 / 30)])
+@pytest.mark.parametrize(
+    "c_clamp,xi_rho,dt",
+    [(1e-3, 1.0, 1 / 30), (1e-3, 1.0, 10.0), (3e-2, 10.0, 1e-5), (1.0, 100.0, 10.0), (3e-2, 100.0, 1 / 30)],
+)
 def test_expm_matches_scipy_on_the_rc_networks_zoh_matrix(c_clamp, xi_rho, dt):
     """The stiff, lower-triangular ZOH matrices of the RC network, ‖AΔt‖₁ from 1e-4 to 2e4: 1e-12 relative."""
     m = _augmented(RCNetwork(xi_rho=xi_rho, C_clamp=c_clamp, alpha_E=0.2, alpha_I=0.8, alpha_C=0.3), dt)
@@ -62,13 +64,15 @@ def test_expm_reverse_mode_matches_finite_differences():
         for j in range(4):
             d = np.zeros((4, 4))
             d[i, j] = h
-            fd[i, j] = (np.sum(scipy.linalg.expm(np.asarray(a) + d) ** 2)
-                        - np.sum(scipy.linalg.expm(np.asarray(a) - d) ** 2)) / (2 * h)
+            fd[i, j] = (
+                np.sum(scipy.linalg.expm(np.asarray(a) + d) ** 2)
+                - np.sum(scipy.linalg.expm(np.asarray(a) - d) ** 2)
+            ) / (2 * h)
     assert np.allclose(np.asarray(g), fd, rtol=1e-6, atol=1e-8)
 
 
 def test_expm_beyond_its_squarings_is_nan_not_garbage():
-    assert np.all(np.isnan(np.asarray(expm(-jnp.eye(3) * 2.0 ** 12, max_squarings=8))))
+    assert np.all(np.isnan(np.asarray(expm(-jnp.eye(3) * 2.0**12, max_squarings=8))))
 
 
 def test_lstsq_matches_numpy_and_is_vmappable():
@@ -123,10 +127,16 @@ def test_no_lapack_call_in_diagnoses_batched_screens_on_two_recordings():
     lowered = {
         "screen_losses": jax.jit(lambda r: screen_losses(problem, sim, r)).lower(raws),
         "loop_screen": jax.jit(lambda r: loop_screen(problem, sim, r, LOOP_RATES)).lower(raws),
-        "mode_screen": jax.jit(lambda r: mode_screen(problem, sim, r, freqs, np.array([0.1, 0.3]))).lower(raws),
-        "vmapped zoh simulation": jax.jit(jax.vmap(lambda raw: eqx.tree_at(
-            lambda s: s.raw, sim, {**sim.raw, "C_clamp": raw}).simulate(recordings[0].v_in, 1 / 30))).lower(
-            jnp.linspace(-3.0, 0.0, 4)),
+        "mode_screen": jax.jit(lambda r: mode_screen(problem, sim, r, freqs, np.array([0.1, 0.3]))).lower(
+            raws
+        ),
+        "vmapped zoh simulation": jax.jit(
+            jax.vmap(
+                lambda raw: eqx.tree_at(lambda s: s.raw, sim, {**sim.raw, "C_clamp": raw}).simulate(
+                    recordings[0].v_in, 1 / 30
+                )
+            )
+        ).lower(jnp.linspace(-3.0, 0.0, 4)),
     }
     found = {name: _lapack_calls(low) for name, low in lowered.items()}
     assert all(not calls for calls in found.values()), found
@@ -135,8 +145,23 @@ def test_no_lapack_call_in_diagnoses_batched_screens_on_two_recordings():
 def test_the_reproducers_loop_safe_variant_completes_in_a_fresh_process(tmp_path):
     """The reproducer's construct with the LAPACK-free expm, in a subprocess with a watchdog."""
     out = tmp_path / "deadlock.json"
-    proc = subprocess.run([sys.executable, "experiments/xla_cpu_deadlock.py", "--variant", "loop_safe_expm",
-                           "--runs", "1", "--timeout", "120", "--out", str(out)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "experiments/xla_cpu_deadlock.py",
+            "--variant",
+            "loop_safe_expm",
+            "--runs",
+            "1",
+            "--timeout",
+            "120",
+            "--out",
+            str(out),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "loop_safe_expm           completed 1/1, hung 0" in proc.stdout

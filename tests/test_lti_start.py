@@ -64,9 +64,30 @@ def test_the_cli_fits_lti_2_at_any_rate(rate, f0, tmp_path, capsys):
     path = tmp_path / "lab.csv"
     path.write_text("u_cmd,y_meas\n" + "".join(f"{a:.9g},{b:.9g}\n" for a, b in zip(u, y)))
     report = tmp_path / "fit.json"
-    code = main([str(a) for a in ["fit", path, "--columns", "input=u_cmd,output=y_meas", "--rate", rate,
-                                  "--physics", "lti:2", "--model", "physics", "--max-steps", "100", "--quiet",
-                                  "--out", tmp_path / "m.eqx", "--json", report]])
+    code = main(
+        [
+            str(a)
+            for a in [
+                "fit",
+                path,
+                "--columns",
+                "input=u_cmd,output=y_meas",
+                "--rate",
+                rate,
+                "--physics",
+                "lti:2",
+                "--model",
+                "physics",
+                "--max-steps",
+                "100",
+                "--quiet",
+                "--out",
+                tmp_path / "m.eqx",
+                "--json",
+                report,
+            ]
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     fitted = json.loads(report.read_text())
     assert fitted["parameters"]["f_1"] == pytest.approx(f0, rel=0.01)

@@ -30,6 +30,7 @@ def _example(spec):
 
 # --- HeldStart ---------------------------------------------------------------------------------
 
+
 def test_held_start_is_the_system_started_in_steady_state_at_the_held_drive():
     inner = LTI(3, tau_1=0.3, f_2=0.4, zeta_2=0.6, lowpass_2=0.5, bandpass_2=0.2, direct=0.1)
     dt, u0 = 0.05, 1.7
@@ -55,15 +56,19 @@ def test_held_start_replace_freeze_and_fit_recover_the_initial_drive():
     w = 3.0 * np.asarray(truth.simulate(v, dt)) + 0.2
     rec = hybrid.Recording(t=np.arange(len(v)) * dt, v_in=v, w=w)
     start = hybrid.make_model("physics", simulation=truth.replace(initial_drive=0.0))
-    result = hybrid.fit(start, rec, frozen={"tau_1", "direct"}, split=(0.8, 0.1, 0.1), progress=False, max_steps=100)
+    result = hybrid.fit(
+        start, rec, frozen={"tau_1", "direct"}, split=(0.8, 0.1, 0.1), progress=False, max_steps=100
+    )
     assert abs(float(result.model.parameters()["initial_drive"]) - 2.5) < 1e-4
     assert float(truth.replace(tau_1=3.0).parameters()["tau_1"]) == pytest.approx(3.0)
     spec = truth.trainable(frozenset({"initial_drive"}))
     assert spec.own["initial_drive"] is False and spec.inner.raw["tau_1"] is True
 
 
-@pytest.mark.parametrize("bad, message", [(0, "positive whole number"), (2.5, "positive whole number"),
-                                          (True, "positive whole number")])
+@pytest.mark.parametrize(
+    "bad, message",
+    [(0, "positive whole number"), (2.5, "positive whole number"), (True, "positive whole number")],
+)
 def test_held_start_refuses_a_bad_settle_length(bad, message):
     with pytest.raises(InputError, match=message):
         HeldStart(LTI(1), bad)
@@ -71,12 +76,15 @@ def test_held_start_refuses_a_bad_settle_length(bad, message):
 
 # --- the tanks' overflow ----------------------------------------------------------------------------
 
+
 def test_overflow_with_rims_out_of_reach_is_the_two_tank_model():
     tanks, _ = _example("two_tank.py:TwoTank")
     overflow, _ = _example("two_tank.py:TwoTankOverflow")
     overflow = overflow.replace(level_max_1=1e4, level_max_2=1e4)
     u = np.repeat([1.0, 6.0, 2.0], 60)
-    np.testing.assert_allclose(np.asarray(overflow.simulate(u, 0.5)), np.asarray(tanks.simulate(u, 0.5)), rtol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(overflow.simulate(u, 0.5)), np.asarray(tanks.simulate(u, 0.5)), rtol=1e-9
+    )
 
 
 @pytest.mark.parametrize("spill", [0.01, 0.99])
@@ -97,6 +105,7 @@ def test_an_overflowing_upper_tank_reaches_the_closed_form_steady_state(spill):
 
 
 # --- the oscillator ----------------------------------------------------------------------------------
+
 
 def test_mass_spring_damper_matches_scipy_lsim_with_a_linearly_interpolated_drive():
     sim, _ = _example("oscillator.py:MassSpringDamper")
@@ -124,8 +133,9 @@ def test_duffing_matches_solve_ivp_and_its_cubic_term_hardens_the_spring():
         force = np.interp(time, t, u) - 0.01
         return [x[1], w * w * (force - x[0] - 4.0 * x[0] ** 3) - 2 * 0.05 * w * x[1]]
 
-    expected = solve_ivp(rate, (0, t[-1]), [0.0, 0.0], t_eval=t, method="DOP853", rtol=1e-11, atol=1e-13,
-                         max_step=1 / fs / 4).y[0]
+    expected = solve_ivp(
+        rate, (0, t[-1]), [0.0, 0.0], t_eval=t, method="DOP853", rtol=1e-11, atol=1e-13, max_step=1 / fs / 4
+    ).y[0]
     got = np.asarray(sim.simulate(u, 1 / fs))
     assert np.max(np.abs(got - expected)) < 2e-4 * np.max(np.abs(expected))  # RK4, 4 steps a sample
     linear = np.asarray(sim.replace(cubic=0.0).simulate(u, 1 / fs))

@@ -74,8 +74,9 @@ def run_while_progressing(command, env, stall_s=STALL_S, poll_s=5.0):
                 proc.kill()
                 proc.wait()
                 err.seek(0)
-                raise AssertionError(f"no CPU progress for {stall_s} s after {last_cpu:.0f} CPU s: hung\n"
-                                     + err.read()[-3000:])
+                raise AssertionError(
+                    f"no CPU progress for {stall_s} s after {last_cpu:.0f} CPU s: hung\n" + err.read()[-3000:]
+                )
         out.seek(0)
         err.seek(0)
         return proc.returncode, out.read(), err.read(), time.monotonic() - start
@@ -85,14 +86,30 @@ def test_cli_diagnose_on_two_recordings_completes(tmp_path):
     strip = SyntheticStrip()
     paths = []
     for seed in (1, 2):
-        recording = synthetic_recording(discrepancy_drive(SECONDS, 30.0, seed=seed), strip, "back_relaxation",
-                                        {"tau_s": 6.0, "fraction": 0.4}, seed=seed)
+        recording = synthetic_recording(
+            discrepancy_drive(SECONDS, 30.0, seed=seed),
+            strip,
+            "back_relaxation",
+            {"tau_s": 6.0, "fraction": 0.4},
+            seed=seed,
+        )
         paths.append(tmp_path / f"strip_{seed}.csv")
         _write_csv(recording, paths[-1])
     env = {**os.environ, "HYBRID_JAX_CACHE": "off", "HYBRID_HEARTBEAT_S": "10", "HYBRID_STALL_S": "180"}
     code, stdout, stderr, seconds = run_while_progressing(
-        [sys.executable, "-m", "hybrid.cli", "diagnose", *map(str, paths), "--out", str(tmp_path / "diag"),
-         "--max-steps", "3"], env)
+        [
+            sys.executable,
+            "-m",
+            "hybrid.cli",
+            "diagnose",
+            *map(str, paths),
+            "--out",
+            str(tmp_path / "diag"),
+            "--max-steps",
+            "3",
+        ],
+        env,
+    )
     assert code == 0, stderr[-3000:]
     assert "cause:" in stdout
     assert (tmp_path / "diag" / "report.json").stat().st_size > 0
@@ -106,7 +123,9 @@ def test_a_process_without_cpu_progress_is_called_hung():
 
     env = dict(os.environ)
     with pytest.raises(AssertionError, match="no CPU progress for 2 s"):
-        run_while_progressing([sys.executable, "-c", "import time; time.sleep(60)"], env, stall_s=2, poll_s=0.5)
+        run_while_progressing(
+            [sys.executable, "-c", "import time; time.sleep(60)"], env, stall_s=2, poll_s=0.5
+        )
     busy = "import time\nend = time.process_time() + 3\nwhile time.process_time() < end: pass\n"
     code, *_ = run_while_progressing([sys.executable, "-c", busy], env, stall_s=2, poll_s=0.5)
     assert code == 0
@@ -134,13 +153,17 @@ def test_heartbeat_names_the_stage():
         stage("fit: LM step 3")
         time.sleep(1.6)
     lines = stream.getvalue().splitlines()
-    assert len(lines) >= 2 and all(line.startswith("hybrid test: still working: fit: LM step 3 (") for line in lines)
+    assert len(lines) >= 2 and all(
+        line.startswith("hybrid test: still working: fit: LM step 3 (") for line in lines
+    )
 
 
 def test_a_stalled_process_exits_with_status_3_and_one_line():
-    code = ("import time\nfrom hybrid.util._watchdog import Watchdog, stage\n"
-            "with Watchdog('hybrid diagnose', heartbeat=0, stall=1.0):\n"
-            "    stage('diagnose: screening')\n    time.sleep(3600)\n")
+    code = (
+        "import time\nfrom hybrid.util._watchdog import Watchdog, stage\n"
+        "with Watchdog('hybrid diagnose', heartbeat=0, stall=1.0):\n"
+        "    stage('diagnose: screening')\n    time.sleep(3600)\n"
+    )
     # Ended by its watchdog (status 3), not by the sleep's end; a broken watchdog leaves the
     # process sleeping without CPU work, which `run_while_progressing` reports as hung.
     code, _, stderr, _ = run_while_progressing([sys.executable, "-c", code], dict(os.environ), stall_s=120)

@@ -34,7 +34,9 @@ def test_the_quantisation_step_is_the_grid_the_values_were_rounded_to():
     assert quantisation_step(np.round(x, 3)) == pytest.approx(1e-3, rel=1e-6)
     assert quantisation_step(np.round(x * 4096) / 4096) == pytest.approx(1 / 4096, rel=1e-6)  # a 12-bit ADC
     assert quantisation_step(np.round(x * 1000)) == 1.0  # counts
-    assert quantisation_step(0.001 * np.array([0, 2, 5, 7, 9])) == pytest.approx(1e-3)  # no two values 1 step apart
+    assert quantisation_step(0.001 * np.array([0, 2, 5, 7, 9])) == pytest.approx(
+        1e-3
+    )  # no two values 1 step apart
     assert math.isnan(quantisation_step(x))  # continuous values are on no grid
     assert math.isnan(quantisation_step(np.ones(10)))
 
@@ -55,8 +57,11 @@ def test_smoothed_oversampled_data_warn_and_say_what_the_floor_read():
     # a model as close as the true noise allows (5 µm RMS) is far above this floor: the caveat says so
     caveat = floor_caveat(sigma**2, floor)
     assert caveat is not None and f"{sigma / floor.std:.3g}× the floor's σ" in caveat
-    report = "\n".join(noise_section({"noise_floor": floor.to_dict(), "settings": {"unexplained_ratio": 2.0},
-                                      "unexplained": None}))
+    report = "\n".join(
+        noise_section(
+            {"noise_floor": floor.to_dict(), "settings": {"unexplained_ratio": 2.0}, "unexplained": None}
+        )
+    )
     assert "Estimated from " + floor.source in report and "**Warning:** the floor σ" in report
 
 
@@ -72,6 +77,9 @@ def test_ordinary_data_give_no_warning(seed):
     assert floor.method in floor.source or "differences" in floor.source or "spectrum" in floor.source
     for ratio in (1.0, 3.0, 0.9 * FAR_ABOVE_FLOOR):  # a model at, near or well above the floor
         assert floor_caveat(ratio * floor.variance, floor) is None
-    report = "\n".join(noise_section({"noise_floor": floor.to_dict(), "settings": {"unexplained_ratio": 2.0},
-                                      "unexplained": None}))
+    report = "\n".join(
+        noise_section(
+            {"noise_floor": floor.to_dict(), "settings": {"unexplained_ratio": 2.0}, "unexplained": None}
+        )
+    )
     assert "Warning" not in report and "Estimated from " in report

@@ -60,7 +60,9 @@ def test_the_report_leads_with_one_sentence_and_carries_the_open_world_fields(tm
     paths = write_report(found, tmp_path / "report")
     data = json.loads(paths["report.json"].read_text())
     assert data["causes"] == [] and data["cause"] == "none"
-    assert data["unexplained"]["fraction_above_floor"] == pytest.approx(found.unexplained["fraction_above_floor"])
+    assert data["unexplained"]["fraction_above_floor"] == pytest.approx(
+        found.unexplained["fraction_above_floor"]
+    )
     assert data["noise_floor"]["variance"] == pytest.approx(found.noise_floor.variance)
     markdown = paths["report.md"].read_text().splitlines()
     assert markdown[2] == f"**{found.verdict}**"  # after the title and a blank line

@@ -31,5 +31,3 @@ def test_both_effects_of_a_pair_are_named(spec, seed):
     var_w = np.var(found.heldout["w"])
     assert found.extended.heldout["nmse"] * var_w <= 2.5 * true_noise_variance(recording)
     assert found.baseline.heldout["nmse"] * var_w >= 10 * true_noise_variance(recording)
-
-

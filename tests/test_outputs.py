@@ -47,8 +47,9 @@ def leftovers(folder: Path) -> list:
 def recording_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("outputs") / "source" / "rec.csv"
     path.parent.mkdir()
-    Recording.from_arrays(v_in=np.sin(np.arange(300) / 9.0), w=np.cos(np.arange(300) / 7.0), rate=30.0,
-                          name="rec").save(path)
+    Recording.from_arrays(
+        v_in=np.sin(np.arange(300) / 9.0), w=np.cos(np.arange(300) / 7.0), rate=30.0, name="rec"
+    ).save(path)
     return path
 
 
@@ -89,14 +90,17 @@ def refuse_to_compute(monkeypatch):
 # --------------------------------------------------------------------------- 1. never write over an input
 
 
-@pytest.mark.parametrize("argv, phrase", [
-    (["fit", "REC", "--out", "REC"], "is the input"),
-    (["fit", "REC", "--out", "x.eqx", "--json", "REC.json"], "sidecar of the input"),
-    (["fit", "REC", "--out", "REC.eqx", "--json", "REC.eqx.json"], "both write"),
-    (["rc", "REC", "--out", "REC"], "is the input"),
-    (["rc", "REC", "--out", "./sub/../REC"], "is the input"),
-    (["rc", "REC", "--out", "REC.json"], "sidecar of the input"),
-])
+@pytest.mark.parametrize(
+    "argv, phrase",
+    [
+        (["fit", "REC", "--out", "REC"], "is the input"),
+        (["fit", "REC", "--out", "x.eqx", "--json", "REC.json"], "sidecar of the input"),
+        (["fit", "REC", "--out", "REC.eqx", "--json", "REC.eqx.json"], "both write"),
+        (["rc", "REC", "--out", "REC"], "is the input"),
+        (["rc", "REC", "--out", "./sub/../REC"], "is the input"),
+        (["rc", "REC", "--out", "REC.json"], "sidecar of the input"),
+    ],
+)
 def test_an_output_never_overwrites_an_input(argv, phrase, rec, capsys, monkeypatch):
     refuse_to_compute(monkeypatch)
     (rec.parent / "sub").mkdir()
@@ -229,25 +233,30 @@ def test_table2_and_sensitivity_write_through_the_atomic_helper():
 
     for module in (_table2, _sensitivity_study, _figures):
         source = inspect.getsource(module)
-        assert ".write_text(" not in source and "savefig(out_dir" not in source and "savefig(path" not in source
+        assert (
+            ".write_text(" not in source and "savefig(out_dir" not in source and "savefig(path" not in source
+        )
 
 
 # --------------------------------------------------------------------------- 3. outputs checked before computing
 
 
-@pytest.mark.parametrize("argv, phrase", [
-    (["fit", "REC", "--out", "out/strip1"], "suffix"),
-    (["fit", "REC", "--out", "folder"], "is a folder"),
-    (["fit", "REC", "--out", "afile/strip.eqx"], "is a file, not a folder"),
-    (["fit", "REC", "--json", "report.txt"], "suffix"),
-    (["rc", "REC", "--out", "vo.txt"], "suffix"),
-    (["rc", "REC", "--out", "folder"], "is a folder"),
-    (["simulate", "--drive", "sine", "--duration", "5", "--out", "rec.xlsx"], "suffix"),
-    (["diagnose", "REC", "--out", "afile"], "is a file, not a folder"),
-    (["diagnose", "REC", "--out", "afile/diag"], "is a file, not a folder"),
-    (["sensitivity", "--out", "afile"], "is a file, not a folder"),
-    (["table2", "--out-dir", "afile"], "is a file, not a folder"),
-])
+@pytest.mark.parametrize(
+    "argv, phrase",
+    [
+        (["fit", "REC", "--out", "out/strip1"], "suffix"),
+        (["fit", "REC", "--out", "folder"], "is a folder"),
+        (["fit", "REC", "--out", "afile/strip.eqx"], "is a file, not a folder"),
+        (["fit", "REC", "--json", "report.txt"], "suffix"),
+        (["rc", "REC", "--out", "vo.txt"], "suffix"),
+        (["rc", "REC", "--out", "folder"], "is a folder"),
+        (["simulate", "--drive", "sine", "--duration", "5", "--out", "rec.xlsx"], "suffix"),
+        (["diagnose", "REC", "--out", "afile"], "is a file, not a folder"),
+        (["diagnose", "REC", "--out", "afile/diag"], "is a file, not a folder"),
+        (["sensitivity", "--out", "afile"], "is a file, not a folder"),
+        (["table2", "--out-dir", "afile"], "is a file, not a folder"),
+    ],
+)
 def test_bad_output_paths_are_refused_before_any_work(argv, phrase, rec, capsys, monkeypatch):
     refuse_to_compute(monkeypatch)
     (rec.parent / "folder").mkdir()
@@ -320,12 +329,15 @@ def test_the_lock_is_released_when_the_command_fails(rec, capsys, monkeypatch):
 # --------------------------------------------------------------------------- 5. rc reads drives like fit
 
 
-@pytest.mark.parametrize("name, text", [
-    ("comment.csv", "# a comment\nt,v_in,w\n0,1,2\n0.1,x,2\n0.2,1,2\n"),
-    ("bom.csv", "\ufefft,v_in,w\n0,1,2\n0.1,1,2\n0.2,oops,2\n"),
-    ("folder.csv", None),
-    ("gap.csv", "t,v_in,w\n0,1,2\n0.1,1,2\n0.5,1,2\n"),
-])
+@pytest.mark.parametrize(
+    "name, text",
+    [
+        ("comment.csv", "# a comment\nt,v_in,w\n0,1,2\n0.1,x,2\n0.2,1,2\n"),
+        ("bom.csv", "\ufefft,v_in,w\n0,1,2\n0.1,1,2\n0.2,oops,2\n"),
+        ("folder.csv", None),
+        ("gap.csv", "t,v_in,w\n0,1,2\n0.1,1,2\n0.5,1,2\n"),
+    ],
+)
 def test_rc_and_fit_give_the_same_message_for_a_bad_file(name, text, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     path = tmp_path / name
@@ -343,8 +355,10 @@ def test_rc_reads_a_bom_drive_without_w(tmp_path, capsys, monkeypatch):
     fast_network(monkeypatch)
     drive = tmp_path / "drive.csv"
     t = np.arange(300) / 30.0
-    drive.write_text("\ufeff# from Excel\nt,v_in\n" + "".join(f"{a:.17g},{b:.17g}\n" for a, b in zip(t, np.sin(t))),
-                     encoding="utf-8")
+    drive.write_text(
+        "\ufeff# from Excel\nt,v_in\n" + "".join(f"{a:.17g},{b:.17g}\n" for a, b in zip(t, np.sin(t))),
+        encoding="utf-8",
+    )
     code, _, err = run(["rc", drive, "--stages", "3", "--out", tmp_path / "vo.csv"], capsys)
     assert code == 0, err
     data = np.genfromtxt(tmp_path / "vo.csv", delimiter=",", names=True)
@@ -369,31 +383,49 @@ def test_recording_load_without_w(tmp_path):
 # --------------------------------------------------------------------------- 6. bounded sizes
 
 
-@pytest.mark.parametrize("argv, phrase", [
-    (["rc", "REC", "--stages", "100000", "--out", "y.csv"], "from 1 to 1000"),
-    (["rc", "REC", "--stages", "0", "--out", "y.csv"], "from 1 to 1000"),
-    (["simulate", "--drive", "prbs", "--duration", "10", "--rate", "1e9", "--out", "x.csv"], "at most 100000 Hz"),
-    (["simulate", "--drive", "prbs", "--duration", "10", "--rate", "0", "--out", "x.csv"], "at least 0.1 Hz"),
-    (["simulate", "--drive", "prbs", "--duration", "inf", "--out", "x.csv"], "finite"),
-    (["simulate", "--drive", "prbs", "--duration", "0", "--out", "x.csv"], "more than 0 s"),
-    (["simulate", "--drive", "prbs", "--duration", "1e6", "--rate", "100", "--out", "x.csv"], "limit of 1e+07"),
-    (["fit", "REC", "--starts", "0"], "--starts: must be from 1"),
-    (["fit", "REC", "--starts", "1e9"], "--starts: expected a whole number"),
-    (["fit", "REC", "--max-steps", "-3"], "--max-steps: must be from 1"),
-    (["fit", "REC", "--window", "0"], "--window: must be from 1"),
-    (["fit", "REC", "--depth", "100000"], "--depth: must be from 0 to 50"),
-    (["fit", "REC", "--width", "0"], "--width: must be from 1 to 1000"),
-    (["table2", "--duration", "-5"], "--duration: must be finite"),
-    (["table2", "--duration", "1e6"], "limit of 1e+07"),
-    (["table2", "--starts", "0"], "--starts"),
-    (["sensitivity", "--out", "s", "--sobol", "1000000000"], "--sobol: must be from 0 to 100000"),
-    (["sensitivity", "--out", "s", "--stages", "5000"], "--stages: must be from 1 to 1000"),
-    (["sensitivity", "--out", "s", "--rate", "1e9"], "--rate"),
-    (["sensitivity", "--out", "s", "--duration", "nan"], "--duration: must be finite"),
-    (["diagnose", "REC", "--out", "d", "--blocks", "100000"], "--blocks: must be at most 10000"),
-    (["diagnose", "REC", "--out", "d", "--max-steps", "1e9"], "--max-steps: expected a whole number at most"),
-    (["diagnose", "REC", "--out", "d", "--max-steps", "10000000"], "--max-steps: must be at most 1000000"),
-])
+@pytest.mark.parametrize(
+    "argv, phrase",
+    [
+        (["rc", "REC", "--stages", "100000", "--out", "y.csv"], "from 1 to 1000"),
+        (["rc", "REC", "--stages", "0", "--out", "y.csv"], "from 1 to 1000"),
+        (
+            ["simulate", "--drive", "prbs", "--duration", "10", "--rate", "1e9", "--out", "x.csv"],
+            "at most 100000 Hz",
+        ),
+        (
+            ["simulate", "--drive", "prbs", "--duration", "10", "--rate", "0", "--out", "x.csv"],
+            "at least 0.1 Hz",
+        ),
+        (["simulate", "--drive", "prbs", "--duration", "inf", "--out", "x.csv"], "finite"),
+        (["simulate", "--drive", "prbs", "--duration", "0", "--out", "x.csv"], "more than 0 s"),
+        (
+            ["simulate", "--drive", "prbs", "--duration", "1e6", "--rate", "100", "--out", "x.csv"],
+            "limit of 1e+07",
+        ),
+        (["fit", "REC", "--starts", "0"], "--starts: must be from 1"),
+        (["fit", "REC", "--starts", "1e9"], "--starts: expected a whole number"),
+        (["fit", "REC", "--max-steps", "-3"], "--max-steps: must be from 1"),
+        (["fit", "REC", "--window", "0"], "--window: must be from 1"),
+        (["fit", "REC", "--depth", "100000"], "--depth: must be from 0 to 50"),
+        (["fit", "REC", "--width", "0"], "--width: must be from 1 to 1000"),
+        (["table2", "--duration", "-5"], "--duration: must be finite"),
+        (["table2", "--duration", "1e6"], "limit of 1e+07"),
+        (["table2", "--starts", "0"], "--starts"),
+        (["sensitivity", "--out", "s", "--sobol", "1000000000"], "--sobol: must be from 0 to 100000"),
+        (["sensitivity", "--out", "s", "--stages", "5000"], "--stages: must be from 1 to 1000"),
+        (["sensitivity", "--out", "s", "--rate", "1e9"], "--rate"),
+        (["sensitivity", "--out", "s", "--duration", "nan"], "--duration: must be finite"),
+        (["diagnose", "REC", "--out", "d", "--blocks", "100000"], "--blocks: must be at most 10000"),
+        (
+            ["diagnose", "REC", "--out", "d", "--max-steps", "1e9"],
+            "--max-steps: expected a whole number at most",
+        ),
+        (
+            ["diagnose", "REC", "--out", "d", "--max-steps", "10000000"],
+            "--max-steps: must be at most 1000000",
+        ),
+    ],
+)
 def test_size_arguments_are_bounded(argv, phrase, rec, capsys, monkeypatch):
     refuse_to_compute(monkeypatch)
     code, _, err = run([rec if a == "REC" else a for a in argv], capsys)

@@ -40,7 +40,9 @@ class Lag(AbstractSimulation):
     def simulate(self, v_in, dt):
         p = self.parameters()
         a = jnp.exp(-dt / p["tau_s"])
-        return lax.scan(lambda y, u: (a * y + (1 - a) * p["k"] * (u + p["bias"]),) * 2, 0.0, jnp.asarray(v_in))[1]
+        return lax.scan(
+            lambda y, u: (a * y + (1 - a) * p["k"] * (u + p["bias"]),) * 2, 0.0, jnp.asarray(v_in)
+        )[1]
 
 
 def test_the_start_design_spreads_over_the_simulations_own_ranges():
@@ -83,7 +85,9 @@ def test_fit_warns_against_the_simulations_own_plausible_ranges():
     true = Lag(tau_s=5000.0, k=1.0)  # outside Lag's plausible tau (1 ms to 1000 s)
     w = np.asarray(true.simulate(v, 1 / rate)) * 2.0
     rec = hybrid.Recording.from_arrays(v_in=v, w=w, rate=rate)
-    result = hybrid.fit(make_any_model("physics", simulation=Lag(tau_s=2.0)), rec, frozen={"bias"}, progress=False)
+    result = hybrid.fit(
+        make_any_model("physics", simulation=Lag(tau_s=2.0)), rec, frozen={"bias"}, progress=False
+    )
     assert any("tau_s" in warning and "plausible range" in warning for warning in result.warnings)
 
 
@@ -92,6 +96,8 @@ def test_generic_functions_need_a_simulation_and_the_front_supplies_the_papers()
         make_any_model("physics")
     assert make_any_model("normal").kind == "normal"  # the Normal model has no physics
     assert isinstance(hybrid.make_model("physics").simulation, RCNetwork)
-    rec = hybrid.Recording.from_arrays(v_in=np.sin(np.arange(600) / 7.0), w=np.cos(np.arange(600) / 7.0), rate=30.0)
+    rec = hybrid.Recording.from_arrays(
+        v_in=np.sin(np.arange(600) / 7.0), w=np.cos(np.arange(600) / 7.0), rate=30.0
+    )
     with pytest.raises(InputError, match="needs a simulation"):
         diagnose_any(rec)

@@ -157,15 +157,29 @@ def files(tmp_path_factory):
     v = np.sign(np.sin(2 * np.pi * 0.3 * t)) + 0.1 * np.sin(7 * t)
     w = np.convolve(v, np.exp(-np.arange(30) / 8.0), mode="full")[:200] / 8.0
     recording = folder / "rec.csv"
-    np.savetxt(recording, np.column_stack([t, v, w]), delimiter=",", header="t,v_in,w", comments="", fmt="%.9g")
+    np.savetxt(
+        recording, np.column_stack([t, v, w]), delimiter=",", header="t,v_in,w", comments="", fmt="%.9g"
+    )
     (folder / "module_quits.py").write_text(textwrap.dedent(PLUGIN) + "\nsys.exit(0)\n")
     return folder, plugin, recording
 
 
 def _fit(files, name, *extra):
     folder, plugin, recording = files
-    return ["fit", str(recording), "--model", "physics", "--physics", f"{plugin}:{name}", "--quiet",
-            "--max-steps", "2", "--out", str(folder / f"{name}.eqx"), *extra]
+    return [
+        "fit",
+        str(recording),
+        "--model",
+        "physics",
+        "--physics",
+        f"{plugin}:{name}",
+        "--quiet",
+        "--max-steps",
+        "2",
+        "--out",
+        str(folder / f"{name}.eqx"),
+        *extra,
+    ]
 
 
 def _one_line(code, err, spec, *words):
@@ -189,8 +203,19 @@ def test_every_plugin_fault_is_one_line_through_fit(files, capsys):
 def test_run_time_faults_in_diagnose_and_sensitivity_name_the_plugin(files, capsys):
     folder, plugin, recording = files
     spec = f"{plugin}:LateRaise"
-    code = main(["diagnose", str(recording), "--physics", spec, "--out", str(folder / "diag"), "--quiet",
-                 "--max-steps", "2"])
+    code = main(
+        [
+            "diagnose",
+            str(recording),
+            "--physics",
+            spec,
+            "--out",
+            str(folder / "diag"),
+            "--quiet",
+            "--max-steps",
+            "2",
+        ]
+    )
     _one_line(code, capsys.readouterr().err, spec, "Late.simulate raised ValueError")
     spec = f"{plugin}:Quits"
     code = main(["sensitivity", str(recording), "--physics", spec, "--out", str(folder / "sens")])
@@ -202,12 +227,17 @@ def test_a_module_that_exits_on_import_and_verbose_traceback(files, capsys, monk
     folder, plugin, _ = files
     monkeypatch.syspath_prepend(str(folder))
     code = main(_fit(files, "Good")[:4] + ["--physics", "module_quits:Good", "--quiet"])
-    _one_line(code, capsys.readouterr().err, "module_quits:Good", "importing module module_quits called sys.exit(0)")
+    _one_line(
+        code, capsys.readouterr().err, "module_quits:Good", "importing module module_quits called sys.exit(0)"
+    )
     sys.modules.pop("module_quits", None)
     code = main(["-v", *_fit(files, "Raises")])
     err = capsys.readouterr().err
     assert code == 2 and err.startswith(f"hybrid: error: --physics {plugin}:Raises: Raises.simulate raised")
-    assert "Traceback (most recent call last)" in err and 'raise RuntimeError("the valve table is missing")' in err
+    assert (
+        "Traceback (most recent call last)" in err
+        and 'raise RuntimeError("the valve table is missing")' in err
+    )
 
 
 def test_a_real_ctrl_c_inside_a_plugin_is_still_an_interrupt(files, capsys):
@@ -220,14 +250,23 @@ def test_a_real_ctrl_c_inside_a_plugin_is_still_an_interrupt(files, capsys):
     assert capsys.readouterr().err.strip() == "hybrid: interrupted"
 
 
-@pytest.mark.parametrize("name, words", [
-    ("LateExit", "Late.simulate called sys.exit(0)"),   # at run time, inside jit: was a silent exit 0
-    ("LateHard", "Late.simulate called os._exit(3)"),    # 3 is the watchdog's stall status: never forged
-])
+@pytest.mark.parametrize(
+    "name, words",
+    [
+        ("LateExit", "Late.simulate called sys.exit(0)"),  # at run time, inside jit: was a silent exit 0
+        ("LateHard", "Late.simulate called os._exit(3)"),  # 3 is the watchdog's stall status: never forged
+    ],
+)
 def test_process_ending_faults_in_a_real_process(files, name, words):
     folder, plugin, _ = files
     env = {**os.environ, "HYBRID_JAX_CACHE": "off"}
-    proc = subprocess.run([sys.executable, "-m", "hybrid.cli", *_fit(files, name)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-m", "hybrid.cli", *_fit(files, name)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     _one_line(proc.returncode, proc.stderr, f"{plugin}:{name}", words)
     assert not list(folder.glob(f"{name}.eqx*"))

@@ -44,7 +44,9 @@ def test_lti_matches_scipys_zoh_discretisation(order):
     sim = _random(order, seed=order)
     A, B, C, D = (np.asarray(x) for x in sim.state_space())
     u = np.random.default_rng(10 + order).standard_normal(700)
-    ad, bd, cd, dd, _ = scipy.signal.cont2discrete((A, B[:, None], C[None, :], np.array([[float(D)]])), DT, "zoh")
+    ad, bd, cd, dd, _ = scipy.signal.cont2discrete(
+        (A, B[:, None], C[None, :], np.array([[float(D)]])), DT, "zoh"
+    )
     _, expected, _ = scipy.signal.dlsim((ad, bd, cd, dd, DT), u)
     expected = expected[:, 0]
     got = np.asarray(eqx.filter_jit(lambda s, v: s.simulate(v, DT))(sim, jnp.asarray(u)))
@@ -62,7 +64,9 @@ def test_lti_is_stable_for_any_raw_values():
     assert np.all(radius < 1.0)
     # and the same under vmap over systems for a drive: finite and bounded
     u = jnp.asarray(np.sign(np.sin(np.arange(300) / 9.0)))
-    y = jax.jit(jax.vmap(lambda raw: _with_raw(sim, raw).simulate(u, DT)))(jax.tree.map(lambda x: x[:8], raws))
+    y = jax.jit(jax.vmap(lambda raw: _with_raw(sim, raw).simulate(u, DT)))(
+        jax.tree.map(lambda x: x[:8], raws)
+    )
     assert np.all(np.isfinite(np.asarray(y)))
 
 
@@ -86,7 +90,9 @@ def test_lti_gradient_matches_central_differences():
 def test_lti_parameters_are_its_own_and_survive_save_and_load(tmp_path):
     sim = LTI(3, tau_1=0.2, f_2=4.0, zeta_2=1.5, lowpass_2=-0.5)
     assert sim.parameter_names() == ("tau_1", "f_2", "zeta_2", "lowpass_2", "bandpass_2", "direct")
-    assert set(sim.parameter_units()) == set(sim.typical_ranges()) == set(sim.plausible_ranges()) == set(sim.raw)
+    assert (
+        set(sim.parameter_units()) == set(sim.typical_ranges()) == set(sim.plausible_ranges()) == set(sim.raw)
+    )
     assert sim.parameter_units()["f_2"] == "Hz" and sim.linear_in_drive
     assert float(sim.replace(zeta_2=0.3).parameters()["zeta_2"]) == pytest.approx(0.3)
     with pytest.raises(InputError, match="lowpass_1"):
@@ -96,7 +102,9 @@ def test_lti_parameters_are_its_own_and_survive_save_and_load(tmp_path):
     model = hybrid.Model(sim, hybrid.LinearReadout(gain=2.0, offset=0.1), "physics")
     loaded = hybrid.load_model(hybrid.save_model(tmp_path / "lti.eqx", model))
     assert isinstance(loaded.simulation, LTI) and loaded.simulation.order == 3
-    assert {k: float(v) for k, v in loaded.parameters().items()} == {k: float(v) for k, v in model.parameters().items()}
+    assert {k: float(v) for k, v in loaded.parameters().items()} == {
+        k: float(v) for k, v in model.parameters().items()
+    }
 
 
 # --- resolve_physics -------------------------------------------------------------------------
@@ -171,7 +179,9 @@ def _one_error(spec, *words):
         resolve_physics(spec)
     message = str(caught.value)
     error = caught.value
-    assert error.__cause__ is None and (error.__context__ is None or error.__suppress_context__)  # one, no chain
+    assert error.__cause__ is None and (
+        error.__context__ is None or error.__suppress_context__
+    )  # one, no chain
     assert message.startswith(f"--physics {spec}")
     for word in words:
         assert word in message, message
@@ -216,7 +226,13 @@ def _valve_recording():
     for value in u:
         out.append(y)
         target = np.sqrt(value + TRUE["bias"])
-        y = solve_ivp(lambda t, x, target=target: (target - x) / TRUE["tau"], (0.0, 1.0 / rate), [y], rtol=1e-11, atol=1e-12).y[0, -1]
+        y = solve_ivp(
+            lambda t, x, target=target: (target - x) / TRUE["tau"],
+            (0.0, 1.0 / rate),
+            [y],
+            rtol=1e-11,
+            atol=1e-12,
+        ).y[0, -1]
     return hybrid.Recording.from_arrays(v_in=u, w=GAIN * np.array(out) + OFFSET, rate=rate)
 
 
@@ -243,7 +259,9 @@ def test_a_fitted_plugin_model_saves_and_loads(fitted_plugin, tmp_path):
     loaded = hybrid.load_model(saved)
     assert type(loaded.simulation) is type(result.model.simulation)
     v = np.linspace(0.0, 2.0, 50)
-    np.testing.assert_array_equal(np.asarray(loaded.predict(v, 0.1)), np.asarray(result.model.predict(v, 0.1)))
+    np.testing.assert_array_equal(
+        np.asarray(loaded.predict(v, 0.1)), np.asarray(result.model.predict(v, 0.1))
+    )
 
 
 # --- the worked example ----------------------------------------------------------------------
@@ -266,7 +284,10 @@ def test_the_two_tank_example_matches_solve_ivp_and_differentiates_from_empty_ta
         q = p["pump_flow"] * value
 
         def rate(t, x, q=q):
-            return [(q - c1 * outflow(x[0])) / p["area_1"], (c1 * outflow(x[0]) - c2 * outflow(x[1])) / p["area_2"]]
+            return [
+                (q - c1 * outflow(x[0])) / p["area_1"],
+                (c1 * outflow(x[0]) - c2 * outflow(x[1])) / p["area_2"],
+            ]
 
         h = solve_ivp(rate, (0.0, dt), h, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
     got = np.asarray(sim.simulate(u, dt))

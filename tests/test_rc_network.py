@@ -219,8 +219,9 @@ def _loss_of_raw(net, v, dt):
 
 @pytest.mark.parametrize("method", ["tustin", "zoh"])
 def test_gradient_matches_central_finite_differences(method):
-    net = RCNetwork(xi_rho=6.0, xi_h=1.5, alpha_E=0.3, alpha_I=0.6, alpha_C=0.45,
-                    C_clamp=0.03, n_stages=12, method=method)
+    net = RCNetwork(
+        xi_rho=6.0, xi_h=1.5, alpha_E=0.3, alpha_I=0.6, alpha_C=0.45, C_clamp=0.03, n_stages=12, method=method
+    )
     v = jnp.asarray(h.step_drive(300, seed=5))
     loss = _loss_of_raw(net, v, 1 / 30)
     raw = net.raw

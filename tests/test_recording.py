@@ -16,7 +16,12 @@ def _recording(n=100, rate=30.0, extra=True, **metadata):
     rng = np.random.default_rng(0)
     t = np.arange(n) / rate
     channels = {"current": rng.normal(size=n), "temp_C": 20 + rng.random(n)} if extra else {}
-    metadata = {"source": "synthetic", "strip": {"length_mm": 30.0, "width_mm": 5.0}, "note": [1, "a"], **metadata}
+    metadata = {
+        "source": "synthetic",
+        "strip": {"length_mm": 30.0, "width_mm": 5.0},
+        "note": [1, "a"],
+        **metadata,
+    }
     return Recording(t, 2 * np.sin(t), rng.normal(size=n) / 3, channels, metadata)
 
 
@@ -95,7 +100,9 @@ def test_csv_layout_and_sidecar(tmp_path):
 
 
 def test_csv_comments_blank_lines_and_no_sidecar(tmp_path):
-    path = _write(tmp_path / "hand.csv", "# camera run 3\nt, v_in, w, i\n\n0,1,2,3\n# pause\n0.5,1,2,3\n1.0,1,2.5,3\n")
+    path = _write(
+        tmp_path / "hand.csv", "# camera run 3\nt, v_in, w, i\n\n0,1,2,3\n# pause\n0.5,1,2,3\n1.0,1,2.5,3\n"
+    )
     rec = Recording.load(path)
     np.testing.assert_array_equal(rec.w, [2.0, 2.0, 2.5])
     assert list(rec.extra) == ["i"]
@@ -107,7 +114,9 @@ def test_npz_and_mat_from_other_tools(tmp_path):
     np.savez(tmp_path / "other.npz", t=np.arange(4.0), v_in=np.ones(4), w=np.zeros(4), current=np.arange(4.0))
     rec = Recording.load(tmp_path / "other.npz")
     assert list(rec.extra) == ["current"]
-    scipy.io.savemat(tmp_path / "other.mat", {"t": np.arange(4.0)[None], "v_in": np.ones(4), "w": np.zeros(4)})
+    scipy.io.savemat(
+        tmp_path / "other.mat", {"t": np.arange(4.0)[None], "v_in": np.ones(4), "w": np.zeros(4)}
+    )
     assert Recording.load(tmp_path / "other.mat").n == 4
 
 
@@ -244,7 +253,10 @@ def test_time_not_uniform():
     with pytest.raises(InputError, match=r"gap in time at row 12 \(t = 0.433333 s\)"):
         Recording(t, np.zeros(20), np.zeros(20))
     t = np.concatenate([np.arange(10) / 30.0, 9 / 30.0 + np.arange(1, 11) / 25.0])  # 30, then 25 fps
-    with pytest.raises(InputError, match=r"non-uniform time: row 9 \(t = 0.3 s\) is 0.45 of a step off the closest uniform grid"):
+    with pytest.raises(
+        InputError,
+        match=r"non-uniform time: row 9 \(t = 0.3 s\) is 0.45 of a step off the closest uniform grid",
+    ):
         Recording(t, np.zeros(20), np.zeros(20))
 
 

@@ -51,7 +51,9 @@ def _cli_error(argv, capsys):
 def test_constant_drive_is_refused_with_its_likely_cause(level):
     _, w = _signals(300)
     rec = Recording.from_arrays(v_in=np.full(300, level), w=w, rate=RATE, name="run")
-    with pytest.raises(InputError, match="the drive column v_in is constant .*right column, or was the drive off"):
+    with pytest.raises(
+        InputError, match="the drive column v_in is constant .*right column, or was the drive off"
+    ):
         rec.check_signals()
     # and fit refuses it before any fitting, instead of printing its start values as fitted
     with pytest.raises(InputError, match="v_in is constant"):
@@ -93,7 +95,9 @@ def test_cli_fit_refuses_a_constant_drive_in_one_line(tmp_path, capsys):
 def test_t_in_milliseconds_is_refused():
     v, w = _signals(300)
     t_ms = np.arange(300) * 1000.0 / RATE  # a 30 fps log written in ms: steps of 33.3
-    with pytest.raises(InputError, match=r"t stepping by 33.33: t looks like milliseconds \(30 Hz if so.*t/1000"):
+    with pytest.raises(
+        InputError, match=r"t stepping by 33.33: t looks like milliseconds \(30 Hz if so.*t/1000"
+    ):
         Recording(t_ms, v, w)
 
 
@@ -162,7 +166,10 @@ def test_jitter_limit_and_gaps():
     with pytest.raises(InputError, match=r"non-uniform time: row 100 \(t = 3.34333 s\) is 0.3 of a step off"):
         Recording(t_bad, v, w)
     t_rate = np.concatenate([t[:300], t[299] + np.arange(1, 301) / 27.0])  # 30 fps, then 27 fps
-    with pytest.raises(InputError, match=r"non-uniform time: row 299 \(t = 9.96667 s\) is 7.9 of a step off.*did the frame rate change"):
+    with pytest.raises(
+        InputError,
+        match=r"non-uniform time: row 299 \(t = 9.96667 s\) is 7.9 of a step off.*did the frame rate change",
+    ):
         Recording(t_rate, v, w)
     t_double = np.insert(t, 400, t[399] + 0.2 / RATE)  # an extra row 0.2 frame after row 399
     with pytest.raises(InputError, match="non-uniform time: the step into row 400 is 0.00666667 s"):
@@ -196,8 +203,14 @@ def test_cli_warns_when_it_rebuilds_the_time_base(tmp_path, capsys):
 @pytest.mark.parametrize("delimiter, word", [(";", "';'"), ("\t", "tabs"), (" ", "spaces")])
 def test_other_delimiters_are_named(tmp_path, delimiter, word):
     v, w = _signals(20)
-    path = _write_csv(tmp_path / "x.csv", np.arange(20) / RATE, v, w, delimiter=delimiter,
-                      decimal="," if delimiter == ";" else ".")
+    path = _write_csv(
+        tmp_path / "x.csv",
+        np.arange(20) / RATE,
+        v,
+        w,
+        delimiter=delimiter,
+        decimal="," if delimiter == ";" else ".",
+    )
     with pytest.raises(InputError, match=f"uses {word} as its delimiter.*comma-separated with '.' decimals"):
         Recording.load(path)
 
@@ -210,7 +223,9 @@ def test_decimal_commas_in_a_comma_file_are_named(tmp_path):
 
 
 def test_matlab_v73_file_says_save_v7(tmp_path):
-    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+    header = (
+        b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+    )
     data = header.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM"
     data = data.ljust(512, b"\x00") + b"\x89HDF\r\n\x1a\n" + b"\x00" * 200
     path = tmp_path / "run.mat"

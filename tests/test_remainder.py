@@ -78,10 +78,14 @@ def test_odd_cubic_map_of_the_drive():
     assert d["static"]["output_monotone"]["fraction"] > 0.7
 
 
-@pytest.mark.parametrize("remainder", [
-    lambda v, t: lowpass(v) - v,                       # a lag the model lacks
-    lambda v, t: np.r_[np.zeros(3), v[:-3]] - v,       # a 3-sample delay the model lacks
-], ids=["lowpass", "delay"])
+@pytest.mark.parametrize(
+    "remainder",
+    [
+        lambda v, t: lowpass(v) - v,  # a lag the model lacks
+        lambda v, t: np.r_[np.zeros(3), v[:-3]] - v,  # a 3-sample delay the model lacks
+    ],
+    ids=["lowpass", "delay"],
+)
 def test_dynamic_remainder_is_a_filter_not_a_map(remainder):
     # r is an exact FIR (delay) or a fast-decaying IIR (time constant 10 samples against 50 lags) of
     # v: the filter recovers all but the noise (≈ 85 % of the MSE); > 0.6 leaves room for the ridge.
@@ -120,6 +124,7 @@ def test_dead_zone_is_flat_near_zero():
     # recording's slope is ≈ 0 while outside it is 2, and the model's ratio is exactly 1.
     def dead(v, t):
         return 2.0 * np.sign(v) * np.maximum(np.abs(v) - 0.3, 0.0) - 2.0 * v
+
     d = describe(dead)
     flat = d["static"]["flat_near_zero"]
     assert flat["flag"] and flat["which"] == "recording"
@@ -162,8 +167,15 @@ def test_lags_never_cross_segments():
         v = (3.0 if k % 2 else -3.0) + multilevel(rng, n=200, low=-0.5, high=0.5)
         r = lfilter([0.1], [1.0, -0.9], v, zi=[0.9 * v[0]])[0] - v
         w = 2.0 * v + r + SIGMA * rng.standard_normal(200)
-        segments.append({"t": 4.0 * k + np.arange(200) / RATE, "v_in": v, "w": w, "w_hat": 2.0 * v,
-                         "segment": np.full(200, k)})
+        segments.append(
+            {
+                "t": 4.0 * k + np.arange(200) / RATE,
+                "v_in": v,
+                "w": w,
+                "w_hat": 2.0 * v,
+                "segment": np.full(200, k),
+            }
+        )
 
     def joined(order):
         return {key: np.concatenate([segments[k][key] for k in order]) for key in segments[0]}
@@ -175,7 +187,9 @@ def test_lags_never_cross_segments():
     lags = f1["lags"]
     assert lags == 50 and f1["fit_rows"] == f2["fit_rows"] == 6 * (200 - lags)
     assert f1["fraction"] == pytest.approx(f2["fraction"], rel=1e-3)  # 4-digit rounding
-    np.testing.assert_allclose(f1["response"]["magnitude_db"], f2["response"]["magnitude_db"], rtol=1e-3, atol=1e-2)
+    np.testing.assert_allclose(
+        f1["response"]["magnitude_db"], f2["response"]["magnitude_db"], rtol=1e-3, atol=1e-2
+    )
     assert f1["fraction"] > 0.6  # and the filter does find the low-pass
 
 
@@ -184,8 +198,9 @@ def test_plot_writes_a_png(tmp_path):
     path = tmp_path / "remainder.png"
     plot_remainder(d, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    empty = describe_remainder(*[{k: a[:10] for k, a in p.items()} for p in recording(lambda v, t: 0 * v)],
-                               RATE, SIGMA**2)
+    empty = describe_remainder(
+        *[{k: a[:10] for k, a in p.items()} for p in recording(lambda v, t: 0 * v)], RATE, SIGMA**2
+    )
     plot_remainder(empty, tmp_path / "empty.png")  # a description made of reasons still plots
     assert (tmp_path / "empty.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not list(tmp_path.glob("*.tmp"))  # written atomically: no temporary left

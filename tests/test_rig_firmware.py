@@ -14,9 +14,9 @@ from rig import Board, Calibration, RigError
 from rig import protocol as P
 from rig._simavr import SimavrBoard
 
-RATE = 200.0        # Hz: 1.28 s of buffer, so 3 s of drive really streams
-PERIOD = 80_000     # cycles at 200 Hz: (9999 + 1) * 8
-SPEED = 2.0         # simulated seconds per wall second
+RATE = 200.0  # Hz: 1.28 s of buffer, so 3 s of drive really streams
+PERIOD = 80_000  # cycles at 200 Hz: (9999 + 1) * 8
+SPEED = 2.0  # simulated seconds per wall second
 # Worst-case interrupt latency added to a DAC write: a UART RX ISR (~50 cycles) and a
 # TWI ISR (~50) can each delay the Timer1 ISR once; the main loop's cli sections are
 # shorter. 160 cycles = 10 us, 0.2 % of a 5 ms period.
@@ -56,7 +56,7 @@ def test_streamed_drive_plays_every_code_on_its_tick(firmware, tmp_path):
     rise = log.led_cycle[(log.led_value == 1)][-1]
     fall = log.led_cycle[(log.led_value == 0)][-1]
     latency = cycles[0] - rise
-    assert 0 < latency < 16 * 100                  # an I2C write at 400 kHz: 29 bits ~ 73 us
+    assert 0 < latency < 16 * 100  # an I2C write at 400 kHz: 29 bits ~ 73 us
     assert abs((fall - rise) - 10 * PERIOD) <= JITTER_CYCLES
 
 
@@ -80,6 +80,7 @@ def test_underrun_is_reported_and_timed(firmware, tmp_path):
         if not stalled and report.played > 50:
             stalled.append(True)
             import time
+
             time.sleep(2.0 / SPEED)
 
     with SimavrBoard(*firmware, tmp_path / "dac.log", speed=SPEED) as sim:
@@ -164,13 +165,14 @@ def test_python_emulator_plays_like_the_firmware(firmware, tmp_path):
     for report in (real, emulated_report):
         assert report.complete and report.played == len(codes) and report.bad_frames_board >= 1
     # Same codes in the same order, idle code included, on the same tick grid.
-    np.testing.assert_array_equal(dac[-len(codes) - 1:, 1], log.dac_code[-len(codes) - 1:])
+    np.testing.assert_array_equal(dac[-len(codes) - 1 :, 1], log.dac_code[-len(codes) - 1 :])
     assert log.dac_code[-len(codes) - 1] == 1234
-    emulated_ticks = (dac[-len(codes):, 0] - dac[-len(codes), 0]) / (PERIOD / 16e6)
+    emulated_ticks = (dac[-len(codes) :, 0] - dac[-len(codes), 0]) / (PERIOD / 16e6)
     np.testing.assert_allclose(emulated_ticks, real.sample_ticks(), atol=1e-6)
     # Same LED pulse: on at sample 0's tick, off 7 ticks later; latch DAC_LATENCY after the tick.
     on, off = led[led[:, 1] == 1][-1, 0], led[led[:, 1] == 0][-1, 0]
     assert (off - on) * 16e6 == pytest.approx(7 * PERIOD, abs=1)
     assert (dac[-len(codes), 0] - on) * 16e6 == pytest.approx(
-        log.dac_cycle[-len(codes)] - log.led_cycle[log.led_value == 1][-1], abs=1)
+        log.dac_cycle[-len(codes)] - log.led_cycle[log.led_value == 1][-1], abs=1
+    )
     assert DAC_LATENCY * 16e6 == pytest.approx(1048, abs=1)

@@ -26,7 +26,9 @@ def test_crc_property_matches_binascii(data):
 
 frames = st.lists(
     st.tuples(st.integers(0, 255), st.integers(0, 255), st.binary(max_size=P.MAX_PAYLOAD)),
-    min_size=1, max_size=12)
+    min_size=1,
+    max_size=12,
+)
 garbage = st.binary(max_size=20).map(lambda b: b.replace(b"\xa5", b"\x00"))
 
 
@@ -56,7 +58,7 @@ def test_one_corrupt_byte_loses_at_most_its_frame(items, data):
     # Trailing filler flushes a frame whose length byte was corrupted upwards.
     stream = b"".join(encoded) + b"\x00" * (P.MAX_PAYLOAD + 8)
     got = [(f.type, f.seq, f.payload) for f in P.FrameParser().feed(stream)]
-    others = items[:k] + items[k + 1:]
+    others = items[:k] + items[k + 1 :]
     assert items[k] not in got or items.count(items[k]) > 1
     assert got == others
 
@@ -68,8 +70,7 @@ def _random_message(cls, data):
     return cls(data.draw(st.integers(0, 255)), *values)
 
 
-@given(st.sampled_from([P.Info, P.Ack, P.Nak, P.Status, P.Underrun, P.Done, P.Boot, P.DacError]),
-       st.data())
+@given(st.sampled_from([P.Info, P.Ack, P.Nak, P.Status, P.Underrun, P.Done, P.Boot, P.DacError]), st.data())
 def test_board_messages_round_trip(cls, data):
     message = _random_message(cls, data)
     (frame,) = P.FrameParser().feed(P.encode_message(message))
@@ -84,9 +85,10 @@ def test_data_payload_layout():
 
 def test_sketch_constants_match_python():
     text = SKETCH.read_text()
-    block = text[text.index("// ---- protocol"):text.index("// ---- end protocol")]
-    defines = {name: int(value, 0) for name, value in
-               re.findall(r"#define (\w+) (0x[0-9A-Fa-f]+|\d+)", block)}
+    block = text[text.index("// ---- protocol") : text.index("// ---- end protocol")]
+    defines = {
+        name: int(value, 0) for name, value in re.findall(r"#define (\w+) (0x[0-9A-Fa-f]+|\d+)", block)
+    }
     assert defines["PROTOCOL_VERSION"] == P.PROTOCOL_VERSION
     assert bytes([defines["SYNC0"], defines["SYNC1"]]) == P.SYNC
     for name in ("MAX_PAYLOAD", "RING_CAPACITY", "MAX_SAMPLES_PER_FRAME"):

@@ -28,7 +28,9 @@ def _meta(path):
 def test_calibration_default_is_the_virtual_rigs_dac():
     volts = np.linspace(-3.5, 3.5, 1001)
     cal = Calibration()
-    np.testing.assert_allclose(cal.volts(cal.codes(volts)), dac_output(volts, VirtualIPMCParameters()), atol=1e-12)
+    np.testing.assert_allclose(
+        cal.volts(cal.codes(volts)), dac_output(volts, VirtualIPMCParameters()), atol=1e-12
+    )
 
 
 def test_fit_calibration_recovers_gain_offset_and_rails():
@@ -38,24 +40,45 @@ def test_fit_calibration_recovers_gain_offset_and_rails():
     fitted, report = fit_calibration(codes, readings)
     assert fitted.gain == pytest.approx(1.17, rel=2e-3)
     assert fitted.offset == pytest.approx(-2.93, abs=3e-3)
-    assert fitted.rail_low == pytest.approx(-2.9, abs=1e-3) and fitted.rail_high == pytest.approx(2.8, abs=1e-3)
+    assert fitted.rail_low == pytest.approx(-2.9, abs=1e-3) and fitted.rail_high == pytest.approx(
+        2.8, abs=1e-3
+    )
     assert report["clipped"][0] and report["clipped"][-1] and not any(report["clipped"][1:-1])
 
 
 def test_virtual_record_cli_gives_a_valid_synchronised_recording(tmp_path, capsys):
     out = tmp_path / "rec.csv"
-    assert main(["record", "--virtual", "--drive", "prbs", "--duration", "5", "--speed", str(SPEED),
-                 "--seed", "1", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "record",
+                "--virtual",
+                "--drive",
+                "prbs",
+                "--duration",
+                "5",
+                "--speed",
+                str(SPEED),
+                "--seed",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rec = hybrid.Recording.load(out)
     meta = _meta(out)
     assert meta["complete"] and meta["sync"]["method"] == "led"
     # streamed into rec.partial.csv, renamed onto --out with its sidecar once it succeeded
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv", "rec.csv.json"] and "partial_of" not in meta
+    assert (
+        sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv", "rec.csv.json"] and "partial_of" not in meta
+    )
     assert abs(len(rec) - 150) <= 1 and rec.rate == pytest.approx(30.0, rel=1e-3)
     # Tracking against the virtual strip's exposure-averaged truth.
     error = rec.w - rec.extra["w_true"]
     assert np.sqrt(np.mean(error**2)) <= 0.05
-    assert np.ptp(rec.w) > 4.0                         # the strip really moved
+    assert np.ptp(rec.w) > 4.0  # the strip really moved
     # v_in: the drive, through the calibration, on the DAC at each frame.
     drive = hybrid.make_drive("prbs", 5, rate=30.0, seed=1, amplitude=2.0)
     expected = Calibration().volts(Calibration().codes(drive.v))[rec.extra["sample"].astype(int)]
@@ -97,7 +120,7 @@ def test_board_reset_mid_record_keeps_a_flagged_partial_recording(tmp_path):
     out, meta, error = _virtual(tmp_path, fault_at=(60, lambda e: e.reset()))
     assert error is not None and "reset during the stream" in str(error) and "is kept in" in str(error)
     rec = hybrid.Recording.load(out)
-    assert 30 <= len(rec) <= 66             # rows up to the reset at sample 60, less < 1 s
+    assert 30 <= len(rec) <= 66  # rows up to the reset at sample 60, less < 1 s
     assert meta["complete"] is False and meta["status"] == "interrupted" and "reset" in meta["error"]
 
 
@@ -110,18 +133,19 @@ def test_unplugged_board_mid_record_keeps_a_flagged_partial_recording(tmp_path):
 
 def test_corrupt_board_frames_and_dropped_duplicated_hidden_frames(tmp_path):
     def corrupt(emulated):
-        emulated.corrupt_tx = 2            # the next two frames from the board arrive damaged
+        emulated.corrupt_tx = 2  # the next two frames from the board arrive damaged
 
     drop, hide = {70, 71, 110}, {120, 121, 122}
-    out, meta, error = _virtual(tmp_path, fault_at=(20, corrupt), drop=sorted(drop), duplicate=[80],
-                                hide=sorted(hide))
+    out, meta, error = _virtual(
+        tmp_path, fault_at=(20, corrupt), drop=sorted(drop), duplicate=[80], hide=sorted(hide)
+    )
     assert error is None, error
-    rec = hybrid.Recording.load(out)            # uniform time base despite the gaps
+    rec = hybrid.Recording.load(out)  # uniform time base despite the gaps
     assert meta["complete"]
     assert meta["board"]["report"]["bad_frames_host"] >= 2
     slots = np.round(rec.extra["t_camera"] * 30).astype(int)
     faulty = {k for k in drop | hide if slots[0] <= k <= slots[-1]}
-    assert len(faulty) >= 4                     # the faults fell inside the recording
+    assert len(faulty) >= 4  # the faults fell inside the recording
     assert set(slots[rec.extra["quality"] == 0]) == faulty
     assert meta["duplicated_frames"] == 1
     assert drop <= set(meta["dropped_frames"]) and meta["untracked_frames"] == 3
@@ -148,8 +172,26 @@ def test_underrun_is_recorded_in_metadata(tmp_path):
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
     for argv, fragment in [
-        (["record", "--port", "/dev/ttyNO_SUCH", "--camera", "0", "--drive", "prbs", "--duration", "2",
-          "--clamp", "1,1", "--mm-per-px", "0.1", "--out", str(tmp_path / "r.csv")], "cannot be opened"),
+        (
+            [
+                "record",
+                "--port",
+                "/dev/ttyNO_SUCH",
+                "--camera",
+                "0",
+                "--drive",
+                "prbs",
+                "--duration",
+                "2",
+                "--clamp",
+                "1,1",
+                "--mm-per-px",
+                "0.1",
+                "--out",
+                str(tmp_path / "r.csv"),
+            ],
+            "cannot be opened",
+        ),
         (["record", "--drive", "prbs", "--duration", "2", "--out", str(tmp_path / "r.csv")], "--virtual"),
         (["record", "--virtual", "--drive", "nope", "--duration", "2", "--out", "x.csv"], "invalid choice"),
         (["track", "v.avi", "--out", "x.csv"], "--clamp"),
@@ -178,9 +220,26 @@ def test_sigterm_closes_the_recording_like_ctrl_c(tmp_path):
     import time
 
     out, partial = tmp_path / "rec.csv", tmp_path / "rec.partial.csv"
-    process = subprocess.Popen([sys.executable, "-m", "rig.cli", "record", "--virtual", "--drive", "prbs",
-                                "--duration", "30", "--speed", "3", "--out", str(out)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "rig.cli",
+            "record",
+            "--virtual",
+            "--drive",
+            "prbs",
+            "--duration",
+            "30",
+            "--speed",
+            "3",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and process.poll() is None:
@@ -195,7 +254,7 @@ def test_sigterm_closes_the_recording_like_ctrl_c(tmp_path):
             os.kill(process.pid, signal.SIGKILL)
     assert process.returncode == 143 and "terminated by SIGTERM" in err and "Traceback" not in err
     assert err.count("\n") == 1 and f"is kept in {partial} (+ .json); {out} was not written" in err, err
-    assert not out.exists()        # an interrupted recording is never at --out
+    assert not out.exists()  # an interrupted recording is never at --out
     meta = _meta(partial)
     rows = partial.read_text().count("\n") - 1
     assert meta["status"] == "interrupted" and meta["complete"] is False

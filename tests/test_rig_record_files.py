@@ -67,7 +67,7 @@ def test_a_board_reset_mid_record_keeps_the_users_file_and_the_rows_elsewhere(tm
     assert "reset during the stream" in err
     assert f"is kept in {partial} (+ .json); {out} was left as it was" in err
     after = snapshot(tmp_path)
-    assert {name: after[name] for name in before} == before      # byte for byte, the earlier partial too
+    assert {name: after[name] for name in before} == before  # byte for byte, the earlier partial too
     assert sorted(set(after) - set(before)) == ["rec.partial-2.csv", "rec.partial-2.csv.json"]
     meta = json.loads(after["rec.partial-2.csv.json"])
     rows = len(hybrid.Recording.load(partial))
@@ -96,7 +96,7 @@ class _Disk:
 
             def write(self, text):
                 if disk.room <= 0 and not disk.full:
-                    self.handle.write(text[: len(text) // 2])    # what fitted
+                    self.handle.write(text[: len(text) // 2])  # what fitted
                     self.handle.flush()
                     disk.full = True
                 if disk.full:
@@ -112,25 +112,27 @@ class _Disk:
             def close(self):
                 self.handle.close()
 
-        monkeypatch.setattr(rig._record, "open", Filling, raising=False)   # the CSV's writer
+        monkeypatch.setattr(rig._record, "open", Filling, raising=False)  # the CSV's writer
         monkeypatch.setattr(os, "fsync", fsync)
 
 
 def test_a_full_disk_mid_record_names_the_file_and_keeps_the_whole_rows(tmp_path, capsys, monkeypatch):
-    _Disk(monkeypatch, rows=15)                 # the header and 14 rows fit
+    _Disk(monkeypatch, rows=15)  # the header and 14 rows fit
     out = _users_files(tmp_path)
     before = snapshot(tmp_path)
     assert main([*ARGV, "--out", str(out)]) == 2
     err = _one_line(capsys)
     partial = tmp_path / "rec.partial.csv"
-    assert err == (f"rig: error: cannot write {partial}: {ENOSPC} (after 14 rows); "
-                   f"what was recorded (14 rows) is kept in {partial} (its sidecar rec.partial.csv.json "
-                   f"could not be updated: {ENOSPC}); {out} was left as it was"), err
+    assert err == (
+        f"rig: error: cannot write {partial}: {ENOSPC} (after 14 rows); "
+        f"what was recorded (14 rows) is kept in {partial} (its sidecar rec.partial.csv.json "
+        f"could not be updated: {ENOSPC}); {out} was left as it was"
+    ), err
     after = snapshot(tmp_path)
-    assert {name: after[name] for name in before} == before                  # nothing under the output's name
+    assert {name: after[name] for name in before} == before  # nothing under the output's name
     assert sorted(set(after) - set(before)) == ["rec.partial.csv", "rec.partial.csv.json"]  # no temporary
     text = after["rec.partial.csv"].decode()
-    assert text.endswith("\n") and text.count("\n") == 15                    # the cut row is cut off
+    assert text.endswith("\n") and text.count("\n") == 15  # the cut row is cut off
     assert len(hybrid.Recording.load(partial)) == 14
     assert json.loads(after["rec.partial.csv.json"])["partial_of"] == str(out)
 
@@ -146,7 +148,8 @@ def test_a_disk_full_from_the_start_leaves_nothing(tmp_path, capsys, monkeypatch
 
 
 def test_a_full_disk_at_the_rename_leaves_the_users_file_and_says_where_the_recording_is(
-        tmp_path, capsys, monkeypatch):
+    tmp_path, capsys, monkeypatch
+):
     def full(path):
         raise OSError(errno.ENOSPC, ENOSPC)
 
@@ -156,8 +159,9 @@ def test_a_full_disk_at_the_rename_leaves_the_users_file_and_says_where_the_reco
     assert main([*ARGV, "--out", str(out)]) == 2
     err = _one_line(capsys)
     partial = tmp_path / "rec.partial.csv"
-    assert err.startswith(f"rig: error: cannot write {out} (and {out}.json): {ENOSPC}; "
-                          f"the complete recording (")
+    assert err.startswith(
+        f"rig: error: cannot write {out} (and {out}.json): {ENOSPC}; the complete recording ("
+    )
     assert err.endswith(f"rows) is kept in {partial} (+ .json); {out} was left as it was"), err
     after = snapshot(tmp_path)
     assert {name: after[name] for name in before} == before
@@ -171,8 +175,11 @@ def test_an_output_that_is_an_input_is_refused_before_anything_is_written(tmp_pa
     source = tmp_path / "v.avi"
     source.write_bytes(b"the user's input")
     argv = ["record", "--drive", "sine", "--duration", "2", "--out", str(source)]
-    argv += (["--port", "/dev/ttyNO_SUCH", "--camera", str(source), "--clamp", "1,1", "--mm-per-px", "0.1"]
-             if flag == "--camera" else ["--virtual", "--calibration", str(source)])
+    argv += (
+        ["--port", "/dev/ttyNO_SUCH", "--camera", str(source), "--clamp", "1,1", "--mm-per-px", "0.1"]
+        if flag == "--camera"
+        else ["--virtual", "--calibration", str(source)]
+    )
     assert main(argv) == 2
     assert f"output '{source}' is the input '{source}'" in _one_line(capsys)
     assert snapshot(tmp_path) == {"v.avi": b"the user's input"}

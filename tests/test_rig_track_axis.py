@@ -14,7 +14,7 @@ from rig.cli import main
 
 SIZE = (400, 300)
 FRAMES = 40
-SWEEP = 6.2 * np.sin(np.linspace(0, 2 * np.pi, FRAMES))    # mm, one period: both sides of the axis
+SWEEP = 6.2 * np.sin(np.linspace(0, 2 * np.pi, FRAMES))  # mm, one period: both sides of the axis
 
 
 def _angle_error(a, b):
@@ -27,14 +27,29 @@ def _lab_video(path, angle, clamp, seed=0, frames=FRAMES):
     write_video(path, [video.frame(w, k) for k, w in enumerate(SWEEP[:frames])])
 
 
-@pytest.mark.parametrize("angle, clamp", [(0.0, (60.0, 150.0)), (90.0, (200.0, 40.0)),
-                                          (180.0, (340.0, 150.0)), (30.0, (60.0, 50.0))],
-                         ids=["right", "down", "left", "30deg"])
+@pytest.mark.parametrize(
+    "angle, clamp",
+    [(0.0, (60.0, 150.0)), (90.0, (200.0, 40.0)), (180.0, (340.0, 150.0)), (30.0, (60.0, 50.0))],
+    ids=["right", "down", "left", "30deg"],
+)
 def test_track_without_axis_finds_it(tmp_path, capsys, angle, clamp):
     path, out = tmp_path / "strip.avi", tmp_path / "w.csv"
     _lab_video(path, angle, clamp, seed=int(angle))
-    assert main(["track", str(path), "--clamp", f"{clamp[0]:g},{clamp[1]:g}", "--mm-per-px", "0.1",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "track",
+                str(path),
+                "--clamp",
+                f"{clamp[0]:g},{clamp[1]:g}",
+                "--mm-per-px",
+                "0.1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     meta = json.loads(out.with_name("w.csv.json").read_text())
     detected = meta["axis"]["angle_deg"]
@@ -47,18 +62,27 @@ def test_track_without_axis_finds_it(tmp_path, capsys, angle, clamp):
     assert np.sqrt(np.mean((w - SWEEP) ** 2)) <= 0.05
 
 
-@pytest.mark.parametrize("look", [
-    Look(size=SIZE, background=110.0, gradient=-60.0, vignette=0.45, strip_level=25.0, noise=5.0, led=None),
-    Look(size=SIZE, background=235.0, gradient=15.0, vignette=0.1, strip_level=150.0, blur_px=1.3, led=None),
-], ids=["dim-dark-strip", "bright-pale-strip"])
+@pytest.mark.parametrize(
+    "look",
+    [
+        Look(
+            size=SIZE, background=110.0, gradient=-60.0, vignette=0.45, strip_level=25.0, noise=5.0, led=None
+        ),
+        Look(
+            size=SIZE, background=235.0, gradient=15.0, vignette=0.1, strip_level=150.0, blur_px=1.3, led=None
+        ),
+    ],
+    ids=["dim-dark-strip", "bright-pale-strip"],
+)
 def test_axis_detection_does_not_depend_on_the_look(look):
     # The project's other renderer (rig/_render.py), other levels, other clamp, a pale strip: only the
     # dark-line contrast counts.
     for angle, clamp in [(135.0, (330.0, 60.0)), (-60.0, (120.0, 270.0))]:
         scene = Scene(clamp=clamp, angle_deg=angle)
         rng = np.random.default_rng(8)
-        frames = [render_frame(scene, look, w, rng=rng, gain=1 + 0.06 * np.sin(k))
-                  for k, w in enumerate(SWEEP[::3])]
+        frames = [
+            render_frame(scene, look, w, rng=rng, gain=1 + 0.06 * np.sin(k)) for k, w in enumerate(SWEEP[::3])
+        ]
         estimate = find_axis(frames, clamp, 0.1, 22.0)
         assert estimate.angle_deg is not None, estimate.reason
         assert abs(_angle_error(estimate.angle_deg, angle)) <= 0.1, (angle, estimate)
@@ -76,7 +100,7 @@ def test_clamp_point_beside_the_strip_neither_tilts_the_axis_nor_offsets_w():
     estimate = find_axis(frames, given, 0.1, 22.0)
     assert abs(_angle_error(estimate.angle_deg, angle)) <= 0.1
     assert estimate.offset_px == pytest.approx(-2.5, abs=0.1)
-    assert abs(np.dot(np.subtract(estimate.clamp_xy, clamp), scene.normal)) <= 0.1   # on the strip's rest line
+    assert abs(np.dot(np.subtract(estimate.clamp_xy, clamp), scene.normal)) <= 0.1  # on the strip's rest line
 
 
 def test_no_strip_anywhere_flags_every_frame_and_fails(tmp_path, capsys):
@@ -97,8 +121,12 @@ def test_a_wrong_axis_is_not_tracked_silently(tmp_path, capsys):
     # w wrong by ~12 mm.
     path, out = tmp_path / "strip.avi", tmp_path / "w.csv"
     _lab_video(path, 90.0, (200.0, 40.0), frames=12)
-    assert main(["track", str(path), "--clamp", "200,40", "--mm-per-px", "0.1", "--axis", "0",
-                 "--out", str(out)]) == 2
+    assert (
+        main(
+            ["track", str(path), "--clamp", "200,40", "--mm-per-px", "0.1", "--axis", "0", "--out", str(out)]
+        )
+        == 2
+    )
     err = capsys.readouterr().err.splitlines()
     assert err[0].startswith("rig: warning: --axis 0 deg given, but the strip leaves the clamp at 90.0")
     assert err[1].startswith("rig: error: the strip was not found along the axis 0 deg") and len(err) == 2

@@ -18,8 +18,8 @@ from rig_cantilever_render import CantileverVideo, cantilever_shape, write_avi
 from rig import _axis
 from rig.cli import main
 
-FRAMES = 36                      # the 30 the axis is found from, and a few more
-LENGTH = 22.0                    # mm
+FRAMES = 36  # the 30 the axis is found from, and a few more
+LENGTH = 22.0  # mm
 
 
 def _motion(frames, start=2.0, swing=3.0, period=40.0):
@@ -31,8 +31,18 @@ def _motion(frames, start=2.0, swing=3.0, period=40.0):
 def _track(tmp_path, video, clamp, mm_per_px, truth):
     path, out = tmp_path / "strip.avi", tmp_path / "w.csv"
     write_avi(path, [video.frame(w, k) for k, w in enumerate(truth)])
-    status = main(["track", str(path), "--clamp", f"{clamp[0]:g},{clamp[1]:g}", "--mm-per-px", f"{mm_per_px:g}",
-                   "--out", str(out)])
+    status = main(
+        [
+            "track",
+            str(path),
+            "--clamp",
+            f"{clamp[0]:g},{clamp[1]:g}",
+            "--mm-per-px",
+            f"{mm_per_px:g}",
+            "--out",
+            str(out),
+        ]
+    )
     assert status == 0
     rows = list(csv.DictReader(out.open()))
     meta = json.loads(out.with_name("w.csv.json").read_text())
@@ -80,8 +90,11 @@ def test_arcs_alone_miss_the_axis_of_a_cantilever_bent_to_one_side(monkeypatch):
     assert abs(_angle_error(_axis.find_axis(frames, clamp, 0.1, LENGTH).angle_deg, 90.0)) > 2.0
 
 
-@pytest.mark.parametrize("angle, share", [(0.0, 0.0), (135.0, 1.0), (200.0, 0.5), (300.0, 0.0)],
-                         ids=["right-uniform-load", "135deg-tip-load", "200deg-mixed-load", "300deg-uniform-load"])
+@pytest.mark.parametrize(
+    "angle, share",
+    [(0.0, 0.0), (135.0, 1.0), (200.0, 0.5), (300.0, 0.0)],
+    ids=["right-uniform-load", "135deg-tip-load", "200deg-mixed-load", "300deg-uniform-load"],
+)
 def test_rest_axis_and_tip_at_any_angle_with_the_strip_moving_at_frame_0(tmp_path, capsys, angle, share):
     # A 220 px strip (0.1 mm/px) in 320 x 320; it bends to either side of the axis depending on the
     # angle, 1.6-8 mm, never at rest in the frames the axis comes from.
@@ -95,5 +108,5 @@ def test_rest_axis_and_tip_at_any_angle_with_the_strip_moving_at_frame_0(tmp_pat
     w, good, meta = _track(tmp_path, video, clamp, mm_per_px, truth)
     detected = meta["axis"]["angle_deg"]
     assert good.all()
-    assert abs(_angle_error(detected, angle)) <= 0.1, detected      # 0.04 mm at the tip
+    assert abs(_angle_error(detected, angle)) <= 0.1, detected  # 0.04 mm at the tip
     assert np.sqrt(np.mean((w - truth) ** 2)) <= 0.05

@@ -14,7 +14,7 @@ from rig._scene import Scene
 from rig.cli import main
 
 FRAMES = 60
-SWEEP = 6.2 * np.sin(np.linspace(0, 4 * np.pi, FRAMES))       # mm: fast, so a 133 ms slip is millimetres
+SWEEP = 6.2 * np.sin(np.linspace(0, 4 * np.pi, FRAMES))  # mm: fast, so a 133 ms slip is millimetres
 ARGS = ["--clamp", "40,120", "--mm-per-px", "0.1", "--axis", "0"]
 
 
@@ -46,7 +46,9 @@ def _track(tmp_path, data, name, capsys, suffix=".avi"):
 def _corrupt_middle(data: bytes, size: int = 20_000) -> bytes:
     damaged = bytearray(data)
     middle = len(damaged) // 2
-    damaged[middle: middle + size] = np.random.default_rng(0).integers(0, 256, size, dtype=np.uint8).tobytes()
+    damaged[middle : middle + size] = (
+        np.random.default_rng(0).integers(0, 256, size, dtype=np.uint8).tobytes()
+    )
     return bytes(damaged)
 
 
@@ -63,13 +65,13 @@ def test_corrupted_avi_keeps_every_frame_at_its_time(tmp_path, clean, capsys):
     assert gap["missing"] >= 3 and len(t) + gap["missing"] == FRAMES
     assert gap["missing"] == len(info["damaged_frames"])
     frame = t * 30.0
-    np.testing.assert_allclose(frame, np.round(frame), atol=1e-9)          # on the frame grid
+    np.testing.assert_allclose(frame, np.round(frame), atol=1e-9)  # on the frame grid
     k = np.round(frame).astype(int)
     assert k[gap["after"] + 1] - k[gap["after"]] == gap["missing"] + 1
-    assert quality[gap["after"]] == 0 and quality[gap["after"] + 1] == 0    # flagged either side
+    assert quality[gap["after"]] == 0 and quality[gap["after"] + 1] == 0  # flagged either side
     good = quality == 1
     assert good.sum() == len(t) - 2
-    assert np.max(np.abs(w[good] - SWEEP[k[good]])) <= 0.1                  # each w at its own time
+    assert np.max(np.abs(w[good] - SWEEP[k[good]])) <= 0.1  # each w at its own time
 
 
 def test_truncated_avi_is_reported_and_kept(tmp_path, clean, capsys):
@@ -92,19 +94,22 @@ def test_chunk_removed_without_index_is_flagged_not_guessed(tmp_path, clean, cap
     # after the cut have unknown places, so they are flagged and the command fails.
     data = clean[1]
     middle = len(data) // 2
-    status, captured, t, w, quality, meta = _track(tmp_path, data[:middle] + data[middle + 20_000:], "hole", capsys)
+    status, captured, t, w, quality, meta = _track(
+        tmp_path, data[:middle] + data[middle + 20_000 :], "hole", capsys
+    )
     assert status == 2 and "places in time of the last" in captured.err and captured.err.count("\n") == 1
     info = meta["video_integrity"]
     assert info["unplaced_frames"] > 0 and meta["complete"] is False
-    assert not quality[info["first_unplaced_frame"]:].any()
+    assert not quality[info["first_unplaced_frame"] :].any()
 
 
 def test_corrupted_mp4_gap_from_decoder_timestamps(tmp_path, capsys):
     path = tmp_path / "clean.mp4"
     video = LabVideo(Scene(), seed=2)
     write_video(path, [video.frame(w, k) for k, w in enumerate(SWEEP)])
-    status, captured, t, w, quality, meta = _track(tmp_path, _corrupt_middle(path.read_bytes()), "c", capsys,
-                                                   suffix=".mp4")
+    status, captured, t, w, quality, meta = _track(
+        tmp_path, _corrupt_middle(path.read_bytes()), "c", capsys, suffix=".mp4"
+    )
     info = meta["video_integrity"]
     assert info["time_base"].startswith("decoder timestamps") and info["decode_failures"] > 0
     assert len(info["gaps"]) >= 1 and "gap" in captured.err
@@ -124,7 +129,7 @@ def test_avi_reader_matches_opencv_on_a_clean_file(clean):
         assert [n for n, _ in frames] == list(range(FRAMES))
         for _, image in frames[:5]:
             ok, reference = capture.read()
-            assert ok and np.mean(np.abs(image.astype(float) - reference)) < 2.0   # two JPEG decoders
+            assert ok and np.mean(np.abs(image.astype(float) - reference)) < 2.0  # two JPEG decoders
     finally:
         avi.close()
         capture.release()
@@ -136,9 +141,9 @@ def test_jpeg_without_huffman_tables_gets_the_standard_ones():
     jpeg = bytes(cv2.imencode(".jpg", image)[1])
     stripped, pos = bytearray(jpeg[:2]), 2
     while jpeg[pos + 1] != 0xDA:
-        length = int.from_bytes(jpeg[pos + 2: pos + 4], "big")
+        length = int.from_bytes(jpeg[pos + 2 : pos + 4], "big")
         if jpeg[pos + 1] != 0xC4:
-            stripped += jpeg[pos: pos + 2 + length]
+            stripped += jpeg[pos : pos + 2 + length]
         pos += 2 + length
     stripped = bytes(stripped + jpeg[pos:])
     assert b"\xff\xc4" not in stripped[: stripped.find(b"\xff\xda")]

@@ -14,10 +14,10 @@ from rig._sync import LedDetector
 from rig._tracker import TipTracker
 from rig.cli import main
 
-SCENE = Scene()                            # clamp (40, 120), 0.1 mm/px, strip along +x
-SWEEP = 6.2 * np.sin(np.linspace(0, 4 * np.pi, 75))   # deflections up to +-6.2 mm
-TOLERANCE_RMS = 0.05                       # mm, the target at the default scale
-TOLERANCE_MAX = 0.15                       # mm, no single frame far off
+SCENE = Scene()  # clamp (40, 120), 0.1 mm/px, strip along +x
+SWEEP = 6.2 * np.sin(np.linspace(0, 4 * np.pi, 75))  # deflections up to +-6.2 mm
+TOLERANCE_RMS = 0.05  # mm, the target at the default scale
+TOLERANCE_MAX = 0.15  # mm, no single frame far off
 
 
 def _track_file(path, scene=SCENE):
@@ -37,8 +37,13 @@ def test_arc_centreline_has_the_asked_tip_and_length():
 @pytest.mark.parametrize("suffix, seed", [(".avi", 0), (".mp4", 1), (".avi", 2)])
 def test_lab_video_accuracy(tmp_path, suffix, seed):
     # Different lighting, grain, blur, noise and flicker per seed; colour frames; lossy codecs.
-    video = LabVideo(SCENE, seed=seed, noise=[4.0, 6.0, 3.0][seed], blur=[1.0, 1.4, 0.7][seed],
-                     flicker=[0.08, 0.12, 0.05][seed])
+    video = LabVideo(
+        SCENE,
+        seed=seed,
+        noise=[4.0, 6.0, 3.0][seed],
+        blur=[1.0, 1.4, 0.7][seed],
+        flicker=[0.08, 0.12, 0.05][seed],
+    )
     path = tmp_path / f"lab{suffix}"
     write_video(path, [video.frame(w, k) for k, w in enumerate(SWEEP)])
     w, quality = _track_file(path)
@@ -62,7 +67,9 @@ def test_tilted_axis_and_other_scale():
     scene = Scene(clamp=(60.0, 60.0), mm_per_px=0.08, angle_deg=25.0)
     look = Look(size=(400, 320), led=None)
     rng = np.random.default_rng(4)
-    errors = [TipTracker(scene).track(render_frame(scene, look, w, rng=rng)).w - w for w in (-5.0, 0.0, 3.0, 6.0)]
+    errors = [
+        TipTracker(scene).track(render_frame(scene, look, w, rng=rng)).w - w for w in (-5.0, 0.0, 3.0, 6.0)
+    ]
     assert np.max(np.abs(errors)) <= TOLERANCE_MAX
 
 
@@ -86,8 +93,9 @@ def test_led_sync_sub_frame(tmp_path):
     for k in range(16):
         start = k / fps
         lit = np.clip((start + exposure - edge) / exposure, 0, 1)
-        sync = detector.update(k, start, render_frame(SCENE, Look(), 1.0, led=lit, rng=rng,
-                                                      gain=1 + 0.05 * np.sin(k)))
+        sync = detector.update(
+            k, start, render_frame(SCENE, Look(), 1.0, led=lit, rng=rng, gain=1 + 0.05 * np.sin(k))
+        )
     assert sync is not None and sync.frame == 10
     assert sync.t == pytest.approx(edge, abs=0.002)
 
@@ -108,11 +116,27 @@ def test_rig_track_cli(tmp_path, capsys):
 def test_unreadable_video_is_one_line_error(tmp_path, capsys):
     bad = tmp_path / "broken.avi"
     bad.write_bytes(b"RIFF\x00\x00\x00\x00AVI garbage" * 10)
-    assert main(["track", str(bad), "--clamp", "40,120", "--mm-per-px", "0.1", "--out", str(tmp_path / "x.csv")]) == 2
+    assert (
+        main(["track", str(bad), "--clamp", "40,120", "--mm-per-px", "0.1", "--out", str(tmp_path / "x.csv")])
+        == 2
+    )
     err = capsys.readouterr().err
     assert err.startswith("rig: error:") and err.count("\n") == 1 and "broken.avi" in err
-    assert main(["track", str(tmp_path / "none.avi"), "--clamp", "40,120", "--mm-per-px", "0.1",
-                 "--out", str(tmp_path / "x.csv")]) == 2
+    assert (
+        main(
+            [
+                "track",
+                str(tmp_path / "none.avi"),
+                "--clamp",
+                "40,120",
+                "--mm-per-px",
+                "0.1",
+                "--out",
+                str(tmp_path / "x.csv"),
+            ]
+        )
+        == 2
+    )
     assert "does not exist" in capsys.readouterr().err
     with pytest.raises(RigError):
         TipTracker(SCENE).track(np.zeros((2, 2)))

@@ -119,21 +119,34 @@ def curve_fit_reference():
 
     def model(_, xi_rho, alpha_C, C_clamp, gain, offset):  # numpy + scipy only
         G, Z, P = h.stage_zpk_np(xi_rho, 1.0, 0.3, 0.6, alpha_C, C_clamp, 10)
-        sos = [scipy.signal.zpk2sos(*scipy.signal.bilinear_zpk([-z], [-p], g, fs=h.RATE))[0]
-               for g, z, p in zip(G, Z, P)]
+        sos = [
+            scipy.signal.zpk2sos(*scipy.signal.bilinear_zpk([-z], [-p], g, fs=h.RATE))[0]
+            for g, z, p in zip(G, Z, P)
+        ]
         return gain * scipy.signal.sosfilt(np.array(sos), v)[a:b] + offset
 
     popt, pcov = scipy.optimize.curve_fit(
-        model, None, recording.w[a:b], p0=[5.0, 0.5, 0.03, 1.5, 0.2], method="trf", jac="3-point",
-        x_scale="jac", ftol=1e-15, xtol=1e-15, gtol=1e-15,
+        model,
+        None,
+        recording.w[a:b],
+        p0=[5.0, 0.5, 0.03, 1.5, 0.2],
+        method="trf",
+        jac="3-point",
+        x_scale="jac",
+        ftol=1e-15,
+        xtol=1e-15,
+        gtol=1e-15,
     )
     return recording, popt, pcov
 
 
 def test_covariance_matches_curve_fit(curve_fit_reference):
     recording, popt, pcov = curve_fit_reference
-    fitted = Model(TRUE.replace(xi_rho=popt[0], alpha_C=popt[1], C_clamp=popt[2]),
-                   LinearReadout(popt[3], popt[4]), "physics")
+    fitted = Model(
+        TRUE.replace(xi_rho=popt[0], alpha_C=popt[1], C_clamp=popt[2]),
+        LinearReadout(popt[3], popt[4]),
+        "physics",
+    )
     cov = S.parameter_covariance(fitted, recording, frozen=FROZEN)
     assert set(cov.names) == set(FREE)
     idx = [cov.names.index(n) for n in FREE]
@@ -160,21 +173,35 @@ def test_standard_errors_of_a_fit_use_its_frozen_set_split_and_blocks(curve_fit_
 
     recording = curve_fit_reference[0]
     split, order = (0.6, 0.1, 0.3), ("train", "validation", "test")
-    result = fit(make_model("physics", simulation=TRUE), [recording], max_steps=5, frozen=FROZEN,
-                 split=split, split_order=order, blocks=3, progress=False)
+    result = fit(
+        make_model("physics", simulation=TRUE),
+        [recording],
+        max_steps=5,
+        frozen=FROZEN,
+        split=split,
+        split_order=order,
+        blocks=3,
+        progress=False,
+    )
     ours = S.standard_errors(result, recording).matrix
-    reference = S.parameter_covariance(result.model, recording, frozen=FROZEN, split=split, split_order=order,
-                                       blocks=3).matrix
+    reference = S.parameter_covariance(
+        result.model, recording, frozen=FROZEN, split=split, split_order=order, blocks=3
+    ).matrix
     np.testing.assert_array_equal(ours, reference)
     # the blocks matter: the contiguous split's covariance is another matrix
-    contiguous = S.parameter_covariance(result.model, recording, frozen=FROZEN, split=split, split_order=order).matrix
+    contiguous = S.parameter_covariance(
+        result.model, recording, frozen=FROZEN, split=split, split_order=order
+    ).matrix
     assert not np.allclose(ours, contiguous, rtol=1e-3)
 
 
 def test_unidentifiable_parameters_get_infinite_variance(curve_fit_reference):
     recording, popt, _ = curve_fit_reference
-    fitted = Model(TRUE.replace(xi_rho=popt[0], alpha_C=popt[1], C_clamp=popt[2]),
-                   LinearReadout(popt[3], popt[4]), "physics")
+    fitted = Model(
+        TRUE.replace(xi_rho=popt[0], alpha_C=popt[1], C_clamp=popt[2]),
+        LinearReadout(popt[3], popt[4]),
+        "physics",
+    )
     frozen_xi = S.parameter_covariance(fitted, recording, frozen=FROZEN)
     free_xi = S.parameter_covariance(fitted, recording, frozen=FROZEN - {"xi_h"})
     assert set(free_xi.unidentifiable) == {"xi_rho", "xi_h"}
@@ -259,19 +286,27 @@ def test_cli_sensitivity_writes_the_null_direction(tmp_path, capsys):
         {"xi_rho": pytest.approx(2**-0.5, abs=1e-8), "xi_h": pytest.approx(2**-0.5, abs=1e-8)}
     ]
     assert set(result["by_drive"]) == {"prbs", "sine", "chirp", "pulse"}
-    for name in ("sensitivity_time.png", "sensitivity_frequency.png", "sensitivity_drives.png",
-                 "singular_values.png", "sensitivity.md"):
+    for name in (
+        "sensitivity_time.png",
+        "sensitivity_frequency.png",
+        "sensitivity_drives.png",
+        "singular_values.png",
+        "sensitivity.md",
+    ):
         assert (out / name).stat().st_size > 1000
     assert "null direction" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv", [
-    ["sensitivity"],                                           # --out missing
-    ["sensitivity", "--out", "X", "--param", "xi_rho=-1"],
-    ["sensitivity", "--out", "X", "--sobol", "-2"],
-    ["sensitivity", "--out", "X", "--noise", "0"],
-    ["sensitivity", "missing.csv", "--out", "X"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["sensitivity"],  # --out missing
+        ["sensitivity", "--out", "X", "--param", "xi_rho=-1"],
+        ["sensitivity", "--out", "X", "--sobol", "-2"],
+        ["sensitivity", "--out", "X", "--noise", "0"],
+        ["sensitivity", "missing.csv", "--out", "X"],
+    ],
+)
 def test_cli_sensitivity_bad_input_exits_2(argv, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 2

@@ -58,9 +58,29 @@ def test_lti_standard_errors_match_finite_differences(lab_csv, tmp_path):
     out = tmp_path / "sens"
     params = [f"--param={k}={v}" for k, v in NOMINAL.items()]
     proc = subprocess.run(
-        [sys.executable, "-m", "hybrid.cli", "sensitivity", str(path), "--input", "u", "--output", "y",
-         "--physics", "lti:2", *params, "--noise", str(NOISE), "--out", str(out)],
-        cwd=ROOT, capture_output=True, text=True, timeout=120)
+        [
+            sys.executable,
+            "-m",
+            "hybrid.cli",
+            "sensitivity",
+            str(path),
+            "--input",
+            "u",
+            "--output",
+            "y",
+            "--physics",
+            "lti:2",
+            *params,
+            "--noise",
+            str(NOISE),
+            "--out",
+            str(out),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     result = json.loads((out / "sensitivity.json").read_text())
     expected = _cramer_rao_by_differences(u)
@@ -108,8 +128,18 @@ def test_a_plugin_s_default_frozen_parameters_are_left_out(lab_csv, tmp_path, ca
     plugin = tmp_path / "lag.py"
     plugin.write_text(PLUGIN)
     out = tmp_path / "sens"
-    code = main(["sensitivity", str(path), "--columns", "input=u,output=y", "--physics", f"{plugin}:Lag",
-                 "--out", str(out)])
+    code = main(
+        [
+            "sensitivity",
+            str(path),
+            "--columns",
+            "input=u,output=y",
+            "--physics",
+            f"{plugin}:Lag",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     result = json.loads((out / "sensitivity.json").read_text())
     assert result["frozen"] == {"k": "the readout's gain carries the scale"}
@@ -117,16 +147,67 @@ def test_a_plugin_s_default_frozen_parameters_are_left_out(lab_csv, tmp_path, ca
     assert result["unidentifiable"] == []
 
 
-@pytest.mark.parametrize("argv,phrase", [
-    (["sensitivity", "--physics", "lti:2", "--out", "X"], "give a recording of your system"),
-    (["sensitivity", "{path}", "--input", "u", "--output", "y", "--physics", "lti:2", "--stages", "10", "--out", "X"],
-     "--stages belong to the RC network's study"),
-    (["sensitivity", "{path}", "--input", "u", "--output", "y", "--physics", "lti:2", "--param", "xi_rho=3",
-      "--out", "X"], "no parameter(s) ['xi_rho']"),
-    (["sensitivity", "{path}", "--input", "u", "--output", "yy", "--physics", "lti:2", "--out", "X"], "no column 'yy'"),
-    (["sensitivity", "{path}", "--input", "u", "--output", "y", "--range", "0:5", "--physics", "lti:2", "--out", "X"],
-     "needs at least 12"),
-])
+@pytest.mark.parametrize(
+    "argv,phrase",
+    [
+        (["sensitivity", "--physics", "lti:2", "--out", "X"], "give a recording of your system"),
+        (
+            [
+                "sensitivity",
+                "{path}",
+                "--input",
+                "u",
+                "--output",
+                "y",
+                "--physics",
+                "lti:2",
+                "--stages",
+                "10",
+                "--out",
+                "X",
+            ],
+            "--stages belong to the RC network's study",
+        ),
+        (
+            [
+                "sensitivity",
+                "{path}",
+                "--input",
+                "u",
+                "--output",
+                "y",
+                "--physics",
+                "lti:2",
+                "--param",
+                "xi_rho=3",
+                "--out",
+                "X",
+            ],
+            "no parameter(s) ['xi_rho']",
+        ),
+        (
+            ["sensitivity", "{path}", "--input", "u", "--output", "yy", "--physics", "lti:2", "--out", "X"],
+            "no column 'yy'",
+        ),
+        (
+            [
+                "sensitivity",
+                "{path}",
+                "--input",
+                "u",
+                "--output",
+                "y",
+                "--range",
+                "0:5",
+                "--physics",
+                "lti:2",
+                "--out",
+                "X",
+            ],
+            "needs at least 12",
+        ),
+    ],
+)
 def test_bad_input_exits_2_with_one_line(lab_csv, tmp_path, capsys, monkeypatch, argv, phrase):
     path, _ = lab_csv
     monkeypatch.chdir(tmp_path)

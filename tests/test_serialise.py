@@ -34,8 +34,17 @@ def _predict(model):
 
 def _models():
     strip = Strip(length=30e-3, width=4e-3)
-    sim = RCNetwork(xi_rho=7.0, xi_h=0.8, alpha_E=0.3, alpha_I=0.7, alpha_C=0.45, C_clamp=0.02,
-                    strip=strip, n_stages=6, method="zoh")
+    sim = RCNetwork(
+        xi_rho=7.0,
+        xi_h=0.8,
+        alpha_E=0.3,
+        alpha_I=0.7,
+        alpha_C=0.45,
+        C_clamp=0.02,
+        strip=strip,
+        n_stages=6,
+        method="zoh",
+    )
     hybrid = make_model("hybrid", simulation=sim, window=5, depth=2, width=4, key=jax.random.key(5))
     # non-default fixed scalings must survive too
     hybrid = eqx.tree_at(lambda m: m.readout.scales, hybrid, jnp.array([0.1, 2.0, -0.3, 0.7]))
@@ -74,8 +83,16 @@ def test_metadata_describes_the_model(tmp_path):
     assert meta["simulation"]["type"] == "RCNetwork" and meta["simulation"]["config"]["n_stages"] == 4
     assert meta["simulation"]["module"] == "hybrid.physics._rc_network"
     assert meta["readout"] == {"type": "LinearReadout"}
-    expected = {"xi_rho": 10.0, "xi_h": 1.0, "alpha_E": 0.5, "alpha_I": 0.5, "alpha_C": 0.5,
-                "C_clamp": 0.05, "gain": 2.5, "offset": -0.125}
+    expected = {
+        "xi_rho": 10.0,
+        "xi_h": 1.0,
+        "alpha_E": 0.5,
+        "alpha_I": 0.5,
+        "alpha_C": 0.5,
+        "C_clamp": 0.05,
+        "gain": 2.5,
+        "offset": -0.125,
+    }
     assert meta["parameters"] == pytest.approx(expected, rel=1e-13)
     assert meta["units"]["C_clamp"] == "F" and meta["units"]["gain"] == "mm/V"
     assert meta["extra"] == {"metrics": {"test": {"nmse": 0.01}}}
@@ -180,8 +197,9 @@ def test_unsupported_models_cannot_be_saved(tmp_path):
     custom = Model(_Configured(), LinearReadout(), "custom")
     with pytest.raises(InputError, match="define config"):
         save_model(tmp_path / "c.eqx", custom)
-    relu = Model(RCNetwork(n_stages=3),
-                 WindowedMLP(3, 1, 2, activation=jax.nn.relu, key=jax.random.key(0)), "hybrid")
+    relu = Model(
+        RCNetwork(n_stages=3), WindowedMLP(3, 1, 2, activation=jax.nn.relu, key=jax.random.key(0)), "hybrid"
+    )
     with pytest.raises(InputError):
         save_model(tmp_path / "r.eqx", relu)
     assert not (tmp_path / "c.eqx").exists() and not (tmp_path / "r.eqx").exists()

@@ -86,8 +86,15 @@ def test_single_effect_path_is_the_original_pipeline(effect, seed):
     noise = 0.01 * np.ptp(w_true) * np.random.default_rng(seed).standard_normal(len(w_true))
     assert np.array_equal(rec.extra["w_true"], w_true)
     assert np.array_equal(rec.w, w_true + noise)
-    assert set(rec.metadata["hidden"]) == {"effect", "effect_params", "strip", "noise_fraction", "oversample",
-                                          "exposure_fraction", "seed"}
+    assert set(rec.metadata["hidden"]) == {
+        "effect",
+        "effect_params",
+        "strip",
+        "noise_fraction",
+        "oversample",
+        "exposure_fraction",
+        "seed",
+    }
     if seed == 0:  # the compound entry point, given one library effect, makes the same arrays
         other = compound_recording(drive, strip, effect, params, noise_fraction=0.01, seed=seed)
         assert np.array_equal(other.w, rec.w) and np.array_equal(other.v_in, rec.v_in)
@@ -96,8 +103,17 @@ def test_single_effect_path_is_the_original_pipeline(effect, seed):
 # --- pairs -----------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("pair", ["back_relaxation+saturation", "hysteresis+drift", "back_relaxation+hysteresis",
-                                  "delay+back_relaxation", "saturation+resonance", "delay+resonance"])
+@pytest.mark.parametrize(
+    "pair",
+    [
+        "back_relaxation+saturation",
+        "hysteresis+drift",
+        "back_relaxation+hysteresis",
+        "delay+back_relaxation",
+        "saturation+resonance",
+        "delay+resonance",
+    ],
+)
 def test_a_pair_applies_both_effects_one_after_another(pair):
     rng = np.random.default_rng(3)
     params = random_hidden(pair, rng, RATE)
@@ -114,16 +130,19 @@ def test_a_pair_applies_both_effects_one_after_another(pair):
         assert np.max(np.abs(alone - expected)) > 1e-3 * np.ptp(expected), name
     # the spec's order does not matter: the effects act in physical order
     swapped = "+".join(reversed(pair.split("+")))
-    assert np.array_equal(synthetic_recording(drive, STRIP, swapped, params, noise_fraction=0.0).extra["w_true"],
-                          expected)
+    assert np.array_equal(
+        synthetic_recording(drive, STRIP, swapped, params, noise_fraction=0.0).extra["w_true"], expected
+    )
 
 
 def test_pair_parameters_are_drawn_as_the_single_draws():
     for pair in ("back_relaxation+saturation", "resonance+delay", "drift+hysteresis", "saturation+dead_zone"):
         a, b = np.random.default_rng(11), np.random.default_rng(11)
         drawn = random_effect(pair, a, RATE)
-        singles = {n: (OUTSIDE_EFFECTS[n].draw(b, RATE) if n in OUTSIDE_EFFECTS else random_effect(n, b, RATE))
-                   for n in split_hidden(pair)}
+        singles = {
+            n: (OUTSIDE_EFFECTS[n].draw(b, RATE) if n in OUTSIDE_EFFECTS else random_effect(n, b, RATE))
+            for n in split_hidden(pair)
+        }
         assert drawn == singles
 
 
@@ -137,10 +156,15 @@ def test_physical_order_keeps_the_library_stack_order():
 
 
 def test_specs_are_checked():
-    assert split_hidden("none") == () and canonical("saturation+back_relaxation") == "back_relaxation+saturation"
+    assert (
+        split_hidden("none") == () and canonical("saturation+back_relaxation") == "back_relaxation+saturation"
+    )
     assert set(HIDDEN_NAMES) == {"none"} | set(LIBRARY_EFFECTS) | set(OUTSIDE_EFFECTS)
-    for bad, message in (("creep", "unknown hidden effect"), ("saturation+saturation", "twice"),
-                         ("none+delay", "joins 'none'")):
+    for bad, message in (
+        ("creep", "unknown hidden effect"),
+        ("saturation+saturation", "twice"),
+        ("none+delay", "joins 'none'"),
+    ):
         with pytest.raises(InputError, match=message):
             synthetic_recording(_drive(5.0), STRIP, bad, {})
     with pytest.raises(InputError, match="a dict per effect"):
@@ -171,8 +195,10 @@ def test_electrostatic_has_a_material_even_part():
     assert derived == pytest.approx({"peak_v": 1.0, "quadratic_per_v": 0.3}, rel=1e-6)
     # every draw keeps the square material and the map monotone over the range (κ ≤ ½)
     rng = np.random.default_rng(0)
-    assert all(0.15 <= OUTSIDE_EFFECTS["electrostatic"].draw(rng, RATE)["quadratic_fraction"] <= 0.5
-               for _ in range(100))
+    assert all(
+        0.15 <= OUTSIDE_EFFECTS["electrostatic"].draw(rng, RATE)["quadratic_fraction"] <= 0.5
+        for _ in range(100)
+    )
 
 
 def test_dead_zone_is_flat_below_the_threshold():
@@ -185,15 +211,23 @@ def test_dead_zone_is_flat_below_the_threshold():
     expected = np.where(s > delta, s - delta, np.where(s < -delta, s + delta, 0.0))
     np.testing.assert_allclose(out, expected, atol=1e-15)
     rng = np.random.default_rng(1)
-    assert all(0.03 <= OUTSIDE_EFFECTS["dead_zone"].draw(rng, RATE)["threshold_fraction"] <= 0.20 for _ in range(100))
+    assert all(
+        0.03 <= OUTSIDE_EFFECTS["dead_zone"].draw(rng, RATE)["threshold_fraction"] <= 0.20 for _ in range(100)
+    )
 
 
 def _two_ramps(level=1.0, slow_s=8.0, fast_s=0.2, hold_s=10.0):
     """Rest, a slow ramp to `level`, hold, back down slowly, rest, a fast ramp to `level`, hold."""
     n = lambda seconds: int(round(seconds / DT))
-    parts = [np.zeros(n(2.0)), np.linspace(0, level, n(slow_s)), np.full(n(hold_s), level),
-             np.linspace(level, 0, n(slow_s)), np.zeros(n(hold_s)), np.linspace(0, level, n(fast_s)),
-             np.full(n(hold_s), level)]
+    parts = [
+        np.zeros(n(2.0)),
+        np.linspace(0, level, n(slow_s)),
+        np.full(n(hold_s), level),
+        np.linspace(level, 0, n(slow_s)),
+        np.zeros(n(hold_s)),
+        np.linspace(0, level, n(fast_s)),
+        np.full(n(hold_s), level),
+    ]
     s = np.concatenate(parts)
     ends = np.cumsum([len(p) for p in parts])
     return s, np.arange(len(s)) * DT, ends[1] - 1, ends[5] - 1  # index where each ramp reaches `level`
@@ -250,7 +284,9 @@ def test_outside_recordings_record_their_ground_truth(spec):
     rec = synthetic_recording(drive, STRIP, spec, params, noise_fraction=0.02, seed=9)
     hidden = rec.metadata["hidden"]
     names = split_hidden(spec)
-    assert hidden["effect"] == canonical(spec) and hidden["effects"] == list(names) == list(hidden_effects(rec))
+    assert hidden["effect"] == canonical(spec) and hidden["effects"] == list(names) == list(
+        hidden_effects(rec)
+    )
     assert hidden["outside"] == [n for n in names if n in OUTSIDE_EFFECTS]
     assert hidden["effect_params"] == params and hidden["strip"]["gain_mm_per_v"] == STRIP.gain_mm_per_v
     by_name = params if len(names) > 1 else {names[0]: params}
@@ -263,15 +299,30 @@ def test_outside_recordings_record_their_ground_truth(spec):
             steps.append(_single(name, by_name[name]))
             continue
         truth = {**by_name[name], **hidden["derived"][name]}
-        steps.append({"electrostatic": lambda s, t, p=truth: s + p["quadratic_per_v"] * s**2,
-                      "dead_zone": lambda s, t, p=truth: np.sign(s) * np.clip(np.abs(s) - p["threshold_v"], 0, None),
-                      "rate_dependent": lambda s, t, p=truth: s / (1 + p["stiffening"] * _memory(
-                          np.abs(np.r_[0.0, np.diff(s)]) / DT, p["memory_s"]) / p["reference_rate_v_per_s"]),
-                      "self_heating": lambda s, t, p=truth: s * (1 + p["gain_change"] * _memory(
-                          s * s, p["thermal_time_s"]) / p["reference_heat_v2"]),
-                      }[name])
+        steps.append(
+            {
+                "electrostatic": lambda s, t, p=truth: s + p["quadratic_per_v"] * s**2,
+                "dead_zone": lambda s, t, p=truth: (
+                    np.sign(s) * np.clip(np.abs(s) - p["threshold_v"], 0, None)
+                ),
+                "rate_dependent": lambda s, t, p=truth: (
+                    s
+                    / (
+                        1
+                        + p["stiffening"]
+                        * _memory(np.abs(np.r_[0.0, np.diff(s)]) / DT, p["memory_s"])
+                        / p["reference_rate_v_per_s"]
+                    )
+                ),
+                "self_heating": lambda s, t, p=truth: (
+                    s * (1 + p["gain_change"] * _memory(s * s, p["thermal_time_s"]) / p["reference_heat_v2"])
+                ),
+            }[name]
+        )
     delay = by_name["delay"]["delay_samples"] if "delay" in by_name else 0
-    np.testing.assert_allclose(rec.extra["w_true"], _chain(drive, STRIP, steps, delay), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        rec.extra["w_true"], _chain(drive, STRIP, steps, delay), rtol=1e-12, atol=1e-12
+    )
     # the noise the generator knows
     assert hidden["noise_variance"] == pytest.approx(true_noise_variance(rec), rel=1e-12)
     assert np.var(rec.w - rec.extra["w_true"]) == pytest.approx(hidden["noise_variance"], rel=0.1)

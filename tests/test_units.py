@@ -21,8 +21,9 @@ import pytest
 from hybrid import RCNetwork, Recording, fit, make_model
 from hybrid.core._problem import robust_rms, robust_std
 
-TRUE_NETWORK = RCNetwork(xi_rho=6.0, xi_h=1.0, alpha_E=0.3, alpha_I=0.6, alpha_C=0.4,
-                         C_clamp=0.02, n_stages=10)
+TRUE_NETWORK = RCNetwork(
+    xi_rho=6.0, xi_h=1.0, alpha_E=0.3, alpha_I=0.6, alpha_C=0.4, C_clamp=0.02, n_stages=10
+)
 PHYSICAL = ("xi_rho", "alpha_E", "alpha_I", "alpha_C", "C_clamp")
 # The scaled recordings differ from the reference by the rounding of w · factor (one ulp,
 # ~1e-16 relative), and the fit divides by std(w), so it sees the same numbers up to a few ulp.
@@ -47,13 +48,16 @@ def reference(recording):
     return _fit(recording)
 
 
-@pytest.mark.parametrize("w_factor, v_factor", [
-    (1e-3, 1.0),     # w in m
-    (1e3, 1.0),      # w in µm
-    (1e-100, 1.0),
-    (1e300, 1.0),    # std(w) overflowed: every residual was 0
-    (1.0, 1e3),      # v_in in mV
-])
+@pytest.mark.parametrize(
+    "w_factor, v_factor",
+    [
+        (1e-3, 1.0),  # w in m
+        (1e3, 1.0),  # w in µm
+        (1e-100, 1.0),
+        (1e300, 1.0),  # std(w) overflowed: every residual was 0
+        (1.0, 1e3),  # v_in in mV
+    ],
+)
 def test_physical_parameters_do_not_depend_on_units(recording, reference, w_factor, v_factor):
     scaled = Recording(recording.t, recording.v_in * v_factor, recording.w * w_factor)
     result = _fit(scaled)
@@ -61,7 +65,9 @@ def test_physical_parameters_do_not_depend_on_units(recording, reference, w_fact
     for name in PHYSICAL:
         assert result.parameters[name] == pytest.approx(reference.parameters[name], rel=RTOL), name
     # the gain (mm/V) and offset (mm) come back in the recording's own units
-    assert result.parameters["gain"] == pytest.approx(reference.parameters["gain"] * w_factor / v_factor, rel=RTOL)
+    assert result.parameters["gain"] == pytest.approx(
+        reference.parameters["gain"] * w_factor / v_factor, rel=RTOL
+    )
     assert result.parameters["offset"] == pytest.approx(reference.parameters["offset"] * w_factor, rel=RTOL)
     for split, metrics in reference.metrics.items():
         assert result.metrics[split]["fitting"] == pytest.approx(metrics["fitting"], abs=1e-6)
@@ -96,14 +102,20 @@ def test_warnings_name_implausible_unmoved_and_stuck_fits():
     fitted = make_model("physics", simulation=moved)
     record = {"accepted_steps": 12}
     warnings = fit_warnings(start, fitted, {"xi_h"}, record)
-    assert len(warnings) == 1 and warnings[0].startswith("C_clamp = 5e-11 F is outside its plausible range 0.0001 to 10 F")
+    assert len(warnings) == 1 and warnings[0].startswith(
+        "C_clamp = 5e-11 F is outside its plausible range 0.0001 to 10 F"
+    )
     # a parameter that did not move (relative change < 1e-6) is named; a frozen one is not
-    fitted = make_model("physics", simulation=start.simulation.replace(xi_rho=12.0, C_clamp=0.05 * (1 + 1e-9)))
+    fitted = make_model(
+        "physics", simulation=start.simulation.replace(xi_rho=12.0, C_clamp=0.05 * (1 + 1e-9))
+    )
     warnings = fit_warnings(start, fitted, {"xi_h"}, record)
     unmoved = sorted(w.split(" = ")[0] for w in warnings)
     assert unmoved == ["C_clamp", "alpha_C", "alpha_E", "alpha_I"]
-    assert all("did not move from its start value: the data may not constrain it, or the fit failed" in w
-               for w in warnings)
+    assert all(
+        "did not move from its start value: the data may not constrain it, or the fit failed" in w
+        for w in warnings
+    )
     # no accepted step: one warning says so (not one per parameter); plausible ranges still apply
     stuck = make_model("physics", simulation=start.simulation.replace(alpha_E=0.999))
     warnings = fit_warnings(stuck, stuck, {"xi_h"}, {"accepted_steps": 0})

@@ -134,8 +134,14 @@ def test_exact_discretisation_matches_lsim_and_ode():
     ends = []
     for n, un in enumerate(u):
         sol = scipy.integrate.solve_ivp(
-            lambda _t, x, un=un: model.a @ x + model.b * un, (n * dt, (n + 1) * dt), x,
-            method="Radau", jac=model.a, rtol=1e-12, atol=1e-14)
+            lambda _t, x, un=un: model.a @ x + model.b * un,
+            (n * dt, (n + 1) * dt),
+            x,
+            method="Radau",
+            jac=model.a,
+            rtol=1e-12,
+            atol=1e-14,
+        )
         x = sol.y[:, -1]
         ends.append(model.c_out @ x)
     np.testing.assert_allclose(y[os_::os_], np.array(ends), rtol=0, atol=1e-7 * scale)
@@ -157,8 +163,9 @@ def test_dac_quantisation_clipping_and_hold():
     codes = (u / p.full_scale_v + 1) * 4095 / 2
     np.testing.assert_allclose(codes, np.round(codes), atol=1e-9)  # on the 12-bit grid
     assert np.abs(u - v).max() <= step / 2 + 1e-12
-    assert np.unique(np.round(np.diff(np.unique(dac_output(np.linspace(-1, 1, 20000), p))) / step, 9)
-                     ).tolist() == [1.0]
+    assert np.unique(
+        np.round(np.diff(np.unique(dac_output(np.linspace(-1, 1, 20000), p))) / step, 9)
+    ).tolist() == [1.0]
     np.testing.assert_array_equal(dac_output(np.array([-10.0, -3.0, 3.0, 7.0]), p), [-3, -3, 3, 3])
 
     # ZOH: a 60 fps camera on a 30 Hz drive sees each DAC value for two frames.
@@ -219,8 +226,9 @@ def test_static_gain_and_compression():
 
     linear = dataclasses.replace(p, compression=0.0)
     rec_a, rec_b = _step(20.0, 1.0, linear), _step(20.0, 2.0, linear)
-    np.testing.assert_allclose(rec_b.w_true, 2 * rec_a.w_true * rec_b.v_in[0] / (2 * rec_a.v_in[0]),
-                               rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(
+        rec_b.w_true, 2 * rec_a.w_true * rec_b.v_in[0] / (2 * rec_a.v_in[0]), rtol=1e-9, atol=1e-12
+    )
 
 
 def test_mechanics_is_exact_for_piecewise_linear_input():
@@ -246,9 +254,12 @@ def test_exposure_averages_the_displacement():
     windows = np.stack([w[16 * j : 16 * j + 9] for j in range(t.size)])
     trapezoid = (windows[:, :-1] + windows[:, 1:]).sum(axis=1) / 16
     np.testing.assert_allclose(avg.w_true, trapezoid, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(fine.w_true[::16][: t.size],
-                               simulate_virtual_ipmc(t, v, dataclasses.replace(QUIET, exposure_s=0.0)).w_true,
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        fine.w_true[::16][: t.size],
+        simulate_virtual_ipmc(t, v, dataclasses.replace(QUIET, exposure_s=0.0)).w_true,
+        rtol=0,
+        atol=1e-12,
+    )
 
 
 # --- measurement noise and the recording ----------------------------------------------
@@ -297,16 +308,36 @@ def test_recording_shape_metadata_and_speed():
 @pytest.mark.parametrize(
     "change",
     [
-        {"length_m": 0.0}, {"width_m": -1.0}, {"electrode_resistivity_ohm_m": float("nan")},
-        {"interface_ratio": float("inf")}, {"clamp_capacitance_f": 0}, {"alpha_e": 0.0},
-        {"alpha_i": 1.5}, {"alpha_c": -0.2}, {"source_resistance_ohm": -0.1},
-        {"n_compartments": 0}, {"n_compartments": 4.0}, {"n_compartments": True},
-        {"relaxation_time_s": 0.0}, {"relaxation_fraction": 1.0}, {"relaxation_fraction": -0.1},
-        {"gain_mm_per_v": 0.0}, {"compression": 0.95}, {"compression": -0.01},
-        {"mode_frequency_hz": 0.0}, {"damping_ratio": 0.0}, {"dac_bits": 0},
-        {"full_scale_v": -3.0}, {"camera_fps": 0.0}, {"exposure_s": -1e-3},
-        {"camera_fps": 100.0, "exposure_s": 0.02}, {"oversample": 0}, {"oversample": 2.5},
-        {"noise_std_mm": -0.1}, {"pixel_mm": 0.0}, {"length_m": "22 mm"},
+        {"length_m": 0.0},
+        {"width_m": -1.0},
+        {"electrode_resistivity_ohm_m": float("nan")},
+        {"interface_ratio": float("inf")},
+        {"clamp_capacitance_f": 0},
+        {"alpha_e": 0.0},
+        {"alpha_i": 1.5},
+        {"alpha_c": -0.2},
+        {"source_resistance_ohm": -0.1},
+        {"n_compartments": 0},
+        {"n_compartments": 4.0},
+        {"n_compartments": True},
+        {"relaxation_time_s": 0.0},
+        {"relaxation_fraction": 1.0},
+        {"relaxation_fraction": -0.1},
+        {"gain_mm_per_v": 0.0},
+        {"compression": 0.95},
+        {"compression": -0.01},
+        {"mode_frequency_hz": 0.0},
+        {"damping_ratio": 0.0},
+        {"dac_bits": 0},
+        {"full_scale_v": -3.0},
+        {"camera_fps": 0.0},
+        {"exposure_s": -1e-3},
+        {"camera_fps": 100.0, "exposure_s": 0.02},
+        {"oversample": 0},
+        {"oversample": 2.5},
+        {"noise_std_mm": -0.1},
+        {"pixel_mm": 0.0},
+        {"length_m": "22 mm"},
     ],
 )
 def test_bad_parameters_raise(change):

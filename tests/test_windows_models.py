@@ -97,7 +97,14 @@ def test_make_model_kinds_and_shapes():
     expected = jax.vmap(hybrid.readout.predict_window)(windows)
     np.testing.assert_allclose(np.asarray(hybrid.predict(v, dt)), np.asarray(expected), rtol=1e-14)
     assert set(physics.parameters()) == {
-        "xi_rho", "xi_h", "alpha_E", "alpha_I", "alpha_C", "C_clamp", "gain", "offset"
+        "xi_rho",
+        "xi_h",
+        "alpha_E",
+        "alpha_I",
+        "alpha_C",
+        "C_clamp",
+        "gain",
+        "offset",
     }
     assert normal.parameters() == {}
 

@@ -36,7 +36,7 @@ def _rmse(a, b) -> float:
 
 def _initial(y, init, n):
     """The first n output samples a simulation may start from: y[:init], then y[init-1] held."""
-    y0 = np.asarray(y[:min(init, n)], float)
+    y0 = np.asarray(y[: min(init, n)], float)
     return np.concatenate([y0, np.full(max(0, n - len(y0)), y0[-1])])
 
 
@@ -46,9 +46,14 @@ def _frols(cfg, nfir):
     from sysidentpy.model_structure_selection import FROLS
     from sysidentpy.parameter_estimation import LeastSquares
 
-    options = dict(xlag=int(cfg["xlag"]), order_selection=True, info_criteria="aic",
-                   n_info_values=int(cfg.get("n_info_values", 15)), estimator=LeastSquares(),
-                   basis_function=Polynomial(degree=int(cfg["degree"])))
+    options = dict(
+        xlag=int(cfg["xlag"]),
+        order_selection=True,
+        info_criteria="aic",
+        n_info_values=int(cfg.get("n_info_values", 15)),
+        estimator=LeastSquares(),
+        basis_function=Polynomial(degree=int(cfg["degree"])),
+    )
     if nfir:
         options["model_type"] = "NFIR"
     else:
@@ -79,8 +84,12 @@ class SysIdentPy:
     def describe(self, model):
         from sysidentpy.utils.display_results import results
 
-        return [" ".join(map(str, r)) for r in results(model.final_model, model.theta, model.err, model.n_terms,
-                                                        err_precision=4, dtype="sci")]
+        return [
+            " ".join(map(str, r))
+            for r in results(
+                model.final_model, model.theta, model.err, model.n_terms, err_precision=4, dtype="sci"
+            )
+        ]
 
 
 def _fit_length(p, n):
@@ -99,8 +108,10 @@ class Sindy:
         d = int(cfg["delays"])
         self.scale = (float(np.mean(u)), float(np.std(u)) or 1.0, float(np.mean(y)), float(np.std(y)) or 1.0)
         x, c = self._embed(u, y, d)
-        model = ps.DiscreteSINDy(optimizer=ps.STLSQ(threshold=float(cfg["threshold"]), alpha=1e-5),
-                                 feature_library=ps.PolynomialLibrary(degree=int(cfg["degree"])))
+        model = ps.DiscreteSINDy(
+            optimizer=ps.STLSQ(threshold=float(cfg["threshold"]), alpha=1e-5),
+            feature_library=ps.PolynomialLibrary(degree=int(cfg["degree"])),
+        )
         model.fit(x, t=1, u=c)
         return (model, d, self.scale)
 
@@ -108,8 +119,8 @@ class Sindy:
         um, us, ym, ys = scale or self.scale
         us_, ys_ = (u - um) / us, (y - ym) / ys
         n = len(u)
-        x = np.stack([ys_[d - 1 - j:n - j] for j in range(d)], axis=1)
-        c = np.stack([us_[d - 1 - j:n - j] for j in range(d)], axis=1)
+        x = np.stack([ys_[d - 1 - j : n - j] for j in range(d)], axis=1)
+        c = np.stack([us_[d - 1 - j : n - j] for j in range(d)], axis=1)
         return x, c
 
     def simulate(self, fitted, u, y, init):
@@ -121,12 +132,12 @@ class Sindy:
         yy[d:] = 0.0  # nothing after the initial samples is seen
         x, c = self._embed(u, yy, d, scale)
         k0 = init - 1  # the state at sample init-1 holds y[init-d .. init-1]
-        x0, cu = x[k0 - (d - 1)], c[k0 - (d - 1):]
+        x0, cu = x[k0 - (d - 1)], c[k0 - (d - 1) :]
         steps = len(u) - k0
         sim = self._run(model, x0, cu, steps)
         out = np.full(len(u), np.nan)
         out[:init] = y[:init]
-        out[k0:k0 + len(sim)] = sim[:, 0] * ys + ym
+        out[k0 : k0 + len(sim)] = sim[:, 0] * ys + ym
         self.last = (model, x0, cu, steps, sim)
         return out
 
@@ -145,7 +156,7 @@ class Sindy:
                 z = np.concatenate([x[k - 1], cu[k - 1]])
                 x[k] = coef @ np.prod(z[None, :] ** powers, axis=1)
                 if not np.all(np.abs(x[k]) < 1e3):
-                    return x[:k + 1]
+                    return x[: k + 1]
         return x
 
     def check_simulate(self, steps=500):
@@ -199,17 +210,31 @@ class JaxSysid:
 
             rng = np.random.default_rng(0)
             model = Model(nx, 1, 1, state_fcn=state_fcn, output_fcn=output_fcn)
-            model.init(params=[0.5 * np.eye(nx), 0.1 * rng.standard_normal((nx, 1)),
-                               0.1 * rng.standard_normal((1, nx)), 0.1 * rng.standard_normal((nn, nx)),
-                               0.5 * rng.standard_normal((nn, 1)), 0.5 * rng.standard_normal((nx, nn)),
-                               np.zeros(nn), np.zeros(nx), 0.5 * rng.standard_normal((nn, nx)),
-                               0.5 * rng.standard_normal((1, nn)), np.zeros(nn), np.zeros(1)])
+            model.init(
+                params=[
+                    0.5 * np.eye(nx),
+                    0.1 * rng.standard_normal((nx, 1)),
+                    0.1 * rng.standard_normal((1, nx)),
+                    0.1 * rng.standard_normal((nn, nx)),
+                    0.5 * rng.standard_normal((nn, 1)),
+                    0.5 * rng.standard_normal((nx, nn)),
+                    np.zeros(nn),
+                    np.zeros(nx),
+                    0.5 * rng.standard_normal((nn, nx)),
+                    0.5 * rng.standard_normal((1, nn)),
+                    np.zeros(nn),
+                    np.zeros(1),
+                ]
+            )
             model.loss(rho_x0=1e-4, rho_th=1e-4)
-            model.optimization(adam_epochs=int(cfg["adam_epochs"]), lbfgs_epochs=int(cfg["lbfgs_epochs"]),
-                               iprint=-1)
+            model.optimization(
+                adam_epochs=int(cfg["adam_epochs"]), lbfgs_epochs=int(cfg["lbfgs_epochs"]), iprint=-1
+            )
         model.fit(Ys, Us)
-        return (model, (float(np.ravel(um)[0]), float(np.ravel(ug)[0]), float(np.ravel(ym)[0]),
-                        float(np.ravel(yg)[0])))
+        return (
+            model,
+            (float(np.ravel(um)[0]), float(np.ravel(ug)[0]), float(np.ravel(ym)[0]), float(np.ravel(yg)[0])),
+        )
 
     def simulate(self, fitted, u, y, init):
         model, (um, ug, ym, yg) = fitted
@@ -225,8 +250,13 @@ class JaxSysid:
         return [f"states {fitted[0].nx}"]
 
 
-TOOLS = {"narx": lambda: SysIdentPy(False), "volterra": lambda: SysIdentPy(True), "sindy": Sindy,
-         "jaxsysid_linear": lambda: JaxSysid("linear"), "jaxsysid_rnn": lambda: JaxSysid("rnn")}
+TOOLS = {
+    "narx": lambda: SysIdentPy(False),
+    "volterra": lambda: SysIdentPy(True),
+    "sindy": Sindy,
+    "jaxsysid_linear": lambda: JaxSysid("linear"),
+    "jaxsysid_rnn": lambda: JaxSysid("rnn"),
+}
 
 
 def main(argv) -> int:
@@ -251,7 +281,12 @@ def main(argv) -> int:
             score = _rmse(tool.simulate(fitted, s_u, s_y, s_init)[lo:hi], s_y[lo:hi])
             error = ""
         except Exception as e:  # a setting a tool cannot fit is recorded, not fatal
-            fitted, fit_s, score, error = None, time.perf_counter() - t0, float("inf"), f"{type(e).__name__}: {e}"
+            fitted, fit_s, score, error = (
+                None,
+                time.perf_counter() - t0,
+                float("inf"),
+                f"{type(e).__name__}: {e}",
+            )
         candidates.append({"settings": cfg, "selection_rmse": score, "fit_s": fit_s, "error": error[:300]})
         print(f"{name} {cfg}: selection RMSE {score:.4g} ({fit_s:.1f} s) {error[:120]}", flush=True)
         if fitted is not None and (best is None or score < best[0]):
@@ -264,15 +299,23 @@ def main(argv) -> int:
     t0 = time.perf_counter()
     free = tool.simulate(fitted, t_u, t_y, t_init)
     sim_s = time.perf_counter() - t0
-    out = {"free": free, "fit_s": fit_s, "sim_s": sim_s, "search_s": search_s,
-           "chosen": json.dumps(cfg), "candidates": json.dumps(candidates)}
+    out = {
+        "free": free,
+        "fit_s": fit_s,
+        "sim_s": sim_s,
+        "search_s": search_s,
+        "chosen": json.dumps(cfg),
+        "candidates": json.dumps(candidates),
+    }
     if hasattr(tool, "check_simulate"):
         difference, per_step = tool.check_simulate()
         out["tool_sim_s"] = per_step * (len(t_u) - t_init + 1)
-        out["sim_note"] = (f"pysindy's own simulate: {per_step * 1e3:.2f} ms a step, timed on 500 steps and "
-                           f"extrapolated to the record; the prediction is computed with its coefficients and "
-                           f"library powers in a numpy loop ({sim_s:.2f} s; max difference "
-                           f"to pysindy's simulate {difference:.1e} over those steps)")
+        out["sim_note"] = (
+            f"pysindy's own simulate: {per_step * 1e3:.2f} ms a step, timed on 500 steps and "
+            f"extrapolated to the record; the prediction is computed with its coefficients and "
+            f"library powers in a numpy loop ({sim_s:.2f} s; max difference "
+            f"to pysindy's simulate {difference:.1e} over those steps)"
+        )
     if hasattr(tool, "one_step"):
         out["one_step"] = tool.one_step(fitted, t_u, t_y)
     try:

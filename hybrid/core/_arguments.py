@@ -125,7 +125,9 @@ def check_dt(dt, where: str):
     try:
         value = float(dt)
     except (TypeError, ValueError):
-        raise InputError(f"{where}: dt must be one number (seconds), got {type(dt).__name__} {dt!r:.60}") from None
+        raise InputError(
+            f"{where}: dt must be one number (seconds), got {type(dt).__name__} {dt!r:.60}"
+        ) from None
     if not (math.isfinite(value) and value > 0):
         raise InputError(f"{where}: dt must be a finite positive number of seconds, got {value!r}")
     return dt
@@ -172,5 +174,6 @@ def check_key(key, where: str):
             return key
         if key.dtype == jnp.uint32 and key.shape == (2,):
             return key
-    raise InputError(f"{where}: key must be a JAX PRNG key such as jax.random.key(0), got {type(key).__name__} "
-                     f"{key!r:.60}")
+    raise InputError(
+        f"{where}: key must be a JAX PRNG key such as jax.random.key(0), got {type(key).__name__} {key!r:.60}"
+    )

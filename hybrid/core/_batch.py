@@ -132,7 +132,9 @@ def fit_batch(
             "group them by length, or crop them to a common length"
         )
     for recording in recordings:
-        recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
+        recording.check_length(
+            model.readout.window, f"the model's input window ({model.readout.window} samples)"
+        )
         recording.check_signals()
     series = [series_from_recording(r, split, split_order) for r in recordings]
     for i, s in enumerate(series):
@@ -154,7 +156,8 @@ def fit_batch(
         if template is None:
             template = problem
         problem = eqx.tree_at(
-            lambda p: (p.sim_static, p.readout_static, p.series, p.scale), template,
+            lambda p: (p.sim_static, p.readout_static, p.series, p.scale),
+            template,
             (problem.sim_static, problem.readout_static, problem.series, problem.scale),
         )
         for m in initial:
@@ -191,37 +194,54 @@ def fit_batch(
         problem = problems[i]
         fitted = problem.model(jnp.asarray(best_theta[i]))
         w_unit, v_unit = units[r]
-        fitted = Model(fitted.simulation, readout_back(fitted.readout, model.readout, frozen, v_unit, w_unit),
-                       fitted.kind)
+        fitted = Model(
+            fitted.simulation,
+            readout_back(fitted.readout, model.readout, frozen, v_unit, w_unit),
+            fitted.kind,
+        )
         split_metrics = {}
         for name in ("train", "validation", "test"):
             if name in split_order:
                 w = np.asarray(problem.target(name))
                 split_metrics[name] = compute_metrics(w, predictions[name][i][: w.shape[0]])
         per_start = [
-            {"validation_loss": float(best_val[j]), "steps": int(steps[j]), "accepted_steps": int(accepted[j]),
-             "best_step": int(best_step[j]), "train_cost": float(cost[j])}
+            {
+                "validation_loss": float(best_val[j]),
+                "steps": int(steps[j]),
+                "accepted_steps": int(accepted[j]),
+                "best_step": int(best_step[j]),
+                "train_cost": float(cost[j]),
+            }
             for j in rows
         ]
-        results.append(FitResult(
-            model=fitted,
-            parameters={key: float(v) for key, v in fitted.parameters().items()},
-            units=fitted.units,
-            metrics=split_metrics,
-            history=[],
-            starts=per_start,
-            best_start=k,
-            settings={
-                "solver": "lm", "batch": True, "starts": starts, "max_steps": max_steps,
-                "frozen": sorted(frozen), "split": dict(zip(split_order, map(float, split))),
-                "patience": patience, "seed": seed, "perturbation": perturbation,
-                "weight_decay": problem.weight_decay, "n_parameters": int(thetas.shape[1]),
-                "n_residuals": int(problem.target("train").shape[0]),
-                "recordings": [recording.metadata.get("source", "")],
-            },
-            seconds=float("nan"),
-            warnings=list(recording.notes) + fit_warnings(starts_of[r][k], fitted, frozen, per_start[k]),
-        ))
+        results.append(
+            FitResult(
+                model=fitted,
+                parameters={key: float(v) for key, v in fitted.parameters().items()},
+                units=fitted.units,
+                metrics=split_metrics,
+                history=[],
+                starts=per_start,
+                best_start=k,
+                settings={
+                    "solver": "lm",
+                    "batch": True,
+                    "starts": starts,
+                    "max_steps": max_steps,
+                    "frozen": sorted(frozen),
+                    "split": dict(zip(split_order, map(float, split))),
+                    "patience": patience,
+                    "seed": seed,
+                    "perturbation": perturbation,
+                    "weight_decay": problem.weight_decay,
+                    "n_parameters": int(thetas.shape[1]),
+                    "n_residuals": int(problem.target("train").shape[0]),
+                    "recordings": [recording.metadata.get("source", "")],
+                },
+                seconds=float("nan"),
+                warnings=list(recording.notes) + fit_warnings(starts_of[r][k], fitted, frozen, per_start[k]),
+            )
+        )
     seconds = time.perf_counter() - t_start
     for i, res in enumerate(results):  # each fit's share of the wall time
         results[i] = dataclasses.replace(res, seconds=seconds / len(results))
@@ -255,16 +275,26 @@ def _compiled_runner(template, settings, batch_size, devices):
     splits = tuple(name for name, _ in template.series[0].segments)
 
     def one(arrays, theta):
-        sim_static, readout_static, series, scale = eqx.combine(arrays, eqx.filter(_DYNAMIC(template), eqx.is_array, inverse=True))
+        sim_static, readout_static, series, scale = eqx.combine(
+            arrays, eqx.filter(_DYNAMIC(template), eqx.is_array, inverse=True)
+        )
         problem = eqx.tree_at(
-            lambda p: (p.sim_static, p.readout_static, p.series, p.scale), template,
+            lambda p: (p.sim_static, p.readout_static, p.series, p.scale),
+            template,
             (sim_static, readout_static, series, scale),
         )
         state = lm_init(problem, theta, settings)
         state = lm_run(problem, state, settings, settings.max_steps)
         predictions = {name: problem.prediction(state.best_theta, name) for name in splits}
-        return (state.best_theta, state.best_val, state.step, state.accepted, state.best_step,
-                state.cost, predictions)
+        return (
+            state.best_theta,
+            state.best_val,
+            state.step,
+            state.accepted,
+            state.best_step,
+            state.cost,
+            predictions,
+        )
 
     def local(arrays, thetas):
         if batch_size is None:
@@ -301,12 +331,16 @@ def simulate_batch(simulations, v_in, dt: float, *, batch_size: int | None = 8):
             raise InputError("no simulations: pass a non-empty list")
         kinds = {type(s) for s in simulations}
         if len(kinds) > 1 or not issubclass(kinds.pop(), AbstractSimulation):
-            raise InputError("simulate_batch needs simulations of one type such as hybrid.RCNetwork(), got "
-                             f"{', '.join(sorted({type(s).__name__ for s in simulations}))}")
+            raise InputError(
+                "simulate_batch needs simulations of one type such as hybrid.RCNetwork(), got "
+                f"{', '.join(sorted({type(s).__name__ for s in simulations}))}"
+            )
         simulations = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *simulations)
     if not isinstance(simulations, AbstractSimulation):
-        raise InputError(f"simulate_batch needs a list of simulations such as hybrid.RCNetwork(), got "
-                         f"{type(simulations).__name__}")
+        raise InputError(
+            f"simulate_batch needs a list of simulations such as hybrid.RCNetwork(), got "
+            f"{type(simulations).__name__}"
+        )
     check_dt(dt, "simulate_batch")
     v_in = jnp.asarray(v_in)
     if v_in.ndim not in (1, 2):

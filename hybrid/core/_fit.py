@@ -106,13 +106,17 @@ def fit(
     frozen = as_names(frozen, "fit", "frozen", model.parameter_names)  # "xi_h" is one name
     seed = check_seed(seed, "fit")
     for recording in recordings:
-        recording.check_length(model.readout.window, f"the model's input window ({model.readout.window} samples)")
+        recording.check_length(
+            model.readout.window, f"the model's input window ({model.readout.window} samples)"
+        )
         recording.check_signals()  # a constant drive or w: refused, not fitted to its start values
     series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
     train_w = np.concatenate([np.asarray(s.target("train")) for s in series])
     if not np.ptp(train_w) > 0:
-        raise InputError("the training part of the recording(s) has constant w: "
-                         "there is nothing to fit (check the displacement column)")
+        raise InputError(
+            "the training part of the recording(s) has constant w: "
+            "there is nothing to fit (check the displacement column)"
+        )
 
     # Fit in units where w and v_in are O(1), so that the result does not depend on the
     # recording's units (LM's damping λI and the gain's Jacobian column do otherwise).
@@ -129,23 +133,34 @@ def fit(
         raise InputError(f"stop must be a function of no arguments that returns True to stop, got {stop!r}")
     stopped = False
     if solver == "lm":
-        best, history, per_start, stopped = _run_lm(problem, thetas, max_steps, patience, progress, report_every,
-                                                    stop)
+        best, history, per_start, stopped = _run_lm(
+            problem, thetas, max_steps, patience, progress, report_every, stop
+        )
     elif solver == "adam":
-        best, history, per_start, stopped = _run_adam(problem, thetas, max_steps, learning_rate, progress,
-                                                      report_every, stop)
+        best, history, per_start, stopped = _run_adam(
+            problem, thetas, max_steps, learning_rate, progress, report_every, stop
+        )
     else:
         best, history, per_start = _run_optimistix(problem, thetas, max_steps)
 
     best_start = int(np.nanargmin([s["validation_loss"] for s in per_start]))
     fitted = problem.model(best[best_start])
-    fitted = Model(fitted.simulation, readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit),
-                   fitted.kind)
+    fitted = Model(
+        fitted.simulation, readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit), fitted.kind
+    )
     result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
     settings = {
-        "solver": solver, "starts": starts, "max_steps": max_steps, "frozen": sorted(frozen),
-        "split": dict(zip(split_order, map(float, split))), "blocks": blocks, "patience": patience,
-        "seed": seed, "perturbation": perturbation, "weight_decay": problem.weight_decay, "n_parameters": int(thetas.shape[1]),
+        "solver": solver,
+        "starts": starts,
+        "max_steps": max_steps,
+        "frozen": sorted(frozen),
+        "split": dict(zip(split_order, map(float, split))),
+        "blocks": blocks,
+        "patience": patience,
+        "seed": seed,
+        "perturbation": perturbation,
+        "weight_decay": problem.weight_decay,
+        "n_parameters": int(thetas.shape[1]),
         "n_residuals": int(problem.target("train").shape[0]),
         "recordings": [r.metadata.get("source", "") for r in recordings],
     }
@@ -170,7 +185,9 @@ def fit(
 def _unit_labels(model: Model, recordings) -> dict[str, str]:
     """`model.units`, with a linear readout's gain and offset in the recordings' declared units."""
     units = dict(model.units)
-    tables = [r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings]
+    tables = [
+        r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings
+    ]
     declared = {(str(u.get("w", "mm")), str(u.get("v_in", "V"))) for u in tables}
     if len(declared) == 1 and isinstance(model.readout, LinearReadout):
         w, v = declared.pop()
@@ -225,10 +242,12 @@ def start_model(model: Model, index, seed, frozen, perturbation, series) -> Mode
         simulation = model.simulation.perturbed(k_phys, perturbation, frozen)
         model = Model(simulation, readout, model.kind)
     # Fixed scalings (and a least-squares gain for linear readouts) from the training data.
-    signal = jnp.concatenate([
-        jnp.concatenate([model.mediatory(s.v_in, s.dt)[a:b] for a, b in s.segments_of("train")])
-        for s in series
-    ])
+    signal = jnp.concatenate(
+        [
+            jnp.concatenate([model.mediatory(s.v_in, s.dt)[a:b] for a, b in s.segments_of("train")])
+            for s in series
+        ]
+    )
     target = jnp.concatenate([s.target("train") for s in series])
     if "network" in frozen or (set(getattr(model.readout, "raw", {})) & frozen):
         return model
@@ -321,23 +340,36 @@ def _run_lm(problem, thetas, max_steps, patience, progress, report_every, stop=N
             stage(f"fit: LM on the {problem.kind} model, step {step} of at most {max_steps}")
             done = bool(jnp.all(states.done))
             if requested % report_every == 0 or done:
-                history.append({
-                    "step": step,
-                    "train_cost": [float(c) for c in states.cost],
-                    "validation_loss": [float(v) for v in states.best_val],
-                })
+                history.append(
+                    {
+                        "step": step,
+                        "train_cost": [float(c) for c in states.cost],
+                        "validation_loss": [float(v) for v in states.best_val],
+                    }
+                )
             bar.n = step
-            bar.set_postfix(cost=f"{float(jnp.min(states.cost)):.3e}", val=f"{float(jnp.min(states.best_val)):.3e}")
+            bar.set_postfix(
+                cost=f"{float(jnp.min(states.cost)):.3e}", val=f"{float(jnp.min(states.best_val)):.3e}"
+            )
             bar.refresh()
     if stopped:
         step = int(jnp.max(states.step))
         if not history or history[-1]["step"] != step:
-            history.append({"step": step, "train_cost": [float(c) for c in states.cost],
-                            "validation_loss": [float(v) for v in states.best_val]})
+            history.append(
+                {
+                    "step": step,
+                    "train_cost": [float(c) for c in states.cost],
+                    "validation_loss": [float(v) for v in states.best_val],
+                }
+            )
     per_start = [
-        {"validation_loss": float(states.best_val[i]), "steps": int(states.step[i]),
-         "accepted_steps": int(states.accepted[i]), "best_step": int(states.best_step[i]),
-         "train_cost": float(states.cost[i])}
+        {
+            "validation_loss": float(states.best_val[i]),
+            "steps": int(states.step[i]),
+            "accepted_steps": int(states.accepted[i]),
+            "best_step": int(states.best_step[i]),
+            "train_cost": float(states.cost[i]),
+        }
         for i in range(thetas.shape[0])
     ]
     return states.best_theta, history, per_start, stopped
@@ -380,8 +412,13 @@ def _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every,
             thetas, opt_states, best, best_val = run(problem, thetas, opt_states, best, best_val, chunk)
             step += chunk
             costs = jax.vmap(problem.cost)(thetas)
-            history.append({"step": step, "train_cost": [float(c) for c in costs],
-                            "validation_loss": [float(v) for v in best_val]})
+            history.append(
+                {
+                    "step": step,
+                    "train_cost": [float(c) for c in costs],
+                    "validation_loss": [float(v) for v in best_val],
+                }
+            )
             stage(f"fit: Adam on the {problem.kind} model, step {step} of at most {max_steps}")
             bar.n = step
             bar.refresh()
@@ -399,9 +436,13 @@ def _run_optimistix(problem, thetas, max_steps):
             lambda th, _: problem.objective_residuals(th), solver, theta, max_steps=max_steps, throw=False
         )
         best.append(solution.value)
-        per_start.append({
-            "validation_loss": float(problem.validation_loss(solution.value)),
-            "steps": int(solution.stats["num_steps"]),
-            "result": str(solution.result) if solution.result != optx.RESULTS.successful else "successful",
-        })
+        per_start.append(
+            {
+                "validation_loss": float(problem.validation_loss(solution.value)),
+                "steps": int(solution.stats["num_steps"]),
+                "result": str(solution.result)
+                if solution.result != optx.RESULTS.successful
+                else "successful",
+            }
+        )
     return jnp.stack(best), [], per_start

@@ -62,10 +62,14 @@ class HeldStart(AbstractWrapper):
 
     def __init__(self, inner: AbstractSimulation, settle_samples: int, initial_drive: float = 0.0):
         if not isinstance(inner, AbstractSimulation):
-            raise InputError(f"HeldStart wraps a simulation (an AbstractSimulation), got {type(inner).__name__}")
+            raise InputError(
+                f"HeldStart wraps a simulation (an AbstractSimulation), got {type(inner).__name__}"
+            )
         if isinstance(settle_samples, bool) or not isinstance(settle_samples, int) or settle_samples < 1:
-            raise InputError(f"settle_samples must be a positive whole number of samples, got {settle_samples!r}: "
-                             "take several of the slowest time constant, in samples")
+            raise InputError(
+                f"settle_samples must be a positive whole number of samples, got {settle_samples!r}: "
+                "take several of the slowest time constant, in samples"
+            )
         if INITIAL_DRIVE in inner.parameter_names():
             raise InputError(f"{type(inner).__name__} already has a parameter {INITIAL_DRIVE!r}")
         self.inner = inner
@@ -79,7 +83,9 @@ class HeldStart(AbstractWrapper):
     def with_raw(self, raw):
         inner = {k: v for k, v in raw.items() if k != INITIAL_DRIVE}
         own = {INITIAL_DRIVE: raw.get(INITIAL_DRIVE, self.own[INITIAL_DRIVE])}
-        return eqx.tree_at(lambda s: (s.inner, s.own), self, (self.inner.with_raw(inner) if inner else self.inner, own))
+        return eqx.tree_at(
+            lambda s: (s.inner, s.own), self, (self.inner.with_raw(inner) if inner else self.inner, own)
+        )
 
     def held_drive(self, v_in):
         """The drive the inner simulation runs on: `settle_samples` of ``initial_drive``, then `v_in`."""
@@ -89,7 +95,7 @@ class HeldStart(AbstractWrapper):
         return jnp.concatenate([prefix, v_in.astype(prefix.dtype)])
 
     def simulate(self, v_in, dt):
-        return self.inner.simulate(self.held_drive(v_in), dt)[self.settle_samples:]
+        return self.inner.simulate(self.held_drive(v_in), dt)[self.settle_samples :]
 
     def parameters(self):
         return {**self.inner.parameters(), INITIAL_DRIVE: self.own[INITIAL_DRIVE]}
@@ -106,8 +112,11 @@ class HeldStart(AbstractWrapper):
     def replace(self, **values):
         rest = {k: v for k, v in values.items() if k != INITIAL_DRIVE}
         inner = self.inner.replace(**rest) if rest else self.inner
-        own = encode({INITIAL_DRIVE: values.get(INITIAL_DRIVE, self.parameters()[INITIAL_DRIVE])},
-                     self.constraints, "HeldStart")
+        own = encode(
+            {INITIAL_DRIVE: values.get(INITIAL_DRIVE, self.parameters()[INITIAL_DRIVE])},
+            self.constraints,
+            "HeldStart",
+        )
         return eqx.tree_at(lambda s: (s.inner, s.own), self, (inner, own))
 
     def perturbed(self, key, scale, frozen=frozenset()):

@@ -104,10 +104,20 @@ def lm_init(problem, theta0, settings: LMSettings) -> LMState:
     n = theta0.shape[0]
     zero = jnp.zeros((), jnp.int32)
     return LMState(
-        theta=theta0, cost=cost, JtJ=jnp.zeros((n, n), cost.dtype), g=jnp.zeros(n, cost.dtype),
-        lam=jnp.asarray(jnp.nan, cost.dtype), nu=jnp.asarray(2.0, cost.dtype),
-        best_theta=theta0, best_val=val, best_step=zero, step=zero, accepted=zero,
-        since_best=zero, done=~jnp.isfinite(cost), fresh=jnp.asarray(True),
+        theta=theta0,
+        cost=cost,
+        JtJ=jnp.zeros((n, n), cost.dtype),
+        g=jnp.zeros(n, cost.dtype),
+        lam=jnp.asarray(jnp.nan, cost.dtype),
+        nu=jnp.asarray(2.0, cost.dtype),
+        best_theta=theta0,
+        best_val=val,
+        best_step=zero,
+        step=zero,
+        accepted=zero,
+        since_best=zero,
+        done=~jnp.isfinite(cost),
+        fresh=jnp.asarray(True),
     )
 
 
@@ -118,9 +128,15 @@ def _refresh(problem, state: LMState, settings: LMSettings) -> LMState:
     if settings.scaling != "marquardt":
         lam0 = lam0 * jnp.max(jnp.diag(JtJ))
     return eqx.tree_at(
-        lambda s: (s.JtJ, s.g, s.lam, s.fresh, s.done), state,
-        (JtJ, g, jnp.where(jnp.isnan(state.lam), lam0, state.lam), jnp.asarray(False),
-         state.done | (jnp.max(jnp.abs(g)) < settings.gtol)),
+        lambda s: (s.JtJ, s.g, s.lam, s.fresh, s.done),
+        state,
+        (
+            JtJ,
+            g,
+            jnp.where(jnp.isnan(state.lam), lam0, state.lam),
+            jnp.asarray(False),
+            state.done | (jnp.max(jnp.abs(g)) < settings.gtol),
+        ),
     )
 
 
@@ -157,13 +173,20 @@ def lm_step(problem, state: LMState, settings: LMSettings, patience=None) -> LMS
         elif settings.patience:
             converged = converged | (since_best >= settings.patience)
         return LMState(
-            theta=theta_new, cost=cost, JtJ=state.JtJ, g=state.g, lam=lam, fresh=jnp.asarray(True),
+            theta=theta_new,
+            cost=cost,
+            JtJ=state.JtJ,
+            g=state.g,
+            lam=lam,
+            fresh=jnp.asarray(True),
             nu=jnp.asarray(2.0, state.nu.dtype),
             best_theta=jnp.where(better, theta_new, state.best_theta),
             best_val=jnp.where(better, val, state.best_val),
             best_step=jnp.where(better, state.step + 1, state.best_step),
-            step=state.step + 1, accepted=state.accepted + 1,
-            since_best=since_best, done=converged,
+            step=state.step + 1,
+            accepted=state.accepted + 1,
+            since_best=since_best,
+            done=converged,
         )
 
     def rejected(state):

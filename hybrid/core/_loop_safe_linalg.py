@@ -53,10 +53,11 @@ def expm(a, max_squarings: int = MAX_SQUARINGS):
     dot = _dot
     powers = [eye, x]
     for _ in range(5):
-        powers.append(dot(powers[-1], x))          # X², …, X⁶
+        powers.append(dot(powers[-1], x))  # X², …, X⁶
     coeffs = [1.0 / math.factorial(k) for k in range(TAYLOR_DEGREE + 1)]
-    chunks = [sum(coeffs[6 * j + i] * powers[i] for i in range(6) if 6 * j + i <= TAYLOR_DEGREE)
-              for j in range(4)]                    # B_j = Σ_i c_{6j+i} X^i
+    chunks = [
+        sum(coeffs[6 * j + i] * powers[i] for i in range(6) if 6 * j + i <= TAYLOR_DEGREE) for j in range(4)
+    ]  # B_j = Σ_i c_{6j+i} X^i
     x6 = powers[6]
     result = chunks[3]
     for j in (2, 1, 0):
@@ -96,7 +97,9 @@ def lstsq(design, target, rtol: float = 1e-10):
             columns[i] = columns[i] - r[j][i] * q
     coef = [jnp.zeros((), design.dtype)] * k
     for j in reversed(range(k)):
-        value = (r[j][k] - sum((r[j][i] * coef[i] for i in range(j + 1, k)), jnp.zeros((), design.dtype))) / r[j][j]
+        value = (
+            r[j][k] - sum((r[j][i] * coef[i] for i in range(j + 1, k)), jnp.zeros((), design.dtype))
+        ) / r[j][j]
         coef[j] = jnp.where(keep[j], value, 0.0)
     residual = columns[k]
     return jnp.stack(coef), jnp.sum(residual * residual)

@@ -221,7 +221,12 @@ def metrics(w: ArrayLike, w_hat: ArrayLike) -> dict[str, float]:
         ``{"nmse", "nmse_target", "nmse_variance", "fitting"}``; see the
         functions of the same names.
     """
-    functions = {"nmse": _nmse, "nmse_target": _nmse_target, "nmse_variance": _nmse_variance, "fitting": _fitting}
+    functions = {
+        "nmse": _nmse,
+        "nmse_target": _nmse_target,
+        "nmse_variance": _nmse_variance,
+        "fitting": _fitting,
+    }
     # The same formulas in numpy: floats of concrete arrays need no compiled program (one per length).
     w, w_hat = (np.asarray(x) for x in _pair(w, w_hat, np))
     return {key: float(functions[key](w, w_hat, np)) for key in METRICS}

@@ -113,8 +113,10 @@ def make_model(
     if kind == "normal":
         return Model(Passthrough(), WindowedMLP(window, depth, width, key=key), "normal")
     if simulation is None:
-        raise InputError(f"make_model({kind!r}) needs a simulation: pass simulation=hybrid.RCNetwork() (the paper's "
-                         "physics) or any AbstractSimulation, or use hybrid.make_model, which defaults to the RC network")
+        raise InputError(
+            f"make_model({kind!r}) needs a simulation: pass simulation=hybrid.RCNetwork() (the paper's "
+            "physics) or any AbstractSimulation, or use hybrid.make_model, which defaults to the RC network"
+        )
     if kind == "physics":
         return Model(simulation, LinearReadout(), "physics")
     return Model(simulation, WindowedMLP(window, depth, width, key=key), "hybrid")

@@ -111,9 +111,7 @@ def encode(values: dict, constraints: dict, owner: str) -> dict:
     raw = {}
     for name, value in values.items():
         if name not in constraints:
-            raise InputError(
-                f"{owner} has no parameter {name!r}: its parameters are {sorted(constraints)}"
-            )
+            raise InputError(f"{owner} has no parameter {name!r}: its parameters are {sorted(constraints)}")
         constraint = constraints[name]
         if not isinstance(value, jax.core.Tracer):
             try:
@@ -125,9 +123,7 @@ def encode(values: dict, constraints: dict, owner: str) -> dict:
                     f"{owner} parameter {name} must be a number, got {type(value).__name__} {value!r:.60}"
                 ) from None
         if not constraint.contains(value):
-            raise InputError(
-                f"{owner} parameter {name} must be {constraint.describe()}, got {value!r}"
-            )
+            raise InputError(f"{owner} parameter {name} must be {constraint.describe()}, got {value!r}")
         raw[name] = constraint.to_raw(jnp.asarray(value, dtype=float))
     missing = set(constraints) - set(raw)
     if missing:

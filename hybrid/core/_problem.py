@@ -99,7 +99,7 @@ def robust_std(x):
 def robust_rms(x):
     """rms(x) without overflow or underflow (see `robust_std`)."""
     x, p = _binary_scaled(x)
-    return jnp.sqrt(jnp.mean(x ** 2)) * p
+    return jnp.sqrt(jnp.mean(x**2)) * p
 
 
 def _binary_scaled(x):
@@ -110,8 +110,9 @@ def _binary_scaled(x):
     return x / p, p
 
 
-def series_from_recording(recording, fractions=(0.3, 0.5, 0.2), order=("train", "test", "validation"),
-                          blocks: int = 1):
+def series_from_recording(
+    recording, fractions=(0.3, 0.5, 0.2), order=("train", "test", "validation"), blocks: int = 1
+):
     """A [`Series`][] from a Recording, split in time (paper: 30/50/20 %, contiguous).
 
     With `blocks` > 1 the recording is cut into that many equal chunks and each
@@ -132,7 +133,9 @@ def series_from_recording(recording, fractions=(0.3, 0.5, 0.2), order=("train", 
     segments = tuple((name, tuple(parts[name])) for name in order)
     # device_put, not jnp.asarray: no compiled program per recording length
     return Series(
-        jax.device_put(np.asarray(recording.v_in)), jax.device_put(np.asarray(recording.w)), float(recording.dt),
+        jax.device_put(np.asarray(recording.v_in)),
+        jax.device_put(np.asarray(recording.w)),
+        float(recording.dt),
         segments,
     )
 
@@ -215,8 +218,9 @@ class Problem(eqx.Module):
     weight_decay: float = eqx.field(static=True)
     sim_tangents: jax.Array | None
 
-    def __init__(self, model: Model, series, frozen=frozenset(), weight_decay: float = 0.0,
-                 sim_tangents=None):
+    def __init__(
+        self, model: Model, series, frozen=frozenset(), weight_decay: float = 0.0, sim_tangents=None
+    ):
         series = tuple(series)
         if not series:
             raise InputError("no recordings to fit: pass at least one recording")
@@ -231,11 +235,16 @@ class Problem(eqx.Module):
             raise InputError("every parameter is frozen: free at least one to fit")
         self.series = series
         if any(s.weights is not None for s in series) and getattr(model.readout, "window", 1) != 1:
-            raise InputError(f"padded series need a per-sample readout: a window of {model.readout.window} samples "
-                             "would reach across a split's start (use series_from_recording's segments)")
-        if any(s.weights is not None for s in series):  # padded series: the training samples alone, on the host
-            train = np.concatenate([np.asarray(s.target("train"))[np.asarray(_weight_of(s, "train")) > 0]
-                                    for s in series])
+            raise InputError(
+                f"padded series need a per-sample readout: a window of {model.readout.window} samples "
+                "would reach across a split's start (use series_from_recording's segments)"
+            )
+        if any(
+            s.weights is not None for s in series
+        ):  # padded series: the training samples alone, on the host
+            train = np.concatenate(
+                [np.asarray(s.target("train"))[np.asarray(_weight_of(s, "train")) > 0] for s in series]
+            )
             top = float(np.max(np.abs(train)))
             power = np.ldexp(1.0, int(np.frexp(top)[1])) if np.isfinite(top) and top > 0 else 1.0
             std = jax.device_put(np.asarray(np.std(train / power) * power))  # `robust_std` in numpy
@@ -377,7 +386,9 @@ class Problem(eqx.Module):
         def from_sim(theta_sim):
             readout = self.readout(b)
             windows = self._windows(readout, self._signals(theta_sim), split)
-            return self._weighted((target - jax.vmap(readout.predict_window)(windows)) / self.scale, split), windows
+            return self._weighted(
+                (target - jax.vmap(readout.predict_window)(windows)) / self.scale, split
+            ), windows
 
         if self.n_sim:
             r, linear, windows = jax.linearize(from_sim, a, has_aux=True)
@@ -485,11 +496,15 @@ def gram_lower(J):
     Otherwise it is XLA's whole ``J.T @ J``.
     """
     rows, n = J.shape
-    if (J.dtype not in (jnp.float32, jnp.float64) or rows * n * n < HOST_GRAM_MACS
-            or jax.default_backend() != "cpu"):
+    if (
+        J.dtype not in (jnp.float32, jnp.float64)
+        or rows * n * n < HOST_GRAM_MACS
+        or jax.default_backend() != "cpu"
+    ):
         return J.T @ J
-    return jax.pure_callback(_host_gram_lower, jax.ShapeDtypeStruct((n, n), J.dtype), J,
-                             vmap_method="sequential")
+    return jax.pure_callback(
+        _host_gram_lower, jax.ShapeDtypeStruct((n, n), J.dtype), J, vmap_method="sequential"
+    )
 
 
 def _host_gram_lower(J):

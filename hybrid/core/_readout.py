@@ -88,8 +88,10 @@ class LinearReadout(AbstractReadout):
         return eqx.tree_at(lambda r: r.raw, spec, {k: k not in frozen for k in self.raw})
 
     def rescaled(self, input_scale, output_scale):
-        raw = {"gain": self.raw["gain"] * (output_scale / input_scale),
-               "offset": self.raw["offset"] * output_scale}
+        raw = {
+            "gain": self.raw["gain"] * (output_scale / input_scale),
+            "offset": self.raw["offset"] * output_scale,
+        }
         return eqx.tree_at(lambda r: r.raw, self, raw)
 
     def initialise(self, signal, w):
@@ -137,7 +139,12 @@ class WindowedMLP(AbstractReadout):
                 raise InputError(f"D-MLP {name} must be an integer ≥ {low}, got {value!r}")
         mlp_key, init_key = jax.random.split(key)
         mlp = eqx.nn.MLP(
-            window, "scalar", width, depth, activation=activation, key=mlp_key,
+            window,
+            "scalar",
+            width,
+            depth,
+            activation=activation,
+            key=mlp_key,
             dtype=jnp.zeros(()).dtype,
         )
         self.mlp = _tanh_gain_init(mlp, init_key)
@@ -155,9 +162,7 @@ class WindowedMLP(AbstractReadout):
         spec = jax.tree_util.tree_map(lambda _: False, self)
         if "network" in frozen:
             return spec
-        return eqx.tree_at(
-            lambda r: r.mlp, spec, jax.tree_util.tree_map(eqx.is_inexact_array, self.mlp)
-        )
+        return eqx.tree_at(lambda r: r.mlp, spec, jax.tree_util.tree_map(eqx.is_inexact_array, self.mlp))
 
     def rescaled(self, input_scale, output_scale):
         factors = jnp.array([input_scale, input_scale, output_scale, output_scale], self.scales.dtype)
@@ -165,10 +170,14 @@ class WindowedMLP(AbstractReadout):
 
     def initialise(self, signal, w):
         s, w = jnp.asarray(signal), jnp.asarray(w)
-        scales = jnp.stack([
-            jnp.mean(s), jnp.maximum(jnp.std(s), 1e-12),
-            jnp.mean(w), jnp.maximum(jnp.std(w), 1e-12),
-        ]).astype(self.scales.dtype)
+        scales = jnp.stack(
+            [
+                jnp.mean(s),
+                jnp.maximum(jnp.std(s), 1e-12),
+                jnp.mean(w),
+                jnp.maximum(jnp.std(w), 1e-12),
+            ]
+        ).astype(self.scales.dtype)
         return eqx.tree_at(lambda r: r.scales, self, scales)
 
     @property

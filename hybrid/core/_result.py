@@ -49,9 +49,11 @@ class FitResult:
 
     def summary(self) -> str:
         """A few readable lines: metrics per split and the fitted parameters."""
-        lines = [f"{self.model.kind} model, {self.settings.get('solver')} "
-                 f"({len(self.starts)} start(s), kept #{self.best_start}), {self.seconds:.1f} s"
-                 + (", stopped early: the best model so far" if self.stopped else "")]
+        lines = [
+            f"{self.model.kind} model, {self.settings.get('solver')} "
+            f"({len(self.starts)} start(s), kept #{self.best_start}), {self.seconds:.1f} s"
+            + (", stopped early: the best model so far" if self.stopped else "")
+        ]
         for split, m in self.metrics.items():
             lines.append(
                 f"  {split:<10} NMSE {m['nmse']:.3e}  NMSE(target) {m['nmse_target']:.3e}  "
@@ -103,19 +105,22 @@ def fit_warnings(start: Model, fitted: Model, frozen, start_record: dict[str, An
         warnings.append(
             "the fit made no accepted step: every parameter is still at its start value (the "
             "data may not constrain the model, or the fit failed: check the recording's columns "
-            "and units, or try other starts)")
+            "and units, or try other starts)"
+        )
     for name in free:
         value, initial = after[name], before[name]
         unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
         if not no_step and abs(value - initial) <= UNMOVED_RTOL * abs(initial):
             warnings.append(
                 f"{name} = {value:.6g}{unit} did not move from its start value: the data may not "
-                "constrain it, or the fit failed")
+                "constrain it, or the fit failed"
+            )
     for name, (low, high) in fitted.simulation.plausible_ranges().items():
         if name in free and not (low <= after[name] <= high):
             unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
             warnings.append(
                 f"{name} = {after[name]:.6g}{unit} is outside its plausible range {low:g} to "
                 f"{high:g}{unit}: check the recording's units and columns, or the value is not "
-                "identifiable from this data")
+                "identifiable from this data"
+            )
     return warnings

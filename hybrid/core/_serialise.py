@@ -39,8 +39,11 @@ def build_simulation(description: dict) -> AbstractSimulation:
     """A simulation with default parameters from `describe_simulation`'s dict (its class imported)."""
     cls = simulation_class(description["type"], description.get("module"))
     # Files saved before `config` was recorded hold the RC network's settings at the top level.
-    config = (description["config"] if "config" in description
-              else {k: v for k, v in description.items() if k not in ("type", "module")})
+    config = (
+        description["config"]
+        if "config" in description
+        else {k: v for k, v in description.items() if k not in ("type", "module")}
+    )
     return cls.from_config(config)
 
 
@@ -50,8 +53,12 @@ def _describe(model: Model) -> dict:
     if isinstance(readout, WindowedMLP):
         if readout.mlp.activation is not jax.numpy.tanh:
             raise InputError("only tanh D-MLPs can be saved")
-        out = {"type": "WindowedMLP", "window": readout.window,
-               "depth": len(readout.mlp.layers) - 1, "width": readout.mlp.width_size}
+        out = {
+            "type": "WindowedMLP",
+            "window": readout.window,
+            "depth": len(readout.mlp.layers) - 1,
+            "width": readout.mlp.width_size,
+        }
     elif isinstance(readout, LinearReadout):
         out = {"type": "LinearReadout"}
     else:
@@ -79,10 +86,14 @@ def simulation_class(name: str, module: str | None = None) -> type[AbstractSimul
         return (exact or found)[0]
     where = f" (module {module})" if module else ""
     if not found:
-        raise InputError(f"the model's simulation {name}{where} is not an imported AbstractSimulation: import the "
-                         "module that defines it before load_model")
-    raise InputError(f"several imported simulations are called {name} ({', '.join(c.__module__ for c in found)}): "
-                     "import only the one the model was saved with")
+        raise InputError(
+            f"the model's simulation {name}{where} is not an imported AbstractSimulation: import the "
+            "module that defines it before load_model"
+        )
+    raise InputError(
+        f"several imported simulations are called {name} ({', '.join(c.__module__ for c in found)}): "
+        "import only the one the model was saved with"
+    )
 
 
 def _skeleton(description: dict) -> Model:
@@ -97,7 +108,9 @@ def _skeleton(description: dict) -> Model:
 
 def _path(path, where: str) -> Path:
     if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
-        raise InputError(f"{where} needs a file path (str or pathlib.Path), got {path!r}: give e.g. 'fit.eqx'")
+        raise InputError(
+            f"{where} needs a file path (str or pathlib.Path), got {path!r}: give e.g. 'fit.eqx'"
+        )
     return Path(path)
 
 
@@ -108,9 +121,13 @@ def save_model(path, model: Model, extra: dict | None = None) -> Path:
     """
     path = _path(path, "save_model")
     if not isinstance(model, Model):
-        raise InputError(f"save_model needs a hybrid.Model (e.g. FitResult.model), got {type(model).__name__}")
+        raise InputError(
+            f"save_model needs a hybrid.Model (e.g. FitResult.model), got {type(model).__name__}"
+        )
     if path.is_dir():
-        raise InputError(f"cannot save a model to {path}: it is a folder; give a file name such as {path / 'fit.eqx'}")
+        raise InputError(
+            f"cannot save a model to {path}: it is a folder; give a file name such as {path / 'fit.eqx'}"
+        )
     description = _describe(model)
     description["parameters"] = {k: float(v) for k, v in model.parameters().items()}
     description["units"] = model.units
@@ -119,12 +136,16 @@ def save_model(path, model: Model, extra: dict | None = None) -> Path:
     try:
         text = json.dumps(description, indent=2, allow_nan=False)
     except (TypeError, ValueError) as error:
-        raise InputError(f"save_model: extra is not JSON-able ({error}): use dicts, lists, strings, "
-                         "finite numbers, booleans and None") from None
+        raise InputError(
+            f"save_model: extra is not JSON-able ({error}): use dicts, lists, strings, "
+            "finite numbers, booleans and None"
+        ) from None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        raise InputError(f"cannot create the folder {path.parent} for {path} ({error.strerror or error}): create it or choose another path") from None
+        raise InputError(
+            f"cannot create the folder {path.parent} for {path} ({error.strerror or error}): create it or choose another path"
+        ) from None
     with staged(path, Path(f"{path}.json")) as (leaves, meta):
         with open(leaves, "wb") as handle:
             eqx.tree_serialise_leaves(handle, model)
@@ -137,7 +158,9 @@ def load_model(path) -> Model:
     path = _path(path, "load_model")
     meta = Path(f"{path}.json")
     if not path.is_file() or not meta.is_file():
-        raise InputError(f"model file {path} or its metadata {meta} is missing: save it with `hybrid fit --out`")
+        raise InputError(
+            f"model file {path} or its metadata {meta} is missing: save it with `hybrid fit --out`"
+        )
     try:
         description = json.loads(meta.read_text())
     except json.JSONDecodeError as error:
@@ -148,8 +171,10 @@ def load_model(path) -> Model:
     try:
         skeleton = _skeleton(description)
     except (KeyError, TypeError, AttributeError) as error:
-        raise InputError(f"model metadata {meta} is incomplete ({type(error).__name__}: {error}): "
-                         "save the model again with save_model or `hybrid fit --out`") from None
+        raise InputError(
+            f"model metadata {meta} is incomplete ({type(error).__name__}: {error}): "
+            "save the model again with save_model or `hybrid fit --out`"
+        ) from None
     try:
         with open(path, "rb") as handle:
             model = eqx.tree_deserialise_leaves(handle, skeleton)
@@ -161,8 +186,10 @@ def load_model(path) -> Model:
     for name, value in model.parameters().items():
         if name in expected and not np.isclose(float(value), expected[name], rtol=1e-9, atol=0):
             if not jax.config.jax_enable_x64 and np.isclose(float(value), expected[name], rtol=1e-6, atol=0):
-                raise InputError(f"model file {path} holds float64 weights and this session runs float32: call "
-                                 "jax.config.update('jax_enable_x64', True) before load_model (the CLI does)")
+                raise InputError(
+                    f"model file {path} holds float64 weights and this session runs float32: call "
+                    "jax.config.update('jax_enable_x64', True) before load_model (the CLI does)"
+                )
             raise InputError(
                 f"model file {path} does not match its metadata: {name} is {float(value):.6g} in the "
                 f"weights but {expected[name]:.6g} in {meta}"

@@ -118,8 +118,10 @@ class AbstractSimulation(eqx.Module):
         """
         extra = [f.name for f in dataclasses.fields(self) if f.name != "raw"]
         if extra:
-            raise InputError(f"{type(self).__name__} cannot be saved: it has fields {extra} besides raw; define "
-                             "config() (its settings as a JSON-able dict) and the classmethod from_config(config)")
+            raise InputError(
+                f"{type(self).__name__} cannot be saved: it has fields {extra} besides raw; define "
+                "config() (its settings as a JSON-able dict) and the classmethod from_config(config)"
+            )
         return {}
 
     @classmethod
@@ -195,8 +197,9 @@ def perturb_raw(raw: dict, key, scale: float, frozen=frozenset()) -> dict:
     out = dict(raw)
     for j, name in enumerate(sorted(out)):
         if name not in frozen:
-            out[name] = out[name] + scale * jax.random.normal(jax.random.fold_in(key, j), out[name].shape,
-                                                              out[name].dtype)
+            out[name] = out[name] + scale * jax.random.normal(
+                jax.random.fold_in(key, j), out[name].shape, out[name].dtype
+            )
     return out
 
 

@@ -84,13 +84,9 @@ def checked_number(drive: str, param: str, value: Any, *, positive: bool = False
             f"{drive} drive parameter {param}={value!r} is not a number: give a real number"
         ) from None
     if not math.isfinite(number):
-        raise InputError(
-            f"{drive} drive parameter {param}={value!r} is not finite: give a finite number"
-        )
+        raise InputError(f"{drive} drive parameter {param}={value!r} is not finite: give a finite number")
     if positive and number <= 0:
-        raise InputError(
-            f"{drive} drive parameter {param}={number:g} must be positive: give a value > 0"
-        )
+        raise InputError(f"{drive} drive parameter {param}={number:g} must be positive: give a value > 0")
     return number
 
 
@@ -136,7 +132,5 @@ def checked_count(drive: str, param: str, value: Any, minimum: int) -> int:
 
 def checked_seed(drive: str, seed: Any) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(
-            f"{drive} drive seed {seed!r} is not a non-negative integer: give e.g. seed=0"
-        )
+        raise InputError(f"{drive} drive seed {seed!r} is not a non-negative integer: give e.g. seed=0")
     return int(seed)

@@ -29,8 +29,12 @@ __all__ = ["DRIVES", "make_drive"]
 
 
 _GENERATORS: dict[str, Callable[..., Drive]] = {
-    "prbs": prbs, "sine": sine, "chirp": chirp, "pulse": pulse,
-    "staircase": staircase, "triangle": triangle,
+    "prbs": prbs,
+    "sine": sine,
+    "chirp": chirp,
+    "pulse": pulse,
+    "staircase": staircase,
+    "triangle": triangle,
 }
 
 #: Names accepted by [`make_drive`][hybrid.make_drive]: the paper's four (Table 2 order), then
@@ -38,9 +42,7 @@ _GENERATORS: dict[str, Callable[..., Drive]] = {
 DRIVES: tuple[str, ...] = tuple(_GENERATORS)
 
 
-def make_drive(
-    name: str, duration: float, rate: float = DEFAULT_RATE, seed: int = 0, **params: Any
-) -> Drive:
+def make_drive(name: str, duration: float, rate: float = DEFAULT_RATE, seed: int = 0, **params: Any) -> Drive:
     """Build a drive by name.
 
     Arguments:
@@ -62,10 +64,7 @@ def make_drive(
     accepted = [p for p in signature if p not in ("duration", "rate", "seed")]
     unknown = [p for p in params if p not in accepted]
     if unknown:
-        raise InputError(
-            f"{name} drive has no parameter(s) {', '.join(unknown)}: use "
-            f"{', '.join(accepted)}"
-        )
+        raise InputError(f"{name} drive has no parameter(s) {', '.join(unknown)}: use {', '.join(accepted)}")
     if "seed" in signature:
         params["seed"] = seed
     return generator(duration, rate, **params)

@@ -44,7 +44,9 @@ def staircase(
     step_time = checked_number("staircase", "step_time", step_time, positive=True)
     steps = checked_count("staircase", "steps", steps, minimum=2)
     if step_time * rate < 1:
-        raise InputError(f"staircase drive step_time={step_time:g} s is shorter than one sample at {rate:g} Hz")
+        raise InputError(
+            f"staircase drive step_time={step_time:g} s is shorter than one sample at {rate:g} Hz"
+        )
     levels = np.linspace(-amplitude, amplitude, steps)
     cycle = np.concatenate([levels, levels[-2:0:-1]])
     index = np.floor(np.arange(len(t)) / (step_time * rate) + 1e-9).astype(int) % len(cycle)

@@ -33,9 +33,7 @@ SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
 NPZ_EXTRA = "extra_"
 
 
-def read_file(
-    path: pathlib.Path, *, require_w: bool = True
-) -> tuple[dict[str, np.ndarray], dict]:
+def read_file(path: pathlib.Path, *, require_w: bool = True) -> tuple[dict[str, np.ndarray], dict]:
     """Read the channels and metadata of a recording file; see `Recording.load`.
 
     Arguments:
@@ -69,9 +67,7 @@ def check_file(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
     if not path.is_file():
         raise InputError(f"recording file '{path}' is not a file: give a file path")
     if path.stat().st_size == 0:
-        raise InputError(
-            f"recording file '{path}' is empty: give a file with a header and data"
-        )
+        raise InputError(f"recording file '{path}' is empty: give a file with a header and data")
     return suffix
 
 
@@ -80,11 +76,12 @@ def file_suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
     if suffix not in suffixes:
         hint = ""
         if suffix in (".txt", ".dat") and suffix not in suffixes:
-            hint = (" (a text table is read with its columns mapped: --columns input=COLUMN,output=COLUMN "
-                    "--rate HZ, or one file per channel: --columns input=u.txt,output=y.txt)")
+            hint = (
+                " (a text table is read with its columns mapped: --columns input=COLUMN,output=COLUMN "
+                "--rate HZ, or one file per channel: --columns input=u.txt,output=y.txt)"
+            )
         raise InputError(
-            f"recording '{path}' has unknown suffix '{path.suffix}': use "
-            + ", ".join(suffixes) + hint
+            f"recording '{path}' has unknown suffix '{path.suffix}': use " + ", ".join(suffixes) + hint
         )
     return suffix
 
@@ -104,15 +101,16 @@ def path_argument(path: Any, where: str) -> pathlib.Path:
     return pathlib.Path(path)
 
 
-def _require(
-    path: pathlib.Path, found: Sequence[str], kind: str, required: Sequence[str] = REQUIRED
-) -> None:
+def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequence[str] = REQUIRED) -> None:
     missing = [c for c in required if c not in found]
     if missing:
         shown = ", ".join(f"'{c}'" for c in found) or "none"
         others = [c for c in found if c not in REQUIRED]
-        example = ",".join(f"{role}={name}" for role, name in zip(("input", "output"), others)) \
-            if len(others) >= 2 else "input=COLUMN,output=COLUMN"
+        example = (
+            ",".join(f"{role}={name}" for role, name in zip(("input", "output"), others))
+            if len(others) >= 2
+            else "input=COLUMN,output=COLUMN"
+        )
         raise InputError(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
@@ -125,13 +123,11 @@ def parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:
         metadata = json.loads(text)
     except ValueError as error:
         raise InputError(
-            f"recording '{path}' has unreadable metadata in {where} ({error}): "
-            "fix the JSON or delete it"
+            f"recording '{path}' has unreadable metadata in {where} ({error}): fix the JSON or delete it"
         ) from None
     if not isinstance(metadata, dict):
         raise InputError(
-            f"recording '{path}' has metadata in {where} that is not a JSON "
-            "object: write it as {...}"
+            f"recording '{path}' has metadata in {where} that is not a JSON object: write it as {{...}}"
         )
     return metadata
 
@@ -143,13 +139,10 @@ def read_text(path: pathlib.Path) -> str:
     try:
         return path.read_text(encoding="utf-8-sig")  # -sig: Excel's byte-order mark
     except UnicodeDecodeError:
-        raise InputError(
-            f"recording '{path}' is not UTF-8 text: save it as a plain CSV file"
-        ) from None
+        raise InputError(f"recording '{path}' is not UTF-8 text: save it as a plain CSV file") from None
     except OSError as error:
         raise InputError(
-            f"recording '{path}' cannot be read ({error.strerror or error}): check "
-            "its permissions"
+            f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions"
         ) from None
 
 
@@ -163,16 +156,11 @@ def _csv_lines(path: pathlib.Path) -> list[tuple[int, str]]:
     return lines
 
 
-def _csv_header(
-    path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED
-) -> list[str]:
+def _csv_header(path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED) -> list[str]:
     _check_delimiter(path, line)
     header = [cell.strip().strip('"').strip() for cell in line.split(",")]
     if any(not cell for cell in header):
-        raise InputError(
-            f"recording '{path}' has an empty column name in its header: name "
-            "every column"
-        )
+        raise InputError(f"recording '{path}' has an empty column name in its header: name every column")
     repeated = sorted({c for c in header if header.count(c) > 1})
     if repeated:
         raise InputError(
@@ -196,9 +184,7 @@ def _check_delimiter(path: pathlib.Path, line: str) -> None:
             )
 
 
-def _csv_column(
-    path: pathlib.Path, column: str, cells: list[str], numbers: np.ndarray
-) -> np.ndarray:
+def _csv_column(path: pathlib.Path, column: str, cells: list[str], numbers: np.ndarray) -> np.ndarray:
     """Convert one column of cells, naming the first bad cell and its line."""
     try:
         values = np.array(cells, dtype=np.float64)
@@ -221,14 +207,11 @@ def _csv_column(
     return values
 
 
-def _load_csv(
-    path: pathlib.Path, required: Sequence[str] = REQUIRED
-) -> tuple[dict[str, np.ndarray], dict]:
+def _load_csv(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[dict[str, np.ndarray], dict]:
     lines = _csv_lines(path)
     if not lines:
         raise InputError(
-            f"recording '{path}' has no header or data: give a header line "
-            "t,v_in,w and one line per sample"
+            f"recording '{path}' has no header or data: give a header line t,v_in,w and one line per sample"
         )
     header = _csv_header(path, lines[0][1], required)
     rows, numbers = [], []
@@ -245,15 +228,9 @@ def _load_csv(
         rows.append(cells)
         numbers.append(number)
     if not rows:
-        raise InputError(
-            f"recording '{path}' has a header but no data lines: add one line "
-            "per sample"
-        )
+        raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     numbers = np.asarray(numbers)
-    columns = {
-        c: _csv_column(path, c, [row[i] for row in rows], numbers)
-        for i, c in enumerate(header)
-    }
+    columns = {c: _csv_column(path, c, [row[i] for row in rows], numbers) for i, c in enumerate(header)}
     meta_path = sidecar(path)
     metadata = {}
     if meta_path.exists():
@@ -280,14 +257,12 @@ def npz_arrays(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     return arrays, metadata
 
 
-def _load_npz(
-    path: pathlib.Path, required: Sequence[str] = REQUIRED
-) -> tuple[dict[str, np.ndarray], dict]:
+def _load_npz(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[dict[str, np.ndarray], dict]:
     arrays, metadata = npz_arrays(path)
     _require(path, list(arrays), "array(s)", required)
     columns = {}
     for key, values in arrays.items():
-        column = key[len(NPZ_EXTRA):] if key.startswith(NPZ_EXTRA) else key
+        column = key[len(NPZ_EXTRA) :] if key.startswith(NPZ_EXTRA) else key
         columns[column] = file_vector(path, key, values)
     return columns, metadata
 
@@ -350,9 +325,7 @@ def mat_variables(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     return variables, metadata
 
 
-def _load_mat(
-    path: pathlib.Path, required: Sequence[str] = REQUIRED
-) -> tuple[dict[str, np.ndarray], dict]:
+def _load_mat(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[dict[str, np.ndarray], dict]:
     variables, metadata = mat_variables(path)
     _require(path, list(variables), "variable(s)", required)
     columns = {key: file_vector(path, key, values) for key, values in variables.items()}

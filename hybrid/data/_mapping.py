@@ -87,11 +87,17 @@ DEFAULT_UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "a.u."}
 RATE_RTOL: float = 1e-4
 
 
-
 def load_mapped(
-    path: str | pathlib.Path | Sequence[str | pathlib.Path], *, input: str | None = None, output: str | None = None,
-    columns: str | None = None, rate: float | None = None, sample_range: str | slice | None = None,
-    time: str | None = None, units: Mapping[str, str] | None = None, name: str | None = None,
+    path: str | pathlib.Path | Sequence[str | pathlib.Path],
+    *,
+    input: str | None = None,
+    output: str | None = None,
+    columns: str | None = None,
+    rate: float | None = None,
+    sample_range: str | slice | None = None,
+    time: str | None = None,
+    units: Mapping[str, str] | None = None,
+    name: str | None = None,
     require_w: bool = True,
 ) -> Recording:
     """Read a file whose columns have the lab's names; see the module's rules.
@@ -138,16 +144,24 @@ def load_mapped(
     lengths = {role: len(values) for role, values in data.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"the {OPTION[r]} '{roles[r]}' has {k}" for r, k in lengths.items())
-        fix = ("join files of one record, one value per sample in each (cut them to the same samples)"
-               if references else "map columns of one record, of one length")
+        fix = (
+            "join files of one record, one value per sample in each (cut them to the same samples)"
+            if references
+            else "map columns of one record, of one length"
+        )
         raise InputError(f"recording '{path}': {listed} values: {fix}")
     n = lengths["v_in"]
     start, stop = range_bounds(path, sample_range, bounds, n)
     ranged = (start, stop) != (0, n)
-    label = name.strip() if name else (
-        (f"{path} (" if not references else "")
-        + f"{roles['v_in']} -> {roles.get('w', 'no output')}"
-        + (f", samples {start}:{stop}" if ranged else "") + (")" if not references else "")
+    label = (
+        name.strip()
+        if name
+        else (
+            (f"{path} (" if not references else "")
+            + f"{roles['v_in']} -> {roles.get('w', 'no output')}"
+            + (f", samples {start}:{stop}" if ranged else "")
+            + (")" if not references else "")
+        )
     )
     t = None
     if "t" in data:
@@ -170,8 +184,11 @@ def load_mapped(
         t = (start + np.arange(stop - start, dtype=np.float64)) / hz
     metadata = dict(file_meta)
     metadata.update(
-        source=str(path), units=_units(roles, given_units, file_meta),
-        mapping={role: roles.get(role) for role in ("t", "v_in", "w")}, rate_hz=hz, rate_from=rate_from,
+        source=str(path),
+        units=_units(roles, given_units, file_meta),
+        mapping={role: roles.get(role) for role in ("t", "v_in", "w")},
+        rate_hz=hz,
+        rate_from=rate_from,
     )
     if ranged:
         previous = file_meta.get("segment")
@@ -254,7 +271,7 @@ def _named_file(text: str, paths: Sequence[pathlib.Path]) -> pathlib.Path | None
 
 
 def _read_joined(
-    references: Mapping[str, tuple[pathlib.Path, str | None]]
+    references: Mapping[str, tuple[pathlib.Path, str | None]],
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
     """The columns of several files, one role each (or several of one file), their rate fields and metadata."""
     data: dict[str, np.ndarray] = {}
@@ -275,9 +292,14 @@ def _read_joined(
 
 
 def load_pair(
-    path: str | pathlib.Path, *, test_input: str | None = None, test_output: str | None = None,
-    test_columns: str | None = None, test_sample_range: str | slice | None = None,
-    test_path: str | pathlib.Path | None = None, **options: Any,
+    path: str | pathlib.Path,
+    *,
+    test_input: str | None = None,
+    test_output: str | None = None,
+    test_columns: str | None = None,
+    test_sample_range: str | slice | None = None,
+    test_path: str | pathlib.Path | None = None,
+    **options: Any,
 ) -> tuple[Recording, Recording]:
     """A benchmark's estimation and validation records, e.g. Cascaded Tanks'
     ``uEst -> yEst`` and ``uVal -> yVal``, or two sample ranges of the Silverbox.
@@ -299,8 +321,10 @@ def load_pair(
         ``(estimation, validation)``.
     """
     estimation = load_mapped(path, **options)
-    roles = mapping_roles(**{k: options.get(k) for k in ("input", "output", "time", "columns")},
-                          require_w=options.get("require_w", True))
+    roles = mapping_roles(
+        **{k: options.get(k) for k in ("input", "output", "time", "columns")},
+        require_w=options.get("require_w", True),
+    )
     if all(x is None for x in (test_input, test_output, test_columns, test_sample_range, test_path)):
         raise InputError(
             f"recording '{estimation.name}' has no validation record: give its columns (test_input=, "
@@ -316,10 +340,17 @@ def load_pair(
             )
         if value is not None:
             given[channel] = value
-    test = {**options, "columns": None, "sample_range": test_sample_range, "name": None,
-            "input": given.get("v_in", roles["v_in"]), "output": given.get("w", roles.get("w")),
-            "time": given.get("t", roles.get("t"))}
+    test = {
+        **options,
+        "columns": None,
+        "sample_range": test_sample_range,
+        "name": None,
+        "input": given.get("v_in", roles["v_in"]),
+        "output": given.get("w", roles.get("w")),
+        "time": given.get("t", roles.get("t")),
+    }
     validation = load_mapped(path if test_path is None else test_path, **test)
+
     def same(r: Recording) -> tuple:
         return r.metadata["source"], r.metadata["mapping"], r.metadata.get("segment")
 
@@ -342,7 +373,10 @@ def _units(roles: Mapping[str, str], given: Mapping[str, str], file_meta: Mappin
 
 
 def _resolve_rate(
-    label: str, rate: float | None, t: np.ndarray | None, fields: Mapping[str, np.ndarray],
+    label: str,
+    rate: float | None,
+    t: np.ndarray | None,
+    fields: Mapping[str, np.ndarray],
     metadata: Mapping,
 ) -> tuple[float | None, str]:
     """The sampling rate and where it came from; every source must agree within RATE_RTOL."""
@@ -367,8 +401,11 @@ def _resolve_rate(
     first_where, first = sources[0]
     for where, hz in sources[1:]:
         if abs(hz - first) > RATE_RTOL * first:
-            hint = (" (is the time column in milliseconds? give units {'t': 'ms'})"
-                    if t is not None and 9e-4 < first / hz < 1.1e-3 else "")
+            hint = (
+                " (is the time column in milliseconds? give units {'t': 'ms'})"
+                if t is not None and 9e-4 < first / hz < 1.1e-3
+                else ""
+            )
             raise InputError(
                 f"recording '{label}' has sampling rates that disagree: {first_where} says "
                 f"{first:.6g} Hz, {where} says {hz:.6g} Hz{hint}: give one rate, or make them agree"

@@ -94,7 +94,11 @@ def _split(text: str, what: str) -> list[str]:
 
 
 def mapping_roles(
-    *, input: Any = None, output: Any = None, time: Any = None, columns: Any = None,
+    *,
+    input: Any = None,
+    output: Any = None,
+    time: Any = None,
+    columns: Any = None,
     require_w: bool = True,
 ) -> dict[str, str]:
     """The checked mapping, channel (``t``, ``v_in``, ``w``) -> the file's name, in that order."""
@@ -104,8 +108,7 @@ def mapping_roles(
             continue
         if not isinstance(value, str) or not value.strip():
             raise InputError(
-                f"the {OPTION[channel]} column {value!r} is not a name: give the column's name "
-                "as a string"
+                f"the {OPTION[channel]} column {value!r} is not a name: give the column's name as a string"
             )
         if channel in roles:
             raise InputError(
@@ -139,6 +142,7 @@ def parse_sample_range(value: Any) -> tuple[int | None, int | None]:
     """``"100:200"`` -> ``(100, 200)``, ``"40650:"`` -> ``(40650, None)``; None -> ``(None, None)``."""
     if value is None:
         return None, None
+
     def whole(v: Any) -> bool:
         return v is None or (isinstance(v, numbers.Integral) and not isinstance(v, bool))
 
@@ -189,9 +193,7 @@ def rate_argument(rate: Any) -> float | None:
     except (TypeError, ValueError):
         value = math.nan
     if not (math.isfinite(value) and value > 0):
-        raise InputError(
-            f"sampling rate {rate!r} is not a positive number of Hz: give e.g. --rate 610.35"
-        )
+        raise InputError(f"sampling rate {rate!r} is not a positive number of Hz: give e.g. --rate 610.35")
     return value
 
 
@@ -213,14 +215,10 @@ def units_argument(units: Any, has_time: bool) -> dict[str, str]:
         if channel in out:
             raise InputError(f"units gives the unit of {OPTION[channel]} twice: give it once")
         if not isinstance(value, str) or not value.strip():
-            raise InputError(
-                f"units gives {key!r} the unit {value!r}: give a non-empty label such as 'V'"
-            )
+            raise InputError(f"units gives {key!r} the unit {value!r}: give a non-empty label such as 'V'")
         out[channel] = value.strip()
     if "t" in out and out["t"] not in TIME_UNITS:
-        raise InputError(
-            f"units gives the time the unit {out['t']!r}: use one of {', '.join(TIME_UNITS)}"
-        )
+        raise InputError(f"units gives the time the unit {out['t']!r}: use one of {', '.join(TIME_UNITS)}")
     if "t" in out and not has_time and out["t"] != "s":
         raise InputError(
             f"units gives the time the unit {out['t']!r} but no time column is mapped: t is built "

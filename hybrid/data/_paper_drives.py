@@ -87,8 +87,13 @@ def prbs(
         values = rng.uniform(-amplitude, amplitude, size=len(holds))
     v = np.repeat(values, holds)[:n]
     params = dict(
-        duration=duration, rate=rate, amplitude=amplitude, min_hold=min_hold,
-        max_hold=max_hold, levels=levels, seed=seed,
+        duration=duration,
+        rate=rate,
+        amplitude=amplitude,
+        min_hold=min_hold,
+        max_hold=max_hold,
+        levels=levels,
+        seed=seed,
     )
     return Drive(t, v, "prbs", params)
 
@@ -155,9 +160,16 @@ def sine(
         envelope = 1.0 - 0.5 * modulation_depth * (1.0 - np.cos(2 * np.pi * t / modulation_period))
     v = offset + amplitude * envelope * np.sin(angle)
     params = dict(
-        duration=duration, rate=rate, amplitude=amplitude, frequency=frequency,
-        offset=offset, phase=phase, modulation_depth=modulation_depth,
-        modulation_period=modulation_period, modulation=modulation, seed=seed,
+        duration=duration,
+        rate=rate,
+        amplitude=amplitude,
+        frequency=frequency,
+        offset=offset,
+        phase=phase,
+        modulation_depth=modulation_depth,
+        modulation_period=modulation_period,
+        modulation=modulation,
+        seed=seed,
     )
     return Drive(t, v, "sine", params)
 
@@ -232,10 +244,23 @@ def chirp(
     modulation_depth = checked_number("chirp", "modulation_depth", modulation_depth)
     if not 0.0 <= modulation_depth <= 1.0:
         raise InputError(f"chirp drive modulation_depth must be in [0, 1], got {modulation_depth!r}")
-    envelope = _half_cycle_envelope(phase, modulation_depth, checked_seed("chirp", seed)) if modulation_depth else 1.0
+    envelope = (
+        _half_cycle_envelope(phase, modulation_depth, checked_seed("chirp", seed))
+        if modulation_depth
+        else 1.0
+    )
     v = amplitude * envelope * np.sin(phase)
-    params = dict(duration=duration, rate=rate, amplitude=amplitude, f0=f0, f1=f1, method=method,
-                  sweep_period=sweep_period, modulation_depth=modulation_depth, seed=seed)
+    params = dict(
+        duration=duration,
+        rate=rate,
+        amplitude=amplitude,
+        f0=f0,
+        f1=f1,
+        method=method,
+        sweep_period=sweep_period,
+        modulation_depth=modulation_depth,
+        seed=seed,
+    )
     return Drive(t, v, "chirp", params)
 
 
@@ -274,8 +299,7 @@ def pulse(
     offset = checked_number("pulse", "offset", offset)
     if not 0 < duty < 1:
         raise InputError(
-            f"pulse drive duty={duty:g} is outside (0, 1): give the pulse's share of "
-            "the period, e.g. 0.5"
+            f"pulse drive duty={duty:g} is outside (0, 1): give the pulse's share of the period, e.g. 0.5"
         )
     per_period = period * rate
     if min(duty, 1 - duty) * per_period < 1:
@@ -291,7 +315,12 @@ def pulse(
     sign = np.where(cycle % 2 == 1, -1.0, 1.0) if bipolar else 1.0
     v = offset + amplitude * sign * on
     params = dict(
-        duration=duration, rate=rate, amplitude=amplitude, period=period, duty=duty,
-        offset=offset, bipolar=bool(bipolar),
+        duration=duration,
+        rate=rate,
+        amplitude=amplitude,
+        period=period,
+        duty=duty,
+        offset=offset,
+        bipolar=bool(bipolar),
     )
     return Drive(t, v, "pulse", params)

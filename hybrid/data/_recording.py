@@ -104,8 +104,7 @@ class Recording:
             )
         if lengths["t"] < 2:
             raise InputError(
-                f"recording '{name}' has {lengths['t']} sample(s): a recording "
-                "needs at least 2 samples"
+                f"recording '{name}' has {lengths['t']} sample(s): a recording needs at least 2 samples"
             )
         for column, values in {**columns, **extra}.items():
             check_finite(name, column, values)
@@ -160,8 +159,7 @@ class Recording:
         if t is None:
             if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
                 raise InputError(
-                    f"recording '{label}' has sampling rate {rate!r}: give a "
-                    "positive number of Hz"
+                    f"recording '{label}' has sampling rate {rate!r}: give a positive number of Hz"
                 )
             n = len(as_vector(label, "w", w))
             t = t0 + np.arange(n, dtype=np.float64) / float(rate)
@@ -237,8 +235,7 @@ class Recording:
         """
         if self.n < min_samples:
             raise InputError(
-                f"recording '{self.name}' has {self.n} samples but {what} needs "
-                f"at least {min_samples}: {fix}"
+                f"recording '{self.name}' has {self.n} samples but {what} needs at least {min_samples}: {fix}"
             )
         return self
 

@@ -67,9 +67,7 @@ def as_vector(name: str, column: str, values: Any) -> np.ndarray:
         A read-only float64 vector that owns its data.
     """
     if values is None:
-        raise InputError(
-            f"recording '{name}' is missing column '{column}': give t, v_in and w"
-        )
+        raise InputError(f"recording '{name}' is missing column '{column}': give t, v_in and w")
     try:
         array = np.array(values, dtype=np.float64, copy=True)
     except (TypeError, ValueError) as error:
@@ -110,10 +108,7 @@ def check_metadata(name: str, metadata: Any) -> dict:
     if metadata is None:
         metadata = {}
     if not isinstance(metadata, Mapping):
-        raise InputError(
-            f"recording '{name}' has metadata of type {type(metadata).__name__}: "
-            "give a dict"
-        )
+        raise InputError(f"recording '{name}' has metadata of type {type(metadata).__name__}: give a dict")
     try:
         copy = json.loads(json.dumps(dict(metadata), allow_nan=False))
     except (TypeError, ValueError) as error:
@@ -182,10 +177,13 @@ def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarr
     far = int(np.argmax(np.abs(jitter)))
     worst_jitter = abs(float(jitter[far]))
     if short.size or worst_jitter >= JITTER_FRAMES * slope:
-        where = (f"the step into row {int(short[0]) + 1} is {dt[short[0]]:.6g} s against a median "
-                 f"step of {step:.6g} s" if short.size else
-                 f"row {far} (t = {t[far]:.6g} s) is {worst_jitter / slope:.2g} of a step off the "
-                 "closest uniform grid")
+        where = (
+            f"the step into row {int(short[0]) + 1} is {dt[short[0]]:.6g} s against a median "
+            f"step of {step:.6g} s"
+            if short.size
+            else f"row {far} (t = {t[far]:.6g} s) is {worst_jitter / slope:.2g} of a step off the "
+            "closest uniform grid"
+        )
         raise InputError(
             f"recording '{name}' has non-uniform time: {where} (timestamp jitter below "
             f"{JITTER_FRAMES:g} of a step is absorbed): did the frame rate change? Resample "
@@ -198,8 +196,15 @@ def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarr
         f"{worst_jitter * 1e3:.3g} ms, rms {rms * 1e3:.3g} ms ({worst_jitter / slope:.2g} of a step)"
     )
     grid.setflags(write=False)
-    return grid, {"rebuilt": True, "dt_s": slope, "rate_hz": 1 / slope, "t0_s": float(grid[0]),
-                  "jitter_max_s": worst_jitter, "jitter_rms_s": rms, "note": note}
+    return grid, {
+        "rebuilt": True,
+        "dt_s": slope,
+        "rate_hz": 1 / slope,
+        "t0_s": float(grid[0]),
+        "jitter_max_s": worst_jitter,
+        "jitter_rms_s": rms,
+        "note": note,
+    }
 
 
 def _check_seconds(name: str, step: float, metadata: Any) -> None:
@@ -212,7 +217,7 @@ def _check_seconds(name: str, step: float, metadata: Any) -> None:
     raise InputError(
         f"recording '{name}' has t stepping by {step:.4g}: t looks like milliseconds "
         f"({1000 / step:.4g} Hz if so, {1 / step:.3g} Hz if seconds); write t in seconds "
-        f"(t/1000), or declare metadata units {{\"t\": \"s\"}} for a recording really "
+        f'(t/1000), or declare metadata units {{"t": "s"}} for a recording really '
         f"sampled every {step:.4g} s"
     )
 
@@ -227,4 +232,3 @@ def source_name(metadata: Any) -> str:
     if isinstance(metadata, Mapping) and isinstance(metadata.get("source"), str):
         return metadata["source"]
     return "<arrays>"
-

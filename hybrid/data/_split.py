@@ -44,9 +44,7 @@ class Split:
 
     def __getitem__(self, part: str) -> Recording:
         if part not in SPLIT_PARTS:
-            raise InputError(
-                f"split has no part {part!r}: use one of {', '.join(SPLIT_PARTS)}"
-            )
+            raise InputError(f"split has no part {part!r}: use one of {', '.join(SPLIT_PARTS)}")
         return getattr(self, part)
 
     def items(self) -> list[tuple[str, Recording]]:
@@ -55,9 +53,7 @@ class Split:
         return [(p, getattr(self, p)) for p in ordered]
 
 
-def _check_fractions(
-    name: str, fractions: Sequence[float], order: tuple[str, ...]
-) -> tuple[float, ...]:
+def _check_fractions(name: str, fractions: Sequence[float], order: tuple[str, ...]) -> tuple[float, ...]:
     """Validate split fractions and order; return the fractions as floats."""
     if sorted(order) != sorted(SPLIT_PARTS):
         raise InputError(
@@ -78,20 +74,16 @@ def _check_fractions(
         )
     if not all(math.isfinite(f) and f > 0 for f in values):
         raise InputError(
-            f"split fractions {list(values)} are not all positive: give every "
-            "part a positive share"
+            f"split fractions {list(values)} are not all positive: give every part a positive share"
         )
     if abs(sum(values) - 1.0) > 1e-9:
         raise InputError(
-            f"split fractions {list(values)} sum to {sum(values):.6g}, not 1: "
-            "scale them so they sum to 1"
+            f"split fractions {list(values)} sum to {sum(values):.6g}, not 1: scale them so they sum to 1"
         )
     return values
 
 
-def split_recording(
-    recording: Recording, fractions: Sequence[float], order: Sequence[str]
-) -> Split:
+def split_recording(recording: Recording, fractions: Sequence[float], order: Sequence[str]) -> Split:
     """Cut ``recording`` into contiguous parts; see `Recording.split`.
 
     Arguments:

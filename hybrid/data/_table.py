@@ -46,8 +46,17 @@ import numpy as np
 from ..util._errors import InputError
 from ._loaders import file_vector, mat_variables, npz_arrays, parse_metadata, read_text, sidecar
 
-__all__ = ["MAPPED_SUFFIXES", "OPTION", "RATE_FIELDS", "TEXT_SUFFIXES", "only_column", "rate_field",
-           "read_columns", "read_text_table", "unknown_name"]
+__all__ = [
+    "MAPPED_SUFFIXES",
+    "OPTION",
+    "RATE_FIELDS",
+    "TEXT_SUFFIXES",
+    "only_column",
+    "rate_field",
+    "read_columns",
+    "read_text_table",
+    "unknown_name",
+]
 
 #: How each role is asked for: the keyword of `load_mapped` (and the command-line flag).
 OPTION: dict[str, str] = {"t": "time", "v_in": "input", "w": "output"}
@@ -57,8 +66,16 @@ OPTION: dict[str, str] = {"t": "time", "v_in": "input", "w": "output"}
 #: whose first row holds it and whose other rows are empty, NaN or the same number
 #: (the Cascaded Tanks file's ``Ts``). Anything else under these names is ignored.
 RATE_FIELDS: dict[str, str] = {
-    "fs": "Hz", "rate": "Hz", "rate_hz": "Hz", "sample_rate": "Hz", "sampling_rate": "Hz",
-    "ts": "s", "dt": "s", "dt_s": "s", "sample_time": "s", "sampling_time": "s",
+    "fs": "Hz",
+    "rate": "Hz",
+    "rate_hz": "Hz",
+    "sample_rate": "Hz",
+    "sampling_rate": "Hz",
+    "ts": "s",
+    "dt": "s",
+    "dt_s": "s",
+    "sample_time": "s",
+    "sampling_time": "s",
 }
 
 #: Suffixes of plain text tables, read by the mapped reader only (`read_text_table`).
@@ -89,8 +106,10 @@ def read_columns(
         return _read_csv(path, wanted, flag_prefix)
     if suffix in TEXT_SUFFIXES:
         names, table = read_text_table(path)
-        columns = {role: table[:, _column_index(path, names, name, role, flag_prefix)]
-                   for role, name in wanted.items()}
+        columns = {
+            role: table[:, _column_index(path, names, name, role, flag_prefix)]
+            for role, name in wanted.items()
+        }
         return columns, {}, {}
     arrays, metadata = npz_arrays(path) if suffix == ".npz" else mat_variables(path)
     kind = "array" if suffix == ".npz" else "variable"
@@ -102,7 +121,8 @@ def read_columns(
     fields = {
         key: np.asarray(values, dtype=np.float64).reshape(-1)
         for key, values in arrays.items()
-        if key.lower() in RATE_FIELDS and key not in wanted.values()
+        if key.lower() in RATE_FIELDS
+        and key not in wanted.values()
         and np.asarray(values).dtype.kind in "biuf"
     }
     return columns, fields, metadata
@@ -136,9 +156,12 @@ def _read_csv(
     try:
         with _open(path) as handle:
             header, header_line = _header(path, handle)
-            index = {role: _column_index(path, header, name, role, flag_prefix) for role, name in wanted.items()}
+            index = {
+                role: _column_index(path, header, name, role, flag_prefix) for role, name in wanted.items()
+            }
             fields = {
-                name: i for i, name in enumerate(header)
+                name: i
+                for i, name in enumerate(header)
                 if name.lower() in RATE_FIELDS and i not in index.values() and header.count(name) == 1
             }
             usecols = [*index.values(), *fields.values()]
@@ -146,15 +169,23 @@ def _read_csv(
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
                 table = np.loadtxt(
-                    handle, dtype=np.float64, delimiter=",", usecols=usecols, ndmin=2,
-                    comments="#", quotechar='"', converters=lenient,
+                    handle,
+                    dtype=np.float64,
+                    delimiter=",",
+                    usecols=usecols,
+                    ndmin=2,
+                    comments="#",
+                    quotechar='"',
+                    converters=lenient,
                 )
     except InputError:
         raise
     except UnicodeDecodeError:
         raise InputError(f"recording '{path}' is not UTF-8 text: save it as a plain CSV file") from None
     except csv.Error as error:  # a NUL byte in the header
-        raise InputError(f"recording '{path}' is not a text table ({error}): save it as a plain CSV file") from None
+        raise InputError(
+            f"recording '{path}' is not a text table ({error}): save it as a plain CSV file"
+        ) from None
     except OSError as error:
         raise InputError(
             f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions"
@@ -166,9 +197,7 @@ def _read_csv(
             "comma-separated with '.' decimals, one header line and one line per sample"
         ) from None
     if table.shape[0] == 0:
-        raise InputError(
-            f"recording '{path}' has a header but no data lines: add one line per sample"
-        )
+        raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     k = len(index)
     if not np.isfinite(table[:, :k]).all():
         _diagnose(path, header_line, wanted, index)
@@ -212,7 +241,9 @@ def _header(path: pathlib.Path, handle) -> tuple[list[str], int]:
     )
 
 
-def _column_index(path: pathlib.Path, header: Sequence[str], name: str, role: str, flag_prefix: str = "") -> int:
+def _column_index(
+    path: pathlib.Path, header: Sequence[str], name: str, role: str, flag_prefix: str = ""
+) -> int:
     hits = [i for i, column in enumerate(header) if column == name]
     if not hits and name.isdigit() and int(name) < len(header):
         return int(name)  # a column number from 0
@@ -227,8 +258,9 @@ def _column_index(path: pathlib.Path, header: Sequence[str], name: str, role: st
     return hits[0]
 
 
-def unknown_name(path: pathlib.Path, name: str, role: str, names: Sequence[str], kind: str,
-                 prefix: str = "") -> str:
+def unknown_name(
+    path: pathlib.Path, name: str, role: str, names: Sequence[str], kind: str, prefix: str = ""
+) -> str:
     """The message for a mapped name the file lacks: the file's names, a likely one, and the flag to use.
 
     `prefix` goes before the name in the flag shown (``"u.txt:"`` for a file joined by ``columns``).
@@ -241,8 +273,11 @@ def unknown_name(path: pathlib.Path, name: str, role: str, names: Sequence[str],
     hint = f"; did you mean '{close[0]}'?" if close else ""
     example = close[0] if close else (names[0] if names else "NAME")
     option = OPTION[role]
-    flag = (f"--columns {option}={prefix}{example}" if prefix
-            else f"--{option} {example} (or {option}={example} in --columns)")
+    flag = (
+        f"--columns {option}={prefix}{example}"
+        if prefix
+        else f"--{option} {example} (or {option}={example} in --columns)"
+    )
     return (
         f"recording '{path}' has no {kind} '{name}' for the {option} (its {kind}s: "
         f"{shown}): give one of those names exactly (names are case-sensitive{hint}), e.g. {flag}"
@@ -262,8 +297,9 @@ def only_column(path: pathlib.Path, suffix: str, role: str, reference: str) -> n
             return table[:, 0]
     shown = ", ".join(names[:_SHOW_NAMES]) or "none"
     example = names[0] if names else "NAME"
-    return_hint = (f"--columns {OPTION[role]}={reference}:{example}" if names
-                   else "a file with one column of numbers")
+    return_hint = (
+        f"--columns {OPTION[role]}={reference}:{example}" if names else "a file with one column of numbers"
+    )
     raise InputError(
         f"recording '{path}' has {len(names)} columns ({shown}), so '{reference}' does not say which is the "
         f"{OPTION[role]}: name the column after a ':', e.g. {return_hint} (columns by name, or by number from 0)"
@@ -278,7 +314,9 @@ def read_text_table(path: pathlib.Path) -> tuple[list[str], np.ndarray]:
     """
     lines = _text_lines(path)
     if not lines:
-        raise InputError(f"recording '{path}' has no numbers: give one line per sample, one column per channel")
+        raise InputError(
+            f"recording '{path}' has no numbers: give one line per sample, one column per channel"
+        )
     first = lines[0][1]
     delimiter = _delimiter(first if len(lines) == 1 else lines[1][1])
     cells = _cells(first, delimiter)
@@ -326,7 +364,9 @@ def _text_lines(path: pathlib.Path) -> list[tuple[int, str]]:
     except UnicodeDecodeError:
         raise InputError(f"recording '{path}' is not UTF-8 text: save it as plain text") from None
     except OSError as error:
-        raise InputError(f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions") from None
+        raise InputError(
+            f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions"
+        ) from None
     lines = []
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.split("#", 1)[0].strip()

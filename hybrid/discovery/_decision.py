@@ -39,27 +39,43 @@ def _material(name: str, derived: dict, parameters: dict, materiality: dict) -> 
         # The dead time beyond the frame timing (≤ 1 sample, fitted in the baseline too).
         total = d.get("delay_samples", 0.0) + parameters.get("frame_lag", 0.0)
         ok = total >= materiality["delay_samples"]
-        return ok, (f"delay {d.get('delay_samples', 0):.2f} + frame lag {parameters.get('frame_lag', 0):.2f} samples "
-                    f"(needs ≥ {materiality['delay_samples']} in all)")
+        return ok, (
+            f"delay {d.get('delay_samples', 0):.2f} + frame lag {parameters.get('frame_lag', 0):.2f} samples "
+            f"(needs ≥ {materiality['delay_samples']} in all)"
+        )
     if name == "back_relaxation":
         ok = d.get("relaxation_percent", 0.0) >= materiality["relaxation_percent"]
-        return ok, f"relaxation {d.get('relaxation_percent', 0):.1f} % (needs ≥ {materiality['relaxation_percent']} %)"
+        return (
+            ok,
+            f"relaxation {d.get('relaxation_percent', 0):.1f} % (needs ≥ {materiality['relaxation_percent']} %)",
+        )
     if name == "saturation":
         worst = max([v for k, v in d.items() if k.startswith("shortfall")] or [0.0])
-        return worst >= materiality["shortfall_percent"], f"shortfall {worst:.1f} % (needs ≥ {materiality['shortfall_percent']} %)"
+        return worst >= materiality[
+            "shortfall_percent"
+        ], f"shortfall {worst:.1f} % (needs ≥ {materiality['shortfall_percent']} %)"
     if name == "hysteresis":
         h = d.get("loop_height_percent_of_range", 0.0)
-        return h >= materiality["loop_height_percent_of_range"], f"loop {h:.1f} % of range (needs ≥ {materiality['loop_height_percent_of_range']} %)"
+        return h >= materiality[
+            "loop_height_percent_of_range"
+        ], f"loop {h:.1f} % of range (needs ≥ {materiality['loop_height_percent_of_range']} %)"
     if name == "drift":
         c = abs(d.get("gain_change_percent", 0.0))
-        return c >= materiality["gain_change_percent"], f"gain change {c:.1f} % (needs ≥ {materiality['gain_change_percent']} %)"
+        return c >= materiality[
+            "gain_change_percent"
+        ], f"gain change {c:.1f} % (needs ≥ {materiality['gain_change_percent']} %)"
     if name == "resonance":
         f, z = parameters["resonance_frequency_hz"], parameters["resonance_damping"]
         ok = z <= materiality["max_damping"] and f >= materiality["min_frequency_hz"]
-        return ok, f"mode {f:.2f} Hz, ζ {z:.3f} (needs ζ ≤ {materiality['max_damping']}, f ≥ {materiality['min_frequency_hz']} Hz)"
+        return (
+            ok,
+            f"mode {f:.2f} Hz, ζ {z:.3f} (needs ζ ≤ {materiality['max_damping']}, f ≥ {materiality['min_frequency_hz']} Hz)",
+        )
     if name == "even_response":
         e = d.get("even_percent_of_range", 0.0)
-        return e >= materiality["even_percent_of_range"], f"even part {e:.1f} % of range (needs ≥ {materiality['even_percent_of_range']} %)"
+        return e >= materiality[
+            "even_percent_of_range"
+        ], f"even part {e:.1f} % of range (needs ≥ {materiality['even_percent_of_range']} %)"
     return True, ""
 
 
@@ -107,11 +123,16 @@ def equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_t
     for theta in thetas:
         w_hat = predictions(problem, jnp.asarray(off, float), jnp.asarray(theta))
         if np.sum((w_train - problem.recorded(w_hat["train"], "train")) ** 2) <= limit:
-            heldout.append(float(np.mean((w_test - problem.recorded(w_hat["test"], "test")) ** 2) / np.var(w_test)))
-    return {"n": len(heldout), "heldout_nmse_min": min(heldout, default=float("nan")),
-            "heldout_nmse_max": max(heldout, default=float("nan")),
-            "definition": f"effect-free fits (all starts and refits) within ΔBIC {bic_tolerance:g} of the "
-                          "baseline on training data"}
+            heldout.append(
+                float(np.mean((w_test - problem.recorded(w_hat["test"], "test")) ** 2) / np.var(w_test))
+            )
+    return {
+        "n": len(heldout),
+        "heldout_nmse_min": min(heldout, default=float("nan")),
+        "heldout_nmse_max": max(heldout, default=float("nan")),
+        "definition": f"effect-free fits (all starts and refits) within ΔBIC {bic_tolerance:g} of the "
+        "baseline on training data",
+    }
 
 
 def choose_lane(idx, vals, is_material, n_val: int) -> int:
@@ -145,22 +166,38 @@ def lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]:
     return _material(name, derived, parameters, materiality)[0], derived.get(name, {})
 
 
-def evaluate_candidate(problem, theta, active, name, n_train, n_free, materiality, model_frozen, present=()) -> Candidate:
+def evaluate_candidate(
+    problem, theta, active, name, n_train, n_free, materiality, model_frozen, present=()
+) -> Candidate:
     """The candidate adding effect `name` ("none": no effect) to a model with `present` switched on."""
     w_hats = predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))
-    rss = float(np.sum((problem.recorded(problem.target("train"), "train")
-                        - problem.recorded(w_hats["train"], "train")) ** 2))
+    rss = float(
+        np.sum(
+            (problem.recorded(problem.target("train"), "train") - problem.recorded(w_hats["train"], "train"))
+            ** 2
+        )
+    )
     w, w_hat = problem.recorded(problem.target("test"), "test"), problem.recorded(w_hats["test"], "test")
     heldout = _heldout_metrics(w, w_hat)
     model = problem.model(theta)
-    parameters = {k: float(v_) for k, v_ in model.parameters().items()
-                  if k in free_names(model, model_frozen, tuple(present) + (name,))
-                  or k in model.simulation.inner.parameter_names()}
+    parameters = {
+        k: float(v_)
+        for k, v_ in model.parameters().items()
+        if k in free_names(model, model_frozen, tuple(present) + (name,))
+        or k in model.simulation.inner.parameter_names()
+    }
     derived = derived_quantities(problem, theta, active) if name != "none" else {}
     cand = Candidate(
-        name=name, parameters=parameters, derived=derived.get(name, {}), train_rss=rss,
-        n_parameters=n_free, bic=_bic(rss, n_train, n_free), heldout=heldout,
-        ljung_box=rt.ljung_box(w - w_hat), theta=np.asarray(theta), active=np.asarray(active),
+        name=name,
+        parameters=parameters,
+        derived=derived.get(name, {}),
+        train_rss=rss,
+        n_parameters=n_free,
+        bic=_bic(rss, n_train, n_free),
+        heldout=heldout,
+        ljung_box=rt.ljung_box(w - w_hat),
+        theta=np.asarray(theta),
+        active=np.asarray(active),
     )
     if name != "none":
         cand.material, cand.materiality = _material(name, derived, parameters, materiality)

@@ -101,15 +101,21 @@ def _check_magnitudes(recording) -> None:
     for column, typical in (("w", "a tip displacement in mm"), ("v_in", "a drive in V")):
         spread = _host_std(np.asarray(getattr(recording, column), float))
         if not low <= spread <= high:
-            raise InputError(f"recording '{recording.name}': {column} has a standard deviation of {spread:.3g}, "
-                             f"outside the {low:g} to {high:g} that diagnose fits in the recording's own units: "
-                             f"rescale {column} (as {typical}, say)")
+            raise InputError(
+                f"recording '{recording.name}': {column} has a standard deviation of {spread:.3g}, "
+                f"outside the {low:g} to {high:g} that diagnose fits in the recording's own units: "
+                f"rescale {column} (as {typical}, say)"
+            )
 
 
 def shape_key(problem, settings) -> tuple:
     """What the search's compiled programs depend on: `problem`'s structure, shapes and dtypes, and `settings`."""
     leaves, treedef = jax.tree_util.tree_flatten(problem)
-    return treedef, tuple((getattr(x, "shape", None), str(getattr(x, "dtype", type(x)))) for x in leaves), settings
+    return (
+        treedef,
+        tuple((getattr(x, "shape", None), str(getattr(x, "dtype", type(x)))) for x in leaves),
+        settings,
+    )
 
 
 def diagnose(
@@ -139,21 +145,32 @@ def diagnose(
     recordings = as_recordings(recordings, "diagnose")  # a path is loaded; anything else is refused
     check_simulation(simulation, "diagnose")
     if not isinstance(settings, DiagnoseSettings):
-        raise InputError(f"diagnose: settings must be a DiagnoseSettings, got {type(settings).__name__}: "
-                         "use dataclasses.replace(hybrid.DiagnoseSettings(), max_steps=...)")
+        raise InputError(
+            f"diagnose: settings must be a DiagnoseSettings, got {type(settings).__name__}: "
+            "use dataclasses.replace(hybrid.DiagnoseSettings(), max_steps=...)"
+        )
     rates = {round(r.rate, 9) for r in recordings}
     if len(rates) > 1:
-        raise InputError(f"recordings of one strip must share a sample rate, got {sorted(rates)} Hz: resample first")
+        raise InputError(
+            f"recordings of one strip must share a sample rate, got {sorted(rates)} Hz: resample first"
+        )
     for r in recordings:  # before any fitting: a constant column would fail only after minutes
-        r.check_length(60, "diagnose (a held-out part long enough for residual tests)",
-                       "record at least 60 samples (2 s at 30 Hz), better several minutes")
+        r.check_length(
+            60,
+            "diagnose (a held-out part long enough for residual tests)",
+            "record at least 60 samples (2 s at 30 Hz), better several minutes",
+        )
         r.check_signals()
         _check_magnitudes(r)
     rate = recordings[0].rate
     if simulation is None:
-        raise InputError("diagnose needs a simulation: pass simulation=hybrid.RCNetwork(method='zoh') (the paper's "
-                         "physics) or any AbstractSimulation, or use hybrid.diagnose, which defaults to the RC network")
-    settings = dataclasses.replace(settings, frozen=settings.frozen_for(simulation))  # the report shows what was fixed
+        raise InputError(
+            "diagnose needs a simulation: pass simulation=hybrid.RCNetwork(method='zoh') (the paper's "
+            "physics) or any AbstractSimulation, or use hybrid.diagnose, which defaults to the RC network"
+        )
+    settings = dataclasses.replace(
+        settings, frozen=settings.frozen_for(simulation)
+    )  # the report shows what was fixed
     frozen = frozenset(settings.frozen)
     problem, n_rows, model, series = lanes_problem(recordings, simulation, settings)
     lm = LMSettings(max_steps=settings.max_steps)
@@ -170,9 +187,20 @@ def diagnose(
             print(f"diagnose: {text}", flush=True)
 
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
-    search = Search(problem=problem, model=model, series=series, simulation=simulation, settings=settings,
-                    frozen=frozen, lm=lm, rate=rate, duration=recordings[0].duration, n_train=n_train,
-                    n_val=sum(b - a for s in series for a, b in s.segments_of("validation")), say=say)
+    search = Search(
+        problem=problem,
+        model=model,
+        series=series,
+        simulation=simulation,
+        settings=settings,
+        frozen=frozen,
+        lm=lm,
+        rate=rate,
+        duration=recordings[0].duration,
+        n_train=n_train,
+        n_val=sum(b - a for s in series for a, b in s.segments_of("validation")),
+        say=say,
+    )
     n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
     say(f"screening {N_SCREEN} network designs for the baseline's starts")
     grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN, frozen)
@@ -183,16 +211,28 @@ def diagnose(
         grid += grid[:1] * (n_lanes - len(grid))
     base_tangents = lane_tangents(model, frozen, None, n_rows)
     say(f"baseline from {len(grid)} starts")
-    base_states = fit_lanes(problem, np.tile(off, (len(grid), 1)), np.stack([base_tangents] * len(grid)), thetas, lm,
-                             settings.effect_free_patience)
+    base_states = fit_lanes(
+        problem,
+        np.tile(off, (len(grid), 1)),
+        np.stack([base_tangents] * len(grid)),
+        thetas,
+        lm,
+        settings.effect_free_patience,
+    )
     best = int(np.nanargmin(np.asarray(base_states.best_val)))
     theta_base = base_states.best_theta[best]
     n_base = len(free_names(model, frozen, None))
-    baseline = evaluate_candidate(problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen)
+    baseline = evaluate_candidate(
+        problem, theta_base, off, "none", n_train, n_base, settings.materiality, frozen
+    )
 
     # 2–4. Stepwise: every remaining effect on top of the current model, weighed
     # incrementally; stop at the first step that names nothing.
-    current, current_val, current_fits = baseline, float(base_states.best_val[best]), list(base_states.best_theta)
+    current, current_val, current_fits = (
+        baseline,
+        float(base_states.best_val[best]),
+        list(base_states.best_theta),
+    )
     steps, present = [], ()
     while len(present) < min(settings.max_causes, len(EFFECTS)):
         step = search_step(search, current, current_val, current_fits, present)
@@ -211,35 +251,70 @@ def diagnose(
     v_te, w_te, w_hat_base = split_signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = split_signals(problem, extended.theta, extended.active, "test")
     final = search.problem_for(len(present))
-    fitted = with_active(final, jnp.asarray(extended.active, float),
-                          jnp.asarray(lane_tangents(model, frozen, present, int(final.sim_tangents.shape[0])), float))
-    uncertainties = parameter_uncertainties(fitted, extended.theta, w_te - w_hat_ext,
-                                   keep=fitted_model(problem, extended.theta, present).parameters())
+    fitted = with_active(
+        final,
+        jnp.asarray(extended.active, float),
+        jnp.asarray(lane_tangents(model, frozen, present, int(final.sim_tangents.shape[0])), float),
+    )
+    uncertainties = parameter_uncertainties(
+        fitted,
+        extended.theta,
+        w_te - w_hat_ext,
+        keep=fitted_model(problem, extended.theta, present).parameters(),
+    )
     evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
     heldout = {
         "t": np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),
-        "v_in": v_te, "w": w_te, "baseline": w_hat_base, "extended": w_hat_ext,
+        "v_in": v_te,
+        "w": w_te,
+        "baseline": w_hat_base,
+        "extended": w_hat_ext,
         "recording": np.concatenate([np.full(b - a, i) for i, a, b in segments]),
         "segment": np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)]),
     }
     say("noise floor and what lies above it")
     floor = pooled_noise_floor(recordings)
-    unexplained = remainder(problem, series, recordings, extended, heldout, floor, settings, rate,
-                            equally_good=steps[-1].equally_good)
+    unexplained = remainder(
+        problem,
+        series,
+        recordings,
+        extended,
+        heldout,
+        floor,
+        settings,
+        rate,
+        equally_good=steps[-1].equally_good,
+    )
     hybrid_report = None
     if hybrid:
-        hybrid_report = hybrid_fits(recordings, simulation, extended, problem, present, settings, hybrid_max_steps,
-                                     progress)
+        hybrid_report = hybrid_fits(
+            recordings, simulation, extended, problem, present, settings, hybrid_max_steps, progress
+        )
     return Diagnosis(
-        cause=cause, baseline=baseline, extended=extended, candidates=steps[0].candidates,
-        uncertainties=uncertainties, evidence=evidence, hybrid=hybrid_report, settings=settings,
-        recordings=[r.name for r in recordings], seconds=time.perf_counter() - t0, heldout=heldout,
+        cause=cause,
+        baseline=baseline,
+        extended=extended,
+        candidates=steps[0].candidates,
+        uncertainties=uncertainties,
+        evidence=evidence,
+        hybrid=hybrid_report,
+        settings=settings,
+        recordings=[r.name for r in recordings],
+        seconds=time.perf_counter() - t0,
+        heldout=heldout,
         lanes=[lane for step in steps for lane in step.lanes],
-        steps=[{"cause": step.chosen.name if step.chosen else None, "current": step.current,
-                "candidates": step.candidates} for step in steps],
-        noise_floor=floor, unexplained=unexplained,
+        steps=[
+            {
+                "cause": step.chosen.name if step.chosen else None,
+                "current": step.current,
+                "candidates": step.candidates,
+            }
+            for step in steps
+        ],
+        noise_floor=floor,
+        unexplained=unexplained,
     )
 
 
@@ -256,12 +331,24 @@ def hybrid_fits(recordings, simulation, extended, problem, causes, settings, max
         stage(f"diagnose: hybrid model, {key}")
         if progress:
             print(f"diagnose: hybrid model, {key}", flush=True)
-        result = fit(make_model("hybrid", simulation=sim), recordings, max_steps=max_steps,
-                     frozen=set(settings.frozen), split=settings.split, split_order=SPLIT_ORDER, blocks=settings.blocks,
-                     weight_decay=0.1, progress=progress)
-        out[key] = {"nmse": result.metrics["test"]["nmse_variance"], "nmse_eq18": result.metrics["test"]["nmse"],
-                    "fitting": result.metrics["test"]["fitting"],
-                    "parameters": result.parameters, "seconds": result.seconds}
+        result = fit(
+            make_model("hybrid", simulation=sim),
+            recordings,
+            max_steps=max_steps,
+            frozen=set(settings.frozen),
+            split=settings.split,
+            split_order=SPLIT_ORDER,
+            blocks=settings.blocks,
+            weight_decay=0.1,
+            progress=progress,
+        )
+        out[key] = {
+            "nmse": result.metrics["test"]["nmse_variance"],
+            "nmse_eq18": result.metrics["test"]["nmse"],
+            "fitting": result.metrics["test"]["fitting"],
+            "parameters": result.parameters,
+            "seconds": result.seconds,
+        }
     if "extended" not in out:
         out["extended"] = out["baseline"]
     out["gain"] = out["baseline"]["nmse"] / out["extended"]["nmse"]

@@ -65,11 +65,18 @@ class DiagnoseSettings:
     effect_free_patience: int = 10
     min_gain: float = 1.5
     min_bic_drop: float = 10.0
-    materiality: dict = dataclasses.field(default_factory=lambda: {
-        "delay_samples": 1.0, "relaxation_percent": 10.0, "shortfall_percent": 5.0,
-        "loop_height_percent_of_range": 3.0, "gain_change_percent": 5.0, "max_damping": 0.35,
-        "min_frequency_hz": 0.5, "even_percent_of_range": 5.0,
-    })
+    materiality: dict = dataclasses.field(
+        default_factory=lambda: {
+            "delay_samples": 1.0,
+            "relaxation_percent": 10.0,
+            "shortfall_percent": 5.0,
+            "loop_height_percent_of_range": 3.0,
+            "gain_change_percent": 5.0,
+            "max_damping": 0.35,
+            "min_frequency_hz": 0.5,
+            "even_percent_of_range": 5.0,
+        }
+    )
     frozen: tuple[str, ...] | None = None
     max_causes: int = 3
     unexplained_ratio: float = 2.0
@@ -103,10 +110,17 @@ class Candidate:
 
     def to_dict(self) -> dict:
         return {
-            "name": self.name, "heldout_nmse": self.heldout["nmse"], "heldout_fitting": self.heldout["fitting"],
-            "gain": self.gain, "criterion": {"bic": self.bic, "delta_bic": self.delta_bic},
-            "ljung_box": self.ljung_box, "parameters": self.parameters, "derived": self.derived,
-            "material": self.material, "materiality": self.materiality, "eligible": self.eligible,
+            "name": self.name,
+            "heldout_nmse": self.heldout["nmse"],
+            "heldout_fitting": self.heldout["fitting"],
+            "gain": self.gain,
+            "criterion": {"bic": self.bic, "delta_bic": self.delta_bic},
+            "ljung_box": self.ljung_box,
+            "parameters": self.parameters,
+            "derived": self.derived,
+            "material": self.material,
+            "materiality": self.materiality,
+            "eligible": self.eligible,
             "reasons": self.reasons,
         }
 
@@ -157,11 +171,22 @@ class Diagnosis:
                 continue
             chosen = next(c for c in step["candidates"] if c.name == step["cause"])
             own = {k: v for k, v in chosen.parameters.items() if k in _effect_parameters(chosen.name)}
-            out.append({"name": chosen.name, "incremental_gain": chosen.gain, "delta_bic": chosen.delta_bic,
-                        "derived": chosen.derived,
-                        "parameters": {k: {"value": v, "std_error": self.uncertainties.get(k, {}).get("std_error"),
-                                           "unit": self.uncertainties.get(k, {}).get("unit", "")}
-                                       for k, v in own.items()}})
+            out.append(
+                {
+                    "name": chosen.name,
+                    "incremental_gain": chosen.gain,
+                    "delta_bic": chosen.delta_bic,
+                    "derived": chosen.derived,
+                    "parameters": {
+                        k: {
+                            "value": v,
+                            "std_error": self.uncertainties.get(k, {}).get("std_error"),
+                            "unit": self.uncertainties.get(k, {}).get("unit", ""),
+                        }
+                        for k, v in own.items()
+                    },
+                }
+            )
         return out
 
     @property
@@ -178,17 +203,31 @@ class Diagnosis:
             "causes": self.causes,
             "noise_floor": self.noise_floor.to_dict() if self.noise_floor is not None else None,
             "unexplained": self.unexplained,
-            "steps": [{"cause": step["cause"], "extends": step["current"].name,
-                       "candidates": [c.to_dict() for c in step["candidates"]]} for step in self.steps[1:]],
-            "baseline": {k: self.baseline.heldout[k] for k in ("nmse", "fitting", "nmse_eq18", "nmse_target")},
-            "extended": {k: self.extended.heldout[k] for k in ("nmse", "fitting", "nmse_eq18", "nmse_target")},
+            "steps": [
+                {
+                    "cause": step["cause"],
+                    "extends": step["current"].name,
+                    "candidates": [c.to_dict() for c in step["candidates"]],
+                }
+                for step in self.steps[1:]
+            ],
+            "baseline": {
+                k: self.baseline.heldout[k] for k in ("nmse", "fitting", "nmse_eq18", "nmse_target")
+            },
+            "extended": {
+                k: self.extended.heldout[k] for k in ("nmse", "fitting", "nmse_eq18", "nmse_target")
+            },
             "nmse_definition": "held-out MSE / var(w) (nmse_eq18: the paper's Eq 18, each signal by its max |.|)",
             "gain": self.gain,
-            "parameters": {k: {"value": v, "std_error": self.uncertainties.get(k, {}).get("std_error"),
-                               "std_error_given_network":
-                                   self.uncertainties.get(k, {}).get("std_error_given_network"),
-                               "unit": self.uncertainties.get(k, {}).get("unit", "")}
-                           for k, v in self.extended.parameters.items()},
+            "parameters": {
+                k: {
+                    "value": v,
+                    "std_error": self.uncertainties.get(k, {}).get("std_error"),
+                    "std_error_given_network": self.uncertainties.get(k, {}).get("std_error_given_network"),
+                    "unit": self.uncertainties.get(k, {}).get("unit", ""),
+                }
+                for k, v in self.extended.parameters.items()
+            },
             "effect_derived": self.extended.derived,
             "candidates": [c.to_dict() for c in self.candidates],
             "baseline_fit": self.baseline.to_dict(),
@@ -209,5 +248,7 @@ def _split_description(settings: DiagnoseSettings) -> str:
     train, validation, test = (f"{x:.0%}" for x in settings.split)
     if settings.blocks == 1:
         return f"train first {train}, validation next {validation}, held-out (test) last {test} of each recording"
-    return (f"each recording in {settings.blocks} equal blocks; in each block train first {train}, validation next "
-            f"{validation}, held-out (test) last {test}")
+    return (
+        f"each recording in {settings.blocks} equal blocks; in each block train first {train}, validation next "
+        f"{validation}, held-out (test) last {test}"
+    )

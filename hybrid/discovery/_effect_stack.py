@@ -63,7 +63,9 @@ class EffectStack(AbstractWrapper):
             active = jnp.ones(len(built))
         self.active = jnp.asarray(active, dtype=float)
         if self.active.shape != (len(built),):
-            raise InputError(f"active needs one switch per effect ({len(built)}), got shape {self.active.shape}")
+            raise InputError(
+                f"active needs one switch per effect ({len(built)}), got shape {self.active.shape}"
+            )
 
     @property
     def raw(self) -> dict[str, Array]:
@@ -114,8 +116,10 @@ class EffectStack(AbstractWrapper):
     def with_raw(self, raw):
         names = set(self.inner.parameter_names())
         inner = {k: v for k, v in raw.items() if k in names}
-        effects = tuple(eqx.tree_at(lambda e: e.raw, e, {**e.raw, **{k: raw[k] for k in e.raw if k in raw}})
-                        for e in self.effects)
+        effects = tuple(
+            eqx.tree_at(lambda e: e.raw, e, {**e.raw, **{k: raw[k] for k in e.raw if k in raw}})
+            for e in self.effects
+        )
         return EffectStack(self.inner.with_raw(inner) if inner else self.inner, effects, self.active)
 
     def with_active(self, active) -> EffectStack:
@@ -125,16 +129,21 @@ class EffectStack(AbstractWrapper):
     def perturbed(self, key, scale, frozen=frozenset()):
         keys = jax.random.split(key, len(self.effects) + 1)
         inner = self.inner.perturbed(keys[0], scale, frozen)
-        effects = tuple(eqx.tree_at(lambda e: e.raw, effect, perturb_raw(effect.raw, k, scale, frozen))
-                        for k, effect in zip(keys[1:], self.effects))
+        effects = tuple(
+            eqx.tree_at(lambda e: e.raw, effect, perturb_raw(effect.raw, k, scale, frozen))
+            for k, effect in zip(keys[1:], self.effects)
+        )
         return EffectStack(inner, effects, self.active)
 
     def trainable(self, frozen):
         spec = jax.tree_util.tree_map(lambda _: False, self)
         spec = eqx.tree_at(lambda s: s.inner, spec, self.inner.trainable(frozen))
         effects = tuple(
-            eqx.tree_at(lambda e: e.raw, jax.tree_util.tree_map(lambda _: False, e),
-                        {k: k not in frozen for k in e.raw})
+            eqx.tree_at(
+                lambda e: e.raw,
+                jax.tree_util.tree_map(lambda _: False, e),
+                {k: k not in frozen for k in e.raw},
+            )
             for e in self.effects
         )
         return eqx.tree_at(lambda s: s.effects, spec, effects)

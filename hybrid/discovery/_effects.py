@@ -194,12 +194,16 @@ class Saturation(AbstractEffect):
         """Level 1/|κ| (V) and shortfall below the linear extrapolation at the largest |s|, %."""
         p = self.parameters()
         out = {}
-        for side, peak, k in (("pos", np.max(s), p["saturation_pos_per_v"]),
-                              ("neg", -np.min(s), p["saturation_neg_per_v"])):
+        for side, peak, k in (
+            ("pos", np.max(s), p["saturation_pos_per_v"]),
+            ("neg", -np.min(s), p["saturation_neg_per_v"]),
+        ):
             peak, k = float(peak), abs(float(k))
             out[f"level_{side}_v"] = 1.0 / k if k > 0 else float("inf")
             if peak > 0:
-                out[f"shortfall_{side}_percent"] = 100.0 * (1.0 - float(_soft_clip(jnp.asarray(peak), k)) / peak)
+                out[f"shortfall_{side}_percent"] = 100.0 * (
+                    1.0 - float(_soft_clip(jnp.asarray(peak), k)) / peak
+                )
         return out
 
 
@@ -216,10 +220,21 @@ class Hysteresis(AbstractEffect):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "hysteresis"
-    constraints: ClassVar = {"hysteresis_height_v": Real(), "hysteresis_rate_per_v": Positive(),
-                             "hysteresis_initial_state": SignedUnitInterval()}
-    units: ClassVar = {"hysteresis_height_v": "V", "hysteresis_rate_per_v": "1/V", "hysteresis_initial_state": "1"}
-    defaults: ClassVar = {"hysteresis_height_v": 0.01, "hysteresis_rate_per_v": 10.0, "hysteresis_initial_state": 0.0}
+    constraints: ClassVar = {
+        "hysteresis_height_v": Real(),
+        "hysteresis_rate_per_v": Positive(),
+        "hysteresis_initial_state": SignedUnitInterval(),
+    }
+    units: ClassVar = {
+        "hysteresis_height_v": "V",
+        "hysteresis_rate_per_v": "1/V",
+        "hysteresis_initial_state": "1",
+    }
+    defaults: ClassVar = {
+        "hysteresis_height_v": 0.01,
+        "hysteresis_rate_per_v": 10.0,
+        "hysteresis_initial_state": 0.0,
+    }
 
     def __init__(self, **values):
         _init(self, values)

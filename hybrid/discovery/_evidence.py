@@ -56,9 +56,15 @@ def parameter_uncertainties(problem: Problem, theta, residual_heldout, keep=None
     model = problem.model(jnp.asarray(theta))
     inflation = rt.effective_sample_factor(residual_heldout)
     keep = set(covariance.names) if keep is None else set(keep)
-    out = {name: {"std_error": std * math.sqrt(inflation), "unit": covariance.units[name],
-                  "inflation": inflation}
-           for name, std in covariance.std_errors.items() if name in keep}
+    out = {
+        name: {
+            "std_error": std * math.sqrt(inflation),
+            "unit": covariance.units[name],
+            "inflation": inflation,
+        }
+        for name, std in covariance.std_errors.items()
+        if name in keep
+    }
     network = set(model.simulation.inner.parameter_names())
     rest = [i for i, name in enumerate(covariance.names) if name not in network and name in keep]
     if rest:
@@ -86,4 +92,3 @@ def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> di
             "segment_nmse": rt.segment_errors(w, w_hat).tolist(),
         }
     return out
-

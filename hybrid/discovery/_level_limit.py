@@ -28,9 +28,9 @@ from __future__ import annotations
 import numpy as np
 
 TOLERANCE = 0.5  # noise standard deviations from the extreme that count as "at" it
-MIN_RUN = 5      # consecutive samples a flat run needs
-BEYOND = 3.0     # the model must pass the level by this many noise standard deviations
-MOVING = 3.0     # ... and span this many of them over the flat runs
+MIN_RUN = 5  # consecutive samples a flat run needs
+BEYOND = 3.0  # the model must pass the level by this many noise standard deviations
+MOVING = 3.0  # ... and span this many of them over the flat runs
 
 
 def _noise_sd(w: np.ndarray, floor_variance) -> float:
@@ -66,8 +66,12 @@ def level_limits(parts: list[dict], floor_variance) -> dict:
     w_all = np.concatenate([p["w"] for p in parts])
     sd = _noise_sd(w_all, floor_variance)
     steps = np.abs(np.diff(np.unique(w_all)))
-    quantum = float(steps.min()) if len(steps) else 0.0  # a quantised record is flat wherever it moves < a step
-    sd = max(sd if np.isfinite(sd) else 0.0, quantum / np.sqrt(12.0), 1e-9 * max(float(np.ptp(w_all)), 1e-300))
+    quantum = (
+        float(steps.min()) if len(steps) else 0.0
+    )  # a quantised record is flat wherever it moves < a step
+    sd = max(
+        sd if np.isfinite(sd) else 0.0, quantum / np.sqrt(12.0), 1e-9 * max(float(np.ptp(w_all)), 1e-300)
+    )
     out = {"noise_sd": float(sd), "quantum": quantum}
     for side, sign in (("top", 1.0), ("bottom", -1.0)):
         level = float(np.max(sign * w_all))  # in sign-flipped units: the extreme is a maximum
@@ -82,10 +86,16 @@ def level_limits(parts: list[dict], floor_variance) -> dict:
             continue
         m = np.concatenate(model)
         beyond, span = float(m.max() - level), float(np.ptp(m))
-        out[side] = {"level": sign * level, "samples": int(sum(runs)), "runs": len(runs),
-                     "longest_run": int(max(runs)), "model_extreme": float(sign * m.max()),
-                     "model_beyond_in_sd": beyond / sd, "model_span_in_sd": span / sd,
-                     "flag": bool(beyond > BEYOND * sd and span > MOVING * sd)}
+        out[side] = {
+            "level": sign * level,
+            "samples": int(sum(runs)),
+            "runs": len(runs),
+            "longest_run": int(max(runs)),
+            "model_extreme": float(sign * m.max()),
+            "model_beyond_in_sd": beyond / sd,
+            "model_span_in_sd": span / sd,
+            "flag": bool(beyond > BEYOND * sd and span > MOVING * sd),
+        }
     return out
 
 
@@ -100,5 +110,6 @@ def limit_sentence(limits: dict, n_samples: int) -> str | None:
                 f"({100 * part['samples'] / max(n_samples, 1):.1f} %, {part['runs']} run"
                 f"{'s' if part['runs'] > 1 else ''}) while the simulation {verb} to {part['model_extreme']:.4g} there: "
                 f"a one-sided limit of the level (an overflow, an end stop, the sensor's range) that the simulation "
-                f"lacks, seen in the measured output (the limited level may lie upstream of it)")
+                f"lacks, seen in the measured output (the limited level may lie upstream of it)"
+            )
     return "; ".join(clauses) if clauses else None

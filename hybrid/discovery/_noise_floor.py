@@ -81,9 +81,17 @@ class NoiseFloor:
         return math.sqrt(self.variance)
 
     def to_dict(self) -> dict:
-        return {"variance": self.variance, "std": self.std, "std_error": self.std_error, "method": self.method,
-                "estimates": dict(self.estimates), "fraction_of_variance": self.fraction_of_variance,
-                "source": self.source, "quantum": self.quantum, "warnings": list(self.warnings)}
+        return {
+            "variance": self.variance,
+            "std": self.std,
+            "std_error": self.std_error,
+            "method": self.method,
+            "estimates": dict(self.estimates),
+            "fraction_of_variance": self.fraction_of_variance,
+            "source": self.source,
+            "quantum": self.quantum,
+            "warnings": list(self.warnings),
+        }
 
 
 def quantisation_step(w) -> float:
@@ -118,13 +126,17 @@ def describe_source(method: str, n: int, rate: float, period: int = 0) -> str:
     if method.startswith("differences_"):
         k = int(method.rsplit("_", 1)[1])
         order = {1: "first", 2: "second", 3: "third", 4: "fourth"}.get(k, f"order-{k}")
-        return (f"the {order} differences of w over {n} samples (how much w varies from one sample to the next "
-                "beyond a smooth signal, white noise assumed)")
+        return (
+            f"the {order} differences of w over {n} samples (how much w varies from one sample to the next "
+            "beyond a smooth signal, white noise assumed)"
+        )
     if method == "spectrum":
         nyquist = rate / 2
-        return (f"w's spectrum at {SPECTRAL_BAND[0] * nyquist:.3g}–{SPECTRAL_BAND[1] * nyquist:.3g} Hz (the top "
-                f"fifth of the band below the Nyquist frequency, {nyquist:.3g} Hz) over {n} samples, white noise "
-                "assumed")
+        return (
+            f"w's spectrum at {SPECTRAL_BAND[0] * nyquist:.3g}–{SPECTRAL_BAND[1] * nyquist:.3g} Hz (the top "
+            f"fifth of the band below the Nyquist frequency, {nyquist:.3g} Hz) over {n} samples, white noise "
+            "assumed"
+        )
     if method == "repeats":
         return f"the spread of w over the {n // period} repetitions of the drive (period {period} samples)"
     return method
@@ -134,9 +146,11 @@ def floor_warnings(std: float, quantum: float) -> tuple[str, ...]:
     """Sentences when a floor of σ = `std` cannot be the measurement noise of data on a grid of step `quantum`."""
     if not (np.isfinite(quantum) and std < quantum):
         return ()
-    return (f"the floor σ = {std:.3g} is below the data's quantisation step ({quantum:.3g}; rounding alone "
-            f"gives {quantum / math.sqrt(12):.3g}): the stored values do not resolve the noise, and smoothed or "
-            "oversampled data look this way too; the floor then reads the rounding, not the measurement error",)
+    return (
+        f"the floor σ = {std:.3g} is below the data's quantisation step ({quantum:.3g}; rounding alone "
+        f"gives {quantum / math.sqrt(12):.3g}): the stored values do not resolve the noise, and smoothed or "
+        "oversampled data look this way too; the floor then reads the rounding, not the measurement error",
+    )
 
 
 def difference_variance(w: np.ndarray, order: int) -> float:
@@ -179,9 +193,9 @@ def repeat_variance(w: np.ndarray, v_in: np.ndarray, min_period: int = 8) -> tup
     tol = 1e-9 * span
     head = min(64, n // 3)
     # Candidates: lags at which the drive's first samples come back (cheap), then the whole check.
-    for period in np.nonzero(np.abs(v[min_period: n // 3 + 1] - v[0]) <= tol)[0] + min_period:
+    for period in np.nonzero(np.abs(v[min_period : n // 3 + 1] - v[0]) <= tol)[0] + min_period:
         period = int(period)
-        if np.max(np.abs(v[period: period + head] - v[:head])) > tol:
+        if np.max(np.abs(v[period : period + head] - v[:head])) > tol:
             continue
         if np.max(np.abs(v[period:] - v[:-period])) <= tol:
             reps = n // period
@@ -214,14 +228,24 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
     method = min(finite, key=finite.get)
     variance = finite[method]
     # Spread over blocks: the chosen estimator on each contiguous block.
-    per_block = [estimators[method](part_w, part_v)
-                 for part_w, part_v in zip(np.array_split(w, blocks), np.array_split(v_in, blocks))]
+    per_block = [
+        estimators[method](part_w, part_v)
+        for part_w, part_v in zip(np.array_split(w, blocks), np.array_split(v_in, blocks))
+    ]
     per_block = np.asarray([x for x in per_block if np.isfinite(x)])
-    std_error = float(np.std(per_block, ddof=1) / math.sqrt(per_block.size)) if per_block.size > 1 else float("nan")
+    std_error = (
+        float(np.std(per_block, ddof=1) / math.sqrt(per_block.size)) if per_block.size > 1 else float("nan")
+    )
     spread = float(np.var(w))
     period = repeat_variance(w, v_in)[1] if method == "repeats" else 0
     quantum = quantisation_step(w)
-    return NoiseFloor(variance=variance, std_error=std_error, method=method, estimates=estimates,
-                      fraction_of_variance=variance / spread if spread > 0 else float("nan"),
-                      source=describe_source(method, w.size, rate, period), quantum=quantum,
-                      warnings=floor_warnings(math.sqrt(variance), quantum))
+    return NoiseFloor(
+        variance=variance,
+        std_error=std_error,
+        method=method,
+        estimates=estimates,
+        fraction_of_variance=variance / spread if spread > 0 else float("nan"),
+        source=describe_source(method, w.size, rate, period),
+        quantum=quantum,
+        warnings=floor_warnings(math.sqrt(variance), quantum),
+    )

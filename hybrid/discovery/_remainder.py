@@ -45,17 +45,25 @@ from __future__ import annotations
 import numpy as np
 import scipy.optimize
 
-MIN_SAMPLES = 50          # fewer held-out (or training) samples: no description
-MIN_BIN = 5               # samples a bin needs to be kept
+MIN_SAMPLES = 50  # fewer held-out (or training) samples: no description
+MIN_BIN = 5  # samples a bin needs to be kept
 UNSTRUCTURED_EXCESS = 0.2  # below this fraction of the excess recovered: "unstructured"
-UNSTRUCTURED_MSE = 0.02    # ... or below this fraction of the held-out MSE
-MARGIN = 0.05             # a more complex family must beat a simpler one by this much
-SIGNIFICANT = 3.0         # standard errors the held-out MSE must exceed the floor by to have an excess
+UNSTRUCTURED_MSE = 0.02  # ... or below this fraction of the held-out MSE
+MARGIN = 0.05  # a more complex family must beat a simpler one by this much
+SIGNIFICANT = 3.0  # standard errors the held-out MSE must exceed the floor by to have an excess
 KEYS = ("t", "v_in", "w", "w_hat", "segment")
 #: Each extension's family, in order of preference within its family (the first within MARGIN of the best).
-FAMILY = {"static_drive": "static", "static_output_monotone": "static", "static_output_free": "static",
-          "filter_drive": "dynamic", "rate": "dynamic", "filter_output": "dynamic", "time": "time",
-          "filter_output_cube": "nonlinear_dynamic", "filter_output_square": "nonlinear_dynamic"}
+FAMILY = {
+    "static_drive": "static",
+    "static_output_monotone": "static",
+    "static_output_free": "static",
+    "filter_drive": "dynamic",
+    "rate": "dynamic",
+    "filter_output": "dynamic",
+    "time": "time",
+    "filter_output_cube": "nonlinear_dynamic",
+    "filter_output_square": "nonlinear_dynamic",
+}
 ORDER = ("static", "time", "dynamic", "nonlinear_dynamic")
 
 
@@ -150,13 +158,20 @@ def _drive_shape(tr, centres, values) -> dict:
         fp, fn = _interp(g, centres, values), _interp(-g, centres, values)
         even, odd = np.var((fp + fn) / 2), np.mean(((fp - fn) / 2) ** 2)
         total = even + odd
-        out["symmetry"] = ({"even": _num(even / total), "odd": _num(odd / total)} if total > 0
-                           else {"reason": "the map of the drive is constant"})
+        out["symmetry"] = (
+            {"even": _num(even / total), "odd": _num(odd / total)}
+            if total > 0
+            else {"reason": "the map of the drive is constant"}
+        )
         pos, neg = np.sqrt(np.mean((fp - fp[0]) ** 2)), np.sqrt(np.mean((fn - fn[0]) ** 2))
         ratio = max(pos, neg) / min(pos, neg) if min(pos, neg) > 0 else (np.inf if max(pos, neg) > 0 else 1.0)
-        out["one_sided"] = {"positive": _num(pos), "negative": _num(neg), "ratio": _num(min(ratio, 1e6)),
-                            "side": ("positive" if pos > neg else "negative") if ratio >= 3 else None,
-                            "flag": bool(ratio >= 3)}
+        out["one_sided"] = {
+            "positive": _num(pos),
+            "negative": _num(neg),
+            "ratio": _num(min(ratio, 1e6)),
+            "side": ("positive" if pos > neg else "negative") if ratio >= 3 else None,
+            "flag": bool(ratio >= 3),
+        }
     near = np.abs(v) <= 0.25 * vmax
     ratios = {}
     for name, y in (("recording", tr["w"]), ("model", tr["w_hat"])):
@@ -168,7 +183,12 @@ def _drive_shape(tr, centres, values) -> dict:
     else:
         rec, mod = ratios["recording"], ratios["model"]
         which = "recording" if rec < 0.4 and mod > 0.6 else "model" if mod < 0.4 and rec > 0.6 else None
-        out["flat_near_zero"] = {"recording": _num(rec), "model": _num(mod), "which": which, "flag": which is not None}
+        out["flat_near_zero"] = {
+            "recording": _num(rec),
+            "model": _num(mod),
+            "which": which,
+            "flag": which is not None,
+        }
     gain = _slope(v, tr["w_hat"])
     bend = {}
     for side, s in (("positive", 1.0), ("negative", -1.0)):
@@ -178,8 +198,11 @@ def _drive_shape(tr, centres, values) -> dict:
         sm, se = _slope(v[mid], tr["r"][mid]), _slope(v[end], tr["r"][end])
         bend[side] = _num((se - sm) / gain) if top > 0 and None not in (sm, se) and gain else None
     found = [b for b in bend.values() if b is not None]
-    out["bend_at_ends"] = (dict(bend, flag=bool(max(abs(b) for b in found) > 0.25)) if found
-                           else {"reason": "too few distinct drive levels at the ends"})
+    out["bend_at_ends"] = (
+        dict(bend, flag=bool(max(abs(b) for b in found) > 0.25))
+        if found
+        else {"reason": "too few distinct drive levels at the ends"}
+    )
     return out
 
 
@@ -203,17 +226,30 @@ def _filter(tr, ho, key, lags, rate, judge) -> dict:
     pred = np.zeros_like(ho["r"])
     pred[hrows] = np.einsum("ni,i->n", hx - xm, h) + ym
     f = np.linspace(0.0, rate / 2, 100)
-    resp = np.exp(-2j * np.pi * np.outer(f / rate, np.arange(lags + 1))) @ h[:lags + 1]
+    resp = np.exp(-2j * np.pi * np.outer(f / rate, np.arange(lags + 1))) @ h[: lags + 1]
     db = 20 * np.log10(np.abs(resp) + 1e-300)
-    return dict(judge(pred), lags=int(lags), fit_rows=int(len(rows)),
-                response={"f_hz": _list(f), "magnitude_db": _list(np.maximum(db, db.max() - 120.0)),
-                          "phase_deg": _list(np.degrees(np.unwrap(np.angle(resp))))})
+    return dict(
+        judge(pred),
+        lags=int(lags),
+        fit_rows=int(len(rows)),
+        response={
+            "f_hz": _list(f),
+            "magnitude_db": _list(np.maximum(db, db.max() - 120.0)),
+            "phase_deg": _list(np.degrees(np.unwrap(np.angle(resp)))),
+        },
+    )
 
 
 def _unavailable(why: str, n_tr: int, n_ho: int) -> dict:
     """The description when there is nothing to judge: every part a reason."""
-    return {"n_train": n_tr, "n_heldout": n_ho, "reason": why, "recovered": {"reason": why},
-            "kind": "unstructured", "summary": f"no description of the remainder: {why}"}
+    return {
+        "n_train": n_tr,
+        "n_heldout": n_ho,
+        "reason": why,
+        "recovered": {"reason": why},
+        "kind": "unstructured",
+        "summary": f"no description of the remainder: {why}",
+    }
 
 
 def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: float) -> dict:
@@ -231,7 +267,9 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
     tr, ho = _prepare(train), _prepare(heldout)
     n_tr, n_ho = len(tr["r"]), len(ho["r"])
     if n_ho < MIN_SAMPLES or n_tr < MIN_SAMPLES:
-        return _unavailable(f"too few samples ({n_tr} training, {n_ho} held-out; {MIN_SAMPLES} needed)", n_tr, n_ho)
+        return _unavailable(
+            f"too few samples ({n_tr} training, {n_ho} held-out; {MIN_SAMPLES} needed)", n_tr, n_ho
+        )
     rate = float(rate)
     if not np.isfinite(rate) or rate <= 0:
         raise ValueError(f"rate must be a positive number of samples per second, not {rate}")
@@ -245,15 +283,20 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
     c, m, _ = _binned(tr["v_in"], tr["r"], bins)
     drive = judge(_interp(ho["v_in"], c, m))
     stride = -(-n_ho // 200)  # at most 200 points for the figure
-    drive.update(curve={"v": _list(c), "r": _list(m)},
-                 points={"v": _list(ho["v_in"][::stride]), "r": _list(ho["r"][::stride])})
+    drive.update(
+        curve={"v": _list(c), "r": _list(m)},
+        points={"v": _list(ho["v_in"][::stride]), "r": _list(ho["r"][::stride])},
+    )
     static = {"drive": drive, **_drive_shape(tr, c, m)}
     scores["static_drive"] = drive
 
     # Static: the simulation's output, monotone (w ≈ g(ŵ)) and free.
     xc, wy, wt = _binned(tr["w_hat"], tr["w"], 100)
-    fits = [(float(np.sum(wt * (g - wy) ** 2)), name, g) for up, name in ((True, "increasing"), (False, "decreasing"))
-            for g in [scipy.optimize.isotonic_regression(wy, weights=wt, increasing=up).x]]
+    fits = [
+        (float(np.sum(wt * (g - wy) ** 2)), name, g)
+        for up, name in ((True, "increasing"), (False, "decreasing"))
+        for g in [scipy.optimize.isotonic_regression(wy, weights=wt, increasing=up).x]
+    ]
     _, direction, g = min(fits, key=lambda fit: fit[0])
     mono = judge(_interp(ho["w_hat"], xc, g - xc))  # r̂ = g(ŵ) − ŵ, constant beyond the training range
     static["output_monotone"] = dict(mono, direction=direction)
@@ -285,7 +328,10 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
 
     # Linear filter: lagged drive and lagged model output.
     lags = int(min(60, max(1, round(rate * 1.0))))
-    filt = {"drive": _filter(tr, ho, "v_in", lags, rate, judge), "output": _filter(tr, ho, "w_hat", lags, rate, judge)}
+    filt = {
+        "drive": _filter(tr, ho, "v_in", lags, rate, judge),
+        "output": _filter(tr, ho, "w_hat", lags, rate, judge),
+    }
     centre, spread = float(np.mean(tr["w_hat"])), float(np.std(tr["w_hat"])) or 1.0
     for part, power in ((tr, 2), (tr, 3), (ho, 2), (ho, 3)):
         part[f"w_hat_{power}"] = ((part["w_hat"] - centre) / spread) ** power
@@ -295,61 +341,95 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
     scores.update({f"filter_{key}": part for key, part in filt.items() if "fraction" in part})
 
     offset = judge(np.full(n_ho, tr["r"].mean()))
-    out = {"n_train": n_tr, "n_heldout": n_ho, "heldout_mse": _num(judge.mse),
-           "floor_variance": _num(judge.floor) if judge.floor is not None else None,
-           "offset": offset, "static": static, "rate": rate_part, "time": time_part, "linear_filter": filt}
+    out = {
+        "n_train": n_tr,
+        "n_heldout": n_ho,
+        "heldout_mse": _num(judge.mse),
+        "floor_variance": _num(judge.floor) if judge.floor is not None else None,
+        "offset": offset,
+        "static": static,
+        "rate": rate_part,
+        "time": time_part,
+        "linear_filter": filt,
+    }
     out.update(_verdict(scores, judge, static, offset))
     return out
 
 
 def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
     """Best extension, kind (simplest family within MARGIN of the best) and the one-sentence summary."""
+
     def score(p):
         return p["of_excess"] if judge.excess is not None else max(p["fraction"] or 0.0, 0.0)
 
-    best = max(scores, key=lambda k: (scores[k]["fraction"] or -np.inf))
-    rec = {"best": best, "fraction": scores[best]["fraction"], "of_excess": scores[best]["of_excess"], "named": None}
+    best = max(scores, key=lambda k: scores[k]["fraction"] or -np.inf)
+    rec = {
+        "best": best,
+        "fraction": scores[best]["fraction"],
+        "of_excess": scores[best]["of_excess"],
+        "named": None,
+    }
     if judge.reason:
         rec["reason"] = judge.reason
     family = {f: max((score(p) for k, p in scores.items() if FAMILY[k] == f), default=0.0) for f in ORDER}
     top = max(family.values())
-    where = "of the held-out error above the noise floor" if judge.excess is not None else "of the held-out error"
+    where = (
+        "of the held-out error above the noise floor" if judge.excess is not None else "of the held-out error"
+    )
     frac = scores[best]["fraction"] or 0.0
     if top < UNSTRUCTURED_EXCESS or frac < UNSTRUCTURED_MSE:
         why = f" ({judge.reason})" if judge.reason else ""
-        return {"recovered": rec, "kind": "unstructured",
-                "summary": f"no simple structure: nothing recovers more than {100 * max(top, 0):.0f} % {where}{why}"}
+        return {
+            "recovered": rec,
+            "kind": "unstructured",
+            "summary": f"no simple structure: nothing recovers more than {100 * max(top, 0):.0f} % {where}{why}",
+        }
     kind = next(f for f in ORDER if family[f] >= top - MARGIN)
     pct = lambda k: f"{100 * score(scores[k]):.0f} %"
-    inkind = next(k for k in FAMILY if k in scores and FAMILY[k] == kind and score(scores[k]) >= family[kind] - MARGIN)
+    inkind = next(
+        k for k in FAMILY if k in scores and FAMILY[k] == kind and score(scores[k]) >= family[kind] - MARGIN
+    )
     rec["named"] = inkind
     best_static = max((k for k in scores if FAMILY[k] == "static"), key=lambda k: score(scores[k]))
     if kind == "static" and inkind == "static_drive":
         sym = static.get("symmetry", {})
-        char = " and even" if (sym.get("even") or 0) > 0.8 else " and odd" if (sym.get("odd") or 0) > 0.8 else ""
+        char = (
+            " and even" if (sym.get("even") or 0) > 0.8 else " and odd" if (sym.get("odd") or 0) > 0.8 else ""
+        )
         text = f"static{char} in the drive: a function of the drive level recovers {pct(inkind)} {where}"
-        notes = [f"one-sided ({static['one_sided']['side']} drive)" if static["one_sided"].get("flag") else "",
-                 f"the {static['flat_near_zero']['which']} is flat near zero drive (dead zone)"
-                 if static["flat_near_zero"].get("flag") else "",
-                 "it bends at the largest drive levels" if static["bend_at_ends"].get("flag") else ""]
+        notes = [
+            f"one-sided ({static['one_sided']['side']} drive)" if static["one_sided"].get("flag") else "",
+            f"the {static['flat_near_zero']['which']} is flat near zero drive (dead zone)"
+            if static["flat_near_zero"].get("flag")
+            else "",
+            "it bends at the largest drive levels" if static["bend_at_ends"].get("flag") else "",
+        ]
         text += "".join(f"; {n}" for n in notes if n)
     elif kind == "static":
         how = "a monotone" if inkind == "static_output_monotone" else "a"
         text = f"static on the model's output: {how} map of the simulation's output recovers {pct(inkind)} {where}"
     elif kind == "dynamic":
-        what = {"filter_drive": "a linear filter of the drive", "filter_output": "a linear filter of the model's output",
-                "rate": "a function of the drive's rate dv/dt"}[inkind]
+        what = {
+            "filter_drive": "a linear filter of the drive",
+            "filter_output": "a linear filter of the model's output",
+            "rate": "a function of the drive's rate dv/dt",
+        }[inkind]
         weak = score(scores[best_static]) < 0.5 * family["dynamic"]
-        text = (f"dynamic: {what} recovers {pct(inkind)} {where}; "
-                + (f"no static map does (best {pct(best_static)})" if weak else f"the best static map {pct(best_static)}"))
+        text = f"dynamic: {what} recovers {pct(inkind)} {where}; " + (
+            f"no static map does (best {pct(best_static)})"
+            if weak
+            else f"the best static map {pct(best_static)}"
+        )
     elif kind == "nonlinear_dynamic":
         odd = inkind == "filter_output_cube"
         best_linear = max((k for k in scores if FAMILY[k] == "dynamic"), key=lambda k: score(scores[k]))
-        text = (f"nonlinear inside the dynamics: the {'cube' if odd else 'square'} of the model's output through a "
-                f"linear filter recovers {pct(inkind)} {where} (an {'odd' if odd else 'even'} static nonlinearity "
-                f"fed back through the dynamics, e.g. a {'cubic (stiffening or softening)' if odd else 'quadratic'} "
-                f"restoring force); the best linear filter {pct(best_linear)}, the best static map "
-                f"{pct(best_static)}")
+        text = (
+            f"nonlinear inside the dynamics: the {'cube' if odd else 'square'} of the model's output through a "
+            f"linear filter recovers {pct(inkind)} {where} (an {'odd' if odd else 'even'} static nonlinearity "
+            f"fed back through the dynamics, e.g. a {'cubic (stiffening or softening)' if odd else 'quadratic'} "
+            f"restoring force); the best linear filter {pct(best_linear)}, the best static map "
+            f"{pct(best_static)}"
+        )
     else:
         text = f"a trend in time (drift): a smooth function of time recovers {pct(inkind)} {where}"
     if score(offset) >= 0.8 * top:
@@ -365,27 +445,44 @@ def plot_remainder(description: dict, path) -> None:
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     drive = description.get("static", {}).get("drive", {})
     if "curve" in drive:  # the held-out points and the map fitted on training
-        left.scatter(drive["points"]["v"], drive["points"]["r"], s=5, color="0.6", alpha=0.6, label="held-out residual")
-        left.plot(drive["curve"]["v"], drive["curve"]["r"], "C3-o", ms=3, lw=1.8, label="map fitted on training")
+        left.scatter(
+            drive["points"]["v"], drive["points"]["r"], s=5, color="0.6", alpha=0.6, label="held-out residual"
+        )
+        left.plot(
+            drive["curve"]["v"], drive["curve"]["r"], "C3-o", ms=3, lw=1.8, label="map fitted on training"
+        )
         sym = description["static"].get("symmetry", {})
-        char = (f"even {100 * sym['even']:.0f} %, odd {100 * sym['odd']:.0f} %" if "even" in sym
-                else sym.get("reason", ""))
+        char = (
+            f"even {100 * sym['even']:.0f} %, odd {100 * sym['odd']:.0f} %"
+            if "even" in sym
+            else sym.get("reason", "")
+        )
         left.set_title(f"Residual against drive level ({char}); recovers {_pct(drive)}", fontsize=9)
         left.legend(fontsize=8)
     else:
         left.text(0.5, 0.5, description.get("reason", "no map"), ha="center", transform=left.transAxes)
     left.axhline(0.0, color="0.5", lw=0.6)
     left.set(xlabel="drive v_in (V)", ylabel="residual w − ŵ")
-    for key, label, colour in (("drive", "of the drive (per V)", "C0"), ("output", "of the model's output", "C2")):
+    for key, label, colour in (
+        ("drive", "of the drive (per V)", "C0"),
+        ("output", "of the model's output", "C2"),
+    ):
         part = description.get("linear_filter", {}).get(key, {})
         if "response" in part:
-            right.plot(part["response"]["f_hz"], part["response"]["magnitude_db"], color=colour,
-                       label=f"filter {label}: recovers {_pct(part)}")
+            right.plot(
+                part["response"]["f_hz"],
+                part["response"]["magnitude_db"],
+                color=colour,
+                label=f"filter {label}: recovers {_pct(part)}",
+            )
     if right.lines:
         right.legend(fontsize=8)
     right.set(xlabel="frequency (Hz)", ylabel="gain (dB)")
-    right.set_title("Linear filter of the residual fitted on training: frequency response\n(a constant offset alone "
-                    f"recovers {_pct(description.get('offset', {}))})", fontsize=9)
+    right.set_title(
+        "Linear filter of the residual fitted on training: frequency response\n(a constant offset alone "
+        f"recovers {_pct(description.get('offset', {}))})",
+        fontsize=9,
+    )
     right.grid(True, alpha=0.3)
     fig.suptitle(description.get("summary", ""), fontsize=9)
     fig.tight_layout()

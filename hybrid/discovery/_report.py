@@ -102,8 +102,15 @@ def plus_minus(entry: dict) -> str:
     return f"{text} {unit}".rstrip()
 
 
-_SUFFIXES = (("_percent_of_range", "% of range"), ("_percent", "%"), ("_samples", "samples"), ("_hz", "Hz"),
-             ("_s", "s"), ("_v", "V"), ("_mm", "mm"))
+_SUFFIXES = (
+    ("_percent_of_range", "% of range"),
+    ("_percent", "%"),
+    ("_samples", "samples"),
+    ("_hz", "Hz"),
+    ("_s", "s"),
+    ("_v", "V"),
+    ("_mm", "mm"),
+)
 
 
 def _quantity(key: str, value) -> tuple[str, str]:
@@ -122,27 +129,38 @@ def _verdict(d: dict) -> str:
     base, ext = d["baseline"], d["extended"]
     head = f"**{d['verdict']}**"
     if not d["causes"]:
-        return (f"{head}\n\nNo effect passed every test (material, held-out gain ≥ {_num(d['settings']['min_gain'])}, "
-                f"ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])}, a residual no more correlated); the baseline "
-                f"simulation stands, with held-out NMSE {format_nmse(base['nmse'])} and Fitting {_pct(base['fitting'])}.")
+        return (
+            f"{head}\n\nNo effect passed every test (material, held-out gain ≥ {_num(d['settings']['min_gain'])}, "
+            f"ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])}, a residual no more correlated); the baseline "
+            f"simulation stands, with held-out NMSE {format_nmse(base['nmse'])} and Fitting {_pct(base['fitting'])}."
+        )
     names = " + ".join(c["name"] for c in d["causes"])
-    return (f"{head}\n\nAdding {names} to the simulation lowers the held-out NMSE from "
-            f"{format_nmse(base['nmse'])} to {format_nmse(ext['nmse'])} (gain {d['gain']:.2f}×) and raises Fitting from "
-            f"{_pct(base['fitting'])} to {_pct(ext['fitting'])}.")
+    return (
+        f"{head}\n\nAdding {names} to the simulation lowers the held-out NMSE from "
+        f"{format_nmse(base['nmse'])} to {format_nmse(ext['nmse'])} (gain {d['gain']:.2f}×) and raises Fitting from "
+        f"{_pct(base['fitting'])} to {_pct(ext['fitting'])}."
+    )
 
 
 def _stepwise(d: dict) -> list[str]:
     """The causes in the order found, each with its incremental gain and its parameters."""
-    lines = ["## Causes, step by step", "",
-             "Each step fits every remaining effect on top of the model before it and names one only if it passes "
-             "every test against that model (incremental held-out gain, ΔBIC, materiality, whiteness, the "
-             "as-good-fits guard); the search stops at the first step that names nothing.", "",
-             "| step | cause | incremental gain | ΔBIC | size | parameters |", "|---|---|---|---|---|---|"]
+    lines = [
+        "## Causes, step by step",
+        "",
+        "Each step fits every remaining effect on top of the model before it and names one only if it passes "
+        "every test against that model (incremental held-out gain, ΔBIC, materiality, whiteness, the "
+        "as-good-fits guard); the search stops at the first step that names nothing.",
+        "",
+        "| step | cause | incremental gain | ΔBIC | size | parameters |",
+        "|---|---|---|---|---|---|",
+    ]
     for i, c in enumerate(d["causes"], 1):
         size = ", ".join(" ".join(_quantity(k, v)) for k, v in c["derived"].items())
         params = ", ".join(f"{k} = {plus_minus(v)}" for k, v in c["parameters"].items())
-        lines.append(f"| {i} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
-                     f"{_cell(size)} | {_cell(params)} |")
+        lines.append(
+            f"| {i} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
+            f"{_cell(size)} | {_cell(params)} |"
+        )
     return lines + [""]
 
 
@@ -150,43 +168,67 @@ def noise_section(d: dict) -> list[str]:
     """The noise floor and, when the final model stays above it, where the rest lives."""
     floor, left = d["noise_floor"], d["unexplained"]
     source = floor.get("source") or floor["method"]
-    lines = ["## Noise floor and what remains", "",
-             f"Measurement noise of w, from the recording alone ({floor['method']}): σ = {_num(floor['std'])} "
-             f"(variance {_num(floor['variance'])} ± {_num(floor['std_error'])}), "
-             f"{format_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out. "
-             f"Estimated from {source}.", ""]
+    lines = [
+        "## Noise floor and what remains",
+        "",
+        f"Measurement noise of w, from the recording alone ({floor['method']}): σ = {_num(floor['std'])} "
+        f"(variance {_num(floor['variance'])} ± {_num(floor['std_error'])}), "
+        f"{format_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out. "
+        f"Estimated from {source}.",
+        "",
+    ]
     for warning in floor.get("warnings") or ():
         lines += [f"**Warning:** {warning}.", ""]
     if left is not None and left.get("floor_warning"):
         lines += [f"**Warning:** {left['floor_warning']}.", ""]
     if left is None:
-        return lines + ["The final model's held-out error is within "
-                        f"{_num(d['settings']['unexplained_ratio'])}× the floor: nothing is left unexplained.", ""]
+        return lines + [
+            "The final model's held-out error is within "
+            f"{_num(d['settings']['unexplained_ratio'])}× the floor: nothing is left unexplained.",
+            "",
+        ]
     desc = left["description"]
-    lines += [f"**Unexplained:** the final model's held-out MSE is {_num(left['ratio_to_floor'])}× the floor; "
-              f"{_share(left['fraction_above_floor'])} of it lies above the noise "
-              f"({format_nmse(left['excess_nmse'])} of var(w)). {desc.get('summary', '')}", ""]
+    lines += [
+        f"**Unexplained:** the final model's held-out MSE is {_num(left['ratio_to_floor'])}× the floor; "
+        f"{_share(left['fraction_above_floor'])} of it lies above the noise "
+        f"({format_nmse(left['excess_nmse'])} of var(w)). {desc.get('summary', '')}",
+        "",
+    ]
     if left.get("underdetermined"):
         lines += [f"Note: {left['underdetermined']}.", ""]
     static, filters = desc.get("static", {}), desc.get("linear_filter", {})
-    recovered = {"map of the drive level": static.get("drive"), "monotone map of the model's output":
-                 static.get("output_monotone"), "free map of the model's output": static.get("output_free"),
-                 "map of the drive's rate": desc.get("rate"), "trend in time": desc.get("time"),
-                 "linear filter of the drive": filters.get("drive"),
-                 "linear filter of the model's output": filters.get("output"),
-                 "linear filter of the output's square": filters.get("output_square"),
-                 "linear filter of the output's cube": filters.get("output_cube")}
+    recovered = {
+        "map of the drive level": static.get("drive"),
+        "monotone map of the model's output": static.get("output_monotone"),
+        "free map of the model's output": static.get("output_free"),
+        "map of the drive's rate": desc.get("rate"),
+        "trend in time": desc.get("time"),
+        "linear filter of the drive": filters.get("drive"),
+        "linear filter of the model's output": filters.get("output"),
+        "linear filter of the output's square": filters.get("output_square"),
+        "linear filter of the output's cube": filters.get("output_cube"),
+    }
     recovered = {k: v for k, v in recovered.items() if isinstance(v, dict) and "fraction" in v}
     if recovered:
-        lines += ["What each extension, fitted to the residual on the training part, recovers held out:", "",
-                  "| extension | share of the held-out MSE | share of the error above the floor |", "|---|---|---|"]
-        lines += [f"| {name} | {_share(entry['fraction'])} | {_share(entry.get('of_excess'))} |"
-                  for name, entry in recovered.items()]
+        lines += [
+            "What each extension, fitted to the residual on the training part, recovers held out:",
+            "",
+            "| extension | share of the held-out MSE | share of the error above the floor |",
+            "|---|---|---|",
+        ]
+        lines += [
+            f"| {name} | {_share(entry['fraction'])} | {_share(entry.get('of_excess'))} |"
+            for name, entry in recovered.items()
+        ]
         lines.append("")
-    lines += [f"![Where the remainder lives]({REMAINDER_FIGURE})", "",
-              "Left: the residual against the drive level and the static map fitted to it (an even map points to a "
-              "response ∝ V², a flat middle to a dead zone, bent ends to saturation). Right: the linear filter "
-              "fitted to the residual (a dynamic remainder).", ""]
+    lines += [
+        f"![Where the remainder lives]({REMAINDER_FIGURE})",
+        "",
+        "Left: the residual against the drive level and the static map fitted to it (an even map points to a "
+        "response ∝ V², a flat middle to a dead zone, bent ends to saturation). Right: the linear filter "
+        "fitted to the residual (a dynamic remainder).",
+        "",
+    ]
     return lines
 
 
@@ -207,17 +249,25 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     extended_label = "extended (no cause named: the baseline)" if not causes else f"extended (+ {causes})"
     for key, label in (("baseline", "baseline (simulation)"), ("extended", extended_label)):
         m = d[key]
-        lines.append(f"| {label} | {format_nmse(m['nmse'])} | {format_nmse(m.get('nmse_eq18'))} | {_pct(m['fitting'])} |")
+        lines.append(
+            f"| {label} | {format_nmse(m['nmse'])} | {format_nmse(m.get('nmse_eq18'))} | {_pct(m['fitting'])} |"
+        )
     lines += ["", f"Gain (baseline NMSE / extended NMSE): **{d['gain']:.3g}**.", ""]
     if d["causes"]:
         lines += _stepwise(d)
     lines += noise_section(d)
 
-    lines += ["## Fitted parameters" + ("" if not causes else f" (simulation + {causes})"), "",
-              "Standard errors: Gauss–Newton covariance on the training part, inflated for the held-out "
-              "residual's autocorrelation. The network's parameters trade off against each other, and an effect "
-              "that trades off with them inherits their spread; in brackets, the error with the network's "
-              "parameters held at their fitted values (a lower bound).", "", "| parameter | value ± std. error |", "|---|---|"]
+    lines += [
+        "## Fitted parameters" + ("" if not causes else f" (simulation + {causes})"),
+        "",
+        "Standard errors: Gauss–Newton covariance on the training part, inflated for the held-out "
+        "residual's autocorrelation. The network's parameters trade off against each other, and an effect "
+        "that trades off with them inherits their spread; in brackets, the error with the network's "
+        "parameters held at their fitted values (a lower bound).",
+        "",
+        "| parameter | value ± std. error |",
+        "|---|---|",
+    ]
     frozen = set(d["settings"].get("frozen") or ())
     for name, entry in d["parameters"].items():
         text = f"{_num(entry['value'], 4)} (fixed)" if name in frozen else plus_minus(entry)
@@ -227,73 +277,108 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         lines += ["- {}: {}".format(*_quantity(k, v)) for k, v in d["effect_derived"].items()]
     lines.append("")
 
-    lines += ["## Candidates", "",
-              "Each effect fitted jointly with the simulation; a cause needs all of: material, held-out gain ≥ "
-              f"{_num(d['settings']['min_gain'])}, ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])} (training part), "
-              "and a held-out residual no more correlated than the baseline's (Ljung–Box Q, rescaled by the squared "
-              "ratio of the residual variances, no higher than the baseline's, or below the 99 % white limit). "
-              "The baseline is the best effect-free fit, refitted from every candidate's end point too, "
-              "so a candidate's gain is its effect's, not a better local minimum's.", ""]
+    lines += [
+        "## Candidates",
+        "",
+        "Each effect fitted jointly with the simulation; a cause needs all of: material, held-out gain ≥ "
+        f"{_num(d['settings']['min_gain'])}, ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])} (training part), "
+        "and a held-out residual no more correlated than the baseline's (Ljung–Box Q, rescaled by the squared "
+        "ratio of the residual variances, no higher than the baseline's, or below the 99 % white limit). "
+        "The baseline is the best effect-free fit, refitted from every candidate's end point too, "
+        "so a candidate's gain is its effect's, not a better local minimum's.",
+        "",
+    ]
     spread = ev.get("equally_good_effect_free_fits")
     if spread and spread.get("n"):
-        lines += [f"Effect-free fits as good as the baseline on training data (within ΔBIC "
-                  f"{_num(d['settings']['min_bic_drop'])}): {spread['n']}, held-out NMSE "
-                  f"{format_nmse(spread['heldout_nmse_min'])} to {format_nmse(spread['heldout_nmse_max'])}. A wide range means "
-                  "the training part does not pin the strip's slow dynamics; a candidate must also beat the best "
-                  "of them by the minimum gain.", ""]
-    lines += ["| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
-              "|---|---|---|---|---|---|---|---|",
-              f"| *baseline* | {format_nmse(d['baseline']['nmse'])} | 1 | 0 | "
-              f"{_fixed(d['baseline_fit']['ljung_box']['Q'])} | | | |"]
+        lines += [
+            f"Effect-free fits as good as the baseline on training data (within ΔBIC "
+            f"{_num(d['settings']['min_bic_drop'])}): {spread['n']}, held-out NMSE "
+            f"{format_nmse(spread['heldout_nmse_min'])} to {format_nmse(spread['heldout_nmse_max'])}. A wide range means "
+            "the training part does not pin the strip's slow dynamics; a candidate must also beat the best "
+            "of them by the minimum gain.",
+            "",
+        ]
+    lines += [
+        "| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
+        "|---|---|---|---|---|---|---|---|",
+        f"| *baseline* | {format_nmse(d['baseline']['nmse'])} | 1 | 0 | "
+        f"{_fixed(d['baseline_fit']['ljung_box']['Q'])} | | | |",
+    ]
     for c in d["candidates"]:
         mark = f"**{c['name']}**" if c["name"] == d["cause"] else c["name"]
         lines.append(
             f"| {mark} | {format_nmse(c['heldout_nmse'])} | {_num(c['gain'])} | {_fixed(c['criterion']['delta_bic'])} | "
             f"{_fixed(c['ljung_box']['Q'])} | {_cell(c.get('materiality', ''))} | {_num(bool(c['eligible']))} | "
-            f"{_cell('; '.join(r for r in c['reasons'] if r))} |")
+            f"{_cell('; '.join(r for r in c['reasons'] if r))} |"
+        )
     lines.append("")
 
-    lines += ["## Residual tests (held-out part)", "",
-              f"{ev['n_heldout']} samples at {_num(ev['rate_hz'])} Hz; 99 % bound on a correlation "
-              f"±{ev['bound_99']:.4f}; ACF over lags 1–{MAX_LAG}, CCF over lags −{MAX_LAG}–{MAX_LAG}.", "",
-              "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | loop separation (mm) |",
-              "|---|---|---|---|---|---|"]
+    lines += [
+        "## Residual tests (held-out part)",
+        "",
+        f"{ev['n_heldout']} samples at {_num(ev['rate_hz'])} Hz; 99 % bound on a correlation "
+        f"±{ev['bound_99']:.4f}; ACF over lags 1–{MAX_LAG}, CCF over lags −{MAX_LAG}–{MAX_LAG}.",
+        "",
+        "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | loop separation (mm) |",
+        "|---|---|---|---|---|---|",
+    ]
     for key in ("baseline", "extended"):
         e = ev[key]
         lb = e["ljung_box"]
-        lines.append(f"| {key} | {_fixed(lb['Q'])} ({lb['lags']}) | {_num(lb['p_value'], 2)} | "
-                     f"{e['acf_outside_bound']} / {MAX_LAG} | {e['ccf_outside_bound']} / {2 * MAX_LAG + 1} | "
-                     f"{'n/a' if loop_levels == 0 else _num(e['loop_separation_mm'])} |")
+        lines.append(
+            f"| {key} | {_fixed(lb['Q'])} ({lb['lags']}) | {_num(lb['p_value'], 2)} | "
+            f"{e['acf_outside_bound']} / {MAX_LAG} | {e['ccf_outside_bound']} / {2 * MAX_LAG + 1} | "
+            f"{'n/a' if loop_levels == 0 else _num(e['loop_separation_mm'])} |"
+        )
     if loop_levels == 0:
-        lines += ["", "Loop separation n/a: no drive level of the held-out part is visited both rising and falling "
-                      "(a two-level drive such as PRBS), so hysteresis cannot show as open loops here."]
+        lines += [
+            "",
+            "Loop separation n/a: no drive level of the held-out part is visited both rising and falling "
+            "(a two-level drive such as PRBS), so hysteresis cannot show as open loops here.",
+        ]
     lines.append("")
 
     if d.get("hybrid"):
         h = d["hybrid"]
-        lines += ["## Hybrid model (simulation + D-MLP)", "", "| hybrid model | held-out NMSE | Fitting |",
-                  "|---|---|---|",
-                  f"| without the effect | {format_nmse(h['baseline']['nmse'])} | {_pct(h['baseline']['fitting'])} |",
-                  f"| with {'the effect (none named)' if d['cause'] == 'none' else d['cause']} | {format_nmse(h['extended']['nmse'])} | {_pct(h['extended']['fitting'])} |",
-                  "", f"Gain: {_num(h['gain'])}." + (" (No cause named: the same fit twice.)"
-                                                      if d["cause"] == "none" else ""), ""]
+        lines += [
+            "## Hybrid model (simulation + D-MLP)",
+            "",
+            "| hybrid model | held-out NMSE | Fitting |",
+            "|---|---|---|",
+            f"| without the effect | {format_nmse(h['baseline']['nmse'])} | {_pct(h['baseline']['fitting'])} |",
+            f"| with {'the effect (none named)' if d['cause'] == 'none' else d['cause']} | {format_nmse(h['extended']['nmse'])} | {_pct(h['extended']['fitting'])} |",
+            "",
+            f"Gain: {_num(h['gain'])}."
+            + (" (No cause named: the same fit twice.)" if d["cause"] == "none" else ""),
+            "",
+        ]
 
     captions = {
-        "residual_time.png": ("Held-out prediction and residual over time",
-                              "Look for structure left in the residual: a slow trend (drift), ringing after "
-                              "steps (resonance) or a lag at each edge (delay); white noise is the goal."),
-        "loops.png": ("Residual against drive level, rising and falling",
-                      "Rising and falling means that separate (an open loop) point to hysteresis; ends that bend "
-                      "away from zero at large |v_in| point to saturation."),
-        "spectrum.png": ("Residual spectrum",
-                         "A peak standing above a flat floor points to an unmodelled resonance at that frequency; "
-                         "excess power at low frequency points to slow effects (drift, back-relaxation)."),
-        "correlation.png": ("Residual autocorrelation and residual–drive cross-correlation",
-                            "Bars outside the dashed 99 % bounds mean the model left dynamics out; a CCF peak at "
-                            "a positive lag points to a delay, one at small lags to a wrong dynamic response."),
-        "segments.png": ("Error by segment",
-                         "A trend across segments (error growing or shrinking over time) points to drift; "
-                         "flat bars mean the error is stationary."),
+        "residual_time.png": (
+            "Held-out prediction and residual over time",
+            "Look for structure left in the residual: a slow trend (drift), ringing after "
+            "steps (resonance) or a lag at each edge (delay); white noise is the goal.",
+        ),
+        "loops.png": (
+            "Residual against drive level, rising and falling",
+            "Rising and falling means that separate (an open loop) point to hysteresis; ends that bend "
+            "away from zero at large |v_in| point to saturation.",
+        ),
+        "spectrum.png": (
+            "Residual spectrum",
+            "A peak standing above a flat floor points to an unmodelled resonance at that frequency; "
+            "excess power at low frequency points to slow effects (drift, back-relaxation).",
+        ),
+        "correlation.png": (
+            "Residual autocorrelation and residual–drive cross-correlation",
+            "Bars outside the dashed 99 % bounds mean the model left dynamics out; a CCF peak at "
+            "a positive lag points to a delay, one at small lags to a wrong dynamic response.",
+        ),
+        "segments.png": (
+            "Error by segment",
+            "A trend across segments (error growing or shrinking over time) points to drift; "
+            "flat bars mean the error is stationary.",
+        ),
     }
     lines += ["## Figures", ""]
     for name in figures:
@@ -301,7 +386,11 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         lines += [f"![{title}]({name})", "", look, ""]
 
     s = d["settings"]
-    lines += ["## Settings", "", f"- split: {d['split']} (fractions {', '.join(_num(x) for x in s['split'])})"]
+    lines += [
+        "## Settings",
+        "",
+        f"- split: {d['split']} (fractions {', '.join(_num(x) for x in s['split'])})",
+    ]
     for key, value in s.items():
         if key == "split":
             continue
@@ -337,8 +426,13 @@ def _remainder_figure(diagnosis, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6, 1.6))
     ax.axis("off")
-    ax.text(0.5, 0.5, "Nothing above the noise floor to describe:\nthe final model reaches the measurement noise.",
-            ha="center", va="center")
+    ax.text(
+        0.5,
+        0.5,
+        "Nothing above the noise floor to describe:\nthe final model reaches the measurement noise.",
+        ha="center",
+        va="center",
+    )
     save_figure(fig, path, plt)
 
 
@@ -351,15 +445,19 @@ def write_report(diagnosis, out_dir) -> dict[str, Path]:
     from ._diagnosis import Diagnosis
 
     if not isinstance(diagnosis, Diagnosis):
-        raise InputError(f"write_report needs the Diagnosis that hybrid.diagnose returns, got {type(diagnosis).__name__}")
+        raise InputError(
+            f"write_report needs the Diagnosis that hybrid.diagnose returns, got {type(diagnosis).__name__}"
+        )
     if not isinstance(out_dir, (str, os.PathLike)) or not str(out_dir).strip():
         raise InputError(f"write_report needs a folder path (str or pathlib.Path), got {out_dir!r}")
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        raise InputError(f"cannot create the report folder {out_dir} ({error.strerror or error}): "
-                         "give a folder you can write to") from None
+        raise InputError(
+            f"cannot create the report folder {out_dir} ({error.strerror or error}): "
+            "give a folder you can write to"
+        ) from None
     data = jsonable(diagnosis.to_dict())
     paths = {"report.json": out_dir / "report.json"}
     _write_atomic(paths["report.json"], json.dumps(data, indent=2, allow_nan=False) + "\n")
@@ -368,6 +466,8 @@ def write_report(diagnosis, out_dir) -> dict[str, Path]:
     _remainder_figure(diagnosis, paths[REMAINDER_FIGURE])
     paths["report.md"] = out_dir / "report.md"
     held = diagnosis.heldout
-    loop_levels = count_loop_levels(rt.loops(np.asarray(held["w"]) - np.asarray(held["baseline"]), held["v_in"]))
+    loop_levels = count_loop_levels(
+        rt.loops(np.asarray(held["w"]) - np.asarray(held["baseline"]), held["v_in"])
+    )
     _write_atomic(paths["report.md"], _markdown(data, {n: paths[n] for n in FIGURES}, loop_levels))
     return paths

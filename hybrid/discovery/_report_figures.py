@@ -44,8 +44,13 @@ def correlations(residual, drive, max_lag: int = MAX_LAG) -> dict:
     """ACF (lags 1..max_lag), CCF with the drive (−max_lag..max_lag) and the 99 % bound."""
     acf = rt.autocorrelation(residual, max_lag)
     lags, ccf = rt.cross_correlation(residual, drive, max_lag)
-    return {"acf_lags": np.arange(1, len(acf)), "acf": acf[1:], "ccf_lags": lags, "ccf": ccf,
-            "bound": rt.confidence_bound(len(residual))}
+    return {
+        "acf_lags": np.arange(1, len(acf)),
+        "acf": acf[1:],
+        "ccf_lags": lags,
+        "ccf": ccf,
+        "bound": rt.confidence_bound(len(residual)),
+    }
 
 
 def count_loop_levels(loop: dict) -> int:
@@ -65,7 +70,7 @@ def _x_axis(held: dict) -> tuple[np.ndarray, list[float]]:
     boundaries = []
     starts = np.flatnonzero(np.diff(which) != 0) + 1
     for start in starts:
-        step = float(np.median(np.diff(t[max(start - 50, 0):start]))) if start > 1 else 0.0
+        step = float(np.median(np.diff(t[max(start - 50, 0) : start]))) if start > 1 else 0.0
         x[start:] = t[start:] - t[start] + x[start - 1] + step
         boundaries.append(float(x[start] - 0.5 * step))
     return x, boundaries
@@ -105,18 +110,28 @@ def _figure_residual_time(held, d, path, plt):
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     top.plot(broken(x), broken(w), "k", lw=1.0, label="measured w")
     for (key, label, colour), lw in zip(_MODELS, (1.8, 1.0)):  # baseline wider: visible where they coincide
-        top.plot(broken(x), broken(held[key]), color=colour, lw=lw, alpha=0.85,
-                 label=f"{label} (held-out NMSE {format_nmse(d[key]['nmse'])})")
-        bottom.plot(broken(x), broken(w - held[key]), color=colour, lw=0.8 * lw, alpha=0.85,
-                    label=f"{label} residual")
+        top.plot(
+            broken(x),
+            broken(held[key]),
+            color=colour,
+            lw=lw,
+            alpha=0.85,
+            label=f"{label} (held-out NMSE {format_nmse(d[key]['nmse'])})",
+        )
+        bottom.plot(
+            broken(x), broken(w - held[key]), color=colour, lw=0.8 * lw, alpha=0.85, label=f"{label} residual"
+        )
     bottom.axhline(0.0, color="0.5", lw=0.6)
     for ax in (top, bottom):
         for b in boundaries:
             ax.axvline(b, color="0.3", ls=":", lw=1.0)
-    top.set(ylabel="tip displacement w (mm)",
-            title=f"Held-out part: measured and predicted (cause: {d['cause']})")
-    bottom.set(xlabel="time (s)" + (", recordings end to end (dotted: boundaries)" if boundaries else ""),
-               ylabel="residual w − ŵ (mm)")
+    top.set(
+        ylabel="tip displacement w (mm)", title=f"Held-out part: measured and predicted (cause: {d['cause']})"
+    )
+    bottom.set(
+        xlabel="time (s)" + (", recordings end to end (dotted: boundaries)" if boundaries else ""),
+        ylabel="residual w − ŵ (mm)",
+    )
     top.legend(loc="upper right", fontsize=8)
     bottom.legend(loc="upper right", fontsize=8)
     save_figure(fig, path, plt)
@@ -129,22 +144,37 @@ def _figure_loops(held, d, path, plt):
     for ax, (key, label, _) in zip(axes, _MODELS):
         e = held["w"] - held[key]
         loop = rt.loops(e, v)
-        for sign, name, light, dark, marker in ((1.0, "rising", "tab:orange", "darkorange", "^"),
-                                                (-1.0, "falling", "tab:blue", "navy", "v")):
+        for sign, name, light, dark, marker in (
+            (1.0, "rising", "tab:orange", "darkorange", "^"),
+            (-1.0, "falling", "tab:blue", "navy", "v"),
+        ):
             sel = direction == sign
             ax.scatter(v[sel], e[sel], s=4, color=light, alpha=0.2, linewidths=0)
-            ax.plot(loop["centres"], loop[name], marker=marker, color=dark, lw=1.8, label=f"{name} drive (mean)")
+            ax.plot(
+                loop["centres"], loop[name], marker=marker, color=dark, lw=1.8, label=f"{name} drive (mean)"
+            )
         ax.axhline(0.0, color="0.5", lw=0.6)
         if count_loop_levels(loop) == 0:
-            ax.text(0.5, 0.04, "no drive level is visited both rising and falling:\n"
-                    "loops cannot open with this drive (use a sine or chirp)",
-                    transform=ax.transAxes, ha="center", va="bottom", fontsize=8, color="0.3")
+            ax.text(
+                0.5,
+                0.04,
+                "no drive level is visited both rising and falling:\n"
+                "loops cannot open with this drive (use a sine or chirp)",
+                transform=ax.transAxes,
+                ha="center",
+                va="bottom",
+                fontsize=8,
+                color="0.3",
+            )
         separation = "n/a" if count_loop_levels(loop) == 0 else f"{loop['separation']:.3g} mm"
         ax.set(xlabel="drive v_in (V)", title=f"{label}: rising − falling rms {separation}")
         ax.legend(loc="best", fontsize=8)
     axes[0].set_ylabel("residual w − ŵ (mm)")
-    fig.suptitle("Residual against drive level, by direction of travel (open loops: hysteresis; "
-                 "bent ends: saturation)", fontsize=10)
+    fig.suptitle(
+        "Residual against drive level, by direction of travel (open loops: hysteresis; "
+        "bent ends: saturation)",
+        fontsize=10,
+    )
     save_figure(fig, path, plt)
 
 
@@ -153,8 +183,11 @@ def _figure_spectrum(held, d, rate, path, plt):
     for (key, label, colour), lw in zip(_MODELS, (2.6, 1.2)):  # baseline wider: visible where they coincide
         f, psd = rt.spectrum(held["w"] - held[key], rate)
         ax.semilogy(f[1:], psd[1:], color=colour, lw=lw, label=f"{label} residual")
-    ax.set(xlabel="frequency (Hz)", ylabel="PSD of residual (mm²/Hz)",
-           title="Welch spectrum of the held-out residual (a peak: an unmodelled resonance)")
+    ax.set(
+        xlabel="frequency (Hz)",
+        ylabel="PSD of residual (mm²/Hz)",
+        title="Welch spectrum of the held-out residual (a peak: an unmodelled resonance)",
+    )
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     save_figure(fig, path, plt)
@@ -176,10 +209,16 @@ def _figure_correlation(held, d, path, plt):
         ax.axhline(-bound, color="k", ls="--", lw=1.0)
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.legend(fontsize=8, loc="upper right")
-    left.set(xlabel="lag (samples)", ylabel="autocorrelation ρ_εε(k)",
-             title="Residual autocorrelation (white: inside the band)")
-    right.set(xlabel="lag k (samples; k > 0: the drive leads)", ylabel="cross-correlation ρ_εu(k)",
-              title="Residual–drive cross-correlation (peak at k > 0: delay)")
+    left.set(
+        xlabel="lag (samples)",
+        ylabel="autocorrelation ρ_εε(k)",
+        title="Residual autocorrelation (white: inside the band)",
+    )
+    right.set(
+        xlabel="lag k (samples; k > 0: the drive leads)",
+        ylabel="cross-correlation ρ_εu(k)",
+        title="Residual–drive cross-correlation (peak at k > 0: delay)",
+    )
     save_figure(fig, path, plt)
 
 
@@ -191,9 +230,11 @@ def _figure_segments(held, d, path, plt):
         errors = rt.segment_errors(held["w"], held[key], SEGMENTS)
         ax.bar(idx + (i - 0.5) * width, errors, width, color=colour, label=f"{label}")
     ax.set_xticks(idx, [str(i + 1) for i in idx])
-    ax.set(xlabel="consecutive segment of the held-out part (1 = earliest)",
-           ylabel="segment MSE / mean(w²)",
-           title="Error by segment of the held-out part (a trend over segments: drift)")
+    ax.set(
+        xlabel="consecutive segment of the held-out part (1 = earliest)",
+        ylabel="segment MSE / mean(w²)",
+        title="Error by segment of the held-out part (a trend over segments: drift)",
+    )
     ax.legend(fontsize=8)
     save_figure(fig, path, plt)
 

@@ -81,8 +81,14 @@ def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience
 
     `patience` is an argument of the program, not part of it: the stages share one compilation.
     """
-    return _fit_lanes_compiled(problem, jnp.asarray(actives, float), jnp.asarray(tangents, float),
-                               jnp.asarray(thetas), jnp.asarray(patience, jnp.int32), settings)
+    return _fit_lanes_compiled(
+        problem,
+        jnp.asarray(actives, float),
+        jnp.asarray(tangents, float),
+        jnp.asarray(thetas),
+        jnp.asarray(patience, jnp.int32),
+        settings,
+    )
 
 
 def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[Problem, int]:
@@ -95,8 +101,11 @@ def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[P
     """
     simulation = model.simulation.inner
     sizes = sorted((len(e.constraints) for e in EFFECTS.values()), reverse=True)
-    n_rows = (len([n for n in simulation.parameter_names() if n not in frozen]) + len(FrameTiming.constraints)
-              + sum(sizes[:max(max_causes, 1)]))
+    n_rows = (
+        len([n for n in simulation.parameter_names() if n not in frozen])
+        + len(FrameTiming.constraints)
+        + sum(sizes[: max(max_causes, 1)])
+    )
     n_sim = len(simulation_labels(model.simulation, frozen))
     return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
 
@@ -115,7 +124,9 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     model = universal_model(simulation)
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
-    problem, n_rows = search_problem(model, padded, frozenset(settings.frozen_for(simulation)), shared_room(settings))
+    problem, n_rows = search_problem(
+        model, padded, frozenset(settings.frozen_for(simulation)), shared_room(settings)
+    )
     return problem, n_rows, model, series
 
 
@@ -159,8 +170,9 @@ def initial_thetas(problem, simulations, readout, frozen):
         (gain, offset), *_ = np.linalg.lstsq(np.stack([s, np.ones_like(s)], axis=1), w, rcond=None)
         if not (np.isfinite(gain) and np.isfinite(offset)):
             gain, offset = 1.0, 0.0
-        fitted = eqx.tree_at(lambda r: r.raw, readout, {"gain": jnp.asarray(gain, float),
-                                                         "offset": jnp.asarray(offset, float)})
+        fitted = eqx.tree_at(
+            lambda r: r.raw, readout, {"gain": jnp.asarray(gain, float), "offset": jnp.asarray(offset, float)}
+        )
         thetas.append(problem.flatten(Model(simulation, fitted, "physics"), frozen))
     return jnp.stack(thetas)
 
@@ -171,7 +183,9 @@ def simulation_output(problem, simulation, readout, frozen, split: str) -> np.nd
     Read off `predictions` with gain 1 and offset 0: the program every stage
     runs already, so no program of its own.
     """
-    unit = eqx.tree_at(lambda r: r.raw, readout, {"gain": jnp.asarray(1.0, float), "offset": jnp.asarray(0.0, float)})
+    unit = eqx.tree_at(
+        lambda r: r.raw, readout, {"gain": jnp.asarray(1.0, float), "offset": jnp.asarray(0.0, float)}
+    )
     theta = problem.flatten(Model(simulation, unit, "physics"), frozen)
     return problem.recorded(predictions(problem, simulation.active, theta)[split], split)
 
@@ -183,12 +197,16 @@ def predictions(problem, active, theta):
     sim_theta, readout_theta = p.split_theta(theta)
     readout = p.readout(readout_theta)
     signals = p._signals(sim_theta)
-    return {split: jax.vmap(readout.predict_window)(p._windows(readout, signals, split)) for split in SPLIT_ORDER}
+    return {
+        split: jax.vmap(readout.predict_window)(p._windows(readout, signals, split)) for split in SPLIT_ORDER
+    }
 
 
 def split_signals(problem, theta, active, split):
     """(drive, w, ŵ) on `split` ("train", "validation" or "test"), all recordings concatenated."""
-    v = np.concatenate([np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.recorded_segments_of(split)])
+    v = np.concatenate(
+        [np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.recorded_segments_of(split)]
+    )
     w_hat = predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
     return v, problem.recorded(problem.target(split), split), problem.recorded(w_hat, split)
 
@@ -210,18 +228,24 @@ def effect_starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
         # the lag that best aligns the baseline; `delay_starts` adds screened ones.
         return [{"delay_s": max(lag_samples - 0.25, 0.75) * dt}]
     if name == "back_relaxation":
-        return [{"relaxation_time_s": 5.0, "relaxation_fraction": 0.3},
-                {"relaxation_time_s": min(30.0, duration / 3), "relaxation_fraction": 0.5},
-                {"relaxation_time_s": 3.0, "relaxation_fraction": 0.8}]
+        return [
+            {"relaxation_time_s": 5.0, "relaxation_fraction": 0.3},
+            {"relaxation_time_s": min(30.0, duration / 3), "relaxation_fraction": 0.5},
+            {"relaxation_time_s": 3.0, "relaxation_fraction": 0.8},
+        ]
     if name == "saturation":
         # Curvatures whose shortfall at the largest |s| is about 3 % (next to the
         # baseline, so LM can only improve on it), 13 % and 35 %.
-        return [{"saturation_pos_per_v": 0.3 / pos, "saturation_neg_per_v": 0.3 / neg},
-                {"saturation_pos_per_v": 1 / (1.5 * pos), "saturation_neg_per_v": 1 / (1.5 * neg)},
-                {"saturation_pos_per_v": 1 / (0.8 * pos), "saturation_neg_per_v": 1 / (0.8 * neg)}]
+        return [
+            {"saturation_pos_per_v": 0.3 / pos, "saturation_neg_per_v": 0.3 / neg},
+            {"saturation_pos_per_v": 1 / (1.5 * pos), "saturation_neg_per_v": 1 / (1.5 * neg)},
+            {"saturation_pos_per_v": 1 / (0.8 * pos), "saturation_neg_per_v": 1 / (0.8 * neg)},
+        ]
     if name == "hysteresis":
-        return [{"hysteresis_height_v": 0.03 * span, "hysteresis_rate_per_v": 10.0 / span},
-                {"hysteresis_height_v": 0.1 * span, "hysteresis_rate_per_v": 40.0 / span}]
+        return [
+            {"hysteresis_height_v": 0.03 * span, "hysteresis_rate_per_v": 10.0 / span},
+            {"hysteresis_height_v": 0.1 * span, "hysteresis_rate_per_v": 40.0 / span},
+        ]
     if name == "drift":
         return [{"drift_rate_per_s": 0.0}]
     if name == "resonance":
@@ -246,4 +270,3 @@ def best_lag(w, w_hat, max_lag):
         if err < best_err * (1 - 1e-6):
             best, best_err = lag, err
     return best
-

@@ -89,8 +89,11 @@ def baseline_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]
         point = {}
         for x, (name, (low, high)) in zip(u, ranges.items()):
             x = float(x)
-            point[name] = (10 ** (math.log10(low) + x * (math.log10(high) - math.log10(low))) if logarithmic[name]
-                           else low + x * (high - low))
+            point[name] = (
+                10 ** (math.log10(low) + x * (math.log10(high) - math.log10(low)))
+                if logarithmic[name]
+                else low + x * (high - low)
+            )
         grid.append(point)
     return grid[:n_points]
 
@@ -98,7 +101,9 @@ def baseline_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]
 def design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
     """The design's parameters that `simulation` has, as columns of raw (unconstrained) values."""
     names = [k for k in design[0] if k in simulation.parameter_names()]
-    constraints = simulation.parameter_constraints()  # a wrapper's (HeldStart, EffectStack) include its inner's
+    constraints = (
+        simulation.parameter_constraints()
+    )  # a wrapper's (HeldStart, EffectStack) include its inner's
     return names, {k: jnp.asarray(constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
 
 
@@ -157,8 +162,10 @@ def _recorded_mask(series):
 
 def delayed(problem: Problem, shift: int) -> Problem:
     """The problem with every drive delayed by `shift` samples (at rest, 0 V, before the recording)."""
-    series = tuple(eqx.tree_at(lambda s: s.v_in, s, jnp.concatenate([jnp.zeros(shift, s.v_in.dtype), s.v_in[:-shift]]))
-                   for s in problem.series)
+    series = tuple(
+        eqx.tree_at(lambda s: s.v_in, s, jnp.concatenate([jnp.zeros(shift, s.v_in.dtype), s.v_in[:-shift]]))
+        for s in problem.series
+    )
     return eqx.tree_at(lambda p: p.series, problem, series)
 
 
@@ -209,12 +216,15 @@ def loop_screen(problem, simulation, raws, rates):
     def one(raw):
         sim = simulation.with_raw(raw)
         signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
-        recorded = [jnp.where(_recorded_mask(series) > 0, x, x[0]) for x, series in zip(signals, problem.series)]
+        recorded = [
+            jnp.where(_recorded_mask(series) > 0, x, x[0]) for x, series in zip(signals, problem.series)
+        ]
         span = jnp.maximum(jnp.max(jnp.stack([jnp.ptp(x) for x in recorded])), 1e-12)  # over every recording
 
         def train(columns):
-            return jnp.concatenate([x[a:b] for x, series in zip(columns, problem.series)
-                                    for a, b in series.segments_of("train")])
+            return jnp.concatenate(
+                [x[a:b] for x, series in zip(columns, problem.series) for a, b in series.segments_of("train")]
+            )
 
         s = train(signals)
 
@@ -251,13 +261,21 @@ def hysteresis_starts(problem, simulation, n_starts: int, frozen=frozenset()) ->
     names, raws = design_raws(simulation, design)
     if not names:
         return []
-    losses, ks, heights, initials = (np.asarray(x) for x in loop_screen(problem, simulation, raws, LOOP_RATES))
+    losses, ks, heights, initials = (
+        np.asarray(x) for x in loop_screen(problem, simulation, raws, LOOP_RATES)
+    )
     order = np.argsort(losses, axis=None, kind="stable")[:n_starts]
     starts = []
     for flat in order:
         i, j = np.unravel_index(flat, losses.shape)
-        starts.append({**{k: design[i][k] for k in names}, "hysteresis_height_v": float(heights[i, j]),
-                       "hysteresis_rate_per_v": float(ks[i, j]), "hysteresis_initial_state": float(initials[i, j])})
+        starts.append(
+            {
+                **{k: design[i][k] for k in names},
+                "hysteresis_height_v": float(heights[i, j]),
+                "hysteresis_rate_per_v": float(ks[i, j]),
+                "hysteresis_initial_state": float(initials[i, j]),
+            }
+        )
     return starts
 
 
@@ -287,16 +305,25 @@ def mode_screen(problem, simulation, raws, frequencies, dampings):
         signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
 
         def fit(raw_f, raw_z):
-            mode = eqx.tree_at(lambda m: m.raw, Resonance(), {"resonance_frequency_hz": raw_f, "resonance_damping": raw_z})
-            s = jnp.concatenate([mode.apply(x, series.dt)[a:b] for x, series in zip(signals, problem.series)
-                                 for a, b in series.segments_of("train")])
+            mode = eqx.tree_at(
+                lambda m: m.raw, Resonance(), {"resonance_frequency_hz": raw_f, "resonance_damping": raw_z}
+            )
+            s = jnp.concatenate(
+                [
+                    mode.apply(x, series.dt)[a:b]
+                    for x, series in zip(signals, problem.series)
+                    for a, b in series.segments_of("train")
+                ]
+            )
             *_, rss = gain_offset(s, w, weights)
             loss = rss / jnp.sum(weights)
             return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
 
         constraints = Resonance.constraints
-        return jax.vmap(fit)(constraints["resonance_frequency_hz"].to_raw(jnp.asarray(frequencies, float)),
-                             constraints["resonance_damping"].to_raw(jnp.asarray(dampings, float)))
+        return jax.vmap(fit)(
+            constraints["resonance_frequency_hz"].to_raw(jnp.asarray(frequencies, float)),
+            constraints["resonance_damping"].to_raw(jnp.asarray(dampings, float)),
+        )
 
     return jax.lax.map(one, raws, batch_size=16)
 
@@ -318,12 +345,18 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=fro
     if not names:
         return []
     grid = [(f, z) for f in mode_frequencies(rate) for z in MODE_DAMPINGS]
-    losses = np.asarray(mode_screen(problem, simulation, raws, np.array([f for f, _ in grid]),
-                                    np.array([z for _, z in grid])))
+    losses = np.asarray(
+        mode_screen(problem, simulation, raws, np.array([f for f, _ in grid]), np.array([z for _, z in grid]))
+    )
     order = np.argsort(losses, axis=None, kind="stable")[:n_starts]
     starts = []
     for flat in order:
         i, j = np.unravel_index(flat, losses.shape)
-        starts.append({**{k: design[i][k] for k in names}, "resonance_frequency_hz": float(grid[j][0]),
-                       "resonance_damping": float(grid[j][1])})
+        starts.append(
+            {
+                **{k: design[i][k] for k in names},
+                "resonance_frequency_hz": float(grid[j][0]),
+                "resonance_damping": float(grid[j][1]),
+            }
+        )
     return starts

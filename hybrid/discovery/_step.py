@@ -79,7 +79,9 @@ class Search:
         if n_effects <= self.room:
             return self.problem
         if n_effects not in self.larger:
-            self.larger[n_effects] = search_problem(self.model, self.problem.series, self.frozen, n_effects)[0]
+            self.larger[n_effects] = search_problem(self.model, self.problem.series, self.frozen, n_effects)[
+                0
+            ]
         return self.larger[n_effects]
 
     @property
@@ -94,8 +96,11 @@ SCREENED_STARTS = {"delay": 3, "hysteresis": 1, "resonance": 1}
 
 def first_step_lanes(rate: float, duration: float) -> int:
     """Lanes of the first step: every effect's data-scaled starts and its screened ones (counts only)."""
-    return sum(len(effect_starts(name, np.array([-1.0, 1.0]), rate, 1, None, duration)) + SCREENED_STARTS.get(name, 0)
-               for name in EFFECTS)
+    return sum(
+        len(effect_starts(name, np.array([-1.0, 1.0]), rate, 1, None, duration))
+        + SCREENED_STARTS.get(name, 0)
+        for name in EFFECTS
+    )
 
 
 @dataclasses.dataclass
@@ -122,8 +127,9 @@ class Step:
     lanes: list
 
 
-def search_step(search: Search, current: Candidate, current_val: float, current_fits: list,
-                present: tuple[str, ...]) -> Step:
+def search_step(
+    search: Search, current: Candidate, current_val: float, current_fits: list, present: tuple[str, ...]
+) -> Step:
     """Every effect not in `present` added to `current` (which has exactly `present` switched on)."""
     s, settings = search, search.settings
     names = list(EFFECTS)
@@ -145,10 +151,13 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
     if not present:  # the screens design the bare simulation with one effect: the first step's starts
         s.say("screening starts for the delay, hysteresis and resonance candidates")
         n = SCREENED_STARTS
-        screened = {"delay": delay_starts(problem, s.simulation, s.rate, n_starts=n["delay"], frozen=s.frozen),
-                    "hysteresis": hysteresis_starts(problem, s.simulation, n_starts=n["hysteresis"], frozen=s.frozen),
-                    "resonance": resonance_starts(problem, s.simulation, s.rate, n_starts=n["resonance"],
-                                                  frozen=s.frozen)}
+        screened = {
+            "delay": delay_starts(problem, s.simulation, s.rate, n_starts=n["delay"], frozen=s.frozen),
+            "hysteresis": hysteresis_starts(problem, s.simulation, n_starts=n["hysteresis"], frozen=s.frozen),
+            "resonance": resonance_starts(
+                problem, s.simulation, s.rate, n_starts=n["resonance"], frozen=s.frozen
+            ),
+        }
     starts, actives, labels, tangents = [], [], [], []
     for i, name in enumerate(names):
         if name in present:
@@ -171,21 +180,38 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
         tangents.append(cur_tangents)
     added = " + ".join(present) + " + " if present else ""
     s.say(f"{added}each of {len(set(labels) - {'none'})} effects, {len(labels)} lanes")
-    states = fit_lanes(problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), s.lm, settings.patience)
+    states = fit_lanes(
+        problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), s.lm, settings.patience
+    )
     vals = np.asarray(states.best_val)
     cand_thetas = states.best_theta
 
     # The current model refitted from where every lane ended.
     s.say(f"{'baseline' if not present else ' + '.join(present)} refitted from every candidate's end point")
-    restates = fit_lanes(problem, np.tile(active_cur, (n_lanes, 1)), np.stack([cur_tangents] * n_lanes),
-                          cand_thetas, s.lm, settings.effect_free_patience)
+    restates = fit_lanes(
+        problem,
+        np.tile(active_cur, (n_lanes, 1)),
+        np.stack([cur_tangents] * n_lanes),
+        cand_thetas,
+        s.lm,
+        settings.effect_free_patience,
+    )
     revals = np.asarray(restates.best_val)
     current_name = present[-1] if present else "none"
     if np.nanmin(revals) < current_val:
         j = int(np.nanargmin(revals))
         current_val = float(revals[j])
-        current = evaluate_candidate(problem, restates.best_theta[j], active_cur, current_name, s.n_train,
-                            current.n_parameters, settings.materiality, s.frozen, present[:-1])
+        current = evaluate_candidate(
+            problem,
+            restates.best_theta[j],
+            active_cur,
+            current_name,
+            s.n_train,
+            current.n_parameters,
+            settings.materiality,
+            s.frozen,
+            present[:-1],
+        )
         current.reasons.append(f"refitted from the {labels[j]} candidate's end point")
 
     candidates, chosen_lanes, lanes_of = [], set(), {}
@@ -200,25 +226,50 @@ def search_step(search: Search, current: Candidate, current_val: float, current_
 
         j = choose_lane(idx, vals, is_material, s.n_val)
         chosen_lanes.add(j)
-        cand = evaluate_candidate(problem, cand_thetas[j], actives[j], name, s.n_train,
-                         current.n_parameters + len(EFFECTS[name].constraints), settings.materiality, s.frozen,
-                         present)
+        cand = evaluate_candidate(
+            problem,
+            cand_thetas[j],
+            actives[j],
+            name,
+            s.n_train,
+            current.n_parameters + len(EFFECTS[name].constraints),
+            settings.materiality,
+            s.frozen,
+            present,
+        )
         cand.validation_loss = float(vals[j])
         candidates.append(cand)
 
-    equally_good = equally_good_fits(problem, list(current_fits) + list(restates.best_theta), active_cur,
-                                      current.train_rss, s.n_train, settings.min_bic_drop)
+    equally_good = equally_good_fits(
+        problem,
+        list(current_fits) + list(restates.best_theta),
+        active_cur,
+        current.train_rss,
+        s.n_train,
+        settings.min_bic_drop,
+    )
     _weigh(candidates, current, equally_good, settings)
     eligible = [c for c in candidates if c.eligible]
     chosen = max(eligible, key=lambda c: c.gain) if eligible else None
     return Step(
-        current=current, candidates=candidates, chosen=chosen,
+        current=current,
+        candidates=candidates,
+        chosen=chosen,
         chosen_val=chosen.validation_loss if chosen else float("nan"),
         chosen_fits=[cand_thetas[j] for j in lanes_of[chosen.name]] if chosen else [],
         equally_good=equally_good,
-        lanes=[{"effect": labels[j], "step": len(present) + 1, "validation_loss": float(vals[j]),
-                "chosen": j in chosen_lanes, "theta": np.asarray(cand_thetas[j]), "active": np.asarray(actives[j])}
-               for j in range(len(labels)) if labels[j] != "none"],
+        lanes=[
+            {
+                "effect": labels[j],
+                "step": len(present) + 1,
+                "validation_loss": float(vals[j]),
+                "chosen": j in chosen_lanes,
+                "theta": np.asarray(cand_thetas[j]),
+                "active": np.asarray(actives[j]),
+            }
+            for j in range(len(labels))
+            if labels[j] != "none"
+        ],
     )
 
 
@@ -238,16 +289,27 @@ def _weigh(candidates, current: Candidate, equally_good: dict, settings: Diagnos
         correlated = cand.ljung_box["Q"] * shrink**2
         whiter = correlated <= max(current.ljung_box["Q"], rt.white_limit(cand.ljung_box["lags"]))
         first = current.name == "none"
-        model, fit = ("the baseline", "an effect-free fit") if first else ("the model before it", "a fit without it")
+        model, fit = (
+            ("the baseline", "an effect-free fit") if first else ("the model before it", "a fit without it")
+        )
         checks = [
             (cand.material, f"not material: {cand.materiality}"),
             (cand.gain >= settings.min_gain, f"held-out gain {cand.gain:.2f} < {settings.min_gain}"),
-            (cand.delta_bic <= -settings.min_bic_drop, f"ΔBIC {cand.delta_bic:.1f} > −{settings.min_bic_drop}"),
-            (whiter, f"held-out residual more correlated than {model}'s: Q {correlated:.0f} in "
-                     f"{model}'s units > {current.ljung_box['Q']:.0f}"),
-            (bar >= current.heldout["nmse"] or bar / max(cand.heldout["nmse"], 1e-300) >= settings.min_gain,
-             f"{fit} as good on training reaches held-out NMSE {bar:.3g}: "
-             f"gain over it {bar / max(cand.heldout['nmse'], 1e-300):.2f} < {settings.min_gain}"),
+            (
+                cand.delta_bic <= -settings.min_bic_drop,
+                f"ΔBIC {cand.delta_bic:.1f} > −{settings.min_bic_drop}",
+            ),
+            (
+                whiter,
+                f"held-out residual more correlated than {model}'s: Q {correlated:.0f} in "
+                f"{model}'s units > {current.ljung_box['Q']:.0f}",
+            ),
+            (
+                bar >= current.heldout["nmse"]
+                or bar / max(cand.heldout["nmse"], 1e-300) >= settings.min_gain,
+                f"{fit} as good on training reaches held-out NMSE {bar:.3g}: "
+                f"gain over it {bar / max(cand.heldout['nmse'], 1e-300):.2f} < {settings.min_gain}",
+            ),
         ]
         cand.eligible = all(ok for ok, _ in checks)
         cand.reasons += [why for ok, why in checks if not ok]

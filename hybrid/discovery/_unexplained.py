@@ -38,11 +38,13 @@ def floor_caveat(mse: float, floor: NoiseFloor) -> str | None:
     """A sentence when a held-out MSE is so far above the floor that the floor tells little, else None."""
     if not (floor.variance > 0 and mse > FAR_ABOVE_FLOOR * floor.variance):
         return None
-    return (f"the held-out error's RMS is {math.sqrt(mse / floor.variance):.3g}× the floor's σ: the floor, from "
-            f"{floor.source or floor.method}, is far below the model's error, so the share above it says only that the "
-            "model misses by far more than w varies from sample to sample; if w was smoothed, filtered, interpolated "
-            "or oversampled, that processing removed the variation the floor reads, and the measurement error is "
-            "not known from the data")
+    return (
+        f"the held-out error's RMS is {math.sqrt(mse / floor.variance):.3g}× the floor's σ: the floor, from "
+        f"{floor.source or floor.method}, is far below the model's error, so the share above it says only that the "
+        "model misses by far more than w varies from sample to sample; if w was smoothed, filtered, interpolated "
+        "or oversampled, that processing removed the variation the floor reads, and the measurement error is "
+        "not known from the data"
+    )
 
 
 def pooled_noise_floor(recordings) -> NoiseFloor:
@@ -58,12 +60,16 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
     methods = sorted({f.method for f in floors})
     sources = list(dict.fromkeys(f.source for f in floors))
     quanta = [f.quantum for f in floors if np.isfinite(f.quantum)]
-    return NoiseFloor(variance=variance, std_error=std_error, method=", ".join(methods),
-                      estimates={f"recording {i}": f.variance for i, f in enumerate(floors)},
-                      fraction_of_variance=variance / spread if spread > 0 else float("nan"),
-                      source=f"{len(floors)} recordings pooled by sample count, each from " + "; ".join(sources),
-                      quantum=max(quanta) if len(quanta) == len(floors) else float("nan"),
-                      warnings=tuple(dict.fromkeys(w for f in floors for w in f.warnings)))
+    return NoiseFloor(
+        variance=variance,
+        std_error=std_error,
+        method=", ".join(methods),
+        estimates={f"recording {i}": f.variance for i, f in enumerate(floors)},
+        fraction_of_variance=variance / spread if spread > 0 else float("nan"),
+        source=f"{len(floors)} recordings pooled by sample count, each from " + "; ".join(sources),
+        quantum=max(quanta) if len(quanta) == len(floors) else float("nan"),
+        warnings=tuple(dict.fromkeys(w for f in floors for w in f.warnings)),
+    )
 
 
 def _part(problem, series, recordings, candidate, split: str) -> dict:
@@ -75,8 +81,17 @@ def _part(problem, series, recordings, candidate, split: str) -> dict:
     return {"t": t, "v_in": v, "w": w, "w_hat": w_hat, "segment": segment}
 
 
-def remainder(problem, series, recordings, final, heldout: dict, floor: NoiseFloor, settings, rate: float,
-              equally_good: dict | None = None) -> dict | None:
+def remainder(
+    problem,
+    series,
+    recordings,
+    final,
+    heldout: dict,
+    floor: NoiseFloor,
+    settings,
+    rate: float,
+    equally_good: dict | None = None,
+) -> dict | None:
     """None when `final`'s held-out error is consistent with the noise floor, else what lies above it.
 
     `heldout` is `Diagnosis.heldout` (its ``extended`` is `final`'s prediction); the
@@ -84,8 +99,13 @@ def remainder(problem, series, recordings, final, heldout: dict, floor: NoiseFlo
     """
     from ._remainder import describe_remainder
 
-    held = {"t": heldout["t"], "v_in": heldout["v_in"], "w": heldout["w"], "w_hat": heldout["extended"],
-            "segment": heldout["segment"]}
+    held = {
+        "t": heldout["t"],
+        "v_in": heldout["v_in"],
+        "w": heldout["w"],
+        "w_hat": heldout["extended"],
+        "segment": heldout["segment"],
+    }
     residual = held["w"] - held["w_hat"]
     mse = float(np.mean(residual**2))
     var_w = float(np.var(held["w"]))
@@ -115,5 +135,6 @@ def remainder(problem, series, recordings, final, heldout: dict, floor: NoiseFlo
         if best <= settings.unexplained_ratio * top:
             out["underdetermined"] = (
                 f"a fit of the same model as good on training data reaches {best / floor.variance:.2f}× the noise "
-                "floor held out: the recording does not pin the model (record longer, or drive it harder)")
+                "floor held out: the recording does not pin the model (record longer, or drive it harder)"
+            )
     return out

@@ -38,14 +38,20 @@ def verdict(diagnosis) -> str:
             where += f" ({left['underdetermined']})"
     if causes:
         share = explained_fraction(base_mse, final_mse, floor)
-        head = (f"{_names(causes)} {'explains' if len(causes) == 1 else 'explain'} {share:.0%} of the simulation's "
-                f"held-out error above the noise floor (gain {diagnosis.gain:.2g}×)")
+        head = (
+            f"{_names(causes)} {'explains' if len(causes) == 1 else 'explain'} {share:.0%} of the simulation's "
+            f"held-out error above the noise floor (gain {diagnosis.gain:.2g}×)"
+        )
         if left is None:
             return head + "; what remains is measurement noise."
         return head + f"; {left['fraction_above_floor']:.0%} of what remains lies above the noise{where}."
     if left is None:
         ratio = final_mse / floor if floor > 0 else float("nan")
-        return (f"No effect is needed: the simulation's held-out error is {ratio:.2g}× the measurement noise floor, "
-                "as good as the data allow.")
-    return (f"No effect in the library explains what the simulation misses: {left['fraction_above_floor']:.0%} of its "
-            f"held-out error lies above the noise floor{where}.")
+        return (
+            f"No effect is needed: the simulation's held-out error is {ratio:.2g}× the measurement noise floor, "
+            "as good as the data allow."
+        )
+    return (
+        f"No effect in the library explains what the simulation misses: {left['fraction_above_floor']:.0%} of its "
+        f"held-out error lies above the noise floor{where}."
+    )

@@ -48,9 +48,9 @@ def cross_correlation(residual, drive, max_lag: int = 50) -> tuple[np.ndarray, n
     n = len(e)
     max_lag = min(max_lag, n - 1)
     lags = np.arange(-max_lag, max_lag + 1)
-    values = np.array([
-        np.dot(e[k:], u[: n - k]) / n if k >= 0 else np.dot(e[: n + k], u[-k:]) / n for k in lags
-    ])
+    values = np.array(
+        [np.dot(e[k:], u[: n - k]) / n if k >= 0 else np.dot(e[: n + k], u[-k:]) / n for k in lags]
+    )
     return lags, values
 
 
@@ -65,8 +65,12 @@ def ljung_box(residual, lags: int = 30) -> dict:
     n = len(residual)
     k = np.arange(1, len(rho) + 1)
     q = float(n * (n + 2) * np.sum(rho**2 / (n - k)))
-    return {"Q": q, "lags": int(len(rho)), "p_value": float(scipy.stats.chi2.sf(q, len(rho))),
-            "variance": float(np.var(residual))}
+    return {
+        "Q": q,
+        "lags": int(len(rho)),
+        "p_value": float(scipy.stats.chi2.sf(q, len(rho))),
+        "variance": float(np.var(residual)),
+    }
 
 
 def white_limit(lags: int = 30, level: float = 0.99) -> float:
@@ -115,7 +119,9 @@ def loops(residual, drive, bins: int = 12) -> dict:
                 means[b] = residual[sel].mean()
         out[name] = means
     both = np.isfinite(out["rising"]) & np.isfinite(out["falling"])
-    out["separation"] = float(np.sqrt(np.mean((out["rising"][both] - out["falling"][both]) ** 2))) if both.any() else 0.0
+    out["separation"] = (
+        float(np.sqrt(np.mean((out["rising"][both] - out["falling"][both]) ** 2))) if both.any() else 0.0
+    )
     return out
 
 

@@ -46,8 +46,18 @@ from ._synthetic import (
 LIBRARY_EFFECTS = tuple(e for e in HIDDEN_EFFECTS if e != "none")
 
 #: Every hidden effect, in the order it acts on the signal.
-PHYSICAL_ORDER = ("delay", "electrostatic", "back_relaxation", "saturation", "rate_dependent", "hysteresis",
-                  "dead_zone", "self_heating", "drift", "resonance")
+PHYSICAL_ORDER = (
+    "delay",
+    "electrostatic",
+    "back_relaxation",
+    "saturation",
+    "rate_dependent",
+    "hysteresis",
+    "dead_zone",
+    "self_heating",
+    "drift",
+    "resonance",
+)
 
 #: The registry: every name a hidden spec may use ("none" alone).
 HIDDEN_NAMES = ("none",) + PHYSICAL_ORDER
@@ -65,8 +75,10 @@ def split_hidden(spec) -> tuple[str, ...]:
     names = [n.strip() for n in (spec.split("+") if isinstance(spec, str) else spec)]
     unknown = [n for n in names if n not in HIDDEN_NAMES]
     if unknown:
-        raise InputError(f"unknown hidden effect {unknown[0]!r}: choose from {', '.join(HIDDEN_NAMES)}, "
-                         "or join several with '+'")
+        raise InputError(
+            f"unknown hidden effect {unknown[0]!r}: choose from {', '.join(HIDDEN_NAMES)}, "
+            "or join several with '+'"
+        )
     if len(set(names)) != len(names):
         raise InputError(f"hidden spec {spec!r} names an effect twice")
     if "none" in names:
@@ -106,13 +118,23 @@ def parameters_by_effect(spec, params: dict | None) -> dict[str, dict]:
         return {names[0]: params}
     if not names and not params:
         return {}
-    raise InputError(f"parameters for {canonical(spec)!r} must be a dict per effect ({', '.join(names)}), "
-                     f"got keys {sorted(params)}")
+    raise InputError(
+        f"parameters for {canonical(spec)!r} must be a dict per effect ({', '.join(names)}), "
+        f"got keys {sorted(params)}"
+    )
 
 
-def compound_recording(drive, strip: SyntheticStrip = SyntheticStrip(), effect="none", effect_params=None, *,
-                       noise_fraction: float = 0.01, oversample: int = 8, exposure_fraction: float = 0.5,
-                       seed: int = 0):
+def compound_recording(
+    drive,
+    strip: SyntheticStrip = SyntheticStrip(),
+    effect="none",
+    effect_params=None,
+    *,
+    noise_fraction: float = 0.01,
+    oversample: int = 8,
+    exposure_fraction: float = 0.5,
+    seed: int = 0,
+):
     """A Recording of `strip` under `drive` hiding every effect of the spec `effect`, in physical order.
 
     Arguments as `synthetic_recording` (which sends here every spec outside
@@ -142,13 +164,24 @@ def compound_recording(drive, strip: SyntheticStrip = SyntheticStrip(), effect="
     w_fine = strip.gain_mm_per_v * s + strip.offset_mm
     w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed)
     spec = "+".join(names) or "none"
-    hidden = {"effect": spec, "effects": list(names), "outside": [n for n in names if is_outside(n)],
-              "effect_params": params[names[0]] if len(names) == 1 else params, "derived": derived,
-              "strip": dataclasses.asdict(strip), "noise_fraction": noise_fraction,
-              "noise_variance": float((noise_fraction * np.ptp(w_true)) ** 2), "oversample": m,
-              "exposure_fraction": exposure_fraction, "seed": seed}
+    hidden = {
+        "effect": spec,
+        "effects": list(names),
+        "outside": [n for n in names if is_outside(n)],
+        "effect_params": params[names[0]] if len(names) == 1 else params,
+        "derived": derived,
+        "strip": dataclasses.asdict(strip),
+        "noise_fraction": noise_fraction,
+        "noise_variance": float((noise_fraction * np.ptp(w_true)) ** 2),
+        "oversample": m,
+        "exposure_fraction": exposure_fraction,
+        "seed": seed,
+    }
     return Recording(
-        t=np.asarray(drive.t, dtype=float), v_in=v, w=w_true + noise, extra={"w_true": w_true},
+        t=np.asarray(drive.t, dtype=float),
+        v_in=v,
+        w=w_true + noise,
+        extra={"w_true": w_true},
         metadata={"source": "hybrid.ipmc._synthetic", "drive": drive.metadata, "hidden": hidden},
         name=f"synthetic {spec} ({drive.name}, seed {seed})",
     )

@@ -95,16 +95,35 @@ class OutsideForm:
 
 
 #: The effects outside the library, by name.
-OUTSIDE_EFFECTS: dict[str, OutsideForm] = {f.name: f for f in (
-    OutsideForm("electrostatic", "w ∝ s + κ s²/max|s|: a part even in the drive (Maxwell stress ∝ charge²)",
-                lambda rng, rate: {"quadratic_fraction": rng.uniform(0.15, 0.5)}, _electrostatic),
-    OutsideForm("dead_zone", "no response while |s| < δ = f·range(s) (stiction), s ∓ δ beyond",
-                lambda rng, rate: {"threshold_fraction": rng.uniform(0.03, 0.20)}, _dead_zone),
-    OutsideForm("rate_dependent",
-                "stiffness 1 + β·(recent |ds/dt|)/R, R its 95th percentile: the faster the strain, the smaller w",
-                lambda rng, rate: {"stiffening": rng.uniform(0.3, 1.0), "memory_s": _log_uniform(rng, 0.1, 1.0)},
-                _rate_dependent),
-    OutsideForm("self_heating", "gain 1 + γ·(recent s²)/max: Joule heating by the drive changes the coupling",
-                lambda rng, rate: {"gain_change": float(rng.uniform(0.25, 0.6) * rng.choice([-1.0, 1.0])),
-                                   "thermal_time_s": _log_uniform(rng, 3.0, 30.0)}, _self_heating),
-)}
+OUTSIDE_EFFECTS: dict[str, OutsideForm] = {
+    f.name: f
+    for f in (
+        OutsideForm(
+            "electrostatic",
+            "w ∝ s + κ s²/max|s|: a part even in the drive (Maxwell stress ∝ charge²)",
+            lambda rng, rate: {"quadratic_fraction": rng.uniform(0.15, 0.5)},
+            _electrostatic,
+        ),
+        OutsideForm(
+            "dead_zone",
+            "no response while |s| < δ = f·range(s) (stiction), s ∓ δ beyond",
+            lambda rng, rate: {"threshold_fraction": rng.uniform(0.03, 0.20)},
+            _dead_zone,
+        ),
+        OutsideForm(
+            "rate_dependent",
+            "stiffness 1 + β·(recent |ds/dt|)/R, R its 95th percentile: the faster the strain, the smaller w",
+            lambda rng, rate: {"stiffening": rng.uniform(0.3, 1.0), "memory_s": _log_uniform(rng, 0.1, 1.0)},
+            _rate_dependent,
+        ),
+        OutsideForm(
+            "self_heating",
+            "gain 1 + γ·(recent s²)/max: Joule heating by the drive changes the coupling",
+            lambda rng, rate: {
+                "gain_change": float(rng.uniform(0.25, 0.6) * rng.choice([-1.0, 1.0])),
+                "thermal_time_s": _log_uniform(rng, 3.0, 30.0),
+            },
+            _self_heating,
+        ),
+    )
+}

@@ -38,8 +38,14 @@ DRIVE_ORDER = ("prbs", "sine", "chirp", "pulse")
 #: camera the network's 0.1-1 s time constants are not seen at all.
 MIN_RECORDING = 60
 #: Every file written to `out_dir` (each atomically: hybrid.util._atomic).
-OUTPUT_FILES = ("sensitivity.json", "sensitivity.md", "sensitivity_time.png", "sensitivity_frequency.png",
-                "sensitivity_drives.png", "singular_values.png")
+OUTPUT_FILES = (
+    "sensitivity.json",
+    "sensitivity.md",
+    "sensitivity_time.png",
+    "sensitivity_frequency.png",
+    "sensitivity_drives.png",
+    "singular_values.png",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,7 +80,9 @@ def _drives(settings):
 
     params = Table2Settings().drives
     return {
-        name: make_drive(name, settings.duration, rate=settings.rate, seed=settings.seed, **params.get(name, {}))
+        name: make_drive(
+            name, settings.duration, rate=settings.rate, seed=settings.seed, **params.get(name, {})
+        )
         for name in DRIVE_ORDER
     }
 
@@ -95,8 +103,11 @@ def _cramer_rao(model_sens, noise_fraction, fixed=("xi_h",), report_skip=("offse
     return {n: float(se[i] / abs(model_sens.values[n])) for i, n in enumerate(names) if n not in report_skip}
 
 
-def run_sensitivity_study(settings: SensitivityStudySettings = SensitivityStudySettings(), out_dir="experiments/results/sensitivity",
-                          recording=None) -> dict:
+def run_sensitivity_study(
+    settings: SensitivityStudySettings = SensitivityStudySettings(),
+    out_dir="experiments/results/sensitivity",
+    recording=None,
+) -> dict:
     """Run the study; returns the content of ``sensitivity.json``.
 
     `recording`: optionally a Recording whose drive replaces the primary drive.
@@ -116,8 +127,11 @@ def run_sensitivity_study(settings: SensitivityStudySettings = SensitivityStudyS
         raise InputError(f"sobol must be 0 (skip) or a number of base samples ≥ 2, got {settings.sobol!r}")
     if recording is not None:  # a recording too short or constant to say anything is refused
         recording.check_signals()
-        recording.check_length(MIN_RECORDING, "the sensitivity study (2 s at 30 Hz: the RC network's "
-                               "time constants are 0.1-1 s)", "give a longer recording")
+        recording.check_length(
+            MIN_RECORDING,
+            "the sensitivity study (2 s at 30 Hz: the RC network's time constants are 0.1-1 s)",
+            "give a longer recording",
+        )
     t_start = time.perf_counter()
     network = RCNetwork(n_stages=settings.n_stages)
     if settings.parameters:
@@ -146,8 +160,9 @@ def run_sensitivity_study(settings: SensitivityStudySettings = SensitivityStudyS
         by_drive[name] = {
             "rms_normalised_sensitivity": vo_sens[name].rms_normalised(),
             "relative_std_error": _cramer_rao(w_sens[name], settings.noise),
-            "relative_singular_values": [float(s / idents[name].singular_values[0])
-                                         for s in idents[name].singular_values],
+            "relative_singular_values": [
+                float(s / idents[name].singular_values[0]) for s in idents[name].singular_values
+            ],
             "collinear_pairs": [{"pair": [a, b], "cosine": c} for a, b, c in idents[name].collinear_pairs],
         }
     best_drive = {}
@@ -160,7 +175,10 @@ def run_sensitivity_study(settings: SensitivityStudySettings = SensitivityStudyS
     peaks = {}
     for j, n in enumerate(freq["names"]):
         k = int(np.argmax(np.abs(freq["magnitude"][:, j])))
-        peaks[n] = {"frequency_hz": float(frequency[k]), "dlog_gain_dlog_theta": float(freq["magnitude"][k, j])}
+        peaks[n] = {
+            "frequency_hz": float(frequency[k]),
+            "dlog_gain_dlog_theta": float(freq["magnitude"][k, j]),
+        }
 
     sobol = None
     if settings.sobol:
@@ -218,11 +236,18 @@ def _markdown(result) -> str:
     for d in drives:
         values = ", ".join(f"{s:.1e}" for s in result["by_drive"][d]["relative_singular_values"])
         lines.append(f"- {d}: {values}")
-    lines += ["", f"Null directions ({result['primary_drive']}, log coordinates): {result['null_directions']}",
-              "", "Near-collinear pairs (|cos| ≥ {:g}): {}".format(
-                  result["tolerances"]["collinearity"],
-                  ", ".join(f"{p['pair'][0]}–{p['pair'][1]} ({p['cosine']:+.4f})" for p in result["collinear_pairs"])),
-              ""]
+    lines += [
+        "",
+        f"Null directions ({result['primary_drive']}, log coordinates): {result['null_directions']}",
+        "",
+        "Near-collinear pairs (|cos| ≥ {:g}): {}".format(
+            result["tolerances"]["collinearity"],
+            ", ".join(
+                f"{p['pair'][0]}–{p['pair'][1]} ({p['cosine']:+.4f})" for p in result["collinear_pairs"]
+            ),
+        ),
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -275,8 +300,12 @@ def _figures(out_dir, sens, idents, freq, by_drive, primary):
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for d, ident in idents.items():
-        ax.semilogy(np.arange(1, len(ident.singular_values) + 1),
-                    ident.singular_values / ident.singular_values[0], "o-", label=d)
+        ax.semilogy(
+            np.arange(1, len(ident.singular_values) + 1),
+            ident.singular_values / ident.singular_values[0],
+            "o-",
+            label=d,
+        )
     ax.axhline(ident.tolerances["null"], color="grey", ls=":", lw=0.8)
     ax.axhline(ident.tolerances["near_null"], color="grey", ls="--", lw=0.8)
     ax.set_xlabel("index")

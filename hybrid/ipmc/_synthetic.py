@@ -76,7 +76,9 @@ def discrepancy_drive(duration: float = 60.0, rate: float = 30.0, seed: int = 0,
     """
     from ..data._paper_drives import prbs
 
-    return prbs(duration, rate=rate, amplitude=amplitude, min_hold=0.5, max_hold=10.0, levels="multilevel", seed=seed)
+    return prbs(
+        duration, rate=rate, amplitude=amplitude, min_hold=0.5, max_hold=10.0, levels="multilevel", seed=seed
+    )
 
 
 def random_strip(rng: np.random.Generator) -> SyntheticStrip:
@@ -84,8 +86,11 @@ def random_strip(rng: np.random.Generator) -> SyntheticStrip:
     ratio = math.exp(rng.uniform(math.log(1.0), math.log(100.0)))
     xi_h = math.exp(rng.uniform(math.log(0.5), math.log(5.0)))
     return SyntheticStrip(
-        xi_rho=ratio * xi_h, xi_h=xi_h,
-        alpha_E=rng.uniform(0.1, 0.9), alpha_I=rng.uniform(0.1, 0.9), alpha_C=rng.uniform(0.1, 0.9),
+        xi_rho=ratio * xi_h,
+        xi_h=xi_h,
+        alpha_E=rng.uniform(0.1, 0.9),
+        alpha_I=rng.uniform(0.1, 0.9),
+        alpha_C=rng.uniform(0.1, 0.9),
         C_clamp=math.exp(rng.uniform(math.log(1e-3), math.log(1.0))),
         gain_mm_per_v=rng.uniform(0.3, 5.0) * rng.choice([-1.0, 1.0]),
         offset_mm=rng.uniform(-0.5, 0.5),
@@ -97,7 +102,10 @@ def random_effect(name: str, rng: np.random.Generator, rate: float) -> dict:
     if name == "none":
         return {}
     if name == "back_relaxation":
-        return {"tau_s": math.exp(rng.uniform(math.log(3.0), math.log(60.0))), "fraction": rng.uniform(0.2, 1.0)}
+        return {
+            "tau_s": math.exp(rng.uniform(math.log(3.0), math.log(60.0))),
+            "fraction": rng.uniform(0.2, 1.0),
+        }
     if name == "hysteresis":
         return {"height_fraction": rng.uniform(0.05, 0.30)}
     if name == "saturation":
@@ -108,10 +116,16 @@ def random_effect(name: str, rng: np.random.Generator, rate: float) -> dict:
     if name == "delay":
         return {"delay_samples": int(rng.integers(1, 16))}
     if name == "drift":
-        return {"change": rng.uniform(0.15, 0.60) * rng.choice([-1.0, 1.0]), "shape": str(rng.choice(["linear", "smoothstep"]))}
+        return {
+            "change": rng.uniform(0.15, 0.60) * rng.choice([-1.0, 1.0]),
+            "shape": str(rng.choice(["linear", "smoothstep"])),
+        }
     if name == "resonance":
         top = min(10.0, 0.35 * rate)
-        return {"frequency_hz": math.exp(rng.uniform(math.log(1.0), math.log(top))), "damping": rng.uniform(0.02, 0.3)}
+        return {
+            "frequency_hz": math.exp(rng.uniform(math.log(1.0), math.log(top))),
+            "damping": rng.uniform(0.02, 0.3),
+        }
     # An effect outside the library or several at once ("a+b"): see `hybrid.ipmc._hidden_pairs`.
     from ._hidden_pairs import random_hidden
 
@@ -198,8 +212,9 @@ def apply_hidden(name, p, s, dt, t):
         a = np.array([[0.0, 1.0], [-w * w, -2 * z * w]])
         b = np.array([0.0, w * w])
         phi, gamma = _zoh(a, b, dt)
-        _, y, _ = scipy.signal.dlsim((phi, gamma[:, None], np.array([[1.0, 0.0]]), np.zeros((1, 1)), dt), s,
-                                     x0=np.array([s[0], 0.0]))
+        _, y, _ = scipy.signal.dlsim(
+            (phi, gamma[:, None], np.array([[1.0, 0.0]]), np.zeros((1, 1)), dt), s, x0=np.array([s[0], 0.0])
+        )
         return y[:, 0]
     return s
 
@@ -262,8 +277,16 @@ def synthetic_recording(
     if effect not in HIDDEN_EFFECTS:  # outside the library, or several at once
         from ._hidden_pairs import compound_recording
 
-        return compound_recording(drive, strip, effect, effect_params, noise_fraction=noise_fraction,
-                                  oversample=oversample, exposure_fraction=exposure_fraction, seed=seed)
+        return compound_recording(
+            drive,
+            strip,
+            effect,
+            effect_params,
+            noise_fraction=noise_fraction,
+            oversample=oversample,
+            exposure_fraction=exposure_fraction,
+            seed=seed,
+        )
     params = dict(effect_params or {})
     rate, v = float(drive.rate), np.asarray(drive.v, dtype=float)
     m = int(oversample)
@@ -274,11 +297,20 @@ def synthetic_recording(
     s = apply_hidden(effect, params, s, dt_fine, t_fine)
     w_fine = strip.gain_mm_per_v * s + strip.offset_mm
     w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed)
-    hidden = {"effect": effect, "effect_params": params, "strip": dataclasses.asdict(strip),
-              "noise_fraction": noise_fraction, "oversample": m, "exposure_fraction": exposure_fraction,
-              "seed": seed}
+    hidden = {
+        "effect": effect,
+        "effect_params": params,
+        "strip": dataclasses.asdict(strip),
+        "noise_fraction": noise_fraction,
+        "oversample": m,
+        "exposure_fraction": exposure_fraction,
+        "seed": seed,
+    }
     return Recording(
-        t=np.asarray(drive.t, dtype=float), v_in=v, w=w_true + noise, extra={"w_true": w_true},
+        t=np.asarray(drive.t, dtype=float),
+        v_in=v,
+        w=w_true + noise,
+        extra={"w_true": w_true},
         metadata={"source": "hybrid.ipmc._synthetic", "drive": drive.metadata, "hidden": hidden},
         name=f"synthetic {effect} ({drive.name}, seed {seed})",
     )

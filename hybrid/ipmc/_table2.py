@@ -30,8 +30,12 @@ from ._virtual_ipmc import virtual_recording
 from ._virtual_parameters import VirtualIPMCParameters
 
 ROWS = (("PRBS", "prbs"), ("Sine", "sine"), ("Chirp", "chirp"), ("Pulse", "pulse"))
-FIGURES = {"Chirp": "fig10_chirp.png", "PRBS": "fig11_prbs.png", "Pulse": "fig12_pulse.png",
-           "Sine": "fig13_sine.png"}
+FIGURES = {
+    "Chirp": "fig10_chirp.png",
+    "PRBS": "fig11_prbs.png",
+    "Pulse": "fig12_pulse.png",
+    "Sine": "fig13_sine.png",
+}
 #: Every file written to `out_dir` (each atomically: hybrid.util._atomic).
 OUTPUT_FILES = ("table2.json", "table2.md", "fig3_mediatory.png", *FIGURES.values())
 
@@ -56,15 +60,26 @@ class Table2Settings:
 
     duration: float = 600.0
     rate: float = 30.0
-    drives: dict = dataclasses.field(default_factory=lambda: {
-        "prbs": {"amplitude": 2.0, "min_hold": 0.2, "max_hold": 4.0},
-        "sine": {"amplitude": 2.0, "frequency": 0.2, "modulation_depth": 0.75, "modulation": "random"},
-        "chirp": {"amplitude": 2.0, "f0": 0.02, "f1": 1.0, "sweep_period": 60.0, "modulation_depth": 0.75},
-        "pulse": {"amplitude": 2.0, "period": 8.0, "duty": 0.5},
-    })
-    virtual_ipmc: dict = dataclasses.field(default_factory=lambda: {
-        "relaxation_fraction": 0.5, "relaxation_time_s": 4.0,
-    })
+    drives: dict = dataclasses.field(
+        default_factory=lambda: {
+            "prbs": {"amplitude": 2.0, "min_hold": 0.2, "max_hold": 4.0},
+            "sine": {"amplitude": 2.0, "frequency": 0.2, "modulation_depth": 0.75, "modulation": "random"},
+            "chirp": {
+                "amplitude": 2.0,
+                "f0": 0.02,
+                "f1": 1.0,
+                "sweep_period": 60.0,
+                "modulation_depth": 0.75,
+            },
+            "pulse": {"amplitude": 2.0, "period": 8.0, "duty": 0.5},
+        }
+    )
+    virtual_ipmc: dict = dataclasses.field(
+        default_factory=lambda: {
+            "relaxation_fraction": 0.5,
+            "relaxation_time_s": 4.0,
+        }
+    )
     starts: int = 1
     max_steps: int = 200
     patience: int = 30
@@ -72,31 +87,44 @@ class Table2Settings:
     seed: int = 0
 
 
-def reproduce_table2(settings: Table2Settings = Table2Settings(), out_dir="experiments/results",
-                     progress: bool = True) -> dict:
+def reproduce_table2(
+    settings: Table2Settings = Table2Settings(), out_dir="experiments/results", progress: bool = True
+) -> dict:
     """Run the reproduction; returns the content of ``table2.json``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, details, recordings, fits = {}, {}, {}, {}
     t0 = time.perf_counter()
     for row, name in ROWS:
-        drive = make_drive(name, settings.duration, rate=settings.rate, seed=settings.seed,
-                           **settings.drives.get(name, {}))
-        recording = virtual_recording(drive, VirtualIPMCParameters(**settings.virtual_ipmc), seed=settings.seed)
+        drive = make_drive(
+            name, settings.duration, rate=settings.rate, seed=settings.seed, **settings.drives.get(name, {})
+        )
+        recording = virtual_recording(
+            drive, VirtualIPMCParameters(**settings.virtual_ipmc), seed=settings.seed
+        )
         recordings[row] = recording
         results = {}
         for kind in ("hybrid", "normal"):
             stage(f"table2: {row}, {kind} model")
             model = make_model(kind, key=jax.random.key(settings.seed))
             results[kind] = fit(
-                model, recording, starts=settings.starts, max_steps=settings.max_steps,
-                patience=settings.patience, weight_decay=settings.weight_decay, frozen=set(model.simulation.default_frozen()),
-                seed=settings.seed, progress=progress,
+                model,
+                recording,
+                starts=settings.starts,
+                max_steps=settings.max_steps,
+                patience=settings.patience,
+                weight_decay=settings.weight_decay,
+                frozen=set(model.simulation.default_frozen()),
+                seed=settings.seed,
+                progress=progress,
             )
             if progress:
                 m = results[kind].metrics["test"]
-                print(f"{row:<6} {kind:<7} test NMSE {m['nmse']:.3e}  Fitting {m['fitting']:6.2f} %  "
-                      f"({results[kind].seconds:.0f} s)", flush=True)
+                print(
+                    f"{row:<6} {kind:<7} test NMSE {m['nmse']:.3e}  Fitting {m['fitting']:6.2f} %  "
+                    f"({results[kind].seconds:.0f} s)",
+                    flush=True,
+                )
         fits[row] = results
         rows[row] = _row(results)
         details[row] = {k: r.to_dict() for k, r in results.items()}
@@ -125,9 +153,12 @@ def reproduce_table2(settings: Table2Settings = Table2Settings(), out_dir="exper
 def _row(results) -> dict:
     h, n = results["hybrid"].metrics["test"], results["normal"].metrics["test"]
     return {
-        "hybrid_nmse": h["nmse"], "normal_nmse": n["nmse"],
-        "hybrid_fitting": h["fitting"], "normal_fitting": n["fitting"],
-        "hybrid_nmse_target": h["nmse_target"], "normal_nmse_target": n["nmse_target"],
+        "hybrid_nmse": h["nmse"],
+        "normal_nmse": n["nmse"],
+        "hybrid_fitting": h["fitting"],
+        "normal_fitting": n["fitting"],
+        "hybrid_nmse_target": h["nmse_target"],
+        "normal_nmse_target": n["nmse_target"],
     }
 
 

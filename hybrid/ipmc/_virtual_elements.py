@@ -37,8 +37,12 @@ def _table1(p: VirtualIPMCParameters) -> dict[str, float]:
     """Whole-strip clamp values of Table 1 (Ω, F)."""
     re = p.electrode_resistivity_ohm_m * p.length_m / (p.width_m * p.electrode_thickness_m)
     rm = p.length_m / (p.membrane_conductivity_s_per_m * p.width_m * p.membrane_thickness_m)
-    return {"re_clamp_ohm": re, "ri_clamp_ohm": p.interface_ratio * re, "rm_ohm": rm,
-            "c_clamp_f": p.clamp_capacitance_f}
+    return {
+        "re_clamp_ohm": re,
+        "ri_clamp_ohm": p.interface_ratio * re,
+        "rm_ohm": rm,
+        "c_clamp_f": p.clamp_capacitance_f,
+    }
 
 
 def build_ladder(p: VirtualIPMCParameters) -> _Ladder:
@@ -151,8 +155,9 @@ def quasi_static_tip(p: VirtualIPMCParameters, model: _Model) -> _TipMap:
         def shortfall(y):  # 1 − (static tip at V_fs)/(linear extrapolation), minus target
             return 1.0 - float(share @ (np.tanh(y * r) / (y * r))) - p.compression
 
-        y = scipy.optimize.brentq(shortfall, 1e-9, 1.0 / ((1 - p.compression) * r.min()),
-                                  xtol=1e-14, rtol=1e-14)
+        y = scipy.optimize.brentq(
+            shortfall, 1e-9, 1.0 / ((1 - p.compression) * r.min()), xtol=1e-14, rtol=1e-14
+        )
         sigma_sat = s_fs.max() / y  # C/m²
     derived = {
         "curvature_per_charge_density_m_per_c": k_gain,
@@ -176,7 +181,8 @@ def mechanics(p: VirtualIPMCParameters, h: float, w_qs: np.ndarray) -> np.ndarra
     a = np.array([[0.0, 1.0], [-wn * wn, -2 * zeta * wn]])
     b = np.array([[0.0], [wn * wn]])
     ad, bd, cd, dd, _ = scipy.signal.cont2discrete(
-        (a, b, np.array([[1.0, 0.0]]), np.zeros((1, 1))), h, method="foh")
+        (a, b, np.array([[1.0, 0.0]]), np.zeros((1, 1))), h, method="foh"
+    )
     num, den = scipy.signal.ss2tf(ad, bd, cd, dd)
     # At rest with w_qs(t_0) = 0: zero filter state is the exact initial condition.
     return scipy.signal.lfilter(num[0], den, w_qs)

@@ -223,8 +223,9 @@ def simulate_virtual_ipmc(
 
     metadata = {
         "model": "hybrid.ipmc._virtual_ipmc",
-        "parameters": {k: (v.item() if isinstance(v, np.generic) else v)
-                       for k, v in dataclasses.asdict(params).items()},
+        "parameters": {
+            k: (v.item() if isinstance(v, np.generic) else v) for k, v in dataclasses.asdict(params).items()
+        },
         "seed": int(seed),
         "drive_rate_hz": 1.0 / dt,
         "camera_fps": 1.0 / frame_period,
@@ -309,25 +310,34 @@ def _check_drive(t_drive, v_drive) -> tuple[np.ndarray, np.ndarray, float]:
         t = np.asarray(t_drive, dtype=float)
         v = np.asarray(v_drive, dtype=float)
     except (TypeError, ValueError):
-        raise InputError("t_drive and v_drive must be 1-D arrays of numbers; convert them "
-                         "with np.asarray(..., dtype=float).") from None
+        raise InputError(
+            "t_drive and v_drive must be 1-D arrays of numbers; convert them "
+            "with np.asarray(..., dtype=float)."
+        ) from None
     if t.ndim != 1 or v.ndim != 1:
-        raise InputError(f"t_drive and v_drive must be 1-D, got shapes {t.shape} and "
-                         f"{v.shape}; pass one drive as two 1-D arrays.")
+        raise InputError(
+            f"t_drive and v_drive must be 1-D, got shapes {t.shape} and "
+            f"{v.shape}; pass one drive as two 1-D arrays."
+        )
     if t.shape != v.shape:
-        raise InputError(f"t_drive has {t.size} samples but v_drive has {v.size}; give one "
-                         "voltage per sample time.")
+        raise InputError(
+            f"t_drive has {t.size} samples but v_drive has {v.size}; give one voltage per sample time."
+        )
     if t.size < 2:
-        raise InputError(f"the drive has {t.size} sample(s); give at least 2 so that the "
-                         "sample interval is defined.")
+        raise InputError(
+            f"the drive has {t.size} sample(s); give at least 2 so that the sample interval is defined."
+        )
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v))):
-        raise InputError("t_drive and v_drive contain NaN or infinite values; remove or "
-                         "interpolate them before simulating.")
+        raise InputError(
+            "t_drive and v_drive contain NaN or infinite values; remove or "
+            "interpolate them before simulating."
+        )
     step = np.diff(t)
     dt = (t[-1] - t[0]) / (t.size - 1)
     if dt <= 0 or np.max(np.abs(step - dt)) > 1e-6 * dt:
-        raise InputError("t_drive must be increasing with a uniform step; resample the drive "
-                         "onto a uniform time grid.")
+        raise InputError(
+            "t_drive must be increasing with a uniform step; resample the drive onto a uniform time grid."
+        )
     return t, v, float(dt)
 
 
@@ -347,6 +357,9 @@ def virtual_recording(drive, params: VirtualIPMCParameters = VirtualIPMCParamete
         "virtual_ipmc": virtual.metadata,
     }
     return Recording(
-        t=virtual.t, v_in=virtual.v_in, w=virtual.w, extra={"w_true": virtual.w_true},
+        t=virtual.t,
+        v_in=virtual.v_in,
+        w=virtual.w,
+        extra={"w_true": virtual.w_true},
         metadata=metadata,
     )

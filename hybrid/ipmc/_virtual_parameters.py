@@ -136,11 +136,20 @@ class VirtualIPMCParameters:
 
     def __post_init__(self):
         positive = (
-            "length_m", "width_m", "electrode_thickness_m",
-            "electrode_resistivity_ohm_m", "membrane_thickness_m",
-            "membrane_conductivity_s_per_m", "interface_ratio",
-            "clamp_capacitance_f", "relaxation_time_s", "gain_mm_per_v",
-            "mode_frequency_hz", "damping_ratio", "dac_reference_v", "full_scale_v",
+            "length_m",
+            "width_m",
+            "electrode_thickness_m",
+            "electrode_resistivity_ohm_m",
+            "membrane_thickness_m",
+            "membrane_conductivity_s_per_m",
+            "interface_ratio",
+            "clamp_capacitance_f",
+            "relaxation_time_s",
+            "gain_mm_per_v",
+            "mode_frequency_hz",
+            "damping_ratio",
+            "dac_reference_v",
+            "full_scale_v",
         )
         for name in positive:
             _check_real(name, getattr(self, name), low=0.0, low_open=True)
@@ -148,8 +157,7 @@ class VirtualIPMCParameters:
             _check_real(name, getattr(self, name), low=0.0)
         for name in ("alpha_e", "alpha_i", "alpha_c"):
             _check_real(name, getattr(self, name), low=0.0, low_open=True, high=1.0)
-        _check_real("relaxation_fraction", self.relaxation_fraction, low=0.0,
-                    high=1.0, high_open=True)
+        _check_real("relaxation_fraction", self.relaxation_fraction, low=0.0, high=1.0, high_open=True)
         _check_real("compression", self.compression, low=0.0, high=0.9)
         _check_int("n_compartments", self.n_compartments, low=1)
         _check_int("oversample", self.oversample, low=1)

@@ -123,18 +123,22 @@ class LTI(AbstractSimulation):
     # Plausible: any time scale from a microsecond to ten days, any damping that is not
     # a numerical accident, residues within three decades of section 1's fixed 1.
     plausible: ClassVar[dict[str, tuple[float, float]]] = _table(
-        (1e-6, 1e6), (1e-6, 1e6), (1e-3, 1e3), (-1e3, 1e3), (-1e3, 1e3))
+        (1e-6, 1e6), (1e-6, 1e6), (1e-3, 1e3), (-1e3, 1e3), (-1e3, 1e3)
+    )
     # Where diagnose's screened start design spreads: time constants 1 ms-1000 s, natural
     # frequencies 1 mHz-1 kHz (log), dampings 0.05-5 (resonant to overdamped), residues
     # within ten times section 1's, a feedthrough of at most the drive itself.
     typical: ClassVar[dict[str, tuple[float, float]]] = _table(
-        (1e-3, 1e3), (1e-3, 1e3), (0.05, 5.0), (-10.0, 10.0), (-1.0, 1.0))
+        (1e-3, 1e3), (1e-3, 1e3), (0.05, 5.0), (-10.0, 10.0), (-1.0, 1.0)
+    )
     linear_in_drive: ClassVar[bool] = True  # zero initial state: the output is linear in the drive
 
     def __init__(self, order: int, **values):
         if isinstance(order, bool) or not isinstance(order, numbers.Integral) or not 1 <= order <= MAX_ORDER:
-            raise InputError(f"LTI order must be a whole number of states from 1 to {MAX_ORDER}, got {order!r}: "
-                             "e.g. LTI(2) (or --physics lti:2) for two poles")
+            raise InputError(
+                f"LTI order must be a whole number of states from 1 to {MAX_ORDER}, got {order!r}: "
+                "e.g. LTI(2) (or --physics lti:2) for two poles"
+            )
         order = int(order)
         names = parameter_names_for(order)
         defaults = default_values(order)
@@ -171,8 +175,10 @@ class LTI(AbstractSimulation):
     def replace(self, **values) -> LTI:
         unknown = sorted(set(values) - set(self.raw))
         if unknown:
-            raise InputError(f"LTI({self.order}) has no parameter(s) {unknown}: its parameters are "
-                             f"{list(self.parameter_names())}")
+            raise InputError(
+                f"LTI({self.order}) has no parameter(s) {unknown}: its parameters are "
+                f"{list(self.parameter_names())}"
+            )
         current = {**self.parameters(), **values}
         raw = encode(current, self.parameter_constraints(), f"LTI({self.order})")
         return eqx.tree_at(lambda s: s.raw, self, raw)

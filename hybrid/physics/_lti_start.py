@@ -25,8 +25,8 @@ import scipy.signal
 
 from ._lti import LTI, default_values
 
-RESONANCE = 2.0     # |H| above this many times its low-frequency level is a resonance
-MIN_POWER = 1e-3    # bins where the drive's power is below this fraction of its peak are ignored
+RESONANCE = 2.0  # |H| above this many times its low-frequency level is a resonance
+MIN_POWER = 1e-3  # bins where the drive's power is below this fraction of its peak are ignored
 
 
 def response_frequency(v_in, w, rate: float) -> float:

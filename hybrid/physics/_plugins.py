@@ -209,11 +209,15 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
         return lti if not recordings else lti_for_recordings(lti.order, recordings)
     where, sep, name = text.rpartition(":")
     if not sep or not where:
-        raise InputError(f"--physics {text}: not a physics I know; give {FORMS} "
-                         "(e.g. --physics examples/two_tank.py:TwoTank)")
+        raise InputError(
+            f"--physics {text}: not a physics I know; give {FORMS} "
+            "(e.g. --physics examples/two_tank.py:TwoTank)"
+        )
     if not name.isidentifier():
-        raise InputError(f"--physics {text}: {name!r} is not a Python class name; write the class after the "
-                         "last colon, e.g. --physics tanks.py:TwoTank")
+        raise InputError(
+            f"--physics {text}: {name!r} is not a Python class name; write the class after the "
+            "last colon, e.g. --physics tanks.py:TwoTank"
+        )
     if where.endswith(".py") or "/" in where or "\\" in where:
         module, label = _module_from_file(text, where), Path(where).name
     else:
@@ -226,19 +230,26 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
 def _lti(text: str) -> LTI:
     order = text.partition(":")[2].strip()
     if not re.fullmatch(r"\d+", order) or not 1 <= int(order) <= MAX_ORDER:
-        raise InputError(f"--physics {text}: the order N of lti:N must be a whole number from 1 to {MAX_ORDER} "
-                         "(the number of states), e.g. --physics lti:2")
+        raise InputError(
+            f"--physics {text}: the order N of lti:N must be a whole number from 1 to {MAX_ORDER} "
+            "(the number of states), e.g. --physics lti:2"
+        )
     return LTI(int(order))
 
 
 def _module_from_file(text: str, where: str):
     path = Path(where).expanduser()
     if not path.is_file():
-        hint = ("it is a folder; name the .py file in it" if path.is_dir()
-                else "check the path (relative to the current folder)")
+        hint = (
+            "it is a folder; name the .py file in it"
+            if path.is_dir()
+            else "check the path (relative to the current folder)"
+        )
         raise InputError(f"--physics {text}: no file {where} (looked at {path.resolve()}): {hint}")
     if path.suffix != ".py":
-        raise InputError(f"--physics {text}: {where} is not a Python file (.py): write the class in a .py file")
+        raise InputError(
+            f"--physics {text}: {where} is not a Python file (.py): write the class in a .py file"
+        )
     resolved = path.resolve()
     # The same file gets the same module name in every process (so a saved model's module matches),
     # and a name no installed package has.
@@ -260,14 +271,19 @@ def _module_from_file(text: str, where: str):
         spec.loader.exec_module(module)
     except SyntaxError as error:
         sys.modules.pop(name, None)
-        raise InputError(f"--physics {text}: {where} has a syntax error at line {error.lineno}: {error.msg}; "
-                         "fix the file (python -m py_compile shows it too)") from None
+        raise InputError(
+            f"--physics {text}: {where} has a syntax error at line {error.lineno}: {error.msg}; "
+            "fix the file (python -m py_compile shows it too)"
+        ) from None
     except BaseException as error:  # the file's own code failed (sys.exit too): say so, in one line
         sys.modules.pop(name, None)
         if isinstance(error, KeyboardInterrupt):
             raise  # a Ctrl-C, or the plug-in's own: the command line tells them apart
-        raise PluginError(f"--physics {text}: importing {where} {_what(error)}; "
-                          f"fix the file or install what it imports ({TRACEBACK_HINT})", error) from None
+        raise PluginError(
+            f"--physics {text}: importing {where} {_what(error)}; "
+            f"fix the file or install what it imports ({TRACEBACK_HINT})",
+            error,
+        ) from None
     return module
 
 
@@ -278,34 +294,55 @@ def _module_from_name(text: str, where: str):
         return importlib.import_module(where)
     except ModuleNotFoundError as error:
         if error.name and (where == error.name or where.startswith(error.name + ".")):
-            raise InputError(f"--physics {text}: no module named {where}: install the package or add its folder "
-                             "to PYTHONPATH, or give a file as path/to/file.py:ClassName") from None
-        raise InputError(f"--physics {text}: importing module {where} raised ModuleNotFoundError: {error}; "
-                         "install what it imports") from None
+            raise InputError(
+                f"--physics {text}: no module named {where}: install the package or add its folder "
+                "to PYTHONPATH, or give a file as path/to/file.py:ClassName"
+            ) from None
+        raise InputError(
+            f"--physics {text}: importing module {where} raised ModuleNotFoundError: {error}; "
+            "install what it imports"
+        ) from None
     except KeyboardInterrupt:
         raise
     except BaseException as error:  # sys.exit in the module's code too
-        raise PluginError(f"--physics {text}: importing module {where} {_what(error)}; fix the module "
-                          f"({TRACEBACK_HINT})", error) from None
+        raise PluginError(
+            f"--physics {text}: importing module {where} {_what(error)}; fix the module ({TRACEBACK_HINT})",
+            error,
+        ) from None
 
 
 def _instantiate(text: str, module, label: str, name: str) -> AbstractSimulation:
     cls = getattr(module, name, None)
     if cls is None:
-        mine = [k for k, v in vars(module).items() if inspect.isclass(v) and issubclass(v, AbstractSimulation)
-                and v.__module__ == module.__name__ and not inspect.isabstract(v)]
-        defines = f"it defines: {', '.join(sorted(mine))}" if mine else "it defines no AbstractSimulation subclass"
+        mine = [
+            k
+            for k, v in vars(module).items()
+            if inspect.isclass(v)
+            and issubclass(v, AbstractSimulation)
+            and v.__module__ == module.__name__
+            and not inspect.isabstract(v)
+        ]
+        defines = (
+            f"it defines: {', '.join(sorted(mine))}" if mine else "it defines no AbstractSimulation subclass"
+        )
         raise InputError(f"--physics {text}: {label} has no class {name}; {defines}")
     if not inspect.isclass(cls) or not issubclass(cls, AbstractSimulation):
-        what = "a class but not an AbstractSimulation subclass" if inspect.isclass(cls) else \
-            f"a {type(cls).__name__}, not a class"
-        raise InputError(f"--physics {text}: {name} in {label} is {what}; "
-                         "derive it from hybrid.AbstractSimulation (raw, constraints, units, simulate(v_in, dt)): "
-                         "see docs/plugins.md")
+        what = (
+            "a class but not an AbstractSimulation subclass"
+            if inspect.isclass(cls)
+            else f"a {type(cls).__name__}, not a class"
+        )
+        raise InputError(
+            f"--physics {text}: {name} in {label} is {what}; "
+            "derive it from hybrid.AbstractSimulation (raw, constraints, units, simulate(v_in, dt)): "
+            "see docs/plugins.md"
+        )
     if inspect.isabstract(cls):
         missing = ", ".join(sorted(getattr(cls, "__abstractmethods__", ())))
-        raise InputError(f"--physics {text}: {name} in {label} is abstract (it does not define {missing}); "
-                         "define simulate(self, v_in, dt) returning the signal for each sample")
+        raise InputError(
+            f"--physics {text}: {name} in {label} is abstract (it does not define {missing}); "
+            "define simulate(self, v_in, dt) returning the signal for each sample"
+        )
     _register(cls.__module__, text)
     if module.__name__ != cls.__module__:
         _register(module.__name__, text)
@@ -314,8 +351,11 @@ def _instantiate(text: str, module, label: str, name: str) -> AbstractSimulation
     except KeyboardInterrupt:
         raise
     except BaseException as error:
-        raise PluginError(f"--physics {text}: {name}() {_what(error)}; the class must build "
-                          "with no arguments, its defaults being the starting values", error) from None
+        raise PluginError(
+            f"--physics {text}: {name}() {_what(error)}; the class must build "
+            "with no arguments, its defaults being the starting values",
+            error,
+        ) from None
     _check(text, name, simulation)
     names = tuple(simulation.raw)
     for key in {cls.__module__, module.__name__}:
@@ -331,17 +371,23 @@ def _check(text: str, name: str, simulation: AbstractSimulation) -> None:
     except Exception:
         names = None
     if names is None:
-        raise InputError(f"--physics {text}: {name}() has no dict raw of parameters; set self.raw = "
-                         "encode(values, self.constraints, name) in __init__ (see docs/plugins.md)")
+        raise InputError(
+            f"--physics {text}: {name}() has no dict raw of parameters; set self.raw = "
+            "encode(values, self.constraints, name) in __init__ (see docs/plugins.md)"
+        )
     constraints = getattr(type(simulation), "constraints", None)
     units = simulation.parameter_units() if isinstance(constraints, dict) else None
     if not isinstance(constraints, dict) or any(k not in simulation.constraints for k in names):
-        raise InputError(f"--physics {text}: {name} needs a class-level dict constraints with an entry "
-                         f"(Positive(), Real(), UnitInterval(), ...) for each parameter {names}")
+        raise InputError(
+            f"--physics {text}: {name} needs a class-level dict constraints with an entry "
+            f"(Positive(), Real(), UnitInterval(), ...) for each parameter {names}"
+        )
     missing = [k for k in names if k not in units]
     if missing:
-        raise InputError(f"--physics {text}: {name}.units has no unit for {missing}; add them "
-                         '(e.g. "s", "cm^2", "1" for dimensionless)')
+        raise InputError(
+            f"--physics {text}: {name}.units has no unit for {missing}; add them "
+            '(e.g. "s", "cm^2", "1" for dimensionless)'
+        )
 
 
 def _probe_drive(recordings):
@@ -364,7 +410,9 @@ def _check_result(out, n: int) -> str | None:
     shape = tuple(out.shape)
     if shape != (n,):
         what = "a scalar (shape ())" if shape == () else f"shape {shape}"
-        return f"returned {what} for a drive of shape ({n},): it must return one value per sample, shape ({n},)"
+        return (
+            f"returned {what} for a drive of shape ({n},): it must return one value per sample, shape ({n},)"
+        )
     if not np.issubdtype(np.dtype(out.dtype), np.floating):
         return f"returned dtype {np.dtype(out.dtype)}: it must return real floating-point values"
     return None
@@ -395,15 +443,18 @@ def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str
             values = np.asarray(out)
             bad = int(np.sum(~np.isfinite(values)))
             if bad:
-                problem = (f"returned {bad} non-finite values (NaN or inf) of {n} at its default parameters on "
-                           f"{drive}: check its formulas and defaults")
+                problem = (
+                    f"returned {bad} non-finite values (NaN or inf) of {n} at its default parameters on "
+                    f"{drive}: check its formulas and defaults"
+                )
     except KeyboardInterrupt:
         raise
     except PluginError:
         raise
     except BaseException as error:
-        raise PluginError(f"{label}: {_failed_in(error, cls, 'on ' + drive)}; fix the plug-in "
-                          f"({TRACEBACK_HINT})", error) from None
+        raise PluginError(
+            f"{label}: {_failed_in(error, cls, 'on ' + drive)}; fix the plug-in ({TRACEBACK_HINT})", error
+        ) from None
     if problem is not None:
         raise PluginError(f"{label}: {cls}.simulate(v_in, dt) {problem}")
     try:
@@ -411,9 +462,12 @@ def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str
     except KeyboardInterrupt:
         raise
     except BaseException as error:
-        raise PluginError(f"{label}: {_failed_in(error, cls, 'under jax.jit; it runs eagerly')}: simulate must be "
-                          "traceable (no float(), int() or Python if on values: use jnp.where, lax.cond) "
-                          f"({TRACEBACK_HINT})", error) from None
+        raise PluginError(
+            f"{label}: {_failed_in(error, cls, 'under jax.jit; it runs eagerly')}: simulate must be "
+            "traceable (no float(), int() or Python if on values: use jnp.where, lax.cond) "
+            f"({TRACEBACK_HINT})",
+            error,
+        ) from None
     problem = _check_result(traced, n)
     if problem is not None:
         raise PluginError(f"{label}: {cls}.simulate(v_in, dt) under jax.jit {problem}")
@@ -421,12 +475,18 @@ def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str
 
 def _failed_in(error: BaseException, cls: str, context: str = "") -> str:
     """'Cls.simulate raised X: msg (at file:line, context)', from the plug-in's own frames when there are any."""
-    frames = [(f, line) for f, line in traceback.walk_tb(error.__traceback__)
-              if f.f_globals.get("__name__") in _SOURCES]
+    frames = [
+        (f, line)
+        for f, line in traceback.walk_tb(error.__traceback__)
+        if f.f_globals.get("__name__") in _SOURCES
+    ]
     method = _method_name(frames[0][0].f_code) if frames else f"{cls}.simulate"
     where = [f"at {Path(frames[-1][0].f_code.co_filename).name}:{frames[-1][1]}"] if frames else []
     names = _SOURCES[frames[0][0].f_globals["__name__"]][1] if frames else ()
-    hint = (f"; its parameters are {', '.join(names)}: a name not in raw?"
-            if isinstance(error, KeyError) and names else "")
+    hint = (
+        f"; its parameters are {', '.join(names)}: a name not in raw?"
+        if isinstance(error, KeyError) and names
+        else ""
+    )
     detail = ", ".join(where + ([context] if context else []))
     return f"{method} {_what(error)}{hint}" + (f" ({detail})" if detail else "")

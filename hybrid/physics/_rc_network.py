@@ -114,7 +114,7 @@ class RCNetwork(AbstractSimulation):
     }
     frozen_by_default: ClassVar[dict[str, str]] = {
         "xi_h": "only xi_rho/xi_h enters the network (RI_clamp = xi_rho rho_E L / (W xi_h h_E)): "
-                "xi_h stays fixed and xi_rho carries the ratio",
+        "xi_h stays fixed and xi_rho carries the ratio",
     }
     linear_in_drive: ClassVar[bool] = True  # zero initial state: V_o is linear in V_i
 
@@ -136,10 +136,16 @@ class RCNetwork(AbstractSimulation):
         if method not in METHODS:
             raise InputError(f"discretisation method must be one of {METHODS}, got {method!r}")
         if not isinstance(strip, Strip):
-            raise InputError(f"strip must be a hybrid.Strip (geometry and materials), got {type(strip).__name__}")
+            raise InputError(
+                f"strip must be a hybrid.Strip (geometry and materials), got {type(strip).__name__}"
+            )
         values = dict(
-            xi_rho=xi_rho, xi_h=xi_h, alpha_E=alpha_E, alpha_I=alpha_I,
-            alpha_C=alpha_C, C_clamp=C_clamp,
+            xi_rho=xi_rho,
+            xi_h=xi_h,
+            alpha_E=alpha_E,
+            alpha_I=alpha_I,
+            alpha_C=alpha_C,
+            C_clamp=C_clamp,
         )
         self.raw = encode(values, self.constraints, "RCNetwork")
         self.strip = strip
@@ -152,7 +158,9 @@ class RCNetwork(AbstractSimulation):
 
     @classmethod
     def from_config(cls, config: dict) -> RCNetwork:
-        return cls(strip=Strip.from_dict(config["strip"]), n_stages=config["n_stages"], method=config["method"])
+        return cls(
+            strip=Strip.from_dict(config["strip"]), n_stages=config["n_stages"], method=config["method"]
+        )
 
     # --- Eqs 4–9 -------------------------------------------------------------
     def stage_elements(self) -> dict[str, Float[Array, " stages"]]:
@@ -274,8 +282,8 @@ def lifted_response(H, O, A_L, C, x):
     n_blocks = -(-length // block)
     u = jnp.pad(x, (0, n_blocks * block - length)).reshape(n_blocks, block)
     dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)  # no TF32 on GPUs
-    forced = dot(u, H.T)                   # H u_j for every block
-    state_input = dot(u, C.T)              # C u_j for every block
+    forced = dot(u, H.T)  # H u_j for every block
+    state_input = dot(u, C.T)  # C u_j for every block
 
     def advance(state, c):
         return dot(A_L, state) + c, state
@@ -295,8 +303,8 @@ def block_matrices(b0, b1, a1, block):
     """
     n_sections = b0.shape[0]
     eye = jnp.eye(block + n_sections, dtype=b0.dtype)
-    impulses = eye[:block]                     # (L samples, L + K columns)
-    initial = eye[block:]                      # (K sections, L + K columns)
+    impulses = eye[:block]  # (L samples, L + K columns)
+    initial = eye[block:]  # (K sections, L + K columns)
 
     def section(x, coefficients):
         c0, c1, d1, s0 = coefficients

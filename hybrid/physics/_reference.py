@@ -37,8 +37,15 @@ def reference_response(network, v_in, dt, *, hold="zoh", rtol=1e-10, atol=1e-12)
         u0, u1 = inputs
         y = C @ x + D * u0
         sol = diffrax.diffeqsolve(
-            term, solver, 0.0, dt, dt / 4, x, args=(u0, u1),
-            stepsize_controller=controller, max_steps=10_000,
+            term,
+            solver,
+            0.0,
+            dt,
+            dt / 4,
+            x,
+            args=(u0, u1),
+            stepsize_controller=controller,
+            max_steps=10_000,
         )
         return sol.ys[-1], y
 

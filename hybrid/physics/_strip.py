@@ -43,8 +43,7 @@ class Strip:
             value = getattr(self, field.name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise InputError(
-                    f"strip {field.name} must be a positive finite number in SI units, "
-                    f"got {value!r}"
+                    f"strip {field.name} must be a positive finite number in SI units, got {value!r}"
                 )
 
     @property
@@ -84,7 +83,5 @@ class Strip:
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - known
         if unknown:
-            raise InputError(
-                f"unknown strip field(s) {sorted(unknown)}: valid fields are {sorted(known)}"
-            )
+            raise InputError(f"unknown strip field(s) {sorted(unknown)}: valid fields are {sorted(known)}")
         return cls(**{k: float(v) for k, v in data.items()})

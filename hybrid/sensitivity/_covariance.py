@@ -62,8 +62,9 @@ class Covariance:
     @property
     def relative_std_errors(self) -> dict[str, float]:
         """Standard error / |value|."""
-        return {n: s / abs(self.values[n]) if self.values[n] else float("inf")
-                for n, s in self.std_errors.items()}
+        return {
+            n: s / abs(self.values[n]) if self.values[n] else float("inf") for n, s in self.std_errors.items()
+        }
 
     @property
     def correlation(self) -> np.ndarray:
@@ -170,10 +171,10 @@ def problem_covariance(problem, theta, *, noise_std: float | None = None, rcond:
     rows_penalty = np.sqrt(mu * scale2) * np.diag(mask)[mask > 0] if mu else np.zeros((0, n))
     A = np.concatenate([J, rows_penalty])
     _, sigma, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])  # all n directions
-    sigma = np.concatenate([sigma, np.zeros(Vt.shape[0] - sigma.size)])      # (fewer rows: 0s)
+    sigma = np.concatenate([sigma, np.zeros(Vt.shape[0] - sigma.size)])  # (fewer rows: 0s)
     keep = sigma > rcond * sigma[0]
     V, inv_s2 = Vt[keep].T, 1.0 / sigma[keep] ** 2
-    cov_unit = (V * inv_s2) @ V.T                       # (JᵀJ + μP)⁻¹ on the identifiable subspace
+    cov_unit = (V * inv_s2) @ V.T  # (JᵀJ + μP)⁻¹ on the identifiable subspace
     if mu:
         JV = J @ V
         p_eff = float(np.sum(inv_s2 * np.sum(JV * JV, axis=0)))  # tr((JᵀJ+μP)⁻¹ JᵀJ)
@@ -182,8 +183,10 @@ def problem_covariance(problem, theta, *, noise_std: float | None = None, rcond:
     dof = m - p_eff
     if noise_std is None:
         if dof <= 0:
-            raise InputError(f"{m} residuals for {p_eff:.0f} free parameters: no degrees of freedom "
-                             "left to estimate the noise; pass noise_std")
+            raise InputError(
+                f"{m} residuals for {p_eff:.0f} free parameters: no degrees of freedom "
+                "left to estimate the noise; pass noise_std"
+            )
         s2 = float(r @ r) / dof
     else:
         if not (np.isfinite(noise_std) and noise_std > 0):
@@ -194,7 +197,9 @@ def problem_covariance(problem, theta, *, noise_std: float | None = None, rcond:
     null = Vt[~keep]
     bad = np.zeros(len(names), bool)
     if null.size:
-        leak = np.linalg.norm(D @ null.T, axis=1) / np.maximum(np.linalg.norm(D, axis=1), np.finfo(float).tiny)
+        leak = np.linalg.norm(D @ null.T, axis=1) / np.maximum(
+            np.linalg.norm(D, axis=1), np.finfo(float).tiny
+        )
         bad = leak > 1e-6
     cov[bad, :] = np.nan
     cov[:, bad] = np.nan
@@ -255,9 +260,12 @@ def standard_errors(result, recordings, *, noise_std: float | None = None) -> Co
     settings = result.settings
     split = settings.get("split", {"train": 0.3, "test": 0.5, "validation": 0.2})
     return parameter_covariance(
-        result.model, recordings,
+        result.model,
+        recordings,
         frozen=frozenset(settings.get("frozen", ())),
-        split=tuple(split.values()), split_order=tuple(split.keys()), blocks=int(settings.get("blocks", 1)),
+        split=tuple(split.values()),
+        split_order=tuple(split.keys()),
+        blocks=int(settings.get("blocks", 1)),
         weight_decay=float(settings.get("weight_decay", 0.0)),
         noise_std=noise_std,
     )

@@ -10,8 +10,15 @@ import numpy as np
 from ..util._errors import InputError
 
 #: The keys of `Identifiability.to_dict` a study's report carries (all but names and directions).
-SUMMARY_KEYS = ("singular_values", "relative_singular_values", "null_directions", "near_null_directions",
-                "collinear_pairs", "cosines", "tolerances")
+SUMMARY_KEYS = (
+    "singular_values",
+    "relative_singular_values",
+    "null_directions",
+    "near_null_directions",
+    "collinear_pairs",
+    "cosines",
+    "tolerances",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,7 +66,9 @@ class Identifiability:
             "near_null_directions": self.near_null_directions,
             "directions": [dict(zip(self.names, map(float, v))) for v in self.directions],
             "collinear_pairs": [{"pair": [a, b], "cosine": c} for a, b, c in self.collinear_pairs],
-            "cosines": {a: dict(zip(self.names, map(float, row))) for a, row in zip(self.names, self.cosines)},
+            "cosines": {
+                a: dict(zip(self.names, map(float, row))) for a, row in zip(self.names, self.cosines)
+            },
             "tolerances": self.tolerances,
         }
 
@@ -118,15 +127,25 @@ def identifiability(
     cos[:, norms == 0] = 0.0
     pairs = [
         (names[a], names[b], float(cos[a, b]))
-        for a in range(len(names)) for b in range(a + 1, len(names))
+        for a in range(len(names))
+        for b in range(a + 1, len(names))
         if abs(cos[a, b]) >= collinearity
     ]
     pairs.sort(key=lambda p: -abs(p[2]))
     return Identifiability(
-        names=names, singular_values=sigma, directions=Vt, null_directions=null,
-        near_null_directions=near, cosines=cos, collinear_pairs=pairs,
-        tolerances={"null": null_tolerance, "near_null": near_null_tolerance,
-                    "collinearity": collinearity, "keep": keep},
+        names=names,
+        singular_values=sigma,
+        directions=Vt,
+        null_directions=null,
+        near_null_directions=near,
+        cosines=cos,
+        collinear_pairs=pairs,
+        tolerances={
+            "null": null_tolerance,
+            "near_null": near_null_tolerance,
+            "collinearity": collinearity,
+            "keep": keep,
+        },
     )
 
 

@@ -87,14 +87,14 @@ def sobol_indices(
     key_a, key_b = jax.random.split(jax.random.key(seed))
     A = theta + spread * jax.random.uniform(key_a, (n_base, k), theta.dtype, -1.0, 1.0)
     B = theta + spread * jax.random.uniform(key_b, (n_base, k), theta.dtype, -1.0, 1.0)
-    AB = jnp.stack([A.at[:, j].set(B[:, j]) for j in range(k)])           # (k, N, k)
+    AB = jnp.stack([A.at[:, j].set(B[:, j]) for j in range(k)])  # (k, N, k)
     samples = jnp.concatenate([A, B, AB.reshape(k * n_base, k)])
     model_output = isinstance(target, Model)
     Y = _evaluate_many(view, samples, v_in, float(dt), model_output, batch_size)
-    fA, fB, fAB = Y[:n_base], Y[n_base:2 * n_base], Y[2 * n_base:].reshape(k, n_base, -1)
+    fA, fB, fAB = Y[:n_base], Y[n_base : 2 * n_base], Y[2 * n_base :].reshape(k, n_base, -1)
     variance = jnp.var(jnp.concatenate([fA, fB]), axis=0)
-    first = jnp.mean(fB * (fAB - fA), axis=1)                               # Saltelli 2010
-    total = 0.5 * jnp.mean((fA - fAB) ** 2, axis=1)                         # Jansen 1999
+    first = jnp.mean(fB * (fAB - fA), axis=1)  # Saltelli 2010
+    total = 0.5 * jnp.mean((fA - fAB) ** 2, axis=1)  # Jansen 1999
     denominator = jnp.maximum(jnp.sum(variance), jnp.finfo(variance.dtype).tiny)
     S1 = dict(zip(order, map(float, np.asarray(jnp.sum(first, axis=1) / denominator))))
     ST = dict(zip(order, map(float, np.asarray(jnp.sum(total, axis=1) / denominator))))
@@ -102,7 +102,9 @@ def sobol_indices(
         names=tuple(names),
         first_order={n: S1[n] for n in names},
         total={n: ST[n] for n in names},
-        n_base=n_base, n_evaluations=int(samples.shape[0]), spread=float(spread),
+        n_base=n_base,
+        n_evaluations=int(samples.shape[0]),
+        spread=float(spread),
     )
 
 

@@ -78,12 +78,23 @@ def cramer_rao(jacobian, names, noise_std: float, rcond: float = 1e-10) -> tuple
     se = np.sqrt(np.diag(cov))
     null = vt[~keep]
     bad = (np.linalg.norm(null, axis=0) > 1e-6 if null.size else np.zeros(len(names), bool)) | (norms == 0)
-    return ({n: (float("inf") if b else float(v)) for n, v, b in zip(names, se, bad)},
-            [n for n, b in zip(names, bad) if b])
+    return (
+        {n: (float("inf") if b else float(v)) for n, v, b in zip(names, se, bad)},
+        [n for n, b in zip(names, bad) if b],
+    )
 
 
-def simulation_study(simulation, v_in, dt: float, *, noise: float = 0.01, sobol: int = 0, seed: int = 0,
-                     drive: str = "drive", rcond: float = 1e-10) -> tuple[dict, object]:
+def simulation_study(
+    simulation,
+    v_in,
+    dt: float,
+    *,
+    noise: float = 0.01,
+    sobol: int = 0,
+    seed: int = 0,
+    drive: str = "drive",
+    rcond: float = 1e-10,
+) -> tuple[dict, object]:
     """Sensitivities, identifiability and Cramér–Rao standard errors of `simulation` on the drive `v_in`.
 
     **Arguments:**
@@ -106,18 +117,24 @@ def simulation_study(simulation, v_in, dt: float, *, noise: float = 0.01, sobol:
     if sobol < 0 or sobol == 1:
         raise InputError(f"sobol must be 0 (skip) or a number of base samples ≥ 2, got {sobol!r}")
     frozen = dict(simulation.default_frozen())
-    physics = Model(simulation, LinearReadout(1.0, 0.0), "physics")  # w = y: the readout's J columns are y and 1
+    physics = Model(
+        simulation, LinearReadout(1.0, 0.0), "physics"
+    )  # w = y: the readout's J columns are y and 1
     w_sens = local_sensitivities(physics, v_in, dt, frozen=frozenset(frozen))
     names = [n for n in w_sens.names if n not in ("gain", "offset")]
     if not names:
-        raise InputError(f"{type(simulation).__name__} has no free parameter (frozen by default: "
-                         f"{sorted(frozen)}): nothing to study")
+        raise InputError(
+            f"{type(simulation).__name__} has no free parameter (frozen by default: "
+            f"{sorted(frozen)}): nothing to study"
+        )
     columns = [w_sens.names.index(n) for n in names]
     y, J = w_sens.output, w_sens.jacobian[:, columns]
     rms = float(np.sqrt(np.mean(y**2)))
     if not (np.isfinite(rms) and rms > 0):
-        raise InputError(f"{type(simulation).__name__}'s output is zero (or not finite) for this drive: "
-                         "nothing depends on its parameters")
+        raise InputError(
+            f"{type(simulation).__name__}'s output is zero (or not finite) for this drive: "
+            "nothing depends on its parameters"
+        )
     values = {n: w_sens.values[n] for n in names}
     scales = _scales(simulation, names, values)
     S = J * np.array([scales[n] for n in names]) / rms
@@ -137,7 +154,7 @@ def simulation_study(simulation, v_in, dt: float, *, noise: float = 0.01, sobol:
         "samples": int(S.shape[0]),
         "dt": float(dt),
         "coordinates": "scaled: a direction {name: c} moves each parameter by c·scale (scale = |value|, a "
-                       "relative change, or for a parameter at 0 the half-width of its typical range)",
+        "relative change, or for a parameter at 0 the half-width of its typical range)",
         "scales": scales,
         "output": "y, the simulation's output for the drive (for the standard errors: w = gain·y + offset)",
         "rms_normalised_sensitivity": dict(zip(names, map(float, np.sqrt(np.mean(S**2, axis=0))))),
@@ -146,8 +163,11 @@ def simulation_study(simulation, v_in, dt: float, *, noise: float = 0.01, sobol:
         "std_error": {n: _clean(v) for n, v in se.items()},
         "relative_std_error": {n: (None if v is None else _clean(v)) for n, v in relative.items()},
         "unidentifiable": unidentifiable,
-        "sobol": (sobol_indices(simulation, v_in, dt, n_base=sobol, seed=seed, frozen=frozenset(frozen)).to_dict()
-                  if sobol else None),
+        "sobol": (
+            sobol_indices(simulation, v_in, dt, n_base=sobol, seed=seed, frozen=frozenset(frozen)).to_dict()
+            if sobol
+            else None
+        ),
     }
     result["seconds"] = time.perf_counter() - t_start
     return result, w_sens
@@ -182,16 +202,27 @@ def _markdown(result) -> str:
         se_text = se if isinstance(se, str) else f"{se:.3g} {'' if unit in ('1', '(y)') else unit}".rstrip()
         rel_text = "—" if rel is None else (rel if isinstance(rel, str) else f"{rel:.2e}")
         nominal = result["nominal"].get(n, 1.0 if n == "gain" else 0.0)
-        lines.append(f"| {n} | {nominal:.6g} | {se_text} | {rel_text} | "
-                     f"{'—' if sens is None else f'{sens:.3g}'} |")
+        lines.append(
+            f"| {n} | {nominal:.6g} | {se_text} | {rel_text} | {'—' if sens is None else f'{sens:.3g}'} |"
+        )
     frozen = ", ".join(f"{k} ({v})" for k, v in result["frozen"].items()) or "none"
     values = ", ".join(f"{s:.1e}" for s in result["relative_singular_values"])
-    pairs = ", ".join(f"{p['pair'][0]}–{p['pair'][1]} ({p['cosine']:+.4f})" for p in result["collinear_pairs"])
-    lines += ["", f"Frozen (left out, as `fit` does): {frozen}.", "",
-              f"Relative singular values of the scaled sensitivities: {values}", "",
-              f"Null directions (scaled coordinates): {_directions(result['null_directions'])}", "",
-              f"Near-null directions: {_directions(result['near_null_directions'])}", "",
-              f"Near-collinear pairs (|cos| ≥ {result['tolerances']['collinearity']:g}): {pairs or 'none'}", ""]
+    pairs = ", ".join(
+        f"{p['pair'][0]}–{p['pair'][1]} ({p['cosine']:+.4f})" for p in result["collinear_pairs"]
+    )
+    lines += [
+        "",
+        f"Frozen (left out, as `fit` does): {frozen}.",
+        "",
+        f"Relative singular values of the scaled sensitivities: {values}",
+        "",
+        f"Null directions (scaled coordinates): {_directions(result['null_directions'])}",
+        "",
+        f"Near-null directions: {_directions(result['near_null_directions'])}",
+        "",
+        f"Near-collinear pairs (|cos| ≥ {result['tolerances']['collinearity']:g}): {pairs or 'none'}",
+        "",
+    ]
     return "\n".join(lines)
 
 

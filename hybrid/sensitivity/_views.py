@@ -41,12 +41,12 @@ def free_theta(target, frozen=frozenset()):
     elif isinstance(target, AbstractSimulation):
         unknown = frozen - set(target.parameters())
         if unknown:
-            raise InputError(f"cannot freeze {sorted(unknown)}: the parameters are {sorted(target.parameters())}")
+            raise InputError(
+                f"cannot freeze {sorted(unknown)}: the parameters are {sorted(target.parameters())}"
+            )
         spec = target.trainable(frozen)
     else:
-        raise InputError(
-            f"sensitivities need an AbstractSimulation or a Model, got {type(target).__name__}"
-        )
+        raise InputError(f"sensitivities need an AbstractSimulation or a Model, got {type(target).__name__}")
     dynamic, static = eqx.partition(target, spec)
     theta, unravel = ravel_pytree(dynamic)
     return theta, _View(static, unravel)
@@ -54,19 +54,20 @@ def free_theta(target, frozen=frozenset()):
 
 def named_parameters(target) -> dict[str, jax.Array]:
     if not isinstance(target, (Model, AbstractSimulation)):
-        raise InputError(
-            f"sensitivities need an AbstractSimulation or a Model, got {type(target).__name__}"
-        )
+        raise InputError(f"sensitivities need an AbstractSimulation or a Model, got {type(target).__name__}")
     values = target.parameters()
     for name, value in values.items():
         if jnp.ndim(value) != 0:
-            raise InputError(f"parameter {name} is not a scalar (shape {jnp.shape(value)}): "
-                             "sensitivities are per scalar parameter")
+            raise InputError(
+                f"parameter {name} is not a scalar (shape {jnp.shape(value)}): "
+                "sensitivities are per scalar parameter"
+            )
     return values
 
 
 def physical_map(view, theta, names):
     """D = ∂θ_phys/∂θ_raw (k_named × n_raw) by forward mode (the reparameterisation's derivative)."""
+
     def physical(th):
         values = view.rebuild(th).parameters()
         return jnp.stack([jnp.asarray(values[n], th.dtype) for n in names])
@@ -98,6 +99,8 @@ def raw_to_physical_columns(J_raw, D):
             "sensitivities need one raw value per named parameter"
         )
     if np.linalg.cond(D) > 1e12:
-        raise InputError("the map from raw to physical parameters is singular at this point "
-                         "(a parameter at the edge of its range?)")
+        raise InputError(
+            "the map from raw to physical parameters is singular at this point "
+            "(a parameter at the edge of its range?)"
+        )
     return np.linalg.solve(D.T, np.asarray(J_raw).T).T

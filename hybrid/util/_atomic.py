@@ -29,8 +29,16 @@ from pathlib import Path
 
 from ._errors import InputError
 
-__all__ = ["PARTIAL", "atomic_open", "describe_targets", "partial_path", "staged", "write_bytes",
-           "write_text", "write_texts"]
+__all__ = [
+    "PARTIAL",
+    "atomic_open",
+    "describe_targets",
+    "partial_path",
+    "staged",
+    "write_bytes",
+    "write_text",
+    "write_texts",
+]
 
 TEMPORARY_SUFFIX = ".tmp"
 #: What a failed command's output is called instead: ``w.csv`` -> ``w.partial.csv``.
@@ -112,8 +120,9 @@ def staged(*targets) -> Iterator[list[Path]]:
     temporaries: list[Path] = []
     try:
         for target in targets:
-            fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=TEMPORARY_SUFFIX + target.suffix,
-                                        dir=target.parent)
+            fd, name = tempfile.mkstemp(
+                prefix=f".{target.name}.", suffix=TEMPORARY_SUFFIX + target.suffix, dir=target.parent
+            )
             os.close(fd)
             temporaries.append(Path(name))
         yield temporaries
@@ -188,5 +197,7 @@ def partial_path(target, *, taken=()) -> Path:
         sidecar = candidate.with_name(candidate.name + ".json")
         if candidate not in taken and not candidate.exists() and not sidecar.exists():
             return candidate
-    raise InputError(f"cannot find a free name for the partial output next to {target}: "
-                     f"remove old {stem}{PARTIAL}*{suffix} files")
+    raise InputError(
+        f"cannot find a free name for the partial output next to {target}: "
+        f"remove old {stem}{PARTIAL}*{suffix} files"
+    )

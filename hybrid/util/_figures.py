@@ -44,8 +44,11 @@ def plot_mediatory_figure(recording, model, path, seconds: float = 60.0):
     ax.plot(t, _normalised(recording.v_in)[:n], lw=1, label=f"$V_i$ (corr. with w: {r_in:.3f})")
     ax.plot(t, _normalised(v_o)[:n], lw=1.5, label=f"$V_o$ (corr. with w: {r_out:.3f})")
     ax.plot(t, _normalised(recording.w)[:n], "k--", lw=1, label="w")
-    ax.set(xlabel="time (s)", ylabel="normalised",
-           title="Drive $V_i$, computed $V_o$ (fitted hybrid model) and w, each by its max |·| (cf. Fig. 3)")
+    ax.set(
+        xlabel="time (s)",
+        ylabel="normalised",
+        title="Drive $V_i$, computed $V_o$ (fitted hybrid model) and w, each by its max |·| (cf. Fig. 3)",
+    )
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     save_png(fig, path)
@@ -58,16 +61,19 @@ def plot_fit_figure(recording, results, row: str, path, seconds: float = 90.0):
     test = split.slices["test"]
     start = test.start
     n = min(test.stop - start, int(seconds * recording.rate))
-    t = recording.t[start:start + n]
+    t = recording.t[start : start + n]
     fig, ax = plt.subplots(figsize=(9, 3.6))
-    ax.plot(t, recording.w[start:start + n], "k", lw=1.5, label="Target")
+    ax.plot(t, recording.w[start : start + n], "k", lw=1.5, label="Target")
     for kind, style in (("normal", "C1"), ("hybrid", "C0--")):
         model = results[kind].model
         w_hat = np.asarray(model.predict(recording.v_in, recording.dt, ((test.start, test.stop),)))[:n]
         nmse = results[kind].metrics["test"]["nmse"]
         ax.plot(t, w_hat, style, lw=1.2, label=f"{kind.capitalize()} (NMSE {nmse:.2e})")
-    ax.set(xlabel="time (s)", ylabel="tip displacement w (mm)",
-           title=f"{row} drive, test split: target, Normal and Hybrid models")
+    ax.set(
+        xlabel="time (s)",
+        ylabel="tip displacement w (mm)",
+        title=f"{row} drive, test split: target, Normal and Hybrid models",
+    )
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     save_png(fig, path)

@@ -123,8 +123,10 @@ def _check_file(output: OutputFile) -> None:
         )
     for companion in output.files()[1:]:
         if companion.is_dir():
-            raise InputError(f"{option} {path}: {companion}, written next to it, is a folder: "
-                             "remove that folder or choose another name")
+            raise InputError(
+                f"{option} {path}: {companion}, written next to it, is a folder: "
+                "remove that folder or choose another name"
+            )
     _check_writable(path.parent if path.parent.exists() else _existing_ancestor(path), path, option)
 
 
@@ -137,8 +139,10 @@ def _check_folder(output: OutputFolder) -> None:
     _check_writable(path if path.exists() else _existing_ancestor(path), path, option)
     for file in output.files():
         if file.is_dir():
-            raise InputError(f"{option} {path}: {file} is a folder but the results need that name: "
-                             "remove it or choose another folder")
+            raise InputError(
+                f"{option} {path}: {file} is a folder but the results need that name: "
+                "remove it or choose another folder"
+            )
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -162,7 +166,11 @@ def check_not_inputs(outputs: Sequence[OutputFile | OutputFolder], inputs: Itera
             for source, given in sources:
                 if _same(file, source):
                     subject = "it" if file == output.path else f"{file}, written with it,"
-                    target = f"the input {given}" if source == given else f"{source}, the sidecar of the input {given}"
+                    target = (
+                        f"the input {given}"
+                        if source == given
+                        else f"{source}, the sidecar of the input {given}"
+                    )
                     raise InputError(
                         f"{output.option} {output.path}: {subject} is {target}, which would be "
                         "overwritten: choose another output name"
@@ -230,8 +238,10 @@ def _acquire(path: Path, what: Path, option: str) -> None:
                 os.unlink(path)
             continue
         except OSError as error:
-            raise InputError(f"{option} {what}: cannot create the lock file {path} "
-                             f"({error.strerror or error}): choose a folder you can write to") from None
+            raise InputError(
+                f"{option} {what}: cannot create the lock file {path} "
+                f"({error.strerror or error}): choose a folder you can write to"
+            ) from None
         try:  # a lock without its pid would block the next run (FRESH_LOCK_S): all of it, or no lock
             data = f"{os.getpid()}\n".encode()
             if os.write(fd, data) != len(data):
@@ -242,9 +252,11 @@ def _acquire(path: Path, what: Path, option: str) -> None:
                 os.close(fd)
             with contextlib.suppress(OSError):
                 os.unlink(path)
-            raise InputError(f"{option} {what}: cannot write the lock file {path} "
-                             f"({error.strerror or error}): free some space or choose another folder; "
-                             f"nothing was changed at {what}") from None
+            raise InputError(
+                f"{option} {what}: cannot write the lock file {path} "
+                f"({error.strerror or error}): free some space or choose another folder; "
+                f"nothing was changed at {what}"
+            ) from None
         return
     raise InputError(f"{option} {what}: could not take the lock {path}: try again")
 
@@ -282,8 +294,10 @@ def lock(outputs: Sequence[OutputFile | OutputFolder]) -> Iterator[None]:
                 created += _missing_folders(folder)
                 folder.mkdir(parents=True, exist_ok=True)
             except OSError as error:
-                raise InputError(f"{output.option} {output.path}: cannot create the folder {folder} "
-                                 f"({error.strerror or error}): create it or choose another") from None
+                raise InputError(
+                    f"{output.option} {output.path}: cannot create the folder {folder} "
+                    f"({error.strerror or error}): create it or choose another"
+                ) from None
             path = _lock_path(output)
             _acquire(path, output.path, output.option)
             held.append(path)

@@ -71,8 +71,17 @@ class Watchdog:
     - `on_stall`: called with the message instead of exiting (tests).
     """
 
-    def __init__(self, command: str, *, heartbeat: float | None = None, stall: float | None = None,
-                 idle_fraction: float = 0.02, quiet: bool = False, stream=None, on_stall=None):
+    def __init__(
+        self,
+        command: str,
+        *,
+        heartbeat: float | None = None,
+        stall: float | None = None,
+        idle_fraction: float = 0.02,
+        quiet: bool = False,
+        stream=None,
+        on_stall=None,
+    ):
         self.command = command
         self.heartbeat = _seconds_from_env("HYBRID_HEARTBEAT_S", 30.0) if heartbeat is None else heartbeat
         self.stall = _seconds_from_env("HYBRID_STALL_S", 300.0) if stall is None else stall
@@ -106,7 +115,7 @@ class Watchdog:
             wall, cpu = time.monotonic(), time.process_time()
             step = wall - wall_prev
             busy = (cpu - cpu_prev) >= self.idle_fraction * step
-            if step > 3 * tick + 5:      # we did not run for a while (suspended): not a stall
+            if step > 3 * tick + 5:  # we did not run for a while (suspended): not a stall
                 idle_since = None
             elif busy:
                 idle_since = None
@@ -114,10 +123,12 @@ class Watchdog:
                 idle_since = wall_prev
             wall_prev, cpu_prev = wall, cpu
             if self.stall > 0 and idle_since is not None and wall - idle_since >= self.stall:
-                message = (f"{self.command}: error: no CPU work for {wall - idle_since:.0f} s while "
-                           f"{current_stage()} ({wall - t0:.0f} s in): the process is stuck (a deadlock "
-                           f"in the XLA runtime looks like this); stopping instead of hanging. Please report "
-                           f"it with your jax/jaxlib versions (see experiments/xla_cpu_deadlock.py).")
+                message = (
+                    f"{self.command}: error: no CPU work for {wall - idle_since:.0f} s while "
+                    f"{current_stage()} ({wall - t0:.0f} s in): the process is stuck (a deadlock "
+                    f"in the XLA runtime looks like this); stopping instead of hanging. Please report "
+                    f"it with your jax/jaxlib versions (see experiments/xla_cpu_deadlock.py)."
+                )
                 if self.on_stall is not None:
                     self.on_stall(message)
                     return
@@ -125,5 +136,8 @@ class Watchdog:
                 os._exit(STALL_EXIT_STATUS)
             if self.heartbeat > 0 and not self.quiet and wall - last_beat >= self.heartbeat:
                 last_beat = wall
-                print(f"{self.command}: still working: {current_stage()} ({wall - t0:.0f} s, "
-                      f"CPU {cpu:.0f} s)", file=self.stream, flush=True)
+                print(
+                    f"{self.command}: still working: {current_stage()} ({wall - t0:.0f} s, CPU {cpu:.0f} s)",
+                    file=self.stream,
+                    flush=True,
+                )

@@ -19,17 +19,17 @@ from ._errors import InputError
 #: Most samples one command may make (duration × rate): 10^7 float64 samples are 80 MB per channel.
 MAX_SAMPLES = 10_000_000
 
-STAGES = (1, 1000)            # N of the RC network (N + 1 sections; the paper's 45)
-RATE = (0.1, 100_000.0)       # Hz
-DURATION = (0.0, 1e7)         # s, exclusive at 0 (the sample count bounds it far sooner)
+STAGES = (1, 1000)  # N of the RC network (N + 1 sections; the paper's 45)
+RATE = (0.1, 100_000.0)  # Hz
+DURATION = (0.0, 1e7)  # s, exclusive at 0 (the sample count bounds it far sooner)
 STARTS = (1, 256)
 MAX_STEPS = (1, 1_000_000)
-WINDOW = (1, 100_000)         # samples in the D-MLP's window (also ≤ the recording's length)
-DEPTH = (0, 50)               # hidden layers of the D-MLP (0: a linear map of the window)
-WIDTH = (1, 1000)             # neurons per hidden layer
-SOBOL = (0, 100_000)          # Sobol base samples (0: skip)
+WINDOW = (1, 100_000)  # samples in the D-MLP's window (also ≤ the recording's length)
+DEPTH = (0, 50)  # hidden layers of the D-MLP (0: a linear map of the window)
+WIDTH = (1, 1000)  # neurons per hidden layer
+SOBOL = (0, 100_000)  # Sobol base samples (0: skip)
 BLOCKS = (1, 10_000)
-SETTLE_MAX = 10_000_000     # samples of held drive before a record (--settle)
+SETTLE_MAX = 10_000_000  # samples of held drive before a record (--settle)
 
 
 def integer(low: int | None, high: int):
@@ -73,8 +73,9 @@ def number(low: float, high: float, *, include_low: bool = True, unit: str = "")
     return parse
 
 
-def check_samples(duration: float, rate: float, what: str = "--duration × --rate",
-                  limit: int = MAX_SAMPLES) -> int:
+def check_samples(
+    duration: float, rate: float, what: str = "--duration × --rate", limit: int = MAX_SAMPLES
+) -> int:
     """The sample count `duration` × `rate`, refused above `limit`."""
     samples = duration * rate
     if not math.isfinite(samples) or samples > limit:
