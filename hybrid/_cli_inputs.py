@@ -6,6 +6,7 @@ Kept apart from `hybrid.cli` (the commands) so each stays a room about one thing
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 from .util._errors import InputError
 
@@ -60,7 +61,7 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
     from .data._recording import Recording
     from .data._table import TEXT_SUFFIXES
 
-    options = {
+    options: dict[str, Any] = {  # argparse's values, any of them None when not given
         k: getattr(args, k, None)
         for k in ("input", "output", "time", "columns", "rate", "sample_range", "units")
     }

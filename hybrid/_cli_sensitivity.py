@@ -179,7 +179,7 @@ def _generic(args) -> None:
             "recording": recording.name,
             "rate_hz": float(recording.rate),
         }
-        result["x64"] = bool(jax.config.jax_enable_x64)
+        result["x64"] = bool(jax.config.read("jax_enable_x64"))
         write_simulation_study(result, sensitivity, args.out)
     _print(result, "the output")
     noise = result["noise"]["fraction_of_rms_w"]

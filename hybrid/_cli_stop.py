@@ -14,6 +14,9 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Callable
+from types import FrameType
+from typing import Any
 
 #: Exit status of a fit stopped by ``--time-limit`` (as GNU ``timeout``); a signal gives 128 + its number.
 TIME_LIMIT_EXIT_STATUS = 124
@@ -40,7 +43,7 @@ class FitStop:
         self.time_limit = time_limit
         self.signal = None
         self.timed_out = False
-        self._previous = {}
+        self._previous: dict[int, Callable[[int, FrameType | None], Any] | int | None] = {}
         self._deadline = None
 
     def __enter__(self):

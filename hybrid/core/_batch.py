@@ -143,7 +143,7 @@ def fit_batch(
 
     # One Problem per (recording, start), sharing the static parts of a template.
     # Each recording in its own units, as fit() does (w / std(w_train), v_in / rms(v_in)).
-    problems, thetas, units, starts_of = [], [], [], []
+    problems, flat, units, starts_of = [], [], [], []
     template = None
     for s in series:
         w_unit, v_unit = fit_units(model, [s], np.asarray(s.target("train")))
@@ -162,10 +162,10 @@ def fit_batch(
         )
         for m in initial:
             problems.append(problem)
-            thetas.append(problem.flatten(m, frozen))
+            flat.append(problem.flatten(m, frozen))
     n_fits = len(problems)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[_arrays(p) for p in problems])
-    thetas = jnp.stack(thetas)
+    thetas = jnp.stack(flat)
 
     devices = list(jax.devices() if devices is None else devices)
     n_dev = len(devices)

@@ -76,8 +76,8 @@ class HeldStart(AbstractWrapper):
         self.settle_samples = settle_samples
         self.own = encode({INITIAL_DRIVE: initial_drive}, self.constraints, "HeldStart")
 
-    @property
-    def raw(self) -> dict[str, Array]:
+    @property  # type: ignore[misc]  # equinox: AbstractVar `raw` may be implemented by a property
+    def raw(self) -> dict[str, Array]:  # type: ignore[override]  # (mypy sees a plain field)
         return {**self.inner.raw, **self.own}
 
     def with_raw(self, raw):

@@ -41,19 +41,19 @@ METRICS: tuple[str, ...] = ("nmse", "nmse_target", "nmse_variance", "fitting")
 
 def _pair(w: ArrayLike, w_hat: ArrayLike, xp=jnp) -> tuple[Array, Array]:
     """Both signals as floating arrays of `xp` (JAX's, or numpy's for concrete values), after checks."""
-    w, w_hat = xp.asarray(w), xp.asarray(w_hat)
-    if w.shape != w_hat.shape:
+    a, b = xp.asarray(w), xp.asarray(w_hat)
+    if a.shape != b.shape:
         raise InputError(
-            f"target w has shape {w.shape} but prediction w_hat has shape "
-            f"{w_hat.shape}: compare signals of the same length"
+            f"target w has shape {a.shape} but prediction w_hat has shape "
+            f"{b.shape}: compare signals of the same length"
         )
-    if w.size == 0:
+    if a.size == 0:
         raise InputError("target w and prediction w_hat are empty: compare non-empty signals")
-    dtype = xp.result_type(w, w_hat)
+    dtype = xp.result_type(a, b)
     if not xp.issubdtype(dtype, xp.inexact):
         dtype = xp.result_type(float)
-    w, w_hat = w.astype(dtype), w_hat.astype(dtype)
-    for label, x in (("target w", w), ("prediction w_hat", w_hat)):
+    a, b = a.astype(dtype), b.astype(dtype)
+    for label, x in (("target w", a), ("prediction w_hat", b)):
         value = _concrete(x)
         if value is not None and not np.all(np.isfinite(value)):
             bad = np.flatnonzero(~np.isfinite(value.reshape(-1)))
@@ -62,7 +62,7 @@ def _pair(w: ArrayLike, w_hat: ArrayLike, xp=jnp) -> tuple[Array, Array]:
                 f"{', ...' if bad.size > 5 else ''} ({bad.size} in all): remove "
                 "or interpolate them"
             )
-    return w, w_hat
+    return a, b
 
 
 def _concrete(x: Array) -> np.ndarray | None:

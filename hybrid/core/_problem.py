@@ -21,6 +21,8 @@ faster and takes ~10× less peak memory than a step of
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -54,7 +56,7 @@ class Series(eqx.Module):
     dt: float = eqx.field(static=True)
     segments: tuple[tuple[str, tuple[tuple[int, int], ...]], ...] = eqx.field(static=True)
     weights: tuple[tuple[str, jax.Array], ...] | None = None
-    spans: tuple[tuple[str, jax.Array], ...] | None = None
+    spans: tuple[tuple[str, np.ndarray | jax.Array], ...] | None = None
 
     def segments_of(self, split: str) -> tuple[tuple[int, int], ...]:
         return dict(self.segments)[split]
@@ -125,7 +127,7 @@ def series_from_recording(
     if int(blocks) != blocks or blocks < 1:
         raise InputError(f"blocks must be a whole number ≥ 1, got {blocks!r}")
     edges = [round(k * recording.n / blocks) for k in range(int(blocks) + 1)]
-    parts = {name: [] for name in order}
+    parts: dict[str, list[tuple[int, int]]] = {name: [] for name in order}
     for lo, hi in zip(edges[:-1], edges[1:]):
         chunk = recording if (lo, hi) == (0, recording.n) else recording.segment(slice(lo, hi))
         for name, s in chunk.split(fractions=fractions, order=order).slices.items():
@@ -183,8 +185,8 @@ def bucketed_series(series: Series, length: int) -> Series:
             mask[a:b] = 1.0
         weights.append((name, jax.device_put(mask)))
     segments = tuple((name, ((0, length),)) for name, _ in series.segments)
-    spans = tuple((name, np.asarray(spans, np.int64).reshape(-1, 2)) for name, spans in series.segments)
-    return Series(v_in, w, series.dt, segments, tuple(weights), spans)
+    recorded = tuple((name, np.asarray(s, np.int64).reshape(-1, 2)) for name, s in series.segments)
+    return Series(v_in, w, series.dt, segments, tuple(weights), recorded)
 
 
 class Problem(eqx.Module):
@@ -208,8 +210,8 @@ class Problem(eqx.Module):
 
     sim_static: eqx.Module
     readout_static: eqx.Module
-    unravel_sim: callable = eqx.field(static=True)
-    unravel_readout: callable = eqx.field(static=True)
+    unravel_sim: Callable = eqx.field(static=True)
+    unravel_readout: Callable = eqx.field(static=True)
     series: tuple[Series, ...]
     scale: jax.Array
     kind: str = eqx.field(static=True)

@@ -99,6 +99,7 @@ def simulation_class(name: str, module: str | None = None) -> type[AbstractSimul
 def _skeleton(description: dict) -> Model:
     out_d = description["readout"]
     simulation = build_simulation(description["simulation"])
+    readout: WindowedMLP | LinearReadout
     if out_d["type"] == "WindowedMLP":
         readout = WindowedMLP(out_d["window"], out_d["depth"], out_d["width"], key=jax.random.key(0))
     else:
@@ -185,7 +186,9 @@ def load_model(path) -> Model:
     expected = description.get("parameters", {})
     for name, value in model.parameters().items():
         if name in expected and not np.isclose(float(value), expected[name], rtol=1e-9, atol=0):
-            if not jax.config.jax_enable_x64 and np.isclose(float(value), expected[name], rtol=1e-6, atol=0):
+            if not jax.config.read("jax_enable_x64") and np.isclose(
+                float(value), expected[name], rtol=1e-6, atol=0
+            ):
                 raise InputError(
                     f"model file {path} holds float64 weights and this session runs float32: call "
                     "jax.config.update('jax_enable_x64', True) before load_model (the CLI does)"

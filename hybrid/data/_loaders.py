@@ -229,8 +229,8 @@ def _load_csv(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[d
         numbers.append(number)
     if not rows:
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
-    numbers = np.asarray(numbers)
-    columns = {c: _csv_column(path, c, [row[i] for row in rows], numbers) for i, c in enumerate(header)}
+    line_numbers = np.asarray(numbers)
+    columns = {c: _csv_column(path, c, [row[i] for row in rows], line_numbers) for i, c in enumerate(header)}
     meta_path = sidecar(path)
     metadata = {}
     if meta_path.exists():

@@ -88,7 +88,7 @@ RATE_RTOL: float = 1e-4
 
 
 def load_mapped(
-    path: str | pathlib.Path | Sequence[str | pathlib.Path],
+    path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,
     input: str | None = None,
     output: str | None = None,
@@ -120,7 +120,8 @@ def load_mapped(
         file's name), ``rate_hz`` and ``rate_from``, and ``segment`` for a sample range.
     """
     several = isinstance(path, (list, tuple))
-    paths = [path_argument(p, "load_mapped") for p in (path if several else [path])]
+    given = path if isinstance(path, (list, tuple)) else [path]
+    paths = [path_argument(p, "load_mapped") for p in given]
     if not paths:
         raise InputError("load_mapped got an empty list of files: give a file, or the files of one record")
     roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
@@ -208,15 +209,15 @@ def file_references(
     column of it. When one name refers to a file, every name must, and every file
     of `paths` must be named.
     """
-    paths = [pathlib.Path(p) for p in paths]
+    files = [pathlib.Path(p) for p in paths]
     found: dict[str, tuple[pathlib.Path, str | None]] = {}
     for role, value in roles.items():
-        target = _named_file(value, paths)
+        target = _named_file(value, files)
         if target is not None:
             found[role] = (target, None)
             continue
         head, colon, column = value.rpartition(":")
-        target = _named_file(head, paths) if colon else None
+        target = _named_file(head, files) if colon else None
         if target is not None:
             if not column.strip():
                 raise InputError(
@@ -226,16 +227,16 @@ def file_references(
             found[role] = (target, column.strip())
     if not found:
         return {}
-    files = ", ".join(str(p) for p in paths)
+    listed = ", ".join(str(p) for p in files)
     for role, value in roles.items():
         if role not in found:
             raise InputError(
-                f"the {OPTION[role]} '{value}' names none of the files ({files}) while the "
+                f"the {OPTION[role]} '{value}' names none of the files ({listed}) while the "
                 f"{OPTION[next(iter(found))]} names one: name each role's file, {OPTION[role]}=FILE "
                 f"(a file of one column) or {OPTION[role]}=FILE:COLUMN"
             )
     used = {p for p, _ in found.values()}
-    for p in paths:
+    for p in files:
         if p not in used:
             named = ",".join(f"{OPTION[r]}={roles[r]}" for r in found)
             raise InputError(

@@ -79,7 +79,9 @@ def _pairs(text: Any, what: str, kind: str, example: str) -> dict[str, str]:
 
 def _split(text: str, what: str) -> list[str]:
     """``text`` cut at commas outside double quotes."""
-    entries, current, quoted = [], [], False
+    entries: list[str] = []
+    current: list[str] = []
+    quoted = False
     for char in text:
         if char == '"':
             quoted = not quoted
@@ -146,6 +148,7 @@ def parse_sample_range(value: Any) -> tuple[int | None, int | None]:
     def whole(v: Any) -> bool:
         return v is None or (isinstance(v, numbers.Integral) and not isinstance(v, bool))
 
+    bounds: tuple[int | None, ...]
     if isinstance(value, slice) and value.step in (None, 1) and whole(value.start) and whole(value.stop):
         bounds = (value.start, value.stop)
     else:
@@ -166,7 +169,7 @@ def parse_sample_range(value: Any) -> tuple[int | None, int | None]:
 
 
 def range_bounds(
-    path: pathlib.Path, value: Any, bounds: tuple[int | None, int | None], n: int
+    path: str | pathlib.Path, value: Any, bounds: tuple[int | None, int | None], n: int
 ) -> tuple[int, int]:
     """``(start, stop)`` of a parsed sample range in a file of ``n`` samples, checked."""
     start = 0 if bounds[0] is None else bounds[0]

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import pathlib
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -326,7 +327,7 @@ class Recording:
     # -------------------------------------------------------------------- I/O
 
     @classmethod
-    def load(cls, path: str | pathlib.Path, *, require_w: bool = True, **mapping: Any) -> Recording:
+    def load(cls, path: str | os.PathLike[str], *, require_w: bool = True, **mapping: Any) -> Recording:
         """Read a recording from a ``.csv``, ``.npz`` or ``.mat`` file.
 
         With any of ``input``, ``output``, ``columns``, ``time``, ``rate``,
@@ -357,7 +358,7 @@ class Recording:
         if mapping:
             from ._mapping import load_mapped  # it builds Recordings: imported here, not at the top
 
-            unknown = not mapping.keys() <= load_mapped.__kwdefaults__.keys()  # its TypeError
+            unknown = not mapping.keys() <= (load_mapped.__kwdefaults__ or {}).keys()  # its TypeError
             if unknown or any(value is not None for value in mapping.values()):
                 return load_mapped(path, require_w=require_w, **mapping)
         path = path_argument(path, "Recording.load")

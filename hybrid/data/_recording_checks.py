@@ -169,10 +169,10 @@ def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarr
             "gap (Recording.segment) or fill the missing frames"
         )
     short = np.flatnonzero(dt < step / GAP_FRAMES)
-    k = np.arange(t.size, dtype=np.float64)
-    k_mean, t_mean = float(np.mean(k)), float(np.mean(t))
-    slope = float(np.sum((k - k_mean) * (t - t_mean)) / np.sum((k - k_mean) ** 2))
-    grid = (t_mean - slope * k_mean) + slope * k
+    frame = np.arange(t.size, dtype=np.float64)
+    k_mean, t_mean = float(np.mean(frame)), float(np.mean(t))
+    slope = float(np.sum((frame - k_mean) * (t - t_mean)) / np.sum((frame - k_mean) ** 2))
+    grid = (t_mean - slope * k_mean) + slope * frame
     jitter = t - grid
     far = int(np.argmax(np.abs(jitter)))
     worst_jitter = abs(float(jitter[far]))

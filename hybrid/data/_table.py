@@ -39,7 +39,7 @@ import difflib
 import math
 import pathlib
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -165,7 +165,9 @@ def _read_csv(
                 if name.lower() in RATE_FIELDS and i not in index.values() and header.count(name) == 1
             }
             usecols = [*index.values(), *fields.values()]
-            lenient = {i: _lenient for i in fields.values()} or None
+            lenient: dict[int | str, Callable[[str], float]] | None = {
+                i: _lenient for i in fields.values()
+            } or None
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
                 table = np.loadtxt(

@@ -47,7 +47,8 @@ def _save_csv(recording: Recording, path: pathlib.Path, meta_path: pathlib.Path 
 
 
 def _save_npz(recording: Recording, path: pathlib.Path) -> None:
-    arrays = {"t": recording.t, "v_in": recording.v_in, "w": recording.w}
+    # Any: numpy's stub checks **arrays against savez's `allow_pickle: bool` too
+    arrays: dict[str, Any] = {"t": recording.t, "v_in": recording.v_in, "w": recording.w}
     arrays |= {NPZ_EXTRA + c: v for c, v in recording.extra.items()}
     arrays["metadata"] = np.array(json.dumps(recording.metadata))
     with open(path, "wb") as handle:  # an open file stops numpy appending .npz

@@ -116,28 +116,28 @@ def staged(*targets) -> Iterator[list[Path]]:
 
     **Yields:** a list of temporary paths, one per target.
     """
-    targets = [Path(t) for t in targets]
+    paths = [Path(t) for t in targets]
     temporaries: list[Path] = []
     try:
-        for target in targets:
+        for target in paths:
             fd, name = tempfile.mkstemp(
                 prefix=f".{target.name}.", suffix=TEMPORARY_SUFFIX + target.suffix, dir=target.parent
             )
             os.close(fd)
             temporaries.append(Path(name))
         yield temporaries
-        for temporary, target in zip(temporaries, targets):
+        for temporary, target in zip(temporaries, paths):
             _fsync(temporary)
             os.chmod(temporary, _mode(target))
-        for temporary, target in zip(temporaries, targets):
+        for temporary, target in zip(temporaries, paths):
             os.replace(temporary, target)
-        for folder in {t.parent for t in targets}:
+        for folder in {t.parent for t in paths}:
             _fsync_folder(folder)
     except OSError as error:
         _remove(temporaries)
         reason = error.strerror or str(error)
         raise InputError(
-            f"cannot write {describe_targets(targets)}: {reason}; nothing was changed at {targets[0]} "
+            f"cannot write {describe_targets(paths)}: {reason}; nothing was changed at {paths[0]} "
             "(free some space or choose another folder with write permission)"
         ) from None
     except BaseException:
@@ -148,12 +148,11 @@ def staged(*targets) -> Iterator[list[Path]]:
 @contextlib.contextmanager
 def atomic_open(target, mode: str = "w", *, encoding: str = "utf-8", newline: str | None = None):
     """A file handle whose content replaces `target` only once it is written whole (see [`staged`][])."""
-    if "b" in mode:
-        kwargs = {}
-    else:
-        kwargs = {"encoding": encoding, "newline": newline}
+    binary = "b" in mode  # binary files take no encoding and no newline
     with staged(target) as (temporary,):
-        with open(temporary, mode, **kwargs) as handle:
+        with open(
+            temporary, mode, encoding=None if binary else encoding, newline=None if binary else newline
+        ) as handle:
             yield handle
 
 
