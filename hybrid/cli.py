@@ -520,7 +520,8 @@ def main(argv=None) -> int:
 
     jax.config.update("jax_enable_x64", True)  # the entry point chooses float64
     _use_compilation_cache(jax)
-    args, ctrl_c = None, []
+    args = None
+    ctrl_c: list[int] = []  # the signals _sigint_watch saw
     try:
         with _sigint_watch(ctrl_c), exit_guard():
             args = build_parser().parse_args(argv)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import ClassVar
+from typing import ClassVar, Self
 
 import equinox as eqx
 import jax
@@ -64,7 +64,7 @@ class AbstractSimulation(eqx.Module):
         """Physical values of the parameters, by name (units in `units`)."""
         return decode(self.raw, self.constraints)
 
-    def replace(self, **values) -> AbstractSimulation:
+    def replace(self, **values) -> Self:
         """A copy with some parameters set to new physical values."""
         current = dict(self.parameters())
         unknown = set(values) - set(current)

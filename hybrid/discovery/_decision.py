@@ -10,6 +10,7 @@ the baseline on training data.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -19,6 +20,7 @@ from ..core._metrics import metrics as compute_metrics
 from ..core._models import Model
 from . import residual_tests as rt
 from ._diagnosis import Candidate
+from ._effect_stack import EffectStack
 from ._effects import FrameTiming
 from ._search import predictions
 
@@ -26,7 +28,7 @@ from ._search import predictions
 def derived_quantities(problem, theta, active) -> dict:
     model = problem.model(theta)
     stack = eqx.tree_at(lambda s: s.active, model.simulation, jnp.asarray(active))
-    out = {}
+    out: dict[str, Any] = {}
     for series in problem.series:
         for name, values in stack.derived(series.v_in, series.dt, n=series.n_recorded).items():
             out.setdefault(name, values)
@@ -100,6 +102,7 @@ def free_names(problem_model: Model, frozen, active_effects):
     """Names fitted with `active_effects` (None, a name or a tuple of names) switched on."""
     active = {active_effects} if isinstance(active_effects, str) else set(active_effects or ())
     stack = problem_model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     names = [n for n in stack.inner.parameter_names() if n not in frozen]
     for effect in stack.effects:
         if effect.name in active or effect.name == FrameTiming.name:

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -74,7 +75,7 @@ from ._search import (
     with_active,
 )
 from ._starts import N_SCREEN, baseline_starts
-from ._step import Search, search_step
+from ._step import Search, Step, search_step
 from ._unexplained import pooled_noise_floor, remainder
 
 #: Spread (std) of w and v_in that `diagnose` takes, in any unit: it fits in the recording's own units.
@@ -168,10 +169,9 @@ def diagnose(
             "diagnose needs a simulation: pass simulation=hybrid.RCNetwork(method='zoh') (the paper's "
             "physics) or any AbstractSimulation, or use hybrid.diagnose, which defaults to the RC network"
         )
-    settings = dataclasses.replace(
-        settings, frozen=settings.frozen_for(simulation)
-    )  # the report shows what was fixed
-    frozen = frozenset(settings.frozen)
+    frozen_names = settings.frozen_for(simulation)
+    settings = dataclasses.replace(settings, frozen=frozen_names)  # the report shows what was fixed
+    frozen = frozenset(frozen_names)
     problem, n_rows, model, series = lanes_problem(recordings, simulation, settings)
     lm = LMSettings(max_steps=settings.max_steps)
     if DIAGNOSE_PROGRAMS.admit(shape_key(problem, lm)) and progress:  # a long session never runs out of maps
@@ -233,7 +233,8 @@ def diagnose(
         float(base_states.best_val[best]),
         list(base_states.best_theta),
     )
-    steps, present = [], ()
+    steps: list[Step] = []
+    present: tuple[str, ...] = ()
     while len(present) < min(settings.max_causes, len(EFFECTS)):
         step = search_step(search, current, current_val, current_fits, present)
         steps.append(step)
@@ -251,6 +252,7 @@ def diagnose(
     v_te, w_te, w_hat_base = split_signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = split_signals(problem, extended.theta, extended.active, "test")
     final = search.problem_for(len(present))
+    assert final.sim_tangents is not None  # a search problem always has its directions
     fitted = with_active(
         final,
         jnp.asarray(extended.active, float),
@@ -323,7 +325,7 @@ def hybrid_fits(recordings, simulation, extended, problem, causes, settings, max
     from ..core._fit import fit
     from ..core._models import make_model
 
-    out = {}
+    out: dict[str, Any] = {}
     variants = [("baseline", simulation)]
     if causes:
         variants.append(("extended", fitted_model(problem, extended.theta, causes).simulation))

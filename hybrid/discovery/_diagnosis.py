@@ -9,10 +9,14 @@ effect's extended fit with its evidence), `Diagnosis` (the answer;
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ._effects import EFFECTS
+
+if TYPE_CHECKING:
+    from ._noise_floor import NoiseFloor
 
 #: Names `diagnose` can return: an effect of `hybrid.discovery._effects`, or "none".
 CAUSES = ("none",) + tuple(EFFECTS)
@@ -152,7 +156,7 @@ class Diagnosis:
     #: ``current`` (the Candidate it extended) and ``candidates`` (weighed against it).
     steps: list = dataclasses.field(default_factory=list)
     #: The measurement noise of w, from the recordings alone (`NoiseFloor`).
-    noise_floor: object = None
+    noise_floor: NoiseFloor | None = None
     #: None when the final model reaches the noise floor, else how much of its
     #: held-out error lies above it and where (see `hybrid.discovery._unexplained`).
     unexplained: dict | None = None

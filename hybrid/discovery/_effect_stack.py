@@ -50,7 +50,7 @@ class EffectStack(AbstractWrapper):
             if isinstance(effect, str):
                 if effect not in EFFECTS:
                     raise InputError(f"unknown effect {effect!r}: choose from {', '.join(EFFECTS)}")
-                effect = EFFECTS[effect]()
+                effect = EFFECTS[effect]()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg
             if not isinstance(effect, AbstractEffect):
                 raise InputError(f"effects must be effect names or AbstractEffect instances, got {effect!r}")
             built.append(effect)
@@ -67,8 +67,8 @@ class EffectStack(AbstractWrapper):
                 f"active needs one switch per effect ({len(built)}), got shape {self.active.shape}"
             )
 
-    @property
-    def raw(self) -> dict[str, Array]:
+    @property  # type: ignore[misc]  # equinox: AbstractVar `raw` may be implemented by a property
+    def raw(self) -> dict[str, Array]:  # type: ignore[override]  # (mypy sees a plain field)
         """Every unconstrained value, inner and effects (read-only view)."""
         out = dict(self.inner.raw)
         for effect in self.effects:

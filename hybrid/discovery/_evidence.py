@@ -9,6 +9,7 @@ the baseline and the extended model).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -25,6 +26,7 @@ def fitted_model(problem: Problem, theta, causes) -> Model:
     causes = {causes} if isinstance(causes, str) else set(causes)
     model = problem.model(jnp.asarray(theta))
     stack = model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     effects = tuple(e for e in stack.effects if e.name in causes or e.name == FrameTiming.name)
     simulation = EffectStack(stack.inner, effects)
     return Model(simulation, model.readout, "physics")
@@ -65,7 +67,9 @@ def parameter_uncertainties(problem: Problem, theta, residual_heldout, keep=None
         for name, std in covariance.std_errors.items()
         if name in keep
     }
-    network = set(model.simulation.inner.parameter_names())
+    stack = model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
+    network = set(stack.inner.parameter_names())
     rest = [i for i, name in enumerate(covariance.names) if name not in network and name in keep]
     if rest:
         fisher = covariance.fisher[np.ix_(rest, rest)]
@@ -79,7 +83,11 @@ def parameter_uncertainties(problem: Problem, theta, residual_heldout, keep=None
 
 def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> dict:
     """Residual statistics of the baseline and the extended model on held-out data."""
-    out = {"n_heldout": int(len(w)), "rate_hz": float(rate), "bound_99": rt.confidence_bound(len(w))}
+    out: dict[str, Any] = {
+        "n_heldout": int(len(w)),
+        "rate_hz": float(rate),
+        "bound_99": rt.confidence_bound(len(w)),
+    }
     for key, w_hat in (("baseline", w_hat_base), ("extended", w_hat_ext)):
         e = w - w_hat
         lags, ccf = rt.cross_correlation(e, v, max_lag)

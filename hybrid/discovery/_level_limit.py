@@ -25,6 +25,8 @@ tank overflows), so the sentence says where it is seen, not what causes it.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 TOLERANCE = 0.5  # noise standard deviations from the extreme that count as "at" it
@@ -72,7 +74,7 @@ def level_limits(parts: list[dict], floor_variance) -> dict:
     sd = max(
         sd if np.isfinite(sd) else 0.0, quantum / np.sqrt(12.0), 1e-9 * max(float(np.ptp(w_all)), 1e-300)
     )
-    out = {"noise_sd": float(sd), "quantum": quantum}
+    out: dict[str, Any] = {"noise_sd": float(sd), "quantum": quantum}
     for side, sign in (("top", 1.0), ("bottom", -1.0)):
         level = float(np.max(sign * w_all))  # in sign-flipped units: the extreme is a maximum
         runs, model = [], []

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -193,8 +194,8 @@ def repeat_variance(w: np.ndarray, v_in: np.ndarray, min_period: int = 8) -> tup
     tol = 1e-9 * span
     head = min(64, n // 3)
     # Candidates: lags at which the drive's first samples come back (cheap), then the whole check.
-    for period in np.nonzero(np.abs(v[min_period : n // 3 + 1] - v[0]) <= tol)[0] + min_period:
-        period = int(period)
+    for lag in np.nonzero(np.abs(v[min_period : n // 3 + 1] - v[0]) <= tol)[0] + min_period:
+        period = int(lag)
         if np.max(np.abs(v[period : period + head] - v[:head])) > tol:
             continue
         if np.max(np.abs(v[period:] - v[:-period])) <= tol:
@@ -210,7 +211,12 @@ def repeat_variance(w: np.ndarray, v_in: np.ndarray, min_period: int = 8) -> tup
 
 def _estimators(rate: float) -> dict:
     """Each model-free estimator by name: (w, v_in) -> σ²."""
-    out = {f"differences_{k}": (lambda w, v, k=k: difference_variance(w, k)) for k in DIFFERENCE_ORDERS}
+    Estimator = Callable[[np.ndarray, np.ndarray], float]
+
+    def differences(order: int) -> Estimator:
+        return lambda w, v: difference_variance(w, order)
+
+    out: dict[str, Estimator] = {f"differences_{k}": differences(k) for k in DIFFERENCE_ORDERS}
     out["spectrum"] = lambda w, v: spectral_variance(w, rate)
     out["repeats"] = lambda w, v: repeat_variance(w, v)[0]
     return out
@@ -225,14 +231,14 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
     if not np.isfinite(estimates["repeats"]):
         del estimates["repeats"]  # the drive does not repeat itself
     finite = {k: v for k, v in estimates.items() if np.isfinite(v)}
-    method = min(finite, key=finite.get)
+    method = min(finite, key=finite.__getitem__)
     variance = finite[method]
     # Spread over blocks: the chosen estimator on each contiguous block.
-    per_block = [
+    on_blocks = [
         estimators[method](part_w, part_v)
         for part_w, part_v in zip(np.array_split(w, blocks), np.array_split(v_in, blocks))
     ]
-    per_block = np.asarray([x for x in per_block if np.isfinite(x)])
+    per_block = np.asarray([x for x in on_blocks if np.isfinite(x)])
     std_error = (
         float(np.std(per_block, ddof=1) / math.sqrt(per_block.size)) if per_block.size > 1 else float("nan")
     )

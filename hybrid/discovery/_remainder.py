@@ -42,6 +42,8 @@ time, dynamic), or "unstructured" below 20 % of the excess (2 % of the MSE).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.optimize
 
@@ -147,7 +149,8 @@ class _Judge:
 
 def _drive_shape(tr, centres, values) -> dict:
     """Even/odd split, one-sidedness, flat near zero and bend at the ends of the drive map."""
-    v, out = tr["v_in"], {}
+    v = tr["v_in"]
+    out: dict[str, Any] = {}
     vmax = float(np.max(np.abs(v)))
     a = min(float(v.max()), float(-v.min()))
     if a <= 0.1 * vmax:
@@ -173,15 +176,15 @@ def _drive_shape(tr, centres, values) -> dict:
             "flag": bool(ratio >= 3),
         }
     near = np.abs(v) <= 0.25 * vmax
-    ratios = {}
+    ratios: dict[str, float | None] = {}
     for name, y in (("recording", tr["w"]), ("model", tr["w_hat"])):
         inner = _slope(v[near], y[near])
         outer = _slope(v[~near], y[~near], (v[~near] > 0).astype(float))
         ratios[name] = inner / outer if inner is not None and outer not in (None, 0.0) else None
-    if None in ratios.values() or np.std(v[near]) < 0.05 * 0.25 * vmax:
+    rec, mod = ratios["recording"], ratios["model"]
+    if rec is None or mod is None or np.std(v[near]) < 0.05 * 0.25 * vmax:
         out["flat_near_zero"] = {"reason": "too few distinct drive levels near zero"}
     else:
-        rec, mod = ratios["recording"], ratios["model"]
         which = "recording" if rec < 0.4 and mod > 0.6 else "model" if mod < 0.4 and rec > 0.6 else None
         out["flat_near_zero"] = {
             "recording": _num(rec),
@@ -190,7 +193,7 @@ def _drive_shape(tr, centres, values) -> dict:
             "flag": which is not None,
         }
     gain = _slope(v, tr["w_hat"])
-    bend = {}
+    bend: dict[str, float | None] = {}
     for side, s in (("positive", 1.0), ("negative", -1.0)):
         x = s * v
         top = float(x.max()) if len(x) else 0.0
@@ -199,7 +202,7 @@ def _drive_shape(tr, centres, values) -> dict:
         bend[side] = _num((se - sm) / gain) if top > 0 and None not in (sm, se) and gain else None
     found = [b for b in bend.values() if b is not None]
     out["bend_at_ends"] = (
-        dict(bend, flag=bool(max(abs(b) for b in found) > 0.25))
+        {**bend, "flag": bool(max(abs(b) for b in found) > 0.25)}
         if found
         else {"reason": "too few distinct drive levels at the ends"}
     )
@@ -306,24 +309,26 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
 
     # Rate: dv/dt within segments (no prediction for the first sample of a run).
     ktr, kho = np.flatnonzero(tr["pos"] >= 1), np.flatnonzero(ho["pos"] >= 1)
+    rate_part: dict[str, Any]
     if len(ktr) < MIN_SAMPLES or len(kho) < MIN_SAMPLES:
         rate_part = {"reason": "too few samples inside segments to take differences"}
     else:
         c3, m3, _ = _binned((tr["v_in"][ktr] - tr["v_in"][ktr - 1]) * rate, tr["r"][ktr], bins)
         pred = np.zeros(n_ho)
         pred[kho] = _interp((ho["v_in"][kho] - ho["v_in"][kho - 1]) * rate, c3, m3)
-        rate_part = dict(judge(pred), curve={"dv_dt": _list(c3), "r": _list(m3)})
+        rate_part = {**judge(pred), "curve": {"dv_dt": _list(c3), "r": _list(m3)}}
         scores["rate"] = rate_part
 
     # Time: a cubic in absolute time, scaled on the training span.
     t0, t1 = float(tr["t"].min()), float(tr["t"].max())
+    time_part: dict[str, Any]
     if t1 <= t0:
         time_part = {"reason": "the training samples share one time stamp"}
     else:
         scale = lambda t: (2.0 * t - t0 - t1) / (t1 - t0)
         coef = np.polynomial.polynomial.polyfit(scale(tr["t"]), tr["r"], 3)
         held = np.clip(scale(ho["t"]), -1.0, 1.0)  # constant beyond the training span, never extrapolated
-        time_part = dict(judge(np.polynomial.polynomial.polyval(held, coef)), degree=3)
+        time_part = {**judge(np.polynomial.polynomial.polyval(held, coef)), "degree": 3}
         scores["time"] = time_part
 
     # Linear filter: lagged drive and lagged model output.

@@ -53,8 +53,10 @@ def lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
     `effects`: None, one effect's name, or a tuple of names (the effects a lane fits).
     """
     effects = () if effects is None else (effects,) if isinstance(effects, str) else tuple(effects)
-    labels = simulation_labels(model.simulation, frozen)
-    wanted = [n for n in model.simulation.inner.parameter_names() if n not in frozen]
+    stack = model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
+    labels = simulation_labels(stack, frozen)
+    wanted = [n for n in stack.inner.parameter_names() if n not in frozen]
     wanted += [n for n in FrameTiming.constraints if n not in frozen]
     for effect in effects:
         wanted += [n for n in EFFECTS[effect].constraints if n not in frozen]
@@ -99,14 +101,16 @@ def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[P
     `max_causes` effects with the most parameters, so that every step of the
     search runs the same compiled programs.
     """
-    simulation = model.simulation.inner
+    stack = model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
+    simulation = stack.inner
     sizes = sorted((len(e.constraints) for e in EFFECTS.values()), reverse=True)
     n_rows = (
         len([n for n in simulation.parameter_names() if n not in frozen])
         + len(FrameTiming.constraints)
         + sum(sizes[: max(max_causes, 1)])
     )
-    n_sim = len(simulation_labels(model.simulation, frozen))
+    n_sim = len(simulation_labels(stack, frozen))
     return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
 
 

@@ -34,6 +34,7 @@ from ..core._problem import Problem
 from . import residual_tests as rt
 from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings
+from ._effect_stack import EffectStack
 from ._effects import EFFECTS
 from ._search import (
     best_lag,
@@ -134,13 +135,16 @@ def search_step(
     s, settings = search, search.settings
     names = list(EFFECTS)
     problem = s.problem_for(len(present) + 1)
+    assert problem.sim_tangents is not None  # a search problem always has its directions
     n_rows = int(problem.sim_tangents.shape[0])
     active_cur = np.asarray(current.active, float)
     theta_cur = current.theta
     cur_tangents = lane_tangents(s.model, s.frozen, present, n_rows)
     cur_model = problem.model(jnp.asarray(theta_cur))
+    stack = cur_model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
 
-    bare = cur_model.simulation.with_active(np.zeros_like(active_cur))  # the inner simulation alone
+    bare = stack.with_active(np.zeros_like(active_cur))  # the inner simulation alone
     s_train = simulation_output(problem, bare, cur_model.readout, s.frozen, "train")
     _, w_tr, w_hat_tr = split_signals(problem, theta_cur, active_cur, "train")
     lag = best_lag(w_tr, w_hat_tr, max_lag=20)
@@ -165,7 +169,7 @@ def search_step(
         for values in effect_starts(name, s_train, s.rate, lag, peak, s.duration) + screened.get(name, []):
             active = active_cur.copy()
             active[i] = 1.0
-            starts.append(cur_model.simulation.replace(**values).with_active(active))
+            starts.append(stack.replace(**values).with_active(active))
             actives.append(active)
             labels.append(name)
             tangents.append(lane_tangents(s.model, s.frozen, present + (name,), n_rows))

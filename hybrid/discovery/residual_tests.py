@@ -110,18 +110,18 @@ def loops(residual, drive, bins: int = 12) -> dict:
     direction = travel_direction(drive)
     edges = np.linspace(drive.min(), drive.max() + 1e-12, bins + 1)
     which = np.clip(np.digitize(drive, edges) - 1, 0, bins - 1)
-    out = {"centres": 0.5 * (edges[1:] + edges[:-1])}
+    out: dict[str, np.ndarray | float] = {"centres": 0.5 * (edges[1:] + edges[:-1])}
+    by_way: dict[str, np.ndarray] = {}
     for name, sign in (("rising", 1.0), ("falling", -1.0)):
         means = np.full(bins, np.nan)
         for b in range(bins):
             sel = (which == b) & (direction == sign)
             if sel.sum() >= 3:
                 means[b] = residual[sel].mean()
-        out[name] = means
-    both = np.isfinite(out["rising"]) & np.isfinite(out["falling"])
-    out["separation"] = (
-        float(np.sqrt(np.mean((out["rising"][both] - out["falling"][both]) ** 2))) if both.any() else 0.0
-    )
+        out[name] = by_way[name] = means
+    rising, falling = by_way["rising"], by_way["falling"]
+    both = np.isfinite(rising) & np.isfinite(falling)
+    out["separation"] = float(np.sqrt(np.mean((rising[both] - falling[both]) ** 2))) if both.any() else 0.0
     return out
 
 

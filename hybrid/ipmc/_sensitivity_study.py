@@ -168,7 +168,7 @@ def run_sensitivity_study(
     best_drive = {}
     for p in by_drive[primary]["relative_std_error"]:
         candidates = {d: by_drive[d]["relative_std_error"][p] for d in DRIVE_ORDER}
-        best_drive[p] = min(candidates, key=candidates.get)
+        best_drive[p] = min(candidates, key=candidates.__getitem__)
 
     frequency = np.logspace(np.log10(0.002), np.log10(0.5 * settings.rate * 0.99), 200)
     freq = S.frequency_sensitivity(network, frequency)
@@ -198,7 +198,7 @@ def run_sensitivity_study(
         "frequency_peaks": peaks,
         "sobol": sobol,
         "settings": dataclasses.asdict(settings),
-        "x64": bool(jax.config.jax_enable_x64),
+        "x64": bool(jax.config.read("jax_enable_x64")),
     }
     _figures(out_dir, vo_sens[primary], idents, freq, by_drive, primary)
     result["seconds"] = time.perf_counter() - t_start

@@ -129,24 +129,25 @@ def reproduce_table2(
         rows[row] = _row(results)
         details[row] = {k: r.to_dict() for k, r in results.items()}
     rows["Average"] = {key: float(np.mean([rows[r][key] for r, _ in ROWS])) for key in rows["PRBS"]}
+    seconds = time.perf_counter() - t0
     table = {
         "rows": rows,
         "split": "test (the middle 50 % of each recording; train 30 % first, validation 20 % last)",
         "settings": dataclasses.asdict(settings),
         "virtual_ipmc": dataclasses.asdict(VirtualIPMCParameters(**settings.virtual_ipmc)),
         "fits": details,
-        "seconds": time.perf_counter() - t0,
+        "seconds": seconds,
         "command": "make demo  (python experiments/table2.py)",
     }
     write_text(out_dir / "table2.json", json.dumps(table, indent=2, default=str))
-    write_text(out_dir / "table2.md", markdown_table(rows, table["seconds"]))
+    write_text(out_dir / "table2.md", markdown_table(rows, seconds))
     from ..util._figures import plot_fit_figure, plot_mediatory_figure
 
     plot_mediatory_figure(recordings["PRBS"], fits["PRBS"]["hybrid"].model, out_dir / "fig3_mediatory.png")
     for row, filename in FIGURES.items():
         plot_fit_figure(recordings[row], fits[row], row, out_dir / filename)
     if progress:
-        print(markdown_table(rows, table["seconds"]))
+        print(markdown_table(rows, seconds))
     return table
 
 

@@ -184,7 +184,7 @@ class LTI(AbstractSimulation):
         return eqx.tree_at(lambda s: s.raw, self, raw)
 
     # --- the system ---------------------------------------------------------------------
-    def state_space(self):
+    def state_space(self) -> tuple[Array, Array, Array, Array]:
         """Continuous realisation (A, B, C, D): block diagonal A, one block per section."""
         p = self.parameters()
         dtype = p["direct"].dtype

@@ -149,7 +149,8 @@ def _plugin_frames(error: BaseException):
 
 
 def _chain(error: BaseException):
-    seen, todo = [], [error]
+    seen: list[BaseException] = []
+    todo: list[BaseException | None] = [error]
     while todo and len(seen) < 20:
         current = todo.pop(0)
         if current is None or any(current is s for s in seen):
@@ -264,7 +265,7 @@ def _module_from_file(text: str, where: str):
     if spec is None or spec.loader is None:
         raise InputError(f"--physics {text}: {where} cannot be imported as a Python module: check its name")
     module = importlib.util.module_from_spec(spec)
-    module.__hybrid_plugin_mtime__ = stamp
+    module.__dict__["__hybrid_plugin_mtime__"] = stamp
     sys.modules[name] = module
     _register(name, text)
     try:
@@ -347,7 +348,7 @@ def _instantiate(text: str, module, label: str, name: str) -> AbstractSimulation
     if module.__name__ != cls.__module__:
         _register(module.__name__, text)
     try:
-        simulation = cls()
+        simulation = cls()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg
     except KeyboardInterrupt:
         raise
     except BaseException as error:
@@ -382,6 +383,7 @@ def _check(text: str, name: str, simulation: AbstractSimulation) -> None:
             f"--physics {text}: {name} needs a class-level dict constraints with an entry "
             f"(Positive(), Real(), UnitInterval(), ...) for each parameter {names}"
         )
+    assert units is not None  # constraints is a dict here
     missing = [k for k in names if k not in units]
     if missing:
         raise InputError(

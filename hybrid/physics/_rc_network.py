@@ -196,7 +196,7 @@ class RCNetwork(AbstractSimulation):
         s = 2j * jnp.pi * jnp.asarray(frequency)[..., None]
         return jnp.prod(G * (s + Z) / (s + P), axis=-1)
 
-    def state_space(self):
+    def state_space(self) -> tuple[Array, Array, Array, Array]:
         """Continuous realisation (A, B, C, D) of the cascade, one state per section.
 
         Section k: ẋ_k = −P_k x_k + u_k, y_k = G_k (Z_k − P_k) x_k + G_k u_k, and
