@@ -231,6 +231,8 @@ def _read_stream(data, start: int, end: int, head: _Headers) -> None:
 
 def _indexed_chunks(data, head: _Headers, ids: tuple[bytes, ...]) -> list[AviChunk] | None:
     """Frame chunks from ``idx1`` (numbered), or None if the index is unusable."""
+    if head.idx1 is None:
+        return None
     offset, size = head.idx1
     entries = [struct.unpack_from("<4sIII", data, offset + 16 * i) for i in range(size // 16)]
     video = [(cid, off, length) for cid, _flags, off, length in entries if cid in ids]

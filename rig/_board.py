@@ -151,7 +151,7 @@ class Board(SerialLink):
 
     def play(
         self,
-        codes: Sequence[int],
+        codes: Sequence[int] | np.ndarray,
         on_progress: Callable[[PlayReport], None] | None = None,
         should_stop: Callable[[], bool] | None = None,
         prefill: int | None = None,
@@ -179,16 +179,16 @@ class Board(SerialLink):
         """
         if self.timing is None:
             raise RigError("configure the board (rate, idle code) before playing")
-        codes = np.asarray(codes)
-        if codes.ndim != 1 or len(codes) == 0:
+        given = np.asarray(codes)
+        if given.ndim != 1 or len(given) == 0:
             raise RigError("play needs a non-empty 1-D sequence of DAC codes")
-        if np.any((codes < 0) | (codes > P.CODE_MAX)) or not np.all(codes == np.round(codes)):
+        if np.any((given < 0) | (given > P.CODE_MAX)) or not np.all(given == np.round(given)):
             raise RigError(f"DAC codes must be integers in 0..{P.CODE_MAX}")
-        codes = codes.astype(np.int64)
-        n = len(codes)
+        dac = given.astype(np.int64)
+        n = len(dac)
         report = PlayReport(n=n, timing=self.timing)
         try:
-            self._play(codes, report, on_progress, should_stop, prefill, silence_timeout, on_start)
+            self._play(dac, report, on_progress, should_stop, prefill, silence_timeout, on_start)
         except RigError as error:
             report.error = str(error)
             report.bad_frames_host = self.parser.bad_frames

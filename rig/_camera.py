@@ -95,7 +95,9 @@ class VideoSource:
             self.time_base = "AVI index: frame number / fps"
             self._chunks = self._avi.frames()
         else:
-            if not self.capture.isOpened():
+            capture = self.capture
+            assert capture is not None  # no AVI reader: OpenCV's, opened above
+            if not capture.isOpened():
                 kind = "video file" if is_file else "camera"
                 raise RigError(
                     f"{kind} '{source}' cannot be opened by OpenCV: "
@@ -105,10 +107,10 @@ class VideoSource:
                         else "is it connected and not used by another program?"
                     )
                 )
-            reported = self.capture.get(cv2.CAP_PROP_FPS)
+            reported = capture.get(cv2.CAP_PROP_FPS)
             self.fps = float(reported) if reported and 1.0 <= reported <= 1000.0 else float(fps)
             if is_file:
-                count = self.capture.get(cv2.CAP_PROP_FRAME_COUNT)
+                count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
                 self.expected_frames = int(count) if count and count > 0 else None
                 self.time_base = "decoder timestamps (CAP_PROP_POS_MSEC)"
             else:
@@ -139,11 +141,13 @@ class VideoSource:
         self._first_read = False
         if self._avi is not None:
             t = self._avi_time(number)
-        elif self.is_file:
-            t = self._decoder_time(self.capture.get(cv2.CAP_PROP_POS_MSEC))
         else:
+            assert self.capture is not None  # no AVI reader: OpenCV's
             msec = self.capture.get(cv2.CAP_PROP_POS_MSEC)
-            t = msec / 1000.0 if msec and msec > 0 else time.monotonic() - self._t0
+            if self.is_file:
+                t = self._decoder_time(msec)
+            else:
+                t = msec / 1000.0 if msec and msec > 0 else time.monotonic() - self._t0
         self._last_t = t
         frame = Frame(self.index, t, image)
         self.index += 1

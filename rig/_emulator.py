@@ -21,6 +21,7 @@ import struct
 import threading
 import time
 import tty
+from collections.abc import Callable
 
 from . import protocol as P
 
@@ -51,7 +52,8 @@ class EmulatedBoard:
         self.dac_log: list[tuple[float, int]] = []
         self.led_log: list[tuple[float, int]] = []
         self.corrupt_tx = 0
-        self.fault_at: tuple[int, object] | None = None  # (samples played, callable(board)) for tests
+        # (samples played, action(board)) for tests
+        self.fault_at: tuple[int, Callable[[EmulatedBoard], object]] | None = None
         self._t0 = time.monotonic()
         self._stop = threading.Event()
         self._power_up()

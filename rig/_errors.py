@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from hybrid import InputError
+
+if TYPE_CHECKING:
+    from ._playback import PlayReport
 
 __all__ = ["RigError", "Terminated"]
 
@@ -13,6 +18,10 @@ class RigError(InputError):
     A subclass of `hybrid.InputError`, so the command line prints it as
     one line and exits with status 2.
     """
+
+    #: The partial report of a failed `Board.play`, attached there (an annotation only:
+    #: other RigErrors have no such attribute, so read it with ``getattr(error, "report", None)``).
+    report: PlayReport
 
 
 class Terminated(KeyboardInterrupt):

@@ -12,11 +12,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TypeVar
 
 from . import protocol as P
 from ._errors import RigError
 
 __all__ = ["BAUD", "SerialLink"]
+
+#: A kind of message `_wait_for` waits for.
+M = TypeVar("M", bound=P.Message)
 
 #: UART speed of the firmware: exact at 16 MHz (U2X, UBRR0 = 7).
 BAUD = 250000
@@ -87,11 +91,11 @@ class SerialLink:
 
     def _wait_for(
         self,
-        kinds: tuple[type, ...],
+        kinds: tuple[type[M], ...],
         what: str,
         timeout: float | None = None,
         on_other: Callable | None = None,
-    ) -> P.Message:
+    ) -> M:
         deadline = time.monotonic() + (self.reply_timeout if timeout is None else timeout)
         while time.monotonic() < deadline:
             for message in self.receive():

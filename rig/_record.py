@@ -88,17 +88,17 @@ class _Writer:
         self.metadata = metadata
         self.rows = 0
         self._saved = 0.0
-        self.handle = None
+        handle = None
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            self.handle = open(path, "x", newline="")
-            self.handle.write(",".join(columns) + "\n")
-            self.handle.flush()
+            self.handle = handle = open(path, "x", newline="")
+            handle.write(",".join(columns) + "\n")
+            handle.flush()
             self.save_metadata(force=True)
         except (OSError, InputError) as error:
-            if self.handle is not None:
+            if handle is not None:
                 with contextlib.suppress(OSError):
-                    self.handle.close()
+                    handle.close()
                 for made in (path, self.sidecar):
                     with contextlib.suppress(OSError):
                         made.unlink()
@@ -279,7 +279,7 @@ def record(
     sync_t = None
     done_slots = -1
     error: BaseException | None = None
-    unsaved: InputError | None = None
+    unsaved: InputError | OSError | None = None
 
     def schedule():
         rep = result.get("report") or (report_box[0] if report_box else None)
@@ -426,7 +426,8 @@ def record(
             raise RigError(f"{error}; {kept}") from None
         if isinstance(error, (OSError, ValueError)):
             raise RigError(f"{type(error).__name__}: {error}; {kept}") from None
-        error.kept = kept  # Ctrl-C, SIGTERM: the command line says where the rows are
+        # Ctrl-C, SIGTERM: the command line says where the rows are (it reads getattr(error, "kept"))
+        error.kept = kept  # type: ignore[attr-defined]  # an attribute added to any exception
         if not isinstance(error, KeyboardInterrupt):
             error.add_note(kept)  # a bug: its traceback, and where the rows are
         raise error

@@ -14,6 +14,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from ._errors import RigError
 from ._scene import Scene
 
 __all__ = ["Look", "render_frame", "strip_coordinates"]
@@ -53,6 +54,8 @@ def strip_coordinates(scene: Scene, w_mm: float, x: np.ndarray, y: np.ndarray):
     negative along the strip and positive beyond its (flat, cut) end.
     """
     length = scene.length_mm
+    if length is None:
+        raise RigError("a strip is drawn at its free length: give the scene's length_mm (mm)")
     px = scene.mm_per_px
     dx, dy = x - scene.clamp[0], y - scene.clamp[1]
     s = (dx * scene.axis[0] + dy * scene.axis[1]) * px  # mm

@@ -134,9 +134,11 @@ class SimavrBoard:
             cmd.append("--no-dac")
         self.process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         self.port = None
+        stdout = self.process.stdout
+        assert stdout is not None  # Popen(stdout=PIPE)
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline:
-            line = self.process.stdout.readline()
+            line = stdout.readline()
             if not line:
                 break
             if line.startswith("pty "):

@@ -58,7 +58,7 @@ class LedDetector:
         self.levels: list[tuple[int, float, float]] = []  # (index, t, level)
         self.edge: tuple[int, float, float] | None = None
         self.sync: LedSync | None = None
-        self._masks = None
+        self._masks: tuple[np.ndarray, np.ndarray] | None = None  # (disk, ring), from the first frame
 
     def level(self, image: np.ndarray) -> float:
         """LED disk brightness over its surrounding ring (1 = same as background)."""
@@ -93,6 +93,7 @@ class LedDetector:
         return None
 
     def _finish(self, on_level: float) -> LedSync:
+        assert self.edge is not None  # update calls this once the edge is seen
         index, t, level = self.edge
         span = on_level - self.baseline
         fraction = 1.0 if span <= 0 else float(np.clip((level - self.baseline) / span, 0.0, 1.0))

@@ -247,7 +247,9 @@ class TipTracker:
         if not inside[min(last + 1, len(inside) - 1)] or (sec.reached_end and last + 3 >= len(s)):
             return TipResult(math.nan, 0, "tip out of view", (math.nan, math.nan))
         # Centreline: quartic through the sections, the end cap excluded.
-        ss, uu = self.centreline_points(sec)
+        points = self.centreline_points(sec)
+        assert points is not None  # None only below 8 sections, refused above
+        ss, uu = points
         degree = 4 if len(ss) > 16 else 3 if len(ss) > 12 else 1
         scale = max(ss.max(), 1.0)
         coef = np.polyfit(ss / scale, uu, degree)
@@ -281,8 +283,8 @@ class TipTracker:
         ):
             return TipResult(math.nan, 0, "strip much shorter than its length", (math.nan, math.nan))
         u_tip = float(line(s_tip))
-        x, y = self.scene.to_image(np.array([s_tip]), np.array([u_tip]))
-        x, y = float(x[0]), float(y[0])
+        xs, ys = self.scene.to_image(np.array([s_tip]), np.array([u_tip]))
+        x, y = float(xs[0]), float(ys[0])
         if not (1 <= x < w - 1 and 1 <= y < h - 1):
             return TipResult(math.nan, 0, "tip out of view", (x, y))
         # The tip is the end of the strip, not its centreline: add back half the cap.

@@ -26,13 +26,14 @@ import json
 import math
 import pathlib
 import sys
+from typing import Any
 
 import numpy as np
 
 from hybrid import InputError
 
 from ._axis import AxisEstimate, find_axis
-from ._camera import VideoSource, find_gaps
+from ._camera import Frame, VideoSource, find_gaps
 from ._errors import RigError
 from ._files import check_outputs, jsonable, partial_path, write_together
 from ._scene import Scene
@@ -68,7 +69,7 @@ class TrackJob:
     axis_deg: float | None = None
     length_mm: float | None = 22.0
     strip_px: float = 4.0
-    led: tuple[float, ...] | None = None
+    led: tuple[float, float, float] | None = None
     exposure: float | None = None
 
     @property
@@ -92,7 +93,7 @@ def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None
     estimate = find_axis(images, job.clamp, job.mm_per_px, job.length_mm, job.strip_px)
     if job.axis_deg is None:
         print(f"rest axis: {estimate.describe()}")
-        return estimate, estimate.angle_deg, estimate.clamp_xy or tuple(job.clamp)
+        return estimate, estimate.angle_deg, estimate.clamp_xy or (job.clamp[0], job.clamp[1])
     if estimate.angle_deg is not None:
         off = abs((estimate.angle_deg - job.axis_deg + 180.0) % 360.0 - 180.0)
         if off > AXIS_WARN_DEG:
@@ -111,7 +112,7 @@ def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None
                 f"offset by about {estimate.offset_px * job.mm_per_px:+.2f} mm; leave --axis out to measure "
                 "from the strip's own rest line"
             )
-    return estimate, job.axis_deg, tuple(job.clamp)
+    return estimate, job.axis_deg, (job.clamp[0], job.clamp[1])
 
 
 def _track_rows(
@@ -245,7 +246,7 @@ def track_video(job: TrackJob) -> dict:
     """
     check_outputs([job.out, job.sidecar], [job.video])
     existed = pathlib.Path(job.out).exists()
-    meta = {
+    meta: dict[str, Any] = {
         "source": "rig track",
         "video": str(job.video),
         "columns": ["t", "w", "quality"],
@@ -255,7 +256,7 @@ def track_video(job: TrackJob) -> dict:
         "error": None,
     }
     with VideoSource(job.video) as video:
-        head = []
+        head: list[Frame] = []
         while len(head) < HEAD_FRAMES and (frame := video.read()) is not None:
             head.append(frame)
         estimate, angle, clamp = _find_or_check_axis(job, head)
@@ -272,7 +273,9 @@ def track_video(job: TrackJob) -> dict:
             "length_mm": job.length_mm,
             "strip_px": job.strip_px,
         }
-        t, w, quality = [], [], []
+        t: list[float] = []
+        w: list[float] = []
+        quality: list[int] = []
         try:
             _track_rows(job, video, head, angle, clamp, meta, t, w, quality)
         except KeyboardInterrupt:

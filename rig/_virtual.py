@@ -88,8 +88,8 @@ class VirtualCamera:
         self.t0 = board.now()
         self.slot = 0
         self.delivered = 0
-        self._pending_duplicate = None
-        self._sim_t = np.zeros(0)
+        self._pending_duplicate: Frame | None = None
+        self._sim_t: np.ndarray = np.zeros(0)
         self._sim_w = np.zeros(0)
         self.truth: dict[int, float] = {}  # delivered index -> exposure-averaged true w, mm
 
