@@ -54,7 +54,7 @@ def main(argv=None) -> int:
     wanted = args.effects.split(",") if args.effects else [args.effect]
 
     print(f"{args.effect} seed {args.seed} ({args.duration:g} s at {args.rate:g} Hz), hidden {params}")
-    baseline = float(np.mean((found.heldout["w"] - found.heldout["baseline"]) ** 2)) / noise_var
+    baseline = float(np.mean((found.heldout.w - found.heldout.baseline) ** 2)) / noise_var
     print(
         f"named {found.cause}, held-out gain {found.gain:.2f}; baseline held-out MSE / noise {baseline:.2f}"
     )
@@ -64,9 +64,9 @@ def main(argv=None) -> int:
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for i, lane in enumerate(found.lanes):
-        if lane["effect"] not in wanted:
+        if lane.effect not in wanted:
             continue
-        w_hats = predictions(problem, jnp.asarray(lane["active"], float), jnp.asarray(lane["theta"]))
+        w_hats = predictions(problem, jnp.asarray(lane.active, float), jnp.asarray(lane.theta))
         mse = {
             split: float(
                 np.mean(
@@ -77,14 +77,12 @@ def main(argv=None) -> int:
             / noise_var
             for split in SPLIT_ORDER
         }
-        material, size = lane_effect(
-            problem, lane["theta"], lane["active"], lane["effect"], settings.materiality
-        )
+        material, size = lane_effect(problem, lane.theta, lane.active, lane.effect, settings.materiality)
         size_text = ", ".join(f"{k} {v:.3g}" for k, v in size.items()) or "—"
         print(
-            f"| {i} | {lane['effect']} | {lane['validation_loss']:.4g} | {mse['train']:.2f} "
+            f"| {i} | {lane.effect} | {lane.validation_loss:.4g} | {mse['train']:.2f} "
             f"| {mse['validation']:.2f} | {mse['test']:.2f} | {size_text} | {'yes' if material else 'no'} "
-            f"| {'**yes**' if lane['chosen'] else ''} |"
+            f"| {'**yes**' if lane.chosen else ''} |"
         )
     return 0
 

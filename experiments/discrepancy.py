@@ -83,9 +83,9 @@ def excess_over_noise(recording, found) -> tuple[float, float]:
     """Held-out MSE over the variance of the added noise: the baseline's, and the least of any effect-free fit."""
     hidden = recording.metadata["hidden"]
     noise_var = (hidden["noise_fraction"] * np.ptp(recording.extra["w_true"])) ** 2
-    baseline = float(np.mean((found.heldout["w"] - found.heldout["baseline"]) ** 2)) / noise_var
+    baseline = float(np.mean((found.heldout.w - found.heldout.baseline) ** 2)) / noise_var
     others = found.evidence.get("equally_good_effect_free_fits", {}).get("heldout_nmse_min", float("nan"))
-    best = min(1.0, others / found.baseline.heldout["nmse"]) if np.isfinite(others) else 1.0
+    best = min(1.0, others / found.baseline.heldout.nmse) if np.isfinite(others) else 1.0
     return baseline, baseline * best
 
 
@@ -399,8 +399,8 @@ def main(argv=None) -> int:
                     "baseline_mse_over_noise": excess,
                     "effect_free_mse_over_noise": least,
                     "identifiable": bool(least >= IDENTIFIABLE),
-                    "baseline_nmse": found.baseline.heldout["nmse"],
-                    "extended_nmse": found.extended.heldout["nmse"],
+                    "baseline_nmse": found.baseline.heldout.nmse,
+                    "extended_nmse": found.extended.heldout.nmse,
                     "parameters": found.to_dict()["parameters"] if found.cause != "none" else {},
                     "candidates": {
                         c.name: {
@@ -438,8 +438,8 @@ def main(argv=None) -> int:
                     "drive": drive_name,
                     "named": found.cause,
                     "gain": found.gain,
-                    "baseline_nmse": found.baseline.heldout["nmse"],
-                    "extended_nmse": found.extended.heldout["nmse"],
+                    "baseline_nmse": found.baseline.heldout.nmse,
+                    "extended_nmse": found.extended.heldout.nmse,
                     "parameters": found.to_dict()["parameters"],
                     "candidates": {
                         c.name: {

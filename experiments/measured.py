@@ -401,8 +401,8 @@ def _diagnose(recording, simulation, log, label) -> dict:
         "causes": d.causes,
         "gain": d.gain,
         "unexplained": d.unexplained,
-        "baseline_nmse": d.baseline.heldout["nmse"],
-        "extended_nmse": d.extended.heldout["nmse"],
+        "baseline_nmse": d.baseline.heldout.nmse,
+        "extended_nmse": d.extended.heldout.nmse,
         "seconds": seconds,
         "samples": len(recording.w),
     }

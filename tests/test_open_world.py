@@ -41,7 +41,7 @@ def test_an_effect_outside_the_library_is_unexplained_not_none(spec, seed):
     # The fraction is what lies above the floor the data show; the generator knows the true noise.
     floor = found.noise_floor.variance
     assert 0.7 <= floor / true_noise_variance(recording) <= 1.6
-    mse = np.mean((found.heldout["w"] - found.heldout["extended"]) ** 2)  # the final model, held out
+    mse = np.mean((found.heldout.w - found.heldout.extended) ** 2)  # the final model, held out
     assert left["fraction_above_floor"] == pytest.approx(1 - floor / mse, rel=1e-9)
     assert found.verdict.startswith("No effect in the library explains") or found.causes
     assert left["description"]["summary"]

@@ -28,6 +28,6 @@ def test_both_effects_of_a_pair_are_named(spec, seed):
     # Both together come down to the measurement noise: nothing is left unexplained. Against the
     # true noise variance (which diagnose never sees): within 2.5x, where the baseline was far above.
     assert found.unexplained is None, found.verdict
-    var_w = np.var(found.heldout["w"])
-    assert found.extended.heldout["nmse"] * var_w <= 2.5 * true_noise_variance(recording)
-    assert found.baseline.heldout["nmse"] * var_w >= 10 * true_noise_variance(recording)
+    var_w = np.var(found.heldout.w)
+    assert found.extended.heldout.nmse * var_w <= 2.5 * true_noise_variance(recording)
+    assert found.baseline.heldout.nmse * var_w >= 10 * true_noise_variance(recording)

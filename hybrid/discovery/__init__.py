@@ -11,6 +11,11 @@ from ._decision import lane_effect as lane_effect
 from ._diagnosis import SPLIT_ORDER as SPLIT_ORDER
 from ._diagnosis import DiagnoseSettings as DiagnoseSettings
 from ._diagnosis import Diagnosis as Diagnosis
+from ._diagnosis import EquallyGoodFits as EquallyGoodFits
+from ._diagnosis import HeldoutMetrics as HeldoutMetrics
+from ._diagnosis import HeldoutSignals as HeldoutSignals
+from ._diagnosis import Lane as Lane
+from ._diagnosis import ParameterUncertainty as ParameterUncertainty
 from ._effects import EFFECTS as EFFECTS
 from ._effects import AbstractEffect as AbstractEffect
 from ._hysteresis import bouc_wen_and_memory as bouc_wen_and_memory

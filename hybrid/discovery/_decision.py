@@ -19,7 +19,7 @@ import numpy as np
 from ..core._metrics import metrics as compute_metrics
 from ..core._models import Model
 from . import residual_tests as rt
-from ._diagnosis import Candidate
+from ._diagnosis import Candidate, EquallyGoodFits, HeldoutMetrics
 from ._effect_stack import EffectStack
 from ._effects import FrameTiming
 from ._search import predictions
@@ -81,7 +81,7 @@ def _material(name: str, derived: dict, parameters: dict, materiality: dict) -> 
     return True, ""
 
 
-def _heldout_metrics(w, w_hat) -> dict:
+def _heldout_metrics(w, w_hat) -> HeldoutMetrics:
     """Held-out metrics; ``nmse`` is MSE/var(w), the system-identification NMSE.
 
     Eq 18's NMSE divides each signal by its own peak, which forgives a wrong
@@ -89,9 +89,13 @@ def _heldout_metrics(w, w_hat) -> dict:
     ``nmse_eq18``; gains and decisions use MSE ratios.
     """
     out = compute_metrics(w, w_hat)
-    out["nmse_eq18"] = out["nmse"]
-    out["nmse"] = out["nmse_variance"]
-    return out
+    return HeldoutMetrics(
+        nmse=out["nmse_variance"],
+        nmse_eq18=out["nmse"],
+        nmse_target=out["nmse_target"],
+        nmse_variance=out["nmse_variance"],
+        fitting=out["fitting"],
+    )
 
 
 def _bic(rss, n, k):
@@ -110,7 +114,9 @@ def free_names(problem_model: Model, frozen, active_effects):
     return names + ["gain", "offset"]
 
 
-def equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_tolerance: float) -> dict:
+def equally_good_fits(
+    problem, thetas, off, rss_best: float, n_train: int, bic_tolerance: float
+) -> EquallyGoodFits:
     """Held-out spread of the effect-free fits that match the baseline on training data.
 
     On a strip slower than the recording (stage poles near 0.005 Hz in 60 s),
@@ -129,13 +135,13 @@ def equally_good_fits(problem, thetas, off, rss_best: float, n_train: int, bic_t
             heldout.append(
                 float(np.mean((w_test - problem.recorded(w_hat["test"], "test")) ** 2) / np.var(w_test))
             )
-    return {
-        "n": len(heldout),
-        "heldout_nmse_min": min(heldout, default=float("nan")),
-        "heldout_nmse_max": max(heldout, default=float("nan")),
-        "definition": f"effect-free fits (all starts and refits) within ΔBIC {bic_tolerance:g} of the "
+    return EquallyGoodFits(
+        n=len(heldout),
+        heldout_nmse_min=min(heldout, default=float("nan")),
+        heldout_nmse_max=max(heldout, default=float("nan")),
+        definition=f"effect-free fits (all starts and refits) within ΔBIC {bic_tolerance:g} of the "
         "baseline on training data",
-    }
+    )
 
 
 def choose_lane(idx, vals, is_material, n_val: int) -> int:

@@ -62,7 +62,7 @@ from ..util._errors import InputError
 from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
 from ._decision import evaluate_candidate, free_names
-from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis
+from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effects import EFFECTS
 from ._evidence import fitted_model, heldout_evidence, parameter_uncertainties
 from ._search import (
@@ -265,17 +265,17 @@ def diagnose(
         keep=fitted_model(problem, extended.theta, present).parameters(),
     )
     evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
-    evidence["equally_good_effect_free_fits"] = steps[0].equally_good
+    evidence["equally_good_effect_free_fits"] = steps[0].equally_good.to_dict()  # report.json's shape
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
-    heldout = {
-        "t": np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),
-        "v_in": v_te,
-        "w": w_te,
-        "baseline": w_hat_base,
-        "extended": w_hat_ext,
-        "recording": np.concatenate([np.full(b - a, i) for i, a, b in segments]),
-        "segment": np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)]),
-    }
+    heldout = HeldoutSignals(
+        t=np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),
+        v_in=v_te,
+        w=w_te,
+        baseline=w_hat_base,
+        extended=w_hat_ext,
+        recording=np.concatenate([np.full(b - a, i) for i, a, b in segments]),
+        segment=np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)]),
+    )
     say("noise floor and what lies above it")
     floor = pooled_noise_floor(recordings)
     unexplained = remainder(
@@ -307,14 +307,7 @@ def diagnose(
         seconds=time.perf_counter() - t0,
         heldout=heldout,
         lanes=[lane for step in steps for lane in step.lanes],
-        steps=[
-            {
-                "cause": step.chosen.name if step.chosen else None,
-                "current": step.current,
-                "candidates": step.candidates,
-            }
-            for step in steps
-        ],
+        steps=steps,
         noise_floor=floor,
         unexplained=unexplained,
     )

@@ -2,8 +2,11 @@
 
 `DiagnoseSettings` (how the search fits and decides), `Candidate` (one
 effect's extended fit with its evidence), `Diagnosis` (the answer;
-``to_dict()`` is ``report.json``), and the names they share: `CAUSES` and
-`SPLIT_ORDER`.
+``to_dict()`` is ``report.json``), the typed results they carry
+(`HeldoutMetrics`, `ParameterUncertainty`, `EquallyGoodFits`, `Lane`,
+`HeldoutSignals`), and the names they share: `CAUSES` and `SPLIT_ORDER`.
+Results travel between the modules of the search as these objects; they
+become dicts only in `to_dict()`, the edge that writes ``report.json``.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from ._effects import EFFECTS
 
 if TYPE_CHECKING:
     from ._noise_floor import NoiseFloor
+    from ._step import Step
 
 #: Names `diagnose` can return: an effect of `hybrid.discovery._effects`, or "none".
 CAUSES = ("none",) + tuple(EFFECTS)
@@ -90,6 +94,97 @@ class DiagnoseSettings:
         return tuple(simulation.default_frozen()) if self.frozen is None else tuple(self.frozen)
 
 
+@dataclasses.dataclass(frozen=True)
+class HeldoutMetrics:
+    """A fit's errors on the held-out (test) part, all recordings together (`hybrid.core.metrics`)."""
+
+    nmse: float
+    """MSE / var(w): the system-identification NMSE that gains and decisions use."""
+    nmse_eq18: float
+    """The paper's Eq 18 NMSE (each signal divided by its own peak |.|): blind to a wrong gain."""
+    nmse_target: float
+    """MSE / mean(w²)."""
+    nmse_variance: float
+    """MSE / var(w) as `hybrid.core.metrics` names it (the same number as `nmse`)."""
+    fitting: float
+    """The paper's fitting percentage."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ParameterUncertainty:
+    """The standard error of one fitted parameter, in its physical unit (`parameter_uncertainties`)."""
+
+    std_error: float
+    """Gauss–Newton standard error on the training part, inflated by `inflation`."""
+    unit: str
+    """The parameter's physical unit."""
+    inflation: float
+    """Variance inflation for the held-out residual's autocorrelation (`effective_sample_factor`)."""
+    std_error_given_network: float | None = None
+    """Standard error with the simulation's own parameters held at their fitted values (None for those)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class EquallyGoodFits:
+    """Held-out spread of the fits of the current model as good on training data (`equally_good_fits`)."""
+
+    n: int
+    """How many fits are within the BIC tolerance of the current model's training error."""
+    heldout_nmse_min: float
+    """Their least held-out NMSE (nan if none): the bar an effect's gain must also clear."""
+    heldout_nmse_max: float
+    """Their largest held-out NMSE (nan if none)."""
+    definition: str
+    """Which fits count, in words."""
+
+    def to_dict(self) -> dict:
+        """As in ``report.json``'s ``evidence["equally_good_effect_free_fits"]``."""
+        return {
+            "n": self.n,
+            "heldout_nmse_min": self.heldout_nmse_min,
+            "heldout_nmse_max": self.heldout_nmse_max,
+            "definition": self.definition,
+        }
+
+
+@dataclasses.dataclass(frozen=True)
+class Lane:
+    """One candidate lane of a step of the search (not in ``report.json``)."""
+
+    effect: str
+    """The effect the lane switches on beyond those already named."""
+    step: int
+    """The step of the stepwise search it belongs to (1: the first)."""
+    validation_loss: float
+    """½ mean r² on the validation part at its best point."""
+    chosen: bool
+    """Whether it stands for its effect in its step (`choose_lane`)."""
+    theta: np.ndarray
+    """Its end point, in the layout of `lanes_problem`'s θ (``experiments/diagnose_lanes.py`` reads it)."""
+    active: np.ndarray
+    """Its effects' switches."""
+
+
+@dataclasses.dataclass(frozen=True)
+class HeldoutSignals:
+    """Held-out signals, all recordings' test parts concatenated (one entry per sample)."""
+
+    t: np.ndarray
+    """Time (s) within its recording."""
+    v_in: np.ndarray
+    """Drive (V)."""
+    w: np.ndarray
+    """Recorded displacement (recording units)."""
+    baseline: np.ndarray
+    """The baseline's prediction of w."""
+    extended: np.ndarray
+    """The final model's prediction of w (all named causes)."""
+    recording: np.ndarray
+    """Index of the recording the sample comes from."""
+    segment: np.ndarray
+    """Index of the contiguous test block it lies in."""
+
+
 @dataclasses.dataclass
 class Candidate:
     """One effect's extended fit and the evidence about it."""
@@ -100,7 +195,7 @@ class Candidate:
     train_rss: float
     n_parameters: int
     bic: float
-    heldout: dict
+    heldout: HeldoutMetrics
     ljung_box: dict
     gain: float = float("nan")
     delta_bic: float = float("nan")
@@ -115,8 +210,8 @@ class Candidate:
     def to_dict(self) -> dict:
         return {
             "name": self.name,
-            "heldout_nmse": self.heldout["nmse"],
-            "heldout_fitting": self.heldout["fitting"],
+            "heldout_nmse": self.heldout.nmse,
+            "heldout_fitting": self.heldout.fitting,
             "gain": self.gain,
             "criterion": {"bic": self.bic, "delta_bic": self.delta_bic},
             "ljung_box": self.ljung_box,
@@ -136,25 +231,20 @@ class Diagnosis:
     cause: str
     baseline: Candidate
     extended: Candidate
-    candidates: list
-    uncertainties: dict
+    candidates: list[Candidate]
+    uncertainties: dict[str, ParameterUncertainty]
     evidence: dict
     hybrid: dict | None
     settings: DiagnoseSettings
     recordings: list
     seconds: float
-    #: Held-out signals (all recordings' test parts concatenated): ``t`` (s),
-    #: ``v_in`` (V), ``w``, ``baseline`` and ``extended`` predictions (recording
-    #: units), ``recording`` (index of the recording each sample comes from), ``segment``
-    #: (index of the contiguous test block it lies in).
-    heldout: dict = dataclasses.field(default_factory=dict)
-    #: Every candidate lane (not in ``report.json``): ``effect``, ``validation_loss``
-    #: (½ mean r²), ``chosen`` (it stands for its effect), ``theta`` and ``active``
-    #: (its end point and switches; ``experiments/diagnose_lanes.py`` evaluates them).
-    lanes: list = dataclasses.field(default_factory=list)
-    #: Each step of the stepwise search: ``cause`` (the effect it named, or None),
-    #: ``current`` (the Candidate it extended) and ``candidates`` (weighed against it).
-    steps: list = dataclasses.field(default_factory=list)
+    #: Held-out signals of the baseline and the final model (`HeldoutSignals`).
+    heldout: HeldoutSignals
+    #: Every candidate lane of every step (not in ``report.json``).
+    lanes: list[Lane] = dataclasses.field(default_factory=list)
+    #: Each step of the stepwise search (`hybrid.discovery._step.Step`): the effect it
+    #: named (``cause``, or None), the Candidate it extended and those weighed against it.
+    steps: list[Step] = dataclasses.field(default_factory=list)
     #: The measurement noise of w, from the recordings alone (`NoiseFloor`).
     noise_floor: NoiseFloor | None = None
     #: None when the final model reaches the noise floor, else how much of its
@@ -164,16 +254,16 @@ class Diagnosis:
     @property
     def gain(self) -> float:
         """Held-out NMSE of the baseline over that of the final model (all causes)."""
-        return self.baseline.heldout["nmse"] / self.extended.heldout["nmse"]
+        return self.baseline.heldout.nmse / self.extended.heldout.nmse
 
     @property
     def causes(self) -> list[dict]:
         """The named causes in the order found: name, parameters (of that effect), incremental held-out gain."""
         out = []
         for step in self.steps:
-            if step["cause"] is None:
+            if step.cause is None:
                 continue
-            chosen = next(c for c in step["candidates"] if c.name == step["cause"])
+            chosen = next(c for c in step.candidates if c.name == step.cause)
             own = {k: v for k, v in chosen.parameters.items() if k in _effect_parameters(chosen.name)}
             out.append(
                 {
@@ -184,8 +274,8 @@ class Diagnosis:
                     "parameters": {
                         k: {
                             "value": v,
-                            "std_error": self.uncertainties.get(k, {}).get("std_error"),
-                            "unit": self.uncertainties.get(k, {}).get("unit", ""),
+                            "std_error": _std_error(self.uncertainties.get(k)),
+                            "unit": _unit(self.uncertainties.get(k)),
                         }
                         for k, v in own.items()
                     },
@@ -209,26 +299,22 @@ class Diagnosis:
             "unexplained": self.unexplained,
             "steps": [
                 {
-                    "cause": step["cause"],
-                    "extends": step["current"].name,
-                    "candidates": [c.to_dict() for c in step["candidates"]],
+                    "cause": step.cause,
+                    "extends": step.current.name,
+                    "candidates": [c.to_dict() for c in step.candidates],
                 }
                 for step in self.steps[1:]
             ],
-            "baseline": {
-                k: self.baseline.heldout[k] for k in ("nmse", "fitting", "nmse_eq18", "nmse_target")
-            },
-            "extended": {
-                k: self.extended.heldout[k] for k in ("nmse", "fitting", "nmse_eq18", "nmse_target")
-            },
+            "baseline": _heldout_summary(self.baseline.heldout),
+            "extended": _heldout_summary(self.extended.heldout),
             "nmse_definition": "held-out MSE / var(w) (nmse_eq18: the paper's Eq 18, each signal by its max |.|)",
             "gain": self.gain,
             "parameters": {
                 k: {
                     "value": v,
-                    "std_error": self.uncertainties.get(k, {}).get("std_error"),
-                    "std_error_given_network": self.uncertainties.get(k, {}).get("std_error_given_network"),
-                    "unit": self.uncertainties.get(k, {}).get("unit", ""),
+                    "std_error": _std_error(self.uncertainties.get(k)),
+                    "std_error_given_network": _std_error_given_network(self.uncertainties.get(k)),
+                    "unit": _unit(self.uncertainties.get(k)),
                 }
                 for k, v in self.extended.parameters.items()
             },
@@ -242,6 +328,28 @@ class Diagnosis:
             "seconds": self.seconds,
             "split": _split_description(self.settings),
         }
+
+
+def _heldout_summary(heldout: HeldoutMetrics) -> dict:
+    """``report.json``'s ``baseline`` and ``extended``: the held-out metrics it shows, in its order."""
+    return {
+        "nmse": heldout.nmse,
+        "fitting": heldout.fitting,
+        "nmse_eq18": heldout.nmse_eq18,
+        "nmse_target": heldout.nmse_target,
+    }
+
+
+def _std_error(u: ParameterUncertainty | None) -> float | None:
+    return u.std_error if u is not None else None
+
+
+def _std_error_given_network(u: ParameterUncertainty | None) -> float | None:
+    return u.std_error_given_network if u is not None else None
+
+
+def _unit(u: ParameterUncertainty | None) -> str:
+    return u.unit if u is not None else ""
 
 
 def _effect_parameters(name: str) -> tuple[str, ...]:

@@ -8,6 +8,7 @@ the baseline and the extended model).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -17,6 +18,7 @@ import numpy as np
 from ..core._models import Model
 from ..core._problem import Problem
 from . import residual_tests as rt
+from ._diagnosis import ParameterUncertainty
 from ._effect_stack import EffectStack
 from ._effects import FrameTiming
 
@@ -32,7 +34,9 @@ def fitted_model(problem: Problem, theta, causes) -> Model:
     return Model(simulation, model.readout, "physics")
 
 
-def parameter_uncertainties(problem: Problem, theta, residual_heldout, keep=None) -> dict:
+def parameter_uncertainties(
+    problem: Problem, theta, residual_heldout, keep=None
+) -> dict[str, ParameterUncertainty]:
     """Standard errors, in physical units, of `model`'s free parameters (those in `keep`, if given).
 
     `problem` is the search's (padded) problem with the fitted lane's switches
@@ -59,11 +63,9 @@ def parameter_uncertainties(problem: Problem, theta, residual_heldout, keep=None
     inflation = rt.effective_sample_factor(residual_heldout)
     keep = set(covariance.names) if keep is None else set(keep)
     out = {
-        name: {
-            "std_error": std * math.sqrt(inflation),
-            "unit": covariance.units[name],
-            "inflation": inflation,
-        }
+        name: ParameterUncertainty(
+            std_error=std * math.sqrt(inflation), unit=covariance.units[name], inflation=inflation
+        )
         for name, std in covariance.std_errors.items()
         if name in keep
     }
@@ -77,7 +79,8 @@ def parameter_uncertainties(problem: Problem, theta, residual_heldout, keep=None
             variance = np.diag(np.linalg.pinv(fisher, rcond=1e-12, hermitian=True))
         for i, v in zip(rest, variance):
             se = math.sqrt(v * inflation) if np.isfinite(v) and v > 0 else float("inf")
-            out[covariance.names[i]]["std_error_given_network"] = se
+            name = covariance.names[i]
+            out[name] = dataclasses.replace(out[name], std_error_given_network=se)
     return out
 
 

@@ -466,8 +466,6 @@ def write_report(diagnosis, out_dir) -> dict[str, Path]:
     _remainder_figure(diagnosis, paths[REMAINDER_FIGURE])
     paths["report.md"] = out_dir / "report.md"
     held = diagnosis.heldout
-    loop_levels = count_loop_levels(
-        rt.loops(np.asarray(held["w"]) - np.asarray(held["baseline"]), held["v_in"])
-    )
+    loop_levels = count_loop_levels(rt.loops(np.asarray(held.w) - np.asarray(held.baseline), held.v_in))
     _write_atomic(paths["report.md"], _markdown(data, {n: paths[n] for n in FIGURES}, loop_levels))
     return paths

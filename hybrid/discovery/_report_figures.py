@@ -10,6 +10,7 @@ atomically (`atomic_open`); `format_nmse` is the NMSE format the figures and
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -241,7 +242,10 @@ def _figure_segments(held, d, path, plt):
 
 def write_figures(diagnosis, data: dict, out_dir: Path) -> dict[str, Path]:
     plt = pyplot()
-    held = {k: np.asarray(v) for k, v in diagnosis.heldout.items()}
+    # The figures pick a prediction by name ("baseline", "extended"): the signals as named arrays.
+    held = {
+        f.name: np.asarray(getattr(diagnosis.heldout, f.name)) for f in dataclasses.fields(diagnosis.heldout)
+    }
     rate = float(data["evidence"].get("rate_hz") or 1.0)
     paths = {name: out_dir / name for name in FIGURES}
     _figure_residual_time(held, data, paths["residual_time.png"], plt)

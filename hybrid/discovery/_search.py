@@ -122,7 +122,7 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     search depend on the buckets, not on the recordings' exact lengths, so a
     session that diagnoses many recordings reuses them. `series` are the
     recordings' own (unpadded) series. Its θ is the layout of
-    `Diagnosis.lanes[i]["theta"]`; `split_signals(problem, theta, active, split)`
+    `Diagnosis.lanes[i].theta`; `split_signals(problem, theta, active, split)`
     predicts a lane on a split.
     """
     model = universal_model(simulation)

@@ -33,7 +33,7 @@ from ..core._models import Model
 from ..core._problem import Problem
 from . import residual_tests as rt
 from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
-from ._diagnosis import Candidate, DiagnoseSettings
+from ._diagnosis import Candidate, DiagnoseSettings, EquallyGoodFits, Lane
 from ._effect_stack import EffectStack
 from ._effects import EFFECTS
 from ._search import (
@@ -104,28 +104,29 @@ def first_step_lanes(rate: float, duration: float) -> int:
     )
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class Step:
-    """One step's outcome.
-
-    - `current`: the model the step extended, refitted if a lane's end point
-      led to a better fit of it (step 1: the baseline).
-    - `candidates`: every remaining effect's chosen lane, weighed against `current`.
-    - `chosen`: the eligible candidate with the largest held-out gain, or None.
-    - `chosen_val`, `chosen_fits`: its validation loss and every lane fitting its
-      effect (the next step's "as good on training" fits).
-    - `equally_good`: the fits of `current` as good on training data, and their
-      least held-out error (the bar a gain must clear).
-    - `lanes`: every lane of the step (not in report.json).
-    """
+    """One step's outcome (`Diagnosis.steps`)."""
 
     current: Candidate
-    candidates: list
+    """The model the step extended (step 1: the baseline), refitted if a lane's end point fits it better."""
+    candidates: list[Candidate]
+    """Every remaining effect's chosen lane, weighed against `current`."""
     chosen: Candidate | None
+    """The eligible candidate with the largest held-out gain, or None."""
     chosen_val: float
+    """`chosen`'s validation loss (nan if none)."""
     chosen_fits: list
-    equally_good: dict
-    lanes: list
+    """θ of every lane fitting `chosen`'s effect: the next step's "as good on training" fits."""
+    equally_good: EquallyGoodFits
+    """The fits of `current` as good on training data; their least held-out error: a bar a gain must clear."""
+    lanes: list[Lane]
+    """Every lane of the step (not in report.json)."""
+
+    @property
+    def cause(self) -> str | None:
+        """The effect the step named, or None."""
+        return self.chosen.name if self.chosen is not None else None
 
 
 def search_step(
@@ -263,25 +264,25 @@ def search_step(
         chosen_fits=[cand_thetas[j] for j in lanes_of[chosen.name]] if chosen else [],
         equally_good=equally_good,
         lanes=[
-            {
-                "effect": labels[j],
-                "step": len(present) + 1,
-                "validation_loss": float(vals[j]),
-                "chosen": j in chosen_lanes,
-                "theta": np.asarray(cand_thetas[j]),
-                "active": np.asarray(actives[j]),
-            }
+            Lane(
+                effect=labels[j],
+                step=len(present) + 1,
+                validation_loss=float(vals[j]),
+                chosen=j in chosen_lanes,
+                theta=np.asarray(cand_thetas[j]),
+                active=np.asarray(actives[j]),
+            )
             for j in range(len(labels))
             if labels[j] != "none"
         ],
     )
 
 
-def _weigh(candidates, current: Candidate, equally_good: dict, settings: DiagnoseSettings) -> None:
+def _weigh(candidates, current: Candidate, equally_good: EquallyGoodFits, settings: DiagnoseSettings) -> None:
     """Set each candidate's gain, ΔBIC and eligibility against `current` (the model it extends)."""
-    bar = min(current.heldout["nmse"], equally_good["heldout_nmse_min"])
+    bar = min(current.heldout.nmse, equally_good.heldout_nmse_min)
     for cand in candidates:
-        cand.gain = current.heldout["nmse"] / max(cand.heldout["nmse"], 1e-300)
+        cand.gain = current.heldout.nmse / max(cand.heldout.nmse, 1e-300)
         cand.delta_bic = cand.bic - current.bic
         # Whiter: the residual's autocovariances at lags ≥ 1 (Q scaled by the squared
         # variance ratio) no larger than the current model's. Q alone compares correlations:
@@ -309,10 +310,9 @@ def _weigh(candidates, current: Candidate, equally_good: dict, settings: Diagnos
                 f"{model}'s units > {current.ljung_box['Q']:.0f}",
             ),
             (
-                bar >= current.heldout["nmse"]
-                or bar / max(cand.heldout["nmse"], 1e-300) >= settings.min_gain,
+                bar >= current.heldout.nmse or bar / max(cand.heldout.nmse, 1e-300) >= settings.min_gain,
                 f"{fit} as good on training reaches held-out NMSE {bar:.3g}: "
-                f"gain over it {bar / max(cand.heldout['nmse'], 1e-300):.2f} < {settings.min_gain}",
+                f"gain over it {bar / max(cand.heldout.nmse, 1e-300):.2f} < {settings.min_gain}",
             ),
         ]
         cand.eligible = all(ok for ok, _ in checks)

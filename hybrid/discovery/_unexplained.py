@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from ._diagnosis import EquallyGoodFits, HeldoutSignals
 from ._level_limit import level_limits, limit_sentence
 from ._noise_floor import NoiseFloor, noise_floor
 from ._search import split_signals
@@ -86,11 +87,11 @@ def remainder(
     series,
     recordings,
     final,
-    heldout: dict,
+    heldout: HeldoutSignals,
     floor: NoiseFloor,
     settings,
     rate: float,
-    equally_good: dict | None = None,
+    equally_good: EquallyGoodFits | None = None,
 ) -> dict | None:
     """None when `final`'s held-out error is consistent with the noise floor, else what lies above it.
 
@@ -100,11 +101,11 @@ def remainder(
     from ._remainder import describe_remainder
 
     held = {
-        "t": heldout["t"],
-        "v_in": heldout["v_in"],
-        "w": heldout["w"],
-        "w_hat": heldout["extended"],
-        "segment": heldout["segment"],
+        "t": heldout.t,
+        "v_in": heldout.v_in,
+        "w": heldout.w,
+        "w_hat": heldout.extended,
+        "segment": heldout.segment,
     }
     residual = held["w"] - held["w_hat"]
     mse = float(np.mean(residual**2))
@@ -130,8 +131,8 @@ def remainder(
     caveat = floor_caveat(mse, floor)
     if caveat:
         out["floor_warning"] = caveat
-    if equally_good and np.isfinite(equally_good.get("heldout_nmse_min", float("nan"))):
-        best = equally_good["heldout_nmse_min"] * var_w
+    if equally_good is not None and np.isfinite(equally_good.heldout_nmse_min):
+        best = equally_good.heldout_nmse_min * var_w
         if best <= settings.unexplained_ratio * top:
             out["underdetermined"] = (
                 f"a fit of the same model as good on training data reaches {best / floor.variance:.2f}× the noise "

@@ -25,9 +25,9 @@ def explained_fraction(baseline_mse: float, final_mse: float, floor: float) -> f
 def verdict(diagnosis) -> str:
     """One sentence stating the causes, the share of the error they explain, and what remains."""
     causes = diagnosis.causes
-    var_w = float(diagnosis.heldout["w"].var()) if len(diagnosis.heldout.get("w", ())) else float("nan")
-    base_mse = diagnosis.baseline.heldout["nmse"] * var_w
-    final_mse = diagnosis.extended.heldout["nmse"] * var_w
+    var_w = float(diagnosis.heldout.w.var()) if len(diagnosis.heldout.w) else float("nan")
+    base_mse = diagnosis.baseline.heldout.nmse * var_w
+    final_mse = diagnosis.extended.heldout.nmse * var_w
     floor = diagnosis.noise_floor.variance if diagnosis.noise_floor is not None else 0.0
     left = diagnosis.unexplained
     where = ""
