@@ -70,12 +70,8 @@ def test_diagnose_names_the_hidden_effect(effect, seed):
     )
     # Each candidate of the first step is exactly one of its effect's lanes there, the one marked chosen.
     for cand in found.candidates:
-        chosen = [
-            lane
-            for lane in found.lanes
-            if lane["effect"] == cand.name and lane["chosen"] and lane["step"] == 1
-        ]
-        assert len(chosen) == 1 and np.array_equal(chosen[0]["theta"], cand.theta), cand.name
+        chosen = [lane for lane in found.lanes if lane.effect == cand.name and lane.chosen and lane.step == 1]
+        assert len(chosen) == 1 and np.array_equal(chosen[0].theta, cand.theta), cand.name
     if effect == "none":
         assert found.gain == 1.0 and found.extended is found.baseline
         # Nothing named, and nothing left above the noise floor (estimated from the recording alone).
