@@ -10,9 +10,6 @@ simulation (``rc``, ``lti:N``, ``file.py:Class``, ``module:Class``).
 from ._lti import LTI as LTI
 from ._plugins import resolve_physics as resolve_physics
 from ._rc_network import (
-    BLOCK as BLOCK,
-)
-from ._rc_network import (
     RCNetwork as RCNetwork,
 )
 from ._rc_network import (
@@ -27,3 +24,4 @@ from ._rc_network import (
 from ._rc_network import (
     tustin_sections as tustin_sections,
 )
+from ._zoh import BLOCK as BLOCK

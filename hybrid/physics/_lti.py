@@ -58,7 +58,7 @@ from ..core._arguments import check_drive
 from ..core._parameters import Constraint, Positive, Real, encode
 from ..core._simulation import AbstractSimulation
 from ..util._errors import InputError
-from ._rc_network import zoh_discretise, zoh_response
+from ._zoh import zoh_discretise, zoh_response
 
 #: The largest order `LTI` accepts (10 second-order sections).
 MAX_ORDER = 20

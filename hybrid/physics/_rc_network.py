@@ -24,14 +24,14 @@ Discretisation (`method`):
   and a scan over T/L block states, ~0.4× the time of `sosfilt` for 10⁴ samples
   and ~10× faster than one `lax.scan` per stage (`benchmarks/simulate.py`).
 - ``"zoh"``: the exact response of the continuous network to a zero-order-hold
-  drive, by the matrix exponential of the cascade's state-space realisation.
+  drive, by the matrix exponential of the cascade's state-space realisation (the generic
+  ZOH numerics of `_zoh.py`, which `LTI` shares).
 
 The network starts at rest (all states zero) before the first sample.
 """
 
 from __future__ import annotations
 
-import functools
 import numbers
 from typing import ClassVar, Literal
 
@@ -41,11 +41,11 @@ from jax import lax
 from jaxtyping import Array, Complex, Float
 
 from ..core._arguments import check_drive
-from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, UnitInterval, encode
 from ..core._simulation import AbstractSimulation
 from ..util._errors import InputError
 from ._strip import Strip
+from ._zoh import BLOCK, lifted_response, zoh_response
 
 Method = Literal["tustin", "zoh"]
 METHODS = ("tustin", "zoh")
@@ -242,9 +242,6 @@ def tustin_sections(G, Z, P, dt):
     return G * (c + Z) / den, G * (Z - c) / den, (P - c) / den
 
 
-BLOCK = 16  # samples per block in `cascade_filter`: ~L + 2K + K²/L operations per sample
-
-
 def cascade_filter(b0, b1, a1, x: Float[Array, " time"], block: int = BLOCK) -> Float[Array, " time"]:
     """Run first-order sections (b0 + b1 z⁻¹)/(1 + a1 z⁻¹) in series over `x`, from rest.
 
@@ -269,27 +266,6 @@ def cascade_filter(b0, b1, a1, x: Float[Array, " time"], block: int = BLOCK) -> 
     dtype = jnp.result_type(x, b0)
     H, O, A_L, C = block_matrices(b0.astype(dtype), b1.astype(dtype), a1.astype(dtype), block)
     return lifted_response(H, O, A_L, C, x.astype(dtype))
-
-
-def lifted_response(H, O, A_L, C, x):
-    """Run a linear system lifted to blocks of L samples over `x`, from rest.
-
-    y_j = O x_j + H u_j and x_{j+1} = A^L x_j + C u_j for the blocks u_j of L
-    samples (see [`cascade_filter`][]): two matrix products over all blocks and a
-    scan of T/L steps.
-    """
-    block, length = H.shape[0], x.shape[0]
-    n_blocks = -(-length // block)
-    u = jnp.pad(x, (0, n_blocks * block - length)).reshape(n_blocks, block)
-    dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)  # no TF32 on GPUs
-    forced = dot(u, H.T)  # H u_j for every block
-    state_input = dot(u, C.T)  # C u_j for every block
-
-    def advance(state, c):
-        return dot(A_L, state) + c, state
-
-    _, states = lax.scan(advance, jnp.zeros(A_L.shape[0], x.dtype), state_input)
-    return (forced + dot(states, O.T)).reshape(-1)[:length]
 
 
 def block_matrices(b0, b1, a1, block):
@@ -340,37 +316,3 @@ def _first_order_section(x, coefficients):
 
     _, y = lax.scan(step, jnp.zeros((), x.dtype), x)
     return y, None
-
-
-def zoh_discretise(A, B, dt):
-    """Exact ZOH discretisation: Ad = e^{AΔt}, Bd = ∫₀^Δt e^{Aτ} dτ B (augmented expm).
-
-    The exponential is [`hybrid.core._loop_safe_linalg.expm`][] (matrix products only):
-    `jax.scipy.linalg.expm`'s LU solve deadlocks jaxlib 0.10's CPU runtime when
-    batched inside a compiled loop, as `diagnose`'s screens run it.
-    """
-    n = A.shape[0]
-    M = jnp.zeros((n + 1, n + 1), A.dtype)
-    M = M.at[:n, :n].set(A).at[:n, n].set(B)
-    E = expm(M * dt)
-    return E[:n, :n], E[:n, n]
-
-
-def zoh_response(A, B, C, D, v_in, dt, block: int = BLOCK):
-    """Exact sampled response of ẋ = Ax + Bu, y = Cx + Du to a ZOH input, from rest.
-
-    The discretised system x[n+1] = A_d x[n] + B_d u[n], y[n] = C x[n] + D u[n]
-    runs lifted to blocks of `block` samples ([`lifted_response`][]); its block
-    matrices come from `block` steps of the recursion on unit excitations.
-    """
-    dtype = jnp.result_type(A, v_in)
-    Ad, Bd = zoh_discretise(A.astype(dtype), B.astype(dtype), dt)
-    n = A.shape[0]
-    eye = jnp.eye(block + n, dtype=dtype)
-
-    def step(x, u):
-        return Ad @ x + jnp.outer(Bd, u), C @ x + D * u
-
-    # Columns 0..L−1: a unit input at sample i from rest; columns L..L+n−1: unit states, no input.
-    final, y = lax.scan(step, eye[block:], eye[:block])
-    return lifted_response(y[:, :block], y[:, block:], final[:, block:], final[:, :block], v_in.astype(dtype))
