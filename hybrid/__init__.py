@@ -13,7 +13,6 @@ from .core._arguments import check_drive as check_drive
 from .core._batch import BatchFitResult as BatchFitResult
 from .core._batch import fit_batch as fit_batch
 from .core._batch import simulate_batch as simulate_batch
-from .core._fit import SOLVERS as SOLVERS
 from .core._fit import fit as fit
 from .core._held_start import HeldStart as HeldStart
 from .core._held_start import refit_initial_drive as refit_initial_drive
@@ -71,6 +70,10 @@ from .core._serialise import load_model as load_model
 from .core._serialise import save_model as save_model
 from .core._simulation import AbstractSimulation as AbstractSimulation
 from .core._simulation import Passthrough as Passthrough
+from .core._solvers import SOLVERS as SOLVERS
+from .core._solvers import Adam as Adam
+from .core._solvers import LevenbergMarquardt as LevenbergMarquardt
+from .core._solvers import OptimistixLM as OptimistixLM
 from .core._windows import sliding_windows as sliding_windows
 from .data._drive import Drive as Drive
 from .data._drives import DRIVES as DRIVES

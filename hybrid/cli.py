@@ -262,6 +262,7 @@ def _cmd_fit(args):
     from .core._fit import fit
     from .core._models import make_model
     from .core._serialise import save_model
+    from .core._solvers import solver_named
     from .physics._plugins import resolve_physics
     from .util._atomic import write_text
 
@@ -308,11 +309,10 @@ def _cmd_fit(args):
             result = fit(
                 model,
                 recordings,
+                solver=solver_named(args.solver, max_steps=args.max_steps),
                 starts=args.starts,
-                max_steps=args.max_steps,
                 frozen=frozen,
                 split=args.split,
-                solver=args.solver,
                 seed=args.seed,
                 progress=not args.quiet,
                 stop=stop,

@@ -18,7 +18,7 @@ import jax
 import numpy as np
 import pytest
 
-from hybrid import InputError, RCNetwork, fit, fit_batch, make_model
+from hybrid import InputError, LevenbergMarquardt, RCNetwork, fit, fit_batch, make_model
 
 TINY = dict(window=5, depth=2, width=4)
 
@@ -44,7 +44,7 @@ def _max_relative_difference(a, b):
 def test_physics_batch_equals_one_by_one():
     recordings = _strips(2)
     start = make_model("physics", simulation=RCNetwork(n_stages=10))
-    options = dict(frozen={"xi_h"}, starts=2, max_steps=40)
+    options = dict(frozen={"xi_h"}, starts=2, solver=LevenbergMarquardt(max_steps=40))
     batch = fit_batch(start, recordings, **options)
     assert len(batch) == 2 and batch.batch == 4 and batch.devices == len(jax.devices())
     for result, recording in zip(batch, recordings):
@@ -78,7 +78,7 @@ def test_a_plugin_physics_batch_equals_one_by_one():
             Recording(t=np.arange(u.size) * 0.1, v_in=u, w=1.5 * y + 0.01 * rng.normal(size=u.size))
         )
     start = make_model("physics", simulation=HeldStart(LTI(1), 100))
-    options = dict(frozen={"direct"}, max_steps=30, split=(0.6, 0.2, 0.2))
+    options = dict(frozen={"direct"}, solver=LevenbergMarquardt(max_steps=30), split=(0.6, 0.2, 0.2))
     batch = fit_batch(start, recordings, **options)
     # each fit recovers its own planted system (batch = one by one is shown for the RC network above)
     for result, (tau, held) in zip(batch, [(2.0, 0.5), (3.0, -0.4)]):
@@ -89,7 +89,7 @@ def test_a_plugin_physics_batch_equals_one_by_one():
 def test_hybrid_batch_in_chunks_equals_one_by_one():
     recordings = _strips(2)
     start = make_model("hybrid", simulation=RCNetwork(n_stages=10), **TINY)
-    options = dict(frozen={"xi_h"}, max_steps=10, weight_decay=0.01)
+    options = dict(frozen={"xi_h"}, solver=LevenbergMarquardt(max_steps=10), weight_decay=0.01)
     batch = fit_batch(start, recordings, batch_size=1, **options)
     assert batch[0].parameters["xi_rho"] != batch[1].parameters["xi_rho"]
     for result, recording in zip(batch[:1], recordings[:1]):  # one reference fit: compile time
@@ -121,11 +121,11 @@ SHARDED = textwrap.dedent("""
     import jax
     jax.config.update("jax_enable_x64", True)
     from test_batch import _strips
-    from hybrid import RCNetwork, fit_batch, make_model
+    from hybrid import LevenbergMarquardt, RCNetwork, fit_batch, make_model
 
     recordings = _strips(3)
     start = make_model("physics", simulation=RCNetwork(n_stages=10))
-    options = dict(frozen={{"xi_h"}}, max_steps=40)
+    options = dict(frozen={{"xi_h"}}, solver=LevenbergMarquardt(max_steps=40))
     sharded = fit_batch(start, recordings, **options)
     single = fit_batch(start, recordings, devices=jax.devices()[:1], **options)
     print(json.dumps({{

@@ -67,6 +67,7 @@ def test_rc_matches_independent_implementation(virtual_csv, tmp_path, capsys):
     assert np.max(np.abs(data[:, 2] - expected)) <= 1e-9 * np.max(np.abs(expected))
 
 
+@pytest.mark.filterwarnings("error::DeprecationWarning")  # the CLI uses the library's current spelling
 def test_fit_physics_end_to_end(virtual_csv, tmp_path, capsys):
     model_path = tmp_path / "m.eqx"
     report = tmp_path / "fit.json"

@@ -14,7 +14,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hybrid import InputError, LinearReadout, Model, RCNetwork, Recording, fit, make_model
+from hybrid import (
+    Adam,
+    InputError,
+    LevenbergMarquardt,
+    LinearReadout,
+    Model,
+    OptimistixLM,
+    RCNetwork,
+    Recording,
+    fit,
+    make_model,
+)
 from hybrid.core._problem import Problem, Series
 
 DT = 1.0 / h.RATE
@@ -137,8 +148,8 @@ def physics_recording():
 def physics_fits(physics_recording):
     start = make_model("physics", simulation=RCNetwork(n_stages=10))  # defaults: ξρ=10, α=0.5, C=0.05
     return {
-        solver: fit(start, physics_recording, frozen={"xi_h"}, solver=solver, progress=False)
-        for solver in ("lm", "optimistix")
+        solver.name: fit(start, physics_recording, frozen={"xi_h"}, solver=solver, progress=False)
+        for solver in (LevenbergMarquardt(), OptimistixLM())
     }
 
 
@@ -192,7 +203,14 @@ def student(teacher):
 
 @pytest.fixture(scope="module")
 def hybrid_fit(student, hybrid_recording):
-    return fit(student, hybrid_recording, starts=2, max_steps=100, frozen={"xi_h", "alpha_C"}, progress=False)
+    return fit(
+        student,
+        hybrid_recording,
+        starts=2,
+        solver=LevenbergMarquardt(max_steps=100),
+        frozen={"xi_h", "alpha_C"},
+        progress=False,
+    )
 
 
 def test_hybrid_lm_fits_planted_teacher(hybrid_fit, hybrid_recording, student):
@@ -239,7 +257,13 @@ def test_frozen_network_recovers_physics(teacher, hybrid_recording):
     # the teacher's own D-MLP, frozen; only the RC parameters are fitted
     sim = teacher.simulation.replace(alpha_C=0.3, C_clamp=0.08)
     start = Model(sim, teacher.readout, "hybrid")
-    result = fit(start, hybrid_recording, frozen={"network", "xi_h"}, max_steps=60, progress=False)
+    result = fit(
+        start,
+        hybrid_recording,
+        frozen={"network", "xi_h"},
+        solver=LevenbergMarquardt(max_steps=60),
+        progress=False,
+    )
     before = jax.tree_util.tree_leaves(eqx.filter(teacher.readout, eqx.is_array))
     after = jax.tree_util.tree_leaves(eqx.filter(result.model.readout, eqx.is_array))
     assert len(before) == len(after) > 0
@@ -253,8 +277,7 @@ def test_adam_improves_training_cost(student, hybrid_recording):
     result = fit(
         student,
         hybrid_recording,
-        solver="adam",
-        max_steps=60,
+        solver=Adam(max_steps=60),
         frozen={"xi_h"},
         report_every=20,
         progress=False,
@@ -290,6 +313,7 @@ def test_fit_rejects_recording_shorter_than_window():
     "kwargs",
     [
         dict(solver="bfgs"),
+        dict(solver=LevenbergMarquardt),  # the class, not an object
         dict(starts=0),
         dict(starts=1.5),
         dict(max_steps=0),
@@ -351,13 +375,14 @@ def _network_norm(model):
     return float(np.sqrt(sum(np.sum(np.asarray(leaf) ** 2) for leaf in leaves)))
 
 
-@pytest.mark.parametrize("solver", ["lm", "optimistix"])
+@pytest.mark.parametrize("solver", [LevenbergMarquardt, OptimistixLM])
 def test_weight_decay_reaches_every_solver(solver, student, hybrid_recording):
     # With a large μ the penalised optimum has much smaller network weights than
     # the unpenalised one; a solver that ignored weight_decay would return about
     # the same norm for both (this failed for "optimistix" before the penalty
     # moved into Problem.objective_residuals).
-    kwargs = dict(solver=solver, max_steps=25, frozen={"xi_h", "alpha_C"}, progress=False, patience=0)
+    options = dict(max_steps=25, patience=0) if solver is LevenbergMarquardt else dict(max_steps=25)
+    kwargs = dict(solver=solver(**options), frozen={"xi_h", "alpha_C"}, progress=False)
     free = fit(student, hybrid_recording, weight_decay=0.0, **kwargs)
     decayed = fit(student, hybrid_recording, weight_decay=100.0, **kwargs)
     assert _network_norm(decayed.model) < 0.5 * _network_norm(free.model)

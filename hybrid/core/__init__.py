@@ -52,3 +52,6 @@ from ._problem import (
     series_from_recording as series_from_recording,
 )
 from ._simulation import AbstractSimulation as AbstractSimulation
+from ._solvers import Adam as Adam
+from ._solvers import LevenbergMarquardt as LevenbergMarquardt
+from ._solvers import OptimistixLM as OptimistixLM

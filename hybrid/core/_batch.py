@@ -1,7 +1,7 @@
 """`fit_batch`: many recordings × many starts fitted in one compiled program.
 
 Each recording gets its own fit (its own model), exactly as [`hybrid.fit`][]
-would give it with ``solver="lm"``: the same starts, the same Levenberg–Marquardt
+would give it with the default ``solver=LevenbergMarquardt(...)``: the same starts, the same Levenberg–Marquardt
 loop, the validation split picking the best iterate and the best start. What
 changes is how the work is laid out:
 
@@ -42,12 +42,13 @@ import numpy as np
 from ..util._errors import InputError
 from ._arguments import as_recordings, check_dt, check_model
 from ._fit import fit_units, readout_back, start_model
-from ._levenberg_marquardt import LMSettings, lm_init, lm_run
+from ._levenberg_marquardt import lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
 from ._problem import Problem, Series, series_from_recording
 from ._result import FitResult, fit_warnings
 from ._simulation import AbstractSimulation
+from ._solvers import AbstractSolver, LevenbergMarquardt, resolve_solver
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,41 +88,50 @@ def fit_batch(
     model: Model,
     recordings,
     *,
+    solver: AbstractSolver | str = LevenbergMarquardt(),
     starts: int = 1,
-    max_steps: int = 300,
     frozen=frozenset(),
     split=(0.3, 0.5, 0.2),
     split_order=("train", "test", "validation"),
-    patience: int = 40,
     weight_decay: float = 0.0,
     perturbation: float = 0.5,
     seed: int = 0,
     batch_size: int | None = None,
     devices=None,
+    max_steps: int | None = None,
+    patience: int | None = None,
 ) -> BatchFitResult:
     """Fit `model` separately to each recording, all fits in one compiled program.
 
     **Arguments:**
 
-    - `model`, `starts`, `max_steps`, `frozen`, `split`, `split_order`,
-      `patience`, `weight_decay`, `perturbation`, `seed`: as in
-      [`hybrid.fit`][] (``solver="lm"``), applied to every recording.
+    - `model`, `solver`, `starts`, `frozen`, `split`, `split_order`,
+      `weight_decay`, `perturbation`, `seed`: as in [`hybrid.fit`][], applied to
+      every recording. The solver must be a
+      [`LevenbergMarquardt`][hybrid.LevenbergMarquardt] (the default).
     - `recordings`: a list of Recordings of equal length and rate (e.g. 64
       strips, or one strip recorded many times).
     - `batch_size`: fits `vmap`-ed together per device (default: all of them);
       lower it to bound memory.
     - `devices`: the devices to shard the batch over (default: all of
       `jax.devices()`; a list of one device runs unsharded).
+    - `max_steps`, `patience`: deprecated; each sets that field of `solver`
+      (``solver=hybrid.LevenbergMarquardt(max_steps=...)``), with a `DeprecationWarning`.
 
     **Returns:** a [`BatchFitResult`][]; ``result[i]`` equals
     ``hybrid.fit(model, recordings[i], ...)`` to rounding.
     """
     t_start = time.perf_counter()
+    solver = resolve_solver(solver, "hybrid.fit_batch", max_steps=max_steps, patience=patience)
+    if not isinstance(solver, LevenbergMarquardt):
+        raise InputError(
+            f"fit_batch runs Levenberg-Marquardt only, got {type(solver).__name__}: pass "
+            "solver=hybrid.LevenbergMarquardt(...), or use hybrid.fit for another solver"
+        )
     model = check_model(model, "fit_batch")
     recordings = as_recordings(recordings, "fit_batch")  # a path is loaded; anything else is refused
-    for name, value, low in (("starts", starts, 1), ("max_steps", max_steps, 1)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise InputError(f"{name} must be a positive integer, got {value!r}")
+    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
+        raise InputError(f"starts must be a positive integer, got {starts!r}")
     if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
         raise InputError(f"batch_size must be a positive integer or None, got {batch_size!r}")
     frozen = frozenset(frozen)
@@ -173,7 +183,7 @@ def fit_batch(
     if padded > n_fits:  # repeat the last fit so that every device gets the same share
         stacked = jax.tree_util.tree_map(lambda x: _pad(x, padded), stacked)
         thetas = _pad(thetas, padded)
-    settings = LMSettings(max_steps=max_steps, patience=patience)
+    settings = solver.lm_settings()
     run = _compiled_runner(template, settings, batch_size, tuple(devices))
     if n_dev > 1:
         sharding = jax.sharding.NamedSharding(_mesh(tuple(devices)), jax.sharding.PartitionSpec("batch"))
@@ -224,13 +234,11 @@ def fit_batch(
                 starts=per_start,
                 best_start=k,
                 settings={
-                    "solver": "lm",
+                    **solver.record(),
                     "batch": True,
                     "starts": starts,
-                    "max_steps": max_steps,
                     "frozen": sorted(frozen),
                     "split": dict(zip(split_order, map(float, split))),
-                    "patience": patience,
                     "seed": seed,
                     "perturbation": perturbation,
                     "weight_decay": problem.weight_decay,

@@ -1,14 +1,14 @@
 """`fit`: physical parameters and network weights fitted jointly, end to end.
 
-Solvers:
+Solvers (objects, their options as fields: [`hybrid.core._solvers`][]):
 
-- ``"lm"`` (default): Levenberg–Marquardt on the structured Jacobian
+- [`LevenbergMarquardt`][hybrid.LevenbergMarquardt] (default): on the structured Jacobian
   ([`hybrid.core._levenberg_marquardt`][]), several starts `vmap`-ed in one program.
-- ``"optimistix"``: `optimistix.LevenbergMarquardt` on the flattened parameters,
-  Jacobian by autodiff of the whole model — fine for the physics-only model
+- [`OptimistixLM`][hybrid.OptimistixLM]: `optimistix.LevenbergMarquardt` on the flattened
+  parameters, Jacobian by autodiff of the whole model — fine for the physics-only model
   (a handful of parameters), slow for the D-MLP models. It returns its final
   iterate (validation only picks among starts).
-- ``"adam"``: `optax.adam` on ½‖r‖², with the same validation bookkeeping.
+- [`Adam`][hybrid.Adam]: `optax.adam` on ½‖r‖², with the same validation bookkeeping.
 
 The training split drives the optimiser; the validation split picks the best
 iterate of each start and the best start; the test split is only reported.
@@ -18,7 +18,6 @@ The D-MLP's fixed input/output scalings are those of start 0 for every start.
 from __future__ import annotations
 
 import time
-from typing import Literal
 
 import equinox as eqx
 import jax
@@ -34,30 +33,29 @@ from ._models import Model
 from ._problem import Problem, Series, robust_rms, robust_std, series_from_recording
 from ._readout import LinearReadout, WindowedMLP
 from ._result import FitResult, fit_warnings
-
-Solver = Literal["lm", "optimistix", "adam"]
-SOLVERS = ("lm", "optimistix", "adam")
+from ._solvers import SOLVERS as SOLVERS
+from ._solvers import AbstractSolver, Adam, LevenbergMarquardt, OptimistixLM, resolve_solver
 
 
 def fit(
     model: Model,
     recordings,
     *,
-    solver: Solver = "lm",
+    solver: AbstractSolver | str = LevenbergMarquardt(),
     starts: int = 1,
-    max_steps: int = 300,
     frozen=frozenset(),
     split=(0.3, 0.5, 0.2),
     split_order=("train", "test", "validation"),
     blocks: int = 1,
-    patience: int = 40,
     weight_decay: float = 0.0,
-    learning_rate: float = 3e-3,
     perturbation: float = 0.5,
     seed: int = 0,
     progress: bool = True,
     report_every: int = 10,
     stop=None,
+    max_steps: int | None = None,
+    patience: int | None = None,
+    learning_rate: float | None = None,
 ) -> FitResult:
     """Fit `model` to one or several recordings of the same strip.
 
@@ -67,9 +65,11 @@ def fit(
       exactly there, the others from fresh network weights and physical
       parameters perturbed by `perturbation` (std of the unconstrained value).
     - `recordings`: a Recording or a list of them; each is split contiguously.
-    - `solver`: ``"lm"``, ``"optimistix"`` or ``"adam"`` (see module docstring).
-    - `starts`: number of starts (vmapped together for ``"lm"`` and ``"adam"``).
-    - `max_steps`: iteration limit per start.
+    - `solver`: a solver object with its options: [`LevenbergMarquardt`][hybrid.LevenbergMarquardt]
+      (default; `max_steps`, `patience`, …), [`Adam`][hybrid.Adam] (`max_steps`,
+      `learning_rate`) or [`OptimistixLM`][hybrid.OptimistixLM]. The strings ``"lm"``,
+      ``"optimistix"``, ``"adam"`` are deprecated (a `DeprecationWarning`).
+    - `starts`: number of starts (vmapped together for `LevenbergMarquardt` and `Adam`).
     - `frozen`: parameter names kept at their starting values (e.g. ``{"xi_h"}``;
       ``"network"`` freezes all D-MLP weights).
     - `split`, `split_order`: fractions and order of the contiguous splits
@@ -77,11 +77,9 @@ def fit(
     - `blocks`: cut each recording into this many equal chunks and split each
       chunk by `split` (1: the paper's contiguous split; see
       `hybrid.core._problem.series_from_recording`).
-    - `patience`: LM stops after this many accepted steps without validation gain.
     - `weight_decay`: μ, ridge penalty ½ μ ‖θ_network‖² on black-box readout weights
       (D-MLP); residuals are in units of the training std of w, so μ is relative
       to one sample's squared error. 0 disables it.
-    - `learning_rate`: Adam's step size.
     - `seed`: seeds the extra starts.
     - `progress`: show a progress bar on stderr.
     - `report_every`: iterations between progress reports / history entries.
@@ -91,16 +89,18 @@ def fit(
       iterate so far (by validation loss, never worse than its start), with
       `FitResult.stopped` true. ``hybrid fit`` passes one that watches SIGINT,
       SIGTERM and ``--time-limit``.
+    - `max_steps`, `patience`, `learning_rate`: deprecated; each sets that field of
+      `solver` (``solver=hybrid.LevenbergMarquardt(max_steps=...)``), with a
+      `DeprecationWarning`, and gives the same fit.
 
     **Returns:** a [`FitResult`][].
     """
     t_start = time.perf_counter()
-    if solver not in SOLVERS:
-        raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
+    solver = resolve_solver(
+        solver, "hybrid.fit", max_steps=max_steps, patience=patience, learning_rate=learning_rate
+    )
     if not isinstance(starts, int) or starts < 1:
         raise InputError(f"starts must be a positive integer, got {starts!r}")
-    if not isinstance(max_steps, int) or max_steps < 1:
-        raise InputError(f"max_steps must be a positive integer, got {max_steps!r}")
     model = check_model(model, "fit")
     recordings = as_recordings(recordings, "fit")  # a path is loaded; anything else is refused
     frozen = as_names(frozen, "fit", "frozen", model.parameter_names)  # "xi_h" is one name
@@ -132,16 +132,23 @@ def fit(
     if stop is not None and not callable(stop):
         raise InputError(f"stop must be a function of no arguments that returns True to stop, got {stop!r}")
     stopped = False
-    if solver == "lm":
+    if isinstance(solver, LevenbergMarquardt):
         best, history, per_start, stopped = _run_lm(
-            problem, thetas, max_steps, patience, progress, report_every, stop
+            problem, thetas, solver.lm_settings(), progress, report_every, stop
         )
-    elif solver == "adam":
+    elif isinstance(solver, Adam):
         best, history, per_start, stopped = _run_adam(
-            problem, thetas, max_steps, learning_rate, progress, report_every, stop
+            problem, thetas, solver.max_steps, solver.learning_rate, progress, report_every, stop
+        )
+    elif isinstance(solver, OptimistixLM):
+        best, history, per_start = _run_optimistix(
+            problem, thetas, solver.max_steps, solver.rtol, solver.atol
         )
     else:
-        best, history, per_start = _run_optimistix(problem, thetas, max_steps)
+        raise InputError(
+            f"hybrid.fit has no runner for {type(solver).__name__}: "
+            "use hybrid.LevenbergMarquardt(), hybrid.Adam() or hybrid.OptimistixLM()"
+        )
 
     best_start = int(np.nanargmin([s["validation_loss"] for s in per_start]))
     fitted = problem.model(best[best_start])
@@ -150,13 +157,11 @@ def fit(
     )
     result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
     settings = {
-        "solver": solver,
+        **solver.record(),  # "solver" (its name) and its options: max_steps, patience, learning_rate, ...
         "starts": starts,
-        "max_steps": max_steps,
         "frozen": sorted(frozen),
         "split": dict(zip(split_order, map(float, split))),
         "blocks": blocks,
-        "patience": patience,
         "seed": seed,
         "perturbation": perturbation,
         "weight_decay": problem.weight_decay,
@@ -164,8 +169,6 @@ def fit(
         "n_residuals": int(problem.target("train").shape[0]),
         "recordings": [r.metadata.get("source", "") for r in recordings],
     }
-    if solver == "adam":
-        settings["learning_rate"] = learning_rate
     return FitResult(
         model=fitted,
         parameters={k: float(v) for k, v in fitted.parameters().items()},
@@ -305,7 +308,7 @@ def lm_run_batch(problem, states, settings, n_steps):
 STOP_POLL_S = 1.0
 
 
-def _run_lm(problem, thetas, max_steps, patience, progress, report_every, stop=None):
+def _run_lm(problem, thetas, settings: LMSettings, progress, report_every, stop=None):
     """LM from each row of `thetas`: (best θ per start, history, per-start records, stopped).
 
     Steps run in compiled chunks that end on every `report_every`-th step (a
@@ -313,7 +316,7 @@ def _run_lm(problem, thetas, max_steps, patience, progress, report_every, stop=N
     as many steps as fit in `STOP_POLL_S` (at least one), so that `stop` is
     looked at between steps.
     """
-    settings = LMSettings(max_steps=max_steps, patience=patience)
+    max_steps = settings.max_steps
     stage(f"fit: compiling and starting LM on the {problem.kind} model ({thetas.shape[0]} start(s))")
     states = lm_init_batch(problem, thetas, settings)
     history = []
@@ -426,10 +429,10 @@ def _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every,
     return best, history, per_start, stopped
 
 
-def _run_optimistix(problem, thetas, max_steps):
+def _run_optimistix(problem, thetas, max_steps, rtol, atol):
     import optimistix as optx
 
-    solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     best, per_start = [], []
     for theta in thetas:
         solution = optx.least_squares(

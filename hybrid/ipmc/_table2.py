@@ -22,6 +22,7 @@ import jax
 import numpy as np
 
 from ..core._fit import fit
+from ..core._solvers import LevenbergMarquardt
 from ..data._drives import make_drive
 from ..util._atomic import write_text
 from ..util._watchdog import stage
@@ -110,9 +111,8 @@ def reproduce_table2(
             results[kind] = fit(
                 model,
                 recording,
+                solver=LevenbergMarquardt(max_steps=settings.max_steps, patience=settings.patience),
                 starts=settings.starts,
-                max_steps=settings.max_steps,
-                patience=settings.patience,
                 weight_decay=settings.weight_decay,
                 frozen=set(model.simulation.default_frozen()),
                 seed=settings.seed,
