@@ -234,7 +234,7 @@ def per_step_case(physics: str, n: int, steps: int) -> dict:
     recording = _recording(physics, n)
     simulation = hy.RCNetwork() if physics == "rc" else hy.resolve_physics(physics, [recording])
     model = hy.make_model("hybrid", simulation=simulation, key=jax.random.key(0))
-    frozen = frozenset(model.simulation.default_frozen())
+    frozen = frozenset(model.simulation.frozen_by_default)
     series = [series_from_recording(recording)]
     signal = model.mediatory(series[0].v_in, series[0].dt)  # the D-MLP's fixed scalings, as `fit` sets them
     signal = jnp.concatenate([signal[a:b] for a, b in series[0].segments_of("train")])

@@ -51,7 +51,7 @@ Choices, and why:
   free, 0.07 with them fixed. So both areas, measured with a ruler, are fixed by
   default too, and a fit moves the two outlets (what clogs and wears).
   `hybrid diagnose` and the CLI's fit apply `frozen_by_default`; from Python pass
-  ``frozen=set(TwoTank().default_frozen())`` to `hybrid.fit`.
+  ``frozen=set(TwoTank().frozen_by_default)`` to `hybrid.fit`.
 
 Use it:
 
@@ -59,7 +59,7 @@ Use it:
     hybrid diagnose recording.csv --physics examples/two_tank.py:TwoTank
 
 or, from Python, ``hybrid.fit(hybrid.make_model("physics", simulation=TwoTank()), recording,
-frozen=set(TwoTank().default_frozen()))``. See docs/plugins.md.
+frozen=set(TwoTank().frozen_by_default))``. See docs/plugins.md.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@
 - any other ``--physics`` (``lti:N``, ``file.py:Class``): `hybrid.sensitivity._study`
   on the drive of the recording given, which is required: the synthetic drives
   are an IPMC's voltages at 30 Hz and say nothing honest about another system.
-  Its `default_frozen()` parameters are left out, as `fit` leaves them fixed.
+  Its `frozen_by_default` parameters are left out, as `fit` leaves them fixed.
 
 The recording may be a lab's file (the column options of `hybrid fit`).
 """
@@ -152,7 +152,7 @@ def _generic(args) -> None:
     lock = check_outputs([out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording])
     recording = load_recordings(args, [args.recording], rate_alone_maps=False)[0]
     warn_notes([recording])
-    k = len(set(simulation.parameter_names()) - set(simulation.default_frozen())) + 2  # + gain and offset
+    k = len(set(simulation.parameter_names()) - set(simulation.frozen_by_default)) + 2  # + gain and offset
     recording.check_length(
         max(MIN_SAMPLES, 2 * k),
         f"the study of {k} parameters (gain and offset included)",

@@ -300,7 +300,7 @@ def _cmd_fit(args):
     as_names(
         args.free, "--free", "parameter", model.parameter_names
     )  # an unknown name is refused, not ignored
-    frozen |= set(model.simulation.default_frozen()) - set(args.free)  # the RC network's xi_h
+    frozen |= set(model.simulation.frozen_by_default) - set(args.free)  # the RC network's xi_h
     if len(args.split) != 3:
         raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
     tests = load_tests(args, recordings, model.readout.window)  # --test: refused before fitting, not after

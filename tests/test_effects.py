@@ -228,7 +228,7 @@ def test_stack_switches_and_parameters():
     changed = stack.replace(delay_s=0.2, xi_rho=20.0)
     assert float(changed.parameters()["delay_s"]) == pytest.approx(0.2)
     assert float(changed.parameters()["xi_rho"]) == pytest.approx(20.0)
-    assert stack.parameter_units()["resonance_frequency_hz"] == "Hz"
+    assert stack.units["resonance_frequency_hz"] == "Hz"
 
 
 def test_stack_errors():

@@ -122,7 +122,7 @@ def test_mass_spring_damper_matches_scipy_lsim_with_a_linearly_interpolated_driv
 
 def test_duffing_matches_solve_ivp_and_its_cubic_term_hardens_the_spring():
     sim, _ = _example("oscillator.py:Duffing")
-    assert sim.default_frozen() == {}
+    assert sim.frozen_by_default == {}
     sim = sim.replace(frequency=60.0, zeta=0.05, cubic=4.0, drive_offset=0.01)
     fs = 610.35
     t = np.arange(600) / fs

@@ -47,7 +47,7 @@ class Lag(AbstractSimulation):
 
 def test_the_start_design_spreads_over_the_simulations_own_ranges():
     lag = Lag(tau_s=3.0, k=1.2)
-    design = baseline_design(lag, 64, frozen=lag.default_frozen())
+    design = baseline_design(lag, 64, frozen=lag.frozen_by_default)
     assert design[0] == {"k": 1.2, "tau_s": 3.0}  # the simulation as given, first
     points = np.array([[d["k"], d["tau_s"]] for d in design[1:]])
     assert list(design[1]) == ["k", "tau_s"]  # the declared order; bias is frozen
@@ -63,7 +63,7 @@ def test_the_start_design_spreads_over_the_simulations_own_ranges():
 
 def test_the_rc_networks_design_covers_the_strips_it_declares():
     network = RCNetwork(method="zoh")
-    design = baseline_design(network, 512, frozen=network.default_frozen())
+    design = baseline_design(network, 512, frozen=network.frozen_by_default)
     assert len(design) == 512 and "xi_h" not in design[1]
     c = np.array([d["C_clamp"] for d in design[1:]])
     alpha = np.array([d["alpha_C"] for d in design[1:]])
@@ -75,8 +75,47 @@ def test_frozen_defaults_come_from_the_simulation():
     assert DiagnoseSettings().frozen_for(Lag()) == ("bias",)
     assert DiagnoseSettings().frozen_for(RCNetwork()) == ("xi_h",)
     assert DiagnoseSettings(frozen=()).frozen_for(RCNetwork()) == ()
-    assert hybrid.extend(Lag(), "delay").default_frozen() == Lag().default_frozen()
-    assert "ratio" in RCNetwork().default_frozen()["xi_h"]
+    assert hybrid.extend(Lag(), "delay").frozen_by_default == Lag().frozen_by_default
+    assert "ratio" in RCNetwork().frozen_by_default["xi_h"]
+
+
+def test_each_fact_is_read_as_an_attribute_and_the_old_getters_warn_but_agree():
+    lag, stack = Lag(), hybrid.extend(Lag(), "delay")
+    assert lag.units == Lag.units and lag.plausible == Lag.plausible  # a ClassVar dict, read on the instance
+    assert stack.units == {**Lag.units, "delay_s": "s"}  # a wrapper's facts include its inner's
+    assert stack.plausible == Lag.plausible and stack.typical == Lag.typical
+    assert set(stack.constraints) == set(stack.parameter_names())
+    old = {
+        "parameter_units": lag.units,
+        "parameter_constraints": lag.constraints,
+        "plausible_ranges": lag.plausible,
+        "default_frozen": lag.frozen_by_default,
+    }
+    for getter, value in old.items():
+        with pytest.warns(DeprecationWarning, match=getter):
+            assert getattr(stack.inner, getter)() == value
+    assert lag.typical_ranges() == {**Lag.typical, "bias": (-1.0, 1.0)}  # completed from plausible
+    assert (RCNetwork().output_unit, RCNetwork().linear_in_drive, Lag().output_unit) == ("V", True, "")
+
+
+class Unstated(AbstractSimulation):
+    raw: dict
+
+    def __init__(self):
+        self.raw = {}
+
+    def simulate(self, v_in, dt):
+        return v_in
+
+
+def test_a_simulation_that_states_no_constraints_or_units_gets_one_clear_line():
+    with pytest.raises(InputError, match="Unstated states no constraints: give it a class-level dict"):
+        _ = Unstated().constraints
+    with pytest.raises(InputError, match="Unstated states no units"):
+        _ = Unstated().units
+    assert (
+        Unstated().plausible == {} and Unstated().frozen_by_default == {} and not Unstated().linear_in_drive
+    )
 
 
 def test_fit_warns_against_the_simulations_own_plausible_ranges():

@@ -90,10 +90,9 @@ def test_lti_gradient_matches_central_differences():
 def test_lti_parameters_are_its_own_and_survive_save_and_load(tmp_path):
     sim = LTI(3, tau_1=0.2, f_2=4.0, zeta_2=1.5, lowpass_2=-0.5)
     assert sim.parameter_names() == ("tau_1", "f_2", "zeta_2", "lowpass_2", "bandpass_2", "direct")
-    assert (
-        set(sim.parameter_units()) == set(sim.typical_ranges()) == set(sim.plausible_ranges()) == set(sim.raw)
-    )
-    assert sim.parameter_units()["f_2"] == "Hz" and sim.linear_in_drive
+    for fact in (sim.constraints, sim.units, sim.plausible, sim.typical, sim.typical_ranges()):
+        assert list(fact) == list(sim.parameter_names())  # its order's parameters, in its order
+    assert sim.units["f_2"] == "Hz" and sim.linear_in_drive and LTI(1).units == {"tau_1": "s", "direct": "1"}
     assert float(sim.replace(zeta_2=0.3).parameters()["zeta_2"]) == pytest.approx(0.3)
     with pytest.raises(InputError, match="lowpass_1"):
         LTI(2, lowpass_1=2.0)  # fixed at 1: the readout's gain carries the scale
@@ -270,7 +269,7 @@ def test_a_fitted_plugin_model_saves_and_loads(fitted_plugin, tmp_path):
 def test_the_two_tank_example_matches_solve_ivp_and_differentiates_from_empty_tanks():
     sim = resolve_physics(str(ROOT / "examples" / "two_tank.py") + ":TwoTank")
     module = sys.modules[type(sim).__module__]
-    assert sim.config() == {} and set(sim.default_frozen()) == {"pump_flow", "area_1", "area_2"}
+    assert sim.config() == {} and set(sim.frozen_by_default) == {"pump_flow", "area_1", "area_2"}
     p = {k: float(v) for k, v in sim.parameters().items()}
     c1, c2 = (p[k] * np.sqrt(2 * module.G) for k in ("outlet_1", "outlet_2"))
 

@@ -36,6 +36,8 @@ from ._simulation import AbstractSimulation, AbstractWrapper
 
 #: The name of the added parameter.
 INITIAL_DRIVE = "initial_drive"
+OWN_CONSTRAINTS: dict[str, Constraint] = {INITIAL_DRIVE: Real()}
+OWN_UNITS = {INITIAL_DRIVE: "V"}
 
 
 class HeldStart(AbstractWrapper):
@@ -54,8 +56,6 @@ class HeldStart(AbstractWrapper):
     inner: AbstractSimulation
     settle_samples: int = eqx.field(static=True)
     own: dict[str, Array]
-    constraints: ClassVar[dict[str, Constraint]] = {INITIAL_DRIVE: Real()}
-    units: ClassVar[dict[str, str]] = {INITIAL_DRIVE: "V"}
     # The held drive is a parameter of the drive's own scale: rescaling the drive (what
     # `fit` does for a simulation linear in it) would silently change its meaning.
     linear_in_drive: ClassVar[bool] = False
@@ -74,7 +74,7 @@ class HeldStart(AbstractWrapper):
             raise InputError(f"{type(inner).__name__} already has a parameter {INITIAL_DRIVE!r}")
         self.inner = inner
         self.settle_samples = settle_samples
-        self.own = encode({INITIAL_DRIVE: initial_drive}, self.constraints, "HeldStart")
+        self.own = encode({INITIAL_DRIVE: initial_drive}, OWN_CONSTRAINTS, "HeldStart")
 
     @property  # type: ignore[misc]  # equinox: AbstractVar `raw` may be implemented by a property
     def raw(self) -> dict[str, Array]:  # type: ignore[override]  # (mypy sees a plain field)
@@ -103,18 +103,20 @@ class HeldStart(AbstractWrapper):
     def parameter_names(self):
         return tuple(self.inner.parameter_names()) + (INITIAL_DRIVE,)
 
-    def parameter_units(self):
-        return {**self.inner.parameter_units(), INITIAL_DRIVE: self.units[INITIAL_DRIVE]}
+    @property
+    def constraints(self) -> dict[str, Constraint]:
+        return {**self.inner.constraints, **OWN_CONSTRAINTS}
 
-    def parameter_constraints(self):
-        return {**self.inner.parameter_constraints(), **self.constraints}
+    @property
+    def units(self) -> dict[str, str]:
+        return {**self.inner.units, **OWN_UNITS}
 
     def replace(self, **values):
         rest = {k: v for k, v in values.items() if k != INITIAL_DRIVE}
         inner = self.inner.replace(**rest) if rest else self.inner
         own = encode(
             {INITIAL_DRIVE: values.get(INITIAL_DRIVE, self.parameters()[INITIAL_DRIVE])},
-            self.constraints,
+            OWN_CONSTRAINTS,
             "HeldStart",
         )
         return eqx.tree_at(lambda s: (s.inner, s.own), self, (inner, own))

@@ -62,7 +62,7 @@ class Model(eqx.Module):
 
     @property
     def units(self) -> dict[str, str]:
-        return {**self.simulation.parameter_units(), **getattr(type(self.readout), "units", {})}
+        return {**self.simulation.units, **getattr(type(self.readout), "units", {})}
 
     @property
     def parameter_names(self) -> tuple[str, ...]:

@@ -27,7 +27,7 @@ class FitResult:
     - `settings`: solver, starts, frozen parameters, split, seed, … (JSON-able).
     - `seconds`: wall time of the fit, compile time included.
     - `warnings`: sentences about results not to take at face value: a physical
-      parameter outside its plausible range (`AbstractSimulation.plausible_ranges`) or
+      parameter outside its plausible range (`AbstractSimulation.plausible`) or
       still at its start value, a fit that made no accepted step, a recording
       whose time base was rebuilt (`hybrid.core._result.fit_warnings`).
     - `stopped`: true when the fit was stopped before it ended (its `stop`
@@ -115,7 +115,7 @@ def fit_warnings(start: Model, fitted: Model, frozen, start_record: dict[str, An
                 f"{name} = {value:.6g}{unit} did not move from its start value: the data may not "
                 "constrain it, or the fit failed"
             )
-    for name, (low, high) in fitted.simulation.plausible_ranges().items():
+    for name, (low, high) in fitted.simulation.plausible.items():
         if name in free and not (low <= after[name] <= high):
             unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
             warnings.append(

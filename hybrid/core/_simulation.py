@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import warnings
 from typing import ClassVar, Self
 
 import equinox as eqx
@@ -31,30 +32,74 @@ from ._parameters import Constraint, decode, encode
 class AbstractSimulation(eqx.Module):
     """A physics simulation with named, constrained parameters.
 
-    Subclasses declare `constraints` (a class-level dict name → Constraint) and
-    hold the unconstrained values in `raw`.
+    Subclasses hold the unconstrained values in `raw` and state the facts below.
+    Each fact is read in one way, as the attribute of an instance
+    (`simulation.units`, `simulation.frozen_by_default`, …). A subclass states it
+    as a class-level constant (``units: ClassVar[dict] = {...}``), or, where it
+    depends on a field (as `LTI`'s parameters depend on its order, or a wrapper's
+    on what it wraps), as a property computed from its fields.
     """
 
     raw: eqx.AbstractVar[dict[str, Array]]
-    constraints: ClassVar[dict[str, Constraint]]
-    units: ClassVar[dict[str, str]]
-    #: Physically plausible range (low, high) of each parameter, in its unit. A
-    #: fitted value outside it is warned about (`FitResult.warnings`), not refused.
-    plausible: ClassVar[dict[str, tuple[float, float]]] = {}
-    #: Where most real systems lie (low, high), per parameter, in its unit: diagnose's
-    #: screened start design spreads over these ranges, in this order (log-spaced for a
-    #: `Positive` parameter). A parameter missing here falls back to `plausible`.
-    typical: ClassVar[dict[str, tuple[float, float]]] = {}
-    #: Parameters that `fit` (from the CLI) and `diagnose` keep at their given values
-    #: unless freed, each with the reason (e.g. one of two parameters that enter only
-    #: as a ratio).
-    frozen_by_default: ClassVar[dict[str, str]] = {}
-    #: True when the output is linear in the drive (zero initial state), so that a
-    #: drive in mV gives the same parameters as one in V: `fit` then scales v_in.
-    linear_in_drive: ClassVar[bool] = False
-    #: The unit of the mediatory signal `simulate` returns ("V" for the RC network's V_o);
-    #: "" where the simulation does not say.
-    output_unit: ClassVar[str] = ""
+
+    # --- the facts the generic rooms read (required: constraints, units) ------------------
+    @property
+    def constraints(self) -> dict[str, Constraint]:
+        """Constraint of each parameter, by name (e.g. `Positive`: optimised in log). Required."""
+        raise InputError(
+            f"{type(self).__name__} states no constraints: give it a class-level dict constraints "
+            "(name -> Positive(), Real(), UnitInterval(), ...) for each parameter (see docs/plugins.md)"
+        )
+
+    @property
+    def units(self) -> dict[str, str]:
+        """Unit of each parameter, by name ("1" for dimensionless). Required."""
+        raise InputError(
+            f"{type(self).__name__} states no units: give it a class-level dict units "
+            '(name -> "s", "cm^2", "1", ...) for each parameter (see docs/plugins.md)'
+        )
+
+    @property
+    def plausible(self) -> dict[str, tuple[float, float]]:
+        """Physically plausible range (low, high) of a parameter, in its unit (default: none).
+
+        A fitted value outside it is warned about (`FitResult.warnings`), not refused.
+        """
+        return {}
+
+    @property
+    def typical(self) -> dict[str, tuple[float, float]]:
+        """Where most real systems lie (low, high), per parameter, in its unit (default: none).
+
+        diagnose's screened start design spreads over these ranges, in this order
+        (log-spaced for a `Positive` parameter); `typical_ranges()` completes them
+        from `plausible`.
+        """
+        return {}
+
+    @property
+    def frozen_by_default(self) -> dict[str, str]:
+        """Parameters that `fit` (from the CLI) and `diagnose` keep fixed unless freed, with the reason.
+
+        E.g. one of two parameters that enter only as a ratio (default: none).
+        """
+        return {}
+
+    @property
+    def linear_in_drive(self) -> bool:
+        """True when the output is linear in the drive (zero initial state) (default False).
+
+        A drive in mV then gives the same parameters as one in V: `fit` scales v_in.
+        """
+        return False
+
+    @property
+    def output_unit(self) -> str:
+        """The unit of the mediatory signal `simulate` returns ("V" for the RC network's V_o).
+
+        "" (the default) where the simulation does not say.
+        """
+        return ""
 
     @abc.abstractmethod
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
@@ -89,26 +134,34 @@ class AbstractSimulation(eqx.Module):
         """Names of the parameters (what `frozen` and `replace` accept)."""
         return tuple(self.raw)
 
+    def typical_ranges(self) -> dict[str, tuple[float, float]]:
+        """Typical (low, high) of each parameter: `typical`, then `plausible` for the rest.
+
+        What a start design spreads over (`typical` alone may name only some parameters).
+        """
+        own = dict(self.typical)
+        return {**own, **{k: v for k, v in self.plausible.items() if k not in own}}
+
+    # --- the getters of release 0.x: each re-reads one fact; kept for one release ----------
     def parameter_units(self) -> dict[str, str]:
-        """Unit of each parameter, by name."""
-        return dict(type(self).units)
+        """Deprecated: read `units`."""
+        _deprecated("parameter_units()", "units")
+        return dict(self.units)
 
     def parameter_constraints(self) -> dict[str, Constraint]:
-        """Constraint of each parameter, by name (e.g. `Positive`: optimised in log)."""
-        return dict(type(self).constraints)
+        """Deprecated: read `constraints`."""
+        _deprecated("parameter_constraints()", "constraints")
+        return dict(self.constraints)
 
     def plausible_ranges(self) -> dict[str, tuple[float, float]]:
-        """Plausible (low, high) of each parameter that declares one, in its unit."""
-        return dict(type(self).plausible)
-
-    def typical_ranges(self) -> dict[str, tuple[float, float]]:
-        """Typical (low, high) of each parameter: `typical`, then `plausible` for the rest."""
-        own = dict(type(self).typical)
-        return {**own, **{k: v for k, v in self.plausible_ranges().items() if k not in own}}
+        """Deprecated: read `plausible`."""
+        _deprecated("plausible_ranges()", "plausible")
+        return dict(self.plausible)
 
     def default_frozen(self) -> dict[str, str]:
-        """Parameters kept fixed unless freed, with the reason for each."""
-        return dict(type(self).frozen_by_default)
+        """Deprecated: read `frozen_by_default`."""
+        _deprecated("default_frozen()", "frozen_by_default")
+        return dict(self.frozen_by_default)
 
     def config(self) -> dict:
         """The JSON-able settings that rebuild this simulation's skeleton (`from_config`).
@@ -165,14 +218,17 @@ class AbstractWrapper(AbstractSimulation):
 
     inner: eqx.AbstractVar[AbstractSimulation]
 
-    def plausible_ranges(self) -> dict[str, tuple[float, float]]:
-        return self.inner.plausible_ranges()
+    @property
+    def plausible(self) -> dict[str, tuple[float, float]]:
+        return self.inner.plausible
 
-    def typical_ranges(self) -> dict[str, tuple[float, float]]:
-        return self.inner.typical_ranges()
+    @property
+    def typical(self) -> dict[str, tuple[float, float]]:
+        return self.inner.typical
 
-    def default_frozen(self) -> dict[str, str]:
-        return self.inner.default_frozen()
+    @property
+    def frozen_by_default(self) -> dict[str, str]:
+        return self.inner.frozen_by_default
 
 
 class Passthrough(AbstractSimulation):
@@ -188,6 +244,15 @@ class Passthrough(AbstractSimulation):
 
     def simulate(self, v_in, dt):
         return check_drive(v_in, dt, "Passthrough.simulate")[0]
+
+
+def _deprecated(old: str, new: str) -> None:
+    warnings.warn(
+        f"AbstractSimulation.{old} is deprecated and goes in the next release: read the attribute "
+        f"simulation.{new} instead",
+        DeprecationWarning,
+        stacklevel=3,
+    )
 
 
 def perturb_raw(raw: dict, key, scale: float, frozen=frozenset()) -> dict:

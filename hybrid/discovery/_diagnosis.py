@@ -62,7 +62,7 @@ class DiagnoseSettings:
       `experiments/discrepancy.py` leave 0.9–1.5× the noise held out when the
       recording pins the strip.
     - `frozen`: parameters never fitted; ``None`` (default) takes the
-      simulation's `default_frozen()` (the RC network's ξh: only ξρ/ξh is
+      simulation's `frozen_by_default` (the RC network's ξh: only ξρ/ξh is
       identifiable).
     """
 
@@ -91,7 +91,7 @@ class DiagnoseSettings:
 
     def frozen_for(self, simulation) -> tuple[str, ...]:
         """`frozen`, or the simulation's parameters frozen by default when it is None."""
-        return tuple(simulation.default_frozen()) if self.frozen is None else tuple(self.frozen)
+        return tuple(simulation.frozen_by_default) if self.frozen is None else tuple(self.frozen)
 
 
 @dataclasses.dataclass(frozen=True)

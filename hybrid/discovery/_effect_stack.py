@@ -10,8 +10,6 @@ Jacobian columns and Levenberg–Marquardt (λI damping) leaves them in place.
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -41,8 +39,6 @@ class EffectStack(AbstractWrapper):
     inner: AbstractSimulation
     effects: tuple[AbstractEffect, ...]
     active: Array
-    constraints: ClassVar[dict[str, Constraint]] = {}
-    units: ClassVar[dict[str, str]] = {}
 
     def __init__(self, inner: AbstractSimulation, effects=(), active=None):
         built = []
@@ -94,14 +90,16 @@ class EffectStack(AbstractWrapper):
     def parameter_names(self):
         return tuple(self.inner.parameter_names()) + tuple(n for e in self.effects for n in e.constraints)
 
-    def parameter_units(self):
-        out = dict(self.inner.parameter_units())
+    @property
+    def units(self) -> dict[str, str]:
+        out = dict(self.inner.units)
         for effect in self.effects:
             out.update(effect.units)
         return out
 
-    def parameter_constraints(self):
-        out = dict(self.inner.parameter_constraints())
+    @property
+    def constraints(self) -> dict[str, Constraint]:
+        out = dict(self.inner.constraints)
         for effect in self.effects:
             out.update(effect.constraints)
         return out

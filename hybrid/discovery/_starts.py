@@ -83,7 +83,7 @@ def baseline_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]
         return grid
     sobol = scipy.stats.qmc.Sobol(d=len(ranges), scramble=True, seed=20261122)
     unit = sobol.random_base2(max(1, math.ceil(math.log2(max(n_points - 1, 1)))))
-    constraints = simulation.parameter_constraints()
+    constraints = simulation.constraints
     logarithmic = {k: isinstance(constraints[k], Positive) for k in ranges}
     for u in unit:
         point = {}
@@ -101,9 +101,7 @@ def baseline_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]
 def design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
     """The design's parameters that `simulation` has, as columns of raw (unconstrained) values."""
     names = [k for k in design[0] if k in simulation.parameter_names()]
-    constraints = (
-        simulation.parameter_constraints()
-    )  # a wrapper's (HeldStart, EffectStack) include its inner's
+    constraints = simulation.constraints  # a wrapper's (HeldStart, EffectStack) include its inner's
     return names, {k: jnp.asarray(constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
 
 

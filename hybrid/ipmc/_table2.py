@@ -114,7 +114,7 @@ def reproduce_table2(
                 solver=LevenbergMarquardt(max_steps=settings.max_steps, patience=settings.patience),
                 starts=settings.starts,
                 weight_decay=settings.weight_decay,
-                frozen=set(model.simulation.default_frozen()),
+                frozen=set(model.simulation.frozen_by_default),
                 seed=settings.seed,
                 progress=progress,
             )

@@ -94,6 +94,23 @@ def _table(tau, f, zeta, residue, direct) -> dict:
     return out
 
 
+#: Constraint, unit, plausible and typical range of every parameter name of every order up to
+#: MAX_ORDER (an instance's `constraints`, … select its own).
+CONSTRAINTS: dict[str, Constraint] = _table(Positive(), Positive(), Positive(), Real(), Real())
+UNITS: dict[str, str] = _table("s", "Hz", "1", "1", "1")
+# Plausible: any time scale from a microsecond to ten days, any damping that is not
+# a numerical accident, residues within three decades of section 1's fixed 1.
+PLAUSIBLE: dict[str, tuple[float, float]] = _table(
+    (1e-6, 1e6), (1e-6, 1e6), (1e-3, 1e3), (-1e3, 1e3), (-1e3, 1e3)
+)
+# Where diagnose's screened start design spreads: time constants 1 ms-1000 s, natural
+# frequencies 1 mHz-1 kHz (log), dampings 0.05-5 (resonant to overdamped), residues
+# within ten times section 1's, a feedthrough of at most the drive itself.
+TYPICAL: dict[str, tuple[float, float]] = _table(
+    (1e-3, 1e3), (1e-3, 1e3), (0.05, 5.0), (-10.0, 10.0), (-1.0, 1.0)
+)
+
+
 class LTI(AbstractSimulation):
     """A stable continuous-time linear system of order N in modal form (see the module docstring).
 
@@ -111,26 +128,13 @@ class LTI(AbstractSimulation):
     - `lowpass_k`, `bandpass_k` (1): its residues (`lowpass_1` is fixed at 1);
     - `direct` (1): the feedthrough of the drive to the output.
 
-    The class-level `constraints`, `units`, `plausible` and `typical` list the
-    names of every order; an instance's methods (`parameter_units`, …) report its own.
+    Its facts (`constraints`, `units`, `plausible`, `typical`) are properties of the
+    order: each lists this system's parameters only, from tables that cover every order.
     """
 
     raw: dict[str, Array]
     order: int = eqx.field(static=True)
 
-    constraints: ClassVar[dict[str, Constraint]] = _table(Positive(), Positive(), Positive(), Real(), Real())
-    units: ClassVar[dict[str, str]] = _table("s", "Hz", "1", "1", "1")
-    # Plausible: any time scale from a microsecond to ten days, any damping that is not
-    # a numerical accident, residues within three decades of section 1's fixed 1.
-    plausible: ClassVar[dict[str, tuple[float, float]]] = _table(
-        (1e-6, 1e6), (1e-6, 1e6), (1e-3, 1e3), (-1e3, 1e3), (-1e3, 1e3)
-    )
-    # Where diagnose's screened start design spreads: time constants 1 ms-1000 s, natural
-    # frequencies 1 mHz-1 kHz (log), dampings 0.05-5 (resonant to overdamped), residues
-    # within ten times section 1's, a feedthrough of at most the drive itself.
-    typical: ClassVar[dict[str, tuple[float, float]]] = _table(
-        (1e-3, 1e3), (1e-3, 1e3), (0.05, 5.0), (-10.0, 10.0), (-1.0, 1.0)
-    )
     linear_in_drive: ClassVar[bool] = True  # zero initial state: the output is linear in the drive
 
     def __init__(self, order: int, **values):
@@ -145,10 +149,29 @@ class LTI(AbstractSimulation):
         unknown = sorted(set(values) - set(names))
         if unknown:
             raise InputError(f"LTI({order}) has no parameter(s) {unknown}: its parameters are {list(names)}")
-        self.raw = encode({**defaults, **values}, {k: self.constraints[k] for k in names}, f"LTI({order})")
+        self.raw = encode({**defaults, **values}, {k: CONSTRAINTS[k] for k in names}, f"LTI({order})")
         self.order = order
 
-    # --- the interface, per instance -------------------------------------------------
+    # --- the facts, for this order ------------------------------------------------------
+    @property
+    def constraints(self) -> dict[str, Constraint]:
+        return {k: CONSTRAINTS[k] for k in self.parameter_names()}
+
+    @property
+    def units(self) -> dict[str, str]:
+        return {k: UNITS[k] for k in self.parameter_names()}
+
+    @property
+    def plausible(self) -> dict[str, tuple[float, float]]:
+        return {k: PLAUSIBLE[k] for k in self.parameter_names()}
+
+    @property
+    def typical(self) -> dict[str, tuple[float, float]]:
+        return {k: TYPICAL[k] for k in self.parameter_names()}  # time scales first, then residues
+
+    def parameter_names(self) -> tuple[str, ...]:
+        return parameter_names_for(self.order)  # in the sections' order (raw's keys may be sorted)
+
     def config(self) -> dict:
         """{"order": N}: what rebuilds this system's skeleton."""
         return {"order": self.order}
@@ -156,32 +179,6 @@ class LTI(AbstractSimulation):
     @classmethod
     def from_config(cls, config: dict) -> LTI:
         return cls(order=config["order"])
-
-    def parameter_names(self) -> tuple[str, ...]:
-        return parameter_names_for(self.order)
-
-    def parameter_units(self) -> dict[str, str]:
-        return {k: self.units[k] for k in self.parameter_names()}
-
-    def parameter_constraints(self) -> dict[str, Constraint]:
-        return {k: self.constraints[k] for k in self.parameter_names()}
-
-    def plausible_ranges(self) -> dict[str, tuple[float, float]]:
-        return {k: self.plausible[k] for k in self.parameter_names()}
-
-    def typical_ranges(self) -> dict[str, tuple[float, float]]:
-        return {k: self.typical[k] for k in self.parameter_names()}  # time scales first, then residues
-
-    def replace(self, **values) -> LTI:
-        unknown = sorted(set(values) - set(self.raw))
-        if unknown:
-            raise InputError(
-                f"LTI({self.order}) has no parameter(s) {unknown}: its parameters are "
-                f"{list(self.parameter_names())}"
-            )
-        current = {**self.parameters(), **values}
-        raw = encode(current, self.parameter_constraints(), f"LTI({self.order})")
-        return eqx.tree_at(lambda s: s.raw, self, raw)
 
     # --- the system ---------------------------------------------------------------------
     def state_space(self) -> tuple[Array, Array, Array, Array]:

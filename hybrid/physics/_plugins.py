@@ -376,20 +376,31 @@ def _check(text: str, name: str, simulation: AbstractSimulation) -> None:
             f"--physics {text}: {name}() has no dict raw of parameters; set self.raw = "
             "encode(values, self.constraints, name) in __init__ (see docs/plugins.md)"
         )
-    constraints = getattr(type(simulation), "constraints", None)
-    units = simulation.parameter_units() if isinstance(constraints, dict) else None
-    if not isinstance(constraints, dict) or any(k not in simulation.constraints for k in names):
+    constraints, units = _fact(simulation, "constraints"), _fact(simulation, "units")
+    if not isinstance(constraints, dict) or any(k not in constraints for k in names):
         raise InputError(
             f"--physics {text}: {name} needs a class-level dict constraints with an entry "
             f"(Positive(), Real(), UnitInterval(), ...) for each parameter {names}"
         )
-    assert units is not None  # constraints is a dict here
+    if not isinstance(units, dict):
+        raise InputError(
+            f"--physics {text}: {name} needs a class-level dict units with an entry "
+            f'(e.g. "s", "cm^2", "1" for dimensionless) for each parameter {names}'
+        )
     missing = [k for k in names if k not in units]
     if missing:
         raise InputError(
             f"--physics {text}: {name}.units has no unit for {missing}; add them "
             '(e.g. "s", "cm^2", "1" for dimensionless)'
         )
+
+
+def _fact(simulation: AbstractSimulation, name: str) -> object:
+    """The fact `name` (`constraints`, `units`) as the simulation states it, or None if it does not."""
+    try:
+        return getattr(simulation, name)
+    except Exception:  # the base class's one-line refusal, or a plug-in's property that fails
+        return None
 
 
 def _probe_drive(recordings):

@@ -125,9 +125,7 @@ def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensi
 
 
 def _simulation_units(simulation) -> dict[str, str]:
-    if hasattr(simulation, "parameter_units"):
-        return dict(simulation.parameter_units())
-    return dict(getattr(type(simulation), "units", {}))
+    return dict(getattr(simulation, "units", {}))
 
 
 # --------------------------------------------------------------------------- frequency domain

@@ -1,7 +1,7 @@
 """The sensitivity study of any simulation on one drive: `hybrid sensitivity --physics SPEC RECORDING`.
 
 At the simulation's nominal parameters (its defaults, or the values given), on a
-recorded drive, for the free parameters (those not in `default_frozen()`, as `fit`
+recorded drive, for the free parameters (those not in its `frozen_by_default`, as `fit`
 leaves them fixed):
 
 - the local sensitivities ∂y(t)/∂θ of the simulation's output y
@@ -116,7 +116,7 @@ def simulation_study(
         raise InputError(f"noise must be a positive fraction of rms(w), got {noise!r}")
     if sobol < 0 or sobol == 1:
         raise InputError(f"sobol must be 0 (skip) or a number of base samples ≥ 2, got {sobol!r}")
-    frozen = dict(simulation.default_frozen())
+    frozen = dict(simulation.frozen_by_default)
     physics = Model(
         simulation, LinearReadout(1.0, 0.0), "physics"
     )  # w = y: the readout's J columns are y and 1
@@ -142,7 +142,7 @@ def simulation_study(
     sigma = noise * rms  # rms(w) = rms(y) at gain 1, offset 0
     se, unidentifiable = cramer_rao(w_sens.jacobian, w_sens.names, sigma, rcond)
     relative = {n: (se[n] / abs(w_sens.values[n]) if w_sens.values[n] else None) for n in w_sens.names}
-    units = {**simulation.parameter_units(), "gain": "1", "offset": "(y)"}
+    units = {**simulation.units, "gain": "1", "offset": "(y)"}
     result = {
         "command": "hybrid sensitivity --physics SPEC RECORDING --out DIR",
         "simulation": type(simulation).__name__,
