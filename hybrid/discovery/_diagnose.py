@@ -317,6 +317,7 @@ def hybrid_fits(recordings, simulation, extended, problem, causes, settings, max
     """Hybrid model (simulation + D-MLP) without and with the named effects, held-out metrics."""
     from ..core._fit import fit
     from ..core._models import make_model
+    from ..core._solvers import LevenbergMarquardt
 
     out: dict[str, Any] = {}
     variants = [("baseline", simulation)]
@@ -329,7 +330,7 @@ def hybrid_fits(recordings, simulation, extended, problem, causes, settings, max
         result = fit(
             make_model("hybrid", simulation=sim),
             recordings,
-            max_steps=max_steps,
+            solver=LevenbergMarquardt(max_steps=max_steps),
             frozen=set(settings.frozen),
             split=settings.split,
             split_order=SPLIT_ORDER,
