@@ -49,9 +49,10 @@ def strips(n, duration, seed=0):
     return out
 
 
-def compare(kind, recordings, n_loop, **options):
+def compare(kind, recordings, n_loop, max_steps, **options):
     import hybrid as hy
 
+    options = {"solver": hy.LevenbergMarquardt(max_steps=max_steps), **options}
     model = hy.make_model(kind)
     t0 = time.perf_counter()
     batch = hy.fit_batch(model, recordings, **options)

@@ -53,7 +53,7 @@ def main() -> None:
             compiling["programs"] += 1
 
     monitoring.register_event_duration_secs_listener(listen)
-    from hybrid import RCNetwork, diagnose, fit, make_model
+    from hybrid import LevenbergMarquardt, RCNetwork, diagnose, fit, make_model
 
     first, second = (c.relaxing_strip(seed, args.duration, args.rate) for seed in (0, 1))
 
@@ -75,7 +75,7 @@ def main() -> None:
         fit,
         make_model("physics", simulation=RCNetwork(method="zoh")),
         [second],
-        max_steps=120,
+        solver=LevenbergMarquardt(max_steps=120),
         frozen={"xi_h"},
         split=(0.6, 0.1, 0.3),
         split_order=("train", "validation", "test"),

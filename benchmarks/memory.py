@@ -34,7 +34,8 @@ def child(samples, steps, kind):
     model = hy.make_model(kind, key=jax.random.key(0))
     baseline = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     t0 = time.perf_counter()
-    result = hy.fit(model, rec, frozen={"xi_h"}, max_steps=steps, weight_decay=0.1, progress=False)
+    solver = hy.LevenbergMarquardt(max_steps=steps)
+    result = hy.fit(model, rec, frozen={"xi_h"}, solver=solver, weight_decay=0.1, progress=False)
     seconds = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     print(

@@ -107,7 +107,7 @@ def _fit(model, recording, frozen=(), starts=1, max_steps=300, weight_decay=0.0)
         frozen=set(frozen),
         split=SPLIT,
         starts=starts,
-        max_steps=max_steps,
+        solver=hybrid.LevenbergMarquardt(max_steps=max_steps),
         weight_decay=weight_decay,
         progress=False,
     )

@@ -63,7 +63,13 @@ def main():
     drive = hy.make_drive("prbs", 120.0, seed=0, min_hold=0.2, max_hold=4.0)
     recording = virtual_recording(drive, seed=0)
     model = hy.make_model("physics", simulation=hy.RCNetwork(xi_rho=20.0, C_clamp=0.02))
-    result = hy.fit(model, recording, frozen={"xi_h"}, max_steps=200, patience=0, progress=False)
+    result = hy.fit(
+        model,
+        recording,
+        frozen={"xi_h"},
+        solver=hy.LevenbergMarquardt(max_steps=200, patience=0),
+        progress=False,
+    )
     cov = S.standard_errors(result, recording)
     report = {
         "command": "python experiments/sensitivity.py",

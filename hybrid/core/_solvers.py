@@ -19,7 +19,7 @@ The options are checked when the object is built: a bad one is one
 The strings ``"lm"``, ``"optimistix"`` and ``"adam"`` (`SOLVERS`) and the flat
 keywords ``max_steps``, ``patience`` and ``learning_rate`` of `fit` still work for
 one release, with a `DeprecationWarning` that gives the new spelling
-([`resolve_solver`][hybrid.core._solvers.resolve_solver]).
+(`resolve_solver`).
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ class LevenbergMarquardt(AbstractSolver):
     """Levenberg–Marquardt on the structured Jacobian, the default solver of `fit` and `fit_batch`.
 
     Several starts run `vmap`-ed in one compiled program (see
-    [`hybrid.core._levenberg_marquardt`][]: Nielsen's damping rule, JᵀJ formed once
+    `hybrid.core._levenberg_marquardt`: Nielsen's damping rule, JᵀJ formed once
     per accepted point, the best iterate on the validation split kept).
 
     **Fields:**
@@ -104,7 +104,7 @@ class LevenbergMarquardt(AbstractSolver):
             raise InputError(f"{owner}: scaling must be 'identity' or 'marquardt', got {self.scaling!r}")
 
     def lm_settings(self) -> LMSettings:
-        """These options as the compiled loop's static [`LMSettings`][hybrid.core.LMSettings]."""
+        """These options as the compiled loop's static `hybrid.core.LMSettings`."""
         return LMSettings(
             max_steps=self.max_steps,
             ftol=self.ftol,
@@ -164,10 +164,11 @@ class Adam(AbstractSolver):
         _positive_float("Adam", "learning_rate", self.learning_rate)
 
 
-_BY_NAME: dict[str, type[AbstractSolver]] = {
-    "lm": LevenbergMarquardt,
-    "optimistix": OptimistixLM,
-    "adam": Adam,
+#: each deprecated name's solver, with its default options
+_BY_NAME: dict[str, AbstractSolver] = {
+    "lm": LevenbergMarquardt(),
+    "optimistix": OptimistixLM(),
+    "adam": Adam(),
 }
 
 
@@ -178,7 +179,7 @@ def solver_named(name: str, **options) -> AbstractSolver:
     """
     if name not in _BY_NAME:
         raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {name!r}")
-    return _BY_NAME[name](**options)
+    return dataclasses.replace(_BY_NAME[name], **options)
 
 
 def resolve_solver(solver, where: str, stacklevel: int = 3, **old) -> AbstractSolver:
@@ -198,10 +199,9 @@ def resolve_solver(solver, where: str, stacklevel: int = 3, **old) -> AbstractSo
                 f"{where}: solver must be a solver object such as hybrid.LevenbergMarquardt(), "
                 f"hybrid.Adam() or hybrid.OptimistixLM(), got {solver!r}"
             )
-        cls = _BY_NAME[solver]
-        base: AbstractSolver = cls()
+        base = _BY_NAME[solver]
     elif isinstance(solver, AbstractSolver):
-        cls, base = type(solver), solver
+        base = solver
     else:
         raise InputError(
             f"{where}: solver must be a solver object such as hybrid.LevenbergMarquardt(), "
@@ -209,13 +209,14 @@ def resolve_solver(solver, where: str, stacklevel: int = 3, **old) -> AbstractSo
         )
     if not named and not given:
         return solver
-    names = [f.name for f in dataclasses.fields(cls)]
+    cls = type(base)
+    defaults = {f.name: f.default for f in dataclasses.fields(base)}
+    names = list(defaults)
     used = {k: v for k, v in given.items() if k in names}
     ignored = sorted(set(given) - set(names))
     result = dataclasses.replace(base, **used) if used else base  # checks the new values
     old_spelling = ", ".join([f"solver={solver!r}"] * named + [f"{k}=..." for k in given])
-    default = cls()
-    kept = {k: getattr(result, k) for k in names if getattr(result, k) != getattr(default, k)}
+    kept = {k: getattr(result, k) for k in names if getattr(result, k) != defaults[k]}
     new = f"solver=hybrid.{cls.__name__}({', '.join(f'{k}={v!r}' for k, v in kept.items())})"
     note = f" ({', '.join(ignored)} does nothing for {cls.__name__} and is ignored)" if ignored else ""
     warnings.warn(
