@@ -187,25 +187,46 @@ class HeldoutSignals:
 
 @dataclasses.dataclass
 class Candidate:
-    """One effect's extended fit and the evidence about it."""
+    """One effect's extended fit and the evidence about it (``to_dict()``: its entry in ``report.json``).
+
+    The step that weighs it against the model it extends sets `gain`, `delta_bic`,
+    `eligible` and `reasons`; `evaluate_candidate` sets the rest.
+    """
 
     name: str
+    """The effect it adds ("none": the model it extends, refitted)."""
     parameters: dict
+    """Fitted value of each parameter of the simulation and its named effects, by name."""
     derived: dict
+    """The effect's size in physical terms (`AbstractEffect.derived`), by name."""
     train_rss: float
+    """Residual sum of squares on the training part."""
     n_parameters: int
+    """Free parameters, for the BIC."""
     bic: float
+    """BIC on the training part."""
     heldout: HeldoutMetrics
+    """Its errors on the held-out part."""
     ljung_box: dict
+    """Ljung–Box whiteness of the held-out residual (`residual_tests.ljung_box`, as in ``report.json``)."""
     gain: float = float("nan")
+    """Held-out NMSE of the model it extends over its own."""
     delta_bic: float = float("nan")
+    """Its BIC minus that of the model it extends."""
     material: bool = False
+    """Whether the fitted effect is as large as `DiagnoseSettings.materiality` asks."""
     eligible: bool = False
+    """Whether it passes every rule of the step that weighs it."""
     materiality: str = ""
+    """The effect's size against its materiality threshold, in words."""
     reasons: list = dataclasses.field(default_factory=list)
+    """Why it is not eligible, or how it was refitted, in words."""
     theta: np.ndarray | None = None
+    """Its end point in the search's θ layout."""
     active: np.ndarray | None = None
+    """Its effects' switches."""
     validation_loss: float = float("nan")
+    """½ mean r² on the validation part (the lane's)."""
 
     def to_dict(self) -> dict:
         return {
