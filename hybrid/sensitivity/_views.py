@@ -85,7 +85,7 @@ def ordered_names(target) -> list[str]:
     """Parameter names in their class's declaration order (pytree operations sort dict keys)."""
     names = list(named_parameters(target))
     parts = (target.simulation, target.readout) if isinstance(target, Model) else (target,)
-    declared = [n for part in parts for n in getattr(type(part), "constraints", {})]
+    declared = [n for part in parts for n in getattr(part, "constraints", {})]
     rank = {n: i for i, n in enumerate(declared)}
     return sorted(names, key=lambda n: (rank.get(n, len(rank)), names.index(n)))
 
