@@ -18,7 +18,7 @@ import jax
 import numpy as np
 import pytest
 
-from hybrid import Recording, fit, load_model, make_model
+from hybrid import LevenbergMarquardt, Recording, fit, load_model, make_model
 from hybrid.cli import main
 
 TINY = dict(window=5, depth=1, width=3)
@@ -53,14 +53,18 @@ def test_lm_stopped_after_two_steps_is_the_fit_of_two_steps():
         looks.append(None)
         return len(looks) == 3
 
-    stopped = fit(model, recording, max_steps=50, progress=False, stop=stop)
+    stopped = fit(model, recording, solver=LevenbergMarquardt(max_steps=50), progress=False, stop=stop)
     assert stopped.stopped and stopped.to_dict()["stopped"]
     assert stopped.starts[0]["steps"] == 2
-    reference = fit(model, recording, max_steps=2, progress=False)  # the same two steps, run to the end
+    reference = fit(
+        model, recording, solver=LevenbergMarquardt(max_steps=2), progress=False
+    )  # the same two steps, run to the end
     assert not reference.stopped and reference.starts[0]["steps"] == 2
     ours, theirs = _prediction(stopped.model, recording), _prediction(reference.model, recording)
     assert np.max(np.abs(ours - theirs)) <= 1e-12 * np.max(np.abs(theirs))
-    start = fit(model, recording, max_steps=50, progress=False, stop=lambda: True)  # stopped before any step
+    start = fit(
+        model, recording, solver=LevenbergMarquardt(max_steps=50), progress=False, stop=lambda: True
+    )  # stopped before any step
     assert start.stopped and start.starts[0]["steps"] == 0
     assert stopped.starts[0]["validation_loss"] <= start.starts[0]["validation_loss"]
     assert _validation_mse(stopped.model, recording) <= _validation_mse(start.model, recording)

@@ -127,7 +127,9 @@ def test_fit_reads_a_single_frozen_name_as_one_name(model, recording, monkeypatc
     monkeypatch.setattr(hybrid.core._fit, "as_names", spy)
     monkeypatch.setattr(hybrid.core._fit, "series_from_recording", stop)
     with pytest.raises(InputError, match="stopped"):
-        hybrid.fit(model, recording, frozen="xi_h", max_steps=1, progress=False)
+        hybrid.fit(
+            model, recording, frozen="xi_h", solver=hybrid.LevenbergMarquardt(max_steps=1), progress=False
+        )
     assert seen["frozen"] == frozenset({"xi_h"})
 
 
@@ -143,7 +145,7 @@ def test_fit_accepts_a_recording_path(model, recording, tmp_path, monkeypatch):
 
     monkeypatch.setattr(hybrid.core._fit, "series_from_recording", stop)
     with pytest.raises(InputError, match="stopped after loading"):
-        hybrid.fit(model, str(path), max_steps=1, progress=False)
+        hybrid.fit(model, str(path), solver=hybrid.LevenbergMarquardt(max_steps=1), progress=False)
     assert seen["recording"] == recording
 
 

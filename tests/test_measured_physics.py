@@ -57,7 +57,12 @@ def test_held_start_replace_freeze_and_fit_recover_the_initial_drive():
     rec = hybrid.Recording(t=np.arange(len(v)) * dt, v_in=v, w=w)
     start = hybrid.make_model("physics", simulation=truth.replace(initial_drive=0.0))
     result = hybrid.fit(
-        start, rec, frozen={"tau_1", "direct"}, split=(0.8, 0.1, 0.1), progress=False, max_steps=100
+        start,
+        rec,
+        frozen={"tau_1", "direct"},
+        split=(0.8, 0.1, 0.1),
+        progress=False,
+        solver=hybrid.LevenbergMarquardt(max_steps=100),
     )
     assert abs(float(result.model.parameters()["initial_drive"]) - 2.5) < 1e-4
     assert float(truth.replace(tau_1=3.0).parameters()["tau_1"]) == pytest.approx(3.0)

@@ -169,14 +169,14 @@ def test_covariance_matches_curve_fit(curve_fit_reference):
 
 def test_standard_errors_of_a_fit_use_its_frozen_set_split_and_blocks(curve_fit_reference):
     """standard_errors(result) is parameter_covariance with the settings the fit recorded."""
-    from hybrid import fit, make_model
+    from hybrid import LevenbergMarquardt, fit, make_model
 
     recording = curve_fit_reference[0]
     split, order = (0.6, 0.1, 0.3), ("train", "validation", "test")
     result = fit(
         make_model("physics", simulation=TRUE),
         [recording],
-        max_steps=5,
+        solver=LevenbergMarquardt(max_steps=5),
         frozen=FROZEN,
         split=split,
         split_order=order,
