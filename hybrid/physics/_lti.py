@@ -39,7 +39,8 @@ Why this parameterisation:
 The sections are discretised exactly for a drive held between samples (zero-order
 hold) with the matrix exponential of [`hybrid.core._loop_safe_linalg.expm`][]
 (matrix products only, safe inside `diagnose`'s batched compiled loops), and run
-lifted to blocks of samples as the RC network's ZOH path. The system starts at
+lifted to blocks of samples by the generic ZOH code of `_zoh.py`, which the RC
+network's ``method="zoh"`` shares. The system starts at
 rest. Section k = 1 holds the fastest default time scale; the defaults spread
 the sections half a decade apart around 1 s so that no two start on the same pole.
 """
