@@ -159,7 +159,7 @@ def run_tanks(do_diagnose: bool, log) -> dict:
         return prediction
 
     physics = HeldStart(TwoTank(), SETTLE, initial_drive=3.0)
-    frozen = tuple(physics.default_frozen())
+    frozen = tuple(physics.frozen_by_default)
     base, seconds = _fit(hybrid.make_model("physics", simulation=physics), est, frozen, starts=4)
     predictions = {"(a) TwoTank": add("(a) TwoTank (Torricelli)", base, seconds)}
 
@@ -237,7 +237,7 @@ def run_tanks_mlp(do_diagnose: bool, log) -> dict:
     """The hybrid model's network size on the tanks: each of MLP_SWEEP fitted on Est, scored on Val."""
     est, val = tanks_records()
     physics = HeldStart(TwoTank(), SETTLE, initial_drive=3.0)
-    frozen = tuple(physics.default_frozen())
+    frozen = tuple(physics.frozen_by_default)
     base, _ = _fit(hybrid.make_model("physics", simulation=physics), est, frozen, starts=4)
     rows = []
     for depth, width, window, decay in MLP_SWEEP:
@@ -339,7 +339,7 @@ def run_silverbox(do_diagnose: bool, log) -> dict:
 
     f0 = _resonance(est)
     physics = MassSpringDamper(frequency=f0, zeta=0.05)
-    frozen = tuple(physics.default_frozen())
+    frozen = tuple(physics.frozen_by_default)
     base, seconds = _fit(hybrid.make_model("physics", simulation=physics), est, frozen, max_steps=100)
     add("(a) MassSpringDamper (linear)", base, seconds)
 

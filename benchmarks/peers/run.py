@@ -319,7 +319,7 @@ def tanks(quick, tools, log) -> dict:
     steps, starts = 300, 4
     rows = []
     physics = HeldStart(TwoTank(), SETTLE, initial_drive=3.0)
-    frozen = tuple(physics.default_frozen())
+    frozen = tuple(physics.frozen_by_default)
     base, s = _fit(
         hybrid.make_model("physics", simulation=physics),
         est,
@@ -494,7 +494,7 @@ def silverbox_project(fit_ranges, predict, score, log):
     steps = 10 if quick else 100
     rows = []
     physics = MassSpringDamper(frequency=f0, zeta=0.05)
-    frozen = tuple(physics.default_frozen())
+    frozen = tuple(physics.frozen_by_default)
     base, s = _fit(
         hybrid.make_model("physics", simulation=physics), est, frozen, split=SPLIT, max_steps=steps
     )
@@ -560,7 +560,7 @@ def table2(quick, tools, log, save=None, rows_wanted=None) -> dict:
             res, s = _fit(
                 model,
                 rec,
-                frozen=set(model.simulation.default_frozen()),
+                frozen=set(model.simulation.frozen_by_default),
                 starts=settings.starts,
                 max_steps=5 if quick else settings.max_steps,
                 patience=settings.patience,
