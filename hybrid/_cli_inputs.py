@@ -87,14 +87,19 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
     return [load_mapped(p, **options) for p in paths]
 
 
-def add_physics(p) -> None:
-    """--physics: the simulation, the paper's RC network by default (hybrid.physics._plugins)."""
+def add_physics(p, default: str = "rc") -> None:
+    """--physics: the simulation (hybrid.physics._plugins); each name means one simulation everywhere.
+
+    `default`: the command's own, ``rc`` (the paper's Tustin network) for fit and sensitivity,
+    ``rc:zoh`` (the same network, exact for a held drive) for diagnose.
+    """
     p.add_argument(
         "--physics",
-        default="rc",
+        default=default,
         metavar="SPEC",
-        help="the simulation: rc (the paper's RC network, default), lti:N (a linear system of order N), "
-        "path/to/file.py:Class or package.module:Class (your AbstractSimulation)",
+        help=f"the simulation (default {default}): rc (the paper's RC network, Tustin sections), rc:zoh (the "
+        "same network exact for a drive held between samples, C_clamp 30 mF), lti:N (a linear system of "
+        "order N), path/to/file.py:Class or package.module:Class (your AbstractSimulation)",
     )
 
 

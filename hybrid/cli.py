@@ -188,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: DiagnoseSettings.blocks; 1: one held-out tail)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress messages")
-    add_physics(p)
+    add_physics(p, default="rc:zoh")
     add_settle(p, B)
     add_mapping(p, B)
     _add_verbose(parser, sub)
@@ -369,7 +369,7 @@ def _cmd_diagnose(args):
     from .discovery._effects import EFFECTS
     from .discovery._report import REMAINDER_FIGURE, plus_minus, write_report
     from .discovery._report_figures import FIGURES
-    from .ipmc._defaults import diagnose, diagnose_simulation
+    from .ipmc._defaults import diagnose
     from .physics._plugins import resolve_physics
 
     lock = check_outputs(
@@ -386,9 +386,7 @@ def _cmd_diagnose(args):
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks)
     with lock:
-        simulation = (
-            diagnose_simulation() if args.physics == "rc" else resolve_physics(args.physics, recordings)
-        )
+        simulation = resolve_physics(args.physics, recordings)
         simulation = with_settle(simulation, args, recordings)
         diagnosis = diagnose(
             recordings, simulation=simulation, hybrid=args.hybrid, settings=settings, progress=not args.quiet

@@ -190,7 +190,7 @@ def _one_error(spec, *words):
 def test_every_failure_is_one_input_error_that_names_the_fix(plugin_file, tmp_path):
     _one_error("lti:0", "from 1 to 20", "lti:2")
     _one_error("lti:two", "whole number")
-    _one_error("spring", "rc, lti:N", "file.py:ClassName")
+    _one_error("spring", "rc, rc:zoh, lti:N", "file.py:ClassName")
     _one_error(f"{tmp_path / 'missing.py'}:SqrtLag", "no file", "check the path")
     bad = tmp_path / "bad.py"
     bad.write_text("class Oops(:\n    pass\n")
@@ -293,3 +293,22 @@ def test_the_two_tank_example_matches_solve_ivp_and_differentiates_from_empty_ta
     assert np.max(np.abs(got - expected)) <= 1e-6 * np.max(expected)
     grad = jax.grad(lambda raw: jnp.sum(_with_raw(sim, raw).simulate(u, dt)))(sim.raw)
     assert all(np.isfinite(float(g)) for g in grad.values())
+
+
+def test_each_rc_name_means_one_network_on_every_command():
+    """`rc` is the paper's Tustin network (make_model's default, fit's and sensitivity's --physics); `rc:zoh`
+    is the exact-ZOH network diagnose starts from, from Python and from its --physics default alike."""
+    from hybrid.cli import build_parser
+    from hybrid.ipmc._defaults import diagnose_simulation
+
+    rc, zoh = resolve_physics("rc"), resolve_physics("rc:zoh")
+    assert (rc.method, zoh.method) == ("tustin", "zoh")
+    assert eqx.tree_equal(rc, hybrid.make_model("physics").simulation)
+    assert eqx.tree_equal(zoh, diagnose_simulation())
+    assert float(zoh.parameters()["C_clamp"]) == pytest.approx(0.03, rel=1e-12)
+    parser = build_parser()
+    defaults = {
+        command: parser.parse_args([command, "r.csv", "--out", "o"]).physics
+        for command in ("fit", "diagnose", "sensitivity")
+    }
+    assert defaults == {"fit": "rc", "diagnose": "rc:zoh", "sensitivity": "rc"}

@@ -11,12 +11,11 @@ from __future__ import annotations
 
 from ..core._models import make_model as make_any_model
 from ..discovery._diagnose import diagnose as diagnose_any
+from ..physics._plugins import ZOH_C_CLAMP, resolve_physics
 from ..physics._rc_network import RCNetwork
 
-#: C_clamp (F) of the network `hybrid.diagnose` starts from, the first point of its
-#: screened design: 30 mF, the virtual IPMC's total double-layer capacitance and the
-#: centre the design has used since the discrepancy experiments were run.
-DIAGNOSE_C_CLAMP = 0.03
+#: C_clamp (F) of the network `hybrid.diagnose` starts from (``--physics rc:zoh``).
+DIAGNOSE_C_CLAMP = ZOH_C_CLAMP
 
 
 def make_model(kind="hybrid", *, simulation=None, **options):
@@ -33,8 +32,10 @@ def make_model(kind="hybrid", *, simulation=None, **options):
 
 
 def diagnose_simulation() -> RCNetwork:
-    """The RC network `diagnose` starts from: exact ZOH, C_clamp at `DIAGNOSE_C_CLAMP`."""
-    return RCNetwork(method="zoh", C_clamp=DIAGNOSE_C_CLAMP)
+    """The RC network `diagnose` starts from, ``--physics rc:zoh``: exact ZOH, C_clamp at `DIAGNOSE_C_CLAMP`."""
+    network = resolve_physics("rc:zoh")
+    assert isinstance(network, RCNetwork)
+    return network
 
 
 def diagnose(recordings, *, simulation=None, **options):
