@@ -20,7 +20,7 @@ forward mode for the physics), folded into JᵀJ a chunk of rows at a time on lo
 records (`Problem.normal_equations`; any problem that gives `residuals_and_jacobian`
 works too), and the step is a Cholesky solve. The solvers
 agree where both apply (physics-only models: `tests/test_fit.py`), and
-`solver="optimistix"` in [`hybrid.fit`][] runs optimistix's own LM.
+`solver=hybrid.OptimistixLM()` in [`hybrid.fit`][] runs optimistix's own LM.
 
 Validation: after each accepted step the validation loss is evaluated and the
 best iterate so far is kept; the loop stops early after `patience` accepted
