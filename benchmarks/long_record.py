@@ -166,7 +166,7 @@ def _recording(physics: str, n: int):
     import hybrid as hy
 
     if physics == "rc":
-        from hybrid.data import make_drive
+        from hybrid import make_drive
         from hybrid.ipmc import virtual_recording
 
         return virtual_recording(make_drive("prbs", n / 30.0, rate=30.0, seed=0), seed=0)
@@ -227,7 +227,8 @@ def per_step_case(physics: str, n: int, steps: int) -> dict:
     import jax.numpy as jnp
 
     import hybrid as hy
-    from hybrid.core import LMSettings, Model, Problem, series_from_recording
+    from hybrid import Model
+    from hybrid.core import LMSettings, Problem, series_from_recording
 
     c.setup_jax()
     t0 = time.perf_counter()

@@ -29,8 +29,8 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     from discrepancy import draw
 
-    from hybrid import RCNetwork, diagnose
-    from hybrid.discovery import SPLIT_ORDER, DiagnoseSettings, lane_effect, lanes_problem, predictions
+    from hybrid import DiagnoseSettings, RCNetwork, diagnose
+    from hybrid.discovery import SPLIT_ORDER, lane_effect, lanes_problem, predictions
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("effect")

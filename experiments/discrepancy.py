@@ -313,9 +313,8 @@ def open_world_tables(rows, specs) -> str:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     jax.config.update("jax_enable_x64", True)
-    from hybrid import CAUSES, diagnose
+    from hybrid import CAUSES, InputError, diagnose
     from hybrid.ipmc import HIDDEN_EFFECTS, HIDDEN_NAMES, canonical
-    from hybrid.util import InputError
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(

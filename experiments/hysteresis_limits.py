@@ -90,11 +90,10 @@ def main(argv=None) -> int:
     import discrepancy
 
     import hybrid
+    from hybrid import EFFECTS, DiagnoseSettings, RCNetwork
     from hybrid.core import LMSettings, series_from_recording
     from hybrid.discovery import (
-        EFFECTS,
         SPLIT_ORDER,
-        DiagnoseSettings,
         derived_quantities,
         fit_lanes,
         initial_theta,
@@ -104,7 +103,6 @@ def main(argv=None) -> int:
         universal_model,
     )
     from hybrid.ipmc import apply_hidden, rc_cascade_exact
-    from hybrid.physics import RCNetwork
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed-list", default="2,7,9,13,14,5,6")

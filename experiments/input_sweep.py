@@ -446,7 +446,7 @@ def _loads(path: Path) -> bool:
 
             load_model(path)
         elif path.suffix in (".csv", ".npz", ".mat"):
-            from hybrid.data import Recording
+            from hybrid import Recording
 
             Recording.load(path)
         return True

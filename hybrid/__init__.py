@@ -10,101 +10,64 @@ The library never changes `jax.config`: call
 """
 
 from .core._arguments import check_drive as check_drive
-from .core._batch import BatchFitResult as BatchFitResult
-from .core._batch import fit_batch as fit_batch
-from .core._batch import simulate_batch as simulate_batch
+from .core._batch import (
+    BatchFitResult as BatchFitResult,
+    fit_batch as fit_batch,
+    simulate_batch as simulate_batch,
+)
 from .core._fit import fit as fit
-from .core._held_start import HeldStart as HeldStart
-from .core._held_start import refit_initial_drive as refit_initial_drive
-from .core._loop_safe_linalg import expm as expm
-from .core._loop_safe_linalg import lstsq as lstsq
+from .core._held_start import HeldStart as HeldStart, refit_initial_drive as refit_initial_drive
+from .core._loop_safe_linalg import expm as expm, lstsq as lstsq
 from .core._metrics import (
     fitting as fitting,
-)
-from .core._metrics import (
     metrics as metrics,
-)
-from .core._metrics import (
     nmse as nmse,
-)
-from .core._metrics import (
     nmse_target as nmse_target,
-)
-from .core._metrics import (
     nmse_variance as nmse_variance,
 )
-from .core._models import MODEL_KINDS as MODEL_KINDS
-from .core._models import Model as Model
+from .core._models import MODEL_KINDS as MODEL_KINDS, Model as Model
 from .core._parameters import (
     Constraint as Constraint,
-)
-from .core._parameters import (
     Positive as Positive,
-)
-from .core._parameters import (
     Real as Real,
-)
-from .core._parameters import (
     SignedUnitInterval as SignedUnitInterval,
-)
-from .core._parameters import (
     UnitInterval as UnitInterval,
-)
-from .core._parameters import (
     decode as decode,
-)
-from .core._parameters import (
     encode as encode,
 )
 from .core._readout import (
     AbstractReadout as AbstractReadout,
-)
-from .core._readout import (
     LinearReadout as LinearReadout,
-)
-from .core._readout import (
     WindowedMLP as WindowedMLP,
 )
 from .core._result import FitResult as FitResult
-from .core._serialise import load_model as load_model
-from .core._serialise import save_model as save_model
-from .core._simulation import AbstractSimulation as AbstractSimulation
-from .core._simulation import Passthrough as Passthrough
-from .core._solvers import SOLVERS as SOLVERS
-from .core._solvers import Adam as Adam
-from .core._solvers import LevenbergMarquardt as LevenbergMarquardt
-from .core._solvers import OptimistixLM as OptimistixLM
+from .core._serialise import load_model as load_model, save_model as save_model
+from .core._simulation import AbstractSimulation as AbstractSimulation, Passthrough as Passthrough
+from .core._solvers import (
+    SOLVERS as SOLVERS,
+    Adam as Adam,
+    LevenbergMarquardt as LevenbergMarquardt,
+    OptimistixLM as OptimistixLM,
+)
 from .core._windows import sliding_windows as sliding_windows
 from .data._drive import Drive as Drive
-from .data._drives import DRIVES as DRIVES
-from .data._drives import make_drive as make_drive
-from .data._mapping import load_mapped as load_mapped
-from .data._mapping import load_pair as load_pair
+from .data._drives import DRIVES as DRIVES, make_drive as make_drive
+from .data._mapping import load_mapped as load_mapped, load_pair as load_pair
 from .data._recording import Recording as Recording
 from .data._split import Split as Split
 from .discovery._diagnosis import (
     CAUSES as CAUSES,
-)
-from .discovery._diagnosis import (
     DiagnoseSettings as DiagnoseSettings,
-)
-from .discovery._diagnosis import (
     Diagnosis as Diagnosis,
 )
-from .discovery._effect_stack import EffectStack as EffectStack
-from .discovery._effect_stack import extend as extend
+from .discovery._effect_stack import EffectStack as EffectStack, extend as extend
 from .discovery._effects import (
     EFFECTS as EFFECTS,
-)
-from .discovery._effects import (
     AbstractEffect as AbstractEffect,
-)
-from .discovery._effects import (
     FrameTiming as FrameTiming,
 )
 from .discovery._report import write_report as write_report
-from .ipmc._defaults import diagnose as diagnose
-from .ipmc._defaults import make_model as make_model
+from .ipmc._defaults import diagnose as diagnose, make_model as make_model
 from .physics._lti import LTI as LTI
 from .physics._plugins import resolve_physics as resolve_physics
 from .physics._rc_network import RCNetwork as RCNetwork

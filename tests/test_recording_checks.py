@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from hybrid import InputError, Recording, diagnose, fit, make_model
-from hybrid import sensitivity as S
+from hybrid import InputError, Recording, diagnose, fit, make_model, sensitivity as S
 from hybrid.cli import main
 from hybrid.data._recording_checks import JITTER_FRAMES, MS_STEP_S
 from hybrid.physics._rc_network import RCNetwork

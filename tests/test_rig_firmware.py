@@ -10,8 +10,7 @@ import serial
 from rig_helpers import CorruptingPort, firmware  # noqa: F401  (fixture)
 
 import hybrid
-from rig import Board, Calibration, RigError
-from rig import protocol as P
+from rig import Board, Calibration, RigError, protocol as P
 from rig._simavr import SimavrBoard
 
 RATE = 200.0  # Hz: 1.28 s of buffer, so 3 s of drive really streams

@@ -20,8 +20,17 @@ import pytest
 import scipy.optimize
 import scipy.signal
 
-from hybrid import AbstractSimulation, InputError, LinearReadout, Model, RCNetwork, Real, encode, make_drive
-from hybrid import sensitivity as S
+from hybrid import (
+    AbstractSimulation,
+    InputError,
+    LinearReadout,
+    Model,
+    RCNetwork,
+    Real,
+    encode,
+    make_drive,
+    sensitivity as S,
+)
 from hybrid.cli import main
 
 DT = 1.0 / h.RATE

@@ -63,8 +63,8 @@ sys.path.insert(0, str(ROOT / "examples"))
 from oscillator import Duffing, MassSpringDamper  # noqa: E402
 from two_tank import TwoTank, TwoTankOverflow  # noqa: E402
 
-from hybrid.ipmc import TABLE2_ROWS as ROWS  # noqa: E402
 from hybrid.ipmc import (  # noqa: E402
+    TABLE2_ROWS as ROWS,
     Table2Settings,
     VirtualIPMCParameters,
     virtual_recording,

@@ -33,8 +33,14 @@ from ._models import Model
 from ._problem import Problem, Series, robust_rms, robust_std, series_from_recording
 from ._readout import LinearReadout, WindowedMLP
 from ._result import FitResult, fit_warnings
-from ._solvers import SOLVERS as SOLVERS
-from ._solvers import AbstractSolver, Adam, LevenbergMarquardt, OptimistixLM, resolve_solver
+from ._solvers import (
+    SOLVERS as SOLVERS,
+    AbstractSolver,
+    Adam,
+    LevenbergMarquardt,
+    OptimistixLM,
+    resolve_solver,
+)
 
 
 def fit(

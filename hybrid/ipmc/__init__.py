@@ -6,48 +6,27 @@ reproduction, the Cramér–Rao sensitivity study, and the paper's defaults
 
 from ._hidden_pairs import (
     HIDDEN_NAMES as HIDDEN_NAMES,
-)
-from ._hidden_pairs import (
     canonical as canonical,
-)
-from ._hidden_pairs import (
     hidden_effects as hidden_effects,
-)
-from ._hidden_pairs import (
     true_noise_variance as true_noise_variance,
 )
 from ._sensitivity_study import (
     SensitivityStudySettings as SensitivityStudySettings,
-)
-from ._sensitivity_study import (
     run_sensitivity_study as run_sensitivity_study,
 )
 from ._synthetic import (
     HIDDEN_EFFECTS as HIDDEN_EFFECTS,
-)
-from ._synthetic import (
     SyntheticStrip as SyntheticStrip,
-)
-from ._synthetic import (
     apply_hidden as apply_hidden,
-)
-from ._synthetic import (
     discrepancy_drive as discrepancy_drive,
-)
-from ._synthetic import (
     random_effect as random_effect,
-)
-from ._synthetic import (
     random_strip as random_strip,
-)
-from ._synthetic import (
     rc_cascade_exact as rc_cascade_exact,
-)
-from ._synthetic import (
     synthetic_recording as synthetic_recording,
 )
-from ._table2 import ROWS as TABLE2_ROWS
-from ._table2 import Table2Settings as Table2Settings
-from ._virtual_ipmc import simulate_virtual_ipmc as simulate_virtual_ipmc
-from ._virtual_ipmc import virtual_recording as virtual_recording
+from ._table2 import ROWS as TABLE2_ROWS, Table2Settings as Table2Settings
+from ._virtual_ipmc import (
+    simulate_virtual_ipmc as simulate_virtual_ipmc,
+    virtual_recording as virtual_recording,
+)
 from ._virtual_parameters import VirtualIPMCParameters as VirtualIPMCParameters

@@ -7,21 +7,12 @@ stable linear system of order N (`LTI`, ``--physics lti:N``), and
 simulation (``rc``, ``lti:N``, ``file.py:Class``, ``module:Class``).
 """
 
-from ._lti import LTI as LTI
-from ._plugins import resolve_physics as resolve_physics
-from ._rc_network import (
-    RCNetwork as RCNetwork,
-)
+# Names hybrid's front exports (hybrid/__init__.py) are exported there once; here, what
+# experiments and benchmarks use beyond them.
 from ._rc_network import (
     block_matrices as block_matrices,
-)
-from ._rc_network import (
     cascade_filter as cascade_filter,
-)
-from ._rc_network import (
     cascade_filter_stage_major as cascade_filter_stage_major,
-)
-from ._rc_network import (
     tustin_sections as tustin_sections,
 )
 from ._zoh import BLOCK as BLOCK
