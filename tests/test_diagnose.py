@@ -11,7 +11,11 @@ exposure and 1 % noise. Strips and effects are drawn from the issue's ranges.
 Every draw here is 60 s at 30 Hz with the same drive shape, so the search is
 compiled once for the module, and the tests of the report that `hybrid
 diagnose` writes run in this module too: under `pytest --dist loadfile` a
-second module would compile the same search again on the other worker. Draws of a hidden effect are those whose effect is
+second module would compile the same search again on the other worker. The report is
+written for one of the cases (`REPORT_CASE`), and that case's test checks the
+diagnosis the CLI computed instead of running the same search a second time (the
+recording goes through a CSV file written with 17 significant digits: the same
+numbers). Draws of a hidden effect are those whose effect is
 *identifiable* (`experiments/discrepancy.py`: every effect-free fit leaves a
 held-out MSE ≥ 2× the noise variance; below that the cascade absorbs the effect
 and no extension can gain 2×); the experiment runs every draw.
@@ -51,6 +55,8 @@ CASES = [("none", seed) for seed in range(3)] + [
     ("delay", 2),
     ("resonance", 1),
 ]
+#: The case whose recording `hybrid diagnose` (the CLI, in process) also writes a report for.
+REPORT_CASE = ("drift", 2)
 
 
 def hidden_effect_recording(effect: str, seed: int):
@@ -61,9 +67,12 @@ def hidden_effect_recording(effect: str, seed: int):
 
 
 @pytest.mark.parametrize("effect,seed", CASES)
-def test_diagnose_names_the_hidden_effect(effect, seed):
+def test_diagnose_names_the_hidden_effect(effect, seed, request):
     recording = hidden_effect_recording(effect, seed)
-    found = diagnose(recording)
+    if (effect, seed) == REPORT_CASE:  # the CLI's run of `diagnose` on this recording
+        found = request.getfixturevalue("report")["diagnosis"]
+    else:
+        found = diagnose(recording)
     named = {c.name: f"gain {c.gain:.2f}, ΔBIC {c.delta_bic:.0f}, {c.reasons}" for c in found.candidates}
     assert found.cause == effect, (
         f"hidden {effect} {recording.metadata['hidden']['effect_params']}, named {found.cause}: {named}"
@@ -124,17 +133,34 @@ def test_lane_choice_is_validation_unless_an_immaterial_lane_edges_out_a_materia
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    """Run `hybrid diagnose` once, through the CLI in process, on the drift case above."""
+    """Run `hybrid diagnose` once, through the CLI in process, on `REPORT_CASE`; keep its `Diagnosis`.
+
+    The CLI calls `hybrid.ipmc._defaults.diagnose` (what `hybrid.diagnose` is) with
+    the default simulation and settings; the wrapper only records what it returns.
+    """
+    from hybrid.ipmc import _defaults
+
     tmp_path = tmp_path_factory.mktemp("diagnose")
-    rec = hidden_effect_recording("drift", 0)
+    rec = hidden_effect_recording(*REPORT_CASE)
     path = rec.save(tmp_path / "rec.csv")
     out = tmp_path / "report"
     stdout = io.StringIO()
-    with contextlib.redirect_stdout(stdout):
+    made = []
+    real = _defaults.diagnose
+
+    def recorded(*args, **kwargs):
+        made.append(real(*args, **kwargs))
+        return made[-1]
+
+    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(stdout):
+        patch.setattr(_defaults, "diagnose", recorded)
         # The default step limit, given explicitly: the option is exercised and the
         # LM program compiled for the cases above (max_steps is static) is reused.
         code = main(["diagnose", str(path), "--out", str(out), "--max-steps", str(MAX_STEPS), "--quiet"])
-    return {"code": code, "out": out, "path": path, "stdout": stdout.getvalue()}
+    assert len(made) == 1, made
+    loaded = type(rec).load(path)  # what the CLI diagnosed: the case's own numbers
+    assert np.array_equal(loaded.v_in, rec.v_in) and np.array_equal(loaded.w, rec.w)
+    return {"code": code, "out": out, "path": path, "stdout": stdout.getvalue(), "diagnosis": made[0]}
 
 
 def test_diagnose_exits_zero_and_writes_every_file(report):
