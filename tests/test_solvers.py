@@ -131,3 +131,17 @@ def test_solvers_are_values_with_their_options_as_fields():
         Adam,
     ]
     assert np.isclose(Adam().learning_rate, 3e-3)
+
+
+def test_fit_keeps_the_simulations_frozen_by_default_unless_given_its_own(start, recording):
+    """frozen=None (the default) is the simulation's frozen_by_default, as on the CLI and in diagnose;
+    an explicit frozen replaces it, () frees everything."""
+    solver = LevenbergMarquardt(max_steps=3)
+    xi_h = float(start.simulation.parameters()["xi_h"])
+    default = fit(start, recording, solver=solver, progress=False)
+    assert default.settings["frozen"] == sorted(start.simulation.frozen_by_default) == ["xi_h"]
+    assert default.parameters["xi_h"] == pytest.approx(xi_h, rel=1e-12)
+    free = fit(start, recording, solver=solver, frozen=(), progress=False)
+    assert free.settings["frozen"] == [] and free.parameters["xi_h"] != pytest.approx(xi_h, rel=1e-6)
+    batch = fit_batch(start, [recording], solver=solver)
+    assert batch.results[0].settings["frozen"] == ["xi_h"]

@@ -41,7 +41,7 @@ import numpy as np
 
 from ..util._errors import InputError
 from ._arguments import as_recordings, check_dt, check_model
-from ._fit import fit_units, readout_back, start_model
+from ._fit import default_frozen, fit_units, readout_back, start_model
 from ._levenberg_marquardt import lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
@@ -90,7 +90,7 @@ def fit_batch(
     *,
     solver: AbstractSolver | str = LevenbergMarquardt(),
     starts: int = 1,
-    frozen=frozenset(),
+    frozen=None,
     split=(0.3, 0.5, 0.2),
     split_order=("train", "test", "validation"),
     weight_decay: float = 0.0,
@@ -134,7 +134,7 @@ def fit_batch(
         raise InputError(f"starts must be a positive integer, got {starts!r}")
     if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
         raise InputError(f"batch_size must be a positive integer or None, got {batch_size!r}")
-    frozen = frozenset(frozen)
+    frozen = default_frozen(model) if frozen is None else frozenset(frozen)
     shapes = {(r.n, round(float(r.rate), 9)) for r in recordings}
     if len(shapes) > 1:
         raise InputError(

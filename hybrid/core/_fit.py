@@ -49,7 +49,7 @@ def fit(
     *,
     solver: AbstractSolver | str = LevenbergMarquardt(),
     starts: int = 1,
-    frozen=frozenset(),
+    frozen=None,
     split=(0.3, 0.5, 0.2),
     split_order=("train", "test", "validation"),
     blocks: int = 1,
@@ -77,7 +77,8 @@ def fit(
       ``"optimistix"``, ``"adam"`` are deprecated (a `DeprecationWarning`).
     - `starts`: number of starts (vmapped together for `LevenbergMarquardt` and `Adam`).
     - `frozen`: parameter names kept at their starting values (e.g. ``{"xi_h"}``;
-      ``"network"`` freezes all D-MLP weights).
+      ``"network"`` freezes all D-MLP weights). None (the default): the simulation's
+      `frozen_by_default`, as on the command line and in `diagnose`; ``()`` frees all.
     - `split`, `split_order`: fractions and order of the contiguous splits
       (paper: train 30 %, test 50 %, validation 20 %).
     - `blocks`: cut each recording into this many equal chunks and split each
@@ -109,7 +110,9 @@ def fit(
         raise InputError(f"starts must be a positive integer, got {starts!r}")
     model = check_model(model, "fit")
     recordings = as_recordings(recordings, "fit")  # a path is loaded; anything else is refused
-    frozen = as_names(frozen, "fit", "frozen", model.parameter_names)  # "xi_h" is one name
+    frozen = as_names(
+        default_frozen(model) if frozen is None else frozen, "fit", "frozen", model.parameter_names
+    )
     seed = check_seed(seed, "fit")
     for recording in recordings:
         recording.check_length(
@@ -202,6 +205,12 @@ def _unit_labels(model: Model, recordings) -> dict[str, str]:
         w, v = declared.pop()
         units.update(gain=f"{w}/{v}", offset=w)
     return units
+
+
+def default_frozen(model: Model) -> frozenset[str]:
+    """What `fit` and `fit_batch` keep fixed when given no `frozen`: the simulation's `frozen_by_default`."""
+    simulation = getattr(model, "simulation", None)
+    return frozenset(simulation.frozen_by_default) if simulation is not None else frozenset()
 
 
 def fit_units(model: Model, series, train_w) -> tuple[float, float]:
