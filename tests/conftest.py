@@ -50,10 +50,13 @@ HEAVY_FIRST = (
     "test_batch.py",  # 48 s
     "test_effects.py",  # 44 s
     "test_compile_once.py",  # 44 s: one test
+    "test_solvers.py",  # 33 s: old and new spellings fitted side by side (added by issue 32)
     "test_plugin_diagnose.py",  # 30 s
+    "test_plugin_from_docs.py",  # 27 s: a CLI fit and a CLI diagnose (added by issue 32)
     "test_buckets.py",  # 28 s
     "test_diagnose_starts.py",  # 25 s
     "test_fit_interrupt.py",  # 16 s
+    "test_style.py",  # 11 s: mypy (added by issue 32)
     "test_cli_mapping.py",  # 15 s
     "test_sensitivity.py",  # 14 s
 )
