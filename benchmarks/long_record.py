@@ -104,52 +104,17 @@ def measure(n: int, steps: int, folder: Path) -> dict:
         "rate=100000); print(r.n)"
     )
     cases["load"] = child_peak([sys.executable, "-c", load, str(path)])
+
+    def fit(kind: str, max_steps: int, out: Path, *extra: str) -> list[str]:
+        """`hybrid fit` of this file with lti:2 and a `kind` model, in a child process."""
+        return [sys.executable, "-m", "hybrid.cli", "fit", str(path), "--columns", "input=u_cmd,output=y_meas",
+                "--rate", "100000", "--physics", "lti:2", "--model", kind, "--max-steps", str(max_steps),
+                "--quiet", "--out", str(out), *extra]  # fmt: skip
+
     cases["fit lti:2"] = child_peak(
-        [
-            sys.executable,
-            "-m",
-            "hybrid.cli",
-            "fit",
-            str(path),
-            "--columns",
-            "input=u_cmd,output=y_meas",
-            "--rate",
-            "100000",
-            "--physics",
-            "lti:2",
-            "--model",
-            "physics",
-            "--max-steps",
-            str(steps),
-            "--quiet",
-            "--out",
-            str(folder / f"m_{n}.eqx"),
-            "--json",
-            str(folder / f"fit_{n}.json"),
-        ]
+        fit("physics", steps, folder / f"m_{n}.eqx", "--json", str(folder / f"fit_{n}.json"))
     )
-    cases["fit hybrid"] = child_peak(
-        [
-            sys.executable,
-            "-m",
-            "hybrid.cli",
-            "fit",
-            str(path),
-            "--columns",
-            "input=u_cmd,output=y_meas",
-            "--rate",
-            "100000",
-            "--physics",
-            "lti:2",
-            "--model",
-            "hybrid",
-            "--max-steps",
-            str(HYBRID_STEPS),
-            "--quiet",
-            "--out",
-            str(folder / f"h_{n}.eqx"),
-        ]
-    )
+    cases["fit hybrid"] = child_peak(fit("hybrid", HYBRID_STEPS, folder / f"h_{n}.eqx"))
     report = folder / f"fit_{n}.json"
     if report.exists():
         fitted = json.loads(report.read_text())

@@ -57,7 +57,7 @@ def lab(tmp_path_factory):
 
 def _hybrid(folder, *args):
     command = [sys.executable, "-m", "hybrid.cli", *map(str, args)]
-    return subprocess.run(command, cwd=folder, capture_output=True, text=True, timeout=None)
+    return subprocess.run(command, cwd=folder, capture_output=True, text=True)
 
 
 def test_the_cli_fits_the_docs_plugin_and_diagnoses_with_it(lab):

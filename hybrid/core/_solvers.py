@@ -193,19 +193,15 @@ def resolve_solver(solver, where: str, stacklevel: int = 3, **old) -> AbstractSo
     """
     given = {k: v for k, v in old.items() if v is not None}
     named = isinstance(solver, str)
-    if named:
-        if solver not in _BY_NAME:
-            raise InputError(
-                f"{where}: solver must be a solver object such as hybrid.LevenbergMarquardt(), "
-                f"hybrid.Adam() or hybrid.OptimistixLM(), got {solver!r}"
-            )
+    if named and solver in _BY_NAME:
         base = _BY_NAME[solver]
     elif isinstance(solver, AbstractSolver):
         base = solver
     else:
+        got = repr(solver) if named else type(solver).__name__
         raise InputError(
             f"{where}: solver must be a solver object such as hybrid.LevenbergMarquardt(), "
-            f"hybrid.Adam() or hybrid.OptimistixLM(), got {type(solver).__name__}"
+            f"hybrid.Adam() or hybrid.OptimistixLM(), got {got}"
         )
     if not named and not given:
         return solver
