@@ -173,7 +173,7 @@ def diagnose(
     settings = dataclasses.replace(settings, frozen=frozen_names)  # the report shows what was fixed
     frozen = frozenset(frozen_names)
     problem, n_rows, model, series = lanes_problem(recordings, simulation, settings)
-    lm = LMSettings(max_steps=settings.max_steps)
+    lm = LMSettings(max_steps=settings.max_steps, patience_rtol=settings.patience_rtol)
     if DIAGNOSE_PROGRAMS.admit(shape_key(problem, lm)) and progress:  # a long session never runs out of maps
         print("diagnose: released the compiled programs of earlier recordings' shapes", flush=True)
     n_train = sum(b - a for s in series for a, b in s.segments_of("train"))

@@ -50,6 +50,9 @@ class DiagnoseSettings:
       cause and gain). A candidate lane needs the longer patience: with 10,
       delay seed 10 of `experiments/discrepancy.py` stopped at a held-out gain
       of 1.6 that 25 steps take to 2.7.
+    - `patience_rtol`: an accepted step counts as a better validation loss, for both
+      patiences, only when it improves the lane's best by more than this fraction
+      (see `LMSettings.patience_rtol`).
     - `min_gain`: held-out NMSE ratio baseline/extended needed to name a cause.
     - `min_bic_drop`: BIC decrease (training part) needed to name a cause.
     - `materiality`: the smallest effect that counts as a cause, per effect (see
@@ -71,6 +74,7 @@ class DiagnoseSettings:
     max_steps: int = 120
     patience: int = 25
     effect_free_patience: int = 10
+    patience_rtol: float = 1e-3
     min_gain: float = 1.5
     min_bic_drop: float = 10.0
     materiality: dict = dataclasses.field(

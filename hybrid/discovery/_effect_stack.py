@@ -78,7 +78,7 @@ class EffectStack(AbstractWrapper):
     def simulate(self, v_in, dt):
         s = self.inner.simulate(v_in, dt)
         for on, effect in zip(self.active, self.effects):
-            s = s + on * (effect.apply(s, dt) - s)
+            s = switched(on, effect, s, dt)
         return s
 
     def parameters(self):
@@ -161,6 +161,17 @@ class EffectStack(AbstractWrapper):
         return out
 
 
+def switched(on, effect: AbstractEffect, s, dt):
+    """``s + on·(effect(s) − s)``; an effect switched off is not evaluated at all.
+
+    A search lane runs every effect of its stack on every LM step, under every
+    Jacobian direction: a `lax.cond` on the switch skips the effects a lane has
+    off (under `vmap` it becomes a select, and both sides run as before). It
+    also keeps a switched-off effect's NaN or inf out of ``0·(effect(s) − s)``.
+    """
+    return jax.lax.cond(on != 0, lambda x: x + on * (effect.apply(x, dt) - x), lambda x: x, s)
+
+
 @eqx.filter_jit
 def _signals_into_effects(stack, v_in, dt):
     """The signal entering each effect of `stack` (rows in its order), in one compiled program.
@@ -172,7 +183,7 @@ def _signals_into_effects(stack, v_in, dt):
     into = []
     for on, effect in zip(stack.active, stack.effects):
         into.append(s)
-        s = s + on * (effect.apply(s, dt) - s)
+        s = switched(on, effect, s, dt)
     return jnp.stack(into)
 
 
