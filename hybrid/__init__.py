@@ -65,6 +65,9 @@ from .discovery._effects import (
     EFFECTS as EFFECTS,
     AbstractEffect as AbstractEffect,
     FrameTiming as FrameTiming,
+    StartContext as StartContext,
+    effects_from_spec as effects_from_spec,
+    resolve_effects as resolve_effects,
 )
 from .discovery._report import write_report as write_report
 from .ipmc._defaults import diagnose as diagnose, make_model as make_model

@@ -188,6 +188,13 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: DiagnoseSettings.blocks; 1: one held-out tail)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.add_argument(
+        "--effects",
+        default=None,
+        metavar="SPEC[,SPEC...]",
+        help="the effects to search (default: every built-in): built-in names, 'builtins', "
+        "path/to/file.py:Class or package.module:Class (your AbstractEffect), comma-separated",
+    )
     add_physics(p, default="rc:zoh")
     add_settle(p, B)
     add_mapping(p, B)
@@ -366,7 +373,7 @@ def _cmd_diagnose(args):
     import dataclasses
 
     from .discovery._diagnosis import DiagnoseSettings
-    from .discovery._effects import EFFECTS
+    from .discovery._effects import effects_from_spec
     from .discovery._report import REMAINDER_FIGURE, plus_minus, write_report
     from .discovery._report_figures import FIGURES
     from .ipmc._defaults import diagnose
@@ -388,8 +395,14 @@ def _cmd_diagnose(args):
     with lock:
         simulation = resolve_physics(args.physics, recordings)
         simulation = with_settle(simulation, args, recordings)
+        effects = None if args.effects is None else effects_from_spec(args.effects)
         diagnosis = diagnose(
-            recordings, simulation=simulation, hybrid=args.hybrid, settings=settings, progress=not args.quiet
+            recordings,
+            simulation=simulation,
+            effects=effects,
+            hybrid=args.hybrid,
+            settings=settings,
+            progress=not args.quiet,
         )
         paths = write_report(diagnosis, args.out)
     report = diagnosis.to_dict()
@@ -399,7 +412,7 @@ def _cmd_diagnose(args):
     print(diagnosis.verdict)
     for step in report["causes"]:
         print(f"  {step['name']} (incremental gain {step['incremental_gain']:.2f}x)")
-        for name in EFFECTS[step["name"]].constraints:
+        for name in diagnosis.effect_parameters(step["name"]):
             if name in report["parameters"]:
                 print(f"    {name} = {plus_minus(report['parameters'][name])}")
     floor, left = report["noise_floor"], report["unexplained"]

@@ -35,50 +35,18 @@ def derived_quantities(problem, theta, active) -> dict:
     return out
 
 
-def _material(name: str, derived: dict, parameters: dict, materiality: dict) -> tuple[bool, str]:
-    d = derived.get(name, {})
-    if name == "delay":
-        # The dead time beyond the frame timing (≤ 1 sample, fitted in the baseline too).
-        total = d.get("delay_samples", 0.0) + parameters.get("frame_lag", 0.0)
-        ok = total >= materiality["delay_samples"]
-        return ok, (
-            f"delay {d.get('delay_samples', 0):.2f} + frame lag {parameters.get('frame_lag', 0):.2f} samples "
-            f"(needs ≥ {materiality['delay_samples']} in all)"
-        )
-    if name == "back_relaxation":
-        ok = d.get("relaxation_percent", 0.0) >= materiality["relaxation_percent"]
-        return (
-            ok,
-            f"relaxation {d.get('relaxation_percent', 0):.1f} % (needs ≥ {materiality['relaxation_percent']} %)",
-        )
-    if name == "saturation":
-        worst = max([v for k, v in d.items() if k.startswith("shortfall")] or [0.0])
-        return worst >= materiality[
-            "shortfall_percent"
-        ], f"shortfall {worst:.1f} % (needs ≥ {materiality['shortfall_percent']} %)"
-    if name == "hysteresis":
-        h = d.get("loop_height_percent_of_range", 0.0)
-        return h >= materiality[
-            "loop_height_percent_of_range"
-        ], f"loop {h:.1f} % of range (needs ≥ {materiality['loop_height_percent_of_range']} %)"
-    if name == "drift":
-        c = abs(d.get("gain_change_percent", 0.0))
-        return c >= materiality[
-            "gain_change_percent"
-        ], f"gain change {c:.1f} % (needs ≥ {materiality['gain_change_percent']} %)"
-    if name == "resonance":
-        f, z = parameters["resonance_frequency_hz"], parameters["resonance_damping"]
-        ok = z <= materiality["max_damping"] and f >= materiality["min_frequency_hz"]
-        return (
-            ok,
-            f"mode {f:.2f} Hz, ζ {z:.3f} (needs ζ ≤ {materiality['max_damping']}, f ≥ {materiality['min_frequency_hz']} Hz)",
-        )
-    if name == "even_response":
-        e = d.get("even_percent_of_range", 0.0)
-        return e >= materiality[
-            "even_percent_of_range"
-        ], f"even part {e:.1f} % of range (needs ≥ {materiality['even_percent_of_range']} %)"
-    return True, ""
+def thresholds_of(effect, materiality: dict) -> dict:
+    """`effect`'s materiality thresholds, each overridden by `materiality`'s value of that name."""
+    return {k: materiality.get(k, v) for k, v in effect.thresholds.items()}
+
+
+def _material(
+    problem, theta, name: str, derived: dict, parameters: dict, materiality: dict
+) -> tuple[bool, str]:
+    """Whether effect `name` is large enough to be a cause (`AbstractEffect.material`), and why."""
+    stack = problem.model(theta).simulation
+    effect = next(e for e in stack.effects if e.name == name)
+    return effect.material(derived.get(name, {}), parameters, thresholds_of(effect, materiality))
 
 
 def _heldout_metrics(w, w_hat) -> HeldoutMetrics:
@@ -172,7 +140,7 @@ def lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]:
     """(material, size) of effect `name` at a lane's end point; size as in `Candidate.derived`."""
     parameters = {k: float(v) for k, v in problem.model(theta).parameters().items()}
     derived = derived_quantities(problem, theta, active)
-    return _material(name, derived, parameters, materiality)[0], derived.get(name, {})
+    return _material(problem, theta, name, derived, parameters, materiality)[0], derived.get(name, {})
 
 
 def evaluate_candidate(
@@ -209,5 +177,5 @@ def evaluate_candidate(
         active=np.asarray(active),
     )
     if name != "none":
-        cand.material, cand.materiality = _material(name, derived, parameters, materiality)
+        cand.material, cand.materiality = _material(problem, theta, name, derived, parameters, materiality)
     return cand

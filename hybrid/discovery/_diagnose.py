@@ -63,7 +63,7 @@ from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
 from ._decision import evaluate_candidate, free_names
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
-from ._effects import EFFECTS
+from ._effects import resolve_effects
 from ._evidence import fitted_model, heldout_evidence, parameter_uncertainties
 from ._search import (
     fit_lanes,
@@ -123,6 +123,7 @@ def diagnose(
     recordings,
     *,
     simulation=None,
+    effects=None,
     hybrid: bool = False,
     settings: DiagnoseSettings = DiagnoseSettings(),
     hybrid_max_steps: int = 150,
@@ -135,6 +136,9 @@ def diagnose(
     - `recordings`: one Recording or several of the same strip (fitted jointly).
     - `simulation`: the physics simulation to diagnose, any [`AbstractSimulation`][]
       (`hybrid.diagnose` defaults to the paper's RC network, discretised exactly).
+    - `effects`: the effects to search, each a built-in's name, an
+      [`AbstractEffect`][] subclass or instance (a plug-in); None: every
+      built-in ([`EFFECTS`][]).
     - `hybrid`: also fit the hybrid model (simulation + D-MLP) with and without
       the named effect and report both held-out errors.
     - `settings`: see [`DiagnoseSettings`][].
@@ -169,16 +173,19 @@ def diagnose(
             "diagnose needs a simulation: pass simulation=hybrid.RCNetwork(method='zoh') (the paper's "
             "physics) or any AbstractSimulation, or use hybrid.diagnose, which defaults to the RC network"
         )
+    effects = resolve_effects(effects)
     frozen_names = settings.frozen_for(simulation)
-    settings = dataclasses.replace(settings, frozen=frozen_names)  # the report shows what was fixed
+    # The report shows what was fixed and every threshold the search used.
+    settings = dataclasses.replace(
+        settings, frozen=frozen_names, materiality=settings.materiality_for(effects)
+    )
     frozen = frozenset(frozen_names)
-    problem, n_rows, model, series = lanes_problem(recordings, simulation, settings)
+    problem, n_rows, model, series = lanes_problem(recordings, simulation, settings, effects)
     lm = LMSettings(max_steps=settings.max_steps, patience_rtol=settings.patience_rtol)
     if DIAGNOSE_PROGRAMS.admit(shape_key(problem, lm)) and progress:  # a long session never runs out of maps
         print("diagnose: released the compiled programs of earlier recordings' shapes", flush=True)
     n_train = sum(b - a for s in series for a, b in s.segments_of("train"))
-    names = list(EFFECTS)
-    off = np.zeros(len(names) + 1)  # every effect off, the frame timing on
+    off = np.zeros(len(effects) + 1)  # every effect off, the frame timing on
     off[-1] = 1.0
 
     def say(text):  # the watchdog's heartbeat names the stage; progress prints it
@@ -235,7 +242,7 @@ def diagnose(
     )
     steps: list[Step] = []
     present: tuple[str, ...] = ()
-    while len(present) < min(settings.max_causes, len(EFFECTS)):
+    while len(present) < min(settings.max_causes, len(effects)):
         step = search_step(search, current, current_val, current_fits, present)
         steps.append(step)
         if not present:
@@ -310,6 +317,7 @@ def diagnose(
         steps=steps,
         noise_floor=floor,
         unexplained=unexplained,
+        effects=search.effects,
     )
 
 

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..util._errors import InputError
 from ._effects import EFFECTS
 
 if TYPE_CHECKING:
@@ -55,8 +56,10 @@ class DiagnoseSettings:
       (see `LMSettings.patience_rtol`).
     - `min_gain`: held-out NMSE ratio baseline/extended needed to name a cause.
     - `min_bic_drop`: BIC decrease (training part) needed to name a cause.
-    - `materiality`: the smallest effect that counts as a cause, per effect (see
-      `_material`); below it the "effect" is within timing or modelling slack.
+    - `materiality`: overrides, by name, of the effects' own thresholds for the
+      smallest size that counts as a cause (`AbstractEffect.thresholds`, e.g.
+      ``{"delay_samples": 2.0}``); below it the "effect" is within timing or
+      modelling slack. The report shows every threshold the search used.
     - `max_causes`: most causes named, one per step of the stepwise search.
     - `unexplained_ratio`: the final model's held-out MSE above this multiple of
       the noise floor (taken at the top of its ±2 standard errors) is reported as
@@ -77,21 +80,21 @@ class DiagnoseSettings:
     patience_rtol: float = 1e-3
     min_gain: float = 1.5
     min_bic_drop: float = 10.0
-    materiality: dict = dataclasses.field(
-        default_factory=lambda: {
-            "delay_samples": 1.0,
-            "relaxation_percent": 10.0,
-            "shortfall_percent": 5.0,
-            "loop_height_percent_of_range": 3.0,
-            "gain_change_percent": 5.0,
-            "max_damping": 0.35,
-            "min_frequency_hz": 0.5,
-            "even_percent_of_range": 5.0,
-        }
-    )
+    materiality: dict = dataclasses.field(default_factory=dict)
     frozen: tuple[str, ...] | None = None
     max_causes: int = 3
     unexplained_ratio: float = 2.0
+
+    def materiality_for(self, effects) -> dict:
+        """Every threshold of `effects` (`AbstractEffect.thresholds`), with `materiality`'s overrides."""
+        out = {k: v for effect in effects for k, v in effect.thresholds.items()}
+        unknown = sorted(set(self.materiality) - set(out))
+        if unknown:
+            raise InputError(
+                f"DiagnoseSettings.materiality names {unknown}, which no searched effect has; "
+                f"the thresholds are {sorted(out)}"
+            )
+        return {**out, **self.materiality}
 
     def frozen_for(self, simulation) -> tuple[str, ...]:
         """`frozen`, or the simulation's parameters frozen by default when it is None."""
@@ -275,6 +278,15 @@ class Diagnosis:
     #: None when the final model reaches the noise floor, else how much of its
     #: held-out error lies above it and where (see `hybrid.discovery._unexplained`).
     unexplained: dict | None = None
+    #: The effects the search weighed (`AbstractEffect` instances, in the stack's order).
+    effects: tuple = ()
+
+    def effect_parameters(self, name: str) -> tuple[str, ...]:
+        """The parameter names of the searched effect `name` (none for an unknown name)."""
+        for effect in self.effects or tuple(cls for cls in EFFECTS.values()):
+            if effect.name == name:
+                return tuple(effect.constraints)
+        return ()
 
     @property
     def gain(self) -> float:
@@ -289,7 +301,7 @@ class Diagnosis:
             if step.cause is None:
                 continue
             chosen = next(c for c in step.candidates if c.name == step.cause)
-            own = {k: v for k, v in chosen.parameters.items() if k in _effect_parameters(chosen.name)}
+            own = {k: v for k, v in chosen.parameters.items() if k in self.effect_parameters(chosen.name)}
             out.append(
                 {
                     "name": chosen.name,
@@ -375,10 +387,6 @@ def _std_error_given_network(u: ParameterUncertainty | None) -> float | None:
 
 def _unit(u: ParameterUncertainty | None) -> str:
     return u.unit if u is not None else ""
-
-
-def _effect_parameters(name: str) -> tuple[str, ...]:
-    return tuple(EFFECTS[name].constraints) if name in EFFECTS else ()
 
 
 def _split_description(settings: DiagnoseSettings) -> str:

@@ -23,14 +23,18 @@ from ._effects import EFFECTS, AbstractEffect
 
 
 class EffectStack(AbstractWrapper):
-    """A simulation followed by physical effects: y = e_K(…e_1(inner(v_in))…).
+    """A simulation with physical effects on its drive and its output: y = φ_out(S(φ_drive(v_in))).
 
     **Arguments:**
 
     - `inner`: the simulation being extended (e.g. [`RCNetwork`][]).
-    - `effects`: effect instances or names (see [`EFFECTS`][]), applied in that order.
+    - `effects`: effect instances or names (see [`EFFECTS`][]). Those whose
+      `place` is ``"drive"`` act on the drive, in their order, before `inner`;
+      the others act on its output, in their order.
     - `active`: per-effect switch, 1 on and 0 off (default all on): an effect
       contributes ``active·(effect(s) − s)``.
+    - `drive_unit`: the drive's unit, which a drive-side effect's parameter
+      units follow (an output-side effect's follow `inner.output_unit`).
 
     Its parameters are the inner simulation's plus every effect's (names are
     unique); freeze, replace and fit them like any simulation's.
@@ -39,8 +43,9 @@ class EffectStack(AbstractWrapper):
     inner: AbstractSimulation
     effects: tuple[AbstractEffect, ...]
     active: Array
+    drive_unit: str = eqx.field(static=True)
 
-    def __init__(self, inner: AbstractSimulation, effects=(), active=None):
+    def __init__(self, inner: AbstractSimulation, effects=(), active=None, drive_unit: str = "V"):
         built = []
         for effect in effects:
             if isinstance(effect, str):
@@ -55,6 +60,7 @@ class EffectStack(AbstractWrapper):
             raise InputError(f"parameter names collide in {names}: use each effect once")
         self.inner = inner
         self.effects = tuple(built)
+        self.drive_unit = drive_unit
         if active is None:
             active = jnp.ones(len(built))
         self.active = jnp.asarray(active, dtype=float)
@@ -76,10 +82,11 @@ class EffectStack(AbstractWrapper):
         return tuple(e.name for e in self.effects)
 
     def simulate(self, v_in, dt):
-        s = self.inner.simulate(v_in, dt)
-        for on, effect in zip(self.active, self.effects):
-            s = switched(on, effect, s, dt)
-        return s
+        return _signals_through(self, v_in, dt)[1]
+
+    def signal_unit(self, effect: AbstractEffect) -> str:
+        """The unit of the signal `effect` acts on: the drive's or the inner simulation's output's."""
+        return self.drive_unit if effect.place == "drive" else self.inner.output_unit
 
     def parameters(self):
         out = dict(self.inner.parameters())
@@ -94,7 +101,7 @@ class EffectStack(AbstractWrapper):
     def units(self) -> dict[str, str]:
         out = dict(self.inner.units)
         for effect in self.effects:
-            out.update(effect.units)
+            out.update(effect.units_for(self.signal_unit(effect)))
         return out
 
     @property
@@ -109,7 +116,7 @@ class EffectStack(AbstractWrapper):
         rest = {k: v for k, v in values.items() if not any(k in e.constraints for e in self.effects)}
         inner = self.inner.replace(**rest) if rest else self.inner
         effects = tuple(e.with_values(**own[e.name]) if own[e.name] else e for e in self.effects)
-        return EffectStack(inner, effects, self.active)
+        return EffectStack(inner, effects, self.active, self.drive_unit)
 
     def with_raw(self, raw):
         names = set(self.inner.parameter_names())
@@ -118,7 +125,9 @@ class EffectStack(AbstractWrapper):
             eqx.tree_at(lambda e: e.raw, e, {**e.raw, **{k: raw[k] for k in e.raw if k in raw}})
             for e in self.effects
         )
-        return EffectStack(self.inner.with_raw(inner) if inner else self.inner, effects, self.active)
+        return EffectStack(
+            self.inner.with_raw(inner) if inner else self.inner, effects, self.active, self.drive_unit
+        )
 
     def with_active(self, active) -> EffectStack:
         """The same stack with other switches (an array of 0/1 per effect)."""
@@ -131,7 +140,7 @@ class EffectStack(AbstractWrapper):
             eqx.tree_at(lambda e: e.raw, effect, perturb_raw(effect.raw, k, scale, frozen))
             for k, effect in zip(keys[1:], self.effects)
         )
-        return EffectStack(inner, effects, self.active)
+        return EffectStack(inner, effects, self.active, self.drive_unit)
 
     def trainable(self, frozen):
         spec = jax.tree_util.tree_map(lambda _: False, self)
@@ -172,6 +181,22 @@ def switched(on, effect: AbstractEffect, s, dt):
     return jax.lax.cond(on != 0, lambda x: x + on * (effect.apply(x, dt) - x), lambda x: x, s)
 
 
+def _signals_through(stack, v_in, dt):
+    """(the signal entering each effect, rows in the stack's order; the stack's output)."""
+    into: list = [None] * len(stack.effects)
+    u = v_in
+    for i, effect in enumerate(stack.effects):
+        if effect.place == "drive":
+            into[i] = u
+            u = switched(stack.active[i], effect, u, dt)
+    s = stack.inner.simulate(u, dt)
+    for i, effect in enumerate(stack.effects):
+        if effect.place != "drive":
+            into[i] = s
+            s = switched(stack.active[i], effect, s, dt)
+    return into, s
+
+
 @eqx.filter_jit
 def _signals_into_effects(stack, v_in, dt):
     """The signal entering each effect of `stack` (rows in its order), in one compiled program.
@@ -179,12 +204,8 @@ def _signals_into_effects(stack, v_in, dt):
     The switches are data: every stack of one structure, whichever effects are
     on, shares the program.
     """
-    s = stack.inner.simulate(v_in, dt)
-    into = []
-    for on, effect in zip(stack.active, stack.effects):
-        into.append(s)
-        s = switched(on, effect, s, dt)
-    return jnp.stack(into)
+    into, _ = _signals_through(stack, v_in, dt)
+    return jnp.stack(into) if into else jnp.zeros((0, v_in.shape[0]), v_in.dtype)
 
 
 def extend(simulation: AbstractSimulation, *effects, **values) -> EffectStack:

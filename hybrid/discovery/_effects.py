@@ -44,7 +44,8 @@ state of the hysteresis is solved in `hybrid.discovery._hysteresis`.
 from __future__ import annotations
 
 import abc
-from typing import ClassVar
+import dataclasses
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -54,21 +55,100 @@ from jaxtyping import Array, Float
 
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
+from ..util._errors import InputError
 from ._hysteresis import bouc_wen_state
+
+#: Where an effect acts: on the drive before the simulation, y = S(φ(u)), or on its output, y = φ(S(u)).
+PLACES = ("drive", "output")
+#: The placeholder an effect's `units` use for the unit of the signal it acts on.
+SIGNAL = "{signal}"
+
+
+@dataclasses.dataclass(frozen=True)
+class StartContext:
+    """What an effect's starting values may depend on; `diagnose`'s search builds one per step.
+
+    - `signal`: the signal entering the effect on the training part under the
+      current model: the simulation's output for an output-side effect, the
+      drive for a drive-side one, in its own unit.
+    - `rate`: samples per second; `duration`: the first recording's length (s).
+    - `lag_samples`: the whole-sample lag that best aligns the current model with the recording.
+    - `residual_peak_hz`: the training residual's spectral peak at 0.5 Hz or above, or None.
+    - `problem`, `simulation`, `frozen`: for a screen (`AbstractEffect.screened_starts`):
+      the search's least-squares problem, the simulation being diagnosed and
+      the names of its parameters that are not fitted.
+    """
+
+    signal: np.ndarray
+    rate: float
+    duration: float
+    lag_samples: int = 0
+    residual_peak_hz: float | None = None
+    problem: Any = None
+    simulation: Any = None
+    frozen: frozenset = frozenset()
 
 
 class AbstractEffect(eqx.Module):
-    """One physical effect: y = effect(s) with named, constrained parameters."""
+    """One physical effect: y = effect(s) with named, constrained parameters.
+
+    A plug-in subclass states its facts as class variables and owns everything
+    `diagnose` needs to search for it; nothing else in the library names it.
+
+    - `name`, `constraints`, `units`, `defaults` (required): as for a simulation.
+      A unit may contain ``{signal}``, the unit of the signal the effect acts on
+      (``"1/{signal}"`` for a curvature): `units_for` fills it in.
+    - `place`: ``"output"`` (default; it acts on the simulation's output) or
+      ``"drive"`` (it acts on the drive before the simulation).
+    - `thresholds`: the smallest size that counts as a cause, by name (see
+      `material`); `DiagnoseSettings.materiality` overrides them by name.
+    - `starts(context)`: starting values for the search's lanes (default: the
+      defaults); `screened_starts(context)`: at most `n_screened` more, from a
+      screen of the simulation's design jointly with the effect (first step only).
+    - `material(derived, parameters, thresholds)`: whether a fit of the effect is
+      large enough to count, and the sentence that says why (default: always).
+    - `derived(s, dt)`: quantities an experimenter reads more easily than the
+      raw parameters (they are `material`'s `derived`).
+    """
 
     raw: eqx.AbstractVar[dict[str, Array]]
     name: ClassVar[str]
     constraints: ClassVar[dict[str, Constraint]]
     units: ClassVar[dict[str, str]]
     defaults: ClassVar[dict[str, float]]
+    place: ClassVar[str] = "output"
+    thresholds: ClassVar[dict[str, float]] = {}
+    n_screened: ClassVar[int] = 0
 
     @abc.abstractmethod
     def apply(self, s: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
         """The modified signal for the signal `s` sampled every `dt` seconds."""
+
+    def starts(self, context: StartContext) -> list[dict[str, float]]:
+        """Starting values for the search's lanes, a few; how many must not depend on the data."""
+        return [dict(self.defaults)]
+
+    def screened_starts(self, context: StartContext) -> list[dict[str, float]]:
+        """At most `n_screened` starts from a screen (the simulation's parameters may be among them)."""
+        return []
+
+    def material(self, derived: dict, parameters: dict, thresholds: dict) -> tuple[bool, str]:
+        """(whether the fit is large enough to be a cause, the sentence that says why).
+
+        `derived`: this effect's `derived` quantities; `parameters`: every
+        fitted parameter by name (the simulation's too); `thresholds`: this
+        class's `thresholds` with the settings' overrides.
+        """
+        return True, ""
+
+    def units_for(self, signal_unit: str) -> dict[str, str]:
+        """`units` with ``{signal}`` replaced by `signal_unit`.
+
+        A simulation that does not state its `output_unit` gives
+        ``"(unit of S)"``: the unit of its output, whatever that is.
+        """
+        unit = signal_unit or "(unit of S)"
+        return {k: v.replace(SIGNAL, unit) for k, v in self.units.items()}
 
     def parameters(self) -> dict[str, Array]:
         return decode(self.raw, self.constraints)
@@ -88,6 +168,22 @@ def _init(effect, values):
     effect.raw = encode(merged, effect.constraints, effect.name)
 
 
+def _span(signal) -> float:
+    """The range of a signal (at least 1e-9: a flat signal still gets finite starts)."""
+    return max(float(np.ptp(signal)), 1e-9)
+
+
+def _top(signal) -> float:
+    """The largest |value| of a signal (at least 1e-9)."""
+    return max(float(np.max(np.abs(signal))), 1e-9)
+
+
+def _sides(signal) -> tuple[float, float]:
+    """The largest positive and negative excursions, each at least 5 % of the largest |value|."""
+    top = _top(signal)
+    return max(float(np.max(signal)), 0.05 * top), max(float(-np.min(signal)), 0.05 * top)
+
+
 class Delay(AbstractEffect):
     """Dead time d: y(t) = s(t − d), linearly interpolated; s = 0 before the recording (rest)."""
 
@@ -96,6 +192,8 @@ class Delay(AbstractEffect):
     constraints: ClassVar = {"delay_s": Positive()}
     units: ClassVar = {"delay_s": "s"}
     defaults: ClassVar = {"delay_s": 0.05}
+    thresholds: ClassVar = {"delay_samples": 1.0}
+    n_screened: ClassVar[int] = 3
 
     def __init__(self, **values):
         _init(self, values)
@@ -107,6 +205,26 @@ class Delay(AbstractEffect):
 
     def derived(self, s, dt):
         return {"delay_samples": float(self.parameters()["delay_s"] / dt)}
+
+    def starts(self, context):
+        # The objective is multimodal in the dead time (one basin per few samples):
+        # the lag that best aligns the current model; `screened_starts` adds screened ones.
+        return [{"delay_s": max(context.lag_samples - 0.25, 0.75) / context.rate}]
+
+    def screened_starts(self, context):
+        from ._starts import delay_starts
+
+        return delay_starts(
+            context.problem, context.simulation, context.rate, self.n_screened, context.frozen
+        )
+
+    def material(self, derived, parameters, thresholds):
+        # The dead time beyond the frame timing (≤ 1 sample, fitted in the baseline too).
+        delay, lag = derived.get("delay_samples", 0.0), parameters.get("frame_lag", 0.0)
+        need = thresholds["delay_samples"]
+        return delay + lag >= need, (
+            f"delay {delay:.2f} + frame lag {lag:.2f} samples (needs ≥ {need} in all)"
+        )
 
 
 def affine_recurrence(a, b, x0=0.0):
@@ -143,6 +261,7 @@ class BackRelaxation(AbstractEffect):
     constraints: ClassVar = {"relaxation_time_s": Positive(), "relaxation_fraction": UnitInterval()}
     units: ClassVar = {"relaxation_time_s": "s", "relaxation_fraction": "1"}
     defaults: ClassVar = {"relaxation_time_s": 10.0, "relaxation_fraction": 0.3}
+    thresholds: ClassVar = {"relaxation_percent": 10.0}
 
     def __init__(self, **values):
         _init(self, values)
@@ -155,6 +274,17 @@ class BackRelaxation(AbstractEffect):
 
     def derived(self, s, dt):
         return {"relaxation_percent": 100.0 * float(self.parameters()["relaxation_fraction"])}
+
+    def starts(self, context):
+        return [
+            {"relaxation_time_s": 5.0, "relaxation_fraction": 0.3},
+            {"relaxation_time_s": min(30.0, context.duration / 3), "relaxation_fraction": 0.5},
+            {"relaxation_time_s": 3.0, "relaxation_fraction": 0.8},
+        ]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("relaxation_percent", 0.0), thresholds["relaxation_percent"]
+        return size >= need, f"relaxation {size:.1f} % (needs ≥ {need} %)"
 
 
 def _soft_clip(s, k):
@@ -179,8 +309,9 @@ class Saturation(AbstractEffect):
     raw: dict[str, Array]
     name: ClassVar[str] = "saturation"
     constraints: ClassVar = {"saturation_pos_per_v": Real(), "saturation_neg_per_v": Real()}
-    units: ClassVar = {"saturation_pos_per_v": "1/V", "saturation_neg_per_v": "1/V"}
+    units: ClassVar = {"saturation_pos_per_v": "1/{signal}", "saturation_neg_per_v": "1/{signal}"}
     defaults: ClassVar = {"saturation_pos_per_v": 0.0, "saturation_neg_per_v": 0.0}
+    thresholds: ClassVar = {"shortfall_percent": 5.0}
 
     def __init__(self, **values):
         _init(self, values)
@@ -206,6 +337,21 @@ class Saturation(AbstractEffect):
                 )
         return out
 
+    def starts(self, context):
+        # Curvatures whose shortfall at the largest |s| is about 3 % (next to the
+        # current model, so LM can only improve on it), 13 % and 35 %.
+        pos, neg = _sides(context.signal)
+        return [
+            {"saturation_pos_per_v": 0.3 / pos, "saturation_neg_per_v": 0.3 / neg},
+            {"saturation_pos_per_v": 1 / (1.5 * pos), "saturation_neg_per_v": 1 / (1.5 * neg)},
+            {"saturation_pos_per_v": 1 / (0.8 * pos), "saturation_neg_per_v": 1 / (0.8 * neg)},
+        ]
+
+    def material(self, derived, parameters, thresholds):
+        worst = max([v for k, v in derived.items() if k.startswith("shortfall")] or [0.0])
+        need = thresholds["shortfall_percent"]
+        return worst >= need, f"shortfall {worst:.1f} % (needs ≥ {need} %)"
+
 
 class Hysteresis(AbstractEffect):
     """y = s + W u, u the Bouc–Wen state (n = 2, γ = 0) of s, solved exactly per sample.
@@ -226,8 +372,8 @@ class Hysteresis(AbstractEffect):
         "hysteresis_initial_state": SignedUnitInterval(),
     }
     units: ClassVar = {
-        "hysteresis_height_v": "V",
-        "hysteresis_rate_per_v": "1/V",
+        "hysteresis_height_v": "{signal}",
+        "hysteresis_rate_per_v": "1/{signal}",
         "hysteresis_initial_state": "1",
     }
     defaults: ClassVar = {
@@ -235,6 +381,8 @@ class Hysteresis(AbstractEffect):
         "hysteresis_rate_per_v": 10.0,
         "hysteresis_initial_state": 0.0,
     }
+    thresholds: ClassVar = {"loop_height_percent_of_range": 3.0}
+    n_screened: ClassVar[int] = 1
 
     def __init__(self, **values):
         _init(self, values)
@@ -250,6 +398,25 @@ class Hysteresis(AbstractEffect):
         height = 2.0 * abs(float(self.parameters()["hysteresis_height_v"]))
         return {"loop_height_percent_of_range": 100.0 * height / span if span > 0 else 0.0}
 
+    def starts(self, context):
+        span = _span(context.signal)
+        return [
+            {"hysteresis_height_v": 0.03 * span, "hysteresis_rate_per_v": 10.0 / span},
+            {"hysteresis_height_v": 0.1 * span, "hysteresis_rate_per_v": 40.0 / span},
+        ]
+
+    def screened_starts(self, context):
+        from ._starts import hysteresis_starts
+
+        return hysteresis_starts(context.problem, context.simulation, self.n_screened, context.frozen)
+
+    def material(self, derived, parameters, thresholds):
+        size, need = (
+            derived.get("loop_height_percent_of_range", 0.0),
+            thresholds["loop_height_percent_of_range"],
+        )
+        return size >= need, f"loop {size:.1f} % of range (needs ≥ {need} %)"
+
 
 class Drift(AbstractEffect):
     """y = s · exp(κ t): the actuation gain changes monotonically, t from the first sample."""
@@ -259,6 +426,7 @@ class Drift(AbstractEffect):
     constraints: ClassVar = {"drift_rate_per_s": Real()}
     units: ClassVar = {"drift_rate_per_s": "1/s"}
     defaults: ClassVar = {"drift_rate_per_s": 0.0}
+    thresholds: ClassVar = {"gain_change_percent": 5.0}
 
     def __init__(self, **values):
         _init(self, values)
@@ -271,6 +439,13 @@ class Drift(AbstractEffect):
         duration = dt * (s.shape[0] - 1)
         change = float(jnp.expm1(self.parameters()["drift_rate_per_s"] * duration))
         return {"gain_change_percent": 100.0 * change, "over_s": float(duration)}
+
+    def starts(self, context):
+        return [{"drift_rate_per_s": 0.0}]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = abs(derived.get("gain_change_percent", 0.0)), thresholds["gain_change_percent"]
+        return size >= need, f"gain change {size:.1f} % (needs ≥ {need} %)"
 
 
 def foh_matrices(a, b, dt):
@@ -298,6 +473,8 @@ class Resonance(AbstractEffect):
     constraints: ClassVar = {"resonance_frequency_hz": Positive(), "resonance_damping": UnitInterval()}
     units: ClassVar = {"resonance_frequency_hz": "Hz", "resonance_damping": "1"}
     defaults: ClassVar = {"resonance_frequency_hz": 5.0, "resonance_damping": 0.1}
+    thresholds: ClassVar = {"max_damping": 0.35, "min_frequency_hz": 0.5}
+    n_screened: ClassVar[int] = 1
 
     def __init__(self, **values):
         _init(self, values)
@@ -324,6 +501,24 @@ class Resonance(AbstractEffect):
 
         states = lax.associative_scan(compose, (phis, forcing))[1]  # x[1..T]
         return jnp.concatenate([x0[None, 0], states[:-1, 0]])
+
+    def starts(self, context):
+        # The residual's spectral peak; `screened_starts` adds a screened one.
+        peak, nyquist = context.residual_peak_hz, 0.5 * context.rate
+        guess = peak if peak and 0.5 <= peak < nyquist else 0.3 * context.rate
+        return [{"resonance_frequency_hz": guess, "resonance_damping": 0.1}]
+
+    def screened_starts(self, context):
+        from ._starts import resonance_starts
+
+        return resonance_starts(
+            context.problem, context.simulation, context.rate, self.n_screened, context.frozen
+        )
+
+    def material(self, derived, parameters, thresholds):
+        f, z = parameters["resonance_frequency_hz"], parameters["resonance_damping"]
+        most, least = thresholds["max_damping"], thresholds["min_frequency_hz"]
+        return z <= most and f >= least, f"mode {f:.2f} Hz, ζ {z:.3f} (needs ζ ≤ {most}, f ≥ {least} Hz)"
 
 
 class FrameTiming(AbstractEffect):
@@ -368,8 +563,9 @@ class EvenResponse(AbstractEffect):
     raw: dict[str, Array]
     name: ClassVar[str] = "even_response"
     constraints: ClassVar = {"even_per_v": Real()}
-    units: ClassVar = {"even_per_v": "1/V"}
+    units: ClassVar = {"even_per_v": "1/{signal}"}
     defaults: ClassVar = {"even_per_v": 0.0}
+    thresholds: ClassVar = {"even_percent_of_range": 5.0}
 
     def __init__(self, **values):
         _init(self, values)
@@ -383,9 +579,302 @@ class EvenResponse(AbstractEffect):
         even = abs(float(self.parameters()["even_per_v"])) * float(np.max(np.square(s)))
         return {"even_percent_of_range": 100.0 * even / span if span > 0 else 0.0}
 
+    def starts(self, context):
+        # An even part of 10 % of the range either way; LM takes it to a purely quadratic response if needed.
+        span, top = _span(context.signal), _top(context.signal)
+        return [{"even_per_v": 0.1 * span / top**2}, {"even_per_v": -0.1 * span / top**2}]
 
-#: The effects, by name, in the order they act on the signal (the even response,
-#: added last, keeps the others' places in the stack and so their fits' layout).
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("even_percent_of_range", 0.0), thresholds["even_percent_of_range"]
+        return size >= need, f"even part {size:.1f} % of range (needs ≥ {need} %)"
+
+
+class BaselineDrift(AbstractEffect):
+    """y = s + a·t + b·t², t in minutes from the recording's first sample: the output's zero wanders.
+
+    The commonest drift of a real sensor or a warming plant is additive: the
+    baseline creeps while the response stays the same (`Drift` is the other
+    kind, a gain that changes). Zero at the first sample, so the readout's
+    offset keeps its meaning; a and b are in the unit of the signal per minute
+    (per minute²), which keeps their Jacobian columns of order one on
+    recordings of minutes. ``derived`` reports the largest excursion of the
+    trend over the recording as a percentage of the signal's range.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "baseline_drift"
+    constraints: ClassVar = {"baseline_slope_per_min": Real(), "baseline_curvature_per_min2": Real()}
+    units: ClassVar = {
+        "baseline_slope_per_min": "{signal}/min",
+        "baseline_curvature_per_min2": "{signal}/min²",
+    }
+    defaults: ClassVar = {"baseline_slope_per_min": 0.0, "baseline_curvature_per_min2": 0.0}
+    thresholds: ClassVar = {"baseline_percent_of_range": 5.0}
+
+    def __init__(self, **values):
+        _init(self, values)
+
+    def _trend(self, n: int, dt: float, xp=jnp):
+        p = self.parameters()
+        t = xp.arange(n) * (dt / 60.0)
+        return p["baseline_slope_per_min"] * t + p["baseline_curvature_per_min2"] * t * t
+
+    def apply(self, s, dt):
+        return s + self._trend(s.shape[0], dt).astype(s.dtype)
+
+    def derived(self, s, dt):
+        span = float(np.ptp(s))
+        trend = np.asarray(self._trend(len(s), dt), float)
+        size = float(np.max(np.abs(trend))) if trend.size else 0.0
+        return {
+            "baseline_percent_of_range": 100.0 * size / span if span > 0 else 0.0,
+            "over_s": float(dt * (len(s) - 1)),
+        }
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("baseline_percent_of_range", 0.0), thresholds["baseline_percent_of_range"]
+        return size >= need, f"baseline moves {size:.1f} % of range (needs ≥ {need} %)"
+
+
+class DriveDeadZone(AbstractEffect):
+    """On the drive: u ↦ u − clip(u, −d, d), no response while |u| ≤ d.
+
+    Static friction at the input, a diode's or an amplifier's threshold, a
+    valve's overlap: the drive must pass a width d (unit of the drive) before
+    anything moves. ``derived`` reports d as a percentage of the largest |u|.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "drive_dead_zone"
+    place: ClassVar[str] = "drive"
+    constraints: ClassVar = {"drive_dead_zone_width": Positive()}
+    units: ClassVar = {"drive_dead_zone_width": "{signal}"}
+    defaults: ClassVar = {"drive_dead_zone_width": 0.01}
+    thresholds: ClassVar = {"drive_dead_zone_percent": 3.0}
+
+    def __init__(self, **values):
+        _init(self, values)
+
+    def apply(self, u, dt):
+        d = self.parameters()["drive_dead_zone_width"]
+        return u - jnp.clip(u, -d, d)
+
+    def derived(self, u, dt):
+        top = float(np.max(np.abs(u))) if len(u) else 0.0
+        d = float(self.parameters()["drive_dead_zone_width"])
+        return {"drive_dead_zone_percent": 100.0 * d / top if top > 0 else 0.0}
+
+    def starts(self, context):
+        top = _top(context.signal)
+        return [{"drive_dead_zone_width": 0.05 * top}, {"drive_dead_zone_width": 0.2 * top}]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("drive_dead_zone_percent", 0.0), thresholds["drive_dead_zone_percent"]
+        return size >= need, f"dead zone {size:.1f} % of the largest drive (needs ≥ {need} %)"
+
+
+#: The built-in effects, by name, in the order they act on their signal (each added later
+#: goes last, which keeps the others' places in the stack and so their fits' layout).
 EFFECTS: dict[str, type[AbstractEffect]] = {
-    cls.name: cls for cls in (Delay, BackRelaxation, Saturation, Hysteresis, Drift, Resonance, EvenResponse)
+    cls.name: cls
+    for cls in (
+        Delay,
+        BackRelaxation,
+        Saturation,
+        Hysteresis,
+        Drift,
+        Resonance,
+        EvenResponse,
+        BaselineDrift,
+        DriveDeadZone,
+    )
 }
+#: Names an effect may not take: the search's words for "no effect" and the always-on frame timing.
+RESERVED = ("none", "frame_timing")
+
+
+def _probe_context() -> StartContext:
+    signal = np.sin(np.linspace(0.0, 6.0, 64)) * 2.0
+    return StartContext(signal=signal, rate=30.0, duration=60.0, lag_samples=1, residual_peak_hz=None)
+
+
+def check_effect(effect: AbstractEffect, label: str) -> None:
+    """Refuse, in one line that says the fix, an effect that `diagnose` could not search.
+
+    Checks its facts (name, place, constraints, units, defaults, thresholds)
+    and runs `apply` and `starts` once on a short probe signal.
+    """
+    from ..physics._plugins import PluginError
+
+    cls = type(effect).__name__
+    name = getattr(effect, "name", None)
+    if not isinstance(name, str) or not name.isidentifier() or name in RESERVED:
+        raise InputError(
+            f"{label}: {cls}.name must be an identifier other than {', '.join(RESERVED)}, got {name!r}; "
+            "set name: ClassVar[str] = 'my_effect'"
+        )
+    if effect.place not in PLACES:
+        raise InputError(f"{label}: {cls}.place must be one of {', '.join(PLACES)}, got {effect.place!r}")
+    constraints = getattr(effect, "constraints", None)
+    if not isinstance(constraints, dict) or not all(isinstance(c, Constraint) for c in constraints.values()):
+        raise InputError(
+            f"{label}: {cls}.constraints must be a dict of hybrid constraints by parameter name "
+            "(e.g. {'friction_force': hybrid.Positive()})"
+        )
+    for fact in ("units", "defaults"):
+        given = getattr(effect, fact, None)
+        missing = sorted(set(constraints) - set(given or {}))
+        if not isinstance(given, dict) or missing:
+            raise InputError(f"{label}: {cls}.{fact} has no entry for {missing or 'any parameter'}; add them")
+    if not isinstance(effect.thresholds, dict) or not all(
+        isinstance(v, (int, float)) for v in effect.thresholds.values()
+    ):
+        raise InputError(f"{label}: {cls}.thresholds must be a dict of numbers by name")
+    if not isinstance(effect.n_screened, int) or effect.n_screened < 0:
+        raise InputError(f"{label}: {cls}.n_screened must be a whole number ≥ 0, got {effect.n_screened!r}")
+    context = _probe_context()
+    try:
+        out = np.asarray(effect.apply(jnp.asarray(context.signal), 1.0 / context.rate))
+        starts = effect.starts(context)
+    except KeyboardInterrupt:
+        raise
+    except Exception as error:
+        raise PluginError(
+            f"{label}: {cls} failed on a probe signal ({type(error).__name__}: {error}); fix apply or starts",
+            error,
+        ) from None
+    if out.shape != context.signal.shape or not np.all(np.isfinite(out)):
+        raise InputError(
+            f"{label}: {cls}.apply(s, dt) must return one finite value per sample of s; on a "
+            f"{context.signal.shape[0]}-sample probe it returned shape {out.shape}"
+        )
+    if (
+        not isinstance(starts, list)
+        or not starts
+        or not all(isinstance(x, dict) and set(x) <= set(constraints) for x in starts)
+    ):
+        raise InputError(
+            f"{label}: {cls}.starts(context) must return a non-empty list of dicts of its parameters "
+            f"({', '.join(constraints)})"
+        )
+
+
+def resolve_effects(effects=None) -> tuple[AbstractEffect, ...]:
+    """The effects `diagnose` searches: None gives every built-in ([`EFFECTS`][]).
+
+    Each item is a built-in's name, an [`AbstractEffect`][] subclass (built with
+    no arguments: its defaults) or an instance. Every one is checked
+    (`check_effect`); names and parameter names must be unique.
+    """
+    if effects is None:
+        return tuple(cls() for cls in EFFECTS.values())  # type: ignore[call-arg]  # eqx AbstractVar `raw`
+    if isinstance(effects, (str, AbstractEffect)) or isinstance(effects, type):
+        effects = [effects]
+    out = []
+    for item in effects:
+        label = (
+            f"effect {item!r}"
+            if isinstance(item, str)
+            else f"effect {getattr(item, '__name__', type(item).__name__)}"
+        )
+        if isinstance(item, str):
+            if item not in EFFECTS:
+                raise InputError(
+                    f"unknown effect {item!r}: the built-ins are {', '.join(EFFECTS)}; "
+                    "a plug-in is an AbstractEffect subclass (see docs/effects.md)"
+                )
+            item = EFFECTS[item]()  # type: ignore[call-arg]  # eqx AbstractVar `raw`
+        elif isinstance(item, type):
+            if not issubclass(item, AbstractEffect):
+                raise InputError(
+                    f"{label}: not an AbstractEffect subclass; derive it from hybrid.AbstractEffect"
+                )
+            if getattr(item, "__abstractmethods__", None):
+                missing = ", ".join(sorted(item.__abstractmethods__))
+                raise InputError(
+                    f"{label}: abstract (it does not define {missing}); define apply(self, s, dt)"
+                )
+            try:
+                item = item()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg
+            except KeyboardInterrupt:
+                raise
+            except Exception as error:
+                from ..physics._plugins import PluginError
+
+                raise PluginError(
+                    f"{label}: building it with no arguments raised {type(error).__name__}: {error}; "
+                    "its defaults are the starting values",
+                    error,
+                ) from None
+        elif not isinstance(item, AbstractEffect):
+            raise InputError(f"{label}: give an effect's name, an AbstractEffect subclass or an instance")
+        if type(item) not in EFFECTS.values():  # the built-ins are tested; a plug-in is probed once here
+            check_effect(item, label)
+        out.append(item)
+    if not out:
+        raise InputError("effects is empty: give at least one effect, or None for the built-ins")
+    names = [e.name for e in out]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(f"effects named twice: {twice}; give each effect once")
+    parameters = [p for e in out for p in e.constraints] + list(FrameTiming.constraints)
+    shared = sorted({p for p in parameters if parameters.count(p) > 1})
+    if shared:
+        raise InputError(
+            f"effects share parameter names {shared}: give each effect's parameters their own names"
+        )
+    return tuple(out)
+
+
+#: What ``--effects`` takes, item by item.
+EFFECT_FORMS = "builtins, a built-in's name, path/to/file.py:ClassName or package.module:ClassName"
+
+
+def effects_from_spec(spec: str) -> tuple[AbstractEffect, ...]:
+    """The effects a command line's ``--effects`` names: comma-separated items of `EFFECT_FORMS`.
+
+    ``builtins`` stands for every built-in ([`EFFECTS`][]);
+    ``--effects builtins,friction.py:Coulomb`` searches them and a plug-in.
+    """
+    from pathlib import Path
+
+    from ..physics._plugins import module_from_file, module_from_name, register
+
+    items = [x.strip() for x in str(spec).split(",") if x.strip()]
+    if not items:
+        raise InputError(f"--effects needs one or more of {EFFECT_FORMS}, comma-separated; got {spec!r}")
+    chosen: list = []
+    for text in items:
+        if text == "builtins":
+            chosen += list(EFFECTS)
+            continue
+        if text in EFFECTS:
+            chosen.append(text)
+            continue
+        where, sep, name = text.rpartition(":")
+        if not sep or not where:
+            raise InputError(
+                f"--effects {text}: not an effect I know; give {EFFECT_FORMS} "
+                f"(the built-ins: {', '.join(EFFECTS)})"
+            )
+        if not name.isidentifier():
+            raise InputError(
+                f"--effects {text}: {name!r} is not a Python class name; write the class after the last colon"
+            )
+        if where.endswith(".py") or "/" in where or "\\" in where:
+            module, label = module_from_file(text, where, flag="--effects"), Path(where).name
+        else:
+            module, label = module_from_name(text, where, flag="--effects"), f"module {where}"
+        cls = getattr(module, name, None)
+        if not isinstance(cls, type) or not issubclass(cls, AbstractEffect):
+            mine = sorted(
+                k
+                for k, v in vars(module).items()
+                if isinstance(v, type) and issubclass(v, AbstractEffect) and v.__module__ == module.__name__
+            )
+            has = f"it defines {', '.join(mine)}" if mine else "it defines no AbstractEffect subclass"
+            what = "has no class" if cls is None else "has no AbstractEffect subclass"
+            raise InputError(f"--effects {text}: {label} {what} {name}; {has}")
+        register(cls.__module__, text, flag="--effects")
+        chosen.append(cls)
+    return resolve_effects(chosen)

@@ -5,8 +5,8 @@ lives in one [`EffectStack`][] (`universal_model`), and a lane switches on at
 most one of them beyond those already named; `fit_lanes` runs a batch of lanes one after another inside a
 single compiled program. Also here: the least-squares problem every lane shares
 (`lanes_problem`), its predictions on each part of the split (`predictions`,
-`split_signals`), and the data-scaled starting values of each effect (`effect_starts`,
-`best_lag`); the screened starts are in `hybrid.discovery._starts`.
+`split_signals`), and the lag that best aligns a model with the data (`best_lag`);
+each effect's starts are its own (`AbstractEffect.starts`, `AbstractEffect.screened_starts`).
 """
 
 from __future__ import annotations
@@ -20,10 +20,9 @@ from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ..core._models import Model
 from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording
 from ..core._readout import LinearReadout
-from ..util._errors import InputError
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings
 from ._effect_stack import EffectStack
-from ._effects import EFFECTS, FrameTiming
+from ._effects import AbstractEffect, FrameTiming, resolve_effects
 
 #: Effects a lane's Jacobian has room for in the problem the search's first steps share. Each
 #: direction costs one tangent of the simulation, zero or not: room for more is paid on every
@@ -56,10 +55,11 @@ def lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     labels = simulation_labels(stack, frozen)
+    by_name = {e.name: e for e in stack.effects}
     wanted = [n for n in stack.inner.parameter_names() if n not in frozen]
     wanted += [n for n in FrameTiming.constraints if n not in frozen]
     for effect in effects:
-        wanted += [n for n in EFFECTS[effect].constraints if n not in frozen]
+        wanted += [n for n in by_name[effect].constraints if n not in frozen]
     basis = np.zeros((n_rows, len(labels)))
     for row, name in enumerate(wanted):
         basis[row, labels.index(name)] = 1.0
@@ -104,7 +104,7 @@ def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[P
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     simulation = stack.inner
-    sizes = sorted((len(e.constraints) for e in EFFECTS.values()), reverse=True)
+    sizes = sorted((len(e.constraints) for e in searched_effects(stack)), reverse=True)
     n_rows = (
         len([n for n in simulation.parameter_names() if n not in frozen])
         + len(FrameTiming.constraints)
@@ -114,7 +114,7 @@ def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[P
     return Problem(model, series, frozen, sim_tangents=jnp.zeros((n_rows, n_sim))), n_rows
 
 
-def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
+def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=None):
     """(problem, n_rows, model, series): the least-squares problem `diagnose` fits on `recordings`.
 
     Each recording is padded to its bucket's length (`bucket_length`) and its
@@ -125,18 +125,30 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings):
     `Diagnosis.lanes[i].theta`; `split_signals(problem, theta, active, split)`
     predicts a lane on a split.
     """
-    model = universal_model(simulation)
+    effects = resolve_effects(effects)
+    model = universal_model(simulation, effects, drive_unit(recordings))
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     problem, n_rows = search_problem(
-        model, padded, frozenset(settings.frozen_for(simulation)), shared_room(settings)
+        model, padded, frozenset(settings.frozen_for(simulation)), shared_room(settings, len(effects))
     )
     return problem, n_rows, model, series
 
 
-def shared_room(settings: DiagnoseSettings) -> int:
+def shared_room(settings: DiagnoseSettings, n_effects: int) -> int:
     """Effects a lane of the search's shared problem has Jacobian directions for."""
-    return min(SHARED_ROOM, settings.max_causes, len(EFFECTS))
+    return max(1, min(SHARED_ROOM, settings.max_causes, n_effects))
+
+
+def drive_unit(recordings) -> str:
+    """The drive's unit, from the first recording's metadata ("V" where it does not say)."""
+    units = getattr(recordings[0], "metadata", {}).get("units", {})
+    return str(units.get("v_in", "V")) if isinstance(units, dict) else "V"
+
+
+def searched_effects(stack: EffectStack) -> tuple[AbstractEffect, ...]:
+    """The effects a search's stack can name: all but the frame timing (always on, last)."""
+    return tuple(e for e in stack.effects if not isinstance(e, FrameTiming))
 
 
 def padding_lane(theta) -> jax.Array:
@@ -149,9 +161,10 @@ def lane_count(n_first_step: int) -> int:
     return max(N_LANES, n_first_step)
 
 
-def universal_model(simulation) -> Model:
-    """Every effect (switched off) and, last and always on, the camera's frame timing."""
-    stack = EffectStack(simulation, tuple(EFFECTS) + (FrameTiming(),), active=jnp.zeros(len(EFFECTS) + 1))
+def universal_model(simulation, effects=None, drive_unit: str = "V") -> Model:
+    """Every effect of `effects` (None: the built-ins; switched off) and, last and always on, the frame timing."""
+    effects = resolve_effects(effects) + (FrameTiming(),)
+    stack = EffectStack(simulation, effects, active=jnp.zeros(len(effects)), drive_unit=drive_unit)
     return Model(stack, LinearReadout(), "physics")
 
 
@@ -218,49 +231,6 @@ def split_signals(problem, theta, active, split):
 def simulation_labels(stack: EffectStack, frozen) -> list[str]:
     """The parameter name of each entry of θ_sim, in `ravel_pytree` order (read off the stack itself)."""
     return stack.free_parameter_order(frozen)
-
-
-def effect_starts(name, s_base, rate, lag_samples, resid_peak_hz, duration):
-    """Data-scaled starting values for an effect's parameters (a few per effect)."""
-    span = max(float(np.ptp(s_base)), 1e-9)
-    top = max(float(np.max(np.abs(s_base))), 1e-9)
-    pos = max(float(np.max(s_base)), 0.05 * top)
-    neg = max(float(-np.min(s_base)), 0.05 * top)
-    dt = 1.0 / rate
-    if name == "delay":
-        # The objective is multimodal in the dead time (one basin per few samples):
-        # the lag that best aligns the baseline; `delay_starts` adds screened ones.
-        return [{"delay_s": max(lag_samples - 0.25, 0.75) * dt}]
-    if name == "back_relaxation":
-        return [
-            {"relaxation_time_s": 5.0, "relaxation_fraction": 0.3},
-            {"relaxation_time_s": min(30.0, duration / 3), "relaxation_fraction": 0.5},
-            {"relaxation_time_s": 3.0, "relaxation_fraction": 0.8},
-        ]
-    if name == "saturation":
-        # Curvatures whose shortfall at the largest |s| is about 3 % (next to the
-        # baseline, so LM can only improve on it), 13 % and 35 %.
-        return [
-            {"saturation_pos_per_v": 0.3 / pos, "saturation_neg_per_v": 0.3 / neg},
-            {"saturation_pos_per_v": 1 / (1.5 * pos), "saturation_neg_per_v": 1 / (1.5 * neg)},
-            {"saturation_pos_per_v": 1 / (0.8 * pos), "saturation_neg_per_v": 1 / (0.8 * neg)},
-        ]
-    if name == "hysteresis":
-        return [
-            {"hysteresis_height_v": 0.03 * span, "hysteresis_rate_per_v": 10.0 / span},
-            {"hysteresis_height_v": 0.1 * span, "hysteresis_rate_per_v": 40.0 / span},
-        ]
-    if name == "drift":
-        return [{"drift_rate_per_s": 0.0}]
-    if name == "resonance":
-        nyquist = 0.5 * rate
-        # The residual's spectral peak; `resonance_starts` adds a screened one.
-        guess = resid_peak_hz if resid_peak_hz and 0.5 <= resid_peak_hz < nyquist else 0.3 * rate
-        return [{"resonance_frequency_hz": guess, "resonance_damping": 0.1}]
-    if name == "even_response":
-        # An even part of 10 % of the range either way; LM takes it to a purely quadratic response if needed.
-        return [{"even_per_v": 0.1 * span / top**2}, {"even_per_v": -0.1 * span / top**2}]
-    raise InputError(f"unknown effect {name!r}")
 
 
 def best_lag(w, w_hat, max_lag):

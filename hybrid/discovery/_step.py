@@ -35,21 +35,20 @@ from . import residual_tests as rt
 from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings, EquallyGoodFits, Lane
 from ._effect_stack import EffectStack
-from ._effects import EFFECTS
+from ._effects import AbstractEffect, StartContext
 from ._search import (
     best_lag,
-    effect_starts,
     fit_lanes,
     initial_thetas,
     lane_count,
     lane_tangents,
     padding_lane,
     search_problem,
+    searched_effects,
     shared_room,
     simulation_output,
     split_signals,
 )
-from ._starts import delay_starts, hysteresis_starts, resonance_starts
 
 
 @dataclasses.dataclass
@@ -73,7 +72,14 @@ class Search:
 
     def __post_init__(self):
         if not self.n_lanes:
-            self.n_lanes = lane_count(first_step_lanes(self.rate, self.duration))
+            self.n_lanes = lane_count(first_step_lanes(self.effects, self.rate, self.duration))
+
+    @property
+    def effects(self) -> tuple[AbstractEffect, ...]:
+        """The effects the search can name, in the stack's order."""
+        stack = self.model.simulation
+        assert isinstance(stack, EffectStack)  # a search fits an EffectStack
+        return searched_effects(stack)
 
     def problem_for(self, n_effects: int) -> Problem:
         """The shared problem, or (beyond its room) one with room for `n_effects` effects in a lane."""
@@ -88,20 +94,13 @@ class Search:
     @property
     def room(self) -> int:
         """Effects a lane of the shared problem has Jacobian directions for."""
-        return shared_room(self.settings)
+        return shared_room(self.settings, len(self.effects))
 
 
-#: Screened starts of the first step, per effect (`hybrid.discovery._starts`).
-SCREENED_STARTS = {"delay": 3, "hysteresis": 1, "resonance": 1}
-
-
-def first_step_lanes(rate: float, duration: float) -> int:
-    """Lanes of the first step: every effect's data-scaled starts and its screened ones (counts only)."""
-    return sum(
-        len(effect_starts(name, np.array([-1.0, 1.0]), rate, 1, None, duration))
-        + SCREENED_STARTS.get(name, 0)
-        for name in EFFECTS
-    )
+def first_step_lanes(effects, rate: float, duration: float) -> int:
+    """Lanes of the first step: every effect's starts and its screened ones (counts only)."""
+    probe = StartContext(signal=np.array([-1.0, 1.0]), rate=rate, duration=duration, lag_samples=1)
+    return sum(len(e.starts(probe)) + e.n_screened for e in effects)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,7 +133,8 @@ def search_step(
 ) -> Step:
     """Every effect not in `present` added to `current` (which has exactly `present` switched on)."""
     s, settings = search, search.settings
-    names = list(EFFECTS)
+    effects = s.effects
+    names = [e.name for e in effects]
     problem = s.problem_for(len(present) + 1)
     assert problem.sim_tangents is not None  # a search problem always has its directions
     n_rows = int(problem.sim_tangents.shape[0])
@@ -147,27 +147,36 @@ def search_step(
 
     bare = stack.with_active(np.zeros_like(active_cur))  # the inner simulation alone
     s_train = simulation_output(problem, bare, cur_model.readout, s.frozen, "train")
-    _, w_tr, w_hat_tr = split_signals(problem, theta_cur, active_cur, "train")
+    v_tr, w_tr, w_hat_tr = split_signals(problem, theta_cur, active_cur, "train")
     lag = best_lag(w_tr, w_hat_tr, max_lag=20)
     f, psd = rt.spectrum(w_tr - w_hat_tr, s.rate)
     band = f >= 0.5
     peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
+    context = {
+        place: StartContext(
+            signal=signal,
+            rate=s.rate,
+            duration=s.duration,
+            lag_samples=lag,
+            residual_peak_hz=peak,
+            problem=problem,
+            simulation=s.simulation,
+            frozen=s.frozen,
+        )
+        for place, signal in (("drive", v_tr), ("output", s_train))
+    }
     screened = {}
     if not present:  # the screens design the bare simulation with one effect: the first step's starts
-        s.say("screening starts for the delay, hysteresis and resonance candidates")
-        n = SCREENED_STARTS
-        screened = {
-            "delay": delay_starts(problem, s.simulation, s.rate, n_starts=n["delay"], frozen=s.frozen),
-            "hysteresis": hysteresis_starts(problem, s.simulation, n_starts=n["hysteresis"], frozen=s.frozen),
-            "resonance": resonance_starts(
-                problem, s.simulation, s.rate, n_starts=n["resonance"], frozen=s.frozen
-            ),
-        }
+        screening = [e for e in effects if e.n_screened]
+        if screening:
+            s.say(f"screening starts for the {', '.join(e.name for e in screening)} candidates")
+        screened = {e.name: e.screened_starts(context[e.place])[: e.n_screened] for e in screening}
     starts, actives, labels, tangents = [], [], [], []
-    for i, name in enumerate(names):
+    for i, effect in enumerate(effects):
+        name = effect.name
         if name in present:
             continue
-        for values in effect_starts(name, s_train, s.rate, lag, peak, s.duration) + screened.get(name, []):
+        for values in effect.starts(context[effect.place]) + screened.get(name, []):
             active = active_cur.copy()
             active[i] = 1.0
             starts.append(stack.replace(**values).with_active(active))
@@ -237,7 +246,7 @@ def search_step(
             actives[j],
             name,
             s.n_train,
-            current.n_parameters + len(EFFECTS[name].constraints),
+            current.n_parameters + len(effects[names.index(name)].constraints),
             settings.materiality,
             s.frozen,
             present,

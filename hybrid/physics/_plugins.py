@@ -138,10 +138,10 @@ def _what(error: BaseException) -> str:
 _OWN_PACKAGE = __name__.split(".")[0]
 
 
-def _register(module_name: str, text: str, names=()) -> None:
-    """Count `module_name`'s code as the plug-in `text`'s (this package's own modules never count)."""
+def register(module_name: str, text: str, names=(), flag: str = "--physics") -> None:
+    """Count `module_name`'s code as the plug-in `flag` `text`'s (this package's own modules never count)."""
     if module_name.split(".")[0] != _OWN_PACKAGE:
-        _SOURCES[module_name] = (text, tuple(names))
+        _SOURCES[module_name] = (f"{flag} {text}", tuple(names))
 
 
 def _plugin_frames(error: BaseException):
@@ -181,8 +181,8 @@ def describe_failure(error: BaseException) -> str | None:
     for current in _chain(error):
         frames = _plugin_frames(current)
         if frames:
-            text = _SOURCES[frames[0][2]][0]
-            return f"--physics {text}: {_failed_in(current, '')}; fix the plug-in ({TRACEBACK_HINT})"
+            label = _SOURCES[frames[0][2]][0]
+            return f"{label}: {_failed_in(current, '')}; fix the plug-in ({TRACEBACK_HINT})"
     return None
 
 
@@ -228,9 +228,9 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
             "last colon, e.g. --physics tanks.py:TwoTank"
         )
     if where.endswith(".py") or "/" in where or "\\" in where:
-        module, label = _module_from_file(text, where), Path(where).name
+        module, label = module_from_file(text, where), Path(where).name
     else:
-        module, label = _module_from_name(text, where), f"module {where}"
+        module, label = module_from_name(text, where), f"module {where}"
     simulation = _instantiate(text, module, label, name)
     probe_simulation(simulation, recordings, label=f"--physics {text}")
     return simulation
@@ -246,7 +246,8 @@ def _lti(text: str) -> LTI:
     return LTI(int(order))
 
 
-def _module_from_file(text: str, where: str):
+def module_from_file(text: str, where: str, flag: str = "--physics"):
+    """The module of a plug-in file (`flag` TEXT names it in every message); the same file gives the same module."""
     path = Path(where).expanduser()
     if not path.is_file():
         hint = (
@@ -254,11 +255,9 @@ def _module_from_file(text: str, where: str):
             if path.is_dir()
             else "check the path (relative to the current folder)"
         )
-        raise InputError(f"--physics {text}: no file {where} (looked at {path.resolve()}): {hint}")
+        raise InputError(f"{flag} {text}: no file {where} (looked at {path.resolve()}): {hint}")
     if path.suffix != ".py":
-        raise InputError(
-            f"--physics {text}: {where} is not a Python file (.py): write the class in a .py file"
-        )
+        raise InputError(f"{flag} {text}: {where} is not a Python file (.py): write the class in a .py file")
     resolved = path.resolve()
     # The same file gets the same module name in every process (so a saved model's module matches),
     # and a name no installed package has.
@@ -271,17 +270,17 @@ def _module_from_file(text: str, where: str):
         return loaded  # the same, unchanged file: the same classes (a model built from them stays loadable)
     spec = importlib.util.spec_from_file_location(name, resolved)
     if spec is None or spec.loader is None:
-        raise InputError(f"--physics {text}: {where} cannot be imported as a Python module: check its name")
+        raise InputError(f"{flag} {text}: {where} cannot be imported as a Python module: check its name")
     module = importlib.util.module_from_spec(spec)
     module.__dict__["__hybrid_plugin_mtime__"] = stamp
     sys.modules[name] = module
-    _register(name, text)
+    register(name, text, flag=flag)
     try:
         spec.loader.exec_module(module)
     except SyntaxError as error:
         sys.modules.pop(name, None)
         raise InputError(
-            f"--physics {text}: {where} has a syntax error at line {error.lineno}: {error.msg}; "
+            f"{flag} {text}: {where} has a syntax error at line {error.lineno}: {error.msg}; "
             "fix the file (python -m py_compile shows it too)"
         ) from None
     except BaseException as error:  # the file's own code failed (sys.exit too): say so, in one line
@@ -289,33 +288,34 @@ def _module_from_file(text: str, where: str):
         if isinstance(error, KeyboardInterrupt):
             raise  # a Ctrl-C, or the plug-in's own: the command line tells them apart
         raise PluginError(
-            f"--physics {text}: importing {where} {_what(error)}; "
+            f"{flag} {text}: importing {where} {_what(error)}; "
             f"fix the file or install what it imports ({TRACEBACK_HINT})",
             error,
         ) from None
     return module
 
 
-def _module_from_name(text: str, where: str):
+def module_from_name(text: str, where: str, flag: str = "--physics"):
+    """The module of a plug-in given as an importable name (`flag` TEXT names it in every message)."""
     if where not in sys.modules:
-        _register(where, text)  # its module-level code is the plug-in's
+        register(where, text, flag=flag)  # its module-level code is the plug-in's
     try:
         return importlib.import_module(where)
     except ModuleNotFoundError as error:
         if error.name and (where == error.name or where.startswith(error.name + ".")):
             raise InputError(
-                f"--physics {text}: no module named {where}: install the package or add its folder "
+                f"{flag} {text}: no module named {where}: install the package or add its folder "
                 "to PYTHONPATH, or give a file as path/to/file.py:ClassName"
             ) from None
         raise InputError(
-            f"--physics {text}: importing module {where} raised ModuleNotFoundError: {error}; "
+            f"{flag} {text}: importing module {where} raised ModuleNotFoundError: {error}; "
             "install what it imports"
         ) from None
     except KeyboardInterrupt:
         raise
     except BaseException as error:  # sys.exit in the module's code too
         raise PluginError(
-            f"--physics {text}: importing module {where} {_what(error)}; fix the module ({TRACEBACK_HINT})",
+            f"{flag} {text}: importing module {where} {_what(error)}; fix the module ({TRACEBACK_HINT})",
             error,
         ) from None
 
@@ -352,9 +352,9 @@ def _instantiate(text: str, module, label: str, name: str) -> AbstractSimulation
             f"--physics {text}: {name} in {label} is abstract (it does not define {missing}); "
             "define simulate(self, v_in, dt) returning the signal for each sample"
         )
-    _register(cls.__module__, text)
+    register(cls.__module__, text)
     if module.__name__ != cls.__module__:
-        _register(module.__name__, text)
+        register(module.__name__, text)
     try:
         simulation = cls()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg
     except KeyboardInterrupt:
@@ -368,7 +368,7 @@ def _instantiate(text: str, module, label: str, name: str) -> AbstractSimulation
     _check(text, name, simulation)
     names = tuple(simulation.raw)
     for key in {cls.__module__, module.__name__}:
-        _register(key, text, names)
+        register(key, text, names)
     return simulation
 
 

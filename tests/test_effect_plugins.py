@@ -1,0 +1,224 @@
+"""Effects are plug-ins: one class owns its maths, units, starts and materiality; `diagnose` takes
+`effects=` and the command line `--effects`.
+
+The recordings here are made by independent references in numpy (a first-order lag's exact solution
+for a drive held over each sample), never by the effects under test.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+from typing import ClassVar
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hybrid
+from hybrid import AbstractEffect, InputError, Real, encode
+
+ROOT = Path(__file__).resolve().parents[1]
+RATE, TAU, GAIN, OFFSET, NEGATIVE_CHANGE = 30.0, 0.5, 3.0, 0.2, -0.6
+
+
+def _docs_effect() -> str:
+    page = (ROOT / "docs" / "effects.md").read_text()
+    section = page[page.index("## An effect in one file") : page.index("## The interface")]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+def _lag(u: np.ndarray) -> np.ndarray:
+    """x[n+1] = a x[n] + (1 − a) u[n] from rest, read at n: the exact ZOH lag τ."""
+    a = np.exp(-1.0 / (RATE * TAU))
+    x, out = 0.0, np.empty_like(u)
+    for k, value in enumerate(u):
+        out[k] = x
+        x = a * x + (1.0 - a) * value
+    return out
+
+
+def _drive(seed: int, seconds: float) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    levels, holds = [], []
+    while sum(holds) < seconds * RATE:
+        levels.append(rng.uniform(-1.0, 1.0))
+        holds.append(int(rng.integers(int(0.4 * RATE), int(2.0 * RATE))))
+    return np.repeat(levels, holds)[: int(seconds * RATE)]
+
+
+def test_the_docs_effect_imports_only_public_names():
+    tree = ast.parse(_docs_effect())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("hybrid"):
+            assert node.module == "hybrid", node.module
+            for alias in node.names:
+                assert not alias.name.startswith("_") and hasattr(hybrid, alias.name), alias.name
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """A lag driven through a drive whose negative half acts 40 % as strongly, 90 s at 30 Hz."""
+    folder = tmp_path_factory.mktemp("lab")
+    (folder / "asymmetric.py").write_text(_docs_effect())
+    u = _drive(5, 90.0)
+    x = _lag(u + NEGATIVE_CHANGE * np.minimum(u, 0.0))
+    rng = np.random.default_rng(6)
+    w = GAIN * x + OFFSET + 0.005 * np.ptp(GAIN * x) * rng.normal(size=u.size)
+    hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE).save(folder / "lab.csv")
+    return folder
+
+
+def _hybrid(folder, *args):
+    command = [sys.executable, "-m", "hybrid.cli", *map(str, args)]
+    return subprocess.run(command, cwd=folder, capture_output=True, text=True)
+
+
+def test_the_cli_finds_a_user_effect_through_effects(lab):
+    run = _hybrid(
+        lab,
+        "diagnose",
+        "lab.csv",
+        "--physics",
+        "lti:1",
+        "--effects",
+        "asymmetric.py:AsymmetricDrive,saturation",
+        "--out",
+        "report",
+        "--quiet",
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((lab / "report" / "report.json").read_text())
+    assert report["cause"] == "asymmetric_drive", report["cause"]
+    change = report["parameters"]["negative_gain_change"]
+    assert change["value"] == pytest.approx(NEGATIVE_CHANGE, abs=0.05)
+    assert change["unit"] == "1"
+    assert report["settings"]["materiality"]["negative_change_percent"] == 10.0  # its own threshold
+    assert "negative_gain_change" in run.stdout  # the CLI prints the plug-in's parameters by name
+
+
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("nope.py:X", "no file nope.py"),
+        ("asymmetric.py:Missing", "has no class Missing; it defines AsymmetricDrive"),
+        ("friction", "not an effect I know"),
+        ("asymmetric.py:AsymmetricDrive,asymmetric.py:AsymmetricDrive", "effects named twice"),
+    ],
+)
+def test_a_bad_effects_flag_gets_one_line(lab, spec, words):
+    run = _hybrid(lab, "diagnose", "lab.csv", "--physics", "lti:1", "--effects", spec, "--out", "bad")
+    assert run.returncode != 0
+    assert "Traceback" not in run.stderr and words in run.stderr, run.stderr
+    assert not (lab / "bad").exists()  # nothing written before it succeeded
+
+
+# --------------------------------------------------------------------------- #
+# The interface, in Python
+# --------------------------------------------------------------------------- #
+
+
+class _Scale(AbstractEffect):
+    raw: dict
+    name: ClassVar[str] = "scale"
+    constraints: ClassVar = {"scale_factor": Real()}
+    units: ClassVar = {"scale_factor": "1/{signal}"}
+    defaults: ClassVar = {"scale_factor": 0.0}
+
+    def __init__(self, **values):
+        self.raw = encode({**self.defaults, **values}, self.constraints, self.name)
+
+    def apply(self, s, dt):
+        return s * (1.0 + self.parameters()["scale_factor"])
+
+
+class _WrongShape(_Scale):
+    name: ClassVar[str] = "wrong_shape"
+
+    def apply(self, s, dt):
+        return s[:-1]
+
+
+class _Nowhere(_Scale):
+    name: ClassVar[str] = "nowhere"
+    place: ClassVar[str] = "inside"
+
+
+class _NoUnits(_Scale):
+    name: ClassVar[str] = "no_units"
+    units: ClassVar = {}
+
+
+@pytest.mark.parametrize(
+    "effects, words",
+    [
+        (["friction"], "unknown effect 'friction'"),
+        ([_WrongShape], "must return one finite value per sample"),
+        ([_Nowhere], "place must be one of drive, output"),
+        ([_NoUnits], "units has no entry for ['scale_factor']"),
+        ([int], "not an AbstractEffect subclass"),
+        (["saturation", "saturation"], "effects named twice"),
+        ([], "effects is empty"),
+    ],
+)
+def test_resolve_effects_refuses_a_broken_effect_in_one_line(effects, words):
+    with pytest.raises(InputError) as caught:
+        hybrid.resolve_effects(effects)
+    assert words in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_resolve_effects_defaults_to_every_builtin_in_order():
+    assert [e.name for e in hybrid.resolve_effects()] == list(hybrid.EFFECTS)
+    mixed = hybrid.resolve_effects(["saturation", _Scale])
+    assert [e.name for e in mixed] == ["saturation", "scale"]
+    given = _Scale(scale_factor=0.5)
+    assert hybrid.resolve_effects([given])[0] is given  # an instance keeps its values
+
+
+def test_units_follow_the_signal_each_effect_acts_on():
+    stack = hybrid.EffectStack(
+        hybrid.RCNetwork(), ("drive_dead_zone", "saturation", _Scale()), drive_unit="kV"
+    )
+    units = stack.units
+    assert units["drive_dead_zone_width"] == "kV"  # on the drive
+    assert units["saturation_pos_per_v"] == "1/V"  # on the RC network's output, V_o in V
+    assert units["scale_factor"] == "1/V"
+    plain = hybrid.EffectStack(hybrid.LTI(1), ("saturation",))
+    assert plain.units["saturation_pos_per_v"] == "1/(unit of S)"  # the simulation does not say
+
+
+def test_a_drive_side_effect_acts_before_the_simulation():
+    """EffectStack(drive dead zone) = the simulation of the dead-zoned drive (numpy reference)."""
+    u = _drive(1, 20.0)
+    width = 0.3
+    inner = hybrid.LTI(1)
+    stack = hybrid.EffectStack(inner, ("drive_dead_zone",)).replace(drive_dead_zone_width=width)
+    zoned = np.where(np.abs(u) <= width, 0.0, u - np.sign(u) * width)
+    expected = np.asarray(inner.simulate(jnp.asarray(zoned), 1.0 / RATE))
+    np.testing.assert_allclose(np.asarray(stack.simulate(jnp.asarray(u), 1.0 / RATE)), expected, atol=1e-12)
+    derived = stack.derived(jnp.asarray(u), 1.0 / RATE)["drive_dead_zone"]
+    assert derived["drive_dead_zone_percent"] == pytest.approx(100 * width / np.max(np.abs(u)))
+
+
+def test_baseline_drift_is_an_additive_trend_in_minutes():
+    dt = 1.0 / RATE
+    s = np.sin(np.arange(1800) * dt)
+    effect = hybrid.EFFECTS["baseline_drift"](baseline_slope_per_min=0.2, baseline_curvature_per_min2=-0.05)
+    t = np.arange(1800) * dt / 60.0
+    np.testing.assert_allclose(
+        np.asarray(effect.apply(jnp.asarray(s), dt)), s + 0.2 * t - 0.05 * t**2, atol=1e-12
+    )
+    size = np.max(np.abs(0.2 * t - 0.05 * t**2))
+    assert effect.derived(s, dt)["baseline_percent_of_range"] == pytest.approx(100 * size / np.ptp(s))
+
+
+def test_materiality_overrides_name_a_threshold_a_searched_effect_has():
+    settings = hybrid.DiagnoseSettings(materiality={"delay_samples": 2.0})
+    merged = settings.materiality_for(hybrid.resolve_effects())
+    assert merged["delay_samples"] == 2.0 and merged["relaxation_percent"] == 10.0
+    with pytest.raises(InputError, match="no searched effect has"):
+        hybrid.DiagnoseSettings(materiality={"delay_sample": 2.0}).materiality_for(hybrid.resolve_effects())
