@@ -66,7 +66,6 @@ from .discovery._effects import (
     AbstractEffect as AbstractEffect,
     FrameTiming as FrameTiming,
     StartContext as StartContext,
-    effects_from_spec as effects_from_spec,
     resolve_effects as resolve_effects,
 )
 from .discovery._report import write_report as write_report

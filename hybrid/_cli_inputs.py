@@ -6,6 +6,7 @@ Kept apart from `hybrid.cli` (the commands) so each stays a room about one thing
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 from typing import Any
 
 from .util._errors import InputError
@@ -144,3 +145,56 @@ def parse_params(items):
     from .core._parameters import parse_assignment
 
     return dict(parse_assignment(item) for item in items)
+
+
+#: What ``--effects`` takes, item by item.
+EFFECT_FORMS = "builtins, a built-in's name, path/to/file.py:ClassName or package.module:ClassName"
+
+
+def effects_from_spec(spec: str) -> tuple:
+    """The effects a command line's ``--effects`` names: comma-separated items of `EFFECT_FORMS`.
+
+    ``builtins`` stands for every built-in ([`EFFECTS`][]);
+    ``--effects builtins,friction.py:Coulomb`` searches them and a plug-in.
+    """
+    from .discovery._effects import EFFECTS, AbstractEffect, resolve_effects
+    from .physics._plugins import module_from_file, module_from_name, register
+
+    items = [x.strip() for x in str(spec).split(",") if x.strip()]
+    if not items:
+        raise InputError(f"--effects needs one or more of {EFFECT_FORMS}, comma-separated; got {spec!r}")
+    chosen: list = []
+    for text in items:
+        if text == "builtins":
+            chosen += list(EFFECTS)
+            continue
+        if text in EFFECTS:
+            chosen.append(text)
+            continue
+        where, sep, name = text.rpartition(":")
+        if not sep or not where:
+            raise InputError(
+                f"--effects {text}: not an effect I know; give {EFFECT_FORMS} "
+                f"(the built-ins: {', '.join(EFFECTS)})"
+            )
+        if not name.isidentifier():
+            raise InputError(
+                f"--effects {text}: {name!r} is not a Python class name; write the class after the last colon"
+            )
+        if where.endswith(".py") or "/" in where or "\\" in where:
+            module, label = module_from_file(text, where, flag="--effects"), Path(where).name
+        else:
+            module, label = module_from_name(text, where, flag="--effects"), f"module {where}"
+        cls = getattr(module, name, None)
+        if not isinstance(cls, type) or not issubclass(cls, AbstractEffect):
+            mine = sorted(
+                k
+                for k, v in vars(module).items()
+                if isinstance(v, type) and issubclass(v, AbstractEffect) and v.__module__ == module.__name__
+            )
+            has = f"it defines {', '.join(mine)}" if mine else "it defines no AbstractEffect subclass"
+            what = "has no class" if cls is None else "has no AbstractEffect subclass"
+            raise InputError(f"--effects {text}: {label} {what} {name}; {has}")
+        register(cls.__module__, text, flag="--effects")
+        chosen.append(cls)
+    return resolve_effects(chosen)

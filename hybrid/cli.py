@@ -29,6 +29,7 @@ from ._cli_inputs import (
     add_mapping,
     add_physics,
     add_settle,
+    effects_from_spec,
     load_recordings,
     parse_params,
     warn_notes,
@@ -373,7 +374,6 @@ def _cmd_diagnose(args):
     import dataclasses
 
     from .discovery._diagnosis import DiagnoseSettings
-    from .discovery._effects import effects_from_spec
     from .discovery._report import REMAINDER_FIGURE, plus_minus, write_report
     from .discovery._report_figures import FIGURES
     from .ipmc._defaults import diagnose
@@ -498,7 +498,8 @@ def _report(error: BaseException, verbose: bool, ctrl_c: bool) -> int:
     thread, a KeyboardInterrupt that was no Ctrl-C) is one line naming the plug-in and its method, exit
     status 2: never the plug-in's own status, so none can pass for success or for the watchdog's.
     """
-    from .physics._plugins import HardExit, PluginError, describe_failure
+    from .physics._plugins import HardExit, describe_failure
+    from .util._errors import PluginError
 
     if isinstance(error, KeyboardInterrupt) and ctrl_c:
         print("hybrid: interrupted", file=sys.stderr)

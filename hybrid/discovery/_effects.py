@@ -55,7 +55,7 @@ from jaxtyping import Array, Float
 
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
-from ..util._errors import InputError
+from ..util._errors import InputError, PluginError
 from ._hysteresis import bouc_wen_state
 
 #: Where an effect acts: on the drive before the simulation, y = S(φ(u)), or on its output, y = φ(S(u)).
@@ -704,8 +704,6 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
     Checks its facts (name, place, constraints, units, defaults, thresholds)
     and runs `apply` and `starts` once on a short probe signal.
     """
-    from ..physics._plugins import PluginError
-
     cls = type(effect).__name__
     name = getattr(effect, "name", None)
     if not isinstance(name, str) or not name.isidentifier() or name in RESERVED:
@@ -799,8 +797,6 @@ def resolve_effects(effects=None) -> tuple[AbstractEffect, ...]:
             except KeyboardInterrupt:
                 raise
             except Exception as error:
-                from ..physics._plugins import PluginError
-
                 raise PluginError(
                     f"{label}: building it with no arguments raised {type(error).__name__}: {error}; "
                     "its defaults are the starting values",
@@ -824,57 +820,3 @@ def resolve_effects(effects=None) -> tuple[AbstractEffect, ...]:
             f"effects share parameter names {shared}: give each effect's parameters their own names"
         )
     return tuple(out)
-
-
-#: What ``--effects`` takes, item by item.
-EFFECT_FORMS = "builtins, a built-in's name, path/to/file.py:ClassName or package.module:ClassName"
-
-
-def effects_from_spec(spec: str) -> tuple[AbstractEffect, ...]:
-    """The effects a command line's ``--effects`` names: comma-separated items of `EFFECT_FORMS`.
-
-    ``builtins`` stands for every built-in ([`EFFECTS`][]);
-    ``--effects builtins,friction.py:Coulomb`` searches them and a plug-in.
-    """
-    from pathlib import Path
-
-    from ..physics._plugins import module_from_file, module_from_name, register
-
-    items = [x.strip() for x in str(spec).split(",") if x.strip()]
-    if not items:
-        raise InputError(f"--effects needs one or more of {EFFECT_FORMS}, comma-separated; got {spec!r}")
-    chosen: list = []
-    for text in items:
-        if text == "builtins":
-            chosen += list(EFFECTS)
-            continue
-        if text in EFFECTS:
-            chosen.append(text)
-            continue
-        where, sep, name = text.rpartition(":")
-        if not sep or not where:
-            raise InputError(
-                f"--effects {text}: not an effect I know; give {EFFECT_FORMS} "
-                f"(the built-ins: {', '.join(EFFECTS)})"
-            )
-        if not name.isidentifier():
-            raise InputError(
-                f"--effects {text}: {name!r} is not a Python class name; write the class after the last colon"
-            )
-        if where.endswith(".py") or "/" in where or "\\" in where:
-            module, label = module_from_file(text, where, flag="--effects"), Path(where).name
-        else:
-            module, label = module_from_name(text, where, flag="--effects"), f"module {where}"
-        cls = getattr(module, name, None)
-        if not isinstance(cls, type) or not issubclass(cls, AbstractEffect):
-            mine = sorted(
-                k
-                for k, v in vars(module).items()
-                if isinstance(v, type) and issubclass(v, AbstractEffect) and v.__module__ == module.__name__
-            )
-            has = f"it defines {', '.join(mine)}" if mine else "it defines no AbstractEffect subclass"
-            what = "has no class" if cls is None else "has no AbstractEffect subclass"
-            raise InputError(f"--effects {text}: {label} {what} {name}; {has}")
-        register(cls.__module__, text, flag="--effects")
-        chosen.append(cls)
-    return resolve_effects(chosen)

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core._simulation import AbstractSimulation
-from ..util._errors import InputError
+from ..util._errors import InputError, PluginError
 from ._lti import LTI, MAX_ORDER
 from ._lti_start import lti_for_recordings
 from ._rc_network import RCNetwork
@@ -68,18 +68,6 @@ TRACEBACK_HINT = "add -v to see the traceback"
 # Module name -> (the --physics spec, the parameter names) of every plug-in resolved in this process:
 # a traceback through one of these modules' code is that plug-in's failure (describe_failure).
 _SOURCES: dict[str, tuple[str, tuple[str, ...]]] = {}
-
-
-class PluginError(InputError):
-    """A plug-in's code failed or returned something unusable: one line naming the plug-in and its method.
-
-    `original` is the exception the plug-in raised (None for a wrong result),
-    kept for ``hybrid -v``.
-    """
-
-    def __init__(self, message: str, original: BaseException | None = None):
-        super().__init__(message)
-        self.original = original
 
 
 class HardExit(BaseException):

@@ -9,3 +9,15 @@ status 2; library users can catch it like any ``ValueError``.
 
 class InputError(ValueError):
     """Bad user input: the message says what is wrong and how to fix it."""
+
+
+class PluginError(InputError):
+    """A plug-in's code failed or returned something unusable: one line naming the plug-in and its method.
+
+    `original` is the exception the plug-in raised (None for a wrong result),
+    kept for ``hybrid -v``.
+    """
+
+    def __init__(self, message: str, original: BaseException | None = None):
+        super().__init__(message)
+        self.original = original
