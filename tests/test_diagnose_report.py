@@ -82,3 +82,50 @@ def test_correlation_figure_bound_is_the_99_percent_bound():
     assert c["bound"] == pytest.approx(2.5758293035489 / math.sqrt(777), rel=1e-12)
     assert c["acf_lags"][0] == 1 and c["acf_lags"][-1] == 50 and len(c["acf"]) == 50
     assert c["ccf_lags"][0] == -50 and c["ccf_lags"][-1] == 50
+
+
+def test_a_parameter_the_recording_does_not_pin_says_so_never_plus_minus_inf():
+    from hybrid.discovery._report import plus_minus
+
+    pinned = {"value": 0.5, "std_error": 0.01, "unit": "1/V", "pinned": True}
+    assert plus_minus(pinned) == "0.5 ± 0.01 1/V"
+    told = {
+        "value": 0.084,
+        "std_error": float("inf"),
+        "unit": "1/V",
+        "pinned": False,
+        "not_pinned": "the signal it acts on never goes negative",
+    }
+    text = plus_minus(told)
+    assert (
+        "inf" not in text
+        and "not pinned by this recording: the signal it acts on never goes negative" in text
+    )
+    # A report written before `pinned` existed (schema 1) still reads right.
+    assert "not pinned" in plus_minus({"value": 0.084, "std_error": float("inf"), "unit": "1/V"})
+    assert "larger than its value" in plus_minus({"value": 0.01, "std_error": 0.5, "unit": "s"})
+
+
+def test_not_pinned_names_the_branch_a_one_sided_signal_never_visits():
+    import numpy as np
+
+    import hybrid
+    from hybrid.discovery._diagnosis import ParameterUncertainty
+    from hybrid.discovery._evidence import not_pinned
+
+    stack = hybrid.EffectStack(hybrid.LTI(1), ("saturation",)).replace(
+        saturation_pos_per_v=0.3, saturation_neg_per_v=0.084
+    )
+    model = hybrid.make_model("physics", simulation=stack)
+    series = hybrid.core.series_from_recording(
+        hybrid.Recording.from_arrays(v_in=np.abs(np.sin(np.arange(200) * 0.1)), w=np.zeros(200), rate=10.0),
+        (0.6, 0.1, 0.3),
+        ("train", "validation", "test"),
+        1,
+    )
+    u = {
+        "saturation_pos_per_v": ParameterUncertainty(std_error=0.01, unit="1/V", inflation=1.0),
+        "saturation_neg_per_v": ParameterUncertainty(std_error=float("inf"), unit="1/V", inflation=1.0),
+    }
+    reasons = not_pinned(u, model, [series])
+    assert reasons == {"saturation_neg_per_v": "the signal it acts on never goes negative"}

@@ -64,7 +64,7 @@ from ..util._watchdog import stage
 from ._decision import evaluate_candidate, free_names
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effects import resolve_effects
-from ._evidence import fitted_model, heldout_evidence, parameter_uncertainties
+from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._search import (
     fit_lanes,
     initial_thetas,
@@ -271,6 +271,7 @@ def diagnose(
         w_te - w_hat_ext,
         keep=fitted_model(problem, extended.theta, present).parameters(),
     )
+    unpinned = not_pinned(uncertainties, fitted_model(problem, extended.theta, present), problem.series)
     evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good.to_dict()  # report.json's shape
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
@@ -318,6 +319,7 @@ def diagnose(
         noise_floor=floor,
         unexplained=unexplained,
         effects=search.effects,
+        not_pinned=unpinned,
     )
 
 

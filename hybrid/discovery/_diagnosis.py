@@ -25,6 +25,13 @@ if TYPE_CHECKING:
 
 #: Names `diagnose` can return: an effect of `hybrid.discovery._effects`, or "none".
 CAUSES = ("none",) + tuple(EFFECTS)
+#: report.json's schema. 2 (from 1): each parameter with a standard error says whether the
+#: recording pins it (``pinned``; ``not_pinned``: why not); an effect's parameter units follow
+#: the signal it acts on (the drive's unit or the simulation's ``output_unit``), so a key such
+#: as ``saturation_pos_per_v`` may carry another unit than its name's V (its ``unit`` field is
+#: right); ``effects`` lists the searched effects and where each acts; ``settings.materiality``
+#: lists every threshold used.
+REPORT_SCHEMA = "hybrid-report/2"
 
 SPLIT_ORDER = ("train", "validation", "test")
 
@@ -280,6 +287,8 @@ class Diagnosis:
     unexplained: dict | None = None
     #: The effects the search weighed (`AbstractEffect` instances, in the stack's order).
     effects: tuple = ()
+    #: Parameters this recording does not pin (standard error infinite or above the value): why, by name.
+    not_pinned: dict = dataclasses.field(default_factory=dict)
 
     def effect_parameters(self, name: str) -> tuple[str, ...]:
         """The parameter names of the searched effect `name` (none for an unknown name)."""
@@ -313,6 +322,7 @@ class Diagnosis:
                             "value": v,
                             "std_error": _std_error(self.uncertainties.get(k)),
                             "unit": _unit(self.uncertainties.get(k)),
+                            **self._pinning(k),
                         }
                         for k, v in own.items()
                     },
@@ -327,8 +337,17 @@ class Diagnosis:
 
         return verdict(self)
 
+    def _pinning(self, name: str) -> dict:
+        """``pinned`` (and, when false, ``not_pinned``: why) of a parameter with a standard error."""
+        if name not in self.uncertainties:
+            return {}
+        if name in self.not_pinned:
+            return {"pinned": False, "not_pinned": self.not_pinned[name]}
+        return {"pinned": True}
+
     def to_dict(self) -> dict:
         return {
+            "schema": REPORT_SCHEMA,
             "verdict": self.verdict,
             "cause": self.cause,
             "causes": self.causes,
@@ -352,10 +371,14 @@ class Diagnosis:
                     "std_error": _std_error(self.uncertainties.get(k)),
                     "std_error_given_network": _std_error_given_network(self.uncertainties.get(k)),
                     "unit": _unit(self.uncertainties.get(k)),
+                    **self._pinning(k),
                 }
                 for k, v in self.extended.parameters.items()
             },
             "effect_derived": self.extended.derived,
+            "effects": [
+                {"name": e.name, "place": e.place, "parameters": list(e.constraints)} for e in self.effects
+            ],
             "candidates": [c.to_dict() for c in self.candidates],
             "baseline_fit": self.baseline.to_dict(),
             "evidence": self.evidence,

@@ -155,6 +155,12 @@ class EffectStack(AbstractWrapper):
         )
         return eqx.tree_at(lambda s: s.effects, spec, effects)
 
+    def signals_into(self, v_in, dt, n: int | None = None) -> dict[str, np.ndarray]:
+        """The signal entering each effect on this drive (its first `n` samples), by effect name."""
+        n = int(v_in.shape[0]) if n is None else int(n)
+        signals = np.asarray(_signals_into_effects(self, v_in, dt))
+        return {effect.name: s[:n] for effect, s in zip(self.effects, signals)}
+
     def derived(self, v_in, dt, n: int | None = None) -> dict[str, dict[str, float]]:
         """Each active effect's derived quantities (see `AbstractEffect.derived`), on this drive.
 

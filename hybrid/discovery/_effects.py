@@ -141,6 +141,14 @@ class AbstractEffect(eqx.Module):
         """
         return True, ""
 
+    def unpinned_reason(self, name: str, signal: np.ndarray) -> str | None:
+        """Why a recording whose signal entering this effect is `signal` cannot pin parameter `name`.
+
+        None (the default) where the effect does not know; `diagnose` then says
+        what the numbers show.
+        """
+        return None
+
     def units_for(self, signal_unit: str) -> dict[str, str]:
         """`units` with ``{signal}`` replaced by `signal_unit`.
 
@@ -346,6 +354,13 @@ class Saturation(AbstractEffect):
             {"saturation_pos_per_v": 1 / (1.5 * pos), "saturation_neg_per_v": 1 / (1.5 * neg)},
             {"saturation_pos_per_v": 1 / (0.8 * pos), "saturation_neg_per_v": 1 / (0.8 * neg)},
         ]
+
+    def unpinned_reason(self, name, signal):
+        if name == "saturation_neg_per_v" and np.min(signal) >= 0:
+            return "the signal it acts on never goes negative"
+        if name == "saturation_pos_per_v" and np.max(signal) <= 0:
+            return "the signal it acts on never goes positive"
+        return None
 
     def material(self, derived, parameters, thresholds):
         worst = max([v for k, v in derived.items() if k.startswith("shortfall")] or [0.0])

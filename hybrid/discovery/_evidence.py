@@ -30,7 +30,7 @@ def fitted_model(problem: Problem, theta, causes) -> Model:
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     effects = tuple(e for e in stack.effects if e.name in causes or e.name == FrameTiming.name)
-    simulation = EffectStack(stack.inner, effects)
+    simulation = EffectStack(stack.inner, effects, drive_unit=stack.drive_unit)
     return Model(simulation, model.readout, "physics")
 
 
@@ -81,6 +81,42 @@ def parameter_uncertainties(
             se = math.sqrt(v * inflation) if np.isfinite(v) and v > 0 else float("inf")
             name = covariance.names[i]
             out[name] = dataclasses.replace(out[name], std_error_given_network=se)
+    return out
+
+
+def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, series) -> dict[str, str]:
+    """Why each parameter that the recording does not pin is not pinned, by name.
+
+    A parameter is not pinned when its standard error is infinite (or not a
+    number) or larger than its value. The reason is its effect's own where the
+    effect knows it (`AbstractEffect.unpinned_reason`, from the signal entering
+    it on the first recording: e.g. a branch for negative values that the
+    signal never visits), else what the numbers say.
+    """
+    values = {k: float(v) for k, v in model.parameters().items()}
+    stack = model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
+    owner = {p: e for e in stack.effects for p in e.constraints}
+    signals: dict | None = None
+    out = {}
+    for name, u in uncertainties.items():
+        se, value = u.std_error, abs(values.get(name, float("nan")))
+        if math.isfinite(se) and se <= value:
+            continue
+        reason = None
+        effect = owner.get(name)
+        if effect is not None:
+            if signals is None:
+                first = series[0]
+                signals = stack.signals_into(first.v_in, first.dt, n=first.n_recorded)
+            reason = effect.unpinned_reason(name, signals[effect.name])
+        if reason is None:
+            reason = (
+                f"its standard error ({se:.2g}) is larger than its value"
+                if math.isfinite(se)
+                else "the output does not change with it, or it trades off exactly with other parameters"
+            )
+        out[name] = reason
     return out
 
 

@@ -92,9 +92,24 @@ def _share(x) -> str:
 
 
 def plus_minus(entry: dict) -> str:
-    """``value ± std_error unit`` with the standard error to 2 significant digits."""
+    """``value ± std_error unit`` with the standard error to 2 significant digits.
+
+    A parameter the recording does not pin (``pinned`` false, or a standard
+    error that is infinite or above the value) reads ``value unit (not pinned
+    by this recording: why)``, never ``± inf``.
+    """
     value, se, unit = entry.get("value"), entry.get("std_error"), entry.get("unit") or ""
     unit = "" if unit == "1" else unit  # dimensionless
+    loose = se is not None and (
+        not math.isfinite(se) or (value is not None and math.isfinite(value) and se > abs(value))
+    )
+    if entry.get("pinned") is False or loose:
+        why = entry.get("not_pinned") or (
+            "its standard error is larger than its value"
+            if se is not None and math.isfinite(se)
+            else "its standard error is infinite"
+        )
+        return f"{_num(value, 4)} {unit}".rstrip() + f" (not pinned by this recording: {why})"
     text = _num(value, 4) if se is None else f"{_num(value, 4)} ± {_num(se, 2)}"
     given = entry.get("std_error_given_network")
     if given is not None:
