@@ -374,13 +374,25 @@ def _cmd_diagnose(args):
     import dataclasses
 
     from .discovery._diagnosis import DiagnoseSettings
-    from .discovery._report import REMAINDER_FIGURE, plus_minus, write_report
+    from .discovery._report import MODEL_FILES, REMAINDER_FIGURE, plus_minus, write_report
     from .discovery._report_figures import FIGURES
     from .ipmc._defaults import diagnose
     from .physics._plugins import resolve_physics
 
     lock = check_outputs(
-        [out_folder(args.out, ("report.json", "report.md", *FIGURES, REMAINDER_FIGURE))],
+        [
+            out_folder(
+                args.out,
+                (
+                    "report.json",
+                    "report.md",
+                    *FIGURES,
+                    REMAINDER_FIGURE,
+                    *MODEL_FILES,
+                    *(f"{name}.json" for name in MODEL_FILES),
+                ),
+            )
+        ],
         inputs=args.recordings,
     )
     recordings = load_recordings(args, args.recordings)
@@ -430,7 +442,11 @@ def _cmd_diagnose(args):
     if diagnosis.hybrid is not None:
         h = diagnosis.hybrid
         print(f"hybrid model NMSE: {h['baseline']['nmse']:.2e} -> {h['extended']['nmse']:.2e}")
-    print(f"wrote {paths['report.md']}, report.json and {len(paths) - 2} figures ({diagnosis.seconds:.1f} s)")
+    figures = len([p for p in paths if p.endswith(".png")])
+    print(
+        f"wrote {paths['report.md']}, report.json, {figures} figures and the fitted models "
+        f"{', '.join(MODEL_FILES)} ({diagnosis.seconds:.1f} s)"
+    )
 
 
 COMMANDS = {

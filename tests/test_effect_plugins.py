@@ -8,6 +8,7 @@ for a drive held over each sample), never by the effects under test.
 from __future__ import annotations
 
 import ast
+import importlib.util
 import json
 import re
 import subprocess
@@ -99,6 +100,17 @@ def test_the_cli_finds_a_user_effect_through_effects(lab):
     assert change["unit"] == "1"
     assert report["settings"]["materiality"]["negative_change_percent"] == 10.0  # its own threshold
     assert "negative_gain_change" in run.stdout  # the CLI prints the plug-in's parameters by name
+
+    # The extended model comes back loadable, the plug-in's module imported first (as --effects does).
+    spec = importlib.util.spec_from_file_location("lab_asymmetric", lab / "asymmetric.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    extended = hybrid.load_model(lab / "report" / "extended.eqx")
+    assert [e.name for e in extended.simulation.effects] == ["asymmetric_drive", "frame_timing"]
+    loaded = float(extended.simulation.parameters()["negative_gain_change"])
+    assert loaded == pytest.approx(change["value"], rel=1e-9)
+    baseline = hybrid.load_model(lab / "report" / "baseline.eqx")
+    assert [e.name for e in baseline.simulation.effects] == ["frame_timing"]
 
 
 @pytest.mark.parametrize(

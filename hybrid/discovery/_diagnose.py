@@ -320,6 +320,10 @@ def diagnose(
         unexplained=unexplained,
         effects=search.effects,
         not_pinned=unpinned,
+        models={
+            "baseline": fitted_model(problem, baseline.theta, ()),
+            "extended": fitted_model(problem, extended.theta, present),
+        },
     )
 
 

@@ -289,6 +289,10 @@ class Diagnosis:
     effects: tuple = ()
     #: Parameters this recording does not pin (standard error infinite or above the value): why, by name.
     not_pinned: dict = dataclasses.field(default_factory=dict)
+    #: The fitted models (`hybrid.Model`, simulation + gain and offset in the recording's units):
+    #: ``"baseline"`` (the simulation and the frame timing) and ``"extended"`` (with every named
+    #: cause); `write_report` saves them as ``baseline.eqx`` and ``extended.eqx``.
+    models: dict = dataclasses.field(default_factory=dict)
 
     def effect_parameters(self, name: str) -> tuple[str, ...]:
         """The parameter names of the searched effect `name` (none for an unknown name)."""

@@ -155,6 +155,30 @@ class EffectStack(AbstractWrapper):
         )
         return eqx.tree_at(lambda s: s.effects, spec, effects)
 
+    def config(self) -> dict:
+        """The skeleton a saved model rebuilds: the inner simulation's, each effect's class, the switches."""
+        from ..core._serialise import describe_simulation
+
+        return {
+            "inner": describe_simulation(self.inner),
+            "effects": [{"type": type(e).__qualname__, "module": type(e).__module__} for e in self.effects],
+            "active": [float(a) for a in np.asarray(self.active)],
+            "drive_unit": self.drive_unit,
+        }
+
+    @classmethod
+    def from_config(cls, config: dict) -> EffectStack:
+        """The stack `config()` describes, with default values (a saved model's leaves fill them in)."""
+        from ..core._serialise import build_simulation
+
+        effects = tuple(
+            effect_class(d["type"], d.get("module"))()  # type: ignore[call-arg]  # eqx AbstractVar `raw`
+            for d in config["effects"]
+        )
+        return cls(
+            build_simulation(config["inner"]), effects, config.get("active"), config.get("drive_unit", "V")
+        )
+
     def signals_into(self, v_in, dt, n: int | None = None) -> dict[str, np.ndarray]:
         """The signal entering each effect on this drive (its first `n` samples), by effect name."""
         n = int(v_in.shape[0]) if n is None else int(n)
@@ -174,6 +198,30 @@ class EffectStack(AbstractWrapper):
             if float(on):  # a switched-off effect leaves s unchanged
                 out[effect.name] = effect.derived(s[:n], dt)
         return out
+
+
+def _subclasses(cls) -> list[type]:
+    out = []
+    for sub in cls.__subclasses__():
+        out += [sub, *_subclasses(sub)]
+    return out
+
+
+def effect_class(name: str, module: str | None = None) -> type[AbstractEffect]:
+    """The imported `AbstractEffect` subclass a saved model names (loading never imports code)."""
+    found = [c for c in _subclasses(AbstractEffect) if c.__qualname__ == name]
+    exact = [c for c in found if c.__module__ == module]
+    if exact or len(found) == 1:
+        return (exact or found)[0]
+    if not found:
+        raise InputError(
+            f"the model's effect {name} (module {module}) is not an imported AbstractEffect: import the "
+            "module that defines it (or pass it to --effects) before loading the model"
+        )
+    raise InputError(
+        f"several imported effects are called {name} ({', '.join(c.__module__ for c in found)}): "
+        "import only the one the model was saved with"
+    )
 
 
 def switched(on, effect: AbstractEffect, s, dt):

@@ -451,6 +451,30 @@ def _remainder_figure(diagnosis, path: Path) -> None:
     save_figure(fig, path, plt)
 
 
+#: The models `write_report` saves beside the report (each with its ``.json``; `hybrid.load_model` reads them).
+MODEL_FILES = ("baseline.eqx", "extended.eqx")
+
+
+def save_models(diagnosis, out_dir: Path) -> dict[str, Path]:
+    """Save the diagnosis's baseline and extended models as loadable models (``hybrid.load_model``).
+
+    A plug-in effect's module must be imported before loading (``--effects`` does it).
+    """
+    from ..core._serialise import save_model
+
+    out = {}
+    causes = [c["name"] for c in diagnosis.causes]
+    for key, model in diagnosis.models.items():
+        path = out_dir / f"{key}.eqx"
+        save_model(
+            path,
+            model,
+            extra={"saved_by": "hybrid diagnose", "causes": causes if key == "extended" else []},
+        )
+        out[path.name] = path
+    return out
+
+
 def write_report(diagnosis, out_dir) -> dict[str, Path]:
     """Write ``report.json``, the figures and ``report.md`` of `diagnosis` into `out_dir`.
 
@@ -479,6 +503,7 @@ def write_report(diagnosis, out_dir) -> dict[str, Path]:
     paths.update(write_figures(diagnosis, data, out_dir))
     paths[REMAINDER_FIGURE] = out_dir / REMAINDER_FIGURE
     _remainder_figure(diagnosis, paths[REMAINDER_FIGURE])
+    paths.update(save_models(diagnosis, out_dir))
     paths["report.md"] = out_dir / "report.md"
     held = diagnosis.heldout
     loop_levels = count_loop_levels(rt.loops(np.asarray(held.w) - np.asarray(held.baseline), held.v_in))
