@@ -5,7 +5,7 @@
     hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--settle N] [--out MODEL] [--test FILE...]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
-    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--settle N] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
+    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
 
 fit, diagnose and sensitivity take --physics rc|lti:N|file.py:Class|module:Class and read a lab's own
 columns with --input/--output (or --columns), --rate, --range and --units.

@@ -1,8 +1,11 @@
-"""Physical effects the paper's RC network leaves out, as extensions of any simulation.
+"""Physical effects a simulation leaves out, as extensions of any simulation; effects are plug-ins.
 
-An effect maps the mediatory signal s(t) of a simulation (V_o of the RC
+An output-side effect maps the signal s(t) a simulation returns (V_o of the RC
 network, volts) to a modified signal y(t) before the readout's gain and
-offset. Each has a few interpretable parameters in physical units:
+offset; a drive-side effect maps the drive u(t) before the simulation
+(``place = "drive"``). Each has a few interpretable parameters whose units
+follow the signal it acts on (``{signal}`` in `units`; below for the RC
+network, whose output is in V). The built-ins:
 
 =================  =====================================  =====================================
 name               y(t)                                   parameters
@@ -18,6 +21,9 @@ name               y(t)                                   parameters
 ``resonance``      ω²/(s² + 2ζωs + ω²) applied to s       ``resonance_frequency_hz`` f = ω/2π,
                    (exact first-order-hold discretisation) ``resonance_damping`` ζ
 ``even_response``  s + c s²                               ``even_per_v`` c (1/V)
+``baseline_drift`` s + a·t + b·t² (t in minutes)           ``baseline_slope_per_min`` a (V/min),
+                                                          ``baseline_curvature_per_min2`` b (V/min²)
+``drive_dead_zone`` S(u − clip(u, −d, d))  (on the drive)  ``drive_dead_zone_width`` d (V of drive)
 =================  =====================================  =====================================
 
 - Back-relaxation: under a held voltage the bending charge diffuses back; the
@@ -35,6 +41,15 @@ name               y(t)                                   parameters
 - Resonance: a mechanical mode of the cantilever (unity DC gain).
 - Even response: a displacement that follows the square of the drive, the
   same for ±V, as an electrostatic actuator's does (an IPMC's is odd).
+- Baseline drift: the output's zero creeps (a sensor warming): additive,
+  where `drift` is a gain that changes.
+- Drive dead zone: the drive must pass ±d before anything moves (static
+  friction at the input, an amplifier's threshold).
+
+Everything `diagnose` needs to search an effect is the effect's own
+(`starts`, `screened_starts`, `thresholds`, `material`, `unpinned_reason`): a
+user's effect is a subclass in one file (docs/effects.md), passed to
+``diagnose(effects=...)`` or ``hybrid diagnose --effects``.
 
 Each effect is an [`AbstractEffect`][]; [`EffectStack`][]
 (`hybrid.discovery._effect_stack`) applies them to a simulation. The Bouc–Wen
