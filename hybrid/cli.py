@@ -124,6 +124,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=VALUE",
         help="starting value of a physical parameter",
     )
+    p.add_argument(
+        "--effects",
+        default=None,
+        metavar="SPEC[,SPEC...]",
+        help="extend the physics by these effects, all fitted (built-in names, path/to/file.py:Class or "
+        "package.module:Class, comma-separated; e.g. the causes hybrid diagnose named)",
+    )
     p.add_argument("--window", type=B.integer(*B.WINDOW), default=60)
     p.add_argument("--depth", type=B.integer(*B.DEPTH), default=11)
     p.add_argument("--width", type=B.integer(*B.WIDTH), default=10)
@@ -288,6 +295,12 @@ def _cmd_fit(args):
     simulation = None
     if args.model != "normal":
         simulation = resolve_physics(args.physics, recordings)  # rc: the paper's RC network
+        if args.effects is not None:
+            from .discovery._effect_stack import EffectStack
+            from .discovery._search import drive_unit
+
+            effects = effects_from_spec(args.effects)
+            simulation = EffectStack(simulation, effects, drive_unit=drive_unit(recordings))
         params = parse_params(args.param)
         if params:
             simulation = simulation.replace(**params)
@@ -296,6 +309,10 @@ def _cmd_fit(args):
         raise InputError("--settle holds the physics before the record; the normal model has none")
     elif args.param:
         raise InputError("--param sets physical parameters; the normal model has none")
+    elif args.effects is not None:
+        raise InputError(
+            "--effects extends the physics; the normal model has none (use --model physics or hybrid)"
+        )
     model = make_model(
         args.model,
         simulation=simulation,

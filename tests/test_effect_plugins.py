@@ -113,6 +113,31 @@ def test_the_cli_finds_a_user_effect_through_effects(lab):
     assert [e.name for e in baseline.simulation.effects] == ["frame_timing"]
 
 
+def test_hybrid_fit_fits_a_chosen_effect_directly(lab):
+    run = _hybrid(
+        lab,
+        "fit",
+        "lab.csv",
+        "--model",
+        "physics",
+        "--physics",
+        "lti:1",
+        "--effects",
+        "asymmetric.py:AsymmetricDrive",
+        "--param",
+        "negative_gain_change=-0.3",
+        "--out",
+        "fit.eqx",
+        "--json",
+        "fit.json",
+        "--quiet",
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    parameters = json.loads((lab / "fit.json").read_text())["parameters"]
+    assert parameters["negative_gain_change"] == pytest.approx(NEGATIVE_CHANGE, abs=0.03)
+    assert parameters["tau_1"] == pytest.approx(TAU, rel=0.05)
+
+
 @pytest.mark.parametrize(
     "spec, words",
     [
