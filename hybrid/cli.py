@@ -362,7 +362,7 @@ def _cmd_fit(args):
                 flush=True,
             )
             raise SystemExit(stop.exit_status)
-        scores = {"test": score_tests(result.model, tests)} if tests else {}
+        scores = {"test": score_tests(result.model, tests, args.initial_samples)} if tests else {}
         print_scores(scores.get("test", []))
         save_model(
             out, result.model, extra={"metrics": result.metrics, "settings": result.settings, **scores}

@@ -58,9 +58,14 @@ def _plain(path, *names):
     return [np.array([float(r[n]) for r in rows]) for n in names]
 
 
-def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench, tmp_path):
-    """The real entry point in a subprocess (a timeout instead of a hang): --test's RMSE is numpy's."""
+@pytest.mark.parametrize("first", [None, 4])
+def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench, tmp_path, first):
+    """The real entry point in a subprocess (a timeout instead of a hang): --test's RMSE is numpy's.
+
+    With ``--initial-samples 4`` (Cascaded Tanks' rule) the first 4 samples are not scored.
+    """
     path, _ = bench
+    rule = [] if first is None else ["--initial-samples", str(first)]
     model, report = tmp_path / "m.eqx", tmp_path / "fit.json"
     proc = subprocess.run(
         [
@@ -88,6 +93,7 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
             str(report),
             "--out",
             str(model),
+            *rule,
         ],
         cwd=ROOT,
         capture_output=True,
@@ -97,7 +103,10 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
     assert proc.returncode == 0, proc.stderr
     data = json.loads(report.read_text())
     (score,) = data["test"]
-    assert score["samples"] == N and score["rate_hz"] == pytest.approx(1 / TS) and score["unit"] == "cm"
+    skip = first or 0
+    assert (
+        score["samples"] == N - skip and score["rate_hz"] == pytest.approx(1 / TS) and score["unit"] == "cm"
+    )
     assert score["mapping"] == {"t": None, "v_in": "uVal", "w": "yVal"}
     assert "test record" in proc.stdout and f"RMSE {score['rmse']:.6g} cm" in proc.stdout
 
@@ -105,6 +114,7 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
     p = {k: float(v) for k, v in fitted.parameters().items()}
     u_val, y_val = _plain(path, "uVal", "yVal")
     w_hat = p["gain"] * h.lti2_zoh_response(p, u_val, TS) + p["offset"]  # free run from rest, every sample
+    y_val, w_hat = y_val[skip:], w_hat[skip:]  # the rule's first samples are not scored
     rmse = np.sqrt(np.mean((y_val - w_hat) ** 2))
     nmse = np.mean((y_val / np.max(np.abs(y_val)) - w_hat / np.max(np.abs(w_hat))) ** 2)  # Eq 18
     assert score["rmse"] == pytest.approx(rmse, rel=1e-9)
@@ -123,6 +133,11 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
         (["--test", "{bench}"], "the validation record is the estimation record"),
         (["--test-columns", "input=uVal,output=yVal"], "give --test FILE"),
         (["--test", "{bench}", "--test-range", "300:200"], "range"),
+        (
+            ["--test", "{bench}", "--test-columns", "input=uVal,output=yVal", "--initial-samples", "400"],
+            "--initial-samples 400",
+        ),
+        (["--initial-samples", "4"], "give --test FILE"),
     ],
 )
 def test_bad_test_records_exit_2_with_one_line_before_fitting(bench, tmp_path, capsys, extra, phrase):
