@@ -61,3 +61,23 @@ def test_traced_patience_zero_never_stops_on_validation():
     )
     # It runs on towards the least-squares solution, every step worse on validation.
     assert int(state.accepted) > 7 and int(state.best_step) == 0
+
+
+def test_patience_rtol_stops_a_lane_that_creeps_and_keeps_its_best_iterate():
+    """Validation agrees with training here, so every accepted step is better there, by less and less.
+
+    Without a margin the loop runs until the training cost stalls; with `patience_rtol` a step
+    must improve the best validation loss by that fraction to count, so it stops `patience`
+    steps into the creep, and the iterate it keeps is still the last (best) one.
+    """
+    problem, theta0 = _problem()
+    solution = jnp.linalg.lstsq(problem.A, problem.b)[0]
+    problem = eqx.tree_at(lambda p: p.theta_val, problem, solution)
+    creeping = LMSettings(**OPTIONS, patience=5)
+    margin = LMSettings(**OPTIONS, patience=5, patience_rtol=0.05)
+    plain = lm_run(problem, lm_init(problem, theta0, creeping), creeping, creeping.max_steps)
+    stopped = lm_run(problem, lm_init(problem, theta0, margin), margin, margin.max_steps)
+    assert int(stopped.accepted) < int(plain.accepted)
+    assert int(stopped.best_step) == int(stopped.accepted)  # each step was still (slightly) better
+    first = problem.validation_loss(theta0)
+    assert problem.validation_loss(stopped.best_theta) < first  # it moved towards the solution
