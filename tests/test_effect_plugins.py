@@ -259,3 +259,36 @@ def test_materiality_overrides_name_a_threshold_a_searched_effect_has():
     assert merged["delay_samples"] == 2.0 and merged["relaxation_percent"] == 10.0
     with pytest.raises(InputError, match="no searched effect has"):
         hybrid.DiagnoseSettings(materiality={"delay_sample": 2.0}).materiality_for(hybrid.resolve_effects())
+
+
+def test_a_switched_off_effect_is_not_evaluated_and_a_switch_scales_its_change():
+    """`EffectStack` skips an effect whose switch is 0 (its NaN never reaches the output) and adds
+    ``on·(effect(s) − s)`` otherwise; its parameters then have zero Jacobian columns."""
+    import jax
+
+    class Poison(AbstractEffect):
+        raw: dict
+        name: ClassVar[str] = "poison"
+        constraints: ClassVar = {"poison_level": Real()}
+        units: ClassVar = {"poison_level": "1"}
+        defaults: ClassVar = {"poison_level": 0.0}
+
+        def __init__(self):
+            self.raw = encode(self.defaults, self.constraints, self.name)
+
+        def apply(self, s, dt):
+            return s * jnp.nan
+
+    u = jnp.asarray(_drive(2, 10.0))
+    inner = hybrid.LTI(1)
+    s = np.asarray(inner.simulate(u, 1.0 / RATE))
+    stack = hybrid.EffectStack(inner, (Poison(), _Scale(scale_factor=0.4)), active=jnp.array([0.0, 0.5]))
+    out = np.asarray(stack.simulate(u, 1.0 / RATE))
+    np.testing.assert_allclose(out, s + 0.5 * (1.4 * s - s), rtol=1e-12, atol=1e-12)
+
+    def output(raw, active):
+        return stack.with_raw({"scale_factor": raw}).with_active(active).simulate(u, 1.0 / RATE)
+
+    raw = stack.raw["scale_factor"]
+    assert not np.any(np.asarray(jax.jacfwd(output)(raw, jnp.array([0.0, 0.0]))))  # off: no column
+    assert np.any(np.asarray(jax.jacfwd(output)(raw, jnp.array([0.0, 1.0]))))  # on: a column
