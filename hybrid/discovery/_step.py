@@ -31,6 +31,7 @@ import numpy as np
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
+from ..util._errors import InputError
 from . import residual_tests as rt
 from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings, EquallyGoodFits, Lane
@@ -184,8 +185,11 @@ def search_step(
             labels.append(name)
             tangents.append(lane_tangents(s.model, s.frozen, present + (name,), n_rows))
     n_lanes = s.n_lanes
-    if len(starts) > n_lanes:
-        raise AssertionError(f"{len(starts)} candidate lanes for {n_lanes}: first_step_lanes is out of date")
+    if len(starts) > n_lanes:  # the lanes were counted on a probe signal (`first_step_lanes`)
+        raise InputError(
+            f"the effects gave {len(starts)} starts on this recording but {n_lanes} on a probe signal: an "
+            "effect's starts(context) must give as many starts whatever the data (see docs/effects.md)"
+        )
     lanes = list(initial_thetas(problem, starts, cur_model.readout, s.frozen))
     while len(lanes) < n_lanes:  # one lane count for every step: one compiled program
         lanes.append(padding_lane(theta_cur))  # stops at once: no LM steps spent on it
