@@ -211,3 +211,35 @@ def lti2_zoh_response(params, u, dt):
     den = [1.0, 2 * z * w, w**2]
     numd, dend, _ = signal.cont2discrete((num, den), dt, "zoh")
     return signal.dlsim((numd[0], dend, dt), np.asarray(u, float))[1][:, 0]
+
+
+def docs_python_block(page: str, start: str, end: str) -> str:
+    """The first ```python block of docs/`page` between the headings `start` and `end`, as it is."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / page).read_text()
+    section = text[text.index(start) : text.index(end)]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+def assert_public_imports_only(code: str) -> None:
+    """Every `from hybrid... import` in `code` is `from hybrid import` of names the package exports."""
+    import ast
+
+    import hybrid
+
+    for node in ast.walk(ast.parse(code)):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("hybrid"):
+            assert node.module == "hybrid", node.module
+            for alias in node.names:
+                assert not alias.name.startswith("_") and hasattr(hybrid, alias.name), alias.name
+
+
+def run_hybrid(folder, *args):
+    """The real command line, `python -m hybrid.cli ARGS`, in a subprocess run in `folder`."""
+    import subprocess
+    import sys
+
+    command = [sys.executable, "-m", "hybrid.cli", *map(str, args)]
+    return subprocess.run(command, cwd=folder, capture_output=True, text=True)

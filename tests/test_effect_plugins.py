@@ -7,15 +7,12 @@ for a drive held over each sample), never by the effects under test.
 
 from __future__ import annotations
 
-import ast
 import importlib.util
 import json
-import re
-import subprocess
-import sys
 from pathlib import Path
 from typing import ClassVar
 
+import helpers as h
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -28,9 +25,7 @@ RATE, TAU, GAIN, OFFSET, NEGATIVE_CHANGE = 30.0, 0.5, 3.0, 0.2, -0.6
 
 
 def _docs_effect() -> str:
-    page = (ROOT / "docs" / "effects.md").read_text()
-    section = page[page.index("## An effect in one file") : page.index("## The interface")]
-    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    return h.docs_python_block("effects.md", "## An effect in one file", "## The interface")
 
 
 def _lag(u: np.ndarray) -> np.ndarray:
@@ -53,12 +48,7 @@ def _drive(seed: int, seconds: float) -> np.ndarray:
 
 
 def test_the_docs_effect_imports_only_public_names():
-    tree = ast.parse(_docs_effect())
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("hybrid"):
-            assert node.module == "hybrid", node.module
-            for alias in node.names:
-                assert not alias.name.startswith("_") and hasattr(hybrid, alias.name), alias.name
+    h.assert_public_imports_only(_docs_effect())
 
 
 @pytest.fixture(scope="module")
@@ -75,8 +65,7 @@ def lab(tmp_path_factory):
 
 
 def _hybrid(folder, *args):
-    command = [sys.executable, "-m", "hybrid.cli", *map(str, args)]
-    return subprocess.run(command, cwd=folder, capture_output=True, text=True)
+    return h.run_hybrid(folder, *args)
 
 
 def test_the_cli_finds_a_user_effect_through_effects(lab):

@@ -7,13 +7,10 @@ over each sample, in numpy), not by the plug-in itself.
 
 from __future__ import annotations
 
-import ast
 import json
-import re
-import subprocess
-import sys
 from pathlib import Path
 
+import helpers as h
 import numpy as np
 import pytest
 
@@ -24,18 +21,11 @@ TAU, RATE, GAIN, OFFSET = 0.8, 20.0, 1.5, 0.2
 
 
 def _docs_plugin() -> str:
-    page = (ROOT / "docs" / "plugins.md").read_text()
-    section = page[page.index("## A plug-in in one file") : page.index("## The interface")]
-    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    return h.docs_python_block("plugins.md", "## A plug-in in one file", "## The interface")
 
 
 def test_the_docs_plugin_imports_only_public_names():
-    tree = ast.parse(_docs_plugin())
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("hybrid"):
-            assert node.module == "hybrid", node.module
-            for alias in node.names:
-                assert not alias.name.startswith("_") and hasattr(hybrid, alias.name), alias.name
+    h.assert_public_imports_only(_docs_plugin())
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +46,7 @@ def lab(tmp_path_factory):
 
 
 def _hybrid(folder, *args):
-    command = [sys.executable, "-m", "hybrid.cli", *map(str, args)]
-    return subprocess.run(command, cwd=folder, capture_output=True, text=True)
+    return h.run_hybrid(folder, *args)
 
 
 def test_the_cli_fits_the_docs_plugin_and_diagnoses_with_it(lab):

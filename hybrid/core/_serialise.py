@@ -66,10 +66,11 @@ def _describe(model: Model) -> dict:
     return {"format": FORMAT, "kind": model.kind, "simulation": simulation, "readout": out}
 
 
-def _subclasses(cls) -> list[type]:
+def subclasses(cls) -> list[type]:
+    """Every imported subclass of `cls`, at any depth (a saved model names its classes among these)."""
     out = []
     for sub in cls.__subclasses__():
-        out += [sub, *_subclasses(sub)]
+        out += [sub, *subclasses(sub)]
     return out
 
 
@@ -80,7 +81,7 @@ def simulation_class(name: str, module: str | None = None) -> type[AbstractSimul
     code named in a file. A model saved before the module was recorded names
     only the class.
     """
-    found = [c for c in _subclasses(AbstractSimulation) if c.__qualname__ == name]
+    found = [c for c in subclasses(AbstractSimulation) if c.__qualname__ == name]
     exact = [c for c in found if c.__module__ == module]
     if exact or len(found) == 1:
         return (exact or found)[0]

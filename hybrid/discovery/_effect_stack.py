@@ -17,6 +17,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ..core._parameters import Constraint
+from ..core._serialise import subclasses
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw
 from ..util._errors import InputError
 from ._effects import EFFECTS, AbstractEffect
@@ -200,16 +201,9 @@ class EffectStack(AbstractWrapper):
         return out
 
 
-def _subclasses(cls) -> list[type]:
-    out = []
-    for sub in cls.__subclasses__():
-        out += [sub, *_subclasses(sub)]
-    return out
-
-
 def effect_class(name: str, module: str | None = None) -> type[AbstractEffect]:
     """The imported `AbstractEffect` subclass a saved model names (loading never imports code)."""
-    found = [c for c in _subclasses(AbstractEffect) if c.__qualname__ == name]
+    found = [c for c in subclasses(AbstractEffect) if c.__qualname__ == name]
     exact = [c for c in found if c.__module__ == module]
     if exact or len(found) == 1:
         return (exact or found)[0]
