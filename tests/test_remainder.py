@@ -233,3 +233,11 @@ def test_a_cubic_force_inside_the_dynamics_is_the_filtered_cube_of_the_output():
     assert d["linear_filter"]["output_cube"]["fraction"] > 0.6
     assert d["linear_filter"]["output"]["fraction"] < 0.3
     assert d["static"]["drive"]["fraction"] < 0.3
+
+
+def test_a_v_shaped_remainder_is_called_even_never_one_sided():
+    # 0.6·|v| − its mean: the same for +v and −v (an electrostatic pull on a linear model). Its
+    # description must agree with its own evidence: even, not one-sided, not a dead zone.
+    d = describe(lambda v, t: 0.6 * np.abs(v))
+    assert d["static"]["symmetry"]["even"] > 0.8
+    assert "even" in d["summary"] and "one-sided" not in d["summary"], d["summary"]
