@@ -55,7 +55,6 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
     `rate_alone_maps` False: --rate alone does not make a file mapped (`hybrid sensitivity`'s
     --rate is its synthetic drives' rate too, and a file in the project's columns has its t).
     """
-    from pathlib import Path
 
     from .data._mapping import file_references, load_mapped
     from .data._mapping_options import mapping_roles
@@ -158,7 +157,7 @@ def effects_from_spec(spec: str) -> tuple:
     ``--effects builtins,friction.py:Coulomb`` searches them and a plug-in.
     """
     from .discovery._effects import EFFECTS, AbstractEffect, resolve_effects
-    from .physics._plugins import module_from_file, module_from_name, register
+    from .physics._plugins import plugin_module, register
 
     items = [x.strip() for x in str(spec).split(",") if x.strip()]
     if not items:
@@ -171,20 +170,11 @@ def effects_from_spec(spec: str) -> tuple:
         if text in EFFECTS:
             chosen.append(text)
             continue
-        where, sep, name = text.rpartition(":")
-        if not sep or not where:
-            raise InputError(
-                f"--effects {text}: not an effect I know; give {EFFECT_FORMS} "
-                f"(the built-ins: {', '.join(EFFECTS)})"
-            )
-        if not name.isidentifier():
-            raise InputError(
-                f"--effects {text}: {name!r} is not a Python class name; write the class after the last colon"
-            )
-        if where.endswith(".py") or "/" in where or "\\" in where:
-            module, label = module_from_file(text, where, flag="--effects"), Path(where).name
-        else:
-            module, label = module_from_name(text, where, flag="--effects"), f"module {where}"
+        module, label, name = plugin_module(
+            text,
+            "--effects",
+            f"not an effect I know; give {EFFECT_FORMS} (the built-ins: {', '.join(EFFECTS)})",
+        )
         cls = getattr(module, name, None)
         if not isinstance(cls, type) or not issubclass(cls, AbstractEffect):
             mine = sorted(

@@ -74,27 +74,34 @@ def subclasses(cls) -> list[type]:
     return out
 
 
-def simulation_class(name: str, module: str | None = None) -> type[AbstractSimulation]:
-    """The imported `AbstractSimulation` subclass saved as `module:name` (or only `name`, if unique).
+def imported_class(base: type, name: str, module: str | None, what: str) -> type:
+    """The imported subclass of `base` saved as `module:name` (or only `name`, if unique).
 
     Only classes already imported are candidates: loading a model never imports
-    code named in a file. A model saved before the module was recorded names
-    only the class.
+    code named in a file. `what` names the kind in messages ("simulation").
     """
-    found = [c for c in subclasses(AbstractSimulation) if c.__qualname__ == name]
+    found = [c for c in subclasses(base) if c.__qualname__ == name]
     exact = [c for c in found if c.__module__ == module]
     if exact or len(found) == 1:
         return (exact or found)[0]
     where = f" (module {module})" if module else ""
     if not found:
         raise InputError(
-            f"the model's simulation {name}{where} is not an imported AbstractSimulation: import the "
+            f"the model's {what} {name}{where} is not an imported {base.__name__}: import the "
             "module that defines it before load_model"
         )
     raise InputError(
-        f"several imported simulations are called {name} ({', '.join(c.__module__ for c in found)}): "
+        f"several imported {what}s are called {name} ({', '.join(c.__module__ for c in found)}): "
         "import only the one the model was saved with"
     )
+
+
+def simulation_class(name: str, module: str | None = None) -> type[AbstractSimulation]:
+    """The imported `AbstractSimulation` subclass saved as `module:name` (`imported_class`).
+
+    A model saved before the module was recorded names only the class.
+    """
+    return imported_class(AbstractSimulation, name, module, "simulation")
 
 
 def _skeleton(description: dict) -> Model:

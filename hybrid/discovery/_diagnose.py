@@ -265,13 +265,11 @@ def diagnose(
         jnp.asarray(extended.active, float),
         jnp.asarray(lane_tangents(model, frozen, present, int(final.sim_tangents.shape[0])), float),
     )
+    extended_model = fitted_model(problem, extended.theta, present)
     uncertainties = parameter_uncertainties(
-        fitted,
-        extended.theta,
-        w_te - w_hat_ext,
-        keep=fitted_model(problem, extended.theta, present).parameters(),
+        fitted, extended.theta, w_te - w_hat_ext, keep=extended_model.parameters()
     )
-    unpinned = not_pinned(uncertainties, fitted_model(problem, extended.theta, present), problem.series)
+    unpinned = not_pinned(uncertainties, extended_model, problem.series)
     evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good.to_dict()  # report.json's shape
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
@@ -322,7 +320,7 @@ def diagnose(
         not_pinned=unpinned,
         models={
             "baseline": fitted_model(problem, baseline.theta, ()),
-            "extended": fitted_model(problem, extended.theta, present),
+            "extended": extended_model,
         },
     )
 

@@ -17,7 +17,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ..core._parameters import Constraint
-from ..core._serialise import subclasses
+from ..core._serialise import imported_class
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw
 from ..util._errors import InputError
 from ._effects import EFFECTS, AbstractEffect
@@ -192,30 +192,15 @@ class EffectStack(AbstractWrapper):
         `n`: the samples of `v_in` that were recorded (a padded drive's first
         `n`); each effect's quantities are taken over those alone.
         """
-        n = int(v_in.shape[0]) if n is None else int(n)
-        signals = np.asarray(_signals_into_effects(self, v_in, dt))
-        out = {}
-        for on, effect, s in zip(self.active, self.effects, signals):
-            if float(on):  # a switched-off effect leaves s unchanged
-                out[effect.name] = effect.derived(s[:n], dt)
-        return out
+        signals = self.signals_into(v_in, dt, n)
+        return {  # a switched-off effect leaves its signal unchanged: nothing to derive
+            e.name: e.derived(signals[e.name], dt) for on, e in zip(self.active, self.effects) if float(on)
+        }
 
 
 def effect_class(name: str, module: str | None = None) -> type[AbstractEffect]:
-    """The imported `AbstractEffect` subclass a saved model names (loading never imports code)."""
-    found = [c for c in subclasses(AbstractEffect) if c.__qualname__ == name]
-    exact = [c for c in found if c.__module__ == module]
-    if exact or len(found) == 1:
-        return (exact or found)[0]
-    if not found:
-        raise InputError(
-            f"the model's effect {name} (module {module}) is not an imported AbstractEffect: import the "
-            "module that defines it (or pass it to --effects) before loading the model"
-        )
-    raise InputError(
-        f"several imported effects are called {name} ({', '.join(c.__module__ for c in found)}): "
-        "import only the one the model was saved with"
-    )
+    """The imported `AbstractEffect` subclass a saved model names (a plug-in's module imported first)."""
+    return imported_class(AbstractEffect, name, module, "effect")
 
 
 def switched(on, effect: AbstractEffect, s, dt):

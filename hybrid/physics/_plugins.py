@@ -204,21 +204,9 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
     if lowered.startswith("lti:") or lowered == "lti":
         lti = _lti(text)
         return lti if not recordings else lti_for_recordings(lti.order, recordings)
-    where, sep, name = text.rpartition(":")
-    if not sep or not where:
-        raise InputError(
-            f"--physics {text}: not a physics I know; give {FORMS} "
-            "(e.g. --physics examples/two_tank.py:TwoTank)"
-        )
-    if not name.isidentifier():
-        raise InputError(
-            f"--physics {text}: {name!r} is not a Python class name; write the class after the "
-            "last colon, e.g. --physics tanks.py:TwoTank"
-        )
-    if where.endswith(".py") or "/" in where or "\\" in where:
-        module, label = module_from_file(text, where), Path(where).name
-    else:
-        module, label = module_from_name(text, where), f"module {where}"
+    module, label, name = plugin_module(
+        text, "--physics", f"not a physics I know; give {FORMS} (e.g. --physics examples/two_tank.py:TwoTank)"
+    )
     simulation = _instantiate(text, module, label, name)
     probe_simulation(simulation, recordings, label=f"--physics {text}")
     return simulation
@@ -232,6 +220,25 @@ def _lti(text: str) -> LTI:
             "(the number of states), e.g. --physics lti:2"
         )
     return LTI(int(order))
+
+
+def plugin_module(text: str, flag: str, unknown: str):
+    """(module, label, class name) of a plug-in given as ``file.py:Class`` or ``module:Class``.
+
+    `flag` TEXT names it in every message; `unknown` is what to say when
+    `text` has no ``where:Class`` shape.
+    """
+    where, sep, name = text.rpartition(":")
+    if not sep or not where:
+        raise InputError(f"{flag} {text}: {unknown}")
+    if not name.isidentifier():
+        raise InputError(
+            f"{flag} {text}: {name!r} is not a Python class name; write the class after the "
+            f"last colon, e.g. {flag} mine.py:ClassName"
+        )
+    if where.endswith(".py") or "/" in where or "\\" in where:
+        return module_from_file(text, where, flag), Path(where).name, name
+    return module_from_name(text, where, flag), f"module {where}", name
 
 
 def module_from_file(text: str, where: str, flag: str = "--physics"):
