@@ -23,7 +23,9 @@ band-limited voltage, not a held one: holding it would add half a sample of
 delay that the linear model would fold into its damping). With the resonance at
 ~69 Hz and 610 Hz sampling, one RK4 step spans 0.16 rad of the oscillation;
 `tests/test_plugins.py` checks the result against scipy's solve_ivp. The
-oscillator starts at rest.
+oscillator starts at rest. The state-space form also lets `hybrid diagnose` search
+effects inside the dynamics: on the Silverbox it finds the cubic spring that
+`MassSpringDamper` leaves out, as a restoring force fed back into the drive.
 """
 
 from __future__ import annotations
@@ -31,15 +33,14 @@ from __future__ import annotations
 from typing import ClassVar
 
 import jax.numpy as jnp
-from jax import lax
 
-from hybrid import AbstractSimulation, Positive, Real, check_drive, encode
+from hybrid import AbstractStateSpace, Positive, Real, encode
 
 #: RK4 steps per sample.
 SUBSTEPS = 4
 
 
-class MassSpringDamper(AbstractSimulation):
+class MassSpringDamper(AbstractStateSpace):
     """A linear oscillator: natural frequency `frequency` (Hz), damping ratio `zeta`; output y (V of drive)."""
 
     raw: dict
@@ -67,6 +68,13 @@ class MassSpringDamper(AbstractSimulation):
         "cubic": "the linear model: a spring with no cubic term (free it, or use Duffing)",
         "drive_offset": "with a linear spring a shift of the drive is a shift of y, which the readout's offset absorbs",
     }
+    states: ClassVar[tuple] = ("position", "velocity")
+    # y is in the drive's unit (the static gain folded into the drive's scale).
+    state_units: ClassVar[dict] = {"position": "{drive}", "velocity": "{drive}/s"}
+    # An end stop limits the position; nothing limits the velocity directly.
+    limited_states: ClassVar[tuple] = ("position",)
+    substeps: ClassVar[int] = SUBSTEPS
+    drive_between_samples: ClassVar[str] = "linear"
     linear_in_drive: ClassVar[bool] = (
         False  # the cubic term and drive_offset, when freed, are in volts of drive
     )
@@ -75,37 +83,16 @@ class MassSpringDamper(AbstractSimulation):
         values = dict(frequency=frequency, zeta=zeta, cubic=cubic, drive_offset=drive_offset)
         self.raw = encode(values, self.constraints, type(self).__name__)
 
-    def simulate(self, v_in, dt):
-        """y (V of drive) at each sample time for the drive `v_in` (V), linear between samples."""
-        v_in, dt = check_drive(v_in, dt, f"{type(self).__name__}.simulate")
-        p = self.parameters()
+    def prepare(self, p):
+        """The rates' coefficients, computed once per simulation rather than at every RK4 stage."""
         w = 2.0 * jnp.pi * p["frequency"]
-        w2, damping, cubic = w * w, 2.0 * p["zeta"] * w, p["cubic"]
-        u = jnp.asarray(v_in, w.dtype) - p["drive_offset"]
-        u_next = jnp.concatenate([u[1:], u[-1:]])
-        step = dt / SUBSTEPS
+        return {**p, "w2": w * w, "damping": 2.0 * p["zeta"] * w}
 
-        def rate(y, v, force):
-            return v, w2 * (force - y - cubic * y * y * y) - damping * v
-
-        def sample(state, pair):
-            y, v = state
-            a, b = pair
-            for j in range(SUBSTEPS):  # unrolled; the drive moves linearly from a to b over the sample
-                f0 = a + (b - a) * (j / SUBSTEPS)
-                fm = a + (b - a) * ((j + 0.5) / SUBSTEPS)
-                f1 = a + (b - a) * ((j + 1) / SUBSTEPS)
-                k1 = rate(y, v, f0)
-                k2 = rate(y + 0.5 * step * k1[0], v + 0.5 * step * k1[1], fm)
-                k3 = rate(y + 0.5 * step * k2[0], v + 0.5 * step * k2[1], fm)
-                k4 = rate(y + step * k3[0], v + step * k3[1], f1)
-                y = y + step / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-                v = v + step / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
-            return (y, v), state[0]
-
-        zero = jnp.zeros((), w.dtype)
-        _, y = lax.scan(sample, (zero, zero), (u, u_next))
-        return y
+    def rates(self, x, u, p):
+        """(dy/dt, dv/dt) at the state x = (y, v) under the drive u (V)."""
+        y, v = x
+        spring = y + p["cubic"] * y * y * y
+        return v, p["w2"] * (u - p["drive_offset"] - spring) - p["damping"] * v
 
 
 class Duffing(MassSpringDamper):

@@ -49,6 +49,7 @@ from .core._solvers import (
     LevenbergMarquardt as LevenbergMarquardt,
     OptimistixLM as OptimistixLM,
 )
+from .core._state_space import AbstractStateSpace as AbstractStateSpace
 from .core._windows import sliding_windows as sliding_windows
 from .data._drive import Drive as Drive
 from .data._drives import DRIVES as DRIVES, make_drive as make_drive
@@ -60,14 +61,14 @@ from .discovery._diagnosis import (
     DiagnoseSettings as DiagnoseSettings,
     Diagnosis as Diagnosis,
 )
+from .discovery._effect_set import EFFECTS as EFFECTS, resolve_effects as resolve_effects
 from .discovery._effect_stack import EffectStack as EffectStack, extend as extend
 from .discovery._effects import (
-    EFFECTS as EFFECTS,
     AbstractEffect as AbstractEffect,
     FrameTiming as FrameTiming,
     StartContext as StartContext,
-    resolve_effects as resolve_effects,
 )
+from .discovery._inside_effects import PolynomialStiffness as PolynomialStiffness, StateLimit as StateLimit
 from .discovery._report import write_report as write_report
 from .ipmc._defaults import diagnose as diagnose, make_model as make_model
 from .physics._lti import LTI as LTI

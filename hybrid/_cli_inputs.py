@@ -147,16 +147,20 @@ def parse_params(items):
 
 
 #: What ``--effects`` takes, item by item.
-EFFECT_FORMS = "builtins, a built-in's name, path/to/file.py:ClassName or package.module:ClassName"
+EFFECT_FORMS = (
+    "builtins, a built-in's name, limit_<state>, path/to/file.py:ClassName or package.module:ClassName"
+)
 
 
-def effects_from_spec(spec: str) -> tuple:
+def effects_from_spec(spec: str, simulation=None) -> tuple:
     """The effects a command line's ``--effects`` names: comma-separated items of `EFFECT_FORMS`.
 
-    ``builtins`` stands for every built-in ([`EFFECTS`][]);
+    ``builtins`` stands for every built-in `simulation` can take (see
+    `resolve_effects`: inside the dynamics only for a state-space form);
     ``--effects builtins,friction.py:Coulomb`` searches them and a plug-in.
     """
-    from .discovery._effects import EFFECTS, AbstractEffect, resolve_effects
+    from .discovery._effect_set import EFFECTS, resolve_effects
+    from .discovery._effects import AbstractEffect
     from .physics._plugins import plugin_module, register
 
     items = [x.strip() for x in str(spec).split(",") if x.strip()]
@@ -165,10 +169,10 @@ def effects_from_spec(spec: str) -> tuple:
     chosen: list = []
     for text in items:
         if text == "builtins":
-            chosen += list(EFFECTS)
+            chosen += list(resolve_effects(None, simulation))
             continue
-        if text in EFFECTS:
-            chosen.append(text)
+        if text in EFFECTS or (":" not in text and text.startswith("limit_")):
+            chosen.append(text)  # resolve_effects says which states there are
             continue
         module, label, name = plugin_module(
             text,
@@ -187,4 +191,4 @@ def effects_from_spec(spec: str) -> tuple:
             raise InputError(f"--effects {text}: {label} {what} {name}; {has}")
         register(cls.__module__, text, flag="--effects")
         chosen.append(cls)
-    return resolve_effects(chosen)
+    return resolve_effects(chosen, simulation)

@@ -131,6 +131,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="extend the physics by these effects, all fitted (built-in names, path/to/file.py:Class or "
         "package.module:Class, comma-separated; e.g. the causes hybrid diagnose named)",
     )
+    p.add_argument(
+        "--start-from",
+        default=None,
+        metavar="MODEL.eqx",
+        help="start from a saved model (its simulation, effects, readout and values), e.g. the "
+        "extended.eqx that hybrid diagnose --out wrote; give --physics (and --effects) too when it "
+        "uses a plug-in, so that its module is imported",
+    )
     p.add_argument("--window", type=B.integer(*B.WINDOW), default=60)
     p.add_argument("--depth", type=B.integer(*B.DEPTH), default=11)
     p.add_argument("--width", type=B.integer(*B.WIDTH), default=10)
@@ -299,7 +307,7 @@ def _cmd_fit(args):
             from .discovery._effect_stack import EffectStack
             from .discovery._search import drive_unit
 
-            effects = effects_from_spec(args.effects)
+            effects = effects_from_spec(args.effects, simulation)
             simulation = EffectStack(simulation, effects, drive_unit=drive_unit(recordings))
         params = parse_params(args.param)
         if params:
@@ -313,14 +321,17 @@ def _cmd_fit(args):
         raise InputError(
             "--effects extends the physics; the normal model has none (use --model physics or hybrid)"
         )
-    model = make_model(
-        args.model,
-        simulation=simulation,
-        window=args.window,
-        depth=args.depth,
-        width=args.width,
-        key=jax.random.key(args.seed),
-    )
+    if args.start_from is not None:
+        model = start_model(args)
+    else:
+        model = make_model(
+            args.model,
+            simulation=simulation,
+            window=args.window,
+            depth=args.depth,
+            width=args.width,
+            key=jax.random.key(args.seed),
+        )
     frozen = set(args.freeze)
     as_names(
         args.free, "--free", "parameter", model.parameter_names
@@ -370,6 +381,22 @@ def _cmd_fit(args):
         print(f"saved model to {out} (+ {out}.json)")
         if args.json:
             write_text(args.json, json.dumps({**result.to_dict(), **scores}, indent=2) + "\n")
+
+
+def start_model(args):
+    """--start-from: the saved model a fit starts from (the plug-ins named by --physics/--effects imported)."""
+    from .core._serialise import load_model
+
+    if args.param or args.settle is not None:
+        flag = "--param" if args.param else "--settle"
+        raise InputError(f"{flag} sets how the fit starts; with --start-from that comes from the saved model")
+    path = Path(args.start_from)
+    if path.suffix != ".eqx" or not path.is_file():
+        raise InputError(
+            f"--start-from {path}: not a saved model (.eqx) file; give e.g. the extended.eqx that "
+            "hybrid diagnose --out wrote"
+        )
+    return load_model(path)
 
 
 def _cmd_table2(args):
@@ -424,7 +451,7 @@ def _cmd_diagnose(args):
     with lock:
         simulation = resolve_physics(args.physics, recordings)
         simulation = with_settle(simulation, args, recordings)
-        effects = None if args.effects is None else effects_from_spec(args.effects)
+        effects = None if args.effects is None else effects_from_spec(args.effects, simulation)
         diagnosis = diagnose(
             recordings,
             simulation=simulation,

@@ -8,9 +8,9 @@ import pytest
 import scipy.signal
 
 from hybrid import InputError, RCNetwork, make_drive
+from hybrid.discovery._effect_set import EFFECTS
 from hybrid.discovery._effect_stack import EffectStack, extend
 from hybrid.discovery._effects import (
-    EFFECTS,
     BackRelaxation,
     Delay,
     Drift,
@@ -23,6 +23,8 @@ from hybrid.discovery._hysteresis import bouc_wen_and_memory, bouc_wen_state
 from hybrid.ipmc._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
 
 DT = 1 / 30
+#: The built-ins a simulation without a state-space form (the RC network) takes: all but the inside ones.
+OUTSIDE = [name for name, cls in EFFECTS.items() if cls.place != "inside"]
 
 
 @pytest.fixture(scope="module")
@@ -217,13 +219,13 @@ def _apply(effect, raw, s):
 def test_stack_switches_and_parameters():
     v = jnp.asarray(make_drive("prbs", 20.0, seed=2).v)
     inner = RCNetwork()
-    stack = extend(inner, *EFFECTS)
-    off = stack.with_active(jnp.zeros(len(EFFECTS)))
+    stack = extend(inner, *OUTSIDE)
+    off = stack.with_active(jnp.zeros(len(OUTSIDE)))
     np.testing.assert_array_equal(off.simulate(v, DT), inner.simulate(v, DT))
-    only_delay = stack.with_active(jnp.eye(len(EFFECTS))[0])
+    only_delay = stack.with_active(jnp.eye(len(OUTSIDE))[0])
     np.testing.assert_allclose(only_delay.simulate(v, DT), Delay().apply(inner.simulate(v, DT), DT))
     assert set(stack.parameters()) == set(inner.parameters()) | {
-        n for e in EFFECTS.values() for n in e.constraints
+        n for name in OUTSIDE for n in EFFECTS[name].constraints
     }
     changed = stack.replace(delay_s=0.2, xi_rho=20.0)
     assert float(changed.parameters()["delay_s"]) == pytest.approx(0.2)
@@ -350,9 +352,9 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
         assert found[name].std_error_given_network <= found[name].std_error * (1 + 1e-9), name
     assert found["C_clamp"].std_error_given_network is None
     # The search's universal model, every other effect switched off, gives the same errors.
-    active = jnp.asarray([1.0 if n == "back_relaxation" else 0.0 for n in EFFECTS])
+    active = jnp.asarray([1.0 if n == "back_relaxation" else 0.0 for n in OUTSIDE])
     universal = Model(
-        extend(inner, *EFFECTS).replace(relaxation_time_s=4.0, relaxation_fraction=0.4).with_active(active),
+        extend(inner, *OUTSIDE).replace(relaxation_time_s=4.0, relaxation_fraction=0.4).with_active(active),
         LinearReadout(gain=2.0),
         "physics",
     )

@@ -147,7 +147,7 @@ def test_pair_parameters_are_drawn_as_the_single_draws():
 
 
 def test_physical_order_keeps_the_library_stack_order():
-    from hybrid.discovery._effects import EFFECTS
+    from hybrid.discovery._effect_set import EFFECTS
 
     mine = [n for n in PHYSICAL_ORDER if n in EFFECTS]
     assert mine == [n for n in EFFECTS if n in PHYSICAL_ORDER]

@@ -63,7 +63,7 @@ from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
 from ._decision import evaluate_candidate, free_names
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
-from ._effects import resolve_effects
+from ._effect_set import resolve_effects, searched_places
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._search import (
     fit_lanes,
@@ -173,7 +173,7 @@ def diagnose(
             "diagnose needs a simulation: pass simulation=hybrid.RCNetwork(method='zoh') (the paper's "
             "physics) or any AbstractSimulation, or use hybrid.diagnose, which defaults to the RC network"
         )
-    effects = resolve_effects(effects)
+    effects = resolve_effects(effects, simulation)
     frozen_names = settings.frozen_for(simulation)
     # The report shows what was fixed and every threshold the search used.
     settings = dataclasses.replace(
@@ -317,6 +317,7 @@ def diagnose(
         noise_floor=floor,
         unexplained=unexplained,
         effects=search.effects,
+        places=searched_places(search.effects, simulation),
         not_pinned=unpinned,
         models={
             "baseline": fitted_model(problem, baseline.theta, ()),

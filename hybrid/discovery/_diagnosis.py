@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..util._errors import InputError
-from ._effects import EFFECTS
+from ._effect_set import EFFECTS
 
 if TYPE_CHECKING:
     from ._noise_floor import NoiseFloor
@@ -287,6 +287,8 @@ class Diagnosis:
     unexplained: dict | None = None
     #: The effects the search weighed (`AbstractEffect` instances, in the stack's order).
     effects: tuple = ()
+    #: Where the search looked (`searched_places`): per place, its effects, or why none was searched.
+    places: dict = dataclasses.field(default_factory=dict)
     #: Parameters this recording does not pin (standard error infinite or above the value): why, by name.
     not_pinned: dict = dataclasses.field(default_factory=dict)
     #: The fitted models (`hybrid.Model`, simulation + gain and offset in the recording's units):
@@ -383,6 +385,7 @@ class Diagnosis:
             "effects": [
                 {"name": e.name, "place": e.place, "parameters": list(e.constraints)} for e in self.effects
             ],
+            "places": self.places,
             "candidates": [c.to_dict() for c in self.candidates],
             "baseline_fit": self.baseline.to_dict(),
             "evidence": self.evidence,

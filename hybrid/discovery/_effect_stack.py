@@ -19,19 +19,26 @@ from jaxtyping import Array
 from ..core._parameters import Constraint
 from ..core._serialise import imported_class
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw
+from ..core._state_space import dynamics_of, integrate
 from ..util._errors import InputError
-from ._effects import EFFECTS, AbstractEffect
+from ._effect_set import EFFECTS
+from ._effects import DRIVE, AbstractEffect
 
 
 class EffectStack(AbstractWrapper):
-    """A simulation with physical effects on its drive and its output: y = φ_out(S(φ_drive(v_in))).
+    """A simulation with physical effects on its drive, inside it and on its output.
+
+    y = φ_out(S_inside(φ_drive(v_in))), where S_inside is `inner` with the
+    inside effects in its dynamics.
 
     **Arguments:**
 
     - `inner`: the simulation being extended (e.g. [`RCNetwork`][]).
     - `effects`: effect instances or names (see [`EFFECTS`][]). Those whose
       `place` is ``"drive"`` act on the drive, in their order, before `inner`;
-      the others act on its output, in their order.
+      those ``"inside"`` act in `inner`'s dynamics (it must be in state-space
+      form, [`AbstractStateSpace`][]: feedback forces add up, limits act in
+      their order after every step); the others act on its output, in their order.
     - `active`: per-effect switch, 1 on and 0 off (default all on): an effect
       contributes ``active·(effect(s) − s)``.
     - `drive_unit`: the drive's unit, which a drive-side effect's parameter
@@ -56,6 +63,21 @@ class EffectStack(AbstractWrapper):
             if not isinstance(effect, AbstractEffect):
                 raise InputError(f"effects must be effect names or AbstractEffect instances, got {effect!r}")
             built.append(effect)
+        inside = [e for e in built if e.place == "inside"]
+        if inside:
+            dynamics = dynamics_of(inner)
+            if dynamics is None:
+                raise InputError(
+                    f"{', '.join(e.name for e in inside)} act inside the dynamics, but {type(inner).__name__} "
+                    "has no state-space form: derive it from hybrid.AbstractStateSpace, or drop them"
+                )
+            states = dynamics[0].states
+            missing = [e.name for e in inside if e.acts_on != "output" and e.acts_on not in states]
+            if missing:
+                raise InputError(
+                    f"{', '.join(missing)} act on states {type(inner).__name__} does not have "
+                    f"(its states: {', '.join(states)})"
+                )
         names = [n for e in built for n in e.constraints] + list(inner.parameter_names())
         if len(set(names)) != len(names):
             raise InputError(f"parameter names collide in {names}: use each effect once")
@@ -86,8 +108,15 @@ class EffectStack(AbstractWrapper):
         return _signals_through(self, v_in, dt)[1]
 
     def signal_unit(self, effect: AbstractEffect) -> str:
-        """The unit of the signal `effect` acts on: the drive's or the inner simulation's output's."""
-        return self.drive_unit if effect.place == "drive" else self.inner.output_unit
+        """The unit of the signal `effect` acts on: the drive's, the inner output's or a state's."""
+        if effect.place == "drive":
+            return self.drive_unit
+        if effect.place == "inside" and effect.acts_on != "output":
+            dynamics = dynamics_of(self.inner)
+            unit = dynamics[0].state_units.get(effect.acts_on) if dynamics else None
+            # A state in the drive's unit (an oscillator's position, in volts of drive) says "{drive}".
+            return unit.replace(DRIVE, self.drive_unit) if unit else f"(unit of {effect.acts_on})"
+        return self.inner.output_unit
 
     def parameters(self):
         out = dict(self.inner.parameters())
@@ -102,7 +131,7 @@ class EffectStack(AbstractWrapper):
     def units(self) -> dict[str, str]:
         out = dict(self.inner.units)
         for effect in self.effects:
-            out.update(effect.units_for(self.signal_unit(effect)))
+            out.update(effect.units_for(self.signal_unit(effect), self.drive_unit))
         return out
 
     @property
@@ -162,7 +191,10 @@ class EffectStack(AbstractWrapper):
 
         return {
             "inner": describe_simulation(self.inner),
-            "effects": [{"type": type(e).__qualname__, "module": type(e).__module__} for e in self.effects],
+            "effects": [
+                {"type": type(e).__qualname__, "module": type(e).__module__, "config": e.config()}
+                for e in self.effects
+            ],
             "active": [float(a) for a in np.asarray(self.active)],
             "drive_unit": self.drive_unit,
         }
@@ -173,7 +205,7 @@ class EffectStack(AbstractWrapper):
         from ..core._serialise import build_simulation
 
         effects = tuple(
-            effect_class(d["type"], d.get("module"))()  # type: ignore[call-arg]  # eqx AbstractVar `raw`
+            effect_class(d["type"], d.get("module")).from_config(d.get("config", {}))
             for d in config["effects"]
         )
         return cls(
@@ -181,21 +213,35 @@ class EffectStack(AbstractWrapper):
         )
 
     def signals_into(self, v_in, dt, n: int | None = None) -> dict[str, np.ndarray]:
-        """The signal entering each effect on this drive (its first `n` samples), by effect name."""
+        """The signal entering each effect on this drive (its first `n` samples), by effect name.
+
+        Under ``"drive"``: the drive that reaches the inner simulation.
+        """
         n = int(v_in.shape[0]) if n is None else int(n)
         signals = np.asarray(_signals_into_effects(self, v_in, dt))
-        return {effect.name: s[:n] for effect, s in zip(self.effects, signals)}
+        out = {effect.name: s[:n] for effect, s in zip(self.effects, signals)}
+        return {**out, "drive": signals[-1][:n]}
 
     def derived(self, v_in, dt, n: int | None = None) -> dict[str, dict[str, float]]:
         """Each active effect's derived quantities (see `AbstractEffect.derived`), on this drive.
 
         `n`: the samples of `v_in` that were recorded (a padded drive's first
-        `n`); each effect's quantities are taken over those alone.
+        `n`); each effect's quantities are taken over those alone. An inside
+        feedback's include ``force_percent_of_drive``: its largest |force| as
+        a percentage of the largest |drive| that reaches the simulation.
         """
         signals = self.signals_into(v_in, dt, n)
-        return {  # a switched-off effect leaves its signal unchanged: nothing to derive
-            e.name: e.derived(signals[e.name], dt) for on, e in zip(self.active, self.effects) if float(on)
-        }
+        out = {}
+        for on, e in zip(self.active, self.effects):
+            if not float(on):  # a switched-off effect leaves its signal unchanged: nothing to derive
+                continue
+            out[e.name] = e.derived(signals[e.name], dt)
+            if e.place == "inside" and e.role == "feedback":
+                force = np.asarray(jax.vmap(lambda z, e=e: e.apply(z, dt))(jnp.asarray(signals[e.name])))
+                top = float(np.max(np.abs(signals["drive"]))) if len(signals["drive"]) else 0.0
+                size = 100.0 * float(on) * float(np.max(np.abs(force))) / top if top > 0 else 0.0
+                out[e.name] = {**out[e.name], "force_percent_of_drive": size}
+        return out
 
 
 def effect_class(name: str, module: str | None = None) -> type[AbstractEffect]:
@@ -215,19 +261,61 @@ def switched(on, effect: AbstractEffect, s, dt):
 
 
 def _signals_through(stack, v_in, dt):
-    """(the signal entering each effect, rows in the stack's order; the stack's output)."""
+    """(the signal entering each effect, rows in the stack's order; the stack's output; the drive into `inner`)."""
     into: list = [None] * len(stack.effects)
     u = v_in
     for i, effect in enumerate(stack.effects):
         if effect.place == "drive":
             into[i] = u
             u = switched(stack.active[i], effect, u, dt)
-    s = stack.inner.simulate(u, dt)
+    inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
+    if inside:
+        # A lane with every inside effect off (the baseline's, an outside candidate's) runs the
+        # plain integration: the effects' forces and limits cost as much as the dynamics.
+        any_on = jnp.any(jnp.stack([stack.active[i] != 0 for i, _ in inside]))
+        core, held, skip = dynamics_of(stack.inner)  # checked when the stack was built
+        s, states = jax.lax.cond(
+            any_on,
+            lambda x: _inside_dynamics(stack, core, inside, x, dt),
+            lambda x: integrate(core, x, dt),
+            held(u),
+        )
+        s, states = s[skip:], states[skip:]
+        for i, effect in inside:
+            into[i] = s if effect.acts_on == "output" else states[:, core.states.index(effect.acts_on)]
+    else:
+        s = stack.inner.simulate(u, dt)
     for i, effect in enumerate(stack.effects):
-        if effect.place != "drive":
+        if effect.place == "output":
             into[i] = s
             s = switched(stack.active[i], effect, s, dt)
-    return into, s
+    return into, s, u
+
+
+def _inside_dynamics(stack, inner, inside, u, dt):
+    """(output, states) of the inner state-space simulation with the inside effects in its loop.
+
+    A switched-off effect adds no force and leaves its state alone (`jnp.where`,
+    so that its NaN cannot leak in either).
+    """
+    feedback = [(stack.active[i], e) for i, e in inside if e.role == "feedback"]
+    limits = [(stack.active[i], e, inner.states.index(e.acts_on)) for i, e in inside if e.role == "limit"]
+
+    def force(x, y):
+        total = jnp.zeros((), y.dtype)
+        for on, effect in feedback:
+            z = y if effect.acts_on == "output" else x[inner.states.index(effect.acts_on)]
+            total = total + jnp.where(on != 0, on * effect.apply(z, dt), 0.0)
+        return total
+
+    def bound(x):
+        x = list(x)
+        for on, effect, k in limits:
+            z = x[k]
+            x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt) - z), z)
+        return tuple(x)
+
+    return integrate(inner, u, dt, force if feedback else None, bound if limits else None)
 
 
 @eqx.filter_jit
@@ -237,8 +325,8 @@ def _signals_into_effects(stack, v_in, dt):
     The switches are data: every stack of one structure, whichever effects are
     on, shares the program.
     """
-    into, _ = _signals_through(stack, v_in, dt)
-    return jnp.stack(into) if into else jnp.zeros((0, v_in.shape[0]), v_in.dtype)
+    into, _, u = _signals_through(stack, v_in, dt)
+    return jnp.stack([*into, u])
 
 
 def extend(simulation: AbstractSimulation, *effects, **values) -> EffectStack:

@@ -70,13 +70,19 @@ from jaxtyping import Array, Float
 
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
-from ..util._errors import InputError, PluginError
 from ._hysteresis import bouc_wen_state
 
-#: Where an effect acts: on the drive before the simulation, y = S(φ(u)), or on its output, y = φ(S(u)).
-PLACES = ("drive", "output")
+#: Where an effect acts: on the drive before the simulation, y = S(φ(u)); inside the dynamics
+#: (a simulation in state-space form: a force fed back into the drive, or a limit on a state);
+#: or on its output, y = φ(S(u)).
+PLACES = ("drive", "inside", "output")
+#: What an effect inside the dynamics does: "feedback", ẋ = f(x, u − φ(z)), z the output or a
+#: named state; or "limit", a state z replaced by φ(z) after every integration step.
+ROLES = ("feedback", "limit")
 #: The placeholder an effect's `units` use for the unit of the signal it acts on.
 SIGNAL = "{signal}"
+#: The placeholder for the drive's unit (an inside feedback's force is in it).
+DRIVE = "{drive}"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,7 +91,13 @@ class StartContext:
 
     - `signal`: the signal entering the effect on the training part under the
       current model: the simulation's output for an output-side effect, the
-      drive for a drive-side one, in its own unit.
+      drive for a drive-side one, the output or the named state for one inside
+      the dynamics (`acts_on`), in its own unit.
+    - `drive`: the drive on the same samples (its unit is the drive's).
+    - `measured`: the recorded output on the same samples, brought into the
+      simulation's output unit by the current readout ((w − offset)/gain):
+      where the simulation's output would have to be (a level the record sits
+      flat at is a limit's natural start).
     - `rate`: samples per second; `duration`: the first recording's length (s).
     - `lag_samples`: the whole-sample lag that best aligns the current model with the recording.
     - `residual_peak_hz`: the training residual's spectral peak at 0.5 Hz or above, or None.
@@ -97,6 +109,8 @@ class StartContext:
     signal: np.ndarray
     rate: float
     duration: float
+    drive: np.ndarray | None = None
+    measured: np.ndarray | None = None
     lag_samples: int = 0
     residual_peak_hz: float | None = None
     problem: Any = None
@@ -113,8 +127,16 @@ class AbstractEffect(eqx.Module):
     - `name`, `constraints`, `units`, `defaults` (required): as for a simulation.
       A unit may contain ``{signal}``, the unit of the signal the effect acts on
       (``"1/{signal}"`` for a curvature): `units_for` fills it in.
-    - `place`: ``"output"`` (default; it acts on the simulation's output) or
-      ``"drive"`` (it acts on the drive before the simulation).
+    - `place`: ``"output"`` (default; it acts on the simulation's output),
+      ``"drive"`` (it acts on the drive before the simulation) or ``"inside"``
+      (inside the dynamics of a simulation in state-space form,
+      [`AbstractStateSpace`][]). An inside effect states its `role`:
+      ``"feedback"``, `apply` maps the signal it `acts_on` (``"output"`` or a
+      state's name) to a force in the drive's unit (``{drive}``) that is
+      subtracted from the drive wherever the rates are evaluated (a cubic
+      spring: φ(y) = k·y³); or ``"limit"``, `apply` maps a state to its limited
+      value after every integration step (an overflow: min(h, L)). `apply` of an
+      inside effect works sample by sample (it gets a scalar inside the loop).
     - `thresholds`: the smallest size that counts as a cause, by name (see
       `material`); `DiagnoseSettings.materiality` overrides them by name.
     - `starts(context)`: starting values for the search's lanes (default: the
@@ -132,6 +154,8 @@ class AbstractEffect(eqx.Module):
     units: ClassVar[dict[str, str]]
     defaults: ClassVar[dict[str, float]]
     place: ClassVar[str] = "output"
+    role: ClassVar[str] = "feedback"
+    acts_on: ClassVar[str] = "output"
     thresholds: ClassVar[dict[str, float]] = {}
     n_screened: ClassVar[int] = 0
 
@@ -164,14 +188,23 @@ class AbstractEffect(eqx.Module):
         """
         return None
 
-    def units_for(self, signal_unit: str) -> dict[str, str]:
-        """`units` with ``{signal}`` replaced by `signal_unit`.
+    def units_for(self, signal_unit: str, drive_unit: str = "") -> dict[str, str]:
+        """`units` with ``{signal}`` replaced by `signal_unit` and ``{drive}`` by `drive_unit`.
 
         A simulation that does not state its `output_unit` gives
         ``"(unit of S)"``: the unit of its output, whatever that is.
         """
-        unit = signal_unit or "(unit of S)"
-        return {k: v.replace(SIGNAL, unit) for k, v in self.units.items()}
+        unit, drive = signal_unit or "(unit of S)", drive_unit or "(unit of the drive)"
+        return {k: v.replace(SIGNAL, unit).replace(DRIVE, drive) for k, v in self.units.items()}
+
+    def config(self) -> dict:
+        """The JSON-able settings that rebuild this effect's skeleton (`from_config`); default none."""
+        return {}
+
+    @classmethod
+    def from_config(cls, config: dict) -> AbstractEffect:
+        """The effect `config()` describes, with its default values."""
+        return cls(**config)
 
     def parameters(self) -> dict[str, Array]:
         return decode(self.raw, self.constraints)
@@ -186,24 +219,25 @@ class AbstractEffect(eqx.Module):
         return {}
 
 
-def _init(effect, values):
+def init_values(effect, values):
+    """Set `effect.raw` from its defaults updated by `values` (what a built-in effect's __init__ does)."""
     merged = {**effect.defaults, **(values or {})}
     effect.raw = encode(merged, effect.constraints, effect.name)
 
 
-def _span(signal) -> float:
+def signal_span(signal) -> float:
     """The range of a signal (at least 1e-9: a flat signal still gets finite starts)."""
     return max(float(np.ptp(signal)), 1e-9)
 
 
-def _top(signal) -> float:
+def signal_top(signal) -> float:
     """The largest |value| of a signal (at least 1e-9)."""
     return max(float(np.max(np.abs(signal))), 1e-9)
 
 
 def _sides(signal) -> tuple[float, float]:
     """The largest positive and negative excursions, each at least 5 % of the largest |value|."""
-    top = _top(signal)
+    top = signal_top(signal)
     return max(float(np.max(signal)), 0.05 * top), max(float(-np.min(signal)), 0.05 * top)
 
 
@@ -219,7 +253,7 @@ class Delay(AbstractEffect):
     n_screened: ClassVar[int] = 3
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, s, dt):
         d = self.parameters()["delay_s"]
@@ -287,7 +321,7 @@ class BackRelaxation(AbstractEffect):
     thresholds: ClassVar = {"relaxation_percent": 10.0}
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, s, dt):
         p = self.parameters()
@@ -337,7 +371,7 @@ class Saturation(AbstractEffect):
     thresholds: ClassVar = {"shortfall_percent": 5.0}
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, s, dt):
         p = self.parameters()
@@ -415,7 +449,7 @@ class Hysteresis(AbstractEffect):
     n_screened: ClassVar[int] = 1
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, s, dt):
         p = self.parameters()
@@ -429,7 +463,7 @@ class Hysteresis(AbstractEffect):
         return {"loop_height_percent_of_range": 100.0 * height / span if span > 0 else 0.0}
 
     def starts(self, context):
-        span = _span(context.signal)
+        span = signal_span(context.signal)
         return [
             {"hysteresis_height_v": 0.03 * span, "hysteresis_rate_per_v": 10.0 / span},
             {"hysteresis_height_v": 0.1 * span, "hysteresis_rate_per_v": 40.0 / span},
@@ -459,7 +493,7 @@ class Drift(AbstractEffect):
     thresholds: ClassVar = {"gain_change_percent": 5.0}
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, s, dt):
         t = dt * jnp.arange(s.shape[0], dtype=s.dtype)
@@ -507,7 +541,7 @@ class Resonance(AbstractEffect):
     n_screened: ClassVar[int] = 1
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, s, dt):
         p = self.parameters()
@@ -569,7 +603,7 @@ class FrameTiming(AbstractEffect):
     defaults: ClassVar = {"frame_lag": 0.25}
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, s, dt):
         f = self.parameters()["frame_lag"]
@@ -598,7 +632,7 @@ class EvenResponse(AbstractEffect):
     thresholds: ClassVar = {"even_percent_of_range": 5.0}
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, s, dt):
         return s + self.parameters()["even_per_v"] * s * s
@@ -611,7 +645,7 @@ class EvenResponse(AbstractEffect):
 
     def starts(self, context):
         # An even part of 10 % of the range either way; LM takes it to a purely quadratic response if needed.
-        span, top = _span(context.signal), _top(context.signal)
+        span, top = signal_span(context.signal), signal_top(context.signal)
         return [{"even_per_v": 0.1 * span / top**2}, {"even_per_v": -0.1 * span / top**2}]
 
     def material(self, derived, parameters, thresholds):
@@ -642,7 +676,7 @@ class BaselineDrift(AbstractEffect):
     thresholds: ClassVar = {"baseline_percent_of_range": 5.0}
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def _trend(self, n: int, dt: float, xp=jnp):
         p = self.parameters()
@@ -683,7 +717,7 @@ class DriveDeadZone(AbstractEffect):
     thresholds: ClassVar = {"drive_dead_zone_percent": 3.0}
 
     def __init__(self, **values):
-        _init(self, values)
+        init_values(self, values)
 
     def apply(self, u, dt):
         d = self.parameters()["drive_dead_zone_width"]
@@ -695,158 +729,9 @@ class DriveDeadZone(AbstractEffect):
         return {"drive_dead_zone_percent": 100.0 * d / top if top > 0 else 0.0}
 
     def starts(self, context):
-        top = _top(context.signal)
+        top = signal_top(context.signal)
         return [{"drive_dead_zone_width": 0.05 * top}, {"drive_dead_zone_width": 0.2 * top}]
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("drive_dead_zone_percent", 0.0), thresholds["drive_dead_zone_percent"]
         return size >= need, f"dead zone {size:.1f} % of the largest drive (needs ≥ {need} %)"
-
-
-#: The built-in effects, by name, in the order they act on their signal (each added later
-#: goes last, which keeps the others' places in the stack and so their fits' layout).
-EFFECTS: dict[str, type[AbstractEffect]] = {
-    cls.name: cls
-    for cls in (
-        Delay,
-        BackRelaxation,
-        Saturation,
-        Hysteresis,
-        Drift,
-        Resonance,
-        EvenResponse,
-        BaselineDrift,
-        DriveDeadZone,
-    )
-}
-#: Names an effect may not take: the search's words for "no effect" and the always-on frame timing.
-RESERVED = ("none", "frame_timing")
-
-
-def _probe_context() -> StartContext:
-    signal = np.sin(np.linspace(0.0, 6.0, 64)) * 2.0
-    return StartContext(signal=signal, rate=30.0, duration=60.0, lag_samples=1, residual_peak_hz=None)
-
-
-def check_effect(effect: AbstractEffect, label: str) -> None:
-    """Refuse, in one line that says the fix, an effect that `diagnose` could not search.
-
-    Checks its facts (name, place, constraints, units, defaults, thresholds)
-    and runs `apply` and `starts` once on a short probe signal.
-    """
-    cls = type(effect).__name__
-    name = getattr(effect, "name", None)
-    if not isinstance(name, str) or not name.isidentifier() or name in RESERVED:
-        raise InputError(
-            f"{label}: {cls}.name must be an identifier other than {', '.join(RESERVED)}, got {name!r}; "
-            "set name: ClassVar[str] = 'my_effect'"
-        )
-    if effect.place not in PLACES:
-        raise InputError(f"{label}: {cls}.place must be one of {', '.join(PLACES)}, got {effect.place!r}")
-    constraints = getattr(effect, "constraints", None)
-    if not isinstance(constraints, dict) or not all(isinstance(c, Constraint) for c in constraints.values()):
-        raise InputError(
-            f"{label}: {cls}.constraints must be a dict of hybrid constraints by parameter name "
-            "(e.g. {'friction_force': hybrid.Positive()})"
-        )
-    for fact in ("units", "defaults"):
-        given = getattr(effect, fact, None)
-        missing = sorted(set(constraints) - set(given or {}))
-        if not isinstance(given, dict) or missing:
-            raise InputError(f"{label}: {cls}.{fact} has no entry for {missing or 'any parameter'}; add them")
-    if not isinstance(effect.thresholds, dict) or not all(
-        isinstance(v, (int, float)) for v in effect.thresholds.values()
-    ):
-        raise InputError(f"{label}: {cls}.thresholds must be a dict of numbers by name")
-    if not isinstance(effect.n_screened, int) or effect.n_screened < 0:
-        raise InputError(f"{label}: {cls}.n_screened must be a whole number ≥ 0, got {effect.n_screened!r}")
-    context = _probe_context()
-    try:
-        out = np.asarray(effect.apply(jnp.asarray(context.signal), 1.0 / context.rate))
-        starts = effect.starts(context)
-    except KeyboardInterrupt:
-        raise
-    except Exception as error:
-        raise PluginError(
-            f"{label}: {cls} failed on a probe signal ({type(error).__name__}: {error}); fix apply or starts",
-            error,
-        ) from None
-    if out.shape != context.signal.shape or not np.all(np.isfinite(out)):
-        raise InputError(
-            f"{label}: {cls}.apply(s, dt) must return one finite value per sample of s; on a "
-            f"{context.signal.shape[0]}-sample probe it returned shape {out.shape}"
-        )
-    if (
-        not isinstance(starts, list)
-        or not starts
-        or not all(isinstance(x, dict) and set(x) <= set(constraints) for x in starts)
-    ):
-        raise InputError(
-            f"{label}: {cls}.starts(context) must return a non-empty list of dicts of its parameters "
-            f"({', '.join(constraints)})"
-        )
-
-
-def resolve_effects(effects=None) -> tuple[AbstractEffect, ...]:
-    """The effects `diagnose` searches: None gives every built-in ([`EFFECTS`][]).
-
-    Each item is a built-in's name, an [`AbstractEffect`][] subclass (built with
-    no arguments: its defaults) or an instance. Every one is checked
-    (`check_effect`); names and parameter names must be unique.
-    """
-    if effects is None:
-        return tuple(cls() for cls in EFFECTS.values())  # type: ignore[call-arg]  # eqx AbstractVar `raw`
-    if isinstance(effects, (str, AbstractEffect)) or isinstance(effects, type):
-        effects = [effects]
-    out = []
-    for item in effects:
-        label = (
-            f"effect {item!r}"
-            if isinstance(item, str)
-            else f"effect {getattr(item, '__name__', type(item).__name__)}"
-        )
-        if isinstance(item, str):
-            if item not in EFFECTS:
-                raise InputError(
-                    f"unknown effect {item!r}: the built-ins are {', '.join(EFFECTS)}; "
-                    "a plug-in is an AbstractEffect subclass (see docs/effects.md)"
-                )
-            item = EFFECTS[item]()  # type: ignore[call-arg]  # eqx AbstractVar `raw`
-        elif isinstance(item, type):
-            if not issubclass(item, AbstractEffect):
-                raise InputError(
-                    f"{label}: not an AbstractEffect subclass; derive it from hybrid.AbstractEffect"
-                )
-            if getattr(item, "__abstractmethods__", None):
-                missing = ", ".join(sorted(item.__abstractmethods__))
-                raise InputError(
-                    f"{label}: abstract (it does not define {missing}); define apply(self, s, dt)"
-                )
-            try:
-                item = item()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg
-            except KeyboardInterrupt:
-                raise
-            except Exception as error:
-                raise PluginError(
-                    f"{label}: building it with no arguments raised {type(error).__name__}: {error}; "
-                    "its defaults are the starting values",
-                    error,
-                ) from None
-        elif not isinstance(item, AbstractEffect):
-            raise InputError(f"{label}: give an effect's name, an AbstractEffect subclass or an instance")
-        if type(item) not in EFFECTS.values():  # the built-ins are tested; a plug-in is probed once here
-            check_effect(item, label)
-        out.append(item)
-    if not out:
-        raise InputError("effects is empty: give at least one effect, or None for the built-ins")
-    names = [e.name for e in out]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise InputError(f"effects named twice: {twice}; give each effect once")
-    parameters = [p for e in out for p in e.constraints] + list(FrameTiming.constraints)
-    shared = sorted({p for p in parameters if parameters.count(p) > 1})
-    if shared:
-        raise InputError(
-            f"effects share parameter names {shared}: give each effect's parameters their own names"
-        )
-    return tuple(out)

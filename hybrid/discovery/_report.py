@@ -157,6 +157,22 @@ def _verdict(d: dict) -> str:
     )
 
 
+#: How report.md names each place an effect acts.
+PLACE_WORDS = {"drive": "on the drive", "inside": "inside the dynamics", "output": "on the output"}
+
+
+def _places(places: dict) -> str:
+    """One line: where the search looked, and where it did not, with why."""
+    parts = []
+    for place, entry in places.items():
+        where = PLACE_WORDS.get(place, place)
+        if entry["effects"]:
+            parts.append(f"{where}: {', '.join(entry['effects'])}")
+        else:
+            parts.append(f"{where}: none ({entry['not_searched']})")
+    return "Searched " + "; ".join(parts) + "."
+
+
 def _stepwise(d: dict) -> list[str]:
     """The causes in the order found, each with its incremental gain and its parameters."""
     lines = [
@@ -303,6 +319,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         "so a candidate's gain is its effect's, not a better local minimum's.",
         "",
     ]
+    if d.get("places"):
+        lines += [_places(d["places"]), ""]
     spread = ev.get("equally_good_effect_free_fits")
     if spread and spread.get("n"):
         lines += [

@@ -21,8 +21,9 @@ from ..core._models import Model
 from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording
 from ..core._readout import LinearReadout
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings
+from ._effect_set import resolve_effects
 from ._effect_stack import EffectStack
-from ._effects import AbstractEffect, FrameTiming, resolve_effects
+from ._effects import AbstractEffect, FrameTiming
 
 #: Effects a lane's Jacobian has room for in the problem the search's first steps share. Each
 #: direction costs one tangent of the simulation, zero or not: room for more is paid on every
@@ -125,7 +126,7 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
     `Diagnosis.lanes[i].theta`; `split_signals(problem, theta, active, split)`
     predicts a lane on a split.
     """
-    effects = resolve_effects(effects)
+    effects = resolve_effects(effects, simulation)
     model = universal_model(simulation, effects, drive_unit(recordings))
     series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
@@ -163,7 +164,7 @@ def lane_count(n_first_step: int) -> int:
 
 def universal_model(simulation, effects=None, drive_unit: str = "V") -> Model:
     """Every effect of `effects` (None: the built-ins; switched off) and, last and always on, the frame timing."""
-    effects = resolve_effects(effects) + (FrameTiming(),)
+    effects = resolve_effects(effects, simulation) + (FrameTiming(),)
     stack = EffectStack(simulation, effects, active=jnp.zeros(len(effects)), drive_unit=drive_unit)
     return Model(stack, LinearReadout(), "physics")
 
@@ -226,6 +227,23 @@ def split_signals(problem, theta, active, split):
     )
     w_hat = predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
     return v, problem.recorded(problem.target(split), split), problem.recorded(w_hat, split)
+
+
+def inside_signals(problem, stack: EffectStack, effects, split: str) -> dict[str, np.ndarray]:
+    """The signal entering each of `effects` under `stack`, on the recorded samples of `split`, by name.
+
+    For the start values of effects inside the dynamics (a state's trajectory);
+    nothing is computed when there are none.
+    """
+    if not effects:
+        return {}
+    parts: dict[str, list] = {e.name: [] for e in effects}
+    for series in problem.series:
+        signals = stack.signals_into(series.v_in, series.dt)
+        for a, b in series.recorded_segments_of(split):
+            for e in effects:
+                parts[e.name].append(signals[e.name][a:b])
+    return {name: np.concatenate(chunks) for name, chunks in parts.items()}
 
 
 def simulation_labels(stack: EffectStack, frozen) -> list[str]:

@@ -41,6 +41,7 @@ from ._search import (
     best_lag,
     fit_lanes,
     initial_thetas,
+    inside_signals,
     lane_count,
     lane_tangents,
     padding_lane,
@@ -100,7 +101,8 @@ class Search:
 
 def first_step_lanes(effects, rate: float, duration: float) -> int:
     """Lanes of the first step: every effect's starts and its screened ones (counts only)."""
-    probe = StartContext(signal=np.array([-1.0, 1.0]), rate=rate, duration=duration, lag_samples=1)
+    ramp = np.array([-1.0, 1.0])
+    probe = StartContext(signal=ramp, rate=rate, duration=duration, drive=ramp, measured=ramp, lag_samples=1)
     return sum(len(e.starts(probe)) + e.n_screened for e in effects)
 
 
@@ -153,31 +155,38 @@ def search_step(
     f, psd = rt.spectrum(w_tr - w_hat_tr, s.rate)
     band = f >= 0.5
     peak = float(f[band][np.argmax(psd[band])]) if band.any() else None
+    readout = cur_model.readout.parameters()
+    gain, offset = float(readout.get("gain", 1.0)), float(readout.get("offset", 0.0))
+    base = dict(
+        rate=s.rate,
+        duration=s.duration,
+        drive=v_tr,
+        measured=(w_tr - offset) / gain if gain != 0 and np.isfinite(gain) else None,
+        lag_samples=lag,
+        residual_peak_hz=peak,
+        problem=problem,
+        simulation=s.simulation,
+        frozen=s.frozen,
+    )
+    into = inside_signals(problem, stack, [e for e in effects if e.place == "inside"], "train")
     context = {
-        place: StartContext(
-            signal=signal,
-            rate=s.rate,
-            duration=s.duration,
-            lag_samples=lag,
-            residual_peak_hz=peak,
-            problem=problem,
-            simulation=s.simulation,
-            frozen=s.frozen,
+        e.name: StartContext(
+            signal={"drive": v_tr, "output": s_train}.get(e.place, into.get(e.name, s_train)), **base
         )
-        for place, signal in (("drive", v_tr), ("output", s_train))
+        for e in effects
     }
     screened = {}
     if not present:  # the screens design the bare simulation with one effect: the first step's starts
         screening = [e for e in effects if e.n_screened]
         if screening:
             s.say(f"screening starts for the {', '.join(e.name for e in screening)} candidates")
-        screened = {e.name: e.screened_starts(context[e.place])[: e.n_screened] for e in screening}
+        screened = {e.name: e.screened_starts(context[e.name])[: e.n_screened] for e in screening}
     starts, actives, labels, tangents = [], [], [], []
     for i, effect in enumerate(effects):
         name = effect.name
         if name in present:
             continue
-        for values in effect.starts(context[effect.place]) + screened.get(name, []):
+        for values in effect.starts(context[name]) + screened.get(name, []):
             active = active_cur.copy()
             active[i] = 1.0
             starts.append(stack.replace(**values).with_active(active))

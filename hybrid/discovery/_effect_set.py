@@ -1,0 +1,253 @@
+"""Which effects `diagnose` searches: the built-ins, a plug-in's checks, the set for a simulation.
+
+[`EFFECTS`][] names the built-in effect classes; [`resolve_effects`][] turns
+what a user passes (names, classes, instances, or None for the built-ins) into
+checked instances, and for a simulation in state-space form adds the effects
+inside its dynamics (a limit on each of its states).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..core._parameters import Constraint
+from ..core._state_space import check_state_space, dynamics_of
+from ..util._errors import InputError, PluginError
+from ._effects import (
+    PLACES,
+    ROLES,
+    AbstractEffect,
+    BackRelaxation,
+    BaselineDrift,
+    Delay,
+    Drift,
+    DriveDeadZone,
+    EvenResponse,
+    FrameTiming,
+    Hysteresis,
+    Resonance,
+    Saturation,
+    StartContext,
+)
+from ._inside_effects import PolynomialStiffness, StateLimit
+
+#: The built-in effects, by name, in the order they act on their signal (each added later
+#: goes last, which keeps the others' places in the stack and so their fits' layout).
+EFFECTS: dict[str, type[AbstractEffect]] = {
+    cls.name: cls
+    for cls in (
+        Delay,
+        BackRelaxation,
+        Saturation,
+        Hysteresis,
+        Drift,
+        Resonance,
+        EvenResponse,
+        BaselineDrift,
+        DriveDeadZone,
+        PolynomialStiffness,
+    )
+}
+#: Names an effect may not take: the search's words for "no effect", the always-on frame timing and
+#: `EffectStack.signals_into`'s key for the drive that reaches the simulation.
+RESERVED = ("none", "frame_timing", "drive")
+
+
+def _probe_context() -> StartContext:
+    signal = np.sin(np.linspace(0.0, 6.0, 64)) * 2.0
+    return StartContext(
+        signal=signal,
+        rate=30.0,
+        duration=60.0,
+        drive=signal,
+        measured=signal,
+        lag_samples=1,
+        residual_peak_hz=None,
+    )
+
+
+def check_effect(effect: AbstractEffect, label: str) -> None:
+    """Refuse, in one line that says the fix, an effect that `diagnose` could not search.
+
+    Checks its facts (name, place, constraints, units, defaults, thresholds)
+    and runs `apply` and `starts` once on a short probe signal.
+    """
+    cls = type(effect).__name__
+    name = getattr(effect, "name", None)
+    if not isinstance(name, str) or not name.isidentifier() or name in RESERVED:
+        raise InputError(
+            f"{label}: {cls}.name must be an identifier other than {', '.join(RESERVED)}, got {name!r}; "
+            "set name: ClassVar[str] = 'my_effect'"
+        )
+    if effect.place not in PLACES:
+        raise InputError(f"{label}: {cls}.place must be one of {', '.join(PLACES)}, got {effect.place!r}")
+    if effect.place == "inside" and effect.role not in ROLES:
+        raise InputError(f"{label}: {cls}.role must be one of {', '.join(ROLES)}, got {effect.role!r}")
+    constraints = getattr(effect, "constraints", None)
+    if not isinstance(constraints, dict) or not all(isinstance(c, Constraint) for c in constraints.values()):
+        raise InputError(
+            f"{label}: {cls}.constraints must be a dict of hybrid constraints by parameter name "
+            "(e.g. {'friction_force': hybrid.Positive()})"
+        )
+    for fact in ("units", "defaults"):
+        given = getattr(effect, fact, None)
+        missing = sorted(set(constraints) - set(given or {}))
+        if not isinstance(given, dict) or missing:
+            raise InputError(f"{label}: {cls}.{fact} has no entry for {missing or 'any parameter'}; add them")
+    if not isinstance(effect.thresholds, dict) or not all(
+        isinstance(v, (int, float)) for v in effect.thresholds.values()
+    ):
+        raise InputError(f"{label}: {cls}.thresholds must be a dict of numbers by name")
+    if not isinstance(effect.n_screened, int) or effect.n_screened < 0:
+        raise InputError(f"{label}: {cls}.n_screened must be a whole number ≥ 0, got {effect.n_screened!r}")
+    context = _probe_context()
+    try:
+        if effect.place == "inside":  # evaluated sample by sample inside the integration loop
+            dt = 1.0 / context.rate
+            out = np.array([float(effect.apply(jnp.asarray(z), dt)) for z in context.signal])
+        else:
+            out = np.asarray(effect.apply(jnp.asarray(context.signal), 1.0 / context.rate))
+        starts = effect.starts(context)
+    except KeyboardInterrupt:
+        raise
+    except Exception as error:
+        raise PluginError(
+            f"{label}: {cls} failed on a probe signal ({type(error).__name__}: {error}); fix apply or starts",
+            error,
+        ) from None
+    if out.shape != context.signal.shape or not np.all(np.isfinite(out)):
+        raise InputError(
+            f"{label}: {cls}.apply(s, dt) must return one finite value per sample of s; on a "
+            f"{context.signal.shape[0]}-sample probe it returned shape {out.shape}"
+        )
+    if (
+        not isinstance(starts, list)
+        or not starts
+        or not all(isinstance(x, dict) and set(x) <= set(constraints) for x in starts)
+    ):
+        raise InputError(
+            f"{label}: {cls}.starts(context) must return a non-empty list of dicts of its parameters "
+            f"({', '.join(constraints)})"
+        )
+
+
+def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]:
+    """The effects `diagnose` searches: None gives every built-in ([`EFFECTS`][]) `simulation` can take.
+
+    Each item is a built-in's name, ``limit_<state>`` (a limit on a state of
+    `simulation`), an [`AbstractEffect`][] subclass (built with no arguments:
+    its defaults) or an instance. Every one is checked (`check_effect`); names
+    and parameter names must be unique. Effects inside the dynamics need
+    `simulation` in state-space form ([`AbstractStateSpace`][]): for None, the
+    built-ins are the drive's and the output's effects, plus, for a
+    simulation with states, the stiffness and a limit on each state.
+    """
+    states = _states_of(simulation)
+    if effects is None:
+        built = [cls() for cls in EFFECTS.values() if states or cls.place != "inside"]  # type: ignore[call-arg]
+        core = None if simulation is None else dynamics_of(simulation)
+        limited = states if core is None or core[0].limited_states is None else core[0].limited_states
+        return tuple(built) + tuple(StateLimit(state) for state in limited if state in states)
+    if isinstance(effects, (str, AbstractEffect)) or isinstance(effects, type):
+        effects = [effects]
+    out = []
+    for item in effects:
+        label = (
+            f"effect {item!r}"
+            if isinstance(item, str)
+            else f"effect {getattr(item, '__name__', type(item).__name__)}"
+        )
+        if isinstance(item, str):
+            limits = {f"limit_{state}": state for state in states}
+            if item in limits:
+                item = StateLimit(limits[item])
+            elif item not in EFFECTS:
+                raise InputError(
+                    f"unknown effect {item!r}: the built-ins are {', '.join([*EFFECTS, *limits])}; "
+                    "a plug-in is an AbstractEffect subclass (see docs/effects.md)"
+                )
+            else:
+                item = EFFECTS[item]()  # type: ignore[call-arg]  # eqx AbstractVar `raw`
+        elif isinstance(item, type):
+            if not issubclass(item, AbstractEffect):
+                raise InputError(
+                    f"{label}: not an AbstractEffect subclass; derive it from hybrid.AbstractEffect"
+                )
+            if getattr(item, "__abstractmethods__", None):
+                missing = ", ".join(sorted(item.__abstractmethods__))
+                raise InputError(
+                    f"{label}: abstract (it does not define {missing}); define apply(self, s, dt)"
+                )
+            try:
+                item = item()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg
+            except KeyboardInterrupt:
+                raise
+            except Exception as error:
+                raise PluginError(
+                    f"{label}: building it with no arguments raised {type(error).__name__}: {error}; "
+                    "its defaults are the starting values",
+                    error,
+                ) from None
+        elif not isinstance(item, AbstractEffect):
+            raise InputError(f"{label}: give an effect's name, an AbstractEffect subclass or an instance")
+        if type(item) not in (*EFFECTS.values(), StateLimit):  # built-ins are tested; a plug-in is probed
+            check_effect(item, label)
+        if item.place == "inside":
+            _check_inside(item, label, simulation, states)
+        out.append(item)
+    if not out:
+        raise InputError("effects is empty: give at least one effect, or None for the built-ins")
+    names = [e.name for e in out]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(f"effects named twice: {twice}; give each effect once")
+    parameters = [p for e in out for p in e.constraints] + list(FrameTiming.constraints)
+    shared = sorted({p for p in parameters if parameters.count(p) > 1})
+    if shared:
+        raise InputError(
+            f"effects share parameter names {shared}: give each effect's parameters their own names"
+        )
+    return tuple(out)
+
+
+def _states_of(simulation) -> tuple[str, ...]:
+    """The states of `simulation` (a state-space form, checked), or () where it has none."""
+    dynamics = None if simulation is None else dynamics_of(simulation)
+    if dynamics is None:
+        return ()
+    check_state_space(dynamics[0], f"simulation {type(dynamics[0]).__name__}")
+    return tuple(dynamics[0].states)
+
+
+def _check_inside(effect: AbstractEffect, label: str, simulation, states) -> None:
+    """An inside effect needs a simulation with states, and a state (or the output) it can act on."""
+    if simulation is None:
+        return  # checked again when diagnose resolves the effects with its simulation
+    if not states:
+        raise InputError(
+            f"{label} acts inside the dynamics, but {type(simulation).__name__} has no state-space form: "
+            "derive the simulation from hybrid.AbstractStateSpace (see docs/plugins.md), or drop the effect"
+        )
+    if effect.acts_on != "output" and effect.acts_on not in states:
+        raise InputError(
+            f"{label} acts on the state {effect.acts_on!r}, which {type(simulation).__name__} does not have: "
+            f"its states are {', '.join(states)}"
+        )
+
+
+def searched_places(effects, simulation) -> dict[str, dict]:
+    """Each place (`PLACES`): the effects searched there, and why none was where that is known."""
+    out = {}
+    for place in PLACES:
+        names = [e.name for e in effects if e.place == place]
+        why = None
+        if not names and place == "inside" and dynamics_of(simulation) is None:
+            why = (
+                f"{type(simulation).__name__} has no state-space form (hybrid.AbstractStateSpace), "
+                "so no effect inside its dynamics was searched"
+            )
+        elif not names:
+            why = "no effect given acts here"
+        out[place] = {"effects": names, "not_searched": why}
+    return out

@@ -1,0 +1,166 @@
+"""Effects inside the dynamics: a nonlinearity fed back into the drive, a limit on a state.
+
+They act on a simulation in state-space form ([`AbstractStateSpace`][]), whose
+rates `integrate` evaluates several times per sample: an inside effect is
+evaluated there, sample by sample, not on a whole signal.
+
+=====================  ==========================================  =====================================
+name                   what it does                                parameters
+=====================  ==========================================  =====================================
+``stiffness``          ẋ = f(x, u − k₂y² − k₃y³), y the output     ``stiffness_square`` k₂ ({drive}/{signal}²),
+                       (a restoring force that is not linear)      ``stiffness_cube`` k₃ ({drive}/{signal}³)
+``limit_<state>``      the state z ↦ min(z, L) after every step,   ``<state>_max`` L (unit of the state)
+                       with a rim 2 % of |L| wide
+=====================  ==========================================  =====================================
+
+- Stiffness: the spring of a mass–spring system that hardens (k₃ > 0) or
+  softens (k₃ < 0) with the stretch, and is asymmetric (k₂); the Silverbox's
+  restoring force. The force is in the drive's unit: with y = S(u) the linear
+  simulation, the extended model is y = S(u − φ(y)). A polynomial of the
+  output, not of a shifted output: a cubic about another centre is k₂ and k₃
+  plus a linear term that the simulation's own stiffness and the readout's gain
+  take up. ``derived``'s ``force_percent_of_drive`` (every inside feedback gets
+  it from the stack) is the largest |φ(y)| as a percentage of the largest |u|.
+- State limit: an overflowing tank, an end stop, a saturating integrator. One
+  effect per state of the simulation (`StateLimit("h1")`, named ``limit_h1``);
+  `diagnose` searches one per state by default. The limit is an upper one (a
+  lower limit is an upper one on −z: not built in yet). A rim of width
+  δ = 2 % of |L| instead of a sharp edge, L − δ·softplus((L − z)/δ), so that
+  a fit sees a finite slope with respect to L before the state reaches it.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from ..core._parameters import Real, encode
+from ._effects import AbstractEffect, init_values, signal_span, signal_top
+
+#: The rim's width as a share of the limit's |L| (see `StateLimit`).
+RIM_WIDTH = 0.02
+
+
+class PolynomialStiffness(AbstractEffect):
+    """A restoring force k₂y² + k₃y³ of the output y, fed back into the drive: y = S(u − φ(y))."""
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "stiffness"
+    place: ClassVar[str] = "inside"
+    role: ClassVar[str] = "feedback"
+    constraints: ClassVar = {"stiffness_square": Real(), "stiffness_cube": Real()}
+    units: ClassVar = {"stiffness_square": "{drive}/{signal}^2", "stiffness_cube": "{drive}/{signal}^3"}
+    defaults: ClassVar = {"stiffness_square": 0.0, "stiffness_cube": 0.0}
+    thresholds: ClassVar = {"force_percent_of_drive": 3.0}
+
+    def __init__(self, **values):
+        init_values(self, values)
+
+    def apply(self, y, dt):
+        p = self.parameters()
+        return y * y * (p["stiffness_square"] + p["stiffness_cube"] * y)
+
+    def starts(self, context):
+        # A cubic force of 5 % of the largest drive at the largest |y|, hardening or softening.
+        drive = context.drive if context.drive is not None else context.signal
+        k3 = 0.05 * signal_top(drive) / signal_top(context.signal) ** 3
+        return [
+            {"stiffness_square": 0.0, "stiffness_cube": k3},
+            {"stiffness_square": 0.0, "stiffness_cube": -k3},
+        ]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("force_percent_of_drive", 0.0), thresholds["force_percent_of_drive"]
+        return size >= need, f"restoring force {size:.1f} % of the largest drive (needs ≥ {need} %)"
+
+
+class StateLimit(AbstractEffect):
+    """An upper limit L on one state of the dynamics (an overflow, an end stop), applied after every step."""
+
+    raw: dict[str, Array]
+    state: str = eqx.field(static=True)
+    place: ClassVar[str] = "inside"
+    role: ClassVar[str] = "limit"
+
+    def __init__(self, state: str = "x", **values):
+        if not isinstance(state, str) or not state.isidentifier():
+            from ..util._errors import InputError
+
+            raise InputError(f"StateLimit needs a state's name (an identifier), got {state!r}")
+        self.state = state
+        self.raw = encode({**self.defaults, **values}, self.constraints, self.name)
+
+    # The facts depend on the state: properties, not class constants.
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return f"limit_{self.state}"
+
+    @property
+    def acts_on(self) -> str:  # type: ignore[override]
+        return self.state
+
+    @property
+    def constraints(self) -> dict:  # type: ignore[override]
+        return {f"{self.state}_max": Real()}
+
+    @property
+    def units(self) -> dict:  # type: ignore[override]
+        return {f"{self.state}_max": "{signal}"}
+
+    @property
+    def defaults(self) -> dict:  # type: ignore[override]
+        return {f"{self.state}_max": 1.0}
+
+    @property
+    def thresholds(self) -> dict:  # type: ignore[override]
+        return {"at_limit_percent": 1.0}
+
+    def config(self) -> dict:
+        return {"state": self.state}
+
+    def _level(self):
+        return self.parameters()[f"{self.state}_max"]
+
+    def apply(self, z, dt):
+        top = self._level()
+        width = RIM_WIDTH * jnp.abs(top) + 1e-12
+        return top - width * jax.nn.softplus((top - z) / width)
+
+    def derived(self, z, dt):
+        top = float(self._level())
+        z = np.asarray(z, float)
+        width = RIM_WIDTH * abs(top)
+        return {
+            "level": top,
+            "at_limit_percent": 100.0 * float(np.mean(z >= top - 2.0 * width)) if z.size else 0.0,
+        }
+
+    def starts(self, context):
+        # Just below the state's peak under the current model, a quarter of its range below, and
+        # the recorded output's peak in the simulation's unit: where an observed state that the
+        # record shows flat at its top would sit (for a state upstream, one more level to try).
+        z = np.asarray(context.signal, float)
+        peak, span = float(np.max(z)), signal_span(z)
+        seen = context.measured
+        top = float(np.max(seen)) if seen is not None and len(seen) else peak - 0.5 * span
+        return [
+            {f"{self.state}_max": peak - 0.05 * span},
+            {f"{self.state}_max": peak - 0.25 * span},
+            {f"{self.state}_max": top},
+        ]
+
+    def unpinned_reason(self, name, signal):
+        z = np.asarray(signal, float)
+        top = float(self._level())
+        if z.size and np.max(z) < top - 2.0 * RIM_WIDTH * abs(top):
+            return "the state never reaches the limit in this recording"
+        return None
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("at_limit_percent", 0.0), thresholds["at_limit_percent"]
+        return size >= need, f"the {self.state} at its limit {size:.1f} % of the time (needs ≥ {need} %)"

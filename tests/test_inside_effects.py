@@ -1,0 +1,216 @@
+"""Effects inside the dynamics: a simulation in state-space form, a feedback force, a state limit.
+
+References are independent of the code under test: scipy's solve_ivp for the
+oscillator with a cubic spring, central finite differences for the Jacobian a
+fit linearises, and the tank example's own walls (a different code path) for
+a limit.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import helpers as h
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import hybrid
+from hybrid import EffectStack, InputError, PolynomialStiffness, StateLimit
+from hybrid.core._serialise import build_simulation, describe_simulation
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+# The examples' classes, loaded the way a user's --physics plug-in is.
+MassSpringDamper = type(hybrid.resolve_physics(f"{EXAMPLES}/oscillator.py:MassSpringDamper"))
+TwoTank = type(hybrid.resolve_physics(f"{EXAMPLES}/two_tank.py:TwoTank"))
+TwoTankOverflow = type(hybrid.resolve_physics(f"{EXAMPLES}/two_tank.py:TwoTankOverflow"))
+
+RATE = 610.35
+DT = 1.0 / RATE
+
+
+def _drive(n=1500, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * DT
+    return sum(0.02 * np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (20.0, 45.0, 71.0, 90.0))
+
+
+def _duffing_scipy(u, frequency, zeta, k2, k3):
+    """y'' + 2ζωy' + ω²(y + k2 y² + k3 y³) = ω² u, u linear between samples, from rest."""
+    w = 2 * np.pi * frequency
+    t = np.arange(len(u)) * DT
+
+    def rhs(time, x):
+        drive = np.interp(time, t, u)
+        y, v = x
+        return [v, w * w * (drive - y - k2 * y * y - k3 * y**3) - 2 * zeta * w * v]
+
+    sol = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=DT / 4)
+    return sol.y[0]
+
+
+def test_stiffness_inside_an_oscillator_matches_solve_ivp():
+    u = _drive()
+    stack = EffectStack(
+        MassSpringDamper(frequency=69.0, zeta=0.05),
+        [PolynomialStiffness(stiffness_square=0.5, stiffness_cube=8.0)],
+    )
+    y = np.asarray(stack.simulate(jnp.asarray(u), DT))
+    reference = _duffing_scipy(u, 69.0, 0.05, 0.5, 8.0)
+    linear = np.asarray(MassSpringDamper(frequency=69.0, zeta=0.05).simulate(jnp.asarray(u), DT))
+    # RK4, 4 steps a sample at 9 samples a period (the tolerance of the examples' own tests).
+    assert np.max(np.abs(y - reference)) < 2e-4 * np.max(np.abs(reference))
+    assert np.max(np.abs(linear - reference)) > 50 * np.max(np.abs(y - reference))  # the spring matters
+    # Switched off, the stack is the simulation itself.
+    off = np.asarray(stack.with_active(jnp.zeros(1)).simulate(jnp.asarray(u), DT))
+    np.testing.assert_allclose(off, linear, rtol=0, atol=1e-15)
+
+
+def test_feedback_jacobian_matches_finite_differences():
+    """LM linearises the simulation in forward mode: through the RK4 loop and the feedback."""
+    u = jnp.asarray(_drive(400))
+    stack = EffectStack(
+        MassSpringDamper(frequency=69.0, zeta=0.05), [PolynomialStiffness(stiffness_cube=5.0)]
+    )
+
+    def output(raw_cube, raw_frequency):
+        raw = {**stack.raw, "stiffness_cube": raw_cube, "frequency": raw_frequency}
+        return stack.with_raw(raw).simulate(u, DT)
+
+    c0, f0 = stack.raw["stiffness_cube"], stack.raw["frequency"]
+    jac = jax.jacfwd(output, argnums=(0, 1))(c0, f0)
+    for k, (arg, step) in enumerate(((c0, 1e-4), (f0, 1e-6))):
+        plus = output(*(arg + step if j == k else a for j, a in enumerate((c0, f0))))
+        minus = output(*(arg - step if j == k else a for j, a in enumerate((c0, f0))))
+        fd = np.asarray((plus - minus) / (2 * step))
+        np.testing.assert_allclose(np.asarray(jac[k]), fd, rtol=1e-5, atol=1e-7 * np.max(np.abs(fd)))
+
+
+def _tank_drive(n=600, seed=1):
+    rng = np.random.default_rng(seed)
+    return np.repeat(rng.uniform(0.0, 9.0, n // 20), 20)
+
+
+def test_state_limit_is_the_tank_examples_overflow_without_spill():
+    u = jnp.asarray(_tank_drive())
+    walls = TwoTankOverflow(level_max_1=9.0, level_max_2=1e4, spill_to_lower=1e-12)
+    stack = EffectStack(TwoTank(), [StateLimit("h1", h1_max=9.0)])
+    h2 = np.asarray(stack.simulate(u, 4.0))
+    np.testing.assert_allclose(h2, np.asarray(walls.simulate(u, 4.0)), rtol=1e-9, atol=1e-9)
+    levels = stack.signals_into(u, 4.0)
+    assert np.max(levels["limit_h1"]) <= 9.0  # never above the rim
+    unlimited = np.asarray(TwoTank().trajectory(u, 4.0)["h1"])
+    assert np.max(unlimited) > 10.0  # the drive does reach past it: the limit acts
+    derived = stack.derived(u, 4.0)["limit_h1"]
+    assert derived["level"] == pytest.approx(9.0) and derived["at_limit_percent"] > 5.0
+
+
+def test_a_limit_acts_under_a_held_start_while_the_system_settles_too():
+    """`HeldStart` (a record that starts where a held drive left the tanks) keeps the inside place."""
+    u = jnp.asarray(_tank_drive(300, seed=2))
+    held = hybrid.HeldStart(
+        TwoTank(), 40, initial_drive=8.5
+    )  # settles above the rim: overflowing at the start
+    stack = EffectStack(held, [StateLimit("h1", h1_max=9.0)])
+    walls = hybrid.HeldStart(
+        TwoTankOverflow(level_max_1=9.0, level_max_2=1e4, spill_to_lower=1e-12), 40, initial_drive=8.5
+    )
+    np.testing.assert_allclose(
+        np.asarray(stack.simulate(u, 4.0)), np.asarray(walls.simulate(u, 4.0)), rtol=1e-9, atol=1e-9
+    )
+    assert stack.signals_into(u, 4.0)["limit_h1"].shape == u.shape  # the settling samples dropped
+
+
+def test_units_follow_the_drive_and_the_state():
+    stack = EffectStack(TwoTank(), [PolynomialStiffness(), StateLimit("h1")], drive_unit="V")
+    assert stack.units["h1_max"] == "cm"  # the state's unit
+    assert stack.units["stiffness_cube"] == "V/(unit of S)^3"  # TwoTank states no output unit
+    stack = EffectStack(MassSpringDamper(), [PolynomialStiffness()], drive_unit="kV")
+    assert stack.units["stiffness_square"] == "kV/(unit of S)^2"
+
+
+def test_saved_stack_with_a_state_limit_round_trips():
+    u = jnp.asarray(_tank_drive(200))
+    stack = EffectStack(TwoTank(), [StateLimit("h1", h1_max=7.5)])
+    config = describe_simulation(stack)
+    rebuilt = build_simulation(config)
+    rebuilt = rebuilt.with_raw(stack.raw)
+    assert [e.name for e in rebuilt.effects] == ["limit_h1"]
+    np.testing.assert_allclose(np.asarray(rebuilt.simulate(u, 4.0)), np.asarray(stack.simulate(u, 4.0)))
+
+
+def test_resolve_effects_adds_inside_effects_only_where_there_are_states():
+    names = [e.name for e in hybrid.resolve_effects(None, TwoTank())]
+    assert names[-3:] == ["stiffness", "limit_h1", "limit_h2"]
+    assert "stiffness" not in [e.name for e in hybrid.resolve_effects(None, hybrid.LTI(2))]
+    assert [e.name for e in hybrid.resolve_effects(["limit_h2"], TwoTank())] == ["limit_h2"]
+
+
+@pytest.mark.parametrize(
+    ("simulation", "effects", "words"),
+    [
+        (hybrid.RCNetwork(), ["stiffness"], "has no state-space form"),
+        (TwoTank(), [StateLimit("level")], "does not have: its states are h1, h2"),
+        (TwoTank(), ["limit_h3"], "unknown effect 'limit_h3'"),
+    ],
+)
+def test_inside_effects_where_they_cannot_act_are_refused_in_one_line(simulation, effects, words):
+    with pytest.raises(InputError) as caught:
+        hybrid.resolve_effects(effects, simulation)
+    assert words in str(caught.value) and "\n" not in str(caught.value)
+    if not isinstance(effects[0], str):
+        with pytest.raises(InputError):
+            EffectStack(simulation, effects)
+
+
+# --- a user's inside effect, from the docs, through the command line -------------------------------
+
+FRICTION_RATE, FRICTION_FORCE, STICK_SPEED = 30.0, 0.12, 0.3
+
+
+def _friction_lab(folder: Path) -> None:
+    """A 2 Hz mass on a spring sliding with Coulomb friction, 40 s at 30 Hz, made by solve_ivp."""
+    rng = np.random.default_rng(3)
+    t = np.arange(int(40 * FRICTION_RATE)) / FRICTION_RATE
+    u = sum(0.35 * np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (0.31, 0.77, 1.3, 1.9, 2.6))
+    w, zeta = 2 * np.pi * 2.0, 0.1
+
+    def rhs(time, x):
+        drive = np.interp(time, t, u) - FRICTION_FORCE * np.tanh(x[1] / STICK_SPEED)
+        return [x[1], w * w * (drive - x[0]) - 2 * zeta * w * x[1]]
+
+    y = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-9, atol=1e-11, max_step=0.01).y[0]
+    out = 2.0 * y + 0.1 + 0.003 * np.ptp(y) * rng.normal(size=y.size)
+    hybrid.Recording.from_arrays(v_in=u, w=out, rate=FRICTION_RATE).save(folder / "lab.csv")
+
+
+def test_the_docs_friction_effect_is_found_inside_an_oscillator_from_the_command_line(tmp_path):
+    code = h.docs_python_block("effects.md", "## An effect inside the dynamics", "## The interface")
+    h.assert_public_imports_only(code)
+    (tmp_path / "friction.py").write_text(code)
+    _friction_lab(tmp_path)
+    # Two rivals, not every built-in: saturation is what a friction most looks like from outside
+    # (a response that falls short at small drive is not it, but a gain that changes is), and the
+    # stiffness is the other inside feedback; the whole default set is searched on the Silverbox.
+    run = h.run_hybrid(
+        tmp_path,
+        "diagnose",
+        "lab.csv",
+        "--physics",
+        f"{EXAMPLES}/oscillator.py:MassSpringDamper",
+        "--effects",
+        "friction.py:CoulombFriction,saturation,stiffness",
+        "--out",
+        "report",
+        "--quiet",
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((tmp_path / "report" / "report.json").read_text())
+    assert report["cause"] == "coulomb_friction", (report["cause"], report["candidates"])
+    force = report["parameters"]["friction_force"]
+    assert force["value"] == pytest.approx(FRICTION_FORCE, rel=0.3)
+    assert force["unit"] == "V" and report["parameters"]["stick_speed"]["unit"] == "V/s"
+    assert report["places"]["inside"]["effects"] == ["coulomb_friction", "stiffness"]
