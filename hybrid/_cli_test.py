@@ -148,14 +148,14 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
     `first` (``--initial-samples``): at most these first samples may set the
     record's initial state, and the score is taken over the rest.
     """
-    from .core._held_start import HeldStart, refit_initial_drive
+    from .core._held_start import has_held_start, refit_initial_drive
     from .core._metrics import metrics
 
     scores = []
     for record in tests:
         held = {}
         scored = model
-        if isinstance(model.simulation, HeldStart):  # --settle: the record starts from its own state
+        if has_held_start(model.simulation):  # --settle: the record starts from its own state
             samples = initial_samples(record.n) if first is None else first
             scored, value = refit_initial_drive(model, record, samples)
             held = {"initial_drive": value, "initial_samples": samples}

@@ -106,6 +106,10 @@ def test_state_limit_is_the_tank_examples_overflow_without_spill():
     assert np.max(unlimited) > 10.0  # the drive does reach past it: the limit acts
     derived = stack.derived(u, 4.0)["limit_h1"]
     assert derived["level"] == pytest.approx(9.0) and derived["at_limit_percent"] > 5.0
+    # How far the limit pulls the peak down, against the unlimited level computed here.
+    expected_cut = 100.0 * (np.max(unlimited) - np.max(levels["limit_h1"])) / np.ptp(unlimited)
+    assert derived["cut_percent_of_range"] == pytest.approx(expected_cut, rel=1e-9)
+    assert expected_cut > 5.0
 
 
 def test_a_limit_acts_under_a_held_start_while_the_system_settles_too():

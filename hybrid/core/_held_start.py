@@ -142,6 +142,11 @@ class HeldStart(AbstractWrapper):
         return cls(build_simulation(config["inner"]), int(config["settle_samples"]))
 
 
+def has_held_start(simulation) -> bool:
+    """Whether `simulation` starts from a held drive: a `HeldStart`, or a wrapper with one inside."""
+    return isinstance(simulation, AbstractSimulation) and INITIAL_DRIVE in simulation.parameter_names()
+
+
 def refit_initial_drive(model, recording, samples: int, bounds: tuple[float, float] | None = None):
     """(model, value): `model` with ``initial_drive`` re-fitted alone on the first `samples` of `recording`.
 
@@ -157,8 +162,11 @@ def refit_initial_drive(model, recording, samples: int, bounds: tuple[float, flo
     import scipy.optimize
 
     simulation = getattr(model, "simulation", None)
-    if not isinstance(simulation, HeldStart):
-        raise InputError("refit_initial_drive needs a model whose simulation is a HeldStart")
+    if not has_held_start(simulation):
+        raise InputError(
+            "refit_initial_drive needs a model whose simulation is a HeldStart (or wraps one, as "
+            "diagnose's extended model of a --settle record does)"
+        )
     v, w = np.asarray(recording.v_in, float), np.asarray(recording.w, float)
     if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= len(v):
         raise InputError(f"samples must be a whole number from 1 to the record's {len(v)}, got {samples!r}")

@@ -228,11 +228,13 @@ class EffectStack(AbstractWrapper):
         `n`: the samples of `v_in` that were recorded (a padded drive's first
         `n`); each effect's quantities are taken over those alone. An inside
         feedback's include ``force_percent_of_drive``: its largest |force| as
-        a percentage of the largest |drive| that reaches the simulation.
+        a percentage of the largest |drive| that reaches the simulation; an
+        inside limit's ``cut_percent_of_range``: how far it pulls the state's
+        peak down, as a percentage of the state's range without it.
         """
         signals = self.signals_into(v_in, dt, n)
         out = {}
-        for on, e in zip(self.active, self.effects):
+        for i, (on, e) in enumerate(zip(self.active, self.effects)):
             if not float(on):  # a switched-off effect leaves its signal unchanged: nothing to derive
                 continue
             out[e.name] = e.derived(signals[e.name], dt)
@@ -241,6 +243,15 @@ class EffectStack(AbstractWrapper):
                 top = float(np.max(np.abs(signals["drive"]))) if len(signals["drive"]) else 0.0
                 size = 100.0 * float(on) * float(np.max(np.abs(force))) / top if top > 0 else 0.0
                 out[e.name] = {**out[e.name], "force_percent_of_drive": size}
+            if e.place == "inside" and e.role == "limit":
+                free = self.with_active(np.where(np.arange(len(self.effects)) == i, 0.0, self.active))
+                unlimited = free.signals_into(v_in, dt, n)[e.name]
+                span = float(np.ptp(unlimited)) if len(unlimited) else 0.0
+                cut = float(np.max(unlimited) - np.max(signals[e.name])) if span > 0 else 0.0
+                out[e.name] = {
+                    **out[e.name],
+                    "cut_percent_of_range": 100.0 * max(cut, 0.0) / span if span else 0.0,
+                }
         return out
 
 

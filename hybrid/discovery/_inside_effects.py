@@ -21,7 +21,10 @@ name                   what it does                                parameters
   plus a linear term that the simulation's own stiffness and the readout's gain
   take up. ``derived``'s ``force_percent_of_drive`` (every inside feedback gets
   it from the stack) is the largest |φ(y)| as a percentage of the largest |u|.
-- State limit: an overflowing tank, an end stop, a saturating integrator. One
+- State limit: an overflowing tank, an end stop, a saturating integrator. It is
+  material when it pulls the state's peak down by 3 % of the state's range or
+  more (``cut_percent_of_range``, from the stack: the state with the limit and
+  without). One
   effect per state of the simulation (`StateLimit("h1")`, named ``limit_h1``);
   `diagnose` searches one per state by default. The limit is an upper one (a
   lower limit is an upper one on −z: not built in yet). A rim of width
@@ -86,6 +89,7 @@ class StateLimit(AbstractEffect):
     state: str = eqx.field(static=True)
     place: ClassVar[str] = "inside"
     role: ClassVar[str] = "limit"
+    n_screened: ClassVar[int] = 2
 
     def __init__(self, state: str = "x", **values):
         if not isinstance(state, str) or not state.isidentifier():
@@ -118,7 +122,7 @@ class StateLimit(AbstractEffect):
 
     @property
     def thresholds(self) -> dict:  # type: ignore[override]
-        return {"at_limit_percent": 1.0}
+        return {"cut_percent_of_range": 3.0}
 
     def config(self) -> dict:
         return {"state": self.state}
@@ -154,6 +158,11 @@ class StateLimit(AbstractEffect):
             {f"{self.state}_max": top},
         ]
 
+    def screened_starts(self, context):
+        from ._starts import limit_starts
+
+        return limit_starts(context.problem, context.simulation, self, self.n_screened, context.frozen)
+
     def unpinned_reason(self, name, signal):
         z = np.asarray(signal, float)
         top = float(self._level())
@@ -162,5 +171,10 @@ class StateLimit(AbstractEffect):
         return None
 
     def material(self, derived, parameters, thresholds):
-        size, need = derived.get("at_limit_percent", 0.0), thresholds["at_limit_percent"]
-        return size >= need, f"the {self.state} at its limit {size:.1f} % of the time (needs ≥ {need} %)"
+        # ``cut_percent_of_range`` comes from the stack: the state's peak with the limit and without.
+        size, need = derived.get("cut_percent_of_range", 0.0), thresholds["cut_percent_of_range"]
+        at = derived.get("at_limit_percent", 0.0)
+        return size >= need, (
+            f"the limit cuts {size:.1f} % off the {self.state}'s range, at it {at:.1f} % of the time "
+            f"(needs a cut ≥ {need} %)"
+        )

@@ -358,3 +358,58 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=fro
             }
         )
     return starts
+
+
+#: Limits screened for a state-limit candidate's starts, as fractions of the state's peak at each
+#: design point: a limit only acts below the peak, and where depends on the design point's levels.
+LIMIT_FRACTIONS = (0.5, 0.7, 0.9)
+
+
+@eqx.filter_jit
+def state_peaks(problem, simulation, state: str, raws):
+    """The largest value of `state` on the training part at each row of `raws` (the limit off)."""
+    from ..core._state_space import dynamics_of, integrate
+
+    def one(raw):
+        core, held, skip = dynamics_of(simulation.with_raw(raw))  # a state limit needs a state-space form
+        k = core.states.index(state)
+        peaks = []
+        for series in problem.series:
+            x = integrate(core, held(series.v_in), series.dt)[1][skip:, k]
+            peaks += [jnp.max(x[a:b]) for a, b in series.segments_of("train")]
+        return jnp.max(jnp.stack(peaks))
+
+    return jax.lax.map(one, raws, batch_size=16)
+
+
+def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset()) -> list[dict]:
+    """Starts for a state limit: the simulation's design screened jointly with the limit.
+
+    From the effect-free fit a limit switched on rarely moves far: that fit has
+    already bent its parameters to reach the clipped levels some other way (on
+    the Cascaded Tanks, the overflow model's upper outlet is 10× smaller than
+    the Torricelli fit's). So each point of the design (its first
+    `N_JOINT_SCREEN`) is screened with the limit at each of `LIMIT_FRACTIONS`
+    of that point's own peak of the state; the `n_starts` best pairs, with
+    distinct fractions, are returned.
+    """
+    from ._effect_stack import EffectStack
+
+    design = baseline_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    names, raws = design_raws(simulation, design)
+    if not names:
+        return []
+    (level,) = effect.constraints
+    peaks = np.asarray(state_peaks(problem, simulation, effect.state, raws))
+    stack = EffectStack(simulation, [effect])
+    best = []
+    for fraction in LIMIT_FRACTIONS:
+        levels = fraction * peaks
+        losses = screen_design_losses(
+            problem, stack, {**raws, level: jnp.asarray(effect.constraints[level].to_raw(levels))}
+        )
+        losses = np.where(np.isfinite(levels), losses, np.inf)
+        i = int(np.argmin(losses))
+        best.append((float(losses[i]), fraction, i, float(levels[i])))
+    best.sort()
+    return [{**{k: design[i][k] for k in names}, level: value} for _, _, i, value in best[:n_starts]]
