@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import equinox as eqx
 import helpers as h
 import jax
 import jax.numpy as jnp
@@ -128,6 +129,18 @@ def test_a_limit_acts_under_a_held_start_while_the_system_settles_too():
     assert stack.signals_into(u, 4.0)["limit_h1"].shape == u.shape  # the settling samples dropped
 
 
+def test_a_test_records_initial_drive_is_refitted_through_an_effect_stack():
+    """diagnose's extended model of a --settle record wraps the HeldStart: scoring still re-fits its start."""
+    u = jnp.asarray(_tank_drive(200, seed=4))
+    stack = EffectStack(hybrid.HeldStart(TwoTank(), 40, initial_drive=7.0), [StateLimit("h1", h1_max=30.0)])
+    truth = hybrid.Model(stack, hybrid.LinearReadout(gain=0.3, offset=0.1), "physics")
+    record = hybrid.Recording.from_arrays(v_in=np.asarray(u), w=np.asarray(truth.predict(u, 4.0)), rate=0.25)
+    start = eqx.tree_at(lambda m: m.simulation, truth, stack.replace(initial_drive=3.0))
+    refitted, value = hybrid.refit_initial_drive(start, record, 4, bounds=(0.0, 10.0))
+    assert value == pytest.approx(7.0, abs=1e-3)
+    assert float(refitted.simulation.parameters()["initial_drive"]) == pytest.approx(value)
+
+
 def test_units_follow_the_drive_and_the_state():
     stack = EffectStack(TwoTank(), [PolynomialStiffness(), StateLimit("h1")], drive_unit="V")
     assert stack.units["h1_max"] == "cm"  # the state's unit
@@ -218,3 +231,58 @@ def test_the_docs_friction_effect_is_found_inside_an_oscillator_from_the_command
     assert force["value"] == pytest.approx(FRICTION_FORCE, rel=0.3)
     assert force["unit"] == "V" and report["parameters"]["stick_speed"]["unit"] == "V/s"
     assert report["places"]["inside"]["effects"] == ["coulomb_friction", "stiffness"]
+
+    # The model diagnose extended is refitted as it is (hybrid fit --start-from), the plug-in imported
+    # through --effects; starting values cannot be given twice.
+    refit = h.run_hybrid(
+        tmp_path,
+        "fit",
+        "lab.csv",
+        "--model",
+        "physics",
+        "--physics",
+        f"{EXAMPLES}/oscillator.py:MassSpringDamper",
+        "--effects",
+        "friction.py:CoulombFriction",
+        "--start-from",
+        "report/extended.eqx",
+        "--max-steps",
+        "5",
+        "--out",
+        "refit.eqx",
+        "--json",
+        "refit.json",
+        "--quiet",
+    )
+    assert refit.returncode == 0, refit.stderr[-2000:]
+    refitted = json.loads((tmp_path / "refit.json").read_text())["parameters"]
+    assert refitted["friction_force"] == pytest.approx(force["value"], rel=0.05)
+    clash = h.run_hybrid(
+        tmp_path,
+        "fit",
+        "lab.csv",
+        "--start-from",
+        "report/extended.eqx",
+        "--param",
+        "zeta=0.2",
+        "--out",
+        "x.eqx",
+    )
+    assert clash.returncode != 0 and "--param" in clash.stderr and "Traceback" not in clash.stderr
+    assert not (tmp_path / "x.eqx").exists()
+
+
+def test_a_remainder_that_lives_inside_the_dynamics_says_whether_that_place_was_searched():
+    from hybrid.discovery._effect_set import resolve_effects, searched_places
+    from hybrid.discovery._unexplained import place_hint
+
+    cubic = {"kind": "nonlinear_dynamic", "level_limit": []}
+    rc = searched_places(resolve_effects(None, hybrid.RCNetwork()), hybrid.RCNetwork())
+    assert (
+        rc["inside"]["effects"] == [] and "RCNetwork has no state-space form" in rc["inside"]["not_searched"]
+    )
+    assert "RCNetwork has no state-space form" in place_hint(cubic, rc)
+    tanks = searched_places(resolve_effects(None, TwoTank()), TwoTank())
+    assert "(stiffness, limit_h1, limit_h2) do not explain it" in place_hint(cubic, tanks)
+    assert place_hint({"kind": "static", "level_limit": [{"side": "top"}]}, tanks) is not None  # a flat top
+    assert place_hint({"kind": "static", "level_limit": []}, tanks) is None  # nothing points inside

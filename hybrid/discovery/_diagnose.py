@@ -284,6 +284,7 @@ def diagnose(
     )
     say("noise floor and what lies above it")
     floor = pooled_noise_floor(recordings)
+    places = searched_places(search.effects, simulation)
     unexplained = remainder(
         problem,
         series,
@@ -294,6 +295,7 @@ def diagnose(
         settings,
         rate,
         equally_good=steps[-1].equally_good,
+        places=places,
     )
     hybrid_report = None
     if hybrid:
@@ -317,7 +319,7 @@ def diagnose(
         noise_floor=floor,
         unexplained=unexplained,
         effects=search.effects,
-        places=searched_places(search.effects, simulation),
+        places=places,
         not_pinned=unpinned,
         models={
             "baseline": fitted_model(problem, baseline.theta, ()),

@@ -21,7 +21,7 @@ from ..core._serialise import imported_class
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw
 from ..core._state_space import dynamics_of, integrate
 from ..util._errors import InputError
-from ._effect_set import EFFECTS
+from ._effect_set import resolve_effects
 from ._effects import DRIVE, AbstractEffect
 
 
@@ -56,10 +56,8 @@ class EffectStack(AbstractWrapper):
     def __init__(self, inner: AbstractSimulation, effects=(), active=None, drive_unit: str = "V"):
         built = []
         for effect in effects:
-            if isinstance(effect, str):
-                if effect not in EFFECTS:
-                    raise InputError(f"unknown effect {effect!r}: choose from {', '.join(EFFECTS)}")
-                effect = EFFECTS[effect]()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg
+            if isinstance(effect, str):  # a built-in's name, or limit_<state> of a state-space inner
+                (effect,) = resolve_effects([effect], inner)
             if not isinstance(effect, AbstractEffect):
                 raise InputError(f"effects must be effect names or AbstractEffect instances, got {effect!r}")
             built.append(effect)

@@ -92,6 +92,7 @@ def remainder(
     settings,
     rate: float,
     equally_good: EquallyGoodFits | None = None,
+    places: dict | None = None,
 ) -> dict | None:
     """None when `final`'s held-out error is consistent with the noise floor, else what lies above it.
 
@@ -120,6 +121,10 @@ def remainder(
     clause = limit_sentence(description["level_limit"], len(train["w"]) + len(held["w"]))
     if clause:
         description["summary"] += f"; {clause}"
+    hint = place_hint(description, places or {})
+    if hint:
+        description["place"] = "inside"
+        description["summary"] += f"; {hint}"
     out = {
         "fraction_above_floor": 1.0 - floor.variance / mse,
         "heldout_nmse": mse / var_w,
@@ -139,3 +144,24 @@ def remainder(
                 "floor held out: the recording does not pin the model (record longer, or drive it harder)"
             )
     return out
+
+
+def place_hint(description: dict, places: dict) -> str | None:
+    """Where an effect that explains the rest would act, when that is inside the dynamics, and what was searched.
+
+    A nonlinearity fed back through the dynamics, or a level the record sits
+    flat at, points inside; the sentence says whether `diagnose` searched there
+    (it needs a simulation in state-space form) and, if it did, that a plug-in
+    effect of the user's own is what is left.
+    """
+    inside = places.get("inside")
+    if inside is None or not (
+        description.get("kind") == "nonlinear_dynamic" or description.get("level_limit")
+    ):
+        return None
+    if inside["not_searched"]:
+        return f"an effect inside the dynamics may explain it, but {inside['not_searched']}"
+    return (
+        f"the effects searched inside the dynamics ({', '.join(inside['effects'])}) do not explain it: "
+        "an effect of your own there may (docs/effects.md)"
+    )
