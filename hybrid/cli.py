@@ -299,6 +299,9 @@ def _cmd_fit(args):
         ],
         inputs=args.recordings + (args.test or []),
     )
+    if args.start_from is not None and (args.param or args.settle is not None):
+        flag = "--param" if args.param else "--settle"
+        raise InputError(f"{flag} sets how the fit starts; with --start-from that comes from the saved model")
     recordings = load_recordings(args, args.recordings)
     simulation = None
     if args.model != "normal":
@@ -387,9 +390,6 @@ def start_model(args):
     """--start-from: the saved model a fit starts from (the plug-ins named by --physics/--effects imported)."""
     from .core._serialise import load_model
 
-    if args.param or args.settle is not None:
-        flag = "--param" if args.param else "--settle"
-        raise InputError(f"{flag} sets how the fit starts; with --start-from that comes from the saved model")
     path = Path(args.start_from)
     if path.suffix != ".eqx" or not path.is_file():
         raise InputError(
