@@ -283,6 +283,10 @@ def test_a_remainder_that_lives_inside_the_dynamics_says_whether_that_place_was_
     )
     assert "RCNetwork has no state-space form" in place_hint(cubic, rc)
     tanks = searched_places(resolve_effects(None, TwoTank()), TwoTank())
-    assert "(stiffness, limit_h1, limit_h2) do not explain it" in place_hint(cubic, tanks)
+    assert "(stiffness, limit_h1, limit_h2), none explains the rest" in place_hint(cubic, tanks)
+    held = hybrid.HeldStart(hybrid.LTI(2), 20)
+    assert "LTI has no state-space form" in place_hint(
+        cubic, searched_places(resolve_effects(None, held), held)
+    )
     assert place_hint({"kind": "static", "level_limit": [{"side": "top"}]}, tanks) is not None  # a flat top
     assert place_hint({"kind": "static", "level_limit": []}, tanks) is None  # nothing points inside

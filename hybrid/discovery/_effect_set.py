@@ -243,8 +243,9 @@ def searched_places(effects, simulation) -> dict[str, dict]:
         names = [e.name for e in effects if e.place == place]
         why = None
         if not names and place == "inside" and dynamics_of(simulation) is None:
+            core = getattr(simulation, "inner", simulation)  # a HeldStart's simulation, not the wrapper
             why = (
-                f"{type(simulation).__name__} has no state-space form (hybrid.AbstractStateSpace), "
+                f"{type(core).__name__} has no state-space form (hybrid.AbstractStateSpace), "
                 "so no effect inside its dynamics was searched"
             )
         elif not names:

@@ -162,6 +162,6 @@ def place_hint(description: dict, places: dict) -> str | None:
     if inside["not_searched"]:
         return f"an effect inside the dynamics may explain it, but {inside['not_searched']}"
     return (
-        f"the effects searched inside the dynamics ({', '.join(inside['effects'])}) do not explain it: "
-        "an effect of your own there may (docs/effects.md)"
+        f"of the effects searched inside the dynamics ({', '.join(inside['effects'])}), none explains the "
+        "rest: an effect of your own there may (docs/effects.md)"
     )
