@@ -174,7 +174,14 @@ def main(argv=None) -> int:
                 f"gain {found.gain:.2f}, unexplained {'yes' if found.unexplained else 'no'} ({seconds:.0f} s)",
                 flush=True,
             )
-    out = Path(args.out)
+            write(rows, cases, argv, args.out)
+    print(f"wrote {args.out} and {Path(args.out).with_suffix('.md')}")
+    return 0
+
+
+def write(rows: list, cases: list, argv, path: str) -> None:
+    """The JSON and the Markdown table of the draws so far (after every draw: a stopped run keeps them)."""
+    out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     command = "python experiments/inside_effects.py " + " ".join(argv if argv is not None else sys.argv[1:])
     out.write_text(json.dumps({"command": command.strip(), "rows": rows}, indent=2) + "\n")
@@ -197,8 +204,6 @@ def main(argv=None) -> int:
         mine = [r for r in rows if r["case"] == case]
         lines.append(f"- {case}: right on {sum(r['right'] for r in mine)}/{len(mine)} seeds.")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
-    print(f"wrote {out} and {out.with_suffix('.md')}")
-    return 0
 
 
 if __name__ == "__main__":
