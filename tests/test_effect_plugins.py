@@ -176,7 +176,13 @@ class _WrongShape(_Scale):
 
 class _Nowhere(_Scale):
     name: ClassVar[str] = "nowhere"
+    place: ClassVar[str] = "between"
+
+
+class _NoRole(_Scale):
+    name: ClassVar[str] = "no_role"
     place: ClassVar[str] = "inside"
+    role: ClassVar[str] = "push"
 
 
 class _NoUnits(_Scale):
@@ -189,7 +195,8 @@ class _NoUnits(_Scale):
     [
         (["friction"], "unknown effect 'friction'"),
         ([_WrongShape], "must return one finite value per sample"),
-        ([_Nowhere], "place must be one of drive, output"),
+        ([_Nowhere], "place must be one of drive, inside, output"),
+        ([_NoRole], "role must be one of feedback, limit"),
         ([_NoUnits], "units has no entry for ['scale_factor']"),
         ([int], "not an AbstractEffect subclass"),
         (["saturation", "saturation"], "effects named twice"),
