@@ -42,7 +42,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ..core._parameters import Real, encode
+from ..core._parameters import Real
+from ..util._errors import InputError
 from ._effects import AbstractEffect, init_values, signal_span, signal_top
 
 #: The rim's width as a share of the limit's |L| (see `StateLimit`).
@@ -93,11 +94,9 @@ class StateLimit(AbstractEffect):
 
     def __init__(self, state: str = "x", **values):
         if not isinstance(state, str) or not state.isidentifier():
-            from ..util._errors import InputError
-
             raise InputError(f"StateLimit needs a state's name (an identifier), got {state!r}")
         self.state = state
-        self.raw = encode({**self.defaults, **values}, self.constraints, self.name)
+        init_values(self, values)
 
     # The facts depend on the state: properties, not class constants.
     @property
