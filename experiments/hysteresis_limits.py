@@ -71,15 +71,15 @@ def _oracle_loop(designs, span, h, fit_on, train, test, noise_var):
                 float(np.mean(resid[train] ** 2)),
                 float(np.mean(resid[test] ** 2)),
                 {
-                    "hysteresis_rate_per_v": k,
-                    "hysteresis_height_v": b / (1.0 + a),
+                    "hysteresis_rate": k,
+                    "hysteresis_height": b / (1.0 + a),
                     "hysteresis_initial_state": float(np.clip(d / b, -0.95, 0.95)),
                 },
             )
     return {
         "train": best[1] / noise_var,
         "test": best[2] / noise_var,
-        "rate_times_range": best[3]["hysteresis_rate_per_v"] * span,
+        "rate_times_range": best[3]["hysteresis_rate"] * span,
     }, best[3]
 
 

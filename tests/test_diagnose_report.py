@@ -114,7 +114,7 @@ def test_not_pinned_names_the_branch_a_one_sided_signal_never_visits():
     from hybrid.discovery._evidence import not_pinned
 
     stack = hybrid.EffectStack(hybrid.LTI(1), ("saturation",)).replace(
-        saturation_pos_per_v=0.3, saturation_neg_per_v=0.084
+        saturation_pos_curvature=0.3, saturation_neg_curvature=0.084
     )
     model = hybrid.make_model("physics", simulation=stack)
     series = hybrid.core.series_from_recording(
@@ -124,8 +124,29 @@ def test_not_pinned_names_the_branch_a_one_sided_signal_never_visits():
         1,
     )
     u = {
-        "saturation_pos_per_v": ParameterUncertainty(std_error=0.01, unit="1/V", inflation=1.0),
-        "saturation_neg_per_v": ParameterUncertainty(std_error=float("inf"), unit="1/V", inflation=1.0),
+        "saturation_pos_curvature": ParameterUncertainty(std_error=0.01, unit="1/V", inflation=1.0),
+        "saturation_neg_curvature": ParameterUncertainty(std_error=float("inf"), unit="1/V", inflation=1.0),
     }
     reasons = not_pinned(u, model, [series])
-    assert reasons == {"saturation_neg_per_v": "the signal it acts on never goes negative"}
+    assert reasons == {"saturation_neg_curvature": "the signal it acts on never goes negative"}
+
+
+def test_no_report_key_names_a_unit_that_follows_the_signal():
+    """Schema 3: an effect's unit follows its signal, so its keys name none (the renames are listed)."""
+    import re
+
+    import hybrid
+    from hybrid.discovery import RENAMED_IN_SCHEMA_3, REPORT_SCHEMA
+
+    assert REPORT_SCHEMA == "hybrid-report/3"
+    volt = re.compile(r"(^|_)(per_)?(v|mv|kv|mm|m)$")  # a name ending in a unit of a signal
+    outside = tuple(n for n, cls in hybrid.EFFECTS.items() if cls.place != "inside")
+    stack = hybrid.EffectStack(hybrid.LTI(1), outside)
+    s = np.sin(np.linspace(0.0, 6.0, 50))
+    keys = {k for cls in hybrid.EFFECTS.values() for k in cls.constraints}
+    for effect in stack.effects:
+        keys |= set(effect.derived(s, 0.1))
+    offenders = sorted(k for k in keys if volt.search(k))
+    assert not offenders, offenders
+    assert set(RENAMED_IN_SCHEMA_3.values()) <= keys  # every new name is a key an effect writes
+    assert not set(RENAMED_IN_SCHEMA_3) & keys  # and no old one is left

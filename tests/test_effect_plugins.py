@@ -224,10 +224,16 @@ def test_units_follow_the_signal_each_effect_acts_on():
     )
     units = stack.units
     assert units["drive_dead_zone_width"] == "kV"  # on the drive
-    assert units["saturation_pos_per_v"] == "1/V"  # on the RC network's output, V_o in V
+    drive_side = hybrid.EffectStack(
+        hybrid.RCNetwork(), ("drive_saturation", "drive_even", "backlash"), drive_unit="kV"
+    )
+    assert drive_side.units["drive_saturation_pos_curvature"] == "1/kV"
+    assert drive_side.units["drive_even_coefficient"] == "1/kV"
+    assert drive_side.units["backlash_half_width"] == "kV"
+    assert units["saturation_pos_curvature"] == "1/V"  # on the RC network's output, V_o in V
     assert units["scale_factor"] == "1/V"
     plain = hybrid.EffectStack(hybrid.LTI(1), ("saturation",))
-    assert plain.units["saturation_pos_per_v"] == "1/(unit of S)"  # the simulation does not say
+    assert plain.units["saturation_pos_curvature"] == "1/(unit of S)"  # the simulation does not say
 
 
 def test_a_drive_side_effect_acts_before_the_simulation():
@@ -241,6 +247,14 @@ def test_a_drive_side_effect_acts_before_the_simulation():
     np.testing.assert_allclose(np.asarray(stack.simulate(jnp.asarray(u), 1.0 / RATE)), expected, atol=1e-12)
     derived = stack.derived(jnp.asarray(u), 1.0 / RATE)["drive_dead_zone"]
     assert derived["drive_dead_zone_percent"] == pytest.approx(100 * width / np.max(np.abs(u)))
+    # Backlash: the simulation of the played drive (a loop, not the library's scan).
+    played, y = [], 0.0
+    for value in u:
+        y = min(max(y, value - width), value + width)
+        played.append(y)
+    stack = hybrid.EffectStack(inner, ("backlash",)).replace(backlash_half_width=width)
+    expected = np.asarray(inner.simulate(jnp.asarray(played), 1.0 / RATE))
+    np.testing.assert_allclose(np.asarray(stack.simulate(jnp.asarray(u), 1.0 / RATE)), expected, atol=1e-12)
 
 
 def test_baseline_drift_is_an_additive_trend_in_minutes():

@@ -11,13 +11,17 @@ from hybrid import InputError, RCNetwork, make_drive
 from hybrid.discovery._effect_set import EFFECTS
 from hybrid.discovery._effect_stack import EffectStack, extend
 from hybrid.discovery._effects import (
+    Backlash,
     BackRelaxation,
     Delay,
     Drift,
+    DriveEven,
+    DriveSaturation,
     Hysteresis,
     Resonance,
     Saturation,
     affine_recurrence,
+    play,
 )
 from hybrid.discovery._hysteresis import bouc_wen_and_memory, bouc_wen_state
 from hybrid.ipmc._synthetic import SyntheticStrip, random_effect, random_strip, synthetic_recording
@@ -99,7 +103,7 @@ def test_hysteresis_matches_the_bouc_wen_ode(signal, initial):
     # law (n = 2, γ = 0) over each sample, where ds is constant: u = `initial` at the first.
     k, height = 3.0, 0.2
     expected = signal + height * _bouc_wen_by_ode(signal, k, initial)
-    effect = Hysteresis(hysteresis_height_v=height, hysteresis_rate_per_v=k, hysteresis_initial_state=initial)
+    effect = Hysteresis(hysteresis_height=height, hysteresis_rate=k, hysteresis_initial_state=initial)
     y = effect.apply(jnp.asarray(signal), DT)
     np.testing.assert_allclose(y, expected, atol=1e-9)
     assert float(y[0]) == pytest.approx(signal[0] + height * initial, abs=1e-12)
@@ -119,9 +123,9 @@ def test_hysteresis_forgets_its_initial_state():
     s = jnp.concatenate([jnp.zeros(5), jnp.linspace(0.0, 2.0, 200)])
     ends = [
         float(
-            Hysteresis(
-                hysteresis_height_v=0.1, hysteresis_rate_per_v=20.0, hysteresis_initial_state=z0
-            ).apply(s, DT)[-1]
+            Hysteresis(hysteresis_height=0.1, hysteresis_rate=20.0, hysteresis_initial_state=z0).apply(s, DT)[
+                -1
+            ]
         )
         for z0 in (-0.9, 0.0, 0.9)
     ]
@@ -142,7 +146,7 @@ def test_bouc_wen_memory_is_the_derivative_in_the_initial_state():
 def test_hysteresis_is_rate_independent():
     t = np.linspace(0, 1, 400)
     slow = np.sin(2 * np.pi * t)
-    effect = Hysteresis(hysteresis_height_v=0.1, hysteresis_rate_per_v=20.0)
+    effect = Hysteresis(hysteresis_height=0.1, hysteresis_rate=20.0)
     # Same path of s at a different sampling rate dt: the output depends on s only.
     a = np.asarray(effect.apply(jnp.asarray(slow), 0.001))
     b = np.asarray(effect.apply(jnp.asarray(slow), 1.0))
@@ -154,12 +158,14 @@ def test_hysteresis_is_rate_independent():
 
 
 def test_saturation_slope_asymptotes_and_asymmetry():
-    effect = Saturation(saturation_pos_per_v=0.5, saturation_neg_per_v=-2.0)  # κ is even: sign irrelevant
+    effect = Saturation(
+        saturation_pos_curvature=0.5, saturation_neg_curvature=-2.0
+    )  # κ is even: sign irrelevant
     s = jnp.array([-100.0, -1e-6, 0.0, 1e-6, 100.0])
     y = np.asarray(effect.apply(s, DT))
     np.testing.assert_allclose(y, [-0.5, -1e-6, 0.0, 1e-6, 2.0], rtol=1e-6)
     derived = effect.derived(jnp.array([-1.0, 2.0]), DT)
-    assert derived["level_pos_v"] == pytest.approx(2.0) and derived["level_neg_v"] == pytest.approx(0.5)
+    assert derived["level_pos"] == pytest.approx(2.0) and derived["level_neg"] == pytest.approx(0.5)
     assert derived["shortfall_pos_percent"] == pytest.approx(100 * (1 - np.tanh(1.0)), rel=1e-9)
     assert derived["shortfall_neg_percent"] == pytest.approx(100 * (1 - np.tanh(2.0) / 2.0), rel=1e-9)
 
@@ -179,6 +185,38 @@ def test_saturation_contains_the_linear_response_with_finite_gradients():
     h = 1e-6
     fd = (np.asarray(y(0.3 + h)) - np.asarray(y(0.3 - h))) / (2 * h)
     np.testing.assert_allclose(np.asarray(jax.jacfwd(y)(0.3)), fd, rtol=1e-6, atol=1e-9)
+
+
+def test_play_matches_the_backlash_loop(signal):
+    """The parallel scan of clamps against the play operator's loop, from rest and from a given state."""
+    for h, initial in ((0.07, 0.0), (0.3, 0.2), (5.0, -1.0)):  # 5.0: wider than the signal, never moves
+        y, expected = initial, []
+        for u in signal:
+            y = min(max(y, u - h), u + h)
+            expected.append(y)
+        got = np.asarray(play(jnp.asarray(signal), h, initial))
+        np.testing.assert_allclose(got, expected, atol=1e-14)
+    # As an effect: play of half-width h from rest; after a reversal the drive travels 2h first.
+    u = jnp.concatenate([jnp.linspace(0.0, 1.0, 11), jnp.linspace(1.0, 0.0, 11)[1:]])
+    y = np.asarray(Backlash(backlash_half_width=0.2).apply(u, DT))
+    np.testing.assert_allclose(y[:11], np.maximum(np.asarray(u[:11]) - 0.2, 0.0), atol=1e-12)
+    np.testing.assert_allclose(y[11:15], 0.8, atol=1e-12)  # u from 0.9 down to 0.6: still in the play
+    np.testing.assert_allclose(y[15:], np.asarray(u[15:]) + 0.2, atol=1e-12)  # then it follows, 0.2 above
+    derived = Backlash(backlash_half_width=0.2).derived(np.asarray(u), DT)
+    assert derived["play_percent_of_range"] == pytest.approx(40.0)
+
+
+def test_drive_side_saturation_and_even_are_their_forms_on_the_drive():
+    u = np.linspace(-2.0, 3.0, 51)
+    effect = DriveSaturation(drive_saturation_pos_curvature=0.5, drive_saturation_neg_curvature=2.0)
+    expected = np.where(u >= 0, np.tanh(0.5 * u) / 0.5, np.tanh(2.0 * u) / 2.0)
+    np.testing.assert_allclose(np.asarray(effect.apply(jnp.asarray(u), DT)), expected, rtol=1e-12, atol=1e-15)
+    assert effect.unpinned_reason("drive_saturation_neg_curvature", np.abs(u)) is not None
+    assert effect.unpinned_reason("drive_saturation_neg_curvature", u) is None
+    even = DriveEven(drive_even_coefficient=-0.4)
+    np.testing.assert_allclose(np.asarray(even.apply(jnp.asarray(u), DT)), u - 0.4 * u**2, rtol=1e-12)
+    assert even.derived(u, DT)["even_percent_of_range"] == pytest.approx(100 * 0.4 * 9.0 / 5.0)
+    assert DriveSaturation.place == DriveEven.place == Backlash.place == "drive"
 
 
 def test_delay_whole_and_fractional_samples(signal):

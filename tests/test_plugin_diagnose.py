@@ -78,7 +78,7 @@ def test_free_parameter_order_is_the_order_of_theta():
     """A wrapper's layout is read, not assumed: HeldStart keeps its own parameter after its inner's."""
     inner = HeldStart(hybrid.LTI(2), 10)
     stack = hybrid.EffectStack(inner, ["delay", "saturation"])
-    for frozen in (frozenset(), frozenset({"f_1", "initial_drive"}), frozenset({"saturation_neg_per_v"})):
+    for frozen in (frozenset(), frozenset({"f_1", "initial_drive"}), frozenset({"saturation_neg_curvature"})):
         names = inner.free_parameter_order(frozen)
         assert sorted(names) == sorted(set(inner.parameter_names()) - frozen)
         labels = simulation_labels(stack, frozen)  # the inner's names, then each effect's

@@ -10,6 +10,8 @@ a particular physics.
 # experiments and benchmarks use beyond them.
 from ._decision import derived_quantities as derived_quantities, lane_effect as lane_effect
 from ._diagnosis import (
+    RENAMED_IN_SCHEMA_3 as RENAMED_IN_SCHEMA_3,
+    REPORT_SCHEMA as REPORT_SCHEMA,
     SPLIT_ORDER as SPLIT_ORDER,
     EquallyGoodFits as EquallyGoodFits,
     HeldoutMetrics as HeldoutMetrics,

@@ -25,13 +25,29 @@ if TYPE_CHECKING:
 
 #: Names `diagnose` can return: an effect of `hybrid.discovery._effects`, or "none".
 CAUSES = ("none",) + tuple(EFFECTS)
-#: report.json's schema. 2 (from 1): each parameter with a standard error says whether the
-#: recording pins it (``pinned``; ``not_pinned``: why not); an effect's parameter units follow
-#: the signal it acts on (the drive's unit or the simulation's ``output_unit``), so a key such
-#: as ``saturation_pos_per_v`` may carry another unit than its name's V (its ``unit`` field is
-#: right); ``effects`` lists the searched effects and where each acts; ``settings.materiality``
-#: lists every threshold used.
-REPORT_SCHEMA = "hybrid-report/2"
+#: report.json's schema.
+#: - 3 (from 2): no key carries a unit in its name, since an effect's unit follows the signal it
+#:   acts on (its ``unit`` field says which): ``saturation_pos_per_v`` / ``_neg_per_v`` are
+#:   ``saturation_pos_curvature`` / ``_neg_curvature``, ``hysteresis_height_v`` is
+#:   ``hysteresis_height``, ``hysteresis_rate_per_v`` is ``hysteresis_rate``, ``even_per_v`` is
+#:   ``even_coefficient``, and saturation's derived ``level_pos_v`` / ``level_neg_v`` are
+#:   ``level_pos`` / ``level_neg``. Names of time and frequency (``delay_s``, ``_hz``) keep theirs:
+#:   those units never change. ``places`` says where effects were searched.
+#: - 2 (from 1): each parameter with a standard error says whether the recording pins it
+#:   (``pinned``; ``not_pinned``: why not); units follow the signal an effect acts on;
+#:   ``effects`` lists the searched effects and where each acts; ``settings.materiality`` lists
+#:   every threshold used.
+REPORT_SCHEMA = "hybrid-report/3"
+#: The keys schema 3 renamed, old → new (a reader of older reports may map them).
+RENAMED_IN_SCHEMA_3 = {
+    "saturation_pos_per_v": "saturation_pos_curvature",
+    "saturation_neg_per_v": "saturation_neg_curvature",
+    "hysteresis_height_v": "hysteresis_height",
+    "hysteresis_rate_per_v": "hysteresis_rate",
+    "even_per_v": "even_coefficient",
+    "level_pos_v": "level_pos",
+    "level_neg_v": "level_neg",
+}
 
 SPLIT_ORDER = ("train", "validation", "test")
 

@@ -18,11 +18,14 @@ from ._effects import (
     PLACES,
     ROLES,
     AbstractEffect,
+    Backlash,
     BackRelaxation,
     BaselineDrift,
     Delay,
     Drift,
     DriveDeadZone,
+    DriveEven,
+    DriveSaturation,
     EvenResponse,
     FrameTiming,
     Hysteresis,
@@ -47,6 +50,9 @@ EFFECTS: dict[str, type[AbstractEffect]] = {
         BaselineDrift,
         DriveDeadZone,
         PolynomialStiffness,
+        DriveSaturation,
+        DriveEven,
+        Backlash,
     )
 }
 #: Names an effect may not take: the search's words for "no effect", the always-on frame timing and

@@ -13,18 +13,26 @@ name               y(t)                                   parameters
 ``delay``          s(t − d)  (linear interpolation)       ``delay_s`` d (s)
 ``back_relaxation`` s − β·x,  τ ẋ = s − x                 ``relaxation_time_s`` τ (s),
                                                           ``relaxation_fraction`` β
-``saturation``     tanh(κ± s)/κ±  (κ₊ for s ≥ 0)          ``saturation_pos_per_v``, ``saturation_neg_per_v`` (1/V)
-``hysteresis``     s + W·u,  du/ds = k(1 − u|u| sgn(ds))  ``hysteresis_height_v`` W (V),
-                   (Bouc–Wen, n = 2, γ = 0)               ``hysteresis_rate_per_v`` k (1/V),
+``saturation``     tanh(κ± s)/κ±  (κ₊ for s ≥ 0)          ``saturation_pos_curvature``, ``saturation_neg_curvature`` (1/V)
+``hysteresis``     s + W·u,  du/ds = k(1 − u|u| sgn(ds))  ``hysteresis_height`` W (V),
+                   (Bouc–Wen, n = 2, γ = 0)               ``hysteresis_rate`` k (1/V),
                                                           ``hysteresis_initial_state`` u₀
 ``drift``          s · exp(κ t)                           ``drift_rate_per_s`` κ (1/s)
 ``resonance``      ω²/(s² + 2ζωs + ω²) applied to s       ``resonance_frequency_hz`` f = ω/2π,
                    (exact first-order-hold discretisation) ``resonance_damping`` ζ
-``even_response``  s + c s²                               ``even_per_v`` c (1/V)
+``even_response``  s + c s²                               ``even_coefficient`` c (1/V)
 ``baseline_drift`` s + a·t + b·t² (t in minutes)           ``baseline_slope_per_min`` a (V/min),
                                                           ``baseline_curvature_per_min2`` b (V/min²)
-``drive_dead_zone`` S(u − clip(u, −d, d))  (on the drive)  ``drive_dead_zone_width`` d (V of drive)
+``drive_dead_zone`` S(u − clip(u, −d, d))  (on the drive)  ``drive_dead_zone_width`` d (unit of u)
+``drive_saturation`` S(tanh(κ± u)/κ±)  (on the drive)      ``drive_saturation_pos_curvature``,
+                                                          ``drive_saturation_neg_curvature`` (1/unit of u)
+``drive_even``     S(u + c u²)  (on the drive)             ``drive_even_coefficient`` c (1/unit of u)
+``backlash``       S(play_h(u))  (on the drive)            ``backlash_half_width`` h (unit of u)
 =================  =====================================  =====================================
+
+A delay of the drive is the output's ``delay``: a dead time commutes with
+time-invariant dynamics, S(u(· − d)) = S(u)(· − d) from rest, so one effect
+stands for both places.
 
 - Back-relaxation: under a held voltage the bending charge diffuses back; the
   step response peaks, then relaxes by the fraction β with time constant τ.
@@ -45,6 +53,11 @@ name               y(t)                                   parameters
   where `drift` is a gain that changes.
 - Drive dead zone: the drive must pass ±d before anything moves (static
   friction at the input, an amplifier's threshold).
+- Drive saturation: an amplifier, a DAC stage or a pump that clips before the
+  dynamics (the dynamics then smooth the clipped drive).
+- Drive even: a force ∝ u², as an electrostatic actuator's ∝ V².
+- Backlash: gears or a slack linkage; after a reversal the drive travels 2h
+  before the dynamics see it move (`play`, a parallel scan).
 
 Everything `diagnose` needs to search an effect is the effect's own
 (`starts`, `screened_starts`, `thresholds`, `material`, `unpinned_reason`): a
@@ -353,41 +366,34 @@ def _soft_clip(s, k):
     return jnp.where(small, s * (1.0 - x * x / 3.0), jnp.tanh(x_safe) / k_safe)
 
 
-class Saturation(AbstractEffect):
-    """y = tanh(κ₊ s)/κ₊ for s ≥ 0 and tanh(κ₋ s)/κ₋ for s < 0: slope 1 at s = 0.
+class _SidedSaturation(AbstractEffect):
+    """tanh(κ₊ x)/κ₊ for x ≥ 0 and tanh(κ₋ x)/κ₋ for x < 0, slope 1 at x = 0, on whichever signal.
 
-    κ± (1/V) is the curvature of each side; κ = 0 is the linear response, so
-    the effect-free simulation lies inside the family (at a finite parameter,
-    where a saturation level σ = 1/κ would need σ → ∞). The response levels
-    off at ±1/|κ±| (V of s): ``derived`` reports those levels and the shortfall
-    below the linear extrapolation at the largest |s| of each sign.
+    κ± is the curvature of each side (1/unit of the signal); κ = 0 is the
+    linear response, so the effect-free simulation lies inside the family (at a
+    finite parameter, where a saturation level σ = 1/κ would need σ → ∞). The
+    response levels off at ±1/|κ±|: ``derived`` reports those levels and the
+    shortfall below the linear extrapolation at the largest |x| of each sign.
+    The parameters are ``<name>_pos_curvature`` and ``<name>_neg_curvature``.
     """
 
-    raw: dict[str, Array]
-    name: ClassVar[str] = "saturation"
-    constraints: ClassVar = {"saturation_pos_per_v": Real(), "saturation_neg_per_v": Real()}
-    units: ClassVar = {"saturation_pos_per_v": "1/{signal}", "saturation_neg_per_v": "1/{signal}"}
-    defaults: ClassVar = {"saturation_pos_per_v": 0.0, "saturation_neg_per_v": 0.0}
     thresholds: ClassVar = {"shortfall_percent": 5.0}
 
     def __init__(self, **values):
         init_values(self, values)
 
+    def _curvature(self, side: str):
+        return self.parameters()[f"{self.name}_{side}_curvature"]
+
     def apply(self, s, dt):
-        p = self.parameters()
-        k = jnp.where(s >= 0, p["saturation_pos_per_v"], p["saturation_neg_per_v"])
-        return _soft_clip(s, k)
+        return _soft_clip(s, jnp.where(s >= 0, self._curvature("pos"), self._curvature("neg")))
 
     def derived(self, s, dt):
-        """Level 1/|κ| (V) and shortfall below the linear extrapolation at the largest |s|, %."""
-        p = self.parameters()
+        """Level 1/|κ| and shortfall below the linear extrapolation at the largest |s|, %."""
         out = {}
-        for side, peak, k in (
-            ("pos", np.max(s), p["saturation_pos_per_v"]),
-            ("neg", -np.min(s), p["saturation_neg_per_v"]),
-        ):
-            peak, k = float(peak), abs(float(k))
-            out[f"level_{side}_v"] = 1.0 / k if k > 0 else float("inf")
+        for side, peak in (("pos", np.max(s)), ("neg", -np.min(s))):
+            peak, k = float(peak), abs(float(self._curvature(side)))
+            out[f"level_{side}"] = 1.0 / k if k > 0 else float("inf")
             if peak > 0:
                 out[f"shortfall_{side}_percent"] = 100.0 * (
                     1.0 - float(_soft_clip(jnp.asarray(peak), k)) / peak
@@ -398,16 +404,13 @@ class Saturation(AbstractEffect):
         # Curvatures whose shortfall at the largest |s| is about 3 % (next to the
         # current model, so LM can only improve on it), 13 % and 35 %.
         pos, neg = _sides(context.signal)
-        return [
-            {"saturation_pos_per_v": 0.3 / pos, "saturation_neg_per_v": 0.3 / neg},
-            {"saturation_pos_per_v": 1 / (1.5 * pos), "saturation_neg_per_v": 1 / (1.5 * neg)},
-            {"saturation_pos_per_v": 1 / (0.8 * pos), "saturation_neg_per_v": 1 / (0.8 * neg)},
-        ]
+        keys = f"{self.name}_pos_curvature", f"{self.name}_neg_curvature"
+        return [dict(zip(keys, (c / pos, c / neg))) for c in (0.3, 1 / 1.5, 1 / 0.8)]
 
     def unpinned_reason(self, name, signal):
-        if name == "saturation_neg_per_v" and np.min(signal) >= 0:
+        if name == f"{self.name}_neg_curvature" and np.min(signal) >= 0:
             return "the signal it acts on never goes negative"
-        if name == "saturation_pos_per_v" and np.max(signal) <= 0:
+        if name == f"{self.name}_pos_curvature" and np.max(signal) <= 0:
             return "the signal it acts on never goes positive"
         return None
 
@@ -415,6 +418,43 @@ class Saturation(AbstractEffect):
         worst = max([v for k, v in derived.items() if k.startswith("shortfall")] or [0.0])
         need = thresholds["shortfall_percent"]
         return worst >= need, f"shortfall {worst:.1f} % (needs ≥ {need} %)"
+
+
+class Saturation(_SidedSaturation):
+    """On the output: y = tanh(κ₊ s)/κ₊ for s ≥ 0 and tanh(κ₋ s)/κ₋ for s < 0 (κ± in 1/unit of s).
+
+    A strip, a sensor or a camera's field that cannot follow the simulation
+    beyond a level, each side its own (see `_SidedSaturation` for the form).
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "saturation"
+    constraints: ClassVar = {"saturation_pos_curvature": Real(), "saturation_neg_curvature": Real()}
+    units: ClassVar = {"saturation_pos_curvature": "1/{signal}", "saturation_neg_curvature": "1/{signal}"}
+    defaults: ClassVar = {"saturation_pos_curvature": 0.0, "saturation_neg_curvature": 0.0}
+
+
+class DriveSaturation(_SidedSaturation):
+    """On the drive: u ↦ tanh(κ± u)/κ± (κ± in 1/unit of the drive), each side its own.
+
+    An amplifier or a DAC stage that clips, a pump or valve at its limit: the
+    drive that reaches the dynamics levels off at ±1/|κ±|. Unlike the output's
+    saturation it is filtered by the dynamics, so a fast drive's clipped peaks
+    are smoothed, and a slow one's flattened.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "drive_saturation"
+    place: ClassVar[str] = "drive"
+    constraints: ClassVar = {
+        "drive_saturation_pos_curvature": Real(),
+        "drive_saturation_neg_curvature": Real(),
+    }
+    units: ClassVar = {
+        "drive_saturation_pos_curvature": "1/{signal}",
+        "drive_saturation_neg_curvature": "1/{signal}",
+    }
+    defaults: ClassVar = {"drive_saturation_pos_curvature": 0.0, "drive_saturation_neg_curvature": 0.0}
 
 
 class Hysteresis(AbstractEffect):
@@ -431,18 +471,18 @@ class Hysteresis(AbstractEffect):
     raw: dict[str, Array]
     name: ClassVar[str] = "hysteresis"
     constraints: ClassVar = {
-        "hysteresis_height_v": Real(),
-        "hysteresis_rate_per_v": Positive(),
+        "hysteresis_height": Real(),
+        "hysteresis_rate": Positive(),
         "hysteresis_initial_state": SignedUnitInterval(),
     }
     units: ClassVar = {
-        "hysteresis_height_v": "{signal}",
-        "hysteresis_rate_per_v": "1/{signal}",
+        "hysteresis_height": "{signal}",
+        "hysteresis_rate": "1/{signal}",
         "hysteresis_initial_state": "1",
     }
     defaults: ClassVar = {
-        "hysteresis_height_v": 0.01,
-        "hysteresis_rate_per_v": 10.0,
+        "hysteresis_height": 0.01,
+        "hysteresis_rate": 10.0,
         "hysteresis_initial_state": 0.0,
     }
     thresholds: ClassVar = {"loop_height_percent_of_range": 3.0}
@@ -453,20 +493,20 @@ class Hysteresis(AbstractEffect):
 
     def apply(self, s, dt):
         p = self.parameters()
-        u = bouc_wen_state(s, p["hysteresis_rate_per_v"], p["hysteresis_initial_state"])
-        return s + p["hysteresis_height_v"] * u
+        u = bouc_wen_state(s, p["hysteresis_rate"], p["hysteresis_initial_state"])
+        return s + p["hysteresis_height"] * u
 
     def derived(self, s, dt):
         """Loop height 2|W| as a percentage of the signal's range."""
         span = float(np.ptp(s))
-        height = 2.0 * abs(float(self.parameters()["hysteresis_height_v"]))
+        height = 2.0 * abs(float(self.parameters()["hysteresis_height"]))
         return {"loop_height_percent_of_range": 100.0 * height / span if span > 0 else 0.0}
 
     def starts(self, context):
         span = signal_span(context.signal)
         return [
-            {"hysteresis_height_v": 0.03 * span, "hysteresis_rate_per_v": 10.0 / span},
-            {"hysteresis_height_v": 0.1 * span, "hysteresis_rate_per_v": 40.0 / span},
+            {"hysteresis_height": 0.03 * span, "hysteresis_rate": 10.0 / span},
+            {"hysteresis_height": 0.1 * span, "hysteresis_rate": 40.0 / span},
         ]
 
     def screened_starts(self, context):
@@ -613,44 +653,72 @@ class FrameTiming(AbstractEffect):
         return {"frame_lag_s": float(self.parameters()["frame_lag"]) * dt}
 
 
-class EvenResponse(AbstractEffect):
-    """y = s + c s²: a response with a part even in the signal, c in 1/V.
+class _Even(AbstractEffect):
+    """x ↦ x + c x², on whichever signal: a part even in the signal (c in 1/unit of the signal).
 
-    An IPMC bends one way or the other with the sign of the drive (odd); an
-    electrostatic actuator (a dielectric elastomer, an electrostatic zipper)
-    is pulled by a force ∝ V², the same for +V and −V (even). c = 0 is the
-    linear response; with the readout's gain the model spans everything from
-    linear to purely quadratic (|c| large). ``derived`` reports the even part's
-    size, |c|·max s², as a percentage of the signal's range.
+    c = 0 is the linear response; with a gain after it the form spans
+    everything from linear to purely quadratic (|c| large). ``derived`` reports
+    the even part's size, |c|·max x², as a percentage of the signal's range.
+    The parameter is named by the class's `coefficient`.
     """
 
-    raw: dict[str, Array]
-    name: ClassVar[str] = "even_response"
-    constraints: ClassVar = {"even_per_v": Real()}
-    units: ClassVar = {"even_per_v": "1/{signal}"}
-    defaults: ClassVar = {"even_per_v": 0.0}
+    coefficient: ClassVar[str]
     thresholds: ClassVar = {"even_percent_of_range": 5.0}
 
     def __init__(self, **values):
         init_values(self, values)
 
     def apply(self, s, dt):
-        return s + self.parameters()["even_per_v"] * s * s
+        return s + self.parameters()[self.coefficient] * s * s
 
     def derived(self, s, dt):
         """The even part's size, |c| max s², as a percentage of the range of s."""
         span = float(np.ptp(s))
-        even = abs(float(self.parameters()["even_per_v"])) * float(np.max(np.square(s)))
+        even = abs(float(self.parameters()[self.coefficient])) * float(np.max(np.square(s)))
         return {"even_percent_of_range": 100.0 * even / span if span > 0 else 0.0}
 
     def starts(self, context):
-        # An even part of 10 % of the range either way; LM takes it to a purely quadratic response if needed.
+        # An even part of 10 % of the range either way; with the gain after it, LM takes it to
+        # a purely quadratic response if needed.
         span, top = signal_span(context.signal), signal_top(context.signal)
-        return [{"even_per_v": 0.1 * span / top**2}, {"even_per_v": -0.1 * span / top**2}]
+        return [{self.coefficient: 0.1 * span / top**2}, {self.coefficient: -0.1 * span / top**2}]
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("even_percent_of_range", 0.0), thresholds["even_percent_of_range"]
         return size >= need, f"even part {size:.1f} % of range (needs ≥ {need} %)"
+
+
+class EvenResponse(_Even):
+    """On the output: y = s + c s², a response with a part even in the signal.
+
+    An IPMC bends one way or the other with the sign of the drive (odd); a
+    sensor that cannot see sign, or a strip whose bending adds a quadratic
+    part, reads the simulation's output with an even part.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "even_response"
+    coefficient: ClassVar[str] = "even_coefficient"
+    constraints: ClassVar = {"even_coefficient": Real()}
+    units: ClassVar = {"even_coefficient": "1/{signal}"}
+    defaults: ClassVar = {"even_coefficient": 0.0}
+
+
+class DriveEven(_Even):
+    """On the drive: u ↦ u + c u², a force even in the drive (|c| large: ∝ u², as V² is).
+
+    An electrostatic actuator (a dielectric elastomer, an electrostatic zipper)
+    is pulled by a force ∝ V², the same for +V and −V, and that force goes
+    through the dynamics: the even part is in the drive, not in the output.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "drive_even"
+    place: ClassVar[str] = "drive"
+    coefficient: ClassVar[str] = "drive_even_coefficient"
+    constraints: ClassVar = {"drive_even_coefficient": Real()}
+    units: ClassVar = {"drive_even_coefficient": "1/{signal}"}
+    defaults: ClassVar = {"drive_even_coefficient": 0.0}
 
 
 class BaselineDrift(AbstractEffect):
@@ -735,3 +803,57 @@ class DriveDeadZone(AbstractEffect):
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("drive_dead_zone_percent", 0.0), thresholds["drive_dead_zone_percent"]
         return size >= need, f"dead zone {size:.1f} % of the largest drive (needs ≥ {need} %)"
+
+
+def play(u, half_width, initial=0.0):
+    """The play (backlash) operator: y[n] = clip(y[n−1], u[n] − h, u[n] + h), y[−1] = `initial`.
+
+    A clamp followed by a clamp is a clamp (clip(clip(y, a₁, b₁), a₂, b₂) =
+    clip(y, clip(a₁, a₂, b₂), clip(b₁, a₂, b₂))), so the recurrence is a
+    parallel scan of (lower, upper) pairs: O(log T) passes, not T steps.
+    """
+
+    def compose(first, second):
+        lo1, hi1 = first
+        lo2, hi2 = second
+        return jnp.clip(lo1, lo2, hi2), jnp.clip(hi1, lo2, hi2)
+
+    lo, hi = lax.associative_scan(compose, (u - half_width, u + half_width))
+    return jnp.clip(initial, lo, hi)
+
+
+class Backlash(AbstractEffect):
+    """On the drive: the play operator of half-width h, y[n] = clip(y[n−1], u[n] − h, u[n] + h).
+
+    Gears, a loose linkage, a cable with slack: when the drive reverses it
+    must travel 2h (unit of the drive) before what it drives moves again; the
+    play starts at rest (y = 0 before the first sample). ``derived`` reports
+    the play 2h as a percentage of the drive's range.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "backlash"
+    place: ClassVar[str] = "drive"
+    constraints: ClassVar = {"backlash_half_width": Positive()}
+    units: ClassVar = {"backlash_half_width": "{signal}"}
+    defaults: ClassVar = {"backlash_half_width": 0.01}
+    thresholds: ClassVar = {"play_percent_of_range": 3.0}
+
+    def __init__(self, **values):
+        init_values(self, values)
+
+    def apply(self, u, dt):
+        return play(u, self.parameters()["backlash_half_width"])
+
+    def derived(self, u, dt):
+        span = float(np.ptp(u)) if len(u) else 0.0
+        play_width = 2.0 * float(self.parameters()["backlash_half_width"])
+        return {"play_percent_of_range": 100.0 * play_width / span if span > 0 else 0.0}
+
+    def starts(self, context):
+        span = signal_span(context.signal)
+        return [{"backlash_half_width": 0.03 * span}, {"backlash_half_width": 0.1 * span}]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("play_percent_of_range", 0.0), thresholds["play_percent_of_range"]
+        return size >= need, f"play {size:.1f} % of the drive's range (needs ≥ {need} %)"

@@ -269,8 +269,8 @@ def hysteresis_starts(problem, simulation, n_starts: int, frozen=frozenset()) ->
         starts.append(
             {
                 **{k: design[i][k] for k in names},
-                "hysteresis_height_v": float(heights[i, j]),
-                "hysteresis_rate_per_v": float(ks[i, j]),
+                "hysteresis_height": float(heights[i, j]),
+                "hysteresis_rate": float(ks[i, j]),
                 "hysteresis_initial_state": float(initials[i, j]),
             }
         )
