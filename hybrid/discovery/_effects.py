@@ -57,7 +57,7 @@ stands for both places.
   dynamics (the dynamics then smooth the clipped drive).
 - Drive even: a force ∝ u², as an electrostatic actuator's ∝ V².
 - Backlash: gears or a slack linkage; after a reversal the drive travels 2h
-  before the dynamics see it move (`play`, a parallel scan).
+  before the dynamics see it move (`play`).
 
 Everything `diagnose` needs to search an effect is the effect's own
 (`starts`, `screened_starts`, `thresholds`, `material`, `unpinned_reason`): a
@@ -298,21 +298,20 @@ class Delay(AbstractEffect):
 
 
 def affine_recurrence(a, b, x0=0.0):
-    """x[n] = a[n] x[n−1] + b[n] for n = 0..T−1 from x[−1] = x0, as a parallel scan.
+    """x[n] = a[n] x[n−1] + b[n] for n = 0..T−1 from x[−1] = x0, as a sequential `lax.scan`.
 
-    The composition of affine maps is associative, so `lax.associative_scan`
-    evaluates the recurrence in O(log T) vectorised passes instead of T
-    dependent scalar steps (which cost ~1 µs each on a CPU).
+    The composition of affine maps is associative, so a parallel
+    `lax.associative_scan` would do too, but under `diagnose`'s batched
+    forward-mode Jacobians it compiles 4–12× slower and runs 0.7–1.6× as long
+    on a CPU (`benchmarks/scan_forms.py`, 9,000 and 36,000 samples).
     """
-
-    def compose(first, second):
-        a1, b1 = first
-        a2, b2 = second
-        return a2 * a1, a2 * b1 + b2
-
     a = jnp.broadcast_to(a, b.shape)
-    b = b.at[0].add(a[0] * x0)
-    return lax.associative_scan(compose, (a, b))[1]
+
+    def step(x, ab):
+        x = ab[0] * x + ab[1]
+        return x, x
+
+    return lax.scan(step, jnp.asarray(x0, b.dtype), (a, b))[1]
 
 
 def _first_order_lowpass(s, a):
@@ -592,18 +591,16 @@ class Resonance(AbstractEffect):
         phi, g0, g1 = foh_matrices(a, b, dt)
         du = jnp.diff(s, append=s[-1:])
         # x[n+1] = Φ x[n] + Γ₀ u[n] + Γ₁ Δu[n], from rest at the first value (unity DC gain):
-        # a linear recurrence, evaluated as a parallel scan of affine maps.
+        # a linear recurrence, evaluated by a sequential scan (see `affine_recurrence`).
         forcing = g0[None, :] * s[:, None] + g1[None, :] * du[:, None]
         x0 = jnp.array([1.0, 0.0], s.dtype) * s[0]
         forcing = forcing.at[0].add(phi @ x0)
-        phis = jnp.broadcast_to(phi, (s.shape[0], 2, 2))
 
-        def compose(first, second):
-            a1, b1 = first
-            a2, b2 = second
-            return a2 @ a1, jnp.einsum("...ij,...j->...i", a2, b1) + b2
+        def step(x, f):
+            x = phi @ x + f
+            return x, x
 
-        states = lax.associative_scan(compose, (phis, forcing))[1]  # x[1..T]
+        states = lax.scan(step, jnp.zeros(2, s.dtype), forcing)[1]  # x[1..T]
         return jnp.concatenate([x0[None, 0], states[:-1, 0]])
 
     def starts(self, context):
@@ -808,18 +805,17 @@ class DriveDeadZone(AbstractEffect):
 def play(u, half_width, initial=0.0):
     """The play (backlash) operator: y[n] = clip(y[n−1], u[n] − h, u[n] + h), y[−1] = `initial`.
 
-    A clamp followed by a clamp is a clamp (clip(clip(y, a₁, b₁), a₂, b₂) =
-    clip(y, clip(a₁, a₂, b₂), clip(b₁, a₂, b₂))), so the recurrence is a
-    parallel scan of (lower, upper) pairs: O(log T) passes, not T steps.
+    A sequential `lax.scan`. (A clamp of a clamp is a clamp, so this is also a
+    parallel scan of (lower, upper) pairs; in `diagnose`'s search that version
+    took 22 s more to compile, measured on `tests/test_plugin_diagnose.py`'s
+    recording, for a run that takes 3 s once compiled.)
     """
 
-    def compose(first, second):
-        lo1, hi1 = first
-        lo2, hi2 = second
-        return jnp.clip(lo1, lo2, hi2), jnp.clip(hi1, lo2, hi2)
+    def step(y, value):
+        y = jnp.clip(y, value - half_width, value + half_width)
+        return y, y
 
-    lo, hi = lax.associative_scan(compose, (u - half_width, u + half_width))
-    return jnp.clip(initial, lo, hi)
+    return lax.scan(step, jnp.asarray(initial, u.dtype), u)[1]
 
 
 class Backlash(AbstractEffect):
