@@ -90,6 +90,45 @@ def test_feedback_jacobian_matches_finite_differences():
         np.testing.assert_allclose(np.asarray(jac[k]), fd, rtol=1e-5, atol=1e-7 * np.max(np.abs(fd)))
 
 
+def _lti_with_cubic_scipy(sim, u, dt, k3):
+    """ẋ = A x + B (u − k3 y³), y = C x + D (u − k3 y³) with y³ of the state part, u held; from rest."""
+    A, B, C, D = (np.asarray(m) for m in sim.state_space())
+    t = np.arange(len(u)) * dt
+
+    def rhs(time, x):
+        drive = u[min(int(np.floor(time / dt + 1e-9)), len(u) - 1)]
+        return A @ x + B * (drive - k3 * (C @ x) ** 3)
+
+    sol = solve_ivp(rhs, (0, t[-1]), np.zeros(len(B)), t_eval=t, rtol=1e-10, atol=1e-12, max_step=dt / 4)
+    part = C @ sol.y
+    return part + D * (u - k3 * part**3)
+
+
+def test_lti_state_space_form_is_exact_and_its_feedback_second_order():
+    """LTI's state-space form: without effects it is LTI.simulate (exact ZOH), with a cubic fed back it
+    converges to solve_ivp at second order in the substep (Heun's rule for the force)."""
+    from hybrid.core._state_space import integrate
+
+    rng = np.random.default_rng(0)
+    u = np.repeat(rng.uniform(-1, 1, 60), 10)
+    dt = 0.01
+    sim = hybrid.LTI(3, tau_1=0.05, f_2=2.0, zeta_2=0.3, lowpass_2=0.5, bandpass_2=0.2, direct=0.1)
+    plain, states = integrate(sim, jnp.asarray(u), dt)
+    np.testing.assert_allclose(np.asarray(plain), np.asarray(sim.simulate(jnp.asarray(u), dt)), atol=1e-13)
+    assert states.shape == (600, 3) and sim.states == ("lag_1", "low_2", "band_2")
+    reference = _lti_with_cubic_scipy(sim, u, dt, 0.8)
+    stack = EffectStack(sim, [PolynomialStiffness(stiffness_cube=0.8)])
+    y = np.asarray(stack.simulate(jnp.asarray(u), dt))
+    error = np.max(np.abs(y - reference))
+    assert error < 2e-3 * np.ptp(reference)  # 2 substeps a sample (LTI's default)
+    values = {k: float(v) for k, v in sim.parameters().items()}
+    finer = type("LTIFourSubsteps", (hybrid.LTI,), {"substeps": 4})(3, **values)
+    error4 = np.max(
+        np.abs(np.asarray(integrate(finer, jnp.asarray(u), dt, lambda x, y: 0.8 * y**3)[0]) - reference)
+    )
+    assert 3.0 < error / error4 < 5.5  # halving the substep quarters the error: second order
+
+
 def _tank_drive(n=600, seed=1):
     rng = np.random.default_rng(seed)
     return np.repeat(rng.uniform(0.0, 9.0, n // 20), 20)
@@ -161,8 +200,10 @@ def test_saved_stack_with_a_state_limit_round_trips():
 
 def test_resolve_effects_adds_inside_effects_only_where_there_are_states():
     names = [e.name for e in hybrid.resolve_effects(None, TwoTank())]
-    assert names[-3:] == ["stiffness", "limit_h1", "limit_h2"]
-    assert "stiffness" not in [e.name for e in hybrid.resolve_effects(None, hybrid.LTI(2))]
+    assert "stiffness" in names and names[-2:] == ["limit_h1", "limit_h2"]
+    lti = [e.name for e in hybrid.resolve_effects(None, hybrid.LTI(3))]  # LTI has a (linear) state-space form
+    assert "stiffness" in lti and lti[-2:] == ["limit_lag_1", "limit_low_2"]  # on the low-pass states only
+    assert "stiffness" not in [e.name for e in hybrid.resolve_effects(None, hybrid.RCNetwork())]
     assert [e.name for e in hybrid.resolve_effects(["limit_h2"], TwoTank())] == ["limit_h2"]
 
 
@@ -284,8 +325,12 @@ def test_a_remainder_that_lives_inside_the_dynamics_says_whether_that_place_was_
     assert "RCNetwork has no state-space form" in place_hint(cubic, rc)
     tanks = searched_places(resolve_effects(None, TwoTank()), TwoTank())
     assert "(stiffness, limit_h1, limit_h2), none explains the rest" in place_hint(cubic, tanks)
-    held = hybrid.HeldStart(hybrid.LTI(2), 20)
-    assert "LTI has no state-space form" in place_hint(
+    held = hybrid.HeldStart(hybrid.RCNetwork(), 20)  # the wrapper's simulation is the one named
+    assert "RCNetwork has no state-space form" in place_hint(
+        cubic, searched_places(resolve_effects(None, held), held)
+    )
+    held = hybrid.HeldStart(hybrid.LTI(2), 20)  # LTI has a (linear) state-space form
+    assert "(stiffness, limit_low_1), none explains the rest" in place_hint(
         cubic, searched_places(resolve_effects(None, held), held)
     )
     assert place_hint({"kind": "static", "level_limit": [{"side": "top"}]}, tanks) is not None  # a flat top

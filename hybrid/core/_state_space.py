@@ -12,6 +12,11 @@ tank); and its states by name for inspection (`AbstractStateSpace.trajectory`).
         def rates(self, x, u, p):
             return ((u - x[0]) / p["tau"],)
 
+A simulation whose rates are linear may also give its matrices
+(`linear_matrices`): it is then stepped exactly (the matrix exponential of a
+substep), however stiff, and only a force fed back from an effect is
+approximated (held over a substep at the mean of its end values). `LTI` does.
+
 Integration: `substeps` classical RK4 steps per sample in one `lax.scan`, the
 drive held over each sample (``drive_between_samples = "hold"``: a
 zero-order-hold DAC, a pump switched per sample) or moving linearly to the next
@@ -41,6 +46,7 @@ from jaxtyping import Array, Float
 
 from ..util._errors import InputError
 from ._arguments import check_drive
+from ._loop_safe_linalg import expm
 from ._simulation import AbstractSimulation
 
 #: How the drive moves between two samples.
@@ -108,6 +114,26 @@ class AbstractStateSpace(AbstractSimulation):
     def walls(self, x: tuple, p: dict) -> tuple:
         """The state after the simulation's own walls act on it (default: unchanged)."""
         return x
+
+    def linear_matrices(self, p: dict) -> tuple[Array, Array] | None:
+        """(A, B) where the rates are linear, ẋ = A x + B u (default None: they are not).
+
+        `p` is what `prepare` returned. A linear simulation that gives them is
+        integrated exactly between force updates (a zero-order hold of the drive
+        over each substep, e^{Ah}), so stiff linear dynamics (time constants far
+        below the sample interval) need no small steps; a force fed back from
+        an effect is held over a substep at the mean of its values at the
+        substep's two ends (Heun's rule: second order in the substep).
+        """
+        return None
+
+    def feedthrough(self, p: dict):
+        """D where the output has a direct part, y = observe(x) + D·(drive − force) (default 0).
+
+        A force fed back from the output reads observe(x), the state's part: the
+        direct part would make the loop algebraic.
+        """
+        return 0.0
 
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
         """The output at each sample time for the drive `v_in` sampled every `dt` seconds."""
@@ -196,10 +222,11 @@ def integrate(
     n = simulation.substeps
     h = dt / n
 
+    def pushed(x):
+        return jnp.zeros((), dtype) if force is None else force(x, simulation.observe(x, p))
+
     def rates(x, drive):
-        if force is not None:
-            drive = drive - force(x, simulation.observe(x, p))
-        return tuple(simulation.rates(x, drive, p))
+        return tuple(simulation.rates(x, drive - pushed(x), p))
 
     def settle(x):
         x = tuple(simulation.walls(x, p))
@@ -208,23 +235,52 @@ def integrate(
     def axpy(x, a, k):
         return tuple(xi + a * ki for xi, ki in zip(x, k))
 
+    def rk4(x, f0, fm, f1):
+        k1 = rates(x, f0)
+        k2 = rates(axpy(x, 0.5 * h, k1), fm)
+        k3 = rates(axpy(x, 0.5 * h, k2), fm)
+        k4 = rates(axpy(x, h, k3), f1)
+        return tuple(
+            xi + (h / 6.0) * (a1 + 2.0 * a2 + 2.0 * a3 + a4) for xi, a1, a2, a3, a4 in zip(x, k1, k2, k3, k4)
+        )
+
+    linear = simulation.linear_matrices(p)
+    if linear is not None:
+        phi, gamma = _zoh(jnp.asarray(linear[0], dtype), jnp.asarray(linear[1], dtype), h)
+
+        def exact(x, drive):
+            return tuple(phi @ jnp.stack(x) + gamma * drive)
+
+        def advance(x, f0, fm, f1):
+            if force is None:
+                return exact(x, fm)
+            first = pushed(x)
+            return exact(x, fm - 0.5 * (first + pushed(exact(x, fm - first))))
+    else:
+        advance = rk4
+
+    direct = simulation.feedthrough(p)
+    has_direct = not (isinstance(direct, float) and direct == 0.0)
+
     def sample(x, pair):
         a, b = pair
         x_k = x
+        y_k = simulation.observe(x_k, p)
+        if has_direct:
+            y_k = y_k + direct * (a - pushed(x_k))
         for j in range(n):  # unrolled: no loop nested in the scan
             f0, fm, f1 = (a + (b - a) * (t / n) for t in (j, j + 0.5, j + 1))
-            k1 = rates(x, f0)
-            k2 = rates(axpy(x, 0.5 * h, k1), fm)
-            k3 = rates(axpy(x, 0.5 * h, k2), fm)
-            k4 = rates(axpy(x, h, k3), f1)
-            x = settle(
-                tuple(
-                    xi + (h / 6.0) * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-                    for xi, a1, a2, a3, a4 in zip(x, k1, k2, k3, k4)
-                )
-            )
-        return x, (simulation.observe(x_k, p), x_k)
+            x = settle(advance(x, f0, fm, f1))
+        return x, (y_k, x_k)
 
     x0 = settle(tuple(jnp.asarray(xi, dtype) for xi in simulation.initial_state(u[0], p)))
     _, (y, xs) = lax.scan(sample, x0, (u, u_next))
     return y, jnp.stack(xs, axis=1)
+
+
+def _zoh(a, b, h):
+    """(e^{Ah}, ∫₀^h e^{Aτ} dτ B): the exact step of ẋ = A x + B u for u held over h."""
+    n = a.shape[0]
+    m = jnp.zeros((n + 1, n + 1), a.dtype).at[:n, :n].set(a).at[:n, n].set(b)
+    e = expm(m * h)  # matrix products only: safe in batched loops (see _loop_safe_linalg)
+    return e[:n, :n], e[:n, n]

@@ -41,7 +41,10 @@ hold) with the matrix exponential of [`hybrid.core._loop_safe_linalg.expm`][]
 (matrix products only, safe inside `diagnose`'s batched compiled loops), and run
 lifted to blocks of samples by the generic ZOH code of `_zoh.py`, which the RC
 network's ``method="zoh"`` shares. The system starts at
-rest. Section k = 1 holds the fastest default time scale; the defaults spread
+rest. It is also an `AbstractStateSpace` (states ``lag_1``, ``low_k``,
+``band_k``; `linear_matrices` gives A and B, so the form is stepped exactly),
+which is where `diagnose` runs an effect inside its dynamics (a cubic fed
+back, a limit on a low-pass state); `simulate` stays the block-lifted ZOH. Section k = 1 holds the fastest default time scale; the defaults spread
 the sections half a decade apart around 1 s so that no two start on the same pole.
 """
 
@@ -57,7 +60,7 @@ from jaxtyping import Array, Float
 
 from ..core._arguments import check_drive
 from ..core._parameters import Constraint, Positive, Real, encode
-from ..core._simulation import AbstractSimulation
+from ..core._state_space import AbstractStateSpace
 from ..util._errors import InputError
 from ._zoh import zoh_discretise, zoh_response
 
@@ -112,7 +115,7 @@ TYPICAL: dict[str, tuple[float, float]] = _table(
 )
 
 
-class LTI(AbstractSimulation):
+class LTI(AbstractStateSpace):
     """A stable continuous-time linear system of order N in modal form (see the module docstring).
 
     **Arguments:**
@@ -137,6 +140,8 @@ class LTI(AbstractSimulation):
     order: int = eqx.field(static=True)
 
     linear_in_drive: ClassVar[bool] = True  # zero initial state: the output is linear in the drive
+    # The state-space form is stepped exactly (`linear_matrices`); substeps only refine a fed-back force.
+    substeps: ClassVar[int] = 2
 
     def __init__(self, order: int, **values):
         if isinstance(order, bool) or not isinstance(order, numbers.Integral) or not 1 <= order <= MAX_ORDER:
@@ -181,28 +186,44 @@ class LTI(AbstractSimulation):
     def from_config(cls, config: dict) -> LTI:
         return cls(order=config["order"])
 
+    # --- the state-space form (effects inside the dynamics act on it) -----------------------
+    @property
+    def states(self) -> tuple[str, ...]:  # type: ignore[override]  # per order, not per class
+        """One per pole: ``lag_1`` (a first-order section), ``low_k`` and ``band_k`` (section k's p, q)."""
+        names: list[str] = []
+        for k, states in sections(self.order):
+            names += ["lag_1"] if states == 1 else [f"low_{k}", f"band_{k}"]
+        return tuple(names)
+
+    @property
+    def limited_states(self) -> tuple[str, ...]:  # type: ignore[override]
+        """The unit-DC-gain low-pass states (each follows a slow drive): where a level could hit a wall."""
+        return tuple(s for s in self.states if not s.startswith("band_"))
+
+    @property
+    def state_units(self) -> dict[str, str]:
+        return dict.fromkeys(self.states, "{drive}")  # each has unit DC (or peak) gain from the drive
+
+    def prepare(self, p: dict) -> dict:
+        A, B, C, D = _realisation(self.order, p)
+        return {"A": A, "B": B, "C": C, "D": D}
+
+    def rates(self, x: tuple, u, p: dict) -> tuple:
+        return tuple(p["A"] @ jnp.stack(x) + p["B"] * u)
+
+    def observe(self, x: tuple, p: dict):
+        return p["C"] @ jnp.stack(x)
+
+    def linear_matrices(self, p: dict):
+        return p["A"], p["B"]
+
+    def feedthrough(self, p: dict):
+        return p["D"]
+
     # --- the system ---------------------------------------------------------------------
     def state_space(self) -> tuple[Array, Array, Array, Array]:
         """Continuous realisation (A, B, C, D): block diagonal A, one block per section."""
-        p = self.parameters()
-        dtype = p["direct"].dtype
-        n = self.order
-        A = jnp.zeros((n, n), dtype)
-        B = jnp.zeros(n, dtype)
-        C = jnp.zeros(n, dtype)
-        i = 0
-        for k, states in sections(n):
-            lowpass = p[f"lowpass_{k}"] if k > 1 else jnp.ones((), dtype)
-            if states == 1:
-                rate = 1.0 / p[f"tau_{k}"]
-                A, B, C = A.at[i, i].set(-rate), B.at[i].set(rate), C.at[i].set(lowpass)
-            else:
-                w = 2.0 * jnp.pi * p[f"f_{k}"]
-                A = A.at[i, i + 1].set(w).at[i + 1, i].set(-w).at[i + 1, i + 1].set(-2.0 * p[f"zeta_{k}"] * w)
-                B = B.at[i + 1].set(w)
-                C = C.at[i].set(lowpass).at[i + 1].set(p[f"bandpass_{k}"])
-            i += states
-        return A, B, C, p["direct"]
+        return _realisation(self.order, self.parameters())
 
     def discrete(self, dt: float):
         """(A_d, B_d, C, D): the exact ZOH discretisation for a sample interval of `dt` s."""
@@ -214,6 +235,28 @@ class LTI(AbstractSimulation):
         """Output (V) for the drive `v_in` (V) held over each interval of `dt` s, from rest."""
         v_in, dt = check_drive(v_in, dt, f"LTI({self.order}).simulate")
         return zoh_response(*self.state_space(), v_in, dt)
+
+
+def _realisation(order: int, p: dict) -> tuple[Array, Array, Array, Array]:
+    """(A, B, C, D) of an order-N system from its decoded parameters `p`."""
+    dtype = p["direct"].dtype
+    n = order
+    A = jnp.zeros((n, n), dtype)
+    B = jnp.zeros(n, dtype)
+    C = jnp.zeros(n, dtype)
+    i = 0
+    for k, states in sections(n):
+        lowpass = p[f"lowpass_{k}"] if k > 1 else jnp.ones((), dtype)
+        if states == 1:
+            rate = 1.0 / p[f"tau_{k}"]
+            A, B, C = A.at[i, i].set(-rate), B.at[i].set(rate), C.at[i].set(lowpass)
+        else:
+            w = 2.0 * jnp.pi * p[f"f_{k}"]
+            A = A.at[i, i + 1].set(w).at[i + 1, i].set(-w).at[i + 1, i + 1].set(-2.0 * p[f"zeta_{k}"] * w)
+            B = B.at[i + 1].set(w)
+            C = C.at[i].set(lowpass).at[i + 1].set(p[f"bandpass_{k}"])
+        i += states
+    return A, B, C, p["direct"]
 
 
 def default_values(order: int, centre_s: float = 1.0) -> dict[str, float]:
