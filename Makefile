@@ -22,7 +22,7 @@ demo: $(STAMP)
 	$(BIN)/python experiments/table2.py
 
 test: $(STAMP) rig-deps
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=25
 
 # the documentation (docs/, mkdocs.yml) into site/; a broken link or reference fails it
 docs: $(STAMP)

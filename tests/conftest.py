@@ -52,6 +52,7 @@ HEAVY_FIRST = (
     "test_compile_once.py",  # 44 s: one test
     "test_solvers.py",  # 33 s: old and new spellings fitted side by side (added by issue 32)
     "test_plugin_diagnose.py",  # 30 s
+    "test_inside_effects.py",  # ~90 s: a CLI diagnose and refit of the docs' friction plug-in (issue 31)
     "test_plugin_from_docs.py",  # 27 s: a CLI fit and a CLI diagnose (added by issue 32)
     "test_buckets.py",  # 28 s
     "test_diagnose_starts.py",  # 25 s
