@@ -260,12 +260,13 @@ def test_a_drive_side_effect_acts_before_the_simulation():
 def test_baseline_drift_is_an_additive_trend_in_minutes():
     dt = 1.0 / RATE
     s = np.sin(np.arange(1800) * dt)
-    effect = hybrid.EFFECTS["baseline_drift"](baseline_slope_per_min=0.2, baseline_curvature_per_min2=-0.05)
-    t = np.arange(1800) * dt / 60.0
-    np.testing.assert_allclose(
-        np.asarray(effect.apply(jnp.asarray(s), dt)), s + 0.2 * t - 0.05 * t**2, atol=1e-12
+    effect = hybrid.EFFECTS["baseline_drift"](
+        baseline_slope_per_min=0.2, baseline_curvature_per_min2=-0.05, baseline_cubic_per_min3=0.03
     )
-    size = np.max(np.abs(0.2 * t - 0.05 * t**2))
+    t = np.arange(1800) * dt / 60.0
+    trend = 0.2 * t - 0.05 * t**2 + 0.03 * t**3
+    np.testing.assert_allclose(np.asarray(effect.apply(jnp.asarray(s), dt)), s + trend, atol=1e-12)
+    size = np.max(np.abs(trend))
     assert effect.derived(s, dt)["baseline_percent_of_range"] == pytest.approx(100 * size / np.ptp(s))
 
 

@@ -32,7 +32,8 @@ CAUSES = ("none",) + tuple(EFFECTS)
 #:   ``hysteresis_height``, ``hysteresis_rate_per_v`` is ``hysteresis_rate``, ``even_per_v`` is
 #:   ``even_coefficient``, and saturation's derived ``level_pos_v`` / ``level_neg_v`` are
 #:   ``level_pos`` / ``level_neg``. Names of time and frequency (``delay_s``, ``_hz``) keep theirs:
-#:   those units never change. ``places`` says where effects were searched.
+#:   those units never change. ``places`` says where effects were searched. ``baseline_drift``
+#:   gains a cubic term, ``baseline_cubic_per_min3``; the drive's new effects add their keys.
 #: - 2 (from 1): each parameter with a standard error says whether the recording pins it
 #:   (``pinned``; ``not_pinned``: why not); units follow the signal an effect acts on;
 #:   ``effects`` lists the searched effects and where each acts; ``settings.materiality`` lists

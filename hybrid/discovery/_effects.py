@@ -21,8 +21,9 @@ name               y(t)                                   parameters
 ``resonance``      ω²/(s² + 2ζωs + ω²) applied to s       ``resonance_frequency_hz`` f = ω/2π,
                    (exact first-order-hold discretisation) ``resonance_damping`` ζ
 ``even_response``  s + c s²                               ``even_coefficient`` c (1/V)
-``baseline_drift`` s + a·t + b·t² (t in minutes)           ``baseline_slope_per_min`` a (V/min),
-                                                          ``baseline_curvature_per_min2`` b (V/min²)
+``baseline_drift`` s + a·t + b·t² + c·t³ (t in minutes)    ``baseline_slope_per_min`` a (V/min),
+                                                          ``baseline_curvature_per_min2`` b (V/min²),
+                                                          ``baseline_cubic_per_min3`` c (V/min³)
 ``drive_dead_zone`` S(u − clip(u, −d, d))  (on the drive)  ``drive_dead_zone_width`` d (unit of u)
 ``drive_saturation`` S(tanh(κ± u)/κ±)  (on the drive)      ``drive_saturation_pos_curvature``,
                                                           ``drive_saturation_neg_curvature`` (1/unit of u)
@@ -719,25 +720,37 @@ class DriveEven(_Even):
 
 
 class BaselineDrift(AbstractEffect):
-    """y = s + a·t + b·t², t in minutes from the recording's first sample: the output's zero wanders.
+    """y = s + a·t + b·t² + c·t³, t in minutes from the recording's first sample: the output's zero wanders.
 
     The commonest drift of a real sensor or a warming plant is additive: the
     baseline creeps while the response stays the same (`Drift` is the other
     kind, a gain that changes). Zero at the first sample, so the readout's
-    offset keeps its meaning; a and b are in the unit of the signal per minute
-    (per minute²), which keeps their Jacobian columns of order one on
-    recordings of minutes. ``derived`` reports the largest excursion of the
-    trend over the recording as a percentage of the signal's range.
+    offset keeps its meaning; a, b and c are in the unit of the signal per
+    minute (per minute², per minute³), which keeps their Jacobian columns of
+    order one on recordings of minutes. The cubic term lets the trend turn
+    twice, as a ramp with a slow swing does (a sine whose period is a few
+    recordings long: a quadratic follows a quarter of its cycle, not two thirds).
+    ``derived`` reports the largest excursion of the trend over the recording
+    as a percentage of the signal's range.
     """
 
     raw: dict[str, Array]
     name: ClassVar[str] = "baseline_drift"
-    constraints: ClassVar = {"baseline_slope_per_min": Real(), "baseline_curvature_per_min2": Real()}
+    constraints: ClassVar = {
+        "baseline_slope_per_min": Real(),
+        "baseline_curvature_per_min2": Real(),
+        "baseline_cubic_per_min3": Real(),
+    }
     units: ClassVar = {
         "baseline_slope_per_min": "{signal}/min",
         "baseline_curvature_per_min2": "{signal}/min²",
+        "baseline_cubic_per_min3": "{signal}/min³",
     }
-    defaults: ClassVar = {"baseline_slope_per_min": 0.0, "baseline_curvature_per_min2": 0.0}
+    defaults: ClassVar = {
+        "baseline_slope_per_min": 0.0,
+        "baseline_curvature_per_min2": 0.0,
+        "baseline_cubic_per_min3": 0.0,
+    }
     thresholds: ClassVar = {"baseline_percent_of_range": 5.0}
 
     def __init__(self, **values):
@@ -746,7 +759,10 @@ class BaselineDrift(AbstractEffect):
     def _trend(self, n: int, dt: float, xp=jnp):
         p = self.parameters()
         t = xp.arange(n) * (dt / 60.0)
-        return p["baseline_slope_per_min"] * t + p["baseline_curvature_per_min2"] * t * t
+        return t * (
+            p["baseline_slope_per_min"]
+            + t * (p["baseline_curvature_per_min2"] + t * p["baseline_cubic_per_min3"])
+        )
 
     def apply(self, s, dt):
         return s + self._trend(s.shape[0], dt).astype(s.dtype)
