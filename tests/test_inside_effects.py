@@ -335,3 +335,37 @@ def test_a_remainder_that_lives_inside_the_dynamics_says_whether_that_place_was_
     )
     assert place_hint({"kind": "static", "level_limit": [{"side": "top"}]}, tanks) is not None  # a flat top
     assert place_hint({"kind": "static", "level_limit": []}, tanks) is None  # nothing points inside
+
+
+def test_a_start_that_makes_the_dynamics_escape_is_pulled_towards_the_effects_defaults():
+    """A softening spring started far too soft sends an LTI to infinity: its lane starts nearer the
+    defaults (finite), and a start that stays finite is kept as given."""
+    from hybrid.discovery._search import lanes_problem, simulation_output
+    from hybrid.discovery._step import _finite_lanes
+
+    rng = np.random.default_rng(0)
+    u = np.repeat(rng.uniform(-1, 1, 30), 10)
+    y = np.asarray(hybrid.LTI(2).simulate(jnp.asarray(u), 0.1))
+    recording = hybrid.Recording.from_arrays(v_in=u, w=y + 0.01 * rng.normal(size=y.size), rate=10.0)
+    settings = hybrid.DiagnoseSettings()
+    problem, _, model, _ = lanes_problem([recording], hybrid.LTI(2), settings, effects=["stiffness"])
+    stack, frozen = model.simulation, frozenset(settings.frozen_for(hybrid.LTI(2)))
+    i = [e.name for e in stack.effects].index("stiffness")
+    active = np.zeros(len(stack.effects))
+    active[i] = 1.0
+    effect = stack.effects[i]
+    wild, mild = {"stiffness_cube": -1e9}, {"stiffness_cube": 0.05}
+    starts = [stack.replace(**v).with_active(jnp.asarray(active)) for v in (wild, mild)]
+    escaped = simulation_output(problem, starts[0], model.readout, frozen, "train")
+    assert not np.all(np.isfinite(escaped))  # the wild start does escape
+    lanes = _finite_lanes(
+        problem,
+        stack,
+        starts,
+        [(effect, v, jnp.asarray(active)) for v in (wild, mild)],
+        model.readout,
+        frozen,
+    )
+    assert all(np.all(np.isfinite(np.asarray(theta))) for theta in lanes)
+    cubes = [float(problem.model(theta).simulation.parameters()["stiffness_cube"]) for theta in lanes]
+    assert -1e9 < cubes[0] <= 0.0 and cubes[1] == pytest.approx(0.05)

@@ -174,25 +174,33 @@ def initial_theta(problem, simulation, readout, frozen):
     return initial_thetas(problem, [simulation], readout, frozen)[0]
 
 
-def initial_thetas(problem, simulations, readout, frozen):
+def initial_thetas(problem, simulations, readout, frozen, strict: bool = False):
     """θ for each of `simulations` (one structure, other values), each with its least-squares gain and offset.
 
     Each simulation's output comes from `predictions` (the program every
     stage already runs: gain 1, offset 0), and the gain and offset are fitted
-    on the recorded training samples by numpy: no program of its own.
+    on the recorded training samples by numpy: no program of its own. A
+    simulation whose output is not finite (a start that makes the dynamics
+    escape) gets gain 1 and offset 0, or, with `strict`, None in its place.
     """
     w = problem.recorded(problem.target("train"), "train")
-    thetas = []
+    thetas: list = []
     for simulation in simulations:
         s = simulation_output(problem, simulation, readout, frozen, "train")
-        (gain, offset), *_ = np.linalg.lstsq(np.stack([s, np.ones_like(s)], axis=1), w, rcond=None)
+        if not np.all(np.isfinite(s)):
+            if strict:
+                thetas.append(None)
+                continue
+            gain, offset = 1.0, 0.0
+        else:
+            (gain, offset), *_ = np.linalg.lstsq(np.stack([s, np.ones_like(s)], axis=1), w, rcond=None)
         if not (np.isfinite(gain) and np.isfinite(offset)):
             gain, offset = 1.0, 0.0
         fitted = eqx.tree_at(
             lambda r: r.raw, readout, {"gain": jnp.asarray(gain, float), "offset": jnp.asarray(offset, float)}
         )
         thetas.append(problem.flatten(Model(simulation, fitted, "physics"), frozen))
-    return jnp.stack(thetas)
+    return thetas if strict else jnp.stack(thetas)
 
 
 def simulation_output(problem, simulation, readout, frozen, split: str) -> np.ndarray:

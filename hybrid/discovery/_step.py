@@ -131,6 +131,35 @@ class Step:
         return self.chosen.name if self.chosen is not None else None
 
 
+#: A start whose simulation escapes (non-finite output) is tried again this much nearer to its
+#: effect's defaults, at most `RETRIES` times, then at the defaults.
+TAME, RETRIES = 0.1, 3
+
+
+def _finite_lanes(problem, stack, starts, departures, readout, frozen) -> list:
+    """θ of each start, a start whose simulation is not finite pulled towards its effect's defaults.
+
+    A softening spring started too soft, or a force too large for the fitted
+    dynamics, makes the simulation escape to infinity; that lane would be lost
+    (and its NaN would reach the least-squares gain). Its departure from the
+    effect's defaults is scaled by `TAME` until the output is finite, and at
+    worst the lane starts at the defaults.
+    """
+    lanes = initial_thetas(problem, starts, readout, frozen, strict=True)
+    for k, theta in enumerate(lanes):
+        effect, values, active = departures[k]
+        for attempt in range(RETRIES + 1):
+            if theta is not None:
+                break
+            scale = TAME ** (attempt + 1) if attempt < RETRIES else 0.0
+            base = effect.defaults
+            tamed = {n: base[n] + scale * (v - base[n]) if n in base else v for n, v in values.items()}
+            retry = stack.replace(**tamed).with_active(active)
+            theta = initial_thetas(problem, [retry], readout, frozen, strict=attempt < RETRIES)[0]
+        lanes[k] = theta
+    return lanes
+
+
 def search_step(
     search: Search, current: Candidate, current_val: float, current_fits: list, present: tuple[str, ...]
 ) -> Step:
@@ -181,7 +210,7 @@ def search_step(
         if screening:
             s.say(f"screening starts for the {', '.join(e.name for e in screening)} candidates")
         screened = {e.name: e.screened_starts(context[e.name])[: e.n_screened] for e in screening}
-    starts, actives, labels, tangents = [], [], [], []
+    starts, actives, labels, tangents, departures = [], [], [], [], []
     for i, effect in enumerate(effects):
         name = effect.name
         if name in present:
@@ -190,6 +219,7 @@ def search_step(
             active = active_cur.copy()
             active[i] = 1.0
             starts.append(stack.replace(**values).with_active(active))
+            departures.append((effect, values, active))
             actives.append(active)
             labels.append(name)
             tangents.append(lane_tangents(s.model, s.frozen, present + (name,), n_rows))
@@ -199,7 +229,7 @@ def search_step(
             f"the effects gave {len(starts)} starts on this recording but {n_lanes} on a probe signal: an "
             "effect's starts(context) must give as many starts whatever the data (see docs/effects.md)"
         )
-    lanes = list(initial_thetas(problem, starts, cur_model.readout, s.frozen))
+    lanes = _finite_lanes(problem, stack, starts, departures, cur_model.readout, s.frozen)
     while len(lanes) < n_lanes:  # one lane count for every step: one compiled program
         lanes.append(padding_lane(theta_cur))  # stops at once: no LM steps spent on it
         actives.append(active_cur)
