@@ -1,12 +1,13 @@
-"""Missing physics inside the dynamics, hidden in two plants: does `diagnose` name it, and nothing on clean data?
+"""Missing physics on the drive and inside the dynamics, hidden in three plants: does `diagnose` name it?
 
-    python experiments/inside_effects.py [--seeds 4] [--cases cubic,end_stop,none,overflow,tank_none]
+    python experiments/inside_effects.py [--seeds 4] [--cases cubic,end_stop,none,overflow,tank_none,
+                                         lti_dead_zone,lti_square,lti_cubic,lti_limit,lti_none]
                                          [--out experiments/results/inside_effects.json]
 
-Each draw hides one effect inside the dynamics of a plant made here with
-scipy's `solve_ivp`, sharing no code with the library's effects or its RK4,
-and diagnoses it with the examples' plug-in (default effects: every built-in,
-the inside ones included):
+Each draw hides one effect on the drive or inside the dynamics of a plant
+made here with scipy's `solve_ivp`, sharing no code with the library's effects
+or its integrators, and diagnoses it with the examples' plug-in or `lti:N`
+(default effects: every built-in, the inside ones included), clean data too:
 
 - the oscillator (`examples/oscillator.py:MassSpringDamper`): natural frequency
   1.5–4 Hz, damping 0.05–0.2, driven by a multisine up to 1.5× resonance, 40 s
@@ -22,6 +23,18 @@ the inside ones included):
   - ``overflow``: the upper tank spills above a rim at 60–80 % of its
     unlimited peak level (a steep smooth spill in the rate, not a projection);
   - ``tank_none``: no overflow.
+
+- a linear plant diagnosed with `lti:N` (`hybrid.LTI`), 60 s at 30 Hz, driven by
+  random levels in [−1, 1] held 0.1–1 s:
+  - a second-order plant (natural frequency 0.3–1.2 Hz, damping 0.3–0.8)
+    with ``lti_dead_zone``: the drive passes through a dead zone of 20–35 %
+    of its largest |u| (found as ``drive_dead_zone``); ``lti_square``: the
+    force is the drive squared, as an electrostatic actuator's ∝ V² (found as
+    ``drive_even``); ``lti_cubic``: a cubic of the output fed back, 15–30 % of
+    the largest drive at the linear peak (``stiffness``); ``lti_none``: linear;
+  - ``lti_limit``: a first-order tank, τ 0.5–3 s, whose level spills over a
+    rim at 55–75 % of its unlimited peak (a steep smooth spill in the rate),
+    diagnosed with `lti:1` (found as ``limit_lag_1``).
 
 The noise is 0.5 % of the clean output's range. Found means the hidden effect's
 name (``stiffness``, ``limit_position``, ``limit_h1``) is among the causes; on
@@ -39,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.integrate import solve_ivp
+from scipy.special import expit
 
 ROOT = Path(__file__).resolve().parents[1]
 OSC_RATE, OSC_SECONDS = 50.0, 40.0
@@ -50,7 +64,13 @@ EXPECTED = {
     "none": None,
     "overflow": "limit_h1",
     "tank_none": None,
+    "lti_dead_zone": "drive_dead_zone",
+    "lti_square": "drive_even",
+    "lti_cubic": "stiffness",
+    "lti_limit": "limit_lag_1",
+    "lti_none": None,
 }
+LTI_RATE, LTI_SECONDS = 30.0, 60.0
 
 
 def oscillator(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -122,6 +142,61 @@ def tanks(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
     return u, h2, truth
 
 
+def linear_plant(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
+    n = int(LTI_SECONDS * LTI_RATE)
+    levels, holds = [], []
+    while sum(holds) < n:
+        levels.append(rng.uniform(-1.0, 1.0))
+        holds.append(int(rng.integers(3, 31)))
+    u = np.repeat(levels, holds)[:n]
+    t = np.arange(n) / LTI_RATE
+
+    def held(time):
+        return u[min(int(time * LTI_RATE + 1e-9), n - 1)]
+
+    def solve(rhs, states):
+        return solve_ivp(
+            rhs, (0, t[-1]), np.zeros(states), t_eval=t, rtol=1e-9, atol=1e-11, max_step=0.25 / LTI_RATE
+        ).y
+
+    if case == "lti_limit":
+        tau = rng.uniform(0.5, 3.0)
+
+        def tank(rim):
+            def rhs(time, x):
+                d = (held(time) - x[0]) / tau
+                if rim is not None:  # above the rim the excess inflow spills out (a steep smooth step)
+                    d -= max(d, 0.0) * expit((x[0] - rim) / (0.002 * abs(rim)))
+                return [d]
+
+            return solve(rhs, 1)[0]
+
+        rim = rng.uniform(0.55, 0.75) * float(np.max(tank(None)))
+        return u, tank(rim), {"time_constant_s": tau, "rim": rim}
+    f0, zeta = rng.uniform(0.3, 1.2), rng.uniform(0.3, 0.8)
+    w = 2 * np.pi * f0
+    truth = {"frequency_hz": f0, "damping": zeta}
+
+    def oscillate(drive, force=lambda y: 0.0):
+        def rhs(time, x):
+            return [x[1], w * w * (drive(held(time)) - force(x[0]) - x[0]) - 2 * zeta * w * x[1]]
+
+        return solve(rhs, 2)[0]
+
+    if case == "lti_dead_zone":
+        d = rng.uniform(0.20, 0.35) * float(np.max(np.abs(u)))
+        truth["dead_zone"] = d
+        return u, oscillate(lambda v: v - np.clip(v, -d, d)), truth
+    if case == "lti_square":
+        return u, oscillate(lambda v: v * v), truth
+    if case == "lti_cubic":
+        peak = float(np.max(np.abs(oscillate(lambda v: v))))
+        k3 = rng.uniform(0.15, 0.30) * rng.choice([-1.0, 1.0]) / peak**3
+        truth["cube"] = k3
+        return u, oscillate(lambda v: v, lambda y: k3 * y**3), truth
+    return u, oscillate(lambda v: v), truth
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=4)
@@ -140,14 +215,19 @@ def main(argv=None) -> int:
 
     rows = []
     for case in cases:
-        tank = case in ("overflow", "tank_none")
-        physics = f"{ROOT}/examples/" + ("two_tank.py:TwoTank" if tank else "oscillator.py:MassSpringDamper")
+        tank, linear = case in ("overflow", "tank_none"), case.startswith("lti_")
+        if linear:
+            physics = "lti:1" if case == "lti_limit" else "lti:2"
+        else:
+            physics = f"{ROOT}/examples/" + (
+                "two_tank.py:TwoTank" if tank else "oscillator.py:MassSpringDamper"
+            )
         for seed in range(args.seeds):
             rng = np.random.default_rng(2000 + seed)
-            u, clean, truth = (tanks if tank else oscillator)(rng, case)
+            u, clean, truth = (linear_plant if linear else tanks if tank else oscillator)(rng, case)
             span = float(np.ptp(clean))
             w = 0.5 * clean + 0.2 + 0.005 * 0.5 * span * rng.normal(size=clean.size)
-            rate = 1.0 / TANK_DT if tank else OSC_RATE
+            rate = LTI_RATE if linear else 1.0 / TANK_DT if tank else OSC_RATE
             recording = hybrid.Recording.from_arrays(v_in=u, w=w, rate=rate)
             simulation = hybrid.resolve_physics(physics, [recording])
             t0 = time.perf_counter()
@@ -186,7 +266,7 @@ def write(rows: list, cases: list, argv, path: str) -> None:
     command = "python experiments/inside_effects.py " + " ".join(argv if argv is not None else sys.argv[1:])
     out.write_text(json.dumps({"command": command.strip(), "rows": rows}, indent=2) + "\n")
     lines = [
-        "# Missing physics inside the dynamics, hidden in two plants",
+        "# Missing physics on the drive and inside the dynamics, hidden in three plants",
         "",
         f"Command: `{command.strip()}` (the generators are in its docstring).",
         "",
