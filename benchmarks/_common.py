@@ -48,6 +48,16 @@ def first_call(fn, *args):
     return time.perf_counter() - t0, out
 
 
+def recording_arguments(doc: str):
+    """The command line of a benchmark on `relaxing_strip`'s recordings: --duration (s) and --rate (Hz)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=300.0)
+    parser.add_argument("--rate", type=float, default=30.0)
+    return parser.parse_args()
+
+
 def relaxing_strip(seed: int, duration: float, rate: float):
     """A synthetic strip (seed `seed` of `random_strip`) with a hidden back-relaxation under the discrepancy drive."""
     from hybrid.ipmc import discrepancy_drive, random_effect, random_strip, synthetic_recording

@@ -25,7 +25,6 @@ Writes `benchmarks/results/diagnose.json`.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
@@ -38,10 +37,7 @@ import _common as c
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=300.0)
-    parser.add_argument("--rate", type=float, default=30.0)
-    args = parser.parse_args()
+    args = c.recording_arguments(__doc__)
     c.setup_jax()
     from jax import monitoring
 

@@ -11,7 +11,6 @@ recording on. Prints only; nothing is written.
 
 from __future__ import annotations
 
-import argparse
 import builtins
 import time
 
@@ -19,10 +18,7 @@ import _common as c
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=300.0)
-    parser.add_argument("--rate", type=float, default=30.0)
-    args = parser.parse_args()
+    args = c.recording_arguments(__doc__)
     c.setup_jax()
     from hybrid import diagnose
 
