@@ -107,3 +107,17 @@ def lstsq(design, target, rtol: float = 1e-10):
 
 def _dot(a, b):
     return jnp.matmul(a, b, precision=lax.Precision.HIGHEST)
+
+
+def zoh_discretise(A, B, dt):
+    """Exact ZOH discretisation: Ad = e^{AΔt}, Bd = ∫₀^Δt e^{Aτ} dτ B (augmented expm).
+
+    The exponential is `expm` (matrix products only): `jax.scipy.linalg.expm`'s
+    LU solve deadlocks jaxlib 0.10's CPU runtime when batched inside a compiled
+    loop, as `diagnose`'s screens run it.
+    """
+    n = A.shape[0]
+    M = jnp.zeros((n + 1, n + 1), A.dtype)
+    M = M.at[:n, :n].set(A).at[:n, n].set(B)
+    E = expm(M * dt)
+    return E[:n, :n], E[:n, n]

@@ -46,7 +46,7 @@ from jaxtyping import Array, Float
 
 from ..util._errors import InputError
 from ._arguments import check_drive
-from ._loop_safe_linalg import expm
+from ._loop_safe_linalg import zoh_discretise
 from ._simulation import AbstractSimulation
 
 #: How the drive moves between two samples.
@@ -246,7 +246,7 @@ def integrate(
 
     linear = simulation.linear_matrices(p)
     if linear is not None:
-        phi, gamma = _zoh(jnp.asarray(linear[0], dtype), jnp.asarray(linear[1], dtype), h)
+        phi, gamma = zoh_discretise(jnp.asarray(linear[0], dtype), jnp.asarray(linear[1], dtype), h)
 
         def exact(x, drive):
             return tuple(phi @ jnp.stack(x) + gamma * drive)
@@ -276,11 +276,3 @@ def integrate(
     x0 = settle(tuple(jnp.asarray(xi, dtype) for xi in simulation.initial_state(u[0], p)))
     _, (y, xs) = lax.scan(sample, x0, (u, u_next))
     return y, jnp.stack(xs, axis=1)
-
-
-def _zoh(a, b, h):
-    """(e^{Ah}, ∫₀^h e^{Aτ} dτ B): the exact step of ẋ = A x + B u for u held over h."""
-    n = a.shape[0]
-    m = jnp.zeros((n + 1, n + 1), a.dtype).at[:n, :n].set(a).at[:n, n].set(b)
-    e = expm(m * h)  # matrix products only: safe in batched loops (see _loop_safe_linalg)
-    return e[:n, :n], e[:n, n]

@@ -59,10 +59,11 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ..core._arguments import check_drive
+from ..core._loop_safe_linalg import zoh_discretise
 from ..core._parameters import Constraint, Positive, Real, encode
 from ..core._state_space import AbstractStateSpace
 from ..util._errors import InputError
-from ._zoh import zoh_discretise, zoh_response
+from ._zoh import zoh_response
 
 #: The largest order `LTI` accepts (10 second-order sections).
 MAX_ORDER = 20

@@ -1,10 +1,11 @@
 """The exact sampled response of a continuous linear system to a zero-order-hold drive.
 
 Generic numerics shared by the physics that have a continuous state-space
-realisation ẋ = Ax + Bu, y = Cx + Du: `zoh_discretise` (the exact ZOH
-discretisation by one augmented matrix exponential) and `zoh_response` (the
-sampled response from rest), run lifted to blocks of `BLOCK` samples by
-`lifted_response`. The paper's RC network (``method="zoh"``, and its Tustin
+realisation ẋ = Ax + Bu, y = Cx + Du: `zoh_response` (the sampled response
+from rest), run lifted to blocks of `BLOCK` samples by `lifted_response`, on
+`hybrid.core._loop_safe_linalg.zoh_discretise` (the exact ZOH discretisation
+by one augmented matrix exponential, which the state-space form's exact step
+shares). The paper's RC network (``method="zoh"``, and its Tustin
 cascade's lifting) and `LTI` use them; neither owns them.
 
 The matrix exponential is `hybrid.core._loop_safe_linalg.expm` (matrix
@@ -18,7 +19,7 @@ import functools
 import jax.numpy as jnp
 from jax import lax
 
-from ..core._loop_safe_linalg import expm
+from ..core._loop_safe_linalg import zoh_discretise
 
 BLOCK = 16  # samples per block in `cascade_filter` and `zoh_response`: ~L + 2K + K²/L operations per sample
 
@@ -42,20 +43,6 @@ def lifted_response(H, O, A_L, C, x):
 
     _, states = lax.scan(advance, jnp.zeros(A_L.shape[0], x.dtype), state_input)
     return (forced + dot(states, O.T)).reshape(-1)[:length]
-
-
-def zoh_discretise(A, B, dt):
-    """Exact ZOH discretisation: Ad = e^{AΔt}, Bd = ∫₀^Δt e^{Aτ} dτ B (augmented expm).
-
-    The exponential is [`hybrid.core._loop_safe_linalg.expm`][] (matrix products only):
-    `jax.scipy.linalg.expm`'s LU solve deadlocks jaxlib 0.10's CPU runtime when
-    batched inside a compiled loop, as `diagnose`'s screens run it.
-    """
-    n = A.shape[0]
-    M = jnp.zeros((n + 1, n + 1), A.dtype)
-    M = M.at[:n, :n].set(A).at[:n, n].set(B)
-    E = expm(M * dt)
-    return E[:n, :n], E[:n, n]
 
 
 def zoh_response(A, B, C, D, v_in, dt, block: int = BLOCK):
