@@ -61,7 +61,7 @@ def _cases(s, dt):
     """(name, form, function of a 2-vector of parameters) for each recurrence and form."""
     import jax.numpy as jnp
 
-    from hybrid.discovery._effects import affine_recurrence, foh_matrices
+    from hybrid.discovery import affine_recurrence, foh_matrices
 
     def lowpass(form):
         def run(p):

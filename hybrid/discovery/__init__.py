@@ -19,6 +19,7 @@ from ._diagnosis import (
     Lane as Lane,
     ParameterUncertainty as ParameterUncertainty,
 )
+from ._effects import affine_recurrence as affine_recurrence, foh_matrices as foh_matrices
 from ._hysteresis import bouc_wen_and_memory as bouc_wen_and_memory
 from ._search import (
     fit_lanes as fit_lanes,
