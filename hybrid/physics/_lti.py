@@ -44,8 +44,9 @@ network's ``method="zoh"`` shares. The system starts at
 rest. It is also an `AbstractStateSpace` (states ``lag_1``, ``low_k``,
 ``band_k``; `linear_matrices` gives A and B, so the form is stepped exactly),
 which is where `diagnose` runs an effect inside its dynamics (a cubic fed
-back, a limit on a low-pass state); `simulate` stays the block-lifted ZOH. Section k = 1 holds the fastest default time scale; the defaults spread
-the sections half a decade apart around 1 s so that no two start on the same pole.
+back, a limit on a low-pass state); `simulate` stays the block-lifted ZOH.
+Section k = 1 holds the fastest default time scale; the defaults spread the
+sections half a decade apart around 1 s so that no two start on the same pole.
 """
 
 from __future__ import annotations
