@@ -174,33 +174,43 @@ def initial_theta(problem, simulation, readout, frozen):
     return initial_thetas(problem, [simulation], readout, frozen)[0]
 
 
-def initial_thetas(problem, simulations, readout, frozen, strict: bool = False):
+def initial_thetas(problem, simulations, readout, frozen):
     """θ for each of `simulations` (one structure, other values), each with its least-squares gain and offset.
 
     Each simulation's output comes from `predictions` (the program every
     stage already runs: gain 1, offset 0), and the gain and offset are fitted
     on the recorded training samples by numpy: no program of its own. A
     simulation whose output is not finite (a start that makes the dynamics
-    escape) gets gain 1 and offset 0, or, with `strict`, None in its place.
+    escape) gets gain 1 and offset 0 (`finite_theta` says None instead).
     """
     w = problem.recorded(problem.target("train"), "train")
-    thetas: list = []
+    thetas = []
     for simulation in simulations:
-        s = simulation_output(problem, simulation, readout, frozen, "train")
-        if not np.all(np.isfinite(s)):
-            if strict:
-                thetas.append(None)
-                continue
-            gain, offset = 1.0, 0.0
-        else:
-            (gain, offset), *_ = np.linalg.lstsq(np.stack([s, np.ones_like(s)], axis=1), w, rcond=None)
-        if not (np.isfinite(gain) and np.isfinite(offset)):
-            gain, offset = 1.0, 0.0
-        fitted = eqx.tree_at(
-            lambda r: r.raw, readout, {"gain": jnp.asarray(gain, float), "offset": jnp.asarray(offset, float)}
+        theta = finite_theta(problem, simulation, readout, frozen, w)
+        thetas.append(
+            theta if theta is not None else _with_readout(problem, simulation, readout, frozen, 1.0, 0.0)
         )
-        thetas.append(problem.flatten(Model(simulation, fitted, "physics"), frozen))
-    return thetas if strict else jnp.stack(thetas)
+    return jnp.stack(thetas)
+
+
+def finite_theta(problem, simulation, readout, frozen, w=None):
+    """θ for `simulation` with its least-squares gain and offset, or None where its output is not finite."""
+    if w is None:
+        w = problem.recorded(problem.target("train"), "train")
+    s = simulation_output(problem, simulation, readout, frozen, "train")
+    if not np.all(np.isfinite(s)):
+        return None
+    (gain, offset), *_ = np.linalg.lstsq(np.stack([s, np.ones_like(s)], axis=1), w, rcond=None)
+    if not (np.isfinite(gain) and np.isfinite(offset)):
+        gain, offset = 1.0, 0.0
+    return _with_readout(problem, simulation, readout, frozen, gain, offset)
+
+
+def _with_readout(problem, simulation, readout, frozen, gain: float, offset: float):
+    fitted = eqx.tree_at(
+        lambda r: r.raw, readout, {"gain": jnp.asarray(gain, float), "offset": jnp.asarray(offset, float)}
+    )
+    return problem.flatten(Model(simulation, fitted, "physics"), frozen)
 
 
 def simulation_output(problem, simulation, readout, frozen, split: str) -> np.ndarray:

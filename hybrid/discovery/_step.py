@@ -39,6 +39,7 @@ from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, StartContext
 from ._search import (
     best_lag,
+    finite_theta,
     fit_lanes,
     initial_thetas,
     inside_signals,
@@ -145,18 +146,20 @@ def _finite_lanes(problem, stack, starts, departures, readout, frozen) -> list:
     effect's defaults is scaled by `TAME` until the output is finite, and at
     worst the lane starts at the defaults.
     """
-    lanes = initial_thetas(problem, starts, readout, frozen, strict=True)
-    for k, theta in enumerate(lanes):
-        effect, values, active = departures[k]
-        for attempt in range(RETRIES + 1):
+    w = problem.recorded(problem.target("train"), "train")
+    lanes = []
+    for start, (effect, values, active) in zip(starts, departures):
+        theta, simulation = finite_theta(problem, start, readout, frozen, w), start
+        for scale in [TAME**k for k in range(1, RETRIES + 1)] + [0.0]:
             if theta is not None:
                 break
-            scale = TAME ** (attempt + 1) if attempt < RETRIES else 0.0
             base = effect.defaults
             tamed = {n: base[n] + scale * (v - base[n]) if n in base else v for n, v in values.items()}
-            retry = stack.replace(**tamed).with_active(active)
-            theta = initial_thetas(problem, [retry], readout, frozen, strict=attempt < RETRIES)[0]
-        lanes[k] = theta
+            simulation = stack.replace(**tamed).with_active(active)
+            theta = finite_theta(problem, simulation, readout, frozen, w)
+        lanes.append(
+            theta if theta is not None else initial_thetas(problem, [simulation], readout, frozen)[0]
+        )
     return lanes
 
 
