@@ -178,6 +178,19 @@ def test_zoh_matches_scipy_cont2discrete_and_dlsim():
     assert h.relative_error(got, expected[:, 0]) < 1e-10
 
 
+@pytest.mark.parametrize("length", [1, 15, 16, 17, 50])
+def test_zoh_blocks_match_dlsim_at_every_length(length):
+    """The lifted blocks (`lifted_blocks`: powers, not a scan of full products) on records that end mid-block."""
+    params = PARAMETER_SETS[1]
+    dt = 1 / 30
+    A, B, C, D = h.cascade_state_space(*h.stage_zpk_np(*params))
+    system = scipy.signal.cont2discrete((A, B[:, None], C[None, :], np.array([[D]])), dt, method="zoh")
+    u = h.step_drive(length, seed=4)
+    _, expected, _ = scipy.signal.dlsim((*system[:4], dt), u)
+    got = np.asarray(_network(params, method="zoh").simulate(u, dt))
+    assert h.relative_error(got, expected[:, 0]) < 1e-10
+
+
 def test_zoh_matches_diffrax_reference():
     net = RCNetwork(xi_rho=4.0, alpha_E=0.3, alpha_C=0.4, C_clamp=0.02, n_stages=20, method="zoh")
     u = h.step_drive(200, seed=4)

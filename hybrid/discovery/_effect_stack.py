@@ -14,6 +14,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
 from ..core._parameters import Constraint
@@ -293,12 +294,51 @@ def _signals_through(stack, v_in, dt):
         for i, effect in inside:
             into[i] = s if effect.acts_on == "output" else states[:, core.states.index(effect.acts_on)]
     else:
-        s = stack.inner.simulate(u, dt)
+        drive = [stack.active[i] != 0 for i, e in enumerate(stack.effects) if e.place == "drive"]
+        drive_on = jnp.any(jnp.stack(drive)) if drive else jnp.asarray(False)
+        s = inner_response(stack.inner, u, dt, drive_on)
     for i, effect in enumerate(stack.effects):
         if effect.place == "output":
             into[i] = s
             s = switched(stack.active[i], effect, s, dt)
     return into, s, u
+
+
+def inner_response(inner: AbstractSimulation, u, dt, drive_on):
+    """`inner.simulate(u, dt)`, whose derivative costs one direction per parameter of `inner`.
+
+    A search lane's Jacobian takes one direction per free parameter of the
+    whole stack (the inner simulation's, the frame timing's, its effects'),
+    all at once under `vmap`; run plainly, the inner simulation — by far the
+    dearest part — would be differentiated along every one of them, though
+    only its own parameters' directions move it. Here its derivative is its
+    Jacobian in its own parameters (`jax.jacfwd`, computed once, outside the
+    batch of directions) times each direction, plus the derivative through
+    the drive `u`, taken only when a drive-side effect is on (`drive_on`: a
+    traced flag; otherwise `u` is the recorded drive, which no parameter moves).
+    """
+    params, static = eqx.partition(inner, eqx.is_inexact_array)
+    flat, unravel = ravel_pytree(params)
+
+    def run(theta, drive):
+        return eqx.combine(unravel(theta), static).simulate(drive, dt)
+
+    @jax.custom_jvp
+    def response(theta, drive, on):
+        return run(theta, drive)
+
+    @response.defjvp
+    def _derivative(primals, tangents):
+        theta, drive, on = primals
+        d_theta, d_drive, _ = tangents
+        y, through_drive = jax.lax.cond(
+            on,
+            lambda: jax.jvp(lambda x: run(theta, x), (drive,), (d_drive,)),
+            lambda: (lambda y: (y, jnp.zeros_like(y)))(run(theta, drive)),
+        )
+        return y, jax.jacfwd(run)(theta, drive) @ d_theta + through_drive
+
+    return response(flat, u, drive_on)
 
 
 def _inside_dynamics(stack, inner, inside, u, dt):

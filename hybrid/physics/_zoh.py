@@ -18,6 +18,7 @@ import functools
 
 import jax.numpy as jnp
 from jax import lax
+from jaxtyping import Array
 
 from ..core._loop_safe_linalg import zoh_discretise
 
@@ -49,17 +50,47 @@ def zoh_response(A, B, C, D, v_in, dt, block: int = BLOCK):
     """Exact sampled response of ẋ = Ax + Bu, y = Cx + Du to a ZOH input, from rest.
 
     The discretised system x[n+1] = A_d x[n] + B_d u[n], y[n] = C x[n] + D u[n]
-    runs lifted to blocks of `block` samples (`lifted_response`); its block
-    matrices come from `block` steps of the recursion on unit excitations.
+    runs lifted to blocks of `block` samples (`lifted_response`) with the
+    block matrices of `lifted_blocks`.
     """
     dtype = jnp.result_type(A, v_in)
     Ad, Bd = zoh_discretise(A.astype(dtype), B.astype(dtype), dt)
-    n = A.shape[0]
-    eye = jnp.eye(block + n, dtype=dtype)
+    return lifted_response(*lifted_blocks(Ad, Bd, C.astype(dtype), D, block), v_in.astype(dtype))
 
-    def step(x, u):
-        return Ad @ x + jnp.outer(Bd, u), C @ x + D * u
 
-    # Columns 0..L−1: a unit input at sample i from rest; columns L..L+n−1: unit states, no input.
-    final, y = lax.scan(step, eye[block:], eye[:block])
-    return lifted_response(y[:, :block], y[:, block:], final[:, block:], final[:, :block], v_in.astype(dtype))
+def lifted_blocks(Ad, Bd, C, D, block: int) -> tuple[Array, Array, Array, Array]:
+    """(H, O, A^L, C_L) of the discrete system x[n+1] = Ad x[n] + Bd u[n], y = C x + D u, L = `block`.
+
+    H[i, j] = h[i − j], the Markov parameters h[0] = D, h[k] = C Ad^(k−1) Bd
+    (zero above the diagonal); O[i] = C Ad^i; A^L = Ad^L by repeated squaring;
+    C_L[:, j] = Ad^(L−1−j) Bd. Only O and the columns of C_L take a product
+    per sample (a vector by a matrix); A^L takes log₂ L matrix products. Under
+    forward differentiation that is what keeps a Jacobian of the RC network's
+    46 states cheap (a scan of L full n × (n + L) products cost ~4× more).
+    """
+    dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)
+
+    def observe(row, _):
+        return dot(row, Ad), row
+
+    def excite(col, _):
+        return dot(Ad, col), col
+
+    _, O = lax.scan(observe, C, None, length=block)  # C Ad^i, i = 0..L−1
+    _, powers_b = lax.scan(excite, Bd, None, length=block)  # Ad^k Bd, k = 0..L−1
+    markov = jnp.concatenate([jnp.reshape(D, (1,)).astype(Ad.dtype), dot(O[:-1], Bd)])  # h[0..L−1]
+    lag = jnp.arange(block)[:, None] - jnp.arange(block)[None, :]
+    H = jnp.where(lag >= 0, markov[jnp.clip(lag, 0, block - 1)], 0.0)
+    return H, O, _matrix_power(Ad, block, dot), powers_b[::-1].T
+
+
+def _matrix_power(a, k: int, dot):
+    """a^k (k ≥ 1, static) by binary powering: matrix products only."""
+    result, base = None, a
+    while k:
+        if k & 1:
+            result = base if result is None else dot(result, base)
+        k >>= 1
+        if k:
+            base = dot(base, base)
+    return result
