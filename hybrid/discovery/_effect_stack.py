@@ -331,12 +331,13 @@ def inner_response(inner: AbstractSimulation, u, dt, drive_on):
     def _derivative(primals, tangents):
         theta, drive, on = primals
         d_theta, d_drive, _ = tangents
-        y, through_drive = jax.lax.cond(
+        J, y = jax.jacfwd(lambda t: (run(t, drive),) * 2, has_aux=True)(theta)
+        through_drive = jax.lax.cond(
             on,
-            lambda: jax.jvp(lambda x: run(theta, x), (drive,), (d_drive,)),
-            lambda: (lambda y: (y, jnp.zeros_like(y)))(run(theta, drive)),
+            lambda: jax.jvp(lambda x: run(theta, x), (drive,), (d_drive,))[1],
+            lambda: jnp.zeros_like(y),
         )
-        return y, jax.jacfwd(run)(theta, drive) @ d_theta + through_drive
+        return y, J @ d_theta + through_drive
 
     return response(flat, u, drive_on)
 
