@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array
@@ -46,12 +47,15 @@ def lifted_response(H, O, A_L, C, x):
     return (forced + dot(states, O.T)).reshape(-1)[:length]
 
 
+@functools.partial(jax.jit, static_argnames="block")
 def zoh_response(A, B, C, D, v_in, dt, block: int = BLOCK):
     """Exact sampled response of ẋ = Ax + Bu, y = Cx + Du to a ZOH input, from rest.
 
     The discretised system x[n+1] = A_d x[n] + B_d u[n], y[n] = C x[n] + D u[n]
     runs lifted to blocks of `block` samples (`lifted_response`) with the
-    block matrices of `lifted_blocks`.
+    block matrices of `lifted_blocks`. Compiled as one program: called
+    outside `jit` (a simulation run eagerly, a start's check), its few dozen
+    operations would each be compiled and dispatched on their own.
     """
     dtype = jnp.result_type(A, v_in)
     Ad, Bd = zoh_discretise(A.astype(dtype), B.astype(dtype), dt)
