@@ -1,5 +1,7 @@
 """Effects (hybrid.discovery._effects) against independent references, and the hidden-effect generator."""
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -7,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from hybrid import InputError, RCNetwork, make_drive
+from hybrid import AbstractSimulation, InputError, Positive, RCNetwork, encode, make_drive
 from hybrid.discovery._effect_set import EFFECTS
 from hybrid.discovery._effect_stack import EffectStack, extend
 from hybrid.discovery._effects import (
@@ -288,6 +290,46 @@ def test_a_stack_jacobian_matches_finite_differences(effects, drive_on):
             if any(n in EFFECTS[e].constraints for e in effects if EFFECTS[e].place == "drive")
         ]
         assert columns and np.all(np.asarray(forward)[:, columns] == 0.0)
+
+
+class _CalibratedLag(AbstractSimulation):
+    """A lag read through a calibration table: an array field that is not a parameter."""
+
+    raw: dict
+    table: jax.Array
+    constraints: ClassVar[dict] = {"tau_s": Positive()}
+    units: ClassVar[dict] = {"tau_s": "s"}
+
+    def __init__(self, tau_s=0.5, table=(0.0, 0.9, 2.1)):
+        self.raw = encode({"tau_s": tau_s}, self.constraints, "_CalibratedLag")
+        self.table = jnp.asarray(table, float)
+
+    def simulate(self, v_in, dt):
+        a = jnp.exp(-dt / self.parameters()["tau_s"])
+        y = jax.lax.scan(lambda y, u: (a * y + (1 - a) * u,) * 2, 0.0, jnp.asarray(v_in))[1]
+        return jnp.interp(y, jnp.asarray([-2.0, 0.0, 2.0]), self.table)
+
+
+def test_a_plugin_array_that_is_not_a_parameter_is_differentiated_plainly():
+    """Only `raw` goes through the inner Jacobian; another array field still has its derivative."""
+    stack = extend(_CalibratedLag(), "saturation")
+    v = jnp.asarray(make_drive("prbs", 8.0, seed=3).v)
+
+    def output(raw_tau, table):
+        inner = eqx.tree_at(lambda s: (s.raw, s.table), stack.inner, ({"tau_s": raw_tau}, table))
+        return eqx.tree_at(lambda s: s.inner, stack, inner).simulate(v, DT)
+
+    tau, table = stack.inner.raw["tau_s"], stack.inner.table
+    d_table = jnp.asarray([0.1, -0.2, 0.3])
+    _, along_table = jax.jvp(lambda t: output(tau, t), (table,), (d_table,))
+    _, along_tau = jax.jvp(lambda r: output(r, table), (tau,), (jnp.ones_like(tau),))
+    step = 1e-6
+    for got, moved in (
+        (along_table, lambda h: output(tau, table + h * d_table)),
+        (along_tau, lambda h: output(tau + h, table)),
+    ):
+        central = (moved(step) - moved(-step)) / (2 * step)
+        assert float(jnp.max(jnp.abs(got - central))) < 1e-7 * float(jnp.max(jnp.abs(central)))
 
 
 def _apply(effect, raw, s):

@@ -316,30 +316,39 @@ def inner_response(inner: AbstractSimulation, u, dt, drive_on):
     batch of directions) times each direction, plus the derivative through
     the drive `u`, taken only when a drive-side effect is on (`drive_on`: a
     traced flag; otherwise `u` is the recorded drive, which no parameter moves).
-    """
-    params, static = eqx.partition(inner, eqx.is_inexact_array)
-    flat, unravel = ravel_pytree(params)
 
-    def run(theta, drive):
-        return eqx.combine(unravel(theta), static).simulate(drive, dt)
+    Only the parameters (`raw`) go through `jax.jacfwd`: a plug-in may hold
+    other arrays (a calibration table, a fixed matrix), whose derivative, if
+    anything asks for it, is taken plainly along the directions given.
+    """
+    params, rest = eqx.partition(inner, inner.trainable(frozenset()))
+    arrays, static = eqx.partition(rest, eqx.is_inexact_array)
+    flat, unravel = ravel_pytree(params)
+    has_arrays = bool(jax.tree_util.tree_leaves(arrays))
+
+    def run(theta, drive, others):
+        return eqx.combine(unravel(theta), others, static).simulate(drive, dt)
 
     @jax.custom_jvp
-    def response(theta, drive, on):
-        return run(theta, drive)
+    def response(theta, drive, others, on):
+        return run(theta, drive, others)
 
     @response.defjvp
     def _derivative(primals, tangents):
-        theta, drive, on = primals
-        d_theta, d_drive, _ = tangents
-        J, y = jax.jacfwd(lambda t: (run(t, drive),) * 2, has_aux=True)(theta)
+        theta, drive, others, on = primals
+        d_theta, d_drive, d_others, _ = tangents
+        J, y = jax.jacfwd(lambda t: (run(t, drive, others),) * 2, has_aux=True)(theta)
         through_drive = jax.lax.cond(
             on,
-            lambda: jax.jvp(lambda x: run(theta, x), (drive,), (d_drive,))[1],
+            lambda: jax.jvp(lambda x: run(theta, x, others), (drive,), (d_drive,))[1],
             lambda: jnp.zeros_like(y),
         )
-        return y, J @ d_theta + through_drive
+        dy = J @ d_theta + through_drive
+        if has_arrays:
+            dy = dy + jax.jvp(lambda a: run(theta, drive, a), (others,), (d_others,))[1]
+        return y, dy
 
-    return response(flat, u, drive_on)
+    return response(flat, u, arrays, drive_on)
 
 
 def _inside_dynamics(stack, inner, inside, u, dt):
