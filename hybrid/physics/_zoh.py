@@ -68,9 +68,10 @@ def lifted_blocks(Ad, Bd, C, D, block: int) -> tuple[Array, Array, Array, Array]
     H[i, j] = h[i − j], the Markov parameters h[0] = D, h[k] = C Ad^(k−1) Bd
     (zero above the diagonal); O[i] = C Ad^i; A^L = Ad^L by repeated squaring;
     C_L[:, j] = Ad^(L−1−j) Bd. Only O and the columns of C_L take a product
-    per sample (a vector by a matrix); A^L takes log₂ L matrix products. Under
-    forward differentiation that is what keeps a Jacobian of the RC network's
-    46 states cheap (a scan of L full n × (n + L) products cost ~4× more).
+    per sample (a vector by a matrix); A^L takes log₂ L matrix products:
+    ~2Ln² + n³ log₂ L multiply-adds, where a scan of L full n × (n + L)
+    products took Ln²(n + L) (for the RC network's n = 46, L = 16: 0.5M
+    against 2.1M, paid again in every direction of a forward derivative).
     """
     dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)
 
