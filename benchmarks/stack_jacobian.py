@@ -82,9 +82,7 @@ def _functions(stack, dt):
     import equinox as eqx
     from jax.flatten_util import ravel_pytree
 
-    params, static = eqx.partition(stack, eqx.is_inexact_array)
-    params = eqx.tree_at(lambda s: s.active, params, None)
-    static = eqx.tree_at(lambda s: s.active, static, stack.active, is_leaf=lambda x: x is None)
+    params, static = eqx.partition(stack, stack.trainable(frozenset()))
     flat, unravel = ravel_pytree(params)
 
     def by_stack(x, v):

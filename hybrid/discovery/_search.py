@@ -188,7 +188,7 @@ def initial_thetas(problem, simulations, readout, frozen):
     for simulation in simulations:
         theta = finite_theta(problem, simulation, readout, frozen, w)
         thetas.append(
-            theta if theta is not None else _with_readout(problem, simulation, readout, frozen, 1.0, 0.0)
+            theta if theta is not None else theta_with_readout(problem, simulation, readout, frozen, 1.0, 0.0)
         )
     return jnp.stack(thetas)
 
@@ -203,10 +203,11 @@ def finite_theta(problem, simulation, readout, frozen, w=None):
     (gain, offset), *_ = np.linalg.lstsq(np.stack([s, np.ones_like(s)], axis=1), w, rcond=None)
     if not (np.isfinite(gain) and np.isfinite(offset)):
         gain, offset = 1.0, 0.0
-    return _with_readout(problem, simulation, readout, frozen, gain, offset)
+    return theta_with_readout(problem, simulation, readout, frozen, gain, offset)
 
 
-def _with_readout(problem, simulation, readout, frozen, gain: float, offset: float):
+def theta_with_readout(problem, simulation, readout, frozen, gain: float, offset: float):
+    """θ of `simulation` read out with this gain and offset."""
     fitted = eqx.tree_at(
         lambda r: r.raw, readout, {"gain": jnp.asarray(gain, float), "offset": jnp.asarray(offset, float)}
     )

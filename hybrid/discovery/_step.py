@@ -41,7 +41,6 @@ from ._search import (
     best_lag,
     finite_theta,
     fit_lanes,
-    initial_thetas,
     inside_signals,
     lane_count,
     lane_tangents,
@@ -51,6 +50,7 @@ from ._search import (
     shared_room,
     simulation_output,
     split_signals,
+    theta_with_readout,
 )
 
 
@@ -157,8 +157,9 @@ def _finite_lanes(problem, stack, starts, departures, readout, frozen) -> list:
             tamed = {n: base[n] + scale * (v - base[n]) if n in base else v for n, v in values.items()}
             simulation = stack.replace(**tamed).with_active(active)
             theta = finite_theta(problem, simulation, readout, frozen, w)
+        # Not finite even at the defaults: gain 1 and offset 0; LM stops it at once (its cost is not finite).
         lanes.append(
-            theta if theta is not None else initial_thetas(problem, [simulation], readout, frozen)[0]
+            theta if theta is not None else theta_with_readout(problem, simulation, readout, frozen, 1.0, 0.0)
         )
     return lanes
 
