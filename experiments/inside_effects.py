@@ -1,7 +1,8 @@
-"""Missing physics on the drive and inside the dynamics, hidden in three plants: does `diagnose` name it?
+"""Missing physics on the drive and inside the dynamics, hidden in four plants: does `diagnose` name it?
 
     python experiments/inside_effects.py [--seeds 4] [--cases cubic,end_stop,none,overflow,tank_none,
-                                         lti_dead_zone,lti_square,lti_cubic,lti_limit,lti_none]
+                                         lti_dead_zone,lti_square,lti_cubic,lti_limit,lti_none,
+                                         rc_dead_zone,rc_square,rc_cubic,rc_limit,rc_none]
                                          [--out experiments/results/inside_effects.json]
 
 Each draw hides one effect on the drive or inside the dynamics of a plant
@@ -36,6 +37,22 @@ or its integrators, and diagnoses it with the examples' plug-in or `lti:N`
     rim at 55–75 % of its unlimited peak (a steep smooth spill in the rate),
     diagnosed with `lti:1` (found as ``limit_lag_1``).
 
+- the paper's RC network (`rc:zoh`, `hybrid.RCNetwork`), its 46 compartments
+  (Eqs 4–13, Table 1's strip) written here in numpy as an ODE in the
+  double-layer voltages, C_clamp 10–60 mF, ξρ 5–30, each α 0.3–0.7, 60 s at 30 Hz,
+  driven by random levels in [−2, 2] V held 0.1–1 s; diagnosed with the built-ins
+  plus the inside effects, which the network's default set leaves out
+  (``effects=builtins + stiffness, limit_vc_0, limit_vc_45``):
+  ``rc_dead_zone`` (a dead zone of 20–35 % of the largest |u| on the drive),
+  ``rc_square`` (the drive squared), ``rc_cubic`` (a cubic of the tip voltage
+  fed back into the drive, 15–30 % of the largest drive at the linear peak),
+  ``rc_limit`` (the clamp's double-layer voltage spills over a rim at 30–50 % of
+  its unlimited peak: an electrolysis window; found as ``limit_vc_0``) and
+  ``rc_none``. Each draw records how far its effect moves the output
+  (``effect_rms_percent``, RMS as a % of the range): a limit on one of the 46
+  compartments moves the tip voltage little, since each capacitance modulates
+  its section's gain by a few per cent.
+
 The noise is 0.5 % of the clean output's range. Found means the hidden effect's
 name (``stiffness``, ``limit_position``, ``limit_h1``) is among the causes; on
 clean data, that no cause is named. Writes the JSON and a Markdown table beside
@@ -69,7 +86,14 @@ EXPECTED = {
     "lti_cubic": "stiffness",
     "lti_limit": "limit_lag_1",
     "lti_none": None,
+    "rc_dead_zone": "drive_dead_zone",
+    "rc_square": "drive_even",
+    "rc_cubic": "stiffness",
+    "rc_limit": "limit_vc_0",
+    "rc_none": None,
 }
+#: The inside effects searched on the RC network besides its default set (see the docstring).
+RC_INSIDE = ("stiffness", "limit_vc_0", "limit_vc_45")
 LTI_RATE, LTI_SECONDS = 30.0, 60.0
 
 
@@ -197,6 +221,79 @@ def linear_plant(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
     return u, oscillate(lambda v: v), truth
 
 
+def rc_plant(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The paper's network as an ODE in its double-layer voltages, written here from Eqs 4–13."""
+    import hybrid  # the strip's Table 1 numbers only
+
+    strip = hybrid.Strip()
+    stages = 45
+    c_clamp = float(np.exp(rng.uniform(np.log(0.01), np.log(0.06))))
+    xi_rho = rng.uniform(5.0, 30.0)
+    alpha_e, alpha_i, alpha_c = rng.uniform(0.3, 0.7, 3)
+    frac = np.arange(stages + 1) / stages
+    re = strip.RE_clamp * (1 + (1 / alpha_e - 1) * frac)
+    ri = float(strip.RI_clamp(xi_rho, 1.0)) * (1 + (1 / alpha_i - 1) * frac)
+    cap = c_clamp * (1 + (1 / alpha_c - 1) * frac)
+    rm = strip.R_M
+    gain = 1 / (1 + re / rm + re / ri)
+    zero = 1 / (ri * cap)
+    pole = 1 / (cap * (ri + re * rm / (re + rm)))
+    n = int(LTI_SECONDS * LTI_RATE)
+    levels, holds = [], []
+    while sum(holds) < n:
+        levels.append(rng.uniform(-2.0, 2.0))
+        holds.append(int(rng.integers(3, 31)))
+    u = np.repeat(levels, holds)[:n]
+    t = np.arange(n) / LTI_RATE
+
+    def tip(x, drive):  # V_o: each section's node voltage feeds the next
+        v = drive
+        for k in range(stages + 1):
+            v = gain[k] * v + (1 - pole[k] / zero[k]) * x[k]
+        return v
+
+    def run(shape, force=lambda y: 0.0, rim=None):
+        def rhs(time, x):
+            held = u[min(int(time * LTI_RATE + 1e-9), n - 1)]
+            v = shape(held) - force(tip(x, 0.0) + 0.0)  # the force reads the state part of V_o
+            dx = np.empty(stages + 1)
+            for k in range(stages + 1):
+                dx[k] = gain[k] * zero[k] * v - pole[k] * x[k]
+                v = gain[k] * v + (1 - pole[k] / zero[k]) * x[k]
+            if rim is not None:  # above the rim the excess charging spills out (a steep smooth step)
+                dx[0] -= max(dx[0], 0.0) * expit((x[0] - rim) / (0.002 * abs(rim)))
+            return dx
+
+        sol = solve_ivp(
+            rhs, (0, t[-1]), np.zeros(stages + 1), t_eval=t, rtol=1e-9, atol=1e-11, max_step=0.25 / LTI_RATE
+        )
+        shaped = np.array([shape(x) for x in u])
+        forces = np.array([force(tip(x, 0.0)) for x in sol.y.T])
+        return np.array([tip(x, 0.0) for x in sol.y.T]) + np.prod(gain) * (shaped - forces), sol.y
+
+    truth = {"C_clamp": c_clamp, "xi_rho": xi_rho, "alpha": [alpha_e, alpha_i, alpha_c]}
+    linear, charges = run(lambda v: v)
+    if case == "rc_dead_zone":
+        d = rng.uniform(0.20, 0.35) * float(np.max(np.abs(u)))
+        truth["dead_zone"] = d
+        y = run(lambda v: v - np.clip(v, -d, d))[0]
+    elif case == "rc_square":
+        y = run(lambda v: v * v)[0]
+    elif case == "rc_cubic":
+        k3 = rng.uniform(0.15, 0.30) * rng.choice([-1.0, 1.0]) * 2.0 / float(np.max(np.abs(linear))) ** 3
+        truth["cube"] = k3
+        y = run(lambda v: v, lambda y: k3 * y**3)[0]
+    elif case == "rc_limit":
+        rim = rng.uniform(0.30, 0.50) * float(np.max(charges[0]))
+        truth["rim"] = rim
+        y = run(lambda v: v, rim=rim)[0]
+    else:
+        y = linear
+    # how far the hidden effect moves the output (RMS, % of the linear output's range; the noise is 0.5 %)
+    truth["effect_rms_percent"] = 100.0 * float(np.sqrt(np.mean((y - linear) ** 2)) / np.ptp(linear))
+    return u, y, truth
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=4)
@@ -215,23 +312,31 @@ def main(argv=None) -> int:
 
     rows = []
     for case in cases:
-        tank, linear = case in ("overflow", "tank_none"), case.startswith("lti_")
+        tank, linear, network = (
+            case in ("overflow", "tank_none"),
+            case.startswith("lti_"),
+            case.startswith("rc_"),
+        )
         if linear:
             physics = "lti:1" if case == "lti_limit" else "lti:2"
+        elif network:
+            physics = "rc:zoh"
         else:
             physics = f"{ROOT}/examples/" + (
                 "two_tank.py:TwoTank" if tank else "oscillator.py:MassSpringDamper"
             )
         for seed in range(args.seeds):
             rng = np.random.default_rng(2000 + seed)
-            u, clean, truth = (linear_plant if linear else tanks if tank else oscillator)(rng, case)
+            plant = rc_plant if network else linear_plant if linear else tanks if tank else oscillator
+            u, clean, truth = plant(rng, case)
             span = float(np.ptp(clean))
             w = 0.5 * clean + 0.2 + 0.005 * 0.5 * span * rng.normal(size=clean.size)
-            rate = LTI_RATE if linear else 1.0 / TANK_DT if tank else OSC_RATE
+            rate = LTI_RATE if linear or network else 1.0 / TANK_DT if tank else OSC_RATE
             recording = hybrid.Recording.from_arrays(v_in=u, w=w, rate=rate)
             simulation = hybrid.resolve_physics(physics, [recording])
             t0 = time.perf_counter()
-            found = hybrid.diagnose(recording, simulation=simulation)
+            effects = [*hybrid.resolve_effects(None, simulation), *RC_INSIDE] if network else None
+            found = hybrid.diagnose(recording, simulation=simulation, effects=effects)
             seconds = time.perf_counter() - t0
             causes = [c["name"] for c in found.causes]
             expected = EXPECTED[case]
@@ -266,7 +371,7 @@ def write(rows: list, cases: list, argv, path: str) -> None:
     command = "python experiments/inside_effects.py " + " ".join(argv if argv is not None else sys.argv[1:])
     out.write_text(json.dumps({"command": command.strip(), "rows": rows}, indent=2) + "\n")
     lines = [
-        "# Missing physics on the drive and inside the dynamics, hidden in three plants",
+        "# Missing physics on the drive and inside the dynamics, hidden in four plants",
         "",
         f"Command: `{command.strip()}` (the generators are in its docstring).",
         "",

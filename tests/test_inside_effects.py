@@ -22,6 +22,8 @@ from scipy.integrate import solve_ivp
 import hybrid
 from hybrid import EffectStack, InputError, PolynomialStiffness, StateLimit
 from hybrid.core._serialise import build_simulation, describe_simulation
+from hybrid.core._state_space import integrate
+from hybrid.discovery._effect_set import searched_places
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 # The examples' classes, loaded the way a user's --physics plug-in is.
@@ -107,8 +109,6 @@ def _lti_with_cubic_scipy(sim, u, dt, k3):
 def test_lti_state_space_form_is_exact_and_its_feedback_second_order():
     """LTI's state-space form: without effects it is LTI.simulate (exact ZOH), with a cubic fed back it
     converges to solve_ivp at second order in the substep (Heun's rule for the force)."""
-    from hybrid.core._state_space import integrate
-
     rng = np.random.default_rng(0)
     u = np.repeat(rng.uniform(-1, 1, 60), 10)
     dt = 0.01
@@ -132,6 +132,63 @@ def test_lti_state_space_form_is_exact_and_its_feedback_second_order():
 def _tank_drive(n=600, seed=1):
     rng = np.random.default_rng(seed)
     return np.repeat(rng.uniform(0.0, 9.0, n // 20), 20)
+
+
+@pytest.mark.parametrize("method", ["tustin", "zoh"])
+def test_rc_network_state_space_form_is_its_own_discretisation(method):
+    """Stepped once per sample, the network's state-space form is `simulate` (the block-lifted cascade)
+    to rounding, and its Tustin form is scipy's bilinear discretisation of the continuous realisation."""
+    import scipy.signal
+
+    rng = np.random.default_rng(1)
+    u = rng.uniform(-1, 1, 137)  # ends mid-block
+    net = hybrid.RCNetwork(C_clamp=0.005, n_stages=12, method=method)
+    y, states = integrate(net, jnp.asarray(u), 1 / 30)
+    simulated = np.asarray(net.simulate(jnp.asarray(u), 1 / 30))
+    np.testing.assert_allclose(np.asarray(y), simulated, rtol=0, atol=1e-12 * np.max(np.abs(simulated)))
+    assert states.shape == (137, 13) and net.states[0] == "vc_0" and net.states[-1] == "vc_12"
+    # each state is a compartment's double-layer voltage: under a steady 1 V, no current flows into C_k
+    # and it equals the node voltage, the product of the sections' DC gains G Z/P up to k (Eq 14 at s = 0)
+    G, Z, P = h.stage_zpk_np(10.0, 1.0, 0.5, 0.5, 0.5, 0.005, 12)
+    settled = np.asarray(integrate(net, jnp.ones(600), 1 / 30)[1][-1])
+    np.testing.assert_allclose(settled, np.cumprod(G * Z / P), rtol=1e-8)
+    A, B, C, D = (np.asarray(m) for m in net.state_space())
+    system = (A, B[:, None], C[None, :], np.atleast_2d(D))
+    form = {"tustin": "bilinear", "zoh": "zoh"}[method]
+    discrete = scipy.signal.cont2discrete(system, 1 / 30, method=form)
+    _, reference, _ = scipy.signal.dlsim(discrete[:4] + (1 / 30,), u)
+    np.testing.assert_allclose(simulated, reference[:, 0], rtol=0, atol=1e-10 * np.max(np.abs(simulated)))
+
+
+def _rc_with_cubic_scipy(net, drive, t, k3):
+    """ẋ = A x + B (u(t) − k3 y³), y = C x + D (u − k3 y³) with y³ of the state part; u(t) smooth; from rest."""
+    A, B, C, D = (np.asarray(m) for m in net.state_space())
+
+    def rhs(time, x):
+        return A @ x + B * (drive(time) - k3 * (C @ x) ** 3)
+
+    sol = solve_ivp(rhs, (0, t[-1]), np.zeros(len(B)), t_eval=t, rtol=1e-11, atol=1e-13, method="LSODA")
+    part = C @ sol.y
+    return part + D * (drive(t) - k3 * part**3)
+
+
+def test_rc_network_with_a_cubic_fed_back_converges_at_second_order():
+    """A force fed back into the network's Tustin form: the trapezoidal rule with the next force
+    predicted (Heun) converges to solve_ivp's continuous solution at second order in the sample interval."""
+
+    def drive(t):
+        return 0.8 * np.sin(2 * np.pi * 0.7 * t) + 0.5 * np.sin(2 * np.pi * 1.9 * t)  # 0 at t = 0: from rest
+
+    net = hybrid.RCNetwork(C_clamp=0.005, n_stages=8)
+    stack = EffectStack(net, [PolynomialStiffness(stiffness_cube=0.6)])
+    errors = []
+    for rate in (20.0, 40.0):
+        t = np.arange(int(6 * rate)) / rate
+        reference = _rc_with_cubic_scipy(net, drive, t, 0.6)
+        y = np.asarray(stack.simulate(jnp.asarray(drive(t)), 1 / rate))
+        errors.append(np.max(np.abs(y - reference)) / np.ptp(reference))
+    assert errors[0] < 1e-2  # 0.36 % at 20 Hz when written
+    assert 3.0 < errors[0] / errors[1] < 5.5  # halving the interval quarters the error: second order
 
 
 def test_state_limit_is_the_tank_examples_overflow_without_spill():
@@ -203,14 +260,23 @@ def test_resolve_effects_adds_inside_effects_only_where_there_are_states():
     assert "stiffness" in names and names[-2:] == ["limit_h1", "limit_h2"]
     lti = [e.name for e in hybrid.resolve_effects(None, hybrid.LTI(3))]  # LTI has a (linear) state-space form
     assert "stiffness" in lti and lti[-2:] == ["limit_lag_1", "limit_low_2"]  # on the low-pass states only
-    assert "stiffness" not in [e.name for e in hybrid.resolve_effects(None, hybrid.RCNetwork())]
+    # the RC network has the form, but its inside effects are searched only when named (too dear a default)
+    network = hybrid.RCNetwork(n_stages=4)
+    assert not [e for e in hybrid.resolve_effects(None, network) if e.place == "inside"]
+    named = hybrid.resolve_effects(["stiffness", "limit_vc_0", "limit_vc_4"], network)
+    assert [e.name for e in named] == ["stiffness", "limit_vc_0", "limit_vc_4"]
+    places = searched_places(hybrid.resolve_effects(None, network), network)
+    assert (
+        places["inside"]["effects"] == []
+        and "not by default for RCNetwork" in places["inside"]["not_searched"]
+    )
     assert [e.name for e in hybrid.resolve_effects(["limit_h2"], TwoTank())] == ["limit_h2"]
 
 
 @pytest.mark.parametrize(
     ("simulation", "effects", "words"),
     [
-        (hybrid.RCNetwork(), ["stiffness"], "has no state-space form"),
+        (hybrid.Passthrough(), ["stiffness"], "has no state-space form"),
         (TwoTank(), [StateLimit("level")], "does not have: its states are h1, h2"),
         (TwoTank(), ["limit_h3"], "unknown effect 'limit_h3'"),
     ],
@@ -318,15 +384,19 @@ def test_a_remainder_that_lives_inside_the_dynamics_says_whether_that_place_was_
     from hybrid.discovery._unexplained import place_hint
 
     cubic = {"kind": "nonlinear_dynamic", "level_limit": []}
-    rc = searched_places(resolve_effects(None, hybrid.RCNetwork()), hybrid.RCNetwork())
+    bare = hybrid.Passthrough()
+    none = searched_places(resolve_effects(None, bare), bare)
     assert (
-        rc["inside"]["effects"] == [] and "RCNetwork has no state-space form" in rc["inside"]["not_searched"]
+        none["inside"]["effects"] == []
+        and "Passthrough has no state-space form" in none["inside"]["not_searched"]
     )
-    assert "RCNetwork has no state-space form" in place_hint(cubic, rc)
+    assert "Passthrough has no state-space form" in place_hint(cubic, none)
+    rc = searched_places(resolve_effects(None, hybrid.RCNetwork()), hybrid.RCNetwork())
+    assert "not by default for RCNetwork" in place_hint(cubic, rc)  # it has the form, but it is dear
     tanks = searched_places(resolve_effects(None, TwoTank()), TwoTank())
     assert "(stiffness, limit_h1, limit_h2), none explains the rest" in place_hint(cubic, tanks)
     held = hybrid.HeldStart(hybrid.RCNetwork(), 20)  # the wrapper's simulation is the one named
-    assert "RCNetwork has no state-space form" in place_hint(
+    assert "not by default for RCNetwork" in place_hint(
         cubic, searched_places(resolve_effects(None, held), held)
     )
     held = hybrid.HeldStart(hybrid.LTI(2), 20)  # LTI has a (linear) state-space form

@@ -16,6 +16,9 @@ A simulation whose rates are linear may also give its matrices
 (`linear_matrices`): it is then stepped exactly (the matrix exponential of a
 substep), however stiff, and only a force fed back from an effect is
 approximated (held over a substep at the mean of its end values). `LTI` does.
+A linear simulation whose `simulate` is a particular discretisation (a
+bilinear/Tustin filter) gives that one (`discrete_matrices`), so that its
+state-space form and its `simulate` are one model: the RC network does.
 
 Integration: `substeps` classical RK4 steps per sample in one `lax.scan`, the
 drive held over each sample (``drive_between_samples = "hold"``: a
@@ -83,6 +86,9 @@ class AbstractStateSpace(AbstractSimulation):
 
     states: ClassVar[tuple[str, ...]]
     limited_states: ClassVar[tuple[str, ...] | None] = None
+    #: Why `diagnose`'s default set leaves out the effects inside these dynamics (None: it searches them);
+    #: they are searched when named (``effects=``, ``--effects``).
+    not_searched_inside: ClassVar[str | None] = None
     substeps: ClassVar[int] = 4
     drive_between_samples: ClassVar[str] = "hold"
 
@@ -124,6 +130,20 @@ class AbstractStateSpace(AbstractSimulation):
         below the sample interval) need no small steps; a force fed back from
         an effect is held over a substep at the mean of its values at the
         substep's two ends (Heun's rule: second order in the substep).
+        """
+        return None
+
+    def discrete_matrices(self, p: dict, dt) -> tuple[Array, Array, Array] | None:
+        """(Φ, Γ₀, Γ₁) of a linear simulation stepped once per sample (default None: not given).
+
+        x_{k+1} = Φ x_k + Γ₀ v_k + Γ₁ v_{k+1}, y_k = observe(x_k) + D v_k, with v
+        the drive less a fed-back force: Γ₁ = 0 for a zero-order hold, Γ₀ = Γ₁
+        for the trapezoidal rule (a bilinear, Tustin, filter). Given, it
+        replaces the substeps (`linear_matrices`, RK4); the state before the
+        first sample is at rest with no drive, so x_0 = Γ₁ v_0 (a digital
+        filter's start). A fed-back force at the next sample is predicted from
+        the state the step reaches without it (Heun's rule). `p` is what
+        `prepare` returned.
         """
         return None
 
@@ -218,7 +238,8 @@ def integrate(
     p = simulation.prepare(simulation.parameters())
     dtype = jnp.result_type(v_in, *jax.tree_util.tree_leaves(p))
     u = jnp.asarray(v_in, dtype)
-    u_next = jnp.concatenate([u[1:], u[-1:]]) if simulation.drive_between_samples == "linear" else u
+    ahead = jnp.concatenate([u[1:], u[-1:]])  # the next sample's drive (the last one repeated)
+    u_next = ahead if simulation.drive_between_samples == "linear" else u
     n = simulation.substeps
     h = dt / n
 
@@ -261,6 +282,10 @@ def integrate(
 
     direct = simulation.feedthrough(p)
     has_direct = not (isinstance(direct, float) and direct == 0.0)
+    discrete = simulation.discrete_matrices(p, dt)
+    if discrete is not None:
+        phi, now, nxt = (jnp.asarray(m, dtype) for m in discrete)
+        return _step_discrete(simulation, p, (phi, now, nxt, direct, has_direct), u, ahead, force, bound)
 
     def sample(x, pair):
         a, b = pair
@@ -276,3 +301,46 @@ def integrate(
     x0 = settle(tuple(jnp.asarray(xi, dtype) for xi in simulation.initial_state(u[0], p)))
     _, (y, xs) = lax.scan(sample, x0, (u, u_next))
     return y, jnp.stack(xs, axis=1)
+
+
+def _step_discrete(simulation, p, matrices, u, ahead, force, bound):
+    """`integrate` for a simulation that gives its `discrete_matrices`: one step per sample.
+
+    The state is carried as one array (one matrix-vector product a step: the
+    RC network has 46 states), split into a tuple only where the simulation's
+    or an effect's code reads it (`observe`, a force, a wall, a limit).
+    """
+    phi, now, nxt, direct, has_direct = matrices
+    n = phi.shape[0]
+    walls = type(simulation).walls is not AbstractStateSpace.walls
+
+    def split(x):
+        return tuple(x[i] for i in range(n))
+
+    def pushed(x):
+        return force(split(x), simulation.observe(split(x), p))
+
+    def settle(x):
+        if not walls and bound is None:
+            return x
+        x = tuple(simulation.walls(split(x), p))
+        return jnp.stack(x if bound is None else tuple(bound(x)))
+
+    def sample(x, pair):
+        a, b = pair
+        y_k = simulation.observe(split(x), p)
+        f_k = jnp.zeros((), x.dtype) if force is None else force(split(x), y_k)
+        if has_direct:
+            y_k = y_k + direct * (a - f_k)
+        base = phi @ x + now * (a - f_k)
+        if force is None:
+            x_next = base + nxt * b
+        else:  # the next sample's force predicted at the state the step reaches without it (Heun)
+            x_next = base + nxt * (b - pushed(base + nxt * (b - f_k)))
+        return settle(x_next), (y_k, x)
+
+    # from rest before the record: x_0 = Γ₁ v_0, the force at sample 0 predicted as in a step
+    first = nxt * u[0]
+    x0 = settle(first if force is None else nxt * (u[0] - pushed(first)))
+    _, (y, xs) = lax.scan(sample, x0, (u, ahead))
+    return y, xs

@@ -147,12 +147,16 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     and parameter names must be unique. Effects inside the dynamics need
     `simulation` in state-space form ([`AbstractStateSpace`][]): for None, the
     built-ins are the drive's and the output's effects, plus, for a
-    simulation with states, the stiffness and a limit on each state.
+    simulation with states, the stiffness and a limit on each state (each
+    of its `limited_states`), unless it says why not (`not_searched_inside`:
+    the RC network, whose stepped form is far dearer than its `simulate`).
     """
     states = _states_of(simulation)
     if effects is None:
-        built = [cls() for cls in EFFECTS.values() if states or cls.place != "inside"]  # type: ignore[call-arg]
         core = None if simulation is None else dynamics_of(simulation)
+        if core is not None and core[0].not_searched_inside:
+            states = ()  # its inside effects are searched when named (see AbstractStateSpace)
+        built = [cls() for cls in EFFECTS.values() if states or cls.place != "inside"]  # type: ignore[call-arg]
         limited = states if core is None or core[0].limited_states is None else core[0].limited_states
         return tuple(built) + tuple(StateLimit(state) for state in limited if state in states)
     if isinstance(effects, (str, AbstractEffect)) or isinstance(effects, type):
@@ -244,16 +248,19 @@ def _check_inside(effect: AbstractEffect, label: str, simulation, states) -> Non
 
 def searched_places(effects, simulation) -> dict[str, dict]:
     """Each place (`PLACES`): the effects searched there, and why none was where that is known."""
+    dynamics = dynamics_of(simulation)
     out = {}
     for place in PLACES:
         names = [e.name for e in effects if e.place == place]
         why = None
-        if not names and place == "inside" and dynamics_of(simulation) is None:
+        if not names and place == "inside" and dynamics is None:
             core = getattr(simulation, "inner", simulation)  # a HeldStart's simulation, not the wrapper
             why = (
                 f"{type(core).__name__} has no state-space form (hybrid.AbstractStateSpace), "
                 "so no effect inside its dynamics was searched"
             )
+        elif not names and place == "inside" and dynamics is not None and dynamics[0].not_searched_inside:
+            why = f"not by default for {type(dynamics[0]).__name__}: {dynamics[0].not_searched_inside}"
         elif not names:
             why = "no effect given acts here"
         out[place] = {"effects": names, "not_searched": why}

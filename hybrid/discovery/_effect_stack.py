@@ -104,7 +104,7 @@ class EffectStack(AbstractWrapper):
         return tuple(e.name for e in self.effects)
 
     def simulate(self, v_in, dt):
-        return _signals_through(self, v_in, dt)[1]
+        return _signals_through(self, v_in, dt, states=False)[1]
 
     def signal_unit(self, effect: AbstractEffect) -> str:
         """The unit of the signal `effect` acts on: the drive's, the inner output's or a state's."""
@@ -270,32 +270,45 @@ def switched(on, effect: AbstractEffect, s, dt):
     return jax.lax.cond(on != 0, lambda x: x + on * (effect.apply(x, dt) - x), lambda x: x, s)
 
 
-def _signals_through(stack, v_in, dt):
-    """(the signal entering each effect, rows in the stack's order; the stack's output; the drive into `inner`)."""
+def _signals_through(stack, v_in, dt, states: bool = True):
+    """(the signal entering each effect, rows in the stack's order; the stack's output; the drive into `inner`).
+
+    `states=False` (the output alone, as `simulate` wants it): while every
+    inside effect is off, the inner simulation runs as its own `simulate` (the
+    RC network's block-lifted cascade, not its state-space form stepped sample
+    by sample), and the signals entering the inside effects are not computed.
+    """
     into: list = [None] * len(stack.effects)
     u = v_in
     for i, effect in enumerate(stack.effects):
         if effect.place == "drive":
             into[i] = u
             u = switched(stack.active[i], effect, u, dt)
+    drive = [stack.active[i] != 0 for i, e in enumerate(stack.effects) if e.place == "drive"]
+    drive_on = jnp.any(jnp.stack(drive)) if drive else jnp.asarray(False)
     inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
     if inside:
         # A lane with every inside effect off (the baseline's, an outside candidate's) runs the
         # plain integration: the effects' forces and limits cost as much as the dynamics.
         any_on = jnp.any(jnp.stack([stack.active[i] != 0 for i, _ in inside]))
         core, held, skip = dynamics_of(stack.inner)  # checked when the stack was built
-        s, states = jax.lax.cond(
-            any_on,
-            lambda x: _inside_dynamics(stack, core, inside, x, dt),
-            lambda x: integrate(core, x, dt),
-            held(u),
+        driven = held(u)
+        n_states = len(core.states)
+
+        def plain(x):
+            if states:
+                return integrate(core, x, dt)
+            out = inner_response(stack.inner, u, dt, drive_on)  # the record's part; held samples as 0
+            out = jnp.concatenate([jnp.zeros(skip, out.dtype), out])
+            return out.astype(jnp.result_type(x, out)), jnp.zeros((x.shape[0], n_states), out.dtype)
+
+        s, trajectory = jax.lax.cond(
+            any_on, lambda x: _inside_dynamics(stack, core, inside, x, dt), plain, driven
         )
-        s, states = s[skip:], states[skip:]
+        s, trajectory = s[skip:], trajectory[skip:]
         for i, effect in inside:
-            into[i] = s if effect.acts_on == "output" else states[:, core.states.index(effect.acts_on)]
+            into[i] = s if effect.acts_on == "output" else trajectory[:, core.states.index(effect.acts_on)]
     else:
-        drive = [stack.active[i] != 0 for i, e in enumerate(stack.effects) if e.place == "drive"]
-        drive_on = jnp.any(jnp.stack(drive)) if drive else jnp.asarray(False)
         s = inner_response(stack.inner, u, dt, drive_on)
     for i, effect in enumerate(stack.effects):
         if effect.place == "output":

@@ -28,6 +28,29 @@ Discretisation (`method`):
   ZOH numerics of `_zoh.py`, which `LTI` shares).
 
 The network starts at rest (all states zero) before the first sample.
+
+State-space form (where `diagnose` runs an effect *inside* the dynamics: a
+force fed back into the drive, a limit on a compartment's voltage). The
+network is also an [`AbstractStateSpace`][] with one state per section,
+``vc_k``: the voltage across compartment k's double-layer capacitance C_k
+(the interface branch RI_k + C_k sees the section's output y_k, so
+v_C = y_k Z_k/(s + Z_k) = G_k Z_k/(s + P_k) u_k), so a limit on a state is a limit
+on a physical voltage (the electrolysis window of the electrolyte, say). `simulate` stays the block-lifted cascade; the state-space form
+is stepped once per sample by `discrete_matrices`, which give *the same
+discretisation* as `simulate`:
+
+- ``"tustin"``: the trapezoidal rule on the sections, x_{k+1} = Φ x_k +
+  Γ (u_k + u_{k+1}). The bilinear transform of each section and the
+  trapezoidal rule on the whole realisation have one transfer function (the
+  substitution s → (2/Δt)(z − 1)/(z + 1) commutes with the product of
+  sections), and from rest before the record (x_0 = Γ u_0) the two agree
+  sample by sample to rounding;
+- ``"zoh"``: e^{AΔt} and its integral, the exact response to a held drive.
+
+Stepping 46 states one sample after another costs far more than the
+block-lifted cascade, so `diagnose` leaves the inside effects out of its
+default set for the network (`not_searched_inside` says so in the report) and
+searches them when asked (``--effects builtins,stiffness,limit_vc_0``).
 """
 
 from __future__ import annotations
@@ -41,8 +64,9 @@ from jax import lax
 from jaxtyping import Array, Complex, Float
 
 from ..core._arguments import check_drive
+from ..core._loop_safe_linalg import zoh_discretise
 from ..core._parameters import Constraint, Positive, UnitInterval, encode
-from ..core._simulation import AbstractSimulation
+from ..core._state_space import AbstractStateSpace
 from ..util._errors import InputError
 from ._strip import Strip
 from ._zoh import BLOCK, lifted_response, zoh_response
@@ -51,7 +75,7 @@ Method = Literal["tustin", "zoh"]
 METHODS = ("tustin", "zoh")
 
 
-class RCNetwork(AbstractSimulation):
+class RCNetwork(AbstractStateSpace):
     """The paper's RC network (Eqs 4–14) as a differentiable simulation.
 
     **Arguments:**
@@ -65,6 +89,10 @@ class RCNetwork(AbstractSimulation):
     - `strip`: geometry and materials ([`hybrid.Strip`][], Table 1 by default).
     - `n_stages`: N; the network has N + 1 compartments k = 0..N.
     - `method`: ``"tustin"`` or ``"zoh"`` (see the module docstring).
+
+    Its state-space form has the states ``vc_0`` (the clamp compartment's
+    double-layer voltage) to ``vc_N`` (the tip's), each in the drive's unit; a
+    limit is searched on the clamp's and the tip's (`limited_states`).
     """
 
     raw: dict[str, Array]
@@ -117,6 +145,10 @@ class RCNetwork(AbstractSimulation):
         "xi_h stays fixed and xi_rho carries the ratio",
     }
     linear_in_drive: ClassVar[bool] = True  # zero initial state: V_o is linear in V_i
+    not_searched_inside: ClassVar[str | None] = (
+        "its state-space form steps one state per section, sample after sample, far dearer than its "
+        "block-lifted cascade: ask for them by name (--effects builtins,stiffness,limit_vc_0)"
+    )
 
     def __init__(
         self,
@@ -163,9 +195,12 @@ class RCNetwork(AbstractSimulation):
         )
 
     # --- Eqs 4–9 -------------------------------------------------------------
-    def stage_elements(self) -> dict[str, Float[Array, " stages"]]:
-        """RE_k, RI_k, C_k (Ω, Ω, F) for k = 0..N and R_M (Ω), Eqs 4–9 and Table 1."""
-        p = self.parameters()
+    def stage_elements(self, p: dict | None = None) -> dict[str, Float[Array, " stages"]]:
+        """RE_k, RI_k, C_k (Ω, Ω, F) for k = 0..N and R_M (Ω), Eqs 4–9 and Table 1.
+
+        `p`: decoded parameters (default: this network's own).
+        """
+        p = self.parameters() if p is None else p
         k = jnp.arange(self.n_stages + 1, dtype=p["C_clamp"].dtype)
         frac = k / self.n_stages
         RE_clamp = self.strip.RE_clamp
@@ -176,13 +211,15 @@ class RCNetwork(AbstractSimulation):
         return {"RE": RE, "RI": RI, "C": C, "RM": jnp.asarray(self.strip.R_M, RE.dtype)}
 
     # --- Eqs 10–13 -----------------------------------------------------------
-    def stage_zpk(self) -> tuple[Float[Array, " stages"], Float[Array, " stages"], Float[Array, " stages"]]:
+    def stage_zpk(
+        self, p: dict | None = None
+    ) -> tuple[Float[Array, " stages"], Float[Array, " stages"], Float[Array, " stages"]]:
         """Gain G_k (1), zero Z_k (rad/s) and pole P_k (rad/s) of each section, Eqs 11–13.
 
         Each section is H_k(s) = G_k (s + Z_k)/(s + P_k): its zero is at s = −Z_k
-        and its pole at s = −P_k.
+        and its pole at s = −P_k. `p`: decoded parameters (default: this network's own).
         """
-        e = self.stage_elements()
+        e = self.stage_elements(p)
         RE, RI, C, RM = e["RE"], e["RI"], e["C"], e["RM"]
         G = 1.0 / (1.0 + RE / RM + RE / RI)
         Z = 1.0 / (RI * C)
@@ -197,24 +234,53 @@ class RCNetwork(AbstractSimulation):
         return jnp.prod(G * (s + Z) / (s + P), axis=-1)
 
     def state_space(self) -> tuple[Array, Array, Array, Array]:
-        """Continuous realisation (A, B, C, D) of the cascade, one state per section.
+        """Continuous realisation (A, B, C, D) of the cascade, one state per section (volts).
 
-        Section k: ẋ_k = −P_k x_k + u_k, y_k = G_k (Z_k − P_k) x_k + G_k u_k, and
-        u_{k+1} = y_k. A is lower triangular; V_o = C x + D V_i.
+        Section k's state is its double-layer voltage x_k = v_C,k:
+        ẋ_k = G_k Z_k u_k − P_k x_k, and its output y_k = G_k u_k + (1 − P_k/Z_k) x_k
+        is the next section's input, u_{k+1} = y_k. A is lower triangular;
+        V_o = C x + D V_i.
         """
-        G, Z, P = self.stage_zpk()
-        n = G.shape[0]
+        return _realisation(*self.stage_zpk())
 
-        def section(carry, k):
-            c_in, d_in = carry  # u_k = c_in · x + d_in · V_i
-            row = c_in.at[k].add(-P[k])
-            c_out = G[k] * c_in.at[k].add(Z[k] - P[k])
-            d_out = G[k] * d_in
-            return (c_out, d_out), (row, d_in)
+    # --- the state-space form (effects inside the dynamics act on it) ---------------------
+    @property
+    def states(self) -> tuple[str, ...]:  # type: ignore[override]  # per N, not per class
+        """``vc_0`` (the clamp compartment's double-layer voltage) … ``vc_N`` (the tip's)."""
+        return tuple(f"vc_{k}" for k in range(self.n_stages + 1))
 
-        zero = jnp.zeros(n, G.dtype)
-        (C, D), (A, B) = lax.scan(section, (zero, jnp.ones((), G.dtype)), jnp.arange(n))
-        return A, B, C, D
+    @property
+    def limited_states(self) -> tuple[str, ...]:  # type: ignore[override]
+        """The clamp's double-layer voltage, the largest, and the tip's."""
+        return ("vc_0", f"vc_{self.n_stages}")
+
+    @property
+    def state_units(self) -> dict[str, str]:
+        return dict.fromkeys(self.states, "{drive}")  # each a voltage, a fraction of the drive at DC
+
+    def prepare(self, p: dict) -> dict:
+        G, Z, P = self.stage_zpk(p)
+        A, B, C, D = _realisation(G, Z, P)
+        return {"A": A, "B": B, "C": C, "D": D, "G": G, "Z": Z, "P": P}
+
+    def rates(self, x: tuple, u, p: dict) -> tuple:
+        return tuple(p["A"] @ jnp.stack(x) + p["B"] * u)
+
+    def observe(self, x: tuple, p: dict):
+        return p["C"] @ jnp.stack(x)
+
+    def linear_matrices(self, p: dict):
+        return p["A"], p["B"]
+
+    def feedthrough(self, p: dict):
+        return p["D"]
+
+    def discrete_matrices(self, p: dict, dt):
+        """(Φ, Γ₀, Γ₁) of `simulate`'s own discretisation (see the module docstring)."""
+        if self.method == "zoh":
+            phi, gamma = zoh_discretise(p["A"], p["B"], dt)
+            return phi, gamma, jnp.zeros_like(gamma)
+        return trapezoid_matrices(p["G"], p["Z"], p["P"], dt)
 
     # --- time domain -------------------------------------------------------------
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
@@ -228,6 +294,58 @@ class RCNetwork(AbstractSimulation):
             b0, b1, a1 = tustin_sections(*self.stage_zpk(), dt)
             return cascade_filter(b0, b1, a1, v_in)
         return zoh_response(*self.state_space(), v_in, dt)
+
+
+def _realisation(G, Z, P) -> tuple[Array, Array, Array, Array]:
+    """(A, B, C, D) of the cascade with each state a double-layer voltage (see `state_space`)."""
+    n = G.shape[0]
+
+    def section(carry, k):
+        c_in, d_in = carry  # u_k = c_in · x + d_in · V_i
+        row = (G[k] * Z[k] * c_in).at[k].add(-P[k])
+        c_out = (G[k] * c_in).at[k].add(1.0 - P[k] / Z[k])
+        return (c_out, G[k] * d_in), (row, G[k] * Z[k] * d_in)
+
+    zero = jnp.zeros(n, G.dtype)
+    (C, D), (A, B) = lax.scan(section, (zero, jnp.ones((), G.dtype)), jnp.arange(n))
+    return A, B, C, D
+
+
+def trapezoid_matrices(G, Z, P, dt) -> tuple[Array, Array, Array]:
+    """(Φ, Γ, Γ) of x_{k+1} = Φ x_k + Γ (u_k + u_{k+1}): the trapezoidal rule on `state_space`'s form.
+
+    Section by section, clamp to tip: x'_k = a_k x_k + b_k (u_k + u'_k) with
+    a = (1 − PΔt/2)/(1 + PΔt/2) and b = G Z (Δt/2)/(1 + PΔt/2), where the
+    section's next input u'_k is the previous section's next output, itself
+    a combination of x, u and u' found one section earlier: the implicit rule
+    solved exactly by forward substitution (A is lower triangular), no
+    inverse. Its transfer function is the Tustin cascade's (`tustin_sections`).
+    """
+    n = G.shape[0]
+    half = 0.5 * dt * P
+    a, b = (1.0 - half) / (1.0 + half), G * Z * (0.5 * dt) / (1.0 + half)
+    zero = jnp.zeros(n, G.dtype)
+
+    def section(carry, k):
+        # u_k = c·x + d·u (now) and u'_k = e·x + f·u + g·u' (next sample), for the whole drive u, u'
+        c, d, e, f, g = carry
+        row = b[k] * (c + e) + a[k] * (jnp.arange(n) == k)
+        by_now, by_next = b[k] * (d + f), b[k] * g  # x'_k's weights on u and u'
+        w = 1.0 - P[k] / Z[k]  # y = G u + w x
+        out = (
+            (G[k] * c).at[k].add(w),
+            G[k] * d,
+            G[k] * e + w * row,
+            G[k] * f + w * by_now,
+            G[k] * g + w * by_next,
+        )
+        return out, (row, by_now, by_next)
+
+    one = jnp.ones((), G.dtype)
+    _, (phi, gamma_now, gamma_next) = lax.scan(
+        section, (zero, one, zero, jnp.zeros((), G.dtype), one), jnp.arange(n)
+    )
+    return phi, gamma_now, gamma_next
 
 
 def tustin_sections(G, Z, P, dt):
