@@ -85,6 +85,7 @@ def test_diagnose_names_the_hidden_effect(effect, seed, request):
         assert found.gain == 1.0 and found.extended is found.baseline
         # Nothing named, and nothing left above the noise floor (estimated from the recording alone).
         assert found.causes == [] and found.unexplained is None, found.verdict
+        assert found.ambiguous == [] and found.to_dict()["ambiguous"] == []  # nothing to tell apart
         true_noise = (NOISE * np.ptp(recording.extra["w_true"])) ** 2
         assert 0.7 <= found.noise_floor.variance / true_noise <= 1.6
         return

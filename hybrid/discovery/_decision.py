@@ -175,6 +175,7 @@ def evaluate_candidate(
         ljung_box=rt.ljung_box(w - w_hat),
         theta=np.asarray(theta),
         active=np.asarray(active),
+        heldout_residual=np.asarray(w - w_hat, float),
     )
     if name != "none":
         cand.material, cand.materiality = _material(problem, theta, name, derived, parameters, materiality)

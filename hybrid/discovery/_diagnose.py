@@ -61,6 +61,7 @@ from ..core._levenberg_marquardt import LMSettings
 from ..util._errors import InputError
 from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
+from ._ambiguity import ambiguities
 from ._decision import evaluate_candidate, free_names
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effect_set import resolve_effects, searched_places
@@ -297,6 +298,10 @@ def diagnose(
         equally_good=steps[-1].equally_good,
         places=places,
     )
+    drives = [np.asarray(r.v_in, float) for r in recordings]
+    rivals = ambiguities(
+        steps, w_te, floor.std if floor is not None else float("nan"), drives, rate, search.effects
+    )
     hybrid_report = None
     if hybrid:
         hybrid_report = hybrid_fits(
@@ -321,6 +326,7 @@ def diagnose(
         effects=search.effects,
         places=places,
         not_pinned=unpinned,
+        ambiguous=rivals,
         models={
             "baseline": fitted_model(problem, baseline.theta, ()),
             "extended": extended_model,

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..util._errors import InputError
+from ._ambiguity import TEST as AMBIGUITY_TEST
 from ._effect_set import EFFECTS
 
 if TYPE_CHECKING:
@@ -38,6 +39,8 @@ CAUSES = ("none",) + tuple(EFFECTS)
 #:   (``pinned``; ``not_pinned``: why not); units follow the signal an effect acts on;
 #:   ``effects`` lists the searched effects and where each acts; ``settings.materiality`` lists
 #:   every threshold used.
+#: Keys added within schema 3 (a reader of 3 may ignore them): ``ambiguous`` (each step whose named
+#: cause has rivals this recording cannot tell apart) and ``ambiguity_test`` (the test, in words).
 REPORT_SCHEMA = "hybrid-report/3"
 #: The keys schema 3 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -258,6 +261,8 @@ class Candidate:
     """Its effects' switches."""
     validation_loss: float = float("nan")
     """½ mean r² on the validation part (the lane's)."""
+    heldout_residual: np.ndarray | None = None
+    """w − ŵ on the held-out part, in the recording's units (for comparing rivals; not in ``report.json``)."""
 
     def to_dict(self) -> dict:
         return {
@@ -308,6 +313,9 @@ class Diagnosis:
     places: dict = dataclasses.field(default_factory=dict)
     #: Parameters this recording does not pin (standard error infinite or above the value): why, by name.
     not_pinned: dict = dataclasses.field(default_factory=dict)
+    #: Each step whose named cause this recording cannot tell from other eligible effects
+    #: (`hybrid.discovery._ambiguity`): the rivals, their gains, the test and why, where it shows.
+    ambiguous: list = dataclasses.field(default_factory=list)
     #: The fitted models (`hybrid.Model`, simulation + gain and offset in the recording's units):
     #: ``"baseline"`` (the simulation and the frame timing) and ``"extended"`` (with every named
     #: cause); `write_report` saves them as ``baseline.eqx`` and ``extended.eqx``.
@@ -376,6 +384,8 @@ class Diagnosis:
             "causes": self.causes,
             "noise_floor": self.noise_floor.to_dict() if self.noise_floor is not None else None,
             "unexplained": self.unexplained,
+            "ambiguous": self.ambiguous,
+            "ambiguity_test": AMBIGUITY_TEST,
             "steps": [
                 {
                     "cause": step.cause,

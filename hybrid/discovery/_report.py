@@ -26,6 +26,7 @@ import numpy as np
 
 from ..util._atomic import atomic_open
 from . import residual_tests as rt
+from ._ambiguity import sentence as ambiguity_sentence
 from ._report_figures import FIGURES, MAX_LAG, count_loop_levels, format_nmse, save_figure, write_figures
 
 # --------------------------------------------------------------------------- #
@@ -286,6 +287,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     lines += ["", f"Gain (baseline NMSE / extended NMSE): **{d['gain']:.3g}**.", ""]
     if d["causes"]:
         lines += _stepwise(d)
+    for entry in d.get("ambiguous") or []:
+        lines += [f"**Ambiguous.** {ambiguity_sentence(entry)}", ""]
     lines += noise_section(d)
 
     lines += [

@@ -1,0 +1,209 @@
+"""When a recording cannot tell two explanations apart: the named cause's rivals, and why.
+
+A step of the search names the eligible effect with the largest held-out gain
+(`hybrid.discovery._step`). The effects that also passed every rule of that
+step are its rivals. A rival is *indistinguishable* from the named cause on
+this recording when either
+
+- **the named cause is not significantly better**: the paired difference of
+  squared held-out errors, d_t = e²_rival(t) − e²_named(t), is cut into
+  contiguous chunks as long as its decorrelation length (the effective-sample
+  factor of d, 1 + 2 Σ ρ_k over its positive lags), and a one-sided sign test
+  asks whether the named cause wins (mean d > 0) in more chunks than chance
+  would give: indistinguishable when its p-value exceeds `ALPHA`. A sign test
+  over decorrelated chunks, not a t-test on the mean: held-out errors of slow
+  dynamics are few independent pieces with heavy tails, and there a rival 100×
+  worse in nearly every chunk can still lie within two standard errors of the
+  mean; or
+- **its predictions are the named cause's to within the noise**: the RMS of
+  the difference between the two models' held-out predictions is below the
+  measurement noise's standard deviation (`NoiseFloor`), so no recording of
+  this drive, however long, would separate them.
+
+Both criteria are computed from the held-out (test) part alone, which no fit
+saw. Where the recording shows why the rivals look alike, the report says it:
+
+- the drive's level and time are correlated (|r| ≥ `LEVEL_TIME_R` between
+  the drive's running mean, over a tenth of the recording, and time): an
+  effect of the level (a saturation, an even response) and one of time (a
+  drift) act alike on a staircase that rises as it goes;
+- a rival acts at a frequency (a parameter in Hz) where the drive has less
+  than `THIN_POWER` of its power (within a factor 1.25 either way).
+
+`cause` and `causes` keep the best explanation; ``report.json``'s
+``ambiguous`` lists each step whose named cause has indistinguishable rivals.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .residual_tests import effective_sample_factor
+
+#: The sign test's level: a rival is indistinguishable when the named cause's wins over decorrelated
+#: chunks of the held-out part have a one-sided p-value above it.
+ALPHA = 0.05
+#: |correlation| of the drive's running mean with time above which level and time are confounded.
+LEVEL_TIME_R = 0.5
+#: Share of the drive's power near a rival's frequency below which the drive cannot excite it.
+THIN_POWER = 0.01
+
+TEST = (
+    "a rival (an effect that also passed every rule of the step) is indistinguishable from the named "
+    "cause when the named cause's lower squared held-out error wins in no more contiguous chunks (each as "
+    f"long as the errors' decorrelation length) than chance would give (one-sided sign test, p > {ALPHA:g}), "
+    "or when their held-out predictions differ by less than the noise floor (RMS)"
+)
+
+
+def paired_difference(named_residual, rival_residual) -> dict:
+    """The sign test of e²_rival − e²_named over decorrelated chunks, and the mean with its standard error.
+
+    Returns ``mean`` and ``std_error`` (autocorrelation-corrected) of the
+    difference, the ``chunks`` compared, the named cause's ``wins`` and the
+    one-sided ``p_value`` of that many wins or more under no difference.
+    """
+    d = np.asarray(rival_residual, float) ** 2 - np.asarray(named_residual, float) ** 2
+    n = d.size
+    spread = float(np.var(d, ddof=1)) if n > 1 else 0.0
+    factor = effective_sample_factor(d) if spread > 0 else 1.0
+    length = max(1, math.ceil(factor))
+    k = n // length
+    means = d[: k * length].reshape(k, length).mean(axis=1) if k else np.zeros(0)
+    decided = means[means != 0]
+    wins = int(np.sum(decided > 0))
+    tail = sum(math.comb(decided.size, j) for j in range(wins, decided.size + 1))
+    return {
+        "mean": float(np.mean(d)) if n else 0.0,
+        "std_error": math.sqrt(spread * factor / n) if n > 1 else float("inf"),
+        "chunks": int(decided.size),
+        "wins": wins,
+        "p_value": tail / (1 << decided.size),
+    }
+
+
+def level_time_correlation(drives: list[np.ndarray]) -> float:
+    """The largest |corr(running mean of the drive, time)| over the recordings (0 for a constant drive)."""
+    best = 0.0
+    for u in drives:
+        u = np.asarray(u, float)
+        if u.size < 20:
+            continue
+        width = max(2, u.size // 10)
+        level = np.convolve(u, np.ones(width) / width, mode="valid")
+        if np.ptp(level) == 0:
+            continue
+        r = float(np.corrcoef(level, np.arange(level.size))[0, 1])
+        best = max(best, abs(r)) if math.isfinite(r) else best
+    return best
+
+
+def power_near(drives: list[np.ndarray], rate: float, frequency: float) -> float:
+    """Share of the drives' power (mean removed) between frequency/1.25 and frequency·1.25."""
+    total = near = 0.0
+    for u in drives:
+        u = np.asarray(u, float) - np.mean(u)
+        if u.size < 4:
+            continue
+        power = np.abs(np.fft.rfft(u)) ** 2
+        f = np.fft.rfftfreq(u.size, 1.0 / rate)
+        total += float(np.sum(power[1:]))
+        near += float(np.sum(power[(f >= frequency / 1.25) & (f <= frequency * 1.25)]))
+    return near / total if total > 0 else 0.0
+
+
+def _frequencies(candidate, effects) -> dict[str, float]:
+    """The candidate's own parameters whose unit is Hz, by name."""
+    own = next((e for e in effects if e.name == candidate.name), None)
+    if own is None:
+        return {}
+    return {
+        k: float(candidate.parameters[k])
+        for k, unit in own.units.items()
+        if unit == "Hz" and k in candidate.parameters and math.isfinite(candidate.parameters[k])
+    }
+
+
+def ambiguities(steps, w_test, noise_std: float, drives, rate: float, effects) -> list[dict]:
+    """Each step whose named cause has indistinguishable rivals (``report.json``'s ``ambiguous``).
+
+    `steps`: the search's steps (`Step`); `w_test`: the recorded held-out
+    output (for the scale of the errors); `noise_std`: the noise floor's
+    standard deviation (NaN: unknown, that criterion is skipped); `drives`: the
+    recordings' drives; `effects`: the searched effects (for their units).
+    """
+    scale = float(np.var(w_test)) or 1.0
+    out = []
+    for k, step in enumerate(steps, 1):
+        named = step.chosen
+        if named is None or named.heldout_residual is None:
+            continue
+        rivals = []
+        for c in step.candidates:
+            if c is named or c.name == named.name or not c.eligible or c.heldout_residual is None:
+                continue
+            test = paired_difference(named.heldout_residual, c.heldout_residual)
+            apart = float(np.sqrt(np.mean((c.heldout_residual - named.heldout_residual) ** 2)))
+            alike = math.isfinite(noise_std) and apart < noise_std
+            if test["p_value"] > ALPHA or alike:
+                rivals.append(
+                    {
+                        "name": c.name,
+                        "gain": c.gain,
+                        "heldout_nmse": c.heldout.nmse,
+                        "mse_difference": test["mean"] / scale,
+                        "mse_difference_std_error": test["std_error"] / scale,
+                        "chunks": test["chunks"],
+                        "named_wins": test["wins"],
+                        "p_value": test["p_value"],
+                        "prediction_rms_difference": apart,
+                        "within_noise": bool(alike),
+                    }
+                )
+        if rivals:
+            out.append(
+                {
+                    "step": k,
+                    "named": named.name,
+                    "gain": named.gain,
+                    "rivals": rivals,
+                    "why": _why(named, [r["name"] for r in rivals], step.candidates, drives, rate, effects),
+                }
+            )
+    return out
+
+
+def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[str]:
+    """What in this recording makes the rivals look alike, where it can be seen."""
+    out = []
+    r = level_time_correlation(drives)
+    if r >= LEVEL_TIME_R:
+        out.append(
+            f"the drive's level and time are correlated (|r| = {r:.2f} between its running mean and time): "
+            "an effect of the level and one of time act alike on this drive"
+        )
+    for c in [named, *(c for c in candidates if c.name in rival_names)]:
+        for name, f in _frequencies(c, effects).items():
+            share = power_near(drives, rate, f)
+            if f > 0 and share < THIN_POWER:
+                out.append(
+                    f"the drive has {100 * share:.2g} % of its power near {c.name}'s {name} = {f:.3g} Hz"
+                )
+    return out
+
+
+def sentence(entry: dict) -> str:
+    """report.md's sentence for one ``ambiguous`` entry."""
+    rivals = ", ".join(f"{r['name']} (gain {r['gain']:.3g})" for r in entry["rivals"])
+    how = (
+        "their held-out predictions differ by less than the noise"
+        if all(r["within_noise"] for r in entry["rivals"])
+        else "on the held-out part the named cause is not significantly better (sign test)"
+    )
+    why = "; ".join(entry["why"])
+    return (
+        f"This recording cannot tell step {entry['step']}'s {entry['named']} (gain {entry['gain']:.3g}) from "
+        f"{rivals}: {how}" + (f" ({why})." if why else ".") + " Another drive is needed to separate them."
+    )
