@@ -417,6 +417,7 @@ def _cmd_table2(args):
 def _cmd_diagnose(args):
     import dataclasses
 
+    from .discovery._ambiguity import sentence as ambiguity_sentence
     from .discovery._diagnosis import DiagnoseSettings
     from .discovery._report import MODEL_FILES, REMAINDER_FIGURE, plus_minus, write_report
     from .discovery._report_figures import FIGURES
@@ -471,6 +472,8 @@ def _cmd_diagnose(args):
         for name in diagnosis.effect_parameters(step["name"]):
             if name in report["parameters"]:
                 print(f"    {name} = {plus_minus(report['parameters'][name])}")
+    for entry in report["ambiguous"]:
+        print(f"ambiguous: {ambiguity_sentence(entry)}")
     floor, left = report["noise_floor"], report["unexplained"]
     print(f"noise floor: sigma = {floor['std']:.3g} ({floor['method']})")
     if left is not None:
