@@ -56,6 +56,7 @@ from .data._drives import DRIVES as DRIVES, make_drive as make_drive
 from .data._mapping import load_mapped as load_mapped, load_pair as load_pair
 from .data._recording import Recording as Recording
 from .data._split import Split as Split
+from .discovery._design import DriveDesign as DriveDesign, design_drive as design_drive
 from .discovery._diagnosis import (
     CAUSES as CAUSES,
     DiagnoseSettings as DiagnoseSettings,

@@ -6,6 +6,7 @@
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
     hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
+    hybrid design DIAG_DIR --duration S (--amplitude V | --bounds LO:HI) [--rate HZ] [--slew PER_S] --out DRIVE.csv
 
 fit, diagnose and sensitivity take --physics rc|lti:N|file.py:Class|module:Class and read a lab's own
 columns with --input/--output (or --columns), --rate, --range and --units.
@@ -25,6 +26,7 @@ import threading
 import traceback
 from pathlib import Path
 
+from ._cli_design import add_design, cmd_design
 from ._cli_inputs import (
     add_mapping,
     add_physics,
@@ -179,6 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
 
     add_sensitivity(sub, B)
+    add_design(sub, B)
 
     p = sub.add_parser(
         "diagnose", help="which physical effect the simulation misses (report.md, report.json, PNGs)"
@@ -502,6 +505,7 @@ COMMANDS = {
     "fit": _cmd_fit,
     "table2": _cmd_table2,
     "sensitivity": cmd_sensitivity,
+    "design": cmd_design,
     "diagnose": _cmd_diagnose,
 }
 

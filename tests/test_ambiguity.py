@@ -1,7 +1,9 @@
 """When a recording cannot tell two causes apart, the report says so (issue 35, item 2).
 
 The test's statistics against an independent reference (scipy's exact
-binomial test), and `diagnose` on a constructed confound: a staircase drive
+binomial test), `diagnose` on a constructed confound and `hybrid design` on
+its rivals (every limit, and the criterion recomputed from the rivals'
+predictions): a staircase drive
 whose level rises with time hides a gain that drifts over time, which a
 saturation (a gain that falls with level) explains as well; on random levels
 the two are told apart. The plant (a first-order lag) is made here with
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import json
 
+import helpers as h
 import numpy as np
 import pytest
 from scipy.signal import lfilter
@@ -62,13 +65,22 @@ def _recording(staircase: bool, seed: int = 0) -> hybrid.Recording:
     return hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE)
 
 
-def test_a_drift_hidden_by_a_rising_staircase_is_reported_ambiguous_and_random_levels_separate_it(tmp_path):
-    effects = ["saturation", "drift"]  # the two rivals of the confound (the search's other effects: other tests)
-    confounded = hybrid.diagnose(_recording(staircase=True), simulation=hybrid.LTI(1), effects=effects)
+@pytest.fixture(scope="module")
+def confounded():
+    """The staircase's diagnosis with the two rivals of the confound (the search's others: other tests)."""
+    return hybrid.diagnose(
+        _recording(staircase=True), simulation=hybrid.LTI(1), effects=["saturation", "drift"]
+    )
+
+
+def test_a_drift_hidden_by_a_rising_staircase_is_reported_ambiguous_and_random_levels_separate_it(
+    confounded, tmp_path
+):
+    effects = {"saturation", "drift"}
     assert confounded.cause in effects
     (entry,) = confounded.to_dict()["ambiguous"]
     (rival,) = entry["rivals"]
-    assert {entry["named"], rival["name"]} == set(effects)
+    assert {entry["named"], rival["name"]} == effects
     assert rival["p_value"] > ALPHA and rival["named_wins"] <= rival["chunks"]
     assert any("level and time are correlated" in why for why in entry["why"])
     text = sentence(entry)
@@ -76,6 +88,81 @@ def test_a_drift_hidden_by_a_rising_staircase_is_reported_ambiguous_and_random_l
     paths = hybrid.write_report(confounded, tmp_path)  # report.md says it in one sentence
     assert f"**Ambiguous.** {text}" in paths["report.md"].read_text()
     assert json.loads(paths["report.json"].read_text())["ambiguous"][0]["rivals"][0]["name"] == rival["name"]
+    # each side saved as a loadable model with its own effect
+    for name, file in entry["models"].items():
+        assert {e.name for e in hybrid.load_model(tmp_path / file).simulation.effects} == {
+            "frame_timing",
+            name,
+        }
 
-    separated = hybrid.diagnose(_recording(staircase=False), simulation=hybrid.LTI(1), effects=effects)
+    separated = hybrid.diagnose(
+        _recording(staircase=False), simulation=hybrid.LTI(1), effects=sorted(effects)
+    )
     assert separated.cause == "drift" and separated.ambiguous == []
+
+
+def _rivals(diagnosis):
+    (entry,) = diagnosis.ambiguous
+    return {name: diagnosis.models[file.removesuffix(".eqx")] for name, file in entry["models"].items()}
+
+
+@pytest.mark.parametrize(
+    "limits",
+    [
+        {"amplitude": 1.5},  # |u| ≤ 1.5
+        {"bounds": (0.3, 1.8)},  # a one-sided range (a pump's)
+        {"amplitude": 2.2, "slew": 1.5},  # and a slew limit
+    ],
+    ids=["amplitude", "bounds", "slew"],
+)
+def test_a_designed_drive_keeps_every_limit_and_separates_the_rivals_more_than_a_prbs(confounded, limits):
+    noise = confounded.noise_floor.std
+    design = hybrid.design_drive(
+        _rivals(confounded), duration=20.0, rate=RATE, noise_std=noise, starts=2, steps=60, **limits
+    )
+    low, high = limits.get("bounds", (-limits.get("amplitude", 0.0), limits.get("amplitude", 0.0)))
+    assert design.v_in.shape == (600,) and np.allclose(np.diff(design.t), 1 / RATE)
+    assert np.min(design.v_in) >= low and np.max(design.v_in) <= high
+    if "slew" in limits:
+        assert np.max(np.abs(np.diff(design.v_in))) <= limits["slew"] / RATE * (1 + 1e-9)
+    # the criterion, recomputed independently from the rivals' predictions under the drive
+    a, b = (np.asarray(m.predict(design.v_in, 1 / RATE)) for m in _rivals(confounded).values())
+    assert design.criterion == pytest.approx(np.mean((a - b) ** 2) / noise**2, rel=1e-9)
+    assert design.criterion >= design.control_criterion > 0  # the control is its first start
+
+
+def test_design_refuses_bad_limits_in_one_line(confounded):
+    rivals = _rivals(confounded)
+    for kwargs, words in (
+        ({}, "amplitude=A"),
+        ({"amplitude": 1.0, "bounds": (0, 1)}, "amplitude=A"),
+        ({"bounds": (1.0, 0.0)}, "low < high"),
+        ({"amplitude": 1.0, "slew": -1.0}, "slew must be > 0"),
+    ):
+        with pytest.raises(hybrid.InputError, match=words) as caught:
+            hybrid.design_drive(rivals, duration=5.0, rate=RATE, **kwargs)
+        assert "\n" not in str(caught.value)
+    with pytest.raises(hybrid.InputError, match="two or more"):
+        hybrid.design_drive({"one": next(iter(rivals.values()))}, duration=5.0, rate=RATE, amplitude=1.0)
+
+
+def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limits(confounded, tmp_path):
+    folder = tmp_path / "diag"
+    hybrid.write_report(confounded, folder)
+    done = h.run_hybrid(
+        tmp_path, "design", folder, "--duration", "10", "--amplitude", "2", "--slew", "4", "--rate", "30",
+        "--starts", "2", "--steps", "40", "--out", "drive.csv", "--quiet",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    table = np.loadtxt(tmp_path / "drive.csv", delimiter=",", skiprows=1)
+    assert table.shape == (300, 2) and np.max(np.abs(table[:, 1])) <= 2.0
+    assert np.max(np.abs(np.diff(table[:, 1]))) <= 4.0 / 30 * (1 + 1e-6)
+    assert (tmp_path / "drive.png").stat().st_size > 0 and "× a multilevel PRBS" in done.stdout
+    # a diagnosis with nothing ambiguous: one line, no file
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    report = json.loads((folder / "report.json").read_text())
+    (plain / "report.json").write_text(json.dumps({**report, "ambiguous": []}))
+    refused = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "x.csv")
+    assert refused.returncode == 2 and "nothing ambiguous" in refused.stderr
+    assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()

@@ -299,9 +299,18 @@ def diagnose(
         places=places,
     )
     drives = [np.asarray(r.v_in, float) for r in recordings]
-    rivals = ambiguities(
-        steps, w_te, floor.std if floor is not None else float("nan"), drives, rate, search.effects
-    )
+    rivals = ambiguities(steps, w_te, floor.std, drives, rate, search.effects)
+    rival_models = {}
+    for entry in rivals:  # each side of an ambiguity as a loadable model (`hybrid design` reads them)
+        k = entry["step"]
+        before = present[: k - 1]
+        files = {}
+        for name in [entry["named"], *(r["name"] for r in entry["rivals"])]:
+            fitted = next(c for c in steps[k - 1].candidates if c.name == name)
+            key = f"step{k}_{name}"
+            rival_models[key] = fitted_model(problem, fitted.theta, (*before, name))
+            files[name] = f"{key}.eqx"
+        entry["models"] = files
     hybrid_report = None
     if hybrid:
         hybrid_report = hybrid_fits(
@@ -330,6 +339,7 @@ def diagnose(
         models={
             "baseline": fitted_model(problem, baseline.theta, ()),
             "extended": extended_model,
+            **rival_models,
         },
     )
 

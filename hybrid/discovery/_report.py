@@ -477,7 +477,10 @@ MODEL_FILES = ("baseline.eqx", "extended.eqx")
 
 
 def save_models(diagnosis, out_dir: Path) -> dict[str, Path]:
-    """Save the diagnosis's baseline and extended models as loadable models (``hybrid.load_model``).
+    """Save the diagnosis's models as loadable models (``hybrid.load_model``).
+
+    The baseline, the extended model and, for each ambiguous step, its named
+    cause's and rivals' (``step<k>_<effect>``), which `hybrid design` reads.
 
     A plug-in effect's module must be imported before loading (``--effects`` does it).
     """
@@ -487,11 +490,10 @@ def save_models(diagnosis, out_dir: Path) -> dict[str, Path]:
     causes = [c["name"] for c in diagnosis.causes]
     for key, model in diagnosis.models.items():
         path = out_dir / f"{key}.eqx"
-        save_model(
-            path,
-            model,
-            extra={"saved_by": "hybrid diagnose", "causes": causes if key == "extended" else []},
-        )
+        effects = causes if key == "extended" else []
+        if key.startswith("step"):  # a side of an ambiguity (`Diagnosis.ambiguous`): its own effects
+            effects = [e.name for e in model.simulation.effects if e.name != "frame_timing"]
+        save_model(path, model, extra={"saved_by": "hybrid diagnose", "causes": effects})
         out[path.name] = path
     return out
 

@@ -1,0 +1,188 @@
+"""`hybrid design DIAG_DIR`: the drive that tells a diagnosis's rival explanations apart.
+
+Reads ``report.json`` of ``hybrid diagnose --out DIAG_DIR``: its ``ambiguous``
+step (``--step``, default the first), the rivals' models saved beside it
+(``step<k>_<effect>.eqx``) and the noise floor; runs `hybrid.design_drive`
+within the limits given; writes the drive (CSV ``t,v_in``, which
+``rig record --drive-file`` and ``hybrid simulate --drive-file`` play) and a
+figure of the rivals' predictions under it and under the control (``.png``
+beside the CSV). Nothing is written until the design has succeeded.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from .util._errors import InputError
+
+
+def add_design(sub, B) -> None:
+    p = sub.add_parser(
+        "design", help="the drive that tells a diagnosis's rival explanations apart (CSV t,v_in and a PNG)"
+    )
+    p.add_argument("diagnosis", help="the folder hybrid diagnose --out wrote (report.json, step<k>_*.eqx)")
+    p.add_argument(
+        "--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), required=True, help="seconds"
+    )
+    p.add_argument(
+        "--amplitude",
+        type=B.number(0.0, 1e9, include_low=False),
+        default=None,
+        help="|drive| ≤ this (the DAC's range), in the drive's unit",
+    )
+    p.add_argument(
+        "--bounds",
+        default=None,
+        metavar="LOW:HIGH",
+        help="the drive's range instead of --amplitude, e.g. 0:10",
+    )
+    p.add_argument(
+        "--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0, help="the rig's samples per second"
+    )
+    p.add_argument(
+        "--slew",
+        type=B.number(0.0, 1e12, include_low=False),
+        default=None,
+        help="largest |d drive/dt|, drive unit per second (default: none)",
+    )
+    p.add_argument(
+        "--step", type=B.integer(1, 1000), default=None, help="which ambiguous step (default: the first)"
+    )
+    p.add_argument("--starts", type=B.integer(*B.STARTS), default=4, help="starts of the gradient search")
+    p.add_argument("--steps", type=B.integer(*B.MAX_STEPS), default=300, help="Adam steps per start")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="the drive, .csv (t,v_in); the figure goes beside it as .png")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.add_argument(
+        "--physics",
+        default=None,
+        metavar="SPEC",
+        help="a plug-in physics (path/to/file.py:Class) the rivals' models need imported first",
+    )
+
+
+def _bounds(args) -> dict:
+    if (args.amplitude is None) == (args.bounds is None):
+        raise InputError("give the drive's range: --amplitude V (|drive| ≤ V) or --bounds LOW:HIGH")
+    if args.amplitude is not None:
+        return {"amplitude": args.amplitude}
+    try:
+        low, high = (float(x) for x in args.bounds.split(":"))
+    except ValueError:
+        raise InputError(f"--bounds {args.bounds!r}: give LOW:HIGH, e.g. --bounds 0:10") from None
+    if not (math.isfinite(low) and math.isfinite(high) and low < high):
+        raise InputError(f"--bounds {args.bounds!r}: LOW must be below HIGH, both finite")
+    return {"bounds": (low, high)}
+
+
+def _rivals(folder: Path, step: int | None) -> tuple[dict, dict, float]:
+    """(the chosen ``ambiguous`` entry, its rivals' models by name, the noise floor's σ) of a diagnosis folder."""
+    from .core._serialise import load_model
+
+    report_path = folder / "report.json"
+    if not report_path.is_file():
+        raise InputError(f"{folder}: no report.json; give the folder that hybrid diagnose --out wrote")
+    try:
+        report = json.loads(report_path.read_text())
+    except (OSError, ValueError) as error:
+        raise InputError(f"{report_path}: not a readable report ({error})") from None
+    entries = report.get("ambiguous")
+    if entries is None:
+        raise InputError(
+            f"{report_path} has no 'ambiguous' key: it was written by an older hybrid; run hybrid diagnose again"
+        )
+    if not entries:
+        raise InputError(
+            f"{report_path}: the diagnosis found nothing ambiguous, so there are no rivals to tell apart "
+            "(no design is needed)"
+        )
+    if step is None:
+        entry = entries[0]
+    else:
+        entry = next((e for e in entries if e["step"] == step), None)
+        if entry is None:
+            raise InputError(
+                f"--step {step}: no ambiguous step {step} in {report_path} (ambiguous steps: "
+                f"{', '.join(str(e['step']) for e in entries)})"
+            )
+    if "models" not in entry:
+        raise InputError(f"{report_path}: the ambiguous step names no models; run hybrid diagnose again")
+    models = {}
+    for name, file in entry["models"].items():
+        path = folder / file
+        if not path.is_file():
+            raise InputError(f"{path}: missing (hybrid diagnose --out saves it); run hybrid diagnose again")
+        models[name] = load_model(path)
+    noise = (report.get("noise_floor") or {}).get("std")
+    if not isinstance(noise, (int, float)) or not math.isfinite(noise) or noise <= 0:
+        raise InputError(f"{report_path}: its noise floor is not a positive number, the design's scale")
+    return entry, models, float(noise)
+
+
+def cmd_design(args) -> None:
+    import numpy as np
+
+    from ._cli_outputs import check_outputs, out_file
+    from .discovery._design import design_drive
+    from .physics._plugins import resolve_physics
+    from .util._atomic import atomic_open
+    from .util._figures import pyplot, save_png
+
+    limits = _bounds(args)
+    folder = Path(args.diagnosis)
+    out = Path(args.out)
+    figure = out.with_suffix(".png")
+    lock = check_outputs(
+        [out_file(out, suffixes=(".csv",), companions=(figure,))], inputs=[folder / "report.json"]
+    )
+    with lock:
+        if args.physics is not None:  # a plug-in's classes imported before its models load
+            resolve_physics(args.physics, [])
+        entry, models, noise = _rivals(folder, args.step)
+        if not args.quiet:
+            print(
+                f"design: step {entry['step']}: {' vs '.join(models)} (noise floor σ = {noise:.3g}), "
+                f"{args.starts} starts × {args.steps} steps",
+                flush=True,
+            )
+        design = design_drive(
+            models,
+            duration=args.duration,
+            rate=args.rate,
+            slew=args.slew,
+            noise_std=noise,
+            starts=args.starts,
+            steps=args.steps,
+            seed=args.seed,
+            **limits,
+        )
+        plt = pyplot()
+        fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+        axes[0].plot(design.t, design.v_in, lw=1)
+        axes[0].set(
+            ylabel="drive",
+            title=f"designed drive: T = {design.criterion:.3g} (control PRBS {design.control_criterion:.3g})",
+        )
+        for name, prediction in design.predictions.items():
+            axes[1].plot(design.t, prediction, lw=1, label=name)
+        axes[1].set(xlabel="time (s)", ylabel="predicted output", title="the rivals' predictions under it")
+        axes[1].legend(fontsize=8)
+        fig.tight_layout()
+        save_png(fig, figure)
+        with atomic_open(out, "w", newline="") as handle:
+            handle.write("t,v_in\n")
+            np.savetxt(handle, np.column_stack([design.t, design.v_in]), delimiter=",", fmt="%.10g")
+    low, high = design.limits["low"], design.limits["high"]
+    slew = f", slew ≤ {args.slew:g}/s" if args.slew else ""
+    versus = (
+        f", {design.criterion / design.control_criterion:.3g}× a multilevel PRBS's {design.control_criterion:.3g}"
+        if design.control_criterion > 0
+        else ""
+    )
+    print(
+        f"designed {len(design.v_in)} samples at {args.rate:g} Hz within [{low:g}, {high:g}]{slew}: "
+        f"T = {design.criterion:.3g} ({design.pair[0]} vs {design.pair[1]}){versus}"
+    )
+    print(f"wrote {out} and {figure}")

@@ -1,0 +1,231 @@
+"""Design the drive that tells rival explanations apart: `design_drive`.
+
+When a recording cannot tell two explanations of the same data apart
+(``report.json`` → ``ambiguous``), another experiment can: a drive under which
+the rivals' predictions differ most. `design_drive` computes it by gradient
+through the differentiable rival models, within the rig's limits.
+
+**Criterion: T-optimality** (Atkinson & Fedorov 1975, "The design of
+experiments for discriminating between two rival models"), local at the
+rivals' fitted parameters:
+
+    T(u) = (1/n) Σ_k (ŵ_a(u)_k − ŵ_b(u)_k)² / σ²,
+
+the mean squared difference of two rivals' predicted outputs in units of the
+measurement noise's variance σ² (the diagnosis's noise floor). n·T is the
+non-centrality of the lack-of-fit test of one rival when the other is true:
+the larger, the surer a recording under u rejects the wrong one. With more
+than two rivals the design maximises the smallest pairwise T (a soft minimum
+for the gradient; the pair named is reported). Why T and not Box–Hill: with
+Gaussian noise of one known σ and equal prior weights, Box–Hill's expected
+entropy change grows with the same squared separation, and T needs no prior
+model probabilities. Local means the rivals keep their fitted parameters;
+refitted on the new recording, the wrong one absorbs part of the difference,
+which is why the loop is closed by diagnosing the old and new recordings
+together, not by trusting T alone.
+
+**Limits by construction**, not by penalty: projected gradient ascent. After
+each Adam step (optax) on the drive's samples, the drive is made feasible
+again (`_feasible`: clipped to the range, then each step to ±s·Δt in turn), so
+every drive visited, and the one returned, respects the range and the slew
+exactly; a parameterisation through tanh instead starved the gradient while
+the drive slewed.
+The samples are `duration`·`rate` at the rig's `rate`. Several starts
+(`starts`, multilevel PRBS) are optimised and the best drive visited is kept; the result
+carries the criterion of a multilevel PRBS of the same length and range (the
+control) for comparison.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..core._models import Model
+from ..util._errors import InputError
+
+
+@dataclasses.dataclass(frozen=True)
+class DriveDesign:
+    """A designed drive and what it is expected to show (`design_drive`)."""
+
+    t: np.ndarray
+    """Sample times, s."""
+    v_in: np.ndarray
+    """The drive, in the drive's unit, within the limits given."""
+    criterion: float
+    """T of the drive: mean squared difference of the two closest rivals' predictions / σ²."""
+    control_criterion: float
+    """T of the control: a multilevel PRBS of the same length and range, slew-limited alike."""
+    pair: tuple[str, str]
+    """The two rivals whose predictions are closest under the drive (the criterion's pair)."""
+    predictions: dict
+    """Each rival's predicted output under the drive, by name."""
+    limits: dict
+    """The limits the drive respects: ``low``, ``high``, ``slew`` (None: none), ``rate``, ``duration``."""
+    criteria_by_start: list
+    """T reached from each random start (the best is kept)."""
+
+
+def _check(name, value, positive=True):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(f"design_drive: {name} must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise InputError(f"design_drive: {name} must be > 0, got {value!r}")
+    return float(value)
+
+
+def _feasible(u, low, high, slew, dt):
+    """`u` made to respect the limits: clipped to [low, high], then each step to ±slew·Δt in turn.
+
+    The forward pass keeps every sample in the range (each is clipped into
+    [low, high] ∩ [u_{k−1} − sΔt, u_{k−1} + sΔt], never empty) and every step
+    within the slew; it is the identity on a drive that already respects both.
+    """
+    u = jnp.clip(u, low, high)
+    if slew is None:
+        return u
+    reach = slew * dt
+
+    def follow(previous, wanted):
+        now = jnp.clip(wanted, previous - reach, previous + reach)
+        return now, now
+
+    return jnp.concatenate([u[:1], jax.lax.scan(follow, u[0], u[1:])[1]])
+
+
+def _criterion(models, u, dt, noise_std, softness):
+    """(soft minimum over pairs of T, T of every pair) for the drive `u`."""
+    outs = [m.predict(u, dt) for m in models]
+    pairs = jnp.stack(
+        [jnp.mean((outs[i] - outs[j]) ** 2) for i in range(len(outs)) for j in range(i + 1, len(outs))]
+    ) / (noise_std**2)
+    if pairs.shape[0] == 1:
+        return pairs[0], pairs
+    return -softness * jax.nn.logsumexp(-pairs / softness), pairs
+
+
+def _levels(n, low, high, dt, seed):
+    """The control's levels: a multilevel PRBS over [low, high], holds 0.5–5 s."""
+    rng = np.random.default_rng(seed)
+    rate = 1.0 / dt
+    holds = rng.integers(max(1, math.ceil(0.5 * rate)), max(2, math.floor(5.0 * rate)) + 1, size=n + 1)
+    return np.repeat(rng.uniform(low, high, size=holds.size), holds)[:n]
+
+
+def design_drive(
+    models: dict,
+    *,
+    duration: float,
+    rate: float,
+    amplitude: float | None = None,
+    bounds: tuple[float, float] | None = None,
+    slew: float | None = None,
+    noise_std: float = 1.0,
+    starts: int = 4,
+    steps: int = 300,
+    learning_rate: float = 0.05,
+    seed: int = 0,
+) -> DriveDesign:
+    """The drive within the rig's limits under which rival models' predictions differ most (T-optimal).
+
+    **Arguments:**
+
+    - `models`: the rivals, ``{name: hybrid.Model}`` (two or more), e.g. the
+      ``step<k>_<effect>.eqx`` files that `hybrid diagnose --out` saves for an
+      ambiguous step, loaded with `hybrid.load_model`.
+    - `duration` (s), `rate` (Hz): the drive's length and the rig's sample rate.
+    - `amplitude`: |u| ≤ amplitude (the DAC's range), or `bounds` = (low, high).
+    - `slew`: the largest |du/dt| (drive unit per second); None: no limit.
+    - `noise_std`: the measurement noise's standard deviation in the output's
+      unit (the diagnosis's noise floor), the criterion's scale.
+    - `starts`, `steps`, `learning_rate`, `seed`: starts (the control, then
+      random multilevel PRBS), Adam steps each, its step size as a fraction of
+      the range's half-width, and the seed.
+    """
+    if not isinstance(models, dict) or len(models) < 2:
+        raise InputError("design_drive needs two or more rival models, as {name: hybrid.Model}")
+    for name, model in models.items():
+        if not isinstance(model, Model):
+            raise InputError(f"design_drive: rival {name!r} is a {type(model).__name__}, not a hybrid.Model")
+    duration, rate = _check("duration", duration), _check("rate", rate)
+    if (amplitude is None) == (bounds is None):
+        raise InputError(
+            "design_drive: give the drive's range as amplitude=A (|u| ≤ A) or bounds=(low, high)"
+        )
+    if amplitude is not None:
+        low, high = -_check("amplitude", amplitude), _check("amplitude", amplitude)
+    else:
+        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
+            raise InputError(f"design_drive: bounds must be (low, high), got {bounds!r}")
+        low, high = _check("low bound", bounds[0], False), _check("high bound", bounds[1], False)
+        if not low < high:
+            raise InputError(f"design_drive: bounds must have low < high, got {bounds!r}")
+    if slew is not None:
+        slew = _check("slew", slew)
+    noise_std = _check("noise_std", noise_std)
+    for label, value in (("starts", starts), ("steps", steps)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise InputError(f"design_drive: {label} must be a whole number ≥ 1, got {value!r}")
+    n = int(round(duration * rate))
+    if n < 2:
+        raise InputError(f"design_drive: {duration:g} s at {rate:g} Hz is fewer than 2 samples")
+    dt = 1.0 / rate
+    names = list(models)
+    rivals = [models[k] for k in names]
+    params, static = eqx.partition(rivals, eqx.is_inexact_array)
+    softness = 0.1  # of the soft minimum over pairs, in units of T
+
+    @jax.jit
+    def loss_and_pairs(u, params):
+        value, pairs = _criterion(eqx.combine(params, static), u, dt, noise_std, softness)
+        return -value, pairs
+
+    optimiser = optax.adam(learning_rate * 0.5 * (high - low))  # steps in the drive's unit
+
+    @jax.jit
+    def step(u, state, params):
+        (loss, _), grad = jax.value_and_grad(loss_and_pairs, has_aux=True)(u, params)
+        grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
+        updates, state = optimiser.update(grad, state, u)
+        return _feasible(optax.apply_updates(u, updates), low, high, slew, dt), state, loss
+
+    control = np.asarray(_feasible(jnp.asarray(_levels(n, low, high, dt, seed)), low, high, slew, dt))
+    rng = np.random.default_rng(seed)
+    best_u, best_value, by_start = None, -np.inf, []
+    for start in range(starts):
+        # the control first, so the design never ends worse than it; then random levels
+        levels = control if start == 0 else _levels(n, low, high, dt, int(rng.integers(2**31)))
+        u = _feasible(jnp.asarray(levels), low, high, slew, dt)
+        state = optimiser.init(u)
+        reached, reached_u = -np.inf, u
+        for _ in range(steps + 1):
+            new_u, new_state, loss = step(u, state, params)  # `loss` is u's: keep the best u visited
+            if math.isfinite(float(loss)) and -float(loss) > reached:
+                reached, reached_u = -float(loss), u
+            u, state = new_u, new_state
+        by_start.append(reached if math.isfinite(reached) else float("nan"))
+        if reached > best_value:
+            best_u, best_value = reached_u, reached
+    if best_u is None:
+        raise InputError("design_drive: the rivals' predictions were not finite from any start")
+    u = np.asarray(best_u)
+    pairs = np.asarray(_criterion(rivals, jnp.asarray(u), dt, noise_std, softness)[1])
+    which = [(names[i], names[j]) for i in range(len(names)) for j in range(i + 1, len(names))]
+    control_pairs = np.asarray(_criterion(rivals, jnp.asarray(control), dt, noise_std, softness)[1])
+    return DriveDesign(
+        t=np.arange(n) / rate,
+        v_in=u,
+        criterion=float(np.min(pairs)),
+        control_criterion=float(np.min(control_pairs)),
+        pair=which[int(np.argmin(pairs))],
+        predictions={k: np.asarray(m.predict(jnp.asarray(u), dt)) for k, m in zip(names, rivals)},
+        limits={"low": low, "high": high, "slew": slew, "rate": rate, "duration": n / rate},
+        criteria_by_start=by_start,
+    )
