@@ -52,7 +52,7 @@ from .core._solvers import (
 from .core._state_space import AbstractStateSpace as AbstractStateSpace
 from .core._windows import sliding_windows as sliding_windows
 from .data._drive import Drive as Drive
-from .data._drives import DRIVES as DRIVES, make_drive as make_drive
+from .data._drives import DRIVES as DRIVES, load_drive as load_drive, make_drive as make_drive
 from .data._mapping import load_mapped as load_mapped, load_pair as load_pair
 from .data._recording import Recording as Recording
 from .data._split import Split as Split

@@ -173,7 +173,7 @@ def cmd_design(args) -> None:
         save_png(fig, figure)
         with atomic_open(out, "w", newline="") as handle:
             handle.write("t,v_in\n")
-            np.savetxt(handle, np.column_stack([design.t, design.v_in]), delimiter=",", fmt="%.10g")
+            np.savetxt(handle, np.column_stack([design.t, design.v_in]), delimiter=",", fmt="%.17g")
     low, high = design.limits["low"], design.limits["high"]
     slew = f", slew ≤ {args.slew:g}/s" if args.slew else ""
     versus = (

@@ -1,6 +1,6 @@
 """The `hybrid` command line.
 
-    hybrid simulate --drive prbs|sine|chirp|pulse --duration S --out F.csv
+    hybrid simulate (--drive prbs|sine|chirp|pulse --duration S | --drive-file DRIVE.csv) --out F.csv
     hybrid rc DRIVE.csv [--param NAME=VALUE ...] [--method tustin|zoh] --out F.csv
     hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--settle N] [--out MODEL] [--test FILE...]
     hybrid table2 [--duration S] [--out-dir DIR]
@@ -67,9 +67,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("simulate", help="record the virtual IPMC under a drive (CSV t,v_in,w)")
-    p.add_argument("--drive", choices=DRIVES, required=True)
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--drive", choices=DRIVES)
+    which.add_argument(
+        "--drive-file", help="a drive from a file, CSV t,v_in (e.g. hybrid design's); its rate and length"
+    )
     p.add_argument(
-        "--duration", type=B.number(*B.DURATION, include_low=False, unit="s"), required=True, help="seconds"
+        "--duration",
+        type=B.number(*B.DURATION, include_low=False, unit="s"),
+        default=None,
+        help="seconds (with --drive)",
     )
     p.add_argument(
         "--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0, help="samples per second (camera fps)"
@@ -224,14 +231,21 @@ def build_parser() -> argparse.ArgumentParser:
 def _cmd_simulate(args):
     import dataclasses
 
-    from .data._drives import make_drive
+    from .data._drives import load_drive, make_drive
     from .data._loaders import SUFFIXES
     from .ipmc._virtual_ipmc import virtual_recording
     from .ipmc._virtual_parameters import VirtualIPMCParameters
     from .util.bounds import check_samples
 
-    check_samples(args.duration, args.rate)
-    lock = check_outputs([out_file(args.out, suffixes=SUFFIXES)])
+    if args.drive_file is None and args.duration is None:
+        raise InputError("--drive needs --duration S (a --drive-file brings its own length)")
+    if args.drive_file is not None and args.duration is not None:
+        raise InputError("--duration is for --drive: a --drive-file brings its own length and rate")
+    if args.duration is not None:
+        check_samples(args.duration, args.rate)
+    lock = check_outputs(
+        [out_file(args.out, suffixes=SUFFIXES)], inputs=[args.drive_file] if args.drive_file else ()
+    )
     overrides = parse_params(args.param)
     known = {f.name for f in dataclasses.fields(VirtualIPMCParameters)}
     unknown = set(overrides) - known
@@ -240,7 +254,12 @@ def _cmd_simulate(args):
             f"unknown virtual IPMC parameter(s) {sorted(unknown)}: valid names are {sorted(known)}"
         )
     params = VirtualIPMCParameters(**overrides)
-    drive = make_drive(args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude)
+    if args.drive_file is not None:
+        drive = load_drive(args.drive_file)
+    else:
+        drive = make_drive(
+            args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude
+        )
     with lock:
         recording = virtual_recording(drive, params, seed=args.seed)
         path = recording.save(args.out)

@@ -2,7 +2,7 @@
 
     rig ports
     rig track VIDEO --clamp X,Y --mm-per-px S [--axis DEG] [--led X,Y,R] --out F.csv   (no --axis: found)
-    rig record (--port P --camera C | --virtual) --drive KIND --duration S --out F.csv
+    rig record (--port P --camera C | --virtual) (--drive KIND --duration S | --drive-file F.csv) --out F.csv
     rig calibrate (--port P | --virtual) [--codes ...] [--readings ...] --out cal.json
     rig simavr-timing [--rate HZ] [--duration S]
 
@@ -152,8 +152,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", help="serial port of the board")
     p.add_argument("--camera", help="camera index, /dev/videoN or a video file")
     p.add_argument("--virtual", action="store_true", help="emulated board and virtual camera")
-    p.add_argument("--drive", choices=DRIVES, required=True)
-    p.add_argument("--duration", type=DURATION, required=True, help="seconds, in (0, 86400]")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--drive", choices=DRIVES)
+    which.add_argument(
+        "--drive-file",
+        help="play a drive from a file, CSV t,v_in (e.g. hybrid design's): its rate and length",
+    )
+    p.add_argument("--duration", type=DURATION, default=None, help="seconds, in (0, 86400] (with --drive)")
     p.add_argument("--rate", type=RATE, default=30.0, help="drive samples per second, in [1, 5000]")
     p.add_argument("--amplitude", type=AMPLITUDE, default=2.0, help="V, in (0, 100]")
     p.add_argument("--seed", type=SEED, default=0)
@@ -243,6 +248,38 @@ def _cmd_track(args):
     )
 
 
+def _drive(args, calibration):
+    """--drive's generated drive, or --drive-file's, refused in one line where the DAC cannot play it."""
+    import hybrid
+
+    if args.drive_file is None:
+        if args.duration is None:
+            raise InputError("--drive needs --duration S (a --drive-file brings its own length)")
+        return hybrid.make_drive(
+            args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude
+        )
+    if args.duration is not None:
+        raise InputError("--duration is for --drive: a --drive-file brings its own length and rate")
+    try:
+        drive = hybrid.load_drive(args.drive_file)
+    except hybrid.InputError as error:
+        raise InputError(f"--drive-file: {error}") from None
+    if not 1.0 <= drive.rate <= 5000.0:
+        raise InputError(
+            f"--drive-file {args.drive_file}: {drive.rate:g} samples per second; the board plays 1-5000"
+        )
+    outside = calibration.clipped(drive.v)
+    if outside.any():
+        reach = calibration.volts([0, calibration.top])
+        low, high = max(calibration.rail_low, reach.min()), min(calibration.rail_high, reach.max())
+        raise InputError(
+            f"--drive-file {args.drive_file}: {int(outside.sum())} of {len(drive)} samples lie outside what the "
+            f"DAC can play at this calibration, [{low:.4g}, {high:.4g}] V (first at t = "
+            f"{drive.t[int(outside.argmax())]:g} s): scale the drive into that range (hybrid design --bounds)"
+        )
+    return drive
+
+
 def _cmd_record(args):
     import hybrid
 
@@ -259,9 +296,7 @@ def _cmd_record(args):
     sources = [p for p in (args.calibration, args.camera) if p and os.path.exists(p)]
     check_outputs([args.out, args.out + ".json"], sources)  # `--camera v.avi --out v.avi` is refused
     calibration = Calibration.load(args.calibration) if args.calibration else Calibration()
-    drive = hybrid.make_drive(
-        args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude
-    )
+    drive = _drive(args, calibration)
     scene = _scene(args, virtual=args.virtual)
     if args.virtual:
         import serial

@@ -25,7 +25,7 @@ from ._drive import DEFAULT_RATE, Drive
 from ._hysteresis_drives import staircase, triangle
 from ._paper_drives import chirp, prbs, pulse, sine
 
-__all__ = ["DRIVES", "make_drive"]
+__all__ = ["DRIVES", "load_drive", "make_drive"]
 
 
 _GENERATORS: dict[str, Callable[..., Drive]] = {
@@ -68,3 +68,17 @@ def make_drive(name: str, duration: float, rate: float = DEFAULT_RATE, seed: int
     if "seed" in signature:
         params["seed"] = seed
     return generator(duration, rate, **params)
+
+
+def load_drive(path) -> Drive:
+    """A drive read from a file: a CSV with columns t and v_in (as `hybrid design` writes), or .npz/.mat.
+
+    The same reader and checks as a recording's (uniform time base, finite
+    values); no w is needed. The drive's name is ``"file"`` and its params
+    carry the file, the rate and the duration.
+    """
+    from ._recording import Recording
+
+    recording = Recording.load(path, require_w=False)
+    params = {"file": str(path), "rate": float(recording.rate), "duration": len(recording) / recording.rate}
+    return Drive(recording.t - recording.t[0], recording.v_in, "file", params)

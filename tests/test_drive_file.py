@@ -1,0 +1,75 @@
+"""A drive from a file (issue 35, item 4): `hybrid simulate --drive-file` and `rig record --drive-file`.
+
+The file is what `hybrid design` writes (CSV t,v_in). The virtual IPMC's
+recording under it must carry that drive, and the virtual rig (emulated board
+and camera) must play it through the calibrated DAC; a drive the DAC cannot
+play is refused in one line before anything runs.
+"""
+
+from __future__ import annotations
+
+import json
+
+import helpers as h
+import numpy as np
+
+import hybrid
+from hybrid.ipmc._virtual_elements import dac_output
+from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
+from rig import Calibration
+from rig.cli import main as rig_main
+
+RATE = 30.0
+
+
+def _drive_file(folder, seconds=3.0, peak=1.5):
+    t = np.arange(int(seconds * RATE)) / RATE
+    v = peak * np.sin(2 * np.pi * 0.7 * t) * np.minimum(1.0, t)  # a smooth designed-looking drive
+    path = folder / "drive.csv"
+    with open(path, "w") as handle:
+        handle.write("t,v_in\n")
+        np.savetxt(handle, np.column_stack([t, v]), delimiter=",", fmt="%.17g")
+    return path, v
+
+
+def test_hybrid_simulate_records_the_virtual_ipmc_under_a_drive_file(tmp_path):
+    path, v = _drive_file(tmp_path)
+    done = h.run_hybrid(tmp_path, "simulate", "--drive-file", path, "--out", "rec.csv")
+    assert done.returncode == 0, done.stderr
+    rec = hybrid.Recording.load(tmp_path / "rec.csv")
+    assert len(rec) == len(v) and abs(rec.rate - RATE) < 1e-6 * RATE
+    # the voltage the virtual DAC applies: the file's drive, quantised and clipped
+    np.testing.assert_allclose(rec.v_in, dac_output(v, VirtualIPMCParameters()), atol=1e-9)
+    assert np.ptp(rec.w) > 0  # the strip moved
+    both = h.run_hybrid(tmp_path, "simulate", "--drive-file", path, "--duration", "3", "--out", "x.csv")
+    assert (
+        both.returncode == 2
+        and "--duration is for --drive" in both.stderr
+        and not (tmp_path / "x.csv").exists()
+    )
+
+
+def test_rig_record_plays_a_drive_file_on_the_virtual_rig_and_refuses_one_the_dac_cannot_play(
+    tmp_path, capsys
+):
+    path, v = _drive_file(tmp_path)
+    out = tmp_path / "rec.csv"
+    assert (
+        rig_main(["record", "--virtual", "--drive-file", str(path), "--speed", "3", "--out", str(out)]) == 0
+    )
+    rec = hybrid.Recording.load(out)
+    meta = json.loads((tmp_path / "rec.csv.json").read_text())
+    assert meta["complete"] and abs(len(rec) - len(v)) <= 1
+    # v_in is the file's drive through the calibration, on the DAC at each frame
+    cal = Calibration()
+    expected = cal.volts(cal.codes(v))[rec.extra["sample"].astype(int)]
+    np.testing.assert_allclose(rec.v_in, expected, atol=1e-12)
+
+    loud, _ = (
+        _drive_file(tmp_path / "loud", peak=9.0) if (tmp_path / "loud").mkdir() is None else (None, None)
+    )
+    capsys.readouterr()
+    assert rig_main(["record", "--virtual", "--drive-file", str(loud), "--out", str(tmp_path / "l.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "outside what the DAC can play" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "l.csv").exists()
