@@ -289,9 +289,11 @@ def _signals_through(stack, v_in, dt, states: bool = True):
     inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
     if inside:
         # A lane with every inside effect off (the baseline's, an outside candidate's) runs the
-        # plain integration: the effects' forces and limits cost as much as the dynamics.
+        # plain simulation: the effects' forces and limits cost as much as the dynamics.
         any_on = jnp.any(jnp.stack([stack.active[i] != 0 for i, _ in inside]))
-        core, held, skip = dynamics_of(stack.inner)  # checked when the stack was built
+        dynamics = dynamics_of(stack.inner)
+        assert dynamics is not None  # checked when the stack was built
+        core, held, skip = dynamics
         driven = held(u)
         n_states = len(core.states)
 
