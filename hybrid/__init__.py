@@ -49,7 +49,10 @@ from .core._solvers import (
     LevenbergMarquardt as LevenbergMarquardt,
     OptimistixLM as OptimistixLM,
 )
-from .core._state_space import AbstractStateSpace as AbstractStateSpace
+from .core._state_space import (
+    AbstractLinearStateSpace as AbstractLinearStateSpace,
+    AbstractStateSpace as AbstractStateSpace,
+)
 from .core._windows import sliding_windows as sliding_windows
 from .data._drive import Drive as Drive
 from .data._drives import DRIVES as DRIVES, load_drive as load_drive, make_drive as make_drive

@@ -165,6 +165,35 @@ class AbstractStateSpace(AbstractSimulation):
         return {name: xs[:, i] for i, name in enumerate(self.states)}
 
 
+class AbstractLinearStateSpace(AbstractStateSpace):
+    """A state-space form with linear rates, ẋ = A x + B u, y = C x + D u, from its matrices.
+
+    A subclass gives `realisation(p)`, (A, B, C, D) from the decoded
+    parameters; `prepare` computes it once per run, and the rates, the output,
+    `linear_matrices` and `feedthrough` follow, so the form is stepped exactly
+    (or by the subclass's own `discrete_matrices`). `LTI` and the RC network are.
+    """
+
+    @abc.abstractmethod
+    def realisation(self, p: dict) -> tuple[Array, Array, Array, Array]:
+        """(A, B, C, D) for the decoded parameters `p`."""
+
+    def prepare(self, p: dict) -> dict:
+        return dict(zip("ABCD", self.realisation(p)))
+
+    def rates(self, x: tuple, u, p: dict) -> tuple:
+        return tuple(p["A"] @ jnp.stack(x) + p["B"] * u)
+
+    def observe(self, x: tuple, p: dict):
+        return p["C"] @ jnp.stack(x)
+
+    def linear_matrices(self, p: dict):
+        return p["A"], p["B"]
+
+    def feedthrough(self, p: dict):
+        return p["D"]
+
+
 def has_states(simulation) -> TypeGuard[AbstractStateSpace]:
     """Whether `simulation` is in the state-space form that effects inside the dynamics need."""
     return isinstance(simulation, AbstractStateSpace)

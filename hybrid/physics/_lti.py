@@ -62,7 +62,7 @@ from jaxtyping import Array, Float
 from ..core._arguments import check_drive
 from ..core._loop_safe_linalg import zoh_discretise
 from ..core._parameters import Constraint, Positive, Real, encode
-from ..core._state_space import AbstractStateSpace
+from ..core._state_space import AbstractLinearStateSpace
 from ..util._errors import InputError
 from ._zoh import zoh_response
 
@@ -117,7 +117,7 @@ TYPICAL: dict[str, tuple[float, float]] = _table(
 )
 
 
-class LTI(AbstractStateSpace):
+class LTI(AbstractLinearStateSpace):
     """A stable continuous-time linear system of order N in modal form (see the module docstring).
 
     **Arguments:**
@@ -206,21 +206,8 @@ class LTI(AbstractStateSpace):
     def state_units(self) -> dict[str, str]:
         return dict.fromkeys(self.states, "{drive}")  # each has unit DC (or peak) gain from the drive
 
-    def prepare(self, p: dict) -> dict:
-        A, B, C, D = _realisation(self.order, p)
-        return {"A": A, "B": B, "C": C, "D": D}
-
-    def rates(self, x: tuple, u, p: dict) -> tuple:
-        return tuple(p["A"] @ jnp.stack(x) + p["B"] * u)
-
-    def observe(self, x: tuple, p: dict):
-        return p["C"] @ jnp.stack(x)
-
-    def linear_matrices(self, p: dict):
-        return p["A"], p["B"]
-
-    def feedthrough(self, p: dict):
-        return p["D"]
+    def realisation(self, p: dict) -> tuple[Array, Array, Array, Array]:
+        return _realisation(self.order, p)
 
     # --- the system ---------------------------------------------------------------------
     def state_space(self) -> tuple[Array, Array, Array, Array]:

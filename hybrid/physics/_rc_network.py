@@ -31,7 +31,7 @@ The network starts at rest (all states zero) before the first sample.
 
 State-space form (where `diagnose` runs an effect *inside* the dynamics: a
 force fed back into the drive, a limit on a compartment's voltage). The
-network is also an [`AbstractStateSpace`][] with one state per section,
+network is also an [`AbstractLinearStateSpace`][] with one state per section,
 ``vc_k``: the voltage across compartment k's double-layer capacitance C_k
 (the interface branch RI_k + C_k sees the section's output y_k, so
 v_C = y_k Z_k/(s + Z_k) = G_k Z_k/(s + P_k) u_k), so a limit on a state is a limit
@@ -66,7 +66,7 @@ from jaxtyping import Array, Complex, Float
 from ..core._arguments import check_drive
 from ..core._loop_safe_linalg import zoh_discretise
 from ..core._parameters import Constraint, Positive, UnitInterval, encode
-from ..core._state_space import AbstractStateSpace
+from ..core._state_space import AbstractLinearStateSpace
 from ..util._errors import InputError
 from ._strip import Strip
 from ._zoh import BLOCK, lifted_response, zoh_response
@@ -75,7 +75,7 @@ Method = Literal["tustin", "zoh"]
 METHODS = ("tustin", "zoh")
 
 
-class RCNetwork(AbstractStateSpace):
+class RCNetwork(AbstractLinearStateSpace):
     """The paper's RC network (Eqs 4–14) as a differentiable simulation.
 
     **Arguments:**
@@ -258,22 +258,12 @@ class RCNetwork(AbstractStateSpace):
     def state_units(self) -> dict[str, str]:
         return dict.fromkeys(self.states, "{drive}")  # each a voltage, a fraction of the drive at DC
 
+    def realisation(self, p: dict) -> tuple[Array, Array, Array, Array]:
+        return _realisation(*self.stage_zpk(p))
+
     def prepare(self, p: dict) -> dict:
-        G, Z, P = self.stage_zpk(p)
-        A, B, C, D = _realisation(G, Z, P)
-        return {"A": A, "B": B, "C": C, "D": D, "G": G, "Z": Z, "P": P}
-
-    def rates(self, x: tuple, u, p: dict) -> tuple:
-        return tuple(p["A"] @ jnp.stack(x) + p["B"] * u)
-
-    def observe(self, x: tuple, p: dict):
-        return p["C"] @ jnp.stack(x)
-
-    def linear_matrices(self, p: dict):
-        return p["A"], p["B"]
-
-    def feedthrough(self, p: dict):
-        return p["D"]
+        G, Z, P = self.stage_zpk(p)  # the sections' too: `discrete_matrices` reads them
+        return {**dict(zip("ABCD", _realisation(G, Z, P))), "G": G, "Z": Z, "P": P}
 
     def discrete_matrices(self, p: dict, dt):
         """(Φ, Γ₀, Γ₁) of `simulate`'s own discretisation (see the module docstring)."""
