@@ -375,14 +375,16 @@ def write(rows: list, cases: list, argv, path: str) -> None:
         "",
         f"Command: `{command.strip()}` (the generators are in its docstring).",
         "",
-        "| case | seed | expected | causes named | right | held-out gain | unexplained | seconds |",
-        "|---|---|---|---|---|---|---|---|",
+        "| case | seed | expected | causes named | right | held-out gain | unexplained | effect (RMS, % of range) "
+        "| seconds |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        size = r["truth"].get("effect_rms_percent")  # measured by the RC generator (noise: 0.5 %)
         lines.append(
             f"| {r['case']} | {r['seed']} | {r['expected'] or 'none'} | {', '.join(r['causes']) or 'none'} | "
             f"{'yes' if r['right'] else '**no**'} | {r['gain']:.2f} | {'yes' if r['unexplained'] else 'no'} | "
-            f"{r['seconds']:.0f} |"
+            f"{'' if size is None else f'{size:.2f}'} | {r['seconds']:.0f} |"
         )
     lines.append("")
     for case in cases:
