@@ -141,9 +141,9 @@ class AbstractStateSpace(AbstractSimulation):
         for the trapezoidal rule (a bilinear, Tustin, filter). Given, it
         replaces the substeps (`linear_matrices`, RK4); the state before the
         first sample is at rest with no drive, so x_0 = Γ₁ v_0 (a digital
-        filter's start). A fed-back force at the next sample is predicted from
-        the state the step reaches without it (Heun's rule). `p` is what
-        `prepare` returned.
+        filter's start; `initial_state` is not used). A fed-back force at the
+        next sample is predicted at the state the step reaches with the
+        current force held (Heun's rule). `p` is what `prepare` returned.
         """
         return None
 
@@ -364,7 +364,7 @@ def _step_discrete(simulation, p, matrices, u, ahead, force, bound):
         base = phi @ x + now * (a - f_k)
         if force is None:
             x_next = base + nxt * b
-        else:  # the next sample's force predicted at the state the step reaches without it (Heun)
+        else:  # the next sample's force predicted at the state reached with this one held (Heun)
             x_next = base + nxt * (b - pushed(base + nxt * (b - f_k)))
         return settle(x_next), (y_k, x)
 
