@@ -159,8 +159,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="play a drive from a file, CSV t,v_in (e.g. hybrid design's): its rate and length",
     )
     p.add_argument("--duration", type=DURATION, default=None, help="seconds, in (0, 86400] (with --drive)")
-    p.add_argument("--rate", type=RATE, default=30.0, help="drive samples per second, in [1, 5000]")
-    p.add_argument("--amplitude", type=AMPLITUDE, default=2.0, help="V, in (0, 100]")
+    p.add_argument(
+        "--rate",
+        type=RATE,
+        default=30.0,
+        help="drive samples per second, in [1, 5000] (--drive's; a file's own)",
+    )
+    p.add_argument("--amplitude", type=AMPLITUDE, default=2.0, help="V, in (0, 100] (--drive's)")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--calibration", help="JSON from `rig calibrate` (default: gain 1.2, offset -3 V)")
     p.add_argument("--fps", type=FPS, default=30.0, help="frames per second, in (0, 1000]")
@@ -293,7 +298,7 @@ def _cmd_record(args):
         raise InputError("a real recording needs both --port and --camera")
     from ._files import check_outputs
 
-    sources = [p for p in (args.calibration, args.camera) if p and os.path.exists(p)]
+    sources = [p for p in (args.calibration, args.camera, args.drive_file) if p and os.path.exists(p)]
     check_outputs([args.out, args.out + ".json"], sources)  # `--camera v.avi --out v.avi` is refused
     calibration = Calibration.load(args.calibration) if args.calibration else Calibration()
     drive = _drive(args, calibration)

@@ -73,3 +73,7 @@ def test_rig_record_plays_a_drive_file_on_the_virtual_rig_and_refuses_one_the_da
     err = capsys.readouterr().err.strip()
     assert "outside what the DAC can play" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "l.csv").exists()
+    # the drive file is an input: recording over it is refused, and it stays as it was
+    before = path.read_bytes()
+    assert rig_main(["record", "--virtual", "--drive-file", str(path), "--out", str(path)]) == 2
+    assert path.read_bytes() == before
