@@ -128,7 +128,9 @@ def test_a_designed_drive_keeps_every_limit_and_separates_the_rivals_more_than_a
     # the criterion, recomputed independently from the rivals' predictions under the drive
     a, b = (np.asarray(m.predict(design.v_in, 1 / RATE)) for m in _rivals(confounded).values())
     assert design.criterion == pytest.approx(np.mean((a - b) ** 2) / noise**2, rel=1e-9)
-    assert design.criterion >= design.control_criterion > 0  # the control is its first start
+    # the gradient does the work: the control PRBS is the first start, and the design ends far beyond
+    # it (4.2–5.4× when written; ≥ 2 asserted). A zero gradient w.r.t. the drive left it at 1×.
+    assert design.criterion >= 2.0 * design.control_criterion > 0
 
 
 def test_design_refuses_bad_limits_in_one_line(confounded):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
+import hybrid
 from hybrid import AbstractSimulation, InputError, Positive, RCNetwork, encode, make_drive
 from hybrid.discovery._effect_set import EFFECTS
 from hybrid.discovery._effect_stack import EffectStack, extend
@@ -298,6 +299,41 @@ def test_a_stack_jacobian_matches_finite_differences(effects, drive_on):
             if any(n in EFFECTS[e].constraints for e in effects if EFFECTS[e].place == "drive")
         ]
         assert columns and np.all(np.asarray(forward)[:, columns] == 0.0)
+
+
+@pytest.mark.parametrize("effects", [(), ("saturation", "drift"), ("drive_saturation",), ("stiffness",)])
+def test_the_stack_is_differentiated_in_its_drive_as_the_bare_simulation_is(effects):
+    """d(output)/d(drive), forward and reverse, against central differences, every drive effect off.
+
+    The inner simulation's own derivative skips the drive's path while no drive
+    effect is on (in a search lane the drive is the recording): a caller who
+    differentiates the drive itself (a drive's design, a sensitivity to it)
+    must still get it. Found when `design_drive` got a zero gradient.
+    """
+    inner = (
+        hybrid.LTI(2, f_1=0.8, zeta_1=0.4, bandpass_1=0.3)
+        if "stiffness" in effects
+        else RCNetwork(method="zoh")
+    )
+    stack = extend(inner, *effects) if effects else extend(inner)
+    stack = stack.with_active(jnp.asarray([0.0 if EFFECTS[n].place == "drive" else 1.0 for n in effects]))
+    if "stiffness" in effects:
+        stack = stack.replace(stiffness_cube=0.3)
+    v = jnp.asarray(make_drive("prbs", 3.0, seed=3).v)
+    weights = jnp.cos(jnp.arange(v.size) / 7.0)
+    loss = jax.jit(lambda x: jnp.sum(weights * stack.simulate(x, DT)))
+    plain = jax.jit(lambda x: jnp.sum(weights * stack.with_active(jnp.zeros(len(effects))).simulate(x, DT)))
+    grad, tangent = jax.grad(loss)(v), jax.jvp(loss, (v,), (weights,))[1]
+    assert float(jnp.max(jnp.abs(grad))) > 0  # not the silent zero it was
+    step = 1e-5
+    for i in (0, 17, 45, v.size - 1):
+        central = (loss(v.at[i].add(step)) - loss(v.at[i].add(-step))) / (2 * step)
+        assert float(grad[i]) == pytest.approx(
+            float(central), rel=1e-6, abs=1e-9 * float(jnp.max(jnp.abs(grad)))
+        )
+    assert float(tangent) == pytest.approx(float(jnp.dot(grad, weights)), rel=1e-9)
+    if not effects:
+        np.testing.assert_allclose(np.asarray(jax.grad(plain)(v)), np.asarray(grad), rtol=1e-12, atol=0)
 
 
 class _CalibratedLag(AbstractSimulation):

@@ -14,6 +14,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
@@ -300,7 +301,7 @@ def _signals_through(stack, v_in, dt, states: bool = True):
         def plain(x):
             if states:
                 return integrate(core, x, dt)
-            out = inner_response(stack.inner, u, dt, drive_on)  # the record's part; held samples as 0
+            out = inner_response(stack.inner, u, dt, drive_on, v_in)  # the record's part; held samples as 0
             out = jnp.concatenate([jnp.zeros(skip, out.dtype), out])
             return out.astype(jnp.result_type(x, out)), jnp.zeros((x.shape[0], n_states), out.dtype)
 
@@ -311,7 +312,7 @@ def _signals_through(stack, v_in, dt, states: bool = True):
         for i, effect in inside:
             into[i] = s if effect.acts_on == "output" else trajectory[:, core.states.index(effect.acts_on)]
     else:
-        s = inner_response(stack.inner, u, dt, drive_on)
+        s = inner_response(stack.inner, u, dt, drive_on, v_in)
     for i, effect in enumerate(stack.effects):
         if effect.place == "output":
             into[i] = s
@@ -319,7 +320,7 @@ def _signals_through(stack, v_in, dt, states: bool = True):
     return into, s, u
 
 
-def inner_response(inner: AbstractSimulation, u, dt, drive_on):
+def inner_response(inner: AbstractSimulation, u, dt, drive_on, source=None):
     """`inner.simulate(u, dt)`, whose derivative costs one direction per parameter of `inner`.
 
     A search lane's Jacobian takes one direction per free parameter of the
@@ -329,8 +330,15 @@ def inner_response(inner: AbstractSimulation, u, dt, drive_on):
     only its own parameters' directions move it. Here its derivative is its
     Jacobian in its own parameters (`jax.jacfwd`, computed once, outside the
     batch of directions) times each direction, plus the derivative through
-    the drive `u`, taken only when a drive-side effect is on (`drive_on`: a
-    traced flag; otherwise `u` is the recorded drive, which no parameter moves).
+    the drive `u`:
+
+    - always, when the caller differentiates the stack's own drive `source`
+      (the v_in before the drive's effects: a sensitivity to the drive, a
+      drive's design);
+    - otherwise only while a drive-side effect is on (`drive_on`, a traced
+      flag): `u` is then the recorded drive moved by that effect's parameters
+      alone, and with every drive effect off no parameter moves it;
+    - never where `u`'s derivative is known to be zero (not differentiated).
 
     Only the parameters (`raw`) go through `jax.jacfwd`: a plug-in may hold
     other arrays (a calibration table, a fixed matrix), whose derivative, if
@@ -345,25 +353,36 @@ def inner_response(inner: AbstractSimulation, u, dt, drive_on):
         return eqx.combine(unravel(theta), others, static).simulate(drive, dt)
 
     @jax.custom_jvp
-    def response(theta, drive, others, on):
+    def response(theta, drive, others, on, source):
         return run(theta, drive, others)
 
-    @response.defjvp
     def _derivative(primals, tangents):
-        theta, drive, others, on = primals
-        d_theta, d_drive, d_others, _ = tangents
-        J, y = jax.jacfwd(lambda t: (run(t, drive, others),) * 2, has_aux=True)(theta)
-        through_drive = jax.lax.cond(
-            on,
-            lambda: jax.jvp(lambda x: run(theta, x, others), (drive,), (d_drive,))[1],
-            lambda: jnp.zeros_like(y),
-        )
-        dy = J @ d_theta + through_drive
-        if has_arrays:
+        theta, drive, others, on, _ = primals
+        d_theta, d_drive, d_others, _, d_source = tangents
+        if isinstance(d_theta, SymbolicZero):  # no parameter differentiated: the value alone
+            y = run(theta, drive, others)
+            dy = jnp.zeros_like(y)
+        else:
+            J, y = jax.jacfwd(lambda t: (run(t, drive, others),) * 2, has_aux=True)(theta)
+            dy = J @ d_theta
+        if not isinstance(d_drive, SymbolicZero):
+
+            def along_drive():
+                return jax.jvp(lambda x: run(theta, x, others), (drive,), (d_drive,))[1]
+
+            if isinstance(d_source, SymbolicZero):  # the recorded drive: only a drive effect moves it
+                dy = dy + jax.lax.cond(on, along_drive, lambda: jnp.zeros_like(y))
+            else:
+                dy = dy + along_drive()
+        if has_arrays and not all(isinstance(t, SymbolicZero) for t in jax.tree_util.tree_leaves(d_others)):
+            d_others = jax.tree_util.tree_map(
+                lambda t, a: jnp.zeros_like(a) if isinstance(t, SymbolicZero) else t, d_others, others
+            )
             dy = dy + jax.jvp(lambda a: run(theta, drive, a), (others,), (d_others,))[1]
         return y, dy
 
-    return response(flat, u, arrays, drive_on)
+    response.defjvp(_derivative, symbolic_zeros=True)
+    return response(flat, u, arrays, drive_on, u if source is None else source)
 
 
 def _inside_dynamics(stack, inner, inside, u, dt):
