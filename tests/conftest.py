@@ -55,6 +55,7 @@ HEAVY_FIRST = (
     "test_inside_effects.py",  # ~90 s: a CLI diagnose and refit of the docs' friction plug-in (issue 31)
     "test_plugin_from_docs.py",  # 27 s: a CLI fit and a CLI diagnose (added by issue 32)
     "test_buckets.py",  # 28 s
+    "test_ambiguity.py",  # ~45 s alone: two diagnoses, three designs and a CLI design (issue 35)
     "test_diagnose_starts.py",  # 25 s
     "test_fit_interrupt.py",  # 16 s
     "test_style.py",  # 11 s: mypy (added by issue 32)
