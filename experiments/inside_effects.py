@@ -255,7 +255,7 @@ def rc_plant(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
     def run(shape, force=lambda y: 0.0, rim=None):
         def rhs(time, x):
             held = u[min(int(time * LTI_RATE + 1e-9), n - 1)]
-            v = shape(held) - force(tip(x, 0.0) + 0.0)  # the force reads the state part of V_o
+            v = shape(held) - force(tip(x, 0.0))  # the force reads the state part of V_o
             dx = np.empty(stages + 1)
             for k in range(stages + 1):
                 dx[k] = gain[k] * zero[k] * v - pole[k] * x[k]
@@ -268,8 +268,9 @@ def rc_plant(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
             rhs, (0, t[-1]), np.zeros(stages + 1), t_eval=t, rtol=1e-9, atol=1e-11, max_step=0.25 / LTI_RATE
         )
         shaped = np.array([shape(x) for x in u])
-        forces = np.array([force(tip(x, 0.0)) for x in sol.y.T])
-        return np.array([tip(x, 0.0) for x in sol.y.T]) + np.prod(gain) * (shaped - forces), sol.y
+        part = np.array([tip(x, 0.0) for x in sol.y.T])  # the states' part of V_o at each sample
+        forces = np.array([force(y) for y in part])
+        return part + np.prod(gain) * (shaped - forces), sol.y
 
     truth = {"C_clamp": c_clamp, "xi_rho": xi_rho, "alpha": [alpha_e, alpha_i, alpha_c]}
     linear, charges = run(lambda v: v)

@@ -181,6 +181,10 @@ class AbstractLinearStateSpace(AbstractStateSpace):
     def prepare(self, p: dict) -> dict:
         return dict(zip("ABCD", self.realisation(p)))
 
+    def state_space(self) -> tuple[Array, Array, Array, Array]:
+        """The continuous realisation (A, B, C, D) at this simulation's own parameters."""
+        return self.realisation(self.parameters())
+
     def rates(self, x: tuple, u, p: dict) -> tuple:
         return tuple(p["A"] @ jnp.stack(x) + p["B"] * u)
 

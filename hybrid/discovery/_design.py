@@ -101,14 +101,14 @@ def _feasible(u, low, high, slew, dt):
 
 
 def _criterion(models, u, dt, noise_std, softness):
-    """(soft minimum over pairs of T, T of every pair) for the drive `u`."""
+    """(soft minimum over pairs of T, T of every pair, each model's prediction) for the drive `u`."""
     outs = [m.predict(u, dt) for m in models]
     pairs = jnp.stack(
         [jnp.mean((outs[i] - outs[j]) ** 2) for i in range(len(outs)) for j in range(i + 1, len(outs))]
     ) / (noise_std**2)
     if pairs.shape[0] == 1:
-        return pairs[0], pairs
-    return -softness * jax.nn.logsumexp(-pairs / softness), pairs
+        return pairs[0], pairs, outs
+    return -softness * jax.nn.logsumexp(-pairs / softness), pairs, outs
 
 
 def _levels(n, low, high, dt, seed):
@@ -184,8 +184,8 @@ def design_drive(
 
     @jax.jit
     def loss_and_pairs(u, params):
-        value, pairs = _criterion(eqx.combine(params, static), u, dt, noise_std, softness)
-        return -value, pairs
+        value, pairs, outs = _criterion(eqx.combine(params, static), u, dt, noise_std, softness)
+        return -value, (pairs, outs)
 
     optimiser = optax.adam(learning_rate * 0.5 * (high - low))  # steps in the drive's unit
 
@@ -216,16 +216,17 @@ def design_drive(
     if best_u is None:
         raise InputError("design_drive: the rivals' predictions were not finite from any start")
     u = np.asarray(best_u)
-    pairs = np.asarray(_criterion(rivals, jnp.asarray(u), dt, noise_std, softness)[1])
+    pairs, outs = loss_and_pairs(jnp.asarray(u), params)[1]  # the compiled criterion, not an eager rerun
+    pairs = np.asarray(pairs)
     which = [(names[i], names[j]) for i in range(len(names)) for j in range(i + 1, len(names))]
-    control_pairs = np.asarray(_criterion(rivals, jnp.asarray(control), dt, noise_std, softness)[1])
+    control_pairs = np.asarray(loss_and_pairs(jnp.asarray(control), params)[1][0])
     return DriveDesign(
         t=np.arange(n) / rate,
         v_in=u,
         criterion=float(np.min(pairs)),
         control_criterion=float(np.min(control_pairs)),
         pair=which[int(np.argmin(pairs))],
-        predictions={k: np.asarray(m.predict(jnp.asarray(u), dt)) for k, m in zip(names, rivals)},
+        predictions={k: np.asarray(out) for k, out in zip(names, outs)},
         limits={"low": low, "high": high, "slew": slew, "rate": rate, "duration": n / rate},
         criteria_by_start=by_start,
     )

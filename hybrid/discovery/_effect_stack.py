@@ -320,7 +320,7 @@ def _signals_through(stack, v_in, dt, states: bool = True):
     return into, s, u
 
 
-def inner_response(inner: AbstractSimulation, u, dt, drive_on, source=None):
+def inner_response(inner: AbstractSimulation, u, dt, drive_on, source):
     """`inner.simulate(u, dt)`, whose derivative costs one direction per parameter of `inner`.
 
     A search lane's Jacobian takes one direction per free parameter of the
@@ -382,7 +382,7 @@ def inner_response(inner: AbstractSimulation, u, dt, drive_on, source=None):
         return y, dy
 
     response.defjvp(_derivative, symbolic_zeros=True)
-    return response(flat, u, arrays, drive_on, u if source is None else source)
+    return response(flat, u, arrays, drive_on, source)
 
 
 def _inside_dynamics(stack, inner, inside, u, dt):

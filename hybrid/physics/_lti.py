@@ -207,13 +207,10 @@ class LTI(AbstractLinearStateSpace):
         return dict.fromkeys(self.states, "{drive}")  # each has unit DC (or peak) gain from the drive
 
     def realisation(self, p: dict) -> tuple[Array, Array, Array, Array]:
+        """Continuous realisation (A, B, C, D): block diagonal A, one block per section."""
         return _realisation(self.order, p)
 
     # --- the system ---------------------------------------------------------------------
-    def state_space(self) -> tuple[Array, Array, Array, Array]:
-        """Continuous realisation (A, B, C, D): block diagonal A, one block per section."""
-        return _realisation(self.order, self.parameters())
-
     def discrete(self, dt: float):
         """(A_d, B_d, C, D): the exact ZOH discretisation for a sample interval of `dt` s."""
         A, B, C, D = self.state_space()

@@ -233,15 +233,15 @@ class RCNetwork(AbstractLinearStateSpace):
         s = 2j * jnp.pi * jnp.asarray(frequency)[..., None]
         return jnp.prod(G * (s + Z) / (s + P), axis=-1)
 
-    def state_space(self) -> tuple[Array, Array, Array, Array]:
+    def realisation(self, p: dict) -> tuple[Array, Array, Array, Array]:
         """Continuous realisation (A, B, C, D) of the cascade, one state per section (volts).
 
         Section k's state is its double-layer voltage x_k = v_C,k:
         ẋ_k = G_k Z_k u_k − P_k x_k, and its output y_k = G_k u_k + (1 − P_k/Z_k) x_k
         is the next section's input, u_{k+1} = y_k. A is lower triangular;
-        V_o = C x + D V_i.
+        V_o = C x + D V_i. `state_space()` gives it at the network's own parameters.
         """
-        return _realisation(*self.stage_zpk())
+        return _realisation(*self.stage_zpk(p))
 
     # --- the state-space form (effects inside the dynamics act on it) ---------------------
     @property
@@ -257,9 +257,6 @@ class RCNetwork(AbstractLinearStateSpace):
     @property
     def state_units(self) -> dict[str, str]:
         return dict.fromkeys(self.states, "{drive}")  # each a voltage, a fraction of the drive at DC
-
-    def realisation(self, p: dict) -> tuple[Array, Array, Array, Array]:
-        return _realisation(*self.stage_zpk(p))
 
     def prepare(self, p: dict) -> dict:
         G, Z, P = self.stage_zpk(p)  # the sections' too: `discrete_matrices` reads them
