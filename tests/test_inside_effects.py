@@ -296,9 +296,13 @@ FRICTION_RATE, FRICTION_FORCE, STICK_SPEED = 30.0, 0.12, 0.3
 
 
 def _friction_lab(folder: Path) -> None:
-    """A 2 Hz mass on a spring sliding with Coulomb friction, 40 s at 30 Hz, made by solve_ivp."""
+    """A 2 Hz mass on a spring sliding with Coulomb friction, 20 s at 30 Hz, made by solve_ivp.
+
+    20 s (600 samples, 40 periods) name it as 40 s did (gain 122 against 86, force 0.1199 V
+    against 0.1198) at about half the search's running time.
+    """
     rng = np.random.default_rng(3)
-    t = np.arange(int(40 * FRICTION_RATE)) / FRICTION_RATE
+    t = np.arange(int(20 * FRICTION_RATE)) / FRICTION_RATE
     u = sum(0.35 * np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (0.31, 0.77, 1.3, 1.9, 2.6))
     w, zeta = 2 * np.pi * 2.0, 0.1
 

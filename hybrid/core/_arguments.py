@@ -18,17 +18,53 @@ import numbers
 import os
 from collections.abc import Iterable
 
+import equinox as eqx
 import jax
 import numpy as np
 
 from ..util._errors import InputError
 
-__all__ = ["as_names", "as_recordings", "check_drive", "check_model", "check_seed", "is_tracer"]
+__all__ = [
+    "as_names",
+    "as_recordings",
+    "check_drive",
+    "check_model",
+    "check_seed",
+    "is_tracer",
+    "run_compiled",
+]
 
 
 def is_tracer(x) -> bool:
     """True inside `jit`/`vmap`/`grad`, where `x`'s value is not known."""
     return isinstance(x, jax.core.Tracer)
+
+
+def run_compiled(function, *args):
+    """`function(*args)`, compiled once per structure and shapes when called op by op.
+
+    Called outside `jit`, a `lax.scan` or `lax.cond` compiles its body afresh
+    at every call (its closure is new each time): ~0.03–0.3 s each, and a
+    simulation's `simulate`, called op by op on a recording, compiled a dozen
+    such programs every time (a whole test suite spent ~300 s of its 870 s of
+    compiling on them). Here it is one program, cached by the arguments'
+    structure (`function` a module-level function, floats and other non-arrays
+    static, arrays by shape and dtype). Inside a trace (`jit`, `vmap`, `grad`)
+    `function` is called as it is: the enclosing program compiles it. A
+    function that cannot be traced (a plug-in's Python `if` on a value) runs op
+    by op, as it would without this.
+    """
+    if any(is_tracer(leaf) for leaf in jax.tree_util.tree_leaves(args)):
+        return function(*args)
+    try:
+        return _compiled_call(function, *args)
+    except jax.errors.JAXTypeError:  # not traceable: op by op (where its own error, if any, shows)
+        return function(*args)
+
+
+@eqx.filter_jit
+def _compiled_call(function, *args):
+    return function(*args)
 
 
 def check_model(model, where: str):
@@ -117,7 +153,7 @@ def check_seed(seed, where: str) -> int:
 
 
 def check_dt(dt, where: str):
-    """The sample interval: a finite positive number of seconds (a tracer passes unchecked)."""
+    """The sample interval as a float: a finite positive number of seconds (a tracer passes unchecked)."""
     if is_tracer(dt):
         return dt
     if isinstance(dt, (bool, str, bytes)) or dt is None:
@@ -130,7 +166,7 @@ def check_dt(dt, where: str):
         ) from None
     if not (math.isfinite(value) and value > 0):
         raise InputError(f"{where}: dt must be a finite positive number of seconds, got {value!r}")
-    return dt
+    return value
 
 
 def check_drive(v_in, dt, where: str):

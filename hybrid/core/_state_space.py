@@ -48,7 +48,7 @@ from jax import lax
 from jaxtyping import Array, Float
 
 from ..util._errors import InputError
-from ._arguments import check_drive
+from ._arguments import check_drive, run_compiled
 from ._loop_safe_linalg import zoh_discretise
 from ._simulation import AbstractSimulation
 
@@ -157,11 +157,13 @@ class AbstractStateSpace(AbstractSimulation):
 
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
         """The output at each sample time for the drive `v_in` sampled every `dt` seconds."""
-        return integrate(self, v_in, dt)[0]
+        v_in, dt = check_drive(v_in, dt, f"{type(self).__name__}.simulate")
+        return run_compiled(_output, self, v_in, dt)
 
     def trajectory(self, v_in: Float[Array, " time"], dt: float) -> dict[str, Float[Array, " time"]]:
         """Every state at each sample time, by name."""
-        xs = integrate(self, v_in, dt)[1]
+        v_in, dt = check_drive(v_in, dt, f"{type(self).__name__}.trajectory")
+        xs = run_compiled(_states, self, v_in, dt)
         return {name: xs[:, i] for i, name in enumerate(self.states)}
 
 
@@ -249,6 +251,14 @@ def check_state_space(simulation: AbstractStateSpace, label: str) -> None:
             f"{label}: {cls}.drive_between_samples must be one of {', '.join(DRIVE_FORMS)}, "
             f"got {simulation.drive_between_samples!r}"
         )
+
+
+def _output(simulation, v_in, dt):
+    return integrate(simulation, v_in, dt)[0]
+
+
+def _states(simulation, v_in, dt):
+    return integrate(simulation, v_in, dt)[1]
 
 
 def integrate(

@@ -17,6 +17,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._arguments import run_compiled
+
 
 def sliding_windows(x: Float[Array, " time"], window: int) -> Float[Array, "time window"]:
     """Windows ``out[t] = x[t−window+1 .. t]`` (oldest first), edge-padded at the start."""
@@ -30,4 +32,9 @@ def segment_windows(
     x: Float[Array, " time"], window: int, segments: tuple[tuple[int, int], ...]
 ) -> Float[Array, "samples window"]:
     """Windows for each `(start, stop)` segment of `x`, concatenated in order."""
+    segments = tuple((int(a), int(b)) for a, b in segments)
+    return run_compiled(_segment_windows, x, int(window), segments)
+
+
+def _segment_windows(x, window, segments):
     return jnp.concatenate([sliding_windows(x[a:b], window) for a, b in segments])

@@ -18,6 +18,7 @@ from jax.custom_derivatives import SymbolicZero
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
+from ..core._arguments import check_drive, run_compiled
 from ..core._parameters import Constraint
 from ..core._serialise import imported_class
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw
@@ -105,7 +106,8 @@ class EffectStack(AbstractWrapper):
         return tuple(e.name for e in self.effects)
 
     def simulate(self, v_in, dt):
-        return _signals_through(self, v_in, dt, states=False)[1]
+        v_in, dt = check_drive(v_in, dt, "EffectStack.simulate")
+        return run_compiled(_output, self, v_in, dt)
 
     def signal_unit(self, effect: AbstractEffect) -> str:
         """The unit of the signal `effect` acts on: the drive's, the inner output's or a state's."""
@@ -269,6 +271,10 @@ def switched(on, effect: AbstractEffect, s, dt):
     also keeps a switched-off effect's NaN or inf out of ``0·(effect(s) − s)``.
     """
     return jax.lax.cond(on != 0, lambda x: x + on * (effect.apply(x, dt) - x), lambda x: x, s)
+
+
+def _output(stack, v_in, dt):
+    return _signals_through(stack, v_in, dt, states=False)[1]
 
 
 def _signals_through(stack, v_in, dt, states: bool = True):

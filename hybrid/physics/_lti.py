@@ -59,7 +59,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ..core._arguments import check_drive
+from ..core._arguments import check_drive, run_compiled
 from ..core._loop_safe_linalg import zoh_discretise
 from ..core._parameters import Constraint, Positive, Real, encode
 from ..core._state_space import AbstractLinearStateSpace
@@ -220,7 +220,11 @@ class LTI(AbstractLinearStateSpace):
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
         """Output (V) for the drive `v_in` (V) held over each interval of `dt` s, from rest."""
         v_in, dt = check_drive(v_in, dt, f"LTI({self.order}).simulate")
-        return zoh_response(*self.state_space(), v_in, dt)
+        return run_compiled(_simulate, self, v_in, dt)
+
+
+def _simulate(system: LTI, v_in, dt):
+    return zoh_response(*system.state_space(), v_in, dt)
 
 
 def _realisation(order: int, p: dict) -> tuple[Array, Array, Array, Array]:

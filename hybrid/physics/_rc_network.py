@@ -63,7 +63,7 @@ import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Complex, Float
 
-from ..core._arguments import check_drive
+from ..core._arguments import check_drive, run_compiled
 from ..core._loop_safe_linalg import zoh_discretise
 from ..core._parameters import Constraint, Positive, UnitInterval, encode
 from ..core._state_space import AbstractLinearStateSpace
@@ -277,10 +277,14 @@ class RCNetwork(AbstractLinearStateSpace):
         or non-vector drive); inside jit/vmap/grad they are not (`hybrid.core._arguments`).
         """
         v_in, dt = check_drive(v_in, dt, "RCNetwork.simulate")
-        if self.method == "tustin":
-            b0, b1, a1 = tustin_sections(*self.stage_zpk(), dt)
-            return cascade_filter(b0, b1, a1, v_in)
-        return zoh_response(*self.state_space(), v_in, dt)
+        return run_compiled(_simulate, self, v_in, dt)
+
+
+def _simulate(network: RCNetwork, v_in, dt):
+    if network.method == "tustin":
+        b0, b1, a1 = tustin_sections(*network.stage_zpk(), dt)
+        return cascade_filter(b0, b1, a1, v_in)
+    return zoh_response(*network.state_space(), v_in, dt)
 
 
 def _realisation(G, Z, P) -> tuple[Array, Array, Array, Array]:
