@@ -10,6 +10,9 @@ Cases, float64, the paper's network (N = 45: 46 first-order sections) at 30 Hz:
 
 Contenders:
 
+- ``op by op``: `RCNetwork.simulate` called outside jit, as a script calls it in
+  a loop, at other parameter values each call (`run_compiled`: one program per
+  structure and length; before it, every call compiled its scans again);
 - ``hybrid``: `RCNetwork.simulate` (block-lifted cascade, see
   `hybrid.physics._rc_network.cascade_filter`) under `jax.jit`, the parameters as
   arguments, sections computed inside; the batch by `hybrid.simulate_batch`
@@ -91,6 +94,13 @@ def single(repeats=20):
     setup = jax.jit(lambda net: block_matrices(*tustin_sections(*net.stage_zpk(), DT), BLOCK))
     c.first_call(setup, net)
     t_setup, _ = c.best_of(setup, net, repeats=repeats)
+    # op by op, as a script calls it in a Python loop: other parameter values at every call
+    eager = []
+    for k in range(6):
+        moved = net.replace(xi_rho=10.0 + 0.5 * k)
+        start = time.perf_counter()
+        np.asarray(moved.simulate(x, DT))
+        eager.append(time.perf_counter() - start)
     # interleave a second round so that a load spike on the shared machine hits all alike
     t_ours = min(t_ours, c.best_of(ours, net, xj, repeats=repeats)[0])
     t_sos = min(t_sos, c.best_of(lambda v: scipy.signal.sosfilt(sos, v), x, repeats=repeats)[0])
@@ -100,6 +110,9 @@ def single(repeats=20):
         "hybrid_s": t_ours,
         "hybrid_compile_s": first - t_ours,
         "hybrid_block_matrices_only_s": t_setup,
+        "op_by_op_first_call_s": eager[0],
+        "op_by_op_later_calls_median_s": float(np.median(eager[1:])),
+        "ratio_op_by_op_later_over_jit": float(np.median(eager[1:])) / t_ours,
         "stage_major_s": t_old,
         "stage_major_compile_s": first_old - t_old,
         "sosfilt_s": t_sos,
