@@ -34,6 +34,7 @@ EVENTS = {
 _totals: collections.Counter = collections.Counter()
 _programs: dict[str, list[float]] = collections.defaultdict(lambda: [0.0, 0])
 _tests: list[dict] = []
+_running: dict = {}  # the test in progress: its totals and clock at its start
 
 
 def _listen(event, duration, fun_name=None, **_):
@@ -58,13 +59,12 @@ def pytest_configure(config):
 
 
 def pytest_runtest_protocol(item, nextitem):
-    before, start = dict(_totals), time.monotonic()
-    item.config._compile_probe = (item.nodeid, before, start)
+    _running.update(before=dict(_totals), start=time.monotonic())
 
 
 def pytest_runtest_teardown(item, nextitem):
-    nodeid, before, start = item.config._compile_probe
-    row = {"id": nodeid, "wall_s": time.monotonic() - start}
+    before = _running["before"]
+    row = {"id": item.nodeid, "wall_s": time.monotonic() - _running["start"]}
     row.update({key: _totals[key] - before.get(key, 0.0) for key in EVENTS.values()})
     _tests.append(row)
 

@@ -78,13 +78,12 @@ def test_a_simulation_called_op_by_op_compiles_once_per_structure_and_length():
     state-space plug-in and an effect stack around either now run one compiled
     program per structure and length (`hybrid.core._arguments.run_compiled`).
     """
-    import sys
     from pathlib import Path
 
     from hybrid.discovery._effect_stack import EffectStack
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
-    from oscillator import MassSpringDamper
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    MassSpringDamper = type(hy.resolve_physics(f"{examples}/oscillator.py:MassSpringDamper"))
 
     drive = np.sin(np.arange(240) / 7.0)
     makers = {
