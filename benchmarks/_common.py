@@ -21,6 +21,9 @@ RESULTS = Path(__file__).parent / "results"
 def setup_jax():
     import jax
 
+    from hybrid import use_cpu_cores
+
+    use_cpu_cores()  # as the `hybrid` command does: one CPU device per core
     jax.config.update("jax_enable_x64", True)
     return jax
 

@@ -30,7 +30,13 @@ import os
 import shutil
 import tempfile
 
-import jax
+# One CPU device for every process of the run, the `hybrid` commands the tests start included: the two
+# workers already keep both cores busy, and a command that spread its lanes over a device per core
+# (`hybrid.use_cpu_cores`) would only run three threads on two cores. The lanes on several devices are
+# `tests/test_lane_devices.py`'s, and the hang guard runs its command as a user would (`test_never_hang.py`).
+os.environ.setdefault("JAX_NUM_CPU_DEVICES", "1")
+
+import jax  # after the device count: JAX reads it when it is imported
 import pytest
 
 from hybrid.util._programs import MAX_MAP_FRACTION, map_limit, memory_maps, release_programs

@@ -99,6 +99,7 @@ def test_cli_diagnose_on_two_recordings_completes(tmp_path):
         paths.append(tmp_path / f"strip_{seed}.csv")
         _write_csv(recording, paths[-1])
     env = {**os.environ, "HYBRID_JAX_CACHE": "off", "HYBRID_HEARTBEAT_S": "10", "HYBRID_STALL_S": "180"}
+    env.pop("JAX_NUM_CPU_DEVICES", None)  # as a user runs it: a device per core, the lanes side by side
     code, stdout, stderr, seconds = run_while_progressing(
         [
             sys.executable,

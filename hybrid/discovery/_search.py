@@ -15,6 +15,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ..core._models import Model
@@ -67,31 +68,94 @@ def lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
     return basis
 
 
-@eqx.filter_jit
-def _fit_lanes_compiled(problem, actives, tangents, thetas, patience, settings):
+def _run_lanes(problem, actives, tangents, thetas, patience, settings):
     def one(lane):
         active, basis, theta = lane
         p = with_active(problem, active, basis)
         return lm_run(p, lm_init(p, theta, settings), settings, settings.max_steps, patience)
 
-    # Lanes run one after another inside one program: each stops when it converges
-    # (a vmap would run every lane until the slowest is done).
+    # Lanes run one after another: each stops when it converges (a vmap would run
+    # every lane until the slowest is done, and every effect's branch in every lane).
     return jax.lax.map(one, (actives, tangents, thetas))
+
+
+@eqx.filter_jit
+def _fit_lanes_compiled(problem, actives, tangents, thetas, patience, settings):
+    return _run_lanes(problem, actives, tangents, thetas, patience, settings)
+
+
+@eqx.filter_jit
+def _fit_lanes_sharded(problem, actives, tangents, thetas, patience, settings, mesh):
+    """`_run_lanes` on every device of `mesh` at once, each on its own share of the lanes."""
+    dynamic, static = eqx.partition(problem, eqx.is_array)
+
+    def local(dynamic, actives, tangents, thetas, patience):
+        return _run_lanes(eqx.combine(dynamic, static), actives, tangents, thetas, patience, settings)
+
+    lanes, shared = PartitionSpec("lanes"), PartitionSpec()
+    return jax.shard_map(
+        local,
+        mesh=mesh,
+        in_specs=(shared, lanes, lanes, lanes, shared),
+        out_specs=lanes,
+        check_vma=False,  # no collectives: every device's lanes are independent
+    )(dynamic, actives, tangents, thetas, patience)
+
+
+def lane_devices() -> list:
+    """The devices `fit_lanes` spreads its lanes over: the default backend's (see `hybrid.use_cpu_cores`)."""
+    return jax.local_devices()
 
 
 def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience: int):
     """LM from each (switches, Jacobian directions, θ₀) lane; one compiled program per lane count.
 
-    `patience` is an argument of the program, not part of it: the stages share one compilation.
+    With several devices (`lane_devices`: on a CPU, `hybrid.use_cpu_cores`)
+    the lanes are dealt out to them in turn, lane i to device i mod d, and
+    each device runs its share one after another: the same arithmetic as on
+    one device, side by side. `patience` is an argument of the program, not
+    part of it: the stages share one compilation. Returns the lanes' final
+    `LMState`s as numpy arrays, one row per lane.
     """
-    return _fit_lanes_compiled(
-        problem,
-        jnp.asarray(actives, float),
-        jnp.asarray(tangents, float),
-        jnp.asarray(thetas),
-        jnp.asarray(patience, jnp.int32),
+    actives = np.asarray(actives, float)
+    tangents = np.asarray(tangents, float)
+    thetas = np.asarray(thetas)
+    stop_after = jnp.asarray(patience, jnp.int32)
+    devices = lane_devices()
+    if len(devices) < 2:
+        return jax.device_get(
+            _fit_lanes_compiled(
+                problem,
+                jnp.asarray(actives),
+                jnp.asarray(tangents),
+                jnp.asarray(thetas),
+                stop_after,
+                settings,
+            )
+        )
+    n, d = thetas.shape[0], len(devices)
+    share = -(-n // d)
+    row = np.array([(i % d) * share + i // d for i in range(share * d)])  # lane i's row: device i mod d
+    order = np.zeros(share * d, int)
+    order[row] = np.arange(share * d)
+    extra = share * d - n  # padding lanes (θ not finite: they stop before their first step)
+    actives = np.concatenate([actives, np.repeat(actives[:1], extra, axis=0)])[order]
+    tangents = np.concatenate([tangents, np.repeat(tangents[:1], extra, axis=0)])[order]
+    thetas = np.concatenate([thetas, np.full((extra,) + thetas.shape[1:], np.nan, thetas.dtype)])[order]
+    mesh = Mesh(np.array(devices), ("lanes",))
+    lanes = NamedSharding(mesh, PartitionSpec("lanes"))
+    replicated = NamedSharding(mesh, PartitionSpec())
+    arrays, rest = eqx.partition(problem, eqx.is_array)
+    out = _fit_lanes_sharded(
+        eqx.combine(jax.device_put(arrays, replicated), rest),
+        jax.device_put(actives, lanes),
+        jax.device_put(tangents, lanes),
+        jax.device_put(thetas, lanes),
+        jax.device_put(stop_after, replicated),
         settings,
+        mesh,
     )
+    return jax.tree_util.tree_map(lambda x: x[row[:n]], jax.device_get(out))
 
 
 def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[Problem, int]:

@@ -1,0 +1,54 @@
+"""`use_cpu_cores`: one JAX CPU device per core, for an entry point to call before any JAX work.
+
+XLA's CPU backend runs one program on one core at a time, apart from the
+multi-threaded kernels inside it (large matrix products). Work made of
+independent parts — `diagnose`'s Levenberg–Marquardt lanes, `fit_batch`'s
+fits — runs its parts side by side only when JAX has several CPU devices to
+spread them over (`hybrid.discovery.fit_lanes`, `hybrid.fit_batch`). That
+count is fixed when JAX starts its backend, so it is an entry point's choice,
+like float64: the `hybrid` command and the benchmarks call this; the library
+never does.
+"""
+
+from __future__ import annotations
+
+import os
+
+from ._errors import InputError
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the system says, else the CPU count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def use_cpu_cores(n: int | None = None) -> int | None:
+    """Give JAX `n` CPU devices (default: one per available core) unless the user chose already.
+
+    Call it at the start of a script, before JAX computes anything: JAX fixes
+    its devices when its backend starts. A choice made outside the script
+    wins: ``JAX_NUM_CPU_DEVICES`` in the environment (``JAX_NUM_CPU_DEVICES=1``
+    runs everything on one device, as before), or XLA_FLAGS's
+    ``--xla_force_host_platform_device_count``. Once the backend has started,
+    nothing changes.
+
+    **Returns:** the number of CPU devices set, or None where it left JAX's
+    as they were (the user's choice, or a backend already started).
+    """
+    import jax
+
+    if "JAX_NUM_CPU_DEVICES" in os.environ or "xla_force_host_platform_device_count" in os.environ.get(
+        "XLA_FLAGS", ""
+    ):
+        return None
+    count = int(n) if n is not None else available_cores()
+    if count < 1:
+        raise InputError(f"use_cpu_cores needs at least one device, got {n!r}")
+    try:
+        jax.config.update("jax_num_cpu_devices", count)
+    except RuntimeError:  # the backend has started: its devices stay as they are
+        return None
+    return count

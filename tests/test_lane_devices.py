@@ -1,0 +1,110 @@
+"""`diagnose`'s lanes side by side on several CPU devices: the same fits as on one (issue 30).
+
+`hybrid.use_cpu_cores` gives JAX one CPU device per core (the `hybrid`
+command calls it); `fit_lanes` then deals its lanes out to the devices, lane i
+to device i mod d. Each device runs its share one after another, so every
+lane's arithmetic is the one it has on a single device: here five distinct
+lanes on three devices (one padding lane) against the same five run by the
+unsharded program in the same process. A lane that came back in another lane's
+row, or a padding lane that leaked into the result, fails the comparison.
+
+The device count is fixed when JAX starts, so each case runs in a subprocess.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+LANES = textwrap.dedent("""
+    import json
+    import hybrid
+    print("SET", hybrid.use_cpu_cores(3))
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+    from hybrid.core._levenberg_marquardt import LMSettings
+    from hybrid.discovery import _search as search
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+
+    rng = np.random.default_rng(3)
+    n, dt = 400, 1 / 30
+    v = np.repeat(rng.uniform(-1, 1, n // 20), 20)
+    y = np.zeros(n)
+    for k in range(1, n):  # a first-order lag, made here in numpy
+        y[k] = 0.8 * y[k - 1] + 0.2 * v[k - 1]
+    w = 2.0 * np.tanh(y) + 0.01 * rng.standard_normal(n)
+    recording = hybrid.Recording.from_arrays(np.arange(n) * dt, v, w)
+    simulation = hybrid.LTI(1)
+    settings = DiagnoseSettings()
+    problem, n_rows, model, _ = search.lanes_problem([recording], simulation, settings, ["saturation"])
+    frozen = frozenset(settings.frozen_for(simulation))
+    theta = np.asarray(search.initial_theta(problem, model.simulation, model.readout, frozen))
+    thetas = np.stack([theta * (1.0 + 0.1 * k) for k in range(5)])  # five different starts
+    actives = np.ones((5, len(model.simulation.effects)))
+    actives[::2, 0] = 0.0  # saturation on in lanes 1 and 3 only
+    tangents = np.stack(
+        [search.lane_tangents(model, frozen, "saturation" if a[0] else None, n_rows) for a in actives]
+    )
+    lm = LMSettings(max_steps=30)
+    sharded = search.fit_lanes(problem, actives, tangents, thetas, lm, 10)
+    single = jax.device_get(
+        search._fit_lanes_compiled(problem, actives, tangents, thetas, np.int32(10), lm)
+    )
+    print(json.dumps({
+        "devices": len(jax.devices()),
+        "used": len(search.lane_devices()),
+        "sharded_val": np.asarray(sharded.best_val).tolist(),
+        "single_val": np.asarray(single.best_val).tolist(),
+        "sharded_theta": np.asarray(sharded.best_theta).tolist(),
+        "single_theta": np.asarray(single.best_theta).tolist(),
+        "sharded_steps": np.asarray(sharded.step).tolist(),
+        "single_steps": np.asarray(single.step).tolist(),
+    }))
+""")
+
+
+def _python(code, **env):
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env={**{k: v for k, v in os.environ.items() if k not in ("JAX_NUM_CPU_DEVICES", "XLA_FLAGS")}, **env},
+    )
+
+
+def test_lanes_on_three_cpu_devices_equal_the_lanes_on_one():
+    proc = _python(LANES, JAX_PLATFORMS="cpu")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = proc.stdout.strip().splitlines()
+    assert lines[0] == "SET 3"
+    out = json.loads(lines[-1])
+    assert out["devices"] == 3 and out["used"] == 3
+    # every lane moved (else the comparison would be of starts), and the lanes differ from each other
+    assert min(out["single_steps"]) > 0
+    assert len({round(v, 12) for v in out["single_val"]}) == 5
+    assert out["sharded_steps"] == out["single_steps"]
+    # the same program on each device's share: equal to rounding (measured ≤ 1e-15 relative)
+    for a, b in zip(out["sharded_val"], out["single_val"]):
+        assert a == pytest.approx(b, rel=1e-10)
+    for a, b in zip(out["sharded_theta"], out["single_theta"]):
+        assert a == pytest.approx(b, rel=1e-8, abs=1e-10)
+
+
+def test_a_device_count_chosen_outside_the_script_wins():
+    code = "import hybrid, jax; print(hybrid.use_cpu_cores(4), len(jax.devices()))"
+    chosen = _python(code, JAX_NUM_CPU_DEVICES="1", JAX_PLATFORMS="cpu")
+    assert chosen.returncode == 0, chosen.stderr[-2000:]
+    assert chosen.stdout.split() == ["None", "1"]
+    flags = _python(code, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    assert flags.returncode == 0, flags.stderr[-2000:]
+    assert flags.stdout.split() == ["None", "2"]
+    free = _python(code, JAX_PLATFORMS="cpu")
+    assert free.returncode == 0, free.stderr[-2000:]
+    assert free.stdout.split() == ["4", "4"]
+    late = _python("import hybrid, jax; jax.devices(); print(hybrid.use_cpu_cores(4), len(jax.devices()))")
+    assert late.returncode == 0, late.stderr[-2000:]
+    assert late.stdout.split()[0] == "None"  # the backend had started: nothing changes
