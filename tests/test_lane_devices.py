@@ -1,12 +1,17 @@
-"""`diagnose`'s lanes side by side on several CPU devices: the same fits as on one (issue 30).
+"""`diagnose`'s lanes and screens side by side on several CPU devices: the same numbers as on one (issue 30).
 
 `hybrid.use_cpu_cores` gives JAX one CPU device per core (the `hybrid`
 command calls it); `fit_lanes` then deals its lanes out to the devices, lane i
-to device i mod d. Each device runs its share one after another, so every
-lane's arithmetic is the one it has on a single device: here five distinct
-lanes on three devices (one padding lane) against the same five run by the
-unsharded program in the same process. A lane that came back in another lane's
-row, or a padding lane that leaked into the result, fails the comparison.
+to device i mod d, and the screens (`hybrid.core._devices.map_rows`) give each
+device a block of design points. Each device runs its share one after
+another, so every lane's and every point's arithmetic is the one it has on a
+single device:
+
+- five distinct lanes on three devices (one padding lane) against the same
+  five run by the unsharded program in the same process: a lane that came back
+  in another lane's row, or a padding lane that leaked into the result, fails;
+- the four screens on a 40-point design (not a multiple of three) on three
+  devices against a process with one.
 
 The device count is fixed when JAX starts, so each case runs in a subprocess.
 """
@@ -17,6 +22,7 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 
 LANES = textwrap.dedent("""
@@ -28,6 +34,7 @@ LANES = textwrap.dedent("""
     import numpy as np
     from hybrid.core._levenberg_marquardt import LMSettings
     from hybrid.discovery import _search as search
+    from hybrid.core._devices import spread_devices
     from hybrid.discovery._diagnosis import DiagnoseSettings
 
     rng = np.random.default_rng(3)
@@ -56,7 +63,7 @@ LANES = textwrap.dedent("""
     )
     print(json.dumps({
         "devices": len(jax.devices()),
-        "used": len(search.lane_devices()),
+        "used": len(spread_devices()),
         "sharded_val": np.asarray(sharded.best_val).tolist(),
         "single_val": np.asarray(single.best_val).tolist(),
         "sharded_theta": np.asarray(sharded.best_theta).tolist(),
@@ -67,9 +74,40 @@ LANES = textwrap.dedent("""
 """)
 
 
-def _python(code, **env):
+SCREENS = textwrap.dedent("""
+    import json, sys
+    import hybrid
+    hybrid.use_cpu_cores(int(sys.argv[1]))
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+    from hybrid.discovery import _search as search, _starts as starts
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+
+    rng = np.random.default_rng(4)
+    n, dt = 300, 1 / 30
+    v = np.repeat(rng.uniform(-1, 1, n // 15), 15)
+    w = np.convolve(v, 0.3 * 0.7 ** np.arange(30))[:n] + 0.01 * rng.standard_normal(n)
+    recording = hybrid.Recording.from_arrays(np.arange(n) * dt, v, w)
+    simulation = hybrid.LTI(1)
+    problem, *_ = search.lanes_problem([recording], simulation, DiagnoseSettings(), ["saturation"])
+    design = starts.baseline_design(simulation, 40)
+    _, raws = starts.design_raws(simulation, design)
+    loop = starts.loop_screen(problem, simulation, raws, starts.LOOP_RATES)
+    modes = starts.mode_screen(problem, simulation, raws, np.array([2.0, 5.0]), np.array([0.1, 0.3]))
+    print(json.dumps({
+        "devices": len(jax.devices()),
+        "losses": starts.screen_design_losses(problem, simulation, raws).tolist(),
+        "loop": [np.asarray(x).tolist() for x in loop],
+        "modes": np.asarray(modes).tolist(),
+        "peaks": np.asarray(starts.state_peaks(problem, simulation, "lag_1", raws)).tolist(),
+    }))
+""")
+
+
+def _python(code, *args, **env):
     return subprocess.run(
-        [sys.executable, "-c", code],
+        [sys.executable, "-c", code, *args],
         capture_output=True,
         text=True,
         env={**{k: v for k, v in os.environ.items() if k not in ("JAX_NUM_CPU_DEVICES", "XLA_FLAGS")}, **env},
@@ -92,6 +130,18 @@ def test_lanes_on_three_cpu_devices_equal_the_lanes_on_one():
         assert a == pytest.approx(b, rel=1e-10)
     for a, b in zip(out["sharded_theta"], out["single_theta"]):
         assert a == pytest.approx(b, rel=1e-8, abs=1e-10)
+
+
+def test_the_screens_on_three_cpu_devices_equal_the_screens_on_one():
+    runs = {}
+    for devices in (3, 1):
+        proc = _python(SCREENS, str(devices), JAX_PLATFORMS="cpu")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        runs[devices] = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert runs[3]["devices"] == 3 and runs[1]["devices"] == 1
+    assert len(runs[3]["losses"]) == 40 and len(set(runs[3]["losses"])) > 30  # 40 points, not one repeated
+    for key in ("losses", "loop", "modes", "peaks"):  # measured: equal to the last bit
+        np.testing.assert_allclose(np.asarray(runs[3][key]), np.asarray(runs[1][key]), rtol=1e-12, atol=0)
 
 
 def test_a_device_count_chosen_outside_the_script_wins():

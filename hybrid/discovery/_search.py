@@ -2,8 +2,8 @@
 
 A lane is one LM run from its own start with its own switches: every effect
 lives in one [`EffectStack`][] (`universal_model`), and a lane switches on at
-most one of them beyond those already named; `fit_lanes` runs a batch of lanes one after another inside a
-single compiled program. Also here: the least-squares problem every lane shares
+most one of them beyond those already named; `fit_lanes` runs a batch of lanes in a single compiled
+program, one after another on each device and the devices side by side. Also here: the least-squares problem every lane shares
 (`lanes_problem`), its predictions on each part of the split (`predictions`,
 `split_signals`), and the lag that best aligns a model with the data (`best_lag`);
 each effect's starts are its own (`AbstractEffect.starts`, `AbstractEffect.screened_starts`).
@@ -15,8 +15,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import NamedSharding, PartitionSpec
 
+from ..core._devices import device_mesh, spread_devices
 from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ..core._models import Model
 from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording
@@ -102,15 +103,10 @@ def _fit_lanes_sharded(problem, actives, tangents, thetas, patience, settings, m
     )(dynamic, actives, tangents, thetas, patience)
 
 
-def lane_devices() -> list:
-    """The devices `fit_lanes` spreads its lanes over: the default backend's (see `hybrid.use_cpu_cores`)."""
-    return jax.local_devices()
-
-
 def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience: int):
     """LM from each (switches, Jacobian directions, θ₀) lane; one compiled program per lane count.
 
-    With several devices (`lane_devices`: on a CPU, `hybrid.use_cpu_cores`)
+    With several devices (`spread_devices`: on a CPU, `hybrid.use_cpu_cores`)
     the lanes are dealt out to them in turn, lane i to device i mod d, and
     each device runs its share one after another: the same arithmetic as on
     one device, side by side. `patience` is an argument of the program, not
@@ -121,7 +117,7 @@ def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience
     tangents = np.asarray(tangents, float)
     thetas = np.asarray(thetas)
     stop_after = jnp.asarray(patience, jnp.int32)
-    devices = lane_devices()
+    devices = spread_devices()
     if len(devices) < 2:
         return jax.device_get(
             _fit_lanes_compiled(
@@ -142,7 +138,7 @@ def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience
     actives = np.concatenate([actives, np.repeat(actives[:1], extra, axis=0)])[order]
     tangents = np.concatenate([tangents, np.repeat(tangents[:1], extra, axis=0)])[order]
     thetas = np.concatenate([thetas, np.full((extra,) + thetas.shape[1:], np.nan, thetas.dtype)])[order]
-    mesh = Mesh(np.array(devices), ("lanes",))
+    mesh = device_mesh("lanes")
     lanes = NamedSharding(mesh, PartitionSpec("lanes"))
     replicated = NamedSharding(mesh, PartitionSpec())
     arrays, rest = eqx.partition(problem, eqx.is_array)

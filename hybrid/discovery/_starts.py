@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..core._devices import map_rows
 from ..core._loop_safe_linalg import lstsq
 from ..core._parameters import Positive
 from ..core._problem import Problem
@@ -116,7 +117,7 @@ def screen_losses(problem, simulation, raws):
         loss = rss / jnp.sum(weights)
         return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
 
-    return jax.lax.map(one, raws, batch_size=16)
+    return map_rows(one, raws, batch_size=16)
 
 
 def screen_design_losses(problem, simulation, raws) -> np.ndarray:
@@ -239,7 +240,7 @@ def loop_screen(problem, simulation, raws, rates):
 
         return jax.vmap(fit)(jnp.asarray(rates) / span)
 
-    return jax.lax.map(one, raws, batch_size=16)
+    return map_rows(one, raws, batch_size=16)
 
 
 def hysteresis_starts(problem, simulation, n_starts: int, frozen=frozenset()) -> list[dict]:
@@ -323,7 +324,7 @@ def mode_screen(problem, simulation, raws, frequencies, dampings):
             constraints["resonance_damping"].to_raw(jnp.asarray(dampings, float)),
         )
 
-    return jax.lax.map(one, raws, batch_size=16)
+    return map_rows(one, raws, batch_size=16)
 
 
 def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=frozenset()) -> list[dict]:
@@ -379,7 +380,7 @@ def state_peaks(problem, simulation, state: str, raws):
             peaks += [jnp.max(x[a:b]) for a, b in series.segments_of("train")]
         return jnp.max(jnp.stack(peaks))
 
-    return jax.lax.map(one, raws, batch_size=16)
+    return map_rows(one, raws, batch_size=16)
 
 
 def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset()) -> list[dict]:
