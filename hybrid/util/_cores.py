@@ -16,6 +16,11 @@ import os
 
 from ._errors import InputError
 
+#: Most CPU devices `use_cpu_cores` gives by default. Every device holds its own copy of the
+#: data a sharded program shares (a diagnose's recordings), and a search has 16–30 lanes to deal out:
+#: beyond 8 devices memory grows with the core count while the lanes per device hardly fall.
+MAX_DEFAULT_DEVICES = 8
+
 
 def available_cores() -> int:
     """Cores this process may run on (its CPU affinity where the system says, else the CPU count)."""
@@ -26,7 +31,7 @@ def available_cores() -> int:
 
 
 def use_cpu_cores(n: int | None = None) -> int | None:
-    """Give JAX `n` CPU devices (default: one per available core) unless the user chose already.
+    """Give JAX `n` CPU devices (default: one per core, at most `MAX_DEFAULT_DEVICES`) unless the user chose.
 
     Call it at the start of a script, before JAX computes anything: JAX fixes
     its devices when its backend starts. A choice made outside the script
@@ -44,7 +49,7 @@ def use_cpu_cores(n: int | None = None) -> int | None:
         "XLA_FLAGS", ""
     ):
         return None
-    count = int(n) if n is not None else available_cores()
+    count = int(n) if n is not None else min(available_cores(), MAX_DEFAULT_DEVICES)
     if count < 1:
         raise InputError(f"use_cpu_cores needs at least one device, got {n!r}")
     try:
