@@ -131,13 +131,17 @@ def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience
         )
     n, d = thetas.shape[0], len(devices)
     share = -(-n // d)
-    row = np.array([(i % d) * share + i // d for i in range(share * d)])  # lane i's row: device i mod d
-    order = np.zeros(share * d, int)
-    order[row] = np.arange(share * d)
     extra = share * d - n  # padding lanes (θ not finite: they stop before their first step)
-    actives = np.concatenate([actives, np.repeat(actives[:1], extra, axis=0)])[order]
-    tangents = np.concatenate([tangents, np.repeat(tangents[:1], extra, axis=0)])[order]
-    thetas = np.concatenate([thetas, np.full((extra,) + thetas.shape[1:], np.nan, thetas.dtype)])[order]
+
+    def deal(x, fill):  # lane i to device i mod d: row-major (share, d) read column by column
+        x = np.concatenate([x, fill(x, extra)])
+        return x.reshape((share, d) + x.shape[1:]).swapaxes(0, 1).reshape(x.shape)
+
+    def same(x, k):
+        return np.repeat(x[:1], k, axis=0)
+
+    actives, tangents = deal(actives, same), deal(tangents, same)
+    thetas = deal(thetas, lambda x, k: np.full((k,) + x.shape[1:], np.nan, x.dtype))
     mesh = device_mesh("lanes")
     lanes = NamedSharding(mesh, PartitionSpec("lanes"))
     replicated = NamedSharding(mesh, PartitionSpec())
@@ -151,7 +155,11 @@ def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience
         settings,
         mesh,
     )
-    return jax.tree_util.tree_map(lambda x: x[row[:n]], jax.device_get(out))
+
+    def gather(x):  # back to lane order, padding dropped
+        return x.reshape((d, share) + x.shape[1:]).swapaxes(0, 1).reshape(x.shape)[:n]
+
+    return jax.tree_util.tree_map(gather, jax.device_get(out))
 
 
 def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[Problem, int]:
