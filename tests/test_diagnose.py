@@ -21,6 +21,7 @@ held-out MSE ≥ 2× the noise variance; below that the cascade absorbs the effe
 and no extension can gain 2×); the experiment runs every draw.
 """
 
+import collections
 import contextlib
 import io
 import json
@@ -81,6 +82,13 @@ def test_diagnose_names_the_hidden_effect(effect, seed, request):
     for cand in found.candidates:
         chosen = [lane for lane in found.lanes if lane.effect == cand.name and lane.chosen and lane.step == 1]
         assert len(chosen) == 1 and np.array_equal(chosen[0].theta, cand.theta), cand.name
+    # A later step screens its starts as the first does, on the model extended so far: every effect
+    # not yet named has as many lanes there as in the first step (its screened starts too).
+    first = collections.Counter(lane.effect for lane in found.lanes if lane.step == 1)
+    in_order = [c["name"] for c in found.causes]
+    for k in range(2, len(found.steps) + 1):
+        later = collections.Counter(lane.effect for lane in found.lanes if lane.step == k)
+        assert later == {e: n for e, n in first.items() if e not in in_order[: k - 1]}, (k, later, first)
     if effect == "none":
         assert found.gain == 1.0 and found.extended is found.baseline
         # Nothing named, and nothing left above the noise floor (estimated from the recording alone).

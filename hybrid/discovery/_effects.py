@@ -117,7 +117,10 @@ class StartContext:
     - `residual_peak_hz`: the training residual's spectral peak at 0.5 Hz or above, or None.
     - `problem`, `simulation`, `frozen`: for a screen (`AbstractEffect.screened_starts`):
       the search's least-squares problem, the simulation being diagnosed and
-      the names of its parameters that are not fitted.
+      the names of its parameters that are not fitted. From the second step on,
+      `simulation` is the model extended so far (an `EffectStack` with the named
+      effects on, at their fitted values; its `parameters()` and `typical_ranges()`
+      include the inner simulation's): a screen designs it jointly with the effect.
     """
 
     signal: np.ndarray
@@ -155,7 +158,8 @@ class AbstractEffect(eqx.Module):
       `material`); `DiagnoseSettings.materiality` overrides them by name.
     - `starts(context)`: starting values for the search's lanes (default: the
       defaults); `screened_starts(context)`: at most `n_screened` more, from a
-      screen of the simulation's design jointly with the effect (first step only).
+      screen of the simulation's design jointly with the effect (every step; an
+      inside effect's in the first step only).
     - `material(derived, parameters, thresholds)`: whether a fit of the effect is
       large enough to count, and the sentence that says why (default: always).
     - `derived(s, dt)`: quantities an experimenter reads more easily than the
