@@ -11,8 +11,8 @@ code separate from the extensions that find it), a recording of the drive with
 camera exposure and noise, then `diagnose` on it. Prints one line per draw, then
 the confusion table (true effect × named cause) and the held-out gains, over all
 draws and over the identifiable ones (see `IDENTIFIABLE`), and writes every
-candidate's held-out gain, ΔBIC, Ljung–Box Q and reasons to the JSON file (and
-both tables to the .md file beside it).
+candidate's held-out gain, ΔBIC, Ljung–Box Q and reasons to the JSON file (a later
+step's candidates too: gain, eligibility, reasons), and both tables to the .md file beside it.
 
 `--effects` takes the library's hidden effects, effects outside the library
 (`hybrid.ipmc._outside_effects`: electrostatic, dead_zone, rate_dependent,
@@ -414,6 +414,18 @@ def main(argv=None) -> int:
                         for c in found.candidates
                     },
                     "baseline_Q": found.baseline.ljung_box["Q"],
+                    # Each later step's candidates: why a second effect was (not) named.
+                    "later_steps": [
+                        {
+                            "step": k,
+                            "chosen": step.cause,
+                            "candidates": {
+                                c.name: {"gain": c.gain, "eligible": c.eligible, "reasons": c.reasons}
+                                for c in step.candidates
+                            },
+                        }
+                        for k, step in enumerate(found.steps[1:], start=2)
+                    ],
                     **world,
                 }
             )
