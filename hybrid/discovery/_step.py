@@ -214,7 +214,7 @@ def search_step(
     # screen the model extended so far (the named effects on, at their fitted values): its fit has
     # absorbed part of the next effect (a dead time as slower stages), and that effect's lanes
     # started from it alone stay in its basin (delay + back-relaxation draws of
-    # `experiments/discrepancy.py`: every second-step delay lane ended at its start, 0.75 samples).
+    # `experiments/discrepancy.py`: the delay was never named; seed 0's stayed at its start, 0.75 samples).
     # An inside effect's screen needs the bare state-space form: first step only.
     screening = [
         e for e in effects if e.n_screened and e.name not in present and not (present and e.place == "inside")
