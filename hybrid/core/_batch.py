@@ -41,6 +41,7 @@ import numpy as np
 
 from ..util._errors import InputError
 from ._arguments import as_recordings, check_dt, check_model
+from ._devices import device_mesh, repeat_last
 from ._fit import default_frozen, fit_units, readout_back, start_model
 from ._levenberg_marquardt import lm_init, lm_run
 from ._metrics import metrics as compute_metrics
@@ -181,12 +182,14 @@ def fit_batch(
     n_dev = len(devices)
     padded = -(-n_fits // n_dev) * n_dev
     if padded > n_fits:  # repeat the last fit so that every device gets the same share
-        stacked = jax.tree_util.tree_map(lambda x: _pad(x, padded), stacked)
-        thetas = _pad(thetas, padded)
+        stacked = jax.tree_util.tree_map(lambda x: repeat_last(x, padded), stacked)
+        thetas = repeat_last(thetas, padded)
     settings = solver.lm_settings()
     run = _compiled_runner(template, settings, batch_size, tuple(devices))
     if n_dev > 1:
-        sharding = jax.sharding.NamedSharding(_mesh(tuple(devices)), jax.sharding.PartitionSpec("batch"))
+        sharding = jax.sharding.NamedSharding(
+            device_mesh("batch", devices), jax.sharding.PartitionSpec("batch")
+        )
         stacked, thetas = jax.device_put((stacked, thetas), sharding)
     t0 = time.perf_counter()
     compiled = run.lower(stacked, thetas).compile()
@@ -269,15 +272,6 @@ def _arrays(problem):
     return eqx.filter(_DYNAMIC(problem), eqx.is_array)
 
 
-def _pad(x, n):
-    extra = n - x.shape[0]
-    return jnp.concatenate([x, jnp.repeat(x[-1:], extra, axis=0)])
-
-
-def _mesh(devices):
-    return jax.sharding.Mesh(np.array(devices), ("batch",))
-
-
 def _compiled_runner(template, settings, batch_size, devices):
     """A jitted function (stacked problem arrays, θ's) → per-fit results."""
     splits = tuple(name for name, _ in template.series[0].segments)
@@ -311,7 +305,7 @@ def _compiled_runner(template, settings, batch_size, devices):
 
     if len(devices) == 1:
         return jax.jit(local)
-    mesh = _mesh(devices)
+    mesh = device_mesh("batch", devices)
     spec = jax.sharding.PartitionSpec("batch")
     # check_vma=False: the library's scans start from constants (not device-varying); no
     # collectives are used, so the per-device programs are independent.

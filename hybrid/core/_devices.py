@@ -1,11 +1,12 @@
-"""Independent rows of work on every device at once: `spread_devices`, `map_rows`.
+"""Independent rows of work on every device at once: `spread_devices`, `device_mesh`, `map_rows`.
 
 On a CPU, JAX has several devices only where an entry point asked for them
 (`hybrid.use_cpu_cores`, called by the `hybrid` command); with one device
 everything here is what it was, `jax.lax.map`. The search of `diagnose` uses
 it for its screens (`hybrid.discovery._starts`: one simulation per design
 point) and, dealing lanes out in turn, for its LM lanes
-(`hybrid.discovery.fit_lanes`).
+(`hybrid.discovery.fit_lanes`); `hybrid.fit_batch` shards its fits on
+`device_mesh` with rows filled by `repeat_last`.
 """
 
 from __future__ import annotations
@@ -21,9 +22,14 @@ def spread_devices() -> list:
     return jax.local_devices()
 
 
-def device_mesh(axis: str) -> Mesh:
-    """A one-axis mesh of `spread_devices()`."""
-    return Mesh(np.array(spread_devices()), (axis,))
+def device_mesh(axis: str, devices=None) -> Mesh:
+    """A one-axis mesh of `devices` (default: `spread_devices()`)."""
+    return Mesh(np.array(spread_devices() if devices is None else list(devices)), (axis,))
+
+
+def repeat_last(x, n: int):
+    """`x` with its last row repeated until it has `n` rows: every device gets a full share."""
+    return jnp.concatenate([x, jnp.repeat(x[-1:], n - x.shape[0], axis=0)])
 
 
 def map_rows(one, rows, batch_size: int):
@@ -40,9 +46,7 @@ def map_rows(one, rows, batch_size: int):
     n = jax.tree_util.tree_leaves(rows)[0].shape[0]
     d = len(devices)
     padded = -(-n // d) * d
-    rows = jax.tree_util.tree_map(
-        lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], padded - n, axis=0)]), rows
-    )
+    rows = jax.tree_util.tree_map(lambda x: repeat_last(x, padded), rows)
 
     def local(block):
         return jax.lax.map(one, block, batch_size=batch_size)
