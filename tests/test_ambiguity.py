@@ -13,6 +13,7 @@ scipy's `lfilter`, not by the library.
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import helpers as h
 import numpy as np
@@ -21,7 +22,15 @@ from scipy.signal import lfilter
 from scipy.stats import binomtest
 
 import hybrid
-from hybrid.discovery._ambiguity import ALPHA, level_time_correlation, paired_difference, power_near, sentence
+from hybrid.discovery._ambiguity import (
+    ALPHA,
+    OPEN_RIVALS,
+    ambiguities,
+    level_time_correlation,
+    paired_difference,
+    power_near,
+    sentence,
+)
 
 RATE, N = 30.0, 1800
 
@@ -168,3 +177,57 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     refused = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "x.csv")
     assert refused.returncode == 2 and "nothing ambiguous" in refused.stderr
     assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()
+
+
+def _candidate(name, gain, residual, eligible=False):
+    return SimpleNamespace(
+        name=name, gain=gain, eligible=eligible, heldout_residual=residual, heldout=SimpleNamespace(nmse=1 / gain),
+        parameters={},
+    )  # fmt: skip
+
+
+def test_an_open_last_step_has_nothing_more_against_its_best_gains_only_with_a_remainder():
+    rng = np.random.default_rng(3)
+    base = rng.normal(size=600)
+    current = _candidate("none", 1.0, base)
+    gains = {"delay": 1.3, "saturation": 1.1, "drift": 0.9, "backlash": 1.05}
+    candidates = [_candidate(k, g, base / np.sqrt(g)) for k, g in gains.items()]
+    step = SimpleNamespace(chosen=None, current=current, candidates=candidates)
+    drive = [np.repeat(rng.uniform(-1, 1, 40), 15)]
+    (entry,) = ambiguities([step], base, 0.01, drive, RATE, [], open_remainder=True)
+    assert entry["open"] and entry["named"] == "none" and entry["step"] == 1
+    # "nothing more" against the OPEN_RIVALS largest gains above 1, best first (backlash, 1.05, is third)
+    assert OPEN_RIVALS == 2 and [r["name"] for r in entry["rivals"]] == ["delay", "saturation"]
+    # with a noise floor of 0.05, saturation's predictions (RMS 0.046 from nothing more's) are within
+    # the noise: nothing more again; delay's (0.122) are not
+    (wide,) = ambiguities([step], base, 0.05, drive, RATE, [], open_remainder=True)
+    assert [r["name"] for r in wide["rivals"]] == ["delay"]
+    # each rival's numbers are its residual's against nothing more's
+    reference = paired_difference(base, candidates[0].heldout_residual)
+    assert entry["rivals"][0]["p_value"] == reference["p_value"]
+    assert "named nothing" in sentence(entry) and "delay (gain 1.3)" in sentence(entry)
+    # no remainder above the floor: nothing is open; no candidate gained: nothing to design against
+    assert ambiguities([step], base, 0.01, drive, RATE, [], open_remainder=False) == []
+    losers = SimpleNamespace(chosen=None, current=current, candidates=[candidates[2]])
+    assert ambiguities([losers], base, 0.01, drive, RATE, [], open_remainder=True) == []
+
+
+def test_an_open_step_of_a_real_diagnosis_saves_both_sides_and_a_drive_separates_them(tmp_path):
+    """A drifting gain searched for with saturation and delay alone: nothing named, a remainder, delay gains."""
+    found = hybrid.diagnose(
+        _recording(staircase=False), simulation=hybrid.LTI(1), effects=["saturation", "delay"]
+    )
+    assert found.cause == "none" and found.unexplained is not None
+    (entry,) = found.to_dict()["ambiguous"]
+    assert entry["open"] and entry["named"] == "none"
+    assert all(r["gain"] > 1 for r in entry["rivals"])
+    paths = hybrid.write_report(found, tmp_path)
+    assert f"**Open.** {sentence(entry)}" in paths["report.md"].read_text()
+    models = {name: hybrid.load_model(tmp_path / file) for name, file in entry["models"].items()}
+    assert {e.name for e in models["none"].simulation.effects} == {"frame_timing"}
+    for r in entry["rivals"]:
+        assert {e.name for e in models[r["name"]].simulation.effects} == {"frame_timing", r["name"]}
+    design = hybrid.design_drive(
+        models, duration=10.0, rate=RATE, amplitude=2.0, noise_std=found.noise_floor.std, starts=1, steps=30
+    )
+    assert np.max(np.abs(design.v_in)) <= 2.0 and design.criterion >= design.control_criterion > 0

@@ -30,8 +30,22 @@ saw. Where the recording shows why the rivals look alike, the report says it:
 - a rival acts at a frequency (a parameter in Hz) where the drive has less
   than `THIN_POWER` of its power (within a factor 1.25 either way).
 
+**An open remainder.** When the search's last step names nothing and the
+final model still leaves a remainder above the noise floor (``unexplained``),
+the last step's question — which effect, if any, is still missing — is open
+too. Its rivals are then "nothing more" (the model extended so far) and the
+`OPEN_RIVALS` candidates of that step with the largest held-out gains above 1
+whose held-out predictions differ from nothing more's by at least the noise
+floor (RMS): each better than nothing more on the held-out part, none passing
+every rule, and each a different model, not nothing more again (the sign
+test's numbers of an open entry count nothing more's wins). The entry has ``"named": "none"`` and ``"open": true``, and a designed drive
+(`hybrid design`) asks the next recording whether one of them is there. Without
+a remainder above the floor nothing is open, so an effect-free recording that
+the model explains gets no entry and no design.
+
 `cause` and `causes` keep the best explanation; ``report.json``'s
-``ambiguous`` lists each step whose named cause has indistinguishable rivals.
+``ambiguous`` lists each step whose named cause has indistinguishable rivals,
+and the open last step.
 """
 
 from __future__ import annotations
@@ -49,6 +63,8 @@ ALPHA = 0.05
 LEVEL_TIME_R = 0.5
 #: Share of the drive's power near a rival's frequency below which the drive cannot excite it.
 THIN_POWER = 0.01
+#: An open last step's rivals: at most this many candidates, those with the largest held-out gains above 1.
+OPEN_RIVALS = 2
 
 TEST = (
     "a rival (an effect that also passed every rule of the step) is indistinguishable from the named "
@@ -126,42 +142,53 @@ def _frequencies(candidate, effects) -> dict[str, float]:
     }
 
 
-def ambiguities(steps, w_test, noise_std: float, drives, rate: float, effects) -> list[dict]:
+def _rival(named, c, scale: float, noise_std: float) -> dict:
+    """`c` weighed against `named` on the held-out part: the sign test and the predictions' RMS difference."""
+    test = paired_difference(named.heldout_residual, c.heldout_residual)
+    apart = float(np.sqrt(np.mean((c.heldout_residual - named.heldout_residual) ** 2)))
+    return {
+        "name": c.name,
+        "gain": c.gain,
+        "heldout_nmse": c.heldout.nmse,
+        "mse_difference": test["mean"] / scale,
+        "mse_difference_std_error": test["std_error"] / scale,
+        "chunks": test["chunks"],
+        "named_wins": test["wins"],
+        "p_value": test["p_value"],
+        "prediction_rms_difference": apart,
+        "within_noise": bool(math.isfinite(noise_std) and apart < noise_std),
+    }
+
+
+def ambiguities(
+    steps, w_test, noise_std: float, drives, rate: float, effects, open_remainder: bool = False
+) -> list[dict]:
     """Each step whose named cause has indistinguishable rivals (``report.json``'s ``ambiguous``).
 
     `steps`: the search's steps (`Step`); `w_test`: the recorded held-out
     output (for the scale of the errors); `noise_std`: the noise floor's
     standard deviation (NaN: unknown, that criterion is skipped); `drives`: the
-    recordings' drives; `effects`: the searched effects (for their units).
+    recordings' drives; `effects`: the searched effects (for their units);
+    `open_remainder`: whether the final model leaves a remainder above the
+    noise floor, which makes a last step that named nothing an open question.
     """
     scale = float(np.var(w_test)) or 1.0
     out = []
     for k, step in enumerate(steps, 1):
         named = step.chosen
-        if named is None or named.heldout_residual is None:
+        if named is None:
+            if open_remainder and k == len(steps):
+                out.extend(_open_step(k, step, scale, noise_std, drives, rate, effects))
+            continue
+        if named.heldout_residual is None:
             continue
         rivals = []
         for c in step.candidates:
             if c is named or c.name == named.name or not c.eligible or c.heldout_residual is None:
                 continue
-            test = paired_difference(named.heldout_residual, c.heldout_residual)
-            apart = float(np.sqrt(np.mean((c.heldout_residual - named.heldout_residual) ** 2)))
-            alike = math.isfinite(noise_std) and apart < noise_std
-            if test["p_value"] > ALPHA or alike:
-                rivals.append(
-                    {
-                        "name": c.name,
-                        "gain": c.gain,
-                        "heldout_nmse": c.heldout.nmse,
-                        "mse_difference": test["mean"] / scale,
-                        "mse_difference_std_error": test["std_error"] / scale,
-                        "chunks": test["chunks"],
-                        "named_wins": test["wins"],
-                        "p_value": test["p_value"],
-                        "prediction_rms_difference": apart,
-                        "within_noise": bool(alike),
-                    }
-                )
+            rival = _rival(named, c, scale, noise_std)
+            if rival["p_value"] > ALPHA or rival["within_noise"]:
+                rivals.append(rival)
         if rivals:
             out.append(
                 {
@@ -173,6 +200,36 @@ def ambiguities(steps, w_test, noise_std: float, drives, rate: float, effects) -
                 }
             )
     return out
+
+
+def _open_step(k: int, step, scale: float, noise_std: float, drives, rate: float, effects) -> list[dict]:
+    """The open last step's entry (at most one): nothing more vs its best candidates, if any gained."""
+    current = step.current
+    if current is None or current.heldout_residual is None:
+        return []
+    gained = sorted(
+        (
+            c
+            for c in step.candidates
+            if c.heldout_residual is not None and math.isfinite(c.gain) and c.gain > 1.0
+        ),
+        key=lambda c: -c.gain,
+    )
+    # a candidate that predicts what nothing more predicts, to within the noise, is no alternative
+    rivals = [r for r in (_rival(current, c, scale, noise_std) for c in gained) if not r["within_noise"]]
+    rivals = rivals[:OPEN_RIVALS]
+    if not rivals:
+        return []
+    return [
+        {
+            "step": k,
+            "named": "none",
+            "gain": 1.0,
+            "open": True,
+            "rivals": rivals,
+            "why": _why(current, [r["name"] for r in rivals], step.candidates, drives, rate, effects),
+        }
+    ]
 
 
 def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[str]:
@@ -197,12 +254,19 @@ def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[s
 def sentence(entry: dict) -> str:
     """report.md's sentence for one ``ambiguous`` entry."""
     rivals = ", ".join(f"{r['name']} (gain {r['gain']:.3g})" for r in entry["rivals"])
+    why = "; ".join(entry["why"])
+    if entry.get("open"):
+        return (
+            f"Step {entry['step']} named nothing, yet the model leaves a remainder above the noise floor: this "
+            f"recording cannot tell whether {rivals} or nothing of the library is missing"
+            + (f" ({why})." if why else ".")
+            + " A drive designed to separate them (hybrid design) would tell."
+        )
     how = (
         "their held-out predictions differ by less than the noise"
         if all(r["within_noise"] for r in entry["rivals"])
         else "on the held-out part the named cause is not significantly better (sign test)"
     )
-    why = "; ".join(entry["why"])
     return (
         f"This recording cannot tell step {entry['step']}'s {entry['named']} (gain {entry['gain']:.3g}) from "
         f"{rivals}: {how}" + (f" ({why})." if why else ".") + " Another drive is needed to separate them."

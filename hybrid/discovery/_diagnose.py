@@ -301,16 +301,21 @@ def diagnose(
         places=places,
     )
     drives = [np.asarray(r.v_in, float) for r in recordings]
-    rivals = ambiguities(steps, w_te, floor.std, drives, rate, search.effects)
+    rivals = ambiguities(
+        steps, w_te, floor.std, drives, rate, search.effects, open_remainder=unexplained is not None
+    )
     rival_models = {}
     for entry in rivals:  # each side of an ambiguity as a loadable model (`hybrid design` reads them)
         k = entry["step"]
         before = present[: k - 1]
         files = {}
         for name in [entry["named"], *(r["name"] for r in entry["rivals"])]:
-            fitted = next(c for c in steps[k - 1].candidates if c.name == name)
             key = f"step{k}_{name}"
-            rival_models[key] = fitted_model(problem, fitted.theta, (*before, name))
+            if name == "none":  # an open last step's "nothing more": the model that step extended
+                rival_models[key] = fitted_model(problem, steps[k - 1].current.theta, before)
+            else:
+                fitted = next(c for c in steps[k - 1].candidates if c.name == name)
+                rival_models[key] = fitted_model(problem, fitted.theta, (*before, name))
             files[name] = f"{key}.eqx"
         entry["models"] = files
     hybrid_report = None

@@ -40,7 +40,8 @@ CAUSES = ("none",) + tuple(EFFECTS)
 #:   ``effects`` lists the searched effects and where each acts; ``settings.materiality`` lists
 #:   every threshold used.
 #: Keys added within schema 3 (a reader of 3 may ignore them): ``ambiguous`` (each step whose named
-#: cause has rivals this recording cannot tell apart) and ``ambiguity_test`` (the test, in words).
+#: cause has rivals this recording cannot tell apart, and an open last step: ``"named": "none"``,
+#: ``"open": true``) and ``ambiguity_test`` (the test, in words).
 REPORT_SCHEMA = "hybrid-report/3"
 #: The keys schema 3 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -314,7 +315,8 @@ class Diagnosis:
     #: Parameters this recording does not pin (standard error infinite or above the value): why, by name.
     not_pinned: dict = dataclasses.field(default_factory=dict)
     #: Each step whose named cause this recording cannot tell from other eligible effects
-    #: (`hybrid.discovery._ambiguity`): the rivals, their gains, the test and why, where it shows.
+    #: (`hybrid.discovery._ambiguity`): the rivals, their gains, the test and why, where it shows; and
+    #: the last step, when it named nothing while a remainder lies above the noise floor (``open``).
     ambiguous: list = dataclasses.field(default_factory=list)
     #: The fitted models (`hybrid.Model`, simulation + gain and offset in the recording's units):
     #: ``"baseline"`` (the simulation and the frame timing) and ``"extended"`` (with every named

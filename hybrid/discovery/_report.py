@@ -288,7 +288,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     if d["causes"]:
         lines += _stepwise(d)
     for entry in d.get("ambiguous") or []:
-        lines += [f"**Ambiguous.** {ambiguity_sentence(entry)}", ""]
+        label = "Open" if entry.get("open") else "Ambiguous"
+        lines += [f"**{label}.** {ambiguity_sentence(entry)}", ""]
     lines += noise_section(d)
 
     lines += [
