@@ -1,0 +1,298 @@
+"""Close the loop (issue 35, item 5): hidden pair → diagnose → design → record → diagnose again.
+
+    python experiments/design_loop.py [--effects back_relaxation+saturation,drift+hysteresis,...]
+                                      [--seeds 4 | --seed-list 0,1] [--held-out drift+saturation,...]
+                                      [--held-out-seeds 4,5] [--effect-free 4] [--duration 60] [--rate 30]
+                                      [--amplitude 2] [--starts 4] [--steps 300]
+                                      [--out experiments/results/design_loop.json]
+    python experiments/design_loop.py --merge a.json b.json --out experiments/results/design_loop.json
+
+Each draw of a hidden pair (`experiments/discrepancy.py`'s strips, effects and
+multilevel PRBS, made by numpy code separate from the extensions):
+
+1. **before**: `diagnose` on the recording;
+2. **design**: where ``report.json``'s ``ambiguous`` has an entry (rivals the
+   recording cannot tell apart, or an open last step: nothing more against the
+   candidates that gained), `hybrid.design_drive` on the first entry's rival
+   models within ±`--amplitude`, at the noise floor the diagnosis measured;
+   the designed drive is recorded through *the same hidden-effect generator*
+   (the same strip, effects and noise level; another noise seed), and
+   `diagnose` runs on the old and the new recordings together;
+3. **control**: a multilevel PRBS of the same length and amplitude (another
+   seed), recorded and diagnosed with the old one alike.
+
+A draw whose diagnosis asks for no design keeps its *before* result in the
+design column (a lab would run no designed experiment; the control column
+still adds its recording). Per draw: the criterion T (mean squared difference
+of the rivals' predictions / σ², the smallest pair) of the designed drive and
+of the control drive under the same rivals (recomputed from the models'
+predictions, not taken from the design). `--held-out` pairs and seeds, never
+used while the design or the diagnosis was tuned, are reported apart;
+`--effect-free` draws check that nothing ambiguous and no design is asked for
+on strips with no hidden effect. Writes the JSON rows and a Markdown table
+beside it (`--out`). `--merge` joins the rows of several runs (e.g. two seed
+lists run side by side) and writes the tables.
+
+"Fully named": every hidden effect among the named causes; "exactly": and
+nothing else named.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+PAIRS = "back_relaxation+saturation,drift+hysteresis,delay+back_relaxation,saturation+resonance"
+HELD_OUT = "drift+saturation,hysteresis+resonance"
+
+
+def outcome(found, expected: list[str]) -> dict:
+    """What a diagnosis named against what was hidden."""
+    names = [c["name"] for c in found.causes]
+    return {
+        "causes": names,
+        "full": set(expected) <= set(names),
+        "exact": set(expected) == set(names),
+        "wrong": sorted(set(names) - set(expected)),
+        "unexplained": found.unexplained is not None,
+        "ambiguous": [
+            {
+                "step": e["step"],
+                "named": e["named"],
+                "open": bool(e.get("open")),
+                "rivals": [r["name"] for r in e["rivals"]],
+            }
+            for e in found.ambiguous
+        ],
+        "seconds": found.seconds,
+    }
+
+
+def criterion(models: dict, v: np.ndarray, rate: float, noise_std: float) -> float:
+    """T of a drive: the smallest pairwise mean squared difference of the rivals' predictions / σ²."""
+    outs = [np.asarray(m.predict(np.asarray(v, float), 1.0 / rate)) for m in models.values()]
+    return float(min(np.mean((a - b) ** 2) for a, b in itertools.combinations(outs, 2)) / noise_std**2)
+
+
+def run_draw(effect: str, seed: int, args, group: str) -> dict:
+    from discrepancy import draw, expected_names
+
+    from hybrid import CAUSES, design_drive, diagnose
+    from hybrid.data._drive import Drive
+    from hybrid.ipmc import discrepancy_drive, hidden_effects, synthetic_recording
+
+    t0 = time.perf_counter()
+    strip, params, old = draw(effect, seed, args.duration, args.rate, "prbs-multilevel", args.noise)
+    expected, outside = expected_names(list(hidden_effects(old)), CAUSES)
+
+    def record(drive, noise_seed):
+        return synthetic_recording(drive, strip, effect, params, noise_fraction=args.noise, seed=noise_seed)
+
+    before = diagnose(old)
+    row = {
+        "effect": effect,
+        "seed": seed,
+        "group": group,
+        "expected": expected,
+        "outside": outside,
+        "before": outcome(before, expected),
+    }
+    control_drive = discrepancy_drive(args.duration, args.rate, seed=10_000 + seed, amplitude=args.amplitude)
+    if before.ambiguous:
+        entry = before.ambiguous[0]
+        models = {name: before.models[file.removesuffix(".eqx")] for name, file in entry["models"].items()}
+        sigma = float(before.noise_floor.std)
+        t1 = time.perf_counter()
+        design = design_drive(
+            models,
+            duration=args.duration,
+            rate=args.rate,
+            amplitude=args.amplitude,
+            noise_std=sigma,
+            starts=args.starts,
+            steps=args.steps,
+            seed=seed,
+        )
+        designed = Drive(design.t, design.v_in, "designed", {"rate": args.rate, "duration": args.duration})
+        after = diagnose([old, record(designed, 20_000 + seed)])
+        row["design"] = {
+            "step": entry["step"],
+            "rivals": list(models),
+            "open": bool(entry.get("open")),
+            "seconds": time.perf_counter() - t1,
+            "criterion": criterion(models, design.v_in, args.rate, sigma),
+            "control_criterion": criterion(models, control_drive.v, args.rate, sigma),
+            "pair": list(design.pair),
+            "after": outcome(after, expected),
+        }
+    else:
+        row["design"] = None
+    if group != "effect-free":
+        control = diagnose([old, record(control_drive, 30_000 + seed)])
+        row["control"] = outcome(control, expected)
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+def _mark(o: dict) -> str:
+    """both: every hidden effect named and nothing else; both+X: and X besides; else the named set (∅: none)."""
+    if not o["causes"]:
+        return "∅"
+    if o["exact"]:
+        return "both"
+    if o["full"]:
+        return "both+" + ",".join(o["wrong"])
+    return "+".join(o["causes"])
+
+
+def tables(rows: list[dict]) -> str:
+    out = []
+    for group, title in (
+        ("tuning", "The four pairs of the open-world table"),
+        ("held-out", "Held-out pairs"),
+    ):
+        mine = [r for r in rows if r["group"] == group]
+        if not mine:
+            continue
+        out += [
+            f"## {title}\n",
+            "Per draw (both: both hidden effects named, nothing else; ∅: nothing named; T: the design "
+            "criterion, mean squared difference of the rivals' predictions over σ², designed drive / "
+            "control PRBS under the same rivals):\n",
+            "| hidden | seed | before | design asked (rivals) | after design | after control | T design | T control |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for r in mine:
+            d = r["design"]
+            asked = "no" if d is None else ("open: " if d["open"] else "") + " vs ".join(d["rivals"])
+            after = _mark(r["before"]) + " (no design)" if d is None else _mark(d["after"])
+            t_design = "" if d is None else format(d["criterion"], ".3g")
+            t_control = "" if d is None else format(d["control_criterion"], ".3g")
+            out.append(
+                f"| {r['effect']} | {r['seed']} | {_mark(r['before'])} | {asked} | {after} | "
+                f"{_mark(r['control'])} | {t_design} | {t_control} |"
+            )
+        out += [
+            "",
+            "Fully named (every hidden effect named; in brackets: with nothing else named):\n",
+            "| hidden | draws | before | after one designed experiment | after one control PRBS |",
+            "|---|---|---|---|---|",
+        ]
+        specs = list(dict.fromkeys(r["effect"] for r in mine))
+        for spec in [*specs, "total"]:
+            sel = mine if spec == "total" else [r for r in mine if r["effect"] == spec]
+            b = [r["before"] for r in sel]
+            a = [r["before"] if r["design"] is None else r["design"]["after"] for r in sel]
+            c = [r["control"] for r in sel]
+            cells = [f"{sum(o['full'] for o in x)} ({sum(o['exact'] for o in x)})" for x in (b, a, c)]
+            label = "**total**" if spec == "total" else spec
+            out.append(f"| {label} | {len(sel)} | " + " | ".join(cells) + " |")
+        asked = [r for r in mine if r["design"] is not None]
+        out.append("")
+        out.append(
+            f"A design was asked for in {len(asked)}/{len(mine)} draws"
+            + (
+                f"; T designed / T control: median {np.median([r['design']['criterion'] / max(r['design']['control_criterion'], 1e-300) for r in asked]):.3g}×."
+                if asked
+                else "."
+            )
+        )
+        out.append("")
+    free = [r for r in rows if r["group"] == "effect-free"]
+    if free:
+        asked = sum(bool(r["before"]["ambiguous"]) for r in free)
+        named = sum(bool(r["before"]["causes"]) for r in free)
+        out += [
+            "## Effect-free strips\n",
+            f"{len(free)} draws: `ambiguous` non-empty (a design asked for) in {asked}; a cause named in {named}.",
+            "",
+        ]
+    seconds = [r["seconds"] for r in rows]
+    if seconds:
+        out.append(
+            f"Seconds per draw (every diagnosis and design of it): median {np.median(seconds):.0f}, max {max(seconds):.0f}."
+        )
+    return "\n".join(out) + "\n"
+
+
+def write(rows: list[dict], out: Path, command: str, settings: dict) -> None:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"command": command, "settings": settings, "rows": rows}
+    tmp = out.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=float) + "\n")
+    tmp.replace(out)
+    text = (
+        f"# Designed experiments vs a control PRBS (issue 35, item 5)\n\nCommand: `{command}`\n\n"
+        + tables(rows)
+    )
+    out.with_suffix(".md").write_text(text)
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    jax.config.update("jax_enable_x64", True)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--effects", default=PAIRS)
+    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--seed-list", default=None, help="comma-separated seeds instead of --seeds")
+    parser.add_argument("--held-out", default=HELD_OUT, help="pairs reported apart ('' for none)")
+    parser.add_argument("--held-out-seeds", default="4,5")
+    parser.add_argument("--effect-free", type=int, default=4, help="effect-free draws (seeds 0..K-1)")
+    parser.add_argument("--duration", type=float, default=60.0)
+    parser.add_argument("--rate", type=float, default=30.0)
+    parser.add_argument("--amplitude", type=float, default=2.0, help="the drives' range ±A (the DAC's), V")
+    parser.add_argument("--noise", type=float, default=0.01, help="noise std / displacement range")
+    parser.add_argument("--starts", type=int, default=4)
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--merge", nargs="+", default=None, help="JSON files of earlier runs to join")
+    parser.add_argument("--out", default="experiments/results/design_loop.json")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    command = "python experiments/design_loop.py " + " ".join(argv)
+    if args.merge:
+        parts = [json.loads(Path(p).read_text()) for p in args.merge]
+        rows = [r for part in parts for r in part["rows"]]
+        commands = " ; ".join(p["command"] for p in parts)
+        write(rows, out, f"{commands} ; {command}", {"merged": args.merge})
+        print(tables(rows))
+        return 0
+    from hybrid.ipmc import canonical
+
+    seeds = [int(s) for s in args.seed_list.split(",")] if args.seed_list else list(range(args.seeds))
+    plan = [(canonical(e), s, "tuning") for e in args.effects.split(",") if e for s in seeds]
+    held_seeds = [int(s) for s in args.held_out_seeds.split(",") if s]
+    plan += [(canonical(e), s, "held-out") for e in args.held_out.split(",") if e for s in held_seeds]
+    plan += [("none", s, "effect-free") for s in range(args.effect_free)]
+    rows = []
+    for effect, seed, group in plan:
+        row = run_draw(effect, seed, args, group)
+        rows.append(row)
+        d = row["design"]
+        print(
+            f"{group:11s} {effect:28s} seed {seed}: before {_mark(row['before'])}; "
+            + (
+                "no design"
+                if d is None
+                else f"design {' vs '.join(d['rivals'])} T {d['criterion']:.3g} "
+                f"(control {d['control_criterion']:.3g}) → {_mark(d['after'])}"
+            )
+            + (f"; control → {_mark(row['control'])}" if "control" in row else "")
+            + f" ({row['seconds']:.0f} s)",
+            flush=True,
+        )
+        write(rows, out, command, vars(args))  # after every draw: a stopped run keeps what it did
+    print(tables(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
