@@ -86,8 +86,7 @@ def criterion(models: dict, v: np.ndarray, rate: float, noise_std: float) -> flo
 def run_draw(effect: str, seed: int, args, group: str) -> dict:
     from discrepancy import draw, expected_names
 
-    from hybrid import CAUSES, design_drive, diagnose
-    from hybrid.data._drive import Drive
+    from hybrid import CAUSES, Drive, design_drive, diagnose
     from hybrid.ipmc import discrepancy_drive, hidden_effects, synthetic_recording
 
     t0 = time.perf_counter()
