@@ -55,9 +55,39 @@ PAIRS = "back_relaxation+saturation,drift+hysteresis,delay+back_relaxation,satur
 HELD_OUT = "drift+saturation,hysteresis+resonance"
 
 
+def last_step(found, top: int = 3) -> list[dict]:
+    """The last step's best candidates against nothing more: held-out gain, the sign test, the separation.
+
+    ``p_value``: one-sided sign test over decorrelated chunks that the candidate's
+    squared held-out error is the lower (`hybrid.discovery.paired_difference`);
+    ``rms_over_floor``: RMS difference of the two held-out predictions over the
+    noise floor's σ. Why a missing second effect raised no question, in numbers.
+    """
+    from hybrid.discovery import paired_difference
+
+    step = found.steps[-1]
+    current, sigma = step.current.heldout_residual, float(found.noise_floor.std)
+    rows = []
+    for c in step.candidates:
+        if c.heldout_residual is None or current is None:
+            continue
+        test = paired_difference(c.heldout_residual, current)
+        rows.append(
+            {
+                "name": c.name,
+                "gain": c.gain,
+                "eligible": c.eligible,
+                "p_value": test["p_value"],
+                "rms_over_floor": float(np.sqrt(np.mean((c.heldout_residual - current) ** 2))) / sigma,
+            }
+        )
+    return sorted(rows, key=lambda r: -r["gain"])[:top]
+
+
 def outcome(found, expected: list[str]) -> dict:
     """What a diagnosis named against what was hidden."""
     names = [c["name"] for c in found.causes]
+    residual = np.asarray(found.heldout.w) - np.asarray(found.heldout.extended)
     return {
         "causes": names,
         "full": set(expected) <= set(names),
@@ -73,6 +103,8 @@ def outcome(found, expected: list[str]) -> dict:
             }
             for e in found.ambiguous
         ],
+        "final_over_floor": float(np.mean(residual**2)) / float(found.noise_floor.variance),
+        "last_step": last_step(found),
         "seconds": found.seconds,
     }
 
@@ -162,13 +194,16 @@ def tables(rows: list[dict]) -> str:
         mine = [r for r in rows if r["group"] == group]
         if not mine:
             continue
+        order = list(dict.fromkeys(r["effect"] for r in mine))  # runs merged side by side: by pair, then seed
+        mine.sort(key=lambda r: (order.index(r["effect"]), r["seed"]))
         out += [
             f"## {title}\n",
             "Per draw (both: both hidden effects named, nothing else; ∅: nothing named; T: the design "
             "criterion, mean squared difference of the rivals' predictions over σ², designed drive / "
             "control PRBS under the same rivals):\n",
-            "| hidden | seed | before | design asked (rivals) | after design | after control | T design | T control |",
-            "|---|---|---|---|---|---|---|---|",
+            "| hidden | seed | before | held-out MSE / floor | last step's best (gain, p) | design asked (rivals) "
+            "| after design | after control | T design | T control |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for r in mine:
             d = r["design"]
@@ -176,8 +211,11 @@ def tables(rows: list[dict]) -> str:
             after = _mark(r["before"]) + " (no design)" if d is None else _mark(d["after"])
             t_design = "" if d is None else format(d["criterion"], ".3g")
             t_control = "" if d is None else format(d["control_criterion"], ".3g")
+            b = r["before"]
+            best = b["last_step"][0] if b["last_step"] else None
+            lead = "" if best is None else f"{best['name']} ({best['gain']:.3g}, {best['p_value']:.2g})"
             out.append(
-                f"| {r['effect']} | {r['seed']} | {_mark(r['before'])} | {asked} | {after} | "
+                f"| {r['effect']} | {r['seed']} | {_mark(b)} | {b['final_over_floor']:.2f} | {lead} | {asked} | {after} | "
                 f"{_mark(r['control'])} | {t_design} | {t_control} |"
             )
         out += [

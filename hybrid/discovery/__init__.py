@@ -8,6 +8,7 @@ a particular physics.
 
 # Names hybrid's front exports (hybrid/__init__.py) are exported there once; here, what
 # experiments and benchmarks use beyond them.
+from ._ambiguity import paired_difference as paired_difference
 from ._decision import derived_quantities as derived_quantities, lane_effect as lane_effect
 from ._diagnosis import (
     RENAMED_IN_SCHEMA_3 as RENAMED_IN_SCHEMA_3,
