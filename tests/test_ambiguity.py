@@ -24,6 +24,7 @@ from scipy.stats import binomtest
 import hybrid
 from hybrid.discovery._ambiguity import (
     ALPHA,
+    HINT_GAIN,
     OPEN_RIVALS,
     ambiguities,
     level_time_correlation,
@@ -206,10 +207,37 @@ def test_an_open_last_step_has_nothing_more_against_its_best_gains_only_with_a_r
     reference = paired_difference(base, candidates[0].heldout_residual)
     assert entry["rivals"][0]["p_value"] == reference["p_value"]
     assert "named nothing" in sentence(entry) and "delay (gain 1.3)" in sentence(entry)
-    # no remainder above the floor: nothing is open; no candidate gained: nothing to design against
-    assert ambiguities([step], base, 0.01, drive, RATE, [], open_remainder=False) == []
+    assert entry["evidence"] == "remainder"
+    # no candidate gained: nothing to design against
     losers = SimpleNamespace(chosen=None, current=current, candidates=[candidates[2]])
     assert ambiguities([losers], base, 0.01, drive, RATE, [], open_remainder=True) == []
+
+
+def test_at_the_floor_a_last_step_is_open_only_on_a_significant_gain_over_every_equally_good_fit():
+    rng = np.random.default_rng(4)
+    base = rng.normal(size=600)
+    current = _candidate("none", 1.0, base)
+    drive = [np.repeat(rng.uniform(-1, 1, 40), 15)]
+    # each candidate's error is smaller in every sample: significant (p ≪ ALPHA)
+    candidates = [_candidate(k, g, base / np.sqrt(g)) for k, g in {"delay": 1.3, "saturation": 1.1}.items()]
+    step = SimpleNamespace(chosen=None, current=current, candidates=candidates, equally_good=None)
+    (entry,) = ambiguities([step], base, 0.01, drive, RATE, [], open_remainder=False)
+    assert entry["evidence"] == "significant" and [r["name"] for r in entry["rivals"]] == [
+        "delay",
+        "saturation",
+    ]
+    assert all(r["candidate_p_value"] <= ALPHA for r in entry["rivals"])
+    assert "at the noise floor" in sentence(entry) and "each of delay (gain 1.3)" in sentence(entry)
+    # an effect-free fit as good on training reaches held-out NMSE 0.8: delay's 1/1.3 is 1.04× better than
+    # it, saturation's is worse (HINT_GAIN 1.05): a better fit of the simulation alone, no effect
+    assert HINT_GAIN == 1.05
+    bar = SimpleNamespace(chosen=None, current=current, candidates=candidates,
+                          equally_good=SimpleNamespace(heldout_nmse_min=0.8))  # fmt: skip
+    assert ambiguities([bar], base, 0.01, drive, RATE, [], open_remainder=False) == []
+    # a gain of 1.3 that is no more than noise: each candidate's error a fresh draw, not consistently lower
+    noisy = [_candidate("delay", 1.3, rng.normal(size=600))]
+    chance = SimpleNamespace(chosen=None, current=current, candidates=noisy, equally_good=None)
+    assert ambiguities([chance], base, 0.01, drive, RATE, [], open_remainder=False) == []
 
 
 def test_an_open_step_of_a_real_diagnosis_saves_both_sides_and_a_drive_separates_them(tmp_path):
@@ -219,7 +247,7 @@ def test_an_open_step_of_a_real_diagnosis_saves_both_sides_and_a_drive_separates
     )
     assert found.cause == "none" and found.unexplained is not None
     (entry,) = found.to_dict()["ambiguous"]
-    assert entry["open"] and entry["named"] == "none"
+    assert entry["open"] and entry["named"] == "none" and entry["evidence"] == "remainder"
     assert all(r["gain"] > 1 for r in entry["rivals"])
     paths = hybrid.write_report(found, tmp_path)
     assert f"**Open.** {sentence(entry)}" in paths["report.md"].read_text()

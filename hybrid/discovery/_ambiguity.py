@@ -30,18 +30,31 @@ saw. Where the recording shows why the rivals look alike, the report says it:
 - a rival acts at a frequency (a parameter in Hz) where the drive has less
   than `THIN_POWER` of its power (within a factor 1.25 either way).
 
-**An open remainder.** When the search's last step names nothing and the
-final model still leaves a remainder above the noise floor (``unexplained``),
-the last step's question — which effect, if any, is still missing — is open
-too. Its rivals are then "nothing more" (the model extended so far) and the
-`OPEN_RIVALS` candidates of that step with the largest held-out gains above 1
-whose held-out predictions differ from nothing more's by at least the noise
-floor (RMS): each better than nothing more on the held-out part, none passing
-every rule, and each a different model, not nothing more again (the sign
-test's numbers of an open entry count nothing more's wins). The entry has ``"named": "none"`` and ``"open": true``, and a designed drive
-(`hybrid design`) asks the next recording whether one of them is there. Without
-a remainder above the floor nothing is open, so an effect-free recording that
-the model explains gets no entry and no design.
+**An open last step.** When the search's last step names nothing, which
+effect, if any, is still missing can be an open question too. Its rivals are
+"nothing more" (the model extended so far) and at most `OPEN_RIVALS` of that
+step's candidates, by held-out gain (the entry has ``"named": "none"``,
+``"open": true``, and ``"evidence"`` saying which of these made it open):
+
+- ``"remainder"``: the final model leaves a remainder above the noise floor
+  (``unexplained``); the rivals are the candidates better than nothing more
+  on the held-out part (gain above 1) whose held-out predictions differ from
+  nothing more's by at least the noise floor (RMS): a different model, not
+  nothing more again;
+- ``"significant"``: the final model is at the floor, yet a candidate is
+  better than nothing more in significantly many decorrelated held-out chunks
+  (the sign test above, p ≤ `ALPHA`, the candidate's wins) and by a held-out
+  gain of at least `HINT_GAIN` over the best effect-free fit as good on
+  training data (the step's bar, so a better fit of the simulation alone, which
+  any candidate's lane may find, is not taken for an effect): a second effect
+  too small to pass every rule on this recording, the commonest way a pair is
+  half named.
+
+A designed drive (`hybrid design`) asks the next recording whether one of
+them is there. An effect-free recording that the model explains, and where
+no candidate wins significantly, gets no entry and no design. The sign test's
+numbers of an open entry count nothing more's wins (``named_wins``,
+``p_value``); ``candidate_p_value`` is the candidate's.
 
 `cause` and `causes` keep the best explanation; ``report.json``'s
 ``ambiguous`` lists each step whose named cause has indistinguishable rivals,
@@ -65,6 +78,9 @@ LEVEL_TIME_R = 0.5
 THIN_POWER = 0.01
 #: An open last step's rivals: at most this many candidates, those with the largest held-out gains above 1.
 OPEN_RIVALS = 2
+#: Held-out gain over the step's bar (the best effect-free fit as good on training) a candidate needs, with
+#: a significant sign test, to open a last step whose model is at the noise floor.
+HINT_GAIN = 1.05
 
 TEST = (
     "a rival (an effect that also passed every rule of the step) is indistinguishable from the named "
@@ -170,15 +186,15 @@ def ambiguities(
     standard deviation (NaN: unknown, that criterion is skipped); `drives`: the
     recordings' drives; `effects`: the searched effects (for their units);
     `open_remainder`: whether the final model leaves a remainder above the
-    noise floor, which makes a last step that named nothing an open question.
+    noise floor (which opens a last step that named nothing on weaker evidence).
     """
     scale = float(np.var(w_test)) or 1.0
     out = []
     for k, step in enumerate(steps, 1):
         named = step.chosen
         if named is None:
-            if open_remainder and k == len(steps):
-                out.extend(_open_step(k, step, scale, noise_std, drives, rate, effects))
+            if k == len(steps):
+                out.extend(_open_step(k, step, scale, noise_std, drives, rate, effects, open_remainder))
             continue
         if named.heldout_residual is None:
             continue
@@ -202,12 +218,14 @@ def ambiguities(
     return out
 
 
-def _open_step(k: int, step, scale: float, noise_std: float, drives, rate: float, effects) -> list[dict]:
-    """The open last step's entry (at most one): nothing more vs its best candidates, if any gained."""
+def _open_step(
+    k: int, step, scale: float, noise_std: float, drives, rate: float, effects, remainder: bool
+) -> list[dict]:
+    """The open last step's entry (at most one): nothing more vs its best candidates, where one is there."""
     current = step.current
     if current is None or current.heldout_residual is None:
         return []
-    gained = sorted(
+    found = sorted(
         (
             c
             for c in step.candidates
@@ -215,8 +233,21 @@ def _open_step(k: int, step, scale: float, noise_std: float, drives, rate: float
         ),
         key=lambda c: -c.gain,
     )
-    # a candidate that predicts what nothing more predicts, to within the noise, is no alternative
-    rivals = [r for r in (_rival(current, c, scale, noise_std) for c in gained) if not r["within_noise"]]
+    rivals = []
+    for c in found:
+        rival = _rival(current, c, scale, noise_std)
+        rival["candidate_p_value"] = paired_difference(c.heldout_residual, current.heldout_residual)[
+            "p_value"
+        ]
+        if (
+            remainder
+        ):  # a candidate that predicts what nothing more predicts, to within the noise, is no alternative
+            keep = not rival["within_noise"]
+        else:  # at the floor: only a significant, not-small gain over every effect-free fit as good
+            bar = min(current.heldout.nmse, _bar(step))
+            keep = rival["candidate_p_value"] <= ALPHA and bar / max(c.heldout.nmse, 1e-300) >= HINT_GAIN
+        if keep:
+            rivals.append(rival)
     rivals = rivals[:OPEN_RIVALS]
     if not rivals:
         return []
@@ -226,10 +257,17 @@ def _open_step(k: int, step, scale: float, noise_std: float, drives, rate: float
             "named": "none",
             "gain": 1.0,
             "open": True,
+            "evidence": "remainder" if remainder else "significant",
             "rivals": rivals,
             "why": _why(current, [r["name"] for r in rivals], step.candidates, drives, rate, effects),
         }
     ]
+
+
+def _bar(step) -> float:
+    """The least held-out NMSE of the effect-free fits as good on training as the step's current model."""
+    value = getattr(getattr(step, "equally_good", None), "heldout_nmse_min", float("nan"))
+    return float(value) if value is not None and math.isfinite(value) else float("inf")
 
 
 def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[str]:
@@ -256,6 +294,18 @@ def sentence(entry: dict) -> str:
     rivals = ", ".join(f"{r['name']} (gain {r['gain']:.3g})" for r in entry["rivals"])
     why = "; ".join(entry["why"])
     if entry.get("open"):
+        if entry.get("evidence") == "significant":
+            r = entry["rivals"][0]
+            who = rivals if len(entry["rivals"]) == 1 else f"each of {rivals}"
+            return (
+                f"Step {entry['step']} named nothing and the model is at the noise floor, yet {who} fits the "
+                f"held-out part better in significantly many pieces (sign test p = {r['candidate_p_value']:.2g}"
+                + (", the first" if len(entry["rivals"]) > 1 else "")
+                + "): "
+                "too small to name on this recording, so whether it is there is open"
+                + (f" ({why})." if why else ".")
+                + " A drive designed to separate them (hybrid design) would tell."
+            )
         return (
             f"Step {entry['step']} named nothing, yet the model leaves a remainder above the noise floor: this "
             f"recording cannot tell whether {rivals} or nothing of the library is missing"
