@@ -31,7 +31,8 @@ used while the design or the diagnosis was tuned, are reported apart;
 `--effect-free` draws check that nothing ambiguous and no design is asked for
 on strips with no hidden effect. Writes the JSON rows and a Markdown table
 beside it (`--out`). `--merge` joins the rows of several runs (e.g. two seed
-lists run side by side) and writes the tables.
+lists run side by side; a draw in several files: the later file's row) and
+writes the tables.
 
 "Fully named": every hidden effect among the named causes; "exactly": and
 nothing else named.
@@ -61,12 +62,15 @@ def last_step(found, top: int = 3) -> list[dict]:
     ``p_value``: one-sided sign test over decorrelated chunks that the candidate's
     squared held-out error is the lower (`hybrid.discovery.paired_difference`);
     ``rms_over_floor``: RMS difference of the two held-out predictions over the
-    noise floor's σ. Why a missing second effect raised no question, in numbers.
+    noise floor's σ; ``gain_over_bar``: the held-out gain over the best effect-free
+    fit as good on training. Why a missing second effect raised no question, in numbers.
     """
     from hybrid.discovery import paired_difference
 
     step = found.steps[-1]
     current, sigma = step.current.heldout_residual, float(found.noise_floor.std)
+    # the step's bar: the best effect-free (nothing more) fit as good on training as the current model
+    bar = min(step.current.heldout.nmse, step.equally_good.heldout_nmse_min)
     rows = []
     for c in step.candidates:
         if c.heldout_residual is None or current is None:
@@ -76,6 +80,7 @@ def last_step(found, top: int = 3) -> list[dict]:
             {
                 "name": c.name,
                 "gain": c.gain,
+                "gain_over_bar": bar / c.heldout.nmse,
                 "eligible": c.eligible,
                 "p_value": test["p_value"],
                 "rms_over_floor": float(np.sqrt(np.mean((c.heldout_residual - current) ** 2))) / sigma,
@@ -250,9 +255,21 @@ def tables(rows: list[dict]) -> str:
         named = sum(bool(r["before"]["causes"]) for r in free)
         out += [
             "## Effect-free strips\n",
-            f"{len(free)} draws: `ambiguous` non-empty (a design asked for) in {asked}; a cause named in {named}.",
-            "",
+            f"{len(free)} draws: `ambiguous` non-empty (a design asked for) in {asked}; a cause named in {named}.\n",
+            "| seed | named | held-out MSE / floor | last step's best: gain, over the bar, p |",
+            "|---|---|---|---|",
         ]
+        for r in sorted(free, key=lambda r: r["seed"]):
+            b = r["before"]
+            best = b["last_step"][0] if b["last_step"] else None
+            lead = (
+                ""
+                if best is None
+                else f"{best['name']}: {best['gain']:.3g}, {best.get('gain_over_bar', float('nan')):.3g}, "
+                f"{best['p_value']:.2g}"
+            )
+            out.append(f"| {r['seed']} | {_mark(b)} | {b['final_over_floor']:.2f} | {lead} |")
+        out.append("")
     seconds = [r["seconds"] for r in rows]
     if seconds:
         out.append(
@@ -297,7 +314,9 @@ def main(argv=None) -> int:
     command = "python experiments/design_loop.py " + " ".join(argv)
     if args.merge:
         parts = [json.loads(Path(p).read_text()) for p in args.merge]
-        rows = [r for part in parts for r in part["rows"]]
+        # a draw in several files: the later file's row (a rerun) replaces the earlier
+        by_draw = {(r["group"], r["effect"], r["seed"]): r for part in parts for r in part["rows"]}
+        rows = list(by_draw.values())
         commands = " ; ".join(p["command"] for p in parts)
         write(rows, out, f"{commands} ; {command}", {"merged": args.merge})
         print(tables(rows))
