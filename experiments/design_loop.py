@@ -43,6 +43,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -190,6 +191,13 @@ def _mark(o: dict) -> str:
     return "+".join(o["causes"])
 
 
+def _flag(o: dict) -> str:
+    """unexpl.: a remainder above the floor; open: the last step's question is open (``ambiguous``)."""
+    flags = ["unexpl."] if o["unexplained"] else []
+    flags += ["open" for e in o["ambiguous"] if e["open"]]
+    return ", ".join(flags)
+
+
 def tables(rows: list[dict]) -> str:
     out = []
     for group, title in (
@@ -203,12 +211,13 @@ def tables(rows: list[dict]) -> str:
         mine.sort(key=lambda r: (order.index(r["effect"]), r["seed"]))
         out += [
             f"## {title}\n",
-            "Per draw (both: both hidden effects named, nothing else; ∅: nothing named; T: the design "
+            "Per draw (both: both hidden effects named, nothing else; ∅: nothing named; flagged: "
+            "`unexplained` set, or an open last step in `ambiguous`; T: the design "
             "criterion, mean squared difference of the rivals' predictions over σ², designed drive / "
             "control PRBS under the same rivals):\n",
-            "| hidden | seed | before | held-out MSE / floor | last step's best (gain, p) | design asked (rivals) "
-            "| after design | after control | T design | T control |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            "| hidden | seed | before | flagged | held-out MSE / floor | last step's best (gain, p) "
+            "| design asked (rivals) | after design | after control | T design | T control |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for r in mine:
             d = r["design"]
@@ -220,14 +229,17 @@ def tables(rows: list[dict]) -> str:
             best = b["last_step"][0] if b["last_step"] else None
             lead = "" if best is None else f"{best['name']} ({best['gain']:.3g}, {best['p_value']:.2g})"
             out.append(
-                f"| {r['effect']} | {r['seed']} | {_mark(b)} | {b['final_over_floor']:.2f} | {lead} | {asked} | {after} | "
+                f"| {r['effect']} | {r['seed']} | {_mark(b)} | {_flag(b)} | {b['final_over_floor']:.2f} | {lead} "
+                f"| {asked} | {after} | "
                 f"{_mark(r['control'])} | {t_design} | {t_control} |"
             )
         out += [
             "",
-            "Fully named (every hidden effect named; in brackets: with nothing else named):\n",
-            "| hidden | draws | before | after one designed experiment | after one control PRBS |",
-            "|---|---|---|---|---|",
+            "Fully named (every hidden effect named; in brackets: with nothing else named); half named: some "
+            "hidden effect named, not all (in brackets: of which flagged):\n",
+            "| hidden | draws | before | half named before (flagged) | after one designed experiment "
+            "| after one control PRBS |",
+            "|---|---|---|---|---|---|",
         ]
         specs = list(dict.fromkeys(r["effect"] for r in mine))
         for spec in [*specs, "total"]:
@@ -236,6 +248,12 @@ def tables(rows: list[dict]) -> str:
             a = [r["before"] if r["design"] is None else r["design"]["after"] for r in sel]
             c = [r["control"] for r in sel]
             cells = [f"{sum(o['full'] for o in x)} ({sum(o['exact'] for o in x)})" for x in (b, a, c)]
+            half = [
+                r["before"]
+                for r in sel
+                if not r["before"]["full"] and set(r["expected"]) & set(r["before"]["causes"])
+            ]
+            cells.insert(1, f"{len(half)} ({sum(bool(_flag(o)) for o in half)})")
             label = "**total**" if spec == "total" else spec
             out.append(f"| {label} | {len(sel)} | " + " | ".join(cells) + " |")
         asked = [r for r in mine if r["design"] is not None]
@@ -311,7 +329,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default="experiments/results/design_loop.json")
     args = parser.parse_args(argv)
     out = Path(args.out)
-    command = "python experiments/design_loop.py " + " ".join(argv)
+    command = "python experiments/design_loop.py " + shlex.join(argv)
     if args.merge:
         parts = [json.loads(Path(p).read_text()) for p in args.merge]
         # a draw in several files: the later file's row (a rerun) replaces the earlier
