@@ -143,7 +143,8 @@ def cmd_design(args) -> None:
         entry, models, noise = _rivals(folder, args.step)
         if not args.quiet:
             print(
-                f"design: step {entry['step']}: {' vs '.join(models)} (noise floor σ = {noise:.3g}), "
+                f"design: step {entry['step']}: {' vs '.join('nothing more' if m == 'none' else m for m in models)} "
+                f"(noise floor σ = {noise:.3g}), "
                 f"{args.starts} starts × {args.steps} steps",
                 flush=True,
             )
