@@ -86,7 +86,11 @@ TEST = (
     "a rival (an effect that also passed every rule of the step) is indistinguishable from the named "
     "cause when the named cause's lower squared held-out error wins in no more contiguous chunks (each as "
     f"long as the errors' decorrelation length) than chance would give (one-sided sign test, p > {ALPHA:g}), "
-    "or when their held-out predictions differ by less than the noise floor (RMS)"
+    "or when their held-out predictions differ by less than the noise floor (RMS); a last step that named "
+    "nothing is open (named 'none') when, beside a remainder above the noise floor, candidates gain above 1 "
+    "held out with predictions at least the noise floor apart from nothing more's, or, at the floor, a "
+    f"candidate wins significantly many chunks (p ≤ {ALPHA:g}) and gains ≥ {HINT_GAIN:g} held out over every "
+    "effect-free fit as good on training"
 )
 
 
