@@ -1,8 +1,9 @@
 """`hybrid design DIAG_DIR`: the drive that tells a diagnosis's rival explanations apart.
 
 Reads ``report.json`` of ``hybrid diagnose --out DIAG_DIR``: its ``ambiguous``
-step (``--step``, default the first), the rivals' models saved beside it
-(``step<k>_<effect>.eqx``) and the noise floor; runs `hybrid.design_drive`
+step (``--step``, default the first; an open last step's rivals are "nothing
+more" against the effects that may still be missing), the rivals' models saved
+beside it (``step<k>_<effect>.eqx``, ``step<k>_none.eqx``) and the noise floor; runs `hybrid.design_drive`
 within the limits given; writes the drive (CSV ``t,v_in``, which
 ``rig record --drive-file`` and ``hybrid simulate --drive-file`` play) and a
 figure of the rivals' predictions under it and under the control (``.png``
@@ -48,7 +49,10 @@ def add_design(sub, B) -> None:
         help="largest |d drive/dt|, drive unit per second (default: none)",
     )
     p.add_argument(
-        "--step", type=B.integer(1, 1000), default=None, help="which ambiguous step (default: the first)"
+        "--step",
+        type=B.integer(1, 1000),
+        default=None,
+        help="which ambiguous or open step (default: the first)",
     )
     p.add_argument("--starts", type=B.integer(*B.STARTS), default=4, help="starts of the gradient search")
     p.add_argument("--steps", type=B.integer(*B.MAX_STEPS), default=300, help="Adam steps per start")
