@@ -316,7 +316,8 @@ class Diagnosis:
     not_pinned: dict = dataclasses.field(default_factory=dict)
     #: Each step whose named cause this recording cannot tell from other eligible effects
     #: (`hybrid.discovery._ambiguity`): the rivals, their gains, the test and why, where it shows; and
-    #: the last step, when it named nothing while a remainder lies above the noise floor (``open``).
+    #: the last step, when it named nothing and an effect may still be missing (``open``: a remainder
+    #: above the noise floor, or at the floor a candidate's significant gain; ``evidence`` says which).
     ambiguous: list = dataclasses.field(default_factory=list)
     #: The fitted models (`hybrid.Model`, simulation + gain and offset in the recording's units):
     #: ``"baseline"`` (the simulation and the frame timing) and ``"extended"`` (with every named
