@@ -70,8 +70,6 @@ def last_step(found, top: int = 3) -> list[dict]:
 
     step = found.steps[-1]
     current, sigma = step.current.heldout_residual, float(found.noise_floor.std)
-    # the step's bar: the best effect-free (nothing more) fit as good on training as the current model
-    bar = min(step.current.heldout.nmse, step.equally_good.heldout_nmse_min)
     rows = []
     for c in step.candidates:
         if c.heldout_residual is None or current is None:
@@ -81,7 +79,7 @@ def last_step(found, top: int = 3) -> list[dict]:
             {
                 "name": c.name,
                 "gain": c.gain,
-                "gain_over_bar": bar / c.heldout.nmse,
+                "gain_over_bar": step.bar / c.heldout.nmse,
                 "eligible": c.eligible,
                 "p_value": test["p_value"],
                 "rms_over_floor": float(np.sqrt(np.mean((c.heldout_residual - current) ** 2))) / sigma,
@@ -165,7 +163,7 @@ def run_draw(effect: str, seed: int, args, group: str) -> dict:
             "step": entry["step"],
             "rivals": list(models),
             "open": bool(entry.get("open")),
-            "seconds": time.perf_counter() - t1,
+            "seconds": time.perf_counter() - t1,  # the design and the diagnosis of both recordings
             "criterion": criterion(models, design.v_in, args.rate, sigma),
             "control_criterion": criterion(models, control_drive.v, args.rate, sigma),
             "pair": list(design.pair),

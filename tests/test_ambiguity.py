@@ -220,23 +220,25 @@ def test_at_the_floor_a_last_step_is_open_only_on_a_significant_gain_over_every_
     drive = [np.repeat(rng.uniform(-1, 1, 40), 15)]
     # each candidate's error is smaller in every sample: significant (p ≪ ALPHA)
     candidates = [_candidate(k, g, base / np.sqrt(g)) for k, g in {"delay": 1.3, "saturation": 1.1}.items()]
-    step = SimpleNamespace(chosen=None, current=current, candidates=candidates, equally_good=None)
+    step = SimpleNamespace(chosen=None, current=current, candidates=candidates, bar=current.heldout.nmse)
     (entry,) = ambiguities([step], base, 0.01, drive, RATE, [], open_remainder=False)
     assert entry["evidence"] == "significant" and [r["name"] for r in entry["rivals"]] == [
         "delay",
         "saturation",
     ]
     assert all(r["candidate_p_value"] <= ALPHA for r in entry["rivals"])
+    # the candidate's side of the sign test is the test run the other way round
+    for r, c in zip(entry["rivals"], candidates):
+        assert r["candidate_p_value"] == paired_difference(c.heldout_residual, base)["p_value"]
     assert "at the noise floor" in sentence(entry) and "each of delay (gain 1.3)" in sentence(entry)
     # an effect-free fit as good on training reaches held-out NMSE 0.8: delay's 1/1.3 is 1.04× better than
     # it, saturation's is worse (HINT_GAIN 1.05): a better fit of the simulation alone, no effect
     assert HINT_GAIN == 1.05
-    bar = SimpleNamespace(chosen=None, current=current, candidates=candidates,
-                          equally_good=SimpleNamespace(heldout_nmse_min=0.8))  # fmt: skip
+    bar = SimpleNamespace(chosen=None, current=current, candidates=candidates, bar=0.8)
     assert ambiguities([bar], base, 0.01, drive, RATE, [], open_remainder=False) == []
     # a gain of 1.3 that is no more than noise: each candidate's error a fresh draw, not consistently lower
     noisy = [_candidate("delay", 1.3, rng.normal(size=600))]
-    chance = SimpleNamespace(chosen=None, current=current, candidates=noisy, equally_good=None)
+    chance = SimpleNamespace(chosen=None, current=current, candidates=noisy, bar=current.heldout.nmse)
     assert ambiguities([chance], base, 0.01, drive, RATE, [], open_remainder=False) == []
 
 

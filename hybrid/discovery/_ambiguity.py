@@ -110,14 +110,22 @@ def paired_difference(named_residual, rival_residual) -> dict:
     means = d[: k * length].reshape(k, length).mean(axis=1) if k else np.zeros(0)
     decided = means[means != 0]
     wins = int(np.sum(decided > 0))
-    tail = sum(math.comb(decided.size, j) for j in range(wins, decided.size + 1))
     return {
         "mean": float(np.mean(d)) if n else 0.0,
         "std_error": math.sqrt(spread * factor / n) if n > 1 else float("inf"),
         "chunks": int(decided.size),
         "wins": wins,
-        "p_value": tail / (1 << decided.size),
+        "p_value": sign_tail(wins, int(decided.size)),
     }
+
+
+def sign_tail(wins: int, chunks: int) -> float:
+    """P(≥ `wins` of `chunks` fair coin tosses): the one-sided sign test's p-value.
+
+    The other side of `paired_difference` needs no second pass: d → −d keeps its
+    chunks, so the rival's p-value is ``sign_tail(chunks − wins, chunks)``.
+    """
+    return sum(math.comb(chunks, j) for j in range(wins, chunks + 1)) / (1 << chunks)
 
 
 def level_time_correlation(drives: list[np.ndarray]) -> float:
@@ -240,16 +248,14 @@ def _open_step(
     rivals = []
     for c in found:
         rival = _rival(current, c, scale, noise_std)
-        rival["candidate_p_value"] = paired_difference(c.heldout_residual, current.heldout_residual)[
-            "p_value"
-        ]
-        if (
-            remainder
-        ):  # a candidate that predicts what nothing more predicts, to within the noise, is no alternative
+        rival["candidate_p_value"] = sign_tail(rival["chunks"] - rival["named_wins"], rival["chunks"])
+        if remainder:
+            # a candidate that predicts what nothing more predicts, to within the noise, is no alternative
             keep = not rival["within_noise"]
-        else:  # at the floor: only a significant, not-small gain over every effect-free fit as good
-            bar = min(current.heldout.nmse, _bar(step))
-            keep = rival["candidate_p_value"] <= ALPHA and bar / max(c.heldout.nmse, 1e-300) >= HINT_GAIN
+        else:
+            # at the floor: only a significant, not-small gain over every effect-free fit as good
+            gain = step.bar / max(c.heldout.nmse, 1e-300)
+            keep = rival["candidate_p_value"] <= ALPHA and gain >= HINT_GAIN
         if keep:
             rivals.append(rival)
     rivals = rivals[:OPEN_RIVALS]
@@ -266,12 +272,6 @@ def _open_step(
             "why": _why(current, [r["name"] for r in rivals], step.candidates, drives, rate, effects),
         }
     ]
-
-
-def _bar(step) -> float:
-    """The least held-out NMSE of the effect-free fits as good on training as the step's current model."""
-    value = getattr(getattr(step, "equally_good", None), "heldout_nmse_min", float("nan"))
-    return float(value) if value is not None and math.isfinite(value) else float("inf")
 
 
 def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[str]:

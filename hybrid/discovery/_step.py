@@ -132,6 +132,20 @@ class Step:
         """The effect the step named, or None."""
         return self.chosen.name if self.chosen is not None else None
 
+    @property
+    def bar(self) -> float:
+        """The held-out NMSE a candidate's gain is measured against by the step's last rule (`heldout_bar`)."""
+        return heldout_bar(self.current, self.equally_good)
+
+
+def heldout_bar(current: Candidate, equally_good: EquallyGoodFits) -> float:
+    """The least held-out NMSE of `current` and of its fits as good on training (nan ones ignored).
+
+    A better fit of the simulation alone, which any candidate's lane may find,
+    clears no effect: a candidate's gain must also hold over this bar.
+    """
+    return min(current.heldout.nmse, equally_good.heldout_nmse_min)
+
 
 #: A start whose simulation escapes (non-finite output) is tried again this much nearer to its
 #: effect's defaults, at most `RETRIES` times, then at the defaults.
@@ -347,7 +361,7 @@ def search_step(
 
 def _weigh(candidates, current: Candidate, equally_good: EquallyGoodFits, settings: DiagnoseSettings) -> None:
     """Set each candidate's gain, ΔBIC and eligibility against `current` (the model it extends)."""
-    bar = min(current.heldout.nmse, equally_good.heldout_nmse_min)
+    bar = heldout_bar(current, equally_good)
     for cand in candidates:
         cand.gain = current.heldout.nmse / max(cand.heldout.nmse, 1e-300)
         cand.delta_bic = cand.bic - current.bic
