@@ -295,6 +295,9 @@ def record(
         keep = []
         for row in pending:
             slot, t_cam, w, quality, w_true = row
+            if slot <= done_slots:
+                # written by a flush that Ctrl-C or SIGTERM cut short before it could forget its rows
+                continue
             t = t_cam0 + slot / fps - sync_t
             if t < 0:
                 continue
@@ -308,8 +311,11 @@ def record(
             values = [t, volts, w, quality, t_cam, i]
             if truth is not None:
                 values.append(w_true)
-            writer.row(values)
+            # Counted as written before it is: an interruption inside `row` (its sidecar rewrite takes
+            # milliseconds) must not write it twice, which left a repeated time the file cannot be loaded with;
+            # at worst an interrupted recording ends one row short.
             done_slots = slot
+            writer.row(values)
         pending[:] = keep
 
     try:

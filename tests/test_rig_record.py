@@ -261,3 +261,24 @@ def test_sigterm_closes_the_recording_like_ctrl_c(tmp_path):
     assert meta["error"] == "terminated by SIGTERM" and meta["rows"] == rows >= 6
     assert f"({rows} rows)" in err
     assert len(hybrid.Recording.load(partial)) == rows
+
+
+def test_an_interruption_inside_a_row_write_leaves_no_repeated_row(tmp_path, monkeypatch):
+    # Ctrl-C or SIGTERM landing after a row reached the file but before the flush forgot it (the sidecar's
+    # rewrite, milliseconds) made the clean-up write it again: a repeated time, a file that cannot be loaded.
+    import rig._record as recording
+
+    original = recording._Writer.row
+
+    def row_then_interrupt(self, values):
+        original(self, values)
+        if self.rows == 20:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(recording._Writer, "row", row_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        _virtual(tmp_path)
+    partial = tmp_path / "rec.partial.csv"
+    rec = hybrid.Recording.load(partial)  # strictly increasing times, or one line saying where not
+    assert len(rec) == _meta(partial)["rows"] >= 20
+    assert _meta(partial)["status"] == "interrupted"
