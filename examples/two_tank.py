@@ -98,7 +98,7 @@ class TwoTank(AbstractStateSpace):
         "outlet_2": Positive(),
     }
     units: ClassVar[dict] = {
-        "pump_flow": "cm^3/(s V)",
+        "pump_flow": "cm^3/(s {drive})",  # per unit of the drive
         "area_1": "cm^2",
         "area_2": "cm^2",
         "outlet_1": "cm^2",
@@ -134,6 +134,8 @@ class TwoTank(AbstractStateSpace):
     states: ClassVar[tuple] = ("h1", "h2")
     substeps: ClassVar[int] = SUBSTEPS
     state_units: ClassVar[dict] = {"h1": "cm", "h2": "cm"}
+    # simulate returns the lower level h2: a sensor's gain is then in its volts per cm.
+    output_unit: ClassVar[str] = "cm"
 
     def __init__(self, pump_flow=3.3, area_1=15.5, area_2=15.5, outlet_1=0.18, outlet_2=0.18):
         # The defaults (a bench-top coupled-tank rig) are where a fit starts.

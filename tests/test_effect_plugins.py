@@ -230,10 +230,37 @@ def test_units_follow_the_signal_each_effect_acts_on():
     assert drive_side.units["drive_saturation_pos_curvature"] == "1/kV"
     assert drive_side.units["drive_even_coefficient"] == "1/kV"
     assert drive_side.units["backlash_half_width"] == "kV"
-    assert units["saturation_pos_curvature"] == "1/V"  # on the RC network's output, V_o in V
-    assert units["scale_factor"] == "1/V"
+    # on the RC network's output: V_o, a divider of the drive, is in the drive's unit
+    assert units["saturation_pos_curvature"] == "1/kV"
+    assert units["scale_factor"] == "1/kV"
+    assert hybrid.EffectStack(hybrid.RCNetwork(), ("saturation",)).units["saturation_pos_curvature"] == "1/V"
     plain = hybrid.EffectStack(hybrid.LTI(1), ("saturation",))
     assert plain.units["saturation_pos_curvature"] == "1/(unit of S)"  # the simulation does not say
+
+
+class _Level(hybrid.LTI):
+    """A first-order lag whose output is a level in cm (a tank read by a sensor in volts)."""
+
+    output_unit: ClassVar[str] = "cm"
+
+
+def test_a_linear_readouts_units_follow_w_and_the_simulations_output():
+    """gain is w's unit per the simulation's output's, never a hard-coded mm/V (the tanks read "mm/V")."""
+    level = hybrid.make_model("physics", simulation=_Level(1))
+    assert (level.units_in("V")["gain"], level.units_in("V")["offset"]) == ("V/cm", "V")
+    rc = hybrid.make_model("physics", simulation=hybrid.RCNetwork())
+    assert rc.units["gain"] == "mm/V"  # the paper's case
+    assert rc.units_in("µm", drive_unit="mV")["gain"] == "µm/mV"  # V_o in the drive's unit
+    lag = hybrid.make_model("physics", simulation=hybrid.LTI(1))
+    assert lag.units_in("N")["gain"] == "N/(unit of S)"
+    # fit reports them in the recording's declared units
+    t = np.arange(300) / 10.0
+    u = np.sin(0.7 * t) + 0.5 * np.sign(np.sin(0.21 * t))
+    rec = hybrid.Recording(
+        t=t, v_in=u, w=0.3 * u + 1.0, metadata={"units": {"t": "s", "v_in": "V", "w": "V"}}
+    )
+    result = hybrid.fit(level, rec, solver=hybrid.LevenbergMarquardt(max_steps=3), progress=False)
+    assert (result.units["gain"], result.units["offset"]) == ("V/cm", "V")
 
 
 def test_a_drive_side_effect_acts_before_the_simulation():

@@ -240,7 +240,7 @@ def test_a_test_records_initial_drive_is_refitted_through_an_effect_stack():
 def test_units_follow_the_drive_and_the_state():
     stack = EffectStack(TwoTank(), [PolynomialStiffness(), StateLimit("h1")], drive_unit="V")
     assert stack.units["h1_max"] == "cm"  # the state's unit
-    assert stack.units["stiffness_cube"] == "V/(unit of S)^3"  # TwoTank states no output unit
+    assert stack.units["stiffness_cube"] == "V/cm^3"  # a force in the drive's unit per cube of h2 (cm)
     stack = EffectStack(MassSpringDamper(), [PolynomialStiffness()], drive_unit="kV")
     assert stack.units["stiffness_square"] == "kV/(unit of S)^2"
 

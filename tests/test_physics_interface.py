@@ -95,7 +95,7 @@ def test_each_fact_is_read_as_an_attribute_and_the_old_getters_warn_but_agree():
         with pytest.warns(DeprecationWarning, match=getter):
             assert getattr(stack.inner, getter)() == value
     assert lag.typical_ranges() == {**Lag.typical, "bias": (-1.0, 1.0)}  # completed from plausible
-    assert (RCNetwork().output_unit, RCNetwork().linear_in_drive, Lag().output_unit) == ("V", True, "")
+    assert (RCNetwork().output_unit, RCNetwork().linear_in_drive, Lag().output_unit) == ("{drive}", True, "")
 
 
 class Unstated(AbstractSimulation):

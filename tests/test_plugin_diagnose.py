@@ -58,7 +58,10 @@ def recording(saturate: bool, seed: int = 0) -> hybrid.Recording:
         y = np.where(y > 0, y / np.sqrt(1.0 + y * y), y)
     w = 3.0 * y + 0.5
     w = w + NOISE * np.ptp(w) * rng.normal(size=n)
-    return hybrid.Recording(t=np.arange(n) / RATE, v_in=u, w=w)
+    # a force sensor (N): the readout's units follow it, not the IPMC's mm
+    return hybrid.Recording(
+        t=np.arange(n) / RATE, v_in=u, w=w, metadata={"units": {"t": "s", "v_in": "V", "w": "N"}}
+    )
 
 
 @pytest.mark.parametrize("saturate, cause", [(True, "saturation"), (False, "none")])
@@ -68,8 +71,16 @@ def test_diagnose_names_a_hidden_effect_on_a_plugin_that_starts_away_from_rest(s
     held = float(found.extended.parameters["initial_drive"])
     assert abs(held - HELD) < 0.15, held  # the held drive is recovered with the rest
     assert abs(float(found.extended.parameters["tau_s"]) - TAU) < 0.1 * TAU
+    report = found.to_dict()["parameters"]
+    assert {k: report[k]["unit"] for k in ("gain", "offset", "tau_s", "initial_drive")} == {
+        "gain": "N/(unit of S)",  # w's unit per the simulation's output's (Lag does not name it)
+        "offset": "N",
+        "tau_s": "s",
+        "initial_drive": "V",  # the drive's
+    }
     if saturate:
         assert found.gain >= 2.0
+        assert report["saturation_pos_curvature"]["unit"] == "1/(unit of S)"
     else:
         assert found.unexplained is None, found.verdict
 

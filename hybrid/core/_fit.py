@@ -31,7 +31,7 @@ from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
 from ._problem import Problem, Series, robust_rms, robust_std, series_from_recording
-from ._readout import LinearReadout, WindowedMLP
+from ._readout import WindowedMLP
 from ._result import FitResult, fit_warnings
 from ._solvers import (
     SOLVERS as SOLVERS,
@@ -195,16 +195,12 @@ def fit(
 
 
 def _unit_labels(model: Model, recordings) -> dict[str, str]:
-    """`model.units`, with a linear readout's gain and offset in the recordings' declared units."""
-    units = dict(model.units)
+    """`model.units`, the readout's in the recordings' declared unit of w (per the simulation's output)."""
     tables = [
         r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings
     ]
     declared = {(str(u.get("w", "mm")), str(u.get("v_in", "V"))) for u in tables}
-    if len(declared) == 1 and isinstance(model.readout, LinearReadout):
-        w, v = declared.pop()
-        units.update(gain=f"{w}/{v}", offset=w)
-    return units
+    return model.units_in(*declared.pop()) if len(declared) == 1 else dict(model.units)
 
 
 def default_frozen(model: Model) -> frozenset[str]:

@@ -32,12 +32,12 @@ from jaxtyping import Array
 
 from ..util._errors import InputError
 from ._parameters import Constraint, Real, encode
-from ._simulation import AbstractSimulation, AbstractWrapper
+from ._simulation import DRIVE, AbstractSimulation, AbstractWrapper
 
 #: The name of the added parameter.
 INITIAL_DRIVE = "initial_drive"
 OWN_CONSTRAINTS: dict[str, Constraint] = {INITIAL_DRIVE: Real()}
-OWN_UNITS = {INITIAL_DRIVE: "V"}
+OWN_UNITS = {INITIAL_DRIVE: DRIVE}  # a level of the drive, in its unit
 
 
 class HeldStart(AbstractWrapper):

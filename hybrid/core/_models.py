@@ -25,7 +25,7 @@ from jaxtyping import Array, Float
 from ..util._errors import InputError
 from ._arguments import check_key, check_simulation
 from ._readout import AbstractReadout, LinearReadout, WindowedMLP
-from ._simulation import AbstractSimulation, Passthrough
+from ._simulation import AbstractSimulation, Passthrough, unit_in
 
 ModelKind = Literal["hybrid", "normal", "physics"]
 MODEL_KINDS = ("hybrid", "normal", "physics")
@@ -62,7 +62,18 @@ class Model(eqx.Module):
 
     @property
     def units(self) -> dict[str, str]:
-        return {**self.simulation.units, **getattr(type(self.readout), "units", {})}
+        """Each named parameter's unit, w in mm and the drive in V (the paper's case; see `units_in`)."""
+        return self.units_in("mm")
+
+    def units_in(self, w_unit: str, drive_unit: str = "V") -> dict[str, str]:
+        """Each named parameter's unit for w in `w_unit` and the drive in `drive_unit`.
+
+        The readout's follow the simulation's `output_unit` (a linear readout's
+        gain: w's unit per the output's); ``"{drive}"`` in any unit is the drive's.
+        """
+        signal = unit_in(str(getattr(self.simulation, "output_unit", "") or ""), drive_unit)
+        own = {k: unit_in(v, drive_unit) for k, v in self.simulation.units.items()}
+        return {**own, **self.readout.units_for(signal, w_unit)}
 
     @property
     def parameter_names(self) -> tuple[str, ...]:

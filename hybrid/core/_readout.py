@@ -47,6 +47,13 @@ class AbstractReadout(eqx.Module):
     def initialise(self, signal, w) -> AbstractReadout:
         """A copy whose fixed scalings / initial values suit the training data."""
 
+    def units_for(self, signal_unit: str, w_unit: str) -> dict[str, str]:
+        """Each named parameter's unit when the mediatory signal is in `signal_unit` and w in `w_unit`.
+
+        Default: none (a black box has no named parameters).
+        """
+        return {}
+
     def rescaled(self, input_scale, output_scale) -> AbstractReadout:
         """The same map in other units: R'(input_scale · x) = output_scale · R(x).
 
@@ -65,11 +72,17 @@ class AbstractReadout(eqx.Module):
 
 
 class LinearReadout(AbstractReadout):
-    """w = gain · s + offset: linear electromechanical coupling (gain mm/V, offset mm)."""
+    """w = gain · s + offset: linear electromechanical coupling (gain mm/V, offset mm, for the RC network).
+
+    The gain's unit is w's over the simulation's output's (`units_for`): mm/V
+    for the RC network's tip voltage read as a displacement, V/cm for a tank's
+    level read by a sensor in volts.
+    """
 
     raw: dict[str, Array]
     window: int = eqx.field(static=True)
     constraints: ClassVar[dict[str, Constraint]] = {"gain": Real(), "offset": Real()}
+    #: The units for the paper's case (w in mm, the RC network's V_o in V); see `units_for`.
     units: ClassVar[dict[str, str]] = {"gain": "mm/V", "offset": "mm"}
 
     def __init__(self, gain: float = 1.0, offset: float = 0.0):
@@ -79,6 +92,10 @@ class LinearReadout(AbstractReadout):
     def predict_window(self, window):
         p = self.parameters()
         return p["gain"] * window[-1] + p["offset"]
+
+    def units_for(self, signal_unit: str, w_unit: str) -> dict[str, str]:
+        """gain in w's unit per the signal's ("(unit of S)" where the simulation does not say), offset in w's."""
+        return {"gain": f"{w_unit}/{signal_unit or '(unit of S)'}", "offset": w_unit}
 
     def parameters(self):
         return decode(self.raw, self.constraints)

@@ -95,9 +95,11 @@ class AbstractSimulation(eqx.Module):
 
     @property
     def output_unit(self) -> str:
-        """The unit of the mediatory signal `simulate` returns ("V" for the RC network's V_o).
+        """The unit of the mediatory signal `simulate` returns ("{drive}" for the RC network's V_o).
 
-        "" (the default) where the simulation does not say.
+        ``"{drive}"`` stands for the drive's unit (a voltage divider's output is
+        in the volts or millivolts it is driven with; see `unit_in`); "" (the
+        default) where the simulation does not say.
         """
         return ""
 
@@ -209,6 +211,15 @@ class AbstractSimulation(eqx.Module):
         )
 
 
+#: The placeholder a unit uses for the drive's unit (`AbstractSimulation.output_unit`, effects' `units`).
+DRIVE = "{drive}"
+
+
+def unit_in(unit: str, drive_unit: str = "V") -> str:
+    """`unit` (an `output_unit`, a state's unit) with ``"{drive}"`` replaced by `drive_unit`."""
+    return unit.replace(DRIVE, drive_unit)
+
+
 class AbstractWrapper(AbstractSimulation):
     """A simulation built around another (`inner`): its ranges and default freezes are the inner's.
 
@@ -229,6 +240,10 @@ class AbstractWrapper(AbstractSimulation):
     @property
     def frozen_by_default(self) -> dict[str, str]:
         return self.inner.frozen_by_default
+
+    @property
+    def output_unit(self) -> str:
+        return self.inner.output_unit
 
 
 class Passthrough(AbstractSimulation):

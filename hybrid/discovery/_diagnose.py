@@ -69,10 +69,12 @@ from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effect_set import resolve_effects, searched_places
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._search import (
+    drive_unit,
     fit_lanes,
     initial_thetas,
     lane_tangents,
     lanes_problem,
+    output_unit,
     padding_lane,
     split_signals,
     with_active,
@@ -348,6 +350,7 @@ def diagnose(
             "extended": extended_model,
             **rival_models,
         },
+        units=extended_model.units_in(output_unit(recordings), drive_unit(recordings)),
     )
 
 

@@ -323,6 +323,9 @@ class Diagnosis:
     #: ``"baseline"`` (the simulation and the frame timing) and ``"extended"`` (with every named
     #: cause); `write_report` saves them as ``baseline.eqx`` and ``extended.eqx``.
     models: dict = dataclasses.field(default_factory=dict)
+    #: Every parameter's unit, from the units of the signals it acts on (the recordings' drive and w,
+    #: the simulation's output, a state's): fitted or fixed.
+    units: dict = dataclasses.field(default_factory=dict)
 
     def effect_parameters(self, name: str) -> tuple[str, ...]:
         """The parameter names of the searched effect `name` (none for an unknown name)."""
@@ -355,7 +358,7 @@ class Diagnosis:
                         k: {
                             "value": v,
                             "std_error": _std_error(self.uncertainties.get(k)),
-                            "unit": _unit(self.uncertainties.get(k)),
+                            "unit": self._unit(k),
                             **self._pinning(k),
                         }
                         for k, v in own.items()
@@ -370,6 +373,9 @@ class Diagnosis:
         from ._verdict import verdict
 
         return verdict(self)
+
+    def _unit(self, name: str) -> str:
+        return self.units.get(name) or _unit(self.uncertainties.get(name))
 
     def _pinning(self, name: str) -> dict:
         """``pinned`` (and, when false, ``not_pinned``: why) of a parameter with a standard error."""
@@ -406,7 +412,7 @@ class Diagnosis:
                     "value": v,
                     "std_error": _std_error(self.uncertainties.get(k)),
                     "std_error_given_network": _std_error_given_network(self.uncertainties.get(k)),
-                    "unit": _unit(self.uncertainties.get(k)),
+                    "unit": self._unit(k),
                     **self._pinning(k),
                 }
                 for k, v in self.extended.parameters.items()

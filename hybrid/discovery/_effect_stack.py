@@ -21,11 +21,11 @@ from jaxtyping import Array
 from ..core._arguments import check_drive, run_compiled
 from ..core._parameters import Constraint
 from ..core._serialise import imported_class
-from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw
+from ..core._simulation import DRIVE, AbstractSimulation, AbstractWrapper, perturb_raw
 from ..core._state_space import dynamics_of, integrate
 from ..util._errors import InputError
 from ._effect_set import resolve_effects
-from ._effects import DRIVE, AbstractEffect
+from ._effects import AbstractEffect
 
 
 class EffectStack(AbstractWrapper):
@@ -118,7 +118,7 @@ class EffectStack(AbstractWrapper):
             unit = dynamics[0].state_units.get(effect.acts_on) if dynamics else None
             # A state in the drive's unit (an oscillator's position, in volts of drive) says "{drive}".
             return unit.replace(DRIVE, self.drive_unit) if unit else f"(unit of {effect.acts_on})"
-        return self.inner.output_unit
+        return self.inner.output_unit.replace(DRIVE, self.drive_unit)
 
     def parameters(self):
         out = dict(self.inner.parameters())

@@ -84,6 +84,7 @@ from jaxtyping import Array, Float
 
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
+from ..core._simulation import DRIVE
 from ._hysteresis import bouc_wen_state
 
 #: Where an effect acts: on the drive before the simulation, y = S(φ(u)); inside the dynamics
@@ -95,8 +96,6 @@ PLACES = ("drive", "inside", "output")
 ROLES = ("feedback", "limit")
 #: The placeholder an effect's `units` use for the unit of the signal it acts on.
 SIGNAL = "{signal}"
-#: The placeholder for the drive's unit (an inside feedback's force is in it).
-DRIVE = "{drive}"
 
 
 @dataclasses.dataclass(frozen=True)

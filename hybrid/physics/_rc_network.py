@@ -108,7 +108,7 @@ class RCNetwork(AbstractLinearStateSpace):
         "alpha_C": UnitInterval(),
         "C_clamp": Positive(),
     }
-    output_unit: ClassVar[str] = "V"
+    output_unit: ClassVar[str] = "{drive}"  # V_o is in the drive's volts (a divider of V_i)
     units: ClassVar[dict[str, str]] = {
         "xi_rho": "1",
         "xi_h": "1",

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._models import Model
+from ..core._simulation import unit_in
 from ..util._errors import InputError
 from ._identifiability import Identifiability, identifiability
 from ._views import (
@@ -119,13 +120,14 @@ def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensi
         units={n: units.get(n, "") for n in names},
         dt=float(dt),
         output=np.asarray(y),
-        output_unit="mm" if model_output else getattr(target, "output_unit", ""),
+        output_unit="mm" if model_output else unit_in(getattr(target, "output_unit", "")),
         jacobian=J,
     )
 
 
 def _simulation_units(simulation) -> dict[str, str]:
-    return dict(getattr(simulation, "units", {}))
+    """The simulation's units, a drive's level in V (the unit `simulate`'s drive is in)."""
+    return {k: unit_in(v) for k, v in getattr(simulation, "units", {}).items()}
 
 
 # --------------------------------------------------------------------------- frequency domain
