@@ -686,6 +686,15 @@ def _commands(result):
     return [f"{k}: `{v}`" + (f" ({seconds[k]:.0f} s)" if k in seconds else "") for k, v in commands.items()]
 
 
+def _load_note(result) -> str:
+    """The machine's 1-minute load average when each dataset started and ended (from the JSON)."""
+    loads = result.get("dataset_load", {})
+    if not loads:
+        return " (its load was not recorded)"
+    parts = [f"{k} {v[0]:.1f} → {v[1]:.1f}" for k, v in loads.items()]
+    return " (1-minute load average at each dataset's start → end, 2 cores: " + "; ".join(parts) + ")"
+
+
 def markdown(result) -> str:
     quick = result["quick"]
     lines = [
@@ -696,9 +705,10 @@ def markdown(result) -> str:
         + "; as run: "
         + "; ".join(_commands(result))
         + ". "
-        + "Every number below was measured by the command(s) above, on this machine; other jobs shared its 2 "
-        "cores (load average about 8 during the full run), so the seconds (not the errors) are perturbed and "
-        "slower than alone — compare the ratios, each measured within one run of one dataset.",
+        + "Every number below was measured by the command(s) above, on this machine"
+        + _load_note(result)
+        + "; the seconds (not the errors) move with the machine's speed and load, so compare the ratios, "
+        "each measured within one run of one dataset.",
         "",
         'How it is run (splits, initial states, what "fit" and "simulate" time): '
         "`benchmarks/peers/run.py`'s docstring. Every peer is scored run free (simulation); the settings of "
@@ -899,6 +909,8 @@ def main(argv=None) -> int:
                     key = name
                 result.setdefault("dataset_commands", {})[key] = other["dataset_commands"][name]
                 result.setdefault("dataset_seconds", {})[key] = other["dataset_seconds"][name]
+                if name in other.get("dataset_load", {}):
+                    result.setdefault("dataset_load", {})[key] = other["dataset_load"][name]
             result["seconds"] = sum(result.get("dataset_seconds", {}).values())
             write_text(out, json.dumps(result, indent=2) + "\n")
         write_text(out.with_suffix(".md"), markdown(result))
@@ -910,6 +922,8 @@ def main(argv=None) -> int:
     command = "make bench-peers-quick" if args.quick else "make bench-peers"
     out = pathlib.Path(args.out)
     runners = {"tanks": tanks, "silverbox": silverbox, "table2": table2}
+
+    started = {}
 
     def save(name, part, seconds):
         # each dataset is written as soon as it is done, merged with the others' rows of an earlier run of the
@@ -927,7 +941,12 @@ def main(argv=None) -> int:
             }
         )
         result.setdefault("datasets", {})[name] = _json_ready(part)
+        # a record of this dataset merged from another run (`--merge`, "table2 (Pulse, Chirp)") is replaced
+        for key in [k for k in result.get("dataset_seconds", {}) if k.startswith(f"{name} (")]:
+            for record in ("dataset_seconds", "dataset_commands", "dataset_load"):
+                result.get(record, {}).pop(key, None)
         result.setdefault("dataset_seconds", {})[name] = seconds
+        result.setdefault("dataset_load", {})[name] = [started[name], os.getloadavg()[0]]
         result.setdefault("dataset_commands", {})[name] = " ".join(
             ["python benchmarks/peers/run.py", *(argv if argv is not None else sys.argv[1:])]
         )
@@ -941,6 +960,7 @@ def main(argv=None) -> int:
 
     for name in datasets:
         t0 = time.perf_counter()
+        started[name] = os.getloadavg()[0]
         if name == "table2":
             part = table2(
                 args.quick,
