@@ -129,6 +129,7 @@ def main(argv=None) -> int:
                         "truth": truth,
                         "drift": drift,
                         "causes": causes,
+                        "dropped": [d["name"] for d in found.dropped],  # named, then found redundant
                         "gain": found.gain,
                         "unexplained": found.unexplained is not None,
                         "seconds": seconds,
@@ -148,13 +149,14 @@ def main(argv=None) -> int:
         "",
         f"Command: `{command.strip()}`",
         "",
-        "| plant | seed | drift (% of range) | causes named | held-out gain | unexplained |",
-        "|---|---|---|---|---|---|",
+        "| plant | seed | drift (% of range) | causes named | dropped (redundant) | held-out gain | unexplained |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r['plant']} | {r['seed']} | {r['drift']['size_percent_of_range']:.0f} | "
-            f"{', '.join(r['causes']) or 'none'} | {r['gain']:.2f} | {'yes' if r['unexplained'] else 'no'} |"
+            f"{', '.join(r['causes']) or 'none'} | {', '.join(r.get('dropped', [])) or '—'} | {r['gain']:.2f} | "
+            f"{'yes' if r['unexplained'] else 'no'} |"
         )
     for plant in ("lti:2", "plug-in"):
         mine = [r for r in rows if r["plant"] == plant]

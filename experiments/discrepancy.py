@@ -174,6 +174,7 @@ def open_world_row(recording, found, excess: float, causes_known) -> dict:
         "outside_effects": outside,
         "kind": kind_of(expected, outside),
         "causes": names,
+        "dropped": [d["name"] for d in getattr(found, "dropped", [])],  # named, then found redundant
         "cause_details": _plain(causes),
         "unexplained": unexplained is not None,
         "unexplained_fraction": None if unexplained is None else float(unexplained["fraction_above_floor"]),

@@ -136,6 +136,14 @@ def choose_lane(idx, vals, is_material, n_val: int) -> int:
     return next((j for j in within if is_material(j)), best)
 
 
+def materiality_of(problem, theta, active, name, materiality) -> tuple[bool, str]:
+    """(material, its size against the threshold in words) of effect `name` at θ with switches `active`."""
+    parameters = {k: float(v) for k, v in problem.model(theta).parameters().items()}
+    return _material(
+        problem, theta, name, derived_quantities(problem, theta, active), parameters, materiality
+    )
+
+
 def lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]:
     """(material, size) of effect `name` at a lane's end point; size as in `Candidate.derived`."""
     parameters = {k: float(v) for k, v in problem.model(theta).parameters().items()}

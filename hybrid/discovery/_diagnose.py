@@ -68,6 +68,7 @@ from ._decision import evaluate_candidate, free_names
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effect_set import resolve_effects, searched_places
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
+from ._redundant import drop_redundant
 from ._search import (
     drive_unit,
     fit_lanes,
@@ -121,6 +122,36 @@ def shape_key(problem, settings) -> tuple:
         treedef,
         tuple((getattr(x, "shape", None), str(getattr(x, "dtype", type(x)))) for x in leaves),
         settings,
+    )
+
+
+def prepare_search(
+    recordings, simulation, settings: DiagnoseSettings, effects=None, say=lambda _: None
+) -> Search:
+    """What every step of `diagnose`'s search shares (`Search`), for checked `recordings` of one rate.
+
+    `settings` comes back completed: what `simulation` keeps fixed and every
+    effect's materiality threshold (the report shows both).
+    """
+    effects = resolve_effects(effects, simulation)
+    frozen_names = settings.frozen_for(simulation)
+    settings = dataclasses.replace(
+        settings, frozen=frozen_names, materiality=settings.materiality_for(effects)
+    )
+    problem, _, model, series = lanes_problem(recordings, simulation, settings, effects)
+    return Search(
+        problem=problem,
+        model=model,
+        series=series,
+        simulation=simulation,
+        settings=settings,
+        frozen=frozenset(frozen_names),
+        lm=LMSettings(max_steps=settings.max_steps, patience_rtol=settings.patience_rtol),
+        rate=recordings[0].rate,
+        duration=recordings[0].duration,
+        n_train=sum(b - a for s in series for a, b in s.segments_of("train")),
+        n_val=sum(b - a for s in series for a, b in s.segments_of("validation")),
+        say=say,
     )
 
 
@@ -178,41 +209,29 @@ def diagnose(
             "diagnose needs a simulation: pass simulation=hybrid.RCNetwork(method='zoh') (the paper's "
             "physics) or any AbstractSimulation, or use hybrid.diagnose, which defaults to the RC network"
         )
-    effects = resolve_effects(effects, simulation)
-    frozen_names = settings.frozen_for(simulation)
-    # The report shows what was fixed and every threshold the search used.
-    settings = dataclasses.replace(
-        settings, frozen=frozen_names, materiality=settings.materiality_for(effects)
-    )
-    frozen = frozenset(frozen_names)
-    problem, n_rows, model, series = lanes_problem(recordings, simulation, settings, effects)
-    lm = LMSettings(max_steps=settings.max_steps, patience_rtol=settings.patience_rtol)
-    if DIAGNOSE_PROGRAMS.admit(shape_key(problem, lm)) and progress:  # a long session never runs out of maps
-        print("diagnose: released the compiled programs of earlier recordings' shapes", flush=True)
-    n_train = sum(b - a for s in series for a, b in s.segments_of("train"))
-    off = np.zeros(len(effects) + 1)  # every effect off, the frame timing on
-    off[-1] = 1.0
 
     def say(text):  # the watchdog's heartbeat names the stage; progress prints it
         stage(f"diagnose: {text}")
         if progress:
             print(f"diagnose: {text}", flush=True)
 
-    # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
-    search = Search(
-        problem=problem,
-        model=model,
-        series=series,
-        simulation=simulation,
-        settings=settings,
-        frozen=frozen,
-        lm=lm,
-        rate=rate,
-        duration=recordings[0].duration,
-        n_train=n_train,
-        n_val=sum(b - a for s in series for a, b in s.segments_of("validation")),
-        say=say,
+    search = prepare_search(recordings, simulation, settings, effects, say)
+    if DIAGNOSE_PROGRAMS.admit(shape_key(search.problem, search.lm)) and progress:  # maps never run out
+        print("diagnose: released the compiled programs of earlier recordings' shapes", flush=True)
+    problem, model, series, settings, frozen = (
+        search.problem,
+        search.model,
+        search.series,
+        search.settings,
+        search.frozen,
     )
+    effects, lm, n_train = search.effects, search.lm, search.n_train
+    assert problem.sim_tangents is not None  # a search problem always has its directions
+    n_rows = int(problem.sim_tangents.shape[0])
+    off = np.zeros(len(effects) + 1)  # every effect off, the frame timing on
+    off[-1] = 1.0
+
+    # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
     n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
     say(f"screening {N_SCREEN} network designs for the baseline's starts")
     grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN, frozen)
@@ -257,20 +276,23 @@ def diagnose(
         present += (step.chosen.name,)
         current, current_val, current_fits = step.chosen, step.chosen_val, step.chosen_fits
     extended = current if present else steps[0].current
-    cause = present[0] if present else "none"
+    # `present` stays the search's history (step k named present[k - 1]); `kept`, the causes the
+    # final model needs once each is weighed as if named last.
+    kept, extended, dropped = drop_redundant(search, extended, present)
+    cause = kept[0] if kept else "none"
 
     # 5. The final model: uncertainties, evidence, the noise floor and what is left above it.
     theta_base = baseline.theta
     v_te, w_te, w_hat_base = split_signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = split_signals(problem, extended.theta, extended.active, "test")
-    final = search.problem_for(len(present))
+    final = search.problem_for(len(kept))
     assert final.sim_tangents is not None  # a search problem always has its directions
     fitted = with_active(
         final,
         jnp.asarray(extended.active, float),
-        jnp.asarray(lane_tangents(model, frozen, present, int(final.sim_tangents.shape[0])), float),
+        jnp.asarray(lane_tangents(model, frozen, kept, int(final.sim_tangents.shape[0])), float),
     )
-    extended_model = fitted_model(problem, extended.theta, present)
+    extended_model = fitted_model(problem, extended.theta, kept)
     uncertainties = parameter_uncertainties(
         fitted, extended.theta, w_te - w_hat_ext, keep=extended_model.parameters()
     )
@@ -306,6 +328,8 @@ def diagnose(
     rivals = ambiguities(
         steps, w_te, floor.std, drives, rate, search.effects, open_remainder=unexplained is not None
     )
+    gone = {d.name for d in dropped}  # a dropped cause's rivals are moot: the final model does without it
+    rivals = [entry for entry in rivals if entry["named"] not in gone]
     rival_models = {}
     for entry in rivals:  # each side of an ambiguity as a loadable model (`hybrid design` reads them)
         k = entry["step"]
@@ -323,7 +347,7 @@ def diagnose(
     hybrid_report = None
     if hybrid:
         hybrid_report = hybrid_fits(
-            recordings, simulation, extended, problem, present, settings, hybrid_max_steps, progress
+            recordings, simulation, extended, problem, kept, settings, hybrid_max_steps, progress
         )
     return Diagnosis(
         cause=cause,
@@ -351,6 +375,7 @@ def diagnose(
             **rival_models,
         },
         units=extended_model.units_in(output_unit(recordings), drive_unit(recordings)),
+        dropped=[d.to_dict() for d in dropped],
     )
 
 

@@ -41,7 +41,8 @@ CAUSES = ("none",) + tuple(EFFECTS)
 #:   every threshold used.
 #: Keys added within schema 3 (a reader of 3 may ignore them): ``ambiguous`` (each step whose named
 #: cause has rivals this recording cannot tell apart, and an open last step: ``"named": "none"``,
-#: ``"open": true``) and ``ambiguity_test`` (the test, in words).
+#: ``"open": true``), ``ambiguity_test`` (the test, in words), ``dropped`` (named causes the
+#: final model did not need, each weighed as if named last) and each cause's ``step``.
 REPORT_SCHEMA = "hybrid-report/3"
 #: The keys schema 3 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -326,6 +327,10 @@ class Diagnosis:
     #: Every parameter's unit, from the units of the signals it acts on (the recordings' drive and w,
     #: the simulation's output, a state's): fitted or fixed.
     units: dict = dataclasses.field(default_factory=dict)
+    #: Named causes the final model did not need once each was weighed as if named last
+    #: (`hybrid.discovery._redundant`): name, the step that named it, the gain with it over
+    #: without it, the rules that gain failed. Not among `causes`.
+    dropped: list = dataclasses.field(default_factory=list)
 
     def effect_parameters(self, name: str) -> tuple[str, ...]:
         """The parameter names of the searched effect `name` (none for an unknown name)."""
@@ -343,14 +348,19 @@ class Diagnosis:
     def causes(self) -> list[dict]:
         """The named causes in the order found: name, parameters (of that effect), incremental held-out gain."""
         out = []
-        for step in self.steps:
-            if step.cause is None:
+        gone = {d["name"] for d in self.dropped}
+        for k, step in enumerate(self.steps, 1):
+            if step.cause is None or step.cause in gone:
                 continue
             chosen = next(c for c in step.candidates if c.name == step.cause)
-            own = {k: v for k, v in chosen.parameters.items() if k in self.effect_parameters(chosen.name)}
+            # its values in the final model (the one saved and whose standard errors are given)
+            own = {
+                k: v for k, v in self.extended.parameters.items() if k in self.effect_parameters(chosen.name)
+            }
             out.append(
                 {
                     "name": chosen.name,
+                    "step": k,
                     "incremental_gain": chosen.gain,
                     "delta_bic": chosen.delta_bic,
                     "derived": chosen.derived,
@@ -395,6 +405,7 @@ class Diagnosis:
             "unexplained": self.unexplained,
             "ambiguous": self.ambiguous,
             "ambiguity_test": AMBIGUITY_TEST,
+            "dropped": self.dropped,
             "steps": [
                 {
                     "cause": step.cause,

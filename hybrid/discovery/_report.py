@@ -174,14 +174,16 @@ def _places(places: dict) -> str:
     return "Searched " + "; ".join(parts) + "."
 
 
-def _stepwise(d: dict) -> list[str]:
+def stepwise_section(d: dict) -> list[str]:
     """The causes in the order found, each with its incremental gain and its parameters."""
     lines = [
         "## Causes, step by step",
         "",
         "Each step fits every remaining effect on top of the model before it and names one only if it passes "
         "every test against that model (incremental held-out gain, ΔBIC, materiality, whiteness, the "
-        "as-good-fits guard); the search stops at the first step that names nothing.",
+        "as-good-fits guard); the search stops at the first step that names nothing. Then each cause is "
+        "weighed as if it were named last (the final model against itself refitted without it), and one "
+        "that fails is dropped.",
         "",
         "| step | cause | incremental gain | ΔBIC | size | parameters |",
         "|---|---|---|---|---|---|",
@@ -190,9 +192,15 @@ def _stepwise(d: dict) -> list[str]:
         size = ", ".join(" ".join(_quantity(k, v)) for k, v in c["derived"].items())
         params = ", ".join(f"{k} = {plus_minus(v)}" for k, v in c["parameters"].items())
         lines.append(
-            f"| {i} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
+            f"| {c.get('step', i)} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
             f"{_cell(size)} | {_cell(params)} |"
         )
+    for gone in d.get("dropped") or []:
+        lines += [
+            "",
+            f"**Dropped.** {gone['name']}, named at step {gone['step']}: weighed as if named last, beside the "
+            f"other causes it gains {_num(gone['gain'])}× held out ({'; '.join(gone['reasons'])}).",
+        ]
     return lines + [""]
 
 
@@ -286,7 +294,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         )
     lines += ["", f"Gain (baseline NMSE / extended NMSE): **{d['gain']:.3g}**.", ""]
     if d["causes"]:
-        lines += _stepwise(d)
+        lines += stepwise_section(d)
     for entry in d.get("ambiguous") or []:
         label = "Open" if entry.get("open") else "Ambiguous"
         lines += [f"**{label}.** {ambiguity_sentence(entry)}", ""]

@@ -334,7 +334,7 @@ def search_step(
         s.n_train,
         settings.min_bic_drop,
     )
-    _weigh(candidates, current, equally_good, settings)
+    weigh(candidates, current, equally_good, settings)
     eligible = [c for c in candidates if c.eligible]
     chosen = max(eligible, key=lambda c: c.gain) if eligible else None
     return Step(
@@ -359,7 +359,7 @@ def search_step(
     )
 
 
-def _weigh(candidates, current: Candidate, equally_good: EquallyGoodFits, settings: DiagnoseSettings) -> None:
+def weigh(candidates, current: Candidate, equally_good: EquallyGoodFits, settings: DiagnoseSettings) -> None:
     """Set each candidate's gain, ΔBIC and eligibility against `current` (the model it extends)."""
     bar = heldout_bar(current, equally_good)
     for cand in candidates:

@@ -1,0 +1,116 @@
+"""After the stepwise search: drop a named cause that a later one made redundant.
+
+Forward selection names the effect that explains most *given what was named
+before*; a later cause can explain what an earlier one stood in for (a
+hysteresis loop stood in for a baseline that wanders, until
+`baseline_drift` was named beside it). So, once two or more causes are named,
+each is weighed *as if it had been named last*: the final model without it
+is refitted (one LM lane from the final model's end point, the cause switched
+off) and the final model must clear the step's rules against that refit —
+material, held-out gain ≥ `min_gain`, BIC drop ≥ `min_bic_drop`, a residual
+no more correlated. A cause that fails is redundant; the weakest (least gain
+over the model without it) is dropped, the refit becomes the final model, and
+the check runs again while two or more causes remain. This is the backward
+half of stepwise regression (Efroymson's forward selection with backward
+elimination). A refit that lands in a worse local minimum can only keep a
+cause: the check errs towards the forward search's answer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._decision import evaluate_candidate, materiality_of
+from ._diagnosis import Candidate, EquallyGoodFits
+from ._search import fit_lanes, lane_tangents, padding_lane
+from ._step import weigh
+
+#: No effect-free fits to set a bar: the check weighs the final model against the refit alone.
+_NO_BAR = EquallyGoodFits(
+    n=0, heldout_nmse_min=float("nan"), heldout_nmse_max=float("nan"), definition="(not used)"
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Dropped:
+    """A named cause the final model did not need (``report.json``'s ``dropped``)."""
+
+    name: str
+    step: int
+    """The step that named it (1-based)."""
+    gain: float
+    """Held-out NMSE of the model without it over that of the model with it."""
+    reasons: tuple[str, ...]
+    """The rules the model with it failed against the model without it."""
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "step": self.step, "gain": self.gain, "reasons": list(self.reasons)}
+
+
+def drop_redundant(search, final: Candidate, present: tuple[str, ...]):
+    """(kept causes, the final model, `Dropped` entries): `present` less the causes `final` does not need.
+
+    `search`: the `Search` every step shared; `final`: the model with every
+    cause of `present` on (the last step's chosen candidate).
+    """
+    s, settings = search, search.settings
+    names = [e.name for e in s.effects]
+    n_params = {e.name: len(e.constraints) for e in s.effects}
+    kept, dropped = tuple(present), []
+    while len(kept) >= 2:
+        problem = s.problem_for(len(kept))
+        assert problem.sim_tangents is not None  # a search problem always has its directions
+        n_rows = int(problem.sim_tangents.shape[0])
+        thetas, actives, tangents = [], [], []
+        for cause in kept:
+            active = np.asarray(final.active, float).copy()
+            active[names.index(cause)] = 0.0
+            thetas.append(jnp.asarray(final.theta))
+            actives.append(active)
+            tangents.append(lane_tangents(s.model, s.frozen, tuple(c for c in kept if c != cause), n_rows))
+        while len(thetas) < s.n_lanes:  # the search's lane count: its compiled program
+            thetas.append(padding_lane(final.theta))
+            actives.append(actives[0])
+            tangents.append(tangents[0])
+        s.say(f"each named cause weighed as if named last ({', '.join(kept)})")
+        states = fit_lanes(
+            problem,
+            np.stack(actives),
+            np.stack(tangents),
+            jnp.stack(thetas),
+            s.lm,
+            settings.patience,
+        )
+        weakest = None
+        for j, cause in enumerate(kept):
+            rest = tuple(c for c in kept if c != cause)
+            without = evaluate_candidate(
+                problem,
+                states.best_theta[j],
+                actives[j],
+                rest[-1],
+                s.n_train,
+                final.n_parameters - n_params[cause],
+                settings.materiality,
+                s.frozen,
+                rest[:-1],
+            )
+            with_it = dataclasses.replace(final, name=cause, reasons=[])
+            with_it.material, with_it.materiality = materiality_of(
+                problem, final.theta, final.active, cause, settings.materiality
+            )
+            weigh([with_it], without, _NO_BAR, settings)
+            if not with_it.eligible and (weakest is None or with_it.gain < weakest[1].gain):
+                weakest = (j, with_it, without)
+        if weakest is None:
+            break
+        j, with_it, without = weakest
+        cause = kept[j]
+        dropped.append(Dropped(cause, present.index(cause) + 1, with_it.gain, tuple(with_it.reasons)))
+        without.reasons.append(f"refitted without {cause}, which the other causes made redundant")
+        without.validation_loss = float(np.asarray(states.best_val)[j])
+        kept, final = tuple(c for c in kept if c != cause), without
+    return kept, final, dropped

@@ -1,0 +1,130 @@
+"""A named cause that another makes redundant is dropped (the backward half of stepwise selection).
+
+The plant is a first-order lag (τ 0.5 s) made here with scipy's `lfilter`,
+whose gain drifts by −1.2 %/s under random levels. The final model of a
+forward search that named saturation first and drift second is built by
+fitting both from a start; weighed as if named last, saturation (no
+curvature in the data) fails the step's rules and is dropped, drift is kept.
+With a real saturation added to the plant, both are kept.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+import hybrid
+from hybrid.discovery._decision import evaluate_candidate, free_names
+from hybrid.discovery._diagnose import prepare_search
+from hybrid.discovery._diagnosis import EquallyGoodFits, HeldoutSignals
+from hybrid.discovery._redundant import drop_redundant
+from hybrid.discovery._report import stepwise_section
+from hybrid.discovery._search import fit_lanes, initial_thetas, lane_tangents, padding_lane
+from hybrid.discovery._step import Step
+
+RATE, N = 30.0, 1800
+EFFECTS = ["saturation", "drift"]
+
+
+def _recording(curvature: float, seed: int = 0) -> hybrid.Recording:
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(0.0, 2.2, N // 15), 15)
+    a = np.exp(-1.0 / (RATE * 0.5))
+    s = lfilter([1 - a], [1, -a], u)
+    s = s / (1.0 + curvature * s)  # a gain that falls with level (none at curvature 0)
+    w = s * np.exp(-0.012 * np.arange(N) / RATE)
+    w = w + 0.005 * np.ptp(w) * np.random.default_rng(seed + 1).normal(size=N)
+    return hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE)
+
+
+def _both_named(recording):
+    """The search, and the model with saturation and drift on, fitted by the search's own LM lanes."""
+    search = prepare_search([recording], hybrid.LTI(1), hybrid.DiagnoseSettings(), EFFECTS)
+    problem, model = search.problem, search.model
+    active = np.ones(len(EFFECTS) + 1)  # both effects and the frame timing
+    # tanh(κs)/κ is even in κ: no slope at κ = 0, so saturation starts bent (as its own starts do)
+    start = model.simulation.with_active(active).replace(
+        drift_rate_per_s=-0.005, saturation_pos_curvature=0.5, saturation_neg_curvature=0.5
+    )
+    theta = initial_thetas(problem, [start], model.readout, search.frozen)[0]
+    n_rows = int(problem.sim_tangents.shape[0])
+    tangents = lane_tangents(model, search.frozen, tuple(EFFECTS), n_rows)
+    lanes = [theta] + [padding_lane(theta)] * (search.n_lanes - 1)
+    states = fit_lanes(
+        problem,
+        np.tile(active, (search.n_lanes, 1)),
+        np.stack([tangents] * search.n_lanes),
+        jnp.stack(lanes),
+        search.lm,
+        search.settings.patience,
+    )
+    final = evaluate_candidate(
+        problem,
+        states.best_theta[0],
+        active,
+        "drift",
+        search.n_train,
+        len(free_names(model, search.frozen, tuple(EFFECTS))),
+        search.settings.materiality,
+        search.frozen,
+        ("saturation",),
+    )
+    return search, final
+
+
+def test_a_cause_the_other_makes_redundant_is_dropped_and_a_needed_one_kept():
+    search, final = _both_named(_recording(curvature=0.0))
+    kept, refit, dropped = drop_redundant(search, final, ("saturation", "drift"))
+    assert kept == ("drift",)
+    (gone,) = dropped
+    assert (gone.name, gone.step) == ("saturation", 1)
+    assert gone.gain < search.settings.min_gain and gone.reasons  # why, in the step's words
+    # the refit is the model without it: saturation off, and as good held out (within 10 %)
+    assert refit.active[EFFECTS.index("saturation")] == 0.0 and refit.active[EFFECTS.index("drift")] == 1.0
+    assert refit.heldout.nmse == pytest.approx(final.heldout.nmse, rel=0.1)
+
+
+def test_two_needed_causes_are_both_kept():
+    search, final = _both_named(_recording(curvature=0.6))
+    kept, refit, dropped = drop_redundant(search, final, ("saturation", "drift"))
+    assert (kept, dropped) == (("saturation", "drift"), [])
+    assert refit is final
+
+
+def test_a_dropped_cause_is_reported_and_not_among_the_causes():
+    """Diagnosis.causes skips it, report.json and report.md list it, the verdict says so."""
+    search, final = _both_named(_recording(curvature=0.0))
+    base, first = dataclasses.replace(final, name="none"), dataclasses.replace(final, name="saturation")
+    bar = EquallyGoodFits(n=0, heldout_nmse_min=float("nan"), heldout_nmse_max=float("nan"), definition="-")
+
+    def step(current, chosen):
+        return Step(current, [chosen], chosen, 0.0, [], bar, [])
+
+    three = np.arange(3.0)
+    diagnosis = hybrid.Diagnosis(
+        cause="drift",
+        baseline=base,
+        extended=final,
+        candidates=[first],
+        uncertainties={},
+        evidence={},
+        hybrid=None,
+        settings=search.settings,
+        recordings=["r"],
+        seconds=0.0,
+        heldout=HeldoutSignals(three, three, three, three, three, np.zeros(3), np.zeros(3)),
+        steps=[step(base, first), step(first, final)],
+        effects=search.effects,
+        dropped=[{"name": "saturation", "step": 1, "gain": 1.01, "reasons": ["held-out gain 1.01 < 1.5"]}],
+    )
+    assert [(c["name"], c["step"]) for c in diagnosis.causes] == [("drift", 2)]
+    assert "saturation, named at step 1, was dropped: beside drift it gains only 1.01×" in diagnosis.verdict
+    report = diagnosis.to_dict()
+    assert report["dropped"][0]["name"] == "saturation"
+    assert any(
+        line.startswith("**Dropped.** saturation, named at step 1") for line in stepwise_section(report)
+    )
