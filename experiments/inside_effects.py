@@ -349,6 +349,7 @@ def main(argv=None) -> int:
                     "truth": truth,
                     "expected": expected,
                     "causes": causes,
+                    "dropped": [d["name"] for d in found.dropped],  # named, then found redundant
                     "right": right,
                     "gain": found.gain,
                     "unexplained": found.unexplained is not None,
@@ -383,7 +384,9 @@ def write(rows: list, cases: list, argv, path: str) -> None:
     for r in rows:
         size = r["truth"].get("effect_rms_percent")  # measured by the RC generator (noise: 0.5 %)
         lines.append(
-            f"| {r['case']} | {r['seed']} | {r['expected'] or 'none'} | {', '.join(r['causes']) or 'none'} | "
+            f"| {r['case']} | {r['seed']} | {r['expected'] or 'none'} | {', '.join(r['causes']) or 'none'}"
+            + "".join(f" (dropped: {name})" for name in r.get("dropped", []))
+            + " | "
             f"{'yes' if r['right'] else '**no**'} | {r['gain']:.2f} | {'yes' if r['unexplained'] else 'no'} | "
             f"{'' if size is None else f'{size:.2f}'} | {r['seconds']:.0f} |"
         )

@@ -90,6 +90,10 @@ SPLIT = (0.8, 0.1, 0.1)
 SILVER_RATE = 610.35
 SILVER_EST, SILVER_TEST = (40650, 127400), (100, 40575)
 SILVER_SELECT = (109050, 127400)  # the estimation record's last 20 %
+SILVER_DIAGNOSED = (
+    40650,
+    49325,
+)  # what `diagnose` sees: one multisine realisation (experiments/measured.py's)
 #: what each tool is fitted on, Silverbox (SNLS80mV.csv sample ranges)
 SILVER_FIT = {
     "narx": (40650, 75350),
@@ -282,6 +286,38 @@ def project_row(label, model, fit_s, predict, score, note=""):
     return row
 
 
+def diagnosed_rows(dataset, simulation, diagnosed, where, est, frozen, predict, score, log, **fit_options):
+    """(rows, notes): `diagnose` of `simulation` on `diagnosed`, its extended model refitted on `est`.
+
+    The project's third model, physics + the effects diagnose names, when it
+    names any: the model diagnose extended (and saved), refitted on the
+    estimation record by LM from there (one start). Its fit seconds are the
+    whole diagnosis plus the refit. A note says what diagnose said either way.
+    """
+    t0 = time.perf_counter()
+    found = hybrid.diagnose(diagnosed, simulation=simulation)
+    seconds = time.perf_counter() - t0
+    names = [c["name"] for c in found.causes]
+    note = (
+        f"`hybrid.diagnose` on {where} ({diagnosed.n} samples, {seconds:.0f} s) names "
+        f"{' + '.join(names) if names else 'nothing'} (gain {found.gain:.3g}): {found.verdict}"
+    )
+    log(f"{dataset:<10} diagnose: {', '.join(names) or 'nothing'} ({seconds:.0f} s)")
+    if not names:
+        return [], [note]
+    refit, s = _fit(found.models["extended"], est, frozen, starts=1, **fit_options)
+    row = project_row(
+        f"physics + the effects diagnose names: {type(simulation).__name__} + {' + '.join(names)}",
+        refit.model,
+        seconds + s,
+        predict,
+        score,
+        "diagnose's extended model refitted on the estimation data (1 start); fit seconds: the diagnosis + the refit",
+    )
+    log(f"{dataset:<10} {row['model']:<52} {row['score_label']} {row['score']:.4g} fit {seconds + s:.1f} s")
+    return [row], [note]
+
+
 # --- Cascaded Tanks ---------------------------------------------------------------------------
 def tanks(quick, tools, log) -> dict:
     path = DATA / "cascaded-tanks" / "dataBenchmark.csv"
@@ -364,6 +400,20 @@ def tanks(quick, tools, log) -> dict:
         )
     )
     log(f"tanks      {rows[-1]['model']:<52} Val RMSE {rows[-1]['score']:.4g} fit {s:.1f} s")
+    extended, notes = diagnosed_rows(
+        "tanks",
+        physics,
+        est,
+        "the estimation record",
+        est,
+        frozen,
+        predict,
+        score,
+        log,
+        split=SPLIT,
+        max_steps=steps,
+    )
+    rows += extended
     best = None
     for depth, width, window, decay in TANKS_MLP[-1:] if quick else TANKS_MLP:
         start = hybrid.make_model(
@@ -412,6 +462,7 @@ def tanks(quick, tools, log) -> dict:
         "split": f"fit on uEst[:{n_fit}] (80 %), settings chosen on uEst[{n_fit}:] run free; test uVal->yVal "
         f"({val.n} samples), initial state from its first {TANKS_INIT} samples, RMSE over the rest",
         "rows": rows,
+        "notes": notes,
     }
 
 
@@ -457,9 +508,9 @@ def silverbox(quick, tools, log) -> dict:
         f"{SILVER_INIT} samples (the project's models start at rest), RMSE over the rest; settings chosen on "
         f"{select_range[0]}:{select_range[1]} run free; each model's fitting range in its row"
     )
-    rows = []
+    rows, notes = [], []
     if not quick:
-        rows = silverbox_project(fit_ranges, predict, score, log)
+        rows, notes = silverbox_project(fit_ranges, predict, score, log)
     grids = QUICK_GRIDS if quick else GRIDS["silverbox"]
     peer_rows = peers_on(
         "silverbox",
@@ -479,6 +530,7 @@ def silverbox(quick, tools, log) -> dict:
         "reference": "hybrid",
         "split": split,
         "rows": rows + peer_rows,
+        "notes": notes,
     }
 
 
@@ -517,6 +569,20 @@ def silverbox_project(fit_ranges, predict, score, log):
         )
     )
     log(f"silverbox  {rows[-1]['model']:<52} arrow RMSE {rows[-1]['score']:.4g} mV fit {s:.1f} s")
+    # one multisine realisation, as experiments/measured.py diagnoses it: the search's lanes stay within minutes
+    extended, notes = diagnosed_rows(
+        "silverbox",
+        physics,
+        _silver(*SILVER_DIAGNOSED),
+        f"samples {SILVER_DIAGNOSED[0]}:{SILVER_DIAGNOSED[1]}",
+        est,
+        frozen,
+        predict,
+        score,
+        log,
+        split=SPLIT,
+        max_steps=steps,
+    )
     short = _silver(*fit_ranges["hybrid"])
     start = hybrid.make_model("hybrid", simulation=base.model.simulation, key=jax.random.key(0))
     res, s = _fit(start, short, frozen + ("frequency", "zeta"), split=SPLIT, max_steps=6 if quick else 60)
@@ -524,7 +590,9 @@ def silverbox_project(fit_ranges, predict, score, log):
     log(f"silverbox  {rows[-1]['model']:<52} arrow RMSE {rows[-1]['score']:.4g} mV fit {s:.1f} s")
     for row, key in zip(rows, ("physics", "physics", "hybrid")):
         row["fit_range"] = list(fit_ranges[key])
-    return rows
+    for row in extended:
+        row["fit_range"] = list(fit_ranges["physics"])
+    return rows[:2] + extended + rows[2:], notes
 
 
 # --- the virtual IPMC's Table 2 ------------------------------------------------------------------
@@ -672,7 +740,7 @@ def dataset_table(part) -> list[str]:
             f"SysIdentPy NARX scored one step ahead (the measured output fed back, as [28] was scored; not "
             f"comparable with the free-run column): {label} {_fmt(narx['one_step']['score'])}.",
         ]
-    notes = [f"{r['model']}: {r['sim_note']}" for r in rows if r.get("sim_note")]
+    notes = [f"{r['model']}: {r['sim_note']}" for r in rows if r.get("sim_note")] + part.get("notes", [])
     lines += [""] + [f"- {n}" for n in notes] if notes else []
     return lines + [""]
 
