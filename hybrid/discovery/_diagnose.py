@@ -67,6 +67,7 @@ from ._ambiguity import ambiguities
 from ._decision import evaluate_candidate, free_names
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effect_set import resolve_effects, searched_places
+from ._effect_stack import EffectStack
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._redundant import drop_redundant
 from ._search import (
@@ -235,7 +236,9 @@ def diagnose(
     n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
     say(f"screening {N_SCREEN} network designs for the baseline's starts")
     grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN, frozen)
-    base = model.simulation.with_active(off)
+    stack = model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
+    base = stack.with_active(off)
     thetas = initial_thetas(problem, [base.replace(**g) for g in grid], model.readout, frozen)
     if len(grid) < n_lanes:  # a design smaller than the lanes (few free parameters): the rest stop at once
         thetas = jnp.concatenate([thetas, jnp.stack([padding_lane(thetas[0])] * (n_lanes - len(grid)))])
