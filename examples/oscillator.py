@@ -71,6 +71,8 @@ class MassSpringDamper(AbstractStateSpace):
     states: ClassVar[tuple] = ("position", "velocity")
     # y is in the drive's unit (the static gain folded into the drive's scale).
     state_units: ClassVar[dict] = {"position": "{drive}", "velocity": "{drive}/s"}
+    # simulate returns the position y: in the drive's unit too.
+    output_unit: ClassVar[str] = "{drive}"
     # An end stop limits the position; nothing limits the velocity directly.
     limited_states: ClassVar[tuple] = ("position",)
     substeps: ClassVar[int] = SUBSTEPS
