@@ -181,7 +181,7 @@ def fit(
     return FitResult(
         model=fitted,
         parameters={k: float(v) for k, v in fitted.parameters().items()},
-        units=_unit_labels(fitted, recordings),
+        units=unit_labels(fitted, recordings),
         metrics=result_metrics,
         history=history,
         starts=per_start,
@@ -194,8 +194,11 @@ def fit(
     )
 
 
-def _unit_labels(model: Model, recordings) -> dict[str, str]:
-    """`model.units`, the readout's in the recordings' declared unit of w (per the simulation's output)."""
+def unit_labels(model: Model, recordings) -> dict[str, str]:
+    """`model.units` in the recordings' declared units of w and the drive (`Model.units_in`).
+
+    Recordings that declare different units leave the paper's (w in mm, the drive in V).
+    """
     tables = [
         r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings
     ]

@@ -82,8 +82,6 @@ class LinearReadout(AbstractReadout):
     raw: dict[str, Array]
     window: int = eqx.field(static=True)
     constraints: ClassVar[dict[str, Constraint]] = {"gain": Real(), "offset": Real()}
-    #: The units for the paper's case (w in mm, the RC network's V_o in V); see `units_for`.
-    units: ClassVar[dict[str, str]] = {"gain": "mm/V", "offset": "mm"}
 
     def __init__(self, gain: float = 1.0, offset: float = 0.0):
         self.raw = encode({"gain": gain, "offset": offset}, self.constraints, "LinearReadout")

@@ -138,17 +138,22 @@ def choose_lane(idx, vals, is_material, n_val: int) -> int:
 
 def materiality_of(problem, theta, active, name, materiality) -> tuple[bool, str]:
     """(material, its size against the threshold in words) of effect `name` at θ with switches `active`."""
-    parameters = {k: float(v) for k, v in problem.model(theta).parameters().items()}
-    return _material(
-        problem, theta, name, derived_quantities(problem, theta, active), parameters, materiality
-    )
+    material, words, _ = _effect_at(problem, theta, active, name, materiality)
+    return material, words
 
 
 def lane_effect(problem, theta, active, name, materiality) -> tuple[bool, dict]:
     """(material, size) of effect `name` at a lane's end point; size as in `Candidate.derived`."""
+    material, _, size = _effect_at(problem, theta, active, name, materiality)
+    return material, size
+
+
+def _effect_at(problem, theta, active, name, materiality) -> tuple[bool, str, dict]:
+    """(material, in words, size) of effect `name` at θ with switches `active`."""
     parameters = {k: float(v) for k, v in problem.model(theta).parameters().items()}
     derived = derived_quantities(problem, theta, active)
-    return _material(problem, theta, name, derived, parameters, materiality)[0], derived.get(name, {})
+    material, words = _material(problem, theta, name, derived, parameters, materiality)
+    return material, words, derived.get(name, {})
 
 
 def evaluate_candidate(

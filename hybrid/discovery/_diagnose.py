@@ -59,6 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation
+from ..core._fit import unit_labels
 from ..core._levenberg_marquardt import LMSettings
 from ..util._errors import InputError
 from ..util._programs import DIAGNOSE_PROGRAMS
@@ -71,12 +72,10 @@ from ._effect_stack import EffectStack
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._redundant import drop_redundant
 from ._search import (
-    drive_unit,
     fit_lanes,
     initial_thetas,
     lane_tangents,
     lanes_problem,
-    output_unit,
     padding_lane,
     split_signals,
     with_active,
@@ -377,7 +376,7 @@ def diagnose(
             "extended": extended_model,
             **rival_models,
         },
-        units=extended_model.units_in(output_unit(recordings), drive_unit(recordings)),
+        units=unit_labels(extended_model, recordings),
         dropped=[d.to_dict() for d in dropped],
     )
 

@@ -21,7 +21,7 @@ from jaxtyping import Array
 from ..core._arguments import check_drive, run_compiled
 from ..core._parameters import Constraint
 from ..core._serialise import imported_class
-from ..core._simulation import DRIVE, AbstractSimulation, AbstractWrapper, perturb_raw
+from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw, unit_in
 from ..core._state_space import dynamics_of, integrate
 from ..util._errors import InputError
 from ._effect_set import resolve_effects
@@ -117,8 +117,8 @@ class EffectStack(AbstractWrapper):
             dynamics = dynamics_of(self.inner)
             unit = dynamics[0].state_units.get(effect.acts_on) if dynamics else None
             # A state in the drive's unit (an oscillator's position, in volts of drive) says "{drive}".
-            return unit.replace(DRIVE, self.drive_unit) if unit else f"(unit of {effect.acts_on})"
-        return self.inner.output_unit.replace(DRIVE, self.drive_unit)
+            return unit_in(unit, self.drive_unit) if unit else f"(unit of {effect.acts_on})"
+        return unit_in(self.inner.output_unit, self.drive_unit)
 
     def parameters(self):
         out = dict(self.inner.parameters())

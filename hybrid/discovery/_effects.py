@@ -84,7 +84,7 @@ from jaxtyping import Array, Float
 
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
-from ..core._simulation import DRIVE
+from ..core._simulation import unit_in
 from ._hysteresis import bouc_wen_state
 
 #: Where an effect acts: on the drive before the simulation, y = S(φ(u)); inside the dynamics
@@ -212,7 +212,7 @@ class AbstractEffect(eqx.Module):
         ``"(unit of S)"``: the unit of its output, whatever that is.
         """
         unit, drive = signal_unit or "(unit of S)", drive_unit or "(unit of the drive)"
-        return {k: v.replace(SIGNAL, unit).replace(DRIVE, drive) for k, v in self.units.items()}
+        return {k: unit_in(v.replace(SIGNAL, unit), drive) for k, v in self.units.items()}
 
     def config(self) -> dict:
         """The JSON-able settings that rebuild this effect's skeleton (`from_config`); default none."""

@@ -211,17 +211,8 @@ def shared_room(settings: DiagnoseSettings, n_effects: int) -> int:
 
 def drive_unit(recordings) -> str:
     """The drive's unit, from the first recording's metadata ("V" where it does not say)."""
-    return _declared_unit(recordings, "v_in", "V")
-
-
-def output_unit(recordings) -> str:
-    """w's unit, from the first recording's metadata ("mm" where it does not say)."""
-    return _declared_unit(recordings, "w", "mm")
-
-
-def _declared_unit(recordings, key: str, default: str) -> str:
     units = getattr(recordings[0], "metadata", {}).get("units", {})
-    return str(units.get(key, default)) if isinstance(units, dict) else default
+    return str(units.get("v_in", "V")) if isinstance(units, dict) else "V"
 
 
 def searched_effects(stack: EffectStack) -> tuple[AbstractEffect, ...]:

@@ -42,7 +42,7 @@ def verdict(diagnosis) -> str:
             f"{_names(causes)} {'explains' if len(causes) == 1 else 'explain'} {share:.0%} of the simulation's "
             f"held-out error above the noise floor (gain {diagnosis.gain:.2g}×)"
         )
-        for d in getattr(diagnosis, "dropped", []):
+        for d in diagnosis.dropped:
             head += (
                 f" ({d['name'].replace('_', '-')}, named at step {d['step']}, was dropped: beside "
                 f"{_names(causes)} it gains only {d['gain']:.2f}× held out)"
