@@ -90,10 +90,8 @@ SPLIT = (0.8, 0.1, 0.1)
 SILVER_RATE = 610.35
 SILVER_EST, SILVER_TEST = (40650, 127400), (100, 40575)
 SILVER_SELECT = (109050, 127400)  # the estimation record's last 20 %
-SILVER_DIAGNOSED = (
-    40650,
-    49325,
-)  # what `diagnose` sees: one multisine realisation (experiments/measured.py's)
+#: what `diagnose` sees: one multisine realisation (experiments/measured.py's)
+SILVER_DIAGNOSED = (40650, 49325)
 #: what each tool is fitted on, Silverbox (SNLS80mV.csv sample ranges)
 SILVER_FIT = {
     "narx": (40650, 75350),
