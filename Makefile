@@ -44,6 +44,7 @@ bench: $(BENCH_STAMP)
 	$(BIN)/python benchmarks/batch_fit.py
 	$(BIN)/python benchmarks/memory.py
 	$(BIN)/python benchmarks/diagnose.py
+	$(BIN)/python benchmarks/compile_emitters.py
 
 bench-quick: $(STAMP)
 	$(BIN)/python benchmarks/quick.py

@@ -21,9 +21,10 @@ RESULTS = Path(__file__).parent / "results"
 def setup_jax():
     import jax
 
-    from hybrid import use_cpu_cores
+    from hybrid import use_cpu_cores, use_quick_compiles
 
     use_cpu_cores()  # as the `hybrid` command does: one CPU device per core
+    use_quick_compiles()  # and XLA:CPU's loop emitters
     jax.config.update("jax_enable_x64", True)
     return jax
 
@@ -51,12 +52,12 @@ def first_call(fn, *args):
     return time.perf_counter() - t0, out
 
 
-def recording_arguments(doc: str):
+def recording_arguments(doc: str, duration: float = 300.0):
     """The command line of a benchmark on `relaxing_strip`'s recordings: --duration (s) and --rate (Hz)."""
     import argparse
 
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=300.0)
+    parser.add_argument("--duration", type=float, default=duration)
     parser.add_argument("--rate", type=float, default=30.0)
     return parser.parse_args()
 

@@ -41,7 +41,7 @@ from ._cli_outputs import check_outputs, out_file, out_folder
 from ._cli_sensitivity import add_sensitivity, cmd_sensitivity
 from ._cli_stop import FitStop, partial_path
 from ._cli_test import add_test_options, load_tests, print_scores, score_tests
-from .util._cores import use_cpu_cores
+from .util._cores import use_cpu_cores, use_quick_compiles
 from .util._errors import InputError
 from .util._watchdog import Watchdog
 
@@ -619,6 +619,7 @@ def main(argv=None) -> int:
 
     jax.config.update("jax_enable_x64", True)  # the entry point chooses float64
     use_cpu_cores()  # and one CPU device per core: diagnose's lanes run side by side
+    use_quick_compiles()  # and XLA:CPU's loop emitters: half the compile time
     _use_compilation_cache(jax)
     args = None
     ctrl_c: list[int] = []  # the signals _sigint_watch saw

@@ -39,6 +39,7 @@ os.environ.setdefault("JAX_NUM_CPU_DEVICES", "1")
 import jax  # after the device count: JAX reads it when it is imported
 import pytest
 
+from hybrid import use_quick_compiles
 from hybrid.util._programs import MAX_MAP_FRACTION, map_limit, memory_maps, release_programs
 
 CACHE_ENV = "HYBRID_JAX_CACHE"
@@ -73,6 +74,11 @@ jax.config.update("jax_enable_x64", True)
 
 
 def pytest_configure(config):
+    # XLA:CPU's loop emitters, as the `hybrid` command has (`hybrid.use_quick_compiles`): about 45 % of
+    # the suite's time was XLA compiling, and they compile the project's programs in about half the
+    # time. Before any JAX work (XLA reads XLA_FLAGS when its backend starts); the workers and the
+    # commands the tests start inherit it.
+    use_quick_compiles()
     if not hasattr(config, "workerinput"):  # the controller, or a run without xdist
         where = tempfile.mkdtemp(prefix="hybrid-test-jax-cache-")
         config._hybrid_jax_cache = where

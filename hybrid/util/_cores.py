@@ -1,4 +1,8 @@
-"""`use_cpu_cores`: one JAX CPU device per core, for an entry point to call before any JAX work.
+"""How an entry point sets up JAX's CPU backend, before any JAX work: devices and compiling.
+
+`use_cpu_cores`: one JAX CPU device per core. `use_quick_compiles`: XLA:CPU's
+loop emitters instead of its fusion emitters, which halves the time to compile
+the search's programs.
 
 XLA's CPU backend runs one program on one core at a time, apart from the
 multi-threaded kernels inside it (large matrix products). Work made of
@@ -57,3 +61,34 @@ def use_cpu_cores(n: int | None = None) -> int | None:
     except RuntimeError:  # the backend has started: its devices stay as they are
         return None
     return count
+
+
+#: The XLA:CPU option `use_quick_compiles` sets. XLA's fusion emitters (its default) take longer to
+#: compile this project's programs than its older loop emitters and run them no faster: with jaxlib
+#: 0.10.2 on the 2-core machine, `diagnose` on a 60 s, 30 Hz recording compiled in 0.61× the
+#: time and ran in 0.92× (`python benchmarks/compile_emitters.py`). XLA stops at once on a flag it
+#: does not know, so it is set only for the jaxlib series it was measured on (pyproject.toml pins
+#: it); re-measure when that pin moves.
+QUICK_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
+_QUICK_COMPILE_JAXLIB = "0.10."
+
+
+def use_quick_compiles() -> bool:
+    """Have XLA:CPU compile with its loop emitters (`QUICK_COMPILE_FLAG`) unless the user chose.
+
+    Call it at the start of a script, before JAX computes anything: XLA reads
+    ``XLA_FLAGS`` when its backend starts, and ignores it after. A choice made
+    outside the script wins: ``xla_cpu_use_fusion_emitters`` already in
+    ``XLA_FLAGS``. The programs compute the same functions either way; only the
+    code XLA generates for them differs.
+
+    **Returns:** True where it added the flag to ``XLA_FLAGS``; False where it
+    left it as it was (the user's choice, or a jaxlib it was not measured on).
+    """
+    import jaxlib
+
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_cpu_use_fusion_emitters" in flags or not jaxlib.__version__.startswith(_QUICK_COMPILE_JAXLIB):
+        return False
+    os.environ["XLA_FLAGS"] = f"{flags} {QUICK_COMPILE_FLAG}".strip()
+    return True

@@ -1,0 +1,103 @@
+"""XLA:CPU's loop emitters (`hybrid.use_quick_compiles`) against its fusion emitters: compiling and running.
+
+    python benchmarks/compile_emitters.py [--duration 60] [--rate 30]
+
+Each emitter in its own fresh process (XLA reads ``XLA_FLAGS`` when its backend
+starts), the two processes one after the other: ``quick`` is what the `hybrid`
+command and the test suite use (`use_quick_compiles`, ``--xla_cpu_use_fusion_emitters=false``),
+``fusion`` is XLA's default (``--xla_cpu_use_fusion_emitters=true``). Each process
+runs `diagnose` on two recordings of the same length (`_common.relaxing_strip`,
+seeds 0 and 1): the first call compiles the search's programs, the second
+reuses them (and compiles only what a step the first did not take needs).
+Compiling is XLA's backend compile, summed over programs (JAX's
+``backend_compile_duration`` events); the rest of a call (tracing and running)
+is reported as ``running_s``. Reported: each call's seconds, and the ratios
+quick / fusion of compiling, of the first call and of the second call's
+running. No persistent compilation cache: every program is compiled. Writes
+`benchmarks/results/compile_emitters.json`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import _common as c
+
+FLAGS = {"quick": None, "fusion": "--xla_cpu_use_fusion_emitters=true"}
+
+
+def child(duration: float, rate: float) -> dict:
+    import time
+
+    jax = c.setup_jax()  # use_quick_compiles, unless XLA_FLAGS already chose
+    from jax import monitoring
+
+    compiling = {"s": 0.0, "programs": 0}
+
+    def listen(event, duration, **_):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiling["s"] += duration
+            compiling["programs"] += 1
+
+    monitoring.register_event_duration_secs_listener(listen)
+    from hybrid import diagnose
+
+    calls = []
+    for seed in (0, 1):
+        recording = c.relaxing_strip(seed, duration, rate)
+        before = dict(compiling)
+        t0 = time.perf_counter()
+        found = diagnose(recording)
+        elapsed, compiled = time.perf_counter() - t0, compiling["s"] - before["s"]
+        calls.append(
+            {
+                "s": elapsed,
+                "compiling_s": compiled,
+                "running_s": elapsed - compiled,
+                "programs": compiling["programs"] - before["programs"],
+                "named": found.cause,
+            }
+        )
+    return {"xla_flags": os.environ.get("XLA_FLAGS", ""), "jax": jax.__version__, "calls": calls}
+
+
+def main() -> None:
+    if len(sys.argv) > 1 and sys.argv[1] == "--child":
+        print(json.dumps(child(float(sys.argv[2]), float(sys.argv[3]))))
+        return
+    args = c.recording_arguments(__doc__, duration=60.0)
+    c.setup_jax()  # for `machine()` below; each child builds its own XLA_FLAGS
+    runs = {}
+    for name, flags in FLAGS.items():
+        env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "HYBRID_JAX_CACHE")}
+        if flags:
+            env["XLA_FLAGS"] = flags
+        proc = subprocess.run(
+            [sys.executable, __file__, "--child", str(args.duration), str(args.rate)],
+            env=env,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        runs[name] = json.loads(proc.stdout.strip().splitlines()[-1])
+    quick, fusion = (runs[k]["calls"] for k in ("quick", "fusion"))
+    out = {
+        "samples": int(args.duration * args.rate),
+        "rate_hz": args.rate,
+        "duration_s": args.duration,
+        "runs": runs,
+        "compiling_quick_over_fusion": quick[0]["compiling_s"] / fusion[0]["compiling_s"],
+        "first_call_quick_over_fusion": quick[0]["s"] / fusion[0]["s"],
+        "second_call_running_quick_over_fusion": quick[1]["running_s"] / fusion[1]["running_s"],
+        "machine": c.machine(),
+        "command": f"python benchmarks/compile_emitters.py --duration {args.duration:g} --rate {args.rate:g}",
+    }
+    c.write("compile_emitters.json", out)
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
