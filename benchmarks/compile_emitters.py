@@ -33,16 +33,7 @@ def child(duration: float, rate: float) -> dict:
     import time
 
     jax = c.setup_jax()  # use_quick_compiles, unless XLA_FLAGS already chose
-    from jax import monitoring
-
-    compiling = {"s": 0.0, "programs": 0}
-
-    def listen(event, duration, **_):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiling["s"] += duration
-            compiling["programs"] += 1
-
-    monitoring.register_event_duration_secs_listener(listen)
+    compiling = c.compile_counter()
     from hybrid import diagnose
 
     calls = []

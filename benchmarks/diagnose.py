@@ -39,16 +39,7 @@ import _common as c
 def main() -> None:
     args = c.recording_arguments(__doc__)
     c.setup_jax()
-    from jax import monitoring
-
-    compiling = {"s": 0.0, "programs": 0}
-
-    def listen(event, duration, **_):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiling["s"] += duration
-            compiling["programs"] += 1
-
-    monitoring.register_event_duration_secs_listener(listen)
+    compiling = c.compile_counter()
     from hybrid import LevenbergMarquardt, RCNetwork, diagnose, fit, make_model
 
     first, second = (c.relaxing_strip(seed, args.duration, args.rate) for seed in (0, 1))
