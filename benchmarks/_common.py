@@ -47,6 +47,20 @@ def compile_counter() -> dict:
     return counter
 
 
+def timed(compiling: dict, fn, *args, **kwargs):
+    """(fn's result, its seconds split into compiling and the rest), `compiling` from `compile_counter`."""
+    before = dict(compiling)
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    seconds, compiled = time.perf_counter() - t0, compiling["s"] - before["s"]
+    return out, {
+        "s": seconds,
+        "compiling_s": compiled,
+        "running_s": seconds - compiled,
+        "programs": compiling["programs"] - before["programs"],
+    }
+
+
 def best_of(fn, *args, repeats=5):
     """Minimum wall time (s) of `fn(*args)` over `repeats` calls, and the last result."""
     import jax

@@ -30,8 +30,6 @@ FLAGS = {"quick": None, "fusion": "--xla_cpu_use_fusion_emitters=true"}
 
 
 def child(duration: float, rate: float) -> dict:
-    import time
-
     jax = c.setup_jax()  # use_quick_compiles, unless XLA_FLAGS already chose
     compiling = c.compile_counter()
     from hybrid import diagnose
@@ -39,19 +37,8 @@ def child(duration: float, rate: float) -> dict:
     calls = []
     for seed in (0, 1):
         recording = c.relaxing_strip(seed, duration, rate)
-        before = dict(compiling)
-        t0 = time.perf_counter()
-        found = diagnose(recording)
-        elapsed, compiled = time.perf_counter() - t0, compiling["s"] - before["s"]
-        calls.append(
-            {
-                "s": elapsed,
-                "compiling_s": compiled,
-                "running_s": elapsed - compiled,
-                "programs": compiling["programs"] - before["programs"],
-                "named": found.cause,
-            }
-        )
+        found, call = c.timed(compiling, diagnose, recording)
+        calls.append({**call, "named": found.cause})
     return {"xla_flags": os.environ.get("XLA_FLAGS", ""), "jax": jax.__version__, "calls": calls}
 
 

@@ -44,21 +44,10 @@ def main() -> None:
 
     first, second = (c.relaxing_strip(seed, args.duration, args.rate) for seed in (0, 1))
 
-    def timed(fn, *a, **k):
-        before = dict(compiling)
-        t0 = time.perf_counter()
-        out = fn(*a, **k)
-        seconds = time.perf_counter() - t0
-        return out, {
-            "s": seconds,
-            "compiling_s": compiling["s"] - before["s"],
-            "running_s": seconds - (compiling["s"] - before["s"]),
-            "programs": compiling["programs"] - before["programs"],
-        }
-
-    found, cold = timed(diagnose, first)
-    found2, warm = timed(diagnose, second)
-    _, peer = timed(
+    found, cold = c.timed(compiling, diagnose, first)
+    found2, warm = c.timed(compiling, diagnose, second)
+    _, peer = c.timed(
+        compiling,
         fit,
         make_model("physics", simulation=RCNetwork(method="zoh")),
         [second],
