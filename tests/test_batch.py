@@ -139,7 +139,9 @@ SHARDED = textwrap.dedent("""
 
 def test_sharded_batch_over_four_cpu_devices_equals_unsharded():
     tests = str(Path(__file__).parent)
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
+    # The suite's flags (conftest: the quick-compile emitters) stay; the device count is added to them.
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4".strip()
+    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
     env.pop("JAX_NUM_CPU_DEVICES", None)  # the suite's one device (conftest) would win over the flag
     proc = subprocess.run(
         [sys.executable, "-c", SHARDED.format(tests=tests)],

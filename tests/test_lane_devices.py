@@ -29,6 +29,7 @@ LANES = textwrap.dedent("""
     import json
     import hybrid
     print("SET", hybrid.use_cpu_cores(3))
+    hybrid.use_quick_compiles()  # as the `hybrid` command does after its device count
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
@@ -78,6 +79,7 @@ SCREENS = textwrap.dedent("""
     import json, sys
     import hybrid
     hybrid.use_cpu_cores(int(sys.argv[1]))
+    hybrid.use_quick_compiles()
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
