@@ -206,3 +206,16 @@ def test_the_crossing_check_sees_private_names_modules_and_attributes(tmp_path, 
         "pkg/user.py:3: _mod._x",
         "experiments/run.py:1: private module hybrid.core._fit",
     ]
+
+
+def test_importing_hybrid_leaves_scipy_and_optax_to_the_functions_that_use_them():
+    """`import hybrid` is every command's first second: scipy.signal, scipy.stats, scipy.optimize and
+    optax took 1–2 s of a 2.7 s import, for functions most commands never call (measured with
+    ``python -X importtime -c "import hybrid"``). They are imported where they are used."""
+    import subprocess
+
+    heavy = ("scipy.signal", "scipy.stats", "scipy.optimize", "scipy.linalg", "optax")
+    code = f"import sys, hybrid, hybrid.cli; print([m for m in {heavy!r} if m in sys.modules])"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]", proc.stdout

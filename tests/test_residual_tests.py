@@ -12,6 +12,12 @@ def _ar1(rho, n, seed=0):
     return scipy.signal.lfilter([1.0], [1.0, -rho], e)
 
 
+def test_the_written_out_99_percent_quantile_is_scipys():
+    import scipy.stats
+
+    assert rt.Z99 == float(scipy.stats.norm.ppf(0.995))
+
+
 def test_white_noise_stays_inside_the_99_percent_band():
     e = np.random.default_rng(1).standard_normal(20000)
     acf = rt.autocorrelation(e, 100)

@@ -45,7 +45,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from ..core._models import Model
 from ..util._errors import InputError
@@ -149,6 +148,8 @@ def design_drive(
       random multilevel PRBS), Adam steps each, its step size as a fraction of
       the range's half-width, and the seed.
     """
+    import optax
+
     if not isinstance(models, dict) or len(models) < 2:
         raise InputError("design_drive needs two or more rival models, as {name: hybrid.Model}")
     for name, model in models.items():

@@ -45,7 +45,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import scipy.optimize
 
 MIN_SAMPLES = 50  # fewer held-out (or training) samples: no description
 MIN_BIN = 5  # samples a bin needs to be kept
@@ -267,6 +266,8 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
     summary names), "kind" (the rate map and filters count as dynamic) and
     "summary"; a part that cannot be computed carries a "reason" instead.
     """
+    import scipy.optimize
+
     tr, ho = _prepare(train), _prepare(heldout)
     n_tr, n_ho = len(tr["r"]), len(ho["r"])
     if n_ho < MIN_SAMPLES or n_tr < MIN_SAMPLES:

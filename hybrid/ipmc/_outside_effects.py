@@ -37,11 +37,12 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-import scipy.signal
 
 
 def lowpass(u: np.ndarray, tau: float, dt: float) -> np.ndarray:
     """x[n] = a x[n−1] + (1 − a) u[n], a = exp(−dt/τ), from rest: a first-order memory of `u`."""
+    import scipy.signal
+
     a = math.exp(-dt / tau)
     return scipy.signal.lfilter([1.0 - a], [1.0, -a], u)
 

@@ -47,8 +47,6 @@ import functools
 import math
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
 
 HIDDEN_EFFECTS = ("none", "back_relaxation", "hysteresis", "saturation", "delay", "drift", "resonance")
 
@@ -138,6 +136,8 @@ def random_effect(name: str, rng: np.random.Generator, rate: float) -> dict:
 
 
 def _zoh(a, b, dt):
+    import scipy.linalg
+
     n = a.shape[0]
     m = np.zeros((n + 1, n + 1))
     m[:n, :n], m[:n, n] = a, b
@@ -159,6 +159,8 @@ def _state_space(strip: SyntheticStrip):
 
 def rc_cascade_exact(strip: SyntheticStrip, v_fine: np.ndarray, dt_fine: float) -> np.ndarray:
     """V_o of the paper's cascade on the fine grid, exact for a drive held per fine sample."""
+    import scipy.signal
+
     a, b, c, d = _state_space(strip)
     phi, gamma = _zoh(a, b, dt_fine)
     # x[n+1] = Φ x[n] + Γ u[n] over the fine grid, outputs y[n] = C x[n] + D u[n].
@@ -167,6 +169,8 @@ def rc_cascade_exact(strip: SyntheticStrip, v_fine: np.ndarray, dt_fine: float) 
 
 
 def _lowpass_exact(s, tau, dt):
+    import scipy.signal
+
     a = math.exp(-dt / tau)
     x = scipy.signal.lfilter([0.0, 1.0 - a], [1.0, -a], s)
     return x
@@ -182,6 +186,8 @@ def _play(s, r):
 
 
 def apply_hidden(name, p, s, dt, t):
+    import scipy.signal
+
     if name == "back_relaxation":
         slow = 0.5 * _lowpass_exact(s, p["tau_s"] / 2, dt) + 0.5 * _lowpass_exact(s, 2 * p["tau_s"], dt)
         return s - p["fraction"] * slow

@@ -13,9 +13,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
-import scipy.optimize
-import scipy.signal
 
 from ._virtual_parameters import VirtualIPMCParameters
 
@@ -72,6 +69,8 @@ def electrical(lad: _Ladder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     **Returns:** `(a_e, b_e, nodes)`, where `nodes` (n, n+1) gives the node
     voltages V = nodes @ [v; u] from the tridiagonal KCL system G V = D v + b u.
     """
+    import scipy.linalg
+
     n = len(lad.re)
     g_series = 1.0 / lad.re
     g_series[0] = 1.0 / (lad.r_source + lad.re[0])
@@ -138,6 +137,8 @@ class _TipMap:
 
 def quasi_static_tip(p: VirtualIPMCParameters, model: _Model) -> _TipMap:
     """Derive K and σ_sat from `gain_mm_per_v` and `compression` (static, relaxed)."""
+    import scipy.optimize
+
     lad = model.ladder
     area = p.width_m * lad.dx
     arm = (p.length_m - lad.x) * lad.dx  # (L − x_k) Δx, m²
@@ -176,6 +177,8 @@ def dac_output(v: np.ndarray, p: VirtualIPMCParameters) -> np.ndarray:
 
 def mechanics(p: VirtualIPMCParameters, h: float, w_qs: np.ndarray) -> np.ndarray:
     """First-mode response on the fine grid, exact for piecewise-linear w_qs (FOH)."""
+    import scipy.signal
+
     wn = 2 * np.pi * p.mode_frequency_hz
     zeta = p.damping_ratio
     a = np.array([[0.0, 1.0], [-wn * wn, -2 * zeta * wn]])

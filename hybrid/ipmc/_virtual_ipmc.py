@@ -125,7 +125,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from ..util._errors import InputError
 from ._virtual_elements import build_model, dac_output, mechanics, quasi_static_tip
@@ -243,6 +242,8 @@ def simulate_virtual_ipmc(
 
 def _zoh(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact ZOH step: expm([[A, B], [0, 0]] h) = [[Φ, Γ], [0, 1]]."""
+    import scipy.linalg
+
     n = len(b)
     aug = np.zeros((n + 1, n + 1))
     aug[:n, :n] = a * h

@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.signal
 
 from ._lti import LTI, default_values
 
@@ -31,6 +30,8 @@ MIN_POWER = 1e-3  # bins where the drive's power is below this fraction of its p
 
 def response_frequency(v_in, w, rate: float) -> float:
     """The frequency (Hz) that sets the response's time scale: a resonance, else the −3 dB corner."""
+    import scipy.signal
+
     v = np.asarray(v_in, float) - np.mean(v_in)
     y = np.asarray(w, float) - np.mean(w)
     n = len(v)
