@@ -45,6 +45,7 @@ bench: $(BENCH_STAMP)
 	$(BIN)/python benchmarks/memory.py
 	$(BIN)/python benchmarks/diagnose.py
 	$(BIN)/python benchmarks/compile_emitters.py
+	$(BIN)/python benchmarks/startup.py
 
 bench-quick: $(STAMP)
 	$(BIN)/python benchmarks/quick.py
