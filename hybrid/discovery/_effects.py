@@ -116,10 +116,15 @@ class StartContext:
     - `residual_peak_hz`: the training residual's spectral peak at 0.5 Hz or above, or None.
     - `problem`, `simulation`, `frozen`: for a screen (`AbstractEffect.screened_starts`):
       the search's least-squares problem, the simulation being diagnosed and
-      the names of its parameters that are not fitted. From the second step on,
-      `simulation` is the model extended so far (an `EffectStack` with the named
-      effects on, at their fitted values; its `parameters()` and `typical_ranges()`
-      include the inner simulation's): a screen designs it jointly with the effect.
+      the names of its parameters that are not fitted. For a drive- or
+      output-side effect's screen, `simulation` is an `EffectStack` of it: at the
+      first step with every effect off (its output is the inner simulation's,
+      exactly), from the second on the model extended so far (the named effects
+      on, at their fitted values); its `parameters()` and `typical_ranges()`
+      include the inner simulation's. One structure at every step: a screen's
+      program compiles once per diagnosis. An effect inside the dynamics screens
+      the simulation itself, at the first step only. A screen designs the
+      simulation jointly with the effect.
     """
 
     signal: np.ndarray

@@ -235,9 +235,14 @@ def search_step(
     ]
     if screening:
         s.say(f"screening starts for the {', '.join(e.name for e in screening)} candidates")
-        extended = stack.with_active(active_cur)
+        # The first step screens the stack with every effect off (`bare`: the inner simulation's output,
+        # exactly: an effect that is off is skipped, not multiplied by 0), a later one the model extended
+        # so far: one pytree structure, so each screen compiles once per diagnosis, not once for the
+        # first step and again for the second (a recording with two effects: ~4 s of XLA compiling).
+        extended = stack.with_active(active_cur) if present else bare
         for e in screening:
-            at = context[e.name] if not present else dataclasses.replace(context[e.name], simulation=extended)
+            inside = e.place == "inside"  # its screen reads the bare state-space form's states
+            at = context[e.name] if inside else dataclasses.replace(context[e.name], simulation=extended)
             screened[e.name] = e.screened_starts(at)[: e.n_screened]
     starts, actives, labels, tangents, departures = [], [], [], [], []
     for i, effect in enumerate(effects):
