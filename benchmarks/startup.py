@@ -4,8 +4,8 @@
 
 Every `hybrid` command, and every process of a script or a test that imports
 the library, pays its import first. Measured in this one run, on this machine,
-each process started afresh and the three kinds interleaved (so that a drift of
-the machine's speed reaches all three alike); the median over the repeats:
+each process started afresh and the kinds interleaved (so that a drift of the
+machine's speed reaches all of them alike); the median over the repeats:
 
 - ``import_jax_s``: ``python -c "import jax"``: what any JAX program pays;
 - ``import_jax_equinox_s``: ``python -c "import jax, equinox"``, the peer: the two libraries
@@ -15,9 +15,10 @@ the machine's speed reaches all three alike); the median over the repeats:
 - ``cli_help_over_import_jax_equinox``: target ≤ 1.3 (the project's own modules add at most 30 %).
 
 Before scipy.signal, scipy.stats, scipy.optimize, scipy.linalg and optax were
-imported only where they are used, ``hybrid --help`` took 2.05 s against 1.1–1.5 s
-after (ad hoc, on the 2-core machine); `tests/test_architecture.py` checks that the
-import stays without them. Writes `benchmarks/results/startup.json`.
+imported only where they are used, ``hybrid --help`` took 1.99 s (2.33× the peer)
+against 1.07 s (1.21×) after: this script on both commits, docs/benchmarks.md;
+`tests/test_architecture.py` checks that the import stays without them. Writes
+`benchmarks/results/startup.json`.
 """
 
 from __future__ import annotations

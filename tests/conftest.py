@@ -8,7 +8,7 @@ test starts, through ``HYBRID_JAX_CACHE``) reads and writes it. Under
 the same shapes; with the cache each program is compiled once per run. Every
 program is kept, an operation run op by op too (`min_compile_time` 0, as the
 `hybrid` command has it): a quiet `make test` took 529 s against 570 s keeping
-only those that compiled in over 0.5 s, one run each, an hour apart. Nothing
+only those that compiled in over 0.5 s, one run each, 50 minutes apart. Nothing
 is written into the user's ~/.cache, and every run starts cold, as CI does.
 A test that needs a cold compile in its own process (the hang guard) turns the
 cache off for its subprocess.

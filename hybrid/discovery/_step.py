@@ -238,7 +238,7 @@ def search_step(
         # The first step screens the stack with every effect off (`bare`: the inner simulation's output,
         # exactly: an effect that is off is skipped, not multiplied by 0), a later one the model extended
         # so far: one pytree structure, so each screen compiles once per diagnosis, not once for the
-        # first step and again for the second (a recording with two effects: ~4 s of XLA compiling).
+        # first step and again for the second (a diagnosis that names an effect: ~4 s of XLA compiling).
         extended = stack.with_active(active_cur) if present else bare
         for e in screening:
             inside = e.place == "inside"  # its screen reads the bare state-space form's states
