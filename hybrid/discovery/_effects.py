@@ -591,13 +591,17 @@ class Resonance(AbstractEffect):
     def __init__(self, **values):
         init_values(self, values)
 
-    def apply(self, s, dt):
+    def recurrence(self, dt, dtype):
+        """(Φ, Γ₀, Γ₁) of the mode's state (position, velocity) from one sample to the next (`foh_matrices`)."""
         p = self.parameters()
         w = 2 * jnp.pi * p["resonance_frequency_hz"]
         z = p["resonance_damping"]
-        a = jnp.array([[0.0, 1.0], [-w * w, -2 * z * w]], s.dtype)
-        b = jnp.array([0.0, 1.0], s.dtype) * w * w
-        phi, g0, g1 = foh_matrices(a, b, dt)
+        a = jnp.array([[0.0, 1.0], [-w * w, -2 * z * w]], dtype)
+        b = jnp.array([0.0, 1.0], dtype) * w * w
+        return foh_matrices(a, b, dt)
+
+    def apply(self, s, dt):
+        phi, g0, g1 = self.recurrence(dt, s.dtype)
         du = jnp.diff(s, append=s[-1:])
         # x[n+1] = Φ x[n] + Γ₀ u[n] + Γ₁ Δu[n], from rest at the first value (unity DC gain):
         # a linear recurrence, evaluated by a sequential scan (see `affine_recurrence`).

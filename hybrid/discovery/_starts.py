@@ -292,39 +292,85 @@ def mode_frequencies(rate: float) -> np.ndarray:
 def mode_screen(problem, simulation, raws, frequencies, dampings):
     """Training MSE of `simulation` followed by a mode, at each row of `raws` and each (f, ζ).
 
-    The mode ([`hybrid.discovery._effects.Resonance`][], unity DC gain) is linear, so
-    with the gain and offset by least squares one simulation per row screens
-    every (f, ζ) pair (`frequencies` and `dampings`, paired element-wise).
-    Returns the losses, shape (rows, pairs).
+    The mode ([`hybrid.discovery._effects.Resonance`][], unity DC gain, its own
+    recurrence) is linear, so with the gain and offset by least squares one
+    simulation per row screens every (f, ζ) pair (`frequencies` and
+    `dampings`, paired element-wise). The least squares need only sums over the
+    training samples, so each mode's output is summed as the recurrence steps
+    (`_mode_sums`) rather than kept, and all rows step together: one pass over
+    the samples for the whole screen. Returns the losses, shape (rows, pairs).
     """
-    w, weights = problem.target("train"), train_weights(problem)
+    constraints = Resonance.constraints
+    raw_f = constraints["resonance_frequency_hz"].to_raw(jnp.asarray(frequencies, float))
+    raw_z = constraints["resonance_damping"].to_raw(jnp.asarray(dampings, float))
 
-    def one(raw):
-        sim = simulation.with_raw(raw)
-        signals = [sim.simulate(series.v_in, series.dt) for series in problem.series]
-
-        def fit(raw_f, raw_z):
+    def recurrences(dt):  # each pair's (Φ, Γ₀, Γ₁), stacked: (pairs, 2, 2), (pairs, 2), (pairs, 2)
+        def one(f, z):
             mode = eqx.tree_at(
-                lambda m: m.raw, Resonance(), {"resonance_frequency_hz": raw_f, "resonance_damping": raw_z}
+                lambda m: m.raw, Resonance(), {"resonance_frequency_hz": f, "resonance_damping": z}
             )
-            s = jnp.concatenate(
-                [
-                    mode.apply(x, series.dt)[a:b]
-                    for x, series in zip(signals, problem.series)
-                    for a, b in series.segments_of("train")
-                ]
-            )
-            *_, rss = gain_offset(s, w, weights)
-            loss = rss / jnp.sum(weights)
-            return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
+            return mode.recurrence(dt, raw_f.dtype)
 
-        constraints = Resonance.constraints
-        return jax.vmap(fit)(
-            constraints["resonance_frequency_hz"].to_raw(jnp.asarray(frequencies, float)),
-            constraints["resonance_damping"].to_raw(jnp.asarray(dampings, float)),
+        return jax.vmap(one)(raw_f, raw_z)
+
+    def outputs(raw):
+        sim = simulation.with_raw(raw)
+        return [sim.simulate(series.v_in, series.dt) for series in problem.series]
+
+    signals = map_rows(outputs, raws, batch_size=16)  # per recording: (rows, samples)
+    w, weights = problem.target("train"), train_weights(problem)
+    full, used = [], 0  # each recording's training weights and targets over its samples (0 elsewhere)
+    for series in problem.series:
+        omega, target = jnp.zeros_like(series.v_in), jnp.zeros_like(series.v_in)
+        for a, b in series.segments_of("train"):
+            omega = omega.at[a:b].add(weights[used : used + b - a])
+            target = target.at[a:b].set(w[used : used + b - a])
+            used += b - a
+        full.append((omega, target))
+    n = sum(jnp.sum(omega) for omega, _ in full)
+    # Centred: the offset absorbs a constant, and the sums' cancellation stays at the residual's scale.
+    w_mean = sum(jnp.sum(omega * target) for omega, target in full) / n
+    s_mean = sum(x @ omega for x, (omega, _) in zip(signals, full)) / n
+    mats = [recurrences(series.dt) for series in problem.series]
+
+    def row_sums(row):
+        xs, mean = row
+        return sum(
+            _mode_sums(m, x - mean, omega, target - w_mean) for m, x, (omega, target) in zip(mats, xs, full)
         )
 
-    return map_rows(one, raws, batch_size=16)
+    sums = map_rows(row_sums, (signals, s_mean), batch_size=s_mean.shape[0])  # one batch: all rows
+    s1, s2, sw = sums[..., 0], sums[..., 1], sums[..., 2]
+    w1 = sum(jnp.sum(omega * (target - w_mean)) for omega, target in full)
+    w2 = sum(jnp.sum(omega * (target - w_mean) ** 2) for omega, target in full)
+    det = n * s2 - s1**2
+    sloped = det > 1e-12 * n * s2  # a constant output: the offset alone
+    gain = jnp.where(sloped, (n * sw - s1 * w1) / jnp.where(sloped, det, 1.0), 0.0)
+    offset = (w1 - gain * s1) / n
+    loss = jnp.maximum(w2 - gain * sw - offset * w1, 0.0) / n  # the least-squares residual
+    return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
+
+
+def _mode_sums(mats, x, omega, target):
+    """Σω·y, Σω·y², Σω·y·target of one signal `x` through each mode, shape (modes, 3).
+
+    `mats`: the modes' `Resonance.recurrence`, stacked; the recurrence is
+    `Resonance.apply`'s (from rest at the first value), all modes at once.
+    """
+    phi, g0, g1 = mats
+    dx = jnp.diff(x, append=x[-1:])
+    state = jnp.zeros(phi.shape[:2], x.dtype).at[:, 0].set(x[0])
+
+    def step(carry, inputs):
+        state, sums = carry
+        s, ds, weight, wt = inputs
+        y = state[:, 0]
+        sums = sums + weight * jnp.stack([y, y * y, y * wt], axis=-1)
+        state = jnp.einsum("mij,mj->mi", phi, state) + g0 * s + g1 * ds
+        return (state, sums), None
+
+    (_, sums), _ = jax.lax.scan(step, (state, jnp.zeros((phi.shape[0], 3), x.dtype)), (x, dx, omega, target))
+    return sums
 
 
 def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=frozenset()) -> list[dict]:
