@@ -154,6 +154,26 @@ def test_resonance_starts_find_a_known_mode_and_network():
     )
     assert losses[0, 0] < 1e-12 * np.var(w)  # exact up to lsim's quadrature
     assert min(losses[0, 1], losses[0, 2], losses[1, 0]) > 1e-4 * np.var(w)  # wrong f, wrong ζ, wrong network
+    # Where the fit is not exact, each loss is the least-squares residual of that network's output
+    # through that mode (scipy's lsim) with a gain and an offset (numpy's lstsq) on the training part:
+    # the screen's summed normal equations against a direct solve.
+    (segments,) = [s.segments_of("train") for s in problem.series]
+    train_w = np.concatenate([w[a:b] for a, b in segments])
+    for row, other in ((0, point), (1, design[5])):
+        x = np.asarray(simulation.replace(**other).simulate(jnp.asarray(drive.v), 1 / rate))
+        for column, (fj, zj) in enumerate(((f, zeta), (1.3 * f, zeta), (f, 0.3))):
+            om = 2 * np.pi * fj
+            sys_j = scipy.signal.StateSpace(
+                [[0.0, 1.0], [-(om**2), -2 * zj * om]], [[0.0], [om**2]], [[1.0, 0.0]], [[0.0]]
+            )
+            _, yj, _ = scipy.signal.lsim(sys_j, x, t, X0=[x[0], 0.0])
+            design_j = np.stack(
+                [np.concatenate([yj[a:b] for a, b in segments]), np.ones(len(train_w))], axis=1
+            )
+            coef, *_ = np.linalg.lstsq(design_j, train_w, rcond=None)
+            reference = np.mean((train_w - design_j @ coef) ** 2)
+            if reference > 1e-6 * np.var(w):
+                assert losses[row, column] == pytest.approx(reference, rel=1e-6), (row, column)
 
     (start,) = resonance_starts(problem, simulation, rate, n_starts=1, frozen=settings.frozen_for(simulation))
     assert start["resonance_frequency_hz"] == pytest.approx(f) and start["resonance_damping"] == zeta
