@@ -211,8 +211,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--blocks",
         type=B.integer(None, B.BLOCKS[1]),
         default=None,
-        help="cut each recording into N blocks, each split train/validation/held-out "
-        "(default: DiagnoseSettings.blocks; 1: one held-out tail)",
+        help="cut each recording into N blocks, each split train/validation/held-out, N as given "
+        "(default: DiagnoseSettings.blocks, more where the held-out parts would miss where the output sits "
+        "flat at an extreme: DiagnoseSettings.held_out_limits; 1: one held-out tail)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.add_argument(
@@ -471,7 +472,7 @@ def _cmd_diagnose(args):
             raise InputError(f"--max-steps must be at least 1, got {args.max_steps}")
         settings = dataclasses.replace(settings, max_steps=args.max_steps)
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
-        settings = dataclasses.replace(settings, blocks=args.blocks)
+        settings = dataclasses.replace(settings, blocks=args.blocks, held_out_limits=False)  # as given
     with lock:
         simulation = resolve_physics(args.physics, recordings)
         simulation = with_settle(simulation, args, recordings)

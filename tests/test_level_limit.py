@@ -104,3 +104,50 @@ def test_runs_never_cross_a_segment():
     seg = np.arange(y.size) % 4  # every sample its own segment: no run of 5 inside one
     found = level_limits([{"w": w, "w_hat": y, "segment": seg}], NOISE**2)
     assert found["top"]["samples"] == 0 and not found["top"]["flag"]
+
+
+def _recording(w):
+    from hybrid import Recording
+
+    return Recording.from_arrays(v_in=np.zeros_like(w), w=w, rate=30.0)
+
+
+def _held_out(recording, blocks):
+    from hybrid.core._problem import split_segments
+    from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
+
+    mask = np.zeros(recording.n, bool)
+    for a, b in dict(split_segments(recording, DiagnoseSettings().split, SPLIT_ORDER, blocks))["test"]:
+        mask[a:b] = True
+    return mask
+
+
+def test_the_held_out_parts_see_where_the_record_sits_flat_at_its_top():
+    """A clipped stretch that 3 blocks leave in training: the fewest blocks whose held-out parts see it."""
+    import dataclasses
+
+    from hybrid.discovery._diagnosis import DiagnoseSettings, _split_description
+    from hybrid.discovery._search import held_out_blocks
+
+    y, rng = lag_response(seed=5)
+    w = y + NOISE * rng.normal(size=y.size)
+    settings = DiagnoseSettings()
+    assert held_out_blocks([_recording(w)], settings) == (3, True)  # no flat extreme: as asked
+
+    clipped = w.copy()
+    clipped[160:200] = w.max() + 0.05  # a sensor at the top of its range, in block 1's training part
+    recording = _recording(clipped)
+    assert not _held_out(recording, 3)[160:200].any()
+    blocks, reached = held_out_blocks([recording], settings)
+    assert reached and blocks > 3
+    assert _held_out(recording, blocks)[160:200].any()
+    assert not any(_held_out(recording, b)[160:200].any() for b in range(3, blocks))  # the fewest
+    assert held_out_blocks([recording], dataclasses.replace(settings, held_out_limits=False)) == (3, True)
+    said = _split_description(dataclasses.replace(settings, blocks_used=blocks, extremes_held_out=True))
+    assert f"each recording in {blocks} equal blocks (3 asked: {blocks} are the fewest" in said
+
+    early = w.copy()
+    early[:10] = w.min() - 0.05  # flat at the bottom in the first samples: training for every count
+    assert held_out_blocks([_recording(early)], settings) == (3, False)
+    said = _split_description(dataclasses.replace(settings, blocks_used=3, extremes_held_out=False))
+    assert "a limit there is tested on training data alone" in said

@@ -124,6 +124,19 @@ def series_from_recording(
     alone, with the state the earlier samples left; it interpolates in time
     instead of extrapolating past the training data.
     """
+    # device_put, not jnp.asarray: no compiled program per recording length
+    return Series(
+        jax.device_put(np.asarray(recording.v_in)),
+        jax.device_put(np.asarray(recording.w)),
+        float(recording.dt),
+        split_segments(recording, fractions, order, blocks),
+    )
+
+
+def split_segments(
+    recording, fractions=(0.3, 0.5, 0.2), order=("train", "test", "validation"), blocks: int = 1
+) -> tuple[tuple[str, tuple[tuple[int, int], ...]], ...]:
+    """The (part, ((start, stop), ...)) of each part of `series_from_recording`'s split, in `order`."""
     if int(blocks) != blocks or blocks < 1:
         raise InputError(f"blocks must be a whole number ≥ 1, got {blocks!r}")
     edges = [round(k * recording.n / blocks) for k in range(int(blocks) + 1)]
@@ -132,14 +145,7 @@ def series_from_recording(
         chunk = recording if (lo, hi) == (0, recording.n) else recording.segment(slice(lo, hi))
         for name, s in chunk.split(fractions=fractions, order=order).slices.items():
             parts[name].append((lo + s.start, lo + s.stop))
-    segments = tuple((name, tuple(parts[name])) for name in order)
-    # device_put, not jnp.asarray: no compiled program per recording length
-    return Series(
-        jax.device_put(np.asarray(recording.v_in)),
-        jax.device_put(np.asarray(recording.w)),
-        float(recording.dt),
-        segments,
-    )
+    return tuple((name, tuple(parts[name])) for name in order)
 
 
 #: Recordings are padded to the next of these multiples of a power of two (`bucket_length`).

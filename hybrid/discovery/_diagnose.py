@@ -73,6 +73,7 @@ from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_unc
 from ._redundant import drop_redundant
 from ._search import (
     fit_lanes,
+    held_out_blocks,
     initial_thetas,
     lane_tangents,
     lanes_problem,
@@ -135,8 +136,17 @@ def prepare_search(
     """
     effects = resolve_effects(effects, simulation)
     frozen_names = settings.frozen_for(simulation)
+    blocks, reached = held_out_blocks(recordings, settings)
+    if blocks != settings.blocks:
+        say(
+            f"{blocks} blocks, not {settings.blocks}: the fewest whose held-out parts reach the extreme levels"
+        )
     settings = dataclasses.replace(
-        settings, frozen=frozen_names, materiality=settings.materiality_for(effects)
+        settings,
+        frozen=frozen_names,
+        materiality=settings.materiality_for(effects),
+        blocks_used=blocks,
+        extremes_held_out=reached,
     )
     problem, _, model, series = lanes_problem(recordings, simulation, settings, effects)
     return Search(
@@ -402,7 +412,7 @@ def hybrid_fits(recordings, simulation, extended, problem, causes, settings, max
             frozen=set(settings.frozen),
             split=settings.split,
             split_order=SPLIT_ORDER,
-            blocks=settings.blocks,
+            blocks=settings.split_blocks,
             weight_decay=0.1,
             progress=progress,
         )

@@ -56,6 +56,9 @@ RENAMED_IN_SCHEMA_3 = {
 }
 
 SPLIT_ORDER = ("train", "validation", "test")
+#: The most blocks `diagnose` splits a recording into to reach its extremes, as a multiple of
+#: `DiagnoseSettings.blocks` (`DiagnoseSettings.held_out_limits`).
+MAX_BLOCKS_FACTOR = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,6 +73,18 @@ class DiagnoseSettings:
       36 s stay below −2 mm, the held-out 18 s rise to +2.5 mm), and no fit —
       with or without the right effect — predicts it; blocks make the held-out
       error one of interpolation.
+    - `held_out_limits`: the held-out parts must see where a recording sits
+      flat at its largest or smallest value (`flat_extremes`: an overflow, an
+      end stop, a sensor's range), or a limit there is tested on training data
+      alone: the Cascaded Tanks' estimation record overflows twice, and with 3
+      blocks both lie in training parts. Where `blocks` leaves a side's flat
+      runs out of every held-out part, the fewest blocks up to
+      `MAX_BLOCKS_FACTOR` × `blocks` whose held-out parts include some of them
+      are used (`held_out_blocks`), and the report's split says so; where none
+      does, `blocks`. False: `blocks` as given.
+    - `blocks_used`, `extremes_held_out`: the blocks the search split each
+      recording into, and whether its held-out parts see those flat runs; None
+      until `diagnose` completes the settings (`split_blocks` reads the first).
     - `max_steps`: most LM steps of any lane.
     - `patience`: a candidate's lane stops after this many accepted steps
       without a better validation loss.
@@ -103,6 +118,9 @@ class DiagnoseSettings:
 
     split: tuple[float, float, float] = (0.6, 0.1, 0.3)
     blocks: int = 3
+    held_out_limits: bool = True
+    blocks_used: int | None = None
+    extremes_held_out: bool | None = None
     max_steps: int = 120
     patience: int = 25
     effect_free_patience: int = 10
@@ -124,6 +142,11 @@ class DiagnoseSettings:
                 f"the thresholds are {sorted(out)}"
             )
         return {**out, **self.materiality}
+
+    @property
+    def split_blocks(self) -> int:
+        """The blocks each recording is split into: `blocks_used` once chosen, else `blocks`."""
+        return self.blocks if self.blocks_used is None else self.blocks_used
 
     def frozen_for(self, simulation) -> tuple[str, ...]:
         """`frozen`, or the simulation's parameters frozen by default when it is None."""
@@ -468,9 +491,20 @@ def _unit(u: ParameterUncertainty | None) -> str:
 
 def _split_description(settings: DiagnoseSettings) -> str:
     train, validation, test = (f"{x:.0%}" for x in settings.split)
-    if settings.blocks == 1:
+    blocks = settings.split_blocks
+    if blocks == 1:
         return f"train first {train}, validation next {validation}, held-out (test) last {test} of each recording"
+    why = ""
+    if settings.held_out_limits and settings.extremes_held_out is not None:
+        runs = "where a recording sits flat at its largest or smallest value"
+        if not settings.extremes_held_out:
+            why = (
+                f" (no count up to {MAX_BLOCKS_FACTOR * settings.blocks} has held-out parts that see {runs}: "
+                "a limit there is tested on training data alone)"
+            )
+        elif blocks != settings.blocks:
+            why = f" ({settings.blocks} asked: {blocks} are the fewest whose held-out parts see {runs})"
     return (
-        f"each recording in {settings.blocks} equal blocks; in each block train first {train}, validation next "
+        f"each recording in {blocks} equal blocks{why}; in each block train first {train}, validation next "
         f"{validation}, held-out (test) last {test}"
     )

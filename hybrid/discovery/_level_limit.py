@@ -42,6 +42,35 @@ def _noise_sd(w: np.ndarray, floor_variance) -> float:
     return float(np.median(d) / (0.6745 * np.sqrt(2.0))) if len(d) else 0.0
 
 
+def _flatness_scale(w: np.ndarray, floor_variance) -> tuple[float, float]:
+    """(noise sd, quantum): what "flat" means for `w` (sd at least the quantisation step/√12)."""
+    sd = _noise_sd(w, floor_variance)
+    steps = np.abs(np.diff(np.unique(w)))
+    quantum = (
+        float(steps.min()) if len(steps) else 0.0
+    )  # a quantised record is flat wherever it moves < a step
+    sd = max(sd if np.isfinite(sd) else 0.0, quantum / np.sqrt(12.0), 1e-9 * max(float(np.ptp(w)), 1e-300))
+    return sd, quantum
+
+
+def flat_extremes(w) -> dict[str, np.ndarray]:
+    """For "top" and "bottom": the samples of `w`'s flat runs at its extreme (indices; empty if none).
+
+    The runs `level_limits` looks at, found from the record alone (its noise
+    from sample-to-sample differences): where a limit, if there is one, shows.
+    """
+    w = np.asarray(w, float).ravel()
+    if not len(w):
+        return {"top": np.zeros(0, int), "bottom": np.zeros(0, int)}
+    sd, quantum = _flatness_scale(w, None)
+    out = {}
+    for side, sign in (("top", 1.0), ("bottom", -1.0)):
+        at = sign * w >= np.max(sign * w) - max(TOLERANCE * sd, quantum)
+        runs = _runs(at, np.zeros(len(w), int))
+        out[side] = np.concatenate(runs) if runs else np.zeros(0, int)
+    return out
+
+
 def _runs(at: np.ndarray, segment: np.ndarray) -> list[np.ndarray]:
     """Index arrays of the runs of True in `at` that stay inside one segment and have MIN_RUN samples."""
     idx = np.flatnonzero(at)
@@ -66,14 +95,7 @@ def level_limits(parts: list[dict], floor_variance) -> dict:
     if not parts:
         return {"reason": "no samples"}
     w_all = np.concatenate([p["w"] for p in parts])
-    sd = _noise_sd(w_all, floor_variance)
-    steps = np.abs(np.diff(np.unique(w_all)))
-    quantum = (
-        float(steps.min()) if len(steps) else 0.0
-    )  # a quantised record is flat wherever it moves < a step
-    sd = max(
-        sd if np.isfinite(sd) else 0.0, quantum / np.sqrt(12.0), 1e-9 * max(float(np.ptp(w_all)), 1e-300)
-    )
+    sd, quantum = _flatness_scale(w_all, floor_variance)
     out: dict[str, Any] = {"noise_sd": float(sd), "quantum": quantum}
     for side, sign in (("top", 1.0), ("bottom", -1.0)):
         level = float(np.max(sign * w_all))  # in sign-flipped units: the extreme is a maximum

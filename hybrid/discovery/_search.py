@@ -20,9 +20,9 @@ from jax.sharding import NamedSharding, PartitionSpec
 from ..core._devices import device_mesh, spread_devices
 from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ..core._models import Model
-from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording
+from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording, split_segments
 from ..core._readout import LinearReadout
-from ._diagnosis import SPLIT_ORDER, DiagnoseSettings
+from ._diagnosis import MAX_BLOCKS_FACTOR, SPLIT_ORDER, DiagnoseSettings
 from ._effect_set import resolve_effects
 from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, FrameTiming
@@ -196,12 +196,48 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
     """
     effects = resolve_effects(effects, simulation)
     model = universal_model(simulation, effects, drive_unit(recordings))
-    series = [series_from_recording(r, settings.split, SPLIT_ORDER, settings.blocks) for r in recordings]
+    series = [
+        series_from_recording(r, settings.split, SPLIT_ORDER, settings.split_blocks) for r in recordings
+    ]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     problem, n_rows = search_problem(
         model, padded, frozenset(settings.frozen_for(simulation)), shared_room(settings, len(effects))
     )
     return problem, n_rows, model, series
+
+
+def held_out_blocks(recordings, settings: DiagnoseSettings) -> tuple[int, bool]:
+    """(blocks, reached): the fewest blocks whose held-out parts see every recording's flat extremes.
+
+    A recording's flat extremes are the runs where it sits at its largest or
+    smallest value (`flat_extremes`: the trace of an overflow, an end stop, a
+    sensor's range). Each side's runs must have a sample in a held-out part.
+    Tried from `settings.blocks` to `MAX_BLOCKS_FACTOR` times it; where no count
+    reaches them all: (`settings.blocks`, False). A recording without flat
+    extremes keeps `settings.blocks`. Computed from the recordings alone, before
+    any fit.
+    """
+    if not settings.held_out_limits:
+        return settings.blocks, True
+    from ._level_limit import flat_extremes
+
+    runs = [[idx for idx in flat_extremes(r.w).values() if idx.size] for r in recordings]
+
+    def reached(blocks: int) -> bool:
+        for recording, sides in zip(recordings, runs):
+            if not sides:
+                continue
+            held_out = np.zeros(recording.n, bool)
+            for a, b in dict(split_segments(recording, settings.split, SPLIT_ORDER, blocks))["test"]:
+                held_out[a:b] = True
+            if not all(held_out[idx].any() for idx in sides):
+                return False
+        return True
+
+    for blocks in range(settings.blocks, MAX_BLOCKS_FACTOR * settings.blocks + 1):
+        if reached(blocks):
+            return blocks, True
+    return settings.blocks, False
 
 
 def shared_room(settings: DiagnoseSettings, n_effects: int) -> int:
