@@ -139,7 +139,8 @@ def prepare_search(
     blocks, reached = held_out_blocks(recordings, settings)
     if blocks != settings.blocks:
         say(
-            f"{blocks} blocks, not {settings.blocks}: the fewest whose held-out parts reach the extreme levels"
+            f"{blocks} blocks, not {settings.blocks}: the fewest whose held-out parts see where the output "
+            "sits flat at an extreme"
         )
     settings = dataclasses.replace(
         settings,
