@@ -65,7 +65,7 @@ class Series(eqx.Module):
         """The split's (start, stop) samples of the recording itself, padding excluded (host side)."""
         if self.spans is None:
             return self.segments_of(split)
-        return tuple((int(a), int(b)) for a, b in np.asarray(dict(self.spans)[split]))
+        return tuple((int(a), int(b)) for a, b in np.asarray(dict(self.spans)[split]) if b > a)
 
     @property
     def n_recorded(self) -> int:
@@ -191,8 +191,19 @@ def bucketed_series(series: Series, length: int) -> Series:
             mask[a:b] = 1.0
         weights.append((name, jax.device_put(mask)))
     segments = tuple((name, ((0, length),)) for name, _ in series.segments)
-    recorded = tuple((name, np.asarray(s, np.int64).reshape(-1, 2)) for name, s in series.segments)
+    recorded = tuple((name, _span_rows(s)) for name, s in series.segments)
     return Series(v_in, w, series.dt, segments, tuple(weights), recorded)
+
+
+#: Rows of a padded series' spans per split, empty (0, 0) rows filling the rest (more rows only for
+#: more segments): one array shape whatever the blocks, so recordings of one bucket split into
+#: different numbers of blocks share its compiled programs (the spans are read on the host only).
+SPAN_ROWS = 16
+
+
+def _span_rows(spans) -> np.ndarray:
+    rows = np.asarray(spans, np.int64).reshape(-1, 2)
+    return np.concatenate([rows, np.zeros((max(SPAN_ROWS - len(rows), 0), 2), np.int64)])
 
 
 class Problem(eqx.Module):
