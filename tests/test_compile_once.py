@@ -5,7 +5,8 @@ A script called `hybrid.diagnose` on recordings of 600, 737, 874, 1,011 and
 programs for its own length, and the fifth died (SIGSEGV) at Linux's 65,530.
 Here eight recordings of eight lengths that share a bucket are diagnosed in
 one process: after the first call no large program is compiled again and the
-maps stop growing, though they are split into different numbers of blocks. (That programs are released beyond two buckets is
+maps stop growing, though they are split into different numbers of blocks; and within one diagnosis
+each screen compiles once across its steps. (That programs are released beyond two buckets is
 `tests/test_buckets.py`'s; `benchmarks/diagnose_many.py` runs 55 calls over
 many lengths and two simulations.)
 """
@@ -108,3 +109,43 @@ def test_a_simulation_called_op_by_op_compiles_once_per_structure_and_length():
         # the compiled program is the same computation as the simulation inside a user's own jit
         inside = np.asarray(jax.jit(lambda s, v: s.simulate(v, 1 / 30))(make(1), drive))
         np.testing.assert_allclose(second, inside, rtol=1e-12, atol=1e-12 * np.max(np.abs(inside)))
+
+
+def test_a_diagnosis_compiles_each_screen_once_across_its_steps():
+    """Every step screens its starts; the second step's screens reuse the first step's programs.
+
+    The first step screens the stack with every effect off, the later steps the
+    stack with the named ones on: the same structure, so `loop_screen`,
+    `mode_screen` and `screen_losses` each compile (or load) once per diagnosis.
+    Read from JAX's own log line per compiled program ("Finished XLA compilation
+    of jit(NAME)"): before, the first step screened the bare simulation and every
+    later step compiled its screens again.
+    """
+    import logging
+
+    names = collections.Counter()
+
+    class Count(logging.Handler):
+        def emit(self, record):
+            message = record.getMessage()
+            if message.startswith("Finished XLA compilation of jit("):
+                names[message.split("jit(", 1)[1].split(")", 1)[0]] += 1
+
+    handler, logger = Count(level=logging.DEBUG), logging.getLogger("jax._src.dispatch")
+    level = logger.level
+    logger.setLevel(logging.DEBUG)
+    logger.addHandler(handler)
+    try:
+        jax.clear_caches()  # other tests' programs out of the count
+        found = hy.diagnose(
+            _recording(300, 11),
+            simulation=hy.LTI(1),
+            effects=("saturation", "drift", "hysteresis", "resonance"),
+            settings=hy.DiagnoseSettings(max_steps=20),
+        )
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    assert len(found.steps) >= 2, [c["name"] for c in found.causes]  # a later step screened again
+    screens = {name: names[name] for name in ("screen_losses", "loop_screen", "mode_screen")}
+    assert all(n == 1 for n in screens.values()), screens
