@@ -135,10 +135,13 @@ def machine():
     }
 
 
-def write(name, data):
+def write(name, data, show=()):
+    """Write `data` to results/`name` (JSON), then print each key of `show` with its value."""
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / name
     path.write_text(json.dumps(data, indent=2, default=float))
+    for key in show:
+        print(f"{key}: {data[key]}")
     return path
 
 

@@ -50,15 +50,17 @@ def main():
     )
     out["seconds"] = time.perf_counter() - t0
     out["load_after"] = c.machine()["load_average_1_5_15"]
-    c.write("quick.json", out)
-    for key in (
-        "simulate_single_vs_sosfilt",
-        "simulate_batch_speedup_vs_sosfilt_loop",
-        "jacobian_max_relative_difference_vs_fd",
-        "targets",
-        "seconds",
-    ):
-        print(f"{key}: {out[key]}")
+    c.write(
+        "quick.json",
+        out,
+        show=(
+            "simulate_single_vs_sosfilt",
+            "simulate_batch_speedup_vs_sosfilt_loop",
+            "jacobian_max_relative_difference_vs_fd",
+            "targets",
+            "seconds",
+        ),
+    )
 
 
 if __name__ == "__main__":

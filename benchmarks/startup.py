@@ -71,16 +71,18 @@ def main(argv=None):
     out["cli_help_over_import_jax"] = out["cli_help_s"] / out["import_jax_s"]
     out["targets"] = {"cli_help_le_1.3x_import_jax_equinox": out["cli_help_over_import_jax_equinox"] <= 1.3}
     out["load_after"] = c.machine()["load_average_1_5_15"]
-    c.write("startup.json", out)
-    for key in (
-        "import_jax_s",
-        "import_jax_equinox_s",
-        "import_hybrid_s",
-        "cli_help_s",
-        "cli_help_over_import_jax_equinox",
-        "targets",
-    ):
-        print(f"{key}: {out[key]}")
+    c.write(
+        "startup.json",
+        out,
+        show=(
+            "import_jax_s",
+            "import_jax_equinox_s",
+            "import_hybrid_s",
+            "cli_help_s",
+            "cli_help_over_import_jax_equinox",
+            "targets",
+        ),
+    )
 
 
 if __name__ == "__main__":

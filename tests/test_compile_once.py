@@ -5,8 +5,9 @@ A script called `hybrid.diagnose` on recordings of 600, 737, 874, 1,011 and
 programs for its own length, and the fifth died (SIGSEGV) at Linux's 65,530.
 Here eight recordings of eight lengths that share a bucket are diagnosed in
 one process: after the first call no large program is compiled again and the
-maps stop growing, though they are split into different numbers of blocks; and within one diagnosis
-each screen compiles once across its steps. (That programs are released beyond two buckets is
+maps stop growing, though they are split into different numbers of
+blocks; and within one diagnosis each screen compiles once across its steps.
+(That programs are released beyond two buckets is
 `tests/test_buckets.py`'s; `benchmarks/diagnose_many.py` runs 55 calls over
 many lengths and two simulations.)
 """
@@ -28,10 +29,11 @@ LENGTHS = (300, 263, 317, 281, 309, 290, 271, 312)
 _compiles = collections.Counter()
 
 
-def _listen(event, duration, **_):
-    if event == "/jax/core/compile/backend_compile_duration":
+def _listen(event, duration, fun_name=None, **_):
+    if event == "/jax/core/compile/backend_compile_duration":  # compiled, or read from the disk cache
         _compiles["n"] += 1
         _compiles["large"] += duration > 1.0  # a search program, not an eager op's
+        _compiles[fun_name] += 1  # e.g. "jit(loop_screen)"
 
 
 monitoring.register_event_duration_secs_listener(_listen)
@@ -116,36 +118,20 @@ def test_a_diagnosis_compiles_each_screen_once_across_its_steps():
 
     The first step screens the stack with every effect off, the later steps the
     stack with the named ones on: the same structure, so `loop_screen`,
-    `mode_screen` and `screen_losses` each compile (or load) once per diagnosis.
-    Read from JAX's own log line per compiled program ("Finished XLA compilation
-    of jit(NAME)"): before, the first step screened the bare simulation and every
-    later step compiled its screens again.
+    `mode_screen` and `screen_losses` each compile (or load) once per diagnosis,
+    counted per program by JAX's own events. Before, the first step screened the
+    simulation itself, outside the stack, and every later step compiled its
+    screens again.
     """
-    import logging
-
-    names = collections.Counter()
-
-    class Count(logging.Handler):
-        def emit(self, record):
-            message = record.getMessage()
-            if message.startswith("Finished XLA compilation of jit("):
-                names[message.split("jit(", 1)[1].split(")", 1)[0]] += 1
-
-    handler, logger = Count(level=logging.DEBUG), logging.getLogger("jax._src.dispatch")
-    level = logger.level
-    logger.setLevel(logging.DEBUG)
-    logger.addHandler(handler)
-    try:
-        jax.clear_caches()  # other tests' programs out of the count
-        found = hy.diagnose(
-            _recording(300, 11),
-            simulation=hy.LTI(1),
-            effects=("saturation", "drift", "hysteresis", "resonance"),
-            settings=hy.DiagnoseSettings(max_steps=20),
-        )
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(level)
+    screens = ("jit(screen_losses)", "jit(loop_screen)", "jit(mode_screen)")
+    jax.clear_caches()  # other tests' programs out of the count
+    before = {name: _compiles[name] for name in screens}
+    found = hy.diagnose(
+        _recording(300, 11),
+        simulation=hy.LTI(1),
+        effects=("saturation", "drift", "hysteresis", "resonance"),
+        settings=hy.DiagnoseSettings(max_steps=20),
+    )
     assert len(found.steps) >= 2, [c["name"] for c in found.causes]  # a later step screened again
-    screens = {name: names[name] for name in ("screen_losses", "loop_screen", "mode_screen")}
-    assert all(n == 1 for n in screens.values()), screens
+    counts = {name: _compiles[name] - before[name] for name in screens}
+    assert all(n == 1 for n in counts.values()), counts

@@ -46,9 +46,8 @@ def _flatness_scale(w: np.ndarray, floor_variance) -> tuple[float, float]:
     """(noise sd, quantum): what "flat" means for `w` (sd at least the quantisation step/√12)."""
     sd = _noise_sd(w, floor_variance)
     steps = np.abs(np.diff(np.unique(w)))
-    quantum = (
-        float(steps.min()) if len(steps) else 0.0
-    )  # a quantised record is flat wherever it moves < a step
+    # A quantised record is flat wherever it moves less than a step.
+    quantum = float(steps.min()) if len(steps) else 0.0
     sd = max(sd if np.isfinite(sd) else 0.0, quantum / np.sqrt(12.0), 1e-9 * max(float(np.ptp(w)), 1e-300))
     return sd, quantum
 

@@ -26,6 +26,7 @@ from ._diagnosis import MAX_BLOCKS_FACTOR, SPLIT_ORDER, DiagnoseSettings
 from ._effect_set import resolve_effects
 from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, FrameTiming
+from ._level_limit import flat_extremes
 
 #: Effects a lane's Jacobian has room for in the problem the search's first steps share. Each
 #: direction costs one tangent of the simulation, zero or not: room for more is paid on every
@@ -219,8 +220,6 @@ def held_out_blocks(recordings, settings: DiagnoseSettings) -> tuple[int, bool]:
     """
     if not settings.held_out_limits:
         return settings.blocks, True
-    from ._level_limit import flat_extremes
-
     runs = [[idx for idx in flat_extremes(r.w).values() if idx.size] for r in recordings]
 
     def reached(blocks: int) -> bool:

@@ -341,13 +341,13 @@ def mode_screen(problem, simulation, raws, frequencies, dampings):
 
     sums = map_rows(row_sums, (signals, s_mean), batch_size=s_mean.shape[0])  # one batch: all rows
     s1, s2, sw = sums[..., 0], sums[..., 1], sums[..., 2]
-    w1 = sum(jnp.sum(omega * (target - w_mean)) for omega, target in full)
     w2 = sum(jnp.sum(omega * (target - w_mean) ** 2) for omega, target in full)
+    # The least-squares residual with a gain and an offset; the target is centred (Σω·(w − w̄) = 0),
+    # so it is Σω·(w − w̄)² less the gain's share, gain = n·Σωyw / (n·Σωy² − (Σωy)²).
     det = n * s2 - s1**2
     sloped = det > 1e-12 * n * s2  # a constant output: the offset alone
-    gain = jnp.where(sloped, (n * sw - s1 * w1) / jnp.where(sloped, det, 1.0), 0.0)
-    offset = (w1 - gain * s1) / n
-    loss = jnp.maximum(w2 - gain * sw - offset * w1, 0.0) / n  # the least-squares residual
+    gain = jnp.where(sloped, n * sw / jnp.where(sloped, det, 1.0), 0.0)
+    loss = jnp.maximum(w2 - gain * sw, 0.0) / n
     return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
 
 
