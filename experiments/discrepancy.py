@@ -79,6 +79,24 @@ def draw(effect: str, seed: int, duration: float, rate: float, drive: str, noise
     return strip, params, recording
 
 
+def compile_seconds() -> list[float]:
+    """A one-element list holding the seconds XLA has spent compiling since the call, kept up to date.
+
+    Summed from JAX's own ``backend_compile_duration`` events (`jax.monitoring`):
+    a draw's running time is its seconds less what it added here.
+    """
+    from jax import monitoring
+
+    total = [0.0]
+
+    def listen(event, duration, **_):
+        if event == "/jax/core/compile/backend_compile_duration":
+            total[0] += duration
+
+    monitoring.register_event_duration_secs_listener(listen)
+    return total
+
+
 def excess_over_noise(recording, found) -> tuple[float, float]:
     """Held-out MSE over the variance of the added noise: the baseline's, and the least of any effect-free fit."""
     hidden = recording.metadata["hidden"]
@@ -87,6 +105,34 @@ def excess_over_noise(recording, found) -> tuple[float, float]:
     others = found.evidence.get("equally_good_effect_free_fits", {}).get("heldout_nmse_min", float("nan"))
     best = min(1.0, others / found.baseline.heldout.nmse) if np.isfinite(others) else 1.0
     return baseline, baseline * best
+
+
+def time_by_steps(rows) -> str:
+    """The draws' seconds less XLA's compiling, against the median, by the number of search steps.
+
+    A diagnosis's time follows its steps (each fits every remaining effect), and
+    a step with more effects than any before it compiles a larger problem:
+    compiling is set apart so that a slow draw is a slow search, not a first one.
+    """
+    timed = [r for r in rows if "compiling_seconds" in r]
+    if not timed:
+        return ""
+    running = np.array([r["seconds"] - r["compiling_seconds"] for r in timed])
+    median = float(np.median(running))
+    steps = np.array([1 + len(r["later_steps"]) for r in timed])
+    lines = [
+        f"Less XLA's compiling (`jax.monitoring`): median {median:.1f} s, max {running.max():.1f} s "
+        f"({running.max() / median:.2f}× the median); compiling {sum(r['compiling_seconds'] for r in timed):.1f} s "
+        "in all. By search steps:\n",
+        "| steps | draws | running s (median, max) | max / all draws' median |",
+        "|---|---|---|---|",
+    ]
+    for k in sorted(set(steps.tolist())):
+        part = running[steps == k]
+        lines.append(
+            f"| {k} | {part.size} | {np.median(part):.1f}, {part.max():.1f} | {part.max() / median:.2f} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def _table(rows, effects, causes) -> str:
@@ -353,6 +399,7 @@ def main(argv=None) -> int:
     else:
         seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     rows = []
+    compiling = compile_seconds()
     for effect in effects:
         for seed in seeds:
             strip, params, recording = draw(effect, seed, args.duration, args.rate, args.drive, args.noise)
@@ -368,7 +415,9 @@ def main(argv=None) -> int:
                     flush=True,
                 )
                 continue
+            compiled_before = compiling[0]
             found = diagnose(recording)
+            compiled = compiling[0] - compiled_before
             excess, least = excess_over_noise(recording, found)
             world = open_world_row(recording, found, excess, CAUSES)
             flagged = f"{world['unexplained_fraction']:.2f} above floor" if world["unexplained"] else "no"
@@ -396,6 +445,7 @@ def main(argv=None) -> int:
                     "named": found.cause,
                     "gain": found.gain,
                     "seconds": found.seconds,
+                    "compiling_seconds": compiled,
                     "baseline_mse_over_noise": excess,
                     "effect_free_mse_over_noise": least,
                     "identifiable": bool(least >= IDENTIFIABLE),
@@ -505,6 +555,7 @@ def main(argv=None) -> int:
             f"diagnose time per recording: median {np.median(seconds):.1f} s, max {max(seconds):.1f} s "
             "(the first includes compilation).\n"
         )
+        summary.append(time_by_steps(rows))
     for v in virtual:
         summary.append(f"Virtual IPMC ({v['drive']}): named **{v['named']}**, held-out gain {v['gain']:.2f}.")
     out.with_suffix(".md").write_text("\n".join(summary) + "\n")

@@ -178,3 +178,45 @@ def test_resonance_starts_find_a_known_mode_and_network():
     (start,) = resonance_starts(problem, simulation, rate, n_starts=1, frozen=settings.frozen_for(simulation))
     assert start["resonance_frequency_hz"] == pytest.approx(f) and start["resonance_damping"] == zeta
     assert all(start[k] == pytest.approx(v) for k, v in point.items())
+
+
+def test_the_baselines_starts_do_not_depend_on_the_effects_searched(monkeypatch):
+    """One effect or every built-in: the same `N_LANES` baseline starts, the lanes padded beyond them.
+
+    The diagnosis is stopped at its first LM call (the baseline's lanes), whose
+    starts are compared: a larger effect set runs more lanes per stage, and
+    those must not change the baseline its candidates are measured against.
+    """
+    import jax.numpy as jnp
+
+    import hybrid
+    from hybrid.discovery import _diagnose
+    from hybrid.discovery._search import N_LANES
+
+    class Stop(Exception):
+        pass
+
+    seen = []
+
+    def first_lanes(problem, actives, tangents, thetas, settings, patience):
+        thetas = np.asarray(thetas)
+        finite = np.all(np.isfinite(thetas), axis=1)
+        _, readout = problem.split_theta(jnp.asarray(thetas[finite][0]))
+        stack = problem.model(jnp.asarray(thetas[finite][0])).simulation
+        seen.append((thetas.shape[0], int(finite.sum()), stack.inner.parameters(), np.asarray(readout)))
+        raise Stop
+
+    monkeypatch.setattr(_diagnose, "fit_lanes", first_lanes)
+    recording = synthetic_recording(
+        discrepancy_drive(20.0, 30.0, seed=3), SLOW, "none", {}, noise_fraction=0.01, seed=3
+    )
+    for effects in (["drift"], None):
+        with pytest.raises(Stop):
+            hybrid.diagnose(recording, simulation=hybrid.LTI(1), effects=effects)
+    (lanes_one, starts_one, inner_one, readout_one), (lanes_all, starts_all, inner_all, readout_all) = seen
+    assert lanes_one == N_LANES < lanes_all  # the built-ins' first step has more lanes than one effect's
+    assert starts_one == starts_all == N_LANES
+    assert inner_one.keys() == inner_all.keys()
+    for name in inner_one:
+        np.testing.assert_array_equal(np.asarray(inner_one[name]), np.asarray(inner_all[name]))
+    np.testing.assert_array_equal(readout_one, readout_all)

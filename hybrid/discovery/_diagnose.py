@@ -72,6 +72,7 @@ from ._effect_stack import EffectStack
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._redundant import drop_redundant
 from ._search import (
+    N_LANES,
     fit_lanes,
     held_out_blocks,
     initial_thetas,
@@ -245,16 +246,17 @@ def diagnose(
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
     n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
     say(f"screening {N_SCREEN} network designs for the baseline's starts")
-    grid = baseline_starts(problem, simulation, n_lanes, N_SCREEN, frozen)
+    grid = baseline_starts(problem, simulation, N_LANES, N_SCREEN, frozen)  # whatever the effects
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     base = stack.with_active(off)
     thetas = initial_thetas(problem, [base.replace(**g) for g in grid], model.readout, frozen)
-    if len(grid) < n_lanes:  # a design smaller than the lanes (few free parameters): the rest stop at once
+    say(f"baseline from {len(grid)} starts")
+    # Fewer starts than lanes (a larger effect set, or few free parameters): the rest stop at once.
+    if len(grid) < n_lanes:
         thetas = jnp.concatenate([thetas, jnp.stack([padding_lane(thetas[0])] * (n_lanes - len(grid)))])
         grid += grid[:1] * (n_lanes - len(grid))
     base_tangents = lane_tangents(model, frozen, None, n_rows)
-    say(f"baseline from {len(grid)} starts")
     base_states = fit_lanes(
         problem,
         np.tile(off, (len(grid), 1)),

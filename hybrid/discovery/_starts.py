@@ -7,7 +7,7 @@ screening: a scrambled Sobol design over the simulation's typical ranges, each p
 simulated once, with the gain and offset — and, jointly with an effect, the
 effect's linear parameters — by least squares.
 
-- `baseline_starts`: the network alone (the baseline's 16 lanes).
+- `baseline_starts`: the network alone (the baseline's `N_LANES` starts).
 - `delay_starts`: the network with the drive shifted by each of `DELAY_SHIFTS`.
 - `hysteresis_starts`: the network plus a Bouc–Wen loop at each of `LOOP_RATES`.
 - `resonance_starts`: the network followed by a mode at each frequency of
