@@ -14,8 +14,8 @@ Reported: the first call in a fresh process (compiling the search's programs
 included), a second call on another recording of the same length (compiled
 programs reused, as in a sweep or a lab session), and, as the peer in the same
 run, one physics-only `hybrid.fit` (one LM start) of the same recording — the
-cost of a single effect-free fit that the search (512 screened points, 16
-baseline starts, 15 candidate lanes, 16 re-baseline lanes) is measured against.
+cost of a single effect-free fit that the search (512 screened points, 18
+baseline starts, 29 candidate lanes per step, 29 re-baseline lanes) is measured against.
 Then `hybrid diagnose` from the command line, in two fresh processes sharing
 an empty persistent compilation cache (`HYBRID_JAX_CACHE`): the first (on the
 first recording) fills it, the second (on the other recording) is what a lab

@@ -10,6 +10,8 @@ single device:
 - five distinct lanes on three devices (one padding lane) against the same
   five run by the unsharded program in the same process: a lane that came back
   in another lane's row, or a padding lane that leaked into the result, fails;
+- the same lanes stopped by a shorter patience and resumed (`resume`) against
+  the longer patience from the start: equal to the last bit;
 - the four screens on a 40-point design (not a multiple of three) on three
   devices against a process with one.
 
@@ -60,8 +62,14 @@ LANES = textwrap.dedent("""
     lm = LMSettings(max_steps=30)
     sharded = search.fit_lanes(problem, actives, tangents, thetas, lm, 10)
     single = jax.device_get(
-        search._fit_lanes_compiled(problem, actives, tangents, thetas, np.int32(10), lm)
+        search._fit_lanes_compiled(
+            problem, actives, tangents, search._start_states(thetas), np.ones(5, bool), np.int32(10), lm
+        )
     )
+    # Stopped at a patience of 3, then those the patience stopped resumed to 10 (`resume`).
+    short = search.fit_lanes(problem, actives, tangents, thetas, lm, 3)
+    stopped = np.flatnonzero((short.since_best >= 3) & (short.step < lm.max_steps))
+    resumed = search.fit_lanes(problem, actives, tangents, search.resume(short, stopped), lm, 10)
     print(json.dumps({
         "devices": len(jax.devices()),
         "used": len(spread_devices()),
@@ -71,6 +79,11 @@ LANES = textwrap.dedent("""
         "single_theta": np.asarray(single.best_theta).tolist(),
         "sharded_steps": np.asarray(sharded.step).tolist(),
         "single_steps": np.asarray(single.step).tolist(),
+        "short_steps": np.asarray(short.step).tolist(),
+        "resumed": len(stopped),
+        "resumed_val": np.asarray(resumed.best_val).tolist(),
+        "resumed_theta": np.asarray(resumed.best_theta).tolist(),
+        "resumed_steps": np.asarray(resumed.step).tolist(),
     }))
 """)
 
@@ -132,6 +145,12 @@ def test_lanes_on_three_cpu_devices_equal_the_lanes_on_one():
         assert a == pytest.approx(b, rel=1e-10)
     for a, b in zip(out["sharded_theta"], out["single_theta"]):
         assert a == pytest.approx(b, rel=1e-8, abs=1e-10)
+    # A lane stopped by a short patience and resumed takes the steps the longer patience takes from
+    # the start (`resume`: LM's whole state goes on), the same arithmetic: equal to the last bit.
+    assert out["resumed"] > 0 and out["short_steps"] != out["sharded_steps"]
+    assert out["resumed_steps"] == out["sharded_steps"]
+    assert out["resumed_val"] == out["sharded_val"]
+    assert out["resumed_theta"] == out["sharded_theta"]
 
 
 def test_the_screens_on_three_cpu_devices_equal_the_screens_on_one():

@@ -88,6 +88,12 @@ class DiagnoseSettings:
     - `max_steps`: most LM steps of any lane.
     - `patience`: a candidate's lane stops after this many accepted steps
       without a better validation loss.
+    - `race_patience`: a candidate's lanes first run to this shorter patience;
+      then each effect's leading lanes (the least validation loss, and those
+      the rest of the patience could bring level with it) go on where they
+      stopped until `patience`: the steps they would have taken with it from
+      the start. The others keep their first result. 0: every lane runs to
+      `patience`.
     - `effect_free_patience`: the same for the baseline's and re-baseline's lanes.
       Most effect-free lanes are done within a few steps of their best (on the
       5-minute benchmark recording, timed ad hoc: 10 instead of 25 took the
@@ -123,6 +129,7 @@ class DiagnoseSettings:
     extremes_held_out: bool | None = None
     max_steps: int = 120
     patience: int = 25
+    race_patience: int = 10
     effect_free_patience: int = 10
     patience_rtol: float = 1e-3
     min_gain: float = 1.5

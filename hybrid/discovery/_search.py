@@ -11,6 +11,8 @@ each effect's starts are its own (`AbstractEffect.starts`, `AbstractEffect.scree
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -18,7 +20,7 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
 from ..core._devices import device_mesh, spread_devices
-from ..core._levenberg_marquardt import LMSettings, lm_init, lm_run
+from ..core._levenberg_marquardt import LMSettings, LMState, lm_init, lm_run
 from ..core._models import Model
 from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording, split_segments
 from ..core._readout import LinearReadout
@@ -74,53 +76,101 @@ def lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
     return basis
 
 
-def _run_lanes(problem, actives, tangents, thetas, patience, settings):
+def _run_lanes(problem, actives, tangents, states, restart, patience, settings):
     def one(lane):
-        active, basis, theta = lane
+        active, basis, state, fresh = lane
         p = with_active(problem, active, basis)
-        return lm_run(p, lm_init(p, theta, settings), settings, settings.max_steps, patience)
+        state = jax.lax.cond(fresh, lambda s: lm_init(p, s.theta, settings), lambda s: s, state)
+        return lm_run(p, state, settings, settings.max_steps, patience)
 
     # Lanes run one after another: each stops when it converges (a vmap would run
     # every lane until the slowest is done, and every effect's branch in every lane).
-    return jax.lax.map(one, (actives, tangents, thetas))
+    return jax.lax.map(one, (actives, tangents, states, restart))
 
 
 @eqx.filter_jit
-def _fit_lanes_compiled(problem, actives, tangents, thetas, patience, settings):
-    return _run_lanes(problem, actives, tangents, thetas, patience, settings)
+def _fit_lanes_compiled(problem, actives, tangents, states, restart, patience, settings):
+    return _run_lanes(problem, actives, tangents, states, restart, patience, settings)
 
 
 @eqx.filter_jit
-def _fit_lanes_sharded(problem, actives, tangents, thetas, patience, settings, mesh):
+def _fit_lanes_sharded(problem, actives, tangents, states, restart, patience, settings, mesh):
     """`_run_lanes` on every device of `mesh` at once, each on its own share of the lanes."""
     dynamic, static = eqx.partition(problem, eqx.is_array)
 
-    def local(dynamic, actives, tangents, thetas, patience):
-        return _run_lanes(eqx.combine(dynamic, static), actives, tangents, thetas, patience, settings)
+    def local(dynamic, actives, tangents, states, restart, patience):
+        return _run_lanes(
+            eqx.combine(dynamic, static), actives, tangents, states, restart, patience, settings
+        )
 
     lanes, shared = PartitionSpec("lanes"), PartitionSpec()
     return jax.shard_map(
         local,
         mesh=mesh,
-        in_specs=(shared, lanes, lanes, lanes, shared),
+        in_specs=(shared, lanes, lanes, lanes, lanes, shared),
         out_specs=lanes,
         check_vma=False,  # no collectives: every device's lanes are independent
-    )(dynamic, actives, tangents, thetas, patience)
+    )(dynamic, actives, tangents, states, restart, patience)
 
 
-def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience: int):
-    """LM from each (switches, Jacobian directions, θ₀) lane; one compiled program per lane count.
+def _start_states(thetas: np.ndarray) -> LMState:
+    """Placeholder states holding each lane's θ₀, for a program that starts them (`lm_init`) itself.
 
-    With several devices (`spread_devices`: on a CPU, `hybrid.use_cpu_cores`)
-    the lanes are dealt out to them in turn, lane i to device i mod d, and
-    each device runs its share one after another: the same arithmetic as on
-    one device, side by side. `patience` is an argument of the program, not
-    part of it: the stages share one compilation. Returns the lanes' final
-    `LMState`s as numpy arrays, one row per lane.
+    Host (numpy) arrays, as `fit_lanes` moves every input: no program per shape.
+    """
+    n, p = thetas.shape
+    real, count, flag = thetas.dtype, np.int32, np.bool_
+    fields: dict[str, Any] = dict(
+        theta=thetas,
+        cost=np.zeros(n, real),
+        JtJ=np.zeros((n, p, p), real),
+        g=np.zeros((n, p), real),
+        lam=np.zeros(n, real),
+        nu=np.zeros(n, real),
+        best_theta=thetas,
+        best_val=np.zeros(n, real),
+        best_step=np.zeros(n, count),
+        step=np.zeros(n, count),
+        accepted=np.zeros(n, count),
+        since_best=np.zeros(n, count),
+        done=np.ones(n, flag),
+        fresh=np.ones(n, flag),
+    )
+    return LMState(**fields)
+
+
+def resume(states: LMState, lanes) -> LMState:
+    """`states` (from `fit_lanes`) with `lanes` (indices) to go on and every other lane done.
+
+    Passed back to `fit_lanes` with a longer patience, each of `lanes` takes
+    the steps it would have taken had that been its patience from the start
+    (LM's state is all there: θ, λ, the best point, the steps since it).
+    """
+    done = np.ones_like(np.asarray(states.done))
+    done[np.asarray(lanes, int)] = False
+    return eqx.tree_at(lambda s: s.done, states, done)
+
+
+def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience: int):
+    """LM from each (switches, Jacobian directions, start) lane; one compiled program per lane count.
+
+    `starts`: θ₀ of each lane (rows), or the lanes' `LMState`s from an earlier
+    call (`resume`), which go on from there; a lane whose state is done stays
+    as it is. With several devices (`spread_devices`: on a CPU,
+    `hybrid.use_cpu_cores`) the lanes are dealt out to them in turn, lane i to
+    device i mod d, and each device runs its share one after another: the same
+    arithmetic as on one device, side by side. `patience` is an argument of
+    the program, not part of it: the stages share one compilation. Returns the
+    lanes' final `LMState`s as numpy arrays, one row per lane.
     """
     actives = np.asarray(actives, float)
     tangents = np.asarray(tangents, float)
-    thetas = np.asarray(thetas)
+    if isinstance(starts, LMState):
+        states = jax.tree_util.tree_map(np.asarray, starts)
+        restart = np.zeros(states.theta.shape[0], bool)
+    else:
+        states = _start_states(np.asarray(starts))
+        restart = np.ones(states.theta.shape[0], bool)
     stop_after = jnp.asarray(patience, jnp.int32)
     devices = spread_devices()
     if len(devices) < 2:
@@ -129,12 +179,13 @@ def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience
                 problem,
                 jnp.asarray(actives),
                 jnp.asarray(tangents),
-                jnp.asarray(thetas),
+                jax.tree_util.tree_map(jnp.asarray, states),
+                jnp.asarray(restart),
                 stop_after,
                 settings,
             )
         )
-    n, d = thetas.shape[0], len(devices)
+    n, d = restart.shape[0], len(devices)
     share = -(-n // d)
     extra = share * d - n  # padding lanes (θ not finite: they stop before their first step)
 
@@ -145,8 +196,16 @@ def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience
     def same(x, k):
         return np.repeat(x[:1], k, axis=0)
 
+    def nan(x, k):
+        return np.full((k,) + x.shape[1:], np.nan, x.dtype)
+
     actives, tangents = deal(actives, same), deal(tangents, same)
-    thetas = deal(thetas, lambda x, k: np.full((k,) + x.shape[1:], np.nan, x.dtype))
+    states = eqx.tree_at(
+        lambda s: (s.theta, s.best_theta),
+        jax.tree_util.tree_map(lambda x: deal(x, same), states),
+        (deal(states.theta, nan), deal(states.best_theta, nan)),
+    )
+    restart = deal(restart, lambda x, k: np.ones(k, bool))
     mesh = device_mesh("lanes")
     lanes = NamedSharding(mesh, PartitionSpec("lanes"))
     replicated = NamedSharding(mesh, PartitionSpec())
@@ -155,7 +214,8 @@ def fit_lanes(problem, actives, tangents, thetas, settings: LMSettings, patience
         eqx.combine(jax.device_put(arrays, replicated), rest),
         jax.device_put(actives, lanes),
         jax.device_put(tangents, lanes),
-        jax.device_put(thetas, lanes),
+        jax.device_put(states, lanes),
+        jax.device_put(restart, lanes),
         jax.device_put(stop_after, replicated),
         settings,
         mesh,

@@ -46,6 +46,7 @@ from ._search import (
     lane_count,
     lane_tangents,
     padding_lane,
+    resume,
     search_problem,
     searched_effects,
     shared_room,
@@ -179,6 +180,41 @@ def _finite_lanes(problem, stack, starts, departures, readout, frozen) -> list:
     return lanes
 
 
+def _race(s: Search, problem, actives, tangents, lanes, labels):
+    """The lanes' final LM states: every lane to a short patience, then each effect's leaders on.
+
+    Every lane runs until `race_patience` accepted steps bring no clearly better
+    validation loss. Of each effect's lanes, the leaders (the least validation
+    loss, and every lane within reach of it: (1 + `patience_rtol`) to the power
+    of the patience left, 1.5 % by default) then go on where they stopped until
+    `patience` do: the steps they would have taken with that patience from the
+    start, to the last bit (`resume`). The other lanes keep their first result.
+    Most of a lane's steps are its patience's tail after its best point; a lane
+    that cannot stand for its effect no longer runs it to the end. A lane that
+    stopped on its tolerances or its `max_steps` is done either way.
+    `race_patience` 0 (or ≥ `patience`): every lane runs to `patience`.
+    """
+    settings = s.settings
+    thetas = jnp.stack(lanes)
+    if not 0 < settings.race_patience < settings.patience:
+        return fit_lanes(problem, actives, tangents, thetas, s.lm, settings.patience)
+    heat = fit_lanes(problem, actives, tangents, thetas, s.lm, settings.race_patience)
+    vals = np.asarray(heat.best_val)
+    # Stopped by the short patience, not by its tolerances or its `max_steps`: it may go on.
+    going = (np.asarray(heat.since_best) >= settings.race_patience) & (np.asarray(heat.step) < s.lm.max_steps)
+    reach = (1.0 + settings.patience_rtol) ** (settings.patience - settings.race_patience)
+    leaders: list[int] = []
+    for name in dict.fromkeys(lab for lab in labels if lab != "none"):
+        idx = [j for j, lab in enumerate(labels) if lab == name and np.isfinite(vals[j])]
+        if idx:  # still in the race: a lane that the rest of the patience could bring level with the
+            # best, were each of its steps to gain just under a clear improvement (`patience_rtol`)
+            leaders += [j for j in idx if going[j] and vals[j] <= np.min(vals[idx]) * reach]
+    if not leaders:
+        return heat
+    s.say(f"{len(leaders)} leading lanes on to a patience of {settings.patience}")
+    return fit_lanes(problem, actives, tangents, resume(heat, leaders), s.lm, settings.patience)
+
+
 def search_step(
     search: Search, current: Candidate, current_val: float, current_fits: list, present: tuple[str, ...]
 ) -> Step:
@@ -271,9 +307,7 @@ def search_step(
         tangents.append(cur_tangents)
     added = " + ".join(present) + " + " if present else ""
     s.say(f"{added}each of {len(set(labels) - {'none'})} effects, {len(labels)} lanes")
-    states = fit_lanes(
-        problem, np.stack(actives), np.stack(tangents), jnp.stack(lanes), s.lm, settings.patience
-    )
+    states = _race(s, problem, np.stack(actives), np.stack(tangents), lanes, labels)
     vals = np.asarray(states.best_val)
     cand_thetas = states.best_theta
 

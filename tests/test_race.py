@@ -1,0 +1,86 @@
+"""The race of a step's lanes (`DiagnoseSettings.race_patience`): who goes on, from where, and what is kept."""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from hybrid.core._levenberg_marquardt import LMSettings, LMState
+from hybrid.discovery import _step
+from hybrid.discovery._diagnosis import DiagnoseSettings
+
+
+def _states(theta, best_val, since_best, step):
+    n, p = theta.shape
+    zeros = np.zeros(n)
+    return LMState(
+        theta=theta,
+        cost=zeros,
+        JtJ=np.zeros((n, p, p)),
+        g=np.zeros((n, p)),
+        lam=zeros,
+        nu=zeros,
+        best_theta=theta,
+        best_val=np.asarray(best_val, float),
+        best_step=np.zeros(n, int),
+        step=np.asarray(step, int),
+        accepted=np.asarray(step, int),
+        since_best=np.asarray(since_best, int),
+        done=np.ones(n, bool),
+        fresh=np.zeros(n, bool),
+    )
+
+
+def test_each_effects_leaders_go_on_where_they_stopped_and_the_other_lanes_stay_done(monkeypatch):
+    settings = DiagnoseSettings()
+    lm = LMSettings(max_steps=120)
+    labels = ["a", "a", "a", "b", "b", "c", "none", "none"]
+    # a: lane 1 leads and lane 2 is within reach of it (1.5 % with the defaults), lane 0 is not;
+    # b: lane 3 leads but stopped on its tolerances (done), lane 4 is out of reach;
+    # c: lane 5 stopped at max_steps.
+    heat_val = [1.02, 1.0, 1.01, 0.5, 0.7, 4.0, np.nan, np.nan]
+    since = [10, 10, 10, 2, 10, 10, 0, 0]
+    steps = [30, 25, 40, 12, 33, 120, 0, 0]
+    calls = []
+
+    def fit_lanes(problem, actives, tangents, starts, lm_settings, patience):
+        calls.append(dict(actives=actives, tangents=tangents, starts=starts, patience=patience))
+        if len(calls) == 1:  # the heat: every lane, ending 100 away from its start
+            thetas = np.asarray(starts)
+            return _states(thetas + 100.0, heat_val, since, steps)
+        return starts  # what goes on is checked below
+
+    monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
+    search = SimpleNamespace(settings=settings, lm=lm, n_val=180, say=lambda message: None)
+    n = len(labels)
+    actives = np.arange(n, dtype=float)[:, None] * np.ones((n, 3))
+    tangents = np.arange(n, dtype=float)[:, None, None] * np.ones((n, 2, 3))
+    lanes = [np.full(4, float(j)) for j in range(n)]
+
+    _step._race(search, object(), actives, tangents, lanes, labels)
+
+    assert [c["patience"] for c in calls] == [settings.race_patience, settings.patience]
+    second = calls[1]
+    # Every lane is passed back as the heat left it, with the same switches and directions; only a's
+    # leaders go on (b's stopped on its tolerances, c's at max_steps, the padding never started).
+    assert isinstance(second["starts"], LMState)
+    np.testing.assert_array_equal(second["starts"].done, [True, False, False, True, True, True, True, True])
+    for j in range(n):
+        np.testing.assert_array_equal(second["starts"].theta[j], np.full(4, j + 100.0))
+    np.testing.assert_array_equal(second["starts"].since_best, since)
+    np.testing.assert_array_equal(second["actives"], actives)
+    np.testing.assert_array_equal(second["tangents"], tangents)
+
+
+def test_race_patience_zero_runs_every_lane_to_the_full_patience(monkeypatch):
+    patiences = []
+
+    def fit_lanes(problem, actives, tangents, thetas, lm_settings, patience):
+        patiences.append(patience)
+        thetas = np.asarray(thetas)
+        return _states(thetas, np.ones(thetas.shape[0]), np.full(thetas.shape[0], patience), np.ones(2))
+
+    monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
+    settings = DiagnoseSettings(race_patience=0)
+    search = SimpleNamespace(settings=settings, lm=LMSettings(), n_val=180, say=lambda message: None)
+    _step._race(search, object(), np.ones((2, 3)), np.ones((2, 2, 3)), [np.zeros(4)] * 2, ["a", "a"])
+    assert patiences == [settings.patience]
