@@ -373,7 +373,9 @@ class Problem(eqx.Module):
         signals = self._signals(a)
         split = "validation" if self.has_validation else "train"
         losses = {}
-        for name in {"train", split}:
+        # In this order, not a set's: a set of strings iterates in an order that changes with each
+        # process's hash seed, and so would the traced program and its persistent-cache key.
+        for name in dict.fromkeys(("train", split)):
             w_hat = jax.vmap(readout.predict_window)(self._windows(readout, signals, name))
             losses[name] = self._weighted((self.target(name) - w_hat) / self.scale, name)
         r = self._with_penalty(losses["train"], theta)
