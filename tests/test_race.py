@@ -2,31 +2,22 @@
 
 from types import SimpleNamespace
 
+import equinox as eqx
 import numpy as np
 
 from hybrid.core._levenberg_marquardt import LMSettings, LMState
 from hybrid.discovery import _step
 from hybrid.discovery._diagnosis import DiagnoseSettings
+from hybrid.discovery._search import _start_states
 
 
 def _states(theta, best_val, since_best, step):
-    n, p = theta.shape
-    zeros = np.zeros(n)
-    return LMState(
-        theta=theta,
-        cost=zeros,
-        JtJ=np.zeros((n, p, p)),
-        g=np.zeros((n, p)),
-        lam=zeros,
-        nu=zeros,
-        best_theta=theta,
-        best_val=np.asarray(best_val, float),
-        best_step=np.zeros(n, int),
-        step=np.asarray(step, int),
-        accepted=np.asarray(step, int),
-        since_best=np.asarray(since_best, int),
-        done=np.ones(n, bool),
-        fresh=np.zeros(n, bool),
+    """Lane states (numpy rows) at θ with these validation losses, steps since the best and steps."""
+    states = _start_states(theta)
+    return eqx.tree_at(
+        lambda s: (s.best_val, s.since_best, s.step),
+        states,
+        (np.asarray(best_val, float), np.asarray(since_best, np.int32), np.asarray(step, np.int32)),
     )
 
 
