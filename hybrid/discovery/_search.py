@@ -144,7 +144,9 @@ def resume(states: LMState, lanes) -> LMState:
 
     Passed back to `fit_lanes` with a longer patience, each of `lanes` takes
     the steps it would have taken had that been its patience from the start
-    (LM's state is all there: θ, λ, the best point, the steps since it).
+    (LM's state is all there: θ, λ, the best point, the steps since it). Name
+    only lanes that the patience stopped: one stopped on its tolerances would
+    step on past them.
     """
     done = np.ones_like(np.asarray(states.done))
     done[np.asarray(lanes, int)] = False
