@@ -4,8 +4,7 @@ The command line keeps compiled programs on disk (`HYBRID_JAX_CACHE`), keyed
 by the traced program. A trace that iterated a set of strings followed the
 process's hash seed (`PYTHONHASHSEED`, random per process): the lanes' LM
 program came out in one of two orders, so about every other `hybrid diagnose`
-compiled it again (4.3 s on the 5-minute benchmark recording) though the cache
-held it. Two processes with hash seeds 1 and 3 (which order {"train",
+compiled it again (seconds, on every fresh process) though the cache held it. Two processes with hash seeds 1 and 3 (which order {"train",
 "validation"} differently on CPython) diagnose the same recording with one
 cache: the second must find every program there.
 """
