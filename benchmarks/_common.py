@@ -29,26 +29,8 @@ def setup_jax():
     return jax
 
 
-def compile_counter() -> dict:
-    """``{"s": seconds, "programs": count}`` of XLA's backend compiles from now on, kept up to date.
-
-    Summed from JAX's own ``backend_compile_duration`` events (`jax.monitoring`).
-    """
-    from jax import monitoring
-
-    counter = {"s": 0.0, "programs": 0}
-
-    def listen(event, duration, **_):
-        if event == "/jax/core/compile/backend_compile_duration":
-            counter["s"] += duration
-            counter["programs"] += 1
-
-    monitoring.register_event_duration_secs_listener(listen)
-    return counter
-
-
 def timed(compiling: dict, fn, *args, **kwargs):
-    """(fn's result, its seconds split into compiling and the rest), `compiling` from `compile_counter`."""
+    """(fn's result, its seconds split into compiling and the rest), `compiling` from `hybrid.util.compile_counter`."""
     before = dict(compiling)
     t0 = time.perf_counter()
     out = fn(*args, **kwargs)

@@ -79,24 +79,6 @@ def draw(effect: str, seed: int, duration: float, rate: float, drive: str, noise
     return strip, params, recording
 
 
-def compile_seconds() -> list[float]:
-    """A one-element list holding the seconds XLA has spent compiling since the call, kept up to date.
-
-    Summed from JAX's own ``backend_compile_duration`` events (`jax.monitoring`):
-    a draw's running time is its seconds less what it added here.
-    """
-    from jax import monitoring
-
-    total = [0.0]
-
-    def listen(event, duration, **_):
-        if event == "/jax/core/compile/backend_compile_duration":
-            total[0] += duration
-
-    monitoring.register_event_duration_secs_listener(listen)
-    return total
-
-
 def excess_over_noise(recording, found) -> tuple[float, float]:
     """Held-out MSE over the variance of the added noise: the baseline's, and the least of any effect-free fit."""
     hidden = recording.metadata["hidden"]
@@ -362,6 +344,7 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     from hybrid import CAUSES, InputError, diagnose
     from hybrid.ipmc import HIDDEN_EFFECTS, HIDDEN_NAMES, canonical
+    from hybrid.util import compile_counter
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -399,7 +382,7 @@ def main(argv=None) -> int:
     else:
         seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     rows = []
-    compiling = compile_seconds()
+    compiling = compile_counter()  # XLA's seconds: a draw's running time is its seconds less them
     for effect in effects:
         for seed in seeds:
             strip, params, recording = draw(effect, seed, args.duration, args.rate, args.drive, args.noise)
@@ -415,9 +398,9 @@ def main(argv=None) -> int:
                     flush=True,
                 )
                 continue
-            compiled_before = compiling[0]
+            compiled_before = compiling["s"]
             found = diagnose(recording)
-            compiled = compiling[0] - compiled_before
+            compiled = compiling["s"] - compiled_before
             excess, least = excess_over_noise(recording, found)
             world = open_world_row(recording, found, excess, CAUSES)
             flagged = f"{world['unexplained_fraction']:.2f} above floor" if world["unexplained"] else "no"

@@ -202,11 +202,9 @@ def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience
         return np.full((k,) + x.shape[1:], np.nan, x.dtype)
 
     actives, tangents = deal(actives, same), deal(tangents, same)
-    states = eqx.tree_at(
-        lambda s: (s.theta, s.best_theta),
-        jax.tree_util.tree_map(lambda x: deal(x, same), states),
-        (deal(states.theta, nan), deal(states.best_theta, nan)),
-    )
+    # A padding lane restarts (`lm_init` sets its whole state) from a θ that is not finite.
+    theta = deal(states.theta, nan)
+    states = eqx.tree_at(lambda s: s.theta, jax.tree_util.tree_map(lambda x: deal(x, same), states), theta)
     restart = deal(restart, lambda x, k: np.ones(k, bool))
     mesh = device_mesh("lanes")
     lanes = NamedSharding(mesh, PartitionSpec("lanes"))

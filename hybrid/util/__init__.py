@@ -20,6 +20,7 @@ from ._figures import pyplot as pyplot, save_png as save_png
 from ._programs import (
     DIAGNOSE_PROGRAMS as DIAGNOSE_PROGRAMS,
     ProgramBudget as ProgramBudget,
+    compile_counter as compile_counter,
     map_limit as map_limit,
     memory_maps as memory_maps,
     release_programs as release_programs,

@@ -98,3 +98,23 @@ class ProgramBudget:
 
 #: The budget `diagnose` keeps (one per process).
 DIAGNOSE_PROGRAMS = ProgramBudget()
+
+
+def compile_counter() -> dict:
+    """``{"s": seconds, "programs": count}`` of XLA's backend compiles from now on, kept up to date.
+
+    Summed from JAX's own ``backend_compile_duration`` events (`jax.monitoring`): a
+    call's running time is its seconds less what it added here (a program read
+    back from the persistent cache counts too, as a short compile).
+    """
+    from jax import monitoring
+
+    counter: dict = {"s": 0.0, "programs": 0}
+
+    def listen(event: str, duration_secs: float, **_: str | int) -> None:
+        if event == "/jax/core/compile/backend_compile_duration":
+            counter["s"] += duration_secs
+            counter["programs"] += 1
+
+    monitoring.register_event_duration_secs_listener(listen)
+    return counter
