@@ -2,7 +2,7 @@
 
 Generic numerics shared by the physics that have a continuous state-space
 realisation ẋ = Ax + Bu, y = Cx + Du: `zoh_response` (the sampled response
-from rest), run lifted to blocks of `BLOCK` samples by `lifted_response`, on
+from rest), run lifted to blocks of `ZOH_BLOCK` samples by `lifted_response`, on
 `hybrid.core._loop_safe_linalg.zoh_discretise` (the exact ZOH discretisation
 by one augmented matrix exponential, which the state-space form's exact step
 shares). The paper's RC network (``method="zoh"``, and its Tustin
@@ -23,7 +23,18 @@ from jaxtyping import Array
 
 from ..core._loop_safe_linalg import zoh_discretise
 
-BLOCK = 16  # samples per block in `cascade_filter` and `zoh_response`: ~L + 2K + K²/L operations per sample
+#: Products at float64's precision everywhere (no TF32 on GPUs).
+_dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)
+
+#: Samples per block in `cascade_filter` (the Tustin cascade): ~L + 2K + K²/L multiply-adds per
+#: sample for K states, and T/L steps of the block loop. Its block matrices come from running the
+#: sections for L samples on L + K excitations, which grows with L (`make bench-quick`).
+BLOCK = 16
+#: Samples per block in `zoh_response`, whose block matrices come from log₂ L products
+#: (`lifted_blocks`): 32, where the block loop's T/L steps, run again in every direction of a
+#: forward derivative, are what a longer block saves. The RC network's (46 states) search
+#: Jacobians are faster with it (`python benchmarks/stack_jacobian.py`); `LTI(2)`'s barely move.
+ZOH_BLOCK = 32
 
 
 def lifted_response(H, O, A_L, C, x):
@@ -31,24 +42,47 @@ def lifted_response(H, O, A_L, C, x):
 
     y_j = O x_j + H u_j and x_{j+1} = A^L x_j + C u_j for the blocks u_j of L
     samples (see `hybrid.physics.cascade_filter`, the RC network's Tustin cascade): two matrix products over all blocks and a
-    scan of T/L steps.
+    scan of T/L steps (`_block_states`).
     """
     block, length = H.shape[0], x.shape[0]
     n_blocks = -(-length // block)
     u = jnp.pad(x, (0, n_blocks * block - length)).reshape(n_blocks, block)
-    dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)  # no TF32 on GPUs
-    forced = dot(u, H.T)  # H u_j for every block
-    state_input = dot(u, C.T)  # C u_j for every block
+    forced = _dot(u, H.T)  # H u_j for every block
+    states = _block_states(A_L, _dot(u, C.T))  # C u_j for every block drives the states
+    return (forced + _dot(states, O.T)).reshape(-1)[:length]
 
-    def advance(state, c):
-        return dot(A_L, state) + c, state
 
-    _, states = lax.scan(advance, jnp.zeros(A_L.shape[0], x.dtype), state_input)
-    return (forced + dot(states, O.T)).reshape(-1)[:length]
+@jax.custom_jvp
+def _block_states(M, c):
+    """The states x_0 = 0, x_{j+1} = M x_j + c_j, one row per j (as many as `c` has rows).
+
+    Its derivative is the same recursion driven by dM x_j + dc_j (`_block_states_jvp`):
+    the tangents' forcing is one matrix product over every block, outside the loop, and
+    the loop carries only M times the tangents' states. Differentiated as it stands, the
+    loop would also multiply each direction's own dM by x_j, one block at a time. With
+    the doubling of `lifted_blocks` and 32-sample blocks, a search lane's Jacobian (RC
+    network, saturation and delay, 9 directions, 9,216 samples) went from 5.1 ms to
+    3.4 ms (`python benchmarks/stack_jacobian.py`).
+    """
+
+    def advance(state, cj):
+        return _dot(M, state) + cj, state
+
+    _, states = lax.scan(advance, jnp.zeros(M.shape[0], c.dtype), c)
+    return states
+
+
+@_block_states.defjvp
+def _block_states_jvp(primals, tangents):
+    M, c = primals
+    dM, dc = tangents
+    states = _block_states(M, c)
+    # Linear in (dM, dc): reverse mode transposes it (the loop runs backwards).
+    return states, _block_states(M, _dot(states, dM.T) + dc)
 
 
 @functools.partial(jax.jit, static_argnames="block")
-def zoh_response(A, B, C, D, v_in, dt, block: int = BLOCK):
+def zoh_response(A, B, C, D, v_in, dt, block: int = ZOH_BLOCK):
     """Exact sampled response of ẋ = Ax + Bu, y = Cx + Du to a ZOH input, from rest.
 
     The discretised system x[n+1] = A_d x[n] + B_d u[n], y[n] = C x[n] + D u[n]
@@ -66,36 +100,37 @@ def lifted_blocks(Ad, Bd, C, D, block: int) -> tuple[Array, Array, Array, Array]
     """(H, O, A^L, C_L) of the discrete system x[n+1] = Ad x[n] + Bd u[n], y = C x + D u, L = `block`.
 
     H[i, j] = h[i − j], the Markov parameters h[0] = D, h[k] = C Ad^(k−1) Bd
-    (zero above the diagonal); O[i] = C Ad^i; A^L = Ad^L by repeated squaring;
-    C_L[:, j] = Ad^(L−1−j) Bd. Only O and the columns of C_L take a product
-    per sample (a vector by a matrix); A^L takes log₂ L matrix products:
-    ~2Ln² + n³ log₂ L multiply-adds, where a scan of L full n × (n + L)
-    products took Ln²(n + L) (for the RC network's n = 46, L = 16: 0.5M
-    against 2.1M, paid again in every direction of a forward derivative).
+    (zero above the diagonal); O[i] = C Ad^i; A^L = Ad^L; C_L[:, j] = Ad^(L−1−j) Bd.
+    O and the powers Ad^k Bd come by doubling: with the first m of each and
+    P = Ad^m, the next m are O P and P (Ad^k Bd), and P becomes P². That is
+    log₂ L rounds of three matrix products, ~2Ln² + n³ log₂ L multiply-adds
+    (for the RC network's n = 46, L = 32: 0.6M, where a scan of L full
+    n × (n + L) products took 5.3M), and a chain of log₂ L dependent products
+    instead of L vector-by-matrix products one after another: a forward
+    derivative multiplies whole matrices in every direction at once.
     """
-    dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)
-
-    def observe(row, _):
-        return dot(row, Ad), row
-
-    def excite(col, _):
-        return dot(Ad, col), col
-
-    _, O = lax.scan(observe, C, None, length=block)  # C Ad^i, i = 0..L−1
-    _, powers_b = lax.scan(excite, Bd, None, length=block)  # Ad^k Bd, k = 0..L−1
-    markov = jnp.concatenate([jnp.reshape(D, (1,)).astype(Ad.dtype), dot(O[:-1], Bd)])  # h[0..L−1]
+    rows, cols, power, m = C[None, :], Bd[:, None], Ad, 1  # C Ad^i and Ad^k Bd for i, k < m; Ad^m
+    while m < block:
+        rows = jnp.concatenate([rows, _dot(rows, power)])
+        cols = jnp.concatenate([cols, _dot(power, cols)], axis=1)
+        m *= 2
+        if m <= block:
+            power = _dot(power, power)
+    O, powers_b = rows[:block], cols[:, :block]
+    A_L = power if m == block else _matrix_power(Ad, block)
+    markov = jnp.concatenate([jnp.reshape(D, (1,)).astype(Ad.dtype), _dot(O[:-1], Bd)])  # h[0..L−1]
     lag = jnp.arange(block)[:, None] - jnp.arange(block)[None, :]
     H = jnp.where(lag >= 0, markov[jnp.clip(lag, 0, block - 1)], 0.0)
-    return H, O, _matrix_power(Ad, block, dot), powers_b[::-1].T
+    return H, O, A_L, powers_b[:, ::-1]
 
 
-def _matrix_power(a, k: int, dot):
+def _matrix_power(a, k: int):
     """a^k (k ≥ 1, static) by binary powering: matrix products only."""
     result, base = None, a
     while k:
         if k & 1:
-            result = base if result is None else dot(result, base)
+            result = base if result is None else _dot(result, base)
         k >>= 1
         if k:
-            base = dot(base, base)
+            base = _dot(base, base)
     return result
