@@ -75,3 +75,21 @@ def test_race_patience_zero_runs_every_lane_to_the_full_patience(monkeypatch):
     search = SimpleNamespace(settings=settings, lm=LMSettings(), n_val=180, say=lambda message: None)
     _step._race(search, object(), np.ones((2, 3)), np.ones((2, 2, 3)), [np.zeros(4)] * 2, ["a", "a"])
     assert patiences == [settings.patience]
+
+
+def test_the_lanes_that_will_run_are_dealt_first_in_their_own_order():
+    """`fit_lanes` deals lanes to devices in turn in this order: the running ones spread evenly."""
+    from hybrid.discovery._search import _running_first, resume
+
+    theta = np.arange(12.0).reshape(6, 2)
+    theta[4] = np.nan  # a padding lane: it restarts from a θ that is not finite and stops at once
+    fresh = _start_states(theta)
+    assert isinstance(fresh, LMState)
+    # fresh starts: every finite lane runs, in its own order; the padding lane goes last
+    assert _running_first(fresh, np.ones(6, bool)).tolist() == [0, 1, 2, 3, 5, 4]
+    # a resumed race: leaders 1 and 3 (neighbours of a device in turn: 1 and 3 are both odd) first
+    heat = eqx.tree_at(lambda s: s.done, fresh, np.ones(6, bool))
+    order = _running_first(resume(heat, [1, 3]), np.zeros(6, bool))
+    assert order.tolist() == [1, 3, 0, 2, 4, 5]
+    # dealt lane k of the order to device k mod 2: the two leaders on different devices
+    assert {order.tolist().index(1) % 2, order.tolist().index(3) % 2} == {0, 1}

@@ -159,9 +159,9 @@ def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience
     `starts`: θ₀ of each lane (rows), or the lanes' `LMState`s from an earlier
     call (`resume`), which go on from there; a lane whose state is done stays
     as it is. With several devices (`spread_devices`: on a CPU,
-    `hybrid.use_cpu_cores`) the lanes are dealt out to them in turn, lane i to
-    device i mod d, and each device runs its share one after another: the same
-    arithmetic as on one device, side by side. `patience` is an argument of
+    `hybrid.use_cpu_cores`) the lanes are dealt out to them in turn, those that
+    will run first (`_running_first`), and each device runs its share one after
+    another: the same arithmetic as on one device, side by side. `patience` is an argument of
     the program, not part of it: the stages share one compilation. Returns the
     lanes' final `LMState`s as numpy arrays, one row per lane.
     """
@@ -190,6 +190,9 @@ def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience
     n, d = restart.shape[0], len(devices)
     share = -(-n // d)
     extra = share * d - n  # padding lanes (θ not finite: they stop before their first step)
+    order = _running_first(states, restart)
+    actives, tangents, restart = actives[order], tangents[order], restart[order]
+    states = jax.tree_util.tree_map(lambda x: x[order], states)
 
     def deal(x, fill):  # lane i to device i mod d: row-major (share, d) read column by column
         x = np.concatenate([x, fill(x, extra)])
@@ -221,10 +224,27 @@ def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience
         mesh,
     )
 
-    def gather(x):  # back to lane order, padding dropped
-        return x.reshape((d, share) + x.shape[1:]).swapaxes(0, 1).reshape(x.shape)[:n]
+    back = np.argsort(order)
+
+    def gather(x):  # back to the dealt order, padding dropped, then to the lanes' own order
+        return x.reshape((d, share) + x.shape[1:]).swapaxes(0, 1).reshape(x.shape)[:n][back]
 
     return jax.tree_util.tree_map(gather, jax.device_get(out))
+
+
+def _running_first(states: LMState, restart) -> np.ndarray:
+    """The lanes' order for dealing: those that will take steps first, the rest after (stable).
+
+    Dealt in turn, lane k of this order to device k mod d, the lanes that run
+    spread evenly over the devices, whatever their places: a resumed race
+    (`resume`) runs a few leaders among many finished lanes, and dealt by their
+    own places two neighbours in one effect's lanes could share a device while
+    another idles. Which lane runs where changes no lane's arithmetic.
+    """
+    theta = np.asarray(states.theta)
+    starts = np.asarray(restart) & np.all(np.isfinite(theta), axis=tuple(range(1, theta.ndim)))
+    runs = starts | (~np.asarray(restart) & ~np.asarray(states.done))  # a padding lane (θ NaN) stops at once
+    return np.argsort(~runs, kind="stable")
 
 
 def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[Problem, int]:
