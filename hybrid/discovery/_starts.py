@@ -161,10 +161,12 @@ def _recorded_mask(series):
 
 def delayed(problem: Problem, shift: int) -> Problem:
     """The problem with every drive delayed by `shift` samples (at rest, 0 V, before the recording)."""
-    series = tuple(
-        eqx.tree_at(lambda s: s.v_in, s, jnp.concatenate([jnp.zeros(shift, s.v_in.dtype), s.v_in[:-shift]]))
-        for s in problem.series
-    )
+    # On the host: a shift of its own would be a program of its own on the device, compiled per shift.
+    def shifted(v):
+        v = np.asarray(v)
+        return jnp.asarray(np.concatenate([np.zeros(shift, v.dtype), v[:-shift]]))
+
+    series = tuple(eqx.tree_at(lambda s: s.v_in, s, shifted(s.v_in)) for s in problem.series)
     return eqx.tree_at(lambda p: p.series, problem, series)
 
 
