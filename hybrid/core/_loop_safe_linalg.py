@@ -50,7 +50,6 @@ def expm(a, max_squarings: int = MAX_SQUARINGS):
     s = jnp.clip(jnp.ceil(jnp.log2(jnp.maximum(norm, 1e-300) / _THETA)), 0, None)
     x = a * jnp.exp2(-s).astype(a.dtype)
     eye = jnp.eye(n, dtype=a.dtype)
-    dot = _dot
     powers = [eye, x]
     for _ in range(5):
         powers.append(dot(powers[-1], x))  # X², …, X⁶
@@ -105,7 +104,8 @@ def lstsq(design, target, rtol: float = 1e-10):
     return jnp.stack(coef), jnp.sum(residual * residual)
 
 
-def _dot(a, b):
+def dot(a, b):
+    """a @ b at float64's precision everywhere (no TF32 on GPUs)."""
     return jnp.matmul(a, b, precision=lax.Precision.HIGHEST)
 
 

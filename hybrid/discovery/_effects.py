@@ -82,6 +82,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Float
 
+from ..core._lifted import lifted_states
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
 from ..core._simulation import unit_in
@@ -573,6 +574,10 @@ def foh_matrices(a, b, dt):
     return e[:n, :n], e[:n, n], e[:n, n + 1] / dt
 
 
+#: Samples per block of `Resonance`'s recurrence (`lifted_states`).
+MODE_BLOCK = 32
+
+
 class Resonance(AbstractEffect):
     """A mechanical mode, unity DC gain: ω²/(s² + 2ζωs + ω²), f = ω/2π in Hz.
 
@@ -604,16 +609,11 @@ class Resonance(AbstractEffect):
         phi, g0, g1 = self.recurrence(dt, s.dtype)
         du = jnp.diff(s, append=s[-1:])
         # x[n+1] = Φ x[n] + Γ₀ u[n] + Γ₁ Δu[n], from rest at the first value (unity DC gain):
-        # a linear recurrence, evaluated by a sequential scan (see `affine_recurrence`).
+        # a linear time-invariant recurrence, run in blocks (`lifted_states`).
         forcing = g0[None, :] * s[:, None] + g1[None, :] * du[:, None]
         x0 = jnp.array([1.0, 0.0], s.dtype) * s[0]
         forcing = forcing.at[0].add(phi @ x0)
-
-        def step(x, f):
-            x = phi @ x + f
-            return x, x
-
-        states = lax.scan(step, jnp.zeros(2, s.dtype), forcing)[1]  # x[1..T]
+        states = lifted_states(phi, forcing, MODE_BLOCK)  # x[1..T]
         return jnp.concatenate([x0[None, 0], states[:-1, 0]])
 
     def starts(self, context):

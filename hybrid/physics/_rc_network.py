@@ -64,12 +64,13 @@ from jax import lax
 from jaxtyping import Array, Complex, Float
 
 from ..core._arguments import check_drive, run_compiled
+from ..core._lifted import lifted_response
 from ..core._loop_safe_linalg import zoh_discretise
 from ..core._parameters import Constraint, Positive, UnitInterval, encode
 from ..core._state_space import AbstractLinearStateSpace
 from ..util._errors import InputError
 from ._strip import Strip
-from ._zoh import BLOCK, lifted_response, zoh_response
+from ._zoh import BLOCK, zoh_response
 
 Method = Literal["tustin", "zoh"]
 METHODS = ("tustin", "zoh")

@@ -18,13 +18,10 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jax import lax
 from jaxtyping import Array
 
-from ..core._loop_safe_linalg import zoh_discretise
-
-#: Products at float64's precision everywhere (no TF32 on GPUs).
-_dot = functools.partial(jnp.matmul, precision=lax.Precision.HIGHEST)
+from ..core._lifted import lifted_response, matrix_power
+from ..core._loop_safe_linalg import dot, zoh_discretise
 
 #: Samples per block in `cascade_filter` (the Tustin cascade): ~L + 2K + K²/L multiply-adds per
 #: sample for K states, and T/L steps of the block loop. Its block matrices come from running the
@@ -35,50 +32,6 @@ BLOCK = 16
 #: forward derivative, are what a longer block saves. The RC network's (46 states) search
 #: Jacobians are faster with it (`python benchmarks/stack_jacobian.py`); `LTI(2)`'s barely move.
 ZOH_BLOCK = 32
-
-
-def lifted_response(H, O, A_L, C, x):
-    """Run a linear system lifted to blocks of L samples over `x`, from rest.
-
-    y_j = O x_j + H u_j and x_{j+1} = A^L x_j + C u_j for the blocks u_j of L
-    samples (see `hybrid.physics.cascade_filter`, the RC network's Tustin cascade): two matrix products over all blocks and a
-    scan of T/L steps (`_block_states`).
-    """
-    block, length = H.shape[0], x.shape[0]
-    n_blocks = -(-length // block)
-    u = jnp.pad(x, (0, n_blocks * block - length)).reshape(n_blocks, block)
-    forced = _dot(u, H.T)  # H u_j for every block
-    states = _block_states(A_L, _dot(u, C.T))  # C u_j for every block drives the states
-    return (forced + _dot(states, O.T)).reshape(-1)[:length]
-
-
-@jax.custom_jvp
-def _block_states(M, c):
-    """The states x_0 = 0, x_{j+1} = M x_j + c_j, one row per j (as many as `c` has rows).
-
-    Its derivative is the same recursion driven by dM x_j + dc_j (`_block_states_jvp`):
-    the tangents' forcing is one matrix product over every block, outside the loop, and
-    the loop carries only M times the tangents' states. Differentiated as it stands, the
-    loop would also multiply each direction's own dM by x_j, one block at a time. With
-    the doubling of `lifted_blocks` and 32-sample blocks, a search lane's Jacobian (RC
-    network, saturation and delay, 9 directions, 9,216 samples) went from 5.1 ms to
-    3.4 ms (`python benchmarks/stack_jacobian.py`).
-    """
-
-    def advance(state, cj):
-        return _dot(M, state) + cj, state
-
-    _, states = lax.scan(advance, jnp.zeros(M.shape[0], c.dtype), c)
-    return states
-
-
-@_block_states.defjvp
-def _block_states_jvp(primals, tangents):
-    M, c = primals
-    dM, dc = tangents
-    states = _block_states(M, c)
-    # Linear in (dM, dc): reverse mode transposes it (the loop runs backwards).
-    return states, _block_states(M, _dot(states, dM.T) + dc)
 
 
 @functools.partial(jax.jit, static_argnames="block")
@@ -111,26 +64,14 @@ def lifted_blocks(Ad, Bd, C, D, block: int) -> tuple[Array, Array, Array, Array]
     """
     rows, cols, power, m = C[None, :], Bd[:, None], Ad, 1  # C Ad^i and Ad^k Bd for i, k < m; Ad^m
     while m < block:
-        rows = jnp.concatenate([rows, _dot(rows, power)])
-        cols = jnp.concatenate([cols, _dot(power, cols)], axis=1)
+        rows = jnp.concatenate([rows, dot(rows, power)])
+        cols = jnp.concatenate([cols, dot(power, cols)], axis=1)
         m *= 2
         if m <= block:
-            power = _dot(power, power)
+            power = dot(power, power)
     O, powers_b = rows[:block], cols[:, :block]
-    A_L = power if m == block else _matrix_power(Ad, block)
-    markov = jnp.concatenate([jnp.reshape(D, (1,)).astype(Ad.dtype), _dot(O[:-1], Bd)])  # h[0..L−1]
+    A_L = power if m == block else matrix_power(Ad, block)
+    markov = jnp.concatenate([jnp.reshape(D, (1,)).astype(Ad.dtype), dot(O[:-1], Bd)])  # h[0..L−1]
     lag = jnp.arange(block)[:, None] - jnp.arange(block)[None, :]
     H = jnp.where(lag >= 0, markov[jnp.clip(lag, 0, block - 1)], 0.0)
     return H, O, A_L, powers_b[:, ::-1]
-
-
-def _matrix_power(a, k: int):
-    """a^k (k ≥ 1, static) by binary powering: matrix products only."""
-    result, base = None, a
-    while k:
-        if k & 1:
-            result = base if result is None else _dot(result, base)
-        k >>= 1
-        if k:
-            base = _dot(base, base)
-    return result
