@@ -161,6 +161,7 @@ def _recorded_mask(series):
 
 def delayed(problem: Problem, shift: int) -> Problem:
     """The problem with every drive delayed by `shift` samples (at rest, 0 V, before the recording)."""
+
     # On the host: a shift of its own would be a program of its own on the device, compiled per shift.
     def shifted(v):
         v = np.asarray(v)
