@@ -5,48 +5,57 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hybrid.core._lifted import lifted_states
+from hybrid.core._lifted import lifted_blocks, lifted_response
 
 
-def _recursion(Phi, forcing):
-    """x_{t+1} = Φ x_t + f_t from x_0 = 0, one step at a time in numpy: the reference."""
-    x, out = np.zeros(Phi.shape[0]), []
-    for f in forcing:
-        x = Phi @ x + f
-        out.append(x)
+def _recursion(Ad, Bd, C, D, u):
+    """y[n] = C x[n] + D u[n], x[n+1] = Ad x[n] + Bd u[n] from x[0] = 0, one step at a time in numpy."""
+    x, out = np.zeros(Ad.shape[0]), []
+    for un in u:
+        out.append(C @ x + D * un)
+        x = Ad @ x + Bd * un
     return np.array(out)
 
 
 # A lightly damped mode (eigenvalues 0.97 e^{±0.3i}) and a three-state system with a slow and a fast pole.
-MODES = [
-    0.97 * np.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]]),
-    np.array([[0.999, 0.0, 0.0], [0.2, 0.5, 0.0], [0.0, 0.3, -0.4]]),
+SYSTEMS = [
+    (
+        0.97 * np.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]]),
+        [0.2, -0.1],
+        [1.0, 0.0],
+        0.05,
+    ),
+    (np.array([[0.999, 0.0, 0.0], [0.2, 0.5, 0.0], [0.0, 0.3, -0.4]]), [1.0, 0.0, 0.5], [0.3, 0.2, 1.0], 0.0),
 ]
 
 
-@pytest.mark.parametrize("Phi", MODES)
+@pytest.mark.parametrize("system", SYSTEMS)
 @pytest.mark.parametrize("length", [1, 5, 31, 32, 33, 100, 1000])
 @pytest.mark.parametrize("block", [1, 5, 16, 32])
-def test_lifted_states_equal_the_plain_recursion(Phi, length, block):
-    forcing = np.random.default_rng(length).normal(size=(length, Phi.shape[0]))
-    got = np.asarray(lifted_states(jnp.asarray(Phi), jnp.asarray(forcing), block))
-    expected = _recursion(Phi, forcing)
+def test_the_lifted_response_equals_the_plain_recursion(system, length, block):
+    Ad, Bd, C, D = (np.asarray(a, float) for a in system)
+    u = np.random.default_rng(length).normal(size=length)
+    got = np.asarray(
+        lifted_response(*lifted_blocks(*(jnp.asarray(a) for a in (Ad, Bd, C, D)), block), jnp.asarray(u))
+    )
+    expected = _recursion(Ad, Bd, C, D, u)
     assert got.shape == expected.shape
-    # ≤ 1e-12 of the largest state: the blocks only re-associate the sums
+    # ≤ 1e-12 of the largest output: the blocks only re-associate the sums
     assert np.max(np.abs(got - expected)) <= 1e-12 * np.max(np.abs(expected))
 
 
-def test_lifted_states_derivatives_match_central_differences():
-    """Forward and reverse mode in Φ and the forcing (the blocks' own JVP, `block_states`)."""
+def test_the_lifted_response_derivatives_match_central_differences():
+    """Forward and reverse mode in the system and the input (the blocks' own JVP, `block_states`)."""
     length = 301
-    forcing = jnp.asarray(np.random.default_rng(1).normal(size=(length, 2)))
+    u = jnp.asarray(np.random.default_rng(1).normal(size=length))
     weights = jnp.linspace(0.5, 1.5, length)
 
-    def loss(theta):  # Φ rotated and scaled by θ, the forcing scaled by θ[2]: every path of the derivative
+    def loss(theta):  # the mode rotated and scaled by θ, its input and output gains by θ[2]: every path
         r, a = 0.97 * jnp.exp(theta[0]), 0.3 + theta[1]
-        Phi = r * jnp.array([[jnp.cos(a), -jnp.sin(a)], [jnp.sin(a), jnp.cos(a)]])
-        x = lifted_states(Phi, forcing * (1.0 + theta[2]), 32)
-        return jnp.sum(weights * jnp.sin(x[:, 0]) ** 2)
+        Ad = r * jnp.array([[jnp.cos(a), -jnp.sin(a)], [jnp.sin(a), jnp.cos(a)]])
+        Bd, C = jnp.array([0.2, -0.1]) * (1.0 + theta[2]), jnp.array([1.0, theta[2]])
+        y = lifted_response(*lifted_blocks(Ad, Bd, C, 0.05, 32), u * (1.0 + theta[2]))
+        return jnp.sum(weights * jnp.sin(y) ** 2)
 
     theta = jnp.array([-0.01, 0.02, 0.1])
     forward = jax.jacfwd(loss)(theta)

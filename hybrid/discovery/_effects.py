@@ -82,7 +82,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Float
 
-from ..core._lifted import lifted_states
+from ..core._lifted import lifted_blocks, lifted_response
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
 from ..core._simulation import unit_in
@@ -574,7 +574,7 @@ def foh_matrices(a, b, dt):
     return e[:n, :n], e[:n, n], e[:n, n + 1] / dt
 
 
-#: Samples per block of `Resonance`'s recurrence (`lifted_states`).
+#: Samples per block of `Resonance`'s recurrence (`lifted_response`).
 MODE_BLOCK = 32
 
 
@@ -607,14 +607,14 @@ class Resonance(AbstractEffect):
 
     def apply(self, s, dt):
         phi, g0, g1 = self.recurrence(dt, s.dtype)
-        du = jnp.diff(s, append=s[-1:])
-        # x[n+1] = Φ x[n] + Γ₀ u[n] + Γ₁ Δu[n], from rest at the first value (unity DC gain):
-        # a linear time-invariant recurrence, run in blocks (`lifted_states`).
-        forcing = g0[None, :] * s[:, None] + g1[None, :] * du[:, None]
-        x0 = jnp.array([1.0, 0.0], s.dtype) * s[0]
-        forcing = forcing.at[0].add(phi @ x0)
-        states = lifted_states(phi, forcing, MODE_BLOCK)  # x[1..T]
-        return jnp.concatenate([x0[None, 0], states[:-1, 0]])
+        # x[n+1] = Φ x[n] + Γ₀ s[n] + Γ₁ (s[n+1] − s[n]), from rest at the first value (unity DC gain:
+        # x = (s[0], 0) is where a constant s[0] holds it), output x[n]₀. With z = x − Γ₁ s it is a
+        # single-input system, z[n+1] = Φ z[n] + (ΦΓ₁ + Γ₀ − Γ₁) s[n], y = z₀ + Γ₁₀ s, run from rest on
+        # s − s[0] in blocks (`lifted_response`) rather than one sample at a time.
+        first = s[0]
+        b = phi @ g1 + g0 - g1
+        c = jnp.array([1.0, 0.0], s.dtype)
+        return first + lifted_response(*lifted_blocks(phi, b, c, g1[0], MODE_BLOCK), s - first)
 
     def starts(self, context):
         # The residual's spectral peak; `screened_starts` adds a screened one.

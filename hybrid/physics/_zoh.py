@@ -18,10 +18,9 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array
 
-from ..core._lifted import lifted_response, matrix_power
-from ..core._loop_safe_linalg import dot, zoh_discretise
+from ..core._lifted import lifted_blocks, lifted_response
+from ..core._loop_safe_linalg import zoh_discretise
 
 #: Samples per block in `cascade_filter` (the Tustin cascade): ~L + 2K + K²/L multiply-adds per
 #: sample for K states, and T/L steps of the block loop. Its block matrices come from running the
@@ -47,31 +46,3 @@ def zoh_response(A, B, C, D, v_in, dt, block: int = ZOH_BLOCK):
     dtype = jnp.result_type(A, v_in)
     Ad, Bd = zoh_discretise(A.astype(dtype), B.astype(dtype), dt)
     return lifted_response(*lifted_blocks(Ad, Bd, C.astype(dtype), D, block), v_in.astype(dtype))
-
-
-def lifted_blocks(Ad, Bd, C, D, block: int) -> tuple[Array, Array, Array, Array]:
-    """(H, O, A^L, C_L) of the discrete system x[n+1] = Ad x[n] + Bd u[n], y = C x + D u, L = `block`.
-
-    H[i, j] = h[i − j], the Markov parameters h[0] = D, h[k] = C Ad^(k−1) Bd
-    (zero above the diagonal); O[i] = C Ad^i; A^L = Ad^L; C_L[:, j] = Ad^(L−1−j) Bd.
-    O and the powers Ad^k Bd come by doubling: with the first m of each and
-    P = Ad^m, the next m are O P and P (Ad^k Bd), and P becomes P². That is
-    log₂ L rounds of three matrix products, ~2Ln² + n³ log₂ L multiply-adds
-    (for the RC network's n = 46, L = 32: 0.6M, where a scan of L full
-    n × (n + L) products took 5.3M), and a chain of log₂ L dependent products
-    instead of L vector-by-matrix products one after another: a forward
-    derivative multiplies whole matrices in every direction at once.
-    """
-    rows, cols, power, m = C[None, :], Bd[:, None], Ad, 1  # C Ad^i and Ad^k Bd for i, k < m; Ad^m
-    while m < block:
-        rows = jnp.concatenate([rows, dot(rows, power)])
-        cols = jnp.concatenate([cols, dot(power, cols)], axis=1)
-        m *= 2
-        if m <= block:
-            power = dot(power, power)
-    O, powers_b = rows[:block], cols[:, :block]
-    A_L = power if m == block else matrix_power(Ad, block)
-    markov = jnp.concatenate([jnp.reshape(D, (1,)).astype(Ad.dtype), dot(O[:-1], Bd)])  # h[0..L−1]
-    lag = jnp.arange(block)[:, None] - jnp.arange(block)[None, :]
-    H = jnp.where(lag >= 0, markov[jnp.clip(lag, 0, block - 1)], 0.0)
-    return H, O, A_L, powers_b[:, ::-1]
