@@ -176,8 +176,8 @@ class EffectStack(AbstractWrapper):
 
     def trainable(self, frozen):
         # One pass over the stack's leaves, by path: the inner simulation's own spec (a plug-in may
-        # define it), each effect's `raw` values free unless frozen, everything else fixed. (A tree_at
-        # per effect took 1.1 ms a call, and a diagnosis asks ~200 times.)
+        # define it), each effect's `raw` values free unless frozen, everything else fixed: a diagnosis asks
+        # a few hundred times, and a tree_at per effect rebuilt the whole stack for each.
         inner = iter(jax.tree_util.tree_leaves(self.inner.trainable(frozen)))
         leaves, treedef = jax.tree_util.tree_flatten_with_path(self)
 

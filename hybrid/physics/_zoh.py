@@ -1,15 +1,15 @@
 """The exact sampled response of a continuous linear system to a zero-order-hold drive.
 
-Generic numerics shared by the physics that have a continuous state-space
-realisation ẋ = Ax + Bu, y = Cx + Du: `zoh_response` (the sampled response
-from rest), run lifted to blocks of `ZOH_BLOCK` samples by `lifted_response`, on
-`hybrid.core._loop_safe_linalg.zoh_discretise` (the exact ZOH discretisation
-by one augmented matrix exponential, which the state-space form's exact step
-shares). The paper's RC network (``method="zoh"``, and its Tustin
-cascade's lifting) and `LTI` use them; neither owns them.
+`zoh_response` (the sampled response from rest) of any continuous realisation
+ẋ = Ax + Bu, y = Cx + Du: `hybrid.core._loop_safe_linalg.zoh_discretise` (the
+exact ZOH discretisation by one augmented matrix exponential, which the
+state-space form's exact step shares), then the discrete system run in blocks
+of `ZOH_BLOCK` samples by the core's `lifted_blocks` and `lifted_response`.
+The paper's RC network (``method="zoh"``) and `LTI` use it; `BLOCK` is the
+block of the RC network's Tustin cascade, which builds its own block matrices.
 
-The matrix exponential is `hybrid.core._loop_safe_linalg.expm` (matrix
-products only), so all of this is safe inside `diagnose`'s batched compiled loops.
+Matrix products only (`expm` included), so all of this is safe inside
+`diagnose`'s batched compiled loops.
 """
 
 from __future__ import annotations
