@@ -93,8 +93,8 @@ def time_by_steps(rows) -> str:
     """The draws' seconds less XLA's compiling, against the median, by the number of search steps.
 
     A diagnosis's time follows its steps (each fits every remaining effect), and
-    a step with more effects than any before it compiles a larger problem:
-    compiling is set apart so that a slow draw is a slow search, not a first one.
+    the first draw compiles the search's programs: compiling is set apart so
+    that a slow draw is a slow search, not a first one.
     """
     timed = [r for r in rows if "compiling_seconds" in r]
     if not timed:

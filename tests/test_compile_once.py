@@ -6,7 +6,8 @@ programs for its own length, and the fifth died (SIGSEGV) at Linux's 65,530.
 Here eight recordings of eight lengths that share a bucket are diagnosed in
 one process: after the first call no large program is compiled again and the
 maps stop growing, though they are split into different numbers of
-blocks; and within one diagnosis each screen compiles once across its steps.
+blocks; and within one diagnosis each screen, the lanes and the predictions
+compile once across its steps, a third step included.
 (That programs are released beyond two buckets is
 `tests/test_buckets.py`'s; `benchmarks/diagnose_many.py` runs 55 calls over
 many lengths and two simulations.)
@@ -39,15 +40,19 @@ def _listen(event, duration, fun_name=None, **_):
 monitoring.register_event_duration_secs_listener(_listen)
 
 
-def _recording(n, seed):
-    """A first-order lag with a saturating output, 30 Hz (the issue's case), made here in numpy."""
+def _recording(n, seed, drift=0.0):
+    """A first-order lag with a saturating output, 30 Hz (the issue's case), made here in numpy.
+
+    `drift`: the output's gain grows linearly by this fraction over the record (a second effect).
+    """
     rng = np.random.default_rng(seed)
     u = np.repeat(rng.uniform(-1, 1, n // 12 + 1), 12)[:n]
     a = np.exp(-1.0 / (30.0 * 0.4))
     y = np.zeros(n)
     for k in range(1, n):
         y[k] = a * y[k - 1] + (1 - a) * u[k - 1]
-    w = np.tanh(2.0 * y) / 2.0 + 0.003 * rng.standard_normal(n)
+    gain = 1.0 + drift * np.arange(n) / n
+    w = gain * np.tanh(2.0 * y) / 2.0 + 0.003 * rng.standard_normal(n)
     return hy.Recording(t=np.arange(n) / 30.0, v_in=u, w=w, name=f"lag {n}")
 
 
@@ -113,25 +118,36 @@ def test_a_simulation_called_op_by_op_compiles_once_per_structure_and_length():
         np.testing.assert_allclose(second, inside, rtol=1e-12, atol=1e-12 * np.max(np.abs(inside)))
 
 
-def test_a_diagnosis_compiles_each_screen_once_across_its_steps():
-    """Every step screens its starts; the second step's screens reuse the first step's programs.
+def test_a_diagnosis_compiles_each_program_once_across_its_steps():
+    """Every step screens its starts and runs its lanes with the programs of the first step.
 
     The first step screens the stack with every effect off, the later steps the
     stack with the named ones on: the same structure, so `loop_screen`,
     `mode_screen` and `screen_losses` each compile (or load) once per diagnosis,
     counted per program by JAX's own events. Before, the first step screened the
     simulation itself, outside the stack, and every later step compiled its
-    screens again.
+    screens again. A third step (two causes named) runs its lanes on the same
+    problem too: the lanes' program and `predictions` compile once (a third step
+    compiled a larger problem's, ~10 s on a 60 s recording of the RC network).
     """
-    screens = ("jit(screen_losses)", "jit(loop_screen)", "jit(mode_screen)")
+    programs = (
+        "jit(screen_losses)",
+        "jit(loop_screen)",
+        "jit(mode_screen)",
+        "jit(predictions)",
+        "jit(_fit_lanes_compiled)",
+        "jit(_fit_lanes_sharded)",
+    )
     jax.clear_caches()  # other tests' programs out of the count
-    before = {name: _compiles[name] for name in screens}
+    before = {name: _compiles[name] for name in programs}
     found = hy.diagnose(
-        _recording(300, 11),
+        _recording(300, 11, drift=0.5),
         simulation=hy.LTI(1),
         effects=("saturation", "drift", "hysteresis", "resonance"),
         settings=hy.DiagnoseSettings(max_steps=20),
     )
-    assert len(found.steps) >= 2, [c["name"] for c in found.causes]  # a later step screened again
-    counts = {name: _compiles[name] - before[name] for name in screens}
-    assert all(n == 1 for n in counts.values()), counts
+    named = [c["name"] for c in found.causes]
+    assert len(found.steps) == 3 and sorted(named) == ["drift", "saturation"], named  # a third step ran
+    counts = {name: _compiles[name] - before[name] for name in programs}
+    lanes = counts.pop("jit(_fit_lanes_compiled)") + counts.pop("jit(_fit_lanes_sharded)")
+    assert lanes == 1 and all(n == 1 for n in counts.values()), (lanes, counts)

@@ -30,9 +30,9 @@ from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, FrameTiming
 from ._level_limit import flat_extremes
 
-#: Effects a lane's Jacobian has room for in the problem the search's first steps share. Each
+#: Effects a lane's Jacobian has room for in the problem every step of the search shares. Each
 #: direction costs one tangent of the simulation, zero or not: room for more is paid on every
-#: step, so a step that needs more builds a larger problem (and compiles its programs) then.
+#: step, so a later step's lanes refit the latest named effects only (`_step.refitted`).
 SHARED_ROOM = 2
 #: The baseline's LM starts, and the least LM runs per stage (candidate starts, padded): one
 #: compiled program. `lane_count` raises the lanes to the first step's candidate lanes, so that

@@ -4,7 +4,8 @@ Step 1 starts from the effect-free baseline; each later step from the model the
 step before it extended. A step
 
 1. fits every remaining effect switched on *in addition to* the named ones, as
-   lanes of one compiled LM program, warm-started from the current model and
+   lanes of one compiled LM program (each refits the named effects too, as
+   many as the shared problem has room for: `refitted`), warm-started from the current model and
    from design points screened jointly with a dead time, a loop or a mode
    (`hybrid.discovery._starts`; from the second step on, the design of the model
    extended so far);
@@ -87,7 +88,12 @@ class Search:
         return searched_effects(stack)
 
     def problem_for(self, n_effects: int) -> Problem:
-        """The shared problem, or (beyond its room) one with room for `n_effects` effects in a lane."""
+        """The shared problem, or (beyond its room) one with room for `n_effects` effects in a lane.
+
+        The search's steps and refits stay within the room (`refitted`); only
+        the final model's uncertainties, with more causes kept than it, need
+        the larger problem.
+        """
         if n_effects <= self.room:
             return self.problem
         if n_effects not in self.larger:
@@ -100,6 +106,19 @@ class Search:
     def room(self) -> int:
         """Effects a lane of the shared problem has Jacobian directions for."""
         return shared_room(self.settings, len(self.effects))
+
+
+def refitted(present: tuple[str, ...], room: int) -> tuple[str, ...]:
+    """The named effects (of `present`, in naming order) a lane refits: the latest `room` of them.
+
+    A step's lanes share one problem (`Search.problem`), whose Jacobian has
+    directions for `SHARED_ROOM` effects. Up to it a lane refits every named
+    effect beside its own; a later step (a third cause) refits the latest ones
+    and holds the earlier at the values that the step before fitted jointly
+    with them, rather than compile a larger problem for a step that most
+    diagnoses never reach (~10 s of XLA compiling on a 60 s recording).
+    """
+    return present[max(0, len(present) - room) :] if room > 0 else ()
 
 
 def first_step_lanes(effects, rate: float, duration: float) -> int:
@@ -222,12 +241,14 @@ def search_step(
     s, settings = search, search.settings
     effects = s.effects
     names = [e.name for e in effects]
-    problem = s.problem_for(len(present) + 1)
+    problem = s.problem
     assert problem.sim_tangents is not None  # a search problem always has its directions
     n_rows = int(problem.sim_tangents.shape[0])
     active_cur = np.asarray(current.active, float)
     theta_cur = current.theta
-    cur_tangents = lane_tangents(s.model, s.frozen, present, n_rows)
+    # Beyond the shared problem's room a lane refits the latest named effects it has room for; the
+    # earlier ones hold the values the step before fitted jointly (`refitted`).
+    cur_tangents = lane_tangents(s.model, s.frozen, refitted(present, s.room), n_rows)
     cur_model = problem.model(jnp.asarray(theta_cur))
     stack = cur_model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
@@ -292,7 +313,7 @@ def search_step(
             departures.append((effect, values, active))
             actives.append(active)
             labels.append(name)
-            tangents.append(lane_tangents(s.model, s.frozen, present + (name,), n_rows))
+            tangents.append(lane_tangents(s.model, s.frozen, refitted(present, s.room - 1) + (name,), n_rows))
     n_lanes = s.n_lanes
     if len(starts) > n_lanes:  # the lanes were counted on a probe signal (`first_step_lanes`)
         raise InputError(
