@@ -4,11 +4,13 @@ from types import SimpleNamespace
 
 import equinox as eqx
 import numpy as np
+import pytest
 
+import hybrid as hy
 from hybrid.core._levenberg_marquardt import LMSettings, LMState
 from hybrid.discovery import _step
 from hybrid.discovery._diagnosis import DiagnoseSettings
-from hybrid.discovery._search import _start_states
+from hybrid.discovery._search import _start_states, lane_tangents, lanes_problem
 
 
 def _states(theta, best_val, since_best, step):
@@ -93,3 +95,34 @@ def test_the_lanes_that_will_run_are_dealt_first_in_their_own_order():
     assert order.tolist() == [1, 3, 0, 2, 4, 5]
     # dealt lane k of the order to device k mod 2: the two leaders on different devices
     assert {order.tolist().index(1) % 2, order.tolist().index(3) % 2} == {0, 1}
+
+
+def test_a_third_step_lane_refits_every_named_effect_where_the_shared_problem_has_directions():
+    """`refitted`: all the named effects beside a lane's own where their parameters fit, else the latest.
+
+    The shared problem has directions for LTI(1)'s parameters, the frame timing
+    and the two effects with the most parameters (hysteresis 3, saturation or
+    resonance 2). A third step's lane whose three effects fit refits all three
+    (a later cause can then undo an early name); one that does not holds the
+    earliest named effect.
+    """
+    n = 300
+    t = np.arange(n) / 30.0
+    recording = hy.Recording(t=t, v_in=np.sin(t), w=np.tanh(np.sin(t)), name="probe")
+    simulation = hy.LTI(1)
+    settings = DiagnoseSettings()
+    effects = ("saturation", "drift", "hysteresis", "resonance")
+    problem, n_rows, model, _ = lanes_problem([recording], simulation, settings, effects)
+    frozen = frozenset(settings.frozen_for(simulation))
+    search = SimpleNamespace(problem=problem, model=model, frozen=frozen)
+    present = ("drift", "saturation")
+    assert _step.refitted(search, present) == present  # the current model's refit: 1 + 2
+    assert _step.refitted(search, present, "resonance") == present  # 1 + 2 + 2: fits
+    assert _step.refitted(search, present, "hysteresis") == ("saturation",)  # 1 + 2 + 3: drift held
+    assert _step.refitted(search, ("saturation", "hysteresis"), "drift") == ("hysteresis",)
+    assert _step.refitted(search, (), "hysteresis") == ()
+    # the directions of a lane that fits are all there; more than the rows are refused
+    basis = lane_tangents(model, frozen, present + ("resonance",), n_rows)
+    assert int(basis.sum()) == n_rows and np.all(basis.sum(axis=1) == 1)  # 1 + 2 + 2 fill the rows
+    with pytest.raises(ValueError, match="room for"):
+        lane_tangents(model, frozen, present + ("hysteresis",), n_rows)

@@ -300,7 +300,7 @@ def diagnose(
     theta_base = baseline.theta
     v_te, w_te, w_hat_base = split_signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = split_signals(problem, extended.theta, extended.active, "test")
-    final = search.problem_for(len(kept))
+    final = search.problem_for(kept)
     assert final.sim_tangents is not None  # a search problem always has its directions
     fitted = with_active(
         final,

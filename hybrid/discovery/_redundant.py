@@ -61,7 +61,7 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...]):
     n_params = {e.name: len(e.constraints) for e in s.effects}
     kept, dropped = tuple(present), []
     while len(kept) >= 2:
-        problem = s.problem_for(len(kept) - 1)  # each refit fits the others: the search's problem
+        problem = s.problem_for(*(tuple(c for c in kept if c != cause) for cause in kept))
         assert problem.sim_tangents is not None  # a search problem always has its directions
         n_rows = int(problem.sim_tangents.shape[0])
         thetas, actives, tangents = [], [], []

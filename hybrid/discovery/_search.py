@@ -30,9 +30,11 @@ from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, FrameTiming
 from ._level_limit import flat_extremes
 
-#: Effects a lane's Jacobian has room for in the problem every step of the search shares. Each
-#: direction costs one tangent of the simulation, zero or not: room for more is paid on every
-#: step, so a later step's lanes refit the latest named effects only (`_step.refitted`).
+#: Effects a lane's Jacobian has room for in the problem every step of the search shares: the
+#: directions of the `SHARED_ROOM` effects with the most parameters. Each direction costs one
+#: tangent of the simulation, zero or not: room for more is paid on every step. A third step's
+#: lane fits in it whenever its three effects have no more parameters than those two (most
+#: sets); where one does not, it holds the earliest named effect (`_step.refitted`).
 SHARED_ROOM = 2
 #: The baseline's LM starts, and the least LM runs per stage (candidate starts, padded): one
 #: compiled program. `lane_count` raises the lanes to the first step's candidate lanes, so that
@@ -61,19 +63,34 @@ def lane_tangents(model: Model, frozen, effects, n_rows: int) -> np.ndarray:
 
     `effects`: None, one effect's name, or a tuple of names (the effects a lane fits).
     """
-    effects = () if effects is None else (effects,) if isinstance(effects, str) else tuple(effects)
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     labels = simulation_labels(stack, frozen)
+    wanted = _fitted_names(model, frozen, effects)
+    if len(wanted) > n_rows:
+        raise ValueError(f"{len(wanted)} directions for a problem with room for {n_rows}")
+    basis = np.zeros((n_rows, len(labels)))
+    for row, name in enumerate(wanted):
+        basis[row, labels.index(name)] = 1.0
+    return basis
+
+
+def direction_count(model: Model, frozen, effects) -> int:
+    """Jacobian directions a lane fitting `effects` takes (`lane_tangents`' rows that are not zero)."""
+    return len(_fitted_names(model, frozen, effects))
+
+
+def _fitted_names(model: Model, frozen, effects) -> list[str]:
+    """The free parameters a lane fits: the inner simulation's, the frame timing's and those of `effects`."""
+    effects = () if effects is None else (effects,) if isinstance(effects, str) else tuple(effects)
+    stack = model.simulation
+    assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     by_name = {e.name: e for e in stack.effects}
     wanted = [n for n in stack.inner.parameter_names() if n not in frozen]
     wanted += [n for n in FrameTiming.constraints if n not in frozen]
     for effect in effects:
         wanted += [n for n in by_name[effect].constraints if n not in frozen]
-    basis = np.zeros((n_rows, len(labels)))
-    for row, name in enumerate(wanted):
-        basis[row, labels.index(name)] = 1.0
-    return basis
+    return wanted
 
 
 def _run_lanes(problem, actives, tangents, states, restart, patience, settings):

@@ -4,8 +4,8 @@ Step 1 starts from the effect-free baseline; each later step from the model the
 step before it extended. A step
 
 1. fits every remaining effect switched on *in addition to* the named ones, as
-   lanes of one compiled LM program (each refits the named effects too, as
-   many as the shared problem has room for: `refitted`), warm-started from the current model and
+   lanes of one compiled LM program (each refits the named effects too, where
+   the shared problem has directions for them: `refitted`), warm-started from the current model and
    from design points screened jointly with a dead time, a loop or a mode
    (`hybrid.discovery._starts`; from the second step on, the design of the model
    extended so far);
@@ -41,6 +41,7 @@ from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, StartContext
 from ._search import (
     best_lag,
+    direction_count,
     finite_theta,
     fit_lanes,
     inside_signals,
@@ -50,7 +51,6 @@ from ._search import (
     resume,
     search_problem,
     searched_effects,
-    shared_room,
     simulation_output,
     split_signals,
     theta_with_readout,
@@ -87,38 +87,46 @@ class Search:
         assert isinstance(stack, EffectStack)  # a search fits an EffectStack
         return searched_effects(stack)
 
-    def problem_for(self, n_effects: int) -> Problem:
-        """The shared problem, or (beyond its room) one with room for `n_effects` effects in a lane.
+    def problem_for(self, *effect_sets) -> Problem:
+        """The shared problem where it has directions for a lane fitting each of `effect_sets`, else a larger one.
 
-        The search's steps and refits stay within the room (`refitted`); only
-        the final model's uncertainties, with more causes kept than it, need
-        the larger problem.
+        The search's steps and refits stay within the shared problem
+        (`refitted`); only the final model's uncertainties, with more causes
+        kept than it has room for, need a larger problem (its own programs).
         """
-        if n_effects <= self.room:
+        assert self.problem.sim_tangents is not None  # a search problem always has its directions
+        n_rows = int(self.problem.sim_tangents.shape[0])
+        if all(direction_count(self.model, self.frozen, e) <= n_rows for e in effect_sets):
             return self.problem
+        n_effects = max(len(e) for e in effect_sets)
         if n_effects not in self.larger:
             self.larger[n_effects] = search_problem(self.model, self.problem.series, self.frozen, n_effects)[
                 0
             ]
         return self.larger[n_effects]
 
-    @property
-    def room(self) -> int:
-        """Effects a lane of the shared problem has Jacobian directions for."""
-        return shared_room(self.settings, len(self.effects))
 
-
-def refitted(present: tuple[str, ...], room: int) -> tuple[str, ...]:
-    """The named effects (of `present`, in naming order) a lane refits: the latest `room` of them.
+def refitted(search: Search, present: tuple[str, ...], name: str | None = None) -> tuple[str, ...]:
+    """The named effects (of `present`, in naming order) a lane refits beside `name`: all where they fit.
 
     A step's lanes share one problem (`Search.problem`), whose Jacobian has
-    directions for `SHARED_ROOM` effects. Up to it a lane refits every named
-    effect beside its own; a later step (a third cause) refits the latest ones
-    and holds the earlier at the values that the step before fitted jointly
-    with them, rather than compile a larger problem for a step that most
-    diagnoses never reach (~10 s of XLA compiling on a 60 s recording).
+    directions for the two effects with the most parameters (`SHARED_ROOM`).
+    A lane refits every named effect beside its own where their parameters fit
+    in them: at the third step, most sets. A later cause may undo an early
+    name (hysteresis + drift seed 2 of `experiments/discrepancy.py`: backlash
+    named first, drift second, hysteresis third with the backlash's play fitted
+    to 0, and the backlash dropped). Where they do not, the lane holds the earliest named effects at the
+    values that the step before fitted jointly, rather than compile a larger
+    problem for a step that most diagnoses never reach (~10 s of XLA
+    compiling on a 60 s recording).
     """
-    return present[max(0, len(present) - room) :] if room > 0 else ()
+    assert search.problem.sim_tangents is not None  # a search problem always has its directions
+    n_rows = int(search.problem.sim_tangents.shape[0])
+    own = (name,) if name is not None else ()
+    for k in range(len(present) + 1):
+        if direction_count(search.model, search.frozen, present[k:] + own) <= n_rows:
+            return present[k:]
+    return ()
 
 
 def first_step_lanes(effects, rate: float, duration: float) -> int:
@@ -246,9 +254,8 @@ def search_step(
     n_rows = int(problem.sim_tangents.shape[0])
     active_cur = np.asarray(current.active, float)
     theta_cur = current.theta
-    # Beyond the shared problem's room a lane refits the latest named effects it has room for; the
-    # earlier ones hold the values the step before fitted jointly (`refitted`).
-    cur_tangents = lane_tangents(s.model, s.frozen, refitted(present, s.room), n_rows)
+    # A lane refits the named effects that the shared problem has directions for (`refitted`).
+    cur_tangents = lane_tangents(s.model, s.frozen, refitted(s, present), n_rows)
     cur_model = problem.model(jnp.asarray(theta_cur))
     stack = cur_model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
@@ -313,7 +320,7 @@ def search_step(
             departures.append((effect, values, active))
             actives.append(active)
             labels.append(name)
-            tangents.append(lane_tangents(s.model, s.frozen, refitted(present, s.room - 1) + (name,), n_rows))
+            tangents.append(lane_tangents(s.model, s.frozen, refitted(s, present, name) + (name,), n_rows))
     n_lanes = s.n_lanes
     if len(starts) > n_lanes:  # the lanes were counted on a probe signal (`first_step_lanes`)
         raise InputError(
