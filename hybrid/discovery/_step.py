@@ -111,14 +111,14 @@ def refitted(search: Search, present: tuple[str, ...], name: str | None = None) 
 
     A step's lanes share one problem (`Search.problem`), whose Jacobian has
     directions for the two effects with the most parameters (`SHARED_ROOM`).
-    A lane refits every named effect beside its own where their parameters fit
-    in them: at the third step, most sets. A later cause may undo an early
+    A lane refits every named effect beside its own where their parameters
+    fit in them: at the third step, most sets. A later cause may undo an early
     name (hysteresis + drift seed 2 of `experiments/discrepancy.py`: backlash
-    named first, drift second, hysteresis third with the backlash's play fitted
-    to 0, and the backlash dropped). Where they do not, the lane holds the earliest named effects at the
-    values that the step before fitted jointly, rather than compile a larger
-    problem for a step that most diagnoses never reach (~10 s of XLA
-    compiling on a 60 s recording).
+    named first, drift second, hysteresis third with the backlash's play
+    fitted to 0, and the backlash dropped). Where they do not, the lane holds
+    the earliest named effects at the values that the step before fitted
+    jointly, rather than compile a larger problem for a step that most
+    diagnoses never reach (~10 s of XLA compiling on a 60 s recording).
     """
     assert search.problem.sim_tangents is not None  # a search problem always has its directions
     n_rows = int(search.problem.sim_tangents.shape[0])
