@@ -45,7 +45,7 @@ def test_the_lifted_response_equals_the_plain_recursion(system, length, block):
 
 
 def test_the_lifted_response_derivatives_match_central_differences():
-    """Forward and reverse mode in the system and the input (the blocks' own JVP, `block_states`)."""
+    """Forward and reverse mode in the system and the input (the blocks' own JVP, `_block_states`)."""
     length = 301
     u = jnp.asarray(np.random.default_rng(1).normal(size=length))
     weights = jnp.linspace(0.5, 1.5, length)

@@ -4,10 +4,10 @@ Generic numerics (no physics): `lifted_response` runs a single-input linear
 system given its lifted block matrices (the RC network's Tustin cascade, every
 ZOH response of `hybrid.physics._zoh`, the `resonance` effect's mode);
 `lifted_blocks` builds them for a discrete system x[n+1] = Ad x[n] + Bd u[n],
-y = C x + D u. The loop runs over the blocks' start states only (`block_states`), whose derivative is written out
-so that a forward derivative's directions multiply whole matrices. Matrix
-products only: safe in `diagnose`'s batched compiled loops (see
-`hybrid.core._loop_safe_linalg`).
+y = C x + D u. The loop runs over the blocks' start states only
+(`_block_states`), whose derivative is written out so that a forward
+derivative's directions multiply whole matrices. Matrix products only: safe in
+`diagnose`'s batched compiled loops (see `hybrid.core._loop_safe_linalg`).
 """
 
 from __future__ import annotations
@@ -24,14 +24,15 @@ def lifted_response(H, O, A_L, C, x):
     """Run a linear system lifted to blocks of L samples over `x`, from rest.
 
     y_j = O x_j + H u_j and x_{j+1} = A^L x_j + C u_j for the blocks u_j of L
-    samples (see `hybrid.physics.cascade_filter`, the RC network's Tustin cascade): two matrix products over all blocks and a
-    scan of T/L steps (`block_states`).
+    samples (see `hybrid.physics.cascade_filter`, the RC network's Tustin
+    cascade): two matrix products over all blocks and a scan of T/L steps
+    (`_block_states`).
     """
     block, length = H.shape[0], x.shape[0]
     n_blocks = -(-length // block)
     u = jnp.pad(x, (0, n_blocks * block - length)).reshape(n_blocks, block)
     forced = dot(u, H.T)  # H u_j for every block
-    states = block_states(A_L, dot(u, C.T))  # C u_j for every block drives the states
+    states = _block_states(A_L, dot(u, C.T))  # C u_j for every block drives the states
     return (forced + dot(states, O.T)).reshape(-1)[:length]
 
 
@@ -56,7 +57,7 @@ def lifted_blocks(Ad, Bd, C, D, block: int) -> tuple[Array, Array, Array, Array]
         if m <= block:
             power = dot(power, power)
     O, powers_b = rows[:block], cols[:, :block]
-    A_L = power if m == block else matrix_power(Ad, block)
+    A_L = power if m == block else _matrix_power(Ad, block)
     markov = jnp.concatenate([jnp.reshape(D, (1,)).astype(Ad.dtype), dot(O[:-1], Bd)])  # h[0..L−1]
     lag = jnp.arange(block)[:, None] - jnp.arange(block)[None, :]
     H = jnp.where(lag >= 0, markov[jnp.clip(lag, 0, block - 1)], 0.0)
@@ -64,7 +65,7 @@ def lifted_blocks(Ad, Bd, C, D, block: int) -> tuple[Array, Array, Array, Array]
 
 
 @jax.custom_jvp
-def block_states(M, c):
+def _block_states(M, c):
     """The states x_0 = 0, x_{j+1} = M x_j + c_j, one row per j (as many as `c` has rows).
 
     Its derivative is the same recursion driven by dM x_j + dc_j (`_block_states_jvp`):
@@ -83,16 +84,16 @@ def block_states(M, c):
     return states
 
 
-@block_states.defjvp
+@_block_states.defjvp
 def _block_states_jvp(primals, tangents):
     M, c = primals
     dM, dc = tangents
-    states = block_states(M, c)
+    states = _block_states(M, c)
     # Linear in (dM, dc): reverse mode transposes it (the loop runs backwards).
-    return states, block_states(M, dot(states, dM.T) + dc)
+    return states, _block_states(M, dot(states, dM.T) + dc)
 
 
-def matrix_power(a, k: int):
+def _matrix_power(a, k: int):
     """a^k (k ≥ 1, static) by binary powering: matrix products only."""
     result, base = None, a
     while k:

@@ -87,6 +87,11 @@ class Search:
         assert isinstance(stack, EffectStack)  # a search fits an EffectStack
         return searched_effects(stack)
 
+    def has_room(self, effects) -> bool:
+        """Whether the shared problem has Jacobian directions for a lane fitting `effects` (names)."""
+        assert self.problem.sim_tangents is not None  # a search problem always has its directions
+        return direction_count(self.model, self.frozen, effects) <= self.problem.sim_tangents.shape[0]
+
     def problem_for(self, *effect_sets) -> Problem:
         """The shared problem where it has directions for a lane fitting each of `effect_sets`, else a larger one.
 
@@ -94,9 +99,7 @@ class Search:
         (`refitted`); only the final model's uncertainties, with more causes
         kept than it has room for, need a larger problem (its own programs).
         """
-        assert self.problem.sim_tangents is not None  # a search problem always has its directions
-        n_rows = int(self.problem.sim_tangents.shape[0])
-        if all(direction_count(self.model, self.frozen, e) <= n_rows for e in effect_sets):
+        if all(self.has_room(e) for e in effect_sets):
             return self.problem
         n_effects = max(len(e) for e in effect_sets)
         if n_effects not in self.larger:
@@ -120,13 +123,8 @@ def refitted(search: Search, present: tuple[str, ...], name: str | None = None) 
     jointly, rather than compile a larger problem for a step that most
     diagnoses never reach (~10 s of XLA compiling on a 60 s recording).
     """
-    assert search.problem.sim_tangents is not None  # a search problem always has its directions
-    n_rows = int(search.problem.sim_tangents.shape[0])
     own = (name,) if name is not None else ()
-    for k in range(len(present) + 1):
-        if direction_count(search.model, search.frozen, present[k:] + own) <= n_rows:
-            return present[k:]
-    return ()
+    return next((present[k:] for k in range(len(present)) if search.has_room(present[k:] + own)), ())
 
 
 def first_step_lanes(effects, rate: float, duration: float) -> int:
@@ -313,6 +311,7 @@ def search_step(
         name = effect.name
         if name in present:
             continue
+        lane = lane_tangents(s.model, s.frozen, refitted(s, present, name) + (name,), n_rows)
         for values in effect.starts(context[name]) + screened.get(name, []):
             active = active_cur.copy()
             active[i] = 1.0
@@ -320,7 +319,7 @@ def search_step(
             departures.append((effect, values, active))
             actives.append(active)
             labels.append(name)
-            tangents.append(lane_tangents(s.model, s.frozen, refitted(s, present, name) + (name,), n_rows))
+            tangents.append(lane)
     n_lanes = s.n_lanes
     if len(starts) > n_lanes:  # the lanes were counted on a probe signal (`first_step_lanes`)
         raise InputError(
