@@ -498,6 +498,9 @@ def _cmd_diagnose(args):
                 print(f"    {name} = {plus_minus(report['parameters'][name])}")
     for entry in report["ambiguous"]:
         print(f"ambiguous: {ambiguity_sentence(entry)}")
+    start = report["evidence"].get("start") or {}
+    if start.get("sentence"):
+        print(f"start: {start['sentence']}")
     floor, left = report["noise_floor"], report["unexplained"]
     print(f"noise floor: sigma = {floor['std']:.3g} ({floor['method']})")
     if left is not None:

@@ -60,6 +60,7 @@ import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation
 from ..core._fit import unit_labels
+from ..core._held_start import HeldStart
 from ..core._levenberg_marquardt import LMSettings
 from ..util._errors import InputError
 from ..util._programs import DIAGNOSE_PROGRAMS
@@ -82,6 +83,7 @@ from ._search import (
     split_signals,
     with_active,
 )
+from ._start import start_misfit
 from ._starts import N_SCREEN, baseline_starts
 from ._step import Search, Step, search_step
 from ._unexplained import pooled_noise_floor, remainder
@@ -314,6 +316,10 @@ def diagnose(
     unpinned = not_pinned(uncertainties, extended_model, problem.series)
     evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good.to_dict()  # report.json's shape
+    names = [r.name for r in recordings]
+    evidence["start"] = start_misfit(
+        problem, extended.theta, extended.active, names, isinstance(simulation, HeldStart)
+    )
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
     heldout = HeldoutSignals(
         t=np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),

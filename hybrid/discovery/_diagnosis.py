@@ -42,7 +42,8 @@ CAUSES = ("none",) + tuple(EFFECTS)
 #: Keys added within schema 3 (a reader of 3 may ignore them): ``ambiguous`` (each step whose named
 #: cause has rivals this recording cannot tell apart, and an open last step: ``"named": "none"``,
 #: ``"open": true``), ``ambiguity_test`` (the test, in words), ``dropped`` (named causes the
-#: final model did not need, each weighed as if named last) and each cause's ``step``.
+#: final model did not need, each weighed as if named last), each cause's ``step`` and
+#: ``evidence.start`` (whether each recording starts where the simulation does).
 REPORT_SCHEMA = "hybrid-report/3"
 #: The keys schema 3 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {

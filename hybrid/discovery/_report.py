@@ -298,6 +298,9 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     for entry in d.get("ambiguous") or []:
         label = "Open" if entry.get("open") else "Ambiguous"
         lines += [f"**{label}.** {ambiguity_sentence(entry)}", ""]
+    start = ev.get("start") or {}
+    if start.get("sentence"):
+        lines += [f"**Start.** {start['sentence'][0].upper()}{start['sentence'][1:]}.", ""]
     lines += noise_section(d)
 
     lines += [

@@ -1,0 +1,125 @@
+"""Whether each recording starts where the simulation does: a misfit at the start that the rest lacks.
+
+A simulation starts from its own initial state (at rest, or in equilibrium
+with the first drive value); a lab's record often starts with the plant
+already moving (water in the tanks from the last run, a strip still relaxing).
+The model then misses the record's first samples by an offset of one sign that
+dies away with the plant's slowest time constant, and every fit bends the
+physics to cut it. No effect on the drive, the output or inside the dynamics
+explains that: the initial state does (`hybrid.HeldStart`, ``--settle N``).
+
+`start_misfit` reads the final model's residual over each whole recording
+(training, validation and held-out samples alike): on its first
+``START_SHARE`` of samples (at least ``MIN_START``) against the rest, and
+against its last as many samples. The start is off when its RMS is at least
+``RATIO`` times both and the misfit has one sign there (|mean| ≥ ``ONE_SIGN``
+× RMS): a misfit of the start alone. Not noise, not an effect that swings with
+the drive, and not a wander or trend that misses the record's end as much as
+its start. What it cannot tell from a wrong initial state is a change early in
+the record that then settles (a gain drift that the search did not name can
+miss the first samples, one-signed, and hardly the last). So the sentence
+names both, and the run that tells them apart: the simulation held at a fitted
+drive first (``--settle N``); a start that then fits was the initial state.
+
+On Cascaded Tanks with `TwoTank` (started in equilibrium with the first pump
+voltage, while the record's output starts at 5.2 V): its first 20 samples are missed by 3.2× the
+rest's RMS and 5.1× the last 20's, all one sign, and nothing is named; held at a fitted drive for
+250 samples first (``--settle 250``), 0.20× the rest's, and ``limit_h2`` is named.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._diagnosis import SPLIT_ORDER
+from ._search import split_signals
+
+START_SHARE = 0.02  # the start: this share of the recording's samples ...
+MIN_START = 10  # ... and at least this many
+RATIO = 2.5  # the start's residual RMS over the rest's and over the end's
+ONE_SIGN = 0.8  # |mean| / RMS of the start's residual: one sign throughout
+
+
+def _residuals(problem, theta, active) -> list[np.ndarray]:
+    """Each recording's residual w − ŵ at every recorded sample (NaN where no part covers it)."""
+    out = [np.full(series.n_recorded, np.nan) for series in problem.series]
+    for split in SPLIT_ORDER:
+        _, w, w_hat = split_signals(problem, theta, active, split)
+        r, at = np.asarray(w, float) - np.asarray(w_hat, float), 0
+        for series, full in zip(problem.series, out):
+            for a, b in series.recorded_segments_of(split):
+                full[a:b] = r[at : at + b - a]
+                at += b - a
+    return out
+
+
+def _rms(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x**2))) if len(x) else float("nan")
+
+
+def start_misfit(problem, theta, active, names: list[str], settled: bool) -> dict:
+    """Per recording: the residual's RMS on its first samples against the rest and the end; ``off`` if any is.
+
+    `names`: the recordings' names; `settled`: the simulation already starts
+    from a held drive (`HeldStart`), which the sentence then asks to lengthen.
+    """
+    rows = []
+    for r, name in zip(_residuals(problem, theta, active), names):
+        first = max(MIN_START, int(round(START_SHARE * len(r))))
+        head = r[:first]
+        if len(r) < 4 * first or not np.all(np.isfinite(head)):
+            rows.append({"recording": name, "checked": False})  # too short, or its start not predicted
+            continue
+        rms_head, rms_rest, rms_end = _rms(head), _rms(r[first:]), _rms(r[-first:])
+        ratio = rms_head / rms_rest if rms_rest > 0 else float("inf")
+        to_end = rms_head / rms_end if rms_end > 0 else float("inf")
+        one_sign = abs(float(np.mean(head))) / rms_head if rms_head > 0 else 0.0
+        rows.append(
+            {
+                "recording": name,
+                "checked": True,
+                "first_samples": first,
+                "rms_first": rms_head,
+                "rms_rest": rms_rest,
+                "rms_last": rms_end,
+                "ratio": ratio,
+                "ratio_to_last": to_end,
+                "mean_over_rms_first": one_sign,
+                "off": bool(ratio >= RATIO and to_end >= RATIO and one_sign >= ONE_SIGN),
+            }
+        )
+    off = [row for row in rows if row.get("off")]
+    return {
+        "recordings": rows,
+        "off": bool(off),
+        "rule": f"first {START_SHARE:.0%} of a recording (≥ {MIN_START} samples): residual RMS ≥ {RATIO}× the "
+        f"rest's and the last as many samples', one sign (|mean| ≥ {ONE_SIGN} RMS)",
+        "sentence": _sentence(off, settled, len(rows)) if off else None,
+    }
+
+
+def _sentence(off: list[dict], settled: bool, recordings: int) -> str:
+    worst = max(off, key=lambda row: row["ratio"])
+    which = "" if len(off) == 1 else f" (and {len(off) - 1} more)"
+    head = (
+        f"the model misses the first {worst['first_samples']} samples of {worst['recording']}{which} by "
+        f"{worst['ratio']:.1f}× its RMS on the rest, all one sign: "
+    )
+    if settled:
+        return head + (
+            "the held drive does not bring the simulation to where the record starts; hold it longer (a "
+            "larger --settle N, several of the slowest time constant in samples)"
+        )
+    remedy = (
+        "--settle N on the command line (N several of its slowest time constant, in samples), "
+        "hybrid.HeldStart(simulation, N) in Python"
+    )
+    if recordings > 1:  # one held drive cannot start several records: each its own, or a later start
+        remedy = f"diagnose each record alone with {remedy}, or cut the start off (--range)"
+    return head + (
+        "the record may not start where the simulation does (its own initial state: at rest, or settled "
+        "at the first drive), and then the fit bends the physics to meet it, or something changes early in "
+        "the record and settles; if the plant was moving before the record, hold the simulation at a fitted "
+        f"drive first, which tells the two apart: {remedy}"
+    )

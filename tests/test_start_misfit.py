@@ -1,0 +1,103 @@
+"""A record that does not start where the simulation does: `diagnose` says so and names `--settle`.
+
+The records are a first-order system's response (exact ZOH by numpy, τ = 6
+samples) to a staircase, one started at rest, the other from a drive of 1.5
+held before the record (the state at 1.5, where `lti:1` starts at 0). Through
+the real command line: the second record's report has ``evidence.start.off``
+and a ``start:`` line naming ``--settle``; the same record diagnosed with
+``--settle 60``, the record started at rest, and one whose baseline wanders
+as far at its end as at its start (a trend, not a start) have neither. The
+statistic itself is checked against numpy on the saved final model's free run.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import hybrid
+from hybrid.cli import main
+from hybrid.discovery._start import MIN_START, ONE_SIGN, RATIO, START_SHARE
+
+TAU, DT, NOISE, N = 3.0, 0.5, 0.002, 480
+#: Two effects, not the default set: the start check reads the final model whatever the effects, and
+#: two effects' lanes cost a fraction of the default set's.
+EFFECTS = ("--effects", "saturation,delay")
+
+
+def response(u, held):
+    a, y, state = np.exp(-DT / TAU), np.empty(len(u)), held
+    for k, uk in enumerate(u):
+        y[k] = state
+        state = a * state + (1 - a) * uk
+    return y
+
+
+@pytest.fixture(scope="module")
+def records(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("start")
+    u = np.repeat(np.random.default_rng(3).uniform(-1.0, 1.0, N // 15), 15)
+    noise = NOISE * np.random.default_rng(5).normal(size=N)
+    paths = {}
+    # a slow wander of the baseline, as large at the end as at the start (no effect searched here has it)
+    wander = 0.5 * np.linspace(-1.0, 1.0, N) ** 8
+    for name, held, extra in (("at_rest", 0.0, 0.0), ("moving", 1.5, 0.0), ("wander", 0.0, wander)):
+        y = 2.0 * response(u, held) + 0.3 + noise + extra
+        paths[name] = folder / f"{name}.csv"
+        paths[name].write_text("u,y\n" + "".join(f"{a:.9g},{b:.9g}\n" for a, b in zip(u, y)))
+    return paths
+
+
+def diagnose(path, out, capsys, *extra):
+    argv = [
+        "diagnose",
+        path,
+        "--columns",
+        "input=u,output=y",
+        "--rate",
+        1 / DT,
+        "--physics",
+        "lti:1",
+        *EFFECTS,
+    ]
+    code = main([str(a) for a in [*argv, *extra, "--quiet", "--out", out]])
+    stdout, err = capsys.readouterr()
+    assert code == 0, err
+    return stdout, json.loads((out / "report.json").read_text())
+
+
+def test_a_record_that_starts_moving_is_flagged_with_the_remedy(records, tmp_path, capsys):
+    out, report = diagnose(records["moving"], tmp_path / "d", capsys)
+    start = report["evidence"]["start"]
+    assert start["off"] is True
+    assert "start: " in out and "--settle N" in out and "HeldStart" in out
+    assert "**Start.**" in (tmp_path / "d" / "report.md").read_text()
+    row = start["recordings"][0]
+    assert row["checked"] and row["first_samples"] == max(MIN_START, round(START_SHARE * N))
+    assert row["ratio"] >= RATIO and row["ratio_to_last"] >= RATIO and row["mean_over_rms_first"] >= ONE_SIGN
+    # the statistic from the saved final model's free run over the record (numpy), to 1e-6
+    data = np.loadtxt(records["moving"], delimiter=",", skiprows=1)
+    model = hybrid.load_model(tmp_path / "d" / "extended.eqx")
+    head = (data[:, 1] - np.asarray(model.predict(data[:, 0], DT)))[: row["first_samples"]]
+    assert np.sqrt(np.mean(head**2)) == pytest.approx(row["rms_first"], rel=1e-6)
+    assert abs(head.mean()) / np.sqrt(np.mean(head**2)) == pytest.approx(row["mean_over_rms_first"], rel=1e-6)
+
+
+@pytest.mark.parametrize("case", ["at_rest", "settled", "wander"])
+def test_a_record_that_starts_where_the_simulation_does_is_not(records, tmp_path, capsys, case):
+    extra = ("--settle", 60) if case == "settled" else ()
+    path = records["moving" if case == "settled" else case]
+    out, report = diagnose(path, tmp_path / "d", capsys, *extra)
+    start = report["evidence"]["start"]
+    assert start["off"] is False and start["sentence"] is None
+    assert "start: " not in out
+    row = start["recordings"][0]
+    assert row["checked"]
+    if case == "wander":  # the start is missed, one-signed, but the end as much: a trend, not a start
+        assert (
+            row["ratio"] >= RATIO and row["mean_over_rms_first"] >= ONE_SIGN and row["ratio_to_last"] < RATIO
+        )
+    else:
+        assert row["ratio"] < RATIO
