@@ -213,6 +213,18 @@ def lti2_zoh_response(params, u, dt):
     return signal.dlsim((numd[0], dend, dt), np.asarray(u, float))[1][:, 0]
 
 
+def held_lag_csv(path, u, held, dt, tau, noise):
+    """Write `path` (columns u,y): y = 2·x + 0.3 + `noise`, x a first-order lag of `u` (exact ZOH,
+    time constant `tau`) whose state starts at `held`, as after a drive of `held` held before the record."""
+    a, x, state = np.exp(-dt / tau), np.empty(len(u)), held
+    for k, uk in enumerate(u):
+        x[k] = state
+        state = a * state + (1 - a) * uk
+    y = 2.0 * x + 0.3 + noise
+    path.write_text("u,y\n" + "".join(f"{p:.9g},{q:.9g}\n" for p, q in zip(u, y)))
+    return path
+
+
 def docs_python_block(page: str, start: str, end: str) -> str:
     """The first ```python block of docs/`page` between the headings `start` and `end`, as it is."""
     import re

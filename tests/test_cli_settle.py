@@ -15,19 +15,12 @@ import json
 
 import numpy as np
 import pytest
+from helpers import held_lag_csv
 
 import hybrid
 from hybrid.cli import main
 
 TAU, DT, NOISE = 3.0, 0.5, 0.002
-
-
-def response(u, held):
-    a, y, state = np.exp(-DT / TAU), np.empty(len(u)), held
-    for k, uk in enumerate(u):
-        y[k] = state
-        state = a * state + (1 - a) * uk
-    return y
 
 
 @pytest.fixture(scope="module")
@@ -37,9 +30,7 @@ def lab(tmp_path_factory):
     paths = {}
     for name, held, seed in (("est", 1.5, 1), ("val", -0.8, 2)):
         u = np.repeat(np.random.default_rng(seed).uniform(-1.0, 1.0, 40), 15)
-        y = 2.0 * response(u, held) + 0.3 + NOISE * rng.normal(size=u.size)
-        paths[name] = folder / f"{name}.csv"
-        paths[name].write_text("u,y\n" + "".join(f"{a:.9g},{b:.9g}\n" for a, b in zip(u, y)))
+        paths[name] = held_lag_csv(folder / f"{name}.csv", u, held, DT, TAU, NOISE * rng.normal(size=u.size))
     return paths
 
 

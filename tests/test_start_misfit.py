@@ -16,6 +16,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers import held_lag_csv
 
 import hybrid
 from hybrid.cli import main
@@ -27,14 +28,6 @@ TAU, DT, NOISE, N = 3.0, 0.5, 0.002, 480
 EFFECTS = ("--effects", "saturation,delay")
 
 
-def response(u, held):
-    a, y, state = np.exp(-DT / TAU), np.empty(len(u)), held
-    for k, uk in enumerate(u):
-        y[k] = state
-        state = a * state + (1 - a) * uk
-    return y
-
-
 @pytest.fixture(scope="module")
 def records(tmp_path_factory):
     folder = tmp_path_factory.mktemp("start")
@@ -44,9 +37,7 @@ def records(tmp_path_factory):
     # a slow wander of the baseline, as large at the end as at the start (no effect searched here has it)
     wander = 0.5 * np.linspace(-1.0, 1.0, N) ** 8
     for name, held, extra in (("at_rest", 0.0, 0.0), ("moving", 1.5, 0.0), ("wander", 0.0, wander)):
-        y = 2.0 * response(u, held) + 0.3 + noise + extra
-        paths[name] = folder / f"{name}.csv"
-        paths[name].write_text("u,y\n" + "".join(f"{a:.9g},{b:.9g}\n" for a, b in zip(u, y)))
+        paths[name] = held_lag_csv(folder / f"{name}.csv", u, held, DT, TAU, noise + extra)
     return paths
 
 
@@ -54,12 +45,7 @@ def diagnose(path, out, capsys, *extra):
     argv = [
         "diagnose",
         path,
-        "--columns",
-        "input=u,output=y",
-        "--rate",
-        1 / DT,
-        "--physics",
-        "lti:1",
+        *f"--columns input=u,output=y --rate {1 / DT} --physics lti:1".split(),
         *EFFECTS,
     ]
     code = main([str(a) for a in [*argv, *extra, "--quiet", "--out", out]])
