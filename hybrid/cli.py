@@ -302,6 +302,24 @@ def _cmd_rc(args):
     )
 
 
+def _start_of(model, recordings, simulation) -> dict | None:
+    """Whether each recording starts where the fitted model does (`misfit_at_start`), from its free run.
+
+    None for a model with a network: its first window − 1 samples see a held
+    history (`hybrid/core/_windows.py`), a start misfit of its own.
+    """
+    import numpy as np
+
+    if model.readout.window > 1:
+        return None
+
+    from .core._held_start import HeldStart
+    from .discovery._start import misfit_at_start
+
+    residuals = [np.asarray(r.w, float) - np.asarray(model.predict(r.v_in, r.dt), float) for r in recordings]
+    return misfit_at_start(residuals, [r.name for r in recordings], isinstance(simulation, HeldStart))
+
+
 def _cmd_fit(args):
     import jax
 
@@ -400,6 +418,9 @@ def _cmd_fit(args):
                 flush=True,
             )
             raise SystemExit(stop.exit_status)
+        start = _start_of(result.model, recordings, simulation)
+        if start and start["sentence"]:
+            print(f"start: {start['sentence']}")
         scores = {"test": score_tests(result.model, tests, args.initial_samples)} if tests else {}
         print_scores(scores.get("test", []))
         save_model(
@@ -407,7 +428,11 @@ def _cmd_fit(args):
         )
         print(f"saved model to {out} (+ {out}.json)")
         if args.json:
-            write_text(args.json, json.dumps({**result.to_dict(), **scores}, indent=2) + "\n")
+            write_text(
+                args.json,
+                json.dumps({**result.to_dict(), **scores, **({"start": start} if start else {})}, indent=2)
+                + "\n",
+            )
 
 
 def start_model(args):

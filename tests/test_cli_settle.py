@@ -76,6 +76,7 @@ def test_fit_with_settle_recovers_the_held_drive_and_scores_a_test_record_from_i
     assert test["initial_drive"] == pytest.approx(-0.8, abs=0.05) and test["initial_samples"] == 15
     assert test["rmse"] < 3 * NOISE  # the noise, not the start transient (2 × 0.8 × e^{-t/3} otherwise)
     assert "re-fitted on its first 15 samples" in out
+    assert "start: " not in out and fitted["start"]["off"] is False  # held first, the record's start fits
     model = hybrid.load_model(saved)
     assert isinstance(model.simulation, hybrid.HeldStart) and model.simulation.settle_samples == 60
     assert float(model.parameters()["initial_drive"]) == pytest.approx(fitted["parameters"]["initial_drive"])

@@ -8,6 +8,7 @@ and a ``start:`` line naming ``--settle``; the same record diagnosed with
 ``--settle 60``, the record started at rest, and one whose baseline wanders
 as far at its end as at its start (a trend, not a start) have neither. The
 statistic itself is checked against numpy on the saved final model's free run.
+`hybrid fit --model physics` says it too.
 """
 
 from __future__ import annotations
@@ -87,3 +88,14 @@ def test_a_record_that_starts_where_the_simulation_does_is_not(records, tmp_path
         )
     else:
         assert row["ratio"] < RATIO
+
+
+def test_fit_says_it_too_for_a_physics_model(records, tmp_path, capsys):
+    """`hybrid fit --model physics` on the record that starts moving: the same check on its free run."""
+    argv = ["fit", records["moving"], *f"--columns input=u,output=y --rate {1 / DT} --physics lti:1".split()]
+    argv += ["--model", "physics", "--quiet", "--out", tmp_path / "m.eqx", "--json", tmp_path / "f.json"]
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    start = json.loads((tmp_path / "f.json").read_text())["start"]
+    assert start["off"] is True and "start: " in out and "--settle N" in out

@@ -9,7 +9,8 @@ physics to cut it. No effect on the drive, the output or inside the dynamics
 explains that: the initial state does (`hybrid.HeldStart`, ``--settle N``).
 
 `start_misfit` reads the final model's residual over each whole recording
-(training, validation and held-out samples alike): on its first
+(training, validation and held-out samples alike; `hybrid fit` gives
+`misfit_at_start` its fitted physics model's free run): on its first
 ``START_SHARE`` of samples (at least ``MIN_START``) against the rest, and
 against its last as many samples. The start is off when its RMS is at least
 ``RATIO`` times both and the misfit has one sign there (|mean| ≥ ``ONE_SIGN``
@@ -59,13 +60,21 @@ def _rms(x: np.ndarray) -> float:
 
 
 def start_misfit(problem, theta, active, names: list[str], settled: bool) -> dict:
+    """`misfit_at_start` of a search problem's model at θ (`active`: its effects' switches)."""
+    return misfit_at_start(_residuals(problem, theta, active), names, settled)
+
+
+def misfit_at_start(residuals, names: list[str], settled: bool) -> dict:
     """Per recording: the residual's RMS on its first samples against the rest and the end; ``off`` if any is.
 
-    `names`: the recordings' names; `settled`: the simulation already starts
-    from a held drive (`HeldStart`), which the sentence then asks to lengthen.
+    `residuals`: each recording's w − ŵ at every sample (NaN where not
+    predicted); `names`: the recordings' names; `settled`: the simulation
+    already starts from a held drive (`HeldStart`), which the sentence then
+    asks to lengthen.
     """
     rows = []
-    for r, name in zip(_residuals(problem, theta, active), names):
+    for r, name in zip(residuals, names):
+        r = np.asarray(r, float)
         first = max(MIN_START, int(round(START_SHARE * len(r))))
         head = r[:first]
         if len(r) < 4 * first or not np.all(np.isfinite(head)):
