@@ -21,7 +21,7 @@ from helpers import held_lag_csv
 
 import hybrid
 from hybrid.cli import main
-from hybrid.discovery._start import MIN_START, ONE_SIGN, RATIO, START_SHARE
+from hybrid.discovery._start import MIN_START, ONE_SIGN, RATIO, START_SHARE, misfit_at_start
 
 TAU, DT, NOISE, N = 3.0, 0.5, 0.002, 480
 #: Two effects, not the default set: the start check reads the final model whatever the effects, and
@@ -99,3 +99,21 @@ def test_fit_says_it_too_for_a_physics_model(records, tmp_path, capsys):
     assert code == 0, err
     start = json.loads((tmp_path / "f.json").read_text())["start"]
     assert start["off"] is True and "start: " in out and "--settle N" in out
+
+
+def test_the_rule_and_its_sentences_on_residuals_made_by_hand():
+    """`misfit_at_start` on numpy residuals: each condition of the rule, and the sentence for each case."""
+    noise = 0.01 * np.random.default_rng(0).normal(size=1000)
+    decay = 0.5 * np.exp(-np.arange(1000) / 8.0)  # an initial-state error dying away over ~20 samples
+    moving, quiet = noise + decay, noise
+    two_signed = noise + decay * np.where(np.arange(1000) % 2, 1.0, -1.0)  # as large, but swings
+    ends = noise + decay + decay[::-1]  # the end missed as much as the start
+    found = misfit_at_start([moving, quiet, two_signed, ends], ["a", "b", "c", "d"], settled=False)
+    assert [row["off"] for row in found["recordings"]] == [True, False, False, False]
+    assert found["recordings"][0]["first_samples"] == 20  # 2 % of 1000
+    assert "each record alone with --settle N" in found["sentence"]  # several records: one hold each
+    alone = misfit_at_start([moving], ["a"], settled=False)["sentence"]
+    assert alone.startswith("the model misses the first 20 samples of a by") and "--settle N" in alone
+    assert "larger --settle N" in misfit_at_start([moving], ["a"], settled=True)["sentence"]
+    unpredicted = np.r_[np.full(5, np.nan), moving[5:]]  # a start no part predicts is not judged
+    assert misfit_at_start([unpredicted], ["a"], settled=False)["recordings"][0]["checked"] is False

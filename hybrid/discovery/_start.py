@@ -23,9 +23,10 @@ names both, and the run that tells them apart: the simulation held at a fitted
 drive first (``--settle N``); a start that then fits was the initial state.
 
 On Cascaded Tanks with `TwoTank` (started in equilibrium with the first pump
-voltage, while the record's output starts at 5.2 V): its first 20 samples are missed by 3.2× the
-rest's RMS and 5.1× the last 20's, all one sign, and nothing is named; held at a fitted drive for
-250 samples first (``--settle 250``), 0.20× the rest's, and ``limit_h2`` is named.
+voltage, while the record's output starts at 5.2 V): its first 20 samples
+are missed by 3.2× the rest's RMS and 5.1× the last 20's, all one sign, and
+nothing is named; held at a fitted drive for 250 samples first (``--settle
+250``), 0.20× the rest's, and ``limit_h2`` is named.
 """
 
 from __future__ import annotations
@@ -117,15 +118,16 @@ def _sentence(off: list[dict], settled: bool, recordings: int) -> str:
     )
     if settled:
         return head + (
-            "the held drive does not bring the simulation to where the record starts; hold it longer (a "
-            "larger --settle N, several of the slowest time constant in samples)"
+            "no drive held before the record brings the simulation to where it starts (the plant was "
+            "moving, not settled), or the hold is shorter than the slowest time constant; try a larger "
+            "--settle N, or cut the start off (--range)"
         )
     remedy = (
         "--settle N on the command line (N several of its slowest time constant, in samples), "
         "hybrid.HeldStart(simulation, N) in Python"
     )
     if recordings > 1:  # one held drive cannot start several records: each its own, or a later start
-        remedy = f"diagnose each record alone with {remedy}, or cut the start off (--range)"
+        remedy = f"each record alone with {remedy}, or cut the start off (--range)"
     return head + (
         "the record may not start where the simulation does (its own initial state: at rest, or settled "
         "at the first drive), and then the fit bends the physics to meet it, or something changes early in "
