@@ -230,7 +230,22 @@ def open_world_row(recording, found, excess: float, causes_known) -> dict:
         "noise_floor_over_true": None if floor is None else float(floor.variance) / true_var,
     }
     row["false_all_clear"] = bool(hidden and not names and unexplained is None and excess > ALL_CLEAR)
+    row["start_flagged"] = bool((found.evidence.get("start") or {}).get("off", False))
     return row
+
+
+def start_line(rows) -> str:
+    """How many draws `diagnose` said may not start where the simulation does (every strip here starts at rest)."""
+    judged = [r for r in rows if "start_flagged" in r]
+    if not judged:
+        return ""
+    flagged = [f"{r['effect']} seed {r['seed']}" for r in judged if r["start_flagged"]]
+    return (
+        f"Start flagged (`evidence.start`; every synthetic strip starts at rest, so each flag is something "
+        f"else than a wrong initial state, e.g. a change early in the record): {len(flagged)}/{len(judged)} draws"
+        + (f" ({', '.join(flagged)})" if flagged else "")
+        + ".\n"
+    )
 
 
 def _named_set(r) -> str:
@@ -550,6 +565,7 @@ def main(argv=None) -> int:
     if seconds:
         summary.append(time_line(seconds))
         summary.append(time_by_steps(rows))
+    summary.append(start_line(rows))
     for v in virtual:
         summary.append(f"Virtual IPMC ({v['drive']}): named **{v['named']}**, held-out gain {v['gain']:.2f}.")
     out.with_suffix(".md").write_text("\n".join(summary) + "\n")
