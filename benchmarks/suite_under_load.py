@@ -42,7 +42,7 @@ class _Load(threading.Thread):
         super().__init__(daemon=True)
         self.recording, self.folder = recording, folder
         self.stop = threading.Event()
-        self.finished: list[tuple[float, int]] = []  # (end time, exit status) of each diagnosis
+        self.finished: list[int] = []  # the exit status of each diagnosis
         self._proc: subprocess.Popen | None = None
 
     def run(self):
@@ -69,7 +69,7 @@ class _Load(threading.Thread):
             )
             status = self._proc.wait()
             if not self.stop.is_set():
-                self.finished.append((time.monotonic(), status))
+                self.finished.append(status)
 
     def halt(self):
         self.stop.set()
@@ -167,7 +167,7 @@ def main(argv=None) -> int:
         finally:
             for load in loads:
                 load.halt()
-        failed_loads = sum(status != 0 for load in loads for _, status in load.finished)
+        failed_loads = sum(status != 0 for load in loads for status in load.finished)
     out = {
         "command": "python benchmarks/suite_under_load.py "
         f"--runs {args.runs} --load {args.load} --duration {args.duration:g} --timeout {args.timeout:g}",

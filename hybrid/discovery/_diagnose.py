@@ -379,7 +379,7 @@ def diagnose(
         evidence=evidence,
         hybrid=hybrid_report,
         settings=settings,
-        recordings=[r.name for r in recordings],
+        recordings=names,
         seconds=time.perf_counter() - t0,
         heldout=heldout,
         lanes=[lane for step in steps for lane in step.lanes],

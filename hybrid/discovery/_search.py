@@ -303,7 +303,7 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
     ]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     problem, n_rows = search_problem(
-        model, padded, frozenset(settings.frozen_for(simulation)), shared_room(settings, len(effects))
+        model, padded, frozenset(settings.frozen_for(simulation)), _shared_room(settings, len(effects))
     )
     return problem, n_rows, model, series
 
@@ -340,7 +340,7 @@ def held_out_blocks(recordings, settings: DiagnoseSettings) -> tuple[int, bool]:
     return settings.blocks, False
 
 
-def shared_room(settings: DiagnoseSettings, n_effects: int) -> int:
+def _shared_room(settings: DiagnoseSettings, n_effects: int) -> int:
     """Effects a lane of the search's shared problem has Jacobian directions for."""
     return max(1, min(SHARED_ROOM, settings.max_causes, n_effects))
 

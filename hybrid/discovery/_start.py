@@ -31,10 +31,11 @@ nothing is named; held at a fitted drive for 250 samples first (``--settle
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
 from ._diagnosis import SPLIT_ORDER
-from ._search import split_signals
+from ._search import predictions
 
 START_SHARE = 0.02  # the start: this share of the recording's samples ...
 MIN_START = 10  # ... and at least this many
@@ -45,9 +46,10 @@ ONE_SIGN = 0.8  # |mean| / RMS of the start's residual: one sign throughout
 def _residuals(problem, theta, active) -> list[np.ndarray]:
     """Each recording's residual w − ŵ at every recorded sample (NaN where no part covers it)."""
     out = [np.full(series.n_recorded, np.nan) for series in problem.series]
+    w_hat = predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))  # every split, one run
     for split in SPLIT_ORDER:
-        _, w, w_hat = split_signals(problem, theta, active, split)
-        r, at = np.asarray(w, float) - np.asarray(w_hat, float), 0
+        w = problem.recorded(problem.target(split), split)
+        r, at = np.asarray(w, float) - np.asarray(problem.recorded(w_hat[split], split), float), 0
         for series, full in zip(problem.series, out):
             for a, b in series.recorded_segments_of(split):
                 full[a:b] = r[at : at + b - a]
