@@ -134,6 +134,9 @@ class TwoTank(AbstractStateSpace):
     states: ClassVar[tuple] = ("h1", "h2")
     substeps: ClassVar[int] = SUBSTEPS
     state_units: ClassVar[dict] = {"h1": "cm", "h2": "cm"}
+    # The upper tank sits over the lower one: water over its rim, had it one, would fall there
+    # (a limit diagnose fits on h1 moves a share of what it cuts into h2).
+    spills_into: ClassVar[dict] = {"h1": "h2"}
     # simulate returns the lower level h2: a sensor's gain is then in its volts per cm.
     output_unit: ClassVar[str] = "cm"
 

@@ -209,6 +209,74 @@ def test_state_limit_is_the_tank_examples_overflow_without_spill():
     assert expected_cut > 5.0
 
 
+def test_a_limit_that_spills_is_the_tank_examples_overflow_into_the_lower_tank():
+    """`into`: a share of what the rim cuts off h1 lands in h2, as `TwoTankOverflow.walls` spills (its own code)."""
+    u = jnp.asarray(_tank_drive())
+    for share in (0.3, 0.9):
+        walls = TwoTankOverflow(level_max_1=9.0, level_max_2=1e4, spill_to_lower=share)
+        stack = EffectStack(TwoTank(), [StateLimit("h1", into="h2", h1_max=9.0, h1_spill=share)])
+        np.testing.assert_allclose(
+            np.asarray(stack.simulate(u, 4.0)), np.asarray(walls.simulate(u, 4.0)), rtol=1e-9, atol=1e-9
+        )
+    lost = np.asarray(EffectStack(TwoTank(), [StateLimit("h1", h1_max=9.0)]).simulate(u, 4.0))
+    assert np.max(np.asarray(stack.simulate(u, 4.0)) - lost) > 0.5  # the spill does raise the lower tank
+
+
+def test_a_spills_jacobian_matches_finite_differences():
+    """LM linearises through the spill: the output's derivative in the share and in the level."""
+    u = jnp.asarray(_tank_drive(300))
+    stack = EffectStack(TwoTank(), [StateLimit("h1", into="h2", h1_max=9.0, h1_spill=0.5)])
+
+    def output(raw_share, raw_level):
+        return stack.with_raw({**stack.raw, "h1_spill": raw_share, "h1_max": raw_level}).simulate(u, 4.0)
+
+    s0, l0 = stack.raw["h1_spill"], stack.raw["h1_max"]
+    jac = jax.jacfwd(output, argnums=(0, 1))(s0, l0)
+    for k, (arg, step) in enumerate(((s0, 1e-5), (l0, 1e-5))):
+        plus = output(*(arg + step if j == k else a for j, a in enumerate((s0, l0))))
+        minus = output(*(arg - step if j == k else a for j, a in enumerate((s0, l0))))
+        fd = np.asarray((plus - minus) / (2 * step))
+        assert np.max(np.abs(fd)) > 1e-3  # the level does reach the rim: both move the output
+        np.testing.assert_allclose(np.asarray(jac[k]), fd, rtol=1e-5, atol=1e-7 * np.max(np.abs(fd)))
+
+
+def test_a_simulation_says_where_a_states_excess_goes():
+    """`spills_into` builds the spilling limit; its share's unit is the ratio of the two states' units."""
+    tank = {e.name: e for e in hybrid.resolve_effects(None, TwoTank())}
+    assert (tank["limit_h1"].into, tank["limit_h2"].into) == ("h2", None)
+    assert set(tank["limit_h1"].constraints) == {"h1_max", "h1_spill"}
+    assert set(tank["limit_h2"].constraints) == {"h2_max"}
+    assert hybrid.resolve_effects(["limit_h1"], TwoTank())[0].into == "h2"  # by name too
+    assert EffectStack(TwoTank(), [tank["limit_h1"]], drive_unit="V").units["h1_spill"] == "1"  # cm into cm
+    litres = StateLimit("h1", into="h2", into_unit="L")
+    assert EffectStack(TwoTank(), [litres], drive_unit="V").units["h1_spill"] == "L/cm"
+    u = jnp.asarray(_tank_drive(200))
+    stack = EffectStack(TwoTank(), [StateLimit("h1", into="h2", into_unit="cm", h1_max=7.5, h1_spill=0.7)])
+    rebuilt = build_simulation(describe_simulation(stack)).with_raw(stack.raw)
+    assert rebuilt.effects[0].into == "h2"
+    np.testing.assert_allclose(np.asarray(rebuilt.simulate(u, 4.0)), np.asarray(stack.simulate(u, 4.0)))
+
+
+def test_a_spill_nowhere_is_refused_in_one_line():
+    class Leaky(TwoTank):
+        spills_into = {"h1": "h3"}
+
+    for build, words in (
+        (
+            lambda: hybrid.resolve_effects(None, Leaky()),
+            "spills_into must map a state to another of its states",
+        ),
+        (lambda: StateLimit("h1", into="h1"), "into must name another state"),
+        (
+            lambda: hybrid.resolve_effects([StateLimit("h1", into="h9")], TwoTank()),
+            "spills into the state 'h9'",
+        ),
+    ):
+        with pytest.raises(InputError) as caught:
+            build()
+        assert words in str(caught.value) and "\n" not in str(caught.value)
+
+
 def test_a_limit_acts_under_a_held_start_while_the_system_settles_too():
     """`HeldStart` (a record that starts where a held drive left the tanks) keeps the inside place."""
     u = jnp.asarray(_tank_drive(300, seed=2))

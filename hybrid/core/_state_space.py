@@ -67,6 +67,10 @@ class AbstractStateSpace(AbstractSimulation):
     - `limited_states`: the states a wall could limit (a level that can
       overflow, a position with an end stop), where `diagnose` searches a limit
       by default (None, the default: every state);
+    - `spills_into`: where what a limit cuts off a state would go, by state
+      (``{"h1": "h2"}``: water over the upper tank's rim falls into the lower
+      tank); `diagnose`'s limit on such a state moves a fitted share of the
+      cut there (default: none, the cut is lost);
     - `rates(x, u, p)` (required): dx/dt, a tuple of scalars in the order of
       `states`, for the state x (a tuple of scalars, one per state), the drive
       u (a scalar) and the decoded parameters p;
@@ -86,6 +90,7 @@ class AbstractStateSpace(AbstractSimulation):
 
     states: ClassVar[tuple[str, ...]]
     limited_states: ClassVar[tuple[str, ...] | None] = None
+    spills_into: ClassVar[dict[str, str]] = {}
     #: Why `diagnose`'s default set leaves out the effects inside these dynamics (None: it searches them);
     #: they are searched when named (``effects=``, ``--effects``).
     not_searched_inside: ClassVar[str | None] = None
@@ -243,6 +248,16 @@ def check_state_space(simulation: AbstractStateSpace, label: str) -> None:
         raise InputError(
             f"{label}: {cls}.limited_states must be None or a tuple of its states ({', '.join(states)}), "
             f"got {limited!r}"
+        )
+    spills = simulation.spills_into
+    if (
+        not isinstance(spills, dict)
+        or not all(a in states and b in states and a != b for a, b in spills.items() if isinstance(b, str))
+        or not all(isinstance(b, str) for b in spills.values())
+    ):
+        raise InputError(
+            f"{label}: {cls}.spills_into must map a state to another of its states ({', '.join(states)}), "
+            f"got {spills!r}; e.g. {{'h1': 'h2'}}"
         )
     if not isinstance(simulation.substeps, int) or simulation.substeps < 1:
         raise InputError(f"{label}: {cls}.substeps must be a whole number ≥ 1, got {simulation.substeps!r}")

@@ -157,8 +157,10 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
         if core is not None and core[0].not_searched_inside:
             states = ()  # its inside effects are searched when named (see AbstractStateSpace)
         built = [cls() for cls in EFFECTS.values() if states or cls.place != "inside"]  # type: ignore[call-arg]
-        limited = states if core is None or core[0].limited_states is None else core[0].limited_states
-        return tuple(built) + tuple(StateLimit(state) for state in limited if state in states)
+        if not states or core is None:
+            return tuple(built)
+        limited = states if core[0].limited_states is None else core[0].limited_states
+        return tuple(built) + tuple(state_limit(core[0], state) for state in limited if state in states)
     if isinstance(effects, (str, AbstractEffect)) or isinstance(effects, type):
         effects = [effects]
     out = []
@@ -171,7 +173,7 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
         if isinstance(item, str):
             limits = {f"limit_{state}": state for state in states}
             if item in limits:
-                item = StateLimit(limits[item])
+                item = state_limit(dynamics_of(simulation)[0], limits[item])  # type: ignore[index]
             elif item not in EFFECTS:
                 raise InputError(
                     f"unknown effect {item!r}: the built-ins are {', '.join([*EFFECTS, *limits])}; "
@@ -221,6 +223,14 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     return tuple(out)
 
 
+def state_limit(dynamics, state: str) -> StateLimit:
+    """The built-in limit on `state` of `dynamics` (a state-space form), spilling where it says."""
+    into = dynamics.spills_into.get(state)
+    if into is None:
+        return StateLimit(state)
+    return StateLimit(state, into=into, into_unit=dynamics.state_units.get(into, ""))
+
+
 def _states_of(simulation) -> tuple[str, ...]:
     """The states of `simulation` (a state-space form, checked), or () where it has none."""
     dynamics = None if simulation is None else dynamics_of(simulation)
@@ -239,11 +249,12 @@ def _check_inside(effect: AbstractEffect, label: str, simulation, states) -> Non
             f"{label} acts inside the dynamics, but {type(simulation).__name__} has no state-space form: "
             "derive the simulation from hybrid.AbstractStateSpace (see docs/plugins.md), or drop the effect"
         )
-    if effect.acts_on != "output" and effect.acts_on not in states:
-        raise InputError(
-            f"{label} acts on the state {effect.acts_on!r}, which {type(simulation).__name__} does not have: "
-            f"its states are {', '.join(states)}"
-        )
+    for what, state in (("acts on", effect.acts_on), ("spills into", getattr(effect, "into", None))):
+        if state not in (None, "output") and state not in states:
+            raise InputError(
+                f"{label} {what} the state {state!r}, which {type(simulation).__name__} does not have: "
+                f"its states are {', '.join(states)}"
+            )
 
 
 def searched_places(effects, simulation) -> dict[str, dict]:

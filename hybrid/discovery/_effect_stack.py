@@ -402,6 +402,9 @@ def _inside_dynamics(stack, inner, inside, u, dt):
     """
     feedback = [(stack.active[i], e) for i, e in inside if e.role == "feedback"]
     limits = [(stack.active[i], e, inner.states.index(e.acts_on)) for i, e in inside if e.role == "limit"]
+    spills = {
+        e.name: inner.states.index(e.into) for _, e, _ in limits if getattr(e, "into", None) is not None
+    }
 
     def force(x, y):
         total = jnp.zeros((), y.dtype)
@@ -415,6 +418,9 @@ def _inside_dynamics(stack, inner, inside, u, dt):
         for on, effect, k in limits:
             z = x[k]
             x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt) - z), z)
+            if effect.name in spills:  # a share of the cut lands in another state (a tank's spill below)
+                j = spills[effect.name]
+                x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt), x[j])
         return tuple(x)
 
     return integrate(inner, u, dt, force if feedback else None, bound if limits else None)

@@ -9,8 +9,9 @@ name                   what it does                                parameters
 =====================  ==========================================  =====================================
 ``stiffness``          ẋ = f(x, u − k₂y² − k₃y³), y the output     ``stiffness_square`` k₂ ({drive}/{signal}²),
                        (a restoring force that is not linear)      ``stiffness_cube`` k₃ ({drive}/{signal}³)
-``limit_<state>``      the state z ↦ min(z, L) after every step,   ``<state>_max`` L (unit of the state)
-                       with a rim 2 % of |L| wide
+``limit_<state>``      the state z ↦ min(z, L) after every step,   ``<state>_max`` L (unit of the state);
+                       with a rim 2 % of |L| wide; a share of the  with `into`, ``<state>_spill`` (unit of
+                       cut into another state (`into`)             `into` per unit of the state)
 =====================  ==========================================  =====================================
 
 - Stiffness: the spring of a mass–spring system that hardens (k₃ > 0) or
@@ -30,6 +31,10 @@ name                   what it does                                parameters
   lower limit is an upper one on −z: not built in yet). A rim of width
   δ = 2 % of |L| instead of a sharp edge, L − δ·softplus((L − z)/δ), so that
   a fit sees a finite slope with respect to L before the state reaches it.
+  Where the simulation says where a state's excess goes
+  (`AbstractStateSpace.spills_into`: water over the upper tank's rim falls
+  into the lower tank), the limit moves a fitted share of the cut there
+  (`StateLimit("h1", into="h2")`); otherwise the cut is lost.
 """
 
 from __future__ import annotations
@@ -42,12 +47,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ..core._parameters import Real
+from ..core._parameters import Positive, Real
+from ..core._simulation import unit_in
 from ..util._errors import InputError
 from ._effects import AbstractEffect, init_values, signal_span, signal_top
 
 #: The rim's width as a share of the limit's |L| (see `StateLimit`).
 RIM_WIDTH = 0.02
+#: Where a spill's share starts (`StateLimit` with `into`): half of the cut lands in `into`.
+SPILL_START = 0.5
 
 
 class PolynomialStiffness(AbstractEffect):
@@ -84,18 +92,31 @@ class PolynomialStiffness(AbstractEffect):
 
 
 class StateLimit(AbstractEffect):
-    """An upper limit L on one state of the dynamics (an overflow, an end stop), applied after every step."""
+    """An upper limit L on one state of the dynamics (an overflow, an end stop), applied after every step.
+
+    With `into` (another state), a share of what the limit cuts off goes there:
+    the water over an upper tank's rim falls into the tank below. The share,
+    ``<state>_spill``, is in the unit of `into` per unit of the state (1 for two
+    levels of tanks of one cross-section whose whole spill lands below);
+    `into_unit` is that state's unit, for the report.
+    """
 
     raw: dict[str, Array]
     state: str = eqx.field(static=True)
+    into: str | None = eqx.field(static=True)
+    into_unit: str = eqx.field(static=True)
     place: ClassVar[str] = "inside"
     role: ClassVar[str] = "limit"
     n_screened: ClassVar[int] = 2
 
-    def __init__(self, state: str = "x", **values):
+    def __init__(self, state: str = "x", into: str | None = None, into_unit: str = "", **values):
         if not isinstance(state, str) or not state.isidentifier():
             raise InputError(f"StateLimit needs a state's name (an identifier), got {state!r}")
-        self.state = state
+        if into is not None and (not isinstance(into, str) or not into.isidentifier() or into == state):
+            raise InputError(
+                f"StateLimit({state!r}): into must name another state (an identifier) or be None, got {into!r}"
+            )
+        self.state, self.into, self.into_unit = state, into, str(into_unit)
         init_values(self, values)
 
     # The facts depend on the state: properties, not class constants.
@@ -109,22 +130,40 @@ class StateLimit(AbstractEffect):
 
     @property
     def constraints(self) -> dict:  # type: ignore[override]
-        return {f"{self.state}_max": Real()}
+        level = {f"{self.state}_max": Real()}
+        return level if self.into is None else {**level, f"{self.state}_spill": Positive()}
 
     @property
     def units(self) -> dict:  # type: ignore[override]
-        return {f"{self.state}_max": "{signal}"}
+        level = {f"{self.state}_max": "{signal}"}
+        return level if self.into is None else {**level, f"{self.state}_spill": "{into}/{signal}"}
 
     @property
     def defaults(self) -> dict:  # type: ignore[override]
-        return {f"{self.state}_max": 1.0}
+        level = {f"{self.state}_max": 1.0}
+        return level if self.into is None else {**level, f"{self.state}_spill": SPILL_START}
 
     @property
     def thresholds(self) -> dict:  # type: ignore[override]
         return {"cut_percent_of_range": 3.0}
 
+    def units_for(self, signal_unit: str, drive_unit: str = "") -> dict[str, str]:
+        out = super().units_for(signal_unit, drive_unit)
+        if self.into is not None:
+            into = unit_in(self.into_unit, drive_unit or "(unit of the drive)") or f"(unit of {self.into})"
+            share = f"{self.state}_spill"
+            out[share] = "1" if into == (signal_unit or "(unit of S)") else out[share].replace("{into}", into)
+        return out
+
     def config(self) -> dict:
-        return {"state": self.state}
+        out: dict = {"state": self.state}
+        if self.into is not None:
+            out.update(into=self.into, into_unit=self.into_unit)
+        return out
+
+    def spilled(self, z, dt):
+        """What goes into `into` when the limit takes z down to `apply(z)`: share × the cut."""
+        return self.parameters()[f"{self.state}_spill"] * (z - self.apply(z, dt))
 
     def _level(self):
         return self.parameters()[f"{self.state}_max"]

@@ -449,7 +449,7 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     names, raws = design_raws(simulation, design)
     if not names:
         return []
-    (level,) = effect.constraints
+    level = f"{effect.state}_max"  # a spill's share (if any) is screened at its start value
     peaks = np.asarray(state_peaks(problem, simulation, effect.state, raws))
     stack = EffectStack(simulation, [effect])
     best = []
