@@ -5,7 +5,7 @@
     hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--settle N] [--out MODEL] [--test FILE...]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
-    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
+    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N | --no-auto-settle] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
     hybrid design DIAG_DIR --duration S (--amplitude V | --bounds LO:HI) [--rate HZ] [--slew PER_S] --out DRIVE.csv
 
 fit, diagnose and sensitivity take --physics rc|lti:N|file.py:Class|module:Class and read a lab's own
@@ -225,6 +225,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_physics(p, default="rc:zoh")
     add_settle(p, B)
+    p.add_argument(
+        "--no-auto-settle",
+        action="store_true",
+        help="when the model misses the record's start, say so but do not diagnose it again with the "
+        "simulation held at a fitted drive first (what --settle does; by default diagnose tries it)",
+    )
     add_mapping(p, B)
     _add_verbose(parser, sub)
     return parser
@@ -498,6 +504,8 @@ def _cmd_diagnose(args):
         settings = dataclasses.replace(settings, max_steps=args.max_steps)
     if args.blocks is not None:  # checked where every split is built (series_from_recording)
         settings = dataclasses.replace(settings, blocks=args.blocks, held_out_limits=False)  # as given
+    if args.no_auto_settle:
+        settings = dataclasses.replace(settings, settle_when_off=False)
     with lock:
         simulation = resolve_physics(args.physics, recordings)
         simulation = with_settle(simulation, args, recordings)

@@ -3,8 +3,9 @@
 The records are a first-order system's response (exact ZOH by numpy, τ = 6
 samples) to a staircase, one started at rest, the other from a drive of 1.5
 held before the record (the state at 1.5, where `lti:1` starts at 0). Through
-the real command line: the second record's report has ``evidence.start.off``
-and a ``start:`` line naming ``--settle``; the same record diagnosed with
+the real command line: the second record is diagnosed again from a held start
+(``evidence.start.settled``), which then fits; with ``--no-auto-settle`` its
+report has ``evidence.start.off`` and a ``start:`` line naming ``--settle``; the same record diagnosed with
 ``--settle 60``, the record started at rest, and one whose baseline wanders
 as far at its end as at its start (a trend, not a start) have neither. The
 statistic itself is checked against numpy on the saved final model's free run.
@@ -21,7 +22,15 @@ from helpers import held_lag_csv
 
 import hybrid
 from hybrid.cli import main
-from hybrid.discovery._start import MIN_START, ONE_SIGN, RATIO, START_SHARE, misfit_at_start
+from hybrid.discovery._start import (
+    MIN_START,
+    ONE_SIGN,
+    RATIO,
+    SETTLE_SHARE,
+    START_SHARE,
+    misfit_at_start,
+    settle_samples,
+)
 
 TAU, DT, NOISE, N = 3.0, 0.5, 0.002, 480
 #: Two effects, not the default set: the start check reads the final model whatever the effects, and
@@ -55,10 +64,31 @@ def diagnose(path, out, capsys, *extra):
     return stdout, json.loads((out / "report.json").read_text())
 
 
-def test_a_record_that_starts_moving_is_flagged_with_the_remedy(records, tmp_path, capsys):
+def test_a_record_that_starts_moving_is_diagnosed_again_from_a_held_start(records, tmp_path, capsys):
+    """By default diagnose tries the remedy itself: held at a fitted drive, the start fits, and that is kept."""
     out, report = diagnose(records["moving"], tmp_path / "d", capsys)
     start = report["evidence"]["start"]
-    assert start["off"] is True
+    held = settle_samples(N)
+    assert held == round(SETTLE_SHARE * N)
+    assert start["off"] is False and start["settled"]["automatically"] and start["settled"]["samples"] == held
+    assert start["settled"]["without"]["ratio"] >= RATIO > start["recordings"][0]["ratio"]
+    assert f"as --settle {held} would" in out and "--no-auto-settle" in out
+    assert "**Start.**" in (tmp_path / "d" / "report.md").read_text()
+    # the saved models start from the held drive: the fitted initial_drive is the one held before the record
+    model = hybrid.load_model(tmp_path / "d" / "extended.eqx")
+    assert isinstance(model.simulation.inner, hybrid.HeldStart) or isinstance(
+        model.simulation, hybrid.HeldStart
+    )
+    assert float(model.parameters()["initial_drive"]) == pytest.approx(1.5, abs=0.1)
+    data = np.loadtxt(records["moving"], delimiter=",", skiprows=1)
+    head = (data[:, 1] - np.asarray(model.predict(data[:, 0], DT)))[: start["recordings"][0]["first_samples"]]
+    assert np.sqrt(np.mean(head**2)) == pytest.approx(start["recordings"][0]["rms_first"], rel=1e-6)
+
+
+def test_a_record_that_starts_moving_is_flagged_with_the_remedy(records, tmp_path, capsys):
+    out, report = diagnose(records["moving"], tmp_path / "d", capsys, "--no-auto-settle")
+    start = report["evidence"]["start"]
+    assert start["off"] is True and "settled" not in start
     assert "start: " in out and "--settle N" in out and "HeldStart" in out
     assert "**Start.**" in (tmp_path / "d" / "report.md").read_text()
     row = start["recordings"][0]

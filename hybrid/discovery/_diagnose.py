@@ -83,7 +83,7 @@ from ._search import (
     split_signals,
     with_active,
 )
-from ._start import start_misfit
+from ._start import settle_samples, settled_try, start_misfit
 from ._starts import N_SCREEN, baseline_starts
 from ._step import Search, Step, search_step
 from ._unexplained import pooled_noise_floor, remainder
@@ -197,6 +197,7 @@ def diagnose(
     **Returns:** a [`Diagnosis`][]; ``Diagnosis.to_dict()`` is ``report.json``.
     """
     t0 = time.perf_counter()
+    given, given_effects = settings, effects  # as asked: a held-start rerun resolves them again
     recordings = as_recordings(recordings, "diagnose")  # a path is loaded; anything else is refused
     check_simulation(simulation, "diagnose")
     if not isinstance(settings, DiagnoseSettings):
@@ -297,6 +298,36 @@ def diagnose(
     # final model needs once each is weighed as if named last.
     kept, extended, dropped = drop_redundant(search, extended, present)
     cause = kept[0] if kept else "none"
+    names = [r.name for r in recordings]
+    start = start_misfit(problem, extended.theta, extended.active, names, isinstance(simulation, HeldStart))
+    if (
+        start["off"]
+        and given.settle_when_off
+        and not isinstance(simulation, HeldStart)
+        and len(recordings) == 1
+    ):
+        n_held = settle_samples(len(recordings[0].w))
+        say(
+            f"the model misses the record's start: again, the simulation held at a fitted drive for {n_held} samples"
+        )
+        held = HeldStart(
+            simulation, n_held, initial_drive=float(np.mean(np.asarray(recordings[0].v_in)[:10]))
+        )
+        again = diagnose(
+            recordings,
+            simulation=held,
+            effects=given_effects,
+            hybrid=hybrid,
+            settings=dataclasses.replace(given, settle_when_off=False),
+            hybrid_max_steps=hybrid_max_steps,
+            progress=progress,
+        )
+        tried = settled_try(start, again.evidence["start"], n_held, cause, kept, baseline, extended)
+        if not again.evidence["start"]["off"]:  # the held start fits: it was the initial state
+            again.evidence["start"] = tried
+            again.seconds = time.perf_counter() - t0
+            return again
+        start = tried  # still missed with a held start: something early in the record, said so
 
     # 5. The final model: uncertainties, evidence, the noise floor and what is left above it.
     theta_base = baseline.theta
@@ -316,10 +347,7 @@ def diagnose(
     unpinned = not_pinned(uncertainties, extended_model, problem.series)
     evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good.to_dict()  # report.json's shape
-    names = [r.name for r in recordings]
-    evidence["start"] = start_misfit(
-        problem, extended.theta, extended.active, names, isinstance(simulation, HeldStart)
-    )
+    evidence["start"] = start
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
     heldout = HeldoutSignals(
         t=np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),

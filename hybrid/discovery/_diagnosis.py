@@ -121,6 +121,13 @@ class DiagnoseSettings:
     - `frozen`: parameters never fitted; ``None`` (default) takes the
       simulation's `frozen_by_default` (the RC network's ξh: only ξρ/ξh is
       identifiable).
+    - `settle_when_off`: when the final model misses one recording's start
+      (``evidence.start``: the record may not start where the simulation
+      does), diagnose it again with the simulation held at a fitted drive
+      first ([`HeldStart`][], a quarter of the record's samples) and keep that
+      diagnosis if its start then fits; if it does not, the first stands and
+      says so. Not for a simulation already held, nor for several recordings
+      (one held drive cannot start them all). False: say it, do not try.
     """
 
     split: tuple[float, float, float] = (0.6, 0.1, 0.3)
@@ -139,6 +146,7 @@ class DiagnoseSettings:
     frozen: tuple[str, ...] | None = None
     max_causes: int = 3
     unexplained_ratio: float = 2.0
+    settle_when_off: bool = True
 
     def materiality_for(self, effects) -> dict:
         """Every threshold of `effects` (`AbstractEffect.thresholds`), with `materiality`'s overrides."""
