@@ -79,16 +79,24 @@ def test_feedback_jacobian_matches_finite_differences():
         MassSpringDamper(frequency=69.0, zeta=0.05), [PolynomialStiffness(stiffness_cube=5.0)]
     )
 
-    def output(raw_cube, raw_frequency):
-        raw = {**stack.raw, "stiffness_cube": raw_cube, "frequency": raw_frequency}
-        return stack.with_raw(raw).simulate(u, DT)
+    _assert_jacobian_is_central_differences(stack, u, DT, {"stiffness_cube": 1e-4, "frequency": 1e-6})
 
-    c0, f0 = stack.raw["stiffness_cube"], stack.raw["frequency"]
-    jac = jax.jacfwd(output, argnums=(0, 1))(c0, f0)
-    for k, (arg, step) in enumerate(((c0, 1e-4), (f0, 1e-6))):
-        plus = output(*(arg + step if j == k else a for j, a in enumerate((c0, f0))))
-        minus = output(*(arg - step if j == k else a for j, a in enumerate((c0, f0))))
+
+def _assert_jacobian_is_central_differences(stack, u, dt, steps):
+    """Forward-mode derivatives of the output in each raw parameter of `steps` against central differences."""
+    names = list(steps)
+
+    def output(*values):
+        return stack.with_raw({**stack.raw, **dict(zip(names, values))}).simulate(u, dt)
+
+    at = [stack.raw[name] for name in names]
+    jac = jax.jacfwd(output, argnums=tuple(range(len(names))))(*at)
+    for k, name in enumerate(names):
+        step = steps[name]
+        plus = output(*(a + step if j == k else a for j, a in enumerate(at)))
+        minus = output(*(a - step if j == k else a for j, a in enumerate(at)))
         fd = np.asarray((plus - minus) / (2 * step))
+        assert np.max(np.abs(fd)) > 1e-3, name  # the parameter does move the output here
         np.testing.assert_allclose(np.asarray(jac[k]), fd, rtol=1e-5, atol=1e-7 * np.max(np.abs(fd)))
 
 
@@ -226,18 +234,7 @@ def test_a_spills_jacobian_matches_finite_differences():
     """LM linearises through the spill: the output's derivative in the share and in the level."""
     u = jnp.asarray(_tank_drive(300))
     stack = EffectStack(TwoTank(), [StateLimit("h1", into="h2", h1_max=9.0, h1_spill=0.5)])
-
-    def output(raw_share, raw_level):
-        return stack.with_raw({**stack.raw, "h1_spill": raw_share, "h1_max": raw_level}).simulate(u, 4.0)
-
-    s0, l0 = stack.raw["h1_spill"], stack.raw["h1_max"]
-    jac = jax.jacfwd(output, argnums=(0, 1))(s0, l0)
-    for k, (arg, step) in enumerate(((s0, 1e-5), (l0, 1e-5))):
-        plus = output(*(arg + step if j == k else a for j, a in enumerate((s0, l0))))
-        minus = output(*(arg - step if j == k else a for j, a in enumerate((s0, l0))))
-        fd = np.asarray((plus - minus) / (2 * step))
-        assert np.max(np.abs(fd)) > 1e-3  # the level does reach the rim: both move the output
-        np.testing.assert_allclose(np.asarray(jac[k]), fd, rtol=1e-5, atol=1e-7 * np.max(np.abs(fd)))
+    _assert_jacobian_is_central_differences(stack, u, 4.0, {"h1_spill": 1e-5, "h1_max": 1e-5})
 
 
 def test_a_simulation_says_where_a_states_excess_goes():

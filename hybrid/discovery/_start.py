@@ -22,11 +22,15 @@ miss the first samples, one-signed, and hardly the last). So the sentence
 names both, and the run that tells them apart: the simulation held at a fitted
 drive first (``--settle N``); a start that then fits was the initial state.
 
+`diagnose` runs that itself (`DiagnoseSettings.settle_when_off`): one
+recording whose start is off is diagnosed again held at a fitted drive for
+`settle_samples` samples, and `settled_try` says which diagnosis is kept.
+
 On Cascaded Tanks with `TwoTank` (started in equilibrium with the first pump
 voltage, while the record's output starts at 5.2 V): its first 20 samples
 are missed by 3.2× the rest's RMS and 5.1× the last 20's, all one sign, and
-nothing is named; held at a fitted drive for 250 samples first (``--settle
-250``), 0.20× the rest's, and ``limit_h2`` is named.
+nothing is named; held at a fitted drive for 256 samples first, 0.29× the
+rest's, and ``limit_h1`` is named.
 """
 
 from __future__ import annotations
