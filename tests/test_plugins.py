@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.signal
+from helpers import run_hybrid
 from scipy.integrate import solve_ivp
 
 import hybrid
@@ -261,6 +262,33 @@ def test_a_fitted_plugin_model_saves_and_loads(fitted_plugin, tmp_path):
     np.testing.assert_array_equal(
         np.asarray(loaded.predict(v, 0.1)), np.asarray(result.model.predict(v, 0.1))
     )
+
+
+def test_a_saved_plugin_model_loaded_without_its_file_names_the_flag_that_loads_it(fitted_plugin, tmp_path):
+    """The real command line, a fresh process: --start-from a plug-in's model without --physics."""
+    path, result = fitted_plugin
+    saved = hybrid.save_model(tmp_path / "valve.eqx", result.model)
+    record = _valve_recording()
+    (tmp_path / "rec.csv").write_text(
+        "v_in,w\n"
+        + "".join(f"{a:.17g},{b:.17g}\n" for a, b in zip(np.asarray(record.v_in), np.asarray(record.w)))
+    )
+    done = run_hybrid(
+        tmp_path,
+        "fit",
+        "rec.csv",
+        "--columns",
+        "input=v_in,output=w",
+        "--rate",
+        record.rate,
+        "--model",
+        "physics",
+        "--start-from",
+        saved,
+    )
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert "plug-in file valve.py" in line and "--physics path/to/valve.py:SqrtLag" in line
 
 
 # --- the worked example ----------------------------------------------------------------------

@@ -85,6 +85,21 @@ def test_a_record_that_starts_moving_is_diagnosed_again_from_a_held_start(record
     assert np.sqrt(np.mean(head**2)) == pytest.approx(start["recordings"][0]["rms_first"], rel=1e-6)
 
 
+def test_a_held_start_that_cannot_be_tried_leaves_the_first_diagnosis_saying_why(
+    records, tmp_path, capsys, monkeypatch
+):
+    """A retry that fails (here HeldStart refuses) does not lose the diagnosis: it stands, with the reason."""
+
+    def refuse(self, *args, **kwargs):
+        raise hybrid.InputError("HeldStart: refused for this test")
+
+    monkeypatch.setattr(hybrid.HeldStart, "__init__", refuse)
+    out, report = diagnose(records["moving"], tmp_path / "d", capsys)
+    start = report["evidence"]["start"]
+    assert start["off"] is True and start["settled"]["error"] == "HeldStart: refused for this test"
+    assert "could not be tried: HeldStart: refused for this test" in out and "--settle N" in out
+
+
 def test_a_record_that_starts_moving_is_flagged_with_the_remedy(records, tmp_path, capsys):
     out, report = diagnose(records["moving"], tmp_path / "d", capsys, "--no-auto-settle")
     start = report["evidence"]["start"]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 import equinox as eqx
@@ -86,9 +87,16 @@ def imported_class(base: type, name: str, module: str | None, what: str) -> type
         return (exact or found)[0]
     where = f" (module {module})" if module else ""
     if not found:
+        plugin = re.fullmatch(r"hybrid_plugin_(.+)_[0-9a-f]+", module or "")
+        hint = (  # a class from a plug-in file (hybrid_plugin_<stem>_<digest>): the flag that loads it
+            f"; it came from a plug-in file {plugin.group(1)}.py: on the command line give "
+            f"--physics path/to/{plugin.group(1)}.py:{name.split('.')[0]} (or --effects for an effect)"
+            if plugin
+            else ""
+        )
         raise InputError(
             f"the model's {what} {name}{where} is not an imported {base.__name__}: import the "
-            "module that defines it before load_model"
+            f"module that defines it before load_model{hint}"
         )
     raise InputError(
         f"several imported {what}s are called {name} ({', '.join(c.__module__ for c in found)}): "

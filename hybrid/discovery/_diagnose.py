@@ -310,24 +310,30 @@ def diagnose(
         say(
             f"the model misses the record's start: again, the simulation held at a fitted drive for {n_held} samples"
         )
-        held = HeldStart(
-            simulation, n_held, initial_drive=float(np.mean(np.asarray(recordings[0].v_in)[:10]))
-        )
-        again = diagnose(
-            recordings,
-            simulation=held,
-            effects=given_effects,
-            hybrid=hybrid,
-            settings=dataclasses.replace(given, settle_when_off=False),
-            hybrid_max_steps=hybrid_max_steps,
-            progress=progress,
-        )
-        tried = settled_try(start, again.evidence["start"], n_held, cause, kept, baseline, extended)
-        if not again.evidence["start"]["off"]:  # the held start fits: it was the initial state
-            again.evidence["start"] = tried
-            again.seconds = time.perf_counter() - t0
-            return again
-        start = tried  # still missed with a held start: something early in the record, said so
+        first_drive = float(np.mean(np.asarray(recordings[0].v_in)[:10]))
+        try:
+            again = diagnose(
+                recordings,
+                simulation=HeldStart(simulation, n_held, initial_drive=first_drive),
+                effects=given_effects,
+                hybrid=hybrid,
+                settings=dataclasses.replace(given, settle_when_off=False),
+                hybrid_max_steps=hybrid_max_steps,
+                progress=progress,
+            )
+        except InputError as error:  # e.g. a plug-in that refuses the longer drive: this diagnosis stands
+            start = {
+                **start,
+                "settled": {"samples": n_held, "automatically": True, "error": str(error)},
+                "sentence": f"{start['sentence']}. A held start of {n_held} samples could not be tried: {error}",
+            }
+        else:
+            tried = settled_try(start, again.evidence["start"], n_held, cause, kept, baseline, extended)
+            if not again.evidence["start"]["off"]:  # the held start fits: it was the initial state
+                again.evidence["start"] = tried
+                again.seconds = time.perf_counter() - t0
+                return again
+            start = tried  # still missed with a held start: something early in the record, said so
 
     # 5. The final model: uncertainties, evidence, the noise floor and what is left above it.
     theta_base = baseline.theta

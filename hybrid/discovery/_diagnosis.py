@@ -43,7 +43,9 @@ CAUSES = ("none",) + tuple(EFFECTS)
 #: cause has rivals this recording cannot tell apart, and an open last step: ``"named": "none"``,
 #: ``"open": true``), ``ambiguity_test`` (the test, in words), ``dropped`` (named causes the
 #: final model did not need, each weighed as if named last), each cause's ``step`` and
-#: ``evidence.start`` (whether each recording starts where the simulation does).
+#: ``evidence.start`` (whether each recording starts where the simulation does) with
+#: ``evidence.start.settled`` (the held start diagnose tried by itself, and what the run from the
+#: simulation's own start named); a limit on a state that spills adds ``<state>_spill``.
 REPORT_SCHEMA = "hybrid-report/3"
 #: The keys schema 3 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
