@@ -48,6 +48,7 @@ import numpy as np
 
 from ..core._models import Model
 from ..util._errors import InputError
+from ..util._watchdog import stage
 
 
 @dataclasses.dataclass(frozen=True)
@@ -206,6 +207,9 @@ def design_drive(
         u = _feasible(jnp.asarray(levels), low, high, slew, dt)
         state = optimiser.init(u)
         reached, reached_u = -np.inf, u
+        stage(
+            f"design: start {start + 1} of {starts} ({'the control PRBS' if start == 0 else 'random levels'})"
+        )
         for _ in range(steps + 1):
             new_u, new_state, loss = step(u, state, params)  # `loss` is u's: keep the best u visited
             if math.isfinite(float(loss)) and -float(loss) > reached:
