@@ -230,7 +230,10 @@ def open_world_row(recording, found, excess: float, causes_known) -> dict:
         "noise_floor_over_true": None if floor is None else float(floor.variance) / true_var,
     }
     row["false_all_clear"] = bool(hidden and not names and unexplained is None and excess > ALL_CLEAR)
-    row["start_flagged"] = bool((found.evidence.get("start") or {}).get("off", False))
+    start = found.evidence.get("start") or {}
+    row["start_flagged"] = bool(start.get("off", False))
+    # diagnosed again from a held start (DiagnoseSettings.settle_when_off) and that diagnosis kept
+    row["start_settled"] = bool(start.get("settled", {}).get("automatically")) and not row["start_flagged"]
     return row
 
 
@@ -240,10 +243,13 @@ def start_line(rows) -> str:
     if not judged:
         return ""
     flagged = [f"{r['effect']} seed {r['seed']}" for r in judged if r["start_flagged"]]
+    settled = [f"{r['effect']} seed {r['seed']}" for r in judged if r.get("start_settled")]
     return (
         f"Start flagged (`evidence.start`; every synthetic strip starts at rest, so each flag is something "
         f"else than a wrong initial state, e.g. a change early in the record): {len(flagged)}/{len(judged)} draws"
         + (f" ({', '.join(flagged)})" if flagged else "")
+        + f"; diagnosed again from a held start, which met the start and was kept: {len(settled)}"
+        + (f" ({', '.join(settled)})" if settled else "")
         + ".\n"
     )
 

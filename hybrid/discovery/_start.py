@@ -179,9 +179,10 @@ def settled_try(start: dict, settled: dict, n_held: int, cause: str, causes, bas
             **settled,
             "settled": {**tried, "automatically": True, "without": without},
             "sentence": f"{head}; held at a fitted drive for {n_held} samples before the record (as --settle "
-            f"{n_held} would; hybrid.HeldStart in Python), it meets the start ({after['ratio']:.2f}× the rest), "
-            f"so the record did not start where the simulation does, and this diagnosis is of the held "
-            f"simulation (from its own start {named}; --no-auto-settle diagnoses from there)",
+            f"{n_held} would; hybrid.HeldStart in Python), it meets the start ({after['ratio']:.2f}× the rest): "
+            "the record most likely did not start where the simulation does (a change early in the record "
+            "that settles can be met this way too), and this diagnosis is of the held simulation (from its own "
+            f"start {named}; --no-auto-settle diagnoses from there)",
         }
     return {
         **start,
