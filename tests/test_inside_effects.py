@@ -237,6 +237,24 @@ def test_a_spills_jacobian_matches_finite_differences():
     _assert_jacobian_is_central_differences(stack, u, 4.0, {"h1_spill": 1e-5, "h1_max": 1e-5})
 
 
+@pytest.mark.parametrize(("made_with", "picked"), [(1e-6, 0.02), (0.999, 1.0)])
+def test_a_spilling_limits_screen_picks_the_share_the_data_were_made_with(made_with, picked):
+    """Tanks whose upper rim loses its spill, or drops all of it into the lower tank (TwoTankOverflow's own
+    walls make the data): the screened starts of `limit_h1` carry the share that fits them."""
+    from hybrid.discovery._diagnose import prepare_search
+    from hybrid.discovery._starts import limit_starts
+
+    u = _tank_drive(600, seed=3)
+    truth = TwoTankOverflow(level_max_1=6.0, level_max_2=1e4, spill_to_lower=made_with)
+    h2 = np.asarray(truth.simulate(jnp.asarray(u), 4.0))
+    assert np.ptp(h2) > 1.0
+    record = hybrid.Recording.from_arrays(v_in=u, w=0.3 * h2 + 0.1, rate=0.25)
+    limit = hybrid.resolve_effects(["limit_h1"], TwoTank())[0]
+    search = prepare_search([record], TwoTank(), hybrid.DiagnoseSettings(), [limit])
+    starts = limit_starts(search.problem, TwoTank(), limit, 2, search.frozen)
+    assert len(starts) == 2 and starts[0]["h1_spill"] == picked
+
+
 def test_a_simulation_says_where_a_states_excess_goes():
     """`spills_into` builds the spilling limit; its share's unit is the ratio of the two states' units."""
     tank = {e.name: e for e in hybrid.resolve_effects(None, TwoTank())}

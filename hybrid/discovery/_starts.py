@@ -413,6 +413,10 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=fro
 #: Limits screened for a state-limit candidate's starts, as fractions of the state's peak at each
 #: design point: a limit only acts below the peak, and where depends on the design point's levels.
 LIMIT_FRACTIONS = (0.5, 0.7, 0.9)
+#: A spilling limit's shares screened with each fraction: nearly all of the cut lost, half, all of it
+#: moved. A share far from the truth can hold LM in another basin (an overflow that was lost, started at
+#: half: gain 9.5 where the limit without a spill reached 39, `experiments/inside_effects.py` overflow seed 1).
+SPILL_SHARES = (0.02, 0.5, 1.0)
 
 
 @eqx.filter_jit
@@ -440,8 +444,9 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     the Cascaded Tanks, the overflow model's upper outlet is 10× smaller than
     the Torricelli fit's). So each point of the design (its first
     `N_JOINT_SCREEN`) is screened with the limit at each of `LIMIT_FRACTIONS`
-    of that point's own peak of the state; the `n_starts` best pairs, with
-    distinct fractions, are returned.
+    of that point's own peak of the state (a spilling limit: with each of
+    `SPILL_SHARES` too); the `n_starts` best, with distinct fractions, are
+    returned.
     """
     from ._effect_stack import EffectStack
 
@@ -449,17 +454,24 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     names, raws = design_raws(simulation, design)
     if not names:
         return []
-    level = f"{effect.state}_max"  # a spill's share (if any) is screened at its start value
+    level = f"{effect.state}_max"
+    share = f"{effect.state}_spill" if getattr(effect, "into", None) is not None else None
     peaks = np.asarray(state_peaks(problem, simulation, effect.state, raws))
     stack = EffectStack(simulation, [effect])
     best = []
     for fraction in LIMIT_FRACTIONS:
         levels = fraction * peaks
-        losses = screen_design_losses(
-            problem, stack, {**raws, level: jnp.asarray(effect.constraints[level].to_raw(levels))}
-        )
-        losses = np.where(np.isfinite(levels), losses, np.inf)
-        i = int(np.argmin(losses))
-        best.append((float(losses[i]), fraction, i, float(levels[i])))
-    best.sort()
-    return [{**{k: design[i][k] for k in names}, level: value} for _, _, i, value in best[:n_starts]]
+        found = []
+        for spill in SPILL_SHARES if share else (None,):
+            row = {**raws, level: jnp.asarray(effect.constraints[level].to_raw(levels))}
+            if share:
+                row[share] = jnp.full(len(levels), effect.constraints[share].to_raw(spill))
+            losses = np.where(np.isfinite(levels), screen_design_losses(problem, stack, row), np.inf)
+            i = int(np.argmin(losses))
+            values = {level: float(levels[i])}
+            if share and spill is not None:
+                values[share] = float(spill)
+            found.append((float(losses[i]), fraction, i, values))
+        best.append(min(found, key=lambda item: item[0]))
+    best.sort(key=lambda item: item[0])
+    return [{**{k: design[i][k] for k in names}, **values} for _, _, i, values in best[:n_starts]]
