@@ -29,8 +29,8 @@ recording whose start is off is diagnosed again held at a fitted drive for
 On Cascaded Tanks with `TwoTank` (started in equilibrium with the first pump
 voltage, while the record's output starts at 5.2 V): its first 20 samples
 are missed by 3.2× the rest's RMS and 5.1× the last 20's, all one sign, and
-nothing is named; held at a fitted drive for 256 samples first, 0.29× the
-rest's, and ``limit_h1`` is named.
+nothing is named; held at a fitted drive for 256 samples first, 0.35× the
+rest's, and ``limit_h2`` and ``limit_h1`` (spilling into h2) are named.
 """
 
 from __future__ import annotations
