@@ -30,6 +30,7 @@ from hybrid.discovery._start import (
     START_SHARE,
     misfit_at_start,
     settle_samples,
+    settled_try,
 )
 
 TAU, DT, NOISE, N = 3.0, 0.5, 0.002, 480
@@ -162,3 +163,27 @@ def test_the_rule_and_its_sentences_on_residuals_made_by_hand():
     assert "larger --settle N" in misfit_at_start([moving], ["a"], settled=True)["sentence"]
     unpredicted = np.r_[np.full(5, np.nan), moving[5:]]  # a start no part predicts is not judged
     assert misfit_at_start([unpredicted], ["a"], settled=False)["recordings"][0]["checked"] is False
+
+
+def test_the_retry_sentence_keeps_the_held_run_only_when_its_start_fits():
+    """`settled_try` on checks made by hand: a held start that fits is kept; one that still misses is not."""
+    from types import SimpleNamespace
+
+    noise = 0.01 * np.random.default_rng(1).normal(size=1000)
+    moving = noise + 0.5 * np.exp(-np.arange(1000) / 8.0)
+    before = misfit_at_start([moving], ["a"], settled=False)
+    fitted = misfit_at_start([noise], ["a"], settled=True)
+    missed = misfit_at_start([moving], ["a"], settled=True)
+    model = SimpleNamespace(heldout=SimpleNamespace(nmse=0.2))
+    better = SimpleNamespace(heldout=SimpleNamespace(nmse=0.1))
+    kept = settled_try(before, fitted, 250, "drift", ["drift"], model, better)
+    assert kept["off"] is False and kept["settled"]["without"] == {
+        "cause": "drift",
+        "causes": ["drift"],
+        "gain": pytest.approx(2.0),
+        "ratio": before["recordings"][0]["ratio"],
+    }
+    assert "as --settle 250 would" in kept["sentence"] and "it names drift (gain 2.00×)" in kept["sentence"]
+    stands = settled_try(before, missed, 250, "none", [], model, model)
+    assert stands["off"] is True and stands["settled"]["off"] is True
+    assert stands["sentence"].startswith(before["sentence"]) and "not the initial state" in stands["sentence"]

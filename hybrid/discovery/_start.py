@@ -179,7 +179,7 @@ def settled_try(start: dict, settled: dict, n_held: int, cause: str, causes, bas
             **settled,
             "settled": {**tried, "automatically": True, "without": without},
             "sentence": f"{head}; held at a fitted drive for {n_held} samples before the record (as --settle "
-            f"{n_held} would; hybrid.HeldStart in Python), it meets the start ({after['ratio']:.2f}× the rest): "
+            f"{n_held} would; hybrid.HeldStart in Python), it meets the start ({after.get('ratio', float('nan')):.2f}× the rest): "
             "the record most likely did not start where the simulation does (a change early in the record "
             "that settles can be met this way too), and this diagnosis is of the held simulation (from its own "
             f"start {named}; --no-auto-settle diagnoses from there)",
@@ -188,7 +188,7 @@ def settled_try(start: dict, settled: dict, n_held: int, cause: str, causes, bas
         **start,
         "settled": {**tried, "automatically": True, "without": without},
         "sentence": f"{start['sentence']}. Held at a fitted drive for {n_held} samples first (tried), the "
-        f"model still misses the start by {after['ratio']:.1f}× the rest: not the initial state, but "
+        f"model still misses the start by {after.get('ratio', float('nan')):.1f}× the rest: not the initial state, but "
         "something that changes early in the record and settles; this diagnosis is from the simulation's "
         "own start",
     }
