@@ -120,17 +120,14 @@ def with_settle(simulation, args, recordings):
     """The simulation wrapped in HeldStart for --settle, started at the record's first drive level."""
     if getattr(args, "settle", None) is None:
         return simulation
-    import numpy as np
-
-    from .core._held_start import HeldStart
+    from .core._held_start import held_at_start
 
     if len(recordings) != 1:
         raise InputError(
             f"--settle fits one held drive before the record, and {len(recordings)} recordings each "
             "start from their own state: give one recording"
         )
-    start = float(np.mean(np.asarray(recordings[0].v_in)[:10]))
-    return HeldStart(simulation, args.settle, initial_drive=start)
+    return held_at_start(simulation, args.settle, recordings[0])
 
 
 def warn_notes(recordings):

@@ -28,6 +28,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from ..util._errors import InputError
@@ -142,6 +143,12 @@ class HeldStart(AbstractWrapper):
         return cls(build_simulation(config["inner"]), int(config["settle_samples"]))
 
 
+def held_at_start(simulation, settle_samples: int, recording) -> HeldStart:
+    """`simulation` held for `settle_samples` samples at `recording`'s first drive level (its first 10 samples' mean)."""
+    first = float(np.mean(np.asarray(recording.v_in)[:10]))
+    return HeldStart(simulation, settle_samples, initial_drive=first)
+
+
 def has_held_start(simulation) -> bool:
     """Whether `simulation` starts from a held drive: a `HeldStart`, or a wrapper with one inside."""
     return isinstance(simulation, AbstractSimulation) and INITIAL_DRIVE in simulation.parameter_names()
@@ -158,7 +165,6 @@ def refit_initial_drive(model, recording, samples: int, bounds: tuple[float, flo
     free-run prediction over those samples. Say how many were used when
     quoting a score over the whole record.
     """
-    import numpy as np
     import scipy.optimize
 
     simulation = getattr(model, "simulation", None)

@@ -250,10 +250,8 @@ def check_state_space(simulation: AbstractStateSpace, label: str) -> None:
             f"got {limited!r}"
         )
     spills = simulation.spills_into
-    if (
-        not isinstance(spills, dict)
-        or not all(a in states and b in states and a != b for a, b in spills.items() if isinstance(b, str))
-        or not all(isinstance(b, str) for b in spills.values())
+    if not isinstance(spills, dict) or any(
+        a not in states or b not in states or a == b for a, b in spills.items()
     ):
         raise InputError(
             f"{label}: {cls}.spills_into must map a state to another of its states ({', '.join(states)}), "

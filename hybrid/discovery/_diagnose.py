@@ -60,7 +60,7 @@ import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation
 from ..core._fit import unit_labels
-from ..core._held_start import HeldStart
+from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..util._errors import InputError
 from ..util._programs import DIAGNOSE_PROGRAMS
@@ -310,11 +310,10 @@ def diagnose(
         say(
             f"the model misses the record's start: again, the simulation held at a fitted drive for {n_held} samples"
         )
-        first_drive = float(np.mean(np.asarray(recordings[0].v_in)[:10]))
         try:
             again = diagnose(
                 recordings,
-                simulation=HeldStart(simulation, n_held, initial_drive=first_drive),
+                simulation=held_at_start(simulation, n_held, recordings[0]),
                 effects=given_effects,
                 hybrid=hybrid,
                 settings=dataclasses.replace(given, settle_when_off=False),

@@ -394,6 +394,12 @@ def inner_response(inner: AbstractSimulation, u, dt, drive_on, source):
     return response(flat, u, arrays, drive_on, source)
 
 
+def spill_target(effect, states) -> int | None:
+    """The index in `states` of the state a limit spills into (`StateLimit.into`), or None."""
+    into = getattr(effect, "into", None)
+    return None if into is None else states.index(into)
+
+
 def _inside_dynamics(stack, inner, inside, u, dt):
     """(output, states) of the inner state-space simulation with the inside effects in its loop.
 
@@ -401,10 +407,11 @@ def _inside_dynamics(stack, inner, inside, u, dt):
     so that its NaN cannot leak in either).
     """
     feedback = [(stack.active[i], e) for i, e in inside if e.role == "feedback"]
-    limits = [(stack.active[i], e, inner.states.index(e.acts_on)) for i, e in inside if e.role == "limit"]
-    spills = {
-        e.name: inner.states.index(e.into) for _, e, _ in limits if getattr(e, "into", None) is not None
-    }
+    limits = [
+        (stack.active[i], e, inner.states.index(e.acts_on), spill_target(e, inner.states))
+        for i, e in inside
+        if e.role == "limit"
+    ]
 
     def force(x, y):
         total = jnp.zeros((), y.dtype)
@@ -415,11 +422,10 @@ def _inside_dynamics(stack, inner, inside, u, dt):
 
     def bound(x):
         x = list(x)
-        for on, effect, k in limits:
+        for on, effect, k, j in limits:
             z = x[k]
             x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt) - z), z)
-            if effect.name in spills:  # a share of the cut lands in another state (a tank's spill below)
-                j = spills[effect.name]
+            if j is not None:  # a share of the cut lands in another state (a tank's spill below)
                 x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt), x[j])
         return tuple(x)
 

@@ -461,17 +461,15 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     best = []
     for fraction in LIMIT_FRACTIONS:
         levels = fraction * peaks
+        row = {**raws, level: jnp.asarray(effect.constraints[level].to_raw(levels))}
         found = []
-        for spill in SPILL_SHARES if share else (None,):
-            row = {**raws, level: jnp.asarray(effect.constraints[level].to_raw(levels))}
-            if share:
-                row[share] = jnp.full(len(levels), effect.constraints[share].to_raw(spill))
-            losses = np.where(np.isfinite(levels), screen_design_losses(problem, stack, row), np.inf)
+        for extra in [{share: spill} for spill in SPILL_SHARES] if share else [{}]:
+            shares = {k: jnp.full(len(levels), effect.constraints[k].to_raw(v)) for k, v in extra.items()}
+            losses = np.where(
+                np.isfinite(levels), screen_design_losses(problem, stack, {**row, **shares}), np.inf
+            )
             i = int(np.argmin(losses))
-            values = {level: float(levels[i])}
-            if share and spill is not None:
-                values[share] = float(spill)
-            found.append((float(losses[i]), fraction, i, values))
+            found.append((float(losses[i]), fraction, i, {level: float(levels[i]), **extra}))
         best.append(min(found, key=lambda item: item[0]))
     best.sort(key=lambda item: item[0])
     return [{**{k: design[i][k] for k in names}, **values} for _, _, i, values in best[:n_starts]]
