@@ -362,6 +362,9 @@ def test_resolve_effects_adds_inside_effects_only_where_there_are_states():
         (hybrid.Passthrough(), ["stiffness"], "has no state-space form"),
         (TwoTank(), [StateLimit("level")], "does not have: its states are h1, h2"),
         (TwoTank(), ["limit_h3"], "unknown effect 'limit_h3'"),
+        (TwoTank(), ["limit_h3"], "limit_h1, limit_h2;"),  # a few states: each limit named
+        # The RC network's 46 states: one pattern, not 46 names
+        (hybrid.RCNetwork(), ["limit_x"], "limit_<state> (limit_vc_0 … limit_vc_45);"),
     ],
 )
 def test_inside_effects_where_they_cannot_act_are_refused_in_one_line(simulation, effects, words):

@@ -175,8 +175,11 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
             if item in limits:
                 item = state_limit(dynamics_of(simulation)[0], limits[item])  # type: ignore[index]
             elif item not in EFFECTS:
+                names = list(limits)  # one per state: the RC network's 46 would bury the line
+                if len(names) > 3:
+                    names = [f"limit_<state> ({names[0]} … {names[-1]})"]
                 raise InputError(
-                    f"unknown effect {item!r}: the built-ins are {', '.join([*EFFECTS, *limits])}; "
+                    f"unknown effect {item!r}: the built-ins are {', '.join([*EFFECTS, *names])}; "
                     "a plug-in is an AbstractEffect subclass (see docs/effects.md)"
                 )
             else:
