@@ -133,10 +133,15 @@ def time_by_steps(rows) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _rival_of_named(row, effect: str) -> bool:
+    """Whether `effect` is a rival that report.json's `ambiguous` says this recording cannot tell from the cause."""
+    return any(a["named"] == row["named"] and effect in a["rivals"] for a in row.get("ambiguous") or [])
+
+
 def _table(rows, effects, causes) -> str:
     lines = [
-        "| hidden \\ named | " + " | ".join(causes) + " | right | gain (median, min) |",
-        "|---" * (len(causes) + 3) + "|",
+        "| hidden \\ named | " + " | ".join(causes) + " | right | right or a rival | gain (median, min) |",
+        "|---" * (len(causes) + 4) + "|",
     ]
     for effect in effects:
         mine = [r for r in rows if r["effect"] == effect]
@@ -144,11 +149,12 @@ def _table(rows, effects, causes) -> str:
             continue
         counts = [sum(r["named"] == c for r in mine) for c in causes]
         right = sum(r["named"] == effect for r in mine)
+        rival = sum(r["named"] == effect or _rival_of_named(r, effect) for r in mine)
         gains = [r["gain"] for r in mine]
         lines.append(
             f"| {effect} | "
             + " | ".join(str(c) if c else "·" for c in counts)
-            + f" | {right}/{len(mine)} | {np.median(gains):.2f}, {min(gains):.2f} |"
+            + f" | {right}/{len(mine)} | {rival}/{len(mine)} | {np.median(gains):.2f}, {min(gains):.2f} |"
         )
     return "\n".join(lines)
 
@@ -545,6 +551,12 @@ def main(argv=None) -> int:
                         for c in found.candidates
                     },
                     "baseline_Q": found.baseline.ljung_box["Q"],
+                    # Each step where the recording cannot tell the named effect from rivals (report.json's
+                    # `ambiguous`): a wrong name with the hidden effect among them is said to be uncertain.
+                    "ambiguous": [
+                        {"step": a["step"], "named": a["named"], "rivals": [v["name"] for v in a["rivals"]]}
+                        for a in found.ambiguous
+                    ],
                     # Each later step's candidates: why a second effect was (not) named.
                     "later_steps": [
                         {
@@ -628,7 +640,8 @@ def main(argv=None) -> int:
     ]
     if single:
         summary += [
-            "All draws:\n",
+            "All draws (right or a rival: the hidden effect named, or among the rivals report.json's "
+            "`ambiguous` says this recording cannot tell from the named cause):\n",
             table,
             "",
             f"Draws whose effect is identifiable (every effect-free fit leaves a held-out MSE ≥ "
