@@ -291,10 +291,14 @@ def _named_set(r) -> str:
     return "{" + ", ".join(sorted(r["causes"])) + "}" if r["causes"] else "∅"
 
 
+def _names_all(r, causes) -> bool:
+    """Whether `causes` include every hidden effect of draw `r` (by its library name)."""
+    return set(r["expected_causes"]) <= set(causes)
+
+
 def _told_all(r) -> bool:
     """Whether the search told a pair draw's hidden effects named them all (`told_row`)."""
-    told = r.get("told")
-    return bool(told) and set(r["expected_causes"]) <= set(told["causes"])
+    return bool(r.get("told")) and _names_all(r, r["told"]["causes"])
 
 
 def _counts(items) -> str:
@@ -345,7 +349,7 @@ def open_world_tables(rows, specs) -> str:
             )
         every = [r for r in rows if r["kind"] == "pair"]
         told = [r for r in every if _told_all(r)]
-        full = [r for r in every if set(r["expected_causes"]) <= set(r["causes"])]
+        full = [r for r in every if _names_all(r, r["causes"])]
         short = [r for r in every if r.get("told") and not _told_all(r)]
         out += [
             "",
@@ -485,6 +489,7 @@ def main(argv=None) -> int:
     else:
         seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     rows = []
+    pair_recordings = {}  # (effect, seed) → recording, for the told pass after the loop
     compiling = compile_counter()  # XLA's seconds: a draw's running time is its seconds less them
     for effect in effects:
         for seed in seeds:
@@ -506,6 +511,8 @@ def main(argv=None) -> int:
             compiled = compiling["s"] - compiled_before
             excess, least = excess_over_noise(recording, found)
             world = open_world_row(recording, found, excess, CAUSES)
+            if world["kind"] == "pair":
+                pair_recordings[effect, seed] = recording
             flagged = f"{world['unexplained_fraction']:.2f} above floor" if world["unexplained"] else "no"
             floor = (
                 f"{world['noise_floor_over_true']:5.2f}"
@@ -576,10 +583,8 @@ def main(argv=None) -> int:
         return 0
     # After every draw, so that the draws' times above are one loop of the full search, as before.
     for row in rows:
-        row["told"] = None
-        if row["kind"] == "pair":
-            recording = draw(row["effect"], row["seed"], args.duration, args.rate, args.drive, args.noise)[2]
-            row["told"] = told_row(recording, row)
+        recording = pair_recordings.get((row["effect"], row["seed"]))
+        row["told"] = None if recording is None else told_row(recording, row)
 
     virtual = []
     if args.virtual:
