@@ -16,7 +16,9 @@ multilevel PRBS, made by numpy code separate from the extensions):
    candidates that gained), `hybrid.design_drive` on the first entry's rival
    models within ±`--amplitude`, at the noise floor the diagnosis measured;
    the designed drive is recorded through *the same hidden-effect generator*
-   (the same strip, effects and noise level; another noise seed), and
+   (`hybrid.ipmc.rerecord`: the same strip, effects and noise std, and the
+   values the effects' forms took from the first recording's signal — a
+   saturation's level, a loop's span — kept; another noise seed), and
    `diagnose` runs on the old and the new recordings together;
 3. **control**: a multilevel PRBS of the same length and amplitude (another
    seed), recorded and diagnosed with the old one alike.
@@ -123,14 +125,14 @@ def run_draw(effect: str, seed: int, args, group: str) -> dict:
     from discrepancy import draw, expected_names
 
     from hybrid import CAUSES, Drive, design_drive, diagnose
-    from hybrid.ipmc import discrepancy_drive, hidden_effects, synthetic_recording
+    from hybrid.ipmc import discrepancy_drive, hidden_effects, rerecord
 
     t0 = time.perf_counter()
-    strip, params, old = draw(effect, seed, args.duration, args.rate, "prbs-multilevel", args.noise)
+    _, _, old = draw(effect, seed, args.duration, args.rate, "prbs-multilevel", args.noise)
     expected, outside = expected_names(list(hidden_effects(old)), CAUSES)
 
-    def record(drive, noise_seed):
-        return synthetic_recording(drive, strip, effect, params, noise_fraction=args.noise, seed=noise_seed)
+    def record(drive, noise_seed):  # the same strip: its saturation level, loop span, noise std in mm
+        return rerecord(old, drive, seed=noise_seed)
 
     before = diagnose(old)
     row = {

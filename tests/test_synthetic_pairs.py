@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from hybrid import InputError, make_drive
+from hybrid import Drive, InputError, make_drive
 from hybrid.ipmc._hidden_pairs import (
     HIDDEN_NAMES,
     LIBRARY_EFFECTS,
@@ -22,6 +22,7 @@ from hybrid.ipmc._hidden_pairs import (
     compound_recording,
     hidden_effects,
     random_hidden,
+    rerecord,
     split_hidden,
     true_noise_variance,
 )
@@ -86,18 +87,9 @@ def test_single_effect_path_is_the_original_pipeline(effect, seed):
     noise = 0.01 * np.ptp(w_true) * np.random.default_rng(seed).standard_normal(len(w_true))
     assert np.array_equal(rec.extra["w_true"], w_true)
     assert np.array_equal(rec.w, w_true + noise)
-    assert set(rec.metadata["hidden"]) == {
-        "effect",
-        "effect_params",
-        "strip",
-        "noise_fraction",
-        "oversample",
-        "exposure_fraction",
-        "seed",
-    }
-    if seed == 0:  # the compound entry point, given one library effect, makes the same arrays
-        other = compound_recording(drive, strip, effect, params, noise_fraction=0.01, seed=seed)
-        assert np.array_equal(other.w, rec.w) and np.array_equal(other.v_in, rec.v_in)
+    hidden = rec.metadata["hidden"]
+    assert hidden["effect"] == effect and hidden["effect_params"] == params
+    assert hidden["noise_std"] == pytest.approx(0.01 * np.ptp(w_true), rel=1e-12)
 
 
 # --- pairs -----------------------------------------------------------------------------------------------
@@ -329,3 +321,63 @@ def test_outside_recordings_record_their_ground_truth(spec):
     # a library-only recording answers the same helpers
     plain = synthetic_recording(drive, STRIP, "drift", {"change": 0.3, "shape": "linear"})
     assert hidden_effects(plain) == ("drift",) and true_noise_variance(plain) > 0
+
+
+# --- another drive, the same strip (rerecord) --------------------------------------------------------------
+
+
+def test_rerecord_under_the_same_drive_and_seed_is_the_recording():
+    params = random_hidden("saturation+hysteresis+electrostatic", np.random.default_rng(3), RATE)
+    rec = synthetic_recording(_drive(), STRIP, "saturation+hysteresis+electrostatic", params, seed=5)
+    again = rerecord(rec, _drive(), seed=5)
+    assert np.array_equal(again.w, rec.w) and again.metadata["hidden"] == rec.metadata["hidden"]
+
+
+def test_rerecord_keeps_the_saturation_level_and_the_noise_when_the_drive_shrinks():
+    """Half the drive meets the first recording's σ± in volts (not σ rescaled to its own peaks), and its noise std."""
+    params = {"shortfall_pos": 0.4, "shortfall_neg": 0.2}
+    drive = _drive()
+    rec = synthetic_recording(drive, STRIP, "saturation", params, noise_fraction=0.02, seed=1)
+    half = Drive(drive.t, 0.5 * np.asarray(drive.v), "half", {"rate": RATE})
+    again = rerecord(rec, half, seed=2)
+    # σ from the definition: the shortfall at the first recording's peak of the drive-side signal s
+    s = rc_cascade_exact(STRIP, np.repeat(np.asarray(drive.v, float), M), DT)
+    sigma = {}
+    for side, sign, f in (("pos", 1.0, 0.4), ("neg", -1.0, 0.2)):
+        peak = np.max(sign * s)
+        sigma[side] = peak / math.sqrt(1.0 / (1.0 - f) ** 2 - 1.0)
+        assert 1.0 - 1.0 / math.sqrt(1.0 + (peak / sigma[side]) ** 2) == pytest.approx(f, rel=1e-12)
+    s_half = 0.5 * s  # the cascade is linear
+    sat = np.where(s_half > 0, s_half / np.sqrt(1 + (s_half / sigma["pos"]) ** 2), s_half)
+    sat = np.where(s_half < 0, s_half / np.sqrt(1 + (s_half / sigma["neg"]) ** 2), sat)
+    np.testing.assert_allclose(
+        again.extra["w_true"], _camera(STRIP.gain_mm_per_v * sat + STRIP.offset_mm), atol=1e-12
+    )
+    # rescaled to its own peaks, the half drive would lose 40 % at its own peak: a different strip
+    fresh = synthetic_recording(half, STRIP, "saturation", params, noise_fraction=0.02, seed=2)
+    assert np.max(np.abs(fresh.extra["w_true"] - again.extra["w_true"])) > 0.05 * np.ptp(
+        again.extra["w_true"]
+    )
+    std = rec.metadata["hidden"]["noise_std"]
+    assert again.metadata["hidden"]["noise_std"] == std == pytest.approx(0.02 * np.ptp(rec.extra["w_true"]))
+    assert np.std(again.w - again.extra["w_true"]) == pytest.approx(std, rel=0.1)  # 600 samples
+    assert true_noise_variance(again) == pytest.approx(std**2)
+
+
+@pytest.mark.parametrize("name", sorted(OUTSIDE_EFFECTS))
+def test_rerecord_keeps_what_an_outside_form_took_from_the_first_signal(name):
+    params = {name: OUTSIDE_EFFECTS[name].draw(np.random.default_rng(0), RATE)}
+    rec = compound_recording(_drive(), STRIP, name, params[name], seed=0)
+    other = rerecord(rec, _drive(seed=9), seed=1)
+    assert other.metadata["hidden"]["derived"] == rec.metadata["hidden"]["derived"]
+    own = compound_recording(_drive(seed=9), STRIP, name, params[name], seed=1)
+    assert own.metadata["hidden"]["derived"] != rec.metadata["hidden"]["derived"]  # the drive would move it
+
+
+def test_rerecord_refuses_a_recording_it_did_not_make():
+    from hybrid import Recording
+
+    t = np.arange(100) / RATE
+    plain = Recording(t=t, v_in=np.sin(t), w=np.cos(t), name="lab.csv")
+    with pytest.raises(InputError, match="not a synthetic recording"):
+        rerecord(plain, _drive(), seed=0)

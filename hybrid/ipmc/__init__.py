@@ -8,6 +8,7 @@ from ._hidden_pairs import (
     HIDDEN_NAMES as HIDDEN_NAMES,
     canonical as canonical,
     hidden_effects as hidden_effects,
+    rerecord as rerecord,
     true_noise_variance as true_noise_variance,
 )
 from ._sensitivity_study import (

@@ -38,6 +38,7 @@ from ._synthetic import (
     apply_hidden,
     camera,
     fine_drive,
+    hidden_derived,
     random_effect,
     rc_cascade_exact,
 )
@@ -134,16 +135,21 @@ def compound_recording(
     oversample: int = 8,
     exposure_fraction: float = 0.5,
     seed: int = 0,
+    derived: dict | None = None,
+    noise_std: float | None = None,
 ):
     """A Recording of `strip` under `drive` hiding every effect of the spec `effect`, in physical order.
 
-    Arguments as `synthetic_recording` (which sends here every spec outside
-    `HIDDEN_EFFECTS`); `effect_params` as from `random_hidden`. The truth is in
+    Arguments as `synthetic_recording` (which sends every spec here);
+    `effect_params` as from `random_hidden`. `derived` (per effect) and
+    `noise_std` (mm): the values an earlier recording of the strip took from its
+    signal, kept so that another drive meets the same strip (`rerecord`); None
+    takes them from this recording's signal. The truth is in
     ``metadata["hidden"]``: ``effect`` (the canonical spec), ``effects`` (in
     physical order), ``outside`` (those outside the library), ``effect_params``
     (flat for one effect, else per effect), ``derived`` (per effect, the values
-    an outside form derived from the data), ``noise_variance``; and
-    ``extra["w_true"]``.
+    its form took from the signal: a saturation's σ±, a loop's span, an outside
+    form's reference), ``noise_std`` and ``noise_variance``; and ``extra["w_true"]``.
     """
     from ..data._recording import Recording
 
@@ -155,14 +161,17 @@ def compound_recording(
     v_fine = fine_drive(v, m, params["delay"]["delay_samples"] if "delay" in params else 0)
     t_fine = np.arange(len(v_fine)) * dt_fine
     s = rc_cascade_exact(strip, v_fine, dt_fine)
+    given = dict(derived or {})
     derived = {}
     for name in names:
         if is_outside(name):
-            s, derived[name] = OUTSIDE_EFFECTS[name].apply(params[name], s, dt_fine, t_fine)
+            s, derived[name] = OUTSIDE_EFFECTS[name].apply(params[name], s, dt_fine, t_fine, given.get(name))
         elif name != "delay":
-            s = apply_hidden(name, params[name], s, dt_fine, t_fine)
+            derived[name] = given.get(name) or hidden_derived(name, params[name], s)
+            s = apply_hidden(name, params[name], s, dt_fine, t_fine, derived[name])
     w_fine = strip.gain_mm_per_v * s + strip.offset_mm
-    w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed)
+    w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed, noise_std)
+    std = float(noise_fraction * np.ptp(w_true)) if noise_std is None else float(noise_std)
     spec = "+".join(names) or "none"
     hidden = {
         "effect": spec,
@@ -172,7 +181,8 @@ def compound_recording(
         "derived": derived,
         "strip": dataclasses.asdict(strip),
         "noise_fraction": noise_fraction,
-        "noise_variance": float((noise_fraction * np.ptp(w_true)) ** 2),
+        "noise_std": std,
+        "noise_variance": std**2,
         "oversample": m,
         "exposure_fraction": exposure_fraction,
         "seed": seed,
@@ -193,6 +203,37 @@ def hidden_effects(recording) -> tuple[str, ...]:
 
 
 def true_noise_variance(recording) -> float:
-    """The variance of the Gaussian noise the generator added (its std is noise_fraction × range of w_true)."""
-    hidden = recording.metadata["hidden"]
-    return float((hidden["noise_fraction"] * np.ptp(recording.extra["w_true"])) ** 2)
+    """The variance of the Gaussian noise the generator added (its std: ``metadata["hidden"]["noise_std"]``)."""
+    return float(recording.metadata["hidden"]["noise_std"]) ** 2
+
+
+def rerecord(recording, drive, *, seed: int):
+    """The strip of a synthetic `recording`, with its hidden effects and camera, under another `drive`.
+
+    Everything the generator drew or took from the first recording's signal is
+    kept: the strip, the effects' parameters, the values their forms derived from
+    the signal (a saturation's σ± in V, a Preisach loop's span, an outside form's
+    reference) and the noise std in mm. So the two recordings are of one physical
+    strip, as two runs on a rig are, and `diagnose([recording, rerecord(...)])`
+    can fit them jointly; a new drive with a smaller range meets the same
+    saturation, not one rescaled to it. A ``drift`` is each recording's own (its
+    change over the recording, as drawn). `seed` seeds the new noise.
+    """
+    hidden = recording.metadata.get("hidden") if isinstance(recording.metadata, dict) else None
+    if not hidden or "noise_std" not in hidden or "derived" not in hidden:
+        raise InputError(
+            f"rerecord: {recording.name!r} is not a synthetic recording of this generator "
+            "(metadata['hidden'] with 'derived' and 'noise_std'): make it with hybrid.ipmc.synthetic_recording"
+        )
+    return compound_recording(
+        drive,
+        SyntheticStrip(**hidden["strip"]),
+        hidden["effect"],
+        hidden["effect_params"],
+        noise_fraction=hidden["noise_fraction"],
+        oversample=hidden["oversample"],
+        exposure_fraction=hidden["exposure_fraction"],
+        seed=seed,
+        derived=hidden["derived"],
+        noise_std=hidden["noise_std"],
+    )

@@ -27,7 +27,9 @@ name                form                                                        
 
 Each form returns the signal and the values it derived from the data (S, δ, R,
 H), which the recording's metadata keeps beside the drawn parameters: the ground
-truth in the signal's own units.
+truth in the signal's own units. Given those values (``derived=``, from an earlier
+recording of the strip), a form uses them instead: another drive then meets the
+same physical strip (`hybrid.ipmc.rerecord`), not one rescaled to its own range.
 """
 
 from __future__ import annotations
@@ -51,31 +53,32 @@ def _log_uniform(rng, low, high):
     return math.exp(rng.uniform(math.log(low), math.log(high)))
 
 
-def _electrostatic(p, s, dt, t):
-    peak = float(np.max(np.abs(s)))
+def _electrostatic(p, s, dt, t, d):
+    peak = float(np.max(np.abs(s))) if d is None else d["peak_v"]
     if peak == 0.0:
         return s.copy(), {"peak_v": 0.0, "quadratic_per_v": 0.0}
     k = p["quadratic_fraction"] / peak
     return s + k * s * s, {"peak_v": peak, "quadratic_per_v": k}
 
 
-def _dead_zone(p, s, dt, t):
-    delta = p["threshold_fraction"] * float(np.ptp(s))
+def _dead_zone(p, s, dt, t, d):
+    delta = p["threshold_fraction"] * float(np.ptp(s)) if d is None else d["threshold_v"]
     return np.sign(s) * np.maximum(np.abs(s) - delta, 0.0), {"threshold_v": delta}
 
 
-def _rate_dependent(p, s, dt, t):
+def _rate_dependent(p, s, dt, t, d):
     rate = np.abs(np.diff(s, prepend=s[0])) / dt
     r = lowpass(rate, p["memory_s"], dt)
-    top = float(np.quantile(r, 0.95))  # a rate the strip often reaches: β is the stiffening there
+    # a rate the strip often reaches: β is the stiffening there
+    top = float(np.quantile(r, 0.95)) if d is None else d["reference_rate_v_per_s"]
     if top == 0.0:
         return s.copy(), {"reference_rate_v_per_s": 0.0}
     return s / (1.0 + p["stiffening"] * r / top), {"reference_rate_v_per_s": top}
 
 
-def _self_heating(p, s, dt, t):
+def _self_heating(p, s, dt, t, d):
     h = lowpass(s * s, p["thermal_time_s"], dt)
-    top = float(np.max(h))
+    top = float(np.max(h)) if d is None else d["reference_heat_v2"]
     if top == 0.0:
         return s.copy(), {"reference_heat_v2": 0.0}
     return s * (1.0 + p["gain_change"] * h / top), {"reference_heat_v2": top}
@@ -88,11 +91,17 @@ class OutsideForm:
     name: str
     summary: str
     draw: Callable[[np.random.Generator, float], dict]
-    form: Callable[[dict, np.ndarray, float, np.ndarray], tuple[np.ndarray, dict]]
+    form: Callable[[dict, np.ndarray, float, np.ndarray, dict | None], tuple[np.ndarray, dict]]
 
-    def apply(self, params: dict, s: np.ndarray, dt: float, t: np.ndarray) -> tuple[np.ndarray, dict]:
-        """(the signal after the effect, the values derived from the data) for `s` on a grid of step `dt`."""
-        return self.form(params, np.asarray(s, dtype=float), float(dt), t)
+    def apply(
+        self, params: dict, s: np.ndarray, dt: float, t: np.ndarray, derived: dict | None = None
+    ) -> tuple[np.ndarray, dict]:
+        """(the signal after the effect, the values derived from the data) for `s` on a grid of step `dt`.
+
+        `derived`: the values as an earlier recording derived them (the same
+        strip under another drive); None derives them from `s`.
+        """
+        return self.form(params, np.asarray(s, dtype=float), float(dt), t, derived)
 
 
 #: The effects outside the library, by name.

@@ -185,14 +185,43 @@ def _play(s, r):
     return out
 
 
-def apply_hidden(name, p, s, dt, t):
+def hidden_derived(name: str, p: dict, s: np.ndarray) -> dict:
+    """The values a hidden effect's form takes from the signal it acts on, in the signal's units.
+
+    A saturation's σ± (V: the shortfall is drawn at this signal's peaks) and a
+    Preisach loop's span (V: its play widths are fractions of it); {} for the
+    forms that take nothing from the signal. A second recording of the same strip
+    reuses the first's (`apply_hidden`'s `derived`), so the physics stays put
+    when the drive changes.
+    """
+    s = np.asarray(s, dtype=float)
+    if name == "hysteresis":
+        return {"span_v": float(np.ptp(s))}
+    if name == "saturation":
+        sigma = {}
+        for side, sign in (("pos", 1.0), ("neg", -1.0)):
+            peak = float(np.max(sign * s))
+            # shortfall f at the peak: 1 − 1/√(1 + x²) = f  →  x = √(1/(1 − f)² − 1), σ = peak / x
+            x = math.sqrt(1.0 / (1.0 - p[f"shortfall_{side}"]) ** 2 - 1.0)
+            sigma[f"sigma_{side}_v"] = peak / x if peak > 0 else None  # this side never driven
+        return sigma
+    return {}
+
+
+def apply_hidden(name, p, s, dt, t, derived: dict | None = None):
+    """The signal `s` (fine grid, step `dt`, times `t`) after the hidden effect `name` with parameters `p`.
+
+    `derived`: the values the form takes from the signal (`hidden_derived`), as an
+    earlier recording of the strip derived them; None derives them from `s`.
+    """
     import scipy.signal
 
+    d = hidden_derived(name, p, s) if derived is None else derived
     if name == "back_relaxation":
         slow = 0.5 * _lowpass_exact(s, p["tau_s"] / 2, dt) + 0.5 * _lowpass_exact(s, 2 * p["tau_s"], dt)
         return s - p["fraction"] * slow
     if name == "hysteresis":
-        span = np.ptp(s)
+        span = d["span_v"]
         widths = np.linspace(1, 12, 12) / 12 * 0.3 * span
         plays = np.stack([_play(s, r) for r in widths])
         c = p["height_fraction"] * span / (2 * widths.mean())
@@ -200,14 +229,10 @@ def apply_hidden(name, p, s, dt, t):
     if name == "saturation":
         out = s.copy()
         for side, sign in (("pos", 1.0), ("neg", -1.0)):
-            peak = np.max(sign * s)
-            if peak <= 0:
-                continue
-            # shortfall f at the peak: 1 − 1/√(1 + x²) = f  →  x = √(1/(1 − f)² − 1), σ = peak / x
-            x = math.sqrt(1.0 / (1.0 - p[f"shortfall_{side}"]) ** 2 - 1.0)
-            sigma = peak / x
+            sigma = d[f"sigma_{side}_v"]
             mask = sign * s > 0
-            out[mask] = s[mask] / np.sqrt(1.0 + (s[mask] / sigma) ** 2)
+            if sigma is not None:
+                out[mask] = s[mask] / np.sqrt(1.0 + (s[mask] / sigma) ** 2)
         return out
     if name == "drift":
         u = (t - t[0]) / (t[-1] - t[0])
@@ -234,10 +259,19 @@ def fine_drive(v: np.ndarray, oversample: int, delay_samples: int = 0) -> np.nda
     return v_fine
 
 
-def camera(w_fine, oversample: int, exposure_fraction: float, noise_fraction: float, seed: int):
+def camera(
+    w_fine,
+    oversample: int,
+    exposure_fraction: float,
+    noise_fraction: float,
+    seed: int,
+    noise_std: float | None = None,
+):
     """(w_true, noise): what the camera sees of the fine-grid displacement, and its Gaussian noise.
 
     Sample n (time n/rate) averages the fine grid over the exposure ending at it.
+    The noise std is `noise_std` (mm) where given (an earlier recording's: the
+    camera does not change with the drive), else `noise_fraction` × the range of w_true.
     """
     m = int(oversample)
     k = max(1, int(round(exposure_fraction * m)))
@@ -245,7 +279,8 @@ def camera(w_fine, oversample: int, exposure_fraction: float, noise_fraction: fl
     averaged = np.convolve(padded, np.ones(k) / k, mode="valid")
     w_true = averaged[::m]
     rng = np.random.default_rng(seed)
-    noise = noise_fraction * np.ptp(w_true) * rng.standard_normal(len(w_true))
+    std = noise_fraction * np.ptp(w_true) if noise_std is None else noise_std
+    noise = std * rng.standard_normal(len(w_true))
     return w_true, noise
 
 
@@ -266,57 +301,29 @@ def synthetic_recording(
 
     - `drive`: a [`hybrid.Drive`][] (its rate is the camera's).
     - `strip`: RC parameters, gain and offset.
-    - `effect`: one of `HIDDEN_EFFECTS`; `effect_params` as from [`random_effect`][].
-      An effect outside the library (``electrostatic``, …) or several at once
-      (``"back_relaxation+saturation"``) go to `hybrid.ipmc._hidden_pairs.compound_recording`.
+    - `effect`: one of `HIDDEN_EFFECTS`, an effect outside the library
+      (``electrostatic``, …) or several at once (``"back_relaxation+saturation"``);
+      `effect_params` as from [`random_effect`][]. Made by
+      `hybrid.ipmc._hidden_pairs.compound_recording`.
     - `noise_fraction`: noise std as a fraction of the displacement's range.
     - `oversample`: fine-grid points per camera sample.
     - `exposure_fraction`: exposure time as a fraction of the frame interval; each
       sample averages the displacement over the exposure ending at its time stamp.
     - `seed`: seeds the noise.
 
-    The truth (effect, its parameters, the strip, the noise-free w) is in
-    ``metadata["hidden"]`` and ``extra["w_true"]``.
+    The truth (effect, its parameters, the values its form derived from the
+    signal, the strip, the noise std, the noise-free w) is in ``metadata["hidden"]``
+    and ``extra["w_true"]``; [`rerecord`][] records the same strip under another drive.
     """
-    from ..data._recording import Recording
+    from ._hidden_pairs import compound_recording  # one recipe for one effect, several, or none
 
-    if effect not in HIDDEN_EFFECTS:  # outside the library, or several at once
-        from ._hidden_pairs import compound_recording
-
-        return compound_recording(
-            drive,
-            strip,
-            effect,
-            effect_params,
-            noise_fraction=noise_fraction,
-            oversample=oversample,
-            exposure_fraction=exposure_fraction,
-            seed=seed,
-        )
-    params = dict(effect_params or {})
-    rate, v = float(drive.rate), np.asarray(drive.v, dtype=float)
-    m = int(oversample)
-    dt_fine = 1.0 / (rate * m)
-    v_fine = fine_drive(v, m, params["delay_samples"] if effect == "delay" else 0)
-    t_fine = np.arange(len(v_fine)) * dt_fine
-    s = rc_cascade_exact(strip, v_fine, dt_fine)
-    s = apply_hidden(effect, params, s, dt_fine, t_fine)
-    w_fine = strip.gain_mm_per_v * s + strip.offset_mm
-    w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed)
-    hidden = {
-        "effect": effect,
-        "effect_params": params,
-        "strip": dataclasses.asdict(strip),
-        "noise_fraction": noise_fraction,
-        "oversample": m,
-        "exposure_fraction": exposure_fraction,
-        "seed": seed,
-    }
-    return Recording(
-        t=np.asarray(drive.t, dtype=float),
-        v_in=v,
-        w=w_true + noise,
-        extra={"w_true": w_true},
-        metadata={"source": "hybrid.ipmc._synthetic", "drive": drive.metadata, "hidden": hidden},
-        name=f"synthetic {effect} ({drive.name}, seed {seed})",
+    return compound_recording(
+        drive,
+        strip,
+        effect,
+        effect_params,
+        noise_fraction=noise_fraction,
+        oversample=oversample,
+        exposure_fraction=exposure_fraction,
+        seed=seed,
     )
