@@ -193,7 +193,7 @@ def test_an_open_last_step_has_nothing_more_against_its_best_gains_only_with_a_r
     current = _candidate("none", 1.0, base)
     gains = {"delay": 1.3, "saturation": 1.1, "drift": 0.9, "backlash": 1.05}
     candidates = [_candidate(k, g, base / np.sqrt(g)) for k, g in gains.items()]
-    step = SimpleNamespace(chosen=None, current=current, candidates=candidates)
+    step = SimpleNamespace(chosen=None, current=current, candidates=candidates, bar=current.heldout.nmse)
     drive = [np.repeat(rng.uniform(-1, 1, 40), 15)]
     (entry,) = ambiguities([step], base, 0.01, drive, RATE, [], open_remainder=True)
     assert entry["open"] and entry["named"] == "none" and entry["step"] == 1
@@ -209,8 +209,17 @@ def test_an_open_last_step_has_nothing_more_against_its_best_gains_only_with_a_r
     assert "named nothing" in sentence(entry) and "delay (gain 1.3)" in sentence(entry)
     assert entry["evidence"] == "remainder"
     # no candidate gained: nothing to design against
-    losers = SimpleNamespace(chosen=None, current=current, candidates=[candidates[2]])
+    losers = SimpleNamespace(
+        chosen=None, current=current, candidates=[candidates[2]], bar=current.heldout.nmse
+    )
     assert ambiguities([losers], base, 0.01, drive, RATE, [], open_remainder=True) == []
+    # an effect-free fit as good on training reaches held-out NMSE 0.8: delay (1/1.3 = 0.77) is still better
+    # than it, saturation (1/1.1 = 0.91) is not: its gain is the simulation's extrapolation, no alternative
+    bar = SimpleNamespace(chosen=None, current=current, candidates=candidates, bar=0.8)
+    (entry,) = ambiguities([bar], base, 0.01, drive, RATE, [], open_remainder=True)
+    assert [r["name"] for r in entry["rivals"]] == ["delay"]
+    worse = SimpleNamespace(chosen=None, current=current, candidates=candidates, bar=0.7)
+    assert ambiguities([worse], base, 0.01, drive, RATE, [], open_remainder=True) == []
 
 
 def test_at_the_floor_a_last_step_is_open_only_on_a_significant_gain_over_every_equally_good_fit():

@@ -40,7 +40,12 @@ step's candidates, by held-out gain (the entry has ``"named": "none"``,
   (``unexplained``); the rivals are the candidates better than nothing more
   on the held-out part (gain above 1) whose held-out predictions differ from
   nothing more's by at least the noise floor (RMS): a different model, not
-  nothing more again;
+  nothing more again; and better held out than every effect-free fit as good
+  on training (the step's bar): where one of those does as well, the remainder
+  is how the model extrapolates (`remainder`'s ``underdetermined``: effect-free
+  seed 7 of `experiments/design_loop.py`, 10.5× the floor, every candidate
+  0.98× over the bar), which no effect and no designed drive between effects
+  answers;
 - ``"significant"``: the final model is at the floor, yet a candidate is
   better than nothing more in significantly many decorrelated held-out chunks
   (the sign test above, p ≤ `ALPHA`, the candidate's wins) and by a held-out
@@ -249,12 +254,14 @@ def _open_step(
     for c in found:
         rival = _rival(current, c, scale, noise_std)
         rival["candidate_p_value"] = sign_tail(rival["chunks"] - rival["named_wins"], rival["chunks"])
+        gain = step.bar / max(c.heldout.nmse, 1e-300)  # over every effect-free fit as good on training
         if remainder:
-            # a candidate that predicts what nothing more predicts, to within the noise, is no alternative
-            keep = not rival["within_noise"]
+            # a candidate that predicts what nothing more predicts, to within the noise, is no alternative,
+            # nor one that an effect-free fit as good on training matches held out: what is left is
+            # then how the model extrapolates (the remainder's "underdetermined"), not a missing effect
+            keep = not rival["within_noise"] and gain > 1.0
         else:
             # at the floor: only a significant, not-small gain over every effect-free fit as good
-            gain = step.bar / max(c.heldout.nmse, 1e-300)
             keep = rival["candidate_p_value"] <= ALPHA and gain >= HINT_GAIN
         if keep:
             rivals.append(rival)
