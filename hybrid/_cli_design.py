@@ -97,6 +97,12 @@ def _rivals(folder: Path, step: int | None) -> tuple[dict, dict, float]:
         raise InputError(
             f"{report_path} has no 'ambiguous' key: it was written by an older hybrid; run hybrid diagnose again"
         )
+    if not entries and report.get("unexplained"):  # a question, but no rival models to design against
+        raise InputError(
+            f"{report_path}: the diagnosis found nothing ambiguous, so there are no rivals to tell apart, but "
+            "it leaves a remainder no searched effect explains: record more under a rich drive (a multilevel "
+            "PRBS) or add an effect of your own (docs/effects.md), then diagnose the recordings together"
+        )
     if not entries:
         raise InputError(
             f"{report_path}: the diagnosis found nothing ambiguous, so there are no rivals to tell apart "

@@ -174,10 +174,18 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     plain = tmp_path / "plain"
     plain.mkdir()
     report = json.loads((folder / "report.json").read_text())
-    (plain / "report.json").write_text(json.dumps({**report, "ambiguous": []}))
+    (plain / "report.json").write_text(json.dumps({**report, "ambiguous": [], "unexplained": None}))
     refused = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "x.csv")
     assert refused.returncode == 2 and "nothing ambiguous" in refused.stderr
+    assert "no design is needed" in refused.stderr
     assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()
+    # nothing ambiguous, but a remainder no searched effect explains: not "no design is needed"
+    (plain / "report.json").write_text(
+        json.dumps({**report, "ambiguous": [], "unexplained": {"ratio_to_floor": 3.0}})
+    )
+    refused = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "x.csv")
+    assert refused.returncode == 2 and "record more under a rich drive" in refused.stderr
+    assert "no design is needed" not in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
 
 
 def _candidate(name, gain, residual, eligible=False):
