@@ -27,6 +27,13 @@ models fitted to it:
 4. gain (mm/V) and offset; a camera that integrates over its exposure and
    samples at the recording rate; Gaussian noise.
 
+Some forms take a scale from the signal they act on (a saturation's σ± from
+the drive-side signal's peaks, a Preisach loop's widths from its span; the
+noise std from the displacement's range): the recording keeps them
+(``metadata["hidden"]["derived"]``, ``["noise_std"]``), and
+`hybrid.ipmc.rerecord` records the same strip under another drive with them,
+as a second run on one rig would be.
+
 Several hidden effects at once (``"back_relaxation+saturation"``) and effects
 outside the library (``electrostatic``, ``dead_zone``, ``rate_dependent``,
 ``self_heating``: `hybrid.ipmc._outside_effects`) are made by
