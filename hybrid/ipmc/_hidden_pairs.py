@@ -170,8 +170,7 @@ def compound_recording(
             derived[name] = given.get(name) or hidden_derived(name, params[name], s)
             s = apply_hidden(name, params[name], s, dt_fine, t_fine, derived[name])
     w_fine = strip.gain_mm_per_v * s + strip.offset_mm
-    w_true, noise = camera(w_fine, m, exposure_fraction, noise_fraction, seed, noise_std)
-    std = float(noise_fraction * np.ptp(w_true)) if noise_std is None else float(noise_std)
+    w_true, noise, std = camera(w_fine, m, exposure_fraction, noise_fraction, seed, noise_std)
     spec = "+".join(names) or "none"
     hidden = {
         "effect": spec,

@@ -274,7 +274,7 @@ def camera(
     seed: int,
     noise_std: float | None = None,
 ):
-    """(w_true, noise): what the camera sees of the fine-grid displacement, and its Gaussian noise.
+    """(w_true, noise, its std): what the camera sees of the fine-grid displacement, and its Gaussian noise.
 
     Sample n (time n/rate) averages the fine grid over the exposure ending at it.
     The noise std is `noise_std` (mm) where given (an earlier recording's: the
@@ -286,9 +286,8 @@ def camera(
     averaged = np.convolve(padded, np.ones(k) / k, mode="valid")
     w_true = averaged[::m]
     rng = np.random.default_rng(seed)
-    std = noise_fraction * np.ptp(w_true) if noise_std is None else noise_std
-    noise = std * rng.standard_normal(len(w_true))
-    return w_true, noise
+    std = float(noise_fraction * np.ptp(w_true) if noise_std is None else noise_std)
+    return w_true, std * rng.standard_normal(len(w_true)), std
 
 
 def synthetic_recording(
