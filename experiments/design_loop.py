@@ -19,11 +19,16 @@ multilevel PRBS, made by numpy code separate from the extensions):
    (`hybrid.ipmc.rerecord`: the same strip, effects and noise std, and the
    values the effects' forms took from the first recording's signal — a
    saturation's level, a loop's span — kept; another noise seed), and
-   `diagnose` runs on the old and the new recordings together;
+   `diagnose` runs on the old and the new recordings together. The design
+   keeps the first `--rich` share of the drive as a multilevel PRBS
+   (`design_drive(rich=)`, half by default). Where nothing is ambiguous but a remainder is
+   unexplained, `hybrid design` writes a rich drive instead
+   (`hybrid.rich_drive`, a multilevel PRBS of its own seed), recorded and
+   diagnosed alike;
 3. **control**: a multilevel PRBS of the same length and amplitude (another
    seed), recorded and diagnosed with the old one alike.
 
-A draw whose diagnosis asks for no design keeps its *before* result in the
+A draw whose diagnosis asks for neither keeps its *before* result in the
 design column (a lab would run no designed experiment; the control column
 still adds its recording). Per draw: the criterion T (mean squared difference
 of the rivals' predictions / σ², the smallest pair) of the designed drive and
@@ -124,7 +129,7 @@ def criterion(models: dict, v: np.ndarray, rate: float, noise_std: float) -> flo
 def run_draw(effect: str, seed: int, args, group: str) -> dict:
     from discrepancy import draw, expected_names
 
-    from hybrid import CAUSES, Drive, design_drive, diagnose
+    from hybrid import CAUSES, Drive, design_drive, diagnose, rich_drive
     from hybrid.ipmc import discrepancy_drive, hidden_effects, rerecord
 
     t0 = time.perf_counter()
@@ -158,6 +163,7 @@ def run_draw(effect: str, seed: int, args, group: str) -> dict:
             starts=args.starts,
             steps=args.steps,
             seed=seed,
+            **({} if args.rich is None else {"rich": args.rich}),
         )
         designed = Drive(design.t, design.v_in, "designed", {"rate": args.rate, "duration": args.duration})
         after = diagnose([old, record(designed, 20_000 + seed)])
@@ -169,6 +175,22 @@ def run_draw(effect: str, seed: int, args, group: str) -> dict:
             "criterion": criterion(models, design.v_in, args.rate, sigma),
             "control_criterion": criterion(models, control_drive.v, args.rate, sigma),
             "pair": list(design.pair),
+            "after": outcome(after, expected),
+        }
+    elif before.unexplained is not None:  # nothing to tell apart: `hybrid design` writes a rich drive
+        t1 = time.perf_counter()
+        t, v = rich_drive(duration=args.duration, rate=args.rate, amplitude=args.amplitude, seed=seed)
+        rich = Drive(t, v, "rich", {"rate": args.rate, "duration": args.duration})
+        after = diagnose([old, record(rich, 20_000 + seed)])
+        row["design"] = {
+            "step": None,
+            "rivals": [],
+            "open": False,
+            "rich_drive": True,
+            "seconds": time.perf_counter() - t1,
+            "criterion": None,
+            "control_criterion": None,
+            "pair": [],
             "after": outcome(after, expected),
         }
     else:
@@ -221,10 +243,16 @@ def tables(rows: list[dict]) -> str:
         ]
         for r in mine:
             d = r["design"]
-            asked = "no" if d is None else ("open: " if d["open"] else "") + " vs ".join(d["rivals"])
+            asked = (
+                "no"
+                if d is None
+                else "rich PRBS (unexplained)"
+                if d.get("rich_drive")
+                else ("open: " if d["open"] else "") + " vs ".join(d["rivals"])
+            )
             after = _mark(r["before"]) + " (no design)" if d is None else _mark(d["after"])
-            t_design = "" if d is None else format(d["criterion"], ".3g")
-            t_control = "" if d is None else format(d["control_criterion"], ".3g")
+            t_design = "" if d is None or d["criterion"] is None else format(d["criterion"], ".3g")
+            t_control = "" if d is None or d["criterion"] is None else format(d["control_criterion"], ".3g")
             b = r["before"]
             best = b["last_step"][0] if b["last_step"] else None
             lead = "" if best is None else f"{best['name']} ({best['gain']:.3g}, {best['p_value']:.2g})"
@@ -256,10 +284,12 @@ def tables(rows: list[dict]) -> str:
             cells.insert(1, f"{len(half)} ({sum(bool(_flag(o)) for o in half)})")
             label = "**total**" if spec == "total" else spec
             out.append(f"| {label} | {len(sel)} | " + " | ".join(cells) + " |")
-        asked = [r for r in mine if r["design"] is not None]
+        asked = [r for r in mine if r["design"] is not None and not r["design"].get("rich_drive")]
+        rich = sum(bool(r["design"] and r["design"].get("rich_drive")) for r in mine)
         out.append("")
         out.append(
-            f"A design was asked for in {len(asked)}/{len(mine)} draws"
+            f"A design was asked for in {len(asked)}/{len(mine)} draws, a rich drive (nothing ambiguous, a "
+            f"remainder unexplained) in {rich}"
             + (
                 f"; T designed / T control: median {np.median([r['design']['criterion'] / max(r['design']['control_criterion'], 1e-300) for r in asked]):.3g}×."
                 if asked
@@ -319,12 +349,19 @@ def main(argv=None) -> int:
     parser.add_argument("--held-out", default=HELD_OUT, help="pairs reported apart ('' for none)")
     parser.add_argument("--held-out-seeds", default="4,5")
     parser.add_argument("--effect-free", type=int, default=4, help="effect-free draws (seeds 0..K-1)")
+    parser.add_argument("--effect-free-seeds", default=None, help="comma-separated seeds instead")
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--amplitude", type=float, default=2.0, help="the drives' range ±A (the DAC's), V")
     parser.add_argument("--noise", type=float, default=0.01, help="noise std / displacement range")
     parser.add_argument("--starts", type=int, default=4)
     parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument(
+        "--rich",
+        type=float,
+        default=None,
+        help="share of the designed drive kept as PRBS (default: design_drive's)",
+    )
     parser.add_argument("--merge", nargs="+", default=None, help="JSON files of earlier runs to join")
     parser.add_argument("--out", default="experiments/results/design_loop.json")
     args = parser.parse_args(argv)
@@ -345,7 +382,12 @@ def main(argv=None) -> int:
     plan = [(canonical(e), s, "tuning") for e in args.effects.split(",") if e for s in seeds]
     held_seeds = [int(s) for s in args.held_out_seeds.split(",") if s]
     plan += [(canonical(e), s, "held-out") for e in args.held_out.split(",") if e for s in held_seeds]
-    plan += [("none", s, "effect-free") for s in range(args.effect_free)]
+    free = (
+        [int(s) for s in args.effect_free_seeds.split(",") if s]
+        if args.effect_free_seeds is not None
+        else list(range(args.effect_free))
+    )
+    plan += [("none", s, "effect-free") for s in free]
     rows = []
     for effect, seed, group in plan:
         row = run_draw(effect, seed, args, group)
@@ -356,6 +398,8 @@ def main(argv=None) -> int:
             + (
                 "no design"
                 if d is None
+                else f"rich PRBS → {_mark(d['after'])}"
+                if d.get("rich_drive")
                 else f"design {' vs '.join(d['rivals'])} T {d['criterion']:.3g} "
                 f"(control {d['control_criterion']:.3g}) → {_mark(d['after'])}"
             )

@@ -59,7 +59,11 @@ from .data._drives import DRIVES as DRIVES, load_drive as load_drive, make_drive
 from .data._mapping import load_mapped as load_mapped, load_pair as load_pair
 from .data._recording import Recording as Recording
 from .data._split import Split as Split
-from .discovery._design import DriveDesign as DriveDesign, design_drive as design_drive
+from .discovery._design import (
+    DriveDesign as DriveDesign,
+    design_drive as design_drive,
+    rich_drive as rich_drive,
+)
 from .discovery._diagnosis import (
     CAUSES as CAUSES,
     DiagnoseSettings as DiagnoseSettings,

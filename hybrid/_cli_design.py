@@ -7,7 +7,12 @@ beside it (``step<k>_<effect>.eqx``, ``step<k>_none.eqx``) and the noise floor; 
 within the limits given; writes the drive (CSV ``t,v_in``, which
 ``rig record --drive-file`` and ``hybrid simulate --drive-file`` play) and a
 figure of the rivals' predictions under it and under the control (``.png``
-beside the CSV). Nothing is written until the design has succeeded.
+beside the CSV). A diagnosis with nothing ambiguous but a remainder that no
+searched effect explains gets a rich drive instead (`hybrid.rich_drive`, a
+multilevel PRBS within the same limits): there are no rivals to tell apart, and
+another recording under a rich drive, diagnosed with the first, is the
+experiment that can show what one did not. Nothing is written until the
+design has succeeded.
 """
 
 from __future__ import annotations
@@ -57,6 +62,14 @@ def add_design(sub, B) -> None:
     p.add_argument("--starts", type=B.integer(*B.STARTS), default=4, help="starts of the gradient search")
     p.add_argument("--steps", type=B.integer(*B.MAX_STEPS), default=300, help="Adam steps per start")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--rich",
+        type=B.number(0.0, 0.95),
+        default=None,
+        metavar="SHARE",
+        help="share of the drive, at its start, kept as a multilevel PRBS (default: hybrid.design_drive's "
+        "rich, 0.5; 0: all designed)",
+    )
     p.add_argument("--out", required=True, help="the drive, .csv (t,v_in); the figure goes beside it as .png")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.add_argument(
@@ -81,8 +94,11 @@ def _bounds(args) -> dict:
     return {"bounds": (low, high)}
 
 
-def _rivals(folder: Path, step: int | None) -> tuple[dict, dict, float]:
-    """(the chosen ``ambiguous`` entry, its rivals' models by name, the noise floor's σ) of a diagnosis folder."""
+def _rivals(folder: Path, step: int | None) -> tuple[dict | None, dict, float]:
+    """(the chosen ``ambiguous`` entry, its rivals' models by name, the noise floor's σ) of a diagnosis folder.
+
+    (None, {}, nan) where nothing is ambiguous but a remainder is unexplained: a rich drive's case.
+    """
     from .core._serialise import load_model
 
     report_path = folder / "report.json"
@@ -97,12 +113,8 @@ def _rivals(folder: Path, step: int | None) -> tuple[dict, dict, float]:
         raise InputError(
             f"{report_path} has no 'ambiguous' key: it was written by an older hybrid; run hybrid diagnose again"
         )
-    if not entries and report.get("unexplained"):  # a question, but no rival models to design against
-        raise InputError(
-            f"{report_path}: the diagnosis found nothing ambiguous, so there are no rivals to tell apart, but "
-            "it leaves a remainder no searched effect explains: record more under a rich drive (a multilevel "
-            "PRBS) or add an effect of your own (docs/effects.md), then diagnose the recordings together"
-        )
+    if not entries and report.get("unexplained") and step is None:  # a question, but no rivals
+        return None, {}, math.nan
     if not entries:
         raise InputError(
             f"{report_path}: the diagnosis found nothing ambiguous, so there are no rivals to tell apart "
@@ -132,13 +144,9 @@ def _rivals(folder: Path, step: int | None) -> tuple[dict, dict, float]:
 
 
 def cmd_design(args) -> None:
-    import numpy as np
-
     from ._cli_outputs import check_outputs, out_file
-    from .discovery._design import design_drive
+    from .discovery._design import design_drive, rich_drive
     from .physics._plugins import resolve_physics
-    from .util._atomic import atomic_open
-    from .util._figures import pyplot, save_png
 
     limits = _bounds(args)
     folder = Path(args.diagnosis)
@@ -151,49 +159,81 @@ def cmd_design(args) -> None:
         if args.physics is not None:  # a plug-in's classes imported before its models load
             resolve_physics(args.physics, [])
         entry, models, noise = _rivals(folder, args.step)
-        if not args.quiet:
-            print(
-                f"design: step {entry['step']}: {' vs '.join('nothing more' if m == 'none' else m for m in models)} "
-                f"(noise floor σ = {noise:.3g}), "
-                f"{args.starts} starts × {args.steps} steps",
-                flush=True,
+        if entry is None:
+            t, drive = rich_drive(
+                duration=args.duration, rate=args.rate, slew=args.slew, seed=args.seed, **limits
             )
-        design = design_drive(
-            models,
-            duration=args.duration,
-            rate=args.rate,
-            slew=args.slew,
-            noise_std=noise,
-            starts=args.starts,
-            steps=args.steps,
-            seed=args.seed,
-            **limits,
+            _write(
+                out, figure, t, drive, {}, "a multilevel PRBS (nothing ambiguous; a remainder unexplained)"
+            )
+        else:
+            if not args.quiet:
+                rivals = " vs ".join("nothing more" if m == "none" else m for m in models)
+                print(
+                    f"design: step {entry['step']}: {rivals} (noise floor σ = {noise:.3g}), "
+                    f"{args.starts} starts × {args.steps} steps",
+                    flush=True,
+                )
+            rich = {} if args.rich is None else {"rich": args.rich}
+            design = design_drive(
+                models,
+                duration=args.duration,
+                rate=args.rate,
+                slew=args.slew,
+                noise_std=noise,
+                starts=args.starts,
+                steps=args.steps,
+                seed=args.seed,
+                **limits,
+                **rich,
+            )
+            title = (
+                f"designed drive: T = {design.criterion:.3g} (control PRBS {design.control_criterion:.3g})"
+            )
+            _write(out, figure, design.t, design.v_in, design.predictions, title)
+    if entry is None:
+        print(
+            "the diagnosis found nothing ambiguous, so no rivals to tell apart, but it leaves a remainder no "
+            f"searched effect explains: wrote a multilevel PRBS ({len(drive)} samples at {args.rate:g} Hz within "
+            f"[{drive.min():.3g}, {drive.max():.3g}]) to {out} and {figure}; record it and run hybrid diagnose "
+            "on both recordings together, or add an effect of your own (docs/effects.md)"
         )
-        plt = pyplot()
-        fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-        axes[0].plot(design.t, design.v_in, lw=1)
-        axes[0].set(
-            ylabel="drive",
-            title=f"designed drive: T = {design.criterion:.3g} (control PRBS {design.control_criterion:.3g})",
-        )
-        for name, prediction in design.predictions.items():
-            axes[1].plot(design.t, prediction, lw=1, label=name)
-        axes[1].set(xlabel="time (s)", ylabel="predicted output", title="the rivals' predictions under it")
-        axes[1].legend(fontsize=8)
-        fig.tight_layout()
-        save_png(fig, figure)
-        with atomic_open(out, "w", newline="") as handle:
-            handle.write("t,v_in\n")
-            np.savetxt(handle, np.column_stack([design.t, design.v_in]), delimiter=",", fmt="%.17g")
+        return
     low, high = design.limits["low"], design.limits["high"]
     slew = f", slew ≤ {args.slew:g}/s" if args.slew else ""
+    kept = f", the first {design.rich_samples} kept as a multilevel PRBS" if design.rich_samples else ""
     versus = (
         f", {design.criterion / design.control_criterion:.3g}× a multilevel PRBS's {design.control_criterion:.3g}"
         if design.control_criterion > 0
         else ""
     )
     print(
-        f"designed {len(design.v_in)} samples at {args.rate:g} Hz within [{low:g}, {high:g}]{slew}: "
+        f"designed {len(design.v_in)} samples at {args.rate:g} Hz within [{low:g}, {high:g}]{slew}{kept}: "
         f"T = {design.criterion:.3g} ({design.pair[0]} vs {design.pair[1]}){versus}"
     )
     print(f"wrote {out} and {figure}")
+
+
+def _write(out: Path, figure: Path, t, drive, predictions: dict, title: str) -> None:
+    """The drive as CSV (t,v_in) and its figure (with the rivals' predictions, where there are rivals)."""
+    import numpy as np
+
+    from .util._atomic import atomic_open
+    from .util._figures import pyplot, save_png
+
+    plt = pyplot()
+    fig, axes = plt.subplots(2 if predictions else 1, 1, figsize=(9, 5 if predictions else 3), sharex=True)
+    top = axes[0] if predictions else axes
+    top.plot(t, drive, lw=1)
+    top.set(ylabel="drive", title=title)
+    if predictions:
+        for name, prediction in predictions.items():
+            axes[1].plot(t, prediction, lw=1, label=name)
+        axes[1].set(ylabel="predicted output", title="the rivals' predictions under it")
+        axes[1].legend(fontsize=8)
+    (axes[-1] if predictions else axes).set(xlabel="time (s)")
+    fig.tight_layout()
+    save_png(fig, figure)
+    with atomic_open(out, "w", newline="") as handle:
+        handle.write("t,v_in\n")
+        np.savetxt(handle, np.column_stack([t, drive]), delimiter=",", fmt="%.17g")

@@ -12,6 +12,7 @@ scipy's `lfilter`, not by the library.
 
 from __future__ import annotations
 
+import inspect
 import json
 from types import SimpleNamespace
 
@@ -127,8 +128,8 @@ def _rivals(diagnosis):
 )
 def test_a_designed_drive_keeps_every_limit_and_separates_the_rivals_more_than_a_prbs(confounded, limits):
     noise = confounded.noise_floor.std
-    design = hybrid.design_drive(
-        _rivals(confounded), duration=20.0, rate=RATE, noise_std=noise, starts=2, steps=60, **limits
+    design = hybrid.design_drive(  # all designed (rich=0): the gradient's work alone
+        _rivals(confounded), duration=20.0, rate=RATE, noise_std=noise, starts=2, steps=60, rich=0.0, **limits
     )
     low, high = limits.get("bounds", (-limits.get("amplitude", 0.0), limits.get("amplitude", 0.0)))
     assert design.v_in.shape == (600,) and np.allclose(np.diff(design.t), 1 / RATE)
@@ -141,6 +142,43 @@ def test_a_designed_drive_keeps_every_limit_and_separates_the_rivals_more_than_a
     # the gradient does the work: the control PRBS is the first start, and the design ends far beyond
     # it (4.2–5.4× when written; ≥ 2 asserted). A zero gradient w.r.t. the drive left it at 1×.
     assert design.criterion >= 2.0 * design.control_criterion > 0
+
+
+def test_a_rich_share_keeps_the_control_prbs_at_the_start_and_designs_the_rest(confounded):
+    noise, limits = confounded.noise_floor.std, {"amplitude": 2.2, "slew": 1.5}
+    rivals = _rivals(confounded)
+    design = hybrid.design_drive(
+        rivals, duration=20.0, rate=RATE, noise_std=noise, starts=2, steps=60, rich=0.4, seed=3, **limits
+    )
+    _, control = hybrid.rich_drive(duration=20.0, rate=RATE, seed=3, **limits)
+    kept = design.rich_samples
+    assert kept == 240  # 0.4 of 600 samples
+    np.testing.assert_array_equal(design.v_in[:kept], control[:kept])  # the kept part: the control's own
+    assert np.max(np.abs(design.v_in)) <= 2.2  # and the limits hold across the seam
+    assert np.max(np.abs(np.diff(design.v_in))) <= 1.5 / RATE * (1 + 1e-9)
+    assert not np.allclose(design.v_in[kept:], control[kept:])  # the rest was designed
+    a, b = (np.asarray(m.predict(design.v_in, 1 / RATE)) for m in rivals.values())
+    assert design.criterion == pytest.approx(
+        np.mean((a - b) ** 2) / noise**2, rel=1e-9
+    )  # over the whole drive
+    assert design.criterion > design.control_criterion > 0
+    for bad in (1.0, -0.1, True, float("nan")):
+        with pytest.raises(hybrid.InputError, match="rich must be a share") as caught:
+            hybrid.design_drive(rivals, duration=5.0, rate=RATE, amplitude=1.0, rich=bad)
+        assert "\n" not in str(caught.value)
+
+
+def test_a_rich_drive_keeps_its_limits_and_refuses_bad_ones_in_one_line():
+    t, v = hybrid.rich_drive(duration=40.0, rate=RATE, bounds=(0.3, 1.8), slew=0.5, seed=5)
+    assert v.shape == t.shape == (1200,) and np.allclose(np.diff(t), 1 / RATE)
+    assert np.min(v) >= 0.3 and np.max(v) <= 1.8 and np.max(np.abs(np.diff(v))) <= 0.5 / RATE * (1 + 1e-9)
+    assert np.ptp(v) > 0.5 * 1.5  # levels spread over the range, not a constant
+    again = hybrid.rich_drive(duration=40.0, rate=RATE, bounds=(0.3, 1.8), slew=0.5, seed=5)[1]
+    np.testing.assert_array_equal(v, again)
+    for kwargs, words in (({"amplitude": -1.0}, "amplitude must be > 0"), ({}, "amplitude=A")):
+        with pytest.raises(hybrid.InputError, match=words) as caught:
+            hybrid.rich_drive(duration=5.0, rate=RATE, **kwargs)
+        assert "\n" not in str(caught.value) and str(caught.value).startswith("rich_drive:")
 
 
 def test_design_refuses_bad_limits_in_one_line(confounded):
@@ -170,6 +208,15 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert table.shape == (300, 2) and np.max(np.abs(table[:, 1])) <= 2.0
     assert np.max(np.abs(np.diff(table[:, 1]))) <= 4.0 / 30 * (1 + 1e-6)
     assert (tmp_path / "drive.png").stat().st_size > 0 and "× a multilevel PRBS" in done.stdout
+    # the default keeps design_drive's rich share (half of 300 samples) as the control PRBS, and says so
+    assert "the first 150 kept as a multilevel PRBS" in done.stdout
+    default = inspect.signature(hybrid.design_drive).parameters["rich"].default
+    helped = h.run_hybrid(tmp_path, "design", "--help")
+    assert f"rich, {default:g}" in " ".join(helped.stdout.split())
+    bad = h.run_hybrid(
+        tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--rich", "1", "--out", "y.csv"
+    )
+    assert bad.returncode == 2 and "--rich" in bad.stderr and not (tmp_path / "y.csv").exists()
     # a diagnosis with nothing ambiguous: one line, no file
     plain = tmp_path / "plain"
     plain.mkdir()
@@ -179,13 +226,22 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert refused.returncode == 2 and "nothing ambiguous" in refused.stderr
     assert "no design is needed" in refused.stderr
     assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()
-    # nothing ambiguous, but a remainder no searched effect explains: not "no design is needed"
+    # nothing ambiguous, but a remainder no searched effect explains: a rich drive to record, written
     (plain / "report.json").write_text(
         json.dumps({**report, "ambiguous": [], "unexplained": {"ratio_to_floor": 3.0}})
     )
-    refused = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "x.csv")
-    assert refused.returncode == 2 and "record more under a rich drive" in refused.stderr
-    assert "no design is needed" not in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
+    done = h.run_hybrid(
+        tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--slew", "3", "--out", "x.csv"
+    )
+    assert done.returncode == 0 and "wrote a multilevel PRBS" in done.stdout, done.stderr
+    assert "diagnose on both recordings together" in done.stdout
+    table = np.loadtxt(tmp_path / "x.csv", delimiter=",", skiprows=1)
+    expected = hybrid.rich_drive(duration=5.0, rate=30.0, amplitude=1.0, slew=3.0, seed=0)
+    np.testing.assert_array_equal(table[:, 1], expected[1])
+    assert np.max(np.abs(table[:, 1])) <= 1.0 and np.max(np.abs(np.diff(table[:, 1]))) <= 3.0 / 30 * (
+        1 + 1e-9
+    )
+    assert (tmp_path / "x.png").stat().st_size > 0
 
 
 def _candidate(name, gain, residual, eligible=False):

@@ -34,6 +34,20 @@ The samples are `duration`·`rate` at the rig's `rate`. Several starts
 (`starts`, multilevel PRBS) are optimised and the best drive visited is kept; the result
 carries the criterion of a multilevel PRBS of the same length and range (the
 control) for comparison.
+
+**A rich part, kept** (`rich`): the T-optimal drive for two rivals is often
+bang-bang (all its samples at the range's ends), and a recording under it
+tells those two apart but nothing else: the diagnosis of the old and new
+recordings together must still fit every effect present, and a level-dependent
+one (a saturation's curvature) is not seen at two levels (on
+`experiments/design_loop.py`'s back_relaxation+saturation seed 1 the joint
+diagnosis then named an even response instead of the saturation it had named
+before). `rich` ∈ [0, 1) keeps that share of the drive, at its start, as the
+control's multilevel PRBS and designs the rest, with T over the whole drive: a
+compound design in the spirit of Atkinson's DT-optimum designs
+(discrimination and estimation in one experiment). Half by default: on that
+draw the joint diagnosis then kept the saturation (T 0.39 against 1.18 all
+designed; the control's 0.11). 0: all designed.
 """
 
 from __future__ import annotations
@@ -63,6 +77,8 @@ class DriveDesign:
     """T of the drive: mean squared difference of the two closest rivals' predictions / σ²."""
     control_criterion: float
     """T of the control: a multilevel PRBS of the same length and range, slew-limited alike."""
+    rich_samples: int
+    """Samples at the drive's start kept as the control's multilevel PRBS (`rich`), not designed."""
     pair: tuple[str, str]
     """The two rivals whose predictions are closest under the drive (the criterion's pair)."""
     predictions: dict
@@ -73,12 +89,56 @@ class DriveDesign:
     """T reached from each random start (the best is kept)."""
 
 
-def _check(name, value, positive=True):
+def _check(name, value, positive=True, who="design_drive"):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(f"design_drive: {name} must be a finite number, got {value!r}")
+        raise InputError(f"{who}: {name} must be a finite number, got {value!r}")
     if positive and value <= 0:
-        raise InputError(f"design_drive: {name} must be > 0, got {value!r}")
+        raise InputError(f"{who}: {name} must be > 0, got {value!r}")
     return float(value)
+
+
+def _limits(who, duration, rate, amplitude, bounds, slew):
+    """(samples, Δt, low, high, slew) of a drive within the rig's limits, each checked (one line if not)."""
+    duration, rate = _check("duration", duration, who=who), _check("rate", rate, who=who)
+    if (amplitude is None) == (bounds is None):
+        raise InputError(f"{who}: give the drive's range as amplitude=A (|u| ≤ A) or bounds=(low, high)")
+    if amplitude is not None:
+        low, high = -_check("amplitude", amplitude, who=who), _check("amplitude", amplitude, who=who)
+    else:
+        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
+            raise InputError(f"{who}: bounds must be (low, high), got {bounds!r}")
+        low = _check("low bound", bounds[0], False, who)
+        high = _check("high bound", bounds[1], False, who)
+        if not low < high:
+            raise InputError(f"{who}: bounds must have low < high, got {bounds!r}")
+    if slew is not None:
+        slew = _check("slew", slew, who=who)
+    n = int(round(duration * rate))
+    if n < 2:
+        raise InputError(f"{who}: {duration:g} s at {rate:g} Hz is fewer than 2 samples")
+    return n, 1.0 / rate, low, high, slew
+
+
+def rich_drive(
+    *,
+    duration: float,
+    rate: float,
+    amplitude: float | None = None,
+    bounds: tuple[float, float] | None = None,
+    slew: float | None = None,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(t, drive): a multilevel PRBS within the rig's limits, the drive to record where nothing is ambiguous.
+
+    The design's control (`DriveDesign.control_criterion`): levels uniform over
+    the range, each held 0.5–5 s, slew-limited like a design. What `hybrid
+    design` writes when a diagnosis leaves a remainder that no searched effect
+    explains and no rivals to tell apart: a rich drive, so that the recordings
+    diagnosed together carry what one did not. Limits as `design_drive`'s.
+    """
+    n, dt, low, high, slew = _limits("rich_drive", duration, rate, amplitude, bounds, slew)
+    drive = _control(n, low, high, slew, dt, seed)
+    return np.arange(n) / rate, drive
 
 
 def _feasible(u, low, high, slew, dt):
@@ -111,6 +171,11 @@ def _criterion(models, u, dt, noise_std, softness):
     return -softness * jax.nn.logsumexp(-pairs / softness), pairs, outs
 
 
+def _control(n, low, high, slew, dt, seed) -> np.ndarray:
+    """The control drive: `_levels` made feasible (slew-limited)."""
+    return np.asarray(_feasible(jnp.asarray(_levels(n, low, high, dt, seed)), low, high, slew, dt))
+
+
 def _levels(n, low, high, dt, seed):
     """The control's levels: a multilevel PRBS over [low, high], holds 0.5–5 s."""
     rng = np.random.default_rng(seed)
@@ -132,6 +197,7 @@ def design_drive(
     steps: int = 300,
     learning_rate: float = 0.05,
     seed: int = 0,
+    rich: float = 0.5,
 ) -> DriveDesign:
     """The drive within the rig's limits under which rival models' predictions differ most (T-optimal).
 
@@ -148,6 +214,9 @@ def design_drive(
     - `starts`, `steps`, `learning_rate`, `seed`: starts (the control, then
       random multilevel PRBS), Adam steps each, its step size as a fraction of
       the range's half-width, and the seed.
+    - `rich`: the share of the drive, at its start, kept as the control's
+      multilevel PRBS (not designed), in [0, 1); T is over the whole drive.
+      0.5 by default (see the module's docstring); 0: all designed.
     """
     import optax
 
@@ -156,29 +225,13 @@ def design_drive(
     for name, model in models.items():
         if not isinstance(model, Model):
             raise InputError(f"design_drive: rival {name!r} is a {type(model).__name__}, not a hybrid.Model")
-    duration, rate = _check("duration", duration), _check("rate", rate)
-    if (amplitude is None) == (bounds is None):
-        raise InputError(
-            "design_drive: give the drive's range as amplitude=A (|u| ≤ A) or bounds=(low, high)"
-        )
-    if amplitude is not None:
-        low, high = -_check("amplitude", amplitude), _check("amplitude", amplitude)
-    else:
-        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
-            raise InputError(f"design_drive: bounds must be (low, high), got {bounds!r}")
-        low, high = _check("low bound", bounds[0], False), _check("high bound", bounds[1], False)
-        if not low < high:
-            raise InputError(f"design_drive: bounds must have low < high, got {bounds!r}")
-    if slew is not None:
-        slew = _check("slew", slew)
+    n, dt, low, high, slew = _limits("design_drive", duration, rate, amplitude, bounds, slew)
     noise_std = _check("noise_std", noise_std)
+    if isinstance(rich, bool) or not isinstance(rich, (int, float)) or not 0.0 <= rich < 1.0:
+        raise InputError(f"design_drive: rich must be a share in [0, 1), got {rich!r}")
     for label, value in (("starts", starts), ("steps", steps)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise InputError(f"design_drive: {label} must be a whole number ≥ 1, got {value!r}")
-    n = int(round(duration * rate))
-    if n < 2:
-        raise InputError(f"design_drive: {duration:g} s at {rate:g} Hz is fewer than 2 samples")
-    dt = 1.0 / rate
     names = list(models)
     rivals = [models[k] for k in names]
     params, static = eqx.partition(rivals, eqx.is_inexact_array)
@@ -191,20 +244,25 @@ def design_drive(
 
     optimiser = optax.adam(learning_rate * 0.5 * (high - low))  # steps in the drive's unit
 
+    control = _control(n, low, high, slew, dt, seed)
+    kept = int(round(rich * n))  # the control's first samples, never moved
+    prefix = jnp.asarray(control[:kept])
+
     @jax.jit
     def step(u, state, params):
         (loss, _), grad = jax.value_and_grad(loss_and_pairs, has_aux=True)(u, params)
-        grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
+        grad = jnp.where(jnp.isfinite(grad), grad, 0.0).at[:kept].set(0.0)
         updates, state = optimiser.update(grad, state, u)
-        return _feasible(optax.apply_updates(u, updates), low, high, slew, dt), state, loss
+        moved = optax.apply_updates(u, updates).at[:kept].set(prefix)
+        # the kept part is feasible, so the projection moves only what follows it
+        return _feasible(moved, low, high, slew, dt), state, loss
 
-    control = np.asarray(_feasible(jnp.asarray(_levels(n, low, high, dt, seed)), low, high, slew, dt))
     rng = np.random.default_rng(seed)
     best_u, best_value, by_start = None, -np.inf, []
     for start in range(starts):
         # the control first, so the design never ends worse than it; then random levels
         levels = control if start == 0 else _levels(n, low, high, dt, int(rng.integers(2**31)))
-        u = _feasible(jnp.asarray(levels), low, high, slew, dt)
+        u = _feasible(jnp.asarray(levels).at[:kept].set(prefix), low, high, slew, dt)
         state = optimiser.init(u)
         reached, reached_u = -np.inf, u
         stage(
@@ -230,6 +288,7 @@ def design_drive(
         v_in=u,
         criterion=float(np.min(pairs)),
         control_criterion=float(np.min(control_pairs)),
+        rich_samples=kept,
         pair=which[int(np.argmin(pairs))],
         predictions={k: np.asarray(out) for k, out in zip(names, outs)},
         limits={"low": low, "high": high, "slew": slew, "rate": rate, "duration": n / rate},
