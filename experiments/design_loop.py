@@ -264,10 +264,11 @@ def tables(rows: list[dict]) -> str:
         out += [
             "",
             "Fully named (every hidden effect named; in brackets: with nothing else named); half named: some "
-            "hidden effect named, not all (in brackets: of which flagged):\n",
+            "hidden effect named, not all (in brackets: of which flagged); a wrong name: draws that name an "
+            "effect not hidden (a draw that asks for no experiment keeps its own):\n",
             "| hidden | draws | before | half named before (flagged) | after one designed experiment "
-            "| after one control PRBS |",
-            "|---|---|---|---|---|---|",
+            "| after one control PRBS | a wrong name: before / design / control |",
+            "|---|---|---|---|---|---|---|",
         ]
         specs = list(dict.fromkeys(r["effect"] for r in mine))
         for spec in [*specs, "total"]:
@@ -282,6 +283,7 @@ def tables(rows: list[dict]) -> str:
                 if not r["before"]["full"] and set(r["expected"]) & set(r["before"]["causes"])
             ]
             cells.insert(1, f"{len(half)} ({sum(bool(_flag(o)) for o in half)})")
+            cells.append(" / ".join(str(sum(bool(o["wrong"]) for o in x)) for x in (b, a, c)))
             label = "**total**" if spec == "total" else spec
             out.append(f"| {label} | {len(sel)} | " + " | ".join(cells) + " |")
         asked = [r for r in mine if r["design"] is not None and not r["design"].get("rich_drive")]
@@ -303,9 +305,10 @@ def tables(rows: list[dict]) -> str:
         named = sum(bool(r["before"]["causes"]) for r in free)
         out += [
             "## Effect-free strips\n",
-            f"{len(free)} draws: `ambiguous` non-empty (a design asked for) in {asked}; a cause named in {named}.\n",
-            "| seed | named | held-out MSE / floor | last step's best: gain, over the bar, p |",
-            "|---|---|---|---|",
+            f"{len(free)} draws: `ambiguous` non-empty (a design asked for) in {asked}; a cause named in {named}; "
+            f"a rich drive (a remainder unexplained) in {sum(r['design'] is not None for r in free)}.\n",
+            "| seed | named | held-out MSE / floor | last step's best: gain, over the bar, p | after a rich drive |",
+            "|---|---|---|---|---|",
         ]
         for r in sorted(free, key=lambda r: r["seed"]):
             b = r["before"]
@@ -316,7 +319,8 @@ def tables(rows: list[dict]) -> str:
                 else f"{best['name']}: {best['gain']:.3g}, {best.get('gain_over_bar', float('nan')):.3g}, "
                 f"{best['p_value']:.2g}"
             )
-            out.append(f"| {r['seed']} | {_mark(b)} | {b['final_over_floor']:.2f} | {lead} |")
+            after = "" if r["design"] is None else _mark(r["design"]["after"])
+            out.append(f"| {r['seed']} | {_mark(b)} | {b['final_over_floor']:.2f} | {lead} | {after} |")
         out.append("")
     seconds = [r["seconds"] for r in rows]
     if seconds:
