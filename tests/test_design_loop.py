@@ -2,8 +2,9 @@
 
 The rows are written here by hand (no diagnosis runs), so every count in the
 table is known: fully named, exactly named, half named and flagged, a draw
-that asked no design keeping its result, and a draw rerun in a later file
-replacing the earlier row.
+that asked no design keeping its result, a draw with an unexplained remainder
+and nothing ambiguous recording the rich drive `hybrid design` writes, wrong
+names, and a draw rerun in a later file replacing the earlier row.
 """
 
 from __future__ import annotations
@@ -59,6 +60,11 @@ def _design(after):
             "control_criterion": 2.0, "pair": ["none", "b"], "after": after}  # fmt: skip
 
 
+def _rich(after):
+    return {"step": None, "rivals": [], "open": False, "rich_drive": True, "seconds": 1.0, "criterion": None,
+            "control_criterion": None, "pair": [], "after": after}  # fmt: skip
+
+
 def test_the_merged_tables_count_fully_half_and_flagged_draws(tmp_path):
     e = ["a", "b"]
     first = [
@@ -68,6 +74,9 @@ def test_the_merged_tables_count_fully_half_and_flagged_draws(tmp_path):
         _row(1, _outcome(["a", "b", "c"], e), None, _outcome(["a", "b"], e)),
         # half named, not flagged; to be replaced by the second file's rerun
         _row(2, _outcome(["b"], e), None, _outcome([], e)),
+        # a wrong name and a remainder unexplained, nothing ambiguous: the rich drive finds a, the control
+        # keeps the wrong name
+        _row(3, _outcome(["c"], e, unexplained=True), _rich(_outcome(["a"], e)), _outcome(["c"], e)),
     ]
     second = [_row(2, _outcome([], e), None, _outcome(["a", "b"], e))]  # the rerun of seed 2: nothing named
     paths = []
@@ -90,11 +99,16 @@ def test_the_merged_tables_count_fully_half_and_flagged_draws(tmp_path):
         cwd=tmp_path,
     )
     assert done.returncode == 0, done.stderr[-2000:]
-    assert [r["seed"] for r in json.loads(out.read_text())["rows"]] == [0, 1, 2]
+    assert [r["seed"] for r in json.loads(out.read_text())["rows"]] == [0, 1, 2, 3]
     text = out.with_suffix(".md").read_text()
     # before: seed 1 full (not exact); after design: seeds 0 and 1 (1 kept) full, seed 0 exact;
-    # after control: seeds 1 and 2 full and exact; half named before: seed 0 (flagged) only
-    assert "| **total** | 3 | 1 (0) | 1 (1) | 2 (1) | 2 (2) |" in text
+    # after control: seeds 1 and 2 full and exact; half named before: seed 0 (flagged) only;
+    # a wrong name before: seeds 1 and 3, after design seed 1 (kept), after control seed 3
+    assert "| **total** | 4 | 1 (0) | 1 (1) | 2 (1) | 2 (2) | 2 / 1 / 1 |" in text
     assert "| a+b | 0 | a | open |" in text and "| a+b | 1 | both+c |" in text
     assert "| a+b | 2 | ∅ |" in text and "(no design)" in text
-    assert "A design was asked for in 1/3 draws; T designed / T control: median 10×." in text
+    assert "| rich PRBS (unexplained) | a | c |  |  |" in text and "| a+b | 3 | c | unexpl. |" in text
+    assert (
+        "A design was asked for in 1/4 draws, a rich drive (nothing ambiguous, a remainder unexplained) in 1; "
+        "T designed / T control: median 10×." in text
+    )
