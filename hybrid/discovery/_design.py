@@ -47,7 +47,9 @@ control's multilevel PRBS and designs the rest, with T over the whole drive: a
 compound design in the spirit of Atkinson's DT-optimum designs
 (discrimination and estimation in one experiment). Half by default: on that
 draw the joint diagnosis then kept the saturation (T 0.39 against 1.18 all
-designed; the control's 0.11). 0: all designed.
+designed; the control's 0.11); over the loop's twelve designed draws the
+count fully named did not move and one wrong name replaced another
+(`experiments/results/design_loop.md`), at about half the T. 0: all designed.
 """
 
 from __future__ import annotations
