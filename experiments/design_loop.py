@@ -252,7 +252,9 @@ def tables(rows: list[dict]) -> str:
             )
             after = _mark(r["before"]) + " (no design)" if d is None else _mark(d["after"])
             t_design = "" if d is None or d["criterion"] is None else format(d["criterion"], ".3g")
-            t_control = "" if d is None or d["criterion"] is None else format(d["control_criterion"], ".3g")
+            t_control = (
+                "" if d is None or d["control_criterion"] is None else format(d["control_criterion"], ".3g")
+            )
             b = r["before"]
             best = b["last_step"][0] if b["last_step"] else None
             lead = "" if best is None else f"{best['name']} ({best['gain']:.3g}, {best['p_value']:.2g})"

@@ -253,10 +253,10 @@ def design_drive(
     @jax.jit
     def step(u, state, params):
         (loss, _), grad = jax.value_and_grad(loss_and_pairs, has_aux=True)(u, params)
-        grad = jnp.where(jnp.isfinite(grad), grad, 0.0).at[:kept].set(0.0)
+        grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
         updates, state = optimiser.update(grad, state, u)
+        # the kept part put back; it is feasible, so the projection moves only what follows it
         moved = optax.apply_updates(u, updates).at[:kept].set(prefix)
-        # the kept part is feasible, so the projection moves only what follows it
         return _feasible(moved, low, high, slew, dt), state, loss
 
     rng = np.random.default_rng(seed)
