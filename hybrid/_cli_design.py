@@ -115,6 +115,11 @@ def _rivals(folder: Path, step: int | None) -> tuple[dict | None, dict, float]:
         )
     if not entries and report.get("unexplained") and step is None:  # a question, but no rivals
         return None, {}, math.nan
+    if not entries and report.get("unexplained"):  # --step given: that step has no rivals
+        raise InputError(
+            f"--step {step}: the diagnosis in {report_path} found no ambiguous step; its unexplained "
+            "remainder asks for a rich drive: run hybrid design without --step"
+        )
     if not entries:
         raise InputError(
             f"{report_path}: the diagnosis found nothing ambiguous, so there are no rivals to tell apart "

@@ -242,6 +242,13 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
         1 + 1e-9
     )
     assert (tmp_path / "x.png").stat().st_size > 0
+    # ... but a step asked for by number, where no step is ambiguous: one line that says so, no file
+    stepped = h.run_hybrid(
+        tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--step", "1", "--out", "s.csv"
+    )
+    assert stepped.returncode == 2 and "--step 1" in stepped.stderr and "no ambiguous step" in stepped.stderr
+    assert "no design is needed" not in stepped.stderr and "without --step" in stepped.stderr
+    assert len(stepped.stderr.strip().splitlines()) == 1 and not (tmp_path / "s.csv").exists()
 
 
 def _candidate(name, gain, residual, eligible=False):
