@@ -1,6 +1,6 @@
 """An additive drift of the output's baseline, hidden in two plants: is it named as such, never as hysteresis?
 
-    python experiments/baseline_drift.py [--seeds 4] [--duration 90] [--rate 30]
+    python experiments/baseline_drift.py [--seeds 4] [--duration 90] [--rate 30] [--periods 1.5:4]
                                          [--out experiments/results/baseline_drift.json]
 
 The commonest drift of a real sensor or a warming plant is additive: the zero
@@ -15,8 +15,9 @@ a plant made here in numpy and scipy, sharing no code with `diagnose`'s effects:
   command line loads it.
 
 The drift is a random slow wander, not the library's polynomial: a ramp plus a
-sine whose period is 1.5–4 times the recording, 15–40 % of the clean output's
-range from start to end, zero at the first sample. The drive is a multilevel
+sine whose period is 1.5–4 times the recording (``--periods``; 0.5:1.5 swings
+it one to two times over the recording), 15–40 % of the clean output's range
+from start to end, zero at the first sample. The drive is a multilevel
 random staircase (levels held 0.5–3 s, range ±1), the noise 1 % of the clean
 output's range. Writes the JSON and a Markdown table beside it; every number
 in it comes from this command.
@@ -69,10 +70,10 @@ def lag(rng, u: np.ndarray, rate: float) -> tuple[np.ndarray, dict]:
     return y, {"tau_s": tau}
 
 
-def wander(rng, n: int, rate: float, span: float) -> tuple[np.ndarray, dict]:
+def wander(rng, n: int, rate: float, span: float, periods=(1.5, 4.0)) -> tuple[np.ndarray, dict]:
     t = np.arange(n) / rate
     duration = t[-1]
-    period = rng.uniform(1.5, 4.0) * duration
+    period = rng.uniform(*periods) * duration
     phase = rng.uniform(0, 2 * np.pi)
     shape = rng.uniform(-1, 1) * t / duration + np.sin(2 * np.pi * t / period + phase) - np.sin(phase)
     size = rng.uniform(0.15, 0.40) * span
@@ -94,8 +95,17 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--duration", type=float, default=90.0)
     parser.add_argument("--rate", type=float, default=30.0)
+    parser.add_argument(
+        "--periods", default="1.5:4", help="LO:HI, the sine's period as a multiple of the recording (default 1.5:4)"
+    )
     parser.add_argument("--out", default="experiments/results/baseline_drift.json")
     args = parser.parse_args(argv)
+    try:
+        periods = tuple(float(x) for x in args.periods.split(":"))
+        if len(periods) != 2 or not 0 < periods[0] <= periods[1]:
+            raise ValueError
+    except ValueError:
+        parser.error(f"--periods {args.periods!r}: give LO:HI with 0 < LO <= HI, e.g. 1.5:4")
 
     import tempfile
 
@@ -114,7 +124,7 @@ def main(argv=None) -> int:
                 u = staircase(rng, n, args.rate)
                 clean, truth = make(rng, u, args.rate)
                 span = float(np.ptp(clean))
-                trend, drift = wander(rng, n, args.rate, span)
+                trend, drift = wander(rng, n, args.rate, span, periods)
                 w = clean + trend + 0.01 * span * rng.normal(size=n)
                 recording = hybrid.Recording.from_arrays(v_in=u, w=w, rate=args.rate)
                 simulation = hybrid.resolve_physics(physics, [recording])
@@ -149,12 +159,14 @@ def main(argv=None) -> int:
         "",
         f"Command: `{command.strip()}`",
         "",
-        "| plant | seed | drift (% of range) | causes named | dropped (redundant) | held-out gain | unexplained |",
-        "|---|---|---|---|---|---|---|",
+        "| plant | seed | drift (% of range) | its period ÷ the recording | causes named | dropped (redundant) | "
+        "held-out gain | unexplained |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r['plant']} | {r['seed']} | {r['drift']['size_percent_of_range']:.0f} | "
+            f"{r['drift']['period_s'] / args.duration:.2f} | "
             f"{', '.join(r['causes']) or 'none'} | {', '.join(r.get('dropped', [])) or '—'} | {r['gain']:.2f} | "
             f"{'yes' if r['unexplained'] else 'no'} |"
         )

@@ -297,6 +297,36 @@ def test_baseline_drift_is_an_additive_trend_in_minutes():
     assert effect.derived(s, dt)["baseline_percent_of_range"] == pytest.approx(100 * size / np.ptp(s))
 
 
+def test_a_hysteresis_loop_the_recording_never_closes_is_not_material():
+    """Rate × range: a sweep across the range moves the Bouc–Wen state by tanh(k·ptp(s)) at most."""
+    dt = 1.0 / RATE
+    s = 2.0 * np.sin(2 * np.pi * 0.2 * np.arange(1800) * dt)  # ptp 4 V
+    hysteresis = hybrid.EFFECTS["hysteresis"]
+    thresholds = dict(hysteresis.thresholds)
+    for rate, closes in ((2.0, True), (0.3, True), (0.2, False), (0.01, False)):
+        effect = hysteresis(hysteresis_height=0.4, hysteresis_rate=rate)
+        derived = effect.derived(s, dt)
+        assert derived["loop_rate_times_range"] == pytest.approx(rate * np.ptp(s))
+        assert derived["loop_height_percent_of_range"] == pytest.approx(100 * 0.8 / np.ptp(s))
+        ok, why = effect.material(derived, {}, thresholds)
+        assert bool(ok) is closes, (rate, why)
+    # the state's own excursion: across its whole range when k·ptp(s) = 8, within 5 % of it at 0.04
+    for rate, low, high in ((2.0, 1.9, 2.0), (0.01, 0.0, 0.1)):
+        u = (
+            np.asarray(hysteresis(hysteresis_height=0.4, hysteresis_rate=rate).apply(jnp.asarray(s), dt)) - s
+        ) / 0.4
+        assert low <= np.ptp(u) <= high, (rate, np.ptp(u))
+    why = hysteresis(hysteresis_height=0.4, hysteresis_rate=0.01).material(
+        hysteresis(hysteresis_height=0.4, hysteresis_rate=0.01).derived(s, dt), {}, thresholds
+    )[1]
+    assert "never closes" in why and "0.04" in why
+    # a user who knows better lowers the threshold through the materiality settings
+    settings = hybrid.DiagnoseSettings(materiality={"loop_rate_times_range": 0.01})
+    merged = settings.materiality_for(hybrid.resolve_effects())
+    effect = hysteresis(hysteresis_height=0.4, hysteresis_rate=0.2)
+    assert effect.material(effect.derived(s, dt), {}, merged)[0]
+
+
 def test_materiality_overrides_name_a_threshold_a_searched_effect_has():
     settings = hybrid.DiagnoseSettings(materiality={"delay_samples": 2.0})
     merged = settings.materiality_for(hybrid.resolve_effects())

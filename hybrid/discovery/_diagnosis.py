@@ -45,7 +45,8 @@ CAUSES = ("none",) + tuple(EFFECTS)
 #: final model did not need, each weighed as if named last), each cause's ``step`` and
 #: ``evidence.start`` (whether each recording starts where the simulation does) with
 #: ``evidence.start.settled`` (the held start diagnose tried by itself, and what the run from the
-#: simulation's own start named); a limit on a state that spills adds ``<state>_spill``.
+#: simulation's own start named); a limit on a state that spills adds ``<state>_spill``; hysteresis's
+#: ``derived`` and thresholds add ``loop_rate_times_range`` (the loop must close over the recording).
 REPORT_SCHEMA = "hybrid-report/3"
 #: The keys schema 3 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
