@@ -535,7 +535,7 @@ def _cmd_diagnose(args):
     if start.get("sentence"):
         print(f"start: {start['sentence']}")
     floor, left = report["noise_floor"], report["unexplained"]
-    print(f"noise floor: sigma = {floor['std']:.3g} ({floor['method']})")
+    print(f"noise floor: sigma = {floor['std']:.3g} {report['units']['w']} ({floor['method']})")
     if left is not None:
         print(
             f"unexplained: {left['fraction_above_floor']:.0%} of the held-out error lies above the noise floor: "

@@ -138,7 +138,7 @@ def test_no_report_key_names_a_unit_that_follows_the_signal():
     import hybrid
     from hybrid.discovery import RENAMED_IN_SCHEMA_3, REPORT_SCHEMA
 
-    assert REPORT_SCHEMA == "hybrid-report/3"
+    assert REPORT_SCHEMA == "hybrid-report/4"
     volt = re.compile(r"(^|_)(per_)?(v|mv|kv|mm|m)$")  # a name ending in a unit of a signal
     outside = tuple(n for n, cls in hybrid.EFFECTS.items() if cls.place != "inside")
     stack = hybrid.EffectStack(hybrid.LTI(1), outside)

@@ -236,6 +236,18 @@ def test_units_follow_the_signal_each_effect_acts_on():
     assert hybrid.EffectStack(hybrid.RCNetwork(), ("saturation",)).units["saturation_pos_curvature"] == "1/V"
     plain = hybrid.EffectStack(hybrid.LTI(1), ("saturation",))
     assert plain.units["saturation_pos_curvature"] == "1/(unit of S)"  # the simulation does not say
+    # a compound unit is one factor of a larger one: 1/(rad/s), not 1/rad/s
+    speed = hybrid.EFFECTS["hysteresis"]().units_for("rad/s", "V")
+    assert speed == {
+        "hysteresis_height": "rad/s",
+        "hysteresis_rate": "1/(rad/s)",
+        "hysteresis_initial_state": "1",
+    }
+    assert hybrid.EFFECTS["baseline_drift"]().units_for("m/s")["baseline_curvature_per_min2"] == "(m/s)/min²"
+    readout = hybrid.LinearReadout()
+    assert readout.units_for("rad/s", "rad/s") == {"gain": "1", "offset": "rad/s"}  # w is S itself, rescaled
+    assert readout.units_for("V", "mm")["gain"] == "mm/V"
+    assert readout.units_for("m/s", "N")["gain"] == "N/(m/s)"
 
 
 class _Level(hybrid.LTI):

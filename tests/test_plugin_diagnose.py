@@ -12,6 +12,8 @@ one compiled search.
 
 from __future__ import annotations
 
+import json
+import re
 from typing import ClassVar
 
 import equinox as eqx
@@ -23,6 +25,7 @@ from jax.flatten_util import ravel_pytree
 
 import hybrid
 from hybrid import AbstractSimulation, HeldStart, Positive, encode
+from hybrid.discovery import RENAMED_IN_SCHEMA_4
 from hybrid.discovery._search import simulation_labels
 
 RATE, SECONDS, TAU, HELD, SETTLE, NOISE = 10.0, 60.0, 2.5, 1.2, 200, 0.01
@@ -64,9 +67,28 @@ def recording(saturate: bool, seed: int = 0) -> hybrid.Recording:
     )
 
 
+def _keys(tree) -> set[str]:
+    if isinstance(tree, dict):
+        return set(tree) | {k for v in tree.values() for k in _keys(v)}
+    if isinstance(tree, list):
+        return {k for v in tree for k in _keys(v)}
+    return set()
+
+
 @pytest.mark.parametrize("saturate, cause", [(True, "saturation"), (False, "none")])
-def test_diagnose_names_a_hidden_effect_on_a_plugin_that_starts_away_from_rest(saturate, cause):
+def test_diagnose_names_a_hidden_effect_on_a_plugin_that_starts_away_from_rest(saturate, cause, tmp_path):
     found = hybrid.diagnose(recording(saturate), simulation=HeldStart(Lag(), SETTLE))
+    # the recorded signals' units travel to the report: its labels and sentences, never the IPMC's mm
+    assert found.signal_units == {"w": "N", "v_in": "V"}
+    if not saturate:
+        paths = hybrid.write_report(found, tmp_path)
+        data = json.loads(paths["report.json"].read_text())
+        assert data["units"] == {"w": "N", "v_in": "V"}
+        assert not [k for k in _keys(data) if k.endswith(("_mm", "_v"))]
+        assert set(RENAMED_IN_SCHEMA_4.values()) <= set(data["evidence"]["baseline"])  # renamed, not dropped
+        text = paths["report.md"].read_text()
+        assert "loop separation (N)" in text and f"σ = {found.noise_floor.std:.3g} N" in text
+        assert not re.search(r"\bmm\b", text), re.search(r".{40}\bmm\b.{20}", text)
     assert found.cause == cause, found.verdict
     held = float(found.extended.parameters["initial_drive"])
     assert abs(held - HELD) < 0.15, held  # the held drive is recovered with the rest

@@ -194,16 +194,22 @@ def fit(
     )
 
 
+def recording_units(recordings) -> tuple[str, str] | None:
+    """(w's unit, the drive's unit) the recordings declare (mm and V where one does not), None if they differ."""
+    tables = [
+        r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings
+    ]
+    declared = {(str(u.get("w", "mm")), str(u.get("v_in", "V"))) for u in tables}
+    return declared.pop() if len(declared) == 1 else None
+
+
 def unit_labels(model: Model, recordings) -> dict[str, str]:
     """`model.units` in the recordings' declared units of w and the drive (`Model.units_in`).
 
     Recordings that declare different units leave the paper's (w in mm, the drive in V).
     """
-    tables = [
-        r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings
-    ]
-    declared = {(str(u.get("w", "mm")), str(u.get("v_in", "V"))) for u in tables}
-    return model.units_in(*declared.pop()) if len(declared) == 1 else dict(model.units)
+    declared = recording_units(recordings)
+    return model.units_in(*declared) if declared is not None else dict(model.units)
 
 
 def default_frozen(model: Model) -> frozenset[str]:

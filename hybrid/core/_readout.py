@@ -23,6 +23,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from ..util._errors import InputError
 from ._loop_safe_linalg import lstsq
 from ._parameters import Constraint, Real, decode, encode
+from ._simulation import as_factor
 from ._windows import segment_windows
 
 
@@ -93,7 +94,9 @@ class LinearReadout(AbstractReadout):
 
     def units_for(self, signal_unit: str, w_unit: str) -> dict[str, str]:
         """gain in w's unit per the signal's ("(unit of S)" where the simulation does not say), offset in w's."""
-        return {"gain": f"{w_unit}/{signal_unit or '(unit of S)'}", "offset": w_unit}
+        signal = signal_unit or "(unit of S)"
+        gain = "1" if signal == w_unit else f"{as_factor(w_unit)}/{as_factor(signal)}"
+        return {"gain": gain, "offset": w_unit}
 
     def parameters(self):
         return decode(self.raw, self.constraints)

@@ -215,9 +215,26 @@ class AbstractSimulation(eqx.Module):
 DRIVE = "{drive}"
 
 
+def as_factor(unit: str) -> str:
+    """`unit` as one factor of a larger unit: in parentheses where it is compound (``rad/s`` → ``(rad/s)``).
+
+    So that a gain of rad/s per V reads ``(rad/s)/V``, not ``rad/s/V``; a unit
+    already in parentheses (``(unit of S)``) or a single symbol stays as it is.
+    """
+    bracketed = unit.startswith("(") and unit.endswith(")")
+    return f"({unit})" if not bracketed and any(c in unit for c in "/·* ") else unit
+
+
+def substitute_unit(template: str, placeholder: str, unit: str) -> str:
+    """`template` with `placeholder` replaced by `unit`, as a factor (`as_factor`) unless it stands alone."""
+    if template == placeholder:
+        return unit
+    return template.replace(placeholder, as_factor(unit))
+
+
 def unit_in(unit: str, drive_unit: str = "V") -> str:
     """`unit` (an `output_unit`, a state's unit) with ``"{drive}"`` replaced by `drive_unit`."""
-    return unit.replace(DRIVE, drive_unit)
+    return substitute_unit(unit, DRIVE, drive_unit)
 
 
 class AbstractWrapper(AbstractSimulation):

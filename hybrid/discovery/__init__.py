@@ -12,6 +12,7 @@ from ._ambiguity import paired_difference as paired_difference
 from ._decision import derived_quantities as derived_quantities, lane_effect as lane_effect
 from ._diagnosis import (
     RENAMED_IN_SCHEMA_3 as RENAMED_IN_SCHEMA_3,
+    RENAMED_IN_SCHEMA_4 as RENAMED_IN_SCHEMA_4,
     REPORT_SCHEMA as REPORT_SCHEMA,
     SPLIT_ORDER as SPLIT_ORDER,
     EquallyGoodFits as EquallyGoodFits,

@@ -27,6 +27,8 @@ if TYPE_CHECKING:
 #: Names `diagnose` can return: an effect of `hybrid.discovery._effects`, or "none".
 CAUSES = ("none",) + tuple(EFFECTS)
 #: report.json's schema.
+#: - 4 (from 3): the last key that named a unit, ``evidence.<model>.loop_separation_mm``, is
+#:   ``loop_separation`` (in w's unit); ``units`` gives the recorded signals' units (``w``, ``v_in``).
 #: - 3 (from 2): no key carries a unit in its name, since an effect's unit follows the signal it
 #:   acts on (its ``unit`` field says which): ``saturation_pos_per_v`` / ``_neg_per_v`` are
 #:   ``saturation_pos_curvature`` / ``_neg_curvature``, ``hysteresis_height_v`` is
@@ -47,8 +49,8 @@ CAUSES = ("none",) + tuple(EFFECTS)
 #: ``evidence.start.settled`` (the held start diagnose tried by itself, and what the run from the
 #: simulation's own start named); a limit on a state that spills adds ``<state>_spill``; hysteresis's
 #: ``derived`` and thresholds add ``loop_rate_times_range`` (the loop must close over the recording).
-REPORT_SCHEMA = "hybrid-report/3"
-#: The keys schema 3 renamed, old → new (a reader of older reports may map them).
+REPORT_SCHEMA = "hybrid-report/4"
+#: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
     "saturation_pos_per_v": "saturation_pos_curvature",
     "saturation_neg_per_v": "saturation_neg_curvature",
@@ -58,6 +60,7 @@ RENAMED_IN_SCHEMA_3 = {
     "level_pos_v": "level_pos",
     "level_neg_v": "level_neg",
 }
+RENAMED_IN_SCHEMA_4 = {"loop_separation_mm": "loop_separation"}
 
 SPLIT_ORDER = ("train", "validation", "test")
 #: The most blocks `diagnose` splits a recording into to reach its extremes, as a multiple of
@@ -369,6 +372,9 @@ class Diagnosis:
     #: Every parameter's unit, from the units of the signals it acts on (the recordings' drive and w,
     #: the simulation's output, a state's): fitted or fixed.
     units: dict = dataclasses.field(default_factory=dict)
+    #: The units of the recorded signals: ``{"w": ..., "v_in": ...}`` as the recordings declare them
+    #: (mm and V where they do not; the paper's where several disagree). Labels and sentences use them.
+    signal_units: dict = dataclasses.field(default_factory=lambda: {"w": "mm", "v_in": "V"})
     #: Named causes the final model did not need once each was weighed as if named last
     #: (`hybrid.discovery._redundant`): name, the step that named it, the gain with it over
     #: without it, the rules that gain failed. Not among `causes`.
@@ -440,6 +446,7 @@ class Diagnosis:
     def to_dict(self) -> dict:
         return {
             "schema": REPORT_SCHEMA,
+            "units": dict(self.signal_units),
             "verdict": self.verdict,
             "cause": self.cause,
             "causes": self.causes,

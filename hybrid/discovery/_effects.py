@@ -85,7 +85,7 @@ from jaxtyping import Array, Float
 from ..core._lifted import lifted_blocks, lifted_response
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
-from ..core._simulation import unit_in
+from ..core._simulation import substitute_unit, unit_in
 from ._hysteresis import bouc_wen_state
 
 #: Where an effect acts: on the drive before the simulation, y = S(φ(u)); inside the dynamics
@@ -218,7 +218,7 @@ class AbstractEffect(eqx.Module):
         ``"(unit of S)"``: the unit of its output, whatever that is.
         """
         unit, drive = signal_unit or "(unit of S)", drive_unit or "(unit of the drive)"
-        return {k: unit_in(v.replace(SIGNAL, unit), drive) for k, v in self.units.items()}
+        return {k: unit_in(substitute_unit(v, SIGNAL, unit), drive) for k, v in self.units.items()}
 
     def config(self) -> dict:
         """The JSON-able settings that rebuild this effect's skeleton (`from_config`); default none."""

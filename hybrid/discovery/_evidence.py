@@ -135,7 +135,7 @@ def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> di
             "ljung_box": rt.ljung_box(e),
             "acf_outside_bound": int(np.sum(np.abs(acf[1:]) > out["bound_99"])),
             "ccf_outside_bound": int(np.sum(np.abs(ccf) > out["bound_99"])),
-            "loop_separation_mm": rt.loops(e, v)["separation"],
+            "loop_separation": rt.loops(e, v)["separation"],  # in w's unit
             "segment_nmse": rt.segment_errors(w, w_hat).tolist(),
         }
     return out

@@ -443,8 +443,12 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
     return {"recovered": rec, "kind": kind, "summary": text}
 
 
-def plot_remainder(description: dict, path) -> None:
-    """Two panels: the residual against drive level with the learned map, and the filters' gain."""
+def plot_remainder(description: dict, path, units: dict | None = None) -> None:
+    """Two panels: the residual against drive level with the learned map, and the filters' gain.
+
+    `units`: the recorded signals' (``{"w": ..., "v_in": ...}``, `Diagnosis.signal_units`) for the labels.
+    """
+    units = {"w": "mm", "v_in": "V", **(units or {})}
     from ..util._figures import pyplot, save_png
 
     plt = pyplot()
@@ -468,9 +472,9 @@ def plot_remainder(description: dict, path) -> None:
     else:
         left.text(0.5, 0.5, description.get("reason", "no map"), ha="center", transform=left.transAxes)
     left.axhline(0.0, color="0.5", lw=0.6)
-    left.set(xlabel="drive v_in (V)", ylabel="residual w − ŵ")
+    left.set(xlabel=f"drive v_in ({units['v_in']})", ylabel=f"residual w − ŵ ({units['w']})")
     for key, label, colour in (
-        ("drive", "of the drive (per V)", "C0"),
+        ("drive", f"of the drive (per {units['v_in']})", "C0"),
         ("output", "of the model's output", "C2"),
     ):
         part = description.get("linear_filter", {}).get(key, {})

@@ -212,6 +212,7 @@ def noise_section(d: dict) -> list[str]:
         "## Noise floor and what remains",
         "",
         f"Measurement noise of w, from the recording alone ({floor['method']}): σ = {_num(floor['std'])} "
+        f"{d.get('units', {}).get('w', '')} "
         f"(variance {_num(floor['variance'])} ± {_num(floor['std_error'])}), "
         f"{format_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out. "
         f"Estimated from {source}.",
@@ -367,7 +368,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         f"{ev['n_heldout']} samples at {_num(ev['rate_hz'])} Hz; 99 % bound on a correlation "
         f"±{ev['bound_99']:.4f}; ACF over lags 1–{MAX_LAG}, CCF over lags −{MAX_LAG}–{MAX_LAG}.",
         "",
-        "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | loop separation (mm) |",
+        "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | loop separation "
+        f"({d.get('units', {}).get('w', 'mm')}) |",
         "|---|---|---|---|---|---|",
     ]
     for key in ("baseline", "extended"):
@@ -376,7 +378,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         lines.append(
             f"| {key} | {_fixed(lb['Q'])} ({lb['lags']}) | {_num(lb['p_value'], 2)} | "
             f"{e['acf_outside_bound']} / {MAX_LAG} | {e['ccf_outside_bound']} / {2 * MAX_LAG + 1} | "
-            f"{'n/a' if loop_levels == 0 else _num(e['loop_separation_mm'])} |"
+            f"{'n/a' if loop_levels == 0 else _num(e['loop_separation'])} |"
         )
     if loop_levels == 0:
         lines += [
@@ -465,7 +467,7 @@ def _remainder_figure(diagnosis, path: Path) -> None:
     from ._remainder import plot_remainder
 
     if diagnosis.unexplained is not None and "reason" not in diagnosis.unexplained["description"]:
-        plot_remainder(diagnosis.unexplained["description"], path)
+        plot_remainder(diagnosis.unexplained["description"], path, diagnosis.signal_units)
         return
     import matplotlib
 

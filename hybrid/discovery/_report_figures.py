@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core._simulation import as_factor
 from ..util._atomic import atomic_open
 from ..util._figures import pyplot
 from . import residual_tests as rt
@@ -29,6 +30,15 @@ DPI = 120
 FIGURES = ("residual_time.png", "loops.png", "spectrum.png", "correlation.png", "segments.png")
 
 _MODELS = (("baseline", "baseline", "C0"), ("extended", "extended", "C3"))
+
+
+def _units(d: dict) -> dict:
+    """The recorded signals' units of a report (`Diagnosis.signal_units`; mm and V in one without them)."""
+    return {"w": "mm", "v_in": "V", **(d.get("units") or {})}
+
+
+def _w_unit(d: dict) -> str:
+    return _units(d)["w"]
 
 
 def format_nmse(x) -> str:
@@ -126,12 +136,10 @@ def _figure_residual_time(held, d, path, plt):
     for ax in (top, bottom):
         for b in boundaries:
             ax.axvline(b, color="0.3", ls=":", lw=1.0)
-    top.set(
-        ylabel="tip displacement w (mm)", title=f"Held-out part: measured and predicted (cause: {d['cause']})"
-    )
+    top.set(ylabel=f"w ({_w_unit(d)})", title=f"Held-out part: measured and predicted (cause: {d['cause']})")
     bottom.set(
         xlabel="time (s)" + (", recordings end to end (dotted: boundaries)" if boundaries else ""),
-        ylabel="residual w − ŵ (mm)",
+        ylabel=f"residual w − ŵ ({_w_unit(d)})",
     )
     top.legend(loc="upper right", fontsize=8)
     bottom.legend(loc="upper right", fontsize=8)
@@ -167,10 +175,12 @@ def _figure_loops(held, d, path, plt):
                 fontsize=8,
                 color="0.3",
             )
-        separation = "n/a" if count_loop_levels(loop) == 0 else f"{loop['separation']:.3g} mm"
-        ax.set(xlabel="drive v_in (V)", title=f"{label}: rising − falling rms {separation}")
+        separation = "n/a" if count_loop_levels(loop) == 0 else f"{loop['separation']:.3g} {_w_unit(d)}"
+        ax.set(
+            xlabel=f"drive v_in ({_units(d)['v_in']})", title=f"{label}: rising − falling rms {separation}"
+        )
         ax.legend(loc="best", fontsize=8)
-    axes[0].set_ylabel("residual w − ŵ (mm)")
+    axes[0].set_ylabel(f"residual w − ŵ ({_w_unit(d)})")
     fig.suptitle(
         "Residual against drive level, by direction of travel (open loops: hysteresis; "
         "bent ends: saturation)",
@@ -186,7 +196,7 @@ def _figure_spectrum(held, d, rate, path, plt):
         ax.semilogy(f[1:], psd[1:], color=colour, lw=lw, label=f"{label} residual")
     ax.set(
         xlabel="frequency (Hz)",
-        ylabel="PSD of residual (mm²/Hz)",
+        ylabel=f"PSD of residual ({as_factor(_w_unit(d))}²/Hz)",
         title="Welch spectrum of the held-out residual (a peak: an unmodelled resonance)",
     )
     ax.grid(True, which="both", alpha=0.3)
