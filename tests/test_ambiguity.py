@@ -251,10 +251,10 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert len(stepped.stderr.strip().splitlines()) == 1 and not (tmp_path / "s.csv").exists()
 
 
-def _candidate(name, gain, residual, eligible=False):
+def _candidate(name, gain, residual, eligible=False, material=True):
     return SimpleNamespace(
         name=name, gain=gain, eligible=eligible, heldout_residual=residual, heldout=SimpleNamespace(nmse=1 / gain),
-        parameters={},
+        parameters={}, material=material,
     )  # fmt: skip
 
 
@@ -291,6 +291,11 @@ def test_an_open_last_step_has_nothing_more_against_its_best_gains_only_with_a_r
     assert [r["name"] for r in entry["rivals"]] == ["delay"]
     worse = SimpleNamespace(chosen=None, current=current, candidates=candidates, bar=0.7)
     assert ambiguities([worse], base, 0.01, drive, RATE, [], open_remainder=True) == []
+    # a candidate below its effect's materiality (a loop never closed) is no rival: the next one stands
+    small = [_candidate("delay", 1.3, candidates[0].heldout_residual, material=False), *candidates[1:]]
+    step = SimpleNamespace(chosen=None, current=current, candidates=small, bar=current.heldout.nmse)
+    (entry,) = ambiguities([step], base, 0.01, drive, RATE, [], open_remainder=True)
+    assert [r["name"] for r in entry["rivals"]] == ["saturation", "backlash"]
 
 
 def test_at_the_floor_a_last_step_is_open_only_on_a_significant_gain_over_every_equally_good_fit():

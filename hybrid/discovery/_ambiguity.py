@@ -246,7 +246,12 @@ def _open_step(
         (
             c
             for c in step.candidates
-            if c.heldout_residual is not None and math.isfinite(c.gain) and c.gain > 1.0
+            # an immaterial candidate is below the size that counts as a cause (a loop the recording
+            # never closes, a delay within the frame timing): no drive would make it one
+            if c.heldout_residual is not None
+            and math.isfinite(c.gain)
+            and c.gain > 1.0
+            and c.material is not False
         ),
         key=lambda c: -c.gain,
     )
