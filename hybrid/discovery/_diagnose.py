@@ -248,7 +248,7 @@ def diagnose(
 
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
     n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
-    say(f"screening {N_SCREEN} network designs for the baseline's starts")
+    say(f"screening {N_SCREEN} designs of the simulation's parameters for the baseline's starts")
     grid = baseline_starts(problem, simulation, N_LANES, N_SCREEN, frozen)  # whatever the effects
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack

@@ -114,7 +114,7 @@ def plus_minus(entry: dict) -> str:
     text = _num(value, 4) if se is None else f"{_num(value, 4)} ± {_num(se, 2)}"
     given = entry.get("std_error_given_network")
     if given is not None:
-        text += f" (± {_num(given, 2)} with the network fixed)"
+        text += f" (± {_num(given, 2)} with the simulation's parameters fixed)"
     return f"{text} {unit}".rstrip()
 
 
@@ -308,8 +308,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         "## Fitted parameters" + ("" if not causes else f" (simulation + {causes})"),
         "",
         "Standard errors: Gauss–Newton covariance on the training part, inflated for the held-out "
-        "residual's autocorrelation. The network's parameters trade off against each other, and an effect "
-        "that trades off with them inherits their spread; in brackets, the error with the network's "
+        "residual's autocorrelation. The simulation's parameters trade off against each other, and an effect "
+        "that trades off with them inherits their spread; in brackets, the error with the simulation's "
         "parameters held at their fitted values (a lower bound).",
         "",
         "| parameter | value ± std. error |",
@@ -331,8 +331,9 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         f"{_num(d['settings']['min_gain'])}, ΔBIC ≤ −{_num(d['settings']['min_bic_drop'])} (training part), "
         "and a held-out residual no more correlated than the baseline's (Ljung–Box Q, rescaled by the squared "
         "ratio of the residual variances, no higher than the baseline's, or below the 99 % white limit). "
-        "The baseline is the best effect-free fit, refitted from every candidate's end point too, "
-        "so a candidate's gain is its effect's, not a better local minimum's.",
+        "The baseline is the effect-free fit with the least validation loss, refitted from every candidate's "
+        "end point too, so a candidate's gain is its effect's, not a better local minimum's; a gain must also "
+        "hold against every effect-free fit as good on training (below).",
         "",
     ]
     if d.get("places"):
@@ -343,7 +344,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
             f"Effect-free fits as good as the baseline on training data (within ΔBIC "
             f"{_num(d['settings']['min_bic_drop'])}): {spread['n']}, held-out NMSE "
             f"{format_nmse(spread['heldout_nmse_min'])} to {format_nmse(spread['heldout_nmse_max'])}. A wide range means "
-            "the training part does not pin the strip's slow dynamics; a candidate must also beat the best "
+            "the training part does not pin the simulation's slow dynamics; a candidate must also beat the best "
             "of them by the minimum gain.",
             "",
         ]
