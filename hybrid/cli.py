@@ -80,9 +80,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds (with --drive)",
     )
     p.add_argument(
-        "--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0, help="samples per second (camera fps)"
+        "--rate",
+        type=B.number(*B.RATE, unit="Hz"),
+        default=None,
+        help="samples per second (camera fps) of a --drive (default 30; a --drive-file brings its own)",
     )
-    p.add_argument("--amplitude", type=float, default=2.0, help="drive amplitude, V")
+    p.add_argument(
+        "--amplitude",
+        type=float,
+        default=None,
+        help="amplitude of a --drive, V (default 2; not for --drive-file)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seeds the drive (PRBS) and the noise")
     p.add_argument(
         "--param",
@@ -239,6 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _cmd_simulate(args):
     import dataclasses
 
+    import numpy as np
+
     from .data._drives import load_drive, make_drive
     from .data._loaders import SUFFIXES
     from .ipmc._virtual_ipmc import virtual_recording
@@ -247,8 +257,19 @@ def _cmd_simulate(args):
 
     if args.drive_file is None and args.duration is None:
         raise InputError("--drive needs --duration S (a --drive-file brings its own length)")
-    if args.drive_file is not None and args.duration is not None:
-        raise InputError("--duration is for --drive: a --drive-file brings its own length and rate")
+    for flag, value in (
+        ("--duration", args.duration),
+        ("--rate", args.rate),
+        ("--amplitude", args.amplitude),
+    ):
+        if args.drive_file is not None and value is not None:
+            raise InputError(
+                f"{flag} is for --drive: a --drive-file brings its own length, rate and levels "
+                "(scale or resample the file itself)"
+            )
+    if args.drive_file is None:
+        args.rate = 30.0 if args.rate is None else args.rate
+        args.amplitude = 2.0 if args.amplitude is None else args.amplitude
     if args.duration is not None:
         check_samples(args.duration, args.rate)
     lock = check_outputs(
@@ -264,6 +285,15 @@ def _cmd_simulate(args):
     params = VirtualIPMCParameters(**overrides)
     if args.drive_file is not None:
         drive = load_drive(args.drive_file)
+        outside = np.abs(drive.v) > params.full_scale_v
+        if (
+            outside.any()
+        ):  # the virtual DAC would clip them at its rails, silently: refused, as rig record does
+            raise InputError(
+                f"--drive-file {args.drive_file}: {int(outside.sum())} of {len(drive.v)} samples lie outside "
+                f"the virtual DAC's ±{params.full_scale_v:g} V (largest |v_in| {np.max(np.abs(drive.v)):.4g} V): "
+                "scale the drive into range, or give --param full_scale_v=V"
+            )
     else:
         drive = make_drive(
             args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude

@@ -22,13 +22,13 @@ from rig.cli import main as rig_main
 RATE = 30.0
 
 
-def _drive_file(folder, seconds=3.0, peak=1.5):
+def _drive_file(folder, seconds=3.0, peak=1.5, fmt="%.17g", name="drive.csv"):
     t = np.arange(int(seconds * RATE)) / RATE
     v = peak * np.sin(2 * np.pi * 0.7 * t) * np.minimum(1.0, t)  # a smooth designed-looking drive
-    path = folder / "drive.csv"
+    path = folder / name
     with open(path, "w") as handle:
         handle.write("t,v_in\n")
-        np.savetxt(handle, np.column_stack([t, v]), delimiter=",", fmt="%.17g")
+        np.savetxt(handle, np.column_stack([t, v]), delimiter=",", fmt=fmt)
     return path, v
 
 
@@ -41,12 +41,20 @@ def test_hybrid_simulate_records_the_virtual_ipmc_under_a_drive_file(tmp_path):
     # the voltage the virtual DAC applies: the file's drive, quantised and clipped
     np.testing.assert_allclose(rec.v_in, dac_output(v, VirtualIPMCParameters()), atol=1e-9)
     assert np.ptp(rec.w) > 0  # the strip moved
-    both = h.run_hybrid(tmp_path, "simulate", "--drive-file", path, "--duration", "3", "--out", "x.csv")
-    assert (
-        both.returncode == 2
-        and "--duration is for --drive" in both.stderr
-        and not (tmp_path / "x.csv").exists()
-    )
+    for flag, value in (("--duration", "3"), ("--rate", "60"), ("--amplitude", "0.1")):  # the file says
+        both = h.run_hybrid(tmp_path, "simulate", "--drive-file", path, flag, value, "--out", "x.csv")
+        assert both.returncode == 2 and f"{flag} is for --drive" in both.stderr, both.stderr
+        assert len(both.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()
+    # t written to 6 decimals (0.033333, 0.066667, ...): a uniform 30 Hz drive all the same
+    rounded, _ = _drive_file(tmp_path, fmt="%.6f", name="rounded.csv")
+    done = h.run_hybrid(tmp_path, "simulate", "--drive-file", rounded, "--out", "six.csv")
+    assert done.returncode == 0, done.stderr
+    assert abs(hybrid.Recording.load(tmp_path / "six.csv").rate - RATE) < 1e-6 * RATE
+    # beyond the virtual DAC's rails: refused in one line, as rig record does, not clipped in silence
+    loud, _ = _drive_file(tmp_path, peak=5.0, name="loud.csv")
+    refused = h.run_hybrid(tmp_path, "simulate", "--drive-file", loud, "--out", "loud_rec.csv")
+    assert refused.returncode == 2 and "outside the virtual DAC's ±3 V" in refused.stderr, refused.stderr
+    assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "loud_rec.csv").exists()
 
 
 def test_rig_record_plays_a_drive_file_on_the_virtual_rig_and_refuses_one_the_dac_cannot_play(
