@@ -88,6 +88,29 @@ def test_cli_fit_refuses_a_constant_drive_in_one_line(tmp_path, capsys):
     assert len(lines) == 1 and "v_in is constant" in lines[0] and "was the drive off" in lines[0]
 
 
+@pytest.mark.parametrize("column", ["v_in", "w"])
+def test_one_corrupt_cell_is_named_not_fitted(tmp_path, capsys, column):
+    """A 1e300 cell among millimetres would set the fit's scale (every other sample reads 0): named instead."""
+    v, w = _signals(300)
+    signals = {"v_in": v.copy(), "w": w.copy()}
+    signals[column][123] = 1e300
+    rec = Recording.from_arrays(**signals, rate=RATE, name="run")
+    with pytest.raises(InputError, match=f"{column} at sample 123 .* is 1e\\+300, .*corrupt cell"):
+        rec.check_signals()
+    path = _write_csv(tmp_path / "cell.csv", np.arange(300) / RATE, signals["v_in"], signals["w"])
+    for physics in ("rc", "lti:1"):  # lti:N centres its time scales on the data first: checked before that
+        lines = _cli_error(["fit", path, "--model", "physics", "--physics", physics, "--quiet"], capsys)
+        assert len(lines) == 1 and "at sample 123" in lines[0], lines
+    # what is not corrupt passes: a whole column in other units, a pulse drive mostly at rest, heavy tails
+    Recording.from_arrays(v_in=v, w=1e300 * w, rate=RATE).check_signals()
+    pulses = np.zeros(300)
+    pulses[100:110] = 2.0
+    pulses[200:203] = -1.5
+    Recording.from_arrays(v_in=pulses, w=w, rate=RATE).check_signals()
+    tails = np.random.default_rng(2).standard_cauchy(300)  # its largest is ~10⁴ typical deviations
+    Recording.from_arrays(v_in=v, w=tails, rate=RATE).check_signals()
+
+
 # ----------------------------------------------------------------- 4. t in milliseconds
 
 

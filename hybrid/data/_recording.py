@@ -40,6 +40,7 @@ from ._recording_checks import (
     check_time,
     is_constant,
     source_name,
+    wild_sample,
 )
 from ._split import Split, split_recording
 from ._writers import write_file
@@ -262,6 +263,14 @@ class Recording:
                 raise InputError(
                     f"recording '{self.name}': the {what} column {column} is constant "
                     f"({values[0]:.6g} {UNITS[column]} in all {self.n} samples): {cause}"
+                )
+            wild = wild_sample(values)
+            if wild is not None:
+                k, times = wild
+                raise InputError(
+                    f"recording '{self.name}': {column} at sample {k} (t = {self.t[k]:.6g} s) is {values[k]:.6g}, "
+                    f"{times:.3g} times the column's typical deviation from its median: a corrupt cell? fix or "
+                    "remove that row (or leave it out with --range)"
                 )
         return self
 

@@ -228,6 +228,35 @@ def is_constant(values: np.ndarray) -> bool:
     return magnitude == 0.0 or float(np.std(values / magnitude)) <= 1e-12
 
 
+#: A sample this many times the column's typical deviation from its median away from that median is
+#: a corrupt cell, not a measurement: no sensor or DAC spans 10⁶ of its own spread in one sample.
+OUTLIER_FACTOR = 1e6
+
+
+def wild_sample(values: np.ndarray) -> tuple[int, float] | None:
+    """(index, how many typical deviations) of a sample `OUTLIER_FACTOR` × the typical deviation away, or None.
+
+    The typical deviation is the median absolute deviation from the median, or, where
+    most samples sit at one value (a pulse drive at rest), the median of the others'.
+    One 1e300 cell in a column of millimetres would otherwise set the fit's scale:
+    `fit` normalises by the column's spread, and every other sample then reads as 0.
+    """
+    values = np.asarray(values, float)
+    if values.size < 3 or not np.all(np.isfinite(values)):
+        return None
+    median = float(np.median(values))
+    deviation = np.abs(values - median)
+    typical = float(np.median(deviation))
+    if typical == 0.0:
+        moved = deviation[deviation > 0]
+        typical = float(np.median(moved)) if moved.size > 1 else 0.0
+    if typical == 0.0:
+        return None
+    k = int(np.argmax(deviation))
+    times = float(deviation[k] / typical)
+    return (k, times) if times > OUTLIER_FACTOR else None
+
+
 def source_name(metadata: Any) -> str:
     if isinstance(metadata, Mapping) and isinstance(metadata.get("source"), str):
         return metadata["source"]

@@ -55,6 +55,8 @@ def response_frequency(v_in, w, rate: float) -> float:
 
 def lti_for_recordings(order: int, recordings, **values) -> LTI:
     """`LTI(order)` with its default time scales centred on the recordings' (`values` override any)."""
+    for r in recordings:  # what `fit` and `diagnose` check first: a corrupt cell is named, not transformed
+        r.check_signals()
     freqs = [response_frequency(r.v_in, r.w, r.rate) for r in recordings]
     weights = [len(r.w) for r in recordings]
     centre_hz = float(np.exp(np.average(np.log(freqs), weights=weights)))
