@@ -190,6 +190,34 @@ class _NoUnits(_Scale):
     units: ClassVar = {}
 
 
+class _NaNs(_Scale):
+    name: ClassVar[str] = "nans"
+
+    def apply(self, s, dt):
+        return s * jnp.nan
+
+
+class _Integers(_Scale):
+    name: ClassVar[str] = "integers"
+
+    def apply(self, s, dt):
+        return jnp.round(s).astype(jnp.int32)
+
+
+class _MaterialSaysYes(_Scale):
+    name: ClassVar[str] = "says_yes"
+
+    def material(self, derived, parameters, thresholds):
+        return "yes"
+
+
+class _DerivedNaN(_Scale):
+    name: ClassVar[str] = "derived_nan"
+
+    def derived(self, s, dt):
+        return {"size": float("nan")}
+
+
 @pytest.mark.parametrize(
     "effects, words",
     [
@@ -198,6 +226,10 @@ class _NoUnits(_Scale):
         ([_Nowhere], "place must be one of drive, inside, output"),
         ([_NoRole], "role must be one of feedback, limit"),
         ([_NoUnits], "units has no entry for ['scale_factor']"),
+        ([_NaNs], "returned 64 non-finite values of 64"),
+        ([_Integers], "returned int32 values: return floating point"),
+        ([_MaterialSaysYes], "must return (bool, str)"),
+        ([_DerivedNaN], "derived(s, dt) must return a dict of finite numbers"),
         ([int], "not an AbstractEffect subclass"),
         (["saturation", "saturation"], "effects named twice"),
         ([], "effects is empty"),

@@ -122,10 +122,48 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
             f"{label}: {cls} failed on a probe signal ({type(error).__name__}: {error}); fix apply or starts",
             error,
         ) from None
-    if out.shape != context.signal.shape or not np.all(np.isfinite(out)):
+    if out.shape != context.signal.shape:
         raise InputError(
             f"{label}: {cls}.apply(s, dt) must return one finite value per sample of s; on a "
             f"{context.signal.shape[0]}-sample probe it returned shape {out.shape}"
+        )
+    if not np.issubdtype(out.dtype, np.floating):
+        raise InputError(
+            f"{label}: {cls}.apply(s, dt) returned {out.dtype} values: return floating point, as s is "
+            "(an integer output has no gradient to fit)"
+        )
+    if not np.all(np.isfinite(out)):
+        raise InputError(
+            f"{label}: {cls}.apply(s, dt) returned {int(np.sum(~np.isfinite(out)))} non-finite values of "
+            f"{out.shape[0]} on a probe signal at its default parameters: fix apply"
+        )
+    try:  # what the report asks of every effect it weighs: its size, and whether that is a cause
+        derived = effect.derived(context.signal, 1.0 / context.rate)
+        verdict = effect.material(derived, effect.parameters(), dict(effect.thresholds))
+    except KeyboardInterrupt:
+        raise
+    except Exception as error:
+        raise PluginError(
+            f"{label}: {cls} failed on a probe signal ({type(error).__name__}: {error}); fix derived or material",
+            error,
+        ) from None
+    if not isinstance(derived, dict) or not all(
+        isinstance(k, str) and isinstance(v, (int, float, np.number)) and np.isfinite(v)
+        for k, v in derived.items()
+    ):
+        raise InputError(
+            f"{label}: {cls}.derived(s, dt) must return a dict of finite numbers by name; on a probe signal at "
+            f"its default parameters it returned {derived!r}"
+        )
+    if not (
+        isinstance(verdict, tuple)
+        and len(verdict) == 2
+        and isinstance(verdict[0], (bool, np.bool_))
+        and isinstance(verdict[1], str)
+    ):
+        raise InputError(
+            f"{label}: {cls}.material(derived, parameters, thresholds) must return (bool, str): whether the "
+            f"effect is large enough to be a cause, and why; it returned {verdict!r}"
         )
     if (
         not isinstance(starts, list)
