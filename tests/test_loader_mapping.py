@@ -391,3 +391,18 @@ def test_bad_files_and_pairs(tmp_path, lab):
     )
     assert validation.metadata["mapping"] == {"t": "time", "v_in": "y", "w": "u"}
     np.testing.assert_array_equal(validation.v_in, estimation.w)
+
+
+def test_units_or_a_range_alone_map_a_file_that_has_the_standard_columns(tmp_path, lab):
+    """--units / --range without --columns: a file with t, v_in, w maps them itself; a lab's names still ask."""
+    t = np.arange(40) / 10.0
+    lines = ["t,v_in,w"] + [f"{a!r},{math.sin(a)!r},{math.cos(a)!r}" for a in t.tolist()]
+    path = _write(tmp_path / "plain.csv", "\n".join(lines) + "\n")
+    rec = load_mapped(path, units={"w": "rad/s"}, sample_range="5:30")
+    t_ref, v_ref, w_ref = _plain(path, "t", "v_in", "w")
+    np.testing.assert_array_equal(rec.v_in, v_ref[5:30])
+    np.testing.assert_array_equal(rec.w, w_ref[5:30])
+    assert rec.rate == pytest.approx(10.0) and rec.metadata["units"]["w"] == "rad/s"
+    assert rec.metadata["mapping"] == {"t": "t", "v_in": "v_in", "w": "w"}
+    with pytest.raises(InputError, match="no input column is named"):
+        load_mapped(lab, units={"w": "mm"})  # time, u, y: which is the drive is the lab's to say

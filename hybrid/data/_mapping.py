@@ -87,6 +87,23 @@ DEFAULT_UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "a.u."}
 RATE_RTOL: float = 1e-4
 
 
+def _standard_roles(path, require_w: bool) -> dict[str, str] | None:
+    """``t``, ``v_in``, ``w`` mapped to themselves where the file has them (``t`` optional), else None."""
+    try:
+        suffix = check_file(path, MAPPED_SUFFIXES)
+    except InputError:
+        return None
+    for roles in ({"t": "t", "v_in": "v_in", "w": "w"}, {"v_in": "v_in", "w": "w"}):
+        if not require_w:
+            roles = {k: v for k, v in roles.items() if k != "w"}
+        try:
+            read_columns(path, suffix, roles)
+        except InputError:
+            continue
+        return roles
+    return None
+
+
 def load_mapped(
     path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,
@@ -124,7 +141,15 @@ def load_mapped(
     paths = [path_argument(p, "load_mapped") for p in given]
     if not paths:
         raise InputError("load_mapped got an empty list of files: give a file, or the files of one record")
-    roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
+    try:
+        roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
+    except InputError:
+        # only --units, --range, --rate or a name: a file with the standard columns maps them itself
+        roles = None
+        if all(x is None for x in (input, output, time, columns)) and len(paths) == 1:
+            roles = _standard_roles(paths[0], require_w)
+        if roles is None:
+            raise
     rate_arg = rate_argument(rate)
     given_units = units_argument(units, "t" in roles)
     bounds = parse_sample_range(sample_range)
