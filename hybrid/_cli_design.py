@@ -81,7 +81,11 @@ def add_design(sub, B) -> None:
 
 
 def _bounds(args) -> dict:
-    if (args.amplitude is None) == (args.bounds is None):
+    if args.amplitude is not None and args.bounds is not None:
+        raise InputError(
+            "give the drive's range once: --amplitude V (|drive| ≤ V) or --bounds LOW:HIGH, not both"
+        )
+    if args.amplitude is None and args.bounds is None:
         raise InputError("give the drive's range: --amplitude V (|drive| ≤ V) or --bounds LOW:HIGH")
     if args.amplitude is not None:
         return {"amplitude": args.amplitude}

@@ -185,7 +185,7 @@ def test_design_refuses_bad_limits_in_one_line(confounded):
     rivals = _rivals(confounded)
     for kwargs, words in (
         ({}, "amplitude=A"),
-        ({"amplitude": 1.0, "bounds": (0, 1)}, "amplitude=A"),
+        ({"amplitude": 1.0, "bounds": (0, 1)}, "not both"),
         ({"bounds": (1.0, 0.0)}, "low < high"),
         ({"amplitude": 1.0, "slew": -1.0}, "slew must be > 0"),
     ):
@@ -217,6 +217,10 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
         tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--rich", "1", "--out", "y.csv"
     )
     assert bad.returncode == 2 and "--rich" in bad.stderr and not (tmp_path / "y.csv").exists()
+    twice = h.run_hybrid(
+        tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--bounds", "0:1", "--out", "y.csv"
+    )
+    assert twice.returncode == 2 and "not both" in twice.stderr and not (tmp_path / "y.csv").exists()
     # a diagnosis with nothing ambiguous: one line, no file
     plain = tmp_path / "plain"
     plain.mkdir()

@@ -102,7 +102,11 @@ def _check(name, value, positive=True, who="design_drive"):
 def _limits(who, duration, rate, amplitude, bounds, slew):
     """(samples, Δt, low, high, slew) of a drive within the rig's limits, each checked (one line if not)."""
     duration, rate = _check("duration", duration, who=who), _check("rate", rate, who=who)
-    if (amplitude is None) == (bounds is None):
+    if amplitude is not None and bounds is not None:
+        raise InputError(
+            f"{who}: give the drive's range once, as amplitude=A (|u| ≤ A) or bounds=(low, high), not both"
+        )
+    if amplitude is None and bounds is None:
         raise InputError(f"{who}: give the drive's range as amplitude=A (|u| ≤ A) or bounds=(low, high)")
     if amplitude is not None:
         low, high = -_check("amplitude", amplitude, who=who), _check("amplitude", amplitude, who=who)
