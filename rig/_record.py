@@ -36,6 +36,7 @@ import time
 import numpy as np
 
 from hybrid import InputError, Recording
+from hybrid.util import stage
 
 from ._board import Board
 from ._calibration import Calibration
@@ -338,6 +339,7 @@ def record(
                 raise RigError(f"camera stopped delivering frames after {writer.rows} rows")
             # Slots: dropped frames leave gaps, duplicates repeat a slot.
             slot = round((frame.t - t_cam0) * fps)
+            stage(f"recording, {slot / fps:.0f} s of about {n / drive.rate:.0f} s")  # what the heartbeat says
             if last_slot is not None and slot <= last_slot:
                 meta["duplicated_frames"] += 1
                 continue

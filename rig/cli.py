@@ -24,6 +24,7 @@ import sys
 import threading
 
 from hybrid import InputError
+from hybrid.util import Watchdog
 
 from ._errors import Terminated
 
@@ -480,7 +481,10 @@ def main(argv=None) -> int:
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         args = build_parser().parse_args(argv)
-        COMMANDS[args.command](args)
+        # A heartbeat on stderr while it works (a drive file at 1 Hz records for many minutes). No stall
+        # check: a real board's recording waits on its frames with the CPU idle.
+        with Watchdog(f"rig {args.command}", stall=0):
+            COMMANDS[args.command](args)
     except InputError as error:
         print(f"rig: error: {error}", file=sys.stderr)
         return 2

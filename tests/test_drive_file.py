@@ -58,13 +58,16 @@ def test_hybrid_simulate_records_the_virtual_ipmc_under_a_drive_file(tmp_path):
 
 
 def test_rig_record_plays_a_drive_file_on_the_virtual_rig_and_refuses_one_the_dac_cannot_play(
-    tmp_path, capsys
+    tmp_path, capsys, monkeypatch
 ):
     path, v = _drive_file(tmp_path)
     out = tmp_path / "rec.csv"
+    monkeypatch.setenv("HYBRID_HEARTBEAT_S", "0.2")  # a long recording is never silent: a heartbeat
     assert (
         rig_main(["record", "--virtual", "--drive-file", str(path), "--speed", "3", "--out", str(out)]) == 0
     )
+    monkeypatch.delenv("HYBRID_HEARTBEAT_S")
+    assert "rig record: still working" in capsys.readouterr().err
     rec = hybrid.Recording.load(out)
     meta = json.loads((tmp_path / "rec.csv.json").read_text())
     assert meta["complete"] and abs(len(rec) - len(v)) <= 1

@@ -25,3 +25,4 @@ from ._programs import (
     memory_maps as memory_maps,
     release_programs as release_programs,
 )
+from ._watchdog import Watchdog as Watchdog, stage as stage
