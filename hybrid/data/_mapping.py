@@ -145,11 +145,12 @@ def load_mapped(
         roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
     except InputError:
         # only --units, --range, --rate or a name: a file with the standard columns maps them itself
-        roles = None
+        standard = None
         if all(x is None for x in (input, output, time, columns)) and len(paths) == 1:
-            roles = _standard_roles(paths[0], require_w)
-        if roles is None:
+            standard = _standard_roles(paths[0], require_w)
+        if standard is None:
             raise
+        roles = standard
     rate_arg = rate_argument(rate)
     given_units = units_argument(units, "t" in roles)
     bounds = parse_sample_range(sample_range)
