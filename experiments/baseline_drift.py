@@ -96,7 +96,9 @@ def main(argv=None) -> int:
     parser.add_argument("--duration", type=float, default=90.0)
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument(
-        "--periods", default="1.5:4", help="LO:HI, the sine's period as a multiple of the recording (default 1.5:4)"
+        "--periods",
+        default="1.5:4",
+        help="LO:HI, the sine's period as a multiple of the recording (default 1.5:4)",
     )
     parser.add_argument("--out", default="experiments/results/baseline_drift.json")
     args = parser.parse_args(argv)
