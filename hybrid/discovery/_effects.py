@@ -500,7 +500,7 @@ class Hysteresis(AbstractEffect):
     #: with the distance the signal travels, standing in for something slow. In
     #: `experiments/discrepancy.py`'s single-effect draws the hidden loops were fitted at k·ptp(s) =
     #: 4.0–12.5; the one hysteresis named beside a hidden back-relaxation at 0.12, and on a plug-in
-    #: plant's additive baseline wander a "loop" of 563 % of the range was named at 0.047.
+    #: plant's additive baseline wander a "loop" of 563 % of the range was named at 0.30 (`experiments/motor_wander.py`).
     thresholds: ClassVar = {"loop_height_percent_of_range": 3.0, "loop_rate_times_range": 1.0}
     n_screened: ClassVar[int] = 1
 
