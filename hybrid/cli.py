@@ -367,6 +367,8 @@ def _cmd_fit(args):
     from .physics._plugins import resolve_physics
     from .util._atomic import write_text
 
+    if len(args.split) != 3:  # a flag's fault is refused before any reading or compiling
+        raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
     out = args.out or f"{Path(args.recordings[0]).with_suffix('')}.{args.model}.eqx"
     partial = partial_path(out)  # a stopped fit's best model: never over --out
     lock = check_outputs(
@@ -418,8 +420,6 @@ def _cmd_fit(args):
         args.free, "--free", "parameter", model.parameter_names
     )  # an unknown name is refused, not ignored
     frozen |= set(model.simulation.frozen_by_default) - set(args.free)  # the RC network's xi_h
-    if len(args.split) != 3:
-        raise InputError(f"--split needs three fractions train,test,validation, got {len(args.split)}")
     tests = load_tests(args, recordings, model.readout.window)  # --test: refused before fitting, not after
     with lock:
         with FitStop(args.time_limit) as stop:  # SIGINT, SIGTERM, --time-limit: stop between steps

@@ -22,7 +22,8 @@ def run(argv, capsys):
 
 def assert_one_line_error(code, err, phrase):
     assert code == 2
-    lines = [line for line in err.splitlines() if line.strip()]
+    # a heartbeat ("hybrid fit: still working: ...") is progress on a busy machine, not part of the error
+    lines = [line for line in err.splitlines() if line.strip() and ": still working: " not in line]
     assert len(lines) == 1, err
     assert "Traceback" not in err
     assert phrase in lines[0], lines[0]

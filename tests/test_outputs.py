@@ -27,7 +27,8 @@ def run(argv, capsys):
 
 def assert_one_line_error(code, err, *phrases):
     assert code == 2, err
-    lines = [line for line in err.splitlines() if line.strip()]
+    # a heartbeat ("hybrid fit: still working: ...") is progress on a busy machine, not part of the error
+    lines = [line for line in err.splitlines() if line.strip() and ": still working: " not in line]
     assert len(lines) == 1, err
     assert lines[0].startswith("hybrid: error: ") and "Traceback" not in err
     for phrase in phrases:
