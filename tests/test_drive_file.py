@@ -50,6 +50,12 @@ def test_hybrid_simulate_records_the_virtual_ipmc_under_a_drive_file(tmp_path):
     done = h.run_hybrid(tmp_path, "simulate", "--drive-file", rounded, "--out", "six.csv")
     assert done.returncode == 0, done.stderr
     assert abs(hybrid.Recording.load(tmp_path / "six.csv").rate - RATE) < 1e-6 * RATE
+    # a drive faster than the camera's exposure allows: refused in one line that names the flag to change
+    fast = tmp_path / "fast.csv"
+    fast.write_text("t,v_in\n" + "".join(f"{k / 2000.0!r},{0.1 * (k % 7)!r}\n" for k in range(400)))
+    quick = h.run_hybrid(tmp_path, "simulate", "--drive-file", fast, "--out", "fast_rec.csv")
+    assert quick.returncode == 2 and "--param exposure_s=0.0005" in quick.stderr, quick.stderr
+    assert len(quick.stderr.strip().splitlines()) == 1 and not (tmp_path / "fast_rec.csv").exists()
     # beyond the virtual DAC's rails: refused in one line, as rig record does, not clipped in silence
     loud, _ = _drive_file(tmp_path, peak=5.0, name="loud.csv")
     refused = h.run_hybrid(tmp_path, "simulate", "--drive-file", loud, "--out", "loud_rec.csv")

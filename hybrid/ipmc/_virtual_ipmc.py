@@ -188,7 +188,8 @@ def simulate_virtual_ipmc(
     if params.exposure_s > frame_period * (1 + 1e-9):
         raise InputError(
             f"exposure_s = {params.exposure_s} s is longer than the frame period "
-            f"{frame_period} s; use an exposure no longer than one frame."
+            f"{frame_period:.4g} s of this drive's rate; use an exposure no longer than one frame "
+            f"(exposure_s=..., on the command line --param exposure_s={frame_period:.4g})"
         )
 
     u = dac_output(v, params)
