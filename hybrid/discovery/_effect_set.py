@@ -139,7 +139,14 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
         )
     try:  # what the report asks of every effect it weighs: its size, and whether that is a cause
         derived = effect.derived(context.signal, 1.0 / context.rate)
-        verdict = effect.material(derived, effect.parameters(), dict(effect.thresholds))
+        given = dict(derived) if isinstance(derived, dict) else {}
+        if effect.place == "inside":  # the keys `EffectStack.derived` adds, as it computes them, on the probe
+            top = float(np.max(np.abs(context.signal)))
+            key = "force_percent_of_drive" if effect.role == "feedback" else "cut_percent_of_range"
+            given[key] = (
+                100.0 * float(np.max(np.abs(out))) / top if effect.role == "feedback" and top else 0.0
+            )
+        verdict = effect.material(given, effect.parameters(), dict(effect.thresholds))
     except KeyboardInterrupt:
         raise
     except Exception as error:
