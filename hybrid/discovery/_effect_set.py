@@ -154,9 +154,13 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
             f"{label}: {cls} failed on a probe signal ({type(error).__name__}: {error}); fix derived or material",
             error,
         ) from None
+
+    def finite_number(v) -> bool:  # a Python, numpy or jax scalar
+        a = np.asarray(v)
+        return a.shape == () and a.dtype.kind in "iuf" and bool(np.isfinite(a))
+
     if not isinstance(derived, dict) or not all(
-        isinstance(k, str) and isinstance(v, (int, float, np.number)) and np.isfinite(v)
-        for k, v in derived.items()
+        isinstance(k, str) and finite_number(v) for k, v in derived.items()
     ):
         raise InputError(
             f"{label}: {cls}.derived(s, dt) must return a dict of finite numbers by name; on a probe signal at "
@@ -165,7 +169,8 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
     if not (
         isinstance(verdict, tuple)
         and len(verdict) == 2
-        and isinstance(verdict[0], (bool, np.bool_))
+        and np.asarray(verdict[0]).shape == ()  # a bool, numpy's or a traced comparison's
+        and np.asarray(verdict[0]).dtype == np.bool_
         and isinstance(verdict[1], str)
     ):
         raise InputError(
