@@ -249,6 +249,7 @@ def _cmd_simulate(args):
 
     import numpy as np
 
+    from .data._drive import DEFAULT_RATE
     from .data._drives import load_drive, make_drive
     from .data._loaders import SUFFIXES
     from .ipmc._virtual_ipmc import virtual_recording
@@ -268,7 +269,7 @@ def _cmd_simulate(args):
                 "(scale or resample the file itself)"
             )
     if args.drive_file is None:
-        args.rate = 30.0 if args.rate is None else args.rate
+        args.rate = DEFAULT_RATE if args.rate is None else args.rate
         args.amplitude = 2.0 if args.amplitude is None else args.amplitude
     if args.duration is not None:
         check_samples(args.duration, args.rate)
@@ -285,10 +286,9 @@ def _cmd_simulate(args):
     params = VirtualIPMCParameters(**overrides)
     if args.drive_file is not None:
         drive = load_drive(args.drive_file)
+        # the virtual DAC would clip them at its rails, silently: refused, as rig record does
         outside = np.abs(drive.v) > params.full_scale_v
-        if (
-            outside.any()
-        ):  # the virtual DAC would clip them at its rails, silently: refused, as rig record does
+        if outside.any():
             raise InputError(
                 f"--drive-file {args.drive_file}: {int(outside.sum())} of {len(drive.v)} samples lie outside "
                 f"the virtual DAC's ±{params.full_scale_v:g} V (largest |v_in| {np.max(np.abs(drive.v)):.4g} V): "

@@ -194,12 +194,16 @@ def fit(
     )
 
 
+#: The paper's units of the recorded signals, where a recording declares none (or several disagree).
+PAPER_UNITS = {"w": "mm", "v_in": "V"}
+
+
 def recording_units(recordings) -> tuple[str, str] | None:
-    """(w's unit, the drive's unit) the recordings declare (mm and V where one does not), None if they differ."""
+    """(w's unit, the drive's unit) the recordings declare (`PAPER_UNITS` where one does not), None if they differ."""
     tables = [
         r.metadata.get("units") if isinstance(r.metadata.get("units"), dict) else {} for r in recordings
     ]
-    declared = {(str(u.get("w", "mm")), str(u.get("v_in", "V"))) for u in tables}
+    declared = {(str(u.get("w", PAPER_UNITS["w"])), str(u.get("v_in", PAPER_UNITS["v_in"]))) for u in tables}
     return declared.pop() if len(declared) == 1 else None
 
 

@@ -82,10 +82,9 @@ def load_drive(path) -> Drive:
     from ._recording import Recording
 
     recording = Recording.load(path, require_w=False)
+    # The reader accepted the time column as uniform within its tolerance (t written to 6 decimals steps
+    # by 0.033333 and 0.033334 at 30 Hz): the rate over the whole record, and an exactly uniform grid.
     n = len(recording)
-    # over the whole record, not one step: t written to 6 decimals steps by 0.033333 s at 30 Hz
     rate = float((n - 1) / (recording.t[-1] - recording.t[0])) if n > 1 else float(recording.rate)
-    params = {"file": str(path), "rate": rate, "duration": len(recording) / rate}
-    # The reader accepted the time column as uniform within its tolerance (t written to a few decimals
-    # steps by 0.033333 and 0.033334 at 30 Hz); the drive's own grid is exactly uniform at that rate.
-    return Drive(np.arange(len(recording)) / rate, recording.v_in, "file", params)
+    params = {"file": str(path), "rate": rate, "duration": n / rate}
+    return Drive(np.arange(n) / rate, recording.v_in, "file", params)

@@ -87,8 +87,9 @@ DEFAULT_UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "a.u."}
 RATE_RTOL: float = 1e-4
 
 
-def _standard_roles(path, require_w: bool) -> dict[str, str] | None:
-    """``t``, ``v_in``, ``w`` mapped to themselves where the file has them (``t`` optional), else None."""
+def _standard_roles(path, require_w: bool) -> tuple[dict[str, str], tuple] | None:
+    """(``t``, ``v_in``, ``w`` mapped to themselves, `read_columns`'s result) where the file has them (``t``
+    optional), else None."""
     try:
         suffix = check_file(path, MAPPED_SUFFIXES)
     except InputError:
@@ -97,10 +98,9 @@ def _standard_roles(path, require_w: bool) -> dict[str, str] | None:
         if not require_w:
             roles = {k: v for k, v in roles.items() if k != "w"}
         try:
-            read_columns(path, suffix, roles)
+            return roles, read_columns(path, suffix, roles)
         except InputError:
             continue
-        return roles
     return None
 
 
@@ -141,6 +141,7 @@ def load_mapped(
     paths = [path_argument(p, "load_mapped") for p in given]
     if not paths:
         raise InputError("load_mapped got an empty list of files: give a file, or the files of one record")
+    read = None  # the file's columns, where finding its roles already read them
     try:
         roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
     except InputError:
@@ -150,7 +151,7 @@ def load_mapped(
             standard = _standard_roles(paths[0], require_w)
         if standard is None:
             raise
-        roles = standard
+        roles, read = standard
     rate_arg = rate_argument(rate)
     given_units = units_argument(units, "t" in roles)
     bounds = parse_sample_range(sample_range)
@@ -167,7 +168,7 @@ def load_mapped(
         )
     else:
         path = paths[0]
-        data, fields, file_meta = read_columns(path, check_file(path, MAPPED_SUFFIXES), roles)
+        data, fields, file_meta = read or read_columns(path, check_file(path, MAPPED_SUFFIXES), roles)
     lengths = {role: len(values) for role, values in data.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"the {OPTION[r]} '{roles[r]}' has {k}" for r, k in lengths.items())

@@ -59,7 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation
-from ..core._fit import recording_units, unit_labels
+from ..core._fit import PAPER_UNITS, recording_units, unit_labels
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..util._errors import InputError
@@ -429,7 +429,7 @@ def diagnose(
             **rival_models,
         },
         units=unit_labels(extended_model, recordings),
-        signal_units=dict(zip(("w", "v_in"), recording_units(recordings) or ("mm", "V"))),
+        signal_units=dict(zip(("w", "v_in"), recording_units(recordings) or PAPER_UNITS.values())),
         dropped=[d.to_dict() for d in dropped],
     )
 

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..core._fit import PAPER_UNITS
 from ..util._errors import InputError
 from ._ambiguity import TEST as AMBIGUITY_TEST
 from ._effect_set import EFFECTS
@@ -374,7 +375,7 @@ class Diagnosis:
     units: dict = dataclasses.field(default_factory=dict)
     #: The units of the recorded signals: ``{"w": ..., "v_in": ...}`` as the recordings declare them
     #: (mm and V where they do not; the paper's where several disagree). Labels and sentences use them.
-    signal_units: dict = dataclasses.field(default_factory=lambda: {"w": "mm", "v_in": "V"})
+    signal_units: dict = dataclasses.field(default_factory=lambda: dict(PAPER_UNITS))
     #: Named causes the final model did not need once each was weighed as if named last
     #: (`hybrid.discovery._redundant`): name, the step that named it, the gain with it over
     #: without it, the rules that gain failed. Not among `causes`.

@@ -73,6 +73,12 @@ def _probe_context() -> StartContext:
     )
 
 
+def force_percent_of_drive(force, drive, on: float = 1.0) -> float:
+    """An inside feedback's size: its largest |force| (switch `on` applied) as a percentage of the largest |drive|."""
+    top = float(np.max(np.abs(drive))) if len(drive) else 0.0
+    return 100.0 * on * float(np.max(np.abs(force))) / top if top > 0 else 0.0
+
+
 def check_effect(effect: AbstractEffect, label: str) -> None:
     """Refuse, in one line that says the fix, an effect that `diagnose` could not search.
 
@@ -140,12 +146,10 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
     try:  # what the report asks of every effect it weighs: its size, and whether that is a cause
         derived = effect.derived(context.signal, 1.0 / context.rate)
         given = dict(derived) if isinstance(derived, dict) else {}
-        if effect.place == "inside":  # the keys `EffectStack.derived` adds, as it computes them, on the probe
-            top = float(np.max(np.abs(context.signal)))
-            key = "force_percent_of_drive" if effect.role == "feedback" else "cut_percent_of_range"
-            given[key] = (
-                100.0 * float(np.max(np.abs(out))) / top if effect.role == "feedback" and top else 0.0
-            )
+        if effect.place == "inside" and effect.role == "feedback":  # what `EffectStack.derived` adds
+            given["force_percent_of_drive"] = force_percent_of_drive(out, context.signal)
+        elif effect.place == "inside":  # a limit's cut needs the simulation without it: none on a probe
+            given["cut_percent_of_range"] = 0.0
         verdict = effect.material(given, effect.parameters(), dict(effect.thresholds))
     except KeyboardInterrupt:
         raise

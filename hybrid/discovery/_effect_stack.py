@@ -24,7 +24,7 @@ from ..core._serialise import imported_class
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw, unit_in
 from ..core._state_space import dynamics_of, integrate
 from ..util._errors import InputError
-from ._effect_set import resolve_effects
+from ._effect_set import force_percent_of_drive, resolve_effects
 from ._effects import AbstractEffect
 
 
@@ -245,8 +245,7 @@ class EffectStack(AbstractWrapper):
             out[e.name] = e.derived(signals[e.name], dt)
             if e.place == "inside" and e.role == "feedback":
                 force = np.asarray(jax.vmap(lambda z, e=e: e.apply(z, dt))(jnp.asarray(signals[e.name])))
-                top = float(np.max(np.abs(signals["drive"]))) if len(signals["drive"]) else 0.0
-                size = 100.0 * float(on) * float(np.max(np.abs(force))) / top if top > 0 else 0.0
+                size = force_percent_of_drive(force, signals["drive"], float(on))
                 out[e.name] = {**out[e.name], "force_percent_of_drive": size}
             if e.place == "inside" and e.role == "limit":
                 free = self.with_active(np.where(np.arange(len(self.effects)) == i, 0.0, self.active))

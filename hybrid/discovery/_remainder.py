@@ -446,9 +446,12 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
 def plot_remainder(description: dict, path, units: dict | None = None) -> None:
     """Two panels: the residual against drive level with the learned map, and the filters' gain.
 
-    `units`: the recorded signals' (``{"w": ..., "v_in": ...}``, `Diagnosis.signal_units`) for the labels.
+    `units`: the recorded signals' (``{"w": ..., "v_in": ...}``, `Diagnosis.signal_units`; default
+    `PAPER_UNITS`) for the labels.
     """
-    units = {"w": "mm", "v_in": "V", **(units or {})}
+    from ..core._fit import PAPER_UNITS
+
+    units = units or PAPER_UNITS
     from ..util._figures import pyplot, save_png
 
     plt = pyplot()

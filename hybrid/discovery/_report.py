@@ -212,7 +212,7 @@ def noise_section(d: dict) -> list[str]:
         "## Noise floor and what remains",
         "",
         f"Measurement noise of w, from the recording alone ({floor['method']}): σ = {_num(floor['std'])} "
-        f"{d.get('units', {}).get('w', '')} "
+        f"{d['units']['w']} "
         f"(variance {_num(floor['variance'])} ± {_num(floor['std_error'])}), "
         f"{format_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out. "
         f"Estimated from {source}.",
@@ -370,7 +370,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         f"±{ev['bound_99']:.4f}; ACF over lags 1–{MAX_LAG}, CCF over lags −{MAX_LAG}–{MAX_LAG}.",
         "",
         "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | loop separation "
-        f"({d.get('units', {}).get('w', 'mm')}) |",
+        f"({d['units']['w']}) |",
         "|---|---|---|---|---|---|",
     ]
     for key in ("baseline", "extended"):

@@ -32,15 +32,6 @@ FIGURES = ("residual_time.png", "loops.png", "spectrum.png", "correlation.png", 
 _MODELS = (("baseline", "baseline", "C0"), ("extended", "extended", "C3"))
 
 
-def _units(d: dict) -> dict:
-    """The recorded signals' units of a report (`Diagnosis.signal_units`; mm and V in one without them)."""
-    return {"w": "mm", "v_in": "V", **(d.get("units") or {})}
-
-
-def _w_unit(d: dict) -> str:
-    return _units(d)["w"]
-
-
 def format_nmse(x) -> str:
     """NMSE: three significant digits in e-notation."""
     return "—" if x is None else f"{x:.2e}"
@@ -136,10 +127,12 @@ def _figure_residual_time(held, d, path, plt):
     for ax in (top, bottom):
         for b in boundaries:
             ax.axvline(b, color="0.3", ls=":", lw=1.0)
-    top.set(ylabel=f"w ({_w_unit(d)})", title=f"Held-out part: measured and predicted (cause: {d['cause']})")
+    top.set(
+        ylabel=f"w ({d['units']['w']})", title=f"Held-out part: measured and predicted (cause: {d['cause']})"
+    )
     bottom.set(
         xlabel="time (s)" + (", recordings end to end (dotted: boundaries)" if boundaries else ""),
-        ylabel=f"residual w − ŵ ({_w_unit(d)})",
+        ylabel=f"residual w − ŵ ({d['units']['w']})",
     )
     top.legend(loc="upper right", fontsize=8)
     bottom.legend(loc="upper right", fontsize=8)
@@ -175,12 +168,12 @@ def _figure_loops(held, d, path, plt):
                 fontsize=8,
                 color="0.3",
             )
-        separation = "n/a" if count_loop_levels(loop) == 0 else f"{loop['separation']:.3g} {_w_unit(d)}"
+        separation = "n/a" if count_loop_levels(loop) == 0 else f"{loop['separation']:.3g} {d['units']['w']}"
         ax.set(
-            xlabel=f"drive v_in ({_units(d)['v_in']})", title=f"{label}: rising − falling rms {separation}"
+            xlabel=f"drive v_in ({d['units']['v_in']})", title=f"{label}: rising − falling rms {separation}"
         )
         ax.legend(loc="best", fontsize=8)
-    axes[0].set_ylabel(f"residual w − ŵ ({_w_unit(d)})")
+    axes[0].set_ylabel(f"residual w − ŵ ({d['units']['w']})")
     fig.suptitle(
         "Residual against drive level, by direction of travel (open loops: hysteresis; "
         "bent ends: saturation)",
@@ -196,7 +189,7 @@ def _figure_spectrum(held, d, rate, path, plt):
         ax.semilogy(f[1:], psd[1:], color=colour, lw=lw, label=f"{label} residual")
     ax.set(
         xlabel="frequency (Hz)",
-        ylabel=f"PSD of residual ({as_factor(_w_unit(d))}²/Hz)",
+        ylabel=f"PSD of residual ({as_factor(d['units']['w'])}²/Hz)",
         title="Welch spectrum of the held-out residual (a peak: an unmodelled resonance)",
     )
     ax.grid(True, which="both", alpha=0.3)
