@@ -59,10 +59,16 @@ def test_smoothed_oversampled_data_warn_and_say_what_the_floor_read():
     assert caveat is not None and f"{sigma / floor.std:.3g}× the floor's σ" in caveat
     report = "\n".join(
         noise_section(
-            {"noise_floor": floor.to_dict(), "settings": {"unexplained_ratio": 2.0}, "unexplained": None}
+            {
+                "noise_floor": floor.to_dict(),
+                "settings": {"unexplained_ratio": 2.0},
+                "unexplained": None,
+                "units": {"w": "mm", "v_in": "V"},
+            }
         )
     )
     assert "Estimated from " + floor.source in report and "**Warning:** the floor σ" in report
+    assert f"σ = {floor.std:.3g} mm" in report  # the floor is in the recording's unit
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -79,7 +85,12 @@ def test_ordinary_data_give_no_warning(seed):
         assert floor_caveat(ratio * floor.variance, floor) is None
     report = "\n".join(
         noise_section(
-            {"noise_floor": floor.to_dict(), "settings": {"unexplained_ratio": 2.0}, "unexplained": None}
+            {
+                "noise_floor": floor.to_dict(),
+                "settings": {"unexplained_ratio": 2.0},
+                "unexplained": None,
+                "units": {"w": "mm", "v_in": "V"},
+            }
         )
     )
     assert "Warning" not in report and "Estimated from " in report
