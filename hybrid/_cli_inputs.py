@@ -61,6 +61,15 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
     from .data._recording import Recording
     from .data._table import TEXT_SUFFIXES
 
+    seen: dict[Path, str] = {}
+    for path in paths:
+        key = Path(path).resolve()
+        if key in seen:  # the same samples twice: weighted double, and in both train and validation
+            raise InputError(
+                f"recording '{path}' is given twice ({seen[key]!r} and {path!r} are one file): give each "
+                "recording once"
+            )
+        seen[key] = path
     options: dict[str, Any] = {  # argparse's values, any of them None when not given
         k: getattr(args, k, None)
         for k in ("input", "output", "time", "columns", "rate", "sample_range", "units")

@@ -127,6 +127,15 @@ def test_bad_input_exits_2_with_one_line(argv, phrase, virtual_csv, tmp_path, ca
     assert_one_line_error(code, err, phrase)
 
 
+def test_fit_refuses_one_recording_given_twice(virtual_csv, tmp_path, capsys, monkeypatch):
+    """The same samples twice would weigh double and sit in both the training and the validation part."""
+    monkeypatch.chdir(virtual_csv.parent)
+    out = tmp_path / "m.eqx"
+    code, _, err = run(["fit", virtual_csv, virtual_csv.name, "--physics", "lti:1", "--out", out], capsys)
+    assert_one_line_error(code, err, "is given twice")
+    assert not out.exists()
+
+
 def test_rc_rejects_drive_without_columns(tmp_path, capsys):
     drive = tmp_path / "d.csv"
     drive.write_text("time,volts\n0,1\n0.1,1\n")

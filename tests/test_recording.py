@@ -331,12 +331,31 @@ def test_non_numeric_cell(tmp_path):
         ("t,v_in,w\n0,1\n", "2 cells at line 2"),
         ("t,v_in,w,w\n0,1,2,3\n", "more than once"),
         ("t,,w\n0,1,2\n", "empty column name"),
+        ("t,v_in,w,,\n0,1,2,,\n1,1,2,5,\n", "3 columns in its header"),  # a trailing column with data
+        ("t,v_in,w,T\n0,1,2,20\n1,1,2,oops\n2,1,2,21\n", "non-numeric cell 'oops' at line 3, column 'T'"),
     ],
 )
 def test_malformed_csv(tmp_path, text, phrase):
     with pytest.raises(InputError) as error:
         Recording.load(_write(tmp_path / "a.csv", text))
     assert phrase in str(error.value)
+
+
+def test_spreadsheet_trailing_commas_and_text_columns_are_left_out(tmp_path):
+    """An export with empty trailing columns and a column of labels reads as its signals, with a note."""
+    plain = Recording.load(_write(tmp_path / "plain.csv", "t,v_in,w\n0,1,2\n0.5,-1,3\n1,0,4\n"))
+    trailing = Recording.load(_write(tmp_path / "x.csv", "t,v_in,w,,\n0,1,2,,\n0.5,-1,3,,\n1,0,4,,\n"))
+    np.testing.assert_array_equal(
+        np.stack([trailing.t, trailing.v_in, trailing.w]), np.stack([plain.t, plain.v_in, plain.w])
+    )
+    assert trailing.extra == {} and trailing.notes == ()
+    text = "time_stamp,t,v_in,w,T\n12:00:00,0,1,2,20\n12:00:01,0.5,-1,3,21\n12:00:02,1,0,4,22\n"
+    labelled = Recording.load(_write(tmp_path / "y.csv", text))
+    np.testing.assert_array_equal(labelled.w, plain.w)
+    assert list(labelled.extra) == ["T"]  # the numeric extra channel is kept
+    assert (
+        len(labelled.notes) == 1 and "column 'time_stamp' holds text (e.g. '12:00:00')" in labelled.notes[0]
+    )
 
 
 def test_unreadable_binary_files(tmp_path):

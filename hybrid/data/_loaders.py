@@ -33,7 +33,9 @@ SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
 NPZ_EXTRA = "extra_"
 
 
-def read_file(path: pathlib.Path, *, require_w: bool = True) -> tuple[dict[str, np.ndarray], dict]:
+def read_file(
+    path: pathlib.Path, *, require_w: bool = True
+) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...]]:
     """Read the channels and metadata of a recording file; see `Recording.load`.
 
     Arguments:
@@ -42,16 +44,22 @@ def read_file(path: pathlib.Path, *, require_w: bool = True) -> tuple[dict[str, 
             with zeros.
 
     Returns:
-        ``(columns, metadata)``: every channel by name (t, v_in and w first as
-        found in the file) and the metadata, with ``"source"`` set to ``path``
-        when missing.
+        ``(columns, metadata, notes)``: every channel by name (t, v_in and w
+        first as found in the file), the metadata, with ``"source"`` set to
+        ``path`` when missing, and a sentence for each column left out (a CSV
+        column of text beside the signals, e.g. a timestamp or a comment).
     """
-    reader = {".csv": _load_csv, ".npz": _load_npz, ".mat": _load_mat}[check_file(path)]
-    columns, metadata = reader(path, REQUIRED if require_w else REQUIRED[:2])
+    suffix = check_file(path)
+    required = REQUIRED if require_w else REQUIRED[:2]
+    notes: tuple[str, ...] = ()
+    if suffix == ".csv":
+        columns, metadata, notes = _load_csv(path, required)
+    else:
+        columns, metadata = (_load_npz if suffix == ".npz" else _load_mat)(path, required)
     if "w" not in columns:
         columns["w"] = np.zeros_like(columns["t"])
     metadata.setdefault("source", str(path))
-    return columns, metadata
+    return columns, metadata, notes
 
 
 # --------------------------------------------------------------------------- #
@@ -159,6 +167,8 @@ def _csv_lines(path: pathlib.Path) -> list[tuple[int, str]]:
 def _csv_header(path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED) -> list[str]:
     _check_delimiter(path, line)
     header = [cell.strip().strip('"').strip() for cell in line.split(",")]
+    while header and not header[-1]:
+        header.pop()  # a trailing comma (a spreadsheet's empty columns): their cells must be empty too
     if any(not cell for cell in header):
         raise InputError(f"recording '{path}' has an empty column name in its header: name every column")
     repeated = sorted({c for c in header if header.count(c) > 1})
@@ -207,7 +217,20 @@ def _csv_column(path: pathlib.Path, column: str, cells: list[str], numbers: np.n
     return values
 
 
-def _load_csv(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[dict[str, np.ndarray], dict]:
+def _text_column(cells: list[str]) -> str | None:
+    """The first cell that is not a number when most of the column is text (labels, timestamps)."""
+    bad = []
+    for cell in cells:
+        try:
+            float(cell)
+        except ValueError:
+            bad.append(cell)
+    return bad[0] if bad and 2 * len(bad) > len(cells) else None
+
+
+def _load_csv(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...]]:
     lines = _csv_lines(path)
     if not lines:
         raise InputError(
@@ -217,6 +240,8 @@ def _load_csv(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[d
     rows, numbers = [], []
     for number, line in lines[1:]:
         cells = [cell.strip() for cell in line.split(",")]
+        while len(cells) > len(header) and not cells[-1].strip('"'):
+            cells.pop()  # the trailing empty cells of the header's trailing empty names
         if len(cells) != len(header):
             hint = ""
             if len(cells) > len(header) and "." not in line and re.search(r"\d,\d", line):
@@ -230,12 +255,21 @@ def _load_csv(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[d
     if not rows:
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     line_numbers = np.asarray(numbers)
-    columns = {c: _csv_column(path, c, [row[i] for row in rows], line_numbers) for i, c in enumerate(header)}
+    columns, notes = {}, []
+    for i, column in enumerate(header):
+        cells = [row[i] for row in rows]
+        label = None if column in REQUIRED else _text_column(cells)
+        if label is not None:  # nothing reads it: say so, do not refuse the signals beside it
+            notes.append(
+                f"recording '{path}': column '{column}' holds text (e.g. {label!r}), not a signal: left out"
+            )
+            continue
+        columns[column] = _csv_column(path, column, cells, line_numbers)
     meta_path = sidecar(path)
     metadata = {}
     if meta_path.exists():
         metadata = parse_metadata(path, read_text(meta_path), f"'{meta_path.name}'")
-    return columns, metadata
+    return columns, metadata, tuple(notes)
 
 
 # ------------------------------------------------------------------- NPZ

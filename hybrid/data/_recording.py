@@ -348,7 +348,9 @@ class Recording:
         * ``.csv``: lines starting with ``#`` and blank lines are skipped; the
           first other line is the header, which must name ``t``, ``v_in`` and
           ``w`` exactly (case-sensitive); other columns become extra channels
-          in order. Metadata comes from the sidecar ``<file>.csv.json`` when
+          in order, except a column of mostly text (a timestamp, a comment),
+          which is left out with a note; empty names after the last column
+          (a spreadsheet's trailing commas) are ignored. Metadata comes from the sidecar ``<file>.csv.json`` when
           it exists.
         * ``.npz``: arrays ``t``, ``v_in``, ``w``; ``extra_<name>`` (and any
           other array) become extra channels; ``metadata`` is a JSON string.
@@ -371,9 +373,9 @@ class Recording:
             if unknown or any(value is not None for value in mapping.values()):
                 return load_mapped(path, require_w=require_w, **mapping)
         path = path_argument(path, "Recording.load")
-        columns, metadata = read_file(path, require_w=require_w)
+        columns, metadata, notes = read_file(path, require_w=require_w)
         extra = {c: v for c, v in columns.items() if c not in REQUIRED}
-        return cls(columns["t"], columns["v_in"], columns["w"], extra, metadata, str(path))
+        return cls(columns["t"], columns["v_in"], columns["w"], extra, metadata, str(path), notes)
 
     def save(self, path: str | pathlib.Path) -> pathlib.Path:
         """Write the recording so that `load` gives it back exactly.
