@@ -130,6 +130,31 @@ def test_fit_warns_against_the_simulations_own_plausible_ranges():
     assert any("tau_s" in warning and "plausible range" in warning for warning in result.warnings)
 
 
+class LateNaN(Lag):
+    """Lag's output with NaN from sample 500 on: finite where the plug-in probe looks, not after."""
+
+    def simulate(self, v_in, dt):
+        y = super().simulate(v_in, dt)
+        return jnp.where(jnp.arange(y.shape[0]) >= 500, jnp.nan, y)
+
+
+def test_a_simulation_non_finite_at_its_start_is_named_not_fitted():
+    """No step can leave a start whose prediction is NaN: fit and fit_batch say where, not 'All-NaN slice'."""
+    rate, n = 30.0, 900
+    v = np.sign(np.sin(np.arange(n) / rate * 2 * np.pi * 0.2))
+    rec = hybrid.Recording.from_arrays(v_in=v, w=np.asarray(Lag().simulate(v, 1 / rate)), rate=rate, name="r")
+    model = make_any_model("physics", simulation=LateNaN(tau_s=2.0))
+    for run in (hybrid.fit, hybrid.fit_batch):
+        with pytest.raises(InputError) as error:  # a PluginError, naming the class at fault
+            run(model, [rec], solver=hybrid.LevenbergMarquardt(max_steps=2))
+        assert error.value.plugin is LateNaN
+        message = str(error.value)
+        assert (
+            "LateNaN returns non-finite values (NaN or inf) at 400 of 900 samples of recording 'r'" in message
+        )
+        assert "the first at t = 16.6667 s" in message and "tau_s=2" in message
+
+
 def test_generic_functions_need_a_simulation_and_the_front_supplies_the_papers():
     with pytest.raises(InputError, match="needs a simulation"):
         make_any_model("physics")

@@ -112,6 +112,13 @@ class Hard(Good):
         os._exit(0)
 
 
+class LateNaN(Good):
+    """Finite on the probe's first samples, NaN from sample 100 on: only the fit can see it."""
+    def simulate(self, v_in, dt):
+        y = jnp.asarray(v_in) * self.parameters()["tau"]
+        return jnp.where(jnp.arange(y.shape[0]) >= 100, jnp.nan, y)
+
+
 def _late(cls, fault):
     """Runs on the probe's short drive, fails on the whole recording (inside jit, at run time)."""
     class Late(cls):
@@ -145,6 +152,11 @@ CASES = {
     "InitQuits": ("InitQuits() called sys.exit(0)", "no arguments"),
     "Interrupt": ("Interrupt.simulate raised KeyboardInterrupt (not a Ctrl-C)",),
     "LateRaise": ("_late.<locals>.Late.simulate raised ValueError: the table covers 100 samples",),
+    "LateNaN": (
+        "the simulation LateNaN returns non-finite values (NaN or inf) at 100 of 200 samples",
+        "the first at t = 3.33333 s",
+        "start parameters (tau=1)",
+    ),
 }
 
 
@@ -217,6 +229,9 @@ def test_run_time_faults_in_diagnose_and_sensitivity_name_the_plugin(files, caps
         ]
     )
     _one_line(code, capsys.readouterr().err, spec, "Late.simulate raised ValueError")
+    spec = f"{plugin}:LateNaN"  # no exception: every start of the baseline stays non-finite
+    code = main(["diagnose", str(recording), "--physics", spec, "--out", str(folder / "diag"), "--quiet"])
+    _one_line(code, capsys.readouterr().err, spec, "returns non-finite values", "no step of the fit")
     spec = f"{plugin}:Quits"
     code = main(["sensitivity", str(recording), "--physics", spec, "--out", str(folder / "sens")])
     _one_line(code, capsys.readouterr().err, spec, "Quits.simulate called sys.exit(0)")

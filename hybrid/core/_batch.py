@@ -39,10 +39,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..util._errors import InputError
+from ..util._errors import InputError, PluginError
 from ._arguments import as_recordings, check_dt, check_model
 from ._devices import device_mesh, repeat_last
-from ._fit import default_frozen, fit_units, readout_back, start_model
+from ._fit import default_frozen, fit_units, non_finite_fit, readout_back, start_model
 from ._levenberg_marquardt import lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
@@ -202,6 +202,9 @@ def fit_batch(
     for r, recording in enumerate(recordings):
         rows = range(r * starts, (r + 1) * starts)
         vals = [float(best_val[i]) for i in rows]
+        if not np.isfinite(vals).any():  # no start could move
+            message = non_finite_fit(model.simulation, [recording])
+            raise PluginError(f"fit_batch, recording {r}: {message}", plugin=type(model.simulation))
         k = int(np.nanargmin(vals))
         i = r * starts + k
         problem = problems[i]

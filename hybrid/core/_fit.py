@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..util._errors import InputError
+from ..util._errors import InputError, PluginError
 from ..util._watchdog import stage
 from ._arguments import as_names, as_recordings, check_model, check_seed
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
@@ -159,7 +159,10 @@ def fit(
             "use hybrid.LevenbergMarquardt(), hybrid.Adam() or hybrid.OptimistixLM()"
         )
 
-    best_start = int(np.nanargmin([s["validation_loss"] for s in per_start]))
+    losses = np.array([s["validation_loss"] for s in per_start], dtype=np.float64)
+    if not np.isfinite(losses).any():  # every start's predictions non-finite: no step could move it
+        raise PluginError(non_finite_fit(given.simulation, recordings), plugin=type(given.simulation))
+    best_start = int(np.nanargmin(losses))
     fitted = problem.model(best[best_start])
     fitted = Model(
         fitted.simulation, readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit), fitted.kind
@@ -191,6 +194,38 @@ def fit(
         warnings=[note for r in recordings for note in r.notes]
         + fit_warnings(initial[best_start], fitted, frozen, per_start[best_start]),
         stopped=stopped,
+    )
+
+
+def non_finite_fit(simulation, recordings) -> str:
+    """Why no start of a fit could move: where the simulation's output (or else the readout's) is not finite.
+
+    Called when every start's validation error is NaN or inf, after the fit (the
+    solvers refuse each non-finite step, so each start stays where it began).
+    The plug-in probe (`hybrid.physics._plugins.probe_simulation`) runs on the
+    first samples only; this runs the simulation as given on each whole drive.
+    """
+    name = type(simulation).__name__
+    values = simulation.parameters()
+    at = ", ".join(f"{k}={float(v):.4g}" for k, v in values.items())
+    for recording in recordings:
+        try:
+            out = np.asarray(simulation.simulate(jnp.asarray(recording.v_in), recording.dt), dtype=np.float64)
+        except (TypeError, ValueError) as error:  # not an array of one value per sample
+            return f"the simulation {name} cannot be run on recording '{recording.name}' ({error})"
+        bad = np.flatnonzero(~np.isfinite(out))
+        if bad.size:
+            return (
+                f"the simulation {name} returns non-finite values (NaN or inf) at {bad.size} of {out.size} "
+                f"samples of recording '{recording.name}', the first at t = {recording.t[bad[0]]:.6g} s, "
+                f"with its start parameters ({at}), so no step of the fit could be taken: make its simulate "
+                "finite for this drive (a log, a square root or a division of a signal that reaches zero?), "
+                "or start it where it is finite (its constructor's defaults; fit's --param NAME=VALUE)"
+            )
+    return (
+        f"every start's predictions are non-finite (NaN or inf), though the simulation {name} is finite at "
+        "its start parameters on every recording: the readout's start values or the recording's scale "
+        "overflow; check w's unit and size"
     )
 
 

@@ -59,10 +59,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation
-from ..core._fit import PAPER_UNITS, recording_units, unit_labels
+from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_labels
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
-from ..util._errors import InputError
+from ..util._errors import InputError, PluginError
 from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
 from ._ambiguity import ambiguities
@@ -268,6 +268,8 @@ def diagnose(
         lm,
         settings.effect_free_patience,
     )
+    if not np.isfinite(np.asarray(base_states.best_val)).any():  # no start could move
+        raise PluginError(non_finite_fit(simulation, recordings), plugin=type(simulation))
     best = int(np.nanargmin(np.asarray(base_states.best_val)))
     theta_base = base_states.best_theta[best]
     n_base = len(free_names(model, frozen, None))

@@ -165,7 +165,8 @@ def describe_failure(error: BaseException) -> str | None:
     happened. None otherwise (and for a `PluginError`, already one line).
     """
     if isinstance(error, PluginError):
-        return None
+        source = _SOURCES.get(getattr(error.plugin, "__module__", None) or "")
+        return f"{source[0]}: {error}" if source is not None else None
     for current in _chain(error):
         frames = _plugin_frames(current)
         if frames:

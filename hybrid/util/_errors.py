@@ -15,9 +15,12 @@ class PluginError(InputError):
     """A plug-in's code failed or returned something unusable: one line naming the plug-in and its method.
 
     `original` is the exception the plug-in raised (None for a wrong result),
-    kept for ``hybrid -v``.
+    kept for ``hybrid -v``. `plugin` is the class at fault when the message was
+    written where its ``--physics`` spec is unknown (the command line puts the
+    spec in front).
     """
 
-    def __init__(self, message: str, original: BaseException | None = None):
+    def __init__(self, message: str, original: BaseException | None = None, plugin: type | None = None):
         super().__init__(message)
         self.original = original
+        self.plugin = plugin
