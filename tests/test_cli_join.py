@@ -185,3 +185,37 @@ def test_a_missing_column_lists_the_columns_and_shows_the_flag(tmp_path):
     with pytest.raises(InputError) as caught:
         load_mapped(lab, input="uest", output="yEst", rate=1)
     assert "its columns: uEst, yEst" in str(caught.value) and "--input uEst" in str(caught.value)
+
+
+@pytest.mark.parametrize(
+    "header, drive, output",
+    [
+        ("time,u,y", "u", "y"),
+        ("Time (s),Voltage (V),Displacement (mm)", "Voltage (V)", "Displacement (mm)"),
+        ("Index,t_s,Command,Laser", "Command", "Laser"),
+    ],
+)
+def test_the_suggested_flags_read_the_lab_file(tmp_path, header, drive, output):
+    """The refusal's example is guessed from the names (time, drive, output; an index skipped) and works as given."""
+    import shlex
+
+    from hybrid import Recording
+
+    names = header.split(",")
+    rng = np.random.default_rng(0)
+    table = np.round(rng.normal(size=(50, len(names))), 6)  # as written to the file
+    time = next(i for i, n in enumerate(names) if n.lower().startswith("t"))
+    table[:, time] = np.arange(50) / 10.0
+    if names[0] == "Index":
+        table[:, 0] = np.arange(50)
+    lab = tmp_path / "lab.csv"
+    np.savetxt(lab, table, delimiter=",", header=header, comments="", fmt="%.9g")
+    with pytest.raises(InputError) as caught:
+        Recording.load(lab)
+    words = shlex.split(str(caught.value).split("e.g. ", 1)[1])
+    flags = dict(zip(words[::2], words[1::2]))
+    assert set(flags) == {"--columns", "--time"}, words
+    recording = Recording.load(lab, columns=flags["--columns"], time=flags["--time"])
+    np.testing.assert_array_equal(recording.v_in, table[:, names.index(drive)])
+    np.testing.assert_array_equal(recording.w, table[:, names.index(output)])
+    assert recording.rate == pytest.approx(10.0)

@@ -113,17 +113,69 @@ def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequ
     missing = [c for c in required if c not in found]
     if missing:
         shown = ", ".join(f"'{c}'" for c in found) or "none"
-        others = [c for c in found if c not in REQUIRED]
-        example = (
-            ",".join(f"{role}={name}" for role, name in zip(("input", "output"), others))
-            if len(others) >= 2
-            else "input=COLUMN,output=COLUMN"
-        )
         raise InputError(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
-            f"yours are which, e.g. --columns {example} with --rate HZ or --time COLUMN"
+            f"yours are which, e.g. {mapping_example([c for c in found if c not in REQUIRED])}"
         )
+
+
+#: Words that name a column's role in lab files (lower case, units and punctuation stripped).
+_ROLE_WORDS = {
+    "time": ("t", "time", "times", "timestamp", "sec", "secs", "second", "seconds", "zeit"),
+    "input": (
+        "u",
+        "v",
+        "vin",
+        "input",
+        "in",
+        "drive",
+        "voltage",
+        "volt",
+        "volts",
+        "cmd",
+        "command",
+        "excitation",
+    ),
+    "output": ("y", "w", "output", "out", "disp", "displacement", "position", "pos", "deflection", "tip"),
+    "index": ("n", "i", "k", "idx", "index", "sample", "samples", "frame", "frames", "step"),
+}
+
+
+def _role_of(name: str) -> str | None:
+    """The role a column's name suggests: 'Time (s)' -> time, 'uEst' -> input, 'Displacement [mm]' -> output."""
+    words = re.sub(r"[\(\[].*?[\)\]]", " ", name).lower()  # units in brackets
+    words = re.sub(r"(est|val|meas|measured|_?\d+)$", "", re.sub(r"[^a-z0-9]+", " ", words).strip())
+    tokens = words.split()
+    for role, names in _ROLE_WORDS.items():
+        short_unit = len(tokens) == 2 and len(tokens[1]) <= 2  # t_s, v_mV: a name and its unit
+        if words.replace(" ", "_") in names or (
+            tokens and tokens[0] in names and (len(tokens[0]) > 2 or short_unit)
+        ):
+            return role
+    return None
+
+
+def mapping_example(names: Sequence[str]) -> str:
+    """The flags that would map a lab file's columns, guessed from their names (time, drive, output)."""
+    roles: dict[str, str] = {}
+    for name in names:
+        role = _role_of(name)
+        if role is not None and role not in roles:
+            roles[role] = name
+    rest = [n for n in names if n not in roles.values() and _role_of(n) != "index"]
+    for role in ("input", "output"):
+        if role not in roles and rest:
+            roles[role] = rest.pop(0)
+    if "input" not in roles or "output" not in roles:
+        return "--columns input=COLUMN,output=COLUMN with --rate HZ or --time COLUMN"
+    columns = f"input={roles['input']},output={roles['output']}"
+    if re.search(r"[^\w.=,:-]", columns):
+        columns = f'"{columns}"'  # a name with spaces or brackets: one shell word
+    time = roles.get("time")
+    if time is None:
+        return f"--columns {columns} with --rate HZ (or --time COLUMN)"
+    return f"--columns {columns} --time " + (f'"{time}"' if re.search(r"[^\w.-]", time) else time)
 
 
 def parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:
