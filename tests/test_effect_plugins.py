@@ -148,6 +148,41 @@ def test_a_bad_effects_flag_gets_one_line(lab, spec, words, monkeypatch, capsys)
     assert not (lab / "bad").exists()  # nothing written before it succeeded
 
 
+_LATE_NAN = """
+from typing import ClassVar
+import jax.numpy as jnp
+from hybrid import AbstractEffect, Positive, encode
+
+
+class LateNaN(AbstractEffect):
+    raw: dict
+    name: ClassVar[str] = "late_nan"
+    constraints: ClassVar = {"gain": Positive()}
+    units: ClassVar = {"gain": "1"}
+    defaults: ClassVar = {"gain": 1.0}
+
+    def __init__(self, **values):
+        self.raw = encode({**self.defaults, **values}, self.constraints, self.name)
+
+    def apply(self, s, dt):  # finite on the 64-sample probe, NaN from sample 200 of a recording on
+        return jnp.where(jnp.arange(s.shape[0]) >= 200, jnp.nan, s * self.parameters()["gain"])
+"""
+
+
+def test_an_effect_non_finite_on_the_recording_is_named_in_one_line(lab, monkeypatch, capsys):
+    """Past the probe, every lane of the effect is NaN: one line naming it, not numpy's 'All-NaN slice'."""
+    from hybrid.cli import main
+
+    (lab / "late_nan.py").write_text(_LATE_NAN)
+    monkeypatch.chdir(lab)
+    argv = ["diagnose", "lab.csv", "--physics", "lti:1", "--effects", "late_nan.py:LateNaN", "--out", "late"]
+    code = main([*argv, "--quiet"])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, lines
+    assert lines[0].startswith("hybrid: error: effect LateNaN: every start of its fit gives non-finite"), lines
+    assert not (lab / "late").exists()
+
+
 # --------------------------------------------------------------------------- #
 # The interface, in Python
 # --------------------------------------------------------------------------- #

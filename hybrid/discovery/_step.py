@@ -33,7 +33,7 @@ import numpy as np
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
-from ..util._errors import InputError
+from ..util._errors import InputError, PluginError
 from . import residual_tests as rt
 from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings, EquallyGoodFits, Lane
@@ -376,6 +376,14 @@ def search_step(
         def is_material(j, name=name):
             return lane_effect(problem, cand_thetas[j], actives[j], name, settings.materiality)[0]
 
+        if not np.isfinite(vals[idx]).any():  # no lane could take a step: the effect is broken here
+            effect = effects[names.index(name)]
+            raise PluginError(
+                f"effect {type(effect).__name__}: every start of its fit gives non-finite predictions "
+                "(NaN or inf) on this recording, though it was finite on the probe signal: its apply is not "
+                "finite on this recording's signal (a log, a square root or a division of a signal that "
+                "reaches zero?): fix apply"
+            )
         j = choose_lane(idx, vals, is_material, s.n_val)
         chosen_lanes.add(j)
         cand = evaluate_candidate(
