@@ -179,7 +179,9 @@ def test_an_effect_non_finite_on_the_recording_is_named_in_one_line(lab, monkeyp
     code = main([*argv, "--quiet"])
     lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1, lines
-    assert lines[0].startswith("hybrid: error: effect LateNaN: every start of its fit gives non-finite"), lines
+    assert lines[0].startswith("hybrid: error: effect LateNaN: every start of its fit gives non-finite"), (
+        lines
+    )
     assert not (lab / "late").exists()
 
 
