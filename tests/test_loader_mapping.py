@@ -406,3 +406,14 @@ def test_units_or_a_range_alone_map_a_file_that_has_the_standard_columns(tmp_pat
     assert rec.metadata["mapping"] == {"t": "t", "v_in": "v_in", "w": "w"}
     with pytest.raises(InputError, match="no input column is named"):
         load_mapped(lab, units={"w": "mm"})  # time, u, y: which is the drive is the lab's to say
+
+
+def test_a_units_row_reaches_a_mapped_recording(tmp_path):
+    """Mapped columns under a units row: w's unit is the row's, a time column in ms is read in seconds."""
+    rows = "".join(f"{1000 * i / 30:.6f},{np.sin(i / 9):.6f},{np.cos(i / 7):.6f}\n" for i in range(90))
+    path = _write(tmp_path / "lab.csv", "Time,Drive,Disp\nms,V,um\n" + rows)
+    rec = load_mapped(path, input="Drive", output="Disp", time="Time")
+    assert rec.rate == pytest.approx(30.0) and rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "um"}
+    np.testing.assert_allclose(rec.w[:2], [1.0, np.cos(1 / 7)], atol=1e-6)  # no data line was taken as units
+    given = load_mapped(path, input="Drive", output="Disp", time="Time", units="w=mm,t=ms")
+    assert given.metadata["units"]["w"] == "mm"  # the flag wins over the row

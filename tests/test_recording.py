@@ -381,3 +381,18 @@ def test_non_numeric_npz_array(tmp_path):
     np.savez(tmp_path / "a.npz", t=np.arange(3.0), v_in=np.array(["a", "b", "c"]), w=np.zeros(3))
     with pytest.raises(InputError, match="variable 'v_in' of type"):
         Recording.load(tmp_path / "a.npz")
+
+
+def test_a_units_row_under_the_header_gives_the_units_and_the_time_scale(tmp_path):
+    """A data logger's second header line: its units reach the metadata, a time in ms becomes seconds."""
+    seconds = Recording.load(_write(tmp_path / "s.csv", "t,v_in,w\ns,V,mm\n0,1,2\n0.5,-1,3\n1,0,4\n"))
+    assert seconds.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"}
+    np.testing.assert_array_equal(seconds.w, [2.0, 3.0, 4.0])  # the first line of data is kept
+    assert len(seconds.notes) == 1 and "units row (line 2)" in seconds.notes[0]
+    ms = Recording.load(_write(tmp_path / "ms.csv", "t,v_in,w\n(ms),[V],(µm)\n0,1,2\n500,-1,3\n1000,0,4\n"))
+    np.testing.assert_allclose(ms.t, [0.0, 0.5, 1.0])
+    assert ms.metadata["units"] == {"t": "s", "v_in": "V", "w": "µm"}
+    with pytest.raises(InputError, match="gives its time column the unit 'days'.*write one of s, ms"):
+        Recording.load(_write(tmp_path / "d.csv", "t,v_in,w\ndays,V,mm\n0,1,2\n1,1,2\n"))
+    plain = Recording.load(_write(tmp_path / "p.csv", "t,v_in,w\n0,1,2\n0.5,-1,3\n1,0,4\n"))
+    assert plain.notes == () and plain.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"}

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._recording_checks import REQUIRED, rows_text
+from ._recording_checks import REQUIRED, TIME_UNITS, UNITS, rows_text
 
 __all__ = ["SUFFIXES", "check_file", "mat_variables", "npz_arrays", "read_file", "sidecar"]
 
@@ -118,6 +118,44 @@ def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequ
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
             f"yours are which, e.g. {mapping_example([c for c in found if c not in REQUIRED])}"
         )
+
+
+#: What a cell of a units row may hold: a short unit (s, V, mm, µm, rad/s, m/s^2, °C, %).
+_UNIT = re.compile(r"^[A-Za-zµμ°%Ω/^*·.\d\s-]{1,16}$")
+#: Spellings of the time units `TIME_UNITS` knows.
+_TIME_SPELLINGS = {"sec": "s", "secs": "s", "second": "s", "seconds": "s", "msec": "ms", "μs": "µs"}
+
+
+def units_row(cells: Sequence[str]) -> list[str] | None:
+    """The units a line under the header gives, one per cell ('' where none), or None when it holds data.
+
+    A units row (a data logger's or spreadsheet's second header line: ``s,V,mm`` or
+    ``(s),[V],(µm)``) has no number in any cell, at least one unit, and only short
+    unit-like cells; brackets around a unit are dropped.
+    """
+    cleaned = []
+    for cell in cells:
+        text = cell.strip().strip('"').strip()
+        try:
+            float(text)
+            return None  # a number (or nan): a line of data
+        except ValueError:
+            pass
+        cleaned.append(re.sub(r"^[\(\[]\s*(.*?)\s*[\)\]]$", r"\1", text))
+    if not any(cleaned) or not all(_UNIT.match(c) for c in cleaned if c):
+        return None
+    return cleaned
+
+
+def time_factor(path: pathlib.Path | str, unit: str, where: str) -> float:
+    """Seconds per unit of a time column whose unit a file states (`where`: e.g. 'its units row')."""
+    key = _TIME_SPELLINGS.get(unit.strip().lower(), unit.strip())
+    if key not in TIME_UNITS:
+        raise InputError(
+            f"recording '{path}' gives its time column the unit {unit!r} in {where}: "
+            f"write one of {', '.join(TIME_UNITS)}"
+        )
+    return TIME_UNITS[key]
 
 
 #: Words that name a column's role in lab files (lower case, units and punctuation stripped).
@@ -289,8 +327,10 @@ def _load_csv(
             f"recording '{path}' has no header or data: give a header line t,v_in,w and one line per sample"
         )
     header = _csv_header(path, lines[0][1], required)
+    row = units_row(lines[1][1].split(",")) if len(lines) > 1 else None
+    stated = {name: unit for name, unit in zip(header, row or ()) if unit}
     rows, numbers = [], []
-    for number, line in lines[1:]:
+    for number, line in lines[1 + (row is not None) :]:
         cells = [cell.strip() for cell in line.split(",")]
         while len(cells) > len(header) and not cells[-1].strip('"'):
             cells.pop()  # the trailing empty cells of the header's trailing empty names
@@ -321,6 +361,16 @@ def _load_csv(
     metadata = {}
     if meta_path.exists():
         metadata = parse_metadata(path, read_text(meta_path), f"'{meta_path.name}'")
+    if row is not None:  # the units under the header travel with the data; a sidecar's units win
+        where = f"its units row (line {lines[1][0]})"
+        if "t" in stated:
+            columns["t"] = columns["t"] * time_factor(path, stated["t"], where)
+        units = metadata.get("units")
+        declared: dict = units if isinstance(units, dict) else {}
+        metadata["units"] = {**UNITS, **{c: stated[c] for c in ("v_in", "w") if c in stated}, **declared}
+        metadata["units"]["t"] = declared.get("t", "s")
+        listed = ", ".join(f"{c} in {u}" for c, u in stated.items())
+        notes.append(f"recording '{path}': read {where} as units ({listed})")
     return columns, metadata, tuple(notes)
 
 

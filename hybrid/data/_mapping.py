@@ -64,9 +64,8 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._loaders import check_file, path_argument
+from ._loaders import check_file, path_argument, time_factor
 from ._mapping_options import (
-    TIME_UNITS,
     mapping_roles,
     parse_columns,
     parse_sample_range,
@@ -75,7 +74,7 @@ from ._mapping_options import (
     units_argument,
 )
 from ._recording import Recording
-from ._recording_checks import MS_STEP_S
+from ._recording_checks import MS_STEP_S, TIME_UNITS
 from ._table import MAPPED_SUFFIXES, OPTION, RATE_FIELDS, only_column, rate_field, read_columns
 
 __all__ = ["DEFAULT_UNITS", "RATE_RTOL", "file_references", "load_mapped", "load_pair"]
@@ -193,8 +192,14 @@ def load_mapped(
     )
     t = None
     if "t" in data:
-        declared = "t" in given_units  # a time column in seconds unless its unit is given
-        t = data["t"][start:stop] * TIME_UNITS[given_units.pop("t", "s")]
+        file_units = file_meta.get("units")  # by column name: a units row under the header, or a sidecar's
+        stated = file_units.get(roles["t"]) if isinstance(file_units, Mapping) else None
+        declared = "t" in given_units or isinstance(stated, str)  # in seconds unless its unit is given
+        if "t" in given_units:
+            factor = TIME_UNITS[given_units.pop("t")]
+        else:
+            factor = time_factor(path, stated, "the file's units") if isinstance(stated, str) else 1.0
+        t = data["t"][start:stop] * factor
         step = float(np.median(np.diff(t)))
         if not declared and step >= MS_STEP_S:
             raise InputError(

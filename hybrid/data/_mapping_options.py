@@ -16,14 +16,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..util._errors import InputError
+from ._recording_checks import TIME_UNITS
 from ._table import OPTION
 
-__all__ = ["ROLES", "TIME_UNITS", "mapping_roles", "parse_columns", "parse_sample_range", "parse_units"]
+__all__ = ["ROLES", "mapping_roles", "parse_columns", "parse_sample_range", "parse_units"]
 
 #: Role names accepted in ``columns`` and ``units`` -> the channel they fill.
 ROLES: dict[str, str] = {"input": "v_in", "v_in": "v_in", "output": "w", "w": "w", "time": "t", "t": "t"}
-#: Units a time column may be given in, and their length in seconds.
-TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "min": 60.0, "h": 3600.0}
 
 _EXAMPLE = "e.g. 'input=uEst,output=yEst'"
 _RANGE = re.compile(r"^\s*([+-]?\d+)?\s*:\s*([+-]?\d+)?\s*$")

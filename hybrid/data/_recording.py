@@ -350,7 +350,10 @@ class Recording:
           ``w`` exactly (case-sensitive); other columns become extra channels
           in order, except a column of mostly text (a timestamp, a comment),
           which is left out with a note; empty names after the last column
-          (a spreadsheet's trailing commas) are ignored. Metadata comes from the sidecar ``<file>.csv.json`` when
+          (a spreadsheet's trailing commas) are ignored. A units row right
+          under the header (``s,V,mm``; no number in any cell) gives the
+          units of v_in and w, and t's (ms, us, min, h are converted to s),
+          with a note. Metadata comes from the sidecar ``<file>.csv.json`` when
           it exists.
         * ``.npz``: arrays ``t``, ``v_in``, ``w``; ``extra_<name>`` (and any
           other array) become extra channels; ``metadata`` is a JSON string.

@@ -22,10 +22,12 @@ import numpy as np
 
 from ..util._errors import InputError
 
-__all__ = ["GAP_FRAMES", "JITTER_FRAMES", "MS_STEP_S", "REQUIRED", "TIME_RTOL", "UNITS"]
+__all__ = ["GAP_FRAMES", "JITTER_FRAMES", "MS_STEP_S", "REQUIRED", "TIME_RTOL", "TIME_UNITS", "UNITS"]
 
 #: Required channels, in file order.
 REQUIRED: tuple[str, ...] = ("t", "v_in", "w")
+#: Units a time column may be given in, and their length in seconds.
+TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "min": 60.0, "h": 3600.0}
 #: Units of the required channels, stored in ``metadata["units"]``.
 UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "mm"}
 #: Largest ``max|dt - median dt| / median dt`` kept as it is; far above the rounding

@@ -44,7 +44,7 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from ..util._errors import InputError
-from ._loaders import file_vector, mat_variables, npz_arrays, parse_metadata, read_text, sidecar
+from ._loaders import file_vector, mat_variables, npz_arrays, parse_metadata, read_text, sidecar, units_row
 
 __all__ = [
     "MAPPED_SUFFIXES",
@@ -156,6 +156,7 @@ def _read_csv(
     try:
         with _open(path) as handle:
             header, header_line = _header(path, handle)
+            stated = _stated_units(handle, header)
             index = {
                 role: _column_index(path, header, name, role, flag_prefix) for role, name in wanted.items()
             }
@@ -209,7 +210,29 @@ def _read_csv(
     meta_path = sidecar(path)
     if meta_path.exists():
         metadata = parse_metadata(path, read_text(meta_path), f"'{meta_path.name}'")
+    if stated:  # a units row under the header, by column name; a sidecar's units win
+        units = metadata.get("units")
+        declared: dict = units if isinstance(units, dict) else {}
+        metadata["units"] = {**stated, **declared}
     return columns, rates, metadata
+
+
+def _stated_units(handle, header: Sequence[str]) -> dict[str, str]:
+    """The units row right under the header (`units_row`), by column name; the handle is left after it.
+
+    Where the next line holds data, the handle goes back to its start.
+    """
+    position = handle.tell()
+    for line in iter(handle.readline, ""):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        row = units_row(next(csv.reader([stripped])))
+        if row is None:
+            break
+        return {name: unit for name, unit in zip(header, row) if unit and name}
+    handle.seek(position)
+    return {}
 
 
 def _lenient(cell: str) -> float:
