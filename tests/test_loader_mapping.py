@@ -369,7 +369,6 @@ def test_every_bad_mapping_is_one_input_error(lab, options, match):
             r"no cell \(the line has 1 cell\(s\), the column is number 2\) in column 'y'.*line 3",
         ),
         ("u,y\n", "has a header but no data lines"),
-        ("u;y\n1;2\n", "uses ';' as its delimiter"),
         ("u,y,u\n1,2,3\n", r"has 2 columns named 'u' \(columns 1, 3\)"),
     ],
 )
@@ -417,3 +416,11 @@ def test_a_units_row_reaches_a_mapped_recording(tmp_path):
     np.testing.assert_allclose(rec.w[:2], [1.0, np.cos(1 / 7)], atol=1e-6)  # no data line was taken as units
     given = load_mapped(path, input="Drive", output="Disp", time="Time", units="w=mm,t=ms")
     assert given.metadata["units"]["w"] == "mm"  # the flag wins over the row
+
+
+def test_a_semicolon_file_with_decimal_commas_maps_its_columns(tmp_path):
+    path = _write(tmp_path / "eu.csv", "Zeit;Spannung;Weg\n0;1,5;-0,25\n0,5;2;1,5e-3\n1;-1,25;,5\n")
+    rec = load_mapped(path, input="Spannung", output="Weg", time="Zeit")
+    np.testing.assert_array_equal(rec.v_in, [1.5, 2.0, -1.25])
+    np.testing.assert_array_equal(rec.w, [-0.25, 1.5e-3, 0.5])
+    assert rec.rate == pytest.approx(2.0)

@@ -222,18 +222,27 @@ def test_cli_warns_when_it_rebuilds_the_time_base(tmp_path, capsys):
 # ----------------------------------------------------------------- 6. messages that pointed the wrong way
 
 
-@pytest.mark.parametrize("delimiter, word", [(";", "';'"), ("\t", "tabs"), (" ", "spaces")])
-def test_other_delimiters_are_named(tmp_path, delimiter, word):
+@pytest.mark.parametrize(
+    "delimiter, decimal, how",
+    [(";", ",", "';' with decimal commas"), ("\t", ",", "tabs with decimal commas"), ("\t", ".", "tabs")],
+)
+def test_a_spreadsheets_semicolons_tabs_and_decimal_commas_are_read(tmp_path, delimiter, decimal, how):
+    """Where the comma is the decimal mark, spreadsheets separate cells by ';' (or tabs): read as written."""
     v, w = _signals(20)
-    path = _write_csv(
-        tmp_path / "x.csv",
-        np.arange(20) / RATE,
-        v,
-        w,
-        delimiter=delimiter,
-        decimal="," if delimiter == ";" else ".",
-    )
-    with pytest.raises(InputError, match=f"uses {word} as its delimiter.*comma-separated with '.' decimals"):
+    t = np.arange(20) / RATE
+    path = _write_csv(tmp_path / "x.csv", t, v, w, delimiter=delimiter, decimal=decimal)
+    recording = Recording.load(path)
+    np.testing.assert_array_equal(recording.w, w)  # repr() of each value, read back exactly
+    np.testing.assert_array_equal(recording.v_in, v)
+    assert recording.notes == (f"recording '{path}': read as cells separated by {how}",)
+    mapped = Recording.load(path, input="v_in", output="w", time="t")
+    np.testing.assert_array_equal(mapped.w, w)
+
+
+def test_space_separated_csv_is_named(tmp_path):
+    v, w = _signals(20)
+    path = _write_csv(tmp_path / "x.csv", np.arange(20) / RATE, v, w, delimiter=" ")
+    with pytest.raises(InputError, match="uses spaces as its delimiter.*comma-separated with '.' decimals"):
         Recording.load(path)
 
 

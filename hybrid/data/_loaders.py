@@ -244,14 +244,49 @@ def read_text(path: pathlib.Path) -> str:
         ) from None
 
 
-def _csv_lines(path: pathlib.Path) -> list[tuple[int, str]]:
-    """Non-blank, non-comment lines with their line numbers (from 1)."""
+#: A number written with a decimal comma: 1,5 or -0,25 or ,5 or 1,5e-3.
+_DECIMAL_COMMA = re.compile(r"[+-]?(\d+,\d*|,\d+)([eE][+-]?\d+)?")
+
+
+def comma_separated(text: str) -> tuple[str, str | None]:
+    """A CSV's text with its cells between commas, and what was changed (None: nothing).
+
+    A spreadsheet saved where the comma is the decimal mark separates cells by ';'
+    (or tabs): a header with one of those and no comma marks such a file. Its cells
+    are joined by commas again and a number written with a decimal comma (``1,5``)
+    gets a point; every line keeps its number, so messages still point into the file.
+    """
+    lines = text.splitlines()
+    header = next((line for line in lines if line.strip() and not line.strip().startswith("#")), "")
+    mark = next((m for m in (";", "\t") if m in header and "," not in header), None)
+    if mark is None:
+        return text, None
+    decimals = 0
+    out = []
+    for line in lines:
+        if not line.strip() or line.strip().startswith("#"):
+            out.append(line)
+            continue
+        cells = []
+        for cell in line.split(mark):
+            cell = cell.strip()
+            if _DECIMAL_COMMA.fullmatch(cell):
+                cell, decimals = cell.replace(",", "."), decimals + 1
+            cells.append(cell.replace(",", " "))  # a comma in a name or a label: not a separator
+        out.append(",".join(cells))
+    word = "';'" if mark == ";" else "tabs"
+    return "\n".join(out), f"read as cells separated by {word}" + (" with decimal commas" if decimals else "")
+
+
+def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], str | None]:
+    """Non-blank, non-comment lines with their line numbers (from 1), and how the text was read."""
     lines = []
-    for number, line in enumerate(read_text(path).splitlines(), start=1):
+    text, how = comma_separated(read_text(path))
+    for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):
             lines.append((number, stripped))
-    return lines
+    return lines, how
 
 
 def _csv_header(path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED) -> list[str]:
@@ -272,7 +307,7 @@ def _csv_header(path: pathlib.Path, line: str, required: Sequence[str] = REQUIRE
 
 
 def _check_delimiter(path: pathlib.Path, line: str) -> None:
-    """Refuse a header split by ';', tabs or spaces: its columns would read as missing."""
+    """Refuse a header split by spaces: its columns would read as missing (';' and tabs: `comma_separated`)."""
     if "," in line:
         return
     for mark, word in ((";", "';'"), ("\t", "tabs"), (None, "spaces")):
@@ -321,7 +356,7 @@ def _text_column(cells: list[str]) -> str | None:
 def _load_csv(
     path: pathlib.Path, required: Sequence[str] = REQUIRED
 ) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...]]:
-    lines = _csv_lines(path)
+    lines, how = _csv_lines(path)
     if not lines:
         raise InputError(
             f"recording '{path}' has no header or data: give a header line t,v_in,w and one line per sample"
@@ -347,7 +382,7 @@ def _load_csv(
     if not rows:
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     line_numbers = np.asarray(numbers)
-    columns, notes = {}, []
+    columns, notes = {}, [] if how is None else [f"recording '{path}': {how}"]
     for i, column in enumerate(header):
         cells = [row[i] for row in rows]
         label = None if column in REQUIRED else _text_column(cells)

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import csv
 import difflib
+import io
 import math
 import pathlib
 import warnings
@@ -44,7 +45,16 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from ..util._errors import InputError
-from ._loaders import file_vector, mat_variables, npz_arrays, parse_metadata, read_text, sidecar, units_row
+from ._loaders import (
+    comma_separated,
+    file_vector,
+    mat_variables,
+    npz_arrays,
+    parse_metadata,
+    read_text,
+    sidecar,
+    units_row,
+)
 
 __all__ = [
     "MAPPED_SUFFIXES",
@@ -154,7 +164,9 @@ def _read_csv(
     path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
     try:
-        with _open(path) as handle:
+        with _open(path) as raw:
+            handle = io.StringIO(comma_separated(raw.read())[0])  # a ';' or tab export with decimal commas
+        with handle:
             header, header_line = _header(path, handle)
             stated = _stated_units(handle, header)
             index = {
