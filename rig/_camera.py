@@ -79,6 +79,8 @@ class VideoSource:
         self.first_unplaced: int | None = None
         if is_file:
             path = pathlib.Path(source)
+            if path.is_dir():
+                raise RigError(f"video file '{path}' is a folder: give the video file inside it")
             if not path.is_file():
                 raise RigError(f"video file '{path}' does not exist")
             self._avi = open_mjpeg_avi(path)

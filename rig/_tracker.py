@@ -21,7 +21,9 @@ Method, per frame (nothing here knows how the picture was made):
    half-way crossing (linear interpolation) is the tip's s. w = u(s_tip) * mm/px.
 
 Quality: 1 when the strip is found from the clamp to a tip inside the view with
-clear contrast, 0 otherwise (the reason is in ``TipResult.reason``); w is NaN
+clear contrast, its sections on one smooth line, 0 otherwise (the reason is in
+``TipResult.reason``; something dark across the strip bends its sections off
+the line by several pixels, and the tip beyond it would be wrong); w is NaN
 when nothing could be measured. A dark line that does not leave the clamp along
 the rest axis (met far from the clamp, or across the axis: the axis is wrong),
 or that ends before 40 % of the free length (the clamp's edge, a short mark),
@@ -89,6 +91,10 @@ class TipTracker:
     """
 
     MIN_LENGTH = 0.4  # a tip nearer the clamp than this fraction of the free length is not the strip's
+    #: The sections' RMS distance from the fitted centreline above which the strip is not one smooth
+    #: line: this many px, or this fraction of the strip's thickness when larger.
+    MAX_BEND_RMS_PX = 0.75
+    MAX_BEND_RMS_STRIP = 0.15
 
     def __init__(
         self,
@@ -256,6 +262,13 @@ class TipTracker:
 
         def line(sv):
             return np.polyval(coef, np.asarray(sv) / scale)
+
+        # A strip's sections lie on one smooth line (0.05-0.3 px RMS from it for a 4 px strip, 1.4 px for
+        # 12 px); something dark across the strip (a hand, a cable, a tool) pulls them off by several
+        # px, and the tip found beyond it is wrong by millimetres, of either sign.
+        broken = float(np.sqrt(np.mean((uu - line(ss)) ** 2)))
+        if broken > max(self.MAX_BEND_RMS_PX, self.MAX_BEND_RMS_STRIP * self.strip_px):
+            return TipResult(math.nan, 0, "strip not one smooth line (covered?)", (math.nan, math.nan))
 
         # Contrast along the centreline, averaged over +-1 px across it.
         s_fine = np.arange(s[last] - 3 * self.strip_px - 4, s[last] + 2 * self.strip_px + 4, 0.1)

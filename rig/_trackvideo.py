@@ -44,6 +44,11 @@ __all__ = ["TrackJob", "track_video"]
 
 HEAD_FRAMES = 30  # frames read first to find the axis; every other one is used
 AXIS_WARN_DEG = 1.0  # a given axis this far from the detected one earns a warning
+#: The tip's median distance from the clamp, as a fraction of --length, below which the scale or the
+#: length is doubted (a cantilever's tip stays within a few per cent of its free length).
+LENGTH_WARN_FRACTION = 0.75
+#: The shortest strip, px, the tracker can follow; the longest is this many picture diagonals.
+MIN_STRIP_PX, MAX_STRIP_DIAGONALS = 8.0, 1.25
 CLAMP_WARN_PX = 1.0  # so does a given clamp point this far beside the strip
 
 
@@ -82,6 +87,40 @@ def _warn(message: str) -> None:
     print(f"rig: warning: {message}", file=sys.stderr)
 
 
+def _check_scene(job: TrackJob, image) -> None:
+    """Refuse a clamp point outside the picture, and a strip too short or too long in pixels to follow."""
+    height, width = image.shape[:2]
+    x, y = job.clamp
+    if not (0 <= x < width and 0 <= y < height):
+        raise RigError(
+            f"--clamp {x:g},{y:g} is outside the {width}x{height} picture of {job.video}: give the clamp "
+            "point in the video's pixels (x from the left, y from the top)"
+        )
+    length_px = (job.length_mm or 22.0) / job.mm_per_px
+    diagonal = math.hypot(width, height)
+    if not MIN_STRIP_PX <= length_px <= MAX_STRIP_DIAGONALS * diagonal:
+        raise RigError(
+            f"--length {job.length_mm or 22.0:g} mm at --mm-per-px {job.mm_per_px:g} is a strip "
+            f"{length_px:.4g} px long, {'too short to follow' if length_px < MIN_STRIP_PX else 'longer than'}"
+            + ("" if length_px < MIN_STRIP_PX else f" the {width}x{height} picture can show")
+            + ": check both (the scale is mm per pixel: a 30 mm strip 300 px long is 0.1)"
+        )
+
+
+def _length_warning(job: TrackJob, tips, clamp) -> str | None:
+    """A warning when the tracked tips lie well short of --length from the clamp: the scale or the length is off."""
+    if job.length_mm is None or not tips:
+        return None
+    reach = float(np.median([math.hypot(x - clamp[0], y - clamp[1]) for x, y in tips])) * job.mm_per_px
+    if reach >= LENGTH_WARN_FRACTION * job.length_mm:
+        return None
+    return (
+        f"the strip's tip lies a median {reach:.3g} mm from the clamp, {reach / job.length_mm:.2f} of "
+        f"--length {job.length_mm:g} mm: if the strip is that long, give --length {reach:.3g}; if not, "
+        f"--mm-per-px {job.mm_per_px:g} is off by about that factor, and w with it"
+    )
+
+
 def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None, tuple[float, float]]:
     """The axis estimate from the first frames, and the axis (None: no strip) and clamp point to track with.
 
@@ -116,10 +155,10 @@ def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None
 
 
 def _track_rows(
-    job: TrackJob, video: VideoSource, head, angle: float | None, clamp, meta: dict, t, w, quality
+    job: TrackJob, video: VideoSource, head, angle: float | None, clamp, meta: dict, t, w, quality, tips
 ) -> None:
     """Track every frame (the ``head`` already read, then the rest) along ``angle`` (degrees) from
-    ``clamp`` (x, y px), appending to the lists t (s), w (mm), quality."""
+    ``clamp`` (x, y px), appending to the lists t (s), w (mm), quality, and the good frames' tips (x, y px)."""
     tracker = None
     if angle is not None:
         scene = Scene(clamp=tuple(clamp), mm_per_px=job.mm_per_px, angle_deg=angle, length_mm=job.length_mm)
@@ -142,6 +181,7 @@ def _track_rows(
                 ok, value, reason = 0, math.nan, "no strip along any axis"
             if ok:
                 last = value
+                tips.append(result.tip_xy)
             else:
                 reasons[reason] = reasons.get(reason, 0) + 1
             t.append(frame.t)
@@ -245,7 +285,15 @@ def track_video(job: TrackJob) -> dict:
     places in time are unknown.
     """
     check_outputs([job.out, job.sidecar], [job.video])
-    existed = pathlib.Path(job.out).exists()
+    out = pathlib.Path(job.out)
+    if out.is_dir():
+        raise RigError(f"--out {out} is a folder: give the CSV file to write, e.g. {out / 'w.csv'}")
+    if out.suffix.lower() != ".csv":
+        raise RigError(
+            f"--out {out} has suffix '{out.suffix or '(none)'}', but rig track writes a CSV (t,w,quality): "
+            f"name it e.g. {out.with_suffix('.csv').name}"
+        )
+    existed = out.exists()
     meta: dict[str, Any] = {
         "source": "rig track",
         "video": str(job.video),
@@ -259,6 +307,8 @@ def track_video(job: TrackJob) -> dict:
         head: list[Frame] = []
         while len(head) < HEAD_FRAMES and (frame := video.read()) is not None:
             head.append(frame)
+        if head:
+            _check_scene(job, head[0].image)
         estimate, angle, clamp = _find_or_check_axis(job, head)
         meta["axis"] = {
             "angle_deg": angle,
@@ -276,8 +326,9 @@ def track_video(job: TrackJob) -> dict:
         t: list[float] = []
         w: list[float] = []
         quality: list[int] = []
+        tips: list[tuple[float, float]] = []
         try:
-            _track_rows(job, video, head, angle, clamp, meta, t, w, quality)
+            _track_rows(job, video, head, angle, clamp, meta, t, w, quality, tips)
         except KeyboardInterrupt:
             meta["video_integrity"] = video.integrity()
             written = _write(job, t, w, quality, meta, failed=True)
@@ -286,6 +337,9 @@ def track_video(job: TrackJob) -> dict:
         account = _account(video, t, quality)
     meta["video_integrity"] = account
     meta["complete"] = account["complete"]
+    length_warning = _length_warning(job, tips, clamp)
+    if length_warning is not None:
+        meta["warnings"] = [length_warning]
     good = int(np.sum(quality))
     problems = []
     if angle is None:
@@ -338,6 +392,8 @@ def track_video(job: TrackJob) -> dict:
             else (", sync LED not seen" if sync else "")
         )
     )
+    if length_warning is not None:
+        _warn(length_warning)
     if account["gaps"]:
         _warn(_gap_warning(job, account["gaps"]))
     if account["timestamp_faults"]:

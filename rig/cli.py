@@ -35,13 +35,25 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _numbers(count_min: int, count_max: int, what: str):
+    """An argparse ``type``: ``count_min`` to ``count_max`` comma-separated finite numbers (`what`: the form)."""
+    count = (
+        f"{count_min}"
+        if count_min == count_max
+        else f"{count_min} or {count_max}"
+        if count_max == count_min + 1
+        else f"{count_min} to {count_max}"
+    )
+
     def parse(text: str) -> tuple[float, ...]:
+        # argparse.ArgumentTypeError: argparse turns any other ValueError into "invalid parse value"
         try:
             values = tuple(float(x) for x in text.split(","))
         except ValueError:
-            raise InputError(f"{what} must be comma-separated numbers, got {text!r}") from None
+            raise argparse.ArgumentTypeError(
+                f"expected {what}: comma-separated numbers, got {text!r}"
+            ) from None
         if not count_min <= len(values) <= count_max or not all(math.isfinite(v) for v in values):
-            raise InputError(f"{what} needs {count_min}-{count_max} finite numbers, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected {what}: {count} finite numbers, got {text!r}")
         return values
 
     return parse
@@ -122,7 +134,8 @@ def _scene_args(p, track: bool = False):
             help="rest axis angle, degrees (0 = strip points right, 90 = down)",
         )
     p.add_argument(
-        "--length", type=LENGTH, default=22.0, help="free strip length, mm, in (0, 1000] (bounds the search)"
+        "--length", type=LENGTH, default=22.0, help="free strip length, mm, in (0, 1000] (default 22; the search reaches 1.4x it, and a tip tracked "
+        "well short of it is warned about: a wrong --mm-per-px or --length)"
     )
     p.add_argument("--strip-px", type=STRIP_PX, default=4.0, help="visible strip thickness, px, in (0, 100]")
     p.add_argument(

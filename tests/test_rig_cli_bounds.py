@@ -46,6 +46,8 @@ def _with(argv, option, value):
         (_with(RECORD, "--seed", "-1"), "--seed: must be an integer >= 0"),
         (["simavr-timing", "--rate", "0"], "--rate: must be a number >= 1 and <= 5000"),
         (["simavr-timing", "--duration", "-5"], "--duration: must be a number > 0"),
+        (_with(TRACK, "--clamp", "100"), "--clamp: expected --clamp X,Y: 2 finite numbers, got '100'"),
+        (_with(TRACK, "--led", "1,a"), "--led: expected --led X,Y[,R]: comma-separated numbers"),
     ],
 )
 def test_size_arguments_are_bounded(argv, fragment, capsys):
@@ -60,3 +62,83 @@ def test_track_never_writes_over_its_video(tmp_path, capsys):
     assert main(["track", str(video), "--clamp", "1,1", "--mm-per-px", "0.1", "--out", str(video)]) == 2
     assert "is the input" in capsys.readouterr().err
     assert video.read_bytes() == b"not really a video"
+
+
+@pytest.fixture(scope="module")
+def strip_video(tmp_path_factory):
+    """Eight frames of a 22 mm strip at 0.1 mm/px pointing right from (20, 100), in 480 x 260 (tests' renderer)."""
+    from rig_cantilever_render import CantileverVideo, write_avi
+
+    path = tmp_path_factory.mktemp("scene") / "strip.avi"
+    video = CantileverVideo((20.0, 100.0), 0.0, size=(480, 260), mm_per_px=0.1, seed=2)
+    write_avi(path, [video.frame(0.5 * k, k) for k in range(8)])
+    return path
+
+
+@pytest.mark.parametrize(
+    "flags, fragment",
+    [
+        (["--clamp", "700,100"], "--clamp 700,100 is outside the 480x260 picture"),
+        (["--mm-per-px", "10"], "is a strip 2.2 px long, too short to follow"),
+        (["--mm-per-px", "0.01", "--length", "1000"], "longer than the 480x260 picture can show"),
+    ],
+)
+def test_a_scene_that_cannot_be_in_the_picture_is_refused_before_tracking(
+    strip_video, tmp_path, capsys, flags, fragment
+):
+    """Before: an OpenCV assertion, or numpy asking for 292 GiB; now one line and nothing written."""
+    argv = [
+        "track",
+        str(strip_video),
+        "--clamp",
+        "20,100",
+        "--mm-per-px",
+        "0.1",
+        "--out",
+        str(tmp_path / "w.csv"),
+    ]
+    for option, value in zip(flags[::2], flags[1::2]):
+        argv = _with(argv, option, value)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rig: error: ") and err.count("\n") == 1 and fragment in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_track_refuses_an_out_that_is_a_folder_or_not_a_csv_and_a_folder_as_video(
+    strip_video, tmp_path, capsys
+):
+    base = ["track", str(strip_video), "--clamp", "20,100", "--mm-per-px", "0.1", "--out"]
+    other = tmp_path / "other.avi"
+    other.write_bytes(b"someone's video")
+    for out, fragment in [(tmp_path, "is a folder: give the CSV file"), (other, "has suffix '.avi'")]:
+        assert main([*base, str(out)]) == 2
+        assert fragment in capsys.readouterr().err
+    assert other.read_bytes() == b"someone's video"
+    assert main(["track", str(tmp_path), "--clamp", "20,100", "--mm-per-px", "0.1", "--out", "w.csv"]) == 2
+    assert "is a folder: give the video file inside it" in capsys.readouterr().err
+
+
+def test_a_strip_tracked_well_short_of_its_length_warns_of_the_scale(strip_video, tmp_path, capsys):
+    """--mm-per-px half the true scale halves w; the tip at half of --length says so."""
+    out = tmp_path / "w.csv"
+    argv = [
+        "track",
+        str(strip_video),
+        "--clamp",
+        "20,100",
+        "--mm-per-px",
+        "0.05",
+        "--length",
+        "22",
+        "--out",
+        str(out),
+    ]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "the strip's tip lies a median 11" in err and "0.50 of --length 22 mm" in err, err
+    import json
+
+    assert "0.50 of --length" in json.loads(out.with_name("w.csv.json").read_text())["warnings"][0]
+    assert main(_with(argv, "--mm-per-px", "0.1")) == 0  # the right scale: no warning
+    assert "warning" not in capsys.readouterr().err

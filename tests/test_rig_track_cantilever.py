@@ -11,6 +11,7 @@ import csv
 import json
 import math
 
+import cv2
 import numpy as np
 import pytest
 from rig_cantilever_render import CantileverVideo, cantilever_shape, write_avi
@@ -110,3 +111,32 @@ def test_rest_axis_and_tip_at_any_angle_with_the_strip_moving_at_frame_0(tmp_pat
     assert good.all()
     assert abs(_angle_error(detected, angle)) <= 0.1, detected  # 0.04 mm at the tip
     assert np.sqrt(np.mean((w - truth) ** 2)) <= 0.05
+
+
+def test_a_dark_object_across_the_strip_is_flagged_not_measured(tmp_path, capsys):
+    """A disk (a hand, a tool) sweeping over the strip bends its sections off one line: those frames
+    get quality 0, and no frame rated good is off (before the check: quality 1 and up to 3.5 mm, either
+    sign, on a new user's video)."""
+    clamp, frames = (20.0, 130.0), 66
+    truth = _motion(frames, start=1.0, swing=2.0)
+    video = CantileverVideo(clamp, 0.0, size=(260, 200), mm_per_px=0.1, tip_share=1.0, seed=4)
+    length_px = LENGTH / 0.1
+    images = []
+    for k, w in enumerate(truth):
+        image = video.frame(w, k)
+        if 36 <= k < 60:  # after the frames the axis comes from: sweeping from 0.3 to 0.9 of the length
+            x = clamp[0] + (0.3 + 0.6 * (k - 36) / 24) * length_px
+            cv2.circle(image, (int(x), int(clamp[1])), int(0.15 * length_px), 70, -1, cv2.LINE_AA)
+        images.append(image)
+    path, out = tmp_path / "strip.avi", tmp_path / "w.csv"
+    write_avi(path, images)
+    assert main(["track", str(path), "--clamp", "20,130", "--mm-per-px", "0.1", "--out", str(out)]) == 0
+    rows = list(csv.DictReader(out.open()))
+    w = np.array([float(r["w"]) for r in rows])
+    good = np.array([r["quality"] == "1" for r in rows])
+    covered = np.zeros(frames, bool)
+    covered[36:60] = True
+    assert good[~covered].all() and not good[covered].all()
+    assert np.max(np.abs(w - truth)[good]) <= 0.1
+    reasons = json.loads(out.with_name("w.csv.json").read_text())["untracked_reasons"]
+    assert "strip not one smooth line (covered?)" in reasons
