@@ -121,18 +121,39 @@ def _length_warning(job: TrackJob, tips, clamp) -> str | None:
     )
 
 
-def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None, tuple[float, float]]:
-    """The axis estimate from the first frames, and the axis (None: no strip) and clamp point to track with.
+def inverted(image: np.ndarray) -> np.ndarray:
+    """The picture in negative: a strip brighter than its background becomes a dark one."""
+    top = np.iinfo(image.dtype).max if np.issubdtype(image.dtype, np.integer) else float(np.max(image))
+    return top - image
+
+
+def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None, tuple[float, float], bool]:
+    """The axis estimate from the first frames, the axis (None: no strip) and clamp point to track with,
+    and whether the strip is brighter than its background (then tracked in negative).
 
     Without --axis, the detected rest line: its angle, and the clamp point
     moved across it onto the strip. With --axis, the given axis and clamp
-    point, and a warning when the strip leaves the clamp elsewhere.
+    point, and a warning when the strip leaves the clamp elsewhere. The
+    tracker follows a dark strip; where none is found, the negative is tried.
     """
     images = [frame.image for frame in head[::2]]
     estimate = find_axis(images, job.clamp, job.mm_per_px, job.length_mm, job.strip_px)
+    bright = False
+    if estimate.angle_deg is None and images:
+        negative = find_axis(
+            [inverted(i) for i in images], job.clamp, job.mm_per_px, job.length_mm, job.strip_px
+        )
+        if negative.angle_deg is not None:
+            estimate, bright = negative, True
+            print("the strip is brighter than its background: tracked in negative")
+    axis, clamp = _axis_and_clamp(job, estimate)
+    return estimate, axis, clamp, bright
+
+
+def _axis_and_clamp(job: TrackJob, estimate: AxisEstimate) -> tuple[float | None, tuple[float, float]]:
     if job.axis_deg is None:
         print(f"rest axis: {estimate.describe()}")
-        return estimate, estimate.angle_deg, estimate.clamp_xy or (job.clamp[0], job.clamp[1])
+        return estimate.angle_deg, estimate.clamp_xy or (job.clamp[0], job.clamp[1])
     if estimate.angle_deg is not None:
         off = abs((estimate.angle_deg - job.axis_deg + 180.0) % 360.0 - 180.0)
         if off > AXIS_WARN_DEG:
@@ -151,11 +172,21 @@ def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None
                 f"offset by about {estimate.offset_px * job.mm_per_px:+.2f} mm; leave --axis out to measure "
                 "from the strip's own rest line"
             )
-    return estimate, job.axis_deg, (job.clamp[0], job.clamp[1])
+    return job.axis_deg, (job.clamp[0], job.clamp[1])
 
 
 def _track_rows(
-    job: TrackJob, video: VideoSource, head, angle: float | None, clamp, meta: dict, t, w, quality, tips
+    job: TrackJob,
+    video: VideoSource,
+    head,
+    angle: float | None,
+    clamp,
+    meta: dict,
+    t,
+    w,
+    quality,
+    tips,
+    bright: bool = False,
 ) -> None:
     """Track every frame (the ``head`` already read, then the rest) along ``angle`` (degrees) from
     ``clamp`` (x, y px), appending to the lists t (s), w (mm), quality, and the good frames' tips (x, y px)."""
@@ -175,7 +206,7 @@ def _track_rows(
     try:
         for frame in frames():
             if tracker is not None:
-                result = tracker.track(frame.image)
+                result = tracker.track(inverted(frame.image) if bright else frame.image)
                 ok, value, reason = result.quality, result.w, result.reason
             else:
                 ok, value, reason = 0, math.nan, "no strip along any axis"
@@ -309,7 +340,7 @@ def track_video(job: TrackJob) -> dict:
             head.append(frame)
         if head:
             _check_scene(job, head[0].image)
-        estimate, angle, clamp = _find_or_check_axis(job, head)
+        estimate, angle, clamp, bright = _find_or_check_axis(job, head)
         meta["axis"] = {
             "angle_deg": angle,
             "given": job.axis_deg is not None,
@@ -322,13 +353,14 @@ def track_video(job: TrackJob) -> dict:
             "angle_deg": angle,
             "length_mm": job.length_mm,
             "strip_px": job.strip_px,
+            "strip_brighter": bright,
         }
         t: list[float] = []
         w: list[float] = []
         quality: list[int] = []
         tips: list[tuple[float, float]] = []
         try:
-            _track_rows(job, video, head, angle, clamp, meta, t, w, quality, tips)
+            _track_rows(job, video, head, angle, clamp, meta, t, w, quality, tips, bright)
         except KeyboardInterrupt:
             meta["video_integrity"] = video.integrity()
             written = _write(job, t, w, quality, meta, failed=True)
@@ -345,7 +377,7 @@ def track_video(job: TrackJob) -> dict:
     if angle is None:
         problems.append(
             f"no strip leaves the clamp at {job.clamp[0]:g},{job.clamp[1]:g} in any direction "
-            f"({estimate.reason}): check --clamp, --mm-per-px, --length, --strip-px"
+            f"({estimate.reason}; neither a dark nor a bright strip): check --clamp, --mm-per-px, --length, --strip-px"
         )
     elif good == 0:
         problems.append(

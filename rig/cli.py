@@ -134,8 +134,11 @@ def _scene_args(p, track: bool = False):
             help="rest axis angle, degrees (0 = strip points right, 90 = down)",
         )
     p.add_argument(
-        "--length", type=LENGTH, default=22.0, help="free strip length, mm, in (0, 1000] (default 22; the search reaches 1.4x it, and a tip tracked "
-        "well short of it is warned about: a wrong --mm-per-px or --length)"
+        "--length",
+        type=LENGTH,
+        default=22.0,
+        help="free strip length, mm, in (0, 1000] (default 22; the search reaches 1.4x it, and a tip tracked "
+        "well short of it is warned about: a wrong --mm-per-px or --length)",
     )
     p.add_argument("--strip-px", type=STRIP_PX, default=4.0, help="visible strip thickness, px, in (0, 100]")
     p.add_argument(

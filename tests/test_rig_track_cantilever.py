@@ -140,3 +140,18 @@ def test_a_dark_object_across_the_strip_is_flagged_not_measured(tmp_path, capsys
     assert np.max(np.abs(w - truth)[good]) <= 0.1
     reasons = json.loads(out.with_name("w.csv.json").read_text())["untracked_reasons"]
     assert "strip not one smooth line (covered?)" in reasons
+
+
+def test_a_strip_brighter_than_its_background_is_tracked_in_negative(tmp_path, capsys):
+    """The renderer's frames in negative (a light strip on a dark table): found, and as accurate."""
+    clamp, truth = (20.0, 130.0), _motion(FRAMES)
+    video = CantileverVideo(clamp, 0.0, size=(260, 200), mm_per_px=0.1, tip_share=1.0, seed=5)
+    path, out = tmp_path / "strip.avi", tmp_path / "w.csv"
+    write_avi(path, [255 - video.frame(w, k) for k, w in enumerate(truth)])
+    assert main(["track", str(path), "--clamp", "20,130", "--mm-per-px", "0.1", "--out", str(out)]) == 0
+    assert "the strip is brighter than its background: tracked in negative" in capsys.readouterr().out
+    rows = list(csv.DictReader(out.open()))
+    w = np.array([float(r["w"]) for r in rows])
+    assert all(r["quality"] == "1" for r in rows)
+    assert np.sqrt(np.mean((w - truth) ** 2)) <= 0.05
+    assert json.loads(out.with_name("w.csv.json").read_text())["scene"]["strip_brighter"] is True
