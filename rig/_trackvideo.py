@@ -43,6 +43,7 @@ from ._tracker import TipTracker
 __all__ = ["TrackJob", "track_video"]
 
 HEAD_FRAMES = 30  # frames read first to find the axis; every other one is used
+HEAD_WINDOWS = 3  # windows of HEAD_FRAMES tried in turn where the strip is not found in the first
 AXIS_WARN_DEG = 1.0  # a given axis this far from the detected one earns a warning
 #: The tip's median distance from the clamp, as a fraction of --length, below which the scale or the
 #: length is doubted (a cantilever's tip stays within a few per cent of its free length).
@@ -127,25 +128,54 @@ def inverted(image: np.ndarray) -> np.ndarray:
     return top - image
 
 
-def _find_or_check_axis(job: TrackJob, head) -> tuple[AxisEstimate, float | None, tuple[float, float], bool]:
-    """The axis estimate from the first frames, the axis (None: no strip) and clamp point to track with,
-    and whether the strip is brighter than its background (then tracked in negative).
-
-    Without --axis, the detected rest line: its angle, and the clamp point
-    moved across it onto the strip. With --axis, the given axis and clamp
-    point, and a warning when the strip leaves the clamp elsewhere. The
-    tracker follows a dark strip; where none is found, the negative is tried.
-    """
-    images = [frame.image for frame in head[::2]]
+def _find_axis(job: TrackJob, window) -> tuple[AxisEstimate, bool]:
+    """The axis estimate from a window of frames (every other one), and whether the strip is brighter
+    than its background (then tracked in negative): the tracker follows a dark strip, and where none
+    is found the negative is tried."""
+    images = [frame.image for frame in window[::2]]
     estimate = find_axis(images, job.clamp, job.mm_per_px, job.length_mm, job.strip_px)
-    bright = False
     if estimate.angle_deg is None and images:
         negative = find_axis(
             [inverted(i) for i in images], job.clamp, job.mm_per_px, job.length_mm, job.strip_px
         )
         if negative.angle_deg is not None:
-            estimate, bright = negative, True
-            print("the strip is brighter than its background: tracked in negative")
+            return negative, True
+    return estimate, False
+
+
+def _find_or_check_axis(
+    job: TrackJob, video: VideoSource, head: list
+) -> tuple[AxisEstimate, float | None, tuple[float, float], bool]:
+    """The axis estimate, the axis (None: no strip) and clamp point to track with, and whether the strip
+    is tracked in negative.
+
+    The axis comes from the first `HEAD_FRAMES` frames (`head`, read here); where
+    no strip is found in them (something passing over it at the start), from the
+    next ones, up to `HEAD_WINDOWS` windows, every frame read kept in `head`.
+    Without --axis, the detected rest line: its angle, and the clamp point
+    moved across it onto the strip. With --axis, the given axis and clamp
+    point, and a warning when the strip leaves the clamp elsewhere.
+    """
+    estimate, bright, start = None, False, 0
+    for window in range(HEAD_WINDOWS):
+        start = len(head)
+        while len(head) < start + HEAD_FRAMES and (frame := video.read()) is not None:
+            head.append(frame)
+        if len(head) == start:
+            break
+        if window == 0:
+            _check_scene(job, head[0].image)
+        estimate, bright = _find_axis(job, head[start:])
+        if estimate.angle_deg is not None:
+            break
+    if estimate is None:
+        raise RigError(f"no frame could be read from {job.video}: check that it is a video")
+    if bright:
+        print("the strip is brighter than its background: tracked in negative")
+    if start and estimate.angle_deg is not None:
+        print(
+            f"no strip in the first {start} frames (covered?): the axis comes from frames {start}-{len(head) - 1}"
+        )
     axis, clamp = _axis_and_clamp(job, estimate)
     return estimate, axis, clamp, bright
 
@@ -336,11 +366,7 @@ def track_video(job: TrackJob) -> dict:
     }
     with VideoSource(job.video) as video:
         head: list[Frame] = []
-        while len(head) < HEAD_FRAMES and (frame := video.read()) is not None:
-            head.append(frame)
-        if head:
-            _check_scene(job, head[0].image)
-        estimate, angle, clamp, bright = _find_or_check_axis(job, head)
+        estimate, angle, clamp, bright = _find_or_check_axis(job, video, head)
         meta["axis"] = {
             "angle_deg": angle,
             "given": job.axis_deg is not None,

@@ -155,3 +155,28 @@ def test_a_strip_brighter_than_its_background_is_tracked_in_negative(tmp_path, c
     assert all(r["quality"] == "1" for r in rows)
     assert np.sqrt(np.mean((w - truth) ** 2)) <= 0.05
     assert json.loads(out.with_name("w.csv.json").read_text())["scene"]["strip_brighter"] is True
+
+
+def test_a_strip_covered_in_the_first_second_gets_its_axis_from_the_next(tmp_path, capsys):
+    """Something over the strip for the first 30 frames: the axis comes from frames 30-59, not a refusal."""
+    clamp, frames = (20.0, 130.0), 70
+    truth = _motion(frames, start=1.0, swing=2.0)
+    video = CantileverVideo(clamp, 0.0, size=(260, 200), mm_per_px=0.1, tip_share=1.0, seed=6)
+    images = []
+    for k, w in enumerate(truth):
+        image = video.frame(w, k)
+        if k < 30:
+            cv2.circle(image, (int(clamp[0] + 0.5 * LENGTH / 0.1), int(clamp[1])), 40, 70, -1, cv2.LINE_AA)
+        images.append(image)
+    path, out = tmp_path / "strip.avi", tmp_path / "w.csv"
+    write_avi(path, images)
+    assert main(["track", str(path), "--clamp", "20,130", "--mm-per-px", "0.1", "--out", str(out)]) == 0
+    assert (
+        "no strip in the first 30 frames (covered?): the axis comes from frames 30-59"
+        in capsys.readouterr().out
+    )
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == frames
+    w = np.array([float(r["w"]) for r in rows])
+    good = np.array([r["quality"] == "1" for r in rows])
+    assert good[30:].all() and np.max(np.abs(w - truth)[good]) <= 0.1
