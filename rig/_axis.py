@@ -427,7 +427,11 @@ def find_axis(
             tracked, _ = strip_along(contrasts, rest, strip_px)
     if rest is None or tracked < MIN_TRACKED * len(frames):
         reason = (
-            f"no strip was followed along any of the {len(ranked) or len(peaks)} darkest directions"
+            (
+                "no strip was followed along the darkest direction"
+                if (len(ranked) or len(peaks)) == 1
+                else f"no strip was followed along any of the {len(ranked) or len(peaks)} darkest directions"
+            )
             if rest is None
             else f"a strip was followed in only {tracked} of {len(frames)} frames"
         )

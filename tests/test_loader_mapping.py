@@ -424,3 +424,21 @@ def test_a_semicolon_file_with_decimal_commas_maps_its_columns(tmp_path):
     np.testing.assert_array_equal(rec.v_in, [1.5, 2.0, -1.25])
     np.testing.assert_array_equal(rec.w, [-0.25, 1.5e-3, 0.5])
     assert rec.rate == pytest.approx(2.0)
+
+
+def test_a_mat_files_struct_fields_are_named_with_dots(tmp_path):
+    """A lab's .mat keeps its signals in a struct: run.data.u, run.data.y and run.Ts map like variables."""
+    import scipy.io
+
+    t = np.arange(300) / 50.0
+    u, y = np.sin(t), np.cos(3 * t)
+    path = tmp_path / "lab.mat"
+    scipy.io.savemat(
+        path, {"run": {"data": {"u": u[:, None], "y": y[None, :]}, "Ts": 0.02, "note": "bench 3"}}
+    )
+    rec = load_mapped(path, input="run.data.u", output="run.data.y")
+    np.testing.assert_array_equal(rec.v_in, u)
+    np.testing.assert_array_equal(rec.w, y)
+    assert rec.rate == pytest.approx(50.0) and "'run.Ts' field" in rec.metadata["rate_from"]
+    message = _bad(path, "has no variable 'u' for the input", input="u", output="run.data.y")
+    assert "did you mean 'run.data.u'?" in message and "run.data.u, run.data.y, run.Ts" in message

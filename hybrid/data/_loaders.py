@@ -483,7 +483,7 @@ def mat_variables(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
             f"recording '{path}' is not a readable .mat file ({error}): save it "
             "with MATLAB's save(file, 't', 'v_in', 'w', '-v7') or Recording.save"
         ) from None
-    variables = {k: v for k, v in variables.items() if not k.startswith("__")}
+    variables = _flat_structs({k: v for k, v in variables.items() if not k.startswith("__")})
     metadata = {}
     if "metadata" in variables:
         text = variables.pop("metadata")
@@ -494,6 +494,29 @@ def mat_variables(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
             )
         metadata = parse_metadata(path, str(text.reshape(-1)[0]), "its 'metadata' variable")
     return variables, metadata
+
+
+#: How deep struct fields are read (``run.data.u`` is depth 2).
+_STRUCT_DEPTH = 4
+
+
+def _flat_structs(variables: dict, prefix: str = "", depth: int = 0) -> dict[str, np.ndarray]:
+    """A .mat file's variables with each field of a (1x1) struct as a variable of its own, ``data.u``.
+
+    A lab's file often keeps its signals in a struct (``data.u``, ``data.y``,
+    ``data.fs``); the struct itself is left out, its fields named with dots.
+    """
+    out: dict[str, np.ndarray] = {}
+    for name, value in variables.items():
+        key = prefix + name
+        value = np.asarray(value)
+        if value.dtype.names and value.size == 1 and depth < _STRUCT_DEPTH:
+            record = value.reshape(-1)[0]
+            fields = {field: record[field] for field in value.dtype.names}
+            out.update(_flat_structs(fields, key + ".", depth + 1))
+        elif value.dtype.names is None:
+            out[key] = value
+    return out
 
 
 def _load_mat(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[dict[str, np.ndarray], dict]:

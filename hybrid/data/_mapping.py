@@ -425,7 +425,7 @@ def _resolve_rate(
             found.append((f"metadata '{k}'", rate_field(v) if number else None, k))
     for where, value, key in found:
         if value is not None:
-            unit = RATE_FIELDS[key.lower()]
+            unit = RATE_FIELDS[key.rsplit(".", 1)[-1].lower()]  # a struct's field: data.fs
             sources.append((f"{where} ({value:.6g} {unit})", value if unit == "Hz" else 1.0 / value))
     if rate is not None:
         sources.append(("the rate given", rate))

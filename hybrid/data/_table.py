@@ -131,7 +131,7 @@ def read_columns(
     fields = {
         key: np.asarray(values, dtype=np.float64).reshape(-1)
         for key, values in arrays.items()
-        if key.lower() in RATE_FIELDS
+        if key.rsplit(".", 1)[-1].lower() in RATE_FIELDS  # data.fs: a struct's field counts too
         and key not in wanted.values()
         and np.asarray(values).dtype.kind in "biuf"
     }
@@ -306,7 +306,8 @@ def unknown_name(
     if len(names) > _SHOW_NAMES:
         shown += f", ... ({len(names)} in all)"
     same = [n for n in names if n.lower() == name.lower()]
-    close = same or difflib.get_close_matches(name, list(names), n=1)
+    field = [n for n in names if n.rsplit(".", 1)[-1].lower() == name.lower()]  # a struct's field, data.u
+    close = same or field[:1] or difflib.get_close_matches(name, list(names), n=1)
     hint = f"; did you mean '{close[0]}'?" if close else ""
     example = close[0] if close else (names[0] if names else "NAME")
     option = OPTION[role]
