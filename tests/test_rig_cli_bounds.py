@@ -1,5 +1,7 @@
 """Every size argument of `rig` is bounded: one clear line and exit status 2, never a traceback."""
 
+import json
+
 import pytest
 
 from rig.cli import main
@@ -64,6 +66,11 @@ def test_track_never_writes_over_its_video(tmp_path, capsys):
     assert video.read_bytes() == b"not really a video"
 
 
+def _track_strip(video, out):
+    """`rig track` of `strip_video`'s strip, at its clamp point and scale."""
+    return ["track", str(video), "--clamp", "20,100", "--mm-per-px", "0.1", "--out", str(out)]
+
+
 @pytest.fixture(scope="module")
 def strip_video(tmp_path_factory):
     """Eight frames of a 22 mm strip at 0.1 mm/px pointing right from (20, 100), in 480 x 260 (tests' renderer)."""
@@ -87,16 +94,7 @@ def test_a_scene_that_cannot_be_in_the_picture_is_refused_before_tracking(
     strip_video, tmp_path, capsys, flags, fragment
 ):
     """Before: an OpenCV assertion, or numpy asking for 292 GiB; now one line and nothing written."""
-    argv = [
-        "track",
-        str(strip_video),
-        "--clamp",
-        "20,100",
-        "--mm-per-px",
-        "0.1",
-        "--out",
-        str(tmp_path / "w.csv"),
-    ]
+    argv = _track_strip(strip_video, tmp_path / "w.csv")
     for option, value in zip(flags[::2], flags[1::2]):
         argv = _with(argv, option, value)
     assert main(argv) == 2
@@ -122,23 +120,10 @@ def test_track_refuses_an_out_that_is_a_folder_or_not_a_csv_and_a_folder_as_vide
 def test_a_strip_tracked_well_short_of_its_length_warns_of_the_scale(strip_video, tmp_path, capsys):
     """--mm-per-px half the true scale halves w; the tip at half of --length says so."""
     out = tmp_path / "w.csv"
-    argv = [
-        "track",
-        str(strip_video),
-        "--clamp",
-        "20,100",
-        "--mm-per-px",
-        "0.05",
-        "--length",
-        "22",
-        "--out",
-        str(out),
-    ]
+    argv = _with(_with(_track_strip(strip_video, out), "--mm-per-px", "0.05"), "--length", "22")
     assert main(argv) == 0
     err = capsys.readouterr().err
     assert "the strip's tip lies a median 11" in err and "0.50 of --length 22 mm" in err, err
-    import json
-
     assert "0.50 of --length" in json.loads(out.with_name("w.csv.json").read_text())["warnings"][0]
     assert main(_with(argv, "--mm-per-px", "0.1")) == 0  # the right scale: no warning
     assert "warning" not in capsys.readouterr().err
