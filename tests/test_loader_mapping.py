@@ -369,6 +369,15 @@ def test_every_bad_mapping_is_one_input_error(lab, options, match):
             r"no cell \(the line has 1 cell\(s\), the column is number 2\) in column 'y'.*line 3",
         ),
         ("u,y\n", "has a header but no data lines"),
+        # the line of a bad cell in a ';' file with decimal commas, and under a units row
+        (
+            "u;y\n1,5;2\n3;x,5\n",
+            r"non-numeric cell 'x 5' in column 'y' \(mapped as output\) at line 3 \(sample 1\)",
+        ),
+        (
+            "u,y\nV,mm\n1,2\n3,x\n",
+            r"non-numeric cell 'x' in column 'y' \(mapped as output\) at line 4 \(sample 1\)",
+        ),
         ("u,y,u\n1,2,3\n", r"has 2 columns named 'u' \(columns 1, 3\)"),
     ],
 )

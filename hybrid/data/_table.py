@@ -165,10 +165,10 @@ def _read_csv(
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
     try:
         with _open(path) as raw:
-            handle = io.StringIO(comma_separated(raw.read())[0])  # a ';' or tab export with decimal commas
-        with handle:
+            text = comma_separated(raw.read())[0]  # a ';' or tab export with decimal commas: commas
+        with io.StringIO(text) as handle:
             header, header_line = _header(path, handle)
-            stated = _stated_units(handle, header)
+            stated, units_line = _stated_units(handle, header, header_line)
             index = {
                 role: _column_index(path, header, name, role, flag_prefix) for role, name in wanted.items()
             }
@@ -206,7 +206,7 @@ def _read_csv(
             f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions"
         ) from None
     except ValueError as error:
-        _diagnose(path, header_line, wanted, index)
+        _diagnose(path, text, header_line, units_line, wanted, index)
         raise InputError(
             f"recording '{path}' cannot be read as a comma-separated table ({error}): save it "
             "comma-separated with '.' decimals, one header line and one line per sample"
@@ -215,7 +215,7 @@ def _read_csv(
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     k = len(index)
     if not np.isfinite(table[:, :k]).all():
-        _diagnose(path, header_line, wanted, index)
+        _diagnose(path, text, header_line, units_line, wanted, index)
     columns = {role: table[:, j] for j, role in enumerate(index)}
     rates = {name: table[:, k + j] for j, name in enumerate(fields)}
     metadata = {}
@@ -229,22 +229,22 @@ def _read_csv(
     return columns, rates, metadata
 
 
-def _stated_units(handle, header: Sequence[str]) -> dict[str, str]:
-    """The units row right under the header (`units_row`), by column name; the handle is left after it.
+def _stated_units(handle, header: Sequence[str], header_line: int) -> tuple[dict[str, str], int]:
+    """The units row right under the header (`units_row`), by column name, and its line number (0: none).
 
-    Where the next line holds data, the handle goes back to its start.
+    The handle is left after it; where the next line holds data, it goes back to its start.
     """
     position = handle.tell()
-    for line in iter(handle.readline, ""):
+    for number, line in enumerate(iter(handle.readline, ""), start=header_line + 1):
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):
             continue
         row = units_row(next(csv.reader([stripped])))
         if row is None:
             break
-        return {name: unit for name, unit in zip(header, row) if unit and name}
+        return {name: unit for name, unit in zip(header, row) if unit and name}, number
     handle.seek(position)
-    return {}
+    return {}, 0
 
 
 def _lenient(cell: str) -> float:
@@ -436,14 +436,20 @@ def _is_number(cell: str) -> bool:
 
 
 def _diagnose(
-    path: pathlib.Path, header_line: int, wanted: Mapping[str, str], index: Mapping[str, int]
+    path: pathlib.Path,
+    text: str,
+    header_line: int,
+    units_line: int,
+    wanted: Mapping[str, str],
+    index: Mapping[str, int],
 ) -> None:
-    """Find the first bad cell of a mapped column and raise about it (line from 1, sample from 0)."""
+    """Find the first bad cell of a mapped column in the file's `text` (commas between cells) and raise
+    about it (line from 1, sample from 0)."""
     sample = -1
-    with _open(path) as handle:
+    with io.StringIO(text) as handle:
         for number, line in enumerate(handle, start=1):
             content = line.split("#", 1)[0].rstrip("\r\n")
-            if number <= header_line or not content:
+            if number <= header_line or number == units_line or not content:
                 continue  # numpy skips empty and comment lines too
             sample += 1
             try:
