@@ -451,3 +451,32 @@ def test_a_mat_files_struct_fields_are_named_with_dots(tmp_path):
     assert rec.rate == pytest.approx(50.0) and "'run.Ts' field" in rec.metadata["rate_from"]
     message = _bad(path, "has no variable 'u' for the input", input="u", output="run.data.y")
     assert "did you mean 'run.data.u'?" in message and "run.data.u, run.data.y, run.Ts" in message
+
+
+def test_a_time_column_of_date_times_is_read_in_seconds(tmp_path):
+    """A logger's ISO 8601 time stamps: seconds after the first, which metadata['start_time'] keeps."""
+    import datetime
+
+    start = datetime.datetime(2026, 12, 1, 10, 0, 0)
+    stamps = [(start + datetime.timedelta(seconds=k / 50)).isoformat(sep=" ") for k in range(100)]
+    rows = "".join(f"{s},{np.sin(k / 20):.6f},{np.cos(k / 30):.6f}\n" for k, s in enumerate(stamps))
+    path = _write(tmp_path / "log.csv", "timestamp,drive,pos\n" + rows)
+    rec = load_mapped(path, input="drive", output="pos", time="timestamp")
+    np.testing.assert_allclose(rec.t, np.arange(100) / 50, atol=1e-9)
+    assert rec.metadata["start_time"] == "2026-12-01T10:00:00"
+    _bad(
+        path,
+        "date-times in its time column 'timestamp'",
+        input="drive",
+        output="pos",
+        time="timestamp",
+        units="t=ms",
+    )
+    bad = _write(tmp_path / "bad.csv", "timestamp,drive,pos\n" + rows + "yesterday,1,2\n")
+    _bad(
+        bad,
+        r"non-numeric cell 'yesterday' in column 'timestamp' \(mapped as time\) at line 102",
+        input="drive",
+        output="pos",
+        time="timestamp",
+    )

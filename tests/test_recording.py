@@ -396,3 +396,15 @@ def test_a_units_row_under_the_header_gives_the_units_and_the_time_scale(tmp_pat
         Recording.load(_write(tmp_path / "d.csv", "t,v_in,w\ndays,V,mm\n0,1,2\n1,1,2\n"))
     plain = Recording.load(_write(tmp_path / "p.csv", "t,v_in,w\n0,1,2\n0.5,-1,3\n1,0,4\n"))
     assert plain.notes == () and plain.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"}
+
+
+def test_a_t_column_of_date_times_is_read_in_seconds(tmp_path):
+    text = (
+        "t,v_in,w\n2026-12-01T10:00:00.000,1,2\n2026-12-01T10:00:00.500,-1,3\n2026-12-01T10:00:01.000,0,4\n"
+    )
+    rec = Recording.load(_write(tmp_path / "d.csv", text))
+    np.testing.assert_allclose(rec.t, [0.0, 0.5, 1.0])
+    assert rec.metadata["start_time"] == "2026-12-01T10:00:00"
+    assert rec.notes == (
+        f"recording '{tmp_path / 'd.csv'}': its time column holds date-times, read as seconds after 2026-12-01T10:00:00",
+    )

@@ -12,7 +12,9 @@ Messages about CSV files give the line number in the file (from 1).
 
 from __future__ import annotations
 
+import datetime
 import json
+import math
 import os
 import pathlib
 import re
@@ -145,6 +147,38 @@ def units_row(cells: Sequence[str]) -> list[str] | None:
     if not any(cleaned) or not all(_UNIT.match(c) for c in cleaned if c):
         return None
     return cleaned
+
+
+class Clock:
+    """A time column's cells in seconds: numbers as they are, ISO 8601 date-times (a data logger's
+    ``2026-12-01 10:00:00.033``) as seconds after the first date-time read.
+
+    Called cell by cell in the file's order (`np.loadtxt`'s converter); NaN for a cell
+    that is neither, which the readers then name. `start` is the first date-time.
+    """
+
+    def __init__(self) -> None:
+        self.start: datetime.datetime | None = None
+
+    def __call__(self, cell: str) -> float:
+        text = cell.strip().strip('"').strip()
+        try:
+            return float(text)
+        except ValueError:
+            pass
+        try:
+            moment = datetime.datetime.fromisoformat(text)
+            if self.start is None:
+                self.start = moment
+            return (moment - self.start).total_seconds()
+        except (ValueError, TypeError):  # not a date-time, or one with a time zone beside one without
+            return math.nan
+
+    def note(self, path: pathlib.Path | str) -> str | None:
+        """What was read, for the recording's notes: None when every cell was a number."""
+        if self.start is None:
+            return None
+        return f"recording '{path}': its time column holds date-times, read as seconds after {self.start.isoformat()}"
 
 
 def time_factor(path: pathlib.Path | str, unit: str, where: str) -> float:
@@ -383,8 +417,16 @@ def _load_csv(
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     line_numbers = np.asarray(numbers)
     columns, notes = {}, [] if how is None else [f"recording '{path}': {how}"]
+    start_time = None
     for i, column in enumerate(header):
         cells = [row[i] for row in rows]
+        if column == "t" and _text_column(cells) is not None:  # date-times, or text: Clock says which
+            clock = Clock()
+            times = np.array([clock(cell) for cell in cells])
+            if clock.start is not None and np.isfinite(times).all():
+                columns[column], start_time = times, clock.start.isoformat()
+                notes.append(clock.note(path) or "")
+                continue
         label = None if column in REQUIRED else _text_column(cells)
         if label is not None:  # nothing reads it: say so, do not refuse the signals beside it
             notes.append(
@@ -396,6 +438,8 @@ def _load_csv(
     metadata = {}
     if meta_path.exists():
         metadata = parse_metadata(path, read_text(meta_path), f"'{meta_path.name}'")
+    if start_time is not None:
+        metadata["start_time"] = start_time
     if row is not None:  # the units under the header travel with the data; a sidecar's units win
         where = f"its units row (line {lines[1][0]})"
         if "t" in stated:

@@ -195,6 +195,13 @@ def load_mapped(
         file_units = file_meta.get("units")  # by column name: a units row under the header, or a sidecar's
         stated = file_units.get(roles["t"]) if isinstance(file_units, Mapping) else None
         declared = "t" in given_units or isinstance(stated, str)  # in seconds unless its unit is given
+        if "start_time" in file_meta and not references:  # date-times, read as seconds (`Clock`)
+            if given_units.get("t", "s") != "s":
+                raise InputError(
+                    f"recording '{path}' has date-times in its time column '{roles['t']}', read in "
+                    f"seconds: leave t={given_units['t']} out of the units"
+                )
+            given_units["t"], declared = "s", True
         if "t" in given_units:
             factor = TIME_UNITS[given_units.pop("t")]
         else:

@@ -353,7 +353,8 @@ class Recording:
           (a spreadsheet's trailing commas) are ignored. A units row right
           under the header (``s,V,mm``; no number in any cell) gives the
           units of v_in and w, and t's (ms, us, min, h are converted to s),
-          with a note. A header split by ';' or tabs (no comma) marks a
+          with a note. A ``t`` of ISO 8601 date-times is read as seconds
+          after the first (``metadata["start_time"]``). A header split by ';' or tabs (no comma) marks a
           spreadsheet's export: its cells are read as such, decimal commas
           (``1,5``) included, with a note. Metadata comes from the sidecar ``<file>.csv.json`` when
           it exists.

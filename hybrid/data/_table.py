@@ -46,6 +46,7 @@ import numpy as np
 
 from ..util._errors import InputError
 from ._loaders import (
+    Clock,
     comma_separated,
     file_vector,
     mat_variables,
@@ -178,8 +179,10 @@ def _read_csv(
                 if name.lower() in RATE_FIELDS and i not in index.values() and header.count(name) == 1
             }
             usecols = [*index.values(), *fields.values()]
+            clock = Clock()  # a time column of date-times: seconds after the first
             lenient: dict[int | str, Callable[[str], float]] | None = {
-                i: _lenient for i in fields.values()
+                **{i: _lenient for i in fields.values()},
+                **({index["t"]: clock} if "t" in index else {}),
             } or None
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
@@ -222,6 +225,8 @@ def _read_csv(
     meta_path = sidecar(path)
     if meta_path.exists():
         metadata = parse_metadata(path, read_text(meta_path), f"'{meta_path.name}'")
+    if clock.start is not None:
+        metadata["start_time"] = clock.start.isoformat()
     if stated:  # a units row under the header, by column name; a sidecar's units win
         units = metadata.get("units")
         declared: dict = units if isinstance(units, dict) else {}
@@ -459,7 +464,7 @@ def _diagnose(
                     f"recording '{path}' cannot be read at line {number} ({error}): save it as a plain CSV file"
                 ) from None
             for role, i in index.items():
-                problem = _cell_problem(cells, i)
+                problem = _cell_problem(cells, i, dates=role == "t")
                 if problem:
                     raise InputError(
                         f"recording '{path}' has {problem} in column '{wanted[role]}' (mapped as "
@@ -468,7 +473,7 @@ def _diagnose(
                     )
 
 
-def _cell_problem(cells: Sequence[str], i: int) -> str:
+def _cell_problem(cells: Sequence[str], i: int, dates: bool = False) -> str:
     if i >= len(cells):
         return f"no cell (the line has {len(cells)} cell(s), the column is number {i + 1})"
     cell = cells[i].strip()
@@ -477,5 +482,7 @@ def _cell_problem(cells: Sequence[str], i: int) -> str:
     try:
         value = float(cell)
     except ValueError:
+        if dates and math.isfinite(Clock()(cell)):
+            return ""  # a date-time in the time column
         return f"a non-numeric cell {cell!r}"
     return "" if math.isfinite(value) else f"a non-finite value {cell!r}"
