@@ -408,3 +408,12 @@ def test_a_t_column_of_date_times_is_read_in_seconds(tmp_path):
     assert rec.notes == (
         f"recording '{tmp_path / 'd.csv'}': its time column holds date-times, read as seconds after 2026-12-01T10:00:00",
     )
+
+
+@pytest.mark.parametrize(
+    "suffix, words",
+    [(".xlsx", "a spreadsheet workbook: save the sheet as CSV"), (".tsv", "rename it to .csv")],
+)
+def test_a_workbook_or_tsv_says_what_to_save_it_as(tmp_path, suffix, words):
+    with pytest.raises(InputError, match=f"unknown suffix '{suffix}'.*{words}"):
+        Recording.load(_write(tmp_path / f"a{suffix}", "t,v_in,w\n0,1,2\n"))

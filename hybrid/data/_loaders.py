@@ -90,6 +90,10 @@ def file_suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
                 " (a text table is read with its columns mapped: --columns input=COLUMN,output=COLUMN "
                 "--rate HZ, or one file per channel: --columns input=u.txt,output=y.txt)"
             )
+        elif suffix in (".xlsx", ".xls", ".xlsm", ".ods"):
+            hint = " (a spreadsheet workbook: save the sheet as CSV, comma- or ';'-separated, and give that)"
+        elif suffix == ".tsv":
+            hint = " (tab-separated values: rename it to .csv, which is read with tabs between the cells)"
         raise InputError(
             f"recording '{path}' has unknown suffix '{path.suffix}': use " + ", ".join(suffixes) + hint
         )
