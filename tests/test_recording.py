@@ -394,6 +394,8 @@ def test_a_units_row_under_the_header_gives_the_units_and_the_time_scale(tmp_pat
     assert ms.metadata["units"] == {"t": "s", "v_in": "V", "w": "µm"}
     with pytest.raises(InputError, match="gives its time column the unit 'days'.*write one of s, ms"):
         Recording.load(_write(tmp_path / "d.csv", "t,v_in,w\ndays,V,mm\n0,1,2\n1,1,2\n"))
+    with pytest.raises(InputError, match="non-numeric cell 'NA' at line 2"):  # missing values, not units
+        Recording.load(_write(tmp_path / "na.csv", "t,v_in,w\nNA,NA,NA\n0,1,2\n1,1,2\n"))
     plain = Recording.load(_write(tmp_path / "p.csv", "t,v_in,w\n0,1,2\n0.5,-1,3\n1,0,4\n"))
     assert plain.notes == () and plain.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"}
 

@@ -128,6 +128,8 @@ def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequ
 
 #: What a cell of a units row may hold: a short unit (s, V, mm, µm, rad/s, m/s^2, °C, %).
 _UNIT = re.compile(r"^[A-Za-zµμ°%Ω/^*·.\d\s-]{1,16}$")
+#: How spreadsheets and loggers write a missing value (never a unit).
+_MISSING = frozenset({"na", "n/a", "nan", "null", "none", "-", "--", "#n/a"})
 #: Spellings of the time units `TIME_UNITS` knows.
 _TIME_SPELLINGS = {"sec": "s", "secs": "s", "second": "s", "seconds": "s", "msec": "ms", "μs": "µs"}
 
@@ -149,6 +151,8 @@ def units_row(cells: Sequence[str]) -> list[str] | None:
             pass
         cleaned.append(re.sub(r"^[\(\[]\s*(.*?)\s*[\)\]]$", r"\1", text))
     if not any(cleaned) or not all(_UNIT.match(c) for c in cleaned if c):
+        return None
+    if any(c.lower() in _MISSING for c in cleaned):  # a line of missing values, not of units
         return None
     return cleaned
 
