@@ -109,6 +109,18 @@ def write_json_atomic(path, data: dict) -> None:
     write_atomic(path, json.dumps(data, indent=2, default=jsonable) + "\n")
 
 
+def check_csv_out(out, command: str) -> None:
+    """Raise `RigError` unless ``out`` names a CSV file to write (not a folder, not a video or other file type)."""
+    out = pathlib.Path(out)
+    if out.is_dir():
+        raise RigError(f"--out {out} is a folder: give the CSV file to write, e.g. {out / 'w.csv'}")
+    if out.suffix.lower() != ".csv":
+        raise RigError(
+            f"--out {out} has suffix '{out.suffix or '(none)'}', but {command} writes a CSV: "
+            f"name it e.g. {out.with_suffix('.csv').name}"
+        )
+
+
 def check_outputs(outputs, inputs) -> None:
     """Raise `RigError` if an output path is one of the inputs (the same file, however named)."""
     for out in outputs:

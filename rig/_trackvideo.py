@@ -35,7 +35,7 @@ from hybrid import InputError
 from ._axis import AxisEstimate, find_axis
 from ._camera import Frame, VideoSource, find_gaps
 from ._errors import RigError
-from ._files import check_outputs, jsonable, partial_path, write_together
+from ._files import check_csv_out, check_outputs, jsonable, partial_path, write_together
 from ._scene import Scene
 from ._sync import LedDetector
 from ._tracker import TipTracker
@@ -346,15 +346,8 @@ def track_video(job: TrackJob) -> dict:
     places in time are unknown.
     """
     check_outputs([job.out, job.sidecar], [job.video])
-    out = pathlib.Path(job.out)
-    if out.is_dir():
-        raise RigError(f"--out {out} is a folder: give the CSV file to write, e.g. {out / 'w.csv'}")
-    if out.suffix.lower() != ".csv":
-        raise RigError(
-            f"--out {out} has suffix '{out.suffix or '(none)'}', but rig track writes a CSV (t,w,quality): "
-            f"name it e.g. {out.with_suffix('.csv').name}"
-        )
-    existed = out.exists()
+    check_csv_out(job.out, "rig track")
+    existed = pathlib.Path(job.out).exists()
     meta: dict[str, Any] = {
         "source": "rig track",
         "video": str(job.video),

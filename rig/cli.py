@@ -313,10 +313,11 @@ def _cmd_record(args):
         raise InputError("give either --virtual or both --port and --camera")
     if not args.virtual and not (args.port and args.camera):
         raise InputError("a real recording needs both --port and --camera")
-    from ._files import check_outputs
+    from ._files import check_csv_out, check_outputs
 
     sources = [p for p in (args.calibration, args.camera, args.drive_file) if p and os.path.exists(p)]
     check_outputs([args.out, args.out + ".json"], sources)  # `--camera v.avi --out v.avi` is refused
+    check_csv_out(args.out, "rig record")  # before the recording, not after minutes of it
     calibration = Calibration.load(args.calibration) if args.calibration else Calibration()
     drive = _drive(args, calibration)
     scene = _scene(args, virtual=args.virtual)

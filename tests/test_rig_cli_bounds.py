@@ -127,3 +127,15 @@ def test_a_strip_tracked_well_short_of_its_length_warns_of_the_scale(strip_video
     assert "0.50 of --length" in json.loads(out.with_name("w.csv.json").read_text())["warnings"][0]
     assert main(_with(argv, "--mm-per-px", "0.1")) == 0  # the right scale: no warning
     assert "warning" not in capsys.readouterr().err
+
+
+def test_record_refuses_an_out_that_is_not_a_csv_before_recording(tmp_path, capsys):
+    """It recorded the whole drive, then failed validating 'r.partial.avi' (minutes on a real rig)."""
+    for out, fragment in [
+        (tmp_path / "r.avi", "has suffix '.avi', but rig record writes a CSV"),
+        (tmp_path, "is a folder"),
+    ]:
+        assert main(_with(RECORD, "--out", str(out))) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("rig: error: ") and err.count("\n") == 1 and fragment in err, err
+    assert list(tmp_path.iterdir()) == []
