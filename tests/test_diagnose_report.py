@@ -150,3 +150,37 @@ def test_no_report_key_names_a_unit_that_follows_the_signal():
     assert not offenders, offenders
     assert set(RENAMED_IN_SCHEMA_3.values()) <= keys  # every new name is a key an effect writes
     assert not set(RENAMED_IN_SCHEMA_3) & keys  # and no old one is left
+
+
+def _verdict_of(final_over_floor, causes=()):
+    """`verdict` of a diagnosis whose final held-out MSE is `final_over_floor` × a floor of 0.01."""
+    from types import SimpleNamespace
+
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+    from hybrid.discovery._verdict import verdict
+
+    w = np.array([-1.0, 1.0])  # var 1: NMSE is the MSE
+    fit = lambda nmse: SimpleNamespace(heldout=SimpleNamespace(nmse=nmse))
+    return verdict(
+        SimpleNamespace(
+            causes=list(causes),
+            heldout=SimpleNamespace(w=w),
+            baseline=fit(0.5),
+            extended=fit(0.01 * final_over_floor),
+            noise_floor=SimpleNamespace(variance=0.01),
+            unexplained=None,
+            dropped=[],
+            settings=DiagnoseSettings(),
+            gain=0.5 / (0.01 * final_over_floor),
+        )
+    )
+
+
+def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
+    """At 1.7× the floor (a user's quadratic drag the library lacks) it said 'as good as the data allow'."""
+    assert _verdict_of(1.1).endswith("1.1× the measurement noise floor, as good as the data allow.")
+    near = _verdict_of(1.7)
+    assert "1.7× the measurement noise floor, under the 2× above which the rest is called unexplained" in near
+    assert "as good as the data allow" not in near and "an effect outside the library may still" in near
+    named = _verdict_of(1.0, [{"name": "back_relaxation"}, {"name": "slew_limit"}])
+    assert named.startswith("back_relaxation and slew_limit explain 100%")  # as report.json spells them
