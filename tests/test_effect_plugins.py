@@ -169,6 +169,33 @@ class LateNaN(AbstractEffect):
 """
 
 
+_GREEDY = (
+    _LATE_NAN.replace("class LateNaN", "class Greedy")
+    .replace('"late_nan"', '"greedy"')
+    .replace(
+        "    def apply(self, s, dt):",
+        """    def starts(self, context):  # one per 50 samples of the signal: more on a recording than on the probe
+        return [{"gain": 1.0 + 0.01 * k} for k in range(1 + len(context.signal) // 50)]
+
+    def apply(self, s, dt):""",
+    )
+)
+
+
+def test_an_effect_whose_number_of_starts_follows_the_data_is_named(lab, monkeypatch, capsys):
+    """The lanes are counted on a probe: the message named no effect, now it names the one that varies."""
+    from hybrid.cli import main
+
+    (lab / "greedy.py").write_text(_GREEDY)
+    monkeypatch.chdir(lab)
+    argv = ["diagnose", "lab.csv", "--physics", "lti:1", "--effects", "greedy.py:Greedy", "--out", "greedy"]
+    code = main([*argv, "--quiet"])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, lines
+    assert "effect Greedy: starts(context) gave" in lines[0] and "on the probe signal" in lines[0], lines
+    assert not (lab / "greedy").exists()
+
+
 def test_an_effect_non_finite_on_the_recording_is_named_in_one_line(lab, monkeypatch, capsys):
     """Past the probe, every lane of the effect is NaN: one line naming it, not numpy's 'All-NaN slice'."""
     from hybrid.cli import main
@@ -255,10 +282,32 @@ class _DerivedNaN(_Scale):
         return {"size": float("nan")}
 
 
+class _NoDefault(_Scale):
+    name: ClassVar[str] = "no_default"
+    defaults: ClassVar = {}
+
+
+class _TypoUnit(_Scale):
+    name: ClassVar[str] = "typo_unit"
+    units: ClassVar = {"scale_factor": "1/{signl}"}
+
+
+class _StartTypo(_Scale):
+    name: ClassVar[str] = "start_typo"
+
+    def starts(self, context):
+        return [{"scale_factr": 0.1}]
+
+
 @pytest.mark.parametrize(
     "effects, words",
     [
         (["friction"], "unknown effect 'friction'"),
+        # a new user's mistakes (the messages said 'missing parameter(s)' from inside encode, nothing, and
+        # 'must return a non-empty list of dicts' without the key)
+        ([_NoDefault], "_NoDefault.defaults has no entry for ['scale_factor']; add them"),
+        ([_TypoUnit], "units['scale_factor'] = '1/{signl}' has the placeholder {signl}: write {signal}"),
+        ([_StartTypo], "starts(context) gave 'scale_factr', not a parameter of it (scale_factor)"),
         ([_WrongShape], "must return one finite value per sample"),
         ([_Nowhere], "place must be one of drive, inside, output"),
         ([_NoRole], "role must be one of feedback, limit"),
@@ -283,6 +332,8 @@ def test_resolve_effects_defaults_to_every_builtin_in_order():
     assert [e.name for e in hybrid.resolve_effects()] == outside  # no simulation: nothing inside
     mixed = hybrid.resolve_effects(["saturation", _Scale])
     assert [e.name for e in mixed] == ["saturation", "scale"]
+    every = hybrid.resolve_effects(["builtins", _Scale])  # as --effects builtins,file.py:Scale
+    assert [e.name for e in every] == [*outside, "scale"]
     given = _Scale(scale_factor=0.5)
     assert hybrid.resolve_effects([given])[0] is given  # an instance keeps its values
 
@@ -303,8 +354,9 @@ def test_units_follow_the_signal_each_effect_acts_on():
     assert units["saturation_pos_curvature"] == "1/kV"
     assert units["scale_factor"] == "1/kV"
     assert hybrid.EffectStack(hybrid.RCNetwork(), ("saturation",)).units["saturation_pos_curvature"] == "1/V"
-    plain = hybrid.EffectStack(hybrid.LTI(1), ("saturation",))
-    assert plain.units["saturation_pos_curvature"] == "1/(unit of S)"  # the simulation does not say
+    lti = hybrid.EffectStack(hybrid.LTI(1), ("saturation",), drive_unit="kV")
+    assert lti.units["saturation_pos_curvature"] == "1/kV"  # LTI's output is in the drive's unit
+    # a simulation that does not say: tests/test_plugin_diagnose.py's Lag, "1/(unit of S)"
     # a compound unit is one factor of a larger one: 1/(rad/s), not 1/rad/s
     speed = hybrid.EFFECTS["hysteresis"]().units_for("rad/s", "V")
     assert speed == {
@@ -333,7 +385,8 @@ def test_a_linear_readouts_units_follow_w_and_the_simulations_output():
     assert rc.units["gain"] == "mm/V"  # the paper's case
     assert rc.units_in("µm", drive_unit="mV")["gain"] == "µm/mV"  # V_o in the drive's unit
     lag = hybrid.make_model("physics", simulation=hybrid.LTI(1))
-    assert lag.units_in("N")["gain"] == "N/(unit of S)"
+    assert lag.units_in("N", drive_unit="kV")["gain"] == "N/kV"  # LTI's output is in the drive's unit
+    # a simulation that names no output unit: tests/test_plugin_diagnose.py's Lag, "N/(unit of S)"
     # fit reports them in the recording's declared units
     t = np.arange(300) / 10.0
     u = np.sin(0.7 * t) + 0.5 * np.sign(np.sin(0.21 * t))

@@ -8,6 +8,8 @@ inside its dynamics (a limit on each of its states).
 
 from __future__ import annotations
 
+import re
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -107,6 +109,13 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
         missing = sorted(set(constraints) - set(given or {}))
         if not isinstance(given, dict) or missing:
             raise InputError(f"{label}: {cls}.{fact} has no entry for {missing or 'any parameter'}; add them")
+    for parameter, unit in effect.units.items():
+        unknown = sorted(set(re.findall(r"\{([^{}]*)\}", str(unit))) - {"signal", "drive"})
+        if unknown:
+            raise InputError(
+                f"{label}: {cls}.units[{parameter!r}] = {unit!r} has the placeholder {{{unknown[0]}}}: write "
+                "{signal} (the unit of the signal the effect acts on) or {drive} (the drive's)"
+            )
     if not isinstance(effect.thresholds, dict) or not all(
         isinstance(v, (int, float)) for v in effect.thresholds.values()
     ):
@@ -181,14 +190,16 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
             f"{label}: {cls}.material(derived, parameters, thresholds) must return (bool, str): whether the "
             f"effect is large enough to be a cause, and why; it returned {verdict!r}"
         )
-    if (
-        not isinstance(starts, list)
-        or not starts
-        or not all(isinstance(x, dict) and set(x) <= set(constraints) for x in starts)
-    ):
+    if not isinstance(starts, list) or not starts or not all(isinstance(x, dict) for x in starts):
         raise InputError(
             f"{label}: {cls}.starts(context) must return a non-empty list of dicts of its parameters "
             f"({', '.join(constraints)})"
+        )
+    strangers = sorted({key for start in starts for key in start} - set(constraints))
+    if strangers:
+        raise InputError(
+            f"{label}: {cls}.starts(context) gave {', '.join(map(repr, strangers))}, not a parameter of it "
+            f"({', '.join(constraints)}): a start sets some of those (the others keep their defaults)"
         )
 
 
@@ -217,8 +228,15 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
         return tuple(built) + tuple(state_limit(core[0], state) for state in limited if state in states)
     if isinstance(effects, (str, AbstractEffect)) or isinstance(effects, type):
         effects = [effects]
+    items: list = []
+    for item in effects:  # "builtins" stands for every built-in, as on the command line
+        items += (
+            list(resolve_effects(None, simulation))
+            if isinstance(item, str) and item == "builtins"
+            else [item]
+        )
     out = []
-    for item in effects:
+    for item in items:
         label = (
             f"effect {item!r}"
             if isinstance(item, str)
@@ -247,6 +265,13 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
                 missing = ", ".join(sorted(item.__abstractmethods__))
                 raise InputError(
                     f"{label}: abstract (it does not define {missing}); define apply(self, s, dt)"
+                )
+            declared, defaults = getattr(item, "constraints", None), getattr(item, "defaults", None)
+            if isinstance(declared, dict) and isinstance(defaults, dict) and set(declared) - set(defaults):
+                # building would fail inside encode, with a message about raw values
+                raise InputError(
+                    f"{label}: {item.__name__}.defaults has no entry for {sorted(set(declared) - set(defaults))}; "
+                    "add them (the start values)"
                 )
             try:
                 item = item()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg

@@ -127,10 +127,15 @@ def refitted(search: Search, present: tuple[str, ...], name: str | None = None) 
     return next((present[k:] for k in range(len(present)) if search.has_room(present[k:] + own)), ())
 
 
+def _probe_context(rate: float, duration: float) -> StartContext:
+    """The signal the lanes are counted on before any data is fitted (a two-sample ramp)."""
+    ramp = np.array([-1.0, 1.0])
+    return StartContext(signal=ramp, rate=rate, duration=duration, drive=ramp, measured=ramp, lag_samples=1)
+
+
 def first_step_lanes(effects, rate: float, duration: float) -> int:
     """Lanes of the first step: every effect's starts and its screened ones (counts only)."""
-    ramp = np.array([-1.0, 1.0])
-    probe = StartContext(signal=ramp, rate=rate, duration=duration, drive=ramp, measured=ramp, lag_samples=1)
+    probe = _probe_context(rate, duration)
     return sum(len(e.starts(probe)) + e.n_screened for e in effects)
 
 
@@ -312,7 +317,16 @@ def search_step(
         if name in present:
             continue
         lane = lane_tangents(s.model, s.frozen, refitted(s, present, name) + (name,), n_rows)
-        for values in effect.starts(context[name]) + screened.get(name, []):
+        own = effect.starts(context[name])
+        counted = len(effect.starts(_probe_context(s.rate, s.duration)))
+        if len(own) > counted:  # the lanes were counted on the probe (`first_step_lanes`): one program
+            raise PluginError(
+                f"effect {type(effect).__name__}: starts(context) gave {len(own)} starts on this recording "
+                f"but {counted} on the probe signal the search's lanes are counted on: return as many starts "
+                "whatever the data (e.g. a fixed list of fractions of the signal's range; see docs/effects.md)",
+                plugin=type(effect),
+            )
+        for values in own + screened.get(name, []):
             active = active_cur.copy()
             active[i] = 1.0
             starts.append(stack.replace(**values).with_active(active))

@@ -142,6 +142,9 @@ class LTI(AbstractLinearStateSpace):
     order: int = eqx.field(static=True)
 
     linear_in_drive: ClassVar[bool] = True  # zero initial state: the output is linear in the drive
+    # Every section has unit DC (or peak) gain and the residues and feedthrough are pure numbers: the
+    # output is in the drive's unit, and so are the parameters of an output-side effect.
+    output_unit: ClassVar[str] = "{drive}"
     # The state-space form is stepped exactly (`linear_matrices`); substeps only refine a fed-back force.
     substeps: ClassVar[int] = 2
 
