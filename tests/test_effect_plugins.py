@@ -282,6 +282,13 @@ class _DerivedNaN(_Scale):
         return {"size": float("nan")}
 
 
+class _Numpy(_Scale):
+    name: ClassVar[str] = "numpy_inside"
+
+    def apply(self, s, dt):  # numpy on the signal: runs eagerly, fails under jit
+        return jnp.asarray(np.clip(np.asarray(s), -1.0, 1.0))
+
+
 class _NoDefault(_Scale):
     name: ClassVar[str] = "no_default"
     defaults: ClassVar = {}
@@ -306,6 +313,10 @@ class _StartTypo(_Scale):
         # a new user's mistakes (the messages said 'missing parameter(s)' from inside encode, nothing, and
         # 'must return a non-empty list of dicts' without the key)
         ([_NoDefault], "_NoDefault.defaults has no entry for ['scale_factor']; add them"),
+        (
+            [_Numpy],
+            "runs on numbers but not under jax.jit (TracerArrayConversionError); write it with jax.numpy",
+        ),
         ([_TypoUnit], "units['scale_factor'] = '1/{signl}' has the placeholder {signl}: write {signal}"),
         ([_StartTypo], "starts(context) gave 'scale_factr', not a parameter of it (scale_factor)"),
         ([_WrongShape], "must return one finite value per sample"),

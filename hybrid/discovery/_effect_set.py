@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -135,6 +136,20 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
     except Exception as error:
         raise PluginError(
             f"{label}: {cls} failed on a probe signal ({type(error).__name__}: {error}); fix apply or starts",
+            error,
+        ) from None
+    try:  # as the search runs it: traced under jit (numpy or float() on a traced value fails here)
+        if effect.place == "inside":
+            jax.eval_shape(lambda z: effect.apply(z, 1.0 / context.rate), jnp.asarray(context.signal[0]))
+        else:
+            jax.eval_shape(lambda z: effect.apply(z, 1.0 / context.rate), jnp.asarray(context.signal))
+    except KeyboardInterrupt:
+        raise
+    except Exception as error:
+        raise PluginError(
+            f"{label}: {cls}.apply(s, dt) runs on numbers but not under jax.jit ({type(error).__name__}); "
+            "write it with jax.numpy (jnp) and jax.lax (lax.scan for a state carried from sample to sample, "
+            "jnp.where for a branch), not numpy, math, float() or a Python if on values",
             error,
         ) from None
     if out.shape != context.signal.shape:
