@@ -493,8 +493,13 @@ def test_a_remainder_that_lives_inside_the_dynamics_says_whether_that_place_was_
     assert "(stiffness, limit_low_1), none explains the rest" in place_hint(
         cubic, searched_places(resolve_effects(None, held), held)
     )
-    assert place_hint({"kind": "static", "level_limit": [{"side": "top"}]}, tanks) is not None  # a flat top
-    assert place_hint({"kind": "static", "level_limit": []}, tanks) is None  # nothing points inside
+    # level_limits' own shape: a side the record sits flat at is flagged
+    flat_top = {"top": {"level": 2.0, "flag": True}, "bottom": {"level": -2.0, "flag": False}}
+    assert place_hint({"kind": "static", "level_limit": flat_top}, tanks) is not None  # a flat top
+    # no side flagged (a quantised output, static on the output): not sent inside, as it was
+    neither = {"top": {"level": 2.9, "flag": False}, "bottom": {"level": -2.1, "flag": False}}
+    assert place_hint({"kind": "static", "level_limit": neither}, tanks) is None
+    assert place_hint({"kind": "static", "level_limit": {"reason": "no samples"}}, tanks) is None
 
 
 def test_a_start_that_makes_the_dynamics_escape_is_pulled_towards_the_effects_defaults():

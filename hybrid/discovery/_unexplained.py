@@ -155,9 +155,13 @@ def place_hint(description: dict, places: dict) -> str | None:
     effect of the user's own is what is left.
     """
     inside = places.get("inside")
-    if inside is None or not (
-        description.get("kind") == "nonlinear_dynamic" or description.get("level_limit")
-    ):
+    limit = description.get("level_limit") or {}
+    flat = any(
+        isinstance(side, dict) and side.get("flag") for side in (limit.get("top"), limit.get("bottom"))
+    )
+    # (the level test runs on every remainder: a level the record sits flat at is one it flagged; a
+    # quantised output, static on the output, was sent inside because the test's dict was there)
+    if inside is None or not (description.get("kind") == "nonlinear_dynamic" or flat):
         return None
     if inside["not_searched"]:
         return f"an effect inside the dynamics may explain it, but {inside['not_searched']}"
