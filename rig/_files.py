@@ -27,6 +27,7 @@ from hybrid.util import atomic_open, describe_targets, partial_path, write_texts
 from ._errors import RigError
 
 __all__ = [
+    "check_csv_out",
     "check_outputs",
     "jsonable",
     "partial_path",

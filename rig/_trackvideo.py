@@ -122,7 +122,7 @@ def _length_warning(job: TrackJob, tips, clamp) -> str | None:
     )
 
 
-def inverted(image: np.ndarray) -> np.ndarray:
+def _inverted(image: np.ndarray) -> np.ndarray:
     """The picture in negative: a strip brighter than its background becomes a dark one."""
     top = np.iinfo(image.dtype).max if np.issubdtype(image.dtype, np.integer) else float(np.max(image))
     return top - image
@@ -136,7 +136,7 @@ def _find_axis(job: TrackJob, window) -> tuple[AxisEstimate, bool]:
     estimate = find_axis(images, job.clamp, job.mm_per_px, job.length_mm, job.strip_px)
     if estimate.angle_deg is None and images:
         negative = find_axis(
-            [inverted(i) for i in images], job.clamp, job.mm_per_px, job.length_mm, job.strip_px
+            [_inverted(i) for i in images], job.clamp, job.mm_per_px, job.length_mm, job.strip_px
         )
         if negative.angle_deg is not None:
             return negative, True
@@ -236,7 +236,7 @@ def _track_rows(
     try:
         for frame in frames():
             if tracker is not None:
-                result = tracker.track(inverted(frame.image) if bright else frame.image)
+                result = tracker.track(_inverted(frame.image) if bright else frame.image)
                 ok, value, reason = result.quality, result.w, result.reason
             else:
                 ok, value, reason = 0, math.nan, "no strip along any axis"

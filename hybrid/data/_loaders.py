@@ -27,7 +27,18 @@ import numpy as np
 from ..util._errors import InputError
 from ._recording_checks import REQUIRED, TIME_UNITS, UNITS, rows_text
 
-__all__ = ["SUFFIXES", "check_file", "mat_variables", "npz_arrays", "read_file", "sidecar"]
+__all__ = [
+    "SUFFIXES",
+    "Clock",
+    "check_file",
+    "comma_separated",
+    "mat_variables",
+    "npz_arrays",
+    "read_file",
+    "sidecar",
+    "time_factor",
+    "units_row",
+]
 
 #: File suffixes `Recording.load` and `Recording.save` understand.
 SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
@@ -122,7 +133,7 @@ def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequ
         raise InputError(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
-            f"yours are which, e.g. {mapping_example([c for c in found if c not in REQUIRED])}"
+            f"yours are which, e.g. {_mapping_example([c for c in found if c not in REQUIRED])}"
         )
 
 
@@ -236,7 +247,7 @@ def _role_of(name: str) -> str | None:
     return None
 
 
-def mapping_example(names: Sequence[str]) -> str:
+def _mapping_example(names: Sequence[str]) -> str:
     """The flags that would map a lab file's columns, guessed from their names (time, drive, output)."""
     roles: dict[str, str] = {}
     for name in names:
