@@ -182,34 +182,28 @@ _GREEDY = (
 )
 
 
-def test_an_effect_whose_number_of_starts_follows_the_data_is_named(lab, monkeypatch, capsys):
-    """The lanes are counted on a probe: the message named no effect, now it names the one that varies."""
+@pytest.mark.parametrize(
+    "source, cls, words",
+    [
+        # past the probe, every lane of the effect is NaN: it was numpy's 'All-NaN slice encountered'
+        (_LATE_NAN, "LateNaN", "effect LateNaN: every start of its fit gives non-finite"),
+        # the lanes are counted on a probe: the message named no effect, now it names the one that varies
+        (_GREEDY, "Greedy", "effect Greedy: starts(context) gave"),
+    ],
+)
+def test_an_effect_that_misbehaves_only_on_the_recording_is_named_in_one_line(
+    lab, monkeypatch, capsys, source, cls, words
+):
     from hybrid.cli import main
 
-    (lab / "greedy.py").write_text(_GREEDY)
+    (lab / f"{cls.lower()}.py").write_text(source)
     monkeypatch.chdir(lab)
-    argv = ["diagnose", "lab.csv", "--physics", "lti:1", "--effects", "greedy.py:Greedy", "--out", "greedy"]
+    argv = ["diagnose", "lab.csv", "--physics", "lti:1", "--effects", f"{cls.lower()}.py:{cls}", "--out", cls]
     code = main([*argv, "--quiet"])
     lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1, lines
-    assert "effect Greedy: starts(context) gave" in lines[0] and "on the probe signal" in lines[0], lines
-    assert not (lab / "greedy").exists()
-
-
-def test_an_effect_non_finite_on_the_recording_is_named_in_one_line(lab, monkeypatch, capsys):
-    """Past the probe, every lane of the effect is NaN: one line naming it, not numpy's 'All-NaN slice'."""
-    from hybrid.cli import main
-
-    (lab / "late_nan.py").write_text(_LATE_NAN)
-    monkeypatch.chdir(lab)
-    argv = ["diagnose", "lab.csv", "--physics", "lti:1", "--effects", "late_nan.py:LateNaN", "--out", "late"]
-    code = main([*argv, "--quiet"])
-    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert code == 2 and len(lines) == 1, lines
-    assert lines[0].startswith("hybrid: error: effect LateNaN: every start of its fit gives non-finite"), (
-        lines
-    )
-    assert not (lab / "late").exists()
+    assert lines[0].startswith("hybrid: error: ") and words in lines[0], lines
+    assert not (lab / cls).exists()
 
 
 # --------------------------------------------------------------------------- #
