@@ -1,6 +1,6 @@
 """Recordings that used to be answered wrong in silence, or refused with a message pointing the
 wrong way (issue 20): a constant drive, t in milliseconds, camera timestamps with jitter, a gap,
-';' / tab / space delimiters and decimal commas, MATLAB v7.3 files, diagnose's early checks, and
+';' / tab / space delimiters and decimal commas, MATLAB v7.3 files (read with h5py), diagnose's early checks, and
 the null space of a sensitivity matrix with fewer rows than parameters.
 
 Nothing here fits a model: every check runs before any compilation, so each test takes well
@@ -253,15 +253,61 @@ def test_decimal_commas_in_a_comma_file_are_named(tmp_path):
         Recording.load(path)
 
 
-def test_matlab_v73_file_says_save_v7(tmp_path):
-    header = (
-        b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+_MAT73_HEADER = (
+    b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+)
+
+
+def _write_mat73(path, variables):
+    """A .mat file laid out as MATLAB's save -v7.3 writes it: HDF5 after a 512-byte header, every array
+    transposed (column-major), MATLAB_class on each, char as UTF-16 codes, a struct as a group."""
+    import h5py
+
+    def put(group, name, value):
+        if isinstance(value, dict):
+            sub = group.create_group(name)
+            sub.attrs["MATLAB_class"] = np.bytes_("struct")
+            for key, item in value.items():
+                put(sub, key, item)
+        elif isinstance(value, str):
+            group.create_dataset(name, data=np.array([[ord(c)] for c in value], np.uint16))
+            group[name].attrs["MATLAB_class"] = np.bytes_("char")
+        else:
+            group.create_dataset(name, data=np.atleast_2d(np.asarray(value, float)).T)  # n x 1 -> (1, n)
+            group[name].attrs["MATLAB_class"] = np.bytes_("double")
+
+    with h5py.File(path, "w", userblock_size=512) as handle:
+        for name, value in variables.items():
+            put(handle, name, value)
+    with open(path, "r+b") as handle:
+        handle.write(_MAT73_HEADER.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM")
+
+
+def test_a_matlab_v73_file_reads_as_a_v7_one(tmp_path):
+    """save -v7.3 (HDF5; any file over 2 GB, and a MATLAB preference): read, metadata and struct fields too."""
+    t = np.arange(50) / 10.0
+    v, w = _signals(50)
+    path = tmp_path / "run.mat"
+    _write_mat73(
+        path,
+        {"t": t[:, None], "v_in": v[:, None], "w": w[None, :], "metadata": '{"strip": {"length_mm": 30}}'},
     )
-    data = header.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM"
+    rec = Recording.load(path)
+    np.testing.assert_array_equal(np.stack([rec.t, rec.v_in, rec.w]), np.stack([t, v, w]))
+    assert rec.metadata["strip"] == {"length_mm": 30}
+    lab = tmp_path / "lab.mat"
+    _write_mat73(lab, {"run": {"data": {"u": v[:, None], "y": w[:, None]}, "Ts": [[0.1]]}})
+    mapped = Recording.load(lab, input="run.data.u", output="run.data.y")
+    np.testing.assert_array_equal(mapped.w, w)
+    assert mapped.rate == pytest.approx(10.0)
+
+
+def test_a_damaged_matlab_v73_file_says_so(tmp_path):
+    data = _MAT73_HEADER.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM"
     data = data.ljust(512, b"\x00") + b"\x89HDF\r\n\x1a\n" + b"\x00" * 200
     path = tmp_path / "run.mat"
     path.write_bytes(data)
-    with pytest.raises(InputError, match=r"MATLAB v7.3 \(HDF5\).*'-v7'"):
+    with pytest.raises(InputError, match=r"damaged MATLAB v7.3 \(HDF5\) .mat file .*save it again"):
         Recording.load(path)
 
 

@@ -535,18 +535,16 @@ def mat_variables(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     import scipy.io
 
     try:
-        variables = scipy.io.loadmat(str(path))
+        variables = _flat_structs(
+            {k: v for k, v in scipy.io.loadmat(str(path)).items() if not k.startswith("__")}
+        )
     except Exception as error:  # scipy raises many types for broken files
-        if "7.3" in str(error) or _is_hdf5(path):
+        if not ("7.3" in str(error) or _is_hdf5(path)):
             raise InputError(
-                f"recording '{path}' is a MATLAB v7.3 (HDF5) .mat file, which cannot be read "
-                "here: save it in the v7 format, save(file, 't', 'v_in', 'w', '-v7')"
+                f"recording '{path}' is not a readable .mat file ({error}): save it "
+                "with MATLAB's save(file, 't', 'v_in', 'w', '-v7') or Recording.save"
             ) from None
-        raise InputError(
-            f"recording '{path}' is not a readable .mat file ({error}): save it "
-            "with MATLAB's save(file, 't', 'v_in', 'w', '-v7') or Recording.save"
-        ) from None
-    variables = _flat_structs({k: v for k, v in variables.items() if not k.startswith("__")})
+        variables = _mat73_variables(path)
     metadata = {}
     if "metadata" in variables:
         text = variables.pop("metadata")
@@ -557,6 +555,42 @@ def mat_variables(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
             )
         metadata = parse_metadata(path, str(text.reshape(-1)[0]), "its 'metadata' variable")
     return variables, metadata
+
+
+def _mat73_variables(path: pathlib.Path) -> dict[str, np.ndarray]:
+    """The variables of a MATLAB v7.3 (HDF5) file, as `scipy.io.loadmat` gives those of a v7 one.
+
+    Read with h5py: a numeric array is a dataset (stored transposed: a vector is a
+    vector either way), a char array one of UTF-16 codes (`MATLAB_class` "char"),
+    a struct a group whose fields are named with dots as `_flat_structs` does;
+    cell arrays, empty arrays and MATLAB's own ``#refs#`` are left out.
+    """
+    import h5py
+
+    out: dict[str, np.ndarray] = {}
+
+    def visit(group, prefix: str, depth: int) -> None:
+        for name, item in group.items():
+            if name.startswith("#"):
+                continue
+            kind = item.attrs.get("MATLAB_class", b"")
+            kind = kind.decode() if isinstance(kind, bytes) else str(kind)
+            if isinstance(item, h5py.Group):
+                if kind == "struct" and depth < _STRUCT_DEPTH:
+                    visit(item, f"{prefix}{name}.", depth + 1)
+            elif kind == "char":
+                out[prefix + name] = np.array(["".join(map(chr, np.asarray(item[()]).reshape(-1)))])
+            elif kind != "cell" and not item.attrs.get("MATLAB_empty", 0) and item.dtype.kind in "biuf":
+                out[prefix + name] = np.asarray(item[()]).T  # MATLAB's column-major order
+
+    try:
+        with h5py.File(path, "r") as handle:
+            visit(handle, "", 0)
+    except OSError as error:
+        raise InputError(
+            f"recording '{path}' is a damaged MATLAB v7.3 (HDF5) .mat file ({error}): save it again"
+        ) from None
+    return out
 
 
 #: How deep struct fields are read (``run.data.u`` is depth 2).

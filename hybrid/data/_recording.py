@@ -360,8 +360,9 @@ class Recording:
           it exists.
         * ``.npz``: arrays ``t``, ``v_in``, ``w``; ``extra_<name>`` (and any
           other array) become extra channels; ``metadata`` is a JSON string.
-        * ``.mat``: vector variables ``t``, ``v_in``, ``w``; other vector
-          variables become extra channels; ``metadata`` is a JSON string.
+        * ``.mat`` (v7, or v7.3/HDF5 through h5py): vector variables ``t``,
+          ``v_in``, ``w``; other vector variables become extra channels;
+          ``metadata`` is a JSON string.
 
         Arguments:
             path: the file.
