@@ -480,3 +480,16 @@ def test_a_time_column_of_date_times_is_read_in_seconds(tmp_path):
         output="pos",
         time="timestamp",
     )
+
+
+def test_an_oscilloscope_export_maps_below_its_preamble(tmp_path):
+    """Preamble lines, ';' cells with decimal commas and a units row in ms: a PicoScope-style CSV as written."""
+    body = "PicoScope 6\nDate: 2026-12-01\n\nTime;Channel A;Channel B\n(ms);(V);(mV)\n"
+    body += "".join(
+        f"{1000 * k / 30:.3f};{np.sin(k / 5):.4f};{np.cos(k / 7):.4f}\n".replace(".", ",") for k in range(60)
+    )
+    rec = load_mapped(
+        _write(tmp_path / "scope.csv", body), input="Channel A", output="Channel B", time="Time"
+    )
+    assert rec.rate == pytest.approx(30.0, rel=1e-4) and rec.metadata["units"]["w"] == "mV"
+    np.testing.assert_allclose(rec.w, [round(np.cos(k / 7), 4) for k in range(60)])

@@ -419,3 +419,17 @@ def test_a_t_column_of_date_times_is_read_in_seconds(tmp_path):
 def test_a_workbook_or_tsv_says_what_to_save_it_as(tmp_path, suffix, words):
     with pytest.raises(InputError, match=f"unknown suffix '{suffix}'.*{words}"):
         Recording.load(_write(tmp_path / f"a{suffix}", "t,v_in,w\n0,1,2\n"))
+
+
+def test_a_loggers_preamble_before_the_header_and_quoted_numbers_are_read(tmp_path):
+    """An oscilloscope's export: device and date lines, then the header; and an export that quotes every cell."""
+    text = "PicoScope 6 export\nDate: 2026-12-01\n\nt,v_in,w\n0,1,2\n0.5,-1,3\n1,0,4\n"
+    rec = Recording.load(_write(tmp_path / "p.csv", text))
+    np.testing.assert_array_equal(rec.w, [2.0, 3.0, 4.0])
+    assert rec.notes == (
+        f"recording '{tmp_path / 'p.csv'}': the 2 line(s) before its header (line 4) skipped",
+    )
+    quoted = Recording.load(_write(tmp_path / "q.csv", '"t","v_in","w"\n"0","1.5","2"\n"0.5","1","3"\n'))
+    np.testing.assert_array_equal(quoted.v_in, [1.5, 1.0])
+    with pytest.raises(InputError, match="missing column"):  # no header names them: the first line is named
+        Recording.load(_write(tmp_path / "n.csv", "device X\ntime,u,y\n0,1,2\n"))

@@ -28,10 +28,12 @@ from ..util._errors import InputError
 from ._recording_checks import REQUIRED, TIME_UNITS, UNITS, rows_text
 
 __all__ = [
+    "PREAMBLE_LINES",
     "SUFFIXES",
     "Clock",
     "check_file",
     "comma_separated",
+    "find_header",
     "mat_variables",
     "npz_arrays",
     "read_file",
@@ -297,6 +299,21 @@ def read_text(path: pathlib.Path) -> str:
         ) from None
 
 
+#: Lines a header is looked for in, below a logger's preamble (device, date, settings).
+PREAMBLE_LINES = 50
+
+
+def find_header(rows: Sequence[Sequence[str]], needed: Sequence[str]) -> int:
+    """The index of the header among a CSV's first `rows` (split into cells): the first that names
+    every one of `needed` (an oscilloscope's or logger's preamble lines come before it); 0 when none
+    does in the first `PREAMBLE_LINES`, so that the first line's names go into the message."""
+    wanted = set(needed)
+    for i, cells in enumerate(rows[:PREAMBLE_LINES]):
+        if wanted <= {cell.strip().strip('"').strip() for cell in cells}:
+            return i
+    return 0
+
+
 #: A number written with a decimal comma: 1,5 or -0,25 or ,5 or 1,5e-3.
 _DECIMAL_COMMA = re.compile(r"[+-]?(\d+,\d*|,\d+)([eE][+-]?\d+)?")
 
@@ -310,7 +327,14 @@ def comma_separated(text: str) -> tuple[str, str | None]:
     gets a point; every line keeps its number, so messages still point into the file.
     """
     lines = text.splitlines()
-    header = next((line for line in lines if line.strip() and not line.strip().startswith("#")), "")
+    header = next(  # the first line with a delimiter: a logger's preamble ("Device: X") has none
+        (
+            line
+            for line in lines[:PREAMBLE_LINES]
+            if any(m in line for m in ",;\t") and not line.strip().startswith("#")
+        ),
+        "",
+    )
     mark = next((m for m in (";", "\t") if m in header and "," not in header), None)
     if mark is None:
         return text, None
@@ -414,12 +438,20 @@ def _load_csv(
         raise InputError(
             f"recording '{path}' has no header or data: give a header line t,v_in,w and one line per sample"
         )
+    start = find_header([line.split(",") for _, line in lines], required)
+    if start:
+        notes = [
+            f"recording '{path}': the {start} line(s) before its header (line {lines[start][0]}) skipped"
+        ]
+        lines = lines[start:]
+    else:
+        notes = []
     header = _csv_header(path, lines[0][1], required)
     row = units_row(lines[1][1].split(",")) if len(lines) > 1 else None
     stated = {name: unit for name, unit in zip(header, row or ()) if unit}
     rows, numbers = [], []
     for number, line in lines[1 + (row is not None) :]:
-        cells = [cell.strip() for cell in line.split(",")]
+        cells = [cell.strip().strip('"').strip() for cell in line.split(",")]  # "1.5": an export that quotes
         while len(cells) > len(header) and not cells[-1].strip('"'):
             cells.pop()  # the trailing empty cells of the header's trailing empty names
         if len(cells) != len(header):
@@ -435,7 +467,8 @@ def _load_csv(
     if not rows:
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     line_numbers = np.asarray(numbers)
-    columns, notes = {}, [] if how is None else [f"recording '{path}': {how}"]
+    columns = {}
+    notes += [] if how is None else [f"recording '{path}': {how}"]
     start_time = None
     for i, column in enumerate(header):
         cells = [row[i] for row in rows]

@@ -46,9 +46,11 @@ import numpy as np
 
 from ..util._errors import InputError
 from ._loaders import (
+    PREAMBLE_LINES,
     Clock,
     comma_separated,
     file_vector,
+    find_header,
     mat_variables,
     npz_arrays,
     parse_metadata,
@@ -168,7 +170,7 @@ def _read_csv(
         with _open(path) as raw:
             text = comma_separated(raw.read())[0]  # a ';' or tab export with decimal commas: commas
         with io.StringIO(text) as handle:
-            header, header_line = _header(path, handle)
+            header, header_line = _header(path, handle, [n for n in wanted.values() if not n.isdigit()])
             stated, units_line = _stated_units(handle, header, header_line)
             index = {
                 role: _column_index(path, header, name, role, flag_prefix) for role, name in wanted.items()
@@ -260,11 +262,23 @@ def _lenient(cell: str) -> float:
         return math.nan
 
 
-def _header(path: pathlib.Path, handle) -> tuple[list[str], int]:
-    """The header's names and its line number; the handle is left after it."""
+def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tuple[list[str], int]:
+    """The header's names and its line number; the handle is left after it.
+
+    The header is the first line that names every one of `names_wanted` (a
+    logger's preamble comes before it: `header_line`), else the first line.
+    """
+    position = handle.tell()
+    lines = [line for line in (handle.readline() for _ in range(PREAMBLE_LINES)) if line]
+    rows = [
+        next(csv.reader([line.strip()]), []) if line.strip() and not line.strip().startswith("#") else []
+        for line in lines
+    ]
+    skip = find_header(rows, names_wanted) if names_wanted else 0
+    handle.seek(position)
     for number, line in enumerate(iter(handle.readline, ""), start=1):
         stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
+        if not stripped or stripped.startswith("#") or number <= skip:
             continue
         names = [cell.strip().strip('"').strip() for cell in next(csv.reader([stripped]))]
         while names and not names[-1]:
