@@ -356,6 +356,8 @@ def test_spreadsheet_trailing_commas_and_text_columns_are_left_out(tmp_path):
     assert (
         len(labelled.notes) == 1 and "column 'time_stamp' holds text (e.g. '12:00:00')" in labelled.notes[0]
     )
+    marker = Recording.load(_write(tmp_path / "m.csv", "t,v_in,w,event\n0,1,2,\n0.5,-1,3,1\n1,0,4,\n"))
+    assert marker.extra == {} and "column 'event' holds mostly empty cells, not a signal" in marker.notes[0]
 
 
 def test_unreadable_binary_files(tmp_path):

@@ -420,14 +420,18 @@ def _csv_column(path: pathlib.Path, column: str, cells: list[str], numbers: np.n
 
 
 def _text_column(cells: list[str]) -> str | None:
-    """The first cell that is not a number when most of the column is text (labels, timestamps)."""
+    """What the column holds instead of numbers, when most of it does (labels, timestamps, empty
+    cells: an event marker set on a few lines), in words; None for a column of numbers."""
     bad = []
     for cell in cells:
         try:
             float(cell)
         except ValueError:
             bad.append(cell)
-    return bad[0] if bad and 2 * len(bad) > len(cells) else None
+    if not bad or 2 * len(bad) <= len(cells):
+        return None
+    text = next((cell for cell in bad if cell), None)
+    return f"text (e.g. {text!r})" if text is not None else "mostly empty cells"
 
 
 def _load_csv(
@@ -481,9 +485,7 @@ def _load_csv(
                 continue
         label = None if column in REQUIRED else _text_column(cells)
         if label is not None:  # nothing reads it: say so, do not refuse the signals beside it
-            notes.append(
-                f"recording '{path}': column '{column}' holds text (e.g. {label!r}), not a signal: left out"
-            )
+            notes.append(f"recording '{path}': column '{column}' holds {label}, not a signal: left out")
             continue
         columns[column] = _csv_column(path, column, cells, line_numbers)
     meta_path = sidecar(path)
