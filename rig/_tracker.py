@@ -263,9 +263,10 @@ class TipTracker:
         def line(sv):
             return np.polyval(coef, np.asarray(sv) / scale)
 
-        # A strip's sections lie on one smooth line (0.05-0.3 px RMS from it for a 4 px strip, 1.4 px for
-        # 12 px); something dark across the strip (a hand, a cable, a tool) pulls them off by several
-        # px, and the tip found beyond it is wrong by millimetres, of either sign.
+        # A strip's sections lie on one smooth line, within a fraction of a pixel (more for a thick
+        # strip); something dark across the strip (a hand, a cable, a tool) pulls them off by several
+        # px, and the tip found beyond it is wrong by millimetres, of either sign
+        # (tests/test_rig_track_cantilever.py: a disk sweeping over the strip).
         broken = float(np.sqrt(np.mean((uu - line(ss)) ** 2)))
         if broken > max(self.MAX_BEND_RMS_PX, self.MAX_BEND_RMS_STRIP * self.strip_px):
             return TipResult(math.nan, 0, "strip not one smooth line (covered?)", (math.nan, math.nan))

@@ -206,8 +206,10 @@ def non_finite_fit(simulation, recordings) -> str:
     first samples only; this runs the simulation as given on each whole drive.
     """
     name = type(simulation).__name__
-    values = simulation.parameters()
-    at = ", ".join(f"{k}={float(v):.4g}" for k, v in values.items())
+    at = ", ".join(
+        f"{k}={np.asarray(v).item():.4g}" if np.size(v) == 1 else f"{k}=({np.size(v)} values)"
+        for k, v in simulation.parameters().items()
+    )
     for recording in recordings:
         try:
             out = np.asarray(simulation.simulate(jnp.asarray(recording.v_in), recording.dt), dtype=np.float64)

@@ -195,10 +195,9 @@ class Clock:
         except (ValueError, TypeError):  # not a date-time, or one with a time zone beside one without
             return math.nan
 
-    def note(self, path: pathlib.Path | str) -> str | None:
-        """What was read, for the recording's notes: None when every cell was a number."""
-        if self.start is None:
-            return None
+    def note(self, path: pathlib.Path | str) -> str:
+        """What was read, for the recording's notes (after a date-time was read: `start` is set)."""
+        assert self.start is not None
         return f"recording '{path}': its time column holds date-times, read as seconds after {self.start.isoformat()}"
 
 
@@ -481,7 +480,7 @@ def _load_csv(
             times = np.array([clock(cell) for cell in cells])
             if clock.start is not None and np.isfinite(times).all():
                 columns[column], start_time = times, clock.start.isoformat()
-                notes.append(clock.note(path) or "")
+                notes.append(clock.note(path))
                 continue
         label = None if column in REQUIRED else _text_column(cells)
         if label is not None:  # nothing reads it: say so, do not refuse the signals beside it

@@ -138,11 +138,9 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
             f"{label}: {cls} failed on a probe signal ({type(error).__name__}: {error}); fix apply or starts",
             error,
         ) from None
+    traced = context.signal[0] if effect.place == "inside" else context.signal  # a sample, or the signal
     try:  # as the search runs it: traced under jit (numpy or float() on a traced value fails here)
-        if effect.place == "inside":
-            jax.eval_shape(lambda z: effect.apply(z, 1.0 / context.rate), jnp.asarray(context.signal[0]))
-        else:
-            jax.eval_shape(lambda z: effect.apply(z, 1.0 / context.rate), jnp.asarray(context.signal))
+        jax.eval_shape(lambda z: effect.apply(z, 1.0 / context.rate), jnp.asarray(traced))
     except KeyboardInterrupt:
         raise
     except Exception as error:

@@ -396,7 +396,8 @@ def search_step(
                 f"effect {type(effect).__name__}: every start of its fit gives non-finite predictions "
                 "(NaN or inf) on this recording, though it was finite on the probe signal: its apply is not "
                 "finite on this recording's signal (a log, a square root or a division of a signal that "
-                "reaches zero?): fix apply"
+                "reaches zero?): fix apply",
+                plugin=type(effect),
             )
         j = choose_lane(idx, vals, is_material, s.n_val)
         chosen_lanes.add(j)

@@ -16,8 +16,8 @@ class PluginError(InputError):
 
     `original` is the exception the plug-in raised (None for a wrong result),
     kept for ``hybrid -v``. `plugin` is the class at fault when the message was
-    written where its ``--physics`` spec is unknown (the command line puts the
-    spec in front).
+    written where its ``--physics`` or ``--effects`` spec is unknown (the command
+    line puts the spec in front).
     """
 
     def __init__(self, message: str, original: BaseException | None = None, plugin: type | None = None):
