@@ -382,7 +382,7 @@ class _Level(hybrid.LTI):
     output_unit: ClassVar[str] = "cm"
 
 
-def test_a_linear_readouts_units_follow_w_and_the_simulations_output():
+def test_a_linear_readouts_units_follow_w_and_the_simulations_output(tmp_path):
     """gain is w's unit per the simulation's output's, never a hard-coded mm/V (the tanks read "mm/V")."""
     level = hybrid.make_model("physics", simulation=_Level(1))
     assert (level.units_in("V")["gain"], level.units_in("V")["offset"]) == ("V/cm", "V")
@@ -400,6 +400,13 @@ def test_a_linear_readouts_units_follow_w_and_the_simulations_output():
     )
     result = hybrid.fit(level, rec, solver=hybrid.LevenbergMarquardt(max_steps=3), progress=False)
     assert (result.units["gain"], result.units["offset"]) == ("V/cm", "V")
+    # ... and so do the fitted model's own units, saved with it and loaded back (they read mm)
+    assert result.model.units == result.units
+    path = hybrid.save_model(tmp_path / "level.eqx", result.model)
+    assert json.loads(Path(f"{path}.json").read_text())["units"]["gain"] == "V/cm"
+    assert hybrid.load_model(path).units == result.units
+    batch = hybrid.fit_batch(level, [rec], solver=hybrid.LevenbergMarquardt(max_steps=3))
+    assert batch[0].model.units["offset"] == "V"
 
 
 def test_a_drive_side_effect_acts_before_the_simulation():

@@ -8,6 +8,7 @@ a limit.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -398,7 +399,10 @@ def _friction_lab(folder: Path) -> None:
 
     y = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-9, atol=1e-11, max_step=0.01).y[0]
     out = 2.0 * y + 0.1 + 0.003 * np.ptp(y) * rng.normal(size=y.size)
-    hybrid.Recording.from_arrays(v_in=u, w=out, rate=FRICTION_RATE).save(folder / "lab.csv")
+    units = {"t": "s", "v_in": "V", "w": "cm"}  # a position in cm: the saved models' units follow it
+    hybrid.Recording.from_arrays(v_in=u, w=out, rate=FRICTION_RATE, metadata={"units": units}).save(
+        folder / "lab.csv"
+    )
 
 
 def test_the_docs_friction_effect_is_found_inside_an_oscillator_from_the_command_line(tmp_path):
@@ -428,6 +432,11 @@ def test_the_docs_friction_effect_is_found_inside_an_oscillator_from_the_command
     assert force["value"] == pytest.approx(FRICTION_FORCE, rel=0.3)
     assert force["unit"] == "V" and report["parameters"]["stick_speed"]["unit"] == "V/s"
     assert report["places"]["inside"]["effects"] == ["coulomb_friction", "stiffness"]
+    spec = importlib.util.spec_from_file_location("lab_friction", tmp_path / "friction.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)  # a saved model's plug-in is imported before it is loaded
+    extended = hybrid.load_model(tmp_path / "report" / "extended.eqx")
+    assert extended.units["offset"] == "cm" and extended.units["friction_force"] == "V"
 
     # The model diagnose extended is refitted as it is (hybrid fit --start-from), the plug-in imported
     # through --effects; starting values cannot be given twice.

@@ -42,7 +42,7 @@ import numpy as np
 from ..util._errors import InputError, PluginError
 from ._arguments import as_recordings, check_dt, check_model
 from ._devices import device_mesh, repeat_last
-from ._fit import default_frozen, fit_units, non_finite_fit, readout_back, start_model
+from ._fit import default_frozen, fit_units, non_finite_fit, readout_back, recording_units, start_model
 from ._levenberg_marquardt import lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
@@ -160,7 +160,12 @@ def fit_batch(
         w_unit, v_unit = fit_units(model, [s], np.asarray(s.target("train")))
         s = Series(s.v_in / v_unit, s.w / w_unit, s.dt, s.segments)
         units.append((w_unit, v_unit))
-        scaled = Model(model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind)
+        scaled = Model(
+            model.simulation,
+            model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit),
+            model.kind,
+            model.signal_units,
+        )
         initial = [_start_jit(scaled, k, seed, frozen, perturbation, [s]) for k in range(starts)]
         starts_of.append(initial)
         problem = Problem(initial[0], [s], frozen, weight_decay)
@@ -214,6 +219,7 @@ def fit_batch(
             fitted.simulation,
             readout_back(fitted.readout, model.readout, frozen, v_unit, w_unit),
             fitted.kind,
+            recording_units([recording]) or model.signal_units,
         )
         split_metrics = {}
         for name in ("train", "validation", "test"):

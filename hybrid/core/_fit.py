@@ -132,7 +132,9 @@ def fit(
     w_unit, v_unit = fit_units(model, series, train_w)
     series = [Series(s.v_in / v_unit, s.w / w_unit, s.dt, s.segments) for s in series]
     given = model
-    model = Model(model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind)
+    model = Model(
+        model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind, model.signal_units
+    )
 
     initial = [start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
     problem = Problem(initial[0], series, frozen, weight_decay)
@@ -165,7 +167,10 @@ def fit(
     best_start = int(np.nanargmin(losses))
     fitted = problem.model(best[best_start])
     fitted = Model(
-        fitted.simulation, readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit), fitted.kind
+        fitted.simulation,
+        readout_back(fitted.readout, given.readout, frozen, v_unit, w_unit),
+        fitted.kind,
+        recording_units(recordings) or given.signal_units,  # its parameters' units are those of the data
     )
     result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
     settings = {
@@ -304,7 +309,7 @@ def start_model(model: Model, index, seed, frozen, perturbation, series) -> Mode
             width = readout.mlp.width_size
             readout = WindowedMLP(readout.window, depth, width, readout.mlp.activation, key=k_net)
         simulation = model.simulation.perturbed(k_phys, perturbation, frozen)
-        model = Model(simulation, readout, model.kind)
+        model = Model(simulation, readout, model.kind, model.signal_units)
     # Fixed scalings (and a least-squares gain for linear readouts) from the training data.
     signal = jnp.concatenate(
         [
@@ -315,7 +320,7 @@ def start_model(model: Model, index, seed, frozen, perturbation, series) -> Mode
     target = jnp.concatenate([s.target("train") for s in series])
     if "network" in frozen or (set(getattr(model.readout, "raw", {})) & frozen):
         return model
-    return Model(model.simulation, model.readout.initialise(signal, target), model.kind)
+    return Model(model.simulation, model.readout.initialise(signal, target), model.kind, model.signal_units)
 
 
 def _metrics_by_split(problem: Problem, theta, split_order):

@@ -39,11 +39,14 @@ class Model(eqx.Module):
     - `simulation`: the physics part (an [`AbstractSimulation`][]).
     - `readout`: the per-sample map to w (an [`AbstractReadout`][]).
     - `kind`: a label (``"hybrid"``, ``"normal"``, ``"physics"`` or your own).
+    - `signal_units`: (w's unit, the drive's unit) that `units` labels the parameters in; `fit`
+      and `diagnose` set those of the recordings (the paper's mm and V by default).
     """
 
     simulation: AbstractSimulation
     readout: AbstractReadout
     kind: str = eqx.field(static=True, default="custom")
+    signal_units: tuple[str, str] = eqx.field(static=True, default=("mm", "V"))
 
     def mediatory(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
         """The mediatory signal (V_o for the RC network) over the whole drive."""
@@ -62,8 +65,8 @@ class Model(eqx.Module):
 
     @property
     def units(self) -> dict[str, str]:
-        """Each named parameter's unit, w in mm and the drive in V (the paper's case; see `units_in`)."""
-        return self.units_in("mm")
+        """Each named parameter's unit, for w and the drive in `signal_units` (see `units_in`)."""
+        return self.units_in(*self.signal_units)
 
     def units_in(self, w_unit: str, drive_unit: str = "V") -> dict[str, str]:
         """Each named parameter's unit for w in `w_unit` and the drive in `drive_unit`.
@@ -91,7 +94,9 @@ class Model(eqx.Module):
                 f"cannot freeze {sorted(unknown)}: this {self.kind} model's parameters are "
                 f"{list(self.parameter_names)}"
             )
-        return Model(self.simulation.trainable(frozen), self.readout.trainable(frozen), self.kind)
+        return Model(
+            self.simulation.trainable(frozen), self.readout.trainable(frozen), self.kind, self.signal_units
+        )
 
 
 def make_model(

@@ -64,7 +64,13 @@ def _describe(model: Model) -> dict:
         out = {"type": "LinearReadout"}
     else:
         raise InputError(f"cannot save a model with readout {type(readout).__name__}")
-    return {"format": FORMAT, "kind": model.kind, "simulation": simulation, "readout": out}
+    return {
+        "format": FORMAT,
+        "kind": model.kind,
+        "simulation": simulation,
+        "readout": out,
+        "signal_units": dict(zip(("w", "v_in"), model.signal_units)),
+    }
 
 
 def subclasses(cls) -> list[type]:
@@ -120,7 +126,10 @@ def _skeleton(description: dict) -> Model:
         readout = WindowedMLP(out_d["window"], out_d["depth"], out_d["width"], key=jax.random.key(0))
     else:
         readout = LinearReadout()
-    return Model(simulation, readout, description["kind"])
+    units = description.get("signal_units") or {}  # a model saved before units were kept: the paper's
+    return Model(
+        simulation, readout, description["kind"], (str(units.get("w", "mm")), str(units.get("v_in", "V")))
+    )
 
 
 def _path(path, where: str) -> Path:

@@ -425,10 +425,13 @@ def diagnose(
         places=places,
         not_pinned=unpinned,
         ambiguous=rivals,
-        models={
-            "baseline": fitted_model(problem, baseline.theta, ()),
-            "extended": extended_model,
-            **rival_models,
+        models={  # each labels its parameters in the recordings' units, saved and loaded with it
+            name: dataclasses.replace(model, signal_units=recording_units(recordings) or model.signal_units)
+            for name, model in {
+                "baseline": fitted_model(problem, baseline.theta, ()),
+                "extended": extended_model,
+                **rival_models,
+            }.items()
         },
         units=unit_labels(extended_model, recordings),
         signal_units=dict(zip(("w", "v_in"), recording_units(recordings) or PAPER_UNITS.values())),
