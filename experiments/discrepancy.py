@@ -267,7 +267,37 @@ def told_row(recording, world: dict) -> dict:
         "gains": [float(c["incremental_gain"]) for c in causes],
         "unexplained": unexplained is not None,
         "seconds": found.seconds,
+        "room": room(found, world["expected_causes"], world["true_noise_variance"]),
     }
+
+
+def room(found, hidden: list[str], noise_variance: float) -> dict | None:
+    """Each of two hidden effects' room: the held-out MSE of the other fitted alone over the noise variance.
+
+    `found`: a diagnosis told the hidden effects, whose first step fits each of
+    them alone on the baseline. Naming an effect beside the other needs its own
+    held-out gain ≥ `min_gain` over the other alone (the step's rule, and
+    `drop_redundant`'s when each is weighed as if named last); a fit cannot
+    leave less than the noise held out (up to the sampling error of a mean
+    square, √(2/n)), so that gain is at most this room. A pair with a room
+    below `min_gain` cannot have both named by the rules, whatever the search.
+    None: not two effects, or a fit alone is missing.
+    """
+    if len(hidden) != 2:
+        return None
+    alone = {c.name: c for c in found.steps[0].candidates}
+    if not all(name in alone and alone[name].heldout_residual is not None for name in hidden):
+        return None
+    return {
+        name: float(np.mean(np.square(alone[other].heldout_residual))) / noise_variance
+        for name, other in zip(hidden, hidden[::-1])
+    }
+
+
+def _in_reach(r, min_gain: float) -> bool | None:
+    """Whether the rules can name both of a pair draw's hidden effects (`room`); None: not known."""
+    rooms = (r.get("told") or {}).get("room")
+    return None if not rooms else min(rooms.values()) >= min_gain
 
 
 def start_line(rows) -> str:
@@ -311,6 +341,9 @@ def _counts(items) -> str:
 
 def open_world_tables(rows, specs) -> str:
     """The open-world summary: hidden → named set, pairs, outside effects, effect-free, all-clears, noise floor."""
+    from hybrid import DiagnoseSettings
+
+    min_gain = DiagnoseSettings().min_gain  # the held-out gain diagnose asks of a cause: a pair's reach
     out = [
         'Hidden → named set (every draw; ∅: nothing named; "unexpl.": `unexplained` set):\n',
         "| hidden | draws | named sets | unexpl. |",
@@ -330,8 +363,8 @@ def open_world_tables(rows, specs) -> str:
             "Pairs of library effects (both named: every hidden effect among the named, of which exactly: "
             "nothing else named; one named: some but not all; wrong name(s): named, none of them hidden):\n",
             "| hidden | both named | of which exactly | one named | wrong name(s) | none | unexpl. "
-            "| gain (median) | told: both named | both named of those |",
-            "|---" * 10 + "|",
+            "| gain (median) | told: both named | both named of those | within the rules' reach |",
+            "|---" * 11 + "|",
         ]
         for spec in pairs:
             mine = [r for r in rows if r["effect"] == spec]
@@ -345,7 +378,8 @@ def open_world_tables(rows, specs) -> str:
             out.append(
                 f"| {spec} | {len(both)}/{len(mine)} | {exact} | {one} | {wrong} | {none} | "
                 f"{sum(r['unexplained'] for r in mine)} | {np.median([r['gain'] for r in mine]):.2f} | "
-                f"{len(told)}/{len(mine)} | {sum(r in both for r in told)}/{len(told)} |"
+                f"{len(told)}/{len(mine)} | {sum(r in both for r in told)}/{len(told)} | "
+                f"{sum(_in_reach(r, min_gain) is True for r in mine)}/{len(mine)} |"
             )
         every = [r for r in rows if r["kind"] == "pair"]
         told = [r for r in every if _told_all(r)]
@@ -363,6 +397,27 @@ def open_world_tables(rows, specs) -> str:
                 else ""
             ),
         ]
+        rooms = [r for r in every if _in_reach(r, min_gain) is not None]
+        if rooms:
+            reach = [r for r in rooms if _in_reach(r, min_gain)]
+            out += [
+                "",
+                "Within the rules' reach (`room`): each hidden effect, fitted alone by the told search, leaves "
+                f"the other at least {min_gain}× the true noise variance held out, so each can gain the "
+                f"{min_gain}× the rules ask of it beside the other: {len(reach)}/{len(rooms)} draws; the full "
+                f"search names both in {sum(_names_all(r, r['causes']) for r in reach)} of those. Out of reach: "
+                + (
+                    ", ".join(
+                        f"{r['effect']} seed {r['seed']} ("
+                        + ", ".join(f"{k} {v:.2f}" for k, v in r["told"]["room"].items())
+                        + ")"
+                        for r in rooms
+                        if r not in reach
+                    )
+                    or "none"
+                )
+                + ".",
+            ]
     outside = [s for s in specs if any(r["effect"] == s and r["kind"] in ("outside", "mixed") for r in rows)]
     if outside:
         out += [
