@@ -210,6 +210,74 @@ def test_every_failure_is_one_input_error_that_names_the_fix(plugin_file, tmp_pa
     assert not [m for m in sys.modules if m.startswith(("hybrid_plugin_bad_", "hybrid_plugin_failing_"))]
 
 
+HEATER = """
+from typing import ClassVar
+
+import jax.numpy as jnp
+
+from hybrid import AbstractStateSpace, Positive, encode
+
+
+class Heater(AbstractStateSpace):
+    raw: dict
+    constraints: ClassVar = {"capacity": Positive(), "resistance": Positive()}
+    units: ClassVar = {"capacity": "J/K", "resistance": "K/W"}
+    typical: ClassVar = {"capacity": (1.0, 100.0)}
+    plausible: ClassVar = {"capacity": (0.01, 1e5), "resistance": (1e-3, 1e3)}
+    frozen_by_default: ClassVar = {"resistance": "only tau = R C is seen"}
+    states: ClassVar = ("rise",)
+
+    def __init__(self, capacity=10.0, resistance=2.0):
+        self.raw = encode(dict(capacity=capacity, resistance=resistance), self.constraints, "Heater")
+
+    def rates(self, x, u, p):
+        return ((u - x[0] / p["resistance"]) / p["capacity"],)
+
+    def linear_matrices(self, p):
+        return jnp.array([[-1.0 / (p["resistance"] * p["capacity"])]]), jnp.array([1.0 / p["capacity"]])
+"""
+
+
+@pytest.mark.parametrize(
+    "old, new, words",
+    [
+        (
+            'typical: ClassVar = {"capacity"',
+            'typical: ClassVar = {"capacty"',
+            ["Heater.typical", "capacty", "misspelling"],
+        ),
+        ('(0.01, 1e5), "resistance"', '(0.01, 1e5), "resistence"', ["Heater.plausible", "resistence"]),
+        ('{"resistance": "only', '{"resistence": "only', ["Heater.frozen_by_default", "resistence"]),
+        ("(1.0, 100.0)", "(100.0, 1.0)", ["Heater.typical['capacity']", "low < high"]),
+        ('states: ClassVar = ("rise",)', "", ["Heater.states", "non-empty tuple"]),
+        ('p["resistance"]) / p', 'p["resistence"]) / p', ["Heater.rates raised KeyError", "resistence"]),
+        ("return ((u - x[0]", "return ((2 * u - x[0]", ["rates and linear_matrices disagree", "A x + B u"]),
+        (
+            'return ((u - x[0] / p["resistance"]) / p["capacity"],)',
+            "return u",
+            ["rates must return a tuple of 1"],
+        ),
+    ],
+)
+def test_a_state_space_plugin_that_contradicts_itself_is_refused_on_load(tmp_path, old, new, words):
+    """What only one command would read (a range, the rates beside the matrices) is checked for every command.
+
+    A heater plug-in tried as a new user would: a misspelt key of `typical` or `plausible` was ignored
+    (its parameter silently left out of the start design), one of `frozen_by_default` was refused as an
+    "unknown frozen name" of a --freeze never given, a typo in `rates` went unseen by `fit` (the matrices
+    step the simulation) and `states` was checked by `diagnose` alone.
+    """
+    source = HEATER.replace(old, new)
+    assert source != HEATER
+    (tmp_path / "heater.py").write_text(source)
+    _one_error(f"{tmp_path / 'heater.py'}:Heater", *words)
+
+
+def test_the_heater_plugin_as_written_loads(tmp_path):
+    (tmp_path / "heater.py").write_text(HEATER)
+    assert resolve_physics(f"{tmp_path / 'heater.py'}:Heater").parameter_names() == ("capacity", "resistance")
+
+
 # --- a plug-in from a file, fitted, saved and loaded -------------------------------------------
 
 TRUE = {"tau": 2.5, "bias": 0.4}

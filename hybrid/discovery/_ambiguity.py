@@ -84,7 +84,7 @@ THIN_POWER = 0.01
 #: An open last step's rivals: at most this many candidates, those with the largest held-out gains above 1.
 OPEN_RIVALS = 2
 #: Held-out gain over the step's bar (the best effect-free fit as good on training) a candidate needs, with
-#: a significant sign test, to open a last step whose model is at the noise floor.
+#: a significant sign test, to open a last step whose remainder is not flagged unexplained.
 HINT_GAIN = 1.05
 
 TEST = (
@@ -266,7 +266,7 @@ def _open_step(
             # then how the model extrapolates (the remainder's "underdetermined"), not a missing effect
             keep = not rival["within_noise"] and gain > 1.0
         else:
-            # at the floor: only a significant, not-small gain over every effect-free fit as good
+            # no remainder flagged: only a significant, not-small gain over every effect-free fit as good
             keep = rival["candidate_p_value"] <= ALPHA and gain >= HINT_GAIN
         if keep:
             rivals.append(rival)
@@ -314,7 +314,8 @@ def sentence(entry: dict) -> str:
             r = entry["rivals"][0]
             who = rivals if len(entry["rivals"]) == 1 else f"each of {rivals}"
             return (
-                f"Step {entry['step']} named nothing and the model is at the noise floor, yet {who} fits the "
+                f"Step {entry['step']} named nothing and what the model leaves is not flagged as unexplained, "
+                f"yet {who} fits the "
                 f"held-out part better in significantly many pieces (sign test p = {r['candidate_p_value']:.2g}"
                 + (", the first" if len(entry["rivals"]) > 1 else "")
                 + "): "

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core._simulation import AbstractSimulation
+from ..core._state_space import check_state_space, has_states
 from ..util._errors import InputError, PluginError
 from ._lti import LTI, MAX_ORDER
 from ._lti_start import lti_for_recordings
@@ -397,6 +398,32 @@ def _check(text: str, name: str, simulation: AbstractSimulation) -> None:
             f"--physics {text}: {name}.units has no unit for {missing}; add them "
             '(e.g. "s", "cm^2", "1" for dimensionless)'
         )
+    for fact in ("typical", "plausible", "frozen_by_default"):
+        # A misspelt key would be ignored: its parameter left out of the start design, the warning or the
+        # frozen set without a word (and frozen_by_default's refusal would name a --freeze never given).
+        stated = _fact(simulation, fact)
+        if not isinstance(stated, dict):
+            raise InputError(
+                f"--physics {text}: {name}.{fact} must be a dict by parameter name, got {stated!r:.80}"
+            )
+        unknown = sorted(k for k in stated if k not in names)
+        if unknown:
+            raise InputError(
+                f"--physics {text}: {name}.{fact} names {unknown}, which are not its parameters "
+                f"({', '.join(names)}): a misspelling?"
+            )
+        if fact == "frozen_by_default":
+            continue
+        for key, bounds in stated.items():
+            try:
+                low, high = (float(b) for b in bounds)
+            except (TypeError, ValueError):
+                low, high = float("nan"), float("nan")
+            if not (np.isfinite(low) and np.isfinite(high) and low < high):
+                raise InputError(
+                    f"--physics {text}: {name}.{fact}[{key!r}] must be (low, high), two finite numbers with "
+                    f"low < high in the parameter's unit, got {bounds!r:.60}"
+                )
 
 
 def _fact(simulation: AbstractSimulation, name: str) -> object:
@@ -451,6 +478,9 @@ def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str
 
     cls = type(simulation).__name__
     label = label or cls
+    if has_states(simulation):  # what diagnose's effects inside the dynamics need, checked for every command
+        check_state_space(simulation, label)
+        _probe_linear(simulation, label)
     v_in, dt, drive = _probe_drive(recordings)
     n = v_in.size
     try:
@@ -488,6 +518,67 @@ def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str
     problem = _check_result(traced, n)
     if problem is not None:
         raise PluginError(f"{label}: {cls}.simulate(v_in, dt) under jax.jit {problem}")
+
+
+#: Relative disagreement between `rates` and A x + B u that `_probe_linear` refuses.
+LINEAR_RTOL = 1e-6
+
+
+def _probe_linear(simulation, label: str) -> None:
+    """A state-space plug-in's `rates` give one rate per state, and A x + B u where it gives `linear_matrices`.
+
+    Where the matrices are given they step the simulation and `rates` is used
+    only by effects inside the dynamics: a typo in one of them would go unseen
+    by every command but diagnose, which would search another model than the one fitted.
+    Checked at three random states and drives, at the default parameters.
+    """
+    import jax.numpy as jnp
+
+    cls = type(simulation).__name__
+    k = len(simulation.states)
+
+    def rates(x, u) -> np.ndarray:
+        got = simulation.rates(tuple(jnp.asarray(v, float) for v in x), jnp.asarray(u, float), p)
+        if not isinstance(got, (tuple, list)) or len(got) != k:
+            raise PluginError(
+                f"{label}: {cls}.rates must return a tuple of {k} rate(s), one per state "
+                f"{simulation.states}, got {type(got).__name__} {got!r:.60}"
+            )
+        return np.asarray([float(np.asarray(g)) for g in got])
+
+    try:
+        p = simulation.prepare(simulation.parameters())
+        rates(simulation.initial_state(jnp.asarray(0.0), p), 0.0)  # its shape, at the initial state
+        linear = simulation.linear_matrices(p)
+        if linear is None:
+            return
+        a, b = (np.asarray(m, float) for m in linear)
+        if a.shape != (k, k) or b.reshape(-1).shape != (k,):
+            raise PluginError(
+                f"{label}: {cls}.linear_matrices must return (A, B) of shapes ({k}, {k}) and ({k},) for its "
+                f"{k} state(s) {simulation.states}, got {a.shape} and {b.shape}"
+            )
+        rng = np.random.default_rng(0)
+        for _ in range(3):
+            x, u = rng.normal(size=k), float(rng.normal())
+            got = rates(x, u)
+            want = a @ x + b.reshape(-1) * u
+            if not np.allclose(
+                got, want, rtol=LINEAR_RTOL, atol=LINEAR_RTOL * (np.max(np.abs(want)) + 1e-300)
+            ):
+                raise PluginError(
+                    f"{label}: {cls}.rates and linear_matrices disagree at the default parameters: at the state "
+                    f"{np.round(x, 3).tolist()} and drive {u:.3g}, rates gives {got.tolist()} but A x + B u "
+                    f"gives {want.tolist()}; make them one model (or return None from linear_matrices)"
+                )
+    except (KeyboardInterrupt, PluginError):
+        raise
+    except BaseException as error:
+        raise PluginError(
+            f"{label}: {_failed_in(error, cls, 'checking rates against linear_matrices')}; fix the plug-in "
+            f"({TRACEBACK_HINT})",
+            error,
+        ) from None
 
 
 def _failed_in(error: BaseException, cls: str, context: str = "") -> str:
