@@ -119,6 +119,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", choices=MODEL_KINDS, default="hybrid")
     p.add_argument("--solver", choices=SOLVERS, default="lm")
     p.add_argument("--starts", type=B.integer(*B.STARTS), default=1)
+    p.add_argument(
+        "--screen",
+        type=B.integer(*B.SCREEN),
+        default=0,
+        metavar="N",
+        help="start from the best --starts of N points (e.g. 512) screened over the physics' typical "
+        "ranges, one simulation each, not from its default or --param values (default 0: from them)",
+    )
     p.add_argument("--max-steps", type=B.integer(*B.MAX_STEPS), default=200)
     p.add_argument(
         "--freeze",
@@ -379,6 +387,15 @@ def _cmd_fit(args):
         ],
         inputs=args.recordings + (args.test or []),
     )
+    if args.screen and (args.start_from is not None or args.model == "normal"):
+        raise InputError(
+            "--screen chooses the physics' starting values: "
+            + (
+                "with --start-from they are the saved model's"
+                if args.start_from
+                else "the normal model has none"
+            )
+        )
     if args.start_from is not None and (args.param or args.settle is not None):
         flag = "--param" if args.param else "--settle"
         raise InputError(f"{flag} sets how the fit starts; with --start-from that comes from the saved model")
@@ -428,6 +445,7 @@ def _cmd_fit(args):
                 recordings,
                 solver=solver_named(args.solver, max_steps=args.max_steps),
                 starts=args.starts,
+                screen=args.screen,
                 frozen=frozen,
                 split=args.split,
                 seed=args.seed,

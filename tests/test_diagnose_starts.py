@@ -7,8 +7,8 @@ from hybrid import RCNetwork
 from hybrid.core._models import Model
 from hybrid.core._problem import Problem, series_from_recording
 from hybrid.core._readout import LinearReadout
+from hybrid.core._screen import screened_starts, start_design
 from hybrid.discovery._diagnosis import SPLIT_ORDER, DiagnoseSettings
-from hybrid.discovery._starts import baseline_design, baseline_starts
 from hybrid.ipmc._synthetic import SyntheticStrip, discrepancy_drive, synthetic_recording
 
 #: A slow strip (tip capacitance 8× the clamp's): from 15 of the 16 fixed Sobol starts used
@@ -55,30 +55,31 @@ def test_screened_starts_reach_the_loss_of_the_true_parameters():
     }
     floor = _train_mse(problem, simulation, truth)
 
-    starts = baseline_starts(problem, simulation, 16, 512, settings.frozen_for(simulation))
+    starts = screened_starts(problem, simulation, 16, 512, settings.frozen_for(simulation))
     assert len(starts) == 16
     losses = [_train_mse(problem, simulation, s) for s in starts]
     assert losses == sorted(losses) or np.allclose(losses, sorted(losses), rtol=1e-6)
     assert losses[0] <= 1.5 * floor  # on the true plateau before any LM step
     # The design's first point, the simulation as given, is not: screening is what finds the plateau.
-    first = baseline_design(simulation, 1, settings.frozen_for(simulation))[0]
+    first = start_design(simulation, 1, settings.frozen_for(simulation))[0]
     assert first == {k: float(v) for k, v in simulation.parameters().items() if k != "xi_h"}
     assert _train_mse(problem, simulation, first) >= 5 * floor
-    assert len(baseline_design(simulation, 512)) == 512
+    assert len(start_design(simulation, 512)) == 512
 
 
 def test_loop_screen_recovers_a_known_bouc_wen_loop():
     """`loop_screen` reads height and initial state off a least-squares solve: exact on a loop from a neutral start."""
     import jax.numpy as jnp
 
+    from hybrid.core._screen import design_raws
     from hybrid.data._recording import Recording
     from hybrid.discovery._hysteresis import bouc_wen_state
-    from hybrid.discovery._starts import design_raws, loop_screen
+    from hybrid.discovery._starts import loop_screen
 
     settings = DiagnoseSettings()
     drive = discrepancy_drive(60.0, 30.0, seed=1)
     simulation = RCNetwork(method="zoh")
-    design = baseline_design(simulation, 3, settings.frozen_for(simulation))
+    design = start_design(simulation, 3, settings.frozen_for(simulation))
     point = design[2]
     s = np.asarray(simulation.replace(**point).simulate(jnp.asarray(drive.v), 1 / 30.0))
     k, height = 10.0 / np.ptp(s), 0.15 * np.ptp(s)
@@ -116,12 +117,11 @@ def test_resonance_starts_find_a_known_mode_and_network():
     import jax.numpy as jnp
     import scipy.signal
 
+    from hybrid.core._screen import N_SCREEN, design_raws
     from hybrid.data._recording import Recording
     from hybrid.discovery._starts import (
         MODE_DAMPINGS,
         N_JOINT_SCREEN,
-        N_SCREEN,
-        design_raws,
         mode_frequencies,
         mode_screen,
         resonance_starts,
@@ -131,7 +131,7 @@ def test_resonance_starts_find_a_known_mode_and_network():
     rate = 30.0
     drive = discrepancy_drive(60.0, rate, seed=2)
     simulation = RCNetwork(method="zoh")
-    design = baseline_design(simulation, N_SCREEN, settings.frozen_for(simulation))[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, settings.frozen_for(simulation))[:N_JOINT_SCREEN]
     point = design[37]
     s = np.asarray(simulation.replace(**point).simulate(jnp.asarray(drive.v), 1 / rate))
     f, zeta = float(mode_frequencies(rate)[9]), MODE_DAMPINGS[1]

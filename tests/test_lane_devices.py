@@ -96,6 +96,7 @@ SCREENS = textwrap.dedent("""
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
+    from hybrid.core import _screen as screen
     from hybrid.discovery import _search as search, _starts as starts
     from hybrid.discovery._diagnosis import DiagnoseSettings
 
@@ -106,13 +107,13 @@ SCREENS = textwrap.dedent("""
     recording = hybrid.Recording.from_arrays(np.arange(n) * dt, v, w)
     simulation = hybrid.LTI(1)
     problem, *_ = search.lanes_problem([recording], simulation, DiagnoseSettings(), ["saturation"])
-    design = starts.baseline_design(simulation, 40)
-    _, raws = starts.design_raws(simulation, design)
+    design = screen.start_design(simulation, 40)
+    _, raws = screen.design_raws(simulation, design)
     loop = starts.loop_screen(problem, simulation, raws, starts.LOOP_RATES)
     modes = starts.mode_screen(problem, simulation, raws, np.array([2.0, 5.0]), np.array([0.1, 0.3]))
     print(json.dumps({
         "devices": len(jax.devices()),
-        "losses": starts.screen_design_losses(problem, simulation, raws).tolist(),
+        "losses": screen.screen_design_losses(problem, simulation, raws).tolist(),
         "loop": [np.asarray(x).tolist() for x in loop],
         "modes": np.asarray(modes).tolist(),
         "peaks": np.asarray(starts.state_peaks(problem, simulation, "lag_1", raws)).tolist(),

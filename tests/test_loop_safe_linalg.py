@@ -104,25 +104,23 @@ def _lapack_calls(lowered) -> set[str]:
 
 def test_no_lapack_call_in_diagnoses_batched_screens_on_two_recordings():
     """The hang's construct cannot come back unseen: a batched LAPACK call inside these loops fails here."""
+    from hybrid.core._screen import design_raws, screen_losses, start_design
     from hybrid.data._drives import make_drive
     from hybrid.discovery._diagnosis import DiagnoseSettings
     from hybrid.discovery._search import lanes_problem
     from hybrid.discovery._starts import (
         LOOP_RATES,
         N_JOINT_SCREEN,
-        baseline_design,
-        design_raws,
         loop_screen,
         mode_frequencies,
         mode_screen,
-        screen_losses,
     )
     from hybrid.ipmc._virtual_ipmc import virtual_recording
 
     recordings = [virtual_recording(make_drive("prbs", 70.0, rate=30.0, seed=s), seed=s) for s in (1, 2)]
     sim = RCNetwork(method="zoh")
     problem, *_ = lanes_problem(recordings, sim, DiagnoseSettings())
-    _, raws = design_raws(sim, baseline_design(sim, N_JOINT_SCREEN, {"xi_h"}))
+    _, raws = design_raws(sim, start_design(sim, N_JOINT_SCREEN, {"xi_h"}))
     freqs = mode_frequencies(30.0)[:2]
     lowered = {
         "screen_losses": jax.jit(lambda r: screen_losses(problem, sim, r)).lower(raws),

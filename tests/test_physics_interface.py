@@ -18,9 +18,9 @@ from jax import lax
 import hybrid
 from hybrid import AbstractSimulation, InputError, Positive, RCNetwork, Real, encode
 from hybrid.core._models import make_model as make_any_model
+from hybrid.core._screen import start_design
 from hybrid.discovery._diagnose import diagnose as diagnose_any
 from hybrid.discovery._diagnosis import DiagnoseSettings
-from hybrid.discovery._starts import baseline_design
 
 
 class Lag(AbstractSimulation):
@@ -47,7 +47,7 @@ class Lag(AbstractSimulation):
 
 def test_the_start_design_spreads_over_the_simulations_own_ranges():
     lag = Lag(tau_s=3.0, k=1.2)
-    design = baseline_design(lag, 64, frozen=lag.frozen_by_default)
+    design = start_design(lag, 64, frozen=lag.frozen_by_default)
     assert design[0] == {"k": 1.2, "tau_s": 3.0}  # the simulation as given, first
     points = np.array([[d["k"], d["tau_s"]] for d in design[1:]])
     assert list(design[1]) == ["k", "tau_s"]  # the declared order; bias is frozen
@@ -56,14 +56,14 @@ def test_the_start_design_spreads_over_the_simulations_own_ranges():
     # Positive parameters are log-spaced: as many points below the geometric centre as above.
     below = np.mean(points[:, 1] < 1.0)
     assert 0.4 <= below <= 0.6
-    with_bias = baseline_design(lag, 64)  # freed: bias falls back to its plausible range, linear
+    with_bias = start_design(lag, 64)  # freed: bias falls back to its plausible range, linear
     bias = np.array([d["bias"] for d in with_bias[1:]])
     assert bias.min() >= -1.0 and bias.max() <= 1.0 and 0.4 <= np.mean(bias < 0.0) <= 0.6
 
 
 def test_the_rc_networks_design_covers_the_strips_it_declares():
     network = RCNetwork(method="zoh")
-    design = baseline_design(network, 512, frozen=network.frozen_by_default)
+    design = start_design(network, 512, frozen=network.frozen_by_default)
     assert len(design) == 512 and "xi_h" not in design[1]
     c = np.array([d["C_clamp"] for d in design[1:]])
     alpha = np.array([d["alpha_C"] for d in design[1:]])

@@ -259,7 +259,14 @@ def fit_batch(
                     "recordings": [recording.metadata.get("source", "")],
                 },
                 seconds=float("nan"),
-                warnings=list(recording.notes) + fit_warnings(starts_of[r][k], fitted, frozen, per_start[k]),
+                warnings=list(recording.notes)
+                + fit_warnings(
+                    starts_of[r][k],
+                    fitted,
+                    frozen,
+                    per_start[k],
+                    split_metrics.get("train", {}).get("nmse_variance"),
+                ),
             )
         )
     seconds = time.perf_counter() - t_start

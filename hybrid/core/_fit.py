@@ -17,6 +17,7 @@ The D-MLP's fixed input/output scalings are those of start 0 for every start.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import equinox as eqx
@@ -33,6 +34,7 @@ from ._models import Model
 from ._problem import Problem, Series, robust_rms, robust_std, series_from_recording
 from ._readout import WindowedMLP
 from ._result import FitResult, fit_warnings
+from ._screen import screened_starts
 from ._solvers import (
     SOLVERS as SOLVERS,
     AbstractSolver,
@@ -49,6 +51,7 @@ def fit(
     *,
     solver: AbstractSolver | str = LevenbergMarquardt(),
     starts: int = 1,
+    screen: int = 0,
     frozen=None,
     split=(0.3, 0.5, 0.2),
     split_order=("train", "test", "validation"),
@@ -76,6 +79,16 @@ def fit(
       `learning_rate`) or [`OptimistixLM`][hybrid.OptimistixLM]. The strings ``"lm"``,
       ``"optimistix"``, ``"adam"`` are deprecated (a `DeprecationWarning`).
     - `starts`: number of starts (vmapped together for `LevenbergMarquardt` and `Adam`).
+    - `screen`: 0 (default), or the points of a design screened for the starts: a
+      scrambled Sobol design over the simulation's typical ranges (`AbstractSimulation.typical_ranges`;
+      the model's own values are its first point), each simulated once with the
+      readout's gain and offset by least squares; the `starts` best by training
+      error are the starts, each with its own network weights and no perturbation
+      (`hybrid.core._screen`). For a simulation whose values may lie far from
+      the system's (a new strip, a plug-in's defaults): from the paper's values LM
+      can stay on the RC network's plateaus. Parameters without a typical range,
+      and frozen ones, keep their values; starts beyond the design's points are
+      perturbed as without it.
     - `frozen`: parameter names kept at their starting values (e.g. ``{"xi_h"}``;
       ``"network"`` freezes all D-MLP weights). None (the default): the simulation's
       `frozen_by_default`, as on the command line and in `diagnose`; ``()`` frees all.
@@ -136,7 +149,25 @@ def fit(
         model.simulation, model.readout.rescaled(1.0 / v_unit, 1.0 / w_unit), model.kind, model.signal_units
     )
 
-    initial = [start_model(model, i, seed, frozen, perturbation, series) for i in range(starts)]
+    if not isinstance(screen, int) or isinstance(screen, bool) or screen < 0:
+        raise InputError(f"screen must be 0 or a positive number of design points, got {screen!r}")
+    bases = [model]
+    if screen:
+        stage(f"fit: screening {screen} designs of the simulation's parameters for {starts} start(s)")
+        points = screened_starts(
+            Problem(model, series, frozen, weight_decay),
+            model.simulation,
+            starts,
+            max(screen, starts),
+            frozen,
+        )
+        bases = [dataclasses.replace(model, simulation=model.simulation.replace(**p)) for p in points]
+    initial = [
+        start_model(bases[i], i, seed, frozen, 0.0, series)
+        if i < len(bases) and screen
+        else start_model(model, i, seed, frozen, perturbation, series)
+        for i in range(starts)
+    ]
     problem = Problem(initial[0], series, frozen, weight_decay)
     thetas = jnp.stack([problem.flatten(m, frozen) for m in initial])
 
@@ -176,6 +207,7 @@ def fit(
     settings = {
         **solver.record(),  # "solver" (its name) and its options: max_steps, patience, learning_rate, ...
         "starts": starts,
+        "screen": screen,
         "frozen": sorted(frozen),
         "split": dict(zip(split_order, map(float, split))),
         "blocks": blocks,
@@ -197,7 +229,13 @@ def fit(
         settings=settings,
         seconds=time.perf_counter() - t_start,
         warnings=[note for r in recordings for note in r.notes]
-        + fit_warnings(initial[best_start], fitted, frozen, per_start[best_start]),
+        + fit_warnings(
+            initial[best_start],
+            fitted,
+            frozen,
+            per_start[best_start],
+            result_metrics.get("train", {}).get("nmse_variance"),
+        ),
         stopped=stopped,
     )
 

@@ -83,9 +83,13 @@ class FitResult:
 
 #: A fitted value whose relative change from its start is below this "did not move".
 UNMOVED_RTOL = 1e-6
+#: A fit that leaves at least this share of the training part's variance (NMSE) may be on a plateau.
+POOR_TRAIN_NMSE = 0.5
 
 
-def fit_warnings(start: Model, fitted: Model, frozen, start_record: dict[str, Any]) -> list[str]:
+def fit_warnings(
+    start: Model, fitted: Model, frozen, start_record: dict[str, Any], train_nmse: float | None = None
+) -> list[str]:
     """What about a fit should not be taken at face value (see `FitResult.warnings`).
 
     **Arguments:**
@@ -94,6 +98,7 @@ def fit_warnings(start: Model, fitted: Model, frozen, start_record: dict[str, An
     - `fitted`: the fitted model.
     - `frozen`: names kept fixed (never warned about as unmoved).
     - `start_record`: the kept start's entry of `FitResult.starts`.
+    - `train_nmse`: the fit's NMSE on the training part (MSE / variance), if known.
     """
     warnings = []
     units = fitted.units
@@ -115,6 +120,12 @@ def fit_warnings(start: Model, fitted: Model, frozen, start_record: dict[str, An
                 f"{name} = {value:.6g}{unit} did not move from its start value: the data may not "
                 "constrain it, or the fit failed"
             )
+    if train_nmse is not None and train_nmse >= POOR_TRAIN_NMSE and fitted.simulation.typical_ranges():
+        warnings.append(
+            f"the fit leaves {100 * min(train_nmse, 9.99):.0f} % of the training part's variance: LM may have "
+            "stopped on a plateau far from the system's values; start from points screened over the "
+            "physics' typical ranges (hybrid fit --screen 512 --starts 4; fit(..., screen=512, starts=4))"
+        )
     for name, (low, high) in fitted.simulation.plausible.items():
         if name in free and not (low <= after[name] <= high):
             unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""

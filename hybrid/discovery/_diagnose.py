@@ -62,6 +62,7 @@ from ..core._arguments import as_recordings, check_simulation
 from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_labels
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
+from ..core._screen import N_SCREEN, screened_starts
 from ..util._errors import InputError, PluginError
 from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
@@ -84,7 +85,6 @@ from ._search import (
     with_active,
 )
 from ._start import settle_samples, settled_try, start_misfit
-from ._starts import N_SCREEN, baseline_starts
 from ._step import Search, Step, search_step
 from ._unexplained import pooled_noise_floor, remainder
 
@@ -249,7 +249,7 @@ def diagnose(
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
     n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
     say(f"screening {N_SCREEN} designs of the simulation's parameters for the baseline's starts")
-    grid = baseline_starts(problem, simulation, N_LANES, N_SCREEN, frozen)  # whatever the effects
+    grid = screened_starts(problem, simulation, N_LANES, N_SCREEN, frozen)  # whatever the effects
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     base = stack.with_active(off)

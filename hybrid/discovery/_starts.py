@@ -7,7 +7,7 @@ screening: a scrambled Sobol design over the simulation's typical ranges, each p
 simulated once, with the gain and offset — and, jointly with an effect, the
 effect's linear parameters — by least squares.
 
-- `baseline_starts`: the network alone (the baseline's `N_LANES` starts).
+- `hybrid.core._screen.screened_starts`: the network alone (the baseline's `N_LANES` starts).
 - `delay_starts`: the network with the drive shifted by each of `DELAY_SHIFTS`.
 - `hysteresis_starts`: the network plus a Bouc–Wen loop at each of `LOOP_RATES`.
 - `resonance_starts`: the network followed by a mode at each frequency of
@@ -25,131 +25,22 @@ import numpy as np
 
 from ..core._devices import map_rows
 from ..core._loop_safe_linalg import lstsq
-from ..core._parameters import Positive
 from ..core._problem import Problem
+from ..core._screen import (
+    N_SCREEN,
+    SCREEN_CHUNK,
+    design_raws,
+    screen_design_losses,
+    start_design,
+    train_weights,
+)
 from ._effects import Resonance
 from ._hysteresis import bouc_wen_and_memory
 
-#: Points of the baseline design screened (one simulation each) for the N_LANES LM starts.
-N_SCREEN = 512
-#: Design points (the first of the baseline's design) screened jointly with an effect.
-N_JOINT_SCREEN = 128
+#: Design points (the first of the baseline's design) screened jointly with an effect: one chunk.
+N_JOINT_SCREEN = SCREEN_CHUNK
 #: Dead times (samples) screened for the delay candidate's starts.
 DELAY_SHIFTS = (2, 4, 7, 10, 13)
-
-
-@eqx.filter_jit
-def train_signal(problem, simulation):
-    """`simulation`'s output on the training part of every recording, concatenated."""
-    parts = []
-    for series in problem.series:
-        signal = simulation.simulate(series.v_in, series.dt)  # once per recording, then its segments
-        parts += [signal[a:b] for a, b in series.segments_of("train")]
-    return jnp.concatenate(parts)
-
-
-def gain_offset(s, w, weights):
-    """(gain, offset, rss) of w ≈ gain·s + offset by least squares over the samples whose weight is 1.
-
-    `weights` is 0/1 (a padded series' split, `hybrid.core.bucketed_series`):
-    a weighted row is (w, s, 1)·weight, so a sample of weight 0 is a row of zeros.
-    """
-    design = jnp.stack([s * weights, weights], axis=1)
-    coef, rss = lstsq(design, w * weights)  # no LAPACK in a batched loop (_loop_safe_linalg)
-    return coef[0], coef[1], rss
-
-
-def train_weights(problem):
-    """The training part's 0/1 weights, laid out as `problem.target("train")` (all ones if unpadded)."""
-    weights = problem.weights("train")
-    return jnp.ones_like(problem.target("train")) if weights is None else weights
-
-
-def baseline_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]:
-    """Candidate starts over the free parameters' typical ranges, `simulation`'s values first.
-
-    The ranges come from the simulation (`AbstractSimulation.typical_ranges`,
-    in its order; for the RC network C_clamp 1 mF–1 F, ξρ 1–100, each α
-    0.1–0.9): a scrambled Sobol design (fixed seed: the same points every run),
-    log-spaced for a `Positive` parameter, linear otherwise. The first point is
-    the simulation as given, so a user's own guess is always screened. A
-    parameter without a range, or in `frozen`, stays at its given value.
-    """
-    import scipy.stats
-
-    given = {k: float(v) for k, v in simulation.parameters().items()}
-    ranges = {k: r for k, r in simulation.typical_ranges().items() if k in given and k not in frozen}
-    grid = [{k: given[k] for k in ranges}]
-    if not ranges:
-        return grid
-    sobol = scipy.stats.qmc.Sobol(d=len(ranges), scramble=True, seed=20261122)
-    unit = sobol.random_base2(max(1, math.ceil(math.log2(max(n_points - 1, 1)))))
-    constraints = simulation.constraints
-    logarithmic = {k: isinstance(constraints[k], Positive) for k in ranges}
-    for u in unit:
-        point = {}
-        for x, (name, (low, high)) in zip(u, ranges.items()):
-            x = float(x)
-            point[name] = (
-                10 ** (math.log10(low) + x * (math.log10(high) - math.log10(low)))
-                if logarithmic[name]
-                else low + x * (high - low)
-            )
-        grid.append(point)
-    return grid[:n_points]
-
-
-def design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
-    """The design's parameters that `simulation` has, as columns of raw (unconstrained) values."""
-    names = [k for k in design[0] if k in simulation.parameter_names()]
-    constraints = simulation.constraints  # a wrapper's (HeldStart, EffectStack) include its inner's
-    return names, {k: jnp.asarray(constraints[k].to_raw(np.array([g[k] for g in design]))) for k in names}
-
-
-@eqx.filter_jit
-def screen_losses(problem, simulation, raws):
-    """Training MSE of `simulation` at each row of `raws` (raw parameters), gain and offset by least squares."""
-    w, weights = problem.target("train"), train_weights(problem)
-
-    def one(raw):
-        sim = simulation.with_raw(raw)
-        *_, rss = gain_offset(train_signal(problem, sim), w, weights)
-        loss = rss / jnp.sum(weights)
-        return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
-
-    return map_rows(one, raws, batch_size=16)
-
-
-def screen_design_losses(problem, simulation, raws) -> np.ndarray:
-    """`screen_losses` over a design of any size, `N_JOINT_SCREEN` rows at a time (one compiled program)."""
-    n = next(iter(raws.values())).shape[0]
-    losses = []
-    for start in range(0, n, N_JOINT_SCREEN):
-        chunk = {k: v[start : start + N_JOINT_SCREEN] for k, v in raws.items()}
-        short = N_JOINT_SCREEN - next(iter(chunk.values())).shape[0]
-        if short:  # the last rows repeat: one shape for every chunk
-            chunk = {k: jnp.concatenate([v, jnp.repeat(v[-1:], short, axis=0)]) for k, v in chunk.items()}
-        losses.append(np.asarray(screen_losses(problem, simulation, chunk))[: N_JOINT_SCREEN - short])
-    return np.concatenate(losses)
-
-
-def baseline_starts(problem, simulation, n_starts: int, n_screen: int, frozen=frozenset()) -> list[dict]:
-    """The `n_starts` best of an `n_screen`-point design, by training MSE with least-squares gain.
-
-    The RC network's loss surface has broad plateaus and LM does not cross
-    them: on a slow strip (α_C = 0.13, α_I = 0.85, C_clamp = 0.32 F), LM from 15
-    of 16 fixed Sobol starts ended with a validation loss about 400× that of
-    the true parameters. Screening costs one simulation per point; the best
-    screened point there starts at the true parameters' training loss
-    (`tests/test_diagnose_starts.py`).
-    """
-    design = baseline_design(simulation, n_screen, frozen)
-    names, raws = design_raws(simulation, design)
-    if not names:
-        return [{}]
-    losses = screen_design_losses(problem, simulation, raws)
-    order = np.argsort(losses, kind="stable")[:n_starts]
-    return [{k: design[i][k] for k in names} for i in order]
 
 
 def _recorded_mask(series):
@@ -183,7 +74,7 @@ def delay_starts(problem, simulation, rate: float, n_starts: int, frozen=frozens
     of `DELAY_SHIFTS` samples puts the network and the delay in the same basin;
     the `n_starts` best pairs, with distinct shifts, are returned.
     """
-    design = baseline_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -259,7 +150,7 @@ def hysteresis_starts(problem, simulation, n_starts: int, frozen=frozenset()) ->
     and initial state at each of `LOOP_RATES` puts the network and the loop in
     the same basin; the `n_starts` best are returned.
     """
-    design = baseline_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -388,7 +279,7 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=fro
     `mode_frequencies(rate)` × `MODE_DAMPINGS` puts the network and the mode in
     the same basin; the `n_starts` best are returned.
     """
-    design = baseline_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -450,7 +341,7 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     """
     from ._effect_stack import EffectStack
 
-    design = baseline_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []

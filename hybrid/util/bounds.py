@@ -23,6 +23,7 @@ STAGES = (1, 1000)  # N of the RC network (N + 1 sections; the paper's 45)
 RATE = (0.1, 100_000.0)  # Hz
 DURATION = (0.0, 1e7)  # s, exclusive at 0 (the sample count bounds it far sooner)
 STARTS = (1, 256)
+SCREEN = (0, 100_000)  # design points screened for a fit's starts (0: none)
 MAX_STEPS = (1, 1_000_000)
 WINDOW = (1, 100_000)  # samples in the D-MLP's window (also ≤ the recording's length)
 DEPTH = (0, 50)  # hidden layers of the D-MLP (0: a linear map of the window)
