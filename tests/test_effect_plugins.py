@@ -303,7 +303,8 @@ class _StartTypo(_Scale):
 @pytest.mark.parametrize(
     "effects, words",
     [
-        (["friction"], "unknown effect 'friction'"),
+        (["friction"], "unknown effect 'friction':"),
+        (["drive_evn"], "unknown effect 'drive_evn' (did you mean 'drive_even'?)"),
         # a new user's mistakes (the messages said 'missing parameter(s)' from inside encode, nothing, and
         # 'must return a non-empty list of dicts' without the key)
         ([_NoDefault], "_NoDefault.defaults has no entry for ['scale_factor']; add them"),

@@ -8,6 +8,7 @@ inside its dynamics (a limit on each of its states).
 
 from __future__ import annotations
 
+import difflib
 import re
 
 import jax
@@ -263,8 +264,11 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
                 names = list(limits)  # one per state: the RC network's 46 would bury the line
                 if len(names) > 3:
                     names = [f"limit_<state> ({names[0]} … {names[-1]})"]
+                close = difflib.get_close_matches(item, [*EFFECTS, *limits], n=1)
                 raise InputError(
-                    f"unknown effect {item!r}: the built-ins are {', '.join([*EFFECTS, *names])}; "
+                    f"unknown effect {item!r}"
+                    + (f" (did you mean {close[0]!r}?)" if close else "")
+                    + f": the built-ins are {', '.join([*EFFECTS, *names])}; "
                     "a plug-in is an AbstractEffect subclass (see docs/effects.md)"
                 )
             else:
