@@ -134,6 +134,7 @@ def _generic(args) -> None:
 
     from ._cli_inputs import load_recordings, parse_params, warn_notes
     from ._cli_outputs import check_outputs, out_folder
+    from .core._fit import recording_units
     from .physics._plugins import resolve_physics
     from .sensitivity._study import OUTPUT_FILES, simulation_study, write_simulation_study
 
@@ -168,6 +169,7 @@ def _generic(args) -> None:
             sobol=args.sobol,
             seed=args.seed,
             drive=f"recording:{recording.name}",
+            drive_unit=(recording_units([recording]) or ("mm", "V"))[1],
         )
         result["physics"] = args.physics
         result["settings"] = {
@@ -187,7 +189,7 @@ def _generic(args) -> None:
     for name, se in result["std_error"].items():
         rel = result["relative_std_error"][name]
         unit = result["units"].get(name, "")
-        unit = "" if unit in ("", "1", "(y)") else f" {unit}"
+        unit = "" if unit in ("", "1") else f" {unit}"
         value = result["nominal"].get(name, 1.0 if name == "gain" else 0.0)
         rel_text = "" if rel is None or isinstance(rel, str) else f" ({100 * rel:.3g} %)"
         print(f"  {name} = {value:.6g} ± {se if isinstance(se, str) else f'{se:.3g}'}{unit}{rel_text}")

@@ -111,6 +111,7 @@ class Lag(AbstractSimulation):
     raw: dict
     constraints: ClassVar[dict] = {"tau": Positive(), "k": Positive()}
     units: ClassVar[dict] = {"tau": "s", "k": "1"}
+    output_unit: ClassVar[str] = "{drive}"  # a lag of the drive, in its unit
     frozen_by_default: ClassVar[dict] = {"k": "the readout's gain carries the scale"}
 
     def __init__(self, tau=2.0, k=1.0):
@@ -134,6 +135,8 @@ def test_a_plugin_s_default_frozen_parameters_are_left_out(lab_csv, tmp_path, ca
             str(path),
             "--columns",
             "input=u,output=y",
+            "--units",
+            "v_in=mV,w=mm",
             "--physics",
             f"{plugin}:Lag",
             "--out",
@@ -145,6 +148,10 @@ def test_a_plugin_s_default_frozen_parameters_are_left_out(lab_csv, tmp_path, ca
     assert result["frozen"] == {"k": "the readout's gain carries the scale"}
     assert result["names"] == ["tau"] and set(result["std_error"]) == {"tau", "gain", "offset"}
     assert result["unidentifiable"] == []
+    # units follow the signals: the offset is in the simulation's output's, here the drive's (it said "(y)")
+    assert result["units"] == {"tau": "s", "gain": "1", "offset": "mV"}
+    offset = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("offset ="))
+    assert offset.endswith(" mV"), offset
 
 
 @pytest.mark.parametrize(

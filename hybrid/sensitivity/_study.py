@@ -34,6 +34,7 @@ import numpy as np
 
 from ..core._models import Model
 from ..core._readout import LinearReadout
+from ..core._simulation import unit_in
 from ..util._atomic import write_text
 from ..util._errors import InputError
 from ..util._figures import save_png
@@ -93,6 +94,7 @@ def simulation_study(
     sobol: int = 0,
     seed: int = 0,
     drive: str = "drive",
+    drive_unit: str = "V",
     rcond: float = 1e-10,
 ) -> tuple[dict, object]:
     """Sensitivities, identifiability and Cramér–Rao standard errors of `simulation` on the drive `v_in`.
@@ -105,6 +107,7 @@ def simulation_study(
     - `sobol`: base samples N for Sobol indices (0: none).
     - `seed`: seeds the Sobol samples.
     - `drive`: the drive's name in the report.
+    - `drive_unit`: the drive's unit, for the units that a plug-in states per ``"{drive}"``.
     - `rcond`: relative singular value below which a direction of J is null.
 
     **Returns:** (the content of ``sensitivity.json``, the [`Sensitivity`][hybrid.sensitivity.Sensitivity] of y).
@@ -142,7 +145,13 @@ def simulation_study(
     sigma = noise * rms  # rms(w) = rms(y) at gain 1, offset 0
     se, unidentifiable = cramer_rao(w_sens.jacobian, w_sens.names, sigma, rcond)
     relative = {n: (se[n] / abs(w_sens.values[n]) if w_sens.values[n] else None) for n in w_sens.names}
-    units = {**simulation.units, "gain": "1", "offset": "(y)"}
+    # w = y nominally: the gain is w's unit per y's (1), the offset in y's unit, the simulation's output's
+    output = unit_in(str(getattr(simulation, "output_unit", "") or ""), drive_unit) or "(unit of y)"
+    units = {
+        **{k: unit_in(v, drive_unit) for k, v in simulation.units.items()},
+        "gain": "1",
+        "offset": output,
+    }
     result = {
         "command": "hybrid sensitivity --physics SPEC RECORDING --out DIR",
         "simulation": type(simulation).__name__,
@@ -199,7 +208,7 @@ def _markdown(result) -> str:
         rel = result["relative_std_error"][n]
         sens = result["rms_normalised_sensitivity"].get(n)
         unit = result["units"].get(n, "")
-        se_text = se if isinstance(se, str) else f"{se:.3g} {'' if unit in ('1', '(y)') else unit}".rstrip()
+        se_text = se if isinstance(se, str) else f"{se:.3g} {'' if unit == '1' else unit}".rstrip()
         rel_text = "—" if rel is None else (rel if isinstance(rel, str) else f"{rel:.2e}")
         nominal = result["nominal"].get(n, 1.0 if n == "gain" else 0.0)
         lines.append(
