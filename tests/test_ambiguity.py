@@ -208,6 +208,7 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert table.shape == (300, 2) and np.max(np.abs(table[:, 1])) <= 2.0
     assert np.max(np.abs(np.diff(table[:, 1]))) <= 4.0 / 30 * (1 + 1e-6)
     assert (tmp_path / "drive.png").stat().st_size > 0 and "× a multilevel PRBS" in done.stdout
+    assert "n·T = " in done.stdout  # how surely a recording under it tells the rivals apart
     # the default keeps design_drive's rich share (half of 300 samples) as the control PRBS, and says so
     assert "the first 150 kept as a multilevel PRBS" in done.stdout
     default = inspect.signature(hybrid.design_drive).parameters["rich"].default
@@ -350,3 +351,15 @@ def test_an_open_step_of_a_real_diagnosis_saves_both_sides_and_a_drive_separates
         models, duration=10.0, rate=RATE, amplitude=2.0, noise_std=found.noise_floor.std, starts=1, steps=30
     )
     assert np.max(np.abs(design.v_in)) <= 2.0 and design.criterion >= design.control_criterion > 0
+
+
+def test_the_design_says_how_surely_its_drive_tells_the_rivals_apart():
+    """n·T is the lack-of-fit test's non-centrality: at `SEPARATES` a χ² test at 1 % rejects 9 times in 10."""
+    from scipy.stats import chi2, ncx2
+
+    from hybrid._cli_design import SEPARATES, separation
+
+    assert ncx2.sf(chi2.ppf(0.99, 1), 1, SEPARATES) == pytest.approx(0.9, abs=0.005)
+    assert "barely tell them apart" in separation(0.005, 0.001, 1000)  # n·T = 5
+    assert "gains little over the multilevel PRBS" in separation(1.07, 1.0, 1200)  # the heater trial's
+    assert "tells them apart (n·T" in separation(2.0, 0.5, 1200)
