@@ -237,6 +237,19 @@ def test_drift_is_an_exponential_gain(signal):
     np.testing.assert_allclose(y, signal * np.exp(-0.01 * DT * np.arange(len(signal))), rtol=1e-12)
 
 
+def test_drifts_lanes_start_at_no_change_a_fall_and_a_rise_over_the_record(signal):
+    """From no drift alone, drift seed 6 of `experiments/discrepancy.py` (a 24 % rise) stayed at 0.0 %."""
+    n = len(signal)
+    context = hybrid.StartContext(
+        signal=signal, rate=1 / DT, duration=(n - 1) * DT, drive=signal, measured=signal, lag_samples=1
+    )
+    changes = [
+        Drift(**start).derived(jnp.asarray(signal), DT)["gain_change_percent"]
+        for start in Drift().starts(context)
+    ]
+    np.testing.assert_allclose(changes, [0.0, -20.0, 25.0], atol=1e-9)
+
+
 @pytest.mark.parametrize("name", list(EFFECTS))
 def test_effect_gradients_match_finite_differences(name, signal):
     """Reverse-mode gradients of Σy² w.r.t. each raw parameter against central differences."""

@@ -8,7 +8,7 @@
    recording (first 60 %). The simulation as given and a 511-point Sobol design
    over its parameters' typical ranges (`AbstractSimulation.typical_ranges`:
    for the RC network C_clamp, ξρ and the α's) are screened by one simulation each; LM runs from the best
-   of them, one per lane of the search (at least 16, and as many as the first step's candidate lanes: 29
+   of them, one per lane of the search (at least 16, and as many as the first step's candidate lanes: 31
    with the built-in effects), in one compiled program (`fit_lanes`: the lanes one after the other on
    each device, the devices side by side); the validation part (next 10 %) picks the best.
 2. **Candidates.** The same simulation followed by each effect of
