@@ -150,7 +150,9 @@ def test_a_plugin_s_default_frozen_parameters_are_left_out(lab_csv, tmp_path, ca
     assert result["unidentifiable"] == []
     # units follow the signals: the offset is in the simulation's output's, here the drive's (it said "(y)")
     assert result["units"] == {"tau": "s", "gain": "1", "offset": "mV"}
-    offset = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("offset ="))
+    offset = next(
+        line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("offset =")
+    )
     assert offset.endswith(" mV"), offset
 
 
