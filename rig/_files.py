@@ -79,6 +79,9 @@ def rename_together(moves: dict) -> None:
     (``os.replace``, atomic each); the CSV goes first, as in `staged`.
     """
     moves = {pathlib.Path(source): pathlib.Path(target) for source, target in moves.items()}
+    folders = [target for target in moves.values() if target.is_dir()]
+    if folders:  # os.replace would fail there after the targets before it were replaced
+        raise RigError(f"cannot write {describe_targets(list(moves.values()))}: {folders[0]} is a folder")
     try:
         for source, target in moves.items():
             _sync(source)
@@ -115,6 +118,11 @@ def check_csv_out(out, command: str) -> None:
     out = pathlib.Path(out)
     if out.is_dir():
         raise RigError(f"--out {out} is a folder: give the CSV file to write, e.g. {out / 'w.csv'}")
+    sidecar = out.with_name(out.name + ".json")
+    if sidecar.is_dir():  # found only after the recording, with the CSV already renamed onto --out
+        raise RigError(
+            f"--out {out}: its metadata sidecar {sidecar} is a folder: move it away or choose another --out"
+        )
     if out.suffix.lower() != ".csv":
         raise RigError(
             f"--out {out} has suffix '{out.suffix or '(none)'}', but {command} writes a CSV: "

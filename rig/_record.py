@@ -43,7 +43,7 @@ from ._calibration import Calibration
 from ._errors import RigError
 from ._files import partial_path, rename_together, write_json_atomic
 from ._playback import PlayReport
-from ._scene import Scene
+from ._scene import Scene, check_in_picture
 from ._sync import LedDetector
 from ._tracker import TipTracker
 
@@ -163,7 +163,16 @@ def _kept(
     unsaved: Exception | None,
     what: str = "what was recorded",
 ) -> str:
-    """Where a failed recording is: ``what was recorded (N rows) is kept in rec.partial.csv ...``."""
+    """Where a failed recording is: ``what was recorded (N rows) is kept in rec.partial.csv ...``.
+
+    With no row recorded (stopped before the drive started) the partial files are removed.
+    """
+    untouched = f"{out} was " + ("left as it was" if existed else "not written")
+    if writer.rows == 0 and unsaved is None:
+        for made in (writer.path, writer.sidecar):
+            with contextlib.suppress(OSError):
+                made.unlink()
+        return f"nothing was recorded; {untouched}"
     sidecar = " (+ .json)"
     if unsaved is not None:  # hybrid's "cannot write F: REASON; nothing was changed at F (...)": the reason
         reason = (
@@ -171,9 +180,7 @@ def _kept(
             or str(unsaved).split("; nothing was changed")[0].split(": ")[-1]
         )
         sidecar = f" (its sidecar {writer.sidecar.name} could not be updated: {reason})"
-    return f"{what} ({writer.rows} rows) is kept in {writer.path}{sidecar}; {out} was " + (
-        "left as it was" if existed else "not written"
-    )
+    return f"{what} ({writer.rows} rows) is kept in {writer.path}{sidecar}; {untouched}"
 
 
 def record(
@@ -235,6 +242,7 @@ def record(
         "dropped_frames": [],
         "duplicated_frames": 0,
         "untracked_frames": 0,
+        "tracked_frames": 0,
         **(metadata or {}),
     }
     out = pathlib.Path(out)
@@ -327,6 +335,10 @@ def record(
                 raise RigError("camera stopped delivering frames before the drive started")
             if t_cam0 is None:
                 t_cam0 = frame.t
+                scene = settings.scene  # before the board plays: with the clamp outside, no frame is tracked
+                check_in_picture(
+                    scene.clamp, scene.mm_per_px, scene.length_mm, frame.image.shape, "the camera"
+                )
             if led is not None:
                 led.update(frame.index, frame.t, frame.image)
             if frame.t - t_cam0 >= settings.pre_roll:
@@ -347,6 +359,7 @@ def record(
             w_true = truth.get(frame.index, math.nan) if truth is not None else math.nan
             if result_track.quality:
                 w = result_track.w
+                meta["tracked_frames"] += 1
             else:
                 meta["untracked_frames"] += 1
                 w = last_good
@@ -445,6 +458,12 @@ def record(
         raise RigError(f"the board did not play the whole drive ({meta['error']}); {kept}")
     if writer.rows < 2:
         raise RigError(f"the recording has {writer.rows} rows: too short to be valid; {kept}")
+    if meta["tracked_frames"] == 0:  # w would be a constant 0: not a recording of the strip
+        raise RigError(
+            f"no frame showed the strip where the scene says (clamp {settings.scene.clamp[0]:g},"
+            f"{settings.scene.clamp[1]:g} px, {settings.scene.mm_per_px:g} mm/px): check --clamp and the "
+            f"camera's view; {kept}"
+        )
     try:
         Recording.load(writer.path)  # what was written is a valid recording
     except InputError as invalid:

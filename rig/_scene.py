@@ -15,7 +15,38 @@ import numpy as np
 
 from ._errors import RigError
 
-__all__ = ["Scene", "arc_centreline"]
+__all__ = ["MAX_STRIP_DIAGONALS", "MIN_STRIP_PX", "Scene", "arc_centreline", "check_in_picture"]
+
+#: The shortest strip, px, the tracker can follow; the longest is this many picture diagonals.
+MIN_STRIP_PX, MAX_STRIP_DIAGONALS = 8.0, 1.25
+#: The length taken for a strip whose length is not given, mm (the paper's).
+DEFAULT_LENGTH_MM = 22.0
+
+
+def check_in_picture(clamp, mm_per_px: float, length_mm: float | None, shape, source: str) -> None:
+    """Refuse a clamp point outside a `shape` (height, width, ...) picture, and a strip too short or long in it.
+
+    `source` names the picture in the message (``"the 320x240 picture of v.avi"``'s ``v.avi``). `rig
+    track` checks its video's first frame, `rig record` the camera's first frame before the board plays:
+    with the clamp outside, no frame would be tracked.
+    """
+    height, width = shape[:2]
+    x, y = clamp
+    if not (0 <= x < width and 0 <= y < height):
+        raise RigError(
+            f"--clamp {x:g},{y:g} is outside the {width}x{height} picture of {source}: give the clamp "
+            "point in the picture's pixels (x from the left, y from the top)"
+        )
+    length = length_mm or DEFAULT_LENGTH_MM
+    length_px = length / mm_per_px
+    diagonal = math.hypot(width, height)
+    if not MIN_STRIP_PX <= length_px <= MAX_STRIP_DIAGONALS * diagonal:
+        raise RigError(
+            f"--length {length:g} mm at --mm-per-px {mm_per_px:g} is a strip "
+            f"{length_px:.4g} px long, {'too short to follow' if length_px < MIN_STRIP_PX else 'longer than'}"
+            + ("" if length_px < MIN_STRIP_PX else f" the {width}x{height} picture can show")
+            + ": check both (the scale is mm per pixel: a 30 mm strip 300 px long is 0.1)"
+        )
 
 
 @dataclasses.dataclass(frozen=True)

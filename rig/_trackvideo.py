@@ -36,7 +36,7 @@ from ._axis import AxisEstimate, find_axis
 from ._camera import Frame, VideoSource, find_gaps
 from ._errors import RigError
 from ._files import check_csv_out, check_outputs, jsonable, partial_path, write_together
-from ._scene import Scene
+from ._scene import Scene, check_in_picture
 from ._sync import LedDetector
 from ._tracker import TipTracker
 
@@ -48,8 +48,6 @@ AXIS_WARN_DEG = 1.0  # a given axis this far from the detected one earns a warni
 #: The tip's median distance from the clamp, as a fraction of --length, below which the scale or the
 #: length is doubted (a cantilever's tip stays within a few per cent of its free length).
 LENGTH_WARN_FRACTION = 0.75
-#: The shortest strip, px, the tracker can follow; the longest is this many picture diagonals.
-MIN_STRIP_PX, MAX_STRIP_DIAGONALS = 8.0, 1.25
 CLAMP_WARN_PX = 1.0  # so does a given clamp point this far beside the strip
 
 
@@ -90,22 +88,7 @@ def _warn(message: str) -> None:
 
 def _check_scene(job: TrackJob, image) -> None:
     """Refuse a clamp point outside the picture, and a strip too short or too long in pixels to follow."""
-    height, width = image.shape[:2]
-    x, y = job.clamp
-    if not (0 <= x < width and 0 <= y < height):
-        raise RigError(
-            f"--clamp {x:g},{y:g} is outside the {width}x{height} picture of {job.video}: give the clamp "
-            "point in the video's pixels (x from the left, y from the top)"
-        )
-    length_px = (job.length_mm or 22.0) / job.mm_per_px
-    diagonal = math.hypot(width, height)
-    if not MIN_STRIP_PX <= length_px <= MAX_STRIP_DIAGONALS * diagonal:
-        raise RigError(
-            f"--length {job.length_mm or 22.0:g} mm at --mm-per-px {job.mm_per_px:g} is a strip "
-            f"{length_px:.4g} px long, {'too short to follow' if length_px < MIN_STRIP_PX else 'longer than'}"
-            + ("" if length_px < MIN_STRIP_PX else f" the {width}x{height} picture can show")
-            + ": check both (the scale is mm per pixel: a 30 mm strip 300 px long is 0.1)"
-        )
+    check_in_picture(job.clamp, job.mm_per_px, job.length_mm, image.shape, job.video)
 
 
 def _length_warning(job: TrackJob, tips, clamp) -> str | None:

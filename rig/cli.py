@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import pathlib
 import signal
 import sys
 import threading
@@ -179,10 +180,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--rate",
         type=RATE,
-        default=30.0,
-        help="drive samples per second, in [1, 5000] (--drive's; a file's own)",
+        default=None,
+        help="drive samples per second, in [1, 5000] (--drive's, default 30; a --drive-file has its own)",
     )
-    p.add_argument("--amplitude", type=AMPLITUDE, default=2.0, help="V, in (0, 100] (--drive's)")
+    p.add_argument(
+        "--amplitude",
+        type=AMPLITUDE,
+        default=None,
+        help="V, in (0, 100] (--drive's, default 2; not a file's)",
+    )
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--calibration", help="JSON from `rig calibrate` (default: gain 1.2, offset -3 V)")
     p.add_argument("--fps", type=FPS, default=30.0, help="frames per second, in (0, 1000]")
@@ -278,10 +284,22 @@ def _drive(args, calibration):
         if args.duration is None:
             raise InputError("--drive needs --duration S (a --drive-file brings its own length)")
         return hybrid.make_drive(
-            args.drive, args.duration, rate=args.rate, seed=args.seed, amplitude=args.amplitude
+            args.drive,
+            args.duration,
+            rate=30.0 if args.rate is None else args.rate,
+            seed=args.seed,
+            amplitude=2.0 if args.amplitude is None else args.amplitude,
         )
-    if args.duration is not None:
-        raise InputError("--duration is for --drive: a --drive-file brings its own length and rate")
+    given = [
+        flag for flag, value in (("--duration", args.duration), ("--rate", args.rate)) if value is not None
+    ]
+    if args.amplitude is not None:
+        given.append("--amplitude")
+    if given:  # they would be ignored: the file is played as written
+        raise InputError(
+            f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for --drive: a --drive-file brings its own "
+            "length, rate and levels (resample or scale the file, e.g. hybrid design --rate/--bounds)"
+        )
     try:
         drive = hybrid.load_drive(args.drive_file)
     except hybrid.InputError as error:
@@ -313,6 +331,8 @@ def _cmd_record(args):
         raise InputError("give either --virtual or both --port and --camera")
     if not args.virtual and not (args.port and args.camera):
         raise InputError("a real recording needs both --port and --camera")
+    from hybrid.util import OutputFile, prepare_outputs
+
     from ._files import check_csv_out, check_outputs
 
     sources = [p for p in (args.calibration, args.camera, args.drive_file) if p and os.path.exists(p)]
@@ -321,75 +341,77 @@ def _cmd_record(args):
     calibration = Calibration.load(args.calibration) if args.calibration else Calibration()
     drive = _drive(args, calibration)
     scene = _scene(args, virtual=args.virtual)
-    if args.virtual:
-        import serial
+    # a second rig record (or hybrid command) writing the same --out is refused while this one runs
+    with prepare_outputs([OutputFile(pathlib.Path(args.out), "--out", (".csv",))], sources):
+        if args.virtual:
+            import serial
 
-        from ._emulator import EmulatedBoard
-        from ._render import Look
-        from ._virtual import VirtualCamera
+            from ._emulator import EmulatedBoard
+            from ._render import Look
+            from ._virtual import VirtualCamera
 
-        look = Look()
-        led = _led(args, default=look.led)
-        exposure = args.exposure if args.exposure is not None else 1 / 60
-        settings = RecordSettings(
-            calibration=calibration,
-            scene=scene,
-            led=led,
-            exposure=exposure,
-            strip_px=args.strip_px,
-            dac_address=args.dac_address,
-        )
-        with EmulatedBoard(speed=args.speed) as emulated:
-            board = Board(serial.Serial(emulated.port, 250000, timeout=0.02), name=emulated.port)
-            board.hello()
-            camera = VirtualCamera(
-                emulated, scene=scene, look=look, fps=args.fps, exposure=exposure, seed=args.seed
+            look = Look()
+            led = _led(args, default=look.led)
+            exposure = args.exposure if args.exposure is not None else 1 / 60
+            settings = RecordSettings(
+                calibration=calibration,
+                scene=scene,
+                led=led,
+                exposure=exposure,
+                strip_px=args.strip_px,
+                dac_address=args.dac_address,
             )
-            try:
-                meta = record(
-                    board,
-                    camera,
-                    drive,
-                    settings,
-                    args.out,
-                    truth=camera.truth,
-                    metadata={"virtual": True, "speed": args.speed},
+            with EmulatedBoard(speed=args.speed) as emulated:
+                board = Board(serial.Serial(emulated.port, 250000, timeout=0.02), name=emulated.port)
+                board.hello()
+                camera = VirtualCamera(
+                    emulated, scene=scene, look=look, fps=args.fps, exposure=exposure, seed=args.seed
                 )
+                try:
+                    meta = record(
+                        board,
+                        camera,
+                        drive,
+                        settings,
+                        args.out,
+                        truth=camera.truth,
+                        metadata={"virtual": True, "speed": args.speed},
+                    )
+                finally:
+                    board.close()
+                rises = [t for t, value in emulated.led_log if value == 1]
+                if rises and meta.get("sync"):
+                    sync_error = meta["sync"]["t_camera"] - (rises[-1] - camera.t0)
+                    print(f"sync: LED edge found {sync_error * 1000:+.2f} ms from the board's true edge")
+        else:
+            from ._camera import VideoSource
+
+            led = _led(args)
+            settings = RecordSettings(
+                calibration=calibration,
+                scene=scene,
+                led=led,
+                exposure=args.exposure,
+                strip_px=args.strip_px,
+                dac_address=args.dac_address,
+            )
+            board = Board.open(args.port)
+            try:
+                with VideoSource(args.camera, fps=args.fps) as camera:
+                    import time
+
+                    t0 = time.monotonic()
+                    camera.clock = lambda: time.monotonic() - t0
+                    meta = record(
+                        board,
+                        camera,
+                        drive,
+                        settings,
+                        args.out,
+                        metadata={"port": args.port, "camera": str(args.camera)},
+                    )
             finally:
                 board.close()
-            rises = [t for t, value in emulated.led_log if value == 1]
-            if rises and meta.get("sync"):
-                sync_error = meta["sync"]["t_camera"] - (rises[-1] - camera.t0)
-                print(f"sync: LED edge found {sync_error * 1000:+.2f} ms from the board's true edge")
-    else:
-        from ._camera import VideoSource
-
-        led = _led(args)
-        settings = RecordSettings(
-            calibration=calibration,
-            scene=scene,
-            led=led,
-            exposure=args.exposure,
-            strip_px=args.strip_px,
-            dac_address=args.dac_address,
-        )
-        board = Board.open(args.port)
-        try:
-            with VideoSource(args.camera, fps=args.fps) as camera:
-                import time
-
-                t0 = time.monotonic()
-                camera.clock = lambda: time.monotonic() - t0
-                meta = record(
-                    board,
-                    camera,
-                    drive,
-                    settings,
-                    args.out,
-                    metadata={"port": args.port, "camera": str(args.camera)},
-                )
-        finally:
-            board.close()
     rec = hybrid.Recording.load(args.out)
     report = meta["board"]["report"]
     print(

@@ -183,3 +183,69 @@ def test_an_output_that_is_an_input_is_refused_before_anything_is_written(tmp_pa
     assert main(argv) == 2
     assert f"output '{source}' is the input '{source}'" in _one_line(capsys)
     assert snapshot(tmp_path) == {"v.avi": b"the user's input"}
+
+
+# --- a new lab user's mistakes (a helper's trial of the lab workflow) --------------------------------
+
+
+def test_a_sidecar_path_that_is_a_folder_is_refused_before_recording_and_the_users_file_kept(
+    tmp_path, capsys
+):
+    """It was found at the rename, after the CSV had replaced the user's file, and said it had not."""
+    out = tmp_path / "rec.csv"
+    out.write_text("precious\n")
+    (tmp_path / "rec.csv.json").mkdir()
+    assert main([*ARGV, "--out", str(out)]) == 2
+    assert "rec.csv.json is a folder" in _one_line(capsys)
+    assert out.read_text() == "precious\n" and sorted(p.name for p in tmp_path.iterdir()) == [
+        "rec.csv",
+        "rec.csv.json",
+    ]
+
+
+def test_a_scene_that_shows_no_strip_is_refused_not_written_as_a_complete_recording(tmp_path, capsys):
+    """A clamp outside the picture before the board plays; inside, but off the strip: no frame tracked."""
+    out = tmp_path / "rec.csv"
+    assert main([*ARGV, "--clamp", "9999,9999", "--out", str(out)]) == 2
+    line = _one_line(capsys)
+    assert "outside the 320x240 picture" in line and "nothing was recorded" in line, line
+    assert list(tmp_path.iterdir()) == []  # not even an empty partial file
+    assert main([*ARGV, "--clamp", "200,200", "--out", str(out)]) == 2  # w was 0 throughout, "complete"
+    line = _one_line(capsys)
+    assert "no frame showed the strip" in line and "rec.partial.csv" in line, line
+    assert not out.exists()
+    assert json.loads((tmp_path / "rec.partial.csv.json").read_text())["tracked_frames"] == 0
+
+
+def test_a_drive_file_is_played_as_written_or_refused(tmp_path, capsys):
+    """--rate/--amplitude were ignored with a file, a units row of mV played as volts."""
+    drive = tmp_path / "d.csv"
+    drive.write_text(
+        "t,v_in\ns,mV\n" + "".join(f"{k / 10:g},{v}\n" for k, v in enumerate([0, 500, 1000, -800] * 5))
+    )
+    out = tmp_path / "rec.csv"
+    assert main(["record", "--virtual", "--drive-file", str(drive), "--rate", "30", "--out", str(out)]) == 2
+    assert "--rate is for --drive" in _one_line(capsys)
+    assert (
+        main(["record", "--virtual", "--drive-file", str(drive), "--amplitude", "1", "--out", str(out)]) == 2
+    )
+    assert "--amplitude is for --drive" in _one_line(capsys)
+    assert main(["record", "--virtual", "--speed", "3", "--drive-file", str(drive), "--out", str(out)]) == 0
+    capsys.readouterr()
+    played = hybrid.Recording.load(out).v_in
+    assert played.max() == pytest.approx(1.0, abs=2e-3) and played.min() == pytest.approx(-0.8, abs=2e-3)
+    drive.write_text("t,v_in\ns,counts\n0,0\n0.1,500\n")
+    assert main(["record", "--virtual", "--drive-file", str(drive), "--out", str(tmp_path / "x.csv")]) == 2
+    assert "'counts'" in _one_line(capsys)
+    drive.write_text("time,voltage\n0,0\n0.1,0.5\n")
+    assert main(["record", "--virtual", "--drive-file", str(drive), "--out", str(tmp_path / "x.csv")]) == 2
+    line = _one_line(capsys)
+    assert "name them exactly t and v_in" in line and "--columns" not in line, line  # rig record has none
+
+
+def test_a_second_recording_to_the_same_out_is_refused_while_the_first_runs(tmp_path, capsys):
+    """Both said 'wrote' and one recording was lost; the lock of the hybrid commands now covers rig record."""
+    out = tmp_path / "rec.csv"
+    (tmp_path / "rec.csv.lock").write_text(f"{os.getpid()}\n")  # a live process holds it
+    assert main([*ARGV, "--out", str(out)]) == 2
+    assert "is writing" in _one_line(capsys) and not out.exists()

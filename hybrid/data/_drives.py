@@ -72,6 +72,10 @@ def make_drive(name: str, duration: float, rate: float = DEFAULT_RATE, seed: int
     return generator(duration, rate, **params)
 
 
+#: A drive file's units of v_in and their factor to volts.
+VOLTS = {"V": 1.0, "mV": 1e-3, "µV": 1e-6, "uV": 1e-6, "kV": 1e3}
+
+
 def load_drive(path) -> Drive:
     """A drive read from a file: a CSV with columns t and v_in (as `hybrid design` writes), or .npz/.mat.
 
@@ -82,9 +86,16 @@ def load_drive(path) -> Drive:
     from ._recording import Recording
 
     recording = Recording.load(path, require_w=False)
+    units = recording.metadata.get("units")
+    unit = str(units.get("v_in", "V")) if isinstance(units, dict) else "V"
+    if unit not in VOLTS:  # a drive is played in volts: a units row of mV would play 1000x too large
+        raise InputError(
+            f"'{path}': its drive is in {unit!r} (its units row or sidecar), but a drive is played in volts: "
+            f"write it in one of {', '.join(VOLTS)}"
+        )
     # The reader accepted the time column as uniform within its tolerance (t written to 6 decimals steps
     # by 0.033333 and 0.033334 at 30 Hz): the rate over the whole record, and an exactly uniform grid.
     n = len(recording)
     rate = float((n - 1) / (recording.t[-1] - recording.t[0])) if n > 1 else float(recording.rate)
     params = {"file": str(path), "rate": rate, "duration": n / rate}
-    return Drive(np.arange(n) / rate, recording.v_in, "file", params)
+    return Drive(np.arange(n) / rate, recording.v_in * VOLTS[unit], "file", params)

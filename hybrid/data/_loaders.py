@@ -132,6 +132,11 @@ def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequ
     missing = [c for c in required if c not in found]
     if missing:
         shown = ", ".join(f"'{c}'" for c in found) or "none"
+        if "w" not in required:  # a drive alone (a --drive-file): the command takes no column mapping
+            raise InputError(
+                f"'{path}' is missing {kind} {', '.join(missing)} (found {shown}): name them exactly "
+                f"{' and '.join(required)} (case-sensitive), as hybrid design writes a drive"
+            )
         raise InputError(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "

@@ -17,6 +17,7 @@ from ._atomic import (
     write_texts as write_texts,
 )
 from ._figures import pyplot as pyplot, save_png as save_png
+from ._outputs import OutputFile as OutputFile, prepare_outputs as prepare_outputs
 from ._programs import (
     DIAGNOSE_PROGRAMS as DIAGNOSE_PROGRAMS,
     ProgramBudget as ProgramBudget,
