@@ -43,7 +43,7 @@ from ._cli_stop import FitStop, partial_path
 from ._cli_test import add_test_options, load_tests, print_scores, score_tests
 from .util._cores import use_cpu_cores, use_quick_compiles
 from .util._errors import InputError
-from .util._watchdog import Watchdog
+from .util._watchdog import Watchdog, stage
 
 
 class _Parser(argparse.ArgumentParser):
@@ -636,23 +636,22 @@ def _use_compilation_cache(jax) -> None:
 @contextlib.contextmanager
 def _sigint_watch(seen: list):
     """Note a real Ctrl-C (SIGINT) in `seen`, so that a KeyboardInterrupt raised by a plug-in's code is told
-    apart from one (only where Python's own SIGINT handler is in place, in the main thread)."""
-    if (
-        threading.current_thread() is not threading.main_thread()
-        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
-    ):
+    apart from one (where a Python SIGINT handler is in place, Python's own or `hybrid_launch`'s, in the
+    main thread); the handler in place still runs."""
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
         yield
         return
 
     def handler(signum, frame):
         seen.append(signum)
-        signal.default_int_handler(signum, frame)
+        previous(signum, frame)
 
     signal.signal(signal.SIGINT, handler)
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, previous)
 
 
 def _add_verbose(parser, sub) -> None:
@@ -711,6 +710,7 @@ def main(argv=None) -> int:
     try:
         with _sigint_watch(ctrl_c), exit_guard():
             args = build_parser().parse_args(argv)
+            stage(f"hybrid {args.command}")  # a Ctrl-C lost while JAX started is raised here (hybrid_launch)
             # A heartbeat on stderr while it works, and exit status 3 instead of a silent hang (_watchdog).
             with Watchdog(f"hybrid {args.command}", quiet=getattr(args, "quiet", False)):
                 COMMANDS[args.command](args)

@@ -330,6 +330,7 @@ def record(
     try:
         # Pre-roll: the LED's off level, before the board starts.
         while True:
+            stage("pre-roll: the camera before the drive")  # a Ctrl-C lost at startup ends it here, undriven
             frame = camera.read()
             if frame is None:
                 raise RigError("camera stopped delivering frames before the drive started")

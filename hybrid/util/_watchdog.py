@@ -38,8 +38,19 @@ _stage = {"text": "starting"}
 
 
 def stage(text: str) -> None:
-    """Name what the running command is doing now (shown by the heartbeat and a stall report)."""
+    """Name what the running command is doing now (shown by the heartbeat and a stall report).
+
+    In the main thread of a command started by its console script (`hybrid_launch`), a Ctrl-C that
+    Python swallowed (raised inside a garbage-collection callback of JAX's) is raised here.
+    """
     _stage["text"] = text
+    launch = sys.modules.get("hybrid_launch")  # not imported: the library used from Python
+    if (
+        launch is not None
+        and threading.current_thread() is threading.main_thread()
+        and launch.take_interrupt()
+    ):
+        raise KeyboardInterrupt
 
 
 def current_stage() -> str:

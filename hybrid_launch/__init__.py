@@ -1,0 +1,67 @@
+"""The `hybrid` and `rig` console scripts: a Ctrl-C while a command starts is acted on, never lost.
+
+Both commands import JAX before their `main` runs (a second or more). Python's own
+SIGINT handler raises KeyboardInterrupt wherever the main thread is: inside an
+import that is a traceback, and inside a callback that JAX runs during garbage
+collection it is printed as "Exception ignored" and lost — the command then ran
+on (`rig record` drove the strip for the whole drive, `hybrid simulate` wrote
+its file and exited 0). So this module, which imports nothing heavy, is what the
+console scripts call: while the command's module is imported a Ctrl-C is only
+remembered, and one remembered then ends the command in one line, exit status
+130, before it has done anything. From then on a Ctrl-C raises KeyboardInterrupt
+as before and is remembered too; where one was swallowed, the next
+`hybrid.util.stage` call in the main thread (every stage of a command, every
+frame of a recording) raises it again (`take_interrupt`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import signal
+import sys
+import threading
+
+_pending = threading.Event()  # a Ctrl-C seen and not yet raised where it cannot be lost
+
+
+def on_sigint_starting(signum, frame) -> None:
+    """SIGINT while the command's module is imported: remembered only."""
+    _pending.set()
+
+
+def on_sigint(signum, frame) -> None:
+    """SIGINT while the command runs: KeyboardInterrupt, as Python's own handler, and remembered."""
+    _pending.set()
+    raise KeyboardInterrupt
+
+
+def take_interrupt() -> bool:
+    """Whether a Ctrl-C is pending (raised where Python may have swallowed it); it is no longer, after."""
+    pending = _pending.is_set()
+    _pending.clear()
+    return pending
+
+
+def _launch(module: str, name: str) -> int:
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
+        signal.signal(signal.SIGINT, on_sigint_starting)
+    try:
+        main = importlib.import_module(module).main
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGINT, on_sigint)
+    if take_interrupt():
+        print(f"{name}: interrupted while starting; nothing was done", file=sys.stderr)
+        return 130
+    return main()
+
+
+def hybrid() -> int:
+    """The `hybrid` command."""
+    return _launch("hybrid.cli", "hybrid")
+
+
+def rig() -> int:
+    """The `rig` command."""
+    return _launch("rig.cli", "rig")
