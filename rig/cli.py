@@ -320,12 +320,26 @@ def _drive(args, calibration):
     return drive
 
 
+def _record_settings(args, calibration, scene, led, exposure):
+    """`RecordSettings` from the command line's flags (the virtual and the real rig alike)."""
+    from ._record import RecordSettings
+
+    return RecordSettings(
+        calibration=calibration,
+        scene=scene,
+        led=led,
+        exposure=exposure,
+        strip_px=args.strip_px,
+        dac_address=args.dac_address,
+    )
+
+
 def _cmd_record(args):
     import hybrid
 
     from ._board import Board
     from ._calibration import Calibration
-    from ._record import RecordSettings, record
+    from ._record import record
 
     if args.virtual == bool(args.port or args.camera):
         raise InputError("give either --virtual or both --port and --camera")
@@ -351,31 +365,18 @@ def _cmd_record(args):
             from ._virtual import VirtualCamera
 
             look = Look()
-            led = _led(args, default=look.led)
             exposure = args.exposure if args.exposure is not None else 1 / 60
-            settings = RecordSettings(
-                calibration=calibration,
-                scene=scene,
-                led=led,
-                exposure=exposure,
-                strip_px=args.strip_px,
-                dac_address=args.dac_address,
-            )
+            settings = _record_settings(args, calibration, scene, _led(args, default=look.led), exposure)
             with EmulatedBoard(speed=args.speed) as emulated:
                 board = Board(serial.Serial(emulated.port, 250000, timeout=0.02), name=emulated.port)
                 board.hello()
                 camera = VirtualCamera(
                     emulated, scene=scene, look=look, fps=args.fps, exposure=exposure, seed=args.seed
                 )
+                virtual = {"virtual": True, "speed": args.speed}
                 try:
                     meta = record(
-                        board,
-                        camera,
-                        drive,
-                        settings,
-                        args.out,
-                        truth=camera.truth,
-                        metadata={"virtual": True, "speed": args.speed},
+                        board, camera, drive, settings, args.out, truth=camera.truth, metadata=virtual
                     )
                 finally:
                     board.close()
@@ -386,15 +387,7 @@ def _cmd_record(args):
         else:
             from ._camera import VideoSource
 
-            led = _led(args)
-            settings = RecordSettings(
-                calibration=calibration,
-                scene=scene,
-                led=led,
-                exposure=args.exposure,
-                strip_px=args.strip_px,
-                dac_address=args.dac_address,
-            )
+            settings = _record_settings(args, calibration, scene, _led(args), args.exposure)
             board = Board.open(args.port)
             try:
                 with VideoSource(args.camera, fps=args.fps) as camera:
@@ -402,14 +395,8 @@ def _cmd_record(args):
 
                     t0 = time.monotonic()
                     camera.clock = lambda: time.monotonic() - t0
-                    meta = record(
-                        board,
-                        camera,
-                        drive,
-                        settings,
-                        args.out,
-                        metadata={"port": args.port, "camera": str(args.camera)},
-                    )
+                    lab = {"port": args.port, "camera": str(args.camera)}
+                    meta = record(board, camera, drive, settings, args.out, metadata=lab)
             finally:
                 board.close()
     rec = hybrid.Recording.load(args.out)
