@@ -70,8 +70,12 @@ def test_a_board_reset_mid_record_keeps_the_users_file_and_the_rows_elsewhere(tm
     assert {name: after[name] for name in before} == before  # byte for byte, the earlier partial too
     assert sorted(set(after) - set(before)) == ["rec.partial-2.csv", "rec.partial-2.csv.json"]
     meta = json.loads(after["rec.partial-2.csv.json"])
-    rows = len(hybrid.Recording.load(partial))
+    loaded = hybrid.Recording.load(partial)  # the hybrid commands warn that it ends early (they said nothing)
+    rows = len(loaded)
     assert meta["partial_of"] == str(out) and meta["status"] == "interrupted" and meta["complete"] is False
+    assert any("incomplete" in note and "reset during the stream" in note for note in loaded.notes), (
+        loaded.notes
+    )
     assert meta["rows"] == rows >= 10 and f"({rows} rows)" in err
 
 

@@ -381,6 +381,9 @@ class Recording:
                 return load_mapped(path, require_w=require_w, **mapping)
         path = path_argument(path, "Recording.load")
         columns, metadata, notes = read_file(path, require_w=require_w)
+        if metadata.get("complete") is False:  # a recorder's sidecar: `rig record` interrupted, kept partial
+            why = metadata.get("error") or metadata.get("status") or "no reason given"
+            notes = (*notes, f"recording '{path}': its sidecar says it is incomplete ({why}): it ends early")
         extra = {c: v for c, v in columns.items() if c not in REQUIRED}
         return cls(columns["t"], columns["v_in"], columns["w"], extra, metadata, str(path), notes)
 
