@@ -320,7 +320,7 @@ def test_at_the_floor_a_last_step_is_open_only_on_a_significant_gain_over_every_
     # the candidate's side of the sign test is the test run the other way round
     for r, c in zip(entry["rivals"], candidates):
         assert r["candidate_p_value"] == paired_difference(c.heldout_residual, base)["p_value"]
-    assert "at the noise floor" in sentence(entry) and "each of delay (gain 1.3)" in sentence(entry)
+    assert "not flagged as unexplained" in sentence(entry) and "each of delay (gain 1.3)" in sentence(entry)
     # an effect-free fit as good on training reaches held-out NMSE 0.8: delay's 1/1.3 is 1.04× better than
     # it, saturation's is worse (HINT_GAIN 1.05): a better fit of the simulation alone, no effect
     assert HINT_GAIN == 1.05
