@@ -276,6 +276,12 @@ def _cmd_track(args):
     )
 
 
+def _playable(calibration) -> tuple[float, float]:
+    """The volts the DAC can play at `calibration`: its codes' reach within the amplifier's rails."""
+    reach = calibration.volts([0, calibration.top])
+    return max(calibration.rail_low, reach.min()), min(calibration.rail_high, reach.max())
+
+
 def _drive(args, calibration):
     """--drive's generated drive, or --drive-file's, refused in one line where the DAC cannot play it."""
     import hybrid
@@ -283,13 +289,25 @@ def _drive(args, calibration):
     if args.drive_file is None:
         if args.duration is None:
             raise InputError("--drive needs --duration S (a --drive-file brings its own length)")
-        return hybrid.make_drive(
+        amplitude = 2.0 if args.amplitude is None else args.amplitude
+        drive = hybrid.make_drive(
             args.drive,
             args.duration,
             rate=30.0 if args.rate is None else args.rate,
             seed=args.seed,
-            amplitude=2.0 if args.amplitude is None else args.amplitude,
+            amplitude=amplitude,
         )
+        outside = calibration.clipped(drive.v)
+        if (
+            outside.any()
+        ):  # the DAC would hold them at its rail: not the drive asked for (a file is refused too)
+            low, high = _playable(calibration)
+            raise InputError(
+                f"--drive {args.drive} --amplitude {amplitude:g}: {int(outside.sum())} of "
+                f"{len(drive)} samples lie outside what the DAC can play at this calibration, [{low:.4g}, "
+                f"{high:.4g}] V: give a smaller --amplitude"
+            )
+        return drive
     given = [
         flag for flag, value in (("--duration", args.duration), ("--rate", args.rate)) if value is not None
     ]
@@ -310,8 +328,7 @@ def _drive(args, calibration):
         )
     outside = calibration.clipped(drive.v)
     if outside.any():
-        reach = calibration.volts([0, calibration.top])
-        low, high = max(calibration.rail_low, reach.min()), min(calibration.rail_high, reach.max())
+        low, high = _playable(calibration)
         raise InputError(
             f"--drive-file {args.drive_file}: {int(outside.sum())} of {len(drive)} samples lie outside what the "
             f"DAC can play at this calibration, [{low:.4g}, {high:.4g}] V (first at t = "
