@@ -224,23 +224,8 @@ def test_a_scene_that_shows_no_strip_is_refused_not_written_as_a_complete_record
 def test_a_drive_the_dac_cannot_play_is_refused_whether_generated_or_from_a_file(tmp_path, capsys):
     """--amplitude 5 was held at the ±3 V rails without a word (every sample), where a file was refused."""
     out = tmp_path / "rec.csv"
-    assert (
-        main(
-            [
-                "record",
-                "--virtual",
-                "--drive",
-                "prbs",
-                "--amplitude",
-                "5",
-                "--duration",
-                "2",
-                "--out",
-                str(out),
-            ]
-        )
-        == 2
-    )
+    argv = "record --virtual --drive prbs --amplitude 5 --duration 2".split()
+    assert main([*argv, "--out", str(out)]) == 2
     line = _one_line(capsys)
     assert "--amplitude 5" in line and "[-3, 3] V" in line and "smaller --amplitude" in line, line
     assert list(tmp_path.iterdir()) == []
