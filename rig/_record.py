@@ -88,6 +88,7 @@ class _Writer:
         self.sidecar = path.with_name(path.name + ".json")
         self.metadata = metadata
         self.rows = 0
+        self.discarded = False
         self._saved = 0.0
         handle = None
         try:
@@ -129,6 +130,13 @@ class _Writer:
         self.metadata["rows"] = self.rows
         write_json_atomic(self.sidecar, self.metadata)
 
+    def discard(self) -> None:
+        """Remove the (closed) files: nothing was recorded in them, they keep nothing of the user's."""
+        for made in (self.path, self.sidecar):
+            with contextlib.suppress(OSError):
+                made.unlink()
+        self.discarded = True
+
     def close(self) -> None:
         """Flush the rows, close, cut a row the disk took only part of, count the rows in the file (an
         interruption between writing a row and counting it must not leave a stale count), save the
@@ -163,15 +171,9 @@ def _kept(
     unsaved: Exception | None,
     what: str = "what was recorded",
 ) -> str:
-    """Where a failed recording is: ``what was recorded (N rows) is kept in rec.partial.csv ...``.
-
-    With no row recorded (stopped before the drive started) the partial files are removed.
-    """
+    """Where a failed recording is: ``what was recorded (N rows) is kept in rec.partial.csv ...``."""
     untouched = f"{out} was " + ("left as it was" if existed else "not written")
-    if writer.rows == 0 and unsaved is None:
-        for made in (writer.path, writer.sidecar):
-            with contextlib.suppress(OSError):
-                made.unlink()
+    if writer.discarded:
         return f"nothing was recorded; {untouched}"
     sidecar = " (+ .json)"
     if unsaved is not None:  # hybrid's "cannot write F: REASON; nothing was changed at F (...)": the reason
@@ -441,6 +443,8 @@ def record(
             writer.close()
         except (InputError, OSError) as caught:  # the sidecar: a full disk
             unsaved = caught
+        if writer.rows == 0 and unsaved is None:  # stopped before a row (before the drive started)
+            writer.discard()
     # Anything but success leaves the rows in `partial` and `out` as it was; the error says so.
     kept = _kept(out, writer, existed, unsaved)
     if error is not None:

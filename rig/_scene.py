@@ -15,7 +15,7 @@ import numpy as np
 
 from ._errors import RigError
 
-__all__ = ["MAX_STRIP_DIAGONALS", "MIN_STRIP_PX", "Scene", "arc_centreline", "check_in_picture"]
+__all__ = ["Scene", "arc_centreline", "check_in_picture"]
 
 #: The shortest strip, px, the tracker can follow; the longest is this many picture diagonals.
 MIN_STRIP_PX, MAX_STRIP_DIAGONALS = 8.0, 1.25

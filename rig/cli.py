@@ -276,10 +276,16 @@ def _cmd_track(args):
     )
 
 
-def _playable(calibration) -> tuple[float, float]:
-    """The volts the DAC can play at `calibration`: its codes' reach within the amplifier's rails."""
-    reach = calibration.volts([0, calibration.top])
-    return max(calibration.rail_low, reach.min()), min(calibration.rail_high, reach.max())
+def _refuse_unplayable(drive, calibration, what: str, fix: str) -> None:
+    """One line where the DAC cannot play `drive` at `calibration` (it would hold those samples at a rail)."""
+    outside = calibration.clipped(drive.v)
+    if outside.any():
+        reach = calibration.volts([0, calibration.top])
+        low, high = max(calibration.rail_low, reach.min()), min(calibration.rail_high, reach.max())
+        raise InputError(
+            f"{what}: {int(outside.sum())} of {len(drive)} samples lie outside what the DAC can play at this "
+            f"calibration, [{low:.4g}, {high:.4g}] V (first at t = {drive.t[int(outside.argmax())]:g} s): {fix}"
+        )
 
 
 def _drive(args, calibration):
@@ -297,16 +303,12 @@ def _drive(args, calibration):
             seed=args.seed,
             amplitude=amplitude,
         )
-        outside = calibration.clipped(drive.v)
-        if (
-            outside.any()
-        ):  # the DAC would hold them at its rail: not the drive asked for (a file is refused too)
-            low, high = _playable(calibration)
-            raise InputError(
-                f"--drive {args.drive} --amplitude {amplitude:g}: {int(outside.sum())} of "
-                f"{len(drive)} samples lie outside what the DAC can play at this calibration, [{low:.4g}, "
-                f"{high:.4g}] V: give a smaller --amplitude"
-            )
+        _refuse_unplayable(
+            drive,
+            calibration,
+            f"--drive {args.drive} --amplitude {amplitude:g}",
+            "give a smaller --amplitude",
+        )
         return drive
     given = [
         flag for flag, value in (("--duration", args.duration), ("--rate", args.rate)) if value is not None
@@ -326,14 +328,12 @@ def _drive(args, calibration):
         raise InputError(
             f"--drive-file {args.drive_file}: {drive.rate:g} samples per second; the board plays 1-5000"
         )
-    outside = calibration.clipped(drive.v)
-    if outside.any():
-        low, high = _playable(calibration)
-        raise InputError(
-            f"--drive-file {args.drive_file}: {int(outside.sum())} of {len(drive)} samples lie outside what the "
-            f"DAC can play at this calibration, [{low:.4g}, {high:.4g}] V (first at t = "
-            f"{drive.t[int(outside.argmax())]:g} s): scale the drive into that range (hybrid design --bounds)"
-        )
+    _refuse_unplayable(
+        drive,
+        calibration,
+        f"--drive-file {args.drive_file}",
+        "scale the drive into that range (hybrid design --bounds)",
+    )
     return drive
 
 

@@ -162,9 +162,9 @@ def fit(
             frozen,
         )
         bases = [dataclasses.replace(model, simulation=model.simulation.replace(**p)) for p in points]
-    initial = [
+    initial = [  # the screened points as they are; the starts beyond them perturbed (start 0 never is)
         start_model(bases[i], i, seed, frozen, 0.0, series)
-        if i < len(bases) and screen
+        if i < len(bases)
         else start_model(model, i, seed, frozen, perturbation, series)
         for i in range(starts)
     ]

@@ -232,7 +232,6 @@ class Problem(eqx.Module):
     series: tuple[Series, ...]
     scale: jax.Array
     kind: str = eqx.field(static=True)
-    signal_units: tuple[str, str] = eqx.field(static=True)
     n_sim: int = eqx.field(static=True)
     n_readout: int = eqx.field(static=True)
     weight_decay: float = eqx.field(static=True)
@@ -272,7 +271,6 @@ class Problem(eqx.Module):
             std = robust_std(jnp.concatenate([s.target("train") for s in series]))
         self.scale = jnp.where(std > 0, std, jnp.ones_like(std))  # constant w: refused by fit
         self.kind = model.kind
-        self.signal_units = model.signal_units
         if not weight_decay >= 0:
             raise InputError(f"weight_decay must be ≥ 0, got {weight_decay!r}")
         penalised = not model.readout.parameters()  # black-box readouts only
@@ -297,7 +295,8 @@ class Problem(eqx.Module):
 
     def model(self, theta) -> Model:
         a, b = self.split_theta(theta)
-        return Model(self.simulation(a), self.readout(b), self.kind, self.signal_units)
+        # the signals' units are not kept: a static field, they would compile a program per unit label
+        return Model(self.simulation(a), self.readout(b), self.kind)
 
     # --- residuals -----------------------------------------------------------
     def _signals(self, theta_sim):

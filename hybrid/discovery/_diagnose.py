@@ -400,6 +400,7 @@ def diagnose(
                 rival_models[key] = fitted_model(problem, fitted.theta, (*before, name))
             files[name] = f"{key}.eqx"
         entry["models"] = files
+    signals = recording_units(recordings) or (PAPER_UNITS["w"], PAPER_UNITS["v_in"])  # (w's, the drive's)
     hybrid_report = None
     if hybrid:
         hybrid_report = hybrid_fits(
@@ -426,7 +427,7 @@ def diagnose(
         not_pinned=unpinned,
         ambiguous=rivals,
         models={  # each labels its parameters in the recordings' units, saved and loaded with it
-            name: dataclasses.replace(model, signal_units=recording_units(recordings) or model.signal_units)
+            name: dataclasses.replace(model, signal_units=signals)
             for name, model in {
                 "baseline": fitted_model(problem, baseline.theta, ()),
                 "extended": extended_model,
@@ -434,7 +435,7 @@ def diagnose(
             }.items()
         },
         units=unit_labels(extended_model, recordings),
-        signal_units=dict(zip(("w", "v_in"), recording_units(recordings) or PAPER_UNITS.values())),
+        signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
     )
 
