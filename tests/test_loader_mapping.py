@@ -12,7 +12,6 @@ import csv
 import json
 import math
 import pathlib
-import time
 
 import numpy as np
 import pytest
@@ -268,8 +267,12 @@ def test_a_drive_without_output_and_plain_load_unchanged(lab, tmp_path):
         Recording.load(path, inptu="v_in")
 
 
-def test_a_million_rows_load_fast(tmp_path):
-    """10⁶ rows (a 1000-row block written 1000 times) load in well under 10 s (about 0.7 s here)."""
+def test_a_million_rows_load(tmp_path):
+    """10⁶ rows (a 1000-row block written 1000 times) load to the last sample.
+
+    Their time (about 0.7 s here) is `benchmarks/long_record.py`'s, not a test's: no test passes or
+    fails on the wall clock of a shared machine.
+    """
     block = np.random.default_rng(0).normal(size=(1000, 3))
     text = "".join(f"{a!r},{b!r},{c!r},x\n" for a, b, c in block.tolist())
     path = tmp_path / "big.csv"
@@ -277,12 +280,9 @@ def test_a_million_rows_load_fast(tmp_path):
         handle.write("u,y,other,comment\n")
         for _ in range(1000):
             handle.write(text)
-    start = time.perf_counter()
     rec = load_mapped(path, input="u", output="y", rate=100_000.0)
-    elapsed = time.perf_counter() - start
     assert rec.n == 1_000_000 and rec.duration == pytest.approx(10.0)
     assert rec.v_in[123_456] == block[456, 0] and rec.w[-1] == block[-1, 1]
-    assert elapsed < 10.0, f"10^6 rows took {elapsed:.1f} s"
 
 
 # ------------------------------------------------------------------------ bad mappings
@@ -293,6 +293,17 @@ def _bad(path, match, **options):
         load_mapped(path, **options)
     assert "\n" not in str(caught.value)  # one line, as the CLI prints it
     return str(caught.value)
+
+
+def test_a_misnamed_column_suggests_the_likely_one_not_the_time(tmp_path):
+    """``--output pos`` on time,drive,position suggested ``--output time``: a prefix is a likely name."""
+    path = tmp_path / "lab.csv"
+    path.write_text("time,drive,position\n" + "".join(f"{k / 30:.4f},{k % 3},{k % 5}\n" for k in range(40)))
+    message = _bad(path, "did you mean 'position'", time="time", input="drive", output="pos")
+    assert "--output position" in message and "--output time" not in message
+    # No likely name at all: the example is the file's last column for an output, its second for a drive.
+    assert "--output position (" in _bad(path, "no column 'zz'", time="time", input="drive", output="zz")
+    assert "--input drive (" in _bad(path, "no column 'qq'", time="time", input="qq", output="position")
 
 
 @pytest.mark.parametrize(

@@ -55,6 +55,12 @@ def test_the_start_is_centred_and_given_values_win():
     assert float(lti_for_recordings(2, [rec], f_1=5.0).parameters()["f_1"]) == pytest.approx(5.0)
     four = lti_for_recordings(4, [rec]).parameters()  # two sections, half a decade either side of the centre
     assert math.sqrt(float(four["f_1"]) * float(four["f_2"])) == pytest.approx(f0, rel=0.1)
+    # `resolve_physics` takes one Recording as `fit` and `diagnose` do (it raised a TypeError).
+    one = hybrid.resolve_physics("lti:2", rec).parameters()["f_1"]
+    assert float(one) == float(hybrid.resolve_physics("lti:2", [rec]).parameters()["f_1"])
+    assert float(one) == pytest.approx(f0, rel=0.1)
+    with pytest.raises(hybrid.InputError, match="resolve_physics needs Recording objects"):
+        hybrid.resolve_physics("lti:2", {"v_in": u})
 
 
 @pytest.mark.parametrize("rate, f0", [(100_000.0, 800.0), (0.25, 0.01)])

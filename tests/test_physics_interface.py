@@ -165,3 +165,15 @@ def test_generic_functions_need_a_simulation_and_the_front_supplies_the_papers()
     )
     with pytest.raises(InputError, match="needs a simulation"):
         diagnose_any(rec)
+
+
+@pytest.mark.parametrize(
+    "front, generic", [(hybrid.diagnose, diagnose_any), (hybrid.make_model, make_any_model)]
+)
+def test_the_fronts_show_every_argument_of_the_generic_function(front, generic):
+    """`help(hybrid.diagnose)` listed ``**options``: a user could not see ``effects=`` or ``settings=``."""
+    import inspect
+
+    mine, theirs = inspect.signature(front).parameters, inspect.signature(generic).parameters
+    assert list(mine) == list(theirs)
+    assert all(p.kind is theirs[name].kind and p.default == theirs[name].default for name, p in mine.items())

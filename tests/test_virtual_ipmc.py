@@ -6,7 +6,6 @@ Tolerances are stated per test; everything runs in numpy float64.
 import dataclasses
 import json
 import math
-import time
 
 import numpy as np
 import pytest
@@ -284,12 +283,9 @@ def test_noise_std_and_seeded_determinism():
     assert np.abs(pix.w - a.w).max() <= 0.025 + 1e-12
 
 
-def test_recording_shape_metadata_and_speed():
+def test_recording_shape_and_metadata():
     t, v = _drive(300.0)
-    start = time.perf_counter()
     rec = simulate_virtual_ipmc(t + 12.5, v)
-    elapsed = time.perf_counter() - start
-    assert elapsed < 10.0  # ~0.5 s on 2 cores; only a gross regression fails here
     assert isinstance(rec, VirtualRecording)
     np.testing.assert_array_equal(rec.t, t + 12.5)
     for arr in (rec.v_in, rec.w, rec.w_true):

@@ -324,11 +324,12 @@ def unknown_name(
     shown = ", ".join(names[:_SHOW_NAMES]) or "none"
     if len(names) > _SHOW_NAMES:
         shown += f", ... ({len(names)} in all)"
-    same = [n for n in names if n.lower() == name.lower()]
-    field = [n for n in names if n.rsplit(".", 1)[-1].lower() == name.lower()]  # a struct's field, data.u
-    close = same or field[:1] or difflib.get_close_matches(name, list(names), n=1)
+    close = likely_names(name, names)[:1]
     hint = f"; did you mean '{close[0]}'?" if close else ""
-    example = close[0] if close else (names[0] if names else "NAME")
+    # Without a likely name, the column a lab's file usually has in that place (time first, drive
+    # second, output last), not the first column whatever the role: that is the time as a rule.
+    usual = {"t": 0, "v_in": min(1, len(names) - 1), "w": -1}[role] if names else None
+    example = close[0] if close else (names[usual] if usual is not None else "NAME")
     option = OPTION[role]
     flag = (
         f"--columns {option}={prefix}{example}"
@@ -339,6 +340,23 @@ def unknown_name(
         f"recording '{path}' has no {kind} '{name}' for the {option} (its {kind}s: "
         f"{shown}): give one of those names exactly (names are case-sensitive{hint}), e.g. {flag}"
     )
+
+
+def likely_names(name: str, names: Sequence[str]) -> list[str]:
+    """The names of `names` a user most likely meant by `name`, best first (none may be).
+
+    The same name in another case; a struct's field (``data.u`` for ``u``); a
+    name that begins with it or holds it, in any case (``position`` for
+    ``pos``); else one within `difflib`'s default similarity.
+    """
+    low = name.lower()
+    same = [n for n in names if n.lower() == low]
+    field = [n for n in names if n.rsplit(".", 1)[-1].lower() == low]  # a struct's field, data.u
+    starts = [n for n in names if low and n.lower().startswith(low)]
+    holds = [n for n in names if low and low in n.lower()]
+    lowered = {n.lower(): n for n in names}
+    similar = [lowered[n] for n in difflib.get_close_matches(low, list(lowered), n=1)]
+    return list(dict.fromkeys(same + field + starts + holds + similar))
 
 
 def only_column(path: pathlib.Path, suffix: str, role: str, reference: str) -> np.ndarray:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from ..core._models import make_model as make_any_model
 from ..discovery._diagnose import diagnose as diagnose_any
+from ..discovery._diagnosis import DiagnoseSettings
 from ..physics._plugins import ZOH_C_CLAMP, resolve_physics
 from ..physics._rc_network import RCNetwork
 
@@ -18,17 +19,19 @@ from ..physics._rc_network import RCNetwork
 DIAGNOSE_C_CLAMP = ZOH_C_CLAMP
 
 
-def make_model(kind="hybrid", *, simulation=None, **options):
+def make_model(
+    kind="hybrid", *, simulation=None, window: int = 60, depth: int = 11, width: int = 10, key=None
+):
     """The paper's Hybrid, Normal or physics-only model (Fig. 2).
 
-    As `hybrid.core._models.make_model`, whose arguments (`window`, `depth`,
-    `width`, `key`) it passes on, with `simulation` defaulting to the paper's
-    [`RCNetwork`][hybrid.RCNetwork] with its default parameters (Tustin
-    sections). The Normal model has no simulation.
+    As `hybrid.core._models.make_model` (every argument is described there),
+    with `simulation` defaulting to the paper's [`RCNetwork`][hybrid.RCNetwork]
+    with its default parameters (Tustin sections). The Normal model has no
+    simulation.
     """
     if simulation is None and kind != "normal":
         simulation = RCNetwork()
-    return make_any_model(kind, simulation=simulation, **options)
+    return make_any_model(kind, simulation=simulation, window=window, depth=depth, width=width, key=key)
 
 
 def diagnose_simulation() -> RCNetwork:
@@ -38,11 +41,19 @@ def diagnose_simulation() -> RCNetwork:
     return network
 
 
-def diagnose(recordings, *, simulation=None, **options):
+def diagnose(
+    recordings,
+    *,
+    simulation=None,
+    effects=None,
+    hybrid: bool = False,
+    settings: DiagnoseSettings = DiagnoseSettings(),
+    hybrid_max_steps: int = 150,
+    progress: bool = False,
+):
     """What the simulation gets wrong on `recordings`, which effect causes it, and the gain.
 
-    As `hybrid.discovery._diagnose.diagnose`, whose arguments (`hybrid`,
-    `settings`, `hybrid_max_steps`, `progress`) it passes on, with `simulation`
+    As `hybrid.discovery._diagnose.diagnose` (every argument is described there), with `simulation`
     defaulting to the paper's [`RCNetwork`][hybrid.RCNetwork] discretised
     exactly (``method="zoh"``: the drive is held between samples), starting
     from `DIAGNOSE_C_CLAMP` (the first point of the screened design). Returns a
@@ -50,4 +61,12 @@ def diagnose(recordings, *, simulation=None, **options):
     """
     if simulation is None:
         simulation = diagnose_simulation()
-    return diagnose_any(recordings, simulation=simulation, **options)
+    return diagnose_any(
+        recordings,
+        simulation=simulation,
+        effects=effects,
+        hybrid=hybrid,
+        settings=settings,
+        hybrid_max_steps=hybrid_max_steps,
+        progress=progress,
+    )

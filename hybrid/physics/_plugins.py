@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core._arguments import as_recordings
 from ..core._simulation import AbstractSimulation
 from ..core._state_space import check_state_space, has_states
 from ..util._errors import InputError, PluginError
@@ -187,7 +188,8 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
     **Arguments:**
 
     - `spec`: as given to ``--physics`` (see the module docstring).
-    - `recordings`: the recordings it will be fitted to, or None. An ``lti:N``
+    - `recordings`: the recordings it will be fitted to (one `Recording` or
+      path, or a list of them), or None. An ``lti:N``
       then starts with its time scales centred on theirs
       (`hybrid.physics._lti_start`); every other physics ignores them.
 
@@ -197,6 +199,10 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
     """
     if not isinstance(spec, str) or not spec.strip():
         raise InputError(f"--physics needs one of {FORMS}, got {spec!r}")
+    if isinstance(recordings, (list, tuple)) and not recordings:
+        recordings = None
+    elif recordings is not None:  # one Recording or path, or several, as `fit` and `diagnose` take them
+        recordings = as_recordings(recordings, "resolve_physics")
     text = spec.strip()
     lowered = text.lower()
     if lowered == "rc":
