@@ -120,6 +120,11 @@ def test_warnings_name_implausible_unmoved_and_stuck_fits():
     stuck = make_model("physics", simulation=start.simulation.replace(alpha_E=0.999))
     warnings = fit_warnings(stuck, stuck, {"xi_h"}, {"accepted_steps": 0})
     assert "made no accepted step" in warnings[0] and len(warnings) == 2 and "alpha_E = 0.999" in warnings[1]
+    # steps accepted but the validation loss least at the start (a drift on lti:2 of a user's data): one
+    # warning that says the start was kept and why, not "the data may not constrain" each parameter
+    warnings = fit_warnings(start, start, {"xi_h"}, {"accepted_steps": 6, "best_step": 0})
+    assert len(warnings) == 1 and "the fit kept its start: its 6 accepted steps" in warnings[0]
+    assert "validation part" in warnings[0] and "did not move" not in warnings[0]
 
 
 def test_fit_reports_warnings_in_summary_and_json(recording):

@@ -112,10 +112,21 @@ def fit_warnings(
             "data may not constrain the model, or the fit failed: check the recording's columns "
             "and units, or try other starts)"
         )
+    # Steps were accepted (the training cost fell) but the validation loss was least at the start:
+    # the kept iterate is the start (`best_theta`), and every parameter "did not move".
+    kept_start = not no_step and start_record.get("best_step") == 0
+    if kept_start and free:
+        warnings.append(
+            f"the fit kept its start: its {start_record.get('accepted_steps')} accepted steps lowered the "
+            "training cost but never the loss on the validation part, so every parameter is at its start "
+            "value (early stopping). The validation part behaves otherwise than the training part: a "
+            "drift, or an effect the model lacks (hybrid diagnose names it), or conditions only one part "
+            "holds (move the parts: --split, or fit(..., blocks=3))"
+        )
     for name in free:
         value, initial = after[name], before[name]
         unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
-        if not no_step and abs(value - initial) <= UNMOVED_RTOL * abs(initial):
+        if not no_step and not kept_start and abs(value - initial) <= UNMOVED_RTOL * abs(initial):
             warnings.append(
                 f"{name} = {value:.6g}{unit} did not move from its start value: the data may not "
                 "constrain it, or the fit failed"
