@@ -125,6 +125,10 @@ def test_warnings_name_implausible_unmoved_and_stuck_fits():
     warnings = fit_warnings(start, start, {"xi_h"}, {"accepted_steps": 6, "best_step": 0})
     assert len(warnings) == 1 and "the fit kept its start: its 6 accepted steps" in warnings[0]
     assert "validation part" in warnings[0] and "did not move" not in warnings[0]
+    # a physics fit on too few training samples for its parameters (40 samples, 12 in training)
+    few = fit_warnings(start, fitted, {"xi_h"}, record, n_train=12)
+    assert "only 12 training samples for 7 fitted parameters" in few[-1] and "70 here" in few[-1]
+    assert not any("training samples" in w for w in fit_warnings(start, fitted, {"xi_h"}, record, n_train=70))
 
 
 def test_fit_reports_warnings_in_summary_and_json(recording):

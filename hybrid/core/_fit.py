@@ -235,6 +235,7 @@ def fit(
             frozen,
             per_start[best_start],
             result_metrics.get("train", {}).get("nmse_variance"),
+            int(problem.target("train").shape[0]),
         ),
         stopped=stopped,
     )

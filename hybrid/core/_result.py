@@ -85,10 +85,17 @@ class FitResult:
 UNMOVED_RTOL = 1e-6
 #: A fit that leaves at least this share of the training part's variance (NMSE) may be on a plateau.
 POOR_TRAIN_NMSE = 0.5
+#: A physics fit with fewer training samples than this many per fitted parameter is warned about.
+SAMPLES_PER_PARAMETER = 10
 
 
 def fit_warnings(
-    start: Model, fitted: Model, frozen, start_record: dict[str, Any], train_nmse: float | None = None
+    start: Model,
+    fitted: Model,
+    frozen,
+    start_record: dict[str, Any],
+    train_nmse: float | None = None,
+    n_train: int | None = None,
 ) -> list[str]:
     """What about a fit should not be taken at face value (see `FitResult.warnings`).
 
@@ -99,6 +106,9 @@ def fit_warnings(
     - `frozen`: names kept fixed (never warned about as unmoved).
     - `start_record`: the kept start's entry of `FitResult.starts`.
     - `train_nmse`: the fit's NMSE on the training part (MSE / variance), if known.
+    - `n_train`: the training samples, if known: a physics fit with fewer than
+      `SAMPLES_PER_PARAMETER` per fitted parameter is warned about (a Hybrid's
+      network is held by weight decay and validation instead).
     """
     warnings = []
     units = fitted.units
@@ -131,6 +141,13 @@ def fit_warnings(
                 f"{name} = {value:.6g}{unit} did not move from its start value: the data may not "
                 "constrain it, or the fit failed"
             )
+    n_fitted = len(free) + len([k for k in fitted.readout.parameters() if k not in frozen])
+    if n_train is not None and fitted.kind == "physics" and n_train < SAMPLES_PER_PARAMETER * n_fitted:
+        warnings.append(
+            f"only {n_train} training samples for {n_fitted} fitted parameters: the fit can follow the "
+            f"noise and its test score says little; record longer (at least {SAMPLES_PER_PARAMETER} "
+            f"training samples per parameter: {SAMPLES_PER_PARAMETER * n_fitted} here)"
+        )
     if train_nmse is not None and train_nmse >= POOR_TRAIN_NMSE and fitted.simulation.typical_ranges():
         warnings.append(
             f"the fit leaves {100 * min(train_nmse, 9.99):.0f} % of the training part's variance: LM may have "
