@@ -128,3 +128,63 @@ def test_a_dropped_cause_is_reported_and_not_among_the_causes():
     assert any(
         line.startswith("**Dropped.** saturation, named at step 1") for line in stepwise_section(report)
     )
+
+
+def _drifting_oscillator(seed: int = 0) -> hybrid.Recording:
+    """A 1.5 Hz mass-spring (ζ 0.3, 5 mm/V; scipy's exact ZOH) under random levels, a sensor drift added."""
+    from scipy.signal import cont2discrete, dlsim, tf2ss
+
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(-2.0, 2.0, N // 20), 20)
+    w0 = 2 * np.pi * 1.5
+    a, b, c, d, _ = cont2discrete(tf2ss([5.0 * w0**2], [1.0, 2 * 0.3 * w0, w0**2]), 1 / RATE, method="zoh")
+    y = dlsim((a, b, c, d, 1 / RATE), u)[1][:, 0]
+    t = np.arange(N) / RATE
+    y = y + 3.0 * np.sin(2 * np.pi * t / 90.0 + 0.5)  # 3 mm over 90 s: a warming sensor
+    y = y + 0.01 * np.std(y) * np.random.default_rng(seed + 1).normal(size=N)
+    return hybrid.Recording.from_arrays(v_in=u, w=y, rate=RATE)
+
+
+def test_a_cause_that_holds_the_simulations_own_mode_is_dropped_once_the_mode_is_found_again():
+    """`lti:2`'s effect-free fit modelled a drift with its mode (f₁ 0.03 Hz, ζ 36), `resonance` then
+    carried the real mode and `baseline_drift` was named beside it (a user's record): from the final
+    model's end point, LM without `resonance` stays degenerate and `resonance` was kept. The refit's
+    lane that starts the simulation at the values the search began from finds the mode and drops it.
+    """
+    recording = _drifting_oscillator()
+    effects = ["resonance", "baseline_drift"]
+    given = hybrid.resolve_physics("lti:2", recording)  # centred on the data's 1.5 Hz
+    search = prepare_search([recording], given, hybrid.DiagnoseSettings(), effects)
+    problem, model = search.problem, search.model
+    active = np.ones(len(effects) + 1)
+    start = model.simulation.with_active(active).replace(
+        f_1=0.0317, zeta_1=35.7, bandpass_1=2.39, resonance_frequency_hz=1.5, resonance_damping=0.3
+    )
+    theta = initial_thetas(problem, [start], model.readout, search.frozen)[0]
+    n_rows = int(problem.sim_tangents.shape[0])
+    tangents = lane_tangents(model, search.frozen, tuple(effects), n_rows)
+    states = fit_lanes(
+        problem,
+        np.tile(active, (search.n_lanes, 1)),
+        np.stack([tangents] * search.n_lanes),
+        jnp.stack([theta] + [padding_lane(theta)] * (search.n_lanes - 1)),
+        search.lm,
+        search.settings.patience,
+    )
+    final = evaluate_candidate(
+        problem,
+        states.best_theta[0],
+        active,
+        "baseline_drift",
+        search.n_train,
+        len(free_names(model, search.frozen, tuple(effects))),
+        search.settings.materiality,
+        search.frozen,
+        ("resonance",),
+    )
+    inner = problem.model(jnp.asarray(final.theta)).simulation.inner.parameters()
+    assert float(inner["f_1"]) < 0.5  # the final model's own mode stayed degenerate
+    kept, refit, dropped = drop_redundant(search, final, ("resonance", "baseline_drift"))
+    assert kept == ("baseline_drift",) and [d.name for d in dropped] == ["resonance"]
+    found = problem.model(jnp.asarray(refit.theta)).simulation.inner.parameters()
+    assert float(found["f_1"]) == pytest.approx(1.5, rel=0.02)  # the mode, found again

@@ -298,7 +298,7 @@ def diagnose(
     extended = current if present else steps[0].current
     # `present` stays the search's history (step k named present[k - 1]); `kept`, the causes the
     # final model needs once each is weighed as if named last.
-    kept, extended, dropped = drop_redundant(search, extended, present)
+    kept, extended, dropped = drop_redundant(search, extended, present, steps[0].current)
     cause = kept[0] if kept else "none"
     names = [r.name for r in recordings]
     start = start_misfit(problem, extended.theta, extended.active, names, isinstance(simulation, HeldStart))

@@ -13,19 +13,29 @@ over the model without it) is dropped, the refit becomes the final model, and
 the check runs again while two or more causes remain. This is the backward
 half of stepwise regression (Efroymson's forward selection with backward
 elimination). A refit that lands in a worse local minimum can only keep a
-cause: the check errs towards the forward search's answer.
+cause: the check errs towards the forward search's answer. So each refit has
+two more lanes, the other causes at their final values and the inner
+simulation at the effect-free baseline's fit, and at the values the search
+started from (the simulation as given: an `lti:N` centred on the data's time
+scale). An early cause can take over what the simulation's own dynamics did
+and leave them degenerate, and from the final model's end point LM does not
+find them again without the cause that holds them: on a user's mass-spring
+record with a sensor drift, `lti:2`'s baseline modelled the drift (f₁ 0.03 Hz,
+ζ 36), `resonance` then carried the real 1.53 Hz mode, and `baseline_drift`
+named beside it could not make `resonance` redundant from there.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from ._decision import evaluate_candidate, materiality_of
 from ._diagnosis import Candidate, EquallyGoodFits
-from ._search import fit_lanes, lane_tangents, padding_lane
+from ._search import finite_theta, fit_lanes, lane_tangents, padding_lane
 from ._step import weigh
 
 #: No effect-free fits to set a bar: the check weighs the final model against the refit alone.
@@ -50,11 +60,12 @@ class Dropped:
         return {"name": self.name, "step": self.step, "gain": self.gain, "reasons": list(self.reasons)}
 
 
-def drop_redundant(search, final: Candidate, present: tuple[str, ...]):
+def drop_redundant(search, final: Candidate, present: tuple[str, ...], baseline: Candidate | None = None):
     """(kept causes, the final model, `Dropped` entries): `present` less the causes `final` does not need.
 
     `search`: the `Search` every step shared; `final`: the model with every
-    cause of `present` on (the last step's chosen candidate).
+    cause of `present` on (the last step's chosen candidate); `baseline`: the
+    effect-free model, whose simulation starts one more lane of each refit.
     """
     s, settings = search, search.settings
     names = [e.name for e in s.effects]
@@ -64,13 +75,21 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...]):
         problem = s.problem_for(*(tuple(c for c in kept if c != cause) for cause in kept))
         assert problem.sim_tangents is not None  # a search problem always has its directions
         n_rows = int(problem.sim_tangents.shape[0])
-        thetas, actives, tangents = [], [], []
-        for cause in kept:
+        thetas, actives, tangents, owner = [], [], [], []
+        for k, cause in enumerate(kept):
             active = np.asarray(final.active, float).copy()
             active[names.index(cause)] = 0.0
-            thetas.append(jnp.asarray(final.theta))
-            actives.append(active)
-            tangents.append(lane_tangents(s.model, s.frozen, tuple(c for c in kept if c != cause), n_rows))
+            lane = lane_tangents(s.model, s.frozen, tuple(c for c in kept if c != cause), n_rows)
+            starts = [jnp.asarray(final.theta)]
+            inners = [problem.model(jnp.asarray(baseline.theta)).simulation.inner] if baseline else []
+            for inner in inners + [s.model.simulation.inner]:  # the baseline's fit; the given start
+                again = _with_inner(problem, final, inner, active, s.frozen)
+                starts += [again] if again is not None else []
+            for theta in starts:
+                thetas.append(theta)
+                actives.append(active)
+                tangents.append(lane)
+                owner.append(k)
         while len(thetas) < s.n_lanes:  # the search's lane count: its compiled program
             thetas.append(padding_lane(final.theta))
             actives.append(actives[0])
@@ -84,8 +103,11 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...]):
             s.lm,
             settings.patience,
         )
+        vals = np.asarray(states.best_val)
         weakest = None
-        for j, cause in enumerate(kept):
+        for k, cause in enumerate(kept):
+            lanes = [j for j, o in enumerate(owner) if o == k]
+            j = min(lanes, key=lambda j: vals[j] if np.isfinite(vals[j]) else np.inf)  # the better refit
             rest = tuple(c for c in kept if c != cause)
             without = evaluate_candidate(
                 problem,
@@ -104,13 +126,23 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...]):
             )
             weigh([with_it], without, _NO_BAR, settings)
             if not with_it.eligible and (weakest is None or with_it.gain < weakest[1].gain):
-                weakest = (j, with_it, without)
+                weakest = (j, with_it, without, cause)
         if weakest is None:
             break
-        j, with_it, without = weakest
-        cause = kept[j]
+        j, with_it, without, cause = weakest
         dropped.append(Dropped(cause, present.index(cause) + 1, with_it.gain, tuple(with_it.reasons)))
         without.reasons.append(f"refitted without {cause}, which the other causes made redundant")
         without.validation_loss = float(np.asarray(states.best_val)[j])
         kept, final = tuple(c for c in kept if c != cause), without
     return kept, final, dropped
+
+
+def _with_inner(problem, final: Candidate, inner, active, frozen):
+    """θ of `final` with `active`'s switches and `inner` as its simulation, or None.
+
+    The effects keep their final values; gain and offset are refitted by least
+    squares (`finite_theta`). None where that model's output is not finite.
+    """
+    model = problem.model(jnp.asarray(final.theta))
+    simulation = eqx.tree_at(lambda st: st.inner, model.simulation, inner).with_active(active)
+    return finite_theta(problem, simulation, model.readout, frozen)
