@@ -45,7 +45,10 @@ def add_design(sub, B) -> None:
         help="the drive's range instead of --amplitude, e.g. 0:10",
     )
     p.add_argument(
-        "--rate", type=B.number(*B.RATE, unit="Hz"), default=30.0, help="the rig's samples per second"
+        "--rate",
+        type=B.number(*B.RATE, unit="Hz"),
+        default=None,
+        help="the rig's samples per second (default: the diagnosed recording's rate)",
     )
     p.add_argument(
         "--slew",
@@ -152,6 +155,17 @@ def _rivals(folder: Path, step: int | None) -> tuple[dict | None, dict, float]:
     return entry, models, float(noise)
 
 
+def _diagnosed_rate(folder: Path) -> float:
+    """The sample rate (Hz) of the recording the diagnosis in `folder` was made on (``evidence.rate_hz``)."""
+    rate = (json.loads((folder / "report.json").read_text()).get("evidence") or {}).get("rate_hz")
+    if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
+        raise InputError(
+            f"{folder / 'report.json'}: no sample rate of the diagnosed recording in it (evidence.rate_hz); "
+            "give the rig's with --rate HZ"
+        )
+    return float(round(rate, 6))
+
+
 def cmd_design(args) -> None:
     from ._cli_outputs import check_outputs, out_file
     from .discovery._design import design_drive, rich_drive
@@ -168,6 +182,8 @@ def cmd_design(args) -> None:
         if args.physics is not None:  # a plug-in's classes imported before its models load
             resolve_physics(args.physics, [])
         entry, models, noise = _rivals(folder, args.step)
+        if args.rate is None:  # a drive for the rig that made the diagnosed recording: its rate
+            args.rate = _diagnosed_rate(folder)
         if entry is None:
             t, drive = rich_drive(
                 duration=args.duration, rate=args.rate, slew=args.slew, seed=args.seed, **limits

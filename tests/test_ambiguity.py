@@ -247,6 +247,22 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
         1 + 1e-9
     )
     assert (tmp_path / "x.png").stat().st_size > 0
+    # without --rate, the drive is for the rig that made the diagnosed recording: its rate, not 30 Hz
+    # (a 610 Hz Silverbox diagnosis got a 30 Hz drive); a report without that rate asks for --rate
+    report_50 = {**report, "ambiguous": [], "unexplained": {"ratio_to_floor": 3.0}}
+    report_50["evidence"] = {**report["evidence"], "rate_hz": 50.0}
+    (plain / "report.json").write_text(json.dumps(report_50))
+    done = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "r.csv")
+    assert done.returncode == 0 and "250 samples at 50 Hz" in done.stdout, done.stderr + done.stdout
+    t = np.loadtxt(tmp_path / "r.csv", delimiter=",", skiprows=1)[:, 0]
+    np.testing.assert_allclose(np.diff(t), 0.02, rtol=1e-6)
+    report_50["evidence"] = {k: v for k, v in report["evidence"].items() if k != "rate_hz"}
+    (plain / "report.json").write_text(json.dumps(report_50))
+    norate = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "n.csv")
+    assert norate.returncode == 2 and "--rate HZ" in norate.stderr and not (tmp_path / "n.csv").exists()
+    (plain / "report.json").write_text(
+        json.dumps({**report, "ambiguous": [], "unexplained": {"ratio_to_floor": 3.0}})
+    )
     # ... but a step asked for by number, where no step is ambiguous: one line that says so, no file
     stepped = h.run_hybrid(
         tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--step", "1", "--out", "s.csv"
