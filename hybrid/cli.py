@@ -127,7 +127,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="start from the best --starts of N points (e.g. 512) screened over the physics' typical "
         "ranges, one simulation each, not from its default or --param values (default 0: from them)",
     )
-    p.add_argument("--max-steps", type=B.integer(*B.MAX_STEPS), default=200)
+    p.add_argument(
+        "--max-steps",
+        type=B.integer(0, B.MAX_STEPS[1]),
+        default=200,
+        help="most LM steps per start (default 200); 0 with --start-from and --test scores the saved "
+        "model on the test records as it is, nothing fitted or written but --json",
+    )
     p.add_argument(
         "--freeze",
         action="append",
@@ -396,6 +402,13 @@ def _cmd_fit(args):
                 else "the normal model has none"
             )
         )
+    if args.max_steps == 0 and (args.start_from is None or not args.test):
+        raise InputError(
+            "--max-steps 0 scores a saved model as it is: give it with --start-from MODEL.eqx and the "
+            "records to score with --test FILE (e.g. --initial-samples N, the benchmark's rule)"
+        )
+    if args.max_steps == 0 and (args.screen or args.starts > 1):
+        raise InputError("--max-steps 0 scores the saved model as it is: --screen and --starts choose starts")
     if args.start_from is not None and (args.param or args.settle is not None):
         flag = "--param" if args.param else "--settle"
         raise InputError(f"{flag} sets how the fit starts; with --start-from that comes from the saved model")
@@ -438,6 +451,14 @@ def _cmd_fit(args):
     )  # an unknown name is refused, not ignored
     frozen |= set(model.simulation.frozen_by_default) - set(args.free)  # the RC network's xi_h
     tests = load_tests(args, recordings, model.readout.window)  # --test: refused before fitting, not after
+    if args.max_steps == 0:  # the saved model scored as it is: no readout re-initialised, no step
+        with lock:
+            scores = {"test": score_tests(model, tests, args.initial_samples)}
+            print(f"scored {args.start_from} as saved (--max-steps 0: nothing fitted, nothing saved)")
+            print_scores(scores["test"])
+            if args.json:
+                write_text(args.json, json.dumps({"model": str(args.start_from), **scores}, indent=2) + "\n")
+        return
     with lock:
         with FitStop(args.time_limit) as stop:  # SIGINT, SIGTERM, --time-limit: stop between steps
             result = fit(

@@ -124,6 +124,27 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
     saved = json.loads(Path(f"{model}.json").read_text())["extra"]
     assert saved["test"] == data["test"] and "metrics" in saved
 
+    # --max-steps 0 scores the saved model as it is: the same score, the model file untouched
+    before = model.read_bytes()
+    again = tmp_path / "again.json"
+    args = ["fit", str(path), "--columns", "input=uEst,output=yEst", "--units", "w=cm", "--physics", "lti:2"]
+    args += ["--start-from", str(model), "--max-steps", "0", "--quiet", "--test", str(path)]
+    args += [
+        "--test-columns",
+        "input=uVal,output=yVal",
+        "--json",
+        str(again),
+        "--out",
+        str(tmp_path / "n.eqx"),
+    ]
+    assert main(args + rule) == 0
+    (rescored,) = json.loads(again.read_text())["test"]
+    assert (
+        rescored["rmse"] == pytest.approx(score["rmse"], rel=1e-12)
+        and rescored["samples"] == score["samples"]
+    )
+    assert model.read_bytes() == before and not (tmp_path / "n.eqx").exists()
+
 
 @pytest.mark.parametrize(
     "extra,phrase",
@@ -138,6 +159,7 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
             "--initial-samples 400",
         ),
         (["--initial-samples", "4"], "give --test FILE"),
+        (["--max-steps", "0"], "--max-steps 0 scores a saved model as it is: give it with --start-from"),
     ],
 )
 def test_bad_test_records_exit_2_with_one_line_before_fitting(bench, tmp_path, capsys, extra, phrase):
