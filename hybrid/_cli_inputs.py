@@ -17,7 +17,7 @@ def add_mapping(p, B, rate: bool = True) -> None:
 
     `rate` False leaves --rate out, for a command that has its own (`hybrid sensitivity`).
     """
-    g = p.add_argument_group("files with other columns (hybrid.data._mapping)")
+    g = p.add_argument_group("files with other columns (hybrid.load_mapped; docs/command-line.md)")
     g.add_argument("--input", default=None, metavar="COLUMN", help="the drive's column (e.g. uEst)")
     g.add_argument(
         "--output", default=None, metavar="COLUMN", help="the measured output's column (e.g. yEst)"

@@ -97,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="virtual IPMC parameter (see hybrid.ipmc._virtual_ipmc.VirtualIPMCParameters)",
+        help="virtual IPMC parameter, NAME=VALUE (the fields of hybrid.ipmc.VirtualIPMCParameters; docs/virtual-ipmc.md)",
     )
     p.add_argument("--out", required=True, help="output .csv, .npz or .mat")
 

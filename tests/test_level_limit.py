@@ -58,6 +58,11 @@ def test_an_empty_tank_is_a_limit_at_the_bottom():
     assert found["bottom"]["flag"] and not found["top"]["flag"]
     assert found["bottom"]["level"] == pytest.approx(2.0, abs=1e-12)
     assert "flat at its smallest value (2)" in limit_sentence(found, len(w))
+    text = limit_sentence(found, len(w), "cm")  # the levels in w's unit, as the recording declares it
+    assert (
+        "flat at its smallest value (2 cm)" in text
+        and f"falls to {found['bottom']['model_extreme']:.4g} cm" in text
+    )
 
 
 @pytest.mark.parametrize(

@@ -122,16 +122,17 @@ def level_limits(parts: list[dict], floor_variance) -> dict:
     return out
 
 
-def limit_sentence(limits: dict, n_samples: int) -> str | None:
-    """The summary's clause for each flagged side, or None when neither is flagged."""
+def limit_sentence(limits: dict, n_samples: int, unit: str = "") -> str | None:
+    """The summary's clause for each flagged side, or None when neither is flagged; levels in `unit` (w's)."""
     clauses = []
+    unit = f" {unit}" if unit else ""
     for side, word, verb in (("top", "largest", "rises"), ("bottom", "smallest", "falls")):
         part = limits.get(side, {})
         if part.get("flag"):
             clauses.append(
-                f"the recording sits flat at its {word} value ({part['level']:.4g}) for {part['samples']} samples "
+                f"the recording sits flat at its {word} value ({part['level']:.4g}{unit}) for {part['samples']} samples "
                 f"({100 * part['samples'] / max(n_samples, 1):.1f} %, {part['runs']} run"
-                f"{'s' if part['runs'] > 1 else ''}) while the simulation {verb} to {part['model_extreme']:.4g} there: "
+                f"{'s' if part['runs'] > 1 else ''}) while the simulation {verb} to {part['model_extreme']:.4g}{unit} there: "
                 f"a one-sided limit of the level (an overflow, an end stop, the sensor's range) that the simulation "
                 f"lacks, seen in the measured output (the limited level may lie upstream of it)"
             )

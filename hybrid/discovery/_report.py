@@ -211,7 +211,7 @@ def noise_section(d: dict) -> list[str]:
     lines = [
         "## Noise floor and what remains",
         "",
-        f"Measurement noise of w, from the recording alone ({floor['method']}): σ = {_num(floor['std'])} "
+        f"Measurement noise of w, from the recording alone: σ = {_num(floor['std'])} "
         f"{d['units']['w']} "
         f"(variance {_num(floor['variance'])} ± {_num(floor['std_error'])}), "
         f"{format_nmse(floor['fraction_of_variance'])} of var(w). A perfect model leaves this much held out. "

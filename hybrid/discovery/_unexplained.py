@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from ..core._fit import recording_units
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
 from ._level_limit import level_limits, limit_sentence
 from ._noise_floor import NoiseFloor, noise_floor
@@ -118,7 +119,10 @@ def remainder(
     description = describe_remainder(train, held, rate, floor.variance)
     # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
     description["level_limit"] = level_limits([train, held], floor.variance)
-    clause = limit_sentence(description["level_limit"], len(train["w"]) + len(held["w"]))
+    units = recording_units(recordings)
+    clause = limit_sentence(
+        description["level_limit"], len(train["w"]) + len(held["w"]), units[0] if units else ""
+    )
     if clause:
         description["summary"] += f"; {clause}"
     hint = place_hint(description, places or {})
