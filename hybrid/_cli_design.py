@@ -236,7 +236,10 @@ def cmd_design(args) -> None:
         f"designed {len(design.v_in)} samples at {args.rate:g} Hz within [{low:g}, {high:g}]{slew}{kept}: "
         f"T = {design.criterion:.3g} ({design.pair[0]} vs {design.pair[1]}){versus}"
     )
-    print(separation(design.criterion, design.control_criterion, len(design.v_in)))
+    left = json.loads((folder / "report.json").read_text()).get("unexplained") or {}
+    excess = left.get("ratio_to_floor") if isinstance(left, dict) else None
+    excess = float(excess) if isinstance(excess, (int, float)) and math.isfinite(excess) else 1.0
+    print(separation(design.criterion, design.control_criterion, len(design.v_in), max(excess, 1.0)))
     print(f"wrote {out} and {figure}")
 
 
@@ -247,25 +250,36 @@ SEPARATES = 14.9
 LITTLE_GAIN = 1.2
 
 
-def separation(criterion: float, control: float, n: int) -> str:
+def separation(criterion: float, control: float, n: int, excess: float = 1.0) -> str:
     """One sentence: how surely a recording under the designed drive tells the rivals apart, against the PRBS.
 
     n·T is the non-centrality of the lack-of-fit test of one rival when the other is
     true (`hybrid.discovery._design`); a design barely better than the control is said to be.
+    T's σ is the noise floor. Where the diagnosis's final model leaves `excess` times
+    the floor's variance held out (`unexplained.ratio_to_floor`), what no rival
+    explains is noise to that test too: the verdict uses n·T / `excess`, and says so
+    (a Silverbox diagnosis 60× above its floor was told n·T = 2.6e9).
     """
     strength = n * criterion
+    shown = f"n·T = {strength:.3g}"
+    if excess > 1.0:
+        strength /= excess
+        shown += (
+            f" with the noise floor as σ, {strength:.3g} with the final model's held-out error ({excess:.3g}× the "
+            "floor's variance, which no rival explains)"
+        )
     if strength < SEPARATES:
         return (
-            f"n·T = {strength:.3g}: a recording under it would barely tell them apart (a χ² test at 1 % "
+            f"{shown}: a recording under it would barely tell them apart (a χ² test at 1 % "
             f"needs n·T ≈ {SEPARATES:g} to reject the wrong rival 9 times in 10); record longer, or give a "
             "wider --amplitude/--bounds: n·T grows with both"
         )
     if control > 0 and criterion < LITTLE_GAIN * control:
         return (
-            f"n·T = {strength:.3g}: either drive tells them apart; the design gains little over the multilevel "
+            f"{shown}: either drive tells them apart; the design gains little over the multilevel "
             "PRBS of the same length and range, which already separates them"
         )
-    return f"n·T = {strength:.3g}: a recording under it tells them apart (n·T ≫ {SEPARATES:g})"
+    return f"{shown}: a recording under it tells them apart (n·T ≫ {SEPARATES:g})"
 
 
 def _write(out: Path, figure: Path, t, drive, predictions: dict, title: str) -> None:
