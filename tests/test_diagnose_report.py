@@ -130,6 +130,16 @@ def test_not_pinned_names_the_branch_a_one_sided_signal_never_visits():
     reasons = not_pinned(u, model, [series])
     assert reasons == {"saturation_neg_curvature": "the signal it acts on never goes negative"}
 
+    # a value at a bound of its two-sided range: the bound sets it (the tanks' frame lag at 1 sample)
+    timed = hybrid.EffectStack(hybrid.LTI(1), ("saturation", hybrid.FrameTiming())).replace(frame_lag=0.9998)
+    u["frame_lag"] = ParameterUncertainty(std_error=float("inf"), unit="samples", inflation=1.0)
+    u["saturation_pos_curvature"] = ParameterUncertainty(std_error=0.5, unit="1/V", inflation=1.0)
+    reasons = not_pinned(u, hybrid.make_model("physics", simulation=timed), [series])
+    assert reasons["frame_lag"].startswith("it sits at its upper bound (1 samples): the fit pushed it there")
+    assert (
+        reasons["saturation_pos_curvature"] == "its standard error (0.5) is larger than its value"
+    )  # 0.3: no bound
+
 
 def test_no_report_key_names_a_unit_that_follows_the_signal():
     """Schema 3: an effect's unit follows its signal, so its keys name none (the renames are listed)."""

@@ -15,6 +15,7 @@ static dict of constraints with the same keys.
 from __future__ import annotations
 
 import abc
+import math
 
 import equinox as eqx
 import jax
@@ -39,6 +40,11 @@ class Constraint(eqx.Module):
     def describe(self) -> str:
         """The allowed range in words."""
 
+    @property
+    def bounds(self) -> tuple[float, float]:
+        """The open range (low, high) the physical value lies in (±inf where unbounded)."""
+        return (-math.inf, math.inf)
+
 
 class Positive(Constraint):
     """value = exp(raw) ∈ (0, ∞)."""
@@ -48,6 +54,10 @@ class Positive(Constraint):
 
     def to_raw(self, value):
         return jnp.log(value)
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (0.0, math.inf)
 
     def describe(self) -> str:
         return "positive"
@@ -65,6 +75,10 @@ class UnitInterval(Constraint):
     def to_raw(self, value):
         return jnp.log(value) - jnp.log1p(-value)
 
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (0.0, 1.0)
+
     def describe(self) -> str:
         return "strictly between 0 and 1"
 
@@ -81,6 +95,10 @@ class SignedUnitInterval(Constraint):
 
     def to_raw(self, value):
         return jnp.arctanh(value)
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (-1.0, 1.0)
 
     def describe(self) -> str:
         return "strictly between −1 and 1"

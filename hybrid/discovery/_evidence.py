@@ -103,9 +103,9 @@ def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, ser
         se, value = u.std_error, abs(values.get(name, float("nan")))
         if math.isfinite(se) and se <= value:
             continue
-        reason = None
+        reason = _at_bound(name, values.get(name, float("nan")), stack.constraints.get(name), stack.units)
         effect = owner.get(name)
-        if effect is not None:
+        if reason is None and effect is not None:
             if signals is None:
                 first = series[0]
                 signals = stack.signals_into(first.v_in, first.dt, n=first.n_recorded)
@@ -118,6 +118,33 @@ def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, ser
             )
         out[name] = reason
     return out
+
+
+#: A value within this fraction of its range of a bound sits at it.
+AT_BOUND = 1e-3
+
+
+def _at_bound(name: str, value: float, constraint, units: dict) -> str | None:
+    """Why a value that sits at a bound of its two-sided range is not pinned (the bound sets it), or None.
+
+    Only a range bounded on both sides has a scale to be near a bound on: a
+    positive capacitance of 1e-4 F is not "at 0".
+    """
+    if constraint is None or not math.isfinite(value):
+        return None
+    low, high = constraint.bounds
+    width = high - low
+    if not math.isfinite(width):
+        return None
+    unit = units.get(name, "1")
+    unit = f" {unit}" if unit and unit != "1" else ""
+    for bound, word in ((high, "upper"), (low, "lower")):
+        if math.isfinite(bound) and abs(value - bound) <= AT_BOUND * width:
+            return (
+                f"it sits at its {word} bound ({bound:g}{unit}): the fit pushed it there, so the bound, "
+                "not the recording, sets its value"
+            )
+    return None
 
 
 def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> dict:
