@@ -147,3 +147,15 @@ def test_fit_reports_warnings_in_summary_and_json(recording):
     assert all(f"warning: {w}" in summary for w in result.warnings)
     record = json.loads(json.dumps(result.to_dict()))
     assert record["warnings"] == result.warnings
+
+
+def test_a_unit_over_a_power_of_itself_is_cancelled():
+    """`stiffness_cube` on a simulation that outputs volts read "V/V^3" (Duffing's cubic: 1/V^2)."""
+    from hybrid.core._simulation import cancelled
+    from hybrid.discovery._inside_effects import PolynomialStiffness as Stiffness
+
+    assert Stiffness().units_for("V", "V")["stiffness_cube"] == "1/V^2"
+    assert Stiffness().units_for("mm", "V")["stiffness_square"] == "V/mm^2"  # different units stay
+    cases = {"V/V": "1", "V/V^2": "1/V", "(rad/s)/(rad/s)^3": "1/(rad/s)^2", "a.u./a.u.^3": "1/a.u.^2"}
+    for unit, expected in {**cases, "mm/V": "mm/V", "cm^3/(s V)": "cm^3/(s V)", "V/mV": "V/mV"}.items():
+        assert cancelled(unit) == expected, unit

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import re
 import warnings
 from typing import ClassVar, Self
 
@@ -233,8 +234,23 @@ def substitute_unit(template: str, placeholder: str, unit: str) -> str:
 
 
 def unit_in(unit: str, drive_unit: str = "V") -> str:
-    """`unit` (an `output_unit`, a state's unit) with ``"{drive}"`` replaced by `drive_unit`."""
-    return substitute_unit(unit, DRIVE, drive_unit)
+    """`unit` (an `output_unit`, a state's unit) with ``"{drive}"`` replaced by `drive_unit`, then `cancelled`."""
+    return cancelled(substitute_unit(unit, DRIVE, drive_unit))
+
+
+def cancelled(unit: str) -> str:
+    """`unit` with a factor over a power of itself cancelled: ``V/V^3`` → ``1/V^2``, ``mm/mm`` → ``1``.
+
+    Only a unit made of one symbol (or one bracketed unit) over a power of the
+    same: what an effect's ``{drive}/{signal}^3`` becomes when the drive and its
+    signal share a unit (a stiffness fed back on a simulation that outputs volts).
+    """
+    match = re.fullmatch(r"([^\s/^()]+|\([^()]*\))/\1(?:\^(\d+))?", unit)
+    if not match:
+        return unit
+    power = int(match.group(2) or 1) - 1
+    symbol = match.group(1)
+    return "1" if power == 0 else f"1/{symbol}" if power == 1 else f"1/{symbol}^{power}"
 
 
 class AbstractWrapper(AbstractSimulation):
