@@ -213,6 +213,7 @@ class StateLimit(AbstractEffect):
         size, need = derived.get("cut_percent_of_range", 0.0), thresholds["cut_percent_of_range"]
         at = derived.get("at_limit_percent", 0.0)
         return size >= need, (
-            f"the limit cuts {size:.1f} % off the {self.state}'s range, at it {at:.1f} % of the time "
+            f"the limit cuts {size:.1f} % off the range of state {self.state}, which sits at it {at:.1f} % of the "
+            "time "
             f"(needs a cut ≥ {need} %)"
         )
