@@ -44,15 +44,19 @@ def _recording(curvature: float, seed: int = 0) -> hybrid.Recording:
 def _both_named(recording):
     """The search, and the model with saturation and drift on, fitted by the search's own LM lanes."""
     search = prepare_search([recording], hybrid.LTI(1), hybrid.DiagnoseSettings(), EFFECTS)
-    problem, model = search.problem, search.model
-    active = np.ones(len(EFFECTS) + 1)  # both effects and the frame timing
     # tanh(κs)/κ is even in κ: no slope at κ = 0, so saturation starts bent (as its own starts do)
-    start = model.simulation.with_active(active).replace(
-        drift_rate_per_s=-0.005, saturation_pos_curvature=0.5, saturation_neg_curvature=0.5
-    )
+    values = dict(drift_rate_per_s=-0.005, saturation_pos_curvature=0.5, saturation_neg_curvature=0.5)
+    return search, _all_on(search, EFFECTS, values)
+
+
+def _all_on(search, effects, values):
+    """The model with every one of `effects` on (named in that order), fitted from `values` by one lane."""
+    problem, model = search.problem, search.model
+    active = np.ones(len(effects) + 1)  # the effects and the frame timing
+    start = model.simulation.with_active(active).replace(**values)
     theta = initial_thetas(problem, [start], model.readout, search.frozen)[0]
     n_rows = int(problem.sim_tangents.shape[0])
-    tangents = lane_tangents(model, search.frozen, tuple(EFFECTS), n_rows)
+    tangents = lane_tangents(model, search.frozen, tuple(effects), n_rows)
     lanes = [theta] + [padding_lane(theta)] * (search.n_lanes - 1)
     states = fit_lanes(
         problem,
@@ -62,18 +66,17 @@ def _both_named(recording):
         search.lm,
         search.settings.patience,
     )
-    final = evaluate_candidate(
+    return evaluate_candidate(
         problem,
         states.best_theta[0],
         active,
-        "drift",
+        effects[-1],
         search.n_train,
-        len(free_names(model, search.frozen, tuple(EFFECTS))),
+        len(free_names(model, search.frozen, tuple(effects))),
         search.settings.materiality,
         search.frozen,
-        ("saturation",),
+        tuple(effects[:-1]),
     )
-    return search, final
 
 
 def test_a_cause_the_other_makes_redundant_is_dropped_and_a_needed_one_kept():
@@ -155,33 +158,8 @@ def test_a_cause_that_holds_the_simulations_own_mode_is_dropped_once_the_mode_is
     effects = ["resonance", "baseline_drift"]
     given = hybrid.resolve_physics("lti:2", recording)  # centred on the data's 1.5 Hz
     search = prepare_search([recording], given, hybrid.DiagnoseSettings(), effects)
-    problem, model = search.problem, search.model
-    active = np.ones(len(effects) + 1)
-    start = model.simulation.with_active(active).replace(
-        f_1=0.0317, zeta_1=35.7, bandpass_1=2.39, resonance_frequency_hz=1.5, resonance_damping=0.3
-    )
-    theta = initial_thetas(problem, [start], model.readout, search.frozen)[0]
-    n_rows = int(problem.sim_tangents.shape[0])
-    tangents = lane_tangents(model, search.frozen, tuple(effects), n_rows)
-    states = fit_lanes(
-        problem,
-        np.tile(active, (search.n_lanes, 1)),
-        np.stack([tangents] * search.n_lanes),
-        jnp.stack([theta] + [padding_lane(theta)] * (search.n_lanes - 1)),
-        search.lm,
-        search.settings.patience,
-    )
-    final = evaluate_candidate(
-        problem,
-        states.best_theta[0],
-        active,
-        "baseline_drift",
-        search.n_train,
-        len(free_names(model, search.frozen, tuple(effects))),
-        search.settings.materiality,
-        search.frozen,
-        ("resonance",),
-    )
+    values = dict(f_1=0.0317, zeta_1=35.7, bandpass_1=2.39, resonance_frequency_hz=1.5, resonance_damping=0.3)
+    final, problem = _all_on(search, effects, values), search.problem
     inner = problem.model(jnp.asarray(final.theta)).simulation.inner.parameters()
     assert float(inner["f_1"]) < 0.5  # the final model's own mode stayed degenerate
     kept, refit, dropped = drop_redundant(search, final, ("resonance", "baseline_drift"))
