@@ -334,7 +334,7 @@ def unknown_name(
     flag = (
         f"--columns {option}={prefix}{example}"
         if prefix
-        else f"--{option} {example} (or {option}={example} in --columns)"
+        else f"--{option} {example} (or {option}={example} in --columns; in Python {option}={example!r})"
     )
     return (
         f"recording '{path}' has no {kind} '{name}' for the {option} (its {kind}s: "
