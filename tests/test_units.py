@@ -12,6 +12,7 @@ samples, default LM settings), so in one pytest process they share its compiled 
 """
 
 import json
+import re
 
 import helpers as h
 import jax.numpy as jnp
@@ -145,6 +146,10 @@ def test_fit_reports_warnings_in_summary_and_json(recording):
     assert any(w.startswith("C_clamp = ") and "outside its plausible range" in w for w in result.warnings)
     summary = result.summary()
     assert all(f"warning: {w}" in summary for w in result.warnings)
+    # a dimensionless parameter prints bare (it read "alpha_E  = 0.3 1"), a dimensioned one with its unit
+    assert re.search(r"^  alpha_E  = [-0-9.e+]+$", summary, re.M) and re.search(
+        r"^  C_clamp  = \S+ F$", summary, re.M
+    )
     record = json.loads(json.dumps(result.to_dict()))
     assert record["warnings"] == result.warnings
 

@@ -60,7 +60,8 @@ class FitResult:
                 f"Fitting {m['fitting']:6.2f} %"
             )
         for name, value in self.parameters.items():
-            lines.append(f"  {name:<8} = {value:.6g} {self.units.get(name, '')}".rstrip())
+            unit = self.units.get(name, "")
+            lines.append(f"  {name:<8} = {value:.6g} {'' if unit == '1' else unit}".rstrip())  # 1: no unit
         lines += [f"  warning: {text}" for text in self.warnings]
         return "\n".join(lines)
 
