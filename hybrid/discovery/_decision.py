@@ -99,10 +99,13 @@ def equally_good_fits(
     heldout = []
     for theta in thetas:
         w_hat = predictions(problem, jnp.asarray(off, float), jnp.asarray(theta))
-        if np.sum((w_train - problem.recorded(w_hat["train"], "train")) ** 2) <= limit:
-            heldout.append(
-                float(np.mean((w_test - problem.recorded(w_hat["test"], "test")) ** 2) / np.var(w_test))
-            )
+        # A fit that escaped (its prediction overflows the square: inf) is not as good: no warning for it.
+        with np.errstate(over="ignore", invalid="ignore"):
+            rss = np.sum((w_train - problem.recorded(w_hat["train"], "train")) ** 2)
+            if rss <= limit:
+                heldout.append(
+                    float(np.mean((w_test - problem.recorded(w_hat["test"], "test")) ** 2) / np.var(w_test))
+                )
     return EquallyGoodFits(
         n=len(heldout),
         heldout_nmse_min=min(heldout, default=float("nan")),
