@@ -326,7 +326,8 @@ def test_units_follow_the_drive_and_the_state():
     assert stack.units["h1_max"] == "cm"  # the state's unit
     assert stack.units["stiffness_cube"] == "V/cm^3"  # a force in the drive's unit per cube of h2 (cm)
     stack = EffectStack(MassSpringDamper(), [PolynomialStiffness()], drive_unit="kV")
-    assert stack.units["stiffness_square"] == "kV/kV^2"  # the oscillator's y is in the drive's unit
+    assert stack.units["stiffness_square"] == "1/kV"  # the oscillator's y is in the drive's unit: kV/kV^2
+    assert stack.units["stiffness_cube"] == "1/kV^2"
 
 
 def test_saved_stack_with_a_state_limit_round_trips():

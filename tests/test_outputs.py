@@ -405,7 +405,7 @@ def test_recording_load_without_w(tmp_path):
         ),
         (["fit", "REC", "--starts", "0"], "--starts: must be from 1"),
         (["fit", "REC", "--starts", "1e9"], "--starts: expected a whole number"),
-        (["fit", "REC", "--max-steps", "-3"], "--max-steps: must be from 1"),
+        (["fit", "REC", "--max-steps", "-3"], "--max-steps: must be from 0"),  # 0: score a saved model
         (["fit", "REC", "--window", "0"], "--window: must be from 1"),
         (["fit", "REC", "--depth", "100000"], "--depth: must be from 0 to 50"),
         (["fit", "REC", "--width", "0"], "--width: must be from 1 to 1000"),
