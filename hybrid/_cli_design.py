@@ -101,20 +101,25 @@ def _bounds(args) -> dict:
     return {"bounds": (low, high)}
 
 
-def _rivals(folder: Path, step: int | None) -> tuple[dict | None, dict, float]:
-    """(the chosen ``ambiguous`` entry, its rivals' models by name, the noise floor's σ) of a diagnosis folder.
+def _report(folder: Path) -> dict:
+    """The ``report.json`` of a diagnosis folder, read once."""
+    report_path = folder / "report.json"
+    if not report_path.is_file():
+        raise InputError(f"{folder}: no report.json; give the folder that hybrid diagnose --out wrote")
+    try:
+        return json.loads(report_path.read_text())
+    except (OSError, ValueError) as error:
+        raise InputError(f"{report_path}: not a readable report ({error})") from None
+
+
+def _rivals(folder: Path, report: dict, step: int | None) -> tuple[dict | None, dict, float]:
+    """(the chosen ``ambiguous`` entry, its rivals' models by name, the noise floor's σ) of a diagnosis.
 
     (None, {}, nan) where nothing is ambiguous but a remainder is unexplained: a rich drive's case.
     """
     from .core._serialise import load_model
 
     report_path = folder / "report.json"
-    if not report_path.is_file():
-        raise InputError(f"{folder}: no report.json; give the folder that hybrid diagnose --out wrote")
-    try:
-        report = json.loads(report_path.read_text())
-    except (OSError, ValueError) as error:
-        raise InputError(f"{report_path}: not a readable report ({error})") from None
     entries = report.get("ambiguous")
     if entries is None:
         raise InputError(
@@ -155,9 +160,9 @@ def _rivals(folder: Path, step: int | None) -> tuple[dict | None, dict, float]:
     return entry, models, float(noise)
 
 
-def _diagnosed_rate(folder: Path) -> float:
-    """The sample rate (Hz) of the recording the diagnosis in `folder` was made on (``evidence.rate_hz``)."""
-    rate = (json.loads((folder / "report.json").read_text()).get("evidence") or {}).get("rate_hz")
+def _diagnosed_rate(folder: Path, report: dict) -> float:
+    """The sample rate (Hz) of the recording the diagnosis was made on (``evidence.rate_hz``)."""
+    rate = (report.get("evidence") or {}).get("rate_hz")
     if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
         raise InputError(
             f"{folder / 'report.json'}: no sample rate of the diagnosed recording in it (evidence.rate_hz); "
@@ -181,9 +186,10 @@ def cmd_design(args) -> None:
     with lock:
         if args.physics is not None:  # a plug-in's classes imported before its models load
             resolve_physics(args.physics, [])
-        entry, models, noise = _rivals(folder, args.step)
+        report = _report(folder)
+        entry, models, noise = _rivals(folder, report, args.step)
         if args.rate is None:  # a drive for the rig that made the diagnosed recording: its rate
-            args.rate = _diagnosed_rate(folder)
+            args.rate = _diagnosed_rate(folder, report)
         if entry is None:
             t, drive = rich_drive(
                 duration=args.duration, rate=args.rate, slew=args.slew, seed=args.seed, **limits
@@ -236,7 +242,7 @@ def cmd_design(args) -> None:
         f"designed {len(design.v_in)} samples at {args.rate:g} Hz within [{low:g}, {high:g}]{slew}{kept}: "
         f"T = {design.criterion:.3g} ({design.pair[0]} vs {design.pair[1]}){versus}"
     )
-    left = json.loads((folder / "report.json").read_text()).get("unexplained") or {}
+    left = report.get("unexplained") or {}
     excess = left.get("ratio_to_floor") if isinstance(left, dict) else None
     excess = float(excess) if isinstance(excess, (int, float)) and math.isfinite(excess) else 1.0
     print(separation(design.criterion, design.control_criterion, len(design.v_in), max(excess, 1.0)))

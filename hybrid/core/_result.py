@@ -6,6 +6,7 @@ import dataclasses
 from typing import Any
 
 from ._models import Model
+from ._simulation import unit_suffix
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,8 +61,7 @@ class FitResult:
                 f"Fitting {m['fitting']:6.2f} %"
             )
         for name, value in self.parameters.items():
-            unit = self.units.get(name, "")
-            lines.append(f"  {name:<8} = {value:.6g} {'' if unit == '1' else unit}".rstrip())  # 1: no unit
+            lines.append(f"  {name:<8} = {value:.6g}{unit_suffix(self.units.get(name))}")
         lines += [f"  warning: {text}" for text in self.warnings]
         return "\n".join(lines)
 
@@ -136,7 +136,7 @@ def fit_warnings(
         )
     for name in free:
         value, initial = after[name], before[name]
-        unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
+        unit = unit_suffix(units.get(name))
         if not no_step and not kept_start and abs(value - initial) <= UNMOVED_RTOL * abs(initial):
             warnings.append(
                 f"{name} = {value:.6g}{unit} did not move from its start value: the data may not "
@@ -157,7 +157,7 @@ def fit_warnings(
         )
     for name, (low, high) in fitted.simulation.plausible.items():
         if name in free and not (low <= after[name] <= high):
-            unit = f" {units.get(name, '')}".rstrip() if units.get(name, "1") != "1" else ""
+            unit = unit_suffix(units.get(name))
             warnings.append(
                 f"{name} = {after[name]:.6g}{unit} is outside its plausible range {low:g} to "
                 f"{high:g}{unit}: check the recording's units and columns, or the value is not "

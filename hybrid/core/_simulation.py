@@ -238,6 +238,11 @@ def unit_in(unit: str, drive_unit: str = "V") -> str:
     return cancelled(substitute_unit(unit, DRIVE, drive_unit))
 
 
+def unit_suffix(unit: str | None) -> str:
+    """`` unit`` to print after a value, or ``""`` for none and for a dimensionless ``"1"``."""
+    return f" {unit}" if unit and unit != "1" else ""
+
+
 def cancelled(unit: str) -> str:
     """`unit` with a factor over a power of itself cancelled: ``V/V^3`` → ``1/V^2``, ``mm/mm`` → ``1``.
 

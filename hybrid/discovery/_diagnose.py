@@ -366,6 +366,7 @@ def diagnose(
         segment=np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)]),
     )
     say("noise floor and what lies above it")
+    signals = recording_units(recordings) or (PAPER_UNITS["w"], PAPER_UNITS["v_in"])  # (w's, the drive's)
     floor = pooled_noise_floor(recordings)
     places = searched_places(search.effects, simulation)
     unexplained = remainder(
@@ -379,6 +380,7 @@ def diagnose(
         rate,
         equally_good=steps[-1].equally_good,
         places=places,
+        w_unit=signals[0],
     )
     drives = [np.asarray(r.v_in, float) for r in recordings]
     rivals = ambiguities(
@@ -400,7 +402,6 @@ def diagnose(
                 rival_models[key] = fitted_model(problem, fitted.theta, (*before, name))
             files[name] = f"{key}.eqx"
         entry["models"] = files
-    signals = recording_units(recordings) or (PAPER_UNITS["w"], PAPER_UNITS["v_in"])  # (w's, the drive's)
     hybrid_report = None
     if hybrid:
         hybrid_report = hybrid_fits(

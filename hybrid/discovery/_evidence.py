@@ -17,6 +17,7 @@ import numpy as np
 
 from ..core._models import Model
 from ..core._problem import Problem
+from ..core._simulation import unit_suffix
 from . import residual_tests as rt
 from ._diagnosis import ParameterUncertainty
 from ._effect_stack import EffectStack
@@ -97,13 +98,14 @@ def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, ser
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     owner = {p: e for e in stack.effects for p in e.constraints}
+    constraints, units = stack.constraints, stack.units  # each built afresh when read
     signals: dict | None = None
     out = {}
     for name, u in uncertainties.items():
         se, value = u.std_error, abs(values.get(name, float("nan")))
         if math.isfinite(se) and se <= value:
             continue
-        reason = _at_bound(name, values.get(name, float("nan")), stack.constraints.get(name), stack.units)
+        reason = _at_bound(name, values.get(name, float("nan")), constraints.get(name), units)
         effect = owner.get(name)
         if reason is None and effect is not None:
             if signals is None:
@@ -136,8 +138,7 @@ def _at_bound(name: str, value: float, constraint, units: dict) -> str | None:
     width = high - low
     if not math.isfinite(width):
         return None
-    unit = units.get(name, "1")
-    unit = f" {unit}" if unit and unit != "1" else ""
+    unit = unit_suffix(units.get(name))
     for bound, word in ((high, "upper"), (low, "lower")):
         if math.isfinite(bound) and abs(value - bound) <= AT_BOUND * width:
             return (

@@ -76,14 +76,16 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...], baseline:
         assert problem.sim_tangents is not None  # a search problem always has its directions
         n_rows = int(problem.sim_tangents.shape[0])
         thetas, actives, tangents, owner = [], [], [], []
+        ended = problem.model(jnp.asarray(final.theta))
+        inners = [problem.model(jnp.asarray(baseline.theta)).simulation.inner] if baseline else []
+        inners.append(s.model.simulation.inner)  # the baseline's fit; the given start
         for k, cause in enumerate(kept):
             active = np.asarray(final.active, float).copy()
             active[names.index(cause)] = 0.0
             lane = lane_tangents(s.model, s.frozen, tuple(c for c in kept if c != cause), n_rows)
             starts = [jnp.asarray(final.theta)]
-            inners = [problem.model(jnp.asarray(baseline.theta)).simulation.inner] if baseline else []
-            for inner in inners + [s.model.simulation.inner]:  # the baseline's fit; the given start
-                again = _with_inner(problem, final, inner, active, s.frozen)
+            for inner in inners:
+                again = _with_inner(problem, ended, inner, active, s.frozen)
                 starts += [again] if again is not None else []
             for theta in starts:
                 thetas.append(theta)
@@ -137,12 +139,11 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...], baseline:
     return kept, final, dropped
 
 
-def _with_inner(problem, final: Candidate, inner, active, frozen):
-    """θ of `final` with `active`'s switches and `inner` as its simulation, or None.
+def _with_inner(problem, ended, inner, active, frozen):
+    """θ of the model `ended` (the final one) with `active`'s switches and `inner` as its simulation, or None.
 
     The effects keep their final values; gain and offset are refitted by least
     squares (`finite_theta`). None where that model's output is not finite.
     """
-    model = problem.model(jnp.asarray(final.theta))
-    simulation = eqx.tree_at(lambda st: st.inner, model.simulation, inner).with_active(active)
-    return finite_theta(problem, simulation, model.readout, frozen)
+    simulation = eqx.tree_at(lambda st: st.inner, ended.simulation, inner).with_active(active)
+    return finite_theta(problem, simulation, ended.readout, frozen)

@@ -26,7 +26,6 @@ import math
 
 import numpy as np
 
-from ..core._fit import recording_units
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
 from ._level_limit import level_limits, limit_sentence
 from ._noise_floor import NoiseFloor, noise_floor
@@ -94,11 +93,13 @@ def remainder(
     rate: float,
     equally_good: EquallyGoodFits | None = None,
     places: dict | None = None,
+    w_unit: str = "",
 ) -> dict | None:
     """None when `final`'s held-out error is consistent with the noise floor, else what lies above it.
 
     `heldout` is `Diagnosis.heldout` (its ``extended`` is `final`'s prediction); the
-    training part is predicted here only when there is something to describe.
+    training part is predicted here only when there is something to describe. `w_unit`
+    labels the levels a limit clause quotes (the report's unit of w).
     """
     from ._remainder import describe_remainder
 
@@ -119,10 +120,7 @@ def remainder(
     description = describe_remainder(train, held, rate, floor.variance)
     # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
     description["level_limit"] = level_limits([train, held], floor.variance)
-    units = recording_units(recordings)
-    clause = limit_sentence(
-        description["level_limit"], len(train["w"]) + len(held["w"]), units[0] if units else ""
-    )
+    clause = limit_sentence(description["level_limit"], len(train["w"]) + len(held["w"]), w_unit)
     if clause:
         description["summary"] += f"; {clause}"
     hint = place_hint(description, places or {})

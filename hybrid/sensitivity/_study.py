@@ -34,7 +34,7 @@ import numpy as np
 
 from ..core._models import Model
 from ..core._readout import LinearReadout
-from ..core._simulation import unit_in
+from ..core._simulation import unit_in, unit_suffix
 from ..util._atomic import write_text
 from ..util._errors import InputError
 from ..util._figures import save_png
@@ -208,7 +208,7 @@ def _markdown(result) -> str:
         rel = result["relative_std_error"][n]
         sens = result["rms_normalised_sensitivity"].get(n)
         unit = result["units"].get(n, "")
-        se_text = se if isinstance(se, str) else f"{se:.3g} {'' if unit == '1' else unit}".rstrip()
+        se_text = se if isinstance(se, str) else f"{se:.3g}{unit_suffix(unit)}"
         rel_text = "—" if rel is None else (rel if isinstance(rel, str) else f"{rel:.2e}")
         nominal = result["nominal"].get(n, 1.0 if n == "gain" else 0.0)
         lines.append(
