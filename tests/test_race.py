@@ -49,7 +49,7 @@ def test_each_effects_leaders_go_on_where_they_stopped_and_the_other_lanes_stay_
     tangents = np.arange(n, dtype=float)[:, None, None] * np.ones((n, 2, 3))
     lanes = [np.full(4, float(j)) for j in range(n)]
 
-    _step._race(search, object(), actives, tangents, lanes, labels)
+    _step.race(search, object(), actives, tangents, lanes, labels)
 
     assert [c["patience"] for c in calls] == [settings.race_patience, settings.patience]
     second = calls[1]
@@ -75,7 +75,7 @@ def test_race_patience_zero_runs_every_lane_to_the_full_patience(monkeypatch):
     monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
     settings = DiagnoseSettings(race_patience=0)
     search = SimpleNamespace(settings=settings, lm=LMSettings(), n_val=180, say=lambda message: None)
-    _step._race(search, object(), np.ones((2, 3)), np.ones((2, 2, 3)), [np.zeros(4)] * 2, ["a", "a"])
+    _step.race(search, object(), np.ones((2, 3)), np.ones((2, 2, 3)), [np.zeros(4)] * 2, ["a", "a"])
     assert patiences == [settings.patience]
 
 

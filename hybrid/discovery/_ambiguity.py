@@ -209,6 +209,10 @@ def ambiguities(
     out = []
     for k, step in enumerate(steps, 1):
         named = step.chosen
+        if getattr(
+            step, "joint_with", None
+        ):  # named with the next step's cause, on their joint fit: no lone rival
+            continue
         if named is None:
             if k == len(steps):
                 out.extend(_open_step(k, step, scale, noise_std, drives, rate, effects, open_remainder))

@@ -72,6 +72,7 @@ from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effect_set import resolve_effects, searched_places
 from ._effect_stack import EffectStack
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
+from ._joint import joint_pair, named_jointly
 from ._redundant import drop_redundant
 from ._search import (
     N_LANES,
@@ -286,11 +287,24 @@ def diagnose(
     )
     steps: list[Step] = []
     present: tuple[str, ...] = ()
+    alone: Step | None = None  # the first step's own answer, while a joint pair awaits its second step
+    extra, joint_tried = None, False
     while len(present) < min(settings.max_causes, len(effects)):
-        step = search_step(search, current, current_val, current_fits, present)
-        steps.append(step)
+        step = search_step(search, current, current_val, current_fits, present, extra)
+        extra = None
+        if alone is not None and step.cause != steps[-1].joint_with:  # the pair's second not confirmed
+            say(f"{steps[-1].joint_with} not confirmed beside {present[0]}: the first step's own answer")
+            steps, step, present = [], alone, ()
+        alone = None
         if not present:
             baseline = step.current  # refitted from a candidate's end point when that was better
+            if settings.max_causes >= 2 and not joint_tried:
+                joint_tried = True
+                pair = joint_pair(search, step)
+                if pair is not None:
+                    alone, step = step, named_jointly(step, pair)
+                    extra = {pair.second: [pair.theta]}
+        steps.append(step)
         if step.chosen is None:
             break
         present += (step.chosen.name,)

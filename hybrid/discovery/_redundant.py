@@ -39,7 +39,7 @@ from ._search import finite_theta, fit_lanes, lane_tangents, padding_lane
 from ._step import weigh
 
 #: No effect-free fits to set a bar: the check weighs the final model against the refit alone.
-_NO_BAR = EquallyGoodFits(
+NO_BAR = EquallyGoodFits(
     n=0, heldout_nmse_min=float("nan"), heldout_nmse_max=float("nan"), definition="(not used)"
 )
 
@@ -126,7 +126,7 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...], baseline:
             with_it.material, with_it.materiality = materiality_of(
                 problem, final.theta, final.active, cause, settings.materiality
             )
-            weigh([with_it], without, _NO_BAR, settings)
+            weigh([with_it], without, NO_BAR, settings)
             if not with_it.eligible and (weakest is None or with_it.gain < weakest[1].gain):
                 weakest = (j, with_it, without, cause)
         if weakest is None:

@@ -157,6 +157,8 @@ class Step:
     """The fits of `current` as good on training data; their least held-out error: a bar a gain must clear."""
     lanes: list[Lane]
     """Every lane of the step (not in report.json)."""
+    joint_with: str | None = None
+    """The effect `chosen` was named with, fitted jointly (`hybrid.discovery._joint`): the next step's cause."""
 
     @property
     def cause(self) -> str | None:
@@ -210,7 +212,7 @@ def _finite_lanes(problem, stack, starts, departures, readout, frozen) -> list:
     return lanes
 
 
-def _race(s: Search, problem, actives, tangents, lanes, labels):
+def race(s: Search, problem, actives, tangents, lanes, labels):
     """The lanes' final LM states: every lane to a short patience, then each effect's leaders on.
 
     Every lane runs until `race_patience` accepted steps bring no clearly better
@@ -246,9 +248,18 @@ def _race(s: Search, problem, actives, tangents, lanes, labels):
 
 
 def search_step(
-    search: Search, current: Candidate, current_val: float, current_fits: list, present: tuple[str, ...]
+    search: Search,
+    current: Candidate,
+    current_val: float,
+    current_fits: list,
+    present: tuple[str, ...],
+    extra: dict | None = None,
 ) -> Step:
-    """Every effect not in `present` added to `current` (which has exactly `present` switched on)."""
+    """Every effect not in `present` added to `current` (which has exactly `present` switched on).
+
+    `extra`: more lanes, θ (the search's layout) by effect name: a joint fit the
+    effect's lanes also start from (`hybrid.discovery._joint`).
+    """
     s, settings = search, search.settings
     effects = s.effects
     names = [e.name for e in effects]
@@ -341,6 +352,15 @@ def search_step(
             "effect's starts(context) must give as many starts whatever the data (see docs/effects.md)"
         )
     lanes = _finite_lanes(problem, stack, starts, departures, cur_model.readout, s.frozen)
+    for name, thetas in (extra or {}).items():
+        i = names.index(name)
+        active = active_cur.copy()
+        active[i] = 1.0
+        for theta in thetas[: max(n_lanes - len(lanes), 0)]:
+            lanes.append(jnp.asarray(theta))
+            actives.append(active)
+            labels.append(name)
+            tangents.append(lane_tangents(s.model, s.frozen, refitted(s, present, name) + (name,), n_rows))
     while len(lanes) < n_lanes:  # one lane count for every step: one compiled program
         lanes.append(padding_lane(theta_cur))  # stops at once: no LM steps spent on it
         actives.append(active_cur)
@@ -348,7 +368,7 @@ def search_step(
         tangents.append(cur_tangents)
     added = " + ".join(present) + " + " if present else ""
     s.say(f"{added}each of {len(set(labels) - {'none'})} effects, {len(labels)} lanes")
-    states = _race(s, problem, np.stack(actives), np.stack(tangents), lanes, labels)
+    states = race(s, problem, np.stack(actives), np.stack(tangents), lanes, labels)
     vals = np.asarray(states.best_val)
     cand_thetas = states.best_theta
 
