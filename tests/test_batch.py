@@ -5,6 +5,7 @@ The sharded run needs several devices, so it runs in a subprocess with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=4`` (CPU "devices").
 """
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -101,6 +102,26 @@ def test_hybrid_batch_in_chunks_equals_one_by_one():
         assert max(float(np.max(np.abs(a - b))) for a, b in zip(leaves_b, leaves_s)) < 1e-6
 
 
+def test_a_second_batch_of_the_same_shapes_compiles_nothing_and_near_rates_are_one_rate():
+    from hybrid.util._programs import compile_counter
+
+    start = make_model("physics", simulation=RCNetwork(n_stages=10))
+    options = dict(frozen={"xi_h"}, solver=LevenbergMarquardt(max_steps=10))
+    first = fit_batch(start, _strips(2), **options)
+    counter = compile_counter()
+    again = _strips(3)[1:]  # other data, the same shapes
+    # a time column stored with 6 decimals: the median step puts the rate 1e-5 off 30 Hz
+    rounded = dataclasses.replace(again[1], t=np.round(np.asarray(again[1].t) * 1.00001, 6))
+    assert rounded.rate != again[0].rate and rounded.n == again[0].n
+    second = fit_batch(start, [again[0], rounded], **options)
+    assert counter["programs"] == 0 and second.compile_seconds == 0.0  # the first call's program
+    assert first[1].parameters == pytest.approx(second[0].parameters, rel=1e-12)  # the same strip
+    with pytest.raises(InputError, match="one sample rate"):
+        fit_batch(
+            start, [again[0], dataclasses.replace(again[1], t=np.asarray(again[1].t) * 1.01)], **options
+        )
+
+
 def test_fit_batch_rejects_bad_input():
     recordings = _strips(2)
     start = make_model("physics", simulation=RCNetwork(n_stages=10))
@@ -176,3 +197,7 @@ def test_simulate_batch_equals_simulate_one_by_one():
     )
     with pytest.raises(InputError):
         simulate_batch([], v, 1 / 30)
+    with pytest.raises(InputError, match="one shape"):  # 12 stages and 10: no common batch
+        simulate_batch([nets[0], RCNetwork(n_stages=10)], v, 1 / 30)
+    with pytest.raises(InputError, match="one drive per simulation"):
+        simulate_batch(nets, drives[:3], 1 / 30)

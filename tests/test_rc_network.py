@@ -329,3 +329,22 @@ def test_only_the_xi_ratio_matters():
 def test_reference_response_rejects_unknown_hold():
     with pytest.raises(InputError):
         reference_response(RCNetwork(n_stages=2), np.ones(4), 0.1, hold="cubic")
+
+
+def test_gradients_and_vmap_through_physical_values_given_to_replace_and_the_constructor():
+    """A sensitivity study differentiates in physical units: replace(C_clamp=c) and LTI(2, f_1=f) traced."""
+    from hybrid import LTI
+
+    v = jnp.asarray(h.step_drive(300, seed=5))
+    by_replace = lambda c: jnp.sum(RCNetwork(n_stages=10).replace(C_clamp=c).simulate(v, 1 / 30) ** 2)
+    by_constructor = lambda f: jnp.sum(LTI(2, f_1=f, zeta_1=0.3).simulate(v, 1 / 30) ** 2)
+    for loss, x, step in ((by_replace, 0.02, 1e-8), (by_constructor, 1.3, 1e-6)):
+        fd = (float(loss(x + step)) - float(loss(x - step))) / (2 * step)
+        # central differences: truncation ~ step², rounding ~ 1e-16 · loss / step
+        assert float(jax.grad(loss)(x)) == pytest.approx(fd, rel=1e-6), loss
+    ends = jax.vmap(lambda f: LTI(2, f_1=f).simulate(v, 1 / 30)[-1])(jnp.array([1.0, 2.0]))
+    assert np.asarray(ends) == pytest.approx(
+        [float(LTI(2, f_1=f).simulate(v, 1 / 30)[-1]) for f in (1.0, 2.0)]
+    )
+    with pytest.raises(InputError, match="C_clamp must be positive"):  # a concrete value is still checked
+        RCNetwork().replace(C_clamp=-1.0)
