@@ -18,6 +18,7 @@ from helpers import hidden_recording
 from hybrid import diagnose
 from hybrid.discovery._ambiguity import ambiguities
 from hybrid.discovery._joint import JointPair, leaders, named_jointly
+from hybrid.discovery._report import stepwise_section
 from hybrid.ipmc._hidden_pairs import true_noise_variance
 
 
@@ -63,11 +64,16 @@ def test_a_jointly_named_first_cause_reports_what_it_adds_beside_the_other_and_h
         current=None, candidates=[a, b, drift], chosen=drift, chosen_val=0.3, chosen_fits=[], lanes=lanes
     )
     pair = JointPair(
-        first="a", second="b", theta=np.arange(3.0), gain=7.8, gains_over_alone={"a": 9.0, "b": 6.4}
+        first="a",
+        second="b",
+        theta=np.arange(3.0),
+        gain=7.8,
+        gains_over_alone={"a": 9.0, "b": 6.4},
+        delta_bics_over_alone={"a": -30.0, "b": -12.0},
     )
     named = named_jointly(step, pair)
     assert named.chosen.name == "a" and named.chosen.eligible and named.joint_with == "b"
-    assert named.chosen.gain == 6.4  # the joint fit over b alone: what a adds beside b
+    assert named.chosen.gain == 6.4 and named.chosen.delta_bic == -12.0  # over b alone: what a adds beside b
     assert named.chosen.reasons[0].startswith("named jointly with b: together they gain 7.80")
     assert named.chosen.reasons[1] == "alone: a failed"
     assert named.candidates[0] is named.chosen and named.candidates[2] is drift
@@ -84,8 +90,12 @@ def test_a_pair_that_hides_each_other_is_named_and_the_stand_in_is_not():
     found = diagnose(recording, effects=["back_relaxation", "saturation", "drift"])
     names = sorted(c["name"] for c in found.causes)
     assert names == ["back_relaxation", "saturation"], found.verdict
-    first = found.causes[0]
-    assert first["step"] == 1 and found.steps[0].joint_with == found.causes[1]["name"]
+    first, second = found.causes
+    assert first["step"] == 1 and first["named_jointly_with"] == second["name"] == found.steps[0].joint_with
+    assert first["joint"].startswith(f"named jointly with {second['name']}: together they gain")
+    assert "named_jointly_with" not in second
+    (named,) = [line for line in stepwise_section(found.to_dict()) if "**Named together.**" in line]
+    assert f"{first['name']} was named jointly with {second['name']}" in named
     for cause in found.causes:
         assert cause["incremental_gain"] >= 1.5
     # Together they come down near the measurement noise (which diagnose never sees).

@@ -406,10 +406,14 @@ class Diagnosis:
             own = {
                 k: v for k, v in self.extended.parameters.items() if k in self.effect_parameters(chosen.name)
             }
+            joint = (
+                {"named_jointly_with": step.joint_with, "joint": chosen.reasons[0]} if step.joint_with else {}
+            )
             out.append(
                 {
                     "name": chosen.name,
                     "step": k,
+                    **joint,
                     "incremental_gain": chosen.gain,
                     "delta_bic": chosen.delta_bic,
                     "derived": chosen.derived,

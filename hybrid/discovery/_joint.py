@@ -64,6 +64,8 @@ class JointPair:
     """Held-out NMSE of the current model over that of the joint fit."""
     gains_over_alone: dict
     """Held-out gain of the joint fit over each member fitted alone, by the member's name."""
+    delta_bics_over_alone: dict
+    """The joint fit's BIC minus each member's fitted alone, by the member's name."""
 
     def sentence(self) -> str:
         alone = ", ".join(f"{g:.2f} over {n} alone" for n, g in self.gains_over_alone.items())
@@ -161,12 +163,13 @@ def joint_pair(search, step) -> JointPair | None:
                 theta=theta,
                 gain=gain,
                 gains_over_alone={n: verdicts[n].gain for n in (first, second)},
+                delta_bics_over_alone={n: verdicts[n].delta_bic for n in (first, second)},
             )
     return best
 
 
 def named_jointly(step, pair: JointPair):
-    """The first step naming `pair.first` on the joint fit's evidence, its gain what it adds beside `pair.second`.
+    """The first step naming `pair.first` on the joint fit's evidence: its gain and ΔBIC what it adds beside `pair.second`.
 
     The candidate keeps its lone fit (the model the second step extends, and
     starts from, with the joint fit as a further start: `search_step`'s
@@ -177,6 +180,7 @@ def named_jointly(step, pair: JointPair):
         first,
         eligible=True,
         gain=pair.gains_over_alone[pair.second],
+        delta_bic=pair.delta_bics_over_alone[pair.second],
         reasons=[pair.sentence(), *(f"alone: {why}" for why in first.reasons)],
     )
     return dataclasses.replace(

@@ -27,6 +27,7 @@ import numpy as np
 from ..util._atomic import atomic_open
 from . import residual_tests as rt
 from ._ambiguity import sentence as ambiguity_sentence
+from ._joint import JOINT_BELOW
 from ._report_figures import FIGURES, MAX_LAG, count_loop_levels, format_nmse, save_figure, write_figures
 
 # --------------------------------------------------------------------------- #
@@ -195,6 +196,15 @@ def stepwise_section(d: dict) -> list[str]:
             f"| {c.get('step', i)} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
             f"{_cell(size)} | {_cell(params)} |"
         )
+    for c in d["causes"]:
+        if c.get("named_jointly_with"):
+            lines += [
+                "",
+                f"**Named together.** {c['name']} was {c['joint']}. Step 1 named nothing alone, or a cause "
+                f"gaining less than {JOINT_BELOW:g}×, so its leading candidates were also fitted in pairs: two effects can "
+                f"spoil each other's lone fit. The incremental gain and ΔBIC of {c['name']} are over "
+                f"{c['named_jointly_with']} alone; step 2 confirmed {c['named_jointly_with']}.",
+            ]
     for gone in d.get("dropped") or []:
         lines += [
             "",
