@@ -183,7 +183,7 @@ def _generic(args) -> None:
         }
         result["x64"] = bool(jax.config.read("jax_enable_x64"))
         write_simulation_study(result, sensitivity, args.out)
-    _print(result, "the output")
+    _print(result, "w")
     noise = result["noise"]["fraction_of_rms_w"]
     print(f"standard errors (Cramér–Rao, noise {100 * noise:g} % of rms(w), gain and offset unknown):")
     for name, se in result["std_error"].items():

@@ -11,12 +11,15 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import ClassVar
 
 import helpers as h
 import numpy as np
 import pytest
 
+from hybrid import LTI, AbstractSimulation, LinearReadout, Model, Real, encode, sensitivity as S
 from hybrid.cli import main
+from hybrid.sensitivity._study import simulation_study
 
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL = {"f_1": 0.08, "zeta_1": 0.9, "bandpass_1": 0.3, "direct": 0.1}
@@ -92,7 +95,7 @@ def test_lti_standard_errors_match_finite_differences(lab_csv, tmp_path):
         assert result["nominal"][name] == pytest.approx(value)
     assert result["relative_std_error"]["offset"] is None  # at 0: no relative error
     assert result["names"] == list(NOMINAL) and result["frozen"] == {} and result["samples"] == N
-    assert len(result["singular_values"]) == 4 and result["physics"] == "lti:2"
+    assert len(result["singular_values"]) == 6 and result["physics"] == "lti:2"  # gain and offset included
     assert "xi_h" not in json.dumps(result) and "frequency_peaks" not in result  # no IPMC views
     for name in ("sensitivity.md", "sensitivity_time.png", "singular_values.png"):
         assert (out / name).stat().st_size > 500
@@ -225,3 +228,78 @@ def test_bad_input_exits_2_with_one_line(lab_csv, tmp_path, capsys, monkeypatch,
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("hybrid: error:") and phrase in lines[0], err
     assert not (tmp_path / "X" / "sensitivity.json").exists()
+
+
+# ----------------------------------------------------------------- parameters at 0, and the readout in the SVD
+class _Sum(AbstractSimulation):
+    """y = (a + b)·v + c·v²: a and b are one parameter twice (a genuinely redundant pair); c is not."""
+
+    raw: dict
+    constraints: ClassVar = {"a": Real(), "b": Real(), "c": Real()}
+    units: ClassVar = {"a": "1", "b": "1", "c": "1/{drive}"}
+    typical: ClassVar = {"a": (-1.0, 1.0)}  # c has no typical range
+
+    def __init__(self, a=0.0, b=2.0, c=0.0):
+        self.raw = encode({"a": a, "b": b, "c": c}, self.constraints, "Sum")
+
+    def simulate(self, v_in, dt):
+        p = self.parameters()
+        return (p["a"] + p["b"]) * v_in + p["c"] * v_in**2
+
+
+def test_a_parameter_at_0_that_acts_on_the_output_is_not_a_null_direction(lab_csv):
+    """LTI(2) with bandpass_1 and direct at their default 0: both change y, neither is null."""
+    _, u = lab_csv
+    simulation = LTI(2, f_1=0.08, zeta_1=0.9)
+    sens = S.local_sensitivities(simulation, u, DT)
+    for name in ("bandpass_1", "direct"):  # at 0, and each changes y
+        column = sens.jacobian[:, sens.names.index(name)]
+        assert sens.values[name] == 0 and np.sqrt(np.mean(column**2)) > 0.1, name
+    ident = sens.identifiability()  # it used to call each of them a null direction
+    assert ident.null_directions == [] and ident.singular_values[-1] > 1e-3 * ident.singular_values[0]
+    # scaled by the half-width of the typical range: (-10, 10) and (-1, 1)
+    assert sens.scales == pytest.approx({"f_1": 0.08, "zeta_1": 0.9, "bandpass_1": 10.0, "direct": 1.0})
+    # the Python analysis of w = gain·y + offset is the command's own (it used to add {'offset': 1}, at 0)
+    result, _ = simulation_study(simulation, u, DT)
+    w_ident = S.local_sensitivities(Model(simulation, LinearReadout()), u, DT).identifiability()
+    np.testing.assert_allclose(w_ident.singular_values, result["singular_values"], rtol=1e-12)
+    assert w_ident.null_directions == result["null_directions"] == []
+    assert result["scales"] == pytest.approx(sens.scales | {"gain": 1.0, "offset": sens.output_rms})
+
+
+def test_a_redundant_pair_with_a_parameter_at_0_is_still_a_null_direction():
+    v = np.sin(np.linspace(0.0, 6.0, 200)) + 0.5
+    ident = S.local_sensitivities(_Sum(), v, 0.1).identifiability()
+    # columns s_a·v and s_b·v (s_a = 1, the half-width of a's range; s_b = |b| = 2): null along (1, −1/2)
+    (null,) = ident.null_directions
+    assert null == {"a": pytest.approx(2 / 5**0.5, abs=1e-8), "b": pytest.approx(-1 / 5**0.5, abs=1e-8)}
+    assert ident.near_null_directions == []  # c, at 0 with no range, is scaled to move y by its rms
+
+
+SCALED_LAG = PLUGIN.replace(
+    '    frozen_by_default: ClassVar[dict] = {"k": "the readout\'s gain carries the scale"}\n', ""
+)
+
+
+def test_a_direction_that_makes_the_errors_infinite_is_named(lab_csv, tmp_path, capsys):
+    """k scales y exactly as the readout's gain does: k·gain is all w fixes, and the study says so."""
+    path, _ = lab_csv
+    plugin = tmp_path / "scaled_lag.py"
+    plugin.write_text(SCALED_LAG)
+    out = tmp_path / "sens"
+    argv = ["sensitivity", str(path), "--columns", "input=u,output=y", "--physics", f"{plugin}:Lag"]
+    assert main([*argv, "--out", str(out)]) == 0, capsys.readouterr().err
+    printed = capsys.readouterr().out
+    result = json.loads((out / "sensitivity.json").read_text())
+    assert result["frozen"] == {} and result["unidentifiable"] == ["k", "gain"]
+    assert result["std_error"]["k"] == result["std_error"]["gain"] == "inf"
+    # the SVD sees the gain the covariance has: log k + log gain is fixed, log k − log gain is null
+    assert result["null_directions"] == [
+        {"k": pytest.approx(2**-0.5, abs=1e-8), "gain": pytest.approx(-(2**-0.5), abs=1e-8)}
+    ]
+    named = {name for direction in result["null_directions"] for name in direction}
+    assert set(result["unidentifiable"]) <= named  # every infinite error has its null direction
+    assert (
+        "Null directions (scaled coordinates): +0.7071·k -0.7071·gain" in (out / "sensitivity.md").read_text()
+    )
+    assert "null direction (w does not change along it): +0.7071·k -0.7071·gain" in printed

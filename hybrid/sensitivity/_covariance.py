@@ -30,14 +30,14 @@ class Covariance:
 
     - `names`: the free named parameters.
     - `values`: their fitted values (physical units).
-    - `units`: unit of each.
+    - `units`: unit of each, in the recordings' units of w and the drive (as `FitResult.units`).
     - `matrix`: (k, k) covariance in physical units (unit_i · unit_j).
       Entries of a parameter that moves along a null direction of J are
       inf (variance) and nan (covariances).
     - `fisher`: (k, k) Fisher information of the named parameters (1/(unit_i unit_j)),
       J_physᵀJ_phys / s² with the network weights profiled out; finite even
       where the covariance is not.
-    - `noise_variance`: s² (squared output units, mm² for ŵ).
+    - `noise_variance`: s² (squared output units: w's unit² for ŵ).
     - `n_residuals`, `n_free`: m and the number of free raw values.
     - `dof`: m − p.
     - `unidentifiable`: names whose variance is infinite.
@@ -97,7 +97,7 @@ class Covariance:
 @eqx.filter_jit
 def _fit_jacobian(problem, theta):
     r, J = problem.residuals_and_jacobian(theta)
-    return r * problem.scale, J * problem.scale  # back to output units (mm)
+    return r * problem.scale, J * problem.scale  # back to output units (w's)
 
 
 def parameter_covariance(
@@ -120,13 +120,14 @@ def parameter_covariance(
     - `recordings`: the Recording(s) it was fitted to.
     - `frozen`, `split`, `split_order`, `blocks`, `weight_decay`: as given to
       [`hybrid.fit`][]; the covariance is that of the training-split fit.
-    - `noise_std`: the known standard deviation of w's noise (mm); by default
-      it is estimated from the residuals (s² = ‖r‖²/dof).
+    - `noise_std`: the known standard deviation of w's noise (in w's unit); by
+      default it is estimated from the residuals (s² = ‖r‖²/dof).
     - `rcond`: singular values of J below `rcond` · σ_max are null directions:
       parameters moving along them get an infinite variance.
 
-    **Returns:** a [`Covariance`][].
+    **Returns:** a [`Covariance`][], its units those of the recordings (`hybrid.fit`'s `FitResult.units`).
     """
+    from ..core._fit import unit_labels
     from ..core._problem import Problem, series_from_recording
 
     recordings = list(recordings) if isinstance(recordings, (list, tuple)) else [recordings]
@@ -137,17 +138,33 @@ def parameter_covariance(
     frozen = frozenset(frozen)
     series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
     problem = Problem(model, series, frozen, weight_decay)
-    return problem_covariance(problem, problem.flatten(model, frozen), noise_std=noise_std, rcond=rcond)
+    return problem_covariance(
+        problem,
+        problem.flatten(model, frozen),
+        noise_std=noise_std,
+        rcond=rcond,
+        units=unit_labels(model, recordings),
+    )
 
 
-def problem_covariance(problem, theta, *, noise_std: float | None = None, rcond: float = 1e-10) -> Covariance:
+def problem_covariance(
+    problem,
+    theta,
+    *,
+    noise_std: float | None = None,
+    rcond: float = 1e-10,
+    units: dict[str, str] | None = None,
+) -> Covariance:
     """[`parameter_covariance`][] of the model `problem` fits, at `theta`, on its training split.
 
     For a caller that holds the problem already (`diagnose`: its padded
     problem, whose compiled Jacobian serves every recording of a bucket).
     Padding rows (weight 0) are dropped; `problem.sim_tangents`, if set,
     restricts the physical Jacobian to those directions (the others are null
-    directions: infinite variance).
+    directions: infinite variance). `units`: each parameter's unit label
+    (`parameter_covariance` passes the recordings', as `FitResult.units`); by
+    default the model's own `units`, w in mm and the drive in V: the problem
+    keeps no signal units.
     """
     model = problem.model(theta)
     r, J = (np.asarray(a) for a in _fit_jacobian(problem, theta))
@@ -190,7 +207,7 @@ def problem_covariance(problem, theta, *, noise_std: float | None = None, rcond:
         s2 = float(r @ r) / dof
     else:
         if not (np.isfinite(noise_std) and noise_std > 0):
-            raise InputError(f"noise_std must be a positive number (mm), got {noise_std!r}")
+            raise InputError(f"noise_std must be a positive number (in w's unit), got {noise_std!r}")
         s2 = float(noise_std) ** 2
     cov = s2 * (D @ cov_unit @ D.T)
 
@@ -209,7 +226,7 @@ def problem_covariance(problem, theta, *, noise_std: float | None = None, rcond:
     return Covariance(
         names=tuple(names),
         values={k: float(named[k]) for k in names},
-        units={k: model.units.get(k, "") for k in names},
+        units={k: (model.units if units is None else units).get(k, "") for k in names},
         matrix=cov,
         fisher=fisher,
         noise_variance=s2,

@@ -34,9 +34,12 @@ class Sensitivity:
     - `values`: their physical values (units in `units`).
     - `units`: unit of each parameter.
     - `dt`: sample interval of the drive, s.
-    - `output`: y(t), the output series (V for a simulation's V_o, mm for ŵ).
-    - `output_unit`: ``"V"``, ``"mm"`` or ``""``.
+    - `output`: y(t), the output series (V for a simulation's V_o; ŵ in w's unit for a model).
+    - `output_unit`: its unit (the simulation's `output_unit`, or the model's w unit; ``""`` if unknown).
     - `jacobian`: (T, k) array, ∂y(t)/∂θ_j in output units per parameter unit.
+    - `scales`: s_j, the change of each parameter a unit of the scaled
+      coordinates stands for ([`parameter_scales`][hybrid.sensitivity.parameter_scales]):
+      |θ_j|, or for θ_j = 0 a typical magnitude.
     """
 
     names: tuple[str, ...]
@@ -46,6 +49,7 @@ class Sensitivity:
     output: np.ndarray
     output_unit: str
     jacobian: np.ndarray
+    scales: dict[str, float]
 
     @property
     def time(self) -> np.ndarray:
@@ -56,10 +60,14 @@ class Sensitivity:
         return float(np.sqrt(np.mean(self.output**2)))
 
     def normalised(self) -> np.ndarray:
-        """(T, k): θ_j ∂y(t)/∂θ_j / rms(y), the change of y, in units of its rms,
-        per relative change of θ_j (i.e. ∂y/∂ log θ_j / rms y)."""
-        theta = np.array([self.values[n] for n in self.names])
-        return self.jacobian * theta / max(self.output_rms, np.finfo(float).tiny)
+        """(T, k): s_j ∂y(t)/∂θ_j / rms(y), the change of y, in units of its rms, per change s_j of θ_j.
+
+        s_j = |θ_j| (`scales`) makes it the change per relative change of θ_j
+        (∂y/∂ log θ_j / rms y, up to the sign of θ_j); a parameter at 0 is scaled by a
+        typical magnitude instead, so that it is not a null direction merely for being 0.
+        """
+        s = np.array([self.scales[n] for n in self.names])
+        return self.jacobian * s / max(self.output_rms, np.finfo(float).tiny)
 
     def rms_normalised(self) -> dict[str, float]:
         """rms over time of each column of `normalised()`: one number per parameter."""
@@ -67,7 +75,7 @@ class Sensitivity:
         return dict(zip(self.names, map(float, s)))
 
     def identifiability(self, **tolerances) -> Identifiability:
-        """[`identifiability`][] of the normalised sensitivities (log-parameter coordinates)."""
+        """[`identifiability`][] of the normalised sensitivities (scaled coordinates: log θ_j where θ_j ≠ 0)."""
         return identifiability(self.normalised() / np.sqrt(self.output.shape[0]), self.names, **tolerances)
 
 
@@ -114,15 +122,49 @@ def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensi
     y, J_raw = _jacobian(view, theta, v_in, float(dt), model_output)
     J = raw_to_physical_columns(J_raw, np.asarray(D)[rows])
     units = target.units if isinstance(target, Model) else _simulation_units(target)
+    values = {n: float(named[n]) for n in names}
     return Sensitivity(
         names=tuple(names),
-        values={n: float(named[n]) for n in names},
+        values=values,
         units={n: units.get(n, "") for n in names},
         dt=float(dt),
         output=np.asarray(y),
-        output_unit="mm" if model_output else unit_in(getattr(target, "output_unit", "")),
+        output_unit=target.signal_units[0] if model_output else unit_in(getattr(target, "output_unit", "")),
         jacobian=J,
+        scales=parameter_scales(target, values, np.asarray(y), J),
     )
+
+
+def parameter_scales(target, values: dict[str, float], output, jacobian) -> dict[str, float]:
+    """s_j, the scale of each parameter in the scaled coordinates of the identifiability SVD.
+
+    s_j = |θ_j| where θ_j ≠ 0 (log coordinates). A parameter at 0 (a residue, a
+    feedthrough, a readout's offset) has no relative change: its scale is then the
+    half-width of its typical range (`AbstractSimulation.typical_ranges`), and for one
+    without a range the change that moves y by its rms, rms(y)/rms(∂y/∂θ_j) (1 if y does
+    not depend on it: it stays a null direction).
+
+    **Arguments:** the `target` whose parameters `values` (physical, by name, in the
+    columns' order) are; its `output` y (T,) and `jacobian` ∂y/∂θ (T, k).
+    """
+    simulation = target.simulation if isinstance(target, Model) else target
+    typical = simulation.typical_ranges()
+    J = np.asarray(jacobian, dtype=float)
+    y_rms = float(np.sqrt(np.mean(np.asarray(output, dtype=float) ** 2)))
+    out = {}
+    for j, (name, value) in enumerate(values.items()):
+        low, high = typical.get(name, (np.nan, np.nan))
+        width = 0.5 * (float(high) - float(low))
+        column_rms = float(np.sqrt(np.mean(J[:, j] ** 2)))
+        if value != 0:
+            out[name] = abs(value)
+        elif np.isfinite(width) and width > 0:
+            out[name] = width
+        elif column_rms > 0 and y_rms > 0:
+            out[name] = y_rms / column_rms
+        else:
+            out[name] = 1.0
+    return out
 
 
 def _simulation_units(simulation) -> dict[str, str]:

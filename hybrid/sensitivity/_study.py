@@ -6,11 +6,13 @@ leaves them fixed):
 
 - the local sensitivities ∂y(t)/∂θ of the simulation's output y
   ([`local_sensitivities`][hybrid.sensitivity.local_sensitivities]);
-- identifiability: the SVD of the scaled sensitivities s_j ∂y/∂θ_j / rms(y)
-  ([`identifiability`][hybrid.sensitivity.identifiability]), with s_j = |θ_j| (log
-  coordinates, as the RC study) where θ_j ≠ 0 and, for a parameter at 0 (a
-  residue, a feedthrough), the half-width of its typical range (else 1): null and
-  near-null directions, near-collinear pairs;
+- identifiability: the SVD of the scaled sensitivities s_j ∂w/∂θ_j / rms(w) of
+  w = gain · y + offset at gain 1, offset 0, over the parameters the standard errors
+  below are of, gain and offset included
+  ([`Sensitivity.identifiability`][hybrid.sensitivity.Sensitivity.identifiability]), with
+  s_j = |θ_j| (log coordinates, as the RC study) where θ_j ≠ 0 and, for a parameter at
+  0, a typical magnitude ([`parameter_scales`][hybrid.sensitivity.parameter_scales]):
+  null and near-null directions, near-collinear pairs;
 - the Cramér–Rao standard errors a recording of w = gain · y + offset with white
   noise of `noise` × rms(w) would give, gain and offset unknown:
   σ² (JᵀJ)⁻¹ with J = ∂w/∂θ in physical units at gain 1, offset 0. A parameter
@@ -38,7 +40,6 @@ from ..core._simulation import unit_in, unit_suffix
 from ..util._atomic import write_text
 from ..util._errors import InputError
 from ..util._figures import save_png
-from ._identifiability import identifiability
 from ._local import local_sensitivities
 
 #: Every file `write_simulation_study` writes.
@@ -48,17 +49,6 @@ OUTPUT_FILES = ("sensitivity.json", "sensitivity.md", "sensitivity_time.png", "s
 def _clean(x):
     x = float(x)
     return x if np.isfinite(x) else str(x)
-
-
-def _scales(simulation, names, values) -> dict[str, float]:
-    """s_j: |θ_j|, or for θ_j = 0 the half-width of its typical range (else 1)."""
-    typical = simulation.typical_ranges()
-    out = {}
-    for n in names:
-        low, high = typical.get(n, (np.nan, np.nan))
-        width = 0.5 * (float(high) - float(low))
-        out[n] = abs(values[n]) if values[n] != 0 else (width if np.isfinite(width) and width > 0 else 1.0)
-    return out
 
 
 def cramer_rao(jacobian, names, noise_std: float, rcond: float = 1e-10) -> tuple[dict[str, float], list[str]]:
@@ -131,17 +121,17 @@ def simulation_study(
             f"{sorted(frozen)}): nothing to study"
         )
     columns = [w_sens.names.index(n) for n in names]
-    y, J = w_sens.output, w_sens.jacobian[:, columns]
+    y = w_sens.output
     rms = float(np.sqrt(np.mean(y**2)))
     if not (np.isfinite(rms) and rms > 0):
         raise InputError(
             f"{type(simulation).__name__}'s output is zero (or not finite) for this drive: "
             "nothing depends on its parameters"
         )
-    values = {n: w_sens.values[n] for n in names}
-    scales = _scales(simulation, names, values)
-    S = J * np.array([scales[n] for n in names]) / rms
-    ident = identifiability(S / np.sqrt(S.shape[0]), names)
+    # gain and offset included: a direction along which the gain absorbs the parameters' change
+    # (a plug-in that scales with the readout) makes their standard errors infinite and is named
+    ident = w_sens.identifiability()
+    S = w_sens.normalised()[:, columns]
     sigma = noise * rms  # rms(w) = rms(y) at gain 1, offset 0
     se, unidentifiable = cramer_rao(w_sens.jacobian, w_sens.names, sigma, rcond)
     relative = {n: (se[n] / abs(w_sens.values[n]) if w_sens.values[n] else None) for n in w_sens.names}
@@ -163,9 +153,11 @@ def simulation_study(
         "samples": int(S.shape[0]),
         "dt": float(dt),
         "coordinates": "scaled: a direction {name: c} moves each parameter by c·scale (scale = |value|, a "
-        "relative change, or for a parameter at 0 the half-width of its typical range)",
-        "scales": scales,
-        "output": "y, the simulation's output for the drive (for the standard errors: w = gain·y + offset)",
+        "relative change, or for a parameter at 0 the half-width of its typical range, else the change that "
+        "moves w by its rms)",
+        "scales": w_sens.scales,
+        "output": "y, the simulation's output for the drive (for the identifiability and the standard errors: "
+        "w = gain·y + offset)",
         "rms_normalised_sensitivity": dict(zip(names, map(float, np.sqrt(np.mean(S**2, axis=0))))),
         **ident.summary(),
         "noise": {"fraction_of_rms_w": float(noise), "std": sigma, "rcond": rcond},
@@ -223,7 +215,7 @@ def _markdown(result) -> str:
         "",
         f"Frozen (left out, as `fit` does): {frozen}.",
         "",
-        f"Relative singular values of the scaled sensitivities: {values}",
+        f"Relative singular values of the scaled sensitivities of w (gain and offset included): {values}",
         "",
         f"Null directions (scaled coordinates): {_directions(result['null_directions'])}",
         "",
