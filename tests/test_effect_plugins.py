@@ -323,6 +323,7 @@ class _StartTypo(_Scale):
         ([_MaterialSaysYes], "must return (bool, str)"),
         ([_DerivedNaN], "derived(s, dt) must return a dict of finite numbers"),
         ([int], "not an AbstractEffect subclass"),
+        (["builtins", "slew.py:SlewLimit"], "in Python, import the class"),
         (["saturation", "saturation"], "effects named twice"),
         ([], "effects is empty"),
     ],

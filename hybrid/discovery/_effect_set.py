@@ -256,6 +256,11 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
             if isinstance(item, str)
             else f"effect {getattr(item, '__name__', type(item).__name__)}"
         )
+        if isinstance(item, str) and ":" in item:
+            raise InputError(
+                f"{label}: a spec file.py:Class is read by the command line's --effects; in Python, import "
+                "the class (from the file's module) and pass it, e.g. effects=['builtins', MyEffect]"
+            )
         if isinstance(item, str):
             limits = {f"limit_{state}": state for state in states}
             if item in limits:
