@@ -16,6 +16,7 @@ import inspect
 import json
 from types import SimpleNamespace
 
+import equinox as eqx
 import helpers as h
 import numpy as np
 import pytest
@@ -194,6 +195,26 @@ def test_design_refuses_bad_limits_in_one_line(confounded):
         assert "\n" not in str(caught.value)
     with pytest.raises(hybrid.InputError, match="two or more"):
         hybrid.design_drive({"one": next(iter(rivals.values()))}, duration=5.0, rate=RATE, amplitude=1.0)
+    with pytest.raises(hybrid.InputError, match="more than the 1,000,000 a drive may have") as caught:
+        hybrid.design_drive(rivals, duration=1e7, rate=RATE, amplitude=1.0)  # not a 186 GiB allocation
+    assert "at most 33333.3 s at this rate" in str(caught.value)
+
+
+def test_a_design_never_ends_below_the_control_it_starts_from(confounded):
+    # Four rivals that all but agree (T ≪ the soft minimum's width): the gradient follows a near-mean of
+    # the six pairs, and the drive kept must be the one with the best least T, not the best near-mean.
+    (a, _), noise = _rivals(confounded).values(), confounded.noise_floor.std
+    rivals = {
+        k: eqx.tree_at(lambda m: m.readout, a, a.readout.rescaled(1.0, s))
+        for k, s in (("a", 1.0), ("a2", 1.0005), ("a3", 0.9997), ("a4", 1.0011))
+    }
+    design = hybrid.design_drive(
+        rivals, duration=60.0, rate=RATE, noise_std=noise, starts=2, steps=30, amplitude=2.0, slew=0.001
+    )
+    assert 0 < design.control_criterion <= design.criterion
+    # the first start is the control itself: what it reached is read on the reported criterion (the least
+    # T), never below the control's (a soft minimum of six pairs lies below their least)
+    assert design.criteria_by_start[0] >= design.control_criterion
 
 
 def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limits(confounded, tmp_path):

@@ -99,6 +99,10 @@ def _check(name, value, positive=True, who="design_drive"):
     return float(value)
 
 
+#: The most samples a designed (or rich) drive has: 9 h at 30 Hz, 27 min at the Silverbox's 610 Hz.
+MAX_SAMPLES = 1_000_000
+
+
 def _limits(who, duration, rate, amplitude, bounds, slew):
     """(samples, Δt, low, high, slew) of a drive within the rig's limits, each checked (one line if not)."""
     duration, rate = _check("duration", duration, who=who), _check("rate", rate, who=who)
@@ -122,6 +126,12 @@ def _limits(who, duration, rate, amplitude, bounds, slew):
     n = int(round(duration * rate))
     if n < 2:
         raise InputError(f"{who}: {duration:g} s at {rate:g} Hz is fewer than 2 samples")
+    if n > MAX_SAMPLES:
+        raise InputError(
+            f"{who}: {duration:g} s at {rate:g} Hz is {n:.3g} samples, more than the {MAX_SAMPLES:,} a drive "
+            f"may have (the design differentiates every rival through all of them): at most "
+            f"{MAX_SAMPLES / rate:.6g} s at this rate"
+        )
     return n, 1.0 / rate, low, high, slew
 
 
@@ -256,12 +266,12 @@ def design_drive(
 
     @jax.jit
     def step(u, state, params):
-        (loss, _), grad = jax.value_and_grad(loss_and_pairs, has_aux=True)(u, params)
+        (_, (pairs, _)), grad = jax.value_and_grad(loss_and_pairs, has_aux=True)(u, params)
         grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
         updates, state = optimiser.update(grad, state, u)
         # the kept part put back; it is feasible, so the projection moves only what follows it
         moved = optax.apply_updates(u, updates).at[:kept].set(prefix)
-        return _feasible(moved, low, high, slew, dt), state, loss
+        return _feasible(moved, low, high, slew, dt), state, jnp.min(pairs)
 
     rng = np.random.default_rng(seed)
     best_u, best_value, by_start = None, -np.inf, []
@@ -275,9 +285,11 @@ def design_drive(
             f"design: start {start + 1} of {starts} ({'the control PRBS' if start == 0 else 'random levels'})"
         )
         for _ in range(steps + 1):
-            new_u, new_state, loss = step(u, state, params)  # `loss` is u's: keep the best u visited
-            if math.isfinite(float(loss)) and -float(loss) > reached:
-                reached, reached_u = -float(loss), u
+            # `value` is u's criterion, the least T over the pairs (the gradient follows its soft minimum,
+            # which for T ≪ `softness` is near the pairs' mean): keep the u with the best criterion visited
+            new_u, new_state, value = step(u, state, params)
+            if math.isfinite(float(value)) and float(value) > reached:
+                reached, reached_u = float(value), u
             u, state = new_u, new_state
         by_start.append(reached if math.isfinite(reached) else float("nan"))
         if reached > best_value:
