@@ -405,3 +405,18 @@ def test_the_design_says_how_surely_its_drive_tells_the_rivals_apart():
     assert "n·T = 2.4e+03 with the noise floor as σ, 40 with the final model's held-out error" in loose
     assert "tells them apart" in loose
     assert "barely tell them apart" in separation(2.0, 0.5, 1200, excess=600.0)  # n·T 4 with the error
+
+
+def test_a_rising_drive_blames_level_and_time_only_between_an_effect_of_time_and_one_of_the_level():
+    rng = np.random.default_rng(4)
+    base = rng.normal(size=600)
+    staircase = [np.repeat(np.linspace(0.2, 2.0, 8), 75)]  # level rises with time: |r| = 1
+    effects = hybrid.resolve_effects(["saturation", "drive_saturation", "drift"])
+    named = _candidate("saturation", 3.0, base / np.sqrt(3.0), eligible=True)
+    for rival, blamed in (("drive_saturation", False), ("drift", True)):
+        other = _candidate(rival, 2.99, base / np.sqrt(2.99), eligible=True)
+        step = SimpleNamespace(chosen=named, current=None, candidates=[named, other], bar=1.0)
+        (entry,) = ambiguities([step], base, 0.01, staircase, RATE, effects)
+        assert [r["name"] for r in entry["rivals"]] == [rival]
+        # two shapes of one static nonlinearity differ in where it sits, not in time
+        assert any("level and time are correlated" in why for why in entry["why"]) is blamed, entry["why"]

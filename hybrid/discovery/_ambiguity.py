@@ -293,8 +293,11 @@ def _open_step(
 def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[str]:
     """What in this recording makes the rivals look alike, where it can be seen."""
     out = []
+    of_time = {e.name: e.of_time for e in effects}
+    # an effect of time (a drift) against one of the level ("none": the simulation's own response)
+    sides = {of_time.get(name, False) for name in [named.name, *rival_names]}
     r = level_time_correlation(drives)
-    if r >= LEVEL_TIME_R:
+    if r >= LEVEL_TIME_R and sides == {True, False}:
         out.append(
             f"the drive's level and time are correlated (|r| = {r:.2f} between its running mean and time): "
             "an effect of the level and one of time act alike on this drive"

@@ -162,6 +162,10 @@ class AbstractEffect(eqx.Module):
       inside effect works sample by sample (it gets a scalar inside the loop).
     - `thresholds`: the smallest size that counts as a cause, by name (see
       `material`); `DiagnoseSettings.materiality` overrides them by name.
+    - `of_time`: whether the effect is a function of time itself (a drift of
+      the gain or of the baseline; default False): a drive whose level rises
+      with time confounds it with an effect of the level, and the report says
+      so only for such a pair of rivals.
     - `starts(context)`: starting values for the search's lanes (default: the
       defaults); `screened_starts(context)`: at most `n_screened` more, from a
       screen of the simulation's design jointly with the effect (every step; an
@@ -182,6 +186,7 @@ class AbstractEffect(eqx.Module):
     acts_on: ClassVar[str] = "output"
     thresholds: ClassVar[dict[str, float]] = {}
     n_screened: ClassVar[int] = 0
+    of_time: ClassVar[bool] = False
 
     @abc.abstractmethod
     def apply(self, s: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
@@ -558,6 +563,7 @@ class Drift(AbstractEffect):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "drift"
+    of_time: ClassVar[bool] = True
     constraints: ClassVar = {"drift_rate_per_s": Real()}
     units: ClassVar = {"drift_rate_per_s": "1/s"}
     defaults: ClassVar = {"drift_rate_per_s": 0.0}
@@ -780,6 +786,7 @@ class BaselineDrift(AbstractEffect):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "baseline_drift"
+    of_time: ClassVar[bool] = True
     constraints: ClassVar = {
         "baseline_slope_per_min": Real(),
         "baseline_curvature_per_min2": Real(),
