@@ -278,14 +278,18 @@ def separation(criterion: float, control: float, n: int, excess: float = 1.0) ->
         return (
             f"{shown}: a recording under it would barely tell them apart (a χ² test at 1 % "
             f"needs n·T ≈ {SEPARATES:g} to reject the wrong rival 9 times in 10); record longer, or give a "
-            "wider --amplitude/--bounds: n·T grows with both"
+            "wider --amplitude/--bounds or a looser --slew: n·T grows with each"
         )
     if control > 0 and criterion < LITTLE_GAIN * control:
         return (
             f"{shown}: either drive tells them apart; the design gains little over the multilevel "
             "PRBS of the same length and range, which already separates them"
         )
-    return f"{shown}: a recording under it tells them apart (n·T ≫ {SEPARATES:g})"
+    return (
+        f"{shown}: a recording under it tells them apart at their fitted values (n·T ≫ {SEPARATES:g}); T is "
+        "local: refitted to the new recording, the rivals can absorb part of what tells them apart (a drive "
+        "that stays where their nonlinearities act alike leaves only gains and offsets a refit takes up)"
+    )
 
 
 def _write(out: Path, figure: Path, t, drive, predictions: dict, title: str) -> None:

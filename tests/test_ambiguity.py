@@ -399,7 +399,8 @@ def test_the_design_says_how_surely_its_drive_tells_the_rivals_apart():
     assert ncx2.sf(chi2.ppf(0.99, 1), 1, SEPARATES) == pytest.approx(0.9, abs=0.005)
     assert "barely tell them apart" in separation(0.005, 0.001, 1000)  # n·T = 5
     assert "gains little over the multilevel PRBS" in separation(1.07, 1.0, 1200)  # the heater trial's
-    assert "tells them apart (n·T" in separation(2.0, 0.5, 1200)
+    assert "tells them apart at their fitted values (n·T" in separation(2.0, 0.5, 1200)
+    assert "T is local" in separation(2.0, 0.5, 1200)  # a lab's refit absorbed a small-amplitude design's T
     # a final model 60× above its noise floor: what no rival explains is noise to the test too
     loose = separation(2.0, 0.5, 1200, excess=60.0)  # n·T 2,400 with the floor, 40 with the model's error
     assert "n·T = 2.4e+03 with the noise floor as σ, 40 with the final model's held-out error" in loose
