@@ -67,7 +67,22 @@ def verdict(diagnosis) -> str:
             "unexplained; a perfect model would reach 1×, and an effect outside the library may still take "
             "it nearer."
         )
+    best = _best_refused(diagnosis)
+    if best is None:
+        return (
+            f"No effect in the library explains what the simulation misses: {left['fraction_above_floor']:.0%} "
+            f"of its held-out error lies above the noise floor{where}."
+        )
     return (
-        f"No effect in the library explains what the simulation misses: {left['fraction_above_floor']:.0%} of its "
-        f"held-out error lies above the noise floor{where}."
+        f"No effect in the library passes the search's rules on this recording (the closest, {best.name}, gains "
+        f"{best.gain:.2f}× held out, under the {diagnosis.settings.min_gain:g}× asked): "
+        f"{left['fraction_above_floor']:.0%} of the simulation's held-out error lies above the noise floor{where}."
     )
+
+
+def _best_refused(diagnosis):
+    """The material candidate of the last step with the largest held-out gain above 1, or None."""
+    steps = getattr(diagnosis, "steps", None) or []
+    candidates = steps[-1].candidates if steps else []
+    found = [c for c in candidates if c.material and c.gain == c.gain and c.gain > 1.0]
+    return max(found, key=lambda c: c.gain) if found else None
