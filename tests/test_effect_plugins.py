@@ -182,11 +182,26 @@ _GREEDY = (
 )
 
 
+_NAN_START = (
+    _LATE_NAN.replace("class LateNaN", "class NaNStart")
+    .replace('"late_nan"', '"nan_start"')
+    .replace(
+        "    def apply(self, s, dt):",
+        """    def starts(self, context):  # a start out of its own range, seen only when the search builds it
+        return [{"gain": 1.0}, {"gain": float(context.duration) * float("nan")}]
+
+    def apply(self, s, dt):""",
+    )
+)
+
+
 @pytest.mark.parametrize(
     "source, cls, words",
     [
         # past the probe, every lane of the effect is NaN: it was numpy's 'All-NaN slice encountered'
         (_LATE_NAN, "LateNaN", "effect LateNaN: every start of its fit gives non-finite"),
+        # it said 'nan_start parameter gain must be positive, got nan', naming neither method nor class
+        (_NAN_START, "NaNStart", "effect NaNStart: a start from starts(context) or screened_starts(context)"),
         # the lanes are counted on a probe: the message named no effect, now it names the one that varies
         (_GREEDY, "Greedy", "effect Greedy: starts(context) gave"),
     ],
@@ -246,6 +261,13 @@ class _NoRole(_Scale):
 class _NoUnits(_Scale):
     name: ClassVar[str] = "no_units"
     units: ClassVar = {}
+
+
+class _TypoStarts(_Scale):
+    name: ClassVar[str] = "typo_starts"
+
+    def start(self, context):  # diagnose reads `starts`: this one would be ignored in silence
+        return [{"scale_factor": 2.0}]
 
 
 class _NaNs(_Scale):
@@ -318,6 +340,7 @@ class _StartTypo(_Scale):
         ([_Nowhere], "place must be one of drive, inside, output"),
         ([_NoRole], "role must be one of feedback, limit"),
         ([_NoUnits], "units has no entry for ['scale_factor']"),
+        ([_TypoStarts], "defines 'start', which diagnose never reads (did you mean 'starts'?)"),
         ([_NaNs], "returned 64 non-finite values of 64"),
         ([_Integers], "returned int32 values: return floating point"),
         ([_MaterialSaysYes], "must return (bool, str)"),

@@ -141,6 +141,8 @@ def encode(values: dict, constraints: dict, owner: str) -> dict:
                     f"{owner} parameter {name} must be a number, got {type(value).__name__} {value!r:.60}"
                 ) from None
         # A traced value (jax.grad, jax.vmap through `replace` or a constructor) cannot be checked here.
+        if not isinstance(value, jax.core.Tracer) and np.any(np.isnan(np.asarray(value, dtype=float))):
+            raise InputError(f"{owner} parameter {name} must be a number, got {value!r} (NaN)")
         if not isinstance(value, jax.core.Tracer) and not constraint.contains(value):
             raise InputError(f"{owner} parameter {name} must be {constraint.describe()}, got {value!r}")
         raw[name] = constraint.to_raw(jnp.asarray(value, dtype=float))

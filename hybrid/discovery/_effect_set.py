@@ -83,6 +83,24 @@ def force_percent_of_drive(force, drive, on: float = 1.0) -> float:
     return 100.0 * on * float(np.max(np.abs(force))) / top if top > 0 else 0.0
 
 
+def _near_misses(cls: type) -> list[tuple[str, str]]:
+    """(name, the AbstractEffect member it resembles) for each of `cls`'s own names one letter or so off."""
+    known = {n for n in dir(AbstractEffect) if not n.startswith("_")}
+    own = [
+        n
+        for klass in cls.__mro__
+        if klass not in AbstractEffect.__mro__ and klass is not object
+        for n in vars(klass)
+        if not n.startswith("_") and n not in known
+    ]
+    out = []
+    for name in dict.fromkeys(own):
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.85)
+        if close:
+            out.append((name, close[0]))
+    return out
+
+
 def check_effect(effect: AbstractEffect, label: str) -> None:
     """Refuse, in one line that says the fix, an effect that `diagnose` could not search.
 
@@ -98,6 +116,13 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
         )
     if effect.place not in PLACES:
         raise InputError(f"{label}: {cls}.place must be one of {', '.join(PLACES)}, got {effect.place!r}")
+    misspelt = _near_misses(type(effect))
+    if misspelt:
+        given, meant = misspelt[0]
+        raise InputError(
+            f"{label}: {cls} defines {given!r}, which diagnose never reads (did you mean {meant!r}?); "
+            "rename it, or the default is used in its place"
+        )
     if effect.place == "inside" and effect.role not in ROLES:
         raise InputError(f"{label}: {cls}.role must be one of {', '.join(ROLES)}, got {effect.role!r}")
     constraints = getattr(effect, "constraints", None)

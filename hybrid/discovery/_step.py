@@ -340,7 +340,15 @@ def search_step(
         for values in own + screened.get(name, []):
             active = active_cur.copy()
             active[i] = 1.0
-            starts.append(stack.replace(**values).with_active(active))
+            try:
+                start = stack.replace(**values)
+            except InputError as error:  # a plug-in's start out of its own ranges: say which method gave it
+                raise PluginError(
+                    f"effect {type(effect).__name__}: a start from starts(context) or screened_starts(context) "
+                    f"is refused: {error}; return values within its constraints",
+                    plugin=type(effect),
+                ) from None
+            starts.append(start.with_active(active))
             departures.append((effect, values, active))
             actives.append(active)
             labels.append(name)
