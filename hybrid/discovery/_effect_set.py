@@ -118,9 +118,9 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
         raise InputError(f"{label}: {cls}.place must be one of {', '.join(PLACES)}, got {effect.place!r}")
     misspelt = _near_misses(type(effect))
     if misspelt:
-        given, meant = misspelt[0]
+        typo, meant = misspelt[0]
         raise InputError(
-            f"{label}: {cls} defines {given!r}, which diagnose never reads (did you mean {meant!r}?); "
+            f"{label}: {cls} defines {typo!r}, which diagnose never reads (did you mean {meant!r}?); "
             "rename it, or the default is used in its place"
         )
     if effect.place == "inside" and effect.role not in ROLES:
