@@ -270,6 +270,20 @@ class _TypoStarts(_Scale):
         return [{"scale_factor": 2.0}]
 
 
+class _UnitsMisspelt(_Scale):
+    name: ClassVar[str] = "units_misspelt"
+    units: ClassVar = {"scalefactor": "1"}
+
+
+class _NoConstraint(_Scale):
+    name: ClassVar[str] = "no_constraint"
+    constraints: ClassVar = {}
+
+
+class _Saturation(_Scale):  # a plug-in named like a built-in
+    name: ClassVar[str] = "saturation"
+
+
 class _NaNs(_Scale):
     name: ClassVar[str] = "nans"
 
@@ -341,6 +355,9 @@ class _StartTypo(_Scale):
         ([_NoRole], "role must be one of feedback, limit"),
         ([_NoUnits], "units has no entry for ['scale_factor']"),
         ([_TypoStarts], "defines 'start', which diagnose never reads (did you mean 'starts'?)"),
+        ([_UnitsMisspelt], "(units names ['scalefactor'], which is not a parameter: misspelt?)"),
+        ([_NoConstraint], "defaults names ['scale_factor'], which _NoConstraint.constraints lacks"),
+        (["builtins", _Saturation], "a plug-in named like the built-in 'saturation'"),
         ([_NaNs], "returned 64 non-finite values of 64"),
         ([_Integers], "returned int32 values: return floating point"),
         ([_MaterialSaysYes], "must return (bool, str)"),

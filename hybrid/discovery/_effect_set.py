@@ -135,7 +135,11 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
         given = getattr(effect, fact, None)
         missing = sorted(set(constraints) - set(given or {}))
         if not isinstance(given, dict) or missing:
-            raise InputError(f"{label}: {cls}.{fact} has no entry for {missing or 'any parameter'}; add them")
+            stray = sorted(set(given or {}) - set(constraints)) if isinstance(given, dict) else []
+            raise InputError(
+                f"{label}: {cls}.{fact} has no entry for {missing or 'any parameter'}; add them"
+                + (f" ({fact} names {stray}, which is not a parameter: misspelt?)" if stray else "")
+            )
     for parameter, unit in effect.units.items():
         unknown = sorted(set(re.findall(r"\{([^{}]*)\}", str(unit))) - {"signal", "drive"})
         if unknown:
@@ -320,6 +324,13 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
                     f"{label}: {item.__name__}.defaults has no entry for {sorted(set(declared) - set(defaults))}; "
                     "add them (the start values)"
                 )
+            if isinstance(declared, dict) and isinstance(defaults, dict) and set(defaults) - set(declared):
+                # encode would say the effect 'has no parameter' the author meant to give it
+                raise InputError(
+                    f"{label}: {item.__name__}.defaults names {sorted(set(defaults) - set(declared))}, which "
+                    f"{item.__name__}.constraints lacks; add each parameter to constraints (e.g. "
+                    "{'slew_rate': hybrid.Positive()}) or drop it from defaults"
+                )
             try:
                 item = item()  # type: ignore[call-arg]  # eqx AbstractVar `raw`: no init arg
             except KeyboardInterrupt:
@@ -342,7 +353,17 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     names = [e.name for e in out]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
-        raise InputError(f"effects named twice: {twice}; give each effect once")
+        plugin = [
+            n for n in twice if n in EFFECTS and any(type(e) is not EFFECTS[n] for e in out if e.name == n)
+        ]
+        raise InputError(
+            f"effects named twice: {twice}; give each effect once"
+            + (
+                f" (a plug-in named like the built-in {plugin[0]!r}: give it a name of its own)"
+                if plugin
+                else ""
+            )
+        )
     parameters = [p for e in out for p in e.constraints] + list(FrameTiming.constraints)
     shared = sorted({p for p in parameters if parameters.count(p) > 1})
     if shared:
