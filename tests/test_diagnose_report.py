@@ -106,6 +106,24 @@ def test_a_parameter_the_recording_does_not_pin_says_so_never_plus_minus_inf():
     assert "larger than its value" in plus_minus({"value": 0.01, "std_error": 0.5, "unit": "s"})
 
 
+def test_a_fixed_parameter_keeps_its_unit_in_the_table():
+    from hybrid.discovery._report import parameter_rows
+
+    d = {
+        "settings": {"frozen": ["power", "xi_h"]},
+        "parameters": {
+            "power": {"value": 10.0, "unit": "W/V"},  # a user's heater: the row read "10 (fixed)"
+            "xi_h": {"value": 1.0, "unit": "1"},
+            "gain": {"value": 2.0, "std_error": 0.1, "unit": "mm/V", "pinned": True},
+        },
+    }
+    assert parameter_rows(d) == [
+        "| power | 10 W/V (fixed) |",
+        "| xi_h | 1 (fixed) |",
+        "| gain | 2 ± 0.1 mm/V |",
+    ]
+
+
 def test_not_pinned_names_the_branch_a_one_sided_signal_never_visits():
     import numpy as np
 

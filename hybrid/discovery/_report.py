@@ -119,6 +119,17 @@ def plus_minus(entry: dict) -> str:
     return f"{text} {unit}".rstrip()
 
 
+def parameter_rows(d: dict) -> list[str]:
+    """report.md's rows ``| name | value ± error unit |`` of report.json `d`'s parameters; a fixed one with its unit."""
+    frozen = set(d["settings"].get("frozen") or ())
+    rows = []
+    for name, entry in d["parameters"].items():
+        unit = "" if entry.get("unit") in (None, "", "1") else f" {entry['unit']}"
+        text = f"{_num(entry['value'], 4)}{unit} (fixed)" if name in frozen else plus_minus(entry)
+        rows.append(f"| {name} | {text} |")
+    return rows
+
+
 _SUFFIXES = (
     ("_percent_of_range", "% of range"),
     ("_percent", "%"),
@@ -325,10 +336,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         "| parameter | value ± std. error |",
         "|---|---|",
     ]
-    frozen = set(d["settings"].get("frozen") or ())
-    for name, entry in d["parameters"].items():
-        text = f"{_num(entry['value'], 4)} (fixed)" if name in frozen else plus_minus(entry)
-        lines.append(f"| {name} | {text} |")
+    lines += parameter_rows(d)
     if d["effect_derived"]:
         lines += ["", "Derived quantities of the effect:", ""]
         lines += ["- {}: {}".format(*_quantity(k, v)) for k, v in d["effect_derived"].items()]
