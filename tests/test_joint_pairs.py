@@ -36,13 +36,15 @@ def _candidate(name, delta_bic, gain=1.0):
     return _Candidate(name, delta_bic, gain, reasons=[f"{name} failed"])
 
 
-def test_the_leaders_are_the_largest_training_bic_drops_and_only_drops():
+def test_the_leaders_are_the_largest_training_bic_drops_that_pass_the_bic_rule():
     cands = [
         _candidate(n, d)
         for n, d in [("a", -5.0), ("b", -900.0), ("c", 12.0), ("d", float("nan")), ("e", -40.0)]
     ]
-    assert [c.name for c in leaders(cands, n=2)] == ["b", "e"]
-    assert [c.name for c in leaders(cands)] == ["b", "e", "a"]  # a rising or unknown BIC never leads
+    assert [c.name for c in leaders(cands, 10.0, n=2)] == ["b", "e"]
+    # a BIC that rises, is unknown, or falls by less than the step's rule never leads
+    assert [c.name for c in leaders(cands, 10.0)] == ["b", "e"]
+    assert [c.name for c in leaders(cands, 1.0)] == ["b", "e", "a"]
 
 
 def test_a_jointly_named_first_cause_reports_what_it_adds_beside_the_other_and_has_no_lone_rival():

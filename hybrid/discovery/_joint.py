@@ -11,9 +11,10 @@ gain 7.8 over the baseline and each 6–10× over the other alone
 
 So a first step that names nothing, or names a cause whose held-out gain is
 below `JOINT_BELOW`, also fits the pairs of its leading candidates jointly (the
-largest drop of the training BIC alone first: a lone fit that fits the data it
-was fitted to better, held-out data or not), each pair from both members' own
-end points, as lanes of the program every stage runs. A pair is named only where it passes the
+largest drop of the training BIC alone first, each at least the step's
+`min_bic_drop`: a lone fit that fits the data it was fitted to better, held-out
+data or not), each pair from both members' own end points, as lanes of the
+program every stage runs. A pair is named only where it passes the
 step's rules three times over: against the current model (with the step's
 equally good fits as its bar), and against each member fitted alone — so each
 member earns its place beside the other, as `drop_redundant` asks of every
@@ -72,9 +73,13 @@ class JointPair:
         return f"named jointly with {self.second}: together they gain {self.gain:.2f} ({alone})"
 
 
-def leaders(candidates, n: int = JOINT_LEADERS) -> list[Candidate]:
-    """The `n` candidates whose lone fits lower the training BIC most (a BIC that falls only)."""
-    fitting = [c for c in candidates if np.isfinite(c.delta_bic) and c.delta_bic < 0]
+def leaders(candidates, min_bic_drop: float, n: int = JOINT_LEADERS) -> list[Candidate]:
+    """The `n` candidates whose lone fits lower the training BIC most, each by at least `min_bic_drop`.
+
+    A member that does not fit its training data better alone by the step's own BIC rule is not
+    led with: on effect-free recordings most lone fits do not, and no pair is fitted at all.
+    """
+    fitting = [c for c in candidates if np.isfinite(c.delta_bic) and c.delta_bic <= -min_bic_drop]
     return sorted(fitting, key=lambda c: c.delta_bic)[:n]
 
 
@@ -87,7 +92,7 @@ def joint_pair(search, step) -> JointPair | None:
     chosen = step.chosen
     if chosen is not None and chosen.gain >= JOINT_BELOW:
         return None
-    leading = leaders(step.candidates)
+    leading = leaders(step.candidates, settings.min_bic_drop)
     pairs = [(a, b) for a, b in itertools.combinations(leading, 2) if s.has_room((a.name, b.name))]
     if not pairs:
         return None
