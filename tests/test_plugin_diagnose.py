@@ -94,6 +94,10 @@ def test_diagnose_names_a_hidden_effect_on_a_plugin_that_starts_away_from_rest(s
     assert abs(held - HELD) < 0.15, held  # the held drive is recovered with the rest
     assert abs(float(found.extended.parameters["tau_s"]) - TAU) < 0.1 * TAU
     report = found.to_dict()["parameters"]
+    # the uncertainties carry the recordings' units too (they said mm, which the report then overrode)
+    assert {k: found.uncertainties[k].unit for k in ("gain", "offset")} == {
+        k: report[k]["unit"] for k in ("gain", "offset")
+    }
     assert {k: report[k]["unit"] for k in ("gain", "offset", "tau_s", "initial_drive")} == {
         "gain": "N/(unit of S)",  # w's unit per the simulation's output's (Lag does not name it)
         "offset": "N",

@@ -362,8 +362,9 @@ def diagnose(
         jnp.asarray(lane_tangents(model, frozen, kept, int(final.sim_tangents.shape[0])), float),
     )
     extended_model = fitted_model(problem, extended.theta, kept)
+    units = unit_labels(extended_model, recordings)  # the recordings' units, as the report gives them
     uncertainties = parameter_uncertainties(
-        fitted, extended.theta, w_te - w_hat_ext, keep=extended_model.parameters()
+        fitted, extended.theta, w_te - w_hat_ext, keep=extended_model.parameters(), units=units
     )
     unpinned = not_pinned(uncertainties, extended_model, problem.series)
     evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
@@ -449,7 +450,7 @@ def diagnose(
                 **rival_models,
             }.items()
         },
-        units=unit_labels(extended_model, recordings),
+        units=units,
         signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
     )

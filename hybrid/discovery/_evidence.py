@@ -36,7 +36,7 @@ def fitted_model(problem: Problem, theta, causes) -> Model:
 
 
 def parameter_uncertainties(
-    problem: Problem, theta, residual_heldout, keep=None
+    problem: Problem, theta, residual_heldout, keep=None, units: dict[str, str] | None = None
 ) -> dict[str, ParameterUncertainty]:
     """Standard errors, in physical units, of `model`'s free parameters (those in `keep`, if given).
 
@@ -59,7 +59,7 @@ def parameter_uncertainties(
     """
     from ..sensitivity import problem_covariance
 
-    covariance = problem_covariance(problem, jnp.asarray(theta))
+    covariance = problem_covariance(problem, jnp.asarray(theta), units=units)
     model = problem.model(jnp.asarray(theta))
     inflation = rt.effective_sample_factor(residual_heldout)
     keep = set(covariance.names) if keep is None else set(keep)
