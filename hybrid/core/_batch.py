@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..util._errors import InputError, PluginError
-from ..util._programs import compile_counter
+from ..util._programs import process_compiles
 from ._arguments import as_recordings, check_dt, check_model
 from ._devices import device_mesh, repeat_last
 from ._fit import default_frozen, fit_units, non_finite_fit, readout_back, recording_units, start_model
@@ -199,7 +199,7 @@ def fit_batch(
         stacked = jax.tree_util.tree_map(lambda x: repeat_last(x, padded), stacked)
         thetas = repeat_last(thetas, padded)
     settings = solver.lm_settings()
-    compiles = _compile_counter()
+    compiles = process_compiles()
     compiled_before = compiles["s"]
     if n_dev > 1:
         mesh = device_mesh("batch", devices)
@@ -297,16 +297,6 @@ _DYNAMIC = lambda p: (p.sim_static, p.readout_static, p.series, p.scale)
 #: time columns stored with 6 decimals put a 30 Hz recording's median step at 30.0003 Hz, one
 #: computed from np.arange(n) / 30 at 30 Hz. A dt off by 1e-4 moves a fitted time constant by 1e-4.
 RATE_RTOL = 1e-4
-
-_COMPILES: dict | None = None
-
-
-def _compile_counter() -> dict:
-    """XLA's compile seconds in this process (`compile_counter`, one listener for every call)."""
-    global _COMPILES
-    if _COMPILES is None:
-        _COMPILES = compile_counter()
-    return _COMPILES
 
 
 def _arrays(problem):

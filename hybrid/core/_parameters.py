@@ -131,20 +131,20 @@ def encode(values: dict, constraints: dict, owner: str) -> dict:
         if name not in constraints:
             raise InputError(f"{owner} has no parameter {name!r}: its parameters are {sorted(constraints)}")
         constraint = constraints[name]
+        # A traced value (jax.grad, jax.vmap through `replace` or a constructor) cannot be checked here.
         if not isinstance(value, jax.core.Tracer):
             try:
                 if value is None or isinstance(value, (str, bytes)):
                     raise TypeError(value)
-                np.asarray(value, dtype=float)
+                number = np.asarray(value, dtype=float)
             except (TypeError, ValueError):
                 raise InputError(
                     f"{owner} parameter {name} must be a number, got {type(value).__name__} {value!r:.60}"
                 ) from None
-        # A traced value (jax.grad, jax.vmap through `replace` or a constructor) cannot be checked here.
-        if not isinstance(value, jax.core.Tracer) and np.any(np.isnan(np.asarray(value, dtype=float))):
-            raise InputError(f"{owner} parameter {name} must be a number, got {value!r} (NaN)")
-        if not isinstance(value, jax.core.Tracer) and not constraint.contains(value):
-            raise InputError(f"{owner} parameter {name} must be {constraint.describe()}, got {value!r}")
+            if np.any(np.isnan(number)):
+                raise InputError(f"{owner} parameter {name} must be a number, got {value!r} (NaN)")
+            if not constraint.contains(value):
+                raise InputError(f"{owner} parameter {name} must be {constraint.describe()}, got {value!r}")
         raw[name] = constraint.to_raw(jnp.asarray(value, dtype=float))
     missing = set(constraints) - set(raw)
     if missing:

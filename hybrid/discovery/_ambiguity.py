@@ -209,9 +209,7 @@ def ambiguities(
     out = []
     for k, step in enumerate(steps, 1):
         named = step.chosen
-        if getattr(
-            step, "joint_with", None
-        ):  # named with the next step's cause, on their joint fit: no lone rival
+        if getattr(step, "joint_with", None):  # named with the next step's cause on their joint fit
             continue
         if named is None:
             if k == len(steps):

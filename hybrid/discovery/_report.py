@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core._simulation import unit_suffix
 from ..util._atomic import atomic_open
 from . import residual_tests as rt
 from ._ambiguity import sentence as ambiguity_sentence
@@ -124,8 +125,8 @@ def parameter_rows(d: dict) -> list[str]:
     frozen = set(d["settings"].get("frozen") or ())
     rows = []
     for name, entry in d["parameters"].items():
-        unit = "" if entry.get("unit") in (None, "", "1") else f" {entry['unit']}"
-        text = f"{_num(entry['value'], 4)}{unit} (fixed)" if name in frozen else plus_minus(entry)
+        fixed = f"{_num(entry['value'], 4)}{unit_suffix(entry.get('unit'))} (fixed)"
+        text = fixed if name in frozen else plus_minus(entry)
         rows.append(f"| {name} | {text} |")
     return rows
 

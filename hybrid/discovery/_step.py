@@ -361,14 +361,14 @@ def search_step(
         )
     lanes = _finite_lanes(problem, stack, starts, departures, cur_model.readout, s.frozen)
     for name, thetas in (extra or {}).items():
-        i = names.index(name)
         active = active_cur.copy()
-        active[i] = 1.0
+        active[names.index(name)] = 1.0
+        lane = lane_tangents(s.model, s.frozen, refitted(s, present, name) + (name,), n_rows)
         for theta in thetas[: max(n_lanes - len(lanes), 0)]:
             lanes.append(jnp.asarray(theta))
             actives.append(active)
             labels.append(name)
-            tangents.append(lane_tangents(s.model, s.frozen, refitted(s, present, name) + (name,), n_rows))
+            tangents.append(lane)
     while len(lanes) < n_lanes:  # one lane count for every step: one compiled program
         lanes.append(padding_lane(theta_cur))  # stops at once: no LM steps spent on it
         actives.append(active_cur)

@@ -8,6 +8,8 @@ saturation "explain 93 % of the error" means the final model's held-out MSE is
 
 from __future__ import annotations
 
+import math
+
 #: Held-out error over the noise floor up to which the verdict calls the model as good as the data allow.
 AT_FLOOR = 1.2
 
@@ -82,7 +84,6 @@ def verdict(diagnosis) -> str:
 
 def _best_refused(diagnosis):
     """The material candidate of the last step with the largest held-out gain above 1, or None."""
-    steps = getattr(diagnosis, "steps", None) or []
-    candidates = steps[-1].candidates if steps else []
-    found = [c for c in candidates if c.material and c.gain == c.gain and c.gain > 1.0]
+    candidates = diagnosis.steps[-1].candidates if diagnosis.steps else []
+    found = [c for c in candidates if c.material and math.isfinite(c.gain) and c.gain > 1.0]
     return max(found, key=lambda c: c.gain) if found else None

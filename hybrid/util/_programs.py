@@ -20,6 +20,7 @@ which the command line turns on).
 
 from __future__ import annotations
 
+import functools
 import gc
 import threading
 from pathlib import Path
@@ -118,3 +119,12 @@ def compile_counter() -> dict:
 
     monitoring.register_event_duration_secs_listener(listen)
     return counter
+
+
+@functools.cache
+def process_compiles() -> dict:
+    """One `compile_counter` for the whole process: library code reads the difference over a call.
+
+    A counter per call would leave one more `jax.monitoring` listener behind each time.
+    """
+    return compile_counter()
