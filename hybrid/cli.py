@@ -615,6 +615,8 @@ def _cmd_diagnose(args):
         *([left["floor_warning"]] if left and "floor_warning" in left else []),
     ]:
         print(f"noise floor: warning: {warning}")
+    for warning in report.get("warnings", ()):
+        print(f"warning: {warning}")
     if diagnosis.hybrid is not None:
         h = diagnosis.hybrid
         print(f"hybrid model NMSE: {h['baseline']['nmse']:.2e} -> {h['extended']['nmse']:.2e}")

@@ -88,6 +88,7 @@ def test_the_cli_finds_a_user_effect_through_effects(lab):
     assert change["value"] == pytest.approx(NEGATIVE_CHANGE, abs=0.05)
     assert change["unit"] == "1"
     assert report["settings"]["materiality"]["negative_change_percent"] == 10.0  # its own threshold
+    assert report["warnings"] == []  # finite over all of its range: nothing to say about it
     assert "negative_gain_change" in run.stdout  # the CLI prints the plug-in's parameters by name
 
     # The extended model comes back loadable, the plug-in's module imported first (as --effects does).
@@ -219,6 +220,50 @@ def test_an_effect_that_misbehaves_only_on_the_recording_is_named_in_one_line(
     assert code == 2 and len(lines) == 1, lines
     assert lines[0].startswith("hybrid: error: ") and words in lines[0], lines
     assert not (lab / cls).exists()
+
+
+_HALF_DEFINED = '''
+import jax.numpy as jnp
+from asymmetric import AsymmetricDrive
+
+
+class HalfDefined(AsymmetricDrive):
+    """The docs' effect with a square root in it: NaN for a change below -0.3 (the truth is -0.6)."""
+
+    name = "half_defined"
+
+    def apply(self, u, dt):
+        g = self.parameters()["negative_gain_change"]
+        return u + jnp.sqrt(g + 0.3) ** 2 * jnp.minimum(u, 0.0) - 0.3 * jnp.minimum(u, 0.0)
+
+    def starts(self, context):
+        return [{"negative_gain_change": -0.5}, {"negative_gain_change": 0.5}]
+'''
+
+
+def test_an_effect_not_finite_over_part_of_its_range_is_reported_not_searched_in_silence(
+    lab, monkeypatch, capsys
+):
+    """Its lanes step around where apply is NaN, and the search names nothing: the report must say why.
+
+    The lab's truth (a change of -0.6) lies where the plug-in's apply is NaN: before,
+    the report said only that no effect passes the rules, which hides the plug-in's bug.
+    """
+    from hybrid.cli import main
+
+    (lab / "half_defined.py").write_text(_HALF_DEFINED)
+    monkeypatch.chdir(lab)
+    monkeypatch.syspath_prepend(str(lab))  # its module imports the docs' effect beside it
+    code = main(["diagnose", "lab.csv", "--physics", "lti:1", "--effects", "half_defined.py:HalfDefined",
+                 "--out", "half", "--quiet"])  # fmt: skip
+    assert code == 0
+    warned = [line for line in capsys.readouterr().out.splitlines() if line.startswith("warning: ")]
+    assert len(warned) == 1, warned
+    assert "effect HalfDefined (half_defined): its predictions were not finite" in warned[0], warned
+    assert "1 of its 2 starts (moved towards its defaults)" in warned[0], warned
+    report = json.loads((lab / "half" / "report.json").read_text())
+    assert report["warnings"] == [warned[0].removeprefix("warning: ")]
+    assert "**Warning:** effect HalfDefined" in (lab / "half" / "report.md").read_text()
 
 
 # --------------------------------------------------------------------------- #

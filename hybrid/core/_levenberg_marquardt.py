@@ -75,6 +75,8 @@ class LMState(eqx.Module):
     since_best: jax.Array
     done: jax.Array
     fresh: jax.Array
+    nonfinite: jax.Array
+    """Trial steps rejected because the cost there was not finite (NaN or inf predictions)."""
 
 
 def _cost_and_validation(problem, theta):
@@ -123,6 +125,7 @@ def lm_init(problem, theta0, settings: LMSettings) -> LMState:
         since_best=zero,
         done=~jnp.isfinite(cost),
         fresh=jnp.asarray(True),
+        nonfinite=zero,
     )
 
 
@@ -193,14 +196,21 @@ def lm_step(problem, state: LMState, settings: LMSettings, patience=None) -> LMS
             accepted=state.accepted + 1,
             since_best=since_best,
             done=converged,
+            nonfinite=state.nonfinite,
         )
 
     def rejected(state):
         lam = state.lam * state.nu
         return eqx.tree_at(
-            lambda s: (s.lam, s.nu, s.step, s.done),
+            lambda s: (s.lam, s.nu, s.step, s.done, s.nonfinite),
             state,
-            (lam, state.nu * 2.0, state.step + 1, lam > 1e16 * jnp.maximum(jnp.max(diag), 1.0)),
+            (
+                lam,
+                state.nu * 2.0,
+                state.step + 1,
+                lam > 1e16 * jnp.maximum(jnp.max(diag), 1.0),
+                state.nonfinite + (~jnp.isfinite(cost_new)).astype(state.nonfinite.dtype),
+            ),
         )
 
     new = lax.cond(accept, accepted, rejected, state)

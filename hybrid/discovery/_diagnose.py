@@ -86,7 +86,7 @@ from ._search import (
     with_active,
 )
 from ._start import settle_samples, settled_try, start_misfit
-from ._step import Search, Step, search_step
+from ._step import Search, Step, nonfinite_warnings, search_step
 from ._unexplained import pooled_noise_floor, remainder
 
 #: Spread (std) of w and v_in that `diagnose` takes, in any unit: it fits in the recording's own units.
@@ -453,6 +453,7 @@ def diagnose(
         units=units,
         signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
+        warnings=nonfinite_warnings(steps, search.effects),
     )
 
 

@@ -380,6 +380,9 @@ class Diagnosis:
     #: (`hybrid.discovery._redundant`): name, the step that named it, the gain with it over
     #: without it, the rules that gain failed. Not among `causes`.
     dropped: list = dataclasses.field(default_factory=list)
+    #: What about the search should not be taken at face value, one sentence each: a plug-in effect
+    #: whose predictions were not finite over part of its parameters' range (`nonfinite_warnings`).
+    warnings: list = dataclasses.field(default_factory=list)
 
     def effect_parameters(self, name: str) -> tuple[str, ...]:
         """The parameter names of the searched effect `name` (none for an unknown name)."""
@@ -460,6 +463,7 @@ class Diagnosis:
             "ambiguous": self.ambiguous,
             "ambiguity_test": AMBIGUITY_TEST,
             "dropped": self.dropped,
+            "warnings": self.warnings,
             "steps": [
                 {
                     "cause": step.cause,

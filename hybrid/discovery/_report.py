@@ -305,6 +305,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         "",
         _verdict(d),
         "",
+        *[line for warning in d.get("warnings") or () for line in (f"**Warning:** {warning}.", "")],
         "| model | held-out NMSE (MSE / var w) | NMSE, Eq 18 | Fitting |",
         "|---|---|---|---|",
     ]

@@ -152,6 +152,7 @@ def _start_states(thetas: np.ndarray) -> LMState:
         since_best=np.zeros(n, count),
         done=np.ones(n, flag),
         fresh=np.ones(n, flag),
+        nonfinite=np.zeros(n, count),
     )
     return LMState(**fields)
 

@@ -159,6 +159,8 @@ class Step:
     """Every lane of the step (not in report.json)."""
     joint_with: str | None = None
     """The effect `chosen` was named with, fitted jointly (`hybrid.discovery._joint`): the next step's cause."""
+    nonfinite: dict = dataclasses.field(default_factory=dict)
+    """Effects whose lanes met non-finite predictions (`nonfinite_lanes`): by name, starts moved and steps refused."""
 
     @property
     def cause(self) -> str | None:
@@ -185,19 +187,21 @@ def heldout_bar(current: Candidate, equally_good: EquallyGoodFits) -> float:
 TAME, RETRIES = 0.1, 3
 
 
-def _finite_lanes(problem, stack, starts, departures, readout, frozen) -> list:
+def _finite_lanes(problem, stack, starts, departures, readout, frozen) -> tuple[list, list[bool]]:
     """θ of each start, a start whose simulation is not finite pulled towards its effect's defaults.
 
     A softening spring started too soft, or a force too large for the fitted
     dynamics, makes the simulation escape to infinity; that lane would be lost
     (and its NaN would reach the least-squares gain). Its departure from the
     effect's defaults is scaled by `TAME` until the output is finite, and at
-    worst the lane starts at the defaults.
+    worst the lane starts at the defaults. Also returns, per start, whether it
+    was moved so.
     """
     w = problem.recorded(problem.target("train"), "train")
-    lanes = []
+    lanes, moved = [], []
     for start, (effect, values, active) in zip(starts, departures):
         theta, simulation = finite_theta(problem, start, readout, frozen, w), start
+        moved.append(theta is None)
         for scale in [TAME**k for k in range(1, RETRIES + 1)] + [0.0]:
             if theta is not None:
                 break
@@ -209,7 +213,66 @@ def _finite_lanes(problem, stack, starts, departures, readout, frozen) -> list:
         lanes.append(
             theta if theta is not None else theta_with_readout(problem, simulation, readout, frozen, 1.0, 0.0)
         )
-    return lanes
+    return lanes, moved
+
+
+def nonfinite_lanes(labels, moved, states, skip=()) -> dict:
+    """Per effect, where its lanes met predictions that are not finite (NaN or inf).
+
+    ``starts_moved``: its starts whose simulation was not finite, pulled towards
+    the effect's defaults (`_finite_lanes`); ``steps_refused``: the LM trial
+    steps its lanes refused because the cost there was not finite
+    (`LMState.nonfinite`), of ``steps`` tried. The search cannot fit an effect
+    where its predictions are not finite: a parameter region where the
+    simulation escapes (a spring too soft), or a plug-in's apply that is not
+    defined over all of its constraints' range. Effects that met none are left out.
+    """
+    refused, tried = np.asarray(states.nonfinite), np.asarray(states.step)
+    out = {}
+    for name in dict.fromkeys(lab for lab in labels if lab != "none" and lab not in skip):
+        idx = [j for j, lab in enumerate(labels) if lab == name]
+        starts_moved = sum(bool(moved[j]) for j in idx if j < len(moved))
+        steps_refused = int(refused[idx].sum())
+        if starts_moved or steps_refused:
+            out[name] = {
+                "starts_moved": starts_moved,
+                "starts": len(idx),
+                "steps_refused": steps_refused,
+                "steps": int(tried[idx].sum()),
+            }
+    return out
+
+
+def nonfinite_warnings(steps, effects) -> list[str]:
+    """One sentence per plug-in effect whose lanes met non-finite predictions in any step (`nonfinite_lanes`).
+
+    The built-in effects are left out: theirs is a region where the simulation
+    escapes (a spring started too soft), which the search steps around by design.
+    """
+    from ._effect_set import EFFECTS
+
+    built_in = set(EFFECTS.values())
+    out = []
+    for effect in effects:
+        tallies = [step.nonfinite[effect.name] for step in steps if effect.name in step.nonfinite]
+        if type(effect) in built_in or not tallies:
+            continue
+        total = {k: sum(t[k] for t in tallies) for k in tallies[0]}
+        where = []
+        if total["starts_moved"]:
+            where.append(
+                f"{total['starts_moved']} of its {total['starts']} starts (moved towards its defaults)"
+            )
+        if total["steps_refused"]:
+            where.append(f"{total['steps_refused']} of the {total['steps']} steps its fits tried (refused)")
+        out.append(
+            f"effect {type(effect).__name__} ({effect.name}): its predictions were not finite (NaN or inf) at "
+            f"{' and at '.join(where)}, so the search could not fit it there and a better fit beyond may have "
+            "been out of reach; if the effect is defined there, its apply gives NaN or inf (a square root or "
+            "log of a negative, a division by zero): make apply finite over all of its constraints' range, "
+            "or narrow the constraints to where it is defined"
+        )
+    return out
 
 
 def race(s: Search, problem, actives, tangents, lanes, labels):
@@ -359,7 +422,7 @@ def search_step(
             f"the effects gave {len(starts)} starts on this recording but {n_lanes} on a probe signal: an "
             "effect's starts(context) must give as many starts whatever the data (see docs/effects.md)"
         )
-    lanes = _finite_lanes(problem, stack, starts, departures, cur_model.readout, s.frozen)
+    lanes, moved = _finite_lanes(problem, stack, starts, departures, cur_model.readout, s.frozen)
     for name, thetas in (extra or {}).items():
         active = active_cur.copy()
         active[names.index(name)] = 1.0
@@ -378,6 +441,7 @@ def search_step(
     s.say(f"{added}each of {len(set(labels) - {'none'})} effects, {len(labels)} lanes")
     states = race(s, problem, np.stack(actives), np.stack(tangents), lanes, labels)
     vals = np.asarray(states.best_val)
+    nonfinite = nonfinite_lanes(labels, moved, states, skip=present)
     cand_thetas = states.best_theta
 
     # The current model refitted from where every lane ended.
@@ -461,6 +525,7 @@ def search_step(
         chosen_val=chosen.validation_loss if chosen else float("nan"),
         chosen_fits=[cand_thetas[j] for j in lanes_of[chosen.name]] if chosen else [],
         equally_good=equally_good,
+        nonfinite=nonfinite,
         lanes=[
             Lane(
                 effect=labels[j],
