@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hybrid.cli import main
-from hybrid.discovery._report import jsonable
+from hybrid.discovery._report import jsonable, short_name
 from hybrid.discovery._report_figures import correlations
 from hybrid.discovery.residual_tests import confidence_bound
 
@@ -212,3 +212,18 @@ def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
     assert "as good as the data allow" not in near and "an effect outside the library may still" in near
     named = _verdict_of(1.0, [{"name": "back_relaxation"}, {"name": "slew_limit"}])
     assert named.startswith("back_relaxation and slew_limit explain 100%")  # as report.json spells them
+
+
+@pytest.mark.parametrize(
+    "name, short",
+    [
+        # a column named quantity/unit (ISO 80000) once cut the title to "µm)"
+        ("units.csv (u [V] -> Displacement/µm)", "units.csv (u [V] -> Displacement/µm)"),
+        ("/lab/day 2/units.csv (u [V] -> Displacement/µm)", "units.csv (u [V] -> Displacement/µm)"),
+        ("/lab/run (2).csv", "run (2).csv"),
+        ("lab/run.csv", "run.csv"),
+        ("synthetic strip", "synthetic strip"),
+    ],
+)
+def test_the_reports_title_names_each_recording_without_its_folders(name, short):
+    assert short_name(name) == short

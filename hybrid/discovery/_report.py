@@ -295,10 +295,19 @@ def noise_section(d: dict) -> list[str]:
     return lines
 
 
+def short_name(name: str) -> str:
+    """A recording's name without the folders of its file: ``/lab/run.csv (u -> y/µm)`` → ``run.csv (u -> y/µm)``.
+
+    Only the part before a mapping's `` (`` is a path: a column named ``Displacement/µm`` keeps its slash.
+    """
+    path, sep, rest = name.partition(" (")
+    return Path(path).name + sep + rest if ("/" in path or "\\" in path) else name
+
+
 def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None) -> str:
     """The report page from ``report.json``'s content; `loop_levels`: drive levels seen both ways."""
     names = ", ".join(d["recordings"])
-    short = ", ".join(Path(n).name if ("/" in n or "\\" in n) else n for n in d["recordings"])
+    short = ", ".join(short_name(n) for n in d["recordings"])
     ev = d["evidence"]
     lines = [
         f"# Diagnosis of {short} — {datetime.date.today().isoformat()}",
