@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hybrid.discovery._level_limit import level_limits, limit_sentence
+from hybrid.core._level_limit import level_limits, limit_sentence
 
 NOISE = 0.02
 

@@ -28,6 +28,7 @@ import numpy as np
 from ..util._errors import InputError, PluginError
 from ..util._watchdog import stage
 from ._arguments import as_names, as_recordings, check_model, check_seed
+from ._level_limit import level_limits, limit_sentence
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
@@ -236,6 +237,9 @@ def fit(
             per_start[best_start],
             result_metrics.get("train", {}).get("nmse_variance"),
             int(problem.target("train").shape[0]),
+        )
+        + clipped_warnings(
+            problem, best[best_start], split_order, w_unit, (recording_units(recordings) or ("",))[0]
         ),
         stopped=stopped,
     )
@@ -360,6 +364,36 @@ def start_model(model: Model, index, seed, frozen, perturbation, series) -> Mode
     if "network" in frozen or (set(getattr(model.readout, "raw", {})) & frozen):
         return model
     return Model(model.simulation, model.readout.initialise(signal, target), model.kind, model.signal_units)
+
+
+def clipped_warnings(problem: Problem, theta, split_order, scale: float, unit: str) -> list[str]:
+    """A sentence for a record that sits flat at its extreme while the fitted model goes beyond it.
+
+    A clipped sensor, an end stop or an overflow (`level_limits`, as `diagnose`
+    reads it): the fit takes the flat runs for the system's response, and its
+    parameters are biased to follow them. Over every part of the split, each
+    recording's segments apart; levels in the recordings' units (`scale`: the
+    fit's scaling of w).
+    """
+    parts: list[dict] = []
+    for split in split_order:
+        lengths = [b - a for series in problem.series for a, b in series.segments_of(split)]
+        parts.append(
+            {
+                "w": scale * problem.recorded(problem.target(split), split),
+                "w_hat": scale * problem.recorded(problem.prediction(theta, split), split),
+                "segment": np.repeat(np.arange(len(lengths)) + len(parts) * 10**6, lengths),
+            }
+        )
+    n = sum(len(p["w"]) for p in parts)
+    sentence = limit_sentence(level_limits(parts, None), n, unit)
+    if sentence is None:
+        return []
+    return [
+        f"{sentence[0].upper()}{sentence[1:]}. The fit takes the flat runs for the system's response, which "
+        "biases its parameters: record within the sensor's range, or run hybrid diagnose, which names the "
+        "limit, and fit with it (hybrid fit --effects)"
+    ]
 
 
 def _metrics_by_split(problem: Problem, theta, split_order):

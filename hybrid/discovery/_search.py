@@ -20,6 +20,7 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
 from ..core._devices import device_mesh, spread_devices
+from ..core._level_limit import flat_extremes
 from ..core._levenberg_marquardt import LMSettings, LMState, lm_init, lm_run
 from ..core._models import Model
 from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording, split_segments
@@ -28,7 +29,6 @@ from ._diagnosis import MAX_BLOCKS_FACTOR, SPLIT_ORDER, DiagnoseSettings
 from ._effect_set import resolve_effects
 from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, FrameTiming
-from ._level_limit import flat_extremes
 
 #: Effects a lane's Jacobian has room for in the problem every step of the search shares: the
 #: directions of the `SHARED_ROOM` effects with the most parameters. Each direction costs one

@@ -26,8 +26,8 @@ import math
 
 import numpy as np
 
+from ..core._level_limit import level_limits, limit_sentence
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
-from ._level_limit import level_limits, limit_sentence
 from ._noise_floor import NoiseFloor, noise_floor
 from ._search import split_signals
 
