@@ -421,3 +421,67 @@ def test_a_rising_drive_blames_level_and_time_only_between_an_effect_of_time_and
         assert [r["name"] for r in entry["rivals"]] == [rival]
         # two shapes of one static nonlinearity differ in where it sits, not in time
         assert any("level and time are correlated" in why for why in entry["why"]) is blamed, entry["why"]
+
+
+def test_at_the_floor_a_drift_the_rising_level_hides_opens_the_step_on_its_training_evidence():
+    """A material effect of time that passes the BIC rule on training but not held out, on a rising drive.
+
+    Its held-out gain is within the noise and under the step's bar (an effect-free fit with biased
+    parameters does as well held out: the confound itself); a random drive, an effect of the level, an
+    immaterial drift or a BIC drop under the rule open nothing.
+    """
+    rng = np.random.default_rng(5)
+    base = rng.normal(size=600)
+    current = _candidate("none", 1.0, base)
+    effects = hybrid.resolve_effects(["saturation", "baseline_drift"])
+    staircase = [np.repeat(np.linspace(0.0, 50.0, 10), 60)]
+    random_levels = [np.repeat(rng.uniform(0.0, 50.0, 40), 15)]
+
+    def step(name="baseline_drift", delta_bic=-159.0, material=True):
+        drift = _candidate(name, 1.07, base / np.sqrt(1.07) + 0.3 * rng.normal(size=600), material=material)
+        drift.delta_bic = delta_bic
+        return SimpleNamespace(chosen=None, current=current, candidates=[drift], bar=1 / 1.03 * 0.9)
+
+    (entry,) = ambiguities([step()], base, 0.01, staircase, RATE, effects)
+    assert entry["open"] and entry["evidence"] == "confound" and entry["named"] == "none"
+    assert [r["name"] for r in entry["rivals"]] == ["baseline_drift"] and entry["rivals"][0][
+        "delta_bic"
+    ] == -159
+    assert any("level and time are correlated" in why for why in entry["why"])
+    assert "lowers the BIC by 159" in sentence(entry) and "hybrid design" in sentence(entry)
+    for drives, kwargs in (
+        (random_levels, {}),  # level and time apart: the held-out part would have told
+        (staircase, {"name": "saturation"}),  # an effect of the level is no drift hidden by the level
+        (staircase, {"material": False}),
+        (staircase, {"delta_bic": -9.0}),  # under the search's BIC rule (10)
+    ):
+        assert ambiguities([step(**kwargs)], base, 0.01, drives, RATE, effects) == [], kwargs
+
+
+def _heated_block(drop: float, seed: int = 0) -> hybrid.Recording:
+    """A heated block read through a lag (τ 8 s, 0.4 K/W) under a rising staircase of heater power, 60 s at
+    20 Hz; its sensor's baseline falls by `drop` of the response's range over the recording (scipy)."""
+    rng = np.random.default_rng(seed)
+    rate, n = 20.0, 1200
+    u = np.repeat(np.linspace(0.0, 50.0, 10), n // 10)
+    a = np.exp(-1.0 / (rate * 8.0))
+    w = 0.4 * lfilter([1 - a], [1, -a], u)
+    w = w - drop * np.ptp(w) * np.arange(n) / n
+    w = w + 0.01 * np.ptp(w) * rng.normal(size=n)
+    return hybrid.Recording.from_arrays(v_in=u, w=w, rate=rate)
+
+
+def test_a_baseline_drift_absorbed_by_a_staircase_is_open_not_an_all_clear():
+    """A new user's heated block: the report said nothing was missing and `hybrid design` refused to run.
+
+    The drift (15 % of range) is absorbed held out by a gain and a time constant biased low; on
+    training `baseline_drift` lowers the BIC by ~130. Without the drift, the same staircase opens nothing.
+    """
+    effects = ["baseline_drift", "saturation"]
+    found = hybrid.diagnose(_heated_block(0.15), simulation=hybrid.LTI(1), effects=effects)
+    assert found.causes == [] and found.unexplained is None  # at the floor: the rules name nothing
+    (entry,) = found.to_dict()["ambiguous"]
+    assert entry["evidence"] == "confound" and [r["name"] for r in entry["rivals"]] == ["baseline_drift"]
+    assert set(entry["models"]) == {"none", "baseline_drift"}  # both sides saved: hybrid design has rivals
+    clean = hybrid.diagnose(_heated_block(0.0), simulation=hybrid.LTI(1), effects=effects)
+    assert clean.causes == [] and clean.ambiguous == []

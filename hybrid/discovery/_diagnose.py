@@ -399,7 +399,14 @@ def diagnose(
     )
     drives = [np.asarray(r.v_in, float) for r in recordings]
     rivals = ambiguities(
-        steps, w_te, floor.std, drives, rate, search.effects, open_remainder=unexplained is not None
+        steps,
+        w_te,
+        floor.std,
+        drives,
+        rate,
+        search.effects,
+        open_remainder=unexplained is not None,
+        min_bic_drop=settings.min_bic_drop,
     )
     gone = {d.name for d in dropped}  # a dropped cause's rivals are moot: the final model does without it
     rivals = [entry for entry in rivals if entry["named"] not in gone]
