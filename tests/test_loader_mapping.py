@@ -377,7 +377,7 @@ def test_every_bad_mapping_is_one_input_error(lab, options, match):
         ),
         (
             "u,y\n1,2\n3\n",
-            r"no cell \(the line has 1 cell\(s\), the column is number 2\) in column 'y'.*line 3",
+            r"has 1 cells at line 3 \(sample 1\) but 2 columns in its header \(a line cut short",
         ),
         ("u,y\n", "has a header but no data lines"),
         # the line of a bad cell in a ';' file with decimal commas, and under a units row
@@ -389,7 +389,9 @@ def test_every_bad_mapping_is_one_input_error(lab, options, match):
             "u,y\nV,mm\n1,2\n3,x\n",
             r"non-numeric cell 'x' in column 'y' \(mapped as output\) at line 4 \(sample 1\)",
         ),
-        ("u,y,u\n1,2,3\n", r"has 2 columns named 'u' \(columns 1, 3\)"),
+        ("u,y,u\n1,2,3\n", r"has 2 columns named 'u' \(columns 0, 2, counting from 0\).*--input 0"),
+        # a mapped column past the end of a line in a file whose lines vary: numbered from 0, as --input 0
+        ("u,x,y\n1,2,3\n4,5,6\n7,8\n", r"has 2 cells at line 4 \(sample 2\) but 3 columns"),
     ],
 )
 def test_bad_cells_name_the_column_and_the_line(tmp_path, body, match):
@@ -444,6 +446,8 @@ def test_a_semicolon_file_with_decimal_commas_maps_its_columns(tmp_path):
     np.testing.assert_array_equal(rec.v_in, [1.5, 2.0, -1.25])
     np.testing.assert_array_equal(rec.w, [-0.25, 1.5e-3, 0.5])
     assert rec.rate == pytest.approx(2.0)
+    # the note the docs promise (the commands print it as a warning)
+    assert any("read as cells separated by ';' with decimal commas" in note for note in rec.notes)
 
 
 def test_a_mat_files_struct_fields_are_named_with_dots(tmp_path):
@@ -504,3 +508,4 @@ def test_an_oscilloscope_export_maps_below_its_preamble(tmp_path):
     )
     assert rec.rate == pytest.approx(30.0, rel=1e-4) and rec.metadata["units"]["w"] == "mV"
     np.testing.assert_allclose(rec.w, [round(np.cos(k / 7), 4) for k in range(60)])
+    assert any("the 2 line(s) before its header (line 4) skipped" in note for note in rec.notes), rec.notes

@@ -7,7 +7,8 @@ suffix (`SUFFIXES`) and returns the file's channels and metadata, for
 [`Recording`][hybrid.Recording] to validate. The naming shared with
 `hybrid.data._writers` (suffixes, sidecar, ``extra_`` prefix) lives here.
 
-Messages about CSV files give the line number in the file (from 1).
+Messages about CSV files give the line in the file (from 1) and the sample (from 0):
+``line 14 (sample 12)``.
 """
 
 from __future__ import annotations
@@ -25,15 +26,19 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._recording_checks import REQUIRED, TIME_UNITS, UNITS, rows_text
+from ._recording_checks import REQUIRED, TIME_UNITS, UNITS, samples_text
 
 __all__ = [
+    "FOOTER_LINES",
     "PREAMBLE_LINES",
     "SUFFIXES",
     "Clock",
     "check_file",
+    "DECIMAL_COMMA",
     "comma_separated",
+    "decode_text",
     "find_header",
+    "footer_start",
     "mat_variables",
     "npz_arrays",
     "read_file",
@@ -50,7 +55,7 @@ NPZ_EXTRA = "extra_"
 
 def read_file(
     path: pathlib.Path, *, require_w: bool = True
-) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...]]:
+) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...], np.ndarray | None]:
     """Read the channels and metadata of a recording file; see `Recording.load`.
 
     Arguments:
@@ -59,22 +64,25 @@ def read_file(
             with zeros.
 
     Returns:
-        ``(columns, metadata, notes)``: every channel by name (t, v_in and w
+        ``(columns, metadata, notes, lines)``: every channel by name (t, v_in and w
         first as found in the file), the metadata, with ``"source"`` set to
-        ``path`` when missing, and a sentence for each column left out (a CSV
-        column of text beside the signals, e.g. a timestamp or a comment).
+        ``path`` when missing, a sentence for each thing done to the file (a CSV
+        column of text beside the signals left out, a preamble or a footer
+        skipped), and the file line (from 1) of each sample of a CSV file (None
+        for the others).
     """
     suffix = check_file(path)
     required = REQUIRED if require_w else REQUIRED[:2]
     notes: tuple[str, ...] = ()
+    lines = None
     if suffix == ".csv":
-        columns, metadata, notes = _load_csv(path, required)
+        columns, metadata, notes, lines = _load_csv(path, required)
     else:
         columns, metadata = (_load_npz if suffix == ".npz" else _load_mat)(path, required)
     if "w" not in columns:
         columns["w"] = np.zeros_like(columns["t"])
     metadata.setdefault("source", str(path))
-    return columns, metadata, notes
+    return columns, metadata, notes, lines
 
 
 # --------------------------------------------------------------------------- #
@@ -293,18 +301,82 @@ def parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:
 
 
 def read_text(path: pathlib.Path) -> str:
+    return decode_text(path, "save it as CSV UTF-8 (Excel: Save As, 'CSV UTF-8 (Comma delimited)')")
+
+
+def decode_text(path: pathlib.Path, fix: str) -> str:
+    """A text file's contents (UTF-8, with or without Excel's byte-order mark).
+
+    Other text is refused in one line naming its first byte that is not UTF-8, the
+    encoding it looks like where that can be told (UTF-16; Windows-1252, Excel's
+    plain "CSV" on Western-European Windows), and `fix`.
+    """
     try:
-        return path.read_text(encoding="utf-8-sig")  # -sig: Excel's byte-order mark
-    except UnicodeDecodeError:
-        raise InputError(f"recording '{path}' is not UTF-8 text: save it as a plain CSV file") from None
+        raw = path.read_bytes()
     except OSError as error:
         raise InputError(
             f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions"
         ) from None
+    try:
+        return raw.decode("utf-8-sig")  # -sig: Excel's byte-order mark
+    except UnicodeDecodeError as error:
+        line = raw[: error.start].count(b"\n") + 1
+        where = f"byte 0x{raw[error.start]:02X} at line {line}"
+        raise InputError(
+            f"recording '{path}' is not UTF-8 text ({where}{_encoding_guess(raw)}): {fix}"
+        ) from None
+
+
+def _encoding_guess(raw: bytes) -> str:
+    """``"; it looks like ..."`` naming the encoding of text that is not UTF-8, or '' when it cannot be told."""
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in raw[:4096]:
+        return "; it looks like UTF-16"
+    try:
+        raw.decode("cp1252")
+    except UnicodeDecodeError:
+        return ""
+    return "; it looks like Windows-1252 (Western European)"
 
 
 #: Lines a header is looked for in, below a logger's preamble (device, date, settings).
 PREAMBLE_LINES = 50
+
+
+#: Lines after the data that are taken for a logger's footer at most (`footer_start`).
+FOOTER_LINES = 50
+_LETTER = re.compile(r"[^\W\d_]")
+
+
+def footer_start(rows: Sequence[Sequence[str]], indices: Sequence[int]) -> int:
+    """The index among a table's data `rows` (split into cells) where its footer begins; ``len(rows)`` for none.
+
+    A footer (a logger's ``End of data``, ``Total scans: 1800``) is the run of at most
+    `FOOTER_LINES` lines at the end, after at least one other line, each holding a letter
+    and no number (nor date-time) in any of the read columns `indices`: text, not
+    samples. Lines in the middle are never taken for one.
+    """
+    end = len(rows)
+    while end > 1 and len(rows) - end < FOOTER_LINES:
+        cells = rows[end - 1]
+        text = any(_LETTER.search(cell) for cell in cells)
+        if not text or any(i < len(cells) and _is_value(cells[i]) for i in indices):
+            break
+        end -= 1
+    return end
+
+
+def _is_value(cell: str) -> bool:
+    text = cell.strip().strip('"').strip()
+    try:
+        float(text)
+        return True
+    except ValueError:
+        pass
+    try:
+        datetime.datetime.fromisoformat(text)
+        return True
+    except ValueError:
+        return False
 
 
 def find_header(rows: Sequence[Sequence[str]], needed: Sequence[str]) -> int:
@@ -319,7 +391,7 @@ def find_header(rows: Sequence[Sequence[str]], needed: Sequence[str]) -> int:
 
 
 #: A number written with a decimal comma: 1,5 or -0,25 or ,5 or 1,5e-3.
-_DECIMAL_COMMA = re.compile(r"[+-]?(\d+,\d*|,\d+)([eE][+-]?\d+)?")
+DECIMAL_COMMA = re.compile(r"[+-]?(\d+,\d*|,\d+)([eE][+-]?\d+)?")
 
 
 def comma_separated(text: str) -> tuple[str, str | None]:
@@ -351,7 +423,7 @@ def comma_separated(text: str) -> tuple[str, str | None]:
         cells = []
         for cell in line.split(mark):
             cell = cell.strip()
-            if _DECIMAL_COMMA.fullmatch(cell):
+            if DECIMAL_COMMA.fullmatch(cell):
                 cell, decimals = cell.replace(",", "."), decimals + 1
             cells.append(cell.replace(",", " "))  # a comma in a name or a label: not a separator
         out.append(",".join(cells))
@@ -370,8 +442,10 @@ def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], str | None]:
     return lines, how
 
 
-def _csv_header(path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED) -> list[str]:
-    _check_delimiter(path, line)
+def _csv_header(
+    path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED, following: str = ""
+) -> list[str]:
+    _check_delimiter(path, line, following)
     header = [cell.strip().strip('"').strip() for cell in line.split(",")]
     while header and not header[-1]:
         header.pop()  # a trailing comma (a spreadsheet's empty columns): their cells must be empty too
@@ -387,10 +461,19 @@ def _csv_header(path: pathlib.Path, line: str, required: Sequence[str] = REQUIRE
     return header
 
 
-def _check_delimiter(path: pathlib.Path, line: str) -> None:
-    """Refuse a header split by spaces: its columns would read as missing (';' and tabs: `comma_separated`)."""
+def _check_delimiter(path: pathlib.Path, line: str, following: str = "") -> None:
+    """Refuse a header split by spaces: its columns would read as missing (';' and tabs: `comma_separated`);
+    `following` is the line after it."""
     if "," in line:
         return
+    names = line.split()
+    data = following.split()
+    if len(names) > 1 and len(data) > 1 and not any(m in line + following for m in ",;\t"):
+        raise InputError(
+            f"recording '{path}' has its cells separated by spaces (header {line.strip()!r}), and a .csv is "
+            "read with commas between them: save it comma-separated with '.' decimals, or rename it to .txt "
+            f"(a text table, read with spaces between the cells) and map its columns: {_mapping_example(names)}"
+        )
     for mark, word in ((";", "';'"), ("\t", "tabs"), (None, "spaces")):
         cells = [c.strip().strip('"') for c in line.split(mark)]
         if len(cells) > 1 and set(cells) & set(REQUIRED):
@@ -401,24 +484,25 @@ def _check_delimiter(path: pathlib.Path, line: str) -> None:
 
 
 def _csv_column(path: pathlib.Path, column: str, cells: list[str], numbers: np.ndarray) -> np.ndarray:
-    """Convert one column of cells, naming the first bad cell and its line."""
+    """Convert one column of cells, naming the first bad cell, its line and its sample."""
     try:
         values = np.array(cells, dtype=np.float64)
     except ValueError:
-        for cell, number in zip(cells, numbers):
+        for k, (cell, number) in enumerate(zip(cells, numbers)):
             try:
                 float(cell)
             except ValueError:
+                comma = " (a decimal comma: write '.' decimals)" if DECIMAL_COMMA.fullmatch(cell) else ""
                 raise InputError(
-                    f"recording '{path}' has non-numeric cell {cell!r} at line "
-                    f"{number}, column '{column}': fix or remove that line"
+                    f"recording '{path}' has non-numeric cell {cell!r}{comma} in column '{column}' at line "
+                    f"{number} (sample {k}): fix that cell or delete the line"
                 ) from None
         raise  # pragma: no cover - numpy and float() disagree
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
         raise InputError(
             f"recording '{path}' has non-finite values in column '{column}' at "
-            f"{rows_text(numbers[bad], 'lines')}: remove or interpolate them"
+            f"{samples_text(bad, numbers)}: remove or interpolate them"
         )
     return values
 
@@ -440,7 +524,7 @@ def _text_column(cells: list[str]) -> str | None:
 
 def _load_csv(
     path: pathlib.Path, required: Sequence[str] = REQUIRED
-) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...]]:
+) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...], np.ndarray]:
     lines, how = _csv_lines(path)
     if not lines:
         raise InputError(
@@ -454,22 +538,21 @@ def _load_csv(
         lines = lines[start:]
     else:
         notes = []
-    header = _csv_header(path, lines[0][1], required)
+    header = _csv_header(path, lines[0][1], required, lines[1][1] if len(lines) > 1 else "")
     row = units_row(lines[1][1].split(",")) if len(lines) > 1 else None
     stated = {name: unit for name, unit in zip(header, row or ()) if unit}
-    rows, numbers = [], []
-    for number, line in lines[1 + (row is not None) :]:
-        cells = [cell.strip().strip('"').strip() for cell in line.split(",")]  # "1.5": an export that quotes
-        while len(cells) > len(header) and not cells[-1].strip('"'):
+    body = lines[1 + (row is not None) :]
+    split = [[cell.strip().strip('"').strip() for cell in line.split(",")] for _, line in body]
+    end = footer_start(split, [header.index(c) for c in required])
+    if end < len(body):
+        notes.append(footer_note(path, body[end:]))
+    rows: list[list[str]] = []
+    numbers: list[int] = []
+    for (number, line), cells in zip(body[:end], split):  # "1.5": an export that quotes
+        while len(cells) > len(header) and not cells[-1]:
             cells.pop()  # the trailing empty cells of the header's trailing empty names
         if len(cells) != len(header):
-            hint = ""
-            if len(cells) > len(header) and "." not in line and re.search(r"\d,\d", line):
-                hint = " (decimal commas? write numbers with '.' decimals)"
-            raise InputError(
-                f"recording '{path}' has {len(cells)} cells at line {number} but "
-                f"{len(header)} columns in its header{hint}: make every line match the header"
-            )
+            raise InputError(cell_count_message(path, line, number, len(rows), len(cells), len(header)))
         rows.append(cells)
         numbers.append(number)
     if not rows:
@@ -508,7 +591,40 @@ def _load_csv(
         metadata["units"]["t"] = declared.get("t", "s")
         listed = ", ".join(f"{c} in {u}" for c, u in stated.items())
         notes.append(f"recording '{path}': read {where} as units ({listed})")
-    return columns, metadata, tuple(notes)
+    return columns, metadata, tuple(notes), line_numbers
+
+
+def footer_note(path: pathlib.Path | str, footer: Sequence[tuple[int, str]]) -> str:
+    """The note for a footer skipped (`footer_start`): its lines ``(number, text)``."""
+    first = footer[0][1].strip()
+    shown = first if len(first) <= 40 else first[:37] + "..."
+    return (
+        f"recording '{path}': the {len(footer)} line(s) of text after its data (from line "
+        f"{footer[0][0]}, {shown!r}) skipped as a footer"
+    )
+
+
+def cell_count_message(
+    path: pathlib.Path | str, line: str, number: int, sample: int, cells: int, width: int, what: str = ""
+) -> str:
+    """The message for a data line of `cells` cells under a header of `width` columns (or lines of `width`
+    cells: `what` says which), with the likely cause."""
+    hint = ""
+    fragments = [c for c in line.split(",") if re.fullmatch(r"\s*0\d+\s*", c)]  # 0,009428: "009428"
+    if cells > width and (fragments or not re.search(r"\d\.\d", line)):
+        hint = (
+            " (decimal commas? the commas in 0,5 split it into cells: write '.' decimals, or save it "
+            "with ';' between the cells)"
+        )
+    elif cells < width:
+        hint = " (a line cut short, or a footer?)"
+    elif cells > width:
+        hint = " (a cell too many: a value or a delimiter written twice?)"
+    return (
+        f"recording '{path}' has {cells} cells at line {number} (sample {sample}) but "
+        f"{what or f'{width} columns in its header'}{hint}: make every line match the header"
+        " (fix or delete that line)"
+    )
 
 
 # ------------------------------------------------------------------- NPZ

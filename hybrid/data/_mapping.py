@@ -24,8 +24,10 @@ which the measured output, where the time comes from.
   period field of the file (`RATE_FIELDS`: a ``Ts`` column whose first row holds
   the period, as in Cascaded Tanks; ``fs``/``rate`` columns; the same keys in the
   sidecar metadata) gives it too. Every rate given (argument, fields, metadata,
-  the time column's median step) must agree within `RATE_RTOL`, else one error;
-  the time column wins, then the file's fields, the metadata, the argument.
+  the time column's step: its span over its steps, `time_step`, the least-squares
+  step of jittered timestamps rebuilt as a grid) must agree within `RATE_RTOL` (or,
+  against jittered timestamps, the drift their largest jitter allows), else one
+  error; the time column wins, then the file's fields, the metadata, the argument.
 * ``sample_range``: ``"start:stop"`` in samples from 0, Python-slice style,
   either side optional (``"40650:"``, ``":40000"``, ``"100:200"``); negative,
   out-of-range and empty ranges are refused. It is applied after mapping; the
@@ -34,8 +36,11 @@ which the measured output, where the time comes from.
   as [`Recording.segment`][hybrid.Recording.segment] does.
 * ``units``: labels stored in ``metadata["units"]``, e.g. ``{"v_in": "V",
   "w": "V"}``; nothing is converted except a time column given in ``ms``,
-  ``us``, ``min`` or ``h`` (`TIME_UNITS`). Defaults: the sidecar's units for the
-  column (or role), else ``V`` for the drive and ``a.u.`` for the output.
+  ``us``, ``ns``, ``min`` or ``h`` (`TIME_UNITS`). Defaults: the sidecar's units for the
+  column (or role), else a units row's, else the unit in the column's name
+  (``Time [ms]``, ``y (mm)``, ``Displacement/µm``: `hybrid.data._header_units` gives
+  the rule; a time column's scales it), else ``V`` for the drive and ``a.u.`` for the
+  output.
 
 * **Several files, one record** (a logger that writes each channel to its own
   file): ``path`` is a list of files and each name in the mapping is ``FILE``
@@ -64,6 +69,7 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
+from ._header_units import header_unit, is_unit, time_unit
 from ._loaders import check_file, path_argument, time_factor
 from ._mapping_options import (
     mapping_roles,
@@ -74,7 +80,7 @@ from ._mapping_options import (
     units_argument,
 )
 from ._recording import Recording
-from ._recording_checks import MS_STEP_S, TIME_UNITS
+from ._recording_checks import MS_STEP_S, TIME_UNITS, check_time, time_step
 from ._table import MAPPED_SUFFIXES, OPTION, RATE_FIELDS, only_column, rate_field, read_columns
 
 __all__ = ["DEFAULT_UNITS", "RATE_RTOL", "file_references", "load_mapped", "load_pair"]
@@ -157,6 +163,8 @@ def load_mapped(
     if name is not None and (not isinstance(name, str) or not name.strip()):
         raise InputError(f"load_mapped got name {name!r}: give a non-empty string or leave it out")
     references = file_references(roles, paths)
+    lines = None  # the file line of each sample, for messages
+    notes: list[str] = []
     if references:
         data, fields, file_meta = _read_joined(references)
         path = " + ".join(str(p) for p in dict.fromkeys(p for p, _ in references.values()))  # for messages
@@ -167,7 +175,8 @@ def load_mapped(
         )
     else:
         path = paths[0]
-        data, fields, file_meta = read or read_columns(path, check_file(path, MAPPED_SUFFIXES), roles)
+        data, fields, file_meta, table = read or read_columns(path, check_file(path, MAPPED_SUFFIXES), roles)
+        lines, notes = table.lines, list(table.notes)
     lengths = {role: len(values) for role, values in data.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"the {OPTION[r]} '{roles[r]}' has {k}" for r, k in lengths.items())
@@ -190,22 +199,43 @@ def load_mapped(
             + (")" if not references else "")
         )
     )
+    names = {role: (references[role][1] or "") if references else roles[role] for role in roles}
     t = None
+    grid: np.ndarray | None = None  # t as the Recording will hold it (a jittered one rebuilt)
+    jitter = 0.0  # the largest timestamp jitter of a rebuilt time base, s
+    if lines is not None:
+        lines = lines[start:stop]
     if "t" in data:
         file_units = file_meta.get("units")  # by column name: a units row under the header, or a sidecar's
         stated = file_units.get(roles["t"]) if isinstance(file_units, Mapping) else None
         declared = "t" in given_units or isinstance(stated, str)  # in seconds unless its unit is given
-        if "start_time" in file_meta and not references:  # date-times, read as seconds (`Clock`)
+        dates = "start_time" in file_meta and not references
+        if dates:  # date-times, read as seconds (`Clock`)
             if given_units.get("t", "s") != "s":
                 raise InputError(
                     f"recording '{path}' has date-times in its time column '{roles['t']}', read in "
                     f"seconds: leave t={given_units['t']} out of the units"
                 )
             given_units["t"], declared = "s", True
+        named = None if dates else _time_unit_of_name(path, names["t"], declared)
         if "t" in given_units:
-            factor = TIME_UNITS[given_units.pop("t")]
+            unit = given_units.pop("t")
+            where = "--units (units=)"
+        elif isinstance(stated, str):
+            unit, where = stated, "the file's units"
         else:
-            factor = time_factor(path, stated, "the file's units") if isinstance(stated, str) else 1.0
+            unit, where = named or "s", ""
+        factor = time_factor(path, unit, where) if where else TIME_UNITS[unit]
+        if named is not None and where and TIME_UNITS.get(named) != factor:
+            notes.append(
+                f"recording '{path}': the time column's name '{names['t']}' says {named}, but {where} "
+                f"gives {unit}: read in {unit}"
+            )
+        elif named is not None and not where and named != "s":
+            notes.append(
+                f"recording '{path}': the time column '{names['t']}' read in {named}, as its name says"
+            )
+        declared = declared or named is not None
         t = data["t"][start:stop] * factor
         step = float(np.median(np.diff(t)))
         if not declared and step >= MS_STEP_S:
@@ -214,7 +244,10 @@ def load_mapped(
                 f"looks like milliseconds ({1000 / step:.4g} Hz if so): give its unit, units "
                 "t=ms (or t=s for a recording really sampled this slowly)"
             )
-    hz, rate_from = _resolve_rate(label, rate_arg, t, fields, file_meta)
+        # the checks the Recording makes, here with the file's lines; the rate is the grid's
+        grid, base = check_time(label, t, {"units": {"t": "s"}}, lines)
+        jitter = float(base["jitter_max_s"]) if base is not None else 0.0
+    hz, rate_from = _resolve_rate(label, rate_arg, grid, fields, file_meta, jitter)
     if t is None:
         if hz is None:
             raise InputError(
@@ -225,7 +258,7 @@ def load_mapped(
     metadata = dict(file_meta)
     metadata.update(
         source=str(path),
-        units=_units(roles, given_units, file_meta),
+        units=_units(roles, given_units, file_meta, names, notes, path),
         mapping={role: roles.get(role) for role in ("t", "v_in", "w")},
         rate_hz=hz,
         rate_from=rate_from,
@@ -235,7 +268,7 @@ def load_mapped(
         offset = int(previous.get("start", 0)) if isinstance(previous, dict) else 0
         metadata["segment"] = {"start": offset + start, "stop": offset + stop}
     w = data["w"][start:stop] if "w" in data else np.zeros(stop - start)
-    return Recording(t, data["v_in"][start:stop], w, {}, metadata, label)
+    return Recording(t, data["v_in"][start:stop], w, {}, metadata, label, tuple(notes))
 
 
 def file_references(
@@ -324,7 +357,7 @@ def _read_joined(
             if p == file and column is None:
                 data[role] = only_column(file, suffix, role, str(file))
         if named:
-            columns, found, meta = read_columns(file, suffix, named, flag_prefix=f"{file}:")
+            columns, found, meta, _ = read_columns(file, suffix, named, flag_prefix=f"{file}:")
             data.update(columns)
             fields.update({k: v for k, v in found.items() if k not in fields})
             metadata = {**meta, **metadata}
@@ -402,14 +435,52 @@ def load_pair(
     return estimation, validation
 
 
-def _units(roles: Mapping[str, str], given: Mapping[str, str], file_meta: Mapping) -> dict[str, str]:
+def _units(
+    roles: Mapping[str, str],
+    given: Mapping[str, str],
+    file_meta: Mapping,
+    names: Mapping[str, str],
+    notes: list[str],
+    path: object,
+) -> dict[str, str]:
+    """The units by channel: given, else the file's (by column, then role), else the column name's
+    (`header_unit`), else `DEFAULT_UNITS`; a name's unit that differs from the one kept goes into `notes`."""
     declared = file_meta.get("units")
     declared = declared if isinstance(declared, Mapping) else {}
     out = {"t": "s"}
     for channel in ("v_in", "w"):
+        written = header_unit(names.get(channel, ""))
+        named = written[0] if written is not None and is_unit(written[0]) else None
         found = [given.get(channel), declared.get(roles.get(channel, "")), declared.get(channel)]
-        out[channel] = next((u for u in found if isinstance(u, str) and u), DEFAULT_UNITS[channel])
+        explicit = next((u for u in found if isinstance(u, str) and u), None)
+        out[channel] = explicit or named or DEFAULT_UNITS[channel]
+        if explicit and named and explicit != named:
+            where = "--units (units=)" if given.get(channel) else "the file's units"
+            notes.append(
+                f"recording '{path}': the {OPTION[channel]}'s name '{names[channel]}' says {named}, but "
+                f"{where} gives {explicit}: {explicit} kept"
+            )
     return out
+
+
+def _time_unit_of_name(path: object, name: str, given: bool) -> str | None:
+    """The time unit (a `TIME_UNITS` key) a time column's name gives (``Time [ms]``), or None.
+
+    Brackets holding anything but a time unit are refused unless the unit is `given`;
+    ``name/word`` where the word is no unit (``Date/Time``) is a name.
+    """
+    written = header_unit(name)
+    if written is None:
+        return None
+    text, bracketed = written
+    unit = time_unit(text)
+    if unit is not None or given or not (bracketed or is_unit(text)):
+        return unit
+    raise InputError(
+        f"recording '{path}' has the time column '{name}', whose name gives it the unit {text!r}, "
+        f"not a time unit ({', '.join(TIME_UNITS)}): if it counts samples, leave --time out and give "
+        "the rate (--rate HZ; rate=); else give its unit (--units t=ms; units=)"
+    )
 
 
 def _resolve_rate(
@@ -418,13 +489,21 @@ def _resolve_rate(
     t: np.ndarray | None,
     fields: Mapping[str, np.ndarray],
     metadata: Mapping,
+    jitter: float = 0.0,
 ) -> tuple[float | None, str]:
-    """The sampling rate and where it came from; every source must agree within RATE_RTOL."""
+    """The sampling rate and where it came from; every source must agree within RATE_RTOL.
+
+    The time column's rate is its grid's (`time_step`: for a grid rebuilt from jittered
+    timestamps, the least-squares line's); another rate agrees with it within RATE_RTOL or
+    within the `jitter` (the drift over the record that the largest jitter allows).
+    """
     sources: list[tuple[str, float]] = []
+    tolerance = RATE_RTOL
     if t is not None and len(t) > 1:
-        step = float(np.median(np.diff(t)))
+        step = time_step(t)
         if step > 0:
             sources.append((f"the time column (step {step:.6g} s)", 1.0 / step))
+            tolerance = max(RATE_RTOL, jitter / float(t[-1] - t[0]))
     found = [(f"the file's '{k}' field", rate_field(v), k) for k, v in fields.items()]
     for k, v in metadata.items():
         if isinstance(k, str) and k.lower() in RATE_FIELDS:
@@ -440,7 +519,7 @@ def _resolve_rate(
         return None, ""
     first_where, first = sources[0]
     for where, hz in sources[1:]:
-        if abs(hz - first) > RATE_RTOL * first:
+        if abs(hz - first) > tolerance * first:
             hint = (
                 " (is the time column in milliseconds? give units {'t': 'ms'})"
                 if t is not None and 9e-4 < first / hz < 1.1e-3

@@ -13,8 +13,8 @@ and `Recording.load` / `Recording.save` read and write ``.csv``
 (with a ``<file>.csv.json`` metadata sidecar), ``.npz`` and ``.mat`` files that
 round-trip exactly (`hybrid.data._loaders`, `hybrid.data._writers`).
 
-Row numbers in messages about arrays count samples from 0; messages about CSV
-files give the line number in the file (from 1).
+Messages about arrays name samples from 0 (``sample 12``); messages about a
+file give its line (from 1) and the sample: ``line 14 (sample 12)``.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ from ._recording_checks import (
     check_time,
     is_constant,
     source_name,
+    time_step,
     wild_sample,
 )
 from ._split import Split, split_recording
@@ -179,8 +180,9 @@ class Recording:
 
     @property
     def dt(self) -> float:
-        """Sampling step, s: the median of the time steps."""
-        return float(np.median(np.diff(self.t)))
+        """Sampling step, s: the span of ``t`` over its steps (`time_step`): for a grid rebuilt from
+        jittered timestamps its least-squares step, for times kept as read their mean step."""
+        return time_step(self.t)
 
     @property
     def rate(self) -> float:
@@ -254,15 +256,23 @@ class Recording:
         Returns:
             This recording, so the check can be chained.
         """
+        units = self.metadata.get("units")
+        units = units if isinstance(units, Mapping) else {}
         for column, what, cause in (
             ("v_in", "drive", "is it the right column, or was the drive off?"),
-            ("w", "displacement", "is it the right column, or did the tracking fail?"),
+            (
+                "w",
+                "output",
+                "a disconnected or saturated sensor, a failed tracking, or the wrong column?",
+            ),
         ):
             values = getattr(self, column)
             if is_constant(values):
+                unit = units.get(column)
+                unit = unit if isinstance(unit, str) and unit else UNITS[column]
                 raise InputError(
                     f"recording '{self.name}': the {what} column {column} is constant "
-                    f"({values[0]:.6g} {UNITS[column]} in all {self.n} samples): {cause}"
+                    f"({values[0]:.6g} {unit} in all {self.n} samples): {cause}"
                 )
             wild = wild_sample(values)
             if wild is not None:
@@ -270,7 +280,7 @@ class Recording:
                 raise InputError(
                     f"recording '{self.name}': {column} at sample {k} (t = {self.t[k]:.6g} s) is {values[k]:.6g}, "
                     f"{times:.3g} times the column's typical deviation from its median: a corrupt cell? fix or "
-                    "remove that row (or leave it out with --range)"
+                    "delete that line (or leave it out with --range)"
                 )
         return self
 
@@ -380,7 +390,9 @@ class Recording:
             if unknown or any(value is not None for value in mapping.values()):
                 return load_mapped(path, require_w=require_w, **mapping)
         path = path_argument(path, "Recording.load")
-        columns, metadata, notes = read_file(path, require_w=require_w)
+        columns, metadata, notes, lines = read_file(path, require_w=require_w)
+        if lines is not None:  # the file's lines in the time's messages (the Recording names samples only)
+            check_time(str(path), columns["t"], metadata, lines)
         if metadata.get("complete") is False:  # a recorder's sidecar: `rig record` interrupted, kept partial
             why = metadata.get("error") or metadata.get("status") or "no reason given"
             notes = (*notes, f"recording '{path}': its sidecar says it is incomplete ({why}): it ends early")

@@ -9,7 +9,9 @@ the required channels. Every problem raises
 [`InputError`][hybrid.InputError] with a message that names the
 recording, the column and the rows, and says how to fix it.
 
-Row numbers in messages about arrays count samples from 0.
+Messages name a sample by its number from 0 (``sample 12``); a loader that knows the file
+line each sample came from passes them (``lines``), and the messages then say
+``line 14 (sample 12)``, the same words for every check.
 """
 
 from __future__ import annotations
@@ -22,12 +24,31 @@ import numpy as np
 
 from ..util._errors import InputError
 
-__all__ = ["GAP_FRAMES", "JITTER_FRAMES", "MS_STEP_S", "REQUIRED", "TIME_RTOL", "TIME_UNITS", "UNITS"]
+__all__ = [
+    "GAP_FRAMES",
+    "JITTER_FRAMES",
+    "MS_STEP_S",
+    "REQUIRED",
+    "TIME_RTOL",
+    "TIME_UNITS",
+    "UNITS",
+    "sample_text",
+    "samples_text",
+    "time_step",
+]
 
 #: Required channels, in file order.
 REQUIRED: tuple[str, ...] = ("t", "v_in", "w")
 #: Units a time column may be given in, and their length in seconds.
-TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "min": 60.0, "h": 3600.0}
+TIME_UNITS: dict[str, float] = {
+    "s": 1.0,
+    "ms": 1e-3,
+    "us": 1e-6,
+    "µs": 1e-6,
+    "ns": 1e-9,
+    "min": 60.0,
+    "h": 3600.0,
+}
 #: Units of the required channels, stored in ``metadata["units"]``.
 UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "mm"}
 #: Largest ``max|dt - median dt| / median dt`` kept as it is; far above the rounding
@@ -50,11 +71,36 @@ _RESERVED = frozenset((*REQUIRED, "metadata"))
 _SHOW_ROWS = 5
 
 
-def rows_text(rows: np.ndarray, word: str = "rows") -> str:
-    """Format the first few of ``rows`` as ``"rows 12, 13 (2 in all)"``."""
-    shown = ", ".join(str(int(r)) for r in rows[:_SHOW_ROWS])
-    more = ", ..." if len(rows) > _SHOW_ROWS else ""
-    return f"{word} {shown}{more} ({len(rows)} in all)"
+def sample_text(k: int, lines: Any = None, t: float | None = None) -> str:
+    """Sample ``k`` (from 0) in a message: ``"line 14 (sample 12)"`` where the file's `lines` are known
+    (the line of each sample, from 1), else ``"sample 12"``; with `t`, its time too."""
+    at = f"; t = {t:.6g} s" if t is not None else ""
+    if lines is not None:
+        return f"line {int(lines[k])} (sample {k}{at})"
+    return f"sample {k}" + (f" (t = {t:.6g} s)" if t is not None else "")
+
+
+def samples_text(samples: Any, lines: Any = None) -> str:
+    """The first few of ``samples`` (from 0): ``"samples 12, 13 (2 in all)"``, or with the file's
+    `lines` ``"lines 14, 15 (samples 12, 13; 2 in all)"``."""
+    samples = np.asarray(samples, dtype=int)
+    more = ", ..." if len(samples) > _SHOW_ROWS else ""
+    shown = ", ".join(str(int(r)) for r in samples[:_SHOW_ROWS]) + more
+    if lines is None:
+        return f"samples {shown} ({len(samples)} in all)"
+    numbers = ", ".join(str(int(lines[r])) for r in samples[:_SHOW_ROWS]) + more
+    return f"lines {numbers} (samples {shown}; {len(samples)} in all)"
+
+
+def time_step(t: np.ndarray) -> float:
+    """The sampling step of a time base, s: its span over its steps, ``(t[-1] - t[0]) / (n - 1)``.
+
+    Every rate the project reports (``Recording.rate``, ``metadata["rate_hz"]``) is ``1 / time_step``.
+    For a rebuilt grid it is the least-squares slope; for times kept as read it is not biased
+    by their rounding as the median step is (times written to 7 digits, 0.03333 and 0.03334 s:
+    a median of 0.03333 s says 30.003 Hz).
+    """
+    return float((t[-1] - t[0]) / (len(t) - 1))
 
 
 def as_vector(name: str, column: str, values: Any) -> np.ndarray:
@@ -133,11 +179,13 @@ def check_finite(name: str, column: str, values: np.ndarray) -> None:
     if bad.size:
         raise InputError(
             f"recording '{name}' has non-finite values in column '{column}' at "
-            f"{rows_text(bad)}: remove or interpolate them"
+            f"{samples_text(bad)}: remove or interpolate them"
         )
 
 
-def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarray, dict | None]:
+def check_time(
+    name: str, t: np.ndarray, metadata: Any = None, lines: Any = None
+) -> tuple[np.ndarray, dict | None]:
     """Require strictly increasing, uniformly spaced sample times in seconds.
 
     Returns ``(t, None)`` when the steps are uniform within ``TIME_RTOL``. Otherwise,
@@ -147,14 +195,13 @@ def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarr
     t0 + k·dt (least squares over the frame index k; the median step would be biased
     by millisecond rounding: 33, 33, 34 ms has median 33 ms, 1 % off 30 Hz) with a
     ``time_base`` record of what was done. Gaps and larger irregularities are refused.
+
+    `lines` (the file line of each sample, from 1), where given, go into the messages.
     """
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0) + 1
     if bad.size:
-        raise InputError(
-            f"recording '{name}' has time that does not strictly increase at "
-            f"{rows_text(bad)}: sort the samples and drop repeated times"
-        )
+        _refuse_order(name, t, bad, lines)
     step = float(np.median(dt))
     _check_seconds(name, step, metadata)
     deviation = np.abs(dt - step)
@@ -165,10 +212,10 @@ def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarr
     if gaps.size:
         k = int(gaps[0])
         raise InputError(
-            f"recording '{name}' has a gap in time at row {k + 1} (t = {t[k + 1]:.6g} s): the "
+            f"recording '{name}' has a gap in time at {sample_text(k + 1, lines, t[k + 1])}: the "
             f"step into it is {dt[k]:.6g} s, {dt[k] / step:.3g} times the median step {step:.6g} s "
             f"({gaps.size} gap(s) in all): frames are missing there; cut the recording at the "
-            "gap (Recording.segment) or fill the missing frames"
+            "gap (--range, Recording.segment) or fill the missing frames"
         )
     short = np.flatnonzero(dt < step / GAP_FRAMES)
     frame = np.arange(t.size, dtype=np.float64)
@@ -180,10 +227,10 @@ def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarr
     worst_jitter = abs(float(jitter[far]))
     if short.size or worst_jitter >= JITTER_FRAMES * slope:
         where = (
-            f"the step into row {int(short[0]) + 1} is {dt[short[0]]:.6g} s against a median "
-            f"step of {step:.6g} s"
+            f"the step into {sample_text(int(short[0]) + 1, lines)} is {dt[short[0]]:.6g} s against a "
+            f"median step of {step:.6g} s"
             if short.size
-            else f"row {far} (t = {t[far]:.6g} s) is {worst_jitter / slope:.2g} of a step off the "
+            else f"{sample_text(far, lines, t[far])} is {worst_jitter / slope:.2g} of a step off the "
             "closest uniform grid"
         )
         raise InputError(
@@ -207,6 +254,37 @@ def check_time(name: str, t: np.ndarray, metadata: Any = None) -> tuple[np.ndarr
         "jitter_rms_s": rms,
         "note": note,
     }
+
+
+def _refuse_order(name: str, t: np.ndarray, bad: np.ndarray, lines: Any) -> None:
+    """Refuse times that do not increase (samples `bad`, from 0), saying which of three things it is.
+
+    A step back of more than `GAP_FRAMES` steps is a clock that restarted (two runs in one
+    file: sorting would interleave them); a repeated time is a repeated line or a logger's
+    rounding; a short step back is lines out of order.
+    """
+    k = int(bad[0])
+    forward = np.diff(t)[np.diff(t) > 0]
+    step = float(np.median(forward)) if forward.size else 0.0
+    back = float(t[k - 1] - t[k])
+    more = f" ({bad.size} places in all: {samples_text(bad, lines)})" if bad.size > 1 else ""
+    at = sample_text(k, lines)
+    if step > 0 and back > GAP_FRAMES * step:
+        raise InputError(
+            f"recording '{name}' has a clock that restarted at {at}: its time goes back from "
+            f"{t[k - 1]:.6g} s to {t[k]:.6g} s{more}: the file holds two runs (sorting would mix them); "
+            f"split the file there, or keep one run with --range (sample_range=), e.g. :{k} or {k}:"
+        )
+    if back == 0:
+        raise InputError(
+            f"recording '{name}' repeats the time {t[k]:.6g} s at {at}{more}: a line written "
+            "twice, or times rounded too coarsely; delete the repeated line, or write the times "
+            "with more digits (or drop the time column and give the rate)"
+        )
+    raise InputError(
+        f"recording '{name}' has its time going back by {back:.6g} s at {at} (from {t[k - 1]:.6g} s to "
+        f"{t[k]:.6g} s){more}: lines out of order; sort the lines by time"
+    )
 
 
 def _check_seconds(name: str, step: float, metadata: Any) -> None:

@@ -8,7 +8,12 @@
 * ``.csv``: the header is the first line that is neither blank nor a ``#``
   comment; its names may be quoted, and empty names at its end (a trailing
   comma on every line, as in the Cascaded Tanks and Silverbox files) are
-  dropped. Only the mapped columns and the rate fields are converted, by
+  dropped; a logger's preamble before it is skipped (the header is the first of
+  the first `PREAMBLE_LINES` lines that names every column wanted), with a note.
+  Every data line must have the header's number of cells (or every one the same
+  fewer, none of them read: LabVIEW's Comment column); a footer of text lines
+  after the data (`footer_start`) is skipped with a note. Only the mapped columns
+  and the rate fields are converted, by
   numpy's C reader (`numpy.loadtxt` with ``usecols``): 10⁶ rows of three
   columns take about a second and tens of MB. Other columns may hold anything,
   empty cells included. Blank lines and ``#`` comments are skipped. The
@@ -16,7 +21,8 @@
 * ``.txt`` / ``.dat`` (`TEXT_SUFFIXES`): a plain text table, as a logger or
   MATLAB's ``save -ascii`` writes it: numbers separated by commas, semicolons,
   tabs or spaces (the first data line decides), ``#`` comments and blank lines
-  skipped, an optional header line (a first line that is not all numbers). A
+  skipped, an optional header line (a first line that is not all numbers; below a
+  preamble and above a footer, as in a ``.csv``). A
   table without a header names its columns by number from 0 (``"0"``, ``"1"``).
   Every column is read, so every cell must be a number.
 * ``.npz`` / ``.mat``: the arrays or variables named; only those must be real
@@ -34,6 +40,8 @@ its column, its line in the file, from 1, and its sample, from 0).
 
 from __future__ import annotations
 
+import array
+import collections
 import csv
 import difflib
 import io
@@ -41,16 +49,23 @@ import math
 import pathlib
 import warnings
 from collections.abc import Callable, Mapping, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
 from ..util._errors import InputError
 from ._loaders import (
+    DECIMAL_COMMA,
+    FOOTER_LINES,
     PREAMBLE_LINES,
     Clock,
+    cell_count_message,
     comma_separated,
+    decode_text,
     file_vector,
     find_header,
+    footer_note,
+    footer_start,
     mat_variables,
     npz_arrays,
     parse_metadata,
@@ -64,6 +79,7 @@ __all__ = [
     "OPTION",
     "RATE_FIELDS",
     "TEXT_SUFFIXES",
+    "TableNotes",
     "only_column",
     "rate_field",
     "read_columns",
@@ -99,9 +115,18 @@ MAPPED_SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat", *TEXT_SUFFIXES)
 _SHOW_NAMES = 20
 
 
+class TableNotes(NamedTuple):
+    """What reading a table learnt besides its columns, for `load_mapped`."""
+
+    #: The file line (from 1) of each sample, for messages; None where the file has no lines (.npz, .mat).
+    lines: np.ndarray | None = None
+    #: What was done to the file (a preamble or footer skipped, ';' cells read), one sentence each.
+    notes: tuple[str, ...] = ()
+
+
 def read_columns(
     path: pathlib.Path, suffix: str, wanted: Mapping[str, str], flag_prefix: str = ""
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
     """The mapped columns of a file, its rate fields and its metadata.
 
     Arguments:
@@ -112,18 +137,18 @@ def read_columns(
             joined by ``columns``; see `unknown_name`).
 
     Returns:
-        ``(columns, fields, metadata)``: role -> float64 vector (all of one length for
-        a CSV file), rate-field name -> its values, and the file's metadata.
+        ``(columns, fields, metadata, notes)``: role -> float64 vector (all of one length for
+        a CSV file), rate-field name -> its values, the file's metadata, and `TableNotes`.
     """
     if suffix == ".csv":
         return _read_csv(path, wanted, flag_prefix)
     if suffix in TEXT_SUFFIXES:
-        names, table = read_text_table(path)
+        names, table, notes = read_text_table(path, [n for n in wanted.values() if not n.isdigit()])
         columns = {
             role: table[:, _column_index(path, names, name, role, flag_prefix)]
             for role, name in wanted.items()
         }
-        return columns, {}, {}
+        return columns, {}, {}, notes
     arrays, metadata = npz_arrays(path) if suffix == ".npz" else mat_variables(path)
     kind = "array" if suffix == ".npz" else "variable"
     columns = {}
@@ -138,7 +163,7 @@ def read_columns(
         and key not in wanted.values()
         and np.asarray(values).dtype.kind in "biuf"
     }
-    return columns, fields, metadata
+    return columns, fields, metadata, TableNotes()
 
 
 def rate_field(values: np.ndarray) -> float | None:
@@ -159,18 +184,24 @@ def rate_field(values: np.ndarray) -> float | None:
 # --------------------------------------------------------------------------- #
 
 
-def _open(path: pathlib.Path):
-    return open(path, encoding="utf-8-sig", newline=None)  # -sig: Excel's byte-order mark
+_CSV_FIX = "save it as CSV UTF-8 (Excel: Save As, 'CSV UTF-8 (Comma delimited)')"
 
 
 def _read_csv(
     path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
+    text, how = comma_separated(
+        decode_text(path, _CSV_FIX)
+    )  # a ';' or tab export with decimal commas: commas
+    notes = [f"recording '{path}': {how}"] if how else []
     try:
-        with _open(path) as raw:
-            text = comma_separated(raw.read())[0]  # a ';' or tab export with decimal commas: commas
         with io.StringIO(text) as handle:
-            header, header_line = _header(path, handle, [n for n in wanted.values() if not n.isdigit()])
+            names_wanted = [n for n in wanted.values() if not n.isdigit()]
+            header, header_line, skipped = _header(path, handle, names_wanted)
+            if skipped:
+                notes.append(
+                    f"recording '{path}': the {skipped} line(s) before its header (line {header_line}) skipped"
+                )
             stated, units_line = _stated_units(handle, header, header_line)
             index = {
                 role: _column_index(path, header, name, role, flag_prefix) for role, name in wanted.items()
@@ -181,6 +212,11 @@ def _read_csv(
                 if name.lower() in RATE_FIELDS and i not in index.values() and header.count(name) == 1
             }
             usecols = [*index.values(), *fields.values()]
+            lines, footer = _data_lines(
+                path, text, header_line, units_line, len(header), usecols, list(index.values())
+            )
+            if footer:
+                notes.append(footer_note(path, footer))
             clock = Clock()  # a time column of date-times: seconds after the first
             lenient: dict[int | str, Callable[[str], float]] | None = {
                 **{i: _lenient for i in fields.values()},
@@ -197,19 +233,12 @@ def _read_csv(
                     comments="#",
                     quotechar='"',
                     converters=lenient,
+                    max_rows=len(lines) or None,  # a footer's lines are not read
                 )
     except InputError:
         raise
-    except UnicodeDecodeError:
-        raise InputError(f"recording '{path}' is not UTF-8 text: save it as a plain CSV file") from None
     except csv.Error as error:  # a NUL byte in the header
-        raise InputError(
-            f"recording '{path}' is not a text table ({error}): save it as a plain CSV file"
-        ) from None
-    except OSError as error:
-        raise InputError(
-            f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions"
-        ) from None
+        raise InputError(f"recording '{path}' is not a text table ({error}): {_CSV_FIX}") from None
     except ValueError as error:
         _diagnose(path, text, header_line, units_line, wanted, index)
         raise InputError(
@@ -233,7 +262,84 @@ def _read_csv(
         units = metadata.get("units")
         declared: dict = units if isinstance(units, dict) else {}
         metadata["units"] = {**stated, **declared}
-    return columns, rates, metadata
+    return columns, rates, metadata, TableNotes(np.frombuffer(lines, dtype=np.int64).copy(), tuple(notes))
+
+
+def _data_lines(
+    path: pathlib.Path,
+    text: str,
+    header_line: int,
+    units_line: int,
+    width: int,
+    usecols: Sequence[int],
+    mapped: Sequence[int],
+) -> tuple[array.array, list[tuple[int, str]]]:
+    """The line number (from 1) of each data line of a CSV's `text` (cells between commas), and its footer.
+
+    Every data line must have the header's `width` cells (empty cells after the last
+    column, a trailing comma, do not count), or every one the same fewer cells, none
+    of them read (`usecols`; LabVIEW leaves its Comment column out); anything else
+    (decimal commas in a comma-separated file, a cell too many or too few) is refused
+    at its line. A footer (`footer_start`, judged on the `mapped` columns) is left out
+    and returned, ``(number, text)`` per line.
+    """
+    numbers = array.array("q")  # 8 bytes a line: 10⁶ lines are 8 MB, not the 30 MB of a list
+    counts = array.array("q")
+    tail: collections.deque[tuple[int, str]] = collections.deque(maxlen=FOOTER_LINES + 1)
+    with io.StringIO(text) as handle:
+        for number, line in enumerate(handle, start=1):
+            if number <= header_line or number == units_line:
+                continue
+            content = line.split("#", 1)[0].strip() if "#" in line else line.strip()
+            if not content:
+                continue  # numpy skips blank and comment lines too
+            numbers.append(number)
+            counts.append(_cell_count(content, width))
+            tail.append((number, content))
+    rows = list(tail)
+    end = len(numbers) - len(rows) + footer_start([next(csv.reader([c]), []) for _, c in rows], mapped)
+    footer = [(n, c) for n, c in rows if n > (numbers[end - 1] if end else 0)]
+    numbers, counts = numbers[:end], counts[:end]
+    if not counts:
+        return numbers, footer
+    first = counts[0]
+    allowed = first if first < width and max(usecols, default=0) < first else width
+    for k, count in enumerate(counts):
+        if count != allowed:
+            line = (
+                next(c for n, c in rows if n == numbers[k])
+                if numbers[k] >= rows[0][0]
+                else _line(text, numbers[k])
+            )
+            what = f"{allowed} on the lines above" if allowed != width else ""
+            raise InputError(cell_count_message(path, line, numbers[k], k, count, width, what))
+    return numbers, footer
+
+
+def _cell_count(content: str, width: int) -> int:
+    """The cells of a CSV line, those after the header's `width` columns left out when empty (a trailing comma)."""
+    if '"' in content:
+        cells = next(csv.reader([content]), [])
+        count = len(cells)
+        while count > width and not cells[count - 1].strip():
+            count -= 1
+        return count
+    count = content.count(",") + 1
+    if count > width:
+        stripped = content.rstrip()
+        while count > width and stripped.endswith(","):
+            stripped = stripped[:-1].rstrip()
+            count -= 1
+    return count
+
+
+def _line(text: str, number: int) -> str:
+    """Line `number` (from 1) of `text`."""
+    with io.StringIO(text) as handle:
+        for n, line in enumerate(handle, start=1):
+            if n == number:
+                return line.strip()
+    return ""
 
 
 def _stated_units(handle, header: Sequence[str], header_line: int) -> tuple[dict[str, str], int]:
@@ -262,11 +368,12 @@ def _lenient(cell: str) -> float:
         return math.nan
 
 
-def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tuple[list[str], int]:
-    """The header's names and its line number; the handle is left after it.
+def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tuple[list[str], int, int]:
+    """The header's names, its line number and how many lines of a preamble came before it; the handle is
+    left after it.
 
     The header is the first line that names every one of `names_wanted` (a
-    logger's preamble comes before it: `header_line`), else the first line.
+    logger's preamble comes before it: `find_header`), else the first line.
     """
     position = handle.tell()
     lines = [line for line in (handle.readline() for _ in range(PREAMBLE_LINES)) if line]
@@ -275,6 +382,7 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
         for line in lines
     ]
     skip = find_header(rows, names_wanted) if names_wanted else 0
+    skipped = sum(1 for row in rows[:skip] if row)
     handle.seek(position)
     for number, line in enumerate(iter(handle.readline, ""), start=1):
         stripped = line.strip()
@@ -290,11 +398,31 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
                         f"recording '{path}' uses {word} as its delimiter (header {stripped!r}): "
                         "save it comma-separated with '.' decimals"
                     )
-        return names, number
+            if len(stripped.split()) > 1 and _spaced(handle):
+                raise InputError(
+                    f"recording '{path}' has its cells separated by spaces (header {stripped!r}), "
+                    "and a .csv is read with commas between them: rename it to .txt (a text table: "
+                    "numbers separated by spaces, tabs, ';' or commas) and map its columns the same "
+                    "way, or save it comma-separated"
+                )
+        return names, number, skipped
     raise InputError(
         f"recording '{path}' has no header or data: give a header line naming the "
         "columns and one line per sample"
     )
+
+
+def _spaced(handle) -> bool:
+    """Whether the next data line of `handle` (left where it was) holds several cells between spaces."""
+    position = handle.tell()
+    try:
+        for line in iter(handle.readline, ""):
+            stripped = line.split("#", 1)[0].strip()
+            if stripped:
+                return "," not in stripped and len(stripped.split()) > 1
+        return False
+    finally:
+        handle.seek(position)
 
 
 def _column_index(
@@ -306,8 +434,9 @@ def _column_index(
     if len(hits) > 1:
         raise InputError(
             f"recording '{path}' has {len(hits)} columns named '{name}' (columns "
-            f"{', '.join(str(i + 1) for i in hits)}), so the {OPTION[role]} column is "
-            "ambiguous: rename all but one in the header"
+            f"{', '.join(str(i) for i in hits)}, counting from 0), so the {OPTION[role]} column is "
+            "ambiguous: rename all but one in the header, or name it by number (--"
+            f"{OPTION[role]} {hits[0]})"
         )
     if not hits:
         raise InputError(unknown_name(path, name, role, [c for c in header if c], "column", flag_prefix))
@@ -367,7 +496,7 @@ def only_column(path: pathlib.Path, suffix: str, role: str, reference: str) -> n
         if len(names) == 1:
             return file_vector(path, names[0], arrays[names[0]]).astype(np.float64)
     else:
-        names, table = read_text_table(path)
+        names, table, _ = read_text_table(path)
         if table.shape[1] == 1:
             return table[:, 0]
     shown = ", ".join(names[:_SHOW_NAMES]) or "none"
@@ -381,17 +510,39 @@ def only_column(path: pathlib.Path, suffix: str, role: str, reference: str) -> n
     )
 
 
-def read_text_table(path: pathlib.Path) -> tuple[list[str], np.ndarray]:
+def read_text_table(
+    path: pathlib.Path, names_wanted: Sequence[str] = ()
+) -> tuple[list[str], np.ndarray, TableNotes]:
     """A plain text table: its column names (the header's, or "0", "1", ... without one) and its numbers.
 
+    The header is found as in a CSV file: the first of the first `PREAMBLE_LINES` lines that
+    names every one of `names_wanted` (the lines before it, a logger's preamble, skipped
+    with a note), else the first line. A footer (`footer_start`) is skipped with a note.
+
     Returns:
-        ``(names, table)``, ``table`` of shape (rows, len(names)), float64, every cell finite.
+        ``(names, table, notes)``, ``table`` of shape (rows, len(names)), float64, every cell
+        finite, and `TableNotes` (the line of each row, what was skipped).
     """
     lines = _text_lines(path)
     if not lines:
         raise InputError(
             f"recording '{path}' has no numbers: give one line per sample, one column per channel"
         )
+    notes: list[str] = []
+    wanted = set(names_wanted)
+    start = next(
+        (
+            i
+            for i, (_, line) in enumerate(lines[:PREAMBLE_LINES])
+            if wanted and wanted <= {c.strip('"').strip() for c in _cells(line, _delimiter(line))}
+        ),
+        0,
+    )
+    if start:
+        notes.append(
+            f"recording '{path}': the {start} line(s) before its header (line {lines[start][0]}) skipped"
+        )
+        lines = lines[start:]
     first = lines[0][1]
     delimiter = _delimiter(first if len(lines) == 1 else lines[1][1])
     cells = _cells(first, delimiter)
@@ -404,44 +555,41 @@ def read_text_table(path: pathlib.Path) -> tuple[list[str], np.ndarray]:
             raise InputError(
                 f"recording '{path}' has a header {first!r} with empty or repeated names: name each column once"
             )
+    rows = [_cells(line, delimiter) for _, line in data]
+    end = footer_start(rows, range(len(names))) if rows else 0
+    if end < len(rows):
+        notes.append(footer_note(path, data[end:]))
+        data, rows = data[:end], rows[:end]
     if not data:
         raise InputError(f"recording '{path}' has a header but no numbers: add one line per sample")
-    table = np.empty((len(data), len(names)))
-    for row, (number, line) in enumerate(data):
-        values = _cells(line, delimiter)
-        if len(values) != len(names):
-            raise InputError(
-                f"recording '{path}' has {len(values)} value(s) at line {number} and {len(names)} "
-                f"{'names in its header' if header else 'on its first line'}: give every line the same columns"
-            )
+    width = len(rows[0]) if header and all(len(r) == len(rows[0]) < len(names) for r in rows) else len(names)
+    names = names[:width]  # LabVIEW leaves its last column (Comment) out of every line
+    table = np.empty((len(data), width))
+    for row, ((number, line), values) in enumerate(zip(data, rows)):
+        if len(values) != width:
+            what = f"{len(names)} names in its header" if header else f"{width} cells on its first line"
+            raise InputError(cell_count_message(path, line, number, row, len(values), width, what))
         for col, cell in enumerate(values):
             try:
                 table[row, col] = float(cell)
             except ValueError:
                 raise InputError(
-                    f"recording '{path}' has non-numeric cell {cell!r} at line {number}, column "
-                    f"{names[col]!r}: fix or remove that line (numbers with '.' decimals)"
+                    f"recording '{path}' has non-numeric cell {cell!r} in column {names[col]!r} at line "
+                    f"{number} (sample {row}): fix that cell or delete the line (numbers with '.' decimals)"
                 ) from None
     bad = np.argwhere(~np.isfinite(table))
     if bad.size:
         row, col = bad[0]
         raise InputError(
-            f"recording '{path}' has a non-finite value at line {data[row][0]}, column {names[col]!r}: remove or "
-            "interpolate it"
+            f"recording '{path}' has a non-finite value in column {names[col]!r} at line {data[row][0]} "
+            f"(sample {row}): remove or interpolate it"
         )
-    return names, table
+    return names, table, TableNotes(np.array([n for n, _ in data], dtype=np.int64), tuple(notes))
 
 
 def _text_lines(path: pathlib.Path) -> list[tuple[int, str]]:
     """Non-blank, non-comment lines of a text table with their line numbers (from 1)."""
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise InputError(f"recording '{path}' is not UTF-8 text: save it as plain text") from None
-    except OSError as error:
-        raise InputError(
-            f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions"
-        ) from None
+    text = decode_text(path, "save it as UTF-8 text")
     lines = []
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.split("#", 1)[0].strip()
@@ -507,7 +655,7 @@ def _diagnose(
 
 def _cell_problem(cells: Sequence[str], i: int, dates: bool = False) -> str:
     if i >= len(cells):
-        return f"no cell (the line has {len(cells)} cell(s), the column is number {i + 1})"
+        return f"no cell (the line has {len(cells)} cell(s), the column is number {i} counting from 0)"
     cell = cells[i].strip()
     if not cell:
         return "an empty cell (a missing value)"
@@ -516,5 +664,7 @@ def _cell_problem(cells: Sequence[str], i: int, dates: bool = False) -> str:
     except ValueError:
         if dates and math.isfinite(Clock()(cell)):
             return ""  # a date-time in the time column
+        if DECIMAL_COMMA.fullmatch(cell.strip('"')):
+            return f"a number with a decimal comma {cell!r} (write '.' decimals, or save with ';' between the cells)"
         return f"a non-numeric cell {cell!r}"
     return "" if math.isfinite(value) else f"a non-finite value {cell!r}"

@@ -1,0 +1,88 @@
+"""Units written in a column's name, as loggers and spreadsheets write them: ``Time [ms]``,
+``u (V)``, ``Displacement/µm`` (ISO 80000's quantity/unit), for
+[`load_mapped`][hybrid.data._mapping.load_mapped].
+
+The rule (conservative: a word in brackets that is not clearly a unit is part of the name):
+
+* a name ending in ``[unit]`` or ``(unit)``, or written ``name/unit`` (``name/(unit)`` for a
+  compound unit), with something before it, gives ``unit`` when `is_unit` accepts it;
+* `is_unit` accepts an SI symbol with an optional SI prefix (``s``, ``ms``, ``µm``, ``mV``,
+  ``kHz``, ``Ω``, ``°C``, ...), ``%``, ``°``, ``deg``, ``rad``, ``ppm``, ``dB``, ``a.u.``,
+  ``counts``, ``px``, ``min``, ``h``, ``rpm``, and products and quotients of them with
+  powers (``m/s^2``, ``N·m``, ``mm/s``); anything else (``(filtered)``, ``(cmd)``, ``(VDC)``,
+  ``[samples]``) is not a unit;
+* for the time column the unit must be a time unit (`TIME_UNITS`, also written ``sec``,
+  ``msec``, ``μs``): it scales the column to seconds. A time column whose name ends in
+  brackets holding anything else (``Time [samples]``, ``Time (V)``) is refused, unless its
+  unit is given (``--units t=…``, a units row or the sidecar);
+* for the drive and the output it is the signal's unit label unless ``--units``, a units row
+  or the sidecar gives one; where both give one and they differ, the given one is kept and
+  a note says so.
+"""
+
+from __future__ import annotations
+
+import re
+
+from ._recording_checks import TIME_UNITS
+
+__all__ = ["header_unit", "is_unit", "time_unit"]
+
+_PREFIX = r"(?:da|[yzafpnµμumcdhkMGTPE])"
+_SYMBOL = r"(?:s|m|g|V|A|Ω|ohm|Ohm|Hz|N|Pa|W|J|C|F|H|T|K|S|Wb|L|l|mol|cd|lx|rad|sr|bar|eV)"
+_SPECIAL = (
+    r"(?:%|‰|°C|°F|°|deg|degC|ppm|dB|dBm|a\.u\.|au|arb\.\s?u\.|counts|cts|px|pixels?|rpm|min|h|psi|mmHg)"
+)
+_POWER = r"(?:\^-?\d+|[²³]|⁻¹|⁻²)?"
+_TOKEN = rf"(?:{_SPECIAL}|{_PREFIX}?{_SYMBOL}){_POWER}"
+_UNIT = re.compile(rf"{_TOKEN}(?:\s*[/·*.⋅]\s*{_TOKEN}|\s+{_TOKEN})*")
+_BRACKETS = re.compile(r"^(?P<name>.*?\S)\s*(?:\[(?P<square>[^\[\]]*)\]|\((?P<round>[^()]*)\))\s*$")
+_SLASH = re.compile(r"^(?P<name>[^/]*?\S)\s*/\s*(?P<unit>\S.*)$")
+#: Spellings of the time units, lower case, -> the key of `TIME_UNITS`.
+_TIME_SPELLINGS = {
+    "s": "s",
+    "sec": "s",
+    "secs": "s",
+    "second": "s",
+    "seconds": "s",
+    "ms": "ms",
+    "msec": "ms",
+    "us": "us",
+    "µs": "µs",
+    "μs": "µs",
+    "ns": "ns",
+    "min": "min",
+    "h": "h",
+}
+
+
+def header_unit(name: str) -> tuple[str, bool] | None:
+    """The unit text a column's name ends with, and whether it is in brackets (else after a '/').
+
+    ``"Time [ms]"`` -> ``("ms", True)``, ``"Displacement/µm"`` -> ``("µm", False)``,
+    ``"u"`` -> None. The text is returned whether or not it is a unit (`is_unit` says).
+    """
+    text = name.strip()
+    match = _BRACKETS.match(text)
+    if match:
+        unit = match.group("square") if match.group("square") is not None else match.group("round")
+        return unit.strip(), True
+    match = _SLASH.match(text)
+    if match:
+        unit = match.group("unit").strip()
+        if unit.startswith("(") and unit.endswith(")"):
+            unit = unit[1:-1].strip()  # ISO 80000: v/(m/s)
+        return unit, False
+    return None
+
+
+def is_unit(text: str) -> bool:
+    """Whether `text` is clearly a unit (see the module's rule): ``mV``, ``µm``, ``m/s^2``, ``%``, ``a.u.``."""
+    return bool(text) and len(text) <= 16 and _UNIT.fullmatch(text.strip()) is not None
+
+
+def time_unit(text: str) -> str | None:
+    """The `TIME_UNITS` key `text` spells (``sec`` -> ``s``, ``μs`` -> ``µs``), or None."""
+    text = text.strip()
+    key = _TIME_SPELLINGS.get(text if text in ("ms", "ns") else text.lower())
+    return key if key in TIME_UNITS else None

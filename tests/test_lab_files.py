@@ -1,0 +1,262 @@
+"""A new user's lab files (issue: trial of lab files): each was read wrong in silence, or refused
+with a message that pointed the wrong way.
+
+Decimal commas in a comma-separated file, units in the header's names (``Time [ms]``,
+``Displacement/µm``), the rate of jittered or rounded timestamps, a logger's footer, a
+preamble in a ``.txt``, spaces between cells, the time going back, a dead sensor, and text that
+is not UTF-8. Every file is written here with numpy; each is read through the loaders the docs
+name (``Recording.load``, ``load_mapped``) and, where the fix is a message, through the command
+line (``hybrid.cli.main``), which refuses before any fitting: nothing here compiles a model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybrid import InputError, Recording
+from hybrid.cli import main
+
+RATE = 30.0
+N = 300
+
+
+def _signals(n=N, seed=0):
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(-1.0, 1.0, n // 10 + 1), 10)[:n]
+    y = np.convolve(u, np.exp(-np.arange(20) / 5.0) / 5.0)[:n] + 0.001 * rng.normal(size=n)
+    return u, y
+
+
+def _write(path, header, columns, fmt="%.6f", delimiter=",", tail=""):
+    """A table of `columns` under `header`, written by numpy, with `tail` (a footer) after it."""
+    table = np.column_stack(columns)
+    np.savetxt(path, table, fmt=fmt, delimiter=delimiter, header=header, comments="")
+    if tail:
+        with open(path, "a", encoding="utf-8") as handle:
+            handle.write(tail)
+    return path
+
+
+def _refused(match, path, **mapping):
+    with pytest.raises(InputError, match=match) as caught:
+        Recording.load(path, **mapping)
+    assert "\n" not in str(caught.value)
+    return str(caught.value)
+
+
+def _cli(argv, capsys):
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return code, err
+
+
+FIT = ["--model", "physics", "--physics", "lti:2", "--max-steps", "1", "--quiet"]
+
+
+# ----------------------------------------------------------- 1. a cell count that is not the header's
+
+
+def test_decimal_commas_in_a_comma_separated_file_are_refused(tmp_path, capsys):
+    u, y = _signals()
+    lines = ["u,y"] + [f"{a:.6f},{b:.6f}".replace(".", ",") for a, b in zip(u, y)]  # 0,666667,0,009428
+    path = tmp_path / "euro.csv"
+    path.write_text("\n".join(lines) + "\n")
+    _refused(
+        r"has 4 cells at line 2 \(sample 0\) but 2 columns in its header \(decimal commas\?",
+        path,
+        columns="input=u,output=y",
+        rate=RATE,
+    )
+    code, err = _cli(
+        ["fit", path, "--columns", "input=u,output=y", "--rate", RATE, *FIT, "--out", tmp_path / "m.eqx"],
+        capsys,
+    )
+    assert code == 2 and "decimal commas?" in err and not (tmp_path / "m.eqx").exists()
+    # a time in '.' decimals beside signals in decimal commas; quoted cells; the project's own columns
+    t = np.arange(N) / RATE
+    lines = ["t,u,y"] + [f"{a:.6f}," + f"{b:.6f},{c:.6f}".replace(".", ",") for a, b, c in zip(t, u, y)]
+    path.write_text("\n".join(lines) + "\n")
+    _refused(
+        r"has 5 cells at line 2 \(sample 0\) .*\(decimal commas\?", path, columns="input=u,output=y,time=t"
+    )
+    lines = ['"t","u","y"'] + [",".join(f'"{x:.6f}"'.replace(".", ",") for x in r) for r in zip(t, u, y)]
+    path.write_text("\n".join(lines) + "\n")
+    _refused(r"a number with a decimal comma '0,000000'", path, columns="input=u,output=y,time=t")
+    lines = ["t,v_in,w"] + [f"{a:.6f},{b:.6f},{c:.6f}".replace(".", ",") for a, b, c in zip(t, u, y)]
+    path.write_text("\n".join(lines) + "\n")
+    _refused(r"has 6 cells at line 2 \(sample 0\) but 3 columns in its header \(decimal commas\?", path)
+
+
+def test_a_line_with_a_cell_too_many_is_refused_at_its_line(tmp_path):
+    u, y = _signals()
+    path = _write(tmp_path / "extra.csv", "time,u,y", [np.arange(N) / RATE, u, y])
+    lines = path.read_text().splitlines()
+    lines[101] += ",0.5"  # sample 100: a value written twice
+    path.write_text("\n".join(lines) + "\n")
+    _refused(
+        r"has 4 cells at line 102 \(sample 100\) but 3 columns", path, columns="input=u,output=y,time=time"
+    )
+
+
+def test_a_footer_after_the_data_is_skipped_with_a_note_and_a_short_line_refused(tmp_path):
+    u, y = _signals()
+    t = np.arange(N) / RATE
+    footer = "End of data\nTotal scans: 300\n"
+    path = _write(
+        tmp_path / "daq.csv", "Scan,Time,Ch101 (VDC),Ch102 (VDC)", [np.arange(N) + 1, t, u, y], tail=footer
+    )
+    rec = Recording.load(path, columns="input=Ch101 (VDC),output=Ch102 (VDC),time=Time")
+    assert rec.n == N and np.allclose(rec.w, y, atol=1e-6)
+    assert any("after its data (from line 302, 'End of data') skipped as a footer" in n for n in rec.notes)
+    # a line of numbers cut short is no footer: refused at its line, never dropped
+    lines = path.read_text().splitlines()
+    lines[-3] = lines[-3][:12]
+    path.write_text("\n".join(lines) + "\n")
+    _refused(
+        r"at line 301 \(sample 299\) but 4 columns in its header \(a line cut short",
+        path,
+        columns="input=Ch101 (VDC),output=Ch102 (VDC),time=Time",
+    )
+
+
+# ------------------------------------------------------------------- 2. units in the header's names
+
+
+def test_units_in_the_header_scale_the_time_and_label_the_signals(tmp_path):
+    u, y = _signals(2000)
+    t_ms = np.arange(2000) * 1.0  # 1 kHz in ms: a step of 1, too small for the ms heuristic
+    path = _write(tmp_path / "daq.csv", "Time [ms],u [V],y (mm)", [t_ms, u, y])
+    rec = Recording.load(path, columns="input=u [V],output=y (mm),time=Time [ms]")
+    assert rec.rate == pytest.approx(1000.0) and rec.metadata["rate_hz"] == pytest.approx(1000.0)
+    assert rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"}
+    assert any("read in ms, as its name says" in n for n in rec.notes)
+    # ISO 80000's quantity/unit, and words in brackets that are no unit
+    path = _write(tmp_path / "iso.csv", "t/s,u (cmd),Displacement/µm", [np.arange(2000) / RATE, u, y])
+    rec = Recording.load(path, columns="input=u (cmd),output=Displacement/µm,time=t/s")
+    assert rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "µm"} and rec.rate == pytest.approx(RATE)
+    # an explicit unit wins, and a disagreement is said in one line
+    rec = Recording.load(path, columns="input=u (cmd),output=Displacement/µm,time=t/s", units="w=mm")
+    assert rec.metadata["units"]["w"] == "mm"
+    assert any("the output's name 'Displacement/µm' says µm, but --units" in n for n in rec.notes)
+
+
+def test_a_time_column_whose_name_gives_no_time_unit_is_refused(tmp_path):
+    u, y = _signals()
+    path = _write(tmp_path / "idx.csv", "Time [samples],u,y", [np.arange(N) * 1.0, u, y])
+    _refused(
+        r"time column 'Time \[samples\]', whose name gives it the unit 'samples', not a time unit.*--rate",
+        path,
+        columns="input=u,output=y,time=Time [samples]",
+    )
+    assert Recording.load(path, columns="input=u,output=y", rate=RATE).rate == pytest.approx(RATE)
+
+
+def test_the_command_line_reads_the_header_units(tmp_path, capsys):
+    # t in ms stepping by 40 (25 Hz) and a dead output in µm: read in s, the dead sensor named in µm
+    u, _ = _signals()
+    path = _write(tmp_path / "dead.csv", "Time [ms],u [V],y [µm]", [np.arange(N) * 40.0, u, np.zeros(N)])
+    code, err = _cli(
+        [
+            "fit",
+            path,
+            "--columns",
+            "input=u [V],output=y [µm],time=Time [ms]",
+            *FIT,
+            "--out",
+            tmp_path / "m.eqx",
+        ],
+        capsys,
+    )
+    assert code == 2 and "the output column w is constant (0 µm in all 300 samples)" in err
+    assert "a disconnected or saturated sensor" in err and "tracking fail?" not in err
+
+
+# ----------------------------------------------------------------------- 3. the rate of a time column
+
+
+def test_jittered_millisecond_times_give_one_rate_and_accept_the_rate_given(tmp_path):
+    rng = np.random.default_rng(5)
+    n = 1800
+    u, y = _signals(n)
+    t_ms = np.round(np.arange(n) * 1000 / RATE + rng.uniform(-3, 3, n))  # 33, 34, 33, ... ± 3 ms
+    path = _write(tmp_path / "cam.csv", "time,u,y", [t_ms, u, y], fmt=["%d", "%.6f", "%.6f"])
+    rec = Recording.load(path, columns="input=u,output=y,time=time", units="t=ms")
+    assert rec.metadata["time_base"]["rebuilt"]
+    assert rec.metadata["rate_hz"] == pytest.approx(RATE, rel=1e-5) and rec.rate == rec.metadata["rate_hz"]
+    again = Recording.load(path, columns="input=u,output=y,time=time", units="t=ms", rate=RATE)
+    assert again.rate == rec.rate
+
+
+def test_times_rounded_to_seven_digits_give_the_rate_not_their_median_step(tmp_path):
+    u, y = _signals(1800)
+    path = _write(tmp_path / "tek.csv", "TIME,CH1,CH2", [np.arange(1800) / RATE, u, y], fmt="%.6e")
+    rec = Recording.load(path, columns="input=CH1,output=CH2,time=TIME")
+    assert rec.rate == pytest.approx(RATE, rel=1e-6) and rec.metadata["rate_hz"] == pytest.approx(
+        RATE, rel=1e-6
+    )
+
+
+# ---------------------------------------------------------------------------------- 4. messages
+
+
+def test_cells_between_spaces_in_a_csv_say_so(tmp_path):
+    u, y = _signals()
+    path = _write(tmp_path / "ws.csv", "time u y", [np.arange(N) / RATE, u, y], delimiter="  ")
+    message = _refused(
+        "has its cells separated by spaces.*rename it to .txt", path, columns="input=u,output=y,time=time"
+    )
+    assert "--time time u y" not in message
+    own = _write(tmp_path / "own.csv", "t v_in w", [np.arange(N) / RATE, u, y], delimiter=" ")
+    _refused("has its cells separated by spaces.*--columns input=v_in,output=w --time t", own)
+    txt = _write(tmp_path / "ws.txt", "time u y", [np.arange(N) / RATE, u, y], delimiter="  ")
+    assert Recording.load(txt, columns="input=u,output=y,time=time").n == N
+
+
+def test_a_preamble_is_skipped_in_a_txt_as_in_a_csv(tmp_path):
+    u, y = _signals()
+    preamble = "LabVIEW Measurement\t\nWriter_Version\t2\n***End_of_Header***\t\n\nChannels\t2\n"
+    header = preamble + "X_Value\tUntitled\tUntitled 1\tComment"  # no line fills the Comment column
+    for name in ("lv.txt", "lv.csv"):
+        path = _write(tmp_path / name, header, [np.arange(N) / RATE, u, y], delimiter="\t")
+        rec = Recording.load(path, columns="input=Untitled,output=Untitled 1,time=X_Value")
+        assert rec.n == N and rec.rate == pytest.approx(RATE)
+        assert any("the 4 line(s) before its header (line 6) skipped" in n for n in rec.notes), rec.notes
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (lambda t: np.delete(t, range(100, 110)), r"gap in time at line 102 \(sample 100; t = "),
+        (lambda t: np.insert(t, 51, t[50]), r"repeats the time 1.66667 s at line 53 \(sample 51\)"),
+        (
+            lambda t: np.concatenate([t[:200], t[200:] - 1.0]),
+            r"clock that restarted at line 202 \(sample 200\).*split the file there, or keep one run with "
+            r"--range.*:200 or 200:",
+        ),
+    ],
+)
+def test_time_errors_name_the_line_and_the_sample(tmp_path, change, match):
+    t = change(np.arange(N) / RATE)
+    u, y = _signals(t.size)
+    path = _write(tmp_path / "t.csv", "time,u,y", [t, u, y])
+    message = _refused(match, path, columns="input=u,output=y,time=time")
+    assert "sort the samples" not in message
+    own = _write(tmp_path / "own.csv", "t,v_in,w", [t, u, y])
+    _refused(match, own)  # a file in the project's own columns: the same words
+
+
+def test_a_non_utf8_file_names_its_encoding_and_excels_format(tmp_path):
+    path = tmp_path / "cp.csv"
+    u, y = _signals()
+    text = "Zeit [s];Spannung [V];Weg [µm]\n" + "".join(
+        f"{a:.6f};{b:.6f};{c:.6f}\n".replace(".", ",") for a, b, c in zip(np.arange(N) / RATE, u, y)
+    )
+    path.write_bytes(text.encode("cp1252"))
+    for mapping in ({"columns": "input=Spannung [V],output=Weg [µm],time=Zeit [s]"}, {}):
+        _refused(
+            r"not UTF-8 text \(byte 0xB5 at line 1; it looks like Windows-1252.*save it as CSV UTF-8",
+            path,
+            **mapping,
+        )
