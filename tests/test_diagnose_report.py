@@ -212,6 +212,12 @@ def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
     assert "as good as the data allow" not in near and "an effect outside the library may still" in near
     named = _verdict_of(1.0, [{"name": "back_relaxation"}, {"name": "slew_limit"}])
     assert named.startswith("back_relaxation and slew_limit explain 100%")  # as report.json spells them
+    assert named.endswith("; what remains is measurement noise.")
+    # a new user's heated block: baseline_drift named, a heat loss left at 1.8× the floor, and the verdict
+    # called what remained measurement noise
+    short = _verdict_of(1.8, [{"name": "baseline_drift"}])
+    assert "measurement noise." not in short and "what remains is 1.8× the measurement noise floor" in short
+    assert "too small for the rules on this recording" in short
 
 
 @pytest.mark.parametrize(

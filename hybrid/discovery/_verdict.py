@@ -53,7 +53,15 @@ def verdict(diagnosis) -> str:
                 f"{_names(causes)} it gains only {d['gain']:.2f}× held out)"
             )
         if left is None:
-            return head + "; what remains is measurement noise."
+            ratio = final_mse / floor if floor > 0 else float("nan")
+            if not ratio > AT_FLOOR:
+                return head + "; what remains is measurement noise."
+            return head + (
+                f"; what remains is {ratio:.2g}× the measurement noise floor, under the "
+                f"{diagnosis.settings.unexplained_ratio:.2g}× above which it is called unexplained: a perfect "
+                "model would reach 1×, and an effect too small for the rules on this recording, or one outside "
+                "the library, may still take it nearer."
+            )
         return head + f"; {left['fraction_above_floor']:.0%} of what remains lies above the noise{where}."
     if left is None:
         ratio = final_mse / floor if floor > 0 else float("nan")
