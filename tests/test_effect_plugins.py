@@ -252,8 +252,7 @@ def test_an_effect_not_finite_over_part_of_its_range_is_reported_not_searched_in
     from hybrid.cli import main
 
     (lab / "half_defined.py").write_text(_HALF_DEFINED)
-    monkeypatch.chdir(lab)
-    monkeypatch.syspath_prepend(str(lab))  # its module imports the docs' effect beside it
+    monkeypatch.chdir(lab)  # its module imports the docs' effect beside it: the plug-in's folder is searched
     code = main(["diagnose", "lab.csv", "--physics", "lti:1", "--effects", "half_defined.py:HalfDefined",
                  "--out", "half", "--quiet"])  # fmt: skip
     assert code == 0

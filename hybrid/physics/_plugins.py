@@ -278,6 +278,11 @@ def module_from_file(text: str, where: str, flag: str = "--physics"):
     module.__dict__["__hybrid_plugin_mtime__"] = stamp
     sys.modules[name] = module
     register(name, text, flag=flag)
+    # Its folder on the import path, as `python file.py` would put it: a plug-in may import a module beside
+    # it (its physics, a shared helper). Last, so that it shadows no installed package; kept, for imports
+    # made later, inside its methods.
+    if str(resolved.parent) not in sys.path:
+        sys.path.append(str(resolved.parent))
     try:
         spec.loader.exec_module(module)
     except SyntaxError as error:
