@@ -48,6 +48,18 @@ def _launch(module: str, name: str) -> int:
         signal.signal(signal.SIGINT, on_sigint_starting)
     try:
         main = importlib.import_module(module).main
+    except (
+        Exception
+    ) as error:  # the package itself or a dependency fails to import: one line, not a traceback
+        if any(a in ("-v", "--verbose") for a in sys.argv[1:]):
+            raise
+        print(
+            f"{name}: error: the command could not start: importing {module} raised {type(error).__name__}: "
+            f"{error}; the installation is broken or incomplete: reinstall it (make install, or pip install -e . "
+            "in the repository; add -v to see the traceback)",
+            file=sys.stderr,
+        )
+        return 1
     finally:
         if main_thread:
             signal.signal(signal.SIGINT, on_sigint)

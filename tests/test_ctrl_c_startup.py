@@ -66,3 +66,20 @@ def test_a_ctrl_c_python_swallowed_is_raised_at_the_next_stage():
     with pytest.raises(KeyboardInterrupt):
         stage("the next thing")
     stage("and the one after")  # raised once, not again
+
+
+@pytest.mark.parametrize("name, module", [("hybrid", "hybrid.cli"), ("rig", "rig.cli")])
+def test_a_command_whose_package_fails_to_import_says_so_in_one_line(name, module, tmp_path):
+    """A broken or half-updated installation (a new user ran a command while the package was changing)
+    printed a 30-line ImportError traceback; with -v it still does."""
+    code = (
+        f"import sys, hybrid_launch; sys.modules[{module!r}] = None; "  # importing it raises ImportError
+        f"sys.exit(hybrid_launch.{name}())"
+    )
+    run = subprocess.run([sys.executable, "-c", code, "--help"], cwd=tmp_path, capture_output=True, text=True)
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1, run.stderr
+    assert lines[0].startswith(f"{name}: error: the command could not start: importing {module} raised")
+    assert "reinstall" in lines[0]
+    verbose = subprocess.run([sys.executable, "-c", code, "-v"], cwd=tmp_path, capture_output=True, text=True)
+    assert verbose.returncode != 0 and "Traceback" in verbose.stderr
