@@ -252,6 +252,11 @@ class Heater(AbstractStateSpace):
         ('states: ClassVar = ("rise",)', "", ["Heater.states", "non-empty tuple"]),
         ('p["resistance"]) / p', 'p["resistence"]) / p', ["Heater.rates raised KeyError", "resistence"]),
         ("return ((u - x[0]", "return ((2 * u - x[0]", ["rates and linear_matrices disagree", "A x + B u"]),
+        (  # a new user's: the message said "checking rates against linear_matrices", before either ran
+            'return ((u - x[0] / p["resistance"]) / p["capacity"],)',
+            'raise RuntimeError("calibration table not loaded")',
+            ["Heater.rates raised RuntimeError", "calling prepare, initial_state and rates"],
+        ),
         (
             'return ((u - x[0] / p["resistance"]) / p["capacity"],)',
             "return u",

@@ -557,12 +557,15 @@ def _probe_linear(simulation, label: str) -> None:
             )
         return np.asarray([float(np.asarray(g)) for g in got])
 
+    doing = "calling prepare, initial_state and rates at the default parameters"
     try:
         p = simulation.prepare(simulation.parameters())
         rates(simulation.initial_state(jnp.asarray(0.0), p), 0.0)  # its shape, at the initial state
+        doing = "calling linear_matrices"
         linear = simulation.linear_matrices(p)
         if linear is None:
             return
+        doing = "checking rates against linear_matrices"
         a, b = (np.asarray(m, float) for m in linear)
         if a.shape != (k, k) or b.reshape(-1).shape != (k,):
             raise PluginError(
@@ -586,8 +589,7 @@ def _probe_linear(simulation, label: str) -> None:
         raise
     except BaseException as error:
         raise PluginError(
-            f"{label}: {_failed_in(error, cls, 'checking rates against linear_matrices')}; fix the plug-in "
-            f"({TRACEBACK_HINT})",
+            f"{label}: {_failed_in(error, cls, doing)}; fix the plug-in ({TRACEBACK_HINT})",
             error,
         ) from None
 
