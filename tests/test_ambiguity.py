@@ -333,6 +333,12 @@ def test_an_open_last_step_has_nothing_more_against_its_best_gains_only_with_a_r
     assert [r["name"] for r in entry["rivals"]] == ["delay"]
     worse = SimpleNamespace(chosen=None, current=current, candidates=candidates, bar=0.7)
     assert ambiguities([worse], base, 0.01, drive, RATE, [], open_remainder=True) == []
+    # a gain under HINT_GAIN is no experiment's worth (a new user's pendulum: a saturation gaining 1.03)
+    slight = SimpleNamespace(
+        chosen=None, current=current, candidates=[_candidate("saturation", 1.03, base / np.sqrt(1.03) + 0.2)],
+        bar=current.heldout.nmse,
+    )  # fmt: skip
+    assert ambiguities([slight], base, 0.01, drive, RATE, [], open_remainder=True) == []
     # a candidate below its effect's materiality (a loop never closed) is no rival: the next one stands
     small = [_candidate("delay", 1.3, candidates[0].heldout_residual, material=False), *candidates[1:]]
     step = SimpleNamespace(chosen=None, current=current, candidates=small, bar=current.heldout.nmse)

@@ -265,6 +265,25 @@ def test_an_effect_not_finite_over_part_of_its_range_is_reported_not_searched_in
     assert "**Warning:** effect HalfDefined" in (lab / "half" / "report.md").read_text()
 
 
+def test_only_a_plugin_effect_is_told_to_make_its_apply_finite():
+    """A limit the library makes for a plug-in's velocity state escapes for some values (a new user's
+    pendulum read "effect StateLimit (limit_velocity): … make apply finite", advice no user could follow);
+    a plug-in's own effect that meets NaN is told so."""
+    from types import SimpleNamespace
+
+    from hybrid.discovery._inside_effects import StateLimit
+    from hybrid.discovery._step import nonfinite_warnings
+
+    limit, own = StateLimit("velocity"), _Scale()
+    tally = {"starts_moved": 0, "starts": 4, "steps_refused": 9, "steps": 40}
+    step = SimpleNamespace(nonfinite={limit.name: tally, own.name: tally})
+    (warning,) = nonfinite_warnings([step], [limit, own])
+    assert (
+        warning.startswith("effect _Scale (scale): its predictions were not finite")
+        and "9 of the 40" in warning
+    )
+
+
 # --------------------------------------------------------------------------- #
 # The interface, in Python
 # --------------------------------------------------------------------------- #

@@ -533,7 +533,7 @@ def test_a_start_that_makes_the_dynamics_escape_is_pulled_towards_the_effects_de
     starts = [stack.replace(**v).with_active(jnp.asarray(active)) for v in (wild, mild)]
     escaped = simulation_output(problem, starts[0], model.readout, frozen, "train")
     assert not np.all(np.isfinite(escaped))  # the wild start does escape
-    lanes = _finite_lanes(
+    lanes, moved = _finite_lanes(
         problem,
         stack,
         starts,
@@ -542,5 +542,9 @@ def test_a_start_that_makes_the_dynamics_escape_is_pulled_towards_the_effects_de
         frozen,
     )
     assert all(np.all(np.isfinite(np.asarray(theta))) for theta in lanes)
+    assert moved == [
+        True,
+        False,
+    ]  # which starts were moved (a plug-in effect's are reported: nonfinite_lanes)
     cubes = [float(problem.model(theta).simulation.parameters()["stiffness_cube"]) for theta in lanes]
     assert -1e9 < cubes[0] <= 0.0 and cubes[1] == pytest.approx(0.05)

@@ -38,7 +38,7 @@ step's candidates, by held-out gain (the entry has ``"named": "none"``,
 
 - ``"remainder"``: the final model leaves a remainder above the noise floor
   (``unexplained``); the rivals are the candidates better than nothing more
-  on the held-out part (gain above 1) whose held-out predictions differ from
+  on the held-out part (gain at least `HINT_GAIN`) whose held-out predictions differ from
   nothing more's by at least the noise floor (RMS): a different model, not
   nothing more again; and better held out than every effect-free fit as good
   on training (the step's bar): where one of those does as well, the remainder
@@ -95,7 +95,8 @@ THIN_POWER = 0.01
 #: An open last step's rivals: at most this many candidates, those with the largest held-out gains above 1.
 OPEN_RIVALS = 2
 #: Held-out gain over the step's bar (the best effect-free fit as good on training) a candidate needs, with
-#: a significant sign test, to open a last step whose remainder is not flagged unexplained.
+#: a significant sign test, to open a last step whose remainder is not flagged unexplained; beside a
+#: flagged remainder, the held-out gain over nothing more a candidate needs to be a rival.
 HINT_GAIN = 1.05
 
 TEST = (
@@ -103,8 +104,8 @@ TEST = (
     "cause when the named cause's lower squared held-out error wins in no more contiguous chunks (each as "
     f"long as the errors' decorrelation length) than chance would give (one-sided sign test, p > {ALPHA:g}), "
     "or when their held-out predictions differ by less than the noise floor (RMS); a last step that named "
-    "nothing is open (named 'none') when, beside a remainder above the noise floor, candidates gain above 1 "
-    "held out with predictions at least the noise floor apart from nothing more's, or, at the floor, a "
+    "nothing is open (named 'none') when, beside a remainder above the noise floor, candidates gain "
+    f"≥ {HINT_GAIN:g} held out with predictions at least the noise floor apart from nothing more's, or, at the floor, a "
     f"candidate wins significantly many chunks (p ≤ {ALPHA:g}) and gains ≥ {HINT_GAIN:g} held out over every "
     "effect-free fit as good on training, or, where the drive's level and time are correlated "
     f"(|r| ≥ {LEVEL_TIME_R:g}), a material effect of time passes the BIC rule on training and gains above 1 "
@@ -299,7 +300,9 @@ def _open_step(
             # a candidate that predicts what nothing more predicts, to within the noise, is no alternative,
             # nor one that an effect-free fit as good on training matches held out: what is left is
             # then how the model extrapolates (the remainder's "underdetermined"), not a missing effect
-            keep = not rival["within_noise"] and gain > 1.0
+            # (and a candidate that gains under HINT_GAIN over nothing more is no experiment's worth: a new
+            # user's pendulum was asked to design a drive against a saturation gaining 1.03)
+            keep = not rival["within_noise"] and gain > 1.0 and c.gain >= HINT_GAIN
         else:
             # no remainder flagged: only a significant, not-small gain over every effect-free fit as good
             keep = rival["candidate_p_value"] <= ALPHA and gain >= HINT_GAIN
