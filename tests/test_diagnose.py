@@ -241,3 +241,14 @@ def test_report_md_names_cause_figures_and_nmse(report):
     assert format_nmse(data["extended"]["nmse"]) in text
     for c in data["candidates"]:
         assert c["name"] in text
+    # each later step's candidates too, each with the rules that refused it (report.json had them alone:
+    # a new user read "Step 2 … saturation (gain 1.53)" in report.md without why it was not named)
+    assert data["steps"], "a named cause is followed by a step"
+    for k, step in enumerate(data["steps"], 2):
+        head = f"Step {k}, on top of {step['extends']}: "
+        assert head in text
+        table = text.split(head, 1)[1].split("\n\n")[1]  # the rest of the sentence, then the table
+        for c in step["candidates"]:
+            name = f"**{c['name']}**" if c["name"] == step["cause"] else c["name"]
+            row = next(line for line in table.splitlines() if line.startswith(f"| {name} |"))
+            assert all(r.replace("|", "\\|") in row for r in c["reasons"]), (row, c["reasons"])

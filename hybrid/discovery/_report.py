@@ -187,6 +187,16 @@ def _places(places: dict) -> str:
     return "Searched " + "; ".join(parts) + "."
 
 
+def _candidate_row(c: dict, named: str | None) -> str:
+    """One candidate's row of a step's table in report.md (`named`: the step's cause, in bold)."""
+    mark = f"**{c['name']}**" if c["name"] == named else c["name"]
+    return (
+        f"| {mark} | {format_nmse(c['heldout_nmse'])} | {_num(c['gain'])} | {_fixed(c['criterion']['delta_bic'])} | "
+        f"{_fixed(c['ljung_box']['Q'])} | {_cell(c.get('materiality', ''))} | {_num(bool(c['eligible']))} | "
+        f"{_cell('; '.join(r for r in c['reasons'] if r))} |"
+    )
+
+
 def stepwise_section(d: dict) -> list[str]:
     """The causes in the order found, each with its incremental gain and its parameters."""
     lines = [
@@ -383,14 +393,19 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         f"| *baseline* | {format_nmse(d['baseline']['nmse'])} | 1 | 0 | "
         f"{_fixed(d['baseline_fit']['ljung_box']['Q'])} | | | |",
     ]
-    for c in d["candidates"]:
-        mark = f"**{c['name']}**" if c["name"] == d["cause"] else c["name"]
-        lines.append(
-            f"| {mark} | {format_nmse(c['heldout_nmse'])} | {_num(c['gain'])} | {_fixed(c['criterion']['delta_bic'])} | "
-            f"{_fixed(c['ljung_box']['Q'])} | {_cell(c.get('materiality', ''))} | {_num(bool(c['eligible']))} | "
-            f"{_cell('; '.join(r for r in c['reasons'] if r))} |"
-        )
-    lines.append("")
+    lines += [_candidate_row(c, d["cause"]) for c in d["candidates"]] + [""]
+    for k, step in enumerate(d.get("steps") or (), 2):  # each later step: why its candidates were refused
+        named = step["cause"]
+        lines += [
+            f"Step {k}, on top of {step['extends']}: "
+            + (f"named **{named}**." if named else "named nothing.")
+            + " Gains and ΔBIC are over that model.",
+            "",
+            "| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
+            "|---|---|---|---|---|---|---|---|",
+            *[_candidate_row(c, named) for c in step["candidates"]],
+            "",
+        ]
 
     lines += [
         "## Residual tests (held-out part)",
