@@ -38,8 +38,8 @@ step's candidates, by held-out gain (the entry has ``"named": "none"``,
 
 - ``"remainder"``: the final model leaves a remainder above the noise floor
   (``unexplained``); the rivals are the candidates better than nothing more
-  on the held-out part (gain at least `HINT_GAIN`) whose held-out predictions differ from
-  nothing more's by at least the noise floor (RMS): a different model, not
+  on the held-out part (gain at least `HINT_GAIN`) whose held-out predictions
+  differ from nothing more's by at least the noise floor (RMS): a different model, not
   nothing more again; and better held out than every effect-free fit as good
   on training (the step's bar): where one of those does as well, the remainder
   is how the model extrapolates (`remainder`'s ``underdetermined``: effect-free
