@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..data._mapping import RATE_RTOL
 from ..util._errors import InputError, PluginError
 from ..util._programs import process_compiles
 from ._arguments import as_recordings, check_dt, check_model
@@ -291,12 +292,6 @@ def fit_batch(
 _start_jit = eqx.filter_jit(start_model)
 
 _DYNAMIC = lambda p: (p.sim_static, p.readout_static, p.series, p.scale)
-
-
-#: Rates that differ by less than this fraction are one rate (the first recording's runs every fit):
-#: time columns stored with 6 decimals put a 30 Hz recording's median step at 30.0003 Hz, one
-#: computed from np.arange(n) / 30 at 30 Hz. A dt off by 1e-4 moves a fitted time constant by 1e-4.
-RATE_RTOL = 1e-4
 
 
 def _arrays(problem):

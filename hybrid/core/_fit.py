@@ -32,7 +32,7 @@ from ._level_limit import level_limits, limit_sentence
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
-from ._problem import Problem, Series, robust_rms, robust_std, series_from_recording
+from ._problem import Problem, Series, robust_rms, robust_std, segment_ids, series_from_recording
 from ._readout import WindowedMLP
 from ._result import FitResult, fit_warnings
 from ._screen import screened_starts
@@ -375,16 +375,14 @@ def clipped_warnings(problem: Problem, theta, split_order, scale: float, unit: s
     recording's segments apart; levels in the recordings' units (`scale`: the
     fit's scaling of w).
     """
-    parts: list[dict] = []
-    for split in split_order:
-        lengths = [b - a for series in problem.series for a, b in series.segments_of(split)]
-        parts.append(
-            {
-                "w": scale * problem.recorded(problem.target(split), split),
-                "w_hat": scale * problem.recorded(problem.prediction(theta, split), split),
-                "segment": np.repeat(np.arange(len(lengths)) + len(parts) * 10**6, lengths),
-            }
-        )
+    parts = [
+        {
+            "w": scale * problem.recorded(problem.target(split), split),
+            "w_hat": scale * problem.recorded(problem.prediction(theta, split), split),
+            "segment": segment_ids(problem.series, split),
+        }
+        for split in split_order
+    ]
     n = sum(len(p["w"]) for p in parts)
     sentence = limit_sentence(level_limits(parts, None), n, unit)
     if sentence is None:

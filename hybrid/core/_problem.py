@@ -21,7 +21,7 @@ faster and takes ~10× less peak memory than a step of
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import equinox as eqx
 import jax
@@ -80,6 +80,12 @@ class Series(eqx.Module):
     def weight(self, split: str) -> jax.Array | None:
         """The split's 0/1 weights over `target(split)`, or None when every sample counts."""
         return None if self.weights is None else dict(self.weights)[split]
+
+
+def segment_ids(series: Sequence[Series], split: str) -> np.ndarray:
+    """An id per sample of `split` (every series' segments in turn, as `target(split)` lays them out)."""
+    lengths = [b - a for s in series for a, b in s.segments_of(split)]
+    return np.repeat(np.arange(len(lengths)), lengths)
 
 
 def _weight_of(series: Series, split: str) -> jax.Array:

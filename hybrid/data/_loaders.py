@@ -39,6 +39,7 @@ __all__ = [
     "decode_text",
     "find_header",
     "footer_start",
+    "spaced_cells_message",
     "mat_variables",
     "npz_arrays",
     "read_file",
@@ -461,6 +462,16 @@ def _csv_header(
     return header
 
 
+def spaced_cells_message(path: pathlib.Path | str, header: str, example: str = "") -> str:
+    """The message for a .csv whose cells are separated by spaces; `example`: the mapping to give its .txt."""
+    how = f": {example}" if example else " the same way"
+    return (
+        f"recording '{path}' has its cells separated by spaces (header {header.strip()!r}), and a .csv is "
+        "read with commas between them: save it comma-separated with '.' decimals, or rename it to .txt "
+        f"(a text table, read with spaces between the cells) and map its columns{how}"
+    )
+
+
 def _check_delimiter(path: pathlib.Path, line: str, following: str = "") -> None:
     """Refuse a header split by spaces: its columns would read as missing (';' and tabs: `comma_separated`);
     `following` is the line after it."""
@@ -469,11 +480,7 @@ def _check_delimiter(path: pathlib.Path, line: str, following: str = "") -> None
     names = line.split()
     data = following.split()
     if len(names) > 1 and len(data) > 1 and not any(m in line + following for m in ",;\t"):
-        raise InputError(
-            f"recording '{path}' has its cells separated by spaces (header {line.strip()!r}), and a .csv is "
-            "read with commas between them: save it comma-separated with '.' decimals, or rename it to .txt "
-            f"(a text table, read with spaces between the cells) and map its columns: {_mapping_example(names)}"
-        )
+        raise InputError(spaced_cells_message(path, line, _mapping_example(names)))
     for mark, word in ((";", "';'"), ("\t", "tabs"), (None, "spaces")):
         cells = [c.strip().strip('"') for c in line.split(mark)]
         if len(cells) > 1 and set(cells) & set(REQUIRED):

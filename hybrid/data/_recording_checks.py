@@ -264,7 +264,8 @@ def _refuse_order(name: str, t: np.ndarray, bad: np.ndarray, lines: Any) -> None
     rounding; a short step back is lines out of order.
     """
     k = int(bad[0])
-    forward = np.diff(t)[np.diff(t) > 0]
+    steps = np.diff(t)
+    forward = steps[steps > 0]
     step = float(np.median(forward)) if forward.size else 0.0
     back = float(t[k - 1] - t[k])
     more = f" ({bad.size} places in all: {samples_text(bad, lines)})" if bad.size > 1 else ""

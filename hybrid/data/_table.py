@@ -71,6 +71,7 @@ from ._loaders import (
     parse_metadata,
     read_text,
     sidecar,
+    spaced_cells_message,
     units_row,
 )
 
@@ -190,9 +191,8 @@ _CSV_FIX = "save it as CSV UTF-8 (Excel: Save As, 'CSV UTF-8 (Comma delimited)')
 def _read_csv(
     path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
-    text, how = comma_separated(
-        decode_text(path, _CSV_FIX)
-    )  # a ';' or tab export with decimal commas: commas
+    # a ';' or tab export with decimal commas: read as commas
+    text, how = comma_separated(decode_text(path, _CSV_FIX))
     notes = [f"recording '{path}': {how}"] if how else []
     try:
         with io.StringIO(text) as handle:
@@ -399,12 +399,7 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
                         "save it comma-separated with '.' decimals"
                     )
             if len(stripped.split()) > 1 and _spaced(handle):
-                raise InputError(
-                    f"recording '{path}' has its cells separated by spaces (header {stripped!r}), "
-                    "and a .csv is read with commas between them: rename it to .txt (a text table: "
-                    "numbers separated by spaces, tabs, ';' or commas) and map its columns the same "
-                    "way, or save it comma-separated"
-                )
+                raise InputError(spaced_cells_message(path, stripped))
         return names, number, skipped
     raise InputError(
         f"recording '{path}' has no header or data: give a header line naming the "

@@ -187,6 +187,13 @@ def _places(places: dict) -> str:
     return "Searched " + "; ".join(parts) + "."
 
 
+#: The head of each step's table of candidates in report.md (`_candidate_row`).
+_CANDIDATE_HEADER = (
+    "| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
+    "|---|---|---|---|---|---|---|---|",
+)
+
+
 def _candidate_row(c: dict, named: str | None) -> str:
     """One candidate's row of a step's table in report.md (`named`: the step's cause, in bold)."""
     mark = f"**{c['name']}**" if c["name"] == named else c["name"]
@@ -388,8 +395,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
             "",
         ]
     lines += [
-        "| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
-        "|---|---|---|---|---|---|---|---|",
+        *_CANDIDATE_HEADER,
         f"| *baseline* | {format_nmse(d['baseline']['nmse'])} | 1 | 0 | "
         f"{_fixed(d['baseline_fit']['ljung_box']['Q'])} | | | |",
     ]
@@ -401,8 +407,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
             + (f"named **{named}**." if named else "named nothing.")
             + " Gains and ΔBIC are over that model.",
             "",
-            "| effect | held-out NMSE | gain | ΔBIC | Ljung–Box Q | size | eligible | reasons against |",
-            "|---|---|---|---|---|---|---|---|",
+            *_CANDIDATE_HEADER,
             *[_candidate_row(c, named) for c in step["candidates"]],
             "",
         ]

@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from ..core._level_limit import level_limits, limit_sentence
+from ..core._problem import segment_ids
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
 from ._noise_floor import NoiseFloor, noise_floor
 from ._search import split_signals
@@ -78,8 +79,7 @@ def _part(problem, series, recordings, candidate, split: str) -> dict:
     v, w, w_hat = split_signals(problem, candidate.theta, candidate.active, split)
     spans = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of(split)]
     t = np.concatenate([np.asarray(recordings[i].t, float)[a:b] for i, a, b in spans])
-    segment = np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(spans)])
-    return {"t": t, "v_in": v, "w": w, "w_hat": w_hat, "segment": segment}
+    return {"t": t, "v_in": v, "w": w, "w_hat": w_hat, "segment": segment_ids(series, split)}
 
 
 def remainder(

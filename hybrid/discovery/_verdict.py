@@ -34,6 +34,7 @@ def verdict(diagnosis) -> str:
     base_mse = diagnosis.baseline.heldout.nmse * var_w
     final_mse = diagnosis.extended.heldout.nmse * var_w
     floor = diagnosis.noise_floor.variance if diagnosis.noise_floor is not None else 0.0
+    ratio = final_mse / floor if floor > 0 else float("nan")  # the final model's held-out MSE over the floor
     left = diagnosis.unexplained
     where = ""
     if left is not None:
@@ -53,7 +54,6 @@ def verdict(diagnosis) -> str:
                 f"{_names(causes)} it gains only {d['gain']:.2f}× held out)"
             )
         if left is None:
-            ratio = final_mse / floor if floor > 0 else float("nan")
             if not ratio > AT_FLOOR:
                 return head + "; what remains is measurement noise."
             return head + (
@@ -64,7 +64,6 @@ def verdict(diagnosis) -> str:
             )
         return head + f"; {left['fraction_above_floor']:.0%} of what remains lies above the noise{where}."
     if left is None:
-        ratio = final_mse / floor if floor > 0 else float("nan")
         if not ratio > AT_FLOOR:
             return (
                 f"No effect is needed: the simulation's held-out error is {ratio:.2g}× the measurement noise "
@@ -94,8 +93,8 @@ def refusal(candidate, min_gain: float) -> str:
     """Why the closest candidate was not named: its gain under the rule's, or the rules it failed beside it.
 
     A candidate that gained more than `min_gain` over the model it extends was refused by another rule
-    (an effect-free fit as good on training as good held out, the BIC, the residual's whiteness): a new
-    user's pendulum read "gains 2.18× held out, under the 1.5× asked".
+    (an effect-free fit as good on training that does as well held out, the BIC, the residual's
+    whiteness): a new user's pendulum read "gains 2.18× held out, under the 1.5× asked".
     """
     if candidate.gain < min_gain:
         return f"gains {candidate.gain:.2f}× held out, under the {min_gain:g}× asked"
