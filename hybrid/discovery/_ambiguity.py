@@ -63,8 +63,9 @@ step's candidates, by held-out gain (the entry has ``"named": "none"``,
   parameters biased, absorbs the drift, so the held-out part cannot tell them
   apart while the training part prefers the drift (a heated block under a
   staircase with its sensor's baseline falling 3 K over 60 s, tried as a new
-  user would: `baseline_drift` ΔBIC −159, held-out gain 1.07, the block's
-  resistance fitted 11 % low, and the report said nothing was missing).
+  user would, their data not in the repo: `baseline_drift` ΔBIC −159, held-out
+  gain 1.07, the block's resistance fitted 11 % low, and the report said nothing
+  was missing; `tests/test_ambiguity.py` makes a like plant with scipy).
 
 A designed drive (`hybrid design`) asks the next recording whether one of
 them is there. An effect-free recording that the model explains, and where
