@@ -19,6 +19,7 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
 from ..core._arguments import check_drive, run_compiled
+from ..core._devices import map_rows
 from ..core._parameters import Constraint
 from ..core._serialise import imported_class
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw, unit_in
@@ -449,3 +450,51 @@ def extend(simulation: AbstractSimulation, *effects, **values) -> EffectStack:
     """
     stack = EffectStack(simulation, effects)
     return stack.replace(**values) if values else stack
+
+
+def _dynamics_run(stack: EffectStack, v_in, dt, force):
+    """(output, states) of `stack` on `v_in`, `force` (a signal, the drive's unit) taken off the drive its dynamics see.
+
+    The force enters where an inside feedback's does (y = S(u − φ)): after the
+    drive's effects, in every RK4 stage; the output's effects follow. Needs
+    `stack.inner` in state-space form (`dynamics_of`).
+    """
+    u = v_in
+    for i, effect in enumerate(stack.effects):
+        if effect.place == "drive":
+            u = switched(stack.active[i], effect, u, dt)
+    dynamics = dynamics_of(stack.inner)
+    assert dynamics is not None  # the caller checks
+    core, held, skip = dynamics
+    inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
+    driven = held(u - force)
+    s, states = _inside_dynamics(stack, core, inside, driven, dt) if inside else integrate(core, driven, dt)
+    s, states = s[skip:], states[skip:]
+    for i, effect in enumerate(stack.effects):
+        if effect.place == "output":
+            s = switched(stack.active[i], effect, s, dt)
+    return s, states
+
+
+@eqx.filter_jit
+def state_trajectories(stack: EffectStack, v_in, dt):
+    """The states of `stack`'s dynamics on `v_in`, one column per state (`stack.inner` in state-space form)."""
+    return _dynamics_run(stack, v_in, dt, jnp.zeros_like(v_in))[1]
+
+
+@eqx.filter_jit
+def force_responses(stack: EffectStack, v_in, dt, forces):
+    """How `stack`'s output moves, to first order, with each row of `forces` taken off its dynamics' drive.
+
+    Row k of the result is the derivative of the output along a force
+    ``forces[k]`` (a signal in the drive's unit, subtracted from the drive
+    where an inside feedback's is): the response of the dynamics, linearised
+    along this recording, to that force. Forward mode, a few rows at a time
+    on each device (`map_rows`).
+    """
+    zero = jnp.zeros_like(v_in)
+
+    def one(direction):
+        return jax.jvp(lambda f: _dynamics_run(stack, v_in, dt, f)[0], (zero,), (direction,))[1]
+
+    return map_rows(one, forces, batch_size=8)

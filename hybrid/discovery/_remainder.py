@@ -62,10 +62,18 @@ FAMILY = {
     "rate": "dynamic",
     "filter_output": "dynamic",
     "time": "time",
+    "state_linear": "dynamic",
     "filter_output_cube": "nonlinear_dynamic",
     "filter_output_square": "nonlinear_dynamic",
+    "state_map": "nonlinear_dynamic",
 }
 ORDER = ("static", "time", "dynamic", "nonlinear_dynamic")
+#: The state feedback's maps are fitted for a simulation with at most this many states (the RC network's
+#: 45 are stages of one diffusion, not quantities a user would name a force of).
+MAX_STATES = 8
+#: Knots of a state's map: hat functions on the training values' quantiles (a continuous, piecewise
+#: linear map), and a step at zero where the state takes both signs (a Coulomb friction's).
+KNOTS = 7
 
 
 def _num(x, digits: int = 4):
@@ -88,6 +96,7 @@ def _prepare(part: dict) -> dict:
     run = np.cumsum(brk)[ok]
     out = {k: a[k][ok] for k in KEYS}
     out["r"] = out["w"] - out["w_hat"]
+    out["ok"] = ok  # which samples were kept: a state feedback's responses are filtered alike
     starts = np.flatnonzero(np.r_[True, run[1:] != run[:-1]]) if len(run) else np.zeros(0, int)
     out["pos"] = np.arange(len(run)) - np.repeat(starts, np.diff(np.r_[starts, len(run)]))
     return out
@@ -242,6 +251,185 @@ def _filter(tr, ho, key, lags, rate, judge) -> dict:
     )
 
 
+def state_basis(x) -> dict:
+    """The functions a state's map is made of, from its training values `x`: knots and whether to step at zero.
+
+    Hat functions on `KNOTS` quantiles of `x` (a continuous, piecewise linear
+    map, held flat beyond the training range) and, where the state takes both
+    signs on at least 5 % of the samples each, a step at zero (and a knot
+    there, so that no hat makes a jump of its own near it). Also the centre
+    (the mean) its linear column is taken about.
+    """
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    knots = np.unique(np.quantile(x, np.linspace(0.0, 1.0, KNOTS))) if len(x) else np.zeros(0)
+    both = len(x) > 0 and min(np.mean(x > 0), np.mean(x < 0)) >= 0.05
+    if both:  # a knot at zero: the hats bend there, and only the step jumps
+        knots = np.union1d(knots[np.abs(knots) > 1e-3 * np.ptp(knots)], [0.0])
+    return {"knots": knots, "step": bool(both), "centre": float(np.mean(x)) if len(x) else 0.0}
+
+
+def basis_forces(basis: dict, x) -> tuple[list[str], np.ndarray]:
+    """The columns of a state's map on its values `x`: (their roles, one row each).
+
+    ``linear`` (x less its training centre), ``hat_j`` (piecewise linear, 1 at
+    knot j, 0 at its neighbours), ``step`` (1 where x > 0): the free map; and
+    the forms it is read against (`FORMS`): ``bend`` (x·|x|) and ``cube`` (x³),
+    x scaled by its largest training |x|. A state whose training values are
+    constant has its linear column alone.
+    """
+    x = np.asarray(x, float)
+    knots = basis["knots"]
+    roles, rows = ["linear"], [x - basis["centre"]]
+    if len(knots) >= 2:
+        eye = np.eye(len(knots))
+        roles += [f"hat_{j}" for j in range(len(knots))]
+        rows += [np.interp(x, knots, eye[j]) for j in range(len(knots))]
+        if basis["step"]:
+            roles.append("step")
+            rows.append((x > 0).astype(float))
+        z = x / max(abs(knots[0]), abs(knots[-1]))
+        roles += ["bend", "cube"]
+        rows += [z * np.abs(z), z**3]
+    return roles, np.stack(rows)
+
+
+def _least_squares(train_cols, y, held_cols):
+    """Ridge least squares of `y` on the training columns (and an intercept); (held-out prediction, coefficients).
+
+    The columns are scaled to unit variance first; the ridge (1e-3 of the
+    mean diagonal, as `_filter`'s) keeps collinear columns (a map's hats span
+    its linear column; the response to a constant force is nearly the
+    readout's offset) from cancelling on training data and blowing up held
+    out (1e-9 took a map of the oscillator's position to a held-out fraction of
+    −10 where 1e-3 gives +0.03). The coefficients are of the columns as given.
+    """
+    x = np.column_stack(train_cols)
+    mean = x.mean(axis=0)
+    scale = x.std(axis=0)
+    scale[scale == 0] = 1.0
+    xs = (x - mean) / scale
+    gram = np.einsum("ni,nj->ij", xs, xs)
+    ridge = 1e-3 * np.trace(gram) / max(gram.shape[0], 1) + 1e-300
+    coef = (
+        np.linalg.solve(gram + ridge * np.eye(gram.shape[0]), np.einsum("ni,n->i", xs, y - y.mean())) / scale
+    )
+    intercept = y.mean() - mean @ coef
+    return np.column_stack(held_cols) @ coef + intercept, coef
+
+
+def _map_shape(grid, force) -> dict:
+    """The odd and even parts of a state's map, on a grid symmetric about zero (none where it barely crosses it)."""
+    lo, hi = float(grid[0]), float(grid[-1])
+    a = min(hi, -lo)
+    if a <= 0.1 * max(abs(lo), abs(hi)):
+        return {}
+    g = np.linspace(0.0, a, 51)
+    fp, fn = np.interp(g, grid, force), np.interp(-g, grid, force)
+    even, odd = np.var((fp + fn) / 2), np.mean(((fp - fn) / 2) ** 2)
+    return (
+        {"symmetry": {"even": _num(even / (even + odd)), "odd": _num(odd / (even + odd))}}
+        if even + odd
+        else {}
+    )
+
+
+#: A form names a map when it recovers this share of what the free map recovers held out: a fit
+#: linearised along the recording leaves the free map a little more to take up (a 0.12 V Coulomb
+#: friction on an oscillator: the step 74 % of the excess, the free map 82 %).
+FORM_SHARE = 0.85
+#: The simple forms a state's map is read against (each its own column beside the linear ones), and
+#: how the report words a map that one of them explains.
+FORMS = {
+    "step": "a step of {size} at zero (±{half}), as a Coulomb friction has",
+    "bend": "growing as x·|x| away from zero ({size} at the largest |x|), as a quadratic drag does",
+    "cube": "growing as x³ ({size} at the largest |x|), as a cubic spring does",
+}
+
+
+def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
+    """A static map of each state fed back into the dynamics' drive, through their linearised response.
+
+    `feedback` (from `hybrid.discovery._unexplained.feedback_signals`): per
+    column (``columns``: (state, role)) its response on the training and the
+    held-out samples (``train``, ``heldout``: rows), the states' bases, units,
+    the drive's unit and the readout's gain. A force φ(x) taken off the drive
+    moves the output by the response to φ: r ≈ gain · Σ βⱼ Rⱼ with φ = Σ βⱼ·bⱼ.
+    ``linear``: the linear columns of every state and ŵ (the linear dynamics
+    and the readout's gain retuned); each state's free map adds its hats and
+    step to those, and each of its `FORMS` adds that one column alone. A form
+    that recovers `FORM_SHARE` of what the free map does held out, and
+    `MARGIN` more than each other form, is the map's ``form`` (its size in the drive's unit:
+    a step's jump, a bend's or cube's value at the largest |x|): a recording
+    rarely pins where a velocity's map rises between the knots next to zero
+    (it crosses zero quickly), but a step's column fitted alone can be judged.
+    The free map is reported in the drive's unit on a grid over the state's
+    training range, as the force that would be taken off the drive.
+    """
+    cols = feedback["columns"]
+    r_tr, r_ho = feedback["train"][:, tr["ok"]], feedback["heldout"][:, ho["ok"]]
+    if not np.all(np.isfinite(r_tr)) or not np.all(np.isfinite(r_ho)):
+        return {"reason": "the dynamics' response to a force on a state is not finite on this recording"}
+    linear = [j for j, (_, role) in enumerate(cols) if role == "linear"]
+    base_tr, base_ho = [tr["w_hat"]] + [r_tr[j] for j in linear], [ho["w_hat"]] + [r_ho[j] for j in linear]
+    pred, _ = _least_squares(base_tr, tr["r"], base_ho)
+    out: dict[str, Any] = {"linear": judge(pred), "states": {}}
+    gain = feedback.get("gain")
+    scale = 1.0 / gain if gain else 1.0
+
+    def score(p):
+        return p["of_excess"] if judge.excess is not None else max(p["fraction"] or 0.0, 0.0)
+
+    def fitted(columns):
+        pred, coef = _least_squares(
+            base_tr + [r_tr[j] for j in columns], tr["r"], base_ho + [r_ho[j] for j in columns]
+        )
+        return judge(pred), coef[len(base_tr) :]
+
+    for name in feedback["states"]:
+        own = {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
+        free = [j for role, j in own.items() if role.startswith("hat_") or role == "step"]
+        if not free:
+            continue
+        result, coef = fitted(free)
+        basis = feedback["bases"][name]
+        knots = basis["knots"]
+        grid = np.linspace(knots[0], knots[-1], 101)
+        roles, rows = basis_forces(basis, grid)
+        beta = {cols[j][1]: b for j, b in zip(free, coef)}
+        smooth = scale * sum(beta[role] * row for role, row in zip(roles, rows) if role.startswith("hat_"))
+        step = scale * beta.get("step", 0.0)
+        # A constant force moves the output as the readout's offset does: the map is fixed at zero
+        # midway through its step there (a Coulomb friction's ±F), or at its lowest value.
+        if knots[0] < 0 < knots[-1]:
+            force = smooth + step * (grid > 0) - np.interp(0.0, grid, smooth) - step / 2
+        else:
+            force = smooth - smooth[0]
+        forms = {}
+        for role in FORMS:
+            if role in own:
+                part, (size,) = fitted([own[role]])
+                forms[role] = dict(part, size=_num(scale * size))
+        best = max(forms, key=lambda k: score(forms[k]), default=None)
+        chosen = (
+            best
+            if best is not None
+            and score(forms[best]) >= FORM_SHARE * score(result)
+            and all(score(forms[best]) >= score(p) + MARGIN for k, p in forms.items() if k != best)
+            else None
+        )
+        out["states"][name] = dict(
+            result,
+            unit=feedback["units"].get(name, ""),
+            curve={"x": _list(grid), "force": _list(force)},
+            force_unit=feedback["drive_unit"] if gain else "",
+            forms=forms,
+            form=chosen,
+            **_map_shape(grid, force),
+        )
+    return out
+
+
 def _unavailable(why: str, n_tr: int, n_ho: int) -> dict:
     """The description when there is nothing to judge: every part a reason."""
     return {
@@ -254,7 +442,9 @@ def _unavailable(why: str, n_tr: int, n_ho: int) -> dict:
     }
 
 
-def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: float) -> dict:
+def describe_remainder(
+    train: dict, heldout: dict, rate: float, floor_variance: float, feedback: dict | None = None
+) -> dict:
     """Where the residual r = w − ŵ lives: each measure fitted on `train`, judged on `heldout`.
 
     `train` and `heldout` hold 1-D arrays "t", "v_in", "w", "w_hat", "segment"
@@ -265,6 +455,9 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
     "fraction" and "of_excess"), "recovered" (best gain; "named": the one the
     summary names), "kind" (the rate map and filters count as dynamic) and
     "summary"; a part that cannot be computed carries a "reason" instead.
+    `feedback`: the responses of a simulation in state-space form to a force
+    made of each state (`hybrid.discovery._unexplained.feedback_signals`);
+    with it, "state_feedback" (`_state_feedback`).
     """
     import scipy.optimize
 
@@ -346,6 +539,15 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
     filt["output_cube"] = _filter(tr, ho, ("w_hat_3", "w_hat"), lags, rate, judge)
     scores.update({f"filter_{key}": part for key, part in filt.items() if "fraction" in part})
 
+    fed: dict[str, Any] | None = None
+    if feedback is not None:
+        fed = _state_feedback(tr, ho, feedback, judge)
+        if "linear" in fed:
+            scores["state_linear"] = fed["linear"]
+        if fed.get("states"):
+            fed["best"] = max(fed["states"], key=lambda k: fed["states"][k]["fraction"] or -np.inf)
+            scores["state_map"] = fed["states"][fed["best"]]
+
     offset = judge(np.full(n_ho, tr["r"].mean()))
     out = {
         "n_train": n_tr,
@@ -358,11 +560,26 @@ def describe_remainder(train: dict, heldout: dict, rate: float, floor_variance: 
         "time": time_part,
         "linear_filter": filt,
     }
-    out.update(_verdict(scores, judge, static, offset))
+    if fed is not None:
+        out["state_feedback"] = fed
+    out.update(_verdict(scores, judge, static, offset, fed))
     return out
 
 
-def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
+def _map_words(part: dict) -> str:
+    """What a state's map looks like, in a parenthesis: odd or even, and its simple form if one explains it."""
+    sym = part.get("symmetry", {})
+    words = ["odd" if (sym.get("odd") or 0) > 0.8 else "even" if (sym.get("even") or 0) > 0.8 else ""]
+    form = part.get("form")
+    if form is not None:
+        size = part["forms"][form]["size"]
+        unit = f" {part['force_unit']}" if part.get("force_unit") else ""
+        words.append(FORMS[form].format(size=f"{size:.3g}{unit}", half=f"{abs(size) / 2:.3g}{unit}"))
+    words = [w for w in words if w]
+    return f" ({'; '.join(words)})" if words else ""
+
+
+def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict | None = None) -> dict:
     """Best extension, kind (simplest family within MARGIN of the best) and the one-sentence summary."""
 
     def score(p):
@@ -419,12 +636,22 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict) -> dict:
             "filter_drive": "a linear filter of the drive",
             "filter_output": "a linear filter of the model's output",
             "rate": "a function of the drive's rate dv/dt",
+            "state_linear": "a linear feedback of the simulation's states (its linear dynamics retuned)",
         }[inkind]
         weak = score(scores[best_static]) < 0.5 * family["dynamic"]
         text = f"dynamic: {what} recovers {pct(inkind)} {where}; " + (
             f"no static map does (best {pct(best_static)})"
             if weak
             else f"the best static map {pct(best_static)}"
+        )
+    elif kind == "nonlinear_dynamic" and inkind == "state_map":
+        assert fed is not None  # scored only with it
+        name = fed["best"]
+        best_linear = max((k for k in scores if FAMILY[k] == "dynamic"), key=lambda k: score(scores[k]))
+        text = (
+            f"nonlinear inside the dynamics: a static function of the simulation's state {name} fed back into "
+            f"its drive recovers {pct(inkind)} {where}{_map_words(fed['states'][name])}; the best linear filter "
+            f"{pct(best_linear)}, the best static map {pct(best_static)}"
         )
     elif kind == "nonlinear_dynamic":
         odd = inkind == "filter_output_cube"

@@ -24,12 +24,17 @@ from __future__ import annotations
 
 import math
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..core._level_limit import level_limits, limit_sentence
 from ..core._problem import segment_ids
+from ..core._simulation import unit_in
+from ..core._state_space import dynamics_of
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
+from ._effect_stack import EffectStack, force_responses, state_trajectories
 from ._noise_floor import NoiseFloor, noise_floor
+from ._remainder import MAX_STATES, basis_forces, describe_remainder, state_basis
 from ._search import split_signals
 
 #: Held-out MSE over the floor above which ``unexplained`` warns that the floor is far below the error.
@@ -82,6 +87,57 @@ def _part(problem, series, recordings, candidate, split: str) -> dict:
     return {"t": t, "v_in": v, "w": w, "w_hat": w_hat, "segment": segment_ids(series, split)}
 
 
+def feedback_signals(problem, series, final) -> dict | None:
+    """What `_remainder`'s state feedback fits on: each state's map's columns as responses, on train and test.
+
+    For a simulation in state-space form with at most `MAX_STATES` states:
+    the final model's state trajectories on each recording, a basis of maps of
+    each state from its training values (`state_basis`), and the model's
+    output response to each map taken off its drive (`force_responses`, the
+    dynamics linearised along the recording), cut to the training and
+    held-out samples. None otherwise.
+    """
+    model = problem.model(jnp.asarray(final.theta))
+    stack = model.simulation
+    if not isinstance(stack, EffectStack):
+        return None
+    stack = stack.with_active(np.asarray(final.active, float))
+    dynamics = dynamics_of(stack.inner)
+    if dynamics is None or len(dynamics[0].states) > MAX_STATES:
+        return None
+    names = dynamics[0].states
+
+    def cut(signal, s, split):  # (rows, samples) of a recording → its recorded samples of `split`
+        return [signal[..., a:b] for a, b in s.recorded_segments_of(split)]
+
+    states = [np.asarray(state_trajectories(stack, s.v_in, s.dt)).T for s in series]  # (states, samples)
+    train = np.concatenate([part for x, s in zip(states, series) for part in cut(x, s, "train")], axis=1)
+    bases = {name: state_basis(train[k]) for k, name in enumerate(names)}
+    columns: list[tuple[str, str]] = []
+    parts: dict[str, list] = {"train": [], "heldout": []}
+    for x, s in zip(states, series):
+        rows = []
+        for k, name in enumerate(names):
+            roles, values = basis_forces(bases[name], x[k])
+            rows.append(values)
+            if s is series[0]:
+                columns += [(name, role) for role in roles]
+        responses = np.asarray(force_responses(stack, s.v_in, s.dt, jnp.asarray(np.concatenate(rows))))
+        parts["train"] += cut(responses, s, "train")
+        parts["heldout"] += cut(responses, s, "test")
+    readout = model.readout.parameters()
+    return {
+        "states": list(names),
+        "columns": columns,
+        "train": np.concatenate(parts["train"], axis=1),
+        "heldout": np.concatenate(parts["heldout"], axis=1),
+        "bases": bases,
+        "units": {name: unit_in(unit, stack.drive_unit) for name, unit in dynamics[0].state_units.items()},
+        "drive_unit": stack.drive_unit,
+        "gain": float(readout["gain"]) if "gain" in readout else None,
+    }
+
+
 def remainder(
     problem,
     series,
@@ -101,8 +157,6 @@ def remainder(
     training part is predicted here only when there is something to describe. `w_unit`
     labels the levels a limit clause quotes (the report's unit of w).
     """
-    from ._remainder import describe_remainder
-
     held = {
         "t": heldout.t,
         "v_in": heldout.v_in,
@@ -117,7 +171,12 @@ def remainder(
     if mse <= settings.unexplained_ratio * top:
         return None
     train = _part(problem, series, recordings, final, "train")
-    description = describe_remainder(train, held, rate, floor.variance)
+    feedback = feedback_signals(problem, series, final)
+    if feedback is not None and (
+        feedback["train"].shape[1] != len(train["w"]) or feedback["heldout"].shape[1] != len(held["w"])
+    ):
+        feedback = None  # the recorded samples are laid out otherwise (padded series): no state maps
+    description = describe_remainder(train, held, rate, floor.variance, feedback)
     # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
     description["level_limit"] = level_limits([train, held], floor.variance)
     clause = limit_sentence(description["level_limit"], len(train["w"]) + len(held["w"]), w_unit)
@@ -167,7 +226,13 @@ def place_hint(description: dict, places: dict) -> str | None:
         return None
     if inside["not_searched"]:
         return f"an effect inside the dynamics may explain it, but {inside['not_searched']}"
+    fed = description.get("state_feedback") or {}
+    on = (
+        f" on its state {fed['best']}"
+        if (description.get("recovered") or {}).get("named") == "state_map"
+        else ""
+    )
     return (
         f"of the effects searched inside the dynamics ({', '.join(inside['effects'])}), none explains the "
-        "rest: an effect of your own there may (docs/effects.md)"
+        f"rest: an effect of your own there{on} may (docs/effects.md)"
     )
