@@ -241,3 +241,81 @@ def test_a_v_shaped_remainder_is_called_even_never_one_sided():
     d = describe(lambda v, t: 0.6 * np.abs(v))
     assert d["static"]["symmetry"]["even"] > 0.8
     assert "even" in d["summary"] and "one-sided" not in d["summary"], d["summary"]
+
+
+@pytest.mark.parametrize(
+    "force, form, size",
+    [
+        (lambda x: 0.2 * np.tanh(x / 0.02), "step", 0.4),  # Coulomb: ±0.2, a jump of 0.4
+        # a drag: 0.3 at the largest |x|, which a cube fits about as well (a map that grows)
+        (lambda x: 0.3 * x * np.abs(x), "grow", 0.3),
+        (lambda x: -0.3 * x * np.abs(x) + 0.2 * x, None, None),  # falls away from zero: no drag
+    ],
+)
+def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_its_forms(force, form, size):
+    # ŵ = H[v] for a 5 Hz resonance H (ζ = 0.2) driven by band-limited noise; its states are the
+    # output (position) and its rate (velocity, by differences, scaled to |velocity| ≤ 1). The remainder
+    # is what a force c·φ of the velocity taken off the drive adds: −H[c·φ(velocity)], c setting its rms
+    # to 0.3 against noise 0.05. The responses a simulation would give (`force_responses`) are −H of
+    # each column of the states' maps, here by scipy's lfilter; sizes are in the drive's unit (gain 1):
+    # a step's jump, or a bend's value at the largest |x|, times c.
+    from scipy.signal import butter
+
+    from hybrid.discovery._remainder import basis_forces, state_basis
+
+    rng = np.random.default_rng(5)
+    v = lfilter(*butter(4, 0.4), rng.standard_normal(N))
+    w0 = 2 * np.pi * 5.0 / RATE
+    resonance = ([w0 * w0], [1.0, -2.0 * np.exp(-0.2 * w0) * np.cos(w0), np.exp(-0.4 * w0)])
+    position = lfilter(*resonance, v)
+    velocity = np.r_[0.0, np.diff(position)] * RATE
+    velocity = velocity / np.max(np.abs(velocity))  # |velocity| ≤ 1: φ's sizes are at the largest |x|
+    r = -lfilter(*resonance, force(velocity))
+    scale = 0.3 / np.std(r)
+    w = position + scale * r + SIGMA * rng.standard_normal(N)
+    t = np.arange(N) / RATE
+    segment = np.arange(N) // 500
+    held = segment % 4 == 3
+    states = {"position": position, "velocity": velocity}
+    bases = {name: state_basis(x[~held]) for name, x in states.items()}
+    columns, rows = [], []
+    for name, x in states.items():
+        roles, values = basis_forces(bases[name], x)
+        columns += [(name, role) for role in roles]
+        rows += [-lfilter(*resonance, row) for row in values]
+    responses = np.stack(rows)
+
+    def part(mask):
+        return {
+            "t": t[mask],
+            "v_in": v[mask],
+            "w": w[mask],
+            "w_hat": position[mask],
+            "segment": segment[mask],
+        }
+
+    feedback = {
+        "states": list(states),
+        "columns": columns,
+        "train": responses[:, ~held],
+        "heldout": responses[:, held],
+        "bases": bases,
+        "units": {"position": "V", "velocity": "V/s"},
+        "drive_unit": "V",
+        "gain": 1.0,
+    }
+    d = describe_remainder(part(~held), part(held), RATE, SIGMA**2, feedback)
+    json.dumps(d, allow_nan=False)
+    fed = d["state_feedback"]
+    assert d["kind"] == "nonlinear_dynamic" and fed["best"] == "velocity"
+    assert "state velocity fed back into its drive" in d["summary"]
+    # the linear feedback takes up much of it (a step correlates with its state); the velocity's map
+    # takes up most of the rest, the position's far less
+    linear = fed["linear"]["of_excess"]
+    added = {name: fed["states"][name]["of_excess"] - linear for name in states}
+    assert added["velocity"] >= 0.5 * (1 - linear) and added["position"] <= 0.5 * added["velocity"]
+    assert fed["states"]["velocity"]["form"] == form, fed["states"]["velocity"]["forms"]
+    if size is not None:
+        assert fed["states"]["velocity"]["form_size"] == pytest.approx(scale * size, rel=0.1)
+    if form is None:
+        assert "as a" not in d["summary"]

@@ -334,17 +334,55 @@ def _map_shape(grid, force) -> dict:
     )
 
 
-#: A form names a map when it recovers this share of what the free map recovers held out: a fit
-#: linearised along the recording leaves the free map a little more to take up (a 0.12 V Coulomb
-#: friction on an oscillator: the step 74 % of the excess, the free map 82 %).
+#: A form names a map when it adds, held out, this share of what the free map adds to the linear
+#: feedback of the states: a fit linearised along the recording leaves the free map a little more to
+#: take up (a 0.12 V Coulomb friction on an oscillator: the linear feedback 4 % of the excess, the step
+#: 74 %, the free map 82 %).
 FORM_SHARE = 0.85
+#: ... and this much more of it than each other form.
+FORM_LEAD = MARGIN
+#: Forms named only where they oppose the drive: a friction or a drag is taken off the drive with the
+#: sign of the state it acts on (a state the drive pushes up). A step or a bend of the other sign is the
+#: fitted model's own damping having overshot (a pendulum's Coulomb friction, its damping fitted at twice
+#: the truth: the map falls away from zero as −x·|x| does), not a drag.
+OPPOSING = ("step", "bend")
 #: The simple forms a state's map is read against (each its own column beside the linear ones), and
 #: how the report words a map that one of them explains.
 FORMS = {
     "step": "a step of {size} at zero (±{half}), as a Coulomb friction has",
     "bend": "growing as x·|x| away from zero ({size} at the largest |x|), as a quadratic drag does",
     "cube": "growing as x³ ({size} at the largest |x|), as a cubic spring does",
+    "grow": "growing faster than linearly away from zero ({size} at the largest |x|), as a drag or a "
+    "stiffening spring does",
 }
+
+
+def _read_form(forms: dict) -> str | None:
+    """The form (`FORMS`) a state's map reads as, from each form's ``share``, or None.
+
+    One form leads: at least `FORM_SHARE`, `FORM_LEAD` more than each other,
+    and (`OPPOSING`) of the sign that opposes the drive. A bend and a cube
+    alike (neither leads the other, both lead the step, both positive): a map
+    that grows faster than linearly (``grow``), which a recording of one state
+    rarely tells apart.
+    """
+
+    def share(k):
+        return forms[k]["share"] or 0.0 if k in forms else -np.inf
+
+    def leads(k, others):
+        return share(k) >= FORM_SHARE and all(share(k) >= share(o) + FORM_LEAD for o in others)
+
+    def opposes(k):
+        return k not in OPPOSING or (forms[k]["size"] or 0.0) > 0
+
+    for k in forms:
+        if leads(k, [o for o in forms if o != k]):
+            return k if opposes(k) else None
+    if "bend" in forms and "cube" in forms and leads("bend", ["step"]) and leads("cube", ["step"]):
+        positive = (forms["bend"]["size"] or 0.0) > 0 and (forms["cube"]["size"] or 0.0) > 0
+        return "grow" if positive else None
+    return None
 
 
 def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
@@ -358,8 +396,9 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
     ``linear``: the linear columns of every state and ŵ (the linear dynamics
     and the readout's gain retuned); each state's free map adds its hats and
     step to those, and each of its `FORMS` adds that one column alone. A form
-    that recovers `FORM_SHARE` of what the free map does held out, and
-    `MARGIN` more than each other form, is the map's ``form`` (its size in the drive's unit:
+    that adds `FORM_SHARE` of what the free map adds to the linear feedback
+    held out (its ``share``), `FORM_LEAD` more than each other form, and of
+    the sign that opposes the drive (`OPPOSING`), is the map's ``form`` (its size in the drive's unit:
     a step's jump, a bend's or cube's value at the largest |x|): a recording
     rarely pins where a velocity's map rises between the knots next to zero
     (it crosses zero quickly), but a step's column fitted alone can be judged.
@@ -410,14 +449,11 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
             if role in own:
                 part, (size,) = fitted([own[role]])
                 forms[role] = dict(part, size=_num(scale * size))
-        best = max(forms, key=lambda k: score(forms[k]), default=None)
-        chosen = (
-            best
-            if best is not None
-            and score(forms[best]) >= FORM_SHARE * score(result)
-            and all(score(forms[best]) >= score(p) + MARGIN for k, p in forms.items() if k != best)
-            else None
-        )
+        # What each form adds to the linear feedback, as a share of what the free map adds.
+        room = score(result) - score(out["linear"])
+        for part in forms.values():
+            part["share"] = _num((score(part) - score(out["linear"])) / room) if room > 0 else None
+        chosen = _read_form(forms) if room >= MARGIN else None
         out["states"][name] = dict(
             result,
             unit=feedback["units"].get(name, ""),
@@ -425,6 +461,7 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
             force_unit=feedback["drive_unit"] if gain else "",
             forms=forms,
             form=chosen,
+            form_size=None if chosen is None else forms["bend" if chosen == "grow" else chosen]["size"],
             **_map_shape(grid, force),
         )
     return out
@@ -572,7 +609,7 @@ def _map_words(part: dict) -> str:
     words = ["odd" if (sym.get("odd") or 0) > 0.8 else "even" if (sym.get("even") or 0) > 0.8 else ""]
     form = part.get("form")
     if form is not None:
-        size = part["forms"][form]["size"]
+        size = part["form_size"]
         unit = f" {part['force_unit']}" if part.get("force_unit") else ""
         words.append(FORMS[form].format(size=f"{size:.3g}{unit}", half=f"{abs(size) / 2:.3g}{unit}"))
     words = [w for w in words if w]
@@ -636,7 +673,8 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict 
             "filter_drive": "a linear filter of the drive",
             "filter_output": "a linear filter of the model's output",
             "rate": "a function of the drive's rate dv/dt",
-            "state_linear": "a linear feedback of the simulation's states (its linear dynamics retuned)",
+            "state_linear": "a force proportional to the simulation's states fed back into its drive (a "
+            "spring or a damper on them)",
         }[inkind]
         weak = score(scores[best_static]) < 0.5 * family["dynamic"]
         text = f"dynamic: {what} recovers {pct(inkind)} {where}; " + (

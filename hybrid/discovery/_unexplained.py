@@ -210,7 +210,8 @@ def remainder(
 def place_hint(description: dict, places: dict) -> str | None:
     """Where an effect that explains the rest would act, when that is inside the dynamics, and what was searched.
 
-    A nonlinearity fed back through the dynamics, or a level the record sits
+    A nonlinearity fed back through the dynamics, a force proportional to the
+    simulation's states fed back into its drive, or a level the record sits
     flat at, points inside; the sentence says whether `diagnose` searched there
     (it needs a simulation in state-space form) and, if it did, that a plug-in
     effect of the user's own is what is left.
@@ -222,16 +223,15 @@ def place_hint(description: dict, places: dict) -> str | None:
     )
     # (the level test runs on every remainder: a level the record sits flat at is one it flagged; a
     # quantised output, static on the output, was sent inside because the test's dict was there)
-    if inside is None or not (description.get("kind") == "nonlinear_dynamic" or flat):
+    named = (description.get("recovered") or {}).get("named")
+    if inside is None or not (
+        description.get("kind") == "nonlinear_dynamic" or named == "state_linear" or flat
+    ):
         return None
     if inside["not_searched"]:
         return f"an effect inside the dynamics may explain it, but {inside['not_searched']}"
     fed = description.get("state_feedback") or {}
-    on = (
-        f" on its state {fed['best']}"
-        if (description.get("recovered") or {}).get("named") == "state_map"
-        else ""
-    )
+    on = f" on its state {fed['best']}" if named == "state_map" else ""
     return (
         f"of the effects searched inside the dynamics ({', '.join(inside['effects'])}), none explains the "
         f"rest: an effect of your own there{on} may (docs/effects.md)"
