@@ -252,7 +252,9 @@ def test_a_v_shaped_remainder_is_called_even_never_one_sided():
         (lambda x: -0.3 * x * np.abs(x) + 0.2 * x, None, None),  # falls away from zero: no drag
     ],
 )
-def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_its_forms(force, form, size):
+def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_its_forms(
+    force, form, size, tmp_path
+):
     # ŵ = H[v] for a 5 Hz resonance H (ζ = 0.2) driven by band-limited noise; its states are the
     # output (position) and its rate (velocity, by differences, scaled to |velocity| ≤ 1). The remainder
     # is what a force c·φ of the velocity taken off the drive adds: −H[c·φ(velocity)], c setting its rms
@@ -319,3 +321,5 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
         assert fed["states"]["velocity"]["form_size"] == pytest.approx(scale * size, rel=0.1)
     if form is None:
         assert "as a" not in d["summary"]
+    plot_remainder(d, tmp_path / "remainder.png")  # with a third panel: the velocity's map
+    assert (tmp_path / "remainder.png").stat().st_size > 10_000

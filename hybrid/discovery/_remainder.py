@@ -42,6 +42,7 @@ time, dynamic), or "unstructured" below 20 % of the excess (2 % of the MSE).
 
 from __future__ import annotations
 
+import textwrap
 from typing import Any
 
 import numpy as np
@@ -711,6 +712,9 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict 
 def plot_remainder(description: dict, path, units: dict | None = None) -> None:
     """Two panels: the residual against drive level with the learned map, and the filters' gain.
 
+    A third where the state feedback (`_state_feedback`) has a best state: its
+    map, the force taken off the drive against the state.
+
     `units`: the recorded signals' (``{"w": ..., "v_in": ...}``, `Diagnosis.signal_units`; default
     `PAPER_UNITS`) for the labels.
     """
@@ -720,7 +724,24 @@ def plot_remainder(description: dict, path, units: dict | None = None) -> None:
     from ..util._figures import pyplot, save_png
 
     plt = pyplot()
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fed = description.get("state_feedback") or {}
+    state = fed.get("best")
+    axes = plt.subplots(1, 3 if state else 2, figsize=(16.5 if state else 11, 4.2))[1]
+    left, right = axes[0], axes[1]
+    fig = left.figure
+    if state:
+        part, panel = fed["states"][state], axes[2]
+        panel.plot(part["curve"]["x"], part["curve"]["force"], "C3-", lw=1.8)
+        panel.axhline(0.0, color="0.5", lw=0.6)
+        force_unit = f" ({part['force_unit']})" if part.get("force_unit") else " (scaled)"
+        panel.set(
+            xlabel=f"state {state}" + (f" ({part['unit']})" if part.get("unit") else ""),
+            ylabel=f"force taken off the drive{force_unit}",
+        )
+        panel.set_title(
+            f"Map of the state {state} fed back into the drive; recovers {_pct(part)}", fontsize=9
+        )
+        panel.grid(True, alpha=0.3)
     drive = description.get("static", {}).get("drive", {})
     if "curve" in drive:  # the held-out points and the map fitted on training
         left.scatter(
@@ -762,7 +783,8 @@ def plot_remainder(description: dict, path, units: dict | None = None) -> None:
         fontsize=9,
     )
     right.grid(True, alpha=0.3)
-    fig.suptitle(description.get("summary", ""), fontsize=9)
+    width = 200 if state else 130  # characters of the summary per line of the title
+    fig.suptitle(textwrap.fill(description.get("summary", ""), width), fontsize=9)
     fig.tight_layout()
     save_png(fig, path)
 
