@@ -8,6 +8,7 @@ a limit.
 
 from __future__ import annotations
 
+import collections
 import importlib.util
 import json
 from pathlib import Path
@@ -18,10 +19,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax import monitoring
 from scipy.integrate import solve_ivp
 
 import hybrid
 from hybrid import EffectStack, InputError, PolynomialStiffness, StateLimit
+from hybrid.core._problem import bucket_length
 from hybrid.core._serialise import build_simulation, describe_simulation
 from hybrid.core._state_space import integrate
 from hybrid.discovery._effect_set import searched_places
@@ -383,14 +386,14 @@ def test_inside_effects_where_they_cannot_act_are_refused_in_one_line(simulation
 FRICTION_RATE, FRICTION_FORCE, STICK_SPEED = 30.0, 0.12, 0.3
 
 
-def _friction_lab(folder: Path) -> None:
+def _friction_lab(folder: Path, samples: int = 600, seed: int = 3, name: str = "lab.csv") -> None:
     """A 2 Hz mass on a spring sliding with Coulomb friction, 20 s at 30 Hz, made by solve_ivp.
 
     20 s (600 samples, 40 periods) name it as 40 s did (gain 122 against 86, force 0.1199 V
     against 0.1198) at about half the search's running time.
     """
-    rng = np.random.default_rng(3)
-    t = np.arange(int(20 * FRICTION_RATE)) / FRICTION_RATE
+    rng = np.random.default_rng(seed)
+    t = np.arange(samples) / FRICTION_RATE
     u = sum(0.35 * np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (0.31, 0.77, 1.3, 1.9, 2.6))
     w, zeta = 2 * np.pi * 2.0, 0.1
 
@@ -402,7 +405,7 @@ def _friction_lab(folder: Path) -> None:
     out = 2.0 * y + 0.1 + 0.003 * np.ptp(y) * rng.normal(size=y.size)
     units = {"t": "s", "v_in": "V", "w": "cm"}  # a position in cm: the saved models' units follow it
     hybrid.Recording.from_arrays(v_in=u, w=out, rate=FRICTION_RATE, metadata={"units": units}).save(
-        folder / "lab.csv"
+        folder / name
     )
 
 
@@ -599,3 +602,28 @@ def test_a_friction_no_searched_effect_explains_is_placed_on_the_velocity_with_i
     assert "state velocity fed back into its drive" in description["summary"]
     assert "as a Coulomb friction has" in description["summary"]
     assert "an effect of your own there on its state velocity" in description["summary"]
+
+    # A second recording of another length in the same bucket (a lab's next one, in one session):
+    # the state maps' two programs serve it as the search's do, compiled once.
+    assert bucket_length(571) == bucket_length(len(recording.t))
+    _friction_lab(tmp_path, samples=571, seed=8, name="next.csv")
+    compiles = collections.Counter()
+
+    def listen(event, duration, fun_name=None, **_):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles[fun_name] += 1
+
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        again = hybrid.diagnose(
+            hybrid.Recording.load(tmp_path / "next.csv"),
+            simulation=MassSpringDamper(),
+            effects=["stiffness"],
+            progress=False,
+        )
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+    assert again.unexplained["description"]["state_feedback"]["best"] == "velocity"
+    assert not [name for name in compiles if "state_trajectories" in name or "force_responses" in name], (
+        compiles
+    )

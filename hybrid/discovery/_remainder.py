@@ -257,42 +257,50 @@ def state_basis(x) -> dict:
 
     Hat functions on `KNOTS` quantiles of `x` (a continuous, piecewise linear
     map, held flat beyond the training range) and, where the state takes both
-    signs on at least 5 % of the samples each, a step at zero (and a knot
-    there, so that no hat makes a jump of its own near it). Also the centre
-    (the mean) its linear column is taken about.
+    signs on at least 5 % of the samples each, a step at zero (the inner knot
+    nearest zero moved there, so that no hat makes a jump of its own near it).
+    Also the centre (the mean) its linear column is taken about.
     """
     x = np.asarray(x, float)
     x = x[np.isfinite(x)]
-    knots = np.unique(np.quantile(x, np.linspace(0.0, 1.0, KNOTS))) if len(x) else np.zeros(0)
-    both = len(x) > 0 and min(np.mean(x > 0), np.mean(x < 0)) >= 0.05
+    if not len(x):
+        return {"knots": np.zeros(0), "step": False, "centre": 0.0}
+    knots = np.quantile(x, np.linspace(0.0, 1.0, KNOTS))
+    both = bool(min(np.mean(x > 0), np.mean(x < 0)) >= 0.05)
     if both:  # a knot at zero: the hats bend there, and only the step jumps
-        knots = np.union1d(knots[np.abs(knots) > 1e-3 * np.ptp(knots)], [0.0])
-    return {"knots": knots, "step": bool(both), "centre": float(np.mean(x)) if len(x) else 0.0}
+        knots[1 + np.argmin(np.abs(knots[1:-1]))] = 0.0
+    return {"knots": np.unique(knots), "step": both, "centre": float(np.mean(x))}
+
+
+#: The columns of each state's map, in `basis_forces`' order: as many whatever the state's values, so
+#: that the responses' program (`force_responses`) has one shape for every recording of a length.
+ROLES = ("linear", *(f"hat_{j}" for j in range(KNOTS)), "step", "bend", "cube")
 
 
 def basis_forces(basis: dict, x) -> tuple[list[str], np.ndarray]:
-    """The columns of a state's map on its values `x`: (their roles, one row each).
+    """The columns of a state's map on its values `x`: (`ROLES`, one row each).
 
     ``linear`` (x less its training centre), ``hat_j`` (piecewise linear, 1 at
     knot j, 0 at its neighbours), ``step`` (1 where x > 0): the free map; and
     the forms it is read against (`FORMS`): ``bend`` (x·|x|) and ``cube`` (x³),
-    x scaled by its largest training |x|. A state whose training values are
-    constant has its linear column alone.
+    x scaled by its largest training |x|. Rows of zeros where a column has
+    nothing to say: hats beyond the distinct knots (a state of few values),
+    the step of a state that keeps its sign, all but the linear column of a
+    state whose training values are constant.
     """
     x = np.asarray(x, float)
     knots = basis["knots"]
-    roles, rows = ["linear"], [x - basis["centre"]]
+    rows = np.zeros((len(ROLES), x.size))
+    rows[0] = x - basis["centre"]
     if len(knots) >= 2:
         eye = np.eye(len(knots))
-        roles += [f"hat_{j}" for j in range(len(knots))]
-        rows += [np.interp(x, knots, eye[j]) for j in range(len(knots))]
+        for j in range(len(knots)):
+            rows[1 + j] = np.interp(x, knots, eye[j])
         if basis["step"]:
-            roles.append("step")
-            rows.append((x > 0).astype(float))
+            rows[1 + KNOTS] = x > 0
         z = x / max(abs(knots[0]), abs(knots[-1]))
-        roles += ["bend", "cube"]
-        rows += [z * np.abs(z), z**3]
-    return roles, np.stack(rows)
+        rows[2 + KNOTS], rows[3 + KNOTS] = z * np.abs(z), z**3
+    return list(ROLES), rows
 
 
 def _least_squares(train_cols, y, held_cols):
@@ -427,17 +435,20 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
         return judge(pred), coef[len(base_tr) :]
 
     for name in feedback["states"]:
-        own = {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
-        free = [j for role, j in own.items() if role.startswith("hat_") or role == "step"]
-        if not free:
-            continue
-        result, coef = fitted(free)
         basis = feedback["bases"][name]
         knots = basis["knots"]
+        if len(knots) < 2:  # constant on the training part: no map to fit
+            continue
+        own = {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
+        hats = [own[f"hat_{k}"] for k in range(len(knots))]
+        free = hats + ([own["step"]] if basis["step"] else [])
+        result, coef = fitted(free)
         grid = np.linspace(knots[0], knots[-1], 101)
         roles, rows = basis_forces(basis, grid)
         beta = {cols[j][1]: b for j, b in zip(free, coef)}
-        smooth = scale * sum(beta[role] * row for role, row in zip(roles, rows) if role.startswith("hat_"))
+        smooth = scale * sum(
+            beta[role] * row for role, row in zip(roles, rows) if role.startswith("hat_") and role in beta
+        )
         step = scale * beta.get("step", 0.0)
         # A constant force moves the output as the readout's offset does: the map is fixed at zero
         # midway through its step there (a Coulomb friction's ±F), or at its lowest value.
@@ -446,10 +457,9 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
         else:
             force = smooth - smooth[0]
         forms = {}
-        for role in FORMS:
-            if role in own:
-                part, (size,) = fitted([own[role]])
-                forms[role] = dict(part, size=_num(scale * size))
+        for role in ("step", "bend", "cube") if basis["step"] else ("bend", "cube"):
+            part, (size,) = fitted([own[role]])
+            forms[role] = dict(part, size=_num(scale * size))
         # What each form adds to the linear feedback, as a share of what the free map adds.
         room = score(result) - score(out["linear"])
         for part in forms.values():

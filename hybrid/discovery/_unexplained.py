@@ -87,7 +87,7 @@ def _part(problem, series, recordings, candidate, split: str) -> dict:
     return {"t": t, "v_in": v, "w": w, "w_hat": w_hat, "segment": segment_ids(series, split)}
 
 
-def feedback_signals(problem, series, final) -> dict | None:
+def feedback_signals(problem, final) -> dict | None:
     """What `_remainder`'s state feedback fits on: each state's map's columns as responses, on train and test.
 
     For a simulation in state-space form with at most `MAX_STATES` states:
@@ -110,6 +110,9 @@ def feedback_signals(problem, series, final) -> dict | None:
     def cut(signal, s, split):  # (rows, samples) of a recording → its recorded samples of `split`
         return [signal[..., a:b] for a, b in s.recorded_segments_of(split)]
 
+    # The search's series, padded to their buckets' lengths: the two programs serve every recording of
+    # a bucket, as the search's do (a session that diagnoses many recordings compiles them once).
+    series = problem.series
     states = [np.asarray(state_trajectories(stack, s.v_in, s.dt)).T for s in series]  # (states, samples)
     train = np.concatenate([part for x, s in zip(states, series) for part in cut(x, s, "train")], axis=1)
     bases = {name: state_basis(train[k]) for k, name in enumerate(names)}
@@ -171,11 +174,11 @@ def remainder(
     if mse <= settings.unexplained_ratio * top:
         return None
     train = _part(problem, series, recordings, final, "train")
-    feedback = feedback_signals(problem, series, final)
+    feedback = feedback_signals(problem, final)
     if feedback is not None and (
         feedback["train"].shape[1] != len(train["w"]) or feedback["heldout"].shape[1] != len(held["w"])
     ):
-        feedback = None  # the recorded samples are laid out otherwise (padded series): no state maps
+        feedback = None  # (the recorded samples of both are the split's: a guard, not a case met)
     description = describe_remainder(train, held, rate, floor.variance, feedback)
     # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
     description["level_limit"] = level_limits([train, held], floor.variance)
