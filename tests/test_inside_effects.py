@@ -592,6 +592,7 @@ def test_a_friction_no_searched_effect_explains_is_placed_on_the_velocity_with_i
     found = hybrid.diagnose(recording, simulation=MassSpringDamper(), effects=["stiffness"], progress=False)
     assert found.cause == "none" and found.unexplained is not None
     description = found.unexplained["description"]
+    print(description["summary"])  # the figures docs/diagnose.md quotes (pytest -s)
     fed = description["state_feedback"]
     assert description["kind"] == "nonlinear_dynamic" and description["recovered"]["named"] == "state_map"
     assert fed["best"] == "velocity" and fed["states"]["velocity"]["unit"] == "V/s"
