@@ -42,7 +42,18 @@ def _folder(path: pathlib.Path) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as error:
+        in_way = _file_in_way(path)
+        if in_way is not None:  # mkdir says only "File exists"
+            raise RigError(f"cannot write '{path}': '{in_way}' is a file, not a folder") from None
         raise RigError(f"cannot write '{path}' ({error.strerror or error})") from None
+
+
+def _file_in_way(path: pathlib.Path) -> pathlib.Path | None:
+    """The first of ``path``'s folders that exists as something other than a folder, or None."""
+    for folder in reversed(path.parents):
+        if folder.exists() and not folder.is_dir():
+            return folder
+    return None
 
 
 def write_atomic(path, text: str) -> None:
@@ -115,9 +126,14 @@ def write_json_atomic(path, data: dict) -> None:
 
 def check_csv_out(out, command: str) -> None:
     """Raise `RigError` unless ``out`` names a CSV file to write (not a folder, not a video or other file type)."""
+    if not str(out):
+        raise RigError(f"--out is empty: give the CSV file to write, e.g. --out w.csv ({command})")
     out = pathlib.Path(out)
-    if out.is_dir():
+    if out.is_dir() or not out.name:  # `--out .`, `--out /`: no file name to write
         raise RigError(f"--out {out} is a folder: give the CSV file to write, e.g. {out / 'w.csv'}")
+    in_way = _file_in_way(out)
+    if in_way is not None:
+        raise RigError(f"--out {out}: '{in_way}' is a file, not a folder: choose another --out")
     sidecar = out.with_name(out.name + ".json")
     if sidecar.is_dir():  # found only after the recording, with the CSV already renamed onto --out
         raise RigError(

@@ -24,7 +24,9 @@ Quality: 1 when the strip is found from the clamp to a tip inside the view with
 clear contrast, its sections on one smooth line, 0 otherwise (the reason is in
 ``TipResult.reason``; something dark across the strip bends its sections off
 the line by several pixels, and the tip beyond it would be wrong); w is NaN
-when nothing could be measured. A dark line that does not leave the clamp along
+when nothing could be measured. A tip smeared sideways by motion (its contrast
+fading along the smear) is measured where the strip was mid-exposure, with
+quality 0 and the reason `BLURRED`. A dark line that does not leave the clamp along
 the rest axis (met far from the clamp, or across the axis: the axis is wrong),
 or that ends before 40 % of the free length (the clamp's edge, a short mark),
 is not the strip.
@@ -41,7 +43,11 @@ import numpy as np
 from ._errors import RigError
 from ._scene import Scene
 
-__all__ = ["Sections", "TipResult", "TipTracker"]
+__all__ = ["BLURRED", "Sections", "TipResult", "TipTracker"]
+
+#: The reason of a frame whose tip was smeared by motion beyond the sharp tip's measure: its w is
+#: measured (where the strip was mid-exposure, not NaN), its quality 0.
+BLURRED = "tip blurred by motion (w measured, less sure)"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,6 +68,18 @@ def _climb(row: np.ndarray, j: int) -> int:
         if max(left, right) <= row[j]:
             return j
         j = j - 1 if left > right else j + 1
+
+
+def _run_above(row: np.ndarray, j: int, level: float, reach: int) -> tuple[int, int]:
+    """The first and last index of the run of ``row`` above ``level`` around index ``j``, at most
+    ``reach`` either side."""
+    left = j
+    while left > 0 and j - left < reach and row[left - 1] > level:
+        left -= 1
+    right = j
+    while right + 1 < len(row) and right - j < reach and row[right + 1] > level:
+        right += 1
+    return left, right
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,6 +133,7 @@ class TipTracker:
         radius = max(3, int(math.ceil(1.5 * self.strip_px)))
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
         self._window = max(2, int(math.ceil(0.5 * self.strip_px + 2)))
+        self._wide_tracker: TipTracker | None = None
 
     # ------------------------------------------------------------------ helpers
 
@@ -137,6 +156,13 @@ class TipTracker:
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=-1.0,
         )
+
+    def _along(self, contrast, s, u):
+        """The contrast along the line (s, u) px, averaged over +-1 px across it (0 outside the picture)."""
+        along = np.mean(
+            [self._sample(contrast, s[None, :], (u + du)[None, :])[0] for du in (-1.0, 0.0, 1.0)], axis=0
+        )
+        return np.where(along < 0, 0.0, along)
 
     # ------------------------------------------------------------------ tracking
 
@@ -172,7 +198,14 @@ class TipTracker:
                 lo, hi = max(0, prev - 2 * win), min(len(u), prev + 2 * win + 1)
                 j0 = lo + int(np.argmax(row[lo:hi]))
             peak = row[j0]
-            lo, hi = max(0, j0 - win), min(len(u), j0 + win + 1)
+            # The window spans the section's run above half its peak and 2 px beside it (at least
+            # `win` either side of the peak, as before): across a strip thicker than --strip-px the
+            # peak lies anywhere on a flat top, and a window centred there cut the strip unevenly
+            # (centres off by up to a quarter of its thickness, at random from section to section:
+            # w tenths of a mm off in frames of quality 1, or the strip refused).
+            left, right = _run_above(row, j0, 0.5 * peak, 3 * win)
+            lo = max(0, min(j0 - win, left - 4))  # 2 px beside the run
+            hi = min(len(u), max(j0 + win, right + 4) + 1)
             part = row[lo:hi] - 0.2 * peak
             part = np.clip(part, 0.0, None)
             if peak < self.min_contrast or part.sum() <= 0:
@@ -235,7 +268,30 @@ class TipTracker:
         """Track one frame (gray or BGR, any dtype convertible to float)."""
         if frame is None or frame.ndim not in (2, 3) or min(frame.shape[:2]) < 8:
             raise RigError("frame is empty or not an image")
-        return self.track_contrast(self.contrast(frame))
+        result = self.track_contrast(self.contrast(frame))
+        if result.reason in (BLURRED, "tip not found"):
+            # A tip smeared sideways by motion is wider than the closing erases: its contrast fades
+            # along the smear (the tip was found short, or not at all). Seen as a strip twice as
+            # thick, the smear is measured whole (synthetic smears of 1.2-1.6 mm: within 0.012 mm
+            # of the exposure's mean, where the tip found short was up to 0.8 mm off); the frame
+            # keeps quality 0 (BLURRED), a measured w.
+            wide = self._wide()
+            again = wide.track_contrast(wide.contrast(frame))
+            if math.isfinite(again.w):
+                return TipResult(again.w, 0, BLURRED, again.tip_xy)
+        return result
+
+    def _wide(self) -> TipTracker:
+        """This tracker for a strip twice as thick (made once)."""
+        if self._wide_tracker is None:
+            self._wide_tracker = TipTracker(
+                self.scene,
+                strip_px=2 * self.strip_px,
+                start_px=self.start_px,
+                half_width_px=self.half_width,
+                min_contrast=self.min_contrast,
+            )
+        return self._wide_tracker
 
     def track_contrast(self, contrast: np.ndarray) -> TipResult:
         """Track one frame given its contrast image (`contrast`)."""
@@ -273,12 +329,7 @@ class TipTracker:
 
         # Contrast along the centreline, averaged over +-1 px across it.
         s_fine = np.arange(s[last] - 3 * self.strip_px - 4, s[last] + 2 * self.strip_px + 4, 0.1)
-        u_fine = line(s_fine)
-        along = np.mean(
-            [self._sample(contrast, s_fine[None, :], (u_fine + du)[None, :])[0] for du in (-1.0, 0.0, 1.0)],
-            axis=0,
-        )
-        along = np.where(along < 0, 0.0, along)
+        along = self._along(contrast, s_fine, line(s_fine))
         body = along[s_fine < s[last] - self.strip_px]
         level = float(np.median(body)) if body.size else plateau
         if level < self.min_contrast:
@@ -286,6 +337,21 @@ class TipTracker:
         half = 0.5 * level
         below = np.flatnonzero((along[:-1] >= half) & (along[1:] < half))
         below = below[s_fine[below] > s[last] - 2 * self.strip_px]
+        blurred = below.size == 0 and s[-1] > s[last]
+        if blurred:
+            # Motion blur: the strip's end, moving fastest, is smeared across the axis, its sections
+            # followed on (above min_contrast) but under half the plateau, so the strong ones stop
+            # short of the tip: the centreline through every section followed (the smear's centres:
+            # where the strip was mid-exposure), the tip looked for out to the last of them. A smear
+            # wider than the closing erases fades along it, and this tip falls short: `track`
+            # measures such a frame again as a strip twice as thick.
+            s_fine = np.arange(s[last] - 3 * self.strip_px - 4, s[-1] + 2 * self.strip_px + 4, 0.1)
+            use = good.copy()
+            use[max(0, len(s) - int(self.strip_px) - 1) :] = False
+            coef = np.polyfit(s[use] / scale, centres[use], degree)
+            along = self._along(contrast, s_fine, line(s_fine))
+            below = np.flatnonzero((along[:-1] >= half) & (along[1:] < half))
+            below = below[s_fine[below] > s[last] - 2 * self.strip_px]
         if below.size == 0:
             return TipResult(math.nan, 0, "tip not found", (math.nan, math.nan))
         i = below[0]
@@ -302,4 +368,6 @@ class TipTracker:
         if not (1 <= x < w - 1 and 1 <= y < h - 1):
             return TipResult(math.nan, 0, "tip out of view", (x, y))
         # The tip is the end of the strip, not its centreline: add back half the cap.
+        if blurred:  # measured, but less sure: w within ~0.1-0.2 mm where a sharp tip is within ~0.05
+            return TipResult(u_tip * self.scene.mm_per_px, 0, BLURRED, (x, y))
         return TipResult(u_tip * self.scene.mm_per_px, 1, "ok", (x, y))

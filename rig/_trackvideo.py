@@ -38,7 +38,7 @@ from ._errors import RigError
 from ._files import check_csv_out, check_outputs, jsonable, partial_path, write_together
 from ._scene import Scene, check_in_picture
 from ._sync import LedDetector
-from ._tracker import TipTracker
+from ._tracker import BLURRED, TipTracker
 
 __all__ = ["TrackJob", "track_video"]
 
@@ -49,6 +49,7 @@ AXIS_WARN_DEG = 1.0  # a given axis this far from the detected one earns a warni
 #: length is doubted (a cantilever's tip stays within a few per cent of its free length).
 LENGTH_WARN_FRACTION = 0.75
 CLAMP_WARN_PX = 1.0  # so does a given clamp point this far beside the strip
+REPEAT_REASON = "repeats the frame before"  # untracked reason of a frame identical to the one before
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,8 +79,7 @@ class TrackJob:
 
     @property
     def sidecar(self) -> pathlib.Path:
-        out = pathlib.Path(self.out)
-        return out.with_name(out.name + ".json")
+        return pathlib.Path(f"{pathlib.Path(self.out)}.json")  # `--out .` too (refused by check_csv_out)
 
 
 def _warn(message: str) -> None:
@@ -210,6 +210,8 @@ def _track_rows(
     led = LedDetector(*job.led, fps=video.fps, exposure=job.exposure) if job.led else None
     reasons: dict[str, int] = {}
     last = math.nan
+    previous = None
+    repeats: list[int] = []
 
     def frames():
         yield from head
@@ -218,18 +220,24 @@ def _track_rows(
 
     try:
         for frame in frames():
-            if tracker is not None:
+            if _repeats(frame.image, previous):
+                # A camera never takes the same picture twice (sensor noise): the frame was repeated
+                # (by a driver or a capture program short of frames) and does not show its time.
+                ok, value, reason = 0, last, REPEAT_REASON
+                repeats.append(len(t))
+            elif tracker is not None:
                 result = tracker.track(_inverted(frame.image) if bright else frame.image)
                 ok, value, reason = result.quality, result.w, result.reason
             else:
                 ok, value, reason = 0, math.nan, "no strip along any axis"
+            previous = frame.image
             if ok:
                 last = value
                 tips.append(result.tip_xy)
             else:
                 reasons[reason] = reasons.get(reason, 0) + 1
             t.append(frame.t)
-            w.append(value if ok else last)
+            w.append(value if ok or reason == BLURRED else last)  # a blurred tip's w is still measured
             quality.append(ok)
             if led is not None:
                 led.update(frame.index, frame.t, frame.image)
@@ -239,6 +247,7 @@ def _track_rows(
         raise
     finally:
         meta["untracked_reasons"] = reasons
+        meta["repeated_frames"] = repeats
         if led is not None and led.sync is not None:
             meta["sync"] = {
                 "method": "led",
@@ -248,6 +257,20 @@ def _track_rows(
             }
         elif led is not None:
             meta["sync"] = {"method": "led", "t": None, "note": "LED edge not seen"}
+
+
+def _repeats(image: np.ndarray, previous: np.ndarray | None) -> bool:
+    """Whether ``image`` is, pixel for pixel, the frame before it."""
+    return previous is not None and image.shape == previous.shape and bool(np.array_equal(image, previous))
+
+
+def _repeat_warning(job: TrackJob, repeats: list[int], t) -> str:
+    return (
+        f"{len(repeats)} frame{'s' if len(repeats) > 1 else ''} of {job.video} repeat the frame before pixel "
+        f"for pixel (first at t = {t[repeats[0]]:.4f} s): copies made for frames the camera did not deliver "
+        "(its noise never repeats), and such a camera may also have dropped frames without a trace, so t may "
+        "be off after them; they have quality 0"
+    )
 
 
 def _account(video: VideoSource, t, quality) -> dict:
@@ -430,6 +453,8 @@ def track_video(job: TrackJob) -> dict:
         _warn(length_warning)
     if account["gaps"]:
         _warn(_gap_warning(job, account["gaps"]))
+    if meta["repeated_frames"]:
+        _warn(_repeat_warning(job, meta["repeated_frames"], t))
     if account["timestamp_faults"]:
         _warn(
             f"{account['timestamp_faults']} frames of {job.video} had no increasing decoder timestamp: "

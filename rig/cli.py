@@ -20,6 +20,7 @@ import argparse
 import math
 import os
 import pathlib
+import re
 import signal
 import sys
 import threading
@@ -31,6 +32,12 @@ from ._errors import Terminated
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # `--clamp -5,120` is a value, not an option: argparse takes only a plain negative number
+        # (-5, -0.5) for one, and said "argument --clamp: expected one argument"
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
     def error(self, message):
         raise InputError(f"{message} (see `{self.prog} --help`)")
 
@@ -141,7 +148,12 @@ def _scene_args(p, track: bool = False):
         help="free strip length, mm, in (0, 1000] (default 22; the search reaches 1.4x it, and a tip tracked "
         "well short of it is warned about: a wrong --mm-per-px or --length)",
     )
-    p.add_argument("--strip-px", type=STRIP_PX, default=4.0, help="visible strip thickness, px, in (0, 100]")
+    p.add_argument(
+        "--strip-px",
+        type=STRIP_PX,
+        default=4.0,
+        help="visible strip thickness, px, in (0, 100] (default 4; give it for a strip over about 10 px thick)",
+    )
     p.add_argument(
         "--led",
         type=_numbers(2, 3, "--led X,Y[,R]"),
@@ -519,6 +531,10 @@ def _on_sigterm(signum, frame):
 
 
 def main(argv=None) -> int:
+    # FFmpeg's own lines ("moov atom not found", "header damaged") would come before rig's one-line
+    # error, and beside its account of a damaged file's gaps; read once, when OpenCV first opens a
+    # video, so set here (a user's own setting is kept).
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
