@@ -260,3 +260,23 @@ def test_a_non_utf8_file_names_its_encoding_and_excels_format(tmp_path):
             path,
             **mapping,
         )
+
+
+# ----------------------------------------------------------- rig's quality column
+
+
+def test_samples_of_quality_0_are_named_in_a_note_not_fitted_in_silence(tmp_path):
+    # `rig record` writes w on every row and marks with quality 0 where its tracker could not measure
+    # it (held, interpolated, or a smeared tip): a fit weighs them as any other sample.
+    u, y = _signals()
+    t = np.arange(N) / RATE
+    quality = np.ones(N)
+    quality[120:135] = 0.0  # the strip out of view for half a second
+    path = _write(tmp_path / "rec.csv", "t,v_in,w,quality", [t, u, y, quality])
+    notes = [n for n in Recording.load(path).notes if "quality 0" in n]
+    assert len(notes) == 1 and "15 of 300 samples have quality 0 (the first at sample 120)" in notes[0]
+    assert "--range" in notes[0]
+    # every sample measured, or a 'quality' that is not rig's 0/1 flag: no note
+    for values in (np.ones(N), np.linspace(0.0, 100.0, N)):
+        path = _write(tmp_path / "other.csv", "t,v_in,w,quality", [t, u, y, values])
+        assert not [n for n in Recording.load(path).notes if "quality 0" in n]

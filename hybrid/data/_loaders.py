@@ -582,6 +582,7 @@ def _load_csv(
             notes.append(f"recording '{path}': column '{column}' holds {label}, not a signal: left out")
             continue
         columns[column] = _csv_column(path, column, cells, line_numbers)
+    notes += quality_notes(path, columns.get("quality"))
     meta_path = sidecar(path)
     metadata = {}
     if meta_path.exists():
@@ -599,6 +600,25 @@ def _load_csv(
         listed = ", ".join(f"{c} in {u}" for c, u in stated.items())
         notes.append(f"recording '{path}': read {where} as units ({listed})")
     return columns, metadata, tuple(notes), line_numbers
+
+
+def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[str]:
+    """A note for samples whose ``quality`` column (rig's: 1 measured, 0 not) is 0, or none.
+
+    `rig record` and `rig track` write w on every row: where the tracker could
+    not measure the tip (out of view, a smeared tip, a dropped or repeated
+    frame) w is held, interpolated or measured less surely, with quality 0.
+    Nothing weighs them down in a fit: the user should know.
+    """
+    if quality is None or not np.isin(quality, (0.0, 1.0)).all() or not (quality == 0).any():
+        return []
+    zero = np.flatnonzero(quality == 0)
+    return [
+        f"recording '{path}': {len(zero)} of {len(quality)} samples have quality 0 (the first at sample "
+        f"{zero[0]}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker), "
+        "yet they are fitted as measured; where they bunch, leave them out with --range, or track the "
+        "video again (rig/README.md)"
+    ]
 
 
 def footer_note(path: pathlib.Path | str, footer: Sequence[tuple[int, str]]) -> str:
