@@ -244,16 +244,18 @@ def test_a_v_shaped_remainder_is_called_even_never_one_sided():
 
 
 @pytest.mark.parametrize(
-    "force, form, size",
+    "force, form, size, other",
     [
-        (lambda x: 0.2 * np.tanh(x / 0.02), "step", 0.4),  # Coulomb: ±0.2, a jump of 0.4
+        (lambda x: 0.2 * np.tanh(x / 0.02), "step", 0.4, 0.0),  # Coulomb: ±0.2, a jump of 0.4
         # a drag: 0.3 at the largest |x|, which a cube fits about as well (a map that grows)
-        (lambda x: 0.3 * x * np.abs(x), "grow", 0.3),
-        (lambda x: -0.3 * x * np.abs(x) + 0.2 * x, None, None),  # falls away from zero: no drag
+        (lambda x: 0.3 * x * np.abs(x), "grow", 0.3, 0.0),
+        (lambda x: -0.3 * x * np.abs(x) + 0.2 * x, None, None, 0.0),  # falls away from zero: no drag
+        # the step beside a remainder of another kind a little larger: a partial account, read as no form
+        (lambda x: 0.2 * np.tanh(x / 0.02), None, None, 0.35),
     ],
 )
 def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_its_forms(
-    force, form, size, tmp_path
+    force, form, size, other, tmp_path
 ):
     # ŵ = H[v] for a 5 Hz resonance H (ζ = 0.2) driven by band-limited noise; its states are the
     # output (position) and its rate (velocity, by differences, scaled to |velocity| ≤ 1). The remainder
@@ -274,7 +276,9 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
     velocity = velocity / np.max(np.abs(velocity))  # |velocity| ≤ 1: φ's sizes are at the largest |x|
     r = -lfilter(*resonance, force(velocity))
     scale = 0.3 / np.std(r)
-    w = position + scale * r + SIGMA * rng.standard_normal(N)
+    # `other`: beside it, a remainder no map of a state makes (white noise through a 2 Hz low-pass), of this rms
+    rest = lfilter(*butter(2, 2.0 / (RATE / 2)), rng.standard_normal(N))
+    w = position + scale * r + other * rest / np.std(rest) + SIGMA * rng.standard_normal(N)
     t = np.arange(N) / RATE
     segment = np.arange(N) // 500
     held = segment % 4 == 3
@@ -315,7 +319,18 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
     # takes up most of the rest, the position's far less
     linear = fed["linear"]["of_excess"]
     added = {name: fed["states"][name]["of_excess"] - linear for name in states}
-    assert added["velocity"] >= 0.5 * (1 - linear) and added["position"] <= 0.5 * added["velocity"]
+    assert added["position"] <= 0.5 * added["velocity"]
+    from hybrid.discovery._unexplained import place_hint
+
+    hint = place_hint(d, {"inside": {"effects": ["stiffness"], "not_searched": None}})
+    assert ("on its state velocity" in hint) == (not other), hint
+    if other:  # a partial account: no form, and the state is not pointed at as the rest's place
+        assert (
+            fed["states"]["velocity"]["of_excess"] < 0.5
+            and fed["states"]["velocity"]["forms"]["step"]["share"] >= 0.85
+        )
+    else:
+        assert added["velocity"] >= 0.5 * (1 - linear)
     assert fed["states"]["velocity"]["form"] == form, fed["states"]["velocity"]["forms"]
     if size is not None:
         assert fed["states"]["velocity"]["form_size"] == pytest.approx(scale * size, rel=0.1)

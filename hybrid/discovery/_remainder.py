@@ -348,8 +348,10 @@ def _map_shape(grid, force) -> dict:
 #: take up (a 0.12 V Coulomb friction on an oscillator: the linear feedback 4 % of the excess, the step
 #: 74 %, the free map 82 %).
 FORM_SHARE = 0.85
-#: ... and this much more of it than each other form.
+#: ... and this much more of it than each other form, where the free map recovers at least this much
+#: of the excess (or of the held-out error, with no floor).
 FORM_LEAD = MARGIN
+FORM_MIN = 0.5
 #: Forms named only where they oppose the drive: a friction or a drag is taken off the drive with the
 #: sign of the state it acts on (a state the drive pushes up). A step or a bend of the other sign is the
 #: fitted model's own damping having overshot (a pendulum's Coulomb friction, its damping fitted at twice
@@ -464,7 +466,10 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
         room = score(result) - score(out["linear"])
         for part in forms.values():
             part["share"] = _num((score(part) - score(out["linear"])) / room) if room > 0 else None
-        chosen = _read_form(forms) if room >= MARGIN else None
+        # A form is read into a map that carries most of the remainder, never into a partial account (an
+        # output's play on a second-order plant: a velocity's step recovers 37 %, a friction-like dwell at
+        # each reversal, of an effect that is not inside at all).
+        chosen = _read_form(forms) if room >= MARGIN and score(result) >= FORM_MIN else None
         out["states"][name] = dict(
             result,
             unit=feedback["units"].get(name, ""),

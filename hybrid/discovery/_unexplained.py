@@ -34,7 +34,7 @@ from ..core._state_space import dynamics_of
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
 from ._effect_stack import EffectStack, force_responses, state_trajectories
 from ._noise_floor import NoiseFloor, noise_floor
-from ._remainder import MAX_STATES, basis_forces, describe_remainder, state_basis
+from ._remainder import FORM_MIN, MAX_STATES, basis_forces, describe_remainder, state_basis
 from ._search import split_signals
 
 #: Held-out MSE over the floor above which ``unexplained`` warns that the floor is far below the error.
@@ -234,7 +234,12 @@ def place_hint(description: dict, places: dict) -> str | None:
     if inside["not_searched"]:
         return f"an effect inside the dynamics may explain it, but {inside['not_searched']}"
     fed = description.get("state_feedback") or {}
-    on = f" on its state {fed['best']}" if named == "state_map" else ""
+    # the state named only where its map carries most of the rest (`FORM_MIN`), as its form is
+    best = (fed.get("states") or {}).get(fed.get("best"), {})
+    strong = (
+        best.get("of_excess") if best.get("of_excess") is not None else best.get("fraction") or 0
+    ) >= FORM_MIN
+    on = f" on its state {fed['best']}" if named == "state_map" and strong else ""
     return (
         f"of the effects searched inside the dynamics ({', '.join(inside['effects'])}), none explains the "
         f"rest: an effect of your own there{on} may (docs/effects.md)"
