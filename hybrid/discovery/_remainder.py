@@ -404,13 +404,15 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
     held-out samples (``train``, ``heldout``: rows), the states' bases, units,
     the drive's unit and the readout's gain. A force φ(x) taken off the drive
     moves the output by the response to φ: r ≈ gain · Σ βⱼ Rⱼ with φ = Σ βⱼ·bⱼ.
-    ``linear``: the linear columns of every state and ŵ (the linear dynamics
-    and the readout's gain retuned); each state's free map adds its hats and
-    step to those, and each of its `FORMS` adds that one column alone. A form
-    that adds `FORM_SHARE` of what the free map adds to the linear feedback
-    held out (its ``share``), `FORM_LEAD` more than each other form, and of
-    the sign that opposes the drive (`OPPOSING`), is the map's ``form`` (its size in the drive's unit:
-    a step's jump, a bend's or cube's value at the largest |x|): a recording
+    ``linear``: the linear columns of every state and ŵ (a force proportional
+    to the states, and the readout's gain retuned); each state's free map adds
+    its hats and step to those, and each of its `FORMS` adds that one column
+    alone. Where the free map carries `FORM_MIN` of the excess, a form that
+    adds `FORM_SHARE` of what the free map adds to the linear feedback held
+    out (its ``share``), `FORM_LEAD` more than each other form, and of the
+    sign that opposes the drive (`OPPOSING`), is the map's ``form`` (its size
+    in the drive's unit: a step's jump, a bend's or cube's value at the
+    largest |x|): a recording
     rarely pins where a velocity's map rises between the knots next to zero
     (it crosses zero quickly), but a step's column fitted alone can be judged.
     The free map is reported in the drive's unit on a grid over the state's
@@ -466,9 +468,9 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
         room = score(result) - score(out["linear"])
         for part in forms.values():
             part["share"] = _num((score(part) - score(out["linear"])) / room) if room > 0 else None
-        # A form is read into a map that carries most of the remainder, never into a partial account (an
-        # output's play on a second-order plant: a velocity's step recovers 37 %, a friction-like dwell at
-        # each reversal, of an effect that is not inside at all).
+        # A form is read into a map that carries most of the remainder, never into a partial account (a
+        # sensor's play on the output dwells at each reversal as a friction does: a velocity's step takes
+        # up part of an effect that is not inside at all).
         chosen = _read_form(forms) if room >= MARGIN and score(result) >= FORM_MIN else None
         out["states"][name] = dict(
             result,
