@@ -9,6 +9,7 @@ a limit.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import importlib.util
 import json
 from pathlib import Path
@@ -628,3 +629,32 @@ def test_a_friction_no_searched_effect_explains_is_placed_on_the_velocity_with_i
     assert not [name for name in compiles if "state_trajectories" in name or "force_responses" in name], (
         compiles
     )
+
+
+def test_a_final_model_bent_out_of_its_plausible_range_or_on_a_scale_of_its_own_is_warned_about():
+    """`model_warnings`: what a new user's two-mass drive with a sensor lag met in silence.
+
+    The fit took up a 0.1 s sensor lag by bending the plant (a damping below its plausible range) and
+    said "no effect needed"; its readout gain (0.24, w and the simulation's output both in rad/s) put
+    every size in the output's unit on a scale of its own.
+    """
+    from hybrid.core._readout import LinearReadout
+    from hybrid.discovery._diagnose import model_warnings
+
+    def model(zeta, gain):
+        built = hybrid.make_model("physics", simulation=MassSpringDamper(frequency=2.0, zeta=zeta))
+        return dataclasses.replace(built, readout=LinearReadout(gain=gain), signal_units=("V", "V"))
+
+    assert model_warnings(model(0.1, 1.05), frozenset()) == []  # plausible, the measured scale
+    bent = model_warnings(model(50.0, 1.0), frozenset())
+    assert len(bent) == 1 and "zeta = 50 is outside its plausible range 0.0001 to 10" in bent[0]
+    assert "take up an effect it lacks" in bent[0]
+    assert model_warnings(model(50.0, 1.0), frozenset({"zeta"})) == []  # a frozen value is the user's
+    scaled = model_warnings(model(0.1, 0.2438), frozenset())
+    assert (
+        len(scaled) == 1 and "the readout's gain is 0.2438" in scaled[0] and "4.1× the measured" in scaled[0]
+    )
+    assert "(V)" in scaled[0]
+    # w in another unit than the simulation's output: the gain converts units, and says nothing of scale
+    other = dataclasses.replace(model(0.1, 0.2438), signal_units=("mm", "V"))
+    assert model_warnings(other, frozenset()) == []

@@ -155,12 +155,25 @@ def fit_warnings(
             "stopped on a plateau far from the system's values; start from points screened over the "
             "physics' typical ranges (hybrid fit --screen 512 --starts 4; fit(..., screen=512, starts=4))"
         )
-    for name, (low, high) in fitted.simulation.plausible.items():
-        if name in free and not (low <= after[name] <= high):
-            unit = unit_suffix(units.get(name))
-            warnings.append(
-                f"{name} = {after[name]:.6g}{unit} is outside its plausible range {low:g} to "
-                f"{high:g}{unit}: check the recording's units and columns, or the value is not "
-                "identifiable from this data"
-            )
+    warnings += implausible(fitted, frozen)
     return warnings
+
+
+def implausible(fitted: Model, frozen, why: str = "") -> list[str]:
+    """One sentence per fitted parameter of `fitted`'s simulation outside its plausible range.
+
+    `AbstractSimulation.plausible`; `frozen` names are left out. `why`: what
+    else may have put it there, after the checks every fit is told (units,
+    columns, identifiability).
+    """
+    out = []
+    values = {k: float(v) for k, v in fitted.simulation.parameters().items()}
+    for name, (low, high) in fitted.simulation.plausible.items():
+        if name in values and name not in frozen and not (low <= values[name] <= high):
+            unit = unit_suffix(fitted.units.get(name))
+            out.append(
+                f"{name} = {values[name]:.6g}{unit} is outside its plausible range {low:g} to "
+                f"{high:g}{unit}: check the recording's units and columns, or the value is not "
+                f"identifiable from this data{why}"
+            )
+    return out

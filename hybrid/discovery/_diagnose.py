@@ -51,6 +51,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from typing import Any
 
@@ -62,7 +63,10 @@ from ..core._arguments import as_recordings, check_simulation
 from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_labels
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
+from ..core._models import Model
+from ..core._result import implausible
 from ..core._screen import N_SCREEN, screened_starts
+from ..core._simulation import unit_in
 from ..util._errors import InputError, PluginError
 from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
@@ -429,6 +433,14 @@ def diagnose(
         hybrid_report = hybrid_fits(
             recordings, simulation, extended, problem, kept, settings, hybrid_max_steps, progress
         )
+    models = {  # each labels its parameters in the recordings' units, saved and loaded with it
+        name: dataclasses.replace(model, signal_units=signals)
+        for name, model in {
+            "baseline": fitted_model(problem, baseline.theta, ()),
+            "extended": extended_model,
+            **rival_models,
+        }.items()
+    }
     return Diagnosis(
         cause=cause,
         baseline=baseline,
@@ -449,19 +461,50 @@ def diagnose(
         places=places,
         not_pinned=unpinned,
         ambiguous=rivals,
-        models={  # each labels its parameters in the recordings' units, saved and loaded with it
-            name: dataclasses.replace(model, signal_units=signals)
-            for name, model in {
-                "baseline": fitted_model(problem, baseline.theta, ()),
-                "extended": extended_model,
-                **rival_models,
-            }.items()
-        },
+        models=models,
         units=units,
         signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
-        warnings=nonfinite_warnings(steps, search.effects),
+        warnings=nonfinite_warnings(steps, search.effects) + model_warnings(models["extended"], frozen),
     )
+
+
+#: A dimensionless readout gain farther than this factor from 1 puts the simulation's output on a scale
+#: of its own (`model_warnings`).
+GAIN_FACTOR = 1.2
+
+
+def model_warnings(model: Model, frozen) -> list[str]:
+    """What about the final model's fit should not be taken at face value.
+
+    A simulation parameter outside its plausible range ([`implausible`][]): the
+    fit may have bent the simulation to take up an effect it lacks (a plug-in
+    with a 0.1 s sensor lag: its shaft's damping fitted below its plausible
+    range, and "no effect needed" at 1.3× the floor). A readout gain of no
+    unit (the simulation's output in the recording's unit) far from 1: sizes
+    in the simulation's output unit or its states' (an output effect's level,
+    a state's map) are on the simulation's own scale, not the measured one.
+    """
+    out = implausible(
+        model,
+        frozen,
+        ", or the fit bent the simulation to take up an effect it lacks (a lag, a friction): what the "
+        "diagnosis says rests on a model that is not the system there",
+    )
+    gain = model.readout.parameters().get("gain")
+    if (
+        gain is not None
+        and model.units.get("gain") == "1"
+        and abs(math.log(abs(float(gain)) or 1e-300)) > math.log(GAIN_FACTOR)
+    ):
+        unit = unit_in(model.simulation.output_unit, getattr(model.simulation, "drive_unit", "V"))
+        out.append(
+            f"the readout's gain is {float(gain):.4g} (w = {float(gain):.4g}·y + offset): the simulation's "
+            f"output y, and every size in its unit ({unit}) or its states' (an output effect's level, a "
+            f"state's map), is on the simulation's own scale, {1 / abs(float(gain)):.3g}× the measured one; "
+            "freeze the readout's gain, or a parameter that sets the scale, to read them in the measured unit"
+        )
+    return out
 
 
 def hybrid_fits(recordings, simulation, extended, problem, causes, settings, max_steps, progress) -> dict:
