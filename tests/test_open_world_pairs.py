@@ -25,6 +25,15 @@ def test_both_effects_of_a_pair_are_named(spec, seed):
     for cause in found.causes:  # each passed the rules against the model before it
         assert cause["incremental_gain"] >= 1.5 and cause["delta_bic"] <= -10.0
     assert found.cause == names[0]
+    # Each cause's derived quantities are the final model's, as its parameters are (the first cause's
+    # own step fitted it alone): those of the saved model, on the recording, computed apart.
+    saved = found.models["extended"].simulation.derived(
+        recording.v_in, float(recording.t[1] - recording.t[0])
+    )
+    for cause in found.causes:
+        assert cause["derived"].keys() == saved[cause["name"]].keys()
+        for key, value in saved[cause["name"]].items():
+            assert cause["derived"][key] == pytest.approx(value, rel=1e-6), (cause["name"], key)
     # Both together come down to the measurement noise: nothing is left unexplained. Against the
     # true noise variance (which diagnose never sees): within 2.5x, where the baseline was far above.
     assert found.unexplained is None, found.verdict

@@ -71,7 +71,7 @@ from ..util._errors import InputError, PluginError
 from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
 from ._ambiguity import ambiguities
-from ._decision import evaluate_candidate, free_names
+from ._decision import derived_quantities, evaluate_candidate, free_names
 from ._diagnosis import SPLIT_ORDER, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effect_set import resolve_effects, searched_places
 from ._effect_stack import EffectStack
@@ -466,6 +466,9 @@ def diagnose(
         signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
         warnings=nonfinite_warnings(steps, search.effects) + model_warnings(models["extended"], frozen),
+        final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
+        if kept
+        else {},
     )
 
 

@@ -381,8 +381,12 @@ class Diagnosis:
     #: without it, the rules that gain failed. Not among `causes`.
     dropped: list = dataclasses.field(default_factory=list)
     #: What about the search should not be taken at face value, one sentence each: a plug-in effect
-    #: whose predictions were not finite over part of its parameters' range (`nonfinite_warnings`).
+    #: whose predictions were not finite over part of its parameters' range (`nonfinite_warnings`), the
+    #: final model's fit (`model_warnings`).
     warnings: list = dataclasses.field(default_factory=list)
+    #: Each effect of the final model's derived quantities (`AbstractEffect.derived`), by name: what
+    #: `causes` gives beside the final model's parameters (a step's own values are its candidates').
+    final_derived: dict = dataclasses.field(default_factory=dict)
 
     def effect_parameters(self, name: str) -> tuple[str, ...]:
         """The parameter names of the searched effect `name` (none for an unknown name)."""
@@ -419,7 +423,7 @@ class Diagnosis:
                     **joint,
                     "incremental_gain": chosen.gain,
                     "delta_bic": chosen.delta_bic,
-                    "derived": chosen.derived,
+                    "derived": self.final_derived.get(chosen.name, chosen.derived),
                     "parameters": {
                         k: {
                             "value": v,

@@ -365,9 +365,13 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         "|---|---|",
     ]
     lines += parameter_rows(d)
-    if d["effect_derived"]:
-        lines += ["", "Derived quantities of the effect:", ""]
-        lines += ["- {}: {}".format(*_quantity(k, v)) for k, v in d["effect_derived"].items()]
+    derived = [c for c in d.get("causes") or [] if c["derived"]]
+    if derived:  # each cause's, in the final model (its parameters above)
+        lines += ["", f"Derived quantities of the effect{'s' if len(derived) > 1 else ''} (final model):", ""]
+        lines += [
+            f"- {c['name']}: " + ", ".join(" ".join(_quantity(k, v)) for k, v in c["derived"].items())
+            for c in derived
+        ]
     lines.append("")
 
     lines += [
