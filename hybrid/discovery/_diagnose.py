@@ -505,7 +505,8 @@ def model_warnings(model: Model, frozen) -> list[str]:
             f"the readout's gain is {float(gain):.4g} (w = {float(gain):.4g}·y + offset): the simulation's "
             f"output y, and every size in its unit ({unit}) or its states' (an output effect's level, a "
             f"state's map), is on the simulation's own scale, {1 / abs(float(gain)):.3g}× the measured one; "
-            "freeze the readout's gain, or a parameter that sets the scale, to read them in the measured unit"
+            "to read them in the measured unit, fix the simulation's scale: freeze a parameter that sets it "
+            "(frozen_by_default in the plug-in, docs/plugins.md)"
         )
     return out
 
