@@ -307,6 +307,7 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
         "heldout": responses[:, held],
         "bases": bases,
         "units": {"position": "V", "velocity": "V/s"},
+        "values": {name: x[~held] for name, x in states.items()},
         "drive_unit": "V",
         "gain": 1.0,
     }
@@ -315,6 +316,7 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
     fed = d["state_feedback"]
     assert d["kind"] == "nonlinear_dynamic" and fed["best"] == "velocity"
     assert "state velocity fed back into its drive" in d["summary"]
+    assert fed["alike"] == {}  # a resonance's position and velocity do not move together
     # the linear feedback takes up much of it (a step correlates with its state); the velocity's map
     # takes up most of the rest, the position's far less
     linear = fed["linear"]["of_excess"]
@@ -338,3 +340,21 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
         assert "as a" not in d["summary"]
     plot_remainder(d, tmp_path / "remainder.png")  # with a third panel: the velocity's map
     assert (tmp_path / "remainder.png").stat().st_size > 10_000
+
+
+def test_states_that_move_together_are_named_beside_the_best():
+    # A motor's and its load's speeds on a stiff shaft: which carries a friction, one recording hardly
+    # says (a new user's two-mass drive, whose true speeds correlate at 0.96: the motor's friction was
+    # placed on the load's speed; there the fitted model's two speeds did not move together).
+    from hybrid.discovery._remainder import _alike
+
+    rng = np.random.default_rng(2)
+    motor = lfilter([0.1], [1.0, -0.9], rng.standard_normal(5000))
+    load = 0.9 * motor + 0.1 * np.std(motor) * rng.standard_normal(5000)  # r ≈ 0.99
+    twist = rng.standard_normal(5000)  # r ≈ 0
+    alike = _alike({"motor": motor, "load": load, "twist": twist}, "load")
+    assert list(alike) == ["motor"] and alike["motor"] == pytest.approx(
+        np.corrcoef(motor, load)[0, 1], abs=1e-3
+    )
+    assert _alike({"motor": motor, "twist": twist}, "twist") == {}
+    assert _alike({"motor": motor, "flat": np.ones(5000)}, "motor") == {}  # a constant state: no r

@@ -396,6 +396,30 @@ def _read_form(forms: dict) -> str | None:
     return None
 
 
+#: Another state whose training trajectory correlates with the named one's this closely is named beside it.
+ALIKE = 0.9
+
+
+def _alike(values: dict, best: str) -> dict:
+    """The states whose training values correlate with `best`'s by |r| ≥ `ALIKE`: {name: r}.
+
+    Two states that move together (a motor's and its load's speeds on a stiff
+    shaft) give maps that fit alike: the best of them is not the answer alone.
+    """
+    if best not in values:
+        return {}
+    x = np.asarray(values[best], float)
+    out = {}
+    for name, other in values.items():
+        y = np.asarray(other, float)
+        if name == best or y.shape != x.shape or np.std(x) == 0 or np.std(y) == 0:
+            continue
+        r = float(np.corrcoef(x, y)[0, 1])
+        if abs(r) >= ALIKE:
+            out[name] = _num(r, 3)
+    return out
+
+
 def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
     """A static map of each state fed back into the dynamics' drive, through their linearised response.
 
@@ -602,6 +626,7 @@ def describe_remainder(
         if fed.get("states"):
             fed["best"] = max(fed["states"], key=lambda k: fed["states"][k]["fraction"] or -np.inf)
             scores["state_map"] = fed["states"][fed["best"]]
+            fed["alike"] = _alike(feedback.get("values") or {}, fed["best"])
 
     offset = judge(np.full(n_ho, tr["r"].mean()))
     out = {
@@ -703,6 +728,11 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict 
     elif kind == "nonlinear_dynamic" and inkind == "state_map":
         assert fed is not None  # scored only with it
         name = fed["best"]
+        alike = fed.get("alike") or {}
+        if alike:  # a state that moves with it: which of them carries the force, this recording hardly says
+            name += (
+                " (or " + ", ".join(f"{k}, which moves with it: r = {r:.2f}" for k, r in alike.items()) + ")"
+            )
         best_linear = max((k for k in scores if FAMILY[k] == "dynamic"), key=lambda k: score(scores[k]))
         text = (
             f"nonlinear inside the dynamics: a static function of the simulation's state {name} fed back into "

@@ -135,6 +135,7 @@ def feedback_signals(problem, final) -> dict | None:
         "train": np.concatenate(parts["train"], axis=1),
         "heldout": np.concatenate(parts["heldout"], axis=1),
         "bases": bases,
+        "values": {name: train[k] for k, name in enumerate(names)},  # on the training part
         "units": {name: unit_in(unit, stack.drive_unit) for name, unit in dynamics[0].state_units.items()},
         "drive_unit": stack.drive_unit,
         "gain": float(readout["gain"]) if "gain" in readout else None,
@@ -239,7 +240,8 @@ def place_hint(description: dict, places: dict) -> str | None:
     strong = (
         best.get("of_excess") if best.get("of_excess") is not None else best.get("fraction") or 0
     ) >= FORM_MIN
-    on = f" on its state {fed['best']}" if named == "state_map" and strong else ""
+    alike = "".join(f" or {other}" for other in fed.get("alike") or {})
+    on = f" on its state {fed['best']}{alike}" if named == "state_map" and strong else ""
     return (
         f"of the effects searched inside the dynamics ({', '.join(inside['effects'])}), none explains the "
         f"rest: an effect of your own there{on} may (docs/effects.md)"
