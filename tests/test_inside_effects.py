@@ -604,6 +604,9 @@ def test_a_friction_no_searched_effect_explains_is_placed_on_the_velocity_with_i
     assert "state velocity fed back into its drive" in description["summary"]
     assert "as a Coulomb friction has" in description["summary"]
     assert "an effect of your own there on its state velocity" in description["summary"]
+    # the oscillator's own parameters are pinned here: no word that its states may not be the system's
+    assert not set(found.not_pinned) & {"frequency", "zeta"}
+    assert "the states are the fitted model's" not in description["summary"]
 
     # A second recording of another length in the same bucket (a lab's next one, in one session):
     # the state maps' two programs serve it as the search's do, compiled once.

@@ -388,6 +388,9 @@ def diagnose(
     signals = recording_units(recordings) or (PAPER_UNITS["w"], PAPER_UNITS["v_in"])  # (w's, the drive's)
     floor = pooled_noise_floor(recordings)
     places = searched_places(search.effects, simulation)
+    fitted_stack = extended_model.simulation
+    assert isinstance(fitted_stack, EffectStack)  # a search's model
+    inner_names = set(fitted_stack.inner.parameters())
     unexplained = remainder(
         problem,
         series,
@@ -400,6 +403,7 @@ def diagnose(
         equally_good=steps[-1].equally_good,
         places=places,
         w_unit=signals[0],
+        loose=tuple(name for name in unpinned if name in inner_names),
     )
     drives = [np.asarray(r.v_in, float) for r in recordings]
     rivals = ambiguities(

@@ -154,12 +154,15 @@ def remainder(
     equally_good: EquallyGoodFits | None = None,
     places: dict | None = None,
     w_unit: str = "",
+    loose: tuple[str, ...] = (),
 ) -> dict | None:
     """None when `final`'s held-out error is consistent with the noise floor, else what lies above it.
 
     `heldout` is `Diagnosis.heldout` (its ``extended`` is `final`'s prediction); the
     training part is predicted here only when there is something to describe. `w_unit`
-    labels the levels a limit clause quotes (the report's unit of w).
+    labels the levels a limit clause quotes (the report's unit of w). `loose`: the
+    simulation's parameters the recording does not pin; where the remainder is
+    placed on a state, the sentence says the state is the fitted model's.
     """
     held = {
         "t": heldout.t,
@@ -186,6 +189,11 @@ def remainder(
     clause = limit_sentence(description["level_limit"], len(train["w"]) + len(held["w"]), w_unit)
     if clause:
         description["summary"] += f"; {clause}"
+    if loose and (description.get("recovered") or {}).get("named") == "state_map":
+        description["summary"] += (
+            f"; the states are the fitted model's, whose {', '.join(loose)} this recording does not pin: the "
+            "force may act on another state that moves as this one does in the system"
+        )
     hint = place_hint(description, places or {})
     if hint:
         description["place"] = "inside"
