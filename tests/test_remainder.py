@@ -358,3 +358,24 @@ def test_states_that_move_together_are_named_beside_the_best():
     )
     assert _alike({"motor": motor, "twist": twist}, "twist") == {}
     assert _alike({"motor": motor, "flat": np.ones(5000)}, "motor") == {}  # a constant state: no r
+
+
+def test_a_map_is_read_as_a_form_only_by_the_rules():
+    # share: what the form adds over the proportional force, as a share of the free map's; size: its
+    # value in the drive's unit (a step's jump, a bend's or cube's at the largest |x|)
+    from hybrid.discovery._remainder import _read_form
+
+    def forms(step=None, bend=None, cube=None):
+        given = {"step": step, "bend": bend, "cube": cube}
+        return {k: {"share": v[0], "size": v[1]} for k, v in given.items() if v is not None}
+
+    assert _read_form(forms((0.95, 0.2), (0.5, 1.0), (0.4, 1.0))) == "step"
+    assert _read_form(forms((0.95, -0.2), (0.5, 1.0), (0.4, 1.0))) is None  # helps the drive: no friction
+    assert _read_form(forms((0.80, 0.2), (0.5, 1.0), (0.4, 1.0))) is None  # under 85 %
+    assert _read_form(forms((0.95, 0.2), (0.92, 1.0), (0.4, 1.0))) is None  # no lead of 5 points
+    assert _read_form(forms((0.5, 0.2), (0.95, 1.0), (0.93, 1.0))) == "grow"  # a drag and a cube alike
+    assert _read_form(forms((0.5, 0.2), (0.95, -1.0), (0.93, -1.0))) is None  # falling away: no drag
+    assert (
+        _read_form(forms(None, (0.3, 1.0), (0.95, -2.0))) == "cube"
+    )  # a softening spring (no step: one sign)
+    assert _read_form(forms(None, (0.3, 1.0), (0.95, None))) is None  # no finite size: no reading

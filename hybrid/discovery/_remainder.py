@@ -384,8 +384,9 @@ def _read_form(forms: dict) -> str | None:
     def leads(k, others):
         return share(k) >= FORM_SHARE and all(share(k) >= share(o) + FORM_LEAD for o in others)
 
-    def opposes(k):
-        return k not in OPPOSING or (forms[k]["size"] or 0.0) > 0
+    def opposes(k):  # (and has a size to give: a non-finite one is no reading)
+        size = forms[k]["size"]
+        return size is not None and (k not in OPPOSING or size > 0)
 
     for k in forms:
         if leads(k, [o for o in forms if o != k]):
