@@ -265,7 +265,7 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
     # a step's jump, or a bend's value at the largest |x|, times c.
     from scipy.signal import butter
 
-    from hybrid.discovery._remainder import basis_forces, state_basis
+    from hybrid.discovery._remainder import ROLES, basis_forces, state_basis
 
     rng = np.random.default_rng(5)
     v = lfilter(*butter(4, 0.4), rng.standard_normal(N))
@@ -286,9 +286,8 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
     bases = {name: state_basis(x[~held]) for name, x in states.items()}
     columns, rows = [], []
     for name, x in states.items():
-        roles, values = basis_forces(bases[name], x)
-        columns += [(name, role) for role in roles]
-        rows += [-lfilter(*resonance, row) for row in values]
+        columns += [(name, role) for role in ROLES]
+        rows += [-lfilter(*resonance, row) for row in basis_forces(bases[name], x)]
     responses = np.stack(rows)
 
     def part(mask):
@@ -333,6 +332,14 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
         )
     else:
         assert added["velocity"] >= 0.5 * (1 - linear)
+    # a third state that moves with the velocity (in `values` alone: no map of its own) is named beside it,
+    # and the rest of the sentence is the velocity's
+    twin = velocity + 0.1 * np.std(velocity) * rng.standard_normal(N)
+    feedback["values"] = {**feedback["values"], "twin": twin[~held]}
+    again = describe_remainder(part(~held), part(held), RATE, SIGMA**2, feedback)
+    assert list(again["state_feedback"]["alike"]) == ["twin"]
+    assert "state velocity (or twin, which moves with it: r = 0.99) fed back" in again["summary"]
+    assert again["summary"].replace(" (or twin, which moves with it: r = 0.99)", "") == d["summary"]
     assert fed["states"]["velocity"]["form"] == form, fed["states"]["velocity"]["forms"]
     if size is not None:
         assert fed["states"]["velocity"]["form_size"] == pytest.approx(scale * size, rel=0.1)

@@ -155,6 +155,17 @@ class _Judge:
         of_excess = None if self.excess is None else _num(min(max(removed / self.excess, 0.0), 1.0))
         return {"fraction": _num(removed / self.mse), "of_excess": of_excess}
 
+    def score(self, part: dict) -> float:
+        """What `part` (a `__call__`'s result) recovers: of the excess, or of the MSE where there is none."""
+        return part["of_excess"] if self.excess is not None else max(part["fraction"] or 0.0, 0.0)
+
+
+def _even_odd(fp, fn) -> dict | None:
+    """The shares of a map's variance in its even and odd parts, from its values at +g and −g (None: constant)."""
+    even, odd = np.var((fp + fn) / 2), np.mean(((fp - fn) / 2) ** 2)
+    total = even + odd
+    return {"even": _num(even / total), "odd": _num(odd / total)} if total > 0 else None
+
 
 def _drive_shape(tr, centres, values) -> dict:
     """Even/odd split, one-sidedness, flat near zero and bend at the ends of the drive map."""
@@ -168,13 +179,7 @@ def _drive_shape(tr, centres, values) -> dict:
     else:
         g = np.linspace(0.0, a, 51)
         fp, fn = _interp(g, centres, values), _interp(-g, centres, values)
-        even, odd = np.var((fp + fn) / 2), np.mean(((fp - fn) / 2) ** 2)
-        total = even + odd
-        out["symmetry"] = (
-            {"even": _num(even / total), "odd": _num(odd / total)}
-            if total > 0
-            else {"reason": "the map of the drive is constant"}
-        )
+        out["symmetry"] = _even_odd(fp, fn) or {"reason": "the map of the drive is constant"}
         pos, neg = np.sqrt(np.mean((fp - fp[0]) ** 2)), np.sqrt(np.mean((fn - fn[0]) ** 2))
         ratio = max(pos, neg) / min(pos, neg) if min(pos, neg) > 0 else (np.inf if max(pos, neg) > 0 else 1.0)
         out["one_sided"] = {
@@ -218,6 +223,16 @@ def _drive_shape(tr, centres, values) -> dict:
     return out
 
 
+def _ridge(xc, yc):
+    """Ridge least squares of centred `yc` on the centred columns `xc`, the ridge 1e-3 of the mean diagonal.
+
+    einsum, not BLAS: a multi-threaded BLAS is many times slower on a busy machine.
+    """
+    gram = np.einsum("ni,nj->ij", xc, xc)
+    ridge = 1e-3 * np.trace(gram) / max(gram.shape[0], 1) + 1e-300
+    return np.linalg.solve(gram + ridge * np.eye(gram.shape[0]), np.einsum("ni,n->i", xc, yc))
+
+
 def _filter(tr, ho, key, lags, rate, judge) -> dict:
     """Ridge FIR of r on lags 0..`lags` of `key` (or of several keys together), within runs.
 
@@ -231,10 +246,7 @@ def _filter(tr, ho, key, lags, rate, judge) -> dict:
     if len(rows) < 4 * x.shape[1] or len(hrows) < MIN_SAMPLES:
         return {"reason": f"too few samples with {lags} past samples inside a segment"}
     xm, ym = x.mean(axis=0), tr["r"][rows].mean()
-    xc = x - xm  # einsum, not BLAS: a multi-threaded BLAS is many times slower on a busy machine
-    gram = np.einsum("ni,nj->ij", xc, xc)
-    ridge = 1e-3 * np.trace(gram) / gram.shape[0] + 1e-300
-    h = np.linalg.solve(gram + ridge * np.eye(gram.shape[0]), np.einsum("ni,n->i", xc, tr["r"][rows] - ym))
+    h = _ridge(x - xm, tr["r"][rows] - ym)
     pred = np.zeros_like(ho["r"])
     pred[hrows] = np.einsum("ni,i->n", hx - xm, h) + ym
     f = np.linspace(0.0, rate / 2, 100)
@@ -277,8 +289,8 @@ def state_basis(x) -> dict:
 ROLES = ("linear", *(f"hat_{j}" for j in range(KNOTS)), "step", "bend", "cube")
 
 
-def basis_forces(basis: dict, x) -> tuple[list[str], np.ndarray]:
-    """The columns of a state's map on its values `x`: (`ROLES`, one row each).
+def basis_forces(basis: dict, x) -> np.ndarray:
+    """The columns of a state's map on its values `x`, one row each, in the order of `ROLES`.
 
     ``linear`` (x less its training centre), ``hat_j`` (piecewise linear, 1 at
     knot j, 0 at its neighbours), ``step`` (1 where x > 0): the free map; and
@@ -300,14 +312,14 @@ def basis_forces(basis: dict, x) -> tuple[list[str], np.ndarray]:
             rows[1 + KNOTS] = x > 0
         z = x / max(abs(knots[0]), abs(knots[-1]))
         rows[2 + KNOTS], rows[3 + KNOTS] = z * np.abs(z), z**3
-    return list(ROLES), rows
+    return rows
 
 
 def _least_squares(train_cols, y, held_cols):
     """Ridge least squares of `y` on the training columns (and an intercept); (held-out prediction, coefficients).
 
-    The columns are scaled to unit variance first; the ridge (1e-3 of the
-    mean diagonal, as `_filter`'s) keeps collinear columns (a map's hats span
+    The columns are scaled to unit variance first; the ridge (`_ridge`, as
+    `_filter`'s) keeps collinear columns (a map's hats span
     its linear column; the response to a constant force is nearly the
     readout's offset) from cancelling on training data and blowing up held
     out (1e-9 took a map of the oscillator's position to a held-out fraction of
@@ -317,12 +329,7 @@ def _least_squares(train_cols, y, held_cols):
     mean = x.mean(axis=0)
     scale = x.std(axis=0)
     scale[scale == 0] = 1.0
-    xs = (x - mean) / scale
-    gram = np.einsum("ni,nj->ij", xs, xs)
-    ridge = 1e-3 * np.trace(gram) / max(gram.shape[0], 1) + 1e-300
-    coef = (
-        np.linalg.solve(gram + ridge * np.eye(gram.shape[0]), np.einsum("ni,n->i", xs, y - y.mean())) / scale
-    )
+    coef = _ridge((x - mean) / scale, y - y.mean()) / scale
     intercept = y.mean() - mean @ coef
     return np.column_stack(held_cols) @ coef + intercept, coef
 
@@ -334,13 +341,8 @@ def _map_shape(grid, force) -> dict:
     if a <= 0.1 * max(abs(lo), abs(hi)):
         return {}
     g = np.linspace(0.0, a, 51)
-    fp, fn = np.interp(g, grid, force), np.interp(-g, grid, force)
-    even, odd = np.var((fp + fn) / 2), np.mean(((fp - fn) / 2) ** 2)
-    return (
-        {"symmetry": {"even": _num(even / (even + odd)), "odd": _num(odd / (even + odd))}}
-        if even + odd
-        else {}
-    )
+    split = _even_odd(np.interp(g, grid, force), np.interp(-g, grid, force))
+    return {"symmetry": split} if split else {}
 
 
 #: A form names a map when it adds, held out, this share of what the free map adds to the linear
@@ -454,8 +456,7 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
     gain = feedback.get("gain")
     scale = 1.0 / gain if gain else 1.0
 
-    def score(p):
-        return p["of_excess"] if judge.excess is not None else max(p["fraction"] or 0.0, 0.0)
+    score = judge.score
 
     def fitted(columns):
         pred, coef = _least_squares(
@@ -473,10 +474,10 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
         free = hats + ([own["step"]] if basis["step"] else [])
         result, coef = fitted(free)
         grid = np.linspace(knots[0], knots[-1], 101)
-        roles, rows = basis_forces(basis, grid)
+        rows = basis_forces(basis, grid)
         beta = {cols[j][1]: b for j, b in zip(free, coef)}
         smooth = scale * sum(
-            beta[role] * row for role, row in zip(roles, rows) if role.startswith("hat_") and role in beta
+            beta[role] * row for role, row in zip(ROLES, rows) if role.startswith("hat_") and role in beta
         )
         step = scale * beta.get("step", 0.0)
         # A constant force moves the output as the readout's offset does: the map is fixed at zero
@@ -496,13 +497,15 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
         # A form is read into a map that carries most of the remainder, never into a partial account (a
         # sensor's play on the output dwells at each reversal as a friction does: a velocity's step takes
         # up part of an effect that is not inside at all).
-        chosen = _read_form(forms) if room >= MARGIN and score(result) >= FORM_MIN else None
+        carries = score(result) >= FORM_MIN
+        chosen = _read_form(forms) if room >= MARGIN and carries else None
         out["states"][name] = dict(
             result,
             unit=feedback["units"].get(name, ""),
             curve={"x": _list(grid), "force": _list(force)},
             force_unit=feedback["drive_unit"] if gain else "",
             forms=forms,
+            carries=bool(carries),  # most of the excess: its state may be named as the rest's place
             form=chosen,
             form_size=None if chosen is None else forms["bend" if chosen == "grow" else chosen]["size"],
             **_map_shape(grid, force),
@@ -663,9 +666,7 @@ def _map_words(part: dict) -> str:
 def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict | None = None) -> dict:
     """Best extension, kind (simplest family within MARGIN of the best) and the one-sentence summary."""
 
-    def score(p):
-        return p["of_excess"] if judge.excess is not None else max(p["fraction"] or 0.0, 0.0)
-
+    score = judge.score
     best = max(scores, key=lambda k: scores[k]["fraction"] or -np.inf)
     rec = {
         "best": best,
@@ -730,13 +731,14 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict 
         assert fed is not None  # scored only with it
         name = fed["best"]
         alike = fed.get("alike") or {}
-        if alike:  # a state that moves with it: which of them carries the force, this recording hardly says
-            name += (
+        said = name  # a state that moves with it: which of them carries the force, this recording hardly says
+        if alike:
+            said += (
                 " (or " + ", ".join(f"{k}, which moves with it: r = {r:.2f}" for k, r in alike.items()) + ")"
             )
         best_linear = max((k for k in scores if FAMILY[k] == "dynamic"), key=lambda k: score(scores[k]))
         text = (
-            f"nonlinear inside the dynamics: a static function of the simulation's state {name} fed back into "
+            f"nonlinear inside the dynamics: a static function of the simulation's state {said} fed back into "
             f"its drive recovers {pct(inkind)} {where}{_map_words(fed['states'][name])}; the best linear filter "
             f"{pct(best_linear)}, the best static map {pct(best_static)}"
         )

@@ -34,7 +34,7 @@ from ..core._state_space import dynamics_of
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
 from ._effect_stack import EffectStack, force_responses, state_trajectories
 from ._noise_floor import NoiseFloor, noise_floor
-from ._remainder import FORM_MIN, MAX_STATES, basis_forces, describe_remainder, state_basis
+from ._remainder import MAX_STATES, ROLES, basis_forces, describe_remainder, state_basis
 from ._search import split_signals
 
 #: Held-out MSE over the floor above which ``unexplained`` warns that the floor is far below the error.
@@ -121,10 +121,9 @@ def feedback_signals(problem, final) -> dict | None:
     for x, s in zip(states, series):
         rows = []
         for k, name in enumerate(names):
-            roles, values = basis_forces(bases[name], x[k])
-            rows.append(values)
+            rows.append(basis_forces(bases[name], x[k]))
             if s is series[0]:
-                columns += [(name, role) for role in roles]
+                columns += [(name, role) for role in ROLES]
         responses = np.asarray(force_responses(stack, s.v_in, s.dt, jnp.asarray(np.concatenate(rows))))
         parts["train"] += cut(responses, s, "train")
         parts["heldout"] += cut(responses, s, "test")
@@ -243,11 +242,8 @@ def place_hint(description: dict, places: dict) -> str | None:
     if inside["not_searched"]:
         return f"an effect inside the dynamics may explain it, but {inside['not_searched']}"
     fed = description.get("state_feedback") or {}
-    # the state named only where its map carries most of the rest (`FORM_MIN`), as its form is
-    best = (fed.get("states") or {}).get(fed.get("best"), {})
-    strong = (
-        best.get("of_excess") if best.get("of_excess") is not None else best.get("fraction") or 0
-    ) >= FORM_MIN
+    # the state named only where its map carries most of the rest, as its form is (`_state_feedback`)
+    strong = bool(((fed.get("states") or {}).get(fed.get("best")) or {}).get("carries"))
     alike = "".join(f" or {other}" for other in fed.get("alike") or {})
     on = f" on its state {fed['best']}{alike}" if named == "state_map" and strong else ""
     return (
