@@ -289,11 +289,7 @@ def _signals_through(stack, v_in, dt, states: bool = True):
     by sample), and the signals entering the inside effects are not computed.
     """
     into: list = [None] * len(stack.effects)
-    u = v_in
-    for i, effect in enumerate(stack.effects):
-        if effect.place == "drive":
-            into[i] = u
-            u = switched(stack.active[i], effect, u, dt)
+    u = _through(stack, "drive", v_in, dt, into)
     drive = [stack.active[i] != 0 for i, e in enumerate(stack.effects) if e.place == "drive"]
     drive_on = jnp.any(jnp.stack(drive)) if drive else jnp.asarray(False)
     inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
@@ -322,11 +318,20 @@ def _signals_through(stack, v_in, dt, states: bool = True):
             into[i] = s if effect.acts_on == "output" else trajectory[:, core.states.index(effect.acts_on)]
     else:
         s = inner_response(stack.inner, u, dt, drive_on, v_in)
+    return into, _through(stack, "output", s, dt, into), u
+
+
+def _through(stack, place: str, signal, dt, into: list | None = None):
+    """`signal` through `stack`'s effects of `place` ("drive" or "output"), in their order.
+
+    `into`: where to record the signal entering each (by the effect's index).
+    """
     for i, effect in enumerate(stack.effects):
-        if effect.place == "output":
-            into[i] = s
-            s = switched(stack.active[i], effect, s, dt)
-    return into, s, u
+        if effect.place == place:
+            if into is not None:
+                into[i] = signal
+            signal = switched(stack.active[i], effect, signal, dt)
+    return signal
 
 
 def inner_response(inner: AbstractSimulation, u, dt, drive_on, source):
@@ -459,21 +464,14 @@ def _dynamics_run(stack: EffectStack, v_in, dt, force):
     drive's effects, in every RK4 stage; the output's effects follow. Needs
     `stack.inner` in state-space form (`dynamics_of`).
     """
-    u = v_in
-    for i, effect in enumerate(stack.effects):
-        if effect.place == "drive":
-            u = switched(stack.active[i], effect, u, dt)
+    u = _through(stack, "drive", v_in, dt)
     dynamics = dynamics_of(stack.inner)
     assert dynamics is not None  # the caller checks
     core, held, skip = dynamics
     inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
     driven = held(u - force)
     s, states = _inside_dynamics(stack, core, inside, driven, dt) if inside else integrate(core, driven, dt)
-    s, states = s[skip:], states[skip:]
-    for i, effect in enumerate(stack.effects):
-        if effect.place == "output":
-            s = switched(stack.active[i], effect, s, dt)
-    return s, states
+    return _through(stack, "output", s[skip:], dt), states[skip:]
 
 
 @eqx.filter_jit
