@@ -595,6 +595,8 @@ def _cmd_diagnose(args):
     print(diagnosis.verdict)
     for step in report["causes"]:
         print(f"  {step['name']} (incremental gain {step['incremental_gain']:.2f}x)")
+        if step.get("reading"):
+            print(f"    {step['reading']}")
         for name in diagnosis.effect_parameters(step["name"]):
             if name in report["parameters"]:
                 print(f"    {name} = {plus_minus(report['parameters'][name])}")

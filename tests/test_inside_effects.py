@@ -661,3 +661,47 @@ def test_a_final_model_bent_out_of_its_plausible_range_or_on_a_scale_of_its_own_
     # w in another unit than the simulation's output: the gain converts units, and says nothing of scale
     other = dataclasses.replace(model(0.1, 0.2438), signal_units=("mm", "V"))
     assert model_warnings(other, frozenset()) == []
+
+
+def test_a_force_of_a_speed_output_reads_as_a_damping_and_of_a_position_as_a_spring():
+    """One form, two physics: a polynomial force of the output is a spring on mm, a drag on mm/s."""
+    stiff = PolynomialStiffness(stiffness_cube=0.01)
+    assert "damping" in stiff.reading({"stiffness_cube": 0.01}, "rad/s")
+    assert "not a spring" in stiff.reading({"stiffness_cube": 0.01}, "L/min")
+    assert "hardens" in stiff.reading({"stiffness_cube": 0.01}, "mm")
+    assert "softens" in stiff.reading({"stiffness_cube": -0.01}, "µm")
+    neither = stiff.reading({"stiffness_cube": 0.01}, "V")  # the unit does not say: both readings given
+    assert "spring where the output is a position" in neither and "damping where it is a speed" in neither
+
+
+def test_a_quadratic_drag_on_a_motors_speed_is_read_as_a_damping_from_the_command_line(tmp_path):
+    """A speed ω' = −aω + b(u − cω|ω|) (solve_ivp), recorded in rad/s and diagnosed with `lti:1`.
+
+    The stiffness takes the drag (its cube fits ω|ω|): the report must not call it a spring.
+    """
+    rng = np.random.default_rng(0)
+    rate, n = 25.0, 1000
+    t = np.arange(n) / rate
+    u = np.repeat(rng.uniform(-10, 10, n // 25 + 1), 25)[:n]
+    a, b, c = 2.0, 3.0, 0.02
+    sol = solve_ivp(
+        lambda s, x: [-a * x[0] + b * (u[min(int(s * rate), n - 1)] - c * x[0] * abs(x[0]))],
+        (0, t[-1]),
+        [0.0],
+        t_eval=t,
+        max_step=0.5 / rate,
+    )
+    w = sol.y[0] + rng.normal(0, 0.005 * np.ptp(sol.y[0]), n)
+    np.savetxt(tmp_path / "motor.csv", np.c_[t, u, w], delimiter=",", header="t,u,w\ns,V,rad/s", comments="")
+    run = h.run_hybrid(
+        tmp_path,
+        *("diagnose", "motor.csv", "--columns", "time=t,input=u,output=w", "--physics", "lti:1"),
+        *("--effects", "stiffness", "--out", "report", "--quiet"),
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((tmp_path / "report" / "report.json").read_text())
+    assert report["cause"] == "stiffness", report["candidates"]
+    reading = report["causes"][0]["reading"]
+    assert "(rad/s) is a rate" in reading and "damping" in reading and "not a spring" in reading
+    assert reading in run.stdout
+    assert f"stiffness: {reading}" in (tmp_path / "report" / "report.md").read_text()

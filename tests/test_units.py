@@ -191,3 +191,31 @@ def test_a_fit_of_a_clipped_record_says_the_record_sits_flat_where_the_model_goe
     assert "smallest value (-2 mm)" in flat[0] and "hybrid diagnose" in flat[0], flat
     whole = fit(model, [_lag_recording(None)], solver=LevenbergMarquardt(max_steps=60))
     assert not [w for w in whole.warnings if "sits flat" in w], whole.warnings
+
+
+@pytest.mark.parametrize(
+    "unit, kind",
+    [
+        ("mm/s", "rate"),
+        ("rad/s", "rate"),
+        ("deg/s", "rate"),
+        ("L/min", "rate"),
+        ("m s⁻¹", "rate"),
+        ("rpm", "rate"),
+        ("m/s^2", None),  # an acceleration is neither
+        ("m/s²", None),
+        ("µm", "position"),
+        ("mm", "position"),
+        ("rad", "position"),
+        ("°", "position"),
+        ("px", "position"),
+        ("ms", None),  # a time, not a length
+        ("mV", None),
+        ("V", None),
+        ("", None),
+    ],
+)
+def test_a_units_kind_tells_a_rate_from_a_position(unit, kind):
+    from hybrid.data._header_units import unit_kind
+
+    assert unit_kind(unit) == kind

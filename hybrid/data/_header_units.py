@@ -26,7 +26,7 @@ import re
 
 from ._recording_checks import TIME_UNITS
 
-__all__ = ["header_unit", "is_unit", "time_unit"]
+__all__ = ["header_unit", "is_unit", "time_unit", "unit_kind"]
 
 _PREFIX = r"(?:da|[yzafpnµμumcdhkMGTPE])"
 _SYMBOL = r"(?:s|m|g|V|A|Ω|ohm|Ohm|Hz|N|Pa|W|J|C|F|H|T|K|S|Wb|L|l|mol|cd|lx|rad|sr|bar|eV)"
@@ -38,6 +38,10 @@ _TOKEN = rf"(?:{_SPECIAL}|{_PREFIX}?{_SYMBOL}){_POWER}"
 _UNIT = re.compile(rf"{_TOKEN}(?:\s*[/·*.⋅]\s*{_TOKEN}|\s+{_TOKEN})*")
 _BRACKETS = re.compile(r"^(?P<name>.*?\S)\s*(?:\[(?P<square>[^\[\]]*)\]|\((?P<round>[^()]*)\))\s*$")
 _SLASH = re.compile(r"^(?P<name>[^/]*?\S)\s*/\s*(?P<unit>\S.*)$")
+#: A quantity per unit time: mm/s, rad/s, L/min, m s⁻¹, m·s^-1, rpm (not an acceleration, m/s²).
+_RATE = re.compile(r"^(?:.+?(?:\s*/\s*(?:s|sec|ms|min|h)|\s*[·.* ]\s*(?:s\^-1|s⁻¹))|rpm|RPM|r/min)$")
+#: A position: a length (m with an SI prefix, in) or an angle (rad, mrad, deg, °), or pixels.
+_POSITION = re.compile(rf"^(?:{_PREFIX}?m|in|m?rad|deg|°|px|pixels?)$")
 #: Spellings of the time units, lower case, -> the key of `TIME_UNITS`.
 _TIME_SPELLINGS = {
     "s": "s",
@@ -86,3 +90,18 @@ def time_unit(text: str) -> str | None:
     text = text.strip()
     key = _TIME_SPELLINGS.get(text if text in ("ms", "ns") else text.lower())
     return key if key in TIME_UNITS else None
+
+
+def unit_kind(unit: str) -> str | None:
+    """``"rate"`` for a quantity per unit time (``mm/s``, ``rad/s``, ``L/min``, ``rpm``: a speed or a
+    flow), ``"position"`` for a length or an angle (``µm``, ``mm``, ``rad``, ``°``, ``px``), else None.
+
+    What an effect's reading says of a force of the signal: a spring where it is a
+    position, a damping where it is a speed (`AbstractEffect.reading`).
+    """
+    text = (unit or "").strip()
+    if _RATE.fullmatch(text):
+        return "rate"
+    if _POSITION.fullmatch(text):
+        return "position"
+    return None

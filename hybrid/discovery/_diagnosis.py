@@ -395,6 +395,13 @@ class Diagnosis:
                 return tuple(effect.constraints)
         return ()
 
+    def effect_reading(self, name: str, values: dict[str, float]) -> str:
+        """What the searched effect `name` fitted to `values` means for the system (`AbstractEffect.reading`)."""
+        for effect in self.effects:
+            if effect.name == name and not isinstance(effect, type):
+                return effect.reading(values, self.signal_units.get("w", ""))
+        return ""
+
     @property
     def gain(self) -> float:
         """Held-out NMSE of the baseline over that of the final model (all causes)."""
@@ -416,6 +423,7 @@ class Diagnosis:
             joint = (
                 {"named_jointly_with": step.joint_with, "joint": chosen.reasons[0]} if step.joint_with else {}
             )
+            reading = self.effect_reading(chosen.name, {k: float(v) for k, v in own.items()})
             out.append(
                 {
                     "name": chosen.name,
@@ -423,6 +431,7 @@ class Diagnosis:
                     **joint,
                     "incremental_gain": chosen.gain,
                     "delta_bic": chosen.delta_bic,
+                    **({"reading": reading} if reading else {}),
                     "derived": self.final_derived.get(chosen.name, chosen.derived),
                     "parameters": {
                         k: {

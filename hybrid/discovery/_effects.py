@@ -174,6 +174,8 @@ class AbstractEffect(eqx.Module):
       large enough to count, and the sentence that says why (default: always).
     - `derived(s, dt)`: quantities an experimenter reads more easily than the
       raw parameters (they are `material`'s `derived`).
+    - `reading(parameters, output_unit)`: what the fit means physically, where the
+      name alone could mislead (default: nothing).
     """
 
     raw: eqx.AbstractVar[dict[str, Array]]
@@ -208,6 +210,17 @@ class AbstractEffect(eqx.Module):
         class's `thresholds` with the settings' overrides.
         """
         return True, ""
+
+    def reading(self, parameters: dict[str, float], output_unit: str) -> str:
+        """What a fit of this effect means for the system, in one sentence ('' by default: the name says it).
+
+        `parameters`: its fitted values by name; `output_unit`: the unit of the
+        recording's output (`unit_kind` of `hybrid.data._header_units` tells a speed's ``mm/s`` from a
+        position's ``mm``): one form can mean different physics on different
+        signals, as a force of the output is a spring on a position and a damping
+        on a speed. The report prints it beside the cause.
+        """
+        return ""
 
     def unpinned_reason(self, name: str, signal: np.ndarray) -> str | None:
         """Why a recording whose signal entering this effect is `signal` cannot pin parameter `name`.

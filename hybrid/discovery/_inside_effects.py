@@ -49,6 +49,7 @@ from jaxtyping import Array
 
 from ..core._parameters import Positive, Real
 from ..core._simulation import unit_in
+from ..data._header_units import unit_kind
 from ..util._errors import InputError
 from ._effects import AbstractEffect, init_values, signal_span, signal_top
 
@@ -88,7 +89,28 @@ class PolynomialStiffness(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("force_percent_of_drive", 0.0), thresholds["force_percent_of_drive"]
-        return size >= need, f"restoring force {size:.1f} % of the largest drive (needs ≥ {need} %)"
+        return size >= need, f"force {size:.1f} % of the largest drive (needs ≥ {need} %)"
+
+    def reading(self, parameters, output_unit):
+        # k₃ > 0 adds force as |y| grows (φ is subtracted from the drive): a spring that
+        # hardens, a damping that grows with speed; k₃ < 0 the opposite.
+        grows = parameters.get("stiffness_cube", 0.0) >= 0.0
+        kind = unit_kind(output_unit)
+        if kind == "rate":
+            return (
+                f"a force of the output fed back against the drive, and the output ({output_unit}) is a rate: "
+                f"a nonlinear damping ({'a drag, as a fluid or turbulent loss gives, ∝ v·|v|' if grows else 'one that eases at speed'}), "
+                "not a spring"
+            )
+        if kind == "position":
+            return (
+                f"a restoring force of the output, a position ({output_unit}): a spring that "
+                f"{'hardens' if grows else 'softens'} with the stretch"
+            )
+        return (
+            "a force of the output fed back against the drive: a nonlinear spring where the output is a "
+            "position, a nonlinear damping where it is a speed"
+        )
 
 
 class StateLimit(AbstractEffect):

@@ -749,7 +749,7 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict 
             f"nonlinear inside the dynamics: the {'cube' if odd else 'square'} of the model's output through a "
             f"linear filter recovers {pct(inkind)} {where} (an {'odd' if odd else 'even'} static nonlinearity "
             f"fed back through the dynamics, e.g. a {'cubic (stiffening or softening)' if odd else 'quadratic'} "
-            f"restoring force); the best linear filter {pct(best_linear)}, the best static map "
+            f"restoring force, or a damping where the output is a speed); the best linear filter {pct(best_linear)}, the best static map "
             f"{pct(best_static)}"
         )
     else:

@@ -225,6 +225,9 @@ def stepwise_section(d: dict) -> list[str]:
             f"| {c.get('step', i)} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
             f"{_cell(size)} | {_cell(params)} |"
         )
+    readings = [f"{c['name']}: {c['reading']}" for c in d["causes"] if c.get("reading")]
+    if readings:
+        lines += ["", f"**What it means.** {'; '.join(readings)}."]
     for c in d["causes"]:
         if c.get("named_jointly_with"):
             lines += [
