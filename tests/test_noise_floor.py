@@ -70,3 +70,65 @@ def test_a_drive_that_never_repeats_has_no_repeat_estimate():
     v = v + np.random.default_rng(5).normal(0.0, 1e-3, v.size)
     assert math.isnan(repeat_variance(clean, v)[0])
     assert "repeats" not in noise_floor(clean + 0.01, v, RATE).estimates
+
+
+def _fast_mode(n, seed, rate=50.0, hz=15.0, zeta=0.4):
+    """A 15-Hz mode sampled at 50 Hz driven by random steps (scipy ZOH): content up to the Nyquist frequency."""
+    rng = np.random.default_rng(seed)
+    v = np.repeat(rng.uniform(0.0, 100.0, n // 40 + 1), 40)[:n]
+    w0 = 2 * math.pi * hz
+    a = np.array([[0.0, 1.0], [-w0 * w0, -2 * zeta * w0]])
+    b, c, d = np.array([[0.0], [w0 * w0]]), np.array([[1.0, 0.0]]), np.zeros((1, 1))
+    system = scipy.signal.cont2discrete((a, b, c, d), 1 / rate, method="zoh")
+    return v, scipy.signal.dlsim(system[:4] + (1 / rate,), v)[1][:, 0]
+
+
+def test_a_fast_linear_response_is_taken_out_before_its_noise_is_read():
+    """w of a fast mode varies from sample to sample far more than its noise: a linear fit's residual does not."""
+    v, clean = _fast_mode(3000, 0)
+    sigma = 0.03
+    w = clean + np.random.default_rng(1).normal(0.0, sigma, clean.size)
+    # Every estimator of w alone reads the mode (15 Hz with 25 Hz Nyquist).
+    assert min(difference_variance(w, k) for k in (1, 2, 3, 4)) > 100 * sigma**2
+    assert spectral_variance(w, 50.0) > 100 * sigma**2
+    floor = noise_floor(w, v, 50.0)
+    assert floor.method.startswith("linear_fit_differences_") and "linear fit" in floor.source
+    assert floor.variance == pytest.approx(sigma**2, rel=0.15)
+    assert abs(floor.variance - sigma**2) <= 4 * floor.std_error + 0.1 * sigma**2
+    assert floor.fraction_of_variance == pytest.approx(floor.variance / np.var(w), rel=1e-9)
+
+
+def test_a_fast_nonlinear_signals_floor_is_bounded_by_a_models_held_out_residual():
+    """Where no linear fit takes the signal out, the fitted model's held-out residual bounds the noise."""
+    from hybrid.discovery._noise_floor import RESIDUAL_SWITCH, bounded_by_residual
+
+    v, mode = _fast_mode(3000, 0)
+    clean = 30.0 * np.tanh(mode / 30.0)  # a sensor that saturates: no linear response of the drive
+    sigma = 0.03
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0.0, sigma, clean.size)
+    floor = noise_floor(clean + noise, v, 50.0)
+    assert floor.variance > 10 * sigma**2  # every model-free estimate reads the signal
+    # Held out: three segments; the residual is the noise plus a slow miss (a creep, a low-pass of the
+    # drive with τ = 3 s: the model lacks it) and a different offset per segment (a jump between them).
+    creep = 0.05 * scipy.signal.lfilter([1 - math.exp(-1 / 150)], [1, -math.exp(-1 / 150)], v)
+    segment = np.repeat([0, 1, 2], 300)
+    residual = (noise + creep)[-900:] + np.array([0.0, 10.0, -10.0])[segment]
+    bounded = bounded_by_residual(floor, residual, segment)
+    assert bounded.variance == pytest.approx(sigma**2, rel=0.15)
+    assert bounded.method.startswith("residual_differences_") and "held-out residual" in bounded.source
+    assert abs(bounded.variance - sigma**2) <= 4 * bounded.std_error + 0.1 * sigma**2
+    assert bounded.fraction_of_variance == pytest.approx(bounded.variance / np.var(clean + noise), rel=1e-9)
+    assert np.mean(residual**2) > 100 * bounded.variance  # the creep stays far above it: not an all-clear
+    # Differences across the segments' jumps would have read the offsets (±10) as noise.
+    across = np.mean(np.diff(residual, n=4) ** 2) / math.comb(8, 4)
+    assert across > 100 * sigma**2
+
+    # A slow signal's model-free floor is sound: a residual that agrees with it leaves its value as it was.
+    v, slow = _slow_signal(3600, 0)
+    sigma = 0.02 * np.ptp(slow)
+    noise = np.random.default_rng(2).normal(0.0, sigma, slow.size)
+    floor = noise_floor(slow + noise, v, RATE)
+    kept = bounded_by_residual(floor, noise[-900:], np.zeros(900, int))
+    assert (kept.variance, kept.method) == (floor.variance, floor.method)
+    assert RESIDUAL_SWITCH * floor.variance < sigma**2

@@ -13,9 +13,13 @@ whose tables give the rates over many more.
 from __future__ import annotations
 
 import json
+import math
+from pathlib import Path
 
+import helpers as h
 import numpy as np
 import pytest
+import scipy.signal
 from helpers import hidden_recording
 
 from hybrid import diagnose, write_report
@@ -98,3 +102,41 @@ def test_the_hybrid_fits_of_a_diagnosis_run():
     out = hybrid_fits([recording], RCNetwork(n_stages=4, method="zoh"), None, None, (), settings, 2, False)
     assert out["extended"] is out["baseline"] and out["gain"] == 1.0
     assert np.isfinite(out["baseline"]["nmse"]) and out["baseline"]["nmse"] > 0
+
+
+def test_a_creep_beside_a_fast_mode_is_not_lost_in_a_floor_that_read_the_mode(tmp_path):
+    """A 15 Hz mode sampled at 50 Hz (scipy ZOH), a creep its model lacks, a gauge noise of 0.01 mm.
+
+    w varies from sample to sample ~30× more than its noise, so a floor from w alone (0.27 mm) put the
+    oscillator's miss "within the floor": no effect needed, a false all-clear. The linear fit's residual
+    reads the noise, and the creep is flagged as what it is, a linear filter of the drive.
+    """
+    rng = np.random.default_rng(0)
+    rate, n = 50.0, 1500
+    v = np.repeat(rng.uniform(-5, 5, n // 40 + 1), 40)[:n]
+    w0, zeta = 2 * math.pi * 15.0, 0.4
+    a, b = np.array([[0.0, 1.0], [-w0 * w0, -2 * zeta * w0]]), np.array([[0.0], [w0 * w0]])
+    system = scipy.signal.cont2discrete(
+        (a, b, np.array([[1.0, 0.0]]), np.zeros((1, 1))), 1 / rate, method="zoh"
+    )
+    y = scipy.signal.dlsim(system[:4] + (1 / rate,), v)[1][:, 0]
+    fall = math.exp(-1 / (3 * rate))  # creep: 8 % of the drive through a 3 s low-pass
+    w = 2.0 * (y + 0.08 * scipy.signal.lfilter([1 - fall], [1, -fall], v)) + 0.01 * rng.normal(size=n)
+    table = np.c_[np.arange(n) / rate, v, w]
+    np.savetxt(tmp_path / "stage.csv", table, delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
+    oscillator = Path(__file__).resolve().parents[1] / "examples" / "oscillator.py"
+    run = h.run_hybrid(
+        tmp_path,
+        *("diagnose", "stage.csv", "--physics", f"{oscillator}:MassSpringDamper"),
+        *("--effects", "saturation", "--out", "report", "--quiet"),
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((tmp_path / "report" / "report.json").read_text())
+    floor = report["noise_floor"]
+    assert floor["std"] == pytest.approx(0.01, rel=0.3), floor
+    assert floor["method"].endswith(tuple(f"differences_{k}" for k in range(1, 5)))
+    assert not floor["method"].startswith("differences") and "spectrum" in floor["estimates"]
+    assert min(floor["estimates"][f"differences_{k}"] for k in range(1, 5)) > 100 * 0.01**2
+    left = report["unexplained"]
+    assert left is not None and left["fraction_above_floor"] > 0.9, report["verdict"]
+    assert "linear filter of the drive" in left["description"]["summary"]

@@ -77,6 +77,7 @@ from ._effect_set import resolve_effects, searched_places
 from ._effect_stack import EffectStack
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._joint import joint_pair, named_jointly
+from ._noise_floor import bounded_by_residual
 from ._redundant import drop_redundant
 from ._search import (
     N_LANES,
@@ -386,7 +387,7 @@ def diagnose(
     )
     say("noise floor and what lies above it")
     signals = recording_units(recordings) or (PAPER_UNITS["w"], PAPER_UNITS["v_in"])  # (w's, the drive's)
-    floor = pooled_noise_floor(recordings)
+    floor = bounded_by_residual(pooled_noise_floor(recordings), w_te - w_hat_ext, heldout.segment)
     places = searched_places(search.effects, simulation)
     fitted_stack = extended_model.simulation
     assert isinstance(fitted_stack, EffectStack)  # a search's model

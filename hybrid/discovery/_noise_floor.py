@@ -23,6 +23,23 @@ contiguous blocks of the recording, divided by √blocks. Noise that is not
 white (a slow drift of the tracker, vibration) is not seen by these
 estimators and counts as something a model should explain.
 
+**Where the signal itself is fast.** A plant whose response has content up to
+the Nyquist frequency (a lightly damped mode near it, steps through a fast
+mode) varies from sample to sample by far more than its noise, and every
+estimator above reads that signal: on a piezo stage gauged to 0.03 µm with a
+15 Hz mode sampled at 50 Hz they read 0.4 µm, and a creep the model missed sat
+"within the floor". The fitted model's held-out residual is an upper bound
+too (noise plus whatever the model misses, on samples it was not fitted to),
+and its differences remove a slow miss as they remove a slow signal:
+`bounded_by_residual` takes them where they lie below `RESIDUAL_SWITCH` of the
+model-free floor, and says so (``source``, ``method`` ``residual_differences_k``).
+A fitted model can be bent by what it lacks, though, and miss fast too; so
+`noise_floor` itself also reads the differences of w's residual from a linear
+fit to the drive's last `FIR_TAPS` samples (`linear_fit_residual`: fitted on the
+first half, read on the second; ``linear_fit_differences_k``), which takes out
+any response that settles within those samples, under the same rule. Where the
+model-free floor is sound the estimates agree and it is kept.
+
 **What the floor can and cannot see.** Every estimator reads how much w varies
 from one sample to the next beyond a smooth signal. Data that were smoothed,
 low-pass filtered, interpolated or oversampled (a tracker's smoothing, a logger
@@ -48,6 +65,11 @@ import numpy as np
 DIFFERENCE_ORDERS = (1, 2, 3, 4)
 #: The band the spectral estimator reads, as fractions of the Nyquist frequency.
 SPECTRAL_BAND = (0.8, 1.0)
+#: `bounded_by_residual` takes the residual's differences only below this share of the model-free floor's
+#: variance: where the two agree within their spread (white noise, a slow signal) the model-free floor stays.
+RESIDUAL_SWITCH = 0.5
+#: Taps of `linear_fit_residual`'s response to the drive (samples).
+FIR_TAPS = 32
 #: Largest number of grid steps a recording's range may span for `quantisation_step` to call it a grid.
 MAX_GRID_STEPS = 10**7
 
@@ -245,7 +267,7 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
     spread = float(np.var(w))
     period = repeat_variance(w, v_in)[1] if method == "repeats" else 0
     quantum = quantisation_step(w)
-    return NoiseFloor(
+    floor = NoiseFloor(
         variance=variance,
         std_error=std_error,
         method=method,
@@ -254,4 +276,91 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
         source=describe_source(method, w.size, rate, period),
         quantum=quantum,
         warnings=floor_warnings(math.sqrt(variance), quantum),
+    )
+    if method == "repeats":  # the repetitions already removed the signal, however fast
+        return floor
+    linear = linear_fit_residual(w, v_in)
+    if linear is None:
+        return floor
+    what = (
+        f"w's residual from a linear fit to the drive's last {FIR_TAPS} samples (fitted on its first half, "
+        "read on its second)"
+    )
+    return _leaked(floor, [linear], "linear_fit", what, blocks)
+
+
+def bounded_by_residual(floor: NoiseFloor, residual, segment, blocks: int = 8) -> NoiseFloor:
+    """`floor`, or a tighter one from a fitted model's held-out `residual` where the signal leaked into `floor`.
+
+    `residual`: w − ŵ on held-out samples (the model was not fitted to them, so
+    its noise is the measurement's); `segment`: an id per sample, differences
+    are taken within each contiguous segment only. See `_leaked`.
+    """
+    residual = np.asarray(residual, float)
+    cuts = np.flatnonzero(np.diff(np.asarray(segment)) != 0) + 1
+    parts = np.split(residual, cuts)
+    return _leaked(
+        floor, parts, "residual", f"the fitted model's held-out residual ({len(parts)} segment(s))", blocks
+    )
+
+
+def linear_fit_residual(w, v_in, taps: int = FIR_TAPS) -> np.ndarray | None:
+    """w's residual on its second half from a linear fit to the drive's last `taps` samples on its first half.
+
+    w[n] ≈ c + Σₖ hₖ u[n − k], k < `taps` (least squares): a response that settles
+    within `taps` samples is taken out whatever its frequency, a slower one is
+    left as a slow residual that differences remove. None when the recording
+    has fewer than 8 × `taps` samples or a drive that does not move.
+    """
+    w, v_in = np.asarray(w, float), np.asarray(v_in, float)
+    n = w.size
+    if n < 8 * taps or not np.ptp(v_in) > 0:
+        return None
+    u = (v_in - v_in.mean()) / np.std(v_in)
+    lags = np.column_stack([np.ones(n - taps + 1)] + [u[taps - 1 - k : n - k] for k in range(taps)])
+    y = w[taps - 1 :]
+    half = y.size // 2
+    coef = np.linalg.lstsq(lags[:half], y[:half], rcond=1e-8)[0]
+    return y[half:] - lags[half:] @ coef
+
+
+def _leaked(floor: NoiseFloor, parts, label: str, what: str, blocks: int = 8) -> NoiseFloor:
+    """`floor`, or the differences of a residual where they lie below `RESIDUAL_SWITCH` × `floor.variance`.
+
+    `parts`: contiguous pieces of a residual (noise plus what a fit misses, on
+    samples it was not fitted to); for each order k = 1..4, σ²_k = mean((Δᵏr)²) /
+    C(2k, k) over every piece's differences: noise plus the fast part of the
+    miss, an upper bound on σ² as the model-free estimators are. The smallest
+    replaces `floor` (method ``<label>_differences_k``, its standard error the
+    spread over `blocks` blocks of the squared differences).
+    """
+    parts = [np.asarray(p, float) for p in parts if np.size(p) > 2 * max(DIFFERENCE_ORDERS)]
+    if not parts:
+        return floor
+    squares = {
+        k: np.concatenate([np.diff(p, n=k) ** 2 for p in parts]) / math.comb(2 * k, k)
+        for k in DIFFERENCE_ORDERS
+    }
+    estimates = {f"{label}_differences_{k}": float(np.mean(v)) for k, v in squares.items()}
+    order = min(squares, key=lambda k: estimates[f"{label}_differences_{k}"])
+    variance = estimates[f"{label}_differences_{order}"]
+    if not (np.isfinite(variance) and variance < RESIDUAL_SWITCH * floor.variance):
+        return dataclasses.replace(floor, estimates={**floor.estimates, **estimates})
+    means = np.asarray([b.mean() for b in np.array_split(squares[order], blocks) if b.size])
+    std_error = float(np.std(means, ddof=1) / math.sqrt(means.size)) if means.size > 1 else float("nan")
+    n = sum(p.size for p in parts)
+    name = {1: "first", 2: "second", 3: "third", 4: "fourth"}[order]
+    source = (
+        f"the {name} differences of {what} over {n} samples, white noise assumed (w's own estimate, "
+        f"σ = {floor.std:.3g} from its {floor.method}, read a signal that is fast beside the noise)"
+    )
+    return dataclasses.replace(
+        floor,
+        variance=variance,
+        std_error=std_error,
+        method=f"{label}_differences_{order}",
+        estimates={**floor.estimates, **estimates},
+        fraction_of_variance=floor.fraction_of_variance * variance / floor.variance,
+        source=source,
+        warnings=floor_warnings(math.sqrt(variance), floor.quantum),
     )

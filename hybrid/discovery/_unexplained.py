@@ -45,9 +45,17 @@ def floor_caveat(mse: float, floor: NoiseFloor) -> str | None:
     """A sentence when a held-out MSE is so far above the floor that the floor tells little, else None."""
     if not (floor.variance > 0 and mse > FAR_ABOVE_FLOOR * floor.variance):
         return None
+    fitted = floor.method.startswith(
+        ("residual_", "linear_fit_")
+    )  # its source also says why w's own was not kept
+    what = (
+        f"the differences of a fit's held-out residual ({floor.method})"
+        if fitted
+        else floor.source or floor.method
+    )
     return (
         f"the held-out error's RMS is {math.sqrt(mse / floor.variance):.3g}× the floor's σ: the floor, from "
-        f"{floor.source or floor.method}, is far below the model's error, so the share above it says only that the "
+        f"{what}, is far below the model's error, so the share above it says only that the "
         "model misses by far more than w varies from sample to sample; if w was smoothed, filtered, interpolated "
         "or oversampled, that processing removed the variation the floor reads, and the measurement error is "
         "not known from the data"
