@@ -19,6 +19,7 @@ import argparse
 import contextlib
 import csv
 import json
+import math
 import os
 import signal
 import sys
@@ -238,6 +239,15 @@ def build_parser() -> argparse.ArgumentParser:
         "flat at an extreme: DiagnoseSettings.held_out_limits; 1: one held-out tail)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.add_argument(
+        "--materiality",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="the smallest size that counts as a cause, by the effect's threshold name (e.g. "
+        "baseline_drift_percent=0.5; repeatable; the names are in report.json's settings.materiality): a "
+        "lab whose range dwarfs its noise may care about effects smaller than the defaults' share of it",
+    )
     p.add_argument(
         "--effects",
         default=None,
@@ -545,6 +555,7 @@ def _cmd_diagnose(args):
     from .discovery._diagnosis import DiagnoseSettings
     from .discovery._report import MODEL_FILES, REMAINDER_FIGURE, plus_minus, write_report
     from .discovery._report_figures import FIGURES
+    from .discovery._verdict import too_small_sentence
     from .ipmc._defaults import diagnose
     from .physics._plugins import resolve_physics
 
@@ -575,6 +586,12 @@ def _cmd_diagnose(args):
         settings = dataclasses.replace(settings, blocks=args.blocks, held_out_limits=False)  # as given
     if args.no_auto_settle:
         settings = dataclasses.replace(settings, settle_when_off=False)
+    if args.materiality:
+        given = parse_params(args.materiality)
+        bad = {k: v for k, v in given.items() if not (math.isfinite(v) and v >= 0)}
+        if bad:
+            raise InputError(f"--materiality takes a size ≥ 0, got {bad}")
+        settings = dataclasses.replace(settings, materiality={**settings.materiality, **given})
     with lock:
         simulation = resolve_physics(args.physics, recordings)
         simulation = with_settle(simulation, args, recordings)
@@ -602,6 +619,8 @@ def _cmd_diagnose(args):
                 print(f"    {name} = {plus_minus(report['parameters'][name])}")
     for entry in report["ambiguous"]:
         print(f"ambiguous: {ambiguity_sentence(entry)}")
+    for entry in report["too_small"]:
+        print(f"too small: {too_small_sentence(entry)}")
     start = report["evidence"].get("start") or {}
     if start.get("sentence"):
         print(f"start: {start['sentence']}")

@@ -161,7 +161,8 @@ class DiagnoseSettings:
         unknown = sorted(set(self.materiality) - set(out))
         if unknown:
             raise InputError(
-                f"DiagnoseSettings.materiality names {unknown}, which no searched effect has; "
+                f"materiality (--materiality, DiagnoseSettings.materiality) names {unknown}, which no searched "
+                "effect has; "
                 f"the thresholds are {sorted(out)}"
             )
         return {**out, **self.materiality}
@@ -447,6 +448,37 @@ class Diagnosis:
         return out
 
     @property
+    def too_small(self) -> list[dict]:
+        """Candidates that passed every rule but their size, not named: name, step, gain, why, thresholds.
+
+        Materiality is a share of the signal's range (or of the drive): on a
+        recording whose range dwarfs its noise (a piezo stage's 100 µm beside a
+        0.03 µm gauge) an effect under it can still gain many times held out.
+        Not a cause, but the report says so rather than pointing at a weaker
+        rival; `DiagnoseSettings.materiality` (``--materiality``) counts it. The
+        latest step's entry for each effect never named, largest gain first.
+        """
+        named = {c["name"] for c in self.causes}
+        by_name: dict[str, dict] = {}
+        for k, step in enumerate(self.steps, 1):
+            for c in step.candidates:
+                if c.name in named or c.material or not c.reasons:
+                    continue
+                if all(r.startswith("not material") for r in c.reasons) and c.gain >= self.settings.min_gain:
+                    effect = next((e for e in self.effects if e.name == c.name), None)
+                    by_name[c.name] = {
+                        "name": c.name,
+                        "step": k,
+                        "gain": c.gain,
+                        "materiality": c.materiality,
+                        "thresholds": {
+                            t: self.settings.materiality.get(t, v)
+                            for t, v in (effect.thresholds if effect is not None else {}).items()
+                        },
+                    }
+        return sorted(by_name.values(), key=lambda d: -d["gain"])
+
+    @property
     def verdict(self) -> str:
         """One sentence that states the answer: the causes, the gain, and what remains above the noise."""
         from ._verdict import verdict
@@ -476,6 +508,7 @@ class Diagnosis:
             "ambiguous": self.ambiguous,
             "ambiguity_test": AMBIGUITY_TEST,
             "dropped": self.dropped,
+            "too_small": self.too_small,
             "warnings": self.warnings,
             "steps": [
                 {

@@ -30,6 +30,7 @@ from . import residual_tests as rt
 from ._ambiguity import sentence as ambiguity_sentence
 from ._joint import JOINT_BELOW
 from ._report_figures import FIGURES, MAX_LAG, count_loop_levels, format_nmse, save_figure, write_figures
+from ._verdict import too_small_sentence
 
 # --------------------------------------------------------------------------- #
 # JSON
@@ -351,6 +352,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     for entry in d.get("ambiguous") or []:
         label = "Open" if entry.get("open") else "Ambiguous"
         lines += [f"**{label}.** {ambiguity_sentence(entry)}", ""]
+    for entry in d.get("too_small") or []:
+        lines += [f"**Too small to count.** {too_small_sentence(entry)}.", ""]
     start = ev.get("start") or {}
     if start.get("sentence"):
         lines += [f"**Start.** {start['sentence'][0].upper()}{start['sentence'][1:]}.", ""]

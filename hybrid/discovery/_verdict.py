@@ -77,6 +77,12 @@ def verdict(diagnosis) -> str:
             "it nearer."
         )
     best = _best_refused(diagnosis)
+    small = diagnosis.too_small
+    if small and (best is None or small[0]["gain"] >= best.gain):
+        return (
+            f"No effect in the library passes the search's rules on this recording ({too_small_sentence(small[0])}): "
+            f"{left['fraction_above_floor']:.0%} of the simulation's held-out error lies above the noise floor{where}."
+        )
     if best is None:
         return (
             f"No effect in the library explains what the simulation misses: {left['fraction_above_floor']:.0%} "
@@ -86,6 +92,16 @@ def verdict(diagnosis) -> str:
         f"No effect in the library passes the search's rules on this recording (the closest, {best.name}, "
         f"{refusal(best, diagnosis.settings.min_gain)}): "
         f"{left['fraction_above_floor']:.0%} of the simulation's held-out error lies above the noise floor{where}."
+    )
+
+
+def too_small_sentence(entry: dict) -> str:
+    """A candidate refused for its size alone (`Diagnosis.too_small`), and how to count it."""
+    names = " and ".join(f"{k} (now {v:g})" for k, v in entry["thresholds"].items()) or "its threshold"
+    return (
+        f"{entry['name']} gains {entry['gain']:.3g}× held out and passes every other rule, but is smaller than a "
+        f"cause must be ({entry['materiality']}); if an effect that small matters here, lower {names} with "
+        "--materiality NAME=VALUE"
     )
 
 
