@@ -165,7 +165,7 @@ def effects_from_spec(spec: str, simulation=None) -> tuple:
     `resolve_effects`: inside the dynamics only for a state-space form);
     ``--effects builtins,friction.py:Coulomb`` searches them and a plug-in.
     """
-    from .discovery._effect_set import EFFECTS, resolve_effects
+    from .discovery._effect_set import EFFECTS, NAMED_ONLY, resolve_effects
     from .discovery._effects import AbstractEffect
     from .physics._plugins import plugin_module, register
 
@@ -177,13 +177,13 @@ def effects_from_spec(spec: str, simulation=None) -> tuple:
         if text == "builtins":
             chosen += list(resolve_effects(None, simulation))
             continue
-        if text in EFFECTS or (":" not in text and text.startswith("limit_")):
+        if text in EFFECTS or text in NAMED_ONLY or (":" not in text and text.startswith("limit_")):
             chosen.append(text)  # resolve_effects says which states there are
             continue
         module, label, name = plugin_module(
             text,
             "--effects",
-            f"not an effect I know; give {EFFECT_FORMS} (the built-ins: {', '.join(EFFECTS)})",
+            f"not an effect I know; give {EFFECT_FORMS} (the built-ins: {', '.join([*EFFECTS, *NAMED_ONLY])})",
         )
         cls = getattr(module, name, None)
         if not isinstance(cls, type) or not issubclass(cls, AbstractEffect):

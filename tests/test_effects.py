@@ -11,11 +11,12 @@ import scipy.signal
 
 import hybrid
 from hybrid import AbstractSimulation, InputError, Positive, RCNetwork, encode, make_drive
-from hybrid.discovery._effect_set import EFFECTS
+from hybrid.discovery._effect_set import EFFECTS, NAMED_ONLY
 from hybrid.discovery._effect_stack import EffectStack, extend
 from hybrid.discovery._effects import (
     Backlash,
     BackRelaxation,
+    Creep,
     Delay,
     Drift,
     DriveEven,
@@ -55,6 +56,15 @@ def test_back_relaxation_is_a_lagged_first_order_lowpass(signal):
     a = np.exp(-DT / 2.0)
     slow = scipy.signal.lfilter([0.0, 1.0 - a], [1.0, -a], signal)  # exact ZOH of 1/(τs + 1)
     np.testing.assert_allclose(y, signal - 0.4 * slow, atol=1e-12)
+
+
+def test_creep_is_a_lagged_first_order_lowpass_added(signal):
+    y = Creep(creep_time_s=2.0, creep_fraction=0.07).apply(jnp.asarray(signal), DT)
+    a = np.exp(-DT / 2.0)
+    slow = scipy.signal.lfilter([0.0, 1.0 - a], [1.0, -a], signal)  # exact ZOH of 1/(τs + 1)
+    np.testing.assert_allclose(y, signal + 0.07 * slow, atol=1e-12)
+    step = Creep(creep_time_s=3.0, creep_fraction=0.1).apply(jnp.ones(3000), 0.01)
+    assert float(step[-1]) == pytest.approx(1.1, abs=1e-4)  # a held drive's response creeps on by β
 
 
 def test_back_relaxation_step_relaxes_by_the_fraction():
@@ -250,10 +260,10 @@ def test_drifts_lanes_start_at_no_change_a_fall_and_a_rise_over_the_record(signa
     np.testing.assert_allclose(changes, [0.0, -20.0, 25.0], atol=1e-9)
 
 
-@pytest.mark.parametrize("name", list(EFFECTS))
+@pytest.mark.parametrize("name", [*EFFECTS, *NAMED_ONLY])
 def test_effect_gradients_match_finite_differences(name, signal):
     """Reverse-mode gradients of Σy² w.r.t. each raw parameter against central differences."""
-    effect = EFFECTS[name]()
+    effect = {**EFFECTS, **NAMED_ONLY}[name]()
     s = jnp.asarray(signal[:200])
     loss = jax.jit(lambda raw: jnp.sum(_apply(effect, raw, s) ** 2))
     raw = effect.raw

@@ -19,14 +19,14 @@ import numpy as np
 from ..core._fit import PAPER_UNITS
 from ..util._errors import InputError
 from ._ambiguity import TEST as AMBIGUITY_TEST
-from ._effect_set import EFFECTS
+from ._effect_set import EFFECTS, NAMED_ONLY
 
 if TYPE_CHECKING:
     from ._noise_floor import NoiseFloor
     from ._step import Step
 
 #: Names `diagnose` can return: an effect of `hybrid.discovery._effects`, or "none".
-CAUSES = ("none",) + tuple(EFFECTS)
+CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: report.json's schema.
 #: - 4 (from 3): the last key that named a unit, ``evidence.<model>.loop_separation_mm``, is
 #:   ``loop_separation`` (in w's unit); ``units`` gives the recorded signals' units (``w``, ``v_in``).

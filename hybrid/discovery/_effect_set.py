@@ -25,6 +25,7 @@ from ._effects import (
     Backlash,
     BackRelaxation,
     BaselineDrift,
+    Creep,
     Delay,
     Drift,
     DriveDeadZone,
@@ -59,6 +60,9 @@ EFFECTS: dict[str, type[AbstractEffect]] = {
         Backlash,
     )
 }
+#: Built-in effects searched only when named (``--effects builtins,creep``): physics that a lab meets
+#: (a piezo's creep) but that the default set's lanes would pay for on every recording.
+NAMED_ONLY: dict[str, type[AbstractEffect]] = {cls.name: cls for cls in (Creep,)}
 #: Names an effect may not take: the search's words for "no effect", the always-on frame timing and
 #: `EffectStack.signals_into`'s key for the drive that reaches the simulation.
 RESERVED = ("none", "frame_timing", "drive")
@@ -294,19 +298,19 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
             limits = {f"limit_{state}": state for state in states}
             if item in limits:
                 item = state_limit(dynamics_of(simulation)[0], limits[item])  # type: ignore[index]
-            elif item not in EFFECTS:
+            elif item not in EFFECTS and item not in NAMED_ONLY:
                 names = list(limits)  # one per state: the RC network's 46 would bury the line
                 if len(names) > 3:
                     names = [f"limit_<state> ({names[0]} … {names[-1]})"]
-                close = difflib.get_close_matches(item, [*EFFECTS, *limits], n=1)
+                close = difflib.get_close_matches(item, [*EFFECTS, *NAMED_ONLY, *limits], n=1)
                 raise InputError(
                     f"unknown effect {item!r}"
                     + (f" (did you mean {close[0]!r}?)" if close else "")
-                    + f": the built-ins are {', '.join([*EFFECTS, *names])}; "
+                    + f": the built-ins are {', '.join([*EFFECTS, *NAMED_ONLY, *names])}; "
                     "a plug-in is an AbstractEffect subclass (see docs/effects.md)"
                 )
             else:
-                item = EFFECTS[item]()  # type: ignore[call-arg]  # eqx AbstractVar `raw`
+                item = {**EFFECTS, **NAMED_ONLY}[item]()  # type: ignore[call-arg]  # eqx AbstractVar `raw`
         elif isinstance(item, type):
             if not issubclass(item, AbstractEffect):
                 raise InputError(

@@ -385,6 +385,51 @@ class BackRelaxation(AbstractEffect):
         return size >= need, f"relaxation {size:.1f} % (needs ≥ {need} %)"
 
 
+class Creep(AbstractEffect):
+    """y = s + β x with τ ẋ = s − x: a held drive's response creeps on by the fraction β with time constant τ.
+
+    The mirror of `BackRelaxation` (which gives some of the response back): a
+    piezo stack's or a polymer's creep, a viscoelastic flexure, a battery's slow
+    diffusion beside its fast RC pair. One exponential, as back-relaxation's;
+    a creep spread over decades of time (logarithmic) is fitted by the τ the
+    recording weighs most. Discretised exactly for a signal held over each
+    sample (a = e^{−dt/τ}), starting at rest. Searched only when named
+    (``--effects builtins,creep``; `NAMED_ONLY`): the default set keeps its
+    lanes, and a remainder that a linear filter of the drive recovers points
+    here.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "creep"
+    constraints: ClassVar = {"creep_time_s": Positive(), "creep_fraction": Positive()}
+    units: ClassVar = {"creep_time_s": "s", "creep_fraction": "1"}
+    defaults: ClassVar = {"creep_time_s": 5.0, "creep_fraction": 0.1}
+    thresholds: ClassVar = {"creep_percent": 3.0}
+
+    def __init__(self, **values):
+        init_values(self, values)
+
+    def apply(self, s, dt):
+        p = self.parameters()
+        a = jnp.exp(-dt / p["creep_time_s"])
+        x = jnp.concatenate([jnp.zeros(1, s.dtype), _first_order_lowpass(s, a)[:-1]])
+        return s + p["creep_fraction"] * x
+
+    def derived(self, s, dt):
+        return {"creep_percent": 100.0 * float(self.parameters()["creep_fraction"])}
+
+    def starts(self, context):
+        return [
+            {"creep_time_s": 1.0, "creep_fraction": 0.05},
+            {"creep_time_s": 5.0, "creep_fraction": 0.1},
+            {"creep_time_s": min(30.0, context.duration / 3), "creep_fraction": 0.1},
+        ]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("creep_percent", 0.0), thresholds["creep_percent"]
+        return size >= need, f"creep {size:.1f} % (needs ≥ {need} %)"
+
+
 def _soft_clip(s, k):
     """tanh(k s)/k, even in k and equal to s at k = 0 (finite gradients there too)."""
     x = k * s

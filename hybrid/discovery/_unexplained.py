@@ -205,6 +205,8 @@ def remainder(
     if hint:
         description["place"] = "inside"
         description["summary"] += f"; {hint}"
+    elif hint := creep_hint(description, places or {}):
+        description["summary"] += f"; {hint}"
     out = {
         "fraction_above_floor": 1.0 - floor.variance / mse,
         "heldout_nmse": mse / var_w,
@@ -224,6 +226,23 @@ def remainder(
                 "floor held out: the recording does not pin the model (record longer, or drive it harder)"
             )
     return out
+
+
+def creep_hint(description: dict, places: dict) -> str | None:
+    """Where a linear filter of the drive or a trend in time recovers most of the rest and no creep was
+    searched: the built-in `Creep`, searched only when named (`NAMED_ONLY`).
+
+    A piezo's creep read "a linear filter of the drive" at 50 Hz; a creep slower than the remainder's
+    filters (τ = 3 s at 25 Hz: 75 samples, the filters' 25 lags) reads "a trend in time".
+    """
+    named = (description.get("recovered") or {}).get("named")
+    searched = {e for place in places.values() for e in place.get("effects", ())}
+    if named not in ("filter_drive", "time") or not places or "creep" in searched:
+        return None
+    return (
+        "a slow response to the drive that the simulation lacks (a creep, a second time constant) may also "
+        "explain it: the built-in creep is searched when named (--effects builtins,creep)"
+    )
 
 
 def place_hint(description: dict, places: dict) -> str | None:
