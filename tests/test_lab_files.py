@@ -280,3 +280,17 @@ def test_samples_of_quality_0_are_named_in_a_note_not_fitted_in_silence(tmp_path
     for values in (np.ones(N), np.linspace(0.0, 100.0, N)):
         path = _write(tmp_path / "other.csv", "t,v_in,w,quality", [t, u, y, values])
         assert not [n for n in Recording.load(path).notes if "quality 0" in n]
+
+
+def test_a_cyclers_columns_are_guessed_in_the_message_index_and_time_by_any_word(tmp_path):
+    """A battery cycler's export (Arbin-like): the guess skips the data point, takes the test time."""
+    u, y = _signals()
+    header = "Data_Point,Test_Time(s),Step_Index,Current(A),Voltage(V),Aux_Temperature(C)"
+    columns = [np.arange(N) + 1, np.arange(N) / RATE, np.ones(N), u, y, np.full(N, 25.0)]
+    path = _write(tmp_path / "cycler.csv", header, columns)
+    message = _refused(
+        r"e\.g\. --columns \"input=Current\(A\),output=Voltage\(V\)\" --time \"Test_Time\(s\)\"", path
+    )
+    assert "Data_Point" not in message.split("e.g.")[1]
+    rec = Recording.load(path, columns="input=Current(A),output=Voltage(V),time=Test_Time(s)")
+    assert rec.metadata["units"]["v_in"] == "A" and rec.metadata["units"]["w"] == "V" and rec.n == N

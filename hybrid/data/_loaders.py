@@ -242,10 +242,29 @@ _ROLE_WORDS = {
         "cmd",
         "command",
         "excitation",
+        "current",
+        "curr",
     ),
     "output": ("y", "w", "output", "out", "disp", "displacement", "position", "pos", "deflection", "tip"),
-    "index": ("n", "i", "k", "idx", "index", "sample", "samples", "frame", "frames", "step"),
+    "index": (
+        "n",
+        "i",
+        "k",
+        "idx",
+        "index",
+        "sample",
+        "samples",
+        "frame",
+        "frames",
+        "step",
+        "point",
+        "record",
+        "row",
+    ),
 }
+#: Roles a word anywhere in a column's name gives (a cycler's 'Test_Time(s)', 'Data_Point'): a time and an
+#: index are named so in any position; a drive or an output word counts only first ('Voltage(V)').
+_ANY_TOKEN = ("time", "index")
 
 
 def _role_of(name: str) -> str | None:
@@ -258,6 +277,9 @@ def _role_of(name: str) -> str | None:
         if words.replace(" ", "_") in names or (
             tokens and tokens[0] in names and (len(tokens[0]) > 2 or short_unit)
         ):
+            return role
+    for role in _ANY_TOKEN:
+        if any(len(token) > 2 and token in _ROLE_WORDS[role] for token in tokens):
             return role
     return None
 
