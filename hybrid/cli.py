@@ -427,11 +427,13 @@ def _cmd_fit(args):
     if args.model != "normal":
         simulation = resolve_physics(args.physics, recordings)  # rc: the paper's RC network
         if args.effects is not None:
-            from .discovery._effect_stack import EffectStack
+            from .discovery._effect_stack import EffectStack, at_first_starts
             from .discovery._search import drive_unit
 
             effects = effects_from_spec(args.effects, simulation)
             simulation = EffectStack(simulation, effects, drive_unit=drive_unit(recordings))
+            if args.start_from is None:  # from each effect's first start, not a default LM cannot leave
+                simulation = at_first_starts(simulation, recordings[0])
         params = parse_params(args.param)
         if params:
             simulation = simulation.replace(**params)

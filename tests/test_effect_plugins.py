@@ -617,3 +617,32 @@ def test_a_switched_off_effect_is_not_evaluated_and_a_switch_scales_its_change()
     raw = stack.raw["scale_factor"]
     assert not np.any(np.asarray(jax.jacfwd(output)(raw, jnp.array([0.0, 0.0]))))  # off: no column
     assert np.any(np.asarray(jax.jacfwd(output)(raw, jnp.array([0.0, 1.0]))))  # on: a column
+
+
+def test_hybrid_fit_starts_a_built_in_effect_where_its_fit_can_move(tmp_path):
+    """A lag clipped softly (12·tanh(y/6), numpy) fitted with `--effects saturation` from the CLI.
+
+    From its default curvature 0 LM cannot move (tanh(κs)/κ is even in κ: zero gradient), and the
+    fit kept the straight line; from the effect's first start it finds the curvature. An effect the
+    record does not hold ends too small to count, and the fit says so.
+    """
+    rng = np.random.default_rng(2)
+    n = 900
+    u = np.repeat(rng.uniform(-10, 10, n // 30 + 1), 30)[:n]
+    y = 12.0 * np.tanh(_lag(u) / 6.0) + 0.004 * rng.normal(size=n)
+    table = np.c_[np.arange(n) / RATE, u, y]
+    np.savetxt(tmp_path / "clipped.csv", table, delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
+    common = ("fit", "clipped.csv", "--model", "physics", "--physics", "lti:1", "--quiet")
+    run = _hybrid(tmp_path, *common, "--effects", "saturation", "--out", "s.eqx", "--json", "s.json")
+    assert run.returncode == 0, run.stderr[-2000:]
+    fitted = json.loads((tmp_path / "s.json").read_text())
+    for side in ("pos", "neg"):  # κ = 1/6 per V of the lag's output, up to what the readout's gain takes
+        assert fitted["parameters"][f"saturation_{side}_curvature"] == pytest.approx(1 / 6, rel=0.25)
+    assert fitted["metrics"]["test"]["nmse_variance"] < 1e-4
+    assert not [w for w in fitted["warnings"] if "too small" in w]
+
+    lag = np.c_[np.arange(n) / RATE, u, 2.0 * _lag(u) + 0.004 * rng.normal(size=n)]
+    np.savetxt(tmp_path / "lag.csv", lag, delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
+    run = _hybrid(tmp_path, *common[:1], "lag.csv", *common[2:], "--effects", "hysteresis", "--out", "h.eqx")
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "hysteresis is too small in the fitted model to count as a cause" in run.stdout

@@ -240,9 +240,43 @@ def fit(
         )
         + clipped_warnings(
             problem, best[best_start], split_order, w_unit, (recording_units(recordings) or ("",))[0]
-        ),
+        )
+        + immaterial_effects(fitted, recordings),
         stopped=stopped,
     )
+
+
+def immaterial_effects(fitted: Model, recordings) -> list[str]:
+    """A sentence per effect of a fitted effect stack too small to count as a cause (its own `material`).
+
+    `hybrid fit --effects` starts each effect at its defaults: a Bouc–Wen loop of
+    0.01 µm can stay a loop of 0.25 µm on a 100 µm stage, and the user reads
+    "hysteresis does not help" from a fit that never found it (`diagnose`
+    starts each effect from several points). On the first recording; quiet
+    for a model without effects, or one whose effects do not say.
+    """
+    stack = fitted.simulation
+    effects, derive = getattr(stack, "effects", None), getattr(stack, "derived", None)
+    if not effects or derive is None or not recordings:
+        return []
+    recording = recordings[0]
+    try:
+        derived = derive(jnp.asarray(recording.v_in), recording.dt)
+    except Exception:  # a plug-in's derived that fails here is not the fit's business: nothing to say
+        return []
+    values = {k: float(v) for k, v in stack.parameters().items()}
+    out = []
+    for effect in effects:
+        if effect.name not in derived:
+            continue
+        material, why = effect.material(derived[effect.name], values, dict(effect.thresholds))
+        if not material:
+            out.append(
+                f"{effect.name} is too small in the fitted model to count as a cause ({why}): from its "
+                "default values a fit may not find it; hybrid diagnose starts each effect from several "
+                "points, and its extended model is a start (--start-from DIAG/extended.eqx)"
+            )
+    return out
 
 
 def non_finite_fit(simulation, recordings) -> str:

@@ -26,7 +26,7 @@ from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw,
 from ..core._state_space import dynamics_of, integrate
 from ..util._errors import InputError
 from ._effect_set import force_percent_of_drive, resolve_effects
-from ._effects import AbstractEffect
+from ._effects import AbstractEffect, StartContext
 
 
 class EffectStack(AbstractWrapper):
@@ -258,6 +258,33 @@ class EffectStack(AbstractWrapper):
                     "cut_percent_of_range": 100.0 * max(cut, 0.0) / span if span else 0.0,
                 }
         return out
+
+
+def at_first_starts(stack: EffectStack, recording) -> EffectStack:
+    """`stack` with each effect at its first start (`AbstractEffect.starts`) on `recording`, its defaults otherwise.
+
+    A fit from an effect's defaults can sit where its gradient is zero: a
+    saturation's curvature 0 is the linear response, and tanh(κs)/κ is even in
+    κ, so LM never moves it (`hybrid fit --effects saturation` kept the line on a
+    clipped record). Each start is taken with the other effects as they are; an
+    effect whose `starts` fails here keeps its defaults.
+    """
+    v_in = jnp.asarray(recording.v_in)
+    signals = stack.signals_into(v_in, recording.dt)
+    values: dict[str, float] = {}
+    for effect in stack.effects:
+        context = StartContext(
+            signal=np.asarray(signals[effect.name]),
+            rate=recording.rate,
+            duration=float(recording.n * recording.dt),
+            drive=np.asarray(signals["drive"]),
+        )
+        try:
+            first = (effect.starts(context) or [{}])[0]
+        except Exception:  # a plug-in's starts that need what only diagnose gives: its defaults
+            continue
+        values.update({k: float(v) for k, v in first.items() if k in effect.constraints})
+    return stack.replace(**values) if values else stack
 
 
 def effect_class(name: str, module: str | None = None) -> type[AbstractEffect]:
