@@ -672,6 +672,10 @@ def test_a_force_of_a_speed_output_reads_as_a_damping_and_of_a_position_as_a_spr
     assert "softens" in stiff.reading({"stiffness_cube": -0.01}, "µm")
     neither = stiff.reading({"stiffness_cube": 0.01}, "V")  # the unit does not say: both readings given
     assert "spring where the output is a position" in neither and "damping where it is a speed" in neither
+    # An end stop on the state the output reads and a sensor that clips there look alike: both said.
+    stop = StateLimit("position").reading({"position_max": 85.0}, "µm")
+    assert "end stop" in stop and "a sensor that clips at that level looks alike" in stop
+    assert "spills into h2" in StateLimit("h1", into="h2").reading({"h1_max": 1.0}, "V")
 
 
 def test_a_quadratic_drag_on_a_motors_speed_is_read_as_a_damping_from_the_command_line(tmp_path):

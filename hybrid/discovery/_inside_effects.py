@@ -230,6 +230,16 @@ class StateLimit(AbstractEffect):
             return "the state never reaches the limit in this recording"
         return None
 
+    def reading(self, parameters, output_unit):
+        # A piezo stage's gauge that clipped at 85 µm was named an end stop on its position: where
+        # the output reads the limited state, the two look alike (an end stop also stops the rate).
+        where = " and spills into " + self.into if self.into is not None else ""
+        return (
+            f"an upper limit on the state {self.state} inside the dynamics (an end stop, an overflow){where}; "
+            "where the output reads this state, a sensor that clips at that level looks alike on a recording "
+            "unless the rate of the state shows the stop"
+        )
+
     def material(self, derived, parameters, thresholds):
         # ``cut_percent_of_range`` comes from the stack: the state's peak with the limit and without.
         size, need = derived.get("cut_percent_of_range", 0.0), thresholds["cut_percent_of_range"]
