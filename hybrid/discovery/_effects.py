@@ -348,6 +348,12 @@ def _first_order_lowpass(s, a):
     return affine_recurrence(a, (1 - a) * s)
 
 
+def _lagged_lowpass(s, dt, tau):
+    """x with τẋ = s − x from rest, exact for s held over each sample, read one sample late (x[0] = 0)."""
+    x = _first_order_lowpass(s, jnp.exp(-dt / tau))
+    return jnp.concatenate([jnp.zeros(1, s.dtype), x[:-1]])
+
+
 class BackRelaxation(AbstractEffect):
     """y = s − β x with τ ẋ = s − x: a held drive relaxes by the fraction β with time constant τ.
 
@@ -366,9 +372,7 @@ class BackRelaxation(AbstractEffect):
 
     def apply(self, s, dt):
         p = self.parameters()
-        a = jnp.exp(-dt / p["relaxation_time_s"])
-        x = jnp.concatenate([jnp.zeros(1, s.dtype), _first_order_lowpass(s, a)[:-1]])
-        return s - p["relaxation_fraction"] * x
+        return s - p["relaxation_fraction"] * _lagged_lowpass(s, dt, p["relaxation_time_s"])
 
     def derived(self, s, dt):
         return {"relaxation_percent": 100.0 * float(self.parameters()["relaxation_fraction"])}
@@ -411,9 +415,7 @@ class Creep(AbstractEffect):
 
     def apply(self, s, dt):
         p = self.parameters()
-        a = jnp.exp(-dt / p["creep_time_s"])
-        x = jnp.concatenate([jnp.zeros(1, s.dtype), _first_order_lowpass(s, a)[:-1]])
-        return s + p["creep_fraction"] * x
+        return s + p["creep_fraction"] * _lagged_lowpass(s, dt, p["creep_time_s"])
 
     def derived(self, s, dt):
         return {"creep_percent": 100.0 * float(self.parameters()["creep_fraction"])}
