@@ -245,7 +245,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="NAME=VALUE",
         help="the smallest size that counts as a cause, by the effect's threshold name (e.g. "
-        "baseline_drift_percent=0.5; repeatable; the names are in report.json's settings.materiality): a "
+        "baseline_percent_of_range=0.5; repeatable; the names are in report.json's settings.materiality): a "
         "lab whose range dwarfs its noise may care about effects smaller than the defaults' share of it",
     )
     p.add_argument(

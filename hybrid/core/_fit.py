@@ -249,9 +249,10 @@ def fit(
 def immaterial_effects(fitted: Model, recordings) -> list[str]:
     """A sentence per effect of a fitted effect stack too small to count as a cause (its own `material`).
 
-    `hybrid fit --effects` starts each effect at its defaults: a Bouc–Wen loop of
-    0.01 µm can stay a loop of 0.25 µm on a 100 µm stage, and the user reads
-    "hysteresis does not help" from a fit that never found it (`diagnose`
+    A fit starts each effect at one point (`hybrid fit --effects`: its first
+    start; Python: the values given) and can end where the effect does next to
+    nothing: a piezo user's Bouc–Wen loop stayed 0.25 µm on a 100 µm stage, and
+    read "hysteresis does not help" from a fit that never found it (`diagnose`
     starts each effect from several points). On the first recording; quiet
     for a model without effects, or one whose effects do not say.
     """

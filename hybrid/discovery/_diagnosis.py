@@ -455,8 +455,9 @@ class Diagnosis:
         recording whose range dwarfs its noise (a piezo stage's 100 µm beside a
         0.03 µm gauge) an effect under it can still gain many times held out.
         Not a cause, but the report says so rather than pointing at a weaker
-        rival; `DiagnoseSettings.materiality` (``--materiality``) counts it. The
-        latest step's entry for each effect never named, largest gain first.
+        rival; `DiagnoseSettings.materiality` (``--materiality``) counts it. For
+        each effect never named, the latest step where it was so refused;
+        largest gain first.
         """
         named = {c["name"] for c in self.causes}
         by_name: dict[str, dict] = {}

@@ -26,9 +26,9 @@ estimators and counts as something a model should explain.
 **Where the signal itself is fast.** A plant whose response has content up to
 the Nyquist frequency (a lightly damped mode near it, steps through a fast
 mode) varies from sample to sample by far more than its noise, and every
-estimator above reads that signal: on a piezo stage gauged to 0.03 µm with a
-15 Hz mode sampled at 50 Hz they read 0.4 µm, and a creep the model missed sat
-"within the floor". The fitted model's held-out residual is an upper bound
+estimator above reads that signal (a 15 Hz mode sampled at 50 Hz under steps:
+more than a hundred times the noise variance, `tests/test_noise_floor.py`), and
+a creep the model missed sat "within the floor". The fitted model's held-out residual is an upper bound
 too (noise plus whatever the model misses, on samples it was not fitted to),
 and its differences remove a slow miss as they remove a slow signal:
 `bounded_by_residual` takes them where they lie below `RESIDUAL_SWITCH` of the
