@@ -424,7 +424,7 @@ def test_stack_switches_and_parameters():
 
 def test_stack_errors():
     with pytest.raises(InputError, match="unknown effect"):
-        EffectStack(RCNetwork(), ("creep",))
+        EffectStack(RCNetwork(), ("wobble",))
     with pytest.raises(InputError, match="collide"):
         EffectStack(RCNetwork(), ("delay", "delay"))
     with pytest.raises(InputError, match="relaxation_fraction must be strictly between 0 and 1"):
