@@ -21,7 +21,7 @@ from ..core._models import Model
 from . import residual_tests as rt
 from ._diagnosis import Candidate, EquallyGoodFits, HeldoutMetrics
 from ._effect_stack import EffectStack
-from ._effects import FrameTiming
+from ._effects import FrameTiming, thresholds_of
 from ._search import predictions
 
 
@@ -33,11 +33,6 @@ def derived_quantities(problem, theta, active) -> dict:
         for name, values in stack.derived(series.v_in, series.dt, n=series.n_recorded).items():
             out.setdefault(name, values)
     return out
-
-
-def thresholds_of(effect, materiality: dict) -> dict:
-    """`effect`'s materiality thresholds, each overridden by `materiality`'s value of that name."""
-    return {k: materiality.get(k, v) for k, v in effect.thresholds.items()}
 
 
 def _material(

@@ -12,6 +12,7 @@ become dicts only in `to_dict()`, the edge that writes ``report.json``.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -20,6 +21,7 @@ from ..core._fit import PAPER_UNITS
 from ..util._errors import InputError
 from ._ambiguity import TEST as AMBIGUITY_TEST
 from ._effect_set import EFFECTS, NAMED_ONLY
+from ._effects import thresholds_of
 
 if TYPE_CHECKING:
     from ._noise_floor import NoiseFloor
@@ -164,6 +166,11 @@ class DiagnoseSettings:
                 f"materiality (--materiality, DiagnoseSettings.materiality) names {unknown}, which no searched "
                 "effect has; "
                 f"the thresholds are {sorted(out)}"
+            )
+        bad = {k: v for k, v in self.materiality.items() if not (math.isfinite(v) and v >= 0)}
+        if bad:
+            raise InputError(
+                f"materiality (--materiality, DiagnoseSettings.materiality) takes a size ≥ 0, got {bad}"
             )
         return {**out, **self.materiality}
 
@@ -389,19 +396,21 @@ class Diagnosis:
     #: `causes` gives beside the final model's parameters (a step's own values are its candidates').
     final_derived: dict = dataclasses.field(default_factory=dict)
 
+    def _effect(self, name: str):
+        """The searched effect `name` (the built-in classes where none are recorded), or None."""
+        return next((e for e in self.effects or tuple(EFFECTS.values()) if e.name == name), None)
+
     def effect_parameters(self, name: str) -> tuple[str, ...]:
         """The parameter names of the searched effect `name` (none for an unknown name)."""
-        for effect in self.effects or tuple(cls for cls in EFFECTS.values()):
-            if effect.name == name:
-                return tuple(effect.constraints)
-        return ()
+        effect = self._effect(name)
+        return () if effect is None else tuple(effect.constraints)
 
     def effect_reading(self, name: str, values: dict[str, float]) -> str:
         """What the searched effect `name` fitted to `values` means for the system (`AbstractEffect.reading`)."""
-        for effect in self.effects:
-            if effect.name == name and not isinstance(effect, type):
-                return effect.reading(values, self.signal_units.get("w", ""))
-        return ""
+        effect = self._effect(name)
+        if effect is None or isinstance(effect, type):
+            return ""
+        return effect.reading(values, self.signal_units.get("w", ""))
 
     @property
     def gain(self) -> float:
@@ -466,16 +475,15 @@ class Diagnosis:
                 if c.name in named or c.material or not c.reasons:
                     continue
                 if all(r.startswith("not material") for r in c.reasons) and c.gain >= self.settings.min_gain:
-                    effect = next((e for e in self.effects if e.name == c.name), None)
+                    effect = self._effect(c.name)
                     by_name[c.name] = {
                         "name": c.name,
                         "step": k,
                         "gain": c.gain,
                         "materiality": c.materiality,
-                        "thresholds": {
-                            t: self.settings.materiality.get(t, v)
-                            for t, v in (effect.thresholds if effect is not None else {}).items()
-                        },
+                        "thresholds": {}
+                        if effect is None
+                        else thresholds_of(effect, self.settings.materiality),
                     }
         return sorted(by_name.values(), key=lambda d: -d["gain"])
 

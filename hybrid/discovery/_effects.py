@@ -261,6 +261,11 @@ class AbstractEffect(eqx.Module):
         return {}
 
 
+def thresholds_of(effect, materiality: dict) -> dict:
+    """`effect`'s materiality thresholds, each overridden by `materiality`'s value of that name."""
+    return {k: materiality.get(k, v) for k, v in effect.thresholds.items()}
+
+
 def init_values(effect, values):
     """Set `effect.raw` from its defaults updated by `values` (what a built-in effect's __init__ does)."""
     merged = {**effect.defaults, **(values or {})}
@@ -354,7 +359,34 @@ def _lagged_lowpass(s, dt, tau):
     return jnp.concatenate([jnp.zeros(1, s.dtype), x[:-1]])
 
 
-class BackRelaxation(AbstractEffect):
+class _SlowResponse(AbstractEffect):
+    """y = s + σ·β·x with τẋ = s − x (x from rest, read one sample late), σ = `sign`: a held drive's response
+    changes slowly by the fraction β with time constant τ.
+
+    Discretised exactly for a signal held over each sample (a = e^{−dt/τ}). The
+    parameters are ``<key>_time_s`` and ``<key>_fraction``; ``derived`` gives
+    ``<key>_percent`` (100 β), and `material` compares it with that threshold.
+    """
+
+    key: ClassVar[str]
+    sign: ClassVar[float]
+
+    def __init__(self, **values):
+        init_values(self, values)
+
+    def apply(self, s, dt):
+        p = self.parameters()
+        return s + self.sign * p[f"{self.key}_fraction"] * _lagged_lowpass(s, dt, p[f"{self.key}_time_s"])
+
+    def derived(self, s, dt):
+        return {f"{self.key}_percent": 100.0 * float(self.parameters()[f"{self.key}_fraction"])}
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get(f"{self.key}_percent", 0.0), thresholds[f"{self.key}_percent"]
+        return size >= need, f"{self.key} {size:.1f} % (needs ≥ {need} %)"
+
+
+class BackRelaxation(_SlowResponse):
     """y = s − β x with τ ẋ = s − x: a held drive relaxes by the fraction β with time constant τ.
 
     Discretised exactly for a signal held over each sample (a = e^{−dt/τ}).
@@ -362,20 +394,12 @@ class BackRelaxation(AbstractEffect):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "back_relaxation"
+    key: ClassVar[str] = "relaxation"
+    sign: ClassVar[float] = -1.0
     constraints: ClassVar = {"relaxation_time_s": Positive(), "relaxation_fraction": UnitInterval()}
     units: ClassVar = {"relaxation_time_s": "s", "relaxation_fraction": "1"}
     defaults: ClassVar = {"relaxation_time_s": 10.0, "relaxation_fraction": 0.3}
     thresholds: ClassVar = {"relaxation_percent": 10.0}
-
-    def __init__(self, **values):
-        init_values(self, values)
-
-    def apply(self, s, dt):
-        p = self.parameters()
-        return s - p["relaxation_fraction"] * _lagged_lowpass(s, dt, p["relaxation_time_s"])
-
-    def derived(self, s, dt):
-        return {"relaxation_percent": 100.0 * float(self.parameters()["relaxation_fraction"])}
 
     def starts(self, context):
         return [
@@ -384,12 +408,8 @@ class BackRelaxation(AbstractEffect):
             {"relaxation_time_s": 3.0, "relaxation_fraction": 0.8},
         ]
 
-    def material(self, derived, parameters, thresholds):
-        size, need = derived.get("relaxation_percent", 0.0), thresholds["relaxation_percent"]
-        return size >= need, f"relaxation {size:.1f} % (needs ≥ {need} %)"
 
-
-class Creep(AbstractEffect):
+class Creep(_SlowResponse):
     """y = s + β x with τ ẋ = s − x: a held drive's response creeps on by the fraction β with time constant τ.
 
     The mirror of `BackRelaxation` (which gives some of the response back): a
@@ -405,20 +425,12 @@ class Creep(AbstractEffect):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "creep"
+    key: ClassVar[str] = "creep"
+    sign: ClassVar[float] = 1.0
     constraints: ClassVar = {"creep_time_s": Positive(), "creep_fraction": Positive()}
     units: ClassVar = {"creep_time_s": "s", "creep_fraction": "1"}
     defaults: ClassVar = {"creep_time_s": 5.0, "creep_fraction": 0.1}
     thresholds: ClassVar = {"creep_percent": 3.0}
-
-    def __init__(self, **values):
-        init_values(self, values)
-
-    def apply(self, s, dt):
-        p = self.parameters()
-        return s + p["creep_fraction"] * _lagged_lowpass(s, dt, p["creep_time_s"])
-
-    def derived(self, s, dt):
-        return {"creep_percent": 100.0 * float(self.parameters()["creep_fraction"])}
 
     def starts(self, context):
         return [
@@ -426,10 +438,6 @@ class Creep(AbstractEffect):
             {"creep_time_s": 5.0, "creep_fraction": 0.1},
             {"creep_time_s": min(30.0, context.duration / 3), "creep_fraction": 0.1},
         ]
-
-    def material(self, derived, parameters, thresholds):
-        size, need = derived.get("creep_percent", 0.0), thresholds["creep_percent"]
-        return size >= need, f"creep {size:.1f} % (needs ≥ {need} %)"
 
 
 def _soft_clip(s, k):

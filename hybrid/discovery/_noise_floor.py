@@ -70,6 +70,9 @@ SPECTRAL_BAND = (0.8, 1.0)
 RESIDUAL_SWITCH = 0.5
 #: Taps of `linear_fit_residual`'s response to the drive (samples).
 FIR_TAPS = 32
+#: The labels of the floors read from a fit's residual (`_leaked`): ``<label>_differences_k``.
+FITTED_LABELS = ("residual", "linear_fit")
+_ORDINALS = {1: "first", 2: "second", 3: "third", 4: "fourth"}
 #: Largest number of grid steps a recording's range may span for `quantisation_step` to call it a grid.
 MAX_GRID_STEPS = 10**7
 
@@ -102,6 +105,11 @@ class NoiseFloor:
     @property
     def std(self) -> float:
         return math.sqrt(self.variance)
+
+    @property
+    def from_fit(self) -> bool:
+        """Whether the floor was read from a fit's residual (`bounded_by_residual`, `linear_fit_residual`)."""
+        return self.method.startswith(tuple(f"{label}_" for label in FITTED_LABELS))
 
     def to_dict(self) -> dict:
         return {
@@ -148,7 +156,7 @@ def describe_source(method: str, n: int, rate: float, period: int = 0) -> str:
     """What the estimator `method` read, in words, for `n` samples at `rate` Hz."""
     if method.startswith("differences_"):
         k = int(method.rsplit("_", 1)[1])
-        order = {1: "first", 2: "second", 3: "third", 4: "fourth"}.get(k, f"order-{k}")
+        order = _ORDINALS.get(k, f"order-{k}")
         return (
             f"the {order} differences of w over {n} samples (how much w varies from one sample to the next "
             "beyond a smooth signal, white noise assumed)"
@@ -349,7 +357,7 @@ def _leaked(floor: NoiseFloor, parts, label: str, what: str, blocks: int = 8) ->
     means = np.asarray([b.mean() for b in np.array_split(squares[order], blocks) if b.size])
     std_error = float(np.std(means, ddof=1) / math.sqrt(means.size)) if means.size > 1 else float("nan")
     n = sum(p.size for p in parts)
-    name = {1: "first", 2: "second", 3: "third", 4: "fourth"}[order]
+    name = _ORDINALS[order]
     source = (
         f"the {name} differences of {what} over {n} samples, white noise assumed (w's own estimate, "
         f"σ = {floor.std:.3g} from its {floor.method}, read a signal that is fast beside the noise)"

@@ -45,12 +45,9 @@ def floor_caveat(mse: float, floor: NoiseFloor) -> str | None:
     """A sentence when a held-out MSE is so far above the floor that the floor tells little, else None."""
     if not (floor.variance > 0 and mse > FAR_ABOVE_FLOOR * floor.variance):
         return None
-    fitted = floor.method.startswith(
-        ("residual_", "linear_fit_")
-    )  # its source also says why w's own was not kept
-    what = (
+    what = (  # a fit's floor: its source also says why w's own was not kept
         f"the differences of a fit's held-out residual ({floor.method})"
-        if fitted
+        if floor.from_fit
         else floor.source or floor.method
     )
     return (
