@@ -21,7 +21,12 @@ this recording when either
   this drive, however long, would separate them.
 
 Both criteria are computed from the held-out (test) part alone, which no fit
-saw. Where the recording shows why the rivals look alike, the report says it:
+saw. A candidate that passed every rule of the step but materiality
+(`Candidate.refused_for_size`) and gains *more* held out than the named cause
+is a rival too (``"too_small": true``), whatever the tests say: a cause that
+a better, smaller fit beats may stand in for it or for an effect outside the
+library (a piezo stage's creep under a staircase, tried as a new user would:
+`drift` named at 2.39× while `backlash`, 6.07×, was too small to count). Where the recording shows why the rivals look alike, the report says it:
 
 - the drive's level and time are correlated (|r| ≥ `LEVEL_TIME_R` between
   the drive's running mean, over a tenth of the recording, and time): an
@@ -104,7 +109,8 @@ TEST = (
     "a rival (an effect that also passed every rule of the step) is indistinguishable from the named "
     "cause when the named cause's lower squared held-out error wins in no more contiguous chunks (each as "
     f"long as the errors' decorrelation length) than chance would give (one-sided sign test, p > {ALPHA:g}), "
-    "or when their held-out predictions differ by less than the noise floor (RMS); a last step that named "
+    "or when their held-out predictions differ by less than the noise floor (RMS); a candidate refused for "
+    "its size alone that gains more held out than the named cause is a rival too; a last step that named "
     "nothing is open (named 'none') when, beside a remainder above the noise floor, candidates gain "
     f"≥ {HINT_GAIN:g} held out with predictions at least the noise floor apart from nothing more's, or, at the floor, a "
     f"candidate wins significantly many chunks (p ≤ {ALPHA:g}) and gains ≥ {HINT_GAIN:g} held out over every "
@@ -244,11 +250,14 @@ def ambiguities(
             continue
         rivals = []
         for c in step.candidates:
-            if c is named or c.name == named.name or not c.eligible or c.heldout_residual is None:
+            if c is named or c.name == named.name or c.heldout_residual is None:
+                continue
+            small = c.refused_for_size and c.gain > named.gain
+            if not (c.eligible or small):
                 continue
             rival = _rival(named, c, scale, noise_std)
-            if rival["p_value"] > ALPHA or rival["within_noise"]:
-                rivals.append(rival)
+            if small or rival["p_value"] > ALPHA or rival["within_noise"]:
+                rivals.append({**rival, "too_small": True} if small else rival)
         if rivals:
             out.append(
                 {
@@ -362,7 +371,7 @@ def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[s
 
 def sentence(entry: dict) -> str:
     """report.md's sentence for one ``ambiguous`` entry."""
-    rivals = ", ".join(f"{r['name']} (gain {r['gain']:.3g})" for r in entry["rivals"])
+    rivals = _listed(entry["rivals"])
     why = "; ".join(entry["why"])
     if entry.get("open"):
         if entry.get("evidence") == "confound":
@@ -394,12 +403,32 @@ def sentence(entry: dict) -> str:
             + (f" ({why})." if why else ".")
             + " A drive designed to separate them (hybrid design) would tell."
         )
-    how = (
-        "their held-out predictions differ by less than the noise"
-        if all(r["within_noise"] for r in entry["rivals"])
-        else "on the held-out part the named cause is not significantly better (sign test)"
-    )
-    return (
-        f"This recording cannot tell step {entry['step']}'s {entry['named']} (gain {entry['gain']:.3g}) from "
-        f"{rivals}: {how}" + (f" ({why})." if why else ".") + " Another drive is needed to separate them."
-    )
+    alike = [r for r in entry["rivals"] if not r.get("too_small")]
+    small = [r for r in entry["rivals"] if r.get("too_small")]
+    out = []
+    if alike:
+        how = (
+            "their held-out predictions differ by less than the noise"
+            if all(r["within_noise"] for r in alike)
+            else "on the held-out part the named cause is not significantly better (sign test)"
+        )
+        out.append(
+            f"This recording cannot tell step {entry['step']}'s {entry['named']} (gain {entry['gain']:.3g}) from "
+            f"{_listed(alike)}: {how}"
+            + (f" ({why})." if why else ".")
+            + " Another drive is needed to separate them."
+        )
+    if small:
+        out.append(
+            f"Step {entry['step']} named {entry['named']} (gain {entry['gain']:.3g}), yet {_listed(small)} "
+            f"{'fits' if len(small) == 1 else 'fit'} the held-out part better and {'was' if len(small) == 1 else 'were'} "
+            f"refused only for {'its' if len(small) == 1 else 'their'} size: {entry['named']} may stand in for "
+            "a small effect, or for one outside the library, so the name is not sure. If an effect that small "
+            "matters here, count it with --materiality NAME=VALUE (see 'too small'); else try other effects "
+            "(--effects) or a drive designed to separate them (hybrid design)."
+        )
+    return " ".join(out)
+
+
+def _listed(rivals: list[dict]) -> str:
+    return ", ".join(f"{r['name']} (gain {r['gain']:.3g})" for r in rivals)

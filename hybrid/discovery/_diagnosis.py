@@ -320,6 +320,11 @@ class Candidate:
     heldout_residual: np.ndarray | None = None
     """w − ŵ on the held-out part, in the recording's units (for comparing rivals; not in ``report.json``)."""
 
+    @property
+    def refused_for_size(self) -> bool:
+        """Whether every rule of its step passed but materiality (`Diagnosis.too_small`)."""
+        return bool(self.reasons) and all(r.startswith("not material") for r in self.reasons)
+
     def to_dict(self) -> dict:
         return {
             "name": self.name,
@@ -472,9 +477,9 @@ class Diagnosis:
         by_name: dict[str, dict] = {}
         for k, step in enumerate(self.steps, 1):
             for c in step.candidates:
-                if c.name in named or c.material or not c.reasons:
+                if c.name in named:
                     continue
-                if all(r.startswith("not material") for r in c.reasons) and c.gain >= self.settings.min_gain:
+                if c.refused_for_size and c.gain >= self.settings.min_gain:
                     effect = self._effect(c.name)
                     by_name[c.name] = {
                         "name": c.name,
