@@ -57,6 +57,12 @@ def test_smoothed_oversampled_data_warn_and_say_what_the_floor_read():
     # a model as close as the true noise allows (5 µm RMS) is far above this floor: the caveat says so
     caveat = floor_caveat(sigma**2, floor)
     assert caveat is not None and f"{sigma / floor.std:.3g}× the floor's σ" in caveat
+    assert "if w was smoothed" in caveat  # nothing says whose the excess is: the floor is doubted
+    # the excess is the smoothed noise, which no map of the drive predicts; one that a map recovers held
+    # out is the model's miss, and the caveat says so rather than doubting the floor
+    assert "if w was smoothed" in floor_caveat(sigma**2, floor, recovered=0.3)
+    missed = floor_caveat(sigma**2, floor, recovered=0.8)
+    assert missed is not None and "recovers 80% of that excess" in missed and "smoothed," not in missed
     report = "\n".join(
         noise_section(
             {

@@ -141,3 +141,7 @@ def test_a_creep_beside_a_fast_mode_is_not_lost_in_a_floor_that_read_the_mode(tm
     left = report["unexplained"]
     assert left is not None and left["fraction_above_floor"] > 0.9, report["verdict"]
     assert "linear filter of the drive" in left["description"]["summary"]
+    # far above the floor, and a map of the drive recovers most of it: the caveat says the excess is the
+    # model's, not that the data may have been smoothed (which the floor's own check does not suggest here)
+    assert left["ratio_to_floor"] > 100 and "the model's miss" in left["floor_warning"], left
+    assert "smoothed, filtered" not in left["floor_warning"]

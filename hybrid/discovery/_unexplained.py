@@ -41,8 +41,22 @@ from ._search import split_signals
 FAR_ABOVE_FLOOR = 100.0
 
 
-def floor_caveat(mse: float, floor: NoiseFloor) -> str | None:
-    """A sentence when a held-out MSE is so far above the floor that the floor tells little, else None."""
+#: Share of the excess over the floor that a map of the drive, the model or time recovers held out from
+#: which the caveat says the excess is the model's miss rather than doubting the floor.
+MISS_RECOVERED = 0.5
+
+
+def floor_caveat(mse: float, floor: NoiseFloor, recovered: float | None = None) -> str | None:
+    """A sentence when a held-out MSE is so far above the floor that the floor tells little, else None.
+
+    `recovered`: the share of the excess that the remainder's best map recovers
+    held out (``description["recovered"]["of_excess"]``). Where it is at least
+    `MISS_RECOVERED`, the excess is predictable from the drive, the model or
+    time, which noise (smoothed or not) is not: it is the model's miss, and the
+    sentence says so instead of doubting the floor (a piezo stage read to 0.03
+    µm, tried as a new user would, was told "if w was smoothed …" beside a
+    creep its model lacked).
+    """
     if not (floor.variance > 0 and mse > FAR_ABOVE_FLOOR * floor.variance):
         return None
     what = (  # a fit's floor: its source also says why w's own was not kept
@@ -50,12 +64,19 @@ def floor_caveat(mse: float, floor: NoiseFloor) -> str | None:
         if floor.from_fit
         else floor.source or floor.method
     )
-    return (
+    head = (
         f"the held-out error's RMS is {math.sqrt(mse / floor.variance):.3g}× the floor's σ: the floor, from "
         f"{what}, is far below the model's error, so the share above it says only that the "
-        "model misses by far more than w varies from sample to sample; if w was smoothed, filtered, interpolated "
-        "or oversampled, that processing removed the variation the floor reads, and the measurement error is "
-        "not known from the data"
+        "model misses by far more than w varies from sample to sample"
+    )
+    if recovered is not None and math.isfinite(recovered) and recovered >= MISS_RECOVERED:
+        return (
+            f"{head}; a map fitted on the training part recovers {recovered:.0%} of that excess held out, which "
+            "measurement noise, smoothed or not, would not allow: most of the excess is the model's miss"
+        )
+    return (
+        f"{head}; if w was smoothed, filtered, interpolated or oversampled, that processing removed the "
+        "variation the floor reads, and the measurement error is not known from the data"
     )
 
 
@@ -212,7 +233,7 @@ def remainder(
         "ratio_to_floor": mse / floor.variance,
         "description": description,
     }
-    caveat = floor_caveat(mse, floor)
+    caveat = floor_caveat(mse, floor, (description.get("recovered") or {}).get("of_excess"))
     if caveat:
         out["floor_warning"] = caveat
     if equally_good is not None and np.isfinite(equally_good.heldout_nmse_min):
