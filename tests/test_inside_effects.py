@@ -658,6 +658,17 @@ def test_a_final_model_bent_out_of_its_plausible_range_or_on_a_scale_of_its_own_
         len(scaled) == 1 and "the readout's gain is 0.2438" in scaled[0] and "4.1× the measured" in scaled[0]
     )
     assert "(V)" in scaled[0]
+    assert "upside down" not in scaled[0] and "step between units" not in scaled[0]
+    # a negative gain: the output is the simulation's upside down (a current's sign flipped)
+    (flipped,) = model_warnings(model(0.1, -0.9), frozenset())
+    assert "upside down" in flipped and "step between units" not in flipped
+    # a gain near 1/1000: a drive in mA for a simulation in A (and near 1000, the other way)
+    for g, power in ((1.04e-3, -3), (-980.0, 3)):
+        (units,) = model_warnings(model(0.1, g), frozenset())
+        assert f"near 10^{power}, the step between units" in units, units
+        assert ("upside down" in units) is (g < 0)
+    (far,) = model_warnings(model(0.1, 2e-3), frozenset())  # twice 1/1000: no unit step
+    assert "step between units" not in far
     # w in another unit than the simulation's output: the gain converts units, and says nothing of scale
     other = dataclasses.replace(model(0.1, 0.2438), signal_units=("mm", "V"))
     assert model_warnings(other, frozenset()) == []

@@ -480,6 +480,8 @@ def diagnose(
 #: A dimensionless readout gain farther than this factor from 1 puts the simulation's output on a scale
 #: of its own (`model_warnings`).
 GAIN_FACTOR = 1.2
+#: A readout gain within this factor of a power of 1000 reads as a unit mismatch (mA for A).
+UNIT_STEP = 1.1
 
 
 def model_warnings(model: Model, frozen) -> list[str]:
@@ -491,7 +493,10 @@ def model_warnings(model: Model, frozen) -> list[str]:
     range, and "no effect needed" at 1.3× the floor). A readout gain of no
     unit (the simulation's output in the recording's unit) far from 1: sizes
     in the simulation's output unit or its states' (an output effect's level,
-    a state's map) are on the simulation's own scale, not the measured one.
+    a state's map) are on the simulation's own scale, not the measured one;
+    near a power of 1000, a unit mismatch (a battery user's drive in mA for a
+    cell model in A); negative, the output upside down (their current's sign
+    flipped), which the gain took up without a word.
     """
     out = implausible(
         model,
@@ -503,16 +508,33 @@ def model_warnings(model: Model, frozen) -> list[str]:
     if (
         gain is not None
         and model.units.get("gain") == "1"
-        and abs(math.log(abs(float(gain)) or 1e-300)) > math.log(GAIN_FACTOR)
+        and (float(gain) < 0 or abs(math.log(abs(float(gain)) or 1e-300)) > math.log(GAIN_FACTOR))
     ):
         unit = unit_in(model.simulation.output_unit, getattr(model.simulation, "drive_unit", "V"))
-        out.append(
-            f"the readout's gain is {float(gain):.4g} (w = {float(gain):.4g}·y + offset): the simulation's "
-            f"output y, and every size in its unit ({unit}) or its states' (an output effect's level, a "
-            f"state's map), is on the simulation's own scale, {1 / abs(float(gain)):.3g}× the measured one; "
-            "to read them in the measured unit, fix the simulation's scale: freeze a parameter that sets it "
-            "(frozen_by_default in the plug-in, docs/plugins.md)"
-        )
+        g = float(gain)
+        said = [f"the readout's gain is {g:.4g} (w = {g:.4g}·y + offset)"]
+        if g < 0:
+            said.append(
+                "the simulation's output y is upside down: y and w have opposite signs (a drive or a sensor "
+                "wired or defined the other way: a current's direction, a displacement's axis)"
+            )
+        if abs(math.log(abs(g) or 1e-300)) > math.log(GAIN_FACTOR):
+            who = "y" if g < 0 else "the simulation's output y"
+            said.append(
+                f"{who}, and every size in its unit ({unit}) or its states' (an output effect's level, a "
+                f"state's map), is on the simulation's own scale, {1 / abs(g):.3g}× the measured one"
+            )
+            power = round(math.log10(abs(g)) / 3) * 3
+            if power and abs(math.log10(abs(g)) - power) < math.log10(UNIT_STEP):
+                said.append(
+                    f"{abs(g):.3g} is near 10^{power}, the step between units (mA and A, mm and m): check the "
+                    "drive's and w's units against those the simulation expects"
+                )
+            said.append(
+                "to read them in the measured unit, fix the simulation's scale: freeze a parameter that "
+                "sets it (frozen_by_default in the plug-in, docs/plugins.md)"
+            )
+        out.append(said[0] + ": " + "; ".join(said[1:]))
     return out
 
 
