@@ -386,3 +386,85 @@ def test_a_map_is_read_as_a_form_only_by_the_rules():
         _read_form(forms(None, (0.3, 1.0), (0.95, -2.0))) == "cube"
     )  # a softening spring (no step: one sign)
     assert _read_form(forms(None, (0.3, 1.0), (0.95, None))) is None  # no finite size: no reading
+
+
+@pytest.mark.parametrize("bent", [True, False])
+def test_a_state_read_on_the_output_through_a_bend_is_placed_on_that_state(bent):
+    # A cell: its charge q integrates the drive (a current wandering between ±2, held 40–200 samples,
+    # turned back at 0.2 and 0.8) and a lag state s follows the drive; ŵ reads both straight. The
+    # remainder is a function of q added to the output: a tanh bend of q (an open-circuit voltage's
+    # knee) or a straight line in q. The bend is "static in the state charge"; a straight line in a
+    # state is a linear readout of the states (a linear filter of the drive), not a static map of one.
+    from hybrid.discovery._remainder import ROLES, basis_forces, state_basis
+
+    rng = np.random.default_rng(11)
+    drive, level, q, k = np.zeros(N), 0.0, 0.5, 0
+    while k < N:
+        hold = int(rng.integers(40, 200))
+        level = rng.choice([-2.0, -1.0, 1.0, 2.0])
+        level = -abs(level) if q > 0.8 else abs(level) if q < 0.2 else level
+        q += level * min(hold, N - k) / 2000.0
+        drive[k : k + hold] = level
+        k += hold
+    charge = 0.5 + np.r_[0.0, np.cumsum(drive[:-1])] / 2000.0
+    lag = lowpass(drive, 0.98)
+    w_hat = 0.6 * charge + 0.05 * lag
+    if bent:  # what a fit leaves of the bend: the model reads q straight with a free weight
+        knee = 0.12 * np.tanh(8.0 * (charge - 0.5))
+        straight = np.c_[np.ones(N), charge, lag]
+        r = knee - straight @ np.linalg.lstsq(straight, knee, rcond=None)[0]
+    else:
+        r = 0.3 * (charge - charge.mean())
+    w = w_hat + r + 0.002 * rng.standard_normal(N)
+    t = np.arange(N) / RATE
+    segment = np.arange(N) // 500
+    held = segment % 4 == 3
+    states = {"charge": charge, "lag": lag}
+    bases = {name: state_basis(x[~held]) for name, x in states.items()}
+    columns, rows = [], []
+    for name, x in states.items():
+        columns += [(name, role) for role in ROLES]
+        rows += list(basis_forces(bases[name], x))
+    direct = np.stack(rows)
+    responses = lowpass(direct, 0.98)  # a force's response: through the plant's lag (not what is read here)
+
+    def part(mask):
+        return {
+            "t": t[mask],
+            "v_in": drive[mask],
+            "w": w[mask],
+            "w_hat": w_hat[mask],
+            "segment": segment[mask],
+        }
+
+    feedback = {
+        "states": list(states),
+        "columns": columns,
+        "train": responses[:, ~held],
+        "heldout": responses[:, held],
+        "direct_train": direct[:, ~held],
+        "direct_heldout": direct[:, held],
+        "bases": bases,
+        "values": {name: x[~held] for name, x in states.items()},
+        "units": {"charge": "1", "lag": "A"},
+        "drive_unit": "A",
+        "gain": 1.0,
+    }
+    d = describe_remainder(part(~held), part(held), RATE, 0.002**2, feedback)
+    json.dumps(d, allow_nan=False)
+    charge_map = d["state_output"]["states"]["charge"]
+    if bent:
+        assert d["state_output"]["best"] == "charge" and charge_map["bends"]
+        assert charge_map["of_excess"] > 0.9 and charge_map["linear"]["of_excess"] < 0.3
+        assert d["recovered"]["named"] == "state_output" and d["kind"] == "static"
+        assert d["summary"].startswith("static in the simulation's state charge, on its output"), d["summary"]
+        # the map's curve is the knee's shape: beyond a straight line in q (which ŵ and the fit share),
+        # the tanh's S over q's training range
+        x, curve = np.asarray(charge_map["curve"]["x"]), np.asarray(charge_map["curve"]["r"])
+        line = np.c_[np.ones_like(x), x]
+        bend = lambda y: y - line @ np.linalg.lstsq(line, y, rcond=None)[0]
+        assert np.corrcoef(bend(curve), bend(np.tanh(8.0 * (x - 0.5))))[0, 1] > 0.98
+    else:
+        # the straight line is recovered as well, but needs no bend: not a static map of the state
+        assert charge_map["of_excess"] > 0.9 and not charge_map["bends"]
+        assert "best" not in d["state_output"] and d["recovered"]["named"] != "state_output"

@@ -32,6 +32,10 @@ the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
   dynamics, e.g. an oscillator's cubic (odd) or quadratic (even) restoring
   force, whose effect on w is its force passed through the resonance. The
   first-order perturbation of a Duffing oscillator is exactly this.
+- **states** (a simulation in state-space form with at most `MAX_STATES`
+  states): a map of each state fed back into the drive, through the model's
+  linearised response (`_state_feedback`), and the same map read on the
+  output (`_state_output`: a readout that bends with a state, a static map).
 
 Every extension is fitted on `train` and judged on `heldout`: a flexible fit
 always explains some of its training noise, so only a held-out gain shows
@@ -59,6 +63,7 @@ FAMILY = {
     "static_drive": "static",
     "static_output_monotone": "static",
     "static_output_free": "static",
+    "state_output": "static",
     "filter_drive": "dynamic",
     "rate": "dynamic",
     "filter_output": "dynamic",
@@ -513,6 +518,63 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
     return out
 
 
+#: A state's map read on the output counts as where the rest lives only where its bend carries this share
+#: of what it recovers: what the state's linear column recovers is a linear readout of the states, a
+#: linear filter of the drive (an output lag), not a static function of a state.
+BEND_SHARE = 0.5
+
+
+def _state_output(tr, ho, feedback: dict, judge) -> dict:
+    """A static map of each state added to the output: a readout that is a nonlinear function of a state.
+
+    A battery's open-circuit voltage is a function of its charge, a state the
+    model has, added to the terminal voltage: no map of the drive, the output
+    or a force fed back finds it (a new user's cell read "a trend in time").
+    Per state, ŵ and the map's hats are fitted on the training
+    part and judged held out, as is ŵ beside the state's linear column alone;
+    the map counts (``bends``) where what it recovers beyond that linear
+    column is at least `BEND_SHARE` of what it recovers. Its curve is in w's
+    unit over the state's training range.
+    """
+    cols = feedback["columns"]
+    d_tr, d_ho = feedback["direct_train"][:, tr["ok"]], feedback["direct_heldout"][:, ho["ok"]]
+    if not np.all(np.isfinite(d_tr)) or not np.all(np.isfinite(d_ho)):
+        return {"reason": "the simulation's states are not finite on this recording"}
+    score = judge.score
+    out: dict[str, Any] = {"states": {}}
+    for name in feedback["states"]:
+        basis = feedback["bases"][name]
+        knots = basis["knots"]
+        if len(knots) < 2:  # constant on the training part: no map to fit
+            continue
+        own = {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
+        # hats alone: the step at zero is a friction's, and zero is no mark on a state read out (a charge)
+        free = [own[f"hat_{k}"] for k in range(len(knots))]
+        pred, coef = _least_squares(
+            [tr["w_hat"]] + [d_tr[j] for j in free], tr["r"], [ho["w_hat"]] + [d_ho[j] for j in free]
+        )
+        result = judge(pred)
+        straight, _ = _least_squares(
+            [tr["w_hat"], d_tr[own["linear"]]], tr["r"], [ho["w_hat"], d_ho[own["linear"]]]
+        )
+        linear = judge(straight)
+        grid = np.linspace(knots[0], knots[-1], 101)
+        rows = basis_forces(basis, grid)
+        curve = np.sum([c * rows[ROLES.index(cols[j][1])] for c, j in zip(coef[1:], free)], axis=0)
+        gained = score(result) - score(linear)
+        out["states"][name] = dict(
+            result,
+            unit=feedback["units"].get(name, ""),
+            linear=linear,
+            bends=bool(score(result) > 0 and gained >= BEND_SHARE * score(result)),
+            curve={"x": _list(grid), "r": _list(curve - np.min(curve))},
+        )
+    bent = {k: v for k, v in out["states"].items() if v["bends"]}
+    if bent:
+        out["best"] = max(bent, key=lambda k: bent[k]["fraction"] or -np.inf)
+    return out
+
+
 def _unavailable(why: str, n_tr: int, n_ho: int) -> dict:
     """The description when there is nothing to judge: every part a reason."""
     return {
@@ -632,6 +694,12 @@ def describe_remainder(
             scores["state_map"] = fed["states"][fed["best"]]
             fed["alike"] = _alike(feedback.get("values") or {}, fed["best"])
 
+    on_output: dict[str, Any] | None = None
+    if feedback is not None and "direct_train" in feedback:
+        on_output = _state_output(tr, ho, feedback, judge)
+        if on_output.get("best"):
+            scores["state_output"] = on_output["states"][on_output["best"]]
+
     offset = judge(np.full(n_ho, tr["r"].mean()))
     out = {
         "n_train": n_tr,
@@ -646,7 +714,9 @@ def describe_remainder(
     }
     if fed is not None:
         out["state_feedback"] = fed
-    out.update(_verdict(scores, judge, static, offset, fed))
+    if on_output is not None:
+        out["state_output"] = on_output
+    out.update(_verdict(scores, judge, static, offset, fed, on_output))
     return out
 
 
@@ -663,7 +733,14 @@ def _map_words(part: dict) -> str:
     return f" ({'; '.join(words)})" if words else ""
 
 
-def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict | None = None) -> dict:
+def _verdict(
+    scores: dict,
+    judge: _Judge,
+    static: dict,
+    offset: dict,
+    fed: dict | None = None,
+    on_output: dict | None = None,
+) -> dict:
     """Best extension, kind (simplest family within MARGIN of the best) and the one-sentence summary."""
 
     score = judge.score
@@ -710,6 +787,17 @@ def _verdict(scores: dict, judge: _Judge, static: dict, offset: dict, fed: dict 
             "it bends at the largest drive levels" if static["bend_at_ends"].get("flag") else "",
         ]
         text += "".join(f"; {n}" for n in notes if n)
+    elif kind == "static" and inkind == "state_output":
+        assert on_output is not None  # scored only with it
+        name = on_output["best"]
+        part = on_output["states"][name]
+        text = (
+            f"static in the simulation's state {name}, on its output: a function of {name} added to the "
+            f"output recovers {pct(inkind)} {where} (a readout that bends with a state, "
+            f"such as a cell's open-circuit voltage with its charge); the best map of the drive "
+            f"{pct('static_drive')}, of the output {pct('static_output_free')}, {name}'s straight line "
+            f"{100 * score(part['linear']):.0f} %"
+        )
     elif kind == "static":
         how = "a monotone" if inkind == "static_output_monotone" else "a"
         text = f"static on the model's output: {how} map of the simulation's output recovers {pct(inkind)} {where}"
@@ -763,7 +851,8 @@ def plot_remainder(description: dict, path, units: dict | None = None) -> None:
     """Two panels: the residual against drive level with the learned map, and the filters' gain.
 
     A third where the state feedback (`_state_feedback`) has a best state: its
-    map, the force taken off the drive against the state.
+    map, the force taken off the drive against the state; or, where the summary
+    names a state's map on the output (`_state_output`), that map.
 
     `units`: the recorded signals' (``{"w": ..., "v_in": ...}``, `Diagnosis.signal_units`; default
     `PAPER_UNITS`) for the labels.
@@ -775,11 +864,22 @@ def plot_remainder(description: dict, path, units: dict | None = None) -> None:
 
     plt = pyplot()
     fed = description.get("state_feedback") or {}
-    state = fed.get("best")
+    read = description.get("state_output") or {}
+    on_output = (description.get("recovered") or {}).get("named") == "state_output"
+    state = read.get("best") if on_output else fed.get("best")
     axes = plt.subplots(1, 3 if state else 2, figsize=(16.5 if state else 11, 4.2))[1]
     left, right = axes[0], axes[1]
     fig = left.figure
-    if state:
+    if state and on_output:  # the map the summary names: a function of a state added to the output
+        part, panel = read["states"][state], axes[2]
+        panel.plot(part["curve"]["x"], part["curve"]["r"], "C3-", lw=1.8)
+        panel.set(
+            xlabel=f"state {state}" + (f" ({part['unit']})" if part.get("unit") else ""),
+            ylabel=f"added to the output ({units['w']}, from its least)",
+        )
+        panel.set_title(f"Map of the state {state} on the output; recovers {_pct(part)}", fontsize=9)
+        panel.grid(True, alpha=0.3)
+    elif state:
         part, panel = fed["states"][state], axes[2]
         panel.plot(part["curve"]["x"], part["curve"]["force"], "C3-", lw=1.8)
         panel.axhline(0.0, color="0.5", lw=0.6)

@@ -121,7 +121,8 @@ def feedback_signals(problem, final) -> dict | None:
     each state from its training values (`state_basis`), and the model's
     output response to each map taken off its drive (`force_responses`, the
     dynamics linearised along the recording), cut to the training and
-    held-out samples. None otherwise.
+    held-out samples; and the maps' columns themselves (``direct_train``,
+    ``direct_heldout``), a map of a state read on the output. None otherwise.
     """
     model = problem.model(jnp.asarray(final.theta))
     stack = model.simulation
@@ -143,22 +144,27 @@ def feedback_signals(problem, final) -> dict | None:
     train = np.concatenate([part for x, s in zip(states, series) for part in cut(x, s, "train")], axis=1)
     bases = {name: state_basis(train[k]) for k, name in enumerate(names)}
     columns: list[tuple[str, str]] = []
-    parts: dict[str, list] = {"train": [], "heldout": []}
+    parts: dict[str, list] = {"train": [], "heldout": [], "direct_train": [], "direct_heldout": []}
     for x, s in zip(states, series):
         rows = []
         for k, name in enumerate(names):
             rows.append(basis_forces(bases[name], x[k]))
             if s is series[0]:
                 columns += [(name, role) for role in ROLES]
-        responses = np.asarray(force_responses(stack, s.v_in, s.dt, jnp.asarray(np.concatenate(rows))))
+        direct = np.concatenate(rows)
+        responses = np.asarray(force_responses(stack, s.v_in, s.dt, jnp.asarray(direct)))
         parts["train"] += cut(responses, s, "train")
         parts["heldout"] += cut(responses, s, "test")
+        parts["direct_train"] += cut(direct, s, "train")  # the maps themselves: read on the output
+        parts["direct_heldout"] += cut(direct, s, "test")
     readout = model.readout.parameters()
     return {
         "states": list(names),
         "columns": columns,
         "train": np.concatenate(parts["train"], axis=1),
         "heldout": np.concatenate(parts["heldout"], axis=1),
+        "direct_train": np.concatenate(parts["direct_train"], axis=1),
+        "direct_heldout": np.concatenate(parts["direct_heldout"], axis=1),
         "bases": bases,
         "values": {name: train[k] for k, name in enumerate(names)},  # on the training part
         "units": {name: unit_in(unit, stack.drive_unit) for name, unit in dynamics[0].state_units.items()},
