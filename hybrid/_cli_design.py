@@ -45,6 +45,13 @@ def add_design(sub, B) -> None:
         help="the drive's range instead of --amplitude, e.g. 0:10",
     )
     p.add_argument(
+        "--output-bounds",
+        default=None,
+        metavar="LOW:HIGH",
+        help="the range every rival's predicted output must keep within (a cell's voltage window, an "
+        "actuator's travel), in the output's unit, e.g. 2.8:4.2 (default: none)",
+    )
+    p.add_argument(
         "--rate",
         type=B.number(*B.RATE, unit="Hz"),
         default=None,
@@ -83,6 +90,17 @@ def add_design(sub, B) -> None:
     )
 
 
+def _pair(flag: str, text: str) -> tuple[float, float]:
+    """LOW:HIGH of a command-line flag, both finite and LOW below HIGH (one line if not)."""
+    try:
+        low, high = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise InputError(f"{flag} {text!r}: give LOW:HIGH, e.g. {flag} 0:10") from None
+    if not (math.isfinite(low) and math.isfinite(high) and low < high):
+        raise InputError(f"{flag} {text!r}: LOW must be below HIGH, both finite")
+    return low, high
+
+
 def _bounds(args) -> dict:
     if args.amplitude is not None and args.bounds is not None:
         raise InputError(
@@ -92,13 +110,7 @@ def _bounds(args) -> dict:
         raise InputError("give the drive's range: --amplitude V (|drive| ≤ V) or --bounds LOW:HIGH")
     if args.amplitude is not None:
         return {"amplitude": args.amplitude}
-    try:
-        low, high = (float(x) for x in args.bounds.split(":"))
-    except ValueError:
-        raise InputError(f"--bounds {args.bounds!r}: give LOW:HIGH, e.g. --bounds 0:10") from None
-    if not (math.isfinite(low) and math.isfinite(high) and low < high):
-        raise InputError(f"--bounds {args.bounds!r}: LOW must be below HIGH, both finite")
-    return {"bounds": (low, high)}
+    return {"bounds": _pair("--bounds", args.bounds)}
 
 
 def _report(folder: Path) -> dict:
@@ -177,6 +189,7 @@ def cmd_design(args) -> None:
     from .physics._plugins import resolve_physics
 
     limits = _bounds(args)
+    output = None if args.output_bounds is None else _pair("--output-bounds", args.output_bounds)
     folder = Path(args.diagnosis)
     out = Path(args.out)
     figure = out.with_suffix(".png")
@@ -190,6 +203,11 @@ def cmd_design(args) -> None:
         entry, models, noise = _rivals(folder, report, args.step)
         if args.rate is None:  # a drive for the rig that made the diagnosed recording: its rate
             args.rate = _diagnosed_rate(folder, report)
+        if entry is None and output is not None:
+            raise InputError(
+                "--output-bounds: the diagnosis found nothing ambiguous, so there are no rivals whose predicted "
+                "output a rich drive could be kept within; narrow --amplitude/--bounds instead"
+            )
         if entry is None:
             t, drive = rich_drive(
                 duration=args.duration, rate=args.rate, slew=args.slew, seed=args.seed, **limits
@@ -215,6 +233,7 @@ def cmd_design(args) -> None:
                 starts=args.starts,
                 steps=args.steps,
                 seed=args.seed,
+                output_bounds=output,
                 **limits,
                 **rich,
             )
@@ -238,6 +257,8 @@ def cmd_design(args) -> None:
         if design.control_criterion > 0
         else ""
     )
+    if output is not None:
+        slew += f", every rival's predicted output within [{output[0]:g}, {output[1]:g}]"
     print(
         f"designed {len(design.v_in)} samples at {args.rate:g} Hz within [{low:g}, {high:g}]{slew}{kept}: "
         f"T = {design.criterion:.3g} ({design.pair[0]} vs {design.pair[1]}){versus}"

@@ -201,6 +201,30 @@ def test_design_refuses_bad_limits_in_one_line(confounded):
     assert "at most 33333.3 s at this rate" in str(caught.value)
 
 
+def test_a_design_keeps_every_rivals_predicted_output_within_its_bounds(confounded):
+    # A battery user's design drove the predicted cell voltage past its 4.2 V window: the drive's range
+    # alone says nothing of where the output goes. With the output's bounds, every rival's prediction
+    # (recomputed here from the models, not read from the design) keeps within them.
+    rivals, noise = _rivals(confounded), confounded.noise_floor.std
+    run = dict(duration=20.0, rate=RATE, noise_std=noise, starts=2, steps=60, amplitude=2.2)
+    free = hybrid.design_drive(rivals, rich=0.0, **run)
+    assert max(np.max(np.abs(p)) for p in free.predictions.values()) > 1.5  # the bound below bites
+    for rich in (0.0, 0.5):  # the rich part (the control PRBS) is narrowed to keep within too
+        design = hybrid.design_drive(rivals, rich=rich, output_bounds=(-1.0, 1.0), **run)
+        assert np.max(np.abs(design.v_in)) <= 2.2
+        for model in rivals.values():
+            predicted = np.asarray(model.predict(design.v_in, 1 / RATE))
+            assert np.min(predicted) >= -1.0 and np.max(predicted) <= 1.0
+        assert design.limits["output_low"] == -1.0 and design.limits["output_high"] == 1.0
+        assert design.criterion > design.control_criterion > 0  # and still designed beyond the control
+    # no drive in the range keeps within: one line, not a drive that breaks the bound
+    with pytest.raises(hybrid.InputError, match="keeps every rival's predicted output") as caught:
+        hybrid.design_drive(rivals, output_bounds=(0.0, 0.01), **run)
+    assert "\n" not in str(caught.value)
+    with pytest.raises(hybrid.InputError, match="low < high"):
+        hybrid.design_drive(rivals, output_bounds=(1.0, -1.0), **run)
+
+
 def test_a_design_never_ends_below_the_control_it_starts_from(confounded):
     # Four rivals that all but agree (T ≪ the soft minimum's width): the gradient follows a near-mean of
     # the six pairs, and the drive kept must be the one with the best least T, not the best near-mean.
@@ -244,6 +268,16 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
         tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--bounds", "0:1", "--out", "y.csv"
     )
     assert twice.returncode == 2 and "not both" in twice.stderr and not (tmp_path / "y.csv").exists()
+    flipped = h.run_hybrid(
+        tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--output-bounds", "1:-1",
+        "--out", "y.csv",
+    )  # fmt: skip
+    assert (
+        flipped.returncode == 2
+        and "--output-bounds" in flipped.stderr
+        and "LOW must be below" in flipped.stderr
+    )
+    assert len(flipped.stderr.strip().splitlines()) == 1 and not (tmp_path / "y.csv").exists()
     # a diagnosis with nothing ambiguous: one line, no file
     plain = tmp_path / "plain"
     plain.mkdir()

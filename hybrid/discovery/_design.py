@@ -86,7 +86,8 @@ class DriveDesign:
     predictions: dict
     """Each rival's predicted output under the drive, by name."""
     limits: dict
-    """The limits the drive respects: ``low``, ``high``, ``slew`` (None: none), ``rate``, ``duration``."""
+    """The limits the drive respects: ``low``, ``high``, ``slew`` (None: none), ``rate``, ``duration``,
+    and the rivals' predicted output's ``output_low``, ``output_high`` (None: none)."""
     criteria_by_start: list
     """T reached from each random start (the best is kept)."""
 
@@ -176,6 +177,64 @@ def _feasible(u, low, high, slew, dt):
     return jnp.concatenate([u[:1], jax.lax.scan(follow, u[0], u[1:])[1]])
 
 
+#: Weight of the squared excursion of a rival's predicted output beyond `output_bounds` (in units of
+#: σ², as T is) in the design's loss: a step past the bound costs far more than it can separate.
+OUTPUT_WEIGHT = 100.0
+#: Shares of the range's half-width, around its middle, that the control's levels are narrowed to, in
+#: turn, until every rival's prediction under the control keeps within `output_bounds`.
+NARROWED = (1.0, 0.75, 0.5, 0.35, 0.25, 0.15, 0.1, 0.05)
+
+
+def _output_range(output_bounds, who="design_drive") -> tuple[float, float] | None:
+    """(low, high) of the predicted output, checked (one line if not), or None."""
+    if output_bounds is None:
+        return None
+    if not isinstance(output_bounds, (tuple, list)) or len(output_bounds) != 2:
+        raise InputError(f"{who}: output_bounds must be (low, high), got {output_bounds!r}")
+    low = _check("output_bounds' low", output_bounds[0], False, who)
+    high = _check("output_bounds' high", output_bounds[1], False, who)
+    if not low < high:
+        raise InputError(f"{who}: output_bounds must have low < high, got {output_bounds!r}")
+    return low, high
+
+
+def _beyond(outs, output) -> jax.Array:
+    """The mean squared excursion of the predictions `outs` beyond the output's range, summed over rivals."""
+    if output is None:
+        return jnp.zeros(())
+    low, high = output
+    return jnp.sum(
+        jnp.stack([jnp.mean(jax.nn.relu(o - high) ** 2 + jax.nn.relu(low - o) ** 2) for o in outs])
+    )
+
+
+def _within(outs, output) -> jax.Array:
+    """Whether every prediction in `outs` keeps within the output's range (and is finite)."""
+    if output is None:
+        return jnp.all(jnp.stack([jnp.all(jnp.isfinite(o)) for o in outs]))
+    low, high = output
+    return jnp.all(jnp.stack([jnp.all((o >= low) & (o <= high)) for o in outs]))
+
+
+def _pulled_back(u, control, evaluate, output, halvings: int = 12) -> tuple[float, jax.Array]:
+    """(least T, drive): the drive nearest `u` on the way to `control` whose predictions keep within `output`.
+
+    `control` keeps within, and every drive between two that respect the
+    range and the slew respects them too (a convex set): bisection on
+    control + α (u − control), α ∈ [0, 1], `halvings` times.
+    """
+    low, high = 0.0, 1.0
+    for _ in range(halvings):
+        mid = 0.5 * (low + high)
+        if bool(_within(evaluate(control + mid * (u - control))[1][1], output)):
+            low = mid
+        else:
+            high = mid
+    drive = control + low * (u - control)
+    pairs = evaluate(drive)[1][0]
+    return float(jnp.min(pairs)), drive
+
+
 def _criterion(models, u, dt, noise_std, softness):
     """(soft minimum over pairs of T, T of every pair, each model's prediction) for the drive `u`."""
     outs = [m.predict(u, dt) for m in models]
@@ -214,6 +273,7 @@ def design_drive(
     learning_rate: float = 0.05,
     seed: int = 0,
     rich: float = 0.5,
+    output_bounds: tuple[float, float] | None = None,
 ) -> DriveDesign:
     """The drive within the rig's limits under which rival models' predictions differ most (T-optimal).
 
@@ -233,6 +293,14 @@ def design_drive(
     - `rich`: the share of the drive, at its start, kept as the control's
       multilevel PRBS (not designed), in [0, 1); T is over the whole drive.
       0.5 by default (see the module's docstring); 0: all designed.
+    - `output_bounds`: (low, high) that every rival's predicted output must
+      keep within (a cell's voltage window, an actuator's travel), in the
+      output's unit; None: no limit. The rivals' predictions are the only
+      knowledge of the output there is, so each must keep within. The loss adds
+      `OUTPUT_WEIGHT` × their squared excursion beyond it (in σ², as T), only
+      drives visited whose predictions all keep within are kept, and the
+      control (the first start and the rich part) is narrowed around the drive
+      range's middle (`NARROWED`) until they do; where none does, one line says so.
     """
     import optax
 
@@ -242,6 +310,7 @@ def design_drive(
         if not isinstance(model, Model):
             raise InputError(f"design_drive: rival {name!r} is a {type(model).__name__}, not a hybrid.Model")
     n, dt, low, high, slew = _limits("design_drive", duration, rate, amplitude, bounds, slew)
+    output = _output_range(output_bounds)
     noise_std = _check("noise_std", noise_std)
     if isinstance(rich, bool) or not isinstance(rich, (int, float)) or not 0.0 <= rich < 1.0:
         raise InputError(f"design_drive: rich must be a share in [0, 1), got {rich!r}")
@@ -256,22 +325,36 @@ def design_drive(
     @jax.jit
     def loss_and_pairs(u, params):
         value, pairs, outs = _criterion(eqx.combine(params, static), u, dt, noise_std, softness)
-        return -value, (pairs, outs)
+        penalty = OUTPUT_WEIGHT * _beyond(outs, output) / noise_std**2
+        return penalty - value, (pairs, outs)
 
     optimiser = optax.adam(learning_rate * 0.5 * (high - low))  # steps in the drive's unit
 
     control = _control(n, low, high, slew, dt, seed)
+    if output is not None:  # the control narrowed until every rival's prediction keeps within
+        middle = 0.5 * (low + high)
+        for share in NARROWED:
+            narrowed = _feasible(jnp.asarray(middle + share * (control - middle)), low, high, slew, dt)
+            if bool(_within(loss_and_pairs(narrowed, params)[1][1], output)):
+                control = np.asarray(narrowed)
+                break
+        else:
+            raise InputError(
+                f"design_drive: no multilevel PRBS within the drive's range keeps every rival's predicted output "
+                f"within [{output[0]:g}, {output[1]:g}], even narrowed to {NARROWED[-1]:.0%} of its half-width "
+                f"around its middle ({middle:g}): widen the output's bounds, or move the drive's range"
+            )
     kept = int(round(rich * n))  # the control's first samples, never moved
     prefix = jnp.asarray(control[:kept])
 
     @jax.jit
     def step(u, state, params):
-        (_, (pairs, _)), grad = jax.value_and_grad(loss_and_pairs, has_aux=True)(u, params)
+        (_, (pairs, outs)), grad = jax.value_and_grad(loss_and_pairs, has_aux=True)(u, params)
         grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
         updates, state = optimiser.update(grad, state, u)
         # the kept part put back; it is feasible, so the projection moves only what follows it
         moved = optax.apply_updates(u, updates).at[:kept].set(prefix)
-        return _feasible(moved, low, high, slew, dt), state, jnp.min(pairs)
+        return _feasible(moved, low, high, slew, dt), state, jnp.min(pairs), _within(outs, output)
 
     rng = np.random.default_rng(seed)
     best_u, best_value, by_start = None, -np.inf, []
@@ -281,21 +364,36 @@ def design_drive(
         u = _feasible(jnp.asarray(levels).at[:kept].set(prefix), low, high, slew, dt)
         state = optimiser.init(u)
         reached, reached_u = -np.inf, u
+        loose, loose_u = -np.inf, u  # the best visited, within the output's bounds or not
         stage(
             f"design: start {start + 1} of {starts} ({'the control PRBS' if start == 0 else 'random levels'})"
         )
         for _ in range(steps + 1):
             # `value` is u's criterion, the least T over the pairs (the gradient follows its soft minimum,
             # which for T ≪ `softness` is near the pairs' mean): keep the u with the best criterion visited
-            new_u, new_state, value = step(u, state, params)
-            if math.isfinite(float(value)) and float(value) > reached:
+            new_u, new_state, value, within = step(u, state, params)
+            if math.isfinite(float(value)) and float(value) > loose:
+                loose, loose_u = float(value), u
+            if bool(within) and math.isfinite(float(value)) and float(value) > reached:
                 reached, reached_u = float(value), u
             u, state = new_u, new_state
+        if output is not None and loose > reached:  # the penalty keeps it near the bound, often just past:
+            # back towards the control (within them) until it keeps within
+            back, pulled = _pulled_back(
+                loose_u, jnp.asarray(control), lambda x: loss_and_pairs(x, params), output
+            )
+            if back > reached:
+                reached, reached_u = back, pulled
         by_start.append(reached if math.isfinite(reached) else float("nan"))
         if reached > best_value:
             best_u, best_value = reached_u, reached
     if best_u is None:
-        raise InputError("design_drive: the rivals' predictions were not finite from any start")
+        raise InputError(
+            "design_drive: the rivals' predictions were not finite from any start"
+            if output is None
+            else f"design_drive: no drive visited kept every rival's predicted output within "
+            f"[{output[0]:g}, {output[1]:g}] and finite"
+        )
     u = np.asarray(best_u)
     pairs, outs = loss_and_pairs(jnp.asarray(u), params)[1]  # the compiled criterion, not an eager rerun
     pairs = np.asarray(pairs)
@@ -309,6 +407,14 @@ def design_drive(
         rich_samples=kept,
         pair=which[int(np.argmin(pairs))],
         predictions={k: np.asarray(out) for k, out in zip(names, outs)},
-        limits={"low": low, "high": high, "slew": slew, "rate": rate, "duration": n / rate},
+        limits={
+            "low": low,
+            "high": high,
+            "slew": slew,
+            "rate": rate,
+            "duration": n / rate,
+            "output_low": None if output is None else output[0],
+            "output_high": None if output is None else output[1],
+        },
         criteria_by_start=by_start,
     )
