@@ -530,10 +530,17 @@ def model_warnings(model: Model, frozen) -> list[str]:
                     f"{abs(g):.3g} is near 10^{power}, the step between units (mA and A, mm and m): check the "
                     "drive's and w's units against those the simulation expects"
                 )
-            said.append(
+            advice = (
                 "to read them in the measured unit, fix the simulation's scale: freeze a parameter that "
                 "sets it (frozen_by_default in the plug-in, docs/plugins.md)"
             )
+            held = sorted(n for n in frozen if n in model.simulation.parameters())
+            if held:  # the scale may be fixed already: then the gain is the fit's, bent by what it lacks
+                advice += (
+                    f"; where one that sets it is fixed already ({', '.join(held)} here), the gain is not a scale "
+                    "left free but the fit bending the simulation to take up an effect it lacks"
+                )
+            said.append(advice)
         out.append(said[0] + ": " + "; ".join(said[1:]))
     return out
 
