@@ -304,6 +304,14 @@ def test_a_misnamed_column_suggests_the_likely_one_not_the_time(tmp_path):
     # No likely name at all: the example is the file's last column for an output, its second for a drive.
     assert "--output position (" in _bad(path, "no column 'zz'", time="time", input="drive", output="zz")
     assert "--input drive (" in _bad(path, "no column 'qq'", time="time", input="qq", output="position")
+    # A logger's name with a space and brackets is quoted as a shell needs it (pasted bare it was two
+    # arguments, '[V]' a glob)
+    logger = tmp_path / "logger.csv"
+    logger.write_text(
+        "Zeit,Heizspannung [V],Temperatur [C]\n" + "".join(f"{k},{k % 3},{k % 5}\n" for k in range(40))
+    )
+    message = _bad(logger, "did you mean 'Heizspannung", time="Zeit", input="Heiz", output="Temperatur [C]")
+    assert "--input 'Heizspannung [V]' (" in message
 
 
 @pytest.mark.parametrize(
@@ -509,3 +517,22 @@ def test_an_oscilloscope_export_maps_below_its_preamble(tmp_path):
     assert rec.rate == pytest.approx(30.0, rel=1e-4) and rec.metadata["units"]["w"] == "mV"
     np.testing.assert_allclose(rec.w, [round(np.cos(k / 7), 4) for k in range(60)])
     assert any("the 2 line(s) before its header (line 4) skipped" in note for note in rec.notes), rec.notes
+
+
+def test_units_a_mapped_file_gives_are_said_as_an_unmapped_files_units_row_is(tmp_path):
+    """A logger's units row, or units in its column names, were read silently in a mapped file."""
+    rows = "".join(f"{k},{k % 3},{k % 5}\n" for k in range(40))
+    row = tmp_path / "row.csv"
+    row.write_text("time,heater,temperature\ns,V,°C\n" + rows)
+    rec = load_mapped(row, time="time", input="heater", output="temperature")
+    assert rec.metadata["units"]["w"] == "°C"
+    assert any("units read from its units row (or sidecar): input in V, output in °C" in n for n in rec.notes)
+    named = tmp_path / "named.csv"
+    named.write_text("time,heater [V],temperature [°C]\n" + rows)
+    rec = load_mapped(named, time="time", input="heater [V]", output="temperature [°C]")
+    assert any("units read from its column names: input in V, output in °C" in n for n in rec.notes)
+    # given units: nothing read, nothing said
+    rec = load_mapped(
+        named, time="time", input="heater [V]", output="temperature [°C]", units={"v_in": "V", "w": "°C"}
+    )
+    assert not any("units read" in n for n in rec.notes)

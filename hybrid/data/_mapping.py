@@ -450,6 +450,7 @@ def _units(
     declared = file_meta.get("units")
     declared = declared if isinstance(declared, Mapping) else {}
     out = {"t": "s"}
+    read: list[tuple[str, str]] = []  # units taken from the file, said in a note as an unmapped file's units row is
     for channel in ("v_in", "w"):
         written = header_unit(names.get(channel, ""))
         named = written[0] if written is not None and is_unit(written[0]) else None
@@ -462,6 +463,15 @@ def _units(
                 f"recording '{path}': the {OPTION[channel]}'s name '{names[channel]}' says {named}, but "
                 f"{where} gives {explicit}: {explicit} kept"
             )
+        elif not given.get(channel) and (explicit or named):
+            source = "its units row (or sidecar)" if explicit else "its column names"
+            read.append((source, f"{OPTION[channel]} in {out[channel]}"))
+    if read:
+        said = "; ".join(
+            f"from {source}: " + ", ".join(what for s, what in read if s == source)
+            for source in dict.fromkeys(s for s, _ in read)
+        )
+        notes.append(f"recording '{path}': units read {said} (--units to say otherwise)")
     return out
 
 

@@ -47,6 +47,7 @@ import difflib
 import io
 import math
 import pathlib
+import shlex
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from typing import NamedTuple
@@ -455,10 +456,12 @@ def unknown_name(
     usual = {"t": 0, "v_in": min(1, len(names) - 1), "w": -1}[role] if names else None
     example = close[0] if close else (names[usual] if usual is not None else "NAME")
     option = OPTION[role]
+    # quoted as a shell needs it: a logger's 'Heizspannung [V]' pasted bare is two arguments and a glob
     flag = (
-        f"--columns {option}={prefix}{example}"
+        f"--columns {shlex.quote(f'{option}={prefix}{example}')}"
         if prefix
-        else f"--{option} {example} (or {option}={example} in --columns; in Python {option}={example!r})"
+        else f"--{option} {shlex.quote(example)} (or {option}={example} in --columns; in Python "
+        f"{option}={example!r})"
     )
     return (
         f"recording '{path}' has no {kind} '{name}' for the {option} (its {kind}s: "
