@@ -116,7 +116,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
 
     p = sub.add_parser("fit", help="fit a model to recordings, print metrics, save it")
-    p.add_argument("recordings", nargs="+", help=".csv/.npz/.mat recordings of one system (one strip, one rig)")
+    p.add_argument(
+        "recordings", nargs="+", help=".csv/.npz/.mat recordings of one system (one strip, one rig)"
+    )
     p.add_argument("--model", choices=MODEL_KINDS, default="hybrid")
     p.add_argument("--solver", choices=SOLVERS, default="lm")
     p.add_argument("--starts", type=B.integer(*B.STARTS), default=1)
@@ -217,7 +219,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "diagnose", help="which physical effect the simulation misses (report.md, report.json, PNGs)"
     )
-    p.add_argument("recordings", nargs="+", help=".csv/.npz/.mat recordings of one system (one strip, one rig), fitted jointly")
+    p.add_argument(
+        "recordings",
+        nargs="+",
+        help=".csv/.npz/.mat recordings of one system (one strip, one rig), fitted jointly",
+    )
     p.add_argument("--out", required=True, help="output directory (report.md, report.json, figures)")
     p.add_argument(
         "--hybrid",
