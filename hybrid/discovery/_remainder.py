@@ -23,7 +23,7 @@ the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
   with training blocks, so a trend fitted on one applies to the other; held
   out beyond the training span, it stays at its value at the end).
 - **linear filter**: ridge least squares of r on the lags 0..L of v, and of ŵ
-  (L ≈ rate × 1 s, at most 60), never across a segment change; its frequency
+  (L ≈ rate × 1 s, at least 16 and at most 60), never across a segment change; its frequency
   response up to Nyquist for the figure.
 - **power of the output, filtered**: the same filter of ŵ_c² and of ŵ_c³
   (ŵ centred and scaled on training), each with ŵ's own lags beside it (a
@@ -74,6 +74,10 @@ FAMILY = {
     "state_map": "nonlinear_dynamic",
 }
 ORDER = ("static", "time", "dynamic", "nonlinear_dynamic")
+#: The linear filters' lags: a second's worth of samples, at least `MIN_LAGS` (at 1 Hz a second is one
+#: lag, blind to a thermocouple's 8 s lag: a new user's chamber read "no simple structure … the best
+#: linear filter 0 %") and at most `MAX_LAGS`.
+MIN_LAGS, MAX_LAGS = 16, 60
 #: The state feedback's maps are fitted for a simulation with at most this many states (the RC network's
 #: 45 are stages of one diffusion, not quantities a user would name a force of).
 MAX_STATES = 8
@@ -238,6 +242,18 @@ def _ridge(xc, yc):
     return np.linalg.solve(gram + ridge * np.eye(gram.shape[0]), np.einsum("ni,n->i", xc, yc))
 
 
+def _difference_basis(width: int, blocks: int) -> np.ndarray:
+    """T with x·T = [level, first differences] of each block of `width` lags: x_0, x_0 − x_1, x_1 − x_2, …"""
+    one = np.zeros((width, width))
+    one[0, 0] = 1.0
+    for j in range(1, width):
+        one[j - 1, j], one[j, j] = 1.0, -1.0
+    out = np.zeros((width * blocks, width * blocks))
+    for b in range(blocks):
+        out[b * width : (b + 1) * width, b * width : (b + 1) * width] = one
+    return out
+
+
 def _filter(tr, ho, key, lags, rate, judge) -> dict:
     """Ridge FIR of r on lags 0..`lags` of `key` (or of several keys together), within runs.
 
@@ -250,8 +266,18 @@ def _filter(tr, ho, key, lags, rate, judge) -> dict:
     hrows, hx = hlagged[0][0], np.hstack([m for _, m in hlagged])
     if len(rows) < 4 * x.shape[1] or len(hrows) < MIN_SAMPLES:
         return {"reason": f"too few samples with {lags} past samples inside a segment"}
+    # The ridge acts on each key's level and its successive differences, each scaled to unit spread,
+    # not on its raw lags: the lags of a smooth signal (a slow plant's ŵ, 200 samples to settle) are
+    # near copies of one another, and a ridge on them keeps their sum and drops their differences,
+    # where a lag or a rate lives (an 8 s sensor lag at 1 Hz: r = −0.58·corr with dŵ/dt, and the
+    # filter of the raw lags recovered −5 % held out). The same span: h = T·g, the lags' filter.
+    to_lags = _difference_basis(lags + 1, len(keys))
     xm, ym = x.mean(axis=0), tr["r"][rows].mean()
-    h = _ridge(x - xm, tr["r"][rows] - ym)
+    d = (x - xm) @ to_lags
+    scale = d.std(axis=0)
+    scale[scale == 0] = 1.0
+    g = _ridge(d / scale, tr["r"][rows] - ym)
+    h = to_lags @ (g / scale)
     pred = np.zeros_like(ho["r"])
     pred[hrows] = np.einsum("ni,i->n", hx - xm, h) + ym
     f = np.linspace(0.0, rate / 2, 100)
@@ -671,7 +697,7 @@ def describe_remainder(
         scores["time"] = time_part
 
     # Linear filter: lagged drive and lagged model output.
-    lags = int(min(60, max(1, round(rate * 1.0))))
+    lags = int(min(MAX_LAGS, max(MIN_LAGS, round(rate * 1.0))))
     filt = {
         "drive": _filter(tr, ho, "v_in", lags, rate, judge),
         "output": _filter(tr, ho, "w_hat", lags, rate, judge),
