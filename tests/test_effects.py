@@ -96,6 +96,18 @@ def test_resonance_rings_at_its_frequency():
     assert f[np.argmax(p)] == pytest.approx(7.0 * np.sqrt(1 - 0.02**2), abs=0.1)
 
 
+def test_a_mode_at_or_above_the_nyquist_frequency_is_not_material():
+    # A chamber read at 1 Hz got a 0.98 Hz "mode": aliased, the samples show another frequency or none.
+    thresholds = Resonance.thresholds
+    for rate, material in ((30.0, True), (2.5, True), (1.9, False), (1.0, False)):
+        mode = Resonance(resonance_frequency_hz=0.98, resonance_damping=0.1)
+        parameters = mode.parameters()
+        derived = mode.derived(np.zeros(10), 1 / rate)
+        assert derived["over_nyquist"] == pytest.approx(0.98 * 2 / rate)
+        ok, said = mode.material(derived, parameters, thresholds)
+        assert ok is material and ("Nyquist" in said) is (not material), said
+
+
 def _bouc_wen_by_ode(signal, k, initial):
     """u of du = k (ds − |ds| |u| u) along the piecewise-linear path of `signal`, by scipy's ODE solver."""
     import scipy.integrate
