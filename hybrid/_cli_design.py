@@ -52,6 +52,14 @@ def add_design(sub, B) -> None:
         "actuator's travel), in the output's unit, e.g. 2.8:4.2 (default: none)",
     )
     p.add_argument(
+        "--min-hold",
+        type=B.number(0.0, 1e9, include_low=False, unit="s"),
+        default=None,
+        metavar="S",
+        help="the shortest time the drive may stay at a level (a relay, a heater's contactor, a valve), "
+        "seconds (default: one sample)",
+    )
+    p.add_argument(
         "--rate",
         type=B.number(*B.RATE, unit="Hz"),
         default=None,
@@ -210,7 +218,12 @@ def cmd_design(args) -> None:
             )
         if entry is None:
             t, drive = rich_drive(
-                duration=args.duration, rate=args.rate, slew=args.slew, seed=args.seed, **limits
+                duration=args.duration,
+                rate=args.rate,
+                slew=args.slew,
+                seed=args.seed,
+                hold=args.min_hold,
+                **limits,
             )
             _write(
                 out, figure, t, drive, {}, "a multilevel PRBS (nothing ambiguous; a remainder unexplained)"
@@ -234,6 +247,7 @@ def cmd_design(args) -> None:
                 steps=args.steps,
                 seed=args.seed,
                 output_bounds=output,
+                hold=args.min_hold,
                 **limits,
                 **rich,
             )
@@ -257,6 +271,8 @@ def cmd_design(args) -> None:
         if design.control_criterion > 0
         else ""
     )
+    if args.min_hold:
+        slew += f", each level held ≥ {design.limits['hold']:g} s"
     if output is not None:
         slew += f", every rival's predicted output within [{output[0]:g}, {output[1]:g}]"
     print(

@@ -7,7 +7,7 @@
     hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
     hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N | --no-auto-settle] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
     hybrid design DIAG_DIR --duration S (--amplitude V | --bounds LO:HI) [--rate HZ] [--slew PER_S]
-                  [--output-bounds LO:HI] --out DRIVE.csv
+                  [--output-bounds LO:HI] [--min-hold S] --out DRIVE.csv
 
 fit, diagnose and sensitivity take --physics rc|lti:N|file.py:Class|module:Class and read a lab's own
 columns with --input/--output (or --columns), --rate, --range and --units.

@@ -225,6 +225,34 @@ def test_a_design_keeps_every_rivals_predicted_output_within_its_bounds(confound
         hybrid.design_drive(rivals, output_bounds=(1.0, -1.0), **run)
 
 
+def _runs(v) -> np.ndarray:
+    """Lengths of the runs of equal consecutive samples of `v`."""
+    edges = np.flatnonzero(np.diff(v) != 0) + 1
+    return np.diff(np.r_[0, edges, len(v)])
+
+
+def test_a_design_holds_each_level_at_least_the_hold_given(confounded):
+    # A chamber user's design switched the heater every second: a relay, a contactor or a valve cannot.
+    rivals, noise = _rivals(confounded), confounded.noise_floor.std
+    run = dict(duration=20.0, rate=RATE, noise_std=noise, starts=2, steps=60, amplitude=2.2)
+    design = hybrid.design_drive(rivals, rich=0.0, hold=2.0, **run)  # 600 samples, blocks of 60
+    blocks = design.v_in.reshape(10, 60)
+    np.testing.assert_array_equal(blocks, blocks[:, :1] * np.ones((1, 60)))  # each block one level
+    assert np.max(np.abs(design.v_in)) <= 2.2 and design.limits["hold"] == 2.0
+    assert design.criterion > design.control_criterion > 0  # designed, within the holds
+    # with a rich part, the control's levels are held at least as long, and so is the designed rest
+    design = hybrid.design_drive(rivals, rich=0.5, hold=2.0, **run)
+    np.testing.assert_array_equal(
+        design.v_in[300:].reshape(5, 60), design.v_in[300:].reshape(5, 60)[:, :1] * np.ones((1, 60))
+    )
+    t, v = hybrid.rich_drive(duration=40.0, rate=RATE, amplitude=1.0, hold=3.0, seed=2)
+    assert np.min(_runs(v)[:-1]) >= 90  # every level but the last (cut by the end) held ≥ 3 s
+    with pytest.raises(hybrid.InputError, match="longer than the drive"):
+        hybrid.design_drive(rivals, hold=30.0, **run)
+    with pytest.raises(hybrid.InputError, match="hold must be > 0"):
+        hybrid.design_drive(rivals, hold=-1.0, **run)
+
+
 def test_a_design_never_ends_below_the_control_it_starts_from(confounded):
     # Four rivals that all but agree (T ≪ the soft minimum's width): the gradient follows a near-mean of
     # the six pairs, and the drive kept must be the one with the best least T, not the best near-mean.
@@ -278,6 +306,10 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
         and "LOW must be below" in flipped.stderr
     )
     assert len(flipped.stderr.strip().splitlines()) == 1 and not (tmp_path / "y.csv").exists()
+    held = h.run_hybrid(
+        tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--min-hold", "0", "--out", "y.csv"
+    )
+    assert held.returncode == 2 and "--min-hold" in held.stderr and not (tmp_path / "y.csv").exists()
     # a diagnosis with nothing ambiguous: one line, no file
     plain = tmp_path / "plain"
     plain.mkdir()

@@ -87,7 +87,7 @@ class DriveDesign:
     """Each rival's predicted output under the drive, by name."""
     limits: dict
     """The limits the drive respects: ``low``, ``high``, ``slew`` (None: none), ``rate``, ``duration``,
-    and the rivals' predicted output's ``output_low``, ``output_high`` (None: none)."""
+    the rivals' predicted output's ``output_low``, ``output_high`` (None: none), and the shortest ``hold`` (s)."""
     criteria_by_start: list
     """T reached from each random start (the best is kept)."""
 
@@ -144,6 +144,7 @@ def rich_drive(
     bounds: tuple[float, float] | None = None,
     slew: float | None = None,
     seed: int = 0,
+    hold: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(t, drive): a multilevel PRBS within the rig's limits, the drive to record where nothing is ambiguous.
 
@@ -151,10 +152,12 @@ def rich_drive(
     the range, each held 0.5–5 s, slew-limited like a design. What `hybrid
     design` writes when a diagnosis leaves a remainder that no searched effect
     explains and no rivals to tell apart: a rich drive, so that the recordings
-    diagnosed together carry what one did not. Limits as `design_drive`'s.
+    diagnosed together carry what one did not. Limits as `design_drive`'s
+    (`hold`: each level held at least that long, up to twice it or 5 s).
     """
     n, dt, low, high, slew = _limits("rich_drive", duration, rate, amplitude, bounds, slew)
-    drive = _control(n, low, high, slew, dt, seed)
+    hold_s = 0.0 if hold is None else _check("hold", hold, who="rich_drive")
+    drive = _control(n, low, high, slew, dt, seed, hold_s)
     return np.arange(n) / rate, drive
 
 
@@ -246,17 +249,37 @@ def _criterion(models, u, dt, noise_std, softness):
     return -softness * jax.nn.logsumexp(-pairs / softness), pairs, outs
 
 
-def _control(n, low, high, slew, dt, seed) -> np.ndarray:
+def _control(n, low, high, slew, dt, seed, hold: float = 0.0) -> np.ndarray:
     """The control drive: `_levels` made feasible (slew-limited)."""
-    return np.asarray(_feasible(jnp.asarray(_levels(n, low, high, dt, seed)), low, high, slew, dt))
+    return np.asarray(_feasible(jnp.asarray(_levels(n, low, high, dt, seed, hold)), low, high, slew, dt))
 
 
-def _levels(n, low, high, dt, seed):
-    """The control's levels: a multilevel PRBS over [low, high], holds 0.5–5 s."""
+def _levels(n, low, high, dt, seed, hold: float = 0.0):
+    """The control's levels: a multilevel PRBS over [low, high], holds 0.5–5 s (at least `hold` s, up to twice it)."""
     rng = np.random.default_rng(seed)
     rate = 1.0 / dt
-    holds = rng.integers(max(1, math.ceil(0.5 * rate)), max(2, math.floor(5.0 * rate)) + 1, size=n + 1)
+    shortest = max(0.5, hold)
+    longest = max(5.0, 2.0 * hold)
+    holds = rng.integers(
+        max(1, math.ceil(shortest * rate)), max(2, math.floor(longest * rate)) + 1, size=n + 1
+    )
     return np.repeat(rng.uniform(low, high, size=holds.size), holds)[:n]
+
+
+def _held(u, kept: int, hold: int):
+    """`u` with its samples after the first `kept` constant over consecutive blocks of `hold` samples.
+
+    The mean over each block: the nearest such drive (least squares), which
+    keeps a drive within a range within it.
+    """
+    if hold <= 1:
+        return u
+    tail = u[kept:]
+    ids = jnp.arange(tail.shape[0]) // hold
+    blocks = -(-tail.shape[0] // hold)
+    sums = jax.ops.segment_sum(tail, ids, blocks)
+    counts = jax.ops.segment_sum(jnp.ones_like(tail), ids, blocks)
+    return jnp.concatenate([u[:kept], (sums / counts)[ids]])
 
 
 def design_drive(
@@ -274,6 +297,7 @@ def design_drive(
     seed: int = 0,
     rich: float = 0.5,
     output_bounds: tuple[float, float] | None = None,
+    hold: float | None = None,
 ) -> DriveDesign:
     """The drive within the rig's limits under which rival models' predictions differ most (T-optimal).
 
@@ -301,6 +325,12 @@ def design_drive(
       drives visited whose predictions all keep within are kept, and the
       control (the first start and the rich part) is narrowed around the drive
       range's middle (`NARROWED`) until they do; where none does, one line says so.
+    - `hold`: the shortest time (s) the drive may stay at a level (a relay, a
+      heater's contactor, a valve); None: one sample. The designed part is held
+      over consecutive blocks of that many samples (after each step, each
+      block is set to its mean, the nearest such drive), changing only where a
+      block begins (ramping there at the slew); the control's levels are held
+      at least that long too.
     """
     import optax
 
@@ -311,6 +341,12 @@ def design_drive(
             raise InputError(f"design_drive: rival {name!r} is a {type(model).__name__}, not a hybrid.Model")
     n, dt, low, high, slew = _limits("design_drive", duration, rate, amplitude, bounds, slew)
     output = _output_range(output_bounds)
+    hold_s = 0.0 if hold is None else _check("hold", hold)
+    hold_n = max(1, int(round(hold_s * rate)))
+    if hold_n > n:
+        raise InputError(
+            f"design_drive: a hold of {hold_s:g} s is longer than the drive ({n / rate:g} s): shorten it"
+        )
     noise_std = _check("noise_std", noise_std)
     if isinstance(rich, bool) or not isinstance(rich, (int, float)) or not 0.0 <= rich < 1.0:
         raise InputError(f"design_drive: rich must be a share in [0, 1), got {rich!r}")
@@ -330,11 +366,16 @@ def design_drive(
 
     optimiser = optax.adam(learning_rate * 0.5 * (high - low))  # steps in the drive's unit
 
-    control = _control(n, low, high, slew, dt, seed)
+    kept = int(round(rich * n))  # the control's first samples, never moved
+
+    def on_grid(u):  # the designed part held (`hold`), then the range and the slew
+        return _feasible(_held(jnp.asarray(u), kept, hold_n), low, high, slew, dt)
+
+    control = np.asarray(on_grid(_control(n, low, high, slew, dt, seed, hold_s)))
     if output is not None:  # the control narrowed until every rival's prediction keeps within
         middle = 0.5 * (low + high)
         for share in NARROWED:
-            narrowed = _feasible(jnp.asarray(middle + share * (control - middle)), low, high, slew, dt)
+            narrowed = on_grid(middle + share * (control - middle))
             if bool(_within(loss_and_pairs(narrowed, params)[1][1], output)):
                 control = np.asarray(narrowed)
                 break
@@ -344,7 +385,6 @@ def design_drive(
                 f"within [{output[0]:g}, {output[1]:g}], even narrowed to {NARROWED[-1]:.0%} of its half-width "
                 f"around its middle ({middle:g}): widen the output's bounds, or move the drive's range"
             )
-    kept = int(round(rich * n))  # the control's first samples, never moved
     prefix = jnp.asarray(control[:kept])
 
     @jax.jit
@@ -354,14 +394,14 @@ def design_drive(
         updates, state = optimiser.update(grad, state, u)
         # the kept part put back; it is feasible, so the projection moves only what follows it
         moved = optax.apply_updates(u, updates).at[:kept].set(prefix)
-        return _feasible(moved, low, high, slew, dt), state, jnp.min(pairs), _within(outs, output)
+        return on_grid(moved), state, jnp.min(pairs), _within(outs, output)
 
     rng = np.random.default_rng(seed)
     best_u, best_value, by_start = None, -np.inf, []
     for start in range(starts):
         # the control first, so the design never ends worse than it; then random levels
-        levels = control if start == 0 else _levels(n, low, high, dt, int(rng.integers(2**31)))
-        u = _feasible(jnp.asarray(levels).at[:kept].set(prefix), low, high, slew, dt)
+        levels = control if start == 0 else _levels(n, low, high, dt, int(rng.integers(2**31)), hold_s)
+        u = on_grid(jnp.asarray(levels).at[:kept].set(prefix))
         state = optimiser.init(u)
         reached, reached_u = -np.inf, u
         loose, loose_u = -np.inf, u  # the best visited, within the output's bounds or not
@@ -415,6 +455,7 @@ def design_drive(
             "duration": n / rate,
             "output_low": None if output is None else output[0],
             "output_high": None if output is None else output[1],
+            "hold": hold_n / rate,
         },
         criteria_by_start=by_start,
     )
