@@ -616,7 +616,9 @@ def _cmd_diagnose(args):
     print(f"held-out NMSE: baseline {base:.2e} -> extended {ext:.2e} (gain {diagnosis.gain:.2f}x)")
     print(diagnosis.verdict)
     for step in report["causes"]:
-        print(f"  {step['name']} (incremental gain {step['incremental_gain']:.2f}x)")
+        with_ = step.get("named_jointly_with")
+        over = f"gain over {with_} alone" if with_ else "incremental gain"  # a pair's: not over the baseline
+        print(f"  {step['name']} ({over} {step['incremental_gain']:.2f}x)")
         if step.get("reading"):
             print(f"    {step['reading']}")
         for name in diagnosis.effect_parameters(step["name"]):
