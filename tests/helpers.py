@@ -255,3 +255,18 @@ def run_hybrid(folder, *args):
 
     command = [sys.executable, "-m", "hybrid.cli", *map(str, args)]
     return subprocess.run(command, cwd=folder, capture_output=True, text=True)
+
+
+def cycled_current(rng, n: int, capacity: float = 2000.0):
+    """(current, charge): a cell's current of ±1 or ±2 held 40–200 samples, turned back at 20 % and 80 %
+    charge, and its charge (a fraction of `capacity`, in current × samples) from half, the current held
+    over each sample."""
+    current, k, soc = np.zeros(n), 0, 0.5
+    while k < n:
+        hold = int(rng.integers(40, 200))
+        level = rng.choice([-2.0, -1.0, 1.0, 2.0])
+        level = -abs(level) if soc > 0.8 else abs(level) if soc < 0.2 else level
+        soc += level * min(hold, n - k) / capacity
+        current[k : k + hold] = level
+        k += hold
+    return current, 0.5 + np.r_[0.0, np.cumsum(current[:-1])] / capacity

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 
+import helpers as h
 import numpy as np
 import pytest
 from scipy.signal import lfilter
@@ -54,6 +55,42 @@ def describe(r_of, floor=SIGMA**2, **kw):
     d = describe_remainder(*recording(r_of, **kw), RATE, floor)
     json.dumps(d, allow_nan=False)  # JSON-able, and never a NaN
     return d
+
+
+def with_states(states: dict, held, respond, units: dict, drive_unit: str) -> dict:
+    """The `feedback` a simulation with `states` (trajectories, by name) gives `describe_remainder`.
+
+    Each state's map's columns (`basis_forces` on its training values' basis), read on the output
+    as they are (``direct_*``) and through `respond` (a force's response, e.g. a plant's filter),
+    cut to the training (``~held``) and held-out samples.
+    """
+    from hybrid.discovery._remainder import ROLES, basis_forces, state_basis
+
+    bases = {name: state_basis(x[~held]) for name, x in states.items()}
+    columns, rows = [], []
+    for name, x in states.items():
+        columns += [(name, role) for role in ROLES]
+        rows += list(basis_forces(bases[name], x))
+    direct = np.stack(rows)
+    responses = np.stack([respond(row) for row in direct])
+    return {
+        "states": list(states),
+        "columns": columns,
+        "train": responses[:, ~held],
+        "heldout": responses[:, held],
+        "direct_train": direct[:, ~held],
+        "direct_heldout": direct[:, held],
+        "bases": bases,
+        "units": units,
+        "values": {name: x[~held] for name, x in states.items()},
+        "drive_unit": drive_unit,
+        "gain": 1.0,
+    }
+
+
+def split_parts(held, **signals) -> tuple[dict, dict]:
+    """Train and held-out dicts of `signals` (t, v_in, w, w_hat, segment) by the mask `held`."""
+    return tuple({k: x[mask] for k, x in signals.items()} for mask in (~held, held))
 
 
 def test_even_static_map_of_the_drive():
@@ -265,8 +302,6 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
     # a step's jump, or a bend's value at the largest |x|, times c.
     from scipy.signal import butter
 
-    from hybrid.discovery._remainder import ROLES, basis_forces, state_basis
-
     rng = np.random.default_rng(5)
     v = lfilter(*butter(4, 0.4), rng.standard_normal(N))
     w0 = 2 * np.pi * 5.0 / RATE
@@ -283,34 +318,11 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
     segment = np.arange(N) // 500
     held = segment % 4 == 3
     states = {"position": position, "velocity": velocity}
-    bases = {name: state_basis(x[~held]) for name, x in states.items()}
-    columns, rows = [], []
-    for name, x in states.items():
-        columns += [(name, role) for role in ROLES]
-        rows += [-lfilter(*resonance, row) for row in basis_forces(bases[name], x)]
-    responses = np.stack(rows)
-
-    def part(mask):
-        return {
-            "t": t[mask],
-            "v_in": v[mask],
-            "w": w[mask],
-            "w_hat": position[mask],
-            "segment": segment[mask],
-        }
-
-    feedback = {
-        "states": list(states),
-        "columns": columns,
-        "train": responses[:, ~held],
-        "heldout": responses[:, held],
-        "bases": bases,
-        "units": {"position": "V", "velocity": "V/s"},
-        "values": {name: x[~held] for name, x in states.items()},
-        "drive_unit": "V",
-        "gain": 1.0,
-    }
-    d = describe_remainder(part(~held), part(held), RATE, SIGMA**2, feedback)
+    feedback = with_states(
+        states, held, lambda row: -lfilter(*resonance, row), {"position": "V", "velocity": "V/s"}, "V"
+    )
+    train, heldout = split_parts(held, t=t, v_in=v, w=w, w_hat=position, segment=segment)
+    d = describe_remainder(train, heldout, RATE, SIGMA**2, feedback)
     json.dumps(d, allow_nan=False)
     fed = d["state_feedback"]
     assert d["kind"] == "nonlinear_dynamic" and fed["best"] == "velocity"
@@ -336,7 +348,7 @@ def test_a_force_of_a_state_fed_back_is_placed_on_that_state_and_read_against_it
     # and the rest of the sentence is the velocity's
     twin = velocity + 0.1 * np.std(velocity) * rng.standard_normal(N)
     feedback["values"] = {**feedback["values"], "twin": twin[~held]}
-    again = describe_remainder(part(~held), part(held), RATE, SIGMA**2, feedback)
+    again = describe_remainder(train, heldout, RATE, SIGMA**2, feedback)
     assert list(again["state_feedback"]["alike"]) == ["twin"]
     assert "state velocity (or twin, which moves with it: r = 0.99) fed back" in again["summary"]
     assert again["summary"].replace(" (or twin, which moves with it: r = 0.99)", "") == d["summary"]
@@ -395,18 +407,9 @@ def test_a_state_read_on_the_output_through_a_bend_is_placed_on_that_state(bent)
     # remainder is a function of q added to the output: a tanh bend of q (an open-circuit voltage's
     # knee) or a straight line in q. The bend is "static in the state charge"; a straight line in a
     # state is a linear readout of the states (a linear filter of the drive), not a static map of one.
-    from hybrid.discovery._remainder import ROLES, basis_forces, state_basis
 
     rng = np.random.default_rng(11)
-    drive, level, q, k = np.zeros(N), 0.0, 0.5, 0
-    while k < N:
-        hold = int(rng.integers(40, 200))
-        level = rng.choice([-2.0, -1.0, 1.0, 2.0])
-        level = -abs(level) if q > 0.8 else abs(level) if q < 0.2 else level
-        q += level * min(hold, N - k) / 2000.0
-        drive[k : k + hold] = level
-        k += hold
-    charge = 0.5 + np.r_[0.0, np.cumsum(drive[:-1])] / 2000.0
+    drive, charge = h.cycled_current(rng, N)
     lag = lowpass(drive, 0.98)
     w_hat = 0.6 * charge + 0.05 * lag
     if bent:  # what a fit leaves of the bend: the model reads q straight with a free weight
@@ -420,37 +423,10 @@ def test_a_state_read_on_the_output_through_a_bend_is_placed_on_that_state(bent)
     segment = np.arange(N) // 500
     held = segment % 4 == 3
     states = {"charge": charge, "lag": lag}
-    bases = {name: state_basis(x[~held]) for name, x in states.items()}
-    columns, rows = [], []
-    for name, x in states.items():
-        columns += [(name, role) for role in ROLES]
-        rows += list(basis_forces(bases[name], x))
-    direct = np.stack(rows)
-    responses = lowpass(direct, 0.98)  # a force's response: through the plant's lag (not what is read here)
-
-    def part(mask):
-        return {
-            "t": t[mask],
-            "v_in": drive[mask],
-            "w": w[mask],
-            "w_hat": w_hat[mask],
-            "segment": segment[mask],
-        }
-
-    feedback = {
-        "states": list(states),
-        "columns": columns,
-        "train": responses[:, ~held],
-        "heldout": responses[:, held],
-        "direct_train": direct[:, ~held],
-        "direct_heldout": direct[:, held],
-        "bases": bases,
-        "values": {name: x[~held] for name, x in states.items()},
-        "units": {"charge": "1", "lag": "A"},
-        "drive_unit": "A",
-        "gain": 1.0,
-    }
-    d = describe_remainder(part(~held), part(held), RATE, 0.002**2, feedback)
+    # a force's response through the plant's lag (not what is read here)
+    feedback = with_states(states, held, lambda row: lowpass(row, 0.98), {"charge": "1", "lag": "A"}, "A")
+    train, heldout = split_parts(held, t=t, v_in=drive, w=w, w_hat=w_hat, segment=segment)
+    d = describe_remainder(train, heldout, RATE, 0.002**2, feedback)
     json.dumps(d, allow_nan=False)
     charge_map = d["state_output"]["states"]["charge"]
     if bent:

@@ -56,15 +56,7 @@ CELL = textwrap.dedent(
 def _cycled(path, knee: float, seed: int = 0, n: int = 3600):
     """An hour at 1 Hz: a current of ±1 or ±2 A held 40–200 s, turned back at 20 % and 80 % charge; 1 mV noise."""
     rng = np.random.default_rng(seed)
-    current, k, soc = np.zeros(n), 0, 0.5
-    while k < n:
-        hold = int(rng.integers(40, 200))
-        level = rng.choice([-2.0, -1.0, 1.0, 2.0])
-        level = -abs(level) if soc > 0.8 else abs(level) if soc < 0.2 else level
-        soc += level * min(hold, n - k) / 2000.0
-        current[k : k + hold] = level
-        k += hold
-    charge = 0.5 + np.r_[0.0, np.cumsum(current[:-1])] / 2000.0  # 2000 A s, the current held over each second
+    current, charge = h.cycled_current(rng, n)  # 2000 A s at 1 Hz, the current held over each second
     fall = np.exp(-1.0 / 40.0)
     v1 = scipy.signal.lfilter([0.0, 0.03 * (1.0 - fall)], [1.0, -fall], current)
     ocv = 3.4 + 0.6 * charge + knee * np.tanh(8.0 * (charge - 0.5))

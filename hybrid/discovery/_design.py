@@ -116,12 +116,7 @@ def _limits(who, duration, rate, amplitude, bounds, slew):
     if amplitude is not None:
         low, high = -_check("amplitude", amplitude, who=who), _check("amplitude", amplitude, who=who)
     else:
-        if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
-            raise InputError(f"{who}: bounds must be (low, high), got {bounds!r}")
-        low = _check("low bound", bounds[0], False, who)
-        high = _check("high bound", bounds[1], False, who)
-        if not low < high:
-            raise InputError(f"{who}: bounds must have low < high, got {bounds!r}")
+        low, high = _pair(who, "bounds", bounds)
     if slew is not None:
         slew = _check("slew", slew, who=who)
     n = int(round(duration * rate))
@@ -188,16 +183,14 @@ OUTPUT_WEIGHT = 100.0
 NARROWED = (1.0, 0.75, 0.5, 0.35, 0.25, 0.15, 0.1, 0.05)
 
 
-def _output_range(output_bounds, who="design_drive") -> tuple[float, float] | None:
-    """(low, high) of the predicted output, checked (one line if not), or None."""
-    if output_bounds is None:
-        return None
-    if not isinstance(output_bounds, (tuple, list)) or len(output_bounds) != 2:
-        raise InputError(f"{who}: output_bounds must be (low, high), got {output_bounds!r}")
-    low = _check("output_bounds' low", output_bounds[0], False, who)
-    high = _check("output_bounds' high", output_bounds[1], False, who)
+def _pair(who: str, name: str, value) -> tuple[float, float]:
+    """(low, high) of a range argument `name`, both finite and low < high (one line if not)."""
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise InputError(f"{who}: {name} must be (low, high), got {value!r}")
+    low = _check(f"{name}' low", value[0], False, who)
+    high = _check(f"{name}' high", value[1], False, who)
     if not low < high:
-        raise InputError(f"{who}: output_bounds must have low < high, got {output_bounds!r}")
+        raise InputError(f"{who}: {name} must have low < high, got {value!r}")
     return low, high
 
 
@@ -340,7 +333,7 @@ def design_drive(
         if not isinstance(model, Model):
             raise InputError(f"design_drive: rival {name!r} is a {type(model).__name__}, not a hybrid.Model")
     n, dt, low, high, slew = _limits("design_drive", duration, rate, amplitude, bounds, slew)
-    output = _output_range(output_bounds)
+    output = None if output_bounds is None else _pair("design_drive", "output_bounds", output_bounds)
     hold_s = 0.0 if hold is None else _check("hold", hold)
     hold_n = max(1, int(round(hold_s * rate)))
     if hold_n > n:

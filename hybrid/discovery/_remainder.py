@@ -454,6 +454,16 @@ def _alike(values: dict, best: str) -> dict:
     return out
 
 
+def _maps(feedback: dict):
+    """(state, its basis, its columns' indices by role) of each state that varies on the training part."""
+    cols = feedback["columns"]
+    for name in feedback["states"]:
+        basis = feedback["bases"][name]
+        if len(basis["knots"]) < 2:  # constant on the training part: no map to fit
+            continue
+        yield name, basis, {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
+
+
 def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
     """A static map of each state fed back into the dynamics' drive, through their linearised response.
 
@@ -495,12 +505,8 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
         )
         return judge(pred), coef[len(base_tr) :]
 
-    for name in feedback["states"]:
-        basis = feedback["bases"][name]
+    for name, basis, own in _maps(feedback):
         knots = basis["knots"]
-        if len(knots) < 2:  # constant on the training part: no map to fit
-            continue
-        own = {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
         hats = [own[f"hat_{k}"] for k in range(len(knots))]
         free = hats + ([own["step"]] if basis["step"] else [])
         result, coef = fitted(free)
@@ -568,12 +574,8 @@ def _state_output(tr, ho, feedback: dict, judge) -> dict:
         return {"reason": "the simulation's states are not finite on this recording"}
     score = judge.score
     out: dict[str, Any] = {"states": {}}
-    for name in feedback["states"]:
-        basis = feedback["bases"][name]
+    for name, basis, own in _maps(feedback):
         knots = basis["knots"]
-        if len(knots) < 2:  # constant on the training part: no map to fit
-            continue
-        own = {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
         # hats alone: the step at zero is a friction's, and zero is no mark on a state read out (a charge)
         free = [own[f"hat_{k}"] for k in range(len(knots))]
         pred, coef = _least_squares(
