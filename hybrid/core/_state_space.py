@@ -96,6 +96,9 @@ class AbstractStateSpace(AbstractSimulation):
     not_searched_inside: ClassVar[str | None] = None
     substeps: ClassVar[int] = 4
     drive_between_samples: ClassVar[str] = "hold"
+    #: The unit of a force fed back from an effect inside the dynamics (`forced_rates`): ``"{drive}"``
+    #: (default) where it is taken off the drive; a plug-in that puts it elsewhere says its unit (``"W"``).
+    force_unit: ClassVar[str] = "{drive}"
 
     @property
     def state_units(self) -> dict[str, str]:
@@ -105,6 +108,25 @@ class AbstractStateSpace(AbstractSimulation):
     @abc.abstractmethod
     def rates(self, x: tuple, u, p: dict) -> tuple:
         """dx/dt (a tuple of scalars) at the state `x` under the drive `u` (scalar), with the parameters `p`."""
+
+    def forced_rates(self, x: tuple, u, force, p: dict) -> tuple:
+        """dx/dt with a force fed back from an effect inside the dynamics (default: taken off the drive).
+
+        ``rates(x, u − force, p)``: a cubic spring, a friction, a loss acts
+        where the drive does, in the drive's unit. Where the drive enters
+        nonlinearly (a heater's power u²/R, a valve's flow), a loss cannot be
+        taken off it (at u = 0, (u − φ)²/R heats): override this to put the
+        force where one acts (``((u**2 / p["r"] - force - p["h"] * (x[0] - p["ambient"])) / p["c"],)``),
+        and say its unit (`force_unit`) and the force the drive itself exerts
+        (`drive_force`, which a force's size is measured against). With it
+        overridden, a force is integrated by RK4 (`linear_matrices` and
+        `discrete_matrices` carry forces through the drive).
+        """
+        return self.rates(x, u - force, p)
+
+    def drive_force(self, u, p: dict):
+        """The force the drive `u` exerts, in `force_unit` (default: `u`): the scale a fed-back force is sized against."""
+        return u
 
     def prepare(self, p: dict) -> dict:
         """What `rates` reads, from the decoded parameters, computed once per run (default: `p`).
@@ -274,22 +296,33 @@ def _states(simulation, v_in, dt):
     return integrate(simulation, v_in, dt)[1]
 
 
+def own_forces(simulation) -> bool:
+    """Whether `simulation` puts a fed-back force where it acts itself (`AbstractStateSpace.forced_rates`)."""
+    return type(simulation).forced_rates is not AbstractStateSpace.forced_rates
+
+
 def integrate(
     simulation: AbstractStateSpace,
     v_in: Float[Array, " time"],
     dt: float,
     force: Callable | None = None,
     bound: Callable | None = None,
+    external: Float[Array, " time"] | None = None,
 ) -> tuple[Float[Array, " time"], Float[Array, "time states"]]:
     """(output, states) at each sample time: `simulation`'s rates integrated by RK4.
 
-    - `force(x, y)`: subtracted from the drive wherever the rates are
-      evaluated (a nonlinearity fed back into the drive; y = observe(x));
+    - `force(x, y)`: a force fed back from the state (y = observe(x)), where
+      the rates are evaluated: taken off the drive, or where the simulation's
+      `forced_rates` puts it;
     - `bound(x)`: the state (a tuple) after a limit acts on it, after every
-      step (and on the initial state).
+      step (and on the initial state);
+    - `external`: a force signal beside it (held over each sample), as
+      `force`'s (the remainder's force responses).
 
     The states come back as an array, one column per state.
     """
+    if external is not None and not own_forces(simulation):  # taken off the drive: as it always was
+        v_in, external = jnp.asarray(v_in) - external, None
     v_in, dt = check_drive(v_in, dt, f"{type(simulation).__name__}.simulate")
     p = simulation.prepare(simulation.parameters())
     dtype = jnp.result_type(v_in, *jax.tree_util.tree_leaves(p))
@@ -302,7 +335,12 @@ def integrate(
     def pushed(x):
         return jnp.zeros((), dtype) if force is None else force(x, simulation.observe(x, p))
 
-    def rates(x, drive):
+    own = own_forces(simulation) and (force is not None or external is not None)
+    ext = jnp.zeros_like(u) if external is None else jnp.asarray(external, dtype)
+
+    def rates(x, drive, e=0.0):
+        if own:  # the simulation puts the force where it acts
+            return tuple(simulation.forced_rates(x, drive, pushed(x) + e, p))
         return tuple(simulation.rates(x, drive - pushed(x), p))
 
     def settle(x):
@@ -312,23 +350,23 @@ def integrate(
     def axpy(x, a, k):
         return tuple(xi + a * ki for xi, ki in zip(x, k))
 
-    def rk4(x, f0, fm, f1):
-        k1 = rates(x, f0)
-        k2 = rates(axpy(x, 0.5 * h, k1), fm)
-        k3 = rates(axpy(x, 0.5 * h, k2), fm)
-        k4 = rates(axpy(x, h, k3), f1)
+    def rk4(x, f0, fm, f1, e=0.0):
+        k1 = rates(x, f0, e)
+        k2 = rates(axpy(x, 0.5 * h, k1), fm, e)
+        k3 = rates(axpy(x, 0.5 * h, k2), fm, e)
+        k4 = rates(axpy(x, h, k3), f1, e)
         return tuple(
             xi + (h / 6.0) * (a1 + 2.0 * a2 + 2.0 * a3 + a4) for xi, a1, a2, a3, a4 in zip(x, k1, k2, k3, k4)
         )
 
-    linear = simulation.linear_matrices(p)
+    linear = None if own else simulation.linear_matrices(p)
     if linear is not None:
         phi, gamma = zoh_discretise(jnp.asarray(linear[0], dtype), jnp.asarray(linear[1], dtype), h)
 
         def exact(x, drive):
             return tuple(phi @ jnp.stack(x) + gamma * drive)
 
-        def advance(x, f0, fm, f1):
+        def advance(x, f0, fm, f1, e=0.0):
             if force is None:
                 return exact(x, fm)
             first = pushed(x)
@@ -338,24 +376,24 @@ def integrate(
 
     direct = simulation.feedthrough(p)
     has_direct = not (isinstance(direct, float) and direct == 0.0)
-    discrete = simulation.discrete_matrices(p, dt)
+    discrete = None if own else simulation.discrete_matrices(p, dt)
     if discrete is not None:
         phi, now, nxt = (jnp.asarray(m, dtype) for m in discrete)
         return _step_discrete(simulation, p, (phi, now, nxt, direct, has_direct), u, ahead, force, bound)
 
     def sample(x, pair):
-        a, b = pair
+        a, b, e = pair
         x_k = x
         y_k = simulation.observe(x_k, p)
-        if has_direct:
-            y_k = y_k + direct * (a - pushed(x_k))
+        if has_direct:  # the direct part sees the drive less a force taken off it (not one put elsewhere)
+            y_k = y_k + direct * (a if own else a - pushed(x_k))
         for j in range(n):  # unrolled: no loop nested in the scan
             f0, fm, f1 = (a + (b - a) * (t / n) for t in (j, j + 0.5, j + 1))
-            x = settle(advance(x, f0, fm, f1))
+            x = settle(advance(x, f0, fm, f1, e))
         return x, (y_k, x_k)
 
     x0 = settle(tuple(jnp.asarray(xi, dtype) for xi in simulation.initial_state(u[0], p)))
-    _, (y, xs) = lax.scan(sample, x0, (u, u_next))
+    _, (y, xs) = lax.scan(sample, x0, (u, u_next, ext))
     return y, jnp.stack(xs, axis=1)
 
 

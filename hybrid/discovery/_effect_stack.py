@@ -23,7 +23,7 @@ from ..core._devices import map_rows
 from ..core._parameters import Constraint
 from ..core._serialise import imported_class
 from ..core._simulation import AbstractSimulation, AbstractWrapper, perturb_raw, unit_in
-from ..core._state_space import dynamics_of, integrate
+from ..core._state_space import dynamics_of, integrate, own_forces
 from ..util._errors import InputError
 from ._effect_set import force_percent_of_drive, resolve_effects
 from ._effects import AbstractEffect, StartContext
@@ -131,10 +131,18 @@ class EffectStack(AbstractWrapper):
         return tuple(self.inner.parameter_names()) + tuple(n for e in self.effects for n in e.constraints)
 
     @property
+    def force_unit(self) -> str:
+        """The unit of a force fed back inside the dynamics: the drive's, or the simulation's `force_unit`."""
+        dynamics = dynamics_of(self.inner)
+        return unit_in(dynamics[0].force_unit, self.drive_unit) if dynamics else self.drive_unit
+
+    @property
     def units(self) -> dict[str, str]:
         out = dict(self.inner.units)
         for effect in self.effects:
-            out.update(effect.units_for(self.signal_unit(effect), self.drive_unit))
+            # an inside feedback's "{drive}" is its force's unit (the drive's, unless the simulation puts it elsewhere)
+            drive = self.force_unit if effect.place == "inside" else self.drive_unit
+            out.update(effect.units_for(self.signal_unit(effect), drive))
         return out
 
     @property
@@ -246,7 +254,7 @@ class EffectStack(AbstractWrapper):
             out[e.name] = e.derived(signals[e.name], dt)
             if e.place == "inside" and e.role == "feedback":
                 force = np.asarray(jax.vmap(lambda z, e=e: e.apply(z, dt))(jnp.asarray(signals[e.name])))
-                size = force_percent_of_drive(force, signals["drive"], float(on))
+                size = force_percent_of_drive(force, drive_forces(self, signals["drive"]), float(on))
                 out[e.name] = {**out[e.name], "force_percent_of_drive": size}
             if e.place == "inside" and e.role == "limit":
                 free = self.with_active(np.where(np.arange(len(self.effects)) == i, 0.0, self.active))
@@ -426,13 +434,27 @@ def inner_response(inner: AbstractSimulation, u, dt, drive_on, source):
     return response(flat, u, arrays, drive_on, source)
 
 
+def drive_forces(stack: EffectStack, drive) -> np.ndarray:
+    """The force each value of `drive` exerts, in the unit of a force fed back inside `stack`'s dynamics.
+
+    The drive itself where a force is taken off it; the simulation's
+    `drive_force` where it puts forces elsewhere (a heater's power u²/R).
+    """
+    dynamics = dynamics_of(stack.inner)
+    if dynamics is None or not own_forces(dynamics[0]):
+        return np.asarray(drive)
+    core = dynamics[0]
+    p = core.prepare(core.parameters())
+    return np.asarray(jax.vmap(lambda u: core.drive_force(u, p))(jnp.asarray(drive)))
+
+
 def spill_target(effect, states) -> int | None:
     """The index in `states` of the state a limit spills into (`StateLimit.into`), or None."""
     into = getattr(effect, "into", None)
     return None if into is None else states.index(into)
 
 
-def _inside_dynamics(stack, inner, inside, u, dt):
+def _inside_dynamics(stack, inner, inside, u, dt, external=None):
     """(output, states) of the inner state-space simulation with the inside effects in its loop.
 
     A switched-off effect adds no force and leaves its state alone (`jnp.where`,
@@ -461,7 +483,7 @@ def _inside_dynamics(stack, inner, inside, u, dt):
                 x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt), x[j])
         return tuple(x)
 
-    return integrate(inner, u, dt, force if feedback else None, bound if limits else None)
+    return integrate(inner, u, dt, force if feedback else None, bound if limits else None, external)
 
 
 @eqx.filter_jit
@@ -485,19 +507,27 @@ def extend(simulation: AbstractSimulation, *effects, **values) -> EffectStack:
 
 
 def _dynamics_run(stack: EffectStack, v_in, dt, force):
-    """(output, states) of `stack` on `v_in`, `force` (a signal, the drive's unit) taken off the drive its dynamics see.
+    """(output, states) of `stack` on `v_in`, `force` (a signal in the force's unit) fed into its dynamics.
 
-    The force enters where an inside feedback's does (y = S(u − φ)): after the
-    drive's effects, in every RK4 stage; the output's effects follow. Needs
-    `stack.inner` in state-space form (`dynamics_of`).
+    The force enters where an inside feedback's does: taken off the drive (y =
+    S(u − φ)) after the drive's effects, or where the simulation's
+    `forced_rates` puts it, in every RK4 stage; the output's effects follow.
+    Needs `stack.inner` in state-space form (`dynamics_of`).
     """
     u = _through(stack, "drive", v_in, dt)
     dynamics = dynamics_of(stack.inner)
     assert dynamics is not None  # the caller checks
     core, held, skip = dynamics
     inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
-    driven = held(u - force)
-    s, states = _inside_dynamics(stack, core, inside, driven, dt) if inside else integrate(core, driven, dt)
+    if own_forces(core):  # the simulation puts a force where it acts (a heater's loss off its power)
+        driven, external = held(u), jnp.concatenate([jnp.zeros(skip, force.dtype), force])
+    else:
+        driven, external = held(u - force), None
+    s, states = (
+        _inside_dynamics(stack, core, inside, driven, dt, external)
+        if inside
+        else integrate(core, driven, dt, external=external)
+    )
     return _through(stack, "output", s[skip:], dt), states[skip:]
 
 

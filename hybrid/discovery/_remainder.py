@@ -540,7 +540,7 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
             result,
             unit=feedback["units"].get(name, ""),
             curve={"x": _list(grid), "force": _list(force)},
-            force_unit=feedback["drive_unit"] if gain else "",
+            force_unit=feedback.get("force_unit", feedback["drive_unit"]) if gain else "",
             forms=forms,
             carries=bool(carries),  # most of the excess: its state may be named as the rest's place
             form=chosen,

@@ -37,7 +37,7 @@ from ..util._errors import InputError, PluginError
 from . import residual_tests as rt
 from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings, EquallyGoodFits, Lane
-from ._effect_stack import EffectStack
+from ._effect_stack import EffectStack, drive_forces
 from ._effects import AbstractEffect, StartContext
 from ._search import (
     best_lag,
@@ -357,9 +357,12 @@ def search_step(
         frozen=s.frozen,
     )
     into = inside_signals(problem, stack, [e for e in effects if e.place == "inside"], "train")
+    # an inside feedback's starts are sized against the force the drive exerts (a heater's power)
+    pushes = {**base, "drive": drive_forces(stack, v_tr)}
     context = {
         e.name: StartContext(
-            signal={"drive": v_tr, "output": s_train}.get(e.place, into.get(e.name, s_train)), **base
+            signal={"drive": v_tr, "output": s_train}.get(e.place, into.get(e.name, s_train)),
+            **(pushes if e.place == "inside" else base),
         )
         for e in effects
     }

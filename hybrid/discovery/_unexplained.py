@@ -169,6 +169,7 @@ def feedback_signals(problem, final) -> dict | None:
         "values": {name: train[k] for k, name in enumerate(names)},  # on the training part
         "units": {name: unit_in(unit, stack.drive_unit) for name, unit in dynamics[0].state_units.items()},
         "drive_unit": stack.drive_unit,
+        "force_unit": stack.force_unit,  # the drive's, or where the simulation puts a force (`forced_rates`)
         "gain": float(readout["gain"]) if "gain" in readout else None,
     }
 
