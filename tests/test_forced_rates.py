@@ -123,3 +123,4 @@ def test_diagnose_names_a_heat_loss_the_plugin_lacks_in_watts(tmp_path):
     (cause,) = report["causes"]
     cube = cause["parameters"]["stiffness_cube"]
     assert cube["unit"] == "W/°C^3" and cube["value"] == pytest.approx(2e-5, rel=0.05)
+    assert "a heat flow of the output, a temperature (°C)" in cause["reading"]  # not a spring

@@ -209,6 +209,10 @@ def test_a_fit_of_a_clipped_record_says_the_record_sits_flat_where_the_model_goe
         ("rad", "position"),
         ("°", "position"),
         ("px", "position"),
+        ("°C", "temperature"),
+        ("K", "temperature"),
+        ("degF", "temperature"),
+        ("kg", None),
         ("ms", None),  # a time, not a length
         ("mV", None),
         ("V", None),

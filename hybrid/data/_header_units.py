@@ -42,6 +42,8 @@ _SLASH = re.compile(r"^(?P<name>[^/]*?\S)\s*/\s*(?P<unit>\S.*)$")
 _RATE = re.compile(r"^(?:.+?(?:\s*/\s*(?:s|sec|ms|min|h)|\s*[·.* ]\s*(?:s\^-1|s⁻¹))|rpm|RPM|r/min)$")
 #: A position: a length (m with an SI prefix, in) or an angle (rad, mrad, deg, °), or pixels.
 _POSITION = re.compile(rf"^(?:{_PREFIX}?m|in|m?rad|deg|°|px|pixels?)$")
+#: A temperature: degrees Celsius or Fahrenheit, or kelvin.
+_TEMPERATURE = re.compile(r"^(?:°\s*[CF]|deg\s*[CF]|degC|degF|K|℃|℉)$")
 #: Spellings of the time units, lower case, -> the key of `TIME_UNITS`.
 _TIME_SPELLINGS = {
     "s": "s",
@@ -94,14 +96,18 @@ def time_unit(text: str) -> str | None:
 
 def unit_kind(unit: str) -> str | None:
     """``"rate"`` for a quantity per unit time (``mm/s``, ``rad/s``, ``L/min``, ``rpm``: a speed or a
-    flow), ``"position"`` for a length or an angle (``µm``, ``mm``, ``rad``, ``°``, ``px``), else None.
+    flow), ``"position"`` for a length or an angle (``µm``, ``mm``, ``rad``, ``°``, ``px``),
+    ``"temperature"`` (``°C``, ``K``, ``degF``), else None.
 
     What an effect's reading says of a force of the signal: a spring where it is a
-    position, a damping where it is a speed (`AbstractEffect.reading`).
+    position, a damping where it is a speed, a heat loss where it is a temperature
+    (`AbstractEffect.reading`).
     """
     text = (unit or "").strip()
     if _RATE.fullmatch(text):
         return "rate"
     if _POSITION.fullmatch(text):
         return "position"
+    if _TEMPERATURE.fullmatch(text):
+        return "temperature"
     return None

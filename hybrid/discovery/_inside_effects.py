@@ -107,6 +107,12 @@ class PolynomialStiffness(AbstractEffect):
                 f"a restoring force of the output, a position ({output_unit}): a spring that "
                 f"{'hardens' if grows else 'softens'} with the stretch"
             )
+        if kind == "temperature":
+            return (
+                f"a heat flow of the output, a temperature ({output_unit}), fed back against what drives it: "
+                f"{'a loss that grows faster than linearly (radiation, ∝ T⁴; convection that quickens)' if grows else 'a loss that eases as it warms (or a gain)'}, "
+                "beyond the model's own"
+            )
         return (
             "a force of the output fed back against the drive: a nonlinear spring where the output is a "
             "position, a nonlinear damping where it is a speed"
