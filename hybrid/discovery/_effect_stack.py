@@ -539,13 +539,14 @@ def state_trajectories(stack: EffectStack, v_in, dt):
 
 @eqx.filter_jit
 def force_responses(stack: EffectStack, v_in, dt, forces):
-    """How `stack`'s output moves, to first order, with each row of `forces` taken off its dynamics' drive.
+    """How `stack`'s output moves, to first order, with each row of `forces` fed into its dynamics.
 
     Row k of the result is the derivative of the output along a force
-    ``forces[k]`` (a signal in the drive's unit, subtracted from the drive
-    where an inside feedback's is): the response of the dynamics, linearised
-    along this recording, to that force. Forward mode, a few rows at a time
-    on each device (`map_rows`).
+    ``forces[k]`` (a signal in the force's unit, `EffectStack.force_unit`,
+    acting where an inside feedback's does: off the drive, or where the
+    simulation's `forced_rates` puts it): the response of the dynamics,
+    linearised along this recording, to that force. Forward mode, a few rows
+    at a time on each device (`map_rows`).
     """
     zero = jnp.zeros_like(v_in)
 
