@@ -106,7 +106,8 @@ def test_a_loss_fed_back_comes_off_the_power_where_the_plugin_puts_it(tmp_path):
     assert hybrid.EffectStack(hybrid.LTI(1), ["stiffness"], drive_unit="mA").force_unit == "mA"
 
 
-def test_diagnose_names_a_heat_loss_the_plugin_lacks_in_watts(tmp_path):
+def _diagnosed(tmp_path, effects: str) -> dict:
+    """report.json of `hybrid diagnose` on an hour at 1 Hz of the chamber with a 2e-5·T³ W loss (σ 0.05 °C)."""
     _heater(tmp_path)
     u = _drive(1, 7200)
     w = _chamber(u, 2e-5, 22.0) + 0.05 * np.random.default_rng(2).normal(size=u.size)
@@ -114,11 +115,28 @@ def test_diagnose_names_a_heat_loss_the_plugin_lacks_in_watts(tmp_path):
                header="t,v_in,w\ns,V,°C", comments="")  # fmt: skip
     run = h.run_hybrid(
         tmp_path,
-        *("diagnose", "chamber.csv", "--physics", "heater.py:Heater", "--effects", "stiffness"),
+        *("diagnose", "chamber.csv", "--physics", "heater.py:Heater", "--effects", effects),
         *("--out", "report", "--quiet"),
     )
     assert run.returncode == 0, run.stderr[-2000:]
-    report = json.loads((tmp_path / "report" / "report.json").read_text())
+    return json.loads((tmp_path / "report" / "report.json").read_text())
+
+
+def test_a_heat_loss_not_searched_is_placed_on_the_temperature_through_the_plugins_forces(tmp_path):
+    # No inside effect searched: the remainder's state maps reach the dynamics through forced_rates too
+    report = _diagnosed(tmp_path, "saturation")
+    description = report["unexplained"]["description"]
+    assert (
+        "state temperature fed back into its dynamics (where the plug-in's forced_rates puts a force)"
+        in (description["summary"])
+    )
+    fed = description["state_feedback"]
+    assert fed["best"] == "temperature" and fed["states"]["temperature"]["force_unit"] == "W"
+    assert fed["states"]["temperature"]["of_excess"] > 0.8
+
+
+def test_diagnose_names_a_heat_loss_the_plugin_lacks_in_watts(tmp_path):
+    report = _diagnosed(tmp_path, "stiffness")
     assert report["cause"] == "stiffness" and report["unexplained"] is None, report["verdict"]
     (cause,) = report["causes"]
     cube = cause["parameters"]["stiffness_cube"]

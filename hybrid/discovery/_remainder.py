@@ -493,7 +493,7 @@ def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
     linear = [j for j, (_, role) in enumerate(cols) if role == "linear"]
     base_tr, base_ho = [tr["w_hat"]] + [r_tr[j] for j in linear], [ho["w_hat"]] + [r_ho[j] for j in linear]
     pred, _ = _least_squares(base_tr, tr["r"], base_ho)
-    out: dict[str, Any] = {"linear": judge(pred), "states": {}}
+    out: dict[str, Any] = {"linear": judge(pred), "states": {}, "into": feedback.get("into", "its drive")}
     gain = feedback.get("gain")
     scale = 1.0 / gain if gain else 1.0
 
@@ -855,7 +855,7 @@ def _verdict(
         best_linear = max((k for k in scores if FAMILY[k] == "dynamic"), key=lambda k: score(scores[k]))
         text = (
             f"nonlinear inside the dynamics: a static function of the simulation's state {said} fed back into "
-            f"its drive recovers {pct(inkind)} {where}{_map_words(fed['states'][name])}; the best linear filter "
+            f"{fed.get('into', 'its drive')} recovers {pct(inkind)} {where}{_map_words(fed['states'][name])}; the best linear filter "
             f"{pct(best_linear)}, the best static map {pct(best_static)}"
         )
     elif kind == "nonlinear_dynamic":

@@ -30,7 +30,7 @@ import numpy as np
 from ..core._level_limit import level_limits, limit_sentence
 from ..core._problem import segment_ids
 from ..core._simulation import unit_in
-from ..core._state_space import dynamics_of
+from ..core._state_space import dynamics_of, own_forces
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
 from ._effect_stack import EffectStack, force_responses, state_trajectories
 from ._noise_floor import NoiseFloor, noise_floor
@@ -170,6 +170,9 @@ def feedback_signals(problem, final) -> dict | None:
         "units": {name: unit_in(unit, stack.drive_unit) for name, unit in dynamics[0].state_units.items()},
         "drive_unit": stack.drive_unit,
         "force_unit": stack.force_unit,  # the drive's, or where the simulation puts a force (`forced_rates`)
+        "into": "its dynamics (where the plug-in's forced_rates puts a force)"
+        if own_forces(dynamics[0])
+        else "its drive",
         "gain": float(readout["gain"]) if "gain" in readout else None,
     }
 
