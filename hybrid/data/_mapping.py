@@ -450,9 +450,8 @@ def _units(
     declared = file_meta.get("units")
     declared = declared if isinstance(declared, Mapping) else {}
     out = {"t": "s"}
-    read: list[
-        tuple[str, str]
-    ] = []  # units taken from the file, said in a note as an unmapped file's units row is
+    # units taken from the file (its source, what), said in a note as an unmapped file's units row is
+    read: list[tuple[str, str]] = []
     for channel in ("v_in", "w"):
         written = header_unit(names.get(channel, ""))
         named = written[0] if written is not None and is_unit(written[0]) else None

@@ -26,7 +26,8 @@ saw. A candidate that passed every rule of the step but materiality
 is a rival too (``"too_small": true``), whatever the tests say: a cause that
 a better, smaller fit beats may stand in for it or for an effect outside the
 library (a piezo stage's creep under a staircase, tried as a new user would:
-`drift` named at 2.39× while `backlash`, 6.07×, was too small to count). Where the recording shows why the rivals look alike, the report says it:
+`drift` named at 2.39× while `backlash`, 6.07×, was too small to count).
+Where the recording shows why the rivals look alike, the report says it:
 
 - the drive's level and time are correlated (|r| ≥ `LEVEL_TIME_R` between
   the drive's running mean, over a tenth of the recording, and time): an

@@ -244,14 +244,9 @@ def _ridge(xc, yc):
 
 def _difference_basis(width: int, blocks: int) -> np.ndarray:
     """T with x·T = [level, first differences] of each block of `width` lags: x_0, x_0 − x_1, x_1 − x_2, …"""
-    one = np.zeros((width, width))
-    one[0, 0] = 1.0
-    for j in range(1, width):
-        one[j - 1, j], one[j, j] = 1.0, -1.0
-    out = np.zeros((width * blocks, width * blocks))
-    for b in range(blocks):
-        out[b * width : (b + 1) * width, b * width : (b + 1) * width] = one
-    return out
+    one = np.eye(width, k=1) - np.eye(width)  # column j ≥ 1: x_{j−1} − x_j
+    one[0, 0] = 1.0  # column 0: x_0, the level
+    return np.kron(np.eye(blocks), one)
 
 
 def _filter(tr, ho, key, lags, rate, judge) -> dict:
