@@ -205,12 +205,14 @@ def cmd_design(args) -> None:
         [out_file(out, suffixes=(".csv",), companions=(figure,))], inputs=[folder / "report.json"]
     )
     with lock:
-        if args.physics is not None:  # a plug-in's classes imported before its models load
-            resolve_physics(args.physics, [])
         report = _report(folder)
-        entry, models, noise = _rivals(folder, report, args.step)
         if args.rate is None:  # a drive for the rig that made the diagnosed recording: its rate
             args.rate = _diagnosed_rate(folder, report)
+        if (
+            args.physics is not None
+        ):  # a plug-in's classes imported before its models load, probed at the rig's rate
+            resolve_physics(args.physics, [], rate=args.rate)
+        entry, models, noise = _rivals(folder, report, args.step)
         if entry is None and output is not None:
             raise InputError(
                 "--output-bounds: the diagnosis found nothing ambiguous, so there are no rivals whose predicted "

@@ -138,10 +138,7 @@ def _generic(args) -> None:
     from .physics._plugins import resolve_physics
     from .sensitivity._study import OUTPUT_FILES, simulation_study, write_simulation_study
 
-    simulation = resolve_physics(args.physics)
     params = parse_params(args.param)
-    if params:
-        simulation = simulation.replace(**params)
     mapped = any(
         getattr(args, k) is not None for k in ("input", "output", "time", "columns", "sample_range", "units")
     )
@@ -153,6 +150,10 @@ def _generic(args) -> None:
     lock = check_outputs([out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording])
     recording = load_recordings(args, [args.recording], rate_alone_maps=False)[0]
     warn_notes([recording])
+    # probed on a step at the recording's rate (its first samples would centre an lti:N's defaults on it)
+    simulation = resolve_physics(args.physics, rate=recording.rate)
+    if params:
+        simulation = simulation.replace(**params)
     k = len(set(simulation.parameter_names()) - set(simulation.frozen_by_default)) + 2  # + gain and offset
     recording.check_length(
         max(MIN_SAMPLES, 2 * k),

@@ -270,3 +270,35 @@ def cycled_current(rng, n: int, capacity: float = 2000.0):
         current[k : k + hold] = level
         k += hold
     return current, 0.5 + np.r_[0.0, np.cumsum(current[:-1])] / capacity
+
+
+#: A plug-in stable only at high rates (ω·dt < 2: 50 Hz, not 30 Hz), for probes at the rig's rate.
+LEAPFROG = """
+from typing import ClassVar
+
+from jax import lax
+
+from hybrid import AbstractSimulation, Positive, encode
+
+
+class Leapfrog(AbstractSimulation):
+    '''y'' = ω²(u − y − k y³) − 2ζω y' by central differences: stable only while ω·dt < 2.'''
+
+    raw: dict
+    constraints: ClassVar[dict] = {"omega": Positive(), "cubic": Positive(), "zeta": Positive()}
+    units: ClassVar[dict] = {"omega": "rad/s", "cubic": "1/V^2", "zeta": "1"}
+
+    def __init__(self, omega=70.0, cubic=0.05, zeta=0.3):
+        self.raw = encode({"omega": omega, "cubic": cubic, "zeta": zeta}, self.constraints, "Leapfrog")
+
+    def simulate(self, v_in, dt):
+        p = self.parameters()
+        h = p["omega"] * dt
+
+        def step(carry, u):
+            y, y_prev = carry
+            force = h * h * (u - y - p["cubic"] * y**3) - 2 * p["zeta"] * h * (y - y_prev)
+            return (2 * y - y_prev + force, y), y
+
+        return lax.scan(step, (0.0 * v_in[0], 0.0 * v_in[0]), v_in)[1]
+"""

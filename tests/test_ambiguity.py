@@ -344,6 +344,21 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert done.returncode == 0 and "250 samples at 50 Hz" in done.stdout, done.stderr + done.stdout
     t = np.loadtxt(tmp_path / "r.csv", delimiter=",", skiprows=1)[:, 0]
     np.testing.assert_allclose(np.diff(t), 0.02, rtol=1e-6)
+    # a plug-in (for the rivals' classes) is probed at that rate too: a leapfrog oscillator at 12.7 Hz is
+    # stable for ω·dt < 2, at 50 Hz but not at 30 Hz, where its square root is NaN (it was refused at 30 Hz
+    # whatever the rig's rate)
+    (tmp_path / "leapfrog.py").write_text(h.LEAPFROG)
+    spec = f"{tmp_path / 'leapfrog.py'}:Leapfrog"
+    done = h.run_hybrid(
+        tmp_path, "design", plain, "--physics", spec, "--duration", "5", "--amplitude", "1", "--out", "p.csv"
+    )
+    assert done.returncode == 0 and "250 samples at 50 Hz" in done.stdout, done.stderr + done.stdout
+    refused = h.run_hybrid(
+        tmp_path, "design", plain, "--physics", spec, "--rate", "30", "--duration", "5", "--amplitude", "1",
+        "--out", "q.csv",
+    )  # fmt: skip
+    assert refused.returncode == 2 and "at 30 Hz" in refused.stderr and "non-finite" in refused.stderr
+    assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "q.csv").exists()
     report_50["evidence"] = {k: v for k, v in report["evidence"].items() if k != "rate_hz"}
     (plain / "report.json").write_text(json.dumps(report_50))
     norate = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "n.csv")

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.signal
-from helpers import run_hybrid
+from helpers import LEAPFROG, run_hybrid
 from scipy.integrate import solve_ivp
 
 import hybrid
@@ -172,6 +172,14 @@ def test_resolve_a_class_from_a_file_and_from_a_module(plugin_file, monkeypatch)
         assert type(resolve_physics("valve:SqrtLag")).__module__ == "valve"
     finally:
         sys.modules.pop("valve", None)
+
+
+def test_a_plugin_without_recordings_is_probed_at_the_rate_it_will_run_at(tmp_path):
+    (tmp_path / "leapfrog.py").write_text(LEAPFROG)
+    spec = f"{tmp_path / 'leapfrog.py'}:Leapfrog"
+    assert type(resolve_physics(spec, rate=50.0)).__name__ == "Leapfrog"  # stable at 50 Hz: accepted
+    message = _one_error(spec, "non-finite", "step from 0 to 1 V at 30 Hz")  # no rate: a camera's 30 Hz
+    assert "Leapfrog.simulate" in message
 
 
 def _one_error(spec, *words):

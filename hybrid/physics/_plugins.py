@@ -182,7 +182,7 @@ def _method_name(code) -> str:
     return "importing the module" if name == "<module>" else name
 
 
-def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
+def resolve_physics(spec: str, recordings=None, *, rate: float | None = None) -> AbstractSimulation:
     """The simulation named by `spec` (``rc``, ``lti:N``, ``file.py:Class``, ``module:Class``).
 
     **Arguments:**
@@ -192,6 +192,9 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
       path, or a list of them), or None. An ``lti:N``
       then starts with its time scales centred on theirs
       (`hybrid.physics._lti_start`); every other physics ignores them.
+    - `rate`: samples per second of the drives it will run on, where there are
+      no recordings yet (``hybrid design``'s rig): a plug-in is probed on a
+      step at that rate (30 Hz if None) rather than the recordings' first samples.
 
     **Returns:** an instance with the class's default parameters.
 
@@ -216,7 +219,7 @@ def resolve_physics(spec: str, recordings=None) -> AbstractSimulation:
         text, "--physics", f"not a physics I know; give {FORMS} (e.g. --physics examples/two_tank.py:TwoTank)"
     )
     simulation = _instantiate(text, module, label, name)
-    probe_simulation(simulation, recordings, label=f"--physics {text}")
+    probe_simulation(simulation, recordings, label=f"--physics {text}", rate=rate)
     return simulation
 
 
@@ -445,15 +448,21 @@ def _fact(simulation: AbstractSimulation, name: str) -> object:
         return None
 
 
-def _probe_drive(recordings):
-    """A short drive and its step: the first samples of the first recording, or a step at 30 Hz."""
+def _probe_drive(recordings, rate: float | None = None):
+    """A short drive, its step and its words: the first recording's first samples, or a step at `rate` Hz.
+
+    Without recordings the step is sampled at `rate` (the rig's, where a
+    command knows it; 30 Hz, a camera's, where it does not): a plug-in that is
+    stable only at its own rate must not be refused at another.
+    """
     for recording in recordings or ():
         v_in = np.asarray(getattr(recording, "v_in", ()), dtype=float)[:PROBE_SAMPLES]
         dt = float(getattr(recording, "dt", 0.0) or 0.0)
         if v_in.size >= 2 and dt > 0 and np.all(np.isfinite(v_in)):
             return v_in, dt, f"the first {v_in.size} samples of the recording's drive"
+    rate = 30.0 if rate is None else float(rate)
     v_in = np.r_[np.zeros(PROBE_SAMPLES // 4), np.ones(PROBE_SAMPLES - PROBE_SAMPLES // 4)]
-    return v_in, 1 / 30, f"a {PROBE_SAMPLES}-sample step from 0 to 1 V at 30 Hz"
+    return v_in, 1 / rate, f"a {PROBE_SAMPLES}-sample step from 0 to 1 V at {rate:g} Hz"
 
 
 def _check_result(out, n: int) -> str | None:
@@ -473,10 +482,12 @@ def _check_result(out, n: int) -> str | None:
     return None
 
 
-def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str | None = None) -> None:
+def probe_simulation(
+    simulation: AbstractSimulation, recordings=None, label: str | None = None, rate: float | None = None
+) -> None:
     """Check a simulation's `simulate` once, eagerly, before anything is compiled.
 
-    It runs on a short drive (the first samples of `recordings`, or a step)
+    It runs on a short drive (the first samples of `recordings`, or a step at `rate` Hz)
     and must return one finite floating-point value per sample; it is then
     traced under `jax.jit` (``eqx.filter_eval_shape``: no compilation), which
     must succeed with the same shape. What `fit`, `diagnose` and
@@ -492,7 +503,7 @@ def probe_simulation(simulation: AbstractSimulation, recordings=None, label: str
     if has_states(simulation):  # what diagnose's effects inside the dynamics need, checked for every command
         check_state_space(simulation, label)
         _probe_linear(simulation, label)
-    v_in, dt, drive = _probe_drive(recordings)
+    v_in, dt, drive = _probe_drive(recordings, rate)
     n = v_in.size
     try:
         out = simulation.simulate(jnp.asarray(v_in), dt)
