@@ -142,6 +142,24 @@ def test_units_in_the_header_scale_the_time_and_label_the_signals(tmp_path):
     assert any("the output's name 'Displacement/µm' says µm, but --units" in n for n in rec.notes)
 
 
+def test_units_after_an_underscore_label_the_signals_and_an_unmapped_time_column_is_suggested(tmp_path):
+    # a script's names: time_s, drive_V, pos_mm; mapped without --time, the refusal names the time column
+    u, y = _signals()
+    path = _write(tmp_path / "lab.csv", "time_ms,drive_V,pos_mm", [np.arange(N) * 40.0, u, y])
+    message = _refused(
+        r"no time column and no sampling rate.*--time time_ms.*its column 'time_ms' looks like one",
+        path,
+        columns="input=drive_V,output=pos_mm",
+    )
+    assert message.count("time_ms") == 3
+    rec = Recording.load(path, columns="input=drive_V,output=pos_mm,time=time_ms")
+    assert rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"} and rec.rate == pytest.approx(25.0)
+    # one letter after '_' is a unit only where it is one scripts write (V, s, m, N, W), and v_in is no inches
+    path = _write(tmp_path / "names.csv", "t,v_in,temp_C", [np.arange(N) / RATE, u, y])
+    rec = Recording.load(path, columns="input=v_in,output=temp_C,time=t")
+    assert rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "a.u."}  # the defaults: nothing read
+
+
 def test_a_time_column_whose_name_gives_no_time_unit_is_refused(tmp_path):
     u, y = _signals()
     path = _write(tmp_path / "idx.csv", "Time [samples],u,y", [np.arange(N) * 1.0, u, y])

@@ -6,6 +6,9 @@ The rule (conservative: a word in brackets that is not clearly a unit is part of
 
 * a name ending in ``[unit]`` or ``(unit)``, or written ``name/unit`` (``name/(unit)`` for a
   compound unit), with something before it, gives ``unit`` when `is_unit` accepts it;
+* so does ``name_unit``, as scripts write it (``time_s``, ``drive_V``, ``pos_mm``), where the
+  word after the last ``_`` is a unit of two characters or more, or one of `LONE_UNITS`
+  (``v_in`` is no unit: the project's drive; ``temp_C``, ``phase_A`` are names);
 * `is_unit` accepts an SI symbol with an optional SI prefix (``s``, ``ms``, ``µm``, ``mV``,
   ``kHz``, ``Ω``, ``°C``, ...), ``%``, ``°``, ``deg``, ``rad``, ``ppm``, ``dB``, ``a.u.``,
   ``counts``, ``px``, ``min``, ``h``, ``rpm``, and products and quotients of them with
@@ -26,7 +29,7 @@ import re
 
 from ._recording_checks import TIME_UNITS
 
-__all__ = ["header_unit", "is_unit", "time_unit", "unit_kind"]
+__all__ = ["LONE_UNITS", "header_unit", "is_unit", "time_unit", "unit_kind"]
 
 _PREFIX = r"(?:da|[yzafpnµμumcdhkMGTPE])"
 _SYMBOL = r"(?:s|m|g|V|A|Ω|ohm|Ohm|Hz|N|Pa|W|J|C|F|H|T|K|S|Wb|L|l|mol|cd|lx|rad|sr|bar|eV)"
@@ -38,6 +41,9 @@ _TOKEN = rf"(?:{_SPECIAL}|{_PREFIX}?{_SYMBOL}){_POWER}"
 _UNIT = re.compile(rf"{_TOKEN}(?:\s*[/·*.⋅]\s*{_TOKEN}|\s+{_TOKEN})*")
 _BRACKETS = re.compile(r"^(?P<name>.*?\S)\s*(?:\[(?P<square>[^\[\]]*)\]|\((?P<round>[^()]*)\))\s*$")
 _SLASH = re.compile(r"^(?P<name>[^/]*?\S)\s*/\s*(?P<unit>\S.*)$")
+_UNDERSCORE = re.compile(r"^(?P<name>.*?[^\s_])_(?P<unit>[^_\s]+)$")
+#: One-letter units read after an underscore (``drive_V``, ``time_s``); any other letter there is a name.
+LONE_UNITS = frozenset({"V", "s", "m", "N", "W"})
 #: A quantity per unit time: mm/s, rad/s, L/min, m s⁻¹, m·s^-1, rpm (not an acceleration, m/s²).
 _RATE = re.compile(r"^(?:.+?(?:\s*/\s*(?:s|sec|ms|min|h)|\s*[·.* ]\s*(?:s\^-1|s⁻¹))|rpm|RPM|r/min)$")
 #: A position: a length (m with an SI prefix, in) or an angle (rad, mrad, deg, °), or pixels.
@@ -66,7 +72,8 @@ def header_unit(name: str) -> tuple[str, bool] | None:
     """The unit text a column's name ends with, and whether it is in brackets (else after a '/').
 
     ``"Time [ms]"`` -> ``("ms", True)``, ``"Displacement/µm"`` -> ``("µm", False)``,
-    ``"u"`` -> None. The text is returned whether or not it is a unit (`is_unit` says).
+    ``"pos_mm"`` -> ``("mm", False)``, ``"u"`` -> None. A bracketed or slashed text is returned
+    whether or not it is a unit (`is_unit` says); a word after ``_`` only where it is one.
     """
     text = name.strip()
     match = _BRACKETS.match(text)
@@ -79,6 +86,11 @@ def header_unit(name: str) -> tuple[str, bool] | None:
         if unit.startswith("(") and unit.endswith(")"):
             unit = unit[1:-1].strip()  # ISO 80000: v/(m/s)
         return unit, False
+    match = _UNDERSCORE.match(text)
+    if match:
+        unit = match.group("unit")
+        if (len(unit) >= 2 or unit in LONE_UNITS) and is_unit(unit):
+            return unit, False
     return None
 
 

@@ -267,7 +267,7 @@ _ROLE_WORDS = {
 _ANY_TOKEN = ("time", "index")
 
 
-def _role_of(name: str) -> str | None:
+def role_of(name: str) -> str | None:
     """The role a column's name suggests: 'Time (s)' -> time, 'uEst' -> input, 'Displacement [mm]' -> output."""
     words = re.sub(r"[\(\[].*?[\)\]]", " ", name).lower()  # units in brackets
     words = re.sub(r"(est|val|meas|measured|_?\d+)$", "", re.sub(r"[^a-z0-9]+", " ", words).strip())
@@ -288,10 +288,10 @@ def _mapping_example(names: Sequence[str]) -> str:
     """The flags that would map a lab file's columns, guessed from their names (time, drive, output)."""
     roles: dict[str, str] = {}
     for name in names:
-        role = _role_of(name)
+        role = role_of(name)
         if role is not None and role not in roles:
             roles[role] = name
-    rest = [n for n in names if n not in roles.values() and _role_of(n) != "index"]
+    rest = [n for n in names if n not in roles.values() and role_of(n) != "index"]
     for role in ("input", "output"):
         if role not in roles and rest:
             roles[role] = rest.pop(0)
@@ -303,7 +303,12 @@ def _mapping_example(names: Sequence[str]) -> str:
     time = roles.get("time")
     if time is None:
         return f"--columns {columns} with --rate HZ (or --time COLUMN)"
-    return f"--columns {columns} --time " + (f'"{time}"' if re.search(r"[^\w.-]", time) else time)
+    return f"--columns {columns} --time {shell_word(time)}"
+
+
+def shell_word(name: str) -> str:
+    """A column's name as one word of a shell command: quoted where it has spaces or brackets."""
+    return f'"{name}"' if re.search(r"[^\w.-]", name) else name
 
 
 def parse_metadata(path: pathlib.Path, text: str, where: str) -> dict:

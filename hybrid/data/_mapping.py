@@ -70,7 +70,7 @@ import numpy as np
 
 from ..util._errors import InputError
 from ._header_units import header_unit, is_unit, time_unit
-from ._loaders import check_file, path_argument, time_factor
+from ._loaders import check_file, path_argument, role_of, shell_word, time_factor
 from ._mapping_options import (
     mapping_roles,
     parse_columns,
@@ -167,6 +167,7 @@ def load_mapped(
     references = file_references(roles, paths)
     lines = None  # the file line of each sample, for messages
     notes: list[str] = []
+    header: tuple[str, ...] = ()  # the file's column names, where one file is read
     if references:
         data, fields, file_meta = _read_joined(references)
         path = " + ".join(str(p) for p in dict.fromkeys(p for p, _ in references.values()))  # for messages
@@ -178,7 +179,7 @@ def load_mapped(
     else:
         path = paths[0]
         data, fields, file_meta, table = read or read_columns(path, check_file(path, MAPPED_SUFFIXES), roles)
-        lines, notes = table.lines, list(table.notes)
+        lines, notes, header = table.lines, list(table.notes), table.columns
     lengths = {role: len(values) for role, values in data.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"the {OPTION[r]} '{roles[r]}' has {k}" for r, k in lengths.items())
@@ -252,9 +253,12 @@ def load_mapped(
     hz, rate_from = _resolve_rate(label, rate_arg, grid, fields, file_meta, jitter)
     if t is None:
         if hz is None:
+            times = [c for c in header if c not in roles.values() and role_of(c) == "time"]
+            named = f"--time {shell_word(times[0])}; time={times[0]!r}" if times else "--time COLUMN; time="
             raise InputError(
                 f"recording '{label}' has no time column and no sampling rate: pass the rate in "
-                "Hz (--rate HZ; rate= in Python) or name a time column (--time COLUMN; time=)"
+                f"Hz (--rate HZ; rate= in Python) or name a time column ({named})"
+                + (f": its column '{times[0]}' looks like one" if times else "")
             )
         t = (start + np.arange(stop - start, dtype=np.float64)) / hz
     metadata = dict(file_meta)

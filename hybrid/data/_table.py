@@ -124,6 +124,8 @@ class TableNotes(NamedTuple):
     lines: np.ndarray | None = None
     #: What was done to the file (a preamble or footer skipped, ';' cells read), one sentence each.
     notes: tuple[str, ...] = ()
+    #: The file's column (or array, variable) names, for a message that suggests one.
+    columns: tuple[str, ...] = ()
 
 
 def read_columns(
@@ -150,7 +152,7 @@ def read_columns(
             role: table[:, _column_index(path, names, name, role, flag_prefix)]
             for role, name in wanted.items()
         }
-        return columns, {}, {}, notes
+        return columns, {}, {}, notes._replace(columns=tuple(names))
     arrays, metadata = npz_arrays(path) if suffix == ".npz" else mat_variables(path)
     kind = "array" if suffix == ".npz" else "variable"
     columns = {}
@@ -165,7 +167,7 @@ def read_columns(
         and key not in wanted.values()
         and np.asarray(values).dtype.kind in "biuf"
     }
-    return columns, fields, metadata, TableNotes()
+    return columns, fields, metadata, TableNotes(columns=tuple(arrays))
 
 
 def rate_field(values: np.ndarray) -> float | None:
@@ -263,7 +265,12 @@ def _read_csv(
         units = metadata.get("units")
         declared: dict = units if isinstance(units, dict) else {}
         metadata["units"] = {**stated, **declared}
-    return columns, rates, metadata, TableNotes(np.frombuffer(lines, dtype=np.int64).copy(), tuple(notes))
+    return (
+        columns,
+        rates,
+        metadata,
+        TableNotes(np.frombuffer(lines, dtype=np.int64).copy(), tuple(notes), tuple(header)),
+    )
 
 
 def _data_lines(
