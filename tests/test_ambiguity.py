@@ -636,5 +636,7 @@ def test_a_baseline_drift_absorbed_by_a_staircase_is_open_not_an_all_clear():
     (entry,) = found.to_dict()["ambiguous"]
     assert entry["evidence"] == "confound" and [r["name"] for r in entry["rivals"]] == ["baseline_drift"]
     assert set(entry["models"]) == {"none", "baseline_drift"}  # both sides saved: hybrid design has rivals
+    said = found.to_dict()["verdict"]  # the headline is no all-clear
+    assert "whether baseline_drift is missing is open" in said and "No effect is needed" not in said
     clean = hybrid.diagnose(_heated_block(0.0), simulation=hybrid.LTI(1), effects=effects)
     assert clean.causes == [] and clean.ambiguous == []

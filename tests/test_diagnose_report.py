@@ -180,7 +180,7 @@ def test_no_report_key_names_a_unit_that_follows_the_signal():
     assert not set(RENAMED_IN_SCHEMA_3) & keys  # and no old one is left
 
 
-def _verdict_of(final_over_floor, causes=()):
+def _verdict_of(final_over_floor, causes=(), ambiguous=()):
     """`verdict` of a diagnosis whose final held-out MSE is `final_over_floor` × a floor of 0.01."""
     from types import SimpleNamespace
 
@@ -197,6 +197,7 @@ def _verdict_of(final_over_floor, causes=()):
             extended=fit(0.01 * final_over_floor),
             noise_floor=SimpleNamespace(variance=0.01),
             unexplained=None,
+            ambiguous=list(ambiguous),
             dropped=[],
             settings=DiagnoseSettings(),
             gain=0.5 / (0.01 * final_over_floor),
@@ -218,6 +219,19 @@ def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
     short = _verdict_of(1.8, [{"name": "baseline_drift"}])
     assert "measurement noise." not in short and "what remains is 1.8× the measurement noise floor" in short
     assert "too small for the rules on this recording" in short
+    # a new user's rising staircase, its sensor drifting: "No effect is needed" led the report while the
+    # last step was open between nothing more and baseline_drift; the headline now says it is open
+    entry = {"step": 1, "named": "none", "open": True, "rivals": [{"name": "baseline_drift"}]}
+    asked = _verdict_of(1.1, ambiguous=[entry])
+    assert "No effect is needed" not in asked and "as good as the data allow" not in asked
+    assert "whether baseline_drift is missing is open on this recording" in asked and "hybrid design" in asked
+    named = _verdict_of(1.0, [{"name": "saturation"}], ambiguous=[entry])
+    assert "measurement noise." not in named and "whether baseline_drift is also missing is open" in named
+    # a rival of a named cause (not an open step) leaves the all-clear as it was
+    rival = {"step": 1, "named": "saturation", "rivals": [{"name": "drift"}]}
+    assert _verdict_of(1.0, [{"name": "saturation"}], ambiguous=[rival]).endswith(
+        "what remains is measurement noise."
+    )
 
 
 @pytest.mark.parametrize(

@@ -36,6 +36,7 @@ def verdict(diagnosis) -> str:
     floor = diagnosis.noise_floor.variance if diagnosis.noise_floor is not None else 0.0
     ratio = final_mse / floor if floor > 0 else float("nan")  # the final model's held-out MSE over the floor
     left = diagnosis.unexplained
+    question = open_question(diagnosis.ambiguous, also=bool(causes))
     where = ""
     if left is not None:
         summary = left.get("description", {}).get("summary", "")
@@ -53,6 +54,8 @@ def verdict(diagnosis) -> str:
                 f" ({d['name']}, named at step {d['step']}, was dropped: beside "
                 f"{_names(causes)} it gains only {d['gain']:.2f}× held out)"
             )
+        if left is None and question:
+            return head + f"; what remains is {ratio:.2g}× the measurement noise floor, {question}."
         if left is None:
             if not ratio > AT_FLOOR:
                 return head + "; what remains is measurement noise."
@@ -63,6 +66,11 @@ def verdict(diagnosis) -> str:
                 "the library, may still take it nearer."
             )
         return head + f"; {left['fraction_above_floor']:.0%} of what remains lies above the noise{where}."
+    if left is None and question:
+        return (
+            f"No effect passes the search's rules: the simulation's held-out error is {ratio:.2g}× the "
+            f"measurement noise floor, {question}."
+        )
     if left is None:
         if not ratio > AT_FLOOR:
             return (
@@ -92,6 +100,24 @@ def verdict(diagnosis) -> str:
         f"No effect in the library passes the search's rules on this recording (the closest, {best.name}, "
         f"{refusal(best, diagnosis.settings.min_gain)}): "
         f"{left['fraction_above_floor']:.0%} of the simulation's held-out error lies above the noise floor{where}."
+    )
+
+
+def open_question(ambiguous: list[dict], also: bool = False) -> str:
+    """The clause an open last step (`hybrid.discovery._ambiguity`) puts in an all-clear, or ''.
+
+    `also`: whether causes were named (the effect would be missing *too*).
+
+    A new user's rising staircase with a sensor drifting: the report led with "No effect is needed" and
+    said lower down that whether baseline_drift was missing was open.
+    """
+    entry = next((e for e in ambiguous if e.get("open")), None)
+    if entry is None:
+        return ""
+    names = " or ".join(r["name"] for r in entry["rivals"]) or "an effect"
+    return (
+        f"yet whether {names} is {'also ' if also else ''}missing is open on this recording: a drive designed "
+        "to separate them would tell (hybrid design)"
     )
 
 
