@@ -25,9 +25,11 @@ from ._effects import (
     Backlash,
     BackRelaxation,
     BaselineDrift,
+    Clip,
     Creep,
     Delay,
     Drift,
+    DriveClip,
     DriveDeadZone,
     DriveEven,
     DriveSaturation,
@@ -61,8 +63,10 @@ EFFECTS: dict[str, type[AbstractEffect]] = {
     )
 }
 #: Built-in effects searched only when named (``--effects builtins,creep``): physics that a lab meets
-#: (a piezo's creep) but that the default set's lanes would pay for on every recording.
-NAMED_ONLY: dict[str, type[AbstractEffect]] = {cls.name: cls for cls in (Creep,)}
+#: (a piezo's creep, an amplifier's hard clip) but that the default set's lanes would pay for on every
+#: recording, or whose extra freedom would stand in for other effects there (a clip's free knee, soft,
+#: took a drift under a rising level).
+NAMED_ONLY: dict[str, type[AbstractEffect]] = {cls.name: cls for cls in (Creep, Clip, DriveClip)}
 #: Names an effect may not take: the search's words for "no effect", the always-on frame timing and
 #: `EffectStack.signals_into`'s key for the drive that reaches the simulation.
 RESERVED = ("none", "frame_timing", "drive")
@@ -347,7 +351,7 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
                 ) from None
         elif not isinstance(item, AbstractEffect):
             raise InputError(f"{label}: give an effect's name, an AbstractEffect subclass or an instance")
-        if type(item) not in (*EFFECTS.values(), StateLimit):  # built-ins are tested; a plug-in is probed
+        if type(item) not in (*EFFECTS.values(), *NAMED_ONLY.values(), StateLimit):  # built-ins are tested
             check_effect(item, label)
         if item.place == "inside":
             _check_inside(item, label, simulation, states)

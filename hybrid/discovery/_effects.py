@@ -35,6 +35,12 @@ A delay of the drive is the output's ``delay``: a dead time commutes with
 time-invariant dynamics, S(u(· − d)) = S(u)(· − d) from rest, so one effect
 stands for both places.
 
+Searched only when named (``NAMED_ONLY`` of `hybrid.discovery._effect_set`):
+``creep`` (`Creep`), and ``clip`` and ``drive_clip`` (`Clip`, `DriveClip`: the
+saturations with the knee's sharpness n fitted, sgn(s)·tanh(|κs|ⁿ)^(1/n)/|κ|,
+a hard clip at ±1/|κ| as n grows; parameters ``<name>_pos_curvature``,
+``<name>_neg_curvature``, ``<name>_sharpness``).
+
 - Back-relaxation: under a held voltage the bending charge diffuses back; the
   step response peaks, then relaxes by the fraction β with time constant τ.
 - Hysteresis: the Bouc–Wen state u is rate-independent (it moves with ds, not
@@ -440,24 +446,55 @@ class Creep(_SlowResponse):
         ]
 
 
-def _soft_clip(s, k):
-    """tanh(k s)/k, even in k and equal to s at k = 0 (finite gradients there too)."""
-    x = k * s
-    small = jnp.abs(x) < 1e-4
-    k_safe = jnp.where(jnp.abs(k) < 1e-300, 1.0, k)
-    x_safe = jnp.where(small, 1.0, x)
-    return jnp.where(small, s * (1.0 - x * x / 3.0), jnp.tanh(x_safe) / k_safe)
+#: Sharpness from which a saturation's knee reads as a hard clip: at its level the response
+#: reaches 0.966 of the level, tanh(1)^(1/8) (a tanh's reaches 0.762, ``tanh(1)``).
+SHARP_KNEE = 8.0
+#: Sharpness below which the knee reads as soft: the response approaches its levels slowly.
+SOFT_KNEE = 0.7
+
+
+def _log_tanh_exp(z):
+    """log tanh(eᶻ), accurate at both ends (its series below e⁻¹⁵, 0 above e³ where tanh is 1 − 2e⁻⁴⁰)."""
+    low, high = z < -15.0, z >= 3.0
+    mid = jnp.clip(z, -15.0, 3.0)
+    return jnp.where(
+        low,
+        z - jnp.exp(2.0 * jnp.minimum(z, -15.0)) / 3.0,
+        jnp.where(high, 0.0, jnp.log(jnp.tanh(jnp.exp(mid)))),
+    )
+
+
+def _soft_clip(s, k, n=1.0):
+    """s's saturation of curvature k and sharpness n: sign(s)·tanh(|ks|ⁿ)^(1/n)/|k|.
+
+    Even in k and equal to s at k = 0 (finite gradients there too); slope 1 at
+    s = 0, levels ±1/|k|. n = 1 is tanh(ks)/k; as n grows the knee sharpens
+    towards the hard clip clip(s, −1/|k|, 1/|k|) (n = 8: 0.966 of the level at
+    the level; n → ∞: the clip itself). Computed as s·g with log g =
+    (log tanh(xⁿ) − n log x)/n, x = |ks|, which stays finite for x → 0
+    (g → exp(−x²ⁿ/3n)) and for large x or n.
+    """
+    x = jnp.abs(k * s)
+    tiny = x < 1e-12
+    log_x = jnp.log(jnp.where(tiny, 1.0, x))
+    log_g = (_log_tanh_exp(n * log_x) - n * log_x) / n
+    return jnp.where(tiny, s, s * jnp.exp(jnp.where(tiny, 0.0, log_g)))
 
 
 class _SidedSaturation(AbstractEffect):
-    """tanh(κ₊ x)/κ₊ for x ≥ 0 and tanh(κ₋ x)/κ₋ for x < 0, slope 1 at x = 0, on whichever signal.
+    """sign(x)·tanh(|κ± x|ⁿ)^(1/n)/|κ±| (κ₊ for x ≥ 0), slope 1 at x = 0, on whichever signal.
 
     κ± is the curvature of each side (1/unit of the signal); κ = 0 is the
     linear response, so the effect-free simulation lies inside the family (at a
     finite parameter, where a saturation level σ = 1/κ would need σ → ∞). The
     response levels off at ±1/|κ±|: ``derived`` reports those levels and the
     shortfall below the linear extrapolation at the largest |x| of each sign.
-    The parameters are ``<name>_pos_curvature`` and ``<name>_neg_curvature``.
+    The sharpness n (one for both sides) shapes the knee: 1, a tanh's, in
+    `Saturation` and `DriveSaturation`; fitted in `Clip` and `DriveClip`, where
+    an amplifier's rail, a DAC's range or a sensor's full scale clips hard
+    (n ≥ `SHARP_KNEE`: the level is reached almost at once) and a soft
+    material bends over slowly (n < 1). The parameters are
+    ``<name>_pos_curvature``, ``<name>_neg_curvature`` (and ``<name>_sharpness``).
     """
 
     thresholds: ClassVar = {"shortfall_percent": 5.0}
@@ -468,24 +505,34 @@ class _SidedSaturation(AbstractEffect):
     def _curvature(self, side: str):
         return self.parameters()[f"{self.name}_{side}_curvature"]
 
+    def _sharpness(self):
+        """The knee's sharpness n: fitted by `Clip` and `DriveClip`, 1 (a tanh's) for the saturations."""
+        return self.parameters().get(f"{self.name}_sharpness", 1.0)
+
     def apply(self, s, dt):
-        return _soft_clip(s, jnp.where(s >= 0, self._curvature("pos"), self._curvature("neg")))
+        k = jnp.where(s >= 0, self._curvature("pos"), self._curvature("neg"))
+        return _soft_clip(s, k, self._sharpness())
+
+    @staticmethod
+    def _peaks(signal) -> tuple[tuple[str, float], ...]:
+        return ("pos", float(np.max(signal))), ("neg", float(-np.min(signal)))
 
     def derived(self, s, dt):
         """Level 1/|κ| and shortfall below the linear extrapolation at the largest |s|, %."""
         out = {}
-        for side, peak in (("pos", np.max(s)), ("neg", -np.min(s))):
-            peak, k = float(peak), abs(float(self._curvature(side)))
+        n = float(self._sharpness())
+        for side, peak in self._peaks(s):
+            k = abs(float(self._curvature(side)))
             out[f"level_{side}"] = 1.0 / k if k > 0 else float("inf")
             if peak > 0:
                 out[f"shortfall_{side}_percent"] = 100.0 * (
-                    1.0 - float(_soft_clip(jnp.asarray(peak), k)) / peak
+                    1.0 - float(_soft_clip(jnp.asarray(peak), k, n)) / peak
                 )
         return out
 
     def starts(self, context):
         # Curvatures whose shortfall at the largest |s| is about 3 % (next to the
-        # current model, so LM can only improve on it), 13 % and 35 %.
+        # current model, so LM can only improve on it), 13 % and 35 %, on a tanh's knee.
         pos, neg = _sides(context.signal)
         keys = f"{self.name}_pos_curvature", f"{self.name}_neg_curvature"
         return [dict(zip(keys, (c / pos, c / neg))) for c in (0.3, 1 / 1.5, 1 / 0.8)]
@@ -495,7 +542,25 @@ class _SidedSaturation(AbstractEffect):
             return "the signal it acts on never goes negative"
         if name == f"{self.name}_pos_curvature" and np.max(signal) <= 0:
             return "the signal it acts on never goes positive"
+        if name == f"{self.name}_sharpness":
+            reach = max(abs(float(self._curvature(side))) * peak for side, peak in self._peaks(signal))
+            if reach < 0.5:
+                return (
+                    f"the signal it acts on stays below the knee (at most {reach:.2g} of a level), "
+                    "where every sharpness bends alike"
+                )
         return None
+
+    def reading(self, parameters, output_unit):
+        n = parameters.get(f"{self.name}_sharpness", 1.0)
+        if n >= SHARP_KNEE:
+            return (
+                f"a sharp knee (sharpness {n:.3g}; a tanh's is 1): close to a hard clip at its levels, as an "
+                "amplifier's rail, a DAC's range or a sensor's range gives"
+            )
+        if n <= SOFT_KNEE:
+            return f"a soft knee (sharpness {n:.3g}; a tanh's is 1): it approaches its levels slowly"
+        return ""
 
     def material(self, derived, parameters, thresholds):
         worst = max([v for k, v in derived.items() if k.startswith("shortfall")] or [0.0])
@@ -503,18 +568,32 @@ class _SidedSaturation(AbstractEffect):
         return worst >= need, f"shortfall {worst:.1f} % (needs ≥ {need} %)"
 
 
+def _sided_facts(name: str, sharp: bool = False) -> tuple[dict, dict, dict]:
+    """(constraints, units, defaults) of a sided saturation: its two curvatures, and its sharpness where `sharp`."""
+    keys = (f"{name}_pos_curvature", f"{name}_neg_curvature")
+    constraints: dict[str, Constraint] = {k: Real() for k in keys}
+    units = dict.fromkeys(keys, "1/{signal}")
+    defaults = dict.fromkeys(keys, 0.0)
+    if sharp:
+        constraints[f"{name}_sharpness"], units[f"{name}_sharpness"], defaults[f"{name}_sharpness"] = (
+            Positive(),
+            "1",
+            1.0,
+        )
+    return constraints, units, defaults
+
+
 class Saturation(_SidedSaturation):
     """On the output: y = tanh(κ₊ s)/κ₊ for s ≥ 0 and tanh(κ₋ s)/κ₋ for s < 0 (κ± in 1/unit of s).
 
     A strip, a sensor or a camera's field that cannot follow the simulation
-    beyond a level, each side its own (see `_SidedSaturation` for the form).
+    beyond a level, each side its own (see `_SidedSaturation` for the form;
+    `Clip` for a knee of any sharpness).
     """
 
     raw: dict[str, Array]
     name: ClassVar[str] = "saturation"
-    constraints: ClassVar = {"saturation_pos_curvature": Real(), "saturation_neg_curvature": Real()}
-    units: ClassVar = {"saturation_pos_curvature": "1/{signal}", "saturation_neg_curvature": "1/{signal}"}
-    defaults: ClassVar = {"saturation_pos_curvature": 0.0, "saturation_neg_curvature": 0.0}
+    constraints, units, defaults = _sided_facts("saturation")
 
 
 class DriveSaturation(_SidedSaturation):
@@ -523,21 +602,56 @@ class DriveSaturation(_SidedSaturation):
     An amplifier or a DAC stage that clips, a pump or valve at its limit: the
     drive that reaches the dynamics levels off at ±1/|κ±|. Unlike the output's
     saturation it is filtered by the dynamics, so a fast drive's clipped peaks
-    are smoothed, and a slow one's flattened.
+    are smoothed, and a slow one's flattened (`DriveClip` for a hard clip).
     """
 
     raw: dict[str, Array]
     name: ClassVar[str] = "drive_saturation"
     place: ClassVar[str] = "drive"
-    constraints: ClassVar = {
-        "drive_saturation_pos_curvature": Real(),
-        "drive_saturation_neg_curvature": Real(),
-    }
-    units: ClassVar = {
-        "drive_saturation_pos_curvature": "1/{signal}",
-        "drive_saturation_neg_curvature": "1/{signal}",
-    }
-    defaults: ClassVar = {"drive_saturation_pos_curvature": 0.0, "drive_saturation_neg_curvature": 0.0}
+    constraints, units, defaults = _sided_facts("drive_saturation")
+
+
+class _SharpKnee(_SidedSaturation):
+    """A sided saturation whose knee's sharpness is fitted: starts at a tanh's knee and at a hard clip's."""
+
+    def starts(self, context):
+        # the saturation's three starts (n = 1), and a hard clip (n = SHARP_KNEE) at 0.8 of the peaks
+        pos, neg = _sides(context.signal)
+        sharp = {
+            f"{self.name}_pos_curvature": 1 / (0.8 * pos),
+            f"{self.name}_neg_curvature": 1 / (0.8 * neg),
+            f"{self.name}_sharpness": SHARP_KNEE,
+        }
+        return [*super().starts(context), sharp]
+
+
+class Clip(_SharpKnee):
+    """On the output: a saturation whose knee's sharpness n is fitted (n = 1: `Saturation`; n → ∞: a hard clip).
+
+    A sensor's full scale, a camera's field, an ADC's range: the output stops
+    at a level, sharply, where a tanh bends over the whole range. Searched
+    when named (``--effects builtins,clip``; `NAMED_ONLY`): its third
+    parameter would let it stand in for effects of other shapes in the
+    default search (a drift under a rising level).
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "clip"
+    constraints, units, defaults = _sided_facts("clip", sharp=True)
+
+
+class DriveClip(_SharpKnee):
+    """On the drive: a saturation whose knee's sharpness n is fitted (n = 1: `DriveSaturation`; n → ∞: a clip).
+
+    An amplifier's rails, a DAC's range, a valve's stops: the drive that
+    reaches the dynamics stops at a level, sharply. Searched when named
+    (``--effects builtins,drive_clip``; `NAMED_ONLY`), as `Clip` is.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "drive_clip"
+    place: ClassVar[str] = "drive"
+    constraints, units, defaults = _sided_facts("drive_clip", sharp=True)
 
 
 class Hysteresis(AbstractEffect):

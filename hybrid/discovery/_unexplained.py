@@ -233,7 +233,7 @@ def remainder(
     if hint:
         description["place"] = "inside"
         description["summary"] += f"; {hint}"
-    elif hint := creep_hint(description, places or {}):
+    elif hint := named_only_hint(description, places or {}):
         description["summary"] += f"; {hint}"
     out = {
         "fraction_above_floor": 1.0 - floor.variance / mse,
@@ -256,21 +256,46 @@ def remainder(
     return out
 
 
-def creep_hint(description: dict, places: dict) -> str | None:
-    """Where a linear filter of the drive or a trend in time recovers most of the rest and no creep was
-    searched: the built-in `Creep`, searched only when named (`NAMED_ONLY`).
+#: What a remainder recovered best by each of these maps may be, and the built-in searched only when named
+#: (`NAMED_ONLY`) that would take it: (the effect, what it is in a lab's words).
+_NAMED_ONLY_HINTS = {
+    "filter_drive": (
+        "creep",
+        "a slow response to the drive that the simulation lacks (a creep, a second time constant)",
+    ),
+    "time": (
+        "creep",
+        "a slow response to the drive that the simulation lacks (a creep, a second time constant)",
+    ),
+    "static_drive": (
+        "drive_clip",
+        "a drive that stops at its levels more sharply than a tanh bends (an amplifier's rails, a DAC's range, a "
+        "valve's stops)",
+    ),
+    "static_output_monotone": (
+        "clip",
+        "an output that stops at its levels more sharply than a tanh bends (a sensor's full scale, an ADC's range)",
+    ),
+}
+
+
+def named_only_hint(description: dict, places: dict) -> str | None:
+    """The built-in searched only when named (`NAMED_ONLY`) that may take a remainder, where it was not searched.
 
     A piezo's creep read "a linear filter of the drive" at 50 Hz; a creep slower than the remainder's
-    filters (τ = 3 s at 25 Hz: 75 samples, the filters' 25 lags) reads "a trend in time".
+    filters (τ = 3 s at 25 Hz: 75 samples, the filters' 25 lags) reads "a trend in time". An amplifier
+    that clips at ±5 V read "static and odd in the drive … it bends at the largest drive levels" beside
+    the drive's tanh saturation, whose knee bends over the whole range (gain 2.7; its clip, named, left
+    nothing unexplained: `tests/test_hard_clip.py`).
     """
     named = (description.get("recovered") or {}).get("named")
     searched = {e for place in places.values() for e in place.get("effects", ())}
-    if named not in ("filter_drive", "time") or not places or "creep" in searched:
+    if named not in _NAMED_ONLY_HINTS or not places:
         return None
-    return (
-        "a slow response to the drive that the simulation lacks (a creep, a second time constant) may also "
-        "explain it: the built-in creep is searched when named (--effects builtins,creep)"
-    )
+    effect, what = _NAMED_ONLY_HINTS[named]
+    if effect in searched:
+        return None
+    return f"{what} may also explain it: the built-in {effect} is searched when named (--effects builtins,{effect})"
 
 
 def place_hint(description: dict, places: dict) -> str | None:
