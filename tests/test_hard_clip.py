@@ -86,7 +86,7 @@ def test_a_sharp_or_soft_knee_is_read_and_a_knee_never_reached_leaves_the_sharpn
 
 
 def _clipped(path, seed: int = 3) -> None:
-    """±5 V rails clip random steps of ±8 V into a 1.2 Hz, ζ 0.4 plant of gain 4 (scipy), 60 s at 30 Hz."""
+    """±5 kV rails clip random steps of ±8 kV into a 1.2 Hz, ζ 0.4 plant of gain 4 (scipy), 60 s at 30 Hz."""
     rng = np.random.default_rng(seed)
     rate, n = 30.0, 1800
     holds = rng.uniform(0.5, 3.0, 200)
@@ -97,7 +97,7 @@ def _clipped(path, seed: int = 3) -> None:
     plant = scipy.signal.lti([4 * w0**2], [1.0, 2 * 0.4 * w0, w0**2])
     _, y, _ = scipy.signal.lsim(plant, np.clip(v, -5.0, 5.0), t)
     w = y + 0.005 * np.ptp(y) * rng.normal(size=n)
-    np.savetxt(path, np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
+    np.savetxt(path, np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,kV,mm", comments="")  # a kV drive
 
 
 def test_a_clipping_amplifier_is_pointed_at_by_the_saturations_and_named_with_its_rails_when_searched(
@@ -122,9 +122,13 @@ def test_a_clipping_amplifier_is_pointed_at_by_the_saturations_and_named_with_it
     p = report["parameters"]
     for side in ("pos", "neg"):
         assert 1 / abs(p[f"drive_clip_{side}_curvature"]["value"]) == pytest.approx(5.0, rel=0.01)
-        assert p[f"drive_clip_{side}_curvature"]["unit"] == "1/V"
+        assert p[f"drive_clip_{side}_curvature"]["unit"] == "1/kV"  # the units of the recording's drive
     assert p["drive_clip_sharpness"]["value"] >= 8.0
     assert "close to a hard clip" in report["causes"][0]["reading"]
+    # the levels in the drive's unit too, in report.json and in report.md's size column
+    assert report["causes"][0]["derived_units"] == {"level_pos": "kV", "level_neg": "kV"}
+    level = report["causes"][0]["derived"]["level_pos"]
+    assert f"level pos {level:.4g} kV" in (tmp_path / "d" / "report.md").read_text()
 
 
 def test_a_remainder_static_in_the_drive_or_monotone_in_the_output_names_the_clip_of_its_place():

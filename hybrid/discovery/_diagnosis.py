@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core._fit import PAPER_UNITS
+from ..core._simulation import unit_in
 from ..util._errors import InputError
 from ._ambiguity import TEST as AMBIGUITY_TEST
 from ._effect_set import EFFECTS, NAMED_ONLY
@@ -52,6 +53,8 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: ``evidence.start.settled`` (the held start diagnose tried by itself, and what the run from the
 #: simulation's own start named); a limit on a state that spills adds ``<state>_spill``; hysteresis's
 #: ``derived`` and thresholds add ``loop_rate_times_range`` (the loop must close over the recording).
+#: Within schema 4: a cause's ``derived_units`` (the units of its derived quantities that their names do
+#: not say: a saturation's ``level_pos``/``level_neg`` in the unit of the signal it acts on).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -448,6 +451,7 @@ class Diagnosis:
                     "delta_bic": chosen.delta_bic,
                     **({"reading": reading} if reading else {}),
                     "derived": self.final_derived.get(chosen.name, chosen.derived),
+                    **({"derived_units": units} if (units := self._derived_units(chosen.name)) else {}),
                     "parameters": {
                         k: {
                             "value": v,
@@ -498,6 +502,14 @@ class Diagnosis:
         from ._verdict import verdict
 
         return verdict(self)
+
+    def _derived_units(self, name: str) -> dict[str, str]:
+        """The units of effect `name`'s derived quantities (`AbstractEffect.derived_units`) in the recordings'."""
+        table = getattr(getattr(self.models.get("extended"), "simulation", None), "derived_units", None)
+        if not isinstance(table, dict):
+            return {}
+        drive = self.signal_units.get("v_in") or PAPER_UNITS["v_in"]
+        return {k: unit_in(v, drive) for k, v in table.get(name, {}).items()}
 
     def _unit(self, name: str) -> str:
         return self.units.get(name) or _unit(self.uncertainties.get(name))

@@ -146,6 +146,16 @@ class EffectStack(AbstractWrapper):
         return out
 
     @property
+    def derived_units(self) -> dict[str, dict[str, str]]:
+        """Each effect's `derived_units`, filled in as `units` fills its parameters', by effect name."""
+        return {
+            effect.name: effect.derived_units_for(
+                self.signal_unit(effect), self.force_unit if effect.place == "inside" else self.drive_unit
+            )
+            for effect in self.effects
+        }
+
+    @property
     def constraints(self) -> dict[str, Constraint]:
         out = dict(self.inner.constraints)
         for effect in self.effects:

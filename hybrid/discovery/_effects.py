@@ -147,6 +147,12 @@ class StartContext:
     frozen: frozenset = frozenset()
 
 
+def _filled(templates: dict[str, str], signal_unit: str, drive_unit: str) -> dict[str, str]:
+    """`templates` with ``{signal}`` replaced by `signal_unit` and ``{drive}`` by `drive_unit`."""
+    unit, drive = signal_unit or "(unit of S)", drive_unit or "(unit of the drive)"
+    return {k: unit_in(substitute_unit(v, SIGNAL, unit), drive) for k, v in templates.items()}
+
+
 class AbstractEffect(eqx.Module):
     """One physical effect: y = effect(s) with named, constrained parameters.
 
@@ -179,7 +185,10 @@ class AbstractEffect(eqx.Module):
     - `material(derived, parameters, thresholds)`: whether a fit of the effect is
       large enough to count, and the sentence that says why (default: always).
     - `derived(s, dt)`: quantities an experimenter reads more easily than the
-      raw parameters (they are `material`'s `derived`).
+      raw parameters (they are `material`'s `derived`); `derived_units` their
+      units by name, as `units` (``{signal}`` allowed: a saturation's level is in
+      the unit of the signal it acts on). A name ending ``_percent``, ``_s``,
+      ``_hz`` or ``_samples`` says its unit already.
     - `reading(parameters, output_unit)`: what the fit means physically, where the
       name alone could mislead (default: nothing).
     """
@@ -193,6 +202,7 @@ class AbstractEffect(eqx.Module):
     role: ClassVar[str] = "feedback"
     acts_on: ClassVar[str] = "output"
     thresholds: ClassVar[dict[str, float]] = {}
+    derived_units: ClassVar[dict[str, str]] = {}
     n_screened: ClassVar[int] = 0
     of_time: ClassVar[bool] = False
 
@@ -242,8 +252,11 @@ class AbstractEffect(eqx.Module):
         A simulation that does not state its `output_unit` gives
         ``"(unit of S)"``: the unit of its output, whatever that is.
         """
-        unit, drive = signal_unit or "(unit of S)", drive_unit or "(unit of the drive)"
-        return {k: unit_in(substitute_unit(v, SIGNAL, unit), drive) for k, v in self.units.items()}
+        return _filled(self.units, signal_unit, drive_unit)
+
+    def derived_units_for(self, signal_unit: str, drive_unit: str = "") -> dict[str, str]:
+        """`derived_units` filled in as `units_for` fills `units`."""
+        return _filled(self.derived_units, signal_unit, drive_unit)
 
     def config(self) -> dict:
         """The JSON-able settings that rebuild this effect's skeleton (`from_config`); default none."""
@@ -498,6 +511,7 @@ class _SidedSaturation(AbstractEffect):
     """
 
     thresholds: ClassVar = {"shortfall_percent": 5.0}
+    derived_units: ClassVar = {"level_pos": SIGNAL, "level_neg": SIGNAL}
 
     def __init__(self, **values):
         init_values(self, values)

@@ -143,8 +143,12 @@ _SUFFIXES = (
 )
 
 
-def _quantity(key: str, value) -> tuple[str, str]:
-    """(label, value with unit) of a derived quantity named like ``delay_samples``, ``over_s``."""
+def _quantity(key: str, value, units: dict | None = None) -> tuple[str, str]:
+    """(label, value with unit) of a derived quantity: its unit in `units` (the effect's `derived_units`),
+    else the one its name says (``delay_samples``, ``over_s``)."""
+    unit = (units or {}).get(key)
+    if unit:
+        return key.replace("_", " "), f"{_num(value, 4)} {unit}"
     for suffix, unit in _SUFFIXES:
         if key.endswith(suffix):
             return key[: -len(suffix)].replace("_", " "), f"{_num(value, 4)} {unit}"
@@ -220,7 +224,7 @@ def stepwise_section(d: dict) -> list[str]:
         "|---|---|---|---|---|---|",
     ]
     for i, c in enumerate(d["causes"], 1):
-        size = ", ".join(" ".join(_quantity(k, v)) for k, v in c["derived"].items())
+        size = ", ".join(" ".join(_quantity(k, v, c.get("derived_units"))) for k, v in c["derived"].items())
         params = ", ".join(f"{k} = {plus_minus(v)}" for k, v in c["parameters"].items())
         lines.append(
             f"| {c.get('step', i)} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
@@ -375,7 +379,8 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     if derived:  # each cause's, in the final model (its parameters above)
         lines += ["", f"Derived quantities of the effect{'s' if len(derived) > 1 else ''} (final model):", ""]
         lines += [
-            f"- {c['name']}: " + ", ".join(" ".join(_quantity(k, v)) for k, v in c["derived"].items())
+            f"- {c['name']}: "
+            + ", ".join(" ".join(_quantity(k, v, c.get("derived_units"))) for k, v in c["derived"].items())
             for c in derived
         ]
     lines.append("")
