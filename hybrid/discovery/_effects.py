@@ -477,16 +477,22 @@ def _log_tanh_exp(z):
     )
 
 
-def _soft_clip(s, k, n=1.0):
+def _soft_clip(s, k, n=None):
     """s's saturation of curvature k and sharpness n: sign(s)·tanh(|ks|ⁿ)^(1/n)/|k|.
 
     Even in k and equal to s at k = 0 (finite gradients there too); slope 1 at
-    s = 0, levels ±1/|k|. n = 1 is tanh(ks)/k; as n grows the knee sharpens
-    towards the hard clip clip(s, −1/|k|, 1/|k|) (n = 8: 0.966 of the level at
-    the level; n → ∞: the clip itself). Computed as s·g with log g =
-    (log tanh(xⁿ) − n log x)/n, x = |ks|, which stays finite for x → 0
-    (g → exp(−x²ⁿ/3n)) and for large x or n.
+    s = 0, levels ±1/|k|. n = None is the tanh, tanh(ks)/k (the saturations',
+    computed directly); as n grows the knee sharpens towards the hard clip
+    clip(s, −1/|k|, 1/|k|) (n = 8: 0.966 of the level at the level; n → ∞: the
+    clip itself). Computed as s·g with log g = (log tanh(xⁿ) − n log x)/n,
+    x = |ks|, which stays finite for x → 0 (g → exp(−x²ⁿ/3n)) and for large x or n.
     """
+    if n is None:
+        x = k * s
+        small = jnp.abs(x) < 1e-4
+        k_safe = jnp.where(jnp.abs(k) < 1e-300, 1.0, k)
+        x_safe = jnp.where(small, 1.0, x)
+        return jnp.where(small, s * (1.0 - x * x / 3.0), jnp.tanh(x_safe) / k_safe)
     x = jnp.abs(k * s)
     tiny = x < 1e-12
     log_x = jnp.log(jnp.where(tiny, 1.0, x))
@@ -520,8 +526,8 @@ class _SidedSaturation(AbstractEffect):
         return self.parameters()[f"{self.name}_{side}_curvature"]
 
     def _sharpness(self):
-        """The knee's sharpness n: fitted by `Clip` and `DriveClip`, 1 (a tanh's) for the saturations."""
-        return self.parameters().get(f"{self.name}_sharpness", 1.0)
+        """The knee's sharpness n: fitted by `Clip` and `DriveClip`; None (a tanh's) for the saturations."""
+        return self.parameters().get(f"{self.name}_sharpness")
 
     def apply(self, s, dt):
         k = jnp.where(s >= 0, self._curvature("pos"), self._curvature("neg"))
@@ -534,7 +540,8 @@ class _SidedSaturation(AbstractEffect):
     def derived(self, s, dt):
         """Level 1/|κ| and shortfall below the linear extrapolation at the largest |s|, %."""
         out = {}
-        n = float(self._sharpness())
+        n = self._sharpness()
+        n = None if n is None else float(n)
         for side, peak in self._peaks(s):
             k = abs(float(self._curvature(side)))
             out[f"level_{side}"] = 1.0 / k if k > 0 else float("inf")
