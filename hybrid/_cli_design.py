@@ -208,9 +208,8 @@ def cmd_design(args) -> None:
         report = _report(folder)
         if args.rate is None:  # a drive for the rig that made the diagnosed recording: its rate
             args.rate = _diagnosed_rate(folder, report)
-        if (
-            args.physics is not None
-        ):  # a plug-in's classes imported before its models load, probed at the rig's rate
+        # a plug-in's classes imported before its models load, probed at the rig's rate
+        if args.physics is not None:
             resolve_physics(args.physics, [], rate=args.rate)
         entry, models, noise = _rivals(folder, report, args.step)
         if entry is None and output is not None:

@@ -273,9 +273,8 @@ def ambiguities(
             if not (c.eligible or small):
                 continue
             rival = _rival(named, c, scale, noise_std)
-            alike = (
-                rival["p_value"] > ALPHA and rival["mean_p_value"] > ALPHA
-            )  # neither test tells them apart
+            # alike: neither the sign test nor the mean's tells them apart
+            alike = rival["p_value"] > ALPHA and rival["mean_p_value"] > ALPHA
             if small or alike or rival["within_noise"]:
                 rivals.append({**rival, "too_small": True} if small else rival)
         if rivals:

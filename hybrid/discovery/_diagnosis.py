@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core._fit import PAPER_UNITS
-from ..core._simulation import unit_in
 from ..util._errors import InputError
 from ._ambiguity import TEST as AMBIGUITY_TEST
 from ._effect_set import EFFECTS, NAMED_ONLY
@@ -504,12 +503,10 @@ class Diagnosis:
         return verdict(self)
 
     def _derived_units(self, name: str) -> dict[str, str]:
-        """The units of effect `name`'s derived quantities (`AbstractEffect.derived_units`) in the recordings'."""
+        """The units of effect `name`'s derived quantities (`AbstractEffect.derived_units`), as the final
+        model's stack fills them (in the recordings' drive unit, which `diagnose` builds it with)."""
         table = getattr(getattr(self.models.get("extended"), "simulation", None), "derived_units", None)
-        if not isinstance(table, dict):
-            return {}
-        drive = self.signal_units.get("v_in") or PAPER_UNITS["v_in"]
-        return {k: unit_in(v, drive) for k, v in table.get(name, {}).items()}
+        return dict(table.get(name, {})) if isinstance(table, dict) else {}
 
     def _unit(self, name: str) -> str:
         return self.units.get(name) or _unit(self.uncertainties.get(name))

@@ -136,24 +136,22 @@ class EffectStack(AbstractWrapper):
         dynamics = dynamics_of(self.inner)
         return unit_in(dynamics[0].force_unit, self.drive_unit) if dynamics else self.drive_unit
 
+    def _fills(self, effect: AbstractEffect) -> tuple[str, str]:
+        """(``{signal}``, ``{drive}``) of `effect`'s units: an inside feedback's ``{drive}`` is its force's
+        unit (the drive's, unless the simulation puts it elsewhere)."""
+        return self.signal_unit(effect), self.force_unit if effect.place == "inside" else self.drive_unit
+
     @property
     def units(self) -> dict[str, str]:
         out = dict(self.inner.units)
         for effect in self.effects:
-            # an inside feedback's "{drive}" is its force's unit (the drive's, unless the simulation puts it elsewhere)
-            drive = self.force_unit if effect.place == "inside" else self.drive_unit
-            out.update(effect.units_for(self.signal_unit(effect), drive))
+            out.update(effect.units_for(*self._fills(effect)))
         return out
 
     @property
     def derived_units(self) -> dict[str, dict[str, str]]:
         """Each effect's `derived_units`, filled in as `units` fills its parameters', by effect name."""
-        return {
-            effect.name: effect.derived_units_for(
-                self.signal_unit(effect), self.force_unit if effect.place == "inside" else self.drive_unit
-            )
-            for effect in self.effects
-        }
+        return {effect.name: effect.derived_units_for(*self._fills(effect)) for effect in self.effects}
 
     @property
     def constraints(self) -> dict[str, Constraint]:

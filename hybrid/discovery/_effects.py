@@ -596,11 +596,8 @@ def _sided_facts(name: str, sharp: bool = False) -> tuple[dict, dict, dict]:
     units = dict.fromkeys(keys, "1/{signal}")
     defaults = dict.fromkeys(keys, 0.0)
     if sharp:
-        constraints[f"{name}_sharpness"], units[f"{name}_sharpness"], defaults[f"{name}_sharpness"] = (
-            Positive(),
-            "1",
-            1.0,
-        )
+        sharpness = f"{name}_sharpness"
+        constraints[sharpness], units[sharpness], defaults[sharpness] = Positive(), "1", 1.0
     return constraints, units, defaults
 
 

@@ -258,15 +258,10 @@ def remainder(
 
 #: What a remainder recovered best by each of these maps may be, and the built-in searched only when named
 #: (`NAMED_ONLY`) that would take it: (the effect, what it is in a lab's words).
+_CREEP = ("creep", "a slow response to the drive that the simulation lacks (a creep, a second time constant)")
 _NAMED_ONLY_HINTS = {
-    "filter_drive": (
-        "creep",
-        "a slow response to the drive that the simulation lacks (a creep, a second time constant)",
-    ),
-    "time": (
-        "creep",
-        "a slow response to the drive that the simulation lacks (a creep, a second time constant)",
-    ),
+    "filter_drive": _CREEP,
+    "time": _CREEP,
     "static_drive": (
         "drive_clip",
         "a drive that stops at its levels more sharply than a tanh bends (an amplifier's rails, a DAC's range, a "
