@@ -98,3 +98,41 @@ def test_the_cli_fits_lti_2_at_any_rate(rate, f0, tmp_path, capsys):
     fitted = json.loads(report.read_text())
     assert fitted["parameters"]["f_1"] == pytest.approx(f0, rel=0.01)
     assert fitted["parameters"]["zeta_1"] == pytest.approx(0.1, rel=0.05)
+
+
+def test_a_frequency_above_the_nyquist_frequency_is_warned_about_as_its_alias():
+    """A 1.2 Hz, ζ 0.4 mode sampled at 30 Hz has the discrete poles of a 28.9 Hz, ζ 0.0169 one (a fit of
+    `lti:2` with a sensor's lag landed there): the warning names the alias the samples show."""
+    from hybrid.core._result import aliased
+
+    rate, f, zeta = 30.0, 28.9236, 0.0169
+
+    def poles(f, zeta):
+        w = 2 * np.pi * f
+        a = np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]])
+        ad, *_ = scipy.signal.cont2discrete(
+            (a, np.array([[0.0], [w * w]]), np.eye(2), np.zeros((2, 1))), 1 / rate
+        )
+        return np.sort_complex(np.linalg.eigvals(ad))
+
+    model = hybrid.make_model("physics", simulation=hybrid.LTI(order=2, f_1=f, zeta_1=zeta))
+    (said,) = aliased(model, (), rate)
+    alias = float(said.split("alias near ")[1].split(" Hz")[0])
+    assert alias == pytest.approx(rate - f, rel=1e-3) and "f_1 = 28.9236 Hz" in said
+    # the alias with the same decay per sample (σ = ζω kept) has the same discrete poles (scipy's ZOH)
+    sigma = zeta * 2 * np.pi * f
+    w_d = 2 * np.pi * f * math.sqrt(1 - zeta**2) - 2 * np.pi * rate
+    w_alias = math.hypot(sigma, w_d)
+    np.testing.assert_allclose(poles(f, zeta), poles(w_alias / (2 * np.pi), sigma / w_alias), atol=1e-12)
+    # that equivalent mode is the plant's own (1.2 Hz, ζ 0.4) within the digits given, near the fold of f
+    assert w_alias / (2 * np.pi) == pytest.approx(1.2, rel=0.02) and sigma / w_alias == pytest.approx(
+        0.4, rel=0.05
+    )
+    assert w_alias / (2 * np.pi) == pytest.approx(alias, rel=0.15)
+    # below the Nyquist frequency, frozen, or no rate: nothing said
+    below = hybrid.make_model("physics", simulation=hybrid.LTI(order=2, f_1=1.2, zeta_1=0.4))
+    assert (
+        aliased(below, (), rate) == []
+        and aliased(model, ("f_1",), rate) == []
+        and aliased(model, (), None) == []
+    )

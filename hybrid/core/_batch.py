@@ -277,6 +277,7 @@ def fit_batch(
                     frozen,
                     per_start[k],
                     split_metrics.get("train", {}).get("nmse_variance"),
+                    rate=recording.rate,
                 ),
             )
         )

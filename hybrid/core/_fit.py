@@ -237,6 +237,7 @@ def fit(
             per_start[best_start],
             result_metrics.get("train", {}).get("nmse_variance"),
             int(problem.target("train").shape[0]),
+            min(r.rate for r in recordings),
         )
         + clipped_warnings(
             problem, best[best_start], split_order, w_unit, (recording_units(recordings) or ("",))[0]

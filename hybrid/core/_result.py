@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 from ._models import Model
@@ -97,6 +98,7 @@ def fit_warnings(
     start_record: dict[str, Any],
     train_nmse: float | None = None,
     n_train: int | None = None,
+    rate: float | None = None,
 ) -> list[str]:
     """What about a fit should not be taken at face value (see `FitResult.warnings`).
 
@@ -110,6 +112,8 @@ def fit_warnings(
     - `n_train`: the training samples, if known: a physics fit with fewer than
       `SAMPLES_PER_PARAMETER` per fitted parameter is warned about (a Hybrid's
       network is held by weight decay and validation instead).
+    - `rate`: the recordings' (least) sampling rate, Hz, if known: a fitted
+      frequency at or above its Nyquist frequency is warned about ([`aliased`][]).
     """
     warnings = []
     units = fitted.units
@@ -156,7 +160,35 @@ def fit_warnings(
             "physics' typical ranges (hybrid fit --screen 512 --starts 4; fit(..., screen=512, starts=4))"
         )
     warnings += implausible(fitted, frozen)
+    warnings += aliased(fitted, frozen, rate)
     return warnings
+
+
+def aliased(fitted: Model, frozen, rate: float | None) -> list[str]:
+    """One sentence per fitted frequency (unit Hz) of `fitted`'s simulation at or above the Nyquist frequency.
+
+    Sampled at `rate`, a frequency f is seen near its alias |f − k·rate| (the k
+    that puts it below rate/2; a damped mode's equivalent keeps its decay per
+    sample, so its natural frequency and damping differ somewhat): a fit can land on
+    either (`lti:2` with a sensor's lag: a 1.2 Hz, ζ 0.4 plant fitted as
+    28.9 Hz, ζ 0.017 at 30 Hz, the same discrete poles). The value is then not
+    the system's frequency. `frozen` names and a missing `rate` give nothing.
+    """
+    if not rate or not math.isfinite(rate) or rate <= 0:
+        return []
+    nyquist = 0.5 * rate
+    out = []
+    for name, value in fitted.simulation.parameters().items():
+        f = float(value)
+        if fitted.units.get(name) != "Hz" or name in frozen or not (math.isfinite(f) and f >= nyquist):
+            continue
+        alias = abs(f - round(f / rate) * rate)
+        out.append(
+            f"{name} = {f:.6g} Hz is at or above the Nyquist frequency ({nyquist:g} Hz of samples at {rate:g} Hz): "
+            f"the samples cannot tell it from its alias near {alias:.4g} Hz, which is what the recording shows; "
+            "read it as that, or fit again from a start below the Nyquist frequency"
+        )
+    return out
 
 
 def implausible(fitted: Model, frozen, why: str = "") -> list[str]:

@@ -64,7 +64,7 @@ from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_label
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
-from ..core._result import implausible
+from ..core._result import aliased, implausible
 from ..core._screen import N_SCREEN, screened_starts
 from ..core._simulation import unit_in
 from ..util._errors import InputError, PluginError
@@ -470,7 +470,8 @@ def diagnose(
         units=units,
         signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
-        warnings=nonfinite_warnings(steps, search.effects) + model_warnings(models["extended"], frozen),
+        warnings=nonfinite_warnings(steps, search.effects)
+        + model_warnings(models["extended"], frozen, search.rate),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept
         else {},
@@ -484,7 +485,7 @@ GAIN_FACTOR = 1.2
 UNIT_STEP = 1.1
 
 
-def model_warnings(model: Model, frozen) -> list[str]:
+def model_warnings(model: Model, frozen, rate: float | None = None) -> list[str]:
     """What about the final model's fit should not be taken at face value.
 
     A simulation parameter outside its plausible range ([`implausible`][]): the
@@ -496,14 +497,15 @@ def model_warnings(model: Model, frozen) -> list[str]:
     a state's map) are on the simulation's own scale, not the measured one;
     near a power of 1000, a unit mismatch (a battery user's drive in mA for a
     cell model in A); negative, the output upside down (their current's sign
-    flipped), which the gain took up without a word.
+    flipped), which the gain took up without a word. A fitted frequency at or
+    above the Nyquist frequency of samples at `rate` ([`aliased`][]).
     """
     out = implausible(
         model,
         frozen,
         ", or the fit bent the simulation to take up an effect it lacks (a lag, a friction): what the "
         "diagnosis says rests on a model that is not the system there",
-    )
+    ) + aliased(model, frozen, rate)
     gain = model.readout.parameters().get("gain")
     if (
         gain is not None
