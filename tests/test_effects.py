@@ -22,6 +22,7 @@ from hybrid.discovery._effects import (
     DriveEven,
     DriveSaturation,
     Hysteresis,
+    Lag,
     Resonance,
     Saturation,
     affine_recurrence,
@@ -83,6 +84,17 @@ def test_resonance_matches_scipy_lsim(signal):
     system = scipy.signal.StateSpace([[0, 1], [-w * w, -2 * z * w]], [[0], [w * w]], [[1, 0]], [[0]])
     _, expected, _ = scipy.signal.lsim(system, signal, np.arange(len(signal)) * DT, X0=[signal[0], 0.0])
     np.testing.assert_allclose(y, expected, atol=1e-10)
+
+
+@pytest.mark.parametrize("tau", [0.2 * DT, 3 * DT, 40 * DT, 1e4 * DT])
+def test_lag_matches_scipy_lsim_from_rest_at_its_first_value(signal, tau):
+    """lsim's linear interpolation between samples is the lag's first-order hold; it starts settled at s[0]."""
+    y = Lag(lag_time_s=tau).apply(jnp.asarray(signal + 1.0), DT)
+    t = np.arange(len(signal)) * DT
+    system = scipy.signal.StateSpace([[-1 / tau]], [[1 / tau]], [[1.0]], [[0.0]])
+    _, expected, _ = scipy.signal.lsim(system, signal + 1.0, t, X0=[signal[0] + 1.0])
+    np.testing.assert_allclose(y, expected, atol=1e-10)
+    assert Lag(lag_time_s=tau).derived(jnp.asarray(signal), DT)["lag_samples"] == pytest.approx(tau / DT)
 
 
 def test_resonance_rings_at_its_frequency():

@@ -36,6 +36,7 @@ from ._effects import (
     EvenResponse,
     FrameTiming,
     Hysteresis,
+    Lag,
     Resonance,
     Saturation,
     StartContext,
@@ -60,6 +61,7 @@ EFFECTS: dict[str, type[AbstractEffect]] = {
         DriveSaturation,
         DriveEven,
         Backlash,
+        Lag,
     )
 }
 #: Built-in effects searched only when named (``--effects builtins,creep``): physics that a lab meets

@@ -24,6 +24,8 @@ name               y(t)                                   parameters
 ``baseline_drift`` s + a·t + b·t² + c·t³ (t in minutes)    ``baseline_slope_per_min`` a (V/min),
                                                           ``baseline_curvature_per_min2`` b (V/min²),
                                                           ``baseline_cubic_per_min3`` c (V/min³)
+``lag``            1/(τs + 1) applied to s                ``lag_time_s`` τ (s)
+                   (exact first-order-hold discretisation)
 ``drive_dead_zone`` S(u − clip(u, −d, d))  (on the drive)  ``drive_dead_zone_width`` d (unit of u)
 ``drive_saturation`` S(tanh(κ± u)/κ±)  (on the drive)      ``drive_saturation_pos_curvature``,
                                                           ``drive_saturation_neg_curvature`` (1/unit of u)
@@ -58,6 +60,11 @@ a hard clip at ±1/|κ| as n grows; parameters ``<name>_pos_curvature``,
   same for ±V, as an electrostatic actuator's does (an IPMC's is odd).
 - Baseline drift: the output's zero creeps (a sensor warming): additive,
   where `drift` is a gain that changes.
+- Lag: the sensor follows the output with a time constant (a thermocouple
+  in its sheath, a filter) or the simulation lacks a pole; with linear
+  dynamics it cannot be told from the same pole at the drive, and where the
+  simulation has a pole of its own as free, the two time constants may
+  trade places (which one is the sensor's, the data do not say).
 - Drive dead zone: the drive must pass ±d before anything moves (static
   friction at the input, an amplifier's threshold).
 - Drive saturation: an amplifier, a DAC stage or a pump that clips before the
@@ -809,6 +816,66 @@ def foh_matrices(a, b, dt):
     m = m.at[:n, :n].set(a).at[:n, n].set(b).at[n, n + 1].set(1.0)
     e = expm(m * dt)  # matmul-only: safe in batched loops (see _loop_safe_linalg)
     return e[:n, :n], e[:n, n], e[:n, n + 1] / dt
+
+
+class Lag(AbstractEffect):
+    """A first-order lag, unity DC gain: 1/(τs + 1) applied to s, from rest at its first value.
+
+    A sensor's time constant (a thermocouple in its sheath, a displacement
+    sensor's or an amplifier's low-pass filter) or a pole the simulation lacks.
+    Discretised exactly for a signal linear between samples (first-order hold,
+    as `Resonance`): x[n+1] = a x[n] + b₀ s[n] + b₁ s[n+1], a = e^{−dt/τ},
+    b₁ = 1 − (τ/dt)(1 − a), b₀ = 1 − a − b₁; x[0] = s[0] (the sensor settled
+    where the record starts). Material from a time constant of one sample
+    (`lag_samples`): a shorter one rounds a step within a frame, which the
+    frame timing takes.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "lag"
+    constraints: ClassVar = {"lag_time_s": Positive()}
+    units: ClassVar = {"lag_time_s": "s"}
+    defaults: ClassVar = {"lag_time_s": 0.1}
+    thresholds: ClassVar = {"lag_samples": 1.0}
+
+    def __init__(self, **values):
+        init_values(self, values)
+
+    def apply(self, s, dt):
+        ratio = self.parameters()["lag_time_s"] / dt
+        a = jnp.exp(-1.0 / ratio)
+        b1 = 1.0 + ratio * jnp.expm1(-1.0 / ratio)
+        b0 = -jnp.expm1(-1.0 / ratio) - b1
+        # From rest on d = s − s[0]: with z = x − b₁ d, z[n+1] = a z[n] + (a b₁ + b₀) d[n], z[0] = 0.
+        first = s[0]
+        d = s - first
+        z = affine_recurrence(a, (a * b1 + b0) * d[:-1])
+        return first + jnp.concatenate([jnp.zeros(1, s.dtype), z]) + b1 * d
+
+    def derived(self, s, dt):
+        return {"lag_samples": float(self.parameters()["lag_time_s"] / dt)}
+
+    def reading(self, parameters, output_unit):
+        tau = parameters.get("lag_time_s", float("nan"))
+        return (
+            f"a time constant of {tau:.3g} s between the system and the record (a sensor's, a filter's) or a "
+            "pole the simulation lacks; with linear dynamics the same lag at the drive acts alike, and where the "
+            "simulation has a free time constant of its own the two may trade places: which is the sensor's, "
+            "the data do not say"
+        )
+
+    def starts(self, context):
+        # A lag of τ delays the slow part of a response by about τ: the lag that best aligns the current
+        # model, a slow one (a thermocouple's seconds against a sample of a fraction of one) and one
+        # between them on a log scale.
+        dt = 1.0 / context.rate
+        fast = max(float(context.lag_samples), 2.0) * dt
+        slow = max(context.duration / 30.0, 10.0 * fast)
+        return [{"lag_time_s": tau} for tau in (fast, math.sqrt(fast * slow), slow)]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("lag_samples", 0.0), thresholds["lag_samples"]
+        return size >= need, f"time constant {size:.2f} samples (needs ≥ {need:g})"
 
 
 #: Samples per block of `Resonance`'s recurrence (`lifted_response`).
