@@ -824,9 +824,8 @@ class Lag(AbstractEffect):
     A sensor's time constant (a thermocouple in its sheath, a displacement
     sensor's or an amplifier's low-pass filter) or a pole the simulation lacks.
     Discretised exactly for a signal linear between samples (first-order hold,
-    as `Resonance`): x[n+1] = a x[n] + b₀ s[n] + b₁ s[n+1], a = e^{−dt/τ},
-    b₁ = 1 − (τ/dt)(1 − a), b₀ = 1 − a − b₁; x[0] = s[0] (the sensor settled
-    where the record starts). Material from a time constant of one sample
+    `foh_matrices`, as `Resonance`); x[0] = s[0] (the sensor settled where the
+    record starts). Material from a time constant of one sample
     (`lag_samples`): a shorter one rounds a step within a frame, which the
     frame timing takes.
     """
@@ -842,15 +841,13 @@ class Lag(AbstractEffect):
         init_values(self, values)
 
     def apply(self, s, dt):
-        ratio = self.parameters()["lag_time_s"] / dt
-        a = jnp.exp(-1.0 / ratio)
-        b1 = 1.0 + ratio * jnp.expm1(-1.0 / ratio)
-        b0 = -jnp.expm1(-1.0 / ratio) - b1
-        # From rest on d = s − s[0]: with z = x − b₁ d, z[n+1] = a z[n] + (a b₁ + b₀) d[n], z[0] = 0.
+        rate = 1.0 / self.parameters()["lag_time_s"]
+        phi, g0, g1 = (m.reshape(()) for m in foh_matrices(-rate.reshape(1, 1), rate.reshape(1), dt))
+        # From rest on d = s − s[0] (unity DC gain): with z = x − Γ₁ d, z[n+1] = Φ z[n] + (ΦΓ₁ + Γ₀ − Γ₁) d[n].
         first = s[0]
         d = s - first
-        z = affine_recurrence(a, (a * b1 + b0) * d[:-1])
-        return first + jnp.concatenate([jnp.zeros(1, s.dtype), z]) + b1 * d
+        z = affine_recurrence(phi, (phi * g1 + g0 - g1) * d[:-1])
+        return first + jnp.concatenate([jnp.zeros(1, s.dtype), z]) + g1 * d
 
     def derived(self, s, dt):
         return {"lag_samples": float(self.parameters()["lag_time_s"] / dt)}
