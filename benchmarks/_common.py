@@ -24,7 +24,7 @@ def setup_jax():
     from hybrid import use_cpu_cores, use_quick_compiles
 
     use_cpu_cores()  # as the `hybrid` command does: one CPU device per core
-    use_quick_compiles()  # and XLA:CPU's loop emitters
+    use_quick_compiles()  # and XLA:CPU's quick compiles
     jax.config.update("jax_enable_x64", True)
     return jax
 

@@ -77,8 +77,8 @@ jax.config.update("jax_enable_x64", True)
 
 
 def pytest_configure(config):
-    # XLA:CPU's loop emitters, as the `hybrid` command has (`hybrid.use_quick_compiles`): about 45 % of
-    # the suite's time was XLA compiling, and they compile the project's programs in about 0.6× the
+    # XLA:CPU's quick compiles, as the `hybrid` command has (`hybrid.use_quick_compiles`): about 45 % of
+    # the suite's time was XLA compiling, and they compile the project's programs in about half the
     # time. Before any JAX work (XLA reads XLA_FLAGS when its backend starts); the workers and the
     # commands the tests start inherit it.
     use_quick_compiles()

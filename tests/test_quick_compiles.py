@@ -1,12 +1,12 @@
-"""`hybrid.use_quick_compiles`: XLA:CPU's loop emitters for an entry point, the user's choice kept.
+"""`hybrid.use_quick_compiles`: XLA:CPU's loop emitters at LLVM's level 1 for an entry point, the user's choices kept.
 
 XLA reads ``XLA_FLAGS`` once, when its backend starts, and stops the process on
 a flag it does not know: each case runs in a fresh process, which also shows
-that the jaxlib installed accepts the flag. Both emitters must compute the same
+that the jaxlib installed accepts the flags. Both settings must compute the same
 functions: an effect stack's output and its Jacobian (a scan, a Bouc–Wen loop, a
 mode and the RC network's cascade, forward-mode through all of them), compiled
-with the loop emitters and with XLA's default, agree to rounding (measured:
-equal outputs, Jacobians within 7e-16 of their largest entry).
+with the quick compiles and with XLA's defaults (fusion emitters, level 2), agree
+to rounding.
 """
 
 import json
@@ -55,23 +55,35 @@ def _stack(*args, **env):
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def test_quick_compiles_set_the_flag_keep_the_users_choice_and_compute_the_same():
+def test_quick_compiles_set_the_flags_keep_the_users_choice_and_compute_the_same():
     quick = _stack()
-    assert quick["added"] is True and "--xla_cpu_use_fusion_emitters=false" in quick["flags"].split()
-    # The user's choice wins (here XLA's default emitters), and other flags they set stay as they were.
-    chosen = _stack(XLA_FLAGS="--xla_cpu_use_fusion_emitters=true --xla_cpu_enable_fast_math=false")
-    assert chosen["added"] is False
-    assert chosen["flags"] == "--xla_cpu_use_fusion_emitters=true --xla_cpu_enable_fast_math=false"
+    assert quick["added"] is True
+    assert quick["flags"].split() == [
+        "--xla_cpu_use_fusion_emitters=false",
+        "--xla_backend_optimization_level=1",
+    ]
+    # The user's choices win (here XLA's defaults), and other flags they set stay as they were.
+    defaults = "--xla_cpu_use_fusion_emitters=true --xla_backend_optimization_level=2 --xla_cpu_enable_fast_math=false"
+    chosen = _stack(XLA_FLAGS=defaults)
+    assert chosen["added"] is False and chosen["flags"] == defaults
     y, J = np.asarray(quick["y"]), np.asarray(quick["J"])
     assert J.shape == (300, 13) and np.all(np.isfinite(J)) and np.max(np.abs(J)) > 0
     np.testing.assert_allclose(y, chosen["y"], rtol=0, atol=1e-12 * np.max(np.abs(y)))
     np.testing.assert_allclose(J, chosen["J"], rtol=0, atol=1e-12 * np.max(np.abs(J)))
 
 
-def test_quick_compiles_add_to_the_users_other_flags():
+def test_quick_compiles_add_to_the_users_other_flags_option_by_option():
     other = _stack("--flags-only", XLA_FLAGS="--xla_cpu_enable_fast_math=false")
     assert other["added"] is True
     assert other["flags"].split() == [
         "--xla_cpu_enable_fast_math=false",
+        "--xla_cpu_use_fusion_emitters=false",
+        "--xla_backend_optimization_level=1",
+    ]
+    # a user who chose the level keeps it and gets the loop emitters beside it
+    level = _stack("--flags-only", XLA_FLAGS="--xla_backend_optimization_level=3")
+    assert level["added"] is True
+    assert level["flags"].split() == [
+        "--xla_backend_optimization_level=3",
         "--xla_cpu_use_fusion_emitters=false",
     ]

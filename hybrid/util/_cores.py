@@ -1,8 +1,8 @@
 """How an entry point sets up JAX's CPU backend, before any JAX work: devices and compiling.
 
 `use_cpu_cores`: one JAX CPU device per core. `use_quick_compiles`: XLA:CPU's
-loop emitters instead of its fusion emitters, which compile the search's
-programs in about 0.6× the time.
+loop emitters instead of its fusion emitters, at LLVM's optimisation level 1,
+which compile the search's programs in about half the time.
 
 XLA's CPU backend runs one program on one core at a time, apart from the
 multi-threaded kernels inside it (large matrix products). Work made of
@@ -63,32 +63,42 @@ def use_cpu_cores(n: int | None = None) -> int | None:
     return count
 
 
-#: The XLA:CPU option `use_quick_compiles` sets. XLA's fusion emitters (its default) take longer to
-#: compile this project's programs than its older loop emitters and run them no faster: with jaxlib
-#: 0.10.2 on the 2-core machine, `diagnose` on a 60 s, 30 Hz recording compiled in 0.61× the
-#: time and ran in 0.92× (`python benchmarks/compile_emitters.py`). XLA stops at once on a flag it
-#: does not know, so it is set only for the jaxlib series it was measured on (pyproject.toml pins
-#: it); re-measure when that pin moves.
-QUICK_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
+#: The XLA:CPU options `use_quick_compiles` sets, by name. XLA's fusion emitters (its default) take longer
+#: to compile this project's programs than its older loop emitters and run them no faster: with jaxlib
+#: 0.10.2 on the 2-core machine, `diagnose` on a 60 s, 30 Hz recording compiled in 0.61× the time and
+#: ran in 0.92× (`python benchmarks/compile_emitters.py`). LLVM's optimisation level 1 instead of XLA's
+#: 2 compiles in 0.86× the time again and runs as fast (0.77× on the second call, one run each): the
+#: programs are loops of small matrix products (the lanes' LM steps, the scans over samples), which
+#: the level-2 passes do not speed up. The same cause and gain (to 1e-9) under all three settings. XLA stops at once on a flag it does not
+#: know, so they are set only for the jaxlib series they were measured on (pyproject.toml pins it);
+#: re-measure when that pin moves.
+QUICK_COMPILE_FLAGS = {
+    "xla_cpu_use_fusion_emitters": "--xla_cpu_use_fusion_emitters=false",
+    "xla_backend_optimization_level": "--xla_backend_optimization_level=1",
+}
 _QUICK_COMPILE_JAXLIB = "0.10."
 
 
 def use_quick_compiles() -> bool:
-    """Have XLA:CPU compile with its loop emitters (`QUICK_COMPILE_FLAG`) unless the user chose.
+    """Have XLA:CPU compile with its loop emitters at LLVM's level 1 (`QUICK_COMPILE_FLAGS`) unless the user chose.
 
     Call it at the start of a script, before JAX computes anything: XLA reads
     ``XLA_FLAGS`` when its backend starts, and ignores it after. A choice made
-    outside the script wins: ``xla_cpu_use_fusion_emitters`` already in
-    ``XLA_FLAGS``. The programs compute the same functions either way; only the
-    code XLA generates for them differs.
+    outside the script wins, option by option: an option already named in
+    ``XLA_FLAGS`` is left as it is. The programs compute the same functions
+    either way; only the code XLA generates for them differs (results agree to
+    rounding).
 
-    **Returns:** True where it added the flag to ``XLA_FLAGS``; False where it
-    left it as it was (the user's choice, or a jaxlib it was not measured on).
+    **Returns:** True where it added a flag to ``XLA_FLAGS``; False where it
+    left it as it was (the user's choices, or a jaxlib it was not measured on).
     """
     import jaxlib
 
     flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_use_fusion_emitters" in flags or not jaxlib.__version__.startswith(_QUICK_COMPILE_JAXLIB):
+    if not jaxlib.__version__.startswith(_QUICK_COMPILE_JAXLIB):
         return False
-    os.environ["XLA_FLAGS"] = f"{flags} {QUICK_COMPILE_FLAG}".strip()
+    added = [flag for name, flag in QUICK_COMPILE_FLAGS.items() if name not in flags]
+    if not added:
+        return False
+    os.environ["XLA_FLAGS"] = " ".join([flags, *added]).strip()
     return True
