@@ -24,6 +24,7 @@ from scipy.signal import lfilter
 from scipy.stats import binomtest, norm
 
 import hybrid
+from hybrid.cli import main
 from hybrid.discovery._ambiguity import (
     ALPHA,
     HINT_GAIN,
@@ -270,7 +271,9 @@ def test_a_design_never_ends_below_the_control_it_starts_from(confounded):
     assert design.criteria_by_start[0] >= design.control_criterion
 
 
-def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limits(confounded, tmp_path):
+def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limits(
+    confounded, tmp_path, capsys
+):
     folder = tmp_path / "diag"
     hybrid.write_report(confounded, folder)
     done = h.run_hybrid(
@@ -286,49 +289,46 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     # the default keeps design_drive's rich share (half of 300 samples) as the control PRBS, and says so
     assert "the first 150 kept as a multilevel PRBS" in done.stdout
     default = inspect.signature(hybrid.design_drive).parameters["rich"].default
-    helped = h.run_hybrid(tmp_path, "design", "--help")
-    assert f"rich, {default:g}" in " ".join(helped.stdout.split())
-    bad = h.run_hybrid(
-        tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--rich", "1", "--out", "y.csv"
-    )
-    assert bad.returncode == 2 and "--rich" in bad.stderr and not (tmp_path / "y.csv").exists()
-    twice = h.run_hybrid(
-        tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--bounds", "0:1", "--out", "y.csv"
-    )
-    assert twice.returncode == 2 and "not both" in twice.stderr and not (tmp_path / "y.csv").exists()
-    flipped = h.run_hybrid(
-        tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--output-bounds", "1:-1",
-        "--out", "y.csv",
-    )  # fmt: skip
-    assert (
-        flipped.returncode == 2
-        and "--output-bounds" in flipped.stderr
-        and "LOW must be below" in flipped.stderr
-    )
-    assert len(flipped.stderr.strip().splitlines()) == 1 and not (tmp_path / "y.csv").exists()
-    held = h.run_hybrid(
-        tmp_path, "design", folder, "--duration", "5", "--amplitude", "1", "--min-hold", "0", "--out", "y.csv"
-    )
-    assert held.returncode == 2 and "--min-hold" in held.stderr and not (tmp_path / "y.csv").exists()
+    # The rest through the same command line in this process (`hybrid.cli.main`): refusals and the
+    # rich drive's path, without a process start each.
+    with pytest.raises(SystemExit):
+        main(["design", "--help"])
+    assert f"rich, {default:g}" in " ".join(capsys.readouterr().out.split())
+    y = tmp_path / "y.csv"
+    short = ["design", str(folder), "--duration", "5", "--amplitude", "1", "--out", str(y)]
+
+    def design(*args, base=short):
+        code = main([*base, *map(str, args)])
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    code, _, err = design("--rich", "1")
+    assert code == 2 and "--rich" in err and not y.exists()
+    code, _, err = design("--bounds", "0:1")
+    assert code == 2 and "not both" in err and not y.exists()
+    code, _, err = design("--output-bounds", "1:-1")
+    assert code == 2 and "--output-bounds" in err and "LOW must be below" in err
+    assert len(err.strip().splitlines()) == 1 and not y.exists()
+    code, _, err = design("--min-hold", "0")
+    assert code == 2 and "--min-hold" in err and not y.exists()
     # a diagnosis with nothing ambiguous: one line, no file
     plain = tmp_path / "plain"
     plain.mkdir()
     report = json.loads((folder / "report.json").read_text())
     (plain / "report.json").write_text(json.dumps({**report, "ambiguous": [], "unexplained": None}))
-    refused = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "x.csv")
-    assert refused.returncode == 2 and "nothing ambiguous" in refused.stderr
-    assert "no design is needed" in refused.stderr
-    assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()
+    x = tmp_path / "x.csv"
+    on_plain = ["design", str(plain), "--duration", "5", "--amplitude", "1", "--out", str(x)]
+    code, _, err = design(base=on_plain)
+    assert code == 2 and "nothing ambiguous" in err and "no design is needed" in err
+    assert len(err.strip().splitlines()) == 1 and not x.exists()
     # nothing ambiguous, but a remainder no searched effect explains: a rich drive to record, written
     (plain / "report.json").write_text(
         json.dumps({**report, "ambiguous": [], "unexplained": {"ratio_to_floor": 3.0}})
     )
-    done = h.run_hybrid(
-        tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--slew", "3", "--out", "x.csv"
-    )
-    assert done.returncode == 0 and "wrote a multilevel PRBS" in done.stdout, done.stderr
-    assert "diagnose on both recordings together" in done.stdout
-    table = np.loadtxt(tmp_path / "x.csv", delimiter=",", skiprows=1)
+    code, out, err = design("--slew", "3", base=on_plain)
+    assert code == 0 and "wrote a multilevel PRBS" in out, err
+    assert "diagnose on both recordings together" in out
+    table = np.loadtxt(x, delimiter=",", skiprows=1)
     expected = hybrid.rich_drive(duration=5.0, rate=30.0, amplitude=1.0, slew=3.0, seed=0)
     np.testing.assert_array_equal(table[:, 1], expected[1])
     assert np.max(np.abs(table[:, 1])) <= 1.0 and np.max(np.abs(np.diff(table[:, 1]))) <= 3.0 / 30 * (
