@@ -66,13 +66,18 @@ def first_call(fn, *args):
     return time.perf_counter() - t0, out
 
 
-def recording_arguments(doc: str, duration: float = 300.0):
-    """The command line of a benchmark on `relaxing_strip`'s recordings: --duration (s) and --rate (Hz)."""
+def recording_arguments(doc: str, duration: float = 300.0, repeats: int | None = None):
+    """The command line of a benchmark on `relaxing_strip`'s recordings: --duration (s) and --rate (Hz).
+
+    `repeats`: also a --repeats option with this default (rounds of a timing, the least kept).
+    """
     import argparse
 
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--duration", type=float, default=duration)
     parser.add_argument("--rate", type=float, default=30.0)
+    if repeats is not None:
+        parser.add_argument("--repeats", type=int, default=repeats)
     return parser.parse_args()
 
 
