@@ -690,6 +690,21 @@ def test_a_force_of_a_speed_output_reads_as_a_damping_and_of_a_position_as_a_spr
     assert "hardens" in stiff.reading({"stiffness_cube": 0.01}, "mm")
     assert "softens" in stiff.reading({"stiffness_cube": -0.01}, "µm")
     neither = stiff.reading({"stiffness_cube": 0.01}, "V")  # the unit does not say: both readings given
+    # Where the output went decides, not k₃'s sign alone: on a temperature that only rises (0 to 70 in
+    # the simulation's unit), k₂ = 9.4e-4 with k₃ = −5.3e-6 (a chamber's radiative loss, ∝ T⁴, as
+    # `diagnose` fitted it with `lti:1`) is a loss that quickens: y·φ(y) > 0 over the whole record.
+    y = np.linspace(0.0, 70.0, 400)
+    chamber = PolynomialStiffness(stiffness_square=9.4e-4, stiffness_cube=-5.3e-6)
+    share = chamber.derived(y, 1.0)["restoring_percent"]
+    phi = 9.4e-4 * y**2 - 5.3e-6 * y**3
+    assert share == pytest.approx(100 * np.sum(y * phi) / np.sum(np.abs(y * phi)), rel=1e-12)
+    assert share == pytest.approx(100.0)
+    values = {"stiffness_square": 9.4e-4, "stiffness_cube": -5.3e-6, "restoring_percent": share}
+    assert "grows faster than linearly" in chamber.reading(values, "degC")
+    # on a position that swings both ways the square term cancels and k₃ < 0 softens the spring
+    swing = PolynomialStiffness(stiffness_square=9.4e-4, stiffness_cube=-5.3e-6).derived(y - 35.0, 1.0)
+    assert swing["restoring_percent"] < 0
+    assert "softens" in chamber.reading({**values, **swing}, "mm")
     assert "spring where the output is a position" in neither and "damping where it is a speed" in neither
     # An end stop on the state the output reads and a sensor that clips there look alike: both said.
     stop = StateLimit("position").reading({"position_max": 85.0}, "µm")

@@ -440,7 +440,10 @@ class Diagnosis:
             joint = (
                 {"named_jointly_with": step.joint_with, "joint": chosen.reasons[0]} if step.joint_with else {}
             )
-            reading = self.effect_reading(chosen.name, {k: float(v) for k, v in own.items()})
+            # the reading sees its derived quantities on the recording too (where the output went)
+            derived = self.final_derived.get(chosen.name, chosen.derived)
+            sizes = {k: float(v) for k, v in derived.items() if isinstance(v, int | float)}
+            reading = self.effect_reading(chosen.name, {**sizes, **{k: float(v) for k, v in own.items()}})
             out.append(
                 {
                     "name": chosen.name,

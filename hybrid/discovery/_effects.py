@@ -237,7 +237,8 @@ class AbstractEffect(eqx.Module):
     def reading(self, parameters: dict[str, float], output_unit: str) -> str:
         """What a fit of this effect means for the system, in one sentence ('' by default: the name says it).
 
-        `parameters`: its fitted values by name; `output_unit`: the unit of the
+        `parameters`: its fitted values by name, and its derived quantities on
+        the recording (`derived`) beside them; `output_unit`: the unit of the
         recording's output (`unit_kind` of `hybrid.data._header_units` tells a speed's ``mm/s`` from a
         position's ``mm``): one form can mean different physics on different
         signals, as a force of the output is a spring on a position and a damping

@@ -91,10 +91,28 @@ class PolynomialStiffness(AbstractEffect):
         size, need = derived.get("force_percent_of_drive", 0.0), thresholds["force_percent_of_drive"]
         return size >= need, f"force {size:.1f} % of the largest drive (needs ≥ {need} %)"
 
+    def derived(self, y, dt):
+        """``restoring_percent``: how much of the fitted force pushes back against the output, −100 to 100 %.
+
+        100 · Σ y·φ(y) / Σ |y·φ(y)| over the record: 100 where φ always adds
+        to the model's own restoring force (a spring that hardens, a loss that
+        grows faster than linearly), −100 where it always takes from it. Read
+        over the record because the square term's sign depends on where the
+        output goes: on a temperature that only rises, k₂ > 0 is a loss that
+        grows, whatever k₃'s sign.
+        """
+        y = np.asarray(y, float)
+        force = y * self.apply(jnp.asarray(y), dt)
+        total = float(np.sum(np.abs(force)))
+        share = 100.0 * float(np.sum(force)) / total if total > 0 else 0.0
+        return {"restoring_percent": float(np.clip(share, -100.0, 100.0))}
+
     def reading(self, parameters, output_unit):
-        # k₃ > 0 adds force as |y| grows (φ is subtracted from the drive): a spring that
-        # hardens, a damping that grows with speed; k₃ < 0 the opposite.
-        grows = parameters.get("stiffness_cube", 0.0) >= 0.0
+        # The force adds to the restoring force where the output went (`derived`): a spring that
+        # hardens, a damping that grows with speed, a loss that quickens; or takes from it. Without
+        # the record's reading, k₃'s sign says it (φ is subtracted from the drive).
+        share = parameters.get("restoring_percent")
+        grows = share >= 0.0 if share is not None else parameters.get("stiffness_cube", 0.0) >= 0.0
         kind = unit_kind(output_unit)
         if kind == "rate":
             return (
