@@ -286,18 +286,6 @@ def race(s: Search, problem, actives, tangents, lanes, labels):
     Most of a lane's steps are its patience's tail after its best point; a lane
     that cannot stand for its effect no longer runs it to the end. A lane that
     stopped on its tolerances or its `max_steps` is done either way.
-
-    A leader also has to be still descending (`descending`): its validation loss
-    fell, by any amount, within its last `race_patience // 2` steps. The short
-    patience counts steps without a *clear* gain; a lane that gains a little at
-    every step (a slow fit of a back-relaxation's time) stops on it too, and
-    the rest of the patience is for it. One whose validation loss has not moved
-    at all for half the short patience has passed its best point, and the rest
-    of the patience leaves it there: on the two steps of
-    `benchmarks/diagnose_effect_set.py`'s second recording (the default set),
-    each of the 28 leaders so stalled (their last fall 8 to 14 steps back)
-    ended 15 steps later at its heat's best, and each of the 17 still
-    descending (a fall within 3 steps) gained 0.001–0.35 %.
     `race_patience` 0 (or ≥ `patience`): every lane runs to `patience`.
     """
     settings = s.settings
@@ -306,9 +294,8 @@ def race(s: Search, problem, actives, tangents, lanes, labels):
         return fit_lanes(problem, actives, tangents, thetas, s.lm, settings.patience)
     heat = fit_lanes(problem, actives, tangents, thetas, s.lm, settings.race_patience)
     vals = np.asarray(heat.best_val)
-    # Stopped by the short patience, not by its tolerances or its `max_steps`, and still descending.
+    # Stopped by the short patience, not by its tolerances or its `max_steps`: it may go on.
     going = (np.asarray(heat.since_best) >= settings.race_patience) & (np.asarray(heat.step) < s.lm.max_steps)
-    going &= descending(heat, settings.race_patience)
     reach = (1.0 + settings.patience_rtol) ** (settings.patience - settings.race_patience)
     leaders: list[int] = []
     for name in dict.fromkeys(lab for lab in labels if lab != "none"):
@@ -320,12 +307,6 @@ def race(s: Search, problem, actives, tangents, lanes, labels):
         return heat
     s.say(f"{len(leaders)} leading lanes on to a patience of {settings.patience}")
     return fit_lanes(problem, actives, tangents, resume(heat, leaders), s.lm, settings.patience)
-
-
-def descending(states, race_patience: int) -> np.ndarray:
-    """Per lane, whether its validation loss fell (by any amount) within its last `race_patience // 2` steps."""
-    since_any = np.asarray(states.step) - np.asarray(states.best_step)
-    return since_any < max(race_patience // 2, 1)
 
 
 def search_step(
