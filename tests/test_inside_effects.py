@@ -411,7 +411,9 @@ def _friction_lab(folder: Path, samples: int = 600, seed: int = 3, name: str = "
     )
 
 
-def test_the_docs_friction_effect_is_found_inside_an_oscillator_from_the_command_line(tmp_path, capsys):
+def test_the_docs_friction_effect_is_found_inside_an_oscillator_from_the_command_line(
+    tmp_path, capsys, monkeypatch
+):
     code = h.docs_python_block("effects.md", "## An effect inside the dynamics", "## The interface")
     h.assert_public_imports_only(code)
     (tmp_path / "friction.py").write_text(code)
@@ -470,17 +472,9 @@ def test_the_docs_friction_effect_is_found_inside_an_oscillator_from_the_command
     refitted = json.loads((tmp_path / "refit.json").read_text())["parameters"]
     assert refitted["friction_force"] == pytest.approx(force["value"], rel=0.05)
     # the refusal through the same command line in this process (`hybrid.cli.main`)
-    start_from = ["--start-from", str(tmp_path / "report" / "extended.eqx")]
+    monkeypatch.chdir(tmp_path)
     code = main(
-        [
-            "fit",
-            str(tmp_path / "lab.csv"),
-            *start_from,
-            "--param",
-            "zeta=0.2",
-            "--out",
-            str(tmp_path / "x.eqx"),
-        ]
+        ["fit", "lab.csv", "--start-from", "report/extended.eqx", "--param", "zeta=0.2", "--out", "x.eqx"]
     )
     err = capsys.readouterr().err
     assert code != 0 and "--param" in err and "Traceback" not in err
@@ -690,6 +684,7 @@ def test_a_force_of_a_speed_output_reads_as_a_damping_and_of_a_position_as_a_spr
     assert "hardens" in stiff.reading({"stiffness_cube": 0.01}, "mm")
     assert "softens" in stiff.reading({"stiffness_cube": -0.01}, "µm")
     neither = stiff.reading({"stiffness_cube": 0.01}, "V")  # the unit does not say: both readings given
+    assert "spring where the output is a position" in neither and "damping where it is a speed" in neither
     # Where the output went decides, not k₃'s sign alone: on a temperature that only rises (0 to 70 in
     # the simulation's unit), k₂ = 9.4e-4 with k₃ = −5.3e-6 (a chamber's radiative loss, ∝ T⁴, as
     # `diagnose` fitted it with `lti:1`) is a loss that quickens: y·φ(y) > 0 over the whole record.
@@ -702,10 +697,9 @@ def test_a_force_of_a_speed_output_reads_as_a_damping_and_of_a_position_as_a_spr
     values = {"stiffness_square": 9.4e-4, "stiffness_cube": -5.3e-6, "restoring_percent": share}
     assert "grows faster than linearly" in chamber.reading(values, "degC")
     # on a position that swings both ways the square term cancels and k₃ < 0 softens the spring
-    swing = PolynomialStiffness(stiffness_square=9.4e-4, stiffness_cube=-5.3e-6).derived(y - 35.0, 1.0)
+    swing = chamber.derived(y - 35.0, 1.0)
     assert swing["restoring_percent"] < 0
     assert "softens" in chamber.reading({**values, **swing}, "mm")
-    assert "spring where the output is a position" in neither and "damping where it is a speed" in neither
     # An end stop on the state the output reads and a sensor that clips there look alike: both said.
     stop = StateLimit("position").reading({"position_max": 85.0}, "µm")
     assert "end stop" in stop and "a sensor that clips at that level looks alike" in stop

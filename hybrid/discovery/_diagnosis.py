@@ -452,7 +452,7 @@ class Diagnosis:
                     "incremental_gain": chosen.gain,
                     "delta_bic": chosen.delta_bic,
                     **({"reading": reading} if reading else {}),
-                    "derived": self.final_derived.get(chosen.name, chosen.derived),
+                    "derived": derived,
                     **({"derived_units": units} if (units := self._derived_units(chosen.name)) else {}),
                     "parameters": {
                         k: {

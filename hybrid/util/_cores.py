@@ -69,9 +69,9 @@ def use_cpu_cores(n: int | None = None) -> int | None:
 #: ran in 0.92× (`python benchmarks/compile_emitters.py`). LLVM's optimisation level 1 instead of XLA's
 #: 2 compiles in 0.86× the time again and runs as fast (0.77× on the second call, one run each): the
 #: programs are loops of small matrix products (the lanes' LM steps, the scans over samples), which
-#: the level-2 passes do not speed up. The same cause and gain (to 1e-9) under all three settings. XLA stops at once on a flag it does not
-#: know, so they are set only for the jaxlib series they were measured on (pyproject.toml pins it);
-#: re-measure when that pin moves.
+#: the level-2 passes do not speed up. The same cause and gain (to 1e-9) under all three settings.
+#: XLA stops at once on a flag it does not know, so they are set only for the jaxlib series they were
+#: measured on (pyproject.toml pins it); re-measure when that pin moves.
 QUICK_COMPILE_FLAGS = {
     "xla_cpu_use_fusion_emitters": "--xla_cpu_use_fusion_emitters=false",
     "xla_backend_optimization_level": "--xla_backend_optimization_level=1",
