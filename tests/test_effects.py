@@ -348,6 +348,93 @@ def test_a_stack_jacobian_matches_finite_differences(effects, drive_on):
         assert columns and np.all(np.asarray(forward)[:, columns] == 0.0)
 
 
+class _DrivePolynomial(hybrid.AbstractEffect):
+    """A plug-in drive map with more parameters than `DRIVE_JACOBIAN_MAX`: u + Σ c_k·u^k/k, k = 2..10."""
+
+    raw: dict
+    name: ClassVar[str] = "drive_polynomial"
+    place: ClassVar[str] = "drive"
+    constraints: ClassVar = {f"c{k}": hybrid.Real() for k in range(2, 11)}
+    units: ClassVar = {f"c{k}": f"1/{{signal}}^{k - 1}" for k in range(2, 11)}
+    defaults: ClassVar = {f"c{k}": 0.0 for k in range(2, 11)}
+
+    def __init__(self, **values):
+        self.raw = encode({**self.defaults, **values}, self.constraints, self.name)
+
+    def apply(self, s, dt):
+        c = self.parameters()
+        return s + sum(c[f"c{k}"] * s**k / k for k in range(2, 11))
+
+
+class _DriveTable(hybrid.AbstractEffect):
+    """A plug-in drive map holding an array that is not a parameter: u + gain·table(u), interpolated."""
+
+    raw: dict
+    table: jax.Array
+    name: ClassVar[str] = "drive_table"
+    place: ClassVar[str] = "drive"
+    constraints: ClassVar = {"table_gain": hybrid.Real()}
+    units: ClassVar = {"table_gain": "1"}
+    defaults: ClassVar = {"table_gain": 0.0}
+
+    def __init__(self, **values):
+        self.raw = encode({**self.defaults, **values}, self.constraints, self.name)
+        self.table = jnp.tanh(jnp.linspace(-3.0, 3.0, 13))
+
+    def apply(self, s, dt):
+        return s + self.parameters()["table_gain"] * jnp.interp(s, jnp.linspace(-3.0, 3.0, 13), self.table)
+
+
+@pytest.mark.parametrize("table_on", [True, False])
+def test_a_lanes_jacobian_with_plugin_drive_effects_matches_finite_differences(table_on):
+    """A lane's Jacobian (`jax.linearize`, one pass per direction, as `Problem` takes it) with plug-in drive effects.
+
+    The inner simulation's response is differentiated once per parameter of
+    each drive effect that is on (`inner_response`), and plainly along each
+    direction for one with more than `DRIVE_JACOBIAN_MAX` parameters; the
+    derivative along an array a drive effect holds (not a parameter) is taken
+    plainly too. Against central differences; with the table's effect off its
+    columns are exactly zero.
+    """
+    moved = {f"c{k}": 0.02 / k for k in range(2, 11)}
+    stack = extend(RCNetwork(method="zoh"), _DrivePolynomial(**moved), _DriveTable(table_gain=0.3), "drift")
+    stack = stack.with_active(jnp.asarray([1.0, 1.0 if table_on else 0.0, 1.0]))
+    params, static = eqx.partition(stack, stack.trainable(frozenset()))
+    flat, unravel = jax.flatten_util.ravel_pytree(params)
+    v = jnp.asarray(make_drive("prbs", 8.0, seed=5).v)
+
+    def run(x):
+        return eqx.combine(unravel(x), static).simulate(v, DT)
+
+    _, linear = jax.linearize(run, flat)
+    lane = jax.jit(jax.vmap(linear, out_axes=1))(jnp.eye(flat.size))
+    step = 1e-6
+    central = np.stack(
+        [(run(flat.at[i].add(step)) - run(flat.at[i].add(-step))) / (2 * step) for i in range(flat.size)], 1
+    )
+    scale = np.max(np.abs(central))
+    assert np.max(np.abs(lane - central)) < 1e-7 * scale  # central differences: O(h²) + rounding/h
+    table_columns = [i for i, n in enumerate(stack.free_parameter_order(frozenset())) if n == "table_gain"]
+    assert table_columns and (np.all(np.asarray(lane)[:, table_columns] == 0.0) != table_on)
+    # Along the table itself (an array, not a parameter): moved plainly.
+    direction = jnp.cos(jnp.arange(13.0))
+
+    def with_table(t):
+        effects = tuple(
+            eqx.tree_at(lambda e: e.table, e, t) if e.name == "drive_table" else e for e in stack.effects
+        )
+        return eqx.tree_at(lambda st: st.effects, stack, effects).simulate(v, DT)
+
+    table = stack.effects[1].table
+    along = jax.jvp(with_table, (table,), (direction,))[1]
+    central = (with_table(table + step * direction) - with_table(table - step * direction)) / (2 * step)
+    if table_on:
+        assert float(jnp.max(jnp.abs(along))) > 0
+    np.testing.assert_allclose(
+        along, central, rtol=0, atol=1e-7 * max(float(jnp.max(jnp.abs(central))), 1e-3)
+    )
+
+
 @pytest.mark.parametrize("effects", [(), ("saturation", "drift"), ("drive_saturation",), ("stiffness",)])
 def test_the_stack_is_differentiated_in_its_drive_as_the_bare_simulation_is(effects):
     """d(output)/d(drive), forward and reverse, against central differences, every drive effect off.

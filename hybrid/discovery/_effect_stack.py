@@ -329,13 +329,13 @@ def _signals_through(stack, v_in, dt, states: bool = True):
     `states=False` (the output alone, as `simulate` wants it): while every
     inside effect is off, the inner simulation runs as its own `simulate` (the
     RC network's block-lifted cascade, not its state-space form stepped sample
-    by sample), and the signals entering the inside effects are not computed.
+    by sample), and the signals entering the effects are not computed.
     """
     into: list = [None] * len(stack.effects)
-    u = _through(stack, "drive", v_in, dt, into)
-    drive = [stack.active[i] != 0 for i, e in enumerate(stack.effects) if e.place == "drive"]
-    drive_on = jnp.any(jnp.stack(drive)) if drive else jnp.asarray(False)
     inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
+    # The drive into `inner` for the signals' record and the inside dynamics; the inner
+    # simulation's own response takes the drive's effects into its derivative (`inner_response`).
+    u = _through(stack, "drive", v_in, dt, into) if states or inside else None
     if inside:
         # A lane with every inside effect off (the baseline's, an outside candidate's) runs the
         # plain simulation: the effects' forces and limits cost as much as the dynamics.
@@ -349,7 +349,7 @@ def _signals_through(stack, v_in, dt, states: bool = True):
         def plain(x):
             if states:
                 return integrate(core, x, dt)
-            out = inner_response(stack.inner, u, dt, drive_on, v_in)  # the record's part; held samples as 0
+            out = inner_response(stack, v_in, dt)  # the record's part; held samples as 0
             out = jnp.concatenate([jnp.zeros(skip, out.dtype), out])
             return out.astype(jnp.result_type(x, out)), jnp.zeros((x.shape[0], n_states), out.dtype)
 
@@ -360,8 +360,8 @@ def _signals_through(stack, v_in, dt, states: bool = True):
         for i, effect in inside:
             into[i] = s if effect.acts_on == "output" else trajectory[:, core.states.index(effect.acts_on)]
     else:
-        s = inner_response(stack.inner, u, dt, drive_on, v_in)
-    return into, _through(stack, "output", s, dt, into), u
+        s = inner_response(stack, v_in, dt)
+    return into, _through(stack, "output", s, dt, into if states else None), u
 
 
 def _through(stack, place: str, signal, dt, into: list | None = None):
@@ -377,69 +377,117 @@ def _through(stack, place: str, signal, dt, into: list | None = None):
     return signal
 
 
-def inner_response(inner: AbstractSimulation, u, dt, drive_on, source):
-    """`inner.simulate(u, dt)`, whose derivative costs one direction per parameter of `inner`.
+#: A drive-side effect with at most this many parameters is differentiated in each of them once
+#: (`inner_response`); one with more (a plug-in's table), along each direction asked, as plainly.
+DRIVE_JACOBIAN_MAX = 8
+
+
+def _split_effect(effect: AbstractEffect):
+    """(its parameters as one flat vector, a function back to them, its other arrays, the rest) of `effect`."""
+    spec = jax.tree_util.tree_map(lambda _: False, effect)
+    spec = eqx.tree_at(lambda e: e.raw, spec, {k: True for k in effect.raw})
+    params, rest = eqx.partition(effect, spec)
+    arrays, static = eqx.partition(rest, eqx.is_inexact_array)
+    flat, unravel = ravel_pytree(params)
+    return flat, unravel, arrays, static
+
+
+def inner_response(stack: EffectStack, v_in, dt):
+    """`stack.inner.simulate(u, dt)`, u = `v_in` through the drive's effects, at the cost of few directions.
 
     A search lane's Jacobian takes one direction per free parameter of the
     whole stack (the inner simulation's, the frame timing's, its effects'),
     all at once under `vmap`; run plainly, the inner simulation — by far the
     dearest part — would be differentiated along every one of them, though
-    only its own parameters' directions move it. Here its derivative is its
-    Jacobian in its own parameters (`jax.jacfwd`, computed once, outside the
-    batch of directions) times each direction, plus the derivative through
-    the drive `u`:
+    only its own parameters' and the drive's effects' directions move it. Here
+    its derivative is computed once per parameter that moves it, outside the
+    batch of directions, and multiplied by each direction:
 
-    - always, when the caller differentiates the stack's own drive `source`
-      (the v_in before the drive's effects: a sensitivity to the drive, a
-      drive's design);
-    - otherwise only while a drive-side effect is on (`drive_on`, a traced
-      flag): `u` is then the recorded drive moved by that effect's parameters
-      alone, and with every drive effect off no parameter moves it;
-    - never where `u`'s derivative is known to be zero (not differentiated).
+    - its Jacobian in its own parameters (`jax.jacfwd`);
+    - for each drive-side effect that is on, the Jacobian of the response in
+      that effect's parameters (`jax.jacfwd` through the effect and the
+      simulation: one or two directions, where the batch has ~13); an effect
+      that is off moves nothing and costs nothing (`lax.cond` on its switch);
+      one with more than `DRIVE_JACOBIAN_MAX` parameters is differentiated
+      along each direction instead;
+    - along the drive `v_in` itself, plainly, when the caller differentiates
+      it (a sensitivity to the drive, a drive's design); never where its
+      derivative is known to be zero (not differentiated).
 
-    Only the parameters (`raw`) go through `jax.jacfwd`: a plug-in may hold
-    other arrays (a calibration table, a fixed matrix), whose derivative, if
-    anything asks for it, is taken plainly along the directions given.
+    Only parameters (`raw`) go through `jax.jacfwd`: a plug-in may hold other
+    arrays (a calibration table, a fixed matrix), whose derivative, if
+    anything asks for it, is taken plainly along the directions given, as is
+    one along the switches.
     """
+    inner = stack.inner
     params, rest = eqx.partition(inner, inner.trainable(frozenset()))
     arrays, static = eqx.partition(rest, eqx.is_inexact_array)
     flat, unravel = ravel_pytree(params)
-    has_arrays = bool(jax.tree_util.tree_leaves(arrays))
+    drives = [(i, _split_effect(e)) for i, e in enumerate(stack.effects) if e.place == "drive"]
+    effect_flats = tuple(d[0] for _, d in drives)
+    effect_arrays = tuple(d[2] for _, d in drives)
+    switches = jnp.stack([stack.active[i] for i, _ in drives]) if drives else jnp.zeros(0)
 
-    def run(theta, drive, others):
+    def drive_of(p_effects, e_arrays, on, source):
+        u = source
+        for k, (_, (_, back, _, e_static)) in enumerate(drives):
+            u = switched(on[k], eqx.combine(back(p_effects[k]), e_arrays[k], e_static), u, dt)
+        return u
+
+    def run(theta, p_effects, others, e_arrays, on, source):
+        drive = drive_of(p_effects, e_arrays, on, source)
         return eqx.combine(unravel(theta), others, static).simulate(drive, dt)
 
     @jax.custom_jvp
-    def response(theta, drive, others, on, source):
-        return run(theta, drive, others)
+    def response(theta, p_effects, others, e_arrays, on, source):
+        return run(theta, p_effects, others, e_arrays, on, source)
 
     def _derivative(primals, tangents):
-        theta, drive, others, on, _ = primals
-        d_theta, d_drive, d_others, _, d_source = tangents
+        theta, p_effects, *rest = primals
+        on = primals[4]
+        d_theta, d_effects, *d_rest = tangents
         if isinstance(d_theta, SymbolicZero):  # no parameter differentiated: the value alone
-            y = run(theta, drive, others)
+            y = run(*primals)
             dy = jnp.zeros_like(y)
         else:
-            J, y = jax.jacfwd(lambda t: (run(t, drive, others),) * 2, has_aux=True)(theta)
+            J, y = jax.jacfwd(lambda t: (run(t, *primals[1:]),) * 2, has_aux=True)(theta)
             dy = J @ d_theta
-        if not isinstance(d_drive, SymbolicZero):
+        plain_effects = []  # the drive effects' tangents taken plainly below (zero where done here)
+        for k, (p, d) in enumerate(zip(p_effects, d_effects)):
+            if isinstance(d, SymbolicZero) or p.size > DRIVE_JACOBIAN_MAX:
+                plain_effects.append(jnp.zeros_like(p) if isinstance(d, SymbolicZero) else d)
+                continue
+            plain_effects.append(jnp.zeros_like(p))
 
-            def along_drive():
-                return jax.jvp(lambda x: run(theta, x, others), (drive,), (d_drive,))[1]
+            def along(q, k=k):
+                return run(theta, p_effects[:k] + (q,) + p_effects[k + 1 :], *rest)
 
-            if isinstance(d_source, SymbolicZero):  # the recorded drive: only a drive effect moves it
-                dy = dy + jax.lax.cond(on, along_drive, lambda: jnp.zeros_like(y))
-            else:
-                dy = dy + along_drive()
-        if has_arrays and not all(isinstance(t, SymbolicZero) for t in jax.tree_util.tree_leaves(d_others)):
-            d_others = jax.tree_util.tree_map(
-                lambda t, a: jnp.zeros_like(a) if isinstance(t, SymbolicZero) else t, d_others, others
+            J_k = jax.lax.cond(  # an effect switched off moves nothing
+                on[k] != 0,
+                lambda along=along, p=p: jax.jacfwd(along)(p),
+                lambda p=p: jnp.zeros(y.shape + p.shape, y.dtype),
             )
-            dy = dy + jax.jvp(lambda a: run(theta, drive, a), (others,), (d_others,))[1]
+            dy = dy + J_k @ d
+        big = any(
+            p.size > DRIVE_JACOBIAN_MAX and not isinstance(d, SymbolicZero)
+            for p, d in zip(p_effects, d_effects)
+        )
+        moved = [not all(isinstance(t, SymbolicZero) for t in jax.tree_util.tree_leaves(d)) for d in d_rest]
+        if big or any(moved):  # plainly, along each direction
+            zeroed = [
+                jax.tree_util.tree_map(
+                    lambda t, a: jnp.zeros_like(a) if isinstance(t, SymbolicZero) else t, d, r
+                )
+                for r, d in zip(rest, d_rest)
+            ]
+            along_each = jax.jvp(
+                lambda pe, *r: run(theta, pe, *r), (p_effects, *rest), (tuple(plain_effects), *zeroed)
+            )[1]
+            dy = dy + along_each
         return y, dy
 
     response.defjvp(_derivative, symbolic_zeros=True)
-    return response(flat, u, arrays, drive_on, source)
+    return response(flat, effect_flats, arrays, effect_arrays, switches, v_in)
 
 
 def drive_forces(stack: EffectStack, drive) -> np.ndarray:
