@@ -19,11 +19,11 @@ from scipy.signal import lfilter
 
 import hybrid
 from hybrid.discovery._decision import evaluate_candidate, free_names
-from hybrid.discovery._diagnose import prepare_search
+from hybrid.discovery._diagnose import final_fit, prepare_search
 from hybrid.discovery._diagnosis import EquallyGoodFits, HeldoutSignals
 from hybrid.discovery._redundant import drop_redundant
 from hybrid.discovery._report import stepwise_section
-from hybrid.discovery._search import fit_lanes, initial_thetas, lane_tangents, padding_lane
+from hybrid.discovery._search import fit_lanes, initial_thetas, lane_tangents, padding_lane, with_active
 from hybrid.discovery._step import Step
 
 RATE, N = 30.0, 1800
@@ -41,12 +41,14 @@ def _recording(curvature: float, seed: int = 0) -> hybrid.Recording:
     return hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE)
 
 
+#: tanh(κs)/κ is even in κ: no slope at κ = 0, so saturation starts bent (as its own starts do)
+_START = dict(drift_rate_per_s=-0.005, saturation_pos_curvature=0.5, saturation_neg_curvature=0.5)
+
+
 def _both_named(recording):
     """The search, and the model with saturation and drift on, fitted by the search's own LM lanes."""
     search = prepare_search([recording], hybrid.LTI(1), hybrid.DiagnoseSettings(), EFFECTS)
-    # tanh(κs)/κ is even in κ: no slope at κ = 0, so saturation starts bent (as its own starts do)
-    values = dict(drift_rate_per_s=-0.005, saturation_pos_curvature=0.5, saturation_neg_curvature=0.5)
-    return search, _all_on(search, EFFECTS, values)
+    return search, _all_on(search, EFFECTS, _START)
 
 
 def _all_on(search, effects, values):
@@ -96,6 +98,51 @@ def test_two_needed_causes_are_both_kept():
     kept, refit, dropped = drop_redundant(search, final, ("saturation", "drift"))
     assert (kept, dropped) == (("saturation", "drift"), [])
     assert refit is final
+
+
+def test_the_model_handed_back_is_the_last_steps_refit_where_that_fits_better_on_both_parts():
+    """`final_fit`: the last step's refit of the chosen model replaces it only where it is better on validation
+    *and* no worse on training; a refit better on validation alone (an iterate picked on 10 % of the record)
+    does not. The chosen fit here is the same two effects at the refit's start, unfitted."""
+    search, refit = _both_named(_recording(curvature=0.6))
+    problem, model = search.problem, search.model
+    active = refit.active
+    start = initial_thetas(
+        problem, [model.simulation.with_active(active).replace(**_START)], model.readout, search.frozen
+    )[0]
+    chosen = evaluate_candidate(
+        problem,
+        start,
+        active,
+        "drift",
+        search.n_train,
+        refit.n_parameters,
+        search.settings.materiality,
+        search.frozen,
+        ("saturation",),
+    )
+    for fit in (refit, chosen):
+        fit.validation_loss = float(with_active(problem, jnp.asarray(fit.active)).validation_loss(fit.theta))
+    assert chosen.train_rss > 1.5 * refit.train_rss and chosen.validation_loss > refit.validation_loss
+    bar = EquallyGoodFits(n=0, heldout_nmse_min=float("nan"), heldout_nmse_max=float("nan"), definition="-")
+    first = dataclasses.replace(chosen, name="saturation")
+    named = ("saturation", "drift")
+
+    def steps(last_current):  # step 1 named saturation, step 2 drift (`chosen`), step 3 nothing
+        return [
+            Step(first, [first], first, 0.0, [], bar, []),
+            Step(first, [chosen], chosen, 0.0, [], bar, []),
+            Step(last_current, [], None, float("nan"), [], bar, []),
+        ]
+
+    assert final_fit(steps(refit), chosen, named) is refit
+    assert final_fit(steps(chosen), chosen, named) is chosen  # no refit found: the chosen fit
+    lucky = dataclasses.replace(
+        chosen, validation_loss=0.5 * refit.validation_loss, train_rss=2 * chosen.train_rss
+    )
+    assert final_fit(steps(lucky), chosen, named) is chosen  # better on validation alone: not taken
+    assert final_fit(steps(refit)[:2], chosen, named) is chosen  # the search stopped at its most causes
+    assert final_fit(steps(refit), chosen, ()) is first  # nothing named: the first step's current
 
 
 def test_a_dropped_cause_is_reported_and_not_among_the_causes():

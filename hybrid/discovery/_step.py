@@ -473,6 +473,7 @@ def search_step(
             present[:-1],
         )
         current.reasons.append(f"refitted from the {labels[j]} candidate's end point")
+        current.validation_loss = current_val
 
     candidates, chosen_lanes, lanes_of = [], set(), {}
     for name in names:
