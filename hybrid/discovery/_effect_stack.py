@@ -329,7 +329,8 @@ def _signals_through(stack, v_in, dt, states: bool = True):
     `states=False` (the output alone, as `simulate` wants it): while every
     inside effect is off, the inner simulation runs as its own `simulate` (the
     RC network's block-lifted cascade, not its state-space form stepped sample
-    by sample), and the signals entering the effects are not computed.
+    by sample), and neither the signals entering the effects nor the drive into
+    `inner` are computed (None).
     """
     into: list = [None] * len(stack.effects)
     inside = [(i, e) for i, e in enumerate(stack.effects) if e.place == "inside"]
