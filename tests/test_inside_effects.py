@@ -706,6 +706,57 @@ def test_a_force_of_a_speed_output_reads_as_a_damping_and_of_a_position_as_a_spr
     assert "spills into h2" in StateLimit("h1", into="h2").reading({"h1_max": 1.0}, "V")
 
 
+def test_a_causes_reading_takes_the_final_models_derived_quantities():
+    """`Diagnosis.causes` reads a cause from the final model's values *and* its derived quantities on the
+    recording (`final_derived`): the chamber's fit (k₂ > 0, k₃ < 0) on a temperature is a loss that grows,
+    as its restoring share says, where k₃'s sign alone would read one that eases."""
+    from hybrid.discovery._diagnosis import Candidate, Diagnosis, EquallyGoodFits
+    from hybrid.discovery._step import Step
+
+    values = {"stiffness_square": 9.4e-4, "stiffness_cube": -5.3e-6}
+    chamber = PolynomialStiffness(**values)
+    fit = Candidate(
+        name="stiffness",
+        parameters=values,
+        derived={},
+        train_rss=1.0,
+        n_parameters=4,
+        bic=0.0,
+        heldout=None,
+        ljung_box={},
+        gain=3.9,
+        delta_bic=-50.0,
+    )
+    bar = EquallyGoodFits(n=0, heldout_nmse_min=float("nan"), heldout_nmse_max=float("nan"), definition="-")
+
+    def diagnosis(share):
+        return Diagnosis(
+            cause="stiffness",
+            baseline=dataclasses.replace(fit, name="none"),
+            extended=fit,
+            candidates=[fit],
+            uncertainties={},
+            evidence={},
+            hybrid=None,
+            settings=hybrid.DiagnoseSettings(),
+            recordings=["r"],
+            seconds=0.0,
+            heldout=None,
+            steps=[Step(fit, [fit], fit, 0.0, [], bar, [])],
+            effects=(chamber,),
+            signal_units={"w": "degC", "v_in": "W"},
+            final_derived={"stiffness": {"restoring_percent": share}},
+        )
+
+    rising = chamber.derived(np.linspace(0.0, 70.0, 400), 1.0)["restoring_percent"]
+    (cause,) = diagnosis(rising).causes
+    assert (
+        cause["derived"]["restoring_percent"] == rising and "grows faster than linearly" in cause["reading"]
+    )
+    (cause,) = diagnosis(-rising).causes  # the same values, the force taking from the restoring one
+    assert "eases as it warms" in cause["reading"]
+
+
 def test_a_quadratic_drag_on_a_motors_speed_is_read_as_a_damping_from_the_command_line(tmp_path):
     """A speed ω' = −aω + b(u − cω|ω|) (solve_ivp), recorded in rad/s and diagnosed with `lti:1`.
 
