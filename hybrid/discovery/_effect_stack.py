@@ -383,11 +383,9 @@ def _through(stack, place: str, signal, dt, into: list | None = None):
 DRIVE_JACOBIAN_MAX = 8
 
 
-def _split_effect(effect: AbstractEffect):
-    """(its parameters as one flat vector, a function back to them, its other arrays, the rest) of `effect`."""
-    spec = jax.tree_util.tree_map(lambda _: False, effect)
-    spec = eqx.tree_at(lambda e: e.raw, spec, {k: True for k in effect.raw})
-    params, rest = eqx.partition(effect, spec)
+def _split(tree, spec):
+    """(the parameters `spec` marks as one flat vector, a function back to them, the other arrays, the rest)."""
+    params, rest = eqx.partition(tree, spec)
     arrays, static = eqx.partition(rest, eqx.is_inexact_array)
     flat, unravel = ravel_pytree(params)
     return flat, unravel, arrays, static
@@ -420,11 +418,9 @@ def inner_response(stack: EffectStack, v_in, dt):
     anything asks for it, is taken plainly along the directions given, as is
     one along the switches.
     """
-    inner = stack.inner
-    params, rest = eqx.partition(inner, inner.trainable(frozenset()))
-    arrays, static = eqx.partition(rest, eqx.is_inexact_array)
-    flat, unravel = ravel_pytree(params)
-    drives = [(i, _split_effect(e)) for i, e in enumerate(stack.effects) if e.place == "drive"]
+    spec = stack.trainable(frozenset())  # the inner simulation's spec, and each effect's `raw`
+    flat, unravel, arrays, static = _split(stack.inner, spec.inner)
+    drives = [(i, _split(e, spec.effects[i])) for i, e in enumerate(stack.effects) if e.place == "drive"]
     effect_flats = tuple(d[0] for _, d in drives)
     effect_arrays = tuple(d[2] for _, d in drives)
     switches = jnp.stack([stack.active[i] for i, _ in drives]) if drives else jnp.zeros(0)
@@ -444,21 +440,25 @@ def inner_response(stack: EffectStack, v_in, dt):
         return run(theta, p_effects, others, e_arrays, on, source)
 
     def _derivative(primals, tangents):
-        theta, p_effects, *rest = primals
-        on = primals[4]
+        theta, p_effects, _, _, on, _ = primals
         d_theta, d_effects, *d_rest = tangents
+        rest = primals[2:]
         if isinstance(d_theta, SymbolicZero):  # no parameter differentiated: the value alone
             y = run(*primals)
             dy = jnp.zeros_like(y)
         else:
             J, y = jax.jacfwd(lambda t: (run(t, *primals[1:]),) * 2, has_aux=True)(theta)
             dy = J @ d_theta
-        plain_effects = []  # the drive effects' tangents taken plainly below (zero where done here)
+        # what is taken plainly below, along each direction: the tangents of the switches, the drive
+        # and the arrays when given, and of a drive effect with many parameters (zero where done here)
+        plainly = [not all(isinstance(t, SymbolicZero) for t in jax.tree_util.tree_leaves(d)) for d in d_rest]
+        plain_effects = []
         for k, (p, d) in enumerate(zip(p_effects, d_effects)):
-            if isinstance(d, SymbolicZero) or p.size > DRIVE_JACOBIAN_MAX:
-                plain_effects.append(jnp.zeros_like(p) if isinstance(d, SymbolicZero) else d)
+            many = not isinstance(d, SymbolicZero) and p.size > DRIVE_JACOBIAN_MAX
+            plainly.append(many)
+            plain_effects.append(d if many else jnp.zeros_like(p))
+            if isinstance(d, SymbolicZero) or many:
                 continue
-            plain_effects.append(jnp.zeros_like(p))
 
             def along(q, k=k):
                 return run(theta, p_effects[:k] + (q,) + p_effects[k + 1 :], *rest)
@@ -469,12 +469,7 @@ def inner_response(stack: EffectStack, v_in, dt):
                 lambda p=p: jnp.zeros(y.shape + p.shape, y.dtype),
             )
             dy = dy + J_k @ d
-        big = any(
-            p.size > DRIVE_JACOBIAN_MAX and not isinstance(d, SymbolicZero)
-            for p, d in zip(p_effects, d_effects)
-        )
-        moved = [not all(isinstance(t, SymbolicZero) for t in jax.tree_util.tree_leaves(d)) for d in d_rest]
-        if big or any(moved):  # plainly, along each direction
+        if any(plainly):
             zeroed = [
                 jax.tree_util.tree_map(
                     lambda t, a: jnp.zeros_like(a) if isinstance(t, SymbolicZero) else t, d, r
