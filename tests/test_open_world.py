@@ -145,3 +145,35 @@ def test_a_creep_beside_a_fast_mode_is_not_lost_in_a_floor_that_read_the_mode(tm
     # model's, not that the data may have been smoothed (which the floor's own check does not suggest here)
     assert left["ratio_to_floor"] > 100 and "the model's miss" in left["floor_warning"], left
     assert "smoothed, filtered" not in left["floor_warning"]
+
+
+def test_a_vibration_on_the_sensor_is_said_to_be_a_disturbance_at_its_frequency(tmp_path):
+    """A 2 Hz oscillator (scipy ZOH) read by a sensor that also picks up a 7.3 Hz vibration.
+
+    No effect explains a line the drive does not carry: nothing is named, and the remainder is placed
+    where it is, a sinusoid at 7.3 Hz added to the measurement (before: "no simple structure").
+    """
+    rng = np.random.default_rng(1)
+    rate, n = 50.0, 1500
+    v = np.repeat(rng.uniform(-2, 2, n // 30 + 1), 30)[:n]
+    w0, zeta = 2 * math.pi * 2.0, 0.3
+    a, b = np.array([[0.0, 1.0], [-w0 * w0, -2 * zeta * w0]]), np.array([[0.0], [w0 * w0]])
+    system = scipy.signal.cont2discrete((a, b, np.array([[1.0, 0.0]]), np.zeros((1, 1))), 1 / rate, "zoh")
+    y = scipy.signal.dlsim(system[:4] + (1 / rate,), v)[1][:, 0]
+    t = np.arange(n) / rate
+    w = y + 0.05 * np.ptp(y) * np.sin(2 * math.pi * 7.3 * t + 0.5) + 0.005 * np.ptp(y) * rng.normal(size=n)
+    np.savetxt(tmp_path / "bench.csv", np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
+    run = h.run_hybrid(
+        tmp_path,
+        *("diagnose", "bench.csv", "--physics", "lti:2", "--effects", "saturation,resonance"),
+        *("--out", "report", "--quiet"),
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((tmp_path / "report" / "report.json").read_text())
+    assert report["cause"] == "none" and not report["causes"], report["verdict"]
+    left = report["unexplained"]
+    assert left is not None and left["description"]["kind"] == "periodic", left["description"]["summary"]
+    line = left["description"]["periodic"]
+    assert line["frequency_hz"] == pytest.approx(7.3, abs=0.01)
+    assert line["amplitude_rms"] == pytest.approx(0.05 * np.ptp(y) / math.sqrt(2), rel=0.05)
+    assert "7.3 Hz" in report["verdict"] and "mm rms" in report["verdict"]

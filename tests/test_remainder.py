@@ -146,6 +146,87 @@ def test_slow_trend_in_time():
     assert "time" in d["summary"]
 
 
+# --- a line the drive does not carry: a disturbance, not a miss ------------------------------------
+
+LINE = 0.3  # the residual's sinusoid: power LINE²/2 = 0.045 against the noise's SIGMA² = 0.0025
+
+
+@pytest.mark.parametrize(("hz", "mains"), [(7.3, None), (10.0, "60 Hz mains")])
+def test_a_line_the_drive_does_not_carry_is_a_periodic_disturbance(hz, mains):
+    # A vibration added to w, phase-locked over the recording: a sinusoid fitted on the training blocks
+    # predicts the held-out ones, so it recovers the whole excess (all of it is the line's), at the
+    # line's frequency and amplitude (rms LINE/√2). At 50 samples a second 60 Hz mains reads as 10 Hz.
+    d = describe(lambda v, t: LINE * np.sin(2 * np.pi * hz * t + 1.0))
+    line = d["periodic"]
+    assert d["kind"] == "periodic" and d["recovered"]["named"] == "periodic"
+    assert line["frequency_hz"] == pytest.approx(hz, abs=2e-3)  # 200 s: 1/200 Hz per bin, refined
+    assert line["amplitude_rms"] == pytest.approx(LINE / np.sqrt(2), rel=0.02)
+    assert line["of_excess"] > 0.95
+    assert "not driven" in d["summary"] and f"{hz:.4g} Hz" in d["summary"]
+    if mains:
+        assert mains in line["mains"] and mains in d["summary"]
+    else:
+        assert "mains" not in line
+
+
+def test_each_recording_keeps_its_own_lines_phase():
+    # Two recordings of the same vibration, started at different phases (t restarts at 0 in each): a
+    # phase per recording recovers the line; one phase for both (no recording index) recovers under
+    # half of it (the two phases 2.5 rad apart: a common sinusoid keeps cos(1.25) ≈ 0.32 of the amplitude).
+    parts = [
+        recording(lambda v, t, p=p: LINE * np.sin(2 * np.pi * 7.3 * t + p), seed=s)
+        for s, p in ((0, 0.0), (1, 2.5))
+    ]
+
+    def joined(j, with_index):
+        out = {k: np.concatenate([p[j][k] for p in parts]) for k in parts[0][j]}
+        out["segment"] = np.concatenate([p[j]["segment"] + 1000 * i for i, p in enumerate(parts)])
+        if with_index:
+            out["recording"] = np.concatenate([np.full(len(p[j]["t"]), i) for i, p in enumerate(parts)])
+        return out
+
+    apart = describe_remainder(joined(0, True), joined(1, True), RATE, SIGMA**2)
+    assert apart["kind"] == "periodic" and apart["periodic"]["of_excess"] > 0.95
+    together = describe_remainder(joined(0, False), joined(1, False), RATE, SIGMA**2)
+    assert together["periodic"]["of_excess"] < 0.5
+
+
+def test_a_line_that_a_periodic_drive_makes_is_the_responses_not_a_disturbance():
+    # A sine drive at 1.1 Hz through a square law puts a line at 2.2 Hz (its second harmonic) into r;
+    # two tones at 1.1 and 1.7 Hz through a product put lines at their difference and sum (0.6, 2.8 Hz):
+    # each is phase-locked and a sinusoid would predict it, but the drive carries it, so it is no
+    # disturbance, and the part says why instead of scoring it.
+    t = np.arange(N) / RATE
+    sine = describe(lambda v, t: 0.6 * v**2, drive=np.sin(2 * np.pi * 1.1 * t))
+    assert sine["kind"] != "periodic" and "fraction" not in sine["periodic"]
+    assert sine["periodic"]["frequency_hz"] == pytest.approx(2.2, abs=0.01)
+    assert "harmonic 2" in sine["periodic"]["reason"]
+    tones = np.sin(2 * np.pi * 1.1 * t) + np.sin(2 * np.pi * 1.7 * t)
+    mixed = describe(
+        lambda v, t: 2 * LINE * np.sin(2 * np.pi * 1.1 * t) * np.sin(2 * np.pi * 1.7 * t), drive=tones
+    )
+    assert mixed["kind"] != "periodic" and "fraction" not in mixed["periodic"]
+    assert "mix there" in mixed["periodic"]["reason"]
+    assert {"1.1", "1.7"} <= set(mixed["periodic"]["reason"].replace(" and ", " ").split())
+
+
+@pytest.mark.parametrize(("hz", "driven"), [(12.2, True), (12.25, False)])
+def test_a_line_on_a_periodic_drives_grid_is_the_drives_however_high(hz, driven):
+    # A multisine of period 10 s (odd lines 0.1–0.9 Hz): any time-invariant response to it repeats every
+    # 10 s, so a residual line at 12.2 Hz (harmonic 122 of 0.1 Hz, beyond every low harmonic and sum of the
+    # drive's lines) may be the response's and is not called a disturbance; at 12.25 Hz, off that grid by
+    # more than the record resolves (3/200 Hz), it is one.
+    t = np.arange(N) / RATE
+    phases = np.random.default_rng(5).uniform(0, 2 * np.pi, 5)
+    drive = sum(np.sin(2 * np.pi * (2 * k + 1) * 0.1 * t + p) for k, p in enumerate(phases))
+    d = describe(lambda v, t: LINE * np.sin(2 * np.pi * hz * t), drive=drive)
+    assert d["periodic"]["frequency_hz"] == pytest.approx(hz, abs=2e-3)
+    if driven:
+        assert "periodic (0.1 Hz" in d["periodic"]["reason"] and d["kind"] != "periodic"
+    else:
+        assert d["kind"] == "periodic" and d["periodic"]["of_excess"] > 0.95
+
+
 def test_white_noise_is_unstructured():
     # Nothing but noise of the floor's variance: the held-out MSE is the floor up to its sampling error,
     # and no extension can gain more than chance (a few tenths of a percent).

@@ -32,6 +32,14 @@ the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
   dynamics, e.g. an oscillator's cubic (odd) or quadratic (even) restoring
   force, whose effect on w is its force passed through the resonance. The
   first-order perturbation of a Duffing oscillator is exactly this.
+- **periodic**: a sinusoid (amplitude and phase per recording) at the
+  frequency of the training residual's largest spectral line, at least
+  `MIN_CYCLES` cycles per recording (slower is a trend) — only where the drive
+  carries no line there, nor at a harmonic, an alias or a sum or difference of
+  its own lines (a periodic drive's response is the drive's, not a
+  disturbance). Phase-locked over the recording, a vibration or an electrical
+  pick-up predicts its held-out blocks; a lightly damped mode that random drive
+  excites wanders in phase and does not.
 - **states** (a simulation in state-space form with at most `MAX_STATES`
   states): a map of each state fed back into the drive, through the model's
   linearised response (`_state_feedback`), and the same map read on the
@@ -68,16 +76,34 @@ FAMILY = {
     "rate": "dynamic",
     "filter_output": "dynamic",
     "time": "time",
+    "periodic": "periodic",
     "state_linear": "dynamic",
     "filter_output_cube": "nonlinear_dynamic",
     "filter_output_square": "nonlinear_dynamic",
     "state_map": "nonlinear_dynamic",
 }
-ORDER = ("static", "time", "dynamic", "nonlinear_dynamic")
+ORDER = ("static", "time", "periodic", "dynamic", "nonlinear_dynamic")
 #: The linear filters' lags: a second's worth of samples, at least `MIN_LAGS` (at 1 Hz a second is one
 #: lag, blind to a thermocouple's 8 s lag: a new user's chamber read "no simple structure … the best
 #: linear filter 0 %") and at most `MAX_LAGS`.
 MIN_LAGS, MAX_LAGS = 16, 60
+#: A line of the residual is periodic only from this many cycles per recording (slower: a trend in time).
+MIN_CYCLES = 3
+#: A bin of the drive's periodogram this many times the median of its neighbours (`LINE_WINDOW` bins of
+#: the unpadded spectrum each side) is a line of the drive: a random drive's bins are exponential, above
+#: 30× their median about once in 10⁹.
+LINE_PEAK, LINE_WINDOW = 30.0, 25
+#: ... and at least this fraction of the strongest line's power (−40 dB: below it, a taper's leakage).
+LINE_RANGE = 1e-4
+#: Harmonics of a drive's line that count as the drive's (folded by the sampling), and the lines whose
+#: sums and differences do (the strongest).
+HARMONICS, INTERMODULATED = 10, 10
+#: Bins of the unpadded spectrum within which a residual's line coincides with one the drive causes.
+COINCIDE_BINS = 3
+#: Zero padding of the periodogram (its grid is this many times finer than the record's).
+PAD = 4
+#: Mains frequencies (Hz) and the harmonics of them a line is read against.
+MAINS, MAINS_HARMONICS = (50.0, 60.0), 3
 #: The state feedback's maps are fitted for a simulation with at most this many states (the RC network's
 #: 45 are stages of one diffusion, not quantities a user would name a force of).
 MAX_STATES = 8
@@ -105,6 +131,8 @@ def _prepare(part: dict) -> dict:
     brk = np.r_[True, (a["segment"][1:] != a["segment"][:-1]) | ~ok[:-1]][:n]
     run = np.cumsum(brk)[ok]
     out = {k: a[k][ok] for k in KEYS}
+    recording = part.get("recording")  # which recording each sample is from (one, when not given)
+    out["recording"] = (np.zeros(n) if recording is None else np.asarray(recording, float).ravel())[ok]
     out["r"] = out["w"] - out["w_hat"]
     out["ok"] = ok  # which samples were kept: a state feedback's responses are filtered alike
     starts = np.flatnonzero(np.r_[True, run[1:] != run[:-1]]) if len(run) else np.zeros(0, int)
@@ -288,6 +316,158 @@ def _filter(tr, ho, key, lags, rate, judge) -> dict:
             "phase_deg": _list(np.degrees(np.unwrap(np.angle(resp)))),
         },
     )
+
+
+def _periodogram(x, part: dict, rate: float, n_fft: int, hann: bool = False) -> np.ndarray:
+    """|FFT|² of x on each recording's sample grid (its other samples zero), summed over the recordings.
+
+    `hann`: each recording's span tapered by a Hann window (a line's leakage falls off within a few bins).
+    """
+    power = np.zeros(n_fft // 2 + 1)
+    for i in np.unique(part["recording"]):
+        m = part["recording"] == i
+        k = np.round((part["t"][m] - part["t"][m].min()) * rate).astype(int)
+        grid = np.zeros(n_fft)
+        grid[k] = x[m] - x[m].mean()
+        if hann:
+            grid[: k.max() + 1] *= np.hanning(k.max() + 1)
+        power += np.abs(np.fft.rfft(grid)) ** 2
+    return power
+
+
+def _sinusoid_columns(part: dict, m, f: float) -> np.ndarray:
+    phase = 2 * np.pi * f * part["t"][m]
+    return np.column_stack([np.ones(len(phase)), np.cos(phase), np.sin(phase)])
+
+
+def _sinusoid_fit(part: dict, f: float) -> dict:
+    """Per recording, the least-squares mean, cosine and sine at `f` of `part`'s r."""
+    return {
+        i: np.linalg.lstsq(_sinusoid_columns(part, m, f), part["r"][m], rcond=None)[0]
+        for i in np.unique(part["recording"])
+        for m in [part["recording"] == i]
+    }
+
+
+def _sinusoid_at(part: dict, f: float, coef: dict) -> np.ndarray:
+    """`_sinusoid_fit`'s prediction on `part`: zero in a recording it had no samples of (no phase to carry)."""
+    out = np.zeros(len(part["r"]))
+    for i, c in coef.items():
+        m = part["recording"] == i
+        out[m] = _sinusoid_columns(part, m, f) @ c
+    return out
+
+
+def _drive_lines(tr, ho, rate: float, n_fft: int, near: float) -> np.ndarray:
+    """Frequencies (Hz) of the drive's lines, strongest first.
+
+    The drive is known on every sample, held out or not: its periodogram is
+    taken over each whole recording, Hann-tapered. A line is a local maximum
+    `LINE_PEAK` times the median of its neighbours (`LINE_WINDOW` bins of the
+    unpadded spectrum each side) and within `LINE_RANGE` of the strongest; a
+    maximum within `near` (Hz) of a stronger line is that line's leakage.
+    """
+    import scipy.ndimage
+
+    both = {k: np.concatenate([tr[k], ho[k]]) for k in ("t", "v_in", "recording")}
+    power = _periodogram(both["v_in"], both, rate, n_fft, hann=True)
+    local = scipy.ndimage.median_filter(power, size=2 * LINE_WINDOW * PAD + 1, mode="nearest")
+    inner = power[1:-1]
+    peak = 1 + np.flatnonzero(
+        (inner >= power[:-2])
+        & (inner >= power[2:])
+        & (inner > LINE_PEAK * local[1:-1])
+        & (inner > LINE_RANGE * power.max())
+    )
+    kept: list[float] = []
+    for f in peak[np.argsort(power[peak])[::-1]] * rate / n_fft:
+        if all(abs(f - g) > near for g in kept):
+            kept.append(float(f))
+    return np.asarray(kept)
+
+
+def _fundamental(lines: np.ndarray, near: float) -> float | None:
+    """The period's frequency of a drive whose lines all sit on one grid (a multisine, a square wave):
+    the lowest line or its half, third or quarter, where every line lies within `near` of a multiple."""
+    top = lines[: INTERMODULATED * 2]
+    if len(top) < 2:
+        return None
+    for j in range(1, 5):
+        f0 = float(top.min()) / j
+        order = np.round(top / f0)
+        if np.all(np.abs(top - order * f0) <= near):
+            return float(np.median(top / order))
+    return None
+
+
+def _drive_made(f: float, lines: np.ndarray, rate: float, near: float) -> str | None:
+    """Why a residual's line at `f` is the drive's response, or None: it is one of the drive's lines, on
+    the grid of a periodic drive's harmonics, a harmonic of a strong line, or a sum or difference of two."""
+    if not len(lines):
+        return None
+    hit = lambda g: bool(np.any(np.abs(_folded(g, rate) - f) <= near))
+    if hit(lines):
+        return f"the drive has a line there ({lines[np.argmin(np.abs(_folded(lines, rate) - f))]:.4g} Hz)"
+    f0 = _fundamental(lines, near)
+    if f0 is not None and hit(f0 * np.arange(1, int(np.ceil(rate / f0)) * 2 + 2)):
+        return f"the drive is periodic ({f0:.4g} Hz, its lines on that grid) and the line is one of its harmonics"
+    strong = lines[:INTERMODULATED]
+    for fl in strong:
+        for k in range(2, HARMONICS + 1):
+            if hit(k * fl):
+                return f"the drive has a line at {fl:.4g} Hz, whose harmonic {k} lies there"
+    for i, a in enumerate(strong):
+        for b in strong[i + 1 :]:
+            if hit(a + b) or hit(a - b):
+                return f"the drive's lines at {a:.4g} and {b:.4g} Hz mix there"
+    return None
+
+
+def _folded(f, rate: float):
+    """Frequencies as sampling at `rate` reads them, in [0, rate/2]."""
+    return np.abs((np.asarray(f, float) + rate / 2) % rate - rate / 2)
+
+
+def _periodic(tr, ho, rate: float, judge) -> dict:
+    """A sinusoid at the training residual's strongest line, judged held out (module docstring: periodic)."""
+    spans = [
+        float(np.ptp(tr["t"][tr["recording"] == i])) for i in np.unique(tr["recording"])
+    ]  # each recording's training span, s
+    span = max(spans)
+    if span <= 0 or MIN_CYCLES / span >= rate / 2:
+        return {
+            "reason": f"the recordings are too short for {MIN_CYCLES} cycles of a line below the Nyquist frequency"
+        }
+    n = int(round(span * rate)) + 1
+    f_min = MIN_CYCLES / span
+    n_fft = PAD * n
+    freq = np.fft.rfftfreq(n_fft, 1.0 / rate)
+    power = _periodogram(tr["r"], tr, rate, n_fft)
+    band = (freq >= f_min) & (freq < rate / 2 * (1 - 1.0 / n))
+    if not band.any():
+        return {"reason": "no frequency between the trends and the Nyquist frequency"}
+    peak = float(freq[band][np.argmax(power[band])])
+    step = rate / n_fft
+    fine = np.linspace(peak - step, peak + step, 21)
+    # the frequency that the sinusoid fits best on training, near the padded spectrum's peak
+    rss = [float(np.sum((tr["r"] - _sinusoid_at(tr, f, _sinusoid_fit(tr, f))) ** 2)) for f in fine]
+    f = float(fine[int(np.argmin(rss))])
+    coef = _sinusoid_fit(tr, f)
+    amplitude = float(np.sqrt(np.mean([c[1] ** 2 + c[2] ** 2 for c in coef.values()]) / 2.0))
+    out: dict[str, Any] = {"frequency_hz": _num(f), "amplitude_rms": _num(amplitude)}
+    near = COINCIDE_BINS * rate / n
+    why = _drive_made(f, _drive_lines(tr, ho, rate, n_fft, near), rate, near)
+    if why:
+        return dict(out, reason=f"the residual's line at {f:.4g} Hz is the drive's response: {why}")
+    out.update(judge(_sinusoid_at(ho, f, coef)))
+    mains = [
+        (m, k) for m in MAINS for k in range(1, MAINS_HARMONICS + 1) if abs(_folded(k * m, rate) - f) <= near
+    ]
+    if mains:
+        m, k = mains[0]
+        what = f"{m:g} Hz mains" if k == 1 else f"harmonic {k} of {m:g} Hz mains ({k * m:g} Hz)"
+        out["mains"] = f"{what}, which sampling at {rate:g} Hz reads at {f:.4g} Hz"
+    return out
 
 
 def state_basis(x) -> dict:
@@ -611,7 +791,12 @@ def _unavailable(why: str, n_tr: int, n_ho: int) -> dict:
 
 
 def describe_remainder(
-    train: dict, heldout: dict, rate: float, floor_variance: float, feedback: dict | None = None
+    train: dict,
+    heldout: dict,
+    rate: float,
+    floor_variance: float,
+    feedback: dict | None = None,
+    w_unit: str = "",
 ) -> dict:
     """Where the residual r = w − ŵ lives: each measure fitted on `train`, judged on `heldout`.
 
@@ -625,7 +810,9 @@ def describe_remainder(
     "summary"; a part that cannot be computed carries a "reason" instead.
     `feedback`: the responses of a simulation in state-space form to a force
     made of each state (`hybrid.discovery._unexplained.feedback_signals`);
-    with it, "state_feedback" (`_state_feedback`).
+    with it, "state_feedback" (`_state_feedback`). Either part may hold
+    "recording", each sample's recording (a line's phase is its own in each);
+    `w_unit` labels the amplitudes the summary quotes.
     """
     import scipy.optimize
 
@@ -723,6 +910,10 @@ def describe_remainder(
         if on_output.get("best"):
             scores["state_output"] = on_output["states"][on_output["best"]]
 
+    periodic = dict(_periodic(tr, ho, rate, judge), unit=w_unit)
+    if "fraction" in periodic:
+        scores["periodic"] = periodic
+
     offset = judge(np.full(n_ho, tr["r"].mean()))
     out = {
         "n_train": n_tr,
@@ -734,6 +925,7 @@ def describe_remainder(
         "rate": rate_part,
         "time": time_part,
         "linear_filter": filt,
+        "periodic": periodic,
     }
     if fed is not None:
         out["state_feedback"] = fed
@@ -862,6 +1054,17 @@ def _verdict(
             f"fed back through the dynamics, e.g. a {'cubic (stiffening or softening)' if odd else 'quadratic'} "
             f"restoring force, or a damping where the output is a speed); the best linear filter {pct(best_linear)}, the best static map "
             f"{pct(best_static)}"
+        )
+    elif kind == "periodic":
+        line = scores["periodic"]
+        f = line["frequency_hz"]
+        mains = f", e.g. {line['mains']}" if line.get("mains") else ""
+        size = " ".join(x for x in (f"{line['amplitude_rms']:.3g}", line["unit"], "rms") if x)
+        text = (
+            f"periodic, not driven: a sinusoid at {f:.4g} Hz, where the drive has no line, recovers "
+            f"{pct(inkind)} {where} (amplitude {size}): a disturbance added to the "
+            f"measurement — a vibration or an electrical pick-up{mains} — rather than a part of the response "
+            f"to the drive that the simulation misses; a notch at {f:.4g} Hz on w removes it"
         )
     else:
         text = f"a trend in time (drift): a smooth function of time recovers {pct(inkind)} {where}"

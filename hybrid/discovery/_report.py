@@ -295,6 +295,7 @@ def noise_section(d: dict) -> list[str]:
         "linear filter of the model's output": filters.get("output"),
         "linear filter of the output's square": filters.get("output_square"),
         "linear filter of the output's cube": filters.get("output_cube"),
+        f"sinusoid at {_num((desc.get('periodic') or {}).get('frequency_hz'))} Hz": desc.get("periodic"),
     }
     recovered = {k: v for k, v in recovered.items() if isinstance(v, dict) and "fraction" in v}
     if recovered:

@@ -106,11 +106,19 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
 
 
 def _part(problem, series, recordings, candidate, split: str) -> dict:
-    """t, v_in, w, ŵ and a segment id per sample, for one part of the split (all recordings)."""
+    """t, v_in, w, ŵ, a segment id and a recording index per sample, for one part of the split (all recordings)."""
     v, w, w_hat = split_signals(problem, candidate.theta, candidate.active, split)
     spans = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of(split)]
     t = np.concatenate([np.asarray(recordings[i].t, float)[a:b] for i, a, b in spans])
-    return {"t": t, "v_in": v, "w": w, "w_hat": w_hat, "segment": segment_ids(series, split)}
+    recording = np.concatenate([np.full(b - a, i) for i, a, b in spans])
+    return {
+        "t": t,
+        "v_in": v,
+        "w": w,
+        "w_hat": w_hat,
+        "segment": segment_ids(series, split),
+        "recording": recording,
+    }
 
 
 def feedback_signals(problem, final) -> dict | None:
@@ -205,6 +213,7 @@ def remainder(
         "w": heldout.w,
         "w_hat": heldout.extended,
         "segment": heldout.segment,
+        "recording": heldout.recording,
     }
     residual = held["w"] - held["w_hat"]
     mse = float(np.mean(residual**2))
@@ -218,7 +227,7 @@ def remainder(
         feedback["train"].shape[1] != len(train["w"]) or feedback["heldout"].shape[1] != len(held["w"])
     ):
         feedback = None  # (the recorded samples of both are the split's: a guard, not a case met)
-    description = describe_remainder(train, held, rate, floor.variance, feedback)
+    description = describe_remainder(train, held, rate, floor.variance, feedback, w_unit)
     # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
     description["level_limit"] = level_limits([train, held], floor.variance)
     clause = limit_sentence(description["level_limit"], len(train["w"]) + len(held["w"]), w_unit)
