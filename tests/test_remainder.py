@@ -227,6 +227,60 @@ def test_a_line_on_a_periodic_drives_grid_is_the_drives_however_high(hz, driven)
         assert d["kind"] == "periodic" and d["periodic"]["of_excess"] > 0.95
 
 
+def under_one_drive(r_of, same=True):
+    """`describe_remainder` of two recordings under one drive (each its own noise), r = r_of(v, t, seed);
+    `same` False: each recording its own drive."""
+    v = multilevel(np.random.default_rng(3)) if same else None
+    parts = [recording(lambda v, t, s=s: r_of(v, t, s), seed=s, drive=v) for s in (0, 1)]
+
+    def joined(j):
+        out = {k: np.concatenate([p[j][k] for p in parts]) for k in parts[0][j]}
+        out["segment"] = np.concatenate([p[j]["segment"] + 1000 * i for i, p in enumerate(parts)])
+        out["recording"] = np.concatenate([np.full(len(p[j]["t"]), i) for i, p in enumerate(parts)])
+        return out
+
+    d = describe_remainder(joined(0), joined(1), RATE, SIGMA**2)
+    json.dumps(d, allow_nan=False)
+    return d
+
+
+def coloured(v, t, seed):
+    """A coloured noise (AR(1), pole 0.95, rms ≈ 0.1) of its own in each recording."""
+    return 0.03 * lfilter([1.0], [1.0, -0.95], np.random.default_rng(10 + seed).normal(size=len(v)))
+
+
+def scrambled(v, t, seed):
+    """A miss no map here represents, the same in every recording under the drive: a fast sine of the
+    drive's low-passed level (each 0.006 of it a turn)."""
+    return 0.1 * np.sin(1000.0 * lowpass(v))
+
+
+def test_a_remainder_that_does_not_repeat_under_the_same_drive_is_a_disturbance():
+    # Two recordings of one drive, each with its own coloured noise above the floor's white noise:
+    # no map recovers any of it, and the two residuals share none of it held out (the construction's
+    # noises are independent: expected 0, sampling error ~ 1/√(2500 samples / 40 correlated) ≈ 0.13).
+    d = under_one_drive(coloured)
+    assert d["kind"] == "unstructured"
+    assert d["repeats"]["pairs"] == [[0, 1]] and abs(d["repeats"]["of_excess"]) < 0.2
+    assert "does not repeat with the drive" in d["summary"] and "disturbance" in d["summary"]
+    # one recording alone: the summary says which experiment tells the two readings apart
+    alone = describe(lambda v, t: coloured(v, t, 0))
+    assert alone["kind"] == "unstructured" and "repeats" not in alone
+    assert "a second recording under the same drive" in alone["summary"]
+
+
+def test_a_remainder_that_repeats_under_the_same_drive_is_a_miss_of_the_response():
+    # The same miss in both recordings (scrambled: no map recovers it, but the drive fixes it): all of
+    # the excess repeats (its power 0.005 against the floor's 0.0025; the noises share nothing).
+    d = under_one_drive(scrambled)
+    assert d["kind"] == "unstructured"
+    assert d["repeats"]["of_excess"] == pytest.approx(1.0, abs=0.15)
+    assert "it repeats with the drive" in d["summary"]
+    # each recording under a drive of its own: no pair to compare, and the summary asks for one
+    other = under_one_drive(scrambled, same=False)
+    assert "repeats" not in other and "a second recording under the same drive" in other["summary"]
+
+
 def test_white_noise_is_unstructured():
     # Nothing but noise of the floor's variance: the held-out MSE is the floor up to its sampling error,
     # and no extension can gain more than chance (a few tenths of a percent).

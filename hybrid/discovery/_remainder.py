@@ -40,6 +40,13 @@ the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
   disturbance). Phase-locked over the recording, a vibration or an electrical
   pick-up predicts its held-out blocks; a lightly damped mode that random drive
   excites wanders in phase and does not.
+- **repeats**: where two recordings share a drive (lengths within 1 %, drives
+  correlating above `SAME_DRIVE` sample for sample), the mean product of their
+  held-out residuals at the same places over their mean square above the floor:
+  the share of the excess that repeats with the drive. An unstructured remainder
+  is then read as a disturbance (it does not repeat) or a miss no map here
+  represents (it does); with no such pair, the summary says that recording the
+  drive again tells them apart.
 - **states** (a simulation in state-space form with at most `MAX_STATES`
   states): a map of each state fed back into the drive, through the model's
   linearised response (`_state_feedback`), and the same map read on the
@@ -102,6 +109,11 @@ HARMONICS, INTERMODULATED = 10, 10
 COINCIDE_BINS = 3
 #: Zero padding of the periodogram (its grid is this many times finer than the record's).
 PAD = 4
+#: Two recordings' drives correlating above this, sample for sample, are one drive played twice.
+SAME_DRIVE = 0.98
+#: Share of the excess two recordings under one drive have in common up to which a remainder does not
+#: repeat (a disturbance), and from which it does (a miss of the response); between, part of each.
+NOT_REPEATED, REPEATED = 0.2, 0.6
 #: Mains frequencies (Hz) and the harmonics of them a line is read against.
 MAINS, MAINS_HARMONICS = (50.0, 60.0), 3
 #: The state feedback's maps are fitted for a simulation with at most this many states (the RC network's
@@ -931,8 +943,94 @@ def describe_remainder(
         out["state_feedback"] = fed
     if on_output is not None:
         out["state_output"] = on_output
+    repeats = _repeats(tr, ho, rate, judge)
+    if repeats is not None:
+        out["repeats"] = repeats
     out.update(_verdict(scores, judge, static, offset, fed, on_output))
+    if out["kind"] == "unstructured" and judge.excess is not None:
+        out["summary"] += _repeat_words(repeats)
     return out
+
+
+def _sample_grid(part: dict, key: str, i, t0: float, rate: float, n: int) -> np.ndarray:
+    """`part[key]` of recording `i` on its sample grid from `t0` (length `n`; NaN where it has no sample)."""
+    m = part["recording"] == i
+    k = np.round((part["t"][m] - t0) * rate).astype(int)
+    out = np.full(n, np.nan)
+    keep = (k >= 0) & (k < n)
+    out[k[keep]] = part[key][m][keep]
+    return out
+
+
+def _repeats(tr, ho, rate: float, judge) -> dict | None:
+    """Recordings under one drive: how much of the held-out residual they share (None: no two share one).
+
+    Two recordings share a drive where their lengths agree within 1 % and
+    their drives, sample for sample from each one's start, correlate above
+    `SAME_DRIVE`. On the held-out samples both have at the same places, the
+    mean of r_a·r_b is the part of the residual that repeats with the drive
+    (a miss of the response), the rest does not (noise, a disturbance).
+    `of_excess`: that mean over the pair's mean square above the floor.
+    """
+    both = {k: np.concatenate([tr[k], ho[k]]) for k in ("t", "v_in", "recording")}
+    ids = [int(i) for i in np.unique(both["recording"])]
+    if len(ids) < 2:
+        return None
+    start = {i: float(both["t"][both["recording"] == i].min()) for i in ids}
+    length = {i: int(round((both["t"][both["recording"] == i].max() - start[i]) * rate)) + 1 for i in ids}
+    pairs, shared, square, count = [], 0.0, 0.0, 0
+    for x, a in enumerate(ids):
+        for b in ids[x + 1 :]:
+            n = min(length[a], length[b])
+            if abs(length[a] - length[b]) > 0.01 * max(length[a], length[b]):
+                continue
+            va, vb = (_sample_grid(both, "v_in", i, start[i], rate, n) for i in (a, b))
+            ok = np.isfinite(va) & np.isfinite(vb)
+            if ok.sum() < MIN_SAMPLES or np.std(va[ok]) == 0 or np.std(vb[ok]) == 0:
+                continue
+            if np.corrcoef(va[ok], vb[ok])[0, 1] < SAME_DRIVE:
+                continue
+            ra, rb = (_sample_grid(ho, "r", i, start[i], rate, n) for i in (a, b))
+            ok = np.isfinite(ra) & np.isfinite(rb)
+            if ok.sum() < MIN_SAMPLES:
+                continue
+            pairs.append([a, b])
+            shared += float(np.sum(ra[ok] * rb[ok]))
+            square += float(np.sum((ra[ok] ** 2 + rb[ok] ** 2) / 2))
+            count += int(ok.sum())
+    if not pairs or square <= 0:
+        return None
+    above = None if judge.floor is None else square / count - judge.floor
+    return {
+        "pairs": pairs,
+        "samples": count,
+        "shared_fraction": _num(shared / square),
+        "of_excess": _num(shared / count / above) if above is not None and above > 0 else None,
+    }
+
+
+def _repeat_words(repeats: dict | None) -> str:
+    """The clause an unstructured remainder ends on: what repeating the drive tells, or would."""
+    if repeats is None or repeats.get("of_excess") is None:
+        return (
+            "; not predictable from the drive, the model's output or time by these maps: a disturbance the "
+            "drive does not cause (a coloured noise, an unmeasured input) reads so, and so may a miss more "
+            "complex than they are; a second recording under the same drive, diagnosed with this one, tells "
+            "them apart (a disturbance does not repeat)"
+        )
+    share = min(max(repeats["of_excess"], 0.0), 1.0)
+    (a, b), others = repeats["pairs"][0], len(repeats["pairs"]) - 1
+    more = f" (and {others} more pairs)" if others else ""
+    said = f"recordings {a + 1} and {b + 1}{more}, under the same drive, share {100 * share:.0f} % of it held out"
+    if share <= NOT_REPEATED:
+        return (
+            f"; {said}: it does not repeat with the drive, so it is a disturbance the drive does not cause "
+            "(a coloured noise, an unmeasured input), not a part of the response the simulation misses — a "
+            "floor read as white noise does not count it"
+        )
+    if share >= REPEATED:
+        return f"; {said}: it repeats with the drive, a part of the response that these maps cannot represent"
+    return f"; {said}: part of it repeats with the drive (a miss of the response), the rest is a disturbance"
 
 
 def _map_words(part: dict) -> str:
