@@ -203,3 +203,32 @@ def test_a_coloured_noise_that_does_not_repeat_under_the_same_drive_is_called_a_
     assert description["kind"] == "unstructured", description["summary"]
     assert description["repeats"]["pairs"] == [[0, 1]] and abs(description["repeats"]["of_excess"]) < 0.25
     assert "does not repeat with the drive" in found.verdict
+
+
+def test_a_trackers_spikes_are_said_and_do_not_pass_for_noise():
+    """A 1.2 Hz oscillator (scipy) tracked at 50 Hz by a camera that jumps to a wrong blob on 8 frames.
+
+    Counted as noise, the 8 spikes made the floor 3.6× the noise and the verdict "as good as the data
+    allow"; the floor is now the noise's, the spikes are named with where the largest is, and the rest
+    above the floor is flagged, not passed.
+    """
+    rng = np.random.default_rng(21)
+    rate, n = 50.0, 1500
+    t = np.arange(n) / rate
+    v = np.repeat(rng.uniform(-2, 2, n // 30 + 1), 30)[:n]
+    w0, zeta = 2 * math.pi * 1.2, 0.25
+    y = scipy.signal.lsim(scipy.signal.lti([w0 * w0], [1, 2 * zeta * w0, w0 * w0]), v, t)[1]
+    sigma = 0.01 * np.ptp(y)
+    w = y + sigma * rng.normal(size=n)
+    jumps = np.flatnonzero(np.diff(v) != 0) + 1
+    quiet = np.setdiff1d(np.arange(40, n - 40), np.concatenate([jumps + k for k in range(-1, 4)]))
+    at = np.sort(rng.choice(quiet, 8, replace=False))
+    w[at] += rng.choice([-1.0, 1.0], 8) * 0.4 * np.ptp(y)
+    found = diagnose(
+        hybrid.Recording.from_arrays(v_in=v, w=w, rate=rate), simulation=hybrid.LTI(2), effects=["saturation"]
+    )
+    floor = found.noise_floor
+    assert sorted(floor.spikes) == list(at) and "8 isolated spike(s)" in floor.spike_note
+    assert floor.std == pytest.approx(sigma, rel=0.3)
+    assert found.unexplained is not None, found.verdict
+    assert "spikes" in found.unexplained["description"]["summary"]

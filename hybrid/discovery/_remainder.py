@@ -809,6 +809,7 @@ def describe_remainder(
     floor_variance: float,
     feedback: dict | None = None,
     w_unit: str = "",
+    spiky: bool = False,
 ) -> dict:
     """Where the residual r = w − ŵ lives: each measure fitted on `train`, judged on `heldout`.
 
@@ -824,7 +825,10 @@ def describe_remainder(
     made of each state (`hybrid.discovery._unexplained.feedback_signals`);
     with it, "state_feedback" (`_state_feedback`). Either part may hold
     "recording", each sample's recording (a line's phase is its own in each);
-    `w_unit` labels the amplitudes the summary quotes.
+    `w_unit` labels the amplitudes the summary quotes. `spiky`: w has isolated
+    spikes (the noise floor's `spikes`), which an unstructured remainder is read
+    as holding rather than a disturbance or a miss (unless two recordings under
+    one drive tell).
     """
     import scipy.optimize
 
@@ -947,7 +951,7 @@ def describe_remainder(
     if repeats is not None:
         out["repeats"] = repeats
     out.update(_verdict(scores, judge, static, offset, fed, on_output))
-    if out["kind"] == "unstructured" and judge.excess is not None:
+    if out["kind"] == "unstructured" and judge.excess is not None and not (spiky and repeats is None):
         out["summary"] += _repeat_words(repeats)
     return out
 

@@ -102,6 +102,7 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
         source=f"{len(floors)} recordings pooled by sample count, each from " + "; ".join(sources),
         quantum=max(quanta) if len(quanta) == len(floors) else float("nan"),
         warnings=tuple(dict.fromkeys(w for f in floors for w in f.warnings)),
+        spike_note=" ".join(f"Recording {i}: {f.spike_note}" for i, f in enumerate(floors) if f.spike_note),
     )
 
 
@@ -227,7 +228,9 @@ def remainder(
         feedback["train"].shape[1] != len(train["w"]) or feedback["heldout"].shape[1] != len(held["w"])
     ):
         feedback = None  # (the recorded samples of both are the split's: a guard, not a case met)
-    description = describe_remainder(train, held, rate, floor.variance, feedback, w_unit)
+    description = describe_remainder(
+        train, held, rate, floor.variance, feedback, w_unit, spiky=bool(floor.spike_note)
+    )
     # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
     description["level_limit"] = level_limits([train, held], floor.variance)
     clause = limit_sentence(description["level_limit"], len(train["w"]) + len(held["w"]), w_unit)
@@ -238,6 +241,8 @@ def remainder(
             f"; the states are the fitted model's, whose {', '.join(loose)} this recording does not pin: the "
             "force may act on another state that moves as this one does in the system"
         )
+    if floor.spike_note:  # the spikes count in every residual, the floor does not count them
+        description["summary"] += "; w's isolated spikes (the noise floor's warning) are part of it"
     hint = place_hint(description, places or {})
     if hint:
         description["place"] = "inside"
