@@ -169,6 +169,16 @@ def test_a_line_the_drive_does_not_carry_is_a_periodic_disturbance(hz, mains):
         assert "mains" not in line
 
 
+def test_a_long_record_padded_less_still_finds_its_line(monkeypatch):
+    # Past `MAX_FFT` points the periodogram is not zero-padded (a 1 kHz hour would be 14 M points): the
+    # peak is then one bin wide (1/200 Hz here) and the sinusoid's own fit refines it as before.
+    import hybrid.discovery._remainder as remainder
+
+    monkeypatch.setattr(remainder, "MAX_FFT", 1)
+    d = describe(lambda v, t: LINE * np.sin(2 * np.pi * 7.3 * t + 1.0))
+    assert d["kind"] == "periodic" and d["periodic"]["frequency_hz"] == pytest.approx(7.3, abs=2e-3)
+
+
 def test_each_recording_keeps_its_own_lines_phase():
     # Two recordings of the same vibration, started at different phases (t restarts at 0 in each): a
     # phase per recording recovers the line; one phase for both (no recording index) recovers under

@@ -109,6 +109,8 @@ HARMONICS, INTERMODULATED = 10, 10
 COINCIDE_BINS = 3
 #: Zero padding of the periodogram (its grid is this many times finer than the record's).
 PAD = 4
+#: ... as long as the padded grid stays within this many points (a long record is padded less).
+MAX_FFT = 2**22
 #: Two recordings' drives correlating above this, sample for sample, are one drive played twice.
 SAME_DRIVE = 0.98
 #: Share of the excess two recordings under one drive have in common up to which a remainder does not
@@ -370,20 +372,20 @@ def _sinusoid_at(part: dict, f: float, coef: dict) -> np.ndarray:
     return out
 
 
-def _drive_lines(tr, ho, rate: float, n_fft: int, near: float) -> np.ndarray:
+def _drive_lines(tr, ho, rate: float, n_fft: int, pad: int, near: float) -> np.ndarray:
     """Frequencies (Hz) of the drive's lines, strongest first.
 
     The drive is known on every sample, held out or not: its periodogram is
     taken over each whole recording, Hann-tapered. A line is a local maximum
     `LINE_PEAK` times the median of its neighbours (`LINE_WINDOW` bins of the
-    unpadded spectrum each side) and within `LINE_RANGE` of the strongest; a
+    unpadded spectrum each side: `pad` of the grid's to one) and within `LINE_RANGE` of the strongest; a
     maximum within `near` (Hz) of a stronger line is that line's leakage.
     """
     import scipy.ndimage
 
     both = {k: np.concatenate([tr[k], ho[k]]) for k in ("t", "v_in", "recording")}
     power = _periodogram(both["v_in"], both, rate, n_fft, hann=True)
-    local = scipy.ndimage.median_filter(power, size=2 * LINE_WINDOW * PAD + 1, mode="nearest")
+    local = scipy.ndimage.median_filter(power, size=2 * LINE_WINDOW * pad + 1, mode="nearest")
     inner = power[1:-1]
     peak = 1 + np.flatnonzero(
         (inner >= power[:-2])
@@ -442,17 +444,17 @@ def _folded(f, rate: float):
 
 def _periodic(tr, ho, rate: float, judge) -> dict:
     """A sinusoid at the training residual's strongest line, judged held out (module docstring: periodic)."""
-    spans = [
-        float(np.ptp(tr["t"][tr["recording"] == i])) for i in np.unique(tr["recording"])
-    ]  # each recording's training span, s
-    span = max(spans)
+    every = {k: np.concatenate([tr[k], ho[k]]) for k in ("t", "recording")}
+    spans = [float(np.ptp(every["t"][every["recording"] == i])) for i in np.unique(every["recording"])]
+    span = max(spans)  # the longest recording's, s
     if span <= 0 or MIN_CYCLES / span >= rate / 2:
         return {
             "reason": f"the recordings are too short for {MIN_CYCLES} cycles of a line below the Nyquist frequency"
         }
     n = int(round(span * rate)) + 1
     f_min = MIN_CYCLES / span
-    n_fft = PAD * n
+    pad = max(min(PAD, MAX_FFT // n), 1)
+    n_fft = pad * n
     freq = np.fft.rfftfreq(n_fft, 1.0 / rate)
     power = _periodogram(tr["r"], tr, rate, n_fft)
     band = (freq >= f_min) & (freq < rate / 2 * (1 - 1.0 / n))
@@ -468,7 +470,7 @@ def _periodic(tr, ho, rate: float, judge) -> dict:
     amplitude = float(np.sqrt(np.mean([c[1] ** 2 + c[2] ** 2 for c in coef.values()]) / 2.0))
     out: dict[str, Any] = {"frequency_hz": _num(f), "amplitude_rms": _num(amplitude)}
     near = COINCIDE_BINS * rate / n
-    why = _drive_made(f, _drive_lines(tr, ho, rate, n_fft, near), rate, near)
+    why = _drive_made(f, _drive_lines(tr, ho, rate, n_fft, pad, near), rate, near)
     if why:
         return dict(out, reason=f"the residual's line at {f:.4g} Hz is the drive's response: {why}")
     out.update(judge(_sinusoid_at(ho, f, coef)))
