@@ -148,21 +148,29 @@ def test_a_creep_beside_a_fast_mode_is_not_lost_in_a_floor_that_read_the_mode(tm
     assert "smoothed, filtered" not in left["floor_warning"]
 
 
-def test_a_vibration_on_the_sensor_is_said_to_be_a_disturbance_at_its_frequency(tmp_path):
-    """A 2 Hz oscillator (scipy ZOH) read by a sensor that also picks up a 7.3 Hz vibration.
-
-    No effect explains a line the drive does not carry: nothing is named, and the remainder is placed
-    where it is, a sinusoid at 7.3 Hz added to the measurement (before: "no simple structure").
-    """
-    rng = np.random.default_rng(1)
-    rate, n = 50.0, 1500
+def _bench(line: float, seed: int = 1, seconds: float = 30.0):
+    """(t, v, w, y): a 2 Hz oscillator y (scipy ZOH) under random steps v, read as w with a 7.3 Hz line
+    of `line` × y's range (a vibration of the sensor) and a noise of 0.5 %, at 50 Hz."""
+    rng = np.random.default_rng(seed)
+    rate = 50.0
+    n = int(seconds * rate)
     v = np.repeat(rng.uniform(-2, 2, n // 30 + 1), 30)[:n]
     w0, zeta = 2 * math.pi * 2.0, 0.3
     a, b = np.array([[0.0, 1.0], [-w0 * w0, -2 * zeta * w0]]), np.array([[0.0], [w0 * w0]])
     system = scipy.signal.cont2discrete((a, b, np.array([[1.0, 0.0]]), np.zeros((1, 1))), 1 / rate, "zoh")
     y = scipy.signal.dlsim(system[:4] + (1 / rate,), v)[1][:, 0]
     t = np.arange(n) / rate
-    w = y + 0.05 * np.ptp(y) * np.sin(2 * math.pi * 7.3 * t + 0.5) + 0.005 * np.ptp(y) * rng.normal(size=n)
+    w = y + line * np.ptp(y) * np.sin(2 * math.pi * 7.3 * t + 0.5) + 0.005 * np.ptp(y) * rng.normal(size=n)
+    return t, v, w, y
+
+
+def test_a_vibration_on_the_sensor_is_said_to_be_a_disturbance_at_its_frequency(tmp_path):
+    """A 2 Hz oscillator (scipy ZOH) read by a sensor that also picks up a 7.3 Hz vibration.
+
+    No effect explains a line the drive does not carry: nothing is named, and the remainder is placed
+    where it is, a sinusoid at 7.3 Hz added to the measurement (before: "no simple structure").
+    """
+    t, v, w, y = _bench(0.05)
     np.savetxt(tmp_path / "bench.csv", np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
     run = h.run_hybrid(
         tmp_path,
@@ -178,6 +186,24 @@ def test_a_vibration_on_the_sensor_is_said_to_be_a_disturbance_at_its_frequency(
     assert line["frequency_hz"] == pytest.approx(7.3, abs=0.01)
     assert line["amplitude_rms"] == pytest.approx(0.05 * np.ptp(y) / math.sqrt(2), rel=0.05)
     assert "7.3 Hz" in report["verdict"] and "mm rms" in report["verdict"]
+    assert "--effects builtins,line" in report["verdict"]  # the built-in that takes it, searched when named
+
+
+@pytest.mark.parametrize("line", [0.05, 0.0])
+def test_the_line_effect_extends_the_model_with_the_vibration_and_only_where_there_is_one(line):
+    """Named (`--effects …,line`), the line is fitted at its frequency and rms amplitude (the construction's)
+    with a large held-out gain; on the same oscillator without a line it is not named."""
+    t, v, w, y = _bench(line, seconds=30.0 if line else 20.0)
+    recording = hybrid.Recording.from_arrays(v_in=v, w=w, rate=50.0)
+    found = diagnose(recording, simulation=hybrid.LTI(2), effects=["saturation", "line"])
+    if not line:
+        assert found.cause in (None, "none") and not found.causes, found.verdict
+        return
+    assert [c["name"] for c in found.causes] == ["line"], found.verdict
+    cause = found.causes[0]
+    assert cause["parameters"]["line_frequency_hz"]["value"] == pytest.approx(7.3, abs=0.002)
+    assert cause["derived"]["line_rms"] == pytest.approx(line * np.ptp(y) / math.sqrt(2), rel=0.03)
+    assert found.gain > 10
 
 
 def test_a_coloured_noise_that_does_not_repeat_under_the_same_drive_is_called_a_disturbance():

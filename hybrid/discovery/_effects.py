@@ -38,10 +38,12 @@ time-invariant dynamics, S(u(· − d)) = S(u)(· − d) from rest, so one effec
 stands for both places.
 
 Searched only when named (``NAMED_ONLY`` of `hybrid.discovery._effect_set`):
-``creep`` (`Creep`), and ``clip`` and ``drive_clip`` (`Clip`, `DriveClip`: the
+``creep`` (`Creep`), ``clip`` and ``drive_clip`` (`Clip`, `DriveClip`: the
 saturations with the knee's sharpness n fitted, sgn(s)·tanh(|κs|ⁿ)^(1/n)/|κ|,
 a hard clip at ±1/|κ| as n grows; parameters ``<name>_pos_curvature``,
-``<name>_neg_curvature``, ``<name>_sharpness``).
+``<name>_neg_curvature``, ``<name>_sharpness``), and ``line`` (`Line`: a
+sinusoid added to the output, ``line_frequency_hz``, ``line_cos``,
+``line_sin``).
 
 - Back-relaxation: under a held voltage the bending charge diffuses back; the
   step response peaks, then relaxes by the fraction β with time constant τ.
@@ -1199,3 +1201,79 @@ class Backlash(AbstractEffect):
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("play_percent_of_range", 0.0), thresholds["play_percent_of_range"]
         return size >= need, f"play {size:.1f} % of the drive's range (needs ≥ {need} %)"
+
+
+class Line(AbstractEffect):
+    """y = s + a·cos 2πft + b·sin 2πft, t from the recording's first sample: a line added to the output.
+
+    A disturbance the drive does not cause, at one frequency and phase-locked
+    over the recording: a vibration of the sensor's mount, a motor's ripple at
+    a constant speed, a mains pick-up (50 or 60 Hz, or a harmonic, as the
+    sampling reads it). a and b are in the unit of the signal; one phase for
+    every recording of a diagnosis (a line whose phase differs between them is
+    not this). Its frequency's basin is about one bin of the recording's
+    spectrum wide (1/T), so the starts read the training residual's strongest
+    line (`line_peak_hz`) and a third of a bin either side, the amplitudes at 0
+    (the first step solves them; then the frequency moves). Searched only when
+    named (``--effects builtins,line``; `NAMED_ONLY`): an unexplained remainder
+    that a sinusoid the drive does not carry recovers points here. ``derived``
+    reports the line's rms as a percentage of the signal's range.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "line"
+    of_time: ClassVar[bool] = True
+    constraints: ClassVar = {"line_frequency_hz": Positive(), "line_cos": Real(), "line_sin": Real()}
+    units: ClassVar = {"line_frequency_hz": "Hz", "line_cos": "{signal}", "line_sin": "{signal}"}
+    defaults: ClassVar = {"line_frequency_hz": 1.0, "line_cos": 0.0, "line_sin": 0.0}
+    thresholds: ClassVar = {"line_percent_of_range": 1.0}
+
+    def __init__(self, **values):
+        init_values(self, values)
+
+    def apply(self, s, dt):
+        p = self.parameters()
+        phase = 2.0 * jnp.pi * p["line_frequency_hz"] * dt * jnp.arange(s.shape[0])
+        return s + (p["line_cos"] * jnp.cos(phase) + p["line_sin"] * jnp.sin(phase)).astype(s.dtype)
+
+    def derived(self, s, dt):
+        p = self.parameters()
+        span = float(np.ptp(s)) if len(s) else 0.0
+        rms = math.sqrt((float(p["line_cos"]) ** 2 + float(p["line_sin"]) ** 2) / 2.0)
+        return {"line_percent_of_range": 100.0 * rms / span if span > 0 else 0.0, "line_rms": rms}
+
+    def starts(self, context):
+        peak = line_peak_hz(context)
+        if peak is None:  # no residual to read (the probe the lanes are counted on): three guesses
+            return [{"line_frequency_hz": f, "line_cos": 0.0, "line_sin": 0.0} for f in (0.5, 2.0, 8.0)]
+        third = context.rate / (3.0 * len(context.signal))
+        return [
+            {"line_frequency_hz": max(peak + k * third, third), "line_cos": 0.0, "line_sin": 0.0}
+            for k in (0, -1, 1)
+        ]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("line_percent_of_range", 0.0), thresholds["line_percent_of_range"]
+        return size >= need, f"line {size:.1f} % of range rms (needs ≥ {need} %)"
+
+
+def line_peak_hz(context: StartContext, pad: int = 4) -> float | None:
+    """The training residual's strongest line (Hz), from at least 3 cycles per recording to Nyquist.
+
+    The residual is `measured` − `signal` on the training samples, one after
+    another (their phase jumps where held-out blocks were taken out, which
+    widens a line's peak but does not move it); its periodogram is
+    zero-padded `pad` times. None without `measured` or with too few samples.
+    """
+    if context.measured is None or len(context.signal) < 16:
+        return None
+    r = np.asarray(context.measured, float) - np.asarray(context.signal, float)
+    if not np.all(np.isfinite(r)):
+        return None
+    n = r.size
+    power = np.abs(np.fft.rfft(r - r.mean(), n=pad * n)) ** 2
+    freq = np.fft.rfftfreq(pad * n, 1.0 / context.rate)
+    band = (freq >= 3.0 / max(context.duration, 1e-12)) & (freq < context.rate / 2)
+    if not band.any():
+        return None
+    return float(freq[band][np.argmax(power[band])])

@@ -274,6 +274,7 @@ def remainder(
 #: (`NAMED_ONLY`) that would take it: (the effect, what it is in a lab's words).
 _CREEP = ("creep", "a slow response to the drive that the simulation lacks (a creep, a second time constant)")
 _NAMED_ONLY_HINTS = {
+    "periodic": ("line", "a sinusoid added to the output at that frequency (a vibration, a pick-up)"),
     "filter_drive": _CREEP,
     "time": _CREEP,
     "static_drive": (
