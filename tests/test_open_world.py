@@ -189,11 +189,32 @@ def test_a_vibration_on_the_sensor_is_said_to_be_a_disturbance_at_its_frequency(
     assert "--effects builtins,line" in report["verdict"]  # the built-in that takes it, searched when named
 
 
-@pytest.mark.parametrize("line", [0.05, 0.0])
-def test_the_line_effect_extends_the_model_with_the_vibration_and_only_where_there_is_one(line):
+def _lab(seed: int = 7):
+    """(t, v, w, y): a new user's bench, 60 s at 50 Hz: a 1.2 Hz, ζ 0.25 plant (scipy lsim) under levels
+    held 10–75 samples, read with a 7.3 Hz line of 3 % of its range and a noise of 1 %."""
+    rng = np.random.default_rng(seed)
+    rate, n = 50.0, 3000
+    t = np.arange(n) / rate
+    v = np.zeros(n)
+    k = 0
+    while k < n:
+        hold = int(rng.integers(10, 75))
+        v[k : k + hold] = rng.uniform(-2, 2)
+        k += hold
+    w0 = 2 * math.pi * 1.2
+    y = scipy.signal.lsim(scipy.signal.lti([w0**2], [1, 2 * 0.25 * w0, w0**2]), v, t)[1]
+    w = y + 0.03 * np.ptp(y) * np.sin(2 * math.pi * 7.3 * t + 1.0) + 0.01 * np.ptp(y) * rng.normal(size=n)
+    return t, v, w, y
+
+
+@pytest.mark.parametrize(("bench", "line"), [("oscillator", 0.05), ("lab", 0.03), ("oscillator", 0.0)])
+def test_the_line_effect_extends_the_model_with_the_vibration_and_only_where_there_is_one(bench, line):
     """Named (`--effects …,line`), the line is fitted at its frequency and rms amplitude (the construction's)
-    with a large held-out gain; on the same oscillator without a line it is not named."""
-    t, v, w, y = _bench(line, seconds=30.0 if line else 20.0)
+    with a large held-out gain; on the same oscillator without a line it is not named. The lab's bench:
+    its training residual laid end to end (the held-out blocks taken out at a regular spacing) split the
+    line's peak (7.324 Hz read for 7.3), outside the fit's basin, and the line was not named; each sample
+    put back in its place, it is."""
+    t, v, w, y = _bench(line, seconds=30.0 if line else 20.0) if bench == "oscillator" else _lab()
     recording = hybrid.Recording.from_arrays(v_in=v, w=w, rate=50.0)
     found = diagnose(recording, simulation=hybrid.LTI(2), effects=["saturation", "line"])
     if not line:
@@ -202,8 +223,15 @@ def test_the_line_effect_extends_the_model_with_the_vibration_and_only_where_the
     assert [c["name"] for c in found.causes] == ["line"], found.verdict
     cause = found.causes[0]
     assert cause["parameters"]["line_frequency_hz"]["value"] == pytest.approx(7.3, abs=0.002)
-    assert cause["derived"]["line_rms"] == pytest.approx(line * np.ptp(y) / math.sqrt(2), rel=0.03)
-    assert found.gain > 10
+    # in the simulation's output unit: the readout's gain takes it to w's, where the line was added. The
+    # simulation's direct term and frame lag trade with a and b (their standard errors reach 1/3 of the
+    # lab's rms), so the rms is checked to 10 %, the frequency (0.1 mHz standard error) tightly.
+    rms = cause["derived"]["line_rms"] * abs(found.extended.parameters["gain"])
+    assert rms == pytest.approx(line * np.ptp(y) / math.sqrt(2), rel=0.1)
+    # held out, the baseline leaves the line and the noise, the extended model the noise: the gain a
+    # perfect fit reaches is 1 + (line²/2)/noise² (noise 0.5 % and 1 % of the range): 51 and 5.5
+    noise = 0.005 if bench == "oscillator" else 0.01
+    assert found.gain > 0.8 * (1 + line**2 / 2 / noise**2)
 
 
 def test_a_coloured_noise_that_does_not_repeat_under_the_same_drive_is_called_a_disturbance():
