@@ -664,3 +664,25 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
         for key in ("std_error", "std_error_given_network"):
             if getattr(entry, key) is not None:
                 assert getattr(same[name], key) == pytest.approx(getattr(entry, key), rel=1e-6), (name, key)
+
+
+def test_a_line_is_its_sinusoid_from_the_first_sample_and_its_frequency_gradient_is_right():
+    """`Line` against numpy's sinusoid (t = k·dt from the first sample, so padding at the end leaves the
+    phase alone), and the gradient in every raw parameter, the frequency's included (its amplitudes
+    away from 0), against central differences."""
+    from hybrid.discovery._effects import Line
+
+    effect = Line(line_frequency_hz=3.1, line_cos=0.4, line_sin=-0.25)
+    s = jnp.asarray(np.linspace(-1.0, 1.0, 300))
+    t = np.arange(300) * DT
+    expected = np.asarray(s) + 0.4 * np.cos(2 * np.pi * 3.1 * t) - 0.25 * np.sin(2 * np.pi * 3.1 * t)
+    np.testing.assert_allclose(np.asarray(effect.apply(s, DT)), expected, rtol=0, atol=1e-12)
+    padded = effect.apply(jnp.concatenate([s, jnp.zeros(50)]), DT)[:300]
+    np.testing.assert_allclose(np.asarray(padded), expected, rtol=0, atol=1e-12)
+    loss = jax.jit(lambda raw: jnp.sum(_apply(effect, raw, s) ** 2))
+    grad = jax.grad(loss)(effect.raw)
+    h = 1e-6
+    for key, value in effect.raw.items():
+        fd = (loss({**effect.raw, key: value + h}) - loss({**effect.raw, key: value - h})) / (2 * h)
+        assert float(grad[key]) == pytest.approx(float(fd), rel=1e-5), key
+        assert abs(float(grad[key])) > 1e-3, key  # a direction the fit can move in
