@@ -203,3 +203,11 @@ def test_what_is_not_a_spike_is_not_flagged(case):
     floor = noise_floor(w, v, RATE)
     assert floor.spikes == () and floor.spike_note == ""
     assert floor.estimates["differences_1"] == difference_variance(w, 1)  # read from w as it is
+
+
+def test_a_spike_at_either_end_of_the_record_is_found_without_an_index_error():
+    # The first and last samples that have two neighbours (1 and n − 2), under a drive that holds
+    # (w is read as it is): the rest of the excursions' tail is taken beside them, inside the record.
+    w = np.random.default_rng(9).normal(0.0, 1.0, 2000)
+    w[[1, 1998]] += 40.0
+    assert noise_floor(w, np.zeros(2000), RATE).spikes == (1, 1998)

@@ -40,6 +40,13 @@ first half, read on the second; ``linear_fit_differences_k``), which takes out
 any response that settles within those samples, under the same rule. Where the
 model-free floor is sound the estimates agree and it is kept.
 
+**Spikes.** A lone sample far off both neighbours that comes back (a tracker
+that jumped to a wrong blob for a frame, an electrical glitch) puts its energy
+into every estimator above; `spike_samples` finds such samples (read on w less
+its linear response to the drive, with rules that keep a fast response's first
+samples after a step out), the estimators read w with each replaced by its
+neighbours' mean, and `NoiseFloor.spikes` and a warning say so.
+
 **What the floor can and cannot see.** Every estimator reads how much w varies
 from one sample to the next beyond a smooth signal. Data that were smoothed,
 low-pass filtered, interpolated or oversampled (a tracker's smoothing, a logger
@@ -77,8 +84,6 @@ _ORDINALS = {1: "first", 2: "second", 3: "third", 4: "fourth"}
 MAX_GRID_STEPS = 10**7
 #: Robust standard deviations of its neighbours' mean beyond which a lone sample is a spike (`spike_samples`).
 SPIKE_SIGMAS = 8.0
-#: Samples after a jump of the drive in which no spike is counted (a response's first samples).
-SPIKE_AFTER = 3
 #: ... and `SPIKE_OVER_TAIL` times the `SPIKE_QUANTILE` quantile of every other sample's excursion: a
 #: response with content near the Nyquist frequency makes lone-looking samples at each step of its
 #: drive (~1 in 40 samples of a 15 Hz mode sampled at 50 Hz under steps), a tail a glitch stands far
@@ -87,6 +92,8 @@ SPIKE_AFTER = 3
 SPIKE_QUANTILE, SPIKE_OVER_TAIL, SPIKE_MAX_FRACTION = 0.99, 3.0, 0.01
 #: A spike's excursion is at least `SPIKE_ALONE` times those of the samples 2..`SPIKE_LOCAL` from it.
 SPIKE_ALONE, SPIKE_LOCAL = 2.5, 5
+#: Samples after a jump of the drive in which no spike is counted (a response's first samples).
+SPIKE_AFTER = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -271,7 +278,8 @@ def spike_samples(w: np.ndarray, v_in: np.ndarray) -> np.ndarray:
     # frequency makes lone-looking samples at its drive's every step, which that tail holds
     e = np.abs(r[1:-1] - (r[:-2] + r[2:]) / 2)
     rest = np.isfinite(e)
-    rest[np.concatenate([lone - 2, lone - 1, lone])] = False  # e's index is the sample's less one
+    near_lone = np.concatenate([lone - 2, lone - 1, lone])  # e's index is the sample's less one
+    rest[near_lone[(near_lone >= 0) & (near_lone < e.size)]] = False
     tail = float(np.quantile(e[rest], SPIKE_QUANTILE)) if rest.any() else 0.0
     lone = lone[e[lone - 1] > SPIKE_OVER_TAIL * tail]
     dv = np.abs(np.diff(v_in))
