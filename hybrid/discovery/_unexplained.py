@@ -102,7 +102,9 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
         source=f"{len(floors)} recordings pooled by sample count, each from " + "; ".join(sources),
         quantum=max(quanta) if len(quanta) == len(floors) else float("nan"),
         warnings=tuple(dict.fromkeys(w for f in floors for w in f.warnings)),
-        spike_note=" ".join(f"Recording {i}: {f.spike_note}" for i, f in enumerate(floors) if f.spike_note),
+        spike_note=" ".join(
+            f"Recording {i + 1}: {f.spike_note}" for i, f in enumerate(floors) if f.spike_note
+        ),
     )
 
 
