@@ -211,3 +211,18 @@ def test_a_spike_at_either_end_of_the_record_is_found_without_an_index_error():
     w = np.random.default_rng(9).normal(0.0, 1.0, 2000)
     w[[1, 1998]] += 40.0
     assert noise_floor(w, np.zeros(2000), RATE).spikes == (1, 1998)
+
+
+def test_a_pooled_floor_says_which_recording_has_the_spikes():
+    # Two recordings of one drive, a spike in the second only: the pooled floor's warning names it
+    # (counted from 1, as the remainder names recordings).
+    import hybrid
+    from hybrid.discovery._unexplained import pooled_noise_floor
+
+    rng = np.random.default_rng(0)
+    v = np.repeat(rng.uniform(-1, 1, 101), 20)[:2000]
+    w = [rng.normal(size=2000), rng.normal(size=2000)]
+    w[1][1007] += 40.0
+    floor = pooled_noise_floor([hybrid.Recording.from_arrays(v_in=v, w=x, rate=RATE) for x in w])
+    spiky = [line for line in floor.warnings if "isolated spike" in line]
+    assert spiky == [floor.spike_note] and spiky[0].startswith("Recording 2: w has 1 isolated spike(s)")

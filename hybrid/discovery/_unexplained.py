@@ -101,7 +101,13 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
         fraction_of_variance=variance / spread if spread > 0 else float("nan"),
         source=f"{len(floors)} recordings pooled by sample count, each from " + "; ".join(sources),
         quantum=max(quanta) if len(quanta) == len(floors) else float("nan"),
-        warnings=tuple(dict.fromkeys(w for f in floors for w in f.warnings)),
+        warnings=tuple(  # a recording's spikes are its own: the sentence says which recording
+            dict.fromkeys(
+                f"Recording {i + 1}: {w}" if w == f.spike_note else w
+                for i, f in enumerate(floors)
+                for w in f.warnings
+            )
+        ),
         spike_note=" ".join(
             f"Recording {i + 1}: {f.spike_note}" for i, f in enumerate(floors) if f.spike_note
         ),
