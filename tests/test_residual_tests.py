@@ -84,3 +84,20 @@ def test_ljung_box_q_ignores_scale_and_reports_the_variance():
     assert small["variance"] == pytest.approx(np.var(x) / 16, rel=1e-12)
     # the quarter-size residual's autocovariances, in the big one's units: 1/16² of Q
     assert small["Q"] * (small["variance"] / big["variance"]) ** 2 == pytest.approx(big["Q"] / 256, rel=1e-12)
+
+
+def test_the_periodogram_of_recordings_on_their_grids_is_the_sum_of_each_ones():
+    # Against numpy's FFT written out: a row's missing samples (NaN) are zeros after its mean (over the
+    # samples it has) is taken out, each row padded to n_fft, the rows' |FFT|² summed; and the strongest
+    # line of two sinusoids sampled with gaps is the stronger one's frequency, to a padded bin.
+    rate, n = 50.0, 1000
+    t = np.arange(n) / rate
+    rows = np.vstack([2.0 * np.sin(2 * np.pi * 7.3 * t), 0.5 * np.sin(2 * np.pi * 3.1 * t + 1.0)])
+    rows[:, 200:300] = np.nan
+    freq, power = rt.periodogram(rows, rate, 4 * n)
+    expected = sum(np.abs(np.fft.rfft(np.nan_to_num(row - np.nanmean(row)), n=4 * n)) ** 2 for row in rows)
+    np.testing.assert_allclose(power, expected, rtol=1e-12)
+    np.testing.assert_allclose(freq, np.fft.rfftfreq(4 * n, 1 / rate))
+    assert rt.strongest_line(freq, power, 1.0, rate / 2) == pytest.approx(7.3, abs=rate / (4 * n))
+    assert rt.strongest_line(freq, power, 1.0, 5.0) == pytest.approx(3.1, abs=rate / (4 * n))
+    assert rt.strongest_line(freq, power, 30.0, 40.0) is None

@@ -102,6 +102,7 @@ from ..core._lifted import lifted_blocks, lifted_response
 from ..core._loop_safe_linalg import expm
 from ..core._parameters import Constraint, Positive, Real, SignedUnitInterval, UnitInterval, decode, encode
 from ..core._simulation import substitute_unit, unit_in
+from . import residual_tests as rt
 from ._hysteresis import bouc_wen_state
 
 #: Where an effect acts: on the drive before the simulation, y = S(φ(u)); inside the dynamics
@@ -1274,21 +1275,15 @@ def line_peak_hz(context: StartContext, pad: int = 4) -> float | None:
     r = np.asarray(context.measured, float) - np.asarray(context.signal, float)
     if not np.all(np.isfinite(r)):
         return None
-    r = r - r.mean()
     series = list(getattr(context.problem, "series", None) or ())
     spans = [(i, a, b) for i, one in enumerate(series) for a, b in one.recorded_segments_of("train")]
     if spans and sum(b - a for _, a, b in spans) == r.size:
-        length = max(b for _, _, b in spans)
-        grids = np.zeros((len(series), length))
+        grids = np.full((len(series), max(b for _, _, b in spans)), np.nan)
         at = 0
         for i, a, b in spans:
             grids[i, a:b] = r[at : at + b - a]
             at += b - a
     else:  # no places to put them back: end to end
-        grids, length = r[None, :], r.size
-    power = np.sum(np.abs(np.fft.rfft(grids, n=pad * length, axis=1)) ** 2, axis=0)
-    freq = np.fft.rfftfreq(pad * length, 1.0 / context.rate)
-    band = (freq >= 3.0 / max(context.duration, 1e-12)) & (freq < context.rate / 2)
-    if not band.any():
-        return None
-    return float(freq[band][np.argmax(power[band])])
+        grids = r[None, :]
+    freq, power = rt.periodogram(grids, context.rate, pad * grids.shape[1])
+    return rt.strongest_line(freq, power, 3.0 / max(context.duration, 1e-12), context.rate / 2)

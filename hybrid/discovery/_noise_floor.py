@@ -208,13 +208,18 @@ def floor_warnings(std: float, quantum: float) -> tuple[str, ...]:
     )
 
 
+def _excursion(x: np.ndarray) -> np.ndarray:
+    """e_i = x_i − (x_{i−1} + x_{i+1})/2 for i = 1..n−2 (index i − 1): how far a sample leaves its neighbours."""
+    return x[1:-1] - (x[:-2] + x[2:]) / 2
+
+
 def _lone(x: np.ndarray, zero_spread: bool) -> np.ndarray:
     """Samples of x (indices) that leave both neighbours by over `SPIKE_SIGMAS` robust spreads and come back.
 
     `zero_spread`: where the robust spread is 0 (x flat but for a few samples),
     every such excursion counts (True) or none does (False).
     """
-    e = x[1:-1] - (x[:-2] + x[2:]) / 2
+    e = _excursion(x)
     known = e[np.isfinite(e)]
     spread = 1.4826 * float(np.median(np.abs(known - np.median(known)))) if known.size else 0.0
     if not spread > 0:
@@ -237,16 +242,24 @@ def _lone(x: np.ndarray, zero_spread: bool) -> np.ndarray:
     return np.flatnonzero(big & alone & (np.abs(x[2:] - x[:-2]) < np.abs(e) / 2)) + 1
 
 
+def _drive_lags(v_in: np.ndarray, taps: int) -> np.ndarray | None:
+    """The columns of a linear response to the drive: 1 and its last `taps` samples (standardised), one row
+    per sample from the `taps`-th on; None for fewer than 8 × `taps` samples or a drive that does not move."""
+    n = v_in.size
+    if n < 8 * taps or not np.ptp(v_in) > 0:
+        return None
+    u = (v_in - v_in.mean()) / np.std(v_in)
+    return np.column_stack([np.ones(n - taps + 1)] + [u[taps - 1 - k : n - k] for k in range(taps)])
+
+
 def _drive_free(w: np.ndarray, v_in: np.ndarray, taps: int = FIR_TAPS) -> np.ndarray:
     """w less its least-squares linear response to the drive's last `taps` samples (NaN before them).
 
-    w itself where the record is short (< 8 × `taps`) or the drive does not move.
+    w itself where `_drive_lags` has none.
     """
-    n = w.size
-    if n < 8 * taps or not np.ptp(v_in) > 0:
+    lags = _drive_lags(v_in, taps)
+    if lags is None:
         return w
-    u = (v_in - v_in.mean()) / np.std(v_in)
-    lags = np.column_stack([np.ones(n - taps + 1)] + [u[taps - 1 - k : n - k] for k in range(taps)])
     coef = np.linalg.lstsq(lags, w[taps - 1 :], rcond=1e-8)[0]
     return np.r_[np.full(taps - 1, np.nan), w[taps - 1 :] - lags @ coef]
 
@@ -276,7 +289,7 @@ def spike_samples(w: np.ndarray, v_in: np.ndarray) -> np.ndarray:
         return np.zeros(0, int)
     # beyond the tail of every other sample's excursion: a response with content near the Nyquist
     # frequency makes lone-looking samples at its drive's every step, which that tail holds
-    e = np.abs(r[1:-1] - (r[:-2] + r[2:]) / 2)
+    e = np.abs(_excursion(r))
     rest = np.isfinite(e)
     near_lone = np.concatenate([lone - 2, lone - 1, lone])  # e's index is the sample's less one
     rest[near_lone[(near_lone >= 0) & (near_lone < e.size)]] = False
@@ -294,7 +307,7 @@ def spike_sentence(w: np.ndarray, spikes: np.ndarray, rate: float) -> str:
     """The warning about `spikes` (indices into w): how many, the largest and when, what to do."""
     if not len(spikes):
         return ""
-    jump = np.abs(w[spikes] - (w[spikes - 1] + w[spikes + 1]) / 2)
+    jump = np.abs(_excursion(w)[spikes - 1])
     k = int(spikes[np.argmax(jump)])
     span = float(np.ptp(w)) or 1.0
     return (
@@ -449,11 +462,9 @@ def linear_fit_residual(w, v_in, taps: int = FIR_TAPS) -> np.ndarray | None:
     has fewer than 8 × `taps` samples or a drive that does not move.
     """
     w, v_in = np.asarray(w, float), np.asarray(v_in, float)
-    n = w.size
-    if n < 8 * taps or not np.ptp(v_in) > 0:
+    lags = _drive_lags(v_in, taps)
+    if lags is None:
         return None
-    u = (v_in - v_in.mean()) / np.std(v_in)
-    lags = np.column_stack([np.ones(n - taps + 1)] + [u[taps - 1 - k : n - k] for k in range(taps)])
     y = w[taps - 1 :]
     half = y.size // 2
     coef = np.linalg.lstsq(lags[:half], y[:half], rcond=1e-8)[0]

@@ -66,6 +66,8 @@ from typing import Any
 
 import numpy as np
 
+from . import residual_tests as rt
+
 MIN_SAMPLES = 50  # fewer held-out (or training) samples: no description
 MIN_BIN = 5  # samples a bin needs to be kept
 UNSTRUCTURED_EXCESS = 0.2  # below this fraction of the excess recovered: "unstructured"
@@ -332,21 +334,27 @@ def _filter(tr, ho, key, lags, rate, judge) -> dict:
     )
 
 
-def _periodogram(x, part: dict, rate: float, n_fft: int, hann: bool = False) -> np.ndarray:
-    """|FFT|² of x on each recording's sample grid (its other samples zero), summed over the recordings.
+def _places(tr: dict, ho: dict, rate: float) -> dict[int, tuple[float, int]]:
+    """Each recording's (first time, length in samples), over both parts: where its samples sit."""
+    t, rec = np.concatenate([tr["t"], ho["t"]]), np.concatenate([tr["recording"], ho["recording"]])
+    out = {}
+    for i in np.unique(rec):
+        ti = t[rec == i]
+        out[int(i)] = (float(ti.min()), int(round((ti.max() - ti.min()) * rate)) + 1)
+    return out
 
-    `hann`: each recording's span tapered by a Hann window (a line's leakage falls off within a few bins).
-    """
-    power = np.zeros(n_fft // 2 + 1)
-    for i in np.unique(part["recording"]):
-        m = part["recording"] == i
-        k = np.round((part["t"][m] - part["t"][m].min()) * rate).astype(int)
-        grid = np.zeros(n_fft)
-        grid[k] = x[m] - x[m].mean()
-        if hann:
-            grid[: k.max() + 1] *= np.hanning(k.max() + 1)
-        power += np.abs(np.fft.rfft(grid)) ** 2
-    return power
+
+def _grids(parts, key: str, places: dict, rate: float, n: int) -> np.ndarray:
+    """`key` of `parts` laid on each recording's sample grid (rows, in `places`' order; length `n`, NaN
+    where no part has a sample)."""
+    out = np.full((len(places), n), np.nan)
+    for row, (i, (start, _)) in enumerate(places.items()):
+        for part in parts:
+            m = part["recording"] == i
+            k = np.round((part["t"][m] - start) * rate).astype(int)
+            keep = (k >= 0) & (k < n)
+            out[row, k[keep]] = part[key][m][keep]
+    return out
 
 
 def _sinusoid_columns(part: dict, m, f: float) -> np.ndarray:
@@ -372,19 +380,19 @@ def _sinusoid_at(part: dict, f: float, coef: dict) -> np.ndarray:
     return out
 
 
-def _drive_lines(tr, ho, rate: float, n_fft: int, pad: int, near: float) -> np.ndarray:
+def _drive_lines(drive: np.ndarray, rate: float, n_fft: int, pad: int, near: float) -> np.ndarray:
     """Frequencies (Hz) of the drive's lines, strongest first.
 
-    The drive is known on every sample, held out or not: its periodogram is
-    taken over each whole recording, Hann-tapered. A line is a local maximum
-    `LINE_PEAK` times the median of its neighbours (`LINE_WINDOW` bins of the
-    unpadded spectrum each side: `pad` of the grid's to one) and within `LINE_RANGE` of the strongest; a
-    maximum within `near` (Hz) of a stronger line is that line's leakage.
+    `drive`: each recording's drive on its sample grid (`_grids`), held out or
+    not: its periodogram is taken over each whole recording, Hann-tapered. A
+    line is a local maximum `LINE_PEAK` times the median of its neighbours
+    (`LINE_WINDOW` bins of the unpadded spectrum each side: `pad` of the grid's
+    to one) and within `LINE_RANGE` of the strongest; a maximum within `near`
+    (Hz) of a stronger line is that line's leakage.
     """
     import scipy.ndimage
 
-    both = {k: np.concatenate([tr[k], ho[k]]) for k in ("t", "v_in", "recording")}
-    power = _periodogram(both["v_in"], both, rate, n_fft, hann=True)
+    _, power = rt.periodogram(drive, rate, n_fft, hann=True)
     local = scipy.ndimage.median_filter(power, size=2 * LINE_WINDOW * pad + 1, mode="nearest")
     inner = power[1:-1]
     peak = 1 + np.flatnonzero(
@@ -442,25 +450,20 @@ def _folded(f, rate: float):
     return np.abs((np.asarray(f, float) + rate / 2) % rate - rate / 2)
 
 
-def _periodic(tr, ho, rate: float, judge) -> dict:
+def _periodic(tr, ho, places: dict, rate: float, judge) -> dict:
     """A sinusoid at the training residual's strongest line, judged held out (module docstring: periodic)."""
-    every = {k: np.concatenate([tr[k], ho[k]]) for k in ("t", "recording")}
-    spans = [float(np.ptp(every["t"][every["recording"] == i])) for i in np.unique(every["recording"])]
-    span = max(spans)  # the longest recording's, s
+    n = max(length for _, length in places.values())  # the longest recording's samples
+    span = (n - 1) / rate
     if span <= 0 or MIN_CYCLES / span >= rate / 2:
         return {
             "reason": f"the recordings are too short for {MIN_CYCLES} cycles of a line below the Nyquist frequency"
         }
-    n = int(round(span * rate)) + 1
-    f_min = MIN_CYCLES / span
     pad = max(min(PAD, MAX_FFT // n), 1)
     n_fft = pad * n
-    freq = np.fft.rfftfreq(n_fft, 1.0 / rate)
-    power = _periodogram(tr["r"], tr, rate, n_fft)
-    band = (freq >= f_min) & (freq < rate / 2 * (1 - 1.0 / n))
-    if not band.any():
+    freq, power = rt.periodogram(_grids([tr], "r", places, rate, n), rate, n_fft)
+    peak = rt.strongest_line(freq, power, MIN_CYCLES / span, rate / 2 * (1 - 1.0 / n))
+    if peak is None:
         return {"reason": "no frequency between the trends and the Nyquist frequency"}
-    peak = float(freq[band][np.argmax(power[band])])
     step = rate / n_fft
     fine = np.linspace(peak - step, peak + step, 21)
     # the frequency that the sinusoid fits best on training, near the padded spectrum's peak
@@ -470,7 +473,9 @@ def _periodic(tr, ho, rate: float, judge) -> dict:
     amplitude = float(np.sqrt(np.mean([c[1] ** 2 + c[2] ** 2 for c in coef.values()]) / 2.0))
     out: dict[str, Any] = {"frequency_hz": _num(f), "amplitude_rms": _num(amplitude)}
     near = COINCIDE_BINS * rate / n
-    why = _drive_made(f, _drive_lines(tr, ho, rate, n_fft, pad, near), rate, near)
+    why = _drive_made(
+        f, _drive_lines(_grids([tr, ho], "v_in", places, rate, n), rate, n_fft, pad, near), rate, near
+    )
     if why:
         return dict(out, reason=f"the residual's line at {f:.4g} Hz is the drive's response: {why}")
     out.update(judge(_sinusoid_at(ho, f, coef)))
@@ -828,9 +833,9 @@ def describe_remainder(
     with it, "state_feedback" (`_state_feedback`). Either part may hold
     "recording", each sample's recording (a line's phase is its own in each);
     `w_unit` labels the amplitudes the summary quotes. `spiky`: w has isolated
-    spikes (the noise floor's `spikes`), which an unstructured remainder is read
-    as holding rather than a disturbance or a miss (unless two recordings under
-    one drive tell).
+    spikes (the noise floor's `spikes`): the summary says they are part of the
+    remainder, and an unstructured one is read as holding them rather than as a
+    disturbance or a miss (unless two recordings under one drive tell).
     """
     import scipy.optimize
 
@@ -928,7 +933,8 @@ def describe_remainder(
         if on_output.get("best"):
             scores["state_output"] = on_output["states"][on_output["best"]]
 
-    periodic = dict(_periodic(tr, ho, rate, judge), unit=w_unit)
+    places = _places(tr, ho, rate)
+    periodic = dict(_periodic(tr, ho, places, rate, judge), unit=w_unit)
     if "fraction" in periodic:
         scores["periodic"] = periodic
 
@@ -949,26 +955,18 @@ def describe_remainder(
         out["state_feedback"] = fed
     if on_output is not None:
         out["state_output"] = on_output
-    repeats = _repeats(tr, ho, rate, judge)
+    repeats = _repeats(tr, ho, places, rate, judge)
     if repeats is not None:
         out["repeats"] = repeats
     out.update(_verdict(scores, judge, static, offset, fed, on_output))
     if out["kind"] == "unstructured" and judge.excess is not None and not (spiky and repeats is None):
         out["summary"] += _repeat_words(repeats)
+    if spiky:  # they count in every residual; the floor, read without them, does not
+        out["summary"] += "; w's isolated spikes (the noise floor's warning) are part of it"
     return out
 
 
-def _sample_grid(part: dict, key: str, i, t0: float, rate: float, n: int) -> np.ndarray:
-    """`part[key]` of recording `i` on its sample grid from `t0` (length `n`; NaN where it has no sample)."""
-    m = part["recording"] == i
-    k = np.round((part["t"][m] - t0) * rate).astype(int)
-    out = np.full(n, np.nan)
-    keep = (k >= 0) & (k < n)
-    out[k[keep]] = part[key][m][keep]
-    return out
-
-
-def _repeats(tr, ho, rate: float, judge) -> dict | None:
+def _repeats(tr, ho, places: dict, rate: float, judge) -> dict | None:
     """Recordings under one drive: how much of the held-out residual they share (None: no two share one).
 
     Two recordings share a drive where their lengths agree within 1 % and
@@ -978,29 +976,27 @@ def _repeats(tr, ho, rate: float, judge) -> dict | None:
     (a miss of the response), the rest does not (noise, a disturbance).
     `of_excess`: that mean over the pair's mean square above the floor.
     """
-    both = {k: np.concatenate([tr[k], ho[k]]) for k in ("t", "v_in", "recording")}
-    ids = [int(i) for i in np.unique(both["recording"])]
-    if len(ids) < 2:
+    if len(places) < 2:
         return None
-    start = {i: float(both["t"][both["recording"] == i].min()) for i in ids}
-    length = {i: int(round((both["t"][both["recording"] == i].max() - start[i]) * rate)) + 1 for i in ids}
+    ids, lengths = list(places), [length for _, length in places.values()]
+    n = max(lengths)
+    drives, residuals = _grids([tr, ho], "v_in", places, rate, n), _grids([ho], "r", places, rate, n)
     pairs, shared, square, count = [], 0.0, 0.0, 0
-    for x, a in enumerate(ids):
-        for b in ids[x + 1 :]:
-            n = min(length[a], length[b])
-            if abs(length[a] - length[b]) > 0.01 * max(length[a], length[b]):
+    for a in range(len(ids)):
+        for b in range(a + 1, len(ids)):
+            if abs(lengths[a] - lengths[b]) > 0.01 * max(lengths[a], lengths[b]):
                 continue
-            va, vb = (_sample_grid(both, "v_in", i, start[i], rate, n) for i in (a, b))
+            va, vb = drives[a], drives[b]
             ok = np.isfinite(va) & np.isfinite(vb)
             if ok.sum() < MIN_SAMPLES or np.std(va[ok]) == 0 or np.std(vb[ok]) == 0:
                 continue
             if np.corrcoef(va[ok], vb[ok])[0, 1] < SAME_DRIVE:
                 continue
-            ra, rb = (_sample_grid(ho, "r", i, start[i], rate, n) for i in (a, b))
+            ra, rb = residuals[a], residuals[b]
             ok = np.isfinite(ra) & np.isfinite(rb)
             if ok.sum() < MIN_SAMPLES:
                 continue
-            pairs.append([a, b])
+            pairs.append([ids[a], ids[b]])
             shared += float(np.sum(ra[ok] * rb[ok]))
             square += float(np.sum((ra[ok] ** 2 + rb[ok] ** 2) / 2))
             count += int(ok.sum())

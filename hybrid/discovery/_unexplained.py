@@ -249,8 +249,6 @@ def remainder(
             f"; the states are the fitted model's, whose {', '.join(loose)} this recording does not pin: the "
             "force may act on another state that moves as this one does in the system"
         )
-    if floor.spike_note:  # the spikes count in every residual, the floor does not count them
-        description["summary"] += "; w's isolated spikes (the noise floor's warning) are part of it"
     hint = place_hint(description, places or {})
     if hint:
         description["place"] = "inside"

@@ -11,6 +11,10 @@ For held-out residuals ε(t) = w − ŵ and the drive u(t):
   residual's variance γ_0, so that Q·(γ_0/γ_0')² compares the correlated part
   of two residuals in the units of the second (ρ_k = γ_k/γ_0).
 - `spectrum`: Welch power spectral density (scipy).
+- `periodogram`, `strongest_line`: the periodogram of recordings laid on their
+  own sample grids (a part of the split, its other samples missing), summed
+  over the recordings, and its largest bin in a band: a line's frequency to a
+  fraction of a bin of the whole record, where Welch's segments give a few bins.
 - `loops`: mean residual against drive level, separately for a rising and a
   falling drive (direction of the last change), the signature of hysteresis
   and saturation.
@@ -88,6 +92,36 @@ def spectrum(residual, rate: float) -> tuple[np.ndarray, np.ndarray]:
     residual = np.asarray(residual, dtype=float)
     nperseg = int(min(len(residual), max(64, 2 ** int(np.log2(max(len(residual) // 8, 1))))))
     return scipy.signal.welch(residual - residual.mean(), fs=rate, nperseg=nperseg)
+
+
+def periodogram(grids, rate: float, n_fft: int, hann: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(frequencies in Hz, power) of signals on their sample grids, summed over them.
+
+    `grids`: one row per recording, each sample at its place from the
+    recording's start, NaN where the row has no sample (another part of the
+    split; read as 0 once the row's mean is taken out). Each row is
+    zero-padded to `n_fft` points (`n_fft` at least the rows' length); `hann`
+    tapers each over its span (to its last sample), so that a line's leakage
+    falls off within a few bins.
+    """
+    grids = np.atleast_2d(np.asarray(grids, float))
+    power = np.zeros(n_fft // 2 + 1)
+    for row in grids:
+        have = np.isfinite(row)
+        if not have.any():
+            continue
+        x = np.where(have, row - row[have].mean(), 0.0)
+        if hann:
+            end = int(np.flatnonzero(have)[-1]) + 1
+            x[:end] *= np.hanning(end)
+        power += np.abs(np.fft.rfft(x, n=n_fft)) ** 2
+    return np.fft.rfftfreq(n_fft, 1.0 / rate), power
+
+
+def strongest_line(freq, power, low: float, high: float) -> float | None:
+    """The frequency of `power`'s largest bin with `low` ≤ f < `high`, or None when no bin lies there."""
+    band = (freq >= low) & (freq < high)
+    return float(freq[band][np.argmax(power[band])]) if band.any() else None
 
 
 def travel_direction(drive) -> np.ndarray:
