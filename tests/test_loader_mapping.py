@@ -448,6 +448,22 @@ def test_a_units_row_reaches_a_mapped_recording(tmp_path):
     assert given.metadata["units"]["w"] == "mm"  # the flag wins over the row
 
 
+def test_a_text_tables_units_row_is_read_as_a_csv_files_is(tmp_path):
+    """A tab-separated .txt (a LabVIEW or DAQ export) with a units row under its header: read, not refused."""
+    rows = "".join(f"{1000 * i / 30:.6f}\t{np.sin(i / 9):.6f}\t{np.cos(i / 7):.6f}\n" for i in range(90))
+    path = _write(tmp_path / "lab.txt", "Time\tDrive\tDisp\nms\tV\tum\n" + rows)
+    rec = load_mapped(path, input="Drive", output="Disp", time="Time")
+    assert rec.rate == pytest.approx(30.0) and rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "um"}
+    np.testing.assert_allclose(rec.w[:2], [1.0, np.cos(1 / 7)], atol=1e-6)  # no data line was taken as units
+    assert any("units read from its units row" in note for note in rec.notes), rec.notes
+    spaced = _write(tmp_path / "lab.dat", "t u y\n(ms) [V] (mm)\n" + rows.replace("\t", " "))
+    rec = load_mapped(spaced, input="u", output="y", time="t")
+    assert rec.rate == pytest.approx(30.0) and rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"}
+    # words under the header are read as a units row, as in a CSV file: a time unit it cannot be is refused
+    words = _write(tmp_path / "words.txt", "t\tu\ty\nfirst\trun\there\n" + rows)
+    _bad(words, "gives its time column the unit 'first'", input="u", output="y", time="t")
+
+
 def test_a_semicolon_file_with_decimal_commas_maps_its_columns(tmp_path):
     path = _write(tmp_path / "eu.csv", "Zeit;Spannung;Weg\n0;1,5;-0,25\n0,5;2;1,5e-3\n1;-1,25;,5\n")
     rec = load_mapped(path, input="Spannung", output="Weg", time="Zeit")

@@ -22,7 +22,7 @@
   MATLAB's ``save -ascii`` writes it: numbers separated by commas, semicolons,
   tabs or spaces (the first data line decides), ``#`` comments and blank lines
   skipped, an optional header line (a first line that is not all numbers; below a
-  preamble and above a footer, as in a ``.csv``). A
+  preamble and above a footer, as in a ``.csv``) and a units row under it, as in a ``.csv``. A
   table without a header names its columns by number from 0 (``"0"``, ``"1"``).
   Every column is read, so every cell must be a number.
 * ``.npz`` / ``.mat``: the arrays or variables named; only those must be real
@@ -126,6 +126,8 @@ class TableNotes(NamedTuple):
     notes: tuple[str, ...] = ()
     #: The file's column (or array, variable) names, for a message that suggests one.
     columns: tuple[str, ...] = ()
+    #: A text table's units row under its header, by column name (`units_row`); empty without one.
+    units: tuple[tuple[str, str], ...] = ()
 
 
 def read_columns(
@@ -152,7 +154,8 @@ def read_columns(
             role: table[:, _column_index(path, names, name, role, flag_prefix)]
             for role, name in wanted.items()
         }
-        return columns, {}, {}, notes._replace(columns=tuple(names))
+        metadata = {"units": dict(notes.units)} if notes.units else {}
+        return columns, {}, metadata, notes._replace(columns=tuple(names))
     arrays, metadata = npz_arrays(path) if suffix == ".npz" else mat_variables(path)
     kind = "array" if suffix == ".npz" else "variable"
     columns = {}
@@ -526,7 +529,7 @@ def read_text_table(
 
     Returns:
         ``(names, table, notes)``, ``table`` of shape (rows, len(names)), float64, every cell
-        finite, and `TableNotes` (the line of each row, what was skipped).
+        finite, and `TableNotes` (the line of each row, what was skipped, a units row's units).
     """
     lines = _text_lines(path)
     if not lines:
@@ -560,6 +563,11 @@ def read_text_table(
             raise InputError(
                 f"recording '{path}' has a header {first!r} with empty or repeated names: name each column once"
             )
+    stated: tuple[tuple[str, str], ...] = ()
+    units = units_row(_cells(data[0][1], delimiter)) if header and data else None
+    if units is not None:  # a logger's second header line (s, V, mm): the columns' units
+        stated = tuple((name, unit) for name, unit in zip(names, units) if unit)
+        data = data[1:]
     rows = [_cells(line, delimiter) for _, line in data]
     end = footer_start(rows, range(len(names))) if rows else 0
     if end < len(rows):
@@ -589,7 +597,11 @@ def read_text_table(
             f"recording '{path}' has a non-finite value in column {names[col]!r} at line {data[row][0]} "
             f"(sample {row}): remove or interpolate it"
         )
-    return names, table, TableNotes(np.array([n for n, _ in data], dtype=np.int64), tuple(notes))
+    return (
+        names,
+        table,
+        TableNotes(np.array([n for n, _ in data], dtype=np.int64), tuple(notes), units=stated),
+    )
 
 
 def _text_lines(path: pathlib.Path) -> list[tuple[int, str]]:
