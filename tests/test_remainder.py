@@ -291,6 +291,56 @@ def test_a_remainder_that_repeats_under_the_same_drive_is_a_miss_of_the_response
     assert "repeats" not in other and "a second recording under the same drive" in other["summary"]
 
 
+def _with_block(levels, block=19):
+    """A multilevel drive in [-1, 1] whose 500-sample block `block` holds levels in `levels` instead."""
+    rng = np.random.default_rng(5)
+    v = multilevel(rng)
+    a = block * 500
+    v[a : a + 500] = multilevel(rng, 500, *levels)
+    return v
+
+
+def test_a_remainder_in_one_held_out_stretch_is_placed_there_with_what_the_training_part_lacks():
+    # 20 blocks of 500 samples, blocks 3, 7, 11, 15, 19 held out (2500 samples, 20 % each). The miss
+    # (0.5·(v − 1)² above v = 1, a bend past the levels trained on) exists only where the drive
+    # exceeds 1, which only the last held-out block (t = 190–199.98 s) does, its levels in [1.2, 1.6]:
+    # all of the excess is there (share 1 up to the other blocks' noise), against 20 % of the samples.
+    def beyond(v, t):
+        return 0.5 * np.maximum(v - 1.0, 0.0) ** 2
+
+    d = describe_remainder(*recording(beyond, drive=_with_block((1.2, 1.6))), RATE, SIGMA**2, v_unit="V")
+    where = d["concentrated"]
+    assert where["share"] == pytest.approx(1.0, abs=0.05) and where["samples_fraction"] == pytest.approx(0.2)
+    assert where["t"] == pytest.approx([190.0, 199.98]) and where["beyond_training_drive"]
+    assert where["drive"][0] >= 1.2 and where["drive"][1] <= 1.6 and where["train_drive"][1] <= 1.0
+    assert "lies in one held-out stretch, t = 190–200 s" in d["summary"], d["summary"]
+    assert "beyond the" in d["summary"] and "V of the training part" in d["summary"]
+
+    # The same block's levels inside the training range and an offset of 0.3 from t = 190 s on (a change
+    # late in the record): there, after every training sample.
+    def late(v, t):
+        return np.where(t >= 190.0, 0.3, 0.0)
+
+    d = describe(late, drive=_with_block((-1.0, 1.0)))
+    assert d["concentrated"]["after_training"] and not d["concentrated"]["beyond_training_drive"]
+    assert "after every training sample of the record" in d["summary"]
+    # ... or in a middle block (t = 110–120 s): neither, and said as such
+    d = describe(lambda v, t: np.where((t >= 110.0) & (t < 120.0), 0.3, 0.0))
+    assert d["concentrated"]["t"] == pytest.approx([110.0, 119.98])
+    assert not d["concentrated"]["after_training"] and not d["concentrated"]["beyond_training_drive"]
+    assert "the training part does not show what happens there" in d["summary"]
+
+
+def test_a_remainder_spread_over_the_record_is_not_placed_in_one_stretch():
+    # A dynamic miss everywhere (the low-passed drive): each held-out block holds about a fifth of it.
+    d = describe(lambda v, t: 0.3 * lowpass(v))
+    assert d["kind"] == "dynamic" and "concentrated" not in d and "held-out stretch" not in d["summary"]
+    # white noise read against a floor 20 % low: an excess in every block alike (a fifth each), none placed
+    d = describe(lambda v, t: np.zeros_like(v), floor=0.8 * SIGMA**2)
+    assert d["recovered"]["of_excess"] is not None  # an excess over the floor (25 % of it), significant
+    assert "concentrated" not in d, d.get("concentrated")
+
+
 def test_white_noise_is_unstructured():
     # Nothing but noise of the floor's variance: the held-out MSE is the floor up to its sampling error,
     # and no extension can gain more than chance (a few tenths of a percent).
@@ -299,6 +349,7 @@ def test_white_noise_is_unstructured():
     of_excess = d["recovered"]["of_excess"]
     assert of_excess is None and "reason" in d["recovered"] or of_excess < 0.2
     assert d["recovered"]["fraction"] < 0.02
+    assert "concentrated" not in d  # no excess, so no stretch holds it (a share of noise's ±0 would be 130 %)
 
 
 def test_dead_zone_is_flat_near_zero():

@@ -439,6 +439,7 @@ def diagnose(
         places=places,
         w_unit=signals[0],
         loose=tuple(name for name in unpinned if name in inner_names),
+        v_unit=signals[1],
     )
     drives = [np.asarray(r.v_in, float) for r in recordings]
     rivals = ambiguities(

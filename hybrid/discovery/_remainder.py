@@ -118,6 +118,13 @@ SAME_DRIVE = 0.98
 #: Share of the excess two recordings under one drive have in common up to which a remainder does not
 #: repeat (a disturbance), and from which it does (a miss of the response); between, part of each.
 NOT_REPEATED, REPEATED = 0.2, 0.6
+#: A held-out stretch (a block's held-out part) holding at least this share of the held-out error above
+#: the floor, and at least `CONCENTRATED_RATIO` times its share of the held-out samples, is where the
+#: remainder lives: the summary names it, with what sets it apart from the training part where that shows.
+CONCENTRATED = 0.5
+CONCENTRATED_RATIO = 2.0
+#: ... among at least this many held-out stretches (with fewer, a share says little of where).
+CONCENTRATED_STRETCHES = 3
 #: Mains frequencies (Hz) and the harmonics of them a line is read against.
 MAINS, MAINS_HARMONICS = (50.0, 60.0), 3
 #: The state feedback's maps are fitted for a simulation with at most this many states (the RC network's
@@ -817,6 +824,7 @@ def describe_remainder(
     feedback: dict | None = None,
     w_unit: str = "",
     spiky: bool = False,
+    v_unit: str = "",
 ) -> dict:
     """Where the residual r = w − ŵ lives: each measure fitted on `train`, judged on `heldout`.
 
@@ -832,7 +840,8 @@ def describe_remainder(
     made of each state (`hybrid.discovery._unexplained.feedback_signals`);
     with it, "state_feedback" (`_state_feedback`). Either part may hold
     "recording", each sample's recording (a line's phase is its own in each);
-    `w_unit` labels the amplitudes the summary quotes. `spiky`: w has isolated
+    `w_unit` labels the amplitudes the summary quotes, `v_unit` the drive's levels. "concentrated"
+    (`_concentrated`): the held-out stretch that holds most of the excess, when one does. `spiky`: w has isolated
     spikes (the noise floor's `spikes`): the summary says they are part of the
     remainder, and an unstructured one is read as holding them rather than as a
     disturbance or a miss (unless two recordings under one drive tell).
@@ -959,11 +968,92 @@ def describe_remainder(
     if repeats is not None:
         out["repeats"] = repeats
     out.update(_verdict(scores, judge, static, offset, fed, on_output))
+    where = _concentrated(tr, ho, judge, places)
+    if where is not None:
+        out["concentrated"] = where
+        out["summary"] += _concentrated_words(where, len(places) > 1, v_unit)
     if out["kind"] == "unstructured" and judge.excess is not None and not (spiky and repeats is None):
         out["summary"] += _repeat_words(repeats)
     if spiky:  # they count in every residual; the floor, read without them, does not
         out["summary"] += "; w's isolated spikes (the noise floor's warning) are part of it"
     return out
+
+
+def _concentrated(tr, ho, judge, places: dict) -> dict | None:
+    """The held-out stretch that holds most of the held-out error above the floor, or None.
+
+    A stretch is a contiguous run of held-out samples of one recording (one
+    block's held-out part). Its excess is its sum of r² less its samples times
+    the floor; it is named when it holds at least `CONCENTRATED` of the whole
+    excess and `CONCENTRATED_RATIO` times its share of the samples, among at
+    least `CONCENTRATED_STRETCHES`, when the whole excess is beyond sampling
+    error (`_Judge.excess`; half of it then is too, in a stretch of fewer samples). Beside it: the drive's range there and on
+    the training part of its recording, and whether it lies after (or before)
+    every training sample of its recording — what the model had not seen there.
+    """
+    if judge.excess is None:  # no floor, or the held-out error is within sampling error of it
+        return None
+    r2 = ho["r"] ** 2
+    total = float(np.sum(r2) - len(r2) * judge.floor)
+    run = np.cumsum(np.r_[True, (ho["segment"][1:] != ho["segment"][:-1]) | (np.diff(ho["recording"]) != 0)])
+    ids = np.unique(run)
+    if len(ids) < CONCENTRATED_STRETCHES:
+        return None
+    excess = np.array([np.sum(r2[run == k]) - np.sum(run == k) * judge.floor for k in ids])
+    k = int(np.argmax(excess))
+    m = run == ids[k]
+    share, samples = float(excess[k] / total), float(np.mean(m))
+    if share < CONCENTRATED or share < CONCENTRATED_RATIO * samples:
+        return None
+    i = float(ho["recording"][m][0])
+    trained = tr["recording"] == i
+    t, v = ho["t"][m], ho["v_in"][m]
+    out: dict[str, Any] = {
+        "share": _num(share),
+        "samples_fraction": _num(samples),
+        "recording": int(i) if len(places) > 1 else None,
+        "t": [_num(t.min(), 7), _num(t.max(), 7)],
+        "drive": [_num(v.min()), _num(v.max())],
+    }
+    if trained.any():
+        tv, tt = tr["v_in"][trained], tr["t"][trained]
+        lo, hi = float(tv.min()), float(tv.max())
+        margin = 0.02 * (hi - lo)
+        out.update(
+            train_drive=[_num(lo), _num(hi)],
+            beyond_training_drive=bool(v.max() > hi + margin or v.min() < lo - margin),
+            after_training=bool(t.min() > tt.max()),
+            before_training=bool(t.max() < tt.min()),
+        )
+    return out
+
+
+def _concentrated_words(where: dict, several: bool, v_unit: str) -> str:
+    """The clause that says where a concentrated remainder lives (`_concentrated`)."""
+    a, b = where["t"]
+    of = f" of recording {where['recording'] + 1}" if several and where["recording"] is not None else ""
+    unit = f" {v_unit}" if v_unit else ""
+    said = (
+        f"; {100 * where['share']:.0f} % of the held-out error above the floor lies in one held-out stretch, t = {a:.4g}–{b:.4g} s{of} "
+        f"({100 * where['samples_fraction']:.0f} % of the held-out samples)"
+    )
+    if where.get("beyond_training_drive"):
+        lo, hi = where["drive"]
+        tlo, thi = where["train_drive"]
+        return (
+            f"{said}, where the drive spans {lo:.3g} to {hi:.3g}{unit}, beyond the {tlo:.3g} to {thi:.3g}{unit} "
+            "of the training part: the model extrapolates there, and a recording that trains on those levels "
+            "tells what it misses"
+        )
+    if where.get("after_training"):
+        return (
+            f"{said}, after every training sample of the record: a change late in the record (warming, wear, "
+            "a drift faster than the training part shows) or a response to a drive the training part lacks; a "
+            "recording that repeats this stretch's drive earlier tells which"
+        )
+    if where.get("before_training"):
+        return f"{said}, before every training sample: the record's start (an initial state the model misses)"
+    return f"{said}: the training part does not show what happens there"
 
 
 def _repeats(tr, ho, places: dict, rate: float, judge) -> dict | None:

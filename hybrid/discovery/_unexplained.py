@@ -207,12 +207,13 @@ def remainder(
     places: dict | None = None,
     w_unit: str = "",
     loose: tuple[str, ...] = (),
+    v_unit: str = "",
 ) -> dict | None:
     """None when `final`'s held-out error is consistent with the noise floor, else what lies above it.
 
     `heldout` is `Diagnosis.heldout` (its ``extended`` is `final`'s prediction); the
     training part is predicted here only when there is something to describe. `w_unit`
-    labels the levels a limit clause quotes (the report's unit of w). `loose`: the
+    labels the levels a limit clause quotes (the report's unit of w), `v_unit` the drive's. `loose`: the
     simulation's parameters the recording does not pin; where the remainder is
     placed on a state, the sentence says the state is the fitted model's.
     """
@@ -237,7 +238,7 @@ def remainder(
     ):
         feedback = None  # (the recorded samples of both are the split's: a guard, not a case met)
     description = describe_remainder(
-        train, held, rate, floor.variance, feedback, w_unit, spiky=bool(floor.spike_note)
+        train, held, rate, floor.variance, feedback, w_unit, spiky=bool(floor.spike_note), v_unit=v_unit
     )
     # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
     description["level_limit"] = level_limits([train, held], floor.variance)
