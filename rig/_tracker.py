@@ -12,7 +12,11 @@ Method, per frame (nothing here knows how the picture was made):
 3. Cross-sections. For each s, the strip's centre across the axis is the
    contrast-weighted centroid around the darkest point near the previous
    section's centre (sub-pixel), following the strip out from the clamp until
-   its contrast falls below half of its median along the strip.
+   its contrast falls below half of its median along the strip. The strip
+   starts where `START_SECTIONS` sections in a row lie on the axis, each near
+   the last, with at least half the contrast the line near the axis has over
+   the first 30 % of the free length: before that, a faint or off-axis section
+   is a clamp's edge (a dark block reaching past the clamp point), not the strip.
 4. The tip. A quartic fitted to the centres (the last few sections excluded,
    where the end cap distorts them) gives the centreline u(s): exact for a
    cantilever under a uniform load (Euler-Bernoulli), where a cubic was
@@ -48,6 +52,9 @@ __all__ = ["BLURRED", "Sections", "TipResult", "TipTracker"]
 #: The reason of a frame whose tip was smeared by motion beyond the sharp tip's measure: its w is
 #: measured (where the strip was mid-exposure, not NaN), its quality 0.
 BLURRED = "tip blurred by motion (w measured, less sure)"
+#: Sections in a row on the rest axis, each within half a thickness of the last, that make the strip's
+#: start: before them, one off the axis is not the strip's (`TipTracker.sections`).
+START_SECTIONS = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,8 +187,15 @@ class TipTracker:
         outside = grid < 0
         grid = np.where(outside, 0.0, grid)
 
+        # The strip's start is at least half the contrast the line near the axis has over the first
+        # 30 % of the free length, where even a strongly bent strip is near it: fainter sections there
+        # are a clamp's edge (its closing-made rim, 0.13-0.25 against a strip's 0.85).
+        near_max = np.max(np.where(np.abs(u)[None, :] <= self._near_axis(s)[:, None], grid, 0.0), axis=1)
+        first = s <= self.start_px + 0.3 * self.length_px
+        start_level = max(self.min_contrast, 0.5 * float(np.median(near_max[first])))
         centres, peaks, inside = [], [], []
         prev = None
+        settled = 0  # sections in a row found on the axis since the strip was first met
         win = self._window * 2  # in 0.5 px steps
         for k in range(len(s)):
             row = grid[k]
@@ -208,14 +222,31 @@ class TipTracker:
             hi = min(len(u), max(j0 + win, right + 4) + 1)
             part = row[lo:hi] - 0.2 * peak
             part = np.clip(part, 0.0, None)
-            if peak < self.min_contrast or part.sum() <= 0:
-                if prev is not None and len(centres) > 3:
-                    break
-                centres.append(np.nan)
+            started = settled >= START_SECTIONS
+            if peak < (self.min_contrast if started else start_level) or part.sum() <= 0:
+                if prev is not None and len(centres) > 3 and started:
+                    break  # the strip's end
+                centres.append(np.nan)  # not yet the strip: a clamp's edge fading, or nothing
                 peaks.append(peak)
                 inside.append(not outside[k, j0])
+                prev, settled = None, 0
                 continue
-            centres.append(float((part * u[lo:hi]).sum() / part.sum()))
+            centre = float((part * u[lo:hi]).sum() / part.sum())
+            if settled < START_SECTIONS:
+                # Until the strip has run START_SECTIONS sections in a row along the axis, each within
+                # half a thickness of the last, a section off the axis is the clamp's edge (a dark clamp
+                # block reaching past the clamp point: its corners pulled sections 11-15 px off the axis
+                # and the search after them, and a strip plain beyond was refused): none here, and the
+                # next is looked for on the axis again.
+                if abs(centre) > self._near_axis(s[k]):
+                    centres.append(np.nan)
+                    peaks.append(peak)
+                    inside.append(not outside[k, j0])
+                    prev, settled = None, 0
+                    continue
+                last = centres[-1] if centres else np.nan
+                settled = settled + 1 if abs(centre - last) <= 0.5 * self.strip_px else 1
+            centres.append(centre)
             peaks.append(float(peak))
             inside.append(not outside[k, j0])
             prev = j0

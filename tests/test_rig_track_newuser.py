@@ -11,6 +11,12 @@ cv2 at 4x and averaged down, sensor noise added), sharing no code with rig.
   ``--strip-px`` found no strip 10 px thick at all.
 - ``--out .`` (or ``''``, ``/``) ended in ``ValueError: PosixPath('.') has an
   empty name``; an --out below a file in ``cannot write ... (File exists)``.
+- A dark clamp block reaching past the clamp point the user gives (where the
+  strip leaves it, as they see it): the closing's rim around the block made
+  faint sections off the axis, and the block's corners strong ones 11-15 px
+  off it; the first sections were taken there and the search followed the
+  block, so ``rig track`` found "no strip leaves the clamp" (5 px past, strip
+  pointing right) or lost 138 of 600 frames (25 px past, pointing down).
 - A frame repeated pixel for pixel (a capture program filling in for frames its
   camera did not deliver) was tracked as a good frame at the wrong time, without
   a word.
@@ -66,6 +72,46 @@ def _video(path, images) -> None:
     for image in images:
         writer.write(cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
     writer.release()
+
+
+def _clamped_frame(w_mm: float, angle_deg: float, past_px: float, rng) -> tuple[np.ndarray, tuple]:
+    """A 6 px dark strip (polyline, anti-aliased) leaving its clamp point along `angle_deg` (0: right,
+    90: down), its tip `w_mm` across the axis, held in a dark block 40 px wide that reaches `past_px`
+    past the clamp point along the axis; a lit gradient behind, sensor noise. (frame, clamp point)."""
+    a = np.radians(angle_deg)
+    ux, uy, nx, ny = np.cos(a), np.sin(a), -np.sin(a), np.cos(a)
+    size, clamp = (SIZE, CLAMP) if angle_deg == 0.0 else (SIZE[::-1], CLAMP[::-1])
+    yy, xx = np.mgrid[0 : size[1], 0 : size[0]]
+    image = np.float32(150.0 + 40.0 * xx / size[0])
+    s = np.linspace(0.0, LENGTH_PX, 150)
+    d = (w_mm / MM_PER_PX) * (3 * LENGTH_PX * s**2 - s**3) / (2 * LENGTH_PX**3)
+    line = np.stack([clamp[0] + s * ux + d * nx, clamp[1] + s * uy + d * ny], 1)
+    cv2.polylines(image, [np.round(line * 16).astype(np.int32)], False, 30.0, 6, cv2.LINE_AA, 4)
+    along = (xx - clamp[0]) * ux + (yy - clamp[1]) * uy
+    across = (xx - clamp[0]) * nx + (yy - clamp[1]) * ny
+    image[(along > -30.0) & (along < past_px) & (np.abs(across) < 20.0)] = 60.0
+    return np.clip(image + rng.normal(0.0, 4.0, image.shape), 0, 255).astype(np.uint8), clamp
+
+
+@pytest.mark.parametrize("angle_deg, past_px", [(0.0, 5.0), (90.0, 25.0)])
+def test_a_dark_clamp_block_reaching_past_the_clamp_point_does_not_hide_the_strip(angle_deg, past_px):
+    from rig._axis import find_axis
+
+    rng = np.random.default_rng(3)
+    sweep = 3.0 * np.sin(2 * np.pi * np.arange(16) / 16)
+    frames = [_clamped_frame(w, angle_deg, past_px, rng)[0] for w in sweep]
+    clamp = _clamped_frame(0.0, angle_deg, past_px, rng)[1]
+    found = find_axis(frames, clamp, MM_PER_PX, 22.0, strip_px=6.0)
+    assert found.angle_deg is not None, found.reason
+    assert abs((found.angle_deg - angle_deg + 180.0) % 360.0 - 180.0) < 0.2
+    tracker = TipTracker(
+        Scene(clamp=found.clamp_xy, mm_per_px=MM_PER_PX, angle_deg=found.angle_deg, length_mm=22.0),
+        strip_px=6,
+    )
+    results = [tracker.track(frame) for frame in frames]
+    assert [r.reason for r in results] == ["ok"] * len(frames)
+    # w is positive along (sin a, -cos a), the strip was bent along (-sin a, cos a): w = -sweep
+    np.testing.assert_allclose([r.w for r in results], -sweep, atol=0.1)
 
 
 def test_rig_track_finds_a_10px_strip_without_strip_px(tmp_path):
