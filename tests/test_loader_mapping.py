@@ -437,30 +437,31 @@ def test_units_or_a_range_alone_map_a_file_that_has_the_standard_columns(tmp_pat
         load_mapped(lab, units={"w": "mm"})  # time, u, y: which is the drive is the lab's to say
 
 
-def test_a_units_row_reaches_a_mapped_recording(tmp_path):
-    """Mapped columns under a units row: w's unit is the row's, a time column in ms is read in seconds."""
-    rows = "".join(f"{1000 * i / 30:.6f},{np.sin(i / 9):.6f},{np.cos(i / 7):.6f}\n" for i in range(90))
-    path = _write(tmp_path / "lab.csv", "Time,Drive,Disp\nms,V,um\n" + rows)
-    rec = load_mapped(path, input="Drive", output="Disp", time="Time")
-    assert rec.rate == pytest.approx(30.0) and rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "um"}
-    np.testing.assert_allclose(rec.w[:2], [1.0, np.cos(1 / 7)], atol=1e-6)  # no data line was taken as units
-    given = load_mapped(path, input="Drive", output="Disp", time="Time", units="w=mm,t=ms")
-    assert given.metadata["units"]["w"] == "mm"  # the flag wins over the row
+@pytest.mark.parametrize("name, sep", [("lab.csv", ","), ("lab.txt", "\t")])
+def test_a_units_row_reaches_a_mapped_recording(tmp_path, name, sep):
+    """Mapped columns under a units row: w's unit is the row's, a time column in ms is read in seconds.
 
-
-def test_a_text_tables_units_row_is_read_as_a_csv_files_is(tmp_path):
-    """A tab-separated .txt (a LabVIEW or DAQ export) with a units row under its header: read, not refused."""
-    rows = "".join(f"{1000 * i / 30:.6f}\t{np.sin(i / 9):.6f}\t{np.cos(i / 7):.6f}\n" for i in range(90))
-    path = _write(tmp_path / "lab.txt", "Time\tDrive\tDisp\nms\tV\tum\n" + rows)
+    In a .csv and in a tab-separated .txt (a LabVIEW or DAQ export), which refused the row as a
+    non-numeric cell."""
+    rows = "".join(
+        f"{1000 * i / 30:.6f}{sep}{np.sin(i / 9):.6f}{sep}{np.cos(i / 7):.6f}\n" for i in range(90)
+    )
+    path = _write(tmp_path / name, f"Time{sep}Drive{sep}Disp\nms{sep}V{sep}um\n" + rows)
     rec = load_mapped(path, input="Drive", output="Disp", time="Time")
     assert rec.rate == pytest.approx(30.0) and rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "um"}
     np.testing.assert_allclose(rec.w[:2], [1.0, np.cos(1 / 7)], atol=1e-6)  # no data line was taken as units
     assert any("units read from its units row" in note for note in rec.notes), rec.notes
-    spaced = _write(tmp_path / "lab.dat", "t u y\n(ms) [V] (mm)\n" + rows.replace("\t", " "))
+    given = load_mapped(path, input="Drive", output="Disp", time="Time", units="w=mm,t=ms")
+    assert given.metadata["units"]["w"] == "mm"  # the flag wins over the row
+
+
+def test_a_space_separated_tables_units_row_in_brackets_and_words_that_are_no_units(tmp_path):
+    rows = "".join(f"{1000 * i / 30:.6f} {np.sin(i / 9):.6f} {np.cos(i / 7):.6f}\n" for i in range(90))
+    spaced = _write(tmp_path / "lab.dat", "t u y\n(ms) [V] (mm)\n" + rows)
     rec = load_mapped(spaced, input="u", output="y", time="t")
     assert rec.rate == pytest.approx(30.0) and rec.metadata["units"] == {"t": "s", "v_in": "V", "w": "mm"}
     # words under the header are read as a units row, as in a CSV file: a time unit it cannot be is refused
-    words = _write(tmp_path / "words.txt", "t\tu\ty\nfirst\trun\there\n" + rows)
+    words = _write(tmp_path / "words.txt", "t u y\nfirst run here\n" + rows)
     _bad(words, "gives its time column the unit 'first'", input="u", output="y", time="t")
 
 
