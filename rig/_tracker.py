@@ -52,6 +52,8 @@ __all__ = ["BLURRED", "Sections", "TipResult", "TipTracker"]
 #: The reason of a frame whose tip was smeared by motion beyond the sharp tip's measure: its w is
 #: measured (where the strip was mid-exposure, not NaN), its quality 0.
 BLURRED = "tip blurred by motion (w measured, less sure)"
+#: Strip thicknesses of weaker sections after which a strong one is no longer the strip's (`TipTracker._strong`).
+STRONG_GAP = 2
 #: Sections in a row on the rest axis, each within half a thickness of the last, that make the strip's
 #: start: before them, one off the axis is not the strip's (`TipTracker.sections`).
 START_SECTIONS = 3
@@ -264,14 +266,35 @@ class TipTracker:
         good = np.isfinite(sections.u)
         if good.sum() < 8:
             return None
-        plateau = float(np.median(sections.peak[good]))
-        strong = good & (sections.peak > 0.5 * plateau)
+        _, strong = self._strong(sections)
         last = int(np.flatnonzero(strong)[-1])
         use = strong.copy()
         use[max(0, last - int(self.strip_px) - 1) :] = False
         if use.sum() < 6:
             use = strong
         return sections.s[use], sections.u[use]
+
+    def _strong(self, sections: Sections) -> tuple[float, np.ndarray]:
+        """The strip's contrast plateau (the median peak of the sections found) and its strong sections.
+
+        A section is strong above half the plateau, and in the strip's run of them from the clamp:
+        after more than `STRONG_GAP` strip thicknesses of weaker ones, strong sections in short runs
+        only are lines the search met beyond the tip (graph paper behind the strip: a grid line
+        crossing the axis past it was taken for the tip, 8 mm out); a long run there is the strip
+        beyond something that covers it, which the smooth-line check then refuses.
+        """
+        good = np.isfinite(sections.u)
+        plateau = float(np.median(sections.peak[good]))
+        strong = good & (sections.peak > 0.5 * plateau)
+        found = np.flatnonzero(strong)
+        reach = STRONG_GAP * self.strip_px + 2
+        breaks = np.flatnonzero(np.diff(found) > reach)
+        if breaks.size:
+            beyond = found[breaks[0] + 1 :]
+            runs = np.split(beyond, np.flatnonzero(np.diff(beyond) > 2) + 1)
+            if max(len(run) for run in runs) < reach:  # only short marks: crossings, not the strip
+                strong[found[breaks[0]] + 1 :] = False
+        return plateau, strong
 
     def leaves_clamp(self, sections: Sections) -> bool:
         """Whether the strip starts at the clamp along the rest axis.
@@ -328,14 +351,13 @@ class TipTracker:
         """Track one frame given its contrast image (`contrast`)."""
         h, w = contrast.shape
         sec = self.sections(contrast)
-        s, centres, peaks, inside = sec.s, sec.u, sec.peak, sec.inside
+        s, centres, inside = sec.s, sec.u, sec.inside
         good = np.isfinite(centres)
         if good.sum() < 8:
             return TipResult(math.nan, 0, "no strip found next to the clamp", (math.nan, math.nan))
         if not self.leaves_clamp(sec):
             return TipResult(math.nan, 0, "no strip leaves the clamp along the axis", (math.nan, math.nan))
-        plateau = float(np.median(peaks[good]))
-        strong = good & (peaks > 0.5 * plateau)
+        plateau, strong = self._strong(sec)
         last = int(np.flatnonzero(strong)[-1])
         if not inside[min(last + 1, len(inside) - 1)] or (sec.reached_end and last + 3 >= len(s)):
             return TipResult(math.nan, 0, "tip out of view", (math.nan, math.nan))
