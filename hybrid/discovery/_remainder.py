@@ -987,9 +987,10 @@ def _concentrated(tr, ho, judge, places: dict) -> dict | None:
     the floor; it is named when it holds at least `CONCENTRATED` of the whole
     excess and `CONCENTRATED_RATIO` times its share of the samples, among at
     least `CONCENTRATED_STRETCHES`, when the whole excess is beyond sampling
-    error (`_Judge.excess`; half of it then is too, in a stretch of fewer samples). Beside it: the drive's range there and on
-    the training part of its recording, and whether it lies after (or before)
-    every training sample of its recording — what the model had not seen there.
+    error (`_Judge.excess`; half of it then is too, in fewer samples). Beside
+    it: the drive's range there and on the training part of its recording,
+    and whether it lies after (or before) every training sample of its
+    recording — what the model had not seen there.
     """
     if judge.excess is None:  # no floor, or the held-out error is within sampling error of it
         return None
@@ -1034,8 +1035,8 @@ def _concentrated_words(where: dict, several: bool, v_unit: str) -> str:
     of = f" of recording {where['recording'] + 1}" if several and where["recording"] is not None else ""
     unit = f" {v_unit}" if v_unit else ""
     said = (
-        f"; {100 * where['share']:.0f} % of the held-out error above the floor lies in one held-out stretch, t = {a:.4g}–{b:.4g} s{of} "
-        f"({100 * where['samples_fraction']:.0f} % of the held-out samples)"
+        f"; {100 * where['share']:.0f} % of the held-out error above the floor lies in one held-out "
+        f"stretch, t = {a:.4g}–{b:.4g} s{of} ({100 * where['samples_fraction']:.0f} % of the held-out samples)"
     )
     if where.get("beyond_training_drive"):
         lo, hi = where["drive"]
