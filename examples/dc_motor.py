@@ -9,7 +9,9 @@ inductance L and the inertia J. The drive is held between samples (a DAC or a
 PWM amplifier), and each sample is integrated in `substeps` RK4 steps of the
 state-space form, which also lets `hybrid diagnose` search effects inside
 the dynamics (a limit on the speed, a restoring force fed back into the drive)
-as well as on the drive and on the output.
+as well as on the drive and on the output. A force fed back from inside acts on
+the shaft, as a torque (`forced_rates`): a Coulomb friction on the speed is then
+read as a step in N m.
 
 It came from a new user's trial of the library (a physics the repository did
 not ship). `experiments/motor_wander.py` hides an additive wander of the
@@ -54,6 +56,7 @@ class DCMotor(AbstractStateSpace):
     states: ClassVar[tuple] = ("current", "speed")
     state_units: ClassVar[dict] = {"current": "A", "speed": "rad/s"}
     output_unit: ClassVar[str] = "rad/s"
+    force_unit: ClassVar[str] = "N m"  # a force fed back from inside acts on the shaft (`forced_rates`)
     limited_states: ClassVar[tuple] = ("speed",)
     substeps: ClassVar[int] = 4
     drive_between_samples: ClassVar[str] = "hold"
@@ -70,10 +73,23 @@ class DCMotor(AbstractStateSpace):
         self.raw = encode(values, self.constraints, "DCMotor")
 
     def rates(self, x, u, p):
+        return self.forced_rates(x, u, 0.0, p)
+
+    def forced_rates(self, x, u, force, p):
+        """The rates with a torque `force` (N m) fed back onto the shaft, against the motor's own.
+
+        A friction or a load acts on the shaft, not on the armature's voltage: taken off the drive (the
+        default) it would pass through the armature's lag first, and a Coulomb friction's step would not
+        read as one (`hybrid diagnose` reads the map it finds in `force_unit`).
+        """
         i, w = x
         di = (u - p["resistance"] * i - p["torque_constant"] * w) / p["inductance"]
-        dw = (p["torque_constant"] * i - p["viscous"] * w) / p["inertia"]
+        dw = (p["torque_constant"] * i - p["viscous"] * w - force) / p["inertia"]
         return di, dw
+
+    def drive_force(self, u, p):
+        """The torque the drive exerts on a stalled shaft, K·u/R (N m): what a fed-back torque is sized against."""
+        return p["torque_constant"] * u / p["resistance"]
 
     def observe(self, x, p):
         return x[1]

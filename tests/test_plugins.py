@@ -428,6 +428,34 @@ def test_the_dc_motor_example_matches_solve_ivp_under_a_held_drive():
     assert all(np.isfinite(float(g)) for g in grad.values())
 
 
+def test_the_dc_motor_takes_a_fed_back_force_as_a_torque_on_its_shaft():
+    """An inside effect's force is a torque on the shaft (N m, sized against the stall torque K·u/R), not a
+    voltage off the drive: a cubic torque k·ω³ through `stiffness` against solve_ivp's motor with it."""
+    sim = resolve_physics(str(ROOT / "examples" / "dc_motor.py") + ":DCMotor")
+    p = {k: float(v) for k, v in sim.parameters().items()}
+    k3, dt, u = 2e-5, 0.02, np.repeat([0.0, 6.0, -3.0, 12.0, 0.0], 40)
+    stack = hybrid.EffectStack(sim, ["stiffness"], drive_unit="V").replace(stiffness_cube=k3)
+    assert stack.force_unit == "N m" and stack.units["stiffness_cube"] == "(N m)/(rad/s)^3"
+    x, expected = np.zeros(2), []
+    for value in u:
+        expected.append(x[1])
+
+        def rate(t, x, v=value):
+            i, w = x
+            return [
+                (v - p["resistance"] * i - p["torque_constant"] * w) / p["inductance"],
+                (p["torque_constant"] * i - p["viscous"] * w - k3 * w**3) / p["inertia"],
+            ]
+
+        x = solve_ivp(rate, (0.0, dt), x, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
+    got = np.asarray(stack.simulate(u, dt))
+    assert np.max(np.abs(got - expected)) <= 1e-6 * np.ptp(expected)
+    assert np.max(np.abs(got - np.asarray(sim.simulate(u, dt)))) > 0.05 * np.ptp(expected)  # it acts
+    derived = stack.derived(u, dt)["stiffness"]["force_percent_of_drive"]
+    stall = p["torque_constant"] * np.max(np.abs(u)) / p["resistance"]
+    assert derived == pytest.approx(100 * k3 * np.max(np.abs(got)) ** 3 / stall, rel=1e-6)
+
+
 def test_each_rc_name_means_one_network_on_every_command():
     """`rc` is the paper's Tustin network (make_model's default, fit's and sensitivity's --physics); `rc:zoh`
     is the exact-ZOH network diagnose starts from, from Python and from its --physics default alike."""
