@@ -331,6 +331,22 @@ def test_a_remainder_in_one_held_out_stretch_is_placed_there_with_what_the_train
     assert "the training part does not show what happens there" in d["summary"]
 
 
+def test_a_stretch_is_placed_in_its_own_recording_among_several():
+    # Two recordings, the change late in the second only: its last held-out block holds the excess, a
+    # tenth of the held-out samples, and the clause says which recording (counted from 1).
+    def joined(*parts_of):
+        out = {k: np.concatenate([p[k] for p in parts_of]) for k in parts_of[0]}
+        out["recording"] = np.concatenate([np.full(len(p["t"]), i) for i, p in enumerate(parts_of)])
+        return out
+
+    quiet = recording(lambda v, t: np.zeros_like(v), seed=1)
+    late = recording(lambda v, t: np.where(t >= 190.0, 0.3, 0.0), seed=2)
+    late = tuple(dict(part, segment=part["segment"] + 100) for part in late)  # segments of its own
+    d = describe_remainder(joined(quiet[0], late[0]), joined(quiet[1], late[1]), RATE, SIGMA**2)
+    assert d["concentrated"]["recording"] == 1 and d["concentrated"]["samples_fraction"] == pytest.approx(0.1)
+    assert "t = 190–200 s of recording 2" in d["summary"] and d["concentrated"]["after_training"]
+
+
 def test_a_remainder_spread_over_the_record_is_not_placed_in_one_stretch():
     # A dynamic miss everywhere (the low-passed drive): each held-out block holds about a fifth of it.
     d = describe(lambda v, t: 0.3 * lowpass(v))
