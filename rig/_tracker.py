@@ -195,7 +195,9 @@ class TipTracker:
         near_max = np.max(np.where(np.abs(u)[None, :] <= self._near_axis(s)[:, None], grid, 0.0), axis=1)
         first = s <= self.start_px + 0.3 * self.length_px
         start_level = max(self.min_contrast, 0.5 * float(np.median(near_max[first])))
-        centres, peaks, inside = [], [], []
+        centres: list[float] = []
+        peaks: list[float] = []
+        inside: list[bool] = []
         prev = None
         settled = 0  # sections in a row found on the axis since the strip was first met
         win = self._window * 2  # in 0.5 px steps
@@ -225,32 +227,27 @@ class TipTracker:
             part = row[lo:hi] - 0.2 * peak
             part = np.clip(part, 0.0, None)
             started = settled >= START_SECTIONS
+            last = centres[-1] if centres else math.nan
             if peak < (self.min_contrast if started else start_level) or part.sum() <= 0:
                 if prev is not None and len(centres) > 3 and started:
                     break  # the strip's end
-                centres.append(np.nan)  # not yet the strip: a clamp's edge fading, or nothing
-                peaks.append(peak)
-                inside.append(not outside[k, j0])
-                prev, settled = None, 0
-                continue
-            centre = float((part * u[lo:hi]).sum() / part.sum())
-            if settled < START_SECTIONS:
+                centre = math.nan  # not yet the strip: a clamp's edge fading, or nothing
+            else:
+                centre = float((part * u[lo:hi]).sum() / part.sum())
                 # Until the strip has run START_SECTIONS sections in a row along the axis, each within
                 # half a thickness of the last, a section off the axis is the clamp's edge (a dark clamp
                 # block reaching past the clamp point: its corners pulled sections 11-15 px off the axis
-                # and the search after them, and a strip plain beyond was refused): none here, and the
-                # next is looked for on the axis again.
-                if abs(centre) > self._near_axis(s[k]):
-                    centres.append(np.nan)
-                    peaks.append(peak)
-                    inside.append(not outside[k, j0])
-                    prev, settled = None, 0
-                    continue
-                last = centres[-1] if centres else np.nan
-                settled = settled + 1 if abs(centre - last) <= 0.5 * self.strip_px else 1
+                # and the search after them, and a strip plain beyond was refused).
+                if not started and abs(centre) > self._near_axis(s[k]):
+                    centre = math.nan
             centres.append(centre)
             peaks.append(float(peak))
             inside.append(not outside[k, j0])
+            if math.isnan(centre):  # none here: the next is looked for on the axis again
+                prev, settled = None, 0
+                continue
+            if not started:
+                settled = settled + 1 if abs(centre - last) <= 0.5 * self.strip_px else 1
             prev = j0
         n = len(centres)
         return Sections(

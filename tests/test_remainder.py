@@ -172,9 +172,9 @@ def test_a_line_the_drive_does_not_carry_is_a_periodic_disturbance(hz, mains):
 def test_a_long_record_padded_less_still_finds_its_line(monkeypatch):
     # Past `MAX_FFT` points the periodogram is not zero-padded (a 1 kHz hour would be 14 M points): the
     # peak is then one bin wide (1/200 Hz here) and the sinusoid's own fit refines it as before.
-    import hybrid.discovery._remainder as remainder
+    import hybrid.discovery.residual_tests as rt
 
-    monkeypatch.setattr(remainder, "MAX_FFT", 1)
+    monkeypatch.setattr(rt, "MAX_FFT", 1)
     d = describe(lambda v, t: LINE * np.sin(2 * np.pi * 7.3 * t + 1.0))
     assert d["kind"] == "periodic" and d["periodic"]["frequency_hz"] == pytest.approx(7.3, abs=2e-3)
 

@@ -1258,7 +1258,7 @@ class Line(AbstractEffect):
         return size >= need, f"line {size:.1f} % of range rms (needs ≥ {need} %)"
 
 
-def line_peak_hz(context: StartContext, pad: int = 4) -> float | None:
+def line_peak_hz(context: StartContext) -> float | None:
     """The training residual's strongest line (Hz), from 3 cycles per record up to the Nyquist frequency.
 
     The residual is `measured` − `signal` on the training samples. With the
@@ -1267,7 +1267,7 @@ def line_peak_hz(context: StartContext, pad: int = 4) -> float | None:
     end to end instead, a line's phase jumps at every block taken out, and
     blocks taken out at a regular spacing split its peak in two beside its
     frequency (a 7.3 Hz line of a 60 s record read 7.324 Hz, outside the fit's
-    basin). The periodogram is zero-padded `pad` times. None without
+    basin). The periodogram is zero-padded as the remainder's is (`zero_padding`). None without
     `measured` or with too few samples.
     """
     if context.measured is None or len(context.signal) < 16:
@@ -1285,5 +1285,5 @@ def line_peak_hz(context: StartContext, pad: int = 4) -> float | None:
             at += b - a
     else:  # no places to put them back: end to end
         grids = r[None, :]
-    freq, power = rt.periodogram(grids, context.rate, pad * grids.shape[1])
+    freq, power = rt.periodogram(grids, context.rate, rt.zero_padding(grids.shape[1]) * grids.shape[1])
     return rt.strongest_line(freq, power, 3.0 / max(context.duration, 1e-12), context.rate / 2)

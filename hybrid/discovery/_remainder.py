@@ -109,10 +109,6 @@ LINE_RANGE = 1e-4
 HARMONICS, INTERMODULATED = 10, 10
 #: Bins of the unpadded spectrum within which a residual's line coincides with one the drive causes.
 COINCIDE_BINS = 3
-#: Zero padding of the periodogram (its grid is this many times finer than the record's).
-PAD = 4
-#: ... as long as the padded grid stays within this many points (a long record is padded less).
-MAX_FFT = 2**22
 #: Two recordings' drives correlating above this, sample for sample, are one drive played twice.
 SAME_DRIVE = 0.98
 #: Share of the excess two recordings under one drive have in common up to which a remainder does not
@@ -465,7 +461,7 @@ def _periodic(tr, ho, places: dict, rate: float, judge) -> dict:
         return {
             "reason": f"the recordings are too short for {MIN_CYCLES} cycles of a line below the Nyquist frequency"
         }
-    pad = max(min(PAD, MAX_FFT // n), 1)
+    pad = rt.zero_padding(n)
     n_fft = pad * n
     freq, power = rt.periodogram(_grids([tr], "r", places, rate, n), rate, n_fft)
     peak = rt.strongest_line(freq, power, MIN_CYCLES / span, rate / 2 * (1 - 1.0 / n))
@@ -971,7 +967,7 @@ def describe_remainder(
     where = _concentrated(tr, ho, judge, places)
     if where is not None:
         out["concentrated"] = where
-        out["summary"] += _concentrated_words(where, len(places) > 1, v_unit)
+        out["summary"] += _concentrated_words(where, v_unit)
     if out["kind"] == "unstructured" and judge.excess is not None and not (spiky and repeats is None):
         out["summary"] += _repeat_words(repeats)
     if spiky:  # they count in every residual; the floor, read without them, does not
@@ -994,16 +990,13 @@ def _concentrated(tr, ho, judge, places: dict) -> dict | None:
     """
     if judge.excess is None:  # no floor, or the held-out error is within sampling error of it
         return None
-    r2 = ho["r"] ** 2
-    total = float(np.sum(r2) - len(r2) * judge.floor)
-    run = np.cumsum(np.r_[True, (ho["segment"][1:] != ho["segment"][:-1]) | (np.diff(ho["recording"]) != 0)])
-    ids = np.unique(run)
-    if len(ids) < CONCENTRATED_STRETCHES:
+    over = ho["r"] ** 2 - judge.floor
+    stretch = np.cumsum(np.r_[0, (np.diff(ho["segment"]) != 0) | (np.diff(ho["recording"]) != 0)])
+    if stretch[-1] + 1 < CONCENTRATED_STRETCHES:
         return None
-    excess = np.array([np.sum(r2[run == k]) - np.sum(run == k) * judge.floor for k in ids])
-    k = int(np.argmax(excess))
-    m = run == ids[k]
-    share, samples = float(excess[k] / total), float(np.mean(m))
+    excess = np.bincount(stretch, weights=over)
+    m = stretch == int(np.argmax(excess))
+    share, samples = float(excess.max() / over.sum()), float(np.mean(m))
     if share < CONCENTRATED or share < CONCENTRATED_RATIO * samples:
         return None
     i = float(ho["recording"][m][0])
@@ -1029,10 +1022,10 @@ def _concentrated(tr, ho, judge, places: dict) -> dict | None:
     return out
 
 
-def _concentrated_words(where: dict, several: bool, v_unit: str) -> str:
-    """The clause that says where a concentrated remainder lives (`_concentrated`)."""
+def _concentrated_words(where: dict, v_unit: str) -> str:
+    """The clause that says where a concentrated remainder lives (`_concentrated`; its recording, among several)."""
     a, b = where["t"]
-    of = f" of recording {where['recording'] + 1}" if several and where["recording"] is not None else ""
+    of = f" of recording {where['recording'] + 1}" if where["recording"] is not None else ""
     unit = f" {v_unit}" if v_unit else ""
     said = (
         f"; {100 * where['share']:.0f} % of the held-out error above the floor lies in one held-out "

@@ -11,7 +11,7 @@ For held-out residuals ε(t) = w − ŵ and the drive u(t):
   residual's variance γ_0, so that Q·(γ_0/γ_0')² compares the correlated part
   of two residuals in the units of the second (ρ_k = γ_k/γ_0).
 - `spectrum`: Welch power spectral density (scipy).
-- `periodogram`, `strongest_line`: the periodogram of recordings laid on their
+- `periodogram`, `strongest_line`, `zero_padding`: the periodogram of recordings laid on their
   own sample grids (a part of the split, its other samples missing), summed
   over the recordings, and its largest bin in a band: a line's frequency to a
   fraction of a bin of the whole record, where Welch's segments give a few bins.
@@ -92,6 +92,17 @@ def spectrum(residual, rate: float) -> tuple[np.ndarray, np.ndarray]:
     residual = np.asarray(residual, dtype=float)
     nperseg = int(min(len(residual), max(64, 2 ** int(np.log2(max(len(residual) // 8, 1))))))
     return scipy.signal.welch(residual - residual.mean(), fs=rate, nperseg=nperseg)
+
+
+#: Zero padding of a periodogram (`zero_padding`: its grid this many times finer than the record's) ...
+PAD = 4
+#: ... as long as the padded grid stays within this many points (a long record is padded less).
+MAX_FFT = 2**22
+
+
+def zero_padding(n: int) -> int:
+    """How many times a record of `n` samples is zero-padded for `periodogram`: `PAD`, less past `MAX_FFT`."""
+    return max(min(PAD, MAX_FFT // max(n, 1)), 1)
 
 
 def periodogram(grids, rate: float, n_fft: int, hann: bool = False) -> tuple[np.ndarray, np.ndarray]:
