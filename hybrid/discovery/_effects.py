@@ -1286,4 +1286,4 @@ def line_peak_hz(context: StartContext) -> float | None:
     else:  # no places to put them back: end to end
         grids = r[None, :]
     freq, power = rt.periodogram(grids, context.rate, rt.zero_padding(grids.shape[1]) * grids.shape[1])
-    return rt.strongest_line(freq, power, 3.0 / max(context.duration, 1e-12), context.rate / 2)
+    return rt.strongest_line(freq, power, rt.MIN_CYCLES / max(context.duration, 1e-12), context.rate / 2)

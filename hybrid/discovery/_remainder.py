@@ -34,7 +34,7 @@ the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
   first-order perturbation of a Duffing oscillator is exactly this.
 - **periodic**: a sinusoid (amplitude and phase per recording) at the
   frequency of the training residual's largest spectral line, at least
-  `MIN_CYCLES` cycles per recording (slower is a trend) — only where the drive
+  `residual_tests.MIN_CYCLES` cycles per recording (slower is a trend) — only where the drive
   carries no line there, nor at a harmonic, an alias or a sum or difference of
   its own lines (a periodic drive's response is the drive's, not a
   disturbance). Phase-locked over the recording, a vibration or an electrical
@@ -96,8 +96,6 @@ ORDER = ("static", "time", "periodic", "dynamic", "nonlinear_dynamic")
 #: lag, blind to a thermocouple's 8 s lag: a new user's chamber read "no simple structure … the best
 #: linear filter 0 %") and at most `MAX_LAGS`.
 MIN_LAGS, MAX_LAGS = 16, 60
-#: A line of the residual is periodic only from this many cycles per recording (slower: a trend in time).
-MIN_CYCLES = 3
 #: A bin of the drive's periodogram this many times the median of its neighbours (`LINE_WINDOW` bins of
 #: the unpadded spectrum each side) is a line of the drive: a random drive's bins are exponential, above
 #: 30× their median about once in 10⁹.
@@ -457,14 +455,14 @@ def _periodic(tr, ho, places: dict, rate: float, judge) -> dict:
     """A sinusoid at the training residual's strongest line, judged held out (module docstring: periodic)."""
     n = max(length for _, length in places.values())  # the longest recording's samples
     span = (n - 1) / rate
-    if span <= 0 or MIN_CYCLES / span >= rate / 2:
+    if span <= 0 or rt.MIN_CYCLES / span >= rate / 2:
         return {
-            "reason": f"the recordings are too short for {MIN_CYCLES} cycles of a line below the Nyquist frequency"
+            "reason": f"the recordings are too short for {rt.MIN_CYCLES} cycles of a line below the Nyquist frequency"
         }
     pad = rt.zero_padding(n)
     n_fft = pad * n
     freq, power = rt.periodogram(_grids([tr], "r", places, rate, n), rate, n_fft)
-    peak = rt.strongest_line(freq, power, MIN_CYCLES / span, rate / 2 * (1 - 1.0 / n))
+    peak = rt.strongest_line(freq, power, rt.MIN_CYCLES / span, rate / 2 * (1 - 1.0 / n))
     if peak is None:
         return {"reason": "no frequency between the trends and the Nyquist frequency"}
     step = rate / n_fft

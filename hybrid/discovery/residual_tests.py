@@ -94,6 +94,8 @@ def spectrum(residual, rate: float) -> tuple[np.ndarray, np.ndarray]:
     return scipy.signal.welch(residual - residual.mean(), fs=rate, nperseg=nperseg)
 
 
+#: A line is read from this many cycles per recording (slower: a trend in time), by the remainder and `line`.
+MIN_CYCLES = 3
 #: Zero padding of a periodogram (`zero_padding`: its grid this many times finer than the record's) ...
 PAD = 4
 #: ... as long as the padded grid stays within this many points (a long record is padded less).
