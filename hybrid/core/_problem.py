@@ -201,6 +201,31 @@ def bucketed_series(series: Series, length: int) -> Series:
     return Series(v_in, w, series.dt, segments, tuple(weights), recorded)
 
 
+def _target_scale(series) -> jax.Array:
+    """w's robust std on the training part of `series` (1 where w is constant: refused by fit)."""
+    if any(s.weights is not None for s in series):  # padded series: the training samples alone, on the host
+        train = np.concatenate(
+            [np.asarray(s.target("train"))[np.asarray(_weight_of(s, "train")) > 0] for s in series]
+        )
+        top = float(np.max(np.abs(train)))
+        power = np.ldexp(1.0, int(np.frexp(top)[1])) if np.isfinite(top) and top > 0 else 1.0
+        std = jax.device_put(np.asarray(np.std(train / power) * power))  # `robust_std` in numpy
+    else:
+        std = robust_std(jnp.concatenate([s.target("train") for s in series]))
+    return jnp.where(std > 0, std, jnp.ones_like(std))
+
+
+def _rescalable(readout) -> bool:
+    """Whether `readout` is a grey-box readout that `rescaled` converts (its θ then in units of w's scale)."""
+    if not readout.parameters():  # a black box (the D-MLP): its weights, penalised, stay as they are
+        return False
+    try:
+        readout.rescaled(1.0, 1.0)
+    except NotImplementedError:
+        return False
+    return True
+
+
 #: Rows of a padded series' spans per split, empty (0, 0) rows filling the rest (more rows only for
 #: more segments): one array shape whatever the blocks, so recordings of one bucket split into
 #: different numbers of blocks share its compiled programs (the spans are read on the host only).
@@ -229,6 +254,13 @@ class Problem(eqx.Module):
       allowed as padding) and the rest of θ_sim gets zero Jacobian columns, so
       Levenberg–Marquardt leaves it in place. An array, not a static option: lanes
       of a batched fit can differ in it without recompiling.
+
+    A grey-box readout (one with named parameters that can be `rescaled`, as
+    `LinearReadout`) sits in θ in units of `scale` (w's robust std on the
+    training part): its gain and offset are w's unit, and in θ as given LM's
+    damping λI and their Jacobian columns would make the end point depend on
+    the unit w was recorded in (the same strip in µm and in mm named different
+    causes). `model(θ)` and `flatten` convert, so no caller sees the difference.
     """
 
     sim_static: eqx.Module
@@ -242,6 +274,7 @@ class Problem(eqx.Module):
     n_readout: int = eqx.field(static=True)
     weight_decay: float = eqx.field(static=True)
     sim_tangents: jax.Array | None
+    readout_in_scale: bool = eqx.field(static=True)
 
     def __init__(
         self, model: Model, series, frozen=frozenset(), weight_decay: float = 0.0, sim_tangents=None
@@ -249,33 +282,23 @@ class Problem(eqx.Module):
         series = tuple(series)
         if not series:
             raise InputError("no recordings to fit: pass at least one recording")
+        self.series = series
+        self.scale = _target_scale(series)
+        self.readout_in_scale = _rescalable(model.readout)
         spec = model.trainable(frozen)
         sim_dyn, self.sim_static = eqx.partition(model.simulation, spec.simulation)
-        readout_dyn, self.readout_static = eqx.partition(model.readout, spec.readout)
+        readout_dyn, self.readout_static = eqx.partition(self._to_theta_units(model.readout), spec.readout)
         theta_sim, self.unravel_sim = ravel_pytree(sim_dyn)
         theta_readout, self.unravel_readout = ravel_pytree(readout_dyn)
         self.n_sim = int(theta_sim.size)
         self.n_readout = int(theta_readout.size)
         if self.n_sim + self.n_readout == 0:
             raise InputError("every parameter is frozen: free at least one to fit")
-        self.series = series
         if any(s.weights is not None for s in series) and getattr(model.readout, "window", 1) != 1:
             raise InputError(
                 f"padded series need a per-sample readout: a window of {model.readout.window} samples "
                 "would reach across a split's start (use series_from_recording's segments)"
             )
-        if any(
-            s.weights is not None for s in series
-        ):  # padded series: the training samples alone, on the host
-            train = np.concatenate(
-                [np.asarray(s.target("train"))[np.asarray(_weight_of(s, "train")) > 0] for s in series]
-            )
-            top = float(np.max(np.abs(train)))
-            power = np.ldexp(1.0, int(np.frexp(top)[1])) if np.isfinite(top) and top > 0 else 1.0
-            std = jax.device_put(np.asarray(np.std(train / power) * power))  # `robust_std` in numpy
-        else:
-            std = robust_std(jnp.concatenate([s.target("train") for s in series]))
-        self.scale = jnp.where(std > 0, std, jnp.ones_like(std))  # constant w: refused by fit
         self.kind = model.kind
         if not weight_decay >= 0:
             raise InputError(f"weight_decay must be ≥ 0, got {weight_decay!r}")
@@ -284,10 +307,13 @@ class Problem(eqx.Module):
         self.sim_tangents = sim_tangents
 
     # --- θ ↔ model -------------------------------------------------------------
+    def _to_theta_units(self, readout):
+        return readout.rescaled(1.0, 1.0 / self.scale) if self.readout_in_scale else readout
+
     def flatten(self, model: Model, frozen=frozenset()) -> jax.Array:
         spec = model.trainable(frozen)
         a, _ = ravel_pytree(eqx.filter(model.simulation, spec.simulation))
-        b, _ = ravel_pytree(eqx.filter(model.readout, spec.readout))
+        b, _ = ravel_pytree(eqx.filter(self._to_theta_units(model.readout), spec.readout))
         return jnp.concatenate([a, b])
 
     def split_theta(self, theta):
@@ -297,7 +323,8 @@ class Problem(eqx.Module):
         return eqx.combine(self.unravel_sim(theta_sim), self.sim_static)
 
     def readout(self, theta_readout):
-        return eqx.combine(self.unravel_readout(theta_readout), self.readout_static)
+        readout = eqx.combine(self.unravel_readout(theta_readout), self.readout_static)
+        return readout.rescaled(1.0, self.scale) if self.readout_in_scale else readout
 
     def model(self, theta) -> Model:
         a, b = self.split_theta(theta)
