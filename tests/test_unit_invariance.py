@@ -12,28 +12,31 @@ import dataclasses
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from helpers import hidden_recording
 
 from hybrid import LinearReadout, Model, RCNetwork, diagnose
 from hybrid.core import Problem, series_from_recording
 
 MICRONS = 1000.0  # mm → µm
+INCHES = 1.0 / 25.4  # mm → in: a factor that is not a power of ten
 
 
-def _in_microns(recording):
-    return dataclasses.replace(recording, w=np.asarray(recording.w) * MICRONS)
+def _in_unit(recording, factor):
+    return dataclasses.replace(recording, w=np.asarray(recording.w) * factor)
 
 
-def test_the_least_squares_problem_reads_the_same_in_any_unit_of_w():
-    """θ, the cost and the normal equations of a model and recording are those of both in µm (to rounding)."""
+@pytest.mark.parametrize("factor", [MICRONS, INCHES])
+def test_the_least_squares_problem_reads_the_same_in_any_unit_of_w(factor):
+    """θ, the cost and the normal equations of a model and recording are those of both in another unit (to rounding)."""
     recording = hidden_recording("none", 0, duration=20.0)
     model = Model(RCNetwork(), LinearReadout(gain=3.0, offset=0.05), "physics")
-    microns = Model(model.simulation, LinearReadout(gain=3.0 * MICRONS, offset=0.05 * MICRONS), "physics")
+    other = Model(model.simulation, LinearReadout(gain=3.0 * factor, offset=0.05 * factor), "physics")
     problems = [
         Problem(m, [series_from_recording(r)])
-        for m, r in ((model, recording), (microns, _in_microns(recording)))
+        for m, r in ((model, recording), (other, _in_unit(recording, factor)))
     ]
-    thetas = [p.flatten(m) for p, m in zip(problems, (model, microns))]
+    thetas = [p.flatten(m) for p, m in zip(problems, (model, other))]
     np.testing.assert_allclose(thetas[1], thetas[0], rtol=1e-12, atol=1e-15)
     theta = thetas[0] * (1.0 + 0.01 * jnp.sin(jnp.arange(thetas[0].size)))  # away from the start
     (a, g), (a_um, g_um) = (p.normal_equations(theta) for p in problems)
@@ -41,12 +44,12 @@ def test_the_least_squares_problem_reads_the_same_in_any_unit_of_w():
     np.testing.assert_allclose(g_um, g, rtol=1e-9, atol=1e-12 * float(jnp.max(jnp.abs(g))))
     # and the model it stands for is in each recording's own unit
     gains = [float(p.model(theta).readout.parameters()["gain"]) for p in problems]
-    np.testing.assert_allclose(gains[1], gains[0] * MICRONS, rtol=1e-12)
+    np.testing.assert_allclose(gains[1], gains[0] * factor, rtol=1e-12)
 
 
 def test_a_strip_recorded_in_microns_gets_the_diagnosis_it_gets_in_millimetres():
     recording = hidden_recording("hysteresis", 1)
-    found = [diagnose(r, simulation=RCNetwork()) for r in (recording, _in_microns(recording))]
+    found = [diagnose(r, simulation=RCNetwork()) for r in (recording, _in_unit(recording, MICRONS))]
     mm, um = found
     assert um.causes == mm.causes
     assert (um.unexplained is None) == (mm.unexplained is None)
