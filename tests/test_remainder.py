@@ -169,6 +169,27 @@ def test_a_line_the_drive_does_not_carry_is_a_periodic_disturbance(hz, mains):
         assert "mains" not in line
 
 
+def test_a_spectrum_that_rises_into_the_trends_band_is_not_a_line():
+    """A slow wander (white noise through a 20 s low-pass) has its largest in-band bin at the band's edge.
+
+    The band starts at `MIN_CYCLES` cycles per recording (0.015 Hz over 200 s); below it the wander's
+    power goes on rising, so that bin is the edge of a red spectrum, not a line (a creep of τ = 3 s
+    under a 1 s PRBS read as a 0.086 Hz "line" with 3.4 cycles in 40 s: `tests/test_creep.py`).
+    """
+    noise = np.random.default_rng(7).standard_normal(N)
+    wander = lowpass(noise, a=np.exp(-1.0 / (20.0 * RATE)))
+    wander *= 0.3 / wander.std()
+    d = describe(lambda v, t: wander)
+    assert d["kind"] != "periodic" and "fraction" not in d["periodic"]
+    assert "rises below 0.015 Hz" in d["periodic"]["reason"], d["periodic"]
+
+
+def test_a_slow_line_with_a_few_cycles_is_still_a_line():
+    # Four cycles in 200 s, just above the band's edge (three): a peak, with less power below it.
+    d = describe(lambda v, t: LINE * np.sin(2 * np.pi * 0.02 * t + 1.0))
+    assert d["kind"] == "periodic" and d["periodic"]["frequency_hz"] == pytest.approx(0.02, abs=2e-3)
+
+
 def test_a_long_record_padded_less_still_finds_its_line(monkeypatch):
     # Past `MAX_FFT` points the periodogram is not zero-padded (a 1 kHz hour would be 14 M points): the
     # peak is then one bin wide (1/200 Hz here) and the sinusoid's own fit refines it as before.

@@ -34,7 +34,8 @@ the held-out mean square of r each removes (1 − MSE(r − r̂)/MSE(r)):
   first-order perturbation of a Duffing oscillator is exactly this.
 - **periodic**: a sinusoid (amplitude and phase per recording) at the
   frequency of the training residual's largest spectral line, at least
-  `residual_tests.MIN_CYCLES` cycles per recording (slower is a trend) — only where the drive
+  `residual_tests.MIN_CYCLES` cycles per recording (slower is a trend) and above every bin slower than
+  that (a spectrum that rises into the trends' band is a trend's or a slow response's) — only where the drive
   carries no line there, nor at a harmonic, an alias or a sum or difference of
   its own lines (a periodic drive's response is the drive's, not a
   disturbance). Phase-locked over the recording, a vibration or an electrical
@@ -462,9 +463,18 @@ def _periodic(tr, ho, places: dict, rate: float, judge) -> dict:
     pad = rt.zero_padding(n)
     n_fft = pad * n
     freq, power = rt.periodogram(_grids([tr], "r", places, rate, n), rate, n_fft)
-    peak = rt.strongest_line(freq, power, rt.MIN_CYCLES / span, rate / 2 * (1 - 1.0 / n))
+    low = rt.MIN_CYCLES / span
+    peak = rt.strongest_line(freq, power, low, rate / 2 * (1 - 1.0 / n))
     if peak is None:
         return {"reason": "no frequency between the trends and the Nyquist frequency"}
+    if np.max(power[freq < low], initial=0.0) >= np.max(power[freq == peak]):
+        # The band's largest bin is a line only where it stands above the trends' band below it: a spectrum
+        # that keeps rising there is a trend's or a slow response's (a creep of τ = 3 s under a 1 s PRBS
+        # read as a 0.086 Hz "line" with 3.4 cycles in 40 s, `tests/test_creep.py`).
+        return {
+            "reason": f"the residual's power rises below {low:.3g} Hz (fewer than {rt.MIN_CYCLES} cycles per "
+            "recording): a trend or a slow response, not a line"
+        }
     step = rate / n_fft
     fine = np.linspace(peak - step, peak + step, 21)
     # the frequency that the sinusoid fits best on training, near the padded spectrum's peak
