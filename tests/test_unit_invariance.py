@@ -48,10 +48,17 @@ def test_the_least_squares_problem_reads_the_same_in_any_unit_of_w(factor):
 
 
 def test_a_strip_recorded_in_microns_gets_the_diagnosis_it_gets_in_millimetres():
+    # Three effects, not the default thirteen, to keep the two diagnoses cheap: at fd47900 this draw named
+    # nothing in mm and hysteresis in µm with these three too (baseline held-out NMSE 0.0064 and 0.0084).
     recording = hidden_recording("hysteresis", 1)
-    found = [diagnose(r, simulation=RCNetwork()) for r in (recording, _in_unit(recording, MICRONS))]
+    found = [
+        diagnose(r, simulation=RCNetwork(), effects=["hysteresis", "saturation", "drift"])
+        for r in (recording, _in_unit(recording, MICRONS))
+    ]
     mm, um = found
-    assert um.causes == mm.causes
+    assert [c["name"] for c in um.causes] == [c["name"] for c in mm.causes] != []
+    for a, b in zip(um.causes, mm.causes):  # the same fit, to rounding
+        np.testing.assert_allclose(a["incremental_gain"], b["incremental_gain"], rtol=1e-6)
     assert (um.unexplained is None) == (mm.unexplained is None)
     base_mm, base_um = (d.steps[0].current for d in found)
     np.testing.assert_allclose(base_um.heldout.nmse, base_mm.heldout.nmse, rtol=1e-6)
