@@ -56,11 +56,12 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 #: Hysteresis seed 4 (a loop of 9.9 % of the range, fitted at 9.9 % before and after) and saturation seed 6
 #: (shortfalls of 32 % and 24 %, gain 3.3): seeds 13 and 0 of each were here until the search held the
 #: readout in units of w's scale (`tests/test_unit_invariance.py`), which moved their local optima.
-#: Hysteresis 13 (9 %; named from when the loop's lanes gained a wide, slow start, `Hysteresis.starts`) now gains 2.18 over the baseline but 1.41 over an effect-free fit as good on
-#: training (under the 1.5 asked); hysteresis 0 is named but its loop fitted at 17 % of the range
-#: against 11.5 % (it was 14.8 %, at this test's 30 % edge); saturation 0 is named with its shortfalls
-#: closer to the truth, but the baseline now fits better (held-out NMSE 0.0060 → 0.0038), so its gain
-#: is 1.86, under the 2 asked (`discrepancy_single_default_effects.json` has all sixteen of each).
+#: Hysteresis 13 (9 %; named from when the loop's lanes gained a wide, slow start, `Hysteresis.starts`)
+#: now gains 2.18 over the baseline but 1.41 over an effect-free fit as good on training (under the 1.5
+#: asked); hysteresis 0 is named but its loop fitted at 17 % of the range against 11.5 % (it was 14.8 %,
+#: at this test's 30 % edge); saturation 0 is named with its shortfalls closer to the truth, but the
+#: baseline now fits better (held-out NMSE 0.0060 → 0.0038), so its gain is 1.86, under the 2 asked
+#: (`discrepancy_single_default_effects.json` has all sixteen of each).
 CASES = [("none", seed) for seed in range(3)] + [
     ("hysteresis", 4),
     ("saturation", 6),

@@ -467,7 +467,7 @@ def _periodic(tr, ho, places: dict, rate: float, judge) -> dict:
     peak = rt.strongest_line(freq, power, low, rate / 2 * (1 - 1.0 / n))
     if peak is None:
         return {"reason": "no frequency between the trends and the Nyquist frequency"}
-    if np.max(power[freq < low], initial=0.0) >= np.max(power[freq == peak]):
+    if np.max(power[freq < low], initial=0.0) >= power[np.searchsorted(freq, peak)]:
         # The band's largest bin is a line only where it stands above the trends' band below it: a spectrum
         # that keeps rising there is a trend's or a slow response's (a creep of τ = 3 s under a 1 s PRBS
         # read as a 0.086 Hz "line" with 3.4 cycles in 40 s, `tests/test_creep.py`).

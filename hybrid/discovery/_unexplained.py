@@ -300,7 +300,8 @@ _NAMED_ONLY_HINTS = {
 #: read as unstructured to be pointed at creep: half of what a remainder needs to be read as one of them
 #: (`UNSTRUCTURED_EXCESS`). tests/test_creep.py's creep (τ = 3 s, 40 s at 25 Hz) left 18 % to a trend once
 #: the search held the readout in w's scale, 23 % before.
-_SLOW, _SLOW_SHARE = ("time", "filter_drive"), UNSTRUCTURED_EXCESS / 2
+_SLOW = tuple(kind for kind, hint in _NAMED_ONLY_HINTS.items() if hint is _CREEP)
+_SLOW_SHARE = UNSTRUCTURED_EXCESS / 2
 
 
 def named_only_hint(description: dict, places: dict) -> str | None:
