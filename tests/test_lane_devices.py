@@ -10,8 +10,9 @@ single device:
 - five distinct lanes on three devices (one padding lane) against the same
   five run by the unsharded program in the same process: a lane that came back
   in another lane's row, or a padding lane that leaked into the result, fails;
-- the same lanes stopped by a shorter patience and resumed (`resume`) against
-  the longer patience from the start: equal to the last bit;
+- the same lanes stopped by a shorter patience, or capped at a few steps, and
+  resumed (`resume`) against the longer patience from the start: equal to the
+  last bit;
 - the four screens on a 40-point design (not a multiple of three) on three
   devices against a process with one.
 
@@ -63,13 +64,18 @@ LANES = textwrap.dedent("""
     sharded = search.fit_lanes(problem, actives, tangents, thetas, lm, 10)
     single = jax.device_get(
         search._fit_lanes_compiled(
-            problem, actives, tangents, search._start_states(thetas), np.ones(5, bool), np.int32(10), lm
+            problem, actives, tangents, search._start_states(thetas), np.ones(5, bool), np.int32(10),
+            np.int32(lm.max_steps), lm,
         )
     )
     # Stopped at a patience of 3, then those the patience stopped resumed to 10 (`resume`).
     short = search.fit_lanes(problem, actives, tangents, thetas, lm, 3)
     stopped = np.flatnonzero((short.since_best >= 3) & (short.step < lm.max_steps))
     resumed = search.fit_lanes(problem, actives, tangents, search.resume(short, stopped), lm, 10)
+    # Capped at 3 steps (`steps`), then every lane the cap stopped resumed to the same patience.
+    capped = search.fit_lanes(problem, actives, tangents, thetas, lm, 10, steps=3)
+    going = np.flatnonzero(~capped.done)
+    uncapped = search.fit_lanes(problem, actives, tangents, search.resume(capped, going), lm, 10)
     print(json.dumps({
         "devices": len(jax.devices()),
         "used": len(spread_devices()),
@@ -84,6 +90,10 @@ LANES = textwrap.dedent("""
         "resumed_val": np.asarray(resumed.best_val).tolist(),
         "resumed_theta": np.asarray(resumed.best_theta).tolist(),
         "resumed_steps": np.asarray(resumed.step).tolist(),
+        "capped_steps": np.asarray(capped.step).tolist(),
+        "uncapped_val": np.asarray(uncapped.best_val).tolist(),
+        "uncapped_theta": np.asarray(uncapped.best_theta).tolist(),
+        "uncapped_steps": np.asarray(uncapped.step).tolist(),
     }))
 """)
 
@@ -152,6 +162,11 @@ def test_lanes_on_three_cpu_devices_equal_the_lanes_on_one():
     assert out["resumed_steps"] == out["sharded_steps"]
     assert out["resumed_val"] == out["sharded_val"]
     assert out["resumed_theta"] == out["sharded_theta"]
+    # So does a lane capped at 3 LM steps (`fit_lanes`' `steps`, as the race's first round) and resumed.
+    assert max(out["capped_steps"]) == 3 and max(out["sharded_steps"]) > 3
+    assert out["uncapped_steps"] == out["sharded_steps"]
+    assert out["uncapped_val"] == out["sharded_val"]
+    assert out["uncapped_theta"] == out["sharded_theta"]
 
 
 def test_the_screens_on_three_cpu_devices_equal_the_screens_on_one():

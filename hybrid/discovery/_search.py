@@ -93,12 +93,12 @@ def _fitted_names(model: Model, frozen, effects) -> list[str]:
     return wanted
 
 
-def _run_lanes(problem, actives, tangents, states, restart, patience, settings):
+def _run_lanes(problem, actives, tangents, states, restart, patience, steps, settings):
     def one(lane):
         active, basis, state, fresh = lane
         p = with_active(problem, active, basis)
         state = jax.lax.cond(fresh, lambda s: lm_init(p, s.theta, settings), lambda s: s, state)
-        return lm_run(p, state, settings, settings.max_steps, patience)
+        return lm_run(p, state, settings, steps, patience)
 
     # Lanes run one after another: each stops when it converges (a vmap would run
     # every lane until the slowest is done, and every effect's branch in every lane).
@@ -106,28 +106,28 @@ def _run_lanes(problem, actives, tangents, states, restart, patience, settings):
 
 
 @eqx.filter_jit
-def _fit_lanes_compiled(problem, actives, tangents, states, restart, patience, settings):
-    return _run_lanes(problem, actives, tangents, states, restart, patience, settings)
+def _fit_lanes_compiled(problem, actives, tangents, states, restart, patience, steps, settings):
+    return _run_lanes(problem, actives, tangents, states, restart, patience, steps, settings)
 
 
 @eqx.filter_jit
-def _fit_lanes_sharded(problem, actives, tangents, states, restart, patience, settings, mesh):
+def _fit_lanes_sharded(problem, actives, tangents, states, restart, patience, steps, settings, mesh):
     """`_run_lanes` on every device of `mesh` at once, each on its own share of the lanes."""
     dynamic, static = eqx.partition(problem, eqx.is_array)
 
-    def local(dynamic, actives, tangents, states, restart, patience):
+    def local(dynamic, actives, tangents, states, restart, patience, steps):
         return _run_lanes(
-            eqx.combine(dynamic, static), actives, tangents, states, restart, patience, settings
+            eqx.combine(dynamic, static), actives, tangents, states, restart, patience, steps, settings
         )
 
     lanes, shared = PartitionSpec("lanes"), PartitionSpec()
     return jax.shard_map(
         local,
         mesh=mesh,
-        in_specs=(shared, lanes, lanes, lanes, lanes, shared),
+        in_specs=(shared, lanes, lanes, lanes, lanes, shared, shared),
         out_specs=lanes,
         check_vma=False,  # no collectives: every device's lanes are independent
-    )(dynamic, actives, tangents, states, restart, patience)
+    )(dynamic, actives, tangents, states, restart, patience, steps)
 
 
 def _start_states(thetas: np.ndarray) -> LMState:
@@ -171,7 +171,9 @@ def resume(states: LMState, lanes) -> LMState:
     return eqx.tree_at(lambda s: s.done, states, done)
 
 
-def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience: int):
+def fit_lanes(
+    problem, actives, tangents, starts, settings: LMSettings, patience: int, steps: int | None = None
+):
     """LM from each (switches, Jacobian directions, start) lane; one compiled program per lane count.
 
     `starts`: θ₀ of each lane (rows), or the lanes' `LMState`s from an earlier
@@ -179,8 +181,10 @@ def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience
     as it is. With several devices (`spread_devices`: on a CPU,
     `hybrid.use_cpu_cores`) the lanes are dealt out to them in turn, those that
     will run first (`_running_first`), and each device runs its share one after
-    another: the same arithmetic as on one device, side by side. `patience` is an argument of
-    the program, not part of it: the stages share one compilation. Returns the
+    another: the same arithmetic as on one device, side by side. `patience`, and `steps` (the
+    most LM iterations a lane takes in this call; default `settings.max_steps`, which caps a
+    lane's iterations over all calls), are arguments of the program, not part of it: the stages
+    share one compilation. Returns the
     lanes' final `LMState`s as numpy arrays, one row per lane.
     """
     actives = np.asarray(actives, float)
@@ -192,6 +196,7 @@ def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience
         states = _start_states(np.asarray(starts))
         restart = np.ones(states.theta.shape[0], bool)
     stop_after = jnp.asarray(patience, jnp.int32)
+    n_steps = jnp.asarray(settings.max_steps if steps is None else steps, jnp.int32)
     devices = spread_devices()
     if len(devices) < 2:
         return jax.device_get(
@@ -202,6 +207,7 @@ def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience
                 jax.tree_util.tree_map(jnp.asarray, states),
                 jnp.asarray(restart),
                 stop_after,
+                n_steps,
                 settings,
             )
         )
@@ -238,6 +244,7 @@ def fit_lanes(problem, actives, tangents, starts, settings: LMSettings, patience
         jax.device_put(states, lanes),
         jax.device_put(restart, lanes),
         jax.device_put(stop_after, replicated),
+        jax.device_put(n_steps, replicated),
         settings,
         mesh,
     )
