@@ -392,6 +392,11 @@ class _TypoUnit(_Scale):
     units: ClassVar = {"scale_factor": "1/{signl}"}
 
 
+class _KeepsHalf(_Scale):
+    name: ClassVar[str] = "keeps_half"
+    n_kept: ClassVar = 0.5
+
+
 class _StartTypo(_Scale):
     name: ClassVar[str] = "start_typo"
 
@@ -413,6 +418,7 @@ class _StartTypo(_Scale):
         ),
         ([_TypoUnit], "units['scale_factor'] = '1/{signl}' has the placeholder {signl}: write {signal}"),
         ([_StartTypo], "starts(context) gave 'scale_factr', not a parameter of it (scale_factor)"),
+        ([_KeepsHalf], "_KeepsHalf.n_kept must be a whole number ≥ 0 (0: every lane runs), got 0.5"),
         ([_WrongShape], "must return one finite value per sample"),
         ([_Nowhere], "place must be one of drive, inside, output"),
         ([_NoRole], "role must be one of feedback, limit"),

@@ -43,7 +43,7 @@ def test_each_effects_leaders_go_on_where_they_stopped_and_the_other_lanes_stay_
         return starts  # what goes on is checked below
 
     monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
-    search = SimpleNamespace(settings=settings, lm=lm, n_val=180, say=lambda message: None)
+    search = SimpleNamespace(settings=settings, lm=lm, n_val=180, say=lambda message: None, effects=())
     n = len(labels)
     actives = np.arange(n, dtype=float)[:, None] * np.ones((n, 3))
     tangents = np.arange(n, dtype=float)[:, None, None] * np.ones((n, 2, 3))
@@ -74,9 +74,55 @@ def test_race_patience_zero_runs_every_lane_to_the_full_patience(monkeypatch):
 
     monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
     settings = DiagnoseSettings(race_patience=0)
-    search = SimpleNamespace(settings=settings, lm=LMSettings(), n_val=180, say=lambda message: None)
+    search = SimpleNamespace(
+        settings=settings, lm=LMSettings(), n_val=180, say=lambda message: None, effects=()
+    )
     _step.race(search, object(), np.ones((2, 3)), np.ones((2, 2, 3)), [np.zeros(4)] * 2, ["a", "a"])
     assert patiences == [settings.patience]
+
+
+def test_an_effect_that_keeps_one_lane_keeps_its_best_after_the_first_steps(monkeypatch):
+    """`AbstractEffect.n_kept`: after `start_steps` LM steps only an effect's best lanes go on."""
+    settings = DiagnoseSettings()
+    lm = LMSettings(max_steps=120)
+    labels = ["a", "a", "a", "b", "b", "c", "none"]
+    # a keeps 1 of 3: lane 1 has the least validation loss after the first steps; b keeps every lane
+    # (n_kept 0); c keeps 1 and has 1; lane 4 converged within the first steps (done).
+    first_val = [3.0, 1.0, 2.0, 5.0, 4.0, 6.0, np.nan]
+    first_done = [False, False, False, False, True, False, True]
+    calls = []
+
+    def fit_lanes(problem, actives, tangents, starts, lm_settings, patience, steps=None):
+        calls.append(dict(starts=starts, patience=patience, steps=steps))
+        if len(calls) == 1:
+            thetas = np.asarray(starts)
+            states = _states(thetas + 1.0, first_val, np.zeros(len(labels)), np.full(len(labels), 6))
+            return eqx.tree_at(lambda s: s.done, states, np.asarray(first_done))
+        states = starts  # the heat: every lane as it was, none stopped by the patience
+        return eqx.tree_at(lambda s: s.since_best, states, np.zeros(len(labels), np.int32))
+
+    monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
+    effects = tuple(SimpleNamespace(name=name, n_kept=k) for name, k in (("a", 1), ("b", 0), ("c", 1)))
+    search = SimpleNamespace(settings=settings, lm=lm, n_val=180, say=lambda message: None, effects=effects)
+    n = len(labels)
+    lanes = [np.full(4, float(j)) for j in range(n)]
+    states, culled = _step.race(search, object(), np.ones((n, 3)), np.ones((n, 2, 3)), lanes, labels)
+
+    assert sorted(culled) == [0, 2]
+    assert [(c["patience"], c["steps"]) for c in calls] == [
+        (settings.race_patience, settings.start_steps),
+        (settings.race_patience, None),
+    ]
+    heat = calls[1]["starts"]
+    assert isinstance(heat, LMState)
+    # the culled lanes and the lanes done in the first round stay as they are; the rest go on from there
+    np.testing.assert_array_equal(heat.done, [True, False, True, False, True, False, True])
+    np.testing.assert_array_equal(heat.theta, np.stack(lanes) + 1.0)
+    # no effect with more lanes than it keeps: no first round
+    calls.clear()
+    search.effects = tuple(SimpleNamespace(name=name, n_kept=0) for name in "abc")
+    _, culled = _step.race(search, object(), np.ones((n, 3)), np.ones((n, 2, 3)), lanes, labels)
+    assert culled == [] and [c["steps"] for c in calls] == [None]
 
 
 def test_the_lanes_that_will_run_are_dealt_first_in_their_own_order():

@@ -100,6 +100,9 @@ class DiagnoseSettings:
     - `max_steps`: most LM steps of any lane.
     - `patience`: a candidate's lane stops after this many accepted steps
       without a better validation loss.
+    - `start_steps`: the LM steps every candidate lane takes before an effect
+      with more lanes than it keeps (`AbstractEffect.n_kept`) keeps its best
+      (the race's first round; 0: none culled).
     - `race_patience`: a candidate's lanes first run to this shorter patience;
       then each effect's leading lanes (the least validation loss, and those
       the rest of the patience could bring level with it) go on where they
@@ -148,6 +151,7 @@ class DiagnoseSettings:
     extremes_held_out: bool | None = None
     max_steps: int = 120
     patience: int = 25
+    start_steps: int = 6
     race_patience: int = 10
     effect_free_patience: int = 10
     patience_rtol: float = 1e-3

@@ -164,6 +164,10 @@ def check_effect(effect: AbstractEffect, label: str) -> None:
         raise InputError(f"{label}: {cls}.thresholds must be a dict of numbers by name")
     if not isinstance(effect.n_screened, int) or effect.n_screened < 0:
         raise InputError(f"{label}: {cls}.n_screened must be a whole number ≥ 0, got {effect.n_screened!r}")
+    if not isinstance(effect.n_kept, int) or isinstance(effect.n_kept, bool) or effect.n_kept < 0:
+        raise InputError(
+            f"{label}: {cls}.n_kept must be a whole number ≥ 0 (0: every lane runs), got {effect.n_kept!r}"
+        )
     context = _probe_context()
     try:
         if effect.place == "inside":  # evaluated sample by sample inside the integration loop

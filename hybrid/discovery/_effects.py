@@ -192,6 +192,11 @@ class AbstractEffect(eqx.Module):
       defaults); `screened_starts(context)`: at most `n_screened` more, from a
       screen of the simulation's design jointly with the effect (every step; an
       inside effect's in the first step only).
+    - `n_kept`: how many of its lanes (starts and screened starts) go on past
+      the race's first `DiagnoseSettings.start_steps` LM steps: those with the
+      least validation loss there (0, the default: every lane runs). For starts
+      that differ in one size only (a dead zone's width, a lag's time constant),
+      where a few steps show which basin the data favour.
     - `material(derived, parameters, thresholds)`: whether a fit of the effect is
       large enough to count, and the sentence that says why (default: always).
     - `derived(s, dt)`: quantities an experimenter reads more easily than the
@@ -214,6 +219,7 @@ class AbstractEffect(eqx.Module):
     thresholds: ClassVar[dict[str, float]] = {}
     derived_units: ClassVar[dict[str, str]] = {}
     n_screened: ClassVar[int] = 0
+    n_kept: ClassVar[int] = 0
     of_time: ClassVar[bool] = False
 
     @abc.abstractmethod
@@ -637,6 +643,7 @@ class DriveSaturation(_SidedSaturation):
     raw: dict[str, Array]
     name: ClassVar[str] = "drive_saturation"
     place: ClassVar[str] = "drive"
+    n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     constraints, units, defaults = _sided_facts("drive_saturation")
 
 
@@ -836,6 +843,7 @@ class Lag(AbstractEffect):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "lag"
+    n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     constraints: ClassVar = {"lag_time_s": Positive()}
     units: ClassVar = {"lag_time_s": "s"}
     defaults: ClassVar = {"lag_time_s": 0.1}
@@ -1039,6 +1047,7 @@ class DriveEven(_Even):
     raw: dict[str, Array]
     name: ClassVar[str] = "drive_even"
     place: ClassVar[str] = "drive"
+    n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     coefficient: ClassVar[str] = "drive_even_coefficient"
     constraints: ClassVar = {"drive_even_coefficient": Real()}
     units: ClassVar = {"drive_even_coefficient": "1/{signal}"}
@@ -1125,6 +1134,7 @@ class DriveDeadZone(AbstractEffect):
     raw: dict[str, Array]
     name: ClassVar[str] = "drive_dead_zone"
     place: ClassVar[str] = "drive"
+    n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     constraints: ClassVar = {"drive_dead_zone_width": Positive()}
     units: ClassVar = {"drive_dead_zone_width": "{signal}"}
     defaults: ClassVar = {"drive_dead_zone_width": 0.01}
@@ -1179,6 +1189,7 @@ class Backlash(AbstractEffect):
     raw: dict[str, Array]
     name: ClassVar[str] = "backlash"
     place: ClassVar[str] = "drive"
+    n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     constraints: ClassVar = {"backlash_half_width": Positive()}
     units: ClassVar = {"backlash_half_width": "{signal}"}
     defaults: ClassVar = {"backlash_half_width": 0.01}

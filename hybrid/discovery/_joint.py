@@ -130,7 +130,7 @@ def joint_pair(search, step) -> JointPair | None:
         actives.append(actives[0])
         tangents.append(tangents[0])
         labels.append("none")
-    states = race(s, problem, np.stack(actives), np.stack(tangents), lanes, labels)
+    states, _ = race(s, problem, np.stack(actives), np.stack(tangents), lanes, labels)
     vals = np.asarray(states.best_val)[:fill]
     alone = {c.name: c for c in step.candidates}
     best: JointPair | None = None

@@ -274,39 +274,65 @@ def nonfinite_warnings(steps, effects) -> list[str]:
     return out
 
 
-def race(s: Search, problem, actives, tangents, lanes, labels):
-    """The lanes' final LM states: every lane to a short patience, then each effect's leaders on.
+def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple:
+    """The lanes' final LM states, and the lanes culled in the first round: a race in up to three rounds.
 
-    Every lane runs until `race_patience` accepted steps bring no clearly better
-    validation loss. Of each effect's lanes, the leaders (the least validation
-    loss, and every lane within reach of it: (1 + `patience_rtol`) to the power
-    of the patience left, 1.5 % by default) then go on where they stopped until
-    `patience` do: the steps they would have taken with that patience from the
-    start, to the last bit (`resume`). The other lanes keep their first result.
-    Most of a lane's steps are its patience's tail after its best point; a lane
-    that cannot stand for its effect no longer runs it to the end. A lane that
-    stopped on its tolerances or its `max_steps` is done either way.
-    `race_patience` 0 (or ≥ `patience`): every lane runs to `patience`.
+    1. Where an effect has more lanes than it keeps (`AbstractEffect.n_kept`),
+       every lane takes `start_steps` LM steps, and of each such effect's lanes
+       only the `n_kept` with the least validation loss go on; the others keep
+       that result. Their starts differ in one size (a dead zone's width, a
+       lag's time constant), and a few steps tell which basin the data favour.
+    2. Every lane still going runs until `race_patience` accepted steps bring
+       no clearly better validation loss.
+    3. Of each effect's lanes, the leaders (the least validation loss, and
+       every lane within reach of it: (1 + `patience_rtol`) to the power of the
+       patience left, 1.5 % by default) go on where they stopped until
+       `patience` do: the steps they would have taken with that patience from
+       the start, to the last bit (`resume`). The other lanes keep their
+       result. Most of a lane's steps are its patience's tail after its best
+       point; a lane that cannot stand for its effect no longer runs it to the
+       end. A lane that stopped on its tolerances or its `max_steps` is done
+       either way.
+
+    `race_patience` 0 (or ≥ `patience`): every lane (of those the first round
+    kept) runs to `patience`.
     """
     settings = s.settings
-    thetas = jnp.stack(lanes)
+    states: object = jnp.stack(lanes)
+    culled: list[int] = []
+    keep = {e.name: e.n_kept for e in s.effects if e.n_kept and labels.count(e.name) > e.n_kept}
+    if keep and settings.start_steps > 0:
+        patience = (
+            settings.race_patience if 0 < settings.race_patience < settings.patience else settings.patience
+        )
+        first = fit_lanes(problem, actives, tangents, states, s.lm, patience, steps=settings.start_steps)
+        vals = np.where(np.isfinite(first.best_val), first.best_val, np.inf)
+        for name, n in keep.items():
+            idx = [j for j, lab in enumerate(labels) if lab == name]
+            culled += sorted(idx, key=lambda j: vals[j])[n:]
+        going = [j for j in range(len(labels)) if not first.done[j] and j not in culled]
+        s.say(f"{len(culled)} lanes culled after {settings.start_steps} steps")
+        states = resume(first, going)
     if not 0 < settings.race_patience < settings.patience:
-        return fit_lanes(problem, actives, tangents, thetas, s.lm, settings.patience)
-    heat = fit_lanes(problem, actives, tangents, thetas, s.lm, settings.race_patience)
+        return fit_lanes(problem, actives, tangents, states, s.lm, settings.patience), culled
+    heat = fit_lanes(problem, actives, tangents, states, s.lm, settings.race_patience)
     vals = np.asarray(heat.best_val)
     # Stopped by the short patience, not by its tolerances or its `max_steps`: it may go on.
-    going = (np.asarray(heat.since_best) >= settings.race_patience) & (np.asarray(heat.step) < s.lm.max_steps)
+    going_on = (np.asarray(heat.since_best) >= settings.race_patience) & (
+        np.asarray(heat.step) < s.lm.max_steps
+    )
+    going_on[culled] = False
     reach = (1.0 + settings.patience_rtol) ** (settings.patience - settings.race_patience)
     leaders: list[int] = []
     for name in dict.fromkeys(lab for lab in labels if lab != "none"):
         idx = [j for j, lab in enumerate(labels) if lab == name and np.isfinite(vals[j])]
         if idx:  # still in the race: a lane that the rest of the patience could bring level with the
             # best, were each of its steps to gain just under a clear improvement (`patience_rtol`)
-            leaders += [j for j in idx if going[j] and vals[j] <= np.min(vals[idx]) * reach]
+            leaders += [j for j in idx if going_on[j] and vals[j] <= np.min(vals[idx]) * reach]
     if not leaders:
-        return heat
+        return heat, culled
     s.say(f"{len(leaders)} leading lanes on to a patience of {settings.patience}")
-    return fit_lanes(problem, actives, tangents, resume(heat, leaders), s.lm, settings.patience)
+    return fit_lanes(problem, actives, tangents, resume(heat, leaders), s.lm, settings.patience), culled
 
 
 def search_step(
@@ -441,18 +467,21 @@ def search_step(
         tangents.append(cur_tangents)
     added = " + ".join(present) + " + " if present else ""
     s.say(f"{added}each of {len(set(labels) - {'none'})} effects, {len(labels)} lanes")
-    states = race(s, problem, np.stack(actives), np.stack(tangents), lanes, labels)
+    states, culled = race(s, problem, np.stack(actives), np.stack(tangents), lanes, labels)
     vals = np.asarray(states.best_val)
     nonfinite = nonfinite_lanes(labels, moved, states, skip=present)
     cand_thetas = states.best_theta
 
-    # The current model refitted from where every lane ended.
+    # The current model refitted from where every lane ended (a lane the race culled after its
+    # first steps ended near its start, beside its effect's better lane: not refitted).
     s.say(f"{'baseline' if not present else ' + '.join(present)} refitted from every candidate's end point")
+    refit_from = np.array(cand_thetas, copy=True)
+    refit_from[culled] = np.nan  # a padding lane: it stops before its first step
     restates = fit_lanes(
         problem,
         np.tile(active_cur, (n_lanes, 1)),
         np.stack([cur_tangents] * n_lanes),
-        cand_thetas,
+        refit_from,
         s.lm,
         settings.effect_free_patience,
     )
