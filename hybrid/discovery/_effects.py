@@ -195,8 +195,8 @@ class AbstractEffect(eqx.Module):
     - `n_kept`: how many of its lanes (starts and screened starts) go on past
       the race's first `DiagnoseSettings.start_steps` LM steps: those with the
       least validation loss there (0, the default: every lane runs). For starts
-      that differ in one size only (a dead zone's width, a lag's time constant),
-      where a few steps show which basin the data favour.
+      that differ in one size only (a dead zone's width, a play's), where a
+      few steps show which basin the data favour.
     - `material(derived, parameters, thresholds)`: whether a fit of the effect is
       large enough to count, and the sentence that says why (default: always).
     - `derived(s, dt)`: quantities an experimenter reads more easily than the
@@ -843,7 +843,6 @@ class Lag(AbstractEffect):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "lag"
-    n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     constraints: ClassVar = {"lag_time_s": Positive()}
     units: ClassVar = {"lag_time_s": "s"}
     defaults: ClassVar = {"lag_time_s": 0.1}
@@ -876,7 +875,9 @@ class Lag(AbstractEffect):
     def starts(self, context):
         # A lag of τ delays the slow part of a response by about τ: the lag that best aligns the current
         # model, a slow one (a thermocouple's seconds against a sample of a fraction of one) and one
-        # between them on a log scale.
+        # between them on a log scale. All three run the whole race (no `n_kept`): kept after 6 steps,
+        # the best lane on tests/test_sensor_lag.py's plant was not the one that ends on the sensor's
+        # 0.5 s, and nothing was named.
         dt = 1.0 / context.rate
         fast = max(float(context.lag_samples), 2.0) * dt
         slow = max(context.duration / 30.0, 10.0 * fast)

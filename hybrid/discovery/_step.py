@@ -281,7 +281,7 @@ def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple:
        every lane takes `start_steps` LM steps, and of each such effect's lanes
        only the `n_kept` with the least validation loss go on; the others keep
        that result. Their starts differ in one size (a dead zone's width, a
-       lag's time constant), and a few steps tell which basin the data favour.
+       play's), and a few steps tell which basin the data favour.
     2. Every lane still going runs until `race_patience` accepted steps bring
        no clearly better validation loss.
     3. Of each effect's lanes, the leaders (the least validation loss, and
