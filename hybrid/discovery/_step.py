@@ -30,7 +30,7 @@ from collections.abc import Callable
 import jax.numpy as jnp
 import numpy as np
 
-from ..core._levenberg_marquardt import LMSettings
+from ..core._levenberg_marquardt import LMSettings, LMState
 from ..core._models import Model
 from ..core._problem import Problem
 from ..util._errors import InputError, PluginError
@@ -274,7 +274,7 @@ def nonfinite_warnings(steps, effects) -> list[str]:
     return out
 
 
-def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple:
+def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple[LMState, list[int]]:
     """The lanes' final LM states, and the lanes culled in the first round: a race in up to three rounds.
 
     1. Where an effect has more lanes than it keeps (`AbstractEffect.n_kept`),
@@ -298,37 +298,34 @@ def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple:
     kept) runs to `patience`.
     """
     settings = s.settings
-    states: object = jnp.stack(lanes)
+    racing = 0 < settings.race_patience < settings.patience
+    short = settings.race_patience if racing else settings.patience
+    starts: jnp.ndarray | LMState = jnp.stack(lanes)
     culled: list[int] = []
     keep = {e.name: e.n_kept for e in s.effects if e.n_kept and labels.count(e.name) > e.n_kept}
     if keep and settings.start_steps > 0:
-        patience = (
-            settings.race_patience if 0 < settings.race_patience < settings.patience else settings.patience
-        )
-        first = fit_lanes(problem, actives, tangents, states, s.lm, patience, steps=settings.start_steps)
+        first = fit_lanes(problem, actives, tangents, starts, s.lm, short, steps=settings.start_steps)
         vals = np.where(np.isfinite(first.best_val), first.best_val, np.inf)
         for name, n in keep.items():
             idx = [j for j, lab in enumerate(labels) if lab == name]
             culled += sorted(idx, key=lambda j: vals[j])[n:]
-        going = [j for j in range(len(labels)) if not first.done[j] and j not in culled]
         s.say(f"{len(culled)} lanes culled after {settings.start_steps} steps")
-        states = resume(first, going)
-    if not 0 < settings.race_patience < settings.patience:
-        return fit_lanes(problem, actives, tangents, states, s.lm, settings.patience), culled
-    heat = fit_lanes(problem, actives, tangents, states, s.lm, settings.race_patience)
+        starts = resume(first, [j for j in range(len(labels)) if not first.done[j] and j not in culled])
+    heat = fit_lanes(problem, actives, tangents, starts, s.lm, short)
+    if not racing:
+        return heat, culled
     vals = np.asarray(heat.best_val)
-    # Stopped by the short patience, not by its tolerances or its `max_steps`: it may go on.
-    going_on = (np.asarray(heat.since_best) >= settings.race_patience) & (
-        np.asarray(heat.step) < s.lm.max_steps
-    )
-    going_on[culled] = False
+    # Stopped by the short patience, not by its tolerances or its `max_steps`: it may go on (a culled
+    # lane never: with `race_patience` ≤ `start_steps` its patience may have stopped it in the first round).
+    going = (np.asarray(heat.since_best) >= settings.race_patience) & (np.asarray(heat.step) < s.lm.max_steps)
+    going[culled] = False
     reach = (1.0 + settings.patience_rtol) ** (settings.patience - settings.race_patience)
     leaders: list[int] = []
     for name in dict.fromkeys(lab for lab in labels if lab != "none"):
         idx = [j for j, lab in enumerate(labels) if lab == name and np.isfinite(vals[j])]
         if idx:  # still in the race: a lane that the rest of the patience could bring level with the
             # best, were each of its steps to gain just under a clear improvement (`patience_rtol`)
-            leaders += [j for j in idx if going_on[j] and vals[j] <= np.min(vals[idx]) * reach]
+            leaders += [j for j in idx if going[j] and vals[j] <= np.min(vals[idx]) * reach]
     if not leaders:
         return heat, culled
     s.say(f"{len(leaders)} leading lanes on to a patience of {settings.patience}")
@@ -476,7 +473,8 @@ def search_step(
     # first steps ended near its start, beside its effect's better lane: not refitted).
     s.say(f"{'baseline' if not present else ' + '.join(present)} refitted from every candidate's end point")
     refit_from = np.array(cand_thetas, copy=True)
-    refit_from[culled] = np.nan  # a padding lane: it stops before its first step
+    for j in culled:
+        refit_from[j] = padding_lane(refit_from[j])  # stops before its first step
     restates = fit_lanes(
         problem,
         np.tile(active_cur, (n_lanes, 1)),
