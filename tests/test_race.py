@@ -118,6 +118,24 @@ def test_an_effect_that_keeps_one_lane_keeps_its_best_after_the_first_steps(monk
     # the culled lanes and the lanes done in the first round stay as they are; the rest go on from there
     np.testing.assert_array_equal(heat.done, [True, False, True, False, True, False, True])
     np.testing.assert_array_equal(heat.theta, np.stack(lanes) + 1.0)
+
+    # A race patience within the first round's steps: every lane's patience stopped it there (done), and
+    # the heat leaves them so. Only a's kept lane goes on as a leader, not the two culled beside it.
+    def stopped_in_the_first_round(problem, actives, tangents, starts, lm_settings, patience, steps=None):
+        calls.append(dict(starts=starts, patience=patience, steps=steps))
+        if len(calls) == 1:
+            states = _states(np.asarray(starts), [1.0] * 6 + [np.nan], np.full(n, 6), np.full(n, 6))
+            return eqx.tree_at(lambda s: s.done, states, np.ones(n, bool))
+        return starts
+
+    calls.clear()
+    monkeypatch.setattr(_step, "fit_lanes", stopped_in_the_first_round)
+    search.settings = DiagnoseSettings(race_patience=3)
+    _, culled = _step.race(search, object(), np.ones((n, 3)), np.ones((n, 2, 3)), lanes, labels)
+    assert sorted(culled) == [1, 2]  # a's three lanes tie: the first is kept
+    np.testing.assert_array_equal(calls[-1]["starts"].done, [False, True, True, False, False, False, True])
+    search.settings = settings
+    monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
     # no effect with more lanes than it keeps: no first round
     calls.clear()
     search.effects = tuple(SimpleNamespace(name=name, n_kept=0) for name in "abc")
