@@ -14,6 +14,7 @@ from hybrid import AbstractSimulation, InputError, Positive, RCNetwork, encode, 
 from hybrid.discovery._effect_set import EFFECTS, NAMED_ONLY
 from hybrid.discovery._effect_stack import EffectStack, extend
 from hybrid.discovery._effects import (
+    FOH_SERIES_BELOW,
     Backlash,
     BackRelaxation,
     Creep,
@@ -26,6 +27,7 @@ from hybrid.discovery._effects import (
     Resonance,
     Saturation,
     affine_recurrence,
+    first_order_foh,
     play,
 )
 from hybrid.discovery._hysteresis import bouc_wen_and_memory, bouc_wen_state
@@ -95,6 +97,26 @@ def test_lag_matches_scipy_lsim_from_rest_at_its_first_value(signal, tau):
     _, expected, _ = scipy.signal.lsim(system, signal + 1.0, t, X0=[signal[0] + 1.0])
     np.testing.assert_allclose(y, expected, atol=1e-10)
     assert Lag(lag_time_s=tau).derived(jnp.asarray(signal), DT)["lag_samples"] == pytest.approx(tau / DT)
+
+
+@pytest.mark.parametrize("h", [1e-7, 1e-4, 0.0199, FOH_SERIES_BELOW, 0.0201, 0.3, 5.0, 40.0])
+def test_the_lags_closed_form_first_order_hold_is_the_matrix_exponentials(h):
+    """(Φ, Γ₀, Γ₁) of τẋ = u − x against scipy's exponential of the augmented matrix, on both sides of
+    the series' threshold, with a finite derivative there (the branch not taken must not leak a NaN)."""
+    import scipy.linalg
+
+    e = scipy.linalg.expm(np.array([[-h, h, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]))
+    expected = (e[0, 0], e[0, 1], e[0, 2])
+    found = first_order_foh(jnp.asarray(h))
+    for got, want in zip(found, expected):
+        assert float(got) == pytest.approx(want, rel=1e-13, abs=1e-300)
+    slope = jax.grad(lambda x: first_order_foh(x)[2])(jnp.asarray(h))
+    assert np.isfinite(float(slope))
+    step = 1e-6 * h
+    numeric = float(first_order_foh(jnp.asarray(h + step))[2]) - float(
+        first_order_foh(jnp.asarray(h - step))[2]
+    )
+    assert float(slope) == pytest.approx(numeric / (2 * step), rel=1e-6)
 
 
 def test_resonance_rings_at_its_frequency():

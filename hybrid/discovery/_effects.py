@@ -829,6 +829,27 @@ def foh_matrices(a, b, dt):
     return e[:n, :n], e[:n, n], e[:n, n + 1] / dt
 
 
+#: Below this h, `first_order_foh`'s Γ₁ = 1 − (1 − e^{−h})/h is summed as its series (through h⁶,
+#: truncated at h⁶/20160 of it), where the difference would lose digits (eps/h).
+FOH_SERIES_BELOW = 0.02
+
+
+def first_order_foh(h):
+    """`foh_matrices` of the unity-gain lag ẋ = (u − x)/τ, in closed form: (Φ, Γ₀, Γ₁) for h = dt/τ.
+
+    Φ = e^{−h}, Γ₀ = 1 − e^{−h} (`expm1`: exact for a lag of many samples) and
+    Γ₁ = 1 − (1 − e^{−h})/h, within a few units of rounding of the exact values. The same numbers as the matrix exponential
+    of `foh_matrices` (to rounding), without it: under the search's batched
+    Jacobians a 3×3 `expm` took ~2 s of XLA compiling in each of the lanes'
+    and the covariance's programs (`benchmarks/diagnose_effect_set.py`).
+    """
+    gone = -jnp.expm1(-h)  # 1 − e^{−h}
+    small = h < FOH_SERIES_BELOW
+    hs = jnp.where(small, h, FOH_SERIES_BELOW)  # each branch finite, and its derivative, wherever h is
+    series = hs * (1 / 2 - hs * (1 / 6 - hs * (1 / 24 - hs * (1 / 120 - hs * (1 / 720 - hs / 5040)))))
+    return jnp.exp(-h), gone, jnp.where(small, series, 1.0 - gone / jnp.where(small, 1.0, h))
+
+
 class Lag(AbstractEffect):
     """A first-order lag, unity DC gain: 1/(τs + 1) applied to s, from rest at its first value.
 
@@ -852,8 +873,7 @@ class Lag(AbstractEffect):
         init_values(self, values)
 
     def apply(self, s, dt):
-        rate = 1.0 / self.parameters()["lag_time_s"]
-        phi, g0, g1 = (m.reshape(()) for m in foh_matrices(-rate.reshape(1, 1), rate.reshape(1), dt))
+        phi, g0, g1 = first_order_foh(dt / self.parameters()["lag_time_s"])
         # From rest on d = s − s[0] (unity DC gain): with z = x − Γ₁ d, z[n+1] = Φ z[n] + (ΦΓ₁ + Γ₀ − Γ₁) d[n].
         first = s[0]
         d = s - first
