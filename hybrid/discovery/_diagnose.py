@@ -64,6 +64,7 @@ from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_label
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
+from ..core._problem import Problem
 from ..core._result import aliased, implausible
 from ..core._screen import N_SCREEN, screened_starts
 from ..core._simulation import unit_in
@@ -88,7 +89,6 @@ from ._search import (
     lanes_problem,
     padding_lane,
     split_signals,
-    with_active,
 )
 from ._start import settle_samples, settled_try, start_misfit
 from ._step import Search, Step, nonfinite_warnings, search_step
@@ -393,17 +393,16 @@ def diagnose(
     theta_base = baseline.theta
     v_te, w_te, w_hat_base = split_signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = split_signals(problem, extended.theta, extended.active, "test")
-    final = search.problem_for(kept)
-    assert final.sim_tangents is not None  # a search problem always has its directions
-    fitted = with_active(
-        final,
-        jnp.asarray(extended.active, float),
-        jnp.asarray(lane_tangents(model, frozen, kept, int(final.sim_tangents.shape[0])), float),
-    )
     extended_model = fitted_model(problem, extended.theta, kept)
     units = unit_labels(extended_model, recordings)  # the recordings' units, as the report gives them
+    # On a problem of the handed-back model's own structure (its effects alone), not the search's: the
+    # same standard errors (the switched-off effects' Jacobian columns are zero; tests/test_effects.py),
+    # from a program that traces and compiles a few effects, not every one searched (13 built-ins: ~6 s
+    # of the first call, `benchmarks/diagnose_effect_set.py`), and never the larger problem of a search
+    # that keeps more causes than its shared room.
+    own = Problem(extended_model, problem.series, frozen)
     uncertainties = parameter_uncertainties(
-        fitted, extended.theta, w_te - w_hat_ext, keep=extended_model.parameters(), units=units
+        own, own.flatten(extended_model, frozen), w_te - w_hat_ext, units=units
     )
     unpinned = not_pinned(uncertainties, extended_model, problem.series)
     evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
