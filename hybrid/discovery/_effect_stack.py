@@ -404,11 +404,13 @@ def inner_response(stack: EffectStack, v_in, dt):
 
     - its Jacobian in its own parameters (`jax.jacfwd`);
     - for each drive-side effect that is on, the Jacobian of the response in
-      that effect's parameters (`jax.jacfwd` through the effect and the
-      simulation: one or two directions, where the batch has ~13); an effect
-      that is off moves nothing and costs nothing (`lax.cond` on its switch);
-      one with more than `DRIVE_JACOBIAN_MAX` parameters is differentiated
-      along each direction instead;
+      that effect's parameters: the drive's derivative in them (the drive
+      effects alone), then the simulation's along each such column (one or two
+      directions, where the batch has ~13), one traced copy of the
+      simulation's derivative for every drive effect (`_drive_directions`); an
+      effect that is off moves nothing and costs nothing (`lax.cond` on its
+      switch); one with more than `DRIVE_JACOBIAN_MAX` parameters is
+      differentiated along each direction instead;
     - along the drive `v_in` itself, plainly, when the caller differentiates
       it (a sensitivity to the drive, a drive's design); never where its
       derivative is known to be zero (not differentiated).
@@ -452,23 +454,22 @@ def inner_response(stack: EffectStack, v_in, dt):
         # what is taken plainly below, along each direction: the tangents of the switches, the drive
         # and the arrays when given, and of a drive effect with many parameters (zero where done here)
         plainly = [not all(isinstance(t, SymbolicZero) for t in jax.tree_util.tree_leaves(d)) for d in d_rest]
-        plain_effects = []
+        plain_effects, once = [], []
         for k, (p, d) in enumerate(zip(p_effects, d_effects)):
             many = not isinstance(d, SymbolicZero) and p.size > DRIVE_JACOBIAN_MAX
             plainly.append(many)
             plain_effects.append(d if many else jnp.zeros_like(p))
-            if isinstance(d, SymbolicZero) or many:
-                continue
-
-            def along(q, k=k):
-                return run(theta, p_effects[:k] + (q,) + p_effects[k + 1 :], *rest)
-
-            J_k = jax.lax.cond(  # an effect switched off moves nothing
-                on[k] != 0,
-                lambda along=along, p=p: jax.jacfwd(along)(p),
-                lambda p=p: jnp.zeros(y.shape + p.shape, y.dtype),
+            if not (isinstance(d, SymbolicZero) or many):
+                once.append(k)
+        if once:
+            dy = dy + _drive_directions(
+                lambda pe: drive_of(pe, primals[3], on, primals[5]),
+                lambda u: eqx.combine(unravel(theta), primals[2], static).simulate(u, dt),
+                p_effects,
+                on,
+                [(k, d_effects[k]) for k in once],
+                y,
             )
-            dy = dy + J_k @ d
         if any(plainly):
             zeroed = [
                 jax.tree_util.tree_map(
@@ -484,6 +485,55 @@ def inner_response(stack: EffectStack, v_in, dt):
 
     response.defjvp(_derivative, symbolic_zeros=True)
     return response(flat, effect_flats, arrays, effect_arrays, switches, v_in)
+
+
+def _drive_directions(drive, simulate, p_effects, on, asked, y):
+    """The response's derivative along the asked drive effects' directions: Σ_k J_k·d_k for (k, d_k) in `asked`.
+
+    J_k = ∂simulate(drive(p))/∂p_k: the drive's derivative in effect k's
+    parameters (the drive effects alone; zero while k is off), then the
+    simulation's derivative along each of those columns that an effect switched
+    on moves, one column after another under one `lax.map`. The simulation's
+    derivative is traced and compiled once for every drive effect, not once per
+    effect: with the four drive-side built-ins the lanes' program traced it four
+    times (`benchmarks/diagnose_effect_set.py`). Columns of effects that are off
+    cost a skipped branch; the columns are computed once, outside the batch of
+    directions (`d_k`), as before.
+    """
+    u = drive(p_effects)
+    columns = []
+    for k, _ in asked:
+        p = p_effects[k]
+
+        def along(q, k=k):
+            return drive(p_effects[:k] + (q,) + p_effects[k + 1 :])
+
+        columns.append(
+            jax.lax.cond(  # an effect switched off moves nothing
+                on[k] != 0,
+                lambda along=along, p=p: jax.jacfwd(along)(p).reshape(u.shape[0], -1),
+                lambda p=p: jnp.zeros((u.shape[0], p.size), u.dtype),
+            )
+        )
+    U = jnp.concatenate(columns, axis=1)  # the drive's derivative, one column per parameter
+    n_cols = U.shape[1]
+    live = jnp.concatenate([jnp.full(p_effects[k].size, on[k] != 0) for k, _ in asked])
+    slots = jnp.nonzero(live, size=n_cols, fill_value=n_cols)[0]  # the live columns first, then fill
+
+    def response_along(i):
+        return jax.lax.cond(
+            i < n_cols,
+            lambda: jax.jvp(simulate, (u,), (U[:, jnp.minimum(i, n_cols - 1)],))[1].astype(y.dtype),
+            lambda: jnp.zeros_like(y),
+        )
+
+    J = jnp.zeros((n_cols + 1,) + y.shape, y.dtype).at[slots].set(jax.lax.map(response_along, slots))
+    dy, start = jnp.zeros_like(y), 0
+    for k, d in asked:
+        size = p_effects[k].size
+        dy = dy + jnp.tensordot(d.reshape(-1), J[start : start + size], axes=1)
+        start += size
+    return dy
 
 
 def drive_forces(stack: EffectStack, drive) -> np.ndarray:
