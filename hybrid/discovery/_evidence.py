@@ -40,10 +40,10 @@ def parameter_uncertainties(
 ) -> dict[str, ParameterUncertainty]:
     """Standard errors, in physical units, of `model`'s free parameters (those in `keep`, if given).
 
-    `problem` is the search's (padded) problem with the fitted lane's switches
-    and Jacobian directions: the switched-off effects' parameters have zero
-    Jacobian columns, which leave the others' covariance unchanged, and one
-    compiled Jacobian serves every cause and every recording of a bucket.
+    `problem`: `diagnose` passes one of the fitted model's own structure (its
+    causes alone, on the search's padded series): the same errors as on the
+    search's problem with the other effects switched off (their Jacobian
+    columns are zero), from a program that traces only the causes.
 
     ``std_error``: the Gauss–Newton covariance of
     [`hybrid.sensitivity.parameter_covariance`][] on the training part, inflated
