@@ -335,6 +335,10 @@ _MOVED = {
         (("drive_saturation", "hysteresis"), True),
         (("drive_saturation", "hysteresis"), False),
         (("backlash", "drift"), False),
+        # three drive effects in a chain, all on; then the first off between two on (`_drive_directions`'
+        # live columns first: a column out of place would land on another effect's parameter)
+        (("drive_dead_zone", "drive_saturation", "backlash"), True),
+        (("drive_dead_zone", "drive_saturation", "backlash"), "first off"),
     ],
 )
 def test_a_stack_jacobian_matches_finite_differences(effects, drive_on):
@@ -347,7 +351,10 @@ def test_a_stack_jacobian_matches_finite_differences(effects, drive_on):
     stack = extend(RCNetwork(method="zoh"), *effects)
     # Away from the defaults, where a curvature of 0 has a derivative of 0 and would hide the drive's path.
     stack = stack.replace(**{k: v for k, v in _MOVED.items() if k in stack.parameters()})
-    on = [drive_on or EFFECTS[n].place != "drive" for n in effects]
+    if drive_on == "first off":
+        on = [n != effects[0] for n in effects]
+    else:
+        on = [drive_on or EFFECTS[n].place != "drive" for n in effects]
     stack = stack.with_active(jnp.asarray(on, float))
     params, static = eqx.partition(stack, stack.trainable(frozenset()))
     flat, unravel = jax.flatten_util.ravel_pytree(params)
@@ -361,13 +368,18 @@ def test_a_stack_jacobian_matches_finite_differences(effects, drive_on):
     scale = np.max(np.abs(central))
     assert np.max(np.abs(forward - central)) < 1e-7 * scale  # central differences: O(h²) + rounding/h
     np.testing.assert_allclose(reverse, forward, rtol=0, atol=1e-12 * scale)
-    if not drive_on:
+    off = [e for e, o in zip(effects, on) if not o and EFFECTS[e].place == "drive"]
+    if off:
         columns = [
             i
             for i, n in enumerate(stack.free_parameter_order(frozenset()))
-            if any(n in EFFECTS[e].constraints for e in effects if EFFECTS[e].place == "drive")
+            if any(n in EFFECTS[e].constraints for e in off)
         ]
         assert columns and np.all(np.asarray(forward)[:, columns] == 0.0)
+    order = stack.free_parameter_order(frozenset())
+    for e in [e for e, o in zip(effects, on) if o and EFFECTS[e].place == "drive"]:
+        columns = [i for i, n in enumerate(order) if n in EFFECTS[e].constraints]
+        assert np.max(np.abs(np.asarray(forward)[:, columns])) > 0, e  # a drive effect that is on moves it
 
 
 class _DrivePolynomial(hybrid.AbstractEffect):

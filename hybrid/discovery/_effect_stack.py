@@ -442,7 +442,7 @@ def inner_response(stack: EffectStack, v_in, dt):
         return run(theta, p_effects, others, e_arrays, on, source)
 
     def _derivative(primals, tangents):
-        theta, p_effects, _, _, on, _ = primals
+        theta, p_effects, others, e_arrays, on, source = primals
         d_theta, d_effects, *d_rest = tangents
         rest = primals[2:]
         if isinstance(d_theta, SymbolicZero):  # no parameter differentiated: the value alone
@@ -463,8 +463,8 @@ def inner_response(stack: EffectStack, v_in, dt):
                 once.append(k)
         if once:
             dy = dy + _drive_directions(
-                lambda pe: drive_of(pe, primals[3], on, primals[5]),
-                lambda u: eqx.combine(unravel(theta), primals[2], static).simulate(u, dt),
+                lambda pe: drive_of(pe, e_arrays, on, source),
+                lambda u: eqx.combine(unravel(theta), others, static).simulate(u, dt),
                 p_effects,
                 on,
                 [(k, d_effects[k]) for k in once],
