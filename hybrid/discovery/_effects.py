@@ -838,10 +838,10 @@ def first_order_foh(h):
     """`foh_matrices` of the unity-gain lag ẋ = (u − x)/τ, in closed form: (Φ, Γ₀, Γ₁) for h = dt/τ.
 
     Φ = e^{−h}, Γ₀ = 1 − e^{−h} (`expm1`: exact for a lag of many samples) and
-    Γ₁ = 1 − (1 − e^{−h})/h, within a few units of rounding of the exact values. The same numbers as the matrix exponential
-    of `foh_matrices` (to rounding), without it: under the search's batched
-    Jacobians a 3×3 `expm` took ~2 s of XLA compiling in each of the lanes'
-    and the covariance's programs (`benchmarks/diagnose_effect_set.py`).
+    Γ₁ = 1 − (1 − e^{−h})/h: the numbers of `foh_matrices`' matrix exponential
+    to rounding, without it. Under the search's batched Jacobians the 3×3
+    `expm` took ~1–1.5 s of tracing and compiling in each of the lanes' and
+    the covariance's programs (`benchmarks/diagnose_effect_set.py`).
     """
     gone = -jnp.expm1(-h)  # 1 − e^{−h}
     small = h < FOH_SERIES_BELOW
