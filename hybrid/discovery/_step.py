@@ -96,8 +96,9 @@ class Search:
         """The shared problem where it has directions for a lane fitting each of `effect_sets`, else a larger one.
 
         The search's steps and refits stay within the shared problem
-        (`refitted`); only the final model's uncertainties, with more causes
-        kept than it has room for, need a larger problem (its own programs).
+        (`refitted`); only the redundancy check (`drop_redundant`), with more
+        causes kept than it has room for, needs a larger problem (its own
+        programs). The final model's uncertainties take a problem of its own.
         """
         if all(self.has_room(e) for e in effect_sets):
             return self.problem
