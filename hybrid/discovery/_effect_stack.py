@@ -445,11 +445,16 @@ def inner_response(stack: EffectStack, v_in, dt):
         theta, p_effects, others, e_arrays, on, source = primals
         d_theta, d_effects, *d_rest = tangents
         rest = primals[2:]
+        u = drive_of(p_effects, e_arrays, on, source)  # the drive into the simulation, once
+
+        def simulate(drive, t=theta):
+            return eqx.combine(unravel(t), others, static).simulate(drive, dt)
+
         if isinstance(d_theta, SymbolicZero):  # no parameter differentiated: the value alone
-            y = run(*primals)
+            y = simulate(u)
             dy = jnp.zeros_like(y)
         else:
-            J, y = jax.jacfwd(lambda t: (run(t, *primals[1:]),) * 2, has_aux=True)(theta)
+            J, y = jax.jacfwd(lambda t: (simulate(u, t),) * 2, has_aux=True)(theta)
             dy = J @ d_theta
         # what is taken plainly below, along each direction: the tangents of the switches, the drive
         # and the arrays when given, and of a drive effect with many parameters (zero where done here)
@@ -464,7 +469,8 @@ def inner_response(stack: EffectStack, v_in, dt):
         if once:
             dy = dy + _drive_directions(
                 lambda pe: drive_of(pe, e_arrays, on, source),
-                lambda u: eqx.combine(unravel(theta), others, static).simulate(u, dt),
+                simulate,
+                u,
                 p_effects,
                 on,
                 [(k, d_effects[k]) for k in once],
@@ -487,7 +493,7 @@ def inner_response(stack: EffectStack, v_in, dt):
     return response(flat, effect_flats, arrays, effect_arrays, switches, v_in)
 
 
-def _drive_directions(drive, simulate, p_effects, on, asked, y):
+def _drive_directions(drive, simulate, u, p_effects, on, asked, y):
     """The response's derivative along the asked drive effects' directions: Σ_k J_k·d_k for (k, d_k) in `asked`.
 
     J_k = ∂simulate(drive(p))/∂p_k: the drive's derivative in effect k's
@@ -498,9 +504,8 @@ def _drive_directions(drive, simulate, p_effects, on, asked, y):
     effect: with the four drive-side built-ins the lanes' program traced it four
     times (`benchmarks/diagnose_effect_set.py`). Columns of effects that are off
     cost a skipped branch; the columns are computed once, outside the batch of
-    directions (`d_k`), as before.
+    directions (`d_k`), as before. `u`: `drive(p_effects)`, the drive the caller simulated.
     """
-    u = drive(p_effects)
     columns = []
     for k, _ in asked:
         p = p_effects[k]
