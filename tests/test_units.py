@@ -166,6 +166,39 @@ def test_a_unit_over_a_power_of_itself_is_cancelled():
         assert cancelled(unit) == expected, unit
 
 
+def test_the_drive_power_of_a_unit_is_read_off_its_symbols():
+    """The power of ``{drive}`` in a unit (what a change of the drive's unit scales a value in it by)."""
+    from hybrid import EffectStack
+    from hybrid.core._simulation import DRIVE, drive_power
+
+    cases = {
+        "{drive}": 1,
+        "1/{drive}": -1,
+        "1/{drive}^2": -2,
+        "{drive}/min": 1,
+        "{drive}/{drive}^3": -2,
+        "mm/({drive}/s)": -1,  # a bracketed factor's power
+        "(rad/s)/{drive}": -1,
+        "cm^3/(s {drive})": -1,  # a product in brackets
+        "J/kg·{drive}": -1,  # everything after the slash is below it
+        "{drive}^0.5": 0.5,
+        "Hz": 0,
+        "1": 0,
+        "(unit of h1)": 0,
+    }
+    for unit, expected in cases.items():
+        assert drive_power(unit) == expected, unit
+    for broken in ("({drive}", "{drive})", "mm/", "/{drive}", "^2"):
+        assert drive_power(broken) is None, broken
+    # an effect stack fills its effects' units with the drive's unit as asked: the placeholder too
+    units = EffectStack(RCNetwork(), ["drive_even", "hysteresis", "drive_dead_zone"]).units_in(DRIVE)
+    powers = {
+        k: drive_power(units[k]) for k in ("drive_even_coefficient", "hysteresis_height", "hysteresis_rate")
+    }
+    assert powers == {"drive_even_coefficient": -1, "hysteresis_height": 1, "hysteresis_rate": -1}
+    assert drive_power(units["drive_dead_zone_width"]) == 1 and drive_power(units["xi_rho"]) == 0
+
+
 def _lag_recording(clip: float | None):
     """A first-order lag (τ 0.5 s, exact for a drive held over each sample) under a multilevel drive, 60 s at
     30 Hz, 1 % noise; `clip`: the sensor's range, ± that many units (None: none)."""

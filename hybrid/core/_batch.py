@@ -181,11 +181,7 @@ def fit_batch(
         problem = Problem(initial[0], [s], frozen, weight_decay)
         if template is None:
             template = problem
-        problem = eqx.tree_at(
-            lambda p: (p.sim_static, p.readout_static, p.series, p.scale),
-            template,
-            (problem.sim_static, problem.readout_static, problem.series, problem.scale),
-        )
+        problem = eqx.tree_at(_DYNAMIC, template, _DYNAMIC(problem))
         for m in initial:
             problems.append(problem)
             flat.append(problem.flatten(m, frozen))
@@ -292,7 +288,8 @@ def fit_batch(
 # (run eagerly, the simulation's scans and the least-squares gain compile op by op, per call)
 _start_jit = eqx.filter_jit(start_model)
 
-_DYNAMIC = lambda p: (p.sim_static, p.readout_static, p.series, p.scale)
+#: A Problem's per-recording parts: the data, w's scale and the drive's unit in θ, the fixed leaves.
+_DYNAMIC = lambda p: (p.sim_static, p.readout_static, p.series, p.scale, p.sim_units, p.output_units)
 
 
 def _arrays(problem):

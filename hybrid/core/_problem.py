@@ -31,6 +31,8 @@ from jax.flatten_util import ravel_pytree
 
 from ..util._errors import InputError
 from ._models import Model
+from ._parameters import Real
+from ._simulation import DRIVE, drive_power, unit_in
 
 #: Above this many bytes, J's readout columns are built a chunk of rows at a time (`normal_equations`).
 JACOBIAN_CHUNK_BYTES = 2**27
@@ -215,6 +217,46 @@ def _target_scale(series) -> jax.Array:
     return jnp.where(std > 0, std, jnp.ones_like(std))
 
 
+def _drive_decade(series) -> int:
+    """k of the SI prefix 1000ᵏ nearest the drive's largest |value| (0 for 0.032 to 31.6; 0 where it is 0).
+
+    Read on the whole drive (an input, known on every split; padding repeats
+    its last value). Traced drives (a problem built under `jit`) get 0.
+    """
+    if any(isinstance(s.v_in, jax.core.Tracer) for s in series):
+        return 0
+    top = max(float(np.max(np.abs(np.asarray(s.v_in)))) if np.size(s.v_in) else 0.0 for s in series)
+    if not (np.isfinite(top) and top > 0):
+        return 0
+    return int(np.round(np.log10(top) / 3.0))
+
+
+def _theta_units(simulation, frozen, decade: int, n_sim: int) -> np.ndarray:
+    """Each θ_sim entry's unit: 1000^(decade · p), p the drive's power in its parameter's unit.
+
+    Only `Real` parameters: a `Positive` one is optimised in log, where a unit
+    is a shift, which LM's steps do not see. 1 wherever the simulation's units
+    or layout cannot be read (a plug-in without `units`, a parameter that is
+    not a scalar): θ as given, as before this scaling.
+    """
+    ones = np.ones(n_sim)
+    if decade == 0 or n_sim == 0:
+        return ones
+    try:
+        order = simulation.free_parameter_order(frozen)
+        units = simulation.units_in(DRIVE)
+        constraints = simulation.constraints
+    except (InputError, TypeError, ValueError):
+        return ones
+    if len(order) != n_sim:
+        return ones
+    powers = [
+        (drive_power(units.get(name, "")) or 0.0) if isinstance(constraints.get(name), Real) else 0.0
+        for name in order
+    ]
+    return np.array([1000.0 ** (decade * p) for p in powers])
+
+
 def _rescalable(readout) -> bool:
     """Whether `readout` is a grey-box readout that `rescaled` converts (its θ then in units of w's scale)."""
     if not readout.parameters():  # a black box (the D-MLP): its weights, penalised, stay as they are
@@ -260,7 +302,16 @@ class Problem(eqx.Module):
     training part): its gain and offset are w's unit, and in θ as given LM's
     damping λI and their Jacobian columns would make the end point depend on
     the unit w was recorded in (the same strip in µm and in mm named different
-    causes). `model(θ)` and `flatten` convert, so no caller sees the difference.
+    causes). The drive's unit likewise: θ holds every `Real` parameter whose
+    unit has the drive's in it (a dead zone's width in V, an even part's
+    coefficient in 1/V, a gain in mm/V) in the SI prefix nearest the drive's
+    size (`_drive_decade`: 1000ᵏ, k = 0 for a drive of 0.032 to 31.6 units), so
+    the same recording in mV, V or kV takes the same LM steps (in V before
+    this, the one in mV fitted a 3-6× worse baseline: hysteresis and
+    saturation draws of `experiments/discrepancy.py`). A prefix, not the
+    drive's own size: what a unit changes, and θ as before for every drive
+    of ordinary size. `model(θ)` and `flatten` convert, so no caller sees the
+    difference.
     """
 
     sim_static: eqx.Module
@@ -275,6 +326,8 @@ class Problem(eqx.Module):
     weight_decay: float = eqx.field(static=True)
     sim_tangents: jax.Array | None
     readout_in_scale: bool = eqx.field(static=True)
+    sim_units: jax.Array
+    output_units: jax.Array
 
     def __init__(
         self, model: Model, series, frozen=frozenset(), weight_decay: float = 0.0, sim_tangents=None
@@ -287,8 +340,12 @@ class Problem(eqx.Module):
         self.readout_in_scale = _rescalable(model.readout)
         spec = model.trainable(frozen)
         sim_dyn, self.sim_static = eqx.partition(model.simulation, spec.simulation)
-        readout_dyn, self.readout_static = eqx.partition(self._to_theta_units(model.readout), spec.readout)
         theta_sim, self.unravel_sim = ravel_pytree(sim_dyn)
+        decade = _drive_decade(series)
+        self.sim_units = jnp.asarray(_theta_units(model.simulation, frozen, decade, int(theta_sim.size)))
+        output = drive_power(unit_in(str(getattr(model.simulation, "output_unit", "") or ""), DRIVE))
+        self.output_units = jnp.asarray(1000.0 ** (decade * (output or 0.0)))
+        readout_dyn, self.readout_static = eqx.partition(self._to_theta_units(model.readout), spec.readout)
         theta_readout, self.unravel_readout = ravel_pytree(readout_dyn)
         self.n_sim = int(theta_sim.size)
         self.n_readout = int(theta_readout.size)
@@ -308,23 +365,25 @@ class Problem(eqx.Module):
 
     # --- θ ↔ model -------------------------------------------------------------
     def _to_theta_units(self, readout):
-        return readout.rescaled(1.0, 1.0 / self.scale) if self.readout_in_scale else readout
+        if not self.readout_in_scale:
+            return readout
+        return readout.rescaled(1.0 / self.output_units, 1.0 / self.scale)
 
     def flatten(self, model: Model, frozen=frozenset()) -> jax.Array:
         spec = model.trainable(frozen)
         a, _ = ravel_pytree(eqx.filter(model.simulation, spec.simulation))
         b, _ = ravel_pytree(eqx.filter(self._to_theta_units(model.readout), spec.readout))
-        return jnp.concatenate([a, b])
+        return jnp.concatenate([a / self.sim_units, b])
 
     def split_theta(self, theta):
         return theta[: self.n_sim], theta[self.n_sim :]
 
     def simulation(self, theta_sim):
-        return eqx.combine(self.unravel_sim(theta_sim), self.sim_static)
+        return eqx.combine(self.unravel_sim(theta_sim * self.sim_units), self.sim_static)
 
     def readout(self, theta_readout):
         readout = eqx.combine(self.unravel_readout(theta_readout), self.readout_static)
-        return readout.rescaled(1.0, self.scale) if self.readout_in_scale else readout
+        return readout.rescaled(self.output_units, self.scale) if self.readout_in_scale else readout
 
     def model(self, theta) -> Model:
         a, b = self.split_theta(theta)

@@ -104,6 +104,13 @@ class AbstractSimulation(eqx.Module):
         """
         return ""
 
+    def units_in(self, drive_unit: str) -> dict[str, str]:
+        """`units` with the drive in `drive_unit` (``"{drive}"`` keeps the placeholder: `drive_power`).
+
+        A wrapper that fills ``{drive}`` in itself (`EffectStack`) overrides this.
+        """
+        return {name: unit_in(unit, drive_unit) for name, unit in self.units.items()}
+
     @abc.abstractmethod
     def simulate(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
         """Mediatory signal for the drive `v_in` (V) sampled every `dt` seconds."""
@@ -238,6 +245,60 @@ def unit_in(unit: str, drive_unit: str = "V") -> str:
     return cancelled(substitute_unit(unit, DRIVE, drive_unit))
 
 
+_UNIT_TOKENS = re.compile(r"\(|\)|/|\^-?\d+(?:\.\d+)?|[·*\s]+|[^()/^·*\s]+")
+_UNIT_PRODUCT = re.compile(r"[·*\s]+")
+
+
+def drive_power(unit: str) -> float | None:
+    """The power of the drive's unit (``"{drive}"``) in `unit`; None where `unit` does not parse.
+
+    ``{drive}/s`` → 1, ``1/{drive}^2`` → −2, ``mm/({drive}/s)`` → −1, ``Hz`` → 0.
+    Everything after a ``/`` in a group is in its denominator (``a/b·c`` is
+    a/(b·c)). What a change of the drive's unit (mV for V) multiplies a value
+    in `unit` by: 1000 to that power (`Problem`'s θ units).
+    """
+    tokens = _UNIT_TOKENS.findall(unit)
+    if "".join(tokens) != unit:
+        return None
+
+    def group(i: int) -> tuple[float, int]:  # (power, index after the group)
+        total, sign, expect_factor = 0.0, 1.0, True
+        while i < len(tokens) and tokens[i] != ")":
+            token = tokens[i]
+            if token == "/":
+                if expect_factor:
+                    raise ValueError(unit)
+                sign, expect_factor = -1.0, True
+                i += 1
+                continue
+            if _UNIT_PRODUCT.fullmatch(token):
+                i += 1
+                continue
+            if token.startswith("^"):
+                raise ValueError(unit)
+            if token == "(":
+                power, i = group(i + 1)
+                if i >= len(tokens) or tokens[i] != ")":
+                    raise ValueError(unit)
+            else:
+                power = 1.0 if token == DRIVE else 0.0
+            i += 1
+            if i < len(tokens) and tokens[i].startswith("^"):
+                power *= float(tokens[i][1:])
+                i += 1
+            total += sign * power
+            expect_factor = False
+        if sign < 0 and expect_factor:  # a slash with nothing below it
+            raise ValueError(unit)
+        return total, i
+
+    try:
+        power, end = group(0)
+    except ValueError:
+        return None
+    return power if end == len(tokens) else None
+
+
 def unit_suffix(unit: str | None) -> str:
     """`` unit`` to print after a value, or ``""`` for none and for a dimensionless ``"1"``."""
     return f" {unit}" if unit and unit != "1" else ""
@@ -282,6 +343,11 @@ class AbstractWrapper(AbstractSimulation):
     @property
     def output_unit(self) -> str:
         return self.inner.output_unit
+
+    def units_in(self, drive_unit: str) -> dict[str, str]:
+        inner = self.inner.units_in(drive_unit)
+        own = {name: unit_in(unit, drive_unit) for name, unit in self.units.items() if name not in inner}
+        return {**inner, **own}
 
 
 class Passthrough(AbstractSimulation):
