@@ -201,6 +201,38 @@ def test_diagnose_exits_zero_and_writes_every_file(report):
     assert not [p for p in report["out"].iterdir() if p.name.endswith(".tmp")]
 
 
+def test_the_standard_errors_are_the_extended_models_own_on_its_training_part(report):
+    """`uncertainties` against `hybrid.parameter_covariance` of the model diagnose hands back, fitted to
+    the same recording with the same split and frozen set (then inflated by the held-out residual's factor).
+
+    diagnose computes them on a problem of its own (the final model's causes alone, on the search's
+    padded series); a wrong θ (the baseline's, a lane's) or frozen set there would still give plausible
+    numbers. Independent here: the public covariance of the saved model on an unpadded series.
+    """
+    from hybrid.discovery._diagnosis import SPLIT_ORDER
+    from hybrid.sensitivity import parameter_covariance
+
+    found = report["diagnosis"]
+    settings = found.settings
+    covariance = parameter_covariance(
+        found.models["extended"],
+        hidden_effect_recording(*REPORT_CASE),
+        frozen=frozenset(settings.frozen),
+        split=settings.split,
+        split_order=SPLIT_ORDER,
+        blocks=settings.blocks_used,
+    )
+    assert (
+        set(found.uncertainties) == set(covariance.std_errors) and "drift_rate_per_s" in covariance.std_errors
+    )
+    for name, reported in found.uncertainties.items():
+        expected = covariance.std_errors[name] * math.sqrt(reported.inflation)
+        if math.isinf(expected):
+            assert math.isinf(reported.std_error), name
+        else:
+            assert reported.std_error == pytest.approx(expected, rel=1e-6), name
+
+
 def test_summary_names_cause_nmse_parameters_and_report(report):
     data = json.loads((report["out"] / "report.json").read_text())
     lines = report["stdout"].splitlines()
