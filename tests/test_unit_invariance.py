@@ -140,6 +140,21 @@ def test_the_least_squares_problem_reads_the_same_in_any_unit_of_the_drive(facto
         np.testing.assert_allclose(at[1][name], at[0][name] * factor**p, rtol=1e-9, err_msg=name)
 
 
+def test_a_drive_of_ordinary_size_is_held_as_given_and_the_next_prefix_moves_one_step():
+    """The span θ holds as given (0.063 to 63 units): the repo's drives lie in it, fitted as before the scaling."""
+    from hybrid.core._problem import _drive_decade
+
+    recording = hidden_recording("none", 0, duration=20.0)
+
+    def decade(top):  # the recording with its drive's largest |value| at `top`
+        factor = top / float(np.max(np.abs(recording.v_in)))
+        return _drive_decade([series_from_recording(_drive_in_unit(recording, factor))])
+
+    # Silverbox's 0.092 V, a ±2 V strip, a 0-10 V pump, a 50 W heater; then the same in mV and kV
+    assert [decade(top) for top in (0.092, 2.0, 10.0, 50.0)] == [0, 0, 0, 0]
+    assert [decade(top) for top in (92.0, 2000.0, 50_000.0, 2e-3, 0.05)] == [1, 1, 1, -1, -1]
+
+
 def test_a_strip_driven_in_millivolts_gets_the_diagnosis_it_gets_in_volts(hysteresis_seed_1):
     # Before the drive's prefix in θ this draw's baseline reached held-out NMSE 0.00739 in mV and
     # 0.00757 in V (and with the default effects, 0.0429 against 0.0075).

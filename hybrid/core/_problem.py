@@ -217,18 +217,27 @@ def _target_scale(series) -> jax.Array:
     return jnp.where(std > 0, std, jnp.ones_like(std))
 
 
-def _drive_decade(series) -> int:
-    """k of the SI prefix 1000ᵏ nearest the drive's largest |value| (0 for 0.032 to 31.6; 0 where it is 0).
+#: The drive's largest |value| in the middle of the span that θ holds as given (`_drive_decade`).
+DRIVE_MIDDLE = 2.0
 
-    Read on the whole drive (an input, known on every split; padding repeats
-    its last value). Traced drives (a problem built under `jit`) get 0.
+
+def _drive_decade(series) -> int:
+    """k of the SI prefix 1000ᵏ the drive's largest |value| is held in: 0 for 0.063 to 63 units.
+
+    The span is centred on `DRIVE_MIDDLE` units, a few volts: every drive of
+    the repo's data and tests lies in it (Silverbox's 0.092 V, ±2 V strips, a
+    0–10 V pump, a 50 W heater), so each is fitted as before this scaling, to
+    the last bit. A drive in the next prefix (the same in mV, or kV) gets k ± 1:
+    a unit change moves k and nothing else. Read on the whole drive (an
+    input, known on every split; padding repeats its last value). Traced
+    drives (a problem built under `jit`) get 0.
     """
     if any(isinstance(s.v_in, jax.core.Tracer) for s in series):
         return 0
     top = max(float(np.max(np.abs(np.asarray(s.v_in)))) if np.size(s.v_in) else 0.0 for s in series)
     if not (np.isfinite(top) and top > 0):
         return 0
-    return int(np.round(np.log10(top) / 3.0))
+    return int(np.round(np.log10(top / DRIVE_MIDDLE) / 3.0))
 
 
 def _theta_units(simulation, frozen, decade: int, n_sim: int) -> np.ndarray:
@@ -305,7 +314,7 @@ class Problem(eqx.Module):
     causes). The drive's unit likewise: θ holds every `Real` parameter whose
     unit has the drive's in it (a dead zone's width in V, an even part's
     coefficient in 1/V, a gain in mm/V) in the SI prefix nearest the drive's
-    size (`_drive_decade`: 1000ᵏ, k = 0 for a drive of 0.032 to 31.6 units), so
+    size (`_drive_decade`: 1000ᵏ, k = 0 for a drive of 0.063 to 63 units), so
     the same recording in mV, V or kV takes the same LM steps (in V before
     this, the one in mV fitted a 3-6× worse baseline: hysteresis and
     saturation draws of `experiments/discrepancy.py`). A prefix, not the
