@@ -97,7 +97,9 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--rate", type=float, default=30.0)
-    parser.add_argument("--factors", default="1,1000,0.001", help="drive multipliers; the first is the reference")
+    parser.add_argument(
+        "--factors", default="1,1000,0.001", help="drive multipliers; the first is the reference"
+    )
     parser.add_argument("--out", default="experiments/results/drive_units.json")
     args = parser.parse_args(argv)
     factors = [float(f) for f in args.factors.split(",")]
