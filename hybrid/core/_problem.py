@@ -312,15 +312,15 @@ class Problem(eqx.Module):
     damping λI and their Jacobian columns would make the end point depend on
     the unit w was recorded in (the same strip in µm and in mm named different
     causes). The drive's unit likewise: θ holds every `Real` parameter whose
-    unit has the drive's in it (a dead zone's width in V, an even part's
-    coefficient in 1/V, a gain in mm/V) in the SI prefix nearest the drive's
-    size (`_drive_decade`: 1000ᵏ, k = 0 for a drive of 0.063 to 63 units), so
-    the same recording in mV, V or kV takes the same LM steps (in V before
-    this, the one in mV fitted a 3-6× worse baseline: hysteresis and
-    saturation draws of `experiments/discrepancy.py`). A prefix, not the
-    drive's own size: what a unit changes, and θ as before for every drive
-    of ordinary size. `model(θ)` and `flatten` convert, so no caller sees the
-    difference.
+    unit has the drive's in it (a loop's height in V, an even part's
+    coefficient in 1/V, a gain in mm/V) in the SI prefix that the drive's
+    size falls in (`_drive_decade`: 1000ᵏ, k = 0 for a drive of 0.063 to 63
+    units), so the same recording in mV, V or kV takes the same LM steps
+    (before, a draw of `experiments/discrepancy.py` in mV fitted a baseline up
+    to 6× worse than in V: `experiments/results/drive_units.md`). A prefix,
+    not the drive's own size: a prefix is what a unit changes, and θ stays as
+    before for every drive of ordinary size. `model(θ)` and `flatten` convert,
+    so no caller sees the difference.
     """
 
     sim_static: eqx.Module
