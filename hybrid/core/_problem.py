@@ -32,7 +32,7 @@ from jax.flatten_util import ravel_pytree
 from ..util._errors import InputError
 from ._models import Model
 from ._parameters import Real
-from ._simulation import DRIVE, drive_power, unit_in
+from ._simulation import DRIVE, drive_power
 
 #: Above this many bytes, J's readout columns are built a chunk of rows at a time (`normal_equations`).
 JACOBIAN_CHUNK_BYTES = 2**27
@@ -259,11 +259,17 @@ def _theta_units(simulation, frozen, decade: int, n_sim: int) -> np.ndarray:
         return ones
     if len(order) != n_sim:
         return ones
-    powers = [
-        (drive_power(units.get(name, "")) or 0.0) if isinstance(constraints.get(name), Real) else 0.0
-        for name in order
-    ]
-    return np.array([1000.0 ** (decade * p) for p in powers])
+    return np.array(
+        [
+            _in_prefix(units.get(name, ""), decade) if isinstance(constraints.get(name), Real) else 1.0
+            for name in order
+        ]
+    )
+
+
+def _in_prefix(unit: str, decade: int) -> float:
+    """1000^(decade · p), p the drive's power in `unit` (`drive_power`; 0 where `unit` does not parse)."""
+    return 1000.0 ** (decade * (drive_power(unit) or 0.0))
 
 
 def _rescalable(readout) -> bool:
@@ -352,8 +358,9 @@ class Problem(eqx.Module):
         theta_sim, self.unravel_sim = ravel_pytree(sim_dyn)
         decade = _drive_decade(series)
         self.sim_units = jnp.asarray(_theta_units(model.simulation, frozen, decade, int(theta_sim.size)))
-        output = drive_power(unit_in(str(getattr(model.simulation, "output_unit", "") or ""), DRIVE))
-        self.output_units = jnp.asarray(1000.0 ** (decade * (output or 0.0)))
+        self.output_units = jnp.asarray(
+            _in_prefix(str(getattr(model.simulation, "output_unit", "") or ""), decade)
+        )
         readout_dyn, self.readout_static = eqx.partition(self._to_theta_units(model.readout), spec.readout)
         theta_readout, self.unravel_readout = ravel_pytree(readout_dyn)
         self.n_sim = int(theta_sim.size)
