@@ -9,7 +9,7 @@ named in µm and not in mm, and drift seed 0 named `saturation` in m.
 
 The drive likewise, in mV, V or kV: θ holds every real-valued parameter whose
 unit has the drive's in it (the gain in mm/V, an even part in 1/V, a loop's
-height in V) in the SI prefix nearest the drive's size. Before, with the drive
+height in V) in the SI prefix its size falls in. Before, with the drive
 in mV, hysteresis seed 3 of the same table fitted a baseline of held-out NMSE
 0.0245 against 0.0226 in V and named nothing where V named hysteresis and
 drive_even, and saturation seed 3 a baseline 3× worse (gain 85 against 28).
