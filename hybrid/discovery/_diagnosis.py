@@ -53,7 +53,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: simulation's own start named); a limit on a state that spills adds ``<state>_spill``; hysteresis's
 #: ``derived`` and thresholds add ``loop_rate_times_range`` (the loop must close over the recording).
 #: Within schema 4: a cause's ``derived_units`` (the units of its derived quantities that their names do
-#: not say: a saturation's ``level_pos``/``level_neg`` in the unit of the signal it acts on).
+#: not say: a saturation's ``level_pos``/``level_neg`` in the unit of the signal it acts on); each
+#: ``ambiguous`` rival's ``named_better`` (the held-out tests prefer the named cause: listed because the
+#: two predict alike to within the noise, not because the recording cannot tell them).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -380,8 +382,9 @@ class Diagnosis:
     places: dict = dataclasses.field(default_factory=dict)
     #: Parameters this recording does not pin (standard error infinite or above the value): why, by name.
     not_pinned: dict = dataclasses.field(default_factory=dict)
-    #: Each step whose named cause this recording cannot tell from other eligible effects
-    #: (`hybrid.discovery._ambiguity`): the rivals, their gains, the test and why, where it shows; and
+    #: Each step whose named cause this recording cannot tell from other eligible effects, or that
+    #: predict alike to within the noise (`hybrid.discovery._ambiguity`): the rivals, their gains, the
+    #: tests and why, where it shows; and
     #: the last step, when it named nothing and an effect may still be missing (``open``: a remainder
     #: above the noise floor, or at the floor a candidate's significant gain; ``evidence`` says which).
     ambiguous: list = dataclasses.field(default_factory=list)
