@@ -312,3 +312,46 @@ def test_a_cyclers_columns_are_guessed_in_the_message_index_and_time_by_any_word
     assert "Data_Point" not in message.split("e.g.")[1]
     rec = Recording.load(path, columns="input=Current(A),output=Voltage(V),time=Test_Time(s)")
     assert rec.metadata["units"]["v_in"] == "A" and rec.metadata["units"]["w"] == "V" and rec.n == N
+
+
+# ----------------------------------------------------------- a table without a header
+
+
+def test_a_csv_without_a_header_keeps_its_first_sample_and_unmapped_is_refused_with_the_mapping(
+    tmp_path, capsys
+):
+    # A logger's export without a header, mapped by column numbers, tried as a new user would: its first
+    # line was read as the header, so its first sample was lost without a word.
+    u, y = _signals()
+    t = np.arange(N) / RATE
+    path = _write(tmp_path / "bare.csv", "", [t, u, y])
+    path.write_text(path.read_text().lstrip("\n"))  # numpy's empty header leaves a blank first line
+    reference = np.loadtxt(path, delimiter=",")  # every line a sample
+    rec = Recording.load(path, columns="input=1,output=2,time=0")
+    assert rec.n == N == reference.shape[0]
+    np.testing.assert_array_equal(rec.v_in, reference[:, 1])
+    np.testing.assert_array_equal(rec.w, reference[:, 2])
+    assert any("no header" in note and "by number from 0" in note for note in rec.notes), rec.notes
+    # unmapped: one line that says so and gives the mapping, which then reads it
+    message = _refused(
+        r"has no header: its first line holds numbers.*--columns input=1,output=2 --time 0", path
+    )
+    assert "0.000000" in message
+    code, err = _cli(["fit", path, *FIT], capsys)
+    assert code == 2 and "has no header" in err and len(err.strip().splitlines()) == 1
+    two = _write(tmp_path / "two.csv", "", [u, y])
+    two.write_text(two.read_text().lstrip("\n"))
+    _refused(r"has no header.*--columns input=0,output=1 --rate HZ", two)
+    assert Recording.load(two, columns="input=0,output=1", rate=RATE).n == N
+    # a header of names is still a header (and a date-time first line, a sample)
+    named = _write(tmp_path / "named.csv", "time,u,y", [t, u, y])
+    assert Recording.load(named, columns="input=u,output=y,time=time").n == N
+
+
+def test_a_labview_measurement_file_is_pointed_to_the_text_reader(tmp_path):
+    u, y = _signals()
+    header = "LabVIEW Measurement\t\nWriter_Version\t2\n***End_of_Header***\t\n\nX_Value\tUntitled\tUntitled 1\tComment"
+    lvm = _write(tmp_path / "run.lvm", header, [np.arange(N) / RATE, u, y], delimiter="\t")
+    _refused(r"unknown suffix '.lvm'.*LabVIEW measurement file is a text table: rename it to .txt", lvm)
+    txt = lvm.rename(tmp_path / "run.txt")
+    assert Recording.load(txt, columns="input=Untitled,output=Untitled 1,time=X_Value").n == N

@@ -39,6 +39,7 @@ __all__ = [
     "decode_text",
     "find_header",
     "footer_start",
+    "is_value",
     "spaced_cells_message",
     "mat_variables",
     "npz_arrays",
@@ -116,6 +117,11 @@ def file_suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
             hint = " (a spreadsheet workbook: save the sheet as CSV, comma- or ';'-separated, and give that)"
         elif suffix == ".tsv":
             hint = " (tab-separated values: rename it to .csv, which is read with tabs between the cells)"
+        elif suffix == ".lvm":  # LabVIEW's measurement file: a preamble, then a tab-separated table
+            hint = (
+                " (a LabVIEW measurement file is a text table: rename it to .txt and map its columns, "
+                'e.g. --columns input=Untitled,output="Untitled 1" --time X_Value; its header blocks are skipped)'
+            )
         raise InputError(
             f"recording '{path}' has unknown suffix '{path.suffix}': use " + ", ".join(suffixes) + hint
         )
@@ -139,6 +145,23 @@ def path_argument(path: Any, where: str) -> pathlib.Path:
 
 def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequence[str] = REQUIRED) -> None:
     missing = [c for c in required if c not in found]
+    if missing and len(found) > 1 and all(is_value(c) for c in found):
+        # no header: the first line is a sample (the mapped reader names such columns by number)
+        names = ",".join(required)
+        example = (
+            "--columns input=1,output=2 --time 0"
+            if len(found) > 2
+            else "--columns input=0,output=1 --rate HZ"
+        )
+        if "w" not in required:
+            raise InputError(
+                f"'{path}' has no header: its first line holds numbers ({', '.join(found)}); add a header "
+                f"line {names} above them, as hybrid design writes a drive"
+            )
+        raise InputError(
+            f"recording '{path}' has no header: its first line holds numbers ({', '.join(found)}); add a "
+            f"header line {names} above them, or name the columns by number from 0, e.g. {example}"
+        )
     if missing:
         shown = ", ".join(f"'{c}'" for c in found) or "none"
         if "w" not in required:  # a drive alone (a --drive-file): the command takes no column mapping
@@ -387,13 +410,14 @@ def footer_start(rows: Sequence[Sequence[str]], indices: Sequence[int]) -> int:
     while end > 1 and len(rows) - end < FOOTER_LINES:
         cells = rows[end - 1]
         text = any(_LETTER.search(cell) for cell in cells)
-        if not text or any(i < len(cells) and _is_value(cells[i]) for i in indices):
+        if not text or any(i < len(cells) and is_value(cells[i]) for i in indices):
             break
         end -= 1
     return end
 
 
-def _is_value(cell: str) -> bool:
+def is_value(cell: str) -> bool:
+    """Whether a cell holds a number or an ISO date-time (data, not a name)."""
     text = cell.strip().strip('"').strip()
     try:
         float(text)

@@ -67,6 +67,7 @@ from ._loaders import (
     find_header,
     footer_note,
     footer_start,
+    is_value,
     mat_variables,
     npz_arrays,
     parse_metadata,
@@ -207,6 +208,10 @@ def _read_csv(
             if skipped:
                 notes.append(
                     f"recording '{path}': the {skipped} line(s) before its header (line {header_line}) skipped"
+                )
+            if header == [str(i) for i in range(len(header))]:
+                notes.append(
+                    f"recording '{path}': no header (its first line holds numbers): columns by number from 0"
                 )
             stated, units_line = _stated_units(handle, header, header_line)
             index = {
@@ -395,13 +400,24 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
     skip = find_header(rows, names_wanted) if names_wanted else 0
     skipped = sum(1 for row in rows[:skip] if row)
     handle.seek(position)
-    for number, line in enumerate(iter(handle.readline, ""), start=1):
+    number = 0
+    while True:
+        start = handle.tell()
+        line = handle.readline()
+        if not line:
+            break
+        number += 1
         stripped = line.strip()
         if not stripped or stripped.startswith("#") or number <= skip:
             continue
         names = [cell.strip().strip('"').strip() for cell in next(csv.reader([stripped]))]
         while names and not names[-1]:
             names.pop()  # a trailing comma on every line
+        if len(names) > 1 and all(is_value(name) for name in names):
+            # no header: the first line is the first sample, its columns go by number from 0
+            # (read as a header, it was lost without a word)
+            handle.seek(start)
+            return [str(i) for i in range(len(names))], number - 1, skipped
         if len(names) < 2:
             for mark, word in ((";", "';'"), ("\t", "tabs")):
                 if mark in stripped:
