@@ -10,6 +10,8 @@
   comma on every line, as in the Cascaded Tanks and Silverbox files) are
   dropped; a logger's preamble before it is skipped (the header is the first of
   the first `PREAMBLE_LINES` lines that names every column wanted), with a note.
+  A first line of numbers (or date-times) only is no header but the first
+  sample: the columns go by number from 0, with a note.
   Every data line must have the header's number of cells (or every one the same
   fewer, none of them read: LabVIEW's Comment column); a footer of text lines
   after the data (`footer_start`) is skipped with a note. Only the mapped columns
