@@ -450,7 +450,7 @@ def test_a_rival_within_the_noise_that_the_tests_separate_is_close_not_indisting
     )
     said = sentence(entry)
     assert "cannot tell step 1's delay (gain 30) from saturation (gain 29)" in said
-    assert "significantly better than resonance (gain 18.7)" in said
+    assert "significantly better than resonance (gain 18.7)" in said and "the two are close" in said
     # the noise unknown (NaN): within the noise is not asked, and a rival the tests separate is no rival
     assert ambiguities([SimpleNamespace(chosen=named, current=None, candidates=[named, rival], bar=1.0)],
                        noise, float("nan"), drive, RATE, effects) == []  # fmt: skip

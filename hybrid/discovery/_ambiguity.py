@@ -449,8 +449,9 @@ def sentence(entry: dict) -> str:
         p = max(min(r["p_value"], r["mean_p_value"]) for r in close)
         out.append(
             f"{named[0].upper()}{named[1:]} fits the held-out part significantly better than {_listed(close)} "
-            f"(p ≤ {p:.2g}), yet their held-out predictions differ by less than the noise: on this drive the "
-            "two are close, and the name rests on differences smaller than the noise"
+            f"(p ≤ {p:.2g}), yet their held-out predictions differ by less than the noise: on this drive "
+            f"{'the two are' if len(close) == 1 else 'they are all'} close, and the name rests on differences "
+            "smaller than the noise"
             + (f" ({why})." if why else ".")
             + " Another drive would separate them more clearly."
         )
