@@ -416,7 +416,7 @@ def test_a_rival_that_misses_a_few_chunks_by_much_is_told_apart_by_its_mean_not_
 
 
 def test_a_rival_within_the_noise_that_the_tests_separate_is_close_not_indistinguishable():
-    # A 6-sample delay on a second-order plant, tried as a new user would: delay named at gain 30, a
+    # A 15-sample delay on a second-order plant, tried as a new user would: delay named at gain 30, a
     # resonance 18.7 beside it, sign test p 4e-16 over 225 chunks, and predictions 0.06 mm apart RMS, under
     # the noise. The report said the recording "cannot tell" them, against its own numbers.
     rng = np.random.default_rng(3)

@@ -29,7 +29,7 @@ this recording when either
   many samples (``named_better``: either one-sided p ≤ `ALPHA`); the rival
   is listed then too, and the sentence says both: the named cause fits
   significantly better, and the two predict alike to within the noise (a
-  6-sample delay on a second-order plant, tried as a new user would: gain 30
+  15-sample delay on a second-order plant, tried as a new user would: gain 30
   against a resonance's 18.7, sign test p 4e-16, predictions 0.06 mm apart
   RMS under the noise; the report said the recording "cannot tell" them).
 
