@@ -75,8 +75,7 @@ class Model(eqx.Module):
         gain: w's unit per the output's); ``"{drive}"`` in any unit is the drive's.
         """
         signal = unit_in(str(getattr(self.simulation, "output_unit", "") or ""), drive_unit)
-        own = {k: unit_in(v, drive_unit) for k, v in self.simulation.units.items()}
-        return {**own, **self.readout.units_for(signal, w_unit)}
+        return {**self.simulation.units_in(drive_unit), **self.readout.units_for(signal, w_unit)}
 
     @property
     def parameter_names(self) -> tuple[str, ...]:

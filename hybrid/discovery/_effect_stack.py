@@ -150,11 +150,9 @@ class EffectStack(AbstractWrapper):
 
     def units_in(self, drive_unit: str) -> dict[str, str]:
         """`units` with the drive in `drive_unit`, the effects' ``{signal}`` and ``{drive}`` filled in with it."""
-        stack = EffectStack(self.inner, self.effects, self.active, drive_unit)
-        own = {
-            k: unit_in(v, drive_unit) for e in self.effects for k, v in e.units_for(*stack._fills(e)).items()
-        }
-        return {**self.inner.units_in(drive_unit), **own}
+        return AbstractWrapper.units_in(
+            EffectStack(self.inner, self.effects, self.active, drive_unit), drive_unit
+        )
 
     @property
     def derived_units(self) -> dict[str, dict[str, str]]:
