@@ -76,7 +76,11 @@ from .discovery._effects import (
     FrameTiming as FrameTiming,
     StartContext as StartContext,
 )
-from .discovery._inside_effects import PolynomialStiffness as PolynomialStiffness, StateLimit as StateLimit
+from .discovery._inside_effects import (
+    Friction as Friction,
+    PolynomialStiffness as PolynomialStiffness,
+    StateLimit as StateLimit,
+)
 from .discovery._report import write_report as write_report
 from .ipmc._defaults import diagnose as diagnose, make_model as make_model
 from .physics._lti import LTI as LTI

@@ -154,7 +154,8 @@ def parse_params(items):
 
 #: What ``--effects`` takes, item by item.
 EFFECT_FORMS = (
-    "builtins, a built-in's name, limit_<state>, path/to/file.py:ClassName or package.module:ClassName"
+    "builtins, a built-in's name, limit_<state>, friction_<state>, path/to/file.py:ClassName or "
+    "package.module:ClassName"
 )
 
 
@@ -177,7 +178,11 @@ def effects_from_spec(spec: str, simulation=None) -> tuple:
         if text == "builtins":
             chosen += list(resolve_effects(None, simulation))
             continue
-        if text in EFFECTS or text in NAMED_ONLY or (":" not in text and text.startswith("limit_")):
+        if (
+            text in EFFECTS
+            or text in NAMED_ONLY
+            or (":" not in text and text.startswith(("limit_", "friction_")))
+        ):
             chosen.append(text)  # resolve_effects says which states there are
             continue
         module, label, name = plugin_module(

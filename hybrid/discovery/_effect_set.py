@@ -42,7 +42,7 @@ from ._effects import (
     Saturation,
     StartContext,
 )
-from ._inside_effects import PolynomialStiffness, StateLimit
+from ._inside_effects import Friction, PolynomialStiffness, StateLimit
 
 #: The built-in effects, by name, in the order they act on their signal (each added later
 #: goes last, which keeps the others' places in the stack and so their fits' layout).
@@ -265,7 +265,8 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     """The effects `diagnose` searches: None gives every built-in ([`EFFECTS`][]) `simulation` can take.
 
     Each item is a built-in's name, ``limit_<state>`` (a limit on a state of
-    `simulation`), an [`AbstractEffect`][] subclass (built with no arguments:
+    `simulation`), ``friction_<state>`` (a Coulomb friction on one, searched
+    only when named), an [`AbstractEffect`][] subclass (built with no arguments:
     its defaults) or an instance. Every one is checked (`check_effect`); names
     and parameter names must be unique. Effects inside the dynamics need
     `simulation` in state-space form ([`AbstractStateSpace`][]): for None, the
@@ -307,13 +308,21 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
             )
         if isinstance(item, str):
             limits = {f"limit_{state}": state for state in states}
+            frictions = {f"friction_{state}": state for state in states}
             if item in limits:
                 item = state_limit(dynamics_of(simulation)[0], limits[item])  # type: ignore[index]
+            elif item in frictions:
+                item = Friction(frictions[item])
             elif item not in EFFECTS and item not in NAMED_ONLY:
-                names = list(limits)  # one per state: the RC network's 46 would bury the line
-                if len(names) > 3:
-                    names = [f"limit_<state> ({names[0]} … {names[-1]})"]
-                close = difflib.get_close_matches(item, [*EFFECTS, *NAMED_ONLY, *limits], n=1)
+                names = list(limits) + list(
+                    frictions
+                )  # one per state: the RC network's 46 would bury the line
+                if len(limits) > 3:
+                    names = [
+                        f"limit_<state> ({names[0]} … {names[len(limits) - 1]})",
+                        f"friction_<state> ({names[len(limits)]} … {names[-1]})",
+                    ]
+                close = difflib.get_close_matches(item, [*EFFECTS, *NAMED_ONLY, *limits, *frictions], n=1)
                 raise InputError(
                     f"unknown effect {item!r}"
                     + (f" (did you mean {close[0]!r}?)" if close else "")
@@ -358,7 +367,12 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
                 ) from None
         elif not isinstance(item, AbstractEffect):
             raise InputError(f"{label}: give an effect's name, an AbstractEffect subclass or an instance")
-        if type(item) not in (*EFFECTS.values(), *NAMED_ONLY.values(), StateLimit):  # built-ins are tested
+        if type(item) not in (
+            *EFFECTS.values(),
+            *NAMED_ONLY.values(),
+            StateLimit,
+            Friction,
+        ):  # built-ins are tested
             check_effect(item, label)
         if item.place == "inside":
             _check_inside(item, label, simulation, states)

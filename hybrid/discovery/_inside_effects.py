@@ -12,6 +12,8 @@ name                   what it does                                parameters
 ``limit_<state>``      the state z ↦ min(z, L) after every step,   ``<state>_max`` L (unit of the state);
                        with a rim 2 % of |L| wide; a share of the  with `into`, ``<state>_spill`` (unit of
                        cut into another state (`into`)             `into` per unit of the state)
+``friction_<state>``   ẋ = f(x, u − F·tanh(v/v_s)), v the state    ``<state>_friction`` F ({drive}),
+                       (a Coulomb friction on a velocity)          ``<state>_stick_speed`` v_s (its unit)
 =====================  ==========================================  =====================================
 
 - Stiffness: the spring of a mass–spring system that hardens (k₃ > 0) or
@@ -35,6 +37,18 @@ name                   what it does                                parameters
   (`AbstractStateSpace.spills_into`: water over the upper tank's rim falls
   into the lower tank), the limit moves a fitted share of the cut there
   (`StateLimit("h1", into="h2")`); otherwise the cut is lost.
+- Friction: a dry (Coulomb) friction on a state that is a velocity, a force of
+  nearly constant size F against its sign, smoothed over |v| ≲ v_s (a step has
+  no gradient, and a real contact sticks over a small band of speeds). The
+  viscous part, a force proportional to the velocity, is the simulation's own
+  damping, which its fit already has: a second copy here would trade with it
+  and pin neither. One effect per state (`Friction("velocity")`, named
+  ``friction_velocity``); searched when named (``--effects
+  builtins,friction_<state>``): the default set would add one per state of
+  every state-space plug-in, and a friction the search did not look for is
+  pointed at by the remainder, which reads each state's map fed back into the
+  drive against a step at zero and names the state and the effect
+  (`tests/test_inside_effects.py -k friction`).
 """
 
 from __future__ import annotations
@@ -273,3 +287,94 @@ class StateLimit(AbstractEffect):
             "time "
             f"(needs a cut ≥ {need} %)"
         )
+
+
+class Friction(AbstractEffect):
+    """A Coulomb friction F·tanh(v/v_s) on the state v (a velocity), fed back against the drive.
+
+    F is in the drive's unit (the force the simulation's drive exerts, its
+    `force_unit` where a plug-in says one), v_s in the state's. ``derived``'s
+    ``sticking_percent`` is the share of the record the state spends within
+    ±v_s, where the force is less than F·tanh(1) (76 % of F); the stack adds
+    ``force_percent_of_drive``.
+    """
+
+    raw: dict[str, Array]
+    state: str = eqx.field(static=True)
+    place: ClassVar[str] = "inside"
+    role: ClassVar[str] = "feedback"
+
+    def __init__(self, state: str = "velocity", **values):
+        if not isinstance(state, str) or not state.isidentifier():
+            raise InputError(f"Friction needs a state's name (an identifier), got {state!r}")
+        self.state = state
+        init_values(self, values)
+
+    # The facts depend on the state: properties, not class constants (as `StateLimit`'s).
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return f"friction_{self.state}"
+
+    @property
+    def acts_on(self) -> str:  # type: ignore[override]
+        return self.state
+
+    @property
+    def constraints(self) -> dict:  # type: ignore[override]
+        return {f"{self.state}_friction": Positive(), f"{self.state}_stick_speed": Positive()}
+
+    @property
+    def units(self) -> dict:  # type: ignore[override]
+        return {f"{self.state}_friction": "{drive}", f"{self.state}_stick_speed": "{signal}"}
+
+    @property
+    def defaults(self) -> dict:  # type: ignore[override]
+        return {f"{self.state}_friction": 0.01, f"{self.state}_stick_speed": 0.01}
+
+    @property
+    def thresholds(self) -> dict:  # type: ignore[override]
+        return {"force_percent_of_drive": 3.0}
+
+    def config(self) -> dict:
+        return {"state": self.state}
+
+    def apply(self, v, dt):
+        p = self.parameters()
+        return p[f"{self.state}_friction"] * jnp.tanh(v / p[f"{self.state}_stick_speed"])
+
+    def derived(self, v, dt):
+        v = np.asarray(v, float)
+        stick = float(self.parameters()[f"{self.state}_stick_speed"])
+        return {"sticking_percent": 100.0 * float(np.mean(np.abs(v) < stick)) if v.size else 0.0}
+
+    def starts(self, context):
+        # A force of 5 % and of 20 % of the largest drive, sticking below 5 % of the state's largest |v|:
+        # a friction that a fit without it took up in its damping is of the first size, one that stops
+        # the motion at small drives of the second.
+        drive = context.drive if context.drive is not None else context.signal
+        force, speed = signal_top(drive), 0.05 * signal_top(context.signal)
+        return [
+            {f"{self.state}_friction": 0.05 * force, f"{self.state}_stick_speed": speed},
+            {f"{self.state}_friction": 0.2 * force, f"{self.state}_stick_speed": speed},
+        ]
+
+    def unpinned_reason(self, name, signal):
+        v = np.asarray(signal, float)
+        if (
+            name == f"{self.state}_stick_speed"
+            and v.size
+            and not np.any(np.abs(v) < 2.0 * float(self.parameters()[name]))
+        ):
+            return f"the state {self.state} never comes near zero, where the friction turns"
+        return None
+
+    def reading(self, parameters, output_unit):
+        return (
+            f"a dry (Coulomb) friction against the motion of the state {self.state}: a force of nearly "
+            "constant size that opposes its sign (a bearing, a slide, a brush), in the unit of the drive; "
+            "the viscous part is the simulation's own damping"
+        )
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("force_percent_of_drive", 0.0), thresholds["force_percent_of_drive"]
+        return size >= need, f"friction {size:.1f} % of the largest drive (needs ≥ {need} %)"

@@ -338,7 +338,9 @@ def place_hint(description: dict, places: dict) -> str | None:
     simulation's states fed back into its drive, or a level the record sits
     flat at, points inside; the sentence says whether `diagnose` searched there
     (it needs a simulation in state-space form) and, if it did, that a plug-in
-    effect of the user's own is what is left.
+    effect of the user's own is what is left; where the best state's map reads
+    as a step at zero (a dry friction's), the built-in ``friction_<state>``
+    instead, when it was not searched (it is searched only when named).
     """
     inside = places.get("inside")
     limit = description.get("level_limit") or {}
@@ -356,10 +358,16 @@ def place_hint(description: dict, places: dict) -> str | None:
         return f"an effect inside the dynamics may explain it, but {inside['not_searched']}"
     fed = description.get("state_feedback") or {}
     # the state named only where its map carries most of the rest, as its form is (`_state_feedback`)
-    strong = bool(((fed.get("states") or {}).get(fed.get("best")) or {}).get("carries"))
+    best = (fed.get("states") or {}).get(fed.get("best")) or {}
+    strong = bool(best.get("carries"))
     alike = "".join(f" or {other}" for other in fed.get("alike") or {})
     on = f" on its state {fed['best']}{alike}" if named == "state_map" and strong else ""
-    return (
-        f"of the effects searched inside the dynamics ({', '.join(inside['effects'])}), none explains the "
-        f"rest: an effect of your own there{on} may (docs/effects.md)"
-    )
+    searched = f"of the effects searched inside the dynamics ({', '.join(inside['effects'])}), none explains the rest"
+    friction = f"friction_{fed.get('best')}"
+    if on and best.get("form") == "step" and friction not in inside["effects"]:
+        # a step at zero is a dry friction's, and the built-in takes one: point at it before a user writes it
+        return (
+            f"{searched}: a dry friction{on} may; the built-in {friction} takes one, searched when named "
+            f"(--effects builtins,{friction})"
+        )
+    return f"{searched}: an effect of your own there{on} may (docs/effects.md)"
