@@ -58,6 +58,7 @@ class DCMotor(AbstractStateSpace):
     output_unit: ClassVar[str] = "rad/s"
     force_unit: ClassVar[str] = "N m"  # a force fed back from inside acts on the shaft (`forced_rates`)
     limited_states: ClassVar[tuple] = ("speed",)
+    velocity_states: ClassVar[tuple] = ("speed",)  # a brush's or a bearing's dry friction acts on it
     substeps: ClassVar[int] = 4
     drive_between_samples: ClassVar[str] = "hold"
     linear_in_drive: ClassVar[bool] = True

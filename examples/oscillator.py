@@ -75,6 +75,8 @@ class MassSpringDamper(AbstractStateSpace):
     output_unit: ClassVar[str] = "{drive}"
     # An end stop limits the position; nothing limits the velocity directly.
     limited_states: ClassVar[tuple] = ("position",)
+    # A dry friction acts on the velocity.
+    velocity_states: ClassVar[tuple] = ("velocity",)
     substeps: ClassVar[int] = SUBSTEPS
     drive_between_samples: ClassVar[str] = "linear"
     linear_in_drive: ClassVar[bool] = (

@@ -349,7 +349,8 @@ def test_resolve_effects_adds_inside_effects_only_where_there_are_states():
     names = [e.name for e in hybrid.resolve_effects(None, TwoTank())]
     assert "stiffness" in names and names[-2:] == ["limit_h1", "limit_h2"]
     lti = [e.name for e in hybrid.resolve_effects(None, hybrid.LTI(3))]  # LTI has a (linear) state-space form
-    assert "stiffness" in lti and lti[-2:] == ["limit_lag_1", "limit_low_2"]  # on the low-pass states only
+    # limits on the low-pass states only, a friction on the band-pass one (its velocity_states)
+    assert "stiffness" in lti and lti[-3:] == ["limit_lag_1", "limit_low_2", "friction_band_2"]
     # the RC network has the form, but its inside effects are searched only when named (too dear a default)
     network = hybrid.RCNetwork(n_stages=4)
     assert not [e for e in hybrid.resolve_effects(None, network) if e.place == "inside"]
@@ -506,7 +507,7 @@ def test_a_remainder_that_lives_inside_the_dynamics_says_whether_that_place_was_
         cubic, searched_places(resolve_effects(None, held), held)
     )
     held = hybrid.HeldStart(hybrid.LTI(2), 20)  # LTI has a (linear) state-space form
-    assert "(stiffness, limit_low_1), none explains the rest" in place_hint(
+    assert "(stiffness, limit_low_1, friction_band_1), none explains the rest" in place_hint(
         cubic, searched_places(resolve_effects(None, held), held)
     )
     # level_limits' own shape: a side the record sits flat at is flagged
@@ -674,8 +675,23 @@ def test_the_built_in_friction_inside_an_oscillator_matches_solve_ivp_and_its_de
     assert isinstance(named, Friction) and named.state == "velocity"
     with pytest.raises(InputError, match="did you mean 'friction_velocity'"):
         hybrid.resolve_effects(["friction_velocty"], MassSpringDamper())
-    # searched only when named: the default set has none
-    assert not any(isinstance(e, Friction) for e in hybrid.resolve_effects(None, MassSpringDamper()))
+    # by default on the states a simulation calls velocities (`velocity_states`), on no other
+
+    def frictions(simulation):
+        return [e.name for e in hybrid.resolve_effects(None, simulation) if isinstance(e, Friction)]
+
+    assert frictions(MassSpringDamper()) == ["friction_velocity"]
+    assert frictions(hybrid.LTI(4)) == ["friction_band_1", "friction_band_2"]
+    assert frictions(hybrid.LTI(1)) == frictions(TwoTank()) == []
+    assert [e.name for e in hybrid.resolve_effects(["friction_h1"], TwoTank())] == ["friction_h1"]
+
+    class Misnamed(MassSpringDamper):
+        velocity_states = ("speed",)
+
+    with pytest.raises(
+        InputError, match=r"velocity_states must be a tuple of its states \(position, velocity\)"
+    ):
+        hybrid.resolve_effects(None, Misnamed())
 
 
 def test_the_built_in_friction_the_remainder_points_at_is_named_with_its_force(tmp_path):

@@ -67,6 +67,9 @@ class AbstractStateSpace(AbstractSimulation):
     - `limited_states`: the states a wall could limit (a level that can
       overflow, a position with an end stop), where `diagnose` searches a limit
       by default (None, the default: every state);
+    - `velocity_states`: the states that are velocities (a mass's, a shaft's
+      speed), where `diagnose` searches a dry friction by default
+      (``friction_<state>``; default: none);
     - `spills_into`: where what a limit cuts off a state would go, by state
       (``{"h1": "h2"}``: water over the upper tank's rim falls into the lower
       tank); `diagnose`'s limit on such a state moves a fitted share of the
@@ -90,6 +93,7 @@ class AbstractStateSpace(AbstractSimulation):
 
     states: ClassVar[tuple[str, ...]]
     limited_states: ClassVar[tuple[str, ...] | None] = None
+    velocity_states: ClassVar[tuple[str, ...]] = ()
     spills_into: ClassVar[dict[str, str]] = {}
     #: Why `diagnose`'s default set leaves out the effects inside these dynamics (None: it searches them);
     #: they are searched when named (``effects=``, ``--effects``).
@@ -270,6 +274,11 @@ def check_state_space(simulation: AbstractStateSpace, label: str) -> None:
         raise InputError(
             f"{label}: {cls}.limited_states must be None or a tuple of its states ({', '.join(states)}), "
             f"got {limited!r}"
+        )
+    moving = simulation.velocity_states
+    if not isinstance(moving, tuple) or not set(moving) <= set(states):
+        raise InputError(
+            f"{label}: {cls}.velocity_states must be a tuple of its states ({', '.join(states)}), got {moving!r}"
         )
     spills = simulation.spills_into
     if not isinstance(spills, dict) or any(

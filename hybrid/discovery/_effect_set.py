@@ -265,15 +265,16 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     """The effects `diagnose` searches: None gives every built-in ([`EFFECTS`][]) `simulation` can take.
 
     Each item is a built-in's name, ``limit_<state>`` (a limit on a state of
-    `simulation`), ``friction_<state>`` (a Coulomb friction on one, searched
-    only when named), an [`AbstractEffect`][] subclass (built with no arguments:
+    `simulation`), ``friction_<state>`` (a Coulomb friction on one), an
+    [`AbstractEffect`][] subclass (built with no arguments:
     its defaults) or an instance. Every one is checked (`check_effect`); names
     and parameter names must be unique. Effects inside the dynamics need
     `simulation` in state-space form ([`AbstractStateSpace`][]): for None, the
     built-ins are the drive's and the output's effects, plus, for a
-    simulation with states, the stiffness and a limit on each state (each
-    of its `limited_states`), unless it says why not (`not_searched_inside`:
-    the RC network, whose stepped form is far dearer than its `simulate`).
+    simulation with states, the stiffness, a limit on each state (each
+    of its `limited_states`) and a friction on each of its `velocity_states`,
+    unless it says why not (`not_searched_inside`: the RC network, whose
+    stepped form is far dearer than its `simulate`).
     """
     states = _states_of(simulation)
     if effects is None:
@@ -284,7 +285,10 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
         if not states or core is None:
             return tuple(built)
         limited = states if core[0].limited_states is None else core[0].limited_states
-        return tuple(built) + tuple(state_limit(core[0], state) for state in limited if state in states)
+        moving = tuple(Friction(state) for state in core[0].velocity_states if state in states)
+        return (
+            tuple(built) + tuple(state_limit(core[0], state) for state in limited if state in states) + moving
+        )
     if isinstance(effects, (str, AbstractEffect)) or isinstance(effects, type):
         effects = [effects]
     items: list = []

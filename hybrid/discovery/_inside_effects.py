@@ -43,12 +43,12 @@ name                   what it does                                parameters
   viscous part, a force proportional to the velocity, is the simulation's own
   damping, which its fit already has: a second copy here would trade with it
   and pin neither. One effect per state (`Friction("velocity")`, named
-  ``friction_velocity``); searched when named (``--effects
-  builtins,friction_<state>``): the default set would add one per state of
-  every state-space plug-in, and a friction the search did not look for is
-  pointed at by the remainder, which reads each state's map fed back into the
-  drive against a step at zero and names the state and the effect
-  (`tests/test_inside_effects.py -k friction`).
+  ``friction_velocity``); `diagnose` searches one on each state the
+  simulation says is a velocity (`AbstractStateSpace.velocity_states`) and on
+  any other when named (``--effects builtins,friction_<state>``). A friction
+  the search did not look for is pointed at by the remainder, which reads
+  each state's map fed back into the drive against a step at zero and names
+  the state and the effect (`tests/test_inside_effects.py -k friction`).
 """
 
 from __future__ import annotations

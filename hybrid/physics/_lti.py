@@ -206,6 +206,11 @@ class LTI(AbstractLinearStateSpace):
         return tuple(s for s in self.states if not s.startswith("band_"))
 
     @property
+    def velocity_states(self) -> tuple[str, ...]:  # type: ignore[override]
+        """The band-pass states: q = ṗ/ω, the rate of the section's low-pass state (a mass's speed, scaled)."""
+        return tuple(s for s in self.states if s.startswith("band_"))
+
+    @property
     def state_units(self) -> dict[str, str]:
         return dict.fromkeys(self.states, "{drive}")  # each has unit DC (or peak) gain from the drive
 
