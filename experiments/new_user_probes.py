@@ -3,7 +3,8 @@
     python experiments/new_user_probes.py [--only NAME,...] [--out experiments/results/new_user_probes.json]
 
 Each probe is a CSV (t, v_in, w) written by numpy/scipy alone: a linear plant
-(`scipy.signal.lsim`) or a Duffing oscillator (`scipy.integrate.solve_ivp`), a
+(`scipy.signal.lsim`), or a Duffing oscillator, a mass on a spring with a dry
+friction or a Bouc–Wen spring (`scipy.integrate.solve_ivp`), a
 multilevel drive, an effect placed before, inside or after the plant, and
 white noise of 1 % of the output's range. Each is diagnosed by
 ``hybrid diagnose FILE --physics lti:N`` in its own process. The table gives
@@ -151,6 +152,41 @@ def probes() -> dict[str, dict]:
 
     sol = solve_ivp(duffing, (0, td[-1]), [0, 0], t_eval=td, max_step=1 / rate_d, rtol=1e-8, atol=1e-10)
     add("duffing1k", td, u, sol.y[0], "lti:2", "cubic stiffness 3 ω²", 11)
+    # 5. inside the dynamics of a 1.2 Hz, ζ 0.2 mass on a spring (solve_ivp), drive seeds 1–3, and after it:
+    # a Coulomb friction of 0.3 (drive units) sticking below 0.01 /s, a Bouc–Wen hysteretic spring
+    # (α 0.3, A 1, β = γ = 0.5, n 1), a sensor that cannot see sign (w = |y|)
+    wn, z = 2 * np.pi * 1.2, 0.2
+    mass = sg.lti([wn**2], [1, 2 * z * wn, wn**2])
+    u = _drive(n, rate, 1)
+    add("abs_sensor", t, u, np.abs(sim(mass, u)), "lti:2", "sensor blind to sign, w = |y|", 5)
+
+    def held(u, rhs, x0):
+        def f(time, x):
+            return rhs(x, u[min(int(time * rate), n - 1)])
+
+        return solve_ivp(f, (0, t[-1]), x0, t_eval=t, max_step=1 / rate / 4, rtol=1e-7, atol=1e-9).y[0]
+
+    u = _drive(n, rate, 2)
+    friction = held(
+        u,
+        lambda x, d: [x[1], wn**2 * (d - x[0]) - 2 * z * wn * x[1] - wn**2 * 0.3 * np.tanh(x[1] / 0.01)],
+        [0, 0],
+    )
+    add("coulomb", t, u, friction, "lti:2", "Coulomb friction 0.3 on the velocity", 5)
+
+    def bouc_wen(x, d, alpha=0.3):
+        dz = x[1] - 0.5 * abs(x[1]) * x[2] - 0.5 * x[1] * abs(x[2])
+        return [x[1], wn**2 * d - 2 * z * wn * x[1] - wn**2 * (alpha * x[0] + (1 - alpha) * x[2]), dz]
+
+    add(
+        "bouc_wen",
+        t,
+        _drive(n, rate, 3),
+        held(_drive(n, rate, 3), bouc_wen, [0, 0, 0]),
+        "lti:2",
+        "Bouc–Wen spring",
+        5,
+    )
     # 4. an additive wander, 15 % peak to peak, period 45 s (1.3 cycles in 60 s), on the lti:2 plant
     for seed in (0, 1, 2):
         u = _drive(n, rate, seed)
