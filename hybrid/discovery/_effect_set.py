@@ -318,9 +318,8 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
             elif item in frictions:
                 item = Friction(frictions[item])
             elif item not in EFFECTS and item not in NAMED_ONLY:
-                names = list(limits) + list(
-                    frictions
-                )  # one per state: the RC network's 46 would bury the line
+                # one per state: the RC network's 46 of each would bury the line
+                names = list(limits) + list(frictions)
                 if len(limits) > 3:
                     names = [
                         f"limit_<state> ({names[0]} … {names[len(limits) - 1]})",
@@ -371,12 +370,8 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
                 ) from None
         elif not isinstance(item, AbstractEffect):
             raise InputError(f"{label}: give an effect's name, an AbstractEffect subclass or an instance")
-        if type(item) not in (
-            *EFFECTS.values(),
-            *NAMED_ONLY.values(),
-            StateLimit,
-            Friction,
-        ):  # built-ins are tested
+        # built-ins are tested
+        if type(item) not in (*EFFECTS.values(), *NAMED_ONLY.values(), StateLimit, Friction):
             check_effect(item, label)
         if item.place == "inside":
             _check_inside(item, label, simulation, states)
