@@ -393,6 +393,19 @@ def test_inside_effects_where_they_cannot_act_are_refused_in_one_line(simulation
 FRICTION_RATE, FRICTION_FORCE, STICK_SPEED = 30.0, 0.12, 0.3
 
 
+def _friction_lab_scipy(u, dt, rtol=1e-10, atol=1e-12, max_step=None):
+    """The friction lab's 2 Hz, ζ 0.1 oscillator (no noise, no readout) by solve_ivp, `u` linear between samples."""
+    t = np.arange(len(u)) * dt
+    w, zeta = 2 * np.pi * 2.0, 0.1
+
+    def rhs(time, x):
+        drive = np.interp(time, t, u) - FRICTION_FORCE * np.tanh(x[1] / STICK_SPEED)
+        return [x[1], w * w * (drive - x[0]) - 2 * zeta * w * x[1]]
+
+    step = dt / 4 if max_step is None else max_step
+    return solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t, rtol=rtol, atol=atol, max_step=step).y[0]
+
+
 def _friction_lab(folder: Path, samples: int = 600, seed: int = 3, name: str = "lab.csv") -> None:
     """A 2 Hz mass on a spring sliding with Coulomb friction, 20 s at 30 Hz, made by solve_ivp.
 
@@ -402,13 +415,7 @@ def _friction_lab(folder: Path, samples: int = 600, seed: int = 3, name: str = "
     rng = np.random.default_rng(seed)
     t = np.arange(samples) / FRICTION_RATE
     u = sum(0.35 * np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (0.31, 0.77, 1.3, 1.9, 2.6))
-    w, zeta = 2 * np.pi * 2.0, 0.1
-
-    def rhs(time, x):
-        drive = np.interp(time, t, u) - FRICTION_FORCE * np.tanh(x[1] / STICK_SPEED)
-        return [x[1], w * w * (drive - x[0]) - 2 * zeta * w * x[1]]
-
-    y = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-9, atol=1e-11, max_step=0.01).y[0]
+    y = _friction_lab_scipy(u, 1 / FRICTION_RATE, rtol=1e-9, atol=1e-11, max_step=0.01)
     out = 2.0 * y + 0.1 + 0.003 * np.ptp(y) * rng.normal(size=y.size)
     units = {"t": "s", "v_in": "V", "w": "cm"}  # a position in cm: the saved models' units follow it
     hybrid.Recording.from_arrays(v_in=u, w=out, rate=FRICTION_RATE, metadata={"units": units}).save(
@@ -638,18 +645,6 @@ def test_a_friction_no_searched_effect_explains_is_placed_on_the_velocity_with_i
     assert not [name for name in compiles if "state_trajectories" in name or "force_responses" in name], (
         compiles
     )
-
-
-def _friction_lab_scipy(u, dt, frequency=2.0, zeta=0.1, force=FRICTION_FORCE, stick=STICK_SPEED):
-    """`_friction_lab`'s oscillator without noise or readout, by solve_ivp, for a drive `u` linear between samples."""
-    t = np.arange(len(u)) * dt
-    w = 2 * np.pi * frequency
-
-    def rhs(time, x):
-        drive = np.interp(time, t, u) - force * np.tanh(x[1] / stick)
-        return [x[1], w * w * (drive - x[0]) - 2 * zeta * w * x[1]]
-
-    return solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=dt / 4).y[0]
 
 
 def test_the_built_in_friction_inside_an_oscillator_matches_solve_ivp_and_its_derivatives(tmp_path):

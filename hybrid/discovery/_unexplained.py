@@ -340,7 +340,8 @@ def place_hint(description: dict, places: dict) -> str | None:
     (it needs a simulation in state-space form) and, if it did, that a plug-in
     effect of the user's own is what is left; where the best state's map reads
     as a step at zero (a dry friction's), the built-in ``friction_<state>``
-    instead, when it was not searched (it is searched only when named).
+    instead, when it was not searched (by default it is only on the
+    simulation's `velocity_states`).
     """
     inside = places.get("inside")
     limit = description.get("level_limit") or {}
