@@ -261,6 +261,121 @@ def test_a_spilling_limits_screen_picks_the_share_the_data_were_made_with(made_w
     assert len(starts) == 2 and starts[0]["h1_spill"] == picked
 
 
+def _wall_scipy(frequency, zeta, drive, t, top):
+    """y'' = ω²(u − y) − 2ζωy' with a stop at `top` (scipy, an event per hit): the mass meets it and stays
+    there while the drive pushes it on, and leaves when the drive pulls it back (an inelastic stop)."""
+    w = 2 * np.pi * frequency
+
+    def acc(s, y, v):
+        return w * w * (drive(s) - y) - 2 * zeta * w * v
+
+    def hit(s, x):
+        return x[0] - top
+
+    hit.terminal, hit.direction = True, 1
+    out, s, x = np.full(len(t), np.nan), 0.0, np.zeros(2)
+    while s < t[-1]:
+        sol = solve_ivp(
+            lambda s_, x_: [x_[1], acc(s_, *x_)], (s, t[-1]), x, events=hit, dense_output=True,
+            rtol=1e-10, atol=1e-12, max_step=0.01,
+        )  # fmt: skip
+        moving = (t >= s) & (t <= sol.t[-1])
+        out[moving] = sol.sol(t[moving])[0]
+        s = sol.t[-1]
+        if sol.status != 1:
+            break
+        grid = np.linspace(s, t[-1], 100_001)  # at the stop, at rest, until the drive pulls the mass back
+        free = np.nonzero(acc(grid, top, 0.0) < 0)[0]
+        leave = grid[free[0]] if len(free) else t[-1]
+        out[(t >= s) & (t <= leave)] = top
+        s, x = leave, np.array([top - 1e-12, 0.0])
+    return out
+
+
+def test_an_end_stop_is_the_oscillator_meeting_a_stop():
+    """A limit on the position that stops its velocity (`StateLimit(velocity=…)`) against scipy's oscillator
+    with an event per hit; the limit without the velocity holds the position while its velocity runs on."""
+    rate, top = 200.0, 0.6
+    t = np.arange(int(8 * rate)) / rate
+
+    def drive(s):
+        return np.sin(2 * np.pi * 0.7 * s) + 0.3 * np.sin(2 * np.pi * 2.3 * s)
+
+    reference = _wall_scipy(2.0, 0.1, drive, t, top)
+    assert (
+        np.isfinite(reference).all() and np.mean(reference >= top - 1e-9) > 0.05
+    )  # it does stay at the stop
+    oscillator, u = MassSpringDamper(frequency=2.0, zeta=0.1), jnp.asarray(drive(t))
+    stop = StateLimit("position", velocity="velocity", position_max=top)
+    y = np.asarray(EffectStack(oscillator, [stop]).simulate(u, 1 / rate))
+    # The rim (2 % of the level) and a hit's time known to a substep bound the agreement.
+    assert np.max(np.abs(y - reference)) < 0.04 * np.ptp(reference)  # 3.3 % when written
+    held = np.asarray(
+        EffectStack(oscillator, [StateLimit("position", position_max=top)]).simulate(u, 1 / rate)
+    )
+    assert np.max(np.abs(held - reference)) > 0.2 * np.ptp(reference)  # the velocity left to run on: 32 %
+
+
+def test_an_end_stops_jacobian_matches_finite_differences():
+    rate = 100.0
+    t = np.arange(int(6 * rate)) / rate
+    u = jnp.asarray(np.sin(2 * np.pi * 0.7 * t) + 0.3 * np.sin(2 * np.pi * 2.3 * t))
+    stop = StateLimit("position", velocity="velocity", position_max=0.6)
+    stack = EffectStack(MassSpringDamper(frequency=2.0, zeta=0.1), [stop])
+    _assert_jacobian_is_central_differences(stack, u, 1 / rate, {"position_max": 1e-5, "frequency": 1e-6})
+
+
+def test_a_limit_stops_the_velocity_that_moves_its_state():
+    """The default limits: on a position, its velocity found from the rates (∂ẋ/∂v > 0); none on a level."""
+
+    class Pendulum(MassSpringDamper):  # the same rates under other names, as a user's plug-in names them
+        states = ("angle", "rate")
+        state_units = {"angle": "rad", "rate": "rad/s"}
+        limited_states = ("angle", "rate")
+        velocity_states = ("rate",)
+
+    def stops(simulation):
+        return {e.name: e.velocity for e in hybrid.resolve_effects(None, simulation) if e.role == "limit"}
+
+    assert stops(MassSpringDamper()) == {"limit_position": "velocity"}
+    assert stops(Pendulum()) == {"limit_angle": "rate", "limit_rate": None}
+    assert stops(hybrid.LTI(3)) == {"limit_lag_1": None, "limit_low_2": "band_2"}  # ṗ = ω·q
+    assert stops(TwoTank()) == {"limit_h1": None, "limit_h2": None}
+    assert (
+        hybrid.resolve_effects(["limit_position"], MassSpringDamper())[0].velocity == "velocity"
+    )  # by name too
+    stop = hybrid.resolve_effects(["limit_position"], MassSpringDamper())[0]
+    assert "which stops its velocity velocity there" in stop.reading({"position_max": 1.0}, "V")
+    u = jnp.asarray(np.sin(np.arange(300) / 20.0))
+    stack = EffectStack(MassSpringDamper(), [StateLimit("position", velocity="velocity", position_max=0.3)])
+    rebuilt = build_simulation(describe_simulation(stack)).with_raw(stack.raw)
+    assert rebuilt.effects[0].velocity == "velocity"
+    np.testing.assert_allclose(np.asarray(rebuilt.simulate(u, 0.01)), np.asarray(stack.simulate(u, 0.01)))
+    assert (
+        np.max(
+            np.abs(
+                np.asarray(stack.simulate(u, 0.01))
+                - np.asarray(
+                    EffectStack(MassSpringDamper(), [StateLimit("position", position_max=0.3)]).simulate(
+                        u, 0.01
+                    )
+                )
+            )
+        )
+        > 1e-3
+    )  # the saved stop stops
+    for build, words in (
+        (lambda: StateLimit("position", velocity="position"), "velocity must name another state"),
+        (
+            lambda: hybrid.resolve_effects([StateLimit("position", velocity="speed")], MassSpringDamper()),
+            "stops the velocity the state 'speed', which MassSpringDamper does not have",
+        ),
+    ):
+        with pytest.raises(InputError) as caught:
+            build()
+        assert words in str(caught.value) and "\n" not in str(caught.value)
+
+
 def test_a_simulation_says_where_a_states_excess_goes():
     """`spills_into` builds the spilling limit; its share's unit is the ratio of the two states' units."""
     tank = {e.name: e for e in hybrid.resolve_effects(None, TwoTank())}

@@ -402,11 +402,36 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
 
 
 def state_limit(dynamics, state: str) -> StateLimit:
-    """The built-in limit on `state` of `dynamics` (a state-space form), spilling where it says."""
+    """The built-in limit on `state` of `dynamics` (a state-space form), spilling where it says.
+
+    Where one of its `velocity_states` moves `state` (`velocity_of`), the limit
+    stops it too: an end stop on a position.
+    """
     into = dynamics.spills_into.get(state)
-    if into is None:
-        return StateLimit(state)
-    return StateLimit(state, into=into, into_unit=dynamics.state_units.get(into, ""))
+    spill = {} if into is None else {"into": into, "into_unit": dynamics.state_units.get(into, "")}
+    return StateLimit(state, velocity=velocity_of(dynamics, state), **spill)
+
+
+def velocity_of(dynamics, state: str) -> str | None:
+    """The state of `velocity_states` that moves `state` (a position's velocity), or None.
+
+    The first whose value the rate of `state` grows with, at rest with the
+    simulation's own parameters (∂ẋ/∂v > 0): a mass's velocity for its
+    position, `LTI(N)`'s band-pass state for its low-pass (ṗ = ω·q). A level
+    fed by a flow has none.
+    """
+    moving = [v for v in dynamics.velocity_states if v != state and v in dynamics.states]
+    if not moving:
+        return None
+    p = dynamics.prepare(dynamics.parameters())
+    dtype = jnp.result_type(*jax.tree_util.tree_leaves(dynamics.raw))
+    rest = tuple(jnp.zeros((), dtype) for _ in dynamics.states)
+    k = dynamics.states.index(state)
+    slopes = jax.grad(lambda x: dynamics.rates(x, jnp.zeros((), dtype), p)[k])(rest)
+    for v in moving:
+        if float(slopes[dynamics.states.index(v)]) > 0.0:
+            return v
+    return None
 
 
 def _states_of(simulation) -> tuple[str, ...]:
@@ -427,7 +452,11 @@ def _check_inside(effect: AbstractEffect, label: str, simulation, states) -> Non
             f"{label} acts inside the dynamics, but {type(simulation).__name__} has no state-space form: "
             "derive the simulation from hybrid.AbstractStateSpace (see docs/plugins.md), or drop the effect"
         )
-    for what, state in (("acts on", effect.acts_on), ("spills into", getattr(effect, "into", None))):
+    for what, state in (
+        ("acts on", effect.acts_on),
+        ("spills into", getattr(effect, "into", None)),
+        ("stops the velocity", getattr(effect, "velocity", None)),
+    ):
         if state not in (None, "output") and state not in states:
             raise InputError(
                 f"{label} {what} the state {state!r}, which {type(simulation).__name__} does not have: "

@@ -567,6 +567,12 @@ def spill_target(effect, states) -> int | None:
     return None if into is None else states.index(into)
 
 
+def _moved_by(effect, states) -> int | None:
+    """The index in `states` of the velocity a limit stops (`StateLimit.velocity`), or None."""
+    velocity = getattr(effect, "velocity", None)
+    return None if velocity is None else states.index(velocity)
+
+
 def _inside_dynamics(stack, inner, inside, u, dt, external=None):
     """(output, states) of the inner state-space simulation with the inside effects in its loop.
 
@@ -575,7 +581,13 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
     """
     feedback = [(stack.active[i], e) for i, e in inside if e.role == "feedback"]
     limits = [
-        (stack.active[i], e, inner.states.index(e.acts_on), spill_target(e, inner.states))
+        (
+            stack.active[i],
+            e,
+            inner.states.index(e.acts_on),
+            spill_target(e, inner.states),
+            _moved_by(e, inner.states),
+        )
         for i, e in inside
         if e.role == "limit"
     ]
@@ -589,11 +601,13 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
 
     def bound(x):
         x = list(x)
-        for on, effect, k, j in limits:
+        for on, effect, k, j, m in limits:
             z = x[k]
             x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt) - z), z)
             if j is not None:  # a share of the cut lands in another state (a tank's spill below)
                 x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt), x[j])
+            if m is not None:  # an end stop also turns back the velocity that drove the state into it
+                x[m] = jnp.where(on != 0, x[m] + on * (effect.stopped(z, x[m]) - x[m]), x[m])
         return tuple(x)
 
     return integrate(inner, u, dt, force if feedback else None, bound if limits else None, external)

@@ -159,24 +159,45 @@ class StateLimit(AbstractEffect):
     ``<state>_spill``, is in the unit of `into` per unit of the state (1 for two
     levels of tanks of one cross-section whose whole spill lands below);
     `into_unit` is that state's unit, for the report.
+
+    With `velocity` (the state whose value moves this one: a position's
+    velocity), the limit is an end stop: as it engages, the part of that
+    velocity that pushes into it is taken away (`stopped`), so the mass stays
+    at the stop while the drive pushes it there and leaves as soon as the
+    drive pulls it back (an inelastic stop: a bumper, a hard stop with little
+    bounce). Without it the position was held at the stop while its velocity
+    ran on, and had to wind down before the mass could leave. A stop that the
+    mass bounces off is not built in.
     """
 
     raw: dict[str, Array]
     state: str = eqx.field(static=True)
     into: str | None = eqx.field(static=True)
     into_unit: str = eqx.field(static=True)
+    velocity: str | None = eqx.field(static=True)
     place: ClassVar[str] = "inside"
     role: ClassVar[str] = "limit"
     n_screened: ClassVar[int] = 2
 
-    def __init__(self, state: str = "x", into: str | None = None, into_unit: str = "", **values):
+    def __init__(
+        self,
+        state: str = "x",
+        into: str | None = None,
+        into_unit: str = "",
+        velocity: str | None = None,
+        **values,
+    ):
         if not isinstance(state, str) or not state.isidentifier():
             raise InputError(f"StateLimit needs a state's name (an identifier), got {state!r}")
-        if into is not None and (not isinstance(into, str) or not into.isidentifier() or into == state):
-            raise InputError(
-                f"StateLimit({state!r}): into must name another state (an identifier) or be None, got {into!r}"
-            )
-        self.state, self.into, self.into_unit = state, into, str(into_unit)
+        for role, other in (("into", into), ("velocity", velocity)):
+            if other is not None and (
+                not isinstance(other, str) or not other.isidentifier() or other == state
+            ):
+                raise InputError(
+                    f"StateLimit({state!r}): {role} must name another state (an identifier) or be None, "
+                    f"got {other!r}"
+                )
+        self.state, self.into, self.into_unit, self.velocity = state, into, str(into_unit), velocity
         init_values(self, values)
 
     # The facts depend on the state: properties, not class constants.
@@ -219,11 +240,24 @@ class StateLimit(AbstractEffect):
         out: dict = {"state": self.state}
         if self.into is not None:
             out.update(into=self.into, into_unit=self.into_unit)
+        if self.velocity is not None:
+            out.update(velocity=self.velocity)
         return out
 
     def spilled(self, z, dt):
         """What goes into `into` when the limit takes z down to `apply(z)`: share × the cut."""
         return self.parameters()[f"{self.state}_spill"] * (z - self.apply(z, dt))
+
+    def stopped(self, z, v):
+        """The velocity v of the state z after an end stop: its part into the stop taken away as z meets it.
+
+        The share taken is σ((z − L)/δ), δ the rim's width: none well below
+        the limit, half at it, all beyond. Only a positive v (one that drives z
+        up, into the stop) is taken.
+        """
+        top = self._level()
+        width = RIM_WIDTH * jnp.abs(top) + 1e-12
+        return v - jax.nn.sigmoid((z - top) / width) * jnp.maximum(v, 0.0)
 
     def _level(self):
         return self.parameters()[f"{self.state}_max"]
@@ -272,6 +306,8 @@ class StateLimit(AbstractEffect):
         # A piezo stage's gauge that clipped at 85 µm was named an end stop on its position: where
         # the output reads the limited state, the two look alike (an end stop also stops the rate).
         where = " and spills into " + self.into if self.into is not None else ""
+        if self.velocity is not None:
+            where += f", which stops its velocity {self.velocity} there"
         return (
             f"an upper limit on the state {self.state} inside the dynamics (an end stop, an overflow){where}; "
             "where the output reads this state, a sensor that clips at that level looks alike on a recording "
