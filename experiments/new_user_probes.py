@@ -6,8 +6,9 @@ Each probe is a CSV (t, v_in, w) written by numpy/scipy alone: a linear plant
 (`scipy.signal.lsim`), or a Duffing oscillator, a mass on a spring with a dry
 friction or a Bouc–Wen spring (`scipy.integrate.solve_ivp`), a
 multilevel drive, an effect placed before, inside or after the plant, and
-white noise of 1 % of the output's range. Each is diagnosed by
-``hybrid diagnose FILE --physics lti:N`` in its own process. The table gives
+white noise of 1 % of the output's range; and a pendulum that swings far or meets
+a stop, diagnosed with a user's own small-angle plug-in (`PENDULUM`). Each is
+diagnosed by ``hybrid diagnose FILE --physics lti:N`` (or the plug-in) in its own process. The table gives
 the named causes with their incremental gains (their fitted parameters in
 the JSON), whether the remainder is flagged unexplained, the ambiguity entries (step, named, rivals) and the
 report's first sentence. Which effect is hidden is in each probe's
@@ -200,7 +201,86 @@ def probes() -> dict[str, dict]:
             "wander",
             99,
         )
+    # 6. a user's own plug-in (`PENDULUM`: small angles, linear), 120 s at 50 Hz, a drive of levels in ±1 held
+    # 0.5–3 s, w in degrees: a real pendulum (0.8 Hz, ζ 0.15) swinging to ±1.6 rad, its restoring force ω² sin θ
+    # (solve_ivp); and the linear one against an inelastic stop at 0.5 rad, stepped here at 1 kHz (at the stop the
+    # angle is held and the rate into it is lost)
+    rate_p, n_p = 50.0, 6000
+    tp = np.arange(n_p) / rate_p
+    wp, zp = 2 * np.pi * 0.8, 0.15
+    for seed in (0, 1):
+        u = _drive(n_p, rate_p, seed, -1.0, 1.0, hold=(0.5, 3.0))
+
+        def swing(time, x, u=u):
+            return [
+                x[1],
+                -(wp**2) * np.sin(x[0])
+                - 2 * zp * wp * x[1]
+                + 0.6 * wp**2 * u[min(int(time * rate_p), n_p - 1)],
+            ]
+
+        angle = solve_ivp(
+            swing, (0, tp[-1]), [0, 0], t_eval=tp, max_step=0.5 / rate_p, rtol=1e-9, atol=1e-11
+        ).y[0]
+        add(
+            f"pendulum_sin{seed}",
+            tp,
+            u,
+            np.degrees(angle),
+            "pendulum.py:Pendulum",
+            "sin θ restoring force",
+            seed,
+        )
+        angle, x, h = np.empty(n_p), np.zeros(2), 1 / rate_p / 20
+        for i in range(n_p):
+            angle[i] = x[0]
+            for _ in range(20):
+                x = x + h * np.array([x[1], -(wp**2) * x[0] - 2 * zp * wp * x[1] + 0.9 * wp**2 * u[i]])
+                if x[0] > 0.5:
+                    x = np.array([0.5, min(x[1], 0.0)])
+        add(
+            f"pendulum_stop{seed}",
+            tp,
+            u,
+            np.degrees(angle),
+            "pendulum.py:Pendulum",
+            "end stop at 0.5 rad",
+            seed,
+        )
     return out
+
+
+#: The probes' own plug-ins, as a user writes one (docs/plugins.md): written beside the CSV.
+PENDULUM = '''"""A driven pendulum for small angles: angle'' = -(2 pi f)^2 angle - 2 zeta (2 pi f) rate + torque u."""
+from typing import ClassVar
+
+from hybrid import AbstractStateSpace, Positive, encode
+
+
+class Pendulum(AbstractStateSpace):
+    raw: dict
+    constraints: ClassVar[dict] = {"frequency": Positive(), "zeta": Positive(), "torque": Positive()}
+    units: ClassVar[dict] = {"frequency": "Hz", "zeta": "1", "torque": "rad/(s^2 {drive})"}
+    plausible: ClassVar[dict] = {"frequency": (0.01, 100.0), "zeta": (1e-4, 5.0), "torque": (1e-3, 1e3)}
+    typical: ClassVar[dict] = {"frequency": (0.1, 10.0), "zeta": (0.005, 1.0)}
+    frozen_by_default: ClassVar[dict] = {"torque": "scales the angle, which the readout's gain does"}
+    states: ClassVar[tuple] = ("angle", "rate")
+    state_units: ClassVar[dict] = {"angle": "rad", "rate": "rad/s"}
+    output_unit: ClassVar[str] = "rad"
+    velocity_states: ClassVar[tuple] = ("rate",)
+
+    def __init__(self, frequency=1.0, zeta=0.1, torque=10.0):
+        self.raw = encode({"frequency": frequency, "zeta": zeta, "torque": torque}, self.constraints, "Pendulum")
+
+    def prepare(self, p):
+        w = 2 * 3.141592653589793 * p["frequency"]
+        return {"w2": w * w, "c": 2 * p["zeta"] * w, "b": p["torque"]}
+
+    def rates(self, x, u, p):
+        angle, rate = x
+        return rate, -p["w2"] * angle - p["c"] * rate + p["b"] * u
+'''
+PLUGINS = {"pendulum.py": PENDULUM}
 
 
 def write(probe: dict, path: Path) -> None:
@@ -213,6 +293,11 @@ def row(name: str, probe: dict, folder: Path) -> dict:
     path = folder / f"{name}.csv"
     write(probe, path)
     out = folder / f"out_{name}"
+    physics = probe["physics"]
+    source = PLUGINS.get(physics.split(":")[0])
+    if source is not None:
+        (folder / physics.split(":")[0]).write_text(source)
+        physics = str(folder / physics)
     done = subprocess.run(
         [
             sys.executable,
@@ -221,7 +306,7 @@ def row(name: str, probe: dict, folder: Path) -> dict:
             "diagnose",
             str(path),
             "--physics",
-            probe["physics"],
+            physics,
             "--out",
             str(out),
         ],

@@ -345,7 +345,9 @@ def test_a_limit_stops_the_velocity_that_moves_its_state():
         hybrid.resolve_effects(["limit_position"], MassSpringDamper())[0].velocity == "velocity"
     )  # by name too
     stop = hybrid.resolve_effects(["limit_position"], MassSpringDamper())[0]
-    assert "which stops its velocity velocity there" in stop.reading({"position_max": 1.0}, "V")
+    assert "(an end stop), which also stops the state that moves it (velocity) there" in stop.reading(
+        {"position_max": 1.0}, "V"
+    )
     u = jnp.asarray(np.sin(np.arange(300) / 20.0))
     stack = EffectStack(MassSpringDamper(), [StateLimit("position", velocity="velocity", position_max=0.3)])
     rebuilt = build_simulation(describe_simulation(stack)).with_raw(stack.raw)

@@ -404,15 +404,15 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
 def state_limit(dynamics, state: str) -> StateLimit:
     """The built-in limit on `state` of `dynamics` (a state-space form), spilling where it says.
 
-    Where one of its `velocity_states` moves `state` (`velocity_of`), the limit
+    Where one of its `velocity_states` moves `state` (`_velocity_of`), the limit
     stops it too: an end stop on a position.
     """
     into = dynamics.spills_into.get(state)
     spill = {} if into is None else {"into": into, "into_unit": dynamics.state_units.get(into, "")}
-    return StateLimit(state, velocity=velocity_of(dynamics, state), **spill)
+    return StateLimit(state, velocity=_velocity_of(dynamics, state), **spill)
 
 
-def velocity_of(dynamics, state: str) -> str | None:
+def _velocity_of(dynamics, state: str) -> str | None:
     """The state of `velocity_states` that moves `state` (a position's velocity), or None.
 
     The first whose value the rate of `state` grows with, at rest with the

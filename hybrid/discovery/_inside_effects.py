@@ -36,7 +36,11 @@ name                   what it does                                parameters
   Where the simulation says where a state's excess goes
   (`AbstractStateSpace.spills_into`: water over the upper tank's rim falls
   into the lower tank), the limit moves a fitted share of the cut there
-  (`StateLimit("h1", into="h2")`); otherwise the cut is lost.
+  (`StateLimit("h1", into="h2")`); otherwise the cut is lost. Where a
+  velocity moves the state (`StateLimit("position", velocity="velocity")`,
+  found from the rates for the default set), the limit is an end stop: it
+  takes away the part of the velocity that pushes into it, so the mass stays
+  at the stop and leaves when the drive pulls it back.
 - Friction: a dry (Coulomb) friction on a state that is a velocity, a force of
   nearly constant size F against its sign, smoothed over |v| ≲ v_s (a step has
   no gradient, and a real contact sticks over a small band of speeds). The
@@ -306,10 +310,11 @@ class StateLimit(AbstractEffect):
         # A piezo stage's gauge that clipped at 85 µm was named an end stop on its position: where
         # the output reads the limited state, the two look alike (an end stop also stops the rate).
         where = " and spills into " + self.into if self.into is not None else ""
+        kind = "an end stop, an overflow"
         if self.velocity is not None:
-            where += f", which stops its velocity {self.velocity} there"
+            kind, where = "an end stop", f", which also stops the state that moves it ({self.velocity}) there"
         return (
-            f"an upper limit on the state {self.state} inside the dynamics (an end stop, an overflow){where}; "
+            f"an upper limit on the state {self.state} inside the dynamics ({kind}){where}; "
             "where the output reads this state, a sensor that clips at that level looks alike on a recording "
             "unless the rate of the state shows the stop"
         )
