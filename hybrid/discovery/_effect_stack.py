@@ -606,7 +606,7 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
             x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt) - z), z)
             if j is not None:  # a share of the cut lands in another state (a tank's spill below)
                 x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt), x[j])
-            if m is not None:  # an end stop also turns back the velocity that drove the state into it
+            if m is not None:  # an end stop also stops the velocity that drove the state into it
                 x[m] = jnp.where(on != 0, x[m] + on * (effect.stopped(z, x[m]) - x[m]), x[m])
         return tuple(x)
 

@@ -312,7 +312,10 @@ class StateLimit(AbstractEffect):
         where = " and spills into " + self.into if self.into is not None else ""
         kind = "an end stop, an overflow"
         if self.velocity is not None:
-            kind, where = "an end stop", f", which also stops the state that moves it ({self.velocity}) there"
+            kind, where = (
+                "an end stop",
+                f"{where}, which also stops the state that moves it ({self.velocity}) there",
+            )
         return (
             f"an upper limit on the state {self.state} inside the dynamics ({kind}){where}; "
             "where the output reads this state, a sensor that clips at that level looks alike on a recording "
