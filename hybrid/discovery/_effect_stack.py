@@ -561,16 +561,10 @@ def drive_forces(stack: EffectStack, drive) -> np.ndarray:
     return np.asarray(jax.vmap(lambda u: core.drive_force(u, p))(jnp.asarray(drive)))
 
 
-def spill_target(effect, states) -> int | None:
-    """The index in `states` of the state a limit spills into (`StateLimit.into`), or None."""
-    into = getattr(effect, "into", None)
-    return None if into is None else states.index(into)
-
-
-def _moved_by(effect, states) -> int | None:
-    """The index in `states` of the velocity a limit stops (`StateLimit.velocity`), or None."""
-    velocity = getattr(effect, "velocity", None)
-    return None if velocity is None else states.index(velocity)
+def _named_state(effect, field: str, states) -> int | None:
+    """The index in `states` of the state a limit's `field` names (`StateLimit.into`, `.velocity`), or None."""
+    name = getattr(effect, field, None)
+    return None if name is None else states.index(name)
 
 
 def _inside_dynamics(stack, inner, inside, u, dt, external=None):
@@ -585,8 +579,8 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
             stack.active[i],
             e,
             inner.states.index(e.acts_on),
-            spill_target(e, inner.states),
-            _moved_by(e, inner.states),
+            _named_state(e, "into", inner.states),
+            _named_state(e, "velocity", inner.states),
         )
         for i, e in inside
         if e.role == "limit"
