@@ -26,7 +26,7 @@ from scipy.integrate import solve_ivp
 import hybrid
 from hybrid import EffectStack, Friction, InputError, PolynomialStiffness, StateLimit
 from hybrid.cli import main
-from hybrid.core._problem import bucket_length
+from hybrid.core._problem import bucket_length, series_from_recording
 from hybrid.core._serialise import build_simulation, describe_simulation
 from hybrid.core._state_space import integrate
 from hybrid.discovery._effect_set import searched_places
@@ -951,3 +951,48 @@ def test_a_quadratic_drag_on_a_motors_speed_is_read_as_a_damping_from_the_comman
     assert "(rad/s) is a rate" in reading and "damping" in reading and "not a spring" in reading
     assert reading in run.stdout
     assert f"stiffness: {reading}" in (tmp_path / "report" / "report.md").read_text()
+
+
+def test_a_limit_never_reached_and_a_friction_never_turned_are_said_to_be_unpinned_for_that():
+    # `not_pinned` hands each effect the signal that enters it (here a state's trajectory, through
+    # `signals_into`), and the effect says why the recording cannot set its parameter.
+    from hybrid.discovery._diagnosis import ParameterUncertainty
+    from hybrid.discovery._evidence import not_pinned
+
+    def series(v_in, rate):
+        return series_from_recording(
+            hybrid.Recording.from_arrays(v_in=v_in, w=np.zeros_like(v_in), rate=rate)
+        )
+
+    u = _tank_drive()
+    record = series(u, 0.25)
+    peak = float(np.max(np.asarray(TwoTank().trajectory(jnp.asarray(u), 4.0)["h1"])))
+    unknown = {"h1_max": ParameterUncertainty(float("inf"), "cm", 1.0)}
+
+    def why(stack):
+        return not_pinned(unknown, hybrid.make_model("physics", simulation=stack), [record]).get("h1_max")
+
+    # above the unlimited level's peak by more than the rim: never reached; at 90 % of it: reached
+    assert why(EffectStack(TwoTank(), [StateLimit("h1", h1_max=1.1 * peak)])) == (
+        "the state never reaches the limit in this recording"
+    )
+    reached = why(EffectStack(TwoTank(), [StateLimit("h1", h1_max=0.9 * peak)]))
+    assert reached is not None and "never reaches" not in reached
+
+    drive = _drive(600)
+    moving = series(drive, 50.0)
+    oscillator = MassSpringDamper(frequency=2.0, zeta=0.1)
+    speed = np.abs(np.asarray(oscillator.trajectory(jnp.asarray(drive), 0.02)["velocity"]))
+    stick = {"velocity_stick_speed": ParameterUncertainty(float("inf"), "V/s", 1.0)}
+
+    def turn(stick_speed):
+        friction = Friction("velocity", velocity_friction=0.01, velocity_stick_speed=stick_speed)
+        model = hybrid.make_model("physics", simulation=EffectStack(oscillator, [friction]))
+        return not_pinned(stick, model, [moving])["velocity_stick_speed"]
+
+    # a turn narrower than the samples resolve (a micro-V/s against speeds to 0.7 V/s): only the start
+    # at rest lies inside it
+    assert turn(1e-6).startswith("the state velocity is near zero, where the friction turns, on 1 of its 600")
+    # a turn 5 % of the largest speed wide has many samples in it: the numbers' reason is given instead
+    wide = turn(0.05 * float(np.max(speed)))
+    assert "friction turns" not in wide and "does not change with it" in wide

@@ -403,13 +403,18 @@ class Friction(AbstractEffect):
         ]
 
     def unpinned_reason(self, name, signal):
+        # The width of the turn is seen only on samples inside it: a record that starts at rest has
+        # one there (its first), which does not set it; a velocity that crosses zero between samples
+        # at speeds far above the stick speed leaves the turn a step, whatever its width.
         v = np.asarray(signal, float)
-        if (
-            name == f"{self.state}_stick_speed"
-            and v.size
-            and not np.any(np.abs(v) < 2.0 * float(self.parameters()[name]))
-        ):
-            return f"the state {self.state} never comes near zero, where the friction turns"
+        if name != f"{self.state}_stick_speed" or not v.size:
+            return None
+        inside = int(np.sum(np.abs(v) < 2.0 * float(self.parameters()[name])))
+        if inside < 3:
+            return (
+                f"the state {self.state} is near zero, where the friction turns, on {inside} of its "
+                f"{v.size} samples: it crosses zero faster than the recording resolves the turn"
+            )
         return None
 
     def reading(self, parameters, output_unit):
