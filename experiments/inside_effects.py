@@ -311,7 +311,11 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     import hybrid
 
-    rows = []
+    # A run of some cases into an existing table keeps the other cases' rows (and the commands that made them)
+    before = json.loads(Path(args.out).read_text()) if Path(args.out).exists() else {}
+    kept = [r for r in before.get("rows", []) if r["case"] not in cases]
+    commands = [c for c in before.get("commands", [before.get("command")]) if c and kept]
+    rows: list = []
     for case in cases:
         tank, linear, network = (
             case in ("overflow", "tank_none"),
@@ -353,33 +357,51 @@ def main(argv=None) -> int:
                     "right": right,
                     "gain": found.gain,
                     "unexplained": found.unexplained is not None,
+                    # rivals the report calls open (a question the recording leaves, said in the verdict)
+                    "open": sorted(
+                        {r["name"] for a in found.ambiguous if a.get("open") for r in a["rivals"]}
+                    ),
                     "seconds": seconds,
                 }
             )
             print(
                 f"{case:9s} seed {seed}: causes {causes or ['none']} ({'right' if right else 'WRONG'}), "
-                f"gain {found.gain:.2f}, unexplained {'yes' if found.unexplained else 'no'} ({seconds:.0f} s)",
+                f"gain {found.gain:.2f}, unexplained {'yes' if found.unexplained else 'no'}, "
+                f"open {rows[-1]['open'] or 'none'} ({seconds:.0f} s)",
                 flush=True,
             )
-            write(rows, cases, argv, args.out)
+            write(kept, rows, commands, argv, args.out)
     print(f"wrote {args.out} and {Path(args.out).with_suffix('.md')}")
     return 0
 
 
-def write(rows: list, cases: list, argv, path: str) -> None:
-    """The JSON and the Markdown table of the draws so far (after every draw: a stopped run keeps them)."""
+def write(kept: list, new: list, commands: list, argv, path: str) -> None:
+    """The JSON and the Markdown table of the draws so far (after every draw: a stopped run keeps them).
+
+    `kept`: an earlier run's rows of other cases, made by `commands`; `new`: this run's.
+    """
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     command = "python experiments/inside_effects.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    out.write_text(json.dumps({"command": command.strip(), "rows": rows}, indent=2) + "\n")
+    commands = [*commands, command.strip()]
+    rows = [*kept, *new]
+    out.write_text(json.dumps({"commands": commands, "rows": rows}, indent=2) + "\n")
+    cases = list(dict.fromkeys(r["case"] for r in rows))
     lines = [
         "# Missing physics on the drive and inside the dynamics, hidden in four plants",
         "",
-        f"Command: `{command.strip()}` (the generators are in its docstring).",
+        (
+            "Command"
+            if len(commands) == 1
+            else "Commands, in turn (the later run's cases replace the earlier's)"
+        )
+        + ": "
+        + ", then ".join(f"`{c}`" for c in commands)
+        + " (the generators are in its docstring).",
         "",
-        "| case | seed | expected | causes named | right | held-out gain | unexplained | effect (RMS, % of range) "
-        "| seconds |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| case | seed | expected | causes named | right | held-out gain | unexplained | open (the verdict asks) "
+        "| effect (RMS, % of range) | seconds |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         size = r["truth"].get("effect_rms_percent")  # measured by the RC generator (noise: 0.5 %)
@@ -388,6 +410,7 @@ def write(rows: list, cases: list, argv, path: str) -> None:
             + "".join(f" (dropped: {name})" for name in r.get("dropped", []))
             + " | "
             f"{'yes' if r['right'] else '**no**'} | {r['gain']:.2f} | {'yes' if r['unexplained'] else 'no'} | "
+            f"{(', '.join(r['open']) or '—') if 'open' in r else '(not recorded)'} | "
             f"{'' if size is None else f'{size:.2f}'} | {r['seconds']:.0f} |"
         )
     lines.append("")
