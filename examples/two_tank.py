@@ -126,6 +126,9 @@ class TwoTank(AbstractStateSpace):
         "area_1": "measured; scaled with outlet_1 it barely changes the output (the data hardly tell them apart)",
         "area_2": "measured; scaled with outlet_2 and the sensor's gain it changes only a nearly empty tank",
     }
+    # The pump's drive the numbers above are written for (the Cascaded Tanks' 0–10 V): fit and diagnose
+    # warn about a drive far outside it (recorded in mV, or in a DAC's counts).
+    drive_range: ClassVar[tuple] = (0.0, 10.0)
     # The output is not linear in the drive (√ outflow, a pump that cannot reverse):
     # fit must not rescale the drive's volts.
     linear_in_drive: ClassVar[bool] = False

@@ -257,6 +257,11 @@ class Heater(AbstractStateSpace):
         ('(0.01, 1e5), "resistance"', '(0.01, 1e5), "resistence"', ["Heater.plausible", "resistence"]),
         ('{"resistance": "only', '{"resistence": "only', ["Heater.frozen_by_default", "resistence"]),
         ("(1.0, 100.0)", "(100.0, 1.0)", ["Heater.typical['capacity']", "low < high"]),
+        (  # the drive levels its numbers hold for (`drive_range`): a range, or None
+            'states: ClassVar = ("rise",)',
+            'states: ClassVar = ("rise",)\n    drive_range: ClassVar = (5.0, "ten")',
+            ["Heater.drive_range must be None or (low, high)", "'ten'"],
+        ),
         ('states: ClassVar = ("rise",)', "", ["Heater.states", "non-empty tuple"]),
         ('p["resistance"]) / p', 'p["resistence"]) / p', ["Heater.rates raised KeyError", "resistence"]),
         ("return ((u - x[0]", "return ((2 * u - x[0]", ["rates and linear_matrices disagree", "A x + B u"]),

@@ -50,7 +50,7 @@ from ._levenberg_marquardt import lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
 from ._problem import Problem, Series, series_from_recording
-from ._result import FitResult, fit_warnings
+from ._result import FitResult, drive_outside_range, fit_warnings
 from ._simulation import AbstractSimulation
 from ._solvers import AbstractSolver, LevenbergMarquardt, resolve_solver
 
@@ -274,6 +274,9 @@ def fit_batch(
                     per_start[k],
                     split_metrics.get("train", {}).get("nmse_variance"),
                     rate=recording.rate,
+                )
+                + drive_outside_range(
+                    fitted.simulation, [recording.v_in], (recording_units([recording]) or ("", ""))[1]
                 ),
             )
         )

@@ -6,6 +6,8 @@ import dataclasses
 import math
 from typing import Any
 
+import numpy as np
+
 from ._models import Model
 from ._simulation import unit_suffix
 
@@ -162,6 +164,42 @@ def fit_warnings(
     warnings += implausible(fitted, frozen)
     warnings += aliased(fitted, frozen, rate)
     return warnings
+
+
+#: A recording's drive that peaks this many times above (or below) the largest |level| of its
+#: simulation's `drive_range` is warned about: 20 keeps a drive a few times the written-for levels
+#: quiet and catches a unit's step of 1000 (mV read as V) or a DAC's counts (0–4095 for 0–5 V).
+DRIVE_RANGE_FACTOR = 20.0
+
+
+def drive_outside_range(simulation, drives, drive_unit: str = "") -> list[str]:
+    """One sentence where the drives' largest |level| lies `DRIVE_RANGE_FACTOR`× outside `simulation.drive_range`.
+
+    `drives`: the recordings' drives, in the unit `drive_unit` labels (a file
+    without units: the simulation's own). Nothing where the simulation states no
+    range, or the drives are all zero.
+    """
+    span = simulation.drive_range
+    peak = max((float(np.max(np.abs(np.asarray(d, float)))) for d in drives if len(d)), default=0.0)
+    if span is None or not (math.isfinite(peak) and peak > 0):
+        return []
+    top = max(abs(float(span[0])), abs(float(span[1])))
+    if top <= 0 or 1.0 / DRIVE_RANGE_FACTOR <= peak / top <= DRIVE_RANGE_FACTOR:
+        return []
+    ratio, unit = peak / top, unit_suffix(drive_unit)
+    size = f"{ratio:.3g}× the largest" if ratio > 1 else f"1/{1 / ratio:.3g} of the largest"
+    said = (
+        f"the drive reaches {peak:.4g}{unit}, {size} level {type(simulation).__name__} is written for "
+        f"({span[0]:g} to {span[1]:g} in its own drive unit, its drive_range): its numbers (defaults, frozen "
+        "values, typical ranges) hold for drives like those"
+    )
+    power = round(math.log10(ratio) / 3) * 3
+    if power and abs(math.log10(ratio) - power) < 0.5:
+        said += f"; {ratio:.3g} is near 10^{power}, the step between units (mV and V)"
+    return [
+        said + ": check the drive's unit, then rescale the drive to the simulation's or restate the "
+        "simulation's numbers in the drive's unit (docs/plugins.md)"
+    ]
 
 
 def aliased(fitted: Model, frozen, rate: float | None) -> list[str]:

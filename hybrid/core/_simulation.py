@@ -87,6 +87,18 @@ class AbstractSimulation(eqx.Module):
         return {}
 
     @property
+    def drive_range(self) -> tuple[float, float] | None:
+        """The drive levels (low, high) the simulation's numbers are written for, in that drive unit (default: none).
+
+        Its defaults, frozen values, `typical` and `plausible` ranges hold for
+        drives like these: a pump's 0–10 V. `fit` and `diagnose` warn where a
+        recording's drive peaks `DRIVE_RANGE_FACTOR` times above its largest
+        |level| or as far below it (a drive in mV, or in DAC counts, read as
+        volts), not refused: say it only where a drive far outside is an error.
+        """
+        return None
+
+    @property
     def linear_in_drive(self) -> bool:
         """True when the output is linear in the drive (zero initial state) (default False).
 
@@ -339,6 +351,10 @@ class AbstractWrapper(AbstractSimulation):
     @property
     def frozen_by_default(self) -> dict[str, str]:
         return self.inner.frozen_by_default
+
+    @property
+    def drive_range(self) -> tuple[float, float] | None:
+        return self.inner.drive_range
 
     @property
     def output_unit(self) -> str:

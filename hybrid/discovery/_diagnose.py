@@ -65,7 +65,7 @@ from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
-from ..core._result import aliased, implausible
+from ..core._result import aliased, drive_outside_range, implausible
 from ..core._screen import N_SCREEN, screened_starts
 from ..core._simulation import unit_in
 from ..util._errors import InputError, PluginError
@@ -505,7 +505,8 @@ def diagnose(
         signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
         warnings=nonfinite_warnings(steps, search.effects)
-        + model_warnings(models["extended"], frozen, search.rate),
+        + model_warnings(models["extended"], frozen, search.rate)
+        + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1]),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept
         else {},

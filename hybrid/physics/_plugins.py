@@ -438,6 +438,17 @@ def _check(text: str, name: str, simulation: AbstractSimulation) -> None:
                     f"--physics {text}: {name}.{fact}[{key!r}] must be (low, high), two finite numbers with "
                     f"low < high in the parameter's unit, got {bounds!r:.60}"
                 )
+    span = _fact(simulation, "drive_range")
+    if span is not None:
+        try:
+            low, high = (float(b) for b in span)  # type: ignore[attr-defined]
+        except (TypeError, ValueError):
+            low, high = float("nan"), float("nan")
+        if not (np.isfinite(low) and np.isfinite(high) and low < high):
+            raise InputError(
+                f"--physics {text}: {name}.drive_range must be None or (low, high), two finite numbers with "
+                f"low < high in the drive unit its numbers are written for, got {span!r:.60}"
+            )
 
 
 def _fact(simulation: AbstractSimulation, name: str) -> object:
