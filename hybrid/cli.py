@@ -164,7 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="SPEC[,SPEC...]",
         help="extend the physics by these effects, all fitted (built-in names, path/to/file.py:Class or "
-        "package.module:Class, comma-separated; e.g. the causes hybrid diagnose named)",
+        "package.module:Class, comma-separated; e.g. the causes hybrid diagnose named); each starts at its "
+        "first start on the first recording (a saturation's knee, a line at the strongest line the physics "
+        "leaves), not at a default LM cannot leave",
     )
     p.add_argument(
         "--start-from",

@@ -290,9 +290,19 @@ def at_first_starts(stack: EffectStack, recording) -> EffectStack:
     κ, so LM never moves it (`hybrid fit --effects saturation` kept the line on a
     clipped record). Each start is taken with the other effects as they are; an
     effect whose `starts` fails here keeps its defaults.
+
+    An effect's `StartContext.measured` is the recorded w brought into the
+    simulation's output unit by the least-squares line through the inner
+    simulation's output (w ≈ g·y + c), as `diagnose` brings it by the fitted
+    readout: a line added to the output (`Line`) starts at the residual's
+    strongest line (`hybrid fit --effects line` from its 1 Hz default found a
+    7.3 Hz pick-up nowhere).
     """
     v_in = jnp.asarray(recording.v_in)
     signals = stack.signals_into(v_in, recording.dt)
+    measured = _in_output_unit(
+        np.asarray(recording.w, float), np.asarray(stack.inner.simulate(v_in, recording.dt))
+    )
     values: dict[str, float] = {}
     for effect in stack.effects:
         context = StartContext(
@@ -300,6 +310,7 @@ def at_first_starts(stack: EffectStack, recording) -> EffectStack:
             rate=recording.rate,
             duration=float(recording.n * recording.dt),
             drive=np.asarray(signals["drive"]),
+            measured=measured,
         )
         try:
             first = (effect.starts(context) or [{}])[0]
@@ -307,6 +318,14 @@ def at_first_starts(stack: EffectStack, recording) -> EffectStack:
             continue
         values.update({k: float(v) for k, v in first.items() if k in effect.constraints})
     return stack.replace(**values) if values else stack
+
+
+def _in_output_unit(w: np.ndarray, y: np.ndarray) -> np.ndarray | None:
+    """`w` mapped onto `y`'s unit by the least-squares line w ≈ g·y + c, or None where y carries no such line."""
+    if w.shape != y.shape or not (np.all(np.isfinite(w)) and np.all(np.isfinite(y))) or np.ptp(y) == 0:
+        return None
+    g, c = np.polyfit(y, w, 1)
+    return (w - c) / g if g != 0 and np.isfinite(g) else None
 
 
 def effect_class(name: str, module: str | None = None) -> type[AbstractEffect]:
