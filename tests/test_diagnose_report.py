@@ -234,6 +234,56 @@ def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
     )
 
 
+def test_the_verdict_says_when_the_names_rest_on_a_simulation_fitted_outside_its_plausible_range():
+    """A new user's `lti:2` with a 45 s wander: "resonance and stiffness explain 90 %" led the report while the
+    plant's own mode had taken the wander (ζ 2.4e-6, below lti's plausible 1e-3) and the resonance the plant's."""
+    from types import SimpleNamespace
+
+    import hybrid
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+    from hybrid.discovery._verdict import verdict
+
+    w = np.array([-1.0, 1.0])
+    fit = lambda nmse: SimpleNamespace(heldout=SimpleNamespace(nmse=nmse))
+
+    def said(causes, zeta, frozen=None):
+        plant = hybrid.LTI(2).replace(f_1=0.022, zeta_1=zeta)
+        return verdict(
+            SimpleNamespace(
+                causes=causes,
+                heldout=SimpleNamespace(w=w),
+                baseline=fit(0.5),
+                extended=fit(0.01),
+                noise_floor=SimpleNamespace(variance=0.01),
+                unexplained=None,
+                ambiguous=[],
+                dropped=[],
+                settings=DiagnoseSettings(frozen=frozen),
+                gain=50.0,
+                models={"extended": SimpleNamespace(simulation=plant)},
+            )
+        )
+
+    named = said([{"name": "resonance"}], 2.4e-6)
+    assert named.startswith("resonance explains 100%")
+    assert (
+        "; but the simulation was fitted outside its plausible range (zeta_1 = 2.4e-06; see the warnings)"
+        in named
+    )
+    assert named.endswith(
+        "a named cause may be standing in for what the simulation should do, and the simulation for a cause."
+    )
+    alone = said([], 2.4e-6)
+    assert alone.startswith("No effect is needed") and alone.endswith(
+        "it may have taken up what a missing effect does."
+    )
+    # within the range, or held there by the user (frozen), the sentence is as it was
+    assert said([{"name": "resonance"}], 0.3).endswith("what remains is measurement noise.")
+    assert said([{"name": "resonance"}], 2.4e-6, frozen=("zeta_1",)).endswith(
+        "what remains is measurement noise."
+    )
+
+
 @pytest.mark.parametrize(
     "name, short",
     [
