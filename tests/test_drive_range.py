@@ -45,8 +45,10 @@ def test_a_drive_far_outside_the_written_for_levels_is_said_and_one_within_is_no
     assert drive_outside_range(tanks, [u, 1000 * u]) != []
     assert drive_outside_range(tanks, [np.zeros(10)]) == []
     assert drive_outside_range(hybrid.LTI(1), [1000 * u]) == []
-    # a wrapper (a held start, the effects' stack) states its inner simulation's range
-    assert hybrid.HeldStart(tanks, 10).drive_range == (0.0, 10.0)
+    # a wrapper (a held start, the effects' stack) states its inner simulation's range, and names it
+    held = hybrid.EffectStack(hybrid.HeldStart(tanks, 10), [hybrid.StateLimit("h1")])
+    assert held.drive_range == (0.0, 10.0)
+    assert "largest level TwoTank is written for" in drive_outside_range(held, [1000 * u])[0]
 
 
 @pytest.mark.skipif(not TANKS.is_file(), reason=f"the benchmark file is not in {TANKS.parent}")

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from ._models import Model
-from ._simulation import unit_suffix
+from ._simulation import AbstractSimulation, unit_suffix
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,9 +187,12 @@ def drive_outside_range(simulation, drives, drive_unit: str = "") -> list[str]:
     if top <= 0 or 1.0 / DRIVE_RANGE_FACTOR <= peak / top <= DRIVE_RANGE_FACTOR:
         return []
     ratio, unit = peak / top, unit_suffix(drive_unit)
+    own = simulation
+    while isinstance(getattr(own, "inner", None), AbstractSimulation):  # a wrapper's range is its inner's
+        own = own.inner
     size = f"{ratio:.3g}× the largest" if ratio > 1 else f"1/{1 / ratio:.3g} of the largest"
     said = (
-        f"the drive reaches {peak:.4g}{unit}, {size} level {type(simulation).__name__} is written for "
+        f"the drive reaches {peak:.4g}{unit}, {size} level {type(own).__name__} is written for "
         f"({span[0]:g} to {span[1]:g} in its own drive unit, its drive_range): its numbers (defaults, frozen "
         "values, typical ranges) hold for drives like those"
     )
