@@ -384,7 +384,7 @@ def write(kept: list, new: list, commands: list, argv, path: str) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     command = "python experiments/inside_effects.py " + " ".join(argv if argv is not None else sys.argv[1:])
     commands = [*commands, command.strip()]
-    rows = [*kept, *new]
+    rows = sorted([*kept, *new], key=lambda r: (list(EXPECTED).index(r["case"]), r["seed"]))
     out.write_text(json.dumps({"commands": commands, "rows": rows}, indent=2) + "\n")
     cases = list(dict.fromkeys(r["case"] for r in rows))
     lines = [
