@@ -340,8 +340,9 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     report_50 = {**report, "ambiguous": [], "unexplained": {"ratio_to_floor": 3.0}}
     report_50["evidence"] = {**report["evidence"], "rate_hz": 50.0}
     (plain / "report.json").write_text(json.dumps(report_50))
-    done = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "r.csv")
-    assert done.returncode == 0 and "250 samples at 50 Hz" in done.stdout, done.stderr + done.stdout
+    five = ["design", str(plain), "--duration", "5", "--amplitude", "1"]
+    code, out, err = design("--out", tmp_path / "r.csv", base=five)
+    assert code == 0 and "250 samples at 50 Hz" in out, err + out
     t = np.loadtxt(tmp_path / "r.csv", delimiter=",", skiprows=1)[:, 0]
     np.testing.assert_allclose(np.diff(t), 0.02, rtol=1e-6)
     # a plug-in (for the rivals' classes) is probed at that rate too: a leapfrog oscillator at 12.7 Hz is
@@ -349,30 +350,23 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     # whatever the rig's rate)
     (tmp_path / "leapfrog.py").write_text(h.LEAPFROG)
     spec = f"{tmp_path / 'leapfrog.py'}:Leapfrog"
-    done = h.run_hybrid(
-        tmp_path, "design", plain, "--physics", spec, "--duration", "5", "--amplitude", "1", "--out", "p.csv"
-    )
-    assert done.returncode == 0 and "250 samples at 50 Hz" in done.stdout, done.stderr + done.stdout
-    refused = h.run_hybrid(
-        tmp_path, "design", plain, "--physics", spec, "--rate", "30", "--duration", "5", "--amplitude", "1",
-        "--out", "q.csv",
-    )  # fmt: skip
-    assert refused.returncode == 2 and "at 30 Hz" in refused.stderr and "non-finite" in refused.stderr
-    assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "q.csv").exists()
+    code, out, err = design("--physics", spec, "--out", tmp_path / "p.csv", base=five)
+    assert code == 0 and "250 samples at 50 Hz" in out, err + out
+    code, _, err = design("--physics", spec, "--rate", "30", "--out", tmp_path / "q.csv", base=five)
+    assert code == 2 and "at 30 Hz" in err and "non-finite" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "q.csv").exists()
     report_50["evidence"] = {k: v for k, v in report["evidence"].items() if k != "rate_hz"}
     (plain / "report.json").write_text(json.dumps(report_50))
-    norate = h.run_hybrid(tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--out", "n.csv")
-    assert norate.returncode == 2 and "--rate HZ" in norate.stderr and not (tmp_path / "n.csv").exists()
+    code, _, err = design("--out", tmp_path / "n.csv", base=five)
+    assert code == 2 and "--rate HZ" in err and not (tmp_path / "n.csv").exists()
     (plain / "report.json").write_text(
         json.dumps({**report, "ambiguous": [], "unexplained": {"ratio_to_floor": 3.0}})
     )
     # ... but a step asked for by number, where no step is ambiguous: one line that says so, no file
-    stepped = h.run_hybrid(
-        tmp_path, "design", plain, "--duration", "5", "--amplitude", "1", "--step", "1", "--out", "s.csv"
-    )
-    assert stepped.returncode == 2 and "--step 1" in stepped.stderr and "no ambiguous step" in stepped.stderr
-    assert "no design is needed" not in stepped.stderr and "without --step" in stepped.stderr
-    assert len(stepped.stderr.strip().splitlines()) == 1 and not (tmp_path / "s.csv").exists()
+    code, _, err = design("--step", "1", "--out", tmp_path / "s.csv", base=five)
+    assert code == 2 and "--step 1" in err and "no ambiguous step" in err
+    assert "no design is needed" not in err and "without --step" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "s.csv").exists()
 
 
 def _candidate(name, gain, residual, eligible=False, material=True, reasons=()):

@@ -14,6 +14,7 @@ import helpers as h
 import numpy as np
 
 import hybrid
+from hybrid.cli import main as hybrid_main
 from hybrid.ipmc._virtual_elements import dac_output
 from hybrid.ipmc._virtual_parameters import VirtualIPMCParameters
 from rig import Calibration
@@ -32,35 +33,43 @@ def _drive_file(folder, seconds=3.0, peak=1.5, fmt="%.17g", name="drive.csv"):
     return path, v
 
 
-def test_hybrid_simulate_records_the_virtual_ipmc_under_a_drive_file(tmp_path):
+def test_hybrid_simulate_records_the_virtual_ipmc_under_a_drive_file(tmp_path, capsys, monkeypatch):
     path, v = _drive_file(tmp_path)
-    done = h.run_hybrid(tmp_path, "simulate", "--drive-file", path, "--out", "rec.csv")
+    done = h.run_hybrid(tmp_path, "simulate", "--drive-file", path, "--out", "rec.csv")  # the real command
     assert done.returncode == 0, done.stderr
     rec = hybrid.Recording.load(tmp_path / "rec.csv")
     assert len(rec) == len(v) and abs(rec.rate - RATE) < 1e-6 * RATE
     # the voltage the virtual DAC applies: the file's drive, quantised and clipped
     np.testing.assert_allclose(rec.v_in, dac_output(v, VirtualIPMCParameters()), atol=1e-9)
     assert np.ptp(rec.w) > 0  # the strip moved
+
+    # the rest through the same command line in this process (`hybrid.cli.main`): no process start each
+    monkeypatch.chdir(tmp_path)
+
+    def simulate(*args):
+        code = hybrid_main(["simulate", *map(str, args)])
+        return code, capsys.readouterr().err
+
     for flag, value in (("--duration", "3"), ("--rate", "60"), ("--amplitude", "0.1")):  # the file says
-        both = h.run_hybrid(tmp_path, "simulate", "--drive-file", path, flag, value, "--out", "x.csv")
-        assert both.returncode == 2 and f"{flag} is for --drive" in both.stderr, both.stderr
-        assert len(both.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()
+        code, err = simulate("--drive-file", path, flag, value, "--out", "x.csv")
+        assert code == 2 and f"{flag} is for --drive" in err, err
+        assert len(err.strip().splitlines()) == 1 and not (tmp_path / "x.csv").exists()
     # t written to 6 decimals (0.033333, 0.066667, ...): a uniform 30 Hz drive all the same
     rounded, _ = _drive_file(tmp_path, fmt="%.6f", name="rounded.csv")
-    done = h.run_hybrid(tmp_path, "simulate", "--drive-file", rounded, "--out", "six.csv")
-    assert done.returncode == 0, done.stderr
+    code, err = simulate("--drive-file", rounded, "--out", "six.csv")
+    assert code == 0, err
     assert abs(hybrid.Recording.load(tmp_path / "six.csv").rate - RATE) < 1e-6 * RATE
     # a drive faster than the camera's exposure allows: refused in one line that names the flag to change
     fast = tmp_path / "fast.csv"
     fast.write_text("t,v_in\n" + "".join(f"{k / 2000.0!r},{0.1 * (k % 7)!r}\n" for k in range(400)))
-    quick = h.run_hybrid(tmp_path, "simulate", "--drive-file", fast, "--out", "fast_rec.csv")
-    assert quick.returncode == 2 and "--param exposure_s=0.0005" in quick.stderr, quick.stderr
-    assert len(quick.stderr.strip().splitlines()) == 1 and not (tmp_path / "fast_rec.csv").exists()
+    code, err = simulate("--drive-file", fast, "--out", "fast_rec.csv")
+    assert code == 2 and "--param exposure_s=0.0005" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "fast_rec.csv").exists()
     # beyond the virtual DAC's rails: refused in one line, as rig record does, not clipped in silence
     loud, _ = _drive_file(tmp_path, peak=5.0, name="loud.csv")
-    refused = h.run_hybrid(tmp_path, "simulate", "--drive-file", loud, "--out", "loud_rec.csv")
-    assert refused.returncode == 2 and "outside the virtual DAC's ±3 V" in refused.stderr, refused.stderr
-    assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "loud_rec.csv").exists()
+    code, err = simulate("--drive-file", loud, "--out", "loud_rec.csv")
+    assert code == 2 and "outside the virtual DAC's ±3 V" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "loud_rec.csv").exists()
 
 
 def test_rig_record_plays_a_drive_file_on_the_virtual_rig_and_refuses_one_the_dac_cannot_play(

@@ -66,7 +66,11 @@ def run_while_progressing(command, env, stall_s=STALL_S, poll_s=5.0):
         proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=out, stderr=err, text=True)
         last_cpu, last_change = 0.0, time.monotonic()
         while proc.poll() is None:
-            time.sleep(poll_s)
+            try:  # wait up to a poll's time: a command that ends is seen at once, not at the next poll
+                proc.wait(timeout=poll_s)
+                break
+            except subprocess.TimeoutExpired:
+                pass
             try:
                 cpu = _cpu_seconds(proc.pid)
             except (OSError, IndexError):  # ended between poll and read
