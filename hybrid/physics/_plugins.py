@@ -429,26 +429,26 @@ def _check(text: str, name: str, simulation: AbstractSimulation) -> None:
         if fact == "frozen_by_default":
             continue
         for key, bounds in stated.items():
-            try:
-                low, high = (float(b) for b in bounds)
-            except (TypeError, ValueError):
-                low, high = float("nan"), float("nan")
-            if not (np.isfinite(low) and np.isfinite(high) and low < high):
+            if not _is_range(bounds):
                 raise InputError(
                     f"--physics {text}: {name}.{fact}[{key!r}] must be (low, high), two finite numbers with "
                     f"low < high in the parameter's unit, got {bounds!r:.60}"
                 )
     span = _fact(simulation, "drive_range")
-    if span is not None:
-        try:
-            low, high = (float(b) for b in span)  # type: ignore[attr-defined]
-        except (TypeError, ValueError):
-            low, high = float("nan"), float("nan")
-        if not (np.isfinite(low) and np.isfinite(high) and low < high):
-            raise InputError(
-                f"--physics {text}: {name}.drive_range must be None or (low, high), two finite numbers with "
-                f"low < high in the drive unit its numbers are written for, got {span!r:.60}"
-            )
+    if span is not None and not _is_range(span):
+        raise InputError(
+            f"--physics {text}: {name}.drive_range must be None or (low, high), two finite numbers with "
+            f"low < high in the drive unit its numbers are written for, got {span!r:.60}"
+        )
+
+
+def _is_range(bounds) -> bool:
+    """Whether `bounds` is (low, high): two finite numbers, low < high."""
+    try:
+        low, high = (float(b) for b in bounds)
+    except (TypeError, ValueError):
+        return False
+    return bool(np.isfinite(low) and np.isfinite(high) and low < high)
 
 
 def _fact(simulation: AbstractSimulation, name: str) -> object:
