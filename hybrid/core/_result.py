@@ -240,13 +240,22 @@ def implausible(fitted: Model, frozen, why: str = "") -> list[str]:
     columns, identifiability).
     """
     out = []
-    values = {k: float(v) for k, v in fitted.simulation.parameters().items()}
-    for name, (low, high) in fitted.simulation.plausible.items():
-        if name in values and name not in frozen and not (low <= values[name] <= high):
-            unit = unit_suffix(fitted.units.get(name))
-            out.append(
-                f"{name} = {values[name]:.6g}{unit} is outside its plausible range {low:g} to "
-                f"{high:g}{unit}: check the recording's units and columns, or the value is not "
-                f"identifiable from this data{why}"
-            )
+    plausible = fitted.simulation.plausible
+    for name, value in outside_plausible(fitted.simulation, frozen).items():
+        (low, high), unit = plausible[name], unit_suffix(fitted.units.get(name))
+        out.append(
+            f"{name} = {value:.6g}{unit} is outside its plausible range {low:g} to "
+            f"{high:g}{unit}: check the recording's units and columns, or the value is not "
+            f"identifiable from this data{why}"
+        )
     return out
+
+
+def outside_plausible(simulation, frozen) -> dict[str, float]:
+    """The value of each parameter of `simulation` not in `frozen` that lies outside its plausible range."""
+    values = {k: float(v) for k, v in simulation.parameters().items()}
+    return {
+        name: values[name]
+        for name, (low, high) in simulation.plausible.items()
+        if name in values and name not in frozen and not (low <= values[name] <= high)
+    }

@@ -259,16 +259,19 @@ class StateLimit(AbstractEffect):
         the limit, half at it, all beyond. Only a positive v (one that drives z
         up, into the stop) is taken.
         """
-        top = self._level()
-        width = RIM_WIDTH * jnp.abs(top) + 1e-12
+        top, width = self._rim()
         return v - jax.nn.sigmoid((z - top) / width) * jnp.maximum(v, 0.0)
 
     def _level(self):
         return self.parameters()[f"{self.state}_max"]
 
-    def apply(self, z, dt):
+    def _rim(self):
+        """The limit L and the width δ = RIM_WIDTH·|L| over which it engages (traced: `apply`, `stopped`)."""
         top = self._level()
-        width = RIM_WIDTH * jnp.abs(top) + 1e-12
+        return top, RIM_WIDTH * jnp.abs(top) + 1e-12
+
+    def apply(self, z, dt):
+        top, width = self._rim()
         return top - width * jax.nn.softplus((top - z) / width)
 
     def derived(self, z, dt):

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import math
 
+from ..core._result import outside_plausible
+
 #: Held-out error over the noise floor up to which the verdict calls the model as good as the data allow.
 AT_FLOOR = 1.2
 
@@ -56,13 +58,8 @@ def implausible_values(diagnosis) -> list[str]:
     simulation = getattr(model, "simulation", None)
     if simulation is None:
         return []
-    values = {k: float(v) for k, v in simulation.parameters().items()}
-    frozen = set(diagnosis.settings.frozen_for(simulation))
-    return [
-        f"{name} = {values[name]:.3g}"
-        for name, (low, high) in simulation.plausible.items()
-        if name in values and name not in frozen and not low <= values[name] <= high
-    ]
+    outside = outside_plausible(simulation, set(diagnosis.settings.frozen_for(simulation)))
+    return [f"{name} = {value:.3g}" for name, value in outside.items()]
 
 
 def _headline(diagnosis) -> str:
