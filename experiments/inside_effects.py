@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -314,7 +315,8 @@ def main(argv=None) -> int:
     # A run of some cases into an existing table keeps the other cases' rows (and the commands that made them)
     before = json.loads(Path(args.out).read_text()) if Path(args.out).exists() else {}
     kept = [r for r in before.get("rows", []) if r["case"] not in cases]
-    commands = [c for c in before.get("commands", [before.get("command")]) if c and kept]
+    left = {r["case"] for r in kept}  # the earlier commands that made a row still kept
+    commands = [c for c in before.get("commands") or [before.get("command", "")] if _cases_of(c) & left]
     rows: list = []
     for case in cases:
         tank, linear, network = (
@@ -357,22 +359,40 @@ def main(argv=None) -> int:
                     "right": right,
                     "gain": found.gain,
                     "unexplained": found.unexplained is not None,
-                    # rivals the report calls open (a question the recording leaves, said in the verdict)
-                    "open": sorted(
-                        {r["name"] for a in found.ambiguous if a.get("open") for r in a["rivals"]}
-                    ),
+                    # rivals the report calls open (a question the recording leaves, said in the verdict),
+                    # with their held-out gains over the named set; and the verdict itself
+                    "open": {
+                        r["name"]: r["gain"] for a in found.ambiguous if a.get("open") for r in a["rivals"]
+                    },
+                    "verdict": found.verdict,
                     "seconds": seconds,
                 }
             )
             print(
                 f"{case:9s} seed {seed}: causes {causes or ['none']} ({'right' if right else 'WRONG'}), "
                 f"gain {found.gain:.2f}, unexplained {'yes' if found.unexplained else 'no'}, "
-                f"open {rows[-1]['open'] or 'none'} ({seconds:.0f} s)",
+                f"open {_open(rows[-1])} ({seconds:.0f} s)",
                 flush=True,
             )
             write(kept, rows, commands, argv, args.out)
     print(f"wrote {args.out} and {Path(args.out).with_suffix('.md')}")
     return 0
+
+
+def _cases_of(command: str) -> set[str]:
+    """The cases a command line of this script ran (every case where it names none)."""
+    named = re.search(r"--cases[ =](\S+)", command)
+    return set(named.group(1).split(",")) if named else set(EXPECTED)
+
+
+def _open(row: dict) -> str:
+    """The table's cell of the rivals the verdict calls open: names, with gains where the run kept them."""
+    if "open" not in row:
+        return "(not recorded)"
+    rivals = row["open"]
+    if isinstance(rivals, dict):
+        return ", ".join(f"{name} ({gain:.2f})" for name, gain in sorted(rivals.items())) or "—"
+    return ", ".join(rivals) or "—"  # the names alone (a run before the gains were kept)
 
 
 def write(kept: list, new: list, commands: list, argv, path: str) -> None:
@@ -410,7 +430,7 @@ def write(kept: list, new: list, commands: list, argv, path: str) -> None:
             + "".join(f" (dropped: {name})" for name in r.get("dropped", []))
             + " | "
             f"{'yes' if r['right'] else '**no**'} | {r['gain']:.2f} | {'yes' if r['unexplained'] else 'no'} | "
-            f"{(', '.join(r['open']) or '—') if 'open' in r else '(not recorded)'} | "
+            f"{_open(r)} | "
             f"{'' if size is None else f'{size:.2f}'} | {r['seconds']:.0f} |"
         )
     lines.append("")
