@@ -56,10 +56,10 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
     --rate is its synthetic drives' rate too, and a file in the project's columns has its t).
     """
 
+    from .data._loaders import TEXT_SUFFIXES
     from .data._mapping import file_references, load_mapped
     from .data._mapping_options import mapping_roles
     from .data._recording import Recording
-    from .data._table import TEXT_SUFFIXES
 
     seen: dict[Path, str] = {}
     for path in paths:

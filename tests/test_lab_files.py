@@ -348,10 +348,19 @@ def test_a_csv_without_a_header_keeps_its_first_sample_and_unmapped_is_refused_w
     assert Recording.load(named, columns="input=u,output=y,time=time").n == N
 
 
-def test_a_labview_measurement_file_is_pointed_to_the_text_reader(tmp_path):
+def test_a_labview_measurement_file_and_a_tsv_are_read_as_text_tables(tmp_path):
+    """Read through a mapping, with the preamble skipped; unmapped, the message writes the mapping."""
     u, y = _signals()
     header = "LabVIEW Measurement\t\nWriter_Version\t2\n***End_of_Header***\t\n\nX_Value\tUntitled\tUntitled 1\tComment"
     lvm = _write(tmp_path / "run.lvm", header, [np.arange(N) / RATE, u, y], delimiter="\t")
-    _refused(r"unknown suffix '.lvm'.*LabVIEW measurement file is a text table: rename it to .txt", lvm)
-    txt = lvm.rename(tmp_path / "run.txt")
-    assert Recording.load(txt, columns="input=Untitled,output=Untitled 1,time=X_Value").n == N
+    _refused(
+        r"unknown suffix '.lvm'.*LabVIEW measurement file is read with its columns mapped.*--time X_Value",
+        lvm,
+    )
+    rec = Recording.load(lvm, columns="input=Untitled,output=Untitled 1,time=X_Value")
+    np.testing.assert_allclose(rec.v_in, u, atol=1e-6)  # written with 6 decimals
+    np.testing.assert_allclose(rec.w, y, atol=1e-6)
+    assert rec.rate == pytest.approx(RATE)
+    tsv = _write(tmp_path / "run.tsv", "time\tdrive\ttip", [np.arange(N) / RATE, u, y], delimiter="\t")
+    rec = Recording.load(tsv, columns="input=drive,output=tip,time=time")
+    np.testing.assert_allclose(rec.w, y, atol=1e-6)

@@ -421,9 +421,12 @@ def test_a_t_column_of_date_times_is_read_in_seconds(tmp_path):
 
 @pytest.mark.parametrize(
     "suffix, words",
-    [(".xlsx", "a spreadsheet workbook: save the sheet as CSV"), (".tsv", "rename it to .csv")],
+    [
+        (".xlsx", "a spreadsheet workbook: save the sheet as CSV"),
+        (".tsv", r"a text table is read with its columns mapped: --columns input=COLUMN"),
+    ],
 )
-def test_a_workbook_or_tsv_says_what_to_save_it_as(tmp_path, suffix, words):
+def test_a_workbook_or_tsv_says_what_to_save_it_as_or_how_to_map_it(tmp_path, suffix, words):
     with pytest.raises(InputError, match=f"unknown suffix '{suffix}'.*{words}"):
         Recording.load(_write(tmp_path / f"a{suffix}", "t,v_in,w\n0,1,2\n"))
 

@@ -32,6 +32,7 @@ __all__ = [
     "FOOTER_LINES",
     "PREAMBLE_LINES",
     "SUFFIXES",
+    "TEXT_SUFFIXES",
     "Clock",
     "check_file",
     "DECIMAL_COMMA",
@@ -51,6 +52,10 @@ __all__ = [
 
 #: File suffixes `Recording.load` and `Recording.save` understand.
 SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
+#: Suffixes of plain text tables, read through a mapping only (`hybrid.data._table.read_text_table`):
+#: a logger's ``.txt``/``.dat``, tab-separated ``.tsv``, and LabVIEW's measurement file ``.lvm`` (a
+#: preamble, then a tab-separated table).
+TEXT_SUFFIXES: tuple[str, ...] = (".txt", ".dat", ".tsv", ".lvm")
 
 NPZ_EXTRA = "extra_"
 
@@ -108,20 +113,18 @@ def file_suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
     suffix = path.suffix.lower()
     if suffix not in suffixes:
         hint = ""
-        if suffix in (".txt", ".dat") and suffix not in suffixes:
+        if suffix == ".lvm" and suffix not in suffixes:  # LabVIEW's: a preamble, then a tab-separated table
+            hint = (
+                " (a LabVIEW measurement file is read with its columns mapped, its header blocks skipped, "
+                'e.g. --columns input=Untitled,output="Untitled 1" --time X_Value)'
+            )
+        elif suffix in TEXT_SUFFIXES and suffix not in suffixes:
             hint = (
                 " (a text table is read with its columns mapped: --columns input=COLUMN,output=COLUMN "
                 "--rate HZ, or one file per channel: --columns input=u.txt,output=y.txt)"
             )
         elif suffix in (".xlsx", ".xls", ".xlsm", ".ods"):
             hint = " (a spreadsheet workbook: save the sheet as CSV, comma- or ';'-separated, and give that)"
-        elif suffix == ".tsv":
-            hint = " (tab-separated values: rename it to .csv, which is read with tabs between the cells)"
-        elif suffix == ".lvm":  # LabVIEW's measurement file: a preamble, then a tab-separated table
-            hint = (
-                " (a LabVIEW measurement file is a text table: rename it to .txt and map its columns, "
-                'e.g. --columns input=Untitled,output="Untitled 1" --time X_Value; its header blocks are skipped)'
-            )
         raise InputError(
             f"recording '{path}' has unknown suffix '{path.suffix}': use " + ", ".join(suffixes) + hint
         )

@@ -20,8 +20,8 @@
   columns take about a second and tens of MB. Other columns may hold anything,
   empty cells included. Blank lines and ``#`` comments are skipped. The
   metadata comes from the ``<file>.csv.json`` sidecar when there is one.
-* ``.txt`` / ``.dat`` (`TEXT_SUFFIXES`): a plain text table, as a logger or
-  MATLAB's ``save -ascii`` writes it: numbers separated by commas, semicolons,
+* ``.txt`` / ``.dat`` / ``.tsv`` / ``.lvm`` (`TEXT_SUFFIXES`): a plain text table, as a logger,
+  LabVIEW or MATLAB's ``save -ascii`` writes it: numbers separated by commas, semicolons,
   tabs or spaces (the first data line decides), ``#`` comments and blank lines
   skipped, an optional header line (a first line that is not all numbers; below a
   preamble and above a footer, as in a ``.csv``) and a units row under it, as in a ``.csv``. A
@@ -61,6 +61,7 @@ from ._loaders import (
     DECIMAL_COMMA,
     FOOTER_LINES,
     PREAMBLE_LINES,
+    TEXT_SUFFIXES,
     Clock,
     cell_count_message,
     comma_separated,
@@ -83,7 +84,6 @@ __all__ = [
     "MAPPED_SUFFIXES",
     "OPTION",
     "RATE_FIELDS",
-    "TEXT_SUFFIXES",
     "TableNotes",
     "only_column",
     "rate_field",
@@ -112,8 +112,6 @@ RATE_FIELDS: dict[str, str] = {
     "sampling_time": "s",
 }
 
-#: Suffixes of plain text tables, read by the mapped reader only (`read_text_table`).
-TEXT_SUFFIXES: tuple[str, ...] = (".txt", ".dat")
 #: Every suffix the mapped reader understands.
 MAPPED_SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat", *TEXT_SUFFIXES)
 
