@@ -180,8 +180,10 @@ def test_no_report_key_names_a_unit_that_follows_the_signal():
     assert not set(RENAMED_IN_SCHEMA_3) & keys  # and no old one is left
 
 
-def _verdict_of(final_over_floor, causes=(), ambiguous=()):
-    """`verdict` of a diagnosis whose final held-out MSE is `final_over_floor` × a floor of 0.01."""
+def _verdict_of(final_over_floor, causes=(), ambiguous=(), independence=None):
+    """`verdict` of a diagnosis whose final held-out MSE is `final_over_floor` × a floor of 0.01.
+
+    `independence`: the final model's held-out `drive_independence` test (None: not tested)."""
     from types import SimpleNamespace
 
     from hybrid.discovery._diagnosis import DiagnoseSettings
@@ -201,6 +203,7 @@ def _verdict_of(final_over_floor, causes=(), ambiguous=()):
             dropped=[],
             settings=DiagnoseSettings(),
             gain=0.5 / (0.01 * final_over_floor),
+            evidence={"extended": {"drive_independence": independence}},
         )
     )
 
@@ -219,6 +222,11 @@ def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
     short = _verdict_of(1.8, [{"name": "baseline_drift"}])
     assert "measurement noise." not in short and "what remains is 1.8× the measurement noise floor" in short
     assert "too small for the rules on this recording" in short
+    # above 2× the floor's estimate but under 2× its upper bound (estimate + 2 SE): not "under the 2×"
+    over = _verdict_of(2.1)
+    assert (
+        "2.1× the measurement noise floor, under the 2× of the floor's upper bound (its estimate + 2 " in over
+    )
     # a new user's rising staircase, its sensor drifting: "No effect is needed" led the report while the
     # last step was open between nothing more and baseline_drift; the headline now says it is open
     entry = {"step": 1, "named": "none", "open": True, "rivals": [{"name": "baseline_drift"}]}
@@ -232,6 +240,27 @@ def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
     assert _verdict_of(1.0, [{"name": "saturation"}], ambiguous=[rival]).endswith(
         "what remains is measurement noise."
     )
+
+
+def test_the_verdict_says_when_a_remainder_near_the_floor_still_follows_the_drive():
+    """A remainder the size of the noise that still correlates with the drive is no all-clear."""
+    follows = {"statistic": 85.2, "lags": 31, "order": 10, "p_value": 6.3e-7}
+    said = "Yet it still follows the drive (the held-out residual against the drive before it, both prewhitened: "
+    said += "χ²(31) = 85, p = 6e-07): part of the response that the drive causes is left, not noise alone."
+    none = _verdict_of(1.1, independence=follows)
+    assert "No effect is needed" not in none and "as good as the data allow" not in none
+    assert none.startswith("No effect of the library is needed by the search's rules") and none.endswith(said)
+    named = _verdict_of(1.0, [{"name": "saturation"}], independence=follows)
+    assert "what remains is measurement noise" not in named
+    assert named.endswith("what remains is 1× the measurement noise floor in size. " + said)
+    near = _verdict_of(1.7, [{"name": "saturation"}], independence=follows)
+    assert "under the 2× above which it is called unexplained" in near and near.endswith(said)
+    # a residual the test finds independent of the drive, or one it could not test, changes nothing
+    for independent in ({**follows, "p_value": 0.02}, None):
+        assert _verdict_of(1.1, independence=independent) == _verdict_of(1.1)
+        assert _verdict_of(1.0, [{"name": "saturation"}], independence=independent).endswith(
+            "what remains is measurement noise."
+        )
 
 
 def test_the_verdict_says_when_the_names_rest_on_a_simulation_fitted_outside_its_plausible_range():
@@ -260,6 +289,7 @@ def test_the_verdict_says_when_the_names_rest_on_a_simulation_fitted_outside_its
                 dropped=[],
                 settings=DiagnoseSettings(frozen=frozen),
                 gain=50.0,
+                evidence={},
                 models={"extended": SimpleNamespace(simulation=plant)},
             )
         )

@@ -405,10 +405,11 @@ def diagnose(
         own, own.flatten(extended_model, frozen), w_te - w_hat_ext, units=units
     )
     unpinned = not_pinned(uncertainties, extended_model, problem.series)
-    evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate)
+    segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
+    blocks = np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)])
+    evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate, segments=blocks)
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good.to_dict()  # report.json's shape
     evidence["start"] = start
-    segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
     heldout = HeldoutSignals(
         t=np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),
         v_in=v_te,
@@ -416,7 +417,7 @@ def diagnose(
         baseline=w_hat_base,
         extended=w_hat_ext,
         recording=np.concatenate([np.full(b - a, i) for i, a, b in segments]),
-        segment=np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)]),
+        segment=blocks,
     )
     say("noise floor and what lies above it")
     signals = recording_units(recordings) or (PAPER_UNITS["w"], PAPER_UNITS["v_in"])  # (w's, the drive's)

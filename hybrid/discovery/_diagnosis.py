@@ -55,7 +55,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: Within schema 4: a cause's ``derived_units`` (the units of its derived quantities that their names do
 #: not say: a saturation's ``level_pos``/``level_neg`` in the unit of the signal it acts on); each
 #: ``ambiguous`` rival's ``named_better`` (the held-out tests prefer the named cause: listed because the
-#: two predict alike to within the noise, not because the recording cannot tell them).
+#: two predict alike to within the noise, not because the recording cannot tell them); the evidence's
+#: ``baseline``/``extended`` ``drive_independence`` (the held-out residual's independence of the drive,
+#: `residual_tests.drive_independence`; null where it cannot be tested).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {

@@ -148,8 +148,12 @@ def _at_bound(name: str, value: float, constraint, units: dict) -> str | None:
     return None
 
 
-def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> dict:
-    """Residual statistics of the baseline and the extended model on held-out data."""
+def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50, segments=None) -> dict:
+    """Residual statistics of the baseline and the extended model on held-out data.
+
+    `segments`: the held-out block of each sample (`residual_tests.drive_independence`
+    never filters across a block's edge); None: one block.
+    """
     out: dict[str, Any] = {
         "n_heldout": int(len(w)),
         "rate_hz": float(rate),
@@ -161,6 +165,7 @@ def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50) -> di
         acf = rt.autocorrelation(e, max_lag)
         out[key] = {
             "ljung_box": rt.ljung_box(e),
+            "drive_independence": rt.drive_independence(e, v, segments),
             "acf_outside_bound": int(np.sum(np.abs(acf[1:]) > out["bound_99"])),
             "ccf_outside_bound": int(np.sum(np.abs(ccf) > out["bound_99"])),
             "loop_separation": rt.loops(e, v)["separation"],  # in w's unit

@@ -14,6 +14,9 @@ from ..core._result import outside_plausible
 
 #: Held-out error over the noise floor up to which the verdict calls the model as good as the data allow.
 AT_FLOOR = 1.2
+#: The p-value of the held-out residual's independence of the drive (`residual_tests.drive_independence`)
+#: below which a remainder under the unexplained ratio is said to still follow the drive.
+FOLLOWS_DRIVE_P = 1e-3
 
 
 def _names(causes: list[dict]) -> str:
@@ -71,6 +74,7 @@ def _headline(diagnosis) -> str:
     ratio = final_mse / floor if floor > 0 else float("nan")  # the final model's held-out MSE over the floor
     left = diagnosis.unexplained
     question = open_question(diagnosis.ambiguous, also=bool(causes))
+    follows = follows_drive(diagnosis) if left is None else ""
     where = ""
     if left is not None:
         summary = left.get("description", {}).get("summary", "")
@@ -89,23 +93,38 @@ def _headline(diagnosis) -> str:
                 f"{_names(causes)} it gains only {d['gain']:.2f}× held out)"
             )
         if left is None and question:
-            return head + f"; what remains is {ratio:.2g}× the measurement noise floor, {question}."
+            return head + f"; what remains is {ratio:.2g}× the measurement noise floor, {question}." + follows
         if left is None:
             if not ratio > AT_FLOOR:
+                if follows:
+                    return (
+                        head
+                        + f"; what remains is {ratio:.2g}× the measurement noise floor in size."
+                        + follows
+                    )
                 return head + "; what remains is measurement noise."
-            return head + (
-                f"; what remains is {ratio:.2g}× the measurement noise floor, under the "
-                f"{diagnosis.settings.unexplained_ratio:.2g}× above which it is called unexplained: a perfect "
-                "model would reach 1×, and an effect too small for the rules on this recording, or one outside "
-                "the library, may still take it nearer."
+            return (
+                head
+                + (
+                    f"; what remains is {ratio:.2g}× the measurement noise floor, "
+                    f"{_under(ratio, diagnosis.settings.unexplained_ratio)} above which it is called unexplained: a perfect "
+                    "model would reach 1×, and an effect too small for the rules on this recording, or one outside "
+                    "the library, may still take it nearer."
+                )
+                + follows
             )
         return head + f"; {left['fraction_above_floor']:.0%} of what remains lies above the noise{where}."
     if left is None and question:
         return (
             f"No effect passes the search's rules: the simulation's held-out error is {ratio:.2g}× the "
             f"measurement noise floor, {question}."
-        )
+        ) + follows
     if left is None:
+        if follows and not ratio > AT_FLOOR:
+            return (
+                f"No effect of the library is needed by the search's rules: the simulation's held-out error is "
+                f"{ratio:.2g}× the measurement noise floor in size." + follows
+            )
         if not ratio > AT_FLOOR:
             return (
                 f"No effect is needed: the simulation's held-out error is {ratio:.2g}× the measurement noise "
@@ -114,10 +133,10 @@ def _headline(diagnosis) -> str:
         limit = diagnosis.settings.unexplained_ratio
         return (
             f"No effect of the library is needed by the search's rules: the simulation's held-out error is "
-            f"{ratio:.2g}× the measurement noise floor, under the {limit:.2g}× above which the rest is called "
+            f"{ratio:.2g}× the measurement noise floor, {_under(ratio, limit)} above which the rest is called "
             "unexplained; a perfect model would reach 1×, and an effect outside the library may still take "
             "it nearer."
-        )
+        ) + follows
     best = _best_refused(diagnosis)
     small = diagnosis.too_small
     if small and (best is None or small[0]["gain"] >= best.gain):
@@ -134,6 +153,37 @@ def _headline(diagnosis) -> str:
         f"No effect in the library passes the search's rules on this recording (the closest, {best.name}, "
         f"{refusal(best, diagnosis.settings.min_gain)}): "
         f"{left['fraction_above_floor']:.0%} of the simulation's held-out error lies above the noise floor{where}."
+    )
+
+
+def _under(ratio: float, limit: float) -> str:
+    """ "under the 2×", or where the ratio to the floor's estimate is above it, the floor's bound it is under.
+
+    The remainder is called unexplained above `limit` times the floor counted at the top of its ±2
+    standard errors (`hybrid.discovery._unexplained`): an effect-free draw at 2.1× the estimate read
+    "2.1× the measurement noise floor, under the 2× above which …".
+    """
+    if not ratio > limit:
+        return f"under the {limit:.2g}×"
+    return f"under the {limit:.2g}× of the floor's upper bound (its estimate + 2 standard errors)"
+
+
+def follows_drive(diagnosis) -> str:
+    """The sentence a remainder under the unexplained ratio gets when it still follows the drive, or ''.
+
+    A held-out error near the noise floor in size is not yet noise: a missing
+    part of the response that the drive causes, smaller than the noise, leaves
+    the residual correlated with the drive that came before it, which noise
+    does not (`residual_tests.drive_independence`, p < `FOLLOWS_DRIVE_P`; its
+    numbers are report.json's ``evidence.extended.drive_independence``).
+    """
+    test = (diagnosis.evidence.get("extended") or {}).get("drive_independence")
+    if not test or not test["p_value"] < FOLLOWS_DRIVE_P:
+        return ""
+    return (
+        f" Yet it still follows the drive (the held-out residual against the drive before it, both "
+        f"prewhitened: χ²({test['lags']}) = {test['statistic']:.0f}, p = {test['p_value']:.1g}): part of the "
+        "response that the drive causes is left, not noise alone."
     )
 
 

@@ -6,6 +6,10 @@ For held-out residuals ε(t) = w − ŵ and the drive u(t):
   leaves white residuals: |ρ_εε(k)| < z/√N for k ≥ 1 with z = 2.576 (99 %).
 - `cross_correlation`: ρ_εu(k), k = −K..K; residuals independent of the input
   stay within the same ±z/√N band (Ljung, *System Identification*, §16.6).
+- `drive_independence`: one test of that independence that holds for any drive:
+  the drive and the residual prewhitened by the drive's own AR model, then
+  S = N Σ_{k=0}^{K} ρ_εu(k)² against χ²_{K+1} (Box & Jenkins' prewhitening; the
+  band above assumes a white drive, and a drive held in steps is far from one).
 - `ljung_box`: the portmanteau statistic Q = N(N+2) Σ_{k=1}^{K} ρ_k²/(N−k)
   and its χ²_K p-value: one number for "how far from white"; with the
   residual's variance γ_0, so that Q·(γ_0/γ_0')² compares the correlated part
@@ -55,6 +59,83 @@ def cross_correlation(residual, drive, max_lag: int = 50) -> tuple[np.ndarray, n
         [np.dot(e[k:], u[: n - k]) / n if k >= 0 else np.dot(e[: n + k], u[-k:]) / n for k in lags]
     )
     return lags, values
+
+
+#: `drive_independence`'s defaults: the drive's AR order that whitens it, and the lags tested (the drive
+#: leading the residual by 0..`INDEPENDENCE_LAGS` samples).
+WHITENING_ORDER = 10
+INDEPENDENCE_LAGS = 30
+
+
+def drive_independence(
+    residual, drive, segments=None, lags: int = INDEPENDENCE_LAGS, order: int = WHITENING_ORDER
+) -> dict | None:
+    """Whether the residual is independent of the drive: a portmanteau test on the prewhitened pair.
+
+    An AR(`order`) model of the drive is fitted by least squares (over every
+    segment, never across one's edge), and the drive and the residual are both
+    filtered by it. The filtered drive is then close to white, so whatever the
+    residual's own correlation, each ρ_εu(k) of an independent pair has variance
+    1/N and the statistic S = N Σ_{k=0}^{lags} ρ_εu(k)² is χ² with lags + 1
+    degrees of freedom. Only lags where the drive leads count: a causal model's
+    missing part follows the drive that came before.
+
+    `segments`: one label per sample (the held-out blocks: samples with the same
+    label are contiguous in time), or None for one record.
+
+    Returns ``{"statistic", "lags", "order", "p_value"}``, or None where there is
+    too little to test (a drive or residual without variation, fewer than 4 ×
+    (order + lags) samples after the filter's start in each segment).
+    """
+    import scipy.stats
+
+    e = np.asarray(residual, dtype=float)
+    u = np.asarray(drive, dtype=float)
+    labels = np.zeros(len(e), int) if segments is None else np.asarray(segments)
+    if (
+        e.shape != u.shape
+        or labels.shape != e.shape
+        or not (np.all(np.isfinite(e)) and np.all(np.isfinite(u)))
+    ):
+        return None
+    e, u = e - e.mean(), u - u.mean()
+    parts = [np.flatnonzero(labels == label) for label in dict.fromkeys(labels.tolist())]
+    parts = [i for i in parts if len(i) > order + lags]
+
+    def lagged(x, idx):  # rows [x_{i-1}, ..., x_{i-order}] for i = order.. of one segment
+        x = x[idx]
+        return np.stack([x[order - j : len(x) - j] for j in range(1, order + 1)], axis=1), x[order:]
+
+    if not parts or np.ptp(u) == 0 or np.ptp(e) == 0:
+        return None
+
+    def whitened(x):  # each segment of x filtered by x's own AR(order) model, fitted over them all
+        if not order:
+            return [x[idx] for idx in parts]
+        rows, targets = zip(*(lagged(x, idx) for idx in parts))
+        a = np.linalg.lstsq(np.concatenate(rows), np.concatenate(targets), rcond=None)[0]
+        return [y - r @ a for r, y in (lagged(x, idx) for idx in parts)]
+
+    pairs = list(zip(whitened(e), whitened(u)))
+    n = sum(len(fu) for _, fu in pairs)
+    if n < 4 * (order + lags):
+        return None
+    su = np.sqrt(sum(float(fu @ fu) for _, fu in pairs) / n)
+    se = np.sqrt(sum(float(fe @ fe) for fe, _ in pairs) / n)
+    if not (su > 0 and se > 0):
+        return None
+    rho = np.zeros(lags + 1)
+    for fe, fu in pairs:
+        m = len(fu)
+        rho += [float(fe[k:] @ fu[: m - k]) if k < m else 0.0 for k in range(lags + 1)]
+    rho /= n * su * se
+    statistic = float(n * np.sum(rho**2))
+    return {
+        "statistic": statistic,
+        "lags": lags + 1,
+        "order": order,
+        "p_value": float(scipy.stats.chi2.sf(statistic, lags + 1)),
+    }
 
 
 def confidence_bound(n: int) -> float:
