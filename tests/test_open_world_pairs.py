@@ -11,6 +11,7 @@ import pytest
 from helpers import hidden_recording
 
 from hybrid import diagnose
+from hybrid.discovery._verdict import FOLLOWS_DRIVE_P
 from hybrid.ipmc._hidden_pairs import true_noise_variance
 
 
@@ -40,3 +41,9 @@ def test_both_effects_of_a_pair_are_named(spec, seed):
     var_w = np.var(found.heldout.w)
     assert found.extended.heldout.nmse * var_w <= 2.5 * true_noise_variance(recording)
     assert found.baseline.heldout.nmse * var_w >= 10 * true_noise_variance(recording)
+    # The baseline, missing both, leaves a residual that follows the drive (the held-out blocks' test of
+    # independence, `residual_tests.drive_independence`); the verdict says so of the final model exactly
+    # where its own test says so.
+    tests = {k: found.evidence[k]["drive_independence"] for k in ("baseline", "extended")}
+    assert tests["baseline"]["p_value"] < 1e-6 and tests["baseline"]["lags"] == 31, tests
+    assert ("still follows the drive" in found.verdict) == (tests["extended"]["p_value"] < FOLLOWS_DRIVE_P)
