@@ -155,3 +155,21 @@ def test_drive_independence_declines_what_it_cannot_test():
     assert rt.drive_independence(u, np.zeros(600)) is None  # nor in the drive
     assert rt.drive_independence(u[:100], u[:100]) is None  # too short for 10 + 30 lags, 4 times over
     assert rt.drive_independence(u, u[:-1]) is None  # not one pair
+
+
+def test_drive_independence_is_not_taken_on_a_drive_its_own_ar_model_predicts():
+    """A sine, a chirp and levels held one per block leave the filter nothing white to test against
+    (the χ² would reject 1–14 % of independent pairs at 10⁻³); a stepped or square drive is tested."""
+    rng = np.random.default_rng(3)
+    t = np.arange(1800) / 30.0
+    e = scipy.signal.lfilter([1.0], [1.0, -0.9], rng.standard_normal(1800))
+    blocks = np.repeat(np.arange(6), 300)
+    predictable = {
+        "sine": np.sin(2 * np.pi * 0.7 * t),
+        "chirp": scipy.signal.chirp(t, 0.1, 60.0, 3.0),
+        "levels held per block": np.repeat(rng.uniform(-1.0, 1.0, 6), 300),
+    }
+    for name, u in predictable.items():
+        assert rt.drive_independence(e, u, blocks) is None, name
+    for u in (_held_steps(1800, rng, hold=(0.5, 10.0)), np.sign(np.sin(2 * np.pi * 0.25 * t + 0.3))):
+        assert rt.drive_independence(e, u, blocks) is not None
