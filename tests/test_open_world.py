@@ -87,6 +87,12 @@ def test_the_report_leads_with_one_sentence_and_carries_the_open_world_fields(tm
     assert f"{100 * above:.1f} % of it lies above the noise" in "\n".join(markdown)  # a share, not 0.9 %
     row = next(line for line in markdown if line.startswith("| linear filter of the drive |"))
     assert row.split("|")[2].strip() == f"{100 * drive_filter:.1f} %"
+    # the residual's independence of the drive, in report.json's evidence and report.md's residual table
+    for key in ("baseline", "extended"):
+        test = data["evidence"][key]["drive_independence"]
+        assert test == found.evidence[key]["drive_independence"] and test["lags"] == 31
+        row = next(line for line in markdown if line.startswith(f"| {key} | "))
+        assert f"| {test['statistic']:.1f} (31), " in row
 
 
 def test_the_hybrid_fits_of_a_diagnosis_run():

@@ -432,19 +432,25 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         "## Residual tests (held-out part)",
         "",
         f"{ev['n_heldout']} samples at {_num(ev['rate_hz'])} Hz; 99 % bound on a correlation "
-        f"±{ev['bound_99']:.4f}; ACF over lags 1–{MAX_LAG}, CCF over lags −{MAX_LAG}–{MAX_LAG}.",
+        f"±{ev['bound_99']:.4f}; ACF over lags 1–{MAX_LAG}, CCF over lags −{MAX_LAG}–{MAX_LAG} (the band "
+        "assumes a white drive); independent of the drive: χ² of the residual against the drive before it, "
+        "both prewhitened (n/a: a drive its own AR model predicts, such as a sine).",
         "",
-        "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | loop separation "
-        f"({d['units']['w']}) |",
-        "|---|---|---|---|---|---|",
+        "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | independent of the drive: "
+        f"χ² (lags), p | loop separation ({d['units']['w']}) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for key in ("baseline", "extended"):
         e = ev[key]
         lb = e["ljung_box"]
+        drive = e.get("drive_independence")
+        independence = (
+            f"{_fixed(drive['statistic'])} ({drive['lags']}), {_num(drive['p_value'], 2)}" if drive else "n/a"
+        )
         lines.append(
             f"| {key} | {_fixed(lb['Q'])} ({lb['lags']}) | {_num(lb['p_value'], 2)} | "
             f"{e['acf_outside_bound']} / {MAX_LAG} | {e['ccf_outside_bound']} / {2 * MAX_LAG + 1} | "
-            f"{'n/a' if loop_levels == 0 else _num(e['loop_separation'])} |"
+            f"{independence} | {'n/a' if loop_levels == 0 else _num(e['loop_separation'])} |"
         )
     if loop_levels == 0:
         lines += [
