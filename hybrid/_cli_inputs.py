@@ -76,16 +76,13 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
     }
     if not any(options[k] is not None for k in ("input", "output", "time", "columns")):
         text = [p for p in paths if Path(p).suffix.lower() in TEXT_SUFFIXES]
+        names = [_header(p) for p in text]
+        if text and all({"t", "v_in", "w"} <= set(n) for n in names):  # the project's own columns
+            return [load_mapped(p, **{**options, "input": "v_in", "output": "w", "time": "t"}) for p in paths]
         if text:  # a text table has no t, v_in, w: say how to map it, or how to join one file per channel
-            example = (
-                f"--columns input={paths[0]},output={paths[1]} (one file per channel, of one length)"
-                if len(paths) > 1
-                else f"--columns input={paths[0]}:0,output={paths[0]}:1 (columns by "
-                "number from 0, or by the header's names)"
-            )
             raise InputError(
                 f"'{text[0]}' is a text table without the columns t, v_in, w: say which is the drive "
-                f"and which the output, e.g. {example}, with --rate HZ or --time COLUMN"
+                f"and which the output, e.g. {_text_example(paths, names[0])}"
             )
     if not any(v is not None for k, v in options.items() if rate_alone_maps or k != "rate"):
         return [Recording.load(p) for p in paths]
@@ -94,6 +91,30 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
         if file_references(roles, paths):  # the mapping names the files: one record joined from them
             return [load_mapped(list(paths), **options)]
     return [load_mapped(p, **options) for p in paths]
+
+
+def _header(path) -> list[str]:
+    """A text table's column names (its header's; "0", "1", … without one), or [] where it cannot be read."""
+    from .data._table import read_text_table
+
+    try:
+        return read_text_table(Path(path))[0]
+    except (InputError, OSError):
+        return []  # the mapped read says what is wrong with the file, once a mapping is given
+
+
+def _text_example(paths, names: list[str]) -> str:
+    """The mapping to write for unmapped text tables: one file per channel, or the table's own columns."""
+    from .data._loaders import mapping_example
+
+    if len(paths) > 1:
+        return f"--columns input={paths[0]},output={paths[1]} (one file per channel, of one length), with --rate HZ"
+    if len(names) >= 2 and not all(n.isdigit() for n in names):  # a header: guess from its names
+        return f"{mapping_example(names)} (its columns: {', '.join(names)})"
+    return (
+        f"--columns input={paths[0]}:0,output={paths[0]}:1 (columns by number from 0, or by the header's "
+        "names), with --rate HZ or --time COLUMN"
+    )
 
 
 def add_physics(p, default: str = "rc") -> None:

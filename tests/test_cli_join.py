@@ -219,3 +219,41 @@ def test_the_suggested_flags_read_the_lab_file(tmp_path, header, drive, output):
     np.testing.assert_array_equal(recording.v_in, table[:, names.index(drive)])
     np.testing.assert_array_equal(recording.w, table[:, names.index(output)])
     assert recording.rate == pytest.approx(10.0)
+
+
+def test_a_text_table_in_the_projects_columns_needs_no_mapping_and_one_with_a_header_gets_its_own(
+    lab, tmp_path, capsys
+):
+    """A .tsv headed t, v_in, w fits as a .csv would; a logger's .tsv headed with its own names is refused
+    with the flags for those names, which read it as given."""
+    import shlex
+
+    from hybrid import Recording
+
+    folder, u, y = lab
+    t = np.arange(u.size) / 2.0
+    own = tmp_path / "own.tsv"
+    np.savetxt(own, np.c_[t, u, y], delimiter="\t", header="t\tv_in\tw", comments="", fmt="%.9g")
+    report = tmp_path / "fit.json"
+    code, _, err = run(
+        ["fit", own, "--physics", f"{folder / 'lag.py'}:Lag", "--model", "physics", "--max-steps", "20"]
+        + ["--quiet", "--out", tmp_path / "m.eqx", "--json", report],
+        capsys,
+    )
+    assert code == 0, err
+    assert json.loads(report.read_text())["parameters"]["tau_s"] == pytest.approx(3.0, rel=0.2)
+
+    logger = tmp_path / "logger.tsv"
+    header = "Time (ms)\tDrive (V)\tTip (mm)"
+    np.savetxt(logger, np.c_[1000 * t, u, y], delimiter="\t", header=header, comments="", fmt="%.9g")
+    code, _, err = run(["fit", logger, "--model", "physics", "--out", tmp_path / "n.eqx"], capsys)
+    assert code == 2 and "text table without the columns t, v_in, w" in err, err
+    assert "its columns: Time (ms), Drive (V), Tip (mm)" in err
+    words = shlex.split(err.split("e.g. ", 1)[1].split(" (its columns")[0])
+    flags = dict(zip(words[::2], words[1::2]))
+    assert set(flags) == {"--columns", "--time"}, words
+    recording = Recording.load(logger, columns=flags["--columns"], time=flags["--time"])
+    np.testing.assert_allclose(recording.v_in, u, rtol=1e-8)
+    np.testing.assert_allclose(recording.w, y, rtol=1e-8)
+    assert recording.rate == pytest.approx(2.0)
+    assert not (tmp_path / "n.eqx").exists()

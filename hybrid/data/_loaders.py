@@ -41,6 +41,7 @@ __all__ = [
     "find_header",
     "footer_start",
     "is_value",
+    "mapping_example",
     "spaced_cells_message",
     "mat_variables",
     "npz_arrays",
@@ -175,7 +176,7 @@ def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequ
         raise InputError(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
-            f"yours are which, e.g. {_mapping_example([c for c in found if c not in REQUIRED])}"
+            f"yours are which, e.g. {mapping_example([c for c in found if c not in REQUIRED])}"
         )
 
 
@@ -310,7 +311,7 @@ def role_of(name: str) -> str | None:
     return None
 
 
-def _mapping_example(names: Sequence[str]) -> str:
+def mapping_example(names: Sequence[str]) -> str:
     """The flags that would map a lab file's columns, guessed from their names (time, drive, output)."""
     roles: dict[str, str] = {}
     for name in names:
@@ -534,7 +535,7 @@ def _check_delimiter(path: pathlib.Path, line: str, following: str = "") -> None
     names = line.split()
     data = following.split()
     if len(names) > 1 and len(data) > 1 and not any(m in line + following for m in ",;\t"):
-        raise InputError(spaced_cells_message(path, line, _mapping_example(names)))
+        raise InputError(spaced_cells_message(path, line, mapping_example(names)))
     for mark, word in ((";", "';'"), ("\t", "tabs"), (None, "spaces")):
         cells = [c.strip().strip('"') for c in line.split(mark)]
         if len(cells) > 1 and set(cells) & set(REQUIRED):
