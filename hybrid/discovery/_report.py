@@ -434,7 +434,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         f"{ev['n_heldout']} samples at {_num(ev['rate_hz'])} Hz; 99 % bound on a correlation "
         f"±{ev['bound_99']:.4f}; ACF over lags 1–{MAX_LAG}, CCF over lags −{MAX_LAG}–{MAX_LAG} (the band "
         "assumes a white drive); independent of the drive: χ² of the residual against the drive before it, "
-        "both prewhitened (n/a: a drive its own AR model predicts, such as a sine).",
+        "both prewhitened (n/a: too few held-out samples, or a drive its own AR model predicts, such as a sine).",
         "",
         "| model | Ljung–Box Q (lags) | p | ACF lags outside | CCF lags outside | independent of the drive: "
         f"χ² (lags), p | loop separation ({d['units']['w']}) |",
