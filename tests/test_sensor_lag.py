@@ -19,7 +19,10 @@ TAU = 0.5
 
 
 def _lagged(path, seed: int = 5) -> None:
-    """Random steps of ±5 V held 0.5–4 s into a 1.2 Hz, ζ 0.4 plant of gain 3 read through a 0.5 s lag, 60 s at 30 Hz."""
+    """Random steps of ±5 V held 0.5–4 s into a 1.2 Hz, ζ 0.4 plant of gain 3 read through a 0.5 s lag, 60 s at 30 Hz.
+
+    Not shorter: at 30 s an effect-free fit as good on training comes within 1.41× of the lag held out.
+    """
     rng = np.random.default_rng(seed)
     rate, n = 30.0, 1800
     holds, levels = rng.uniform(0.5, 4.0, 400), rng.uniform(-5.0, 5.0, 400)
