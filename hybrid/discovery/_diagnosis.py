@@ -57,7 +57,8 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: ``ambiguous`` rival's ``named_better`` (the held-out tests prefer the named cause: listed because the
 #: two predict alike to within the noise, not because the recording cannot tell them); the evidence's
 #: ``baseline``/``extended`` ``drive_independence`` (the held-out residual's independence of the drive,
-#: `residual_tests.drive_independence`; null where it cannot be tested).
+#: `residual_tests.drive_independence`; null where it cannot be tested), and the same test of the
+#: remainder in ``unexplained.description.drive_independence``.
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {

@@ -68,6 +68,7 @@ from typing import Any
 import numpy as np
 
 from . import residual_tests as rt
+from ._verdict import FOLLOWS_DRIVE_P
 
 MIN_SAMPLES = 50  # fewer held-out (or training) samples: no description
 MIN_BIN = 5  # samples a bin needs to be kept
@@ -976,8 +977,12 @@ def describe_remainder(
     if where is not None:
         out["concentrated"] = where
         out["summary"] += _concentrated_words(where, v_unit)
+    # the held-out residual against the drive (each contiguous run a block): a disturbance leaves them
+    # independent, a miss of the response the drive causes does not
+    independence = rt.drive_independence(ho["r"], ho["v_in"], np.cumsum(ho["pos"] == 0))
+    out["drive_independence"] = independence
     if out["kind"] == "unstructured" and judge.excess is not None and not (spiky and repeats is None):
-        out["summary"] += _repeat_words(repeats)
+        out["summary"] += _repeat_words(repeats, independence)
     if spiky:  # they count in every residual; the floor, read without them, does not
         out["summary"] += "; w's isolated spikes (the noise floor's warning) are part of it"
     return out
@@ -1103,14 +1108,42 @@ def _repeats(tr, ho, places: dict, rate: float, judge) -> dict | None:
     }
 
 
-def _repeat_words(repeats: dict | None) -> str:
-    """The clause an unstructured remainder ends on: what repeating the drive tells, or would."""
+#: The held-out residual's test against the drive finds no dependence at or above this p-value.
+NO_DEPENDENCE_P = 0.05
+
+
+def _repeat_words(repeats: dict | None, independence: dict | None = None) -> str:
+    """The clause an unstructured remainder ends on: what repeating the drive tells, or would.
+
+    With one recording under each drive, the held-out residual's test against the drive
+    (`independence`) weighs the two readings: a remainder that follows the drive holds a
+    miss of the response, not a disturbance alone.
+    """
     if repeats is None or repeats.get("of_excess") is None:
+        if independence is not None and independence["p_value"] < FOLLOWS_DRIVE_P:
+            return (
+                "; not predictable from the drive, the model's output or time by these maps, yet it follows the "
+                f"drive (the held-out residual against the drive before it, both prewhitened: "
+                f"χ²({independence['lags']}) = {independence['statistic']:.0f}, p = {independence['p_value']:.1g}): "
+                "part of it is a response to the drive that the simulation misses (too small beside the rest for "
+                "these maps to count, or beyond them), not a disturbance alone"
+            )
+        tested = ""
+        if independence is not None and independence["p_value"] >= NO_DEPENDENCE_P:
+            tested = (
+                f"; its test against the drive finds no dependence (p = {independence['p_value']:.2g}), as a "
+                "disturbance's would be"
+            )
+        elif independence is not None:
+            tested = (
+                f"; its test against the drive leans towards a dependence without settling it (p = "
+                f"{independence['p_value']:.2g}, where {FOLLOWS_DRIVE_P:g} is asked)"
+            )
         return (
             "; not predictable from the drive, the model's output or time by these maps: a disturbance the "
             "drive does not cause (a coloured noise, an unmeasured input) reads so, and so may a miss more "
-            "complex than they are; a second recording under the same drive, diagnosed with this one, tells "
-            "them apart (a disturbance does not repeat)"
+            f"complex than they are{tested}; a second recording under the same drive, diagnosed with this one, "
+            "tells them apart (a disturbance does not repeat)"
         )
     share = min(max(repeats["of_excess"], 0.0), 1.0)
     (a, b), others = repeats["pairs"][0], len(repeats["pairs"]) - 1

@@ -15,7 +15,8 @@ from ..core._result import outside_plausible
 #: Held-out error over the noise floor up to which the verdict calls the model as good as the data allow.
 AT_FLOOR = 1.2
 #: The p-value of the held-out residual's independence of the drive (`residual_tests.drive_independence`)
-#: below which a remainder under the unexplained ratio is said to still follow the drive.
+#: below which a remainder is said to follow the drive: one under the unexplained ratio (here), and an
+#: unexplained one no map describes (`hybrid.discovery._remainder`).
 FOLLOWS_DRIVE_P = 1e-3
 
 
