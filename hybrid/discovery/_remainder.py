@@ -68,7 +68,7 @@ from typing import Any
 import numpy as np
 
 from . import residual_tests as rt
-from ._verdict import FOLLOWS_DRIVE_P
+from ._verdict import FOLLOWS_DRIVE_P, drive_test_words
 
 MIN_SAMPLES = 50  # fewer held-out (or training) samples: no description
 MIN_BIN = 5  # samples a bin needs to be kept
@@ -1123,8 +1123,7 @@ def _repeat_words(repeats: dict | None, independence: dict | None = None) -> str
         if independence is not None and independence["p_value"] < FOLLOWS_DRIVE_P:
             return (
                 "; not predictable from the drive, the model's output or time by these maps, yet it follows the "
-                f"drive (the held-out residual against the drive before it, both prewhitened: "
-                f"χ²({independence['lags']}) = {independence['statistic']:.0f}, p = {independence['p_value']:.1g}): "
+                f"drive ({drive_test_words(independence)}): "
                 "part of it is a response to the drive that the simulation misses (too small beside the rest for "
                 "these maps to count, or beyond them), not a disturbance alone"
             )

@@ -182,9 +182,16 @@ def follows_drive(diagnosis) -> str:
     if not test or not test["p_value"] < FOLLOWS_DRIVE_P:
         return ""
     return (
-        f" Yet it still follows the drive (the held-out residual against the drive before it, both "
-        f"prewhitened: χ²({test['lags']}) = {test['statistic']:.0f}, p = {test['p_value']:.1g}): part of the "
-        "response that the drive causes is left, not noise alone."
+        f" Yet it still follows the drive ({drive_test_words(test)}): part of the response that the drive "
+        "causes is left, not noise alone."
+    )
+
+
+def drive_test_words(test: dict) -> str:
+    """A `residual_tests.drive_independence` result that rejects, as the sentences quote it."""
+    return (
+        "the held-out residual against the drive before it, both prewhitened: "
+        f"χ²({test['lags']}) = {test['statistic']:.0f}, p = {test['p_value']:.1g}"
     )
 
 
