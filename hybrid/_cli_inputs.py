@@ -95,10 +95,10 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
 
 def _header(path) -> list[str]:
     """A text table's column names (its header's; "0", "1", … without one), or [] where it cannot be read."""
-    from .data._table import read_text_table
+    from .data._table import text_columns
 
     try:
-        return read_text_table(Path(path))[0]
+        return text_columns(Path(path))  # the names alone: the numbers are read once, by load_mapped
     except (InputError, OSError):
         return []  # the mapped read says what is wrong with the file, once a mapping is given
 

@@ -88,6 +88,7 @@ __all__ = [
     "only_column",
     "rate_field",
     "read_columns",
+    "text_columns",
     "read_text_table",
     "unknown_name",
 ]
@@ -568,10 +569,7 @@ def read_text_table(
         )
         lines = lines[start:]
     first = lines[0][1]
-    delimiter = _delimiter(first if len(lines) == 1 else lines[1][1])
-    cells = _cells(first, delimiter)
-    header = not all(_is_number(c) for c in cells)
-    names = [c.strip('"').strip() for c in cells] if header else [str(i) for i in range(len(cells))]
+    names, header, delimiter = _header_of(lines)
     data = lines[1:] if header else lines
     if header:
         repeated = sorted({c for c in names if names.count(c) > 1 or not c})
@@ -618,6 +616,23 @@ def read_text_table(
         table,
         TableNotes(np.array([n for n, _ in data], dtype=np.int64), tuple(notes), units=stated),
     )
+
+
+def text_columns(path: pathlib.Path) -> list[str]:
+    """A text table's column names as `read_text_table` gives them (a header's, or "0", "1", … without one),
+    read without converting its numbers; [] for a file with no line to read."""
+    lines = _text_lines(path)
+    return _header_of(lines)[0] if lines else []
+
+
+def _header_of(lines: list[tuple[int, str]]) -> tuple[list[str], bool, str | None]:
+    """(the column names, whether the first line is a header, the cells' delimiter) of a table's lines."""
+    first = lines[0][1]
+    delimiter = _delimiter(first if len(lines) == 1 else lines[1][1])
+    cells = _cells(first, delimiter)
+    header = not all(_is_number(c) for c in cells)
+    names = [c.strip('"').strip() for c in cells] if header else [str(i) for i in range(len(cells))]
+    return names, header, delimiter
 
 
 def _text_lines(path: pathlib.Path) -> list[tuple[int, str]]:
