@@ -364,3 +364,61 @@ def test_a_labview_measurement_file_and_a_tsv_are_read_as_text_tables(tmp_path):
     tsv = _write(tmp_path / "run.tsv", "time\tdrive\ttip", [np.arange(N) / RATE, u, y], delimiter="\t")
     rec = Recording.load(tsv, columns="input=drive,output=tip,time=time")
     np.testing.assert_allclose(rec.w, y, atol=1e-6)
+
+
+#: What LabVIEW's Write To Measurement File puts above the table: a file block and a channel block.
+LVM_PREAMBLE = "\n".join(
+    [
+        "LabVIEW Measurement\t",
+        "Writer_Version\t2",
+        "Reader_Version\t2",
+        "Separator\tTab",
+        "Decimal_Separator\t.",
+        "Multi_Headings\tNo",
+        "X_Columns\tOne",
+        "Time_Pref\tRelative",
+        "Operator\tlab",
+        "Date\t2026/12/05",
+        "Time\t15:40:02.5",
+        "***End_of_Header***\t",
+        "",
+        "Channels\t2\t",
+        "Samples\t300\t300\t",
+        "Date\t2026/12/05\t2026/12/05\t",
+        "Y_Unit_Label\tVolts\tmm\t",
+        "X_Dimension\tTime\tTime\t",
+        "X0\t0.0000000000000000E+0\t0.0000000000000000E+0\t",
+        "Delta_X\t0.033333\t0.033333\t",
+        "***End_of_Header***\t\t\t",
+        "X_Value\tUntitled\tUntitled 1\tComment",
+    ]
+)
+
+
+def test_an_unmapped_labview_file_is_answered_from_its_own_header_below_the_preamble(tmp_path, capsys):
+    """The command line names the table's own columns (not the preamble's first line) in its one-line
+    refusal, and the flags it gives, or columns by number, read the file."""
+    u, y = _signals()
+    lvm = _write(tmp_path / "run.lvm", LVM_PREAMBLE, [np.arange(N) / RATE, u, y], delimiter="\t")
+    code, err = _cli(["fit", lvm, *FIT], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert '--columns "input=Untitled,output=Untitled 1" --time X_Value' in err, err
+    for columns in ("input=Untitled,output=Untitled 1,time=X_Value", "input=1,output=2,time=0"):
+        rec = Recording.load(lvm, columns=columns)
+        np.testing.assert_allclose(rec.v_in, u, atol=1e-6)
+        np.testing.assert_allclose(rec.w, y, atol=1e-6)
+        assert rec.rate == pytest.approx(RATE)
+        assert any("20 line(s) before its header (line 22)" in note for note in rec.notes), rec.notes
+
+
+def test_a_csv_with_a_logger_preamble_is_answered_from_its_header_and_read_by_column_number(tmp_path):
+    """Without t, v_in, w the refusal lists the header's names (it listed the preamble's first line); a
+    mapping by number reads the columns under the header (it stopped at the preamble)."""
+    u, y = _signals()
+    preamble = "Device: DAQ 6009\nOperator: lab\ntime_s,drive_V,tip_mm"
+    path = _write(tmp_path / "logger.csv", preamble, [np.arange(N) / RATE, u, y])
+    message = _refused(r"missing column\(s\) t, v_in, w \(found 'time_s', 'drive_V', 'tip_mm'\)", path)
+    assert "Device" not in message
+    rec = Recording.load(path, columns="input=1,output=2,time=0")
+    np.testing.assert_allclose(rec.w, y, atol=1e-6)
+    assert any("2 line(s) before its header" in note for note in rec.notes), rec.notes

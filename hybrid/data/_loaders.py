@@ -47,6 +47,7 @@ __all__ = [
     "npz_arrays",
     "read_file",
     "sidecar",
+    "table_start",
     "time_factor",
     "units_row",
 ]
@@ -255,7 +256,7 @@ def time_factor(path: pathlib.Path | str, unit: str, where: str) -> float:
 
 #: Words that name a column's role in lab files (lower case, units and punctuation stripped).
 _ROLE_WORDS = {
-    "time": ("t", "time", "times", "timestamp", "sec", "secs", "second", "seconds", "zeit"),
+    "time": ("t", "time", "times", "timestamp", "sec", "secs", "second", "seconds", "zeit", "x_value"),
     "input": (
         "u",
         "v",
@@ -437,13 +438,52 @@ def is_value(cell: str) -> bool:
 
 def find_header(rows: Sequence[Sequence[str]], needed: Sequence[str]) -> int:
     """The index of the header among a CSV's first `rows` (split into cells): the first that names
-    every one of `needed` (an oscilloscope's or logger's preamble lines come before it); 0 when none
-    does in the first `PREAMBLE_LINES`, so that the first line's names go into the message."""
+    every one of `needed` (an oscilloscope's or logger's preamble lines come before it); where none
+    does in the first `PREAMBLE_LINES`, the line above the numbers (`table_start`), so that the
+    header's names, not a preamble's, go into the message (or a column number is read under it)."""
     wanted = set(needed)
     for i, cells in enumerate(rows[:PREAMBLE_LINES]):
         if wanted <= {cell.strip().strip('"').strip() for cell in cells}:
             return i
+    return table_start(rows)
+
+
+def table_start(rows: Sequence[Sequence[str]]) -> int:
+    """The index of a table's first line among its `rows` (split into cells; [] for a blank line).
+
+    The table's data begin at the first two rows of numbers of one width within
+    the first `PREAMBLE_LINES`; its first line is the row above them, its header
+    (a units row between them passed over where the row above it is as wide), or
+    the first of them where that row holds numbers too or there is none. Lines above the first line are a
+    preamble (LabVIEW's header blocks, a logger's ``Device: X``). 0 where no two
+    such rows come.
+    """
+
+    def numbers(cells) -> bool:
+        return bool(cells) and all(_is_float(cell.strip().strip('"')) for cell in cells)
+
+    filled = [
+        i for i, cells in enumerate(rows[: PREAMBLE_LINES + 2]) if cells and any(c.strip() for c in cells)
+    ]
+    for k, (i, j) in enumerate(zip(filled, filled[1:])):
+        if numbers(rows[i]) and numbers(rows[j]) and len(rows[i]) == len(rows[j]):
+            above = [a for a in filled[:k] if not numbers(rows[a])][-2:]
+            if (
+                len(above) == 2
+                and units_row(rows[above[1]]) is not None
+                and len(rows[above[0]]) >= len(rows[above[1]])
+            ):
+                return above[0]  # a header over a units row (a short header may read as units)
+            return above[-1] if above and above[-1] == filled[k - 1] else i
     return 0
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 #: A number written with a decimal comma: 1,5 or -0,25 or ,5 or 1,5e-3.

@@ -9,7 +9,8 @@
   comment; its names may be quoted, and empty names at its end (a trailing
   comma on every line, as in the Cascaded Tanks and Silverbox files) are
   dropped; a logger's preamble before it is skipped (the header is the first of
-  the first `PREAMBLE_LINES` lines that names every column wanted), with a note.
+  the first `PREAMBLE_LINES` lines that names every column wanted, or, with
+  none named, the line above the numbers: `table_start`), with a note.
   A first line of numbers (or date-times) only is no header but the first
   sample: the columns go by number from 0, with a note.
   Every data line must have the header's number of cells (or every one the same
@@ -77,6 +78,7 @@ from ._loaders import (
     read_text,
     sidecar,
     spaced_cells_message,
+    table_start,
     units_row,
 )
 
@@ -390,7 +392,8 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
     left after it.
 
     The header is the first line that names every one of `names_wanted` (a
-    logger's preamble comes before it: `find_header`), else the first line.
+    logger's preamble comes before it: `find_header`), else the line above the
+    numbers (`table_start`; the first line where the numbers start there).
     """
     position = handle.tell()
     lines = [line for line in (handle.readline() for _ in range(PREAMBLE_LINES)) if line]
@@ -398,7 +401,7 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
         next(csv.reader([line.strip()]), []) if line.strip() and not line.strip().startswith("#") else []
         for line in lines
     ]
-    skip = find_header(rows, names_wanted) if names_wanted else 0
+    skip = find_header(rows, names_wanted) if names_wanted else table_start(rows)
     skipped = sum(1 for row in rows[:skip] if row)
     handle.seek(position)
     number = 0
@@ -554,15 +557,7 @@ def read_text_table(
             f"recording '{path}' has no numbers: give one line per sample, one column per channel"
         )
     notes: list[str] = []
-    wanted = set(names_wanted)
-    start = next(
-        (
-            i
-            for i, (_, line) in enumerate(lines[:PREAMBLE_LINES])
-            if wanted and wanted <= {c.strip('"').strip() for c in _cells(line, _delimiter(line))}
-        ),
-        0,
-    )
+    start = _first_line(lines, names_wanted)
     if start:
         notes.append(
             f"recording '{path}': the {start} line(s) before its header (line {lines[start][0]}) skipped"
@@ -622,7 +617,15 @@ def text_columns(path: pathlib.Path) -> list[str]:
     """A text table's column names as `read_text_table` gives them (a header's, or "0", "1", … without one),
     read without converting its numbers; [] for a file with no line to read."""
     lines = _text_lines(path)
-    return _header_of(lines)[0] if lines else []
+    return _header_of(lines[_first_line(lines) :])[0] if lines else []
+
+
+def _first_line(lines: list[tuple[int, str]], names_wanted: Sequence[str] = ()) -> int:
+    """The index of a text table's header (or first row) among its `lines`: the first of the first
+    `PREAMBLE_LINES` that names every one of `names_wanted`, else the line above its numbers
+    (`table_start`: a preamble before it, LabVIEW's header blocks)."""
+    rows = [_cells(line, _delimiter(line)) for _, line in lines[: PREAMBLE_LINES + 2]]
+    return find_header(rows, names_wanted) if names_wanted else table_start(rows)
 
 
 def _header_of(lines: list[tuple[int, str]]) -> tuple[list[str], bool, str | None]:
