@@ -148,36 +148,37 @@ def test_drive_independence_finds_a_small_part_of_the_drive_left_in_the_residual
         assert rt.drive_independence(noise, u, blocks)["p_value"] > 1e-3
     print("p of a part half the noise's size, seeds 0-4:", [f"{f['p_value']:.1e}" for f in found])
     assert all(f["p_value"] < 1e-8 and f["lags"] == rt.INDEPENDENCE_LAGS + 1 for f in found)
-    # and the statistic is Σ_k z_k² of the filtered pair: at order 0 on one block, of the series themselves
+    # and the statistic is Σ_k c_k²/Var c_k of the filtered pair: at order 0 on one block, of the series
+    # themselves, with Var c_k = Σε²·Σu²/m over the m samples each lag overlaps
     e, d = noise + left - np.mean(noise + left), u - np.mean(u)
-    products = [e[k:] * d[: len(d) - k] for k in range(rt.INDEPENDENCE_LAGS + 1)]
-    expected = sum(np.sum(p) ** 2 / np.sum(p**2) for p in products)
+    pairs = [(e[k:], d[: len(d) - k]) for k in range(rt.INDEPENDENCE_LAGS + 1)]
+    expected = sum((a @ b) ** 2 / (a @ a * (b @ b) / len(b)) for a, b in pairs)
     assert rt.drive_independence(noise + left, u, order=0)["statistic"] == pytest.approx(expected, rel=1e-12)
 
 
-def test_drive_independence_holds_its_level_where_the_residual_grows_with_the_drive():
+def test_drive_independence_holds_its_level_on_recordings_of_different_sizes():
     """Two recordings diagnosed together, the second driven and disturbed 10× harder than the first (white
-    drive and noise, independent): each lag's sum over its own heteroscedasticity-consistent standard
-    error keeps the test's level (at most 2 of 300 rejected at 10⁻³ allowed: binomial(300, 10⁻³) exceeds
-    2 with probability 0.0036), where the plain form S = N Σ ρ̂², which takes each ρ̂'s variance as 1/N,
-    rejects most of them (its variance is about twice that here). 300 pairs of 1800 samples."""
+    drive and noise, independent): with each lag's variance summed segment by segment the test keeps its
+    level (at most 2 of 300 rejected at 10⁻³ allowed: binomial(300, 10⁻³) exceeds 2 with probability
+    0.0036), where the pooled N Σ ρ̂², which takes every ρ̂'s variance as 1/N, rejects most of them (its
+    variance is about twice that here). 300 pairs of 1800 samples, six blocks."""
     rng = np.random.default_rng(4)
     blocks = np.repeat(np.arange(6), 300)
     scale = np.where(blocks < 3, 0.1, 1.0)
     lags = rt.INDEPENDENCE_LAGS
-    p_robust, p_plain = [], []
+    p_blocks, p_pooled = [], []
     for _ in range(300):
         u, e = rng.standard_normal(1800) * scale, rng.standard_normal(1800) * scale
-        p_robust.append(rt.drive_independence(e, u, blocks)["p_value"])
+        p_blocks.append(rt.drive_independence(e, u, blocks)["p_value"])
         _, ccf = rt.cross_correlation(e, u, lags)
-        p_plain.append(scipy.stats.chi2.sf(1800 * np.sum(ccf[lags:] ** 2), lags + 1))
+        p_pooled.append(scipy.stats.chi2.sf(1800 * np.sum(ccf[lags:] ** 2), lags + 1))
     rejected = {
-        "robust": int(np.sum(np.asarray(p_robust) < 1e-3)),
-        "plain": int(np.sum(np.asarray(p_plain) < 1e-3)),
+        "by block": int(np.sum(np.asarray(p_blocks) < 1e-3)),
+        "pooled": int(np.sum(np.asarray(p_pooled) < 1e-3)),
     }
     print("rejected at 1e-3 of 300 independent pairs:", rejected)  # docs/diagnose.md quotes them (pytest -s)
-    assert rejected["robust"] <= 2, rejected
-    assert rejected["plain"] > 100, rejected
+    assert rejected["by block"] <= 2, rejected
+    assert rejected["pooled"] > 100, rejected
 
 
 def test_drive_independence_declines_what_it_cannot_test():
