@@ -40,6 +40,7 @@ __all__ = [
     "decode_text",
     "find_header",
     "footer_start",
+    "is_number",
     "is_value",
     "mapping_example",
     "spaced_cells_message",
@@ -460,7 +461,7 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
     """
 
     def numbers(cells) -> bool:
-        return bool(cells) and all(_is_float(cell.strip().strip('"')) for cell in cells)
+        return bool(cells) and all(is_number(cell.strip().strip('"')) for cell in cells)
 
     filled = [
         i for i, cells in enumerate(rows[: PREAMBLE_LINES + 2]) if cells and any(c.strip() for c in cells)
@@ -478,7 +479,8 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
     return 0
 
 
-def _is_float(text: str) -> bool:
+def is_number(text: str) -> bool:
+    """Whether `text` reads as a float (nan and inf included)."""
     try:
         float(text)
     except ValueError:

@@ -71,6 +71,7 @@ from ._loaders import (
     find_header,
     footer_note,
     footer_start,
+    is_number,
     is_value,
     mat_variables,
     npz_arrays,
@@ -633,7 +634,7 @@ def _header_of(lines: list[tuple[int, str]]) -> tuple[list[str], bool, str | Non
     first = lines[0][1]
     delimiter = _delimiter(first if len(lines) == 1 else lines[1][1])
     cells = _cells(first, delimiter)
-    header = not all(_is_number(c) for c in cells)
+    header = not all(is_number(c) for c in cells)
     names = [c.strip('"').strip() for c in cells] if header else [str(i) for i in range(len(cells))]
     return names, header, delimiter
 
@@ -661,14 +662,6 @@ def _cells(line: str, delimiter: str | None) -> list[str]:
     while len(cells) > 1 and not cells[-1] and delimiter is not None:
         cells.pop()  # a trailing delimiter
     return cells
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
 
 
 def _diagnose(
