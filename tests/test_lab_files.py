@@ -16,6 +16,7 @@ import pytest
 
 from hybrid import InputError, Recording
 from hybrid.cli import main
+from hybrid.data._loaders import table_start
 
 RATE = 30.0
 N = 300
@@ -422,3 +423,22 @@ def test_a_csv_with_a_logger_preamble_is_answered_from_its_header_and_read_by_co
     rec = Recording.load(path, columns="input=1,output=2,time=0")
     np.testing.assert_allclose(rec.w, y, atol=1e-6)
     assert any("2 line(s) before its header" in note for note in rec.notes), rec.notes
+
+
+@pytest.mark.parametrize(
+    "rows, first",
+    [
+        ([["time", "drive", "tip"], ["0", "1", "2"], ["1", "2", "3"]], 0),  # a header
+        ([["0", "1", "2"], ["1", "2", "3"]], 0),  # none
+        ([["time", "drive", "tip"], ["s", "V", "mm"], ["0", "1", "2"], ["1", "2", "3"]], 0),  # and units
+        ([["Dev: x"], ["time", "drive", "tip"], ["s", "V", "mm"], ["0", "1", "2"], ["1", "2", "3"]], 1),
+        ([["Device: scope X"], ["Date: 2026"], ["t", "u", "y"], ["0", "1", "2"], ["1", "2", "3"]], 2),
+        ([["Dev"], [], ["t", "u", "y", ""], ["0", "1", "2", ""], ["1", "2", "3", ""]], 2),  # trailing commas
+        ([["Log"], ["time", "u"], ["2026-12-05T10:00:00", "1"], ["2026-12-05T10:00:01", "2"]], 1),
+        ([["u", "y", "Ts"], ["1", "2", "0.5"], ["2", "3", ""], ["3", "4", ""]], 0),  # Ts in one row
+        ([["0", "1", "0.5"], ["1", "2"], ["2", "3"]], 0),
+        ([["a"], ["b"]], 0),  # no two rows of values
+    ],
+)
+def test_a_tables_first_line_is_the_one_above_its_first_two_rows_of_values(rows, first):
+    assert table_start(rows) == first

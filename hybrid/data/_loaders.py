@@ -452,30 +452,46 @@ def find_header(rows: Sequence[Sequence[str]], needed: Sequence[str]) -> int:
 def table_start(rows: Sequence[Sequence[str]]) -> int:
     """The index of a table's first line among its `rows` (split into cells; [] for a blank line).
 
-    The table's data begin at the first two rows of numbers of one width within
-    the first `PREAMBLE_LINES`; its first line is the row above them, its header
-    (a units row between them passed over where the row above it is as wide), or
-    the first of them where that row holds numbers too or there is none. Lines above the first line are a
-    preamble (LabVIEW's header blocks, a logger's ``Device: X``). 0 where no two
-    such rows come.
+    The table's data begin at the first two rows of values (numbers, ISO
+    date-times) of one width within the first `PREAMBLE_LINES`, or at the rows
+    of values right above them (a column filled in its first row alone); its
+    first line is the row above the data, its header (a units row between them
+    passed over where the row above that is at least as wide), or the data's
+    first row where there is none. Lines above the first line
+    are a preamble (LabVIEW's header blocks, a logger's ``Device: X``). 0 where
+    no two such rows come.
     """
 
-    def numbers(cells) -> bool:
-        return bool(cells) and all(is_number(cell.strip().strip('"')) for cell in cells)
+    def cells_of(row) -> list[str]:  # its cells, without the empty ones after the last (a trailing comma)
+        cells = [cell.strip().strip('"').strip() for cell in row]
+        while cells and not cells[-1]:
+            cells.pop()
+        return cells
 
-    filled = [
-        i for i, cells in enumerate(rows[: PREAMBLE_LINES + 2]) if cells and any(c.strip() for c in cells)
-    ]
-    for k, (i, j) in enumerate(zip(filled, filled[1:])):
-        if numbers(rows[i]) and numbers(rows[j]) and len(rows[i]) == len(rows[j]):
-            above = [a for a in filled[:k] if not numbers(rows[a])][-2:]
-            if (
-                len(above) == 2
-                and units_row(rows[above[1]]) is not None
-                and len(rows[above[0]]) >= len(rows[above[1]])
-            ):
-                return above[0]  # a header over a units row (a short header may read as units)
-            return above[-1] if above and above[-1] == filled[k - 1] else i
+    def values(i: int) -> bool:
+        cells = cells_of(rows[i])
+        return bool(cells) and all(is_value(cell) for cell in cells)
+
+    filled = [i for i, row in enumerate(rows[: PREAMBLE_LINES + 2]) if cells_of(row)]
+    for k in range(len(filled) - 1):
+        first, second = filled[k], filled[k + 1]
+        if not (
+            values(first) and values(second) and len(cells_of(rows[first])) == len(cells_of(rows[second]))
+        ):
+            continue
+        while k and values(filled[k - 1]):  # rows of values above, of another width (a column filled once)
+            k -= 1
+        if k == 0:
+            return filled[0]
+        header = filled[k - 1]
+        if (
+            k >= 2
+            and units_row(rows[header]) is not None
+            and not values(filled[k - 2])
+            and len(cells_of(rows[filled[k - 2]])) >= len(cells_of(rows[header]))
+        ):
+            return filled[k - 2]  # a header over a units row (a short header may read as units)
+        return header
     return 0
 
 
