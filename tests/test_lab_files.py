@@ -442,3 +442,25 @@ def test_a_csv_with_a_logger_preamble_is_answered_from_its_header_and_read_by_co
 )
 def test_a_tables_first_line_is_the_one_above_its_first_two_rows_of_values(rows, first):
     assert table_start(rows) == first
+
+
+def test_a_labview_file_with_an_x_column_per_channel_is_mapped_by_number_where_a_name_repeats(
+    tmp_path, capsys
+):
+    """LabVIEW's X_Columns Multi writes X_Value over each channel: the file is read (it was refused for its
+    repeated names), the refusal's example maps the repeated time by number, and mapping by the repeated
+    name says which columns hold it, in one line."""
+    u, y = _signals()
+    t = np.arange(N) / RATE
+    header = LVM_PREAMBLE.replace("X_Value\tUntitled\tUntitled 1", "X_Value\tVoltage\tX_Value\tDisplacement")
+    lvm = _write(tmp_path / "multi.lvm", header, [t, u, t, y], delimiter="\t")
+    code, err = _cli(["fit", lvm, *FIT], capsys)
+    assert code == 2 and "--columns input=Voltage,output=Displacement --time 0 " in err, err
+    rec = Recording.load(lvm, columns="input=Voltage,output=Displacement,time=0")
+    np.testing.assert_allclose(rec.w, y, atol=1e-6)
+    assert rec.rate == pytest.approx(RATE)
+    _refused(
+        r"2 columns named 'X_Value' \(columns 0, 2.*--time 0",
+        lvm,
+        columns="input=Voltage,output=Displacement,time=X_Value",
+    )

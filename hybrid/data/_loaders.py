@@ -326,6 +326,8 @@ def mapping_example(names: Sequence[str]) -> str:
             roles[role] = rest.pop(0)
     if "input" not in roles or "output" not in roles:
         return "--columns input=COLUMN,output=COLUMN with --rate HZ or --time COLUMN"
+    # a name the header holds twice (LabVIEW's X_Value over each channel) by its first column's number
+    roles = {role: str(list(names).index(n)) if list(names).count(n) > 1 else n for role, n in roles.items()}
     columns = f"input={roles['input']},output={roles['output']}"
     if re.search(r"[^\w.=,:-]", columns):
         columns = f'"{columns}"'  # a name with spaces or brackets: one shell word

@@ -564,15 +564,8 @@ def read_text_table(
             f"recording '{path}': the {start} line(s) before its header (line {lines[start][0]}) skipped"
         )
         lines = lines[start:]
-    first = lines[0][1]
     names, header, delimiter = _header_of(lines)
     data = lines[1:] if header else lines
-    if header:
-        repeated = sorted({c for c in names if names.count(c) > 1 or not c})
-        if repeated:
-            raise InputError(
-                f"recording '{path}' has a header {first!r} with empty or repeated names: name each column once"
-            )
     stated: tuple[tuple[str, str], ...] = ()
     units = units_row(_cells(data[0][1], delimiter)) if header and data else None
     if units is not None:  # a logger's second header line (s, V, mm): the columns' units
