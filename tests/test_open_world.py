@@ -25,6 +25,7 @@ from helpers import hidden_recording
 
 import hybrid
 from hybrid import diagnose, write_report
+from hybrid.discovery import residual_tests as rt
 from hybrid.ipmc._hidden_pairs import true_noise_variance
 
 _found = {}
@@ -262,6 +263,13 @@ def test_a_coloured_noise_that_does_not_repeat_under_the_same_drive_is_called_a_
     assert description["kind"] == "unstructured", description["summary"]
     assert description["repeats"]["pairs"] == [[0, 1]] and abs(description["repeats"]["of_excess"]) < 0.25
     assert "does not repeat with the drive" in found.verdict
+    # report.json's test of the held-out residual against the drive is the one on the held-out signals
+    # (each recording's blocks its own, each recording's sizes its own)
+    held = found.heldout
+    e, blocks = held.w - held.extended, 1000 * held.recording + held.segment
+    own = rt.drive_independence(e, held.v_in, blocks, recordings=held.recording)
+    said = found.evidence["extended"]["drive_independence"]
+    assert said["statistic"] == pytest.approx(own["statistic"], rel=1e-9), (said, own)
 
 
 def test_a_trackers_spikes_are_said_and_do_not_pass_for_noise():

@@ -699,8 +699,8 @@ def test_a_slow_sensor_lag_at_one_sample_a_second_is_a_filter_of_the_output():
 def test_an_unstructured_remainder_is_weighed_against_the_drive(share, said):
     """A coloured disturbance (3× the floor's σ, independent of the drive) with a lagged, smoothed copy of
     the drive of `share` of its variance: no map recovers 20 % of the excess either way, and the held-out
-    residual's test against the drive tells the disturbance alone (p 0.72) from one beside a response
-    the simulation misses (p 8e-11)."""
+    residual's test against the drive tells the disturbance alone (p 0.73) from one beside a response
+    the simulation misses (p 1e-10)."""
 
     def r_of(v, t):
         rng = np.random.default_rng(7)

@@ -6,6 +6,7 @@ import scipy.signal
 import scipy.stats
 
 from hybrid.discovery import residual_tests as rt
+from hybrid.discovery._evidence import heldout_evidence
 
 
 def _ar1(rho, n, seed=0):
@@ -158,7 +159,7 @@ def test_drive_independence_finds_a_small_part_of_the_drive_left_in_the_residual
 
 def test_drive_independence_holds_its_level_on_recordings_of_different_sizes():
     """Two recordings diagnosed together, the second driven and disturbed 10× harder than the first (white
-    drive and noise, independent): with each lag's variance summed segment by segment the test keeps its
+    drive and noise, independent): with each lag's variance summed recording by recording the test keeps its
     level (at most 2 of 300 rejected at 10⁻³ allowed: binomial(300, 10⁻³) exceeds 2 with probability
     0.0036), where the pooled N Σ ρ̂², which takes every ρ̂'s variance as 1/N, rejects most of them (its
     variance is about twice that here). 300 pairs of 1800 samples, six blocks."""
@@ -169,16 +170,22 @@ def test_drive_independence_holds_its_level_on_recordings_of_different_sizes():
     p_blocks, p_pooled = [], []
     for _ in range(300):
         u, e = rng.standard_normal(1800) * scale, rng.standard_normal(1800) * scale
-        p_blocks.append(rt.drive_independence(e, u, blocks)["p_value"])
+        p_blocks.append(rt.drive_independence(e, u, blocks, recordings=blocks >= 3)["p_value"])
         _, ccf = rt.cross_correlation(e, u, lags)
         p_pooled.append(scipy.stats.chi2.sf(1800 * np.sum(ccf[lags:] ** 2), lags + 1))
     rejected = {
-        "by block": int(np.sum(np.asarray(p_blocks) < 1e-3)),
+        "by recording": int(np.sum(np.asarray(p_blocks) < 1e-3)),
         "pooled": int(np.sum(np.asarray(p_pooled) < 1e-3)),
     }
     print("rejected at 1e-3 of 300 independent pairs:", rejected)  # docs/diagnose.md quotes them (pytest -s)
-    assert rejected["by block"] <= 2, rejected
+    assert rejected["by recording"] <= 2, rejected
     assert rejected["pooled"] > 100, rejected
+    # and diagnose's held-out evidence passes the recordings on (the last pair: as one, the pooled form)
+    zero = np.zeros_like(e)
+    evidence = heldout_evidence(u, e, zero, zero, 30.0, segments=blocks, recordings=blocks >= 3)
+    assert evidence["extended"]["drive_independence"]["p_value"] == p_blocks[-1]
+    pooled = rt.drive_independence(e, u, blocks)["statistic"]
+    assert pooled != pytest.approx(evidence["extended"]["drive_independence"]["statistic"], rel=0.01)
 
 
 def test_drive_independence_declines_what_it_cannot_test():

@@ -407,7 +407,10 @@ def diagnose(
     unpinned = not_pinned(uncertainties, extended_model, problem.series)
     segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
     blocks = np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)])
-    evidence = heldout_evidence(v_te, w_te, w_hat_base, w_hat_ext, rate, segments=blocks)
+    of_recording = np.concatenate([np.full(b - a, i) for i, a, b in segments])
+    evidence = heldout_evidence(
+        v_te, w_te, w_hat_base, w_hat_ext, rate, segments=blocks, recordings=of_recording
+    )
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good.to_dict()  # report.json's shape
     evidence["start"] = start
     heldout = HeldoutSignals(
@@ -416,7 +419,7 @@ def diagnose(
         w=w_te,
         baseline=w_hat_base,
         extended=w_hat_ext,
-        recording=np.concatenate([np.full(b - a, i) for i, a, b in segments]),
+        recording=of_recording,
         segment=blocks,
     )
     say("noise floor and what lies above it")

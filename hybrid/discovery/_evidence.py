@@ -148,11 +148,15 @@ def _at_bound(name: str, value: float, constraint, units: dict) -> str | None:
     return None
 
 
-def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50, segments=None) -> dict:
+def heldout_evidence(
+    v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50, segments=None, recordings=None
+) -> dict:
     """Residual statistics of the baseline and the extended model on held-out data.
 
     `segments`: the held-out block of each sample (`residual_tests.drive_independence`
-    never filters across a block's edge); None: one block.
+    never filters across a block's edge); None: one block. `recordings`: the
+    recording of each sample (the test takes the signals' sizes per recording);
+    None: one.
     """
     out: dict[str, Any] = {
         "n_heldout": int(len(w)),
@@ -165,7 +169,7 @@ def heldout_evidence(v, w, w_hat_base, w_hat_ext, rate, max_lag: int = 50, segme
         acf = rt.autocorrelation(e, max_lag)
         out[key] = {
             "ljung_box": rt.ljung_box(e),
-            "drive_independence": rt.drive_independence(e, v, segments),
+            "drive_independence": rt.drive_independence(e, v, segments, recordings=recordings),
             "acf_outside_bound": int(np.sum(np.abs(acf[1:]) > out["bound_99"])),
             "ccf_outside_bound": int(np.sum(np.abs(ccf) > out["bound_99"])),
             "loop_separation": rt.loops(e, v)["separation"],  # in w's unit

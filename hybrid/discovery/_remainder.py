@@ -979,7 +979,9 @@ def describe_remainder(
         out["summary"] += _concentrated_words(where, v_unit)
     # the held-out residual against the drive (each contiguous run a block): a disturbance leaves them
     # independent, a miss of the response the drive causes does not
-    independence = rt.drive_independence(ho["r"], ho["v_in"], np.cumsum(ho["pos"] == 0))
+    independence = rt.drive_independence(
+        ho["r"], ho["v_in"], np.cumsum(ho["pos"] == 0), recordings=ho["recording"]
+    )
     out["drive_independence"] = independence
     if out["kind"] == "unstructured" and judge.excess is not None and not (spiky and repeats is None):
         out["summary"] += _repeat_words(repeats, independence)

@@ -11,7 +11,7 @@ For held-out residuals ε(t) = w − ŵ and the drive u(t):
   of its own (Haugh's double prewhitening; the band above assumes a white
   drive, and a drive held in steps is far from one), then each lag's
   cross-product sum over its standard error under independence (the sizes
-  taken block by block), squared and summed over k = 0..K, against χ²_{K+1}.
+  taken recording by recording), squared and summed over k = 0..K, against χ²_{K+1}.
 - `ljung_box`: the portmanteau statistic Q = N(N+2) Σ_{k=1}^{K} ρ_k²/(N−k)
   and its χ²_K p-value: one number for "how far from white"; with the
   residual's variance γ_0, so that Q·(γ_0/γ_0')² compares the correlated part
@@ -72,7 +72,12 @@ MIN_INNOVATION = 1e-4
 
 
 def drive_independence(
-    residual, drive, segments=None, lags: int = INDEPENDENCE_LAGS, order: int = WHITENING_ORDER
+    residual,
+    drive,
+    segments=None,
+    lags: int = INDEPENDENCE_LAGS,
+    order: int = WHITENING_ORDER,
+    recordings=None,
 ) -> dict | None:
     """Whether the residual is independent of the drive: a portmanteau test on the prewhitened pair.
 
@@ -83,24 +88,28 @@ def drive_independence(
     remainder away when the drive is held in steps, and the test lost it.
     Each lag's cross-product sum c_k = Σ_t ε′_t u′_{t−k} of the filtered pair,
     summed over the segments, is then standardised by its variance under
-    independence, Σ_segments (Σ ε′²)(Σ u′²)/m over each segment's m overlapping
-    samples, and the statistic S = Σ_{k=0}^{lags} c_k²/Var c_k is χ² with
-    lags + 1 degrees of freedom for an independent pair. On one segment that is
-    N Σ ρ̂_εu(k)² up to the lags' overlap; taken segment by segment, the
-    variances let the residual's and the drive's sizes differ between segments
-    (two recordings of different amplitude diagnosed together), where the
-    pooled N Σ ρ̂² rejected 130 of 300 independent pairs at 10⁻³
-    (`tests/test_residual_tests.py`). Within a segment the sizes are taken as
-    constant: a noise that grows with the drive inside a held-out block can
-    still read as a dependence. A variance from each lag's own products
-    (White's) holds there too, but with the few drive steps of a held-out part
-    it no longer told the baseline's residual on `experiments/drive_independence.py`'s
-    draws, whose model misses two effects, from noise; it is not used. Only
-    lags where the drive leads count: a causal model's missing part follows the
-    drive that came before.
+    independence, Σ_recordings (Σ ε′²)(Σ u′²)/m over each recording's m
+    samples that the lag overlaps, and the statistic S = Σ_{k=0}^{lags}
+    c_k²/Var c_k is χ² with lags + 1 degrees of freedom for an independent
+    pair. On one recording that is N Σ ρ̂_εu(k)² up to the lags' overlap; taken
+    recording by recording, the sizes of the residual and of the drive may
+    differ between recordings diagnosed together (a second, 10× larger drive
+    and noise), where one N Σ ρ̂² over them all rejected 130 of 300 independent
+    pairs at 10⁻³ (`tests/test_residual_tests.py`). Within a recording the
+    sizes are taken as one: a noise that grows with the drive can still read as
+    a dependence. Not per held-out block, nor per sample (White's variance from
+    each lag's own products): a drive that moves in one block and rests in the
+    others leaves the residual larger in the first where the model misses its
+    response, and either form counts that size as noise (on
+    `experiments/drive_independence.py`'s draws the per-sample form no longer
+    told a baseline that misses two effects from noise). Only lags where the
+    drive leads count: a causal model's missing part follows the drive that
+    came before.
 
     `segments`: one label per sample (the held-out blocks: samples with the same
     label are contiguous in time), or None for one record.
+    `recordings`: one label per sample, the recording it comes from (each
+    segment lies within one), or None for one.
 
     Returns ``{"statistic", "lags", "order", "p_value"}``, or None where there is
     too little to test: a drive or residual without variation, fewer than 4 ×
@@ -116,9 +125,11 @@ def drive_independence(
     e = np.asarray(residual, dtype=float)
     u = np.asarray(drive, dtype=float)
     labels = np.zeros(len(e), int) if segments is None else np.asarray(segments)
+    sources = np.zeros(len(e), int) if recordings is None else np.asarray(recordings)
     if (
         e.shape != u.shape
         or labels.shape != e.shape
+        or sources.shape != e.shape
         or not (np.all(np.isfinite(e)) and np.all(np.isfinite(u)))
     ):
         return None
@@ -148,12 +159,15 @@ def drive_independence(
     kept = np.concatenate([u[idx][order:] for idx in parts])
     if not su**2 >= MIN_INNOVATION * float(np.mean((kept - kept.mean()) ** 2)):
         return None
-    sums, variances = np.zeros(lags + 1), np.zeros(lags + 1)
-    for fe, fu in pairs:  # every segment is longer than the lags (`parts`)
+    sums = np.zeros(lags + 1)
+    sizes: dict = {}  # recording -> (Σε′², Σu′², m) over the samples each lag overlaps
+    for (fe, fu), idx in zip(pairs, parts):  # every segment is longer than the lags (`parts`)
+        own = sizes.setdefault(sources[idx[0]], np.zeros((3, lags + 1)))
         for k in range(lags + 1):
             ek, uk = fe[k:], fu[: len(fu) - k]
             sums[k] += float(ek @ uk)
-            variances[k] += float(ek @ ek) * float(uk @ uk) / len(uk)
+            own[:, k] += (float(ek @ ek), float(uk @ uk), len(uk))
+    variances = sum(ee * uu / m for ee, uu, m in sizes.values())
     if not np.all(variances > 0):
         return None
     statistic = float(np.sum(sums**2 / variances))
