@@ -459,9 +459,9 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
     of values right above them (a column filled in its first row alone); its
     first line is the row above the data, its header (a units row between them
     passed over where the row above that is at least as wide), or the data's
-    first row where there is none. Lines above the first line
-    are a preamble (LabVIEW's header blocks, a logger's ``Device: X``). 0 where
-    no two such rows come.
+    first row where there is none. Lines above the first line are a preamble
+    (LabVIEW's header blocks, a logger's ``Device: X``). 0 where no two such
+    rows come.
     """
 
     def cells_of(row) -> list[str]:  # its cells, without the empty ones after the last (a trailing comma)

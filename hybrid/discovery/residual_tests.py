@@ -100,8 +100,8 @@ def drive_independence(
     a dependence. Not per held-out block, nor per sample (White's variance from
     each lag's own products): a drive that moves in one block and rests in the
     others leaves the residual larger in the first where the model misses its
-    response, and either form counts that size as noise (on
-    `experiments/drive_independence.py`'s draws the per-sample form no longer
+    response, and either form counts that size as noise (run at 9fe3bf2 over
+    `experiments/drive_independence.py`'s draws, the per-sample form no longer
     told a baseline that misses two effects from noise). Only lags where the
     drive leads count: a causal model's missing part follows the drive that
     came before.
