@@ -437,6 +437,7 @@ def test_a_csv_with_a_logger_preamble_is_answered_from_its_header_and_read_by_co
         ([["Log"], ["time", "u"], ["2026-12-05T10:00:00", "1"], ["2026-12-05T10:00:01", "2"]], 1),
         ([["u", "y", "Ts"], ["1", "2", "0.5"], ["2", "3", ""], ["3", "4", ""]], 0),  # Ts in one row
         ([["0", "1", "0.5"], ["1", "2"], ["2", "3"]], 0),
+        ([["Dev"], ["t", "", "y"], ["0", "", "2"], ["1", "", "3"]], 1),  # a column left blank
         ([["a"], ["b"]], 0),  # no two rows of values
     ],
 )

@@ -320,7 +320,7 @@ def mapping_example(names: Sequence[str]) -> str:
         role = role_of(name)
         if role is not None and role not in roles:
             roles[role] = name
-    rest = [n for n in names if n not in roles.values() and role_of(n) != "index"]
+    rest = [n for n in names if n and n not in roles.values() and role_of(n) != "index"]
     for role in ("input", "output"):
         if role not in roles and rest:
             roles[role] = rest.pop(0)
@@ -455,7 +455,7 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
     """The index of a table's first line among its `rows` (split into cells; [] for a blank line).
 
     The table's data begin at the first two rows of values (numbers, ISO
-    date-times) of one width within the first `PREAMBLE_LINES`, or at the rows
+    date-times; empty cells between them) of one width within the first `PREAMBLE_LINES`, or at the rows
     of values right above them (a column filled in its first row alone); its
     first line is the row above the data, its header (a units row between them
     passed over where the row above that is at least as wide), or the data's
@@ -470,9 +470,9 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
             cells.pop()
         return cells
 
-    def values(i: int) -> bool:
+    def values(i: int) -> bool:  # every cell a value, or empty (a column left blank)
         cells = cells_of(rows[i])
-        return bool(cells) and all(is_value(cell) for cell in cells)
+        return bool(cells) and all(is_value(cell) for cell in cells if cell)
 
     filled = [i for i, row in enumerate(rows[: PREAMBLE_LINES + 2]) if cells_of(row)]
     for k in range(len(filled) - 1):
