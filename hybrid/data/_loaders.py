@@ -315,6 +315,7 @@ def role_of(name: str) -> str | None:
 
 def mapping_example(names: Sequence[str]) -> str:
     """The flags that would map a lab file's columns, guessed from their names (time, drive, output)."""
+    names = list(names)
     roles: dict[str, str] = {}
     for name in names:
         role = role_of(name)
@@ -327,7 +328,7 @@ def mapping_example(names: Sequence[str]) -> str:
     if "input" not in roles or "output" not in roles:
         return "--columns input=COLUMN,output=COLUMN with --rate HZ or --time COLUMN"
     # a name the header holds twice (LabVIEW's X_Value over each channel) by its first column's number
-    roles = {role: str(list(names).index(n)) if list(names).count(n) > 1 else n for role, n in roles.items()}
+    roles = {role: str(names.index(n)) if names.count(n) > 1 else n for role, n in roles.items()}
     columns = f"input={roles['input']},output={roles['output']}"
     if re.search(r"[^\w.=,:-]", columns):
         columns = f'"{columns}"'  # a name with spaces or brackets: one shell word
@@ -427,11 +428,8 @@ def footer_start(rows: Sequence[Sequence[str]], indices: Sequence[int]) -> int:
 def is_value(cell: str) -> bool:
     """Whether a cell holds a number or an ISO date-time (data, not a name)."""
     text = cell.strip().strip('"').strip()
-    try:
-        float(text)
+    if is_number(text):
         return True
-    except ValueError:
-        pass
     try:
         datetime.datetime.fromisoformat(text)
         return True
@@ -442,10 +440,10 @@ def is_value(cell: str) -> bool:
 def find_header(rows: Sequence[Sequence[str]], needed: Sequence[str]) -> int:
     """The index of the header among a CSV's first `rows` (split into cells): the first that names
     every one of `needed` (an oscilloscope's or logger's preamble lines come before it); where none
-    does in the first `PREAMBLE_LINES`, the line above the numbers (`table_start`), so that the
+    does in the first `PREAMBLE_LINES`, or none is needed, the line above the numbers (`table_start`), so that the
     header's names, not a preamble's, go into the message (or a column number is read under it)."""
     wanted = set(needed)
-    for i, cells in enumerate(rows[:PREAMBLE_LINES]):
+    for i, cells in enumerate(rows[:PREAMBLE_LINES] if wanted else ()):
         if wanted <= {cell.strip().strip('"').strip() for cell in cells}:
             return i
     return table_start(rows)
@@ -470,29 +468,27 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
             cells.pop()
         return cells
 
-    def values(i: int) -> bool:  # every cell a value, or empty (a column left blank)
-        cells = cells_of(rows[i])
-        return bool(cells) and all(is_value(cell) for cell in cells if cell)
-
-    filled = [i for i, row in enumerate(rows[: PREAMBLE_LINES + 2]) if cells_of(row)]
+    cells = [cells_of(row) for row in rows[: PREAMBLE_LINES + 2]]
+    # every cell a value, or empty (a column left blank)
+    values = [bool(c) and all(is_value(cell) for cell in c if cell) for c in cells]
+    filled = [i for i, c in enumerate(cells) if c]
     for k in range(len(filled) - 1):
         first, second = filled[k], filled[k + 1]
-        if not (
-            values(first) and values(second) and len(cells_of(rows[first])) == len(cells_of(rows[second]))
-        ):
+        if not (values[first] and values[second] and len(cells[first]) == len(cells[second])):
             continue
-        while k and values(filled[k - 1]):  # rows of values above, of another width (a column filled once)
+        while k and values[filled[k - 1]]:  # rows of values above, of another width (a column filled once)
             k -= 1
         if k == 0:
             return filled[0]
         header = filled[k - 1]
+        above = filled[k - 2] if k >= 2 else None
         if (
-            k >= 2
+            above is not None
             and units_row(rows[header]) is not None
-            and not values(filled[k - 2])
-            and len(cells_of(rows[filled[k - 2]])) >= len(cells_of(rows[header]))
+            and not values[above]
+            and len(cells[above]) >= len(cells[header])
         ):
-            return filled[k - 2]  # a header over a units row (a short header may read as units)
+            return above  # a header over a units row (a short header may read as units)
         return header
     return 0
 

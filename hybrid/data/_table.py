@@ -79,7 +79,6 @@ from ._loaders import (
     read_text,
     sidecar,
     spaced_cells_message,
-    table_start,
     units_row,
 )
 
@@ -393,8 +392,8 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
     left after it.
 
     The header is the first line that names every one of `names_wanted` (a
-    logger's preamble comes before it: `find_header`), else the line above the
-    numbers (`table_start`; the first line where the numbers start there).
+    logger's preamble comes before it), else the line above the numbers (both
+    `find_header`; the first line where the numbers start there).
     """
     position = handle.tell()
     lines = [line for line in (handle.readline() for _ in range(PREAMBLE_LINES)) if line]
@@ -402,7 +401,7 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
         next(csv.reader([line.strip()]), []) if line.strip() and not line.strip().startswith("#") else []
         for line in lines
     ]
-    skip = find_header(rows, names_wanted) if names_wanted else table_start(rows)
+    skip = find_header(rows, names_wanted)
     skipped = sum(1 for row in rows[:skip] if row)
     handle.seek(position)
     number = 0
@@ -617,9 +616,9 @@ def text_columns(path: pathlib.Path) -> list[str]:
 def _first_line(lines: list[tuple[int, str]], names_wanted: Sequence[str] = ()) -> int:
     """The index of a text table's header (or first row) among its `lines`: the first of the first
     `PREAMBLE_LINES` that names every one of `names_wanted`, else the line above its numbers
-    (`table_start`: a preamble before it, LabVIEW's header blocks)."""
+    (`find_header`, `table_start`: a preamble before it, LabVIEW's header blocks)."""
     rows = [_cells(line, _delimiter(line)) for _, line in lines[: PREAMBLE_LINES + 2]]
-    return find_header(rows, names_wanted) if names_wanted else table_start(rows)
+    return find_header(rows, names_wanted)
 
 
 def _header_of(lines: list[tuple[int, str]]) -> tuple[list[str], bool, str | None]:
