@@ -110,7 +110,7 @@ def _text_example(paths, names: list[str]) -> str:
     if len(paths) > 1:
         return f"--columns input={paths[0]},output={paths[1]} (one file per channel, of one length), with --rate HZ"
     if len(names) >= 2 and not all(n.isdigit() for n in names):  # a header: guess from its names
-        return f"{mapping_example(names)} (its columns: {', '.join(names)})"
+        return f"{mapping_example(names)} (its columns: {', '.join(n or '(unnamed)' for n in names)})"
     return (
         f"--columns input={paths[0]}:0,output={paths[0]}:1 (columns by number from 0, or by the header's "
         "names), with --rate HZ or --time COLUMN"

@@ -465,3 +465,44 @@ def test_a_labview_file_with_an_x_column_per_channel_is_mapped_by_number_where_a
         lvm,
         columns="input=Voltage,output=Displacement,time=X_Value",
     )
+
+
+def _pandas_table(path, names, delimiter):
+    """What pandas' ``DataFrame.to_csv`` writes (not imported here: pandas is no dependency): a row index
+    under an empty name first, then `names`, ``%.6f`` values; a header line that starts with the delimiter."""
+    u, y = _signals()
+    lines = [delimiter + delimiter.join(names)]
+    lines += [
+        delimiter.join([str(i), f"{i / RATE:.6f}", f"{a:.6f}", f"{b:.6f}"])
+        for i, (a, b) in enumerate(zip(u, y))
+    ]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path, u, y
+
+
+@pytest.mark.parametrize("suffix, delimiter", [(".csv", ","), (".tsv", "\t")])
+def test_pandas_row_index_under_an_empty_name_is_left_out_with_a_note(tmp_path, capsys, suffix, delimiter):
+    """pandas' to_csv (and R's write.csv) put the row index first under an empty name. It was refused
+    ("an empty column name") in a .csv, and a .tsv's header, its leading tab stripped, read one name short."""
+    path, u, y = _pandas_table(tmp_path / f"a{suffix}", ["t", "v_in", "w"], delimiter)
+    columns = None if suffix == ".csv" else "input=v_in,output=w,time=t"  # a text table is read mapped
+    rec = Recording.load(path, columns=columns) if columns else Recording.load(path)
+    np.testing.assert_allclose(rec.v_in, u, atol=1e-6)
+    np.testing.assert_allclose(rec.w, y, atol=1e-6)
+    assert rec.rate == pytest.approx(RATE) and rec.extra == {}
+    assert any("row index" in note for note in rec.notes), rec.notes
+    named, _, _ = _pandas_table(tmp_path / f"b{suffix}", ["time", "drive", "tip"], delimiter)
+    code, err = _cli(["fit", named, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    assert code == 2 and "--columns input=drive,output=tip --time time" in err, err
+    assert "'', " not in err and ", ," not in err  # the unnamed column is not listed as an empty name
+    by_number = Recording.load(named, columns="input=2,output=3,time=1")  # numbers count the index: column 0
+    np.testing.assert_allclose(by_number.w, y, atol=1e-6)
+
+
+def test_an_unnamed_column_between_the_signals_is_left_out_and_named_by_its_number(tmp_path):
+    u, y = _signals()
+    path = _write(tmp_path / "a.csv", "t,v_in,,w", [np.arange(N) / RATE, u, 5.0 + u, y])
+    rec = Recording.load(path)
+    np.testing.assert_allclose(rec.w, y, atol=1e-6)
+    assert rec.extra == {}
+    assert any("column 2 (from 0) has no name" in note and "row index" not in note for note in rec.notes)

@@ -330,7 +330,7 @@ def test_non_numeric_cell(tmp_path):
         ("t,v_in,w\n", "no data lines"),
         ("t,v_in,w\n0,1\n", "2 cells at line 2"),
         ("t,v_in,w,w\n0,1,2,3\n", "more than once"),
-        ("t,,w\n0,1,2\n", "empty column name"),
+        ("t,,w\n0,1,2\n", "missing column(s) v_in (found 't', an unnamed one, 'w')"),
         ("t,v_in,w,,\n0,1,2,,\n1,1,2,5,\n", "3 columns in its header"),  # a trailing column with data
         (
             "t,v_in,w,T\n0,1,2,20\n1,1,2,oops\n2,1,2,21\n",

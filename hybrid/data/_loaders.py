@@ -169,7 +169,7 @@ def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequ
             f"header line {names} above them, or name the columns by number from 0, e.g. {example}"
         )
     if missing:
-        shown = ", ".join(f"'{c}'" for c in found) or "none"
+        shown = ", ".join(f"'{c}'" if c else "an unnamed one" for c in found) or "none"
         if "w" not in required:  # a drive alone (a --drive-file): the command takes no column mapping
             raise InputError(
                 f"'{path}' is missing {kind} {', '.join(missing)} (found {shown}): name them exactly "
@@ -561,9 +561,8 @@ def _csv_header(
     header = [cell.strip().strip('"').strip() for cell in line.split(",")]
     while header and not header[-1]:
         header.pop()  # a trailing comma (a spreadsheet's empty columns): their cells must be empty too
-    if any(not cell for cell in header):
-        raise InputError(f"recording '{path}' has an empty column name in its header: name every column")
-    repeated = sorted({c for c in header if header.count(c) > 1})
+    named = [cell for cell in header if cell]  # an unnamed column (a row index) is left out (`_unnamed_note`)
+    repeated = sorted({c for c in named if named.count(c) > 1})
     if repeated:
         raise InputError(
             f"recording '{path}' names column(s) {', '.join(repeated)} more than "
@@ -623,6 +622,21 @@ def _csv_column(path: pathlib.Path, column: str, cells: list[str], numbers: np.n
             f"{samples_text(bad, numbers)}: remove or interpolate them"
         )
     return values
+
+
+def _unnamed_note(path: pathlib.Path, i: int, cells: list[str]) -> str:
+    """The note for column `i` (from 0), which has no name in the header: nothing reads it.
+
+    pandas' ``to_csv`` writes its row index so, under an empty name; R's ``write.csv`` too.
+    """
+    try:
+        values = np.array(cells, dtype=np.float64)
+    except ValueError:
+        values = np.array([])
+    counts = len(values) > 1 and (values[0] in (0.0, 1.0)) and bool(np.all(np.diff(values) == 1.0))
+    what = ": its cells count the rows, a row index (as pandas' to_csv writes one)" if counts else ""
+    where = "its first column" if i == 0 else f"its column {i} (from 0)"
+    return f"recording '{path}': {where} has no name in the header{what}; left out (name it to keep it)"
 
 
 def _text_column(cells: list[str]) -> str | None:
@@ -688,6 +702,9 @@ def _load_csv(
                 columns[column], start_time = times, clock.start.isoformat()
                 notes.append(clock.note(path))
                 continue
+        if not column:
+            notes.append(_unnamed_note(path, i, cells))
+            continue
         label = None if column in REQUIRED else _text_column(cells)
         if label is not None:  # nothing reads it: say so, do not refuse the signals beside it
             notes.append(f"recording '{path}': column '{column}' holds {label}, not a signal: left out")

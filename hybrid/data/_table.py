@@ -564,6 +564,11 @@ def read_text_table(
         )
         lines = lines[start:]
     names, header, delimiter = _header_of(lines)
+    if header and not names[0]:
+        notes.append(
+            f"recording '{path}': its first column has no name in the header (a row index, as pandas' "
+            "to_csv writes one): it is column 0"
+        )
     data = lines[1:] if header else lines
     stated: tuple[tuple[str, str], ...] = ()
     units = units_row(_cells(data[0][1], delimiter)) if header and data else None
@@ -628,6 +633,16 @@ def _header_of(lines: list[tuple[int, str]]) -> tuple[list[str], bool, str | Non
     cells = _cells(first, delimiter)
     header = not all(is_number(c) for c in cells)
     names = [c.strip('"').strip() for c in cells] if header else [str(i) for i in range(len(cells))]
+    if (
+        header
+        and delimiter is not None
+        and len(lines) > 1
+        and len(_cells(lines[1][1], delimiter)) == len(cells) + 1
+    ):
+        names = [
+            "",
+            *names,
+        ]  # pandas' to_csv: a row index under an empty name, the line's leading tab stripped
     return names, header, delimiter
 
 
