@@ -506,3 +506,53 @@ def test_an_unnamed_column_between_the_signals_is_left_out_and_named_by_its_numb
     np.testing.assert_allclose(rec.w, y, atol=1e-6)
     assert rec.extra == {}
     assert any("column 2 (from 0) has no name" in note and "row index" not in note for note in rec.notes)
+
+
+@pytest.mark.parametrize("suffix, delimiter", [(".csv", ","), (".txt", " ")])
+def test_numpy_savetxt_header_written_as_a_comment_is_the_header(tmp_path, capsys, suffix, delimiter):
+    """``np.savetxt(..., header=...)`` writes ``# t,v_in,w`` (numpy's default comments="# "), which
+    ``np.genfromtxt(names=True)`` reads back as the names; it was refused as "no header"."""
+    u, y = _signals()
+    columns = [np.arange(N) / RATE, u, y]
+    path = tmp_path / f"a{suffix}"
+    np.savetxt(
+        path,
+        np.column_stack(columns),
+        fmt="%.6f",
+        delimiter=delimiter,
+        header=delimiter.join(["t", "v_in", "w"]),
+    )
+    assert path.read_text().startswith("# t")
+    rec = (
+        Recording.load(path)
+        if suffix == ".csv"
+        else Recording.load(path, columns="input=v_in,output=w,time=t")
+    )
+    np.testing.assert_allclose(rec.w, y, atol=1e-6)
+    assert rec.rate == pytest.approx(RATE) and len(rec.w) == N  # no sample taken for a header
+    assert any("header is the comment on line 1" in note for note in rec.notes), rec.notes
+    if suffix == ".txt":  # unmapped, a text table headed t, v_in, w reads as it is
+        code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+        assert code == 0, err
+    named = tmp_path / f"b{suffix}"
+    np.savetxt(
+        named,
+        np.column_stack(columns),
+        fmt="%.6f",
+        delimiter=delimiter,
+        header=delimiter.join(["time", "drive", "tip"]),
+    )
+    code, err = _cli(["fit", named, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    assert code == 2 and "--columns input=drive,output=tip --time time" in err, err
+
+
+def test_a_comment_that_is_not_a_header_stays_a_comment(tmp_path):
+    """A preamble comment with another number of cells, or one of numbers, is not taken for the names: the
+    file has no header, as before, and its first line of numbers stays its first sample."""
+    u, y = _signals()
+    table = np.column_stack([np.arange(N) / RATE, u, y])
+    for i, comment in enumerate(["# logged by rig 2, 30 Hz", "# 1,2,3"]):
+        path = tmp_path / f"a{i}.csv"
+        np.savetxt(path, table, fmt="%.6f", delimiter=",", header=comment.lstrip("# "))
+        rec = Recording.load(path, columns="input=1,output=2,time=0")
+        assert len(rec.w) == N and not any("header is the comment" in note for note in rec.notes), rec.notes

@@ -543,15 +543,52 @@ def comma_separated(text: str) -> tuple[str, str | None]:
     return "\n".join(out), f"read as cells separated by {word}" + (" with decimal commas" if decimals else "")
 
 
-def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], str | None]:
-    """Non-blank, non-comment lines with their line numbers (from 1), and how the text was read."""
+def commented_header(path: pathlib.Path | str, text: str) -> tuple[str, list[str]]:
+    """`text` with a header written as a comment made a header again, and a note saying so (none: [], text
+    unchanged).
+
+    numpy's ``savetxt(..., header="t,v_in,w")`` writes ``# t,v_in,w`` (its default
+    ``comments="# "``), and numpy's own ``genfromtxt(names=True)`` reads that line as the
+    names. So where the first line that is not blank or a comment holds values only, and
+    the line right above it (blank lines between) is a comment with as many cells, not
+    all values, that comment is the header. Every line keeps its number.
+    """
+    lines = text.splitlines()
+    first = next(
+        (i for i, line in enumerate(lines) if line.strip() and not line.strip().startswith("#")), None
+    )
+    if first is None:
+        return text, []
+    row = lines[first].strip()
+    mark = next((m for m in (",", ";", "\t") if m in row), None)
+    cells = row.split(mark)
+    above = first - 1
+    while above >= 0 and not lines[above].strip():
+        above -= 1
+    if len(cells) < 2 or not all(is_value(c) for c in cells) or above < 0:
+        return text, []
+    comment = lines[above].strip()
+    names = [n.strip() for n in comment.lstrip("#").strip().split(mark)]
+    if not comment.startswith("#") or len(names) != len(cells) or not all(names) or all(map(is_value, names)):
+        return text, []
+    lines[above] = comment.lstrip("#").strip()
+    note = (
+        f"recording '{path}': its header is the comment on line {above + 1} ({lines[above]!r}), as numpy's "
+        "savetxt writes one"
+    )
+    return "\n".join(lines), [note]
+
+
+def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], list[str]]:
+    """Non-blank, non-comment lines with their line numbers (from 1), and notes on how the text was read."""
     lines = []
-    text, how = comma_separated(read_text(path))
+    text, notes = commented_header(path, read_text(path))
+    text, how = comma_separated(text)
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):
             lines.append((number, stripped))
-    return lines, how
+    return lines, notes + ([] if how is None else [f"recording '{path}': {how}"])
 
 
 def _csv_header(
@@ -657,7 +694,7 @@ def _text_column(cells: list[str]) -> str | None:
 def _load_csv(
     path: pathlib.Path, required: Sequence[str] = REQUIRED
 ) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...], np.ndarray]:
-    lines, how = _csv_lines(path)
+    lines, read_notes = _csv_lines(path)
     if not lines:
         raise InputError(
             f"recording '{path}' has no header or data: give a header line t,v_in,w and one line per sample"
@@ -691,7 +728,7 @@ def _load_csv(
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     line_numbers = np.asarray(numbers)
     columns = {}
-    notes += [] if how is None else [f"recording '{path}': {how}"]
+    notes += read_notes
     start_time = None
     for i, column in enumerate(header):
         cells = [row[i] for row in rows]

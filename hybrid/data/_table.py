@@ -66,6 +66,7 @@ from ._loaders import (
     Clock,
     cell_count_message,
     comma_separated,
+    commented_header,
     decode_text,
     file_vector,
     find_header,
@@ -202,8 +203,9 @@ def _read_csv(
     path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
     # a ';' or tab export with decimal commas: read as commas
-    text, how = comma_separated(decode_text(path, _CSV_FIX))
-    notes = [f"recording '{path}': {how}"] if how else []
+    text, notes = commented_header(path, decode_text(path, _CSV_FIX))
+    text, how = comma_separated(text)
+    notes += [f"recording '{path}': {how}"] if how else []
     try:
         with io.StringIO(text) as handle:
             names_wanted = [n for n in wanted.values() if not n.isdigit()]
@@ -551,12 +553,11 @@ def read_text_table(
         ``(names, table, notes)``, ``table`` of shape (rows, len(names)), float64, every cell
         finite, and `TableNotes` (the line of each row, what was skipped, a units row's units).
     """
-    lines = _text_lines(path)
+    lines, notes = _text_lines(path)
     if not lines:
         raise InputError(
             f"recording '{path}' has no numbers: give one line per sample, one column per channel"
         )
-    notes: list[str] = []
     start = _first_line(lines, names_wanted)
     if start:
         notes.append(
@@ -614,7 +615,7 @@ def read_text_table(
 def text_columns(path: pathlib.Path) -> list[str]:
     """A text table's column names as `read_text_table` gives them (a header's, or "0", "1", … without one),
     read without converting its numbers; [] for a file with no line to read."""
-    lines = _text_lines(path)
+    lines, _ = _text_lines(path)
     return _header_of(lines[_first_line(lines) :])[0] if lines else []
 
 
@@ -646,15 +647,16 @@ def _header_of(lines: list[tuple[int, str]]) -> tuple[list[str], bool, str | Non
     return names, header, delimiter
 
 
-def _text_lines(path: pathlib.Path) -> list[tuple[int, str]]:
-    """Non-blank, non-comment lines of a text table with their line numbers (from 1)."""
-    text = decode_text(path, "save it as UTF-8 text")
+def _text_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], list[str]]:
+    """Non-blank, non-comment lines of a text table with their line numbers (from 1), and notes on how the
+    text was read (`commented_header`)."""
+    text, notes = commented_header(path, decode_text(path, "save it as UTF-8 text"))
     lines = []
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.split("#", 1)[0].strip()
         if stripped:
             lines.append((number, stripped))
-    return lines
+    return lines, notes
 
 
 def _delimiter(line: str) -> str | None:
