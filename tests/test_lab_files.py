@@ -556,3 +556,44 @@ def test_a_comment_that_is_not_a_header_stays_a_comment(tmp_path):
         np.savetxt(path, table, fmt="%.6f", delimiter=",", header=comment.lstrip("# "))
         rec = Recording.load(path, columns="input=1,output=2,time=0")
         assert len(rec.w) == N and not any("header is the comment" in note for note in rec.notes), rec.notes
+
+
+@pytest.mark.parametrize("suffix, rows", [(".mat", False), (".mat", True), (".npz", False)])
+def test_signals_stored_as_one_matrix_are_mapped_by_column_number(tmp_path, capsys, suffix, rows):
+    """MATLAB's ``data = [t u y]; save run.mat data`` (or numpy's ``savez(data=table)``): the record is one
+    matrix. Unmapped, the refusal writes the mapping by number; ``data:K`` maps its column (or row) K."""
+    import scipy.io
+
+    u, y = _signals()
+    table = np.column_stack([np.arange(N) / RATE, u, y])
+    stored = table.T if rows else table
+    path = tmp_path / f"run{suffix}"
+    if suffix == ".mat":
+        scipy.io.savemat(path, {"data": stored})
+    else:
+        np.savez(path, data=stored)
+    code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    example = "--columns input=data:1,output=data:2 --time data:0"
+    assert code == 2 and "'data' is a matrix of 3 channels" in err and example in err, err
+    rec = Recording.load(path, columns="input=data:1,output=data:2,time=data:0")
+    np.testing.assert_array_equal(rec.v_in, u)
+    np.testing.assert_array_equal(rec.w, y)
+    assert rec.rate == pytest.approx(RATE)
+    message = _refused(r"not a vector", path, columns="input=data,output=data:2,time=data:0")
+    assert "data:0 to data:2" in message
+
+
+def test_a_matrix_beside_the_signals_is_left_out_with_a_note(tmp_path):
+    """A calibration matrix or the raw table saved beside t, v_in and w was refused ("not a vector")."""
+    import scipy.io
+
+    u, y = _signals()
+    t = np.arange(N) / RATE
+    path = tmp_path / "run.mat"
+    scipy.io.savemat(
+        path, {"t": t, "v_in": u, "w": y, "calib": 2 * np.eye(3), "raw": np.column_stack([t, u, y])}
+    )
+    rec = Recording.load(path)
+    np.testing.assert_array_equal(rec.w, y)
+    assert rec.extra == {}
+    assert sorted(n.split("'")[3] for n in rec.notes if "not a signal" in n) == ["calib", "raw"], rec.notes

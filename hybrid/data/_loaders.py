@@ -20,7 +20,7 @@ import os
 import pathlib
 import re
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -88,7 +88,7 @@ def read_file(
     if suffix == ".csv":
         columns, metadata, notes, lines = _load_csv(path, required)
     else:
-        columns, metadata = (_load_npz if suffix == ".npz" else _load_mat)(path, required)
+        columns, metadata, notes = (_load_npz if suffix == ".npz" else _load_mat)(path, required)
     if "w" not in columns:
         columns["w"] = np.zeros_like(columns["t"])
     metadata.setdefault("source", str(path))
@@ -838,17 +838,105 @@ def npz_arrays(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     return arrays, metadata
 
 
-def _load_npz(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[dict[str, np.ndarray], dict]:
+def _load_npz(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...]]:
     arrays, metadata = npz_arrays(path)
-    _require(path, list(arrays), "array(s)", required)
+    _require_stored(path, arrays, "array(s)", required)
     columns = {}
-    for key, values in arrays.items():
+    for key, values in _vectors(path, arrays, required).items():
         column = key[len(NPZ_EXTRA) :] if key.startswith(NPZ_EXTRA) else key
-        columns[column] = file_vector(path, key, values)
-    return columns, metadata
+        columns[column] = values
+    return columns, metadata, _left_out(path, arrays, columns, "array")
+
+
+def _require_stored(
+    path: pathlib.Path, arrays: Mapping[str, np.ndarray], kind: str, required: Sequence[str]
+) -> None:
+    """`_require` for a .npz or .mat file; where its signals are one matrix's columns, the mapping for them."""
+    try:
+        _require(path, list(arrays), kind, required)
+    except InputError:
+        example = _matrix_example(arrays) if "w" in required else ""
+        if not example:
+            raise
+        missing = ", ".join(c for c in required if c not in arrays)
+        raise InputError(
+            f"recording '{path}' is missing {kind} {missing} (found {', '.join(map(repr, arrays))}): {example}"
+        ) from None
+
+
+def _vectors(
+    path: pathlib.Path, arrays: Mapping[str, np.ndarray], required: Sequence[str]
+) -> dict[str, np.ndarray]:
+    """The stored vectors; a stored value of another shape beside the signals is left out (`_left_out`)."""
+    out = {}
+    for key, values in arrays.items():
+        shape = np.asarray(values).shape
+        if key not in required and len(shape) > 1 and sum(k > 1 for k in shape) > 1:
+            continue
+        out[key] = file_vector(path, key, values)
+    return out
+
+
+def _left_out(
+    path: pathlib.Path, arrays: Mapping[str, np.ndarray], read: Mapping, kind: str
+) -> tuple[str, ...]:
+    """A note for each stored matrix beside the signals that nothing reads."""
+    return tuple(
+        f"recording '{path}': {kind} '{key}' of shape {np.asarray(values).shape} is not a signal (one value per "
+        "sample): left out"
+        for key, values in arrays.items()
+        if key not in read and (key[len(NPZ_EXTRA) :] if key.startswith(NPZ_EXTRA) else key) not in read
+    )
 
 
 # ------------------------------------------------------------------- MAT
+
+
+#: A stored matrix whose shorter side is at most this long holds one channel per column (or row).
+MATRIX_CHANNELS = 32
+
+
+def matrix_columns(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Each channel of every stored matrix, as ``NAME:K`` (K from 0) → its vector.
+
+    MATLAB's ``data = [t u y]; save run.mat data`` (or numpy's ``savez(data=table)``) stores
+    the record as one matrix: a channel per column along its longer side (a per-row layout,
+    ``[t; u; y]``, too), at most `MATRIX_CHANNELS` of them, so a mapping can name a column by
+    number as in a table (``--columns input=data:1,output=data:2 --time data:0``).
+    """
+    out = {}
+    for key, values in arrays.items():
+        values = np.asarray(values)
+        if (
+            values.ndim != 2
+            or values.dtype.kind not in "biuf"
+            or not 2 <= min(values.shape) <= MATRIX_CHANNELS
+        ):
+            continue
+        if values.shape[0] == values.shape[1]:
+            continue  # which side holds the samples cannot be told
+        channels = values.T if values.shape[0] > values.shape[1] else values
+        out.update({f"{key}:{k}": channel for k, channel in enumerate(channels)})
+    return out
+
+
+def _matrix_example(arrays: Mapping[str, np.ndarray]) -> str:
+    """The mapping of a file whose signals are columns of one matrix (`matrix_columns`), or ""."""
+    matrices = sorted({name.rsplit(":", 1)[0] for name in matrix_columns(arrays)})
+    if len(matrices) != 1:
+        return ""
+    key = matrices[0]
+    channels = matrix_columns({key: arrays[key]})
+    first = channels[f"{key}:0"]
+    timed = len(channels) >= 3 and len(first) > 1 and bool(np.all(np.diff(first) > 0))
+    flags = (
+        f"--columns input={key}:1,output={key}:2 --time {key}:0"
+        if timed
+        else f"--columns input={key}:0,output={key}:1 --rate HZ"
+    )
+    return f"'{key}' is a matrix of {len(channels)} channels: name them by number from 0, e.g. {flags}"
 
 
 def file_vector(path: pathlib.Path, key: str, values: np.ndarray) -> np.ndarray:
@@ -860,9 +948,15 @@ def file_vector(path: pathlib.Path, key: str, values: np.ndarray) -> np.ndarray:
             "rather than real numbers: store numeric vectors only"
         )
     if values.ndim > 1 and sum(k > 1 for k in values.shape) > 1:
+        channels = len(matrix_columns({key: values}))
+        fix = (
+            f", or map one of its channels by number from 0 ({key}:0 to {key}:{channels - 1})"
+            if channels
+            else ""
+        )
         raise InputError(
             f"recording '{path}' has variable '{key}' of shape {values.shape}, "
-            "not a vector: store one value per sample"
+            f"not a vector: store one value per sample{fix}"
         )
     return values.reshape(-1)
 
@@ -963,8 +1057,10 @@ def _flat_structs(variables: dict, prefix: str = "", depth: int = 0) -> dict[str
     return out
 
 
-def _load_mat(path: pathlib.Path, required: Sequence[str] = REQUIRED) -> tuple[dict[str, np.ndarray], dict]:
+def _load_mat(
+    path: pathlib.Path, required: Sequence[str] = REQUIRED
+) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...]]:
     variables, metadata = mat_variables(path)
-    _require(path, list(variables), "variable(s)", required)
-    columns = {key: file_vector(path, key, values) for key, values in variables.items()}
-    return columns, metadata
+    _require_stored(path, variables, "variable(s)", required)
+    columns = _vectors(path, variables, required)
+    return columns, metadata, _left_out(path, variables, columns, "variable")

@@ -75,6 +75,7 @@ from ._loaders import (
     is_number,
     is_value,
     mat_variables,
+    matrix_columns,
     npz_arrays,
     parse_metadata,
     read_text,
@@ -162,6 +163,7 @@ def read_columns(
         metadata = {"units": dict(notes.units)} if notes.units else {}
         return columns, {}, metadata, notes._replace(columns=tuple(names))
     arrays, metadata = npz_arrays(path) if suffix == ".npz" else mat_variables(path)
+    arrays = {**arrays, **matrix_columns(arrays)}  # data:1, a column of a stored matrix
     kind = "array" if suffix == ".npz" else "variable"
     columns = {}
     for role, name in wanted.items():
