@@ -597,3 +597,45 @@ def test_a_matrix_beside_the_signals_is_left_out_with_a_note(tmp_path):
     np.testing.assert_array_equal(rec.w, y)
     assert rec.extra == {}
     assert sorted(n.split("'")[3] for n in rec.notes if "not a signal" in n) == ["calib", "raw"], rec.notes
+
+
+def test_a_numpy_npy_array_is_read_by_column_number_or_field_name(tmp_path, capsys):
+    """``np.save(file, table)``: columns by number from 0 (a per-row table too), a structured array's fields by
+    name, a vector as one file per channel; unmapped, the refusal writes the mapping."""
+    u, y = _signals()
+    t = np.arange(N) / RATE
+    table = np.column_stack([t, u, y])
+    np.save(tmp_path / "cols.npy", table)
+    np.save(tmp_path / "rows.npy", table.T)
+    for name in ("cols.npy", "rows.npy"):
+        rec = Recording.load(tmp_path / name, columns="input=1,output=2,time=0")
+        np.testing.assert_array_equal(rec.v_in, u)
+        np.testing.assert_array_equal(rec.w, y)
+        assert rec.rate == pytest.approx(RATE)
+    record = np.zeros(N, dtype=[("time", "f8"), ("drive", "f8"), ("tip", "f4")])
+    record["time"], record["drive"], record["tip"] = t, u, y
+    np.save(tmp_path / "fields.npy", record)
+    rec = Recording.load(tmp_path / "fields.npy", columns="input=drive,output=tip,time=time")
+    np.testing.assert_allclose(rec.w, y, rtol=1e-6)  # stored as float32
+    np.save(tmp_path / "u.npy", u)
+    np.save(tmp_path / "y.npy", y)
+    code, err = _cli(
+        [
+            "fit",
+            tmp_path / "u.npy",
+            tmp_path / "y.npy",
+            "--columns",
+            f"input={tmp_path / 'u.npy'},output={tmp_path / 'y.npy'}",
+            "--rate",
+            RATE,
+            *FIT,
+            "--out",
+            tmp_path / "m.eqx",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    code, err = _cli(["fit", tmp_path / "cols.npy", *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    assert code == 2 and "--columns input=1,output=2 --time 0" in err, err
+    np.save(tmp_path / "cube.npy", np.zeros((4, 5, 6)))
+    _refused(r"shape \(4, 5, 6\): store a table", tmp_path / "cube.npy", columns="input=1,output=2")

@@ -45,6 +45,7 @@ __all__ = [
     "mapping_example",
     "spaced_cells_message",
     "mat_variables",
+    "npy_table",
     "npz_arrays",
     "read_file",
     "sidecar",
@@ -125,6 +126,11 @@ def file_suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
             hint = (
                 " (a text table is read with its columns mapped: --columns input=COLUMN,output=COLUMN "
                 "--rate HZ, or one file per channel: --columns input=u.txt,output=y.txt)"
+            )
+        elif suffix == ".npy" and suffix not in suffixes:
+            hint = (
+                " (a numpy array is read with its columns mapped by number from 0, e.g. --columns "
+                "input=1,output=2 --time 0, or by field name for a structured array)"
             )
         elif suffix in (".xlsx", ".xls", ".xlsm", ".ods"):
             hint = " (a spreadsheet workbook: save the sheet as CSV, comma- or ';'-separated, and give that)"
@@ -836,6 +842,40 @@ def npz_arrays(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict]:
     if "metadata" in arrays:
         metadata = parse_metadata(path, str(arrays.pop("metadata")[()]), "its 'metadata' entry")
     return arrays, metadata
+
+
+def npy_table(path: pathlib.Path) -> tuple[list[str], np.ndarray]:
+    """A ``.npy`` array as a table: its column names and its float64 values, shape (samples, columns).
+
+    ``np.save(file, table)``: a vector is one column; a matrix holds a channel per column
+    along its longer side (per row, ``[t; u; y]``, too), named by number from 0 as a
+    headerless table's; a structured array's fields are its columns, by name.
+    """
+    try:
+        values = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:
+        raise InputError(
+            f"recording '{path}' is not a readable .npy array ({error}): save it with numpy.save"
+        ) from None
+    if values.dtype.names:  # a structured (record) array: one column per field
+        names = list(values.dtype.names)
+        fields = [np.asarray(values[name]).reshape(-1) for name in names]
+        if not all(f.dtype.kind in "biuf" for f in fields):
+            raise InputError(f"recording '{path}' has fields that are not real numbers: store numbers only")
+        return names, np.column_stack(fields).astype(np.float64)
+    if values.dtype.kind not in "biuf" or values.ndim not in (1, 2) or values.size == 0:
+        raise InputError(
+            f"recording '{path}' holds an array of type {values.dtype} and shape {values.shape}: store a "
+            "table of real numbers, one channel per column (numpy.save(file, np.column_stack([t, u, y])))"
+        )
+    table = (
+        values.reshape(-1, 1)
+        if values.ndim == 1
+        else values.T
+        if values.shape[1] > values.shape[0]
+        else values
+    )
+    return [str(i) for i in range(table.shape[1])], table.astype(np.float64)
 
 
 def _load_npz(

@@ -29,8 +29,10 @@
   table without a header names its columns by number from 0 (``"0"``, ``"1"``).
   Every column is read, so every cell must be a number.
 * ``.npz`` / ``.mat``: the arrays or variables named; only those must be real
-  numeric vectors. The metadata is the ``metadata`` entry, as for
-  `Recording.load`.
+  numeric vectors, or a channel of a stored matrix, ``data:1`` (`matrix_columns`).
+  The metadata is the ``metadata`` entry, as for `Recording.load`.
+* ``.npy``: one array saved by ``numpy.save`` (`npy_table`): a table's columns by number
+  from 0 (a matrix's channels along its longer side), a structured array's fields by name.
 
 A name that is not in a ``.csv`` or text table's header may be a column number
 from 0 (``"0"``, ``"2"``): the header's names come first.
@@ -76,6 +78,7 @@ from ._loaders import (
     is_value,
     mat_variables,
     matrix_columns,
+    npy_table,
     npz_arrays,
     parse_metadata,
     read_text,
@@ -118,7 +121,7 @@ RATE_FIELDS: dict[str, str] = {
 }
 
 #: Every suffix the mapped reader understands.
-MAPPED_SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat", *TEXT_SUFFIXES)
+MAPPED_SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat", ".npy", *TEXT_SUFFIXES)
 
 _SHOW_NAMES = 20
 
@@ -154,6 +157,13 @@ def read_columns(
     """
     if suffix == ".csv":
         return _read_csv(path, wanted, flag_prefix)
+    if suffix == ".npy":
+        names, table = npy_table(path)
+        columns = {
+            role: table[:, _column_index(path, names, name, role, flag_prefix)]
+            for role, name in wanted.items()
+        }
+        return columns, {}, {}, TableNotes(columns=tuple(names))
     if suffix in TEXT_SUFFIXES:
         names, table, notes = read_text_table(path, [n for n in wanted.values() if not n.isdigit()])
         columns = {
@@ -528,7 +538,7 @@ def only_column(path: pathlib.Path, suffix: str, role: str, reference: str) -> n
         if len(names) == 1:
             return file_vector(path, names[0], arrays[names[0]]).astype(np.float64)
     else:
-        names, table, _ = read_text_table(path)
+        names, table = npy_table(path) if suffix == ".npy" else read_text_table(path)[:2]
         if table.shape[1] == 1:
             return table[:, 0]
     shown = ", ".join(names[:_SHOW_NAMES]) or "none"
