@@ -31,8 +31,21 @@ __all__ = [
     "check_model",
     "check_seed",
     "is_tracer",
+    "require_float64",
     "run_compiled",
 ]
+
+#: What a script that left jax's float64 off is told to do (the library never changes `jax.config`).
+FLOAT64_FIX = (
+    "call jax.config.update('jax_enable_x64', True) at the start of your script, before any JAX array "
+    "is made (the command line does)"
+)
+
+
+def require_float64(where: str, why: str) -> None:
+    """An InputError unless jax's float64 is on (``jax_enable_x64``); `why`: what needs it."""
+    if not jax.config.read("jax_enable_x64"):
+        raise InputError(f"{where} needs float64 ({why}), and jax's float64 is off: {FLOAT64_FIX}")
 
 
 def is_tracer(x) -> bool:

@@ -6,8 +6,10 @@ import dataclasses
 import math
 from typing import Any
 
+import jax
 import numpy as np
 
+from ._arguments import FLOAT64_FIX
 from ._models import Model
 from ._simulation import AbstractSimulation, unit_suffix
 
@@ -163,6 +165,12 @@ def fit_warnings(
         )
     warnings += implausible(fitted, frozen)
     warnings += aliased(fitted, frozen, rate)
+    if not jax.config.read("jax_enable_x64"):
+        warnings.append(
+            "fitted in float32, as jax's float64 is off: sums over the record (and the RC network's product "
+            "of 46 sections) round at 1e-7 of their size, which moves the parameters the data pin weakly; "
+            + FLOAT64_FIX
+        )
     return warnings
 
 

@@ -59,7 +59,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core._arguments import as_recordings, check_simulation
+from ..core._arguments import as_recordings, check_simulation, require_float64
 from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_labels
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
@@ -239,6 +239,11 @@ def diagnose(
     t0 = time.perf_counter()
     given, given_effects = settings, effects  # as asked: a held-start rerun resolves them again
     recordings = as_recordings(recordings, "diagnose")  # a path is loaded; anything else is refused
+    require_float64(
+        "diagnose",
+        "its noise floor, information criteria and held-out tests compare errors far below float32's "
+        "1e-7; in float32 a start design turns NaN",
+    )
     check_simulation(simulation, "diagnose")
     if not isinstance(settings, DiagnoseSettings):
         raise InputError(
