@@ -584,19 +584,22 @@ def test_signals_stored_as_one_matrix_are_mapped_by_column_number(tmp_path, caps
 
 
 def test_a_matrix_beside_the_signals_is_left_out_with_a_note(tmp_path):
-    """A calibration matrix or the raw table saved beside t, v_in and w was refused ("not a vector")."""
+    """A calibration matrix, the raw table or the operator's name saved beside t, v_in and w was refused
+    ("not a vector", "rather than real numbers"); a numeric vector beside them is still an extra channel."""
     import scipy.io
 
     u, y = _signals()
     t = np.arange(N) / RATE
     path = tmp_path / "run.mat"
-    scipy.io.savemat(
-        path, {"t": t, "v_in": u, "w": y, "calib": 2 * np.eye(3), "raw": np.column_stack([t, u, y])}
-    )
+    extras = {"calib": 2 * np.eye(3), "raw": np.column_stack([t, u, y]), "operator": "A. Lab", "T": 20 + u}
+    scipy.io.savemat(path, {"t": t, "v_in": u, "w": y, **extras})
     rec = Recording.load(path)
     np.testing.assert_array_equal(rec.w, y)
-    assert rec.extra == {}
-    assert sorted(n.split("'")[3] for n in rec.notes if "not a signal" in n) == ["calib", "raw"], rec.notes
+    assert list(rec.extra) == ["T"]
+    left_out = sorted(n.split("'")[3] for n in rec.notes if "not a signal" in n)
+    assert left_out == ["calib", "operator", "raw"], rec.notes
+    np.savez(tmp_path / "a.npz", t=t, v_in=np.array(["a"] * N), w=y)  # a signal of text is still refused
+    _refused("variable 'v_in' of type", tmp_path / "a.npz")
 
 
 def test_a_numpy_npy_array_is_read_by_column_number_or_field_name(tmp_path, capsys):

@@ -909,26 +909,34 @@ def _require_stored(
 def _vectors(
     path: pathlib.Path, arrays: Mapping[str, np.ndarray], required: Sequence[str]
 ) -> dict[str, np.ndarray]:
-    """The stored vectors; a stored value of another shape beside the signals is left out (`_left_out`)."""
-    out = {}
-    for key, values in arrays.items():
-        shape = np.asarray(values).shape
-        if key not in required and len(shape) > 1 and sum(k > 1 for k in shape) > 1:
-            continue
-        out[key] = file_vector(path, key, values)
-    return out
+    """The stored vectors; anything else beside the signals (a matrix, text) is left out (`_left_out`)."""
+    return {
+        key: file_vector(path, key, values)
+        for key, values in arrays.items()
+        if key in required or _is_vector(values)
+    }
+
+
+def _is_vector(values) -> bool:
+    """Whether a stored value is real numbers, at most one side longer than 1 (what `file_vector` takes)."""
+    values = np.asarray(values)
+    return values.dtype.kind in "biuf" and sum(k > 1 for k in values.shape) <= 1
 
 
 def _left_out(
     path: pathlib.Path, arrays: Mapping[str, np.ndarray], read: Mapping, kind: str
 ) -> tuple[str, ...]:
-    """A note for each stored matrix beside the signals that nothing reads."""
-    return tuple(
-        f"recording '{path}': {kind} '{key}' of shape {np.asarray(values).shape} is not a signal (one value per "
-        "sample): left out"
-        for key, values in arrays.items()
-        if key not in read and (key[len(NPZ_EXTRA) :] if key.startswith(NPZ_EXTRA) else key) not in read
-    )
+    """A note for each stored value beside the signals that nothing reads (`_vectors`)."""
+    notes = []
+    for key, values in arrays.items():
+        if key in read or (key[len(NPZ_EXTRA) :] if key.startswith(NPZ_EXTRA) else key) in read:
+            continue
+        values = np.asarray(values)
+        what = f"of shape {values.shape}" if values.dtype.kind in "biuf" else f"of type {values.dtype}"
+        notes.append(
+            f"recording '{path}': {kind} '{key}' {what} is not a signal (one number per sample): left out"
+        )
+    return tuple(notes)
 
 
 # ------------------------------------------------------------------- MAT
