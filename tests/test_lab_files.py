@@ -642,3 +642,36 @@ def test_a_numpy_npy_array_is_read_by_column_number_or_field_name(tmp_path, caps
     assert code == 2 and "--columns input=1,output=2 --time 0" in err, err
     np.save(tmp_path / "cube.npy", np.zeros((4, 5, 6)))
     _refused(r"shape \(4, 5, 6\): store a table", tmp_path / "cube.npy", columns="input=1,output=2")
+
+
+def _rigol(path, u, y, increment=1 / RATE, start=-2.0):
+    """A Rigol oscilloscope's CSV export (DS1000Z): the sampling period and the first sample's time in
+    the units row, under the header's last names, which no data line fills; every data line ends in ','."""
+    lines = ["X,CH1,CH2,Start,Increment,", f"Sequence,Volt,Volt,{start:.6e},{increment:.6e}"]
+    lines += [f"{i},{a:.4e},{b:.4e}," for i, (a, b) in enumerate(zip(u, y))]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def test_an_oscilloscopes_csv_gives_its_rate_from_the_increment_under_its_header(tmp_path, capsys):
+    """A scope records the drive and the response on two channels; Rigol's export was refused ("names
+    column(s) Volt more than once": its units row read as the header), and mapped, at line 3."""
+    u, y = _signals()
+    path = _rigol(tmp_path / "scope.csv", u, y)
+    code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    assert code == 2 and "--columns input=CH1,output=CH2 (the rate from the file's own field)" in err, err
+    rec = Recording.load(path, columns="input=CH1,output=CH2")
+    np.testing.assert_allclose(rec.v_in, u, rtol=1e-4, atol=1e-6)  # written with 4 decimals
+    np.testing.assert_allclose(rec.w, y, rtol=1e-4, atol=1e-6)
+    assert rec.rate == pytest.approx(RATE, rel=1e-6)  # 1 / Increment
+    assert any("Increment = 0.0333333" in note for note in rec.notes), rec.notes
+    assert rec.metadata["units"]["v_in"] == "Volt"
+    code, err = _cli(
+        ["fit", path, "--columns", "input=CH1,output=CH2", *FIT, "--out", tmp_path / "m.eqx"], capsys
+    )
+    assert code == 0, err
+    code, err = _cli(
+        ["fit", path, "--columns", "input=CH1,output=CH2", "--rate", 50, *FIT, "--out", tmp_path / "m.eqx"],
+        capsys,
+    )
+    assert code == 2 and "Increment" in err, err  # a rate given that the file's field contradicts is named

@@ -20,7 +20,7 @@ import os
 import pathlib
 import re
 import zipfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -31,6 +31,7 @@ from ._recording_checks import REQUIRED, TIME_UNITS, UNITS, samples_text
 __all__ = [
     "FOOTER_LINES",
     "PREAMBLE_LINES",
+    "RATE_FIELDS",
     "SUFFIXES",
     "TEXT_SUFFIXES",
     "Clock",
@@ -39,6 +40,7 @@ __all__ = [
     "comma_separated",
     "decode_text",
     "find_header",
+    "header_fields",
     "footer_start",
     "is_number",
     "is_value",
@@ -62,6 +64,24 @@ SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
 TEXT_SUFFIXES: tuple[str, ...] = (".txt", ".dat", ".tsv", ".lvm")
 
 NPZ_EXTRA = "extra_"
+
+#: Column, array or metadata names (any case) read as the sampling rate (Hz) or the
+#: sampling period (s) when they are not mapped: a single positive number, or a column
+#: whose first row holds it and whose other rows are empty, NaN or the same number
+#: (the Cascaded Tanks file's ``Ts``). Anything else under these names is ignored.
+RATE_FIELDS: dict[str, str] = {
+    "fs": "Hz",
+    "rate": "Hz",
+    "rate_hz": "Hz",
+    "sample_rate": "Hz",
+    "sampling_rate": "Hz",
+    "ts": "s",
+    "increment": "s",  # a Rigol oscilloscope's sampling period (`header_fields`)
+    "dt": "s",
+    "dt_s": "s",
+    "sample_time": "s",
+    "sampling_time": "s",
+}
 
 
 def read_file(
@@ -155,7 +175,16 @@ def path_argument(path: Any, where: str) -> pathlib.Path:
     return pathlib.Path(path)
 
 
-def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequence[str] = REQUIRED) -> None:
+def _require(
+    path: pathlib.Path,
+    found: Sequence[str],
+    kind: str,
+    required: Sequence[str] = REQUIRED,
+    skip: Collection[str] = (),
+    rate_known: bool = False,
+) -> None:
+    """Refuse a file without the `required` names, with the mapping its own names suggest (`skip` left out
+    of it; `rate_known`: the file gives its rate, so the example asks for none)."""
     missing = [c for c in required if c not in found]
     if missing and len(found) > 1 and all(is_value(c) for c in found):
         # no header: the first line is a sample (the mapped reader names such columns by number)
@@ -184,7 +213,8 @@ def _require(path: pathlib.Path, found: Sequence[str], kind: str, required: Sequ
         raise InputError(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
-            f"yours are which, e.g. {mapping_example([c for c in found if c not in REQUIRED])}"
+            f"yours are which, e.g. "
+            f"{mapping_example([c for c in found if c not in REQUIRED and c not in skip], rate_known)}"
         )
 
 
@@ -319,8 +349,9 @@ def role_of(name: str) -> str | None:
     return None
 
 
-def mapping_example(names: Sequence[str]) -> str:
-    """The flags that would map a lab file's columns, guessed from their names (time, drive, output)."""
+def mapping_example(names: Sequence[str], rate_known: bool = False) -> str:
+    """The flags that would map a lab file's columns, guessed from their names (time, drive, output);
+    `rate_known`: the file gives its rate (a field), so without a time column none is asked for."""
     names = list(names)
     roles: dict[str, str] = {}
     for name in names:
@@ -340,6 +371,8 @@ def mapping_example(names: Sequence[str]) -> str:
         columns = f'"{columns}"'  # a name with spaces or brackets: one shell word
     time = roles.get("time")
     if time is None:
+        if rate_known:
+            return f"--columns {columns} (the rate from the file's own field)"
         return f"--columns {columns} with --rate HZ (or --time COLUMN)"
     return f"--columns {columns} --time {shell_word(time)}"
 
@@ -585,21 +618,81 @@ def commented_header(path: pathlib.Path | str, text: str) -> tuple[str, list[str
     return "\n".join(lines), [note]
 
 
-def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], list[str]]:
-    """Non-blank, non-comment lines with their line numbers (from 1), and notes on how the text was read."""
+def header_fields(path: pathlib.Path | str, text: str) -> tuple[str, dict[str, float], list[str]]:
+    """`text` with the numbers a units row gives for columns that no data line fills taken out of it,
+    those numbers by the header's name, and a note saying so (none: text unchanged, {}, []).
+
+    A Rigol oscilloscope's CSV export::
+
+        X,CH1,CH2,Start,Increment,
+        Sequence,Volt,Volt,-6.000000e-03,2.000000e-06
+        0,4.72e+01,2.40e+00,
+
+    Its second line is the columns' units, then the values of the header's last names,
+    which no data line fills (the first sample's time and the sampling period, s). So
+    where a header is followed by such a line and then by a line of values shorter than
+    both, the line keeps its units (`units_row` then reads it as one) and the numbers
+    after them become fields (`RATE_FIELDS`: ``Increment`` is a sampling period).
+    """
+    lines = text.splitlines()
+    rows = [
+        (i, _cut(line.split(",")))
+        for i, line in enumerate(lines[: PREAMBLE_LINES + 3])
+        if line.strip() and not line.strip().startswith("#")
+    ]
+    for (_, header), (at, units), (_, data) in zip(rows, rows[1:], rows[2:]):
+        width = len(data)
+        if not (1 < width < len(units) <= len(header)) or not all(is_value(c) for c in data):
+            continue
+        names, values = header[width : len(units)], units[width:]
+        if not all(names) or not all(is_number(v) for v in values) or units_row(units[:width]) is None:
+            continue
+        lines[at] = ",".join(units[:width])
+        fields = {name: float(value) for name, value in zip(names, values)}
+        listed = ", ".join(f"{name} = {value:g}" for name, value in fields.items())
+        note = (
+            f"recording '{path}': line {at + 1} gives the units and {listed}, the values of columns no "
+            "data line fills (an oscilloscope's export)"
+        )
+        return "\n".join(lines), fields, [note]
+    return text, {}, []
+
+
+def _cut(cells: list[str]) -> list[str]:
+    """A CSV line's cells, unquoted, without the empty ones after the last (a trailing comma)."""
+    cells = [c.strip().strip('"').strip() for c in cells]
+    while cells and not cells[-1]:
+        cells.pop()
+    return cells
+
+
+def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], list[str], dict[str, float]]:
+    """Non-blank, non-comment lines with their line numbers (from 1), notes on how the text was read, and
+    the fields a units row gives (`header_fields`)."""
     lines = []
     text, notes = commented_header(path, read_text(path))
     text, how = comma_separated(text)
+    text, given, read = header_fields(path, text)
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):
             lines.append((number, stripped))
-    return lines, notes + ([] if how is None else [f"recording '{path}': {how}"])
+    return lines, notes + read + ([] if how is None else [f"recording '{path}': {how}"]), given
+
+
+#: A unit in a units row that marks its column as a count of the samples, not a time (Rigol's ``X``).
+_COUNT_UNITS = frozenset({"sequence", "sample", "samples", "index", "#"})
 
 
 def _csv_header(
-    path: pathlib.Path, line: str, required: Sequence[str] = REQUIRED, following: str = ""
+    path: pathlib.Path,
+    line: str,
+    required: Sequence[str] = REQUIRED,
+    following: str = "",
+    given: Mapping[str, float] | None = None,
 ) -> list[str]:
+    """The header's names; `following`: the line after it; `given`: the fields a units row gave
+    (`header_fields`), which, like a column of counts, a refusal's example leaves out."""
     _check_delimiter(path, line, following)
     header = [cell.strip().strip('"').strip() for cell in line.split(",")]
     while header and not header[-1]:
@@ -611,7 +704,11 @@ def _csv_header(
             f"recording '{path}' names column(s) {', '.join(repeated)} more than "
             "once: give each column a unique name"
         )
-    _require(path, header, "column(s)", required)
+    given = given or {}
+    units = units_row(following.split(",")) or []
+    counts = {name for name, unit in zip(header, units) if unit.lower() in _COUNT_UNITS}
+    rate_known = any(name.lower() in RATE_FIELDS for name in given)
+    _require(path, header, "column(s)", required, skip={*given, *counts}, rate_known=rate_known)
     return header
 
 
@@ -700,7 +797,7 @@ def _text_column(cells: list[str]) -> str | None:
 def _load_csv(
     path: pathlib.Path, required: Sequence[str] = REQUIRED
 ) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...], np.ndarray]:
-    lines, read_notes = _csv_lines(path)
+    lines, read_notes, given = _csv_lines(path)
     if not lines:
         raise InputError(
             f"recording '{path}' has no header or data: give a header line t,v_in,w and one line per sample"
@@ -713,7 +810,7 @@ def _load_csv(
         lines = lines[start:]
     else:
         notes = []
-    header = _csv_header(path, lines[0][1], required, lines[1][1] if len(lines) > 1 else "")
+    header = _csv_header(path, lines[0][1], required, lines[1][1] if len(lines) > 1 else "", given)
     row = units_row(lines[1][1].split(",")) if len(lines) > 1 else None
     stated = {name: unit for name, unit in zip(header, row or ()) if unit}
     body = lines[1 + (row is not None) :]

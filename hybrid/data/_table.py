@@ -64,6 +64,7 @@ from ._loaders import (
     DECIMAL_COMMA,
     FOOTER_LINES,
     PREAMBLE_LINES,
+    RATE_FIELDS,
     TEXT_SUFFIXES,
     Clock,
     cell_count_message,
@@ -74,6 +75,7 @@ from ._loaders import (
     find_header,
     footer_note,
     footer_start,
+    header_fields,
     is_number,
     is_value,
     mat_variables,
@@ -90,7 +92,6 @@ from ._loaders import (
 __all__ = [
     "MAPPED_SUFFIXES",
     "OPTION",
-    "RATE_FIELDS",
     "TableNotes",
     "only_column",
     "rate_field",
@@ -102,23 +103,6 @@ __all__ = [
 
 #: How each role is asked for: the keyword of `load_mapped` (and the command-line flag).
 OPTION: dict[str, str] = {"t": "time", "v_in": "input", "w": "output"}
-
-#: Column, array or metadata names (any case) read as the sampling rate (Hz) or the
-#: sampling period (s) when they are not mapped: a single positive number, or a column
-#: whose first row holds it and whose other rows are empty, NaN or the same number
-#: (the Cascaded Tanks file's ``Ts``). Anything else under these names is ignored.
-RATE_FIELDS: dict[str, str] = {
-    "fs": "Hz",
-    "rate": "Hz",
-    "rate_hz": "Hz",
-    "sample_rate": "Hz",
-    "sampling_rate": "Hz",
-    "ts": "s",
-    "dt": "s",
-    "dt_s": "s",
-    "sample_time": "s",
-    "sampling_time": "s",
-}
 
 #: Every suffix the mapped reader understands.
 MAPPED_SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat", ".npy", *TEXT_SUFFIXES)
@@ -218,6 +202,8 @@ def _read_csv(
     text, notes = commented_header(path, decode_text(path, _CSV_FIX))
     text, how = comma_separated(text)
     notes += [f"recording '{path}': {how}"] if how else []
+    text, given, read = header_fields(path, text)  # a scope's Start and Increment under their names
+    notes += read
     try:
         with io.StringIO(text) as handle:
             names_wanted = [n for n in wanted.values() if not n.isdigit()]
@@ -237,7 +223,10 @@ def _read_csv(
             fields = {
                 name: i
                 for i, name in enumerate(header)
-                if name.lower() in RATE_FIELDS and i not in index.values() and header.count(name) == 1
+                if name.lower() in RATE_FIELDS
+                and i not in index.values()
+                and header.count(name) == 1
+                and name not in given
             }
             usecols = [*index.values(), *fields.values()]
             lines, footer = _data_lines(
@@ -280,6 +269,7 @@ def _read_csv(
         _diagnose(path, text, header_line, units_line, wanted, index)
     columns = {role: table[:, j] for j, role in enumerate(index)}
     rates = {name: table[:, k + j] for j, name in enumerate(fields)}
+    rates.update({name: np.array([value]) for name, value in given.items() if name.lower() in RATE_FIELDS})
     metadata = {}
     meta_path = sidecar(path)
     if meta_path.exists():
