@@ -675,3 +675,33 @@ def test_an_oscilloscopes_csv_gives_its_rate_from_the_increment_under_its_header
         capsys,
     )
     assert code == 2 and "Increment" in err, err  # a rate given that the file's field contradicts is named
+
+
+#: Two more scopes' CSV exports: Keysight's names its channels 1 and 2 over a units row whose time unit is
+#: "second"; a header of units alone (Second,Volt,Volt) under a preamble, as Siglent's exports write it.
+_SCOPES = {
+    "keysight": ("x-axis,1,2\nsecond,Volt,Volt", "--columns input=1,output=2 --time x-axis"),
+    "units_header": (
+        "Record Length,Analog:300\nSample Interval,Analog:3.333333E-02\nSecond,Volt,Volt",
+        "--columns input=1,output=2 --time Second",
+    ),
+}
+
+
+@pytest.mark.parametrize("scope", sorted(_SCOPES))
+def test_a_scopes_csv_is_answered_with_the_mapping_that_reads_it(tmp_path, capsys, scope):
+    """Unmapped, the refusal's example took Keysight's time column for the drive (--columns
+    input=x-axis,output=1 with --rate HZ), and a header of units was refused for naming Volt twice with no
+    way on; each example now reads the file as it is, time from its column."""
+    head, example = _SCOPES[scope]
+    u, y = _signals()
+    path = _write(tmp_path / f"{scope}.csv", head, [np.arange(N) / RATE - 1.0, u, y], fmt="%.8e")
+    code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    assert code == 2 and example in err, err
+    flags = example.split()
+    mapping = flags[1] + ",time=" + flags[3]
+    rec = Recording.load(path, columns=mapping)
+    np.testing.assert_allclose(rec.w, y, rtol=1e-7, atol=1e-9)
+    assert rec.rate == pytest.approx(RATE, rel=1e-6)
+    code, err = _cli(["fit", path, *flags, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    assert code == 0, err

@@ -40,6 +40,7 @@ __all__ = [
     "comma_separated",
     "decode_text",
     "find_header",
+    "is_time_unit",
     "header_fields",
     "footer_start",
     "is_number",
@@ -180,11 +181,10 @@ def _require(
     found: Sequence[str],
     kind: str,
     required: Sequence[str] = REQUIRED,
-    skip: Collection[str] = (),
-    rate_known: bool = False,
+    example: str = "",
 ) -> None:
-    """Refuse a file without the `required` names, with the mapping its own names suggest (`skip` left out
-    of it; `rate_known`: the file gives its rate, so the example asks for none)."""
+    """Refuse a file without the `required` names, with the mapping `example` (default: what its names
+    suggest, `mapping_example`)."""
     missing = [c for c in required if c not in found]
     if missing and len(found) > 1 and all(is_value(c) for c in found):
         # no header: the first line is a sample (the mapped reader names such columns by number)
@@ -213,8 +213,7 @@ def _require(
         raise InputError(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
-            f"yours are which, e.g. "
-            f"{mapping_example([c for c in found if c not in REQUIRED and c not in skip], rate_known)}"
+            f"yours are which, e.g. {example or mapping_example([c for c in found if c not in REQUIRED])}"
         )
 
 
@@ -278,6 +277,11 @@ class Clock:
         """What was read, for the recording's notes (after a date-time was read: `start` is set)."""
         assert self.start is not None
         return f"recording '{path}': its time column holds date-times, read as seconds after {self.start.isoformat()}"
+
+
+def is_time_unit(unit: str) -> bool:
+    """Whether `unit` names a time unit `time_factor` reads (``s``, ``ms``, ``second``, ``Sec``)."""
+    return _TIME_SPELLINGS.get(unit.strip().lower(), unit.strip()) in TIME_UNITS
 
 
 def time_factor(path: pathlib.Path | str, unit: str, where: str) -> float:
@@ -349,32 +353,39 @@ def role_of(name: str) -> str | None:
     return None
 
 
-def mapping_example(names: Sequence[str], rate_known: bool = False) -> str:
-    """The flags that would map a lab file's columns, guessed from their names (time, drive, output);
-    `rate_known`: the file gives its rate (a field), so without a time column none is asked for."""
+def mapping_example(
+    names: Sequence[str], rate_known: bool = False, time: str | None = None, skip: Collection[str] = ()
+) -> str:
+    """The flags that would map a lab file's columns `names` (its header, in order), guessed from them.
+
+    The time, the drive and the output by their names (`role_of`), else the drive and the output the
+    first two columns left; a name the header holds twice by its column's number (LabVIEW's
+    ``X_Value`` over each channel, a scope's ``Second,Volt,Volt``). `rate_known`: the file gives its
+    rate (a field), so without a time column none is asked for; `time`: the column known to be the
+    time (its unit a time's in a units row); `skip`: names that are no signal (a field, a counter).
+    """
     names = list(names)
-    roles: dict[str, str] = {}
-    for name in names:
-        role = role_of(name)
-        if role is not None and role not in roles:
-            roles[role] = name
-    rest = [n for n in names if n and n not in roles.values() and role_of(n) != "index"]
+    roles: dict[str, int] = {} if time not in names else {"time": names.index(time)}
+    wanted = [i for i, n in enumerate(names) if n and n not in skip]
+    for i in wanted:
+        role = role_of(names[i])
+        if role is not None and role not in roles and i not in roles.values():
+            roles[role] = i
+    rest = [i for i in wanted if i not in roles.values() and role_of(names[i]) != "index"]
     for role in ("input", "output"):
         if role not in roles and rest:
             roles[role] = rest.pop(0)
     if "input" not in roles or "output" not in roles:
         return "--columns input=COLUMN,output=COLUMN with --rate HZ or --time COLUMN"
-    # a name the header holds twice (LabVIEW's X_Value over each channel) by its first column's number
-    roles = {role: str(names.index(n)) if names.count(n) > 1 else n for role, n in roles.items()}
-    columns = f"input={roles['input']},output={roles['output']}"
+    shown = {role: str(i) if names.count(names[i]) > 1 else names[i] for role, i in roles.items()}
+    columns = f"input={shown['input']},output={shown['output']}"
     if re.search(r"[^\w.=,:-]", columns):
         columns = f'"{columns}"'  # a name with spaces or brackets: one shell word
-    time = roles.get("time")
-    if time is None:
-        if rate_known:
-            return f"--columns {columns} (the rate from the file's own field)"
-        return f"--columns {columns} with --rate HZ (or --time COLUMN)"
-    return f"--columns {columns} --time {shell_word(time)}"
+    if "time" in shown:
+        return f"--columns {columns} --time {shell_word(shown['time'])}"
+    if rate_known:
+        return f"--columns {columns} (the rate from the file's own field)"
+    return f"--columns {columns} with --rate HZ (or --time COLUMN)"
 
 
 def shell_word(name: str) -> str:
@@ -698,17 +709,19 @@ def _csv_header(
     while header and not header[-1]:
         header.pop()  # a trailing comma (a spreadsheet's empty columns): their cells must be empty too
     named = [cell for cell in header if cell]  # an unnamed column (a row index) is left out (`_unnamed_note`)
-    repeated = sorted({c for c in named if named.count(c) > 1})
-    if repeated:
-        raise InputError(
-            f"recording '{path}' names column(s) {', '.join(repeated)} more than "
-            "once: give each column a unique name"
-        )
     given = given or {}
     units = units_row(following.split(",")) or []
     counts = {name for name, unit in zip(header, units) if unit.lower() in _COUNT_UNITS}
+    timed = [name for name, unit in zip(header, units) if name and is_time_unit(unit)]
     rate_known = any(name.lower() in RATE_FIELDS for name in given)
-    _require(path, header, "column(s)", required, skip={*given, *counts}, rate_known=rate_known)
+    example = mapping_example(header, rate_known, timed[0] if timed else None, {*REQUIRED, *given, *counts})
+    repeated = sorted({c for c in named if named.count(c) > 1})
+    if repeated:  # a scope's header of units (Second,Volt,Volt): the columns go by number
+        raise InputError(
+            f"recording '{path}' names column(s) {', '.join(repeated)} more than once: give each column a "
+            f"unique name, or map them by number from 0, e.g. {example}"
+        )
+    _require(path, header, "column(s)", required, example=example)
     return header
 
 
