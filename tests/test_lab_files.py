@@ -705,3 +705,61 @@ def test_a_scopes_csv_is_answered_with_the_mapping_that_reads_it(tmp_path, capsy
     assert rec.rate == pytest.approx(RATE, rel=1e-6)
     code, err = _cli(["fit", path, *flags, *FIT, "--out", tmp_path / "m.eqx"], capsys)
     assert code == 0, err
+
+
+def _tektronix(path, t, values, channel):
+    """A Tektronix scope's CSV export (TDS series), one channel per file: its settings as name, value in the
+    first two columns of its first lines, beside the samples' time and value in the fourth and fifth."""
+    settings = [
+        ("Record Length", f"{len(t):.6e}"),
+        ("Sample Interval", f"{t[1] - t[0]:.6e}"),
+        ("Trigger Point", "0"),
+    ]
+    settings += [("", "")] * 3 + [
+        ("Source", f"CH{channel}"),
+        ("Vertical Units", "V"),
+        ("Horizontal Units", "s"),
+    ]
+    lines = []
+    for i, (a, b) in enumerate(zip(t, values)):
+        name, value = settings[i] if i < len(settings) else ("", "")
+        lines.append(f"{name},{value},,{a:15.6f},{b:12.6f},")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def test_a_tektronix_export_keeps_its_first_samples_and_a_joined_file_says_what_was_skipped(tmp_path, capsys):
+    """Columns mapped by number whose first line holds numbers start at that line, whatever the columns not
+    read hold: a Tektronix file's first three samples were taken for a preamble and its header, and, its
+    channels joined from two files, that went unsaid (a joined file's notes were dropped)."""
+    u, y = _signals()
+    t = np.arange(N) / RATE - 1.0
+    ch1, ch2 = _tektronix(tmp_path / "F0000CH1.CSV", t, u, 1), _tektronix(tmp_path / "F0000CH2.CSV", t, y, 2)
+    rec = Recording.load([ch1, ch2], columns=f"input={ch1}:4,output={ch2}:4,time={ch1}:3")
+    assert len(rec.w) == N
+    np.testing.assert_allclose(rec.v_in, u, atol=1e-6)
+    np.testing.assert_allclose(rec.w, y, atol=1e-6)
+    assert rec.rate == pytest.approx(RATE, rel=1e-5)
+    code, err = _cli(
+        [
+            "fit",
+            ch1,
+            ch2,
+            "--columns",
+            f"input={ch1}:4,output={ch2}:4",
+            "--rate",
+            RATE,
+            *FIT,
+            "--out",
+            tmp_path / "m.eqx",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    # a logger's preamble above a header, in a joined file: skipped, and said
+    _write(tmp_path / "u.csv", "Device: logger 7\ntime,volts", [t, u])
+    _write(tmp_path / "y.csv", "time,mm", [t, y])
+    joined = f"input={tmp_path / 'u.csv'}:volts,output={tmp_path / 'y.csv'}:mm"
+    rec = Recording.load([tmp_path / "u.csv", tmp_path / "y.csv"], columns=joined, rate=RATE)
+    np.testing.assert_allclose(rec.v_in, u, atol=1e-6)
+    assert any("the 1 line(s) before its header (line 2) skipped" in note for note in rec.notes), rec.notes

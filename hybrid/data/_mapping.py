@@ -169,7 +169,7 @@ def load_mapped(
     notes: list[str] = []
     header: tuple[str, ...] = ()  # the file's column names, where one file is read
     if references:
-        data, fields, file_meta = _read_joined(references)
+        data, fields, file_meta, notes = _read_joined(references)
         path = " + ".join(str(p) for p in dict.fromkeys(p for p, _ in references.values()))  # for messages
     elif several and len(paths) > 1:
         raise InputError(
@@ -351,23 +351,27 @@ def _named_file(text: str, paths: Sequence[pathlib.Path]) -> pathlib.Path | None
 
 def _read_joined(
     references: Mapping[str, tuple[pathlib.Path, str | None]],
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
-    """The columns of several files, one role each (or several of one file), their rate fields and metadata."""
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, list[str]]:
+    """The columns of several files, one role each (or several of one file), their rate fields, metadata
+    and notes (what reading each file did: a preamble skipped, a footer)."""
     data: dict[str, np.ndarray] = {}
     fields: dict[str, np.ndarray] = {}
     metadata: dict = {}
+    notes: list[str] = []
     for file in dict.fromkeys(p for p, _ in references.values()):
         suffix = check_file(file, MAPPED_SUFFIXES)
         named = {role: column for role, (p, column) in references.items() if p == file and column is not None}
         for role, (p, column) in references.items():
             if p == file and column is None:
-                data[role] = only_column(file, suffix, role, str(file))
+                data[role], read = only_column(file, suffix, role, str(file))
+                notes += [note for note in read if note not in notes]
         if named:
-            columns, found, meta, _ = read_columns(file, suffix, named, flag_prefix=f"{file}:")
+            columns, found, meta, table = read_columns(file, suffix, named, flag_prefix=f"{file}:")
+            notes += [note for note in table.notes if note not in notes]
             data.update(columns)
             fields.update({k: v for k, v in found.items() if k not in fields})
             metadata = {**meta, **metadata}
-    return {role: data[role] for role in references}, fields, metadata
+    return {role: data[role] for role in references}, fields, metadata, notes
 
 
 def load_pair(

@@ -207,14 +207,16 @@ def _read_csv(
     try:
         with io.StringIO(text) as handle:
             names_wanted = [n for n in wanted.values() if not n.isdigit()]
-            header, header_line, skipped = _header(path, handle, names_wanted)
+            numbers = [int(n) for n in wanted.values() if n.isdigit()] if not names_wanted else []
+            header, header_line, skipped = _header(path, handle, names_wanted, numbers)
             if skipped:
                 notes.append(
                     f"recording '{path}': the {skipped} line(s) before its header (line {header_line}) skipped"
                 )
             if header == [str(i) for i in range(len(header))]:
                 notes.append(
-                    f"recording '{path}': no header (its first line holds numbers): columns by number from 0"
+                    f"recording '{path}': no header (its first line holds numbers in the columns read): "
+                    "columns by number from 0"
                 )
             stated, units_line = _stated_units(handle, header, header_line)
             index = {
@@ -391,13 +393,18 @@ def _lenient(cell: str) -> float:
         return math.nan
 
 
-def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tuple[list[str], int, int]:
+def _header(
+    path: pathlib.Path, handle, names_wanted: Sequence[str] = (), numbers: Sequence[int] = ()
+) -> tuple[list[str], int, int]:
     """The header's names, its line number and how many lines of a preamble came before it; the handle is
     left after it.
 
     The header is the first line that names every one of `names_wanted` (a
     logger's preamble comes before it), else the line above the numbers (both
-    `find_header`; the first line where the numbers start there).
+    `find_header`; the first line where the numbers start there). Columns mapped by
+    their `numbers` alone: where the first line holds a value in each of them, it is
+    the first sample, whatever the other columns hold (a Tektronix scope's export
+    writes its settings in the first columns of its first lines, beside the samples).
     """
     position = handle.tell()
     lines = [line for line in (handle.readline() for _ in range(PREAMBLE_LINES)) if line]
@@ -405,6 +412,15 @@ def _header(path: pathlib.Path, handle, names_wanted: Sequence[str] = ()) -> tup
         next(csv.reader([line.strip()]), []) if line.strip() and not line.strip().startswith("#") else []
         for line in lines
     ]
+    at = next((k for k, row in enumerate(rows) if row), None)
+    if at is not None and numbers and all(i < len(rows[at]) and is_number(rows[at][i]) for i in numbers):
+        handle.seek(position)
+        for _ in range(at):  # left before the first sample: no header
+            handle.readline()
+        cells = [cell.strip() for cell in rows[at]]
+        while cells and not cells[-1]:
+            cells.pop()  # a trailing comma
+        return [str(i) for i in range(len(cells))], at, 0
     skip = find_header(rows, names_wanted)
     skipped = sum(1 for row in rows[:skip] if row)
     handle.seek(position)
@@ -520,17 +536,20 @@ def likely_names(name: str, names: Sequence[str]) -> list[str]:
     return list(dict.fromkeys(same + field + starts + holds + similar))
 
 
-def only_column(path: pathlib.Path, suffix: str, role: str, reference: str) -> np.ndarray:
-    """The one column (array, variable) of a file named whole in ``columns``; `reference` is how it was named."""
+def only_column(
+    path: pathlib.Path, suffix: str, role: str, reference: str
+) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The one column (array, variable) of a file named whole in ``columns``, and the notes of reading it (a
+    preamble skipped); `reference` is how it was named."""
     if suffix in (".npz", ".mat"):
         arrays = (npz_arrays(path) if suffix == ".npz" else mat_variables(path))[0]
         names = list(arrays)
         if len(names) == 1:
-            return file_vector(path, names[0], arrays[names[0]]).astype(np.float64)
+            return file_vector(path, names[0], arrays[names[0]]).astype(np.float64), ()
     else:
-        names, table = npy_table(path) if suffix == ".npy" else read_text_table(path)[:2]
+        names, table, notes = (*npy_table(path), TableNotes()) if suffix == ".npy" else read_text_table(path)
         if table.shape[1] == 1:
-            return table[:, 0]
+            return table[:, 0], notes.notes
     shown = ", ".join(names[:_SHOW_NAMES]) or "none"
     example = names[0] if names else "NAME"
     return_hint = (
