@@ -756,6 +756,10 @@ def test_a_tektronix_export_keeps_its_first_samples_and_a_joined_file_says_what_
         capsys,
     )
     assert code == 0, err
+    code, err = _cli(
+        ["fit", ch1, *FIT, "--out", tmp_path / "m.eqx"], capsys
+    )  # unmapped: numbers are no names
+    assert code == 2 and "the columns by number from 0" in err and "input=0." not in err, err
     # a logger's preamble above a header, in a joined file: skipped, and said
     _write(tmp_path / "u.csv", "Device: logger 7\ntime,volts", [t, u])
     _write(tmp_path / "y.csv", "time,mm", [t, y])
