@@ -366,9 +366,8 @@ def mapping_example(
     """
     names = list(names)
     roles: dict[str, int] = {} if time not in names else {"time": names.index(time)}
-    wanted = [
-        i for i, n in enumerate(names) if n and n not in skip and not is_value(n)
-    ]  # a number is no name
+    # a measured value is no name (a channel's number, Keysight's 1 and 2, is)
+    wanted = [i for i, n in enumerate(names) if n and n not in skip and (n.isdigit() or not is_value(n))]
     for i in wanted:
         role = role_of(names[i])
         if role is not None and role not in roles and i not in roles.values():
@@ -717,7 +716,7 @@ def _csv_header(
     timed = [name for name, unit in zip(header, units) if name and is_time_unit(unit)]
     rate_known = any(name.lower() in RATE_FIELDS for name in given)
     example = mapping_example(header, rate_known, timed[0] if timed else None, {*REQUIRED, *given, *counts})
-    if any(is_value(c) for c in named) and "COLUMN" in example:  # settings beside the samples (Tektronix)
+    if any(is_value(c) and not c.isdigit() for c in named) and "COLUMN" in example:  # settings beside samples
         example = (
             "--columns input=N,output=M with --time K or --rate HZ, the columns by number from 0 (the line "
             "taken for its header holds numbers: a setting beside a sample?)"
