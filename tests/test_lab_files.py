@@ -767,3 +767,45 @@ def test_a_tektronix_export_keeps_its_first_samples_and_a_joined_file_says_what_
     rec = Recording.load([tmp_path / "u.csv", tmp_path / "y.csv"], columns=joined, rate=RATE)
     np.testing.assert_allclose(rec.v_in, u, atol=1e-6)
     assert any("the 1 line(s) before its header (line 2) skipped" in note for note in rec.notes), rec.notes
+
+
+def test_an_excel_workbook_is_read_as_its_first_sheets_table(tmp_path, capsys):
+    """A lab's .xlsx (written here with openpyxl, as Excel stores one): a preamble, a header with units in
+    its names, a date-time column, a note on the first sample, a second sheet. It was refused ("save the
+    sheet as CSV"); now it reads as that CSV would, with a note for every choice made."""
+    import datetime
+
+    import openpyxl
+
+    u, y = _signals()
+    t = np.arange(N) / RATE
+    book = openpyxl.Workbook()
+    sheet = book.active
+    sheet.title = "Messung"
+    sheet.append(["Operator:", "A. Lab"])
+    sheet.append(["Date:", datetime.datetime(2026, 12, 5, 10, 0)])
+    sheet.append([])
+    sheet.append(["Timestamp", "Time (s)", "Drive (V)", "Tip (mm)", "Comment"])
+    start = datetime.datetime(2026, 12, 5, 10, 0)
+    for i in range(N):
+        stamp = start + datetime.timedelta(seconds=float(t[i]))
+        sheet.append([stamp, float(t[i]), float(u[i]), float(y[i]), "drive on" if i == 0 else None])
+    book.create_sheet("notes").append(["calibration", 1.5])
+    path = tmp_path / "lab.xlsx"
+    book.save(path)
+    code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    example = '--columns "input=Drive (V),output=Tip (mm)"'
+    assert code == 2 and example in err and "Timestamp" in err, err  # its header found below the preamble
+    rec = Recording.load(path, columns="input=Drive (V),output=Tip (mm),time=Time (s)")
+    np.testing.assert_allclose(rec.v_in, u, rtol=1e-15, atol=0)  # as the sheet stores them (to an ulp)
+    np.testing.assert_allclose(rec.w, y, rtol=1e-15, atol=0)
+    assert rec.rate == pytest.approx(RATE) and rec.metadata["units"]["w"] == "mm"
+    assert any("first sheet, 'Messung', of 2" in note for note in rec.notes), rec.notes
+    assert any("the 3 line(s) before its header (line 4) skipped" in note for note in rec.notes), rec.notes
+    stamped = Recording.load(path, columns="input=Drive (V),output=Tip (mm),time=Timestamp")
+    np.testing.assert_allclose(stamped.t - stamped.t[0], t, atol=1e-5)  # a sheet's date-time: days, ~1 µs
+    assert stamped.rate == pytest.approx(RATE, rel=1e-6)
+    bad = tmp_path / "bad.xlsx"
+    bad.write_bytes(b"PK\x03\x04 not a workbook")
+    code, err = _cli(["fit", bad, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    assert code == 2 and "is not a readable Excel workbook" in err and err.count("\n") == 1, err

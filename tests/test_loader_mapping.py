@@ -408,7 +408,7 @@ def test_bad_cells_name_the_column_and_the_line(tmp_path, body, match):
 
 def test_bad_files_and_pairs(tmp_path, lab):
     _bad(tmp_path / "missing.csv", "does not exist", input="u", output="y")
-    _bad(tmp_path / "x.xlsx", "unknown suffix", input="u", output="y")
+    _bad(tmp_path / "x.xls", "unknown suffix", input="u", output="y")
     (tmp_path / "latin.csv").write_bytes(b"u,y\n1,2\n\xe9,3\n")
     _bad(tmp_path / "latin.csv", "not UTF-8", input="u", output="y", rate=1)
     with pytest.raises(InputError, match="has no validation record.*test_input=.*--test-columns"):

@@ -422,7 +422,8 @@ def test_a_t_column_of_date_times_is_read_in_seconds(tmp_path):
 @pytest.mark.parametrize(
     "suffix, words",
     [
-        (".xlsx", "a spreadsheet workbook: save the sheet as CSV"),
+        (".xls", r"an older or another spreadsheet's workbook: save the sheet as \.xlsx or as CSV"),
+        (".ods", r"an older or another spreadsheet's workbook: save the sheet as \.xlsx or as CSV"),
         (".tsv", r"a text table is read with its columns mapped: --columns input=COLUMN"),
     ],
 )

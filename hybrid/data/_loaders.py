@@ -32,6 +32,7 @@ __all__ = [
     "FOOTER_LINES",
     "PREAMBLE_LINES",
     "RATE_FIELDS",
+    "SHEET_SUFFIXES",
     "SUFFIXES",
     "TEXT_SUFFIXES",
     "Clock",
@@ -51,7 +52,9 @@ __all__ = [
     "npy_table",
     "npz_arrays",
     "read_file",
+    "sheet_text",
     "sidecar",
+    "table_text",
     "table_start",
     "time_factor",
     "units_row",
@@ -59,6 +62,8 @@ __all__ = [
 
 #: File suffixes `Recording.load` and `Recording.save` understand.
 SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
+#: Excel workbooks, read (not written) as their first sheet's table, like a CSV (`sheet_text`).
+SHEET_SUFFIXES: tuple[str, ...] = (".xlsx", ".xlsm")
 #: Suffixes of plain text tables, read through a mapping only (`hybrid.data._table.read_text_table`):
 #: a logger's ``.txt``/``.dat``, tab-separated ``.tsv``, and LabVIEW's measurement file ``.lvm`` (a
 #: preamble, then a tab-separated table).
@@ -103,11 +108,11 @@ def read_file(
         skipped), and the file line (from 1) of each sample of a CSV file (None
         for the others).
     """
-    suffix = check_file(path)
+    suffix = check_file(path, (*SUFFIXES, *SHEET_SUFFIXES))
     required = REQUIRED if require_w else REQUIRED[:2]
     notes: tuple[str, ...] = ()
     lines = None
-    if suffix == ".csv":
+    if suffix == ".csv" or suffix in SHEET_SUFFIXES:
         columns, metadata, notes, lines = _load_csv(path, required)
     else:
         columns, metadata, notes = (_load_npz if suffix == ".npz" else _load_mat)(path, required)
@@ -153,8 +158,10 @@ def file_suffix(path: pathlib.Path, suffixes: Sequence[str] = SUFFIXES) -> str:
                 " (a numpy array is read with its columns mapped by number from 0, e.g. --columns "
                 "input=1,output=2 --time 0, or by field name for a structured array)"
             )
-        elif suffix in (".xlsx", ".xls", ".xlsm", ".ods"):
-            hint = " (a spreadsheet workbook: save the sheet as CSV, comma- or ';'-separated, and give that)"
+        elif suffix in SHEET_SUFFIXES and suffix not in suffixes:
+            hint = " (an Excel workbook is read by hybrid fit, diagnose and Recording.load, not written)"
+        elif suffix in (".xls", ".ods"):
+            hint = " (an older or another spreadsheet's workbook: save the sheet as .xlsx or as CSV, and give that)"
         raise InputError(
             f"recording '{path}' has unknown suffix '{path.suffix}': use " + ", ".join(suffixes) + hint
         )
@@ -415,6 +422,62 @@ def read_text(path: pathlib.Path) -> str:
     return decode_text(path, "save it as CSV UTF-8 (Excel: Save As, 'CSV UTF-8 (Comma delimited)')")
 
 
+def table_text(path: pathlib.Path) -> tuple[str, list[str]]:
+    """A CSV file's text, or an Excel workbook's first sheet written as one (`sheet_text`), and notes."""
+    if path.suffix.lower() in SHEET_SUFFIXES:
+        return sheet_text(path)
+    return read_text(path), []
+
+
+def sheet_text(path: pathlib.Path) -> tuple[str, list[str]]:
+    """An Excel workbook's first sheet as CSV text, to be read as a CSV file is.
+
+    A row per line, cells between commas: numbers as Python writes them ('.' decimals,
+    full precision), date-times in ISO 8601 (`Clock` reads them), empty cells empty, text
+    quoted where it holds a comma or a quote; a formula gives the value Excel last saved
+    with it (none for a file no spreadsheet has computed). Line k is the sheet's row k. A
+    workbook of several sheets is read from its first, and a note says so.
+    """
+    import openpyxl
+
+    try:
+        book = openpyxl.load_workbook(path, read_only=True, data_only=True)
+    except Exception as error:  # zipfile, XML and openpyxl's own errors for a file that is no workbook
+        raise InputError(
+            f"recording '{path}' is not a readable Excel workbook ({type(error).__name__}: {error}): save it "
+            "from Excel as .xlsx, or as CSV"
+        ) from None
+    try:
+        if not book.worksheets:
+            raise InputError(f"recording '{path}' is a workbook without a sheet: save the data in one")
+        sheet, count = book.worksheets[0], len(book.worksheets)
+        lines = [",".join(_sheet_cell(value) for value in row) for row in sheet.iter_rows(values_only=True)]
+    finally:
+        book.close()
+    notes = (
+        [
+            f"recording '{path}': read from its first sheet, {sheet.title!r}, of {count} (save the one you mean first)"
+        ]
+        if count > 1
+        else []
+    )
+    return "\n".join(lines), notes
+
+
+def _sheet_cell(value) -> str:
+    """One cell of a sheet as a CSV cell (`sheet_text`)."""
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return str(int(value))
+    if isinstance(value, (int, float)):
+        return repr(float(value)) if isinstance(value, float) else str(value)
+    if isinstance(value, (datetime.datetime, datetime.date, datetime.time)):
+        return value.isoformat(sep=" ") if isinstance(value, datetime.datetime) else value.isoformat()
+    text = str(value).strip()
+    return '"' + text.replace('"', '""') + '"' if ("," in text or '"' in text) else text
+
+
 def decode_text(path: pathlib.Path, fix: str) -> str:
     """A text file's contents (UTF-8, with or without Excel's byte-order mark).
 
@@ -505,7 +568,8 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
 
     The table's data begin at the first two rows of values (numbers, ISO
     date-times; empty cells between them) of one width within the first `PREAMBLE_LINES`, or at the rows
-    of values right above them (a column filled in its first row alone); its
+    of values right above them (a column filled in its first row alone, a note in a column after them:
+    `_annotated`); its
     first line is the row above the data, its header (a units row between them
     passed over where the row above that is at least as wide), or the data's
     first row where there is none. Lines above the first line are a preamble
@@ -527,8 +591,9 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
         first, second = filled[k], filled[k + 1]
         if not (values[first] and values[second] and len(cells[first]) == len(cells[second])):
             continue
-        while k and values[filled[k - 1]]:  # rows of values above, of another width (a column filled once)
-            k -= 1
+        width = len(cells[first])
+        while k and (values[filled[k - 1]] or _annotated(cells[filled[k - 1]], width)):
+            k -= 1  # rows of values above, of another width (a column filled once), or with a note beside
         if k == 0:
             return filled[0]
         header = filled[k - 1]
@@ -542,6 +607,13 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
             return above  # a header over a units row (a short header may read as units)
         return header
     return 0
+
+
+def _annotated(cells: Sequence[str], width: int) -> bool:
+    """Whether a row holds values in its first `width` cells and text after them: a sample with a note in
+    a column the other samples leave empty (an event marker, a spreadsheet's comment column)."""
+    head = [cell for cell in cells[:width] if cell]
+    return len(cells) > width and bool(head) and all(is_value(cell) for cell in head)
 
 
 def is_number(text: str) -> bool:
@@ -682,9 +754,11 @@ def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], list[str], di
     """Non-blank, non-comment lines with their line numbers (from 1), notes on how the text was read, and
     the fields a units row gives (`header_fields`)."""
     lines = []
-    text, notes = commented_header(path, read_text(path))
+    text, notes = table_text(path)
+    text, commented = commented_header(path, text)
     text, how = comma_separated(text)
     text, given, read = header_fields(path, text)
+    notes += commented
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):

@@ -65,6 +65,7 @@ from ._loaders import (
     FOOTER_LINES,
     PREAMBLE_LINES,
     RATE_FIELDS,
+    SHEET_SUFFIXES,
     TEXT_SUFFIXES,
     Clock,
     cell_count_message,
@@ -86,6 +87,7 @@ from ._loaders import (
     read_text,
     sidecar,
     spaced_cells_message,
+    table_text,
     units_row,
 )
 
@@ -105,7 +107,7 @@ __all__ = [
 OPTION: dict[str, str] = {"t": "time", "v_in": "input", "w": "output"}
 
 #: Every suffix the mapped reader understands.
-MAPPED_SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat", ".npy", *TEXT_SUFFIXES)
+MAPPED_SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat", ".npy", *SHEET_SUFFIXES, *TEXT_SUFFIXES)
 
 _SHOW_NAMES = 20
 
@@ -139,7 +141,7 @@ def read_columns(
         ``(columns, fields, metadata, notes)``: role -> float64 vector (all of one length for
         a CSV file), rate-field name -> its values, the file's metadata, and `TableNotes`.
     """
-    if suffix == ".csv":
+    if suffix == ".csv" or suffix in SHEET_SUFFIXES:
         return _read_csv(path, wanted, flag_prefix)
     if suffix == ".npy":
         names, table = npy_table(path)
@@ -199,7 +201,9 @@ def _read_csv(
     path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
     # a ';' or tab export with decimal commas: read as commas
-    text, notes = commented_header(path, decode_text(path, _CSV_FIX))
+    text, notes = table_text(path)
+    text, commented = commented_header(path, text)
+    notes += commented
     text, how = comma_separated(text)
     notes += [f"recording '{path}': {how}"] if how else []
     text, given, read = header_fields(path, text)  # a scope's Start and Increment under their names
