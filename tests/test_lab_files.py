@@ -56,6 +56,11 @@ def _cli(argv, capsys):
 FIT = ["--model", "physics", "--physics", "lti:2", "--max-steps", "1", "--quiet"]
 
 
+def _fit(tmp_path, capsys, *arguments):
+    """`hybrid fit ARGUMENTS` (one LM step, `FIT`) into tmp_path/m.eqx: (exit status, stderr)."""
+    return _cli(["fit", *arguments, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+
+
 # ----------------------------------------------------------- 1. a cell count that is not the header's
 
 
@@ -492,7 +497,7 @@ def test_pandas_row_index_under_an_empty_name_is_left_out_with_a_note(tmp_path, 
     assert rec.rate == pytest.approx(RATE) and rec.extra == {}
     assert any("row index" in note for note in rec.notes), rec.notes
     named, _, _ = _pandas_table(tmp_path / f"b{suffix}", ["time", "drive", "tip"], delimiter)
-    code, err = _cli(["fit", named, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    code, err = _fit(tmp_path, capsys, named)
     assert code == 2 and "--columns input=drive,output=tip --time time" in err, err
     assert "'', " not in err and ", ," not in err  # the unnamed column is not listed as an empty name
     by_number = Recording.load(named, columns="input=2,output=3,time=1")  # numbers count the index: column 0
@@ -515,13 +520,8 @@ def test_numpy_savetxt_header_written_as_a_comment_is_the_header(tmp_path, capsy
     u, y = _signals()
     columns = [np.arange(N) / RATE, u, y]
     path = tmp_path / f"a{suffix}"
-    np.savetxt(
-        path,
-        np.column_stack(columns),
-        fmt="%.6f",
-        delimiter=delimiter,
-        header=delimiter.join(["t", "v_in", "w"]),
-    )
+    table = np.column_stack(columns)
+    np.savetxt(path, table, fmt="%.6f", delimiter=delimiter, header=delimiter.join(["t", "v_in", "w"]))
     assert path.read_text().startswith("# t")
     rec = (
         Recording.load(path)
@@ -532,17 +532,11 @@ def test_numpy_savetxt_header_written_as_a_comment_is_the_header(tmp_path, capsy
     assert rec.rate == pytest.approx(RATE) and len(rec.w) == N  # no sample taken for a header
     assert any("header is the comment on line 1" in note for note in rec.notes), rec.notes
     if suffix == ".txt":  # unmapped, a text table headed t, v_in, w reads as it is
-        code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+        code, err = _fit(tmp_path, capsys, path)
         assert code == 0, err
     named = tmp_path / f"b{suffix}"
-    np.savetxt(
-        named,
-        np.column_stack(columns),
-        fmt="%.6f",
-        delimiter=delimiter,
-        header=delimiter.join(["time", "drive", "tip"]),
-    )
-    code, err = _cli(["fit", named, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    np.savetxt(named, table, fmt="%.6f", delimiter=delimiter, header=delimiter.join(["time", "drive", "tip"]))
+    code, err = _fit(tmp_path, capsys, named)
     assert code == 2 and "--columns input=drive,output=tip --time time" in err, err
 
 
@@ -572,7 +566,7 @@ def test_signals_stored_as_one_matrix_are_mapped_by_column_number(tmp_path, caps
         scipy.io.savemat(path, {"data": stored})
     else:
         np.savez(path, data=stored)
-    code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    code, err = _fit(tmp_path, capsys, path)
     example = "--columns input=data:1,output=data:2 --time data:0"
     assert code == 2 and "'data' is a matrix of 3 channels" in err and example in err, err
     rec = Recording.load(path, columns="input=data:1,output=data:2,time=data:0")
@@ -622,23 +616,12 @@ def test_a_numpy_npy_array_is_read_by_column_number_or_field_name(tmp_path, caps
     np.testing.assert_allclose(rec.w, y, rtol=1e-6)  # stored as float32
     np.save(tmp_path / "u.npy", u)
     np.save(tmp_path / "y.npy", y)
-    code, err = _cli(
-        [
-            "fit",
-            tmp_path / "u.npy",
-            tmp_path / "y.npy",
-            "--columns",
-            f"input={tmp_path / 'u.npy'},output={tmp_path / 'y.npy'}",
-            "--rate",
-            RATE,
-            *FIT,
-            "--out",
-            tmp_path / "m.eqx",
-        ],
-        capsys,
+    joined = f"input={tmp_path / 'u.npy'},output={tmp_path / 'y.npy'}"
+    code, err = _fit(
+        tmp_path, capsys, tmp_path / "u.npy", tmp_path / "y.npy", "--columns", joined, "--rate", RATE
     )
     assert code == 0, err
-    code, err = _cli(["fit", tmp_path / "cols.npy", *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    code, err = _fit(tmp_path, capsys, tmp_path / "cols.npy")
     assert code == 2 and "--columns input=1,output=2 --time 0" in err, err
     np.save(tmp_path / "cube.npy", np.zeros((4, 5, 6)))
     _refused(r"shape \(4, 5, 6\): store a table", tmp_path / "cube.npy", columns="input=1,output=2")
@@ -658,7 +641,7 @@ def test_an_oscilloscopes_csv_gives_its_rate_from_the_increment_under_its_header
     column(s) Volt more than once": its units row read as the header), and mapped, at line 3."""
     u, y = _signals()
     path = _rigol(tmp_path / "scope.csv", u, y)
-    code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    code, err = _fit(tmp_path, capsys, path)
     assert code == 2 and "--columns input=CH1,output=CH2 (the rate from the file's own field)" in err, err
     rec = Recording.load(path, columns="input=CH1,output=CH2")
     np.testing.assert_allclose(rec.v_in, u, rtol=1e-4, atol=1e-6)  # written with 4 decimals
@@ -666,14 +649,9 @@ def test_an_oscilloscopes_csv_gives_its_rate_from_the_increment_under_its_header
     assert rec.rate == pytest.approx(RATE, rel=1e-6)  # 1 / Increment
     assert any("Increment = 0.0333333" in note for note in rec.notes), rec.notes
     assert rec.metadata["units"]["v_in"] == "Volt"
-    code, err = _cli(
-        ["fit", path, "--columns", "input=CH1,output=CH2", *FIT, "--out", tmp_path / "m.eqx"], capsys
-    )
+    code, err = _fit(tmp_path, capsys, path, "--columns", "input=CH1,output=CH2")
     assert code == 0, err
-    code, err = _cli(
-        ["fit", path, "--columns", "input=CH1,output=CH2", "--rate", 50, *FIT, "--out", tmp_path / "m.eqx"],
-        capsys,
-    )
+    code, err = _fit(tmp_path, capsys, path, "--columns", "input=CH1,output=CH2", "--rate", 50)
     assert code == 2 and "Increment" in err, err  # a rate given that the file's field contradicts is named
 
 
@@ -696,14 +674,14 @@ def test_a_scopes_csv_is_answered_with_the_mapping_that_reads_it(tmp_path, capsy
     head, example = _SCOPES[scope]
     u, y = _signals()
     path = _write(tmp_path / f"{scope}.csv", head, [np.arange(N) / RATE - 1.0, u, y], fmt="%.8e")
-    code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    code, err = _fit(tmp_path, capsys, path)
     assert code == 2 and example in err, err
     flags = example.split()
     mapping = flags[1] + ",time=" + flags[3]
     rec = Recording.load(path, columns=mapping)
     np.testing.assert_allclose(rec.w, y, rtol=1e-7, atol=1e-9)
     assert rec.rate == pytest.approx(RATE, rel=1e-6)
-    code, err = _cli(["fit", path, *flags, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    code, err = _fit(tmp_path, capsys, path, *flags)
     assert code == 0, err
 
 
@@ -740,25 +718,9 @@ def test_a_tektronix_export_keeps_its_first_samples_and_a_joined_file_says_what_
     np.testing.assert_allclose(rec.v_in, u, atol=1e-6)
     np.testing.assert_allclose(rec.w, y, atol=1e-6)
     assert rec.rate == pytest.approx(RATE, rel=1e-5)
-    code, err = _cli(
-        [
-            "fit",
-            ch1,
-            ch2,
-            "--columns",
-            f"input={ch1}:4,output={ch2}:4",
-            "--rate",
-            RATE,
-            *FIT,
-            "--out",
-            tmp_path / "m.eqx",
-        ],
-        capsys,
-    )
+    code, err = _fit(tmp_path, capsys, ch1, ch2, "--columns", f"input={ch1}:4,output={ch2}:4", "--rate", RATE)
     assert code == 0, err
-    code, err = _cli(
-        ["fit", ch1, *FIT, "--out", tmp_path / "m.eqx"], capsys
-    )  # unmapped: numbers are no names
+    code, err = _fit(tmp_path, capsys, ch1)  # unmapped: numbers are no names
     assert code == 2 and "the columns by number from 0" in err and "input=0." not in err, err
     # a logger's preamble above a header, in a joined file: skipped, and said
     _write(tmp_path / "u.csv", "Device: logger 7\ntime,volts", [t, u])
@@ -793,7 +755,7 @@ def test_an_excel_workbook_is_read_as_its_first_sheets_table(tmp_path, capsys):
     book.create_sheet("notes").append(["calibration", 1.5])
     path = tmp_path / "lab.xlsx"
     book.save(path)
-    code, err = _cli(["fit", path, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    code, err = _fit(tmp_path, capsys, path)
     example = '--columns "input=Drive (V),output=Tip (mm)"'
     assert code == 2 and example in err and "Timestamp" in err, err  # its header found below the preamble
     rec = Recording.load(path, columns="input=Drive (V),output=Tip (mm),time=Time (s)")
@@ -807,5 +769,5 @@ def test_an_excel_workbook_is_read_as_its_first_sheets_table(tmp_path, capsys):
     assert stamped.rate == pytest.approx(RATE, rel=1e-6)
     bad = tmp_path / "bad.xlsx"
     bad.write_bytes(b"PK\x03\x04 not a workbook")
-    code, err = _cli(["fit", bad, *FIT, "--out", tmp_path / "m.eqx"], capsys)
+    code, err = _fit(tmp_path, capsys, bad)
     assert code == 2 and "is not a readable Excel workbook" in err and err.count("\n") == 1, err
