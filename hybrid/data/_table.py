@@ -200,11 +200,10 @@ _CSV_FIX = "save it as CSV UTF-8 (Excel: Save As, 'CSV UTF-8 (Comma delimited)')
 def _read_csv(
     path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
-    # a ';' or tab export with decimal commas: read as commas
     text, notes = table_text(path)
     text, commented = commented_header(path, text)
     notes += commented
-    text, how = comma_separated(text)
+    text, how = comma_separated(text)  # a ';' or tab export with decimal commas: read as commas
     notes += [f"recording '{path}': {how}"] if how else []
     text, given, read = header_fields(path, text)  # a scope's Start and Increment under their names
     notes += read
@@ -406,7 +405,7 @@ def _header(
     The header is the first line that names every one of `names_wanted` (a
     logger's preamble comes before it), else the line above the numbers (both
     `find_header`; the first line where the numbers start there). Columns mapped by
-    their `numbers` alone: where the first line holds a value in each of them, it is
+    their `numbers` alone: where the first line holds a number in each of them, it is
     the first sample, whatever the other columns hold (a Tektronix scope's export
     writes its settings in the first columns of its first lines, beside the samples).
     """
