@@ -751,7 +751,8 @@ def test_an_excel_workbook_is_read_as_its_first_sheets_table(tmp_path, capsys):
     start = datetime.datetime(2026, 12, 5, 10, 0)
     for i in range(N):
         stamp = start + datetime.timedelta(seconds=float(t[i]))
-        sheet.append([stamp, float(t[i]), float(u[i]), float(y[i]), "drive on" if i == 0 else None])
+        note = {0: "drive on", 5: 'gain 2, "high"', 9: "step\nup"}.get(i)  # a comma, quotes, a line break
+        sheet.append([stamp, float(t[i]), float(u[i]), float(y[i]), note])
     book.create_sheet("notes").append(["calibration", 1.5])
     path = tmp_path / "lab.xlsx"
     book.save(path)

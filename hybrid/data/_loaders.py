@@ -436,7 +436,7 @@ def sheet_text(path: pathlib.Path) -> tuple[str, list[str]]:
 
     A row per line, cells between commas: numbers as Python writes them ('.' decimals,
     full precision), date-times in ISO 8601 (`Clock` reads them), empty cells empty, text
-    quoted where it holds a comma or a quote; a formula gives the value Excel last saved
+    on one line with a space for each comma in it; a formula gives the value Excel last saved
     with it (none for a file no spreadsheet has computed). Line k is the sheet's row k. A
     workbook of several sheets is read from its first, and a note says so.
     """
@@ -476,8 +476,8 @@ def _sheet_cell(value) -> str:
         return repr(float(value)) if isinstance(value, float) else str(value)
     if isinstance(value, (datetime.datetime, datetime.date, datetime.time)):
         return value.isoformat(sep=" ") if isinstance(value, datetime.datetime) else value.isoformat()
-    text = str(value).strip()
-    return '"' + text.replace('"', '""') + '"' if ("," in text or '"' in text) else text
+    # a comma or a line break in a name or a label: not a separator (as `comma_separated` reads one)
+    return " ".join(str(value).replace(",", " ").split())
 
 
 def decode_text(path: pathlib.Path, fix: str) -> str:
