@@ -656,7 +656,7 @@ def test_an_oscilloscopes_csv_gives_its_rate_from_the_increment_under_its_header
 
 
 #: Two more scopes' CSV exports: Keysight's names its channels 1 and 2 over a units row whose time unit is
-#: "second"; a header of units alone (Second,Volt,Volt) under a preamble, as Siglent's exports write it.
+#: "second"; a header of units alone (Second,Volt,Volt) under a preamble (a layout written here, not taken from an instrument's file).
 _SCOPES = {
     "keysight": ("x-axis,1,2\nsecond,Volt,Volt", "--columns input=1,output=2 --time x-axis"),
     "units_header": (
