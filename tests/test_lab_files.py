@@ -772,3 +772,24 @@ def test_an_excel_workbook_is_read_as_its_first_sheets_table(tmp_path, capsys):
     bad.write_bytes(b"PK\x03\x04 not a workbook")
     code, err = _fit(tmp_path, capsys, bad)
     assert code == 2 and "is not a readable Excel workbook" in err and err.count("\n") == 1, err
+
+
+def test_a_time_column_of_times_of_day_reads_as_seconds_across_midnight(tmp_path):
+    """A logger that writes the time of day alone (10:15:32.125), beside or without the date: the column
+    was refused as non-numeric when mapped as the time, and unmapped its rows did not count as values."""
+    u, y = _signals()
+    start = 23 * 3600 + 59 * 60 + 55.0  # 5 s before midnight: the clock wraps at sample 150
+    stamps = [(start + k / RATE) % 86400 for k in range(N)]
+    clock = [f"{int(s // 3600):02d}:{int(s // 60 % 60):02d}:{s % 60:06.3f}" for s in stamps]
+    rows = [f"{c},{a:.6f},{b:.6f}" for c, a, b in zip(clock, u, y)]
+    path = tmp_path / "logger.csv"
+    path.write_text("Logger 7, channel list\nTime,Drive,Tip\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    rec = Recording.load(path, columns="input=Drive,output=Tip,time=Time")
+    # written to the ms, so read as jittered and rebuilt as a grid; a day lost at midnight would be 86400 s
+    np.testing.assert_allclose(rec.t - rec.t[0], np.arange(N) / RATE, atol=1e-3)
+    assert rec.rate == pytest.approx(RATE, rel=1e-4)
+    assert any("holds times of day, read as seconds after 23:59:55" in note for note in rec.notes), rec.notes
+    plain = tmp_path / "plain.csv"
+    plain.write_text("t,v_in,w\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    np.testing.assert_allclose(Recording.load(plain).w, y, atol=1e-6)  # unmapped, the project's own names
+    assert table_start([["Logger 7"], ["Time", "Drive", "Tip"], *(r.split(",") for r in rows[:3])]) == 1

@@ -257,16 +257,36 @@ def units_row(cells: Sequence[str]) -> list[str] | None:
     return cleaned
 
 
+#: A time of day as loggers write it beside (or without) the date: ``10:15:32`` or ``10:15:32.125``.
+TIME_OF_DAY = re.compile(r"(\d{1,2}):(\d{2}):(\d{2}(?:\.\d+)?)")
+
+
+def _seconds_of_day(text: str) -> float | None:
+    """The seconds since midnight of a `TIME_OF_DAY` cell, or None."""
+    match = TIME_OF_DAY.fullmatch(text)
+    if match is None:
+        return None
+    hours, minutes, seconds = int(match[1]), int(match[2]), float(match[3])
+    if hours > 23 or minutes > 59 or seconds >= 61:
+        return None
+    return 3600.0 * hours + 60.0 * minutes + seconds
+
+
 class Clock:
     """A time column's cells in seconds: numbers as they are, ISO 8601 date-times (a data logger's
-    ``2026-12-01 10:00:00.033``) as seconds after the first date-time read.
+    ``2026-12-01 10:00:00.033``) as seconds after the first date-time read, and times of day
+    (``10:00:00.033``, `TIME_OF_DAY`) as seconds after the first, a day added where one falls back
+    by more than 12 h (midnight passed).
 
     Called cell by cell in the file's order (`np.loadtxt`'s converter); NaN for a cell
-    that is neither, which the readers then name. `start` is the first date-time.
+    that is none of these, which the readers then name. `start` is the first date-time or time of day.
     """
 
     def __init__(self) -> None:
-        self.start: datetime.datetime | None = None
+        self.start: datetime.datetime | datetime.time | None = None
+        self._day_start: float | None = None  # the first time of day, s after midnight
+        self._last = 0.0  # the last time of day read, s after the first
+        self._days = 0
 
     def __call__(self, cell: str) -> float:
         text = cell.strip().strip('"').strip()
@@ -274,6 +294,21 @@ class Clock:
             return float(text)
         except ValueError:
             pass
+        of_day = _seconds_of_day(text)
+        if of_day is not None and not isinstance(self.start, datetime.datetime):
+            if self._day_start is None:
+                self._day_start = of_day
+                whole = int(of_day)
+                micro = round((of_day - whole) * 1e6) % 1_000_000
+                self.start = datetime.time(whole // 3600, whole // 60 % 60, min(whole % 60, 59), micro)
+            seconds = of_day - self._day_start + 86400.0 * self._days
+            if seconds < self._last - 43200.0:  # midnight passed
+                self._days += 1
+                seconds += 86400.0
+            self._last = seconds
+            return seconds
+        if isinstance(self.start, datetime.time):
+            return math.nan  # a date-time among times of day
         try:
             moment = datetime.datetime.fromisoformat(text)
             if self.start is None:
@@ -285,7 +320,8 @@ class Clock:
     def note(self, path: pathlib.Path | str) -> str:
         """What was read, for the recording's notes (after a date-time was read: `start` is set)."""
         assert self.start is not None
-        return f"recording '{path}': its time column holds date-times, read as seconds after {self.start.isoformat()}"
+        what = "times of day" if isinstance(self.start, datetime.time) else "date-times"
+        return f"recording '{path}': its time column holds {what}, read as seconds after {self.start.isoformat()}"
 
 
 def is_time_unit(unit: str) -> bool:
@@ -542,9 +578,9 @@ def footer_start(rows: Sequence[Sequence[str]], indices: Sequence[int]) -> int:
 
 
 def is_value(cell: str) -> bool:
-    """Whether a cell holds a number or an ISO date-time (data, not a name)."""
+    """Whether a cell holds a number, an ISO date-time or a time of day (data, not a name)."""
     text = cell.strip().strip('"').strip()
-    if is_number(text):
+    if is_number(text) or _seconds_of_day(text) is not None:
         return True
     try:
         datetime.datetime.fromisoformat(text)

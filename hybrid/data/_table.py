@@ -281,6 +281,7 @@ def _read_csv(
         metadata = parse_metadata(path, read_text(meta_path), f"'{meta_path.name}'")
     if clock.start is not None:
         metadata["start_time"] = clock.start.isoformat()
+        notes.append(clock.note(path))
     if stated:  # a units row under the header, by column name; a sidecar's units win
         units = metadata.get("units")
         declared: dict = units if isinstance(units, dict) else {}
