@@ -32,6 +32,7 @@ __all__ = [
     "FOOTER_LINES",
     "PREAMBLE_LINES",
     "RATE_FIELDS",
+    "CSV_SUFFIXES",
     "SHEET_SUFFIXES",
     "SUFFIXES",
     "TEXT_SUFFIXES",
@@ -39,6 +40,8 @@ __all__ = [
     "check_file",
     "DECIMAL_COMMA",
     "comma_separated",
+    "csv_text",
+    "cut_cells",
     "commented_header",
     "decode_text",
     "find_header",
@@ -66,6 +69,8 @@ __all__ = [
 SUFFIXES: tuple[str, ...] = (".csv", ".npz", ".mat")
 #: Excel workbooks, read (not written) as their first sheet's table, like a CSV (`sheet_text`).
 SHEET_SUFFIXES: tuple[str, ...] = (".xlsx", ".xlsm")
+#: What the CSV readers read: a CSV file, or a workbook's sheet as one (`csv_text`).
+CSV_SUFFIXES: tuple[str, ...] = (".csv", *SHEET_SUFFIXES)
 #: Suffixes of plain text tables, read through a mapping only (`hybrid.data._table.read_text_table`):
 #: a logger's ``.txt``/``.dat``, tab-separated ``.tsv``, and LabVIEW's measurement file ``.lvm`` (a
 #: preamble, then a tab-separated table).
@@ -114,7 +119,7 @@ def read_file(
     required = REQUIRED if require_w else REQUIRED[:2]
     notes: tuple[str, ...] = ()
     lines = None
-    if suffix == ".csv" or suffix in SHEET_SUFFIXES:
+    if suffix in CSV_SUFFIXES:
         columns, metadata, notes, lines = _load_csv(path, required)
     else:
         columns, metadata, notes = (_load_npz if suffix == ".npz" else _load_mat)(path, required)
@@ -422,6 +427,11 @@ def mapping_example(
         if role not in roles and rest:
             roles[role] = rest.pop(0)
     if "input" not in roles or "output" not in roles:
+        if any(n and n not in skip and not n.isdigit() and is_value(n) for n in names):
+            return (  # a line of settings beside a sample, read as the header (Tektronix)
+                "--columns input=N,output=M with --time K or --rate HZ, the columns by number from 0 (the "
+                "line taken for its header holds numbers: a setting beside a sample?)"
+            )
         return "--columns input=COLUMN,output=COLUMN with --rate HZ or --time COLUMN"
     shown = {role: str(i) if names.count(names[i]) > 1 else names[i] for role, i in roles.items()}
     columns = f"input={shown['input']},output={shown['output']}"
@@ -509,7 +519,7 @@ def _sheet_cell(value) -> str:
     if isinstance(value, bool):
         return str(int(value))
     if isinstance(value, (int, float)):
-        return repr(float(value)) if isinstance(value, float) else str(value)
+        return str(value)  # a float's shortest repr: it reads back to the same double
     if isinstance(value, (datetime.datetime, datetime.date, datetime.time)):
         return value.isoformat(sep=" ") if isinstance(value, datetime.datetime) else value.isoformat()
     # a comma or a line break in a name or a label: not a separator (as `comma_separated` reads one)
@@ -615,13 +625,7 @@ def table_start(rows: Sequence[Sequence[str]]) -> int:
     rows come.
     """
 
-    def cells_of(row) -> list[str]:  # its cells, without the empty ones after the last (a trailing comma)
-        cells = [cell.strip().strip('"').strip() for cell in row]
-        while cells and not cells[-1]:
-            cells.pop()
-        return cells
-
-    cells = [cells_of(row) for row in rows[: PREAMBLE_LINES + 2]]
+    cells = [cut_cells(row) for row in rows[: PREAMBLE_LINES + 2]]
     # every cell a value, or empty (a column left blank)
     values = [bool(c) and all(is_value(cell) for cell in c if cell) for c in cells]
     filled = [i for i, c in enumerate(cells) if c]
@@ -758,7 +762,7 @@ def header_fields(path: pathlib.Path | str, text: str) -> tuple[str, dict[str, f
     """
     lines = text.splitlines()
     rows = [
-        (i, _cut(line.split(",")))
+        (i, cut_cells(line.split(",")))
         for i, line in enumerate(lines[: PREAMBLE_LINES + 3])
         if line.strip() and not line.strip().startswith("#")
     ]
@@ -780,28 +784,35 @@ def header_fields(path: pathlib.Path | str, text: str) -> tuple[str, dict[str, f
     return text, {}, []
 
 
-def _cut(cells: list[str]) -> list[str]:
-    """A CSV line's cells, unquoted, without the empty ones after the last (a trailing comma)."""
-    cells = [c.strip().strip('"').strip() for c in cells]
-    while cells and not cells[-1]:
-        cells.pop()
-    return cells
+def cut_cells(cells: Sequence[str]) -> list[str]:
+    """A line's cells, unquoted, without the empty ones after the last (a trailing comma)."""
+    out = [c.strip().strip('"').strip() for c in cells]
+    while out and not out[-1]:
+        out.pop()
+    return out
 
 
-def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], list[str], dict[str, float]]:
-    """Non-blank, non-comment lines with their line numbers (from 1), notes on how the text was read, and
-    the fields a units row gives (`header_fields`)."""
-    lines = []
+def csv_text(path: pathlib.Path) -> tuple[str, list[str], dict[str, float]]:
+    """A CSV file's (or a workbook sheet's, `table_text`) text as both CSV readers read it, every line at
+    its number: a commented header made a header (`commented_header`), cells between ';' or tabs put
+    between commas (`comma_separated`), a units row's fields taken out (`header_fields`); the notes on
+    what was done, and those fields."""
     text, notes = table_text(path)
     text, commented = commented_header(path, text)
     text, how = comma_separated(text)
     text, given, read = header_fields(path, text)
-    notes += commented
+    return text, notes + commented + ([] if how is None else [f"recording '{path}': {how}"]) + read, given
+
+
+def _csv_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], list[str], dict[str, float]]:
+    """Non-blank, non-comment lines with their line numbers (from 1), and `csv_text`'s notes and fields."""
+    text, notes, given = csv_text(path)
+    lines = []
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):
             lines.append((number, stripped))
-    return lines, notes + read + ([] if how is None else [f"recording '{path}': {how}"]), given
+    return lines, notes, given
 
 
 #: A unit in a units row that marks its column as a count of the samples, not a time (Rigol's ``X``).
@@ -814,25 +825,20 @@ def _csv_header(
     required: Sequence[str] = REQUIRED,
     following: str = "",
     given: Mapping[str, float] | None = None,
+    units: Sequence[str] | None = None,
 ) -> list[str]:
-    """The header's names; `following`: the line after it; `given`: the fields a units row gave
-    (`header_fields`), which, like a column of counts, a refusal's example leaves out."""
+    """The header's names; `following`: the line after it, and `units` its units where it is a units row;
+    `given`: the fields a units row gave (`header_fields`), which, like a column of counts, a refusal's
+    example leaves out."""
     _check_delimiter(path, line, following)
-    header = [cell.strip().strip('"').strip() for cell in line.split(",")]
-    while header and not header[-1]:
-        header.pop()  # a trailing comma (a spreadsheet's empty columns): their cells must be empty too
+    header = cut_cells(line.split(","))  # a trailing comma (a spreadsheet's empty columns): cells empty too
     named = [cell for cell in header if cell]  # an unnamed column (a row index) is left out (`_unnamed_note`)
     given = given or {}
-    units = units_row(following.split(",")) or []
+    units = units or []
     counts = {name for name, unit in zip(header, units) if unit.lower() in _COUNT_UNITS}
     timed = [name for name, unit in zip(header, units) if name and is_time_unit(unit)]
     rate_known = any(name.lower() in RATE_FIELDS for name in given)
     example = mapping_example(header, rate_known, timed[0] if timed else None, {*REQUIRED, *given, *counts})
-    if any(is_value(c) and not c.isdigit() for c in named) and "COLUMN" in example:  # settings beside samples
-        example = (
-            "--columns input=N,output=M with --time K or --rate HZ, the columns by number from 0 (the line "
-            "taken for its header holds numbers: a setting beside a sample?)"
-        )
     repeated = sorted({c for c in named if named.count(c) > 1})
     if repeated:  # a scope's header of units (Second,Volt,Volt): the columns go by number
         raise InputError(
@@ -941,8 +947,8 @@ def _load_csv(
         lines = lines[start:]
     else:
         notes = []
-    header = _csv_header(path, lines[0][1], required, lines[1][1] if len(lines) > 1 else "", given)
     row = units_row(lines[1][1].split(",")) if len(lines) > 1 else None
+    header = _csv_header(path, lines[0][1], required, lines[1][1] if len(lines) > 1 else "", given, row)
     stated = {name: unit for name, unit in zip(header, row or ()) if unit}
     body = lines[1 + (row is not None) :]
     split = [[cell.strip().strip('"').strip() for cell in line.split(",")] for _, line in body]
@@ -1096,13 +1102,7 @@ def npy_table(path: pathlib.Path) -> tuple[list[str], np.ndarray]:
             f"recording '{path}' holds an array of type {values.dtype} and shape {values.shape}: store a "
             "table of real numbers, one channel per column (numpy.save(file, np.column_stack([t, u, y])))"
         )
-    table = (
-        values.reshape(-1, 1)
-        if values.ndim == 1
-        else values.T
-        if values.shape[1] > values.shape[0]
-        else values
-    )
+    table = values.reshape(-1, 1) if values.ndim == 1 else _by_channel(values).T
     return [str(i) for i in range(table.shape[1])], table.astype(np.float64)
 
 
@@ -1111,11 +1111,9 @@ def _load_npz(
 ) -> tuple[dict[str, np.ndarray], dict, tuple[str, ...]]:
     arrays, metadata = npz_arrays(path)
     _require_stored(path, arrays, "array(s)", required)
-    columns = {}
-    for key, values in _vectors(path, arrays, required).items():
-        column = key[len(NPZ_EXTRA) :] if key.startswith(NPZ_EXTRA) else key
-        columns[column] = values
-    return columns, metadata, _left_out(path, arrays, columns, "array")
+    kept = _vectors(path, arrays, required)
+    columns = {(key[len(NPZ_EXTRA) :] if key.startswith(NPZ_EXTRA) else key): v for key, v in kept.items()}
+    return columns, metadata, _left_out(path, arrays, kept, "array")
 
 
 def _require_stored(
@@ -1154,10 +1152,10 @@ def _is_vector(values) -> bool:
 def _left_out(
     path: pathlib.Path, arrays: Mapping[str, np.ndarray], read: Mapping, kind: str
 ) -> tuple[str, ...]:
-    """A note for each stored value beside the signals that nothing reads (`_vectors`)."""
+    """A note for each stored value beside the signals that nothing reads: not among `read` (`_vectors`)."""
     notes = []
     for key, values in arrays.items():
-        if key in read or (key[len(NPZ_EXTRA) :] if key.startswith(NPZ_EXTRA) else key) in read:
+        if key in read:
             continue
         values = np.asarray(values)
         what = f"of shape {values.shape}" if values.dtype.kind in "biuf" else f"of type {values.dtype}"
@@ -1193,18 +1191,23 @@ def matrix_columns(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
             continue
         if values.shape[0] == values.shape[1]:
             continue  # which side holds the samples cannot be told
-        channels = values.T if values.shape[0] > values.shape[1] else values
-        out.update({f"{key}:{k}": channel for k, channel in enumerate(channels)})
+        out.update({f"{key}:{k}": channel for k, channel in enumerate(_by_channel(values))})
     return out
+
+
+def _by_channel(values: np.ndarray) -> np.ndarray:
+    """A stored table, shape (channels, samples): its longer side holds the samples (a square one is read
+    as columns of channels)."""
+    return values if values.shape[1] > values.shape[0] else values.T
 
 
 def _matrix_example(arrays: Mapping[str, np.ndarray]) -> str:
     """The mapping of a file whose signals are columns of one matrix (`matrix_columns`), or ""."""
-    matrices = sorted({name.rsplit(":", 1)[0] for name in matrix_columns(arrays)})
+    channels = matrix_columns(arrays)
+    matrices = {name.rsplit(":", 1)[0] for name in channels}
     if len(matrices) != 1:
         return ""
-    key = matrices[0]
-    channels = matrix_columns({key: arrays[key]})
+    (key,) = matrices
     first = channels[f"{key}:0"]
     timed = len(channels) >= 3 and len(first) > 1 and bool(np.all(np.diff(first) > 0))
     flags = (

@@ -364,14 +364,14 @@ def _read_joined(
         for role, (p, column) in references.items():
             if p == file and column is None:
                 data[role], read = only_column(file, suffix, role, str(file))
-                notes += [note for note in read if note not in notes]
+                notes += read
         if named:
             columns, found, meta, table = read_columns(file, suffix, named, flag_prefix=f"{file}:")
-            notes += [note for note in table.notes if note not in notes]
+            notes += table.notes
             data.update(columns)
             fields.update({k: v for k, v in found.items() if k not in fields})
             metadata = {**meta, **metadata}
-    return {role: data[role] for role in references}, fields, metadata, notes
+    return {role: data[role] for role in references}, fields, metadata, list(dict.fromkeys(notes))
 
 
 def load_pair(

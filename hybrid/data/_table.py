@@ -61,6 +61,7 @@ import numpy as np
 
 from ..util._errors import InputError
 from ._loaders import (
+    CSV_SUFFIXES,
     DECIMAL_COMMA,
     FOOTER_LINES,
     PREAMBLE_LINES,
@@ -69,14 +70,14 @@ from ._loaders import (
     TEXT_SUFFIXES,
     Clock,
     cell_count_message,
-    comma_separated,
     commented_header,
+    csv_text,
+    cut_cells,
     decode_text,
     file_vector,
     find_header,
     footer_note,
     footer_start,
-    header_fields,
     is_number,
     is_value,
     mat_variables,
@@ -87,7 +88,6 @@ from ._loaders import (
     read_text,
     sidecar,
     spaced_cells_message,
-    table_text,
     units_row,
 )
 
@@ -141,17 +141,13 @@ def read_columns(
         ``(columns, fields, metadata, notes)``: role -> float64 vector (all of one length for
         a CSV file), rate-field name -> its values, the file's metadata, and `TableNotes`.
     """
-    if suffix == ".csv" or suffix in SHEET_SUFFIXES:
+    if suffix in CSV_SUFFIXES:
         return _read_csv(path, wanted, flag_prefix)
-    if suffix == ".npy":
-        names, table = npy_table(path)
-        columns = {
-            role: table[:, _column_index(path, names, name, role, flag_prefix)]
-            for role, name in wanted.items()
-        }
-        return columns, {}, {}, TableNotes(columns=tuple(names))
-    if suffix in TEXT_SUFFIXES:
-        names, table, notes = read_text_table(path, [n for n in wanted.values() if not n.isdigit()])
+    if suffix == ".npy" or suffix in TEXT_SUFFIXES:
+        if suffix == ".npy":
+            (names, table), notes = npy_table(path), TableNotes()
+        else:
+            names, table, notes = read_text_table(path, [n for n in wanted.values() if not n.isdigit()])
         columns = {
             role: table[:, _column_index(path, names, name, role, flag_prefix)]
             for role, name in wanted.items()
@@ -200,13 +196,7 @@ _CSV_FIX = "save it as CSV UTF-8 (Excel: Save As, 'CSV UTF-8 (Comma delimited)')
 def _read_csv(
     path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
-    text, notes = table_text(path)
-    text, commented = commented_header(path, text)
-    notes += commented
-    text, how = comma_separated(text)  # a ';' or tab export with decimal commas: read as commas
-    notes += [f"recording '{path}': {how}"] if how else []
-    text, given, read = header_fields(path, text)  # a scope's Start and Increment under their names
-    notes += read
+    text, notes, given = csv_text(path)  # given: a scope's Start and Increment under their names
     try:
         with io.StringIO(text) as handle:
             names_wanted = [n for n in wanted.values() if not n.isdigit()]
@@ -421,10 +411,7 @@ def _header(
         handle.seek(position)
         for _ in range(at):  # left before the first sample: no header
             handle.readline()
-        cells = [cell.strip() for cell in rows[at]]
-        while cells and not cells[-1]:
-            cells.pop()  # a trailing comma
-        return [str(i) for i in range(len(cells))], at, 0
+        return [str(i) for i in range(len(cut_cells(rows[at])))], at, 0
     skip = find_header(rows, names_wanted)
     skipped = sum(1 for row in rows[:skip] if row)
     handle.seek(position)
