@@ -146,6 +146,7 @@ def test_silverbox_schroeder_file_with_sparse_overload_columns():
         ({"input": "u", "output": "y", "time": "time"}, "t=time,v_in=u,w=y"),
         ({"input": "u", "output": "y", "time": "time"}, "time=time, input = u ,OUTPUT=y"),
         ({"input": "u", "output": "y", "time": "time"}, 'input="u",output="y",time=time'),
+        ({"input": "u", "output": "y", "time": "time"}, {"time": "time", "input": "u", "OUTPUT": "y"}),
     ],
 )
 def test_both_spellings_give_the_same_recording(lab, keywords, columns):
@@ -155,6 +156,17 @@ def test_both_spellings_give_the_same_recording(lab, keywords, columns):
     assert a == b == c and a.name == b.name
     assert a.rate == pytest.approx(20.0) and a.metadata["rate_from"].startswith("the time column")
     assert load_mapped(lab, columns="input=u", output="y", time="time") == a
+
+
+def test_a_dict_of_column_numbers_maps_as_the_string_does(lab):
+    """From Python a mapping is a dict; an int in it is a column's number, as ``input=1`` in the string."""
+    by_name = load_mapped(lab, columns={"time": "time", "input": "u", "output": "y"})
+    by_number = load_mapped(lab, columns={"t": 0, "v_in": 1, "w": 2})
+    assert (
+        by_number == load_mapped(lab, columns="t=0,v_in=1,w=2") == load_mapped(lab, input=1, output=2, time=0)
+    )
+    for channel in ("t", "v_in", "w"):
+        np.testing.assert_array_equal(getattr(by_number, channel), getattr(by_name, channel))
 
 
 def test_mapped_grammar_units_and_ranges_parse():
@@ -335,8 +347,12 @@ def test_a_misnamed_column_suggests_the_likely_one_not_the_time(tmp_path):
         ({"columns": "input=u,v_in=y"}, "gives the input twice"),
         ({"columns": 'input="u,output=y'}, "unclosed"),
         ({"columns": " "}, "columns mapping ' ' is empty"),
-        ({"columns": {"input": "u"}}, "is not a string: give role=column pairs"),
-        ({"input": 3, "output": "y"}, "input column 3 is not a name"),
+        ({"columns": ["input=u", "output=y"]}, r"is not a string: give role=column pairs \(or a dict"),
+        ({"columns": {"input": "u"}}, r"no output column is named"),
+        ({"columns": {"input": "u", "drive": "y"}}, r"names the role 'drive'.*e\.g\. \{'input': 'uEst'"),
+        ({"columns": {"input": "u", "output": 2.5}}, r"gives output the column 2\.5: give the column's name"),
+        ({"columns": {}}, r"columns mapping \{\} is empty"),
+        ({"input": 3.5, "output": "y"}, r"input column 3\.5 is not a name: .* \(or its number, from 0\)"),
         ({"input": "u", "output": "y", "rate": 0}, "not a positive number of Hz"),
         ({"input": "u", "output": "y", "rate": "fast"}, "not a positive number of Hz"),
         ({"input": "u", "output": "y", "rate": float("nan")}, "not a positive number of Hz"),

@@ -116,7 +116,7 @@ def load_mapped(
     *,
     input: str | None = None,
     output: str | None = None,
-    columns: str | None = None,
+    columns: str | Mapping[str, str] | None = None,
     rate: float | None = None,
     sample_range: str | slice | None = None,
     time: str | None = None,
@@ -131,7 +131,8 @@ def load_mapped(
             ``.dat`` file; or a list of files joined into one record (each name ``FILE`` or ``FILE:COLUMN``).
         input: the drive's column (-> ``v_in``).
         output: the measured output's column (-> ``w``).
-        columns: the whole mapping in one string, ``"input=uEst,output=yEst"``.
+        columns: the whole mapping in one string, ``"input=uEst,output=yEst"``, or as a dict,
+            ``{"input": "uEst", "output": "yEst"}``.
         rate: sampling rate, Hz, when there is no time column (or to check one).
         sample_range: ``"start:stop"`` in samples from 0, either side optional.
         time: a time column (-> ``t``), in seconds unless ``units["t"]`` says otherwise.
@@ -379,7 +380,7 @@ def load_pair(
     *,
     test_input: str | None = None,
     test_output: str | None = None,
-    test_columns: str | None = None,
+    test_columns: str | Mapping[str, str] | None = None,
     test_sample_range: str | slice | None = None,
     test_path: str | pathlib.Path | None = None,
     **options: Any,
@@ -392,7 +393,7 @@ def load_pair(
         test_input: the validation record's input column; default the estimation's.
         test_output: the validation record's output column; default the estimation's.
         test_columns: the validation record's mapping in the ``columns`` grammar
-            (``"input=uVal,output=yVal"``; a ``time`` role too); the roles it names
+            (``"input=uVal,output=yVal"``, or a dict; a ``time`` role too); the roles it names
             replace the estimation's, each role given once here and in ``test_input``/``test_output``.
         test_sample_range: the validation record's samples; default all of them
             (``sample_range`` is the estimation record's only).

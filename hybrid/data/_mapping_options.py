@@ -29,7 +29,16 @@ _RANGE = re.compile(r"^\s*([+-]?\d+)?\s*:\s*([+-]?\d+)?\s*$")
 
 
 def parse_columns(text: Any) -> dict[str, str]:
-    """``"input=uEst,output=yEst"`` -> ``{"v_in": "uEst", "w": "yEst"}``; grammar in `hybrid.data._mapping`."""
+    """``"input=uEst,output=yEst"`` (grammar in `hybrid.data._mapping`) or ``{"input": "uEst", "output":
+    "yEst"}`` -> ``{"v_in": "uEst", "w": "yEst"}``."""
+    if isinstance(text, Mapping):  # from Python: the same roles, each name as it is (no quotes to strip)
+        return _roles(
+            [(str(role), _column_name(name)) for role, name in text.items()],
+            text,
+            "columns mapping",
+            "column",
+            "e.g. {'input': 'uEst', 'output': 'yEst'}",
+        )
     return _pairs(text, "columns mapping", "column", _EXAMPLE)
 
 
@@ -38,23 +47,24 @@ def parse_units(text: Any) -> dict[str, str]:
     return _pairs(text, "units", "unit", "e.g. 'input=V,output=V'")
 
 
+def _column_name(name: Any) -> Any:
+    """A dict's column: a name, or a column's number (an int, as ``input=0`` in the string)."""
+    integral = isinstance(name, numbers.Integral) and not isinstance(name, bool)
+    return str(int(name)) if integral else name
+
+
 def _pairs(text: Any, what: str, kind: str, example: str) -> dict[str, str]:
     if not isinstance(text, str) or not text.strip():
         problem = "is empty" if isinstance(text, str) else "is not a string"
-        raise InputError(f"the {what} {text!r} {problem}: give role={kind} pairs, {example}")
-    roles: dict[str, str] = {}
+        also = " (or a dict of them, {'input': 'uEst', 'output': 'yEst'})" if kind == "column" else ""
+        raise InputError(f"the {what} {text!r} {problem}: give role={kind} pairs{also}, {example}")
+    pairs = []
     for entry in _split(text, what):
         role, equals, name = entry.partition("=")
-        key = role.strip().lower()
         if not equals:
             raise InputError(
                 f"the {what} {text!r} has entry {entry.strip()!r} without '=': "
                 f"write role={kind} pairs separated by commas, {example}"
-            )
-        if key not in ROLES:
-            raise InputError(
-                f"the {what} {text!r} names the role {role.strip()!r}: the roles are "
-                f"input (or v_in), output (or w) and time (or t), {example}"
             )
         name = name.strip()
         if len(name) > 1 and name[0] == name[-1] == '"':
@@ -63,6 +73,26 @@ def _pairs(text: Any, what: str, kind: str, example: str) -> dict[str, str]:
             raise InputError(
                 f"the {what} {text!r} has entry {entry.strip()!r} with two '=': separate the "
                 f"pairs with commas, {example}"
+            )
+        pairs.append((role, name))
+    return _roles(pairs, text, what, kind, example)
+
+
+def _roles(pairs, text: Any, what: str, kind: str, example: str) -> dict[str, str]:
+    """(role, name) pairs -> names by channel, each role known, given once and named."""
+    if not pairs:
+        raise InputError(f"the {what} {text!r} is empty: give role={kind} pairs, {example}")
+    roles: dict[str, str] = {}
+    for role, name in pairs:
+        key = role.strip().lower()
+        if key not in ROLES:
+            raise InputError(
+                f"the {what} {text!r} names the role {role.strip()!r}: the roles are "
+                f"input (or v_in), output (or w) and time (or t), {example}"
+            )
+        if not isinstance(name, str):
+            raise InputError(
+                f"the {what} {text!r} gives {key} the {kind} {name!r}: give the {kind}'s name as a string"
             )
         if not name.strip():
             raise InputError(f"the {what} {text!r} gives {key} an empty {kind}: give the {kind}")
@@ -107,9 +137,11 @@ def mapping_roles(
     for channel, value in (("v_in", input), ("w", output), ("t", time)):
         if value is None:
             continue
+        value = _column_name(value)
         if not isinstance(value, str) or not value.strip():
             raise InputError(
-                f"the {OPTION[channel]} column {value!r} is not a name: give the column's name as a string"
+                f"the {OPTION[channel]} column {value!r} is not a name: give the column's name as a string "
+                "(or its number, from 0)"
             )
         if channel in roles:
             raise InputError(
