@@ -50,7 +50,11 @@ CASES = {
         lambda m, r: hybrid.diagnose(r, settings={"max_steps": 1}),
         "DiagnoseSettings",
     ),
-    "diagnose(simulation str)": (lambda m, r: hybrid.diagnose(r, simulation="rc"), "simulation"),
+    "diagnose(simulation int)": (lambda m, r: hybrid.diagnose(r, simulation=3), "needs a simulation"),
+    "diagnose(simulation spec unknown)": (
+        lambda m, r: hybrid.diagnose(r, simulation="rcx"),
+        "--physics rcx: not a physics I know",
+    ),
     "write_report(str)": (lambda m, r: hybrid.write_report("x", "out"), "Diagnosis"),
     # simulate
     "simulate(dt < 0)": (lambda m, r: RCNetwork().simulate(jnp.ones(8), -0.1), "dt"),
@@ -88,7 +92,14 @@ CASES = {
     "RCNetwork(None)": (lambda m, r: RCNetwork(None), "xi_rho must be a number"),
     "RCNetwork(C_clamp=object)": (lambda m, r: RCNetwork(C_clamp=object()), "C_clamp must be a number"),
     "RCNetwork(strip str)": (lambda m, r: RCNetwork(strip="x"), "hybrid.Strip"),
-    "make_model(simulation str)": (lambda m, r: hybrid.make_model("hybrid", simulation="rc"), "simulation"),
+    "make_model(simulation list)": (
+        lambda m, r: hybrid.make_model("hybrid", simulation=["rc"]),
+        "or a --physics spec such as 'lti:2'",
+    ),
+    "make_model(simulation spec bad)": (
+        lambda m, r: hybrid.make_model("hybrid", simulation="lti:x"),
+        "the order N of lti:N must be a whole number",
+    ),
     "make_model(key int)": (lambda m, r: hybrid.make_model("hybrid", key=3), "PRNG key"),
     "make_model(kind list)": (lambda m, r: hybrid.make_model(["hybrid"]), "model must be one of"),
 }
@@ -108,6 +119,27 @@ def test_wrong_arguments_raise_one_input_error(name, model, recording, tmp_path,
     message = str(caught.value)
     assert phrase in message and "\n" not in message, message
     assert list(tmp_path.iterdir()) == []  # and nothing was written
+
+
+def test_a_physics_spec_string_is_resolved_as_the_command_line_resolves_it(recording, monkeypatch):
+    """``simulation="lti:2"`` is ``--physics lti:2``: `resolve_physics` with the recordings (its start)."""
+    import hybrid.discovery._diagnose
+
+    seen = {}
+
+    def stop(recordings, simulation, *args, **kwargs):
+        seen["simulation"] = simulation
+        raise InputError("stopped after the argument checks")
+
+    monkeypatch.setattr(hybrid.discovery._diagnose, "prepare_search", stop)
+    with pytest.raises(InputError, match="stopped"):
+        hybrid.diagnose(recording, simulation="lti:2")
+    values = lambda simulation: {k: float(v) for k, v in simulation.parameters().items()}
+    expected = hybrid.resolve_physics("lti:2", recording)
+    assert type(seen["simulation"]) is type(expected)
+    assert values(seen["simulation"]) == pytest.approx(values(expected))
+    assert values(hybrid.resolve_physics("lti:2")) != pytest.approx(values(expected))  # started on the data
+    assert isinstance(hybrid.make_model("physics", simulation="lti:3").simulation, hybrid.LTI)
 
 
 def test_fit_reads_a_single_frozen_name_as_one_name(model, recording, monkeypatch):
