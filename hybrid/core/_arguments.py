@@ -92,20 +92,15 @@ def check_model(model, where: str):
     return model
 
 
-def check_simulation(simulation, where: str, allow_none: bool = True, recordings=None):
-    """`simulation` as an `AbstractSimulation` (e.g. `RCNetwork()`), or None where a default exists.
+def check_simulation(simulation, where: str, allow_none: bool = True):
+    """`simulation` must be an `AbstractSimulation` (e.g. `RCNetwork()`), or None where a default exists.
 
-    A string is a ``--physics`` spec (``"lti:2"``, ``"file.py:Class"``), resolved as the command line
-    does (`hybrid.resolve_physics`, with `recordings`: an ``lti:N`` starts on their time scales).
+    (`hybrid.diagnose` and `hybrid.make_model` resolve a ``--physics`` spec string before this check.)
     """
     from ._simulation import AbstractSimulation
 
     if simulation is None and allow_none:
         return None
-    if isinstance(simulation, str):
-        from ..physics._plugins import resolve_physics
-
-        return resolve_physics(simulation, recordings)
     if not isinstance(simulation, AbstractSimulation):
         raise InputError(
             f"{where} needs a simulation such as hybrid.RCNetwork(), or a --physics spec such as 'lti:2' "

@@ -114,14 +114,14 @@ def make_model(
     - `kind`: ``"hybrid"`` (simulation + D-MLP), ``"normal"`` (D-MLP on V_i) or
       ``"physics"`` (simulation + linear gain and offset).
     - `simulation`: the physics part, needed for hybrid and physics (an
-      [`AbstractSimulation`][], or a ``--physics`` spec such as ``"lti:2"``;
-      `hybrid.make_model` defaults it to the paper's RC network).
+      [`AbstractSimulation`][]; `hybrid.make_model` defaults it to the paper's
+      RC network and takes a ``--physics`` spec such as ``"lti:2"`` too).
     - `window`, `depth`, `width`: D-MLP shape (paper: 60, 11, 10).
     - `key`: PRNG key for the D-MLP weights (default `jax.random.key(0)`).
     """
     if not isinstance(kind, str) or kind not in MODEL_KINDS:
         raise InputError(f"model must be one of {', '.join(MODEL_KINDS)}, got {kind!r}")
-    simulation = check_simulation(simulation, "make_model")
+    check_simulation(simulation, "make_model")
     check_key(key, "make_model")
     if key is None:
         key = jax.random.key(0)

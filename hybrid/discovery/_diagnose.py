@@ -225,8 +225,8 @@ def diagnose(
 
     - `recordings`: one Recording or several of the same strip (fitted jointly).
     - `simulation`: the physics simulation to diagnose, any [`AbstractSimulation`][]
-      (`hybrid.diagnose` defaults to the paper's RC network, discretised exactly), or a
-      ``--physics`` spec (``"lti:2"``, ``"file.py:Class"``), resolved as the command line does.
+      (`hybrid.diagnose` defaults to the paper's RC network, discretised exactly, and takes a
+      ``--physics`` spec too: ``"lti:2"``, ``"file.py:Class"``, resolved as the command line does).
     - `effects`: the effects to search, each a built-in's name, an
       [`AbstractEffect`][] subclass or instance (a plug-in); None: every
       built-in ([`EFFECTS`][]).
@@ -245,7 +245,7 @@ def diagnose(
         "its noise floor, information criteria and held-out tests compare errors far below float32's "
         "1e-7; in float32 a start design turns NaN",
     )
-    simulation = check_simulation(simulation, "diagnose", recordings=recordings)
+    check_simulation(simulation, "diagnose")
     if not isinstance(settings, DiagnoseSettings):
         raise InputError(
             f"diagnose: settings must be a DiagnoseSettings, got {type(settings).__name__}: "

@@ -9,6 +9,7 @@ place of a missing simulation.
 
 from __future__ import annotations
 
+from ..core._arguments import as_recordings
 from ..core._models import make_model as make_any_model
 from ..discovery._diagnose import diagnose as diagnose_any
 from ..discovery._diagnosis import DiagnoseSettings
@@ -26,11 +27,13 @@ def make_model(
 
     As `hybrid.core._models.make_model` (every argument is described there),
     with `simulation` defaulting to the paper's [`RCNetwork`][hybrid.RCNetwork]
-    with its default parameters (Tustin sections). The Normal model has no
-    simulation.
+    with its default parameters (Tustin sections); a string is a ``--physics`` spec
+    (`hybrid.resolve_physics`). The Normal model has no simulation.
     """
     if simulation is None and kind != "normal":
         simulation = RCNetwork()
+    elif isinstance(simulation, str):  # a --physics spec, resolved as the command line does
+        simulation = resolve_physics(simulation)
     return make_any_model(kind, simulation=simulation, window=window, depth=depth, width=width, key=key)
 
 
@@ -56,11 +59,15 @@ def diagnose(
     As `hybrid.discovery._diagnose.diagnose` (every argument is described there), with `simulation`
     defaulting to the paper's [`RCNetwork`][hybrid.RCNetwork] discretised
     exactly (``method="zoh"``: the drive is held between samples), starting
-    from `DIAGNOSE_C_CLAMP` (the first point of the screened design). Returns a
+    from `DIAGNOSE_C_CLAMP` (the first point of the screened design). A string is a
+    ``--physics`` spec, resolved with the recordings as the command line resolves it
+    (`hybrid.resolve_physics`: an ``lti:N`` starts on their time scales). Returns a
     `Diagnosis`; ``Diagnosis.to_dict()`` is ``report.json``.
     """
     if simulation is None:
         simulation = diagnose_simulation()
+    elif isinstance(simulation, str):  # a --physics spec, resolved as the command line does
+        simulation = resolve_physics(simulation, as_recordings(recordings, "diagnose"))
     return diagnose_any(
         recordings,
         simulation=simulation,
