@@ -82,6 +82,7 @@ from .discovery._inside_effects import (
     StateLimit as StateLimit,
 )
 from .discovery._report import write_report as write_report
+from .discovery._starts import joint_starts as joint_starts
 from .ipmc._defaults import diagnose as diagnose, make_model as make_model
 from .physics._lti import LTI as LTI
 from .physics._plugins import resolve_physics as resolve_physics

@@ -12,6 +12,8 @@ effect's linear parameters — by least squares.
 - `hysteresis_starts`: the network plus a Bouc–Wen loop at each of `LOOP_RATES`.
 - `resonance_starts`: the network followed by a mode at each frequency of
   `mode_frequencies` and damping of `MODE_DAMPINGS`.
+- `joint_starts` (public, `hybrid.joint_starts`): any effect at given values, for a plug-in's
+  `screened_starts`.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from ..core._screen import (
     start_design,
     train_weights,
 )
+from ..util._errors import InputError
 from ._effects import Resonance
 from ._hysteresis import bouc_wen_and_memory
 
@@ -364,3 +367,67 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
         best.append(min(found, key=lambda item: item[0]))
     best.sort(key=lambda item: item[0])
     return [{**{k: design[i][k] for k in names}, **values} for _, _, i, values in best[:n_starts]]
+
+
+def joint_starts(context, effect, values, n_starts: int) -> list[dict]:
+    """Starts for `effect` with the simulation screened jointly: for a plug-in's `screened_starts`.
+
+    From the current model's fit an effect switched on often stays in that
+    fit's basin: the fit has already bent the simulation's parameters to mimic
+    the effect some other way (a sensor that cannot see sign: the effect-free
+    fit of |y| is no oscillator at all). So each of the first `N_JOINT_SCREEN`
+    points of the simulation's design (`start_design`: a Sobol design over its
+    `typical_ranges`, the current values first) is simulated once with the
+    effect on at each of `values` (dicts of some of its parameters, the others
+    at the effect's current values), the readout's gain and offset by least
+    squares; the best point for each of `values` is kept, and the `n_starts`
+    best of those are returned, each a start dict of the simulation's
+    parameters and the effect's.
+
+    **Arguments:**
+
+    - `context`: the `StartContext` that `screened_starts(context)` gets (its
+      `problem`, `simulation` and `frozen`).
+    - `effect`: the effect (``self`` in `screened_starts`).
+    - `values`: the effect's values to screen, e.g. those of its `starts`.
+    - `n_starts`: at most this many starts (the class's `n_screened`).
+
+    An effect inside the dynamics gets the simulation itself in `context` and
+    is screened on it; a drive- or output-side one the model extended so far.
+    """
+    from ._effect_stack import EffectStack
+
+    simulation = context.simulation
+    if context.problem is None or simulation is None:
+        raise InputError(
+            f"joint_starts({type(effect).__name__}) needs the StartContext of screened_starts (its problem "
+            "and simulation): call it from screened_starts(context), not from starts(context)"
+        )
+    if isinstance(simulation, EffectStack) and effect.name in simulation.effect_names:
+        active = np.asarray(simulation.active, float).copy()
+        active[simulation.effect_names.index(effect.name)] = 1.0
+        stack = simulation.with_active(active)
+        effect = simulation.effects[simulation.effect_names.index(effect.name)]
+    else:  # the simulation itself (an inside effect's screen), with this effect alone
+        stack = EffectStack(simulation, [effect])
+    design = start_design(stack, N_SCREEN, context.frozen)[:N_JOINT_SCREEN]
+    names, raws = design_raws(stack, design)
+    n = len(design)
+    best = []
+    for k, given in enumerate(values):
+        unknown = sorted(set(given) - set(effect.constraints))
+        if unknown:
+            raise InputError(
+                f"joint_starts({type(effect).__name__}): values {given!r} name {', '.join(unknown)}, which are "
+                f"not its parameters ({', '.join(effect.constraints)})"
+            )
+        row = dict(raws)
+        for name, value in given.items():
+            raw = effect.constraints[name].to_raw(np.full(n, float(value)))
+            row[name] = jnp.asarray(raw)
+        losses = screen_design_losses(context.problem, stack, row)
+        i = int(np.argmin(losses))
+        if np.isfinite(losses[i]):
+            best.append((float(losses[i]), k, {**{name: design[i][name] for name in names}, **given}))
+    best.sort(key=lambda item: item[:2])
+    return [start for *_, start in best[:n_starts]]
