@@ -22,6 +22,7 @@ from hybrid.discovery._effects import (
     Drift,
     DriveEven,
     DriveSaturation,
+    EvenResponse,
     Hysteresis,
     Lag,
     Resonance,
@@ -276,6 +277,41 @@ def test_drive_side_saturation_and_even_are_their_forms_on_the_drive():
     np.testing.assert_allclose(np.asarray(even.apply(jnp.asarray(u), DT)), u - 0.4 * u**2, rtol=1e-12)
     assert even.derived(u, DT)["even_percent_of_range"] == pytest.approx(100 * 0.4 * 9.0 / 5.0)
     assert DriveSaturation.place == DriveEven.place == Backlash.place == "drive"
+
+
+@pytest.mark.parametrize(
+    "effect_class, drive, coefficient, rising, hint",
+    [
+        # a 0–100 % drive whose map u − 0.0057 u² turns at 87.7 %: a clip at 70 % was fitted so
+        (DriveEven, np.linspace(0.0, 100.0, 201), -0.0057, 87.7, "drive_clip"),
+        # the same on the output's side, a sensor's full scale: the hint names clip
+        (EvenResponse, np.linspace(0.0, 100.0, 201), -0.0057, 87.7, "clip"),
+        # a V² force on a two-signed drive turns near its middle: an even response, no hint
+        (DriveEven, np.linspace(-3.0, 3.0, 201), 3.0, 52.8, None),
+        # monotone over the range (the turn beyond it): no turn, no hint
+        (DriveEven, np.linspace(0.0, 100.0, 201), -0.004, 100.0, None),
+        (DriveEven, np.linspace(0.0, 100.0, 201), 0.02, 100.0, None),
+    ],
+)
+def test_an_even_map_that_turns_near_the_end_of_its_range_reads_as_a_clip(
+    effect_class, drive, coefficient, rising, hint
+):
+    """The share of the range over which x + c x² rises, read against a grid (numpy), and the hint."""
+    effect = effect_class(**{effect_class.coefficient: coefficient})
+    derived = effect.derived(drive, DT)
+    mapped = drive + coefficient * drive**2
+    grid = np.linspace(drive.min(), drive.max(), 100_001)
+    slope = np.diff(grid + coefficient * grid**2) > 0
+    assert derived["rising_percent_of_range"] == pytest.approx(100 * slope.mean(), abs=0.01)
+    assert derived["rising_percent_of_range"] == pytest.approx(rising, abs=0.1)
+    assert np.asarray(effect.apply(jnp.asarray(drive), DT)) == pytest.approx(mapped, rel=1e-12)
+    reading = effect.reading({**effect.parameters(), **derived}, "mm")
+    if hint is None:
+        assert reading == ""
+    else:
+        assert (
+            f"--effects builtins,{hint} tests a clip" in reading and f"rises over {rising:.0f} %" in reading
+        )
 
 
 def test_delay_whole_and_fractional_samples(signal):

@@ -1006,6 +1006,11 @@ class FrameTiming(AbstractEffect):
         return {"frame_lag_s": float(self.parameters()["frame_lag"]) * dt}
 
 
+#: The share of the signal's range (%) over which an even part's map rises, from which a turn inside the
+#: range reads as a level the signal stops at (`_Even.reading`): a turn in the outer quarter.
+TURNS_NEAR_END = 75.0
+
+
 class _Even(AbstractEffect):
     """x ↦ x + c x², on whichever signal: a part even in the signal (c in 1/unit of the signal).
 
@@ -1016,6 +1021,10 @@ class _Even(AbstractEffect):
     """
 
     coefficient: ClassVar[str]
+    #: The signal it acts on, in words, and the effect searched when named that stops it at a level.
+    signal_words: ClassVar[str]
+    level_words: ClassVar[str]
+    clip: ClassVar[str]
     thresholds: ClassVar = {"even_percent_of_range": 5.0}
 
     def __init__(self, **values):
@@ -1025,10 +1034,34 @@ class _Even(AbstractEffect):
         return s + self.parameters()[self.coefficient] * s * s
 
     def derived(self, s, dt):
-        """The even part's size, |c| max s², as a percentage of the range of s."""
-        span = float(np.ptp(s))
-        even = abs(float(self.parameters()[self.coefficient])) * float(np.max(np.square(s)))
-        return {"even_percent_of_range": 100.0 * even / span if span > 0 else 0.0}
+        """The even part's size, |c| max s², as a percentage of the range of s; and the share of that
+        range over which the map rises (100 where it is monotone there: it turns at s = −1/(2c))."""
+        s = np.asarray(s, float)
+        span, c = float(np.ptp(s)), float(self.parameters()[self.coefficient])
+        even = abs(c) * float(np.max(np.square(s)))
+        rising = 1.0
+        if c != 0.0 and span > 0:
+            turn, low, high = -1.0 / (2.0 * c), float(np.min(s)), float(np.max(s))
+            if low < turn < high:  # rises below the turn where c < 0, above it where c > 0
+                rising = (turn - low) / span if c < 0 else (high - turn) / span
+        return {
+            "even_percent_of_range": 100.0 * even / span if span > 0 else 0.0,
+            "rising_percent_of_range": 100.0 * rising,
+        }
+
+    def reading(self, parameters, output_unit):
+        # A map that rises over most of the signal's range and turns down near one end is no even
+        # response (whose turn lies near the middle of a two-signed signal, a V² force's at 0): it
+        # stands in for a level the signal stops at, which this form cannot reach without turning.
+        # A heater clipped at 70 % of a 0–100 % drive read drive_even (turning at 88 %) and a dead zone.
+        rising = parameters.get("rising_percent_of_range", 100.0)
+        if not TURNS_NEAR_END <= rising < 100.0:
+            return ""
+        return (
+            f"over this recording the map rises over {rising:.0f} % of the range of the {self.signal_words} and "
+            f"turns down over the last {100.0 - rising:.0f} %: {self.level_words} reads so more often than an even "
+            f"part; --effects builtins,{self.clip} tests a clip"
+        )
 
     def starts(self, context):
         # An even part of 10 % of the range either way; with the gain after it, LM takes it to
@@ -1052,6 +1085,9 @@ class EvenResponse(_Even):
     raw: dict[str, Array]
     name: ClassVar[str] = "even_response"
     coefficient: ClassVar[str] = "even_coefficient"
+    signal_words: ClassVar[str] = "simulation's output"
+    level_words: ClassVar[str] = "an output that stops at a level (a sensor's full scale)"
+    clip: ClassVar[str] = "clip"
     constraints: ClassVar = {"even_coefficient": Real()}
     units: ClassVar = {"even_coefficient": "1/{signal}"}
     defaults: ClassVar = {"even_coefficient": 0.0}
@@ -1070,6 +1106,11 @@ class DriveEven(_Even):
     place: ClassVar[str] = "drive"
     n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     coefficient: ClassVar[str] = "drive_even_coefficient"
+    signal_words: ClassVar[str] = "drive"
+    level_words: ClassVar[str] = (
+        "a drive that stops at a level (a heater's, a pump's or an amplifier's limit)"
+    )
+    clip: ClassVar[str] = "drive_clip"
     constraints: ClassVar = {"drive_even_coefficient": Real()}
     units: ClassVar = {"drive_even_coefficient": "1/{signal}"}
     defaults: ClassVar = {"drive_even_coefficient": 0.0}
