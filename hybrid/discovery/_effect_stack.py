@@ -678,6 +678,35 @@ def state_trajectories(stack: EffectStack, v_in, dt):
 
 
 @eqx.filter_jit
+def drive_responses(stack: EffectStack, v_in, dt, directions):
+    """How `stack`'s output moves, to first order, with each row of `directions` added to its drive.
+
+    Row k is the derivative of the output along ``directions[k]`` (a signal in
+    the drive's unit) added to the drive before every effect on it: the whole
+    model linearised along this recording, whatever its form (no state-space
+    form needed). Forward mode, a few rows at a time on each device (`map_rows`).
+    """
+    v_in = jnp.asarray(v_in)
+
+    def one(direction):
+        return jax.jvp(lambda u: _output(stack, u, dt), (v_in,), (direction,))[1]
+
+    return map_rows(one, directions, batch_size=8)
+
+
+def parameter_responses(stack: EffectStack, v_in, dt, names) -> jax.Array:
+    """How `stack`'s output moves, to first order, with each of the parameters `names` (rows, raw values)."""
+    v_in = jnp.asarray(v_in)
+    raw = stack.raw
+
+    def one(name):
+        return jax.jvp(
+            lambda r: _output(stack.with_raw({name: r}), v_in, dt), (raw[name],), (jnp.ones_like(raw[name]),)
+        )[1]
+
+    return jnp.stack([one(name) for name in names]) if names else jnp.zeros((0, v_in.shape[0]))
+
+
 def force_responses(stack: EffectStack, v_in, dt, forces):
     """How `stack`'s output moves, to first order, with each row of `forces` fed into its dynamics.
 

@@ -92,8 +92,12 @@ FAMILY = {
     "filter_output_cube": "nonlinear_dynamic",
     "filter_output_square": "nonlinear_dynamic",
     "state_map": "nonlinear_dynamic",
+    "drive_map": "drive_static",
 }
-ORDER = ("static", "time", "periodic", "dynamic", "nonlinear_dynamic")
+#: A map of the drive through the dynamics (`_drive_map`) comes last, and `_verdict` weighs it only where
+#: it recovers clearly more (`MARGIN`) than every other reading: it spans a linear filter of the drive and,
+#: through a nonlinear simulation, more.
+ORDER = ("static", "time", "periodic", "dynamic", "nonlinear_dynamic", "drive_static")
 #: The linear filters' lags: a second's worth of samples, at least `MIN_LAGS` (at 1 Hz a second is one
 #: lag, blind to a thermocouple's 8 s lag: a new user's chamber read "no simple structure … the best
 #: linear filter 0 %") and at most `MAX_LAGS`.
@@ -670,6 +674,120 @@ def _maps(feedback: dict):
         yield name, basis, {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
 
 
+#: ... over the outer part of the drive's range read (its top or bottom fifth of the grid).
+OUTER = 0.2
+
+
+def _drive_map(tr, ho, drive_map: dict, judge) -> dict:
+    """A static map of the drive level before the dynamics, through the final model linearised along the recording.
+
+    `drive_map` (from `hybrid.discovery._unexplained.drive_map_signals`): the model's response to each
+    column of a map of the drive (its hats and, for a two-signed drive, a step at zero), on the training
+    and held-out samples. With the output's derivatives in the simulation's parameters (the simulation
+    retuned, to first order) the columns are fitted to the residual: a clip, a dead zone or a pump's
+    curve on the drive, whatever the dynamics after it; the hats span a change of the drive's gain. The
+    map u ↦ u + Δ(u) is reported on a grid over the drive's training range, in the drive's unit
+    (Δ scaled by the readout's gain); ``outer_slopes``: its mean slope over the outer `OUTER` of the range
+    at each end, over its median slope. ``clip`` (`_drive_clip`): a clip of the drive read into the map,
+    its ends also in ``levels_off``.
+    """
+    r_tr, r_ho = drive_map["train"][:, tr["ok"]], drive_map["heldout"][:, ho["ok"]]
+    retune_tr, retune_ho = drive_map["retune_train"][:, tr["ok"]], drive_map["retune_heldout"][:, ho["ok"]]
+    if not all(np.all(np.isfinite(x)) for x in (r_tr, r_ho, retune_tr, retune_ho)):
+        return {"reason": "the model's response to a change of its drive is not finite on this recording"}
+    basis = drive_map["basis"]
+    knots = basis["knots"]
+    if len(knots) < 2:
+        return {"reason": "the drive is constant on the training part"}
+    # No column of ŵ (the readout's gain): the hats span a gain of the drive, and with one beside them
+    # the map would be known only up to a tilt, a level it stops at not told from a slope.
+    pred, coef = _least_squares([*r_tr, *retune_tr], tr["r"], [*r_ho, *retune_ho])
+    gain = drive_map.get("gain")
+    scale = 1.0 / gain if gain else 1.0
+    grid = np.linspace(knots[0], knots[-1], 101)
+    rows = basis_forces(basis, grid)
+    change = scale * sum(b * rows[ROLES.index(role)] for role, b in zip(drive_map["roles"], coef))
+    mapped = grid + change - (np.interp(0.0, grid, change) if knots[0] < 0 < knots[-1] else change[0])
+    typical = float(np.median(np.abs(np.diff(mapped) / np.diff(grid)))) or 1.0
+    outer = max(1, int(OUTER * (len(grid) - 1)))
+    ends = {  # the mean slope over each outer part: the hats smooth a sharp knee over a knot's spacing
+        "top": (mapped[-1] - mapped[-1 - outer]) / (grid[-1] - grid[-1 - outer]),
+        "bottom": (mapped[outer] - mapped[0]) / (grid[outer] - grid[0]),
+    }
+    result = judge(pred)
+    clip = _drive_clip(tr, ho, drive_map, judge, result, scale)
+    levels_off = clip["ends"] if clip else []
+    if clip and judge.score(clip["recovered"]) > judge.score(result):
+        result = clip["recovered"]  # a sharp level the hats, 7 quantiles apart, blur: the map is the clip
+    return dict(
+        result,
+        unit=drive_map.get("drive_unit", ""),
+        curve={"v": _list(grid), "mapped": _list(mapped)},
+        outer_slopes={end: _num(slope / typical) for end, slope in ends.items()},
+        clip=clip,
+        levels_off=levels_off,
+    )
+
+
+#: A clip of the drive is the drive map's form where it takes this share of what the free map adds to the
+#: simulation retuned (as `FORM_SHARE` for a state's map), with the sign of a clip.
+CLIP_SHARE = 0.85
+
+
+def _drive_clip(tr, ho, drive_map: dict, judge, free: dict, scale: float) -> dict | None:
+    """A clip of the drive at one end, or both, read into the drive map where it takes most of what it adds.
+
+    Each clip column of `drive_map` (``clips``: a level at a quantile of the drive, top or bottom) is
+    fitted alone beside ŵ and the simulation's retuned parameters; the best of each end, then both
+    together. Of (top, bottom, both) those that take `CLIP_SHARE` of what the free map adds over those
+    columns alone, each with a clip's sign (the drive cut, not stretched, beyond its level), the
+    simplest within `MARGIN` of the best is returned: its ends, levels (drive's unit), share and what it
+    recovers (``recovered``: the drive map's score where it beats the free map's); None where none does.
+    """
+    ok_tr, ok_ho = tr["ok"], ho["ok"]
+    base_tr = [tr["w_hat"], *drive_map["retune_train"][:, ok_tr]]
+    base_ho = [ho["w_hat"], *drive_map["retune_heldout"][:, ok_ho]]
+    c_tr, c_ho = drive_map["clip_train"][:, ok_tr], drive_map["clip_heldout"][:, ok_ho]
+    if not (np.all(np.isfinite(c_tr)) and np.all(np.isfinite(c_ho))):
+        return None
+    score = judge.score
+
+    def fitted(columns, parts=False):
+        pred, coef = _least_squares(
+            base_tr + [c_tr[j] for j in columns], tr["r"], base_ho + [c_ho[j] for j in columns]
+        )
+        return (judge(pred) if parts else score(judge(pred))), coef[len(base_tr) :] * scale
+
+    floor, _ = fitted([])
+    room = score(free) - floor
+    if room < MARGIN:
+        return None
+    clips = drive_map["clips"]
+    best = {}
+    for end in ("top", "bottom"):
+        tried = [(fitted([j]), j) for j, (e, _) in enumerate(clips) if e == end]
+        tried = [((got, size), j) for (got, size), j in tried if size[0] > 0]  # cut, not stretched
+        if tried:
+            best[end] = max(tried, key=lambda item: item[0][0])[1]
+    passing = []
+    for ends in (("top",), ("bottom",), ("top", "bottom")):
+        if not all(end in best for end in ends):
+            continue
+        got, sizes = fitted([best[end] for end in ends])
+        if (got - floor) / room >= CLIP_SHARE and np.all(sizes > 0):
+            passing.append((got, ends))
+    if not passing:
+        return None
+    top = max(got for got, _ in passing)
+    got, ends = next(item for item in passing if item[0] >= top - MARGIN)  # the simplest near the best
+    return {
+        "ends": list(ends),
+        "levels": {end: _num(clips[best[end]][1]) for end in ends},
+        "share": _num((got - floor) / room),
+        "recovered": fitted([best[end] for end in ends], parts=True)[0],
+    }
+
+
 def _state_feedback(tr, ho, feedback: dict, judge) -> dict:
     """A static map of each state fed back into the dynamics' drive, through their linearised response.
 
@@ -830,6 +948,7 @@ def describe_remainder(
     w_unit: str = "",
     spiky: bool = False,
     v_unit: str = "",
+    drive_map: dict | None = None,
 ) -> dict:
     """Where the residual r = w − ŵ lives: each measure fitted on `train`, judged on `heldout`.
 
@@ -941,6 +1060,12 @@ def describe_remainder(
             scores["state_map"] = fed["states"][fed["best"]]
             fed["alike"] = _alike(feedback.get("values") or {}, fed["best"])
 
+    through: dict[str, Any] | None = None
+    if drive_map is not None:
+        through = _drive_map(tr, ho, drive_map, judge)
+        if "fraction" in through:
+            scores["drive_map"] = through
+
     on_output: dict[str, Any] | None = None
     if feedback is not None and "direct_train" in feedback:
         on_output = _state_output(tr, ho, feedback, judge)
@@ -969,10 +1094,12 @@ def describe_remainder(
         out["state_feedback"] = fed
     if on_output is not None:
         out["state_output"] = on_output
+    if through is not None:
+        out["drive_map"] = through
     repeats = _repeats(tr, ho, places, rate, judge)
     if repeats is not None:
         out["repeats"] = repeats
-    out.update(_verdict(scores, judge, static, offset, fed, on_output))
+    out.update(_verdict(scores, judge, static, offset, fed, on_output, through))
     where = _concentrated(tr, ho, judge, places)
     if where is not None:
         out["concentrated"] = where
@@ -1181,10 +1308,16 @@ def _verdict(
     offset: dict,
     fed: dict | None = None,
     on_output: dict | None = None,
+    through: dict | None = None,
 ) -> dict:
     """Best extension, kind (simplest family within MARGIN of the best) and the one-sentence summary."""
 
     score = judge.score
+    # The map of the drive through the dynamics counts only where it recovers clearly more than every
+    # other reading (`MARGIN`): it spans a linear filter of the drive, and through a nonlinear simulation
+    # more; short of that the verdict is what it would be without it.
+    others = max((score(p) for k, p in scores.items() if FAMILY[k] != "drive_static"), default=0.0)
+    scores = {k: p for k, p in scores.items() if FAMILY[k] != "drive_static" or score(p) > others + MARGIN}
     best = max(scores, key=lambda k: scores[k]["fraction"] or -np.inf)
     rec = {
         "best": best,
@@ -1281,6 +1414,23 @@ def _verdict(
             f"restoring force, or a damping where the output is a speed); the best linear filter {pct(best_linear)}, the best static map "
             f"{pct(best_static)}"
         )
+    elif kind == "drive_static":
+        assert through is not None  # scored only with it
+        best_linear = max((k for k in scores if FAMILY[k] == "dynamic"), key=lambda k: score(scores[k]))
+        clip = through.get("clip") or {}
+        text = (
+            f"static in the drive, before the dynamics: a function of the drive level fed through the "
+            f"simulation recovers {pct(inkind)} {where} (a drive that is not the one commanded: an amplifier's, "
+            f"a pump's or a valve's curve, a clip, a dead zone); the best map of the drive level on the output "
+            f"{pct('static_drive')}, the best linear filter {pct(best_linear)}"
+        )
+        if clip:
+            unit = f" {through['unit']}" if through.get("unit") else ""
+            levels = " and ".join(f"{level:.3g}{unit} ({end})" for end, level in clip["levels"].items())
+            text += (
+                f"; a clip of the drive near {levels} takes {100 * clip['share']:.0f} % of what that map adds: a "
+                "level the drive stops at (to first order: the level trades with the fitted gain)"
+            )
     elif kind == "periodic":
         line = scores["periodic"]
         f = line["frequency_hz"]

@@ -290,6 +290,7 @@ def noise_section(d: dict) -> list[str]:
         "monotone map of the model's output": static.get("output_monotone"),
         "free map of the model's output": static.get("output_free"),
         "map of the drive's rate": desc.get("rate"),
+        "map of the drive level before the dynamics": desc.get("drive_map"),
         "trend in time": desc.get("time"),
         "linear filter of the drive": filters.get("drive"),
         "linear filter of the model's output": filters.get("output"),

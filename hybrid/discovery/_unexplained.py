@@ -32,7 +32,13 @@ from ..core._problem import segment_ids
 from ..core._simulation import unit_in
 from ..core._state_space import dynamics_of, own_forces
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
-from ._effect_stack import EffectStack, force_responses, state_trajectories
+from ._effect_stack import (
+    EffectStack,
+    drive_responses,
+    force_responses,
+    parameter_responses,
+    state_trajectories,
+)
 from ._noise_floor import NoiseFloor, noise_floor
 from ._remainder import MAX_STATES, ROLES, UNSTRUCTURED_EXCESS, basis_forces, describe_remainder, state_basis
 from ._search import split_signals
@@ -194,6 +200,82 @@ def feedback_signals(problem, final) -> dict | None:
     }
 
 
+#: The drive's training quantiles at which a clip of its top is tried (`drive_map_signals`; the bottom's at
+#: one less each): a level the drive stops at, where the free map's hats, 7 quantiles apart, blur a knee.
+CLIP_QUANTILES = (0.5, 0.6, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95)
+
+
+def drive_map_signals(problem, final, settings) -> dict | None:
+    """What `_remainder`'s map of the drive fits on: each map's column as the model's response, train and test.
+
+    A static map φ(u) of the drive before the dynamics (a clip, a dead zone, a
+    pump's curve) moves the output by the model's response to φ(u) − u. For any
+    simulation (no state-space form needed) the final model is linearised along
+    each recording (`drive_responses`) and fed each column of a map of the drive
+    level (`state_basis` on the drive's training values, `basis_forces`): the
+    columns' responses (``roles``: the columns' names in `ROLES`: the hats, and a step at zero for a
+    two-signed drive), cut to the training and held-out samples. ``retune``: the output's derivatives
+    in the simulation's free parameters (those `settings` does not freeze), on the same samples: a map of the drive
+    comes with the simulation retuned to first order, as a fit of it would (a lag fitted to a clipped
+    drive has bent its time constant and gain to it). None where the model is no `EffectStack`.
+    """
+    model = problem.model(jnp.asarray(final.theta))
+    stack = model.simulation
+    if not isinstance(stack, EffectStack):
+        return None
+    stack = stack.with_active(np.asarray(final.active, float))
+    series = problem.series  # padded to their buckets, as the search's (see `feedback_signals`)
+
+    def cut(signal, s, split):
+        return [signal[..., a:b] for a, b in s.recorded_segments_of(split)]
+
+    drive = np.concatenate([part for s in series for part in cut(np.asarray(s.v_in), s, "train")])
+    basis = state_basis(drive)
+    roles = [f"hat_{k}" for k in range(len(basis["knots"]))] + (["step"] if basis["step"] else [])
+    rows = [ROLES.index(role) for role in roles]  # the free map's columns: one derivative each
+    frozen = set(settings.frozen_for(stack.inner))
+    free = [name for name in stack.inner.parameter_names() if name not in frozen]
+    # A clip of the drive at each of a few levels, a form the free map is read against (its level told)
+    clips = [("top", float(level)) for level in np.quantile(drive, CLIP_QUANTILES)] + [
+        ("bottom", float(level)) for level in np.quantile(drive, [1.0 - q for q in CLIP_QUANTILES])
+    ]
+    parts: dict[str, list] = {k: [] for k in ("train", "heldout", "retune_train", "retune_heldout")}
+    parts.update(clip_train=[], clip_heldout=[])
+    for s in series:
+        u = np.asarray(s.v_in)
+        columns = np.concatenate(
+            [
+                basis_forces(basis, u)[rows],
+                [
+                    np.minimum(u, level) - u if end == "top" else np.maximum(u, level) - u
+                    for end, level in clips
+                ],
+            ]
+        )
+        responses = np.asarray(drive_responses(stack, s.v_in, s.dt, jnp.asarray(columns)))
+        parts["train"] += cut(responses[: len(rows)], s, "train")
+        parts["heldout"] += cut(responses[: len(rows)], s, "test")
+        parts["clip_train"] += cut(responses[len(rows) :], s, "train")
+        parts["clip_heldout"] += cut(responses[len(rows) :], s, "test")
+        retune = np.asarray(parameter_responses(stack, s.v_in, s.dt, free))
+        parts["retune_train"] += cut(retune, s, "train")
+        parts["retune_heldout"] += cut(retune, s, "test")
+    readout = model.readout.parameters()
+    return {
+        "basis": basis,
+        "roles": roles,
+        "train": np.concatenate(parts["train"], axis=1),
+        "heldout": np.concatenate(parts["heldout"], axis=1),
+        "retune_train": np.concatenate(parts["retune_train"], axis=1),
+        "retune_heldout": np.concatenate(parts["retune_heldout"], axis=1),
+        "clips": clips,
+        "clip_train": np.concatenate(parts["clip_train"], axis=1),
+        "clip_heldout": np.concatenate(parts["clip_heldout"], axis=1),
+        "drive_unit": stack.drive_unit,
+        "gain": float(readout["gain"]) if "gain" in readout else None,
+    }
+
+
 def remainder(
     problem,
     series,
@@ -237,8 +319,21 @@ def remainder(
         feedback["train"].shape[1] != len(train["w"]) or feedback["heldout"].shape[1] != len(held["w"])
     ):
         feedback = None  # (the recorded samples of both are the split's: a guard, not a case met)
+    drive_map = drive_map_signals(problem, final, settings)
+    if drive_map is not None and (
+        drive_map["train"].shape[1] != len(train["w"]) or drive_map["heldout"].shape[1] != len(held["w"])
+    ):
+        drive_map = None  # (as the feedback's: a guard)
     description = describe_remainder(
-        train, held, rate, floor.variance, feedback, w_unit, spiky=bool(floor.spike_note), v_unit=v_unit
+        train,
+        held,
+        rate,
+        floor.variance,
+        feedback,
+        w_unit,
+        spiky=bool(floor.spike_note),
+        v_unit=v_unit,
+        drive_map=drive_map,
     )
     # A hard limit of the level shows where the record sits flat and the model goes on, in either part.
     description["level_limit"] = level_limits([train, held], floor.variance)
@@ -289,6 +384,11 @@ _NAMED_ONLY_HINTS = {
         "a drive that stops at its levels more sharply than a tanh bends (an amplifier's rails, a DAC's range, a "
         "valve's stops)",
     ),
+    "drive_map": (
+        "drive_clip",
+        "a drive that stops at its levels more sharply than a tanh bends (an amplifier's rails, a DAC's range, a "
+        "valve's stops, a heater's or a pump's limit)",
+    ),
     "static_output_monotone": (
         "clip",
         "an output that stops at its levels more sharply than a tanh bends (a sensor's full scale, an ADC's range)",
@@ -325,6 +425,8 @@ def named_only_hint(description: dict, places: dict) -> str | None:
     searched = {e for place in places.values() for e in place.get("effects", ())}
     if named not in _NAMED_ONLY_HINTS or not places:
         return None
+    if named == "drive_map" and not (description.get("drive_map") or {}).get("levels_off"):
+        return None  # a curve of the drive that does not stop at a level: no clip to point at
     effect, what = _NAMED_ONLY_HINTS[named]
     if effect in searched:
         return None
