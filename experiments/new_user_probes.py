@@ -131,6 +131,17 @@ def probes() -> dict[str, dict]:
     y = sg.lsim(pt, u, tt)[1]
     a = np.exp(-1 / 20.0)
     add("thermal_lag", tt, u, sg.lfilter([1 - a], [1, -a], y), "lti:1", "sensor lag 20 s on τ 300 s", 11)
+    # a heater driven in 0–100 % of its power that delivers no more than 70 %: a clip on a one-signed drive
+    u = _drive(n_t, rate_t, 3, 0.0, 100.0, hold=(120, 600))
+    add(
+        "heater_clip",
+        tt,
+        u,
+        sg.lsim(pt, np.minimum(u, 70.0), tt)[1],
+        "lti:1",
+        "drive clipped at 70 of 0–100",
+        11,
+    )
     add(
         "thermal_drift",
         tt,

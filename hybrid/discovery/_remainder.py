@@ -1427,9 +1427,14 @@ def _verdict(
         if clip:
             unit = f" {through['unit']}" if through.get("unit") else ""
             levels = " and ".join(f"{level:.3g}{unit} ({end})" for end, level in clip["levels"].items())
+            took = (
+                "recovers as much or more"
+                if clip["share"] >= 1.0
+                else f"takes {100 * clip['share']:.0f} % of what that map adds"
+            )
             text += (
-                f"; a clip of the drive near {levels} takes {100 * clip['share']:.0f} % of what that map adds: a "
-                "level the drive stops at (to first order: the level trades with the fitted gain)"
+                f"; a clip of the drive near {levels} {took}: a level the drive stops at (to first order: the "
+                "level trades with the fitted gain)"
             )
     elif kind == "periodic":
         line = scores["periodic"]
