@@ -213,14 +213,20 @@ def lti2_zoh_response(params, u, dt):
     return signal.dlsim((numd[0], dend, dt), np.asarray(u, float))[1][:, 0]
 
 
+def zoh_lag(u, dt, tau, start=0.0) -> np.ndarray:
+    """x[n+1] = a x[n] + (1 − a) u[n], a = exp(−dt/τ), from x[0] = `start`, read at n: the exact lag of
+    time constant `tau` under a drive held over each sample."""
+    a, x, state = np.exp(-dt / tau), np.empty(len(u)), start
+    for k, uk in enumerate(np.asarray(u, float)):
+        x[k] = state
+        state = a * state + (1 - a) * uk
+    return x
+
+
 def held_lag_csv(path, u, held, dt, tau, noise):
     """Write `path` (columns u,y): y = 2·x + 0.3 + `noise`, x a first-order lag of `u` (exact ZOH,
     time constant `tau`) whose state starts at `held`, as after a drive of `held` held before the record."""
-    a, x, state = np.exp(-dt / tau), np.empty(len(u)), held
-    for k, uk in enumerate(u):
-        x[k] = state
-        state = a * state + (1 - a) * uk
-    y = 2.0 * x + 0.3 + noise
+    y = 2.0 * zoh_lag(u, dt, tau, held) + 0.3 + noise
     path.write_text("u,y\n" + "".join(f"{p:.9g},{q:.9g}\n" for p, q in zip(u, y)))
     return path
 

@@ -10,6 +10,7 @@ first-order lag), never with the library's simulations.
 
 from __future__ import annotations
 
+import helpers as h
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -21,13 +22,8 @@ RATE, TAU, N = 1.0, 60.0, 2400
 
 
 def _lag(u: np.ndarray) -> np.ndarray:
-    """x[n+1] = a x[n] + (1 − a) u[n] from rest, read at n: the exact ZOH lag of time constant TAU."""
-    a = np.exp(-1.0 / (RATE * TAU))
-    x, out = 0.0, np.empty_like(u)
-    for k, value in enumerate(u):
-        out[k] = x
-        x = a * x + (1.0 - a) * value
-    return out
+    """The exact ZOH lag of time constant TAU from rest (`helpers.zoh_lag`)."""
+    return h.zoh_lag(u, 1.0 / RATE, TAU)
 
 
 def _drive(seed: int) -> np.ndarray:

@@ -29,13 +29,8 @@ def _docs_effect() -> str:
 
 
 def _lag(u: np.ndarray) -> np.ndarray:
-    """x[n+1] = a x[n] + (1 − a) u[n] from rest, read at n: the exact ZOH lag τ."""
-    a = np.exp(-1.0 / (RATE * TAU))
-    x, out = 0.0, np.empty_like(u)
-    for k, value in enumerate(u):
-        out[k] = x
-        x = a * x + (1.0 - a) * value
-    return out
+    """The exact ZOH lag τ from rest (`helpers.zoh_lag`)."""
+    return h.zoh_lag(u, 1.0 / RATE, TAU)
 
 
 def _drive(seed: int, seconds: float) -> np.ndarray:

@@ -694,6 +694,7 @@ def drive_responses(stack: EffectStack, v_in, dt, directions):
     return map_rows(one, directions, batch_size=8)
 
 
+@eqx.filter_jit
 def parameter_responses(stack: EffectStack, v_in, dt, names) -> jax.Array:
     """How `stack`'s output moves, to first order, with each of the parameters `names` (rows, raw values)."""
     v_in = jnp.asarray(v_in)
@@ -707,6 +708,7 @@ def parameter_responses(stack: EffectStack, v_in, dt, names) -> jax.Array:
     return jnp.stack([one(name) for name in names]) if names else jnp.zeros((0, v_in.shape[0]))
 
 
+@eqx.filter_jit
 def force_responses(stack: EffectStack, v_in, dt, forces):
     """How `stack`'s output moves, to first order, with each row of `forces` fed into its dynamics.
 

@@ -674,7 +674,7 @@ def _maps(feedback: dict):
         yield name, basis, {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
 
 
-#: ... over the outer part of the drive's range read (its top or bottom fifth of the grid).
+#: The share of the drive's range at each end over which the drive map's mean slope is read (`_drive_map`).
 OUTER = 0.2
 
 
@@ -1416,14 +1416,17 @@ def _verdict(
         )
     elif kind == "drive_static":
         assert through is not None  # scored only with it
-        best_linear = max((k for k in scores if FAMILY[k] == "dynamic"), key=lambda k: score(scores[k]))
+        linear = [k for k in scores if FAMILY[k] == "dynamic"]
         clip = through.get("clip") or {}
         text = (
             f"static in the drive, before the dynamics: a function of the drive level fed through the "
             f"simulation recovers {pct(inkind)} {where} (a drive that is not the one commanded: an amplifier's, "
-            f"a pump's or a valve's curve, a clip, a dead zone); the best map of the drive level on the output "
-            f"{pct('static_drive')}, the best linear filter {pct(best_linear)}"
+            "a pump's or a valve's curve, a clip, a dead zone)"
         )
+        if "static_drive" in scores:
+            text += f"; the best map of the drive level on the output {pct('static_drive')}"
+        if linear:
+            text += f", the best linear filter {pct(max(linear, key=lambda k: score(scores[k])))}"
         if clip:
             unit = f" {through['unit']}" if through.get("unit") else ""
             levels = " and ".join(f"{level:.3g}{unit} ({end})" for end, level in clip["levels"].items())

@@ -136,6 +136,27 @@ def _part(problem, series, recordings, candidate, split: str) -> dict:
     }
 
 
+def _recorded(signal, s, split) -> list:
+    """(rows, samples) of a padded series `s` → its recorded samples of `split`, a block per segment."""
+    return [signal[..., a:b] for a, b in s.recorded_segments_of(split)]
+
+
+def _add(parts: dict, key: str, signal, s) -> None:
+    """`signal`'s training and held-out samples of series `s`, onto ``parts[key + "train"/"heldout"]``."""
+    parts[f"{key}train"] += _recorded(signal, s, "train")
+    parts[f"{key}heldout"] += _recorded(signal, s, "test")
+
+
+def _joined(parts: dict) -> dict:
+    """Each part's blocks, joined along the samples."""
+    return {key: np.concatenate(blocks, axis=1) for key, blocks in parts.items()}
+
+
+def _readout_gain(model) -> float | None:
+    readout = model.readout.parameters()
+    return float(readout["gain"]) if "gain" in readout else None
+
+
 def feedback_signals(problem, final) -> dict | None:
     """What `_remainder`'s state feedback fits on: each state's map's columns as responses, on train and test.
 
@@ -157,14 +178,13 @@ def feedback_signals(problem, final) -> dict | None:
         return None
     names = dynamics[0].states
 
-    def cut(signal, s, split):  # (rows, samples) of a recording → its recorded samples of `split`
-        return [signal[..., a:b] for a, b in s.recorded_segments_of(split)]
-
     # The search's series, padded to their buckets' lengths: the two programs serve every recording of
     # a bucket, as the search's do (a session that diagnoses many recordings compiles them once).
     series = problem.series
     states = [np.asarray(state_trajectories(stack, s.v_in, s.dt)).T for s in series]  # (states, samples)
-    train = np.concatenate([part for x, s in zip(states, series) for part in cut(x, s, "train")], axis=1)
+    train = np.concatenate(
+        [part for x, s in zip(states, series) for part in _recorded(x, s, "train")], axis=1
+    )
     bases = {name: state_basis(train[k]) for k, name in enumerate(names)}
     columns: list[tuple[str, str]] = []
     parts: dict[str, list] = {"train": [], "heldout": [], "direct_train": [], "direct_heldout": []}
@@ -176,18 +196,12 @@ def feedback_signals(problem, final) -> dict | None:
                 columns += [(name, role) for role in ROLES]
         direct = np.concatenate(rows)
         responses = np.asarray(force_responses(stack, s.v_in, s.dt, jnp.asarray(direct)))
-        parts["train"] += cut(responses, s, "train")
-        parts["heldout"] += cut(responses, s, "test")
-        parts["direct_train"] += cut(direct, s, "train")  # the maps themselves: read on the output
-        parts["direct_heldout"] += cut(direct, s, "test")
-    readout = model.readout.parameters()
+        _add(parts, "", responses, s)
+        _add(parts, "direct_", direct, s)  # the maps themselves: read on the output
     return {
         "states": list(names),
         "columns": columns,
-        "train": np.concatenate(parts["train"], axis=1),
-        "heldout": np.concatenate(parts["heldout"], axis=1),
-        "direct_train": np.concatenate(parts["direct_train"], axis=1),
-        "direct_heldout": np.concatenate(parts["direct_heldout"], axis=1),
+        **_joined(parts),
         "bases": bases,
         "values": {name: train[k] for k, name in enumerate(names)},  # on the training part
         "units": {name: unit_in(unit, stack.drive_unit) for name, unit in dynamics[0].state_units.items()},
@@ -196,7 +210,7 @@ def feedback_signals(problem, final) -> dict | None:
         "into": "its dynamics (where the plug-in's forced_rates puts a force)"
         if own_forces(dynamics[0])
         else "its drive",
-        "gain": float(readout["gain"]) if "gain" in readout else None,
+        "gain": _readout_gain(model),
     }
 
 
@@ -226,10 +240,7 @@ def drive_map_signals(problem, final, settings) -> dict | None:
     stack = stack.with_active(np.asarray(final.active, float))
     series = problem.series  # padded to their buckets, as the search's (see `feedback_signals`)
 
-    def cut(signal, s, split):
-        return [signal[..., a:b] for a, b in s.recorded_segments_of(split)]
-
-    drive = np.concatenate([part for s in series for part in cut(np.asarray(s.v_in), s, "train")])
+    drive = np.concatenate([part for s in series for part in _recorded(np.asarray(s.v_in), s, "train")])
     basis = state_basis(drive)
     roles = [f"hat_{k}" for k in range(len(basis["knots"]))] + (["step"] if basis["step"] else [])
     rows = [ROLES.index(role) for role in roles]  # the free map's columns: one derivative each
@@ -239,8 +250,9 @@ def drive_map_signals(problem, final, settings) -> dict | None:
     clips = [("top", float(level)) for level in np.quantile(drive, CLIP_QUANTILES)] + [
         ("bottom", float(level)) for level in np.quantile(drive, [1.0 - q for q in CLIP_QUANTILES])
     ]
-    parts: dict[str, list] = {k: [] for k in ("train", "heldout", "retune_train", "retune_heldout")}
-    parts.update(clip_train=[], clip_heldout=[])
+    parts: dict[str, list] = {
+        f"{key}{split}": [] for key in ("", "clip_", "retune_") for split in ("train", "heldout")
+    }
     for s in series:
         u = np.asarray(s.v_in)
         columns = np.concatenate(
@@ -253,26 +265,17 @@ def drive_map_signals(problem, final, settings) -> dict | None:
             ]
         )
         responses = np.asarray(drive_responses(stack, s.v_in, s.dt, jnp.asarray(columns)))
-        parts["train"] += cut(responses[: len(rows)], s, "train")
-        parts["heldout"] += cut(responses[: len(rows)], s, "test")
-        parts["clip_train"] += cut(responses[len(rows) :], s, "train")
-        parts["clip_heldout"] += cut(responses[len(rows) :], s, "test")
+        _add(parts, "", responses[: len(rows)], s)
+        _add(parts, "clip_", responses[len(rows) :], s)
         retune = np.asarray(parameter_responses(stack, s.v_in, s.dt, free))
-        parts["retune_train"] += cut(retune, s, "train")
-        parts["retune_heldout"] += cut(retune, s, "test")
-    readout = model.readout.parameters()
+        _add(parts, "retune_", retune, s)
     return {
         "basis": basis,
         "roles": roles,
-        "train": np.concatenate(parts["train"], axis=1),
-        "heldout": np.concatenate(parts["heldout"], axis=1),
-        "retune_train": np.concatenate(parts["retune_train"], axis=1),
-        "retune_heldout": np.concatenate(parts["retune_heldout"], axis=1),
+        **_joined(parts),
         "clips": clips,
-        "clip_train": np.concatenate(parts["clip_train"], axis=1),
-        "clip_heldout": np.concatenate(parts["clip_heldout"], axis=1),
         "drive_unit": stack.drive_unit,
-        "gain": float(readout["gain"]) if "gain" in readout else None,
+        "gain": _readout_gain(model),
     }
 
 
