@@ -40,18 +40,24 @@ def _recording(y: np.ndarray, u: np.ndarray, seed: int) -> hybrid.Recording:
     return hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE, name=f"heater {seed}")
 
 
-def test_the_drive_responses_are_the_models_derivative_along_the_drive():
+def test_the_drive_responses_are_the_models_derivatives_along_the_drive_and_its_parameters():
     """Against central differences of the whole stack's output (a drive effect on, through lti:2)."""
     u = jnp.asarray(np.sin(np.arange(300) / 7.0) + 0.3 * np.cos(np.arange(300) / 3.1))
     stack = EffectStack(hybrid.LTI(2), ["drive_saturation"])
     stack = stack.replace(drive_saturation_pos_curvature=0.8, drive_saturation_neg_curvature=0.3)
     directions = jnp.asarray(np.stack([np.cos(np.arange(300) / 5.0), (np.arange(300) > 150) * 1.0]))
-    got = np.asarray(drive_responses(stack, u, 0.05, directions))
+    names = ("f_1", "drive_saturation_pos_curvature")
+    got, by_parameter = (np.asarray(x) for x in drive_responses(stack, u, 0.05, directions, names))
     eps = 1e-6
     for k in range(2):
         up = np.asarray(stack.simulate(u + eps * directions[k], 0.05))
         down = np.asarray(stack.simulate(u - eps * directions[k], 0.05))
         np.testing.assert_allclose(got[k], (up - down) / (2 * eps), rtol=1e-6, atol=1e-9)
+    for k, name in enumerate(names):  # in the raw (unconstrained) value
+        raw = float(stack.raw[name])
+        up = np.asarray(stack.with_raw({name: jnp.asarray(raw + eps)}).simulate(u, 0.05))
+        down = np.asarray(stack.with_raw({name: jnp.asarray(raw - eps)}).simulate(u, 0.05))
+        np.testing.assert_allclose(by_parameter[k], (up - down) / (2 * eps), rtol=1e-5, atol=1e-8)
 
 
 @pytest.fixture(scope="module")

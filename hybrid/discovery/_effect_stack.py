@@ -678,34 +678,28 @@ def state_trajectories(stack: EffectStack, v_in, dt):
 
 
 @eqx.filter_jit
-def drive_responses(stack: EffectStack, v_in, dt, directions):
-    """How `stack`'s output moves, to first order, with each row of `directions` added to its drive.
+def drive_responses(stack: EffectStack, v_in, dt, directions, names=()) -> tuple[jax.Array, jax.Array]:
+    """How `stack`'s output moves, to first order, with its drive and with its parameters `names`.
 
-    Row k is the derivative of the output along ``directions[k]`` (a signal in
-    the drive's unit) added to the drive before every effect on it: the whole
-    model linearised along this recording, whatever its form (no state-space
-    form needed). Forward mode, a few rows at a time on each device (`map_rows`).
+    Row k of the first result is the derivative of the output along
+    ``directions[k]`` (a signal in the drive's unit) added to the drive before
+    every effect on it: the whole model linearised along this recording,
+    whatever its form (no state-space form needed). Row j of the second is the
+    derivative in parameter ``names[j]`` (its raw value). Forward mode, the
+    directions a few rows at a time on each device (`map_rows`); one program.
     """
-    v_in = jnp.asarray(v_in)
-
-    def one(direction):
-        return jax.jvp(lambda u: _output(stack, u, dt), (v_in,), (direction,))[1]
-
-    return map_rows(one, directions, batch_size=8)
-
-
-@eqx.filter_jit
-def parameter_responses(stack: EffectStack, v_in, dt, names) -> jax.Array:
-    """How `stack`'s output moves, to first order, with each of the parameters `names` (rows, raw values)."""
     v_in = jnp.asarray(v_in)
     raw = stack.raw
 
-    def one(name):
-        return jax.jvp(
-            lambda r: _output(stack.with_raw({name: r}), v_in, dt), (raw[name],), (jnp.ones_like(raw[name]),)
-        )[1]
+    def along(direction):
+        return jax.jvp(lambda u: _output(stack, u, dt), (v_in,), (direction,))[1]
 
-    return jnp.stack([one(name) for name in names]) if names else jnp.zeros((0, v_in.shape[0]))
+    def by(name):
+        one = jnp.ones_like(raw[name])
+        return jax.jvp(lambda r: _output(stack.with_raw({name: r}), v_in, dt), (raw[name],), (one,))[1]
+
+    parameters = jnp.stack([by(name) for name in names]) if names else jnp.zeros((0, v_in.shape[0]))
+    return map_rows(along, directions, batch_size=8), parameters
 
 
 @eqx.filter_jit

@@ -36,7 +36,6 @@ from ._effect_stack import (
     EffectStack,
     drive_responses,
     force_responses,
-    parameter_responses,
     state_trajectories,
 )
 from ._noise_floor import NoiseFloor, noise_floor
@@ -264,10 +263,11 @@ def drive_map_signals(problem, final, settings) -> dict | None:
                 ],
             ]
         )
-        responses = np.asarray(drive_responses(stack, s.v_in, s.dt, jnp.asarray(columns)))
+        responses, retune = (
+            np.asarray(x) for x in drive_responses(stack, s.v_in, s.dt, jnp.asarray(columns), tuple(free))
+        )
         _add(parts, "", responses[: len(rows)], s)
         _add(parts, "clip_", responses[len(rows) :], s)
-        retune = np.asarray(parameter_responses(stack, s.v_in, s.dt, free))
         _add(parts, "retune_", retune, s)
     return {
         "basis": basis,
