@@ -226,11 +226,14 @@ def drive_map_signals(problem, final, settings) -> dict | None:
     simulation (no state-space form needed) the final model is linearised along
     each recording (`drive_responses`) and fed each column of a map of the drive
     level (`state_basis` on the drive's training values, `basis_forces`): the
-    columns' responses (``roles``: the columns' names in `ROLES`: the hats, and a step at zero for a
-    two-signed drive), cut to the training and held-out samples. ``retune``: the output's derivatives
-    in the simulation's free parameters (those `settings` does not freeze), on the same samples: a map of the drive
-    comes with the simulation retuned to first order, as a fit of it would (a lag fitted to a clipped
-    drive has bent its time constant and gain to it). None where the model is no `EffectStack`.
+    columns' responses (``train``, ``heldout``; ``roles``: the columns' names in `ROLES`, the hats and,
+    for a two-signed drive, a step at zero), cut to the training and held-out samples.
+    ``retune_train``/``retune_heldout``: the output's derivatives in the simulation's free parameters
+    (those `settings` does not freeze): a map of the drive comes with the simulation retuned to first
+    order, as a fit of it would (a lag fitted to a clipped drive has bent its time constant and gain to
+    it). ``clips``: (end, level) of a cut of the drive beyond each of `CLIP_QUANTILES` of it, top and
+    bottom, with their responses (``clip_train``, ``clip_heldout``). None where the model is no
+    `EffectStack`.
     """
     model = problem.model(jnp.asarray(final.theta))
     stack = model.simulation
