@@ -674,10 +674,6 @@ def _maps(feedback: dict):
         yield name, basis, {cols[j][1]: j for j in range(len(cols)) if cols[j][0] == name}
 
 
-#: The share of the drive's range at each end over which the drive map's mean slope is read (`_drive_map`).
-OUTER = 0.2
-
-
 def _drive_map(tr, ho, drive_map: dict, judge) -> dict:
     """A static map of the drive level before the dynamics, through the final model linearised along the recording.
 
@@ -687,8 +683,7 @@ def _drive_map(tr, ho, drive_map: dict, judge) -> dict:
     retuned, to first order) the columns are fitted to the residual: a clip, a dead zone or a pump's
     curve on the drive, whatever the dynamics after it; the hats span a change of the drive's gain. The
     map u ↦ u + Δ(u) is reported on a grid over the drive's training range, in the drive's unit
-    (Δ scaled by the readout's gain); ``outer_slopes``: its mean slope over the outer `OUTER` of the range
-    at each end, over its median slope. ``clip`` (`_drive_clip`): a clip of the drive read into the map,
+    (Δ scaled by the readout's gain). ``clip`` (`_drive_clip`): a clip of the drive read into the map,
     its ends also in ``levels_off``.
     """
     r_tr, r_ho = drive_map["train"][:, tr["ok"]], drive_map["heldout"][:, ho["ok"]]
@@ -708,12 +703,6 @@ def _drive_map(tr, ho, drive_map: dict, judge) -> dict:
     rows = basis_forces(basis, grid)
     change = scale * sum(b * rows[ROLES.index(role)] for role, b in zip(drive_map["roles"], coef))
     mapped = grid + change - (np.interp(0.0, grid, change) if knots[0] < 0 < knots[-1] else change[0])
-    typical = float(np.median(np.abs(np.diff(mapped) / np.diff(grid)))) or 1.0
-    outer = max(1, int(OUTER * (len(grid) - 1)))
-    ends = {  # the mean slope over each outer part: the hats smooth a sharp knee over a knot's spacing
-        "top": (mapped[-1] - mapped[-1 - outer]) / (grid[-1] - grid[-1 - outer]),
-        "bottom": (mapped[outer] - mapped[0]) / (grid[outer] - grid[0]),
-    }
     result = judge(pred)
     clip = _drive_clip(tr, ho, drive_map, judge, result, scale)
     levels_off = clip["ends"] if clip else []
@@ -723,7 +712,6 @@ def _drive_map(tr, ho, drive_map: dict, judge) -> dict:
         result,
         unit=drive_map.get("drive_unit", ""),
         curve={"v": _list(grid), "mapped": _list(mapped)},
-        outer_slopes={end: _num(slope / typical) for end, slope in ends.items()},
         clip=clip,
         levels_off=levels_off,
     )
@@ -752,13 +740,14 @@ def _drive_clip(tr, ho, drive_map: dict, judge, free: dict, scale: float) -> dic
         return None
     score = judge.score
 
-    def fitted(columns, parts=False):
+    def fitted(columns):  # (what it recovers, its score, each clip's size: > 0 where it cuts)
         pred, coef = _least_squares(
             base_tr + [c_tr[j] for j in columns], tr["r"], base_ho + [c_ho[j] for j in columns]
         )
-        return (judge(pred) if parts else score(judge(pred))), coef[len(base_tr) :] * scale
+        part = judge(pred)
+        return part, score(part), coef[len(base_tr) :] * scale
 
-    floor, _ = fitted([])
+    floor = fitted([])[1]
     room = score(free) - floor
     if room < MARGIN:
         return None
@@ -766,25 +755,24 @@ def _drive_clip(tr, ho, drive_map: dict, judge, free: dict, scale: float) -> dic
     best = {}
     for end in ("top", "bottom"):
         tried = [(fitted([j]), j) for j, (e, _) in enumerate(clips) if e == end]
-        tried = [((got, size), j) for (got, size), j in tried if size[0] > 0]  # cut, not stretched
+        tried = [(got, j) for (_, got, size), j in tried if size[0] > 0]  # cut, not stretched
         if tried:
-            best[end] = max(tried, key=lambda item: item[0][0])[1]
+            best[end] = max(tried)[1]
     passing = []
     for ends in (("top",), ("bottom",), ("top", "bottom")):
-        if not all(end in best for end in ends):
-            continue
-        got, sizes = fitted([best[end] for end in ends])
-        if (got - floor) / room >= CLIP_SHARE and np.all(sizes > 0):
-            passing.append((got, ends))
+        if all(end in best for end in ends):
+            part, got, sizes = fitted([best[end] for end in ends])
+            if (got - floor) / room >= CLIP_SHARE and np.all(sizes > 0):
+                passing.append((got, ends, part))
     if not passing:
         return None
-    top = max(got for got, _ in passing)
-    got, ends = next(item for item in passing if item[0] >= top - MARGIN)  # the simplest near the best
+    top = max(got for got, *_ in passing)
+    got, ends, part = next(item for item in passing if item[0] >= top - MARGIN)  # the simplest near the best
     return {
         "ends": list(ends),
         "levels": {end: _num(clips[best[end]][1]) for end in ends},
         "share": _num((got - floor) / room),
-        "recovered": fitted([best[end] for end in ends], parts=True)[0],
+        "recovered": part,
     }
 
 

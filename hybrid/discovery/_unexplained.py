@@ -151,12 +151,20 @@ def _joined(parts: dict) -> dict:
     return {key: np.concatenate(blocks, axis=1) for key, blocks in parts.items()}
 
 
+def _final_stack(problem, final):
+    """(`final`'s model, its `EffectStack` with `final`'s switches), or None where it has none."""
+    model = problem.model(jnp.asarray(final.theta))
+    if not isinstance(model.simulation, EffectStack):
+        return None
+    return model, model.simulation.with_active(np.asarray(final.active, float))
+
+
 def _readout_gain(model) -> float | None:
     readout = model.readout.parameters()
     return float(readout["gain"]) if "gain" in readout else None
 
 
-def feedback_signals(problem, final) -> dict | None:
+def feedback_signals(problem, model, stack) -> dict | None:
     """What `_remainder`'s state feedback fits on: each state's map's columns as responses, on train and test.
 
     For a simulation in state-space form with at most `MAX_STATES` states:
@@ -165,13 +173,9 @@ def feedback_signals(problem, final) -> dict | None:
     output response to each map taken off its drive (`force_responses`, the
     dynamics linearised along the recording), cut to the training and
     held-out samples; and the maps' columns themselves (``direct_train``,
-    ``direct_heldout``), a map of a state read on the output. None otherwise.
+    ``direct_heldout``), a map of a state read on the output. None otherwise. `model` and `stack`: the
+    final model and its stack with its switches (`_final_stack`).
     """
-    model = problem.model(jnp.asarray(final.theta))
-    stack = model.simulation
-    if not isinstance(stack, EffectStack):
-        return None
-    stack = stack.with_active(np.asarray(final.active, float))
     dynamics = dynamics_of(stack.inner)
     if dynamics is None or len(dynamics[0].states) > MAX_STATES:
         return None
@@ -218,7 +222,7 @@ def feedback_signals(problem, final) -> dict | None:
 CLIP_QUANTILES = (0.5, 0.6, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95)
 
 
-def drive_map_signals(problem, final, settings) -> dict | None:
+def drive_map_signals(problem, model, stack, settings) -> dict:
     """What `_remainder`'s map of the drive fits on: each map's column as the model's response, train and test.
 
     A static map φ(u) of the drive before the dynamics (a clip, a dead zone, a
@@ -232,14 +236,9 @@ def drive_map_signals(problem, final, settings) -> dict | None:
     (those `settings` does not freeze): a map of the drive comes with the simulation retuned to first
     order, as a fit of it would (a lag fitted to a clipped drive has bent its time constant and gain to
     it). ``clips``: (end, level) of a cut of the drive beyond each of `CLIP_QUANTILES` of it, top and
-    bottom, with their responses (``clip_train``, ``clip_heldout``). None where the model is no
-    `EffectStack`.
+    bottom, with their responses (``clip_train``, ``clip_heldout``). `model` and `stack`: the final
+    model and its stack with its switches (`_final_stack`).
     """
-    model = problem.model(jnp.asarray(final.theta))
-    stack = model.simulation
-    if not isinstance(stack, EffectStack):
-        return None
-    stack = stack.with_active(np.asarray(final.active, float))
     series = problem.series  # padded to their buckets, as the search's (see `feedback_signals`)
 
     drive = np.concatenate([part for s in series for part in _recorded(np.asarray(s.v_in), s, "train")])
@@ -320,12 +319,16 @@ def remainder(
     if mse <= settings.unexplained_ratio * top:
         return None
     train = _part(problem, series, recordings, final, "train")
-    feedback = feedback_signals(problem, final)
+    final_stack = _final_stack(problem, final)
+    feedback = drive_map = None
+    if final_stack is not None:
+        model, stack = final_stack
+        feedback = feedback_signals(problem, model, stack)
+        drive_map = drive_map_signals(problem, model, stack, settings)
     if feedback is not None and (
         feedback["train"].shape[1] != len(train["w"]) or feedback["heldout"].shape[1] != len(held["w"])
     ):
         feedback = None  # (the recorded samples of both are the split's: a guard, not a case met)
-    drive_map = drive_map_signals(problem, final, settings)
     if drive_map is not None and (
         drive_map["train"].shape[1] != len(train["w"]) or drive_map["heldout"].shape[1] != len(held["w"])
     ):

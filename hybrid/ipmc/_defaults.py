@@ -67,7 +67,8 @@ def diagnose(
     if simulation is None:
         simulation = diagnose_simulation()
     elif isinstance(simulation, str):  # a --physics spec, resolved as the command line does
-        simulation = resolve_physics(simulation, as_recordings(recordings, "diagnose"))
+        recordings = as_recordings(recordings, "diagnose")  # a path loaded once, for both
+        simulation = resolve_physics(simulation, recordings)
     return diagnose_any(
         recordings,
         simulation=simulation,
