@@ -94,3 +94,39 @@ def test_a_windowed_readout_refuses_padded_series():
     model = hy.make_model("hybrid", simulation=hy.LTI(1), window=8, depth=2, width=4)
     with pytest.raises(hy.InputError, match="per-sample readout"):
         Problem(model, [series])
+
+
+@pytest.mark.parametrize("rate", [30.0, 610.35])
+def test_recordings_at_one_rate_share_their_step_and_programs_whatever_their_length(rate):
+    """Times as a lab's file writes them (6 decimals) span a step that changes in its last bits with
+    the length: the step is 1 / the rate to six digits, so a script diagnosing recordings of several
+    lengths compiles its programs once per bucket and rate, not once per recording."""
+    import equinox as eqx
+
+    from hybrid.util._programs import process_compiles
+
+    lengths = range(2900, 3050, 7)  # one bucket (3072)
+    times = [np.round(np.arange(n) / rate, 6) for n in lengths]
+    assert len({t[-1] / (len(t) - 1) for t in times}) > 1  # the spans' steps differ ...
+    recordings = [hy.Recording(t=t, v_in=np.sin(t), w=np.cos(t)) for t in times]
+    assert len({r.dt for r in recordings}) == 1  # ... the step does not,
+    assert recordings[0].rate == pytest.approx(rate, rel=5e-6)  # within 5 ppm
+    assert recordings[0].dt == 1.0 / rate  # a rate of six digits is kept to the bit
+
+    model = hy.Model(hy.LTI(1), hy.LinearReadout(), "physics")
+    cost = eqx.filter_jit(lambda problem, theta: problem.cost(theta))
+    counter = process_compiles()
+    compiled = []
+    for r in recordings[:3]:
+        series = series_from_recording(r)
+        problem = Problem(model, [bucketed_series(series, bucket_length(r.n))])
+        before = counter["programs"]
+        cost(problem, problem.flatten(model)).block_until_ready()
+        compiled.append(counter["programs"] - before)
+    assert compiled[0] > 0 and compiled[1:] == [0, 0]
+
+
+def test_a_rate_of_more_digits_is_rounded_to_six():
+    t = np.arange(4000) / 30.00314159
+    r = hy.Recording(t=t, v_in=np.zeros_like(t), w=np.zeros_like(t))
+    assert r.rate == 30.0031  # to the sixth digit: 1 ppm here

@@ -180,8 +180,9 @@ class Recording:
 
     @property
     def dt(self) -> float:
-        """Sampling step, s: the span of ``t`` over its steps (`time_step`): for a grid rebuilt from
-        jittered timestamps its least-squares step, for times kept as read their mean step."""
+        """Sampling step, s: the span of ``t`` over its steps, its rate to six significant digits
+        (`time_step`): for a grid rebuilt from jittered timestamps its least-squares step, for times
+        kept as read their mean step."""
         return time_step(self.t)
 
     @property

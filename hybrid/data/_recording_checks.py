@@ -17,6 +17,7 @@ line each sample came from passes them (``lines``), and the messages then say
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -92,15 +93,30 @@ def samples_text(samples: Any, lines: Any = None) -> str:
     return f"lines {numbers} (samples {shown}; {len(samples)} in all)"
 
 
-def time_step(t: np.ndarray) -> float:
-    """The sampling step of a time base, s: its span over its steps, ``(t[-1] - t[0]) / (n - 1)``.
+#: Significant digits of the rate that `time_step` keeps (at most 5 ppm of it).
+RATE_DIGITS = 6
 
-    Every rate the project reports (``Recording.rate``, ``metadata["rate_hz"]``) is ``1 / time_step``.
-    For a rebuilt grid it is the least-squares slope; for times kept as read it is not biased
-    by their rounding as the median step is (times written to 7 digits, 0.03333 and 0.03334 s:
-    a median of 0.03333 s says 30.003 Hz).
+
+def time_step(t: np.ndarray) -> float:
+    """The sampling step of a time base, s: one over its rate to `RATE_DIGITS` significant digits.
+
+    The rate is the span's: ``(n - 1) / (t[-1] - t[0])``. For a rebuilt grid that is the
+    least-squares slope's; for times kept as read it is not biased by their rounding as the
+    median step is (times written to 7 digits, 0.03333 and 0.03334 s: a median of 0.03333 s
+    says 30.003 Hz). Every rate the project reports (``Recording.rate``, ``metadata["rate_hz"]``)
+    is ``1 / time_step``.
+
+    Rounding the rate moves it by at most 5 ppm, below the tolerance of the clock that
+    sampled it (a crystal's is 20-100 ppm), and gives every recording made at one rate the
+    same step to the last bit: ``np.arange(n) / 50`` spans 0.02 s per step only to within
+    an ulp that changes with n. The models' compiled programs depend on the step, so a
+    script that diagnoses recordings of several lengths compiles them once per rate, not
+    once per recording (`pytest tests/test_buckets.py -k rate`).
     """
-    return float((t[-1] - t[0]) / (len(t) - 1))
+    span = float(t[-1] - t[0])
+    if not span > 0 or not math.isfinite(span):
+        return span / (len(t) - 1)  # what the checks refuse, with its own message
+    return 1.0 / float(f"{(len(t) - 1) / span:.{RATE_DIGITS}g}")
 
 
 def as_vector(name: str, column: str, values: Any) -> np.ndarray:
