@@ -9,7 +9,10 @@ of memory maps). Part 2: `--calls` more diagnoses, each of a length never
 seen before (distinct lengths in 1,025–1,280 samples) and alternating between
 two simulations (`LTI(1)` and `LTI(2)`), so that plain caching of repeated
 shapes cannot pass it: only the buckets (`hybrid.core.bucket_length`) and the
-program budget (`hybrid.util._programs`) can.
+program budget (`hybrid.util._programs`) can. The times are written to six
+decimals, as a lab's file holds them, so each recording's span gives a step
+that differs in its last bits: only a step of the rounded rate (`Recording.dt`)
+lets them share programs.
 
 Per call it records the memory maps after the call, the programs compiled
 (all, and those that took more than a second: the search's), the seconds
@@ -43,7 +46,8 @@ def lag_recording(n: int, seed: int, order: int = 1):
             x[k] = a * x[k - 1] + (1 - a) * y[k - 1]
         y = x
     w = np.tanh(2.0 * y) / 2.0 + 0.005 * rng.standard_normal(n)
-    return hy.Recording(t=np.arange(n) / 30.0, v_in=u, w=w, name=f"lag{order} {n}")
+    t = np.round(np.arange(n) / 30.0, 6)  # as a lab's file holds it: its span's step varies in its last bits
+    return hy.Recording(t=t, v_in=u, w=w, name=f"lag{order} {n}")
 
 
 def main() -> None:
