@@ -130,3 +130,27 @@ def test_a_rate_of_more_digits_is_rounded_to_six():
     t = np.arange(4000) / 30.00314159
     r = hy.Recording(t=t, v_in=np.zeros_like(t), w=np.zeros_like(t))
     assert r.rate == 30.0031  # to the sixth digit: 1 ppm here
+
+
+def test_fit_releases_the_programs_of_a_crowded_process(monkeypatch):
+    """`fit` compiles for each recording's length (about 700 maps each: a script fitting a hundred
+    lengths would die at vm.max_map_count); when the process holds more than its share of maps it
+    releases every compiled program first, and not otherwise."""
+    import jax
+
+    from hybrid.util import _programs
+
+    if memory_maps() is None or not _programs.map_limit():
+        pytest.skip("no /proc/self/maps here: nothing to guard")
+    model = hy.Model(hy.LTI(1), hy.LinearReadout(), "physics")
+    solver = hy.LevenbergMarquardt(max_steps=2)
+    f = jax.jit(lambda x: jnp.cos(x) + 1)
+
+    def cached_after_fit():
+        f(jnp.ones(4)).block_until_ready()
+        hy.fit(model, _recording(300), solver=solver, progress=False)
+        return f._cache_size()
+
+    assert cached_after_fit() == 1  # a quiet process keeps its programs
+    monkeypatch.setattr(_programs, "MAX_MAP_FRACTION", 0.0)  # any maps at all count as crowded
+    assert cached_after_fit() == 0

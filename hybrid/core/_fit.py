@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..util._errors import InputError, PluginError
+from ..util._programs import release_when_crowded
 from ..util._watchdog import stage
 from ._arguments import as_names, as_recordings, check_model, check_seed
 from ._level_limit import level_limits, limit_sentence
@@ -133,6 +134,9 @@ def fit(
             model.readout.window, f"the model's input window ({model.readout.window} samples)"
         )
         recording.check_signals()  # a constant drive or w: refused, not fitted to its start values
+    # Its programs depend on each recording's length: a script fitting many lengths in one process
+    # would hold more of them than Linux allows (`hybrid.util._programs`).
+    release_when_crowded()
     series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
     train_w = np.concatenate([np.asarray(s.target("train")) for s in series])
     if not np.ptp(train_w) > 0:

@@ -15,7 +15,10 @@ program is released (`jax.clear_caches()`) before the call compiles its own.
 It also releases them whenever the process holds more than `max_fraction` of
 its allowed maps, whoever compiled them. A released program is compiled again
 when it is needed next (or read back from the persistent compilation cache,
-which the command line turns on).
+which the command line turns on). `hybrid.fit` and `hybrid.fit_batch` compile
+for each recording's own length (no buckets: a windowed readout cannot be
+padded); they release every program when the process is crowded
+(`release_when_crowded`), so a script fitting many lengths never runs out.
 """
 
 from __future__ import annotations
@@ -56,6 +59,29 @@ def release_programs() -> None:
     gc.collect()
 
 
+def crowded(max_fraction: float | None = None) -> bool:
+    """Whether this process holds more than `max_fraction` (default `MAX_MAP_FRACTION`) of its allowed maps.
+
+    False where Linux does not tell (no /proc): nothing to guard against there.
+    """
+    maps, limit = memory_maps(), map_limit()
+    fraction = MAX_MAP_FRACTION if max_fraction is None else max_fraction
+    return maps is not None and limit is not None and limit > 0 and maps > fraction * limit
+
+
+def release_when_crowded() -> bool:
+    """Release every compiled program when the process is `crowded`; True when it did.
+
+    For calls that compile a program per recording's length (`hybrid.fit`: one
+    per length, about 700-800 maps each): a script fitting a hundred recordings
+    of distinct lengths would otherwise reach `vm.max_map_count` and die.
+    """
+    if crowded():
+        release_programs()
+        return True
+    return False
+
+
 class ProgramBudget:
     """The shape keys whose compiled programs this process holds, and when to release them.
 
@@ -78,15 +104,12 @@ class ProgramBudget:
 
     def admit(self, key) -> bool:
         with self._lock:
-            crowded = False
-            maps, limit = memory_maps(), map_limit()
-            if maps is not None and limit:
-                crowded = maps > self.max_fraction * limit
-            if key in self.keys and not crowded:
+            full = crowded(self.max_fraction)
+            if key in self.keys and not full:
                 self.keys.remove(key)
                 self.keys.append(key)  # most recently used last
                 return False
-            released = crowded or len(self.keys) >= self.held
+            released = full or len(self.keys) >= self.held
             if released:
                 release_programs()
                 self.releases += 1
