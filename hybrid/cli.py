@@ -2,7 +2,7 @@
 
     hybrid simulate (--drive prbs|sine|chirp|pulse --duration S | --drive-file DRIVE.csv) --out F.csv
     hybrid rc DRIVE.csv [--param NAME=VALUE ...] [--method tustin|zoh] --out F.csv
-    hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--settle N] [--out MODEL] [--test FILE...]
+    hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--settle N] [--blocks N] [--out MODEL] [--test FILE...]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
     hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N | --no-auto-settle] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
@@ -185,6 +185,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=(0.3, 0.5, 0.2),
         help="train,test,validation fractions of the fitted recordings (default 0.3,0.5,0.2; "
         "also with --test)",
+    )
+    p.add_argument(
+        "--blocks",
+        type=B.integer(*B.BLOCKS),
+        default=1,
+        help="cut each recording into N equal blocks and split each by --split, so that every part "
+        "spans the recording (default 1: the paper's contiguous split)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="save the model here (default: <first recording>.<model>.eqx)")
@@ -489,6 +496,7 @@ def _cmd_fit(args):
                 screen=args.screen,
                 frozen=frozen,
                 split=args.split,
+                blocks=args.blocks,
                 seed=args.seed,
                 progress=not args.quiet,
                 stop=stop,

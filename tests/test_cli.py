@@ -1,6 +1,7 @@
 """The `hybrid` command line: outputs against independent references, and one-line errors."""
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -169,3 +170,40 @@ def test_diagnose_refuses_w_in_an_absurd_unit_before_fitting(virtual_csv, tmp_pa
     code, _, err = run(["diagnose", path, "--out", tmp_path / "d", "--quiet"], capsys)
     assert_one_line_error(code, err, "w has a standard deviation of")
     assert "rescale w" in err
+
+
+def test_fit_refuses_a_training_part_at_rest_and_fits_it_in_blocks(tmp_path):
+    """A record that rests for its first 35 % (a lab's quiet baseline) gave the contiguous split a
+    training part with nothing to learn from: the fit stopped at its start, warning of a plateau.
+    The real command refuses it in one line naming `--blocks`, and fits the same file with it
+    (first-order lag, tau = 0.5 s, gain 2, made here in numpy)."""
+    rng = np.random.default_rng(0)
+    n, rate = 3000, 50.0
+    u = np.repeat(rng.uniform(-1, 1, n // 40 + 1), 40)[:n]
+    u[: int(0.35 * n)] = 0.0
+    a, y = np.exp(-1 / (rate * 0.5)), np.zeros(n)
+    for k in range(1, n):
+        y[k] = a * y[k - 1] + (1 - a) * u[k - 1]
+    path = tmp_path / "quiet_start.csv"
+    np.savetxt(
+        path,
+        np.c_[np.arange(n) / rate, u, 2 * y + 0.01 * rng.standard_normal(n)],
+        delimiter=",",
+        header="t,v_in,w",
+        comments="",
+        fmt="%.6f",
+    )
+    exe = Path(sys.executable).with_name("hybrid")
+    argv = [str(exe), "fit", str(path), "--physics", "lti:1", "--model", "physics", "--quiet"]
+    out = tmp_path / "m.eqx"
+    proc = subprocess.run([*argv, "--out", str(out)], capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and "at rest in the training part" in proc.stderr
+    assert "--blocks 5" in proc.stderr and not out.exists()
+    report = tmp_path / "fit.json"
+    proc = subprocess.run(
+        [*argv, "--blocks", "5", "--out", str(out), "--json", str(report)], capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr
+    fitted = json.loads(report.read_text())["parameters"]
+    assert fitted["tau_1"] == pytest.approx(0.5, rel=0.03) and fitted["gain"] == pytest.approx(2.0, rel=0.03)

@@ -46,6 +46,33 @@ from ._solvers import (
     resolve_solver,
 )
 
+#: A training part whose drive's spread is below this fraction of the whole recording's is at rest.
+REST_FRACTION = 0.01
+
+
+def check_training_drive(series, recordings, blocks: int = 1) -> None:
+    """Refuse a training part whose drive is at rest (a record that starts quiet, split contiguously).
+
+    The drive's standard deviation over the training samples, pooled over the
+    recordings, below `REST_FRACTION` of its deviation over every sample: the
+    dynamics are never excited where the model learns, and a fit would end at its
+    start values with a misleading "plateau" warning.
+    """
+    train = np.concatenate([np.asarray(s.v_in)[a:b] for s in series for a, b in s.segments_of("train")])
+    whole = np.concatenate([np.asarray(s.v_in) for s in series])
+    if len(train) and np.std(train) < REST_FRACTION * np.std(whole):
+        where = "; ".join(
+            f"{r.name}: samples {', '.join(f'{a}-{b - 1}' for a, b in s.segments_of('train'))}"
+            for r, s in zip(recordings, series)
+        )
+        more = max(5, 2 * int(blocks))
+        raise InputError(
+            f"the drive is at rest in the training part ({where}; its spread there is "
+            f"{100 * np.std(train) / np.std(whole):.2g} % of the recording's): nothing there excites the dynamics. "
+            f"Cut each recording into blocks so that every part spans it (hybrid fit --blocks {more}; "
+            f"fit(..., blocks={more})), or trim the quiet start"
+        )
+
 
 def fit(
     model: Model,
@@ -144,6 +171,7 @@ def fit(
             "the training part of the recording(s) has constant w: "
             "there is nothing to fit (check the displacement column)"
         )
+    check_training_drive(series, recordings, blocks)
 
     # Fit in units where w and v_in are O(1), so that the result does not depend on the
     # recording's units (LM's damping λI and the gain's Jacobian column do otherwise).
