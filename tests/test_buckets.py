@@ -100,7 +100,9 @@ def test_a_windowed_readout_refuses_padded_series():
 def test_recordings_at_one_rate_share_their_step_and_programs_whatever_their_length(rate):
     """Times as a lab's file writes them (6 decimals) span a step that changes in its last bits with
     the length: the step is 1 / the rate to six digits, so a script diagnosing recordings of several
-    lengths compiles its programs once per bucket and rate, not once per recording."""
+    lengths compiles its programs once per bucket and rate, not once per recording. (`diagnose`
+    refused two such files of one 30 Hz camera together: "must share a sample rate, got [30.0,
+    30.000000103] Hz".)"""
     import equinox as eqx
 
     from hybrid.util._programs import process_compiles
