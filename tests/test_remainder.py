@@ -715,3 +715,32 @@ def test_an_unstructured_remainder_is_weighed_against_the_drive(share, said):
     assert (test["p_value"] < 1e-3) == (share > 0), test
     assert said in d["summary"] and f"p = {test['p_value']:.{1 if share else 2}g}" in d["summary"]
     assert ("not a disturbance alone" in d["summary"]) == (share > 0)
+
+
+def _slow(v):
+    return lowpass(2.0 * v, a=0.97)  # the model's output: a lag of the drive (a map of v reads it poorly)
+
+
+@pytest.mark.parametrize("form", ["dead_band", "clip"])
+def test_a_map_of_the_output_says_where_it_is_flat_and_points_at_a_clip_only_where_it_could_be_one(form):
+    """A sensor's dead band (w = 0 while |ŵ| < 0.4) read "static on the model's output … the built-in
+    clip may also explain it": a clip is flat at the ends, the band in the middle. The map's shape is
+    read from the samples, and the clip is pointed at only where the map is not a band."""
+    from hybrid.discovery._unexplained import named_only_hint
+
+    def mapped(v, t):
+        y = _slow(v)
+        out = np.sign(y) * np.maximum(np.abs(y) - 0.4, 0.0) if form == "dead_band" else np.clip(y, -0.9, 0.9)
+        return out - y
+
+    d = describe(mapped, w_hat_of=_slow)
+    assert d["kind"] == "static" and d["recovered"]["named"] == "static_output_monotone"
+    shape = d["static"]["output_monotone"]["shape"]
+    hint = named_only_hint(d, {"output": {"effects": ("saturation",)}})
+    if form == "dead_band":
+        assert shape["flat_middle"]["flag"] and shape["flat_middle"]["ratio"] < 0.2
+        assert not shape["levels_off"]["flag"] and "dead band" in d["summary"]
+        assert hint is None
+    else:
+        assert not shape["flat_middle"]["flag"] and set(shape["levels_off"]["sides"]) == {"top", "bottom"}
+        assert "levels off at the top and bottom" in d["summary"] and "--effects builtins,clip" in hint

@@ -283,6 +283,46 @@ def _drive_shape(tr, centres, values) -> dict:
     return out
 
 
+#: A slope of w on ŵ below this fraction of the slope beside it reads as flat (`_output_shape`).
+FLAT_SLOPE = 0.4
+
+
+def _output_shape(w_hat, w) -> dict:
+    """Where the recording's w rises with the model's output ŵ, and where it stays flat.
+
+    ``flat_middle``: w's slope on ŵ within a quarter of ŵ's half-range of its middle,
+    against its slope beyond (a side's offset apart), below `FLAT_SLOPE`: a dead band
+    (a sensor's, or play). ``levels_off``: each side's slope over the outer third of
+    ŵ's half-range against the third before it, below `FLAT_SLOPE`: w stops at a level
+    there (a sensor's full scale, an ADC's range). Slopes of the samples themselves,
+    as `_drive_shape`'s.
+    """
+    lo, hi = float(np.min(w_hat)), float(np.max(w_hat))
+    mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    if not half > 0:
+        return {"reason": "the model's output is constant"}
+    x = w_hat - mid
+    near = np.abs(x) <= 0.25 * half
+    inner = _slope(x[near], w[near])
+    outer = _slope(x[~near], w[~near], (x[~near] > 0).astype(float))
+    ratio = inner / outer if inner is not None and outer else None
+    out: dict[str, Any] = {
+        "flat_middle": {
+            "ratio": None if ratio is None else _num(ratio),  # None: too few samples in the middle or beyond
+            "flag": bool(ratio is not None and ratio < FLAT_SLOPE),
+        }
+    }
+    ends: dict[str, Any] = {}
+    for side, sign in (("top", 1.0), ("bottom", -1.0)):
+        y = sign * x
+        band, end = (y > half / 3) & (y <= 2 * half / 3), y > 2 * half / 3
+        before, last = _slope(x[band], w[band]), _slope(x[end], w[end])
+        ends[side] = _num(last / before) if before and last is not None else None
+    off = [side for side, r in ends.items() if r is not None and r < FLAT_SLOPE]
+    out["levels_off"] = {**ends, "sides": off, "flag": bool(off)}
+    return out
+
+
 def _ridge(xc, yc):
     """Ridge least squares of centred `yc` on the centred columns `xc`, the ridge 1e-3 of the mean diagonal.
 
@@ -995,7 +1035,7 @@ def describe_remainder(
     ]
     _, direction, g = min(fits, key=lambda fit: fit[0])
     mono = judge(_interp(ho["w_hat"], xc, g - xc))  # r̂ = g(ŵ) − ŵ, constant beyond the training range
-    static["output_monotone"] = dict(mono, direction=direction)
+    static["output_monotone"] = dict(mono, direction=direction, shape=_output_shape(tr["w_hat"], tr["w"]))
     c2, m2, _ = _binned(tr["w_hat"], tr["r"], bins)
     static["output_free"] = judge(_interp(ho["w_hat"], c2, m2))
     scores["static_output_monotone"], scores["static_output_free"] = mono, static["output_free"]
@@ -1363,6 +1403,15 @@ def _verdict(
     elif kind == "static":
         how = "a monotone" if inkind == "static_output_monotone" else "a"
         text = f"static on the model's output: {how} map of the simulation's output recovers {pct(inkind)} {where}"
+        shape = static["output_monotone"]["shape"]
+        if (shape.get("flat_middle") or {}).get("flag"):
+            text += (
+                "; w stays flat in the middle of the output's range and rises beyond it (a dead band: a "
+                "sensor's, or play between the actuator and what is measured)"
+            )
+        sides = (shape.get("levels_off") or {}).get("sides") or []
+        if sides:
+            text += f"; w levels off at the {' and '.join(sides)} of the output's range"
     elif kind == "dynamic":
         what = {
             "filter_drive": "a linear filter of the drive",

@@ -436,6 +436,10 @@ def named_only_hint(description: dict, places: dict) -> str | None:
         return None
     if named == "drive_map" and not (description.get("drive_map") or {}).get("levels_off"):
         return None  # a curve of the drive that does not stop at a level: no clip to point at
+    if named == "static_output_monotone":
+        shape = ((description.get("static") or {}).get("output_monotone") or {}).get("shape") or {}
+        if (shape.get("flat_middle") or {}).get("flag") and not (shape.get("levels_off") or {}).get("flag"):
+            return None  # flat in the middle, rising at the ends (a dead band): the opposite of a clip
     effect, what = _NAMED_ONLY_HINTS[named]
     if effect in searched:
         return None
