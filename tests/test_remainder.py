@@ -744,3 +744,40 @@ def test_a_map_of_the_output_says_where_it_is_flat_and_points_at_a_clip_only_whe
     else:
         assert not shape["flat_middle"]["flag"] and set(shape["levels_off"]["sides"]) == {"top", "bottom"}
         assert "levels off at the top and bottom" in d["summary"] and "--effects builtins,clip" in hint
+
+
+T_END = N / RATE
+
+
+def _gain_step_after_a_ramp(v, t):
+    """A gain that drops by 30 % at 43 % of the record, less the linear ramp a fitted `drift` leaves."""
+    change = np.where(t > 0.43 * T_END, -0.3, 0.0)
+    return 2.0 * v * (change - np.polyval(np.polyfit(t, change, 1), t))
+
+
+@pytest.mark.parametrize(
+    "r_of, at, said, change",
+    [
+        (lambda v, t: np.where(t > 0.63 * T_END, 0.3, 0.0), 0.63 * T_END, "w offset by", ("offset", 0.3)),
+        (_gain_step_after_a_ramp, 0.43 * T_END, "the model's output scaled by 0.7", ("gain_change", -0.3)),
+        (lambda v, t: 0.3 * (t / T_END) ** 2, None, "a trend in time (drift)", None),  # smooth: the cubic's
+    ],
+)
+def test_a_change_at_one_time_is_read_as_one(r_of, at, said, change):
+    """A sensor re-zeroed mid-record (after a fitted baseline drift, the ad hoc diagnosis behind this
+    read "no simple structure … 0 %") and a gain that dropped (after a fitted drift's ramp) are a change
+    at one time, placed within the held-out block that holds it; a smooth trend stays the cubic's, and
+    no creep is pointed at for a change."""
+    from hybrid.discovery._unexplained import named_only_hint
+
+    d = describe(r_of)
+    assert d["kind"] == "time" and d["recovered"]["named"] == "time"
+    assert said in d["summary"], d["summary"]
+    if at is None:
+        assert "form" not in d["time"]
+        return
+    assert d["time"]["form"] == "step" and abs(d["time"]["at_s"] - at) <= 10.0  # a held-out block: 10 s
+    assert d["recovered"]["of_excess"] > 0.9
+    key, size = change
+    assert d["time"][key] == pytest.approx(size, abs=0.05)  # the grid of times: 2.5 s apart here
+    assert named_only_hint(d, {"output": {"effects": ("drift",)}}) is None  # a change is no creep

@@ -283,6 +283,64 @@ def _drive_shape(tr, centres, values) -> dict:
     return out
 
 
+#: A step in time (`_time_step`) is sought at this many times spread over the training span, none
+#: within `STEP_EDGE` of its ends. It stands for the time reading where it recovers `MARGIN` more than the
+#: cubic and than its own trends without the change, and at least `STEP_SHARE` of what it is judged on: a
+#: slow coloured disturbance wanders in steps too (tests/test_remainder.py's, 3× the floor's σ: a "change"
+#: recovering 24 %), a sensor re-zeroed or a gain that changed recovers 89-100 % (`-k one_time`).
+STEP_TIMES, STEP_EDGE, STEP_SHARE = 60, 0.1, 0.5
+
+
+def _time_step(tr, ho, judge) -> dict | None:
+    """A change at one time T beside a smooth trend: from T on, w offset by a, the model's output scaled by 1 + b.
+
+    Least squares of the training residual on a cubic in time, ŵ and ŵ·t (smooth
+    trends of the offset and the gain) and [1(t > T), 1(t > T)·ŵ] at each candidate T,
+    the T of the least training error kept and judged on the held-out part (a sensor
+    re-zeroed or bumped, a clamp that slipped, a gain that changed during the record).
+    The trends take what a smooth drift, or an effect fitted to the step (a baseline
+    drift, a drift of the gain), leaves; ``without`` is the same fit without the change.
+    """
+    t0, t1 = float(tr["t"].min()), float(tr["t"].max())
+
+    def columns(part, at=None):
+        x = np.clip((2.0 * part["t"] - t0 - t1) / (t1 - t0), -1.0, 1.0)  # constant beyond the training span
+        smooth = [x**0, x, x**2, x**3, part["w_hat"], x * part["w_hat"]]  # a trend, and a gain's
+        if at is None:
+            return np.column_stack(smooth)
+        after = (part["t"] > at).astype(float)
+        return np.column_stack([*smooth, after, after * part["w_hat"]])
+
+    best = None
+    for at in np.linspace(t0 + STEP_EDGE * (t1 - t0), t1 - STEP_EDGE * (t1 - t0), STEP_TIMES):
+        after = int(np.sum(tr["t"] > at))
+        if min(after, len(tr["t"]) - after) < MIN_SAMPLES:
+            continue
+        x = columns(tr, at)
+        coef = np.linalg.lstsq(x, tr["r"], rcond=None)[0]
+        sse = float(np.sum((tr["r"] - x @ coef) ** 2))
+        if best is None or sse < best[0]:
+            best = (sse, float(at), coef)
+    if best is None:
+        return None
+    _, at, coef = best
+    # Every time between the training samples either side fits them alike: the change is put midway
+    # (a held-out block often spans it).
+    at = 0.5 * (float(tr["t"][tr["t"] <= at].max()) + float(tr["t"][tr["t"] > at].min()))
+    scaled = float(np.mean((coef[7] * tr["w_hat"][tr["t"] > at]) ** 2))
+    return {
+        **judge(columns(ho, at) @ coef),
+        "form": "step",
+        "at_s": _num(at),
+        "offset": _num(coef[6]),
+        "gain_change": _num(coef[7]),
+        # the offset's share of the change's mean square after T (the rest is the scaling's)
+        "offset_share": _num(coef[6] ** 2 / (coef[6] ** 2 + scaled)) if coef[6] ** 2 + scaled > 0 else None,
+        # the same trends without the change: what the change itself adds
+        "without": judge(columns(ho) @ np.linalg.lstsq(columns(tr), tr["r"], rcond=None)[0]),
+    }
+
+
 #: A slope of w on ŵ below this fraction of the slope beside it reads as flat (`_output_shape`).
 FLAT_SLOPE = 0.4
 
@@ -1062,6 +1120,17 @@ def describe_remainder(
         coef = np.polynomial.polynomial.polyfit(scale(tr["t"]), tr["r"], 3)
         held = np.clip(scale(ho["t"]), -1.0, 1.0)  # constant beyond the training span, never extrapolated
         time_part = {**judge(np.polynomial.polynomial.polyval(held, coef)), "degree": 3}
+        step = _time_step(tr, ho, judge)
+        if (
+            step is not None
+            and judge.score(step) >= STEP_SHARE
+            and judge.score(step) > max(judge.score(time_part), judge.score(step["without"])) + MARGIN
+        ):
+            time_part = {
+                **step,
+                "cubic": time_part,
+                "unit": w_unit,
+            }  # a change at one time, which a cubic smooths
         scores["time"] = time_part
 
     # Linear filter: lagged drive and lagged model output.
@@ -1486,6 +1555,21 @@ def _verdict(
             f"{pct(inkind)} {where} (amplitude {size}): a disturbance added to the "
             f"measurement — a vibration or an electrical pick-up{mains} — rather than a part of the response "
             f"to the drive that the simulation misses; a notch at {f:.4g} Hz on w removes it"
+        )
+    elif scores["time"].get("form") == "step":
+        step = scores["time"]
+        unit = f" {step['unit']}" if step.get("unit") else ""
+        share = step.get("offset_share")
+        changes = [
+            f"w offset by {step['offset']:.3g}{unit}" if share is None or share >= 0.1 else "",
+            f"the model's output scaled by {1.0 + step['gain_change']:.3g}"
+            if share is None or share <= 0.9
+            else "",
+        ]
+        text = (
+            f"a change at one time: from t = {step['at_s']:.4g} s on, {' and '.join(c for c in changes if c)} "
+            f"recovers {pct(inkind)} {where} (a sensor re-zeroed or bumped, a clamp that slipped, a part that "
+            "changed during the record: neither an effect of the drive nor a smooth drift reads so)"
         )
     else:
         text = f"a trend in time (drift): a smooth function of time recovers {pct(inkind)} {where}"

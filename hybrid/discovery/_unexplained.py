@@ -434,6 +434,8 @@ def named_only_hint(description: dict, places: dict) -> str | None:
     searched = {e for place in places.values() for e in place.get("effects", ())}
     if named not in _NAMED_ONLY_HINTS or not places:
         return None
+    if named == "time" and (description.get("time") or {}).get("form") == "step":
+        return None  # a change at one time is no creep
     if named == "drive_map" and not (description.get("drive_map") or {}).get("levels_off"):
         return None  # a curve of the drive that does not stop at a level: no clip to point at
     if named == "static_output_monotone":
