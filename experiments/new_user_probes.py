@@ -98,6 +98,20 @@ def probes() -> dict[str, dict]:
             "drive 1-4 V, output 3 tanh(y/3)",
             99,
         )
+    # a sensor's dead band, a sensor re-zeroed mid-record, a gain that drops mid-record (drive seed 0)
+    u = _drive(n, rate, 0)
+    y = sim(plant, u)
+    add(
+        "out_dead_band",
+        t,
+        u,
+        np.sign(y) * np.maximum(np.abs(y) - 0.5, 0.0),
+        "lti:2",
+        "output dead band ±0.5",
+        13,
+    )
+    add("rezeroed", t, u, y + np.where(t > 36.0, 0.6, 0.0), "lti:2", "output + 0.6 from t = 36 s", 13)
+    add("gain_drop", t, u, y * np.where(t > 30.0, 0.7, 1.0), "lti:2", "output gain × 0.7 from t = 30 s", 13)
     # 2. lti:1 (τ 0.5 s, 0.8 mm/V) and lti:2 (1.2 Hz, ζ 0.35), drive seed 3, holds 0.2–1.5 s
     u = _drive(n, rate, 3, hold=(0.2, 1.5))
     p1 = sg.lti([0.8], [0.5, 1.0])
@@ -342,6 +356,7 @@ def row(name: str, probe: dict, folder: Path) -> dict:
             (e["step"], e["named"], [r["name"] for r in e["rivals"]]) for e in report.get("ambiguous") or []
         ],
         "lead": lead,
+        "remainder": ((report.get("unexplained") or {}).get("description") or {}).get("summary", ""),
     }
 
 
@@ -365,6 +380,12 @@ def table(rows: list[dict], command: str) -> str:
         )
     lines += ["", "First sentence of each report:", ""]
     lines += [f"- {r['probe']}: {r.get('lead', '')[:400]}" for r in rows if "error" not in r]
+    lines += [
+        "",
+        "What each flagged remainder reads as (report.json → unexplained → description → summary):",
+        "",
+    ]
+    lines += [f"- {r['probe']}: {r['remainder'][:500]}" for r in rows if r.get("remainder")]
     return "\n".join(lines) + "\n"
 
 

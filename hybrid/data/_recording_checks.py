@@ -115,7 +115,7 @@ def time_step(t: np.ndarray) -> float:
     """
     span = float(t[-1] - t[0])
     if not span > 0 or not math.isfinite(span):
-        return span / (len(t) - 1)  # what the checks refuse, with its own message
+        return span / max(len(t) - 1, 1)  # what the checks refuse, with their own messages
     return 1.0 / float(f"{(len(t) - 1) / span:.{RATE_DIGITS}g}")
 
 

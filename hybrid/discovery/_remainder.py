@@ -1126,11 +1126,8 @@ def describe_remainder(
             and judge.score(step) >= STEP_SHARE
             and judge.score(step) > max(judge.score(time_part), judge.score(step["without"])) + MARGIN
         ):
-            time_part = {
-                **step,
-                "cubic": time_part,
-                "unit": w_unit,
-            }  # a change at one time, which a cubic smooths
+            # a change at one time, which the cubic smooths over
+            time_part = {**step, "cubic": time_part, "unit": w_unit}
         scores["time"] = time_part
 
     # Linear filter: lagged drive and lagged model output.
@@ -1556,7 +1553,7 @@ def _verdict(
             f"measurement — a vibration or an electrical pick-up{mains} — rather than a part of the response "
             f"to the drive that the simulation misses; a notch at {f:.4g} Hz on w removes it"
         )
-    elif scores["time"].get("form") == "step":
+    elif scores[inkind].get("form") == "step":  # kind "time": the time reading, a change at one time
         step = scores["time"]
         unit = f" {step['unit']}" if step.get("unit") else ""
         share = step.get("offset_share")
