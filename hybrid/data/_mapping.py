@@ -24,7 +24,7 @@ which the measured output, where the time comes from.
   period field of the file (`RATE_FIELDS`: a ``Ts`` column whose first row holds
   the period, as in Cascaded Tanks; ``fs``/``rate`` columns; the same keys in the
   sidecar metadata) gives it too. Every rate given (argument, fields, metadata,
-  the time column's step: its span over its steps, `time_step`, the least-squares
+  the time column's step: its span over its steps to six digits of its rate, `time_step`, the least-squares
   step of jittered timestamps rebuilt as a grid) must agree within `RATE_RTOL` (or,
   against jittered timestamps, the drift their largest jitter allows), else one
   error; the time column wins, then the file's fields, the metadata, the argument.
