@@ -19,7 +19,7 @@ import jax
 import numpy as np
 import pytest
 
-from hybrid import InputError, LevenbergMarquardt, RCNetwork, fit, fit_batch, make_model
+from hybrid import InputError, LevenbergMarquardt, RCNetwork, Recording, fit, fit_batch, make_model
 
 TINY = dict(window=5, depth=2, width=4)
 
@@ -134,6 +134,14 @@ def test_fit_batch_rejects_bad_input():
         fit_batch(start, recordings, starts=0)
     with pytest.raises(InputError):
         fit_batch(start, recordings, batch_size=0)
+    # a strip that rests through its training part (the first 30 %) is named, not fitted to its start
+    quiet = Recording(
+        t=recordings[1].t,
+        v_in=np.where(np.arange(recordings[1].n) < 0.35 * recordings[1].n, 0.0, recordings[1].v_in),
+        w=recordings[1].w,
+    )
+    with pytest.raises(InputError, match=r"at rest in the training part.*Trim recording 1's quiet start"):
+        fit_batch(start, [recordings[0], quiet])
 
 
 SHARDED = textwrap.dedent("""

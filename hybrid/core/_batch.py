@@ -45,7 +45,15 @@ from ..util._errors import InputError, PluginError
 from ..util._programs import process_compiles, release_when_crowded
 from ._arguments import as_recordings, check_dt, check_model
 from ._devices import device_mesh, repeat_last
-from ._fit import default_frozen, fit_units, non_finite_fit, readout_back, recording_units, start_model
+from ._fit import (
+    check_training_drive,
+    default_frozen,
+    fit_units,
+    non_finite_fit,
+    readout_back,
+    recording_units,
+    start_model,
+)
 from ._levenberg_marquardt import lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
@@ -162,6 +170,12 @@ def fit_batch(
     for i, s in enumerate(series):
         if not np.ptp(np.asarray(s.target("train"))) > 0:
             raise InputError(f"recording {i} ({recordings[i].name}) has constant w on its training part")
+        check_training_drive(  # each recording is fitted alone: each needs a training part that moves
+            [s],
+            [recordings[i]],
+            fix=f"Trim recording {i}'s quiet start (Recording.segment), or fit it alone in blocks "
+            "(hybrid.fit(..., blocks=5))",
+        )
 
     # One Problem per (recording, start), sharing the static parts of a template.
     # Each recording in its own units, as fit() does (w / std(w_train), v_in / rms(v_in)).

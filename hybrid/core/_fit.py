@@ -50,13 +50,14 @@ from ._solvers import (
 REST_FRACTION = 0.01
 
 
-def check_training_drive(series, recordings, blocks: int = 1) -> None:
+def check_training_drive(series, recordings, blocks: int = 1, fix: str | None = None) -> None:
     """Refuse a training part whose drive is at rest (a record that starts quiet, split contiguously).
 
     The drive's standard deviation over the training samples, pooled over the
     recordings, below `REST_FRACTION` of its deviation over every sample: the
     dynamics are never excited where the model learns, and a fit would end at its
-    start values with a misleading "plateau" warning.
+    start values with a misleading "plateau" warning. `fix`: what the message
+    advises (default: `fit`'s blocks, or trimming the quiet start).
     """
     train = np.concatenate([np.asarray(s.v_in)[a:b] for s in series for a, b in s.segments_of("train")])
     whole = np.concatenate([np.asarray(s.v_in) for s in series])
@@ -66,11 +67,15 @@ def check_training_drive(series, recordings, blocks: int = 1) -> None:
             for r, s in zip(recordings, series)
         )
         more = max(5, 2 * int(blocks))
+        if fix is None:
+            fix = (
+                f"Cut each recording into blocks so that every part spans it (hybrid fit --blocks {more}; "
+                f"fit(..., blocks={more})), or trim the quiet start"
+            )
         raise InputError(
             f"the drive is at rest in the training part ({where}; its spread there is "
             f"{100 * np.std(train) / np.std(whole):.2g} % of the recording's): nothing there excites the dynamics. "
-            f"Cut each recording into blocks so that every part spans it (hybrid fit --blocks {more}; "
-            f"fit(..., blocks={more})), or trim the quiet start"
+            + fix
         )
 
 
