@@ -781,3 +781,16 @@ def test_a_change_at_one_time_is_read_as_one(r_of, at, said, change):
     key, size = change
     assert d["time"][key] == pytest.approx(size, abs=0.05)  # the grid of times: 2.5 s apart here
     assert named_only_hint(d, {"output": {"effects": ("drift",)}}) is None  # a change is no creep
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_wandering_disturbance_is_not_read_as_a_change_at_one_time(seed):
+    """A random walk (3× the floor's σ) wanders in steps of every size: the change at one time must not
+    stand for it (it reads as a trend in time, or unstructured, as before the change was read)."""
+
+    def walk(v, t):
+        d = np.cumsum(np.random.default_rng(100 + seed).standard_normal(len(v)))
+        return 3 * SIGMA * d / d.std()
+
+    d = describe(walk)
+    assert (d.get("time") or {}).get("form") != "step", d["summary"]
