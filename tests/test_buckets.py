@@ -131,7 +131,7 @@ def test_recordings_at_one_rate_share_their_step_and_programs_whatever_their_len
 def test_a_rate_of_more_digits_is_rounded_to_six():
     t = np.arange(4000) / 30.00314159
     r = hy.Recording(t=t, v_in=np.zeros_like(t), w=np.zeros_like(t))
-    assert r.rate == 30.0031  # to the sixth digit: 1 ppm here
+    assert r.rate == 30.0031  # to the sixth digit: 1.4 ppm here
 
 
 def test_fit_releases_the_programs_of_a_crowded_process(monkeypatch):
