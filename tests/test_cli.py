@@ -181,9 +181,7 @@ def test_fit_refuses_a_training_part_at_rest_and_fits_it_in_blocks(tmp_path):
     n, rate = 3000, 50.0
     u = np.repeat(rng.uniform(-1, 1, n // 40 + 1), 40)[:n]
     u[: int(0.35 * n)] = 0.0
-    a, y = np.exp(-1 / (rate * 0.5)), np.zeros(n)
-    for k in range(1, n):
-        y[k] = a * y[k - 1] + (1 - a) * u[k - 1]
+    y = h.zoh_lag(u, 1.0 / rate, 0.5)
     path = tmp_path / "quiet_start.csv"
     np.savetxt(
         path,

@@ -291,7 +291,7 @@ def _drive_shape(tr, centres, values) -> dict:
 STEP_TIMES, STEP_EDGE, STEP_SHARE = 60, 0.1, 0.5
 
 
-def _time_step(tr, ho, judge) -> dict | None:
+def _time_step(tr, ho, judge, scaled) -> dict | None:
     """A change at one time T beside a smooth trend: from T on, w offset by a, the model's output scaled by 1 + b.
 
     Least squares of the training residual on a cubic in time, ŵ and ŵ·t (smooth
@@ -300,23 +300,25 @@ def _time_step(tr, ho, judge) -> dict | None:
     re-zeroed or bumped, a clamp that slipped, a gain that changed during the record).
     The trends take what a smooth drift, or an effect fitted to the step (a baseline
     drift, a drift of the gain), leaves; ``without`` is the same fit without the change.
+    `scaled`: time onto [−1, 1] over the training span, constant beyond it (the cubic's).
     """
-    t0, t1 = float(tr["t"].min()), float(tr["t"].max())
 
-    def columns(part, at=None):
-        x = np.clip((2.0 * part["t"] - t0 - t1) / (t1 - t0), -1.0, 1.0)  # constant beyond the training span
-        smooth = [x**0, x, x**2, x**3, part["w_hat"], x * part["w_hat"]]  # a trend, and a gain's
-        if at is None:
-            return np.column_stack(smooth)
+    def smooth(part):  # a trend, and a gain's
+        x = scaled(part["t"])
+        return np.column_stack([x**0, x, x**2, x**3, part["w_hat"], x * part["w_hat"]])
+
+    def with_change(trends, part, at):
         after = (part["t"] > at).astype(float)
-        return np.column_stack([*smooth, after, after * part["w_hat"]])
+        return np.column_stack([trends, after, after * part["w_hat"]])
 
+    trends_tr, trends_ho = smooth(tr), smooth(ho)
+    t0, t1 = float(tr["t"].min()), float(tr["t"].max())
     best = None
     for at in np.linspace(t0 + STEP_EDGE * (t1 - t0), t1 - STEP_EDGE * (t1 - t0), STEP_TIMES):
         after = int(np.sum(tr["t"] > at))
         if min(after, len(tr["t"]) - after) < MIN_SAMPLES:
             continue
-        x = columns(tr, at)
+        x = with_change(trends_tr, tr, at)
         coef = np.linalg.lstsq(x, tr["r"], rcond=None)[0]
         sse = float(np.sum((tr["r"] - x @ coef) ** 2))
         if best is None or sse < best[0]:
@@ -327,17 +329,18 @@ def _time_step(tr, ho, judge) -> dict | None:
     # Every time between the training samples either side fits them alike: the change is put midway
     # (a held-out block often spans it).
     at = 0.5 * (float(tr["t"][tr["t"] <= at].max()) + float(tr["t"][tr["t"] > at].min()))
-    scaled = float(np.mean((coef[7] * tr["w_hat"][tr["t"] > at]) ** 2))
+    offset, gain = coef[-2], coef[-1]
+    scaled_ms = float(np.mean((gain * tr["w_hat"][tr["t"] > at]) ** 2))
     return {
-        **judge(columns(ho, at) @ coef),
+        **judge(with_change(trends_ho, ho, at) @ coef),
         "form": "step",
         "at_s": _num(at),
-        "offset": _num(coef[6]),
-        "gain_change": _num(coef[7]),
+        "offset": _num(offset),
+        "gain_change": _num(gain),
         # the offset's share of the change's mean square after T (the rest is the scaling's)
-        "offset_share": _num(coef[6] ** 2 / (coef[6] ** 2 + scaled)) if coef[6] ** 2 + scaled > 0 else None,
+        "offset_share": _num(offset**2 / (offset**2 + scaled_ms)) if offset**2 + scaled_ms > 0 else None,
         # the same trends without the change: what the change itself adds
-        "without": judge(columns(ho) @ np.linalg.lstsq(columns(tr), tr["r"], rcond=None)[0]),
+        "without": judge(trends_ho @ np.linalg.lstsq(trends_tr, tr["r"], rcond=None)[0]),
     }
 
 
@@ -1116,11 +1119,10 @@ def describe_remainder(
     if t1 <= t0:
         time_part = {"reason": "the training samples share one time stamp"}
     else:
-        scale = lambda t: (2.0 * t - t0 - t1) / (t1 - t0)
-        coef = np.polynomial.polynomial.polyfit(scale(tr["t"]), tr["r"], 3)
-        held = np.clip(scale(ho["t"]), -1.0, 1.0)  # constant beyond the training span, never extrapolated
-        time_part = {**judge(np.polynomial.polynomial.polyval(held, coef)), "degree": 3}
-        step = _time_step(tr, ho, judge)
+        scaled = lambda t: np.clip((2.0 * t - t0 - t1) / (t1 - t0), -1.0, 1.0)  # constant beyond the span
+        coef = np.polynomial.polynomial.polyfit(scaled(tr["t"]), tr["r"], 3)
+        time_part = {**judge(np.polynomial.polynomial.polyval(scaled(ho["t"]), coef)), "degree": 3}
+        step = _time_step(tr, ho, judge, scaled)
         if (
             step is not None
             and judge.score(step) >= STEP_SHARE
@@ -1554,7 +1556,7 @@ def _verdict(
             f"to the drive that the simulation misses; a notch at {f:.4g} Hz on w removes it"
         )
     elif scores[inkind].get("form") == "step":  # kind "time": the time reading, a change at one time
-        step = scores["time"]
+        step = scores[inkind]
         unit = f" {step['unit']}" if step.get("unit") else ""
         share = step.get("offset_share")
         changes = [

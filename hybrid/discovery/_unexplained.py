@@ -413,6 +413,23 @@ _SLOW = tuple(kind for kind, hint in _NAMED_ONLY_HINTS.items() if hint is _CREEP
 _SLOW_SHARE = UNSTRUCTURED_EXCESS / 2
 
 
+def _dead_band(description: dict) -> bool:
+    """The output's monotone map flat in the middle and rising at its ends: the opposite of a clip."""
+    shape = ((description.get("static") or {}).get("output_monotone") or {}).get("shape") or {}
+    return bool(
+        (shape.get("flat_middle") or {}).get("flag") and not (shape.get("levels_off") or {}).get("flag")
+    )
+
+
+#: A reading whose own form rules its hint out (`_NAMED_ONLY_HINTS`): a change at one time is no creep; a
+#: curve of the drive that stops at no level, and a dead band of the output, are no clip.
+_NOT_THE_HINT = {
+    "time": lambda description: (description.get("time") or {}).get("form") == "step",
+    "drive_map": lambda description: not (description.get("drive_map") or {}).get("levels_off"),
+    "static_output_monotone": _dead_band,
+}
+
+
 def named_only_hint(description: dict, places: dict) -> str | None:
     """The built-in searched only when named (`NAMED_ONLY`) that may take a remainder, where it was not searched.
 
@@ -434,14 +451,8 @@ def named_only_hint(description: dict, places: dict) -> str | None:
     searched = {e for place in places.values() for e in place.get("effects", ())}
     if named not in _NAMED_ONLY_HINTS or not places:
         return None
-    if named == "time" and (description.get("time") or {}).get("form") == "step":
-        return None  # a change at one time is no creep
-    if named == "drive_map" and not (description.get("drive_map") or {}).get("levels_off"):
-        return None  # a curve of the drive that does not stop at a level: no clip to point at
-    if named == "static_output_monotone":
-        shape = ((description.get("static") or {}).get("output_monotone") or {}).get("shape") or {}
-        if (shape.get("flat_middle") or {}).get("flag") and not (shape.get("levels_off") or {}).get("flag"):
-            return None  # flat in the middle, rising at the ends (a dead band): the opposite of a clip
+    if named in _NOT_THE_HINT and _NOT_THE_HINT[named](description):
+        return None
     effect, what = _NAMED_ONLY_HINTS[named]
     if effect in searched:
         return None
