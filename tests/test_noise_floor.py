@@ -8,12 +8,19 @@ is checked against the truth, not against itself.
 from __future__ import annotations
 
 import math
+import pathlib
 
 import numpy as np
 import pytest
 import scipy.signal
 
-from hybrid.discovery._noise_floor import difference_variance, noise_floor, repeat_variance, spectral_variance
+from hybrid.discovery._noise_floor import (
+    difference_variance,
+    glitch_runs,
+    noise_floor,
+    repeat_variance,
+    spectral_variance,
+)
 
 RATE = 30.0
 
@@ -226,3 +233,119 @@ def test_a_pooled_floor_says_which_recording_has_the_spikes():
     floor = pooled_noise_floor([hybrid.Recording.from_arrays(v_in=v, w=x, rate=RATE) for x in w])
     spiky = [line for line in floor.warnings if "isolated spike" in line]
     assert spiky == [floor.spike_note] and spiky[0].startswith("Recording 2: w has 1 isolated spike(s)")
+
+
+def _glitched(seed, lengths, size=0.4, dropouts=True):
+    """A slow strip under 40-sample holds at 50 Hz, σ = 1 % of its range, with glitches of these lengths.
+
+    Every other one reads 0 where the strip is far from it (a logger's dropout; `dropouts`), the rest sit
+    `size` of the range off (a tracker on a wrong blob); the k-th lies in hold 5 + 10k, entered at least
+    5 samples after the drive's step and left at least 5 before the next.
+    """
+    rng = np.random.default_rng(seed)
+    n = 6000
+    v = np.repeat(rng.uniform(-2.0, 2.0, n // 40 + 1), 40)[:n]
+    clean = scipy.signal.lfilter([0.04], [1.0, -0.96], v)  # a 25-sample lag
+    span = np.ptp(clean)
+    sigma = 0.01 * span
+    w = clean + rng.normal(0.0, sigma, n)
+    runs = []
+    for k, length in enumerate(lengths):
+        a = 40 * (5 + 10 * k) + 5 + int(rng.integers(0, 40 - 10 - length + 1))
+        if dropouts and k % 2 and abs(clean[a]) > 0.3 * span:
+            w[a : a + length] = 0.0
+        else:
+            w[a : a + length] += rng.choice([-1.0, 1.0]) * size * span
+        runs.append((a, a + length - 1))
+    return v, w, sigma, runs
+
+
+def test_glitches_are_found_and_bridged_out_of_the_floor(monkeypatch):
+    # A tracker that lost the tip for 2 to 10 frames, or a logger that read 0, 12 times in 2 minutes.
+    # Not lone samples, so `spike_samples` misses them; counted, they raise the floor over 2× σ² (below);
+    # bridged, it is the noise's.
+    lengths = [2, 3, 4, 5, 6, 7, 8, 9, 10, 2, 3, 4]
+    v, w, sigma, runs = _glitched(11, lengths)
+    floor = noise_floor(w, v, 50.0)
+    assert list(floor.glitches) == runs
+    inside = sorted(k for a, b in runs for k in range(a, b + 1))
+    assert list(floor.spikes) == inside
+    assert floor.variance == pytest.approx(sigma**2, rel=0.25)
+    assert floor.spike_note in floor.warnings and "12 glitch(es), runs of 2–10 samples" in floor.spike_note
+    assert floor.spike_words == "glitches" and floor.to_dict()["glitches"] == [list(r) for r in runs]
+    from hybrid.discovery import _noise_floor
+
+    monkeypatch.setattr(_noise_floor, "glitch_runs", lambda w, v: [])
+    assert noise_floor(w, v, 50.0).variance > 2 * sigma**2  # what counting them gives
+
+
+@pytest.mark.parametrize(("size", "found"), [(0.3, 6), (0.04, 0)])
+def test_glitch_sensitivity(size, found):
+    # Plateaus 30 % of the range off (30 σ) are all found; 4 % (4 σ) none: within the noise's reach.
+    v, w, sigma, runs = _glitched(12, [3, 4, 5, 6, 7, 8], size=size, dropouts=False)
+    assert glitch_runs(w, v) == runs[:found]
+
+
+@pytest.mark.parametrize("case", ["noise", "fast_steps", "pulses", "ringing", "step_stays", "rounded"])
+def test_what_is_not_a_glitch_is_not_flagged(case):
+    # Noise; a plant that follows each step within a sample; its response to drive pulses of 2–8
+    # samples (w jumps in and out with the drive); a 15 Hz mode ringing after each step; an undriven
+    # step of w that stays; data rounded to a coarse grid: none is a glitch.
+    rng = np.random.default_rng(8)
+    n = 4000
+    v = np.repeat(rng.uniform(-2.0, 2.0, n // 40 + 1), 40)[:n]
+    if case == "pulses":
+        v = np.zeros(n)
+        for a in range(50, n - 20, 97):
+            v[a : a + 2 + a % 7] = 1.0
+    clean = scipy.signal.lfilter([0.86], [1.0, -0.14], v)
+    if case == "ringing":
+        v, clean = _fast_mode(n, 1, hz=15.0, zeta=0.05)
+    w = clean + rng.normal(0.0, 0.005 * np.ptp(clean), n)
+    if case == "step_stays":
+        w[2013:] += 0.5 * np.ptp(clean)
+    if case == "rounded":
+        w = np.round(w / (0.05 * np.ptp(clean))) * 0.05 * np.ptp(clean)
+    assert glitch_runs(w, v) == []
+    assert noise_floor(w, v, 50.0).glitches == ()
+
+
+def test_recordings_without_glitches_have_none():
+    # The discrepancy generator's strips (each hidden effect and pair of its open-world table, 3 seeds:
+    # camera exposure, saturations, loops, resonances, delays) and the virtual strip under the four
+    # paper drives: w moves with the drive, never jumps in and back out by itself.
+    import hybrid as hy
+    from hybrid.ipmc import virtual_recording
+    from hybrid.ipmc._hidden_pairs import random_hidden
+    from hybrid.ipmc._synthetic import HIDDEN_EFFECTS, discrepancy_drive, random_strip, synthetic_recording
+
+    names = [*HIDDEN_EFFECTS, "dead_zone", "rate_dependent", "self_heating", "electrostatic"]
+    names += [
+        "back_relaxation+saturation",
+        "hysteresis+drift",
+        "delay+back_relaxation",
+        "saturation+resonance",
+    ]
+    for seed in range(3):
+        for name in names:
+            rng = np.random.default_rng(seed)
+            drive, strip = discrepancy_drive(60.0, 30.0, seed), random_strip(rng)
+            params = None if name == "none" else random_hidden(name, rng, 30.0)
+            recording = synthetic_recording(drive, strip, name, params, seed=seed)
+            assert glitch_runs(recording.w, recording.v_in) == [], (seed, name)
+    for kind in ("prbs", "sine", "chirp", "pulse"):
+        recording = virtual_recording(hy.make_drive(kind, duration=60.0, rate=30.0), seed=0)
+        assert glitch_runs(recording.w, recording.v_in) == [], kind
+
+
+DATA = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason=f"the measured benchmarks are not in {DATA}")
+def test_the_measured_benchmarks_have_no_glitches():
+    tanks = np.genfromtxt(DATA / "cascaded-tanks" / "dataBenchmark.csv", delimiter=",", names=True)
+    for u, y in (("uEst", "yEst"), ("uVal", "yVal")):
+        assert glitch_runs(tanks[y], tanks[u]) == [], y
+    snls = np.genfromtxt(DATA / "silverbox" / "SNLS80mV.csv", delimiter=",", names=True)
+    for a, b in ((100, 40575), (40650, 127400)):  # the arrow, the estimation multisines
+        assert glitch_runs(snls["V2"][a:b], snls["V1"][a:b]) == [], (a, b)

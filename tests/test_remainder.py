@@ -368,6 +368,33 @@ def test_a_stretch_is_placed_in_its_own_recording_among_several():
     assert "t = 190–200 s of recording 2" in d["summary"] and d["concentrated"]["after_training"]
 
 
+def test_the_noise_floors_glitches_are_no_stretch_of_their_own():
+    # Eight glitches of 4 samples, 40 σ off, all in the last held-out block (t = 190–200 s): they hold
+    # nearly all of the excess there. Marked as the noise floor's spikes (`spike`), they place no
+    # stretch: the summary says them instead (`spiky`), not "a change late in the record". A real
+    # change there (an offset of 0.3 from 190 s on) is still placed, glitches or not.
+    def glitched(r_of, mark):
+        train, held = recording(r_of)
+        held = dict(held, w=held["w"].copy())
+        at = np.flatnonzero(held["t"] >= 190.0)[20::60][:8]
+        spike = np.zeros(len(held["t"]), bool)
+        for a in at:
+            held["w"][a : a + 4] += 40 * SIGMA
+            spike[a : a + 4] = True
+        if mark:
+            held["spike"] = spike
+        return describe_remainder(train, held, RATE, SIGMA**2, spiky="glitches" if mark else "")
+
+    quiet = lambda v, t: np.zeros_like(v)
+    d = glitched(quiet, mark=False)
+    assert d["concentrated"]["t"] == pytest.approx([190.0, 199.98])
+    d = glitched(quiet, mark=True)
+    assert "concentrated" not in d and "held-out stretch" not in d["summary"]
+    assert "w's glitches (the noise floor's warning) are part of it" in d["summary"]
+    d = glitched(lambda v, t: np.where(t >= 190.0, 0.3, 0.0), mark=True)
+    assert d["concentrated"]["t"] == pytest.approx([190.0, 199.98]) and d["concentrated"]["after_training"]
+
+
 def test_a_remainder_spread_over_the_record_is_not_placed_in_one_stretch():
     # A dynamic miss everywhere (the low-passed drive): each held-out block holds about a fifth of it.
     d = describe(lambda v, t: 0.3 * lowpass(v))

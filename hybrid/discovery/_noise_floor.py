@@ -45,7 +45,11 @@ that jumped to a wrong blob for a frame, an electrical glitch) puts its energy
 into every estimator above; `spike_samples` finds such samples (read on w less
 its linear response to the drive, with rules that keep a fast response's first
 samples after a step out), the estimators read w with each replaced by its
-neighbours' mean, and `NoiseFloor.spikes` and a warning say so.
+neighbours' mean, and `NoiseFloor.spikes` and a warning say so. A short run of
+such samples (a tracker that lost the tip for a few frames, a logger that read
+0 while its sensor dropped out) is a glitch: w jumps into it and back out
+(`glitch_runs`), and the estimators read w with the run bridged by a straight
+line; `NoiseFloor.glitches` holds the runs, `spikes` their samples too.
 
 **What the floor can and cannot see.** Every estimator reads how much w varies
 from one sample to the next beyond a smooth signal. Data that were smoothed,
@@ -94,6 +98,10 @@ SPIKE_QUANTILE, SPIKE_OVER_TAIL, SPIKE_MAX_FRACTION = 0.99, 3.0, 0.01
 SPIKE_ALONE, SPIKE_LOCAL = 2.5, 5
 #: Samples after a jump of the drive in which no spike is counted (a response's first samples).
 SPIKE_AFTER = 3
+#: The longest run of samples read as one glitch (`glitch_runs`): a third of a second at 30 frames/s.
+GLITCH_RUN = 10
+#: Glitches in more than this share of the samples are a feature of the signal, not glitches: none is counted.
+GLITCH_MAX_FRACTION = 0.05
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,7 +118,9 @@ class NoiseFloor:
     - `source`: what the floor was estimated from, in words.
     - `quantum`: the step of the grid w's values lie on (`quantisation_step`), NaN when none.
     - `warnings`: sentences, when the floor may not be the measurement noise.
-    - `spikes`: the samples of w read as isolated spikes (`spike_samples`), left out of the estimators.
+    - `spikes`: the samples of w read as isolated spikes (`spike_samples`) or inside a glitch
+      (`glitch_runs`), left out of the estimators.
+    - `glitches`: the glitches, each (first sample, last sample).
     - `spike_note`: the sentence about them (one of `warnings`), empty when there are none.
     """
 
@@ -123,11 +133,24 @@ class NoiseFloor:
     quantum: float = float("nan")
     warnings: tuple = ()
     spikes: tuple = ()
+    glitches: tuple = ()
     spike_note: str = ""
 
     @property
     def std(self) -> float:
         return math.sqrt(self.variance)
+
+    @property
+    def spike_words(self) -> str:
+        """What `spike_note` found, in a few words ("isolated spikes", "glitches", both); "" when nothing."""
+        if not self.spike_note:
+            return ""
+        if not self.spikes:  # pooled over recordings: each says its own
+            return "isolated spikes or glitches"
+        inside = sum(b - a + 1 for a, b in self.glitches)
+        if not self.glitches:
+            return "isolated spikes"
+        return "glitches" if inside == len(self.spikes) else "isolated spikes and glitches"
 
     @property
     def from_fit(self) -> bool:
@@ -146,6 +169,7 @@ class NoiseFloor:
             "quantum": self.quantum,
             "warnings": list(self.warnings),
             "spikes": list(self.spikes),
+            "glitches": [list(g) for g in self.glitches],
         }
 
 
@@ -303,18 +327,102 @@ def spike_samples(w: np.ndarray, v_in: np.ndarray) -> np.ndarray:
     return lone[~np.isin(lone, near)]
 
 
-def spike_sentence(w: np.ndarray, spikes: np.ndarray, rate: float) -> str:
-    """The warning about `spikes` (indices into w): how many, the largest and when, what to do."""
+def glitch_runs(w: np.ndarray, v_in: np.ndarray) -> list[tuple[int, int]]:
+    """Glitches in w: runs (first, last) of 2 to `GLITCH_RUN` samples that w jumps into and back out of, undriven.
+
+    Read on w itself, by its differences d_i = w_{i+1} − w_i: not on w less
+    its linear response to the drive, as `spike_samples` reads, whose fit,
+    cut at its last tap, steps where a jump of the drive leaves its window
+    (a slow plant's pair of such steps 10 samples apart read as a glitch). A
+    run a..b is entered by a jump d_{a−1} and left by one d_b of the other
+    sign, each beyond `SPIKE_SIGMAS` robust spreads of d (1.4826 × its median
+    absolute deviation); it comes back (w_{b+1} within the smaller jump of
+    w_{a−1}: a step moves and stays; a response to a drive that moved
+    meanwhile may leave it short of w_{a−1}); each of its samples stays off the
+    level midway between w_{a−1} and w_{b+1} by over half the smaller jump (a
+    plateau away, not a passing wiggle); and it is alone: no other difference
+    within `SPIKE_LOCAL` samples either side of it reaches the smaller jump
+    over `SPIKE_ALONE` (a ringing jumps at every sample). Not counted: a run
+    that starts from the sample before a jump of the drive to `SPIKE_AFTER`
+    samples after it (a response's first samples, a short pulse's response:
+    a run that starts earlier is not the jump's doing), and every run when
+    together they hold more than `GLITCH_MAX_FRACTION` of the samples (a
+    feature of the signal). Single samples are `spike_samples`'s.
+    """
+    w, v_in = np.asarray(w, float), np.asarray(v_in, float)
+    n = w.size
+    if n < 2 * GLITCH_RUN:
+        return []
+    d = np.diff(w)
+    spread = 1.4826 * float(np.median(np.abs(d - np.median(d))))
+    if not spread > 0:
+        return []
+    big = np.flatnonzero(np.abs(d) > SPIKE_SIGMAS * spread)
+    dv = np.abs(np.diff(v_in))
+    v_spread = 1.4826 * float(np.median(np.abs(dv - np.median(dv))))
+    # a run that starts where a jump of the drive may move w (from the sample before it, a frame's
+    # timing, to `SPIKE_AFTER` after) may be the response; one that starts before the jump cannot be
+    driven = np.zeros(n, bool)
+    for k in range(-1, SPIKE_AFTER + 1):
+        at = np.flatnonzero(dv > SPIKE_SIGMAS * v_spread) + 1 + k
+        driven[at[(at >= 0) & (at < n)]] = True
+    runs: list[tuple[int, int]] = []
+    taken = -1
+    for i in big:  # the jump into a run a = i + 1 ...
+        if i + 1 <= taken:
+            continue
+        for j in big[(big >= i + 2) & (big <= i + GLITCH_RUN)]:  # ... and out of it, b = j
+            if np.sign(d[j]) == np.sign(d[i]) or j + 1 >= n:
+                continue
+            jump = min(abs(d[i]), abs(d[j]))
+            level = (w[i] + w[j + 1]) / 2
+            if abs(w[j + 1] - w[i]) >= jump or np.min(np.abs(w[i + 1 : j + 1] - level)) <= jump / 2:
+                continue
+            around = np.r_[d[max(i - SPIKE_LOCAL, 0) : i], d[j + 1 : j + 1 + SPIKE_LOCAL]]
+            if around.size and np.max(np.abs(around)) >= jump / SPIKE_ALONE:
+                continue
+            if not driven[i + 1]:
+                runs.append((int(i + 1), int(j)))
+                taken = j
+            break
+    if sum(b - a + 1 for a, b in runs) > GLITCH_MAX_FRACTION * n:
+        return []
+    return runs
+
+
+def spike_sentence(w: np.ndarray, spikes: np.ndarray, rate: float, glitches=()) -> str:
+    """The warning about `spikes` (indices into w; `glitches`' samples among them): how many, the largest, what to do."""
     if not len(spikes):
         return ""
-    jump = np.abs(_excursion(w)[spikes - 1])
-    k = int(spikes[np.argmax(jump)])
+    inside = np.zeros(w.size, bool)
+    for a, b in glitches:
+        inside[a : b + 1] = True
+    lone = np.asarray([k for k in spikes if not inside[k]], int)
     span = float(np.ptp(w)) or 1.0
+    sizes = [(abs(_excursion(w)[k - 1]), int(k)) for k in lone]
+    for a, b in glitches:  # a glitch's size: how far its samples sit off the level around it
+        level = (w[a - 1] + w[b + 1]) / 2
+        sizes.append((float(np.max(np.abs(w[a : b + 1] - level))), int(a)))
+    size, k = max(sizes)
+    lengths = [b - a + 1 for a, b in glitches]
+    what = (
+        [f"{len(lone)} isolated spike(s), samples that leave both neighbours and come back"]
+        if len(lone)
+        else []
+    )
+    if glitches:
+        what.append(
+            f"{len(glitches)} glitch(es), runs of {min(lengths)}–{max(lengths)} samples that w jumps into and back "
+            "out of"
+            if min(lengths) < max(lengths)
+            else f"{len(glitches)} glitch(es), runs of {lengths[0]} samples that w jumps into and back out of"
+        )
     return (
-        f"w has {len(spikes)} isolated spike(s), samples that leave both neighbours and come back (the largest "
-        f"{100 * jump.max() / span:.0f} % of w's range, at t = {k / rate:.4g} s): a tracker that lost its marker "
-        "or an electrical glitch reads so; the floor is estimated without them, but every fit and score still "
-        "counts them and they dilute every gain: remove or interpolate them and diagnose again"
+        f"w has {' and '.join(what)} (the largest {100 * size / span:.0f} % of w's range, at t = {k / rate:.4g} s): "
+        "a tracker that lost its marker, a sensor that dropped out or an electrical glitch reads so (as does a "
+        "system that flips and flips back by itself: a relay, a contact that chatters); the floor is estimated "
+        "without them, but every fit and score still counts them and they dilute every gain: remove or "
+        "interpolate them and diagnose again"
     )
 
 
@@ -393,10 +501,16 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
     quantum = quantisation_step(w)  # of the values as stored
     spread = float(np.var(w))
     spikes = spike_samples(w, v_in)
-    note = spike_sentence(w, spikes, rate)
-    if len(spikes):  # each spike replaced by its neighbours' mean, for the estimators alone
-        w = w.copy()
-        w[spikes] = (w[spikes - 1] + w[spikes + 1]) / 2
+    glitches = glitch_runs(w, v_in)
+    inside = [np.arange(a, b + 1) for a, b in glitches]
+    spikes = np.unique(np.concatenate([spikes, *inside])).astype(int) if glitches else spikes
+    note = spike_sentence(w, spikes, rate, glitches)
+    if len(spikes):  # for the estimators alone: a spike replaced by its neighbours' mean, a glitch bridged
+        original, w = w, w.copy()
+        lone = spikes[~np.isin(spikes, np.concatenate(inside))] if glitches else spikes
+        w[lone] = (original[lone - 1] + original[lone + 1]) / 2
+        for a, b in glitches:
+            w[a : b + 1] = np.interp(np.arange(a, b + 1), [a - 1, b + 1], [original[a - 1], original[b + 1]])
     estimators = _estimators(rate)
     estimates = {name: f(w, v_in) for name, f in estimators.items()}
     if not np.isfinite(estimates["repeats"]):
@@ -424,6 +538,7 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
         quantum=quantum,
         warnings=floor_warnings(math.sqrt(variance), quantum) + ((note,) if note else ()),
         spikes=tuple(int(k) for k in spikes),
+        glitches=tuple(glitches),
         spike_note=note,
     )
     if method == "repeats":  # the repetitions already removed the signal, however fast

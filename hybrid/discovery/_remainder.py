@@ -158,6 +158,8 @@ def _prepare(part: dict) -> dict:
     out["recording"] = (np.zeros(n) if recording is None else np.asarray(recording, float).ravel())[ok]
     out["r"] = out["w"] - out["w_hat"]
     out["ok"] = ok  # which samples were kept: a state feedback's responses are filtered alike
+    if part.get("spike") is not None:  # the noise floor's spikes and glitches (`_concentrated`)
+        out["spike"] = np.asarray(part["spike"], bool).ravel()[ok]
     starts = np.flatnonzero(np.r_[True, run[1:] != run[:-1]]) if len(run) else np.zeros(0, int)
     out["pos"] = np.arange(len(run)) - np.repeat(starts, np.diff(np.r_[starts, len(run)]))
     return out
@@ -1035,7 +1037,7 @@ def describe_remainder(
     floor_variance: float,
     feedback: dict | None = None,
     w_unit: str = "",
-    spiky: bool = False,
+    spiky: str = "",
     v_unit: str = "",
     drive_map: dict | None = None,
 ) -> dict:
@@ -1054,10 +1056,10 @@ def describe_remainder(
     with it, "state_feedback" (`_state_feedback`). Either part may hold
     "recording", each sample's recording (a line's phase is its own in each);
     `w_unit` labels the amplitudes the summary quotes, `v_unit` the drive's levels. "concentrated"
-    (`_concentrated`): the held-out stretch that holds most of the excess, when one does. `spiky`: w has isolated
-    spikes (the noise floor's `spikes`): the summary says they are part of the
-    remainder, and an unstructured one is read as holding them rather than as a
-    disturbance or a miss (unless two recordings under one drive tell).
+    (`_concentrated`): the held-out stretch that holds most of the excess, when one does. `spiky`: what the
+    noise floor found in w that leaves and comes back, in words (`NoiseFloor.spike_words`: isolated spikes,
+    glitches; "" for none): the summary says they are part of the remainder, and an unstructured one is read
+    as holding them rather than as a disturbance or a miss (unless two recordings under one drive tell).
     """
     import scipy.optimize
 
@@ -1209,7 +1211,7 @@ def describe_remainder(
     if out["kind"] == "unstructured" and judge.excess is not None and not (spiky and repeats is None):
         out["summary"] += _repeat_words(repeats, independence)
     if spiky:  # they count in every residual; the floor, read without them, does not
-        out["summary"] += "; w's isolated spikes (the noise floor's warning) are part of it"
+        out["summary"] += f"; w's {spiky} (the noise floor's warning) are part of it"
     return out
 
 
@@ -1224,17 +1226,26 @@ def _concentrated(tr, ho, judge, places: dict) -> dict | None:
     error (`_Judge.excess`; half of it then is too, in fewer samples). Beside
     it: the drive's range there and on the training part of its recording,
     and whether it lies after (or before) every training sample of its
-    recording — what the model had not seen there.
+    recording — what the model had not seen there. Samples the noise floor read
+    as spikes or glitches (``ho["spike"]``, where given) count for none: the
+    summary says them already, and a few of them in one stretch are no change
+    of the system there.
     """
     if judge.excess is None:  # no floor, or the held-out error is within sampling error of it
         return None
     over = ho["r"] ** 2 - judge.floor
+    if "spike" in ho and ho["spike"].any():
+        rest = ho["r"][~ho["spike"]]
+        if rest.size < MIN_SAMPLES or not _Judge(rest, judge.floor).excess:  # the rest is at the floor
+            return None
+        over = np.where(ho["spike"], 0.0, over)
     stretch = np.cumsum(np.r_[0, (np.diff(ho["segment"]) != 0) | (np.diff(ho["recording"]) != 0)])
     if stretch[-1] + 1 < CONCENTRATED_STRETCHES:
         return None
     excess = np.bincount(stretch, weights=over)
     m = stretch == int(np.argmax(excess))
-    share, samples = float(excess.max() / over.sum()), float(np.mean(m))
+    # of the stretches' excesses above the floor (one below it, by sampling error, takes none away)
+    share, samples = float(excess.max() / np.sum(np.maximum(excess, 0.0))), float(np.mean(m))
     if share < CONCENTRATED or share < CONCENTRATED_RATIO * samples:
         return None
     i = float(ho["recording"][m][0])

@@ -319,6 +319,10 @@ def remainder(
     if mse <= settings.unexplained_ratio * top:
         return None
     train = _part(problem, series, recordings, final, "train")
+    if floor.spikes and len(recordings) == 1:  # the floor's spikes and glitches, by held-out sample
+        t = np.asarray(recordings[0].t, float)
+        at = np.clip(np.searchsorted(t, np.asarray(held["t"], float)), 0, len(t) - 1)
+        held["spike"] = np.isin(at, floor.spikes)
     final_stack = _final_stack(problem, final)
     feedback = drive_map = None
     if final_stack is not None:
@@ -340,7 +344,7 @@ def remainder(
         floor.variance,
         feedback,
         w_unit,
-        spiky=bool(floor.spike_note),
+        spiky=floor.spike_words,
         v_unit=v_unit,
         drive_map=drive_map,
     )
