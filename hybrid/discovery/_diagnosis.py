@@ -58,7 +58,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: two predict alike to within the noise, not because the recording cannot tell them); the evidence's
 #: ``baseline``/``extended`` ``drive_independence`` (the held-out residual's independence of the drive,
 #: `residual_tests.drive_independence`; null where it cannot be tested), and the same test of the
-#: remainder in ``unexplained.description.drive_independence``.
+#: remainder in ``unexplained.description.drive_independence``; ``noise_floor.glitches`` (runs of a
+#: few samples that w jumps into and back out of, each [first, last], left out of the floor with the
+#: isolated spikes; their samples are in ``noise_floor.spikes`` too).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
