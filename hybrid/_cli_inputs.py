@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .data._recording_checks import FILL_GAPS_MAX
 from .util._errors import InputError
 
 
@@ -47,6 +48,14 @@ def add_mapping(p, B, rate: bool = True) -> None:
         help="the samples to use, Python-slice style (e.g. 40650:)",
     )
     g.add_argument("--units", default=None, metavar="MAP", help="unit labels, e.g. v_in=V,w=V (labels only)")
+    g.add_argument(
+        "--fill-gaps",
+        type=B.integer(1, FILL_GAPS_MAX),
+        default=None,
+        metavar="N",
+        help=f"fill each gap of the time column of at most N missing frames (1 to {FILL_GAPS_MAX}: a camera "
+        "that dropped a frame) by straight lines in every column, and say so (default: refuse a gap)",
+    )
 
 
 def load_recordings(args, paths, rate_alone_maps: bool = True):
@@ -54,7 +63,15 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
 
     `rate_alone_maps` False: --rate alone does not make a file mapped (`hybrid sensitivity`'s
     --rate is its synthetic drives' rate too, and a file in the project's columns has its t).
+    What validation did to each (`Recording.notes`: t rebuilt, frames filled) is said on stderr,
+    whichever command reads them.
     """
+    recordings = _load_recordings(args, paths, rate_alone_maps)
+    _warn_notes(recordings)
+    return recordings
+
+
+def _load_recordings(args, paths, rate_alone_maps: bool):
 
     from .data._loaders import TEXT_SUFFIXES
     from .data._mapping import file_references, load_mapped
@@ -72,7 +89,7 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
         seen[key] = path
     options: dict[str, Any] = {  # argparse's values, any of them None when not given
         k: getattr(args, k, None)
-        for k in ("input", "output", "time", "columns", "rate", "sample_range", "units")
+        for k in ("input", "output", "time", "columns", "rate", "sample_range", "units", "fill_gaps")
     }
     if not any(options[k] is not None for k in ("input", "output", "time", "columns")):
         text = [p for p in paths if Path(p).suffix.lower() in TEXT_SUFFIXES]
@@ -160,7 +177,7 @@ def with_settle(simulation, args, recordings):
     return held_at_start(simulation, args.settle, recordings[0])
 
 
-def warn_notes(recordings):
+def _warn_notes(recordings):
     """One stderr line per thing validation did to a recording (e.g. t rebuilt from jittered times)."""
     for recording in recordings:
         for note in recording.notes:

@@ -86,7 +86,7 @@ def add_sensitivity(sub, B) -> None:
 
 
 def cmd_sensitivity(args) -> None:
-    from ._cli_inputs import load_recordings, parse_params, warn_notes
+    from ._cli_inputs import load_recordings, parse_params
     from ._cli_outputs import check_outputs, out_folder
 
     rc = args.physics.strip().lower() == "rc"
@@ -112,7 +112,6 @@ def cmd_sensitivity(args) -> None:
     check_samples(duration, rate)
     lock = check_outputs([out_folder(args.out, OUTPUT_FILES)], inputs=inputs)
     recording = load_recordings(args, inputs, rate_alone_maps=False)[0] if inputs else None
-    warn_notes([recording] if recording is not None else [])
     settings = SensitivityStudySettings(
         parameters=parse_params(args.param),
         n_stages=args.stages or 45,
@@ -132,7 +131,7 @@ def cmd_sensitivity(args) -> None:
 def _generic(args) -> None:
     import jax
 
-    from ._cli_inputs import load_recordings, parse_params, warn_notes
+    from ._cli_inputs import load_recordings, parse_params
     from ._cli_outputs import check_outputs, out_folder
     from .core._fit import recording_units
     from .physics._plugins import resolve_physics
@@ -149,7 +148,6 @@ def _generic(args) -> None:
         )
     lock = check_outputs([out_folder(args.out, OUTPUT_FILES)], inputs=[args.recording])
     recording = load_recordings(args, [args.recording], rate_alone_maps=False)[0]
-    warn_notes([recording])
     # probed on a step at the recording's rate (its first samples would centre an lti:N's defaults on it)
     simulation = resolve_physics(args.physics, rate=recording.rate)
     if params:

@@ -32,7 +32,7 @@ import numpy as np
 
 from .util._errors import InputError
 
-_MAPPING = ("input", "output", "time", "columns", "rate", "sample_range", "units")
+_MAPPING = ("input", "output", "time", "columns", "rate", "sample_range", "units", "fill_gaps")
 
 
 def add_test_options(p) -> None:

@@ -35,7 +35,6 @@ from ._cli_inputs import (
     effects_from_spec,
     load_recordings,
     parse_params,
-    warn_notes,
     with_settle,
 )
 from ._cli_outputs import check_outputs, out_file, out_folder
@@ -594,7 +593,6 @@ def _cmd_diagnose(args):
         inputs=args.recordings,
     )
     recordings = load_recordings(args, args.recordings)
-    warn_notes(recordings)
     settings = DiagnoseSettings()
     if args.max_steps is not None:
         if args.max_steps < 1:

@@ -80,7 +80,14 @@ from ._mapping_options import (
     units_argument,
 )
 from ._recording import Recording
-from ._recording_checks import MS_STEP_S, TIME_UNITS, check_time, time_step
+from ._recording_checks import (
+    FILL_GAPS_MAX,
+    MS_STEP_S,
+    TIME_UNITS,
+    check_time,
+    fill_gaps as fill_missing,
+    time_step,
+)
 from ._table import MAPPED_SUFFIXES, OPTION, only_column, rate_field, read_columns
 
 __all__ = ["DEFAULT_UNITS", "RATE_RTOL", "file_references", "load_mapped", "load_pair"]
@@ -123,6 +130,7 @@ def load_mapped(
     units: Mapping[str, str] | None = None,
     name: str | None = None,
     require_w: bool = True,
+    fill_gaps: int | None = None,
 ) -> Recording:
     """Read a file whose columns have the lab's names; see the module's rules.
 
@@ -139,10 +147,13 @@ def load_mapped(
         units: unit labels by role (``t``/``time``, ``v_in``/``input``, ``w``/``output``).
         name: how messages refer to the recording; default the path and the mapping.
         require_w: False to allow no output (``w`` is then zeros), as `Recording.load`.
+        fill_gaps: fill each gap of the time column of at most this many missing frames (1 to
+            `FILL_GAPS_MAX`) by straight lines in every column (`fill_gaps`); default: refuse a gap.
 
     Returns:
         The validated recording; ``metadata`` holds ``units``, ``mapping`` (role -> the
-        file's name), ``rate_hz`` and ``rate_from``, and ``segment`` for a sample range.
+        file's name), ``rate_hz`` and ``rate_from``, ``segment`` for a sample range, and
+        ``filled`` (the filled samples, the gaps and the frames) where gaps were filled.
     """
     several = isinstance(path, (list, tuple))
     given = path if isinstance(path, (list, tuple)) else [path]
@@ -161,6 +172,15 @@ def load_mapped(
             raise
         roles, read = standard
     rate_arg = rate_argument(rate)
+    if fill_gaps is not None and (
+        isinstance(fill_gaps, bool)
+        or not isinstance(fill_gaps, (int, np.integer))
+        or not 1 <= fill_gaps <= FILL_GAPS_MAX
+    ):
+        raise InputError(
+            f"load_mapped got fill_gaps={fill_gaps!r}: give the most missing frames in a row to fill, a whole "
+            f"number from 1 to {FILL_GAPS_MAX} (a longer gap is cut, not guessed), or leave it out"
+        )
     given_units = units_argument(units, "t" in roles)
     bounds = parse_sample_range(sample_range)
     if name is not None and (not isinstance(name, str) or not name.strip()):
@@ -209,6 +229,8 @@ def load_mapped(
     jitter = 0.0  # the largest timestamp jitter of a rebuilt time base, s
     if lines is not None:
         lines = lines[start:stop]
+    signals: dict[str, np.ndarray] = {role: data[role][start:stop] for role in ("v_in", "w") if role in data}
+    filled = np.zeros(0, int)
     if "t" in data:
         file_units = file_meta.get("units")  # by column name: a units row under the header, or a sidecar's
         stated = file_units.get(roles["t"]) if isinstance(file_units, Mapping) else None
@@ -248,6 +270,8 @@ def load_mapped(
                 f"looks like milliseconds ({1000 / step:.4g} Hz if so): give its unit, units "
                 "t=ms (or t=s for a recording really sampled this slowly)"
             )
+        if fill_gaps:
+            t, signals, lines, filled = fill_missing(label, t, signals, int(fill_gaps), lines)
         # the checks the Recording makes, here with the file's lines; the rate is the grid's
         grid, base = check_time(label, t, {"units": {"t": "s"}}, lines)
         jitter = float(base["jitter_max_s"]) if base is not None else 0.0
@@ -274,8 +298,16 @@ def load_mapped(
         previous = file_meta.get("segment")
         offset = int(previous.get("start", 0)) if isinstance(previous, dict) else 0
         metadata["segment"] = {"start": offset + start, "stop": offset + stop}
-    w = data["w"][start:stop] if "w" in data else np.zeros(stop - start)
-    return Recording(t, data["v_in"][start:stop], w, {}, metadata, label, tuple(notes))
+    if filled.size:
+        gaps = int(np.count_nonzero(np.diff(filled) != 1)) + 1
+        metadata["filled"] = {"samples": [int(k) for k in filled], "gaps": gaps, "frames": int(filled.size)}
+        notes.append(
+            f"recording '{label}': {filled.size} missing frame(s) in {gaps} gap(s) filled by straight lines "
+            f"(--fill-gaps {int(fill_gaps or 0)}), the first at t = {t[filled[0]]:.6g} s: every fit and score counts "
+            "them as measured (metadata['filled'] lists them)"
+        )
+    w = signals["w"] if "w" in signals else np.zeros(len(t))
+    return Recording(t, signals["v_in"], w, {}, metadata, label, tuple(notes))
 
 
 def file_references(

@@ -26,6 +26,7 @@ import numpy as np
 from ..util._errors import InputError
 
 __all__ = [
+    "FILL_GAPS_MAX",
     "GAP_FRAMES",
     "JITTER_FRAMES",
     "MS_STEP_S",
@@ -33,6 +34,7 @@ __all__ = [
     "TIME_RTOL",
     "TIME_UNITS",
     "UNITS",
+    "fill_gaps",
     "sample_text",
     "samples_text",
     "time_step",
@@ -60,8 +62,10 @@ TIME_RTOL: float = 1e-3
 #: timestamps of a 30 Hz camera are off by up to 0.015 step from rounding alone.
 #: Larger deviations (a frame rate that changed) are refused.
 JITTER_FRAMES: float = 0.25
-#: A step longer than this many median steps is a gap (dropped frames): refused.
+#: A step longer than this many median steps is a gap (dropped frames): refused, unless filled (`fill_gaps`).
 GAP_FRAMES: float = 1.5
+#: The most missing frames in a row `fill_gaps` may be asked to fill: a longer gap is cut, not guessed.
+FILL_GAPS_MAX: int = 10
 #: A median step of this many seconds or more (a rate below 0.1 Hz) is refused as t
 #: written in milliseconds (33.3 at 30 fps), unless the metadata given declares
 #: ``units: {"t": "s"}``. Slow legitimate recordings (a 1 Hz benchmark, dt = 1 s) pass;
@@ -231,7 +235,8 @@ def check_time(
             f"recording '{name}' has a gap in time at {sample_text(k + 1, lines, t[k + 1])}: the "
             f"step into it is {dt[k]:.6g} s, {dt[k] / step:.3g} times the median step {step:.6g} s "
             f"({gaps.size} gap(s) in all): frames are missing there; cut the recording at the "
-            "gap (--range, Recording.segment) or fill the missing frames"
+            "gap (--range, Recording.segment), or fill a few missing frames by straight lines "
+            "(--fill-gaps N; fill_gaps=N in Python)"
         )
     short = np.flatnonzero(dt < step / GAP_FRAMES)
     frame = np.arange(t.size, dtype=np.float64)
@@ -358,3 +363,69 @@ def source_name(metadata: Any) -> str:
     if isinstance(metadata, Mapping) and isinstance(metadata.get("source"), str):
         return metadata["source"]
     return "<arrays>"
+
+
+def fill_gaps(
+    name: str, t: np.ndarray, columns: Mapping[str, np.ndarray], most: int, lines: Any = None
+) -> tuple[np.ndarray, dict[str, np.ndarray], Any, np.ndarray]:
+    """`t` and `columns` with every gap of at most `most` missing frames filled by straight lines.
+
+    A gap is a step over `GAP_FRAMES` median steps. It spans k median steps (rounded) and holds
+    k − 1 missing frames when its length is within `JITTER_FRAMES` of a step of k steps; those
+    frames are put on the gap's own even grid, and every column is interpolated linearly across
+    it (a camera that dropped frames: what the strip and the drive did there is not known, and a
+    straight line is the least that can be said). A gap of more frames, or of no whole number of
+    them, is refused with one line. Returns (t, columns, lines, filled): `lines` with each filled
+    sample given its gap's first line, and the indices of the filled samples in the new record.
+    """
+    t = np.asarray(t, np.float64)
+    dt = np.diff(t)
+    if dt.size == 0 or not np.all(dt > 0):
+        return t, dict(columns), lines, np.zeros(0, int)  # the order's own check says what is wrong
+    step = float(np.median(dt))
+    gaps = np.flatnonzero(dt > GAP_FRAMES * step)
+    if not gaps.size:
+        return t, dict(columns), lines, np.zeros(0, int)
+    frames = np.rint(dt[gaps] / step).astype(int)
+    for g, k in zip(gaps, frames):
+        if abs(dt[g] - k * step) > JITTER_FRAMES * step or k - 1 > most:
+            what = (
+                f"{k - 1} missing frames, more than --fill-gaps {most} (fill_gaps={most}) fills"
+                if abs(dt[g] - k * step) <= JITTER_FRAMES * step
+                else f"{dt[g] / step:.3g} steps long, no whole number of missing frames"
+            )
+            raise InputError(
+                f"recording '{name}' has a gap in time at {sample_text(int(g) + 1, lines, t[g + 1])} of {what}: "
+                "cut the recording at the gap (--range, Recording.segment)"
+                + (
+                    f", or fill up to {k - 1} frames (--fill-gaps {k - 1})"
+                    if k - 1 <= FILL_GAPS_MAX and k > 1
+                    else ""
+                )
+            )
+    # each sample's place in the filled record: sample i moves on by the frames missing before it
+    shift = np.zeros(t.size, int)
+    shift[gaps + 1] = frames - 1
+    place = np.arange(t.size) + np.cumsum(shift)
+    n = int(place[-1]) + 1
+    filled = np.setdiff1d(np.arange(n), place)
+    # the filled samples' times on each gap's own even grid, then every column by the same line
+    before = np.searchsorted(place, filled) - 1  # the measured sample before each filled one
+    fraction = (filled - place[before]) / (place[before + 1] - place[before])
+    new_t = np.empty(n)
+    new_t[place] = t
+    new_t[filled] = t[before] + fraction * (t[before + 1] - t[before])
+    out = {}
+    for key, values in columns.items():
+        values = np.asarray(values)
+        full = np.empty(n, np.result_type(values.dtype, np.float64))
+        full[place] = values
+        full[filled] = values[before] + fraction * (values[before + 1] - values[before])
+        out[key] = full
+    if lines is not None:
+        lines = np.asarray(lines)
+        full_lines = np.empty(n, lines.dtype)
+        full_lines[place] = lines
+        full_lines[filled] = lines[before]
+        lines = full_lines
+    return new_t, out, lines, filled
