@@ -303,7 +303,7 @@ def load_mapped(
         metadata["filled"] = {"samples": [int(k) for k in filled], "gaps": gaps, "frames": int(filled.size)}
         notes.append(
             f"recording '{label}': {filled.size} missing frame(s) in {gaps} gap(s) filled by straight lines "
-            f"(--fill-gaps {int(fill_gaps or 0)}), the first at t = {t[filled[0]]:.6g} s: every fit and score counts "
+            f"(--fill-gaps {fill_gaps}), the first at t = {t[filled[0]]:.6g} s: every fit and score counts "
             "them as measured (metadata['filled'] lists them)"
         )
     w = signals["w"] if "w" in signals else np.zeros(len(t))

@@ -386,23 +386,25 @@ def fill_gaps(
     gaps = np.flatnonzero(dt > GAP_FRAMES * step)
     if not gaps.size:
         return t, dict(columns), lines, np.zeros(0, int)
-    frames = np.rint(dt[gaps] / step).astype(int)
+    frames = np.rint(dt[gaps] / step).astype(int)  # k ≥ 2: a gap is over 1.5 steps
     for g, k in zip(gaps, frames):
-        if abs(dt[g] - k * step) > JITTER_FRAMES * step or k - 1 > most:
-            what = (
-                f"{k - 1} missing frames, more than --fill-gaps {most} (fill_gaps={most}) fills"
-                if abs(dt[g] - k * step) <= JITTER_FRAMES * step
-                else f"{dt[g] / step:.3g} steps long, no whole number of missing frames"
+        whole = abs(dt[g] - k * step) <= JITTER_FRAMES * step
+        if whole and k - 1 <= most:
+            continue
+        what = (
+            f"{k - 1} missing frames, more than --fill-gaps {most} (fill_gaps={most}) fills"
+            if whole
+            else f"{dt[g] / step:.3g} steps long, no whole number of missing frames"
+        )
+        raise InputError(
+            f"recording '{name}' has a gap in time at {sample_text(int(g) + 1, lines, t[g + 1])} of {what}: "
+            "cut the recording at the gap (--range, Recording.segment)"
+            + (
+                f", or fill up to {k - 1} frames (--fill-gaps {k - 1})"
+                if whole and k - 1 <= FILL_GAPS_MAX
+                else ""
             )
-            raise InputError(
-                f"recording '{name}' has a gap in time at {sample_text(int(g) + 1, lines, t[g + 1])} of {what}: "
-                "cut the recording at the gap (--range, Recording.segment)"
-                + (
-                    f", or fill up to {k - 1} frames (--fill-gaps {k - 1})"
-                    if k - 1 <= FILL_GAPS_MAX and k > 1
-                    else ""
-                )
-            )
+        )
     # each sample's place in the filled record: sample i moves on by the frames missing before it
     shift = np.zeros(t.size, int)
     shift[gaps + 1] = frames - 1

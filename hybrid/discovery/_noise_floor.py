@@ -232,6 +232,17 @@ def floor_warnings(std: float, quantum: float) -> tuple[str, ...]:
     )
 
 
+def _mad_spread(x: np.ndarray) -> float:
+    """1.4826 × the median absolute deviation of x: its standard deviation, were it Gaussian, that outliers do not inflate."""
+    return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
+
+
+def _drive_jumps(v_in: np.ndarray) -> np.ndarray:
+    """The first sample after each jump of the drive: a step beyond `SPIKE_SIGMAS` robust spreads of its steps."""
+    dv = np.abs(np.diff(v_in))
+    return np.flatnonzero(dv > SPIKE_SIGMAS * _mad_spread(dv)) + 1
+
+
 def _excursion(x: np.ndarray) -> np.ndarray:
     """e_i = x_i − (x_{i−1} + x_{i+1})/2 for i = 1..n−2 (index i − 1): how far a sample leaves its neighbours."""
     return x[1:-1] - (x[:-2] + x[2:]) / 2
@@ -245,7 +256,7 @@ def _lone(x: np.ndarray, zero_spread: bool) -> np.ndarray:
     """
     e = _excursion(x)
     known = e[np.isfinite(e)]
-    spread = 1.4826 * float(np.median(np.abs(known - np.median(known)))) if known.size else 0.0
+    spread = _mad_spread(known)
     if not spread > 0:
         if not zero_spread:
             return np.zeros(0, int)
@@ -319,9 +330,7 @@ def spike_samples(w: np.ndarray, v_in: np.ndarray) -> np.ndarray:
     rest[near_lone[(near_lone >= 0) & (near_lone < e.size)]] = False
     tail = float(np.quantile(e[rest], SPIKE_QUANTILE)) if rest.any() else 0.0
     lone = lone[e[lone - 1] > SPIKE_OVER_TAIL * tail]
-    dv = np.abs(np.diff(v_in))
-    spread = 1.4826 * float(np.median(np.abs(dv - np.median(dv))))
-    jumps = np.flatnonzero(dv > SPIKE_SIGMAS * spread) + 1  # the first sample after each jump
+    jumps = _drive_jumps(v_in)
     driven = _lone(v_in, zero_spread=True)
     near = np.concatenate([jumps + k for k in range(-1, SPIKE_AFTER + 1)] + [driven - 1, driven, driven + 1])
     return lone[~np.isin(lone, near)]
@@ -354,25 +363,22 @@ def glitch_runs(w: np.ndarray, v_in: np.ndarray) -> list[tuple[int, int]]:
     if n < 2 * GLITCH_RUN:
         return []
     d = np.diff(w)
-    spread = 1.4826 * float(np.median(np.abs(d - np.median(d))))
+    spread = _mad_spread(d)
     if not spread > 0:
         return []
     big = np.flatnonzero(np.abs(d) > SPIKE_SIGMAS * spread)
-    dv = np.abs(np.diff(v_in))
-    v_spread = 1.4826 * float(np.median(np.abs(dv - np.median(dv))))
     # a run that starts where a jump of the drive may move w (from the sample before it, a frame's
     # timing, to `SPIKE_AFTER` after) may be the response; one that starts before the jump cannot be
+    at = np.concatenate([_drive_jumps(v_in) + k for k in range(-1, SPIKE_AFTER + 1)])
     driven = np.zeros(n, bool)
-    for k in range(-1, SPIKE_AFTER + 1):
-        at = np.flatnonzero(dv > SPIKE_SIGMAS * v_spread) + 1 + k
-        driven[at[(at >= 0) & (at < n)]] = True
+    driven[at[(at >= 0) & (at < n)]] = True
     runs: list[tuple[int, int]] = []
     taken = -1
     for i in big:  # the jump into a run a = i + 1 ...
         if i + 1 <= taken:
             continue
         for j in big[(big >= i + 2) & (big <= i + GLITCH_RUN)]:  # ... and out of it, b = j
-            if np.sign(d[j]) == np.sign(d[i]) or j + 1 >= n:
+            if np.sign(d[j]) == np.sign(d[i]):
                 continue
             jump = min(abs(d[i]), abs(d[j]))
             level = (w[i] + w[j + 1]) / 2
@@ -390,33 +396,23 @@ def glitch_runs(w: np.ndarray, v_in: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
-def spike_sentence(w: np.ndarray, spikes: np.ndarray, rate: float, glitches=()) -> str:
-    """The warning about `spikes` (indices into w; `glitches`' samples among them): how many, the largest, what to do."""
-    if not len(spikes):
+def spike_sentence(w: np.ndarray, lone: np.ndarray, rate: float, glitches=()) -> str:
+    """The warning about `lone` spikes and `glitches` (runs (first, last)) of w: how many, the largest, what to do."""
+    runs = [(int(k), int(k)) for k in lone] + [(int(a), int(b)) for a, b in glitches]
+    if not runs:
         return ""
-    inside = np.zeros(w.size, bool)
-    for a, b in glitches:
-        inside[a : b + 1] = True
-    lone = np.asarray([k for k in spikes if not inside[k]], int)
-    span = float(np.ptp(w)) or 1.0
-    sizes = [(abs(_excursion(w)[k - 1]), int(k)) for k in lone]
-    for a, b in glitches:  # a glitch's size: how far its samples sit off the level around it
-        level = (w[a - 1] + w[b + 1]) / 2
-        sizes.append((float(np.max(np.abs(w[a : b + 1] - level))), int(a)))
-    size, k = max(sizes)
-    lengths = [b - a + 1 for a, b in glitches]
+    # how far a run's samples sit off the level around it (a lone spike's: its excursion)
+    size, k = max((float(np.max(np.abs(w[a : b + 1] - (w[a - 1] + w[b + 1]) / 2))), a) for a, b in runs)
     what = (
         [f"{len(lone)} isolated spike(s), samples that leave both neighbours and come back"]
         if len(lone)
         else []
     )
     if glitches:
-        what.append(
-            f"{len(glitches)} glitch(es), runs of {min(lengths)}–{max(lengths)} samples that w jumps into and back "
-            "out of"
-            if min(lengths) < max(lengths)
-            else f"{len(glitches)} glitch(es), runs of {lengths[0]} samples that w jumps into and back out of"
-        )
+        lengths = sorted({b - a + 1 for a, b in glitches})
+        spread = f"{lengths[0]}–{lengths[-1]}" if len(lengths) > 1 else f"{lengths[0]}"
+        what.append(f"{len(glitches)} glitch(es), runs of {spread} samples that w jumps into and back out of")
+    span = float(np.ptp(w)) or 1.0
     return (
         f"w has {' and '.join(what)} (the largest {100 * size / span:.0f} % of w's range, at t = {k / rate:.4g} s): "
         "a tracker that lost its marker, a sensor that dropped out or an electrical glitch reads so (as does a "
@@ -500,16 +496,15 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
     v_in = np.asarray(v_in, float)
     quantum = quantisation_step(w)  # of the values as stored
     spread = float(np.var(w))
-    spikes = spike_samples(w, v_in)
-    glitches = glitch_runs(w, v_in)
-    inside = [np.arange(a, b + 1) for a, b in glitches]
-    spikes = np.unique(np.concatenate([spikes, *inside])).astype(int) if glitches else spikes
-    note = spike_sentence(w, spikes, rate, glitches)
-    if len(spikes):  # for the estimators alone: a spike replaced by its neighbours' mean, a glitch bridged
+    lone, glitches = spike_samples(w, v_in), glitch_runs(w, v_in)
+    note = spike_sentence(w, lone, rate, glitches)
+    runs = [(int(k), int(k)) for k in lone] + glitches
+    spikes = np.unique([k for a, b in runs for k in range(a, b + 1)]).astype(int)
+    if (
+        runs
+    ):  # for the estimators alone: each run bridged by a straight line (a lone spike: its neighbours' mean)
         original, w = w, w.copy()
-        lone = spikes[~np.isin(spikes, np.concatenate(inside))] if glitches else spikes
-        w[lone] = (original[lone - 1] + original[lone + 1]) / 2
-        for a, b in glitches:
+        for a, b in runs:
             w[a : b + 1] = np.interp(np.arange(a, b + 1), [a - 1, b + 1], [original[a - 1], original[b + 1]])
     estimators = _estimators(rate)
     estimates = {name: f(w, v_in) for name, f in estimators.items()}

@@ -320,9 +320,9 @@ def remainder(
         return None
     train = _part(problem, series, recordings, final, "train")
     if floor.spikes and len(recordings) == 1:  # the floor's spikes and glitches, by held-out sample
-        t, held_t = np.asarray(recordings[0].t, float), np.asarray(held["t"], float)
-        i = np.clip(np.searchsorted(t, held_t), 1, max(len(t) - 1, 1))
-        at = np.where(np.abs(t[i - 1] - held_t) <= np.abs(t[i] - held_t), i - 1, i)  # the nearest sample
+        at = np.concatenate(
+            [np.arange(a, b) for a, b in series[0].segments_of("test")]
+        )  # as `heldout` is cut
         held["spike"] = np.isin(at, floor.spikes)
     final_stack = _final_stack(problem, final)
     feedback = drive_map = None
