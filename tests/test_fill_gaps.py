@@ -125,3 +125,13 @@ def test_the_command_line_fills_with_its_flag_and_refuses_without(tmp_path):
     assert "hybrid: warning:" in filled.stderr and "4 missing frame(s) in 3 gap(s)" in filled.stderr
     bad = subprocess.run(base + fit + ["--fill-gaps", "0"], capture_output=True, text=True, check=False)
     assert bad.returncode == 2 and "--fill-gaps: must be from 1 to 10, got 0" in bad.stderr
+
+
+def test_without_a_time_column_there_is_nothing_to_fill_and_the_notes_say_so(tmp_path):
+    path = tmp_path / "dropped.csv"
+    _write(path)
+    evenly = load_mapped(path, input="u", output="y", rate=RATE, fill_gaps=2)
+    assert evenly.t.size == 600 - len(DROPPED) and "filled" not in evenly.metadata
+    assert any("filled nothing" in note and "--time COLUMN" in note for note in evenly.notes)
+    plain = load_mapped(path, input="u", output="y", rate=RATE)
+    assert not any("fill" in note for note in plain.notes)

@@ -286,6 +286,12 @@ def load_mapped(
                 + (f": its column '{times[0]}' looks like one" if times else "")
             )
         t = (start + np.arange(stop - start, dtype=np.float64)) / hz
+        if fill_gaps:
+            notes.append(
+                f"recording '{label}': --fill-gaps {fill_gaps} (fill_gaps={fill_gaps}) filled nothing: with no "
+                f"time column its rows are read as evenly spaced at {hz:g} Hz, so a dropped frame cannot be "
+                "seen; name the time column (--time COLUMN; time=) to find and fill them"
+            )
     metadata = dict(file_meta)
     metadata.update(
         source=str(path),
