@@ -5,7 +5,7 @@
     hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--settle N] [--blocks N] [--out MODEL] [--test FILE...]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
-    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N | --no-auto-settle] [--hybrid] [--max-steps N] [--blocks N] [--quiet]
+    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N | --no-auto-settle] [--hybrid] [--max-steps N] [--blocks N] [--keep-glitches] [--quiet]
     hybrid design DIAG_DIR --duration S (--amplitude V | --bounds LO:HI) [--rate HZ] [--slew PER_S]
                   [--output-bounds LO:HI] [--min-hold S] --out DRIVE.csv
 
@@ -253,6 +253,13 @@ def build_parser() -> argparse.ArgumentParser:
         "flat at an extreme: DiagnoseSettings.held_out_limits; 1: one held-out tail)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.add_argument(
+        "--keep-glitches",
+        action="store_true",
+        help="fit w's glitches as recorded (runs of a few samples that w jumps into and back out of: by "
+        "default bridged by straight lines before any fit, as a tracker's lost frames; keep them when the "
+        "system flips by itself, a relay or a chattering contact): DiagnoseSettings.bridge_glitches",
+    )
     p.add_argument(
         "--materiality",
         action="append",
@@ -602,6 +609,8 @@ def _cmd_diagnose(args):
         settings = dataclasses.replace(settings, blocks=args.blocks, held_out_limits=False)  # as given
     if args.no_auto_settle:
         settings = dataclasses.replace(settings, settle_when_off=False)
+    if args.keep_glitches:
+        settings = dataclasses.replace(settings, bridge_glitches=False)
     if args.materiality:
         given = parse_params(args.materiality)  # names and sizes are checked where every caller's are
         settings = dataclasses.replace(settings, materiality={**settings.materiality, **given})

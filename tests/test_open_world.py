@@ -301,16 +301,13 @@ def test_a_trackers_spikes_are_said_and_do_not_pass_for_noise():
     assert "spikes" in found.unexplained["description"]["summary"]
 
 
-def test_a_loggers_dropouts_are_said_as_glitches_and_do_not_pass_for_noise():
-    """A 0.5 s lag logged at 50 Hz whose logger read 0 for 3 to 7 samples at a time, in its last 6 s.
+def _lag_with_dropouts(runs_at, seed: int = 31):
+    """(recording, runs, σ): a 0.5 s lag logged at 50 Hz whose logger read 0 for 3 to 7 samples at a time.
 
-    Not lone samples, so they were no spikes: counted as noise, they raised the floor, and the
-    remainder, all of it in the last held-out block, read "a change late in the record (warming,
-    wear ...)". The floor is now the noise's, the glitches are said, and no stretch is placed on them.
-    (In the held-out part only, so that no fit leans on them: where the training part has them too,
-    the fit bends to them, and what it then misses is the remainder's to place.)
+    A run starts 20 samples into each 1 s hold of the drive `runs_at` (hold indices), so that w sits
+    away from 0 there and no jump of the drive is near.
     """
-    rng = np.random.default_rng(31)
+    rng = np.random.default_rng(seed)
     rate, n = 50.0, 3000
     t = np.arange(n) / rate
     v = np.repeat(rng.uniform(-2, 2, n // 50 + 1), 50)[:n]
@@ -318,12 +315,65 @@ def test_a_loggers_dropouts_are_said_as_glitches_and_do_not_pass_for_noise():
     y = scipy.signal.lsim(scipy.signal.lti([1.0], [0.5, 1.0]), v, t)[1]
     sigma = 0.01 * np.ptp(y)
     w = y + sigma * rng.normal(size=n)
-    runs = [(50 * hold + 20, 50 * hold + 22 + k % 5) for k, hold in enumerate(range(54, 60))]  # 3–7 samples
+    runs = [(50 * hold + 20, 50 * hold + 22 + k % 5) for k, hold in enumerate(runs_at)]  # 3–7 samples
+    runs = [(a, b) for a, b in runs if min(abs(w[a - 1]), abs(w[b + 1])) > 20 * sigma]  # jumps into 0 and out
     for a, b in runs:
         w[a : b + 1] = 0.0
-    found = diagnose(
-        hybrid.Recording.from_arrays(v_in=v, w=w, rate=rate), simulation=hybrid.LTI(1), effects=["saturation"]
+    return hybrid.Recording.from_arrays(v_in=v, w=w, rate=rate), runs, sigma
+
+
+def test_a_loggers_dropouts_are_bridged_before_any_fit_and_said(tmp_path):
+    """The same lag with dropouts all through the record, diagnosed from the command line.
+
+    Fitted as recorded, each dropout is a residual no model of the plant fits: it bent the fit, and
+    the remainder read them as unexplained. Bridged by straight lines first, the right simulation
+    leaves nothing but the noise: no cause, nothing unexplained, and the report lists what was bridged.
+    """
+    recording, runs, sigma = _lag_with_dropouts(range(3, 60, 2))
+    assert len(runs) >= 8  # in every part of the split
+    path = recording.save(tmp_path / "dropouts.csv")
+    done = h.run_hybrid(
+        tmp_path, "diagnose", path, "--physics", "lti:1", "--effects", "saturation", "--quiet", "--out", "d"
     )
+    assert done.returncode == 0, done.stderr[-3000:]
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert report["glitches_bridged"] == [
+        {"recording": report["recordings"][0], "runs": [list(r) for r in runs]}
+    ]
+    assert report["settings"]["bridge_glitches"] is True
+    assert report["cause"] == "none" and report["unexplained"] is None, report["verdict"]
+    assert report["noise_floor"]["glitches"] == []
+    assert math.sqrt(report["noise_floor"]["variance"]) == pytest.approx(sigma, rel=0.3)
+    said = [line for line in report["warnings"] if "bridged by straight lines" in line]
+    assert len(said) == 1 and f"{len(runs)} glitch(es)" in said[0] and "--keep-glitches" in said[0]
+    assert "--keep-glitches" in (tmp_path / "d" / "report.md").read_text()
+    kept = diagnose(
+        recording,
+        simulation=hybrid.LTI(1),
+        effects=["saturation"],
+        settings=hybrid.DiagnoseSettings(bridge_glitches=False),
+    )
+    assert kept.unexplained is not None and "w's glitches" in kept.unexplained["description"]["summary"]
+
+
+def test_kept_dropouts_are_said_as_glitches_and_do_not_pass_for_noise():
+    """With `bridge_glitches=False`: the dropouts in the last 6 s only (all held out), kept.
+
+    Not lone samples, so they were no spikes: counted as noise, they raised the floor, and the
+    remainder, all of it in the last held-out block, read "a change late in the record (warming,
+    wear ...)". The floor is now the noise's, the glitches are said, and no stretch is placed on them.
+    (In the held-out part only, so that no fit leans on them: where the training part has them too,
+    the fit bends to them, and what it then misses is the remainder's to place.)
+    """
+    recording, runs, sigma = _lag_with_dropouts(range(54, 60))
+    assert len(runs) >= 5
+    found = diagnose(
+        recording,
+        simulation=hybrid.LTI(1),
+        effects=["saturation"],
+        settings=hybrid.DiagnoseSettings(bridge_glitches=False),
+    )
+    assert found.glitches_bridged == [] and not any("bridged" in line for line in found.warnings)
     floor = found.noise_floor
     assert list(floor.glitches) == runs and "glitch(es)" in floor.spike_note
     assert floor.std == pytest.approx(sigma, rel=0.3)

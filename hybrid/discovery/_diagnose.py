@@ -2,6 +2,9 @@
 
 `diagnose(recordings)`:
 
+0. **Glitches.** w's runs of a few samples that it jumps into and back out of,
+   undriven (a tracker that lost its marker), are bridged by straight lines
+   before any fit, and said (`DiagnoseSettings.bridge_glitches`).
 1. **Baseline.** The physics simulation (any [`AbstractSimulation`][];
    `hybrid.diagnose` defaults to the paper's RC network) with a linear gain and
    offset is fitted by Levenberg–Marquardt on the training part of each
@@ -78,7 +81,7 @@ from ._effect_set import resolve_effects, searched_places
 from ._effect_stack import EffectStack
 from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._joint import joint_pair, named_jointly
-from ._noise_floor import bounded_by_residual
+from ._noise_floor import bounded_by_residual, bridged, glitch_runs
 from ._redundant import drop_redundant
 from ._search import (
     N_LANES,
@@ -264,6 +267,7 @@ def diagnose(
         )
         r.check_signals()
         _check_magnitudes(r)
+    recordings, glitches = _bridge_glitches(recordings) if settings.bridge_glitches else (recordings, [])
     rate = recordings[0].rate
     if simulation is None:
         raise InputError(
@@ -392,6 +396,8 @@ def diagnose(
             if not again.evidence["start"]["off"]:  # the held start fits: it was the initial state
                 again.evidence["start"] = tried
                 again.seconds = time.perf_counter() - t0
+                again.glitches_bridged = glitches  # it read the recordings as bridged here
+                again.warnings = _glitch_warnings(glitches, rate) + again.warnings
                 return again
             start = tried  # still missed with a held start: something early in the record, said so
 
@@ -514,13 +520,52 @@ def diagnose(
         units=units,
         signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
-        warnings=nonfinite_warnings(steps, search.effects)
+        glitches_bridged=glitches,
+        warnings=_glitch_warnings(glitches, rate)
+        + nonfinite_warnings(steps, search.effects)
         + model_warnings(models["extended"], frozen, search.rate)
         + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1]),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept
         else {},
     )
+
+
+def _bridge_glitches(recordings) -> tuple[list, list[dict]]:
+    """The recordings with w's glitches bridged by straight lines (`glitch_runs`), and the runs of each that had any.
+
+    A glitch is a run of a few samples that w jumps into and back out of,
+    undriven: a tracker that lost its marker for a few frames, a logger that
+    read 0 while its sensor dropped out. Left in, each is a large residual
+    that no model of the plant can fit: it bends every fit and dilutes every
+    gain, and the remainder reads it as unexplained. Each run is put on the
+    straight line between the samples either side of it, as `--fill-gaps`
+    fills a dropped frame (`DiagnoseSettings.bridge_glitches`).
+    """
+    out, found = [], []
+    for r in recordings:
+        runs = glitch_runs(r.w, r.v_in)
+        if runs:
+            r = dataclasses.replace(r, w=bridged(r.w, runs))
+            found.append({"recording": r.name, "runs": [[int(a), int(b)] for a, b in runs]})
+        out.append(r)
+    return out, found
+
+
+def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:
+    """One sentence per recording whose glitches `_bridge_glitches` bridged."""
+    out = []
+    for g in glitches:
+        lengths = sorted({b - a + 1 for a, b in g["runs"]})
+        spread = f"{lengths[0]}–{lengths[-1]}" if len(lengths) > 1 else f"{lengths[0]}"
+        out.append(
+            f"recording '{g['recording']}': w's {len(g['runs'])} glitch(es), runs of {spread} samples that w jumps "
+            f"into and back out of (the first at t = {g['runs'][0][0] / rate:.4g} s), were bridged by straight "
+            "lines before any fit (a tracker that lost its marker, a sensor that dropped out); if the system "
+            "flips and flips back by itself (a relay, a contact that chatters), diagnose with --keep-glitches "
+            "(DiagnoseSettings(bridge_glitches=False))"
+        )
+    return out
 
 
 #: A dimensionless readout gain farther than this factor from 1 puts the simulation's output on a scale

@@ -60,7 +60,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: `residual_tests.drive_independence`; null where it cannot be tested), and the same test of the
 #: remainder in ``unexplained.description.drive_independence``; ``noise_floor.glitches`` (runs of a
 #: few samples that w jumps into and back out of, each [first, last], left out of the floor with the
-#: isolated spikes; their samples are in ``noise_floor.spikes`` too).
+#: isolated spikes; their samples are in ``noise_floor.spikes`` too); ``glitches_bridged`` (those runs
+#: bridged before any fit, per recording: ``DiagnoseSettings.bridge_glitches``, on by default, so that
+#: ``noise_floor.glitches`` is empty unless it is off) and ``settings.bridge_glitches``.
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -149,6 +151,14 @@ class DiagnoseSettings:
       diagnosis if its start then fits; if it does not, the first stands and
       says so. Not for a simulation already held, nor for several recordings
       (one held drive cannot start them all). False: say it, do not try.
+    - `bridge_glitches`: put each of w's glitches (`glitch_runs`: a run of 2 to
+      `GLITCH_RUN` samples that w jumps into and back out of, undriven: a
+      tracker that lost its marker, a logger that read 0) on the straight line
+      between its neighbours before any fit, and say so in ``warnings`` and
+      ``glitches_bridged``. Left in, each is a residual no model of the plant
+      fits, which bends every fit and dilutes every gain. False (the CLI's
+      ``--keep-glitches``): keep them (a relay, a contact that chatters: the
+      system's own flips); the noise floor still leaves them out and says so.
     """
 
     split: tuple[float, float, float] = (0.6, 0.1, 0.3)
@@ -169,6 +179,7 @@ class DiagnoseSettings:
     max_causes: int = 3
     unexplained_ratio: float = 2.0
     settle_when_off: bool = True
+    bridge_glitches: bool = True
 
     def materiality_for(self, effects) -> dict:
         """Every threshold of `effects` (`AbstractEffect.thresholds`), with `materiality`'s overrides."""
@@ -411,6 +422,9 @@ class Diagnosis:
     #: whose predictions were not finite over part of its parameters' range (`nonfinite_warnings`), the
     #: final model's fit (`model_warnings`).
     warnings: list = dataclasses.field(default_factory=list)
+    #: w's glitches `diagnose` bridged by straight lines before any fit (`DiagnoseSettings.bridge_glitches`):
+    #: per recording that had any, its name and the runs, each [first, last] sample.
+    glitches_bridged: list = dataclasses.field(default_factory=list)
     #: Each effect of the final model's derived quantities (`AbstractEffect.derived`), by name: what
     #: `causes` gives beside the final model's parameters (a step's own values are its candidates').
     final_derived: dict = dataclasses.field(default_factory=dict)
@@ -548,6 +562,7 @@ class Diagnosis:
             "dropped": self.dropped,
             "too_small": self.too_small,
             "warnings": self.warnings,
+            "glitches_bridged": self.glitches_bridged,
             "steps": [
                 {
                     "cause": step.cause,

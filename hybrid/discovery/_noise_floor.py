@@ -396,6 +396,15 @@ def glitch_runs(w: np.ndarray, v_in: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
+def bridged(w: np.ndarray, runs) -> np.ndarray:
+    """A copy of w with each run (first, last) on the straight line between the samples either side of it."""
+    original = np.asarray(w, float)
+    out = original.copy()
+    for a, b in runs:
+        out[a : b + 1] = np.interp(np.arange(a, b + 1), [a - 1, b + 1], [original[a - 1], original[b + 1]])
+    return out
+
+
 def spike_sentence(w: np.ndarray, lone: np.ndarray, rate: float, glitches=()) -> str:
     """The warning about `lone` spikes and `glitches` (runs (first, last)) of w: how many, the largest, what to do."""
     runs = [(int(k), int(k)) for k in lone] + [(int(a), int(b)) for a, b in glitches]
@@ -500,12 +509,7 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
     note = spike_sentence(w, lone, rate, glitches)
     runs = [(int(k), int(k)) for k in lone] + glitches
     spikes = np.unique([k for a, b in runs for k in range(a, b + 1)]).astype(int)
-    if (
-        runs
-    ):  # for the estimators alone: each run bridged by a straight line (a lone spike: its neighbours' mean)
-        original, w = w, w.copy()
-        for a, b in runs:
-            w[a : b + 1] = np.interp(np.arange(a, b + 1), [a - 1, b + 1], [original[a - 1], original[b + 1]])
+    w = bridged(w, runs)  # for the estimators alone (a lone spike: its neighbours' mean)
     estimators = _estimators(rate)
     estimates = {name: f(w, v_in) for name, f in estimators.items()}
     if not np.isfinite(estimates["repeats"]):
