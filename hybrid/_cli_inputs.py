@@ -63,10 +63,13 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
 
     `rate_alone_maps` False: --rate alone does not make a file mapped (`hybrid sensitivity`'s
     --rate is its synthetic drives' rate too, and a file in the project's columns has its t).
-    What validation did to each (`Recording.notes`: t rebuilt, frames filled) is said on stderr,
-    whichever command reads them.
+    Several are put in the first's units (`in_shared_units`: µm beside mm converted, counts
+    beside mm refused). What validation did to each (`Recording.notes`: t rebuilt, frames
+    filled, a unit converted) is said on stderr, whichever command reads them.
     """
-    recordings = _load_recordings(args, paths, rate_alone_maps)
+    from .data._recording import in_shared_units
+
+    recordings = in_shared_units(_load_recordings(args, paths, rate_alone_maps), "fitted together")
     _warn_notes(recordings)
     return recordings
 

@@ -76,7 +76,7 @@ def add_test_options(p) -> None:
 def load_tests(args, fitted, window: int) -> list:
     """The --test records, checked before any fitting: their columns, their rate, their length."""
     from .data._mapping import RATE_RTOL, load_pair
-    from .data._recording import Recording
+    from .data._recording import Recording, in_shared_units
 
     first = getattr(args, "initial_samples", None)
     if not args.test:
@@ -108,6 +108,7 @@ def load_tests(args, fitted, window: int) -> list:
                 )
             except InputError as error:
                 raise InputError(f"--test {path}: {error}") from None
+        record = in_shared_units([fitted[0], record], f"--test {path}")[1]  # scored in the fitted units
         for note in record.notes:
             print(f"hybrid: warning: {note}", file=sys.stderr)
         for fitted_path, recording in zip(args.recordings, fitted):

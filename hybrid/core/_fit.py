@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..data._recording import in_shared_units
 from ..util._errors import InputError, PluginError
 from ..util._programs import release_when_crowded
 from ..util._watchdog import stage
@@ -157,6 +158,7 @@ def fit(
         raise InputError(f"starts must be a positive integer, got {starts!r}")
     model = check_model(model, "fit")
     recordings = as_recordings(recordings, "fit")  # a path is loaded; anything else is refused
+    recordings = in_shared_units(recordings, "fit")  # one model fits them: one scale
     frozen = as_names(
         default_frozen(model) if frozen is None else frozen, "fit", "frozen", model.parameter_names
     )

@@ -29,7 +29,7 @@ import re
 
 from ._recording_checks import TIME_UNITS
 
-__all__ = ["LONE_UNITS", "header_unit", "is_unit", "time_unit", "unit_kind"]
+__all__ = ["LONE_UNITS", "header_unit", "is_unit", "prefix_factor", "time_unit", "unit_kind"]
 
 _PREFIX = r"(?:da|[yzafpnµμumcdhkMGTPE])"
 _SYMBOL = r"(?:s|m|g|V|A|Ω|ohm|Ohm|Hz|N|Pa|W|J|C|F|H|T|K|S|Wb|L|l|mol|cd|lx|rad|sr|bar|eV)"
@@ -97,6 +97,29 @@ def header_unit(name: str) -> tuple[str, bool] | None:
 def is_unit(text: str) -> bool:
     """Whether `text` is clearly a unit (see the module's rule): ``mV``, ``µm``, ``m/s^2``, ``%``, ``a.u.``."""
     return bool(text) and len(text) <= 16 and _UNIT.fullmatch(text.strip()) is not None
+
+
+#: The SI prefixes' powers of ten (µ written three ways, as files write it).
+_PREFIX_POWER = {
+    "y": -24, "z": -21, "a": -18, "f": -15, "p": -12, "n": -9, "µ": -6, "μ": -6, "u": -6, "m": -3,
+    "c": -2, "d": -1, "": 0, "da": 1, "h": 2, "k": 3, "M": 6, "G": 9, "T": 12, "P": 15, "E": 18,
+}  # fmt: skip
+_PREFIXED = re.compile(rf"(?P<prefix>{_PREFIX})?(?P<symbol>{_SYMBOL})")
+
+
+def prefix_factor(unit: str, to: str) -> float | None:
+    """The factor that takes a value in `unit` to `to` where they differ only by an SI prefix, else None.
+
+    ``prefix_factor("µm", "mm")`` is 1e-3, ``prefix_factor("mV", "V")`` 1e-3,
+    ``prefix_factor("mm", "mm")`` 1.0; ``prefix_factor("counts", "mm")`` and
+    ``prefix_factor("mm", "V")`` are None (no conversion a prefix can make).
+    """
+    if unit.strip() == to.strip():
+        return 1.0
+    a, b = _PREFIXED.fullmatch(unit.strip()), _PREFIXED.fullmatch(to.strip())
+    if a is None or b is None or a["symbol"] != b["symbol"]:
+        return None
+    return float(10.0 ** (_PREFIX_POWER[a["prefix"] or ""] - _PREFIX_POWER[b["prefix"] or ""]))
 
 
 def time_unit(text: str) -> str | None:

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
+from ._header_units import prefix_factor
 from ._loaders import path_argument, read_file
 from ._recording_checks import (
     REQUIRED,
@@ -46,7 +47,7 @@ from ._recording_checks import (
 from ._split import Split, split_recording
 from ._writers import write_file
 
-__all__ = ["Recording"]
+__all__ = ["Recording", "in_shared_units"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -420,3 +421,49 @@ class Recording:
         path = path_argument(path, "Recording.save")
         write_file(self, path)
         return path
+
+
+#: The signals `in_shared_units` puts in one unit, and how its messages name them.
+_SHARED = {"w": "the output (w)", "v_in": "the drive (v_in)"}
+
+
+def in_shared_units(recordings: Sequence[Recording], where: str) -> list[Recording]:
+    """`recordings` fitted together, each signal in the first recording's unit (``metadata["units"]``).
+
+    A recording that gives its output or its drive in another unit of the same
+    quantity, differing by an SI prefix (µm beside mm, mV beside V), is
+    converted: its values scaled, its units set to the first's, and a note
+    (`Recording.notes`) says so. Units a prefix cannot relate (counts beside
+    mm) are an `InputError` naming both: one model cannot fit numbers on two
+    scales. Recordings already in one unit are returned as they are.
+    """
+    recordings = list(recordings)
+    if len(recordings) < 2:
+        return recordings
+    first = recordings[0]
+    target = {role: str(first.metadata["units"][role]) for role in _SHARED}
+    out = [first]
+    for r in recordings[1:]:
+        changes: dict[str, Any] = {}
+        said = []
+        units = dict(r.metadata["units"])
+        for role, what in _SHARED.items():
+            unit = str(units[role])
+            factor = prefix_factor(unit, target[role])
+            if factor is None:
+                raise InputError(
+                    f"{where}: recording '{r.name}' gives {what} in {unit}, but '{first.name}' gives it in "
+                    f"{target[role]}, and no SI prefix relates them: fit recordings of one scale together "
+                    f"(convert one, or give its unit with --units {role}=...; units= in Python)"
+                )
+            if factor != 1.0:
+                changes[role] = np.asarray(getattr(r, role)) * factor
+                units[role] = target[role]
+                said.append(f"{what} from {unit} to {target[role]} (×{factor:g})")
+        if changes:
+            note = f"recording '{r.name}': {' and '.join(said)}, the unit of '{first.name}' it is fitted with"
+            r = dataclasses.replace(
+                r, **changes, metadata={**r.metadata, "units": units}, notes=(*r.notes, note)
+            )
+        out.append(r)
+    return out

@@ -71,6 +71,7 @@ from ..core._problem import Problem
 from ..core._result import aliased, drive_outside_range, implausible
 from ..core._screen import N_SCREEN, screened_starts
 from ..core._simulation import unit_in
+from ..data._recording import in_shared_units
 from ..util._errors import InputError, PluginError
 from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
@@ -243,6 +244,7 @@ def diagnose(
     t0 = time.perf_counter()
     given, given_effects = settings, effects  # as asked: a held-start rerun resolves them again
     recordings = as_recordings(recordings, "diagnose")  # a path is loaded; anything else is refused
+    recordings = in_shared_units(recordings, "diagnose")  # one model fits them: one scale
     require_float64(
         "diagnose",
         "its noise floor, information criteria and held-out tests compare errors far below float32's "
