@@ -55,7 +55,11 @@ def train_weights(problem):
     return jnp.ones_like(problem.target("train")) if weights is None else weights
 
 
-def start_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]:
+#: The share of the Nyquist frequency a start design's frequencies reach at most (`start_design`).
+NYQUIST_SHARE = 0.9
+
+
+def start_design(simulation, n_points: int, frozen=frozenset(), rate: float | None = None) -> list[dict]:
     """Candidate starts over the free parameters' typical ranges, `simulation`'s values first.
 
     The ranges come from the simulation (`AbstractSimulation.typical_ranges`,
@@ -64,11 +68,20 @@ def start_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]:
     log-spaced for a `Positive` parameter, linear otherwise. The first point is
     the simulation as given, so a user's own guess is always screened. A
     parameter without a range, or in `frozen`, stays at its given value.
+
+    With the recordings' `rate` (Hz), a parameter in Hz (rad/s) spreads up to
+    `NYQUIST_SHARE` of the Nyquist frequency at most: sampled at `rate`, a mode
+    above it is an alias of one below, and a sampled record cannot tell them
+    apart; screened, the alias can fit as well and win (`lti:2` at 30 Hz
+    started at an 88.6 Hz mode, ζ = 0.005, for a 1.5 Hz one, ζ = 0.3:
+    `tests/test_screen.py -k nyquist`).
     """
     import scipy.stats
 
     given = {k: float(v) for k, v in simulation.parameters().items()}
     ranges = {k: r for k, r in simulation.typical_ranges().items() if k in given and k not in frozen}
+    if rate is not None:
+        ranges = _below_nyquist(ranges, simulation.units, float(rate))
     grid = [{k: given[k] for k in ranges}]
     if not ranges:
         return grid
@@ -87,6 +100,20 @@ def start_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]:
             )
         grid.append(point)
     return grid[:n_points]
+
+
+def _below_nyquist(ranges: dict, units: dict, rate: float) -> dict:
+    """`ranges` with each range in Hz or rad/s cut at `NYQUIST_SHARE` of the Nyquist frequency (`start_design`)."""
+    tops = {"Hz": NYQUIST_SHARE * rate / 2, "rad/s": NYQUIST_SHARE * math.pi * rate}
+    out = {}
+    for name, (low, high) in ranges.items():
+        top = tops.get(str(units.get(name, "")).strip())
+        if top is not None and high > top:
+            if low >= top:  # the whole range above: the design spreads over the decade below it
+                low = top / 10.0
+            high = top
+        out[name] = (low, high)
+    return out
 
 
 def design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
@@ -123,6 +150,11 @@ def screen_design_losses(problem, simulation, raws) -> np.ndarray:
     return np.concatenate(losses)
 
 
+def problem_rate(problem) -> float:
+    """The sample rate (Hz) of a problem's recordings (they share one)."""
+    return 1.0 / float(problem.series[0].dt)
+
+
 def screened_starts(problem, simulation, n_starts: int, n_screen: int, frozen=frozenset()) -> list[dict]:
     """The `n_starts` best of an `n_screen`-point design, by training MSE with least-squares gain.
 
@@ -133,7 +165,7 @@ def screened_starts(problem, simulation, n_starts: int, n_screen: int, frozen=fr
     screened point there starts at the true parameters' training loss
     (`tests/test_diagnose_starts.py`).
     """
-    design = start_design(simulation, n_screen, frozen)
+    design = start_design(simulation, n_screen, frozen, problem_rate(problem))
     names, raws = design_raws(simulation, design)
     if not names:
         return [{}]

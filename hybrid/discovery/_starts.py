@@ -32,6 +32,7 @@ from ..core._screen import (
     N_SCREEN,
     SCREEN_CHUNK,
     design_raws,
+    problem_rate,
     screen_design_losses,
     start_design,
     train_weights,
@@ -77,7 +78,7 @@ def delay_starts(problem, simulation, rate: float, n_starts: int, frozen=frozens
     of `DELAY_SHIFTS` samples puts the network and the delay in the same basin;
     the `n_starts` best pairs, with distinct shifts, are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen, problem_rate(problem))[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -153,7 +154,7 @@ def hysteresis_starts(problem, simulation, n_starts: int, frozen=frozenset()) ->
     and initial state at each of `LOOP_RATES` puts the network and the loop in
     the same basin; the `n_starts` best are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen, problem_rate(problem))[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -282,7 +283,7 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=fro
     `mode_frequencies(rate)` × `MODE_DAMPINGS` puts the network and the mode in
     the same basin; the `n_starts` best are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen, problem_rate(problem))[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -344,7 +345,7 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     """
     from ._effect_stack import EffectStack
 
-    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen, problem_rate(problem))[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -410,7 +411,7 @@ def joint_starts(context, effect, values, n_starts: int) -> list[dict]:
         effect = simulation.effects[simulation.effect_names.index(effect.name)]
     else:  # the simulation itself (an inside effect's screen), with this effect alone
         stack = EffectStack(simulation, [effect])
-    design = start_design(stack, N_SCREEN, context.frozen)[:N_JOINT_SCREEN]
+    design = start_design(stack, N_SCREEN, context.frozen, problem_rate(context.problem))[:N_JOINT_SCREEN]
     names, raws = design_raws(stack, design)
     n = len(design)
     best = []
