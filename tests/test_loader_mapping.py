@@ -569,3 +569,33 @@ def test_units_a_mapped_file_gives_are_said_as_an_unmapped_files_units_row_is(tm
         named, time="time", input="heater [V]", output="temperature [°C]", units={"v_in": "V", "w": "°C"}
     )
     assert not any("units read" in n for n in rec.notes)
+
+
+@pytest.mark.parametrize(
+    "step, says, unit, rate",
+    [
+        (
+            1e6 / 30,
+            r"looks like microseconds \(30 Hz if so; 0.03 Hz if milliseconds\).*--units t=us ",
+            "us",
+            30.0,
+        ),
+        (
+            4000.0,
+            r"milliseconds \(0.25 Hz if so\) or microseconds \(250 Hz\).*--units t=ms or t=us",
+            "ms",
+            0.25,
+        ),
+        (33.3, r"looks like milliseconds \(30.03 Hz if so\).*--units t=ms ", "ms", 1000 / 33.3),
+    ],
+)
+def test_a_time_column_in_micro_or_milliseconds_is_told_by_its_step(tmp_path, step, says, unit, rate):
+    """A camera's 30 Hz stamped in µs steps by 33 333: called milliseconds, `--units t=ms` as told
+    gave 0.03 Hz without a word. Between 10³ and 10⁴ either may be: both are said."""
+    rows = "\n".join(f"{i * step:.3f},{i % 3},{i % 5}" for i in range(30))
+    path = _write(tmp_path / "stamped.csv", f"time,u,y\n{rows}\n")
+    with pytest.raises(InputError, match=says):
+        load_mapped(path, input="u", output="y", time="time")
+    assert load_mapped(path, input="u", output="y", time="time", units=f"t={unit}").rate == pytest.approx(
+        rate
+    )

@@ -87,6 +87,7 @@ from ._recording_checks import (
     check_time,
     fill_gaps as fill_missing,
     time_step,
+    time_unit_guess,
 )
 from ._table import MAPPED_SUFFIXES, OPTION, only_column, rate_field, read_columns
 
@@ -265,10 +266,11 @@ def load_mapped(
         t = data["t"][start:stop] * factor
         step = float(np.median(np.diff(t)))
         if not declared and step >= MS_STEP_S:
+            looks, units = time_unit_guess(step)
             raise InputError(
                 f"recording '{label}' has a time column '{roles['t']}' stepping by {step:.4g}: it "
-                f"looks like milliseconds ({1000 / step:.4g} Hz if so): give its unit, units "
-                "t=ms (or t=s for a recording really sampled this slowly)"
+                f"looks like {looks}: give its unit, --units {' or '.join(f't={u}' for u in units)} "
+                "(units= in Python; t=s for a recording really sampled this slowly)"
             )
         if fill_gaps:
             t, signals, lines, filled = fill_missing(label, t, signals, int(fill_gaps), lines)

@@ -38,6 +38,7 @@ __all__ = [
     "sample_text",
     "samples_text",
     "time_step",
+    "time_unit_guess",
 ]
 
 #: Required channels, in file order.
@@ -316,12 +317,28 @@ def _check_seconds(name: str, step: float, metadata: Any) -> None:
     units = metadata.get("units") if isinstance(metadata, Mapping) else None
     if isinstance(units, Mapping) and units.get("t") == "s":
         return  # declared: a recording really sampled this slowly
+    looks, units = time_unit_guess(step)
+    divide = " or ".join({"ms": "t/1000", "us": "t/1e6"}[u] for u in units)
     raise InputError(
-        f"recording '{name}' has t stepping by {step:.4g}: t looks like milliseconds "
-        f"({1000 / step:.4g} Hz if so, {1 / step:.3g} Hz if seconds); write t in seconds "
-        f'(t/1000), or declare metadata units {{"t": "s"}} for a recording really '
-        f"sampled every {step:.4g} s"
+        f"recording '{name}' has t stepping by {step:.4g}: t looks like {looks}, {1 / step:.3g} Hz if "
+        f'seconds; write t in seconds ({divide}), or declare metadata units {{"t": "s"}} for a '
+        f"recording really sampled every {step:.4g} s"
     )
+
+
+def time_unit_guess(step: float) -> tuple[str, tuple[str, ...]]:
+    """(what a time column stepping by `step` looks like, the `TIME_UNITS` it may be in): for messages.
+
+    A step of 33.3 is a 30 Hz camera's in milliseconds; one of 33 333, the same
+    camera's in microseconds (0.03 Hz in milliseconds); between 1 000 and 10 000
+    either may be (a 0.25 Hz process logged in ms, a 250 Hz one in µs): both are said.
+    """
+    ms, us = 1e3 / step, 1e6 / step
+    if step > 1e4:
+        return f"microseconds ({us:.4g} Hz if so; {ms:.3g} Hz if milliseconds)", ("us",)
+    if step >= 1e3:
+        return f"milliseconds ({ms:.4g} Hz if so) or microseconds ({us:.4g} Hz)", ("ms", "us")
+    return f"milliseconds ({ms:.4g} Hz if so)", ("ms",)
 
 
 def is_constant(values: np.ndarray) -> bool:
