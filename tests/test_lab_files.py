@@ -11,6 +11,8 @@ line (``hybrid.cli.main``), which refuses before any fitting: nothing here compi
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -284,6 +286,36 @@ def test_a_non_utf8_file_names_its_encoding_and_excels_format(tmp_path):
             path,
             **mapping,
         )
+
+
+@pytest.mark.parametrize(
+    "content, says",
+    [
+        (b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 8, "a PNG image"),
+        (b"PK\x03\x04" + bytes(range(256)) * 8, "a ZIP archive: an Excel workbook saved under another name"),
+        (bytes(2048), "NUL bytes only, what a power loss or a full disk leaves of a log"),
+        (bytes(np.random.default_rng(3).integers(0, 256, 4096, dtype=np.uint8)), "binary data"),
+    ],
+)
+def test_a_binary_file_is_named_for_what_it_is_not_for_an_encoding(tmp_path, content, says):
+    """A PNG, a workbook or random bytes under a .csv name were "not UTF-8 text (…): it looks like
+    UTF-16", and a log of NUL bytes (a power loss) was read as one column named by 2048 NULs."""
+    path = tmp_path / "data.csv"
+    path.write_bytes(content)
+    for mapping in ({"columns": "input=u,output=y", "rate": RATE}, {}):
+        message = _refused(re.escape(f"is not text but {says}"), path, **mapping)
+        assert "\x00" not in message and "UTF-16" not in message
+
+
+def test_utf16_text_is_still_told_as_utf16(tmp_path):
+    u, y = _signals()
+    path = tmp_path / "wide.csv"
+    path.write_bytes(
+        ("t,u,y\n" + "".join(f"{k / RATE},{a},{b}\n" for k, (a, b) in enumerate(zip(u, y)))).encode("utf-16")
+    )
+    _refused(r"not UTF-8 text \(byte 0xFF at line 1; it looks like UTF-16\)", path)
+    path.write_bytes(path.read_bytes()[2:])  # no byte-order mark: told by its NULs, every other byte
+    _refused(r"not UTF-8 text \(NUL bytes every other byte; it looks like UTF-16\)", path)
 
 
 # ----------------------------------------------------------- rig's quality column

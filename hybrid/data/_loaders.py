@@ -531,7 +531,8 @@ def decode_text(path: pathlib.Path, fix: str) -> str:
 
     Other text is refused in one line naming its first byte that is not UTF-8, the
     encoding it looks like where that can be told (UTF-16; Windows-1252, Excel's
-    plain "CSV" on Western-European Windows), and `fix`.
+    plain "CSV" on Western-European Windows), and `fix`; a file that is not text
+    at all, in one line saying what it is (`_binary_kind`).
     """
     try:
         raw = path.read_bytes()
@@ -539,19 +540,73 @@ def decode_text(path: pathlib.Path, fix: str) -> str:
         raise InputError(
             f"recording '{path}' cannot be read ({error.strerror or error}): check its permissions"
         ) from None
+    kind = _binary_kind(raw)
+    if kind is not None:
+        raise InputError(f"recording '{path}' is not text but {kind}")
     try:
-        return raw.decode("utf-8-sig")  # -sig: Excel's byte-order mark
+        text = raw.decode("utf-8-sig")  # -sig: Excel's byte-order mark
     except UnicodeDecodeError as error:
         line = raw[: error.start].count(b"\n") + 1
         where = f"byte 0x{raw[error.start]:02X} at line {line}"
         raise InputError(
             f"recording '{path}' is not UTF-8 text ({where}{_encoding_guess(raw)}): {fix}"
         ) from None
+    if "\x00" in text[:4096]:  # UTF-16 without a byte-order mark: ASCII's NULs decode as UTF-8 too
+        raise InputError(
+            f"recording '{path}' is not UTF-8 text (NUL bytes every other byte; it looks like UTF-16): {fix}"
+        )
+    return text
+
+
+#: The first bytes of binary formats a lab's file may turn out to be, renamed or mistaken for a table.
+_SIGNATURES = (
+    (b"\x89PNG\r\n\x1a\n", "a PNG image: give the table of samples, as CSV"),
+    (b"\xff\xd8\xff", "a JPEG image: give the table of samples, as CSV"),
+    (b"%PDF-", "a PDF document: give the table of samples, as CSV"),
+    (
+        b"PK\x03\x04",
+        "a ZIP archive: an Excel workbook saved under another name is one; give it its .xlsx name",
+    ),
+    (b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1", "an old Office file (an Excel .xls?): save it as .xlsx or CSV"),
+    (b"\x1f\x8b", "a gzip archive: unpack it first"),
+    (
+        b"\x89HDF\r\n\x1a\n",
+        "an HDF5 file: export the columns as CSV (a MATLAB v7.3 .mat is one: save it with -v7)",
+    ),
+    (b"\x93NUMPY", "a NumPy .npy array: save the columns with numpy.savez as .npz, or as CSV"),
+)
+
+
+def _binary_kind(raw: bytes) -> str | None:
+    """What a file that should be text is instead, from its first bytes; None for (possibly) text.
+
+    Known signatures (`_SIGNATURES`: an image, an archive, a workbook renamed);
+    a file of NUL bytes only (what a power loss or a full disk leaves of a log);
+    NUL bytes among the first 4 KiB that are not UTF-16's (every other byte,
+    or a byte-order mark): binary data of some other kind.
+    """
+    for signature, kind in _SIGNATURES:
+        if raw.startswith(signature):
+            return kind
+    head = raw[:4096]
+    if head and not head.strip(b"\x00"):
+        return "NUL bytes only, what a power loss or a full disk leaves of a log: record it again"
+    if b"\x00" in head and not _utf16_like(head):
+        return "binary data (NUL bytes among its first 4 KiB): export the columns as CSV UTF-8"
+    return None
+
+
+def _utf16_like(head: bytes) -> bool:
+    """Whether bytes with NULs read as UTF-16: a byte-order mark, or NULs at most places of one parity."""
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        return True
+    even, odd = head[0::2].count(0), head[1::2].count(0)
+    return max(even, odd) >= 0.4 * (len(head) // 2) and min(even, odd) <= 0.05 * (len(head) // 2)
 
 
 def _encoding_guess(raw: bytes) -> str:
     """``"; it looks like ..."`` naming the encoding of text that is not UTF-8, or '' when it cannot be told."""
-    if raw[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in raw[:4096]:
+    if _utf16_like(raw[:4096]):
         return "; it looks like UTF-16"
     try:
         raw.decode("cp1252")
