@@ -118,13 +118,13 @@ def _scene_args(p, track: bool = False):
         "--clamp",
         type=_numbers(2, 2, "--clamp X,Y"),
         default=None,
-        help="clamp point in the picture, px (virtual default 40,120)",
+        help="clamp point in the picture, px (required for a real camera or a video; --virtual: default 40,120)",
     )
     p.add_argument(
         "--mm-per-px",
         type=MM_PER_PX,
         default=None,
-        help="image scale, mm per pixel, in (0, 10] (virtual default 0.1)",
+        help="image scale, mm per pixel, in (0, 10] (required for a real camera or a video; --virtual: default 0.1)",
     )
     if track:
         p.add_argument(

@@ -136,3 +136,20 @@ def test_a_frequency_above_the_nyquist_frequency_is_warned_about_as_its_alias():
         and aliased(model, ("f_1",), rate) == []
         and aliased(model, (), None) == []
     )
+
+
+def test_a_time_constant_within_one_sample_is_warned_about():
+    """`lti:1` on a camera's 30 Hz record of a fast strip fitted τ = 2.3 ms, its section a gain: the
+    samples cannot pin a time under a tenth of their step, and the fit now says so (and why)."""
+    from hybrid.core._result import sub_sample
+
+    rate = 30.0
+    fast = hybrid.make_model("physics", simulation=hybrid.LTI(order=1, tau_1=2.3e-3))
+    (said,) = sub_sample(fast, (), rate)
+    assert "tau_1 = 0.0023 s is under a tenth of the sample step (0.0333 s at 30 Hz)" in said
+    # the samples alike: a lag of 2.3 ms and of 0.23 ms move a held step by the same share within a step
+    for tau in (2.3e-3, 2.3e-4):
+        assert math.exp(-1 / (rate * tau)) < 1e-6
+    slow = hybrid.make_model("physics", simulation=hybrid.LTI(order=1, tau_1=0.01))  # 0.3 of a step
+    assert sub_sample(slow, (), rate) == [] and sub_sample(fast, ("tau_1",), rate) == []
+    assert sub_sample(fast, (), None) == []

@@ -164,7 +164,7 @@ def fit_warnings(
             "physics' typical ranges (hybrid fit --screen 512 --starts 4; fit(..., screen=512, starts=4))"
         )
     warnings += implausible(fitted, frozen)
-    warnings += aliased(fitted, frozen, rate)
+    warnings += aliased(fitted, frozen, rate) + sub_sample(fitted, frozen, rate)
     if not jax.config.read("jax_enable_x64"):
         warnings.append(
             "fitted in float32, as jax's float64 is off: sums over the record (and the RC network's product "
@@ -236,6 +236,38 @@ def aliased(fitted: Model, frozen, rate: float | None) -> list[str]:
             f"{name} = {f:.6g} Hz is at or above the Nyquist frequency ({nyquist:g} Hz of samples at {rate:g} Hz): "
             f"the samples cannot tell it from its alias near {alias:.4g} Hz, which is what the recording shows; "
             "read it as that, or fit again from a start below the Nyquist frequency"
+        )
+    return out
+
+
+#: A fitted time (unit s) below this share of the sample step is read as within one sample (`sub_sample`).
+SUB_SAMPLE_SHARE = 0.1
+
+
+def sub_sample(fitted: Model, frozen, rate: float | None) -> list[str]:
+    """One sentence per fitted time (unit s) of `fitted`'s simulation under `SUB_SAMPLE_SHARE` of a sample step.
+
+    What such a time sets (a lag's time constant, a delay) is over within one
+    sample: the samples cannot pin it, and any value well below the step fits
+    alike (`lti:1` on a camera's 30 Hz record of a fast strip: τ = 2.3 ms, the
+    section a gain). `frozen` names and a missing `rate` give nothing.
+    """
+    if not rate or not math.isfinite(rate) or rate <= 0:
+        return []
+    step = 1.0 / rate
+    out = []
+    for name, value in fitted.simulation.parameters().items():
+        t = float(value)
+        if (
+            fitted.units.get(name) != "s"
+            or name in frozen
+            or not (math.isfinite(t) and 0 < t < SUB_SAMPLE_SHARE * step)
+        ):
+            continue
+        out.append(
+            f"{name} = {t:.3g} s is under a tenth of the sample step ({step:.3g} s at {rate:g} Hz): what it times is "
+            "over within one sample, so the samples cannot pin it and any value well below the step fits alike; "
+            "read it as faster than the samples (record faster to measure it)"
         )
     return out
 

@@ -68,7 +68,7 @@ from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
-from ..core._result import aliased, drive_outside_range, implausible
+from ..core._result import aliased, drive_outside_range, implausible, sub_sample
 from ..core._screen import N_SCREEN, screened_starts
 from ..core._simulation import unit_in
 from ..data._recording import in_shared_units
@@ -592,12 +592,16 @@ def model_warnings(model: Model, frozen, rate: float | None = None) -> list[str]
     flipped), which the gain took up without a word. A fitted frequency at or
     above the Nyquist frequency of samples at `rate` ([`aliased`][]).
     """
-    out = implausible(
-        model,
-        frozen,
-        ", or the fit bent the simulation to take up an effect it lacks (a lag, a friction): what the "
-        "diagnosis says rests on a model that is not the system there",
-    ) + aliased(model, frozen, rate)
+    out = (
+        implausible(
+            model,
+            frozen,
+            ", or the fit bent the simulation to take up an effect it lacks (a lag, a friction): what the "
+            "diagnosis says rests on a model that is not the system there",
+        )
+        + aliased(model, frozen, rate)
+        + sub_sample(model, frozen, rate)
+    )
     gain = model.readout.parameters().get("gain")
     if (
         gain is not None
