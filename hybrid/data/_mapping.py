@@ -266,10 +266,10 @@ def load_mapped(
         t = data["t"][start:stop] * factor
         step = float(np.median(np.diff(t)))
         if not declared and step >= MS_STEP_S:
-            looks, units = time_unit_guess(step)
+            looks, may_be = time_unit_guess(step)
             raise InputError(
                 f"recording '{label}' has a time column '{roles['t']}' stepping by {step:.4g}: it "
-                f"looks like {looks}: give its unit, --units {' or '.join(f't={u}' for u in units)} "
+                f"looks like {looks}: give its unit, --units {' or '.join(f't={u}' for u in may_be)} "
                 "(units= in Python; t=s for a recording really sampled this slowly)"
             )
         if fill_gaps:
