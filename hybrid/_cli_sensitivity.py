@@ -184,7 +184,12 @@ def _generic(args) -> None:
         write_simulation_study(result, sensitivity, args.out)
     _print(result, "w")
     noise = result["noise"]["fraction_of_rms_w"]
-    print(f"standard errors (Cramér–Rao, noise {100 * noise:g} % of rms(w), gain and offset unknown):")
+    out_unit = result["units"].get("offset", "")
+    print(
+        f"standard errors (Cramér–Rao, noise {100 * noise:g} % of rms(w), gain and offset unknown; w is the "
+        f"simulation's output under the recording's drive, in {out_unit or 'its own unit'}: the recording's "
+        "own output is not read):"
+    )
     for name, se in result["std_error"].items():
         rel = result["relative_std_error"][name]
         unit = result["units"].get(name, "")
