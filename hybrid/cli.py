@@ -444,6 +444,13 @@ def _cmd_fit(args):
         flag = "--param" if args.param else "--settle"
         raise InputError(f"{flag} sets how the fit starts; with --start-from that comes from the saved model")
     recordings = load_recordings(args, args.recordings)
+    if not args.quiet:
+        for r in recordings:  # what was read, before minutes of fitting: the rate, the length, the units
+            units = r.metadata["units"]
+            print(
+                f"read '{r.name}': {r.n} samples at {r.rate:.6g} Hz ({r.duration:.6g} s), "
+                f"drive in {units['v_in']}, output in {units['w']}"
+            )
     simulation = None
     if args.model != "normal":
         simulation = resolve_physics(args.physics, recordings)  # rc: the paper's RC network
