@@ -59,7 +59,7 @@ def train_weights(problem):
 NYQUIST_SHARE = 0.9
 
 
-def start_design(simulation, n_points: int, frozen=frozenset(), rate: float | None = None) -> list[dict]:
+def start_design(simulation, n_points: int, frozen=frozenset()) -> list[dict]:
     """Candidate starts over the free parameters' typical ranges, `simulation`'s values first.
 
     The ranges come from the simulation (`AbstractSimulation.typical_ranges`,
@@ -69,19 +69,13 @@ def start_design(simulation, n_points: int, frozen=frozenset(), rate: float | No
     the simulation as given, so a user's own guess is always screened. A
     parameter without a range, or in `frozen`, stays at its given value.
 
-    With the recordings' `rate` (Hz), a parameter in Hz (rad/s) spreads up to
-    `NYQUIST_SHARE` of the Nyquist frequency at most: sampled at `rate`, a mode
-    above it is an alias of one below, and a sampled record cannot tell them
-    apart; screened, the alias can fit as well and win (`lti:2` at 30 Hz
-    started at an 88.6 Hz mode, ζ = 0.005, for a 1.5 Hz one, ζ = 0.3:
-    `tests/test_screen.py -k nyquist`).
+    The screens take no start from a point that `in_band` refuses at the
+    recordings' rate (a frequency above the Nyquist frequency's alias range).
     """
     import scipy.stats
 
     given = {k: float(v) for k, v in simulation.parameters().items()}
     ranges = {k: r for k, r in simulation.typical_ranges().items() if k in given and k not in frozen}
-    if rate is not None:
-        ranges = _below_nyquist(ranges, simulation.units, float(rate))
     grid = [{k: given[k] for k in ranges}]
     if not ranges:
         return grid
@@ -102,18 +96,26 @@ def start_design(simulation, n_points: int, frozen=frozenset(), rate: float | No
     return grid[:n_points]
 
 
-def _below_nyquist(ranges: dict, units: dict, rate: float) -> dict:
-    """`ranges` with each range in Hz or rad/s cut at `NYQUIST_SHARE` of the Nyquist frequency (`start_design`)."""
+def in_band(design: list[dict], units: dict, rate: float) -> np.ndarray:
+    """Whether each point of `design` may start a fit of recordings sampled at `rate` (Hz).
+
+    A point with a parameter in Hz (rad/s) above `NYQUIST_SHARE` of the Nyquist
+    frequency may not: sampled at `rate`, a mode above the Nyquist frequency is
+    an alias of one below and the samples cannot tell them apart, so screened,
+    the alias can fit as well and win (`lti:2` at 30 Hz started at an 88.6 Hz
+    mode, ζ = 0.005, for a 1.5 Hz one, ζ = 0.3, and the baseline kept it:
+    `tests/test_diagnose_starts.py -k nyquist`). The first point (the
+    simulation as given, the user's own guess) always may. The screens set the
+    others' losses to inf (`least_finite` then passes them by): every other
+    point starts as it did.
+    """
     tops = {"Hz": NYQUIST_SHARE * rate / 2, "rad/s": NYQUIST_SHARE * math.pi * rate}
-    out = {}
-    for name, (low, high) in ranges.items():
-        top = tops.get(str(units.get(name, "")).strip())
-        if top is not None and high > top:
-            if low >= top:  # the whole range above: the design spreads over the decade below it
-                low = top / 10.0
-            high = top
-        out[name] = (low, high)
-    return out
+    capped = {
+        k: tops[str(units.get(k, "")).strip()] for k in design[0] if str(units.get(k, "")).strip() in tops
+    }
+    ok = np.array([all(point[k] <= top for k, top in capped.items()) for point in design], bool)
+    ok[0] = True
+    return ok
 
 
 def design_raws(simulation, design: list[dict]) -> tuple[list[str], dict]:
@@ -150,6 +152,17 @@ def screen_design_losses(problem, simulation, raws) -> np.ndarray:
     return np.concatenate(losses)
 
 
+def least_finite(losses, n: int) -> np.ndarray:
+    """The flat indices of the `n` least finite `losses` (fewer where fewer are finite), least first.
+
+    A design point left out of the screens (`start_design`: a frequency above the Nyquist
+    frequency, NaN) or a simulation that fails there has a loss that is not finite: no start.
+    """
+    flat = np.asarray(losses, float).reshape(-1)
+    order = np.argsort(np.where(np.isfinite(flat), flat, np.inf), kind="stable")
+    return order[np.isfinite(flat[order])][:n]
+
+
 def problem_rate(problem) -> float:
     """The sample rate (Hz) of a problem's recordings (they share one)."""
     return 1.0 / float(problem.series[0].dt)
@@ -165,10 +178,16 @@ def screened_starts(problem, simulation, n_starts: int, n_screen: int, frozen=fr
     screened point there starts at the true parameters' training loss
     (`tests/test_diagnose_starts.py`).
     """
-    design = start_design(simulation, n_screen, frozen, problem_rate(problem))
+    design = start_design(simulation, n_screen, frozen)
     names, raws = design_raws(simulation, design)
     if not names:
         return [{}]
-    losses = screen_design_losses(problem, simulation, raws)
-    order = np.argsort(losses, kind="stable")[:n_starts]
+    losses = np.where(
+        in_band(design, simulation.units, problem_rate(problem)),
+        screen_design_losses(problem, simulation, raws),
+        np.inf,
+    )
+    order = least_finite(losses, n_starts)
+    if not order.size:  # not finite anywhere: the design's first points, for the fit to refuse or say
+        order = np.arange(min(n_starts, len(design)))
     return [{k: design[i][k] for k in names} for i in order]

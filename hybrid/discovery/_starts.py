@@ -32,6 +32,8 @@ from ..core._screen import (
     N_SCREEN,
     SCREEN_CHUNK,
     design_raws,
+    in_band,
+    least_finite,
     problem_rate,
     screen_design_losses,
     start_design,
@@ -78,13 +80,14 @@ def delay_starts(problem, simulation, rate: float, n_starts: int, frozen=frozens
     of `DELAY_SHIFTS` samples puts the network and the delay in the same basin;
     the `n_starts` best pairs, with distinct shifts, are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen, problem_rate(problem))[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
+    band = in_band(design, simulation.units, problem_rate(problem))
     best = []
     for shift in DELAY_SHIFTS:
-        losses = screen_design_losses(delayed(problem, shift), simulation, raws)
+        losses = np.where(band, screen_design_losses(delayed(problem, shift), simulation, raws), np.inf)
         i = int(np.argmin(losses))
         best.append((float(losses[i]), shift, i))
     best.sort()
@@ -154,14 +157,15 @@ def hysteresis_starts(problem, simulation, n_starts: int, frozen=frozenset()) ->
     and initial state at each of `LOOP_RATES` puts the network and the loop in
     the same basin; the `n_starts` best are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen, problem_rate(problem))[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
     losses, ks, heights, initials = (
         np.asarray(x) for x in loop_screen(problem, simulation, raws, LOOP_RATES)
     )
-    order = np.argsort(losses, axis=None, kind="stable")[:n_starts]
+    losses = np.where(in_band(design, simulation.units, problem_rate(problem))[:, None], losses, np.inf)
+    order = least_finite(losses, n_starts)
     starts = []
     for flat in order:
         i, j = np.unravel_index(flat, losses.shape)
@@ -283,7 +287,7 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=fro
     `mode_frequencies(rate)` × `MODE_DAMPINGS` puts the network and the mode in
     the same basin; the `n_starts` best are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen, problem_rate(problem))[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -291,7 +295,8 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=fro
     losses = np.asarray(
         mode_screen(problem, simulation, raws, np.array([f for f, _ in grid]), np.array([z for _, z in grid]))
     )
-    order = np.argsort(losses, axis=None, kind="stable")[:n_starts]
+    losses = np.where(in_band(design, simulation.units, problem_rate(problem))[:, None], losses, np.inf)
+    order = least_finite(losses, n_starts)
     starts = []
     for flat in order:
         i, j = np.unravel_index(flat, losses.shape)
@@ -345,7 +350,7 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     """
     from ._effect_stack import EffectStack
 
-    design = start_design(simulation, N_SCREEN, frozen, problem_rate(problem))[:N_JOINT_SCREEN]
+    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(simulation, design)
     if not names:
         return []
@@ -353,6 +358,7 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     share = f"{effect.state}_spill" if getattr(effect, "into", None) is not None else None
     peaks = np.asarray(state_peaks(problem, simulation, effect.state, raws))
     stack = EffectStack(simulation, [effect])
+    band = in_band(design, simulation.units, problem_rate(problem))
     best = []
     for fraction in LIMIT_FRACTIONS:
         levels = fraction * peaks
@@ -361,7 +367,7 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
         for extra in [{share: spill} for spill in SPILL_SHARES] if share else [{}]:
             shares = {k: jnp.full(len(levels), effect.constraints[k].to_raw(v)) for k, v in extra.items()}
             losses = np.where(
-                np.isfinite(levels), screen_design_losses(problem, stack, {**row, **shares}), np.inf
+                np.isfinite(levels) & band, screen_design_losses(problem, stack, {**row, **shares}), np.inf
             )
             i = int(np.argmin(losses))
             found.append((float(losses[i]), fraction, i, {level: float(levels[i]), **extra}))
@@ -411,9 +417,10 @@ def joint_starts(context, effect, values, n_starts: int) -> list[dict]:
         effect = simulation.effects[simulation.effect_names.index(effect.name)]
     else:  # the simulation itself (an inside effect's screen), with this effect alone
         stack = EffectStack(simulation, [effect])
-    design = start_design(stack, N_SCREEN, context.frozen, problem_rate(context.problem))[:N_JOINT_SCREEN]
+    design = start_design(stack, N_SCREEN, context.frozen)[:N_JOINT_SCREEN]
     names, raws = design_raws(stack, design)
     n = len(design)
+    band = in_band(design, stack.units, problem_rate(context.problem))
     best = []
     for k, given in enumerate(values):
         unknown = sorted(set(given) - set(effect.constraints))
@@ -426,7 +433,7 @@ def joint_starts(context, effect, values, n_starts: int) -> list[dict]:
         for name, value in given.items():
             raw = effect.constraints[name].to_raw(np.full(n, float(value)))
             row[name] = jnp.asarray(raw)
-        losses = screen_design_losses(context.problem, stack, row)
+        losses = np.where(band, screen_design_losses(context.problem, stack, row), np.inf)
         i = int(np.argmin(losses))
         if np.isfinite(losses[i]):
             best.append((float(losses[i]), k, {**{name: design[i][name] for name in names}, **given}))
