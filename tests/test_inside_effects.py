@@ -996,3 +996,60 @@ def test_a_limit_never_reached_and_a_friction_never_turned_are_said_to_be_unpinn
     # a turn 5 % of the largest speed wide has many samples in it: the numbers' reason is given instead
     wide = turn(0.05 * float(np.max(speed)))
     assert "friction turns" not in wide and "does not change with it" in wide
+
+
+class _Block(hybrid.AbstractStateSpace):
+    """A heated block, heater W -> temperature, first order about an ambient (a test plug-in)."""
+
+    raw: dict
+    constraints = {"capacity": hybrid.Positive(), "resistance": hybrid.Positive(), "ambient": hybrid.Real()}
+    units = {"capacity": "J/K", "resistance": "K/W", "ambient": "K"}
+    plausible = {"capacity": (0.1, 1e5), "resistance": (1e-3, 100.0), "ambient": (-300.0, 400.0)}
+    states = ("temperature",)
+    state_units = {"temperature": "K"}
+    output_unit = "K"
+    limited_states = ("temperature",)
+    substeps = 2
+
+    def __init__(self, capacity=12.0, resistance=1.5, ambient=22.0):
+        self.raw = hybrid.encode(
+            dict(capacity=capacity, resistance=resistance, ambient=ambient), self.constraints, "Block"
+        )
+
+    def rates(self, x, u, p):
+        return ((u - (x[0] - p["ambient"]) / p["resistance"]) / p["capacity"],)
+
+    def initial_state(self, u0, p):
+        return (p["ambient"] + p["resistance"] * u0,)
+
+    def observe(self, x, p):
+        return x[0]
+
+
+def test_a_limits_rim_does_not_depend_on_the_zero_of_the_states_unit():
+    """One block and one ceiling 22 K above its ambient, in °C (ambient 22) and in K (295.15).
+
+    The rim was 2 % of |L| wide: 0.9 in °C, 6.3 in K, and the softplus applied after every step held
+    the block in K 33 K below the ceiling, under its ambient (the probe's false all-clear). Measured
+    from the state's rest (its initial state under no drive; τ = 1.8 s), the two are one response shifted by
+    273.15, and the block's top sits within a small share of the rise below the ceiling (its
+    unlimited response, integrated here by scipy's solve_ivp, goes far past it).
+    """
+    rate, dt = 30.0, 1 / 30.0
+    u = np.repeat(np.r_[0.0, np.random.default_rng(5).choice([0.0, 10.0, 20.0], 12)], 300)  # W, 10 s each
+    tops = {}
+    for ambient in (22.0, 295.15):
+        stack = EffectStack(
+            _Block(ambient=ambient), [StateLimit("temperature", temperature_max=ambient + 22.0)]
+        )
+        tops[ambient] = np.asarray(stack.simulate(jnp.asarray(u), dt))
+    np.testing.assert_allclose(tops[295.15] - 273.15, tops[22.0], rtol=0, atol=1e-9)
+    free = solve_ivp(
+        lambda t, x: [(u[min(int(t * rate), u.size - 1)] - x[0] / 1.5) / 1.2],  # above ambient
+        (0, u.size / rate),
+        [0.0],
+        max_step=dt / 4,
+        t_eval=np.arange(u.size) / rate,
+    ).y[0]
+    assert free.max() > 25.0  # the rise the limit cuts: up to 30 K
+    assert 22.0 - 0.1 * 22.0 < tops[22.0].max() - 22.0 <= 22.0

@@ -27,6 +27,7 @@ from ..core._state_space import dynamics_of, integrate, own_forces
 from ..util._errors import InputError
 from ._effect_set import force_percent_of_drive, resolve_effects
 from ._effects import AbstractEffect, StartContext
+from ._inside_effects import StateLimit
 
 
 class EffectStack(AbstractWrapper):
@@ -265,7 +266,13 @@ class EffectStack(AbstractWrapper):
         for i, (on, e) in enumerate(zip(self.active, self.effects)):
             if not float(on):  # a switched-off effect leaves its signal unchanged: nothing to derive
                 continue
-            out[e.name] = e.derived(signals[e.name], dt)
+            if isinstance(e, StateLimit):  # its rim from the state's rest, as it acts
+                core = dynamics_of(self.inner)
+                assert core is not None  # an inside effect needs the state-space form
+                at_rest = float(rest_state(core[0], jnp.float64)[core[0].states.index(e.acts_on)])
+                out[e.name] = e.derived(signals[e.name], dt, origin=at_rest)
+            else:
+                out[e.name] = e.derived(signals[e.name], dt)
             if e.place == "inside" and e.role == "feedback":
                 force = np.asarray(jax.vmap(lambda z, e=e: e.apply(z, dt))(jnp.asarray(signals[e.name])))
                 size = force_percent_of_drive(force, drive_forces(self, signals["drive"]), float(on))
@@ -586,6 +593,12 @@ def _named_state(effect, field: str, states) -> int | None:
     return None if name is None else states.index(name)
 
 
+def rest_state(inner, dtype) -> tuple:
+    """The state-space simulation's initial state under no drive: where each state rests (a tank empty,
+    a block at ambient), the origin of a limit's rim (`StateLimit._rim`)."""
+    return tuple(inner.initial_state(jnp.zeros((), dtype), inner.prepare(inner.parameters())))
+
+
 def _inside_dynamics(stack, inner, inside, u, dt, external=None):
     """(output, states) of the inner state-space simulation with the inside effects in its loop.
 
@@ -612,15 +625,20 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
             total = total + jnp.where(on != 0, on * effect.apply(z, dt), 0.0)
         return total
 
+    # Each limit's rim is measured from its state's rest, under no drive (`StateLimit._rim`): the
+    # same whatever the zero of the state's unit.
+    rest = rest_state(inner, jnp.asarray(u).dtype) if limits else ()
+
     def bound(x):
         x = list(x)
         for on, effect, k, j, m in limits:
             z = x[k]
-            x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt) - z), z)
+            at = {"origin": rest[k]} if isinstance(effect, StateLimit) else {}  # a plug-in's: as it is
+            x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt, **at) - z), z)
             if j is not None:  # a share of the cut lands in another state (a tank's spill below)
-                x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt), x[j])
+                x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt, **at), x[j])
             if m is not None:  # an end stop also stops the velocity that drove the state into it
-                x[m] = jnp.where(on != 0, x[m] + on * (effect.stopped(z, x[m]) - x[m]), x[m])
+                x[m] = jnp.where(on != 0, x[m] + on * (effect.stopped(z, x[m], **at) - x[m]), x[m])
         return tuple(x)
 
     return integrate(inner, u, dt, force if feedback else None, bound if limits else None, external)

@@ -71,7 +71,7 @@ from ..data._header_units import unit_kind
 from ..util._errors import InputError
 from ._effects import AbstractEffect, init_values, signal_span, signal_top
 
-#: The rim's width as a share of the limit's |L| (see `StateLimit`).
+#: The rim's width as a share of the limit's distance from the state's rest, |L − x_rest| (see `StateLimit`).
 RIM_WIDTH = 0.02
 #: Where a spill's share starts (`StateLimit` with `into`): half of the cut lands in `into`.
 SPILL_START = 0.5
@@ -248,36 +248,45 @@ class StateLimit(AbstractEffect):
             out.update(velocity=self.velocity)
         return out
 
-    def spilled(self, z, dt):
+    def spilled(self, z, dt, origin=0.0):
         """What goes into `into` when the limit takes z down to `apply(z)`: share × the cut."""
-        return self.parameters()[f"{self.state}_spill"] * (z - self.apply(z, dt))
+        return self.parameters()[f"{self.state}_spill"] * (z - self.apply(z, dt, origin))
 
-    def stopped(self, z, v):
+    def stopped(self, z, v, origin=0.0):
         """The velocity v of the state z after an end stop: its part into the stop taken away as z meets it.
 
         The share taken is σ((z − L)/δ), δ the rim's width: none well below
         the limit, half at it, all beyond. Only a positive v (one that drives z
         up, into the stop) is taken.
         """
-        top, width = self._rim()
+        top, width = self._rim(origin)
         return v - jax.nn.sigmoid((z - top) / width) * jnp.maximum(v, 0.0)
 
     def _level(self):
         return self.parameters()[f"{self.state}_max"]
 
-    def _rim(self):
-        """The limit L and the width δ = RIM_WIDTH·|L| over which it engages (traced: `apply`, `stopped`)."""
-        top = self._level()
-        return top, RIM_WIDTH * jnp.abs(top) + 1e-12
+    def _rim(self, origin=0.0):
+        """The limit L and the width δ = RIM_WIDTH·|L − origin| over which it engages (traced: `apply`, `stopped`).
 
-    def apply(self, z, dt):
-        top, width = self._rim()
+        `origin`: where the state rests under no drive (the stack passes its initial state
+        for a drive of 0: a tank empty, a block at ambient). Measured from there, the rim is
+        the same whatever the zero of the state's unit: a ceiling 22 K above a block's ambient
+        is one in °C and in K alike. Measured from 0 (|L|), it was 6.3 K wide in K and 0.9 K in
+        °C, and the softplus, applied after every step, held the block several widths below L:
+        a ceiling at 44 °C written in K was no limit at all (`tests/test_inside_effects.py -k
+        zero_of`). For a state that rests at 0 (a tank's level) the two are one.
+        """
+        top = self._level()
+        return top, RIM_WIDTH * jnp.abs(top - origin) + 1e-12
+
+    def apply(self, z, dt, origin=0.0):
+        top, width = self._rim(origin)
         return top - width * jax.nn.softplus((top - z) / width)
 
-    def derived(self, z, dt):
+    def derived(self, z, dt, origin: float = 0.0):
         top = float(self._level())
         z = np.asarray(z, float)
-        width = RIM_WIDTH * abs(top)
+        width = RIM_WIDTH * abs(top - origin)  # from the state's rest (`_rim`), which the stack passes
         return {
             "level": top,
             "at_limit_percent": 100.0 * float(np.mean(z >= top - 2.0 * width)) if z.size else 0.0,
@@ -305,7 +314,7 @@ class StateLimit(AbstractEffect):
     def unpinned_reason(self, name, signal):
         z = np.asarray(signal, float)
         top = float(self._level())
-        if z.size and np.max(z) < top - 2.0 * RIM_WIDTH * abs(top):
+        if z.size and np.max(z) < top - 2.0 * RIM_WIDTH * abs(top - float(np.min(z))):  # its least: near rest
             return "the state never reaches the limit in this recording"
         return None
 
