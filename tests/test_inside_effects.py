@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import importlib
 import importlib.util
 import json
 from pathlib import Path
@@ -36,6 +37,8 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 MassSpringDamper = type(hybrid.resolve_physics(f"{EXAMPLES}/oscillator.py:MassSpringDamper"))
 TwoTank = type(hybrid.resolve_physics(f"{EXAMPLES}/two_tank.py:TwoTank"))
 TwoTankOverflow = type(hybrid.resolve_physics(f"{EXAMPLES}/two_tank.py:TwoTankOverflow"))
+#: The example's own rim width (its code, not the library's): a limit compared with it is as wide.
+EXAMPLE_RIM = importlib.import_module(TwoTankOverflow.__module__).RIM_WIDTH
 
 RATE = 610.35
 DT = 1.0 / RATE
@@ -208,7 +211,7 @@ def test_rc_network_with_a_cubic_fed_back_converges_at_second_order():
 def test_state_limit_is_the_tank_examples_overflow_without_spill():
     u = jnp.asarray(_tank_drive())
     walls = TwoTankOverflow(level_max_1=9.0, level_max_2=1e4, spill_to_lower=1e-12)
-    stack = EffectStack(TwoTank(), [StateLimit("h1", h1_max=9.0)])
+    stack = EffectStack(TwoTank(), [StateLimit("h1", h1_max=9.0, rim=EXAMPLE_RIM)])
     h2 = np.asarray(stack.simulate(u, 4.0))
     np.testing.assert_allclose(h2, np.asarray(walls.simulate(u, 4.0)), rtol=1e-9, atol=1e-9)
     levels = stack.signals_into(u, 4.0)
@@ -228,11 +231,15 @@ def test_a_limit_that_spills_is_the_tank_examples_overflow_into_the_lower_tank()
     u = jnp.asarray(_tank_drive())
     for share in (0.3, 0.9):
         walls = TwoTankOverflow(level_max_1=9.0, level_max_2=1e4, spill_to_lower=share)
-        stack = EffectStack(TwoTank(), [StateLimit("h1", into="h2", h1_max=9.0, h1_spill=share)])
+        stack = EffectStack(
+            TwoTank(), [StateLimit("h1", into="h2", h1_max=9.0, h1_spill=share, rim=EXAMPLE_RIM)]
+        )
         np.testing.assert_allclose(
             np.asarray(stack.simulate(u, 4.0)), np.asarray(walls.simulate(u, 4.0)), rtol=1e-9, atol=1e-9
         )
-    lost = np.asarray(EffectStack(TwoTank(), [StateLimit("h1", h1_max=9.0)]).simulate(u, 4.0))
+    lost = np.asarray(
+        EffectStack(TwoTank(), [StateLimit("h1", h1_max=9.0, rim=EXAMPLE_RIM)]).simulate(u, 4.0)
+    )
     assert np.max(np.asarray(stack.simulate(u, 4.0)) - lost) > 0.5  # the spill does raise the lower tank
 
 
@@ -322,7 +329,9 @@ def test_an_end_stops_jacobian_matches_finite_differences():
     u = jnp.asarray(np.sin(2 * np.pi * 0.7 * t) + 0.3 * np.sin(2 * np.pi * 2.3 * t))
     stop = StateLimit("position", velocity="velocity", position_max=0.6)
     stack = EffectStack(MassSpringDamper(frequency=2.0, zeta=0.1), [stop])
-    _assert_jacobian_is_central_differences(stack, u, 1 / rate, {"position_max": 1e-5, "frequency": 1e-6})
+    # a step of 1e-6 in the level: the 0.5 % rim is curved enough that 1e-5 leaves central differences
+    # themselves 4e-4 off at the record's end (1e-6 and 1e-7 agree with forward mode to 1e-8)
+    _assert_jacobian_is_central_differences(stack, u, 1 / rate, {"position_max": 1e-6, "frequency": 1e-6})
 
 
 def test_a_limit_stops_the_velocity_that_moves_its_state():
@@ -388,7 +397,7 @@ def test_a_limit_acts_under_a_held_start_while_the_system_settles_too():
     held = hybrid.HeldStart(
         TwoTank(), 40, initial_drive=8.5
     )  # settles above the rim: overflowing at the start
-    stack = EffectStack(held, [StateLimit("h1", h1_max=9.0)])
+    stack = EffectStack(held, [StateLimit("h1", h1_max=9.0, rim=EXAMPLE_RIM)])
     walls = hybrid.HeldStart(
         TwoTankOverflow(level_max_1=9.0, level_max_2=1e4, spill_to_lower=1e-12), 40, initial_drive=8.5
     )
@@ -1053,3 +1062,29 @@ def test_a_limits_rim_does_not_depend_on_the_zero_of_the_states_unit():
     ).y[0]
     assert free.max() > 25.0  # the rise the limit cuts: up to 30 K
     assert 22.0 - 0.1 * 22.0 < tops[22.0].max() - 22.0 <= 22.0
+
+
+def test_a_limits_rim_is_an_option_saved_with_it():
+    """`rim` (default `RIM_WIDTH`, 0.5 %) travels in the config; a model saved before it was an option
+    was fitted with the 2 % rim of then and loads with it."""
+    from hybrid.discovery._inside_effects import LEGACY_RIM, RIM_WIDTH
+
+    assert StateLimit("h1").rim == RIM_WIDTH == 0.005
+    narrow = StateLimit("h1", into="h2", rim=0.01)
+    assert StateLimit.from_config(narrow.config()).rim == 0.01
+    assert StateLimit.from_config({"state": "h1"}).rim == LEGACY_RIM == 0.02
+    for bad in (0.0, 1.0, -0.1, True, "0.01"):
+        with pytest.raises(InputError, match="rim is the rim's width"):
+            StateLimit("h1", rim=bad)
+    u = jnp.asarray(_tank_drive())  # the wider rim holds the level further below the limit
+    tops = {
+        rim: float(
+            np.max(
+                EffectStack(TwoTank(), [StateLimit("h1", h1_max=9.0, rim=rim)]).signals_into(u, 4.0)[
+                    "limit_h1"
+                ]
+            )
+        )
+        for rim in (0.005, 0.02)
+    }
+    assert tops[0.02] < tops[0.005] <= 9.0
