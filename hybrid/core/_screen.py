@@ -55,7 +55,7 @@ def train_weights(problem):
     return jnp.ones_like(problem.target("train")) if weights is None else weights
 
 
-#: The share of the Nyquist frequency a start design's frequencies reach at most (`start_design`).
+#: The share of the Nyquist frequency above which a design point starts no fit (`in_band`).
 NYQUIST_SHARE = 0.9
 
 
@@ -155,8 +155,8 @@ def screen_design_losses(problem, simulation, raws) -> np.ndarray:
 def least_finite(losses, n: int) -> np.ndarray:
     """The flat indices of the `n` least finite `losses` (fewer where fewer are finite), least first.
 
-    A design point left out of the screens (`start_design`: a frequency above the Nyquist
-    frequency, NaN) or a simulation that fails there has a loss that is not finite: no start.
+    A design point that `in_band` refuses (its loss set to inf) or where the simulation fails
+    has a loss that is not finite: no start.
     """
     flat = np.asarray(losses, float).reshape(-1)
     order = np.argsort(np.where(np.isfinite(flat), flat, np.inf), kind="stable")
