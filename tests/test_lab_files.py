@@ -307,6 +307,26 @@ def test_a_binary_file_is_named_for_what_it_is_not_for_an_encoding(tmp_path, con
         assert "\x00" not in message and "UTF-16" not in message
 
 
+def test_empty_cells_are_counted_in_one_message(tmp_path):
+    """A tracker that lost the tip wrote empty cells at 7 rows: one message names the first and counts
+    them all (each was a separate try before), and points at --fill-gaps for a few frames in a row."""
+    u, y = _signals()
+    path = _write(tmp_path / "lost.csv", "time,u,y", [np.arange(N) / RATE, u, y])
+    rows = path.read_text().splitlines()
+    lost = [40, 41, 42, 120, 200, 201, 250]  # samples; the header is line 1, sample k is line k + 2
+    for k in lost:
+        t, v, _ = rows[k + 1].split(",")
+        rows[k + 1] = f"{t},{v},"
+    path.write_text("\n".join(rows) + "\n")
+    message = _refused(
+        r"an empty cell \(a missing value\) in column 'y' \(mapped as output\) at line 42 \(sample 40\) "
+        r"\(lines 42, 43, 44, 122, 202, \.\.\.: 7 lines have such a cell\)",
+        path,
+        columns="input=u,output=y,time=time",
+    )
+    assert "--fill-gaps N" in message
+
+
 def test_utf16_text_is_still_told_as_utf16(tmp_path):
     u, y = _signals()
     path = tmp_path / "wide.csv"

@@ -694,8 +694,11 @@ def _diagnose(
     index: Mapping[str, int],
 ) -> None:
     """Find the first bad cell of a mapped column in the file's `text` (commas between cells) and raise
-    about it (line from 1, sample from 0)."""
+    about it (line from 1, sample from 0), saying how many lines in all have one (a tracker that lost
+    the tip writes many: one message each would take as many tries)."""
     sample = -1
+    first: str | None = None
+    lines: list[int] = []
     with io.StringIO(text) as handle:
         for number, line in enumerate(handle, start=1):
             content = line.split("#", 1)[0].rstrip("\r\n")
@@ -711,11 +714,19 @@ def _diagnose(
             for role, i in index.items():
                 problem = _cell_problem(cells, i, dates=role == "t")
                 if problem:
-                    raise InputError(
+                    first = first or (
                         f"recording '{path}' has {problem} in column '{wanted[role]}' (mapped as "
-                        f"{OPTION[role]}) at line {number} (sample {sample}): every value of a "
-                        "mapped column must be a finite number; fix that cell or delete the line"
+                        f"{OPTION[role]}) at line {number} (sample {sample})"
                     )
+                    lines.append(number)
+                    break
+    if first is not None:
+        shown = ", ".join(map(str, lines[:5])) + (", ..." if len(lines) > 5 else "")
+        more = f" (lines {shown}: {len(lines)} lines have such a cell)" if len(lines) > 1 else ""
+        raise InputError(
+            f"{first}{more}: every value of a mapped column must be a finite number; fix those cells or "
+            "delete those lines (a few missing frames in a row with a time column: then --fill-gaps N)"
+        )
 
 
 def _cell_problem(cells: Sequence[str], i: int, dates: bool = False) -> str:
