@@ -181,6 +181,10 @@ class StateLimit(AbstractEffect):
     bounce). Without it the position was held at the stop while its velocity
     ran on, and had to wind down before the mass could leave. A stop that the
     mass bounces off is not built in.
+
+    `rim`: the limit engages smoothly over a rim this share of its distance
+    from the state's rest wide (`RIM_WIDTH`, 0.5 %, by default; see `_rim`), so
+    that a fit sees a slope with respect to L before the state reaches it.
     """
 
     raw: dict[str, Array]
