@@ -13,6 +13,7 @@ in `hybrid.discovery._starts`) start from them.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -168,6 +169,28 @@ def problem_rate(problem) -> float:
     return 1.0 / float(problem.series[0].dt)
 
 
+class ScreenDesign(NamedTuple):
+    """A design to screen (`screen_design`): its points, the parameters it sets, their raw columns, and
+    which points may start a fit at the recordings' rate (`in_band`)."""
+
+    points: list[dict]
+    names: list[str]
+    raws: dict
+    band: np.ndarray
+
+
+def screen_design(problem, simulation, frozen=frozenset(), n_screen: int = N_SCREEN, keep: int | None = None):
+    """`start_design(simulation, n_screen, frozen)`, its first `keep` points, as every screen reads it.
+
+    `keep` cuts the same design (a Sobol design's points depend on its size: the joint screens
+    take the first points of the baseline's, not a design of their own). A point `in_band` refuses
+    at `problem`'s rate is for the screen to pass by (its loss set to inf).
+    """
+    points = start_design(simulation, n_screen, frozen)[:keep]
+    names, raws = design_raws(simulation, points)
+    return ScreenDesign(points, names, raws, in_band(points, simulation.units, problem_rate(problem)))
+
+
 def screened_starts(problem, simulation, n_starts: int, n_screen: int, frozen=frozenset()) -> list[dict]:
     """The `n_starts` best of an `n_screen`-point design, by training MSE with least-squares gain.
 
@@ -178,15 +201,10 @@ def screened_starts(problem, simulation, n_starts: int, n_screen: int, frozen=fr
     screened point there starts at the true parameters' training loss
     (`tests/test_diagnose_starts.py`).
     """
-    design = start_design(simulation, n_screen, frozen)
-    names, raws = design_raws(simulation, design)
+    design, names, raws, band = screen_design(problem, simulation, frozen, n_screen)
     if not names:
         return [{}]
-    losses = np.where(
-        in_band(design, simulation.units, problem_rate(problem)),
-        screen_design_losses(problem, simulation, raws),
-        np.inf,
-    )
+    losses = np.where(band, screen_design_losses(problem, simulation, raws), np.inf)
     order = least_finite(losses, n_starts)
     if not order.size:  # not finite anywhere: the design's first points, for the fit to refuse or say
         order = np.arange(min(n_starts, len(design)))

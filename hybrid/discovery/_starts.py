@@ -29,14 +29,10 @@ from ..core._devices import map_rows
 from ..core._loop_safe_linalg import lstsq
 from ..core._problem import Problem
 from ..core._screen import (
-    N_SCREEN,
     SCREEN_CHUNK,
-    design_raws,
-    in_band,
     least_finite,
-    problem_rate,
+    screen_design,
     screen_design_losses,
-    start_design,
     train_weights,
 )
 from ..util._errors import InputError
@@ -80,11 +76,9 @@ def delay_starts(problem, simulation, rate: float, n_starts: int, frozen=frozens
     of `DELAY_SHIFTS` samples puts the network and the delay in the same basin;
     the `n_starts` best pairs, with distinct shifts, are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
-    names, raws = design_raws(simulation, design)
+    design, names, raws, band = screen_design(problem, simulation, frozen, keep=N_JOINT_SCREEN)
     if not names:
         return []
-    band = in_band(design, simulation.units, problem_rate(problem))
     best = []
     for shift in DELAY_SHIFTS:
         losses = np.where(band, screen_design_losses(delayed(problem, shift), simulation, raws), np.inf)
@@ -157,14 +151,13 @@ def hysteresis_starts(problem, simulation, n_starts: int, frozen=frozenset()) ->
     and initial state at each of `LOOP_RATES` puts the network and the loop in
     the same basin; the `n_starts` best are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
-    names, raws = design_raws(simulation, design)
+    design, names, raws, band = screen_design(problem, simulation, frozen, keep=N_JOINT_SCREEN)
     if not names:
         return []
     losses, ks, heights, initials = (
         np.asarray(x) for x in loop_screen(problem, simulation, raws, LOOP_RATES)
     )
-    losses = np.where(in_band(design, simulation.units, problem_rate(problem))[:, None], losses, np.inf)
+    losses = np.where(band[:, None], losses, np.inf)
     order = least_finite(losses, n_starts)
     starts = []
     for flat in order:
@@ -287,15 +280,14 @@ def resonance_starts(problem, simulation, rate: float, n_starts: int, frozen=fro
     `mode_frequencies(rate)` × `MODE_DAMPINGS` puts the network and the mode in
     the same basin; the `n_starts` best are returned.
     """
-    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
-    names, raws = design_raws(simulation, design)
+    design, names, raws, band = screen_design(problem, simulation, frozen, keep=N_JOINT_SCREEN)
     if not names:
         return []
     grid = [(f, z) for f in mode_frequencies(rate) for z in MODE_DAMPINGS]
     losses = np.asarray(
         mode_screen(problem, simulation, raws, np.array([f for f, _ in grid]), np.array([z for _, z in grid]))
     )
-    losses = np.where(in_band(design, simulation.units, problem_rate(problem))[:, None], losses, np.inf)
+    losses = np.where(band[:, None], losses, np.inf)
     order = least_finite(losses, n_starts)
     starts = []
     for flat in order:
@@ -350,15 +342,13 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     """
     from ._effect_stack import EffectStack
 
-    design = start_design(simulation, N_SCREEN, frozen)[:N_JOINT_SCREEN]
-    names, raws = design_raws(simulation, design)
+    design, names, raws, band = screen_design(problem, simulation, frozen, keep=N_JOINT_SCREEN)
     if not names:
         return []
     level = f"{effect.state}_max"
     share = f"{effect.state}_spill" if getattr(effect, "into", None) is not None else None
     peaks = np.asarray(state_peaks(problem, simulation, effect.state, raws))
     stack = EffectStack(simulation, [effect])
-    band = in_band(design, simulation.units, problem_rate(problem))
     best = []
     for fraction in LIMIT_FRACTIONS:
         levels = fraction * peaks
@@ -417,10 +407,8 @@ def joint_starts(context, effect, values, n_starts: int) -> list[dict]:
         effect = simulation.effects[simulation.effect_names.index(effect.name)]
     else:  # the simulation itself (an inside effect's screen), with this effect alone
         stack = EffectStack(simulation, [effect])
-    design = start_design(stack, N_SCREEN, context.frozen)[:N_JOINT_SCREEN]
-    names, raws = design_raws(stack, design)
+    design, names, raws, band = screen_design(context.problem, stack, context.frozen, keep=N_JOINT_SCREEN)
     n = len(design)
-    band = in_band(design, stack.units, problem_rate(context.problem))
     best = []
     for k, given in enumerate(values):
         unknown = sorted(set(given) - set(effect.constraints))
