@@ -736,6 +736,81 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
                 assert getattr(same[name], key) == pytest.approx(getattr(entry, key), rel=1e-6), (name, key)
 
 
+def test_a_value_off_the_training_optimum_is_reported_with_that_optimum():
+    """`ParameterUncertainty.to_optimum` against scipy's least squares on the same training
+    residuals, from a back-relaxation fraction and a gain a few standard errors off; the report
+    says which values are not the optimum (`OFF_OPTIMUM` standard errors) and where it lies."""
+    import scipy.optimize
+
+    from hybrid.core._models import Model
+    from hybrid.core._problem import Problem, series_from_recording
+    from hybrid.core._readout import LinearReadout
+    from hybrid.discovery._diagnosis import OFF_OPTIMUM, DiagnoseSettings, _optimum
+    from hybrid.discovery._evidence import parameter_uncertainties
+    from hybrid.discovery._report import plus_minus
+
+    rec = synthetic_recording(
+        make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0),
+        SyntheticStrip(),
+        "back_relaxation",
+        {"tau_s": 4.0, "fraction": 0.5},
+        noise_fraction=0.01,
+        seed=1,
+    )
+    inner = RCNetwork(method="zoh")
+    settings = DiagnoseSettings()
+    # the network held (its parameters trade off along near-null directions): the effect and readout
+    frozen = frozenset(settings.frozen_for(inner)) | set(inner.parameter_names())
+    series = series_from_recording(rec, settings.split, ("train", "validation", "test"), settings.blocks)
+    model = Model(
+        extend(inner, "back_relaxation", relaxation_time_s=4.0, relaxation_fraction=0.5),
+        LinearReadout(gain=2.0),
+        "physics",
+    )
+    problem = Problem(model, [series], frozen)
+    residuals = eqx.filter_jit(lambda p, th: p.residuals(th))
+    jacobian = eqx.filter_jit(lambda p, th: jax.jacfwd(p.residuals)(th))
+    best = scipy.optimize.least_squares(
+        lambda th: np.asarray(residuals(problem, jnp.asarray(th))),
+        np.asarray(problem.flatten(model, frozen)),
+        jac=lambda th: np.asarray(jacobian(problem, jnp.asarray(th))),
+        method="lm",
+        xtol=1e-14,
+        ftol=1e-14,
+        gtol=1e-14,
+    )
+    optimum = {k: float(v) for k, v in problem.model(jnp.asarray(best.x)).parameters().items()}
+    white = np.random.default_rng(0).normal(size=400)
+    at = parameter_uncertainties(problem, best.x, white)
+    assert all(abs(u.to_optimum) < 1e-2 * u.std_error for u in at.values()), at
+    assert not any(u.held_off_optimum for u in at.values())
+    off = {
+        "relaxation_fraction": optimum["relaxation_fraction"] + 4 * at["relaxation_fraction"].std_error,
+        "gain": optimum["gain"] - 1.5 * at["gain"].std_error,
+    }
+    fitted = problem.model(jnp.asarray(best.x))
+    moved = Model(
+        fitted.simulation.replace(relaxation_fraction=off["relaxation_fraction"]),
+        LinearReadout(gain=off["gain"], offset=optimum["offset"]),
+        "physics",
+    )
+    found = parameter_uncertainties(problem, problem.flatten(moved, frozen), white)
+    values = {k: float(v) for k, v in moved.parameters().items()}
+    for name, u in found.items():  # within 2 % of a standard error of scipy's optimum
+        assert values[name] + u.to_optimum == pytest.approx(optimum[name], abs=0.02 * u.std_error), name
+    assert {n for n, u in found.items() if u.held_off_optimum} >= {"relaxation_fraction"}
+    assert not found["gain"].held_off_optimum  # 1.5 < OFF_OPTIMUM standard errors
+    assert OFF_OPTIMUM == 2.0
+    entry = {"value": values["relaxation_fraction"], "std_error": found["relaxation_fraction"].std_error}
+    entry.update(_optimum(found["relaxation_fraction"]), unit="1")
+    assert entry["at_training_optimum"] is False
+    text = plus_minus(entry)
+    assert f"not the training part's optimum, ≈ {optimum['relaxation_fraction']:.3g}" in text, text
+    assert "standard errors away" in text
+    gain = {"value": values["gain"], "std_error": found["gain"].std_error, **_optimum(found["gain"])}
+    assert "optimum" not in plus_minus(gain)
+
+
 def test_a_line_is_its_sinusoid_from_the_first_sample_and_its_frequency_gradient_is_right():
     """`Line` against numpy's sinusoid (t = k·dt from the first sample, so padding at the end leaves the
     phase alone), and the gradient in every raw parameter, the frequency's included (its amplitudes

@@ -176,6 +176,29 @@ def test_covariance_matches_curve_fit(curve_fit_reference):
     assert np.all(np.abs(popt - truth) < 3 * se_ref)
 
 
+def test_to_optimum_is_the_step_to_curve_fit_s_optimum(curve_fit_reference):
+    """`Covariance.to_optimum`: ~0 at curve_fit's optimum; from a point a few standard errors off,
+    the way back to it (damped Gauss–Newton: within 0.01 standard errors)."""
+    recording, popt, pcov = curve_fit_reference
+    se = np.sqrt(np.diag(pcov))
+
+    def model_at(values):
+        xi_rho, alpha_C, C_clamp, gain, offset = values
+        return Model(
+            TRUE.replace(xi_rho=xi_rho, alpha_C=alpha_C, C_clamp=C_clamp),
+            LinearReadout(gain, offset),
+            "physics",
+        )
+
+    at = S.parameter_covariance(model_at(popt), recording, frozen=FROZEN)
+    assert all(abs(at.to_optimum[n]) < 1e-3 * s for n, s in zip(FREE, se))
+    off = popt + np.array([2.0, -3.0, 1.5, 2.5, -2.0]) * se
+    away = S.parameter_covariance(model_at(off), recording, frozen=FROZEN)
+    step = np.array([away.to_optimum[n] for n in FREE])
+    np.testing.assert_allclose(step / se, (popt - off) / se, atol=0.01)
+    assert away.to_dict()["to_optimum"]["gain"] == pytest.approx(step[FREE.index("gain")])
+
+
 def test_standard_errors_of_a_fit_use_its_frozen_set_split_and_blocks(curve_fit_reference):
     """standard_errors(result) is parameter_covariance with the settings the fit recorded."""
     from hybrid import LevenbergMarquardt, fit, make_model

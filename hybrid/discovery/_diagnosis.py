@@ -62,7 +62,8 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: few samples that w jumps into and back out of, each [first, last], left out of the floor with the
 #: isolated spikes; their samples are in ``noise_floor.spikes`` too); ``glitches_bridged`` (those runs
 #: bridged before any fit, per recording: ``DiagnoseSettings.bridge_glitches``, on by default, so that
-#: ``noise_floor.glitches`` is empty unless it is off) and ``settings.bridge_glitches``.
+#: ``noise_floor.glitches`` is empty unless it is off) and ``settings.bridge_glitches``; each
+#: parameter's ``to_training_optimum`` and ``at_training_optimum`` (`OFF_OPTIMUM`).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -224,6 +225,13 @@ class HeldoutMetrics:
     """The paper's fitting percentage."""
 
 
+#: Standard errors between a reported value and the training part's optimum (`Covariance.to_optimum`)
+#: beyond which the report says the value is not that optimum: an LM lane keeps the iterate with the
+#: best validation loss, and on a short validation part that can be an early one (a plug-in
+#: pendulum's frame lag was kept at its start, several standard errors from the training optimum).
+OFF_OPTIMUM = 2.0
+
+
 @dataclasses.dataclass(frozen=True)
 class ParameterUncertainty:
     """The standard error of one fitted parameter, in its physical unit (`parameter_uncertainties`)."""
@@ -236,6 +244,14 @@ class ParameterUncertainty:
     """Variance inflation for the held-out residual's autocorrelation (`effective_sample_factor`)."""
     std_error_given_network: float | None = None
     """Standard error with the simulation's own parameters held at their fitted values (None for those)."""
+    to_optimum: float | None = None
+    """The Gauss–Newton step from the value to the training part's optimum (`Covariance.to_optimum`)."""
+
+    @property
+    def held_off_optimum(self) -> bool:
+        """The value lies more than `OFF_OPTIMUM` standard errors from the training part's optimum."""
+        step, se = self.to_optimum, self.std_error
+        return step is not None and math.isfinite(step) and math.isfinite(se) and abs(step) > OFF_OPTIMUM * se
 
 
 @dataclasses.dataclass(frozen=True)
@@ -580,6 +596,7 @@ class Diagnosis:
                     "value": v,
                     "std_error": _std_error(self.uncertainties.get(k)),
                     "std_error_given_network": _std_error_given_network(self.uncertainties.get(k)),
+                    **_optimum(self.uncertainties.get(k)),
                     "unit": self._unit(k),
                     **self._pinning(k),
                 }
@@ -617,6 +634,14 @@ def _std_error(u: ParameterUncertainty | None) -> float | None:
 
 def _std_error_given_network(u: ParameterUncertainty | None) -> float | None:
     return u.std_error_given_network if u is not None else None
+
+
+def _optimum(u: ParameterUncertainty | None) -> dict:
+    """``to_training_optimum`` and ``at_training_optimum`` of a parameter with a standard error."""
+    if u is None or u.to_optimum is None:
+        return {}
+    step = u.to_optimum if math.isfinite(u.to_optimum) else None
+    return {"to_training_optimum": step, "at_training_optimum": not u.held_off_optimum}
 
 
 def _unit(u: ParameterUncertainty | None) -> str:

@@ -55,7 +55,8 @@ def parameter_uncertainties(
     the standard error with the network's parameters held at their fitted
     values, from the Fisher information of the other parameters alone: how well
     the data fix the effect once the network is fixed — a lower bound on the
-    marginal error.
+    marginal error. ``to_optimum``: the Gauss–Newton step from the value to the
+    training part's optimum (`hybrid.sensitivity.Covariance.to_optimum`).
     """
     from ..sensitivity import problem_covariance
 
@@ -65,7 +66,10 @@ def parameter_uncertainties(
     keep = set(covariance.names) if keep is None else set(keep)
     out = {
         name: ParameterUncertainty(
-            std_error=std * math.sqrt(inflation), unit=covariance.units[name], inflation=inflation
+            std_error=std * math.sqrt(inflation),
+            unit=covariance.units[name],
+            inflation=inflation,
+            to_optimum=covariance.to_optimum.get(name),
         )
         for name, std in covariance.std_errors.items()
         if name in keep

@@ -100,7 +100,8 @@ def plus_minus(entry: dict) -> str:
 
     A parameter the recording does not pin (``pinned`` false, or a standard
     error that is infinite or above the value) reads ``value unit (not pinned
-    by this recording: why)``, never ``± inf``.
+    by this recording: why)``, never ``± inf``. One that is not the training
+    part's optimum (``at_training_optimum`` false) says so, with that optimum.
     """
     value, se, unit = entry.get("value"), entry.get("std_error"), entry.get("unit") or ""
     unit = "" if unit == "1" else unit  # dimensionless
@@ -118,7 +119,18 @@ def plus_minus(entry: dict) -> str:
     given = entry.get("std_error_given_network")
     if given is not None:
         text += f" (± {_num(given, 2)} with the simulation's parameters fixed)"
-    return f"{text} {unit}".rstrip()
+    return f"{text} {unit}".rstrip() + _off_optimum(entry)
+
+
+def _off_optimum(entry: dict) -> str:
+    """Where a value is not the training part's optimum (``at_training_optimum`` false): how far, and that optimum."""
+    step, se, value = entry.get("to_training_optimum"), entry.get("std_error"), entry.get("value")
+    if entry.get("at_training_optimum") is not False or step is None or not se or value is None:
+        return ""
+    return (
+        f" (not the training part's optimum, ≈ {_num(value + step, 3)}: {abs(step) / se:.1f} standard "
+        "errors away, where the fit's early stop on its validation loss kept it)"
+    )
 
 
 def parameter_rows(d: dict) -> list[str]:

@@ -6,6 +6,7 @@ import dataclasses
 from typing import Any
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 from ..core._models import Model
@@ -41,6 +42,13 @@ class Covariance:
     - `n_residuals`, `n_free`: m and the number of free raw values.
     - `dof`: m − p.
     - `unidentifiable`: names whose variance is infinite.
+    - `to_optimum`: how far each parameter lies from the training part's
+      least-squares optimum, that optimum less `values` (physical units; nan if
+      unidentifiable), by damped Gauss–Newton steps from `values`
+      (`_training_optimum`). Zero at a converged fit; a fit stopped early (an
+      LM run that keeps its best validation loss) can sit several standard
+      errors away, and `matrix` then describes the optimum's spread, not the
+      value's.
     """
 
     names: tuple[str, ...]
@@ -53,6 +61,7 @@ class Covariance:
     n_free: int
     dof: float
     unidentifiable: tuple[str, ...]
+    to_optimum: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def std_errors(self) -> dict[str, float]:
@@ -91,6 +100,7 @@ class Covariance:
             "n_free": self.n_free,
             "dof": self.dof,
             "unidentifiable": list(self.unidentifiable),
+            "to_optimum": {k: clean(v) for k, v in self.to_optimum.items()},
         }
 
 
@@ -221,6 +231,10 @@ def problem_covariance(
     cov[bad, :] = np.nan
     cov[:, bad] = np.nan
     cov[bad, bad] = np.inf
+    se = np.sqrt(np.abs(np.diag(cov)))
+    optimum = _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond)
+    step = np.array([float(optimum[k]) - float(named[k]) for k in names])
+    step[bad] = np.nan
 
     fisher = _efficient_fisher(J, rows_penalty, D, s2)
     return Covariance(
@@ -234,7 +248,55 @@ def problem_covariance(
         n_free=int(n),
         dof=float(dof),
         unidentifiable=tuple(k for k, b in zip(names, bad) if b),
+        to_optimum={k: float(x) for k, x in zip(names, step)},
     )
+
+
+#: `_training_optimum`'s most Gauss–Newton steps, and the move (in standard errors) below which it stops.
+OPTIMUM_STEPS = 20
+OPTIMUM_TOLERANCE = 1e-3
+
+
+def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict:
+    """The named parameters at the least-squares optimum of the training part, from `theta`.
+
+    Gauss–Newton on the identifiable subspace (the minimum-norm step, with the
+    covariance's `rcond`), each step halved until the cost falls, until no named
+    parameter moves by more than `OPTIMUM_TOLERANCE` standard errors: at a
+    converged fit one linear solve and no evaluation. r and J are those at
+    `theta` (recorded rows); the weight decay's rows are √μ θ_network.
+    """
+    theta = np.asarray(theta, float)
+    weights = problem.weights("train")
+    recorded = None if weights is None else np.asarray(weights) > 0
+    penalised = np.abs(rows_penalty).sum(axis=0)  # √μ·scale on each penalised entry, else 0
+
+    def rows(th):
+        r, J = (np.asarray(a) for a in _fit_jacobian(problem, jnp.asarray(th)))
+        return (r, J) if recorded is None else (r[recorded], J[recorded])
+
+    def stacked(r, th):
+        return np.concatenate([r, (penalised * th)[penalised > 0]])
+
+    A = np.concatenate([J, rows_penalty])
+    b = stacked(r, theta)
+    tiny = np.where(np.isfinite(se) & (se > 0), se, np.inf) * OPTIMUM_TOLERANCE
+    for _ in range(OPTIMUM_STEPS):
+        delta = -np.linalg.lstsq(A, b, rcond=rcond)[0] if A.shape[0] else np.zeros_like(theta)
+        if np.all(np.abs(D @ delta) <= tiny):
+            break
+        cost = b @ b
+        for _ in range(10):  # halved until the cost falls
+            r_new, J_new = rows(theta + delta)
+            b_new = stacked(r_new, theta + delta)
+            if np.isfinite(b_new).all() and b_new @ b_new < cost:
+                break
+            delta = delta / 2
+        else:
+            break
+        theta = theta + delta
+        A, b = np.concatenate([J_new, rows_penalty]), b_new
+    return named_parameters(problem.model(jnp.asarray(theta)))
 
 
 class _ProblemView(eqx.Module):
