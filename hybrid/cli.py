@@ -5,7 +5,7 @@
     hybrid fit RECORDING... --model hybrid|normal|physics [--physics SPEC] [--settle N] [--blocks N] [--out MODEL] [--test FILE...]
     hybrid table2 [--duration S] [--out-dir DIR]
     hybrid sensitivity --out DIR [RECORDING] [--physics SPEC] [--drive D] [--param NAME=VALUE ...] [--sobol N]
-    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N | --no-auto-settle] [--hybrid] [--max-steps N] [--blocks N] [--keep-glitches] [--quiet]
+    hybrid diagnose RECORDING... --out DIR [--physics SPEC] [--effects SPEC,...] [--settle N | --no-auto-settle] [--hybrid] [--max-steps N] [--blocks N] [--keep-glitches] [--no-refine] [--quiet]
     hybrid design DIAG_DIR --duration S (--amplitude V | --bounds LO:HI) [--rate HZ] [--slew PER_S]
                   [--output-bounds LO:HI] [--min-hold S] --out DRIVE.csv
 
@@ -259,6 +259,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="fit w's glitches as recorded (runs of a few samples that w jumps into and back out of: by "
         "default bridged by straight lines before any fit, as a tracker's lost frames; keep them when the "
         "system flips by itself, a relay or a chattering contact): DiagnoseSettings.bridge_glitches",
+    )
+    p.add_argument(
+        "--no-refine",
+        action="store_true",
+        help="do not diagnose again with a named-only refinement (a clip for a saturation) where the default "
+        "set leaves something unexplained beside the saturation or points at the clip: "
+        "DiagnoseSettings.refine",
     )
     p.add_argument(
         "--materiality",
@@ -618,6 +625,8 @@ def _cmd_diagnose(args):
         settings = dataclasses.replace(settings, settle_when_off=False)
     if args.keep_glitches:
         settings = dataclasses.replace(settings, bridge_glitches=False)
+    if args.no_refine:
+        settings = dataclasses.replace(settings, refine=False)
     if args.materiality:
         given = parse_params(args.materiality)  # names and sizes are checked where every caller's are
         settings = dataclasses.replace(settings, materiality={**settings.materiality, **given})
@@ -655,6 +664,9 @@ def _cmd_diagnose(args):
     start = report["evidence"].get("start") or {}
     if start.get("sentence"):
         print(f"start: {start['sentence']}")
+    refined = report["evidence"].get("refined") or {}
+    if refined.get("sentence"):
+        print(f"refined: {refined['sentence']}")
     floor, left = report["noise_floor"], report["unexplained"]
     print(f"noise floor: sigma = {floor['std']:.3g} {report['units']['w']} ({floor['method']})")
     if left is not None:

@@ -102,7 +102,8 @@ def test_a_held_start_that_cannot_be_tried_leaves_the_first_diagnosis_saying_why
 
 
 def test_a_record_that_starts_moving_is_flagged_with_the_remedy(records, tmp_path, capsys):
-    out, report = diagnose(records["moving"], tmp_path / "d", capsys, "--no-auto-settle")
+    out, report = diagnose(records["moving"], tmp_path / "d", capsys, "--no-auto-settle", "--no-refine")
+    assert report["settings"]["settle_when_off"] is False and report["settings"]["refine"] is False
     start = report["evidence"]["start"]
     assert start["off"] is True and "settled" not in start
     assert "start: " in out and "--settle N" in out and "HeldStart" in out

@@ -84,6 +84,7 @@ from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_unc
 from ._joint import joint_pair, named_jointly
 from ._noise_floor import bounded_by_residual, bridged, glitch_runs
 from ._redundant import drop_redundant
+from ._refine import refinable, refined, refined_effects
 from ._search import (
     N_LANES,
     fit_lanes,
@@ -498,7 +499,7 @@ def diagnose(
             **rival_models,
         }.items()
     }
-    return Diagnosis(
+    found = Diagnosis(
         cause=cause,
         baseline=baseline,
         extended=extended,
@@ -531,6 +532,27 @@ def diagnose(
         if kept
         else {},
     )
+    builtins = resolve_effects(None, simulation)
+    swaps = refinable(search.effects, kept, unexplained, builtins) if given.refine else {}
+    if not swaps:
+        return found
+    say(f"something left unexplained: again with {', '.join(f'{b} for {a}' for a, b in swaps.items())}")
+    again = diagnose(
+        recordings,
+        simulation=simulation,
+        effects=refined_effects(search.effects, swaps),
+        hybrid=hybrid,
+        settings=dataclasses.replace(given, refine=False),
+        hybrid_max_steps=hybrid_max_steps,
+        progress=progress,
+    )
+    again.glitches_bridged = glitches  # it read the recordings as bridged here
+    again.warnings = _glitch_warnings(glitches, rate) + again.warnings
+    kept_diagnosis, tried = refined(found, again, swaps, settings.min_gain)
+    kept_diagnosis.evidence["refined"] = tried
+    kept_diagnosis.settings = dataclasses.replace(kept_diagnosis.settings, refine=given.refine)  # as asked
+    kept_diagnosis.seconds = time.perf_counter() - t0
+    return kept_diagnosis
 
 
 def _bridge_glitches(recordings) -> tuple[list, list[dict]]:

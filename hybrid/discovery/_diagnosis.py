@@ -63,7 +63,10 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: isolated spikes; their samples are in ``noise_floor.spikes`` too); ``glitches_bridged`` (those runs
 #: bridged before any fit, per recording: ``DiagnoseSettings.bridge_glitches``, on by default, so that
 #: ``noise_floor.glitches`` is empty unless it is off) and ``settings.bridge_glitches``; each
-#: parameter's ``to_training_optimum`` and ``at_training_optimum`` (`OFF_OPTIMUM`).
+#: parameter's ``to_training_optimum`` and ``at_training_optimum`` (`OFF_OPTIMUM`); ``evidence.refined``
+#: (the second diagnosis with a named-only refinement in its parent's place, `DiagnoseSettings.refine`),
+#: ``unexplained.description.named_only`` (the named-only built-in the remainder points at) and
+#: ``settings.refine``.
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -160,6 +163,12 @@ class DiagnoseSettings:
       fits, which bends every fit and dilutes every gain. False (the CLI's
       ``--keep-glitches``): keep them (a relay, a contact that chatters: the
       system's own flips); the noise floor still leaves them out and says so.
+    - `refine`: where the default effect set names an effect that has a
+      `refinement` (a saturation: a clip, its knee's sharpness fitted) and
+      something is left unexplained, diagnose again with the refinement in its
+      place, and keep that diagnosis where it names the refinement and its
+      extended model's held-out NMSE is `min_gain` times lower
+      (``evidence.refined`` says what was tried either way). False: not tried.
     """
 
     split: tuple[float, float, float] = (0.6, 0.1, 0.3)
@@ -181,6 +190,7 @@ class DiagnoseSettings:
     unexplained_ratio: float = 2.0
     settle_when_off: bool = True
     bridge_glitches: bool = True
+    refine: bool = True
 
     def materiality_for(self, effects) -> dict:
         """Every threshold of `effects` (`AbstractEffect.thresholds`), with `materiality`'s overrides."""

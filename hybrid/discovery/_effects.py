@@ -206,6 +206,11 @@ class AbstractEffect(eqx.Module):
       ``_hz`` or ``_samples`` says its unit already.
     - `reading(parameters, output_unit)`: what the fit means physically, where the
       name alone could mislead (default: nothing).
+    - `refinement`: the name of an effect whose form contains this one's and
+      one more freedom (a saturation's knee of any sharpness, `Clip`), searched
+      only when named: where this effect is named and something is left
+      unexplained, `diagnose` tries the refinement in its place
+      (`DiagnoseSettings.refine`). None (the default): none.
     """
 
     raw: eqx.AbstractVar[dict[str, Array]]
@@ -221,6 +226,7 @@ class AbstractEffect(eqx.Module):
     n_screened: ClassVar[int] = 0
     n_kept: ClassVar[int] = 0
     of_time: ClassVar[bool] = False
+    refinement: ClassVar[str | None] = None
 
     @abc.abstractmethod
     def apply(self, s: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
@@ -628,6 +634,7 @@ class Saturation(_SidedSaturation):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "saturation"
+    refinement: ClassVar[str | None] = "clip"
     constraints, units, defaults = _sided_facts("saturation")
 
 
@@ -643,6 +650,7 @@ class DriveSaturation(_SidedSaturation):
     raw: dict[str, Array]
     name: ClassVar[str] = "drive_saturation"
     place: ClassVar[str] = "drive"
+    refinement: ClassVar[str | None] = "drive_clip"
     n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     constraints, units, defaults = _sided_facts("drive_saturation")
 

@@ -375,6 +375,9 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     start = ev.get("start") or {}
     if start.get("sentence"):
         lines += [f"**Start.** {start['sentence'][0].upper()}{start['sentence'][1:]}.", ""]
+    refined = ev.get("refined") or {}
+    if refined.get("sentence"):
+        lines += [f"**Refined.** {refined['sentence'][0].upper()}{refined['sentence'][1:]}.", ""]
     lines += noise_section(d)
 
     lines += [

@@ -365,6 +365,7 @@ def remainder(
         description["summary"] += f"; {hint}"
     elif hint := named_only_hint(description, places or {}):
         description["summary"] += f"; {hint}"
+        description["named_only"] = named_only_effect(description, places or {})
     out = {
         "fraction_above_floor": 1.0 - floor.variance / mse,
         "heldout_nmse": mse / var_w,
@@ -445,6 +446,21 @@ def named_only_hint(description: dict, places: dict) -> str | None:
     nothing unexplained: `tests/test_hard_clip.py`). A remainder read as unstructured whose best map is
     one of those (`_SLOW`) gets the creep's pointer too.
     """
+    pointer = _pointer(description, places)
+    if pointer is None:
+        return None
+    effect, what = pointer
+    return f"{what} may also explain it: the built-in {effect} is searched when named (--effects builtins,{effect})"
+
+
+def named_only_effect(description: dict, places: dict) -> str | None:
+    """The name of the built-in that `named_only_hint` points at, or None."""
+    pointer = _pointer(description, places)
+    return None if pointer is None else pointer[0]
+
+
+def _pointer(description: dict, places: dict) -> tuple[str, str] | None:
+    """(the named-only built-in, what it is in a lab's words) that `named_only_hint` points at."""
     recovered = description.get("recovered") or {}
     named = recovered.get("named")
     if (
@@ -459,9 +475,7 @@ def named_only_hint(description: dict, places: dict) -> str | None:
     if named in _NOT_THE_HINT and _NOT_THE_HINT[named](description):
         return None
     effect, what = _NAMED_ONLY_HINTS[named]
-    if effect in searched:
-        return None
-    return f"{what} may also explain it: the built-in {effect} is searched when named (--effects builtins,{effect})"
+    return None if effect in searched else (effect, what)
 
 
 def place_hint(description: dict, places: dict) -> str | None:

@@ -1,0 +1,93 @@
+"""A named effect's refinement tried in its place: a saturation's tanh knee against a clip's.
+
+A heater that stops sharply at 13 W, driven over 0–20 W into a first-order
+block (`tests/test_refine.py`; `--no-refine` gives the default set's own
+answer): the default set named `drive_even`, a concave quadratic of the drive,
+with `drive_saturation` its rival (a tanh's knee bends over the whole range),
+and left most of what remained above the noise; its remainder read "static in
+the drive … a clip of the drive recovers as much" and pointed at `drive_clip`.
+A probe's heated block (0–20 W, 13 W) got `drive_saturation` with a wrong
+`drive_even` beside it; `drive_clip`, named by hand, left nothing. A clip's
+knee of any sharpness contains the tanh's (sharpness 1), so it fits at least
+as well; but it is searched only when named (`NAMED_ONLY`): in the default set
+its third parameter stood in for effects of other shapes.
+
+So where a diagnosis of the default set leaves something unexplained and
+names an effect with a `refinement`, or its remainder points at one,
+`diagnose` runs again with each such refinement in its parent's place, and
+keeps the second diagnosis only where it names the refinement and its
+extended model's held-out NMSE is `min_gain` times lower than the first's (the
+step's own rule for a cause). Either way ``evidence.refined`` says what was
+tried and what came of it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def refinable(effects, kept, unexplained: dict | None, builtins) -> dict[str, str]:
+    """The refinements to try, by the name of the searched effect each takes the place of.
+
+    Each named cause's `refinement`, and the named-only effect the remainder
+    points at (``description.named_only``: a drive that stops sharply read as
+    "static in the drive … a clip of the drive recovers as much") where it is
+    the refinement of a searched effect; none already searched. {} when
+    nothing is left unexplained, or unless every one of `builtins` (the
+    default set's effects for this simulation) was searched: a list without
+    them is the caller's choice, and is not changed.
+    """
+    by_name = {e.name: e for e in effects}
+    if unexplained is None or not {e.name for e in builtins} <= by_name.keys():
+        return {}
+    parents = {e.refinement: e.name for e in effects if e.refinement and e.refinement not in by_name}
+    swaps = {name: by_name[name].refinement for name in kept if by_name[name].refinement in parents}
+    pointed = (unexplained.get("description") or {}).get("named_only")
+    if pointed in parents:
+        swaps[parents[pointed]] = pointed
+    return swaps
+
+
+def refined_effects(effects, swaps: dict[str, str]) -> list:
+    """The searched effects with each refinement in its parent's place."""
+    return [e for e in effects if e.name not in swaps] + list(swaps.values())
+
+
+def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, dict]:
+    """The diagnosis to keep, `first` or `again` (run with `swaps` made), and ``evidence.refined``."""
+    first_causes, again_causes = _names(first), _names(again)
+    named = [to for to in swaps.values() if to in again_causes]
+    ratio = first.extended.heldout.nmse / max(again.extended.heldout.nmse, 1e-300)
+    keep = bool(named) and ratio >= min_gain
+    tried = " and ".join(f"{to} in place of {name}" for name, to in swaps.items())
+    if keep:
+        causes = ", ".join(again_causes)
+        sentence = (
+            f"diagnosed again with {tried}, as something was left unexplained: it names {causes}, and its "
+            f"extended model's held-out NMSE is {ratio:.2f}× lower than with {', '.join(first_causes)}: "
+            "that diagnosis is the one reported"
+        )
+    elif named:
+        sentence = (
+            f"diagnosed again with {tried}, as something was left unexplained: it names {', '.join(named)}, "
+            f"but its held-out NMSE is only {ratio:.2f}× lower (needs {min_gain}): the first diagnosis stands"
+        )
+    else:
+        sentence = (
+            f"diagnosed again with {tried}, as something was left unexplained: it does not name "
+            f"{' or '.join(swaps.values())}: the first diagnosis stands"
+        )
+    evidence = {
+        "swaps": dict(swaps),
+        "causes": again_causes,
+        "heldout_nmse": again.extended.heldout.nmse,
+        "gain_over_first": ratio,
+        "kept": keep,
+        "first_causes": first_causes,
+        "sentence": sentence,
+    }
+    return (again if keep else first), evidence
+
+
+def _names(diagnosis) -> list[str]:
+    return [cause["name"] for cause in diagnosis.causes]

@@ -1,0 +1,100 @@
+"""A named effect's refinement tried in its place (`hybrid.discovery._refine`).
+
+The command-line test's recording is made here with scipy: a heater that stops at 13 W, driven in
+random steps over 0–20 W, into a first-order block. Without the refinement the default set named
+`drive_even` (a concave quadratic of the drive) with `drive_saturation` its rival and 91 % of the
+held-out error left unexplained; the remainder pointed at the named-only `drive_clip`.
+"""
+
+from __future__ import annotations
+
+import json
+import types
+
+import helpers as h
+import numpy as np
+import pytest
+import scipy.signal
+
+from hybrid.discovery._effect_set import EFFECTS, NAMED_ONLY
+from hybrid.discovery._refine import refinable, refined, refined_effects
+
+TOP = 13.0  # W: where the heater stops
+
+
+def _heater(path, seed: int = 1) -> None:
+    """60 s at 30 Hz: random steps of 0–20 W held 1–5 s, clipped at `TOP`, into 1.5 °C/W with τ = 2 s."""
+    rng = np.random.default_rng(seed)
+    rate, n = 30.0, 1800
+    holds, levels = rng.uniform(1.0, 5.0, 200), rng.uniform(0.0, 20.0, 200)
+    t = np.arange(n) / rate
+    v = levels[np.searchsorted(np.cumsum(holds), t, side="right")]
+    _, y, _ = scipy.signal.lsim(scipy.signal.lti([1.5], [2.0, 1.0]), np.minimum(v, TOP), t)
+    w = 22.0 + y + 0.01 * np.ptp(y) * rng.normal(size=n)
+    np.savetxt(path, np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,W,degC", comments="")
+
+
+def test_a_heater_that_stops_sharply_is_named_drive_clip_by_the_default_set(tmp_path):
+    _heater(tmp_path / "heat.csv")
+    run = h.run_hybrid(tmp_path, "diagnose", "heat.csv", "--physics", "lti:1", "--out", "d", "--quiet")
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    refined_ = report["evidence"]["refined"]
+    assert refined_["swaps"] == {"drive_saturation": "drive_clip"} and refined_["kept"], refined_
+    assert refined_["gain_over_first"] >= 1.5
+    assert [c["name"] for c in report["causes"]] == ["drive_clip"], report["verdict"]
+    assert report["unexplained"] is None, report["verdict"]
+    level = 1 / report["parameters"]["drive_clip_pos_curvature"]["value"]
+    assert level == pytest.approx(TOP, rel=0.01)
+    assert report["settings"]["refine"] is True
+    assert "refined: diagnosed again with drive_clip in place of drive_saturation" in run.stdout
+    assert "**Refined.** Diagnosed again with drive_clip" in (tmp_path / "d" / "report.md").read_text()
+
+    # the default set's own answer did not name the clip (and left the remainder that pointed at it)
+    assert refined_["first_causes"] and "drive_clip" not in refined_["first_causes"]
+
+
+def _effects(*names):
+    return [({**EFFECTS, **NAMED_ONLY}[n])() for n in names]
+
+
+BUILTINS = _effects(*EFFECTS)
+LEFT = {"description": {"summary": "…"}}
+
+
+def test_refinable_takes_a_named_cause_s_refinement_and_the_one_the_remainder_points_at():
+    assert refinable(BUILTINS, ["drive_saturation"], LEFT, BUILTINS) == {"drive_saturation": "drive_clip"}
+    assert refinable(BUILTINS, ["saturation", "delay"], LEFT, BUILTINS) == {"saturation": "clip"}
+    pointed = {"description": {"named_only": "drive_clip"}}
+    assert refinable(BUILTINS, ["drive_even"], pointed, BUILTINS) == {"drive_saturation": "drive_clip"}
+    # the remainder's creep is no refinement of a searched effect: not tried
+    assert refinable(BUILTINS, ["drive_even"], {"description": {"named_only": "creep"}}, BUILTINS) == {}
+    # nothing unexplained, a refinement searched already, or a set without the built-ins: nothing
+    assert refinable(BUILTINS, ["drive_saturation"], None, BUILTINS) == {}
+    with_clip = [*BUILTINS, *_effects("drive_clip")]
+    assert refinable(with_clip, ["drive_saturation"], LEFT, BUILTINS) == {}
+    chosen = _effects("drive_saturation", "delay")
+    assert refinable(chosen, ["drive_saturation"], LEFT, BUILTINS) == {}
+    swapped = refined_effects(BUILTINS, {"drive_saturation": "drive_clip"})
+    assert "drive_clip" in swapped and "drive_saturation" not in [getattr(e, "name", e) for e in swapped]
+
+
+def _diagnosis(causes, nmse):
+    return types.SimpleNamespace(
+        causes=[{"name": c} for c in causes],
+        extended=types.SimpleNamespace(heldout=types.SimpleNamespace(nmse=nmse)),
+    )
+
+
+def test_the_second_diagnosis_is_kept_only_where_it_names_the_refinement_and_gains_min_gain():
+    first = _diagnosis(["drive_saturation"], 0.03)
+    swaps = {"drive_saturation": "drive_clip"}
+    better = _diagnosis(["drive_clip"], 0.01)
+    kept, evidence = refined(first, better, swaps, 1.5)
+    assert kept is better and evidence["kept"] and evidence["gain_over_first"] == pytest.approx(3.0)
+    close = _diagnosis(["drive_clip"], 0.025)  # 1.2× lower: the first stands
+    kept, evidence = refined(first, close, swaps, 1.5)
+    assert kept is first and not evidence["kept"] and "only 1.20× lower" in evidence["sentence"]
+    other = _diagnosis(["drive_even"], 0.001)  # far lower, but without the refinement: the first stands
+    kept, evidence = refined(first, other, swaps, 1.5)
+    assert kept is first and "does not name drive_clip" in evidence["sentence"]
