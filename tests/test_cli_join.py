@@ -257,3 +257,28 @@ def test_a_text_table_in_the_projects_columns_needs_no_mapping_and_one_with_a_he
     np.testing.assert_allclose(recording.w, y, rtol=1e-8)
     assert recording.rate == pytest.approx(2.0)
     assert not (tmp_path / "n.eqx").exists()
+
+
+def test_joined_files_without_a_time_column_or_rate_are_told_their_time_columns(tmp_path, capsys):
+    """A drive logged apart from a tracker's output, each file with its own 't': the refusal names them as
+    FILE:COLUMN in the flag to give (the single-file message's '--time X_Value'), and that flag reads them."""
+    import shlex
+
+    t = np.arange(60) / 30.0
+    np.savetxt(tmp_path / "drive.csv", np.c_[t, np.sin(t)], delimiter=",", header="t,v", comments="")
+    np.savetxt(tmp_path / "tip.csv", np.c_[t, np.cos(t)], delimiter=",", header="t,w", comments="")
+    files = [tmp_path / "drive.csv", tmp_path / "tip.csv"]
+    code, _, err = run(
+        ["fit", *files, "--columns", f"input={files[0]}:v,output={files[1]}:w", "--model", "physics"]
+        + ["--out", tmp_path / "m.eqx"],
+        capsys,
+    )
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and "no time column and no sampling rate" in lines[0], err
+    assert (
+        f"the column 't' of '{files[0]}' looks like one (so does the column 't' of '{files[1]}')" in lines[0]
+    )
+    flag = shlex.split(lines[0].split("(--time ", 1)[1].split(";", 1)[0])[0]
+    assert flag == f"{files[0]}:t"
+    record = load_mapped(files, columns=f"input={files[0]}:v,output={files[1]}:w", time=flag)
+    assert record.rate == pytest.approx(30.0) and not (tmp_path / "m.eqx").exists()

@@ -189,10 +189,18 @@ def load_mapped(
     references = file_references(roles, paths)
     lines = None  # the file line of each sample, for messages
     notes: list[str] = []
-    header: tuple[str, ...] = ()  # the file's column names, where one file is read
+    # the columns read but not mapped, as a flag names them and as a message does: a likely time column
+    unmapped: list[tuple[str, str, str]] = []  # (the flag's value, the column's name, how a message says it)
     if references:
-        data, fields, file_meta, notes = _read_joined(references)
+        data, fields, file_meta, notes, headers = _read_joined(references)
         path = " + ".join(str(p) for p in dict.fromkeys(p for p, _ in references.values()))  # for messages
+        mapped = set(references.values())
+        unmapped = [
+            (f"{file}:{c}", c, f"the column '{c}' of '{file}'")
+            for file, columns in headers.items()
+            for c in columns
+            if (file, c) not in mapped
+        ]
     elif several and len(paths) > 1:
         raise InputError(
             f"load_mapped got {len(paths)} files, and the mapping names none of them: join them by naming each "
@@ -201,7 +209,8 @@ def load_mapped(
     else:
         path = paths[0]
         data, fields, file_meta, table = read or read_columns(path, check_file(path, MAPPED_SUFFIXES), roles)
-        lines, notes, header = table.lines, list(table.notes), table.columns
+        lines, notes = table.lines, list(table.notes)
+        unmapped = [(c, c, f"its column '{c}'") for c in table.columns if c not in roles.values()]
     lengths = {role: len(values) for role, values in data.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"the {OPTION[r]} '{roles[r]}' has {k}" for r, k in lengths.items())
@@ -280,12 +289,15 @@ def load_mapped(
     hz, rate_from = _resolve_rate(label, rate_arg, grid, fields, file_meta, jitter)
     if t is None:
         if hz is None:
-            times = [c for c in header if c not in roles.values() and role_of(c) == "time"]
-            named = f"--time {shell_word(times[0])}; time={times[0]!r}" if times else "--time COLUMN; time="
+            times = [(flag, said) for flag, c, said in unmapped if role_of(c) == "time"]
+            named = (
+                f"--time {shell_word(times[0][0])}; time={times[0][0]!r}" if times else "--time COLUMN; time="
+            )
             raise InputError(
                 f"recording '{label}' has no time column and no sampling rate: pass the rate in "
                 f"Hz (--rate HZ; rate= in Python) or name a time column ({named})"
-                + (f": its column '{times[0]}' looks like one" if times else "")
+                + (f": {times[0][1]} looks like one" if times else "")
+                + (f" (so does {' and '.join(said for _, said in times[1:])})" if times[1:] else "")
             )
         t = (start + np.arange(stop - start, dtype=np.float64)) / hz
         if fill_gaps:
@@ -392,13 +404,17 @@ def _named_file(text: str, paths: Sequence[pathlib.Path]) -> pathlib.Path | None
 
 def _read_joined(
     references: Mapping[str, tuple[pathlib.Path, str | None]],
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, list[str]]:
-    """The columns of several files, one role each (or several of one file), their rate fields, metadata
-    and notes (what reading each file did: a preamble skipped, a footer)."""
+) -> tuple[
+    dict[str, np.ndarray], dict[str, np.ndarray], dict, list[str], dict[pathlib.Path, tuple[str, ...]]
+]:
+    """The columns of several files, one role each (or several of one file), their rate fields, metadata,
+    notes (what reading each file did: a preamble skipped, a footer) and the column names of each file
+    read by column (for a message that names a likely time column)."""
     data: dict[str, np.ndarray] = {}
     fields: dict[str, np.ndarray] = {}
     metadata: dict = {}
     notes: list[str] = []
+    headers: dict[pathlib.Path, tuple[str, ...]] = {}
     for file in dict.fromkeys(p for p, _ in references.values()):
         suffix = check_file(file, MAPPED_SUFFIXES)
         named = {role: column for role, (p, column) in references.items() if p == file and column is not None}
@@ -409,10 +425,11 @@ def _read_joined(
         if named:
             columns, found, meta, table = read_columns(file, suffix, named, flag_prefix=f"{file}:")
             notes += table.notes
+            headers[file] = table.columns
             data.update(columns)
             fields.update({k: v for k, v in found.items() if k not in fields})
             metadata = {**meta, **metadata}
-    return {role: data[role] for role in references}, fields, metadata, list(dict.fromkeys(notes))
+    return {role: data[role] for role in references}, fields, metadata, list(dict.fromkeys(notes)), headers
 
 
 def load_pair(
