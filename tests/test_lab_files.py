@@ -469,6 +469,37 @@ def test_an_unmapped_labview_file_is_answered_from_its_own_header_below_the_prea
         assert any("20 line(s) before its header (line 22)" in note for note in rec.notes), rec.notes
 
 
+def test_a_labview_file_without_a_time_column_is_sampled_at_its_delta_x(tmp_path, capsys):
+    """X_Columns No: LabVIEW writes the channels alone and their period as Delta_X in its header. That is the
+    rate, as a declared one would be, with a note (the file was refused for want of a rate); a --rate that
+    disagrees is refused in one line naming both."""
+    u, y = _signals()
+    header = LVM_PREAMBLE.replace("X_Columns\tOne", "X_Columns\tNo").replace("X_Value\t", "")
+    lvm = _write(tmp_path / "nox.lvm", header, [u, y], delimiter="\t")
+    columns = "input=Untitled,output=Untitled 1"
+    for rate in (None, 30.0):  # 30 Hz agrees with 0.033333 s within 1e-4
+        rec = Recording.load(lvm, columns=columns, rate=rate)
+        np.testing.assert_allclose(rec.w, y, atol=1e-6)
+        assert rec.rate == pytest.approx(1 / 0.033333, rel=1e-6) and rec.metadata["rate_from"].startswith(
+            "the file's 'Delta_X' field (0.033333 s)"
+        )
+        np.testing.assert_allclose(rec.t, np.arange(N) / rec.rate)
+        assert any("no time column (X_Columns No)" in n and "Delta_X = 0.033333 s" in n for n in rec.notes)
+    _refused(
+        r"sampling rates that disagree: the file's 'Delta_X' field \(0.033333 s\) says 30.0003 Hz, the rate "
+        r"given says 25 Hz",
+        lvm,
+        columns=columns,
+        rate=25.0,
+    )
+    code, err = _fit(tmp_path, capsys, lvm, "--columns", columns, "--rate", "25")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "'Delta_X'" in err, err
+    assert not (tmp_path / "m.eqx").exists()
+    # with a time column (X_Columns One) Delta_X is not the time base: the time column is named instead
+    timed = _write(tmp_path / "run.lvm", LVM_PREAMBLE, [np.arange(N) / RATE, u, y], delimiter="\t")
+    _refused(r"no time column and no sampling rate.*--time X_Value", timed, columns=columns)
+
+
 def test_a_csv_with_a_logger_preamble_is_answered_from_its_header_and_read_by_column_number(tmp_path):
     """Without t, v_in, w the refusal lists the header's names (it listed the preamble's first line); a
     mapping by number reads the columns under the header (it stopped at the preamble)."""

@@ -90,6 +90,7 @@ RATE_FIELDS: dict[str, str] = {
     "sampling_rate": "Hz",
     "ts": "s",
     "increment": "s",  # a Rigol oscilloscope's sampling period (`header_fields`)
+    "delta_x": "s",  # a LabVIEW measurement file's, where it writes no time column (`lvm_period`)
     "dt": "s",
     "dt_s": "s",
     "sample_time": "s",

@@ -26,7 +26,8 @@
   tabs or spaces (the first data line decides), ``#`` comments and blank lines
   skipped, an optional header line (a first line that is not all numbers; below a
   preamble and above a footer, as in a ``.csv``) and a units row under it, as in a ``.csv``. A
-  table without a header names its columns by number from 0 (``"0"``, ``"1"``).
+  table without a header names its columns by number from 0 (``"0"``, ``"1"``). A LabVIEW ``.lvm``
+  that writes no time column gives its channels' sample period, ``Delta_X`` (`lvm_period`), as a field.
   Every column is read, so every cell must be a number.
 * ``.npz`` / ``.mat``: the arrays or variables named; only those must be real
   numeric vectors, or a channel of a stored matrix, ``data:1`` (`matrix_columns`).
@@ -98,6 +99,7 @@ __all__ = [
     "only_column",
     "rate_field",
     "read_columns",
+    "lvm_period",
     "text_columns",
     "read_text_table",
     "unknown_name",
@@ -123,6 +125,9 @@ class TableNotes(NamedTuple):
     columns: tuple[str, ...] = ()
     #: A text table's units row under its header, by column name (`units_row`); empty without one.
     units: tuple[tuple[str, str], ...] = ()
+    #: The sample period of each column, s, that a LabVIEW file's header gives where it writes no time
+    #: column (`lvm_period`); empty otherwise.
+    period: tuple[float, ...] = ()
 
 
 def read_columns(
@@ -148,12 +153,20 @@ def read_columns(
             (names, table), notes = npy_table(path), TableNotes()
         else:
             names, table, notes = read_text_table(path, [n for n in wanted.values() if not n.isdigit()])
-        columns = {
-            role: table[:, _column_index(path, names, name, role, flag_prefix)]
-            for role, name in wanted.items()
-        }
+        index = {role: _column_index(path, names, name, role, flag_prefix) for role, name in wanted.items()}
+        columns = {role: table[:, i] for role, i in index.items()}
         metadata = {"units": dict(notes.units)} if notes.units else {}
-        return columns, {}, metadata, notes._replace(columns=tuple(names))
+        # a LabVIEW file's Delta_X: the mapped channels' period, a rate field (channels of two periods: none)
+        period = [notes.period[i] for role, i in index.items() if role != "t" and i < len(notes.period)]
+        fields = {"Delta_X": np.array(period)} if period else {}
+        if period and "t" not in wanted and rate_field(fields["Delta_X"]) is not None:
+            said = (
+                f"recording '{path}': its header writes no time column (X_Columns No) and gives the sample "
+                f"period Delta_X = {period[0]:g} s: read as {1 / period[0]:.6g} Hz, as a rate given would be "
+                "(--rate HZ checks it)"
+            )
+            notes = notes._replace(notes=(*notes.notes, said))
+        return columns, fields, metadata, notes._replace(columns=tuple(names))
     arrays, metadata = npz_arrays(path) if suffix == ".npz" else mat_variables(path)
     arrays = {**arrays, **matrix_columns(arrays)}  # data:1, a column of a stored matrix
     kind = "array" if suffix == ".npz" else "variable"
@@ -571,6 +584,7 @@ def read_text_table(
             f"recording '{path}' has no numbers: give one line per sample, one column per channel"
         )
     start = _first_line(lines, names_wanted)
+    period = lvm_period(lines[:start]) if path.suffix.lower() == ".lvm" else ()
     if start:
         notes.append(
             f"recording '{path}': the {start} line(s) before its header (line {lines[start][0]}) skipped"
@@ -620,8 +634,26 @@ def read_text_table(
     return (
         names,
         table,
-        TableNotes(np.array([n for n, _ in data], dtype=np.int64), tuple(notes), units=stated),
+        TableNotes(np.array([n for n, _ in data], dtype=np.int64), tuple(notes), units=stated, period=period),
     )
+
+
+def lvm_period(preamble: Sequence[tuple[int, str]]) -> tuple[float, ...]:
+    """The sample period of each channel, s, that a LabVIEW measurement file's header blocks (its `preamble`
+    lines) give as ``Delta_X`` where ``X_Columns`` says it writes no time column (``No``): its rows are then
+    evenly spaced samples at that period. () where it writes one, or gives no period."""
+    keys: dict[str, list[str]] = {}
+    for _, line in preamble:
+        cells = _cells(line, _delimiter(line))
+        keys.setdefault(cells[0].lower(), cells[1:])  # the first segment's
+    values = keys.get("delta_x", [])
+    if (
+        [c.lower() for c in keys.get("x_columns", [])] != ["no"]
+        or not values
+        or not all(map(is_number, values))
+    ):
+        return ()
+    return tuple(float(v) for v in values)
 
 
 def text_columns(path: pathlib.Path) -> list[str]:
