@@ -327,6 +327,48 @@ def test_empty_cells_are_counted_in_one_message(tmp_path):
     assert "--fill-gaps N" in message
 
 
+def test_bad_cells_of_a_text_table_are_counted_in_one_message(tmp_path):
+    """A tab-separated logger file with a tracker's NaN, an empty cell and a word: one message names the first,
+    its column and role, and counts the lines (it named the first alone, and said 'remove or interpolate it')."""
+    u, y = _signals()
+    path = _write(tmp_path / "lost.txt", "time\tu\ty", [np.arange(N) / RATE, u, y], delimiter="\t")
+    rows = path.read_text().splitlines()
+    for k, (column, cell) in {40: (2, "nan"), 41: (2, "NaN"), 120: (1, ""), 200: (2, "lost")}.items():
+        cells = rows[k + 1].split("\t")
+        cells[column] = cell
+        rows[k + 1] = "\t".join(cells)
+    path.write_text("\n".join(rows) + "\n")
+    message = _refused(
+        r"has a non-finite value 'nan' in column 'y' \(mapped as output\) at line 42 \(sample 40\) "
+        r"\(lines 42, 43, 122, 202: 4 lines have such a cell\): every cell of a text table",
+        path,
+        columns="input=u,output=y,time=time",
+    )
+    assert "--fill-gaps N" in message
+
+
+def test_non_finite_values_of_arrays_are_counted_in_one_message(tmp_path):
+    """An .npz (and an .npy) whose output has NaN at three samples: one message names the first as the file
+    calls it, with its role, and counts the samples (it came from the Recording's own check, with no role
+    and no pointer to --fill-gaps)."""
+    u, y = _signals()
+    y[[10, 11, 30]] = np.nan
+    np.savez(tmp_path / "lost.npz", time=np.arange(N) / RATE, u=u, y=y)
+    message = _refused(
+        r"has a non-finite value \(nan\) in array 'y' \(mapped as output\) at sample 10 \(samples 10, 11, 30: 3 "
+        r"samples have such a value\): every value of a mapped column must be a finite number",
+        tmp_path / "lost.npz",
+        columns="input=u,output=y,time=time",
+    )
+    assert "--fill-gaps N" in message and "--range" in message
+    np.save(tmp_path / "lost.npy", np.c_[np.arange(N) / RATE, u, y])
+    _refused(
+        r"in column '2' \(mapped as output\) at sample 10 \(samples 10, 11, 30: 3",
+        tmp_path / "lost.npy",
+        columns="input=1,output=2,time=0",
+    )
+
+
 def test_utf16_text_is_still_told_as_utf16(tmp_path):
     u, y = _signals()
     path = tmp_path / "wide.csv"

@@ -41,7 +41,9 @@ from 0 (``"0"``, ``"2"``): the header's names come first.
 Every bad mapping or cell raises one [`InputError`][hybrid.InputError]: a name
 the file lacks (with the file's names listed), a name the header holds twice,
 and a missing, empty, non-numeric or non-finite cell in a mapped column (with
-its column, its line in the file, from 1, and its sample, from 0).
+its column, its line in the file, from 1, and its sample, from 0): the first is
+named and the lines (samples, in a file without lines) that have one are counted,
+in one message whatever the format (`_refusal`).
 """
 
 from __future__ import annotations
@@ -152,9 +154,11 @@ def read_columns(
         if suffix == ".npy":
             (names, table), notes = npy_table(path), TableNotes()
         else:
-            names, table, notes = read_text_table(path, [n for n in wanted.values() if not n.isdigit()])
+            names, table, notes = read_text_table(path, wanted, flag_prefix)
         index = {role: _column_index(path, names, name, role, flag_prefix) for role, name in wanted.items()}
         columns = {role: table[:, i] for role, i in index.items()}
+        if suffix == ".npy":
+            _refuse_non_finite(path, columns, wanted, "column")
         metadata = {"units": dict(notes.units)} if notes.units else {}
         # a LabVIEW file's Delta_X: the mapped channels' period, a rate field (channels of two periods: none)
         period = [notes.period[i] for role, i in index.items() if role != "t" and i < len(notes.period)]
@@ -175,6 +179,7 @@ def read_columns(
         if name not in arrays:
             raise InputError(unknown_name(path, name, role, list(arrays), kind, flag_prefix))
         columns[role] = file_vector(path, name, arrays[name]).astype(np.float64)
+    _refuse_non_finite(path, columns, wanted, kind)
     fields = {
         key: np.asarray(values, dtype=np.float64).reshape(-1)
         for key, values in arrays.items()
@@ -549,10 +554,17 @@ def only_column(
         arrays = (npz_arrays(path) if suffix == ".npz" else mat_variables(path))[0]
         names = list(arrays)
         if len(names) == 1:
-            return file_vector(path, names[0], arrays[names[0]]).astype(np.float64), ()
+            column = file_vector(path, names[0], arrays[names[0]]).astype(np.float64)
+            _refuse_non_finite(
+                path, {role: column}, {role: names[0]}, "array" if suffix == ".npz" else "variable"
+            )
+            return column, ()
     else:
-        names, table, notes = (*npy_table(path), TableNotes()) if suffix == ".npy" else read_text_table(path)
+        names, table, notes = (
+            (*npy_table(path), TableNotes()) if suffix == ".npy" else read_text_table(path, {role: "0"})
+        )
         if table.shape[1] == 1:
+            _refuse_non_finite(path, {role: table[:, 0]}, {role: names[0]}, "column")
             return table[:, 0], notes.notes
     shown = ", ".join(names[:_SHOW_NAMES]) or "none"
     example = names[0] if names else "NAME"
@@ -566,18 +578,21 @@ def only_column(
 
 
 def read_text_table(
-    path: pathlib.Path, names_wanted: Sequence[str] = ()
+    path: pathlib.Path, wanted: Mapping[str, str] | None = None, flag_prefix: str = ""
 ) -> tuple[list[str], np.ndarray, TableNotes]:
     """A plain text table: its column names (the header's, or "0", "1", ... without one) and its numbers.
 
     The header is found as in a CSV file: the first of the first `PREAMBLE_LINES` lines that
-    names every one of `names_wanted` (the lines before it, a logger's preamble, skipped
-    with a note), else the first line. A footer (`footer_start`) is skipped with a note.
+    names every one of `wanted`'s names (role -> column, as `read_columns`; the lines before
+    it, a logger's preamble, skipped with a note), else the first line. A footer
+    (`footer_start`) is skipped with a note. Every cell must be a finite number: the bad
+    ones are refused in one message (the first, its column and role, and how many lines have one).
 
     Returns:
         ``(names, table, notes)``, ``table`` of shape (rows, len(names)), float64, every cell
         finite, and `TableNotes` (the line of each row, what was skipped, a units row's units).
     """
+    names_wanted = [n for n in (wanted or {}).values() if not n.isdigit()]
     lines, notes = _text_lines(path)
     if not lines:
         raise InputError(
@@ -611,26 +626,36 @@ def read_text_table(
         raise InputError(f"recording '{path}' has a header but no numbers: add one line per sample")
     width = len(rows[0]) if header and all(len(r) == len(rows[0]) < len(names) for r in rows) else len(names)
     names = names[:width]  # LabVIEW leaves its last column (Comment) out of every line
+    mapped = {
+        _column_index(path, names, name, role, flag_prefix): role for role, name in (wanted or {}).items()
+    }
     table = np.empty((len(data), width))
+    first: str | None = None  # the first bad cell, what and where
+    refused: list[int] = []  # the lines that have one
+    missing = False  # whether one is a missing value of the drive or output (--fill-gaps fills it)
     for row, ((number, line), values) in enumerate(zip(data, rows)):
         if len(values) != width:
             what = f"{len(names)} names in its header" if header else f"{width} cells on its first line"
             raise InputError(cell_count_message(path, line, number, row, len(values), width, what))
         for col, cell in enumerate(values):
             try:
-                table[row, col] = float(cell)
+                value = float(cell) if cell else math.nan
             except ValueError:
-                raise InputError(
-                    f"recording '{path}' has non-numeric cell {cell!r} in column {names[col]!r} at line "
-                    f"{number} (sample {row}): fix that cell or delete the line (numbers with '.' decimals)"
-                ) from None
-    bad = np.argwhere(~np.isfinite(table))
-    if bad.size:
-        row, col = bad[0]
-        raise InputError(
-            f"recording '{path}' has a non-finite value in column {names[col]!r} at line {data[row][0]} "
-            f"(sample {row}): remove or interpolate it"
-        )
+                value = None
+            if value is not None and math.isfinite(value):
+                table[row, col] = value
+                continue
+            table[row, col] = math.nan
+            missing = missing or (value is not None and mapped.get(col, "t") != "t")
+            if refused[-1:] != [number]:
+                refused.append(number)
+            as_role = f" (mapped as {OPTION[mapped[col]]})" if col in mapped else ""
+            first = first or (
+                f"recording '{path}' has {_cell_problem(values, col)} in column {names[col]!r}{as_role} at "
+                f"line {number} (sample {row})"
+            )
+    if first is not None:
+        raise _refusal(first, refused, "every cell of a text table (all its columns are read)", missing)
     return (
         names,
         table,
@@ -731,6 +756,7 @@ def _diagnose(
     sample = -1
     first: str | None = None
     lines: list[int] = []
+    missing = False  # whether one is a missing value of the drive or output (--fill-gaps fills it)
     with io.StringIO(text) as handle:
         for number, line in enumerate(handle, start=1):
             content = line.split("#", 1)[0].rstrip("\r\n")
@@ -746,6 +772,7 @@ def _diagnose(
             for role, i in index.items():
                 problem = _cell_problem(cells, i, dates=role == "t")
                 if problem:
+                    missing = missing or (role != "t" and i < len(cells) and _is_missing(cells[i]))
                     first = first or (
                         f"recording '{path}' has {problem} in column '{wanted[role]}' (mapped as "
                         f"{OPTION[role]}) at line {number} (sample {sample})"
@@ -753,12 +780,56 @@ def _diagnose(
                     lines.append(number)
                     break
     if first is not None:
-        shown = ", ".join(map(str, lines[:5])) + (", ..." if len(lines) > 5 else "")
-        more = f" (lines {shown}: {len(lines)} lines have such a cell)" if len(lines) > 1 else ""
-        raise InputError(
-            f"{first}{more}: every value of a mapped column must be a finite number; fix those cells or "
-            "delete those lines (a few missing frames in a row with a time column: then --fill-gaps N)"
-        )
+        raise _refusal(first, lines, "every value of a mapped column", missing)
+
+
+def _refusal(
+    first: str, places: Sequence[int], rule: str, missing: bool, samples: bool = False
+) -> InputError:
+    """One refusal of a table's bad cells, however many: `first` (what the first is, its column and line),
+    the lines (or, where the file has none, the `samples`) that have one, the first few of them, and
+    the fix. `rule`: the cells that must be finite numbers; `missing`: some are missing values (empty,
+    non-finite) of the drive or output, and --fill-gaps is offered (a tracker that lost the tip writes
+    many: one message each would take as many tries)."""
+    noun, what = ("sample", "value") if samples else ("line", "cell")
+    shown = ", ".join(map(str, places[:5])) + (", ..." if len(places) > 5 else "")
+    more = f" ({noun}s {shown}: {len(places)} {noun}s have such a {what})" if len(places) > 1 else ""
+    fix = (
+        "fix those values, or keep the samples before or after them (--range A:B)"
+        if samples
+        else "fix those cells or delete those lines"
+    )
+    offer = " (a few missing frames in a row with a time column: then --fill-gaps N)" if missing else ""
+    return InputError(f"{first}{more}: {rule} must be a finite number; {fix}{offer}")
+
+
+def _refuse_non_finite(
+    path: pathlib.Path, columns: Mapping[str, np.ndarray], wanted: Mapping[str, str], kind: str
+) -> None:
+    """Refuse the non-finite values of arrays (an ``.npz``'s, a ``.mat``'s, an ``.npy``'s columns), all in one
+    message (`_refusal`); `kind` is what the file calls a column (array, variable)."""
+    found = {role: np.flatnonzero(~np.isfinite(values)) for role, values in columns.items()}
+    found = {role: k for role, k in found.items() if k.size}
+    if not found:
+        return
+    samples = np.unique(np.concatenate(list(found.values())))
+    k = int(samples[0])
+    role = next(r for r, bad in found.items() if k in bad)
+    first = (
+        f"recording '{path}' has a non-finite value ({columns[role][k]}) in {kind} '{wanted[role]}' (mapped as "
+        f"{OPTION[role]}) at sample {k}"
+    )
+    missing = any(r != "t" for r in found)
+    raise _refusal(first, [int(j) for j in samples], "every value of a mapped column", missing, samples=True)
+
+
+def _is_missing(cell: str) -> bool:
+    """Whether a cell is a missing value, empty or a non-finite number (a tracker's NaN), not text."""
+    text = cell.strip().strip('"').strip()
+    try:
+        return not text or not math.isfinite(float(text))
+    except ValueError:
+        return False
 
 
 def _cell_problem(cells: Sequence[str], i: int, dates: bool = False) -> str:
