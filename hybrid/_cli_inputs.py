@@ -54,7 +54,8 @@ def add_mapping(p, B, rate: bool = True) -> None:
         default=None,
         metavar="N",
         help=f"fill each gap of the time column of at most N missing frames (1 to {FILL_GAPS_MAX}: a camera "
-        "that dropped a frame) by straight lines in every column, and say so (default: refuse a gap)",
+        "that dropped a frame), and each run of at most N missing values (empty or NaN cells: a tracker that "
+        "lost the tip) of the drive or output, by straight lines, and say so (default: refuse them)",
     )
 
 

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._recording_checks import REQUIRED, TIME_UNITS, UNITS, samples_text
+from ._recording_checks import FILL_VALUES_HINT, REQUIRED, TIME_UNITS, UNITS, samples_text
 
 __all__ = [
     "FOOTER_LINES",
@@ -935,6 +935,9 @@ def _check_delimiter(path: pathlib.Path, line: str, following: str = "") -> None
 
 def _csv_column(path: pathlib.Path, column: str, cells: list[str], numbers: np.ndarray) -> np.ndarray:
     """Convert one column of cells, naming the first bad cell, its line and its sample."""
+    offer = (
+        f" ({FILL_VALUES_HINT})" if column in ("v_in", "w") else ""
+    )  # a missing value of the drive or output
     try:
         values = np.array(cells, dtype=np.float64)
     except ValueError:
@@ -946,13 +949,14 @@ def _csv_column(path: pathlib.Path, column: str, cells: list[str], numbers: np.n
                 raise InputError(
                     f"recording '{path}' has non-numeric cell {cell!r}{comma} in column '{column}' at line "
                     f"{number} (sample {k}): fix that cell or delete the line"
+                    + (offer if not cell.strip() else "")
                 ) from None
         raise  # pragma: no cover - numpy and float() disagree
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
         raise InputError(
             f"recording '{path}' has non-finite values in column '{column}' at "
-            f"{samples_text(bad, numbers)}: remove or interpolate them"
+            f"{samples_text(bad, numbers)}: remove or interpolate them{offer}"
         )
     return values
 

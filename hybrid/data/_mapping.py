@@ -86,6 +86,9 @@ from ._recording_checks import (
     TIME_UNITS,
     check_time,
     fill_gaps as fill_missing,
+    fill_values,
+    sample_text,
+    samples_text,
     time_step,
     time_unit_guess,
 )
@@ -102,9 +105,9 @@ DEFAULT_UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "a.u."}
 RATE_RTOL: float = 1e-4
 
 
-def _standard_roles(path, require_w: bool) -> tuple[dict[str, str], tuple] | None:
-    """(``t``, ``v_in``, ``w`` mapped to themselves, `read_columns`'s result) where the file has them (``t``
-    optional), else None."""
+def _standard_roles(path, require_w: bool, fill: bool) -> tuple[dict[str, str], tuple] | None:
+    """(``t``, ``v_in``, ``w`` mapped to themselves, `read_columns`'s result, `fill` as its) where the file has
+    them (``t`` optional), else None."""
     try:
         suffix = check_file(path, MAPPED_SUFFIXES)
     except InputError:
@@ -113,7 +116,7 @@ def _standard_roles(path, require_w: bool) -> tuple[dict[str, str], tuple] | Non
         if not require_w:
             roles = {k: v for k, v in roles.items() if k != "w"}
         try:
-            return roles, read_columns(path, suffix, roles)
+            return roles, read_columns(path, suffix, roles, fill=fill)
         except InputError:
             continue
     return None
@@ -149,18 +152,32 @@ def load_mapped(
         name: how messages refer to the recording; default the path and the mapping.
         require_w: False to allow no output (``w`` is then zeros), as `Recording.load`.
         fill_gaps: fill each gap of the time column of at most this many missing frames (1 to
-            `FILL_GAPS_MAX`) by straight lines in every column (`fill_gaps`); default: refuse a gap.
+            `FILL_GAPS_MAX`) by straight lines in every column (`fill_gaps`), and each run of at most
+            this many missing values (empty or non-finite cells) of the drive or output by straight
+            lines between the values either side (`fill_values`); default: refuse them.
 
     Returns:
         The validated recording; ``metadata`` holds ``units``, ``mapping`` (role -> the
         file's name), ``rate_hz`` and ``rate_from``, ``segment`` for a sample range, and
-        ``filled`` (the filled samples, the gaps and the frames) where gaps were filled.
+        ``filled`` where samples were filled: ``samples`` (every sample with a filled value), with
+        ``gaps`` and ``frames`` where gaps were filled, ``runs`` and ``values`` (by channel, ``v_in``
+        and ``w``, the samples whose value was filled) where missing values were.
     """
     several = isinstance(path, (list, tuple))
     given = path if isinstance(path, (list, tuple)) else [path]
     paths = [path_argument(p, "load_mapped") for p in given]
     if not paths:
         raise InputError("load_mapped got an empty list of files: give a file, or the files of one record")
+    if fill_gaps is not None and (
+        isinstance(fill_gaps, bool)
+        or not isinstance(fill_gaps, (int, np.integer))
+        or not 1 <= fill_gaps <= FILL_GAPS_MAX
+    ):
+        raise InputError(
+            f"load_mapped got fill_gaps={fill_gaps!r}: give the most missing frames (or values) in a row to "
+            f"fill, a whole number from 1 to {FILL_GAPS_MAX} (a longer gap is cut, not guessed), or leave it out"
+        )
+    fill = fill_gaps is not None  # missing values of the drive and output are read as NaN, then filled
     read = None  # the file's columns, where finding its roles already read them
     try:
         roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
@@ -168,20 +185,11 @@ def load_mapped(
         # only --units, --range, --rate or a name: a file with the standard columns maps them itself
         standard = None
         if all(x is None for x in (input, output, time, columns)) and len(paths) == 1:
-            standard = _standard_roles(paths[0], require_w)
+            standard = _standard_roles(paths[0], require_w, fill)
         if standard is None:
             raise
         roles, read = standard
     rate_arg = rate_argument(rate)
-    if fill_gaps is not None and (
-        isinstance(fill_gaps, bool)
-        or not isinstance(fill_gaps, (int, np.integer))
-        or not 1 <= fill_gaps <= FILL_GAPS_MAX
-    ):
-        raise InputError(
-            f"load_mapped got fill_gaps={fill_gaps!r}: give the most missing frames in a row to fill, a whole "
-            f"number from 1 to {FILL_GAPS_MAX} (a longer gap is cut, not guessed), or leave it out"
-        )
     given_units = units_argument(units, "t" in roles)
     bounds = parse_sample_range(sample_range)
     if name is not None and (not isinstance(name, str) or not name.strip()):
@@ -192,7 +200,7 @@ def load_mapped(
     # the columns read but not mapped, as a flag names them and as a message does: a likely time column
     unmapped: list[tuple[str, str, str]] = []  # (the flag's value, the column's name, how a message says it)
     if references:
-        data, fields, file_meta, notes, headers = _read_joined(references)
+        data, fields, file_meta, notes, headers = _read_joined(references, fill)
         path = " + ".join(str(p) for p in dict.fromkeys(p for p, _ in references.values()))  # for messages
         mapped = set(references.values())
         unmapped = [
@@ -208,7 +216,8 @@ def load_mapped(
         )
     else:
         path = paths[0]
-        data, fields, file_meta, table = read or read_columns(path, check_file(path, MAPPED_SUFFIXES), roles)
+        suffix = check_file(path, MAPPED_SUFFIXES)
+        data, fields, file_meta, table = read or read_columns(path, suffix, roles, fill=fill)
         lines, notes = table.lines, list(table.notes)
         unmapped = [(c, c, f"its column '{c}'") for c in table.columns if c not in roles.values()]
     lengths = {role: len(values) for role, values in data.items()}
@@ -240,7 +249,13 @@ def load_mapped(
     if lines is not None:
         lines = lines[start:stop]
     signals: dict[str, np.ndarray] = {role: data[role][start:stop] for role in ("v_in", "w") if role in data}
-    filled = np.zeros(0, int)
+    filled = np.zeros(0, int)  # the frames put in the time column's gaps
+    values: dict[str, np.ndarray] = {}  # role -> its samples whose missing value was filled
+    if fill_gaps:
+        said = {role: f"column '{roles[role]}' (mapped as {OPTION[role]})" for role in signals}
+        at = data["t"][start:stop] if "t" in data else None  # as read: a line's scale does not matter
+        signals, values = fill_values(label, at, signals, int(fill_gaps), lines, said, start)
+    runs = {role: int(np.count_nonzero(np.diff(k) != 1)) + 1 for role, k in values.items()}  # before gaps
     if "t" in data:
         file_units = file_meta.get("units")  # by column name: a units row under the header, or a sidecar's
         stated = file_units.get(roles["t"]) if isinstance(file_units, Mapping) else None
@@ -283,6 +298,8 @@ def load_mapped(
             )
         if fill_gaps:
             t, signals, lines, filled = fill_missing(label, t, signals, int(fill_gaps), lines)
+            kept = np.setdiff1d(np.arange(t.size), filled)  # where each sample read went
+            values = {role: kept[k] for role, k in values.items()}
         # the checks the Recording makes, here with the file's lines; the rate is the grid's
         grid, base = check_time(label, t, {"units": {"t": "s"}}, lines)
         jitter = float(base["jitter_max_s"]) if base is not None else 0.0
@@ -300,7 +317,7 @@ def load_mapped(
                 + (f" (so does {' and '.join(said for _, said in times[1:])})" if times[1:] else "")
             )
         t = (start + np.arange(stop - start, dtype=np.float64)) / hz
-        if fill_gaps:
+        if fill_gaps and not values:
             notes.append(
                 f"recording '{label}': --fill-gaps {fill_gaps} (fill_gaps={fill_gaps}) filled nothing: with no "
                 f"time column its rows are read as evenly spaced at {hz:g} Hz, so a dropped frame cannot be "
@@ -318,13 +335,26 @@ def load_mapped(
         previous = file_meta.get("segment")
         offset = int(previous.get("start", 0)) if isinstance(previous, dict) else 0
         metadata["segment"] = {"start": offset + start, "stop": offset + stop}
-    if filled.size:
-        gaps = int(np.count_nonzero(np.diff(filled) != 1)) + 1
-        metadata["filled"] = {"samples": [int(k) for k in filled], "gaps": gaps, "frames": int(filled.size)}
+    if filled.size or values:
+        every = np.unique(np.concatenate([filled, *values.values()]))
+        record: dict[str, Any] = {"samples": [int(k) for k in every]}
+        what = []
+        if filled.size:
+            gaps = int(np.count_nonzero(np.diff(filled) != 1)) + 1
+            record.update(gaps=gaps, frames=int(filled.size))
+            what.append(f"{filled.size} missing frame(s) in {gaps} gap(s)")
+        if values:
+            record.update(
+                runs=sum(runs.values()), values={r: [int(k) for k in ks] for r, ks in values.items()}
+            )
+            for r, ks in values.items():
+                where = samples_text(ks, lines) if ks.size > 1 else sample_text(int(ks[0]), lines)
+                what.append(f"{ks.size} missing value(s) in {runs[r]} run(s) of the {OPTION[r]}, at {where},")
+        metadata["filled"] = record
         notes.append(
-            f"recording '{label}': {filled.size} missing frame(s) in {gaps} gap(s) filled by straight lines "
-            f"(--fill-gaps {fill_gaps}), the first at t = {t[filled[0]]:.6g} s: every fit and score counts "
-            "them as measured (metadata['filled'] lists them)"
+            f"recording '{label}': {' and '.join(what)} filled by straight lines (--fill-gaps {fill_gaps}), the "
+            f"first at t = {t[every[0]]:.6g} s: every fit and score counts them as measured (metadata['filled'] "
+            "lists them)"
         )
     w = signals["w"] if "w" in signals else np.zeros(len(t))
     return Recording(t, signals["v_in"], w, {}, metadata, label, tuple(notes))
@@ -403,13 +433,13 @@ def _named_file(text: str, paths: Sequence[pathlib.Path]) -> pathlib.Path | None
 
 
 def _read_joined(
-    references: Mapping[str, tuple[pathlib.Path, str | None]],
+    references: Mapping[str, tuple[pathlib.Path, str | None]], fill: bool = False
 ) -> tuple[
     dict[str, np.ndarray], dict[str, np.ndarray], dict, list[str], dict[pathlib.Path, tuple[str, ...]]
 ]:
     """The columns of several files, one role each (or several of one file), their rate fields, metadata,
     notes (what reading each file did: a preamble skipped, a footer) and the column names of each file
-    read by column (for a message that names a likely time column)."""
+    read by column (for a message that names a likely time column); `fill` as `read_columns`'s."""
     data: dict[str, np.ndarray] = {}
     fields: dict[str, np.ndarray] = {}
     metadata: dict = {}
@@ -420,10 +450,10 @@ def _read_joined(
         named = {role: column for role, (p, column) in references.items() if p == file and column is not None}
         for role, (p, column) in references.items():
             if p == file and column is None:
-                data[role], read = only_column(file, suffix, role, str(file))
+                data[role], read = only_column(file, suffix, role, str(file), fill)
                 notes += read
         if named:
-            columns, found, meta, table = read_columns(file, suffix, named, flag_prefix=f"{file}:")
+            columns, found, meta, table = read_columns(file, suffix, named, f"{file}:", fill)
             notes += table.notes
             headers[file] = table.columns
             data.update(columns)

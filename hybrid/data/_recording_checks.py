@@ -27,6 +27,7 @@ from ..util._errors import InputError
 
 __all__ = [
     "FILL_GAPS_MAX",
+    "FILL_VALUES_HINT",
     "GAP_FRAMES",
     "JITTER_FRAMES",
     "MS_STEP_S",
@@ -35,6 +36,7 @@ __all__ = [
     "TIME_UNITS",
     "UNITS",
     "fill_gaps",
+    "fill_values",
     "sample_text",
     "samples_text",
     "time_step",
@@ -65,8 +67,13 @@ TIME_RTOL: float = 1e-3
 JITTER_FRAMES: float = 0.25
 #: A step longer than this many median steps is a gap (dropped frames): refused, unless filled (`fill_gaps`).
 GAP_FRAMES: float = 1.5
-#: The most missing frames in a row `fill_gaps` may be asked to fill: a longer gap is cut, not guessed.
+#: The most missing frames (or values, `fill_values`) in a row `fill_gaps` may be asked to fill: a longer
+#: gap is cut, not guessed.
 FILL_GAPS_MAX: int = 10
+#: What a refusal of missing (empty, non-finite) values of the drive or output offers: `fill_values`.
+FILL_VALUES_HINT: str = (
+    "a few missing values in a row of the drive or output: --fill-gaps N (fill_gaps=N) fills them"
+)
 #: A median step of this many seconds or more (a rate below 0.1 Hz) is refused as t
 #: written in milliseconds (33.3 at 30 fps), unless the metadata given declares
 #: ``units: {"t": "s"}``. Slow legitimate recordings (a 1 Hz benchmark, dt = 1 s) pass;
@@ -201,6 +208,7 @@ def check_finite(name: str, column: str, values: np.ndarray) -> None:
         raise InputError(
             f"recording '{name}' has non-finite values in column '{column}' at "
             f"{samples_text(bad)}: remove or interpolate them"
+            + (f" ({FILL_VALUES_HINT})" if column in ("v_in", "w") else "")
         )
 
 
@@ -448,3 +456,69 @@ def fill_gaps(
         full_lines[filled] = lines[before]
         lines = full_lines
     return new_t, out, lines, filled
+
+
+def fill_values(
+    name: str,
+    t: np.ndarray | None,
+    columns: Mapping[str, np.ndarray],
+    most: int,
+    lines: Any = None,
+    labels: Mapping[str, str] | None = None,
+    start: int = 0,
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """`columns` with each run of at most `most` missing (non-finite) values bridged by straight lines.
+
+    A cell left empty or a tracker's NaN in the drive or the output is a sample missing from that
+    column, as a dropped frame is from all of them (`fill_gaps`): each run of them is put on the
+    straight line between the finite values either side, at the samples' times `t` (evenly spaced
+    where None). A run at the record's first or last sample has nothing on one side to draw from,
+    and a run of more than `most` is cut, not guessed: each is refused with one line. `labels`
+    says a column in messages (role -> ``column 'y' (mapped as output)``); `start` is the record's
+    first sample in the file (a --range's), for the range a message suggests. Returns (columns,
+    filled): role -> the samples filled in it (from 0), for the roles that had any.
+    """
+    said = dict(labels or {})
+    out, filled = dict(columns), {}
+    long: list[tuple[int, str, int]] = []  # (first sample, role, length) of each run over `most`
+    for role, values in columns.items():
+        values = np.asarray(values, np.float64)
+        bad = ~np.isfinite(values)
+        if not bad.any():
+            continue
+        k = np.flatnonzero(bad)
+        breaks = np.flatnonzero(np.diff(k) != 1)
+        firsts, lasts = k[np.r_[0, breaks + 1]], k[np.r_[breaks, k.size - 1]]
+        what = said.get(role, f"column '{role}'")
+        n = values.size
+        if firsts[0] == 0 or lasts[-1] == n - 1:
+            head = firsts[0] == 0
+            a, b = (0, lasts[0]) if head else (firsts[-1], n - 1)
+            raise InputError(
+                f"recording '{name}' has {b - a + 1} missing value(s) in {what} "
+                f"{'from its first' if head else 'up to its last'} sample, at {sample_text(int(a), lines)}: "
+                f"--fill-gaps draws a line between the measured values either side, and none comes "
+                f"{'before' if head else 'after'} them; fix them, or leave those samples out "
+                f"(--range {f'{start + b + 1}:' if head else f'{start}:{start + a}'})"
+            )
+        runs = lasts - firsts + 1
+        long += [(int(f), role, int(r)) for f, r in zip(firsts, runs) if r > most]
+        x = (
+            np.asarray(t, np.float64)
+            if t is not None and np.all(np.diff(t) > 0)
+            else np.arange(n, dtype=float)
+        )
+        values = values.copy()
+        values[bad] = np.interp(x[bad], x[~bad], values[~bad])
+        out[role], filled[role] = values, k
+    if long:
+        first, role, length = min(long)
+        needed = max(r for _, _, r in long)
+        raise InputError(
+            f"recording '{name}' has {length} missing values in a row in {said.get(role, f'column {role!r}')} "
+            f"from {sample_text(first, lines)}, more than --fill-gaps {most} (fill_gaps={most}) fills"
+            + (f" ({len(long)} such runs in all)" if len(long) > 1 else "")
+            + ": fix them, or cut the recording there (--range A:B)"
+            + (f", or fill up to {needed} in a row (--fill-gaps {needed})" if needed <= FILL_GAPS_MAX else "")
+        )
+    return out, filled

@@ -93,6 +93,7 @@ from ._loaders import (
     spaced_cells_message,
     units_row,
 )
+from ._recording_checks import FILL_VALUES_HINT
 
 __all__ = [
     "MAPPED_SUFFIXES",
@@ -133,7 +134,7 @@ class TableNotes(NamedTuple):
 
 
 def read_columns(
-    path: pathlib.Path, suffix: str, wanted: Mapping[str, str], flag_prefix: str = ""
+    path: pathlib.Path, suffix: str, wanted: Mapping[str, str], flag_prefix: str = "", fill: bool = False
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
     """The mapped columns of a file, its rate fields and its metadata.
 
@@ -143,22 +144,24 @@ def read_columns(
         wanted: role (``t``, ``v_in``, ``w``) -> the file's name for it; distinct names.
         flag_prefix: what a message's example puts before a name (``"u.txt:"`` for a file
             joined by ``columns``; see `unknown_name`).
+        fill: read a missing value (an empty or non-finite cell) of the drive or the output as NaN,
+            for `fill_values` to fill, instead of refusing it.
 
     Returns:
         ``(columns, fields, metadata, notes)``: role -> float64 vector (all of one length for
         a CSV file), rate-field name -> its values, the file's metadata, and `TableNotes`.
     """
     if suffix in CSV_SUFFIXES:
-        return _read_csv(path, wanted, flag_prefix)
+        return _read_csv(path, wanted, flag_prefix, fill)
     if suffix == ".npy" or suffix in TEXT_SUFFIXES:
         if suffix == ".npy":
             (names, table), notes = npy_table(path), TableNotes()
         else:
-            names, table, notes = read_text_table(path, wanted, flag_prefix)
+            names, table, notes = read_text_table(path, wanted, flag_prefix, fill)
         index = {role: _column_index(path, names, name, role, flag_prefix) for role, name in wanted.items()}
         columns = {role: table[:, i] for role, i in index.items()}
         if suffix == ".npy":
-            _refuse_non_finite(path, columns, wanted, "column")
+            _refuse_non_finite(path, columns, wanted, "column", fill)
         metadata = {"units": dict(notes.units)} if notes.units else {}
         # a LabVIEW file's Delta_X: the mapped channels' period, a rate field (channels of two periods: none)
         period = [notes.period[i] for role, i in index.items() if role != "t" and i < len(notes.period)]
@@ -179,7 +182,7 @@ def read_columns(
         if name not in arrays:
             raise InputError(unknown_name(path, name, role, list(arrays), kind, flag_prefix))
         columns[role] = file_vector(path, name, arrays[name]).astype(np.float64)
-    _refuse_non_finite(path, columns, wanted, kind)
+    _refuse_non_finite(path, columns, wanted, kind, fill)
     fields = {
         key: np.asarray(values, dtype=np.float64).reshape(-1)
         for key, values in arrays.items()
@@ -212,7 +215,7 @@ _CSV_FIX = "save it as CSV UTF-8 (Excel: Save As, 'CSV UTF-8 (Comma delimited)')
 
 
 def _read_csv(
-    path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = ""
+    path: pathlib.Path, wanted: Mapping[str, str], flag_prefix: str = "", fill: bool = False
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict, TableNotes]:
     text, notes, given = csv_text(path)  # given: a scope's Start and Increment under their names
     try:
@@ -247,30 +250,46 @@ def _read_csv(
             )
             if footer:
                 notes.append(footer_note(path, footer))
-            clock = Clock()  # a time column of date-times: seconds after the first
-            lenient: dict[int | str, Callable[[str], float]] | None = {
-                **{i: _lenient for i in fields.values()},
-                **({index["t"]: clock} if "t" in index else {}),
-            } or None
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
-                table = np.loadtxt(
-                    handle,
-                    dtype=np.float64,
-                    delimiter=",",
-                    usecols=usecols,
-                    ndmin=2,
-                    comments="#",
-                    quotechar='"',
-                    converters=lenient,
-                    max_rows=len(lines) or None,  # a footer's lines are not read
-                )
+            position = handle.tell()
+
+            def load(missing: Sequence[int] = ()) -> tuple[np.ndarray, Clock]:
+                """The columns read from the data lines on (`missing`: columns whose empty cells are NaN)."""
+                handle.seek(position)
+                clock = Clock()  # a time column of date-times: seconds after the first
+                lenient: dict[int | str, Callable[[str], float]] | None = {
+                    **{i: _lenient for i in fields.values()},
+                    **({index["t"]: clock} if "t" in index else {}),
+                    **{i: _missing_as_nan for i in missing},
+                } or None
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
+                    table = np.loadtxt(
+                        handle,
+                        dtype=np.float64,
+                        delimiter=",",
+                        usecols=usecols,
+                        ndmin=2,
+                        comments="#",
+                        quotechar='"',
+                        converters=lenient,
+                        max_rows=len(lines) or None,  # a footer's lines are not read
+                    )
+                return table, clock
+
+            try:
+                table, clock = load()
+            except ValueError:
+                if not fill:
+                    raise
+                # every bad cell is a missing value of the drive or output, else refused here: read as NaN
+                _diagnose(path, text, header_line, units_line, wanted, index, fill)
+                table, clock = load([i for role, i in index.items() if role != "t"])
     except InputError:
         raise
     except csv.Error as error:  # a NUL byte in the header
         raise InputError(f"recording '{path}' is not a text table ({error}): {_CSV_FIX}") from None
     except ValueError as error:
-        _diagnose(path, text, header_line, units_line, wanted, index)
+        _diagnose(path, text, header_line, units_line, wanted, index, fill)
         raise InputError(
             f"recording '{path}' cannot be read as a comma-separated table ({error}): save it "
             "comma-separated with '.' decimals, one header line and one line per sample"
@@ -278,8 +297,11 @@ def _read_csv(
     if table.shape[0] == 0:
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     k = len(index)
-    if not np.isfinite(table[:, :k]).all():
-        _diagnose(path, text, header_line, units_line, wanted, index)
+    bad = ~np.isfinite(table[:, :k])
+    if fill:  # the drive's and the output's are filled (`fill_values`)
+        bad[:, [j for j, role in enumerate(index) if role != "t"]] = False
+    if bad.any():
+        _diagnose(path, text, header_line, units_line, wanted, index, fill)
     columns = {role: table[:, j] for j, role in enumerate(index)}
     rates = {name: table[:, k + j] for j, name in enumerate(fields)}
     rates.update({name: np.array([value]) for name, value in given.items() if name.lower() in RATE_FIELDS})
@@ -395,6 +417,12 @@ def _stated_units(handle, header: Sequence[str], header_line: int) -> tuple[dict
         return {name: unit for name, unit in zip(header, row) if unit and name}, number
     handle.seek(position)
     return {}, 0
+
+
+def _missing_as_nan(cell: str) -> float:
+    """A drive's or output's cell where missing values are filled: its number, NaN where it is empty."""
+    text = cell.strip().strip('"').strip()
+    return float(text) if text else math.nan
 
 
 def _lenient(cell: str) -> float:
@@ -546,25 +574,26 @@ def likely_names(name: str, names: Sequence[str]) -> list[str]:
 
 
 def only_column(
-    path: pathlib.Path, suffix: str, role: str, reference: str
+    path: pathlib.Path, suffix: str, role: str, reference: str, fill: bool = False
 ) -> tuple[np.ndarray, tuple[str, ...]]:
     """The one column (array, variable) of a file named whole in ``columns``, and the notes of reading it (a
-    preamble skipped); `reference` is how it was named."""
+    preamble skipped); `reference` is how it was named, `fill` as `read_columns`'s."""
     if suffix in (".npz", ".mat"):
         arrays = (npz_arrays(path) if suffix == ".npz" else mat_variables(path))[0]
         names = list(arrays)
         if len(names) == 1:
             column = file_vector(path, names[0], arrays[names[0]]).astype(np.float64)
-            _refuse_non_finite(
-                path, {role: column}, {role: names[0]}, "array" if suffix == ".npz" else "variable"
-            )
+            kind = "array" if suffix == ".npz" else "variable"
+            _refuse_non_finite(path, {role: column}, {role: names[0]}, kind, fill)
             return column, ()
     else:
         names, table, notes = (
-            (*npy_table(path), TableNotes()) if suffix == ".npy" else read_text_table(path, {role: "0"})
+            (*npy_table(path), TableNotes())
+            if suffix == ".npy"
+            else read_text_table(path, {role: "0"}, fill=fill)
         )
         if table.shape[1] == 1:
-            _refuse_non_finite(path, {role: table[:, 0]}, {role: names[0]}, "column")
+            _refuse_non_finite(path, {role: table[:, 0]}, {role: names[0]}, "column", fill)
             return table[:, 0], notes.notes
     shown = ", ".join(names[:_SHOW_NAMES]) or "none"
     example = names[0] if names else "NAME"
@@ -578,7 +607,7 @@ def only_column(
 
 
 def read_text_table(
-    path: pathlib.Path, wanted: Mapping[str, str] | None = None, flag_prefix: str = ""
+    path: pathlib.Path, wanted: Mapping[str, str] | None = None, flag_prefix: str = "", fill: bool = False
 ) -> tuple[list[str], np.ndarray, TableNotes]:
     """A plain text table: its column names (the header's, or "0", "1", ... without one) and its numbers.
 
@@ -586,11 +615,13 @@ def read_text_table(
     names every one of `wanted`'s names (role -> column, as `read_columns`; the lines before
     it, a logger's preamble, skipped with a note), else the first line. A footer
     (`footer_start`) is skipped with a note. Every cell must be a finite number: the bad
-    ones are refused in one message (the first, its column and role, and how many lines have one).
+    ones are refused in one message (the first, its column and role, and how many lines have one);
+    with `fill`, a missing value (empty, non-finite) of the drive or output is NaN (`read_columns`).
 
     Returns:
         ``(names, table, notes)``, ``table`` of shape (rows, len(names)), float64, every cell
-        finite, and `TableNotes` (the line of each row, what was skipped, a units row's units).
+        finite (but those `fill` leaves), and `TableNotes` (the line of each row, what was skipped, a
+        units row's units).
     """
     names_wanted = [n for n in (wanted or {}).values() if not n.isdigit()]
     lines, notes = _text_lines(path)
@@ -646,7 +677,10 @@ def read_text_table(
                 table[row, col] = value
                 continue
             table[row, col] = math.nan
-            missing = missing or (value is not None and mapped.get(col, "t") != "t")
+            if value is not None and mapped.get(col, "t") != "t":  # a missing value of the drive or output
+                if fill:
+                    continue
+                missing = True
             if refused[-1:] != [number]:
                 refused.append(number)
             as_role = f" (mapped as {OPTION[mapped[col]]})" if col in mapped else ""
@@ -749,10 +783,11 @@ def _diagnose(
     units_line: int,
     wanted: Mapping[str, str],
     index: Mapping[str, int],
+    fill: bool = False,
 ) -> None:
     """Find the first bad cell of a mapped column in the file's `text` (commas between cells) and raise
-    about it (line from 1, sample from 0), saying how many lines in all have one (a tracker that lost
-    the tip writes many: one message each would take as many tries)."""
+    about it (line from 1, sample from 0), saying how many lines in all have one (`_refusal`). With
+    `fill`, a missing value of the drive or output is none (`read_columns`): with no other, no raise."""
     sample = -1
     first: str | None = None
     lines: list[int] = []
@@ -771,8 +806,11 @@ def _diagnose(
                 ) from None
             for role, i in index.items():
                 problem = _cell_problem(cells, i, dates=role == "t")
+                if problem and role != "t" and i < len(cells) and _is_missing(cells[i]):
+                    if fill:
+                        continue
+                    missing = True
                 if problem:
-                    missing = missing or (role != "t" and i < len(cells) and _is_missing(cells[i]))
                     first = first or (
                         f"recording '{path}' has {problem} in column '{wanted[role]}' (mapped as "
                         f"{OPTION[role]}) at line {number} (sample {sample})"
@@ -799,17 +837,18 @@ def _refusal(
         if samples
         else "fix those cells or delete those lines"
     )
-    offer = " (a few missing frames in a row with a time column: then --fill-gaps N)" if missing else ""
+    offer = f" ({FILL_VALUES_HINT})" if missing else ""
     return InputError(f"{first}{more}: {rule} must be a finite number; {fix}{offer}")
 
 
 def _refuse_non_finite(
-    path: pathlib.Path, columns: Mapping[str, np.ndarray], wanted: Mapping[str, str], kind: str
+    path: pathlib.Path, columns: Mapping[str, np.ndarray], wanted: Mapping[str, str], kind: str, fill: bool
 ) -> None:
     """Refuse the non-finite values of arrays (an ``.npz``'s, a ``.mat``'s, an ``.npy``'s columns), all in one
-    message (`_refusal`); `kind` is what the file calls a column (array, variable)."""
+    message (`_refusal`), but those of the drive and output with `fill`; `kind` is what the file calls a
+    column (array, variable)."""
     found = {role: np.flatnonzero(~np.isfinite(values)) for role, values in columns.items()}
-    found = {role: k for role, k in found.items() if k.size}
+    found = {role: k for role, k in found.items() if k.size and not (fill and role != "t")}
     if not found:
         return
     samples = np.unique(np.concatenate(list(found.values())))
