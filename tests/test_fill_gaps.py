@@ -256,6 +256,11 @@ def test_missing_values_beside_dropped_frames_are_filled_on_one_line_through_the
             r"\(sample 399\): .*none comes after them; .*\(--range 0:399\)",
         ),
         (
+            {"y": list(range(400))},
+            3,
+            r"has no value in column 'y' \(mapped as output\): all 400 samples are missing",
+        ),
+        (
             {"time": [50]},
             3,
             r"in column 'time' \(mapped as time\) at line 52 \(sample 50\): every value of a mapped column must "

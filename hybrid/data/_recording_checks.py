@@ -491,6 +491,11 @@ def fill_values(
         firsts, lasts = k[np.r_[0, breaks + 1]], k[np.r_[breaks, k.size - 1]]
         what = said.get(role, f"column '{role}'")
         n = values.size
+        if k.size == n:
+            raise InputError(
+                f"recording '{name}' has no value in {what}: all {n} samples are missing, nothing to fill "
+                "from; map the column that holds the signal"
+            )
         if firsts[0] == 0 or lasts[-1] == n - 1:
             head = firsts[0] == 0
             a, b = (0, lasts[0]) if head else (firsts[-1], n - 1)
