@@ -648,10 +648,9 @@ def _std_error_given_network(u: ParameterUncertainty | None) -> float | None:
 
 def _optimum(u: ParameterUncertainty | None) -> dict:
     """``to_training_optimum`` and ``at_training_optimum`` of a parameter with a standard error."""
-    if u is None or u.to_optimum is None:
-        return {}
-    step = u.to_optimum if math.isfinite(u.to_optimum) else None
-    return {"to_training_optimum": step, "at_training_optimum": not u.held_off_optimum}
+    if u is None or u.to_optimum is None or not math.isfinite(u.to_optimum):
+        return {}  # unidentifiable, or the optimum not found: nothing said
+    return {"to_training_optimum": u.to_optimum, "at_training_optimum": not u.held_off_optimum}
 
 
 def _unit(u: ParameterUncertainty | None) -> str:

@@ -44,7 +44,7 @@ class Covariance:
     - `unidentifiable`: names whose variance is infinite.
     - `to_optimum`: how far each parameter lies from the training part's
       least-squares optimum, that optimum less `values` (physical units; nan if
-      unidentifiable), by damped Gauss–Newton steps from `values`
+      unidentifiable, or where no Gauss–Newton step can be solved), by damped Gauss–Newton steps from `values`
       (`_training_optimum`). Zero at a converged fit; a fit stopped early (an
       LM run that keeps its best validation loss) can sit several standard
       errors away, and `matrix` then describes the optimum's spread, not the
@@ -233,7 +233,7 @@ def problem_covariance(
     cov[bad, bad] = np.inf
     se = np.sqrt(np.abs(np.diag(cov)))
     optimum = _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond)
-    step = np.array([float(optimum[k]) - float(named[k]) for k in names])
+    step = np.array([float(optimum[k]) - float(named[k]) if optimum else np.nan for k in names])
     step[bad] = np.nan
 
     fisher = _efficient_fisher(J, rows_penalty, D, s2)
@@ -257,14 +257,16 @@ OPTIMUM_STEPS = 20
 OPTIMUM_TOLERANCE = 1e-3
 
 
-def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict:
+def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict | None:
     """The named parameters at the least-squares optimum of the training part, from `theta`.
 
     Gauss–Newton on the identifiable subspace (the minimum-norm step, with the
     covariance's `rcond`), each step halved until the cost falls, until no named
     parameter moves by more than `OPTIMUM_TOLERANCE` standard errors: at a
     converged fit one linear solve and no evaluation. r and J are those at
-    `theta` (recorded rows); the weight decay's rows are √μ θ_network.
+    `theta` (recorded rows); the weight decay's rows are √μ θ_network. A step
+    whose residuals or Jacobian are not finite is halved as one that does not
+    lower the cost; None where not even the first step can be solved.
     """
     theta = np.asarray(theta, float)
     weights = problem.weights("train")
@@ -278,18 +280,28 @@ def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict:
     def stacked(r, th):
         return np.concatenate([r, (penalised * th)[penalised > 0]])
 
+    def solve(A, b):  # the minimum-norm Gauss–Newton step; None where LAPACK cannot take it
+        if not (np.isfinite(A).all() and np.isfinite(b).all()):
+            return None
+        try:
+            return -np.linalg.lstsq(A, b, rcond=rcond)[0]
+        except np.linalg.LinAlgError:
+            return None
+
     A = np.concatenate([J, rows_penalty])
     b = stacked(r, theta)
     tiny = np.where(np.isfinite(se) & (se > 0), se, np.inf) * OPTIMUM_TOLERANCE
-    for _ in range(OPTIMUM_STEPS):
-        delta = -np.linalg.lstsq(A, b, rcond=rcond)[0] if A.shape[0] else np.zeros_like(theta)
-        if np.all(np.abs(D @ delta) <= tiny):
+    for k in range(OPTIMUM_STEPS):
+        delta = solve(A, b)
+        if delta is None and k == 0:
+            return None  # not even a first step: where the optimum lies is not known
+        if delta is None or np.all(np.abs(D @ delta) <= tiny):
             break
         cost = b @ b
         for _ in range(10):  # halved until the cost falls
             r_new, J_new = rows(theta + delta)
             b_new = stacked(r_new, theta + delta)
-            if np.isfinite(b_new).all() and b_new @ b_new < cost:
+            if np.isfinite(b_new).all() and np.isfinite(J_new).all() and b_new @ b_new < cost:
                 break
             delta = delta / 2
         else:
