@@ -64,7 +64,7 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
         causes = ", ".join(again_causes)
         sentence = (
             f"diagnosed again with {tried}, as something was left unexplained: it names {causes}, and its "
-            f"extended model's held-out NMSE is {ratio:.2f}× lower than with {', '.join(first_causes)}: "
+            f"extended model's held-out NMSE is {ratio:.2f}× lower than with {', '.join(first_causes) or 'no cause'}: "
             "that diagnosis is the one reported"
         )
     elif named:
