@@ -512,6 +512,7 @@ class Diagnosis:
                             "std_error": _std_error(self.uncertainties.get(k)),
                             "unit": self._unit(k),
                             **self._pinning(k),
+                            **_optimum(self.uncertainties.get(k)),
                         }
                         for k, v in own.items()
                     },
