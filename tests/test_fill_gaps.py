@@ -247,7 +247,7 @@ def test_missing_values_beside_dropped_frames_are_filled_on_one_line_through_the
             {"y": [0, 1]},
             3,
             r"has 2 missing value\(s\) in column 'y' \(mapped as output\) from its first sample, at line 2 "
-            r"\(sample 0\): .*none comes before them; fix them, or leave those samples out \(--range 2:\)",
+            r"\(sample 0\): .*none comes before them; fix them, or leave those samples out \(--range 2:400\)",
         ),
         (
             {"u": [399]},
@@ -274,6 +274,15 @@ def test_missing_values_that_cannot_be_filled_are_refused_with_one_line(tmp_path
     with pytest.raises(InputError, match=says) as error:
         load_mapped(path, input="u", output="y", time="time", fill_gaps=fill)
     assert "\n" not in str(error.value)
+
+
+def test_a_run_at_the_start_of_a_range_is_refused_with_a_range_that_keeps_its_end(tmp_path):
+    """Within --range 100:350, missing values at its first samples: the range offered starts after them and
+    still stops at 350, where the user's did."""
+    path = tmp_path / "lost.csv"
+    _lost(path, {"y": [100, 101]})
+    with pytest.raises(InputError, match=r"from its first sample, .*\(--range 102:350\)$"):
+        load_mapped(path, input="u", output="y", time="time", fill_gaps=3, sample_range="100:350")
 
 
 def test_the_command_line_fills_missing_values_with_its_flag_and_refuses_them_without(tmp_path):

@@ -98,3 +98,32 @@ def test_the_second_diagnosis_is_kept_only_where_it_names_the_refinement_and_gai
     other = _diagnosis(["drive_even"], 0.001)  # far lower, but without the refinement: the first stands
     kept, evidence = refined(first, other, swaps, 1.5)
     assert kept is first and "does not name drive_clip" in evidence["sentence"]
+    worse = _diagnosis(["drive_clip"], 0.06)  # higher: said as higher, not "0.50× lower"
+    kept, evidence = refined(first, worse, swaps, 1.5)
+    assert kept is first and "is 2.00× higher" in evidence["sentence"], evidence["sentence"]
+    broken = _diagnosis(["drive_clip"], float("nan"))
+    kept, evidence = refined(first, broken, swaps, 1.5)
+    assert kept is first and "is not finite" in evidence["sentence"] and evidence["gain_over_first"] == 0.0
+
+
+def test_a_second_diagnosis_that_fails_leaves_the_first_with_the_reason(tmp_path, monkeypatch):
+    """A refinement whose diagnosis raises (a plug-in that refuses, a fit that is not finite) does not lose
+    the first diagnosis: it stands, and ``evidence.refined`` says why there is no other."""
+    import hybrid
+    import hybrid.discovery._diagnose as d
+
+    _heater(tmp_path / "heat.csv")
+    recording = hybrid.load_mapped(tmp_path / "heat.csv")
+    real = d.diagnose
+
+    def refusing(*args, **kwargs):
+        if not kwargs["settings"].refine:  # the second diagnosis
+            raise hybrid.InputError("refused for this test")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(d, "diagnose", refusing)
+    found = refusing(recording, simulation=hybrid.LTI(1), settings=hybrid.DiagnoseSettings())
+    refined_ = found.evidence["refined"]
+    assert refined_["kept"] is False and refined_["error"] == "refused for this test"
+    assert "could not be made (refused for this test): this one stands" in refined_["sentence"]
+    assert "drive_clip" not in [c["name"] for c in found.causes]

@@ -504,7 +504,7 @@ def fill_values(
                 f"{'from its first' if head else 'up to its last'} sample, at {sample_text(int(a), lines)}: "
                 f"--fill-gaps draws a line between the measured values either side, and none comes "
                 f"{'before' if head else 'after'} them; fix them, or leave those samples out "
-                f"(--range {f'{start + b + 1}:' if head else f'{start}:{start + a}'})"
+                f"(--range {f'{start + b + 1}:{start + n}' if head else f'{start}:{start + a}'})"
             )
         runs = lasts - firsts + 1
         long += [(int(f), role, int(r)) for f, r in zip(firsts, runs) if r > most]

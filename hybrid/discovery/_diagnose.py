@@ -84,7 +84,7 @@ from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_unc
 from ._joint import joint_pair, named_jointly
 from ._noise_floor import bounded_by_residual, bridged, glitch_runs
 from ._redundant import drop_redundant
-from ._refine import refinable, refined, refined_effects
+from ._refine import refinable, refined, refined_effects, refused
 from ._search import (
     N_LANES,
     fit_lanes,
@@ -537,15 +537,19 @@ def diagnose(
     if not swaps:
         return found
     say(f"something left unexplained: again with {', '.join(f'{b} for {a}' for a, b in swaps.items())}")
-    again = diagnose(
-        recordings,
-        simulation=simulation,
-        effects=refined_effects(search.effects, swaps),
-        hybrid=hybrid,
-        settings=dataclasses.replace(given, refine=False),
-        hybrid_max_steps=hybrid_max_steps,
-        progress=progress,
-    )
+    try:
+        again = diagnose(
+            recordings,
+            simulation=simulation,
+            effects=refined_effects(search.effects, swaps),
+            hybrid=hybrid,
+            settings=dataclasses.replace(given, refine=False),
+            hybrid_max_steps=hybrid_max_steps,
+            progress=progress,
+        )
+    except (InputError, PluginError) as error:  # this diagnosis stands, and says why the other is missing
+        found.evidence["refined"] = refused(swaps, error)
+        return found
     again.glitches_bridged = glitches  # it read the recordings as bridged here
     again.warnings = _glitch_warnings(glitches, rate) + again.warnings
     kept_diagnosis, tried = refined(found, again, swaps, settings.min_gain)

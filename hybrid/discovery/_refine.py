@@ -23,6 +23,7 @@ tried and what came of it.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 
@@ -58,6 +59,7 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
     first_causes, again_causes = _names(first), _names(again)
     named = [to for to in swaps.values() if to in again_causes]
     ratio = first.extended.heldout.nmse / max(again.extended.heldout.nmse, 1e-300)
+    ratio = ratio if math.isfinite(ratio) else 0.0  # a second fit that is not finite gains nothing
     keep = bool(named) and ratio >= min_gain
     tried = " and ".join(f"{to} in place of {name}" for name, to in swaps.items())
     if keep:
@@ -68,9 +70,16 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
             "that diagnosis is the one reported"
         )
     elif named:
+        lower = (
+            f"is only {ratio:.2f}× lower (needs {min_gain})"
+            if ratio >= 1
+            else f"is {1 / ratio:.2f}× higher"
+            if ratio > 0
+            else "is not finite"
+        )
         sentence = (
             f"diagnosed again with {tried}, as something was left unexplained: it names {', '.join(named)}, "
-            f"but its held-out NMSE is only {ratio:.2f}× lower (needs {min_gain}): the first diagnosis stands"
+            f"but its held-out NMSE {lower}: the first diagnosis stands"
         )
     else:
         sentence = (
@@ -91,3 +100,14 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
 
 def _names(diagnosis) -> list[str]:
     return [cause["name"] for cause in diagnosis.causes]
+
+
+def refused(swaps: dict[str, str], error: Exception) -> dict:
+    """``evidence.refined`` where the second diagnosis could not be made: the first stands, and says why."""
+    tried = " and ".join(f"{to} in place of {name}" for name, to in swaps.items())
+    return {
+        "swaps": dict(swaps),
+        "kept": False,
+        "error": str(error),
+        "sentence": f"a diagnosis with {tried} could not be made ({error}): this one stands",
+    }

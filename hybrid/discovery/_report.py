@@ -129,7 +129,7 @@ def _off_optimum(entry: dict) -> str:
         return ""
     return (
         f" (not the training part's optimum, ≈ {_num(value + step, 3)}: {abs(step) / se:.1f} standard "
-        "errors away, where the fit's early stop on its validation loss kept it)"
+        "errors away, where the fit stopped: a lane keeps its iterate of least validation loss)"
     )
 
 

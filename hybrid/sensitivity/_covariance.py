@@ -266,7 +266,9 @@ def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict 
     converged fit one linear solve and no evaluation. r and J are those at
     `theta` (recorded rows); the weight decay's rows are √μ θ_network. A step
     whose residuals or Jacobian are not finite is halved as one that does not
-    lower the cost; None where not even the first step can be solved.
+    lower the cost; None where not even the first step can be solved, or
+    where it still moves after `OPTIMUM_STEPS` steps. Each halving's trial
+    forms J too (one compiled program, the covariance's); trials are few.
     """
     theta = np.asarray(theta, float)
     weights = problem.weights("train")
@@ -305,9 +307,11 @@ def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict 
                 break
             delta = delta / 2
         else:
-            break
+            break  # no step along the Gauss–Newton direction lowers the cost: as far as it goes
         theta = theta + delta
         A, b = np.concatenate([J_new, rows_penalty]), b_new
+    else:
+        return None  # still moving after OPTIMUM_STEPS: where the optimum lies is not known
     return named_parameters(problem.model(jnp.asarray(theta)))
 
 
