@@ -180,10 +180,11 @@ def test_no_report_key_names_a_unit_that_follows_the_signal():
     assert not set(RENAMED_IN_SCHEMA_3) & keys  # and no old one is left
 
 
-def _verdict_of(final_over_floor, causes=(), ambiguous=(), independence=None):
+def _verdict_of(final_over_floor, causes=(), ambiguous=(), independence=None, uncertainties=None):
     """`verdict` of a diagnosis whose final held-out MSE is `final_over_floor` × a floor of 0.01.
 
-    `independence`: the final model's held-out `drive_independence` test (None: not tested)."""
+    `independence`: the final model's held-out `drive_independence` test (None: not tested);
+    `uncertainties`: its parameters' `ParameterUncertainty` by name."""
     from types import SimpleNamespace
 
     from hybrid.discovery._diagnosis import DiagnoseSettings
@@ -204,6 +205,7 @@ def _verdict_of(final_over_floor, causes=(), ambiguous=(), independence=None):
             settings=DiagnoseSettings(),
             gain=0.5 / (0.01 * final_over_floor),
             evidence={"extended": {"drive_independence": independence}},
+            uncertainties=dict(uncertainties or {}),
         )
     )
 
@@ -255,6 +257,18 @@ def test_the_verdict_says_when_a_remainder_near_the_floor_still_follows_the_driv
     assert named.endswith("what remains is 1× the measurement noise floor in size. " + said)
     near = _verdict_of(1.7, [{"name": "saturation"}], independence=follows)
     assert "under the 2× above which it is called unexplained" in near and near.endswith(said)
+    # a parameter the fit left short of its training optimum is named as a reading of it (a plug-in
+    # pendulum's frame lag kept at its start: at its optimum the residual no longer followed the drive)
+    from hybrid.discovery._diagnosis import ParameterUncertainty
+
+    held = ParameterUncertainty(0.044, "samples", 1.0, to_optimum=-0.211)
+    at = ParameterUncertainty(0.0029, "1", 1.0, to_optimum=0.0045)  # 1.6 standard errors: not said
+    short = _verdict_of(1.1, independence=follows, uncertainties={"frame_lag": held, "gain": at})
+    assert short.endswith(
+        said + " The fit stopped short of the training part's optimum in frame_lag (4.8 standard errors), "
+        "which alone can leave such a part (report.md's parameters give that optimum)."
+    )
+    assert _verdict_of(1.1, uncertainties={"frame_lag": held}) == _verdict_of(1.1)  # no dependence: no word
     # a residual the test finds independent of the drive, or one it could not test, changes nothing
     for independent in ({**follows, "p_value": 0.02}, None):
         assert _verdict_of(1.1, independence=independent) == _verdict_of(1.1)

@@ -181,9 +181,23 @@ def follows_drive(diagnosis) -> str:
     test = (diagnosis.evidence.get("extended") or {}).get("drive_independence")
     if not test or not test["p_value"] < FOLLOWS_DRIVE_P:
         return ""
+    # a parameter the fit left short of its training optimum leaves such a part by itself (a plug-in
+    # pendulum's frame lag kept at its start: at the optimum, the same test found no dependence)
+    short = {
+        name: abs(u.to_optimum) / u.std_error
+        for name, u in (getattr(diagnosis, "uncertainties", None) or {}).items()
+        if u.held_off_optimum
+    }
+    where = (
+        " The fit stopped short of the training part's optimum in "
+        + ", ".join(f"{name} ({z:.1f} standard errors)" for name, z in short.items())
+        + ", which alone can leave such a part (report.md's parameters give that optimum)."
+        if short
+        else ""
+    )
     return (
         f" Yet it still follows the drive ({drive_test_words(test)}): part of the response that the drive "
-        "causes is left, not noise alone."
+        "causes is left, not noise alone." + where
     )
 
 
