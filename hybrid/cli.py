@@ -264,7 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-refine",
         action="store_true",
         help="do not diagnose again with a named-only refinement (a clip for a saturation) where the default "
-        "set leaves something unexplained beside the saturation or points at the clip: "
+        "set names the saturation and leaves 1.5x the noise floor, or its remainder points at the clip: "
         "DiagnoseSettings.refine",
     )
     p.add_argument(

@@ -63,20 +63,26 @@ LEFT = {"description": {"summary": "…"}}
 
 
 def test_refinable_takes_a_named_cause_s_refinement_and_the_one_the_remainder_points_at():
-    assert refinable(BUILTINS, ["drive_saturation"], LEFT, BUILTINS) == {"drive_saturation": "drive_clip"}
-    assert refinable(BUILTINS, ["saturation", "delay"], LEFT, BUILTINS) == {"saturation": "clip"}
+    def swaps(effects, kept, left=LEFT, room=3.0):
+        return refinable(effects, kept, left, BUILTINS, room, 1.5)
+
+    assert swaps(BUILTINS, ["drive_saturation"]) == {"drive_saturation": "drive_clip"}
+    assert swaps(BUILTINS, ["saturation", "delay"]) == {"saturation": "clip"}
+    # nothing unexplained, but 1.8× the floor left: a clip may still gain the 1.5× asked (a sensor's clip)
+    assert swaps(BUILTINS, ["saturation"], left=None, room=1.8) == {"saturation": "clip"}
+    # under 1.5× the floor not even a perfect clip could gain 1.5×: not tried
+    assert swaps(BUILTINS, ["saturation"], left=None, room=1.4) == {}
+    # the remainder's pointer is followed whatever is named
     pointed = {"description": {"named_only": "drive_clip"}}
-    assert refinable(BUILTINS, ["drive_even"], pointed, BUILTINS) == {"drive_saturation": "drive_clip"}
+    assert swaps(BUILTINS, ["drive_even"], left=pointed) == {"drive_saturation": "drive_clip"}
     # the remainder's creep is no refinement of a searched effect: not tried
-    assert refinable(BUILTINS, ["drive_even"], {"description": {"named_only": "creep"}}, BUILTINS) == {}
-    # nothing unexplained, a refinement searched already, or a set without the built-ins: nothing
-    assert refinable(BUILTINS, ["drive_saturation"], None, BUILTINS) == {}
-    with_clip = [*BUILTINS, *_effects("drive_clip")]
-    assert refinable(with_clip, ["drive_saturation"], LEFT, BUILTINS) == {}
-    chosen = _effects("drive_saturation", "delay")
-    assert refinable(chosen, ["drive_saturation"], LEFT, BUILTINS) == {}
-    swapped = refined_effects(BUILTINS, {"drive_saturation": "drive_clip"})
-    assert "drive_clip" in swapped and "drive_saturation" not in [getattr(e, "name", e) for e in swapped]
+    assert swaps(BUILTINS, ["drive_even"], left={"description": {"named_only": "creep"}}) == {}
+    # a refinement searched already, or a set without the built-ins: nothing
+    assert swaps([*BUILTINS, *_effects("drive_clip")], ["drive_saturation"]) == {}
+    assert swaps(_effects("drive_saturation", "delay"), ["drive_saturation"]) == {}
+    swapped = [getattr(e, "name", e) for e in refined_effects(BUILTINS, {"drive_saturation": "drive_clip"})]
+    assert "drive_clip" in swapped and "drive_saturation" not in swapped
+    assert set(swapped) == (set(EFFECTS) - {"drive_saturation"}) | {"drive_clip"}
 
 
 def _diagnosis(causes, nmse):

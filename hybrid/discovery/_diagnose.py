@@ -533,10 +533,15 @@ def diagnose(
         else {},
     )
     builtins = resolve_effects(None, simulation)
-    swaps = refinable(search.effects, kept, unexplained, builtins) if given.refine else {}
+    room = float(np.mean((w_te - w_hat_ext) ** 2)) / max(floor.variance, 1e-300)  # held out, over the floor
+    swaps = (
+        refinable(search.effects, kept, unexplained, builtins, room, settings.min_gain)
+        if given.refine
+        else {}
+    )
     if not swaps:
         return found
-    say(f"something left unexplained: again with {', '.join(f'{b} for {a}' for a, b in swaps.items())}")
+    say(f"something left above the noise: again with {', '.join(f'{b} for {a}' for a, b in swaps.items())}")
     try:
         again = diagnose(
             recordings,

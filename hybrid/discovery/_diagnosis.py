@@ -21,7 +21,7 @@ from ..core._fit import PAPER_UNITS
 from ..util._errors import InputError
 from ._ambiguity import TEST as AMBIGUITY_TEST
 from ._effect_set import EFFECTS, NAMED_ONLY
-from ._effects import thresholds_of
+from ._effects import FrameTiming, thresholds_of
 
 if TYPE_CHECKING:
     from ._noise_floor import NoiseFloor
@@ -165,10 +165,12 @@ class DiagnoseSettings:
       system's own flips); the noise floor still leaves them out and says so.
     - `refine`: where the default effect set names an effect that has a
       `refinement` (a saturation: a clip, its knee's sharpness fitted) and
-      something is left unexplained, diagnose again with the refinement in its
-      place, and keep that diagnosis where it names the refinement and its
+      leaves `min_gain` times the noise floor or more held out, or the
+      remainder points at a refinement, diagnose again with the refinement in
+      its place, and keep that diagnosis where it names the refinement and its
       extended model's held-out NMSE is `min_gain` times lower
-      (``evidence.refined`` says what was tried either way). False: not tried.
+      (``evidence.refined`` says what came of it where it was tried). False:
+      not tried.
     """
 
     split: tuple[float, float, float] = (0.6, 0.1, 0.3)
@@ -495,7 +497,12 @@ class Diagnosis:
             # the reading sees its derived quantities on the recording too (where the output went)
             derived = self.final_derived.get(chosen.name, chosen.derived)
             sizes = {k: float(v) for k, v in derived.items() if isinstance(v, int | float)}
-            reading = self.effect_reading(chosen.name, {**sizes, **{k: float(v) for k, v in own.items()}})
+            timing = {
+                k: float(v) for k, v in self.extended.parameters.items() if k in FrameTiming.constraints
+            }
+            reading = self.effect_reading(
+                chosen.name, {**sizes, **timing, **{k: float(v) for k, v in own.items()}}
+            )
             out.append(
                 {
                     "name": chosen.name,

@@ -364,6 +364,18 @@ class Delay(AbstractEffect):
             context.problem, context.simulation, context.rate, self.n_screened, context.frozen
         )
 
+    def reading(self, parameters, output_unit):
+        # The frame timing (≤ 1 sample, always fitted) adds to the dead time, and the two trade: a user read
+        # delay_s alone, 0.27 s for a 0.30 s delay whose last sample the frame lag had taken.
+        delay, lag = parameters.get("delay_samples"), parameters.get("frame_lag")
+        if delay is None or lag is None or not delay > 0:
+            return ""
+        dt = parameters.get("delay_s", 0.0) / delay
+        return (
+            f"a dead time of {delay + lag:.3g} samples ({(delay + lag) * dt:.3g} s) in all with the frame timing's "
+            f"{lag:.2g}; the two trade places within a sample, so read their sum"
+        )
+
     def material(self, derived, parameters, thresholds):
         # The dead time beyond the frame timing (≤ 1 sample, fitted in the baseline too).
         delay, lag = derived.get("delay_samples", 0.0), parameters.get("frame_lag", 0.0)

@@ -12,8 +12,9 @@ knee of any sharpness contains the tanh's (sharpness 1), so it fits at least
 as well; but it is searched only when named (`NAMED_ONLY`): in the default set
 its third parameter stood in for effects of other shapes.
 
-So where a diagnosis of the default set leaves something unexplained and
-names an effect with a `refinement`, or its remainder points at one,
+So where a diagnosis of the default set names an effect with a
+`refinement` and leaves at least `min_gain` times the noise floor, or its
+remainder points at one,
 `diagnose` runs again with each such refinement in its parent's place, and
 keeps the second diagnosis only where it names the refinement and its
 extended model's held-out NMSE is `min_gain` times lower than the first's (the
@@ -27,23 +28,31 @@ import math
 from typing import Any
 
 
-def refinable(effects, kept, unexplained: dict | None, builtins) -> dict[str, str]:
+def refinable(
+    effects, kept, unexplained: dict | None, builtins, room: float, min_gain: float
+) -> dict[str, str]:
     """The refinements to try, by the name of the searched effect each takes the place of.
 
-    Each named cause's `refinement`, and the named-only effect the remainder
-    points at (``description.named_only``: a drive that stops sharply read as
-    "static in the drive … a clip of the drive recovers as much") where it is
-    the refinement of a searched effect; none already searched. {} when
-    nothing is left unexplained, or unless every one of `builtins` (the
-    default set's effects for this simulation) was searched: a list without
-    them is the caller's choice, and is not changed.
+    Each named cause's `refinement`, where the final model's held-out error
+    is still `room` ≥ `min_gain` times the noise floor (below that not even a
+    perfect refinement could gain the `min_gain` its rule asks: a sensor that
+    clipped a quarter of the time left a tanh's fit at 1.8× the floor, under
+    the 2× called unexplained); and the named-only effect the remainder points
+    at (``description.named_only``: a drive that stops sharply read as "static
+    in the drive … a clip of the drive recovers as much") where it is the
+    refinement of a searched effect. None already searched, and {} unless
+    every one of `builtins` (the default set's effects for this simulation)
+    was searched: a list without them is the caller's choice, and is not
+    changed.
     """
     by_name = {e.name: e for e in effects}
-    if unexplained is None or not {e.name for e in builtins} <= by_name.keys():
+    if not {e.name for e in builtins} <= by_name.keys():
         return {}
     parents = {e.refinement: e.name for e in effects if e.refinement and e.refinement not in by_name}
-    swaps = {name: by_name[name].refinement for name in kept if by_name[name].refinement in parents}
-    pointed = (unexplained.get("description") or {}).get("named_only")
+    swaps = {}
+    if room >= min_gain:
+        swaps = {name: by_name[name].refinement for name in kept if by_name[name].refinement in parents}
+    pointed = ((unexplained or {}).get("description") or {}).get("named_only")
     if pointed in parents:
         swaps[parents[pointed]] = pointed
     return swaps
@@ -65,7 +74,7 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
     if keep:
         causes = ", ".join(again_causes)
         sentence = (
-            f"diagnosed again with {tried}, as something was left unexplained: it names {causes}, and its "
+            f"diagnosed again with {tried}, as something was left above the noise: it names {causes}, and its "
             f"extended model's held-out NMSE is {ratio:.2f}× lower than with {', '.join(first_causes) or 'no cause'}: "
             "that diagnosis is the one reported"
         )
@@ -78,12 +87,12 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
             else "is not finite"
         )
         sentence = (
-            f"diagnosed again with {tried}, as something was left unexplained: it names {', '.join(named)}, "
+            f"diagnosed again with {tried}, as something was left above the noise: it names {', '.join(named)}, "
             f"but its held-out NMSE {lower}: the first diagnosis stands"
         )
     else:
         sentence = (
-            f"diagnosed again with {tried}, as something was left unexplained: it does not name "
+            f"diagnosed again with {tried}, as something was left above the noise: it does not name "
             f"{' or '.join(swaps.values())}: the first diagnosis stands"
         )
     evidence = {
