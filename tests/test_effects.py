@@ -831,3 +831,13 @@ def test_a_line_is_its_sinusoid_from_the_first_sample_and_its_frequency_gradient
         fd = (loss({**effect.raw, key: value + h}) - loss({**effect.raw, key: value - h})) / (2 * h)
         assert float(grad[key]) == pytest.approx(float(fd), rel=1e-5), key
         assert abs(float(grad[key])) > 1e-3, key  # a direction the fit can move in
+
+
+def test_a_delay_reads_its_dead_time_with_the_frame_timing_s_share():
+    """The frame timing (≤ 1 sample, always fitted) takes part of a dead time: a user read delay_s alone, 0.27 s
+    for a 0.30 s delay (9 samples at 30 Hz) whose last sample the frame lag held. The reading gives the sum."""
+    from hybrid.discovery._effects import Delay
+
+    text = Delay().reading({"delay_samples": 7.993, "delay_s": 7.993 / 30, "frame_lag": 0.998}, "mm")
+    assert text.startswith("a dead time of 8.99 samples (0.3 s) in all with the frame timing's 1;"), text
+    assert Delay().reading({"delay_samples": 7.993, "delay_s": 0.2664}, "mm") == ""  # no frame lag given
