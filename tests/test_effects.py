@@ -662,6 +662,18 @@ def test_random_draws_stay_in_the_issue_ranges():
         random_effect("creep", rng, 30.0)
 
 
+def _relaxing_strip():
+    """A strip with a hidden back-relaxation (τ 4 s, half), 40 s of PRBS at 30 Hz, 1 % noise."""
+    return synthetic_recording(
+        make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0),
+        SyntheticStrip(),
+        "back_relaxation",
+        {"tau_s": 4.0, "fraction": 0.5},
+        noise_fraction=0.01,
+        seed=1,
+    )
+
+
 def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     """`std_error_given_network` (a block of the full Fisher information) against an
     independent covariance computed with the network's parameters frozen."""
@@ -672,14 +684,7 @@ def test_standard_errors_with_the_network_fixed_match_a_fit_with_it_frozen():
     from hybrid.discovery._evidence import parameter_uncertainties
     from hybrid.sensitivity import parameter_covariance
 
-    rec = synthetic_recording(
-        make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0),
-        SyntheticStrip(),
-        "back_relaxation",
-        {"tau_s": 4.0, "fraction": 0.5},
-        noise_fraction=0.01,
-        seed=1,
-    )
+    rec = _relaxing_strip()
     inner = RCNetwork(method="zoh")
     model = Model(
         extend(inner, "back_relaxation", relaxation_time_s=4.0, relaxation_fraction=0.4),
@@ -749,14 +754,7 @@ def test_a_value_off_the_training_optimum_is_reported_with_that_optimum():
     from hybrid.discovery._evidence import parameter_uncertainties
     from hybrid.discovery._report import plus_minus
 
-    rec = synthetic_recording(
-        make_drive("prbs", 40.0, rate=30.0, seed=3, amplitude=2.0),
-        SyntheticStrip(),
-        "back_relaxation",
-        {"tau_s": 4.0, "fraction": 0.5},
-        noise_fraction=0.01,
-        seed=1,
-    )
+    rec = _relaxing_strip()
     inner = RCNetwork(method="zoh")
     settings = DiagnoseSettings()
     # the network held (its parameters trade off along near-null directions): the effect and readout
