@@ -257,7 +257,7 @@ class ParameterUncertainty:
     std_error_given_network: float | None = None
     """Standard error with the simulation's own parameters held at their fitted values (None for those)."""
     to_optimum: float | None = None
-    """The Gauss–Newton step from the value to the training part's optimum (`Covariance.to_optimum`)."""
+    """The training part's optimum less the value, from Gauss–Newton steps (`Covariance.to_optimum`)."""
 
     @property
     def held_off_optimum(self) -> bool:

@@ -55,8 +55,8 @@ def parameter_uncertainties(
     the standard error with the network's parameters held at their fitted
     values, from the Fisher information of the other parameters alone: how well
     the data fix the effect once the network is fixed — a lower bound on the
-    marginal error. ``to_optimum``: the Gauss–Newton step from the value to the
-    training part's optimum (`hybrid.sensitivity.Covariance.to_optimum`).
+    marginal error. ``to_optimum``: the training part's optimum less the value,
+    from Gauss–Newton steps (`hybrid.sensitivity.Covariance.to_optimum`).
     """
     from ..sensitivity import problem_covariance
 
