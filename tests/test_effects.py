@@ -807,6 +807,10 @@ def test_a_value_off_the_training_optimum_is_reported_with_that_optimum():
     assert "standard errors away" in text
     gain = {"value": values["gain"], "std_error": found["gain"].std_error, **_optimum(found["gain"])}
     assert "optimum" not in plus_minus(gain)
+    # an optimum far beyond the value (a hard clip's sharpness running on): "much further", not a value
+    far = {"value": 20.46, "std_error": 8.3, "to_training_optimum": 1450.0, "at_training_optimum": False}
+    text = plus_minus(far)
+    assert "takes it much further, to ≈ 1.47e+03, 175 standard errors on" in text and "optimum," not in text
 
 
 def test_a_line_is_its_sinusoid_from_the_first_sample_and_its_frequency_gradient_is_right():
