@@ -135,8 +135,7 @@ def _off_optimum(entry: dict) -> str:
     if abs(step) > FAR_OPTIMUM * abs(value):  # a hard clip's sharpness heading for a clip: not an error
         return (
             f" (the training part alone takes it much further, to ≈ {_num(value + step, 3)}, "
-            f"{abs(step) / se:.0f} standard errors on: the fit stopped here, and the data favour a value "
-            "beyond it that they do not fix)"
+            f"{abs(step) / se:.0f} standard errors on: the fit stopped here)"
         )
     return (
         f" (not the training part's optimum, ≈ {_num(value + step, 3)}: {abs(step) / se:.1f} standard "
