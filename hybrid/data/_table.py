@@ -864,9 +864,8 @@ def _refuse_non_finite(
 
 def _is_missing(cell: str) -> bool:
     """Whether a cell is a missing value, empty or a non-finite number (a tracker's NaN), not text."""
-    text = cell.strip().strip('"').strip()
     try:
-        return not text or not math.isfinite(float(text))
+        return not math.isfinite(_missing_as_nan(cell))
     except ValueError:
         return False
 

@@ -70,13 +70,12 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
     ratio = first.extended.heldout.nmse / max(again.extended.heldout.nmse, 1e-300)
     ratio = ratio if math.isfinite(ratio) else 0.0  # a second fit that is not finite gains nothing
     keep = bool(named) and ratio >= min_gain
-    tried = " and ".join(f"{to} in place of {name}" for name, to in swaps.items())
+    tried = _tried(swaps)
+    said = f"diagnosed again with {tried}, as something was left above the noise: "
     if keep:
-        causes = ", ".join(again_causes)
-        sentence = (
-            f"diagnosed again with {tried}, as something was left above the noise: it names {causes}, and its "
-            f"extended model's held-out NMSE is {ratio:.2f}× lower than with {', '.join(first_causes) or 'no cause'}: "
-            "that diagnosis is the one reported"
+        said += (
+            f"it names {', '.join(again_causes)}, and its extended model's held-out NMSE is {ratio:.2f}× lower "
+            f"than with {', '.join(first_causes) or 'no cause'}: that diagnosis is the one reported"
         )
     elif named:
         lower = (
@@ -86,15 +85,9 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
             if ratio > 0
             else "is not finite"
         )
-        sentence = (
-            f"diagnosed again with {tried}, as something was left above the noise: it names {', '.join(named)}, "
-            f"but its held-out NMSE {lower}: the first diagnosis stands"
-        )
+        said += f"it names {', '.join(named)}, but its held-out NMSE {lower}: the first diagnosis stands"
     else:
-        sentence = (
-            f"diagnosed again with {tried}, as something was left above the noise: it does not name "
-            f"{' or '.join(swaps.values())}: the first diagnosis stands"
-        )
+        said += f"it does not name {' or '.join(swaps.values())}: the first diagnosis stands"
     evidence = {
         "swaps": dict(swaps),
         "causes": again_causes,
@@ -102,7 +95,7 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
         "gain_over_first": ratio,
         "kept": keep,
         "first_causes": first_causes,
-        "sentence": sentence,
+        "sentence": said,
     }
     return (again if keep else first), evidence
 
@@ -111,9 +104,13 @@ def _names(diagnosis) -> list[str]:
     return [cause["name"] for cause in diagnosis.causes]
 
 
+def _tried(swaps: dict[str, str]) -> str:
+    return " and ".join(f"{to} in place of {name}" for name, to in swaps.items())
+
+
 def refused(swaps: dict[str, str], error: Exception) -> dict:
     """``evidence.refined`` where the second diagnosis could not be made: the first stands, and says why."""
-    tried = " and ".join(f"{to} in place of {name}" for name, to in swaps.items())
+    tried = _tried(swaps)
     return {
         "swaps": dict(swaps),
         "kept": False,

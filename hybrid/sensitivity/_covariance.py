@@ -177,11 +177,7 @@ def problem_covariance(
     keeps no signal units.
     """
     model = problem.model(theta)
-    r, J = (np.asarray(a) for a in _fit_jacobian(problem, theta))
-    weights = problem.weights("train")
-    if weights is not None:
-        recorded = np.asarray(weights) > 0
-        r, J = r[recorded], J[recorded]
+    r, J = _training_rows(problem, theta)
     m, n = J.shape
     named = named_parameters(model)
     all_names = ordered_names(model)
@@ -271,13 +267,7 @@ def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict 
     forms J too (one compiled program, the covariance's); trials are few.
     """
     theta = np.asarray(theta, float)
-    weights = problem.weights("train")
-    recorded = None if weights is None else np.asarray(weights) > 0
     penalised = np.abs(rows_penalty).sum(axis=0)  # √μ·scale on each penalised entry, else 0
-
-    def rows(th):
-        r, J = (np.asarray(a) for a in _fit_jacobian(problem, jnp.asarray(th)))
-        return (r, J) if recorded is None else (r[recorded], J[recorded])
 
     def stacked(r, th):
         return np.concatenate([r, (penalised * th)[penalised > 0]])
@@ -301,7 +291,7 @@ def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict 
             break
         cost = b @ b
         for _ in range(10):  # halved until the cost falls
-            r_new, J_new = rows(theta + delta)
+            r_new, J_new = _training_rows(problem, jnp.asarray(theta + delta))
             b_new = stacked(r_new, theta + delta)
             if np.isfinite(b_new).all() and np.isfinite(J_new).all() and b_new @ b_new < cost:
                 break
@@ -313,6 +303,16 @@ def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict 
     else:
         return None  # still moving after OPTIMUM_STEPS: where the optimum lies is not known
     return named_parameters(problem.model(jnp.asarray(theta)))
+
+
+def _training_rows(problem, theta) -> tuple[np.ndarray, np.ndarray]:
+    """r and J on the training part in w's units, its padding rows (weight 0) dropped."""
+    r, J = (np.asarray(a) for a in _fit_jacobian(problem, theta))
+    weights = problem.weights("train")
+    if weights is None:
+        return r, J
+    recorded = np.asarray(weights) > 0
+    return r[recorded], J[recorded]
 
 
 class _ProblemView(eqx.Module):
