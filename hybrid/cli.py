@@ -654,6 +654,14 @@ def _cmd_diagnose(args):
         print(f"  {step['name']} ({over} {step['incremental_gain']:.2f}x)")
         if step.get("reading"):
             print(f"    {step['reading']}")
+        if step.get("as_recorded"):  # an output-side level, through the readout: where w levels off
+            unit = step.get("as_recorded_unit", "")
+            print(
+                "    as recorded: "
+                + ", ".join(
+                    f"{k.replace('_', ' ')} {v:.4g} {unit}".rstrip() for k, v in step["as_recorded"].items()
+                )
+            )
         for name in diagnosis.effect_parameters(step["name"]):
             if name in report["parameters"]:
                 print(f"    {name} = {plus_minus(report['parameters'][name])}")

@@ -128,8 +128,10 @@ def test_a_clipping_amplifier_is_pointed_at_by_the_saturations_and_named_with_it
         assert p[f"drive_clip_{side}_curvature"]["unit"] == "1/kV"  # the units of the recording's drive
     assert p["drive_clip_sharpness"]["value"] >= 8.0
     assert "close to a hard clip" in report["causes"][0]["reading"]
-    # the levels in the drive's unit too, in report.json and in report.md's size column
+    # the levels in the drive's unit too, in report.json and in report.md's size column; on the drive,
+    # no readout stands between them and the recording
     assert report["causes"][0]["derived_units"] == {"level_pos": "kV", "level_neg": "kV"}
+    assert "as_recorded" not in report["causes"][0]
     level = report["causes"][0]["derived"]["level_pos"]
     assert f"level pos {level:.4g} kV" in (tmp_path / "d" / "report.md").read_text()
 
@@ -145,3 +147,33 @@ def test_a_remainder_static_in_the_drive_or_monotone_in_the_output_names_the_cli
     searched = {**places, "drive": {"effects": ["drive_saturation", "drive_clip"]}}
     assert named_only_hint(described("static_drive"), searched) is None
     assert named_only_hint(described("state_map"), places) is None
+
+
+def test_a_sensors_full_scale_is_given_as_recorded_through_the_readout(tmp_path):
+    """An output clip acts before the readout (w = gain·y + offset), so its level is in the simulation's
+    unit; the report gives where w itself levels off too. A first-order plant read by a sensor whose full
+    scale is 2 mm with a 0.3 mm offset (numpy, 60 s at 20 Hz); only the clip searched, to keep it short."""
+    rng = np.random.default_rng(0)
+    rate, n = 20.0, 1200
+    v = np.repeat(rng.uniform(-2.0, 2.0, n // 20), 20)
+    y, a = np.zeros(n), np.exp(-1 / (rate * 0.5))
+    for k in range(1, n):
+        y[k] = a * y[k - 1] + (1 - a) * 1.5 * v[k - 1]
+    w = np.minimum(y + 0.3, 2.0) + 0.04 * rng.normal(size=n)
+    t = np.arange(n) / rate
+    np.savetxt(tmp_path / "rec.csv", np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
+    run = h.run_hybrid(
+        tmp_path, "diagnose", "rec.csv", "--physics", "lti:1", "--effects", "clip", "--out", "d"
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert report["cause"] == "clip", report["verdict"]
+    cause = report["causes"][0]
+    recorded, gain = cause["as_recorded"]["level_pos"], report["parameters"]["gain"]["value"]
+    offset = report["parameters"]["offset"]["value"]
+    assert cause["as_recorded_unit"] == "mm"
+    assert recorded == pytest.approx(2.0, abs=0.02)  # the sensor's full scale, within half the noise
+    assert recorded == pytest.approx(offset + gain * cause["derived"]["level_pos"], rel=1e-12)
+    assert abs(cause["derived"]["level_pos"] - 2.0) > 0.1  # the simulation's unit: not where w levels off
+    assert f"({recorded:.4g} mm as recorded)" in (tmp_path / "d" / "report.md").read_text()
+    assert f"as recorded: level pos {recorded:.4g} mm" in run.stdout

@@ -66,7 +66,8 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: parameter's ``to_training_optimum`` and ``at_training_optimum`` (`OFF_OPTIMUM`); ``evidence.refined``
 #: (the second diagnosis with a named-only refinement in its parent's place, `DiagnoseSettings.refine`),
 #: ``unexplained.description.named_only`` (the named-only built-in the remainder points at) and
-#: ``settings.refine``.
+#: ``settings.refine``; an output-side cause's ``as_recorded`` (its `levels`, a saturation's, where w
+#: levels off: through the readout, in ``as_recorded_unit``, w's).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -513,6 +514,11 @@ class Diagnosis:
                     **({"reading": reading} if reading else {}),
                     "derived": derived,
                     **({"derived_units": units} if (units := self._derived_units(chosen.name)) else {}),
+                    **(
+                        {"as_recorded": recorded, "as_recorded_unit": self.signal_units.get("w", "")}
+                        if (recorded := self._as_recorded(chosen.name, derived))
+                        else {}
+                    ),
                     "parameters": {
                         k: {
                             "value": v,
@@ -570,6 +576,25 @@ class Diagnosis:
         model's stack fills them (in the recordings' drive unit, which `diagnose` builds it with)."""
         table = getattr(getattr(self.models.get("extended"), "simulation", None), "derived_units", None)
         return dict(table.get(name, {})) if isinstance(table, dict) else {}
+
+    def _as_recorded(self, name: str, derived: dict) -> dict[str, float]:
+        """Output-side effect `name`'s `levels` among `derived`, as recorded: through the final model's
+        linear readout (w = gain·y + offset), in w's unit. Empty for a drive-side or inside effect
+        (its levels are in a recorded signal's or a state's unit already) and for a readout
+        without a gain and an offset (a network)."""
+        effect = self._effect(name)
+        model = self.models.get("extended")
+        if effect is None or effect.place != "output" or not effect.levels or model is None:
+            return {}
+        readout = model.readout.parameters()
+        if "gain" not in readout or "offset" not in readout:
+            return {}
+        gain, offset = float(readout["gain"]), float(readout["offset"])
+        return {
+            k: offset + sign * gain * float(derived[k])
+            for k, sign in effect.levels.items()
+            if isinstance(derived.get(k), int | float) and math.isfinite(derived[k])
+        }
 
     def _unit(self, name: str) -> str:
         return self.units.get(name) or _unit(self.uncertainties.get(name))

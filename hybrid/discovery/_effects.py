@@ -204,6 +204,11 @@ class AbstractEffect(eqx.Module):
       units by name, as `units` (``{signal}`` allowed: a saturation's level is in
       the unit of the signal it acts on). A name ending ``_percent``, ``_s``,
       ``_hz`` or ``_samples`` says its unit already.
+    - `levels`: those derived quantities that are values of the signal the
+      effect acts on, by name, with their sign: +1 for a value, −1 for the size
+      of a negative one (a saturation's ``level_neg``). On the output, where
+      the readout (w = gain·y + offset) still stands between the effect and
+      the recording, the report gives each as recorded too, in w's unit.
     - `reading(parameters, output_unit)`: what the fit means physically, where the
       name alone could mislead (default: nothing).
     - `refinement`: the name of an effect whose form contains this one's and
@@ -223,6 +228,7 @@ class AbstractEffect(eqx.Module):
     acts_on: ClassVar[str] = "output"
     thresholds: ClassVar[dict[str, float]] = {}
     derived_units: ClassVar[dict[str, str]] = {}
+    levels: ClassVar[dict[str, int]] = {}
     n_screened: ClassVar[int] = 0
     n_kept: ClassVar[int] = 0
     of_time: ClassVar[bool] = False
@@ -553,6 +559,7 @@ class _SidedSaturation(AbstractEffect):
 
     thresholds: ClassVar = {"shortfall_percent": 5.0}
     derived_units: ClassVar = {"level_pos": SIGNAL, "level_neg": SIGNAL}
+    levels: ClassVar = {"level_pos": 1, "level_neg": -1}
 
     def __init__(self, **values):
         init_values(self, values)

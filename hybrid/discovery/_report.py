@@ -177,6 +177,18 @@ def _quantity(key: str, value, units: dict | None = None) -> tuple[str, str]:
     return key.replace("_", " "), _num(value, 4)
 
 
+def _sizes(cause: dict) -> str:
+    """A cause's derived quantities with their units, each level of an output-side one also as recorded."""
+    recorded, unit = cause.get("as_recorded") or {}, cause.get("as_recorded_unit", "")
+    out = []
+    for k, v in cause["derived"].items():
+        text = " ".join(_quantity(k, v, cause.get("derived_units")))
+        if k in recorded:
+            text += f" ({_num(recorded[k], 4)}{' ' + unit if unit else ''} as recorded)"
+        out.append(text)
+    return ", ".join(out)
+
+
 def _cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
@@ -246,7 +258,7 @@ def stepwise_section(d: dict) -> list[str]:
         "|---|---|---|---|---|---|",
     ]
     for i, c in enumerate(d["causes"], 1):
-        size = ", ".join(" ".join(_quantity(k, v, c.get("derived_units"))) for k, v in c["derived"].items())
+        size = _sizes(c)
         params = ", ".join(f"{k} = {plus_minus(v)}" for k, v in c["parameters"].items())
         lines.append(
             f"| {c.get('step', i)} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
@@ -405,11 +417,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
     derived = [c for c in d.get("causes") or [] if c["derived"]]
     if derived:  # each cause's, in the final model (its parameters above)
         lines += ["", f"Derived quantities of the effect{'s' if len(derived) > 1 else ''} (final model):", ""]
-        lines += [
-            f"- {c['name']}: "
-            + ", ".join(" ".join(_quantity(k, v, c.get("derived_units"))) for k, v in c["derived"].items())
-            for c in derived
-        ]
+        lines += [f"- {c['name']}: {_sizes(c)}" for c in derived]
     lines.append("")
 
     lines += [
