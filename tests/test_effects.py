@@ -228,6 +228,13 @@ def test_saturation_slope_asymptotes_and_asymmetry():
     assert derived["level_pos"] == pytest.approx(2.0) and derived["level_neg"] == pytest.approx(0.5)
     assert derived["shortfall_pos_percent"] == pytest.approx(100 * (1 - np.tanh(1.0)), rel=1e-9)
     assert derived["shortfall_neg_percent"] == pytest.approx(100 * (1 - np.tanh(2.0) / 2.0), rel=1e-9)
+    # a side the signal stays on the straight part of (shortfall below 1 %) gives no level: only its shortfall
+    near = effect.derived(jnp.array([-0.05, 2.0]), DT)  # κ₋·0.05 = 0.1: shortfall 0.33 %
+    assert "level_neg" not in near and near["shortfall_neg_percent"] == pytest.approx(
+        100 * (1 - np.tanh(0.1) / 0.1), rel=1e-9
+    )
+    assert near["level_pos"] == pytest.approx(2.0)
+    assert "level_neg" not in effect.derived(jnp.array([0.5, 2.0]), DT)  # never negative
 
 
 def test_saturation_contains_the_linear_response_with_finite_gradients():

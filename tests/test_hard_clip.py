@@ -175,5 +175,6 @@ def test_a_sensors_full_scale_is_given_as_recorded_through_the_readout(tmp_path)
     assert recorded == pytest.approx(2.0, abs=0.02)  # the sensor's full scale, within half the noise
     assert recorded == pytest.approx(offset + gain * cause["derived"]["level_pos"], rel=1e-12)
     assert abs(cause["derived"]["level_pos"] - 2.0) > 0.1  # the simulation's unit: not where w levels off
+    assert "level_neg" not in cause["derived"]  # the negative side is never reached: no level to give
     assert f"({recorded:.4g} mm as recorded)" in (tmp_path / "d" / "report.md").read_text()
     assert f"as recorded: level pos {recorded:.4g} mm" in run.stdout

@@ -503,6 +503,9 @@ class Creep(_SlowResponse):
 #: Sharpness from which a saturation's knee reads as a hard clip: at its level the response
 #: reaches 0.966 of the level, tanh(1)^(1/8) (a tanh's reaches 0.762, ``tanh(1)``).
 SHARP_KNEE = 8.0
+#: A saturation's shortfall at the signal's peak (%) below which its level on that side is not reported:
+#: the signal stays on the straight part (a tanh's level then lies 5.7 times beyond the peak or more).
+REACHED_PERCENT = 1.0
 #: Sharpness below which the knee reads as soft: the response approaches its levels slowly.
 SOFT_KNEE = 0.7
 
@@ -580,17 +583,20 @@ class _SidedSaturation(AbstractEffect):
         return ("pos", float(np.max(signal))), ("neg", float(-np.min(signal)))
 
     def derived(self, s, dt):
-        """Level 1/|κ| and shortfall below the linear extrapolation at the largest |s|, %."""
+        """Each side's shortfall below the linear extrapolation at the largest |s| of its sign, %, and its
+        level 1/|κ| where `s` reaches it (a shortfall ≥ `REACHED_PERCENT`): a level far beyond the data's
+        peak is not measured, and a one-sided clip fitted its other side anywhere out there."""
         out = {}
         n = self._sharpness()
         n = None if n is None else float(n)
         for side, peak in self._peaks(s):
+            if peak <= 0:
+                continue
             k = abs(float(self._curvature(side)))
-            out[f"level_{side}"] = 1.0 / k if k > 0 else float("inf")
-            if peak > 0:
-                out[f"shortfall_{side}_percent"] = 100.0 * (
-                    1.0 - float(_soft_clip(jnp.asarray(peak), k, n)) / peak
-                )
+            shortfall = 100.0 * (1.0 - float(_soft_clip(jnp.asarray(peak), k, n)) / peak)
+            if shortfall >= REACHED_PERCENT:
+                out[f"level_{side}"] = 1.0 / k
+            out[f"shortfall_{side}_percent"] = shortfall
         return out
 
     def starts(self, context):
