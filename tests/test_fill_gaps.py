@@ -160,10 +160,9 @@ def _lost(path, lost=LOST, dropped=()):
     rows = [delimiter.join(columns)]
     for k in keep:
         cells = [f"{columns[c][k]:.10f}" for c in columns]
-        if k % 2:  # every other lost cell left empty, the others 'nan' as a tracker writes it (but the last
-            # cell of a text table's line: stripped with the line's trailing tab, it is a line cut short)
-            last = len(cells) - (path.suffix == ".txt")
-            cells = ["" if c == "nan" and i < last else c for i, c in enumerate(cells)]
+        if k % 2:  # every other lost cell left empty (the last of a tab-separated line too: a trailing
+            # tab), the others 'nan' as a tracker writes it
+            cells = ["" if c == "nan" else c for c in cells]
         rows.append(delimiter.join(cells))
     path.write_text("\n".join(rows) + "\n")
     return t, u, y

@@ -665,6 +665,9 @@ def read_text_table(
     refused: list[int] = []  # the lines that have one
     missing = False  # whether one is a missing value of the drive or output (--fill-gaps fills it)
     for row, ((number, line), values) in enumerate(zip(data, rows)):
+        if len(values) < width and delimiter is not None:  # the last cells empty: missing, not cut off
+            cells = [c.strip() for c in line.split(delimiter)]
+            values = cells[:width] if len(cells) >= width and not any(cells[width:]) else values
         if len(values) != width:
             what = f"{len(names)} names in its header" if header else f"{width} cells on its first line"
             raise InputError(cell_count_message(path, line, number, row, len(values), width, what))
@@ -756,9 +759,9 @@ def _text_lines(path: pathlib.Path) -> tuple[list[tuple[int, str]], list[str]]:
     text, notes = commented_header(path, decode_text(path, "save it as UTF-8 text"))
     lines = []
     for number, line in enumerate(text.splitlines(), start=1):
-        stripped = line.split("#", 1)[0].strip()
-        if stripped:
-            lines.append((number, stripped))
+        content = line.split("#", 1)[0]
+        if content.strip():  # a trailing tab kept: the empty last cell of a tab-separated line
+            lines.append((number, content.lstrip().rstrip(" \r\n")))
     return lines, notes
 
 
