@@ -340,11 +340,34 @@ def test_bad_cells_of_a_text_table_are_counted_in_one_message(tmp_path):
     path.write_text("\n".join(rows) + "\n")
     message = _refused(
         r"has a non-finite value 'nan' in column 'y' \(mapped as output\) at line 42 \(sample 40\) "
-        r"\(lines 42, 43, 122, 202: 4 lines have such a cell\): every cell of a text table",
+        r"\(lines 42, 43, 122, 202: 4 lines have such a cell\): every value of a mapped column",
         path,
         columns="input=u,output=y,time=time",
     )
     assert "--fill-gaps N" in message
+
+
+def test_bad_cells_of_a_column_no_role_maps_are_left_unread_with_a_note(tmp_path):
+    """A logger's spare channel with NaN and a word: not mapped, so not read (it refused the file, as if
+    every column were asked for); the mapped columns are read as written."""
+    u, y = _signals()
+    spare = np.zeros(N)
+    path = _write(
+        tmp_path / "spare.txt", "time\tu\ty\tspare", [np.arange(N) / RATE, u, y, spare], delimiter="\t"
+    )
+    rows = path.read_text().splitlines()
+    for k, cell in {10: "nan", 11: "off"}.items():
+        cells = rows[k + 1].split("\t")
+        cells[3] = cell
+        rows[k + 1] = "\t".join(cells)
+    path.write_text("\n".join(rows) + "\n")
+    record = Recording.load(path, columns="input=u,output=y,time=time")
+    np.testing.assert_allclose(record.w, y, atol=1e-6)
+    assert any(
+        "column 'spare' has 2 cell(s) that are not finite numbers; not read" in n for n in record.notes
+    )
+    with pytest.raises(InputError, match="in column 'spare' \\(mapped as output\\)"):  # mapped, refused
+        Recording.load(path, columns="input=u,output=spare,time=time")
 
 
 def test_non_finite_values_of_arrays_are_counted_in_one_message(tmp_path):

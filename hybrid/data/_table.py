@@ -664,6 +664,7 @@ def read_text_table(
     first: str | None = None  # the first bad cell, what and where
     refused: list[int] = []  # the lines that have one
     missing = False  # whether one is a missing value of the drive or output (--fill-gaps fills it)
+    unread: dict[str, int] = {}  # columns not mapped: how many of their cells are not finite numbers
     for row, ((number, line), values) in enumerate(zip(data, rows)):
         if len(values) < width and delimiter is not None:  # the last cells empty: missing, not cut off
             cells = [c.strip() for c in line.split(delimiter)]
@@ -680,7 +681,10 @@ def read_text_table(
                 table[row, col] = value
                 continue
             table[row, col] = math.nan
-            if value is not None and mapped.get(col, "t") != "t":  # a missing value of the drive or output
+            if col not in mapped:  # a column nothing reads (a comment, a sensor not asked for): left as NaN
+                unread[names[col]] = unread.get(names[col], 0) + 1
+                continue
+            if value is not None and mapped[col] != "t":  # a missing value of the drive or output
                 if fill:
                     continue
                 missing = True
@@ -692,7 +696,13 @@ def read_text_table(
                 f"line {number} (sample {row})"
             )
     if first is not None:
-        raise _refusal(first, refused, "every cell of a text table (all its columns are read)", missing)
+        raise _refusal(first, refused, "every value of a mapped column", missing)
+    if unread:
+        notes.append(
+            f"recording '{path}': "
+            + ", ".join(f"column {name!r} has {count} cell(s)" for name, count in unread.items())
+            + " that are not finite numbers; not read, as no role maps it"
+        )
     return (
         names,
         table,
