@@ -28,6 +28,7 @@ from hybrid.discovery._start import (
     RATIO,
     SETTLE_SHARE,
     START_SHARE,
+    covered_try,
     misfit_at_start,
     settle_samples,
     settled_try,
@@ -47,7 +48,8 @@ def records(tmp_path_factory):
     paths = {}
     # a slow wander of the baseline, as large at the end as at the start (no effect searched here has it)
     wander = 0.5 * np.linspace(-1.0, 1.0, N) ** 8
-    for name, held, extra in (("at_rest", 0.0, 0.0), ("moving", 1.5, 0.0), ("wander", 0.0, wander)):
+    cases = (("at_rest", 0.0, 0.0), ("moving", 1.5, 0.0), ("wander", 0.0, wander), ("settled", u[0], 0.0))
+    for name, held, extra in cases:
         paths[name] = held_lag_csv(folder / f"{name}.csv", u, held, DT, TAU, noise + extra)
     return paths
 
@@ -84,6 +86,61 @@ def test_a_record_that_starts_moving_is_diagnosed_again_from_a_held_start(record
     data = np.loadtxt(records["moving"], delimiter=",", skiprows=1)
     head = (data[:, 1] - np.asarray(model.predict(data[:, 0], DT)))[: start["recordings"][0]["first_samples"]]
     assert np.sqrt(np.mean(head**2)) == pytest.approx(start["recordings"][0]["rms_first"], rel=1e-6)
+
+
+def test_a_lag_that_stands_in_for_a_settled_start_gives_way_to_the_held_start(records, tmp_path, capsys):
+    """A record that starts settled at its first drive, where `lti:1` starts at rest: from its own start a
+    lag (on a direct feedthrough, settled at its first value) meets the start and is named (16× on this
+    record); the effect-free model's start is missed, so the held start is tried, needs no effect, and
+    is kept, with the time constant the record was made with (exact ZOH by numpy)."""
+    own, report = diagnose(
+        records["settled"], tmp_path / "own", capsys, "--effects", "lag", "--no-auto-settle"
+    )
+    assert report["cause"] == "lag"  # the answer this guards against
+    out, report = diagnose(records["settled"], tmp_path / "d", capsys, "--effects", "lag")
+    start = report["evidence"]["start"]
+    assert report["cause"] == "none" and report["unexplained"] is None, report["verdict"]
+    assert (
+        start["off"] is False and start["settled"]["kept"] and start["settled"]["effect_free_ratio"] >= RATIO
+    )
+    assert start["settled"]["without"]["causes"] == ["lag"]
+    assert "and lag met them" in out and "stood in for the record's initial state" in out
+    model = hybrid.load_model(tmp_path / "d" / "extended.eqx")
+    assert float(model.parameters()["tau_1"]) == pytest.approx(TAU, rel=0.02)
+    u0 = np.loadtxt(records["settled"], delimiter=",", skiprows=1)[0, 0]
+    assert float(model.parameters()["initial_drive"]) == pytest.approx(u0, abs=0.05)
+
+
+def test_the_covered_start_keeps_the_held_run_only_where_the_causes_do_not_earn_their_place():
+    """`covered_try` on checks made by hand: the held run is kept where it meets the start, names other
+    causes and the own-start causes gain under min_gain over it; not where it names the same, where they
+    gain more, or where it still misses the start."""
+    from types import SimpleNamespace
+
+    noise = 0.01 * np.random.default_rng(1).normal(size=1000)
+    moving = noise + 0.5 * np.exp(-np.arange(1000) / 8.0)
+    effect_free = misfit_at_start([moving], ["a"], settled=False)
+    final = misfit_at_start([noise], ["a"], settled=False)
+    extended = SimpleNamespace(heldout=SimpleNamespace(nmse=0.1))
+
+    def again(nmse, causes, residual):
+        return SimpleNamespace(
+            evidence={"start": misfit_at_start([residual], ["a"], settled=True)},
+            extended=SimpleNamespace(heldout=SimpleNamespace(nmse=nmse)),
+            causes=[{"name": c} for c in causes],
+        )
+
+    kept = covered_try(effect_free, final, again(0.12, [], noise), 250, ["lag"], extended, 1.5)
+    assert kept["settled"]["kept"] and kept["settled"]["without"]["gain_over_held"] == pytest.approx(1.2)
+    assert "needs no effect, and lag gains only 1.20×" in kept["sentence"]
+    for case, why in (
+        (again(0.12, ["lag"], noise), "the simulation names lag too"),
+        (again(0.2, [], noise), "yet lag gains 2.00× over that held out"),
+        (again(0.12, [], moving), "the model still misses the start"),
+    ):
+        stands = covered_try(effect_free, final, case, 250, ["lag"], extended, 1.5)
+        assert not stands["settled"]["kept"] and stands["off"] is False
+        assert why in stands["sentence"] and "from the simulation's own start" in stands["sentence"]
 
 
 def test_a_held_start_that_cannot_be_tried_leaves_the_first_diagnosis_saying_why(

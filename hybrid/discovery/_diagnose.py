@@ -95,7 +95,7 @@ from ._search import (
     padding_lane,
     split_signals,
 )
-from ._start import settle_samples, settled_try, start_misfit
+from ._start import covered_try, settle_samples, settled_try, start_misfit
 from ._step import Search, Step, nonfinite_warnings, search_step
 from ._unexplained import pooled_noise_floor, remainder
 
@@ -367,17 +367,17 @@ def diagnose(
     kept, extended, dropped = drop_redundant(search, extended, present, steps[0].current)
     cause = kept[0] if kept else "none"
     names = [r.name for r in recordings]
-    start = start_misfit(problem, extended.theta, extended.active, names, isinstance(simulation, HeldStart))
-    if (
-        start["off"]
-        and given.settle_when_off
-        and not isinstance(simulation, HeldStart)
-        and len(recordings) == 1
-    ):
+    held = isinstance(simulation, HeldStart)
+    start = start_misfit(problem, extended.theta, extended.active, names, held)
+    # The causes may meet a start that the effect-free model misses: a lag, with `lti:N` from rest, can
+    # stand in for a record that starts settled at its first drive. The held start is tried then too.
+    first = steps[0].current
+    effect_free = start_misfit(problem, first.theta, first.active, names, held) if kept else start
+    covered = not start["off"] and effect_free["off"]
+    if (start["off"] or covered) and given.settle_when_off and not held and len(recordings) == 1:
         n_held = settle_samples(len(recordings[0].w))
-        say(
-            f"the model misses the record's start: again, the simulation held at a fitted drive for {n_held} samples"
-        )
+        missed = "the effect-free model misses" if covered else "the model misses"
+        say(f"{missed} the record's start: again, the simulation held at a fitted drive for {n_held} samples")
         try:
             again = diagnose(
                 recordings,
@@ -389,20 +389,24 @@ def diagnose(
                 progress=progress,
             )
         except InputError as error:  # e.g. a plug-in that refuses the longer drive: this diagnosis stands
+            said = start["sentence"] or effect_free["sentence"]
             start = {
                 **start,
                 "settled": {"samples": n_held, "automatically": True, "error": str(error)},
-                "sentence": f"{start['sentence']}. A held start of {n_held} samples could not be tried: {error}",
+                "sentence": f"{said}. A held start of {n_held} samples could not be tried: {error}",
             }
         else:
-            tried = settled_try(start, again.evidence["start"], n_held, cause, kept, baseline, extended)
-            if not again.evidence["start"]["off"]:  # the held start fits: it was the initial state
+            if covered:
+                tried = covered_try(effect_free, start, again, n_held, kept, extended, given.min_gain)
+            else:
+                tried = settled_try(start, again.evidence["start"], n_held, cause, kept, baseline, extended)
+            if tried["settled"]["kept"]:  # the held start fits, and it was the initial state
                 again.evidence["start"] = tried
                 again.seconds = time.perf_counter() - t0
                 again.glitches_bridged = glitches  # it read the recordings as bridged here
                 again.warnings = _glitch_warnings(glitches, rate) + again.warnings
                 return again
-            start = tried  # still missed with a held start: something early in the record, said so
+            start = tried  # held, the start is still missed, or the causes earn their place: said so
 
     # 5. The final model: uncertainties, evidence, the noise floor and what is left above it.
     theta_base = baseline.theta

@@ -168,7 +168,12 @@ def settled_try(start: dict, settled: dict, n_held: int, cause: str, causes, bas
         "gain": float(baseline.heldout.nmse / extended.heldout.nmse),
         "ratio": before["ratio"],
     }
-    tried = {"samples": n_held, "ratio": after.get("ratio"), "off": bool(settled["off"])}
+    tried = {
+        "samples": n_held,
+        "ratio": after.get("ratio"),
+        "off": bool(settled["off"]),
+        "kept": not settled["off"],
+    }
     named = f"it names {', '.join(causes)} (gain {without['gain']:.2f}×)" if causes else "it names nothing"
     head = (
         f"the model from the simulation's own start missed the first {before['first_samples']} samples of "
@@ -191,4 +196,66 @@ def settled_try(start: dict, settled: dict, n_held: int, cause: str, causes, bas
         f"model still misses the start by {after.get('ratio', float('nan')):.1f}× the rest: not the initial state, but "
         "something that changes early in the record and settles; this diagnosis is from the simulation's "
         "own start",
+    }
+
+
+def covered_try(
+    effect_free: dict, start: dict, again, n_held: int, causes, extended, min_gain: float
+) -> dict:
+    """The start evidence where the causes met a start that the effect-free model missed, once a held start
+    was tried.
+
+    `effect_free`: the check of the effect-free model from the simulation's own start (off); `start`:
+    the final model's (not off); `again`: the diagnosis of the simulation held at a fitted drive for
+    `n_held` samples; `causes`, `extended`: what the run from the simulation's own start named and its
+    final candidate. The held diagnosis is kept (``settled.kept``) where it meets the start and the
+    causes gain less than `min_gain` over it held out, unless it names them too: they stood in for the
+    record's initial state (a lag, with `lti:N` from rest, on a record that starts settled at its first
+    drive). Otherwise the causes stand, and the sentence says what the held start found.
+    """
+    before = max((row for row in effect_free["recordings"] if row.get("off")), key=lambda row: row["ratio"])
+    held = again.evidence["start"]
+    after = next(row for row in held["recordings"] if row["recording"] == before["recording"])
+    gain = float(again.extended.heldout.nmse / extended.heldout.nmse)
+    found = [c["name"] for c in again.causes]
+    same = sorted(found) == sorted(causes)  # the effect-free model missed the start for want of them
+    keep = not held["off"] and not same and gain < min_gain
+    named = ", ".join(causes)
+    gains = "gain" if len(causes) > 1 else "gains"
+    tried = {
+        "samples": n_held,
+        "ratio": after.get("ratio"),
+        "off": bool(held["off"]),
+        "kept": keep,
+        "automatically": True,
+        "effect_free_ratio": before["ratio"],
+        "without": {"causes": list(causes), "gain_over_held": gain},
+    }
+    head = (
+        f"the effect-free model from the simulation's own start missed the first {before['first_samples']} "
+        f"samples of {before['recording']} by {before['ratio']:.1f}× its RMS on the rest, all one sign, and "
+        f"{named} met them"
+    )
+    hold = f"held at a fitted drive for {n_held} samples before the record (as --settle {n_held} would)"
+    if keep:
+        names = f"names {', '.join(found)}" if found else "needs no effect"
+        return {
+            **held,
+            "settled": tried,
+            "sentence": f"{head}; {hold}, the simulation meets the start ({after.get('ratio', float('nan')):.2f}× "
+            f"the rest) and {names}, and {named} {gains} only {gain:.2f}× over that held out (a cause needs "
+            f"{min_gain:g}×): {'they' if len(causes) > 1 else 'it'} stood in for the record's initial state "
+            "(it did not start where the simulation does), so this diagnosis is of the held simulation "
+            "(hybrid.HeldStart in Python; --no-auto-settle diagnoses from the simulation's own start)",
+        }
+    if same:
+        why = f"the simulation names {named} too"
+    elif held["off"]:
+        why = f"the model still misses the start by {after.get('ratio', float('nan')):.1f}× the rest"
+    else:
+        why = f"the simulation meets the start, yet {named} {gains} {gain:.2f}× over that held out"
+    return {
+        **start,
+        "settled": tried,
+        "sentence": f"{head}; {hold} (tried), {why}: this diagnosis is from the simulation's own start",
     }
