@@ -1,8 +1,9 @@
 """A physics plug-in written only from docs/plugins.md: its one-file example, taken from the page as it
 is, imports public names only, and the real command line fits it and diagnoses with it.
 
-The recording is made here by an independent reference (the lag's exact solution for a drive held
-over each sample, in numpy), not by the plug-in itself.
+The recording is made here by an independent reference (scipy's exact solution of the lag for a drive
+held over each sample), not by the plug-in itself; a plug-in that runs a sample ahead of it (as the
+page's example once did: τ 25 % long at 10 Hz, a helper's probe) is caught by the check on one step.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 import helpers as h
 import numpy as np
 import pytest
+import scipy.signal
 
 import hybrid
 
@@ -28,18 +30,32 @@ def test_the_docs_plugin_imports_only_public_names():
     h.assert_public_imports_only(_docs_plugin())
 
 
+def _lag(u):
+    """τ dy/dt = u − y from y = u[0] (settled at the first drive), u held over each sample: scipy's ZOH."""
+    t = np.arange(u.size) / RATE
+    _, y, _ = scipy.signal.lsim(([1.0], [TAU, 1.0]), u, t, X0=[u[0] * TAU], interp=False)
+    return y
+
+
+def test_the_docs_plugin_steps_as_the_exact_solution_does(tmp_path, monkeypatch):
+    """The page's plug-in on a step: its output at every sample equals scipy's (a sample early fails)."""
+    (tmp_path / "lag.py").write_text(_docs_plugin())
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import lag
+
+    u = np.r_[np.zeros(3), np.ones(40)]
+    y = np.asarray(lag.Lag(tau=TAU).simulate(u, 1.0 / RATE))
+    np.testing.assert_allclose(y, _lag(u), atol=1e-9)
+    assert y[3] == 0.0 and y[4] > 0.05  # the step at sample 3 shows from sample 4 on
+
+
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     folder = tmp_path_factory.mktemp("lab")
     (folder / "lag.py").write_text(_docs_plugin())
     rng = np.random.default_rng(3)
     u = np.repeat(rng.uniform(-1.0, 1.0, 60), 10)  # 600 samples, levels held 0.5 s
-    a = np.exp(-1.0 / (RATE * TAU))
-    y = np.empty_like(u)
-    state = u[0]
-    for k, value in enumerate(u):
-        state = a * state + (1.0 - a) * value
-        y[k] = state
+    y = _lag(u)
     w = GAIN * y + OFFSET + 0.002 * rng.normal(size=u.size)
     hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE).save(folder / "lab.csv")
     return folder
