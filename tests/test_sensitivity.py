@@ -27,6 +27,8 @@ from hybrid import (
     Model,
     RCNetwork,
     Real,
+    Recording,
+    UnitInterval,
     encode,
     make_drive,
     sensitivity as S,
@@ -250,6 +252,42 @@ def test_unidentifiable_parameters_get_infinite_variance(curve_fit_reference):
     F = free_xi.fisher
     assert np.all(np.isfinite(F))
     assert direction @ F @ direction < 1e-8 * np.max(np.abs(np.diag(F))) * direction @ direction
+
+
+class _Shared(AbstractSimulation):
+    """y = (g + s)·v + c·v², s a share in (0, 1): g and s trade off exactly wherever s is free."""
+
+    raw: dict
+    constraints: ClassVar = {"g": Real(), "s": UnitInterval(), "c": Real()}
+    units: ClassVar = {"g": "1", "s": "1", "c": "1"}
+
+    def __init__(self, s=0.5):
+        self.raw = encode({"g": 1.2, "s": s, "c": 0.3}, self.constraints, "Shared")
+
+    def simulate(self, v_in, dt):
+        p = self.parameters()
+        return (p["g"] + p["s"]) * v_in + p["c"] * v_in**2
+
+
+def test_a_parameter_at_a_bound_is_held_there_not_spread_over_what_trades_off_with_it():
+    """A share the fit pushed to its bound (0.99995 of (0, 1)) is held at it: the others' errors are those
+    with it frozen (1e-9), where left free its exact trade-off with g made g unidentifiable too (a
+    probe's frame lag at 1 sample, beside a delay: the friction and the inertia beside them lost theirs)."""
+    v = np.asarray(make_drive("prbs", 30.0, seed=2).v)
+    w = 2.2 * v + 0.3 * v**2 + 0.01 * np.random.default_rng(0).normal(size=v.size)
+    recording = Recording.from_arrays(v_in=v, w=w, rate=h.RATE)
+    fixed = {"gain", "offset"}
+    at_bound = Model(_Shared(s=0.99995), LinearReadout(1.0, 0.0), "physics")
+    held = S.parameter_covariance(at_bound, recording, frozen=fixed)
+    frozen = S.parameter_covariance(at_bound, recording, frozen=fixed | {"s"})
+    assert held.unidentifiable == ("s",) and held.std_errors["s"] == np.inf
+    for name in ("g", "c"):
+        assert np.isfinite(held.std_errors[name]), name
+        assert held.std_errors[name] == pytest.approx(frozen.std_errors[name], rel=1e-9), name
+    inside = S.parameter_covariance(
+        Model(_Shared(s=0.5), LinearReadout(1.0, 0.0), "physics"), recording, frozen=fixed
+    )
+    assert set(inside.unidentifiable) == {"g", "s"}  # off the bound, the trade-off stands
 
 
 def test_covariance_rejects_bad_input(curve_fit_reference):

@@ -124,6 +124,30 @@ class Real(Constraint):
         return bool(np.all(np.isfinite(np.asarray(value))))
 
 
+#: A value within this fraction of its range of a bound of a two-sided range sits at that bound.
+AT_BOUND = 1e-3
+
+
+def bound_reached(value: float, constraint: Constraint | None) -> tuple[str, float] | None:
+    """("upper" or "lower", the bound) where `value` sits at a bound of `constraint`'s two-sided range
+    (within `AT_BOUND` of its width), else None.
+
+    Only a range bounded on both sides has a scale to be near a bound on: a
+    positive capacitance of 1e-4 F is not "at 0". A value there sits where its
+    raw value's map is flat (a sigmoid's, a tanh's tail): the data cannot move it.
+    """
+    if constraint is None or not math.isfinite(value):
+        return None
+    low, high = constraint.bounds
+    width = high - low
+    if not math.isfinite(width):
+        return None
+    for bound, word in ((high, "upper"), (low, "lower")):
+        if abs(value - bound) <= AT_BOUND * width:
+            return word, bound
+    return None
+
+
 def encode(values: dict, constraints: dict, owner: str) -> dict:
     """Raw (unconstrained) arrays for physical `values`, checking names and ranges."""
     raw = {}

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._models import Model
+from ..core._parameters import bound_reached
 from ..core._problem import Problem
 from ..core._simulation import unit_suffix
 from . import residual_tests as rt
@@ -126,30 +127,16 @@ def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, ser
     return out
 
 
-#: A value within this fraction of its range of a bound sits at it.
-AT_BOUND = 1e-3
-
-
 def _at_bound(name: str, value: float, constraint, units: dict) -> str | None:
-    """Why a value that sits at a bound of its two-sided range is not pinned (the bound sets it), or None.
-
-    Only a range bounded on both sides has a scale to be near a bound on: a
-    positive capacitance of 1e-4 F is not "at 0".
-    """
-    if constraint is None or not math.isfinite(value):
+    """Why a value that sits at a bound of its two-sided range is not pinned (the bound sets it), or None."""
+    reached = bound_reached(value, constraint)
+    if reached is None:
         return None
-    low, high = constraint.bounds
-    width = high - low
-    if not math.isfinite(width):
-        return None
-    unit = unit_suffix(units.get(name))
-    for bound, word in ((high, "upper"), (low, "lower")):
-        if math.isfinite(bound) and abs(value - bound) <= AT_BOUND * width:
-            return (
-                f"it sits at its {word} bound ({bound:g}{unit}): the fit pushed it there, so the bound, "
-                "not the recording, sets its value"
-            )
-    return None
+    word, bound = reached
+    return (
+        f"it sits at its {word} bound ({bound:g}{unit_suffix(units.get(name))}): the fit pushed it there, so "
+        "the bound, not the recording, sets its value"
+    )
 
 
 def heldout_evidence(

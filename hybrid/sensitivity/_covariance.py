@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._models import Model
+from ..core._parameters import bound_reached
 from ..util._errors import InputError
 from ._views import free_names, named_parameters, ordered_names, physical_map
 
@@ -187,6 +188,13 @@ def problem_covariance(
     if not names:
         raise InputError("no free named parameters: everything named is frozen")
 
+    # A parameter at a bound of its range is held there: its raw value sits where its map is flat, and
+    # left free, that near-null direction would leak into every parameter that trades off with it.
+    held = _at_bounds(model, named, names)
+    columns = np.ones(n)
+    for k in held:
+        columns[np.abs(D[names.index(k)]) > 0] = 0.0
+    J = J * columns
     # Regularised normal matrix (weight decay as ridge rows in units of the scaled residuals).
     mask = np.asarray(problem.penalty_mask(theta))
     mu = float(problem.weight_decay)
@@ -228,7 +236,7 @@ def problem_covariance(
     cov[:, bad] = np.nan
     cov[bad, bad] = np.inf
     se = np.sqrt(np.abs(np.diag(cov)))
-    optimum = _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond)
+    optimum = _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond, columns)
     step = np.array([float(optimum[k]) - float(named[k]) if optimum else np.nan for k in names])
     step[bad] = np.nan
 
@@ -253,7 +261,7 @@ OPTIMUM_STEPS = 20
 OPTIMUM_TOLERANCE = 1e-3
 
 
-def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict | None:
+def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond, columns) -> dict | None:
     """The named parameters at the least-squares optimum of the training part, from `theta`.
 
     Gauss–Newton on the identifiable subspace (the minimum-norm step, with the
@@ -263,7 +271,8 @@ def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict 
     `theta` (recorded rows); the weight decay's rows are √μ θ_network. A step
     whose residuals or Jacobian are not finite is halved as one that does not
     lower the cost; None where not even the first step can be solved, or
-    where it still moves after `OPTIMUM_STEPS` steps. Each halving's trial
+    where it still moves after `OPTIMUM_STEPS` steps. `columns`: 0 on the θ
+    entries held (a parameter at a bound), 1 elsewhere. Each halving's trial
     forms J too (one compiled program, the covariance's); trials are few.
     """
     theta = np.asarray(theta, float)
@@ -299,10 +308,19 @@ def _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond) -> dict 
         else:
             break  # no step along the Gauss–Newton direction lowers the cost: as far as it goes
         theta = theta + delta
-        A, b = np.concatenate([J_new, rows_penalty]), b_new
+        A, b = np.concatenate([J_new * columns, rows_penalty]), b_new
     else:
         return None  # still moving after OPTIMUM_STEPS: where the optimum lies is not known
     return named_parameters(problem.model(jnp.asarray(theta)))
+
+
+def _at_bounds(model, named: dict, names: list[str]) -> list[str]:
+    """The free named parameters of `model` that sit at a bound of their two-sided range (`bound_reached`)."""
+    constraints = {
+        **getattr(model.readout, "constraints", {}),
+        **getattr(model.simulation, "constraints", {}),
+    }
+    return [k for k in names if bound_reached(float(named[k]), constraints.get(k)) is not None]
 
 
 def _training_rows(problem, theta) -> tuple[np.ndarray, np.ndarray]:
