@@ -69,7 +69,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: ``settings.refine``; an output-side cause's ``as_recorded`` (its `levels`, a saturation's, where w
 #: levels off: through the readout, in ``as_recorded_unit``, w's); a saturation's ``level_pos`` or
 #: ``level_neg`` is left out of ``derived`` where the signal never reaches that side's knee
-#: (`REACHED_PERCENT`: its shortfall says how far it stays from it).
+#: (`REACHED_PERCENT`: its shortfall says how far it stays from it); ``unexplained.description.time``
+#: may read ``"form": "wander"`` (straight pieces over the record, `_time_wander`), with the change at one
+#: time it beat under ``step``.
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {

@@ -346,6 +346,28 @@ def _time_step(tr, ho, judge, scaled) -> dict | None:
     }
 
 
+#: Pieces of the wander (`_time_wander`) that a change at one time must beat: a random walk of w's
+#: baseline is followed by a change at one time too (a probe's thermal record, a walk over 1.2 °C: "from
+#: t = 21.67 s on, w offset by −3.9 °C", 83 %), but by straight pieces between several times better.
+WANDER_PIECES = 8
+
+
+def _time_wander(tr, ho, judge, scaled) -> dict:
+    """A wander in time: a trend of w's offset made of `WANDER_PIECES` straight pieces over the training
+    span (continuous, constant beyond it), beside ŵ and ŵ·t (`_time_step`'s gain trends), fitted on the
+    training residual and judged on the held-out part."""
+    knots = np.linspace(-1.0, 1.0, WANDER_PIECES + 1)
+    spacing = knots[1] - knots[0]
+
+    def basis(part):
+        x = scaled(part["t"])
+        hats = np.clip(1.0 - np.abs(x[:, None] - knots[None, :]) / spacing, 0.0, None)
+        return np.column_stack([hats, part["w_hat"], x * part["w_hat"]])
+
+    coef = np.linalg.lstsq(basis(tr), tr["r"], rcond=None)[0]
+    return {**judge(basis(ho) @ coef), "form": "wander", "pieces": WANDER_PIECES}
+
+
 #: A slope of w on ŵ below this fraction of the slope beside it reads as flat (`_output_shape`).
 FLAT_SLOPE = 0.4
 
@@ -1130,8 +1152,13 @@ def describe_remainder(
             and judge.score(step) >= STEP_SHARE
             and judge.score(step) > max(judge.score(time_part), judge.score(step["without"])) + MARGIN
         ):
-            # a change at one time, which the cubic smooths over
-            time_part = {**step, "cubic": time_part, "unit": w_unit}
+            # a change at one time, which the cubic smooths over; unless straight pieces between several
+            # times do better held out: a wander (a true change they follow only between two of them)
+            wander = _time_wander(tr, ho, judge, scaled)
+            if judge.score(wander) > judge.score(step):
+                time_part = {**wander, "step": step, "cubic": time_part, "unit": w_unit}
+            else:
+                time_part = {**step, "wander": wander, "cubic": time_part, "unit": w_unit}
         scores["time"] = time_part
 
     # Linear filter: lagged drive and lagged model output.
@@ -1580,6 +1607,16 @@ def _verdict(
             f"a change at one time: from t = {step['at_s']:.4g} s on, {' and '.join(c for c in changes if c)} "
             f"recovers {pct(inkind)} {where} (a sensor re-zeroed or bumped, a clamp that slipped, a part that "
             "changed during the record: neither an effect of the drive nor a smooth drift reads so)"
+        )
+    elif scores[inkind].get("form") == "wander":  # kind "time": no single change, no cubic, follows it
+        wander = scores[inkind]
+        text = (
+            "a wander in time: w's baseline (or the gain) moving over the record as no cubic and no single "
+            f"change follow it: a trend of {wander['pieces']} straight pieces recovers "
+            f"{pct(inkind)} {where}, a change at one time {100 * score(wander['step']):.0f} %, a cubic "
+            f"{100 * score(wander['cubic']):.0f} % (a sensor's offset or the plant's surroundings wandering, "
+            "a temperature: not an effect of the drive; a reference channel, or a record with the drive off "
+            "before and after, measures it)"
         )
     else:
         text = f"a trend in time (drift): a smooth function of time recovers {pct(inkind)} {where}"
