@@ -527,7 +527,7 @@ def test_a_drive_side_effect_acts_before_the_simulation():
     derived = stack.derived(jnp.asarray(u), 1.0 / RATE)["drive_dead_zone"]
     assert derived["drive_dead_zone_percent"] == pytest.approx(100 * width / np.max(np.abs(u)))
     # Backlash: the simulation of the played drive (a loop, not the library's scan).
-    played, y = [], 0.0
+    played, y = [], u[0]  # the play starts centred on the first drive
     for value in u:
         y = min(max(y, value - width), value + width)
         played.append(y)

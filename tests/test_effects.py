@@ -271,6 +271,10 @@ def test_play_matches_the_backlash_loop(signal):
     np.testing.assert_allclose(y[15:], np.asarray(u[15:]) + 0.2, atol=1e-12)  # then it follows, 0.2 above
     derived = Backlash(backlash_half_width=0.2).derived(np.asarray(u), DT)
     assert derived["play_percent_of_range"] == pytest.approx(40.0)
+    # a drive that starts away from 0: the play starts centred on it, and moves only once it leaves ±h
+    y = np.asarray(Backlash(backlash_half_width=0.2).apply(u + 5.0, DT))
+    np.testing.assert_allclose(y[:3], 5.0, atol=1e-12)  # u + 5 up to 5.2: inside the play
+    np.testing.assert_allclose(y[3:11], np.asarray(u[3:11]) + 4.8, atol=1e-12)
 
 
 def test_drive_side_saturation_and_even_are_their_forms_on_the_drive():

@@ -1277,8 +1277,12 @@ class Backlash(AbstractEffect):
 
     Gears, a loose linkage, a cable with slack: when the drive reverses it
     must travel 2h (unit of the drive) before what it drives moves again; the
-    play starts at rest (y = 0 before the first sample). ``derived`` reports
-    the play 2h as a percentage of the drive's range.
+    play starts centred on the first drive (y = u[0] before the first sample),
+    as the simulation starts settled there or at rest: a linkage held at a
+    drive of 6.67 N before the record would otherwise start 5.2 N into it (a
+    probe's spring, whose start the report then blamed on something early in
+    the record). ``derived`` reports the play 2h as a percentage of the drive's
+    range.
     """
 
     raw: dict[str, Array]
@@ -1294,7 +1298,7 @@ class Backlash(AbstractEffect):
         init_values(self, values)
 
     def apply(self, u, dt):
-        return play(u, self.parameters()["backlash_half_width"])
+        return play(u, self.parameters()["backlash_half_width"], u[0])
 
     def derived(self, u, dt):
         span = float(np.ptp(u)) if len(u) else 0.0
