@@ -814,7 +814,7 @@ def test_a_value_off_the_training_optimum_is_reported_with_that_optimum():
     entry.update(_optimum(found["relaxation_fraction"]), unit="1")
     assert entry["at_training_optimum"] is False
     text = plus_minus(entry)
-    assert f"not the training part's optimum, ≈ {optimum['relaxation_fraction']:.3g}" in text, text
+    assert f"the training part alone would move it to ≈ {optimum['relaxation_fraction']:.3g}" in text, text
     assert "standard errors away" in text
     gain = {"value": values["gain"], "std_error": found["gain"].std_error, **_optimum(found["gain"])}
     assert "optimum" not in plus_minus(gain)

@@ -138,8 +138,8 @@ def _off_optimum(entry: dict) -> str:
             f"{abs(step) / se:.0f} standard errors on: the fit stopped here)"
         )
     return (
-        f" (not the training part's optimum, ≈ {_num(value + step, 3)}: {abs(step) / se:.1f} standard "
-        "errors away, where the fit stopped: a lane keeps its iterate of least validation loss)"
+        " (the fit stopped where the validation part liked it best; the training part alone would move "
+        f"it to ≈ {_num(value + step, 3)}, {abs(step) / se:.1f} standard errors away)"
     )
 
 
