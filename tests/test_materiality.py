@@ -57,3 +57,20 @@ def test_an_effect_refused_for_its_size_alone_is_said_and_counted_with_materiali
         err = capsys.readouterr().err
         assert code == 2 and words in err and "Traceback" not in err
         assert not (tmp_path / "c").exists()
+
+
+def test_the_too_small_sentence_sets_a_threshold_either_way():
+    """A heavily damped mode falls short of a resonance's ceiling on damping, which must be raised to admit
+    it: the sentence says "set", never "lower" (it read "if an effect that small matters here, lower
+    max_damping (now 0.35)" for a mode of ζ 0.981)."""
+    from hybrid.discovery._verdict import too_small_sentence
+
+    entry = {
+        "name": "resonance",
+        "gain": 1.54,
+        "materiality": "mode 0.03 Hz, ζ 0.981 (needs ζ ≤ 0.35, f ≥ 0.5 Hz)",
+        "thresholds": {"max_damping": 0.35, "min_frequency_hz": 0.5},
+    }
+    said = too_small_sentence(entry)
+    assert "set max_damping (now 0.35) and min_frequency_hz (now 0.5) to admit it" in said
+    assert "lower" not in said and "that small" not in said

@@ -228,12 +228,16 @@ def open_question(ambiguous: list[dict], also: bool = False) -> str:
 
 
 def too_small_sentence(entry: dict) -> str:
-    """A candidate refused for its size alone (`Diagnosis.too_small`), and how to count it."""
+    """A candidate refused for its size alone (`Diagnosis.too_small`), and how to count it.
+
+    "Set", not "lower": a threshold may be a ceiling (a resonance's `max_damping`, which a mode of ζ 0.98
+    must raise) as well as a floor; and "such", not "that small": a heavily damped mode is no small one.
+    """
     names = " and ".join(f"{k} (now {v:g})" for k, v in entry["thresholds"].items()) or "its threshold"
     return (
-        f"{entry['name']} gains {entry['gain']:.3g}× held out and passes every other rule, but is smaller than a "
-        f"cause must be ({entry['materiality']}); if an effect that small matters here, lower {names} with "
-        "--materiality NAME=VALUE"
+        f"{entry['name']} gains {entry['gain']:.3g}× held out and passes every other rule, but falls short of "
+        f"what a cause must be ({entry['materiality']}); if such an effect counts here, set {names} to admit "
+        "it with --materiality NAME=VALUE"
     )
 
 
