@@ -112,33 +112,41 @@ def test_a_lag_that_stands_in_for_a_settled_start_gives_way_to_the_held_start(re
 
 
 def test_the_covered_start_keeps_the_held_run_only_where_the_causes_do_not_earn_their_place():
-    """`covered_try` on checks made by hand: the held run is kept where it meets the start, names other
-    causes and the own-start causes gain under min_gain over it; not where it names the same, where they
-    gain more, or where it still misses the start."""
+    """`covered_try` on checks made by hand: the held run is kept where it meets the start clearly (within
+    MET), from a held drive near the record's, names other causes and the own-start causes gain under
+    min_gain over it; not where it names the same, where they gain more, where it still misses the start,
+    where it meets it only loosely, or from a drive far outside the record's."""
     from types import SimpleNamespace
+
+    from hybrid.discovery._start import MET
 
     noise = 0.01 * np.random.default_rng(1).normal(size=1000)
     moving = noise + 0.5 * np.exp(-np.arange(1000) / 8.0)
+    loosely = noise + 0.04 * np.exp(-np.arange(1000) / 8.0)  # under RATIO, over MET
     effect_free = misfit_at_start([moving], ["a"], settled=False)
     final = misfit_at_start([noise], ["a"], settled=False)
     extended = SimpleNamespace(heldout=SimpleNamespace(nmse=0.1))
+    drive = np.array([0.0, 2.0])
 
-    def again(nmse, causes, residual):
+    def again(nmse, causes, residual, held=0.5):
         return SimpleNamespace(
             evidence={"start": misfit_at_start([residual], ["a"], settled=True)},
-            extended=SimpleNamespace(heldout=SimpleNamespace(nmse=nmse)),
+            extended=SimpleNamespace(heldout=SimpleNamespace(nmse=nmse), parameters={"initial_drive": held}),
             causes=[{"name": c} for c in causes],
         )
 
-    kept = covered_try(effect_free, final, again(0.12, [], noise), 250, ["lag"], extended, 1.5)
+    kept = covered_try(effect_free, final, again(0.12, [], noise), 250, ["lag"], extended, 1.5, drive)
     assert kept["settled"]["kept"] and kept["settled"]["without"]["gain_over_held"] == pytest.approx(1.2)
     assert "needs no effect, and lag gains only 1.20×" in kept["sentence"]
+    assert MET < misfit_at_start([loosely], ["a"], settled=True)["recordings"][0]["ratio"] < RATIO
     for case, why in (
         (again(0.12, ["lag"], noise), "the simulation names lag too"),
         (again(0.2, [], noise), "yet lag gains 2.00× over that held out"),
         (again(0.12, [], moving), "the model still misses the start"),
+        (again(0.12, [], loosely), "the model still misses the start"),
+        (again(0.12, [], noise, held=9.8), "only from a drive of 9.8 held, outside the record's 0 to 2"),
     ):
-        stands = covered_try(effect_free, final, case, 250, ["lag"], extended, 1.5)
+        stands = covered_try(effect_free, final, case, 250, ["lag"], extended, 1.5, drive)
         assert not stands["settled"]["kept"] and stands["off"] is False
         assert why in stands["sentence"] and "from the simulation's own start" in stands["sentence"]
 

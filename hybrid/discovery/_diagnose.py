@@ -397,7 +397,9 @@ def diagnose(
             }
         else:
             if covered:
-                tried = covered_try(effect_free, start, again, n_held, kept, extended, given.min_gain)
+                tried = covered_try(
+                    effect_free, start, again, n_held, kept, extended, given.min_gain, recordings[0].v_in
+                )
             else:
                 tried = settled_try(start, again.evidence["start"], n_held, cause, kept, baseline, extended)
             if tried["settled"]["kept"]:  # the held start fits, and it was the initial state

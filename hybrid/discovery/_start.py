@@ -38,6 +38,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from ..core._held_start import INITIAL_DRIVE
 from ._diagnosis import SPLIT_ORDER
 from ._search import predictions
 
@@ -199,8 +200,15 @@ def settled_try(start: dict, settled: dict, n_held: int, cause: str, causes, bas
     }
 
 
+#: How closely a held start must meet the record's start before it replaces named causes (`covered_try`):
+#: its first samples' residual RMS at most this many times the rest's, well inside `RATIO`.
+MET = 1.5
+#: How far beyond the drive's range, in spans, a held drive may lie and still be a state the plant was in.
+HELD_REACH = 0.5
+
+
 def covered_try(
-    effect_free: dict, start: dict, again, n_held: int, causes, extended, min_gain: float
+    effect_free: dict, start: dict, again, n_held: int, causes, extended, min_gain: float, drive
 ) -> dict:
     """The start evidence where the causes met a start that the effect-free model missed, once a held start
     was tried.
@@ -211,7 +219,10 @@ def covered_try(
     final candidate. The held diagnosis is kept (``settled.kept``) where it meets the start and the
     causes gain less than `min_gain` over it held out, unless it names them too: they stood in for the
     record's initial state (a lag, with `lti:N` from rest, on a record that starts settled at its first
-    drive). Otherwise the causes stand, and the sentence says what the held start found.
+    drive). It must meet the start clearly (`MET`), and from a held drive within `HELD_REACH` spans of the
+    record's `drive`: a drift of the gain under a rising staircase was "met" at 2.47× the rest by `lti:1`
+    bent to τ 118 s (truth 0.5 s), held at 9.8 for a drive of 0.2–2. Otherwise the causes stand, and the
+    sentence says what the held start found.
     """
     before = max((row for row in effect_free["recordings"] if row.get("off")), key=lambda row: row["ratio"])
     held = again.evidence["start"]
@@ -219,7 +230,12 @@ def covered_try(
     gain = float(again.extended.heldout.nmse / extended.heldout.nmse)
     found = [c["name"] for c in again.causes]
     same = sorted(found) == sorted(causes)  # the effect-free model missed the start for want of them
-    keep = not held["off"] and not same and gain < min_gain
+    low, high = float(np.min(drive)), float(np.max(drive))
+    level = float(again.extended.parameters.get(INITIAL_DRIVE, float("nan")))
+    reach = HELD_REACH * (high - low)
+    inside = low - reach <= level <= high + reach  # nan: not inside
+    met = not held["off"] and (after.get("ratio") or float("inf")) <= MET
+    keep = met and inside and not same and gain < min_gain
     named = ", ".join(causes)
     gains = "gain" if len(causes) > 1 else "gains"
     tried = {
@@ -250,8 +266,10 @@ def covered_try(
         }
     if same:
         why = f"the simulation names {named} too"
-    elif held["off"]:
+    elif not met:
         why = f"the model still misses the start by {after.get('ratio', float('nan')):.1f}× the rest"
+    elif not inside:
+        why = f"it meets the start only from a drive of {level:.3g} held, outside the record's {low:.3g} to {high:.3g}"
     else:
         why = f"the simulation meets the start, yet {named} {gains} {gain:.2f}× over that held out"
     return {
