@@ -213,6 +213,28 @@ def test_fit_says_it_too_for_a_physics_model(records, tmp_path, capsys):
     assert start["off"] is True and "start: " in out and "--settle N" in out
 
 
+@pytest.mark.parametrize("held", [True, False], ids=["settled", "at_rest"])
+def test_fit_points_at_a_held_start_where_the_physics_bent_to_meet_a_settled_one(tmp_path, capsys, held):
+    """A slow plant (τ 20 s over 240 s, a heater's power in 0–2) whose record starts settled at its first
+    drive: `lti:1` from rest meets the start by bending (τ 18 s, a direct term; its start check passes), so
+    `fit` fits the held simulation too and points at --settle where that fits the held-out parts 1.5×
+    better; the same record started at rest gets no such line."""
+    u = np.repeat(np.random.default_rng(3).uniform(0.0, 2.0, N // 15), 15)
+    noise = NOISE * np.random.default_rng(5).normal(size=N)
+    path = held_lag_csv(tmp_path / "slow.csv", u, u[0] if held else 0.0, DT, 20.0, noise)
+    argv = ["fit", path, *f"--columns input=u,output=y --rate {1 / DT} --physics lti:1".split()]
+    argv += ["--model", "physics", "--quiet", "--out", tmp_path / "m.eqx", "--json", tmp_path / "f.json"]
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    start = json.loads((tmp_path / "f.json").read_text())["start"]
+    if held:
+        assert start["off"] is False
+        assert f"fit again with --settle {settle_samples(N)}" in out and "tau_1" in start["held_hint"]
+    else:
+        assert "held at a fitted drive" not in out and "held_hint" not in start
+
+
 def test_the_rule_and_its_sentences_on_residuals_made_by_hand():
     """`misfit_at_start` on numpy residuals: each condition of the rule, and the sentence for each case."""
     noise = 0.01 * np.random.default_rng(0).normal(size=1000)
