@@ -416,6 +416,25 @@ HELD_HINT_GAIN = 1.5
 HELD_HINT_DRIVE = 0.05
 
 
+def _fit_as_asked(args, model, recordings, frozen, **more):
+    """`hybrid.fit` of `model` with the command line's solver, starts, screen, split, blocks and seed."""
+    from .core._fit import fit
+    from .core._solvers import solver_named
+
+    return fit(
+        model,
+        recordings,
+        solver=solver_named(args.solver, max_steps=args.max_steps),
+        starts=args.starts,
+        screen=args.screen,
+        frozen=frozen,
+        split=args.split,
+        blocks=args.blocks,
+        seed=args.seed,
+        **more,
+    )
+
+
 def _held_start_hint(args, model, recordings, simulation, result, frozen) -> str | None:
     """Where a physics model fitted from its own start met a record that started settled by bending: the
     same physics held at a fitted drive first (`held_at_start`), fitted alike, and a sentence if it fits
@@ -427,10 +446,8 @@ def _held_start_hint(args, model, recordings, simulation, result, frozen) -> str
     """
     import numpy as np
 
-    from .core._fit import fit
     from .core._held_start import held_at_start
     from .core._simulation import unit_suffix
-    from .core._solvers import solver_named
     from .discovery._start import settle_samples
 
     drive = np.asarray(recordings[0].v_in, float)
@@ -439,18 +456,7 @@ def _held_start_hint(args, model, recordings, simulation, result, frozen) -> str
         return None
     n = settle_samples(len(drive))
     held_model = type(model)(held_at_start(simulation, n, recordings[0]), model.readout, model.kind)
-    held = fit(
-        held_model,
-        recordings,
-        solver=solver_named(args.solver, max_steps=args.max_steps),
-        starts=args.starts,
-        screen=args.screen,
-        frozen=frozen,
-        split=args.split,
-        blocks=args.blocks,
-        seed=args.seed,
-        progress=False,
-    )
+    held = _fit_as_asked(args, held_model, recordings, frozen, progress=False)
     splits = [k for k in ("validation", "test") if k in result.metrics and k in held.metrics]
     ratios = [
         result.metrics[k]["nmse"] / held.metrics[k]["nmse"] for k in splits if held.metrics[k]["nmse"] > 0
@@ -479,10 +485,8 @@ def _cmd_fit(args):
     import jax
 
     from .core._arguments import as_names
-    from .core._fit import fit
     from .core._models import make_model
     from .core._serialise import save_model
-    from .core._solvers import solver_named
     from .physics._plugins import resolve_physics
     from .util._atomic import write_text
 
@@ -575,19 +579,7 @@ def _cmd_fit(args):
         return
     with lock:
         with FitStop(args.time_limit) as stop:  # SIGINT, SIGTERM, --time-limit: stop between steps
-            result = fit(
-                model,
-                recordings,
-                solver=solver_named(args.solver, max_steps=args.max_steps),
-                starts=args.starts,
-                screen=args.screen,
-                frozen=frozen,
-                split=args.split,
-                blocks=args.blocks,
-                seed=args.seed,
-                progress=not args.quiet,
-                stop=stop,
-            )
+            result = _fit_as_asked(args, model, recordings, frozen, progress=not args.quiet, stop=stop)
         print(result.summary())
         if result.stopped:
             steps = max(s.get("steps", 0) for s in result.starts)
