@@ -25,6 +25,10 @@ drive first (``--settle N``); a start that then fits was the initial state.
 `diagnose` runs that itself (`DiagnoseSettings.settle_when_off`): one
 recording whose start is off is diagnosed again held at a fitted drive for
 `settle_samples` samples, and `settled_try` says which diagnosis is kept.
+A named cause can meet a start that the effect-free model misses, standing in
+for the initial state (a lag, with `lti:N` from rest, on a record that started
+settled at its first drive); the held start is then tried too, and
+`covered_try` says which is kept.
 
 On Cascaded Tanks with `TwoTank` (started in equilibrium with the first pump
 voltage, while the record's output starts at 5.2 V): its first 20 samples
@@ -267,7 +271,7 @@ def covered_try(
     if same:
         why = f"the simulation names {named} too"
     elif not met:
-        why = f"the model still misses the start by {after.get('ratio', float('nan')):.1f}× the rest"
+        why = f"the model still misses the start by {after.get('ratio', float('nan')):.2f}× the rest (needs ≤ {MET:g}×)"
     elif not inside:
         why = f"it meets the start only from a drive of {level:.3g} held, outside the record's {low:.3g} to {high:.3g}"
     else:
