@@ -11,6 +11,7 @@ import math
 
 import helpers as h
 import numpy as np
+import pytest
 import scipy.signal
 
 from hybrid.cli import main
@@ -74,3 +75,28 @@ def test_the_too_small_sentence_sets_a_threshold_either_way():
     said = too_small_sentence(entry)
     assert "set max_damping (now 0.35) and min_frequency_hz (now 0.5) to admit it" in said
     assert "lower" not in said and "that small" not in said
+
+
+def test_two_recordings_give_the_same_sizes_in_either_order():
+    """A drive clipped at ±1.5 V into a first-order plant (scipy), recorded twice: a ±0.9 V PRBS that never
+    reaches the clip and a ±3 V staircase that does. Sizes were read off the first recording: the clip's
+    shortfall was 9 % behind the PRBS and 49 % behind the staircase (a probe's order made it 'not
+    material' and named another effect first). They come from the widest drive now, in either order."""
+    import hybrid
+
+    rate = 30.0
+
+    def recording(u, seed):
+        a = math.exp(-1.0 / (rate * 0.4))
+        y = scipy.signal.lfilter([1 - a], [1, -a], np.clip(u, -1.5, 1.5))
+        w = 2.0 * y + 0.01 * np.random.default_rng(seed).normal(size=u.size)
+        return hybrid.Recording.from_arrays(v_in=u, w=w, rate=rate)
+
+    small = recording(np.repeat(np.random.default_rng(0).uniform(-0.9, 0.9, 90), 20), 1)
+    big = recording(np.repeat(np.linspace(-3.0, 3.0, 12), 150), 2)
+    found = [
+        hybrid.diagnose(pair, simulation=hybrid.LTI(1), effects=["drive_saturation"]).causes[0]["derived"]
+        for pair in ([small, big], [big, small])
+    ]
+    assert found[0] == pytest.approx(found[1], rel=1e-9)
+    assert min(found[0]["shortfall_pos_percent"], found[0]["shortfall_neg_percent"]) > 40  # the staircase's
