@@ -383,3 +383,22 @@ def test_cli_sensitivity_bad_input_exits_2(argv, tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert err.startswith("hybrid: error:") and err.count("\n") == 1
     assert not (tmp_path / "X").exists()
+
+
+def test_the_errors_with_the_simulation_fixed_do_not_depend_on_the_parameters_scales():
+    """`inverse_diagonal` of a Fisher matrix whose parameters are in units 1e9 apart (a drive in mV, an
+    output in m): numpy's inverse of the same matrix, where pinv of the raw matrix cut a direction."""
+    from hybrid.discovery._evidence import inverse_diagonal
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(40, 3))
+    core = a.T @ a  # well conditioned at unit scale
+    scales = np.array([1e-6, 1e3, 1.0])
+    fisher = core / np.outer(scales, scales)
+    exact = np.diag(np.linalg.inv(fisher))
+    np.testing.assert_allclose(inverse_diagonal(fisher), exact, rtol=1e-9)
+    raw = np.diag(np.linalg.pinv(fisher, rcond=1e-12, hermitian=True))
+    assert not np.allclose(raw, exact, rtol=1e-3)  # what the raw matrix's pseudo-inverse gave
+    padded = np.zeros((4, 4))
+    padded[:3, :3] = fisher
+    assert inverse_diagonal(padded)[3] == 0.0  # a row of zeros: no information, no variance read

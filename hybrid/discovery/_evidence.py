@@ -80,14 +80,26 @@ def parameter_uncertainties(
     network = set(stack.inner.parameter_names())
     rest = [i for i, name in enumerate(covariance.names) if name not in network and name in keep]
     if rest:
-        fisher = covariance.fisher[np.ix_(rest, rest)]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            variance = np.diag(np.linalg.pinv(fisher, rcond=1e-12, hermitian=True))
+        variance = inverse_diagonal(covariance.fisher[np.ix_(rest, rest)])
         for i, v in zip(rest, variance):
             se = math.sqrt(v * inflation) if np.isfinite(v) and v > 0 else float("inf")
             name = covariance.names[i]
             out[name] = dataclasses.replace(out[name], std_error_given_network=se)
     return out
+
+
+def inverse_diagonal(fisher: np.ndarray) -> np.ndarray:
+    """The diagonal of a Fisher matrix's pseudo-inverse, taken at unit scale (0 where a row is all 0).
+
+    Parameters in mV beside others in m set the raw matrix's entries 1e6 or more apart, where pinv's
+    rcond, relative to the largest singular value, cut a direction that the data pin: a probe's dead
+    zone read ± 5.4e-13 mV with its simulation fixed, for ± 2.9 mV.
+    """
+    diagonal = np.sqrt(np.abs(np.diag(fisher)))
+    scale = np.where(diagonal > 0, 1.0 / np.where(diagonal > 0, diagonal, 1.0), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = np.linalg.pinv(scale[:, None] * fisher * scale[None, :], rcond=1e-12, hermitian=True)
+    return np.diag(inverse) * scale**2
 
 
 def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, series) -> dict[str, str]:
