@@ -40,15 +40,17 @@ def test_a_heater_that_stops_sharply_is_named_drive_clip_by_the_default_set(tmp_
     assert run.returncode == 0, run.stderr[-2000:]
     report = json.loads((tmp_path / "d" / "report.json").read_text())
     refined_ = report["evidence"]["refined"]
-    assert refined_["swaps"] == {"drive_saturation": "drive_clip"} and refined_["kept"], refined_
+    assert refined_["swaps"] == {"saturation": "clip", "drive_saturation": "drive_clip"}, refined_
+    assert refined_["kept"], refined_
     assert refined_["gain_over_first"] >= 1.5
     assert [c["name"] for c in report["causes"]] == ["drive_clip"], report["verdict"]
     assert report["unexplained"] is None, report["verdict"]
     level = 1 / report["parameters"]["drive_clip_pos_curvature"]["value"]
     assert level == pytest.approx(TOP, rel=0.01)
     assert report["settings"]["refine"] is True
-    assert "refined: diagnosed again with drive_clip in place of drive_saturation" in run.stdout
-    assert "**Refined.** Diagnosed again with drive_clip" in (tmp_path / "d" / "report.md").read_text()
+    tried = "diagnosed again with clip in place of saturation and drive_clip in place of drive_saturation"
+    assert f"refined: {tried}" in run.stdout
+    assert f"**Refined.** D{tried[1:]}" in (tmp_path / "d" / "report.md").read_text()
 
     # the default set's own answer did not name the clip (and left the remainder that pointed at it)
     assert refined_["first_causes"] and "drive_clip" not in refined_["first_causes"]
@@ -66,19 +68,23 @@ def test_refinable_takes_a_named_cause_s_refinement_and_the_one_the_remainder_po
     def swaps(effects, kept, left=LEFT, room=3.0):
         return refinable(effects, kept, left, BUILTINS, room, 1.5)
 
-    assert swaps(BUILTINS, ["drive_saturation"]) == {"drive_saturation": "drive_clip"}
-    assert swaps(BUILTINS, ["saturation", "delay"]) == {"saturation": "clip"}
+    # every refinement at once, the other place's too: a drive's clip read through the dynamics as a tanh
+    # on the output, and the output's clip was all the second run could name
+    both = {"drive_saturation": "drive_clip", "saturation": "clip"}
+    assert swaps(BUILTINS, ["drive_saturation"]) == both
+    assert swaps(BUILTINS, ["saturation", "delay"]) == both
     # nothing unexplained, but 1.8× the floor left: a clip may still gain the 1.5× asked (a sensor's clip)
-    assert swaps(BUILTINS, ["saturation"], left=None, room=1.8) == {"saturation": "clip"}
+    assert swaps(BUILTINS, ["saturation"], left=None, room=1.8) == both
     # under 1.5× the floor not even a perfect clip could gain 1.5×: not tried
     assert swaps(BUILTINS, ["saturation"], left=None, room=1.4) == {}
     # the remainder's pointer is followed whatever is named
     pointed = {"description": {"named_only": "drive_clip"}}
-    assert swaps(BUILTINS, ["drive_even"], left=pointed) == {"drive_saturation": "drive_clip"}
+    assert swaps(BUILTINS, ["drive_even"], left=pointed) == both
     # the remainder's creep is no refinement of a searched effect: not tried
     assert swaps(BUILTINS, ["drive_even"], left={"description": {"named_only": "creep"}}) == {}
     # a refinement searched already, or a set without the built-ins: nothing
     assert swaps([*BUILTINS, *_effects("drive_clip")], ["drive_saturation"]) == {}
+    assert swaps([*BUILTINS, *_effects("drive_clip")], ["saturation"]) == {"saturation": "clip"}
     assert swaps(_effects("drive_saturation", "delay"), ["drive_saturation"]) == {}
     swapped = [getattr(e, "name", e) for e in refined_effects(BUILTINS, {"drive_saturation": "drive_clip"})]
     assert "drive_clip" in swapped and "drive_saturation" not in swapped

@@ -15,7 +15,9 @@ its third parameter stood in for effects of other shapes.
 So where a diagnosis of the default set names an effect with a
 `refinement` and leaves at least `min_gain` times the noise floor, or its
 remainder points at one,
-`diagnose` runs again with each such refinement in its parent's place, and
+`diagnose` runs again with every refinement in its parent's place (the clip of
+the drive and of the output both: a probe's drive clip, read as the output's
+tanh, was refined to the output's clip alone and left 1.6–2× the floor), and
 keeps the second diagnosis only where it names the refinement and its
 extended model's held-out NMSE is `min_gain` times lower than the first's (the
 step's own rule for a cause). Either way ``evidence.refined`` says what was
@@ -40,7 +42,8 @@ def refinable(
     the 2× called unexplained); and the named-only effect the remainder points
     at (``description.named_only``: a drive that stops sharply read as "static
     in the drive … a clip of the drive recovers as much") where it is the
-    refinement of a searched effect. None already searched, and {} unless
+    refinement of a searched effect. Where either holds, every searched effect's refinement is tried
+    in its place, the other places' too. None already searched, and {} unless
     every one of `builtins` (the default set's effects for this simulation)
     was searched: a list without them is the caller's choice, and is not
     changed.
@@ -55,7 +58,10 @@ def refinable(
     pointed = ((unexplained or {}).get("description") or {}).get("named_only")
     if pointed in parents:
         swaps[parents[pointed]] = pointed
-    return swaps
+    # every refinement at once: a clip of the drive read through the dynamics as a tanh on the output (a
+    # probe's ±1.5 V drive clip: `saturation` refined to `clip`, 1.6–2× the floor left; `drive_clip` named
+    # by hand, 1.497 V and nothing left), so the second run searches the clip in each place
+    return {parent: refinement for refinement, parent in parents.items()} if swaps else {}
 
 
 def refined_effects(effects, swaps: dict[str, str]) -> list:
