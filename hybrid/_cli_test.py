@@ -151,6 +151,7 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
     """
     from .core._held_start import has_held_start, refit_initial_drive
     from .core._metrics import metrics
+    from .discovery._start import misfit_at_start
 
     scores = []
     for record in tests:
@@ -162,6 +163,25 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
             held = {"initial_drive": value, "initial_samples": samples}
         w_hat = np.asarray(scored.predict(record.v_in, record.dt))  # the whole record: one segment
         w = np.asarray(record.w)
+        if not held and np.all(np.isfinite(w_hat)):  # a start no held drive can meet: said, not scored away
+            start = misfit_at_start([w - w_hat], [record.name], settled=False)
+            if start["off"]:
+                row = start["recordings"][0]
+                held = {
+                    "start": {
+                        "off": True,
+                        "ratio": row["ratio"],
+                        "first_samples": row["first_samples"],
+                        "sentence": (
+                            f"the model misses its first {row['first_samples']} samples by {row['ratio']:.1f}× "
+                            "its RMS on the rest, all one sign: the record does not start where the model "
+                            "does, and the model has no held start for "
+                            + (f"--initial-samples {first} " if first is not None else "its first samples ")
+                            + "to set (those samples are only left out of the score); fit with --settle N "
+                            "to let them set the record's initial drive"
+                        ),
+                    }
+                }
         if first is not None:  # the samples that may set the state are not scored
             w, w_hat = w[first:], w_hat[first:]
             held = {**held, "initial_samples": first, "scored_from": first}
@@ -206,3 +226,5 @@ def print_scores(scores) -> None:
             )
             + (f"; scored after its first {s['scored_from']} samples" if "scored_from" in s else "")
         )
+        if "start" in s:
+            print(f"  start: test record {s['name']}: {s['start']['sentence']}")
