@@ -118,7 +118,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "recordings", nargs="+", help=".csv/.npz/.mat recordings of one system (one strip, one rig)"
     )
-    p.add_argument("--model", choices=MODEL_KINDS, default="hybrid")
+    p.add_argument(
+        "--model",
+        choices=MODEL_KINDS,
+        default="hybrid",
+        help="hybrid (default: the simulation with the paper's D-MLP on its output, which can fit what the "
+        "physics misses), physics (the simulation and a gain and offset alone: what --effects extends and a "
+        "benchmark scores) or normal (the D-MLP alone)",
+    )
     p.add_argument("--solver", choices=SOLVERS, default="lm")
     p.add_argument("--starts", type=B.integer(*B.STARTS), default=1)
     p.add_argument(
@@ -521,6 +528,12 @@ def _cmd_fit(args):
     if args.start_from is not None and (args.param or args.settle is not None):
         flag = "--param" if args.param else "--settle"
         raise InputError(f"{flag} sets how the fit starts; with --start-from that comes from the saved model")
+    if args.start_from is not None and args.effects is not None:  # it was dropped without a word (a probe)
+        raise InputError(
+            "--effects builds a model's effects; --start-from fits the saved model with the effects it has: "
+            "give one (the saved model's effects: its .eqx.json)"
+        )
+
     recordings = load_recordings(args, args.recordings)
     if not args.quiet:
         for r in recordings:  # what was read, before minutes of fitting: the rate, the length, the units

@@ -160,6 +160,8 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
         ),
         (["--initial-samples", "4"], "give --test FILE"),
         (["--max-steps", "0"], "--max-steps 0 scores a saved model as it is: give it with --start-from"),
+        # a saved model's effects are its own: --effects beside it was dropped without a word (a probe)
+        (["--start-from", "saved.eqx", "--effects", "delay"], "--start-from fits the saved model with the"),
     ],
 )
 def test_bad_test_records_exit_2_with_one_line_before_fitting(bench, tmp_path, capsys, extra, phrase):
