@@ -92,10 +92,22 @@ def load_tests(args, fitted, window: int) -> list:
             "--test-columns and --test-range map a lab's file, and the fitted recordings are read in "
             "the project's own columns t, v_in, w: map them too, e.g. --columns t=t,input=v_in,output=w"
         )
+    # --units (--rate, --fill-gaps) alone on files in the project's own columns: read as the fitted ones
+    # are (through load_pair, which needs named columns, a probe's --units w=mm refused its --test file)
+    own_columns = args.test_columns is None and all(
+        options[k] is None for k in ("input", "output", "time", "columns")
+    )
     tests = []
     for path in args.test:
         if not mapped:
             record = Recording.load(path)  # the project's own columns, as the fitted recordings
+        elif own_columns:
+            test_range = args.test_range if args.test_range is not None else args.sample_range
+            given = {k: v for k, v in options.items() if v is not None and k != "sample_range"}
+            try:
+                record = Recording.load(path, **given, sample_range=test_range)
+            except InputError as error:
+                raise InputError(f"--test {path}: {error}") from None
         else:
             test_range = args.test_range if args.test_range is not None else args.sample_range
             try:  # the fitted recordings have loaded: what fails here is the test record's

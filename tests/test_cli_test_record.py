@@ -198,3 +198,26 @@ def test_load_pair_takes_the_validation_columns_in_one_string(bench):
     assert swapped.metadata["mapping"] == {"t": None, "v_in": "uEst", "w": "yVal"}
     with pytest.raises(InputError, match="given twice"):
         load_pair(path, input="uEst", output="yEst", test_columns="output=yVal", test_output="yEst")
+
+
+def test_units_alone_on_files_in_the_projects_columns_read_the_test_record_as_the_fitted_one(
+    tmp_path, capsys
+):
+    """`--units w=mm` on files in the project's own columns (t, v_in, w): the fitted file read, and the
+    --test file refused with "no input column is named" (it went through the mapped loader, a probe).
+    Now read as the fitted one, in the given unit."""
+    paths = []
+    for seed, name in ((1, "est.csv"), (2, "val.csv")):
+        u = h.step_drive(N, seed=seed, low=4, high=30)
+        y = 2.0 * h.lti2_zoh_response(TRUE, u, TS) + 1.0
+        t = np.arange(N) * TS
+        np.savetxt(tmp_path / name, np.c_[t, u, y], delimiter=",", header="t,v_in,w", comments="")
+        paths.append(tmp_path / name)
+    argv = ["fit", paths[0], "--model", "physics", "--physics", "lti:2", "--units", "w=mm"]
+    argv += ["--test", paths[1], "--max-steps", "2", "--quiet", "--out", tmp_path / "m.eqx"]
+    argv += ["--json", tmp_path / "f.json"]
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    (score,) = json.loads((tmp_path / "f.json").read_text())["test"]
+    assert score["unit"] == "mm" and score["samples"] == N
