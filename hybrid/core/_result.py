@@ -137,10 +137,12 @@ def fit_warnings(
     if kept_start and free:
         warnings.append(
             f"the fit kept its start: its {start_record.get('accepted_steps')} accepted steps lowered the "
-            "training cost but never the loss on the validation part, so every parameter is at its start "
-            "value (early stopping). The validation part behaves otherwise than the training part: a "
-            "drift, or an effect the model lacks (hybrid diagnose names it), or conditions only one part "
-            "holds (move the parts: --split, or fit(..., blocks=3))"
+            "training cost but never the loss on the validation part, so the simulation's parameters are at "
+            "their start values (early stopping; the readout's gain and offset are set afresh). Where the "
+            "start is a fit of this record already (--start-from), that is expected; else the validation "
+            "part behaves otherwise than the training part: a drift, or an effect the model lacks (hybrid "
+            "diagnose names it), or conditions only one part holds (move the parts: --split, or "
+            "fit(..., blocks=3))"
         )
     for name in free:
         value, initial = after[name], before[name]
