@@ -192,7 +192,9 @@ def test_jitter_limit_and_gaps():
     t_rate = np.concatenate([t[:300], t[299] + np.arange(1, 301) / 27.0])  # 30 fps, then 27 fps
     with pytest.raises(
         InputError,
-        match=r"non-uniform time: sample 299 \(t = 9.96667 s\) is 7.9 of a step off.*did the frame rate change",
+        match=r"non-uniform time: the steps first change at sample 300 \(t = 10.0037 s\), 0.037037 s against "
+        r"0.0333333 s before \(300 such steps\), and sample 299 \(t = 9.96667 s\) is 7.9 of a step off.*"
+        r"did the frame rate change",
     ):
         Recording(t_rate, v, w)
     t_double = np.insert(t, 400, t[399] + 0.2 / RATE)  # an extra row 0.2 frame after row 399

@@ -212,6 +212,13 @@ def check_finite(name: str, column: str, values: np.ndarray) -> None:
         )
 
 
+#: A step this share off the median step is a change of the rate, not a timestamp's jitter (ms rounding
+#: of a 30 Hz clock moves a step by 3 %).
+CHANGED_STEP = 0.1
+#: ... over at least this many steps in a row (one late timestamp moves the two steps beside it).
+CHANGED_RUN = 3
+
+
 def check_time(
     name: str, t: np.ndarray, metadata: Any = None, lines: Any = None
 ) -> tuple[np.ndarray, dict | None]:
@@ -256,12 +263,25 @@ def check_time(
     far = int(np.argmax(np.abs(jitter)))
     worst_jitter = abs(float(jitter[far]))
     if short.size or worst_jitter >= JITTER_FRAMES * slope:
+        # where the steps first change: a rate that changes part-way shows there, not at the sample
+        # furthest from one grid through them all (a probe's 30 Hz → 25 Hz at line 903 named line 1651)
+        opening = float(np.median(dt[:20]))  # the rate the record starts at (the median may lie between two)
+        off = np.abs(dt - opening) > CHANGED_STEP * opening  # a run of CHANGED_RUN: not one late timestamp
+        runs = np.convolve(off.astype(int), np.ones(CHANGED_RUN, int), mode="valid") == CHANGED_RUN
+        changed = np.flatnonzero(off) if runs.any() else np.zeros(0, int)
+        changed = changed[changed >= np.flatnonzero(runs)[0]] if changed.size else changed
         where = (
             f"the step into {sample_text(int(short[0]) + 1, lines)} is {dt[short[0]]:.6g} s against a "
             f"median step of {step:.6g} s"
             if short.size
-            else f"{sample_text(far, lines, t[far])} is {worst_jitter / slope:.2g} of a step off the "
-            "closest uniform grid"
+            else (
+                f"the steps first change at {sample_text(int(changed[0]) + 1, lines, t[changed[0] + 1])}, "
+                f"{dt[changed[0]]:.6g} s against {opening:.6g} s before ({changed.size} such steps), and "
+                if changed.size
+                else ""
+            )
+            + f"{sample_text(far, lines, t[far])} is {worst_jitter / slope:.2g} of a step off the closest "
+            "uniform grid"
         )
         raise InputError(
             f"recording '{name}' has non-uniform time: {where} (timestamp jitter below "
