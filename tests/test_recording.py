@@ -255,7 +255,8 @@ def test_time_not_uniform():
     t = np.concatenate([np.arange(10) / 30.0, 9 / 30.0 + np.arange(1, 11) / 25.0])  # 30, then 25 fps
     with pytest.raises(
         InputError,
-        match=r"non-uniform time: sample 9 \(t = 0.3 s\) is 0.45 of a step off the closest uniform grid",
+        match=r"non-uniform time: the steps first change at sample 10 \(t = 0.34 s\), 0.04 s against 0.0333333 s "
+        r"before \(10 such steps\), and sample 9 \(t = 0.3 s\) is 0.45 of a step off the closest uniform grid",
     ):
         Recording(t, np.zeros(20), np.zeros(20))
 

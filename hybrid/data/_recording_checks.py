@@ -265,7 +265,8 @@ def check_time(
     if short.size or worst_jitter >= JITTER_FRAMES * slope:
         # where the steps first change: a rate that changes part-way shows there, not at the sample
         # furthest from one grid through them all (a probe's 30 Hz → 25 Hz at line 903 named line 1651)
-        opening = float(np.median(dt[:20]))  # the rate the record starts at (the median may lie between two)
+        # the rate the record starts at (the median may lie between two): its first steps, a quarter at most
+        opening = float(np.median(dt[: max(3, min(20, dt.size // 4))]))
         off = np.abs(dt - opening) > CHANGED_STEP * opening  # a run of CHANGED_RUN: not one late timestamp
         runs = np.convolve(off.astype(int), np.ones(CHANGED_RUN, int), mode="valid") == CHANGED_RUN
         changed = np.flatnonzero(off) if runs.any() else np.zeros(0, int)
