@@ -123,12 +123,16 @@ def load_tests(args, fitted, window: int) -> list:
         record = in_shared_units([fitted[0], record], f"--test {path}")[1]  # scored in the fitted units
         for note in record.notes:
             print(f"hybrid: warning: {note}", file=sys.stderr)
+        # a rate the model was fitted at: one of the fitted records' (a fit of records at 30 and 25 Hz
+        # refused every test record, each against one rate or the other, a probe)
+        if not any(abs(record.rate - r.rate) <= RATE_RTOL * r.rate for r in fitted):
+            rates = " and ".join(dict.fromkeys(f"{r.rate:.6g} Hz" for r in fitted))
+            raise InputError(
+                f"test record '{record.name}' is sampled at {record.rate:.6g} Hz but the model is fitted at "
+                f"{rates} ('{fitted[0].name}'{' and more' if len(fitted) > 1 else ''}): score on records of "
+                "a fitted rate"
+            )
         for fitted_path, recording in zip(args.recordings, fitted):
-            if abs(record.rate - recording.rate) > RATE_RTOL * recording.rate:
-                raise InputError(
-                    f"test record '{record.name}' is sampled at {record.rate:.6g} Hz but the model is fitted to "
-                    f"'{recording.name}' at {recording.rate:.6g} Hz: score on records of the fitted rate"
-                )
             if _key(path, record) == _key(fitted_path, recording):
                 raise InputError(
                     f"test record '{record.name}' is a fitted record: give other columns "

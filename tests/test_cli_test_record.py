@@ -150,7 +150,10 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
     "extra,phrase",
     [
         (["--test", "{bench}", "--test-columns", "input=uVal,output=yVall"], "no column 'yVall'"),
-        (["--test", "{fast}", "--test-columns", "input=uVal,output=yVal"], "4 Hz but the model is fitted to"),
+        (
+            ["--test", "{fast}", "--test-columns", "input=uVal,output=yVal"],
+            "4 Hz but the model is fitted at 2 Hz",
+        ),
         (["--test", "{bench}"], "the validation record is the estimation record"),
         (["--test-columns", "input=uVal,output=yVal"], "give --test FILE"),
         (["--test", "{bench}", "--test-range", "300:200"], "range"),
@@ -221,3 +224,27 @@ def test_units_alone_on_files_in_the_projects_columns_read_the_test_record_as_th
     assert code == 0, err
     (score,) = json.loads((tmp_path / "f.json").read_text())["test"]
     assert score["unit"] == "mm" and score["samples"] == N
+
+
+def test_a_fit_of_records_at_two_rates_scores_a_test_record_at_either(bench, tmp_path, capsys):
+    """Fitted records at 2 Hz and 4 Hz (a physics model runs at any rate): a test record at 2 Hz is scored.
+    It was refused against the 4 Hz record, as every test record was against one or the other (a probe)."""
+    path, fast = bench
+    argv = [
+        "fit",
+        path,
+        fast,
+        "--model",
+        "physics",
+        "--physics",
+        "lti:2",
+        "--columns",
+        "input=uEst,output=yEst",
+    ]
+    argv += ["--test", path, "--test-columns", "input=uVal,output=yVal", "--max-steps", "2", "--quiet"]
+    argv += ["--out", tmp_path / "m.eqx", "--json", tmp_path / "f.json"]
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    (score,) = json.loads((tmp_path / "f.json").read_text())["test"]
+    assert score["rate_hz"] == pytest.approx(2.0) and score["samples"] == N
