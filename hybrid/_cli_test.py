@@ -183,7 +183,7 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
             start = misfit_at_start([w - w_hat], [record.name], settled=False)
             if start["off"]:
                 row = start["recordings"][0]
-                held = {
+                held = {  # what the score line says of the record's start (here: that nothing set it)
                     "start": {
                         "off": True,
                         "ratio": row["ratio"],

@@ -616,17 +616,24 @@ def _cmd_fit(args):
         start = _start_of(result.model, recordings, simulation)
         if start and start["sentence"]:
             print(f"start: {start['sentence']}")
-        elif start is not None and args.settle is None and args.start_from is None and args.effects is None:
-            held = _held_start_hint(args, model, recordings, simulation, result, frozen)
-            if held:
-                print(f"start: {held}")
-                start = {**start, "held_hint": held}
         scores = {"test": score_tests(result.model, tests, args.initial_samples)} if tests else {}
         print_scores(scores.get("test", []))
         save_model(
             out, result.model, extra={"metrics": result.metrics, "settings": result.settings, **scores}
         )
         print(f"saved model to {out} (+ {out}.json)")
+        # after the model is saved: a second fit, which an interrupt must not cost the first
+        if (
+            start
+            and not start["sentence"]
+            and args.settle is None
+            and args.start_from is None
+            and args.effects is None
+        ):
+            held = _held_start_hint(args, model, recordings, simulation, result, frozen)
+            if held:
+                print(f"start: {held}")
+                start = {**start, "held_hint": held}
         if args.json:
             write_text(
                 args.json,
