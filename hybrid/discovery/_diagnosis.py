@@ -71,7 +71,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: ``level_neg`` is left out of ``derived`` where the signal never reaches that side's knee
 #: (`REACHED_PERCENT`: its shortfall says how far it stays from it); ``unexplained.description.time``
 #: may read ``"form": "wander"`` (straight pieces over the record, `_time_wander`), with the change at one
-#: time it beat under ``step``.
+#: time it beat under ``step``; ``evidence.start.settled`` gains ``kept`` (whether the held diagnosis is
+#: the one reported) and, where the named causes met a start the effect-free model missed
+#: (`covered_try`), ``effect_free_ratio`` and ``without.gain_over_held``.
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
