@@ -230,17 +230,7 @@ def test_a_fit_of_records_at_two_rates_scores_a_test_record_at_either(bench, tmp
     """Fitted records at 2 Hz and 4 Hz (a physics model runs at any rate): a test record at 2 Hz is scored.
     It was refused against the 4 Hz record, as every test record was against one or the other (a probe)."""
     path, fast = bench
-    argv = [
-        "fit",
-        path,
-        fast,
-        "--model",
-        "physics",
-        "--physics",
-        "lti:2",
-        "--columns",
-        "input=uEst,output=yEst",
-    ]
+    argv = ["fit", path, fast, *"--model physics --physics lti:2 --columns input=uEst,output=yEst".split()]
     argv += ["--test", path, "--test-columns", "input=uVal,output=yVal", "--max-steps", "2", "--quiet"]
     argv += ["--out", tmp_path / "m.eqx", "--json", tmp_path / "f.json"]
     code = main([str(a) for a in argv])
