@@ -528,12 +528,6 @@ def _cmd_fit(args):
     if args.start_from is not None and (args.param or args.settle is not None):
         flag = "--param" if args.param else "--settle"
         raise InputError(f"{flag} sets how the fit starts; with --start-from that comes from the saved model")
-    if args.start_from is not None and args.effects is not None:  # it was dropped without a word (a probe)
-        raise InputError(
-            "--effects builds a model's effects; --start-from fits the saved model with the effects it has: "
-            "give one (the saved model's effects: its .eqx.json)"
-        )
-
     recordings = load_recordings(args, args.recordings)
     if not args.quiet:
         for r in recordings:  # what was read, before minutes of fitting: the rate, the length, the units
@@ -567,6 +561,7 @@ def _cmd_fit(args):
         )
     if args.start_from is not None:
         model = start_model(args)
+        _check_saved_effects(args, model, simulation)
     else:
         model = make_model(
             args.model,
@@ -640,6 +635,22 @@ def _cmd_fit(args):
                 json.dumps({**result.to_dict(), **scores, **({"start": start} if start else {})}, indent=2)
                 + "\n",
             )
+
+
+def _check_saved_effects(args, model, simulation) -> None:
+    """With --start-from, --effects imports the plug-ins the saved model uses; an effect it names that the
+    saved model lacks is refused (it was dropped without a word: a probe's --effects delay)."""
+    if args.effects is None:
+        return
+    saved = {e.name for e in getattr(model.simulation, "effects", ())}
+    named = [e.name for e in getattr(simulation, "effects", ())]
+    missing = [n for n in named if n not in saved]
+    if missing:
+        raise InputError(
+            f"--effects {','.join(missing)}: the saved model (--start-from {args.start_from}) has no "
+            f"{' or '.join(missing)}; --start-from fits the saved model with the effects it has "
+            f"({', '.join(sorted(saved)) or 'none'}): leave --start-from out to build a model with them"
+        )
 
 
 def start_model(args):

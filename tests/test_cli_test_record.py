@@ -163,8 +163,6 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
         ),
         (["--initial-samples", "4"], "give --test FILE"),
         (["--max-steps", "0"], "--max-steps 0 scores a saved model as it is: give it with --start-from"),
-        # a saved model's effects are its own: --effects beside it was dropped without a word (a probe)
-        (["--start-from", "saved.eqx", "--effects", "delay"], "--start-from fits the saved model with the"),
     ],
 )
 def test_bad_test_records_exit_2_with_one_line_before_fitting(bench, tmp_path, capsys, extra, phrase):
@@ -238,3 +236,22 @@ def test_a_fit_of_records_at_two_rates_scores_a_test_record_at_either(bench, tmp
     assert code == 0, err
     (score,) = json.loads((tmp_path / "f.json").read_text())["test"]
     assert score["rate_hz"] == pytest.approx(2.0) and score["samples"] == N
+
+
+def test_effects_beside_a_saved_model_must_be_its_own(bench, tmp_path, capsys):
+    """--effects beside --start-from imports the plug-ins a saved model uses; one the saved model lacks was
+    dropped without a word (a probe's --effects delay): refused with one line, before any fitting."""
+    path, _ = bench
+    common = [path, *"--model physics --physics lti:2 --columns input=uEst,output=yEst --quiet".split()]
+    saved = tmp_path / "saved.eqx"
+    assert (
+        main([str(a) for a in ["fit", *common, "--effects", "delay", "--max-steps", "2", "--out", saved]])
+        == 0
+    )
+    again = ["fit", *common, "--start-from", saved, "--max-steps", "2", "--out", tmp_path / "again.eqx"]
+    assert main([str(a) for a in [*again, "--effects", "delay"]]) == 0
+    capsys.readouterr()
+    code = main([str(a) for a in [*again, "--effects", "delay,backlash"]])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and "--effects backlash: the saved model" in lines[0], lines
+    assert "has no backlash" in lines[0]
