@@ -212,8 +212,8 @@ def check_finite(name: str, column: str, values: np.ndarray) -> None:
         )
 
 
-#: A step this share off the median step is a change of the rate, not a timestamp's jitter (ms rounding
-#: of a 30 Hz clock moves a step by 3 %).
+#: A step this share off the record's opening step is a change of the rate, not a timestamp's jitter (ms
+#: rounding of a 30 Hz clock moves a step by 3 %).
 CHANGED_STEP = 0.1
 #: ... over at least this many steps in a row (one late timestamp moves the two steps beside it).
 CHANGED_RUN = 3
