@@ -97,27 +97,24 @@ def load_tests(args, fitted, window: int) -> list:
     own_columns = args.test_columns is None and all(
         options[k] is None for k in ("input", "output", "time", "columns")
     )
+    test_range = args.test_range if args.test_range is not None else args.sample_range
     tests = []
     for path in args.test:
         if not mapped:
             record = Recording.load(path)  # the project's own columns, as the fitted recordings
-        elif own_columns:
-            test_range = args.test_range if args.test_range is not None else args.sample_range
-            given = {k: v for k, v in options.items() if v is not None and k != "sample_range"}
-            try:
-                record = Recording.load(path, **given, sample_range=test_range)
-            except InputError as error:
-                raise InputError(f"--test {path}: {error}") from None
         else:
-            test_range = args.test_range if args.test_range is not None else args.sample_range
             try:  # the fitted recordings have loaded: what fails here is the test record's
-                _, record = load_pair(
-                    args.recordings[0],
-                    test_path=path,
-                    test_columns=args.test_columns,
-                    test_sample_range=test_range,
-                    **options,
-                )
+                if own_columns:
+                    given = {k: v for k, v in options.items() if v is not None and k != "sample_range"}
+                    record = Recording.load(path, **given, sample_range=test_range)
+                else:
+                    _, record = load_pair(
+                        args.recordings[0],
+                        test_path=path,
+                        test_columns=args.test_columns,
+                        test_sample_range=test_range,
+                        **options,
+                    )
             except InputError as error:
                 raise InputError(f"--test {path}: {error}") from None
         record = in_shared_units([fitted[0], record], f"--test {path}")[1]  # scored in the fitted units

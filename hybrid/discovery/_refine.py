@@ -51,17 +51,13 @@ def refinable(
     by_name = {e.name: e for e in effects}
     if not {e.name for e in builtins} <= by_name.keys():
         return {}
-    parents = {e.refinement: e.name for e in effects if e.refinement and e.refinement not in by_name}
-    swaps = {}
-    if room >= min_gain:
-        swaps = {name: by_name[name].refinement for name in kept if by_name[name].refinement in parents}
-    pointed = ((unexplained or {}).get("description") or {}).get("named_only")
-    if pointed in parents:
-        swaps[parents[pointed]] = pointed
+    swaps = {e.name: e.refinement for e in effects if e.refinement and e.refinement not in by_name}
+    named = room >= min_gain and any(name in swaps for name in kept)
+    pointed = ((unexplained or {}).get("description") or {}).get("named_only") in swaps.values()
     # every refinement at once: a clip of the drive read through the dynamics as a tanh on the output (a
     # probe's ±1.5 V drive clip: `saturation` refined to `clip`, 1.6–2× the floor left; `drive_clip` named
     # by hand, 1.497 V and nothing left), so the second run searches the clip in each place
-    return {parent: refinement for refinement, parent in parents.items()} if swaps else {}
+    return swaps if named or pointed else {}
 
 
 def refined_effects(effects, swaps: dict[str, str]) -> list:
