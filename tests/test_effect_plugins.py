@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import hybrid
-from hybrid import AbstractEffect, InputError, Real, encode
+from hybrid import AbstractEffect, InputError, Positive, Real, encode
 
 ROOT = Path(__file__).resolve().parents[1]
 RATE, TAU, GAIN, OFFSET, NEGATIVE_CHANGE = 30.0, 0.5, 3.0, 0.2, -0.6
@@ -392,6 +392,11 @@ class _KeepsHalf(_Scale):
     n_kept: ClassVar = 0.5
 
 
+class _ClassConstraint(_Scale):  # the class Positive for its instance Positive()
+    name: ClassVar[str] = "class_constraint"
+    constraints: ClassVar = {"scale_factor": Positive}
+
+
 class _StartTypo(_Scale):
     name: ClassVar[str] = "start_typo"
 
@@ -412,6 +417,10 @@ class _StartTypo(_Scale):
             "runs on numbers but not under jax.jit (TracerArrayConversionError); write it with jax.numpy",
         ),
         ([_TypoUnit], "units['scale_factor'] = '1/{signl}' has the placeholder {signl}: write {signal}"),
+        (
+            [_ClassConstraint],
+            "the constraint for scale_factor is the class Positive, not one of its instances",
+        ),
         ([_StartTypo], "starts(context) gave 'scale_factr', not a parameter of it (scale_factor)"),
         ([_KeepsHalf], "_KeepsHalf.n_kept must be a whole number ≥ 0 (0: every lane runs), got 0.5"),
         ([_WrongShape], "must return one finite value per sample"),

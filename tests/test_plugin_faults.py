@@ -97,6 +97,14 @@ class InitQuits(Good):
         sys.exit(0)
 
 
+class ClassConstraint(Good):  # a new user's slip: the class Positive for its instance Positive()
+    constraints: ClassVar[dict] = {"tau": Positive}
+
+
+class TextConstraint(Good):
+    constraints: ClassVar[dict] = {"tau": "positive"}
+
+
 class Interrupt(Good):
     def simulate(self, v_in, dt):
         raise KeyboardInterrupt
@@ -151,6 +159,12 @@ CASES = {
     "Quits3": ("Quits3.simulate called sys.exit(3)",),
     "InitQuits": ("InitQuits() called sys.exit(0)", "no arguments"),
     "Interrupt": ("Interrupt.simulate raised KeyboardInterrupt (not a Ctrl-C)",),
+    # before: "ClassConstraint() raised TypeError: Positive.contains() missing 1 required positional argument"
+    "ClassConstraint": ("the constraint for tau is the class Positive", "write Positive() in constraints"),
+    "TextConstraint": (
+        "the constraint for tau is 'positive', not a constraint",
+        "write Positive(), UnitInterval()",
+    ),
     "LateRaise": ("_late.<locals>.Late.simulate raised ValueError: the table covers 100 samples",),
     "LateNaN": (
         "the simulation LateNaN returns non-finite values (NaN or inf) at 100 of 200 samples",

@@ -155,6 +155,8 @@ def encode(values: dict, constraints: dict, owner: str) -> dict:
         if name not in constraints:
             raise InputError(f"{owner} has no parameter {name!r}: its parameters are {sorted(constraints)}")
         constraint = constraints[name]
+        if not isinstance(constraint, Constraint):
+            raise InputError(f"{owner}: {constraint_problem({name: constraint})}")
         # A traced value (jax.grad, jax.vmap through `replace` or a constructor) cannot be checked here.
         if not isinstance(value, jax.core.Tracer):
             try:
@@ -174,6 +176,29 @@ def encode(values: dict, constraints: dict, owner: str) -> dict:
     if missing:
         raise InputError(f"{owner} is missing parameter(s) {sorted(missing)}")
     return raw
+
+
+def constraint_problem(constraints) -> str | None:
+    """What is wrong with a class's declared `constraints` (name → `Constraint` instance), or None.
+
+    Checked before a plug-in is built, so that the one line names the slip (the class
+    `Positive` for its instance `Positive()`) rather than what it made `encode` raise.
+    """
+    if not isinstance(constraints, dict):
+        return None  # a property (LTI's) is read from the instance, and checked there
+    for name, constraint in constraints.items():
+        if isinstance(constraint, Constraint):
+            continue
+        if isinstance(constraint, type) and issubclass(constraint, Constraint):
+            return (
+                f"the constraint for {name} is the class {constraint.__name__}, not one of its instances: "
+                f"write {constraint.__name__}() in constraints"
+            )
+        return (
+            f"the constraint for {name} is {constraint!r:.60}, not a constraint: write Positive(), "
+            "UnitInterval(), SignedUnitInterval() or Real() (hybrid's Constraint instances)"
+        )
+    return None
 
 
 def decode(raw: dict, constraints: dict) -> dict:

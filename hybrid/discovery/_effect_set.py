@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core._parameters import Constraint
+from ..core._parameters import Constraint, constraint_problem
 from ..core._state_space import check_state_space, dynamics_of
 from ..util._errors import InputError, PluginError
 from ._effects import (
@@ -345,6 +345,9 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
                     f"{label}: abstract (it does not define {missing}); define apply(self, s, dt)"
                 )
             declared, defaults = getattr(item, "constraints", None), getattr(item, "defaults", None)
+            problem = constraint_problem(declared)
+            if problem:
+                raise InputError(f"{label}: {problem}")
             if isinstance(declared, dict) and isinstance(defaults, dict) and set(declared) - set(defaults):
                 # building would fail inside encode, with a message about raw values
                 raise InputError(

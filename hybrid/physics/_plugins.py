@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core._arguments import as_recordings
+from ..core._parameters import constraint_problem
 from ..core._simulation import AbstractSimulation
 from ..core._state_space import check_state_space, has_states
 from ..util._errors import InputError, PluginError
@@ -363,6 +364,9 @@ def _instantiate(text: str, module, label: str, name: str) -> AbstractSimulation
             f"--physics {text}: {name} in {label} is abstract (it does not define {missing}); "
             "define simulate(self, v_in, dt) returning the signal for each sample"
         )
+    problem = constraint_problem(inspect.getattr_static(cls, "constraints", None))
+    if problem:
+        raise InputError(f"--physics {text}: {name}: {problem}")
     register(cls.__module__, text)
     if module.__name__ != cls.__module__:
         register(module.__name__, text)
