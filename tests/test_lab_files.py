@@ -327,6 +327,80 @@ def test_empty_cells_are_counted_in_one_message(tmp_path):
     assert "--fill-gaps N" in message
 
 
+def _side_by_side(path, delimiter, short=200, u_end=None, time=False):
+    """An estimation record of N samples and a validation record of `short` beside it, as a spreadsheet
+    writes two experiments: the validation columns' cells empty below its last sample (uVal's from
+    `u_end` if given). With `time`, one time column of N rows for both."""
+    u, y = _signals()
+    uv, yv = _signals(short, seed=1)
+    names = ["t"] * time + ["uEst", "yEst", "uVal", "yVal"]
+    lines = [delimiter.join(names)]
+    for k in range(N):
+        val = [f"{uv[k]:.6f}" if k < (u_end or short) else "", f"{yv[k]:.6f}" if k < short else ""]
+        lines.append(delimiter.join([f"{k / RATE:.6f}"] * time + [f"{u[k]:.6f}", f"{y[k]:.6f}", *val]))
+    path.write_text("\n".join(lines) + "\n")
+    return path, (u, y), (uv, yv)
+
+
+@pytest.mark.parametrize("suffix, delimiter", [(".csv", ","), (".txt", "\t")])
+@pytest.mark.parametrize("time", [False, True])
+def test_a_shorter_record_beside_a_longer_one_ends_where_its_cells_do(tmp_path, suffix, delimiter, time):
+    """A validation record shorter than the estimation record in the same file: its columns' last cells are
+    empty. Each line of them was refused as a missing value (with --test-range too, as the cells were
+    checked before the range), so the file had to be cut by hand; now the record ends where its cells do."""
+    path, (u, y), (uv, yv) = _side_by_side(tmp_path / f"two{suffix}", delimiter, time=time)
+    mapping = {"columns": "input=uVal,output=yVal" + (",time=t" if time else "")} | (
+        {} if time else {"rate": RATE}
+    )
+    short = Recording.load(path, **mapping)
+    assert short.v_in.size == 200
+    np.testing.assert_allclose(short.v_in, uv, atol=1e-6)
+    np.testing.assert_allclose(short.w, yv, atol=1e-6)
+    assert any(
+        "'uVal' and 'yVal' end at line 201 (200 samples); the 100 line(s) after it" in n for n in short.notes
+    )
+    long = Recording.load(path, **(mapping | {"columns": mapping["columns"].replace("Val", "Est")}))
+    assert long.v_in.size == N and not any("end at line" in n for n in long.notes)
+    np.testing.assert_allclose(long.w, y, atol=1e-6)
+
+
+def test_a_shorter_record_whose_columns_end_apart_or_have_a_gap_is_still_refused(tmp_path):
+    """Only a record whose drive and output both end on one line is read short: a drive that ends a line
+    before the output, or a missing value before the end, is refused as before."""
+    apart, _, _ = _side_by_side(tmp_path / "apart.csv", ",", u_end=199)
+    _refused(
+        r"an empty cell \(a missing value\) in column 'uVal' \(mapped as input\) at line 201",
+        apart,
+        columns="input=uVal,output=yVal",
+        rate=RATE,
+    )
+    gap, _, _ = _side_by_side(tmp_path / "gap.csv", ",")
+    rows = gap.read_text().splitlines()
+    rows[51] = ",".join(rows[51].split(",")[:3] + [""])  # sample 50's yVal
+    gap.write_text("\n".join(rows) + "\n")
+    _refused(
+        r"in column 'yVal' \(mapped as output\) at line 52 \(sample 50\)",
+        gap,
+        columns="input=uVal,output=yVal",
+        rate=RATE,
+    )
+
+
+def test_a_fit_scores_a_shorter_validation_record_of_the_same_file(tmp_path, capsys):
+    """`hybrid fit` on the estimation columns, --test on the validation columns of the same file, with and
+    without --test-range (which was refused too: the cells were checked before the range was cut)."""
+    path, _, _ = _side_by_side(tmp_path / "two.csv", ",")
+    for extra, samples in (([], 200), (["--test-range", "0:150"], 150)):
+        argv = ["fit", path, "--columns", "input=uEst,output=yEst", "--rate", RATE, "--test", path]
+        argv += ["--test-columns", "input=uVal,output=yVal", *extra, *FIT, "--out", tmp_path / "m.eqx"]
+        code = main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        assert code == 0 and "Traceback" not in err, err
+        assert "two.csv (uVal -> yVal" in out and f"({samples} samples)" in out, out
+        (tmp_path / "m.eqx").unlink()
+        (tmp_path / "m.eqx.json").unlink()
+
+
 def test_bad_cells_of_a_text_table_are_counted_in_one_message(tmp_path):
     """A tab-separated logger file with a tracker's NaN, an empty cell and a word: one message names the first,
     its column and role, and counts the lines (it named the first alone, and said 'remove or interpolate it')."""

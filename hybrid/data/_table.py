@@ -279,11 +279,16 @@ def _read_csv(
             try:
                 table, clock = load()
             except ValueError:
-                if not fill:
-                    raise
-                # every bad cell is a missing value of the drive or output, else refused here: read as NaN
-                _diagnose(path, text, header_line, units_line, wanted, index, fill)
-                table, clock = load([i for role, i in index.items() if role != "t"])
+                try:  # a record shorter than the file: its columns' last cells empty (`shorter_record`)
+                    table, clock = load([i for role, i in index.items() if role != "t"])
+                except ValueError:
+                    table = None
+                if table is None or shorter_record(table, dict(enumerate(index))) is None:
+                    if not fill:
+                        raise
+                    # every bad cell is a missing value of the drive or output, else refused here: read as NaN
+                    _diagnose(path, text, header_line, units_line, wanted, index, fill)
+                    table, clock = load([i for role, i in index.items() if role != "t"])
     except InputError:
         raise
     except csv.Error as error:  # a NUL byte in the header
@@ -297,6 +302,11 @@ def _read_csv(
     if table.shape[0] == 0:
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     k = len(index)
+    numbers = np.frombuffer(lines, dtype=np.int64).copy()  # the file line of each row
+    end = shorter_record(table, dict(enumerate(index)))
+    if end is not None:
+        notes.append(_shorter_note(path, [wanted[role] for role in index if role != "t"], numbers, end))
+        table, numbers = table[:end], numbers[:end]
     bad = ~np.isfinite(table[:, :k])
     if fill:  # the drive's and the output's are filled (`fill_values`)
         bad[:, [j for j, role in enumerate(index) if role != "t"]] = False
@@ -320,7 +330,36 @@ def _read_csv(
         columns,
         rates,
         metadata,
-        TableNotes(np.frombuffer(lines, dtype=np.int64).copy(), tuple(notes), tuple(header)),
+        TableNotes(numbers, tuple(notes), tuple(header)),
+    )
+
+
+def shorter_record(table: np.ndarray, roles: Mapping[int, str]) -> int | None:
+    """The rows of a record shorter than its file, or None: where the drive's and the output's columns
+    (`roles`: a column of `table` -> its role) both end in missing values from one row to the file's last,
+    with every value before it finite and the time column's too (a validation record beside a longer
+    estimation record, as a spreadsheet writes them side by side). Any other missing value: None (each
+    is refused, or filled, where it is)."""
+    signals = [j for j, role in roles.items() if role != "t"]
+    ends = set()
+    for j in signals:
+        finite = np.isfinite(table[:, j])
+        end = int(np.flatnonzero(finite)[-1]) + 1 if finite.any() else 0
+        if end == finite.size or not finite[:end].all():
+            return None
+        ends.add(end)
+    if len(ends) != 1 or (end := ends.pop()) < 2:
+        return None
+    times = [j for j, role in roles.items() if role == "t"]
+    return end if all(np.isfinite(table[:end, j]).all() for j in times) else None
+
+
+def _shorter_note(path: pathlib.Path, names: Sequence[str], lines: np.ndarray, end: int) -> str:
+    said = " and ".join(repr(n) for n in names)
+    return (
+        f"recording '{path}': its column{'s' if len(names) > 1 else ''} {said} end at line {lines[end - 1]} "
+        f"({end} samples); the {lines.size - end} line(s) after it hold no value of "
+        f"{'them' if len(names) > 1 else 'it'} (a shorter record beside a longer one): read up to there"
     )
 
 
@@ -664,6 +703,7 @@ def read_text_table(
     first: str | None = None  # the first bad cell, what and where
     refused: list[int] = []  # the lines that have one
     missing = False  # whether one is a missing value of the drive or output (--fill-gaps fills it)
+    texts = False  # whether one is text, not a missing value
     unread: dict[str, int] = {}  # columns not mapped: how many of their cells are not finite numbers
     for row, ((number, line), values) in enumerate(zip(data, rows)):
         if len(values) < width and delimiter is not None:  # the last cells empty: missing, not cut off
@@ -684,6 +724,8 @@ def read_text_table(
             if col not in mapped:  # a column nothing reads (a comment, a sensor not asked for): left as NaN
                 unread[names[col]] = unread.get(names[col], 0) + 1
                 continue
+            if value is None:
+                texts = True
             if value is not None and mapped[col] != "t":  # a missing value of the drive or output
                 if fill:
                     continue
@@ -696,7 +738,12 @@ def read_text_table(
                 f"line {number} (sample {row})"
             )
     if first is not None:
-        raise _refusal(first, refused, "every value of a mapped column", missing)
+        end = shorter_record(table, mapped) if not texts else None
+        if end is None:
+            raise _refusal(first, refused, "every value of a mapped column", missing)
+        lines = np.array([n for n, _ in data], dtype=np.int64)
+        notes.append(_shorter_note(path, [names[c] for c, r in mapped.items() if r != "t"], lines, end))
+        table, data = table[:end], data[:end]
     if unread:
         notes.append(
             f"recording '{path}': "
