@@ -180,11 +180,21 @@ def test_no_report_key_names_a_unit_that_follows_the_signal():
     assert not set(RENAMED_IN_SCHEMA_3) & keys  # and no old one is left
 
 
-def _verdict_of(final_over_floor, causes=(), ambiguous=(), independence=None, uncertainties=None):
-    """`verdict` of a diagnosis whose final held-out MSE is `final_over_floor` × a floor of 0.01.
+def _verdict_of(
+    final_over_floor,
+    causes=(),
+    ambiguous=(),
+    independence=None,
+    uncertainties=None,
+    floor=0.01,
+    baseline=0.5,
+    candidates=(),
+):
+    """`verdict` of a diagnosis whose final held-out MSE is `final_over_floor` × a floor of `floor`, w's
+    variance 1 and the baseline's held-out MSE `baseline`.
 
     `independence`: the final model's held-out `drive_independence` test (None: not tested);
-    `uncertainties`: its parameters' `ParameterUncertainty` by name."""
+    `uncertainties`: its parameters' `ParameterUncertainty` by name; `candidates`: the last step's."""
     from types import SimpleNamespace
 
     from hybrid.discovery._diagnosis import DiagnoseSettings
@@ -196,14 +206,15 @@ def _verdict_of(final_over_floor, causes=(), ambiguous=(), independence=None, un
         SimpleNamespace(
             causes=list(causes),
             heldout=SimpleNamespace(w=w),
-            baseline=fit(0.5),
-            extended=fit(0.01 * final_over_floor),
-            noise_floor=SimpleNamespace(variance=0.01),
+            baseline=fit(baseline),
+            extended=fit(floor * final_over_floor),
+            noise_floor=SimpleNamespace(variance=floor),
             unexplained=None,
             ambiguous=list(ambiguous),
             dropped=[],
             settings=DiagnoseSettings(),
-            gain=0.5 / (0.01 * final_over_floor),
+            gain=baseline / (floor * final_over_floor),
+            steps=[SimpleNamespace(candidates=list(candidates))],
             evidence={"extended": {"drive_independence": independence}},
             uncertainties=dict(uncertainties or {}),
         )
@@ -242,6 +253,48 @@ def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
     assert _verdict_of(1.0, [{"name": "saturation"}], ambiguous=[rival]).endswith(
         "what remains is measurement noise."
     )
+
+
+def test_an_all_clear_under_a_large_noise_says_how_large_an_effect_it_can_hide():
+    """A probe's saturation under a noise as large as the response (floor 53 % of var w): 'No effect is
+    needed … as good as the data allow', though it fitted the training part far better (ΔBIC −66) and no
+    cause could gain 1.5× held out there. The all-clear now says the size the noise hides: an effect adding
+    e to the MSE gains at most 1 + e/floor, so e < 0.5·floor (an rms under √(0.5·0.5) = 50 % of w's)."""
+    from types import SimpleNamespace
+
+    saturation = SimpleNamespace(name="saturation", material=True, gain=1.04, delta_bic=-66.0)
+    noisy = _verdict_of(1.0, floor=0.5, baseline=0.52, candidates=[saturation])
+    assert noisy.startswith(
+        "No effect is needed: the simulation's held-out error is 1× the measurement noise"
+    )
+    assert (
+        "But the noise is 50% of w's variance: an effect whose error is under 0.5× the noise's variance (an rms "
+        in noisy
+    )
+    assert "under 50% of w's) cannot gain the 1.5× a cause needs here" in noisy
+    assert "(saturation fits the training part better, ΔBIC −66, and gains 1.04× held out)" in noisy
+    # a candidate the BIC does not favour is not quoted; a cause named under such a noise gets the clause too
+    weak = SimpleNamespace(name="saturation", material=True, gain=1.04, delta_bic=-3.0)
+    assert "fits the training part" not in _verdict_of(1.0, floor=0.5, baseline=0.52, candidates=[weak])
+    named = _verdict_of(1.0, [{"name": "saturation"}], floor=0.2, baseline=0.6)
+    assert "what remains is measurement noise. But the noise is 20% of w's variance" in named
+    assert "an rms under 32% of w's" in named  # √(0.5 · 0.2)
+    # a clean record (floor 1 % of var w) keeps its plain all-clear
+    assert _verdict_of(1.0).endswith("as good as the data allow.")
+
+
+def test_an_output_that_does_not_follow_the_drive_is_not_an_all_clear():
+    """A probe's w of white noise unrelated to the drive read 'No effect is needed: … 1× the measurement
+    noise floor, as good as the data allow' (held-out NMSE 1.01, Fitting −52 %, the floor all of var w)."""
+    said = _verdict_of(1.0, floor=1.0, baseline=1.01)
+    assert said.startswith("Nothing can be named from this recording: w barely follows the drive.")
+    assert (
+        "The simulation explains 0% of w's held-out variance" in said
+        and "which is 100% of w's variance" in said
+    )
+    assert "No effect is needed" not in said and "check that the output is the response to this drive" in said
+    # a simulation that explains a fifth of w or more, under a large noise, is not told so
+    assert _verdict_of(1.0, floor=0.7, baseline=0.72).startswith("No effect is needed")
 
 
 def test_the_verdict_says_when_a_remainder_near_the_floor_still_follows_the_drive():

@@ -18,6 +18,11 @@ AT_FLOOR = 1.2
 #: below which a remainder is said to follow the drive: one under the unexplained ratio (here), and an
 #: unexplained one no map describes (`hybrid.discovery._remainder`).
 FOLLOWS_DRIVE_P = 1e-3
+#: The noise floor's share of w's variance from which an all-clear says how large an effect the noise can hide.
+NOISY_SHARE = 0.1
+#: The baseline's held-out NMSE (MSE / var w) from which, with the rest at the floor, w is said not to follow
+#: the drive: the simulation explains under a fifth of w, and the rest reads as noise.
+LITTLE_EXPLAINED = 0.8
 
 
 def _names(causes: list[dict]) -> str:
@@ -82,6 +87,7 @@ def _headline(diagnosis) -> str:
         where = f": {summary}" if summary else ""
         if left.get("underdetermined"):
             where += f" ({left['underdetermined']})"
+    unheard = _noise_hides(diagnosis, base_mse, var_w, floor) if left is None and not ratio > AT_FLOOR else ""
     if causes:
         share = explained_fraction(base_mse, final_mse, floor)
         head = (
@@ -103,7 +109,7 @@ def _headline(diagnosis) -> str:
                         + f"; what remains is {ratio:.2g}× the measurement noise floor in size."
                         + follows
                     )
-                return head + "; what remains is measurement noise."
+                return head + "; what remains is measurement noise." + unheard
             return (
                 head
                 + (
@@ -115,6 +121,14 @@ def _headline(diagnosis) -> str:
                 + follows
             )
         return head + f"; {left['fraction_above_floor']:.0%} of what remains lies above the noise{where}."
+    if left is None and not question and not follows and base_mse >= LITTLE_EXPLAINED * var_w:
+        explains = max(0.0, 1.0 - base_mse / var_w)
+        return (
+            f"Nothing can be named from this recording: w barely follows the drive. The simulation explains "
+            f"{explains:.0%} of w's held-out variance, and what it leaves is {ratio:.2g}× the measurement noise "
+            f"floor, which is {floor / var_w:.0%} of w's variance: check that the output is the response to "
+            "this drive (the sensor, its wiring, the column mapped), or drive it harder."
+        )
     if left is None and question:
         return (
             f"No effect passes the search's rules: the simulation's held-out error is {ratio:.2g}× the "
@@ -129,7 +143,7 @@ def _headline(diagnosis) -> str:
         if not ratio > AT_FLOOR:
             return (
                 f"No effect is needed: the simulation's held-out error is {ratio:.2g}× the measurement noise "
-                "floor, as good as the data allow."
+                "floor, as good as the data allow." + unheard
             )
         limit = diagnosis.settings.unexplained_ratio
         return (
@@ -154,6 +168,35 @@ def _headline(diagnosis) -> str:
         f"No effect in the library passes the search's rules on this recording (the closest, {best.name}, "
         f"{refusal(best, diagnosis.settings.min_gain)}): "
         f"{left['fraction_above_floor']:.0%} of the simulation's held-out error lies above the noise floor{where}."
+    )
+
+
+def _noise_hides(diagnosis, base_mse: float, var_w: float, floor: float) -> str:
+    """The sentence an all-clear gets where the noise is `NOISY_SHARE` of w's variance or more, or ''.
+
+    A named cause must gain `min_gain` held out, and an exact model leaves the floor: an effect that adds
+    e to the held-out MSE can gain at most 1 + e/floor, so one with e < (min_gain − 1)·floor cannot be
+    named however well it is modelled. On a clean record that is a tiny effect; where the noise is as
+    large as the response, a probe's saturation with a 67 % shortfall (ΔBIC −66 on training, 1.04×
+    held out) read "No effect is needed … as good as the data allow", and nothing said it could hide.
+    """
+    share = floor / var_w if var_w > 0 else 0.0
+    if not share >= NOISY_SHARE:
+        return ""
+    min_gain = diagnosis.settings.min_gain
+    hidden = math.sqrt((min_gain - 1.0) * floor / var_w)
+    best = _best_refused(diagnosis)
+    fits = (
+        f" ({best.name} fits the training part better, ΔBIC {f'{best.delta_bic:.0f}'.replace('-', '−')}, and gains {best.gain:.2f}× held "
+        "out)"
+        if best is not None and best.delta_bic <= -diagnosis.settings.min_bic_drop
+        else ""
+    )
+    return (
+        f" But the noise is {share:.0%} of w's variance: an effect whose error is under {min_gain - 1.0:.2g}× the "
+        f"noise's variance (an rms under {hidden:.0%} of w's) cannot gain the {min_gain:g}× a cause needs here, "
+        f"however well it is modelled, so one that size may be missing unseen{fits}; a quieter recording, or a "
+        "larger drive where the effect grows with it, would tell."
     )
 
 
