@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from hybrid import InputError, Recording, diagnose, fit, make_model, sensitivity as S
+from hybrid import InputError, Recording, diagnose, fit, load_mapped, make_model, sensitivity as S
 from hybrid.cli import main
 from hybrid.data._recording_checks import JITTER_FRAMES, MS_STEP_S
 from hybrid.physics._rc_network import RCNetwork
@@ -132,6 +132,22 @@ def test_slow_recordings_in_seconds_are_accepted():
         Recording(slow, v, w)
     # declared: a recording really sampled every 20 s
     assert Recording(slow, v, w, metadata={"units": {"t": "s"}}).rate == pytest.approx(0.05)
+
+
+def test_a_slow_csv_is_told_the_flag_that_declares_seconds_and_keeps_its_units(tmp_path, capsys):
+    """A 0.1 Hz thermal record in the project's columns: the refusal said 'declare metadata units
+    {"t": "s"}', which no flag names; and --units t=s, which reads it, relabelled w from mm to a.u."""
+    v, w = _signals(300)
+    path = _write_csv(tmp_path / "slow.csv", np.arange(300) * 10.0, v, w)
+    lines = _cli_error(["fit", path, "--model", "physics", "--quiet"], capsys)
+    assert len(lines) == 1 and "--units t=s on the command line" in lines[0], lines
+    record = load_mapped(path, units={"t": "s"})
+    assert record.rate == pytest.approx(0.1) and record.metadata["units"] == {
+        "t": "s",
+        "v_in": "V",
+        "w": "mm",
+    }
+    assert Recording.load(path, units={"t": "s"}).metadata["units"]["w"] == "mm"
 
 
 def test_t_in_milliseconds_in_a_csv_file(tmp_path, capsys):

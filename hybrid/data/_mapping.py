@@ -84,6 +84,7 @@ from ._recording_checks import (
     FILL_GAPS_MAX,
     MS_STEP_S,
     TIME_UNITS,
+    UNITS,
     check_time,
     fill_gaps as fill_missing,
     fill_values,
@@ -179,6 +180,7 @@ def load_mapped(
         )
     fill = fill_gaps is not None  # missing values of the drive and output are read as NaN, then filled
     read = None  # the file's columns, where finding its roles already read them
+    defaults = DEFAULT_UNITS  # a lab's columns: nothing says what w is
     try:
         roles = mapping_roles(input=input, output=output, time=time, columns=columns, require_w=require_w)
     except InputError:
@@ -189,6 +191,7 @@ def load_mapped(
         if standard is None:
             raise
         roles, read = standard
+        defaults = UNITS  # the project's own columns, as `Recording.load` reads them (V, mm)
     rate_arg = rate_argument(rate)
     given_units = units_argument(units, "t" in roles)
     bounds = parse_sample_range(sample_range)
@@ -326,7 +329,7 @@ def load_mapped(
     metadata = dict(file_meta)
     metadata.update(
         source=str(path),
-        units=_units(roles, given_units, file_meta, names, notes, path),
+        units=_units(roles, given_units, file_meta, names, notes, path, defaults),
         mapping={role: roles.get(role) for role in ("t", "v_in", "w")},
         rate_hz=hz,
         rate_from=rate_from,
@@ -540,9 +543,10 @@ def _units(
     names: Mapping[str, str],
     notes: list[str],
     path: object,
+    defaults: Mapping[str, str] = DEFAULT_UNITS,
 ) -> dict[str, str]:
     """The units by channel: given, else the file's (by column, then role), else the column name's
-    (`header_unit`), else `DEFAULT_UNITS`; a name's unit that differs from the one kept goes into `notes`."""
+    (`header_unit`), else `defaults`; a name's unit that differs from the one kept goes into `notes`."""
     declared = file_meta.get("units")
     declared = declared if isinstance(declared, Mapping) else {}
     out = {"t": "s"}
@@ -553,7 +557,7 @@ def _units(
         named = written[0] if written is not None and is_unit(written[0]) else None
         found = [given.get(channel), declared.get(roles.get(channel, "")), declared.get(channel)]
         explicit = next((u for u in found if isinstance(u, str) and u), None)
-        out[channel] = explicit or named or DEFAULT_UNITS[channel]
+        out[channel] = explicit or named or defaults[channel]
         if explicit and named and explicit != named:
             where = "--units (units=)" if given.get(channel) else "the file's units"
             notes.append(

@@ -350,8 +350,8 @@ def _check_seconds(name: str, step: float, metadata: Any) -> None:
     divide = " or ".join({"ms": "t/1000", "us": "t/1e6"}[u] for u in units)
     raise InputError(
         f"recording '{name}' has t stepping by {step:.4g}: t looks like {looks}, {1 / step:.3g} Hz if "
-        f'seconds; write t in seconds ({divide}), or declare metadata units {{"t": "s"}} for a '
-        f"recording really sampled every {step:.4g} s"
+        f"seconds; write t in seconds ({divide}), or, for a recording really sampled every {step:.4g} s, "
+        'say so: --units t=s on the command line (units={"t": "s"} in Python, or in metadata)'
     )
 
 
