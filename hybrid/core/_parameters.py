@@ -40,6 +40,10 @@ class Constraint(eqx.Module):
     def describe(self) -> str:
         """The allowed range in words."""
 
+    @abc.abstractmethod
+    def contains(self, value) -> bool:
+        """Whether a physical value (or every element of an array of them) lies in the range."""
+
     @property
     def bounds(self) -> tuple[float, float]:
         """The open range (low, high) the physical value lies in (±inf where unbounded)."""

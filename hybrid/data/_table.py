@@ -279,11 +279,14 @@ def _read_csv(
             try:
                 table, clock = load()
             except ValueError:
+                short: tuple[np.ndarray, Clock] | None = None
                 try:  # a record shorter than the file: its columns' last cells empty (`shorter_record`)
-                    table, clock = load([i for role, i in index.items() if role != "t"])
+                    short = load([i for role, i in index.items() if role != "t"])
                 except ValueError:
-                    table = None
-                if table is None or shorter_record(table, dict(enumerate(index))) is None:
+                    pass
+                if short is not None and shorter_record(short[0], dict(enumerate(index))) is not None:
+                    table, clock = short
+                else:
                     if not fill:
                         raise
                     # every bad cell is a missing value of the drive or output, else refused here: read as NaN
@@ -302,11 +305,11 @@ def _read_csv(
     if table.shape[0] == 0:
         raise InputError(f"recording '{path}' has a header but no data lines: add one line per sample")
     k = len(index)
-    numbers = np.frombuffer(lines, dtype=np.int64).copy()  # the file line of each row
+    line_of = np.frombuffer(lines, dtype=np.int64).copy()  # the file line of each row
     end = shorter_record(table, dict(enumerate(index)))
     if end is not None:
-        notes.append(_shorter_note(path, [wanted[role] for role in index if role != "t"], numbers, end))
-        table, numbers = table[:end], numbers[:end]
+        notes.append(_shorter_note(path, [wanted[role] for role in index if role != "t"], line_of, end))
+        table, line_of = table[:end], line_of[:end]
     bad = ~np.isfinite(table[:, :k])
     if fill:  # the drive's and the output's are filled (`fill_values`)
         bad[:, [j for j, role in enumerate(index) if role != "t"]] = False
@@ -330,7 +333,7 @@ def _read_csv(
         columns,
         rates,
         metadata,
-        TableNotes(numbers, tuple(notes), tuple(header)),
+        TableNotes(line_of, tuple(notes), tuple(header)),
     )
 
 
@@ -738,12 +741,12 @@ def read_text_table(
                 f"line {number} (sample {row})"
             )
     if first is not None:
-        end = shorter_record(table, mapped) if not texts else None
-        if end is None:
+        shorter = shorter_record(table, mapped) if not texts else None
+        if shorter is None:
             raise _refusal(first, refused, "every value of a mapped column", missing)
-        lines = np.array([n for n, _ in data], dtype=np.int64)
-        notes.append(_shorter_note(path, [names[c] for c, r in mapped.items() if r != "t"], lines, end))
-        table, data = table[:end], data[:end]
+        at = np.array([n for n, _ in data], dtype=np.int64)
+        notes.append(_shorter_note(path, [names[c] for c, r in mapped.items() if r != "t"], at, shorter))
+        table, data = table[:shorter], data[:shorter]
     if unread:
         notes.append(
             f"recording '{path}': "
