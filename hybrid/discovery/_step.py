@@ -55,6 +55,7 @@ from ._search import (
     split_signals,
     theta_with_readout,
 )
+from ._starts import dead_times
 
 
 @dataclasses.dataclass
@@ -376,6 +377,7 @@ def search_step(
         measured=(w_tr - offset) / gain if gain != 0 and np.isfinite(gain) else None,
         lag_samples=lag,
         residual_peak_hz=peak,
+        dead_times=dead_times(v_tr, w_tr),
         problem=s.problem,  # the screens read its data alone: every step's screens share their programs
         simulation=s.simulation,
         frozen=s.frozen,
