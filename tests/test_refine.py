@@ -118,6 +118,26 @@ def test_the_second_diagnosis_is_kept_only_where_it_names_the_refinement_and_gai
     assert kept is first and "is not finite" in evidence["sentence"] and evidence["gain_over_first"] == 0.0
 
 
+def test_a_refinement_with_fewer_causes_as_good_held_out_is_kept():
+    """A probe's drive clip beside a Coulomb friction: the default set named drive_saturation, the friction
+    and a dead zone never hidden; refined, drive_clip and the friction alone, 2.38e-3 against 2.67e-3 held
+    out (1.12×), and the three-cause diagnosis stood because 1.12 < 1.5."""
+    swaps = {"drive_saturation": "drive_clip", "saturation": "clip"}
+    first = _diagnosis(["drive_saturation", "friction_band_1", "drive_dead_zone"], 2.67e-3)
+    simpler = _diagnosis(["drive_clip", "friction_band_1"], 2.38e-3)
+    kept, evidence = refined(first, simpler, swaps, 1.5)
+    assert kept is simpler and evidence["kept"]
+    assert "fewer causes than drive_saturation, friction_band_1, drive_dead_zone" in evidence["sentence"]
+    # as many causes, or fewer but worse held out: the min_gain rule decides, and the first stands
+    same = _diagnosis(["drive_clip", "friction_band_1", "drive_dead_zone"], 2.38e-3)
+    assert refined(first, same, swaps, 1.5)[0] is first
+    worse = _diagnosis(["drive_clip", "friction_band_1"], 2.9e-3)
+    assert refined(first, worse, swaps, 1.5)[0] is first
+    # fewer causes, but not the refinement: the first stands
+    other = _diagnosis(["friction_band_1"], 2.0e-3)
+    assert refined(first, other, swaps, 1.5)[0] is first
+
+
 def test_a_second_diagnosis_that_fails_leaves_the_first_with_the_reason(tmp_path, monkeypatch):
     """A refinement whose diagnosis raises (a plug-in that refuses, a fit that is not finite) does not lose
     the first diagnosis: it stands, and ``evidence.refined`` says why there is no other."""
