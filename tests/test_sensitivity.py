@@ -402,3 +402,40 @@ def test_the_errors_with_the_simulation_fixed_do_not_depend_on_the_parameters_sc
     padded = np.zeros((4, 4))
     padded[:3, :3] = fisher
     assert inverse_diagonal(padded)[3] == 0.0  # a row of zeros: no information, no variance read
+
+
+def test_a_derivative_that_diverges_is_said_not_read_as_an_output_that_does_not_move():
+    """A probe's mass with a Coulomb friction sticking below a small speed: the friction's linearised
+    stiffness, ω²F/v_s, was too fast for the RK4 step, the sensitivities grew to 1e35 while the output
+    stayed finite, and every parameter read "the output does not change with it, or it trades off
+    exactly". Here a 1 Hz oscillator (30 Hz, 4 RK4 substeps) with a 1.2 V friction: sticking below
+    0.5 V/s the covariance is read; below 0.01 V/s (ω²F/v_s·h ≈ 40) it is said to have diverged."""
+    import hybrid
+    from hybrid.discovery._diagnosis import ParameterUncertainty
+    from hybrid.discovery._evidence import DIVERGED, not_pinned
+
+    oscillator = hybrid.resolve_physics("examples/oscillator.py:MassSpringDamper").replace(
+        frequency=1.0, zeta=0.2
+    )
+    u = h.step_drive(1200, seed=1, amplitude=2.0)
+    rng = np.random.default_rng(0)
+    covariances = {}
+    for stick in (0.5, 0.01):
+        stack = hybrid.extend(
+            oscillator, hybrid.Friction("velocity"), velocity_friction=1.2, velocity_stick_speed=stick
+        )
+        model = hybrid.make_model("physics", simulation=stack)
+        y = np.asarray(model.predict(u, 1 / 30.0))
+        assert np.all(np.isfinite(y))  # the output itself stays finite
+        recording = Recording(np.arange(u.size) / 30.0, u, y + 0.01 * rng.standard_normal(u.size))
+        covariances[stick] = S.parameter_covariance(model, recording), model
+    sane, _ = covariances[0.5]
+    assert not sane.diverged and all(np.isfinite(list(sane.std_errors.values())))
+    wild, model = covariances[0.01]
+    assert wild.diverged and all(np.isinf(list(wild.std_errors.values())))
+    assert all(np.isnan(list(wild.to_optimum.values())))  # no Gauss–Newton step follows such a J
+    unsure = {
+        name: ParameterUncertainty(std_error=float("inf"), unit="", inflation=1.0, diverged=True)
+        for name in wild.names
+    }
+    assert set(not_pinned(unsure, model, []).values()) == {DIVERGED}

@@ -533,7 +533,8 @@ def diagnose(
         warnings=_glitch_warnings(glitches, rate)
         + nonfinite_warnings(steps, search.effects)
         + model_warnings(models["extended"], frozen, search.rate)
-        + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1]),
+        + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1])
+        + _diverged_warnings(uncertainties),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept
         else {},
@@ -589,6 +590,24 @@ def _bridge_glitches(recordings) -> tuple[list, list[dict]]:
             found.append({"recording": r.name, "runs": [[int(a), int(b)] for a, b in runs]})
         out.append(r)
     return out, found
+
+
+def _diverged_warnings(uncertainties) -> list[str]:
+    """The warning a final model whose derivative diverged gets (`Covariance.diverged`), or none.
+
+    A probe's mass with a Coulomb friction in its own RK4 plug-in: a stick speed of 0.009 V/s made the
+    friction's linearised stiffness too fast for the step, the sensitivities grew to 1e35 while the
+    output stayed finite, and every parameter read "the output does not change with it".
+    """
+    if not any(u.diverged for u in uncertainties.values()):
+        return []
+    return [
+        "the final model's derivative with respect to its parameters diverges while its output stays finite: "
+        "its linearised step is unstable at the fitted values (an integration step too long for the fastest "
+        "dynamics the fit reached, e.g. a friction's sticking speed or a fast pole), so the fit's steps, which "
+        "follow that derivative, and every standard error are suspect; give the simulation a shorter step "
+        "(more substeps) or bound the parameter that makes it stiff"
+    ]
 
 
 def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:

@@ -265,6 +265,8 @@ class ParameterUncertainty:
     """Standard error with the simulation's own parameters held at their fitted values (None for those)."""
     to_optimum: float | None = None
     """The training part's optimum less the value, from Gauss–Newton steps (`Covariance.to_optimum`)."""
+    diverged: bool = False
+    """Whether the model's derivative diverged at its values (`Covariance.diverged`): no error can be read."""
 
     @property
     def held_off_optimum(self) -> bool:

@@ -71,6 +71,7 @@ def parameter_uncertainties(
             unit=covariance.units[name],
             inflation=inflation,
             to_optimum=covariance.to_optimum.get(name),
+            diverged=covariance.diverged,
         )
         for name, std in covariance.std_errors.items()
         if name in keep
@@ -102,6 +103,14 @@ def inverse_diagonal(fisher: np.ndarray) -> np.ndarray:
     return np.diag(inverse) * scale**2
 
 
+#: Why no parameter is pinned where the model's derivative diverged (`Covariance.diverged`).
+DIVERGED = (
+    "the model's derivative diverges at the fitted values while its output stays finite: its linearised "
+    "step is unstable there (an integration step too long for the fastest dynamics the fit reached, a "
+    "friction's sticking or a fast pole), so no error can be read"
+)
+
+
 def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, series) -> dict[str, str]:
     """Why each parameter that the recording does not pin is not pinned, by name.
 
@@ -122,7 +131,8 @@ def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, ser
         se, value = u.std_error, abs(values.get(name, float("nan")))
         if math.isfinite(se) and se <= value:
             continue
-        reason = _at_bound(name, values.get(name, float("nan")), constraints.get(name), units)
+        reason = DIVERGED if u.diverged else None
+        reason = reason or _at_bound(name, values.get(name, float("nan")), constraints.get(name), units)
         effect = owner.get(name)
         if reason is None and effect is not None:
             if signals is None:

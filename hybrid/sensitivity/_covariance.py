@@ -50,6 +50,11 @@ class Covariance:
       LM run that keeps its best validation loss) can sit several standard
       errors away, and `matrix` then describes the optimum's spread, not the
       value's.
+    - `diverged`: whether ∂ŵ/∂θ is not finite, or over `DIVERGED_JACOBIAN` times w's
+      standard deviation in some entry, while ŵ is finite: the simulation's linearisation
+      is unstable at these values (a plug-in's integration step too long for a stiff
+      friction's sticking: its sensitivities grew to 1e35 over the record). Every
+      standard error is then infinite: no direction can be read from such a J.
     """
 
     names: tuple[str, ...]
@@ -63,6 +68,7 @@ class Covariance:
     dof: float
     unidentifiable: tuple[str, ...]
     to_optimum: dict[str, float] = dataclasses.field(default_factory=dict)
+    diverged: bool = False
 
     @property
     def std_errors(self) -> dict[str, float]:
@@ -180,6 +186,12 @@ def problem_covariance(
     model = problem.model(theta)
     r, J = _training_rows(problem, theta)
     m, n = J.shape
+    w = np.asarray(problem.recorded(problem.target("train"), "train"))
+    spread = float(np.std(w)) if w.size else 0.0  # w's own: a noise-free fit's residual is 0
+    peak = float(np.max(np.abs(J), initial=0.0))
+    diverged = not np.all(np.isfinite(J)) or (spread > 0 and peak > DIVERGED_JACOBIAN * spread)
+    if diverged:
+        J = np.zeros_like(J)  # nothing can be read from it: every direction is then unidentifiable
     named = named_parameters(model)
     all_names = ordered_names(model)
     D = np.asarray(physical_map(_ProblemView(problem), theta, all_names))
@@ -237,7 +249,9 @@ def problem_covariance(
     cov[bad, bad] = np.inf
     se = np.sqrt(np.abs(np.diag(cov)))
     optimum = _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond, columns)
-    step = np.array([float(optimum[k]) - float(named[k]) if optimum else np.nan for k in names])
+    step = np.array(
+        [float(optimum[k]) - float(named[k]) if optimum and not diverged else np.nan for k in names]
+    )
     step[bad] = np.nan
 
     fisher = _efficient_fisher(J, rows_penalty, D, s2)
@@ -253,8 +267,14 @@ def problem_covariance(
         dof=float(dof),
         unidentifiable=tuple(k for k, b in zip(names, bad) if b),
         to_optimum={k: float(x) for k, x in zip(names, step)},
+        diverged=diverged,
     )
 
+
+#: How many times w's standard deviation an entry of ∂ŵ/∂θ (w's unit per raw parameter value) may reach before
+#: the linearisation is taken to have diverged (`Covariance.diverged`): a raw step of one (a factor e of a
+#: positive parameter) moves a sane simulation's output by a few of its ranges, not 1e15 of them.
+DIVERGED_JACOBIAN = 1e15
 
 #: `_training_optimum`'s most Gauss–Newton steps, and the move (in standard errors) below which it stops.
 OPTIMUM_STEPS = 20
