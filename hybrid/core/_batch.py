@@ -58,7 +58,7 @@ from ._levenberg_marquardt import lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
 from ._problem import Problem, Series, series_from_recording
-from ._result import FitResult, drive_outside_range, fit_warnings
+from ._result import FitResult, drive_outside_range, fit_warnings, one_frequency_drive
 from ._simulation import AbstractSimulation
 from ._solvers import AbstractSolver, LevenbergMarquardt, resolve_solver
 
@@ -292,7 +292,8 @@ def fit_batch(
                 )
                 + drive_outside_range(
                     fitted.simulation, [recording.v_in], (recording_units([recording]) or ("", ""))[1]
-                ),
+                )
+                + one_frequency_drive([recording]),
             )
         )
     seconds = time.perf_counter() - t_start

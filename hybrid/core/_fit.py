@@ -36,7 +36,7 @@ from ._metrics import metrics as compute_metrics
 from ._models import Model
 from ._problem import Problem, Series, robust_rms, robust_std, segment_ids, series_from_recording
 from ._readout import WindowedMLP
-from ._result import FitResult, drive_outside_range, fit_warnings
+from ._result import FitResult, drive_outside_range, fit_warnings, one_frequency_drive
 from ._screen import screened_starts
 from ._solvers import (
     SOLVERS as SOLVERS,
@@ -284,7 +284,8 @@ def fit(
         + immaterial_effects(fitted, recordings)
         + drive_outside_range(
             fitted.simulation, [r.v_in for r in recordings], (recording_units(recordings) or ("", ""))[1]
-        ),
+        )
+        + one_frequency_drive(recordings),
         stopped=stopped,
     )
 

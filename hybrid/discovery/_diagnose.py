@@ -68,7 +68,7 @@ from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
-from ..core._result import aliased, drive_outside_range, implausible, sub_sample
+from ..core._result import aliased, drive_outside_range, implausible, one_frequency_drive, sub_sample
 from ..core._screen import N_SCREEN, screened_starts
 from ..core._simulation import unit_in
 from ..data._recording import in_shared_units
@@ -534,6 +534,7 @@ def diagnose(
         + nonfinite_warnings(steps, search.effects)
         + model_warnings(models["extended"], frozen, search.rate)
         + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1])
+        + one_frequency_drive(recordings)
         + _diverged_warnings(uncertainties),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept
