@@ -61,20 +61,58 @@ def test_an_effect_refused_for_its_size_alone_is_said_and_counted_with_materiali
 
 
 def test_the_too_small_sentence_sets_a_threshold_either_way():
-    """A heavily damped mode falls short of a resonance's ceiling on damping, which must be raised to admit
+    """A well damped mode falls short of a resonance's ceiling on damping, which must be raised to admit
     it: the sentence says "set", never "lower" (it read "if an effect that small matters here, lower
-    max_damping (now 0.35)" for a mode of ζ 0.981)."""
+    max_damping (now 0.35)" for a mode of ζ 0.981, which is now no resonance at all: below)."""
     from hybrid.discovery._verdict import too_small_sentence
 
     entry = {
         "name": "resonance",
         "gain": 1.54,
-        "materiality": "mode 0.03 Hz, ζ 0.981 (needs ζ ≤ 0.35, f ≥ 0.5 Hz)",
+        "materiality": "mode 0.03 Hz, ζ 0.520 (needs ζ ≤ 0.35, f ≥ 0.5 Hz)",
         "thresholds": {"max_damping": 0.35, "min_frequency_hz": 0.5},
     }
     said = too_small_sentence(entry)
     assert "set max_damping (now 0.35) and min_frequency_hz (now 0.5) to admit it" in said
     assert "lower" not in said and "that small" not in said
+
+
+def test_a_mode_with_no_peak_is_not_offered_as_a_resonance_too_small_to_count():
+    """A probe's lag behind a dead time: a 0.13 Hz "mode" of ζ 1.000 gained 246× held out, above the named
+    lag's 191×, and the report called it too small, with max_damping to raise; from ζ 1/√2 on a second-order
+    response has no peak: its poles act as lags. A mode of ζ 0.5 is still offered."""
+    from types import SimpleNamespace
+
+    import hybrid
+    from hybrid.discovery._diagnosis import DiagnoseSettings, Diagnosis
+
+    resonance = hybrid.EFFECTS["resonance"]()
+    assert "has no resonant peak" in resonance.unlike({"resonance_damping": 1.0})
+    assert resonance.unlike({"resonance_damping": 0.70}) is None
+    refused = "not material: mode 0.13 Hz, ζ {z} (needs ζ ≤ 0.35, f ≥ 0.5 Hz)"
+
+    def candidate(z):
+        return SimpleNamespace(
+            name="resonance",
+            gain=246.0,
+            refused_for_size=True,
+            reasons=[refused.format(z=z)],
+            materiality=refused.format(z=z)[len("not material: ") :],
+            parameters={"resonance_frequency_hz": 0.13, "resonance_damping": z},
+        )
+
+    def too_small(z):
+        fake = SimpleNamespace(
+            causes=[{"name": "lag"}],
+            steps=[SimpleNamespace(candidates=[candidate(z)])],
+            settings=DiagnoseSettings(),
+            _effect=lambda name: resonance,
+        )
+        return Diagnosis.too_small.fget(fake)
+
+    assert too_small(1.0) == []
+    (offered,) = too_small(0.5)
+    assert offered["name"] == "resonance" and offered["gain"] == 246.0
 
 
 def test_two_recordings_give_the_same_sizes_in_either_order():

@@ -241,6 +241,12 @@ def _rival(named, c, scale: float, noise_std: float) -> dict:
     }
 
 
+def _unlike(effects, candidate) -> bool:
+    """Whether `candidate`'s fit is not its effect at all (`AbstractEffect.unlike`): no threshold admits it."""
+    effect = next((e for e in effects or () if e.name == candidate.name), None)
+    return effect is not None and bool(effect.unlike(candidate.parameters))
+
+
 def ambiguities(
     steps,
     w_test,
@@ -279,7 +285,7 @@ def ambiguities(
         for c in step.candidates:
             if c is named or c.name == named.name or c.heldout_residual is None:
                 continue
-            small = c.refused_for_size and c.gain > named.gain
+            small = c.refused_for_size and c.gain > named.gain and not _unlike(effects, c)
             if not (c.eligible or small):
                 continue
             rival = _rival(named, c, scale, noise_std)

@@ -559,8 +559,10 @@ class Diagnosis:
             for c in step.candidates:
                 if c.name in named:
                     continue
+                effect = self._effect(c.name)
+                if effect is not None and effect.unlike(c.parameters):
+                    continue  # not this effect at all: no threshold should admit it
                 if c.refused_for_size and c.gain >= self.settings.min_gain:
-                    effect = self._effect(c.name)
                     by_name[c.name] = {
                         "name": c.name,
                         "step": k,

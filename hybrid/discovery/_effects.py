@@ -271,6 +271,15 @@ class AbstractEffect(eqx.Module):
         """
         return ""
 
+    def unlike(self, parameters: dict) -> str | None:
+        """Why a fit at `parameters` is not this effect at all, whatever its size, or None (the default).
+
+        A candidate refused for its size alone is reported as "too small to count", with the thresholds
+        that would admit it; a fit that took another form (a resonance of ζ 1, two real poles: a lag) is
+        not offered so.
+        """
+        return None
+
     def unpinned_reason(self, name: str, signal: np.ndarray) -> str | None:
         """Why a recording whose signal entering this effect is `signal` cannot pin parameter `name`.
 
@@ -1018,6 +1027,14 @@ class Resonance(AbstractEffect):
         said = f"mode {f:.2f} Hz, ζ {z:.3f} (needs ζ ≤ {most}, f ≥ {least} Hz"
         said += ")" if below else f", below the Nyquist frequency {f / derived['over_nyquist']:.3g} Hz)"
         return z <= most and f >= least and below, said
+
+    def unlike(self, parameters):
+        # from ζ = 1/√2 on a second-order response has no peak: its poles act as lags, which `lag` names
+        # (a probe's lag and dead time read as a 0.13 Hz mode of ζ 1.000, "too small" with max_damping to raise)
+        z = parameters.get("resonance_damping")
+        if z is None or not z >= 1 / math.sqrt(2):
+            return None
+        return f"a mode of ζ {z:.2f} has no resonant peak (from ζ 0.71 on): it acts as a lag, not a resonance"
 
 
 class FrameTiming(AbstractEffect):
