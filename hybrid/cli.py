@@ -34,6 +34,7 @@ from ._cli_inputs import (
     add_settle,
     effects_from_spec,
     load_recordings,
+    long_record_note,
     parse_params,
     with_settle,
 )
@@ -709,6 +710,9 @@ def _cmd_diagnose(args):
         inputs=args.recordings,
     )
     recordings = load_recordings(args, args.recordings)
+    long = long_record_note(recordings)
+    if long and not args.quiet:
+        print(f"hybrid: note: {long}", file=sys.stderr)
     settings = DiagnoseSettings()
     if args.max_steps is not None:
         if args.max_steps < 1:
