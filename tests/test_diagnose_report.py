@@ -408,3 +408,25 @@ def test_the_closest_candidate_is_refused_for_the_rule_it_failed():
     assert refusal(strong, 1.5) == f"gains 2.18× held out, but {bar}"
     weak = SimpleNamespace(gain=1.37, reasons=["held-out gain 1.37 < 1.5", "ΔBIC -3.0 > −10.0"])
     assert refusal(weak, 1.5) == "gains 1.37× held out, under the 1.5× asked"
+
+
+def test_an_output_side_causes_unit_is_said_where_it_is_not_ws():
+    """A probe's baseline drift on a millimetre sensor read "2.226 V/min" beside an offset in mm: `lti:N`'s
+    output is in the drive's unit, and nothing said why."""
+    from hybrid.discovery._report import _output_unit_note
+
+    d = {
+        "effects": [
+            {"name": "baseline_drift", "place": "output"},
+            {"name": "drive_dead_zone", "place": "drive"},
+        ],
+        "causes": [{"name": "drive_dead_zone"}, {"name": "baseline_drift"}],
+        "parameters": {"gain": {"value": 0.994, "unit": "mm/V"}},
+        "units": {"w": "mm", "v_in": "V"},
+    }
+    (said,) = [line for line in _output_unit_note(d) if line]
+    assert said.startswith("baseline_drift acts on the simulation's output before the readout")
+    assert "its parameters are in the simulation's unit, V; × the gain (0.994 mm/V) gives w's, mm." in said
+    # a drive-side cause alone, or a simulation already in w's unit: nothing to say
+    assert _output_unit_note({**d, "causes": [{"name": "drive_dead_zone"}]}) == []
+    assert _output_unit_note({**d, "parameters": {"gain": {"value": 1.0, "unit": "mm/mm"}}}) == []

@@ -189,6 +189,27 @@ def _sizes(cause: dict) -> str:
     return ", ".join(out)
 
 
+def _output_unit_note(d: dict) -> list[str]:
+    """A sentence under the parameters where an output-side cause's sizes are in the simulation's unit, not w's.
+
+    A probe's baseline drift on a millimetre sensor read "2.226 V/min" beside an offset in mm (`lti:N`'s
+    output is in the drive's unit): right, but read as a unit error.
+    """
+    places = {e["name"]: e.get("place", "output") for e in d.get("effects") or []}
+    named = [c["name"] for c in d.get("causes") or [] if places.get(c["name"]) == "output"]
+    gain = (d.get("parameters") or {}).get("gain") or {}
+    unit, w_unit = str(gain.get("unit", "")), str((d.get("units") or {}).get("w", ""))
+    own = unit.split("/", 1)[1] if "/" in unit else ""
+    if not named or not own or not w_unit or own == w_unit or not isinstance(gain.get("value"), int | float):
+        return []
+    return [
+        "",
+        f"{', '.join(named)} act{'s' if len(named) == 1 else ''} on the simulation's output before the readout "
+        f"(w = gain·y + offset): {'its' if len(named) == 1 else 'their'} parameters are in the simulation's unit, "
+        f"{own}; × the gain ({_num(gain['value'], 4)} {unit}) gives w's, {w_unit}.",
+    ]
+
+
 def _cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
@@ -414,6 +435,7 @@ def _markdown(d: dict, figures: dict[str, Path], loop_levels: int | None = None)
         "|---|---|",
     ]
     lines += parameter_rows(d)
+    lines += _output_unit_note(d)
     derived = [c for c in d.get("causes") or [] if c["derived"]]
     if derived:  # each cause's, in the final model (its parameters above)
         lines += ["", f"Derived quantities of the effect{'s' if len(derived) > 1 else ''} (final model):", ""]
