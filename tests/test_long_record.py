@@ -28,15 +28,7 @@ def test_the_note_counts_every_recording_and_names_the_ways_to_shorten():
 def test_the_command_line_says_it_before_the_diagnosis(tmp_path, capsys, monkeypatch):
     import hybrid.ipmc._defaults as defaults
 
-    path = tmp_path / "long.csv"
-    record = _recording(LONG_RECORD)
-    np.savetxt(
-        path,
-        np.column_stack([record.t, record.v_in, record.w]),
-        delimiter=",",
-        header="t,v_in,w",
-        comments="",
-    )
+    path = _recording(LONG_RECORD).save(tmp_path / "long.csv")
 
     def stop(*args, **kwargs):  # what follows the note is not this test's
         raise hybrid.InputError("stopped here")
