@@ -84,7 +84,7 @@ from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_unc
 from ._joint import joint_pair, named_jointly
 from ._noise_floor import bounded_by_residual, bridged, glitch_runs
 from ._redundant import drop_redundant
-from ._refine import refinable, refined, refined_effects, refused
+from ._refine import refinable, refined, refined_effects, refinement_reason, refused
 from ._search import (
     N_LANES,
     fit_lanes,
@@ -549,7 +549,8 @@ def diagnose(
     )
     if not swaps:
         return found
-    say(f"something left above the noise: again with {', '.join(f'{b} for {a}' for a, b in swaps.items())}")
+    why = refinement_reason(kept, room, settings.min_gain, unexplained)
+    say(f"{why}: again with {', '.join(f'{b} for {a}' for a, b in swaps.items())}")
     try:
         again = diagnose(
             recordings,
@@ -565,7 +566,7 @@ def diagnose(
         return found
     again.glitches_bridged = glitches  # it read the recordings as bridged here
     again.warnings = _glitch_warnings(glitches, rate) + again.warnings
-    kept_diagnosis, tried = refined(found, again, swaps, settings.min_gain)
+    kept_diagnosis, tried = refined(found, again, swaps, settings.min_gain, why)
     kept_diagnosis.evidence["refined"] = tried
     kept_diagnosis.settings = dataclasses.replace(kept_diagnosis.settings, refine=given.refine)  # as asked
     kept_diagnosis.seconds = time.perf_counter() - t0

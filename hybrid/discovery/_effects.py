@@ -132,9 +132,9 @@ class StartContext:
     - `rate`: samples per second; `duration`: the first recording's length (s).
     - `lag_samples`: the whole-sample lag that best aligns the current model with the recording.
     - `residual_peak_hz`: the training residual's spectral peak at 0.5 Hz or above, or None.
-    - `dead_times`: whole-sample lags beyond a few at which the recorded output starts to follow the
-      drive and follows it most, read from the training part alone (`hybrid.discovery._starts.dead_times`);
-      () where none is clear.
+    - `dead_times`: whole-sample shifts around where the recorded output starts to follow the drive,
+      where that lies beyond a few samples, read from the training part alone
+      (`hybrid.discovery._starts.dead_times`); () where none is clear.
     - `problem`, `simulation`, `frozen`: for a screen (`AbstractEffect.screened_starts`):
       the search's least-squares problem, the simulation being diagnosed and
       the names of its parameters that are not fitted. For a drive- or

@@ -29,6 +29,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
+#: How many named causes, a saturation among them, make a refinement worth trying even at the noise floor:
+#: a clip's sharp knee may be what they fake together (a probe's drive clip beside a Coulomb friction, in
+#: its own plug-in, read as drive_saturation, the friction and a dead zone never hidden, "measurement noise").
+CROWDED = 3
+#: Why a refinement is tried, as its sentence says it.
+LEFT_ABOVE = "something was left above the noise"
+CROWDED_WHY = "a saturation was named beside {others} other causes, which a clip's sharp knee may stand for"
+
 
 def refinable(
     effects, kept, unexplained: dict | None, builtins, room: float, min_gain: float
@@ -39,7 +47,8 @@ def refinable(
     is still `room` ≥ `min_gain` times the noise floor (below that not even a
     perfect refinement could gain the `min_gain` its rule asks: a sensor that
     clipped a quarter of the time left a tanh's fit at 1.8× the floor, under
-    the 2× called unexplained); and the named-only effect the remainder points
+    the 2× called unexplained), or where `CROWDED` causes are named (a clip and
+    one other may then explain as much: `refined` keeps the fewer); and the named-only effect the remainder points
     at (``description.named_only``: a drive that stops sharply read as "static
     in the drive … a clip of the drive recovers as much") where it is the
     refinement of a searched effect. Where either holds, every searched effect's refinement is tried
@@ -52,7 +61,8 @@ def refinable(
     if not {e.name for e in builtins} <= by_name.keys():
         return {}
     swaps = {e.name: e.refinement for e in effects if e.refinement and e.refinement not in by_name}
-    named = room >= min_gain and any(name in swaps for name in kept)
+    saturated = any(name in swaps for name in kept)
+    named = saturated and (room >= min_gain or len(kept) >= CROWDED)
     pointed = ((unexplained or {}).get("description") or {}).get("named_only") in swaps.values()
     # every refinement at once: a clip of the drive read through the dynamics as a tanh on the output (a
     # probe's ±1.5 V drive clip: `saturation` refined to `clip`, 1.6–2× the floor left; `drive_clip` named
@@ -65,7 +75,14 @@ def refined_effects(effects, swaps: dict[str, str]) -> list:
     return [e for e in effects if e.name not in swaps] + list(swaps.values())
 
 
-def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, dict]:
+def refinement_reason(kept, room: float, min_gain: float, unexplained: dict | None) -> str:
+    """Why `refinable`'s swaps are tried, as `refined`'s sentence and the progress line say it."""
+    if room >= min_gain or unexplained is not None or len(kept) < CROWDED:
+        return LEFT_ABOVE
+    return CROWDED_WHY.format(others=len(kept) - 1)
+
+
+def refined(first, again, swaps: dict[str, str], min_gain: float, why: str = LEFT_ABOVE) -> tuple[Any, dict]:
     """The diagnosis to keep, `first` or `again` (run with `swaps` made), and ``evidence.refined``."""
     first_causes, again_causes = _names(first), _names(again)
     named = [to for to in swaps.values() if to in again_causes]
@@ -77,7 +94,7 @@ def refined(first, again, swaps: dict[str, str], min_gain: float) -> tuple[Any, 
     simpler = bool(named) and len(again_causes) < len(first_causes) and ratio >= 1.0
     keep = bool(named) and ratio >= min_gain or simpler
     tried = _tried(swaps)
-    said = f"diagnosed again with {tried}, as something was left above the noise: "
+    said = f"diagnosed again with {tried}, as {why}: "
     if keep and ratio < min_gain:
         said += (
             f"it names {', '.join(again_causes)}, fewer causes than {', '.join(first_causes)}, and its extended "

@@ -49,19 +49,25 @@ DELAY_SHIFTS = (2, 4, 7, 10, 13)
 #: reach, and what share of its largest, for `dead_times` to read where it starts.
 ONSET_Z = 5.0
 ONSET_SHARE = 0.2
+#: The shifts `dead_times` gives around the onset it reads: from `ONSET_BEFORE` samples before it to one after.
+#: A held drive's response starts a sample after its dead time (a lag's ZOH step) and a second-order one's
+#: crosses a fifth of its peak a few samples later still; the delay objective has a basin every few samples,
+#: so LM keeps the one it starts in (a 60-sample delay started at the onset read, 61, ended at 61.07).
+ONSET_BEFORE = 8
 
 
 def dead_times(drive, w, order: int = 10) -> tuple[int, ...]:
-    """The whole-sample lags at which the recorded output starts to follow the drive and follows it most,
-    read from the data alone, where it starts beyond `DELAY_SHIFTS`; () where it does not, or none is clear.
+    """Whole-sample shifts around where the recorded output starts to follow the drive, read from the data
+    alone, where it starts beyond `DELAY_SHIFTS`; () where it does not, or where no start is clear.
 
     The drive is whitened by its own AR(`order`) model and w filtered by the same model, so that their
-    cross-correlation at lag k is proportional to the system's impulse response there (Box and Jenkins):
-    the onset is its first lag over `ONSET_SHARE` of its largest, the peak its largest; both must reach
-    `ONSET_Z` standard errors of a correlation of independent series. Lags up to an eighth of the
-    record. A probe's 2 s dead time at 50 Hz (100 samples, a 0.3 s lag behind it) was never tried: the
-    screened shifts stop at 13 samples and the effect-free model could not mimic it (held-out NMSE 1.2);
-    this reads onset 76, peak 101. A plant without one reads 1–3 and 3–8 (a lag, an oscillator).
+    cross-correlation at lag k is proportional to the system's impulse response there (Box and Jenkins).
+    Its onset is its first lag over `ONSET_SHARE` of its largest and `ONSET_Z` standard errors of a
+    correlation of independent series, lags up to an eighth of the record; the shifts run from
+    `ONSET_BEFORE` samples before the onset to one after it. A probe's 2 s dead time at 50 Hz (100 samples,
+    a 0.3 s lag behind it) was never tried: the screened shifts stop at 13 samples and the effect-free
+    model could not mimic it (held-out NMSE 1.2). A plant without one reads an onset of 1–3 (a lag, an
+    oscillator).
     """
     u = np.asarray(drive, float) - float(np.mean(drive))
     y = np.asarray(w, float) - float(np.mean(w))
@@ -84,9 +90,9 @@ def dead_times(drive, w, order: int = 10) -> tuple[int, ...]:
     top, clear = float(np.max(r)), ONSET_Z / math.sqrt(fu.size)
     if not top >= clear:
         return ()
-    onset, peak = int(np.argmax(r >= max(ONSET_SHARE * top, clear))), int(np.argmax(r))
-    # a slow plant's response peaks late but starts at once: its peak is no dead time
-    return tuple(dict.fromkeys((onset, peak))) if onset > DELAY_SHIFTS[-1] else ()
+    onset = int(np.argmax(r >= max(ONSET_SHARE * top, clear)))
+    # a slow plant's response peaks late but starts at once: only a late start is a dead time
+    return tuple(range(max(onset - ONSET_BEFORE, 1), onset + 2)) if onset > DELAY_SHIFTS[-1] else ()
 
 
 def _recorded_mask(series):
