@@ -41,8 +41,16 @@ def test_a_sine_is_said_and_drives_of_many_frequencies_are_not():
     square = np.sign(np.sin(2 * np.pi * 0.2 * t))
     chirp = np.sin(2 * np.pi * (0.05 + 0.05 * t) * t)
     noisy = _sine(0.5) + 0.5 * np.random.default_rng(2).standard_normal(t.size)
-    for u in (square, h.step_drive(1800), chirp, noisy):
+    # and a sine with a second tone of 0.15 its amplitude (2 % of the power), which pins a second-order plant
+    tones = _sine(0.5) + 0.15 * 1.5 * np.sin(2 * np.pi * 3.1 * t)
+    for u in (square, h.step_drive(1800), chirp, noisy, tones):
         assert one_frequency_drive([_recording(u)]) == []
+
+
+def test_the_frequency_said_lies_between_bins_where_the_sine_does():
+    """A 0.7123 Hz sine over 60 s read "0.717 Hz", its bin (1/60 Hz wide)."""
+    (said,) = one_frequency_drive([_recording(_sine(0.7123))])
+    assert said.startswith("the drive is one sinusoid (0.712 Hz")
 
 
 def test_fit_carries_the_warning():

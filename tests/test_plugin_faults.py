@@ -105,6 +105,10 @@ class TextConstraint(Good):
     constraints: ClassVar[dict] = {"tau": "positive"}
 
 
+class NoConstraints(Good):
+    constraints = None
+
+
 class Interrupt(Good):
     def simulate(self, v_in, dt):
         raise KeyboardInterrupt
@@ -161,6 +165,8 @@ CASES = {
     "Interrupt": ("Interrupt.simulate raised KeyboardInterrupt (not a Ctrl-C)",),
     # before: "ClassConstraint() raised TypeError: Positive.contains() missing 1 required positional argument"
     "ClassConstraint": ("the constraint for tau is the class Positive", "write Positive() in constraints"),
+    # before: "NoConstraints() raised TypeError: argument of type 'NoneType' is not iterable"
+    "NoConstraints": ("NoConstraints: constraints is None, not a dict", "one entry per parameter"),
     "TextConstraint": (
         "the constraint for tau is 'positive', not a constraint",
         "write Positive(), UnitInterval()",

@@ -17,7 +17,7 @@ import pytest
 import scipy.signal
 
 from hybrid.discovery._effect_set import EFFECTS, NAMED_ONLY
-from hybrid.discovery._refine import refinable, refined, refined_effects
+from hybrid.discovery._refine import refinable, refined, refined_effects, refinement_reason
 
 TOP = 13.0  # W: where the heater stops
 
@@ -77,6 +77,15 @@ def test_refinable_takes_a_named_cause_s_refinement_and_the_one_the_remainder_po
     assert swaps(BUILTINS, ["saturation"], left=None, room=1.8) == both
     # under 1.5× the floor not even a perfect clip could gain 1.5×: not tried
     assert swaps(BUILTINS, ["saturation"], left=None, room=1.4) == {}
+    # but beside two other causes, at the floor, a clip and one other may explain as much (a probe's drive
+    # clip beside a friction read as drive_saturation, the friction and a dead zone never hidden)
+    crowded = ["drive_saturation", "friction_velocity", "drive_dead_zone"]
+    assert swaps(BUILTINS, crowded, left=None, room=1.1) == both
+    assert swaps(BUILTINS, ["delay", "lag", "drift"], left=None, room=1.1) == {}  # no saturation among them
+    assert refinement_reason(crowded, 1.1, 1.5, None) == (
+        "a saturation was named beside 2 other causes, which a clip's sharp knee may stand for"
+    )
+    assert refinement_reason(crowded, 1.8, 1.5, None) == "something was left above the noise"
     # the remainder's pointer is followed whatever is named
     pointed = {"description": {"named_only": "drive_clip"}}
     assert swaps(BUILTINS, ["drive_even"], left=pointed) == both

@@ -188,8 +188,13 @@ def constraint_problem(constraints) -> str | None:
     Checked before a plug-in is built, so that the one line names the slip (the class
     `Positive` for its instance `Positive()`) rather than what it made `encode` raise.
     """
-    if not isinstance(constraints, dict):
+    if isinstance(constraints, property):
         return None  # a property (LTI's) is read from the instance, and checked there
+    if not isinstance(constraints, dict):
+        return (
+            f"constraints is {constraints!r:.40}, not a dict: write constraints: ClassVar[dict] = "
+            '{"tau": Positive()}, one entry per parameter'
+        )
     for name, constraint in constraints.items():
         if isinstance(constraint, Constraint):
             continue
