@@ -360,30 +360,39 @@ def test_a_shorter_record_beside_a_longer_one_ends_where_its_cells_do(tmp_path, 
         "'uVal' and 'yVal' end at line 201 (200 samples); the 100 line(s) after it" in n for n in short.notes
     )
     long = Recording.load(path, **(mapping | {"columns": mapping["columns"].replace("Val", "Est")}))
-    assert long.v_in.size == N and not any("end at line" in n for n in long.notes)
+    # the shorter record's empty cells are not "not read" for the longer one's (a .txt said so, a .csv not)
+    assert long.v_in.size == N and not any("end at line" in n or "not read" in n for n in long.notes)
     np.testing.assert_allclose(long.w, y, atol=1e-6)
 
 
-def test_a_shorter_record_whose_columns_end_apart_or_have_a_gap_is_still_refused(tmp_path):
-    """Only a record whose drive and output both end on one line is read short: a drive that ends a line
-    before the output, or a missing value before the end, is refused as before."""
-    apart, _, _ = _side_by_side(tmp_path / "apart.csv", ",", u_end=199)
+@pytest.mark.parametrize("suffix, delimiter", [(".csv", ","), (".txt", "\t")])
+def test_a_shorter_record_whose_columns_end_apart_or_have_a_gap_is_refused_for_what_it_is(
+    tmp_path, suffix, delimiter
+):
+    """A drive that ends a line before its output is refused as such (it read "1501 lines have such a
+    cell", counting the tail); a gap within the record is its own missing value, refused alone, and
+    --fill-gaps fills it (it read "1501 lines", then "1500 missing values … up to its last sample")."""
+    apart, _, _ = _side_by_side(tmp_path / f"apart{suffix}", delimiter, u_end=199)
     _refused(
-        r"an empty cell \(a missing value\) in column 'uVal' \(mapped as input\) at line 201",
+        r"has columns that end on different lines, 'uVal' \(mapped as input\) at line 200 and 'yVal' "
+        r"\(mapped as output\) at line 201: a record's drive and output must end together",
         apart,
         columns="input=uVal,output=yVal",
         rate=RATE,
     )
-    gap, _, _ = _side_by_side(tmp_path / "gap.csv", ",")
+    gap, _, (uv, yv) = _side_by_side(tmp_path / f"gap{suffix}", delimiter)
     rows = gap.read_text().splitlines()
-    rows[51] = ",".join(rows[51].split(",")[:3] + [""])  # sample 50's yVal
+    rows[51] = delimiter.join(rows[51].split(delimiter)[:3] + [""])  # sample 50's yVal
     gap.write_text("\n".join(rows) + "\n")
-    _refused(
-        r"in column 'yVal' \(mapped as output\) at line 52 \(sample 50\)",
+    message = _refused(
+        r"in column 'yVal' \(mapped as output\) at line 52 \(sample 50\): every value",
         gap,
         columns="input=uVal,output=yVal",
         rate=RATE,
     )
+    assert "lines have such a" not in message  # one, not the tail's hundred beside it
+    filled = Recording.load(gap, columns="input=uVal,output=yVal", rate=RATE, fill_gaps=1)
+    assert filled.w.size == 200 and filled.w[50] == pytest.approx(0.5 * (yv[49] + yv[51]), abs=1e-6)
 
 
 def test_a_fit_scores_a_shorter_validation_record_of_the_same_file(tmp_path, capsys):

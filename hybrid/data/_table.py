@@ -284,6 +284,11 @@ def _read_csv(
                     short = load([i for role, i in index.items() if role != "t"])
                 except ValueError:
                     pass
+                if short is not None:
+                    at = np.frombuffer(lines, dtype=np.int64)
+                    refuse_ends_apart(
+                        path, short[0], dict(enumerate(index)), dict(enumerate(wanted.values())), at
+                    )
                 if short is not None and shorter_record(short[0], dict(enumerate(index))) is not None:
                     table, clock = short
                 else:
@@ -313,8 +318,8 @@ def _read_csv(
     bad = ~np.isfinite(table[:, :k])
     if fill:  # the drive's and the output's are filled (`fill_values`)
         bad[:, [j for j, role in enumerate(index) if role != "t"]] = False
-    if bad.any():
-        _diagnose(path, text, header_line, units_line, wanted, index, fill)
+    if bad.any():  # within the record (a shorter one's tail is cut above)
+        _diagnose(path, text, header_line, units_line, wanted, index, fill, int(line_of[-1]))
     columns = {role: table[:, j] for j, role in enumerate(index)}
     rates = {name: table[:, k + j] for j, name in enumerate(fields)}
     rates.update({name: np.array([value]) for name, value in given.items() if name.lower() in RATE_FIELDS})
@@ -337,24 +342,47 @@ def _read_csv(
     )
 
 
+def record_ends(table: np.ndarray, roles: Mapping[int, str]) -> dict[int, int]:
+    """The row after the last finite value of each of the drive's and the output's columns (`roles`: a
+    column of `table` -> its role): the table's length where its last cell is a number."""
+    ends = {}
+    for j, role in roles.items():
+        if role != "t":
+            finite = np.flatnonzero(np.isfinite(table[:, j]))
+            ends[j] = int(finite[-1]) + 1 if finite.size else 0
+    return ends
+
+
 def shorter_record(table: np.ndarray, roles: Mapping[int, str]) -> int | None:
     """The rows of a record shorter than its file, or None: where the drive's and the output's columns
     (`roles`: a column of `table` -> its role) both end in missing values from one row to the file's last,
-    with every value before it finite and the time column's too (a validation record beside a longer
-    estimation record, as a spreadsheet writes them side by side). Any other missing value: None (each
-    is refused, or filled, where it is)."""
-    signals = [j for j, role in roles.items() if role != "t"]
-    ends = set()
-    for j in signals:
-        finite = np.isfinite(table[:, j])
-        end = int(np.flatnonzero(finite)[-1]) + 1 if finite.any() else 0
-        if end == finite.size or not finite[:end].all():
-            return None
-        ends.add(end)
-    if len(ends) != 1 or (end := ends.pop()) < 2:
+    and the time column is finite up to there (a validation record beside a longer estimation record, as a
+    spreadsheet writes them side by side). A missing value before that row is the record's own: refused,
+    or filled, where it is."""
+    ends = set(record_ends(table, roles).values())
+    if len(ends) != 1 or (end := ends.pop()) < 2 or end == table.shape[0]:
         return None
     times = [j for j, role in roles.items() if role == "t"]
     return end if all(np.isfinite(table[:end, j]).all() for j in times) else None
+
+
+def refuse_ends_apart(
+    path, table: np.ndarray, roles: Mapping[int, str], names: Mapping[int, str], lines
+) -> None:
+    """Refuse, in one line, a record whose drive and output both stop before the file's last line, on
+    different lines (a validation drive one cell shorter than its output read as 1,501 bad lines)."""
+    ends = record_ends(table, roles)
+    if len(set(ends.values())) < 2 or max(ends.values()) == table.shape[0] or min(ends.values()) < 1:
+        return
+    said = " and ".join(
+        f"{names[j]!r} (mapped as {OPTION[roles[j]]}) at line {int(lines[end - 1])}"
+        for j, end in ends.items()
+    )
+    raise InputError(
+        f"recording '{path}' has columns that end on different lines, {said}: a record's drive and output "
+        "must end together; fill the shorter column's last value, or keep the samples both have (--range, "
+        "or --test-range for a --test record)"
+    )
 
 
 def _shorter_note(path: pathlib.Path, names: Sequence[str], lines: np.ndarray, end: int) -> str:
@@ -725,7 +753,8 @@ def read_text_table(
                 continue
             table[row, col] = math.nan
             if col not in mapped:  # a column nothing reads (a comment, a sensor not asked for): left as NaN
-                unread[names[col]] = unread.get(names[col], 0) + 1
+                if cell:  # an empty one is said by nothing (another record's, shorter, beside this one)
+                    unread[names[col]] = unread.get(names[col], 0) + 1
                 continue
             if value is None:
                 texts = True
@@ -740,13 +769,18 @@ def read_text_table(
                 f"recording '{path}' has {_cell_problem(values, col)} in column {names[col]!r}{as_role} at "
                 f"line {number} (sample {row})"
             )
-    if first is not None:
-        shorter = shorter_record(table, mapped) if not texts else None
-        if shorter is None:
-            raise _refusal(first, refused, "every value of a mapped column", missing)
+    signals = [c for c, r in mapped.items() if r != "t"]
+    if not texts and signals and not np.isfinite(table[:, signals]).all():
         at = np.array([n for n, _ in data], dtype=np.int64)
-        notes.append(_shorter_note(path, [names[c] for c, r in mapped.items() if r != "t"], at, shorter))
-        table, data = table[:shorter], data[:shorter]
+        refuse_ends_apart(path, table, mapped, {c: names[c] for c in mapped}, at)
+        shorter = shorter_record(table, mapped)
+        if shorter is not None:  # its tail is no missing value; one before it is the record's own
+            notes.append(_shorter_note(path, [names[c] for c in signals], at, shorter))
+            table, data = table[:shorter], data[:shorter]
+            refused = [k for k in refused if k <= int(at[shorter - 1])]
+            first = first if refused else None
+    if first is not None:
+        raise _refusal(first, refused, "every value of a mapped column", missing)
     if unread:
         notes.append(
             f"recording '{path}': "
@@ -847,10 +881,12 @@ def _diagnose(
     wanted: Mapping[str, str],
     index: Mapping[str, int],
     fill: bool = False,
+    last_line: int | None = None,
 ) -> None:
     """Find the first bad cell of a mapped column in the file's `text` (commas between cells) and raise
     about it (line from 1, sample from 0), saying how many lines in all have one (`_refusal`). With
-    `fill`, a missing value of the drive or output is none (`read_columns`): with no other, no raise."""
+    `fill`, a missing value of the drive or output is none (`read_columns`): with no other, no raise.
+    `last_line`: the record's last (a shorter record's: `shorter_record`); the lines after it are not read."""
     sample = -1
     first: str | None = None
     lines: list[int] = []
@@ -858,6 +894,8 @@ def _diagnose(
     with io.StringIO(text) as handle:
         for number, line in enumerate(handle, start=1):
             content = line.split("#", 1)[0].rstrip("\r\n")
+            if last_line is not None and number > last_line:
+                break
             if number <= header_line or number == units_line or not content:
                 continue  # numpy skips empty and comment lines too
             sample += 1
