@@ -13,8 +13,8 @@ as well; but it is searched only when named (`NAMED_ONLY`): in the default set
 its third parameter stood in for effects of other shapes.
 
 So where a diagnosis of the default set names an effect with a
-`refinement` and leaves at least `min_gain` times the noise floor, or its
-remainder points at one,
+`refinement` and leaves at least `min_gain` times the noise floor, or names it
+beside two other causes (`CROWDED`), or its remainder points at one,
 `diagnose` runs again with every refinement in its parent's place (the clip of
 the drive and of the output both: a probe's drive clip, read as the output's
 tanh, was refined to the output's clip alone and left 1.6–2× the floor), and
