@@ -116,7 +116,13 @@ def load_tests(args, fitted, window: int) -> list:
                         **options,
                     )
             except InputError as error:
-                raise InputError(f"--test {path}: {error}") from None
+                # the loader's flags are the fitted recordings'; a test record's range is --test-range
+                said = (
+                    str(error)
+                    .replace("(--range ", "(--test-range ")
+                    .replace(" --range A:B", " --test-range A:B")
+                )
+                raise InputError(f"--test {path}: {said}") from None
         record = in_shared_units([fitted[0], record], f"--test {path}")[1]  # scored in the fitted units
         for note in record.notes:
             print(f"hybrid: warning: {note}", file=sys.stderr)

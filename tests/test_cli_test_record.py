@@ -255,3 +255,34 @@ def test_effects_beside_a_saved_model_must_be_its_own(bench, tmp_path, capsys):
     lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and "--effects backlash: the saved model" in lines[0], lines
     assert "has no backlash" in lines[0]
+
+
+def test_a_test_records_refusal_names_test_range_not_range(tmp_path, capsys):
+    """A --test record whose output's last cells are missing: the loader's advice read "(--range 0:597)",
+    which would cut the fitted record; for the test record the flag is --test-range."""
+    rng = np.random.default_rng(0)
+    u = np.repeat(rng.uniform(-1, 1, 30), 20)
+    y = h.zoh_lag(u, 1 / 30.0, 0.5)
+    est, val = tmp_path / "est.csv", tmp_path / "val.csv"
+    est.write_text("u,y\n" + "".join(f"{p:.6f},{q:.6f}\n" for p, q in zip(u, y)))
+    val.write_text(
+        "u,y\n"
+        + "".join(f"{p:.6f},{q:.6f}\n" if k < 597 else f"{p:.6f},\n" for k, (p, q) in enumerate(zip(u, y)))
+    )
+    argv = [
+        "fit",
+        est,
+        "--columns",
+        "input=u,output=y",
+        "--rate",
+        30,
+        "--model",
+        "physics",
+        "--physics",
+        "lti:1",
+    ]
+    argv += ["--quiet", "--max-steps", 1, "--test", val, "--fill-gaps", 2, "--out", tmp_path / "m.eqx"]
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2 and "--test " in err and "leave those samples out (--test-range 0:597)" in err, err
+    assert "(--range " not in err and not (tmp_path / "m.eqx").exists()
