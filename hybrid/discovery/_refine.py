@@ -92,7 +92,7 @@ def refined(first, again, swaps: dict[str, str], min_gain: float, why: str = LEF
     # friction and a dead zone never hidden (the three faking the clip's sharp knee); refined, the clip and
     # the friction alone, 1.12× lower, which the min_gain rule let the three-cause diagnosis keep
     simpler = bool(named) and len(again_causes) < len(first_causes) and ratio >= 1.0
-    keep = bool(named) and ratio >= min_gain or simpler
+    keep = (bool(named) and ratio >= min_gain) or simpler
     tried = _tried(swaps)
     said = f"diagnosed again with {tried}, as {why}: "
     if keep and ratio < min_gain:
