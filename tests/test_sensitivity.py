@@ -410,9 +410,11 @@ def test_a_derivative_that_diverges_is_said_not_read_as_an_output_that_does_not_
     stayed finite, and every parameter read "the output does not change with it, or it trades off
     exactly". Here a 1 Hz oscillator (30 Hz, 4 RK4 substeps) with a 1.2 V friction: sticking below
     0.5 V/s the covariance is read; below 0.01 V/s (ω²F/v_s·h ≈ 40) it is said to have diverged."""
+    import dataclasses
+
     import hybrid
     from hybrid.discovery._diagnosis import ParameterUncertainty
-    from hybrid.discovery._evidence import DIVERGED, not_pinned
+    from hybrid.discovery._evidence import DIVERGED, diverged_warnings, not_pinned
 
     oscillator = hybrid.resolve_physics("examples/oscillator.py:MassSpringDamper").replace(
         frequency=1.0, zeta=0.2
@@ -439,3 +441,8 @@ def test_a_derivative_that_diverges_is_said_not_read_as_an_output_that_does_not_
         for name in wild.names
     }
     assert set(not_pinned(unsure, model, []).values()) == {DIVERGED}
+    (warned,) = diverged_warnings(unsure)
+    assert (
+        warned.startswith("the model's derivative diverges at the fitted values") and "shorter step" in warned
+    )
+    assert diverged_warnings({k: dataclasses.replace(u, diverged=False) for k, u in unsure.items()}) == []

@@ -769,15 +769,15 @@ def read_text_table(
                 f"recording '{path}' has {_cell_problem(values, col)} in column {names[col]!r}{as_role} at "
                 f"line {number} (sample {row})"
             )
+    at = np.array([n for n, _ in data], dtype=np.int64)  # the file line of each row
     signals = [c for c, r in mapped.items() if r != "t"]
     if not texts and signals and not np.isfinite(table[:, signals]).all():
-        at = np.array([n for n, _ in data], dtype=np.int64)
         refuse_ends_apart(path, table, mapped, {c: names[c] for c in mapped}, at)
         shorter = shorter_record(table, mapped)
         if shorter is not None:  # its tail is no missing value; one before it is the record's own
             notes.append(_shorter_note(path, [names[c] for c in signals], at, shorter))
-            table, data = table[:shorter], data[:shorter]
-            refused = [k for k in refused if k <= int(at[shorter - 1])]
+            table, at = table[:shorter], at[:shorter]
+            refused = [k for k in refused if k <= int(at[-1])]
             first = first if refused else None
     if first is not None:
         raise _refusal(first, refused, "every value of a mapped column", missing)
@@ -790,7 +790,7 @@ def read_text_table(
     return (
         names,
         table,
-        TableNotes(np.array([n for n, _ in data], dtype=np.int64), tuple(notes), units=stated, period=period),
+        TableNotes(at, tuple(notes), units=stated, period=period),
     )
 
 

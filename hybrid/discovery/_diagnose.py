@@ -80,7 +80,7 @@ from ._decision import derived_quantities, evaluate_candidate, free_names
 from ._diagnosis import SPLIT_ORDER, Candidate, DiagnoseSettings, Diagnosis, HeldoutSignals
 from ._effect_set import resolve_effects, searched_places
 from ._effect_stack import EffectStack
-from ._evidence import fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
+from ._evidence import diverged_warnings, fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._joint import joint_pair, named_jointly
 from ._noise_floor import bounded_by_residual, bridged, glitch_runs
 from ._redundant import drop_redundant
@@ -535,7 +535,7 @@ def diagnose(
         + model_warnings(models["extended"], frozen, search.rate)
         + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1])
         + one_frequency_drive(recordings)
-        + _diverged_warnings(uncertainties),
+        + diverged_warnings(uncertainties),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept
         else {},
@@ -592,24 +592,6 @@ def _bridge_glitches(recordings) -> tuple[list, list[dict]]:
             found.append({"recording": r.name, "runs": [[int(a), int(b)] for a, b in runs]})
         out.append(r)
     return out, found
-
-
-def _diverged_warnings(uncertainties) -> list[str]:
-    """The warning a final model whose derivative diverged gets (`Covariance.diverged`), or none.
-
-    A probe's mass with a Coulomb friction in its own RK4 plug-in: a stick speed of 0.009 V/s made the
-    friction's linearised stiffness too fast for the step, the sensitivities grew to 1e35 while the
-    output stayed finite, and every parameter read "the output does not change with it".
-    """
-    if not any(u.diverged for u in uncertainties.values()):
-        return []
-    return [
-        "the final model's derivative with respect to its parameters diverges while its output stays finite: "
-        "its linearised step is unstable at the fitted values (an integration step too long for the fastest "
-        "dynamics the fit reached, e.g. a friction's sticking speed or a fast pole), so the fit's steps, which "
-        "follow that derivative, and every standard error are suspect; give the simulation a shorter step "
-        "(more substeps) or bound the parameter that makes it stiff"
-    ]
 
 
 def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:

@@ -103,12 +103,29 @@ def inverse_diagonal(fisher: np.ndarray) -> np.ndarray:
     return np.diag(inverse) * scale**2
 
 
-#: Why no parameter is pinned where the model's derivative diverged (`Covariance.diverged`).
-DIVERGED = (
+#: What a model whose derivative diverged (`Covariance.diverged`) has: the reason its parameters are not
+#: pinned (`not_pinned`) and the start of diagnose's warning (`diverged_warnings`).
+DIVERGED_CAUSE = (
     "the model's derivative diverges at the fitted values while its output stays finite: its linearised "
     "step is unstable there (an integration step too long for the fastest dynamics the fit reached, a "
-    "friction's sticking or a fast pole), so no error can be read"
+    "friction's sticking or a fast pole)"
 )
+DIVERGED = DIVERGED_CAUSE + ", so no error can be read"
+
+
+def diverged_warnings(uncertainties: dict[str, ParameterUncertainty]) -> list[str]:
+    """The warning a final model whose derivative diverged gets, or none.
+
+    A probe's mass with a Coulomb friction in its own RK4 plug-in: a stick speed of 0.009 V/s made the
+    friction's linearised stiffness too fast for the step, the sensitivities grew to 1e35 while the
+    output stayed finite, and every parameter read "the output does not change with it".
+    """
+    if not any(u.diverged for u in uncertainties.values()):
+        return []
+    return [
+        f"{DIVERGED_CAUSE}: the fit's steps, which follow that derivative, and every standard error are "
+        "suspect; give the simulation a shorter step (more substeps) or bound the parameter that makes it stiff"
+    ]
 
 
 def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, series) -> dict[str, str]:
@@ -131,8 +148,11 @@ def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, ser
         se, value = u.std_error, abs(values.get(name, float("nan")))
         if math.isfinite(se) and se <= value:
             continue
-        reason = DIVERGED if u.diverged else None
-        reason = reason or _at_bound(name, values.get(name, float("nan")), constraints.get(name), units)
+        reason = (
+            DIVERGED
+            if u.diverged
+            else _at_bound(name, values.get(name, float("nan")), constraints.get(name), units)
+        )
         effect = owner.get(name)
         if reason is None and effect is not None:
             if signals is None:

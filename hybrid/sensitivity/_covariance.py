@@ -248,10 +248,11 @@ def problem_covariance(
     cov[:, bad] = np.nan
     cov[bad, bad] = np.inf
     se = np.sqrt(np.abs(np.diag(cov)))
-    optimum = _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond, columns)
-    step = np.array(
-        [float(optimum[k]) - float(named[k]) if optimum and not diverged else np.nan for k in names]
+    # no Gauss–Newton step follows a J that diverged: none is taken
+    optimum = (
+        None if diverged else _training_optimum(problem, theta, r, J, rows_penalty, D, se, rcond, columns)
     )
+    step = np.array([float(optimum[k]) - float(named[k]) if optimum else np.nan for k in names])
     step[bad] = np.nan
 
     fisher = _efficient_fisher(J, rows_penalty, D, s2)
