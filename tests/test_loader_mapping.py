@@ -238,6 +238,24 @@ def test_time_column_in_milliseconds(tmp_path):
     assert rec.rate == pytest.approx(1000 / 33.3) and rec.metadata["units"]["t"] == "s"
 
 
+@pytest.mark.parametrize("step", [1, 5])
+def test_a_unitless_whole_step_time_column_is_read_in_seconds_and_said(tmp_path, step):
+    """A logger's millisecond counter at 1 kHz or 200 Hz: a probe's 1.5 Hz plant fitted at 0.0015 Hz, unsaid."""
+    rows = "\n".join(f"{i * step},{i % 3},{i % 5}" for i in range(30))
+    path = _write(tmp_path / "counter.csv", f"time,u,y\n{rows}\n")
+    rec = load_mapped(path, input="u", output="y", time="time")
+    assert rec.dt == pytest.approx(step)  # seconds, as documented: a slow logger's whole seconds are valid
+    (note,) = [n for n in rec.notes if "has no unit" in n]
+    assert f"steps by {step}: read in seconds" in note and "--units t=ms" in note
+    for units in ("t=ms", "t=s"):  # said either way: no note
+        said = load_mapped(path, input="u", output="y", time="time", units=units)
+        assert not [n for n in said.notes if "has no unit" in n]
+    fractional = _write(
+        tmp_path / "seconds.csv", "time,u,y\n" + "\n".join(f"{i * 0.02:.2f},1,2" for i in range(30))
+    )
+    assert not load_mapped(fractional, input="u", output="y", time="time").notes
+
+
 @pytest.mark.parametrize("rate", [0.1, 1.0, 100_000.0])
 def test_rates_from_a_tenth_of_a_hertz_to_100_khz(lab, rate):
     rec = load_mapped(lab, input="u", output="y", rate=rate, sample_range="5:")

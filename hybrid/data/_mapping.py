@@ -299,6 +299,15 @@ def load_mapped(
                 f"looks like {looks}: give its unit, --units {' or '.join(f't={u}' for u in may_be)} "
                 "(units= in Python; t=s for a recording really sampled this slowly)"
             )
+        if not declared and step >= 1.0 and abs(step - round(step)) <= 1e-9 * step:
+            # a logger's millisecond counter at 200 Hz or 1 kHz steps by 5 or 1: read as a slow recording in
+            # seconds (a probe's 1.5 Hz plant fitted at 0.0015 Hz, exit 0); a whole second per step can be
+            # a slow logger's own, so it is said, not refused
+            notes.append(
+                f"recording '{label}': its time column '{roles['t']}' has no unit and steps by {step:g}: read "
+                f"in seconds ({1 / step:.3g} Hz); if it counts milliseconds ({1e3 / step:.4g} Hz), give "
+                "--units t=ms (units= in Python), or t=s to say it is seconds"
+            )
         if fill_gaps:
             t, signals, lines, filled = fill_missing(label, t, signals, int(fill_gaps), lines)
             kept = np.setdiff1d(np.arange(t.size), filled)  # where each sample read went
