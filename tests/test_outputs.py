@@ -7,6 +7,7 @@ command, and every size argument is bounded. Each test is a small, fast case.
 """
 
 import errno
+import json
 import os
 import subprocess
 import sys
@@ -288,6 +289,47 @@ def test_a_failed_command_leaves_no_folder_or_lock_behind(rec, capsys, monkeypat
     code, _, err = run(["fit", rec, "--model", "physics", "--out", "new/deeper/m.eqx", "--quiet"], capsys)
     assert_one_line_error(code, err, "the fit failed")
     assert not (rec.parent / "new").exists() and snapshot(rec.parent) == before
+
+
+def test_a_users_own_files_in_an_output_folder_are_never_replaced(rec, capsys, monkeypatch):
+    """A probe's --out folder held its own report.md and baseline.eqx: diagnose replaced both without a word."""
+    refuse_to_compute(monkeypatch)
+    diag = rec.parent / "diag"
+    diag.mkdir()
+    (diag / "report.md").write_text("# my own notes\n")
+    (diag / "baseline.eqx").write_bytes(b"my model")
+    before = snapshot(diag)
+    code, _, err = run(["diagnose", rec, "--out", "diag"], capsys)
+    assert_one_line_error(code, err, "already holds report.md, baseline.eqx", "no hybrid command wrote")
+    assert snapshot(diag) == before
+
+
+def test_an_output_folder_lists_what_it_wrote_and_a_rerun_replaces_only_that(tmp_path):
+    from hybrid.util._outputs import MANIFEST, OutputFolder, prepare_outputs
+
+    folder = OutputFolder(tmp_path / "out", "--out", ("a.txt", "b.txt"))
+    with prepare_outputs([folder]):
+        (folder.path / "a.txt").write_text("first run")
+    assert json.loads((folder.path / MANIFEST).read_text()) == {"files": ["a.txt"]}
+    with prepare_outputs([folder]):  # its own a.txt: a rerun may replace it
+        (folder.path / "a.txt").write_text("second run")
+    (folder.path / "b.txt").write_text("the user's")  # a name the command writes, put there by hand
+    with pytest.raises(InputError, match=r"already holds b\.txt, which no hybrid command wrote"):
+        prepare_outputs([folder])
+    (folder.path / "b.txt").unlink()
+    with pytest.raises(RuntimeError), prepare_outputs([folder]):  # a failed run: nothing is listed
+        (folder.path / "b.txt").write_text("half")
+        raise RuntimeError("the command failed")
+    assert json.loads((folder.path / MANIFEST).read_text()) == {"files": ["a.txt"]}
+
+
+def test_a_command_runs_again_into_its_own_folder(rec, capsys):
+    argv = ["sensitivity", rec, "--physics", "lti:1", "--out", "sens"]
+    assert run(argv, capsys)[0] == 0
+    (rec.parent / "sens" / "notes.txt").write_text("mine")  # not a name the command writes
+    code, _, err = run(argv, capsys)
+    assert code == 0, err
+    assert (rec.parent / "sens" / "notes.txt").read_text() == "mine"
 
 
 # --------------------------------------------------------------------------- 4. one writer per output

@@ -10,6 +10,12 @@ file. [`prepare_outputs`][] is called by every command before it computes:
 - each output folder is a folder (or can be created) and is writable;
 - no output file, nor its ``<file>.json`` sidecar, is one of the inputs or
   their sidecars (resolved paths and `os.path.samefile`, so links count too);
+- an output folder that already holds files of the names the command writes
+  holds them because a command of this package wrote them there: each command
+  that succeeds lists what it wrote in the folder's ``.hybrid-outputs.json``
+  ([`MANIFEST`][]). A name there that no run listed is the user's own (a
+  ``report.md`` of theirs, a model they saved by hand): it is refused, never
+  replaced; a rerun into a folder of results replaces them;
 - then it creates the folders and takes an exclusive lock per output
   (``<file>.lock``, or ``.hybrid.lock`` inside an output folder): a file
   created with ``O_CREAT | O_EXCL`` holding the process id, removed when the
@@ -23,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import json
 import os
 import tempfile
 import time
@@ -35,6 +42,9 @@ __all__ = ["OutputFile", "OutputFolder", "lock", "prepare_outputs", "sidecar_of"
 
 LOCK_SUFFIX = ".lock"
 FOLDER_LOCK = ".hybrid.lock"
+#: In an output folder: the names this package's commands wrote there (``{"files": [...]}``), the only
+#: files of the folder a later command may replace.
+MANIFEST = ".hybrid-outputs.json"
 #: A lock file younger than this with no readable pid is being written: it is held.
 FRESH_LOCK_S = 10.0
 
@@ -143,6 +153,34 @@ def _check_folder(output: OutputFolder) -> None:
                 f"{option} {path}: {file} is a folder but the results need that name: "
                 "remove it or choose another folder"
             )
+    written = _written(path)
+    foreign = [f.name for f in output.files() if f.exists() and f.name not in written]
+    if foreign:
+        more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+        raise InputError(
+            f"{option} {path} already holds {', '.join(foreign[:3])}{more}, which no hybrid command wrote "
+            f"there ({MANIFEST} does not list them), and this command would replace them: choose a new or "
+            "empty folder, or move those files away"
+        )
+
+
+def _written(folder: Path) -> set[str]:
+    """The names `MANIFEST` in `folder` lists (none where it is missing or unreadable)."""
+    try:
+        files = json.loads((folder / MANIFEST).read_text()).get("files", [])
+    except (OSError, ValueError, AttributeError):
+        return set()
+    return {f for f in files if isinstance(f, str)} if isinstance(files, list) else set()
+
+
+def _record_written(output: OutputFolder) -> None:
+    """Add the names of `output` now in its folder to the folder's `MANIFEST` (best effort: a folder
+    that cannot take it only makes a later run there refuse those names)."""
+    from ._atomic import write_text
+
+    names = sorted(_written(output.path) | {f.name for f in output.files() if f.exists()})
+    with contextlib.suppress(OSError, InputError):
+        write_text(output.path / MANIFEST, json.dumps({"files": names}, indent=1) + "\n")
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -302,6 +340,9 @@ def lock(outputs: Sequence[OutputFile | OutputFolder]) -> Iterator[None]:
             _acquire(path, output.path, output.option)
             held.append(path)
         yield
+        for output in outputs:  # the command succeeded: what it wrote may be replaced by its next run
+            if isinstance(output, OutputFolder):
+                _record_written(output)
     except BaseException:
         for path in reversed(held):
             _release(path)
