@@ -270,22 +270,30 @@ def _scene(args, virtual: bool):
 
 
 def _cmd_track(args):
+    from hybrid.util import OutputFile, prepare_outputs
+
+    from ._files import check_csv_out, check_outputs
     from ._trackvideo import TrackJob, track_video
 
     scene = _scene(args, virtual=False)
-    track_video(
-        TrackJob(
-            video=args.video,
-            out=args.out,
-            clamp=scene.clamp,
-            mm_per_px=scene.mm_per_px,
-            axis_deg=args.axis,
-            length_mm=args.length,
-            strip_px=args.strip_px,
-            led=_led(args),
-            exposure=args.exposure,
+    check_outputs([args.out, args.out + ".json"], [args.video])
+    check_csv_out(args.out, "rig track")
+    # --out's folder writable before the video is read, not after it (a probe's read-only folder: the whole
+    # video tracked, then refused); a second writer of the same --out is refused while this one runs
+    with prepare_outputs([OutputFile(pathlib.Path(args.out), "--out", (".csv",))], [args.video]):
+        track_video(
+            TrackJob(
+                video=args.video,
+                out=args.out,
+                clamp=scene.clamp,
+                mm_per_px=scene.mm_per_px,
+                axis_deg=args.axis,
+                length_mm=args.length,
+                strip_px=args.strip_px,
+                led=_led(args),
+                exposure=args.exposure,
+            )
         )
-    )
 
 
 def _refuse_unplayable(drive, calibration, what: str, fix: str) -> None:

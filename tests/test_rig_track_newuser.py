@@ -179,6 +179,27 @@ def test_an_out_below_a_file_names_the_file(tmp_path, capsys):
     assert (tmp_path / "notes.txt").read_text() == "mine\n"
 
 
+def test_an_out_folder_that_cannot_be_written_is_refused_before_the_video_is_read(
+    tmp_path, capsys, monkeypatch
+):
+    """A probe's read-only --out folder: the whole video tracked, then refused ("free some space")."""
+    import tempfile
+
+    video = tmp_path / "v.avi"  # an empty file: reading it would fail with another message
+    video.write_bytes(b"")
+    (tmp_path / "ro").mkdir()
+
+    def read_only(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "mkstemp", read_only)  # as root, a chmod would not stop the write
+    out = tmp_path / "ro" / "w.csv"
+    assert main(["track", str(video), "--clamp", "60,120", "--mm-per-px", "0.1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot write in" in err and "Permission denied" in err, err
+    assert list((tmp_path / "ro").iterdir()) == []
+
+
 def test_a_repeated_frame_is_flagged_and_warned_about(tmp_path, capsys):
     rng = np.random.default_rng(2)
     images = [_frame(w, 4.0, rng) for w in SWEEP]
