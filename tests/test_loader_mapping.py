@@ -509,6 +509,43 @@ def test_a_semicolon_file_with_decimal_commas_maps_its_columns(tmp_path):
     assert any("read as cells separated by ';' with decimal commas" in note for note in rec.notes)
 
 
+def test_decimal_commas_with_thousands_separators_read_as_the_numbers_they_show(tmp_path):
+    """A probe's German export: -1.089,759 µm was refused, quoted as '-1.089 759', a cell the file lacks."""
+    text = "Zeit;Spannung;Weg\n0;1,5;-1.089,759\n0,5;2;12.345.678,5\n1;-1,25;1 089,25\n1,5;0;2\u00a0000,0\n"
+    rec = load_mapped(_write(tmp_path / "eu.csv", text), input="Spannung", output="Weg", time="Zeit")
+    np.testing.assert_array_equal(rec.w, [-1089.759, 12345678.5, 1089.25, 2000.0])
+    (note,) = [n for n in rec.notes if "separated by ';'" in n]
+    assert "with decimal commas (4 with thousands separators, dropped)" in note
+    # a point with no comma is a point-decimal number, not a thousands separator; a group of two is no group
+    assert (
+        load_mapped(
+            _write(tmp_path / "p.csv", "t;u;y\n0;1;1.089\n1;2;2\n"), input="u", output="y", time="t"
+        ).w[0]
+        == 1.089
+    )
+    with pytest.raises(InputError, match=r"non-numeric cell .* at line 2 "):
+        load_mapped(_write(tmp_path / "q.csv", "t;u;y\n0;1;1.08,9\n1;2;2\n"), input="u", output="y", time="t")
+
+
+def test_numbers_stored_as_text_with_decimal_commas_in_a_workbook_read_as_numbers(tmp_path):
+    """A probe's .xlsx of text cells '0,000000' (a ';' CSV pasted into Excel): refused as '0 000000'."""
+    import openpyxl
+
+    book = openpyxl.Workbook()
+    sheet = book.active
+    sheet.append(["Zeit", "Spannung", "Weg"])
+    for i in range(5):
+        sheet.append([f"{i * 0.5}".replace(".", ","), f"{i},25", 1.5 * i])  # text, text, a number
+    path = tmp_path / "text.xlsx"
+    book.save(path)
+    rec = load_mapped(path, input="Spannung", output="Weg", time="Zeit")
+    np.testing.assert_array_equal(rec.v_in, [0.25, 1.25, 2.25, 3.25, 4.25])
+    assert rec.rate == pytest.approx(2.0)
+    assert any("10 cell(s) hold numbers stored as text with a decimal comma" in n for n in rec.notes), (
+        rec.notes
+    )
+
+
 def test_a_mat_files_struct_fields_are_named_with_dots(tmp_path):
     """A lab's .mat keeps its signals in a struct: run.data.u, run.data.y and run.Ts map like variables."""
     import scipy.io

@@ -500,7 +500,15 @@ def sheet_text(path: pathlib.Path) -> tuple[str, list[str]]:
         if not book.worksheets:
             raise InputError(f"recording '{path}' is a workbook without a sheet: save the data in one")
         sheet, count = book.worksheets[0], len(book.worksheets)
-        lines = [",".join(_sheet_cell(value) for value in row) for row in sheet.iter_rows(values_only=True)]
+        lines, as_text = [], 0
+        for row in sheet.iter_rows(values_only=True):
+            cells = []
+            for value in row:
+                # a number stored as text with a decimal comma (a CSV of such a locale pasted in): a number
+                number = comma_number(value.strip()) if isinstance(value, str) else None
+                as_text += number is not None
+                cells.append(number if number is not None else _sheet_cell(value))
+            lines.append(",".join(cells))
     finally:
         book.close()
     notes = (
@@ -510,6 +518,11 @@ def sheet_text(path: pathlib.Path) -> tuple[str, list[str]]:
         if count > 1
         else []
     )
+    if as_text:
+        notes.append(
+            f"recording '{path}': {as_text} cell(s) hold numbers stored as text with a decimal comma "
+            "(e.g. '0,5'): read as numbers"
+        )
     return "\n".join(lines), notes
 
 
@@ -725,6 +738,22 @@ def is_number(text: str) -> bool:
 
 #: A number written with a decimal comma: 1,5 or -0,25 or ,5 or 1,5e-3.
 DECIMAL_COMMA = re.compile(r"[+-]?(\d+,\d*|,\d+)([eE][+-]?\d+)?")
+#: ... with its thousands grouped by '.', an apostrophe or a (non-breaking) space before the comma, as a
+#: spreadsheet in such a locale shows them: -1.089,759 or 12 345,6 (the comma marks it: 1.089 alone is
+#: a point-decimal number).
+_GROUPED_COMMA = re.compile(r"([+-]?\d{1,3}(?:([.' \u00a0\u202f])\d{3})(?:\2\d{3})*)(,\d*)([eE][+-]?\d+)?")
+
+
+def comma_number(cell: str) -> str | None:
+    """`cell` (stripped) with a decimal comma written with a point, thousands separators dropped; None
+    where it is not a number written with a decimal comma."""
+    if DECIMAL_COMMA.fullmatch(cell):
+        return cell.replace(",", ".")
+    grouped = _GROUPED_COMMA.fullmatch(cell)
+    if grouped is None:
+        return None
+    whole, _, fraction, exponent = grouped.groups()
+    return re.sub(r"[.' \u00a0\u202f]", "", whole) + "." + fraction[1:] + (exponent or "")
 
 
 def comma_separated(text: str) -> tuple[str, str | None]:
@@ -747,7 +776,7 @@ def comma_separated(text: str) -> tuple[str, str | None]:
     mark = next((m for m in (";", "\t") if m in header and "," not in header), None)
     if mark is None:
         return text, None
-    decimals = 0
+    decimals = grouped = 0
     out = []
     for line in lines:
         if not line.strip() or line.strip().startswith("#"):
@@ -756,12 +785,15 @@ def comma_separated(text: str) -> tuple[str, str | None]:
         cells = []
         for cell in line.split(mark):
             cell = cell.strip()
-            if DECIMAL_COMMA.fullmatch(cell):
-                cell, decimals = cell.replace(",", "."), decimals + 1
+            number = comma_number(cell)
+            if number is not None:
+                grouped += not DECIMAL_COMMA.fullmatch(cell)
+                cell, decimals = number, decimals + 1
             cells.append(cell.replace(",", " "))  # a comma in a name or a label: not a separator
         out.append(",".join(cells))
     word = "';'" if mark == ";" else "tabs"
-    return "\n".join(out), f"read as cells separated by {word}" + (" with decimal commas" if decimals else "")
+    how = f"read as cells separated by {word}" + (" with decimal commas" if decimals else "")
+    return "\n".join(out), how + (f" ({grouped} with thousands separators, dropped)" if grouped else "")
 
 
 def commented_header(path: pathlib.Path | str, text: str) -> tuple[str, list[str]]:
