@@ -324,7 +324,8 @@ def test_a_file_in_the_projects_columns_points_at_the_filling_and_is_filled_with
     else:
         np.savetxt(path, np.c_[t, v, lost], delimiter=",", header="t,v_in,w", comments="", fmt="%.10f")
     with pytest.raises(
-        InputError, match=r"non-finite values in column 'w' at .*--fill-gaps N \(fill_gaps=N\)"
+        InputError,
+        match=r"(non-finite values|missing values \(empty or non-finite cells\)) in column 'w' at .*--fill-gaps N \(fill_gaps=N\)",
     ):
         Recording.load(path)
     record = Recording.load(path, fill_gaps=2)

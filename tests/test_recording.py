@@ -231,7 +231,9 @@ def test_non_finite_arrays(bad):
 
 def test_non_finite_csv_names_file_lines(tmp_path):
     path = _write(tmp_path / "a.csv", "# header next\nt,v_in,w\n0,1,2\n1,nan,2\n2,1,inf\n")
-    with pytest.raises(InputError, match="non-finite values in column 'v_in' at lines 4 "):
+    with pytest.raises(
+        InputError, match=r"missing values \(empty or non-finite cells\) in column 'v_in' at line 4 "
+    ):
         Recording.load(path)
 
 
@@ -319,7 +321,18 @@ def test_non_numeric_cell(tmp_path):
     with pytest.raises(InputError, match=r"non-numeric cell 'oops' in column 'v_in' at line 4 \(sample 2\)"):
         Recording.load(path)
     path = _write(tmp_path / "b.csv", "t,v_in,w\n0,1,2\n1,,2\n")
-    with pytest.raises(InputError, match=r"non-numeric cell '' in column 'v_in' at line 3 \(sample 1\)"):
+    with pytest.raises(
+        InputError, match=r"missing values \(empty .*\) in column 'v_in' at line 3 \(sample 1\)"
+    ):
+        Recording.load(path)
+    # a probe's nan at line 1002 and empty cells at 2002-2003: the message named line 2002 alone
+    path = _write(tmp_path / "c.csv", "t,v_in,w\n0,1,2\n1,1,nan\n2,1,2\n3,1,\n4,1,\n5,1,2\n")
+    with pytest.raises(InputError, match=r"in column 'w' at lines 3, 5, 6 \(samples 1, 3, 4; 3 in all\)"):
+        Recording.load(path)
+    path = _write(tmp_path / "d.csv", "t,v_in,w\n0,1,2\n1,,2\n2,x,2\n3,y,2\n")  # text beside a missing value
+    with pytest.raises(
+        InputError, match=r"non-numeric cell 'x' in column 'v_in' at line 4 \(sample 2\) \(2 lines"
+    ):
         Recording.load(path)
 
 

@@ -973,24 +973,36 @@ def _csv_column(path: pathlib.Path, column: str, cells: list[str], numbers: np.n
     try:
         values = np.array(cells, dtype=np.float64)
     except ValueError:
-        for k, (cell, number) in enumerate(zip(cells, numbers)):
-            try:
-                float(cell)
-            except ValueError:
-                comma = " (a decimal comma: write '.' decimals)" if DECIMAL_COMMA.fullmatch(cell) else ""
-                raise InputError(
-                    f"recording '{path}' has non-numeric cell {cell!r}{comma} in column '{column}' at line "
-                    f"{number} (sample {k}): fix that cell or delete the line"
-                    + (offer if not cell.strip() else "")
-                ) from None
-        raise  # pragma: no cover - numpy and float() disagree
+        values = np.array([_float_or_nan(cell) for cell in cells])
+        text = [k for k, cell in enumerate(cells) if cell.strip() and not is_number(cell)]
+        if text:  # text where a number belongs: the first, and how many lines have one
+            k, cell = text[0], cells[text[0]]
+            comma = " (a decimal comma: write '.' decimals)" if DECIMAL_COMMA.fullmatch(cell) else ""
+            more = (
+                f" ({len(text)} lines have such a cell: {samples_text(text, numbers)})"
+                if len(text) > 1
+                else ""
+            )
+            raise InputError(
+                f"recording '{path}' has non-numeric cell {cell!r}{comma} in column '{column}' at line "
+                f"{numbers[k]} (sample {k}){more}: fix that cell or delete the line"
+            ) from None
+    # missing values, empty cells and non-finite ones (a tracker's nan) alike: every one, in one message
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
         raise InputError(
-            f"recording '{path}' has non-finite values in column '{column}' at "
+            f"recording '{path}' has missing values (empty or non-finite cells) in column '{column}' at "
             f"{samples_text(bad, numbers)}: remove or interpolate them{offer}"
         )
     return values
+
+
+def _float_or_nan(cell: str) -> float:
+    """A cell's number; nan for a cell that holds none (`_csv_column` says which)."""
+    try:
+        return float(cell)
+    except ValueError:
+        return math.nan
 
 
 def _unnamed_note(path: pathlib.Path, i: int, cells: list[str]) -> str:

@@ -95,8 +95,10 @@ def sample_text(k: int, lines: Any = None, t: float | None = None) -> str:
 
 def samples_text(samples: Any, lines: Any = None) -> str:
     """The first few of ``samples`` (from 0): ``"samples 12, 13 (2 in all)"``, or with the file's
-    `lines` ``"lines 14, 15 (samples 12, 13; 2 in all)"``."""
+    `lines` ``"lines 14, 15 (samples 12, 13; 2 in all)"``; one alone as `sample_text` says it."""
     samples = np.asarray(samples, dtype=int)
+    if len(samples) == 1:  # one: "line 14 (sample 12)", not "lines 14 (samples 12; 1 in all)"
+        return sample_text(int(samples[0]), lines)
     more = ", ..." if len(samples) > _SHOW_ROWS else ""
     shown = ", ".join(str(int(r)) for r in samples[:_SHOW_ROWS]) + more
     if lines is None:
