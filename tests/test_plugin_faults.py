@@ -11,6 +11,7 @@ case -> message in docs/plugins.md is these cases' messages.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -129,6 +130,15 @@ class LateNaN(Good):
     def simulate(self, v_in, dt):
         y = jnp.asarray(v_in) * self.parameters()["tau"]
         return jnp.where(jnp.arange(y.shape[0]) >= 100, jnp.nan, y)
+
+
+class Partial(Good):
+    """NaN for tau over 2 s, inside its own typical range: a probe's plug-in, stepped around without a word."""
+    typical: ClassVar[dict] = {"tau": (0.05, 20.0)}
+
+    def simulate(self, v_in, dt):
+        tau = self.parameters()["tau"]
+        return jnp.where(tau > 2.0, jnp.nan, jnp.asarray(v_in) * tau)
 
 
 def _late(cls, fault):
@@ -252,6 +262,23 @@ def test_run_time_faults_in_diagnose_and_sensitivity_name_the_plugin(files, caps
     spec = f"{plugin}:LateNaN"  # no exception: every start of the baseline stays non-finite
     code = main(["diagnose", str(recording), "--physics", spec, "--out", str(folder / "diag"), "--quiet"])
     _one_line(code, capsys.readouterr().err, spec, "returns non-finite values", "no step of the fit")
+    spec = f"{plugin}:Partial"  # not finite over part of its range: diagnoses, and says so
+    code = main(
+        ["diagnose", str(recording), "--physics", spec, "--effects", "delay", "--out", str(folder / "part")]
+        + ["--quiet", "--max-steps", "2"]
+    )
+    err = capsys.readouterr().err
+    assert code == 0, err
+    said = [
+        w for w in json.loads((folder / "part" / "report.json").read_text())["warnings"] if "Partial" in w
+    ]
+    assert len(said) == 1 and "its output was not finite (NaN or inf) at " in said[0], said
+    assert (
+        "points screened for the baseline's starts (e.g. tau=" in said[0]
+        and "narrow the constraints" in said[0]
+    )
+    escaped = float(said[0].split("(e.g. tau=")[1].split(")")[0])
+    assert escaped > 2.0  # where the plug-in is NaN
     spec = f"{plugin}:Quits"
     code = main(["sensitivity", str(recording), "--physics", spec, "--out", str(folder / "sens")])
     _one_line(code, capsys.readouterr().err, spec, "Quits.simulate called sys.exit(0)")

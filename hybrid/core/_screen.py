@@ -133,9 +133,13 @@ def screen_losses(problem, simulation, raws):
 
     def one(raw):
         sim = simulation.with_raw(raw)
-        *_, rss = gain_offset(train_signal(problem, sim), w, weights)
+        signal = train_signal(problem, sim)
+        *_, rss = gain_offset(signal, w, weights)
         loss = rss / jnp.sum(weights)
-        return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
+        # a signal that is not finite where it is scored: no start (`lstsq` takes a NaN column for a
+        # dependent one, gain 0, and scored it as the constant model, finite)
+        finite = jnp.all(jnp.isfinite(signal) | (weights == 0))
+        return jnp.where(finite & jnp.isfinite(loss), loss, jnp.inf)
 
     return map_rows(one, raws, batch_size=16)
 
@@ -192,7 +196,15 @@ def screen_design(problem, simulation, frozen=frozenset(), n_screen: int = N_SCR
 
 
 def screened_starts(problem, simulation, n_starts: int, n_screen: int, frozen=frozenset()) -> list[dict]:
-    """The `n_starts` best of an `n_screen`-point design, by training MSE with least-squares gain.
+    """The `n_starts` best of an `n_screen`-point design (`screen_starts`' starts)."""
+    return screen_starts(problem, simulation, n_starts, n_screen, frozen)[0]
+
+
+def screen_starts(
+    problem, simulation, n_starts: int, n_screen: int, frozen=frozenset()
+) -> tuple[list[dict], list[dict]]:
+    """(the `n_starts` best of an `n_screen`-point design, by training MSE with least-squares gain;
+    the design's points within the recording's band where the simulation's output was not finite).
 
     The RC network's loss surface has broad plateaus and LM does not cross
     them: on a slow strip (α_C = 0.13, α_I = 0.85, C_clamp = 0.32 F), LM from 15
@@ -203,9 +215,13 @@ def screened_starts(problem, simulation, n_starts: int, n_screen: int, frozen=fr
     """
     design, names, raws, band = screen_design(problem, simulation, frozen, n_screen)
     if not names:
-        return [{}]
-    losses = np.where(band, screen_design_losses(problem, simulation, raws), np.inf)
+        return [{}], []
+    raw_losses = screen_design_losses(problem, simulation, raws)
+    losses = np.where(band, raw_losses, np.inf)
     order = least_finite(losses, n_starts)
     if not order.size:  # not finite anywhere: the design's first points, for the fit to refuse or say
         order = np.arange(min(n_starts, len(design)))
-    return [{k: design[i][k] for k in names} for i in order]
+    escaped = np.flatnonzero(np.asarray(band, bool) & ~np.isfinite(np.asarray(raw_losses, float)))
+    return [{k: design[i][k] for k in names} for i in order], [
+        {k: design[i][k] for k in names} for i in escaped
+    ]

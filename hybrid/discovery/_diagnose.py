@@ -69,7 +69,7 @@ from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
 from ..core._result import aliased, drive_outside_range, implausible, one_frequency_drive, sub_sample
-from ..core._screen import N_SCREEN, screened_starts
+from ..core._screen import N_SCREEN, screen_starts
 from ..core._simulation import unit_in
 from ..data._recording import in_shared_units
 from ..util._errors import InputError, PluginError
@@ -302,7 +302,7 @@ def diagnose(
     # 1. Baseline: the best starts of a screened design (lanes), one compiled program.
     n_lanes = search.n_lanes  # every stage runs this many lanes: one compiled program for all
     say(f"screening {N_SCREEN} designs of the simulation's parameters for the baseline's starts")
-    grid = screened_starts(problem, simulation, N_LANES, N_SCREEN, frozen)  # whatever the effects
+    grid, escaped = screen_starts(problem, simulation, N_LANES, N_SCREEN, frozen)  # whatever the effects
     stack = model.simulation
     assert isinstance(stack, EffectStack)  # a search fits an EffectStack
     base = stack.with_active(off)
@@ -324,6 +324,7 @@ def diagnose(
     if not np.isfinite(np.asarray(base_states.best_val)).any():  # no start could move
         raise PluginError(non_finite_fit(simulation, recordings), plugin=type(simulation))
     best = int(np.nanargmin(np.asarray(base_states.best_val)))
+    escapes = _escapes_warning(simulation, escaped, N_SCREEN, base_states)
     theta_base = base_states.best_theta[best]
     n_base = len(free_names(model, frozen, None))
     baseline = evaluate_candidate(
@@ -531,6 +532,7 @@ def diagnose(
         dropped=[d.to_dict() for d in dropped],
         glitches_bridged=glitches,
         warnings=_glitch_warnings(glitches, rate)
+        + escapes
         + nonfinite_warnings(steps, search.effects)
         + model_warnings(models["extended"], frozen, search.rate)
         + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1])
@@ -592,6 +594,33 @@ def _bridge_glitches(recordings) -> tuple[list, list[dict]]:
             found.append({"recording": r.name, "runs": [[int(a), int(b)] for a, b in runs]})
         out.append(r)
     return out, found
+
+
+def _escapes_warning(simulation, escaped: list[dict], n_screen: int, base_states) -> list[str]:
+    """One sentence where a plug-in simulation's output was not finite at some of the baseline's screened
+    points (`screen_starts`) or at steps its fits tried, else none.
+
+    A probe's plug-in gave NaN for tau > 2 s, inside its own typical range: the search stepped around it
+    without a word. The library's own simulations are left out (finite over their constraints by design).
+    """
+    refused, tried = int(np.sum(base_states.nonfinite)), int(np.sum(base_states.step))
+    if type(simulation).__module__.split(".")[0] == "hybrid" or not (escaped or refused):
+        return []
+    where = []
+    if escaped:
+        example = ", ".join(f"{k}={v:.4g}" for k, v in escaped[0].items())
+        where.append(
+            f"{len(escaped)} of the {n_screen} points screened for the baseline's starts (e.g. {example})"
+        )
+    if refused:
+        where.append(f"{refused} of the {tried} steps the baseline's fits tried (refused)")
+    return [
+        f"simulation {type(simulation).__name__}: its output was not finite (NaN or inf) at {' and at '.join(where)}, "
+        "so the fit could not go there, and a better fit beyond may have been out of reach; if the system is "
+        "defined there, simulate gives NaN or inf (a square root or log of a negative, a division by zero, a "
+        "state that escapes): make it finite over its constraints' range, or narrow the constraints to where it "
+        "is defined"
+    ]
 
 
 def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:
