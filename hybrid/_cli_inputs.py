@@ -229,6 +229,7 @@ def effects_from_spec(spec: str, simulation=None) -> tuple:
     `resolve_effects`: inside the dynamics only for a state-space form);
     ``--effects builtins,friction.py:Coulomb`` searches them and a plug-in.
     """
+    from .core._simulation import AbstractSimulation
     from .discovery._effect_set import EFFECTS, NAMED_ONLY, resolve_effects
     from .discovery._effects import AbstractEffect
     from .physics._plugins import plugin_module, register
@@ -262,6 +263,8 @@ def effects_from_spec(spec: str, simulation=None) -> tuple:
             )
             has = f"it defines {', '.join(mine)}" if mine else "it defines no AbstractEffect subclass"
             what = "has no class" if cls is None else "has no AbstractEffect subclass"
+            if isinstance(cls, type) and issubclass(cls, AbstractSimulation):  # a probe's physics given here
+                has = f"{name} is a simulation: give it as --physics {text}, and effects here"
             raise InputError(f"--effects {text}: {label} {what} {name}; {has}")
         register(cls.__module__, text, flag="--effects")
         chosen.append(cls)

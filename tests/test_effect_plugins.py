@@ -130,6 +130,8 @@ def test_hybrid_fit_fits_a_chosen_effect_directly(lab):
         ("asymmetric.py:Missing", "has no class Missing; it defines AsymmetricDrive"),
         ("friction", "not an effect I know"),
         ("asymmetric.py:AsymmetricDrive,asymmetric.py:AsymmetricDrive", "effects named twice"),
+        # a probe's own physics given to --effects: "it defines no AbstractEffect subclass", no way on
+        (f"{ROOT}/examples/two_tank.py:TwoTank", "TwoTank is a simulation: give it as --physics"),
     ],
 )
 def test_a_bad_effects_flag_gets_one_line(lab, spec, words, monkeypatch, capsys):

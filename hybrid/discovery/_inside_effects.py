@@ -459,7 +459,8 @@ class Friction(AbstractEffect):
     def reading(self, parameters, output_unit):
         return (
             f"a dry (Coulomb) friction against the motion of the state {self.state}: a force of nearly "
-            "constant size that opposes its sign (a bearing, a slide, a brush), in the unit of the drive; "
+            "constant size that opposes its sign (a bearing, a slide, a brush), in the unit of the force the "
+            "drive exerts (the drive's, or the simulation's force_unit, as its value is printed); "
             "the viscous part is the simulation's own damping"
         )
 
