@@ -590,6 +590,45 @@ def test_a_hysteresis_loop_the_recording_never_closes_is_not_material():
     assert effect.material(effect.derived(s, dt), {}, merged)[0]
 
 
+def test_a_loop_on_a_signal_that_never_turns_back_is_not_material():
+    """A loop shows only where the signal turns back: along one branch it is a static curve."""
+    from hybrid.discovery._effects import signal_turn
+
+    rising = np.repeat(np.linspace(0.2, 2.0, 10), 30)
+    assert signal_turn(rising) == 0.0 and signal_turn(-rising) == 0.0
+    hump = np.concatenate([np.linspace(0.0, 3.0, 50), np.linspace(3.0, 1.0, 50)])
+    assert signal_turn(hump) == pytest.approx(2.0)  # the way back; up 3, down 2
+    assert signal_turn(np.concatenate([hump, hump + 0.5])) == pytest.approx(2.5)  # the largest: 3 to 0.5
+    hysteresis = hybrid.EFFECTS["hysteresis"]
+    effect = hysteresis(hysteresis_height=5.0, hysteresis_rate=2.0)  # k·range 3.6: it would close
+    ok, why = effect.material(effect.derived(rising, 1.0 / RATE), {}, dict(hysteresis.thresholds))
+    assert not ok and "never turns back far enough to show a loop: its largest turn is 0 %" in why
+    ok, _ = effect.material(effect.derived(hump, 1.0 / RATE), {}, dict(hysteresis.thresholds))
+    assert ok  # the turn 67 % of the range
+    wiggle = rising + np.where(np.arange(rising.size) == 100, -0.005, 0.0)  # a 0.3 % turn, k·turn 50
+    fast = hysteresis(hysteresis_height=0.1, hysteresis_rate=1e4)
+    ok, why = fast.material(fast.derived(wiggle, 1.0 / RATE), {}, dict(hysteresis.thresholds))
+    assert not ok and "0.28 % of its range (needs ≥ 10 %)" in why, why
+
+
+def test_a_saturation_under_a_rising_staircase_is_not_named_a_loop():
+    """A probe's output saturation L·tanh(y/L) behind a lag under a rising staircase: "hysteresis", a loop
+    838 % of the range, "what remains is measurement noise" (the drive never went down)."""
+    rng = np.random.default_rng(3)
+    u = np.repeat(np.linspace(0.2, 2.0, 10), 150)  # 50 s at 30 Hz, the level rising with time
+    y = 1.5 * np.tanh(_lag(u) / 1.5)
+    w = y + 0.01 * rng.normal(size=u.size)
+    found = hybrid.diagnose(
+        hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE),
+        simulation=hybrid.LTI(1),
+        effects=["hysteresis", "saturation"],
+    )
+    assert "hysteresis" not in found.causes, found.summary()
+    loops = [c for step in found.steps for c in step.candidates if c.name == "hysteresis"]
+    assert loops and all(not c.material for c in loops)
+    assert any("never turns back" in r for c in loops for r in c.reasons), [c.reasons for c in loops]
+
+
 def test_materiality_overrides_name_a_threshold_a_searched_effect_has():
     settings = hybrid.DiagnoseSettings(materiality={"delay_samples": 2.0})
     merged = settings.materiality_for(hybrid.resolve_effects())

@@ -776,7 +776,18 @@ class Hysteresis(AbstractEffect):
     #: `experiments/discrepancy.py`'s single-effect draws the hidden loops were fitted at k·ptp(s) =
     #: 4.0–12.5; the one hysteresis named beside a hidden back-relaxation at 0.12, and on a plug-in
     #: plant's additive baseline wander a "loop" of 563 % of the range was named at 0.30 (`experiments/motor_wander.py`).
-    thresholds: ClassVar = {"loop_height_percent_of_range": 3.0, "loop_rate_times_range": 1.0}
+    #: A loop is seen only where the signal turns back: on a record whose signal only rises (a staircase
+    #: of rising levels) the state runs along one branch, a static curve the data cannot tell from a
+    #: saturation's, and its height is whatever fits that curve (a probe's output saturation under a
+    #: rising staircase: "hysteresis" with a loop 838 % of the range, nothing ambiguous). The signal's
+    #: largest turn back (`signal_turn`) must span a tenth of its range (`turn_percent_of_range`; with a
+    #: turn of rate × turn ≥ 1 alone, the same staircase fitted a 10 % loop of rate 1.3e4/V that switched
+    #: on a 0.4 % wiggle).
+    thresholds: ClassVar = {
+        "loop_height_percent_of_range": 3.0,
+        "loop_rate_times_range": 1.0,
+        "turn_percent_of_range": 10.0,
+    }
     n_screened: ClassVar[int] = 1
 
     def __init__(self, **values):
@@ -788,13 +799,16 @@ class Hysteresis(AbstractEffect):
         return s + p["hysteresis_height"] * u
 
     def derived(self, s, dt):
-        """Loop height 2|W| as a percentage of the signal's range, and the rate times that range."""
+        """Loop height 2|W| as a percentage of the signal's range, the rate times that range, and the
+        signal's largest turn back as a percentage of its range (`signal_turn`)."""
         span = float(np.ptp(s))
         p = self.parameters()
         height = 2.0 * abs(float(p["hysteresis_height"]))
+        turn = signal_turn(s)
         return {
             "loop_height_percent_of_range": 100.0 * height / span if span > 0 else 0.0,
             "loop_rate_times_range": float(p["hysteresis_rate"]) * span,
+            "turn_percent_of_range": 100.0 * turn / span if span > 0 else 0.0,
         }
 
     def starts(self, context):
@@ -825,7 +839,27 @@ class Hysteresis(AbstractEffect):
                 f"the loop never closes: rate × range {closes:.2g} (needs ≥ {least:g}); its state creeps "
                 "with the distance travelled, a slow trend rather than a loop"
             )
+        turn, span = derived.get("turn_percent_of_range", 100.0), thresholds["turn_percent_of_range"]
+        if turn < span:
+            return False, (
+                f"the signal it acts on never turns back far enough to show a loop: its largest turn is "
+                f"{turn:.2g} % of its range (needs ≥ {span:g} %); along one branch a loop is a static curve, "
+                "which a saturation or an even response fits alike: a drive that goes up and down tells them "
+                "apart"
+            )
         return size >= need, f"loop {size:.1f} % of range (needs ≥ {need} %)"
+
+
+def signal_turn(s) -> float:
+    """How far `s` turns back: the smaller of its largest fall below its running maximum and its largest
+    rise above its running minimum (0 for a signal that only rises or only falls; for a sweep up and
+    back down, the way back)."""
+    s = np.asarray(s, float)
+    if not s.size:
+        return 0.0
+    fall = float(np.max(np.maximum.accumulate(s) - s))
+    rise = float(np.max(s - np.minimum.accumulate(s)))
+    return min(fall, rise)
 
 
 #: The gain changes over the record that `Drift`'s lanes start from (none, a fall, a rise).
