@@ -19,7 +19,10 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
+
+import numpy as np
 
 from .util._errors import InputError
 
@@ -180,6 +183,31 @@ def _rivals(folder: Path, report: dict, step: int | None) -> tuple[dict | None, 
     return entry, models, float(noise)
 
 
+#: A designed drive this share of the recorded drive's span beyond it is said to leave it (`_beyond_recorded`).
+BEYOND_SHARE = 0.05
+
+
+def _beyond_recorded(report: dict, drive) -> str | None:
+    """The sentence where `drive` goes beyond the diagnosed recordings' drive range (``evidence.drive_range``)
+    by more than `BEYOND_SHARE` of its span, else None: the rivals were fitted there only, and what they
+    predict beyond is an extrapolation (a probe's --bounds 50:60 on a 0.2-2 V record: T = 2.7e5, unsaid)."""
+    known = (report.get("evidence") or {}).get("drive_range")
+    if not (isinstance(known, list) and len(known) == 2 and all(isinstance(x, (int, float)) for x in known)):
+        return None
+    low, high = float(known[0]), float(known[1])
+    margin = BEYOND_SHARE * max(high - low, 1e-300)
+    lo, hi = float(np.min(drive)), float(np.max(drive))
+    if lo >= low - margin and hi <= high + margin:
+        return None
+    unit = (report.get("units") or {}).get("v_in", "")
+    unit = f" {unit}" if unit else ""
+    return (
+        f"the drive spans {lo:.4g} to {hi:.4g}{unit}, beyond the {low:.4g} to {high:.4g}{unit} of the diagnosed "
+        "recordings, where the rivals were fitted: what they predict there, and so how well the drive tells "
+        f"them apart, is an extrapolation; --bounds {low:.4g}:{high:.4g} keeps it where they were fitted"
+    )
+
+
 def _diagnosed_rate(folder: Path, report: dict) -> float:
     """The sample rate (Hz) of the recording the diagnosis was made on (``evidence.rate_hz``)."""
     rate = (report.get("evidence") or {}).get("rate_hz")
@@ -256,6 +284,9 @@ def cmd_design(args) -> None:
                 f"designed drive: T = {design.criterion:.3g} (control PRBS {design.control_criterion:.3g})"
             )
             _write(out, figure, design.t, design.v_in, design.predictions, title)
+    beyond = _beyond_recorded(report, drive if entry is None else design.v_in)
+    if beyond:
+        print(f"hybrid: warning: {beyond}", file=sys.stderr)
     if entry is None:
         print(
             "the diagnosis found nothing ambiguous, so no rivals to tell apart, but it leaves a remainder no "

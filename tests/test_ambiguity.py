@@ -286,6 +286,9 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert np.max(np.abs(np.diff(table[:, 1]))) <= 4.0 / 30 * (1 + 1e-6)
     assert (tmp_path / "drive.png").stat().st_size > 0 and "× a multilevel PRBS" in done.stdout
     assert "n·T = " in done.stdout  # how surely a recording under it tells the rivals apart
+    # ±2 V on a staircase of 0.2-2 V: the rivals are extrapolated below 0.2 V (a probe's 50-60 V: unsaid)
+    assert "beyond the 0.2 to 2 V of the diagnosed recordings" in done.stderr, done.stderr
+    assert "--bounds 0.2:2 keeps it where they were fitted" in done.stderr
     # the default keeps design_drive's rich share (half of 300 samples) as the control PRBS, and says so
     assert "the first 150 kept as a multilevel PRBS" in done.stdout
     default = inspect.signature(hybrid.design_drive).parameters["rich"].default
@@ -311,6 +314,11 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert len(err.strip().splitlines()) == 1 and not y.exists()
     code, _, err = design("--min-hold", "0")
     assert code == 2 and "--min-hold" in err and not y.exists()
+    within = ["design", str(folder), "--duration", "5", "--bounds", "0.2:2", "--starts", "1", "--steps", "5"]
+    code, _, err = design("--out", y, base=within)
+    assert code == 0 and "beyond" not in err, err  # within the recorded range: nothing to say
+    y.unlink()
+    y.with_suffix(".png").unlink()
     # a diagnosis with nothing ambiguous: one line, no file
     plain = tmp_path / "plain"
     plain.mkdir()

@@ -435,6 +435,11 @@ def diagnose(
     )
     evidence["equally_good_effect_free_fits"] = steps[0].equally_good.to_dict()  # report.json's shape
     evidence["start"] = start
+    # where the rivals were fitted: `hybrid design` says where a drive goes beyond it (extrapolates them)
+    evidence["drive_range"] = [
+        float(min(np.min(r.v_in) for r in recordings)),
+        float(max(np.max(r.v_in) for r in recordings)),
+    ]
     heldout = HeldoutSignals(
         t=np.concatenate([recordings[i].t[a:b] for i, a, b in segments]),
         v_in=v_te,
