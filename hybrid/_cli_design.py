@@ -208,6 +208,26 @@ def _beyond_recorded(report: dict, drive) -> str | None:
     )
 
 
+#: A drive that moves over less than this share of its range is said to be nearly constant (`_nearly_constant`).
+STILL_SHARE = 0.05
+
+
+def _nearly_constant(drive, limits: dict, slew: float | None) -> str | None:
+    """The sentence where the written drive spans under `STILL_SHARE` of the range it was given, else None:
+    a probe's --slew 1e-9 gave a constant drive called "a multilevel PRBS" that "tells them apart", while a
+    constant level tells rivals apart by that level alone, which a refit takes up."""
+    low, high = limits["bounds"] if "bounds" in limits else (-limits["amplitude"], limits["amplitude"])
+    width = float(high) - float(low)
+    moved = float(np.ptp(drive)) if len(drive) else 0.0
+    if not width > 0 or moved >= STILL_SHARE * width:
+        return None
+    return (
+        f"the drive moves over {moved:.3g} of the {width:.3g} its limits allow: it is nearly constant, and a "
+        "constant level tells the rivals apart by that level alone, which a refit of either takes up"
+        + (f"; --slew {slew:g}/s holds it there: allow a faster slew or a longer --duration" if slew else "")
+    )
+
+
 def _diagnosed_rate(folder: Path, report: dict) -> float:
     """The sample rate (Hz) of the recording the diagnosis was made on (``evidence.rate_hz``)."""
     rate = (report.get("evidence") or {}).get("rate_hz")
@@ -284,9 +304,10 @@ def cmd_design(args) -> None:
                 f"designed drive: T = {design.criterion:.3g} (control PRBS {design.control_criterion:.3g})"
             )
             _write(out, figure, design.t, design.v_in, design.predictions, title)
-    beyond = _beyond_recorded(report, drive if entry is None else design.v_in)
-    if beyond:
-        print(f"hybrid: warning: {beyond}", file=sys.stderr)
+    written = drive if entry is None else design.v_in
+    for said in (_beyond_recorded(report, written), _nearly_constant(written, limits, args.slew)):
+        if said:
+            print(f"hybrid: warning: {said}", file=sys.stderr)
     if entry is None:
         print(
             "the diagnosis found nothing ambiguous, so no rivals to tell apart, but it leaves a remainder no "

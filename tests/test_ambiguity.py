@@ -316,7 +316,12 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert code == 2 and "--min-hold" in err and not y.exists()
     within = ["design", str(folder), "--duration", "5", "--bounds", "0.2:2", "--starts", "1", "--steps", "5"]
     code, _, err = design("--out", y, base=within)
-    assert code == 0 and "beyond" not in err, err  # within the recorded range: nothing to say
+    assert code == 0 and "beyond" not in err and "nearly constant" not in err, err  # nothing to say
+    y.unlink()
+    y.with_suffix(".png").unlink()
+    # a slew that lets the drive barely move: written, and said (a probe's "either drive tells them apart")
+    code, _, err = design("--slew", "1e-9", "--out", y, base=within)
+    assert code == 0 and "it is nearly constant" in err and "--slew 1e-09/s holds it there" in err, err
     y.unlink()
     y.with_suffix(".png").unlink()
     # a diagnosis with nothing ambiguous: one line, no file
