@@ -627,6 +627,10 @@ def test_a_saturation_under_a_rising_staircase_is_not_named_a_loop():
     loops = [c for step in found.steps for c in step.candidates if c.name == "hysteresis"]
     assert loops and all(not c.material for c in loops)
     assert any("never turns back" in r for c in loops for r in c.reasons), [c.reasons for c in loops]
+    # a loop on one branch is no loop at all, not one too small to count: never offered with a threshold
+    assert "hysteresis" not in {small["name"] for small in found.too_small}
+    assert "one branch, no loop" in hybrid.EFFECTS["hysteresis"]().unlike({"turn_percent_of_range": 0.0})
+    assert hybrid.EFFECTS["hysteresis"]().unlike({"turn_percent_of_range": 5.0}) is None  # a size: settable
 
 
 def test_materiality_overrides_name_a_threshold_a_searched_effect_has():

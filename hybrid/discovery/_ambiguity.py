@@ -244,7 +244,7 @@ def _rival(named, c, scale: float, noise_std: float) -> dict:
 def _unlike(effects, candidate) -> bool:
     """Whether `candidate`'s fit is not its effect at all (`AbstractEffect.unlike`): no threshold admits it."""
     effect = next((e for e in effects or () if e.name == candidate.name), None)
-    return effect is not None and bool(effect.unlike(candidate.parameters))
+    return effect is not None and bool(effect.unlike({**candidate.parameters, **candidate.derived}))
 
 
 def ambiguities(

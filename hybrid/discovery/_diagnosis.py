@@ -560,7 +560,7 @@ class Diagnosis:
                 if c.name in named:
                     continue
                 effect = self._effect(c.name)
-                if effect is not None and effect.unlike(c.parameters):
+                if effect is not None and effect.unlike({**c.parameters, **c.derived}):
                     continue  # not this effect at all: no threshold should admit it
                 if c.refused_for_size and c.gain >= self.settings.min_gain:
                     by_name[c.name] = {

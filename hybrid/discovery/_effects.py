@@ -274,6 +274,8 @@ class AbstractEffect(eqx.Module):
     def unlike(self, parameters: dict) -> str | None:
         """Why a fit at `parameters` is not this effect at all, whatever its size, or None (the default).
 
+        `parameters`: the fit's values by name, with its `derived` quantities on the recording beside them.
+
         A candidate refused for its size alone is reported as "too small to count", with the thresholds
         that would admit it; a fit that took another form (a resonance of ζ 1, two real poles: a lag) is
         not offered so.
@@ -827,6 +829,14 @@ class Hysteresis(AbstractEffect):
         from ._starts import hysteresis_starts
 
         return hysteresis_starts(context.problem, context.simulation, self.n_screened, context.frozen)
+
+    def unlike(self, parameters):
+        # a signal that never turns back by 1 % of its range shows one branch: no loop at all, whatever
+        # its size (a smaller turn than `turn_percent_of_range` asks is a matter of size, which a user may set)
+        turn = parameters.get("turn_percent_of_range")
+        if turn is not None and turn < 1.0:
+            return f"the signal it acts on never turns back (its largest turn is {turn:.2g} % of its range): one branch, no loop"
+        return None
 
     def material(self, derived, parameters, thresholds):
         size, need = (
