@@ -99,6 +99,7 @@ def test_a_mode_with_no_peak_is_not_offered_as_a_resonance_too_small_to_count():
             reasons=[refused.format(z=z)],
             materiality=refused.format(z=z)[len("not material: ") :],
             parameters={"resonance_frequency_hz": 0.13, "resonance_damping": z},
+            derived={},
         )
 
     def too_small(z):
