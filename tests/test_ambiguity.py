@@ -385,7 +385,7 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
 def _candidate(name, gain, residual, eligible=False, material=True, reasons=()):
     candidate = SimpleNamespace(
         name=name, gain=gain, eligible=eligible, heldout_residual=residual, heldout=SimpleNamespace(nmse=1 / gain),
-        parameters={}, material=material, reasons=list(reasons),
+        parameters={}, derived={}, material=material, reasons=list(reasons),
     )  # fmt: skip
     candidate.refused_for_size = Candidate.refused_for_size.fget(candidate)  # the property, on this stand-in
     return candidate
