@@ -273,10 +273,8 @@ def test_run_time_faults_in_diagnose_and_sensitivity_name_the_plugin(files, caps
         w for w in json.loads((folder / "part" / "report.json").read_text())["warnings"] if "Partial" in w
     ]
     assert len(said) == 1 and "its output was not finite (NaN or inf) at " in said[0], said
-    assert (
-        "points screened for the baseline's starts (e.g. tau=" in said[0]
-        and "narrow the constraints" in said[0]
-    )
+    assert "points screened for the baseline's starts over its typical ranges (e.g. tau=" in said[0]
+    assert "narrow them (and its constraints)" in said[0]
     escaped = float(said[0].split("(e.g. tau=")[1].split(")")[0])
     assert escaped > 2.0  # where the plug-in is NaN
     spec = f"{plugin}:Quits"
