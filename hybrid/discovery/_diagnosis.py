@@ -73,7 +73,10 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: may read ``"form": "wander"`` (straight pieces over the record, `_time_wander`), with the change at one
 #: time it beat under ``step``; ``evidence.start.settled`` gains ``kept`` (whether the held diagnosis is
 #: the one reported) and, where the named causes met a start the effect-free model missed
-#: (`covered_try`), ``effect_free_ratio`` and ``without.gain_over_held``.
+#: (`covered_try`), ``effect_free_ratio`` and ``without.gain_over_held``; ``evidence.drive_range``
+#: ([least, largest] drive of the diagnosed recordings, in the drive's unit: where the rivals were
+#: fitted, which ``hybrid design`` says a drive beyond leaves); a hysteresis's ``derived`` gains
+#: ``turn_percent_of_range`` (how far the signal it acts on turns back).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
