@@ -205,3 +205,22 @@ def test_fit_refuses_a_training_part_at_rest_and_fits_it_in_blocks(tmp_path):
     assert proc.returncode == 0, proc.stderr
     fitted = json.loads(report.read_text())["parameters"]
     assert fitted["tau_1"] == pytest.approx(0.5, rel=0.03) and fitted["gain"] == pytest.approx(2.0, rel=0.03)
+
+
+def test_a_lone_causes_incremental_gain_says_what_it_is_over():
+    """A probe read "gain 33.75x" and "hysteresis (incremental gain 17.04x)" side by side, unexplained."""
+    from hybrid.cli import cause_line
+
+    step = {"name": "saturation", "incremental_gain": 17.04}
+    assert cause_line(step, 1, 33.75) == (
+        "  saturation (incremental gain 17.04x: over the best effect-free fit the search found; "
+        "the gain above is over the baseline)"
+    )
+    assert (
+        cause_line(step, 1, 17.5) == "  saturation (incremental gain 17.04x)"
+    )  # the same gain: nothing to say
+    assert (
+        cause_line(step, 2, 33.75) == "  saturation (incremental gain 17.04x)"
+    )  # each of several: its own step's
+    pair = {**step, "named_jointly_with": "delay"}
+    assert cause_line(pair, 1, 33.75) == "  saturation (gain over delay alone 17.04x)"
