@@ -32,6 +32,10 @@ import numpy as np
 
 from .util._errors import InputError
 
+#: The fewest samples of a test record that `--initial-samples` may leave to score: a score on one sample
+#: has no variance to normalise by (a probe's N − 1 ran the whole fit, then failed on "w is constant").
+MIN_SCORED = 10
+
 _MAPPING = ("input", "output", "time", "columns", "rate", "sample_range", "units", "fill_gaps")
 
 
@@ -62,7 +66,7 @@ def add_test_options(p) -> None:
         metavar="N",
         help="the benchmark's rule: at most the first N samples of a test record may set its initial "
         "state (with --settle its held drive is re-fitted on them), and the score is taken over the "
-        "rest (Cascaded Tanks 4, Silverbox 50). Default: every sample is scored; --settle re-fits on "
+        "rest, at least 10 (Cascaded Tanks 4, Silverbox 50). Default: every sample is scored; --settle re-fits on "
         "the first 2.5 %% (at least 10)",
     )
     g.add_argument(
@@ -145,10 +149,11 @@ def load_tests(args, fitted, window: int) -> list:
             window, f"the model's input window ({window} samples)", "give a longer test record"
         )
         record.check_signals()
-        if first is not None and not 1 <= first < record.n:
+        if first is not None and not 1 <= first <= record.n - MIN_SCORED:
             raise InputError(
-                f"--initial-samples {first}: test record '{record.name}' has {record.n} samples; give "
-                f"a number from 1 to {record.n - 1} (the benchmark's rule, e.g. 4 for Cascaded Tanks)"
+                f"--initial-samples {first}: test record '{record.name}' has {record.n} samples, and at least "
+                f"{MIN_SCORED} must be left to score; give a number from 1 to {record.n - MIN_SCORED} (the "
+                "benchmark's rule, e.g. 4 for Cascaded Tanks)"
             )
         tests.append(record)
     return tests

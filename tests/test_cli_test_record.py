@@ -162,6 +162,10 @@ def test_fit_scores_the_validation_record_as_an_independent_recomputation(bench,
             "--initial-samples 400",
         ),
         (["--initial-samples", "4"], "give --test FILE"),
+        (  # a probe's N − 1, offered as valid, ran the whole fit and then failed on "w is constant"
+            ["--test", "{bench}", "--test-columns", "input=uVal,output=yVal", "--initial-samples", "399"],
+            "at least 10 must be left to score; give a number from 1 to 390",
+        ),
         (["--max-steps", "0"], "--max-steps 0 scores a saved model as it is: give it with --start-from"),
     ],
 )
