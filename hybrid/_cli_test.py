@@ -66,7 +66,7 @@ def add_test_options(p) -> None:
         metavar="N",
         help="the benchmark's rule: at most the first N samples of a test record may set its initial "
         "state (with --settle its held drive is re-fitted on them), and the score is taken over the "
-        "rest, at least 10 (Cascaded Tanks 4, Silverbox 50). Default: every sample is scored; --settle re-fits on "
+        f"rest, at least {MIN_SCORED} (Cascaded Tanks 4, Silverbox 50). Default: every sample is scored; --settle re-fits on "
         "the first 2.5 %% (at least 10)",
     )
     g.add_argument(
