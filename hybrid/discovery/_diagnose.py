@@ -610,11 +610,14 @@ def _escapes_warning(simulation, escaped: list[dict], n_screen: int) -> list[str
     and so are the LM steps that the fits refused: a trial step far outside the typical ranges may make an
     explicit integration escape (the examples' motor and oscillator do), which LM steps around by design.
     """
-    if type(simulation).__module__.split(".")[0] == "hybrid" or not escaped:
+    own = getattr(
+        simulation, "inner", simulation
+    )  # a plug-in held at a fitted drive (--settle) is the plug-in's
+    if type(own).__module__.split(".")[0] == "hybrid" or not escaped:
         return []
     example = ", ".join(f"{k}={v:.4g}" for k, v in escaped[0].items())
     return [
-        f"simulation {type(simulation).__name__}: its output was not finite (NaN or inf) at {len(escaped)} of "
+        f"simulation {type(own).__name__}: its output was not finite (NaN or inf) at {len(escaped)} of "
         f"the {n_screen} points screened for the baseline's starts over its typical ranges (e.g. {example}), "
         "so no fit started there, and a better fit there may have been out of reach; if the system is defined "
         "there, simulate gives NaN or inf (a square root or log of a negative, a division by zero, a state that "
