@@ -159,8 +159,9 @@ def _check_folder(output: OutputFolder) -> None:
         more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
         raise InputError(
             f"{option} {path} already holds {', '.join(foreign[:3])}{more}, which no hybrid command wrote "
-            f"there ({MANIFEST} does not list them), and this command would replace them: choose a new or "
-            "empty folder, or move those files away"
+            f"there by its record ({MANIFEST} does not list them: your own files, or results of a release "
+            "before it kept that list), and this command would replace them: choose a new or empty folder, "
+            "or move those files away"
         )
 
 
