@@ -81,6 +81,7 @@ def load_tests(args, fitted, window: int) -> list:
     """The --test records, checked before any fitting: their columns, their rate, their length."""
     from .data._mapping import RATE_RTOL, load_pair
     from .data._recording import Recording, in_shared_units
+    from .data._recording_checks import ranged_by
 
     first = getattr(args, "initial_samples", None)
     if not args.test:
@@ -103,59 +104,55 @@ def load_tests(args, fitted, window: int) -> list:
     )
     test_range = args.test_range if args.test_range is not None else args.sample_range
     tests = []
-    for path in args.test:
-        if not mapped:
-            record = Recording.load(path)  # the project's own columns, as the fitted recordings
-        else:
-            try:  # the fitted recordings have loaded: what fails here is the test record's
-                if own_columns:
-                    given = {k: v for k, v in options.items() if v is not None and k != "sample_range"}
-                    record = Recording.load(path, **given, sample_range=test_range)
-                else:
-                    _, record = load_pair(
-                        args.recordings[0],
-                        test_path=path,
-                        test_columns=args.test_columns,
-                        test_sample_range=test_range,
-                        **options,
-                    )
-            except InputError as error:
-                # the loader's flags are the fitted recordings'; a test record's range is --test-range
-                said = (
-                    str(error)
-                    .replace("(--range ", "(--test-range ")
-                    .replace(" --range A:B", " --test-range A:B")
-                )
-                raise InputError(f"--test {path}: {said}") from None
-        record = in_shared_units([fitted[0], record], f"--test {path}")[1]  # scored in the fitted units
-        for note in record.notes:
-            print(f"hybrid: warning: {note}", file=sys.stderr)
-        # a rate the model was fitted at: one of the fitted records' (a fit of records at 30 and 25 Hz
-        # refused every test record, each against one rate or the other, a probe)
-        if not any(abs(record.rate - r.rate) <= RATE_RTOL * r.rate for r in fitted):
-            rates = " and ".join(dict.fromkeys(f"{r.rate:.6g} Hz" for r in fitted))
-            raise InputError(
-                f"test record '{record.name}' is sampled at {record.rate:.6g} Hz but the model is fitted at "
-                f"{rates} ('{fitted[0].name}'{' and more' if len(fitted) > 1 else ''}): score on records of "
-                "a fitted rate"
-            )
-        for fitted_path, recording in zip(args.recordings, fitted):
-            if _key(path, record) == _key(fitted_path, recording):
+    # a message about a test record names --test-range as what cuts it: --range would cut the fitted ones
+    with ranged_by("--test-range"):
+        for path in args.test:
+            if not mapped:
+                record = Recording.load(path)  # the project's own columns, as the fitted recordings
+            else:
+                try:  # the fitted recordings have loaded: what fails here is the test record's
+                    if own_columns:
+                        given = {k: v for k, v in options.items() if v is not None and k != "sample_range"}
+                        record = Recording.load(path, **given, sample_range=test_range)
+                    else:
+                        _, record = load_pair(
+                            args.recordings[0],
+                            test_path=path,
+                            test_columns=args.test_columns,
+                            test_sample_range=test_range,
+                            **options,
+                        )
+                except InputError as error:
+                    raise InputError(f"--test {path}: {error}") from None
+            record = in_shared_units([fitted[0], record], f"--test {path}")[1]  # scored in the fitted units
+            for note in record.notes:
+                print(f"hybrid: warning: {note}", file=sys.stderr)
+            # a rate the model was fitted at: one of the fitted records' (a fit of records at 30 and 25 Hz
+            # refused every test record, each against one rate or the other, a probe)
+            if not any(abs(record.rate - r.rate) <= RATE_RTOL * r.rate for r in fitted):
+                rates = " and ".join(dict.fromkeys(f"{r.rate:.6g} Hz" for r in fitted))
                 raise InputError(
-                    f"test record '{record.name}' is a fitted record: give other columns "
-                    "(--test-columns), other samples (--test-range) or another file"
+                    f"test record '{record.name}' is sampled at {record.rate:.6g} Hz but the model is fitted at "
+                    f"{rates} ('{fitted[0].name}'{' and more' if len(fitted) > 1 else ''}): score on records of "
+                    "a fitted rate"
                 )
-        record.check_length(
-            window, f"the model's input window ({window} samples)", "give a longer test record"
-        )
-        record.check_signals()
-        if first is not None and not 1 <= first <= record.n - MIN_SCORED:
-            raise InputError(
-                f"--initial-samples {first}: test record '{record.name}' has {record.n} samples, and at least "
-                f"{MIN_SCORED} must be left to score; give a number from 1 to {record.n - MIN_SCORED} (the "
-                "benchmark's rule, e.g. 4 for Cascaded Tanks)"
+            for fitted_path, recording in zip(args.recordings, fitted):
+                if _key(path, record) == _key(fitted_path, recording):
+                    raise InputError(
+                        f"test record '{record.name}' is a fitted record: give other columns "
+                        "(--test-columns), other samples (--test-range) or another file"
+                    )
+            record.check_length(
+                window, f"the model's input window ({window} samples)", "give a longer test record"
             )
-        tests.append(record)
+            record.check_signals()
+            if first is not None and not 1 <= first <= record.n - MIN_SCORED:
+                raise InputError(
+                    f"--initial-samples {first}: test record '{record.name}' has {record.n} samples, and at least "
+                    f"{MIN_SCORED} must be left to score; give a number from 1 to {record.n - MIN_SCORED} (the "
+                    "benchmark's rule, e.g. 4 for Cascaded Tanks)"
+                )
+            tests.append(record)
     return tests
 
 

@@ -290,3 +290,18 @@ def test_a_test_records_refusal_names_test_range_not_range(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "--test " in err and "leave those samples out (--test-range 0:597)" in err, err
     assert "(--range " not in err and not (tmp_path / "m.eqx").exists()
+
+
+def test_every_message_about_a_test_record_names_the_flag_that_cuts_it():
+    """The rewrite of the loader's "(--range " missed "(--range, Recording.segment)" and "with --range":
+    the flag is now the one `ranged_by` sets, wherever a message names it."""
+    from hybrid.data._recording_checks import ranged_by
+
+    t = np.delete(np.arange(100) / 30.0, 50)  # one frame lost: a gap
+    arrays = {"t": t, "v_in": np.sin(t), "w": np.cos(t)}
+    with pytest.raises(hybrid.InputError, match=r"gap \(--range, Recording\.segment\)"):
+        hybrid.Recording(**arrays)
+    with ranged_by("--test-range"), pytest.raises(hybrid.InputError, match=r"gap \(--test-range, Recording"):
+        hybrid.Recording(**arrays)
+    with pytest.raises(hybrid.InputError, match=r"gap \(--range, "):  # and back once the block ends
+        hybrid.Recording(**arrays)

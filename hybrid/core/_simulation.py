@@ -381,6 +381,12 @@ class Passthrough(AbstractSimulation):
         return check_drive(v_in, dt, "Passthrough.simulate")[0]
 
 
+def from_library(obj) -> bool:
+    """Whether `obj`'s class is this package's own, not a user's plug-in (whose warnings tell its author
+    what to fix: the library's own effects and simulations escape only where the search steps around)."""
+    return type(obj).__module__.split(".")[0] == "hybrid"
+
+
 def _deprecated(old: str, new: str) -> None:
     warnings.warn(
         f"AbstractSimulation.{old} is deprecated and goes in the next release: read the attribute "

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._recording_checks import FILL_VALUES_HINT, REQUIRED, TIME_UNITS, UNITS, samples_text
+from ._recording_checks import FILL_VALUES_HINT, REQUIRED, TIME_UNITS, UNITS, range_flag, samples_text
 
 __all__ = [
     "FOOTER_LINES",
@@ -1125,7 +1125,7 @@ def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[
     return [
         f"recording '{path}': {len(zero)} of {len(quality)} samples have quality 0 (the first at sample "
         f"{zero[0]}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker), "
-        "yet they are fitted as measured; where they bunch, leave them out with --range, or track the "
+        f"yet they are fitted as measured; where they bunch, leave them out with {range_flag()}, or track the "
         "video again (rig/README.md)"
     ]
 

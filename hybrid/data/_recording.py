@@ -40,6 +40,7 @@ from ._recording_checks import (
     check_metadata,
     check_time,
     is_constant,
+    range_flag,
     source_name,
     time_step,
     wild_sample,
@@ -282,7 +283,7 @@ class Recording:
                 raise InputError(
                     f"recording '{self.name}': {column} at sample {k} (t = {self.t[k]:.6g} s) is {values[k]:.6g}, "
                     f"{times:.3g} times the column's typical deviation from its median: a corrupt cell? fix or "
-                    "delete that line (or leave it out with --range)"
+                    f"delete that line (or leave it out with {range_flag()})"
                 )
         return self
 

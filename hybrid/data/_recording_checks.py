@@ -16,9 +16,11 @@ line each sample came from passes them (``lines``), and the messages then say
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -37,6 +39,8 @@ __all__ = [
     "UNITS",
     "fill_gaps",
     "fill_values",
+    "range_flag",
+    "ranged_by",
     "sample_text",
     "samples_text",
     "time_step",
@@ -105,6 +109,26 @@ def samples_text(samples: Any, lines: Any = None) -> str:
         return f"samples {shown} ({len(samples)} in all)"
     numbers = ", ".join(str(int(lines[r])) for r in samples[:_SHOW_ROWS]) + more
     return f"lines {numbers} (samples {shown}; {len(samples)} in all)"
+
+
+#: The flag that cuts a record's samples, as a message about a record names it (`range_flag`).
+_RANGE_FLAG: contextvars.ContextVar[str] = contextvars.ContextVar("range_flag", default="--range")
+
+
+def range_flag() -> str:
+    """``--range``, or the flag `ranged_by` set while a record loads: what a message says cuts the record."""
+    return _RANGE_FLAG.get()
+
+
+@contextlib.contextmanager
+def ranged_by(flag: str) -> Iterator[None]:
+    """While the block runs, messages about a record name `flag` as what cuts it (``--test-range`` for a
+    --test record: a probe followed "(--range 0:1500)" on one and halved its estimation record)."""
+    token = _RANGE_FLAG.set(flag)
+    try:
+        yield
+    finally:
+        _RANGE_FLAG.reset(token)
 
 
 #: Significant digits of the rate that `time_step` keeps (at most 5 ppm of it).
@@ -253,7 +277,7 @@ def check_time(
             f"recording '{name}' has a gap in time at {sample_text(k + 1, lines, t[k + 1])}: the "
             f"step into it is {dt[k]:.6g} s, {dt[k] / step:.3g} times the median step {step:.6g} s "
             f"({gaps.size} gap(s) in all): frames are missing there; cut the recording at the "
-            "gap (--range, Recording.segment), or fill a few missing frames by straight lines "
+            f"gap ({range_flag()}, Recording.segment), or fill a few missing frames by straight lines "
             "(--fill-gaps N; fill_gaps=N in Python)"
         )
     short = np.flatnonzero(dt < step / GAP_FRAMES)
@@ -327,7 +351,7 @@ def _refuse_order(name: str, t: np.ndarray, bad: np.ndarray, lines: Any) -> None
         raise InputError(
             f"recording '{name}' has a clock that restarted at {at}: its time goes back from "
             f"{t[k - 1]:.6g} s to {t[k]:.6g} s{more}: the file holds two runs (sorting would mix them); "
-            f"split the file there, or keep one run with --range (sample_range=), e.g. :{k} or {k}:"
+            f"split the file there, or keep one run with {range_flag()} (sample_range=), e.g. :{k} or {k}:"
         )
     if back == 0:
         raise InputError(
@@ -446,7 +470,7 @@ def fill_gaps(
         )
         raise InputError(
             f"recording '{name}' has a gap in time at {sample_text(int(g) + 1, lines, t[g + 1])} of {what}: "
-            "cut the recording at the gap (--range, Recording.segment)"
+            f"cut the recording at the gap ({range_flag()}, Recording.segment)"
             + (
                 f", or fill up to {k - 1} frames (--fill-gaps {k - 1})"
                 if whole and k - 1 <= FILL_GAPS_MAX
@@ -527,7 +551,7 @@ def fill_values(
                 f"{'from its first' if head else 'up to its last'} sample, at {sample_text(int(a), lines)}: "
                 f"--fill-gaps draws a line between the measured values either side, and none comes "
                 f"{'before' if head else 'after'} them; fix them, or leave those samples out "
-                f"(--range {f'{start + b + 1}:{start + n}' if head else f'{start}:{start + a}'})"
+                f"({range_flag()} {f'{start + b + 1}:{start + n}' if head else f'{start}:{start + a}'})"
             )
         runs = lasts - firsts + 1
         long += [(int(f), role, int(r)) for f, r in zip(firsts, runs) if r > most]
@@ -546,7 +570,7 @@ def fill_values(
             f"recording '{name}' has {length} missing values in a row in {said.get(role, f'column {role!r}')} "
             f"from {sample_text(first, lines)}, more than --fill-gaps {most} (fill_gaps={most}) fills"
             + (f" ({len(long)} such runs in all)" if len(long) > 1 else "")
-            + ": fix them, or cut the recording there (--range A:B)"
+            + f": fix them, or cut the recording there ({range_flag()} A:B)"
             + (f", or fill up to {needed} in a row (--fill-gaps {needed})" if needed <= FILL_GAPS_MAX else "")
         )
     return out, filled

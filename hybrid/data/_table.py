@@ -93,7 +93,7 @@ from ._loaders import (
     spaced_cells_message,
     units_row,
 )
-from ._recording_checks import FILL_VALUES_HINT
+from ._recording_checks import FILL_VALUES_HINT, range_flag
 
 __all__ = [
     "MAPPED_SUFFIXES",
@@ -380,8 +380,7 @@ def refuse_ends_apart(
     )
     raise InputError(
         f"recording '{path}' has columns that end on different lines, {said}: a record's drive and output "
-        "must end together; fill the shorter column's last value, or keep the samples both have (--range, "
-        "or --test-range for a --test record)"
+        f"must end together; fill the shorter column's last value, or keep the samples both have ({range_flag()})"
     )
 
 
@@ -934,7 +933,7 @@ def _refusal(
     shown = ", ".join(map(str, places[:5])) + (", ..." if len(places) > 5 else "")
     more = f" ({noun}s {shown}: {len(places)} {noun}s have such a {what})" if len(places) > 1 else ""
     fix = (
-        "fix those values, or keep the samples before or after them (--range A:B)"
+        f"fix those values, or keep the samples before or after them ({range_flag()} A:B)"
         if samples
         else "fix those cells or delete those lines"
     )

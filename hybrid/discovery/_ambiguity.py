@@ -241,8 +241,9 @@ def _rival(named, c, scale: float, noise_std: float) -> dict:
     }
 
 
-def _unlike(effects, candidate) -> bool:
-    """Whether `candidate`'s fit is not its effect at all (`AbstractEffect.unlike`): no threshold admits it."""
+def unlike(effects, candidate) -> bool:
+    """Whether `candidate`'s fit is not its effect at all (`AbstractEffect.unlike`, shown its values and
+    its derived quantities): no threshold admits it, so it is neither "too small" nor a too-small rival."""
     effect = next((e for e in effects or () if e.name == candidate.name), None)
     return effect is not None and bool(effect.unlike({**candidate.parameters, **candidate.derived}))
 
@@ -285,7 +286,7 @@ def ambiguities(
         for c in step.candidates:
             if c is named or c.name == named.name or c.heldout_residual is None:
                 continue
-            small = c.refused_for_size and c.gain > named.gain and not _unlike(effects, c)
+            small = c.refused_for_size and c.gain > named.gain and not unlike(effects, c)
             if not (c.eligible or small):
                 continue
             rival = _rival(named, c, scale, noise_std)

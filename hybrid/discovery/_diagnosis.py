@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core._fit import PAPER_UNITS
 from ..util._errors import InputError
-from ._ambiguity import TEST as AMBIGUITY_TEST
+from ._ambiguity import TEST as AMBIGUITY_TEST, unlike
 from ._effect_set import EFFECTS, NAMED_ONLY
 from ._effects import FrameTiming, thresholds_of
 
@@ -563,7 +563,7 @@ class Diagnosis:
                 if c.name in named:
                     continue
                 effect = self._effect(c.name)
-                if effect is not None and effect.unlike({**c.parameters, **c.derived}):
+                if unlike([effect] if effect is not None else [], c):
                     continue  # not this effect at all: no threshold should admit it
                 if c.refused_for_size and c.gain >= self.settings.min_gain:
                     by_name[c.name] = {

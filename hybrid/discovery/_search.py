@@ -451,13 +451,18 @@ def predictions(problem, active, theta):
     }
 
 
-def split_signals(problem, theta, active, split):
-    """(drive, w, ŵ) on `split` ("train", "validation" or "test"), all recordings concatenated."""
+def split_data(problem, split) -> tuple[np.ndarray, np.ndarray]:
+    """(drive, w) on `split` ("train", "validation" or "test"), all recordings concatenated: the data alone."""
     v = np.concatenate(
         [np.asarray(s.v_in)[a:b] for s in problem.series for a, b in s.recorded_segments_of(split)]
     )
+    return v, problem.recorded(problem.target(split), split)
+
+
+def split_signals(problem, theta, active, split):
+    """(drive, w, ŵ) on `split` ("train", "validation" or "test"), all recordings concatenated."""
     w_hat = predictions(problem, jnp.asarray(active, float), jnp.asarray(theta))[split]
-    return v, problem.recorded(problem.target(split), split), problem.recorded(w_hat, split)
+    return (*split_data(problem, split), problem.recorded(w_hat, split))
 
 
 def inside_signals(problem, stack: EffectStack, effects, split: str) -> dict[str, np.ndarray]:

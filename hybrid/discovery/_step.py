@@ -25,6 +25,7 @@ none; `diagnose` stops at the first step without one.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import jax.numpy as jnp
@@ -33,6 +34,7 @@ import numpy as np
 from ..core._levenberg_marquardt import LMSettings, LMState
 from ..core._models import Model
 from ..core._problem import Problem
+from ..core._simulation import from_library
 from ..util._errors import InputError, PluginError
 from . import residual_tests as rt
 from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
@@ -52,6 +54,7 @@ from ._search import (
     search_problem,
     searched_effects,
     simulation_output,
+    split_data,
     split_signals,
     theta_with_readout,
 )
@@ -87,6 +90,12 @@ class Search:
         stack = self.model.simulation
         assert isinstance(stack, EffectStack)  # a search fits an EffectStack
         return searched_effects(stack)
+
+    @functools.cached_property
+    def onsets(self) -> tuple[int, ...]:
+        """The delay's extra shifts around where w starts to follow the drive on the training part
+        (`dead_times`): read from the data alone, once for every step."""
+        return dead_times(*split_data(self.problem, "train"))
 
     def has_room(self, effects) -> bool:
         """Whether the shared problem has Jacobian directions for a lane fitting `effects` (names)."""
@@ -256,7 +265,7 @@ def nonfinite_warnings(steps, effects) -> list[str]:
     out = []
     for effect in effects:
         tallies = [step.nonfinite[effect.name] for step in steps if effect.name in step.nonfinite]
-        if type(effect).__module__.split(".")[0] == "hybrid" or not tallies:
+        if from_library(effect) or not tallies:
             continue
         total = {k: sum(t[k] for t in tallies) for k in tallies[0]}
         where = []
@@ -377,7 +386,7 @@ def search_step(
         measured=(w_tr - offset) / gain if gain != 0 and np.isfinite(gain) else None,
         lag_samples=lag,
         residual_peak_hz=peak,
-        dead_times=dead_times(v_tr, w_tr),
+        dead_times=s.onsets,
         problem=s.problem,  # the screens read its data alone: every step's screens share their programs
         simulation=s.simulation,
         frozen=s.frozen,
