@@ -81,7 +81,7 @@ def load_tests(args, fitted, window: int) -> list:
     """The --test records, checked before any fitting: their columns, their rate, their length."""
     from .data._mapping import RATE_RTOL, load_pair
     from .data._recording import Recording, in_shared_units
-    from .data._recording_checks import ranged_by
+    from .data._recording_checks import mapped_by, ranged_by
 
     first = getattr(args, "initial_samples", None)
     if not args.test:
@@ -104,11 +104,18 @@ def load_tests(args, fitted, window: int) -> list:
     )
     test_range = args.test_range if args.test_range is not None else args.sample_range
     tests = []
-    # a message about a test record names --test-range as what cuts it: --range would cut the fitted ones
-    with ranged_by("--test-range"):
+    # a message about a test record names --test-range as what cuts it: --range would cut the fitted ones,
+    # and names --test-columns as what maps its columns: --columns would map the fitted ones
+    with ranged_by("--test-range"), mapped_by("--test-columns"):
         for path in args.test:
             if not mapped:
-                record = Recording.load(path)  # the project's own columns, as the fitted recordings
+                try:
+                    record = Recording.load(path)  # the project's own columns, as the fitted recordings
+                except InputError as error:  # --test-columns maps it where the fitted ones are mapped too
+                    raise InputError(
+                        f"--test {path}: {error}; with --test-columns, map the fitted recordings' own columns "
+                        "too: --columns t=t,input=v_in,output=w"
+                    ) from None
             else:
                 try:  # the fitted recordings have loaded: what fails here is the test record's
                     if own_columns:

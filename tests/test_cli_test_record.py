@@ -305,3 +305,32 @@ def test_every_message_about_a_test_record_names_the_flag_that_cuts_it():
         hybrid.Recording(**arrays)
     with pytest.raises(hybrid.InputError, match=r"gap \(--range, "):  # and back once the block ends
         hybrid.Recording(**arrays)
+
+
+def test_a_test_file_with_other_columns_is_pointed_at_test_columns_and_the_advice_works(tmp_path, capsys):
+    """A --test file whose columns are not the fitted files' was offered "--columns input=u,output=y"
+    (a probe): that maps the fitted records, which it breaks. The advice now names --test-columns, with
+    --columns for the fitted files in the project's own columns, and followed it scores the record."""
+    rng = np.random.default_rng(1)
+    u = np.repeat(rng.uniform(-1, 1, 30), 20)
+    y = h.zoh_lag(u, 1 / 30.0, 0.5)
+    t = np.arange(u.size) / 30.0
+    est, val = tmp_path / "est.csv", tmp_path / "val.csv"
+    est.write_text("t,v_in,w\n" + "".join(f"{a:.6f},{p:.6f},{q:.6f}\n" for a, p, q in zip(t, u, y)))
+    val.write_text("time,u,y\n" + "".join(f"{a:.6f},{p:.6f},{q:.6f}\n" for a, p, q in zip(t, u, y)))
+    base = ["fit", est, "--model", "physics", "--physics", "lti:1", "--quiet", "--max-steps", 2]
+    code = main([str(a) for a in base + ["--test", val, "--out", tmp_path / "m.eqx"]])
+    err = capsys.readouterr().err
+    assert code == 2 and not (tmp_path / "m.eqx").exists(), err
+    assert "--test-columns time=time,input=u,output=y" in err and "--columns t=t,input=v_in,output=w" in err
+    assert "e.g. --columns input=" not in err  # the fitted records' flag, which would break them
+    advised = ["--columns", "t=t,input=v_in,output=w", "--test-columns", "time=time,input=u,output=y"]
+    code = main([str(a) for a in base + advised + ["--test", val, "--out", tmp_path / "m.eqx"]])
+    out, err = capsys.readouterr()
+    assert code == 0 and "val.csv (u -> y): RMSE" in out and (tmp_path / "m.eqx").exists(), out
+
+    # fitted records mapped: a name the test file lacks is given in --test-columns, not --input
+    mapped = ["fit", val, "--columns", "time=time,input=u,output=y"] + base[2:]
+    code = main([str(a) for a in mapped + ["--test", est, "--out", tmp_path / "n.eqx"]])
+    err = capsys.readouterr().err
+    assert code == 2 and "e.g. --test-columns time=t" in err and "--time t" not in err, err

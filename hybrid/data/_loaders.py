@@ -26,7 +26,15 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
-from ._recording_checks import FILL_VALUES_HINT, REQUIRED, TIME_UNITS, UNITS, range_flag, samples_text
+from ._recording_checks import (
+    FILL_VALUES_HINT,
+    REQUIRED,
+    TIME_UNITS,
+    UNITS,
+    columns_flag,
+    range_flag,
+    samples_text,
+)
 
 __all__ = [
     "FOOTER_LINES",
@@ -427,7 +435,12 @@ def mapping_example(
     for role in ("input", "output"):
         if role not in roles and rest:
             roles[role] = rest.pop(0)
+    # another record's own flag (--test-columns) takes the time's role too, and the fitted records' rate
+    flag = columns_flag()
+    other = flag != "--columns"
     if "input" not in roles or "output" not in roles:
+        if other:
+            return f"{flag} input=COLUMN,output=COLUMN (the columns by name, or by number from 0)"
         if any(n and n not in skip and not n.isdigit() and is_value(n) for n in names):
             return (  # a line of settings beside a sample, read as the header (Tektronix)
                 "--columns input=N,output=M with --time K or --rate HZ, the columns by number from 0 (the "
@@ -435,9 +448,12 @@ def mapping_example(
             )
         return "--columns input=COLUMN,output=COLUMN with --rate HZ or --time COLUMN"
     shown = {role: str(i) if names.count(names[i]) > 1 else names[i] for role, i in roles.items()}
-    columns = f"input={shown['input']},output={shown['output']}"
+    mapped = ("time", "input", "output") if other else ("input", "output")
+    columns = ",".join(f"{role}={shown[role]}" for role in mapped if role in shown)
     if re.search(r"[^\w.=,:-]", columns):
         columns = f'"{columns}"'  # a name with spaces or brackets: one shell word
+    if other:
+        return f"{flag} {columns}"
     if "time" in shown:
         return f"--columns {columns} --time {shell_word(shown['time'])}"
     if rate_known:

@@ -38,7 +38,9 @@ __all__ = [
     "TIME_UNITS",
     "UNITS",
     "fill_gaps",
+    "columns_flag",
     "fill_values",
+    "mapped_by",
     "range_flag",
     "ranged_by",
     "sample_text",
@@ -129,6 +131,27 @@ def ranged_by(flag: str) -> Iterator[None]:
         yield
     finally:
         _RANGE_FLAG.reset(token)
+
+
+#: The flag that names a record's columns, as a message about a record names it (`columns_flag`).
+_COLUMNS_FLAG: contextvars.ContextVar[str] = contextvars.ContextVar("columns_flag", default="--columns")
+
+
+def columns_flag() -> str:
+    """``--columns``, or the flag `mapped_by` set while a record loads: what a message says maps its columns."""
+    return _COLUMNS_FLAG.get()
+
+
+@contextlib.contextmanager
+def mapped_by(flag: str) -> Iterator[None]:
+    """While the block runs, messages about a record name `flag` as what maps its columns
+    (``--test-columns`` for a --test record: the ``--columns`` a probe was offered for one broke the
+    fitted records, which have the other names)."""
+    token = _COLUMNS_FLAG.set(flag)
+    try:
+        yield
+    finally:
+        _COLUMNS_FLAG.reset(token)
 
 
 #: Significant digits of the rate that `time_step` keeps (at most 5 ppm of it).

@@ -93,7 +93,7 @@ from ._loaders import (
     spaced_cells_message,
     units_row,
 )
-from ._recording_checks import FILL_VALUES_HINT, range_flag
+from ._recording_checks import FILL_VALUES_HINT, columns_flag, range_flag
 
 __all__ = [
     "MAPPED_SUFFIXES",
@@ -613,9 +613,10 @@ def unknown_name(
     example = close[0] if close else (names[usual] if usual is not None else "NAME")
     option = OPTION[role]
     # quoted as a shell needs it: a logger's 'Heizspannung [V]' pasted bare is two arguments and a glob
+    columns = columns_flag()  # a --test record's names are given in --test-columns
     flag = (
-        f"--columns {shlex.quote(f'{option}={prefix}{example}')}"
-        if prefix
+        f"{columns} {shlex.quote(f'{option}={prefix}{example}')}"
+        if prefix or columns != "--columns"
         else f"--{option} {shlex.quote(example)} (or {option}={example} in --columns; in Python "
         f"{option}={example!r})"
     )
