@@ -13,6 +13,7 @@ The recording may be a lab's file (the column options of `hybrid fit`).
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from .util._errors import InputError
@@ -183,6 +184,8 @@ def _generic(args) -> None:
         result["x64"] = bool(jax.config.read("jax_enable_x64"))
         write_simulation_study(result, sensitivity, args.out)
     _print(result, "w")
+    for said in result["warnings"]:
+        print(f"hybrid: warning: {said}", file=sys.stderr)
     noise = result["noise"]["fraction_of_rms_w"]
     out_unit = result["units"].get("offset", "")
     print(

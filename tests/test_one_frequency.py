@@ -21,6 +21,10 @@ def _recording(u, seed=0):
     return hybrid.Recording(t, u, y)
 
 
+def _said(*recordings):
+    return one_frequency_drive([(r.v_in, r.rate) for r in recordings])
+
+
 def _sine(frequency, n=1800, phase=0.3):
     return (
         1.5 * np.sin(2 * np.pi * frequency * np.arange(n) / RATE + phase) + 0.4
@@ -28,13 +32,13 @@ def _sine(frequency, n=1800, phase=0.3):
 
 
 def test_a_sine_is_said_and_drives_of_many_frequencies_are_not():
-    (said,) = one_frequency_drive([_recording(_sine(0.5))])
+    (said,) = _said(_recording(_sine(0.5)))
     assert said.startswith("the drive is one sinusoid (0.5 Hz holds 100% of its power)")
     assert "a drive of many frequencies (steps, a PRBS, a chirp) pins them" in said
     # two recordings at one frequency: said for both; at two frequencies: two gains and phases, not said
-    (both,) = one_frequency_drive([_recording(_sine(0.5)), _recording(_sine(0.5, n=900, phase=1.0), seed=1)])
+    (both,) = _said(_recording(_sine(0.5)), _recording(_sine(0.5, n=900, phase=1.0), seed=1))
     assert "in every recording" in both
-    assert one_frequency_drive([_recording(_sine(0.5)), _recording(_sine(2.0), seed=1)]) == []
+    assert _said(_recording(_sine(0.5)), _recording(_sine(2.0), seed=1)) == []
     # a square wave (its fundamental holds 8/π² = 81 %), random steps, a chirp, a sine under a
     # noise of a third of its size: many frequencies
     t = np.arange(1800) / RATE
@@ -44,20 +48,26 @@ def test_a_sine_is_said_and_drives_of_many_frequencies_are_not():
     # and a sine with a second tone of 0.15 its amplitude (2 % of the power), which pins a second-order plant
     tones = _sine(0.5) + 0.15 * 1.5 * np.sin(2 * np.pi * 3.1 * t)
     for u in (square, h.step_drive(1800), chirp, noisy, tones):
-        assert one_frequency_drive([_recording(u)]) == []
+        assert _said(_recording(u)) == []
 
 
 def test_the_frequency_said_lies_between_bins_where_the_sine_does():
     """A 0.7123 Hz sine over 60 s read "0.717 Hz", its bin (1/60 Hz wide)."""
-    (said,) = one_frequency_drive([_recording(_sine(0.7123))])
+    (said,) = _said(_recording(_sine(0.7123)))
     assert said.startswith("the drive is one sinusoid (0.712 Hz")
 
 
 def test_fit_carries_the_warning():
     result = hybrid.fit(
-        hybrid.make_model("physics", simulation=hybrid.LTI(order=1)), _recording(_sine(0.5)), max_steps=5
+        hybrid.make_model("physics", simulation=hybrid.LTI(order=1)),
+        _recording(_sine(0.5)),
+        solver=hybrid.LevenbergMarquardt(max_steps=5),
     )
     assert any(w.startswith("the drive is one sinusoid (0.5 Hz") for w in result.warnings), result.warnings
     steps = _recording(h.step_drive(1800))
-    result = hybrid.fit(hybrid.make_model("physics", simulation=hybrid.LTI(order=1)), steps, max_steps=5)
+    result = hybrid.fit(
+        hybrid.make_model("physics", simulation=hybrid.LTI(order=1)),
+        steps,
+        solver=hybrid.LevenbergMarquardt(max_steps=5),
+    )
     assert not any("one sinusoid" in w for w in result.warnings)

@@ -100,6 +100,30 @@ def test_lti_standard_errors_match_finite_differences(lab_csv, tmp_path):
     for name in ("sensitivity.md", "sensitivity_time.png", "singular_values.png"):
         assert (out / name).stat().st_size > 500
     assert "f_1 = 0.08 ±" in proc.stdout
+    assert result["warnings"] == [] and "warning" not in proc.stderr  # steps: many frequencies, f_1 < 1 Hz
+
+
+def test_a_one_sine_drive_and_a_frequency_above_nyquist_are_said(tmp_path, capsys):
+    """A probe's study on one steady sine gave tight bounds without a word, which `fit` on the same record
+    warns of; nor was a frequency above the Nyquist frequency said. Both now are, on stderr and in the
+    files; the drive at 2 Hz has its Nyquist frequency at 1 Hz."""
+    u = np.sin(2 * np.pi * 0.1 * DT * np.arange(N))  # 15 periods
+    path = tmp_path / "sine.csv"
+    path.write_text(
+        "u,y,Ts\n" + "".join(f"{a:.12g},{a:.12g},{DT if i == 0 else ''}\n" for i, a in enumerate(u))
+    )
+    out = tmp_path / "sens"
+    params = [f"--param={k}={v}" for k, v in {**NOMINAL, "f_1": 1.3}.items()]
+    argv = ["sensitivity", path, "--input", "u", "--output", "y", "--physics", "lti:2", *params, "--out", out]
+    assert main([str(a) for a in argv]) == 0
+    err = capsys.readouterr().err
+    result = json.loads((out / "sensitivity.json").read_text())
+    sine, alias = result["warnings"]
+    assert sine.startswith("the drive is one sinusoid (0.1 Hz") and "standard errors" in sine
+    assert alias.startswith("f_1 = 1.3 Hz is at or above the Nyquist frequency (1 Hz") and "0.7 Hz" in alias
+    assert "study a value below the Nyquist frequency" in alias and "fit again" not in alias
+    assert err.count("hybrid: warning: ") == 2 and sine in err and alias in err
+    assert sine in (out / "sensitivity.md").read_text()
 
 
 PLUGIN = '''

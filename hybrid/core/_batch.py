@@ -293,7 +293,7 @@ def fit_batch(
                 + drive_outside_range(
                     fitted.simulation, [recording.v_in], (recording_units([recording]) or ("", ""))[1]
                 )
-                + one_frequency_drive([recording]),
+                + one_frequency_drive([(recording.v_in, recording.rate)]),
             )
         )
     seconds = time.perf_counter() - t_start

@@ -285,7 +285,7 @@ def fit(
         + drive_outside_range(
             fitted.simulation, [r.v_in for r in recordings], (recording_units(recordings) or ("", ""))[1]
         )
-        + one_frequency_drive(recordings),
+        + one_frequency_drive([(r.v_in, r.rate) for r in recordings]),
         stopped=stopped,
     )
 

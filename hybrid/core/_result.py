@@ -224,8 +224,11 @@ ONE_LINE_SHARE = 0.99
 LINE_BINS = 3
 
 
-def one_frequency_drive(recordings) -> list[str]:
-    """One sentence where every recording's drive is one sinusoid, at one frequency, else none.
+def one_frequency_drive(drives, *, bounds: bool = False) -> list[str]:
+    """One sentence where every drive is one sinusoid, at one frequency, else none.
+
+    `drives`: (u, rate in Hz) of each recording. `bounds`: the sentence is about standard errors
+    computed before any fit (`hybrid.sensitivity.simulation_study`'s Cramér–Rao bounds), not a fit's.
 
     A linear system under a sine shows one gain and one phase: two numbers. A probe's `lti:2` fitted to
     a 0.5 Hz sine read f 1.02 ± 0.0047 Hz, ζ 0.338 ± 0.006 and a gain 9 standard errors from the truth,
@@ -233,8 +236,8 @@ def one_frequency_drive(recordings) -> list[str]:
     the record's start and the model's form taken as exact.
     """
     found = []
-    for recording in recordings:
-        u = np.asarray(recording.v_in, float)
+    for drive, rate in drives:
+        u = np.asarray(drive, float)
         if u.size < 8 * LINE_BINS or not np.ptp(u) > 0:
             return []
         power = np.abs(np.fft.rfft((u - u.mean()) * np.hanning(u.size))) ** 2
@@ -243,7 +246,7 @@ def one_frequency_drive(recordings) -> list[str]:
         share = float(np.sum(power[max(k - LINE_BINS, 0) : k + LINE_BINS + 1]) / np.sum(power))
         if not share >= ONE_LINE_SHARE:
             return []
-        found.append((_peak_bin(power, k) * recording.rate / u.size, share, recording.rate / u.size))
+        found.append((_peak_bin(power, k) * rate / u.size, share, rate / u.size))
     if not found or max(f for f, _, _ in found) - min(f for f, _, _ in found) > LINE_BINS * max(
         b for *_, b in found
     ):
@@ -252,9 +255,15 @@ def one_frequency_drive(recordings) -> list[str]:
     return [
         f"the drive is one sinusoid ({frequency:.3g} Hz holds {share:.0%} of its power"
         + (" in every recording" if len(found) > 1 else "")
-        + "): a linear system shows one gain and one phase under it, so parameters beyond those rest on the "
-        "record's start and on the model's form being exact, and so do their standard errors; a drive of "
-        "many frequencies (steps, a PRBS, a chirp) pins them"
+        + "): a linear system shows one gain and one phase under it, so "
+        + (
+            "the standard errors of parameters beyond those rest on the simulation's start from rest and on "
+            "the model's form being exact, not on the drive"
+            if bounds
+            else "parameters beyond those rest on the record's start and on the model's form being exact, and "
+            "so do their standard errors"
+        )
+        + "; a drive of many frequencies (steps, a PRBS, a chirp) pins them"
     ]
 
 
@@ -268,7 +277,12 @@ def _peak_bin(power: np.ndarray, k: int) -> float:
     return float(k + 0.5 * (a - c) / bend) if bend < 0 else float(k)
 
 
-def aliased(fitted: Model, frozen, rate: float | None) -> list[str]:
+def aliased(
+    fitted: Model,
+    frozen,
+    rate: float | None,
+    advice: str = "read it as that, or fit again from a start below the Nyquist frequency",
+) -> list[str]:
     """One sentence per fitted frequency (unit Hz) of `fitted`'s simulation at or above the Nyquist frequency.
 
     Sampled at `rate`, a frequency f is seen near its alias |f − k·rate| (the k
@@ -276,7 +290,8 @@ def aliased(fitted: Model, frozen, rate: float | None) -> list[str]:
     sample, so its natural frequency and damping differ somewhat): a fit can land on
     either (`lti:2` with a sensor's lag: a 1.2 Hz, ζ 0.4 plant fitted as
     28.9 Hz, ζ 0.017 at 30 Hz, the same discrete poles). The value is then not
-    the system's frequency. `frozen` names and a missing `rate` give nothing.
+    the system's frequency. `frozen` names and a missing `rate` give nothing. `advice` ends each
+    sentence (a sensitivity study, which fits nothing, says what to study instead).
     """
     if not rate or not math.isfinite(rate) or rate <= 0:
         return []
@@ -290,7 +305,7 @@ def aliased(fitted: Model, frozen, rate: float | None) -> list[str]:
         out.append(
             f"{name} = {f:.6g} Hz is at or above the Nyquist frequency ({nyquist:g} Hz of samples at {rate:g} Hz): "
             f"the samples cannot tell it from its alias near {alias:.4g} Hz, which is what the recording shows; "
-            "read it as that, or fit again from a start below the Nyquist frequency"
+            + advice
         )
     return out
 

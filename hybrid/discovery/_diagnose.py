@@ -541,7 +541,7 @@ def diagnose(
         + nonfinite_warnings(steps, search.effects)
         + model_warnings(models["extended"], frozen, search.rate)
         + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1])
-        + one_frequency_drive(recordings)
+        + one_frequency_drive([(r.v_in, r.rate) for r in recordings])
         + diverged_warnings(uncertainties),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept

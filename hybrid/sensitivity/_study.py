@@ -36,6 +36,7 @@ import numpy as np
 
 from ..core._models import Model
 from ..core._readout import LinearReadout
+from ..core._result import aliased, one_frequency_drive
 from ..core._simulation import unit_in, unit_suffix
 from ..util._atomic import write_text
 from ..util._errors import InputError
@@ -164,6 +165,16 @@ def simulation_study(
         "std_error": {n: _clean(v) for n, v in se.items()},
         "relative_std_error": {n: (None if v is None else _clean(v)) for n, v in relative.items()},
         "unidentifiable": unidentifiable,
+        # what the bounds cannot see: a drive of one frequency, a frequency the samples alias
+        "warnings": one_frequency_drive([(v_in, 1.0 / dt)], bounds=True)
+        + aliased(
+            physics,
+            frozen,
+            1.0 / dt,
+            advice="its standard error describes the model at the value given, which the recording cannot tell "
+            "from that alias: study a value below the Nyquist frequency, or a recording sampled faster than "
+            "twice it",
+        ),
         "sobol": (
             sobol_indices(simulation, v_in, dt, n_base=sobol, seed=seed, frozen=frozenset(frozen)).to_dict()
             if sobol
@@ -224,6 +235,7 @@ def _markdown(result) -> str:
         f"Near-collinear pairs (|cos| ≥ {result['tolerances']['collinearity']:g}): {pairs or 'none'}",
         "",
     ]
+    lines += [f"Warning: {said}\n" for said in result.get("warnings", [])]
     return "\n".join(lines)
 
 
