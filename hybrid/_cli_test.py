@@ -179,7 +179,7 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
     """
     from .core._held_start import has_held_start, refit_initial_drive
     from .core._metrics import metrics
-    from .discovery._start import misfit_at_start
+    from .discovery._start import misfit_at_start, start_shape
 
     scores = []
     for record in tests:
@@ -202,11 +202,15 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
                         "first_samples": row["first_samples"],
                         "sentence": (
                             f"the model misses its first {row['first_samples']} samples by {row['ratio']:.1f}× "
-                            "its RMS on the rest, all one sign: the record does not start where the model "
+                            f"its RMS on the rest, {start_shape(row)}: the record does not start where the model "
                             "does, and the model has no held start for "
-                            + (f"--initial-samples {first} " if first is not None else "its first samples ")
-                            + "to set (those samples are only left out of the score); fit with --settle N "
-                            "to let them set the record's initial drive"
+                            + (
+                                f"--initial-samples {first} to set (those samples are only left out of the "
+                                "score)"
+                                if first is not None
+                                else "its first samples to set (every sample is scored)"
+                            )
+                            + "; fit with --settle N to let them set the record's initial drive"
                         ),
                     }
                 }

@@ -267,14 +267,28 @@ def test_the_rule_and_its_sentences_on_residuals_made_by_hand():
     noise = 0.01 * np.random.default_rng(0).normal(size=1000)
     decay = 0.5 * np.exp(-np.arange(1000) / 8.0)  # an initial-state error dying away over ~20 samples
     moving, quiet = noise + decay, noise
-    two_signed = noise + decay * np.where(np.arange(1000) % 2, 1.0, -1.0)  # as large, but swings
+    swings = np.where(np.arange(1000) % 2, 1.0, -1.0)
+    # as large, but swinging at a size that does not die away (0.5, then 0.3 until sample 80): neither one
+    # sign nor a free oscillation's fall, though its start is missed 6.7× the rest's RMS and more the end's
+    two_signed = noise + swings * np.where(
+        np.arange(1000) < 20, 0.5, np.where(np.arange(1000) < 80, 0.3, 0.0)
+    )
     ends = noise + decay + decay[::-1]  # the end missed as much as the start
-    found = misfit_at_start([moving, quiet, two_signed, ends], ["a", "b", "c", "d"], settled=False)
-    assert [row["off"] for row in found["recordings"]] == [True, False, False, False]
-    assert found["recordings"][0]["first_samples"] == 20  # 2 % of 1000
+    # an underdamped plant that starts moving: its free oscillation changes sign as it dies away (a probe's
+    # validation record: |mean| 0.53 of the start's RMS, no start line)
+    ringing = noise + 0.5 * np.exp(-np.arange(1000) / 15.0) * np.cos(2 * np.pi * np.arange(1000) / 12.0)
+    found = misfit_at_start([moving, quiet, two_signed, ends, ringing], [*"abcde"], settled=False)
+    rows = found["recordings"]
+    assert [row["off"] for row in rows] == [True, False, False, False, True]
+    assert rows[2]["ratio"] >= RATIO and rows[2]["ratio_to_last"] >= RATIO and not rows[2]["dies_away"]
+    assert rows[4]["mean_over_rms_first"] < ONE_SIGN and rows[4]["dies_away"]
+    ring = misfit_at_start([ringing], ["e"], settled=False)["sentence"]
+    assert "its RMS on the rest, dying away: " in ring and "all one sign" not in ring
+    assert rows[0]["first_samples"] == 20  # 2 % of 1000
     assert "each record alone with --settle N" in found["sentence"]  # several records: one hold each
     alone = misfit_at_start([moving], ["a"], settled=False)["sentence"]
     assert alone.startswith("the model misses the first 20 samples of a by") and "--settle N" in alone
+    assert "its RMS on the rest, all one sign: " in alone
     assert "larger --settle N" in misfit_at_start([moving], ["a"], settled=True)["sentence"]
     unpredicted = np.r_[np.full(5, np.nan), moving[5:]]  # a start no part predicts is not judged
     assert misfit_at_start([unpredicted], ["a"], settled=False)["recordings"][0]["checked"] is False
