@@ -44,6 +44,7 @@ from ._cli_stop import FitStop, partial_path
 from ._cli_test import add_test_options, load_tests, print_scores, score_tests
 from .util._cores import use_cpu_cores, use_quick_compiles
 from .util._errors import InputError
+from .util._stdout import reader_may_leave
 from .util._watchdog import Watchdog, stage
 
 
@@ -917,7 +918,7 @@ def main(argv=None) -> int:
     args = None
     ctrl_c: list[int] = []  # the signals _sigint_watch saw
     try:
-        with _sigint_watch(ctrl_c), exit_guard():
+        with _sigint_watch(ctrl_c), exit_guard(), reader_may_leave():
             args = build_parser().parse_args(argv)
             stage(f"hybrid {args.command}")  # a Ctrl-C lost while JAX started is raised here (hybrid_launch)
             # A heartbeat on stderr while it works, and exit status 3 instead of a silent hang (_watchdog).

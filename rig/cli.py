@@ -26,7 +26,7 @@ import sys
 import threading
 
 from hybrid import InputError
-from hybrid.util import Watchdog
+from hybrid.util import Watchdog, reader_may_leave
 
 from ._errors import Terminated
 
@@ -550,7 +550,7 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
         # A heartbeat on stderr while it works (a drive file at 1 Hz records for many minutes). No stall
         # check: a real board's recording waits on its frames with the CPU idle.
-        with Watchdog(f"rig {args.command}", stall=0):
+        with Watchdog(f"rig {args.command}", stall=0), reader_may_leave():
             COMMANDS[args.command](args)
     except InputError as error:
         print(f"rig: error: {error}", file=sys.stderr)

@@ -224,3 +224,26 @@ def test_a_lone_causes_incremental_gain_says_what_it_is_over():
     )  # each of several: its own step's
     pair = {**step, "named_jointly_with": "delay"}
     assert cause_line(pair, 1, 33.75) == "  saturation (gain over delay alone 17.04x)"
+
+
+def test_a_reader_that_leaves_early_costs_no_files_and_no_error(tmp_path):
+    """``hybrid ... | head -2``: Python ignores SIGPIPE, so the next print raised BrokenPipeError and the
+    command ended "hybrid: error: BrokenPipeError" without its files (a probe). The reader here leaves
+    before the command prints anything; the command finishes, writes its files and exits 0."""
+    u = h.step_drive(300, seed=3, low=4, high=30)
+    path = tmp_path / "lab.csv"
+    path.write_text("u,y\n" + "".join(f"{a:.9g},{0.5 * a:.9g}\n" for a in u))
+    out, err = tmp_path / "sens", tmp_path / "err.txt"
+    argv = ["sensitivity", path, "--columns", "input=u,output=y", "--rate", 2, "--physics", "lti:1"]
+    with open(err, "w") as stderr:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "hybrid.cli", *map(str, argv), "--out", str(out)],
+            stdout=subprocess.PIPE,
+            stderr=stderr,
+            cwd=Path(__file__).resolve().parents[1],
+        )
+        proc.stdout.close()  # the reader leaves
+        code = proc.wait(timeout=300)
+    said = err.read_text()
+    assert code == 0 and "BrokenPipe" not in said and "Exception ignored" not in said, said
+    assert json.loads((out / "sensitivity.json").read_text())["names"] == ["tau_1", "direct"]

@@ -27,4 +27,5 @@ from ._programs import (
     release_programs as release_programs,
     release_when_crowded as release_when_crowded,
 )
+from ._stdout import reader_may_leave as reader_may_leave
 from ._watchdog import Watchdog as Watchdog, stage as stage
