@@ -32,7 +32,7 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from hybrid import AbstractSimulation, Positive
+from hybrid import AbstractEffect, AbstractSimulation, Positive, Real
 from hybrid import encode
 
 
@@ -139,6 +139,38 @@ class Partial(Good):
     def simulate(self, v_in, dt):
         tau = self.parameters()["tau"]
         return jnp.where(tau > 2.0, jnp.nan, jnp.asarray(v_in) * tau)
+
+
+class Narrow(Good):
+    """float32 out of a float64 drive (a probe's cast): fitted, and said."""
+    def simulate(self, v_in, dt):
+        return (jnp.asarray(v_in) * self.parameters()["tau"]).astype(jnp.float32)
+
+
+class Narrow32(AbstractEffect):
+    """An output effect whose apply rounds to float32."""
+    raw: dict
+    name: ClassVar[str] = "narrow32"
+    place: ClassVar[str] = "output"
+    constraints: ClassVar = {"narrow_gain": Real()}
+    units: ClassVar = {"narrow_gain": "1"}
+    defaults: ClassVar = {"narrow_gain": 0.0}
+    thresholds: ClassVar = {"narrow_percent": 10.0}
+
+    def __init__(self, **values):
+        self.raw = encode({**self.defaults, **values}, self.constraints, self.name)
+
+    def apply(self, s, dt):
+        return (s * (1.0 + self.parameters()["narrow_gain"])).astype(jnp.float32)
+
+    def derived(self, s, dt):
+        return {"narrow_percent": 100.0 * abs(float(self.parameters()["narrow_gain"]))}
+
+    def starts(self, context):
+        return [{"narrow_gain": 0.2}]
+
+    def material(self, derived, parameters, thresholds):
+        return derived["narrow_percent"] >= thresholds["narrow_percent"], "narrow"
 
 
 def _late(cls, fault):
@@ -277,6 +309,26 @@ def test_run_time_faults_in_diagnose_and_sensitivity_name_the_plugin(files, caps
     assert "narrow them (and its constraints)" in said[0]
     escaped = float(said[0].split("(e.g. tau=")[1].split(",")[0].split(")")[0])
     assert escaped > 2.0  # where the plug-in is NaN
+    spec = f"{plugin}:Narrow"  # float32 out of simulate and out of an effect's apply: fitted, and said
+    code = main(
+        ["diagnose", str(recording), "--physics", spec, "--effects", f"delay,{plugin}:Narrow32"]
+        + ["--out", str(folder / "narrow"), "--quiet", "--max-steps", "2"]
+    )
+    err = capsys.readouterr().err
+    assert code == 0, err
+    said = [
+        w for w in json.loads((folder / "narrow" / "report.json").read_text())["warnings"] if "float32" in w
+    ]
+    assert [w.split(" returns")[0] for w in said] == ["Narrow.simulate", "Narrow32.apply"], said
+    assert "for a float64 signal" in said[0] and "about 7 significant digits" in said[0]
+    code = main(_fit(files, "Narrow", "--json", str(folder / "narrow.json")))
+    assert code == 0, capsys.readouterr().err
+    (fitted,) = [w for w in json.loads((folder / "narrow.json").read_text())["warnings"] if "float32" in w]
+    assert fitted.startswith("Narrow.simulate returns float32")
+    code = main(_fit(files, "Good", "--json", str(folder / "good.json")))  # float64 throughout: nothing said
+    assert code == 0 and not [
+        w for w in json.loads((folder / "good.json").read_text())["warnings"] if "float32" in w
+    ]
     spec = f"{plugin}:Quits"
     code = main(["sensitivity", str(recording), "--physics", spec, "--out", str(folder / "sens")])
     _one_line(code, capsys.readouterr().err, spec, "Quits.simulate called sys.exit(0)")

@@ -10,8 +10,9 @@ import jax
 import numpy as np
 
 from ._arguments import FLOAT64_FIX
+from ._held_start import HeldStart
 from ._models import Model
-from ._simulation import AbstractSimulation, unit_suffix
+from ._simulation import AbstractSimulation, from_library, unit_suffix
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,6 +168,9 @@ def fit_warnings(
         )
     warnings += implausible(fitted, frozen)
     warnings += aliased(fitted, frozen, rate) + sub_sample(fitted, frozen, rate)
+    own = user_simulation(fitted.simulation)
+    if own is not None:
+        warnings += narrowed([(f"{type(own).__name__}.simulate", own.simulate)], rate)
     if not jax.config.read("jax_enable_x64"):
         warnings.append(
             "fitted in float32, as jax's float64 is off: sums over the record (and the RC network's product "
@@ -307,6 +311,45 @@ def aliased(
             f"the samples cannot tell it from its alias near {alias:.4g} Hz, which is what the recording shows; "
             + advice
         )
+    return out
+
+
+#: The samples of the float64 signal `narrowed` traces a plug-in's method on (shapes only: nothing runs).
+NARROW_PROBE = 64
+
+
+def user_simulation(simulation: AbstractSimulation) -> AbstractSimulation | None:
+    """The plug-in `simulation` runs (itself, or held at a fitted drive a `HeldStart`'s inner), or None where
+    that is the library's own (which computes in its signal's dtype)."""
+    inner = simulation.inner if isinstance(simulation, HeldStart) else simulation
+    return None if from_library(inner) else inner
+
+
+def narrowed(parts, rate: float | None) -> list[str]:
+    """One sentence per plug-in method that returns fewer bits than the float64 signal it is given.
+
+    `parts`: (who, f) pairs, `who` the method's name for the sentence (``"Motor.simulate"``) and f(signal,
+    dt) the method. Read by tracing (`jax.eval_shape`: nothing compiled or run), and only where float64 is
+    on (off, `fit_warnings` says it of the whole fit). A probe's plug-ins returned float32 from `simulate`,
+    `rates` and an effect's `apply` (a float32 constant, a cast) and nothing was said: the output, and the
+    derivatives the fit and the standard errors take through it, keep about 7 significant digits.
+    """
+    if not jax.config.read("jax_enable_x64") or not rate or not math.isfinite(rate) or rate <= 0:
+        return []
+    signal = jax.ShapeDtypeStruct((NARROW_PROBE,), np.float64)
+    out = []
+    for who, method in parts:
+        try:
+            dtype = np.dtype(jax.eval_shape(lambda v, method=method: method(v, 1.0 / rate), signal).dtype)
+        except Exception:  # what a plug-in's method does wrong is said where it runs, not here
+            continue
+        if np.issubdtype(dtype, np.floating) and dtype.itemsize < 8:
+            out.append(
+                f"{who} returns {dtype} for a float64 signal: its output, and the derivatives the fit and the "
+                "standard errors take through it, keep about 7 significant digits, so what the data pin "
+                "weakly rounds away; compute in the signal's own dtype (no float32 casts or arrays: "
+                "jnp.asarray(x, v.dtype))"
+            )
     return out
 
 

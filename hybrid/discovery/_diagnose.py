@@ -68,7 +68,15 @@ from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
 from ..core._problem import Problem
-from ..core._result import aliased, drive_outside_range, implausible, one_frequency_drive, sub_sample
+from ..core._result import (
+    aliased,
+    drive_outside_range,
+    implausible,
+    narrowed,
+    one_frequency_drive,
+    sub_sample,
+    user_simulation,
+)
 from ..core._screen import N_SCREEN, screen_starts
 from ..core._simulation import from_library, unit_in
 from ..data._recording import in_shared_units
@@ -542,6 +550,10 @@ def diagnose(
         + model_warnings(models["extended"], frozen, search.rate)
         + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1])
         + one_frequency_drive([(r.v_in, r.rate) for r in recordings])
+        + narrowed(
+            [(f"{type(p).__name__}.{m.__name__}", m) for p, m in _plugin_methods(simulation, search.effects)],
+            search.rate,
+        )
         + diverged_warnings(uncertainties),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept
@@ -645,6 +657,15 @@ def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:
 GAIN_FACTOR = 1.2
 #: A readout gain within this factor of a power of 1000 reads as a unit mismatch (mA for A).
 UNIT_STEP = 1.1
+
+
+def _plugin_methods(simulation, effects) -> list[tuple[object, Any]]:
+    """(plug-in, method) of what the search ran that a user wrote: the simulation's simulate (or, held at a
+    fitted drive, its inner one's) and each effect's apply."""
+    own = user_simulation(simulation)
+    return ([(own, own.simulate)] if own is not None else []) + [
+        (e, e.apply) for e in effects if not from_library(e)
+    ]
 
 
 def model_warnings(model: Model, frozen, rate: float | None = None) -> list[str]:

@@ -347,8 +347,12 @@ def switched(on, effect: AbstractEffect, s, dt):
     Jacobian direction: a `lax.cond` on the switch skips the effects a lane has
     off (under `vmap` it becomes a select, and both sides run as before). It
     also keeps a switched-off effect's NaN or inf out of ``0·(effect(s) − s)``.
+    Both sides keep ``s``'s dtype: a plug-in's apply that returns float32 (said in
+    the report, `narrowed`) would otherwise stop the cond with a TypeError.
     """
-    return jax.lax.cond(on != 0, lambda x: x + on * (effect.apply(x, dt) - x), lambda x: x, s)
+    return jax.lax.cond(
+        on != 0, lambda x: (x + on * (effect.apply(x, dt) - x)).astype(x.dtype), lambda x: x, s
+    )
 
 
 def _output(stack, v_in, dt):
@@ -467,7 +471,7 @@ def inner_response(stack: EffectStack, v_in, dt):
 
     def run(theta, p_effects, others, e_arrays, on, source):
         drive = drive_of(p_effects, e_arrays, on, source)
-        return eqx.combine(unravel(theta), others, static).simulate(drive, dt)
+        return _in_drive_dtype(eqx.combine(unravel(theta), others, static), drive, dt)
 
     @jax.custom_jvp
     def response(theta, p_effects, others, e_arrays, on, source):
@@ -480,7 +484,7 @@ def inner_response(stack: EffectStack, v_in, dt):
         u = drive_of(p_effects, e_arrays, on, source)  # the drive into the simulation, once
 
         def simulate(drive, t=theta):
-            return eqx.combine(unravel(t), others, static).simulate(drive, dt)
+            return _in_drive_dtype(eqx.combine(unravel(t), others, static), drive, dt)
 
         if isinstance(d_theta, SymbolicZero):  # no parameter differentiated: the value alone
             y = simulate(u)
@@ -523,6 +527,13 @@ def inner_response(stack: EffectStack, v_in, dt):
 
     response.defjvp(_derivative, symbolic_zeros=True)
     return response(flat, effect_flats, arrays, effect_arrays, switches, v_in)
+
+
+def _in_drive_dtype(simulation, drive, dt):
+    """`simulation.simulate(drive, dt)` in the drive's dtype where it returns fewer bits: a plug-in's float32
+    (said in the report, `narrowed`) stopped the response's derivative on its primal's dtype."""
+    out = simulation.simulate(drive, dt)
+    return out.astype(jnp.promote_types(out.dtype, drive.dtype))
 
 
 def _drive_directions(drive, simulate, u, p_effects, on, asked, y):
