@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 import pytest
 
@@ -83,3 +84,27 @@ def test_a_command_whose_package_fails_to_import_says_so_in_one_line(name, modul
     assert "reinstall" in lines[0]
     verbose = subprocess.run([sys.executable, "-c", code, "-v"], cwd=tmp_path, capture_output=True, text=True)
     assert verbose.returncode != 0 and "Traceback" in verbose.stderr
+
+
+def test_a_swallowed_ctrl_c_prints_no_traceback_beside_the_one_line():
+    """A Ctrl-C raised inside JAX's garbage-collection callback was printed by Python's unraisable hook
+    ("Exception ignored in: <function _xla_gc_callback ...>", 12 lines for a probe's one Ctrl-C); it is
+    remembered and raised at the next stage, so the launcher's hook says nothing of it. Anything else
+    unraisable, and a KeyboardInterrupt with no Ctrl-C pending, goes to the hook before it."""
+    seen = []
+    hook = hybrid_launch._quiet_about_interrupts(seen.append)
+    previous = signal.signal(signal.SIGINT, hybrid_launch.on_sigint)
+    try:
+        signal.raise_signal(signal.SIGINT)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    swallowed = SimpleNamespace(exc_value=KeyboardInterrupt())
+    other = SimpleNamespace(exc_value=ValueError("a real problem"))
+    hook(swallowed)
+    hook(other)
+    assert seen == [other]
+    assert hybrid_launch.take_interrupt()  # still raised at the next stage
+    hook(swallowed)  # none pending now: not one of ours, said
+    assert seen == [other, swallowed]
