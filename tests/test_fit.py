@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from hybrid import (
+    LTI,
     Adam,
     InputError,
     LevenbergMarquardt,
@@ -442,3 +443,13 @@ def test_blocked_split_rejects_a_bad_block_count():
         series_from_recording(recording, blocks=0)
     with pytest.raises(InputError, match="too short to split"):
         series_from_recording(recording, (0.6, 0.1, 0.3), ("train", "validation", "test"), blocks=40)
+
+
+def test_the_progress_bar_is_drawn_on_a_terminal_only(capsys):
+    """A script looping over recordings into a log file got thousands of carriage-return lines from the
+    default progress bar (a probe); it is drawn only where stderr is a terminal (here it is captured)."""
+    u = h.step_drive(300)
+    recording = Recording(np.arange(300) / 30.0, u, h.zoh_lag(u, 1 / 30.0, 0.5))
+    model = make_model("physics", simulation=LTI(order=1))
+    fit(model, recording, solver=LevenbergMarquardt(max_steps=3), progress=True)
+    assert "LM physics" not in capsys.readouterr().err

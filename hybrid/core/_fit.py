@@ -136,7 +136,7 @@ def fit(
       (D-MLP); residuals are in units of the training std of w, so μ is relative
       to one sample's squared error. 0 disables it.
     - `seed`: seeds the extra starts.
-    - `progress`: show a progress bar on stderr.
+    - `progress`: show a progress bar on stderr, where stderr is a terminal.
     - `report_every`: iterations between progress reports / history entries.
     - `stop`: optional function of no arguments, called between LM steps (between
       chunks of `report_every` steps for Adam; never inside a compiled step). When it
@@ -484,9 +484,11 @@ def _metrics_by_split(problem: Problem, theta, split_order):
 
 
 def _progress_bar(total, enabled, desc):
+    """The LM progress bar on stderr where `enabled` and stderr is a terminal: a script looping over
+    recordings into a log file got thousands of carriage-return lines (a probe), none of them read."""
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, disable=not enabled, desc=desc, unit="step", leave=False)
+    return tqdm(total=total, disable=None if enabled else True, desc=desc, unit="step", leave=False)
 
 
 def _one_start(tree):
