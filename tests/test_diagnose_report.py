@@ -430,3 +430,19 @@ def test_an_output_side_causes_unit_is_said_where_it_is_not_ws():
     # a drive-side cause alone, or a simulation already in w's unit: nothing to say
     assert _output_unit_note({**d, "causes": [{"name": "drive_dead_zone"}]}) == []
     assert _output_unit_note({**d, "parameters": {"gain": {"value": 1.0, "unit": "mm/mm"}}}) == []
+
+
+def test_the_all_clear_names_the_bound_it_is_under():
+    """report.md said "within 2× the floor: nothing is left unexplained" beside a verdict of 2.1× (a probe):
+    the rule counts the floor at its estimate + 2 standard errors, and the sentence now says so."""
+    from hybrid.discovery._report import noise_section
+
+    floor = {"std": 0.1, "variance": 0.01, "std_error": 0.001, "fraction_of_variance": 0.02, "method": "m"}
+    d = {
+        "noise_floor": floor,
+        "unexplained": None,
+        "settings": {"unexplained_ratio": 2.0},
+        "units": {"w": "mm"},
+    }
+    text = "\n".join(noise_section(d))
+    assert "within 2× the floor's upper bound (its estimate + 2 standard errors): nothing is left" in text

@@ -327,7 +327,8 @@ def noise_section(d: dict) -> list[str]:
     if left is None:
         return lines + [
             "The final model's held-out error is within "
-            f"{_num(d['settings']['unexplained_ratio'])}× the floor: nothing is left unexplained.",
+            f"{_num(d['settings']['unexplained_ratio'])}× the floor's upper bound (its estimate + 2 standard "
+            "errors): nothing is left unexplained.",
             "",
         ]
     desc = left["description"]
