@@ -1088,3 +1088,41 @@ def test_a_limits_rim_is_an_option_saved_with_it():
         for rim in (0.005, 0.02)
     }
     assert tops[0.02] < tops[0.005] <= 9.0
+
+
+class _Cart(hybrid.AbstractStateSpace):
+    """tau·v' = u − v: one state, a speed in m/s, and no velocity_states (a probe's cart)."""
+
+    raw: dict
+    constraints = {"tau": hybrid.Positive()}
+    units = {"tau": "s"}
+    states = ("speed",)
+    state_units = {"speed": "m/s"}
+
+    def __init__(self, tau=1.0):
+        self.raw = hybrid.encode({"tau": tau}, self.constraints, "_Cart")
+
+    def rates(self, x, u, p):
+        return ((u - x[0]) / p["tau"],)
+
+
+def test_a_state_whose_unit_is_a_speed_gets_a_friction_by_default():
+    """A probe's cart named no velocity_states: its Coulomb friction was not searched, and diagnose named
+    a drive dead zone and a nonlinear damping instead (with the friction named, 37× and the force to 1 %).
+    A state in a speed's unit is a velocity where the simulation names none; one it names wins, and a
+    flow (L/min) or a level (m) is no speed."""
+    from hybrid.core._state_space import velocities
+    from hybrid.data._header_units import speed_unit
+
+    cart = _Cart()
+    assert velocities(cart) == ("speed",)
+    assert "friction_speed" in [e.name for e in hybrid.resolve_effects(None, cart)]
+    assert velocities(MassSpringDamper()) == ("velocity",)  # named: as named
+    for unit in ("m/s", "mm/s", "rad/s", "°/s", "deg/s", "rpm", "m·s⁻¹"):
+        assert speed_unit(unit), unit
+    for unit in ("L/min", "m", "V", "m/s²", "W", "", "K/s"):
+        assert not speed_unit(unit), unit
+    level = type("_Level", (_Cart,), {"state_units": {"speed": "m"}})()
+    assert velocities(level) == () and "friction_speed" not in [
+        e.name for e in hybrid.resolve_effects(None, level)
+    ]

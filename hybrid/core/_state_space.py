@@ -47,6 +47,7 @@ import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Float
 
+from ..data._header_units import speed_unit
 from ..util._errors import InputError
 from ._arguments import check_drive, run_compiled
 from ._loop_safe_linalg import zoh_discretise
@@ -69,7 +70,8 @@ class AbstractStateSpace(AbstractSimulation):
       by default (None, the default: every state);
     - `velocity_states`: the states that are velocities (a mass's, a shaft's
       speed), where `diagnose` searches a dry friction by default
-      (``friction_<state>``; default: none);
+      (``friction_<state>``; default: the states whose `state_units` are a
+      speed, m/s or rad/s, `velocities`);
     - `spills_into`: where what a limit cuts off a state would go, by state
       (``{"h1": "h2"}``: water over the upper tank's rim falls into the lower
       tank); `diagnose`'s limit on such a state moves a fitted share of the
@@ -252,6 +254,23 @@ def dynamics_of(simulation) -> tuple[AbstractStateSpace, Callable, int] | None:
     if isinstance(simulation, HeldStart) and has_states(simulation.inner):
         return simulation.inner, simulation.held_drive, simulation.settle_samples
     return None
+
+
+def velocities(simulation: AbstractStateSpace) -> tuple[str, ...]:
+    """The states that are velocities: its `velocity_states`, or where it names none, those whose
+    `state_units` are a speed (m/s, rad/s, °/s, rpm).
+
+    A probe's cart (one state, speed in m/s) declared no `velocity_states`: its Coulomb friction, not
+    searched, was named a drive-side dead zone and a nonlinear damping; the built-in friction on the
+    speed, named, gained 37×.
+    """
+    if simulation.velocity_states:
+        return tuple(simulation.velocity_states)
+    try:
+        units = dict(simulation.state_units)
+    except Exception:  # a plug-in's property that fails: no unit stated
+        return ()
+    return tuple(state for state in simulation.states if speed_unit(str(units.get(state) or "")))
 
 
 def check_state_space(simulation: AbstractStateSpace, label: str) -> None:

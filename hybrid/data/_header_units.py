@@ -29,7 +29,7 @@ import re
 
 from ._recording_checks import TIME_UNITS
 
-__all__ = ["LONE_UNITS", "header_unit", "is_unit", "prefix_factor", "time_unit", "unit_kind"]
+__all__ = ["LONE_UNITS", "header_unit", "is_unit", "prefix_factor", "speed_unit", "time_unit", "unit_kind"]
 
 _PREFIX = r"(?:da|[yzafpnµμumcdhkMGTPE])"
 _SYMBOL = r"(?:s|m|g|V|A|Ω|ohm|Ohm|Hz|N|Pa|W|J|C|F|H|T|K|S|Wb|L|l|mol|cd|lx|rad|sr|bar|eV)"
@@ -48,6 +48,11 @@ LONE_UNITS = frozenset({"V", "s", "m", "N", "W"})
 _RATE = re.compile(r"^(?:.+?(?:\s*/\s*(?:s|sec|ms|min|h)|\s*[·.* ]\s*(?:s\^-1|s⁻¹))|rpm|RPM|r/min)$")
 #: A position: a length (m with an SI prefix, in) or an angle (rad, mrad, deg, °), or pixels.
 _POSITION = re.compile(rf"^(?:{_PREFIX}?m|in|m?rad|deg|°|px|pixels?)$")
+#: A speed: a position per unit time (m/s, mm/s, rad/s, deg/s, °/s, px/s), or revolutions per minute.
+_SPEED = re.compile(
+    rf"^(?:(?:{_PREFIX}?m|in|m?rad|deg|°|px|pixels?)\s*/\s*(?:s|sec|ms|min|h)|"
+    rf"(?:{_PREFIX}?m|in|m?rad|deg|°|px)\s*[·.* ]\s*(?:s\^-1|s⁻¹)|rpm|RPM|r/min)$"
+)
 #: A temperature: degrees Celsius or Fahrenheit, or kelvin.
 _TEMPERATURE = re.compile(r"^(?:°\s*[CF]|deg\s*[CF]|degC|degF|K|℃|℉)$")
 #: Spellings of the time units, lower case, -> the key of `TIME_UNITS`.
@@ -127,6 +132,12 @@ def time_unit(text: str) -> str | None:
     text = text.strip()
     key = _TIME_SPELLINGS.get(text if text in ("ms", "ns") else text.lower())
     return key if key in TIME_UNITS else None
+
+
+def speed_unit(unit: str) -> bool:
+    """Whether `unit` is a speed: a length or an angle per unit time (``m/s``, ``rad/s``, ``°/s``), or ``rpm``;
+    not a flow (``L/min``) or another rate."""
+    return bool(_SPEED.fullmatch((unit or "").strip()))
 
 
 def unit_kind(unit: str) -> str | None:

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._parameters import Constraint, constraint_problem
-from ..core._state_space import check_state_space, dynamics_of
+from ..core._state_space import check_state_space, dynamics_of, velocities
 from ..util._errors import InputError, PluginError
 from ._effects import (
     PLACES,
@@ -272,7 +272,7 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     `simulation` in state-space form ([`AbstractStateSpace`][]): for None, the
     built-ins are the drive's and the output's effects, plus, for a
     simulation with states, the stiffness, a limit on each state (each
-    of its `limited_states`) and a friction on each of its `velocity_states`,
+    of its `limited_states`) and a friction on each of its velocities (`velocities`),
     unless it says why not (`not_searched_inside`: the RC network, whose
     stepped form is far dearer than its `simulate`).
     """
@@ -285,7 +285,7 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
         if not states or core is None:
             return tuple(built)
         limited = states if core[0].limited_states is None else core[0].limited_states
-        moving = tuple(Friction(state) for state in core[0].velocity_states if state in states)
+        moving = tuple(Friction(state) for state in velocities(core[0]) if state in states)
         return (
             tuple(built) + tuple(state_limit(core[0], state) for state in limited if state in states) + moving
         )
@@ -423,7 +423,7 @@ def _velocity_of(dynamics, state: str) -> str | None:
     position, `LTI(N)`'s band-pass state for its low-pass (ṗ = ω·q). A level
     fed by a flow has none.
     """
-    moving = [v for v in dynamics.velocity_states if v != state and v in dynamics.states]
+    moving = [v for v in velocities(dynamics) if v != state and v in dynamics.states]
     if not moving:
         return None
     p = dynamics.prepare(dynamics.parameters())

@@ -488,7 +488,7 @@ def place_hint(description: dict, places: dict) -> str | None:
     effect of the user's own is what is left; where the best state's map reads
     as a step at zero (a dry friction's), the built-in ``friction_<state>``
     instead, when it was not searched (by default it is only on the
-    simulation's `velocity_states`).
+    simulation's velocities, `velocities`).
     """
     inside = places.get("inside")
     limit = description.get("level_limit") or {}
