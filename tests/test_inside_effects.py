@@ -1126,3 +1126,12 @@ def test_a_state_whose_unit_is_a_speed_gets_a_friction_by_default():
     assert velocities(level) == () and "friction_speed" not in [
         e.name for e in hybrid.resolve_effects(None, level)
     ]
+
+
+def test_a_damping_reading_says_the_form_fitted_not_one_drag_law():
+    """On a speed, a probe's v³ damping (fitted k₃ 1.98 for 2.0) and its v·|v| drag were both read "a drag
+    ∝ v·|v|": the reading now says the form fitted, with v·|v| and a cube as the drags it covers."""
+    grows = PolynomialStiffness().reading({"stiffness_cube": 2.0}, "m/s")
+    eases = PolynomialStiffness().reading({"stiffness_cube": -2.0}, "m/s")
+    assert "grows faster than the speed, fitted as k₂·v² + k₃·v³" in grows and "or a cube" in grows
+    assert "eases at speed, fitted as k₂·v² + k₃·v³" in eases and "drag" not in eases

@@ -144,8 +144,14 @@ class PolynomialStiffness(AbstractEffect):
         if kind == "rate":
             return (
                 f"a force of the output fed back against the drive, and the output ({output_unit}) is a rate: "
-                f"a nonlinear damping ({'a drag, as a fluid or turbulent loss gives, ∝ v·|v|' if grows else 'one that eases at speed'}), "
-                "not a spring"
+                "a nonlinear damping ("
+                + (
+                    "one that grows faster than the speed, fitted as k₂·v² + k₃·v³: a drag, such as a fluid's "
+                    "turbulent loss, ∝ v·|v|, or a cube"
+                    if grows
+                    else "one that eases at speed, fitted as k₂·v² + k₃·v³"
+                )
+                + "), not a spring"
             )
         if kind == "position":
             return (
