@@ -16,14 +16,17 @@ import pytest
 
 from hybrid import (
     LTI,
+    AbstractSimulation,
     Adam,
     InputError,
     LevenbergMarquardt,
     LinearReadout,
     Model,
     OptimistixLM,
+    Positive,
     RCNetwork,
     Recording,
+    encode,
     fit,
     make_model,
 )
@@ -453,3 +456,39 @@ def test_the_progress_bar_is_drawn_on_a_terminal_only(capsys):
     model = make_model("physics", simulation=LTI(order=1))
     fit(model, recording, solver=LevenbergMarquardt(max_steps=3), progress=True)
     assert "LM physics" not in capsys.readouterr().err
+
+
+class _Speed(AbstractSimulation):
+    """A first-order lag whose output, it says, is a speed in m/s."""
+
+    raw: dict
+    constraints = {"tau": Positive()}
+    units = {"tau": "s"}
+    output_unit = "m/s"
+
+    def __init__(self, tau=0.5):
+        self.raw = encode({"tau": tau}, self.constraints, "_Speed")
+
+    def simulate(self, v_in, dt):
+        a = jnp.exp(-dt / self.parameters()["tau"])
+        return jax.lax.scan(lambda y, u: (a * y + (1 - a) * u,) * 2, 0.0 * v_in[0], v_in)[1]
+
+
+def test_a_speed_fitted_to_an_output_in_mm_is_said():
+    """A probe's cart (output in m/s) recorded without units read w in mm: "gain 1.005 mm/(m/s)" and no
+    word. A quantity of another kind than the output's is said; in its own unit, or where the kind of
+    either is unknown (the drive's V), nothing is."""
+    u = h.step_drive(300)
+    t = np.arange(300) / 30.0
+    y = h.zoh_lag(u, 1 / 30.0, 0.5)
+    solver = LevenbergMarquardt(max_steps=2)
+    model = make_model("physics", simulation=_Speed())
+    (said,) = [w for w in fit(model, Recording(t, u, y), solver=solver).warnings if "cannot turn" in w]
+    assert (
+        said.startswith("w is in mm, a position, but _Speed's output is in m/s, a rate")
+        and "--units w=m/s" in said
+    )
+    own = Recording(t, u, y, metadata={"units": {"t": "s", "v_in": "V", "w": "m/s"}})
+    assert not [w for w in fit(model, own, solver=solver).warnings if "cannot turn" in w]
+    volts = Recording(t, u, y, metadata={"units": {"t": "s", "v_in": "V", "w": "V"}})
+    assert not [w for w in fit(model, volts, solver=solver).warnings if "cannot turn" in w]

@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..data._header_units import unit_kind
 from ..data._recording import in_shared_units
 from ..util._errors import InputError, PluginError
 from ..util._programs import release_when_crowded
@@ -36,8 +37,9 @@ from ._metrics import metrics as compute_metrics
 from ._models import Model
 from ._problem import Problem, Series, robust_rms, robust_std, segment_ids, series_from_recording
 from ._readout import WindowedMLP
-from ._result import FitResult, drive_outside_range, fit_warnings, one_frequency_drive
+from ._result import FitResult, drive_outside_range, fit_warnings, one_frequency_drive, user_simulation
 from ._screen import screened_starts
+from ._simulation import unit_in
 from ._solvers import (
     SOLVERS as SOLVERS,
     AbstractSolver,
@@ -285,7 +287,8 @@ def fit(
         + drive_outside_range(
             fitted.simulation, [r.v_in for r in recordings], (recording_units(recordings) or ("", ""))[1]
         )
-        + one_frequency_drive([(r.v_in, r.rate) for r in recordings]),
+        + one_frequency_drive([(r.v_in, r.rate) for r in recordings])
+        + unit_mismatch(recordings, fitted.simulation),
         stopped=stopped,
     )
 
@@ -369,6 +372,30 @@ def recording_units(recordings) -> tuple[str, str] | None:
     ]
     declared = {(str(u.get("w", PAPER_UNITS["w"])), str(u.get("v_in", PAPER_UNITS["v_in"]))) for u in tables}
     return declared.pop() if len(declared) == 1 else None
+
+
+def unit_mismatch(recordings, simulation) -> list[str]:
+    """One sentence where w's unit and the user's simulation's output unit are quantities of different kinds
+    (a position and a speed, a temperature), which no readout gain turns one into the other.
+
+    A probe's cart (output in m/s), recorded in the project's columns without units, was read with w in mm,
+    the paper's unit: its readout gain printed "1.005 mm/(m/s)" and nothing was said.
+    """
+    own = user_simulation(simulation)
+    declared = recording_units(recordings)
+    if own is None or declared is None:
+        return []
+    unit, w_unit = unit_in(str(own.output_unit or ""), declared[1]), declared[0]
+    out_kind, w_kind = unit_kind(unit), unit_kind(w_unit)
+    if out_kind is None or w_kind is None or out_kind == w_kind:
+        return []
+    names = {"rate": "a rate", "position": "a position", "temperature": "a temperature"}
+    return [
+        f"w is in {w_unit}, {names[w_kind]}, but {type(own).__name__}'s output is in {unit}, "
+        f"{names[out_kind]}: a readout gain ({w_unit} per {unit}) cannot turn one into the other, so the "
+        f"gain and every size in w's unit rest on a unit that is not the data's; give w's own unit (--units "
+        f"w={unit} if it is that; a recording without units is read in {PAPER_UNITS['w']}, the paper's)"
+    ]
 
 
 def unit_labels(model: Model, recordings) -> dict[str, str]:

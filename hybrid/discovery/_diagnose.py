@@ -63,7 +63,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation, require_float64
-from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_labels
+from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_labels, unit_mismatch
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
@@ -550,6 +550,7 @@ def diagnose(
         + model_warnings(models["extended"], frozen, search.rate)
         + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1])
         + one_frequency_drive([(r.v_in, r.rate) for r in recordings])
+        + unit_mismatch(recordings, simulation)
         + narrowed(
             [(f"{type(p).__name__}.{m.__name__}", m) for p, m in _plugin_methods(simulation, search.effects)],
             search.rate,
