@@ -116,6 +116,42 @@ def test_a_mode_with_no_peak_is_not_offered_as_a_resonance_too_small_to_count():
     assert offered["name"] == "resonance" and offered["gain"] == 246.0
 
 
+def test_an_effect_a_later_step_refuses_for_more_than_its_size_is_not_too_small():
+    """A probe's backlash gained 6.22× at step 1, refused for its size beside the stiffness named there, and
+    0.99× at step 2 on top of it; the report still offered it ("set play_percent_of_range to admit it").
+    The latest step that weighed it decides: refused there for its gain, it is not listed."""
+    from types import SimpleNamespace
+
+    import hybrid
+    from hybrid.discovery._diagnosis import DiagnoseSettings, Diagnosis
+
+    backlash = hybrid.EFFECTS["backlash"]()
+
+    def candidate(gain, for_size):
+        return SimpleNamespace(
+            name="backlash",
+            gain=gain,
+            refused_for_size=for_size,
+            materiality="play 1 %",
+            parameters={},
+            derived={},
+        )
+
+    def too_small(*steps):
+        fake = SimpleNamespace(
+            causes=[{"name": "stiffness"}],
+            steps=[SimpleNamespace(candidates=[c]) for c in steps],
+            settings=DiagnoseSettings(),
+            _effect=lambda name: backlash,
+        )
+        return Diagnosis.too_small.fget(fake)
+
+    assert too_small(candidate(6.22, True), candidate(0.99, False)) == []
+    (offered,) = too_small(candidate(6.22, True), candidate(3.0, True))  # still refused for its size
+    assert offered["step"] == 2 and offered["gain"] == 3.0
+    assert too_small(candidate(6.22, True))[0]["step"] == 1
+
+
 def test_two_recordings_give_the_same_sizes_in_either_order():
     """A drive clipped at ±1.5 V into a first-order plant (scipy), recorded twice: a ±0.9 V PRBS that never
     reaches the clip and a ±3 V staircase that does. Sizes were read off the first recording: the clip's

@@ -553,8 +553,12 @@ class Diagnosis:
         0.03 µm gauge) an effect under it can still gain many times held out.
         Not a cause, but the report says so rather than pointing at a weaker
         rival; `DiagnoseSettings.materiality` (``--materiality``) counts it. For
-        each effect never named, the latest step where it was so refused;
-        largest gain first.
+        each effect never named, as the latest step that weighed it found it:
+        one that a later step weighed on top of a later cause and refused for
+        more than its size is not listed (a probe's backlash, 6.22× at step 1,
+        beside the stiffness named there, 0.99× at step 2: "set play_percent_of_range
+        to admit it" offered a cause the final model leaves nothing to).
+        Largest gain first.
         """
         named = {c["name"] for c in self.causes}
         by_name: dict[str, dict] = {}
@@ -563,18 +567,20 @@ class Diagnosis:
                 if c.name in named:
                     continue
                 effect = self._effect(c.name)
-                if unlike([effect] if effect is not None else [], c):
-                    continue  # not this effect at all: no threshold should admit it
-                if c.refused_for_size and c.gain >= self.settings.min_gain:
-                    by_name[c.name] = {
-                        "name": c.name,
-                        "step": k,
-                        "gain": c.gain,
-                        "materiality": c.materiality,
-                        "thresholds": {}
-                        if effect is None
-                        else thresholds_of(effect, self.settings.materiality),
-                    }
+                # not this effect at all (`unlike`: no threshold should admit it), or refused for more than
+                # its size: weighed again on top of a later cause, what an earlier step found is gone
+                if unlike([effect] if effect is not None else [], c) or not (
+                    c.refused_for_size and c.gain >= self.settings.min_gain
+                ):
+                    by_name.pop(c.name, None)
+                    continue
+                by_name[c.name] = {
+                    "name": c.name,
+                    "step": k,
+                    "gain": c.gain,
+                    "materiality": c.materiality,
+                    "thresholds": {} if effect is None else thresholds_of(effect, self.settings.materiality),
+                }
         return sorted(by_name.values(), key=lambda d: -d["gain"])
 
     @property
