@@ -697,7 +697,10 @@ def cause_line(step: dict, n_causes: int, gain: float) -> str:
         if n_causes == 1 and not with_ and abs(step["incremental_gain"] - gain) > 0.1 * gain
         else ""
     )
-    return f"  {step['name']} ({over} {step['incremental_gain']:.2f}x{why})"
+    from .discovery._report import PLACE_WORDS
+
+    where = PLACE_WORDS.get(step.get("place") or "")
+    return f"  {step['name']}{f', {where}' if where else ''} ({over} {step['incremental_gain']:.2f}x{why})"
 
 
 def _cmd_diagnose(args):

@@ -224,6 +224,9 @@ def test_a_lone_causes_incremental_gain_says_what_it_is_over():
     )  # each of several: its own step's
     pair = {**step, "named_jointly_with": "delay"}
     assert cause_line(pair, 1, 33.75) == "  saturation (gain over delay alone 17.04x)"
+    # where it acts, beside its name (report.json's causes[].place; a probe found it only in effects[])
+    inside = {"name": "friction_speed", "incremental_gain": 37.41, "place": "inside"}
+    assert cause_line(inside, 1, 37.5) == "  friction_speed, inside the dynamics (incremental gain 37.41x)"
 
 
 def test_a_reader_that_leaves_early_costs_no_files_and_no_error(tmp_path):

@@ -790,6 +790,7 @@ def test_the_built_in_friction_the_remainder_points_at_is_named_with_its_force(t
         recording, simulation=MassSpringDamper(), effects=["stiffness", "friction_velocity"], progress=False
     )
     assert [c["name"] for c in found.causes] == ["friction_velocity"], found.verdict
+    assert found.causes[0]["place"] == "inside"  # where it acts, beside its name (a probe found it nowhere)
     assert found.unexplained is None, found.verdict
     parameters = found.causes[0]["parameters"]
     values = {k: v["value"] for k, v in parameters.items()}

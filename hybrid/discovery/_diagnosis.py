@@ -76,7 +76,8 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: (`covered_try`), ``effect_free_ratio`` and ``without.gain_over_held``; ``evidence.drive_range``
 #: ([least, largest] drive of the diagnosed recordings, in the drive's unit: where the rivals were
 #: fitted, which ``hybrid design`` says a drive beyond leaves); a hysteresis's ``derived`` gains
-#: ``turn_percent_of_range`` (how far the signal it acts on turns back).
+#: ``turn_percent_of_range`` (how far the signal it acts on turns back); each cause's ``place`` (where it
+#: acts: ``drive``, ``inside`` or ``output``).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -518,6 +519,7 @@ class Diagnosis:
             out.append(
                 {
                     "name": chosen.name,
+                    "place": effect.place if (effect := self._effect(chosen.name)) is not None else None,
                     "step": k,
                     **joint,
                     "incremental_gain": chosen.gain,

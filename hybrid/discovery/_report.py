@@ -275,14 +275,15 @@ def stepwise_section(d: dict) -> list[str]:
         "weighed as if it were named last (the final model against itself refitted without it), and one "
         "that fails is dropped.",
         "",
-        "| step | cause | incremental gain | ΔBIC | size | parameters |",
-        "|---|---|---|---|---|---|",
+        "| step | cause | where | incremental gain | ΔBIC | size | parameters |",
+        "|---|---|---|---|---|---|---|",
     ]
     for i, c in enumerate(d["causes"], 1):
         size = _sizes(c)
         params = ", ".join(f"{k} = {plus_minus(v)}" for k, v in c["parameters"].items())
+        where = PLACE_WORDS.get(c.get("place") or "", "")
         lines.append(
-            f"| {c.get('step', i)} | {c['name']} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
+            f"| {c.get('step', i)} | {c['name']} | {where} | {_num(c['incremental_gain'])} | {_fixed(c['delta_bic'])} | "
             f"{_cell(size)} | {_cell(params)} |"
         )
     readings = [f"{c['name']}: {c['reading']}" for c in d["causes"] if c.get("reading")]
