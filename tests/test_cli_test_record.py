@@ -329,8 +329,25 @@ def test_a_test_file_with_other_columns_is_pointed_at_test_columns_and_the_advic
     out, err = capsys.readouterr()
     assert code == 0 and "val.csv (u -> y): RMSE" in out and (tmp_path / "m.eqx").exists(), out
 
-    # fitted records mapped: a name the test file lacks is given in --test-columns, not --input
+    # fitted records mapped: the names the test file lacks are given in --test-columns, all at once (a
+    # probe's took three runs, one role each), not in --input or --time
     mapped = ["fit", val, "--columns", "time=time,input=u,output=y"] + base[2:]
     code = main([str(a) for a in mapped + ["--test", est, "--out", tmp_path / "n.eqx"]])
     err = capsys.readouterr().err
-    assert code == 2 and "e.g. --test-columns time=t" in err and "--time t" not in err, err
+    assert code == 2 and "e.g. --test-columns time=t,input=v_in,output=w" in err and "--time t" not in err, (
+        err
+    )
+
+    # the advice followed where the test file has a units row (the fitted file, mapped by its own names,
+    # is read in mm as unmapped, not in a.u.) or no time column (read at the fitted record's rate)
+    units = tmp_path / "units.csv"
+    units.write_text("time,u,y\ns,V,mm\n" + "".join(f"{a:.6f},{p:.6f},{q:.6f}\n" for a, p, q in zip(t, u, y)))
+    untimed = tmp_path / "untimed.csv"
+    untimed.write_text("u,y\n" + "".join(f"{p:.6f},{q:.6f}\n" for p, q in zip(u, y)))
+    for test, columns in ((units, "time=time,input=u,output=y"), (untimed, "input=u,output=y")):
+        advised = ["--columns", "t=t,input=v_in,output=w", "--test-columns", columns]
+        code = main([str(a) for a in base + advised + ["--test", test, "--out", tmp_path / "m.eqx"]])
+        out, err = capsys.readouterr()
+        assert code == 0 and f"{test.name} (u -> y): RMSE" in out and " mm " in out, err
+        if test is untimed:
+            assert "no time column ('t' is the estimation record's): read at 30 Hz" in err

@@ -60,6 +60,7 @@ and may hold anything.
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 import os
 import pathlib
@@ -93,7 +94,7 @@ from ._recording_checks import (
     time_step,
     time_unit_guess,
 )
-from ._table import MAPPED_SUFFIXES, OPTION, only_column, rate_field, read_columns
+from ._table import MAPPED_SUFFIXES, OPTION, MissingName, only_column, rate_field, read_columns
 
 __all__ = ["DEFAULT_UNITS", "RATE_RTOL", "file_references", "load_mapped", "load_pair"]
 
@@ -136,6 +137,7 @@ def load_mapped(
     name: str | None = None,
     require_w: bool = True,
     fill_gaps: int | None = None,
+    default_units: Mapping[str, str] | None = None,
 ) -> Recording:
     """Read a file whose columns have the lab's names; see the module's rules.
 
@@ -156,6 +158,9 @@ def load_mapped(
             `FILL_GAPS_MAX`) by straight lines in every column (`fill_gaps`), and each run of at most
             this many missing values (empty or non-finite cells) of the drive or output by straight
             lines between the values either side (`fill_values`); default: refuse them.
+        default_units: the units, by channel (``v_in``, ``w``), of a channel whose unit nothing
+            (``units``, the file, its names) states; default V and a.u., or V and mm for the project's own
+            columns. `load_pair` reads a validation record in its estimation record's units so.
 
     Returns:
         The validated recording; ``metadata`` holds ``units``, ``mapping`` (role -> the
@@ -192,6 +197,10 @@ def load_mapped(
             raise
         roles, read = standard
         defaults = UNITS  # the project's own columns, as `Recording.load` reads them (V, mm)
+    if set(roles.items()) >= {("v_in", "v_in"), ("w", "w")} and roles.get("t", "t") == "t":
+        # the project's own columns mapped by name (t=t,input=v_in,output=w): read as unmapped (a probe's
+        # file read "in mm" unmapped and "in a.u." mapped, and its --test record's units row then refused)
+        defaults = UNITS
     rate_arg = rate_argument(rate)
     given_units = units_argument(units, "t" in roles)
     bounds = parse_sample_range(sample_range)
@@ -338,7 +347,9 @@ def load_mapped(
     metadata = dict(file_meta)
     metadata.update(
         source=str(path),
-        units=_units(roles, given_units, file_meta, names, notes, path, defaults),
+        units=_units(
+            roles, given_units, file_meta, names, notes, path, {**defaults, **(default_units or {})}
+        ),
         mapping={role: roles.get(role) for role in ("t", "v_in", "w")},
         rate_hz=hz,
         rate_from=rate_from,
@@ -523,8 +534,12 @@ def load_pair(
             )
         if value is not None:
             given[channel] = value
+    units = estimation.metadata["units"]
     test = {
         **options,
+        # what its file does not state is in the estimation record's units (a probe's u,y file read in
+        # a.u. beside an estimation record in the project's own columns, in mm, and was refused)
+        "default_units": {c: str(units[c]) for c in ("v_in", "w") if c in units},
         "columns": None,
         "sample_range": test_sample_range,
         "name": None,
@@ -532,7 +547,21 @@ def load_pair(
         "output": given.get("w", roles.get("w")),
         "time": given.get("t", roles.get("t")),
     }
-    validation = load_mapped(path if test_path is None else test_path, **test)
+    test_file = path if test_path is None else test_path
+    try:
+        validation = load_mapped(test_file, **test)
+    except MissingName as error:
+        # The estimation's time column, not named for the validation record, is not in its file (a
+        # probe's u,y file was offered --test-columns input=u,output=y, and then refused for that): read it
+        # at the estimation's rate, as a record sampled alike, and say so.
+        if error.role != "t" or "t" in given or test["time"] is None:
+            raise
+        validation = load_mapped(test_file, **{**test, "time": None, "rate": estimation.rate})
+        note = (
+            f"recording '{validation.name}': no time column ({test['time']!r} is the estimation record's): read "
+            f"at {estimation.rate:.6g} Hz, the estimation record's rate"
+        )
+        validation = dataclasses.replace(validation, notes=(*validation.notes, note))
 
     def same(r: Recording) -> tuple:
         return r.metadata["source"], r.metadata["mapping"], r.metadata.get("segment")

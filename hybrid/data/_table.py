@@ -83,6 +83,7 @@ from ._loaders import (
     footer_start,
     is_number,
     is_value,
+    mapping_example,
     mat_variables,
     matrix_columns,
     npy_table,
@@ -97,6 +98,7 @@ from ._recording_checks import FILL_VALUES_HINT, columns_flag, range_flag
 
 __all__ = [
     "MAPPED_SUFFIXES",
+    "MissingName",
     "OPTION",
     "TableNotes",
     "only_column",
@@ -180,7 +182,7 @@ def read_columns(
     columns = {}
     for role, name in wanted.items():
         if name not in arrays:
-            raise InputError(unknown_name(path, name, role, list(arrays), kind, flag_prefix))
+            raise MissingName(unknown_name(path, name, role, list(arrays), kind, flag_prefix), role)
         columns[role] = file_vector(path, name, arrays[name]).astype(np.float64)
     _refuse_non_finite(path, columns, wanted, kind, fill)
     fields = {
@@ -591,8 +593,18 @@ def _column_index(
             f"{OPTION[role]} {hits[0]})"
         )
     if not hits:
-        raise InputError(unknown_name(path, name, role, [c for c in header if c], "column", flag_prefix))
+        raise MissingName(
+            unknown_name(path, name, role, [c for c in header if c], "column", flag_prefix), role
+        )
     return hits[0]
+
+
+class MissingName(InputError):
+    """A mapped name the file lacks (`unknown_name` says it); `role` is the one it was for (``t``, ``v_in``, ``w``)."""
+
+    def __init__(self, message: str, role: str):
+        super().__init__(message)
+        self.role = role
 
 
 def unknown_name(
@@ -613,13 +625,18 @@ def unknown_name(
     example = close[0] if close else (names[usual] if usual is not None else "NAME")
     option = OPTION[role]
     # quoted as a shell needs it: a logger's 'Heizspannung [V]' pasted bare is two arguments and a glob
-    columns = columns_flag()  # a --test record's names are given in --test-columns
-    flag = (
-        f"{columns} {shlex.quote(f'{option}={prefix}{example}')}"
-        if prefix or columns != "--columns"
-        else f"--{option} {shlex.quote(example)} (or {option}={example} in --columns; in Python "
-        f"{option}={example!r})"
-    )
+    columns = columns_flag()
+    if columns != "--columns" and not prefix:
+        # a --test record's names, all of them in --test-columns at once, as its own names suggest
+        # (a probe's mapped record took three runs, one role each, and was offered its drive as the time)
+        flag = mapping_example(names)
+    else:
+        flag = (
+            f"{columns} {shlex.quote(f'{option}={prefix}{example}')}"
+            if prefix or columns != "--columns"
+            else f"--{option} {shlex.quote(example)} (or {option}={example} in --columns; in Python "
+            f"{option}={example!r})"
+        )
     return (
         f"recording '{path}' has no {kind} '{name}' for the {option} (its {kind}s: "
         f"{shown}): give one of those names exactly (names are case-sensitive{hint}), e.g. {flag}"
