@@ -32,7 +32,7 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from hybrid import AbstractEffect, AbstractSimulation, Positive, Real
+from hybrid import AbstractEffect, AbstractSimulation, AbstractStateSpace, Positive, Real
 from hybrid import encode
 
 
@@ -145,6 +145,20 @@ class Narrow(Good):
     """float32 out of a float64 drive (a probe's cast): fitted, and said."""
     def simulate(self, v_in, dt):
         return (jnp.asarray(v_in) * self.parameters()["tau"]).astype(jnp.float32)
+
+
+class NarrowRates(AbstractStateSpace):
+    """A lag in state-space form whose rates round to float32."""
+    raw: dict
+    constraints: ClassVar[dict] = {"tau": Positive()}
+    units: ClassVar[dict] = {"tau": "s"}
+    states: ClassVar[tuple] = ("x",)
+
+    def __init__(self, tau=1.0):
+        self.raw = encode({"tau": tau}, self.constraints, type(self).__name__)
+
+    def rates(self, x, u, p):
+        return (((u - x[0]) / p["tau"]).astype(jnp.float32),)
 
 
 class Narrow32(AbstractEffect):
@@ -325,6 +339,17 @@ def test_run_time_faults_in_diagnose_and_sensitivity_name_the_plugin(files, caps
     assert code == 0, capsys.readouterr().err
     (fitted,) = [w for w in json.loads((folder / "narrow.json").read_text())["warnings"] if "float32" in w]
     assert fitted.startswith("Narrow.simulate returns float32")
+    # fitted with an effect (an effect stack around the plug-in): the plug-in and the effect both said
+    code = main(_fit(files, "Narrow", "--effects", f"{plugin}:Narrow32", "--json", str(folder / "both.json")))
+    assert code == 0, capsys.readouterr().err
+    both = [w for w in json.loads((folder / "both.json").read_text())["warnings"] if "float32" in w]
+    assert [w.split(" returns")[0] for w in both] == ["Narrow.simulate", "Narrow32.apply"], both
+    code = main(
+        _fit(files, "NarrowRates", "--json", str(folder / "rates.json"))
+    )  # a state-space form's rates
+    assert code == 0, capsys.readouterr().err
+    said = [w.split(" returns")[0] for w in json.loads((folder / "rates.json").read_text())["warnings"]]
+    assert "NarrowRates.rates" in said, said
     code = main(_fit(files, "Good", "--json", str(folder / "good.json")))  # float64 throughout: nothing said
     assert code == 0 and not [
         w for w in json.loads((folder / "good.json").read_text())["warnings"] if "float32" in w

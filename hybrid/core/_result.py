@@ -7,12 +7,13 @@ import math
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ._arguments import FLOAT64_FIX
-from ._held_start import HeldStart
 from ._models import Model
-from ._simulation import AbstractSimulation, from_library, unit_suffix
+from ._simulation import AbstractSimulation, AbstractWrapper, from_library, unit_suffix
+from ._state_space import has_states
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,9 +169,7 @@ def fit_warnings(
         )
     warnings += implausible(fitted, frozen)
     warnings += aliased(fitted, frozen, rate) + sub_sample(fitted, frozen, rate)
-    own = user_simulation(fitted.simulation)
-    if own is not None:
-        warnings += narrowed([(f"{type(own).__name__}.simulate", own.simulate)], rate)
+    warnings += narrowed(user_methods(fitted.simulation), rate)
     if not jax.config.read("jax_enable_x64"):
         warnings.append(
             "fitted in float32, as jax's float64 is off: sums over the record (and the RC network's product "
@@ -318,11 +317,46 @@ def aliased(
 NARROW_PROBE = 64
 
 
+def _unwrapped(simulation: AbstractSimulation) -> tuple[AbstractSimulation, tuple]:
+    """(the simulation inside every wrapper `simulation` is: a `HeldStart`, an effect stack; the effects of
+    those wrappers)."""
+    effects: tuple = ()
+    while isinstance(simulation, AbstractWrapper):
+        effects += tuple(getattr(simulation, "effects", ()))
+        simulation = simulation.inner
+    return simulation, effects
+
+
 def user_simulation(simulation: AbstractSimulation) -> AbstractSimulation | None:
-    """The plug-in `simulation` runs (itself, or held at a fitted drive a `HeldStart`'s inner), or None where
-    that is the library's own (which computes in its signal's dtype)."""
-    inner = simulation.inner if isinstance(simulation, HeldStart) else simulation
+    """The plug-in `simulation` runs (itself, or inside its wrappers: held at a fitted drive, extended by
+    effects), or None where that is the library's own (which computes in its signal's dtype)."""
+    inner = _unwrapped(simulation)[0]
     return None if from_library(inner) else inner
+
+
+def user_methods(simulation: AbstractSimulation, effects=()) -> list[tuple[str, Any]]:
+    """(who, f(signal, dt)) for each method of a user's code that `simulation` runs: the plug-in's
+    `simulate` and, in state-space form, its `rates` (at a state and a drive read off the signal), and each
+    user effect's `apply`, of its wrappers' and of `effects`; for `narrowed`."""
+    inner, wrapped = _unwrapped(simulation)
+    out: list[tuple[str, Any]] = []
+    if not from_library(inner):
+        name = type(inner).__name__
+        out.append((f"{name}.simulate", inner.simulate))
+        if has_states(inner):
+            n = len(inner.states)
+
+            def rates(v, dt, inner=inner, n=n):
+                state = tuple(v[k % v.shape[0]] for k in range(n))
+                return jnp.stack(inner.rates(state, v[0], inner.prepare(inner.parameters())))
+
+            out.append((f"{name}.rates", rates))
+    seen = set()
+    for effect in (*wrapped, *effects):
+        if not from_library(effect) and id(effect) not in seen:
+            seen.add(id(effect))
+            out.append((f"{type(effect).__name__}.apply", effect.apply))
+    return out
 
 
 def narrowed(parts, rate: float | None) -> list[str]:

@@ -75,7 +75,7 @@ from ..core._result import (
     narrowed,
     one_frequency_drive,
     sub_sample,
-    user_simulation,
+    user_methods,
 )
 from ..core._screen import N_SCREEN, screen_starts
 from ..core._simulation import from_library, unit_in
@@ -551,10 +551,7 @@ def diagnose(
         + drive_outside_range(models["extended"].simulation, [r.v_in for r in recordings], signals[1])
         + one_frequency_drive([(r.v_in, r.rate) for r in recordings])
         + unit_mismatch(recordings, simulation)
-        + narrowed(
-            [(f"{type(p).__name__}.{m.__name__}", m) for p, m in _plugin_methods(simulation, search.effects)],
-            search.rate,
-        )
+        + narrowed(user_methods(simulation, search.effects), search.rate)
         + diverged_warnings(uncertainties),
         final_derived=derived_quantities(problem, jnp.asarray(extended.theta), extended.active)
         if kept
@@ -658,15 +655,6 @@ def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:
 GAIN_FACTOR = 1.2
 #: A readout gain within this factor of a power of 1000 reads as a unit mismatch (mA for A).
 UNIT_STEP = 1.1
-
-
-def _plugin_methods(simulation, effects) -> list[tuple[object, Any]]:
-    """(plug-in, method) of what the search ran that a user wrote: the simulation's simulate (or, held at a
-    fitted drive, its inner one's) and each effect's apply."""
-    own = user_simulation(simulation)
-    return ([(own, own.simulate)] if own is not None else []) + [
-        (e, e.apply) for e in effects if not from_library(e)
-    ]
 
 
 def model_warnings(model: Model, frozen, rate: float | None = None) -> list[str]:
