@@ -47,11 +47,11 @@ LONE_UNITS = frozenset({"V", "s", "m", "N", "W"})
 #: A quantity per unit time: mm/s, rad/s, L/min, m s⁻¹, m·s^-1, rpm (not an acceleration, m/s²).
 _RATE = re.compile(r"^(?:.+?(?:\s*/\s*(?:s|sec|ms|min|h)|\s*[·.* ]\s*(?:s\^-1|s⁻¹))|rpm|RPM|r/min)$")
 #: A position: a length (m with an SI prefix, in) or an angle (rad, mrad, deg, °), or pixels.
-_POSITION = re.compile(rf"^(?:{_PREFIX}?m|in|m?rad|deg|°|px|pixels?)$")
+_LENGTH_OR_ANGLE = rf"(?:{_PREFIX}?m|in|m?rad|deg|°|px|pixels?)"
+_POSITION = re.compile(rf"^{_LENGTH_OR_ANGLE}$")
 #: A speed: a position per unit time (m/s, mm/s, rad/s, deg/s, °/s, px/s), or revolutions per minute.
 _SPEED = re.compile(
-    rf"^(?:(?:{_PREFIX}?m|in|m?rad|deg|°|px|pixels?)\s*/\s*(?:s|sec|ms|min|h)|"
-    rf"(?:{_PREFIX}?m|in|m?rad|deg|°|px)\s*[·.* ]\s*(?:s\^-1|s⁻¹)|rpm|RPM|r/min)$"
+    rf"^(?:{_LENGTH_OR_ANGLE}\s*/\s*(?:s|sec|ms|min|h)|{_LENGTH_OR_ANGLE}\s*[·.* ]\s*(?:s\^-1|s⁻¹)|rpm|RPM|r/min)$"
 )
 #: A temperature: degrees Celsius or Fahrenheit, or kelvin.
 _TEMPERATURE = re.compile(r"^(?:°\s*[CF]|deg\s*[CF]|degC|degF|K|℃|℉)$")
