@@ -79,6 +79,7 @@ def add_test_options(p) -> None:
 
 def load_tests(args, fitted, window: int) -> list:
     """The --test records, checked before any fitting: their columns, their rate, their length."""
+    from .data._loaders import MissingName
     from .data._mapping import RATE_RTOL, load_pair
     from .data._recording import Recording, in_shared_units
     from .data._recording_checks import mapped_by, ranged_by
@@ -111,11 +112,13 @@ def load_tests(args, fitted, window: int) -> list:
             if not mapped:
                 try:
                     record = Recording.load(path)  # the project's own columns, as the fitted recordings
-                except InputError as error:  # --test-columns maps it where the fitted ones are mapped too
+                except MissingName as error:  # --test-columns maps it where the fitted ones are mapped too
                     raise InputError(
                         f"--test {path}: {error}; with --test-columns, map the fitted recordings' own columns "
                         "too: --columns t=t,input=v_in,output=w"
                     ) from None
+                except InputError as error:
+                    raise InputError(f"--test {path}: {error}") from None
             else:
                 try:  # the fitted recordings have loaded: what fails here is the test record's
                     if own_columns:

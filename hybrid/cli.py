@@ -690,6 +690,8 @@ def cause_line(step: dict, n_causes: int, gain: float) -> str:
     the headline's `gain` (over the baseline) says what it is over: a probe read 33.75x and 17.04x side by
     side, the second over the best effect-free fit the search found, not over the baseline.
     """
+    from .discovery._report import PLACE_WORDS
+
     with_ = step.get("named_jointly_with")
     over = f"gain over {with_} alone" if with_ else "incremental gain"
     why = (
@@ -697,8 +699,6 @@ def cause_line(step: dict, n_causes: int, gain: float) -> str:
         if n_causes == 1 and not with_ and abs(step["incremental_gain"] - gain) > 0.1 * gain
         else ""
     )
-    from .discovery._report import PLACE_WORDS
-
     where = PLACE_WORDS.get(step.get("place") or "")
     return f"  {step['name']}{f', {where}' if where else ''} ({over} {step['incremental_gain']:.2f}x{why})"
 

@@ -324,6 +324,14 @@ def test_a_test_file_with_other_columns_is_pointed_at_test_columns_and_the_advic
     assert code == 2 and not (tmp_path / "m.eqx").exists(), err
     assert "--test-columns time=time,input=u,output=y" in err and "--columns t=t,input=v_in,output=w" in err
     assert "e.g. --columns input=" not in err  # the fitted records' flag, which would break them
+    # a test file in the project's columns refused for another reason is not pointed at the columns
+    holed = tmp_path / "holed.csv"
+    holed.write_text(
+        est.read_text().replace("\n", "\nnan,nan,nan\n", 1).replace("nan,nan,nan", "0.0,0.1,", 1)
+    )
+    code = main([str(a) for a in base + ["--test", holed, "--out", tmp_path / "m.eqx"]])
+    err = capsys.readouterr().err
+    assert code == 2 and f"--test {holed}: " in err and "--test-columns" not in err, err
     advised = ["--columns", "t=t,input=v_in,output=w", "--test-columns", "time=time,input=u,output=y"]
     code = main([str(a) for a in base + advised + ["--test", val, "--out", tmp_path / "m.eqx"]])
     out, err = capsys.readouterr()

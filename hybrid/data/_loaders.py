@@ -38,6 +38,7 @@ from ._recording_checks import (
 
 __all__ = [
     "FOOTER_LINES",
+    "MissingName",
     "PREAMBLE_LINES",
     "RATE_FIELDS",
     "CSV_SUFFIXES",
@@ -190,6 +191,14 @@ def sidecar(path: str | pathlib.Path) -> pathlib.Path:
     return path.with_name(path.name + ".json")
 
 
+class MissingName(InputError):
+    """A name (a column, a variable) the file lacks; `role` is the one it was for (``t``, ``v_in``, ``w``)."""
+
+    def __init__(self, message: str, role: str):
+        super().__init__(message)
+        self.role = role
+
+
 def path_argument(path: Any, where: str) -> pathlib.Path:
     """``path`` as a Path; anything but a str or os.PathLike is an InputError."""
     if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
@@ -233,10 +242,11 @@ def _require(
                 f"'{path}' is missing {kind} {', '.join(missing)} (found {shown}): name them exactly "
                 f"{' and '.join(required)} (case-sensitive), as hybrid design writes a drive"
             )
-        raise InputError(
+        raise MissingName(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
-            f"yours are which, e.g. {example or mapping_example([c for c in found if c not in REQUIRED])}"
+            f"yours are which, e.g. {example or mapping_example([c for c in found if c not in REQUIRED])}",
+            missing[0],
         )
 
 
@@ -1247,8 +1257,9 @@ def _require_stored(
         if not example:
             raise
         missing = ", ".join(c for c in required if c not in arrays)
-        raise InputError(
-            f"recording '{path}' is missing {kind} {missing} (found {', '.join(map(repr, arrays))}): {example}"
+        raise MissingName(
+            f"recording '{path}' is missing {kind} {missing} (found {', '.join(map(repr, arrays))}): {example}",
+            missing.split(", ")[0],
         ) from None
 
 

@@ -71,7 +71,7 @@ import numpy as np
 
 from ..util._errors import InputError
 from ._header_units import header_unit, is_unit, time_unit
-from ._loaders import RATE_FIELDS, check_file, path_argument, role_of, shell_word, time_factor
+from ._loaders import RATE_FIELDS, MissingName, check_file, path_argument, role_of, shell_word, time_factor
 from ._mapping_options import (
     mapping_roles,
     parse_columns,
@@ -94,7 +94,7 @@ from ._recording_checks import (
     time_step,
     time_unit_guess,
 )
-from ._table import MAPPED_SUFFIXES, OPTION, MissingName, only_column, rate_field, read_columns
+from ._table import MAPPED_SUFFIXES, OPTION, only_column, rate_field, read_columns
 
 __all__ = ["DEFAULT_UNITS", "RATE_RTOL", "file_references", "load_mapped", "load_pair"]
 

@@ -122,15 +122,20 @@ def range_flag() -> str:
     return _RANGE_FLAG.get()
 
 
-@contextlib.contextmanager
-def ranged_by(flag: str) -> Iterator[None]:
+def ranged_by(flag: str) -> contextlib.AbstractContextManager[None]:
     """While the block runs, messages about a record name `flag` as what cuts it (``--test-range`` for a
     --test record: a probe followed "(--range 0:1500)" on one and halved its estimation record)."""
-    token = _RANGE_FLAG.set(flag)
+    return _flag_set(_RANGE_FLAG, flag)
+
+
+@contextlib.contextmanager
+def _flag_set(flag_var: contextvars.ContextVar[str], flag: str) -> Iterator[None]:
+    """`flag_var` set to `flag` while the block runs."""
+    token = flag_var.set(flag)
     try:
         yield
     finally:
-        _RANGE_FLAG.reset(token)
+        flag_var.reset(token)
 
 
 #: The flag that names a record's columns, as a message about a record names it (`columns_flag`).
@@ -142,16 +147,11 @@ def columns_flag() -> str:
     return _COLUMNS_FLAG.get()
 
 
-@contextlib.contextmanager
-def mapped_by(flag: str) -> Iterator[None]:
+def mapped_by(flag: str) -> contextlib.AbstractContextManager[None]:
     """While the block runs, messages about a record name `flag` as what maps its columns
     (``--test-columns`` for a --test record: the ``--columns`` a probe was offered for one broke the
     fitted records, which have the other names)."""
-    token = _COLUMNS_FLAG.set(flag)
-    try:
-        yield
-    finally:
-        _COLUMNS_FLAG.reset(token)
+    return _flag_set(_COLUMNS_FLAG, flag)
 
 
 #: Significant digits of the rate that `time_step` keeps (at most 5 ppm of it).

@@ -72,6 +72,7 @@ from ._loaders import (
     SHEET_SUFFIXES,
     TEXT_SUFFIXES,
     Clock,
+    MissingName,
     cell_count_message,
     commented_header,
     csv_text,
@@ -98,7 +99,6 @@ from ._recording_checks import FILL_VALUES_HINT, columns_flag, range_flag
 
 __all__ = [
     "MAPPED_SUFFIXES",
-    "MissingName",
     "OPTION",
     "TableNotes",
     "only_column",
@@ -597,14 +597,6 @@ def _column_index(
             unknown_name(path, name, role, [c for c in header if c], "column", flag_prefix), role
         )
     return hits[0]
-
-
-class MissingName(InputError):
-    """A mapped name the file lacks (`unknown_name` says it); `role` is the one it was for (``t``, ``v_in``, ``w``)."""
-
-    def __init__(self, message: str, role: str):
-        super().__init__(message)
-        self.role = role
 
 
 def unknown_name(

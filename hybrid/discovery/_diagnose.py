@@ -76,9 +76,10 @@ from ..core._result import (
     one_frequency_drive,
     sub_sample,
     user_methods,
+    user_simulation,
 )
 from ..core._screen import N_SCREEN, screen_starts
-from ..core._simulation import from_library, unit_in
+from ..core._simulation import unit_in
 from ..data._recording import in_shared_units
 from ..util._errors import InputError, PluginError
 from ..util._programs import DIAGNOSE_PROGRAMS
@@ -620,8 +621,8 @@ def _escapes_warning(simulation, escaped: list[dict], n_screen: int) -> list[str
     and so are the LM steps that the fits refused: a trial step far outside the typical ranges may make an
     explicit integration escape (the examples' motor and oscillator do), which LM steps around by design.
     """
-    own = getattr(simulation, "inner", simulation)  # a plug-in held at a fitted drive (--settle): the plug-in
-    if from_library(own) or not escaped:
+    own = user_simulation(simulation)  # a plug-in held at a fitted drive (--settle) too
+    if own is None or not escaped:
         return []
     example = ", ".join(f"{k}={v:.4g}" for k, v in escaped[0].items())
     return [
