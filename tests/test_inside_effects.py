@@ -1119,7 +1119,7 @@ def test_a_state_whose_unit_is_a_speed_gets_a_friction_by_default():
     assert velocities(cart) == ("speed",)
     assert "friction_speed" in [e.name for e in hybrid.resolve_effects(None, cart)]
     assert velocities(MassSpringDamper()) == ("velocity",)  # named: as named
-    for unit in ("m/s", "mm/s", "rad/s", "°/s", "deg/s", "rpm", "m·s⁻¹"):
+    for unit in ("m/s", "mm/s", "rad/s", "°/s", "deg/s", "rpm", "m·s⁻¹", "degrees/s", "rev/s", "in/s"):
         assert speed_unit(unit), unit
     for unit in ("L/min", "m", "V", "m/s²", "W", "", "K/s"):
         assert not speed_unit(unit), unit

@@ -245,6 +245,15 @@ def test_a_fit_of_a_clipped_record_says_the_record_sits_flat_where_the_model_goe
         ("°C", "temperature"),
         ("K", "temperature"),
         ("degF", "temperature"),
+        # spelled out, as a plug-in's state_units or a units row may write them
+        ("degrees", "position"),
+        ("rev", "position"),
+        ("turns", "position"),
+        ("inch", "position"),
+        ("degrees/s", "rate"),
+        ("kelvin", "temperature"),
+        ("degrees C", "temperature"),
+        ("min", None),  # a time, not a length
         ("kg", None),
         ("ms", None),  # a time, not a length
         ("mV", None),

@@ -46,15 +46,20 @@ _UNDERSCORE = re.compile(r"^(?P<name>.*?[^\s_])_(?P<unit>[^_\s]+)$")
 LONE_UNITS = frozenset({"V", "s", "m", "N", "W"})
 #: A quantity per unit time: mm/s, rad/s, L/min, m s⁻¹, m·s^-1, rpm (not an acceleration, m/s²).
 _RATE = re.compile(r"^(?:.+?(?:\s*/\s*(?:s|sec|ms|min|h)|\s*[·.* ]\s*(?:s\^-1|s⁻¹))|rpm|RPM|r/min)$")
-#: A position: a length (m with an SI prefix, in) or an angle (rad, mrad, deg, °), or pixels.
-_LENGTH_OR_ANGLE = rf"(?:{_PREFIX}?m|in|m?rad|deg|°|px|pixels?)"
+#: A position: a length (m with an SI prefix, in, inch, ft) or an angle (rad, mrad, deg, degree(s), °,
+#: rev(olution)(s), turn(s)), or pixels, as units rows and plug-ins spell them.
+_LENGTH_OR_ANGLE = (
+    rf"(?:{_PREFIX}?m|in|inch(?:es)?|ft|feet|m?rad|deg|degrees?|°|revs?|revolutions?|turns?|px|pixels?)"
+)
 _POSITION = re.compile(rf"^{_LENGTH_OR_ANGLE}$")
 #: A speed: a position per unit time (m/s, mm/s, rad/s, deg/s, °/s, px/s), or revolutions per minute.
 _SPEED = re.compile(
     rf"^(?:{_LENGTH_OR_ANGLE}\s*/\s*(?:s|sec|ms|min|h)|{_LENGTH_OR_ANGLE}\s*[·.* ]\s*(?:s\^-1|s⁻¹)|rpm|RPM|r/min)$"
 )
-#: A temperature: degrees Celsius or Fahrenheit, or kelvin.
-_TEMPERATURE = re.compile(r"^(?:°\s*[CF]|deg\s*[CF]|degC|degF|K|℃|℉)$")
+#: A temperature: degrees Celsius or Fahrenheit, or kelvin (symbols or spelled out).
+_TEMPERATURE = re.compile(
+    r"^(?:°\s*[CF]|deg(?:rees?)?\s*[CF]|degC|degF|K|℃|℉|[Kk]elvin|[Cc]elsius|[Ff]ahrenheit)$"
+)
 #: Spellings of the time units, lower case, -> the key of `TIME_UNITS`.
 _TIME_SPELLINGS = {
     "s": "s",
