@@ -11,7 +11,10 @@ program is kept, an operation run op by op too (`min_compile_time` 0, as the
 only those that compiled in over 0.5 s, one run each, 50 minutes apart. Nothing
 is written into the user's ~/.cache, and every run starts cold, as CI does.
 A test that needs a cold compile in its own process (the hang guard) turns the
-cache off for its subprocess.
+cache off for its subprocess. A run stopped by SIGTERM (a CI timeout, `kill`)
+removes its cache as Ctrl-C does; one killed outright cannot, and the next run
+removes it: the folder's name holds the controller's process id
+(`stale_caches`), and a folder whose process is gone is left over.
 
 Memory maps: every compiled program holds some, and a worker that runs many
 test files used to end a run with 43,000–53,000 of Linux's 65,530 (one crashed
@@ -30,8 +33,11 @@ tests keep their order.
 
 import collections
 import os
+import re
 import shutil
+import signal
 import tempfile
+from pathlib import Path
 
 # One CPU device for every process of the run, the `hybrid` commands the tests start included: the two
 # workers already keep both cores busy, and a command that spread its lanes over a device per core
@@ -46,6 +52,36 @@ from hybrid import use_quick_compiles
 from hybrid.util._programs import MAX_MAP_FRACTION, map_limit, memory_maps, release_programs
 
 CACHE_ENV = "HYBRID_JAX_CACHE"
+#: The run's compilation cache: ``hybrid-test-jax-cache-<controller pid>-<random>`` in the temporary folder.
+CACHE_PREFIX = "hybrid-test-jax-cache-"
+
+
+def stale_caches(folder: str | os.PathLike[str] | None = None) -> list[Path]:
+    """The test runs' compilation caches in `folder` (default: the temporary folder) whose controller is gone.
+
+    A run killed outright (SIGKILL, a machine's OOM killer) cannot remove its cache
+    (39–46 MB each); the next run does. A folder whose name holds no process id, or
+    the id of a live process (another run beside this one), is left alone.
+    """
+    out = []
+    for path in Path(folder or tempfile.gettempdir()).glob(CACHE_PREFIX + "*"):
+        match = re.match(rf"{CACHE_PREFIX}(\d+)-", path.name)
+        if not (match and path.is_dir()):
+            continue
+        try:
+            os.kill(int(match[1]), 0)
+        except ProcessLookupError:
+            out.append(path)
+        except OSError:  # alive, another user's
+            pass
+    return out
+
+
+def _stop_on_sigterm(number, frame):
+    """SIGTERM ends the run as Ctrl-C does: pytest's cleanup runs (`pytest_unconfigure` removes the cache)."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM ends the process at once
+    raise KeyboardInterrupt
+
 
 #: The files that take longest, heaviest first. Seconds: each file's share of the 60 slowest tests
 #: of a quiet `pytest -q -n 2 --dist loadfile --durations=60` on the 2-core machine (955 tests,
@@ -83,8 +119,12 @@ def pytest_configure(config):
     # commands the tests start inherit it.
     use_quick_compiles()
     if not hasattr(config, "workerinput"):  # the controller, or a run without xdist
-        where = tempfile.mkdtemp(prefix="hybrid-test-jax-cache-")
+        for path in stale_caches():
+            shutil.rmtree(path, ignore_errors=True)
+        where = tempfile.mkdtemp(prefix=f"{CACHE_PREFIX}{os.getpid()}-")
         config._hybrid_jax_cache = where
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, _stop_on_sigterm)
         os.environ[CACHE_ENV] = where  # workers start after this and inherit it
     jax.config.update("jax_compilation_cache_dir", os.environ[CACHE_ENV])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
