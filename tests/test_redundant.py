@@ -30,13 +30,13 @@ RATE, N = 30.0, 1800
 EFFECTS = ["saturation", "drift"]
 
 
-def _recording(curvature: float, seed: int = 0) -> hybrid.Recording:
+def _recording(curvature: float, seed: int = 0, drift: float = 0.012) -> hybrid.Recording:
     rng = np.random.default_rng(seed)
     u = np.repeat(rng.uniform(0.0, 2.2, N // 15), 15)
     a = np.exp(-1.0 / (RATE * 0.5))
     s = lfilter([1 - a], [1, -a], u)
     s = s / (1.0 + curvature * s)  # a gain that falls with level (none at curvature 0)
-    w = s * np.exp(-0.012 * np.arange(N) / RATE)
+    w = s * np.exp(-drift * np.arange(N) / RATE)
     w = w + 0.005 * np.ptp(w) * np.random.default_rng(seed + 1).normal(size=N)
     return hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE)
 
@@ -51,14 +51,17 @@ def _both_named(recording):
     return search, _all_on(search, EFFECTS, _START)
 
 
-def _all_on(search, effects, values):
-    """The model with every one of `effects` on (named in that order), fitted from `values` by one lane."""
+def _all_on(search, effects, values, active=None):
+    """The model with every one of `effects` on (named in that order), fitted from `values` by one lane;
+    with `active`, the effects it switches on (zeros: the effect-free baseline)."""
     problem, model = search.problem, search.model
-    active = np.ones(len(effects) + 1)  # the effects and the frame timing
+    if active is None:
+        active = np.ones(len(effects) + 1)  # the effects and the frame timing
+    effects = tuple(e for e, on in zip(effects, active) if on) or ("none",)
     start = model.simulation.with_active(active).replace(**values)
     theta = initial_thetas(problem, [start], model.readout, search.frozen)[0]
     n_rows = int(problem.sim_tangents.shape[0])
-    tangents = lane_tangents(model, search.frozen, tuple(effects), n_rows)
+    tangents = lane_tangents(model, search.frozen, tuple(e for e in effects if e != "none"), n_rows)
     lanes = [theta] + [padding_lane(theta)] * (search.n_lanes - 1)
     states = fit_lanes(
         problem,
@@ -74,23 +77,44 @@ def _all_on(search, effects, values):
         active,
         effects[-1],
         search.n_train,
-        len(free_names(model, search.frozen, tuple(effects))),
+        len(free_names(model, search.frozen, tuple(e for e in effects if e != "none"))),
         search.settings.materiality,
         search.frozen,
         tuple(effects[:-1]),
     )
 
 
+def _effect_free(search):
+    return _all_on(search, EFFECTS, {}, active=np.zeros(len(EFFECTS) + 1))
+
+
 def test_a_cause_the_other_makes_redundant_is_dropped_and_a_needed_one_kept():
     search, final = _both_named(_recording(curvature=0.0))
-    kept, refit, dropped = drop_redundant(search, final, ("saturation", "drift"))
-    assert kept == ("drift",)
+    kept, refit, dropped = drop_redundant(search, final, ("saturation", "drift"), _effect_free(search))
+    assert kept == ("drift",)  # left alone, it still clears the rules against the baseline
     (gone,) = dropped
-    assert (gone.name, gone.step) == ("saturation", 1)
+    assert (gone.name, gone.step, gone.beside) == ("saturation", 1, ("drift",))
     assert gone.gain < search.settings.min_gain and gone.reasons  # why, in the step's words
     # the refit is the model without it: saturation off, and as good held out (within 10 %)
     assert refit.active[EFFECTS.index("saturation")] == 0.0 and refit.active[EFFECTS.index("drift")] == 1.0
     assert refit.heldout.nmse == pytest.approx(final.heldout.nmse, rel=0.1)
+
+
+def test_the_cause_left_alone_after_a_drop_is_weighed_against_the_baseline():
+    """No effect hidden: a forward search that named saturation and then drift (imposed here) drops
+    one as redundant, and the one left, weighed against the effect-free baseline as step 1 would weigh
+    it, fails too: nothing is named (a probe's cubic loss under a sensor drift: a hysteresis dropped as
+    immaterial left a back-relaxation that gained 1.49× over the baseline, and it was named)."""
+    search, final = _both_named(_recording(curvature=0.0, drift=0.0))
+    baseline = _effect_free(search)
+    kept, refit, dropped = drop_redundant(search, final, ("saturation", "drift"), baseline)
+    assert kept == () and refit is baseline
+    assert sorted(d.name for d in dropped) == ["drift", "saturation"]
+    assert dropped[-1].beside == () and dropped[-1].reasons  # the last, against the baseline, with why
+    assert dropped[-1].gain < search.settings.min_gain
+    # without a baseline to weigh it against, the one left stands (as before)
+    kept, _, dropped = drop_redundant(search, final, ("saturation", "drift"))
+    assert len(kept) == 1 and len(dropped) == 1
 
 
 def test_two_needed_causes_are_both_kept():
@@ -169,10 +193,23 @@ def test_a_dropped_cause_is_reported_and_not_among_the_causes():
         heldout=HeldoutSignals(three, three, three, three, three, np.zeros(3), np.zeros(3)),
         steps=[step(base, first), step(first, final)],
         effects=search.effects,
-        dropped=[{"name": "saturation", "step": 1, "gain": 1.01, "reasons": ["held-out gain 1.01 < 1.5"]}],
+        dropped=[
+            {
+                "name": "saturation",
+                "step": 1,
+                "gain": 13.2,
+                "reasons": ["not material: its knee lies beyond the signal"],
+                "beside": ["drift"],
+            }
+        ],
     )
     assert [(c["name"], c["step"]) for c in diagnosis.causes] == [("drift", 2)]
-    assert "saturation, named at step 1, was dropped: beside drift it gains only 1.01×" in diagnosis.verdict
+    # the rule it failed, not its gain (a probe's hysteresis "gains only 13.25×", dropped as immaterial)
+    assert (
+        "saturation, named at step 1, was dropped: weighed as if named last, beside drift, not material: "
+        "its knee lies beyond the signal" in diagnosis.verdict
+    )
+    assert "gains only" not in diagnosis.verdict
     report = diagnosis.to_dict()
     assert report["dropped"][0]["name"] == "saturation"
     assert any(

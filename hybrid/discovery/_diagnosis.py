@@ -77,7 +77,8 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: ([least, largest] drive of the diagnosed recordings, in the drive's unit: where the rivals were
 #: fitted, which ``hybrid design`` says a drive beyond leaves); a hysteresis's ``derived`` gains
 #: ``turn_percent_of_range`` (how far the signal it acts on turns back); each cause's ``place`` (where it
-#: acts: ``drive``, ``inside`` or ``output``).
+#: acts: ``drive``, ``inside`` or ``output``); each ``dropped`` entry's ``beside`` (the causes it was weighed
+#: beside; empty: against the effect-free baseline, where it was the one left after a drop).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {

@@ -10,7 +10,13 @@ off) and the final model must clear the step's rules against that refit —
 material, held-out gain ≥ `min_gain`, BIC drop ≥ `min_bic_drop`, a residual
 no more correlated. A cause that fails is redundant; the weakest (least gain
 over the model without it) is dropped, the refit becomes the final model, and
-the check runs again while two or more causes remain. This is the backward
+the check runs again while two or more causes remain. Where one cause is left
+after a drop, it is weighed against the effect-free baseline, as step 1 would
+have weighed it alone: the final model must clear the rules against every
+model without one of its causes (a probe's cubic loss and sensor drift: a
+hysteresis named at step 1 was dropped as immaterial, and the back-relaxation
+named beside it, left alone, gained 1.49× over the baseline and was still
+named). This is the backward
 half of stepwise regression (Efroymson's forward selection with backward
 elimination). A refit that lands in a worse local minimum can only keep a
 cause: the check errs towards the forward search's answer. So each refit has
@@ -55,9 +61,17 @@ class Dropped:
     """Held-out NMSE of the model without it over that of the model with it."""
     reasons: tuple[str, ...]
     """The rules the model with it failed against the model without it."""
+    beside: tuple[str, ...] = ()
+    """The causes it was weighed beside; none: against the effect-free baseline."""
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "step": self.step, "gain": self.gain, "reasons": list(self.reasons)}
+        return {
+            "name": self.name,
+            "step": self.step,
+            "gain": self.gain,
+            "reasons": list(self.reasons),
+            "beside": list(self.beside),
+        }
 
 
 def drop_redundant(search, final: Candidate, present: tuple[str, ...], baseline: Candidate | None = None):
@@ -132,10 +146,21 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...], baseline:
         if weakest is None:
             break
         j, with_it, without, cause = weakest
-        dropped.append(Dropped(cause, present.index(cause) + 1, with_it.gain, tuple(with_it.reasons)))
+        rest = tuple(c for c in kept if c != cause)
+        dropped.append(Dropped(cause, present.index(cause) + 1, with_it.gain, tuple(with_it.reasons), rest))
         without.reasons.append(f"refitted without {cause}, which the other causes made redundant")
         without.validation_loss = float(np.asarray(states.best_val)[j])
-        kept, final = tuple(c for c in kept if c != cause), without
+        kept, final = rest, without
+    if dropped and len(kept) == 1 and baseline is not None:  # the last one, as step 1 would weigh it alone
+        (cause,) = kept
+        with_it = dataclasses.replace(final, name=cause, reasons=[])
+        with_it.material, with_it.materiality = materiality_of(
+            problem, final.theta, final.active, cause, settings.materiality
+        )
+        weigh([with_it], baseline, NO_BAR, settings)
+        if not with_it.eligible:
+            dropped.append(Dropped(cause, present.index(cause) + 1, with_it.gain, tuple(with_it.reasons)))
+            kept, final = (), baseline
     return kept, final, dropped
 
 

@@ -301,8 +301,13 @@ def stepwise_section(d: dict) -> list[str]:
     for gone in d.get("dropped") or []:
         lines += [
             "",
-            f"**Dropped.** {gone['name']}, named at step {gone['step']}: weighed as if named last, beside the "
-            f"other causes it gains {_num(gone['gain'])}× held out ({'; '.join(gone['reasons'])}).",
+            f"**Dropped.** {gone['name']}, named at step {gone['step']}: weighed as if named last, "
+            + (
+                f"beside {', '.join(gone['beside'])}"
+                if gone.get("beside")
+                else "against the effect-free baseline"
+            )
+            + f", it gains {_num(gone['gain'])}× held out ({'; '.join(gone['reasons'])}).",
         ]
     return lines + [""]
 

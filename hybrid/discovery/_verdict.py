@@ -47,6 +47,8 @@ def verdict(diagnosis) -> str:
     and the resonance the plant's mode; the warning stood lower down.
     """
     head = _headline(diagnosis)
+    if diagnosis.dropped and not diagnosis.causes:  # every cause the search named was dropped
+        head = head.rstrip(".") + "; " + "; ".join(dropped_clause(d) for d in diagnosis.dropped) + "."
     outside = implausible_values(diagnosis)
     if not outside:
         return head
@@ -58,6 +60,23 @@ def verdict(diagnosis) -> str:
     return (
         f"{head.rstrip('.')}; but the simulation was fitted outside its plausible range ({', '.join(outside)}; "
         f"see the warnings): {took}."
+    )
+
+
+def dropped_clause(dropped: dict) -> str:
+    """Why a named cause was dropped (`hybrid.discovery._redundant`): the rules it failed, and against what.
+
+    A probe's hysteresis, dropped as immaterial, read "beside back_relaxation it gains only 13.25× held
+    out": the gain was not the reason.
+    """
+    beside = dropped.get("beside")
+    against = (
+        f"beside {_names([{'name': n} for n in beside])}" if beside else "against the effect-free baseline"
+    )
+    why = "; ".join(dropped.get("reasons") or ()) or f"held-out gain {dropped['gain']:.2f}"
+    return (
+        f"{dropped['name']}, named at step {dropped['step']}, was dropped: weighed as if named last, "
+        f"{against}, {why}"
     )
 
 
@@ -95,10 +114,7 @@ def _headline(diagnosis) -> str:
             f"held-out error above the noise floor (gain {diagnosis.gain:.2g}×)"
         )
         for d in diagnosis.dropped:
-            head += (
-                f" ({d['name']}, named at step {d['step']}, was dropped: beside "
-                f"{_names(causes)} it gains only {d['gain']:.2f}× held out)"
-            )
+            head += f" ({dropped_clause(d)})"
         if left is None and question:
             return head + f"; what remains is {ratio:.2g}× the measurement noise floor, {question}." + follows
         if left is None:
