@@ -100,6 +100,27 @@ def test_refinable_takes_a_named_cause_s_refinement_and_the_one_the_remainder_po
     assert set(swapped) == (set(EFFECTS) - {"drive_saturation"}) | {"drive_clip"}
 
 
+def test_a_named_even_part_that_turns_down_near_the_end_of_the_range_points_at_the_clip():
+    """A probe's heater clipped at 6 V of a 0–10 V drive (its own plug-in, a sensor lag beside): the default
+    set named drive_even, whose reading said the map "turns down over the last 16 %", and the clip was never
+    tried; with --effects builtins,drive_clip it named drive_clip at 6.0 V and gained 169×."""
+    from hybrid.discovery._effects import TURNS_NEAR_END
+
+    even = EFFECTS["drive_even"]()
+    assert even.points_at({"rising_percent_of_range": 84.0}) == "drive_clip"
+    assert EFFECTS["even_response"]().points_at({"rising_percent_of_range": 84.0}) == "clip"
+    assert even.points_at({"rising_percent_of_range": 100.0}) is None  # monotone over the range: an even part
+    assert even.points_at({"rising_percent_of_range": TURNS_NEAR_END - 1}) is None  # a turn mid-range: V²
+    assert EFFECTS["delay"]().points_at({"rising_percent_of_range": 84.0}) is None  # the default: none
+    # the pointer alone (nothing left above the noise, no saturation named) tries the clip in each place
+    pointed = refinable(BUILTINS, ["drive_even"], None, BUILTINS, 1.0, 1.5, {"drive_even": "drive_clip"})
+    assert pointed == {"drive_saturation": "drive_clip", "saturation": "clip"}
+    assert refinable(BUILTINS, ["drive_even"], None, BUILTINS, 1.0, 1.5) == {}
+    assert refinement_reason(["drive_even"], 1.0, 1.5, None, {"drive_even": "drive_clip"}) == (
+        "drive_even's fit reads as drive_clip"
+    )
+
+
 def _diagnosis(causes, nmse):
     return types.SimpleNamespace(
         causes=[{"name": c} for c in causes],

@@ -560,14 +560,15 @@ def diagnose(
     )
     builtins = resolve_effects(None, simulation)
     room = float(np.mean((w_te - w_hat_ext) ** 2)) / max(floor.variance, 1e-300)  # held out, over the floor
+    pointers = {c["name"]: c["points_at"] for c in found.causes if c.get("points_at")}
     swaps = (
-        refinable(search.effects, kept, unexplained, builtins, room, settings.min_gain)
+        refinable(search.effects, kept, unexplained, builtins, room, settings.min_gain, pointers)
         if given.refine
         else {}
     )
     if not swaps:
         return found
-    why = refinement_reason(kept, room, settings.min_gain, unexplained)
+    why = refinement_reason(kept, room, settings.min_gain, unexplained, pointers)
     say(f"{why}: again with {', '.join(f'{b} for {a}' for a, b in swaps.items())}")
     try:
         again = diagnose(

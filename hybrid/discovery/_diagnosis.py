@@ -78,7 +78,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: fitted, which ``hybrid design`` says a drive beyond leaves); a hysteresis's ``derived`` gains
 #: ``turn_percent_of_range`` (how far the signal it acts on turns back); each cause's ``place`` (where it
 #: acts: ``drive``, ``inside`` or ``output``); each ``dropped`` entry's ``beside`` (the causes it was weighed
-#: beside; empty: against the effect-free baseline, where it was the one left after a drop).
+#: beside; empty: against the effect-free baseline, where it was the one left after a drop); a cause's
+#: ``points_at`` (the effect searched only when named that its fit stands in for,
+#: `AbstractEffect.points_at`).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -514,18 +516,22 @@ class Diagnosis:
             timing = {
                 k: float(v) for k, v in self.extended.parameters.items() if k in FrameTiming.constraints
             }
-            reading = self.effect_reading(
-                chosen.name, {**sizes, **timing, **{k: float(v) for k, v in own.items()}}
+            values = {**sizes, **timing, **{k: float(v) for k, v in own.items()}}
+            reading = self.effect_reading(chosen.name, values)
+            effect = self._effect(chosen.name)
+            points_at = (
+                effect.points_at(values) if effect is not None and not isinstance(effect, type) else None
             )
             out.append(
                 {
                     "name": chosen.name,
-                    "place": effect.place if (effect := self._effect(chosen.name)) is not None else None,
+                    "place": effect.place if effect is not None else None,
                     "step": k,
                     **joint,
                     "incremental_gain": chosen.gain,
                     "delta_bic": chosen.delta_bic,
                     **({"reading": reading} if reading else {}),
+                    **({"points_at": points_at} if points_at else {}),
                     "derived": derived,
                     **({"derived_units": units} if (units := self._derived_units(chosen.name)) else {}),
                     **(

@@ -220,6 +220,10 @@ class AbstractEffect(eqx.Module):
       only when named: where this effect is named and something is left
       unexplained, `diagnose` tries the refinement in its place
       (`DiagnoseSettings.refine`). None (the default): none.
+    - `points_at(parameters)`: the effect searched only when named that a fit
+      of this one stands in for (an even part whose map turns down near the end
+      of the signal's range: a clip), or None (the default); where a named
+      cause points at a searched effect's `refinement`, `diagnose` tries it too.
     """
 
     raw: eqx.AbstractVar[dict[str, Array]]
@@ -270,6 +274,17 @@ class AbstractEffect(eqx.Module):
         on a speed. The report prints it beside the cause.
         """
         return ""
+
+    def points_at(self, parameters: dict[str, float]) -> str | None:
+        """The name of an effect searched only when named that a fit at `parameters` stands in for, or None.
+
+        `parameters`: as `reading`'s. Where it names a searched effect's
+        `refinement`, `diagnose` tries the refinements in their parents' place
+        (`DiagnoseSettings.refine`): a heater clipped at 6 V of a 0–10 V drive
+        read `drive_even` (its map turning down over the last 16 %), and the
+        clip was not tried.
+        """
+        return None
 
     def unlike(self, parameters: dict) -> str | None:
         """Why a fit at `parameters` is not this effect at all, whatever its size, or None (the default).
@@ -1157,14 +1172,18 @@ class _Even(AbstractEffect):
         # response (whose turn lies near the middle of a two-signed signal, a V² force's at 0): it
         # stands in for a level the signal stops at, which this form cannot reach without turning.
         # A heater clipped at 70 % of a 0–100 % drive read drive_even (turning at 88 %) and a dead zone.
-        rising = parameters.get("rising_percent_of_range", 100.0)
-        if not TURNS_NEAR_END <= rising < 100.0:
+        if self.points_at(parameters) is None:
             return ""
+        rising = parameters["rising_percent_of_range"]
         return (
             f"over this recording the map rises over {rising:.0f} % of the range of the {self.signal_words} and "
             f"turns down over the last {100.0 - rising:.0f} %: {self.level_words} reads so more often than an even "
             f"part; --effects builtins,{self.clip} tests a clip"
         )
+
+    def points_at(self, parameters):
+        rising = parameters.get("rising_percent_of_range", 100.0)
+        return self.clip if TURNS_NEAR_END <= rising < 100.0 else None
 
     def starts(self, context):
         # An even part of 10 % of the range either way; with the gain after it, LM takes it to

@@ -14,7 +14,9 @@ its third parameter stood in for effects of other shapes.
 
 So where a diagnosis of the default set names an effect with a
 `refinement` and leaves at least `min_gain` times the noise floor, or names it
-beside two other causes (`CROWDED`), or its remainder points at one,
+beside two other causes (`CROWDED`), or its remainder or a named cause's fit
+(`AbstractEffect.points_at`: a probe's heater clipped at 6 V read `drive_even`
+turning down over the last 16 % of the drive) points at one,
 `diagnose` runs again with every refinement in its parent's place (the clip of
 the drive and of the output both: a probe's drive clip, read as the output's
 tanh, was refined to the output's clip alone and left 1.6–2× the floor), and
@@ -36,10 +38,11 @@ CROWDED = 3
 #: Why a refinement is tried, as its sentence says it.
 LEFT_ABOVE = "something was left above the noise"
 CROWDED_WHY = "a saturation was named beside {others} other causes, which a clip's sharp knee may stand for"
+POINTED_WHY = "{cause}'s fit reads as {target}"
 
 
 def refinable(
-    effects, kept, unexplained: dict | None, builtins, room: float, min_gain: float
+    effects, kept, unexplained: dict | None, builtins, room: float, min_gain: float, pointers=None
 ) -> dict[str, str]:
     """The refinements to try, by the name of the searched effect each takes the place of.
 
@@ -51,7 +54,8 @@ def refinable(
     one other may then explain as much: `refined` keeps the fewer); and the named-only effect the remainder points
     at (``description.named_only``: a drive that stops sharply read as "static
     in the drive … a clip of the drive recovers as much") where it is the
-    refinement of a searched effect. Where either holds, every searched effect's refinement is tried
+    refinement of a searched effect, or that a named cause's fit points at
+    (`pointers`: the cause's name → `AbstractEffect.points_at`). Where either holds, every searched effect's refinement is tried
     in its place, the other places' too. None already searched, and {} unless
     every one of `builtins` (the default set's effects for this simulation)
     was searched: a list without them is the caller's choice, and is not
@@ -64,6 +68,7 @@ def refinable(
     saturated = any(name in swaps for name in kept)
     named = saturated and (room >= min_gain or len(kept) >= CROWDED)
     pointed = ((unexplained or {}).get("description") or {}).get("named_only") in swaps.values()
+    pointed = pointed or any(target in swaps.values() for target in (pointers or {}).values())
     # every refinement at once: a clip of the drive read through the dynamics as a tanh on the output (a
     # probe's ±1.5 V drive clip: `saturation` refined to `clip`, 1.6–2× the floor left; `drive_clip` named
     # by hand, 1.497 V and nothing left), so the second run searches the clip in each place
@@ -75,9 +80,14 @@ def refined_effects(effects, swaps: dict[str, str]) -> list:
     return [e for e in effects if e.name not in swaps] + list(swaps.values())
 
 
-def refinement_reason(kept, room: float, min_gain: float, unexplained: dict | None) -> str:
+def refinement_reason(kept, room: float, min_gain: float, unexplained: dict | None, pointers=None) -> str:
     """Why `refinable`'s swaps are tried, as `refined`'s sentence and the progress line say it."""
-    if room >= min_gain or unexplained is not None or len(kept) < CROWDED:
+    if room >= min_gain or unexplained is not None:
+        return LEFT_ABOVE
+    if pointers:
+        cause, target = next(iter(pointers.items()))
+        return POINTED_WHY.format(cause=cause, target=target)
+    if len(kept) < CROWDED:
         return LEFT_ABOVE
     return CROWDED_WHY.format(others=len(kept) - 1)
 
