@@ -4,7 +4,7 @@
 
 Writes the recording to `experiments/results/diagnose_example/recording.csv`
 (the hidden truth is in its metadata) and the report (report.md, report.json,
-five PNGs) beside it, by running the command line exactly as a user would.
+six PNGs) beside it, by running the command line exactly as a user would.
 """
 
 from __future__ import annotations

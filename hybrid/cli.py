@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="hybrid", description="Hybrid physics-ML identification of IPMC actuators.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    p = sub.add_parser("simulate", help="record the virtual IPMC under a drive (CSV t,v_in,w)")
+    p = sub.add_parser("simulate", help="record the virtual IPMC under a drive (CSV t,v_in,w,w_true)")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--drive", choices=DRIVES)
     which.add_argument(

@@ -200,6 +200,22 @@ def test_shorter_than_window():
     )
 
 
+def test_a_file_with_one_project_name_misspelt_is_pointed_at_its_own_columns(tmp_path):
+    """A header typo (v_inn) beside the project's own w and a w_true: the hint mapped output=w_true (the
+    noise-free truth of `hybrid simulate`'s file), not the w the file names exactly."""
+    path = tmp_path / "typo.csv"
+    path.write_text("t,v_inn,w,w_true\n" + "".join(f"{k / 10},{k % 2},{k},{k}\n" for k in range(8)))
+    with pytest.raises(InputError) as caught:
+        Recording.load(path)
+    assert "--columns input=v_inn,output=w --time t" in str(caught.value), caught.value
+    # a drive named exactly beside an output of another name: the drive keeps its name
+    other = tmp_path / "other.csv"
+    other.write_text("t,v_in,displacement_mm\n" + "".join(f"{k / 10},{k % 2},{k}\n" for k in range(8)))
+    with pytest.raises(InputError) as caught:
+        Recording.load(other)
+    assert "--columns input=v_in,output=displacement_mm --time t" in str(caught.value), caught.value
+
+
 def test_missing_columns_csv(tmp_path):
     path = _write(tmp_path / "a.csv", "t,V_in,w\n0,1,2\n1,1,2\n")
     with pytest.raises(InputError, match=r"missing column\(s\) v_in \(found 't', 'V_in', 'w'\)"):

@@ -245,7 +245,7 @@ def _require(
         raise MissingName(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
-            f"yours are which, e.g. {example or mapping_example([c for c in found if c not in REQUIRED])}",
+            f"yours are which, e.g. {example or mapping_example(list(found), time='t' if 't' in found else None)}",
             missing[0],
         )
 
@@ -952,7 +952,9 @@ def _csv_header(
     counts = {name for name, unit in zip(header, units) if unit.lower() in _COUNT_UNITS}
     timed = [name for name, unit in zip(header, units) if name and is_time_unit(unit)]
     rate_known = any(name.lower() in RATE_FIELDS for name in given)
-    example = mapping_example(header, rate_known, timed[0] if timed else None, {*REQUIRED, *given, *counts})
+    # the project's own names keep their roles (a typo'd v_inn beside an exact w: output=w, not a w_true)
+    time = timed[0] if timed else "t" if "t" in header else None
+    example = mapping_example(header, rate_known, time, {*given, *counts})
     repeated = sorted({c for c in named if named.count(c) > 1})
     if repeated:  # a scope's header of units (Second,Volt,Volt): the columns go by number
         raise InputError(
