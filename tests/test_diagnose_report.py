@@ -237,9 +237,7 @@ def test_the_verdict_says_as_good_as_the_data_allow_only_near_the_floor():
     assert "too small for the rules on this recording" in short
     # above 2× the floor's estimate but under 2× its upper bound (estimate + 2 SE): not "under the 2×"
     over = _verdict_of(2.1)
-    assert (
-        "2.1× the measurement noise floor, under the 2× of the floor's upper bound (its estimate + 2 " in over
-    )
+    assert "2.1× the measurement noise floor, yet under 2× the floor's upper bound (its estimate + 2 " in over
     # a new user's rising staircase, its sensor drifting: "No effect is needed" led the report while the
     # last step was open between nothing more and baseline_drift; the headline now says it is open
     entry = {"step": 1, "named": "none", "open": True, "rivals": [{"name": "baseline_drift"}]}

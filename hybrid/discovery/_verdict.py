@@ -221,11 +221,12 @@ def _under(ratio: float, limit: float) -> str:
 
     The remainder is called unexplained above `limit` times the floor counted at the top of its ±2
     standard errors (`hybrid.discovery._unexplained`): an effect-free draw at 2.1× the estimate read
-    "2.1× the measurement noise floor, under the 2× above which …".
+    "2.1× the measurement noise floor, under the 2× above which …", and "under the 2× of the floor's
+    upper bound" beside a 2.7× read to a probe as "2.7× is under 2×".
     """
     if not ratio > limit:
         return f"under the {limit:.2g}×"
-    return f"under the {limit:.2g}× of the floor's upper bound (its estimate + 2 standard errors)"
+    return f"yet under {limit:.2g}× the floor's upper bound (its estimate + 2 standard errors),"
 
 
 def follows_drive(diagnosis) -> str:
