@@ -82,12 +82,17 @@ def main():
     print("physics fit to the virtual strip: value ± standard error")
     for n in cov.names:
         print(f"  {n:<8} {cov.values[n]:.4g} ± {cov.std_errors[n]:.2g} {cov.units[n]}")
+    if cov.unidentifiable:  # held at a bound of its range (`standard_errors`): no correlation to give
+        print(
+            f"  not pinned (at a bound of its range, standard error infinite): {', '.join(cov.unidentifiable)}"
+        )
     corr = cov.correlation
     pairs = sorted(
         (
             (abs(corr[i, j]), cov.names[i], cov.names[j], corr[i, j])
             for i in range(len(cov.names))
             for j in range(i + 1, len(cov.names))
+            if np.isfinite(corr[i, j])
         ),
         reverse=True,
     )
