@@ -832,6 +832,28 @@ def test_a_baseline_that_wanders_is_read_as_a_wander_where_a_change_at_one_time_
     assert named_only_hint(d, {"output": {"effects": ("drift",)}}) is None
 
 
+@pytest.mark.parametrize("seed", range(2))
+def test_a_gain_that_moves_over_the_record_is_read_as_one(seed):
+    """A gain 1 + 0.3 sin(2πt/T) over 0.8 of a period of the record (T 160 s; an amplifier warming and
+    cooling, a probe's drive gain 1 + 0.35 sin(2πt/37 s) on a 100 s record) read "no simple structure …
+    not predictable from the drive, the model's output or time" (0 %): the time maps added w's offset
+    alone. A gain's cubic and its straight pieces are read too, the pieces where they beat the cubic."""
+    from hybrid.discovery._unexplained import named_only_hint
+
+    d = describe(lambda v, t: 2.0 * v * 0.3 * np.sin(2 * np.pi * t / (0.8 * T_END) + 0.3), seed=seed)
+    assert d["kind"] == "time" and d["time"].get("gain_only") and d["recovered"]["of_excess"] > 0.9, d[
+        "summary"
+    ]
+    assert d["summary"].startswith("a gain that wanders over the record"), d["summary"]
+    assert named_only_hint(d, {"output": {"effects": ("drift",)}}) is None  # no creep pointed at
+    # a gain that rises smoothly (a third of the record at 15 %/100 s, then on): the gain's cubic
+    d = describe(lambda v, t: 2.0 * v * 0.15 * np.sin(np.pi * t / (2 * T_END)), seed=seed)
+    assert d["kind"] == "time" and d["time"]["form"] in ("gain", "wander", "step"), d["summary"]
+    # an additive trend of the same shape stays the offset's
+    d = describe(lambda v, t: 0.3 * np.sin(2 * np.pi * t / (0.8 * T_END) + 0.3), seed=seed)
+    assert not d["time"].get("gain_only") and d["time"].get("form") != "gain", d["summary"]
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_a_wandering_disturbance_is_not_read_as_a_change_at_one_time(seed):
     """A random walk (3× the floor's σ) wanders in steps of every size: the change at one time must not

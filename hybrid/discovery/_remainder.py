@@ -293,6 +293,24 @@ def _drive_shape(tr, centres, values) -> dict:
 STEP_TIMES, STEP_EDGE, STEP_SHARE = 60, 0.1, 0.5
 
 
+def _gain_trend(tr, ho, judge, scaled) -> dict:
+    """A gain that moves over the record: a cubic in time of w's offset, and the model's output scaled by
+    one (its change: x, x², x³ times ŵ, a constant gain being a static map), fitted on the training
+    residual and judged on the held-out part (an amplifier or a sensor warming, a strip that dries).
+
+    With the offset's cubic alone, a gain 1 + 0.3 sin(2πt/T) over 0.8 of a period of the record read
+    "no simple structure … not predictable from … time" (`tests/test_remainder.py -k gain_that`).
+    """
+
+    def basis(part):
+        x = scaled(part["t"])
+        powers = np.column_stack([x**k for k in range(4)])
+        return np.column_stack([powers, powers[:, 1:] * part["w_hat"][:, None]])
+
+    coef = np.linalg.lstsq(basis(tr), tr["r"], rcond=None)[0]
+    return {**judge(basis(ho) @ coef), "form": "gain", "degree": 3}
+
+
 def _time_step(tr, ho, judge, scaled) -> dict | None:
     """A change at one time T beside a smooth trend: from T on, w offset by a, the model's output scaled by 1 + b.
 
@@ -352,20 +370,29 @@ def _time_step(tr, ho, judge, scaled) -> dict | None:
 WANDER_PIECES = 8
 
 
-def _time_wander(tr, ho, judge, scaled) -> dict:
+def _time_wander(tr, ho, judge, scaled, offset: bool = True) -> dict:
     """A wander in time: a trend of w's offset made of `WANDER_PIECES` straight pieces over the training
     span (continuous, constant beyond it), beside ŵ and ŵ·t (`_time_step`'s gain trends), fitted on the
-    training residual and judged on the held-out part."""
+    training residual and judged on the held-out part. `offset` False: a trend of the model's gain made
+    of such pieces instead (a gain that wanders, which an additive disturbance, not scaling with the
+    model's output, does not follow)."""
     knots = np.linspace(-1.0, 1.0, WANDER_PIECES + 1)
     spacing = knots[1] - knots[0]
 
     def basis(part):
         x = scaled(part["t"])
         hats = np.clip(1.0 - np.abs(x[:, None] - knots[None, :]) / spacing, 0.0, None)
-        return np.column_stack([hats, part["w_hat"], x * part["w_hat"]])
+        if offset:  # beside the gain's trend (`_time_step`'s)
+            return np.column_stack([hats, part["w_hat"], x * part["w_hat"]])
+        return hats * part["w_hat"][:, None]
 
     coef = np.linalg.lstsq(basis(tr), tr["r"], rcond=None)[0]
-    return {**judge(basis(ho) @ coef), "form": "wander", "pieces": WANDER_PIECES}
+    return {
+        **judge(basis(ho) @ coef),
+        "form": "wander",
+        "pieces": WANDER_PIECES,
+        **({} if offset else {"gain_only": True}),
+    }
 
 
 #: A slope of w on ŵ below this fraction of the slope beside it reads as flat (`_output_shape`).
@@ -1147,18 +1174,33 @@ def describe_remainder(
         coef = np.polynomial.polynomial.polyfit(scaled(tr["t"]), tr["r"], 3)
         time_part = {**judge(np.polynomial.polynomial.polyval(scaled(ho["t"]), coef)), "degree": 3}
         step = _time_step(tr, ho, judge, scaled)
+        # a gain that moves smoothly over the record, beyond what the offset's cubic follows
+        gain = _gain_trend(tr, ho, judge, scaled)
+        moves = judge.score(gain) >= STEP_SHARE and judge.score(gain) > judge.score(time_part) + MARGIN
         if (
             step is not None
             and judge.score(step) >= STEP_SHARE
             and judge.score(step) > max(judge.score(time_part), judge.score(step["without"])) + MARGIN
+            and (not moves or judge.score(step) > judge.score(gain) + MARGIN)
         ):
             # a change at one time, which the cubic smooths over; unless straight pieces between several
-            # times do better held out: a wander (a true change they follow only between two of them)
-            wander = _time_wander(tr, ho, judge, scaled)
+            # times do better held out: a wander of the offset or of the gain (a true change they follow
+            # only between two of them)
+            wander = max(
+                _time_wander(tr, ho, judge, scaled),
+                _time_wander(tr, ho, judge, scaled, offset=False),
+                key=judge.score,
+            )
             if judge.score(wander) > judge.score(step):
                 time_part = {**wander, "step": step, "cubic": time_part, "unit": w_unit}
             else:
                 time_part = {**step, "wander": wander, "cubic": time_part, "unit": w_unit}
+        elif moves:  # smoothly, or in straight pieces where they beat the cubic
+            pieces = _time_wander(tr, ho, judge, scaled, offset=False)
+            best = (
+                {**pieces, "gain_cubic": gain} if judge.score(pieces) > judge.score(gain) + MARGIN else gain
+            )
+            time_part = {**best, "step": step, "cubic": time_part, "unit": w_unit}
         scores["time"] = time_part
 
     # Linear filter: lagged drive and lagged model output.
@@ -1608,6 +1650,15 @@ def _verdict(
             f"recovers {pct(inkind)} {where} (a sensor re-zeroed or bumped, a clamp that slipped, a part that "
             "changed during the record: neither an effect of the drive nor a smooth drift reads so)"
         )
+    elif scores[inkind].get("gain_only"):  # kind "time": the gain's straight pieces, no change, no cubic
+        wander = scores[inkind]
+        text = (
+            "a gain that wanders over the record: the model's output scaled by a trend of "
+            f"{wander['pieces']} straight pieces in time recovers {pct(inkind)} {where}, a cubic "
+            f"{100 * score(wander['cubic']):.0f} % (an amplifier or a sensor warming and cooling, a part that "
+            "dries or wears: not an effect of the drive; a record with the drive repeated at its start and its "
+            "end measures it)"
+        )
     elif scores[inkind].get("form") == "wander":  # kind "time": no single change, no cubic, follows it
         wander = scores[inkind]
         text = (
@@ -1617,6 +1668,14 @@ def _verdict(
             f"{100 * score(wander['cubic']):.0f} % (a sensor's offset or the plant's surroundings wandering, "
             "a temperature: not an effect of the drive; a reference channel, or a record with the drive off "
             "before and after, measures it)"
+        )
+    elif scores[inkind].get("form") == "gain":  # kind "time": the gain's cubic, beyond the offset's
+        text = (
+            f"a gain that moves over the record: the model's output scaled by a cubic in time recovers "
+            f"{pct(inkind)} {where}, the offset's cubic alone {100 * score(scores[inkind]['cubic']):.0f} % "
+            "(an amplifier or a sensor warming, a part that dries or wears: not an effect of the drive; "
+            "`drift` is its straight-line form, and a record with the drive repeated at its start and its "
+            "end measures it)"
         )
     else:
         text = f"a trend in time (drift): a smooth function of time recovers {pct(inkind)} {where}"
