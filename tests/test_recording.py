@@ -214,6 +214,17 @@ def test_a_file_with_one_project_name_misspelt_is_pointed_at_its_own_columns(tmp
     with pytest.raises(InputError) as caught:
         Recording.load(other)
     assert "--columns input=v_in,output=displacement_mm --time t" in str(caught.value), caught.value
+    # a name close to the drive's takes it before the columns' order does (a verifier's t,w_true,v_inn,w
+    # was offered input=w_true)
+    from hybrid.data._loaders import mapping_example
+
+    assert (
+        mapping_example(["t", "w_true", "v_inn", "w"], time="t") == "--columns input=v_inn,output=w --time t"
+    )
+    assert mapping_example(["t", "w_ref", "v_in_cmd", "w"], time="t").startswith("--columns input=v_in_cmd,")
+    assert (
+        mapping_example(["t", "w_true", "v_inn"], time="t") == "--columns input=v_inn,output=w_true --time t"
+    )
 
 
 def test_missing_columns_csv(tmp_path):

@@ -14,6 +14,7 @@ Messages about CSV files give the line in the file (from 1) and the sample (from
 from __future__ import annotations
 
 import datetime
+import difflib
 import json
 import math
 import os
@@ -422,6 +423,12 @@ def role_of(name: str) -> str | None:
     return None
 
 
+#: How alike (difflib's ratio) a column's name and the project's own name of a role must be to take that
+#: role in a mapping's example before the columns' order gives it: v_inn (0.89), v_in_cmd (0.67) read as
+#: the drive; w_true (0.29) not as w.
+_CLOSE = 0.6
+
+
 def mapping_example(
     names: Sequence[str], rate_known: bool = False, time: str | None = None, skip: Collection[str] = ()
 ) -> str:
@@ -442,6 +449,14 @@ def mapping_example(
         if role is not None and role not in roles and i not in roles.values():
             roles[role] = i
     rest = [i for i in wanted if i not in roles.values() and role_of(names[i]) != "index"]
+    # a name close to the project's own (a typo: v_inn, v_in_cmd) takes its role before column order does:
+    # in t,w_true,v_inn,w the first name left, w_true, was offered as the drive
+    for role, own in (("input", "v_in"), ("output", "w")):
+        close = [i for i in rest if _CLOSE <= difflib.SequenceMatcher(None, names[i].lower(), own).ratio()]
+        if role not in roles and close:
+            best = max(close, key=lambda i: difflib.SequenceMatcher(None, names[i].lower(), own).ratio())
+            roles[role] = best
+            rest.remove(best)
     for role in ("input", "output"):
         if role not in roles and rest:
             roles[role] = rest.pop(0)
