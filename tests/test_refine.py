@@ -112,6 +112,9 @@ def test_a_named_even_part_that_turns_down_near_the_end_of_the_range_points_at_t
     assert even.points_at({"rising_percent_of_range": 100.0}) is None  # monotone over the range: an even part
     assert even.points_at({"rising_percent_of_range": TURNS_NEAR_END - 1}) is None  # a turn mid-range: V²
     assert EFFECTS["delay"]().points_at({"rising_percent_of_range": 84.0}) is None  # the default: none
+    # a turn just beyond the range (a verifier's heater clipped at 70 %: 104 %) is as flat as a level
+    assert even.points_at({"rising_percent_of_range": 100.0, "turn_percent_of_range": 104.0}) == "drive_clip"
+    assert even.points_at({"rising_percent_of_range": 100.0, "turn_percent_of_range": 130.0}) is None
     # the pointer alone (nothing left above the noise, no saturation named) tries the clip in each place
     pointed = refinable(BUILTINS, ["drive_even"], None, BUILTINS, 1.0, 1.5, {"drive_even": "drive_clip"})
     assert pointed == {"drive_saturation": "drive_clip", "saturation": "clip"}

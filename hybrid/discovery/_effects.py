@@ -1127,6 +1127,9 @@ class FrameTiming(AbstractEffect):
 #: The share of the signal's range (%) over which an even part's map rises, from which a turn inside the
 #: range reads as a level the signal stops at (`_Even.reading`): a turn in the outer quarter.
 TURNS_NEAR_END = 75.0
+#: ... up to this share (%) beyond it: there the map's slope at the end is under 15 % of its slope where it
+#: starts rising, as flat as a level.
+TURNS_BEYOND_END = 115.0
 
 
 class _Even(AbstractEffect):
@@ -1157,14 +1160,19 @@ class _Even(AbstractEffect):
         s = np.asarray(s, float)
         span, c = float(np.ptp(s)), float(self.parameters()[self.coefficient])
         even = abs(c) * float(np.max(np.square(s)))
-        rising = 1.0
+        rising, out = 1.0, {}
         if c != 0.0 and span > 0:
             turn, low, high = -1.0 / (2.0 * c), float(np.min(s)), float(np.max(s))
-            if low < turn < high:  # rises below the turn where c < 0, above it where c > 0
-                rising = (turn - low) / span if c < 0 else (high - turn) / span
+            # where it turns, from the end it rises from, as a share of the range (beyond it: over 1)
+            reach = (turn - low) / span if c < 0 else (high - turn) / span
+            if 0.0 < reach < 1.0:  # rises below the turn where c < 0, above it where c > 0
+                rising = reach
+            if reach > 0.0:
+                out["turn_percent_of_range"] = 100.0 * reach
         return {
             "even_percent_of_range": 100.0 * even / span if span > 0 else 0.0,
             "rising_percent_of_range": 100.0 * rising,
+            **out,
         }
 
     def reading(self, parameters, output_unit):
@@ -1175,15 +1183,24 @@ class _Even(AbstractEffect):
         if self.points_at(parameters) is None:
             return ""
         rising = parameters["rising_percent_of_range"]
+        shape = (
+            f"rises over {rising:.0f} % of the range of the {self.signal_words} and turns down over the last "
+            f"{100.0 - rising:.0f} %"
+            if rising < 100.0
+            else f"flattens towards the end of the range of the {self.signal_words} (it would turn at "
+            f"{parameters['turn_percent_of_range']:.0f} % of it)"
+        )
         return (
-            f"over this recording the map rises over {rising:.0f} % of the range of the {self.signal_words} and "
-            f"turns down over the last {100.0 - rising:.0f} %: {self.level_words} reads so more often than an even "
-            f"part; --effects builtins,{self.clip} tests a clip"
+            f"over this recording the map {shape}: {self.level_words} reads so more often than an even part; "
+            f"--effects builtins,{self.clip} tests a clip"
         )
 
     def points_at(self, parameters):
+        # a turn near the end of the range, or just beyond it (the slope there under ~15 % of where the map
+        # starts rising: flat, a level): a verifier's heater clipped at 70 % of 0–20 W turned at 104 %
         rising = parameters.get("rising_percent_of_range", 100.0)
-        return self.clip if TURNS_NEAR_END <= rising < 100.0 else None
+        turn = parameters.get("turn_percent_of_range", rising if rising < 100.0 else None)
+        return self.clip if turn is not None and TURNS_NEAR_END <= turn < TURNS_BEYOND_END else None
 
     def starts(self, context):
         # An even part of 10 % of the range either way; with the gain after it, LM takes it to
