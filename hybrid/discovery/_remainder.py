@@ -294,8 +294,8 @@ STEP_TIMES, STEP_EDGE, STEP_SHARE = 60, 0.1, 0.5
 
 
 def _gain_trend(tr, ho, judge, scaled) -> dict:
-    """A gain that moves over the record: a cubic in time of w's offset, and the model's output scaled by
-    one (its change: x, x², x³ times ŵ, a constant gain being a static map), fitted on the training
+    """A gain that moves over the record: a cubic in time of w's offset beside one of the model's gain
+    (its change alone: x, x², x³ times ŵ; a constant gain is a static map), fitted on the training
     residual and judged on the held-out part (an amplifier or a sensor warming, a strip that dries).
 
     With the offset's cubic alone, a gain 1 + 0.3 sin(2πt/T) over 0.8 of a period of the record read
@@ -1654,7 +1654,7 @@ def _verdict(
         wander = scores[inkind]
         text = (
             "a gain that wanders over the record: the model's output scaled by a trend of "
-            f"{wander['pieces']} straight pieces in time recovers {pct(inkind)} {where}, a cubic "
+            f"{wander['pieces']} straight pieces in time recovers {pct(inkind)} {where}, the offset's cubic "
             f"{100 * score(wander['cubic']):.0f} % (an amplifier or a sensor warming and cooling, a part that "
             "dries or wears: not an effect of the drive; a record with the drive repeated at its start and its "
             "end measures it)"

@@ -430,7 +430,7 @@ def _dead_band(description: dict) -> bool:
 #: A reading whose own form rules its hint out (`_NAMED_ONLY_HINTS`): a change at one time, or a wander, is no creep; a
 #: curve of the drive that stops at no level, and a dead band of the output, are no clip.
 _NOT_THE_HINT = {
-    "time": lambda description: (description.get("time") or {}).get("form") in ("step", "wander"),
+    "time": lambda description: (description.get("time") or {}).get("form") in ("step", "wander", "gain"),
     "drive_map": lambda description: not (description.get("drive_map") or {}).get("levels_off"),
     "static_output_monotone": _dead_band,
 }
