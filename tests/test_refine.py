@@ -192,3 +192,64 @@ def test_a_second_diagnosis_that_fails_leaves_the_first_with_the_reason(tmp_path
     assert refined_["kept"] is False and refined_["error"] == "refused for this test"
     assert "could not be made (refused for this test): this one stands" in refined_["sentence"]
     assert "drive_clip" not in [c["name"] for c in found.causes]
+
+
+def test_a_named_even_part_that_turns_near_the_end_carries_its_pointer_in_the_causes():
+    """`Diagnosis.causes` gives a cause's `points_at` (what `diagnose` hands `refinable`): a first-order
+    plant's drive_even at a coefficient whose map turns at 84 % of a 0–10 V drive points at drive_clip;
+    at a V²-like coefficient turning below the drive's range it points at nothing."""
+    import dataclasses
+
+    import hybrid
+    from hybrid.discovery._decision import evaluate_candidate
+    from hybrid.discovery._diagnose import prepare_search
+    from hybrid.discovery._diagnosis import EquallyGoodFits, HeldoutSignals
+    from hybrid.discovery._search import initial_thetas
+    from hybrid.discovery._step import Step
+
+    rng = np.random.default_rng(3)
+    u = np.repeat(rng.uniform(0.0, 10.0, 60), 30)
+    w = scipy.signal.lfilter([0.1], [1.0, -0.9], u) + 0.01 * rng.normal(size=u.size)
+    recording = hybrid.Recording.from_arrays(v_in=u, w=w, rate=30.0)
+    search = prepare_search([recording], hybrid.LTI(1), hybrid.DiagnoseSettings(), ["drive_even"])
+    problem, model = search.problem, search.model
+    active = np.array([1.0, 1.0])  # drive_even and the frame timing
+    bar = EquallyGoodFits(n=0, heldout_nmse_min=float("nan"), heldout_nmse_max=float("nan"), definition="-")
+
+    def cause_at(coefficient):
+        start = model.simulation.with_active(active).replace(drive_even_coefficient=coefficient)
+        theta = initial_thetas(problem, [start], model.readout, search.frozen)[0]
+        cand = evaluate_candidate(
+            problem,
+            theta,
+            active,
+            "drive_even",
+            search.n_train,
+            4,
+            search.settings.materiality,
+            search.frozen,
+        )
+        base = dataclasses.replace(cand, name="none")
+        three = np.arange(3.0)
+        found = hybrid.Diagnosis(
+            cause="drive_even",
+            baseline=base,
+            extended=cand,
+            candidates=[cand],
+            uncertainties={},
+            evidence={},
+            hybrid=None,
+            settings=search.settings,
+            recordings=["r"],
+            seconds=0.0,
+            heldout=HeldoutSignals(three, three, three, three, three, np.zeros(3), np.zeros(3)),
+            steps=[Step(base, [cand], cand, 0.0, [], bar, [])],
+            effects=search.effects,
+        )
+        (cause,) = found.causes
+        return cause
+
+    turning = cause_at(-1.0 / (2 * 0.84 * 10.0))  # u − u²/16.8: turns at 8.4 V
+    assert 75.0 <= turning["derived"]["turn_percent_of_range"] < 100.0  # of the drive's recorded range
+    assert turning["points_at"] == "drive_clip" and "--effects builtins,drive_clip" in turning["reading"]
+    assert "points_at" not in cause_at(0.05)  # convex on 0–10 V: rises over all of it
