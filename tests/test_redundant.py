@@ -15,12 +15,13 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from diagnosis_helpers import diagnosis_of, step
 from scipy.signal import lfilter
 
 import hybrid
 from hybrid.discovery._decision import evaluate_candidate, free_names
 from hybrid.discovery._diagnose import final_fit, prepare_search
-from hybrid.discovery._diagnosis import EquallyGoodFits, HeldoutSignals
+from hybrid.discovery._diagnosis import EquallyGoodFits
 from hybrid.discovery._redundant import drop_redundant
 from hybrid.discovery._report import stepwise_section
 from hybrid.discovery._search import fit_lanes, initial_thetas, lane_tangents, padding_lane, with_active
@@ -173,26 +174,13 @@ def test_a_dropped_cause_is_reported_and_not_among_the_causes():
     """Diagnosis.causes skips it, report.json and report.md list it, the verdict says so."""
     search, final = _both_named(_recording(curvature=0.0))
     base, first = dataclasses.replace(final, name="none"), dataclasses.replace(final, name="saturation")
-    bar = EquallyGoodFits(n=0, heldout_nmse_min=float("nan"), heldout_nmse_max=float("nan"), definition="-")
-
-    def step(current, chosen):
-        return Step(current, [chosen], chosen, 0.0, [], bar, [])
-
-    three = np.arange(3.0)
-    diagnosis = hybrid.Diagnosis(
+    diagnosis = diagnosis_of(
+        search,
+        [step(base, first), step(first, final)],
         cause="drift",
         baseline=base,
         extended=final,
         candidates=[first],
-        uncertainties={},
-        evidence={},
-        hybrid=None,
-        settings=search.settings,
-        recordings=["r"],
-        seconds=0.0,
-        heldout=HeldoutSignals(three, three, three, three, three, np.zeros(3), np.zeros(3)),
-        steps=[step(base, first), step(first, final)],
-        effects=search.effects,
         dropped=[
             {
                 "name": "saturation",

@@ -200,12 +200,12 @@ def test_a_named_even_part_that_turns_near_the_end_carries_its_pointer_in_the_ca
     at a V²-like coefficient turning below the drive's range it points at nothing."""
     import dataclasses
 
+    from diagnosis_helpers import diagnosis_of, step
+
     import hybrid
     from hybrid.discovery._decision import evaluate_candidate
     from hybrid.discovery._diagnose import prepare_search
-    from hybrid.discovery._diagnosis import EquallyGoodFits, HeldoutSignals
     from hybrid.discovery._search import initial_thetas
-    from hybrid.discovery._step import Step
 
     rng = np.random.default_rng(3)
     u = np.repeat(rng.uniform(0.0, 10.0, 60), 30)
@@ -214,7 +214,6 @@ def test_a_named_even_part_that_turns_near_the_end_carries_its_pointer_in_the_ca
     search = prepare_search([recording], hybrid.LTI(1), hybrid.DiagnoseSettings(), ["drive_even"])
     problem, model = search.problem, search.model
     active = np.array([1.0, 1.0])  # drive_even and the frame timing
-    bar = EquallyGoodFits(n=0, heldout_nmse_min=float("nan"), heldout_nmse_max=float("nan"), definition="-")
 
     def cause_at(coefficient):
         start = model.simulation.with_active(active).replace(drive_even_coefficient=coefficient)
@@ -230,21 +229,9 @@ def test_a_named_even_part_that_turns_near_the_end_carries_its_pointer_in_the_ca
             search.frozen,
         )
         base = dataclasses.replace(cand, name="none")
-        three = np.arange(3.0)
-        found = hybrid.Diagnosis(
-            cause="drive_even",
-            baseline=base,
-            extended=cand,
-            candidates=[cand],
-            uncertainties={},
-            evidence={},
-            hybrid=None,
-            settings=search.settings,
-            recordings=["r"],
-            seconds=0.0,
-            heldout=HeldoutSignals(three, three, three, three, three, np.zeros(3), np.zeros(3)),
-            steps=[Step(base, [cand], cand, 0.0, [], bar, [])],
-            effects=search.effects,
+        steps = [step(base, cand)]
+        found = diagnosis_of(
+            search, steps, cause="drive_even", baseline=base, extended=cand, candidates=[cand]
         )
         (cause,) = found.causes
         return cause

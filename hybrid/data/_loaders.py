@@ -246,7 +246,7 @@ def _require(
         raise MissingName(
             f"recording '{path}' is missing {kind} {', '.join(missing)} (found "
             f"{shown}): name them exactly t, v_in and w (case-sensitive), or say which of "
-            f"yours are which, e.g. {example or mapping_example(list(found), time='t' if 't' in found else None)}",
+            f"yours are which, e.g. {example or mapping_example(list(found))}",
             missing[0],
         )
 
@@ -452,9 +452,9 @@ def mapping_example(
     # a name close to the project's own (a typo: v_inn, v_in_cmd) takes its role before column order does:
     # in t,w_true,v_inn,w the first name left, w_true, was offered as the drive
     for role, own in (("input", "v_in"), ("output", "w")):
-        close = [i for i in rest if _CLOSE <= difflib.SequenceMatcher(None, names[i].lower(), own).ratio()]
-        if role not in roles and close:
-            best = max(close, key=lambda i: difflib.SequenceMatcher(None, names[i].lower(), own).ratio())
+        alike = {i: difflib.SequenceMatcher(None, names[i].lower(), own).ratio() for i in rest}
+        best = max(alike, key=alike.__getitem__, default=None)
+        if role not in roles and best is not None and alike[best] >= _CLOSE:
             roles[role] = best
             rest.remove(best)
     for role in ("input", "output"):
@@ -968,8 +968,7 @@ def _csv_header(
     timed = [name for name, unit in zip(header, units) if name and is_time_unit(unit)]
     rate_known = any(name.lower() in RATE_FIELDS for name in given)
     # the project's own names keep their roles (a typo'd v_inn beside an exact w: output=w, not a w_true)
-    time = timed[0] if timed else "t" if "t" in header else None
-    example = mapping_example(header, rate_known, time, {*given, *counts})
+    example = mapping_example(header, rate_known, timed[0] if timed else None, {*given, *counts})
     repeated = sorted({c for c in named if named.count(c) > 1})
     if repeated:  # a scope's header of units (Second,Volt,Volt): the columns go by number
         raise InputError(

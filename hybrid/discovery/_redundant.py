@@ -155,7 +155,7 @@ def drop_redundant(search, final: Candidate, present: tuple[str, ...], baseline:
         (cause,) = kept
         with_it = dataclasses.replace(final, name=cause, reasons=[])
         with_it.material, with_it.materiality = materiality_of(
-            problem, final.theta, final.active, cause, settings.materiality
+            s.problem, final.theta, final.active, cause, settings.materiality
         )
         weigh([with_it], baseline, NO_BAR, settings)
         if not with_it.eligible:
