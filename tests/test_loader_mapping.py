@@ -654,3 +654,28 @@ def test_a_time_column_in_micro_or_milliseconds_is_told_by_its_step(tmp_path, st
     assert load_mapped(path, input="u", output="y", time="time", units=f"t={unit}").rate == pytest.approx(
         rate
     )
+
+
+def test_units_alone_on_a_file_without_the_project_s_columns_name_what_it_lacks(tmp_path):
+    """A probe's `hybrid diagnose stair.csv col.csv --units v_in=V,w=rad/s`, the second file's output
+    named `speed`, was told "no input column is named: give the input's column": with only --units (or
+    --rate, --range) given, a file is read by its own t, v_in, w, and where that fails the error is
+    what the file lacks or holds (as without --units), not that no mapping was given."""
+    t = np.arange(200) / 20.0
+    lacking = tmp_path / "speed.csv"
+    np.savetxt(lacking, np.c_[t, np.sin(t), np.cos(t)], delimiter=",", header="t,v_in,speed", comments="")
+    with pytest.raises(InputError, match=r"has no column 'w' for the output .*--output speed"):
+        load_mapped(lacking, units={"v_in": "V", "w": "rad/s"})
+    holed = np.c_[t, np.sin(t), np.cos(t)]
+    holed[50, 2] = np.nan
+    standard = tmp_path / "hole.csv"
+    np.savetxt(standard, holed, delimiter=",", header="t,v_in,w", comments="")
+    with pytest.raises(InputError, match=r"non-finite value 'nan' in column 'w' .* line 52"):
+        load_mapped(standard, units={"v_in": "V", "w": "rad/s"})
+    without_time = tmp_path / "no_t.csv"
+    np.savetxt(without_time, holed[:, 1:], delimiter=",", header="v_in,w", comments="")
+    with pytest.raises(InputError, match=r"non-finite value 'nan' in column 'w'"):
+        load_mapped(without_time, rate=20.0)
+    holed[50, 2] = 0.0  # and a whole file reads as before
+    np.savetxt(standard, holed, delimiter=",", header="t,v_in,w", comments="")
+    assert load_mapped(standard, units={"v_in": "V", "w": "rad/s"}).metadata["units"]["w"] == "rad/s"

@@ -107,21 +107,23 @@ DEFAULT_UNITS: dict[str, str] = {"t": "s", "v_in": "V", "w": "a.u."}
 RATE_RTOL: float = 1e-4
 
 
-def _standard_roles(path, require_w: bool, fill: bool) -> tuple[dict[str, str], tuple] | None:
+def _standard_roles(path, require_w: bool, fill: bool) -> tuple[dict[str, str], tuple] | InputError | None:
     """(``t``, ``v_in``, ``w`` mapped to themselves, `read_columns`'s result, `fill` as its) where the file has
-    them (``t`` optional), else None."""
+    them (``t`` optional); else why not: the error of a reading whose columns the file has (a missing value,
+    a bad cell), or of the first (the names it lacks); None where it is no file the mapped reader takes."""
     try:
         suffix = check_file(path, MAPPED_SUFFIXES)
     except InputError:
         return None
+    errors: list[InputError] = []
     for roles in ({"t": "t", "v_in": "v_in", "w": "w"}, {"v_in": "v_in", "w": "w"}):
         if not require_w:
             roles = {k: v for k, v in roles.items() if k != "w"}
         try:
             return roles, read_columns(path, suffix, roles, fill=fill)
-        except InputError:
-            continue
-    return None
+        except InputError as error:
+            errors.append(error)
+    return next((e for e in errors if not isinstance(e, MissingName)), errors[0])
 
 
 def load_mapped(
@@ -195,6 +197,8 @@ def load_mapped(
             standard = _standard_roles(paths[0], require_w, fill)
         if standard is None:
             raise
+        if isinstance(standard, InputError):  # no mapping given: what the file lacks, or what is wrong in it
+            raise standard from None
         roles, read = standard
         defaults = UNITS  # the project's own columns, as `Recording.load` reads them (V, mm)
     if set(roles.items()) >= {("v_in", "v_in"), ("w", "w")} and roles.get("t", "t") == "t":
