@@ -46,11 +46,7 @@ from .util._cores import use_cpu_cores, use_quick_compiles
 from .util._errors import InputError
 from .util._stdout import reader_may_leave
 from .util._watchdog import Watchdog, stage
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit 2 (argparse would print the usage too)
-        raise InputError(f"{message} (see `{self.prog} --help`)")
+from .util.bounds import Parser
 
 
 def _float_list(text: str) -> tuple[float, ...]:
@@ -66,8 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     from .data._drives import DRIVES
     from .util import bounds as B
 
-    parser = _Parser(prog="hybrid", description="Hybrid physics-ML identification of IPMC actuators.")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser = Parser(prog="hybrid", description="Hybrid physics-ML identification of IPMC actuators.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     p = sub.add_parser("simulate", help="record the virtual IPMC under a drive (CSV t,v_in,w,w_true)")
     which = p.add_mutually_exclusive_group(required=True)

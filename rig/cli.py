@@ -20,26 +20,15 @@ import argparse
 import math
 import os
 import pathlib
-import re
 import signal
 import sys
 import threading
 
 from hybrid import InputError
 from hybrid.util import Watchdog, reader_may_leave
+from hybrid.util.bounds import Parser
 
 from ._errors import Terminated
-
-
-class _Parser(argparse.ArgumentParser):
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        # `--clamp -5,120` is a value, not an option: argparse takes only a plain negative number
-        # (-5, -0.5) for one, and said "argument --clamp: expected one argument"
-        self._negative_number_matcher = re.compile(r"^-\.?\d")
-
-    def error(self, message):
-        raise InputError(f"{message} (see `{self.prog} --help`)")
 
 
 def _numbers(count_min: int, count_max: int, what: str):
@@ -165,8 +154,8 @@ def _scene_args(p, track: bool = False):
 def build_parser() -> argparse.ArgumentParser:
     from hybrid import DRIVES
 
-    parser = _Parser(prog="rig", description="IPMC rig: DAC streaming, camera, tip tracking, recordings.")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser = Parser(prog="rig", description="IPMC rig: DAC streaming, camera, tip tracking, recordings.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     sub.add_parser("ports", help="list serial ports")
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 
 from ._errors import InputError
 
@@ -31,6 +32,23 @@ WIDTH = (1, 1000)  # neurons per hidden layer
 SOBOL = (0, 100_000)  # Sobol base samples (0: skip)
 BLOCKS = (1, 10_000)
 SETTLE_MAX = 10_000_000  # samples of held drive before a record (--settle)
+
+
+class Parser(argparse.ArgumentParser):
+    """The command lines' parser: an error is one line (`InputError`, exit 2), and a value may be negative.
+
+    argparse prints its usage before an error, and takes a value that starts with "-" for an option
+    unless it is a plain negative number (-5, -0.5): ``hybrid design --bounds -5:0`` and ``rig track
+    --clamp -5,120`` ended in "argument …: expected one argument". Any token that starts with a
+    minus and a digit is a value here: no option of hybrid's or rig's is named so.
+    """
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
+    def error(self, message):
+        raise InputError(f"{message} (see `{self.prog} --help`)")
 
 
 def integer(low: int | None, high: int):
