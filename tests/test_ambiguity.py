@@ -624,6 +624,32 @@ def test_a_rising_drive_blames_level_and_time_only_between_an_effect_of_time_and
         assert any("level and time are correlated" in why for why in entry["why"]) is blamed, entry["why"]
 
 
+def test_each_sentence_gives_the_reasons_of_its_own_rivals_and_gains_that_read_apart():
+    """A probe's staircase (its own motor, a mild output saturation) named `saturation` (gain 6.5912),
+    with `drift` it cannot tell apart and `drive_saturation` (gain 6.5875) it fits significantly better:
+    both sentences said "the drive's level and time are correlated", which says nothing of two effects
+    of the level, and the second read "saturation (gain 6.59) … better than drive_saturation (gain 6.59)"."""
+    rng = np.random.default_rng(4)
+    noise = rng.normal(size=600)
+    staircase = [np.repeat(np.linspace(0.2, 2.0, 8), 75)]  # level rises with time: |r| = 1
+    effects = hybrid.resolve_effects(["saturation", "drive_saturation", "drift"])
+    named = _candidate("saturation", 6.5912, noise, eligible=True)
+    level = _candidate("drive_saturation", 6.5875, noise + 0.3, eligible=True)  # worse on every sample
+    time = _candidate("drift", 6.0, -noise, eligible=True)  # as large an error on every sample
+    step = SimpleNamespace(chosen=named, current=None, candidates=[named, level, time], bar=1.0)
+    (entry,) = ambiguities([step], noise, 1.0, staircase, RATE, effects)
+    by_name = {r["name"]: r for r in entry["rivals"]}
+    assert by_name["drive_saturation"]["named_better"] and not by_name["drift"]["named_better"]
+    assert by_name["drive_saturation"]["why"] == [] and len(by_name["drift"]["why"]) == 1
+    cannot, close = sentence(entry).split(" Another drive is needed to separate them. ")
+    assert "cannot tell step 1's saturation (gain 6.59) from drift (gain 6)" in cannot
+    assert "level and time are correlated" in cannot
+    assert (
+        "(gain 6.591) fits the held-out part significantly better than drive_saturation (gain 6.588)" in close
+    )
+    assert "level and time" not in close
+
+
 def test_at_the_floor_a_drift_the_rising_level_hides_opens_the_step_on_its_training_evidence():
     """A material effect of time that passes the BIC rule on training but not held out, on a rising drive.
 

@@ -292,6 +292,7 @@ def ambiguities(
             rival = _rival(named, c, scale, noise_std)
             # neither the sign test nor the mean's tells them apart, or they predict alike to the noise
             if small or not rival["named_better"] or rival["within_noise"]:
+                rival["why"] = _why(named, [c.name], step.candidates, drives, rate, effects)  # its own
                 rivals.append({**rival, "too_small": True} if small else rival)
         if rivals:
             out.append(
@@ -404,10 +405,32 @@ def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[s
     return out
 
 
+def _reasons(entry: dict, rivals: list[dict]) -> str:
+    """The reasons (``why``) that concern `rivals`, each rival's own where the entry gives them, in order.
+
+    A probe's staircase named `saturation` with `drift` and `drive_saturation` its rivals: "the drive's
+    level and time are correlated" was said of the drive's saturation too, a second effect of the level.
+    """
+    if not all("why" in r for r in rivals):  # an entry written before each rival had its own
+        return "; ".join(entry["why"])
+    return "; ".join(reason for reason in entry["why"] if any(reason in r["why"] for r in rivals))
+
+
+def _gains(named_gain: float, rivals: list[dict]) -> int:
+    """Significant digits that tell the gains of one sentence apart (3, up to 6): 6.5912 and 6.5875 both
+    read 6.59 at 3."""
+    gains = [named_gain, *(r["gain"] for r in rivals)]
+    for digits in range(3, 7):
+        shown = [f"{g:.{digits}g}" for g in gains]
+        if len(set(shown)) == len(set(gains)):
+            return digits
+    return 6
+
+
 def sentence(entry: dict) -> str:
     """report.md's sentence for one ``ambiguous`` entry."""
     rivals = _listed(entry["rivals"])
-    why = "; ".join(entry["why"])
+    why = _reasons(entry, entry["rivals"])
     if entry.get("open"):
         if entry.get("evidence") == "confound":
             r = entry["rivals"][0]
@@ -441,21 +464,27 @@ def sentence(entry: dict) -> str:
     alike = [r for r in entry["rivals"] if not r.get("too_small") and not _named_better(r)]
     close = [r for r in entry["rivals"] if not r.get("too_small") and _named_better(r)]
     small = [r for r in entry["rivals"] if r.get("too_small")]
-    named = f"step {entry['step']}'s {entry['named']} (gain {entry['gain']:.3g})"
     out = []
     if alike:
+        digits = _gains(entry["gain"], alike)
+        named = f"step {entry['step']}'s {entry['named']} (gain {entry['gain']:.{digits}g})"
         how = "on the held-out part the named cause is not significantly better (sign test, mean)"
         if all(r["within_noise"] for r in alike):
             how += ", and their predictions differ by less than the noise"
+        why = _reasons(entry, alike)
         out.append(
-            f"This recording cannot tell {named} from {_listed(alike)}: {how}"
+            f"This recording cannot tell {named} from {_listed(alike, digits)}: {how}"
             + (f" ({why})." if why else ".")
             + " Another drive is needed to separate them."
         )
     if close:  # within the noise, yet the tests prefer the named cause: say both, not "cannot tell"
+        digits = _gains(entry["gain"], close)
+        named = f"step {entry['step']}'s {entry['named']} (gain {entry['gain']:.{digits}g})"
         p = max(min(r["p_value"], r["mean_p_value"]) for r in close)
+        why = _reasons(entry, close)
         out.append(
-            f"{named[0].upper()}{named[1:]} fits the held-out part significantly better than {_listed(close)} "
+            f"{named[0].upper()}{named[1:]} fits the held-out part significantly better than "
+            f"{_listed(close, digits)} "
             f"(p ≤ {p:.2g}), yet their held-out predictions differ by less than the noise: on this drive "
             f"{'the two are' if len(close) == 1 else 'they are all'} close, and the name rests on differences "
             "smaller than the noise"
@@ -479,5 +508,5 @@ def _named_better(rival: dict) -> bool:
     return rival.get("named_better", rival["p_value"] <= ALPHA or rival["mean_p_value"] <= ALPHA)
 
 
-def _listed(rivals: list[dict]) -> str:
-    return ", ".join(f"{r['name']} (gain {r['gain']:.3g})" for r in rivals)
+def _listed(rivals: list[dict], digits: int = 3) -> str:
+    return ", ".join(f"{r['name']} (gain {r['gain']:.{digits}g})" for r in rivals)

@@ -81,7 +81,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: beside; empty: against the effect-free baseline, where it was the one left after a drop); a cause's
 #: ``points_at`` (the effect searched only when named that its fit stands in for,
 #: `AbstractEffect.points_at`); an even part's ``derived`` gains ``turn_percent_of_range`` (where its map
-#: turns, from the end it rises from, beyond 100 where past the range).
+#: turns, from the end it rises from, beyond 100 where past the range); each ``ambiguous`` rival of a
+#: named cause's ``why`` (the entry's reasons that concern that rival: a level and time correlated says
+#: nothing of two effects of the level).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
