@@ -831,9 +831,11 @@ def test_a_final_model_bent_out_of_its_plausible_range_or_on_a_scale_of_its_own_
     assert "(V)" in scaled[0]
     assert "upside down" not in scaled[0] and "step between units" not in scaled[0]
     assert "fixed already" not in scaled[0]  # nothing frozen: the scale may be free
-    # a scale fixed already (a chamber user's conductance frozen at its true value): the gain is the fit's
+    # a scale fixed already (a chamber user's conductance frozen at its true value): the gain is the fit's,
+    # or the fixed value is off by it (a probe's motor constant frozen at 10 for a true 12: gain 1.2)
     (bent_scale,) = model_warnings(model(0.1, 0.2438), frozenset({"zeta"}))
     assert "fixed already (zeta here)" in bent_scale and "take up an effect it lacks" in bent_scale
+    assert "its fixed value is 0.244× off" in bent_scale
     # a negative gain: the output is the simulation's upside down (a current's sign flipped)
     (flipped,) = model_warnings(model(0.1, -0.9), frozenset())
     assert "upside down" in flipped and "step between units" not in flipped

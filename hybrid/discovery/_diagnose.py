@@ -715,10 +715,11 @@ def model_warnings(model: Model, frozen, rate: float | None = None) -> list[str]
                 "sets it (frozen_by_default in the plug-in, docs/plugins.md)"
             )
             held = sorted(n for n in frozen if n in model.simulation.parameters())
-            if held:  # the scale may be fixed already: then the gain is the fit's, bent by what it lacks
+            if held:  # the scale may be fixed already: then its value is off, or the fit bent to what it lacks
                 advice += (
-                    f"; where one that sets it is fixed already ({', '.join(held)} here), the gain is not a scale "
-                    "left free but the fit bending the simulation to take up an effect it lacks"
+                    f"; where one that sets it is fixed already ({', '.join(held)} here), the gain says that its "
+                    f"fixed value is {abs(g):.3g}× off (a motor constant, a sensor's sensitivity from a datasheet), "
+                    "or that the fit bent the simulation to take up an effect it lacks"
                 )
             said.append(advice)
         out.append(said[0] + ": " + "; ".join(said[1:]))
