@@ -648,6 +648,9 @@ def test_each_sentence_gives_the_reasons_of_its_own_rivals_and_gains_that_read_a
         "(gain 6.591) fits the held-out part significantly better than drive_saturation (gain 6.588)" in close
     )
     assert "level and time" not in close
+    # two recordings diagnosed together are "these recordings"
+    (entry,) = ambiguities([step], noise, 1.0, [*staircase, *staircase], RATE, effects)
+    assert entry["recordings"] == 2 and sentence(entry).startswith("These recordings cannot tell step 1's")
 
 
 def test_at_the_floor_a_drift_the_rising_level_hides_opens_the_step_on_its_training_evidence():

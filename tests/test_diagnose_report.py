@@ -444,3 +444,14 @@ def test_the_all_clear_names_the_bound_it_is_under():
     }
     text = "\n".join(noise_section(d))
     assert "within 2× the floor's upper bound (its estimate + 2 standard errors): nothing is left" in text
+
+
+def test_a_remainder_near_the_unexplained_ratio_is_not_rounded_onto_it():
+    """A probe's remainder at 1.996× the floor read "2× the measurement noise floor, under the 2× above
+    which it is called unexplained": the ratio is given to the digits that keep it on its side."""
+    from hybrid.discovery._verdict import _beside
+
+    assert _beside(1.996, 2.0) == "1.996" and _beside(2.004, 2.0) == "2.004"
+    assert _beside(1.5, 2.0) == "1.5" and _beside(2.7, 2.0) == "2.7"  # two digits where they do
+    for ratio in np.linspace(1.9, 2.1, 41):
+        assert (float(_beside(ratio, 2.0)) < 2.0) == (ratio < 2.0)

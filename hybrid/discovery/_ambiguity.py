@@ -302,6 +302,7 @@ def ambiguities(
                     "gain": named.gain,
                     "rivals": rivals,
                     "why": _why(named, [r["name"] for r in rivals], step.candidates, drives, rate, effects),
+                    "recordings": len(drives),
                 }
             )
     return out
@@ -379,6 +380,7 @@ def _open_step(
             "evidence": evidence,
             "rivals": rivals,
             "why": _why(current, [r["name"] for r in rivals], step.candidates, drives, rate, effects),
+            "recordings": len(drives),
         }
     ]
 
@@ -431,6 +433,7 @@ def sentence(entry: dict) -> str:
     """report.md's sentence for one ``ambiguous`` entry."""
     rivals = _listed(entry["rivals"])
     why = _reasons(entry, entry["rivals"])
+    these = "these recordings" if entry.get("recordings", 1) > 1 else "this recording"
     if entry.get("open"):
         if entry.get("evidence") == "confound":
             r = entry["rivals"][0]
@@ -451,13 +454,13 @@ def sentence(entry: dict) -> str:
                 f"held-out part better in significantly many pieces (sign test p = {r['candidate_p_value']:.2g}"
                 + (", the first" if len(entry["rivals"]) > 1 else "")
                 + "): "
-                "too small to name on this recording, so whether it is there is open"
+                f"too small to name on {these}, so whether it is there is open"
                 + (f" ({why})." if why else ".")
                 + " A drive designed to separate them (hybrid design) would tell."
             )
         return (
-            f"Step {entry['step']} named nothing, yet the model leaves a remainder above the noise floor: this "
-            f"recording cannot tell whether {rivals} or nothing of the library is missing"
+            f"Step {entry['step']} named nothing, yet the model leaves a remainder above the noise floor: {these} "
+            f"cannot tell whether {rivals} or nothing of the library is missing"
             + (f" ({why})." if why else ".")
             + " A drive designed to separate them (hybrid design) would tell."
         )
@@ -473,7 +476,7 @@ def sentence(entry: dict) -> str:
             how += ", and their predictions differ by less than the noise"
         why = _reasons(entry, alike)
         out.append(
-            f"This recording cannot tell {named} from {_listed(alike, digits)}: {how}"
+            f"{these[0].upper()}{these[1:]} cannot tell {named} from {_listed(alike, digits)}: {how}"
             + (f" ({why})." if why else ".")
             + " Another drive is needed to separate them."
         )

@@ -269,7 +269,7 @@ def diagnose(
     rates = {round(r.rate, 9) for r in recordings}
     if len(rates) > 1:
         raise InputError(
-            f"recordings of one strip must share a sample rate, got {sorted(rates)} Hz: resample first"
+            f"recordings diagnosed together must share a sample rate, got {sorted(rates)} Hz: resample first"
         )
     for r in recordings:  # before any fitting: a constant column would fail only after minutes
         r.check_length(

@@ -83,7 +83,7 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: `AbstractEffect.points_at`); an even part's ``derived`` gains ``turn_percent_of_range`` (where its map
 #: turns, from the end it rises from, beyond 100 where past the range); each ``ambiguous`` rival of a
 #: named cause's ``why`` (the entry's reasons that concern that rival: a level and time correlated says
-#: nothing of two effects of the level).
+#: nothing of two effects of the level), and each entry's ``recordings`` (how many were diagnosed together).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {

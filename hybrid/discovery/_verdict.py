@@ -129,8 +129,9 @@ def _headline(diagnosis) -> str:
             return (
                 head
                 + (
-                    f"; what remains is {ratio:.2g}× the measurement noise floor, "
-                    f"{_under(ratio, diagnosis.settings.unexplained_ratio)} above which it is called unexplained: a perfect "
+                    f"; what remains is {_beside(ratio, diagnosis.settings.unexplained_ratio)}× the measurement "
+                    f"noise floor, {_under(ratio, diagnosis.settings.unexplained_ratio)} above which it is called "
+                    "unexplained: a perfect "
                     "model would reach 1×, and an effect too small for the rules on this recording, or one outside "
                     "the library, may still take it nearer."
                 )
@@ -214,6 +215,16 @@ def _noise_hides(diagnosis, base_mse: float, var_w: float, floor: float) -> str:
         f"however well it is modelled, so one that size may be missing unseen{fits}; a quieter recording, or a "
         "larger drive where the effect grows with it, would tell."
     )
+
+
+def _beside(ratio: float, limit: float) -> str:
+    """`ratio` to two significant digits, or more where those would put it on the other side of `limit`
+    (or on it): a probe's 1.996 read "2× the … floor, under the 2×"."""
+    for digits in range(2, 7):
+        text = f"{ratio:.{digits}g}"
+        if (float(text) < limit) == (ratio < limit) and float(text) != limit:
+            return text
+    return text
 
 
 def _under(ratio: float, limit: float) -> str:
