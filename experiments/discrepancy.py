@@ -164,8 +164,9 @@ def _table(rows, effects, causes) -> str:
 ALL_CLEAR = 2.0
 
 #: Effects outside the generator's library list that a later library describes: a hidden
-#: ``electrostatic`` is *found* when `diagnose` names this cause (when `CAUSES` has it).
-FOUND_AS = {"electrostatic": "even_response"}
+#: ``electrostatic`` is *found* when `diagnose` names this cause (when `CAUSES` has it), and a
+#: ``dead_zone`` (on the cascade's output, before the readout) when it names the output's ``dead_band``.
+FOUND_AS = {"electrostatic": "even_response", "dead_zone": "dead_band"}
 
 
 def expected_names(hidden: list[str], causes) -> tuple[list[str], list[str]]:

@@ -40,7 +40,11 @@ def test_a_heater_that_stops_sharply_is_named_drive_clip_by_the_default_set(tmp_
     assert run.returncode == 0, run.stderr[-2000:]
     report = json.loads((tmp_path / "d" / "report.json").read_text())
     refined_ = report["evidence"]["refined"]
-    assert refined_["swaps"] == {"saturation": "clip", "drive_saturation": "drive_clip"}, refined_
+    assert refined_["swaps"] == {
+        "saturation": "clip",
+        "drive_dead_zone": "dead_band",
+        "drive_saturation": "drive_clip",
+    }, refined_
     assert refined_["kept"], refined_
     assert refined_["gain_over_first"] >= 1.5
     assert [c["name"] for c in report["causes"]] == ["drive_clip"], report["verdict"]
@@ -48,7 +52,10 @@ def test_a_heater_that_stops_sharply_is_named_drive_clip_by_the_default_set(tmp_
     level = 1 / report["parameters"]["drive_clip_pos_curvature"]["value"]
     assert level == pytest.approx(TOP, rel=0.01)
     assert report["settings"]["refine"] is True
-    tried = "diagnosed again with clip in place of saturation and drive_clip in place of drive_saturation"
+    tried = (
+        "diagnosed again with clip in place of saturation, dead_band in place of drive_dead_zone and drive_clip "
+        "in place of drive_saturation"
+    )
     assert f"refined: {tried}" in run.stdout
     assert f"**Refined.** D{tried[1:]}" in (tmp_path / "d" / "report.md").read_text()
 
@@ -70,7 +77,9 @@ def test_refinable_takes_a_named_cause_s_refinement_and_the_one_the_remainder_po
 
     # every refinement at once, the other place's too: a drive's clip read through the dynamics as a tanh
     # on the output, and the output's clip was all the second run could name
-    both = {"drive_saturation": "drive_clip", "saturation": "clip"}
+    both = {"drive_saturation": "drive_clip", "saturation": "clip", "drive_dead_zone": "dead_band"}
+    # a named dead zone of the drive is tried as the output's dead band too (a probe's sensor dead band)
+    assert swaps(BUILTINS, ["drive_dead_zone"]) == both
     assert swaps(BUILTINS, ["drive_saturation"]) == both
     assert swaps(BUILTINS, ["saturation", "delay"]) == both
     # nothing unexplained, but 1.8× the floor left: a clip may still gain the 1.5× asked (a sensor's clip)
@@ -82,8 +91,8 @@ def test_refinable_takes_a_named_cause_s_refinement_and_the_one_the_remainder_po
     crowded = ["drive_saturation", "friction_velocity", "drive_dead_zone"]
     assert swaps(BUILTINS, crowded, left=None, room=1.1) == both
     assert swaps(BUILTINS, ["delay", "lag", "drift"], left=None, room=1.1) == {}  # no saturation among them
-    assert refinement_reason(crowded, 1.1, 1.5, None) == (
-        "a saturation was named beside 2 other causes, which a clip's sharp knee may stand for"
+    assert refinement_reason(crowded, 1.1, 1.5, None, swaps=swaps(BUILTINS, crowded, None, 1.1)) == (
+        "drive_saturation was named beside 2 other causes, which drive_clip in its place may stand for"
     )
     assert refinement_reason(crowded, 1.8, 1.5, None) == "something was left above the noise"
     # the remainder's pointer is followed whatever is named
@@ -93,7 +102,10 @@ def test_refinable_takes_a_named_cause_s_refinement_and_the_one_the_remainder_po
     assert swaps(BUILTINS, ["drive_even"], left={"description": {"named_only": "creep"}}) == {}
     # a refinement searched already, or a set without the built-ins: nothing
     assert swaps([*BUILTINS, *_effects("drive_clip")], ["drive_saturation"]) == {}
-    assert swaps([*BUILTINS, *_effects("drive_clip")], ["saturation"]) == {"saturation": "clip"}
+    assert swaps([*BUILTINS, *_effects("drive_clip")], ["saturation"]) == {
+        "saturation": "clip",
+        "drive_dead_zone": "dead_band",
+    }
     assert swaps(_effects("drive_saturation", "delay"), ["drive_saturation"]) == {}
     swapped = [getattr(e, "name", e) for e in refined_effects(BUILTINS, {"drive_saturation": "drive_clip"})]
     assert "drive_clip" in swapped and "drive_saturation" not in swapped
@@ -117,7 +129,7 @@ def test_a_named_even_part_that_turns_down_near_the_end_of_the_range_points_at_t
     assert even.points_at({"rising_percent_of_range": 100.0, "turn_percent_of_range": 130.0}) is None
     # the pointer alone (nothing left above the noise, no saturation named) tries the clip in each place
     pointed = refinable(BUILTINS, ["drive_even"], None, BUILTINS, 1.0, 1.5, {"drive_even": "drive_clip"})
-    assert pointed == {"drive_saturation": "drive_clip", "saturation": "clip"}
+    assert pointed == {"drive_saturation": "drive_clip", "saturation": "clip", "drive_dead_zone": "dead_band"}
     assert refinable(BUILTINS, ["drive_even"], None, BUILTINS, 1.0, 1.5) == {}
     assert refinement_reason(["drive_even"], 1.0, 1.5, None, {"drive_even": "drive_clip"}) == (
         "drive_even's fit reads as drive_clip"

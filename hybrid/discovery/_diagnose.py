@@ -568,7 +568,7 @@ def diagnose(
     )
     if not swaps:
         return found
-    why = refinement_reason(kept, room, settings.min_gain, unexplained, pointers)
+    why = refinement_reason(kept, room, settings.min_gain, unexplained, pointers, swaps)
     say(f"{why}: again with {', '.join(f'{b} for {a}' for a, b in swaps.items())}")
     try:
         again = diagnose(
@@ -715,7 +715,8 @@ def model_warnings(model: Model, frozen, rate: float | None = None) -> list[str]
                 "sets it (frozen_by_default in the plug-in, docs/plugins.md)"
             )
             held = sorted(n for n in frozen if n in model.simulation.parameters())
-            if held:  # the scale may be fixed already: then its value is off, or the fit bent to what it lacks
+            # the scale may be fixed already: then its value is off, or the fit bent to what it lacks
+            if held:
                 advice += (
                     f"; where one that sets it is fixed already ({', '.join(held)} here), the gain says that its "
                     f"fixed value is {abs(g):.3g}× off (a motor constant, a sensor's sensitivity from a datasheet), "

@@ -27,6 +27,7 @@ from ._effects import (
     BaselineDrift,
     Clip,
     Creep,
+    DeadBand,
     Delay,
     Drift,
     DriveClip,
@@ -69,7 +70,9 @@ EFFECTS: dict[str, type[AbstractEffect]] = {
 #: (a piezo's creep, an amplifier's hard clip) but that the default set's lanes would pay for on every
 #: recording, or whose extra freedom would stand in for other effects there (a clip's free knee, soft,
 #: took a drift under a rising level).
-NAMED_ONLY: dict[str, type[AbstractEffect]] = {cls.name: cls for cls in (Creep, Clip, DriveClip, Line)}
+NAMED_ONLY: dict[str, type[AbstractEffect]] = {
+    cls.name: cls for cls in (Creep, Clip, DriveClip, Line, DeadBand)
+}
 #: Names an effect may not take: the search's words for "no effect", the always-on frame timing and
 #: `EffectStack.signals_into`'s key for the drive that reaches the simulation.
 RESERVED = ("none", "frame_timing", "drive")

@@ -41,9 +41,10 @@ Searched only when named (``NAMED_ONLY`` of `hybrid.discovery._effect_set`):
 ``creep`` (`Creep`), ``clip`` and ``drive_clip`` (`Clip`, `DriveClip`: the
 saturations with the knee's sharpness n fitted, sgn(s)·tanh(|κs|ⁿ)^(1/n)/|κ|,
 a hard clip at ±1/|κ| as n grows; parameters ``<name>_pos_curvature``,
-``<name>_neg_curvature``, ``<name>_sharpness``), and ``line`` (`Line`: a
+``<name>_neg_curvature``, ``<name>_sharpness``), ``line`` (`Line`: a
 sinusoid added to the output, ``line_frequency_hz``, ``line_cos``,
-``line_sin``).
+``line_sin``), and ``dead_band`` (`DeadBand`: s − clip(s, −d, d) on the
+output, ``dead_band_width`` d in V).
 
 - Back-relaxation: under a held voltage the bending charge diffuses back; the
   step response peaks, then relaxes by the fraction β with time constant τ.
@@ -215,9 +216,11 @@ class AbstractEffect(eqx.Module):
       the recording, the report gives each as recorded too, in w's unit.
     - `reading(parameters, output_unit)`: what the fit means physically, where the
       name alone could mislead (default: nothing).
-    - `refinement`: the name of an effect whose form contains this one's and
-      one more freedom (a saturation's knee of any sharpness, `Clip`), searched
-      only when named: where this effect is named and something is left
+    - `refinement`: the name of an effect searched only when named that a fit
+      of this one can stand in for: one whose form contains this one's and one
+      more freedom (a saturation's knee of any sharpness, `Clip`), or the same
+      form in another place (the drive's dead zone for the output's,
+      `DeadBand`). Where this effect is named and something is left
       unexplained, `diagnose` tries the refinement in its place
       (`DiagnoseSettings.refine`). None (the default): none.
     - `points_at(parameters)`: the effect searched only when named that a fit
@@ -1335,6 +1338,7 @@ class DriveDeadZone(AbstractEffect):
     raw: dict[str, Array]
     name: ClassVar[str] = "drive_dead_zone"
     place: ClassVar[str] = "drive"
+    refinement: ClassVar[str | None] = "dead_band"  # the same form on the output, which it can stand in for
     n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
     constraints: ClassVar = {"drive_dead_zone_width": Positive()}
     units: ClassVar = {"drive_dead_zone_width": "{signal}"}
@@ -1360,6 +1364,49 @@ class DriveDeadZone(AbstractEffect):
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("drive_dead_zone_percent", 0.0), thresholds["drive_dead_zone_percent"]
         return size >= need, f"dead zone {size:.1f} % of the largest drive (needs ≥ {need} %)"
+
+
+class DeadBand(AbstractEffect):
+    """On the output: s ↦ s − clip(s, −d, d), nothing recorded while |s| ≤ d.
+
+    A sensor or a linkage to it that does not register until the output has
+    moved a width d (unit of the signal) from rest: stiction between the strip
+    and its clamp, a gauge's threshold, a digital filter's dead band. The drive's
+    dead zone (`DriveDeadZone`) is filtered by the dynamics before anything is
+    recorded; this one is not. Searched when named (``--effects
+    builtins,dead_band``; `NAMED_ONLY`), and tried in the drive dead zone's place
+    where that is named and leaves something unexplained (its `refinement`): a
+    probe's sensor dead band on a 1 Hz oscillator read `drive_dead_zone` (gain
+    3.2) with 79 % of the rest "static on the model's output". ``derived``
+    reports d as a percentage of the largest |s|.
+    """
+
+    raw: dict[str, Array]
+    name: ClassVar[str] = "dead_band"
+    constraints: ClassVar = {"dead_band_width": Positive()}
+    units: ClassVar = {"dead_band_width": "{signal}"}
+    defaults: ClassVar = {"dead_band_width": 0.01}
+    thresholds: ClassVar = {"dead_band_percent": 3.0}
+
+    def __init__(self, **values):
+        init_values(self, values)
+
+    def apply(self, s, dt):
+        d = self.parameters()["dead_band_width"]
+        return s - jnp.clip(s, -d, d)
+
+    def derived(self, s, dt):
+        top = float(np.max(np.abs(s))) if len(s) else 0.0
+        d = float(self.parameters()["dead_band_width"])
+        return {"dead_band_percent": 100.0 * d / top if top > 0 else 0.0}
+
+    def starts(self, context):
+        top = signal_top(context.signal)
+        return [{"dead_band_width": 0.05 * top}, {"dead_band_width": 0.2 * top}]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("dead_band_percent", 0.0), thresholds["dead_band_percent"]
+        return size >= need, f"dead band {size:.1f} % of the largest output (needs ≥ {need} %)"
 
 
 def play(u, half_width, initial=0.0):

@@ -37,7 +37,7 @@ from typing import Any
 CROWDED = 3
 #: Why a refinement is tried, as its sentence says it.
 LEFT_ABOVE = "something was left above the noise"
-CROWDED_WHY = "a saturation was named beside {others} other causes, which a clip's sharp knee may stand for"
+CROWDED_WHY = "{cause} was named beside {others} other causes, which {target} in its place may stand for"
 POINTED_WHY = "{cause}'s fit reads as {target}"
 
 
@@ -80,16 +80,20 @@ def refined_effects(effects, swaps: dict[str, str]) -> list:
     return [e for e in effects if e.name not in swaps] + list(swaps.values())
 
 
-def refinement_reason(kept, room: float, min_gain: float, unexplained: dict | None, pointers=None) -> str:
-    """Why `refinable`'s swaps are tried, as `refined`'s sentence and the progress line say it."""
+def refinement_reason(
+    kept, room: float, min_gain: float, unexplained: dict | None, pointers=None, swaps=None
+) -> str:
+    """Why `refinable`'s `swaps` are tried, as `refined`'s sentence and the progress line say it."""
     if room >= min_gain or unexplained is not None:
         return LEFT_ABOVE
     if pointers:
         cause, target = next(iter(pointers.items()))
         return POINTED_WHY.format(cause=cause, target=target)
-    if len(kept) < CROWDED:
+    swaps = swaps or {}
+    cause = next((name for name in kept if name in swaps), None)
+    if len(kept) < CROWDED or cause is None:
         return LEFT_ABOVE
-    return CROWDED_WHY.format(others=len(kept) - 1)
+    return CROWDED_WHY.format(cause=cause, others=len(kept) - 1, target=swaps[cause])
 
 
 def refined(first, again, swaps: dict[str, str], min_gain: float, why: str = LEFT_ABOVE) -> tuple[Any, dict]:
@@ -144,7 +148,8 @@ def _names(diagnosis) -> list[str]:
 
 
 def _tried(swaps: dict[str, str]) -> str:
-    return " and ".join(f"{to} in place of {name}" for name, to in swaps.items())
+    each = [f"{to} in place of {name}" for name, to in swaps.items()]
+    return " and ".join([", ".join(each[:-1]), each[-1]] if len(each) > 2 else each)
 
 
 def refused(swaps: dict[str, str], error: Exception) -> dict:

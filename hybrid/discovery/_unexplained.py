@@ -427,8 +427,16 @@ def _dead_band(description: dict) -> bool:
     )
 
 
+#: What an output map flat in the middle and rising at its ends (`_dead_band`) may be: the built-in that takes it.
+_DEAD_BAND = (
+    "dead_band",
+    "an output that stays at rest until the simulation's output passes a width (a sensor's or a linkage's dead "
+    "band, stiction at a clamp)",
+)
+
+
 #: A reading whose own form rules its hint out (`_NAMED_ONLY_HINTS`): a change at one time, or a wander, is no creep; a
-#: curve of the drive that stops at no level, and a dead band of the output, are no clip.
+#: curve of the drive that stops at no level, and a dead band of the output, are no clip (the latter is `_DEAD_BAND`).
 _NOT_THE_HINT = {
     "time": lambda description: (description.get("time") or {}).get("form") in ("step", "wander", "gain"),
     "drive_map": lambda description: not (description.get("drive_map") or {}).get("levels_off"),
@@ -472,9 +480,12 @@ def _pointer(description: dict, places: dict) -> tuple[str, str] | None:
     searched = {e for place in places.values() for e in place.get("effects", ())}
     if named not in _NAMED_ONLY_HINTS or not places:
         return None
-    if named in _NOT_THE_HINT and _NOT_THE_HINT[named](description):
+    if named == "static_output_monotone" and _dead_band(description):
+        effect, what = _DEAD_BAND
+    elif named in _NOT_THE_HINT and _NOT_THE_HINT[named](description):
         return None
-    effect, what = _NAMED_ONLY_HINTS[named]
+    else:
+        effect, what = _NAMED_ONLY_HINTS[named]
     return None if effect in searched else (effect, what)
 
 
