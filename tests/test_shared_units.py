@@ -9,6 +9,7 @@ no prefix relates (counts beside mm).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import helpers as h
@@ -67,6 +68,23 @@ def test_recordings_in_um_and_mv_are_put_in_the_firsts_units_with_a_note():
     assert in_shared_units([first, reference], "fit")[1] is reference  # one unit already: untouched
 
 
+@pytest.mark.parametrize("role, factor", [("v_in", 1000.0), ("w", 1e-3), ("v_in", 10.0), ("w", 1e6)])
+def test_a_recording_a_power_of_1000_apart_in_one_unit_gets_a_note(role, factor):
+    """A probe's second recording of one motor had its drive logged in mV, no unit said: 0.5–5 beside
+    500–5000, both read as V, and the diagnosis blamed a dead zone. One a power of 1000 apart gets a
+    note that says so; one 10× apart (a smaller test) does not."""
+    first, second = _lag(0), _lag(1)
+    second = dataclasses.replace(second, **{role: getattr(second, role) * factor})
+    notes = in_shared_units([first, second], "fit")[1].notes
+    said = [n for n in notes if "the size of that in" in n]
+    assert bool(said) == (factor != 10.0), notes
+    if said:
+        (note,) = said
+        power = round(np.log10(factor))
+        assert f"(near 10^{power}, the step between units)" in note and f"--units {role}=" in note
+    assert in_shared_units([first, _lag(2)], "fit")[1].notes == ()  # one scale: nothing said
+
+
 def test_units_no_prefix_relates_are_refused_with_one_line_naming_both():
     with pytest.raises(InputError, match=r"gives the output \(w\) in counts, but .* gives it in mm") as error:
         hybrid.fit(
@@ -112,3 +130,16 @@ def test_the_command_line_fits_mm_and_um_files_as_one_scale(tmp_path):
     scored = [fits[k]["test"][0] for k in ("mixed", "reference")]
     assert scored[0]["unit"] == "mm" and scored[0]["rmse"] == pytest.approx(scored[1]["rmse"], rel=1e-6)
     assert reference["tau_1"] == pytest.approx(0.3, rel=0.02)  # the lag as simulated (scipy)
+
+
+def test_diagnose_in_python_reports_what_putting_its_recordings_in_one_unit_said():
+    """The command line prints each recording's notes as it loads them; `hybrid.diagnose` called with
+    recordings put them in one unit itself and said nothing: a conversion (mV to V) and a drive a power of
+    1000 apart in one unit (a probe's mV logged as V) are in its warnings."""
+    unlabelled = _lag(2)
+    unlabelled = dataclasses.replace(unlabelled, v_in=unlabelled.v_in * 1000.0)  # mV, read as V
+    found = hybrid.diagnose(
+        [_lag(0), _lag(1, units={"v_in": "mV"}), unlabelled], simulation=hybrid.LTI(1), effects=["lag"]
+    )
+    assert any("from mV to V (×0.001)" in w for w in found.warnings), found.warnings
+    assert any("(near 10^3, the step between units)" in w for w in found.warnings), found.warnings

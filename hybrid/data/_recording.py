@@ -466,5 +466,38 @@ def in_shared_units(recordings: Sequence[Recording], where: str) -> list[Recordi
             r = dataclasses.replace(
                 r, **changes, metadata={**r.metadata, "units": units}, notes=(*r.notes, note)
             )
+        scaled = [n for n in (_scale_apart(first, r, role, what) for role, what in _SHARED.items()) if n]
+        if any(n not in r.notes for n in scaled):  # once, however often they are put in one unit
+            r = dataclasses.replace(r, notes=(*r.notes, *(n for n in scaled if n not in r.notes)))
         out.append(r)
     return out
+
+
+#: Recordings fitted together whose signal's sizes differ by this factor or more, and lie within
+#: `_PREFIX_NEAR` of a power of 1000, read as one logged in another unit than it says (mV for V).
+_SCALE_APART = 300.0
+_PREFIX_NEAR = 3.0
+
+
+def _scale_apart(first: Recording, other: Recording, role: str, what: str) -> str | None:
+    """A note where `other`'s signal is near a power of 1000 larger or smaller than `first`'s, in one unit.
+
+    A probe gave two recordings of one motor, the second's drive logged in mV with no unit said:
+    0.5–5 beside 500–5000, read as one scale, and the diagnosis blamed a dead zone and an extrapolation.
+    """
+    size = [float(np.percentile(np.abs(np.asarray(getattr(r, role), float)), 95)) for r in (first, other)]
+    if min(size) <= 0.0 or not all(np.isfinite(size)):
+        return None
+    ratio = size[1] / size[0]
+    power = round(math.log10(ratio) / 3) * 3
+    if abs(math.log10(ratio)) < math.log10(_SCALE_APART) or abs(math.log10(ratio) - power) > math.log10(
+        _PREFIX_NEAR
+    ):
+        return None
+    unit = first.metadata["units"][role]
+    return (
+        f"recording '{other.name}': {what} is {ratio:.3g}× the size of that in '{first.name}' (near 10^{power}, the "
+        f"step between units), both read as {unit}: "
+        f"if one was logged in another unit (mV for V, µm for mm), say so (--units {role}=..., a units row "
+        "under the header, units= in Python); one model fits them on one scale"
+    )

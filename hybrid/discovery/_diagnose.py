@@ -254,7 +254,13 @@ def diagnose(
     t0 = time.perf_counter()
     given, given_effects = settings, effects  # as asked: a held-start rerun resolves them again
     recordings = as_recordings(recordings, "diagnose")  # a path is loaded; anything else is refused
+    given_recordings = recordings
     recordings = in_shared_units(recordings, "diagnose")  # one model fits them: one scale
+    # what putting them in one unit said (a conversion, sizes a power of 1000 apart), where a caller's
+    # recordings had not been put so already (the command line's are, and printed their notes)
+    shared_notes = [
+        n for new, old in zip(recordings, given_recordings) for n in new.notes if n not in old.notes
+    ]
     require_float64(
         "diagnose",
         "its noise floor, information criteria and held-out tests compare errors far below float32's "
@@ -416,7 +422,7 @@ def diagnose(
                 again.evidence["start"] = tried
                 again.seconds = time.perf_counter() - t0
                 again.glitches_bridged = glitches  # it read the recordings as bridged here
-                again.warnings = _glitch_warnings(glitches, rate) + again.warnings
+                again.warnings = shared_notes + _glitch_warnings(glitches, rate) + again.warnings
                 return again
             start = tried  # held, the start is still missed, or the causes earn their place: said so
 
@@ -545,7 +551,8 @@ def diagnose(
         signal_units=dict(zip(("w", "v_in"), signals)),
         dropped=[d.to_dict() for d in dropped],
         glitches_bridged=glitches,
-        warnings=_glitch_warnings(glitches, rate)
+        warnings=shared_notes
+        + _glitch_warnings(glitches, rate)
         + escapes
         + nonfinite_warnings(steps, search.effects)
         + model_warnings(models["extended"], frozen, search.rate)
@@ -584,7 +591,7 @@ def diagnose(
         found.evidence["refined"] = refused(swaps, error)
         return found
     again.glitches_bridged = glitches  # it read the recordings as bridged here
-    again.warnings = _glitch_warnings(glitches, rate) + again.warnings
+    again.warnings = shared_notes + _glitch_warnings(glitches, rate) + again.warnings
     kept_diagnosis, tried = refined(found, again, swaps, settings.min_gain, why)
     kept_diagnosis.evidence["refined"] = tried
     kept_diagnosis.settings = dataclasses.replace(kept_diagnosis.settings, refine=given.refine)  # as asked
