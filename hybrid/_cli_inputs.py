@@ -106,12 +106,34 @@ def _load_recordings(args, paths, rate_alone_maps: bool):
                 f"and which the output, e.g. {_text_example(paths, names[0])}"
             )
     if not any(v is not None for k, v in options.items() if rate_alone_maps or k != "rate"):
-        return [Recording.load(p) for p in paths]
+        return _each(paths, Recording.load)
     if len(paths) > 1 and any(options[k] is not None for k in ("input", "output", "time", "columns")):
         roles = mapping_roles(**{k: options[k] for k in ("input", "output", "time", "columns")})
         if file_references(roles, paths):  # the mapping names the files: one record joined from them
             return [load_mapped(list(paths), **options)]
-    return [load_mapped(p, **options) for p in paths]
+    return _each(paths, lambda p: load_mapped(p, **options))
+
+
+def _each(paths, load) -> list:
+    """`load` of each path; where one lacks a column and the files name their columns differently, the
+    error says so: one mapping reads every file (a probe's second recording named its output `speed`, the
+    first `w`, and each file's advice broke the other)."""
+    from .data._loaders import MissingName
+
+    out = []
+    for path in paths:
+        try:
+            out.append(load(path))
+        except MissingName as error:
+            headers = {str(p): _header(p) for p in paths}
+            if len(paths) < 2 or len({tuple(h) for h in headers.values()}) < 2:
+                raise
+            named = "; ".join(f"'{p}': {', '.join(h) or '(unread)'}" for p, h in headers.items())
+            raise InputError(
+                f"{error}; the recordings name their columns differently ({named}), and one mapping reads "
+                "them all: rename the column in one file to match the others"
+            ) from None
+    return out
 
 
 def _header(path) -> list[str]:

@@ -273,3 +273,26 @@ def test_a_range_that_starts_below_zero_is_a_value_not_an_option(option, value, 
     low, high = value.split(":")
     assert design(f"{high}:{low}") == 2
     assert "LOW must be below HIGH" in capsys.readouterr().err
+
+
+def test_recordings_that_name_their_columns_differently_are_told_so(tmp_path, capsys):
+    """A probe's two recordings of one motor, the second's output named `speed`: each file's advice
+    (`--output speed`, then `--output w`) broke the other, and nothing said one mapping reads both."""
+    t = np.arange(300) / 30.0
+    for name, output in (("a.csv", "w"), ("b.csv", "speed")):
+        np.savetxt(tmp_path / name, np.c_[t, np.sin(t), np.cos(t)], delimiter=",", header=f"t,v_in,{output}",
+                   comments="")  # fmt: skip
+    for mapping in ([], ["--input", "v_in", "--output", "speed"]):
+        args = [
+            "fit",
+            str(tmp_path / "a.csv"),
+            str(tmp_path / "b.csv"),
+            *mapping,
+            "--out",
+            str(tmp_path / "m.eqx"),
+        ]
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "the recordings name their columns differently" in err, err
+        assert "'t', 'v_in', 'speed'" in err or "t, v_in, speed" in err
+    assert not (tmp_path / "m.eqx").exists()
