@@ -332,3 +332,26 @@ def test_a_file_in_the_projects_columns_points_at_the_filling_and_is_filled_with
     kept = np.setdiff1d(np.arange(200), [50, 51])
     np.testing.assert_allclose(record.w[[50, 51]], np.interp(t[[50, 51]], t[kept], w[kept]), atol=1e-9)
     assert record.metadata["filled"] == {"samples": [50, 51], "runs": 1, "values": {"w": [50, 51]}}
+
+
+def test_a_jittered_clock_is_one_clock_with_its_dropped_frames_filled(tmp_path):
+    """A probe's 50 Hz timestamps, each up to 0.2 of a step off its grid (the docs absorb a quarter), were
+    refused as "non-uniform time … did the frame rate change?" (two neighbours 0.4 of a step closer than
+    the median: a rule of its own), and with frames dropped, "1.74 steps long, no whole number of missing
+    frames" for a one-frame gap. Jittered either side, a gap is whole where every time lies near one grid
+    with its frames counted; a clock that slips half a step at its gap is still refused."""
+    jitter = np.random.default_rng(7).uniform(-0.2, 0.2, 600)
+    path = tmp_path / "jittered.csv"
+    t, v, w, keep = _write(path, [], lambda k: (k + jitter) / RATE)
+    record = load_mapped(path, input="u", output="y", time="time")
+    np.testing.assert_allclose(record.t, np.arange(600) / RATE + np.mean(jitter) / RATE, atol=0.02 / RATE)
+    t, v, w, keep = _write(path, DROPPED, lambda k: (k + jitter) / RATE)
+    record = load_mapped(path, input="u", output="y", time="time", fill_gaps=2)
+    assert record.n == 600 and record.metadata["filled"] == {"samples": DROPPED, "gaps": 3, "frames": 4}
+    np.testing.assert_allclose(
+        record.t, np.arange(600) / RATE + np.mean(jitter[keep]) / RATE, atol=0.02 / RATE
+    )
+    np.testing.assert_allclose(record.w[keep], w[keep], atol=1e-9)  # measured samples as read
+    _write(path, [], lambda k: (k + 0.1 * jitter + 0.5 * (k >= 300)) / RATE)  # slips half a step at 300
+    with pytest.raises(InputError, match=r"no whole number of missing frames|of a step off the closest"):
+        load_mapped(path, input="u", output="y", time="time", fill_gaps=2)

@@ -311,7 +311,9 @@ def check_time(
     jitter = t - grid
     far = int(np.argmax(np.abs(jitter)))
     worst_jitter = abs(float(jitter[far]))
-    if short.size or worst_jitter >= JITTER_FRAMES * slope:
+    if (
+        worst_jitter >= JITTER_FRAMES * slope
+    ):  # a short step alone is jitter where every time is near the grid
         # where the steps first change: a rate that changes part-way shows there, not at the sample
         # furthest from one grid through them all (a probe's 30 Hz → 25 Hz at line 903 named line 1651)
         # the rate the record starts at (the median may lie between two): its first steps, a quarter at most
@@ -321,11 +323,11 @@ def check_time(
         changed = np.flatnonzero(off) if runs.any() else np.zeros(0, int)
         changed = changed[changed >= np.flatnonzero(runs)[0]] if changed.size else changed
         where = (
-            f"the step into {sample_text(int(short[0]) + 1, lines)} is {dt[short[0]]:.6g} s against a "
-            f"median step of {step:.6g} s"
-            if short.size
-            else (
-                f"the steps first change at {sample_text(int(changed[0]) + 1, lines, t[changed[0] + 1])}, "
+            (
+                f"the step into {sample_text(int(short[0]) + 1, lines)} is {dt[short[0]]:.6g} s against a "
+                f"median step of {step:.6g} s, and "
+                if short.size
+                else f"the steps first change at {sample_text(int(changed[0]) + 1, lines, t[changed[0] + 1])}, "
                 f"{dt[changed[0]]:.6g} s against {opening:.6g} s before ({changed.size} such steps), and "
                 if changed.size
                 else ""
@@ -482,8 +484,13 @@ def fill_gaps(
     if not gaps.size:
         return t, dict(columns), lines, np.zeros(0, int)
     frames = np.rint(dt[gaps] / step).astype(int)  # k ≥ 2: a gap is over 1.5 steps
-    for g, k in zip(gaps, frames):
-        whole = abs(dt[g] - k * step) <= JITTER_FRAMES * step
+    wholes = np.abs(dt[gaps] - frames * step) <= JITTER_FRAMES * step
+    if not wholes.all() and _on_one_grid(t, gaps, frames, step):
+        # timestamps jittered either side of a gap can each be a quarter step off: the gap is whole where
+        # every time, the gaps' frames counted, lies within a quarter step of one grid (a probe's ±0.2-step
+        # jitter made a one-frame gap 1.74 steps long)
+        wholes[:] = True
+    for g, k, whole in zip(gaps, frames, wholes):
         if whole and k - 1 <= most:
             continue
         what = (
@@ -526,6 +533,30 @@ def fill_gaps(
         full_lines[filled] = lines[before]
         lines = full_lines
     return new_t, out, lines, filled
+
+
+def _on_one_grid(t: np.ndarray, gaps: np.ndarray, frames: np.ndarray, step: float) -> bool:
+    """Whether `t`, with `frames` − 1 frames missing in each of `gaps`, is one uniform clock: each gap within
+    half a step of its whole number of frames (two quarter steps of jitter), and the stretches between the
+    gaps on lines of one slope (least squares within each stretch) whose offsets, the missing frames
+    counted, lie within `JITTER_FRAMES` of a step of each other (a clock that slips part of a step at a gap
+    moves every time after it; a slope fitted across the gaps would tilt to hide the slip). Each time's own
+    jitter is `check_time`'s, on the filled record."""
+    if np.any(np.abs(np.diff(t)[gaps] - frames * step) > 2 * JITTER_FRAMES * step):
+        return False
+    shift = np.zeros(t.size, int)
+    shift[gaps + 1] = frames - 1
+    place = (np.arange(t.size) + np.cumsum(shift)).astype(np.float64)
+    parts = [
+        (p - p.mean(), q - q.mean(), p.mean(), q.mean())
+        for p, q in zip(np.split(place, gaps + 1), np.split(t, gaps + 1))
+    ]
+    spread = sum(float(np.sum(p * p)) for p, *_ in parts)
+    if spread == 0.0:
+        return False
+    slope = sum(float(np.sum(p * q)) for p, q, *_ in parts) / spread
+    offsets = [(q_mean - slope * p_mean) / slope for _, _, p_mean, q_mean in parts]
+    return max(offsets) - min(offsets) <= JITTER_FRAMES
 
 
 def fill_values(
