@@ -339,6 +339,10 @@ def test_diagnose_checks_recordings_before_any_fitting():
     with pytest.raises(InputError, match="record at least 60 samples") as error:
         diagnose(short)
     assert "--window" not in str(error.value)  # diagnose has no --window
+    # in its own rate's seconds (a probe's 50 Hz file was told "2 s at 30 Hz")
+    fifty = Recording.from_arrays(v_in=v, w=w, rate=50.0, name="short")
+    with pytest.raises(InputError, match=r"record at least 60 samples \(1.2 s at 50 Hz\)"):
+        diagnose(fifty)
     v, _ = _signals(600)
     flat = Recording.from_arrays(v_in=v, w=np.full(600, 0.3), rate=RATE, name="flat")
     with pytest.raises(InputError, match="w is constant"):

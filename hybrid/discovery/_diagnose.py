@@ -281,7 +281,7 @@ def diagnose(
         r.check_length(
             60,
             "diagnose (a held-out part long enough for residual tests)",
-            "record at least 60 samples (2 s at 30 Hz), better several minutes",
+            f"record at least 60 samples ({60 / r.rate:.3g} s at {r.rate:.6g} Hz), better several minutes",
         )
         r.check_signals()
         _check_magnitudes(r)
