@@ -88,6 +88,28 @@ def test_the_budget_releases_programs_beyond_its_shapes():
         assert crowded.admit("a") is True
 
 
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="/proc and glibc")
+def test_releasing_programs_gives_the_freed_heap_back_to_the_system():
+    """A loop of diagnoses over eight lengths held 1.09 GB resident where, the freed heap given back after
+    each release (glibc's malloc_trim), it holds 0.92 GB. Half of 3000 blocks of 64 KB freed, in between
+    live ones (holes glibc keeps for itself): a release gives most of those 96 MB back."""
+    from hybrid.util._programs import _libc, release_programs
+
+    if _libc() is None:
+        pytest.skip("no glibc (malloc_trim) in this process")
+
+    def resident_mb():
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) / 1e3 for line in status if line.startswith("VmRSS"))
+
+    blocks = [np.ones(8000) for _ in range(3000)]  # 64 KB each: under glibc's mmap threshold
+    del blocks[::2]
+    held = resident_mb()
+    release_programs()
+    assert held - resident_mb() > 48.0  # half of the 96 MB freed, at least
+    del blocks
+
+
 def test_a_windowed_readout_refuses_padded_series():
     """A window reaches back across a split's start in a padded series: refused, not silently different."""
     series = bucketed_series(series_from_recording(_recording(300)), 320)

@@ -52,11 +52,36 @@ def map_limit() -> int | None:
 
 
 def release_programs() -> None:
-    """Drop every compiled program of this process (JAX's caches) and free their memory maps."""
+    """Drop every compiled program of this process (JAX's caches) and free their memory maps.
+
+    Then glibc is asked to give the freed heap back to the system (`malloc_trim`, where the C library has
+    it): freed, it stayed resident, and a loop of diagnoses over eight lengths held 1.09 GB where it holds
+    0.92 GB after each release (ad hoc: /tmp/s18/mem/loop.py, `lti:1`, three effects).
+    """
     import jax
 
     jax.clear_caches()
     gc.collect()
+    _trim_heap()
+
+
+@functools.cache
+def _libc():
+    """glibc, or None where this process has none (macOS, Windows, musl): then nothing is trimmed."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return libc if hasattr(libc, "malloc_trim") else None
+    except OSError:
+        return None
+
+
+def _trim_heap() -> None:
+    libc = _libc()
+    if libc is not None:
+        libc.malloc_trim(0)
 
 
 def crowded(max_fraction: float | None = None) -> bool:
