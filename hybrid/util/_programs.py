@@ -55,8 +55,8 @@ def release_programs() -> None:
     """Drop every compiled program of this process (JAX's caches) and free their memory maps.
 
     Then glibc is asked to give the freed heap back to the system (`malloc_trim`, where the C library has
-    it): freed, it stayed resident, and a loop of diagnoses over eight lengths held 1.09 GB where it holds
-    0.92 GB after each release (ad hoc: /tmp/s18/mem/loop.py, `lti:1`, three effects).
+    it): freed, the blocks between live ones stayed resident, and a script diagnosing many lengths in one
+    process held more after each release (`pytest tests/test_buckets.py -k heap`: 96 MB of such blocks).
     """
     import jax
 
