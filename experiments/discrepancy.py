@@ -239,11 +239,6 @@ def open_world_row(recording, found, excess: float, causes_known) -> dict:
         "noise_floor_over_true": None if floor is None else float(floor.variance) / true_var,
     }
     row["false_all_clear"] = bool(hidden and not names and unexplained is None and excess > ALL_CLEAR)
-    # the verdict's "yet it still follows the drive" (`follows_drive`): the held-out residual's dependence on
-    # the drive before it, whatever its size
-    follows = (found.evidence.get("extended") or {}).get("drive_independence") or {}
-    row["follows_drive_p"] = None if follows.get("p_value") is None else float(follows["p_value"])
-    row["follows_drive"] = "still follows the drive" in str(getattr(found, "verdict", ""))
     start = found.evidence.get("start") or {}
     row["start_flagged"] = bool(start.get("off", False))
     # diagnosed again from a held start (DiagnoseSettings.settle_when_off) and that diagnosis kept: a try
@@ -407,24 +402,6 @@ def open_world_tables(rows, specs) -> str:
                 else ""
             ),
         ]
-        said = [r for r in every if "follows_drive" in r]
-        if said:
-
-            def follows(group):
-                return f"{sum(r['follows_drive'] for r in group)}/{len(group)}"
-
-            half = [
-                r
-                for r in said
-                if not _names_all(r, r["causes"]) and set(r["causes"]) & set(r["expected_causes"])
-            ]
-            whole = [r for r in said if _names_all(r, r["causes"])]
-            out += [
-                "",
-                "Flagged by the verdict's \"yet it still follows the drive\" (the extended model's held-out residual "
-                "against the drive before it, said where the remainder is under the unexplained ratio): one named "
-                f"{follows(half)}, both named {follows(whole)}.",
-            ]
         rooms = [r for r in every if _in_reach(r, min_gain) is not None]
         if rooms:
             reach = [r for r in rooms if _in_reach(r, min_gain)]
@@ -750,7 +727,7 @@ def main(argv=None) -> int:
         print(table_identifiable)
     print(world)
     single_rows = [r for r in rows if "+" not in r["effect"] and not r.get("outside_effects")]
-    hits = sum(r["named"] == r["effect"] for r in single_rows)
+    hits = sum(r["named"] == FOUND_AS.get(r["effect"], r["effect"]) for r in single_rows)
     print(
         f"single effects (and none) named right: {hits}/{len(single_rows)}; wrote {out} and {out.with_suffix('.md')}"
     )
