@@ -305,7 +305,8 @@ def cmd_design(args) -> None:
             )
             _write(out, figure, design.t, design.v_in, design.predictions, title)
     written = drive if entry is None else design.v_in
-    for said in (_beyond_recorded(report, written), _nearly_constant(written, limits, args.slew)):
+    still = _nearly_constant(written, limits, args.slew)
+    for said in (_beyond_recorded(report, written), still):
         if said:
             print(f"hybrid: warning: {said}", file=sys.stderr)
     if entry is None:
@@ -335,7 +336,14 @@ def cmd_design(args) -> None:
     left = report.get("unexplained") or {}
     excess = left.get("ratio_to_floor") if isinstance(left, dict) else None
     excess = float(excess) if isinstance(excess, (int, float)) and math.isfinite(excess) else 1.0
-    print(separation(design.criterion, design.control_criterion, len(design.v_in), max(excess, 1.0)))
+    if still:  # n·T is then the level's alone, which a refit takes up: no claim that it tells them apart
+        print(
+            f"n·T = {len(design.v_in) * design.criterion:.3g}, from a nearly constant drive (the warning above): "
+            "its level alone tells the rivals apart, which a refit of either takes up, so this drive does not "
+            "separate them"
+        )
+    else:
+        print(separation(design.criterion, design.control_criterion, len(design.v_in), max(excess, 1.0)))
     print(f"wrote {out} and {figure}")
 
 

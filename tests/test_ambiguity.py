@@ -333,8 +333,10 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     y.unlink()
     y.with_suffix(".png").unlink()
     # a slew that lets the drive barely move: written, and said (a probe's "either drive tells them apart")
-    code, _, err = design("--slew", "1e-9", "--out", y, base=within)
+    code, out, err = design("--slew", "1e-9", "--out", y, base=within)
     assert code == 0 and "it is nearly constant" in err and "--slew 1e-09/s holds it there" in err, err
+    # and its closing line does not then say the drive tells them apart (a probe's --slew 0.001)
+    assert "tells them apart" not in out and "does not separate them" in out, out
     y.unlink()
     y.with_suffix(".png").unlink()
     # a diagnosis with nothing ambiguous: one line, no file
