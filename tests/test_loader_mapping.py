@@ -467,8 +467,11 @@ def test_units_or_a_range_alone_map_a_file_that_has_the_standard_columns(tmp_pat
     np.testing.assert_array_equal(rec.w, w_ref[5:30])
     assert rec.rate == pytest.approx(10.0) and rec.metadata["units"]["w"] == "rad/s"
     assert rec.metadata["mapping"] == {"t": "t", "v_in": "v_in", "w": "w"}
-    with pytest.raises(InputError, match="no input column is named"):
-        load_mapped(lab, units={"w": "mm"})  # time, u, y: which is the drive is the lab's to say
+    # time, u, y: which is the drive is the lab's to say, and the error offers a mapping of its names
+    with pytest.raises(
+        InputError, match=r"missing column\(s\) t, v_in, w .*e\.g\. --columns input=u,output=y"
+    ):
+        load_mapped(lab, units={"w": "mm"})
 
 
 @pytest.mark.parametrize("name, sep", [("lab.csv", ","), ("lab.txt", "\t")])
@@ -664,7 +667,9 @@ def test_units_alone_on_a_file_without_the_project_s_columns_name_what_it_lacks(
     t = np.arange(200) / 20.0
     lacking = tmp_path / "speed.csv"
     np.savetxt(lacking, np.c_[t, np.sin(t), np.cos(t)], delimiter=",", header="t,v_in,speed", comments="")
-    with pytest.raises(InputError, match=r"has no column 'w' for the output .*--output speed"):
+    with pytest.raises(
+        InputError, match=r"missing column\(s\) w \(found 't', 'v_in', 'speed'\).*output=speed"
+    ):
         load_mapped(lacking, units={"v_in": "V", "w": "rad/s"})
     holed = np.c_[t, np.sin(t), np.cos(t)]
     holed[50, 2] = np.nan

@@ -225,6 +225,11 @@ def test_a_file_with_one_project_name_misspelt_is_pointed_at_its_own_columns(tmp
     assert (
         mapping_example(["t", "w_true", "v_inn"], time="t") == "--columns input=v_inn,output=w_true --time t"
     )
+    # a time named with its unit after an underscore, as scripts write it (a probe's t_min was offered
+    # "--rate HZ (or --time COLUMN)"), whatever the unit's length
+    assert mapping_example(["t_min", "v_in", "w"]) == "--columns input=v_in,output=w --time t_min"
+    assert mapping_example(["time_ms", "v_in", "w"]).endswith("--time time_ms")
+    assert mapping_example(["t", "v_in", "w_true"], time="t") == "--columns input=v_in,output=w_true --time t"
 
 
 def test_missing_columns_csv(tmp_path):

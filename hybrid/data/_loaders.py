@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..util._errors import InputError
+from ._header_units import is_unit
 from ._recording_checks import (
     FILL_VALUES_HINT,
     REQUIRED,
@@ -40,6 +41,7 @@ from ._recording_checks import (
 __all__ = [
     "FOOTER_LINES",
     "MissingName",
+    "require_names",
     "PREAMBLE_LINES",
     "RATE_FIELDS",
     "CSV_SUFFIXES",
@@ -209,7 +211,7 @@ def path_argument(path: Any, where: str) -> pathlib.Path:
     return pathlib.Path(path)
 
 
-def _require(
+def require_names(
     path: pathlib.Path,
     found: Sequence[str],
     kind: str,
@@ -412,7 +414,8 @@ def role_of(name: str) -> str | None:
     words = re.sub(r"(est|val|meas|measured|_?\d+)$", "", re.sub(r"[^a-z0-9]+", " ", words).strip())
     tokens = words.split()
     for role, names in _ROLE_WORDS.items():
-        short_unit = len(tokens) == 2 and len(tokens[1]) <= 2  # t_s, v_mV: a name and its unit
+        # t_s, v_mV, t_min, pos_deg: a name and its unit
+        short_unit = len(tokens) == 2 and (len(tokens[1]) <= 2 or is_unit(tokens[1]))
         if words.replace(" ", "_") in names or (
             tokens and tokens[0] in names and (len(tokens[0]) > 2 or short_unit)
         ):
@@ -975,7 +978,7 @@ def _csv_header(
             f"recording '{path}' names column(s) {', '.join(repeated)} more than once: give each column a "
             f"unique name, or map them by number from 0, e.g. {example}"
         )
-    _require(path, header, "column(s)", required, example=example)
+    require_names(path, header, "column(s)", required, example=example)
     return header
 
 
@@ -1265,9 +1268,9 @@ def _load_npz(
 def _require_stored(
     path: pathlib.Path, arrays: Mapping[str, np.ndarray], kind: str, required: Sequence[str]
 ) -> None:
-    """`_require` for a .npz or .mat file; where its signals are one matrix's columns, the mapping for them."""
+    """`require_names` for a .npz or .mat file; where its signals are one matrix's columns, the mapping for them."""
     try:
-        _require(path, list(arrays), kind, required)
+        require_names(path, list(arrays), kind, required)
     except InputError:
         example = _matrix_example(arrays) if "w" in required else ""
         if not example:

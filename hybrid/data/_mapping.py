@@ -71,7 +71,16 @@ import numpy as np
 
 from ..util._errors import InputError
 from ._header_units import header_unit, is_unit, time_unit
-from ._loaders import RATE_FIELDS, MissingName, check_file, path_argument, role_of, shell_word, time_factor
+from ._loaders import (
+    RATE_FIELDS,
+    MissingName,
+    check_file,
+    path_argument,
+    require_names,
+    role_of,
+    shell_word,
+    time_factor,
+)
 from ._mapping_options import (
     mapping_roles,
     parse_columns,
@@ -124,6 +133,16 @@ def _standard_roles(path, require_w: bool, fill: bool) -> tuple[dict[str, str], 
         except InputError as error:
             errors.append(error)
     return next((e for e in errors if not isinstance(e, MissingName)), errors[0])
+
+
+def _names_of(path) -> list[str]:
+    """A text table's column names, or [] where it is none (a .mat, a .npz) or cannot be read."""
+    from ._table import text_columns
+
+    try:
+        return text_columns(pathlib.Path(path))
+    except (InputError, OSError, UnicodeDecodeError, ValueError):
+        return []
 
 
 def load_mapped(
@@ -197,7 +216,13 @@ def load_mapped(
             standard = _standard_roles(paths[0], require_w, fill)
         if standard is None:
             raise
-        if isinstance(standard, InputError):  # no mapping given: what the file lacks, or what is wrong in it
+        if isinstance(
+            standard, MissingName
+        ):  # no mapping given: every name it lacks, and a mapping of its own
+            names = _names_of(paths[0])
+            if names:
+                require_names(paths[0], names, "column(s)")
+        if isinstance(standard, InputError):  # or what is wrong in it
             raise standard from None
         roles, read = standard
         defaults = UNITS  # the project's own columns, as `Recording.load` reads them (V, mm)
