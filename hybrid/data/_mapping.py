@@ -219,9 +219,9 @@ def load_mapped(
         if isinstance(
             standard, MissingName
         ):  # no mapping given: every name it lacks, and a mapping of its own
-            names = _names_of(paths[0])
-            if names:
-                require_names(paths[0], names, "column(s)")
+            header = _names_of(paths[0])
+            if header:
+                require_names(paths[0], header, "column(s)")
         if isinstance(standard, InputError):  # or what is wrong in it
             raise standard from None
         roles, read = standard
