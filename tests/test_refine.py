@@ -163,6 +163,37 @@ def test_the_second_diagnosis_is_kept_only_where_it_names_the_refinement_and_gai
     assert kept is first and "is not finite" in evidence["sentence"] and evidence["gain_over_first"] == 0.0
 
 
+def test_a_first_diagnosis_that_stands_no_longer_asks_for_the_refinement_just_tried():
+    """A verifier's asymmetric output dead band: dead_band was tried in drive_dead_zone's place and not kept,
+    and the report then advised "the built-in dead_band is searched when named (--effects builtins,dead_band)"."""
+    from hybrid.discovery._unexplained import named_only_hint
+
+    description = {"summary": "static on the model's output", "named_only": "dead_band"}
+    hint = named_only_hint(
+        {"recovered": {"named": "static_output_monotone"}, "static": _band_shape()},
+        {"output": {"effects": ()}},
+    )
+    description["summary"] += f"; {hint}"
+    first = _diagnosis([], 0.03)
+    first.unexplained = {"description": description}
+    swaps = {"drive_dead_zone": "dead_band"}
+    kept, _ = refined(first, _diagnosis(["dead_band"], 0.025), swaps, 1.5)  # 1.2× lower: the first stands
+    assert kept is first
+    summary = first.unexplained["description"]["summary"]
+    assert "--effects builtins,dead_band" not in summary and "dead_band was tried in its place" in summary
+    # a pointer at an effect that was not tried keeps asking for it
+    other = {"summary": f"x; {hint}", "named_only": "dead_band"}
+    first.unexplained = {"description": other}
+    refined(first, _diagnosis(["clip"], 0.025), {"saturation": "clip"}, 1.5)
+    assert "--effects builtins,dead_band" in other["summary"]
+
+
+def _band_shape():
+    """A remainder's static readings whose monotone map of the output is flat in the middle (a dead band)."""
+    shape = {"flat_middle": {"flag": True}, "levels_off": {"flag": False}}
+    return {"output_monotone": {"shape": shape}}
+
+
 def test_a_refinement_with_fewer_causes_as_good_held_out_is_kept():
     """A probe's drive clip beside a Coulomb friction: the default set named drive_saturation, the friction
     and a dead zone never hidden; refined, drive_clip and the friction alone, 2.38e-3 against 2.67e-3 held

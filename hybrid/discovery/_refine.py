@@ -31,6 +31,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from ._unexplained import tried_hint
+
 #: How many named causes, a saturation among them, make a refinement worth trying even at the noise floor:
 #: a clip's sharp knee may be what they fake together (a probe's drive clip beside a Coulomb friction, in
 #: its own plug-in, read as drive_saturation, the friction and a dead zone never hidden, "measurement noise").
@@ -140,6 +142,9 @@ def refined(first, again, swaps: dict[str, str], min_gain: float, why: str = LEF
         "first_causes": first_causes,
         "sentence": said,
     }
+    description = (getattr(first, "unexplained", None) or {}).get("description") or {}
+    if not keep and description.get("named_only") in swaps.values():
+        tried_hint(description)  # the first stands: its remainder no longer asks for what was just tried
     return (again if keep else first), evidence
 
 

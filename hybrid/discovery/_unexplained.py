@@ -461,6 +461,19 @@ def named_only_hint(description: dict, places: dict) -> str | None:
     return f"{what} may also explain it: the built-in {effect} is searched when named (--effects builtins,{effect})"
 
 
+def tried_hint(description: dict) -> None:
+    """`description`'s hint (`named_only_hint`) where its effect was tried in its parent's place and not kept:
+    the summary says so instead of asking for it (a verifier's asymmetric dead band: dead_band tried and
+    refused, then "the built-in dead_band is searched when named")."""
+    effect = description.get("named_only")
+    if not effect:
+        return
+    asked = f"is searched when named (--effects builtins,{effect})"
+    description["summary"] = description.get("summary", "").replace(
+        asked, "was tried in its place, and did not take it (evidence.refined)"
+    )
+
+
 def named_only_effect(description: dict, places: dict) -> str | None:
     """The name of the built-in that `named_only_hint` points at, or None."""
     pointer = _pointer(description, places)
