@@ -296,6 +296,16 @@ def check_time(
     gaps = np.flatnonzero(dt > GAP_FRAMES * step)
     if gaps.size:
         k = int(gaps[0])
+        frames = np.rint(dt[gaps] / step).astype(int)
+        loose = np.abs(dt[gaps] - frames * step) > JITTER_FRAMES * step
+        if loose.any() and not _on_one_grid(t, gaps, frames, step):  # as `fill_gaps` reads a gap: not whole
+            k = int(gaps[np.argmax(loose)])
+            raise InputError(
+                f"recording '{name}' has a step in time of {dt[k] / step:.3g} median steps into "
+                f"{sample_text(k + 1, lines, t[k + 1])} ({dt[k]:.6g} s): no whole number of missing frames, so "
+                f"its clock slipped or restarted there; cut the recording there ({range_flag()}, "
+                "Recording.segment)"
+            )
         raise InputError(
             f"recording '{name}' has a gap in time at {sample_text(k + 1, lines, t[k + 1])}: the "
             f"step into it is {dt[k]:.6g} s, {dt[k] / step:.3g} times the median step {step:.6g} s "
@@ -332,7 +342,7 @@ def check_time(
                 if changed.size
                 else ""
             )
-            + f"{sample_text(far, lines, t[far])} is {worst_jitter / slope:.2g} of a step off the closest "
+            + f"{sample_text(far, lines, t[far])} is {_steps_off(worst_jitter / slope)} off the closest "
             "uniform grid"
         )
         raise InputError(
@@ -344,7 +354,7 @@ def check_time(
     note = (
         f"t rebuilt as a uniform grid t0 + k·dt, dt = {slope:.9g} s ({1 / slope:.6g} Hz), "
         f"the least-squares line through the logged times: their jitter was max "
-        f"{worst_jitter * 1e3:.3g} ms, rms {rms * 1e3:.3g} ms ({worst_jitter / slope:.2g} of a step)"
+        f"{worst_jitter * 1e3:.3g} ms ({worst_jitter / slope:.2g} of a step), rms {rms * 1e3:.3g} ms"
     )
     grid.setflags(write=False)
     return grid, {
@@ -460,6 +470,13 @@ def source_name(metadata: Any) -> str:
     if isinstance(metadata, Mapping) and isinstance(metadata.get("source"), str):
         return metadata["source"]
     return "<arrays>"
+
+
+def _steps_off(steps: float) -> str:
+    """ "0.3 of a step", "1 step", "41 steps": how far a time is off its grid."""
+    if steps < 0.995:
+        return f"{steps:.2g} of a step"
+    return f"{steps:.2g} step{'' if f'{steps:.2g}' == '1' else 's'}"
 
 
 def fill_gaps(
