@@ -801,8 +801,10 @@ def _cmd_diagnose(args):
         *([left["floor_warning"]] if left and "floor_warning" in left else []),
     ]:
         print(f"noise floor: warning: {warning}")
+    said = {note for r in recordings for note in r.notes}  # printed as each recording was read
     for warning in report.get("warnings", ()):
-        print(f"warning: {warning}")
+        if warning not in said:
+            print(f"warning: {warning}")
     if diagnosis.hybrid is not None:
         h = diagnosis.hybrid
         print(f"hybrid model NMSE: {h['baseline']['nmse']:.2e} -> {h['extended']['nmse']:.2e}")

@@ -254,13 +254,11 @@ def diagnose(
     t0 = time.perf_counter()
     given, given_effects = settings, effects  # as asked: a held-start rerun resolves them again
     recordings = as_recordings(recordings, "diagnose")  # a path is loaded; anything else is refused
-    given_recordings = recordings
     recordings = in_shared_units(recordings, "diagnose")  # one model fits them: one scale
-    # what putting them in one unit said (a conversion, sizes a power of 1000 apart), where a caller's
-    # recordings had not been put so already (the command line's are, and printed their notes)
-    shared_notes = [
-        n for new, old in zip(recordings, given_recordings) for n in new.notes if n not in old.notes
-    ]
+    # what reading them and putting them in one unit said (t rebuilt, a unit converted, sizes a power of
+    # 1000 apart): in the report too, where a reader of report.json alone sees it (a verifier's mV drive
+    # read as V was said on stderr only)
+    shared_notes = list(dict.fromkeys(n for r in recordings for n in r.notes))
     require_float64(
         "diagnose",
         "its noise floor, information criteria and held-out tests compare errors far below float32's "
