@@ -586,7 +586,7 @@ def _cmd_fit(args):
     with lock:
         with FitStop(args.time_limit) as stop:  # SIGINT, SIGTERM, --time-limit: stop between steps
             result = _fit_as_asked(args, model, recordings, frozen, progress=not args.quiet, stop=stop)
-        print(result.summary())
+        print(result.summary(said={note for r in recordings for note in r.notes}))
         if result.stopped:
             steps = max(s.get("steps", 0) for s in result.starts)
             save_model(

@@ -296,3 +296,18 @@ def test_recordings_that_name_their_columns_differently_are_told_so(tmp_path, ca
         assert err.count("\n") == 1 and "the recordings name their columns differently" in err, err
         assert "'t', 'v_in', 'speed'" in err or "t, v_in, speed" in err
     assert not (tmp_path / "m.eqx").exists()
+
+
+def test_what_reading_a_recording_did_is_said_once(tmp_path, capsys):
+    """A verifier's `hybrid fit` of jittered times printed "t rebuilt as a uniform grid" twice: as the file
+    was read (stderr) and again among the fit's warnings (stdout). Said once; the fit's JSON keeps it."""
+    rng = np.random.default_rng(2)
+    t = (np.arange(600) + rng.uniform(-0.2, 0.2, 600)) / 30.0
+    v = np.repeat(rng.uniform(-1, 1, 30), 20)
+    w = signal.lsim(signal.lti([1.0], [0.5, 1.0]), v, np.arange(600) / 30.0)[1]
+    np.savetxt(tmp_path / "j.csv", np.c_[t, v, w], delimiter=",", header="t,v_in,w", comments="")
+    args = ["fit", str(tmp_path / "j.csv"), "--physics", "lti:1", "--model", "physics", "--max-steps", "3"]
+    assert main([*args, "--quiet", "--json", str(tmp_path / "f.json"), "--out", str(tmp_path / "m.eqx")]) == 0
+    out, err = capsys.readouterr()
+    assert (out + err).count("t rebuilt as a uniform grid") == 1, out + err
+    assert any("t rebuilt" in w for w in json.loads((tmp_path / "f.json").read_text())["warnings"])

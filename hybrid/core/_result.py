@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Collection
 from typing import Any
 
 import jax
@@ -55,8 +56,9 @@ class FitResult:
     warnings: list[str] = dataclasses.field(default_factory=list)
     stopped: bool = False
 
-    def summary(self) -> str:
-        """A few readable lines: metrics per split and the fitted parameters."""
+    def summary(self, said: Collection[str] = ()) -> str:
+        """A few readable lines: metrics per split, the fitted parameters and the warnings (less those `said`
+        already: the command line prints what reading each recording did as it reads it)."""
         lines = [
             f"{self.model.kind} model, {self.settings.get('solver')} "
             f"({len(self.starts)} start(s), kept #{self.best_start}), {self.seconds:.1f} s"
@@ -69,7 +71,7 @@ class FitResult:
             )
         for name, value in self.parameters.items():
             lines.append(f"  {name:<8} = {value:.6g}{unit_suffix(self.units.get(name))}")
-        lines += [f"  warning: {text}" for text in self.warnings]
+        lines += [f"  warning: {text}" for text in self.warnings if text not in said]
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
