@@ -775,6 +775,26 @@ def test_a_map_of_the_output_says_where_it_is_flat_and_points_at_a_clip_only_whe
         assert "levels off at the top and bottom" in d["summary"] and "--effects builtins,clip" in hint
 
 
+def test_a_band_in_the_output_s_map_is_pointed_at_beside_a_reading_that_recovers_more():
+    """A verifier's band of 30 % of the output's range read "the cube of the model's output through a linear
+    filter … 60 %", its monotone map of the output flat in the middle at 47 %: nothing pointed at the band.
+    A flat-middled map that recovers a fifth of the excess or more points at dead_band beside the other."""
+    from hybrid.discovery._unexplained import band_beside
+
+    def read(share, flat=True):
+        shape = {"flat_middle": {"flag": flat}, "levels_off": {"flag": False}}
+        return {
+            "recovered": {"named": "filter_output_cube", "best": "filter_output_cube", "of_excess": 0.6},
+            "static": {"output_monotone": {"of_excess": share, "shape": shape}},
+        }
+
+    places = {"output": {"effects": ("saturation",)}}
+    assert "--effects builtins,dead_band" in band_beside(read(0.47), places)
+    assert band_beside(read(0.1), places) is None  # too little of the excess
+    assert band_beside(read(0.47, flat=False), places) is None  # not flat in the middle
+    assert band_beside(read(0.47), {"output": {"effects": ("dead_band",)}}) is None  # searched already
+
+
 T_END = N / RATE
 
 
