@@ -138,6 +138,13 @@ def step_drive(n, seed=0, amplitude=2.0, low=6, high=40):
     return v
 
 
+def held_levels(rng, t, low, high, shortest, longest, count=200):
+    """A drive of random levels in [low, high], each held a random shortest–longest seconds, at times `t` (s):
+    `count` holds, then `count` levels, drawn from `rng` in that order."""
+    holds, levels = rng.uniform(shortest, longest, count), rng.uniform(low, high, count)
+    return levels[np.searchsorted(np.cumsum(holds), t, side="right")]
+
+
 def relative_error(a, b) -> float:
     """max |a − b| / max |b|."""
     a, b = np.asarray(a), np.asarray(b)

@@ -45,9 +45,8 @@ def _oscillator_behind_a_dead_band(path, seed: int = 3) -> None:
     sensor reads nothing while |x| ≤ `WIDTH`; noise 1 % of the range."""
     rng = np.random.default_rng(seed)
     rate, n = 30.0, 1800
-    holds, levels = rng.uniform(0.3, 3.0, 400), rng.uniform(-3.0, 3.0, 400)
     t = np.arange(n) / rate
-    v = levels[np.searchsorted(np.cumsum(holds), t, side="right")]
+    v = h.held_levels(rng, t, -3.0, 3.0, 0.3, 3.0, count=400)
     wn, zeta = 2 * np.pi * 1.0, 0.35
     plant = scipy.signal.lti([wn**2], [1.0, 2 * zeta * wn, wn**2])
     _, x, _ = scipy.signal.lsim(plant, v, t, interp=False)  # the drive held over each sample

@@ -26,9 +26,8 @@ def _heater(path, seed: int = 1) -> None:
     """60 s at 30 Hz: random steps of 0–20 W held 1–5 s, clipped at `TOP`, into 1.5 °C/W with τ = 2 s."""
     rng = np.random.default_rng(seed)
     rate, n = 30.0, 1800
-    holds, levels = rng.uniform(1.0, 5.0, 200), rng.uniform(0.0, 20.0, 200)
     t = np.arange(n) / rate
-    v = levels[np.searchsorted(np.cumsum(holds), t, side="right")]
+    v = h.held_levels(rng, t, 0.0, 20.0, 1.0, 5.0)
     _, y, _ = scipy.signal.lsim(scipy.signal.lti([1.5], [2.0, 1.0]), np.minimum(v, TOP), t)
     w = 22.0 + y + 0.01 * np.ptp(y) * rng.normal(size=n)
     np.savetxt(path, np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,W,degC", comments="")
