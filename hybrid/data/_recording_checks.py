@@ -321,9 +321,8 @@ def check_time(
     jitter = t - grid
     far = int(np.argmax(np.abs(jitter)))
     worst_jitter = abs(float(jitter[far]))
-    if (
-        worst_jitter >= JITTER_FRAMES * slope
-    ):  # a short step alone is jitter where every time is near the grid
+    # a short step alone is jitter where every time is near the grid (two neighbours each a quarter off)
+    if worst_jitter >= JITTER_FRAMES * slope:
         # where the steps first change: a rate that changes part-way shows there, not at the sample
         # furthest from one grid through them all (a probe's 30 Hz → 25 Hz at line 903 named line 1651)
         # the rate the record starts at (the median may lie between two): its first steps, a quarter at most
@@ -504,8 +503,8 @@ def fill_gaps(
     wholes = np.abs(dt[gaps] - frames * step) <= JITTER_FRAMES * step
     if not wholes.all() and _on_one_grid(t, gaps, frames, step):
         # timestamps jittered either side of a gap can each be a quarter step off: the gap is whole where
-        # every time, the gaps' frames counted, lies within a quarter step of one grid (a probe's ±0.2-step
-        # jitter made a one-frame gap 1.74 steps long)
+        # the stretches between the gaps, their frames counted, lie on one grid (`_on_one_grid`; a probe's
+        # ±0.2-step jitter made a one-frame gap 1.74 steps long)
         wholes[:] = True
     for g, k, whole in zip(gaps, frames, wholes):
         if whole and k - 1 <= most:

@@ -33,8 +33,8 @@ from typing import Any
 
 from ._unexplained import tried_hint
 
-#: How many named causes, a saturation among them, make a refinement worth trying even at the noise floor:
-#: a clip's sharp knee may be what they fake together (a probe's drive clip beside a Coulomb friction, in
+#: How many named causes, one with a refinement among them (a saturation), make a refinement worth trying even
+#: at the noise floor: a clip's sharp knee may be what they fake together (a probe's drive clip beside a Coulomb friction, in
 #: its own plug-in, read as drive_saturation, the friction and a dead zone never hidden, "measurement noise").
 CROWDED = 3
 #: Why a refinement is tried, as its sentence says it.
