@@ -63,6 +63,17 @@ def test_smoothed_oversampled_data_warn_and_say_what_the_floor_read():
     assert "if w was smoothed" in floor_caveat(sigma**2, floor, recovered=0.3)
     missed = floor_caveat(sigma**2, floor, recovered=0.8)
     assert missed is not None and "recovers 80% of that excess" in missed and "smoothed," not in missed
+    # nor where most of the excess lies in one held-out stretch (a probe's 20 min drift that did not carry on
+    # into the last one), which noise spread over the record does not; one stretch holding its share
+    # of the samples' excess says nothing
+    late = {"share": 0.91, "samples_fraction": 1 / 3, "t": [1080.0, 1199.98]}
+    there = floor_caveat(sigma**2, floor, recovered=0.0, concentrated=late)
+    assert (
+        "91% of that excess lies in one held-out stretch, t = 1080–1200 s" in there
+        and "smoothed," not in there
+    )
+    even = {**late, "share": 0.4}
+    assert "if w was smoothed" in floor_caveat(sigma**2, floor, recovered=0.0, concentrated=even)
     report = "\n".join(
         noise_section(
             {

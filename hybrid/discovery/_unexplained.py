@@ -51,7 +51,9 @@ FAR_ABOVE_FLOOR = 100.0
 MISS_RECOVERED = 0.5
 
 
-def floor_caveat(mse: float, floor: NoiseFloor, recovered: float | None = None) -> str | None:
+def floor_caveat(
+    mse: float, floor: NoiseFloor, recovered: float | None = None, concentrated: dict | None = None
+) -> str | None:
     """A sentence when a held-out MSE is so far above the floor that the floor tells little, else None.
 
     `recovered`: the share of the excess that the remainder's best map recovers
@@ -60,7 +62,11 @@ def floor_caveat(mse: float, floor: NoiseFloor, recovered: float | None = None) 
     time, which noise (smoothed or not) is not: it is the model's miss, and the
     sentence says so instead of doubting the floor (a piezo stage read to 0.03
     µm, tried as a new user would, was told "if w was smoothed …" beside a
-    creep its model lacked).
+    creep its model lacked). `concentrated`: the held-out stretch that holds
+    most of the excess (``description["concentrated"]``); where it holds
+    `MISS_RECOVERED` of it or more, and twice its share of the held-out samples,
+    noise, which is spread over the record, is not what the floor misses either (a probe's 20 min drift, right but not
+    extrapolating into the last held-out stretch, was told "if w was smoothed …").
     """
     if not (floor.variance > 0 and mse > FAR_ABOVE_FLOOR * floor.variance):
         return None
@@ -78,6 +84,15 @@ def floor_caveat(mse: float, floor: NoiseFloor, recovered: float | None = None) 
         return (
             f"{head}; a map fitted on the training part recovers {recovered:.0%} of that excess held out, which "
             "measurement noise, smoothed or not, would not allow: most of the excess is the model's miss"
+        )
+    share = float((concentrated or {}).get("share") or 0.0)
+    evenly = float((concentrated or {}).get("samples_fraction") or 1.0)  # its share were the excess spread
+    if share >= max(MISS_RECOVERED, 2.0 * evenly) and (concentrated or {}).get("t"):
+        start, end = concentrated["t"]
+        return (
+            f"{head}; {share:.0%} of that excess lies in one held-out stretch, t = {start:.4g}–{end:.4g} s, "
+            "where measurement noise, smoothed or not, is spread over the record: most of the excess is the "
+            "model's miss there"
         )
     return (
         f"{head}; if w was smoothed, filtered, interpolated or oversampled, that processing removed the "
@@ -377,7 +392,9 @@ def remainder(
         "ratio_to_floor": mse / floor.variance,
         "description": description,
     }
-    caveat = floor_caveat(mse, floor, (description.get("recovered") or {}).get("of_excess"))
+    caveat = floor_caveat(
+        mse, floor, (description.get("recovered") or {}).get("of_excess"), description.get("concentrated")
+    )
     if caveat:
         out["floor_warning"] = caveat
     if equally_good is not None and np.isfinite(equally_good.heldout_nmse_min):
