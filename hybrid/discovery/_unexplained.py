@@ -85,10 +85,11 @@ def floor_caveat(
             f"{head}; a map fitted on the training part recovers {recovered:.0%} of that excess held out, which "
             "measurement noise, smoothed or not, would not allow: most of the excess is the model's miss"
         )
-    share = float((concentrated or {}).get("share") or 0.0)
-    evenly = float((concentrated or {}).get("samples_fraction") or 1.0)  # its share were the excess spread
-    if share >= max(MISS_RECOVERED, 2.0 * evenly) and (concentrated or {}).get("t"):
-        start, end = concentrated["t"]
+    stretch = concentrated or {}
+    share = float(stretch.get("share") or 0.0)
+    evenly = float(stretch.get("samples_fraction") or 1.0)  # its share were the excess spread
+    if share >= max(MISS_RECOVERED, 2.0 * evenly) and stretch.get("t"):
+        start, end = stretch["t"]
         return (
             f"{head}; {share:.0%} of that excess lies in one held-out stretch, t = {start:.4g}–{end:.4g} s, "
             "where measurement noise, smoothed or not, is spread over the record: most of the excess is the "
