@@ -78,7 +78,7 @@ def load_recordings(args, paths, rate_alone_maps: bool = True):
 def _load_recordings(args, paths, rate_alone_maps: bool):
 
     from .data._loaders import TEXT_SUFFIXES
-    from .data._mapping import file_references, load_mapped
+    from .data._mapping import file_references, header_names, load_mapped
     from .data._mapping_options import mapping_roles
     from .data._recording import Recording
 
@@ -97,7 +97,7 @@ def _load_recordings(args, paths, rate_alone_maps: bool):
     }
     if not any(options[k] is not None for k in ("input", "output", "time", "columns")):
         text = [p for p in paths if Path(p).suffix.lower() in TEXT_SUFFIXES]
-        names = [_header(p) for p in text]
+        names = [header_names(p) for p in text]
         if text and all({"t", "v_in", "w"} <= set(n) for n in names):  # the project's own columns
             return [load_mapped(p, **{**options, "input": "v_in", "output": "w", "time": "t"}) for p in paths]
         if text:  # a text table has no t, v_in, w: say how to map it, or how to join one file per channel
@@ -119,13 +119,14 @@ def _each(paths, load) -> list:
     error says so: one mapping reads every file (a probe's second recording named its output `speed`, the
     first `w`, and each file's advice broke the other)."""
     from .data._loaders import MissingName
+    from .data._mapping import header_names
 
     out = []
     for path in paths:
         try:
             out.append(load(path))
         except MissingName as error:
-            headers = {str(p): _header(p) for p in paths}
+            headers = {str(p): header_names(p) for p in paths}
             if len(paths) < 2 or len({tuple(h) for h in headers.values()}) < 2:
                 raise
             named = "; ".join(f"'{p}': {', '.join(h) or '(unread)'}" for p, h in headers.items())
@@ -134,16 +135,6 @@ def _each(paths, load) -> list:
                 "them all: rename the column in one file to match the others"
             ) from None
     return out
-
-
-def _header(path) -> list[str]:
-    """A text table's column names (its header's; "0", "1", … without one), or [] where it cannot be read."""
-    from .data._table import text_columns
-
-    try:
-        return text_columns(Path(path))  # the names alone: the numbers are read once, by load_mapped
-    except (InputError, OSError):
-        return []  # the mapped read says what is wrong with the file, once a mapping is given
 
 
 def _text_example(paths, names: list[str]) -> str:

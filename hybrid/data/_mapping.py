@@ -135,8 +135,9 @@ def _standard_roles(path, require_w: bool, fill: bool) -> tuple[dict[str, str], 
     return next((e for e in errors if not isinstance(e, MissingName)), errors[0])
 
 
-def _names_of(path) -> list[str]:
-    """A text table's column names, or [] where it is none (a .mat, a .npz) or cannot be read."""
+def header_names(path) -> list[str]:
+    """A text table's column names (its header's; "0", "1", … without one), read without converting its
+    numbers, or [] where it is none (a .mat, a .npz) or cannot be read: the mapped read says what is wrong."""
     from ._table import text_columns
 
     try:
@@ -216,13 +217,10 @@ def load_mapped(
             standard = _standard_roles(paths[0], require_w, fill)
         if standard is None:
             raise
-        if isinstance(
-            standard, MissingName
-        ):  # no mapping given: every name it lacks, and a mapping of its own
-            header = _names_of(paths[0])
-            if header:
-                require_names(paths[0], header, "column(s)")
-        if isinstance(standard, InputError):  # or what is wrong in it
+        # no mapping given: every name the file lacks and a mapping of its own, or what is wrong in it
+        if isinstance(standard, MissingName) and (header := header_names(paths[0])):
+            require_names(paths[0], header, "column(s)")
+        if isinstance(standard, InputError):
             raise standard from None
         roles, read = standard
         defaults = UNITS  # the project's own columns, as `Recording.load` reads them (V, mm)

@@ -1327,7 +1327,46 @@ class BaselineDrift(AbstractEffect):
         return size >= need, f"baseline moves {size:.1f} % of range (needs ≥ {need} %)"
 
 
-class DriveDeadZone(AbstractEffect):
+class _DeadZone(AbstractEffect):
+    """x ↦ x − clip(x, −d, d), nothing passed on while |x| ≤ d, on whichever signal.
+
+    The half-width d (unit of the signal) is ``<name>_width``; ``derived``
+    reports it as a percentage of the largest |x| (``<name>_percent``), and
+    `material` asks 3 % of it. `DriveDeadZone` on the drive, `DeadBand` on the
+    output; `noun` and `of` word the size's sentence.
+    """
+
+    noun: ClassVar[str]
+    of: ClassVar[str]
+
+    def __init__(self, **values):
+        init_values(self, values)
+
+    def apply(self, x, dt):
+        d = self.parameters()[f"{self.name}_width"]
+        return x - jnp.clip(x, -d, d)
+
+    def derived(self, x, dt):
+        top = float(np.max(np.abs(x))) if len(x) else 0.0
+        d = float(self.parameters()[f"{self.name}_width"])
+        return {f"{self.name}_percent": 100.0 * d / top if top > 0 else 0.0}
+
+    def starts(self, context):
+        top = signal_top(context.signal)
+        return [{f"{self.name}_width": 0.05 * top}, {f"{self.name}_width": 0.2 * top}]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get(f"{self.name}_percent", 0.0), thresholds[f"{self.name}_percent"]
+        return size >= need, f"{self.noun} {size:.1f} % of the largest {self.of} (needs ≥ {need} %)"
+
+
+def _dead_zone_facts(name: str) -> tuple[dict, dict, dict, dict]:
+    """(constraints, units, defaults, thresholds) of a dead zone called `name`."""
+    width = f"{name}_width"
+    return {width: Positive()}, {width: "{signal}"}, {width: 0.01}, {f"{name}_percent": 3.0}
+
+
+class DriveDeadZone(_DeadZone):
     """On the drive: u ↦ u − clip(u, −d, d), no response while |u| ≤ d.
 
     Static friction at the input, a diode's or an amplifier's threshold, a
@@ -1340,33 +1379,12 @@ class DriveDeadZone(AbstractEffect):
     place: ClassVar[str] = "drive"
     refinement: ClassVar[str | None] = "dead_band"  # the same form on the output, which it can stand in for
     n_kept: ClassVar[int] = 1  # its starts are sizes of one form: a few steps tell them apart
-    constraints: ClassVar = {"drive_dead_zone_width": Positive()}
-    units: ClassVar = {"drive_dead_zone_width": "{signal}"}
-    defaults: ClassVar = {"drive_dead_zone_width": 0.01}
-    thresholds: ClassVar = {"drive_dead_zone_percent": 3.0}
-
-    def __init__(self, **values):
-        init_values(self, values)
-
-    def apply(self, u, dt):
-        d = self.parameters()["drive_dead_zone_width"]
-        return u - jnp.clip(u, -d, d)
-
-    def derived(self, u, dt):
-        top = float(np.max(np.abs(u))) if len(u) else 0.0
-        d = float(self.parameters()["drive_dead_zone_width"])
-        return {"drive_dead_zone_percent": 100.0 * d / top if top > 0 else 0.0}
-
-    def starts(self, context):
-        top = signal_top(context.signal)
-        return [{"drive_dead_zone_width": 0.05 * top}, {"drive_dead_zone_width": 0.2 * top}]
-
-    def material(self, derived, parameters, thresholds):
-        size, need = derived.get("drive_dead_zone_percent", 0.0), thresholds["drive_dead_zone_percent"]
-        return size >= need, f"dead zone {size:.1f} % of the largest drive (needs ≥ {need} %)"
+    noun: ClassVar[str] = "dead zone"
+    of: ClassVar[str] = "drive"
+    constraints, units, defaults, thresholds = _dead_zone_facts("drive_dead_zone")
 
 
-class DeadBand(AbstractEffect):
+class DeadBand(_DeadZone):
     """On the output: s ↦ s − clip(s, −d, d), nothing recorded while |s| ≤ d.
 
     A sensor or a linkage to it that does not register until the output has
@@ -1387,30 +1405,9 @@ class DeadBand(AbstractEffect):
 
     raw: dict[str, Array]
     name: ClassVar[str] = "dead_band"
-    constraints: ClassVar = {"dead_band_width": Positive()}
-    units: ClassVar = {"dead_band_width": "{signal}"}
-    defaults: ClassVar = {"dead_band_width": 0.01}
-    thresholds: ClassVar = {"dead_band_percent": 3.0}
-
-    def __init__(self, **values):
-        init_values(self, values)
-
-    def apply(self, s, dt):
-        d = self.parameters()["dead_band_width"]
-        return s - jnp.clip(s, -d, d)
-
-    def derived(self, s, dt):
-        top = float(np.max(np.abs(s))) if len(s) else 0.0
-        d = float(self.parameters()["dead_band_width"])
-        return {"dead_band_percent": 100.0 * d / top if top > 0 else 0.0}
-
-    def starts(self, context):
-        top = signal_top(context.signal)
-        return [{"dead_band_width": 0.05 * top}, {"dead_band_width": 0.2 * top}]
-
-    def material(self, derived, parameters, thresholds):
-        size, need = derived.get("dead_band_percent", 0.0), thresholds["dead_band_percent"]
-        return size >= need, f"dead band {size:.1f} % of the largest output (needs ≥ {need} %)"
+    noun: ClassVar[str] = "dead band"
+    of: ClassVar[str] = "output"
+    constraints, units, defaults, thresholds = _dead_zone_facts("dead_band")
 
 
 def play(u, half_width, initial=0.0):

@@ -479,7 +479,12 @@ def named_only_hint(description: dict, places: dict) -> str | None:
     if pointer is None:
         return None
     effect, what = pointer
-    return f"{what} may also explain it: the built-in {effect} is searched when named (--effects builtins,{effect})"
+    return f"{what} may also explain it: the built-in {effect} {_asked(effect)}"
+
+
+def _asked(effect: str) -> str:
+    """How a hint asks for a built-in searched only when named (`tried_hint` takes it back)."""
+    return f"is searched when named (--effects builtins,{effect})"
 
 
 def tried_hint(description: dict) -> None:
@@ -489,9 +494,8 @@ def tried_hint(description: dict) -> None:
     effect = description.get("named_only")
     if not effect:
         return
-    asked = f"is searched when named (--effects builtins,{effect})"
     description["summary"] = description.get("summary", "").replace(
-        asked, "was tried in its place, and did not take it (evidence.refined)"
+        _asked(effect), "was tried in its place, and did not take it (evidence.refined)"
     )
 
 
@@ -509,7 +513,7 @@ def band_beside(description: dict, places: dict) -> str | None:
         return None
     return (
         f"{_DEAD_BAND[1]} may also explain it (a map of the output flat in the middle recovers {share:.0%} of the "
-        f"excess): the built-in {_DEAD_BAND[0]} is searched when named (--effects builtins,{_DEAD_BAND[0]})"
+        f"excess): the built-in {_DEAD_BAND[0]} {_asked(_DEAD_BAND[0])}"
     )
 
 
