@@ -281,6 +281,20 @@ def _levels(n, low, high, dt, seed, hold: float = 0.0):
     return best
 
 
+def _seam(n: int, rich: float, hold_n: int, levels: np.ndarray) -> int:
+    """The samples kept as the control (`rich` of `n`); with a hold, at the control's level change nearest.
+
+    The designed part's blocks begin where the kept part ends: cut inside a
+    level, the kept part would end on a piece of it shorter than the hold
+    (down to 12 samples of a 60-sample hold), then change level.
+    """
+    kept = int(round(rich * n))
+    if hold_n <= 1 or kept == 0:
+        return kept
+    changes = np.flatnonzero(np.diff(levels)) + 1  # where each of the control's levels but the first begins
+    return int(changes[np.argmin(np.abs(changes - kept))]) if changes.size else kept
+
+
 def _abs_correlation(u, t) -> float:
     """|Pearson r| of `u` and `t`; 0 where either is constant."""
     du, dt_ = u - u.mean(), t - t.mean()
@@ -338,7 +352,9 @@ def design_drive(
       the range's half-width, and the seed.
     - `rich`: the share of the drive, at its start, kept as the control's
       multilevel PRBS (not designed), in [0, 1); T is over the whole drive.
-      0.5 by default (see the module's docstring); 0: all designed.
+      0.5 by default (see the module's docstring); 0: all designed. With a
+      `hold`, the kept part ends at the control's level change nearest that
+      share, so that no level at the seam is held shorter.
     - `output_bounds`: (low, high) that every rival's predicted output must
       keep within (a cell's voltage window, an actuator's travel), in the
       output's unit; None: no limit. The rivals' predictions are the only
@@ -388,7 +404,7 @@ def design_drive(
 
     optimiser = optax.adam(learning_rate * 0.5 * (high - low))  # steps in the drive's unit
 
-    kept = int(round(rich * n))  # the control's first samples, never moved
+    kept = _seam(n, rich, hold_n, _levels(n, low, high, dt, seed, hold_s))  # the control's, never moved
 
     def on_grid(u):  # the designed part held (`hold`), then the range and the slew
         return _feasible(_held(jnp.asarray(u), kept, hold_n), low, high, slew, dt)
