@@ -12,6 +12,7 @@ import json
 import numpy as np
 import pytest
 import scipy.linalg
+import scipy.signal
 
 from hybrid import InputError, Recording, diagnose, fit, load_mapped, make_model, sensitivity as S
 from hybrid.cli import main
@@ -72,6 +73,52 @@ def test_constant_w_is_refused_by_check_signals_too():
     v, _ = _signals(300)
     with pytest.raises(InputError, match="output column w is constant .*a disconnected or saturated sensor"):
         Recording.from_arrays(v_in=v, w=np.zeros(300), rate=RATE).check_signals()
+
+
+def _turning(n, seed=0):
+    """A drive and the angle (rad) of a shaft it turns several times, with an encoder's noise; not wrapped."""
+    rng = np.random.default_rng(seed)
+    v = np.repeat(rng.uniform(-1.0, 1.0, n // 30), 30)
+    angle = scipy.signal.lfilter([0.02], [1.0, -0.98], v) * 40.0
+    return v, angle + 0.01 * rng.normal(size=n)
+
+
+@pytest.mark.parametrize(
+    "wrap, turn, unwrap",
+    [
+        (lambda a: np.angle(np.exp(1j * a)), "(2π)", "numpy.unwrap(w)"),  # atan2's ±π
+        (lambda a: np.mod(a, 2 * np.pi), "(2π)", "numpy.unwrap(w)"),  # 0 to 2π
+        (lambda a: np.degrees(np.angle(np.exp(1j * a))), "(360)", "period=360"),  # an encoder's ±180°
+        # an angle that swings about its turn's end and wraps back and forth (a probe's, read as glitches)
+        (lambda a: np.angle(np.exp(1j * (np.pi + 0.3 * np.sin(a / 4)))), "(2π)", "numpy.unwrap(w)"),
+    ],
+    ids=["atan2", "mod", "degrees", "about_the_end"],
+)
+def test_an_angle_that_wraps_around_is_refused_with_how_to_unwrap_it(wrap, turn, unwrap):
+    # A wrapped angle read "static and odd in the drive" with its wraps bridged as glitches (a probe's):
+    # each jump of a whole turn is read as the plant's response unless it is unwrapped first.
+    v, angle = _turning(3000)
+    with pytest.raises(InputError, match="an angle that wraps around") as caught:
+        Recording.from_arrays(v_in=v, w=wrap(angle), rate=RATE).check_signals()
+    assert turn in str(caught.value) and unwrap in str(caught.value)
+    # unwrapped it passes, as do signals of a similar range that do not wrap
+    Recording.from_arrays(v_in=v, w=np.unwrap(wrap(angle)), rate=RATE).check_signals()
+    rng = np.random.default_rng(1)
+    for w in (
+        angle,  # the angle itself, nine turns
+        np.where(v > 0, 2.5, -2.5) + 0.01 * rng.normal(size=v.size),  # a relay's output, steps < a turn apart
+        0.5 * np.sin(angle / 10) + 0.01 * rng.normal(size=v.size),  # a small swing
+        np.clip(angle, -np.pi, np.pi),  # a signal within ±π that steps nowhere by more than half a turn
+    ):
+        Recording.from_arrays(v_in=v, w=w, rate=RATE).check_signals()
+
+
+def test_cli_diagnose_refuses_a_wrapped_angle_in_one_line(tmp_path, capsys):
+    v, angle = _turning(3000)
+    path = _write_csv(tmp_path / "encoder.csv", np.arange(3000) / RATE, v, np.angle(np.exp(1j * angle)))
+    lines = _cli_error(["diagnose", path, "--physics", "lti:2", "--out", tmp_path / "d"], capsys)
+    assert len(lines) == 1 and "wraps around" in lines[0] and "numpy.unwrap(w)" in lines[0]
+    assert not (tmp_path / "d").exists()
 
 
 def test_loading_a_rest_recording_still_works(tmp_path):

@@ -44,6 +44,7 @@ from ._recording_checks import (
     source_name,
     time_step,
     wild_sample,
+    wrapped_angle,
 )
 from ._split import Split, split_recording
 from ._writers import write_file
@@ -252,7 +253,9 @@ class Recording:
         A constant (or all-zero) column cannot be fitted, and a fit would print its
         start values as fitted parameters; the likely causes are named. Constant
         means a standard deviation of at most 1e-12 of the column's magnitude.
-        Loading does not require this (a rest recording or an interrupted one is
+        An output that reads as an angle wrapping around (a whole turn's jumps
+        while it moves on across them, `wrapped_angle`) is refused too, with
+        how to unwrap it. Loading does not require this (a rest recording or an interrupted one is
         still a recording); `fit`, `fit_batch`, `diagnose` and `hybrid sensitivity`
         check it first.
 
@@ -285,6 +288,15 @@ class Recording:
                     f"{times:.3g} times the column's typical deviation from its median: a corrupt cell? fix or "
                     f"delete that line (or leave it out with {range_flag()})"
                 )
+        wrapped = wrapped_angle(self.w)
+        if wrapped is not None:
+            turn, unwrap, count, k = wrapped
+            raise InputError(
+                f"recording '{self.name}': w jumps by a whole turn ({turn}) {count} time(s), from one end of its "
+                f"range to the other while it moves on across (the first at sample {k}, t = {self.t[k]:.6g} s): "
+                f"an angle that wraps around, as an encoder or atan2 gives it; unwrap it ({unwrap}) and "
+                "load that"
+            )
         return self
 
     # ---------------------------------------------------------------- slicing

@@ -37,6 +37,7 @@ __all__ = [
     "TIME_RTOL",
     "TIME_UNITS",
     "UNITS",
+    "WRAP_PERIODS",
     "fill_gaps",
     "columns_flag",
     "fill_values",
@@ -463,6 +464,54 @@ def wild_sample(values: np.ndarray) -> tuple[int, float] | None:
     k = int(np.argmax(deviation))
     times = float(deviation[k] / typical)
     return (k, times) if times > OUTLIER_FACTOR else None
+
+
+#: The turns an angle sensor wraps at: (period, how to write it, how numpy unwraps it).
+WRAP_PERIODS: tuple[tuple[float, str, str], ...] = (
+    (2 * math.pi, "2π", "numpy.unwrap(w)"),
+    (360.0, "360", "numpy.unwrap(w, period=360)"),
+)
+
+
+def wrapped_angle(values: np.ndarray) -> tuple[str, str, int, int] | None:
+    """(period, unwrap, how many wraps, the first's sample) where `values` read as an angle that wraps, or None.
+
+    An encoder or an ``atan2`` gives an angle within one turn (±π, 0–360°): each
+    time the angle passes the turn's end it jumps by a whole turn to the other
+    end, and a fit reads those jumps as the plant's response. Read as wrapped
+    where the values (from their 0.5 % to their 99.5 % quantile: a sensor's noise
+    reaches past the turn's ends) span 0.8–1.02 of a turn (`WRAP_PERIODS`), move
+    by less than a tenth of it per sample (a shaft at 36° a frame), and nine in ten of the steps of more than
+    half a turn continue the steps beside them once a turn is taken off (at most
+    5 × their median, or the record's): the motion goes on across the jump. A
+    switching signal (a relay's, a pulse drive's) steps while it stands still
+    beside: not read as wrapped.
+    """
+    v = np.asarray(values, float)
+    if v.size < 20 or not np.all(np.isfinite(v)):
+        return None
+    d = np.diff(v)
+    low, high = np.quantile(v, [0.005, 0.995])
+    span = float(high - low)
+    for period, written, unwrap in WRAP_PERIODS:
+        if not 0.8 * period <= span <= 1.02 * period:
+            continue
+        jumps = np.flatnonzero(np.abs(d) > 0.5 * period)
+        if jumps.size == 0:
+            continue
+        steady = np.abs(d - period * np.round(d / period))  # each step continued across a whole turn
+        moving = np.delete(steady, jumps)
+        typical = float(np.median(moving)) if moving.size else 0.0
+        if not 0.0 < typical < 0.1 * period:
+            continue
+        continued = 0
+        for k in jumps:
+            beside = np.r_[steady[max(k - 5, 0) : k], steady[k + 1 : k + 6]]
+            local = float(np.median(beside)) if beside.size else 0.0
+            continued += bool(steady[k] <= 5.0 * max(local, typical))
+        if continued >= 0.9 * jumps.size:
+            return written, unwrap, int(jumps.size), int(jumps[0]) + 1
+    return None
 
 
 def source_name(metadata: Any) -> str:
