@@ -263,7 +263,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="fit w's glitches as recorded (runs of a few samples that w jumps into and back out of: by "
         "default bridged by straight lines before any fit, as a tracker's lost frames; keep them when the "
-        "system flips by itself, a relay or a chattering contact): DiagnoseSettings.bridge_glitches",
+        "system flips by itself, a relay or a chattering contact), and the samples a quality column marks 0 "
+        "inside the record (rig's tracker held w there): DiagnoseSettings.bridge_glitches",
     )
     p.add_argument(
         "--no-refine",

@@ -356,6 +356,40 @@ def test_a_loggers_dropouts_are_bridged_before_any_fit_and_said(tmp_path):
     assert kept.unexplained is not None and "w's glitches" in kept.unexplained["description"]["summary"]
 
 
+def test_a_trackers_held_frames_weigh_nothing_and_are_said(tmp_path):
+    """A 0.3 s lag tracked at 30 fps whose tracker lost the tip now and then and held w (quality 0).
+
+    A probe's 15 held frames of a covered tip (of 1200) turned a clean all-clear into "unexplained, 94 %,
+    it follows the drive": the held samples, fitted as measured, bent the fit and the held-out error.
+    Bridged, and weighing nothing in the fits nor in the remainder's test, the right simulation leaves
+    nothing but the noise; a run at the record's end has no line to lie on and is left as it is.
+    """
+    rng = np.random.default_rng(7)
+    rate, n = 30.0, 1800
+    t = np.arange(n) / rate
+    v = np.repeat(rng.uniform(-2, 2, n // 20 + 1), 20)[:n]
+    y = scipy.signal.lsim(scipy.signal.lti([2.0], [0.3, 1.0]), v, t)[1]
+    w = y + 0.002 * np.ptp(y) * rng.normal(size=n)
+    quality = np.ones(n)
+    held = [(140, 154), (610, 629), (905, 917), (1390, 1404), (1650, 1669)]  # through every part of the split
+    for a, b in held + [(n - 6, n - 1)]:
+        w[a : b + 1] = w[a - 1]  # the tracker keeps the last good w
+        quality[a : b + 1] = 0.0
+    path = hybrid.Recording.from_arrays(v_in=v, w=w, rate=rate, extra={"quality": quality}).save(
+        tmp_path / "tracked.csv"
+    )
+    done = h.run_hybrid(
+        tmp_path, "diagnose", path, "--physics", "lti:1", "--effects", "saturation", "--quiet", "--out", "d"
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    (entry,) = report["glitches_bridged"]
+    assert entry["unmeasured"] == [list(r) for r in held]  # not the run at the end
+    assert report["cause"] == "none" and report["unexplained"] is None, report["verdict"]
+    said = [line for line in report["warnings"] if "quality 0 inside the record" in line]
+    assert len(said) == 1 and f"{sum(b - a + 1 for a, b in held)} sample(s)" in said[0]
+
+
 def test_kept_dropouts_are_said_as_glitches_and_do_not_pass_for_noise():
     """With `bridge_glitches=False`: the dropouts in the last 6 s only (all held out), kept.
 

@@ -1162,16 +1162,18 @@ def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[
     `rig record` and `rig track` write w on every row: where the tracker could
     not measure the tip (out of view, a smeared tip, a dropped or repeated
     frame) w is held, interpolated or measured less surely, with quality 0.
-    Nothing weighs them down in a fit: the user should know.
+    `diagnose` bridges the runs of them inside the record (its glitches'
+    straight lines); nothing weighs them down in a fit: the user should know.
     """
     if quality is None or not np.isin(quality, (0.0, 1.0)).all() or not (quality == 0).any():
         return []
     zero = np.flatnonzero(quality == 0)
     return [
         f"recording '{path}': {len(zero)} of {len(quality)} samples have quality 0 (the first at sample "
-        f"{zero[0]}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker), "
-        f"yet they are fitted as measured; where they bunch, leave them out with {range_flag()}, or track the "
-        "video again (rig/README.md)"
+        f"{zero[0]}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker); "
+        "diagnose bridges each run of them inside the record by a straight line, fit fits them as measured; "
+        f"at the record's ends, or where they bunch, leave them out with {range_flag()}, or track the video "
+        "again (rig/README.md)"
     ]
 
 

@@ -91,7 +91,7 @@ from ._effect_set import resolve_effects, searched_places
 from ._effect_stack import EffectStack
 from ._evidence import diverged_warnings, fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._joint import joint_pair, named_jointly
-from ._noise_floor import bounded_by_residual, bridged, glitch_runs
+from ._noise_floor import bounded_by_residual, bridged, glitch_runs, unmeasured_runs
 from ._redundant import drop_redundant
 from ._refine import refinable, refined, refined_effects, refinement_reason, refused
 from ._search import (
@@ -420,7 +420,10 @@ def diagnose(
                 again.evidence["start"] = tried
                 again.seconds = time.perf_counter() - t0
                 again.glitches_bridged = glitches  # it read the recordings as bridged here
-                again.warnings = shared_notes + _glitch_warnings(glitches, rate) + again.warnings
+                # once each: the rerun read the same recordings (their notes, the unmeasured runs) too
+                again.warnings = list(
+                    dict.fromkeys(shared_notes + _glitch_warnings(glitches, rate) + again.warnings)
+                )
                 return again
             start = tried  # held, the start is still missed, or the causes earn their place: said so
 
@@ -461,6 +464,7 @@ def diagnose(
         extended=w_hat_ext,
         recording=of_recording,
         segment=blocks,
+        unmeasured=_unmeasured_heldout(recordings, segments) if settings.bridge_glitches else None,
     )
     say("noise floor and what lies above it")
     signals = recording_units(recordings) or (PAPER_UNITS["w"], PAPER_UNITS["v_in"])  # (w's, the drive's)
@@ -589,7 +593,7 @@ def diagnose(
         found.evidence["refined"] = refused(swaps, error)
         return found
     again.glitches_bridged = glitches  # it read the recordings as bridged here
-    again.warnings = shared_notes + _glitch_warnings(glitches, rate) + again.warnings
+    again.warnings = list(dict.fromkeys(shared_notes + _glitch_warnings(glitches, rate) + again.warnings))
     kept_diagnosis, tried = refined(found, again, swaps, settings.min_gain, why)
     kept_diagnosis.evidence["refined"] = tried
     kept_diagnosis.settings = dataclasses.replace(kept_diagnosis.settings, refine=given.refine)  # as asked
@@ -607,15 +611,41 @@ def _bridge_glitches(recordings) -> tuple[list, list[dict]]:
     gain, and the remainder reads it as unexplained. Each run is put on the
     straight line between the samples either side of it, as `--fill-gaps`
     fills a dropped frame (`DiagnoseSettings.bridge_glitches`).
+
+    So is each run of samples a ``quality`` column (rig's: 1 measured, 0 not)
+    marks 0 with measured samples either side (``"unmeasured"``): the tracker
+    held w there, and a probe's 15 frames of a covered tip, held, turned an
+    all-clear into "unexplained, 94 %, it follows the drive". A run at the
+    record's start or end has no line to lie on: it stays, and its load note says so.
     """
     out, found = [], []
     for r in recordings:
-        runs = glitch_runs(r.w, r.v_in)
+        unmeasured = unmeasured_runs(r.extra.get("quality"))
+        w = bridged(r.w, unmeasured) if unmeasured else r.w
+        runs = glitch_runs(w, r.v_in)
         if runs:
-            r = dataclasses.replace(r, w=bridged(r.w, runs))
-            found.append({"recording": r.name, "runs": [[int(a), int(b)] for a, b in runs]})
+            w = bridged(w, runs)
+        if unmeasured or runs:
+            r = dataclasses.replace(r, w=w)
+            entry: dict[str, Any] = {"recording": r.name, "runs": [[int(a), int(b)] for a, b in runs]}
+            if unmeasured:
+                entry["unmeasured"] = [[int(a), int(b)] for a, b in unmeasured]
+            found.append(entry)
         out.append(r)
     return out, found
+
+
+def _unmeasured_heldout(recordings, segments) -> np.ndarray | None:
+    """Per held-out sample (`segments`: (recording, first, stop)), whether `_bridge_glitches` bridged it as
+    unmeasured; None where none was."""
+    marks = []
+    for r in recordings:
+        mark = np.zeros(r.n, bool)
+        for a, b in unmeasured_runs(r.extra.get("quality")):
+            mark[a : b + 1] = True
+        marks.append(mark)
+    held = np.concatenate([marks[i][a:b] for i, a, b in segments])
+    return held if held.any() else None
 
 
 def _escapes_warning(simulation, escaped: list[dict], n_screen: int) -> list[str]:
@@ -645,6 +675,17 @@ def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:
     """One sentence per recording whose glitches `_bridge_glitches` bridged."""
     out = []
     for g in glitches:
+        if g.get("unmeasured"):
+            held = g["unmeasured"]
+            count = sum(b - a + 1 for a, b in held)
+            out.append(
+                f"recording '{g['recording']}': w's {count} sample(s) of quality 0 inside the record ({len(held)} "
+                f"run(s), the longest {max(b - a + 1 for a, b in held)} samples, the first at t = "
+                f"{held[0][0] / rate:.4g} s), not measured there (a tracker held it), were bridged by straight "
+                "lines before any fit; diagnose with --keep-glitches to fit them as recorded"
+            )
+        if not g["runs"]:
+            continue
         lengths = sorted({b - a + 1 for a, b in g["runs"]})
         spread = f"{lengths[0]}–{lengths[-1]}" if len(lengths) > 1 else f"{lengths[0]}"
         out.append(

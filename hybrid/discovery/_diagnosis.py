@@ -62,7 +62,8 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: few samples that w jumps into and back out of, each [first, last], left out of the floor with the
 #: isolated spikes; their samples are in ``noise_floor.spikes`` too); ``glitches_bridged`` (those runs
 #: bridged before any fit, per recording: ``DiagnoseSettings.bridge_glitches``, on by default, so that
-#: ``noise_floor.glitches`` is empty unless it is off) and ``settings.bridge_glitches``; each
+#: ``noise_floor.glitches`` is empty unless it is off; an entry's ``unmeasured``: the runs of a
+#: ``quality`` column's 0s inside the record, bridged alike) and ``settings.bridge_glitches``; each
 #: parameter's ``to_training_optimum`` and ``at_training_optimum`` (`OFF_OPTIMUM`); ``evidence.refined``
 #: (the second diagnosis with a named-only refinement in its parent's place, `DiagnoseSettings.refine`),
 #: ``unexplained.description.named_only`` (the named-only built-in the remainder points at) and
@@ -177,9 +178,12 @@ class DiagnoseSettings:
       tracker that lost its marker, a logger that read 0) on the straight line
       between its neighbours before any fit, and say so in ``warnings`` and
       ``glitches_bridged``. Left in, each is a residual no model of the plant
-      fits, which bends every fit and dilutes every gain. False (the CLI's
-      ``--keep-glitches``): keep them (a relay, a contact that chatters: the
-      system's own flips); the noise floor still leaves them out and says so.
+      fits, which bends every fit and dilutes every gain. So are the runs of
+      samples a ``quality`` column (rig's) marks 0 inside the record: w was
+      held there, not measured (``glitches_bridged``'s ``unmeasured``). False
+      (the CLI's ``--keep-glitches``): keep them as recorded (a relay, a
+      contact that chatters: the system's own flips); the noise floor still
+      leaves glitches out and says so.
     - `refine`: where the default effect set names an effect that has a
       `refinement` (a saturation: a clip, its knee's sharpness fitted) and
       leaves `min_gain` times the noise floor or more held out, or the
@@ -344,6 +348,9 @@ class HeldoutSignals:
     """Index of the recording the sample comes from."""
     segment: np.ndarray
     """Index of the contiguous test block it lies in."""
+    unmeasured: np.ndarray | None = None
+    """Whether w was not measured there (a ``quality`` column's 0 inside the record, bridged by a
+    straight line: `DiagnoseSettings.bridge_glitches`); None: every sample measured."""
 
 
 @dataclasses.dataclass

@@ -23,12 +23,20 @@ from ..core._devices import device_mesh, spread_devices
 from ..core._level_limit import flat_extremes
 from ..core._levenberg_marquardt import LMSettings, LMState, lm_init, lm_run
 from ..core._models import Model
-from ..core._problem import Problem, bucket_length, bucketed_series, series_from_recording, split_segments
+from ..core._problem import (
+    Problem,
+    Series,
+    bucket_length,
+    bucketed_series,
+    series_from_recording,
+    split_segments,
+)
 from ..core._readout import LinearReadout
 from ._diagnosis import MAX_BLOCKS_FACTOR, SPLIT_ORDER, DiagnoseSettings
 from ._effect_set import resolve_effects
 from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, FrameTiming
+from ._noise_floor import unmeasured_runs
 
 #: Effects a lane's Jacobian has room for in the problem every step of the search shares: the
 #: directions of the `SHARED_ROOM` effects with the most parameters. Each direction costs one
@@ -310,10 +318,25 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
         series_from_recording(r, settings.split, SPLIT_ORDER, settings.split_blocks) for r in recordings
     ]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
+    if settings.bridge_glitches:  # samples w was not measured at weigh nothing (`_bridge_glitches`)
+        padded = [_unweighted(s, unmeasured_runs(r.extra.get("quality"))) for s, r in zip(padded, recordings)]
     problem, n_rows = search_problem(
         model, padded, frozenset(settings.frozen_for(simulation)), _shared_room(settings, len(effects))
     )
     return problem, n_rows, model, series
+
+
+def _unweighted(series: Series, runs) -> Series:
+    """A padded `series` whose samples in `runs` ((first, last), w not measured there) weigh 0 in every split."""
+    if not runs or series.weights is None:
+        return series
+    weights = []
+    for name, weight in series.weights:
+        kept = np.array(weight)
+        for a, b in runs:
+            kept[a : b + 1] = 0.0
+        weights.append((name, jax.device_put(kept)))
+    return eqx.tree_at(lambda s: s.weights, series, tuple(weights))
 
 
 def held_out_blocks(recordings, settings: DiagnoseSettings) -> tuple[int, bool]:

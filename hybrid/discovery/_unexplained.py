@@ -329,7 +329,9 @@ def remainder(
         "recording": heldout.recording,
     }
     residual = held["w"] - held["w_hat"]
-    mse = float(np.mean(residual**2))
+    # the samples w was not measured at (bridged: a tracker held them) say nothing of the plant
+    measured = np.ones(residual.size, bool) if heldout.unmeasured is None else ~heldout.unmeasured
+    mse = float(np.mean(residual[measured] ** 2))
     var_w = float(np.var(held["w"]))
     top = floor.variance + 2.0 * (floor.std_error if np.isfinite(floor.std_error) else 0.0)
     if mse <= settings.unexplained_ratio * top:
@@ -340,6 +342,8 @@ def remainder(
             [np.arange(a, b) for a, b in series[0].segments_of("test")]
         )  # as `heldout` is cut
         held["spike"] = np.isin(at, floor.spikes)
+    if heldout.unmeasured is not None:  # as the spikes: counted for none where the remainder is placed
+        held["spike"] = held.get("spike", np.zeros(residual.size, bool)) | heldout.unmeasured
     final_stack = _final_stack(problem, final)
     feedback = drive_map = None
     if final_stack is not None:
