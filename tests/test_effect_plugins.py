@@ -556,8 +556,15 @@ def test_baseline_drift_is_an_additive_trend_in_minutes():
     t = np.arange(1800) * dt / 60.0
     trend = 0.2 * t - 0.05 * t**2 + 0.03 * t**3
     np.testing.assert_allclose(np.asarray(effect.apply(jnp.asarray(s), dt)), s + trend, atol=1e-12)
-    size = np.max(np.abs(trend))
-    assert effect.derived(s, dt)["baseline_percent_of_range"] == pytest.approx(100 * size / np.ptp(s))
+    assert effect.derived(s, dt)["baseline_percent_of_range"] == pytest.approx(
+        100 * np.ptp(trend) / np.ptp(s)
+    )
+    # A baseline that sinks and comes back above its start moves from its lowest to its highest (the
+    # readout's offset takes its level): a probe's sine-and-ramp drift of 6.8 % was read 4.1 % from its start.
+    sinks = hybrid.EFFECTS["baseline_drift"](baseline_slope_per_min=-0.3, baseline_curvature_per_min2=0.5)
+    trend = -0.3 * t + 0.5 * t**2  # down to -0.045 at 0.3 min, up to +0.2 at 1 min
+    assert sinks.derived(s, dt)["baseline_percent_of_range"] == pytest.approx(100 * np.ptp(trend) / np.ptp(s))
+    assert np.ptp(trend) > np.max(np.abs(trend)) + 0.04  # the reading from its start would be short
 
 
 def test_a_hysteresis_loop_the_recording_never_closes_is_not_material():

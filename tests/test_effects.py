@@ -100,6 +100,22 @@ def test_lag_matches_scipy_lsim_from_rest_at_its_first_value(signal, tau):
     assert Lag(lag_time_s=tau).derived(jnp.asarray(signal), DT)["lag_samples"] == pytest.approx(tau / DT)
 
 
+def test_a_lag_longer_than_the_record_is_not_material(signal):
+    """A lag the record never sees settle is an integral of the signal once the readout's gain scales it.
+
+    A probe's drive dead zone + baseline drift named a 1953 s lag on a 100 s record (its standard error
+    5.6e4 s) where the drift was refused.
+    """
+    duration = (len(signal) - 1) * DT
+    for tau, material in ((3 * DT, True), (0.5 * duration, True), (0.9 * DT, False), (20 * duration, False)):
+        lag = Lag(lag_time_s=tau)
+        derived = lag.derived(jnp.asarray(signal), DT)
+        assert derived["lag_records"] == pytest.approx(tau / duration)
+        named, why = lag.material(derived, lag.parameters(), Lag.thresholds)
+        assert named is material, why
+    assert "never sees settle" in why and "× the record" in why
+
+
 @pytest.mark.parametrize("h", [1e-7, 1e-4, 0.0199, FOH_SERIES_BELOW, 0.0201, 0.3, 5.0, 40.0])
 def test_the_lags_closed_form_first_order_hold_is_the_matrix_exponentials(h):
     """(Φ, Γ₀, Γ₁) of τẋ = u − x against scipy's exponential of the augmented matrix, on both sides of

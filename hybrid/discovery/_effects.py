@@ -972,7 +972,10 @@ class Lag(AbstractEffect):
     `foh_matrices`, as `Resonance`); x[0] = s[0] (the sensor settled where the
     record starts). Material from a time constant of one sample
     (`lag_samples`): a shorter one rounds a step within a frame, which the
-    frame timing takes.
+    frame timing takes; and to a time constant of the record's length
+    (`lag_records`): a longer one never settles within it, and fitted with the
+    readout's gain it is an integral of the signal (a probe's 1953 s lag on a
+    100 s record stood in for a baseline drift).
     """
 
     raw: dict[str, Array]
@@ -980,7 +983,7 @@ class Lag(AbstractEffect):
     constraints: ClassVar = {"lag_time_s": Positive()}
     units: ClassVar = {"lag_time_s": "s"}
     defaults: ClassVar = {"lag_time_s": 0.1}
-    thresholds: ClassVar = {"lag_samples": 1.0}
+    thresholds: ClassVar = {"lag_samples": 1.0, "lag_records": 1.0}
 
     def __init__(self, **values):
         init_values(self, values)
@@ -994,7 +997,8 @@ class Lag(AbstractEffect):
         return first + jnp.concatenate([jnp.zeros(1, s.dtype), z]) + g1 * d
 
     def derived(self, s, dt):
-        return {"lag_samples": float(self.parameters()["lag_time_s"] / dt)}
+        tau = float(self.parameters()["lag_time_s"])
+        return {"lag_samples": tau / dt, "lag_records": tau / (dt * max(len(s) - 1, 1))}
 
     def reading(self, parameters, output_unit):
         tau = parameters.get("lag_time_s", float("nan"))
@@ -1018,6 +1022,12 @@ class Lag(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("lag_samples", 0.0), thresholds["lag_samples"]
+        records, most = derived.get("lag_records", 0.0), thresholds["lag_records"]
+        if size >= need and records > most:
+            return False, (
+                f"time constant {size:.4g} samples, {records:.3g} × the record (needs ≤ {most:g}): a lag the "
+                "record never sees settle acts as an integral of the signal, not as a sensor's lag"
+            )
         return size >= need, f"time constant {size:.2f} samples (needs ≥ {need:g})"
 
 
@@ -1275,8 +1285,8 @@ class BaselineDrift(AbstractEffect):
     order one on recordings of minutes. The cubic term lets the trend turn
     twice, as a ramp with a slow swing does (a sine whose period is a few
     recordings long: a quadratic follows a quarter of its cycle, not two thirds).
-    ``derived`` reports the largest excursion of the trend over the recording
-    as a percentage of the signal's range.
+    ``derived`` reports how far the trend moves over the recording (its lowest
+    to its highest) as a percentage of the signal's range.
     """
 
     raw: dict[str, Array]
@@ -1316,7 +1326,10 @@ class BaselineDrift(AbstractEffect):
     def derived(self, s, dt):
         span = float(np.ptp(s))
         trend = np.asarray(self._trend(len(s), dt), float)
-        size = float(np.max(np.abs(trend))) if trend.size else 0.0
+        # how far it moves over the record, lowest to highest: the readout's offset takes its level, and a
+        # baseline that falls by 3 % and comes back up by 5 % moves 5 %, not the 2 % it ends from its start
+        # (a probe's sine-and-ramp drift, 6.8 % of the range, was read 4.1 % from its start and refused)
+        size = float(np.ptp(trend)) if trend.size else 0.0
         return {
             "baseline_percent_of_range": 100.0 * size / span if span > 0 else 0.0,
             "over_s": float(dt * (len(s) - 1)),
