@@ -48,6 +48,9 @@ AXIS_WARN_DEG = 1.0  # a given axis this far from the detected one earns a warni
 #: The tip's median distance from the clamp, as a fraction of --length, below which the scale or the
 #: length is doubted (a cantilever's tip stays within a few per cent of its free length).
 LENGTH_WARN_FRACTION = 0.75
+#: ... and above which: no strip's tip lies farther from its clamp than its length (the tracked tip's
+#: round end and a pixel's rounding add a few per cent).
+LENGTH_WARN_BEYOND = 1.1
 CLAMP_WARN_PX = 1.0  # so does a given clamp point this far beside the strip
 REPEAT_REASON = "repeats the frame before"  # untracked reason of a frame identical to the one before
 
@@ -92,16 +95,18 @@ def _check_scene(job: TrackJob, image) -> None:
 
 
 def _length_warning(job: TrackJob, tips, clamp) -> str | None:
-    """A warning when the tracked tips lie well short of --length from the clamp: the scale or the length is off."""
+    """A warning when the tracked tips lie well short of --length from the clamp, or beyond it: the scale or
+    the length is off (a probe's --mm-per-px 0.12 for 0.1 scaled w by 1.2 without a word)."""
     if job.length_mm is None or not tips:
         return None
     reach = float(np.median([math.hypot(x - clamp[0], y - clamp[1]) for x, y in tips])) * job.mm_per_px
-    if reach >= LENGTH_WARN_FRACTION * job.length_mm:
+    if LENGTH_WARN_FRACTION * job.length_mm <= reach <= LENGTH_WARN_BEYOND * job.length_mm:
         return None
+    share = f"{reach / job.length_mm:.2f} of" if reach < job.length_mm else f"{reach / job.length_mm:.2f} ×"
     return (
-        f"the strip's tip lies a median {reach:.3g} mm from the clamp, {reach / job.length_mm:.2f} of "
-        f"--length {job.length_mm:g} mm: if the strip is that long, give --length {reach:.3g}; if not, "
-        f"--mm-per-px {job.mm_per_px:g} is off by about that factor, and w with it"
+        f"the strip's tip lies a median {reach:.3g} mm from the clamp, {share} --length {job.length_mm:g} mm: "
+        f"if the strip is that long, give --length {reach:.3g}; if not, --mm-per-px {job.mm_per_px:g} is off "
+        "by about that factor, and w with it"
     )
 
 

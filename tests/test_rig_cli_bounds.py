@@ -117,7 +117,7 @@ def test_track_refuses_an_out_that_is_a_folder_or_not_a_csv_and_a_folder_as_vide
     assert "is a folder: give the video file inside it" in capsys.readouterr().err
 
 
-def test_a_strip_tracked_well_short_of_its_length_warns_of_the_scale(strip_video, tmp_path, capsys):
+def test_a_strip_tracked_short_of_or_beyond_its_length_warns_of_the_scale(strip_video, tmp_path, capsys):
     """--mm-per-px half the true scale halves w; the tip at half of --length says so."""
     out = tmp_path / "w.csv"
     argv = _with(_with(_track_strip(strip_video, out), "--mm-per-px", "0.05"), "--length", "22")
@@ -127,6 +127,11 @@ def test_a_strip_tracked_well_short_of_its_length_warns_of_the_scale(strip_video
     assert "0.50 of --length" in json.loads(out.with_name("w.csv.json").read_text())["warnings"][0]
     assert main(_with(argv, "--mm-per-px", "0.1")) == 0  # the right scale: no warning
     assert "warning" not in capsys.readouterr().err
+    # a scale 20 % too large puts the tip beyond the strip's length, which no strip reaches (a probe's
+    # --mm-per-px 0.12 for 0.1 scaled w by 1.2 without a word)
+    assert main(_with(argv, "--mm-per-px", "0.12")) == 0
+    err = capsys.readouterr().err
+    assert "1.20 × --length 22 mm" in err and "--mm-per-px 0.12 is off" in err, err
 
 
 def test_record_refuses_an_out_that_is_not_a_csv_before_recording(tmp_path, capsys):
