@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
+from hybrid import LTI, Recording, diagnose
 from hybrid.discovery._noise_floor import noise_floor, quantisation_step
 from hybrid.discovery._report import noise_section
 from hybrid.discovery._unexplained import FAR_ABOVE_FLOOR, floor_caveat
@@ -86,6 +87,34 @@ def test_smoothed_oversampled_data_warn_and_say_what_the_floor_read():
     )
     assert "Estimated from " + floor.source in report and "**Warning:** the floor σ" in report
     assert f"σ = {floor.std:.3g} mm" in report  # the floor is in the recording's unit
+
+
+def test_a_coarse_sensors_rounding_is_the_floor_and_its_right_model_is_at_it():
+    """A first-order plant read through a quantiser of a tenth of its range (noise 1 % before it).
+
+    A probe's plant so read gave a floor of σ = 0.125 from w's own variation, below the rounding's own
+    0.205 (a slow signal stays on a level for samples on end), and its right model was "64 % unexplained".
+    The floor is now the rounding's, step/√12, and the right model sits at it.
+    """
+    rate, n = 50.0, 5000
+    rng = np.random.default_rng(4)
+    v = np.repeat(rng.uniform(-2.0, 2.0, n // 40 + 1), 40)[:n]
+    a = np.exp(-1.0 / (rate * 0.4))
+    clean = scipy.signal.lfilter([1 - a], [1, -a], v)
+    step = 0.1 * np.ptp(clean)
+    w = step * np.round((clean + 0.01 * np.ptp(clean) * rng.normal(size=n)) / step)
+    floor = noise_floor(w, v, rate)
+    assert floor.quantum == pytest.approx(step, rel=1e-6)
+    assert floor.method == "rounding" and floor.variance == pytest.approx(step**2 / 12, rel=1e-9)
+    assert len(floor.warnings) == 1 and "the floor is the rounding's" in floor.warnings[0]
+    # the right model's error is the rounding's and the noise's, where w's own estimate is far below
+    assert np.mean((w - clean) ** 2) == pytest.approx(step**2 / 12 + (0.01 * np.ptp(clean)) ** 2, rel=0.1)
+    assert min(v for k, v in floor.estimates.items() if k != "rounding") < 0.8 * step**2 / 12
+    found = diagnose(Recording.from_arrays(v_in=v, w=w, rate=rate), simulation=LTI(1), effects=["saturation"])
+    assert found.unexplained is None and found.cause == "none", found.verdict
+    # a grid the signal spans in 3 steps (an on/off sensor's few levels) is not read as spread rounding
+    coarse = np.ptp(clean) / 3
+    assert noise_floor(coarse * np.round(clean / coarse), v, rate).method != "rounding"
 
 
 @pytest.mark.parametrize("seed", [0, 1])

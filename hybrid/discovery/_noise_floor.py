@@ -84,6 +84,10 @@ FIR_TAPS = 32
 #: The labels of the floors read from a fit's residual (`_leaked`): ``<label>_differences_k``.
 FITTED_LABELS = ("residual", "linear_fit")
 _ORDINALS = {1: "first", 2: "second", 3: "third", 4: "fourth"}
+#: The floor's `method` where it is the rounding of w's values to their grid (`_at_least_rounding`).
+ROUNDING = "rounding"
+#: Grid steps a recording's range must span for its rounding error to be spread over a step (`_at_least_rounding`).
+ROUNDING_LEVELS = 4
 #: Largest number of grid steps a recording's range may span for `quantisation_step` to call it a grid.
 MAX_GRID_STEPS = 10**7
 #: Robust standard deviations of its neighbours' mean beyond which a lone sample is a spike (`spike_samples`).
@@ -552,16 +556,57 @@ def noise_floor(w, v_in, rate: float, blocks: int = 8) -> NoiseFloor:
         glitches=tuple(glitches),
         spike_note=note,
     )
+    levels = float(np.ptp(w)) / quantum if np.isfinite(quantum) and quantum > 0 else 0.0
     if method == "repeats":  # the repetitions already removed the signal, however fast
-        return floor
+        return _at_least_rounding(floor, levels)
     linear = linear_fit_residual(w, v_in)
     if linear is None:
-        return floor
+        return _at_least_rounding(floor, levels)
     what = (
         f"w's residual from a linear fit to the drive's last {FIR_TAPS} samples (fitted on its first half, "
         "read on its second)"
     )
-    return _leaked(floor, [linear], "linear_fit", what, blocks)
+    return _at_least_rounding(_leaked(floor, [linear], "linear_fit", what, blocks), levels)
+
+
+def _at_least_rounding(floor: NoiseFloor, levels: float) -> NoiseFloor:
+    """`floor`, or the rounding of w's values to their grid (σ² = step²/12) where that is larger.
+
+    Values stored on a coarse grid (a sensor's or an ADC's steps) are the signal
+    rounded: where the signal crosses `ROUNDING_LEVELS` steps or more, the
+    rounding error is spread evenly over a step, and no model of the plant comes
+    nearer the stored values than step/√12. The estimators read w's variation
+    from one sample to the next, which a slow signal on a coarse grid hides (it
+    stays on a level for samples on end): a probe's plant read by a quantiser of
+    a tenth of its range gave σ = 0.125 against the rounding's 0.205, and its
+    right model was called 64 % unexplained. Its `method` is then
+    `ROUNDING`, and no residual lowers it (`bounded_by_residual`).
+    """
+    rounding = floor.quantum**2 / 12.0 if np.isfinite(floor.quantum) else 0.0
+    if levels < ROUNDING_LEVELS or not floor.variance < rounding:
+        return floor
+    read = math.sqrt(floor.variance)
+    return dataclasses.replace(
+        floor,
+        variance=rounding,
+        std_error=float("nan"),
+        method=ROUNDING,
+        estimates={**floor.estimates, ROUNDING: rounding},
+        fraction_of_variance=floor.fraction_of_variance * rounding / floor.variance
+        if floor.variance > 0
+        else float("nan"),
+        source=(
+            f"the rounding of w's values to their grid (step {floor.quantum:.3g}: σ = step/√12 = "
+            f"{math.sqrt(rounding):.3g}), above the {read:.3g} that w's own variation gave ({floor.method}): "
+            "no model of the plant comes nearer the stored values"
+        ),
+        warnings=(
+            f"w's values lie on a grid of step {floor.quantum:.3g} ({levels:.0f} steps over its range: a "
+            f"coarse sensor's or ADC's), whose rounding alone is σ = {math.sqrt(rounding):.3g}, more than "
+            f"w's own variation gave ({read:.3g}): the floor is the rounding's",
+        )
+        + ((floor.spike_note,) if floor.spike_note else ()),
+    )
 
 
 def bounded_by_residual(floor: NoiseFloor, residual, segment, blocks: int = 8) -> NoiseFloor:
@@ -608,7 +653,7 @@ def _leaked(floor: NoiseFloor, parts, label: str, what: str, blocks: int = 8) ->
     spread over `blocks` blocks of the squared differences).
     """
     parts = [np.asarray(p, float) for p in parts if np.size(p) > 2 * max(DIFFERENCE_ORDERS)]
-    if not parts:
+    if not parts or floor.method == ROUNDING:  # no fit comes nearer the stored values than their rounding
         return floor
     squares = {
         k: np.concatenate([np.diff(p, n=k) ** 2 for p in parts]) / math.comb(2 * k, k)
