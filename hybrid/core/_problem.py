@@ -199,7 +199,7 @@ def bucketed_series(series: Series, length: int) -> Series:
             mask[a:b] = 1.0
         weights.append((name, jax.device_put(mask)))
     segments = tuple((name, ((0, length),)) for name, _ in series.segments)
-    recorded = tuple((name, _span_rows(s)) for name, s in series.segments)
+    recorded = tuple((name, span_rows(s)) for name, s in series.segments)
     return Series(v_in, w, series.dt, segments, tuple(weights), recorded)
 
 
@@ -289,7 +289,7 @@ def _rescalable(readout) -> bool:
 SPAN_ROWS = 16
 
 
-def _span_rows(spans) -> np.ndarray:
+def span_rows(spans) -> np.ndarray:
     rows = np.asarray(spans, np.int64).reshape(-1, 2)
     return np.concatenate([rows, np.zeros((max(SPAN_ROWS - len(rows), 0), 2), np.int64)])
 

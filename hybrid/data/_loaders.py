@@ -1171,7 +1171,8 @@ def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[
     return [
         f"recording '{path}': {len(zero)} of {len(quality)} samples have quality 0 (the first at sample "
         f"{zero[0]}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker); "
-        "diagnose bridges each run of them inside the record by a straight line, fit fits them as measured; "
+        "diagnose bridges each run of them inside the record by a straight line and scores none of them "
+        "(unless --keep-glitches), fit fits them as measured; "
         f"at the record's ends, or where they bunch, leave them out with {range_flag()}, or track the video "
         "again (rig/README.md)"
     ]

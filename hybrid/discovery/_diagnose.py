@@ -431,6 +431,8 @@ def diagnose(
     theta_base = baseline.theta
     v_te, w_te, w_hat_base = split_signals(problem, theta_base, off, "test")
     _, _, w_hat_ext = split_signals(problem, extended.theta, extended.active, "test")
+    # the held-out blocks as `split_signals` cuts them (round the samples w was not measured at)
+    segments = [(i, a, b) for i, s in enumerate(problem.series) for a, b in s.recorded_segments_of("test")]
     extended_model = fitted_model(problem, extended.theta, kept)
     units = unit_labels(extended_model, recordings)  # the recordings' units, as the report gives them
     # On a problem of the handed-back model's own structure (its effects alone), not the search's: the
@@ -443,7 +445,6 @@ def diagnose(
         own, own.flatten(extended_model, frozen), w_te - w_hat_ext, units=units
     )
     unpinned = not_pinned(uncertainties, extended_model, problem.series)
-    segments = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of("test")]
     blocks = np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(segments)])
     of_recording = np.concatenate([np.full(b - a, i) for i, a, b in segments])
     evidence = heldout_evidence(
@@ -464,7 +465,7 @@ def diagnose(
         extended=w_hat_ext,
         recording=of_recording,
         segment=blocks,
-        unmeasured=_unmeasured_heldout(recordings, segments) if settings.bridge_glitches else None,
+        sample=np.concatenate([np.arange(a, b) for _, a, b in segments]),
     )
     say("noise floor and what lies above it")
     signals = recording_units(recordings) or (PAPER_UNITS["w"], PAPER_UNITS["v_in"])  # (w's, the drive's)
@@ -633,19 +634,6 @@ def _bridge_glitches(recordings) -> tuple[list, list[dict]]:
             found.append(entry)
         out.append(r)
     return out, found
-
-
-def _unmeasured_heldout(recordings, segments) -> np.ndarray | None:
-    """Per held-out sample (`segments`: (recording, first, stop)), whether `_bridge_glitches` bridged it as
-    unmeasured; None where none was."""
-    marks = []
-    for r in recordings:
-        mark = np.zeros(r.n, bool)
-        for a, b in unmeasured_runs(r.extra.get("quality")):
-            mark[a : b + 1] = True
-        marks.append(mark)
-    held = np.concatenate([marks[i][a:b] for i, a, b in segments])
-    return held if held.any() else None
 
 
 def _escapes_warning(simulation, escaped: list[dict], n_screen: int) -> list[str]:

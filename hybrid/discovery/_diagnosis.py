@@ -349,9 +349,9 @@ class HeldoutSignals:
     """Index of the recording the sample comes from."""
     segment: np.ndarray
     """Index of the contiguous test block it lies in."""
-    unmeasured: np.ndarray | None = None
-    """Whether w was not measured there (a ``quality`` column's 0 inside the record, bridged by a
-    straight line: `DiagnoseSettings.bridge_glitches`); None: every sample measured."""
+    sample: np.ndarray | None = None
+    """Its index within its recording (the held-out samples leave out those w was not measured at: a
+    ``quality`` column's 0 inside the record, `DiagnoseSettings.bridge_glitches`)."""
 
 
 @dataclasses.dataclass

@@ -29,6 +29,7 @@ from ..core._problem import (
     bucket_length,
     bucketed_series,
     series_from_recording,
+    span_rows,
     split_segments,
 )
 from ..core._readout import LinearReadout
@@ -327,16 +328,25 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
 
 
 def _unweighted(series: Series, runs) -> Series:
-    """A padded `series` whose samples in `runs` ((first, last), w not measured there) weigh 0 in every split."""
-    if not runs or series.weights is None:
+    """A padded `series` whose samples in `runs` ((first, last), w not measured there) are in no split.
+
+    They weigh 0 in every fit and loss, and its recorded segments (`recorded_segments_of`, which
+    `Problem.recorded` and so every held-out score read) go round them.
+    """
+    if not runs or series.weights is None or series.spans is None:
         return series
-    weights = []
-    for name, weight in series.weights:
-        kept = np.array(weight)
-        for a, b in runs:
-            kept[a : b + 1] = 0.0
-        weights.append((name, jax.device_put(kept)))
-    return eqx.tree_at(lambda s: s.weights, series, tuple(weights))
+    out = np.ones(series.v_in.shape[0], bool)
+    for a, b in runs:
+        out[a : b + 1] = False
+    weights = tuple((name, jax.device_put(np.array(weight) * out)) for name, weight in series.weights)
+    spans = []
+    for name, rows in series.spans:
+        pieces = []
+        for a, b in np.asarray(rows):
+            edges = np.diff(np.r_[0, out[a:b].astype(int), 0])
+            pieces += [(a + p, a + q) for p, q in zip(np.flatnonzero(edges > 0), np.flatnonzero(edges < 0))]
+        spans.append((name, span_rows(pieces)))
+    return eqx.tree_at(lambda s: (s.weights, s.spans), series, (weights, tuple(spans)))
 
 
 def held_out_blocks(recordings, settings: DiagnoseSettings) -> tuple[int, bool]:

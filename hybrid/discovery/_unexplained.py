@@ -138,7 +138,8 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
 def _part(problem, series, recordings, candidate, split: str) -> dict:
     """t, v_in, w, ŵ, a segment id and a recording index per sample, for one part of the split (all recordings)."""
     v, w, w_hat = split_signals(problem, candidate.theta, candidate.active, split)
-    spans = [(i, a, b) for i, s in enumerate(series) for a, b in s.segments_of(split)]
+    # as `split_signals` cuts them: the problem's recorded segments (round any sample not measured)
+    spans = [(i, a, b) for i, s in enumerate(problem.series) for a, b in s.recorded_segments_of(split)]
     t = np.concatenate([np.asarray(recordings[i].t, float)[a:b] for i, a, b in spans])
     recording = np.concatenate([np.full(b - a, i) for i, a, b in spans])
     return {
@@ -329,21 +330,19 @@ def remainder(
         "recording": heldout.recording,
     }
     residual = held["w"] - held["w_hat"]
-    # the samples w was not measured at (bridged: a tracker held them) say nothing of the plant
-    measured = np.ones(residual.size, bool) if heldout.unmeasured is None else ~heldout.unmeasured
-    mse = float(np.mean(residual[measured] ** 2))
+    mse = float(np.mean(residual**2))
     var_w = float(np.var(held["w"]))
     top = floor.variance + 2.0 * (floor.std_error if np.isfinite(floor.std_error) else 0.0)
     if mse <= settings.unexplained_ratio * top:
         return None
     train = _part(problem, series, recordings, final, "train")
     if floor.spikes and len(recordings) == 1:  # the floor's spikes and glitches, by held-out sample
-        at = np.concatenate(
-            [np.arange(a, b) for a, b in series[0].segments_of("test")]
-        )  # as `heldout` is cut
+        at = (
+            heldout.sample
+            if heldout.sample is not None
+            else np.concatenate([np.arange(a, b) for a, b in series[0].segments_of("test")])
+        )
         held["spike"] = np.isin(at, floor.spikes)
-    if heldout.unmeasured is not None:  # as the spikes: counted for none where the remainder is placed
-        held["spike"] = held.get("spike", np.zeros(residual.size, bool)) | heldout.unmeasured
     final_stack = _final_stack(problem, final)
     feedback = drive_map = None
     if final_stack is not None:
