@@ -61,12 +61,14 @@ START_SECTIONS = 3
 
 @dataclasses.dataclass(frozen=True)
 class TipResult:
-    """Tracking result of one frame: w (mm, NaN if none), quality (1 good, 0 bad), reason, tip (x, y) px."""
+    """Tracking result of one frame: w (mm, NaN if none), quality (1 good, 0 bad), reason, tip (x, y) px,
+    and the length (px) of the centreline from the clamp to that tip (NaN if none)."""
 
     w: float
     quality: int
     reason: str
     tip_xy: tuple[float, float]
+    length_px: float = math.nan
 
 
 def _climb(row: np.ndarray, j: int) -> int:
@@ -418,6 +420,8 @@ class TipTracker:
         if not (1 <= x < w - 1 and 1 <= y < h - 1):
             return TipResult(math.nan, 0, "tip out of view", (x, y))
         # The tip is the end of the strip, not its centreline: add back half the cap.
+        grid = np.linspace(0.0, s_tip, 256)
+        length = float(np.sum(np.hypot(np.diff(grid), np.diff(line(grid)))))  # the strip's, however bent
         if blurred:  # measured, but less sure: w within ~0.1-0.2 mm where a sharp tip is within ~0.05
-            return TipResult(u_tip * self.scene.mm_per_px, 0, BLURRED, (x, y))
-        return TipResult(u_tip * self.scene.mm_per_px, 1, "ok", (x, y))
+            return TipResult(u_tip * self.scene.mm_per_px, 0, BLURRED, (x, y), length)
+        return TipResult(u_tip * self.scene.mm_per_px, 1, "ok", (x, y), length)

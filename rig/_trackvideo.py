@@ -53,6 +53,10 @@ LENGTH_WARN_FRACTION = 0.75
 LENGTH_WARN_BEYOND = 1.1
 CLAMP_WARN_PX = 1.0  # so does a given clamp point this far beside the strip
 REPEAT_REASON = "repeats the frame before"  # untracked reason of a frame identical to the one before
+#: A tracked strip whose length differs from the tracked frames' median by more than this share is not
+#: the strip alone (`_runaways`).
+RUNAWAY = 0.05
+RUNAWAY_REASON = "strip longer or shorter than in the other frames (another dark line at its tip?)"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,6 +112,36 @@ def _length_warning(job: TrackJob, tips, clamp) -> str | None:
         f"if the strip is that long, give --length {reach:.3g}; if not, --mm-per-px {job.mm_per_px:g} is off "
         "by about that factor, and w with it"
     )
+
+
+def _runaways(w: list, quality: list, reach: list, held: list, tips: list, reasons: dict) -> None:
+    """Frames whose strip, measured along its centreline to the tip found (`reach`), is longer or shorter
+    than the tracked frames' median by more than `RUNAWAY`: quality 0.
+
+    A strip keeps its length however it bends; a longer one is a section that ran on along another
+    dark line the strip crossed (a verifier's bar beyond the tip, tilted across its path: 41 frames of
+    quality 1 read the bar, up to 2.1 mm off), a shorter one a tip found where the strip meets such a
+    line. Their w is held at the last tracked frame's, as a frame not tracked (and so are the held
+    frames after them), their tips leave `tips`, and they are counted under `RUNAWAY_REASON`. Edits
+    the lists in place; nothing where fewer than 5 frames were tracked.
+    """
+    r = np.asarray(reach, float)
+    tracked = np.isfinite(r)
+    if tracked.sum() < 5:
+        return
+    away = tracked & (np.abs(r / float(np.median(r[tracked])) - 1.0) > RUNAWAY)
+    if not away.any():
+        return
+    tips[:] = [tip for tip, k in zip(tips, np.flatnonzero(tracked)) if not away[k]]
+    last = math.nan
+    for k in range(len(w)):
+        if away[k]:
+            quality[k], held[k] = 0, True
+        if held[k]:
+            w[k] = last
+        elif quality[k]:
+            last = w[k]
+    reasons[RUNAWAY_REASON] = int(away.sum())
 
 
 def _untracked_warning(reasons: dict, frames: int) -> str | None:
@@ -234,6 +268,8 @@ def _track_rows(
     last = math.nan
     previous = None
     repeats: list[int] = []
+    reach: list[float] = []  # per frame, the tracked strip's length along its centreline (px); NaN where none
+    held: list[bool] = []  # per frame, whether its w is the last tracked one's
 
     def frames():
         yield from head
@@ -256,13 +292,17 @@ def _track_rows(
             if ok:
                 last = value
                 tips.append(result.tip_xy)
+                reach.append(result.length_px)
             else:
                 reasons[reason] = reasons.get(reason, 0) + 1
+                reach.append(math.nan)
             t.append(frame.t)
             w.append(value if ok or reason == BLURRED else last)  # a blurred tip's w is still measured
+            held.append(not ok and reason != BLURRED)
             quality.append(ok)
             if led is not None:
                 led.update(frame.index, frame.t, frame.image)
+        _runaways(w, quality, reach, held, tips, reasons)
     except KeyboardInterrupt as error:
         meta["status"] = "interrupted"
         meta["error"] = f"{error or 'interrupted by Ctrl-C (SIGINT)'} before the end of the video"
