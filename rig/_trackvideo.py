@@ -56,7 +56,9 @@ REPEAT_REASON = "repeats the frame before"  # untracked reason of a frame identi
 #: A tracked strip whose length differs from the tracked frames' median by more than this share is not
 #: the strip alone (`_runaways`).
 RUNAWAY = 0.05
-RUNAWAY_REASON = "strip longer or shorter than in the other frames (another dark line at its tip?)"
+RUNAWAY_REASON = (
+    "strip longer or shorter than in the other frames (its tip covered, or another dark line there?)"
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,7 +123,8 @@ def _runaways(w: list, quality: list, reach: list, held: list, tips: list, reaso
     A strip keeps its length however it bends; a longer one is a section that ran on along another
     dark line the strip crossed (a verifier's bar beyond the tip, tilted across its path: 41 frames of
     quality 1 read the bar, up to 2.1 mm off), a shorter one a tip found where the strip meets such a
-    line. Their w is held at the last tracked frame's, as a frame not tracked (and so are the held
+    line, or a tip covered by something light (a verifier's light disc: 18 frames of quality 1, w up to
+    1.1 mm short). Their w is held at the last tracked frame's, as a frame not tracked (and so are the held
     frames after them), their tips leave `tips`, and they are counted under `RUNAWAY_REASON`. Edits
     the lists in place; nothing where fewer than 5 frames were tracked.
     """

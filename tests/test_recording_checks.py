@@ -83,6 +83,15 @@ def _turning(n, seed=0):
     return v, angle + 0.01 * rng.normal(size=n)
 
 
+def _pushed_past(angle):
+    """An angle near 2.6 rad that two pushes carry past π for a few samples each (its own noise kept)."""
+    rest = 2.6 + 0.05 * np.tanh(angle / 40.0)
+    push = np.zeros_like(angle)
+    for at in (1000, 2000):
+        push[at : at + 8] = 0.6 * np.sin(np.linspace(0.0, np.pi, 8))
+    return rest + push + 0.005 * np.random.default_rng(3).normal(size=angle.size)
+
+
 @pytest.mark.parametrize(
     "wrap, turn, unwrap",
     [
@@ -91,8 +100,11 @@ def _turning(n, seed=0):
         (lambda a: np.degrees(np.angle(np.exp(1j * a))), "(360)", "period=360"),  # an encoder's ±180°
         # an angle that swings about its turn's end and wraps back and forth (a probe's, read as glitches)
         (lambda a: np.angle(np.exp(1j * (np.pi + 0.3 * np.sin(a / 4)))), "(2π)", "numpy.unwrap(w)"),
+        # a shaft resting short of the wrap point, pushed past it for a few samples twice (a verifier's:
+        # 13 samples of 3200, its values spanning little of the turn)
+        (lambda a: np.angle(np.exp(1j * _pushed_past(a))), "(2π)", "numpy.unwrap(w)"),
     ],
-    ids=["atan2", "mod", "degrees", "about_the_end"],
+    ids=["atan2", "mod", "degrees", "about_the_end", "crossing_briefly"],
 )
 def test_an_angle_that_wraps_around_is_refused_with_how_to_unwrap_it(wrap, turn, unwrap):
     # A wrapped angle read "static and odd in the drive" with its wraps bridged as glitches (a probe's):

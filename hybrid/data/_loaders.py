@@ -1171,10 +1171,9 @@ def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[
     return [
         f"recording '{path}': {len(zero)} of {len(quality)} samples have quality 0 (the first at sample "
         f"{zero[0]}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker); "
-        "diagnose bridges each run of them inside the record by a straight line and scores none of them "
-        "(unless --keep-glitches), fit fits them as measured; "
-        f"at the record's ends, or where they bunch, leave them out with {range_flag()}, or track the video "
-        "again (rig/README.md)"
+        "diagnose bridges each run of them inside the record by a straight line and leaves them all out of "
+        "its fits and scores (unless --keep-glitches); fit fits them as measured: there, leave a stretch of "
+        f"them out with {range_flag()}, or track the video again (rig/README.md)"
     ]
 
 

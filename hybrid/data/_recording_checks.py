@@ -479,22 +479,26 @@ def wrapped_angle(values: np.ndarray) -> tuple[str, str, int, int] | None:
     An encoder or an ``atan2`` gives an angle within one turn (±π, 0–360°): each
     time the angle passes the turn's end it jumps by a whole turn to the other
     end, and a fit reads those jumps as the plant's response. Read as wrapped
-    where the values (from their 0.5 % to their 99.5 % quantile: a sensor's noise
-    reaches past the turn's ends) span 0.8–1.02 of a turn (`WRAP_PERIODS`), move
-    by less than a tenth of it per sample (a shaft at 36° a frame), and nine in ten of the steps of more than
-    half a turn continue the steps beside them once a turn is taken off (at most
-    5 × their median, or the record's): the motion goes on across the jump. A
-    switching signal (a relay's, a pulse drive's) steps while it stands still
-    beside: not read as wrapped.
+    where the values reach over 0.8 of a turn and span (from their 0.5 % to
+    their 99.5 % quantile: a sensor's noise reaches past the turn's ends) no more
+    than 1.02 of it (`WRAP_PERIODS`; a shaft near the wrap point that crosses it
+    for 13 samples of 3200 spans little of the turn, but reaches both its ends),
+    move by less than a tenth of it per sample (a shaft at 36° a frame), and
+    nine in ten of the steps of more than half a turn continue the steps beside
+    them once a turn is taken off (at most 5 × the median of the five either
+    side, or of the record's steps): the motion goes on across the jump. A
+    switching signal (a relay's) whose steps are not a whole turn is not read as
+    wrapped; one whose steps are a whole turn to within its noise cannot be told
+    from an angle resting at the wrap point, and is.
     """
     v = np.asarray(values, float)
     if v.size < 20 or not np.all(np.isfinite(v)):
         return None
     d = np.diff(v)
     low, high = np.quantile(v, [0.005, 0.995])
-    span = float(high - low)
+    span, reach = float(high - low), float(np.ptp(v))
     for period, written, unwrap in WRAP_PERIODS:
-        if not 0.8 * period <= span <= 1.02 * period:
+        if not (reach >= 0.8 * period and span <= 1.02 * period):
             continue
         jumps = np.flatnonzero(np.abs(d) > 0.5 * period)
         if jumps.size == 0:

@@ -617,20 +617,25 @@ def _bridge_glitches(recordings) -> tuple[list, list[dict]]:
     marks 0 with measured samples either side (``"unmeasured"``): the tracker
     held w there, and a probe's 15 frames of a covered tip, held, turned an
     all-clear into "unexplained, 94 %, it follows the drive". A run at the
-    record's start or end has no line to lie on: it stays, and its load note says so.
+    record's start or end has no line to lie on: it stays as recorded
+    (``"unmeasured_ends"``); like the others it weighs nothing in any fit or
+    score (`lanes_problem`).
     """
     out, found = [], []
     for r in recordings:
         unmeasured = unmeasured_runs(r.extra.get("quality"))
+        ends = [run for run in unmeasured_runs(r.extra.get("quality"), ends=True) if run not in unmeasured]
         w = bridged(r.w, unmeasured) if unmeasured else r.w
         runs = glitch_runs(w, r.v_in)
         if runs:
             w = bridged(w, runs)
-        if unmeasured or runs:
+        if unmeasured or ends or runs:
             r = dataclasses.replace(r, w=w)
             entry: dict[str, Any] = {"recording": r.name, "runs": [[int(a), int(b)] for a, b in runs]}
             if unmeasured:
                 entry["unmeasured"] = [[int(a), int(b)] for a, b in unmeasured]
+            if ends:
+                entry["unmeasured_ends"] = [[int(a), int(b)] for a, b in ends]
             found.append(entry)
         out.append(r)
     return out, found
@@ -670,7 +675,14 @@ def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:
                 f"recording '{g['recording']}': w's {count} sample(s) of quality 0 inside the record ({len(held)} "
                 f"run(s), the longest {max(b - a + 1 for a, b in held)} samples, the first at t = "
                 f"{held[0][0] / rate:.4g} s), not measured there (a tracker held it), were bridged by straight "
-                "lines before any fit; diagnose with --keep-glitches to fit them as recorded"
+                "lines and left out of every fit and score; diagnose with --keep-glitches to fit them as recorded"
+            )
+        if g.get("unmeasured_ends"):
+            edge = g["unmeasured_ends"]
+            out.append(
+                f"recording '{g['recording']}': w's {sum(b - a + 1 for a, b in edge)} sample(s) of quality 0 at "
+                f"the record's {' and '.join('start' if a == 0 else 'end' for a, _ in edge)}, not measured there, "
+                "were left out of every fit and score; diagnose with --keep-glitches to fit them as recorded"
             )
         if not g["runs"]:
             continue

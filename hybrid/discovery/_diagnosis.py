@@ -63,7 +63,8 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: isolated spikes; their samples are in ``noise_floor.spikes`` too); ``glitches_bridged`` (those runs
 #: bridged before any fit, per recording: ``DiagnoseSettings.bridge_glitches``, on by default, so that
 #: ``noise_floor.glitches`` is empty unless it is off; an entry's ``unmeasured``: the runs of a
-#: ``quality`` column's 0s inside the record, bridged alike) and ``settings.bridge_glitches``;
+#: ``quality`` column's 0s inside the record, bridged alike, and ``unmeasured_ends``, those at its start
+#: or end, left as recorded; all of them are left out of every fit and score) and ``settings.bridge_glitches``;
 #: ``noise_floor.method`` ``rounding`` (the floor is the rounding of w's values to a coarse grid); each
 #: parameter's ``to_training_optimum`` and ``at_training_optimum`` (`OFF_OPTIMUM`); ``evidence.refined``
 #: (the second diagnosis with a named-only refinement in its parent's place, `DiagnoseSettings.refine`),
