@@ -399,6 +399,17 @@ def test_a_trackers_held_frames_weigh_nothing_and_are_said(tmp_path):
     assert ratio is not None and float(ratio.group(1)) < 1.5, report["verdict"]
 
 
+def test_a_record_whose_tracker_measured_nothing_is_refused_in_one_line():
+    """Every sample of quality 0: nothing is left to fit or to score, and diagnose says so."""
+    recording, _, _ = _lag_with_dropouts([])
+    unmeasured = hybrid.Recording.from_arrays(
+        v_in=recording.v_in, w=recording.w, rate=recording.rate, extra={"quality": np.zeros(recording.n)}
+    )
+    with pytest.raises(hybrid.InputError, match="has quality 0 \\(w not measured there\\)") as caught:
+        diagnose(unmeasured, simulation=hybrid.LTI(1), effects=["saturation"])
+    assert "\n" not in str(caught.value) and "--range" in str(caught.value)
+
+
 def test_kept_dropouts_are_said_as_glitches_and_do_not_pass_for_noise():
     """With `bridge_glitches=False`: the dropouts in the last 6 s only (all held out), kept.
 

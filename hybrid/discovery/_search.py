@@ -33,6 +33,7 @@ from ..core._problem import (
     split_segments,
 )
 from ..core._readout import LinearReadout
+from ..util._errors import InputError
 from ._diagnosis import MAX_BLOCKS_FACTOR, SPLIT_ORDER, DiagnoseSettings
 from ._effect_set import resolve_effects
 from ._effect_stack import EffectStack
@@ -321,7 +322,7 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     if settings.bridge_glitches:  # samples w was not measured at weigh nothing (`_bridge_glitches`)
         padded = [
-            _unweighted(s, unmeasured_runs(r.extra.get("quality"), ends=True))
+            _unweighted(s, unmeasured_runs(r.extra.get("quality"), ends=True), r.name)
             for s, r in zip(padded, recordings)
         ]
     problem, n_rows = search_problem(
@@ -330,25 +331,31 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
     return problem, n_rows, model, series
 
 
-def _unweighted(series: Series, runs) -> Series:
+def _unweighted(series: Series, runs, name: str = "") -> Series:
     """A padded `series` whose samples in `runs` ((first, last), w not measured there) are in no split.
 
     They weigh 0 in every fit and loss, and its recorded segments (`recorded_segments_of`, which
-    `Problem.recorded` and so every held-out score read) go round them.
+    `Problem.recorded` and so every held-out score read) go round them. A split left without a
+    sample is refused (nothing to fit or to score there), with how to go on.
     """
     if not runs or series.weights is None or series.spans is None:
         return series
     out = np.ones(series.v_in.shape[0], bool)
     for a, b in runs:
         out[a : b + 1] = False
-    weights = tuple((name, jax.device_put(np.array(weight) * out)) for name, weight in series.weights)
+    weights = tuple((split, jax.device_put(np.array(weight) * out)) for split, weight in series.weights)
     spans = []
-    for name, rows in series.spans:
+    for split, rows in series.spans:
         pieces = []
         for a, b in np.asarray(rows):
             edges = np.diff(np.r_[0, out[a:b].astype(int), 0])
             pieces += [(a + p, a + q) for p, q in zip(np.flatnonzero(edges > 0), np.flatnonzero(edges < 0))]
-        spans.append((name, span_rows(pieces)))
+        if not pieces and any(b > a for a, b in np.asarray(rows)):
+            raise InputError(
+                f"recording '{name}': every sample of its {split} part has quality 0 (w not measured there): "
+                "leave the unmeasured stretch out with --range, or track the video again"
+            )
+        spans.append((split, span_rows(pieces)))
     return eqx.tree_at(lambda s: (s.weights, s.spans), series, (weights, tuple(spans)))
 
 
