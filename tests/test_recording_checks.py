@@ -131,6 +131,21 @@ def test_cli_diagnose_refuses_a_wrapped_angle_in_one_line(tmp_path, capsys):
     lines = _cli_error(["diagnose", path, "--physics", "lti:2", "--out", tmp_path / "d"], capsys)
     assert len(lines) == 1 and "wraps around" in lines[0] and "numpy.unwrap(w)" in lines[0]
     assert not (tmp_path / "d").exists()
+    # a file whose own name for the angle is another: the line names that column (a verifier's npz said "w")
+    other = tmp_path / "shaft.csv"
+    other.write_text(path.read_text().replace("t,v_in,w", "time,volts,angle", 1))
+    argv = [
+        "diagnose",
+        other,
+        "--columns",
+        "input=volts,output=angle",
+        "--time",
+        "time",
+        "--physics",
+        "lti:2",
+    ]
+    lines = _cli_error([*argv, "--out", tmp_path / "d"], capsys)
+    assert len(lines) == 1 and "w (the file's column 'angle') jumps by a whole turn" in lines[0], lines
 
 
 def test_loading_a_rest_recording_still_works(tmp_path):

@@ -291,11 +291,14 @@ class Recording:
         wrapped = wrapped_angle(self.w)
         if wrapped is not None:
             turn, unwrap, count, k = wrapped
+            mapping = self.metadata.get("mapping")
+            source = mapping.get("w") if isinstance(mapping, Mapping) else None
+            named = f"w (the file's column '{source}')" if isinstance(source, str) and source != "w" else "w"
             raise InputError(
-                f"recording '{self.name}': w jumps by a whole turn ({turn}) {count} time(s), from one end of its "
-                f"range to the other while it moves on across (the first at sample {k}, t = {self.t[k]:.6g} s): "
-                f"an angle that wraps around, as an encoder or atan2 gives it; unwrap it ({unwrap}) and "
-                "load that"
+                f"recording '{self.name}': {named} jumps by a whole turn ({turn}) {count} time(s), from one end "
+                f"of its range to the other while it moves on across (the first at sample {k}, t = "
+                f"{self.t[k]:.6g} s): an angle that wraps around, as an encoder or atan2 gives it; unwrap that "
+                f"column ({unwrap}) and load it again"
             )
         return self
 
