@@ -58,9 +58,8 @@ SEPARATION_DEG = 20.0
 CANDIDATES = 3
 MIN_TRACKED = 0.5  # a strip must be followed in at least half the frames
 MIN_OUTLIER_FRAMES = 6  # frames `_consistent` needs to leave any out
-OUTLIER_MISFIT = (
-    3.0  # a frame's arc misfit beyond this × the median frame's: not the strip alone (`_consistent`)
-)
+#: A frame's arc misfit beyond this × the median frame's: not the strip alone (`_consistent`).
+OUTLIER_MISFIT = 3.0
 SHAPE_MODELS = ((True, 0), (True, 1), (True, 2), (False, 2))  # (one shape for all frames, curvature degree)
 BETTER_FIT = 1.25  # the simplest shape whose residual RMS is within this factor of the lowest
 

@@ -116,8 +116,8 @@ def _length_warning(job: TrackJob, tips, clamp) -> str | None:
     )
 
 
-def _runaways(w: list, quality: list, reach: list, held: list, tips: list, reasons: dict) -> None:
-    """Frames whose strip, measured along its centreline to the tip found (`reach`), is longer or shorter
+def _runaways(w: list, quality: list, lengths: list, held: list, tips: list, reasons: dict) -> None:
+    """Frames whose strip, measured along its centreline to the tip found (`lengths`), is longer or shorter
     than the tracked frames' median by more than `RUNAWAY`: quality 0.
 
     A strip keeps its length however it bends; a longer one is a section that ran on along another
@@ -128,7 +128,7 @@ def _runaways(w: list, quality: list, reach: list, held: list, tips: list, reaso
     frames after them), their tips leave `tips`, and they are counted under `RUNAWAY_REASON`. Edits
     the lists in place; nothing where fewer than 5 frames were tracked.
     """
-    r = np.asarray(reach, float)
+    r = np.asarray(lengths, float)
     tracked = np.isfinite(r)
     if tracked.sum() < 5:
         return
@@ -159,8 +159,8 @@ def _untracked_warning(reasons: dict, frames: int) -> str | None:
     listed = "; ".join(f"{reason}: {n}" for reason, n in sorted(counted.items(), key=lambda kv: -kv[1]))
     return (
         f"{sum(counted.values())} of {frames} frames have quality 0 ({listed}): their w is held at the last "
-        "tracked value (a blurred tip's is measured, less surely); hybrid diagnose bridges runs of them inside "
-        "the record, hybrid fit fits them as measured"
+        "tracked value (a blurred tip's is measured, less surely); hybrid diagnose leaves them out of its fits "
+        "and scores, hybrid fit fits them as measured"
     )
 
 
@@ -271,7 +271,9 @@ def _track_rows(
     last = math.nan
     previous = None
     repeats: list[int] = []
-    reach: list[float] = []  # per frame, the tracked strip's length along its centreline (px); NaN where none
+    lengths: list[
+        float
+    ] = []  # per frame, the tracked strip's length along its centreline (px); NaN where none
     held: list[bool] = []  # per frame, whether its w is the last tracked one's
 
     def frames():
@@ -295,17 +297,17 @@ def _track_rows(
             if ok:
                 last = value
                 tips.append(result.tip_xy)
-                reach.append(result.length_px)
+                lengths.append(result.length_px)
             else:
                 reasons[reason] = reasons.get(reason, 0) + 1
-                reach.append(math.nan)
+                lengths.append(math.nan)
             t.append(frame.t)
             w.append(value if ok or reason == BLURRED else last)  # a blurred tip's w is still measured
             held.append(not ok and reason != BLURRED)
             quality.append(ok)
             if led is not None:
                 led.update(frame.index, frame.t, frame.image)
-        _runaways(w, quality, reach, held, tips, reasons)
+        _runaways(w, quality, lengths, held, tips, reasons)
     except KeyboardInterrupt as error:
         meta["status"] = "interrupted"
         meta["error"] = f"{error or 'interrupted by Ctrl-C (SIGINT)'} before the end of the video"

@@ -263,9 +263,10 @@ def test_a_design_holds_each_level_at_least_the_hold_given(confounded):
         kept = design.rich_samples
         assert abs(kept - 300) <= 75 and design.v_in[kept] != design.v_in[kept - 1]  # a level's end
         assert np.min(_runs(design.v_in)[:-1]) >= 60  # every level but the last (cut by the end)
-    # a hold between two samples rounds up, never short: 1.01 s at 30 Hz is 31 samples
+    # a hold between two samples rounds up, never short: 1.01 s at 30 Hz is blocks of 31 samples, not 30
     design = hybrid.design_drive(rivals, rich=0.0, hold=1.01, **run)
-    assert np.min(_runs(design.v_in)[:-1]) >= 31
+    changes = np.flatnonzero(np.diff(design.v_in)) + 1
+    assert changes.size and np.all(changes % 31 == 0), changes
     t, v = hybrid.rich_drive(duration=40.0, rate=RATE, amplitude=1.0, hold=3.0, seed=2)
     assert np.min(_runs(v)[:-1]) >= 90  # every level but the last (cut by the end) held ≥ 3 s
     with pytest.raises(hybrid.InputError, match="longer than the drive"):

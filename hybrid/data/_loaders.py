@@ -1162,8 +1162,8 @@ def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[
     `rig record` and `rig track` write w on every row: where the tracker could
     not measure the tip (out of view, a smeared tip, a dropped or repeated
     frame) w is held, interpolated or measured less surely, with quality 0.
-    `diagnose` bridges the runs of them inside the record (its glitches'
-    straight lines); nothing weighs them down in a fit: the user should know.
+    `diagnose` leaves them out of its fits and scores (`DiagnoseSettings.bridge_glitches`);
+    nothing weighs them down in `fit`: the user should know.
     """
     if quality is None or not np.isin(quality, (0.0, 1.0)).all() or not (quality == 0).any():
         return []

@@ -152,7 +152,7 @@ def rich_drive(
     """
     n, dt, low, high, slew = _limits("rich_drive", duration, rate, amplitude, bounds, slew)
     hold_s = 0.0 if hold is None else _check("hold", hold, who="rich_drive")
-    drive = _control(n, low, high, slew, dt, seed, hold_s)
+    drive = _control(_levels(n, low, high, dt, seed, hold_s), low, high, slew, dt)
     return np.arange(n) / rate, drive
 
 
@@ -242,9 +242,9 @@ def _criterion(models, u, dt, noise_std, softness):
     return -softness * jax.nn.logsumexp(-pairs / softness), pairs, outs
 
 
-def _control(n, low, high, slew, dt, seed, hold: float = 0.0) -> np.ndarray:
-    """The control drive: `_levels` made feasible (slew-limited)."""
-    return np.asarray(_feasible(jnp.asarray(_levels(n, low, high, dt, seed, hold)), low, high, slew, dt))
+def _control(levels, low, high, slew, dt) -> np.ndarray:
+    """The control drive: its `_levels` made feasible (slew-limited)."""
+    return np.asarray(_feasible(jnp.asarray(levels), low, high, slew, dt))
 
 
 #: Orders of the control's levels tried, the one kept whose level is least correlated with time.
@@ -405,12 +405,13 @@ def design_drive(
 
     optimiser = optax.adam(learning_rate * 0.5 * (high - low))  # steps in the drive's unit
 
-    kept = _seam(n, rich, hold_n, _levels(n, low, high, dt, seed, hold_s))  # the control's, never moved
+    control_levels = _levels(n, low, high, dt, seed, hold_s)
+    kept = _seam(n, rich, hold_n, control_levels)  # the control's first samples, never moved
 
     def on_grid(u):  # the designed part held (`hold`), then the range and the slew
         return _feasible(_held(jnp.asarray(u), kept, hold_n), low, high, slew, dt)
 
-    control = np.asarray(on_grid(_control(n, low, high, slew, dt, seed, hold_s)))
+    control = np.asarray(on_grid(_control(control_levels, low, high, slew, dt)))
     if output is not None:  # the control narrowed until every rival's prediction keeps within
         middle = 0.5 * (low + high)
         for share in NARROWED:

@@ -623,8 +623,9 @@ def _bridge_glitches(recordings) -> tuple[list, list[dict]]:
     """
     out, found = [], []
     for r in recordings:
-        unmeasured = unmeasured_runs(r.extra.get("quality"))
-        ends = [run for run in unmeasured_runs(r.extra.get("quality"), ends=True) if run not in unmeasured]
+        every = unmeasured_runs(r.extra.get("quality"))
+        unmeasured = [(a, b) for a, b in every if a > 0 and b < r.n - 1]  # a sample either side: bridged
+        ends = [run for run in every if run not in unmeasured]
         w = bridged(r.w, unmeasured) if unmeasured else r.w
         runs = glitch_runs(w, r.v_in)
         if runs:
@@ -667,6 +668,7 @@ def _escapes_warning(simulation, escaped: list[dict], n_screen: int) -> list[str
 def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:
     """One sentence per recording whose glitches `_bridge_glitches` bridged."""
     out = []
+    keep = "diagnose with --keep-glitches to fit them as recorded"
     for g in glitches:
         if g.get("unmeasured"):
             held = g["unmeasured"]
@@ -675,14 +677,14 @@ def _glitch_warnings(glitches: list[dict], rate: float) -> list[str]:
                 f"recording '{g['recording']}': w's {count} sample(s) of quality 0 inside the record ({len(held)} "
                 f"run(s), the longest {max(b - a + 1 for a, b in held)} samples, the first at t = "
                 f"{held[0][0] / rate:.4g} s), not measured there (a tracker held it), were bridged by straight "
-                "lines and left out of every fit and score; diagnose with --keep-glitches to fit them as recorded"
+                f"lines and left out of every fit and score; {keep}"
             )
         if g.get("unmeasured_ends"):
             edge = g["unmeasured_ends"]
             out.append(
                 f"recording '{g['recording']}': w's {sum(b - a + 1 for a, b in edge)} sample(s) of quality 0 at "
                 f"the record's {' and '.join('start' if a == 0 else 'end' for a, _ in edge)}, not measured there, "
-                "were left out of every fit and score; diagnose with --keep-glitches to fit them as recorded"
+                f"were left out of every fit and score; {keep}"
             )
         if not g["runs"]:
             continue

@@ -400,9 +400,8 @@ def glitch_runs(w: np.ndarray, v_in: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
-def unmeasured_runs(quality, ends: bool = False) -> list[tuple[int, int]]:
-    """Runs (first, last) of a 0/1 ``quality`` column's 0s with a 1 either side (`ends`: and those at the
-    record's start or end); [] without such a column."""
+def unmeasured_runs(quality) -> list[tuple[int, int]]:
+    """Runs (first, last) of a 0/1 ``quality`` column's 0s (w not measured there); [] without such a column."""
     if quality is None:
         return []
     q = np.asarray(quality, float)
@@ -410,7 +409,7 @@ def unmeasured_runs(quality, ends: bool = False) -> list[tuple[int, int]]:
         return []
     edges = np.diff(np.r_[1.0, q, 1.0])  # −1 where a run of 0s begins, +1 after it ends
     starts, stops = np.flatnonzero(edges < 0), np.flatnonzero(edges > 0) - 1
-    return [(int(a), int(b)) for a, b in zip(starts, stops) if ends or (a > 0 and b < q.size - 1)]
+    return [(int(a), int(b)) for a, b in zip(starts, stops)]
 
 
 def bridged(w: np.ndarray, runs) -> np.ndarray:

@@ -322,7 +322,7 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     if settings.bridge_glitches:  # samples w was not measured at weigh nothing (`_bridge_glitches`)
         padded = [
-            _unweighted(s, unmeasured_runs(r.extra.get("quality"), ends=True), r.name)
+            _unweighted(s, unmeasured_runs(r.extra.get("quality")), r.name)
             for s, r in zip(padded, recordings)
         ]
     problem, n_rows = search_problem(
