@@ -182,6 +182,7 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
     """
     from .core._held_start import has_held_start, refit_initial_drive
     from .core._metrics import metrics
+    from .core._problem import unmeasured_runs
     from .discovery._start import misfit_at_start, start_shape
 
     scores = []
@@ -217,9 +218,22 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
                         ),
                     }
                 }
+        unmeasured = np.zeros(w.shape[0], bool)  # a quality column's 0s: w was not measured there
+        for a, b in unmeasured_runs(record.extra.get("quality")):
+            unmeasured[a : b + 1] = True
+        scored_samples = ~unmeasured
         if first is not None:  # the samples that may set the state are not scored
-            w, w_hat = w[first:], w_hat[first:]
+            scored_samples[:first] = False
             held = {**held, "initial_samples": first, "scored_from": first}
+        if not scored_samples.any():
+            raise InputError(
+                f"test record '{record.name}': no sample is left to score (quality 0 throughout"
+                + (f" after its first {first} samples" if first is not None else "")
+                + "): track its video again, or test on a record whose w was measured"
+            )
+        if unmeasured[first or 0 :].any():  # left out of the score, and said
+            held = {**held, "unmeasured": int(np.sum(unmeasured[first or 0 :]))}
+        w, w_hat = w[scored_samples], w_hat[scored_samples]
         if not np.all(np.isfinite(w_hat)):
             raise InputError(
                 f"the fitted model's prediction for test record '{record.name}' is not finite: "
@@ -260,6 +274,7 @@ def print_scores(scores) -> None:
                 else ""
             )
             + (f"; scored after its first {s['scored_from']} samples" if "scored_from" in s else "")
+            + (f"; {s['unmeasured']} samples of quality 0 left out of the score" if "unmeasured" in s else "")
         )
         if "start" in s:
             print(f"  start: test record {s['name']}: {s['start']['sentence']}")

@@ -121,7 +121,12 @@ def _binary_scaled(x):
 
 
 def series_from_recording(
-    recording, fractions=(0.3, 0.5, 0.2), order=("train", "test", "validation"), blocks: int = 1
+    recording,
+    fractions=(0.3, 0.5, 0.2),
+    order=("train", "test", "validation"),
+    blocks: int = 1,
+    *,
+    measured_only: bool = True,
 ):
     """A [`Series`][] from a Recording, split in time (paper: 30/50/20 %, contiguous).
 
@@ -131,14 +136,66 @@ def series_from_recording(
     measured displacement), so a held-out block is predicted from the drive
     alone, with the state the earlier samples left; it interpolates in time
     instead of extrapolating past the training data.
+
+    With `measured_only` (the default) the samples a ``quality`` column marks 0
+    (rig's: w held or interpolated there, not measured; `unmeasured_runs`) are
+    in no part: no fit weighs them and no score counts them
+    (`without_unmeasured`). `diagnose` passes False and leaves them out of its
+    padded series itself.
     """
+    segments = split_segments(recording, fractions, order, blocks)
+    if measured_only:
+        quality = getattr(recording, "extra", {}).get("quality")
+        segments = without_unmeasured(segments, unmeasured_runs(quality), recording.name)
     # device_put, not jnp.asarray: no compiled program per recording length
     return Series(
         jax.device_put(np.asarray(recording.v_in)),
         jax.device_put(np.asarray(recording.w)),
         float(recording.dt),
-        split_segments(recording, fractions, order, blocks),
+        segments,
     )
+
+
+def unmeasured_runs(quality) -> list[tuple[int, int]]:
+    """Runs (first, last) of a 0/1 ``quality`` column's 0s (w not measured there); [] without such a column."""
+    if quality is None:
+        return []
+    q = np.asarray(quality, float)
+    if not np.isin(q, (0.0, 1.0)).all():
+        return []
+    edges = np.diff(np.r_[1.0, q, 1.0])  # −1 where a run of 0s begins, +1 after it ends
+    starts, stops = np.flatnonzero(edges < 0), np.flatnonzero(edges > 0) - 1
+    return [(int(a), int(b)) for a, b in zip(starts, stops)]
+
+
+def without_unmeasured(parts, runs, name: str = "") -> tuple[tuple[str, tuple[tuple[int, int], ...]], ...]:
+    """`parts` ((part, ((start, stop), ...)), ...) with the samples of `runs` ((first, last)) left out.
+
+    Each (start, stop) is cut into the pieces between the runs. A part that had
+    samples and is left with none is refused (nothing to fit or to score
+    there), with how to go on; `name` is the recording's, for that line.
+    """
+    if not runs:
+        return tuple((part, tuple((int(a), int(b)) for a, b in rows)) for part, rows in parts)
+    end = max([int(b) + 1 for _, b in runs] + [int(b) for _, rows in parts for _, b in rows])
+    measured = np.ones(end, bool)
+    for a, b in runs:
+        measured[a : b + 1] = False
+    out = []
+    for part, rows in parts:
+        pieces = []
+        for a, b in rows:
+            edges = np.diff(np.r_[0, measured[a:b].astype(int), 0])
+            pieces += [
+                (int(a + p), int(a + q)) for p, q in zip(np.flatnonzero(edges > 0), np.flatnonzero(edges < 0))
+            ]
+        if not pieces and any(b > a for a, b in rows):
+            raise InputError(
+                f"recording '{name}': every sample of its {part} part has quality 0 (w not measured there): "
+                "leave the unmeasured stretch out with --range, or track the video again"
+            )
+        out.append((part, tuple(pieces)))
+    return tuple(out)
 
 
 def split_segments(

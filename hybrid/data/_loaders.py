@@ -1162,8 +1162,9 @@ def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[
     `rig record` and `rig track` write w on every row: where the tracker could
     not measure the tip (out of view, a smeared tip, a dropped or repeated
     frame) w is held, interpolated or measured less surely, with quality 0.
-    `diagnose` leaves them out of its fits and scores (`DiagnoseSettings.bridge_glitches`);
-    nothing weighs them down in `fit`: the user should know.
+    `diagnose` leaves them out of its fits and scores (`DiagnoseSettings.bridge_glitches`), and so
+    does every fit and test score (`hybrid.core._problem.series_from_recording`): the user should
+    know how many.
     """
     if quality is None or not np.isin(quality, (0.0, 1.0)).all() or not (quality == 0).any():
         return []
@@ -1172,8 +1173,9 @@ def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[
         f"recording '{path}': {len(zero)} of {len(quality)} samples have quality 0 (the first at sample "
         f"{zero[0]}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker); "
         "diagnose bridges each run of them inside the record by a straight line and leaves them all out of "
-        "its fits and scores (unless --keep-glitches); fit fits them as measured: there, leave a stretch of "
-        f"them out with {range_flag()}, or track the video again (rig/README.md)"
+        "its fits and scores (unless --keep-glitches); fit leaves them out of every part and a test record's "
+        f"score; where there are many, leave a stretch of them out with {range_flag()}, or track the video "
+        "again (rig/README.md)"
     ]
 
 

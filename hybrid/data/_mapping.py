@@ -54,8 +54,10 @@ which the measured output, where the time comes from.
   output=run.txt:1"``).
 
 Every bad mapping raises one [`InputError`][hybrid.InputError] saying what is
-wrong and how to fix it. Unmapped columns are not read (except rate fields)
-and may hold anything.
+wrong and how to fix it. Unmapped columns are not read (except rate fields, and
+a column ``quality``: rig's 0/1 flag of the samples whose w was not measured, kept
+as the extra channel ``quality`` over the range, as `Recording.load` keeps it:
+`quality_column`) and may hold anything.
 """
 
 from __future__ import annotations
@@ -76,6 +78,7 @@ from ._loaders import (
     MissingName,
     check_file,
     path_argument,
+    quality_notes,
     require_names,
     role_of,
     shell_word,
@@ -235,6 +238,7 @@ def load_mapped(
         raise InputError(f"load_mapped got name {name!r}: give a non-empty string or leave it out")
     references = file_references(roles, paths)
     lines = None  # the file line of each sample, for messages
+    quality = None  # a single file's rig quality column (`quality_column`)
     notes: list[str] = []
     # the columns read but not mapped, as a flag names them and as a message does: a likely time column
     unmapped: list[tuple[str, str, str]] = []  # (the flag's value, the column's name, how a message says it)
@@ -259,6 +263,8 @@ def load_mapped(
         data, fields, file_meta, table = read or read_columns(path, suffix, roles, fill=fill)
         lines, notes = table.lines, list(table.notes)
         unmapped = [(c, c, f"its column '{c}'") for c in table.columns if c not in roles.values()]
+        if QUALITY in table.columns and QUALITY not in roles.values():
+            quality = quality_column(path, suffix, roles, fill, len(data["v_in"]))
     lengths = {role: len(values) for role, values in data.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"the {OPTION[r]} '{roles[r]}' has {k}" for r, k in lengths.items())
@@ -288,6 +294,8 @@ def load_mapped(
     if lines is not None:
         lines = lines[start:stop]
     signals: dict[str, np.ndarray] = {role: data[role][start:stop] for role in ("v_in", "w") if role in data}
+    if quality is not None:
+        quality = quality[start:stop]
     filled = np.zeros(0, int)  # the frames put in the time column's gaps
     values: dict[str, np.ndarray] = {}  # role -> its samples whose missing value was filled
     if fill_gaps:
@@ -348,6 +356,8 @@ def load_mapped(
             t, signals, lines, filled = fill_missing(label, t, signals, int(fill_gaps), lines)
             kept = np.setdiff1d(np.arange(t.size), filled)  # where each sample read went
             values = {role: kept[k] for role, k in values.items()}
+            if quality is not None:  # a frame put in a gap was not measured: quality 0, as rig marks one
+                quality = _placed(t.size, kept, quality)
         # the checks the Recording makes, here with the file's lines; the rate is the grid's
         grid, base = check_time(label, t, {"units": {"t": "s"}}, lines)
         jitter = float(base["jitter_max_s"]) if base is not None else 0.0
@@ -407,7 +417,39 @@ def load_mapped(
             "lists them)"
         )
     w = signals["w"] if "w" in signals else np.zeros(len(t))
-    return Recording(t, signals["v_in"], w, {}, metadata, label, tuple(notes))
+    extra = {} if quality is None else {QUALITY: quality}
+    notes += quality_notes(label, quality)
+    return Recording(t, signals["v_in"], w, extra, metadata, label, tuple(notes))
+
+
+#: The name of rig's quality column (`rig record`, `rig track`: 1 where w was measured, 0 where not).
+QUALITY = "quality"
+
+
+def quality_column(path, suffix: str, roles: Mapping[str, str], fill: bool, n: int) -> np.ndarray | None:
+    """A file's unmapped ``quality`` column where it is rig's 0/1 flag, one value per sample; else None.
+
+    A mapped read takes only the columns it is told, so `diagnose` and `fit` lost
+    the flag whenever a flag (``--range``, ``--units``) mapped the file, and fitted
+    rig's held frames as measured without a word. Read with the mapped columns
+    (the same data lines); a column that cannot be read so, or holds anything
+    but 0 and 1, is not rig's: None, as before.
+    """
+    try:
+        values = read_columns(path, suffix, {**roles, QUALITY: QUALITY}, fill=fill)[0][QUALITY]
+    except (InputError, KeyError, ValueError):
+        return None
+    values = np.asarray(values, np.float64)
+    if values.shape != (n,) or not np.isin(values, (0.0, 1.0)).all():
+        return None
+    return values
+
+
+def _placed(size: int, at: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """An array of `size` zeros with `values` at the indices `at`."""
+    out = np.zeros(size)
+    out[at] = values
+    return out
 
 
 def file_references(

@@ -67,7 +67,7 @@ from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_label
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
-from ..core._problem import Problem
+from ..core._problem import Problem, unmeasured_runs
 from ..core._result import (
     aliased,
     drive_outside_range,
@@ -91,7 +91,7 @@ from ._effect_set import resolve_effects, searched_places
 from ._effect_stack import EffectStack
 from ._evidence import diverged_warnings, fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
 from ._joint import joint_pair, named_jointly
-from ._noise_floor import bounded_by_residual, bridged, glitch_runs, unmeasured_runs
+from ._noise_floor import bounded_by_residual, bridged, glitch_runs
 from ._redundant import drop_redundant
 from ._refine import refinable, refined, refined_effects, refinement_reason, refused
 from ._search import (

@@ -400,18 +400,6 @@ def glitch_runs(w: np.ndarray, v_in: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
-def unmeasured_runs(quality) -> list[tuple[int, int]]:
-    """Runs (first, last) of a 0/1 ``quality`` column's 0s (w not measured there); [] without such a column."""
-    if quality is None:
-        return []
-    q = np.asarray(quality, float)
-    if not np.isin(q, (0.0, 1.0)).all():
-        return []
-    edges = np.diff(np.r_[1.0, q, 1.0])  # −1 where a run of 0s begins, +1 after it ends
-    starts, stops = np.flatnonzero(edges < 0), np.flatnonzero(edges > 0) - 1
-    return [(int(a), int(b)) for a, b in zip(starts, stops)]
-
-
 def bridged(w: np.ndarray, runs) -> np.ndarray:
     """A copy of w with each run (first, last) on the straight line between the samples either side of it."""
     original = np.asarray(w, float)

@@ -31,14 +31,14 @@ from ..core._problem import (
     series_from_recording,
     span_rows,
     split_segments,
+    unmeasured_runs,
+    without_unmeasured,
 )
 from ..core._readout import LinearReadout
-from ..util._errors import InputError
 from ._diagnosis import MAX_BLOCKS_FACTOR, SPLIT_ORDER, DiagnoseSettings
 from ._effect_set import resolve_effects
 from ._effect_stack import EffectStack
 from ._effects import AbstractEffect, FrameTiming
-from ._noise_floor import unmeasured_runs
 
 #: Effects a lane's Jacobian has room for in the problem every step of the search shares: the
 #: directions of the `SHARED_ROOM` effects with the most parameters. Each direction costs one
@@ -317,7 +317,8 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
     effects = resolve_effects(effects, simulation)
     model = universal_model(simulation, effects, drive_unit(recordings))
     series = [
-        series_from_recording(r, settings.split, SPLIT_ORDER, settings.split_blocks) for r in recordings
+        series_from_recording(r, settings.split, SPLIT_ORDER, settings.split_blocks, measured_only=False)
+        for r in recordings
     ]
     padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     if settings.bridge_glitches:  # samples w was not measured at weigh nothing (`_bridge_glitches`)
@@ -335,8 +336,8 @@ def _unweighted(series: Series, runs, name: str = "") -> Series:
     """A padded `series` whose samples in `runs` ((first, last), w not measured there) are in no split.
 
     They weigh 0 in every fit and loss, and its recorded segments (`recorded_segments_of`, which
-    `Problem.recorded` and so every held-out score read) go round them. A split left without a
-    sample is refused (nothing to fit or to score there), with how to go on.
+    `Problem.recorded` and so every held-out score read) go round them (`without_unmeasured`, which
+    refuses a split left without a sample).
     """
     if not runs or series.weights is None or series.spans is None:
         return series
@@ -344,19 +345,9 @@ def _unweighted(series: Series, runs, name: str = "") -> Series:
     for a, b in runs:
         out[a : b + 1] = False
     weights = tuple((split, jax.device_put(np.array(weight) * out)) for split, weight in series.weights)
-    spans = []
-    for split, rows in series.spans:
-        pieces = []
-        for a, b in np.asarray(rows):
-            edges = np.diff(np.r_[0, out[a:b].astype(int), 0])
-            pieces += [(a + p, a + q) for p, q in zip(np.flatnonzero(edges > 0), np.flatnonzero(edges < 0))]
-        if not pieces and any(b > a for a, b in np.asarray(rows)):
-            raise InputError(
-                f"recording '{name}': every sample of its {split} part has quality 0 (w not measured there): "
-                "leave the unmeasured stretch out with --range, or track the video again"
-            )
-        spans.append((split, span_rows(pieces)))
-    return eqx.tree_at(lambda s: (s.weights, s.spans), series, (weights, tuple(spans)))
+    kept = without_unmeasured([(split, np.asarray(rows)) for split, rows in series.spans], runs, name)
+    spans = tuple((split, span_rows(pieces)) for split, pieces in kept)
+    return eqx.tree_at(lambda s: (s.weights, s.spans), series, (weights, spans))
 
 
 def held_out_blocks(recordings, settings: DiagnoseSettings) -> tuple[int, bool]:
