@@ -87,7 +87,9 @@ def test_a_mapped_read_keeps_the_quality_column_over_its_range(records, tmp_path
         rec = hybrid.load_mapped(fit_path, **options)
         np.testing.assert_array_equal(rec.extra["quality"], quality[first:])
         np.testing.assert_allclose(rec.w, w[first:], rtol=1e-12)
-        assert any("40 of" in n and "have quality 0" in n for n in rec.notes), rec.notes
+        said = f"40 of {N - first} samples have quality 0 (the first at sample {60 - first}"
+        assert any(said in n for n in rec.notes), rec.notes
+        assert any("the file's 60)" in n for n in rec.notes) == bool(first), rec.notes
     # a column named quality that is not rig's 0/1 flag is a lab's own: not read
     data = np.loadtxt(fit_path, delimiter=",", skiprows=1)
     data[:, 3] = np.linspace(0.0, 5.0, N)

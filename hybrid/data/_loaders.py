@@ -1156,7 +1156,7 @@ def _load_csv(
     return columns, metadata, tuple(notes), line_numbers
 
 
-def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[str]:
+def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None, offset: int = 0) -> list[str]:
     """A note for samples whose ``quality`` column (rig's: 1 measured, 0 not) is 0, or none.
 
     `rig record` and `rig track` write w on every row: where the tracker could
@@ -1164,14 +1164,15 @@ def quality_notes(path: pathlib.Path | str, quality: np.ndarray | None) -> list[
     frame) w is held, interpolated or measured less surely, with quality 0.
     `diagnose` leaves them out of its fits and scores (`DiagnoseSettings.bridge_glitches`), and so
     does every fit and test score (`hybrid.core._problem.series_from_recording`): the user should
-    know how many.
+    know how many. `offset`: the file's sample of the recording's first (a sample range's start).
     """
     if quality is None or not np.isin(quality, (0.0, 1.0)).all() or not (quality == 0).any():
         return []
     zero = np.flatnonzero(quality == 0)
+    in_file = f", the file's {zero[0] + offset}" if offset else ""
     return [
         f"recording '{path}': {len(zero)} of {len(quality)} samples have quality 0 (the first at sample "
-        f"{zero[0]}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker); "
+        f"{zero[0]}{in_file}): w was not measured there as elsewhere (held, interpolated or less sure: rig's tracker); "
         "diagnose bridges each run of them inside the record by a straight line and leaves them all out of "
         "its fits and scores (unless --keep-glitches); fit leaves them out of every part and a test record's "
         f"score; where there are many, leave a stretch of them out with {range_flag()}, or track the video "

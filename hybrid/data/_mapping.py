@@ -418,7 +418,7 @@ def load_mapped(
         )
     w = signals["w"] if "w" in signals else np.zeros(len(t))
     extra = {} if quality is None else {QUALITY: quality}
-    notes += quality_notes(label, quality)
+    notes += quality_notes(label, quality, start)
     return Recording(t, signals["v_in"], w, extra, metadata, label, tuple(notes))
 
 
