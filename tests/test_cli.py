@@ -113,6 +113,9 @@ def test_fit_nan_recording_exits_2_with_one_line(virtual_csv, tmp_path, capsys):
         (["simulate", "--drive", "sine", "--duration", "5", "--param", "bogus=1", "--out", "x.csv"], "bogus"),
         (["rc", "missing.csv", "--out", "y.csv"], "does not exist"),
         (["fit", "missing.csv"], "missing.csv"),
+        # a flag that maps the file (a probe's --units) told a wrong path "no input column is named"
+        (["diagnose", "missing.csv", "--units", "v_in=N,w=mm", "--out", "d"], "'missing.csv' does not exist"),
+        (["fit", "missing.csv", "--range", "10:100"], "'missing.csv' does not exist"),
         (["fit", "REC", "--split", "0.5,0.5"], "three fractions"),
         (["fit", "REC", "--freeze", "nonsense", "--quiet"], "nonsense"),
         (["rc", "REC", "--param", "xi_rho", "--out", "y.csv"], "NAME=VALUE"),

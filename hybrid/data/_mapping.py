@@ -217,6 +217,8 @@ def load_mapped(
         # only --units, --range, --rate or a name: a file with the standard columns maps them itself
         standard = None
         if all(x is None for x in (input, output, time, columns)) and len(paths) == 1:
+            if not paths[0].exists():  # a wrong path, not a missing mapping (a probe's --units on a typo)
+                check_file(paths[0], MAPPED_SUFFIXES)
             standard = _standard_roles(paths[0], require_w, fill)
         if standard is None:
             raise
