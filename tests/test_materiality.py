@@ -15,6 +15,7 @@ import pytest
 import scipy.signal
 
 from hybrid.cli import main
+from hybrid.discovery._effect_set import EFFECTS
 
 
 def test_an_effect_refused_for_its_size_alone_is_said_and_counted_with_materiality(
@@ -175,3 +176,14 @@ def test_two_recordings_give_the_same_sizes_in_either_order():
     ]
     assert found[0] == pytest.approx(found[1], rel=1e-9)
     assert min(found[0]["shortfall_pos_percent"], found[0]["shortfall_neg_percent"]) > 40  # the staircase's
+
+
+def test_a_size_refused_just_below_its_threshold_is_not_printed_at_it():
+    """A probe's "drift … gain change 5.0 % (needs ≥ 5.0 %)" refused a 4.97 % change: a refusal shows the
+    digits that tell the size from the threshold, and a size that passes keeps its one decimal."""
+    drift = EFFECTS["drift"]()
+    need = drift.thresholds["gain_change_percent"]
+    refused, said = drift.material({"gain_change_percent": need - 0.03}, {}, drift.thresholds)
+    assert not refused and f"gain change {need - 0.03:.2f} % (needs ≥ {need} %)" in said
+    kept, said = drift.material({"gain_change_percent": need + 0.03}, {}, drift.thresholds)
+    assert kept and f"gain change {need + 0.03:.1f} %" in said

@@ -363,6 +363,18 @@ def signal_top(signal) -> float:
     return max(float(np.max(np.abs(signal))), 1e-9)
 
 
+def shown(size: float, need: float, digits: int = 1) -> str:
+    """`size` to `digits` decimals, or to as many more as show it below `need` where it is (up to 6).
+
+    A materiality line read "gain change 5.0 % (needs ≥ 5.0 %)" for a size of 4.97 % refused (a probe's).
+    """
+    text = f"{size:.{digits}f}"
+    while size < need and float(text) >= need and digits < 6:
+        digits += 1
+        text = f"{size:.{digits}f}"
+    return text
+
+
 def _sides(signal) -> tuple[float, float]:
     """The largest positive and negative excursions, each at least 5 % of the largest |value|."""
     top = signal_top(signal)
@@ -481,7 +493,7 @@ class _SlowResponse(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get(f"{self.key}_percent", 0.0), thresholds[f"{self.key}_percent"]
-        return size >= need, f"{self.key} {size:.1f} % (needs ≥ {need} %)"
+        return size >= need, f"{self.key} {shown(size, need)} % (needs ≥ {need} %)"
 
 
 class BackRelaxation(_SlowResponse):
@@ -672,7 +684,7 @@ class _SidedSaturation(AbstractEffect):
     def material(self, derived, parameters, thresholds):
         worst = max([v for k, v in derived.items() if k.startswith("shortfall")] or [0.0])
         need = thresholds["shortfall_percent"]
-        return worst >= need, f"shortfall {worst:.1f} % (needs ≥ {need} %)"
+        return worst >= need, f"shortfall {shown(worst, need)} % (needs ≥ {need} %)"
 
 
 def _sided_facts(name: str, sharp: bool = False) -> tuple[dict, dict, dict]:
@@ -875,7 +887,7 @@ class Hysteresis(AbstractEffect):
                 "which a saturation or an even response fits alike: a drive that goes up and down tells them "
                 "apart"
             )
-        return size >= need, f"loop {size:.1f} % of range (needs ≥ {need} %)"
+        return size >= need, f"loop {shown(size, need)} % of range (needs ≥ {need} %)"
 
 
 def signal_turn(s) -> float:
@@ -926,7 +938,7 @@ class Drift(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = abs(derived.get("gain_change_percent", 0.0)), thresholds["gain_change_percent"]
-        return size >= need, f"gain change {size:.1f} % (needs ≥ {need} %)"
+        return size >= need, f"gain change {shown(size, need)} % (needs ≥ {need} %)"
 
 
 def foh_matrices(a, b, dt):
@@ -1028,7 +1040,7 @@ class Lag(AbstractEffect):
                 f"time constant {size:.4g} samples, {records:.3g} × the record (needs ≤ {most:g}): a lag the "
                 "record never sees settle acts as an integral of the signal, not as a sensor's lag"
             )
-        return size >= need, f"time constant {size:.2f} samples (needs ≥ {need:g})"
+        return size >= need, f"time constant {shown(size, need, 2)} samples (needs ≥ {need:g})"
 
 
 #: Samples per block of `Resonance`'s recurrence (`lifted_response`).
@@ -1223,7 +1235,7 @@ class _Even(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("even_percent_of_range", 0.0), thresholds["even_percent_of_range"]
-        return size >= need, f"even part {size:.1f} % of range (needs ≥ {need} %)"
+        return size >= need, f"even part {shown(size, need)} % of range (needs ≥ {need} %)"
 
 
 class EvenResponse(_Even):
@@ -1337,7 +1349,7 @@ class BaselineDrift(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("baseline_percent_of_range", 0.0), thresholds["baseline_percent_of_range"]
-        return size >= need, f"baseline moves {size:.1f} % of range (needs ≥ {need} %)"
+        return size >= need, f"baseline moves {shown(size, need)} % of range (needs ≥ {need} %)"
 
 
 class _DeadZone(AbstractEffect):
