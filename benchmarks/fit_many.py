@@ -1,16 +1,18 @@
-"""Many fits in one process: the memory maps stay below Linux's limit.
+"""Many fits in one process: the memory maps and the resident memory stay bounded.
 
     python benchmarks/fit_many.py [--calls 100]
 
 `hybrid.fit` compiles its programs for each recording's own length (no buckets:
 a windowed readout cannot be padded), about 700 memory maps per new length for
 a physics-only `LTI(1)` model. A script fitting a hundred recordings of distinct
-lengths would pass `vm.max_map_count` (65,530) and die. `fit` releases every
-compiled program when the process holds more than half of its allowed maps
-(`hybrid.util.release_when_crowded`). Here `--calls` fits of distinct lengths
-(1,500-4,000 samples, a first-order lag with a saturating output, 30 Hz, times
-written to six decimals), each with at most 20 LM steps. Reported per call: the
-maps after it, its seconds and seconds compiling, and whether the maps fell (a
+lengths would pass `vm.max_map_count` (65,530) and die, and before that hold
+gigabytes. `fit` keeps the programs of its last `FIT_HELD_SHAPES` shape keys
+and releases every compiled program for a new one beyond them, or when the
+process holds more than half of its allowed maps (`hybrid.util._programs.FIT_PROGRAMS`).
+Here `--calls` fits of distinct lengths (1,500-4,000 samples, a first-order lag
+with a saturating output, 30 Hz, times written to six decimals), each with at
+most 20 LM steps. Reported per call: the maps and the resident memory (MB)
+after it, its seconds and seconds compiling, and whether the maps fell (a
 release). Writes `benchmarks/results/fit_many.json`.
 """
 
@@ -61,6 +63,7 @@ def main() -> None:
                 "seconds": time.perf_counter() - t0,
                 "compile_s": counts["compile_s"] - compiling,
                 "maps": maps,
+                "rss_mb": _rss_mb(),
                 "released": maps is not None and maps_before is not None and maps < maps_before,
                 "test_nmse": float(result.metrics["test"]["nmse"]),
             }
@@ -72,6 +75,7 @@ def main() -> None:
         "calls": len(rows),
         "distinct_lengths": len({r["samples"] for r in rows}),
         "maps_max": max(maps) if maps else None,
+        "rss_mb_max": max((r["rss_mb"] for r in rows if r["rss_mb"] is not None), default=None),
         "max_map_count": map_limit(),
         "releases": sum(r["released"] for r in rows),
         "maps_per_call_median": float(np.median(np.diff(maps))) if len(maps) > 1 else None,
@@ -83,6 +87,18 @@ def main() -> None:
     del jax
     c.write("fit_many.json", out)
     print({k: v for k, v in out.items() if k not in ("rows", "machine")})
+
+
+def _rss_mb() -> float | None:
+    """This process's resident memory (MB, Linux's VmRSS), or None where /proc cannot tell."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return None
 
 
 if __name__ == "__main__":

@@ -156,25 +156,73 @@ def test_a_rate_of_more_digits_is_rounded_to_six():
     assert r.rate == 30.0031  # to the sixth digit: 1.4 ppm here
 
 
-def test_fit_releases_the_programs_of_a_crowded_process(monkeypatch):
-    """`fit` compiles for each recording's length (about 700 maps each: a script fitting a hundred
-    lengths would die at vm.max_map_count); when the process holds more than its share of maps it
-    releases every compiled program first, and not otherwise."""
+def test_fit_keeps_the_programs_of_its_last_lengths_and_releases_a_crowded_process(monkeypatch):
+    """`fit` compiles for each recording's length (about 700 maps and 85 MB each for a small plug-in: a
+    probe's loop over 30 lengths grew to 3.1 GB): it keeps the programs of its last `held` shape keys,
+    releases every compiled program for one more, and releases them in a crowded process whatever the key."""
     import jax
 
-    from hybrid.util import _programs
+    from hybrid.core import _fit
 
-    if memory_maps() is None or not _programs.map_limit():
+    if memory_maps() is None:
         pytest.skip("no /proc/self/maps here: nothing to guard")
     model = hy.Model(hy.LTI(1), hy.LinearReadout(), "physics")
     solver = hy.LevenbergMarquardt(max_steps=2)
     f = jax.jit(lambda x: jnp.cos(x) + 1)
 
-    def cached_after_fit():
+    def cached_after_fit(n):
         f(jnp.ones(4)).block_until_ready()
-        hy.fit(model, _recording(300), solver=solver, progress=False)
+        hy.fit(model, _recording(n), solver=solver, progress=False)
         return f._cache_size()
 
-    assert cached_after_fit() == 1  # a quiet process keeps its programs
-    monkeypatch.setattr(_programs, "MAX_MAP_FRACTION", 0.0)  # any maps at all count as crowded
-    assert cached_after_fit() == 0
+    budget = ProgramBudget(held=2)
+    monkeypatch.setattr(_fit, "FIT_PROGRAMS", budget)
+    assert [cached_after_fit(n) for n in (300, 300, 310)] == [1, 1, 1]  # two lengths: kept
+    assert budget.releases == 0
+    assert cached_after_fit(320) == 0 and budget.releases == 1  # a third: released first
+    monkeypatch.setattr(_fit, "FIT_PROGRAMS", ProgramBudget(held=5, max_fraction=0.0))  # any maps: crowded
+    assert cached_after_fit(320) == 0
+
+
+class _ClosureLag(hy.AbstractSimulation):
+    """A first-order lag whose `lax.scan` steps a function defined inside `simulate`, as plug-ins write it."""
+
+    raw: dict
+    constraints = {"tau": hy.Positive()}
+    units = {"tau": "s"}
+    typical = {"tau": (0.05, 5.0)}
+    linear_in_drive = True
+    output_unit = "{drive}"
+
+    def __init__(self, tau=0.5):
+        self.raw = hy.encode({"tau": tau}, self.constraints, "_ClosureLag")
+
+    def simulate(self, v_in, dt):
+        import jax
+
+        v_in, dt = hy.check_drive(v_in, dt, "_ClosureLag.simulate")
+        a = jnp.exp(-dt / self.parameters()["tau"])
+
+        def step(x, u):
+            x = a * x + (1 - a) * u
+            return x, x
+
+        return jax.lax.scan(step, jnp.zeros((), v_in.dtype), v_in)[1]
+
+
+def test_fits_of_one_length_in_a_loop_compile_nothing_after_the_first():
+    """A probe's loop of fits of one length with such a plug-in compiled 14 programs a fit (its predictions
+    on each part, run op by op, scanned a new closure each time) and grew 20 MB a fit."""
+    from hybrid.util._programs import process_compiles
+
+    counter = process_compiles()
+    recording = _recording(400, 3)
+    compiled, taus = [], []
+    for _ in range(3):
+        before = counter["programs"]
+        result = hy.fit(hy.make_model("physics", simulation=_ClosureLag()), recording, progress=False)
+        compiled.append(counter["programs"] - before)
+        taus.append(float(result.model.parameters()["tau"]))
+    assert compiled[0] > 0 and compiled[1:] == [0, 0], compiled
+    assert taus[0] == taus[1] == taus[2]  # the same fit each time
+    assert 0.1 < taus[0] < 0.3  # the data's lag: e^(-1/30/τ) of a 6-sample (0.2 s) kernel

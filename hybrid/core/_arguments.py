@@ -80,6 +80,21 @@ def _compiled_call(function, *args):
     return function(*args)
 
 
+def simulated(simulation, v_in, dt):
+    """`simulation.simulate(v_in, dt)` through `run_compiled`: once per structure and length op by op.
+
+    The library's simulations compile their own; a plug-in's `simulate` that
+    scans a step defined inside it compiled that scan afresh at every call from
+    `fit`'s predictions and a model's `predict` (a probe's loop of fits of one
+    length: 14 programs and 20 MB a fit).
+    """
+    return run_compiled(_simulate, simulation, v_in, dt)
+
+
+def _simulate(simulation, v_in, dt):
+    return simulation.simulate(v_in, dt)
+
+
 def check_model(model, where: str):
     """`model` must be a [`hybrid.Model`][] (from `make_model`, `load_model` or a fit)."""
     from ._models import Model

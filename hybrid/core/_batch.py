@@ -42,12 +42,13 @@ import numpy as np
 
 from ..data._mapping import RATE_RTOL
 from ..util._errors import InputError, PluginError
-from ..util._programs import process_compiles, release_when_crowded
+from ..util._programs import FIT_PROGRAMS, process_compiles
 from ._arguments import as_recordings, check_dt, check_model
 from ._devices import device_mesh, repeat_last
 from ._fit import (
     check_training_drive,
     default_frozen,
+    fit_shape_key,
     fit_units,
     non_finite_fit,
     readout_back,
@@ -165,7 +166,7 @@ def fit_batch(
             model.readout.window, f"the model's input window ({model.readout.window} samples)"
         )
         recording.check_signals()
-    release_when_crowded()  # its programs depend on the batch's lengths, as `fit`'s do
+    FIT_PROGRAMS.admit(fit_shape_key(model, recordings, len(recordings), "batch"))  # as `fit`'s
     series = [series_from_recording(r, split, split_order) for r in recordings]
     for i, s in enumerate(series):
         if not np.ptp(np.asarray(s.target("train"))) > 0:

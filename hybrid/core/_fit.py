@@ -28,7 +28,7 @@ import numpy as np
 from ..data._header_units import unit_kind
 from ..data._recording import in_shared_units
 from ..util._errors import InputError, PluginError
-from ..util._programs import release_when_crowded
+from ..util._programs import FIT_PROGRAMS
 from ..util._watchdog import stage
 from ._arguments import as_names, as_recordings, check_model, check_seed
 from ._level_limit import level_limits, limit_sentence
@@ -171,8 +171,8 @@ def fit(
         )
         recording.check_signals()  # a constant drive or w: refused, not fitted to its start values
     # Its programs depend on each recording's length: a script fitting many lengths in one process
-    # would hold more of them than Linux allows (`hybrid.util._programs`).
-    release_when_crowded()
+    # keeps those of the last few (`hybrid.util._programs.FIT_PROGRAMS`), not of every one.
+    FIT_PROGRAMS.admit(fit_shape_key(model, recordings, starts, solver))
     series = [series_from_recording(r, split, split_order, blocks) for r in recordings]
     train_w = np.concatenate([np.asarray(s.target("train")) for s in series])
     if not np.ptp(train_w) > 0:
@@ -217,14 +217,16 @@ def fit(
         raise InputError(f"stop must be a function of no arguments that returns True to stop, got {stop!r}")
     stopped = False
     if isinstance(solver, LevenbergMarquardt):
-        best, history, per_start, stopped = _run_lm(
+        best, history, per_start, stopped, curvature = _run_lm(
             problem, thetas, solver.lm_settings(), progress, report_every, stop
         )
     elif isinstance(solver, Adam):
+        curvature = None
         best, history, per_start, stopped = _run_adam(
             problem, thetas, solver.max_steps, solver.learning_rate, progress, report_every, stop
         )
     elif isinstance(solver, OptimistixLM):
+        curvature = None
         best, history, per_start = _run_optimistix(
             problem, thetas, solver.max_steps, solver.rtol, solver.atol
         )
@@ -288,7 +290,12 @@ def fit(
             fitted.simulation, [r.v_in for r in recordings], (recording_units(recordings) or ("", ""))[1]
         )
         + one_frequency_drive([(r.v_in, r.rate) for r in recordings])
-        + unit_mismatch(recordings, fitted.simulation),
+        + unit_mismatch(recordings, fitted.simulation)
+        + (
+            unpinned_warnings(curvature[best_start], initial[best_start], frozen)
+            if curvature is not None
+            else []
+        ),
         stopped=stopped,
     )
 
@@ -472,6 +479,87 @@ def start_model(model: Model, index, seed, frozen, perturbation, series) -> Mode
     return Model(model.simulation, model.readout.initialise(signal, target), model.kind, model.signal_units)
 
 
+def fit_shape_key(model: Model, recordings, starts: int, solver) -> tuple:
+    """What a fit's compiled programs depend on besides the values: the model's structure, the
+    recordings' lengths, the starts and the solver (`FIT_PROGRAMS`' shape key)."""
+    return (
+        type(model.simulation),
+        type(model.readout),
+        model.kind,
+        getattr(model.readout, "window", None),
+        tuple(int(r.n) for r in recordings),
+        starts,
+        type(solver),
+    )
+
+
+#: λ_i/λ_1 of the fit's JᵀJ at or below which a direction is null: no data can move the fit along it.
+#: An exact null's ratio is float64's rounding of JᵀJ, ~1e-16; a parameter pinned ten thousand times
+#: more loosely than the best pinned one has 1e-8 (its σ_i/σ_1, 1e-4, squared).
+NULL_RATIO = 1e-13
+#: A parameter is named in a null direction where its part of the directions is at least this.
+NULL_COEFFICIENT = 0.05
+
+
+def unpinned_warnings(JtJ, model: Model, frozen) -> list[str]:
+    """A sentence on the null directions of a physics fit's JᵀJ (its curvature at the end), or none.
+
+    Parameters that enter the simulation only as a product or a ratio (a heated
+    block's R and C through R·C, k and the readout's gain through k·R·gain) are
+    not pinned by any recording: the fit returns one point of a line of equal
+    fits, printed as if it were determined (a probe's). JᵀJ in the fit's own
+    coordinates (log of a positive parameter) is LM's, at its last accepted
+    step: no other program. Black-box readouts (the D-MLP, whose weights have
+    null directions of their own) are left to `hybrid sensitivity`.
+    """
+    if not model.readout.parameters():
+        return []
+    spec = model.trainable(frozenset(frozen))
+    readout_names = [
+        str(getattr(path[-1], "key", path[-1]))
+        for path, _ in jax.tree_util.tree_flatten_with_path(eqx.filter(model.readout, spec.readout))[0]
+    ]
+    names = model.simulation.free_parameter_order(frozen) + readout_names
+    JtJ = np.asarray(JtJ, np.float64)
+    if JtJ.shape != (len(names), len(names)) or len(names) < 2 or not np.all(np.isfinite(JtJ)):
+        return []
+    lam, V = np.linalg.eigh((JtJ + JtJ.T) / 2)  # ascending
+    if not lam[-1] > 0:
+        return []
+    null = V[:, lam / lam[-1] <= NULL_RATIO]  # k × d: a basis of the directions no data can see
+    if not null.size:
+        return []
+    moving = [n for n, row in zip(names, null) if np.linalg.norm(row) >= NULL_COEFFICIENT]
+    to_freeze = []  # one parameter per direction, the one that moves most along what is left of them
+    basis = null
+    while basis.shape[1]:
+        i = int(np.argmax(np.linalg.norm(basis, axis=1)))
+        to_freeze.append(names[i])
+        basis = basis @ np.linalg.svd(basis[i : i + 1], full_matrices=True)[2][1:].T  # those with θ_i fixed
+    d = null.shape[1]
+    if len(moving) == d:  # each direction one parameter's own: the prediction does not depend on them
+        listed = ", ".join(moving)
+        return [
+            f"the prediction does not depend on {listed} on this recording (the fit's Jacobian is zero "
+            f"along {'it' if d == 1 else 'them'}), so {'its value is' if d == 1 else 'their values are'} "
+            "where the fit started, not fitted: a drive that reaches what "
+            f"{'it acts on' if d == 1 else 'they act on'} pins {'it' if d == 1 else 'them'}; else freeze "
+            + ("it" if d == 1 else "them")
+            + " (hybrid fit "
+            + " ".join(f"--freeze {n}" for n in moving)
+            + ")"
+        ]
+    listed = ", ".join(moving[:-1]) + f" and {moving[-1]}"
+    return [
+        f"the recording does not pin {listed} apart: {'a combination' if d == 1 else f'{d} combinations'} of "
+        "them can change without changing the prediction (the fit's Jacobian is blind to "
+        f"{'it' if d == 1 else 'them'}: the simulation depends on products or ratios of them), so the values "
+        f"printed are one point of {'a line' if d == 1 else 'a surface'} of equal fits; freeze {d} of them "
+        "(e.g. hybrid fit " + " ".join(f"--freeze {n}" for n in to_freeze) + "; fit(..., frozen=...)) or see "
+        "hybrid sensitivity, which names what is pinned"
+    ]
+
+
 def clipped_warnings(problem: Problem, theta, split_order, scale: float, unit: str) -> list[str]:
     """A sentence for a record that sits flat at its extreme while the fitted model goes beyond it.
 
@@ -554,7 +642,9 @@ STOP_POLL_S = 1.0
 
 
 def _run_lm(problem, thetas, settings: LMSettings, progress, report_every, stop=None):
-    """LM from each row of `thetas`: (best θ per start, history, per-start records, stopped).
+    """LM from each row of `thetas`: (best θ per start, history, per-start records, stopped, JᵀJ per start).
+
+    JᵀJ is each start's at its last accepted step (`unpinned_warnings` reads its null directions).
 
     Steps run in compiled chunks that end on every `report_every`-th step (a
     history entry); on a long record, where one step takes seconds, a chunk is
@@ -620,7 +710,7 @@ def _run_lm(problem, thetas, settings: LMSettings, progress, report_every, stop=
         }
         for i in range(thetas.shape[0])
     ]
-    return states.best_theta, history, per_start, stopped
+    return states.best_theta, history, per_start, stopped, np.asarray(states.JtJ)
 
 
 def _run_adam(problem, thetas, max_steps, learning_rate, progress, report_every, stop=None):

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ..util._errors import InputError
-from ._arguments import check_key, check_simulation
+from ._arguments import check_key, check_simulation, simulated
 from ._readout import AbstractReadout, LinearReadout, WindowedMLP
 from ._simulation import AbstractSimulation, Passthrough, unit_in
 
@@ -50,7 +50,7 @@ class Model(eqx.Module):
 
     def mediatory(self, v_in: Float[Array, " time"], dt: float) -> Float[Array, " time"]:
         """The mediatory signal (V_o for the RC network) over the whole drive."""
-        return self.simulation.simulate(v_in, dt)
+        return simulated(self.simulation, v_in, dt)
 
     def predict(self, v_in, dt, segments=None) -> Float[Array, " samples"]:
         """ŵ (mm) for each `(start, stop)` segment (default: the whole drive)."""

@@ -30,6 +30,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from ..util._errors import InputError
+from ._arguments import simulated
 from ._models import Model
 from ._parameters import Real
 from ._simulation import DRIVE, drive_power
@@ -466,7 +467,7 @@ class Problem(eqx.Module):
     # --- residuals -----------------------------------------------------------
     def _signals(self, theta_sim):
         simulation = self.simulation(theta_sim)
-        return [simulation.simulate(s.v_in, s.dt) for s in self.series]
+        return [simulated(simulation, s.v_in, s.dt) for s in self.series]
 
     def _windows(self, readout, signals, split):
         return jnp.concatenate(

@@ -25,7 +25,6 @@ from ._programs import (
     map_limit as map_limit,
     memory_maps as memory_maps,
     release_programs as release_programs,
-    release_when_crowded as release_when_crowded,
 )
 from ._stdout import reader_may_leave as reader_may_leave
 from ._watchdog import Watchdog as Watchdog, stage as stage

@@ -17,8 +17,10 @@ its allowed maps, whoever compiled them. A released program is compiled again
 when it is needed next (or read back from the persistent compilation cache,
 which the command line turns on). `hybrid.fit` and `hybrid.fit_batch` compile
 for each recording's own length (no buckets: a windowed readout cannot be
-padded); they release every program when the process is crowded
-(`release_when_crowded`), so a script fitting many lengths never runs out.
+padded); they keep their own budget of shape keys (`FIT_PROGRAMS`: the
+recordings' lengths and the model's structure), so a script fitting many
+lengths holds the programs of the last `FIT_HELD_SHAPES` of them, not of every
+one (a probe's loop over 30 lengths grew by about 85 MB a fit, to 3.1 GB).
 """
 
 from __future__ import annotations
@@ -94,19 +96,6 @@ def crowded(max_fraction: float | None = None) -> bool:
     return maps is not None and limit is not None and limit > 0 and maps > fraction * limit
 
 
-def release_when_crowded() -> bool:
-    """Release every compiled program when the process is `crowded`; True when it did.
-
-    For calls that compile a program per recording's length (`hybrid.fit`: one
-    per length, about 700-800 maps each): a script fitting a hundred recordings
-    of distinct lengths would otherwise reach `vm.max_map_count` and die.
-    """
-    if crowded():
-        release_programs()
-        return True
-    return False
-
-
 class ProgramBudget:
     """The shape keys whose compiled programs this process holds, and when to release them.
 
@@ -147,6 +136,10 @@ class ProgramBudget:
 
 #: The budget `diagnose` keeps (one per process).
 DIAGNOSE_PROGRAMS = ProgramBudget()
+#: Shape keys whose programs `fit` and `fit_batch` keep (a fit's are smaller than a diagnosis's).
+FIT_HELD_SHAPES = 4
+#: The budget `fit` and `fit_batch` keep (one per process).
+FIT_PROGRAMS = ProgramBudget(held=FIT_HELD_SHAPES)
 
 
 def compile_counter() -> dict:
