@@ -72,7 +72,10 @@ def add_sensitivity(sub, B) -> None:
         help="N, the network has N+1 sections (rc only; default 45)",
     )
     p.add_argument(
-        "--noise", type=float, default=0.01, help="noise as a fraction of rms(w), for standard errors"
+        "--noise",
+        type=float,
+        default=0.01,
+        help="noise as a fraction of rms(w), for standard errors (default 0.01: 1 %%)",
     )
     p.add_argument(
         "--sobol",
@@ -96,7 +99,7 @@ def cmd_sensitivity(args) -> None:
         given = [f"--{k}" for k in _RC_ONLY if getattr(args, k) is not None]
         if given:
             raise InputError(
-                f"{', '.join(given)} belong to the RC network's study (an IPMC's synthetic voltage "
+                f"{', '.join(given)} {'belongs' if len(given) == 1 else 'belong'} to the RC network's study (an IPMC's synthetic voltage "
                 f"drives): with --physics {args.physics} the drive is the recording's"
             )
         if args.recording is None:

@@ -17,7 +17,7 @@ import helpers as h
 import numpy as np
 import pytest
 
-from hybrid import LTI, AbstractSimulation, LinearReadout, Model, Real, encode, sensitivity as S
+from hybrid import LTI, AbstractSimulation, InputError, LinearReadout, Model, Real, encode, sensitivity as S
 from hybrid.cli import main
 from hybrid.sensitivity._study import simulation_study
 
@@ -202,7 +202,7 @@ def test_a_plugin_s_default_frozen_parameters_are_left_out(lab_csv, tmp_path, ca
                 "--out",
                 "X",
             ],
-            "--stages belong to the RC network's study",
+            "--stages belongs to the RC network's study",
         ),
         (
             [
@@ -327,3 +327,40 @@ def test_a_direction_that_makes_the_errors_infinite_is_named(lab_csv, tmp_path, 
         "Null directions (scaled coordinates): +0.7071·k -0.7071·gain" in (out / "sensitivity.md").read_text()
     )
     assert "null direction (w does not change along it): +0.7071·k -0.7071·gain" in printed
+
+
+class _NaNBeyondFive(AbstractSimulation):
+    """A first-order lag whose output is NaN for a time constant beyond 5 s (a plug-in defined only below it)."""
+
+    raw: dict
+    constraints: ClassVar[dict] = {"tau": Real()}
+    units: ClassVar[dict] = {"tau": "s"}
+    output_unit: ClassVar[str] = "{drive}"
+
+    def __init__(self, tau=1.0):
+        self.raw = encode({"tau": tau}, self.constraints, "_NaNBeyondFive")
+
+    def simulate(self, v_in, dt):
+        import jax
+        import jax.numpy as jnp
+
+        tau = self.parameters()["tau"]
+        a = jnp.exp(-dt / tau)
+        y = jax.lax.scan(lambda x, u: (a * x + (1 - a) * u, x), jnp.zeros(()), jnp.asarray(v_in))[1]
+        return jnp.where(tau > 5.0, jnp.nan, y)
+
+
+def test_local_sensitivities_refuse_an_output_that_is_not_finite_in_one_line():
+    """A probe's plug-in at τ = 6 s gave an output NaN at every sample and a Jacobian of zeros, silently."""
+    drive = np.repeat([0.0, 1.0, -1.0, 0.5], 50)
+    fine = S.local_sensitivities(_NaNBeyondFive(tau=2.0), drive, 0.1)
+    # the lag's own derivative, by hand: y_k = Σ (1 − a) a^j u_{k−1−j}, a = e^(−dt/τ), checked by differences
+    step = 1e-6
+    plus = np.asarray(_NaNBeyondFive(tau=2.0 + step).simulate(drive, 0.1))
+    minus = np.asarray(_NaNBeyondFive(tau=2.0 - step).simulate(drive, 0.1))
+    np.testing.assert_allclose(fine.jacobian[:, 0], (plus - minus) / (2 * step), rtol=1e-6, atol=1e-9)
+    with pytest.raises(
+        InputError,
+        match=r"_NaNBeyondFive at tau=6: its output is not finite \(NaN or inf\) at 200 of 200 samples",
+    ):
+        S.local_sensitivities(_NaNBeyondFive(tau=6.0), drive, 0.1)

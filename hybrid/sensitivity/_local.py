@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core._models import Model
 from ..core._simulation import unit_in
-from ..util._errors import InputError
+from ..util._errors import InputError, PluginError
 from ._identifiability import Identifiability, identifiability
 from ._views import (
     free_names,
@@ -120,6 +120,7 @@ def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensi
     names, rows = free_names(D, all_names)
     model_output = isinstance(target, Model)
     y, J_raw = _jacobian(view, theta, v_in, float(dt), model_output)
+    _require_finite(target, named, np.asarray(y), np.asarray(J_raw))
     J = raw_to_physical_columns(J_raw, np.asarray(D)[rows])
     units = target.units if isinstance(target, Model) else _simulation_units(target)
     values = {n: float(named[n]) for n in names}
@@ -132,6 +133,29 @@ def local_sensitivities(target, v_in, dt: float, *, frozen=frozenset()) -> Sensi
         output_unit=target.signal_units[0] if model_output else unit_in(getattr(target, "output_unit", "")),
         jacobian=J,
         scales=parameter_scales(target, values, np.asarray(y), J),
+    )
+
+
+def _require_finite(target, named: dict, y: np.ndarray, J: np.ndarray) -> None:
+    """Refuse, in one line, an output or a derivative that is not finite (NaN or inf) at the values given.
+
+    A probe's plug-in that returns NaN beyond a time constant of 5 s gave, at 6 s, an output NaN at
+    every sample and a Jacobian of zeros without a word: every sensitivity read 0.
+    """
+    if np.all(np.isfinite(y)) and np.all(np.isfinite(J)):
+        return
+    simulation = target.simulation if isinstance(target, Model) else target
+    bad = int(np.sum(~np.isfinite(y)))
+    what = (
+        f"its output is not finite (NaN or inf) at {bad} of {y.size} samples"
+        if bad
+        else "its derivative is not finite (NaN or inf) while its output is"
+    )
+    at = ", ".join(f"{name}={float(value):.4g}" for name, value in named.items())
+    raise PluginError(
+        f"{type(simulation).__name__} at {at}: {what} for this drive, so no sensitivity can be read: give "
+        "parameter values where it is finite (--param NAME=VALUE), or make its simulate finite there",
+        plugin=type(simulation),
     )
 
 
