@@ -35,6 +35,9 @@ def test_a_drive_far_outside_the_written_for_levels_is_said_and_one_within_is_no
     # in kV: far below; the factor's edges: just inside is quiet, just outside is said
     (small,) = drive_outside_range(tanks, [u / 1000], "kV")
     assert "1/1.54e+03 of the largest level" in small and "near 10^-3" in small
+    assert "(kV and V)" in small  # the drive's own unit (a probe's drive in mW was told "mV and V")
+    (watts,) = drive_outside_range(tanks, [1000 * u], "mW")
+    assert "the step between units (mW and W)" in watts
     top = 10.0 * DRIVE_RANGE_FACTOR
     assert drive_outside_range(tanks, [np.array([0.0, 0.99 * top])]) == []
     assert drive_outside_range(tanks, [np.array([0.0, 1.01 * top])]) != []

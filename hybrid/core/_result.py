@@ -213,11 +213,24 @@ def drive_outside_range(simulation, drives, drive_unit: str = "") -> list[str]:
     )
     power = round(math.log10(ratio) / 3) * 3
     if power and abs(math.log10(ratio) - power) < 0.5:
-        said += f"; {ratio:.3g} is near 10^{power}, the step between units (mV and V)"
+        said += f"; {ratio:.3g} is near 10^{power}, the step between units ({_prefix_pair(drive_unit)})"
     return [
         said + ": check the drive's unit, then rescale the drive to the simulation's or restate the "
         "simulation's numbers in the drive's unit (docs/plugins.md)"
     ]
+
+
+def _prefix_pair(unit: str) -> str:
+    """A unit and its base a factor 1000 apart, in the drive's own unit: "mW and W", "mV and V" without one.
+
+    A probe's drive in mW was told "the step between units (mV and V)".
+    """
+    unit = (unit or "").strip()
+    if len(unit) > 1 and unit[0] in "mµuknMG" and unit[1:].isalpha():
+        return f"{unit} and {unit[1:]}"
+    if unit.isalpha():
+        return f"m{unit} and {unit}"
+    return "mV and V"
 
 
 #: The share of a drive's power (mean removed) within `LINE_BINS` bins of its strongest frequency from which
