@@ -187,3 +187,8 @@ def test_a_size_refused_just_below_its_threshold_is_not_printed_at_it():
     assert not refused and f"gain change {need - 0.03:.2f} % (needs ≥ {need} %)" in said
     kept, said = drift.material({"gain_change_percent": need + 0.03}, {}, drift.thresholds)
     assert kept and f"gain change {need + 0.03:.1f} %" in said
+
+    # every built-in's refusal line so: a delay and frame lag summing to just under a sample, a loop rate
+    delay = EFFECTS["delay"]()
+    kept, said = delay.material({"delay_samples": 0.497}, {"frame_lag": 0.5}, delay.thresholds)
+    assert not kept and "= 0.997 samples (needs ≥ 1.0 in all)" in said, said

@@ -363,15 +363,16 @@ def signal_top(signal) -> float:
     return max(float(np.max(np.abs(signal))), 1e-9)
 
 
-def shown(size: float, need: float, digits: int = 1) -> str:
-    """`size` to `digits` decimals, or to as many more as show it below `need` where it is (up to 6).
+def shown(size: float, need: float, digits: int = 1, kind: str = "f") -> str:
+    """`size` to `digits` decimals (`kind` "f"; "g": significant digits), or to as many more as show it
+    below `need` where it is (up to 12).
 
     A materiality line read "gain change 5.0 % (needs ≥ 5.0 %)" for a size of 4.97 % refused (a probe's).
     """
-    text = f"{size:.{digits}f}"
-    while size < need and float(text) >= need and digits < 6:
+    text = f"{size:.{digits}{kind}}"
+    while size < need and float(text) >= need and digits < 12:
         digits += 1
-        text = f"{size:.{digits}f}"
+        text = f"{size:.{digits}{kind}}"
     return text
 
 
@@ -437,7 +438,7 @@ class Delay(AbstractEffect):
         delay, lag = derived.get("delay_samples", 0.0), parameters.get("frame_lag", 0.0)
         need = thresholds["delay_samples"]
         return delay + lag >= need, (
-            f"delay {delay:.2f} + frame lag {lag:.2f} samples (needs ≥ {need} in all)"
+            f"delay {delay:.2f} + frame lag {lag:.2f} = {shown(delay + lag, need, 2)} samples (needs ≥ {need} in all)"
         )
 
 
@@ -876,14 +877,14 @@ class Hysteresis(AbstractEffect):
         closes, least = derived.get("loop_rate_times_range", np.inf), thresholds["loop_rate_times_range"]
         if closes < least:
             return False, (
-                f"the loop never closes: rate × range {closes:.2g} (needs ≥ {least:g}); its state creeps "
+                f"the loop never closes: rate × range {shown(closes, least, 2, 'g')} (needs ≥ {least:g}); its state creeps "
                 "with the distance travelled, a slow trend rather than a loop"
             )
         turn, span = derived.get("turn_percent_of_range", 100.0), thresholds["turn_percent_of_range"]
         if turn < span:
             return False, (
                 f"the signal it acts on never turns back far enough to show a loop: its largest turn is "
-                f"{turn:.2g} % of its range (needs ≥ {span:g} %); along one branch a loop is a static curve, "
+                f"{shown(turn, span, 2, 'g')} % of its range (needs ≥ {span:g} %); along one branch a loop is a static curve, "
                 "which a saturation or an even response fits alike: a drive that goes up and down tells them "
                 "apart"
             )
@@ -1382,7 +1383,7 @@ class _DeadZone(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get(f"{self.name}_percent", 0.0), thresholds[f"{self.name}_percent"]
-        return size >= need, f"{self.noun} {size:.1f} % of the largest {self.of} (needs ≥ {need} %)"
+        return size >= need, f"{self.noun} {shown(size, need)} % of the largest {self.of} (needs ≥ {need} %)"
 
 
 def _dead_zone_facts(name: str) -> tuple[dict, dict, dict, dict]:
@@ -1490,7 +1491,7 @@ class Backlash(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("play_percent_of_range", 0.0), thresholds["play_percent_of_range"]
-        return size >= need, f"play {size:.1f} % of the drive's range (needs ≥ {need} %)"
+        return size >= need, f"play {shown(size, need)} % of the drive's range (needs ≥ {need} %)"
 
 
 class Line(AbstractEffect):
@@ -1544,7 +1545,7 @@ class Line(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("line_percent_of_range", 0.0), thresholds["line_percent_of_range"]
-        return size >= need, f"line {size:.1f} % of range rms (needs ≥ {need} %)"
+        return size >= need, f"line {shown(size, need)} % of range rms (needs ≥ {need} %)"
 
 
 def line_peak_hz(context: StartContext) -> float | None:

@@ -69,7 +69,7 @@ from ..core._parameters import Positive, Real
 from ..core._simulation import unit_in
 from ..data._header_units import unit_kind
 from ..util._errors import InputError
-from ._effects import AbstractEffect, init_values, signal_span, signal_top
+from ._effects import AbstractEffect, init_values, shown, signal_span, signal_top
 
 #: The rim's width as a share of the limit's distance from the state's rest, |L − x_rest|: `StateLimit`'s
 #: default `rim`. A rim 2 % wide, applied after every step, held the Cascaded Tanks' upper tank well
@@ -116,7 +116,7 @@ class PolynomialStiffness(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("force_percent_of_drive", 0.0), thresholds["force_percent_of_drive"]
-        return size >= need, f"force {size:.1f} % of the largest drive (needs ≥ {need} %)"
+        return size >= need, f"force {shown(size, need)} % of the largest drive (needs ≥ {need} %)"
 
     def derived(self, y, dt):
         """``restoring_percent``: how much of the fitted force pushes back against the output, −100 to 100 %.
@@ -472,4 +472,4 @@ class Friction(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         size, need = derived.get("force_percent_of_drive", 0.0), thresholds["force_percent_of_drive"]
-        return size >= need, f"friction {size:.1f} % of the largest drive (needs ≥ {need} %)"
+        return size >= need, f"friction {shown(size, need)} % of the largest drive (needs ≥ {need} %)"
