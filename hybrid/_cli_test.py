@@ -195,8 +195,11 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
             held = {"initial_drive": value, "initial_samples": samples}
         w_hat = np.asarray(scored.predict(record.v_in, record.dt))  # the whole record: one segment
         w = np.asarray(record.w)
+        unmeasured = np.zeros(w.shape[0], bool)  # a quality column's 0s: w was not measured there
+        for a, b in unmeasured_runs(record.extra.get("quality")):
+            unmeasured[a : b + 1] = True
         if not held and np.all(np.isfinite(w_hat)):  # a start no held drive can meet: said, not scored away
-            start = misfit_at_start([w - w_hat], [record.name], settled=False)
+            start = misfit_at_start([np.where(unmeasured, np.nan, w - w_hat)], [record.name], settled=False)
             if start["off"]:
                 row = start["recordings"][0]
                 held = {  # what the score line says of the record's start (here: that nothing set it)
@@ -218,9 +221,6 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
                         ),
                     }
                 }
-        unmeasured = np.zeros(w.shape[0], bool)  # a quality column's 0s: w was not measured there
-        for a, b in unmeasured_runs(record.extra.get("quality")):
-            unmeasured[a : b + 1] = True
         scored_samples = ~unmeasured
         if first is not None:  # the samples that may set the state are not scored
             scored_samples[:first] = False

@@ -408,9 +408,15 @@ def _start_of(model, recordings, simulation) -> dict | None:
         return None
 
     from .core._held_start import HeldStart
+    from .core._problem import unmeasured_runs
     from .discovery._start import misfit_at_start
 
-    residuals = [np.asarray(r.w, float) - np.asarray(model.predict(r.v_in, r.dt), float) for r in recordings]
+    residuals = []
+    for r in recordings:
+        residual = np.asarray(r.w, float) - np.asarray(model.predict(r.v_in, r.dt), float)
+        for a, b in unmeasured_runs(r.extra.get("quality")):  # w not measured there: no residual
+            residual[a : b + 1] = np.nan
+        residuals.append(residual)
     return misfit_at_start(residuals, [r.name for r in recordings], isinstance(simulation, HeldStart))
 
 

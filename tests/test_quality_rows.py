@@ -109,3 +109,21 @@ def test_a_part_of_quality_0_throughout_is_refused_in_one_line(records, tmp_path
     assert code == 2, err
     assert "every sample of its validation part has quality 0" in err and "--range" in err
     assert "Traceback" not in err
+
+
+def test_rows_of_quality_0_at_the_start_do_not_read_as_a_start_the_model_misses(records, tmp_path, capsys):
+    """A verifier's record that starts where the model does, its samples 2–29 garbage of quality 0 (5–29 in its own): the
+    start check read them as the model missing its first 40 samples by 782× and asked for --settle."""
+    (fit_path, _), _ = records
+    data = np.loadtxt(fit_path, delimiter=",", skiprows=1)
+    data[:, 3] = 1.0
+    data[2:30, 2], data[2:30, 3] = 50.0, 0.0
+    path, report = tmp_path / "start.csv", tmp_path / "start.json"
+    np.savetxt(path, data, delimiter=",", header="t,v_in,w,quality", comments="")
+    argv = ["fit", str(path), "--model", "physics", "--physics", "lti:2", "--max-steps", "40", "--quiet"]
+    assert main([*argv, "--json", str(report), "--out", str(tmp_path / "m.eqx")]) == 0, (
+        capsys.readouterr().err
+    )
+    data = json.loads(report.read_text())
+    assert not data["start"]["off"], data["start"]
+    assert not [w for w in data["warnings"] if "misses the first" in w]
