@@ -79,6 +79,7 @@ def add_test_options(p) -> None:
 
 def load_tests(args, fitted, window: int) -> list:
     """The --test records, checked before any fitting: their columns, their rate, their length."""
+    from .core._problem import unmeasured_runs
     from .data._loaders import MissingName
     from .data._mapping import RATE_RTOL, load_pair
     from .data._recording import Recording, in_shared_units
@@ -161,6 +162,17 @@ def load_tests(args, fitted, window: int) -> list:
                     f"--initial-samples {first}: test record '{record.name}' has {record.n} samples, and at least "
                     f"{MIN_SCORED} must be left to score; give a number from 1 to {record.n - MIN_SCORED} (the "
                     "benchmark's rule, e.g. 4 for Cascaded Tanks)"
+                )
+            measured = np.ones(record.n, bool)  # a quality column's 0s are not scored (`score_tests`)
+            for a, b in unmeasured_runs(record.extra.get("quality")):
+                measured[a : b + 1] = False
+            left = int(np.sum(measured[first or 0 :]))
+            if left < MIN_SCORED:
+                raise InputError(
+                    f"test record '{record.name}' has {left} samples of quality 1 to score"
+                    + (f" after its first {first}" if first else "")
+                    + f" (at least {MIN_SCORED} are needed; quality 0: w not measured there): track its video "
+                    "again, or test on a record whose w was measured"
                 )
             tests.append(record)
     return tests

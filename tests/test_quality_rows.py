@@ -127,3 +127,42 @@ def test_rows_of_quality_0_at_the_start_do_not_read_as_a_start_the_model_misses(
     data = json.loads(report.read_text())
     assert not data["start"]["off"], data["start"]
     assert not [w for w in data["warnings"] if "misses the first" in w]
+
+
+def test_a_test_record_of_quality_0_throughout_is_refused_before_the_fit(records, tmp_path, capsys):
+    (fit_path, _), (test_path, _) = records
+    data = np.loadtxt(test_path, delimiter=",", skiprows=1)
+    data[:, 3] = 0.0
+    path, out = tmp_path / "blind.csv", tmp_path / "m.eqx"
+    np.savetxt(path, data, delimiter=",", header="t,v_in,w,quality", comments="")
+    argv = ["fit", str(fit_path), "--model", "physics", "--physics", "lti:2", "--quiet", "--out", str(out)]
+    assert main([*argv, "--test", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "has 0 samples of quality 1 to score (at least 10 are needed" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_every_format_says_how_many_rows_have_quality_0(records, tmp_path):
+    """A verifier's .npz with rig's quality column got no note (only a CSV's did); its rows were left out."""
+    (fit_path, (_, _, w, quality)), _ = records
+    data = np.loadtxt(fit_path, delimiter=",", skiprows=1)
+    path = tmp_path / "rec.npz"
+    np.savez(path, t=data[:, 0], v_in=data[:, 1], w=data[:, 2], quality=data[:, 3])
+    rec = hybrid.Recording.load(path)
+    np.testing.assert_array_equal(rec.extra["quality"], quality)
+    assert [n for n in rec.notes if "40 of 400 samples have quality 0 (the first at sample 60)" in n], (
+        rec.notes
+    )
+
+
+def test_a_frame_filled_into_a_gap_has_quality_0_and_the_note_says_it_is_left_out(records, tmp_path):
+    (fit_path, (_, _, _, quality)), _ = records
+    data = np.delete(np.loadtxt(fit_path, delimiter=",", skiprows=1), 200, axis=0)  # a dropped frame
+    path = tmp_path / "gap.csv"
+    np.savetxt(path, data, delimiter=",", header="t,v_in,w,quality", comments="")
+    rec = hybrid.load_mapped(path, fill_gaps=1)
+    expected = quality.copy()
+    expected[200] = 0.0
+    np.testing.assert_array_equal(rec.extra["quality"], expected)
+    (said,) = [n for n in rec.notes if "filled by straight lines" in n]
+    assert "the frames put in the gaps have quality 0" in said and "counts them as measured" not in said

@@ -136,6 +136,10 @@ def read_file(
         columns, metadata, notes, lines = _load_csv(path, required)
     else:
         columns, metadata, notes = (_load_npz if suffix == ".npz" else _load_mat)(path, required)
+    notes = (
+        *notes,
+        *quality_notes(path, columns.get("quality")),
+    )  # every format's (a verifier's .npz had none)
     if "w" not in columns:
         columns["w"] = np.zeros_like(columns["t"])
     metadata.setdefault("source", str(path))
@@ -1136,7 +1140,6 @@ def _load_csv(
             notes.append(f"recording '{path}': column '{column}' holds {label}, not a signal: left out")
             continue
         columns[column] = _csv_column(path, column, cells, line_numbers)
-    notes += quality_notes(path, columns.get("quality"))
     meta_path = sidecar(path)
     metadata = {}
     if meta_path.exists():

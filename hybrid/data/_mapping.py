@@ -413,10 +413,20 @@ def load_mapped(
                 where = samples_text(ks, lines) if ks.size > 1 else sample_text(int(ks[0]), lines)
                 what.append(f"{ks.size} missing value(s) in {runs[r]} run(s) of the {OPTION[r]}, at {where},")
         metadata["filled"] = record
+        if quality is not None and filled.size:  # `quality_column`: a frame put in a gap has quality 0
+            counted = (
+                "the frames put in the gaps have quality 0, as rig marks its own, and every fit and score "
+                + (
+                    "leaves them out; the values filled it counts as measured"
+                    if values
+                    else "leaves them out"
+                )
+            )
+        else:
+            counted = "every fit and score counts them as measured"
         notes.append(
             f"recording '{label}': {' and '.join(what)} filled by straight lines (--fill-gaps {fill_gaps}), the "
-            f"first at t = {t[every[0]]:.6g} s: every fit and score counts them as measured (metadata['filled'] "
-            "lists them)"
+            f"first at t = {t[every[0]]:.6g} s: {counted} (metadata['filled'] lists them)"
         )
     w = signals["w"] if "w" in signals else np.zeros(len(t))
     extra = {} if quality is None else {QUALITY: quality}
