@@ -213,6 +213,10 @@ def test_design_refuses_bad_limits_in_one_line(confounded):
     with pytest.raises(hybrid.InputError, match="more than the 1,000,000 a drive may have") as caught:
         hybrid.design_drive(rivals, duration=1e7, rate=RATE, amplitude=1.0)  # not a 186 GiB allocation
     assert "at most 33333.3 s at this rate" in str(caught.value)
+    # a drive no diagnosis could read (a probe's 0.5 s at 25 Hz: 12 samples, written with exit 0)
+    with pytest.raises(hybrid.InputError, match="is 15 samples, fewer than the 60 diagnose") as caught:
+        hybrid.design_drive(rivals, duration=0.5, rate=RATE, amplitude=1.0)
+    assert "at least 2 s" in str(caught.value)
 
 
 def test_a_design_keeps_every_rivals_predicted_output_within_its_bounds(confounded):

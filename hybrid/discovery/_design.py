@@ -65,6 +65,7 @@ import numpy as np
 from ..core._models import Model
 from ..util._errors import InputError
 from ..util._watchdog import stage
+from ._diagnosis import MIN_DIAGNOSE_SAMPLES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,8 +121,12 @@ def _limits(who, duration, rate, amplitude, bounds, slew):
     if slew is not None:
         slew = _check("slew", slew, who=who)
     n = int(round(duration * rate))
-    if n < 2:
-        raise InputError(f"{who}: {duration:g} s at {rate:g} Hz is fewer than 2 samples")
+    if n < MIN_DIAGNOSE_SAMPLES:  # a recording under it could not be diagnosed (a probe's 0.5 s design)
+        raise InputError(
+            f"{who}: {duration:g} s at {rate:g} Hz is {n} samples, fewer than the {MIN_DIAGNOSE_SAMPLES} "
+            f"diagnose reads a recording from: give a duration of at least {MIN_DIAGNOSE_SAMPLES / rate:.3g} s "
+            "(better several of the system's slowest time constant)"
+        )
     if n > MAX_SAMPLES:
         raise InputError(
             f"{who}: {duration:g} s at {rate:g} Hz is {n:.3g} samples, more than the {MAX_SAMPLES:,} a drive "

@@ -86,7 +86,14 @@ from ..util._programs import DIAGNOSE_PROGRAMS
 from ..util._watchdog import stage
 from ._ambiguity import ambiguities
 from ._decision import derived_quantities, evaluate_candidate, free_names
-from ._diagnosis import SPLIT_ORDER, Candidate, DiagnoseSettings, Diagnosis, HeldoutSignals
+from ._diagnosis import (
+    MIN_DIAGNOSE_SAMPLES,
+    SPLIT_ORDER,
+    Candidate,
+    DiagnoseSettings,
+    Diagnosis,
+    HeldoutSignals,
+)
 from ._effect_set import resolve_effects, searched_places
 from ._effect_stack import EffectStack
 from ._evidence import diverged_warnings, fitted_model, heldout_evidence, not_pinned, parameter_uncertainties
@@ -277,9 +284,10 @@ def diagnose(
         )
     for r in recordings:  # before any fitting: a constant column would fail only after minutes
         r.check_length(
-            60,
+            MIN_DIAGNOSE_SAMPLES,
             "diagnose (a held-out part long enough for residual tests)",
-            f"record at least 60 samples ({60 / r.rate:.3g} s at {r.rate:.6g} Hz), better several minutes",
+            f"record at least {MIN_DIAGNOSE_SAMPLES} samples ({MIN_DIAGNOSE_SAMPLES / r.rate:.3g} s at "
+            f"{r.rate:.6g} Hz), better several minutes",
         )
         r.check_signals()
         _check_magnitudes(r)

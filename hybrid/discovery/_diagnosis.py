@@ -101,6 +101,9 @@ RENAMED_IN_SCHEMA_3 = {
 RENAMED_IN_SCHEMA_4 = {"loop_separation_mm": "loop_separation"}
 
 SPLIT_ORDER = ("train", "validation", "test")
+#: The fewest samples `diagnose` reads a recording from (a held-out part long enough for residual tests);
+#: `design_drive` and `rich_drive` make no shorter drive.
+MIN_DIAGNOSE_SAMPLES = 60
 #: The most blocks `diagnose` splits a recording into to reach its extremes, as a multiple of
 #: `DiagnoseSettings.blocks` (`DiagnoseSettings.held_out_limits`).
 MAX_BLOCKS_FACTOR = 2

@@ -40,7 +40,7 @@ from . import residual_tests as rt
 from ._decision import choose_lane, equally_good_fits, evaluate_candidate, lane_effect
 from ._diagnosis import Candidate, DiagnoseSettings, EquallyGoodFits, Lane
 from ._effect_stack import EffectStack, drive_forces
-from ._effects import AbstractEffect, StartContext
+from ._effects import AbstractEffect, StartContext, shown
 from ._search import (
     best_lag,
     direction_count,
@@ -604,7 +604,10 @@ def weigh(candidates, current: Candidate, equally_good: EquallyGoodFits, setting
         )
         checks = [
             (cand.material, f"not material: {cand.materiality}"),
-            (cand.gain >= settings.min_gain, f"held-out gain {cand.gain:.2f} < {settings.min_gain}"),
+            (
+                cand.gain >= settings.min_gain,
+                f"held-out gain {shown(cand.gain, settings.min_gain, 2)} < {settings.min_gain}",
+            ),
             (
                 cand.delta_bic <= -settings.min_bic_drop,
                 f"ΔBIC {cand.delta_bic:.1f} > −{settings.min_bic_drop}",
