@@ -8,7 +8,7 @@ a physics-only `LTI(1)` model. A script fitting a hundred recordings of distinct
 lengths would pass `vm.max_map_count` (65,530) and die, and before that hold
 gigabytes. `fit` keeps the programs of its last `FIT_HELD_SHAPES` shape keys
 and releases every compiled program for a new one beyond them, or when the
-process holds more than half of its allowed maps (`hybrid.util._programs.FIT_PROGRAMS`).
+process holds more than half of its allowed maps (`FIT_PROGRAMS`, hybrid/util/_programs.py).
 Here `--calls` fits of distinct lengths (1,500-4,000 samples, a first-order lag
 with a saturating output, 30 Hz, times written to six decimals), each with at
 most 20 LM steps. Reported per call: the maps and the resident memory (MB)
