@@ -29,6 +29,7 @@ from hybrid.discovery._ambiguity import (
     ALPHA,
     HINT_GAIN,
     OPEN_RIVALS,
+    _why,
     ambiguities,
     level_time_correlation,
     paired_difference,
@@ -744,3 +745,21 @@ def test_a_baseline_drift_absorbed_by_a_staircase_is_open_not_an_all_clear():
     assert "whether baseline_drift is missing is open" in said and "No effect is needed" not in said
     clean = hybrid.diagnose(_heated_block(0.0), simulation=hybrid.LTI(1), effects=effects)
     assert clean.causes == [] and clean.ambiguous == []
+
+
+def test_an_open_step_of_level_effects_on_a_rising_staircase_says_a_drift_would_act_alike():
+    """A probe's staircase hiding a saturation left the last step open, saturation against nothing more,
+    with no reason, while the same drive hiding a drift gave the level/time correlation. An open step's
+    rivals that are all effects of the level get it too; a named step's two level effects do not (a
+    drive's saturation beside a saturation is no effect of time), nor does a drive that does not rise."""
+    from hybrid.discovery._effect_set import resolve_effects
+
+    effects = resolve_effects(None, hybrid.LTI(2))
+    stair = [np.repeat(np.linspace(0.2, 2.0, 12), 250)]
+    random = [np.repeat(np.random.default_rng(4).permutation(np.linspace(0.2, 2.0, 12)), 250)]
+    none, saturation = SimpleNamespace(name="none"), SimpleNamespace(name="saturation", parameters={})
+    open_why = _why(none, ["saturation"], [saturation], stair, 25.0, effects, True)
+    assert len(open_why) == 1 and "an effect of time (a drift) would act on this drive" in open_why[0]
+    assert "|r| = 0.99" in open_why[0] or "|r| = 1.00" in open_why[0]
+    assert _why(none, ["saturation"], [saturation], random, 25.0, effects, True) == []
+    assert _why(saturation, ["drive_saturation"], [], stair, 25.0, effects) == []  # a named step's

@@ -45,7 +45,8 @@ Where the recording shows why the rivals look alike, the report says it:
 - the drive's level and time are correlated (|r| ≥ `LEVEL_TIME_R` between
   the drive's running mean, over a tenth of the recording, and time): an
   effect of the level (a saturation, an even response) and one of time (a
-  drift) act alike on a staircase that rises as it goes;
+  drift) act alike on a staircase that rises as it goes (said too of an open
+  last step whose rivals are all effects of the level: a drift would act alike);
 - a rival acts at a frequency (a parameter in Hz) where the drive has less
   than `THIN_POWER` of its power (within a factor 1.25 either way).
 
@@ -379,14 +380,20 @@ def _open_step(
             "open": True,
             "evidence": evidence,
             "rivals": rivals,
-            "why": _why(current, [r["name"] for r in rivals], step.candidates, drives, rate, effects),
+            "why": _why(current, [r["name"] for r in rivals], step.candidates, drives, rate, effects, True),
             "recordings": len(drives),
         }
     ]
 
 
-def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[str]:
-    """What in this recording makes the rivals look alike, where it can be seen."""
+def _why(named, rival_names, candidates, drives, rate: float, effects, open_step: bool = False) -> list[str]:
+    """What in this recording makes the rivals look alike, where it can be seen.
+
+    `open_step`: the rivals are those of an open last step (nothing more against its candidates). Where
+    they are all effects of the level on a drive whose level follows time, an effect of time would act
+    alike: a probe's staircase hiding a saturation left it open against nothing more, with no reason,
+    while the same drive hiding a drift gave the correlation.
+    """
     out = []
     of_time = {e.name: e.of_time for e in effects}
     # an effect of time (a drift) against one of the level ("none": the simulation's own response)
@@ -396,6 +403,11 @@ def _why(named, rival_names, candidates, drives, rate: float, effects) -> list[s
         out.append(
             f"the drive's level and time are correlated (|r| = {r:.2f} between its running mean and time): "
             "an effect of the level and one of time act alike on this drive"
+        )
+    elif r >= LEVEL_TIME_R and open_step and sides == {False}:
+        out.append(
+            f"the drive's level and time are correlated (|r| = {r:.2f} between its running mean and time): "
+            "an effect of time (a drift) would act on this drive as these effects of the level do"
         )
     for c in [named, *(c for c in candidates if c.name in rival_names)]:
         for name, f in _frequencies(c, effects).items():
