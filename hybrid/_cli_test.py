@@ -81,7 +81,7 @@ def load_tests(args, fitted, window: int) -> list:
     """The --test records, checked before any fitting: their columns, their rate, their length."""
     from .core._problem import unmeasured_runs
     from .data._loaders import MissingName
-    from .data._mapping import RATE_RTOL, load_pair
+    from .data._mapping import RATE_RTOL, load_mapped, load_pair
     from .data._recording import Recording, in_shared_units
     from .data._recording_checks import mapped_by, ranged_by
 
@@ -110,7 +110,14 @@ def load_tests(args, fitted, window: int) -> list:
     # and names --test-columns as what maps its columns: --columns would map the fitted ones
     with ranged_by("--test-range"), mapped_by("--test-columns"):
         for path in args.test:
-            if not mapped:
+            if not mapped and own_text_table(
+                path
+            ):  # a text table of t, v_in, w: read as `hybrid fit` reads one
+                try:
+                    record = load_mapped(path, input="v_in", output="w", time="t")
+                except InputError as error:
+                    raise InputError(f"--test {path}: {error}") from None
+            elif not mapped:
                 try:
                     record = Recording.load(path)  # the project's own columns, as the fitted recordings
                 except MissingName as error:  # --test-columns maps it where the fitted ones are mapped too
@@ -176,6 +183,20 @@ def load_tests(args, fitted, window: int) -> list:
                 )
             tests.append(record)
     return tests
+
+
+def own_text_table(path) -> bool:
+    """Whether `path` is a text table (.txt, .dat, .tsv, ...) whose header has the columns t, v_in and w.
+
+    `hybrid fit` reads such a table as the project's own columns; its --test record of the same kind
+    was refused ("unknown suffix '.txt'", a verifier's), and --test-columns could not map it alone.
+    """
+    from pathlib import Path
+
+    from .data._loaders import TEXT_SUFFIXES
+    from .data._mapping import header_names
+
+    return Path(path).suffix.lower() in TEXT_SUFFIXES and {"t", "v_in", "w"} <= set(header_names(path))
 
 
 def _key(path, recording) -> tuple:

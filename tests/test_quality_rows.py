@@ -166,3 +166,20 @@ def test_a_frame_filled_into_a_gap_has_quality_0_and_the_note_says_it_is_left_ou
     np.testing.assert_array_equal(rec.extra["quality"], expected)
     (said,) = [n for n in rec.notes if "filled by straight lines" in n]
     assert "the frames put in the gaps have quality 0" in said and "counts them as measured" not in said
+
+
+def test_a_text_table_of_the_projects_columns_is_a_test_record_as_it_is_a_fitted_one(
+    records, tmp_path, capsys
+):
+    """`hybrid fit x.txt` reads a text table headed t v_in w; a verifier's `--test test.txt` beside a
+    fitted CSV was refused ("unknown suffix '.txt'"), and --test-columns alone could not map it."""
+    (fit_path, _), (test_path, (_, _, w_val, q_val)) = records
+    data = np.loadtxt(test_path, delimiter=",", skiprows=1)
+    table, report = tmp_path / "val.txt", tmp_path / "fit.json"
+    np.savetxt(table, data, header="t v_in w quality", comments="", fmt="%.10g")
+    argv = ["fit", str(fit_path), "--model", "physics", "--physics", "lti:2", "--max-steps", "40", "--quiet"]
+    assert (
+        main([*argv, "--test", str(table), "--json", str(report), "--out", str(tmp_path / "m.eqx")]) == 0
+    ), capsys.readouterr().err
+    (score,) = json.loads(report.read_text())["test"]
+    assert score["samples"] == N - 30 and score["unmeasured"] == 30 and score["unit"] == "mm"
