@@ -251,6 +251,7 @@ def effects_from_spec(spec: str, simulation=None) -> tuple:
     if not items:
         raise InputError(f"--effects needs one or more of {EFFECT_FORMS}, comma-separated; got {spec!r}")
     chosen: list = []
+    specs: dict[str, str] = {}  # a plug-in class's name -> its spec, for the checks' messages
     for text in items:
         if text == "builtins":
             chosen += list(resolve_effects(None, simulation))
@@ -280,5 +281,16 @@ def effects_from_spec(spec: str, simulation=None) -> tuple:
                 has = f"{name} is a simulation: give it as --physics {text}, and effects here"
             raise InputError(f"--effects {text}: {label} {what} {name}; {has}")
         register(cls.__module__, text, flag="--effects")
+        specs[cls.__name__] = text
         chosen.append(cls)
-    return resolve_effects(chosen, simulation)
+    try:
+        return resolve_effects(chosen, simulation)
+    except InputError as error:  # a plug-in's check names its class; the spec names its file too
+        said = str(error)
+        named = next(
+            (v for k, v in specs.items() if said.startswith((f"effect {k}:", f"{k}.", f"{k} "))), None
+        )
+        if named is None or said.startswith("--effects"):
+            raise
+        error.args = (f"--effects {named}: {said}", *error.args[1:])
+        raise

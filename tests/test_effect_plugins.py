@@ -146,6 +146,37 @@ def test_a_bad_effects_flag_gets_one_line(lab, spec, words, monkeypatch, capsys)
     assert not (lab / "bad").exists()  # nothing written before it succeeded
 
 
+def test_a_plug_in_effect_refused_by_its_checks_is_named_by_its_file(lab, monkeypatch, capsys):
+    """A probe's variants of one class in several files: "effect SlewLimit: SlewLimit.place must be ..."
+    did not say which file failed; the line now starts with the --effects spec, as a class typo's does."""
+    from hybrid.cli import main
+
+    monkeypatch.chdir(lab)
+    source = (lab / "asymmetric.py").read_text()
+    (lab / "wrong_place.py").write_text(
+        source.replace('place: ClassVar[str] = "drive"', 'place: ClassVar[str] = "input"')
+    )
+    assert "input" in (lab / "wrong_place.py").read_text()
+    code = main(
+        [
+            "diagnose",
+            "lab.csv",
+            "--physics",
+            "lti:1",
+            "--effects",
+            "builtins,wrong_place.py:AsymmetricDrive",
+            "--out",
+            "bad",
+        ]
+    )
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, lines
+    assert lines[0].startswith(
+        "hybrid: error: --effects wrong_place.py:AsymmetricDrive: effect AsymmetricDrive:"
+    )
+    assert "place must be one of drive, inside, output, got 'input'" in lines[0]
+
+
 _LATE_NAN = """
 from typing import ClassVar
 import jax.numpy as jnp
@@ -217,6 +248,35 @@ def test_an_effect_that_misbehaves_only_on_the_recording_is_named_in_one_line(
     assert code == 2 and len(lines) == 1, lines
     assert lines[0].startswith("hybrid: error: ") and words in lines[0], lines
     assert not (lab / cls).exists()
+
+
+_LOW_NAN = (
+    _LATE_NAN.replace("class LateNaN", "class LowNaN")
+    .replace('"late_nan"', '"low_nan"')
+    .replace(
+        '        return jnp.where(jnp.arange(s.shape[0]) >= 200, jnp.nan, s * self.parameters()["gain"])',
+        '        g = self.parameters()["gain"]\n        return jnp.where(g < 0.5, jnp.nan, s * g)  # defined only above 0.5',
+    )
+)
+
+
+def test_a_fit_started_where_an_effect_is_not_finite_names_the_effect_and_its_file(lab, monkeypatch, capsys):
+    """A probe's slew limit, NaN below a rate of 3 V/s, fitted from 2: "the simulation EffectStack returns
+    non-finite values … make its simulate finite" named neither the effect, its file nor its method."""
+    from hybrid.cli import main
+
+    assert "g < 0.5" in _LOW_NAN
+    (lab / "low_nan.py").write_text(_LOW_NAN)
+    monkeypatch.chdir(lab)
+    argv = ["fit", "lab.csv", "--model", "physics", "--physics", "lti:1", "--effects", "low_nan.py:LowNaN"]
+    code = main([*argv, "--param", "gain=0.2", "--max-steps", "3", "--quiet", "--out", "m.eqx"])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip() and "warning" not in line]
+    assert code == 2 and len(lines) == 1, lines
+    assert lines[0].startswith("hybrid: error: --effects low_nan.py:LowNaN: effect LowNaN (on the output)"), (
+        lines
+    )
+    assert "with its start parameters (gain=0.2)" in lines[0] and "make LowNaN.apply finite" in lines[0]
+    assert not (lab / "m.eqx").exists()
 
 
 _HALF_DEFINED = '''

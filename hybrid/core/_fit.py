@@ -238,7 +238,10 @@ def fit(
 
     losses = np.array([s["validation_loss"] for s in per_start], dtype=np.float64)
     if not np.isfinite(losses).any():  # every start's predictions non-finite: no step could move it
-        raise PluginError(non_finite_fit(given.simulation, recordings), plugin=type(given.simulation))
+        raise PluginError(
+            non_finite_fit(given.simulation, recordings),
+            plugin=non_finite_plugin(given.simulation, recordings),
+        )
     best_start = int(np.nanargmin(losses))
     fitted = problem.model(best[best_start])
     fitted = Model(
@@ -353,6 +356,17 @@ def non_finite_fit(simulation, recordings) -> str:
         except (TypeError, ValueError) as error:  # not an array of one value per sample
             return f"the simulation {name} cannot be run on recording '{recording.name}' ({error})"
         bad = np.flatnonzero(~np.isfinite(out))
+        fault = _effect_at_fault(simulation, recording) if bad.size else None
+        if fault is not None:
+            effect, count = fault
+            own = ", ".join(f"{k}={float(v):.4g}" for k, v in effect.parameters().items())
+            return (
+                f"effect {type(effect).__name__} (on the {effect.place}) returns non-finite values (NaN or inf) "
+                f"at {count} of {out.size} samples of recording '{recording.name}' with its start parameters "
+                f"({own}), while the simulation {type(simulation.inner).__name__} it extends is finite there, "
+                f"so no step of the fit could be taken: make {type(effect).__name__}.apply finite over its "
+                "parameters' range, or start it where it is finite (its defaults; fit's --param NAME=VALUE)"
+            )
         if bad.size:
             return (
                 f"the simulation {name} returns non-finite values (NaN or inf) at {bad.size} of {out.size} "
@@ -366,6 +380,42 @@ def non_finite_fit(simulation, recordings) -> str:
         "its start parameters on every recording: the readout's start values or the recording's scale "
         "overflow; check w's unit and size"
     )
+
+
+def _effect_at_fault(stack, recording):
+    """(effect, samples) of the first drive- or output-side effect of an effect stack whose `apply` is not
+    finite on the signal entering it while the stack's inner simulation is; None where there is none.
+
+    A probe's slew limit, NaN below a rate of 3 V/s and started at 2, was reported as "the simulation
+    EffectStack returns non-finite values … make its simulate finite": neither the effect nor its file.
+    """
+    inner, effects = getattr(stack, "inner", None), getattr(stack, "effects", ())
+    if inner is None or not effects or not hasattr(stack, "signals_into"):
+        return None
+    try:
+        v_in = jnp.asarray(recording.v_in)
+        if not np.all(np.isfinite(np.asarray(inner.simulate(v_in, recording.dt)))):
+            return None
+        signals = stack.signals_into(v_in, recording.dt)
+        for effect in effects:
+            if getattr(effect, "place", None) not in ("drive", "output") or effect.name not in signals:
+                continue
+            out = np.asarray(effect.apply(jnp.asarray(signals[effect.name]), recording.dt), dtype=np.float64)
+            bad = int(np.sum(~np.isfinite(out)))
+            if bad:
+                return effect, bad
+    except (TypeError, ValueError, ArithmeticError):  # the stack's own message says what it can
+        return None
+    return None
+
+
+def non_finite_plugin(simulation, recordings) -> type:
+    """The class a non-finite fit's message is about (`non_finite_fit`): an effect at fault, or the simulation's."""
+    for recording in recordings:
+        fault = _effect_at_fault(simulation, recording)
+        if fault is not None:
+            return type(fault[0])
+    return type(simulation)
 
 
 #: The paper's units of the recorded signals, where a recording declares none (or several disagree).
