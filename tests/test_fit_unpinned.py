@@ -74,3 +74,24 @@ def test_parameters_the_recording_pins_get_no_such_warning(block):
     result = hy.fit(model, block, frozen={"R", "k"}, progress=False)
     assert result.parameters["C"] == pytest.approx(TAU, rel=0.02)
     assert not [w for w in result.warnings if "does not pin" in w], result.warnings
+
+
+class _Unused(HeatedBlock):
+    """The block with a parameter its simulate never reads (a plug-in author's leftover)."""
+
+    constraints: ClassVar[dict] = {**HeatedBlock.constraints, "spare": hy.Positive()}
+    units: ClassVar[dict] = {**HeatedBlock.units, "spare": "1"}
+    typical: ClassVar[dict] = {**HeatedBlock.typical, "spare": (0.1, 10.0)}
+
+    def __init__(self, R=1.0, C=3.0, k=1.0, spare=1.0):
+        self.raw = hy.encode({"R": R, "C": C, "k": k, "spare": spare}, self.constraints, "_Unused")
+
+
+def test_a_parameter_the_prediction_does_not_depend_on_is_said_to_sit_at_its_start(block):
+    model = hy.make_model("physics", simulation=_Unused())
+    result = hy.fit(model, block, frozen={"R", "k"}, progress=False)
+    assert result.parameters["spare"] == 1.0 and result.parameters["C"] == pytest.approx(TAU, rel=0.02)
+    (said,) = [w for w in result.warnings if "does not depend on" in w]
+    assert said.startswith("the prediction does not depend on spare on this recording")
+    assert "--freeze spare" in said and "never uses" in said
+    assert not [w for w in result.warnings if "does not pin" in w]

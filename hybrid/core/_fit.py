@@ -593,7 +593,9 @@ def unpinned_warnings(JtJ, model: Model, frozen) -> list[str]:
             f"the prediction does not depend on {listed} on this recording (the fit's Jacobian is zero "
             f"along {'it' if d == 1 else 'them'}), so {'its value is' if d == 1 else 'their values are'} "
             "where the fit started, not fitted: a drive that reaches what "
-            f"{'it acts on' if d == 1 else 'they act on'} pins {'it' if d == 1 else 'them'}; else freeze "
+            f"{'it acts on' if d == 1 else 'they act on'} pins {'it' if d == 1 else 'them'} (if the code "
+            f"reads {'it' if d == 1 else 'them'} at all: a plug-in's parameter it never uses reads so too); "
+            "else freeze "
             + ("it" if d == 1 else "them")
             + " (hybrid fit "
             + " ".join(f"--freeze {n}" for n in moving)
