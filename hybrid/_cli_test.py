@@ -110,9 +110,8 @@ def load_tests(args, fitted, window: int) -> list:
     # and names --test-columns as what maps its columns: --columns would map the fitted ones
     with ranged_by("--test-range"), mapped_by("--test-columns"):
         for path in args.test:
-            if not mapped and own_text_table(
-                path
-            ):  # a text table of t, v_in, w: read as `hybrid fit` reads one
+            # a text table of t, v_in, w: read as `hybrid fit` reads a fitted one
+            if not mapped and own_text_table(path):
                 try:
                     record = load_mapped(path, input="v_in", output="w", time="t")
                 except InputError as error:
