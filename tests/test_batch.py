@@ -142,6 +142,15 @@ def test_fit_batch_rejects_bad_input():
     )
     with pytest.raises(InputError, match=r"at rest in the training part.*Trim recording 1's quiet start"):
         fit_batch(start, [recordings[0], quiet])
+    # rows of quality 0 (rig's: w not measured) at other samples than recording 0's: a split of its own,
+    # which one compiled program cannot hold (it was a tree-structure mismatch from jax)
+    held = dataclasses.replace(
+        recordings[1], extra={"quality": np.where(np.arange(recordings[1].n) % 97 < 3, 0.0, 1.0)}
+    )
+    with pytest.raises(
+        InputError, match=r"recording 1 .* has rows of quality 0 .* one by one with hybrid.fit"
+    ):
+        fit_batch(start, [recordings[0], held])
 
 
 SHARDED = textwrap.dedent("""

@@ -124,7 +124,10 @@ def fit_batch(
       every recording. The solver must be a
       [`LevenbergMarquardt`][hybrid.LevenbergMarquardt] (the default).
     - `recordings`: a list of Recordings of equal length and rate (e.g. 64
-      strips, or one strip recorded many times).
+      strips, or one strip recorded many times). Rows a ``quality`` column
+      marks 0 (rig's: w not measured) are left out of every part, as in `fit`;
+      recordings with such rows at different samples are refused (one
+      compiled program holds one split).
     - `batch_size`: fits `vmap`-ed together per device (default: all of them);
       lower it to bound memory.
     - `devices`: the devices to shard the batch over (default: all of
@@ -168,6 +171,14 @@ def fit_batch(
         recording.check_signals()
     FIT_PROGRAMS.admit(fit_shape_key(model, recordings, len(recordings), "batch"))  # as `fit`'s
     series = [series_from_recording(r, split, split_order) for r in recordings]
+    for i, s in enumerate(series):  # one compiled program holds one split: its parts are static
+        if s.segments != series[0].segments:
+            raise InputError(
+                f"fit_batch fits recordings split alike, and recording {i} ({recordings[i].name}) has rows of "
+                f"quality 0 (w not measured there, left out of every part) at other samples than recording 0 "
+                f"({recordings[0].name}): fit such recordings one by one with hybrid.fit, or cut each to "
+                "a stretch of quality 1 (Recording.segment) of one length"
+            )
     for i, s in enumerate(series):
         if not np.ptp(np.asarray(s.target("train"))) > 0:
             raise InputError(f"recording {i} ({recordings[i].name}) has constant w on its training part")
