@@ -332,6 +332,25 @@ def test_sobol_indices_of_an_additive_model():
     assert sobol.n_evaluations == 4096 * 4
 
 
+def test_sobol_indices_that_contradict_each_other_are_said_to_be_noisy_and_the_md_shows_them():
+    """A probe's `--sobol 64` gave a total index below its first-order one (0.087 < 0.105), which exact
+    indices never are, without a word, and sensitivity.md did not show the indices at all."""
+    from hybrid.sensitivity._study import _markdown, simulation_study, sobol_warnings
+
+    noisy = {"n_base": 64, "first_order": {"tau": 0.105, "k": 0.5}, "total": {"tau": 0.087, "k": 0.55}}
+    (said,) = sobol_warnings(noisy)
+    assert (
+        "from 64 base samples are noisy: tau's total index 0.087 is below its first-order index 0.105" in said
+    )
+    assert sobol_warnings({**noisy, "total": {"tau": 0.1, "k": 0.55}}) == []  # within the slack: not said
+    v = jnp.linspace(-1.0, 1.0, 50)
+    result, _ = simulation_study(_Additive(), v, DT, sobol=256, seed=1)
+    text = _markdown(result)
+    assert "| parameter | S1 | ST |" in text and "Sobol indices (256 base samples" in text
+    first = result["sobol"]["first_order"]["b"]
+    assert f"| b | {first:.3g} |" in text
+
+
 # --------------------------------------------------------------------------- frequency
 def test_frequency_sensitivity_matches_finite_differences():
     net = RCNetwork(n_stages=10)
