@@ -95,3 +95,4 @@ def test_a_parameter_the_prediction_does_not_depend_on_is_said_to_sit_at_its_sta
     assert said.startswith("the prediction does not depend on spare on this recording")
     assert "--freeze spare" in said and "never uses" in said
     assert not [w for w in result.warnings if "does not pin" in w]
+    assert not [w for w in result.warnings if "did not move" in w]  # said once, not twice (a verifier's)

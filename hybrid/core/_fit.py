@@ -251,6 +251,11 @@ def fit(
         recording_units(recordings) or given.signal_units,  # its parameters' units are those of the data
     )
     result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
+    unpinned, idle = (
+        unpinned_warnings(curvature[best_start], initial[best_start], frozen)
+        if curvature is not None
+        else ([], [])
+    )
     settings = {
         **solver.record(),  # "solver" (its name) and its options: max_steps, patience, learning_rate, ...
         "starts": starts,
@@ -276,15 +281,19 @@ def fit(
         settings=settings,
         seconds=time.perf_counter() - t_start,
         warnings=[note for r in recordings for note in r.notes]
-        + fit_warnings(
-            initial[best_start],
-            fitted,
-            frozen,
-            per_start[best_start],
-            result_metrics.get("train", {}).get("nmse_variance"),
-            int(problem.target("train").shape[0]),
-            min(r.rate for r in recordings),
-        )
+        + [  # a parameter the prediction does not depend on is said so (`unpinned_warnings`), not "unmoved"
+            said
+            for said in fit_warnings(
+                initial[best_start],
+                fitted,
+                frozen,
+                per_start[best_start],
+                result_metrics.get("train", {}).get("nmse_variance"),
+                int(problem.target("train").shape[0]),
+                min(r.rate for r in recordings),
+            )
+            if not any(said.startswith(f"{name} = ") and "did not move" in said for name in idle)
+        ]
         + clipped_warnings(
             problem, best[best_start], split_order, w_unit, (recording_units(recordings) or ("",))[0]
         )
@@ -294,11 +303,7 @@ def fit(
         )
         + one_frequency_drive([(r.v_in, r.rate) for r in recordings])
         + unit_mismatch(recordings, fitted.simulation)
-        + (
-            unpinned_warnings(curvature[best_start], initial[best_start], frozen)
-            if curvature is not None
-            else []
-        ),
+        + unpinned,
         stopped=stopped,
     )
 
@@ -551,8 +556,9 @@ NULL_RATIO = 1e-13
 NULL_COEFFICIENT = 0.05
 
 
-def unpinned_warnings(JtJ, model: Model, frozen) -> list[str]:
-    """A sentence on the null directions of a physics fit's JᵀJ (its curvature at the end), or none.
+def unpinned_warnings(JtJ, model: Model, frozen) -> tuple[list[str], list[str]]:
+    """(a sentence on the null directions of a physics fit's JᵀJ, its curvature at the end, or none; the
+    parameters the prediction does not depend on at all, whose "did not move" the sentence replaces).
 
     Parameters that enter the simulation only as a product or a ratio (a heated
     block's R and C through R·C, k and the readout's gain through k·R·gain) are
@@ -563,7 +569,7 @@ def unpinned_warnings(JtJ, model: Model, frozen) -> list[str]:
     null directions of their own) are left to `hybrid sensitivity`.
     """
     if not model.readout.parameters():
-        return []
+        return [], []
     spec = model.trainable(frozenset(frozen))
     readout_names = [
         str(getattr(path[-1], "key", path[-1]))
@@ -572,13 +578,13 @@ def unpinned_warnings(JtJ, model: Model, frozen) -> list[str]:
     names = model.simulation.free_parameter_order(frozen) + readout_names
     JtJ = np.asarray(JtJ, np.float64)
     if JtJ.shape != (len(names), len(names)) or len(names) < 2 or not np.all(np.isfinite(JtJ)):
-        return []
+        return [], []
     lam, V = np.linalg.eigh((JtJ + JtJ.T) / 2)  # ascending
     if not lam[-1] > 0:
-        return []
+        return [], []
     null = V[:, lam / lam[-1] <= NULL_RATIO]  # k × d: a basis of the directions no data can see
     if not null.size:
-        return []
+        return [], []
     moving = [n for n, row in zip(names, null) if np.linalg.norm(row) >= NULL_COEFFICIENT]
     to_freeze = []  # one parameter per direction, the one that moves most along what is left of them
     basis = null
@@ -600,7 +606,7 @@ def unpinned_warnings(JtJ, model: Model, frozen) -> list[str]:
             + " (hybrid fit "
             + " ".join(f"--freeze {n}" for n in moving)
             + ")"
-        ]
+        ], moving
     listed = ", ".join(moving[:-1]) + f" and {moving[-1]}"
     return [
         f"the recording does not pin {listed} apart: {'a combination' if d == 1 else f'{d} combinations'} of "
@@ -609,7 +615,7 @@ def unpinned_warnings(JtJ, model: Model, frozen) -> list[str]:
         f"printed are one point of {'a line' if d == 1 else 'a surface'} of equal fits; freeze {d} of them "
         "(e.g. hybrid fit " + " ".join(f"--freeze {n}" for n in to_freeze) + "; fit(..., frozen=...)) or see "
         "hybrid sensitivity, which names what is pinned"
-    ]
+    ], []
 
 
 def clipped_warnings(problem: Problem, theta, split_order, scale: float, unit: str) -> list[str]:
