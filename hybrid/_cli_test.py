@@ -79,7 +79,7 @@ def add_test_options(p) -> None:
 
 def load_tests(args, fitted, window: int) -> list:
     """The --test records, checked before any fitting: their columns, their rate, their length."""
-    from .core._problem import unmeasured_runs
+    from .core._problem import unmeasured_mask, unmeasured_runs
     from .data._loaders import MissingName
     from .data._mapping import RATE_RTOL, load_mapped, load_pair
     from .data._recording import Recording, in_shared_units
@@ -169,10 +169,9 @@ def load_tests(args, fitted, window: int) -> list:
                     f"{MIN_SCORED} must be left to score; give a number from 1 to {record.n - MIN_SCORED} (the "
                     "benchmark's rule, e.g. 4 for Cascaded Tanks)"
                 )
-            measured = np.ones(record.n, bool)  # a quality column's 0s are not scored (`score_tests`)
-            for a, b in unmeasured_runs(record.extra.get("quality")):
-                measured[a : b + 1] = False
-            left = int(np.sum(measured[first or 0 :]))
+            # a quality column's 0s are not scored (`score_tests`)
+            unmeasured = unmeasured_mask(unmeasured_runs(record.extra.get("quality")), record.n)
+            left = int(np.sum(~unmeasured[first or 0 :]))
             if left < MIN_SCORED:
                 raise InputError(
                     f"test record '{record.name}' has {left} samples of quality 1 to score"
@@ -214,7 +213,7 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
     """
     from .core._held_start import has_held_start, refit_initial_drive
     from .core._metrics import metrics
-    from .core._problem import unmeasured_runs
+    from .core._problem import unmeasured_mask, unmeasured_runs
     from .discovery._start import misfit_at_start, start_shape
 
     scores = []
@@ -227,9 +226,8 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
             held = {"initial_drive": value, "initial_samples": samples}
         w_hat = np.asarray(scored.predict(record.v_in, record.dt))  # the whole record: one segment
         w = np.asarray(record.w)
-        unmeasured = np.zeros(w.shape[0], bool)  # a quality column's 0s: w was not measured there
-        for a, b in unmeasured_runs(record.extra.get("quality")):
-            unmeasured[a : b + 1] = True
+        # a quality column's 0s: w was not measured there
+        unmeasured = unmeasured_mask(unmeasured_runs(record.extra.get("quality")), w.shape[0])
         if not held and np.all(np.isfinite(w_hat)):  # a start no held drive can meet: said, not scored away
             start = misfit_at_start([np.where(unmeasured, np.nan, w - w_hat)], [record.name], settled=False)
             if start["off"]:

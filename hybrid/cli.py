@@ -408,15 +408,17 @@ def _start_of(model, recordings, simulation) -> dict | None:
         return None
 
     from .core._held_start import HeldStart
-    from .core._problem import unmeasured_runs
+    from .core._problem import unmeasured_mask, unmeasured_runs
     from .discovery._start import misfit_at_start
 
-    residuals = []
-    for r in recordings:
-        residual = np.asarray(r.w, float) - np.asarray(model.predict(r.v_in, r.dt), float)
-        for a, b in unmeasured_runs(r.extra.get("quality")):  # w not measured there: no residual
-            residual[a : b + 1] = np.nan
-        residuals.append(residual)
+    residuals = [  # no residual where w was not measured (a quality column's 0s)
+        np.where(
+            unmeasured_mask(unmeasured_runs(r.extra.get("quality")), r.n),
+            np.nan,
+            np.asarray(r.w, float) - np.asarray(model.predict(r.v_in, r.dt), float),
+        )
+        for r in recordings
+    ]
     return misfit_at_start(residuals, [r.name for r in recordings], isinstance(simulation, HeldStart))
 
 

@@ -169,17 +169,16 @@ def fit_batch(
             model.readout.window, f"the model's input window ({model.readout.window} samples)"
         )
         recording.check_signals()
-    FIT_PROGRAMS.admit(fit_shape_key(model, recordings, len(recordings), "batch"))  # as `fit`'s
+    FIT_PROGRAMS.admit(("fit_batch", *fit_shape_key(model, recordings, starts, solver)))  # as `fit`'s
     series = [series_from_recording(r, split, split_order) for r in recordings]
-    for i, s in enumerate(series):  # one compiled program holds one split: its parts are static
-        if s.segments != series[0].segments:
+    for i, s in enumerate(series):
+        if s.segments != series[0].segments:  # one compiled program holds one split: its parts are static
             raise InputError(
                 f"fit_batch fits recordings split alike, and recording {i} ({recordings[i].name}) has rows of "
                 f"quality 0 (w not measured there, left out of every part) at other samples than recording 0 "
                 f"({recordings[0].name}): fit such recordings one by one with hybrid.fit, or cut each to "
                 "a stretch of quality 1 (Recording.segment) of one length"
             )
-    for i, s in enumerate(series):
         if not np.ptp(np.asarray(s.target("train"))) > 0:
             raise InputError(f"recording {i} ({recordings[i].name}) has constant w on its training part")
         check_training_drive(  # each recording is fitted alone: each needs a training part that moves

@@ -238,10 +238,7 @@ def fit(
 
     losses = np.array([s["validation_loss"] for s in per_start], dtype=np.float64)
     if not np.isfinite(losses).any():  # every start's predictions non-finite: no step could move it
-        raise PluginError(
-            non_finite_fit(given.simulation, recordings),
-            plugin=non_finite_plugin(given.simulation, recordings),
-        )
+        raise non_finite_error(given.simulation, recordings)
     best_start = int(np.nanargmin(losses))
     fitted = problem.model(best[best_start])
     fitted = Model(
@@ -281,19 +278,16 @@ def fit(
         settings=settings,
         seconds=time.perf_counter() - t_start,
         warnings=[note for r in recordings for note in r.notes]
-        + [  # a parameter the prediction does not depend on is said so (`unpinned_warnings`), not "unmoved"
-            said
-            for said in fit_warnings(
-                initial[best_start],
-                fitted,
-                frozen,
-                per_start[best_start],
-                result_metrics.get("train", {}).get("nmse_variance"),
-                int(problem.target("train").shape[0]),
-                min(r.rate for r in recordings),
-            )
-            if not any(said.startswith(f"{name} = ") and "did not move" in said for name in idle)
-        ]
+        + fit_warnings(
+            initial[best_start],
+            fitted,
+            frozen,
+            per_start[best_start],
+            result_metrics.get("train", {}).get("nmse_variance"),
+            int(problem.target("train").shape[0]),
+            min(r.rate for r in recordings),
+            idle,  # a parameter the prediction does not depend on: said so (`unpinned_warnings`), not "unmoved"
+        )
         + clipped_warnings(
             problem, best[best_start], split_order, w_unit, (recording_units(recordings) or ("",))[0]
         )
@@ -350,6 +344,18 @@ def non_finite_fit(simulation, recordings) -> str:
     The plug-in probe (`hybrid.physics._plugins.probe_simulation`) runs on the
     first samples only; this runs the simulation as given on each whole drive.
     """
+    return _non_finite(simulation, recordings)[0]
+
+
+def non_finite_error(simulation, recordings) -> PluginError:
+    """`non_finite_fit`'s sentence as the error to raise, naming the plug-in at fault: an effect of an
+    effect stack whose `apply` is not finite where the simulation is (`_effect_at_fault`), else the simulation."""
+    message, plugin = _non_finite(simulation, recordings)
+    return PluginError(message, plugin=plugin)
+
+
+def _non_finite(simulation, recordings) -> tuple[str, type]:
+    """(`non_finite_fit`'s sentence, the class it is about)."""
     name = type(simulation).__name__
     at = ", ".join(
         f"{k}={np.asarray(v).item():.4g}" if np.size(v) == 1 else f"{k}=({np.size(v)} values)"
@@ -359,7 +365,9 @@ def non_finite_fit(simulation, recordings) -> str:
         try:
             out = np.asarray(simulation.simulate(jnp.asarray(recording.v_in), recording.dt), dtype=np.float64)
         except (TypeError, ValueError) as error:  # not an array of one value per sample
-            return f"the simulation {name} cannot be run on recording '{recording.name}' ({error})"
+            return f"the simulation {name} cannot be run on recording '{recording.name}' ({error})", type(
+                simulation
+            )
         bad = np.flatnonzero(~np.isfinite(out))
         fault = _effect_at_fault(simulation, recording) if bad.size else None
         if fault is not None:
@@ -371,7 +379,7 @@ def non_finite_fit(simulation, recordings) -> str:
                 f"({own}), while the simulation {type(simulation.inner).__name__} it extends is finite there, "
                 f"so no step of the fit could be taken: make {type(effect).__name__}.apply finite over its "
                 "parameters' range, or start it where it is finite (its defaults; fit's --param NAME=VALUE)"
-            )
+            ), type(effect)
         if bad.size:
             return (
                 f"the simulation {name} returns non-finite values (NaN or inf) at {bad.size} of {out.size} "
@@ -379,12 +387,12 @@ def non_finite_fit(simulation, recordings) -> str:
                 f"with its start parameters ({at}), so no step of the fit could be taken: make its simulate "
                 "finite for this drive (a log, a square root or a division of a signal that reaches zero?), "
                 "or start it where it is finite (its constructor's defaults; fit's --param NAME=VALUE)"
-            )
+            ), type(simulation)
     return (
         f"every start's predictions are non-finite (NaN or inf), though the simulation {name} is finite at "
         "its start parameters on every recording: the readout's start values or the recording's scale "
         "overflow; check w's unit and size"
-    )
+    ), type(simulation)
 
 
 def _effect_at_fault(stack, recording):
@@ -412,15 +420,6 @@ def _effect_at_fault(stack, recording):
     except (TypeError, ValueError, ArithmeticError):  # the stack's own message says what it can
         return None
     return None
-
-
-def non_finite_plugin(simulation, recordings) -> type:
-    """The class a non-finite fit's message is about (`non_finite_fit`): an effect at fault, or the simulation's."""
-    for recording in recordings:
-        fault = _effect_at_fault(simulation, recording)
-        if fault is not None:
-            return type(fault[0])
-    return type(simulation)
 
 
 #: The paper's units of the recorded signals, where a recording declares none (or several disagree).

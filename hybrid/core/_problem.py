@@ -169,6 +169,14 @@ def unmeasured_runs(quality) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(starts, stops)]
 
 
+def unmeasured_mask(runs, n: int) -> np.ndarray:
+    """True at the `n` samples that `runs` ((first, last), `unmeasured_runs`) cover: w not measured there."""
+    mask = np.zeros(int(n), bool)
+    for a, b in runs:
+        mask[a : b + 1] = True
+    return mask
+
+
 def without_unmeasured(parts, runs, name: str = "") -> tuple[tuple[str, tuple[tuple[int, int], ...]], ...]:
     """`parts` ((part, ((start, stop), ...)), ...) with the samples of `runs` ((first, last)) left out.
 
@@ -179,9 +187,7 @@ def without_unmeasured(parts, runs, name: str = "") -> tuple[tuple[str, tuple[tu
     if not runs:
         return tuple((part, tuple((int(a), int(b)) for a, b in rows)) for part, rows in parts)
     end = max([int(b) + 1 for _, b in runs] + [int(b) for _, rows in parts for _, b in rows])
-    measured = np.ones(end, bool)
-    for a, b in runs:
-        measured[a : b + 1] = False
+    measured = ~unmeasured_mask(runs, end)
     out = []
     for part, rows in parts:
         pieces = []

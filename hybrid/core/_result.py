@@ -107,6 +107,7 @@ def fit_warnings(
     train_nmse: float | None = None,
     n_train: int | None = None,
     rate: float | None = None,
+    idle=(),
 ) -> list[str]:
     """What about a fit should not be taken at face value (see `FitResult.warnings`).
 
@@ -122,6 +123,8 @@ def fit_warnings(
       network is held by weight decay and validation instead).
     - `rate`: the recordings' (least) sampling rate, Hz, if known: a fitted
       frequency at or above its Nyquist frequency is warned about ([`aliased`][]).
+    - `idle`: names the prediction does not depend on, said so elsewhere
+      (`hybrid.core._fit.unpinned_warnings`): not warned about as unmoved.
     """
     warnings = []
     units = fitted.units
@@ -148,7 +151,7 @@ def fit_warnings(
             "diagnose names it), or conditions only one part holds (move the parts: --split, or "
             "fit(..., blocks=3))"
         )
-    for name in free:
+    for name in [n for n in free if n not in idle]:
         value, initial = after[name], before[name]
         unit = unit_suffix(units.get(name))
         if not no_step and not kept_start and abs(value - initial) <= UNMOVED_RTOL * abs(initial):

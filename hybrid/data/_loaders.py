@@ -136,10 +136,8 @@ def read_file(
         columns, metadata, notes, lines = _load_csv(path, required)
     else:
         columns, metadata, notes = (_load_npz if suffix == ".npz" else _load_mat)(path, required)
-    notes = (
-        *notes,
-        *quality_notes(path, columns.get("quality")),
-    )  # every format's (a verifier's .npz had none)
+    # every format's quality note (a verifier's .npz had none)
+    notes = (*notes, *quality_notes(path, columns.get("quality")))
     if "w" not in columns:
         columns["w"] = np.zeros_like(columns["t"])
     metadata.setdefault("source", str(path))

@@ -63,7 +63,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._arguments import as_recordings, check_simulation, require_float64
-from ..core._fit import PAPER_UNITS, non_finite_fit, recording_units, unit_labels, unit_mismatch
+from ..core._fit import PAPER_UNITS, non_finite_error, recording_units, unit_labels, unit_mismatch
 from ..core._held_start import HeldStart, held_at_start
 from ..core._levenberg_marquardt import LMSettings
 from ..core._models import Model
@@ -343,7 +343,7 @@ def diagnose(
         settings.effect_free_patience,
     )
     if not np.isfinite(np.asarray(base_states.best_val)).any():  # no start could move
-        raise PluginError(non_finite_fit(simulation, recordings), plugin=type(simulation))
+        raise non_finite_error(simulation, recordings)
     best = int(np.nanargmin(np.asarray(base_states.best_val)))
     escapes = _escapes_warning(simulation, escaped, N_SCREEN)
     theta_base = base_states.best_theta[best]

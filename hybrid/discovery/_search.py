@@ -31,6 +31,7 @@ from ..core._problem import (
     series_from_recording,
     span_rows,
     split_segments,
+    unmeasured_mask,
     unmeasured_runs,
     without_unmeasured,
 )
@@ -341,10 +342,8 @@ def _unweighted(series: Series, runs, name: str = "") -> Series:
     """
     if not runs or series.weights is None or series.spans is None:
         return series
-    out = np.ones(series.v_in.shape[0], bool)
-    for a, b in runs:
-        out[a : b + 1] = False
-    weights = tuple((split, jax.device_put(np.array(weight) * out)) for split, weight in series.weights)
+    measured = ~unmeasured_mask(runs, series.v_in.shape[0])
+    weights = tuple((split, jax.device_put(np.array(weight) * measured)) for split, weight in series.weights)
     kept = without_unmeasured([(split, np.asarray(rows)) for split, rows in series.spans], runs, name)
     spans = tuple((split, span_rows(pieces)) for split, pieces in kept)
     return eqx.tree_at(lambda s: (s.weights, s.spans), series, (weights, spans))
