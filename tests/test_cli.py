@@ -314,3 +314,51 @@ def test_what_reading_a_recording_did_is_said_once(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert (out + err).count("t rebuilt as a uniform grid") == 1, out + err
     assert any("t rebuilt" in w for w in json.loads((tmp_path / "f.json").read_text())["warnings"])
+
+
+def _two_lag_plant(path, seed: int) -> None:
+    """50 s at 30 Hz: random levels of ±2 V held 0.3–3 s into 1.5/((0.4 s + 1)(0.08 s + 1)) (scipy), noise
+    1 % of the range; the output in mm."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(1500) / 30.0
+    v = h.held_levels(rng, t, -2.0, 2.0, 0.3, 3.0, count=200)
+    _, x, _ = signal.lsim(signal.lti([1.5], np.polymul([0.4, 1.0], [0.08, 1.0])), v, t, interp=False)
+    w = x + 0.01 * np.ptp(x) * rng.normal(size=t.size)
+    np.savetxt(path, np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
+
+
+def test_the_default_hybrid_fit_says_when_the_physics_alone_fits_the_held_out_parts_better(tmp_path):
+    """A second-order plant (a new user's, 3,000 samples: the hybrid's validation NMSE 4.1e-3, the physics
+    alone 4.4e-4; here 1,500): the D-MLP's 1,725 weights fit the training part and miss the held-out ones,
+    and the fit said nothing."""
+    _two_lag_plant(tmp_path / "rec.csv", seed=0)
+    run = h.run_hybrid(tmp_path, "fit", "rec.csv", "--physics", "lti:2", "--json", "fit.json", "--quiet")
+    assert run.returncode == 0, run.stderr[-2000:]
+    said = json.loads((tmp_path / "fit.json").read_text())
+    alone = said["physics_alone"]
+    assert [line for line in run.stderr.splitlines() if "physics model alone" in line] == [
+        f"hybrid: warning: {alone['sentence']}"
+    ]
+    assert "--model physics" in alone["sentence"] and "1725 weights" in alone["sentence"]
+    for split in ("validation", "test"):  # the hybrid's own held-out scores, and the physics' 1.5× below
+        assert alone["nmse"][split]["hybrid"] == said["metrics"][split]["nmse"]
+        assert alone["nmse"][split]["physics"] * 1.5 <= alone["nmse"][split]["hybrid"]
+    assert (tmp_path / "rec.hybrid.eqx").is_file()  # the model asked for is saved all the same
+
+
+def test_the_physics_alone_is_pointed_at_only_where_it_fits_every_held_out_split_better():
+    from hybrid.cli import PEER_HINT_GAIN, physics_alone_hint
+
+    def metrics(validation, test):
+        return {"train": {"nmse": 1e-3}, "validation": {"nmse": validation}, "test": {"nmse": test}}
+
+    hint = physics_alone_hint(metrics(4e-3, 5e-3), metrics(4e-4, 1e-3), 1725)
+    assert hint["ratio"] == pytest.approx(5.0) and "5× better" in hint["sentence"]
+    assert physics_alone_hint(metrics(4e-3, 5e-3), metrics(4e-4, 5e-3 / PEER_HINT_GAIN * 1.01), 1725) is None
+    assert (
+        physics_alone_hint(metrics(1e-3, 1e-3), metrics(2e-3, 1e-3), 1725) is None
+    )  # the hybrid fits better
+    assert physics_alone_hint(metrics(4e-3, 5e-3), metrics(0.0, 1e-3), 1725) is None  # a ratio it cannot read
+    assert (
+        physics_alone_hint({"train": {"nmse": 1.0}}, metrics(4e-4, 1e-3), 1725) is None
+    )  # no held-out split
