@@ -1436,7 +1436,8 @@ def _repeat_words(repeats: dict | None, independence: dict | None = None) -> str
         if independence is not None and independence["p_value"] >= NO_DEPENDENCE_P:
             tested = (
                 f"; its test against the drive finds no dependence (p = {independence['p_value']:.2g}), as a "
-                "disturbance's would be"
+                "disturbance's would be; the test reads a linear dependence alone, and a response the drive "
+                "causes through a clip or a rate limit may pass it too"
             )
         elif independence is not None:
             tested = (
