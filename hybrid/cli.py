@@ -193,9 +193,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--blocks",
         type=B.integer(*B.BLOCKS),
-        default=1,
+        default=None,
         help="cut each recording into N equal blocks and split each by --split, so that every part "
-        "spans the recording (default 1: the paper's contiguous split)",
+        "spans the recording (default 1: the paper's contiguous split; 3, as hybrid diagnose, where the "
+        "model holds an effect of time such as baseline_drift, which one block would make extrapolate)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="save the model here (default: <first recording>.<model>.eqx)")
@@ -546,6 +547,7 @@ def _cmd_fit(args):
     import jax
 
     from .core._arguments import as_names
+    from .core._fit import TIME_EFFECT_BLOCKS, time_effect_names
     from .core._models import make_model
     from .core._serialise import save_model
     from .physics._plugins import resolve_physics
@@ -630,6 +632,17 @@ def _cmd_fit(args):
         args.free, "--free", "parameter", model.parameter_names
     )  # an unknown name is refused, not ignored
     frozen |= set(model.simulation.frozen_by_default) - set(args.free)  # the RC network's xi_h
+    if args.blocks is None:  # an effect of time fitted in one block extrapolates into every held-out part
+        timed = time_effect_names(model, frozen)
+        args.blocks = TIME_EFFECT_BLOCKS if timed else 1
+        if timed:
+            print(
+                f"hybrid: warning: {' and '.join(timed)} {'is a function' if len(timed) == 1 else 'are functions'}"
+                f" of time: each recording is cut into {TIME_EFFECT_BLOCKS} blocks, each split by --split, as "
+                "hybrid diagnose does, so that the held-out parts lie between training samples, not after them "
+                "where the effect extrapolates (--blocks 1: one contiguous split)",
+                file=sys.stderr,
+            )
     tests = load_tests(args, recordings, model.readout.window)  # --test: refused before fitting, not after
     if args.max_steps == 0:  # the saved model scored as it is: no readout re-initialised, no step
         with lock:
