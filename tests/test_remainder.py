@@ -742,7 +742,8 @@ def test_an_unstructured_remainder_is_weighed_against_the_drive(share, said):
     assert (test["p_value"] < 1e-3) == (share > 0), test
     assert said in d["summary"] and f"p = {test['p_value']:.{1 if share else 2}g}" in d["summary"]
     assert ("not a disturbance alone" in d["summary"]) == (share > 0)
-    assert ("reads a linear dependence alone" in d["summary"]) == (share == 0)  # what passing it cannot rule out
+    # what passing the test cannot rule out
+    assert ("reads a linear dependence alone" in d["summary"]) == (share == 0)
 
 
 def _slow(v):
