@@ -89,7 +89,11 @@ from .physics._plugins import resolve_physics as resolve_physics
 from .physics._rc_network import RCNetwork as RCNetwork
 from .physics._reference import reference_response as reference_response
 from .physics._strip import Strip as Strip
-from .util._cores import use_cpu_cores as use_cpu_cores, use_quick_compiles as use_quick_compiles
+from .util._cores import (
+    use_compilation_cache as use_compilation_cache,
+    use_cpu_cores as use_cpu_cores,
+    use_quick_compiles as use_quick_compiles,
+)
 from .util._errors import InputError as InputError
 
 __version__ = "0.1.0"

@@ -42,7 +42,7 @@ from ._cli_outputs import check_outputs, out_file, out_folder
 from ._cli_sensitivity import add_sensitivity, cmd_sensitivity
 from ._cli_stop import FitStop, partial_path
 from ._cli_test import add_test_options, load_tests, print_scores, score_tests
-from .util._cores import use_cpu_cores, use_quick_compiles
+from .util._cores import use_compilation_cache, use_cpu_cores, use_quick_compiles
 from .util._errors import InputError
 from .util._stdout import reader_may_leave
 from .util._watchdog import Watchdog, stage
@@ -897,24 +897,6 @@ COMMANDS = {
 }
 
 
-def _use_compilation_cache(jax) -> None:
-    """Keep compiled programs between runs (JAX's persistent cache).
-
-    `hybrid diagnose` compiles its search in every new process: on a 5-minute,
-    30 Hz recording on 2 cores it takes 65 s with an empty cache and 32 s with a
-    warm one (`python benchmarks/diagnose.py`). The cache
-    lives in ``$HYBRID_JAX_CACHE`` (default ``~/.cache/hybrid/jax``); set it to
-    ``off`` to compile afresh every time.
-    """
-    import os
-
-    where = os.environ.get("HYBRID_JAX_CACHE", str(Path.home() / ".cache" / "hybrid" / "jax"))
-    if where.strip().lower() in ("", "0", "off", "none", "false"):
-        return
-    jax.config.update("jax_compilation_cache_dir", where)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-
-
 @contextlib.contextmanager
 def _sigint_watch(seen: list):
     """Note a real Ctrl-C (SIGINT) in `seen`, so that a KeyboardInterrupt raised by a plug-in's code is told
@@ -986,7 +968,7 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)  # the entry point chooses float64
     use_cpu_cores()  # and one CPU device per core: diagnose's lanes run side by side
     use_quick_compiles()  # XLA:CPU's loop emitters at LLVM's level 1: about half the compile time
-    _use_compilation_cache(jax)
+    use_compilation_cache()  # $HYBRID_JAX_CACHE or ~/.cache/hybrid/jax: a warm diagnose compiles nothing
     args = None
     ctrl_c: list[int] = []  # the signals _sigint_watch saw
     try:
