@@ -5,7 +5,8 @@ A probe's heater (two thermal masses, 120 s at 20 Hz) with a dead zone of 2 W an
 1.5 °C, fitted by ``hybrid fit --effects drive_dead_zone,baseline_drift`` in one contiguous block: a dead
 zone of 0.52 W and a test record missed by 0.63 °C (noise 0.2); in 3 blocks, as `hybrid diagnose` splits
 it, 1.79 W and 0.21 °C. The recordings here are made with scipy: a first-order plant behind a dead zone of
-the drive, its output wandering by a slow sine, not by the effects fitted.
+the drive, its output wandering by a slow sine, not by the effects fitted. A change the training part does
+not show (a jump of the output's zero) leaves the held-out parts worse than their mean, and the fit says so.
 """
 
 from __future__ import annotations
@@ -75,3 +76,20 @@ def test_hybrid_fit_cuts_a_recording_into_blocks_where_its_effects_include_one_o
     kept = json.loads((tmp_path / "one.json").read_text())
     assert kept["settings"]["blocks"] == 1 and "cut into 3 blocks" not in one.stderr
     assert any("function of time: with the recording in one block" in s for s in kept["warnings"])
+
+
+def test_a_fit_whose_held_out_parts_are_no_better_than_their_mean_says_so():
+    """The heater whose output's zero jumps by twice its range after the training part (70 %): the held-out
+    parts are predicted worse than by their mean, which the fit said nothing of; without the jump, nothing."""
+    from hybrid.core._fit import no_better_than_the_mean
+
+    t, v, w = _heater(1)
+    solver = hybrid.LevenbergMarquardt(max_steps=30)
+    model = hybrid.make_model("physics", simulation=hybrid.resolve_physics("lti:1"))
+    jumped = np.where(t > 0.72 * t[-1], w + 2.0 * np.ptp(w), w)
+    said = [hybrid.fit(model, [hybrid.Recording(t=t, v_in=v, w=y)], solver=solver) for y in (jumped, w)]
+    assert [sum("no better than their mean" in s for s in r.warnings) for r in said] == [1, 0]
+    assert all(said[0].metrics[k]["nmse_variance"] >= 1.0 for k in ("validation", "test"))
+    one = no_better_than_the_mean({"validation": {"nmse_variance": 1.07}, "test": {"nmse_variance": 0.4}})
+    assert len(one) == 1 and "the validation part's 1.07 of its variance" in one[0] and "test" not in one[0]
+    assert no_better_than_the_mean({"train": {"nmse_variance": 3.0}, "test": {"nmse_variance": 0.99}}) == []

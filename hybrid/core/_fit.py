@@ -293,6 +293,7 @@ def fit(
         )
         + immaterial_effects(fitted, recordings)
         + effects_of_time(fitted, frozen, blocks)
+        + no_better_than_the_mean(result_metrics)
         + drive_outside_range(
             fitted.simulation, [r.v_in for r in recordings], (recording_units(recordings) or ("", ""))[1]
         )
@@ -338,6 +339,28 @@ def effects_of_time(fitted: Model, frozen, blocks: int) -> list[str]:
         f"{'it' if len(names) == 1 else 'them'} and is chosen on them; blocks={TIME_EFFECT_BLOCKS} "
         f"(hybrid fit --blocks {TIME_EFFECT_BLOCKS}) holds parts out between training samples, as hybrid "
         "diagnose does"
+    ]
+
+
+def no_better_than_the_mean(metrics: dict) -> list[str]:
+    """A sentence where a held-out part is predicted no better than by its own mean (NMSE over its variance
+    ≥ 1): what the model misses outweighs what it explains there.
+
+    A probe's script fitted `lti:2` to records whose baseline wandered by a quarter of their range: test
+    parts at 1.02 and 1.07 of their variance (Fitting −0.07 % and −1.85 %), and nothing said so.
+    """
+    worse = {
+        split: metrics[split]["nmse_variance"]
+        for split in ("validation", "test")
+        if split in metrics and metrics[split].get("nmse_variance", 0.0) >= 1.0
+    }
+    if not worse:
+        return []
+    said = " and ".join(f"the {split} part's {value:.3g}" for split, value in worse.items())
+    return [
+        f"the fitted model predicts its held-out data no better than their mean ({said} of its variance): "
+        "what it misses there outweighs what it explains (a change the training part does not show, a "
+        "drift, a missing effect: hybrid diagnose says which)"
     ]
 
 

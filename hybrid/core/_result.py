@@ -38,7 +38,9 @@ class FitResult:
     - `warnings`: sentences about results not to take at face value: a physical
       parameter outside its plausible range (`AbstractSimulation.plausible`) or
       still at its start value, a fit that made no accepted step, a recording
-      whose time base was rebuilt (`hybrid.core._result.fit_warnings`).
+      whose time base was rebuilt (`hybrid.core._result.fit_warnings`); a
+      held-out part predicted no better than by its mean; an effect of time
+      fitted with the recording in one block.
     - `stopped`: true when the fit was stopped before it ended (its `stop`
       function said so: ``hybrid fit`` on SIGINT, SIGTERM or ``--time-limit``);
       `model` is then the best iterate found so far.
