@@ -1545,7 +1545,7 @@ def _verdict(
         text = (
             f"static in the simulation's state {name}, on its output: a function of {name} added to the "
             f"output recovers {pct(inkind)} {where} (a readout that bends with a state, "
-            f"such as a cell's open-circuit voltage with its charge: the plug-in's observe(x, p) can add it); "
+            f"such as a cell's open-circuit voltage with its charge: a physics plug-in's observe(x, p) can add it); "
             f"the best map of the drive {pct('static_drive')}, of the output {pct('static_output_free')}, {name}'s straight line "
             f"{100 * score(part['linear']):.0f} %"
         )
