@@ -24,6 +24,7 @@ import os
 import signal
 import sys
 import threading
+import time
 import traceback
 from pathlib import Path
 
@@ -501,9 +502,9 @@ def _held_start_hint(args, model, recordings, simulation, result, frozen) -> str
 PEER_HINT_GAIN = 1.5
 
 
-def _physics_peer_hint(args, model, recordings, result, frozen) -> dict | None:
+def _physics_peer_hint(args, model, recordings, result, frozen, stop) -> dict | None:
     """The hybrid model (the default) against the physics model alone, fitted alike from `model`'s
-    simulation: `physics_alone_hint` of the two fits.
+    simulation: `physics_alone_hint` of the two fits; None where `stop` (a `FitStop`) ended the second fit.
 
     The D-MLP on the simulation's output (1,725 weights at the paper's shape) is flexible: a new user's
     second-order plant (`lti:2`, 3,000 samples at 30 Hz, 70 % for training) fitted by the default hybrid
@@ -517,7 +518,9 @@ def _physics_peer_hint(args, model, recordings, result, frozen) -> dict | None:
 
     peer = make_model("physics", simulation=model.simulation)
     kept = frozenset(frozen) & set(peer.parameter_names)
-    alone = _fit_as_asked(args, peer, recordings, kept, progress=False)
+    alone = _fit_as_asked(args, peer, recordings, kept, progress=False, stop=stop)
+    if alone.stopped:
+        return None
     weights = sum(int(np.size(x)) for x in jax.tree_util.tree_leaves(eqx.filter(model.readout, eqx.is_array)))
     return physics_alone_hint(result.metrics, alone.metrics, weights)
 
@@ -653,6 +656,7 @@ def _cmd_fit(args):
                 write_text(args.json, json.dumps({"model": str(args.start_from), **scores}, indent=2) + "\n")
         return
     with lock:
+        began = time.monotonic()
         with FitStop(args.time_limit) as stop:  # SIGINT, SIGTERM, --time-limit: stop between steps
             result = _fit_as_asked(args, model, recordings, frozen, progress=not args.quiet, stop=stop)
         print(result.summary(said={note for r in recordings for note in r.notes}))
@@ -697,8 +701,19 @@ def _cmd_fit(args):
                 print(f"start: {held}")
                 start = {**start, "held_hint": held}
         peer = None
-        if args.model == "hybrid":
-            peer = _physics_peer_hint(args, model, recordings, result, frozen)
+        left = None if args.time_limit is None else args.time_limit - (time.monotonic() - began)
+        if args.model == "hybrid" and (left is None or left > 0):  # within --time-limit, or not at all
+            with FitStop(left) as stop:
+                peer = _physics_peer_hint(args, model, recordings, result, frozen, stop)
+            if stop.signal is not None:  # the model is saved; what it would have added is not written
+                print(
+                    f"hybrid: stopped by {stop.reason} while fitting the physics alone beside the model: "
+                    f"{out} is saved{', --json not written' if args.json else ''}; exit status "
+                    f"{stop.exit_status}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                raise SystemExit(stop.exit_status)
             if peer:
                 print(f"hybrid: warning: {peer['sentence']}", file=sys.stderr)
         if args.json:
