@@ -20,6 +20,7 @@ import argparse
 import contextlib
 import csv
 import json
+import math
 import os
 import signal
 import sys
@@ -530,7 +531,7 @@ def physics_alone_hint(hybrid_metrics: dict, physics_metrics: dict, weights: int
     (validation, test) `PEER_HINT_GAIN` times better than the hybrid model; else None."""
     splits = [k for k in ("validation", "test") if k in hybrid_metrics and k in physics_metrics]
     nmse = {k: (hybrid_metrics[k]["nmse"], physics_metrics[k]["nmse"]) for k in splits}
-    ratios = [h / a for h, a in nmse.values() if a > 0]
+    ratios = [h / a for h, a in nmse.values() if a > 0 and math.isfinite(h) and math.isfinite(a)]
     if not splits or len(ratios) < len(splits) or min(ratios) < PEER_HINT_GAIN:
         return None
     said = ", ".join(f"{k} NMSE {h:.2e} against {a:.2e}" for k, (h, a) in nmse.items())
@@ -636,7 +637,7 @@ def _cmd_fit(args):
     )  # an unknown name is refused, not ignored
     frozen |= set(model.simulation.frozen_by_default) - set(args.free)  # the RC network's xi_h
     if args.blocks is None:  # an effect of time fitted in one block extrapolates into every held-out part
-        timed = time_effect_names(model, frozen)
+        timed = time_effect_names(model, frozen) if args.max_steps != 0 else []  # 0: nothing is fitted
         args.blocks = TIME_EFFECT_BLOCKS if timed else 1
         if timed:
             print(
@@ -702,7 +703,7 @@ def _cmd_fit(args):
                 start = {**start, "held_hint": held}
         peer = None
         left = None if args.time_limit is None else args.time_limit - (time.monotonic() - began)
-        if args.model == "hybrid" and (left is None or left > 0):  # within --time-limit, or not at all
+        if model.kind == "hybrid" and (left is None or left > 0):  # within --time-limit, or not at all
             with FitStop(left) as stop:
                 peer = _physics_peer_hint(args, model, recordings, result, frozen, stop)
             if stop.signal is not None:  # the model is saved; what it would have added is not written
@@ -983,7 +984,10 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)  # the entry point chooses float64
     use_cpu_cores()  # and one CPU device per core: diagnose's lanes run side by side
     use_quick_compiles()  # XLA:CPU's loop emitters at LLVM's level 1: about half the compile time
-    use_compilation_cache()  # $HYBRID_JAX_CACHE or ~/.cache/hybrid/jax: a warm diagnose compiles nothing
+    try:
+        use_compilation_cache()  # $HYBRID_JAX_CACHE or ~/.cache/hybrid/jax: a warm diagnose compiles nothing
+    except InputError as error:  # a cache is a speed-up: without it the command compiles afresh
+        print(f"hybrid: warning: HYBRID_JAX_CACHE: {error}; compiling without it", file=sys.stderr)
     args = None
     ctrl_c: list[int] = []  # the signals _sigint_watch saw
     try:

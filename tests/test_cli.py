@@ -359,6 +359,5 @@ def test_the_physics_alone_is_pointed_at_only_where_it_fits_every_held_out_split
         physics_alone_hint(metrics(1e-3, 1e-3), metrics(2e-3, 1e-3), 1725) is None
     )  # the hybrid fits better
     assert physics_alone_hint(metrics(4e-3, 5e-3), metrics(0.0, 1e-3), 1725) is None  # a ratio it cannot read
-    assert (
-        physics_alone_hint({"train": {"nmse": 1.0}}, metrics(4e-4, 1e-3), 1725) is None
-    )  # no held-out split
+    assert physics_alone_hint({"train": {"nmse": 1.0}}, metrics(4e-4, 1e-3), 1725) is None  # no held-out part
+    assert physics_alone_hint(metrics(float("nan"), 5e-3), metrics(4e-4, 1e-3), 1725) is None  # not "nan×"

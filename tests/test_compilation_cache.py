@@ -46,3 +46,43 @@ def test_off_leaves_jax_as_it_is(tmp_path):
     assert _run(tmp_path, "off") == {"where": None, "dir": None}
     assert _run(tmp_path, env_cache="off") == {"where": None, "dir": None}
     assert not (tmp_path / "home").exists()  # nothing written under the default folder either
+
+
+def test_a_folder_that_cannot_hold_the_cache_is_refused_in_one_line(tmp_path):
+    """A verifier's ``HYBRID_JAX_CACHE`` naming a file: the function returned the path as in use, and JAX
+    then warned in two lines of Python at each program it could not write."""
+    import pytest
+
+    import hybrid
+    from hybrid.util._errors import InputError
+
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    for bad in (afile, afile / "under"):
+        with pytest.raises(InputError, match="cannot hold the compilation cache .*give a folder"):
+            hybrid.use_compilation_cache(bad)
+    env = {**os.environ, "HYBRID_JAX_CACHE": str(afile)}
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "hybrid.cli",
+            "simulate",
+            "--drive",
+            "sine",
+            "--duration",
+            "2",
+            "--out",
+            "s.csv",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    assert run.returncode == 0 and (tmp_path / "s.csv").is_file(), run.stderr[-2000:]
+    said = [line for line in run.stderr.splitlines() if line.strip()]
+    assert said == [
+        f"hybrid: warning: HYBRID_JAX_CACHE: {afile} cannot hold the compilation cache (File exists): give a "
+        "folder this process may write, or off; compiling without it"
+    ], run.stderr

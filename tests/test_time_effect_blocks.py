@@ -76,6 +76,29 @@ def test_hybrid_fit_cuts_a_recording_into_blocks_where_its_effects_include_one_o
     kept = json.loads((tmp_path / "one.json").read_text())
     assert kept["settings"]["blocks"] == 1 and "cut into 3 blocks" not in one.stderr
     assert any("function of time: with the recording in one block" in s for s in kept["warnings"])
+    # scoring the saved model as it is fits nothing: nothing is cut into blocks, nothing said of it
+    _write(tmp_path / "other.csv", 1)
+    scored = h.run_hybrid(
+        tmp_path,
+        "fit",
+        "rec.csv",
+        "--start-from",
+        "fit.eqx",
+        "--max-steps",
+        "0",
+        "--test",
+        "other.csv",
+        "--quiet",
+    )
+    assert scored.returncode == 0 and "function of time" not in scored.stderr, scored.stderr[-2000:]
+    # a saved physics model refitted with the default --model (hybrid): no physics-alone fit beside it
+    again = h.run_hybrid(
+        tmp_path, "fit", "rec.csv", "--start-from", "fit.eqx", "--max-steps", "3", "--json", "a.json"
+    )
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "physics model alone" not in again.stderr and "physics_alone" not in json.loads(
+        (tmp_path / "a.json").read_text()
+    )
 
 
 def test_a_fit_whose_held_out_parts_are_no_better_than_their_mean_says_so():
@@ -91,5 +114,5 @@ def test_a_fit_whose_held_out_parts_are_no_better_than_their_mean_says_so():
     assert [sum("no better than their mean" in s for s in r.warnings) for r in said] == [1, 0]
     assert all(said[0].metrics[k]["nmse_variance"] >= 1.0 for k in ("validation", "test"))
     one = no_better_than_the_mean({"validation": {"nmse_variance": 1.07}, "test": {"nmse_variance": 0.4}})
-    assert len(one) == 1 and "the validation part's 1.07 of its variance" in one[0] and "test" not in one[0]
+    assert len(one) == 1 and "on the validation part 1.07× its variance" in one[0] and "test" not in one[0]
     assert no_better_than_the_mean({"train": {"nmse_variance": 3.0}, "test": {"nmse_variance": 0.99}}) == []

@@ -356,9 +356,9 @@ def no_better_than_the_mean(metrics: dict) -> list[str]:
     }
     if not worse:
         return []
-    said = " and ".join(f"the {split} part's {value:.3g}" for split, value in worse.items())
+    said = " and ".join(f"on the {split} part {value:.3g}× its variance" for split, value in worse.items())
     return [
-        f"the fitted model predicts its held-out data no better than their mean ({said} of its variance): "
+        f"the fitted model predicts its held-out data no better than their mean (its mean squared error {said}): "
         "what it misses there outweighs what it explains (a change the training part does not show, a "
         "drift, a missing effect: hybrid diagnose says which)"
     ]

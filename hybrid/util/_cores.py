@@ -130,6 +130,10 @@ def use_compilation_cache(folder: str | os.PathLike[str] | None = None) -> str |
       ``$HYBRID_JAX_CACHE``, ``0``, ``none``, ``false``) leaves JAX as it is.
 
     **Returns:** the folder in use, or None where the cache was left off.
+
+    **Raises:** `InputError` where the folder cannot be made or written (a
+    file of that name, a path under a file): JAX would otherwise warn at each
+    program it fails to write, and compile every one afresh.
     """
     import jax
 
@@ -137,6 +141,18 @@ def use_compilation_cache(folder: str | os.PathLike[str] | None = None) -> str |
     if where.strip().lower() in ("", "0", "off", "none", "false"):
         return None
     where = os.path.expanduser(where)
+    try:
+        os.makedirs(where, exist_ok=True)
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise InputError(
+            f"{where} cannot hold the compilation cache ({reason}): give a folder this process may write, or off"
+        ) from None
+    if not os.access(where, os.W_OK | os.X_OK):
+        raise InputError(
+            f"{where} cannot hold the compilation cache (not writable): give a folder this process may write, "
+            "or off"
+        )
     jax.config.update("jax_compilation_cache_dir", where)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return where
