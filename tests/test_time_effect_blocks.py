@@ -35,6 +35,15 @@ def _heater(seed: int):
     return t, v, w + 0.01 * np.ptp(w) * rng.normal(size=N)
 
 
+def test_fit_cuts_a_record_with_an_effect_of_time_as_diagnose_does():
+    from hybrid.core._fit import TIME_EFFECT_BLOCKS
+    from hybrid.discovery._diagnosis import DiagnoseSettings
+
+    assert (
+        TIME_EFFECT_BLOCKS == DiagnoseSettings().blocks
+    )  # core cannot import discovery: one number, kept equal
+
+
 def test_a_fit_in_one_block_with_an_effect_of_time_says_it_extrapolates_and_in_three_it_does_not():
     t, v, w = _heater(0)
     recording = hybrid.Recording(t=t, v_in=v, w=w)
