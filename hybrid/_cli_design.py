@@ -345,6 +345,22 @@ def cmd_design(args) -> None:
     else:
         print(separation(design.criterion, design.control_criterion, len(design.v_in), max(excess, 1.0)))
     print(f"wrote {out} and {figure}")
+    others = [e for e in report.get("ambiguous") or () if e.get("step") != entry.get("step")]
+    if (
+        args.step is None and others
+    ):  # a probe's design went to step 1's two limits; its open step 2 was not said
+        listed = "; ".join(
+            f"step {e.get('step')}: "
+            + " vs ".join(
+                "nothing more" if n == "none" else n
+                for n in [e.get("named", "?")] + [r.get("name", "?") for r in e.get("rivals", ())]
+            )
+            for e in others
+        )
+        print(
+            f"the diagnosis leaves {'another step' if len(others) == 1 else f'{len(others)} more steps'} "
+            f"ambiguous ({listed}); --step N designs a drive for that step instead"
+        )
 
 
 #: n·T (the lack-of-fit test's non-centrality) below which a recording barely tells two rivals apart: a

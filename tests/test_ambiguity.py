@@ -352,6 +352,25 @@ def test_hybrid_design_from_the_command_line_writes_a_drive_that_keeps_its_limit
     assert "tells them apart" not in out and "does not separate them" in out, out
     y.unlink()
     y.with_suffix(".png").unlink()
+    # a second ambiguous step: the design goes to the first and names the other (a probe's design went to
+    # step 1's two limits, and its open step 2 — a lag or nothing — was not said); --step 1 asks for that one
+    report = json.loads((folder / "report.json").read_text())
+    (first,) = report["ambiguous"]
+    second = {**first, "step": 2, "named": "none", "rivals": [{**first["rivals"][0], "name": "lag"}]}
+    (folder / "report.json").write_text(json.dumps({**report, "ambiguous": [first, second]}))
+    code, out, _ = design("--out", y, base=within)
+    rivals = " vs ".join([first["named"], first["rivals"][0]["name"]])
+    assert code == 0 and f"design: step 1: {rivals}" in out, out
+    assert (
+        "the diagnosis leaves another step ambiguous (step 2: nothing more vs lag); --step N designs" in out
+    ), out
+    y.unlink()
+    y.with_suffix(".png").unlink()
+    code, out, _ = design("--step", "1", "--out", y, base=within)
+    assert code == 0 and "leaves another step" not in out, out
+    y.unlink()
+    y.with_suffix(".png").unlink()
+    (folder / "report.json").write_text(json.dumps(report))
     # a diagnosis with nothing ambiguous: one line, no file
     plain = tmp_path / "plain"
     plain.mkdir()
