@@ -19,6 +19,7 @@ import pytest
 from scipy import signal
 
 import hybrid
+from hybrid.cli import main
 
 WIDTH = 1.0  # the drive's dead zone, V
 RATE, N = 20.0, 2400
@@ -68,7 +69,7 @@ def _write(path, seed: int) -> None:
     np.savetxt(path, np.c_[t, v, w], delimiter=",", header="t,v_in,w\ns,V,mm", comments="")
 
 
-def test_hybrid_fit_cuts_a_recording_into_blocks_where_its_effects_include_one_of_time(tmp_path):
+def test_hybrid_fit_cuts_a_recording_into_blocks_where_its_effects_include_one_of_time(tmp_path, capsys):
     """The command line fits the named causes in 3 blocks, says so, and finds the dead zone; --blocks 1 is
     kept as given, with the fit's warning."""
     _write(tmp_path / "rec.csv", 0)
@@ -80,32 +81,27 @@ def test_hybrid_fit_cuts_a_recording_into_blocks_where_its_effects_include_one_o
     assert said["settings"]["blocks"] == 3
     assert "baseline_drift is a function of time: each recording is cut into 3 blocks" in run.stderr
     assert said["parameters"]["drive_dead_zone_width"] == pytest.approx(WIDTH, rel=0.1)
-    one = h.run_hybrid(tmp_path, *common, "--blocks", "1", "--json", "one.json", "--out", "one.eqx")
-    assert one.returncode == 0, one.stderr[-2000:]
+
+    # The rest through the same command line in this process (`hybrid.cli.main`), without a process start each.
+    def cli(*args):
+        code = main([str(a) for a in args])
+        out, err = capsys.readouterr()
+        assert code == 0, err[-2000:]
+        return err
+
+    common = [a if a != "rec.csv" else tmp_path / "rec.csv" for a in common]
+    err = cli(*common, "--blocks", "1", "--json", tmp_path / "one.json", "--out", tmp_path / "one.eqx")
     kept = json.loads((tmp_path / "one.json").read_text())
-    assert kept["settings"]["blocks"] == 1 and "cut into 3 blocks" not in one.stderr
+    assert kept["settings"]["blocks"] == 1 and "cut into 3 blocks" not in err
     assert any("function of time: with the recording in one block" in s for s in kept["warnings"])
     # scoring the saved model as it is fits nothing: nothing is cut into blocks, nothing said of it
     _write(tmp_path / "other.csv", 1)
-    scored = h.run_hybrid(
-        tmp_path,
-        "fit",
-        "rec.csv",
-        "--start-from",
-        "fit.eqx",
-        "--max-steps",
-        "0",
-        "--test",
-        "other.csv",
-        "--quiet",
-    )
-    assert scored.returncode == 0 and "function of time" not in scored.stderr, scored.stderr[-2000:]
+    saved = ["fit", tmp_path / "rec.csv", "--start-from", tmp_path / "fit.eqx"]
+    err = cli(*saved, "--max-steps", "0", "--test", tmp_path / "other.csv", "--quiet")
+    assert "function of time" not in err, err
     # a saved physics model refitted with the default --model (hybrid): no physics-alone fit beside it
-    again = h.run_hybrid(
-        tmp_path, "fit", "rec.csv", "--start-from", "fit.eqx", "--max-steps", "3", "--json", "a.json"
-    )
-    assert again.returncode == 0, again.stderr[-2000:]
-    assert "physics model alone" not in again.stderr and "physics_alone" not in json.loads(
+    err = cli(*saved, "--max-steps", "3", "--json", tmp_path / "a.json", "--out", tmp_path / "a.eqx")
+    assert "physics model alone" not in err and "physics_alone" not in json.loads(
         (tmp_path / "a.json").read_text()
     )
 
