@@ -346,9 +346,8 @@ def cmd_design(args) -> None:
         print(separation(design.criterion, design.control_criterion, len(design.v_in), max(excess, 1.0)))
     print(f"wrote {out} and {figure}")
     others = [e for e in report.get("ambiguous") or () if e.get("step") != entry.get("step")]
-    if (
-        args.step is None and others
-    ):  # a probe's design went to step 1's two limits; its open step 2 was not said
+    # a probe's design went to step 1's two limits of the states, and its open step 2 was not said
+    if args.step is None and others:
         listed = "; ".join(
             f"step {e.get('step')}: "
             + " vs ".join(
