@@ -79,7 +79,7 @@ def add_test_options(p) -> None:
 
 def load_tests(args, fitted, window: int) -> list:
     """The --test records, checked before any fitting: their columns, their rate, their length."""
-    from .core._problem import unmeasured_mask, unmeasured_runs
+    from .core._problem import unmeasured_of
     from .data._loaders import MissingName
     from .data._mapping import RATE_RTOL, load_mapped, load_pair
     from .data._recording import Recording, in_shared_units
@@ -170,7 +170,7 @@ def load_tests(args, fitted, window: int) -> list:
                     "benchmark's rule, e.g. 4 for Cascaded Tanks)"
                 )
             # a quality column's 0s are not scored (`score_tests`)
-            unmeasured = unmeasured_mask(unmeasured_runs(record.extra.get("quality")), record.n)
+            unmeasured = unmeasured_of(record)
             left = int(np.sum(~unmeasured[first or 0 :]))
             if left < MIN_SCORED:
                 raise InputError(
@@ -213,7 +213,7 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
     """
     from .core._held_start import has_held_start, refit_initial_drive
     from .core._metrics import metrics
-    from .core._problem import unmeasured_mask, unmeasured_runs
+    from .core._problem import unmeasured_of
     from .discovery._start import misfit_at_start, start_shape
 
     scores = []
@@ -227,7 +227,7 @@ def score_tests(model, tests, first: int | None = None) -> list[dict]:
         w_hat = np.asarray(scored.predict(record.v_in, record.dt))  # the whole record: one segment
         w = np.asarray(record.w)
         # a quality column's 0s: w was not measured there
-        unmeasured = unmeasured_mask(unmeasured_runs(record.extra.get("quality")), w.shape[0])
+        unmeasured = unmeasured_of(record)
         if not held and np.all(np.isfinite(w_hat)):  # a start no held drive can meet: said, not scored away
             start = misfit_at_start([np.where(unmeasured, np.nan, w - w_hat)], [record.name], settled=False)
             if start["off"]:

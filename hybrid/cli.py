@@ -411,12 +411,12 @@ def _start_of(model, recordings, simulation) -> dict | None:
         return None
 
     from .core._held_start import HeldStart
-    from .core._problem import unmeasured_mask, unmeasured_runs
+    from .core._problem import unmeasured_of
     from .discovery._start import misfit_at_start
 
     residuals = [  # no residual where w was not measured (a quality column's 0s)
         np.where(
-            unmeasured_mask(unmeasured_runs(r.extra.get("quality")), r.n),
+            unmeasured_of(r),
             np.nan,
             np.asarray(r.w, float) - np.asarray(model.predict(r.v_in, r.dt), float),
         )
@@ -507,14 +507,10 @@ def _physics_peer_hint(args, model, recordings, result, frozen, stop) -> dict | 
     """The hybrid model (the default) against the physics model alone, fitted alike from `model`'s
     simulation: `physics_alone_hint` of the two fits; None where `stop` (a `FitStop`) ended the second fit.
 
-    The D-MLP on the simulation's output (1,725 weights at the paper's shape) is flexible: a new user's
+    The D-MLP on the simulation's output (1,721 weights at the paper's shape) is flexible: a new user's
     second-order plant (`lti:2`, 3,000 samples at 30 Hz, 70 % for training) fitted by the default hybrid
     model scored a validation NMSE of 4.1e-3, the physics model alone 4.4e-4, and nothing said which to keep.
     """
-    import equinox as eqx
-    import jax
-    import numpy as np
-
     from .core._models import make_model
 
     peer = make_model("physics", simulation=model.simulation)
@@ -522,8 +518,7 @@ def _physics_peer_hint(args, model, recordings, result, frozen, stop) -> dict | 
     alone = _fit_as_asked(args, peer, recordings, kept, progress=False, stop=stop)
     if alone.stopped:
         return None
-    weights = sum(int(np.size(x)) for x in jax.tree_util.tree_leaves(eqx.filter(model.readout, eqx.is_array)))
-    return physics_alone_hint(result.metrics, alone.metrics, weights)
+    return physics_alone_hint(result.metrics, alone.metrics, model.readout.n_weights)
 
 
 def physics_alone_hint(hybrid_metrics: dict, physics_metrics: dict, weights: int) -> dict | None:
@@ -551,7 +546,7 @@ def _cmd_fit(args):
     import jax
 
     from .core._arguments import as_names
-    from .core._fit import TIME_EFFECT_BLOCKS, time_effect_names
+    from .core._fit import TIME_EFFECT_BLOCKS, of_time_said, time_effect_names
     from .core._models import make_model
     from .core._serialise import save_model
     from .physics._plugins import resolve_physics
@@ -641,10 +636,9 @@ def _cmd_fit(args):
         args.blocks = TIME_EFFECT_BLOCKS if timed else 1
         if timed:
             print(
-                f"hybrid: warning: {' and '.join(timed)} {'is a function' if len(timed) == 1 else 'are functions'}"
-                f" of time: each recording is cut into {TIME_EFFECT_BLOCKS} blocks, each split by --split, as "
-                "hybrid diagnose does, so that the held-out parts lie between training samples, not after them "
-                "where the effect extrapolates (--blocks 1: one contiguous split)",
+                f"hybrid: warning: {of_time_said(timed)}: each recording is cut into {TIME_EFFECT_BLOCKS} blocks, "
+                "each split by --split, as hybrid diagnose does, so that the held-out parts lie between training "
+                "samples, not after them where the effect extrapolates (--blocks 1: one contiguous split)",
                 file=sys.stderr,
             )
     tests = load_tests(args, recordings, model.readout.window)  # --test: refused before fitting, not after

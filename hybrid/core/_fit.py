@@ -322,6 +322,11 @@ def time_effect_names(model: Model, frozen=()) -> list[str]:
     ]
 
 
+def of_time_said(names) -> str:
+    """ "baseline_drift is a function of time", "drift and baseline_drift are functions of time"."""
+    return f"{' and '.join(names)} {'is a function' if len(names) == 1 else 'are functions'} of time"
+
+
 def effects_of_time(fitted: Model, frozen, blocks: int) -> list[str]:
     """A sentence where an effect of time is fitted with the recording in one block: its held-out parts lie after
     the training part, where the effect extrapolates, and the fit is chosen on them.
@@ -334,9 +339,9 @@ def effects_of_time(fitted: Model, frozen, blocks: int) -> list[str]:
     if blocks != 1 or not names:
         return []
     return [
-        f"{' and '.join(names)} {'is a function' if len(names) == 1 else 'are functions'} of time: with the "
-        "recording in one block its held-out parts lie after the training part, where the fit extrapolates "
-        f"{'it' if len(names) == 1 else 'them'} and is chosen on them; blocks={TIME_EFFECT_BLOCKS} "
+        f"{of_time_said(names)}: with the recording in one block its held-out parts lie after the training "
+        f"part, where the fit extrapolates {'it' if len(names) == 1 else 'them'} and is chosen on them; "
+        f"blocks={TIME_EFFECT_BLOCKS} "
         f"(hybrid fit --blocks {TIME_EFFECT_BLOCKS}) holds parts out between training samples, as hybrid "
         "diagnose does"
     ]

@@ -177,6 +177,11 @@ def unmeasured_mask(runs, n: int) -> np.ndarray:
     return mask
 
 
+def unmeasured_of(recording) -> np.ndarray:
+    """True at the samples of `recording` whose ``quality`` column (rig's) is 0: w not measured there."""
+    return unmeasured_mask(unmeasured_runs(recording.extra.get("quality")), recording.n)
+
+
 def without_unmeasured(parts, runs, name: str = "") -> tuple[tuple[str, tuple[tuple[int, int], ...]], ...]:
     """`parts` ((part, ((start, stop), ...)), ...) with the samples of `runs` ((first, last)) left out.
 
