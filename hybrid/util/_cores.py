@@ -114,14 +114,15 @@ def use_quick_compiles() -> bool:
 def use_compilation_cache(folder: str | os.PathLike[str] | None = None) -> str | None:
     """Keep compiled programs in JAX's persistent compilation cache, in `folder`: an entry point's choice.
 
-    `diagnose` compiles its search for each new length class in a process (about
-    50 s of a first call's 80 s on 2 cores), and `fit` and `diagnose` release every
-    compiled program of the process when they hold too many
-    (`hybrid.util.ProgramBudget`): a fit of a fifth new length released a script's
-    diagnose programs, and its next diagnose of a length already seen took 77 s
-    against 16–23 s. With the cache, the programs are read back instead of
-    compiled (21 s, 1.5 s of it reading), in this process and the next. Every
-    program is kept, however quick its compile (``jax_persistent_cache_min_compile_time_secs`` 0).
+    `diagnose` compiles its search for each new length class in a process (most of
+    a first call's time), and `fit` and `diagnose` release every compiled program of
+    the process when they hold too many (`hybrid.util.ProgramBudget`): in a probe's
+    script a fit of a fifth new length released the diagnose programs, and the next
+    diagnose of a length already seen compiled them all again. With the cache, the
+    programs are read back instead of compiled, in this process and the next
+    (`benchmarks/diagnose.py` measures a command line's diagnose with the cache empty
+    and warm). Every program is kept, however quick its compile
+    (``jax_persistent_cache_min_compile_time_secs`` 0).
 
     **Arguments:**
 
