@@ -452,10 +452,10 @@ def _fit_as_asked(args, model, recordings, frozen, **more):
     )
 
 
-def _held_start_hint(args, model, recordings, simulation, result, frozen) -> str | None:
+def _held_start_hint(args, model, recordings, simulation, result, frozen, stop=None) -> str | None:
     """Where a physics model fitted from its own start met a record that started settled by bending: the
     same physics held at a fitted drive first (`held_at_start`), fitted alike, and a sentence if it fits
-    the held-out splits `HELD_HINT_GAIN` times better; else None.
+    the held-out splits `HELD_HINT_GAIN` times better; else None, as where `stop` (a `FitStop`) ended that fit.
 
     The start check cannot see it: `lti:1` from rest met a thermal record that started settled at its
     first drive by a direct term and τ 3.97 s (truth 20 s; a probe): its start fits, its held-out part
@@ -473,7 +473,9 @@ def _held_start_hint(args, model, recordings, simulation, result, frozen) -> str
         return None
     n = settle_samples(len(drive))
     held_model = type(model)(held_at_start(simulation, n, recordings[0]), model.readout, model.kind)
-    held = _fit_as_asked(args, held_model, recordings, frozen, progress=False)
+    held = _fit_as_asked(args, held_model, recordings, frozen, progress=False, stop=stop)
+    if held.stopped:
+        return None
     splits = [k for k in ("validation", "test") if k in result.metrics and k in held.metrics]
     ratios = [
         result.metrics[k]["nmse"] / held.metrics[k]["nmse"] for k in splits if held.metrics[k]["nmse"] > 0
@@ -684,7 +686,25 @@ def _cmd_fit(args):
             out, result.model, extra={"metrics": result.metrics, "settings": result.settings, **scores}
         )
         print(f"saved model to {out} (+ {out}.json)")
-        # after the model is saved: a second fit, which an interrupt must not cost the first
+
+        def after_saving(doing: str, second_fit):
+            """`second_fit(stop)`, a fit after the model is saved, within what --time-limit leaves (None where
+            nothing is left); SIGINT/SIGTERM during it keep the saved model: one line, and its exit status."""
+            left = None if args.time_limit is None else args.time_limit - (time.monotonic() - began)
+            if left is not None and left <= 0:
+                return None
+            with FitStop(left) as stop:
+                found = second_fit(stop)
+            if stop.signal is not None:  # what it would have added is not written
+                print(
+                    f"hybrid: stopped by {stop.reason} while {doing}: {out} is saved"
+                    f"{', --json not written' if args.json else ''}; exit status {stop.exit_status}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                raise SystemExit(stop.exit_status)
+            return found
+
         if (
             start
             and not start["sentence"]
@@ -692,24 +712,19 @@ def _cmd_fit(args):
             and args.start_from is None
             and args.effects is None
         ):
-            held = _held_start_hint(args, model, recordings, simulation, result, frozen)
+            held = after_saving(
+                "fitting the physics held at a drive before the record",
+                lambda stop: _held_start_hint(args, model, recordings, simulation, result, frozen, stop),
+            )
             if held:
                 print(f"start: {held}")
                 start = {**start, "held_hint": held}
         peer = None
-        left = None if args.time_limit is None else args.time_limit - (time.monotonic() - began)
-        if model.kind == "hybrid" and (left is None or left > 0):  # within --time-limit, or not at all
-            with FitStop(left) as stop:
-                peer = _physics_peer_hint(args, model, recordings, result, frozen, stop)
-            if stop.signal is not None:  # the model is saved; what it would have added is not written
-                print(
-                    f"hybrid: stopped by {stop.reason} while fitting the physics alone beside the model: "
-                    f"{out} is saved{', --json not written' if args.json else ''}; exit status "
-                    f"{stop.exit_status}",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                raise SystemExit(stop.exit_status)
+        if model.kind == "hybrid":
+            peer = after_saving(
+                "fitting the physics alone beside the model",
+                lambda stop: _physics_peer_hint(args, model, recordings, result, frozen, stop),
+            )
             if peer:
                 print(f"hybrid: warning: {peer['sentence']}", file=sys.stderr)
         if args.json:

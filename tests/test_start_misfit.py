@@ -15,6 +15,9 @@ statistic itself is checked against numpy on the saved final model's free run.
 from __future__ import annotations
 
 import json
+import os
+import signal
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -213,15 +216,20 @@ def test_fit_says_it_too_for_a_physics_model(records, tmp_path, capsys):
     assert start["off"] is True and "start: " in out and "--settle N" in out
 
 
+def _slow_record(tmp_path, held: bool = True) -> Path:
+    """A slow plant (τ 20 s over 240 s, a heater's power in 0–2), started settled at its first drive or at rest."""
+    u = np.repeat(np.random.default_rng(3).uniform(0.0, 2.0, N // 15), 15)
+    noise = NOISE * np.random.default_rng(5).normal(size=N)
+    return held_lag_csv(tmp_path / "slow.csv", u, u[0] if held else 0.0, DT, 20.0, noise)
+
+
 @pytest.mark.parametrize("held", [True, False], ids=["settled", "at_rest"])
 def test_fit_points_at_a_held_start_where_the_physics_bent_to_meet_a_settled_one(tmp_path, capsys, held):
     """A slow plant (τ 20 s over 240 s, a heater's power in 0–2) whose record starts settled at its first
     drive: `lti:1` from rest meets the start by bending (τ 18 s, a direct term; its start check passes), so
     `fit` fits the held simulation too and points at --settle where that fits the held-out parts 1.5×
     better; the same record started at rest gets no such line."""
-    u = np.repeat(np.random.default_rng(3).uniform(0.0, 2.0, N // 15), 15)
-    noise = NOISE * np.random.default_rng(5).normal(size=N)
-    path = held_lag_csv(tmp_path / "slow.csv", u, u[0] if held else 0.0, DT, 20.0, noise)
+    path = _slow_record(tmp_path, held)
     argv = ["fit", path, *f"--columns input=u,output=y --rate {1 / DT} --physics lti:1".split()]
     argv += ["--model", "physics", "--quiet", "--out", tmp_path / "m.eqx", "--json", tmp_path / "f.json"]
     code = main([str(a) for a in argv])
@@ -233,6 +241,48 @@ def test_fit_points_at_a_held_start_where_the_physics_bent_to_meet_a_settled_one
         assert f"fit again with --settle {settle_samples(N)}" in out and "tau_1" in start["held_hint"]
     else:
         assert "held at a fitted drive" not in out and "held_hint" not in start
+
+
+@pytest.mark.parametrize("signal_during_it", [False, True], ids=["time_limit", "sigint"])
+def test_the_held_start_s_second_fit_keeps_the_time_limit_and_a_signal_keeps_the_saved_model(
+    tmp_path, capsys, monkeypatch, signal_during_it
+):
+    """The held simulation's fit runs after the model is saved (the test above): it gets what
+    `--time-limit` leaves (before, it was fitted with no limit at all), and a SIGINT
+    during it (sent here as it starts, in this process: no race) ends the command as the physics-alone fit's
+    does, in one line, exit 130, the saved model kept and no --json written."""
+    import hybrid.cli as cli
+
+    calls: list[dict] = []
+    fit_as_asked = cli._fit_as_asked
+
+    def watched(args, model, recordings, frozen, **more):
+        calls.append(more)
+        if len(calls) == 2 and signal_during_it:  # the second fit: the held simulation's
+            os.kill(os.getpid(), signal.SIGINT)
+        return fit_as_asked(args, model, recordings, frozen, **more)
+
+    monkeypatch.setattr(cli, "_fit_as_asked", watched)
+    path = _slow_record(tmp_path)
+    argv = ["fit", path, *f"--columns input=u,output=y --rate {1 / DT} --physics lti:1".split()]
+    argv += ["--model", "physics", "--quiet", "--out", tmp_path / "m.eqx", "--json", tmp_path / "f.json"]
+    try:
+        code = main([str(a) for a in argv + ["--time-limit", "600"]])
+    except SystemExit as stopped:  # as the `hybrid` console script ends on it
+        code = stopped.code
+    out, err = capsys.readouterr()
+    assert len(calls) == 2, (out, err)
+    stop = calls[1].get("stop")
+    assert stop is not None and 0 < stop.time_limit <= 600
+    assert (tmp_path / "m.eqx").is_file()
+    if signal_during_it:
+        assert code == 130, err
+        (line,) = err.strip().splitlines()
+        assert "stopped by SIGINT while fitting the physics held at a drive" in line and "is saved" in line
+        assert "--json not written" in line and not (tmp_path / "f.json").exists()
+    else:
+        assert code == 0, err
+        assert "fit again with --settle" in out  # the hint still comes, within the limit
 
 
 @pytest.mark.parametrize("test_record", ["moving", "at_rest"])
