@@ -179,19 +179,19 @@ def prepare_search(
         blocks_used=blocks,
         extremes_held_out=reached,
     )
-    problem, _, model, series = lanes_problem(recordings, simulation, settings, effects)
+    problem, _, model, _ = lanes_problem(recordings, simulation, settings, effects)
     return Search(
         problem=problem,
         model=model,
-        series=series,
         simulation=simulation,
         settings=settings,
         frozen=frozenset(frozen_names),
         lm=LMSettings(max_steps=settings.max_steps, patience_rtol=settings.patience_rtol),
         rate=recordings[0].rate,
         duration=recordings[0].duration,
-        n_train=sum(b - a for s in series for a, b in s.segments_of("train")),
-        n_val=sum(b - a for s in series for a, b in s.segments_of("validation")),
+        # the samples the losses count: a sample not measured (quality 0) weighs nothing, and is not one
+        n_train=sum(b - a for s in problem.series for a, b in s.recorded_segments_of("train")),
+        n_val=sum(b - a for s in problem.series for a, b in s.recorded_segments_of("validation")),
         say=say,
     )
 
@@ -307,13 +307,7 @@ def diagnose(
     search = prepare_search(recordings, simulation, settings, effects, say)
     if DIAGNOSE_PROGRAMS.admit(shape_key(search.problem, search.lm)) and progress:  # maps never run out
         print("diagnose: released the compiled programs of earlier recordings' shapes", flush=True)
-    problem, model, series, settings, frozen = (
-        search.problem,
-        search.model,
-        search.series,
-        search.settings,
-        search.frozen,
-    )
+    problem, model, settings, frozen = search.problem, search.model, search.settings, search.frozen
     effects, lm, n_train = search.effects, search.lm, search.n_train
     assert problem.sim_tangents is not None  # a search problem always has its directions
     n_rows = int(problem.sim_tangents.shape[0])
@@ -484,7 +478,6 @@ def diagnose(
     inner_names = set(fitted_stack.inner.parameters())
     unexplained = remainder(
         problem,
-        series,
         recordings,
         extended,
         heldout,

@@ -67,7 +67,6 @@ class Search:
 
     problem: Problem
     model: Model
-    series: list
     simulation: object
     settings: DiagnoseSettings
     frozen: frozenset

@@ -28,7 +28,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._level_limit import level_limits, limit_sentence
-from ..core._problem import segment_ids
 from ..core._simulation import unit_in
 from ..core._state_space import dynamics_of, own_forces
 from ._diagnosis import EquallyGoodFits, HeldoutSignals
@@ -135,10 +134,11 @@ def pooled_noise_floor(recordings) -> NoiseFloor:
     )
 
 
-def _part(problem, series, recordings, candidate, split: str) -> dict:
+def _part(problem, recordings, candidate, split: str) -> dict:
     """t, v_in, w, ŵ, a segment id and a recording index per sample, for one part of the split (all recordings)."""
     v, w, w_hat = split_signals(problem, candidate.theta, candidate.active, split)
-    # as `split_signals` cuts them: the problem's recorded segments (round any sample not measured)
+    # as `split_signals` cuts them: the problem's recorded segments (round any sample not measured), each
+    # its own segment (the held-out part's, `Diagnosis.heldout`, alike): a tracker's dropped frames cut one
     spans = [(i, a, b) for i, s in enumerate(problem.series) for a, b in s.recorded_segments_of(split)]
     t = np.concatenate([np.asarray(recordings[i].t, float)[a:b] for i, a, b in spans])
     recording = np.concatenate([np.full(b - a, i) for i, a, b in spans])
@@ -147,7 +147,7 @@ def _part(problem, series, recordings, candidate, split: str) -> dict:
         "v_in": v,
         "w": w,
         "w_hat": w_hat,
-        "segment": segment_ids(series, split),
+        "segment": np.concatenate([np.full(b - a, k) for k, (_, a, b) in enumerate(spans)]),
         "recording": recording,
     }
 
@@ -300,7 +300,6 @@ def drive_map_signals(problem, model, stack, settings) -> dict:
 
 def remainder(
     problem,
-    series,
     recordings,
     final,
     heldout: HeldoutSignals,
@@ -335,12 +334,12 @@ def remainder(
     top = floor.variance + 2.0 * (floor.std_error if np.isfinite(floor.std_error) else 0.0)
     if mse <= settings.unexplained_ratio * top:
         return None
-    train = _part(problem, series, recordings, final, "train")
+    train = _part(problem, recordings, final, "train")
     if floor.spikes and len(recordings) == 1:  # the floor's spikes and glitches, by held-out sample
         at = (
             heldout.sample
             if heldout.sample is not None
-            else np.concatenate([np.arange(a, b) for a, b in series[0].segments_of("test")])
+            else np.concatenate([np.arange(a, b) for a, b in problem.series[0].recorded_segments_of("test")])
         )
         held["spike"] = np.isin(at, floor.spikes)
     final_stack = _final_stack(problem, final)
