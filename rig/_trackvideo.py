@@ -151,16 +151,18 @@ def _untracked_warning(reasons: dict, frames: int) -> str | None:
     """A warning for the frames whose tip was not measured as the others (quality 0), by reason, or None.
 
     A probe's covered tip (15 frames, w held up to 11.9 mm off) showed only as "285 tracked"; the reasons
-    were in the sidecar alone. Repeated frames have a warning of their own.
+    were in the sidecar alone. Repeated frames have a warning of their own. It said that `hybrid fit` fitted
+    them as measured, which it does not (`quality_notes`): a probe took that as leave to drop the column,
+    and its fit of a blurred video took the smeared frames as data.
     """
     counted = {reason: n for reason, n in reasons.items() if reason != REPEAT_REASON}
     if not counted:
         return None
     listed = "; ".join(f"{reason}: {n}" for reason, n in sorted(counted.items(), key=lambda kv: -kv[1]))
     return (
-        f"{sum(counted.values())} of {frames} frames have quality 0 ({listed}): their w is held at the last "
-        "tracked value (a blurred tip's is measured, less surely); hybrid diagnose leaves them out of its fits "
-        "and scores, hybrid fit fits them as measured"
+        f"{sum(counted.values())} of {frames} frames have quality 0 ({listed}): w there is held at the last "
+        "tracked value, or measured less surely where the reason says so; keep the quality column beside w: "
+        "hybrid fit and hybrid diagnose leave those samples out of their fits and scores"
     )
 
 

@@ -242,6 +242,10 @@ def test_a_tip_smeared_by_motion_is_measured_with_quality_0(tmp_path, capsys):
     # said at the terminal too, not in the sidecar alone (a probe's covered tip showed only as "285 tracked")
     err = capsys.readouterr().err
     assert "1 of 7 frames have quality 0 (tip blurred by motion (w measured, less sure): 1)" in err, err
+    # and what the fits do with them, as they do it (`quality_notes`): it said hybrid fit fitted them as measured
+    assert (
+        "keep the quality column" in err and "hybrid fit and hybrid diagnose leave those samples out" in err
+    )
 
 
 def test_a_cut_mp4_fails_in_one_line_without_ffmpegs_own(tmp_path):
