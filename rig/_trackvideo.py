@@ -188,10 +188,10 @@ def _find_axis(job: TrackJob, window) -> tuple[AxisEstimate, bool]:
 
 
 def _find_or_check_axis(
-    job: TrackJob, video: VideoSource, head: list
+    job: TrackJob, video: VideoSource, head: list, said: list[str]
 ) -> tuple[AxisEstimate, float | None, tuple[float, float], bool]:
     """The axis estimate, the axis (None: no strip) and clamp point to track with, and whether the strip
-    is tracked in negative.
+    is tracked in negative; a warning about a given axis is added to `said`.
 
     The axis comes from the first `HEAD_FRAMES` frames (`head`, read here); where
     no strip is found in them (something passing over it at the start), from the
@@ -220,11 +220,15 @@ def _find_or_check_axis(
         print(
             f"no strip in the first {start} frames (covered?): the axis comes from frames {start}-{len(head) - 1}"
         )
-    axis, clamp = _axis_and_clamp(job, estimate)
+    axis, clamp = _axis_and_clamp(job, estimate, said)
     return estimate, axis, clamp, bright
 
 
-def _axis_and_clamp(job: TrackJob, estimate: AxisEstimate) -> tuple[float | None, tuple[float, float]]:
+def _axis_and_clamp(
+    job: TrackJob, estimate: AxisEstimate, said: list[str]
+) -> tuple[float | None, tuple[float, float]]:
+    """The axis and the clamp point to track from; a given axis the strip does not leave along is warned of
+    at once and added to `said` (the sidecar's ``warnings``: a script reading the sidecar alone sees it too)."""
     if job.axis_deg is None:
         print(f"rest axis: {estimate.describe()}")
         return estimate.angle_deg, estimate.clamp_xy or (job.clamp[0], job.clamp[1])
@@ -236,16 +240,18 @@ def _axis_and_clamp(job: TrackJob, estimate: AxisEstimate) -> tuple[float | None
                 if off < 30
                 else ""
             )
-            _warn(
+            said.append(
                 f"--axis {job.axis_deg:g} deg given, but the strip leaves the clamp at "
                 f"{estimate.angle_deg:.2f} deg ({off:.1f} deg off{tip}); leave --axis out to use the detected axis"
             )
+            _warn(said[-1])
         elif abs(estimate.offset_px) > CLAMP_WARN_PX:
-            _warn(
+            said.append(
                 f"the strip leaves the clamp {estimate.offset_px:+.1f} px across the axis from --clamp: w is "
                 f"offset by about {estimate.offset_px * job.mm_per_px:+.2f} mm; leave --axis out to measure "
                 "from the strip's own rest line"
             )
+            _warn(said[-1])
     return job.axis_deg, (job.clamp[0], job.clamp[1])
 
 
@@ -434,7 +440,8 @@ def track_video(job: TrackJob) -> dict:
     }
     with VideoSource(job.video) as video:
         head: list[Frame] = []
-        estimate, angle, clamp, bright = _find_or_check_axis(job, video, head)
+        said: list[str] = []  # the warnings, said as they come and kept in the sidecar
+        estimate, angle, clamp, bright = _find_or_check_axis(job, video, head, said)
         meta["axis"] = {
             "angle_deg": angle,
             "given": job.axis_deg is not None,
@@ -463,9 +470,22 @@ def track_video(job: TrackJob) -> dict:
         account = _account(video, t, quality)
     meta["video_integrity"] = account
     meta["complete"] = account["complete"]
-    length_warning = _length_warning(job, tips, clamp)
-    if length_warning is not None:
-        meta["warnings"] = [length_warning]
+    # what is said once the file is written, kept in the sidecar with what was said before
+    maybe = [
+        _length_warning(job, tips, clamp),
+        _untracked_warning(meta["untracked_reasons"], len(t)),
+        _gap_warning(job, account["gaps"]) if account["gaps"] else None,
+        _repeat_warning(job, meta["repeated_frames"], t) if meta["repeated_frames"] else None,
+        (
+            f"{account['timestamp_faults']} frames of {job.video} had no increasing decoder timestamp: "
+            "they were stamped one frame period after the previous frame"
+        )
+        if account["timestamp_faults"]
+        else None,
+    ]
+    later = [message for message in maybe if message is not None]
+    if said or later:
+        meta["warnings"] = said + later
     good = int(np.sum(quality))
     problems = []
     if angle is None:
@@ -518,18 +538,6 @@ def track_video(job: TrackJob) -> dict:
             else (", sync LED not seen" if sync else "")
         )
     )
-    if length_warning is not None:
-        _warn(length_warning)
-    untracked = _untracked_warning(meta["untracked_reasons"], len(t))
-    if untracked is not None:
-        _warn(untracked)
-    if account["gaps"]:
-        _warn(_gap_warning(job, account["gaps"]))
-    if meta["repeated_frames"]:
-        _warn(_repeat_warning(job, meta["repeated_frames"], t))
-    if account["timestamp_faults"]:
-        _warn(
-            f"{account['timestamp_faults']} frames of {job.video} had no increasing decoder timestamp: "
-            "they were stamped one frame period after the previous frame"
-        )
+    for message in later:
+        _warn(message)
     return meta

@@ -185,3 +185,6 @@ def test_a_wrong_axis_is_not_tracked_silently(tmp_path, capsys):
     assert err[0].startswith("rig: warning: --axis 0 deg given, but the strip leaves the clamp at 90.0")
     assert err[1].startswith("rig: error: the strip was not found along the axis 0 deg") and len(err) == 2
     assert all(r["quality"] == "0" for r in csv.DictReader(out.with_name("w.partial.csv").open()))
+    # and in the sidecar, where a script that reads it alone looks (a probe's 4° off axis was on stderr only)
+    warnings = json.loads(out.with_name("w.partial.csv.json").read_text())["warnings"]
+    assert warnings[0].startswith("--axis 0 deg given, but the strip leaves the clamp")
