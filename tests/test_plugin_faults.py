@@ -161,6 +161,37 @@ class NarrowRates(AbstractStateSpace):
         return (((u - x[0]) / p["tau"]).astype(jnp.float32),)
 
 
+class Lag(AbstractStateSpace):
+    """A lag in state-space form (simulate follows from rates and observe)."""
+    raw: dict
+    constraints: ClassVar[dict] = {"tau": Positive()}
+    units: ClassVar[dict] = {"tau": "s"}
+    states: ClassVar[tuple] = ("x",)
+
+    def __init__(self, tau=1.0):
+        self.raw = encode({"tau": tau}, self.constraints, type(self).__name__)
+
+    def rates(self, x, u, p):
+        return ((u - x[0]) / p["tau"],)
+
+
+class ExtraRate(Lag):  # a rate more than its states (a probe's pendulum: the line was cut in a repr)
+    def rates(self, x, u, p):
+        return ((u - x[0]) / p["tau"], 0.0 * u)
+
+
+class PairObserved(Lag):  # an output of two values (a probe's: the line blamed simulate, never written)
+    def observe(self, x, p):
+        return jnp.stack([x[0], 2.0 * x[0]])
+
+
+class PythonIf(Lag):  # a Python if on a state: traced in simulate's scan even when called eagerly
+    def rates(self, x, u, p):
+        if x[0] > 1.0:
+            return (-x[0] / p["tau"],)
+        return ((u - x[0]) / p["tau"],)
+
+
 class Narrow32(AbstractEffect):
     """An output effect whose apply rounds to float32."""
     raw: dict
@@ -227,6 +258,9 @@ CASES = {
         "the constraint for tau is 'positive', not a constraint",
         "write Positive(), UnitInterval()",
     ),
+    "ExtraRate": ("ExtraRate.rates must return a tuple of 1 rate(s), one per state ('x',), got 2",),
+    "PairObserved": ("PairObserved.observe must return the output at a state, one value", "got shape (2,)"),
+    "PythonIf": ("PythonIf.rates raised TracerBoolConversionError", "must be traceable", "jnp.where"),
     "LateRaise": ("_late.<locals>.Late.simulate raised ValueError: the table covers 100 samples",),
     "LateNaN": (
         "the simulation LateNaN returns non-finite values (NaN or inf) at 100 of 200 samples",

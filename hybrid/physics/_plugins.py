@@ -497,6 +497,12 @@ def _check_result(out, n: int) -> str | None:
     return None
 
 
+#: What a plug-in that JAX could not trace is told.
+TRACEABLE = (
+    "its methods must be traceable (no float(), int() or Python if on values: use jnp.where, lax.cond)"
+)
+
+
 def probe_simulation(
     simulation: AbstractSimulation, recordings=None, label: str | None = None, rate: float | None = None
 ) -> None:
@@ -511,6 +517,7 @@ def probe_simulation(
     **Raises:** `PluginError` naming `label` (default: the class), the method and what was wrong.
     """
     import equinox as eqx
+    import jax
     import jax.numpy as jnp
 
     cls = type(simulation).__name__
@@ -536,8 +543,15 @@ def probe_simulation(
     except PluginError:
         raise
     except BaseException as error:
+        # a state-space plug-in's simulate is a scan: traced even when called eagerly (a Python if on a state)
+        untraceable = (
+            jax.errors.ConcretizationTypeError,  # TracerBoolConversionError's too
+            jax.errors.TracerIntegerConversionError,
+            jax.errors.TracerArrayConversionError,
+        )
+        fix = TRACEABLE if isinstance(error, untraceable) else "fix the plug-in"
         raise PluginError(
-            f"{label}: {_failed_in(error, cls, 'on ' + drive)}; fix the plug-in ({TRACEBACK_HINT})", error
+            f"{label}: {_failed_in(error, cls, 'on ' + drive)}; {fix} ({TRACEBACK_HINT})", error
         ) from None
     if problem is not None:
         raise PluginError(f"{label}: {cls}.simulate(v_in, dt) {problem}")
@@ -547,9 +561,7 @@ def probe_simulation(
         raise
     except BaseException as error:
         raise PluginError(
-            f"{label}: {_failed_in(error, cls, 'under jax.jit; it runs eagerly')}: simulate must be "
-            "traceable (no float(), int() or Python if on values: use jnp.where, lax.cond) "
-            f"({TRACEBACK_HINT})",
+            f"{label}: {_failed_in(error, cls, 'under jax.jit; it runs eagerly')}: {TRACEABLE} ({TRACEBACK_HINT})",
             error,
         ) from None
     problem = _check_result(traced, n)
@@ -577,16 +589,25 @@ def _probe_linear(simulation, label: str) -> None:
     def rates(x, u) -> np.ndarray:
         got = simulation.rates(tuple(jnp.asarray(v, float) for v in x), jnp.asarray(u, float), p)
         if not isinstance(got, (tuple, list)) or len(got) != k:
+            said = f"{len(got)}" if isinstance(got, (tuple, list)) else f"a {type(got).__name__}"
             raise PluginError(
                 f"{label}: {cls}.rates must return a tuple of {k} rate(s), one per state "
-                f"{simulation.states}, got {type(got).__name__} {got!r:.60}"
+                f"{simulation.states}, got {said}"
             )
         return np.asarray([float(np.asarray(g)) for g in got])
 
     doing = "calling prepare, initial_state and rates at the default parameters"
     try:
         p = simulation.prepare(simulation.parameters())
-        rates(simulation.initial_state(jnp.asarray(0.0), p), 0.0)  # its shape, at the initial state
+        x0 = simulation.initial_state(jnp.asarray(0.0), p)
+        rates(x0, 0.0)  # its shape, at the initial state
+        doing = "calling observe at the initial state"
+        shape = np.shape(simulation.observe(x0, p))
+        if shape != ():  # simulate, made of it, would blame itself for a shape the author never wrote
+            raise PluginError(
+                f"{label}: {cls}.observe must return the output at a state, one value (shape ()), got shape "
+                f"{shape}: return one quantity, e.g. x[0], or a combination of the states"
+            )
         doing = "calling linear_matrices"
         linear = simulation.linear_matrices(p)
         if linear is None:
