@@ -96,3 +96,30 @@ def test_a_parameter_the_prediction_does_not_depend_on_is_said_to_sit_at_its_sta
     assert "--freeze spare" in said and "never uses" in said
     assert not [w for w in result.warnings if "does not pin" in w]
     assert not [w for w in result.warnings if "did not move" in w]  # said once, not twice (a verifier's)
+
+
+class _Leaky(HeatedBlock):
+    """The block with a share of the drive that leaks straight to the output, ``leak`` in [0, 1]."""
+
+    constraints: ClassVar[dict] = {**HeatedBlock.constraints, "leak": hy.UnitInterval()}
+    units: ClassVar[dict] = {**HeatedBlock.units, "leak": "K/{drive}"}
+    typical: ClassVar[dict] = {**HeatedBlock.typical, "leak": (0.0, 1.0)}
+
+    def __init__(self, R=1.0, C=3.0, k=1.0, leak=0.3):
+        self.raw = hy.encode({"R": R, "C": C, "k": k, "leak": leak}, self.constraints, "_Leaky")
+
+    def simulate(self, v_in, dt):
+        return super().simulate(v_in, dt) + self.parameters()["leak"] * jnp.asarray(v_in)
+
+
+def test_a_parameter_pushed_to_its_bound_is_said_to_sit_there_not_to_be_idle(block):
+    """The block has no leak (its true value 0, the range's lower bound): the fit pushes ``leak`` onto 0,
+    where its raw value's map is flat and the Jacobian's column vanishes, though the prediction depends on
+    it with a slope of the drive. A probe's refit of a diagnosis's frame lag at 0 samples read "the
+    prediction does not depend on frame_lag"."""
+    model = hy.make_model("physics", simulation=_Leaky())
+    result = hy.fit(model, block, frozen={"R", "k"}, progress=False)
+    assert result.parameters["leak"] < 1e-3 and result.parameters["C"] == pytest.approx(TAU, rel=0.02)
+    (said,) = [w for w in result.warnings if "leak" in w]
+    assert said.startswith("leak sits at its lower bound (0 K/V)"), said
+    assert "--freeze leak" in said and "does not depend on" not in said

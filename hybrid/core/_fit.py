@@ -35,11 +35,12 @@ from ._level_limit import level_limits, limit_sentence
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
+from ._parameters import bound_reached
 from ._problem import Problem, Series, robust_rms, robust_std, segment_ids, series_from_recording
 from ._readout import WindowedMLP
 from ._result import FitResult, drive_outside_range, fit_warnings, one_frequency_drive, user_simulation
 from ._screen import screened_starts
-from ._simulation import unit_in
+from ._simulation import unit_in, unit_suffix
 from ._solvers import (
     SOLVERS as SOLVERS,
     AbstractSolver,
@@ -249,7 +250,9 @@ def fit(
     )
     result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
     unpinned, idle = (
-        unpinned_warnings(curvature[best_start], initial[best_start], frozen)
+        unpinned_warnings(
+            curvature[best_start], initial[best_start], frozen, fitted, unit_labels(fitted, recordings)
+        )
         if curvature is not None
         else ([], [])
     )
@@ -622,9 +625,17 @@ NULL_RATIO = 1e-13
 NULL_COEFFICIENT = 0.05
 
 
-def unpinned_warnings(JtJ, model: Model, frozen) -> tuple[list[str], list[str]]:
+def unpinned_warnings(
+    JtJ, model: Model, frozen, fitted: Model | None = None, units: dict | None = None
+) -> tuple[list[str], list[str]]:
     """(a sentence on the null directions of a physics fit's JᵀJ, its curvature at the end, or none; the
     parameters the prediction does not depend on at all, whose "did not move" the sentence replaces).
+
+    A parameter alone in its null direction that sits at a bound of its two-sided range in `fitted` (its
+    values; default `model`'s; `units`: its parameters' units, as reported) is said to sit there: its raw
+    value's map is flat at the bound, so its
+    column of J vanishes however much the prediction depends on it (a diagnosis's frame lag at 0 samples,
+    refitted: a probe read "the prediction does not depend on frame_lag").
 
     Parameters that enter the simulation only as a product or a ratio (a heated
     block's R and C through R·C, k and the readout's gain through k·R·gain) are
@@ -660,19 +671,9 @@ def unpinned_warnings(JtJ, model: Model, frozen) -> tuple[list[str], list[str]]:
         basis = basis @ np.linalg.svd(basis[i : i + 1], full_matrices=True)[2][1:].T  # those with θ_i fixed
     d = null.shape[1]
     if len(moving) == d:  # each direction one parameter's own: the prediction does not depend on them
-        listed = ", ".join(moving)
-        return [
-            f"the prediction does not depend on {listed} on this recording (the fit's Jacobian is zero "
-            f"along {'it' if d == 1 else 'them'}), so {'its value is' if d == 1 else 'their values are'} "
-            "where the fit started, not fitted: a drive that reaches what "
-            f"{'it acts on' if d == 1 else 'they act on'} pins {'it' if d == 1 else 'them'} (if the code "
-            f"reads {'it' if d == 1 else 'them'} at all: a plug-in's parameter it never uses reads so too); "
-            "else freeze "
-            + ("it" if d == 1 else "them")
-            + " (hybrid fit "
-            + " ".join(f"--freeze {n}" for n in moving)
-            + ")"
-        ], moving
+        held = _at_bounds(fitted or model, moving, units)
+        free = [n for n in moving if n not in held]
+        return list(held.values()) + _independent_of(free, len(free)), moving
     listed = ", ".join(moving[:-1]) + f" and {moving[-1]}"
     return [
         f"the recording does not pin {listed} apart: {'a combination' if d == 1 else f'{d} combinations'} of "
@@ -682,6 +683,43 @@ def unpinned_warnings(JtJ, model: Model, frozen) -> tuple[list[str], list[str]]:
         "(e.g. hybrid fit " + " ".join(f"--freeze {n}" for n in to_freeze) + "; fit(..., frozen=...)) or see "
         "hybrid sensitivity, which names what is pinned"
     ], []
+
+
+def _at_bounds(model: Model, names: list[str], units: dict | None = None) -> dict[str, str]:
+    """A sentence for each of `names` whose value in `model` sits at a bound of its two-sided range."""
+    values = model.parameters()
+    constraints = {**getattr(model.readout, "constraints", {}), **model.simulation.constraints}
+    units = units if units is not None else dict(model.units)
+    out = {}
+    for name in names:
+        reached = bound_reached(float(values.get(name, float("nan"))), constraints.get(name))
+        if reached is not None:
+            word, bound = reached
+            out[name] = (
+                f"{name} sits at its {word} bound ({bound:g}{unit_suffix(units.get(name))}), where the fit's "
+                "Jacobian along it vanishes: the fit pushed it there, so the bound, not the recording, sets "
+                f"its value (hybrid fit --freeze {name} keeps it there)"
+            )
+    return out
+
+
+def _independent_of(moving: list[str], d: int) -> list[str]:
+    """The sentence for `moving`, parameters the prediction does not depend on (none: no sentence)."""
+    if not moving:
+        return []
+    listed = ", ".join(moving)
+    return [
+        f"the prediction does not depend on {listed} on this recording (the fit's Jacobian is zero "
+        f"along {'it' if d == 1 else 'them'}), so {'its value is' if d == 1 else 'their values are'} "
+        "where the fit started, not fitted: a drive that reaches what "
+        f"{'it acts on' if d == 1 else 'they act on'} pins {'it' if d == 1 else 'them'} (if the code "
+        f"reads {'it' if d == 1 else 'them'} at all: a plug-in's parameter it never uses reads so too); "
+        "else freeze "
+        + ("it" if d == 1 else "them")
+        + " (hybrid fit "
+        + " ".join(f"--freeze {n}" for n in moving)
+        + ")"
+    ]
 
 
 def clipped_warnings(problem: Problem, theta, split_order, scale: float, unit: str) -> list[str]:
