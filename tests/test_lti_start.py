@@ -63,6 +63,32 @@ def test_the_start_is_centred_and_given_values_win():
         hybrid.resolve_physics("lti:2", {"v_in": u})
 
 
+def test_w_where_it_was_not_measured_does_not_move_the_start():
+    """Samples of quality 0 (a tracker's held frames): the fits leave them out, and the start the fits begin
+    from reads them off a line between their measured neighbours. A verifier set them to -50 (w ~ ±1): the
+    fitted lti:2 moved, through its start alone; here the start read 6.4 Hz for 0.7."""
+    rate, f0 = 30.0, 0.7
+    w0 = 2 * math.pi * f0
+    u, y = record([w0**2], [1.0, 0.2 * w0, w0**2], rate, n=3000)
+    quality = np.ones(len(u))
+    for a in range(100, 2900, 150):  # a run of 6 held frames every 5 s
+        quality[a : a + 6] = 0.0
+    held, wild = y.copy(), y.copy()
+    for a in range(100, 2900, 150):
+        held[a : a + 6] = y[a - 1]
+        wild[a : a + 6] = -50.0
+    t = np.arange(len(u)) / rate
+    starts = [
+        lti_for_recordings(2, [hybrid.Recording(t=t, v_in=u, w=w, extra={"quality": quality})]).parameters()
+        for w in (held, wild)
+    ]
+    assert {k: float(v) for k, v in starts[0].items()} == {k: float(v) for k, v in starts[1].items()}
+    assert float(starts[0]["f_1"]) == pytest.approx(f0, rel=0.15)
+    # without the column every sample counts: the wild values move it
+    bare = lti_for_recordings(2, [hybrid.Recording(t=t, v_in=u, w=wild)]).parameters()
+    assert float(bare["f_1"]) != float(starts[1]["f_1"])
+
+
 @pytest.mark.parametrize("rate, f0", [(100_000.0, 800.0), (0.25, 0.01)])
 def test_the_cli_fits_lti_2_at_any_rate(rate, f0, tmp_path, capsys):
     w0 = 2 * math.pi * f0
