@@ -799,3 +799,14 @@ def test_hybrid_fit_starts_a_line_at_the_residuals_strongest_line(tmp_path):
     assert size == pytest.approx(amplitude, rel=0.05)
     assert np.arctan2(-p["line_sin"], p["line_cos"]) == pytest.approx(0.7 - np.pi / 2, abs=0.05)
     assert not [w for w in fitted["warnings"] if "too small" in w]
+
+
+def test_a_unit_template_that_brackets_its_placeholder_is_not_bracketed_twice():
+    """A probe's drag effect wrote ``{drive}/({signal})^2`` and read ``V/((rad/s))^2``: the library brackets
+    a compound unit itself (``1/{signal}`` reads ``1/(rad/s)``), so a template's own brackets take it as is."""
+    from hybrid.core._simulation import substitute_unit
+
+    assert substitute_unit("{drive}/({signal})^2", "{signal}", "rad/s") == "{drive}/(rad/s)^2"
+    assert substitute_unit("{drive}/({signal})^2", "{signal}", "rad") == "{drive}/rad^2"
+    assert substitute_unit("1/{signal}", "{signal}", "rad/s") == "1/(rad/s)"
+    assert substitute_unit("{signal}", "{signal}", "rad/s") == "rad/s"

@@ -246,10 +246,14 @@ def as_factor(unit: str) -> str:
 
 
 def substitute_unit(template: str, placeholder: str, unit: str) -> str:
-    """`template` with `placeholder` replaced by `unit`, as a factor (`as_factor`) unless it stands alone."""
+    """`template` with `placeholder` replaced by `unit`, as a factor (`as_factor`) unless it stands alone.
+
+    A placeholder the template already brackets takes the unit as it comes: ``{drive}/({signal})^2`` reads
+    ``V/(rad/s)^2``, not ``V/((rad/s))^2`` (a probe's effect plug-in).
+    """
     if template == placeholder:
         return unit
-    return template.replace(placeholder, as_factor(unit))
+    return template.replace(f"({placeholder})", as_factor(unit)).replace(placeholder, as_factor(unit))
 
 
 def unit_in(unit: str, drive_unit: str = "V") -> str:
