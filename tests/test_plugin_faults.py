@@ -147,20 +147,6 @@ class Narrow(Good):
         return (jnp.asarray(v_in) * self.parameters()["tau"]).astype(jnp.float32)
 
 
-class NarrowRates(AbstractStateSpace):
-    """A lag in state-space form whose rates round to float32."""
-    raw: dict
-    constraints: ClassVar[dict] = {"tau": Positive()}
-    units: ClassVar[dict] = {"tau": "s"}
-    states: ClassVar[tuple] = ("x",)
-
-    def __init__(self, tau=1.0):
-        self.raw = encode({"tau": tau}, self.constraints, type(self).__name__)
-
-    def rates(self, x, u, p):
-        return (((u - x[0]) / p["tau"]).astype(jnp.float32),)
-
-
 class Lag(AbstractStateSpace):
     """A lag in state-space form (simulate follows from rates and observe)."""
     raw: dict
@@ -173,6 +159,12 @@ class Lag(AbstractStateSpace):
 
     def rates(self, x, u, p):
         return ((u - x[0]) / p["tau"],)
+
+
+class NarrowRates(Lag):
+    """The lag whose rates round to float32."""
+    def rates(self, x, u, p):
+        return (((u - x[0]) / p["tau"]).astype(jnp.float32),)
 
 
 class ExtraRate(Lag):  # a rate more than its states (a probe's pendulum: the line was cut in a repr)
