@@ -633,9 +633,9 @@ def unpinned_warnings(
 
     A parameter alone in its null direction that sits at a bound of its two-sided range in `fitted` (its
     values; default `model`'s; `units`: its parameters' units, as reported) is said to sit there: its raw
-    value's map is flat at the bound, so its
-    column of J vanishes however much the prediction depends on it (a diagnosis's frame lag at 0 samples,
-    refitted: a probe read "the prediction does not depend on frame_lag").
+    value's map is flat at the bound, so its column of J vanishes however much the prediction depends on it
+    (a diagnosis's frame lag at 0 samples, refitted: a probe read "the prediction does not depend on
+    frame_lag").
 
     Parameters that enter the simulation only as a product or a ratio (a heated
     block's R and C through R·C, k and the readout's gain through k·R·gain) are
