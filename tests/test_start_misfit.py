@@ -243,14 +243,15 @@ def test_fit_points_at_a_held_start_where_the_physics_bent_to_meet_a_settled_one
         assert "held at a fitted drive" not in out and "held_hint" not in start
 
 
-@pytest.mark.parametrize("signal_during_it", [False, True], ids=["time_limit", "sigint"])
+@pytest.mark.parametrize("stopped_by", [None, "sigint", "time_limit"])
 def test_the_held_start_s_second_fit_keeps_the_time_limit_and_a_signal_keeps_the_saved_model(
-    tmp_path, capsys, monkeypatch, signal_during_it
+    tmp_path, capsys, monkeypatch, stopped_by
 ):
     """The held simulation's fit runs after the model is saved (the test above): it gets what
     `--time-limit` leaves (before, it was fitted with no limit at all), and a SIGINT
     during it (sent here as it starts, in this process: no race) ends the command as the physics-alone fit's
-    does, in one line, exit 130, the saved model kept and no --json written."""
+    does, in one line, exit 130, the saved model kept and no --json written. A limit that runs out in it
+    (set here as it starts) leaves the model and the --json, and says the check was not done."""
     import hybrid.cli as cli
 
     calls: list[dict] = []
@@ -258,8 +259,10 @@ def test_the_held_start_s_second_fit_keeps_the_time_limit_and_a_signal_keeps_the
 
     def watched(args, model, recordings, frozen, **more):
         calls.append(more)
-        if len(calls) == 2 and signal_during_it:  # the second fit: the held simulation's
+        if len(calls) == 2 and stopped_by == "sigint":  # the second fit: the held simulation's
             os.kill(os.getpid(), signal.SIGINT)
+        if len(calls) == 2 and stopped_by == "time_limit":
+            more["stop"].timed_out = True  # as the deadline would at its next look
         return fit_as_asked(args, model, recordings, frozen, **more)
 
     monkeypatch.setattr(cli, "_fit_as_asked", watched)
@@ -275,11 +278,17 @@ def test_the_held_start_s_second_fit_keeps_the_time_limit_and_a_signal_keeps_the
     stop = calls[1].get("stop")
     assert stop is not None and 0 < stop.time_limit <= 600
     assert (tmp_path / "m.eqx").is_file()
-    if signal_during_it:
+    if stopped_by == "sigint":
         assert code == 130, err
         (line,) = err.strip().splitlines()
         assert "stopped by SIGINT while fitting the physics held at a drive" in line and "is saved" in line
         assert "--json not written" in line and not (tmp_path / "f.json").exists()
+    elif stopped_by == "time_limit":
+        assert code == 0, err
+        (line,) = err.strip().splitlines()
+        assert line.startswith("hybrid: warning: --time-limit 600 s ran out while fitting the physics held")
+        assert "not checked" in line and "fit again with --settle" not in out
+        assert "held_hint" not in json.loads((tmp_path / "f.json").read_text())["start"]
     else:
         assert code == 0, err
         assert "fit again with --settle" in out  # the hint still comes, within the limit
