@@ -692,14 +692,20 @@ def _cmd_fit(args):
             nothing is left, said in a warning); SIGINT/SIGTERM during it keep the saved model: one line, and
             its exit status."""
             left = None if args.time_limit is None else args.time_limit - (time.monotonic() - began)
-            ran_out = f"hybrid: warning: --time-limit {args.time_limit:g} s ran out {{}} {doing}: not checked"
+
+            def ran_out(when: str) -> None:
+                print(
+                    f"hybrid: warning: --time-limit {args.time_limit:g} s ran out {when} {doing}: not checked",
+                    file=sys.stderr,
+                )
+
             if left is not None and left <= 0:
-                print(ran_out.format("before"), file=sys.stderr)
+                ran_out("before")
                 return None
             with FitStop(left) as stop:
                 found = second_fit(stop)
-            if stop.signal is None and stop.timed_out:
-                print(ran_out.format("while"), file=sys.stderr)
+            if stop.signal is None and stop.timed_out:  # (a deadline: only with --time-limit)
+                ran_out("while")
             if stop.signal is not None:  # what it would have added is not written
                 print(
                     f"hybrid: stopped by {stop.reason} while {doing}: {out} is saved"
