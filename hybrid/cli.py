@@ -686,36 +686,6 @@ def _cmd_fit(args):
             out, result.model, extra={"metrics": result.metrics, "settings": result.settings, **scores}
         )
         print(f"saved model to {out} (+ {out}.json)")
-
-        def after_saving(doing: str, second_fit):
-            """`second_fit(stop)`, a fit after the model is saved, within what --time-limit leaves (None where
-            nothing is left, said in a warning); SIGINT/SIGTERM during it keep the saved model: one line, and
-            its exit status."""
-            left = None if args.time_limit is None else args.time_limit - (time.monotonic() - began)
-
-            def ran_out(when: str) -> None:
-                print(
-                    f"hybrid: warning: --time-limit {args.time_limit:g} s ran out {when} {doing}: not checked",
-                    file=sys.stderr,
-                )
-
-            if left is not None and left <= 0:
-                ran_out("before")
-                return None
-            with FitStop(left) as stop:
-                found = second_fit(stop)
-            if stop.signal is None and stop.timed_out:  # (a deadline: only with --time-limit)
-                ran_out("while")
-            if stop.signal is not None:  # what it would have added is not written
-                print(
-                    f"hybrid: stopped by {stop.reason} while {doing}: {out} is saved"
-                    f"{', --json not written' if args.json else ''}; exit status {stop.exit_status}",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                raise SystemExit(stop.exit_status)
-            return found
-
         if (
             start
             and not start["sentence"]
@@ -723,7 +693,10 @@ def _cmd_fit(args):
             and args.start_from is None
             and args.effects is None
         ):
-            held = after_saving(
+            held = _after_saving(
+                args,
+                out,
+                began,
                 "fitting the physics held at a drive before the record",
                 lambda stop: _held_start_hint(args, model, recordings, simulation, result, frozen, stop),
             )
@@ -732,7 +705,10 @@ def _cmd_fit(args):
                 start = {**start, "held_hint": held}
         peer = None
         if model.kind == "hybrid":
-            peer = after_saving(
+            peer = _after_saving(
+                args,
+                out,
+                began,
                 "fitting the physics alone beside the model",
                 lambda stop: _physics_peer_hint(args, model, recordings, result, frozen, stop),
             )
@@ -741,6 +717,32 @@ def _cmd_fit(args):
         if args.json:
             more = {**({"start": start} if start else {}), **({"physics_alone": peer} if peer else {})}
             write_text(args.json, json.dumps({**result.to_dict(), **scores, **more}, indent=2) + "\n")
+
+
+def _after_saving(args, out, began: float, doing: str, second_fit):
+    """`second_fit(stop)`, a fit `hybrid fit` runs after saving `out`, within what --time-limit leaves of the
+    time since `began` (None where nothing is left, said in a warning); SIGINT/SIGTERM during it keep the
+    saved model: one line, and its exit status."""
+    left = None if args.time_limit is None else args.time_limit - (time.monotonic() - began)
+    if left is None or left > 0:
+        with FitStop(left) as stop:
+            found = second_fit(stop)
+        if stop.signal is not None:  # what it would have added is not written
+            print(
+                f"hybrid: stopped by {stop.reason} while {doing}: {out} is saved"
+                f"{', --json not written' if args.json else ''}; exit status {stop.exit_status}",
+                file=sys.stderr,
+                flush=True,
+            )
+            raise SystemExit(stop.exit_status)
+        if not stop.timed_out:
+            return found
+    when = "before" if left is not None and left <= 0 else "while"  # a deadline: only with --time-limit
+    print(
+        f"hybrid: warning: --time-limit {args.time_limit:g} s ran out {when} {doing}: not checked",
+        file=sys.stderr,
+    )
+    return None
 
 
 def _check_saved_effects(args, model, simulation) -> None:

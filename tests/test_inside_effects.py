@@ -630,7 +630,7 @@ def test_a_start_that_makes_the_dynamics_escape_is_pulled_towards_the_effects_de
     y = np.asarray(hybrid.LTI(2).simulate(jnp.asarray(u), 0.1))
     recording = hybrid.Recording.from_arrays(v_in=u, w=y + 0.01 * rng.normal(size=y.size), rate=10.0)
     settings = hybrid.DiagnoseSettings()
-    problem, _, model, _ = lanes_problem([recording], hybrid.LTI(2), settings, effects=["stiffness"])
+    problem, _, model = lanes_problem([recording], hybrid.LTI(2), settings, effects=["stiffness"])
     stack, frozen = model.simulation, frozenset(settings.frozen_for(hybrid.LTI(2)))
     i = [e.name for e in stack.effects].index("stiffness")
     active = np.zeros(len(stack.effects))

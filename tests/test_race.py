@@ -176,7 +176,7 @@ def test_a_third_step_lane_refits_every_named_effect_where_the_shared_problem_ha
     simulation = hy.LTI(1)
     settings = DiagnoseSettings()
     effects = ("saturation", "drift", "hysteresis", "resonance")
-    problem, n_rows, model, _ = lanes_problem([recording], simulation, settings, effects)
+    problem, n_rows, model = lanes_problem([recording], simulation, settings, effects)
     frozen = frozenset(settings.frozen_for(simulation))
     search = SimpleNamespace(problem=problem, model=model, frozen=frozen)
     search.has_room = lambda effects: _step.Search.has_room(search, effects)  # the search's own test

@@ -35,7 +35,7 @@ from ._level_limit import level_limits, limit_sentence
 from ._levenberg_marquardt import LMSettings, lm_init, lm_run
 from ._metrics import metrics as compute_metrics
 from ._models import Model
-from ._parameters import bound_reached
+from ._parameters import at_bound_said
 from ._problem import Problem, Series, robust_rms, robust_std, segment_ids, series_from_recording
 from ._readout import WindowedMLP
 from ._result import FitResult, drive_outside_range, fit_warnings, one_frequency_drive, user_simulation
@@ -249,12 +249,9 @@ def fit(
         recording_units(recordings) or given.signal_units,  # its parameters' units are those of the data
     )
     result_metrics = _metrics_by_split(problem, best[best_start], split_order)  # every metric is unit-free
+    units = unit_labels(fitted, recordings)
     unpinned, idle = (
-        unpinned_warnings(
-            curvature[best_start], initial[best_start], frozen, fitted, unit_labels(fitted, recordings)
-        )
-        if curvature is not None
-        else ([], [])
+        unpinned_warnings(curvature[best_start], fitted, frozen, units) if curvature is not None else ([], [])
     )
     settings = {
         **solver.record(),  # "solver" (its name) and its options: max_steps, patience, learning_rate, ...
@@ -273,7 +270,7 @@ def fit(
     return FitResult(
         model=fitted,
         parameters={k: float(v) for k, v in fitted.parameters().items()},
-        units=unit_labels(fitted, recordings),
+        units=units,
         metrics=result_metrics,
         history=history,
         starts=per_start,
@@ -625,17 +622,15 @@ NULL_RATIO = 1e-13
 NULL_COEFFICIENT = 0.05
 
 
-def unpinned_warnings(
-    JtJ, model: Model, frozen, fitted: Model | None = None, units: dict | None = None
-) -> tuple[list[str], list[str]]:
+def unpinned_warnings(JtJ, model: Model, frozen, units: dict | None = None) -> tuple[list[str], list[str]]:
     """(a sentence on the null directions of a physics fit's JᵀJ, its curvature at the end, or none; the
     parameters the prediction does not depend on at all, whose "did not move" the sentence replaces).
 
-    A parameter alone in its null direction that sits at a bound of its two-sided range in `fitted` (its
-    values; default `model`'s; `units`: its parameters' units, as reported) is said to sit there: its raw
-    value's map is flat at the bound, so its column of J vanishes however much the prediction depends on it
-    (a diagnosis's frame lag at 0 samples, refitted: a probe read "the prediction does not depend on
-    frame_lag").
+    `model` is the fitted model (its values; `units`: its parameters' units as reported, default
+    `model.units`). A parameter alone in its null direction that sits at a bound of its two-sided range is
+    said to sit there (`at_bound_said`): its raw value's map is flat at the bound, so its column of J
+    vanishes however much the prediction depends on it (a diagnosis's frame lag at 0 samples, refitted: a
+    probe read "the prediction does not depend on frame_lag").
 
     Parameters that enter the simulation only as a product or a ratio (a heated
     block's R and C through R·C, k and the readout's gain through k·R·gain) are
@@ -671,9 +666,8 @@ def unpinned_warnings(
         basis = basis @ np.linalg.svd(basis[i : i + 1], full_matrices=True)[2][1:].T  # those with θ_i fixed
     d = null.shape[1]
     if len(moving) == d:  # each direction one parameter's own: the prediction does not depend on them
-        held = _at_bounds(fitted or model, moving, units)
-        free = [n for n in moving if n not in held]
-        return list(held.values()) + _independent_of(free, len(free)), moving
+        held = _at_bounds(model, moving, units)
+        return list(held.values()) + _independent_of([n for n in moving if n not in held]), moving
     listed = ", ".join(moving[:-1]) + f" and {moving[-1]}"
     return [
         f"the recording does not pin {listed} apart: {'a combination' if d == 1 else f'{d} combinations'} of "
@@ -692,22 +686,19 @@ def _at_bounds(model: Model, names: list[str], units: dict | None = None) -> dic
     units = units if units is not None else dict(model.units)
     out = {}
     for name in names:
-        reached = bound_reached(float(values.get(name, float("nan"))), constraints.get(name))
-        if reached is not None:
-            word, bound = reached
-            out[name] = (
-                f"{name} sits at its {word} bound ({bound:g}{unit_suffix(units.get(name))}), where the fit's "
-                "Jacobian along it vanishes: the fit pushed it there, so the bound, not the recording, sets "
-                f"its value (hybrid fit --freeze {name} keeps it there)"
-            )
+        said = at_bound_said(
+            float(values.get(name, float("nan"))), constraints.get(name), unit_suffix(units.get(name))
+        )
+        if said is not None:  # its column of J vanishes there, however much the prediction depends on it
+            out[name] = f"{name} {said} (hybrid fit --freeze {name} keeps it there)"
     return out
 
 
-def _independent_of(moving: list[str], d: int) -> list[str]:
+def _independent_of(moving: list[str]) -> list[str]:
     """The sentence for `moving`, parameters the prediction does not depend on (none: no sentence)."""
     if not moving:
         return []
-    listed = ", ".join(moving)
+    d, listed = len(moving), ", ".join(moving)
     return [
         f"the prediction does not depend on {listed} on this recording (the fit's Jacobian is zero "
         f"along {'it' if d == 1 else 'them'}), so {'its value is' if d == 1 else 'their values are'} "

@@ -152,6 +152,22 @@ def bound_reached(value: float, constraint: Constraint | None) -> tuple[str, flo
     return None
 
 
+def at_bound_said(value: float, constraint: Constraint | None, unit_suffix: str = "") -> str | None:
+    """ "sits at its lower bound (0 samples): the fit pushed it there, so the bound, not the recording, sets
+    its value" where `value` sits at a bound of `constraint`'s two-sided range (`bound_reached`), else None.
+
+    `unit_suffix`: the bound's unit as printed after a number (`hybrid.core._simulation.unit_suffix`).
+    """
+    reached = bound_reached(value, constraint)
+    if reached is None:
+        return None
+    word, bound = reached
+    return (
+        f"sits at its {word} bound ({bound:g}{unit_suffix}): the fit pushed it there, so the bound, not the "
+        "recording, sets its value"
+    )
+
+
 def encode(values: dict, constraints: dict, owner: str) -> dict:
     """Raw (unconstrained) arrays for physical `values`, checking names and ranges."""
     raw = {}

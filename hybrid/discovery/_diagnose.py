@@ -179,7 +179,7 @@ def prepare_search(
         blocks_used=blocks,
         extremes_held_out=reached,
     )
-    problem, _, model, _ = lanes_problem(recordings, simulation, settings, effects)
+    problem, _, model = lanes_problem(recordings, simulation, settings, effects)
     return Search(
         problem=problem,
         model=model,

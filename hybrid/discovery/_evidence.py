@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core._models import Model
-from ..core._parameters import bound_reached
+from ..core._parameters import at_bound_said
 from ..core._problem import Problem
 from ..core._simulation import unit_suffix
 from . import residual_tests as rt
@@ -171,14 +171,8 @@ def not_pinned(uncertainties: dict[str, ParameterUncertainty], model: Model, ser
 
 def _at_bound(name: str, value: float, constraint, units: dict) -> str | None:
     """Why a value that sits at a bound of its two-sided range is not pinned (the bound sets it), or None."""
-    reached = bound_reached(value, constraint)
-    if reached is None:
-        return None
-    word, bound = reached
-    return (
-        f"it sits at its {word} bound ({bound:g}{unit_suffix(units.get(name))}): the fit pushed it there, so "
-        "the bound, not the recording, sets its value"
-    )
+    said = at_bound_said(value, constraint, unit_suffix(units.get(name)))
+    return None if said is None else f"it {said}"
 
 
 def heldout_evidence(

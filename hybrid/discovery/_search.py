@@ -305,23 +305,25 @@ def search_problem(model: Model, series, frozen, max_causes: int = 1) -> tuple[P
 
 
 def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=None):
-    """(problem, n_rows, model, series): the least-squares problem `diagnose` fits on `recordings`.
+    """(problem, n_rows, model): the least-squares problem `diagnose` fits on `recordings`.
 
     Each recording is padded to its bucket's length (`bucket_length`) and its
     split carried as weights (`bucketed_series`): the compiled programs of the
     search depend on the buckets, not on the recordings' exact lengths, so a
-    session that diagnoses many recordings reuses them. `series` are the
-    recordings' own (unpadded) series. Its θ is the layout of
+    session that diagnoses many recordings reuses them (`problem.series`, whose
+    `recorded_segments_of` are each recording's own samples). Its θ is the layout of
     `Diagnosis.lanes[i].theta`; `split_signals(problem, theta, active, split)`
     predicts a lane on a split.
     """
     effects = resolve_effects(effects, simulation)
     model = universal_model(simulation, effects, drive_unit(recordings))
-    series = [
-        series_from_recording(r, settings.split, SPLIT_ORDER, settings.split_blocks, measured_only=False)
-        for r in recordings
+    padded = [
+        bucketed_series(s, bucket_length(s.v_in.shape[0]))
+        for s in (
+            series_from_recording(r, settings.split, SPLIT_ORDER, settings.split_blocks, measured_only=False)
+            for r in recordings
+        )
     ]
-    padded = [bucketed_series(s, bucket_length(s.v_in.shape[0])) for s in series]
     if settings.bridge_glitches:  # samples w was not measured at weigh nothing (`_bridge_glitches`)
         padded = [
             _unweighted(s, unmeasured_runs(r.extra.get("quality")), r.name)
@@ -330,7 +332,7 @@ def lanes_problem(recordings, simulation, settings: DiagnoseSettings, effects=No
     problem, n_rows = search_problem(
         model, padded, frozenset(settings.frozen_for(simulation)), _shared_room(settings, len(effects))
     )
-    return problem, n_rows, model, series
+    return problem, n_rows, model
 
 
 def _unweighted(series: Series, runs, name: str = "") -> Series:
