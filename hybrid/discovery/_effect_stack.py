@@ -545,43 +545,50 @@ def _drive_directions(drive, simulate, u, p_effects, on, asked, y):
     on moves, one column after another under one `lax.map`. The simulation's
     derivative is traced and compiled once for every drive effect, not once per
     effect: with the four drive-side built-ins the lanes' program traced it four
-    times (`benchmarks/diagnose_effect_set.py`). Columns of effects that are off
-    cost a skipped branch; the columns are computed once, outside the batch of
-    directions (`d_k`), as before. `u`: `drive(p_effects)`, the drive the caller simulated.
+    times (`benchmarks/diagnose_effect_set.py`). The live columns come first
+    (`slots`), the rest are zero rows; each direction's weights are gathered
+    into that order (a few numbers), not the responses scattered back into the
+    parameters' order (rows as long as the record). While every asked effect
+    is off — most lanes of a search: each fits one effect or two — no column
+    is computed at all (one `lax.cond`), nor any derivative of the simulation
+    along the drive. The columns are computed once, outside the batch of
+    directions (`d_k`). `u`: `drive(p_effects)`, the drive the caller simulated.
     """
-    columns = []
-    for k, _ in asked:
-        p = p_effects[k]
-
-        def along(q, k=k):
-            return drive(p_effects[:k] + (q,) + p_effects[k + 1 :])
-
-        columns.append(
-            jax.lax.cond(  # an effect switched off moves nothing
-                on[k] != 0,
-                lambda along=along, p=p: jax.jacfwd(along)(p).reshape(u.shape[0], -1),
-                lambda p=p: jnp.zeros((u.shape[0], p.size), u.dtype),
-            )
-        )
-    U = jnp.concatenate(columns, axis=1)  # the drive's derivative, one column per parameter
-    n_cols = U.shape[1]
+    n_cols = sum(p_effects[k].size for k, _ in asked)
     live = jnp.concatenate([jnp.full(p_effects[k].size, on[k] != 0) for k, _ in asked])
-    slots = jnp.nonzero(live, size=n_cols, fill_value=n_cols)[0]  # the live columns first, then fill
+    n_live = jnp.sum(live)
+    slots = jnp.nonzero(live, size=n_cols, fill_value=0)[0]  # the live columns first, then filler
 
-    def response_along(i):
-        return jax.lax.cond(
-            i < n_cols,
-            lambda: jax.jvp(simulate, (u,), (U[:, jnp.minimum(i, n_cols - 1)],))[1].astype(y.dtype),
-            lambda: jnp.zeros_like(y),
-        )
+    def responses():
+        columns = []
+        for k, _ in asked:
+            p = p_effects[k]
 
-    J = jnp.zeros((n_cols + 1,) + y.shape, y.dtype).at[slots].set(jax.lax.map(response_along, slots))
-    dy, start = jnp.zeros_like(y), 0
-    for k, d in asked:
-        size = p_effects[k].size
-        dy = dy + jnp.tensordot(d.reshape(-1), J[start : start + size], axes=1)
-        start += size
-    return dy
+            def along(q, k=k):
+                return drive(p_effects[:k] + (q,) + p_effects[k + 1 :])
+
+            columns.append(
+                jax.lax.cond(  # an effect switched off moves nothing
+                    on[k] != 0,
+                    lambda along=along, p=p: jax.jacfwd(along)(p).reshape(u.shape[0], -1),
+                    lambda p=p: jnp.zeros((u.shape[0], p.size), u.dtype),
+                )
+            )
+        U = jnp.concatenate(columns, axis=1)  # the drive's derivative, one column per parameter
+
+        def response_along(j):
+            return jax.lax.cond(
+                j < n_live,
+                lambda: jax.jvp(simulate, (u,), (U[:, slots[j]],))[1].astype(y.dtype),
+                lambda: jnp.zeros_like(y),
+            )
+
+        return jax.lax.map(response_along, jnp.arange(n_cols))
+
+    J = jax.lax.cond(n_live > 0, responses, lambda: jnp.zeros((n_cols,) + y.shape, y.dtype))
+    d = jnp.concatenate([d.reshape(-1) for _, d in asked])
+    weights = jnp.where(jnp.arange(n_cols) < n_live, d[slots], 0)  # the filler's rows are zero
+    return jnp.tensordot(weights.astype(y.dtype), J, axes=1)
 
 
 def drive_forces(stack: EffectStack, drive) -> np.ndarray:
