@@ -15,8 +15,9 @@ included), a second call on another recording of the same length (compiled
 programs reused, as in a sweep or a lab session), and, as the peer in the same
 run, one physics-only `hybrid.fit` (one LM start) of the same recording — the
 cost of a single effect-free fit that the search (512 screened points, 18
-baseline starts, 35 candidate lanes per step, of which 6 are culled after 6 LM steps, and a
-re-baseline from each of the other 29) is measured against.
+baseline starts, 35 candidate lanes per step, of which those of the 7 effects leading after 6 LM
+steps race on, each such effect's best alone where its starts are sizes of one form, and a re-baseline
+from the end point of each lane that raced) is measured against.
 Then `hybrid diagnose` from the command line, in fresh processes sharing an
 empty persistent compilation cache (`HYBRID_JAX_CACHE`): the first (on the
 first recording) fills it, the next three (on the other recording; their

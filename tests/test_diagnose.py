@@ -260,6 +260,9 @@ def test_report_json_is_strict_and_consistent(report):
     for c in data["candidates"]:
         assert {"name", "heldout_nmse", "criterion", "parameters"} <= set(c)
         assert "delta_bic" in c["criterion"]
+    # more effects than race: those the first round left behind are said, and the cause is not one of them
+    left = [c["name"] for c in data["candidates"] if not c["raced"]]
+    assert len(left) == len(names) - data["settings"]["racing_effects"] > 0 and data["cause"] not in left
     if data["cause"] != "none":
         effect_names = set(EFFECTS[data["cause"]].constraints)
         assert effect_names <= set(data["parameters"])
@@ -291,6 +294,8 @@ def test_report_md_names_cause_figures_and_nmse(report):
     assert format_nmse(data["extended"]["nmse"]) in text
     for c in data["candidates"]:
         assert c["name"] in text
+        row = next(line for line in text.splitlines() if line.split(" |")[0].strip("|* ") == c["name"])
+        assert ("fitted only the race's first steps" in row) == (not c["raced"]), row
     # each later step's candidates too, each with the rules that refused it (report.json had them alone:
     # a new user read "Step 2 … saturation (gain 1.53)" in report.md without why it was not named)
     assert data["steps"], "a named cause is followed by a step"

@@ -143,6 +143,53 @@ def test_an_effect_that_keeps_one_lane_keeps_its_best_after_the_first_steps(monk
     assert culled == [] and [c["steps"] for c in calls] == [None]
 
 
+def test_only_the_leading_effects_race_on_after_the_first_steps(monkeypatch):
+    """`DiagnoseSettings.racing_effects`: beyond it, the effects whose best lane trails after the first round leave.
+
+    Each effect is ranked by its best lane (a's second lane, not its first); a lane the first round
+    left non-finite ranks last; a left effect's lanes are culled whole and never go on, and the
+    others keep racing, an effect's own `n_kept` cull beside it.
+    """
+    labels = ["a", "a", "b", "c", "c", "d", "e", "none"]
+    first_val = [9.0, 1.0, 2.0, 3.0, 8.0, 5.0, np.nan, np.nan]
+    n = len(labels)
+    calls, said = [], []
+
+    def fit_lanes(problem, actives, tangents, starts, lm_settings, patience, steps=None):
+        calls.append(dict(starts=starts, patience=patience, steps=steps))
+        if len(calls) == 1:
+            states = _states(np.asarray(starts), first_val, np.zeros(n), np.full(n, 6))
+            return eqx.tree_at(lambda s: s.done, states, np.asarray([False] * (n - 1) + [True]))
+        return eqx.tree_at(lambda s: s.since_best, starts, np.zeros(n, np.int32))
+
+    monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
+    effects = tuple(SimpleNamespace(name=name, n_kept=1 if name == "c" else 0) for name in "abcde")
+    search = SimpleNamespace(
+        settings=DiagnoseSettings(racing_effects=3),
+        lm=LMSettings(max_steps=120),
+        n_val=180,
+        say=said.append,
+        effects=effects,
+    )
+    lanes = [np.full(4, float(j)) for j in range(n)]
+    _, culled = _step.race(search, object(), np.ones((n, 3)), np.ones((n, 2, 3)), lanes, labels)
+    # a (1.0), b (2.0) and c (3.0) lead; d (5.0) and e (not finite) leave; c's second lane is its n_kept cull
+    assert sorted(culled) == [4, 5, 6]
+    assert [c["steps"] for c in calls] == [DiagnoseSettings().start_steps, None]
+    np.testing.assert_array_equal(
+        calls[1]["starts"].done, [False, False, False, False, True, True, True, True]
+    )
+    assert any("2 effects left the race" in m and m.endswith(": d, e") for m in said), said
+
+    # as many effects as race: no effect leaves, and with no n_kept cull either, no first round at all
+    for settings in (DiagnoseSettings(racing_effects=5), DiagnoseSettings(racing_effects=0)):
+        calls.clear()
+        search.settings = settings
+        search.effects = tuple(SimpleNamespace(name=name, n_kept=0) for name in "abcde")
+        _, culled = _step.race(search, object(), np.ones((n, 3)), np.ones((n, 2, 3)), lanes, labels)
+        assert culled == [] and [c["steps"] for c in calls] == [None]
+
+
 def test_the_lanes_that_will_run_are_dealt_first_in_their_own_order():
     """`fit_lanes` deals lanes to devices in turn in this order: the running ones spread evenly."""
     from hybrid.discovery._search import _running_first, resume

@@ -86,7 +86,9 @@ CAUSES = ("none",) + tuple(EFFECTS) + tuple(NAMED_ONLY)
 #: `AbstractEffect.points_at`); an even part's ``derived`` gains ``turn_percent_of_range`` (where its map
 #: turns, from the end it rises from, beyond 100 where past the range); each ``ambiguous`` rival of a
 #: named cause's ``why`` (the entry's reasons that concern that rival: a level and time correlated says
-#: nothing of two effects of the level), and each entry's ``recordings`` (how many were diagnosed together).
+#: nothing of two effects of the level), and each entry's ``recordings`` (how many were diagnosed together);
+#: a candidate's ``raced`` (false where its effect left the search's race after ``settings.start_steps`` LM
+#: steps, trailing the ``settings.racing_effects`` leading effects: its numbers are that short fit's).
 REPORT_SCHEMA = "hybrid-report/4"
 #: The keys schema 3 and 4 renamed, old → new (a reader of older reports may map them).
 RENAMED_IN_SCHEMA_3 = {
@@ -138,7 +140,18 @@ class DiagnoseSettings:
       without a better validation loss.
     - `start_steps`: the LM steps every candidate lane takes before an effect
       with more lanes than it keeps (`AbstractEffect.n_kept`) keeps its best
-      (the race's first round; 0: none culled).
+      and the effects beyond `racing_effects` leave (the race's first round;
+      0: no first round, nothing culled, every effect races).
+    - `racing_effects`: where a step has more candidate effects than this (or
+      the joint fit more pairs, `JOINT_LEADERS`), every lane takes the first
+      round's `start_steps` LM steps, and only the effects (pairs) whose best
+      lane then has the least validation loss, this many, race on; the others
+      keep that short fit (their candidates' ``raced`` is false), are not
+      refitted from, and are weighed as any candidate. The search's
+      time then grows with the effects it is given only by that round
+      (`benchmarks/diagnose_effect_set.py`, docs/benchmarks.md); 7 is the
+      original effect set's size, whose searches it leaves as they were.
+      0: every effect races.
     - `race_patience`: a candidate's lanes first run to this shorter patience;
       then each effect's leading lanes (the least validation loss, and those
       the rest of the patience could bring level with it) go on where they
@@ -207,6 +220,7 @@ class DiagnoseSettings:
     max_steps: int = 120
     patience: int = 25
     start_steps: int = 6
+    racing_effects: int = 7
     race_patience: int = 10
     effect_free_patience: int = 10
     patience_rtol: float = 1e-3
@@ -398,6 +412,9 @@ class Candidate:
     """Its end point in the search's θ layout."""
     active: np.ndarray | None = None
     """Its effects' switches."""
+    raced: bool = True
+    """False where its effect left the race after `DiagnoseSettings.start_steps` LM steps, trailing the
+    `DiagnoseSettings.racing_effects` leading effects: its numbers are those of that short fit."""
     validation_loss: float = float("nan")
     """½ mean r² on the validation part (the lane's)."""
     heldout_residual: np.ndarray | None = None
@@ -422,6 +439,7 @@ class Candidate:
             "materiality": self.materiality,
             "eligible": self.eligible,
             "reasons": self.reasons,
+            "raced": self.raced,
         }
 
 

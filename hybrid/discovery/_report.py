@@ -260,8 +260,13 @@ def _candidate_row(c: dict, named: str | None) -> str:
     return (
         f"| {mark} | {format_nmse(c['heldout_nmse'])} | {_num(c['gain'])} | {_fixed(c['criterion']['delta_bic'])} | "
         f"{_fixed(c['ljung_box']['Q'])} | {_cell(c.get('materiality', ''))} | {_num(bool(c['eligible']))} | "
-        f"{_cell('; '.join(r for r in c['reasons'] if r))} |"
+        f"{_cell('; '.join([r for r in c['reasons'] if r] + _short_fit(c)))} |"
     )
+
+
+def _short_fit(c: dict) -> list[str]:
+    """A candidate whose effect left the race after its first steps: said in its row's reasons."""
+    return [] if c.get("raced", True) else ["fitted only the race's first steps (it trailed the leaders)"]
 
 
 def stepwise_section(d: dict) -> list[str]:

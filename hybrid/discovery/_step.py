@@ -313,13 +313,23 @@ def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple[LMState,
     starts: jnp.ndarray | LMState = jnp.stack(lanes)
     culled: list[int] = []
     keep = {e.name: e.n_kept for e in s.effects if e.n_kept and labels.count(e.name) > e.n_kept}
-    if keep and settings.start_steps > 0:
+    names = list(dict.fromkeys(lab for lab in labels if lab != "none"))
+    field = settings.racing_effects
+    if (keep or 0 < field < len(names)) and settings.start_steps > 0:
         first = fit_lanes(problem, actives, tangents, starts, s.lm, short, steps=settings.start_steps)
         vals = np.where(np.isfinite(first.best_val), first.best_val, np.inf)
         for name, n in keep.items():
             idx = [j for j, lab in enumerate(labels) if lab == name]
             culled += sorted(idx, key=lambda j: vals[j])[n:]
         s.say(f"{len(culled)} lanes culled after {settings.start_steps} steps")
+        if 0 < field < len(names):
+            best = {n: min(vals[j] for j, lab in enumerate(labels) if lab == n) for n in names}
+            left = sorted(names, key=lambda n: best[n])[field:]  # stable: the stack's order breaks ties
+            culled += [j for j, lab in enumerate(labels) if lab in left and j not in culled]
+            s.say(
+                f"{len(left)} effects left the race after {settings.start_steps} steps, trailing the "
+                f"{field} leading: {', '.join(left)}"
+            )
         starts = resume(first, [j for j in range(len(labels)) if not first.done[j] and j not in culled])
     heat = fit_lanes(problem, actives, tangents, starts, s.lm, short)
     if not racing:
@@ -546,6 +556,7 @@ def search_step(
             present,
         )
         cand.validation_loss = float(vals[j])
+        cand.raced = not set(idx) <= set(culled)  # every lane culled: its effect left the race
         candidates.append(cand)
 
     equally_good = equally_good_fits(
