@@ -102,7 +102,9 @@ def test_an_effect_that_keeps_one_lane_keeps_its_best_after_the_first_steps(monk
         return eqx.tree_at(lambda s: s.since_best, states, np.zeros(len(labels), np.int32))
 
     monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
-    effects = tuple(SimpleNamespace(name=name, n_kept=k) for name, k in (("a", 1), ("b", 0), ("c", 1)))
+    effects = tuple(
+        SimpleNamespace(name=name, n_kept=k, place="output") for name, k in (("a", 1), ("b", 0), ("c", 1))
+    )
     search = SimpleNamespace(settings=settings, lm=lm, n_val=180, say=lambda message: None, effects=effects)
     n = len(labels)
     lanes = [np.full(4, float(j)) for j in range(n)]
@@ -138,7 +140,7 @@ def test_an_effect_that_keeps_one_lane_keeps_its_best_after_the_first_steps(monk
     monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
     # no effect with more lanes than it keeps: no first round
     calls.clear()
-    search.effects = tuple(SimpleNamespace(name=name, n_kept=0) for name in "abc")
+    search.effects = tuple(SimpleNamespace(name=name, n_kept=0, place="output") for name in "abc")
     _, culled = _step.race(search, object(), np.ones((n, 3)), np.ones((n, 2, 3)), lanes, labels)
     assert culled == [] and [c["steps"] for c in calls] == [None]
 
@@ -148,10 +150,11 @@ def test_only_the_leading_effects_race_on_after_the_first_steps(monkeypatch):
 
     Each effect is ranked by its best lane (a's second lane, not its first); a lane the first round
     left non-finite ranks last; a left effect's lanes are culled whole and never go on, and the
-    others keep racing, an effect's own `n_kept` cull beside it.
+    others keep racing, an effect's own `n_kept` cull beside it. An effect inside the dynamics (f)
+    races on whatever its first steps gave, and takes none of the field's places.
     """
-    labels = ["a", "a", "b", "c", "c", "d", "e", "none"]
-    first_val = [9.0, 1.0, 2.0, 3.0, 8.0, 5.0, np.nan, np.nan]
+    labels = ["a", "a", "b", "c", "c", "d", "e", "f", "none"]
+    first_val = [9.0, 1.0, 2.0, 3.0, 8.0, 5.0, np.nan, 20.0, np.nan]
     n = len(labels)
     calls, said = [], []
 
@@ -162,30 +165,39 @@ def test_only_the_leading_effects_race_on_after_the_first_steps(monkeypatch):
             return eqx.tree_at(lambda s: s.done, states, np.asarray([False] * (n - 1) + [True]))
         return eqx.tree_at(lambda s: s.since_best, starts, np.zeros(n, np.int32))
 
+    def effects(kept: str, inside: str):
+        return tuple(
+            SimpleNamespace(
+                name=name, n_kept=int(name in kept), place="inside" if name in inside else "output"
+            )
+            for name in "abcdef"
+        )
+
     monkeypatch.setattr(_step, "fit_lanes", fit_lanes)
-    effects = tuple(SimpleNamespace(name=name, n_kept=1 if name == "c" else 0) for name in "abcde")
     search = SimpleNamespace(
         settings=DiagnoseSettings(racing_effects=3),
         lm=LMSettings(max_steps=120),
         n_val=180,
         say=said.append,
-        effects=effects,
+        effects=effects(kept="c", inside="f"),
     )
     lanes = [np.full(4, float(j)) for j in range(n)]
     _, culled = _step.race(search, object(), np.ones((n, 3)), np.ones((n, 2, 3)), lanes, labels)
-    # a (1.0), b (2.0) and c (3.0) lead; d (5.0) and e (not finite) leave; c's second lane is its n_kept cull
+    # a (1.0), b (2.0) and c (3.0) lead; d (5.0) and e (not finite) leave; c's second lane is its n_kept
+    # cull; f (20.0, the worst) is inside the dynamics and goes on
     assert sorted(culled) == [4, 5, 6]
     assert [c["steps"] for c in calls] == [DiagnoseSettings().start_steps, None]
     np.testing.assert_array_equal(
-        calls[1]["starts"].done, [False, False, False, False, True, True, True, True]
+        calls[1]["starts"].done, [False, False, False, False, True, True, True, False, True]
     )
-    assert any("2 effects left the race" in m and m.endswith(": d, e") for m in said), said
+    assert any("2 effects left the race" in m and m.endswith("inside the dynamics: d, e") for m in said), said
 
-    # as many effects as race: no effect leaves, and with no n_kept cull either, no first round at all
-    for settings in (DiagnoseSettings(racing_effects=5), DiagnoseSettings(racing_effects=0)):
+    # as many effects outside the dynamics as race (f inside counts for none): no effect leaves, and
+    # with no n_kept cull either, no first round at all
+    for racing in (5, 0):
         calls.clear()
-        search.settings = settings
-        search.effects = tuple(SimpleNamespace(name=name, n_kept=0) for name in "abcde")
+        search.settings = DiagnoseSettings(racing_effects=racing)
+        search.effects = effects(kept="", inside="f")
         _, culled = _step.race(search, object(), np.ones((n, 3)), np.ones((n, 2, 3)), lanes, labels)
         assert culled == [] and [c["steps"] for c in calls] == [None]
 

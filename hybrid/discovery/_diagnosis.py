@@ -142,10 +142,12 @@ class DiagnoseSettings:
       with more lanes than it keeps (`AbstractEffect.n_kept`) keeps its best
       and the effects beyond `racing_effects` leave (the race's first round;
       0: no first round, nothing culled, every effect races).
-    - `racing_effects`: where a step has more candidate effects than this (or
-      the joint fit more pairs, `JOINT_LEADERS`), every lane takes the first
-      round's `start_steps` LM steps, and only the effects (pairs) whose best
-      lane then has the least validation loss, this many, race on; the others
+    - `racing_effects`: where a step has more candidate effects on the drive and
+      the output than this (or the joint fit more pairs, `JOINT_LEADERS`), every
+      lane takes the first round's `start_steps` LM steps, and only the effects
+      (pairs) whose best lane then has the least validation loss, this many,
+      race on, beside every effect inside the dynamics (a limit acts only where
+      its state reaches it: its first steps move the fit least); the others
       keep that short fit (their candidates' ``raced`` is false), are not
       refitted from, and are weighed as any candidate. The search's
       time then grows with the effects it is given only by that round

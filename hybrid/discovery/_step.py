@@ -291,7 +291,10 @@ def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple[LMState,
        every lane takes `start_steps` LM steps, and of each such effect's lanes
        only the `n_kept` with the least validation loss go on; the others keep
        that result. Their starts differ in one size (a dead zone's width, a
-       play's), and a few steps tell which basin the data favour.
+       play's), and a few steps tell which basin the data favour. Where more
+       effects on the drive and the output race than `racing_effects`, the same
+       round ranks them by their best lane and only that many go on (every
+       lane of the others is culled); those inside the dynamics always go on.
     2. Every lane still going runs until `race_patience` accepted steps bring
        no clearly better validation loss.
     3. Of each effect's lanes, the leaders (the least validation loss, and
@@ -313,7 +316,11 @@ def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple[LMState,
     starts: jnp.ndarray | LMState = jnp.stack(lanes)
     culled: list[int] = []
     keep = {e.name: e.n_kept for e in s.effects if e.n_kept and labels.count(e.name) > e.n_kept}
-    names = list(dict.fromkeys(lab for lab in labels if lab != "none"))
+    # Effects inside the dynamics always race: a limit acts only where its state reaches it, a fed-back
+    # force only through the dynamics, and their first steps move the fit least (a tank's overflow,
+    # `experiments/inside_effects.py` overflow seed 1, trailed after 6 steps and won the whole race).
+    inside = {e.name for e in s.effects if e.place == "inside"}
+    names = list(dict.fromkeys(lab for lab in labels if lab not in ("none", *inside)))
     field = settings.racing_effects
     if (keep or 0 < field < len(names)) and settings.start_steps > 0:
         first = fit_lanes(problem, actives, tangents, starts, s.lm, short, steps=settings.start_steps)
@@ -328,7 +335,8 @@ def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple[LMState,
             culled += [j for j, lab in enumerate(labels) if lab in left and j not in culled]
             s.say(
                 f"{len(left)} effects left the race after {settings.start_steps} steps, trailing the "
-                f"{field} leading: {', '.join(left)}"
+                f"{field} leading{' and those inside the dynamics' if inside & set(labels) else ''}: "
+                f"{', '.join(left)}"
             )
         starts = resume(first, [j for j in range(len(labels)) if not first.done[j] and j not in culled])
     heat = fit_lanes(problem, actives, tangents, starts, s.lm, short)
