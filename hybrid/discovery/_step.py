@@ -317,8 +317,9 @@ def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple[LMState,
     culled: list[int] = []
     keep = {e.name: e.n_kept for e in s.effects if e.n_kept and labels.count(e.name) > e.n_kept}
     # Effects inside the dynamics always race: a limit acts only where its state reaches it, a fed-back
-    # force only through the dynamics, and their first steps move the fit least (a tank's overflow,
-    # `experiments/inside_effects.py` overflow seed 1, trailed after 6 steps and won the whole race).
+    # force only through the dynamics, and 6 steps do not rank them (`experiments/inside_effects.py`
+    # overflow seed 1, a tank's overflow: limit_h2 named at 2.59× with them in the field; racing on,
+    # limit_h1 at 111×).
     inside = {e.name for e in s.effects if e.place == "inside"}
     names = list(dict.fromkeys(lab for lab in labels if lab not in ("none", *inside)))
     field = settings.racing_effects
@@ -328,13 +329,15 @@ def race(s: Search, problem, actives, tangents, lanes, labels) -> tuple[LMState,
         for name, n in keep.items():
             idx = [j for j, lab in enumerate(labels) if lab == name]
             culled += sorted(idx, key=lambda j: vals[j])[n:]
-        s.say(f"{len(culled)} lanes culled after {settings.start_steps} steps")
+        if keep:
+            s.say(f"{len(culled)} lanes culled after {settings.start_steps} steps")
         if 0 < field < len(names):
             best = {n: min(vals[j] for j, lab in enumerate(labels) if lab == n) for n in names}
             left = sorted(names, key=lambda n: best[n])[field:]  # stable: the stack's order breaks ties
             culled += [j for j, lab in enumerate(labels) if lab in left and j not in culled]
+            kind = "pairs" if any("+" in n for n in left) else "effects"  # the joint fit races pairs
             s.say(
-                f"{len(left)} effects left the race after {settings.start_steps} steps, trailing the "
+                f"{len(left)} {kind} left the race after {settings.start_steps} steps, trailing the "
                 f"{field} leading{' and those inside the dynamics' if inside & set(labels) else ''}: "
                 f"{', '.join(left)}"
             )
