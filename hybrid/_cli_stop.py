@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
 from types import FrameType
-from typing import Any
+from typing import Any, NoReturn
 
 #: Exit status of a fit stopped by ``--time-limit`` (as GNU ``timeout``); a signal gives 128 + its number.
 TIME_LIMIT_EXIT_STATUS = 124
@@ -88,3 +89,8 @@ class FitStop:
         if self.signal is not None:
             return 128 + int(self.signal)
         return TIME_LIMIT_EXIT_STATUS
+
+    def exit(self, said: str) -> NoReturn:
+        """One line on stderr, ``hybrid: {said}; exit status N``, then exit with `exit_status`."""
+        print(f"hybrid: {said}; exit status {self.exit_status}", file=sys.stderr, flush=True)
+        raise SystemExit(self.exit_status)

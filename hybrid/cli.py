@@ -670,13 +670,10 @@ def _cmd_fit(args):
                     "steps": steps,
                 },
             )
-            print(
-                f"hybrid: fit stopped by {stop.reason} after {steps} steps: saved the best model so far to "
-                f"{partial} (+ {partial}.json), {out} untouched; exit status {stop.exit_status}",
-                file=sys.stderr,
-                flush=True,
+            stop.exit(
+                f"fit stopped by {stop.reason} after {steps} steps: saved the best model so far to "
+                f"{partial} (+ {partial}.json), {out} untouched"
             )
-            raise SystemExit(stop.exit_status)
         start = _start_of(result.model, recordings, simulation)
         if start and start["sentence"]:
             print(f"start: {start['sentence']}")
@@ -728,13 +725,9 @@ def _after_saving(args, out, began: float, doing: str, second_fit):
         with FitStop(left) as stop:
             found = second_fit(stop)
         if stop.signal is not None:  # what it would have added is not written
-            print(
-                f"hybrid: stopped by {stop.reason} while {doing}: {out} is saved"
-                f"{', --json not written' if args.json else ''}; exit status {stop.exit_status}",
-                file=sys.stderr,
-                flush=True,
+            stop.exit(
+                f"stopped by {stop.reason} while {doing}: {out} is saved{', --json not written' if args.json else ''}"
             )
-            raise SystemExit(stop.exit_status)
         if not stop.timed_out:
             return found
     when = "before" if left is not None and left <= 0 else "while"  # a deadline: only with --time-limit
