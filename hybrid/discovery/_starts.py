@@ -102,16 +102,50 @@ def _recorded_mask(series):
     return sum(weight for _, weight in series.weights)
 
 
+def with_drives(problem: Problem, change) -> Problem:
+    """The problem with every drive replaced by `change(v)` (numpy in, numpy out, the same length).
+
+    On the host: the screen that sees the changed drive is the program it was for the drive itself,
+    compiled once, whatever the change (a shift, a map through a drive-side effect)."""
+    series = tuple(
+        eqx.tree_at(lambda s: s.v_in, s, jnp.asarray(change(np.asarray(s.v_in)))) for s in problem.series
+    )
+    return eqx.tree_at(lambda p: p.series, problem, series)
+
+
 def delayed(problem: Problem, shift: int) -> Problem:
     """The problem with every drive delayed by `shift` samples (at rest, 0 V, before the recording)."""
+    return with_drives(problem, lambda v: np.concatenate([np.zeros(shift, v.dtype), v[:-shift]]))
 
-    # On the host: a shift of its own would be a program of its own on the device, compiled per shift.
-    def shifted(v):
-        v = np.asarray(v)
-        return jnp.asarray(np.concatenate([np.zeros(shift, v.dtype), v[:-shift]]))
 
-    series = tuple(eqx.tree_at(lambda s: s.v_in, s, shifted(s.v_in)) for s in problem.series)
-    return eqx.tree_at(lambda p: p.series, problem, series)
+def drive_map_starts(context, effect, values, n_starts: int) -> list[dict]:
+    """Starts for a drive-side `effect` that maps the drive sample by sample: the design screened with
+    the drive mapped on the host through the effect at each of `values`.
+
+    What `joint_starts` does for any effect, at the cost of the delay's screen: the
+    model extended so far (`context.simulation`, the effect itself off) sees the
+    mapped drive, so its screen program is the delay's, compiled once (`joint_starts`
+    switches the effect on in the stack and compiles a program of its own: 1.3 s of
+    the first call of `benchmarks/diagnose_effect_set.py`). The map goes before
+    every drive-side effect named so far rather than at the effect's place among
+    them: a start, which the lane's fit then puts right.
+    """
+    design, names, raws, band = screen_design(
+        context.problem, context.simulation, context.frozen, keep=N_JOINT_SCREEN
+    )
+    if not names:
+        return []
+    dt = float(context.problem.series[0].dt)
+    best = []
+    for k, given in enumerate(values):
+        mapped = type(effect)(**given)
+        problem = with_drives(context.problem, lambda v, m=mapped: np.asarray(m.apply(jnp.asarray(v), dt)))
+        losses = np.where(band, screen_design_losses(problem, context.simulation, raws), np.inf)
+        i = int(np.argmin(losses))
+        if np.isfinite(losses[i]):
+            best.append((float(losses[i]), k, {**{name: design[i][name] for name in names}, **given}))
+    best.sort(key=lambda item: item[:2])
+    return [start for *_, start in best[:n_starts]]
 
 
 def delay_starts(
