@@ -336,6 +336,19 @@ def _told_all(r) -> bool:
     return bool(r.get("told")) and _names_all(r, r["told"]["causes"])
 
 
+def _flag(r) -> str:
+    """How a pair draw that the search did not name fully says something is missing: ``"unexplained"``;
+    ``"open"``, its last step left open (report.json's ``ambiguous``, named "none") with a missing hidden
+    effect among the rivals; ``"open, other rivals"``; or ``""``: nothing said (a false partial all-clear)."""
+    if r["unexplained"]:
+        return "unexplained"
+    missing = set(r["expected_causes"]) - set(r["causes"])
+    opened = [a for a in r.get("ambiguous") or [] if a["named"] == "none"]
+    if any(missing & set(a["rivals"]) for a in opened):
+        return "open"
+    return "open, other rivals" if opened else ""
+
+
 def _counts(items) -> str:
     items = list(items)
     return (
@@ -402,6 +415,24 @@ def open_world_tables(rows, specs) -> str:
                 else ""
             ),
         ]
+        partial = [r for r in every if not _names_all(r, r["causes"])]
+        if partial:
+            flags = [_flag(r) for r in partial]
+            silent = [r for r, f in zip(partial, flags) if not f]
+            out += [
+                "",
+                f"Not fully named: {len(partial)} draws. Flagged as missing something: "
+                f"{flags.count('unexplained')} by `unexplained`; {flags.count('open')} by a last step left open "
+                '(report.json\'s `ambiguous`, named "none": at the noise floor, a candidate that wins '
+                "significantly many held-out chunks) with a missing hidden effect among its rivals; "
+                f"{flags.count('open, other rivals')} open with other rivals; nothing said on {len(silent)}"
+                + (
+                    " (" + ", ".join(f"{r['effect']} seed {r['seed']}" for r in silent) + ")"
+                    if silent
+                    else ""
+                )
+                + ".",
+            ]
         rooms = [r for r in every if _in_reach(r, min_gain) is not None]
         if rooms:
             reach = [r for r in rooms if _in_reach(r, min_gain)]
@@ -621,7 +652,12 @@ def main(argv=None) -> int:
                     # Each step where the recording cannot tell the named effect from rivals (report.json's
                     # `ambiguous`): a wrong name with the hidden effect among them is said to be uncertain.
                     "ambiguous": [
-                        {"step": a["step"], "named": a["named"], "rivals": [v["name"] for v in a["rivals"]]}
+                        {
+                            "step": a["step"],
+                            "named": a["named"],
+                            "rivals": [v["name"] for v in a["rivals"]],
+                            **({"open": True, "evidence": a.get("evidence")} if a.get("open") else {}),
+                        }
                         for a in found.ambiguous
                     ],
                     # Each later step's candidates: why a second effect was (not) named.
