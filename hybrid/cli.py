@@ -277,6 +277,15 @@ def build_parser() -> argparse.ArgumentParser:
         "DiagnoseSettings.refine",
     )
     p.add_argument(
+        "--racing-effects",
+        type=B.integer(*B.RACING),
+        default=None,
+        metavar="N",
+        help="after the race's first LM steps only the N leading effects on the drive and the output race on; "
+        "the others keep that short fit (report.md: 'fitted only the race's first steps'). 0: every effect "
+        "races, slower where many are searched (default: DiagnoseSettings.racing_effects)",
+    )
+    p.add_argument(
         "--materiality",
         action="append",
         default=[],
@@ -846,6 +855,8 @@ def _cmd_diagnose(args):
         settings = dataclasses.replace(settings, bridge_glitches=False)
     if args.no_refine:
         settings = dataclasses.replace(settings, refine=False)
+    if args.racing_effects is not None:
+        settings = dataclasses.replace(settings, racing_effects=args.racing_effects)
     if args.materiality:
         given = parse_params(args.materiality)  # names and sizes are checked where every caller's are
         settings = dataclasses.replace(settings, materiality={**settings.materiality, **given})

@@ -270,6 +270,31 @@ def test_report_json_is_strict_and_consistent(report):
         assert {"value", "std_error", "unit"} <= set(entry)
 
 
+def test_racing_effects_reaches_the_settings_and_a_bad_count_is_one_line(tmp_path, monkeypatch, capsys):
+    """`--racing-effects N` sets `DiagnoseSettings.racing_effects` (0: every effect races; the race itself
+    is tests/test_race.py's); a count below 0 ends with exit 2 and one line, nothing written."""
+    from hybrid import InputError
+    from hybrid.ipmc import _defaults
+
+    given = []
+
+    def stop(*args, **kwargs):  # the settings the CLI built, then no search: the mapping alone
+        given.append(kwargs["settings"])
+        raise InputError("stopped by the test")
+
+    monkeypatch.setattr(_defaults, "diagnose", stop)
+    path = hidden_effect_recording(*REPORT_CASE).save(tmp_path / "rec.csv")
+    assert (
+        main(["diagnose", str(path), "--out", str(tmp_path / "a"), "--racing-effects", "0", "--quiet"]) == 2
+    )
+    assert [s.racing_effects for s in given] == [0] and "stopped by the test" in capsys.readouterr().err
+    code = main(["diagnose", str(path), "--out", str(tmp_path / "b"), "--racing-effects", "-1", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(given) == 1
+    assert "--racing-effects" in err[-1] and "from 0 to" in err[-1], err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
 def test_figures_are_png_images(report):
     import matplotlib.image
 

@@ -31,6 +31,7 @@ DEPTH = (0, 50)  # hidden layers of the D-MLP (0: a linear map of the window)
 WIDTH = (1, 1000)  # neurons per hidden layer
 SOBOL = (0, 100_000)  # Sobol base samples (0: skip)
 BLOCKS = (1, 10_000)
+RACING = (0, 10_000)  # effects that race on after the race's first round (0: every effect)
 SETTLE_MAX = 10_000_000  # samples of held drive before a record (--settle)
 
 
