@@ -423,8 +423,9 @@ def open_world_tables(rows, specs) -> str:
                 "",
                 f"Not fully named: {len(partial)} draws. Flagged as missing something: "
                 f"{flags.count('unexplained')} by `unexplained`; {flags.count('open')} by a last step left open "
-                '(report.json\'s `ambiguous`, named "none": at the noise floor, a candidate that wins '
-                "significantly many held-out chunks) with a missing hidden effect among its rivals; "
+                '(report.json\'s `ambiguous`, named "none": a candidate better held out, beside a remainder '
+                "above the noise floor or, at the floor, winning significantly many held-out chunks) with a "
+                "missing hidden effect among its rivals; "
                 f"{flags.count('open, other rivals')} open with other rivals; nothing said on {len(silent)}"
                 + (
                     " (" + ", ".join(f"{r['effect']} seed {r['seed']}" for r in silent) + ")"
