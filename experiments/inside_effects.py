@@ -56,10 +56,11 @@ or its integrators, and diagnoses it with the examples' plug-in or `lti:N`
 The noise is 0.5 % of the clean output's range. Found means the hidden effect's
 name (``stiffness``, ``limit_position``, ``limit_h1``) is among the causes; on
 clean data, that no cause is named. A miss is diagnosed again by a search told
-the hidden effect alone (``told``: its held-out gain over the effect-free model;
-under the 1.5 the rules ask, the recording does not carry the effect clearly
-enough for any search). Writes the JSON and a Markdown table beside it; every
-number in it comes from this command.
+the hidden effect alone (``told``: whether it names it, its held-out gain over
+the effect-free model and the rules it failed): where even that search does not
+name it, the recording does not carry the effect clearly enough for the rules.
+Writes the JSON and a Markdown table beside it; every number in it comes from
+this command.
 """
 
 from __future__ import annotations
@@ -466,8 +467,9 @@ def write(kept: list, new: list, commands: list, argv, path: str) -> None:
     lines += [
         "",
         "Told: a miss diagnosed again by a search told the hidden effect alone (`effects=[<it>]`, the same "
-        "rules); its held-out gain over the effect-free model (1.5 asked) says whether this recording carries "
-        "the effect clearly enough for the rules. Its seconds are not in the seconds column.",
+        "rules), its held-out gain over the effect-free model shown; where even it does not name the effect, "
+        "this recording does not carry the effect clearly enough for the rules. Its seconds are not in the "
+        "seconds column.",
         "",
     ]
     for case in cases:
