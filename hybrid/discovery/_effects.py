@@ -1293,11 +1293,11 @@ class DriveEven(_Even):
         # from there stayed at 1.12 (a gain of 1.04) on experiments/inside_effects.py rc_square seeds 1
         # and 2, whose effect moves the output by 48 and 80 % of its range. Screened with the dynamics,
         # the mostly even and the purely even (30× the odd part at the largest |u|) forms, either sign.
-        from ._starts import drive_map_starts
+        from ._starts import joint_starts
 
         top = signal_top(context.signal)
         values = [{self.coefficient: k / top} for k in (3.0, -3.0, 30.0)]
-        return drive_map_starts(context, self, values, self.n_screened)
+        return joint_starts(context, self, values, self.n_screened)
 
 
 class BaselineDrift(AbstractEffect):

@@ -118,36 +118,6 @@ def delayed(problem: Problem, shift: int) -> Problem:
     return with_drives(problem, lambda v: np.concatenate([np.zeros(shift, v.dtype), v[:-shift]]))
 
 
-def drive_map_starts(context, effect, values, n_starts: int) -> list[dict]:
-    """Starts for a drive-side `effect` that maps the drive sample by sample: the design screened with
-    the drive mapped on the host through the effect at each of `values`.
-
-    What `joint_starts` does for any effect, at the cost of the delay's screen: the
-    model extended so far (`context.simulation`, the effect itself off) sees the
-    mapped drive, so its screen program is the delay's, compiled once (`joint_starts`
-    switches the effect on in the stack and compiles a program of its own: 1.3 s of
-    the first call of `benchmarks/diagnose_effect_set.py`). The map goes before
-    every drive-side effect named so far rather than at the effect's place among
-    them: a start, which the lane's fit then puts right.
-    """
-    design, names, raws, band = screen_design(
-        context.problem, context.simulation, context.frozen, keep=N_JOINT_SCREEN
-    )
-    if not names:
-        return []
-    dt = float(context.problem.series[0].dt)
-    best = []
-    for k, given in enumerate(values):
-        mapped = type(effect)(**given)
-        problem = with_drives(context.problem, lambda v, m=mapped: np.asarray(m.apply(jnp.asarray(v), dt)))
-        losses = np.where(band, screen_design_losses(problem, context.simulation, raws), np.inf)
-        i = int(np.argmin(losses))
-        if np.isfinite(losses[i]):
-            best.append((float(losses[i]), k, {**{name: design[i][name] for name in names}, **given}))
-    best.sort(key=lambda item: item[:2])
-    return [start for *_, start in best[:n_starts]]
-
-
 def delay_starts(
     problem, simulation, rate: float, n_starts: int, frozen=frozenset(), more: tuple[int, ...] = ()
 ) -> list[dict]:
@@ -477,6 +447,8 @@ def joint_starts(context, effect, values, n_starts: int) -> list[dict]:
 
     An effect inside the dynamics gets the simulation itself in `context` and
     is screened on it; a drive- or output-side one the model extended so far.
+    A drive-side effect is screened with the drive mapped through it (at each of
+    `values`) before that model, on the host (`with_drives`).
     """
     from ._effect_stack import EffectStack
 
@@ -486,28 +458,48 @@ def joint_starts(context, effect, values, n_starts: int) -> list[dict]:
             f"joint_starts({type(effect).__name__}) needs the StartContext of screened_starts (its problem "
             "and simulation): call it from screened_starts(context), not from starts(context)"
         )
-    if isinstance(simulation, EffectStack) and effect.name in simulation.effect_names:
+    in_stack = isinstance(simulation, EffectStack) and effect.name in simulation.effect_names
+    if in_stack:
+        at = simulation.effect_names.index(effect.name)
+        effect = simulation.effects[at]
+    unknown = sorted({k for given in values for k in given} - set(effect.constraints))
+    if unknown:
+        raise InputError(
+            f"joint_starts({type(effect).__name__}): values {values!r} name {', '.join(unknown)}, which are "
+            f"not its parameters ({', '.join(effect.constraints)})"
+        )
+    # A drive-side effect maps the drive on the host into the model extended so far, the effect off: its
+    # screen is then the program every drive-side screen shares (the delay's), compiled once, where the
+    # effect switched on in the stack compiles one of its own (1.35 s of the first call of
+    # benchmarks/diagnose_effect_set.py for drive_even). The map goes before the drive-side effects named
+    # so far, not at its place among them: a start, which the lane's fit puts right.
+    on_host = in_stack and effect.place == "drive"
+    if in_stack:
         active = np.asarray(simulation.active, float).copy()
-        active[simulation.effect_names.index(effect.name)] = 1.0
+        active[at] = 0.0 if on_host else 1.0
         stack = simulation.with_active(active)
-        effect = simulation.effects[simulation.effect_names.index(effect.name)]
     else:  # the simulation itself (an inside effect's screen), with this effect alone
         stack = EffectStack(simulation, [effect])
     design, names, raws, band = screen_design(context.problem, stack, context.frozen, keep=N_JOINT_SCREEN)
-    n = len(design)
+    dt, n = float(context.problem.series[0].dt), len(design)
     best = []
     for k, given in enumerate(values):
-        unknown = sorted(set(given) - set(effect.constraints))
-        if unknown:
-            raise InputError(
-                f"joint_starts({type(effect).__name__}): values {given!r} name {', '.join(unknown)}, which are "
-                f"not its parameters ({', '.join(effect.constraints)})"
+        if on_host:
+            mapped = effect.with_values(**given)
+            problem = with_drives(
+                context.problem, lambda v, m=mapped: np.asarray(m.apply(jnp.asarray(v), dt))
             )
-        row = dict(raws)
-        for name, value in given.items():
-            raw = effect.constraints[name].to_raw(np.full(n, float(value)))
-            row[name] = jnp.asarray(raw)
-        losses = np.where(band, screen_design_losses(context.problem, stack, row), np.inf)
+            row = raws
+        else:  # the effect's values as columns of the design
+            problem = context.problem
+            row = {
+                **raws,
+                **{
+                    name: jnp.asarray(effect.constraints[name].to_raw(np.full(n, float(value))))
+                    for name, value in given.items()
+                },
+            }
+        losses = np.where(band, screen_design_losses(problem, stack, row), np.inf)
         i = int(np.argmin(losses))
         if np.isfinite(losses[i]):
             best.append((float(losses[i]), k, {**{name: design[i][name] for name in names}, **given}))
