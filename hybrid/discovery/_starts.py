@@ -470,9 +470,9 @@ def joint_starts(context, effect, values, n_starts: int) -> list[dict]:
         )
     # A drive-side effect maps the drive on the host into the model extended so far, the effect off: its
     # screen is then the program every drive-side screen shares (the delay's), compiled once, where the
-    # effect switched on in the stack compiles one of its own (1.35 s of the first call of
-    # benchmarks/diagnose_effect_set.py for drive_even). The map goes before the drive-side effects named
-    # so far, not at its place among them: a start, which the lane's fit puts right.
+    # effect switched on in the stack compiles one of its own (for drive_even, 1.29× against 1.25× on
+    # the first call of benchmarks/diagnose_effect_set.py: docs/benchmarks.md). The map goes before the
+    # drive-side effects named so far, not at its place among them: a start, which the lane's fit puts right.
     on_host = in_stack and effect.place == "drive"
     if in_stack:
         active = np.asarray(simulation.active, float).copy()
