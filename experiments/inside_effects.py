@@ -2,7 +2,7 @@
 
     python experiments/inside_effects.py [--seeds 4] [--cases cubic,end_stop,none,overflow,tank_none,
                                          lti_dead_zone,lti_square,lti_cubic,lti_limit,lti_none,
-                                         rc_dead_zone,rc_square,rc_cubic,rc_limit,rc_none]
+                                         rc_dead_zone,rc_square,rc_cubic,rc_limit,rc_window,rc_none]
                                          [--out experiments/results/inside_effects.json]
 
 Each draw hides one effect on the drive or inside the dynamics of a plant
@@ -42,16 +42,18 @@ or its integrators, and diagnoses it with the examples' plug-in or `lti:N`
   double-layer voltages, C_clamp 10–60 mF, ξρ 5–30, each α 0.3–0.7, 60 s at 30 Hz,
   driven by random levels in [−2, 2] V held 0.1–1 s; diagnosed with the built-ins
   plus the inside effects, which the network's default set leaves out
-  (``effects=builtins + stiffness, limit_vc_0, limit_vc_45``):
+  (``effects=builtins + stiffness, limit_vc_0, limit_vc_45, window_vc``):
   ``rc_dead_zone`` (a dead zone of 20–35 % of the largest |u| on the drive),
   ``rc_square`` (the drive squared), ``rc_cubic`` (a cubic of the tip voltage
   fed back into the drive, 15–30 % of the largest drive at the linear peak),
   ``rc_limit`` (the clamp's double-layer voltage spills over a rim at 30–50 % of
-  its unlimited peak: an electrolysis window; found as ``limit_vc_0``) and
-  ``rc_none``. Each draw records how far its effect moves the output
-  (``effect_rms_percent``, RMS as a % of the range): a limit on one of the 46
-  compartments moves the tip voltage little, since each capacitance modulates
-  its section's gain by a few per cent.
+  its unlimited peak; found as ``limit_vc_0``), ``rc_window`` (every
+  compartment's double-layer voltage, of either sign, spills over ±40–60 % of
+  the largest unlimited |v_C|: an electrolyte's electrochemical window, which
+  bounds all of them alike; found as ``window_vc``) and ``rc_none``. Each draw
+  records how far its effect moves the output (``effect_rms_percent``, RMS as a
+  % of the range): a limit on one of the 46 compartments moves the tip voltage
+  little, since each capacitance modulates its section's gain by a few per cent.
 
 The noise is 0.5 % of the clean output's range. Found means the hidden effect's
 name (``stiffness``, ``limit_position``, ``limit_h1``) is among the causes; on
@@ -95,10 +97,11 @@ EXPECTED = {
     "rc_square": "drive_even",
     "rc_cubic": "stiffness",
     "rc_limit": "limit_vc_0",
+    "rc_window": "window_vc",
     "rc_none": None,
 }
 #: The inside effects searched on the RC network besides its default set (see the docstring).
-RC_INSIDE = ("stiffness", "limit_vc_0", "limit_vc_45")
+RC_INSIDE = ("stiffness", "limit_vc_0", "limit_vc_45", "window_vc")
 LTI_RATE, LTI_SECONDS = 30.0, 60.0
 
 
@@ -257,7 +260,7 @@ def rc_plant(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
             v = gain[k] * v + (1 - pole[k] / zero[k]) * x[k]
         return v
 
-    def run(shape, force=lambda y: 0.0, rim=None):
+    def run(shape, force=lambda y: 0.0, rim=None, window=None):
         def rhs(time, x):
             held = u[min(int(time * LTI_RATE + 1e-9), n - 1)]
             v = shape(held) - force(tip(x, 0.0))  # the force reads the state part of V_o
@@ -267,6 +270,9 @@ def rc_plant(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
                 v = gain[k] * v + (1 - pole[k] / zero[k]) * x[k]
             if rim is not None:  # above the rim the excess charging spills out (a steep smooth step)
                 dx[0] -= max(dx[0], 0.0) * expit((x[0] - rim) / (0.002 * abs(rim)))
+            if window is not None:  # every compartment, either sign: past ±window the charging leaks away
+                up, down = expit((x - window) / (0.002 * window)), expit((-window - x) / (0.002 * window))
+                dx = dx - np.maximum(dx, 0.0) * up - np.minimum(dx, 0.0) * down
             return dx
 
         sol = solve_ivp(
@@ -293,6 +299,10 @@ def rc_plant(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
         rim = rng.uniform(0.30, 0.50) * float(np.max(charges[0]))
         truth["rim"] = rim
         y = run(lambda v: v, rim=rim)[0]
+    elif case == "rc_window":
+        window = rng.uniform(0.40, 0.60) * float(np.max(np.abs(charges)))
+        truth["window"] = window
+        y = run(lambda v: v, window=window)[0]
     else:
         y = linear
     # how far the hidden effect moves the output (RMS, % of the linear output's range; the noise is 0.5 %)

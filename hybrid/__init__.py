@@ -80,6 +80,7 @@ from .discovery._inside_effects import (
     Friction as Friction,
     PolynomialStiffness as PolynomialStiffness,
     StateLimit as StateLimit,
+    StateWindow as StateWindow,
 )
 from .discovery._report import write_report as write_report
 from .discovery._starts import joint_starts as joint_starts

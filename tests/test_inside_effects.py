@@ -25,7 +25,7 @@ from jax import monitoring
 from scipy.integrate import solve_ivp
 
 import hybrid
-from hybrid import EffectStack, Friction, InputError, PolynomialStiffness, StateLimit
+from hybrid import EffectStack, Friction, InputError, PolynomialStiffness, StateLimit, StateWindow
 from hybrid.cli import main
 from hybrid.core._problem import bucket_length, series_from_recording
 from hybrid.core._serialise import build_simulation, describe_simulation
@@ -206,6 +206,74 @@ def test_rc_network_with_a_cubic_fed_back_converges_at_second_order():
         errors.append(np.max(np.abs(y - reference)) / np.ptp(reference))
     assert errors[0] < 1e-2  # 0.36 % at 20 Hz when written
     assert 3.0 < errors[0] / errors[1] < 5.5  # halving the interval quarters the error: second order
+
+
+def _soft_window_np(z, half, rim):
+    """±half about 0 with rims rim·half wide, in numpy: the top's softplus, then the bottom's."""
+    width = rim * half
+    below = half - width * np.logaddexp(0.0, (half - z) / width)
+    return -half + width * np.logaddexp(0.0, (below + half) / width)
+
+
+@pytest.mark.parametrize("method", ["zoh", "tustin"])
+def test_a_window_holds_every_compartment_of_the_network_after_every_step(method):
+    """`window_vc`: each double-layer voltage is taken into ±L after every step, against the network's
+    realisation stepped here in numpy (scipy's discretisation of `state_space`), the window applied to
+    each state; a window the states never reach is the network itself."""
+    import scipy.signal
+
+    net = hybrid.RCNetwork(C_clamp=0.005, n_stages=6, method=method)
+    (window,) = hybrid.resolve_effects(["window_vc"], net)
+    assert isinstance(window, StateWindow) and window.states == net.states and window.name == "window_vc"
+    rng = np.random.default_rng(3)
+    u = np.repeat(rng.uniform(-2.0, 2.0, 30), 10)
+    dt = 1 / 30
+    free = np.asarray(integrate(net, jnp.asarray(u), dt)[1])
+    half = 0.5 * float(np.max(np.abs(free)))
+    stack = EffectStack(net, [StateWindow("vc", net.states, vc_window=half)])
+    y = np.asarray(stack.simulate(jnp.asarray(u), dt))
+    A, B, C, D = (np.asarray(m) for m in net.state_space())
+    system = (A, B[:, None], C[None, :], np.atleast_2d(D))
+    Ad, Bd, *_ = scipy.signal.cont2discrete(system, dt, method={"zoh": "zoh", "tustin": "bilinear"}[method])
+    Bd = Bd[:, 0]
+    if method == "zoh":  # x_{k+1} = Φ x_k + Γ u_k
+        step = lambda x, k: Ad @ x + Bd * u[k]
+        x = np.zeros(len(B))
+    else:  # the trapezoidal rule, x_{k+1} = Φ x_k + Γ(u_k + u_{k+1}) from x_0 = Γ u_0, Φ scipy's bilinear one
+        Gamma = np.linalg.solve(np.eye(len(B)) - A * dt / 2, B * dt / 2)
+        step = lambda x, k: Ad @ x + Gamma * (u[k] + u[min(k + 1, len(u) - 1)])
+        x = _soft_window_np(Gamma * u[0], half, window.rim)
+    out = []
+    for k in range(len(u)):
+        out.append(C @ x + D * u[k])
+        x = _soft_window_np(step(x, k), half, window.rim)
+    np.testing.assert_allclose(y, np.array(out), rtol=0, atol=1e-9 * np.ptp(out))
+    states = stack.signals_into(jnp.asarray(u), dt)["window_vc"]
+    assert np.max(np.abs(states)) <= half  # the clamp's voltage never leaves the window
+    derived = stack.derived(jnp.asarray(u), dt)["window_vc"]
+    expected = np.max(free[:, 0]) - np.max(states) + np.min(states) - np.min(free[:, 0])  # both ends
+    assert derived["cut_percent_of_range"] == pytest.approx(100 * expected / np.ptp(free[:, 0]), rel=1e-9)
+    assert window.material(derived, {}, window.thresholds)[0] and derived["cut_percent_of_range"] > 40
+    wide = EffectStack(net, [StateWindow("vc", net.states, vc_window=100.0)])
+    np.testing.assert_allclose(
+        np.asarray(wide.simulate(jnp.asarray(u), dt)),
+        np.asarray(net.simulate(jnp.asarray(u), dt)),
+        atol=1e-12,
+    )
+
+
+def test_a_window_reads_its_unit_from_the_states_and_says_what_it_cannot_pin():
+    net = hybrid.RCNetwork(n_stages=4)
+    stack = EffectStack(net, ["window_vc", "window_vc_2"], drive_unit="mV")
+    units = [e.units_for(stack.signal_unit(e), stack.drive_unit) for e in stack.effects]
+    assert units == [{"vc_window": "mV"}, {"vc_2_window": "mV"}]
+    small = StateWindow("vc", net.states, vc_window=5.0)
+    assert "never reach the window" in small.unpinned_reason("vc_window", np.linspace(0.0, 1.0, 50))
+    assert small.unpinned_reason("vc_window", np.linspace(0.0, 6.0, 50)) is None
+    with pytest.raises(InputError, match="states must be a sequence"):
+        StateWindow("vc", "vc_0")
+    with pytest.raises(InputError, match="does not have"):
+        hybrid.resolve_effects([StateWindow("vc", ("vc_0", "vc_9"))], net)
 
 
 def test_state_limit_is_the_tank_examples_overflow_without_spill():
@@ -463,12 +531,14 @@ def test_resolve_effects_adds_inside_effects_only_where_there_are_states():
         (hybrid.Passthrough(), ["stiffness"], "has no state-space form"),
         (TwoTank(), [StateLimit("level")], "does not have: its states are h1, h2"),
         (TwoTank(), ["limit_h3"], "unknown effect 'limit_h3'"),
-        (TwoTank(), ["limit_h3"], "limit_h1, limit_h2, friction_h1, friction_h2;"),  # a few: each named
+        # a few: each named
+        (TwoTank(), ["limit_h3"], "limit_h1, limit_h2, friction_h1, friction_h2, window_h1, window_h2;"),
         # The RC network's 46 states: one pattern, not 46 names
         (
             hybrid.RCNetwork(),
             ["limit_x"],
-            "limit_<state> (limit_vc_0 … limit_vc_45), friction_<state> (friction_vc_0 … friction_vc_45);",
+            "limit_<state> (limit_vc_0 … limit_vc_45), friction_<state> (friction_vc_0 … friction_vc_45), "
+            "window_<state> (window_vc_0 … window_vc_45), window_vc (a window on every state of vc);",
         ),
     ],
 )

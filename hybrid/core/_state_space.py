@@ -72,6 +72,11 @@ class AbstractStateSpace(AbstractSimulation):
       speed), where `diagnose` searches a dry friction by default
       (``friction_<state>``; default: the states whose `state_units` are a
       speed, m/s or rad/s, `velocities`);
+    - `state_groups`: states alike enough that one limit of either sign bounds them
+      all, by the group's name (the RC network's ``{"vc": ("vc_0", …, "vc_45")}``:
+      every compartment's double-layer voltage, under one electrolyte's
+      window); ``window_<group>`` names that limit (`StateWindow`), as
+      ``window_<state>`` names one on a single state (default: none);
     - `spills_into`: where what a limit cuts off a state would go, by state
       (``{"h1": "h2"}``: water over the upper tank's rim falls into the lower
       tank); `diagnose`'s limit on such a state moves a fitted share of the
@@ -97,6 +102,7 @@ class AbstractStateSpace(AbstractSimulation):
     limited_states: ClassVar[tuple[str, ...] | None] = None
     velocity_states: ClassVar[tuple[str, ...]] = ()
     spills_into: ClassVar[dict[str, str]] = {}
+    state_groups: ClassVar[dict[str, tuple[str, ...]]] = {}
     #: Why `diagnose`'s default set leaves out the effects inside these dynamics (None: it searches them);
     #: they are searched when named (``effects=``, ``--effects``).
     not_searched_inside: ClassVar[str | None] = None

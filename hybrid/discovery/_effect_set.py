@@ -43,7 +43,7 @@ from ._effects import (
     Saturation,
     StartContext,
 )
-from ._inside_effects import Friction, PolynomialStiffness, StateLimit
+from ._inside_effects import Friction, PolynomialStiffness, StateLimit, StateWindow
 
 #: The built-in effects, by name, in the order they act on their signal (each added later
 #: goes last, which keeps the others' places in the stack and so their fits' layout).
@@ -268,7 +268,10 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     """The effects `diagnose` searches: None gives every built-in ([`EFFECTS`][]) `simulation` can take.
 
     Each item is a built-in's name, ``limit_<state>`` (a limit on a state of
-    `simulation`), ``friction_<state>`` (a Coulomb friction on one), an
+    `simulation`), ``friction_<state>`` (a Coulomb friction on one),
+    ``window_<state>`` or ``window_<group>`` (a limit of either sign on a state, or
+    one on every state of a group of its `state_groups`: `StateWindow`; searched
+    when named), an
     [`AbstractEffect`][] subclass (built with no arguments:
     its defaults) or an instance. Every one is checked (`check_effect`); names
     and parameter names must be unique. Effects inside the dynamics need
@@ -316,19 +319,31 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
         if isinstance(item, str):
             limits = {f"limit_{state}": state for state in states}
             frictions = {f"friction_{state}": state for state in states}
+            groups = _groups_of(simulation)
+            windows = {f"window_{state}": (state, (state,)) for state in states} | {
+                f"window_{group}": (group, tuple(members)) for group, members in groups.items()
+            }
             if item in limits:
                 item = state_limit(dynamics_of(simulation)[0], limits[item])  # type: ignore[index]
             elif item in frictions:
                 item = Friction(frictions[item])
+            elif item in windows:
+                item = StateWindow(windows[item][0], windows[item][1])
             elif item not in EFFECTS and item not in NAMED_ONLY:
                 # one per state: the RC network's 46 of each would bury the line
-                names = list(limits) + list(frictions)
+                names = list(limits) + list(frictions) + list(windows)
                 if len(limits) > 3:
                     names = [
                         f"limit_<state> ({names[0]} … {names[len(limits) - 1]})",
-                        f"friction_<state> ({names[len(limits)]} … {names[-1]})",
+                        f"friction_<state> ({names[len(limits)]} … {names[2 * len(limits) - 1]})",
+                        f"window_<state> (window_{states[0]} … window_{states[-1]})"
+                        + "".join(
+                            f", window_{group} (a window on every state of {group})" for group in groups
+                        ),
                     ]
-                close = difflib.get_close_matches(item, [*EFFECTS, *NAMED_ONLY, *limits, *frictions], n=1)
+                close = difflib.get_close_matches(
+                    item, [*EFFECTS, *NAMED_ONLY, *limits, *frictions, *windows], n=1
+                )
                 raise InputError(
                     f"unknown effect {item!r}"
                     + (f" (did you mean {close[0]!r}?)" if close else "")
@@ -377,7 +392,7 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
         elif not isinstance(item, AbstractEffect):
             raise InputError(f"{label}: give an effect's name, an AbstractEffect subclass or an instance")
         # built-ins are tested
-        if type(item) not in (*EFFECTS.values(), *NAMED_ONLY.values(), StateLimit, Friction):
+        if type(item) not in (*EFFECTS.values(), *NAMED_ONLY.values(), StateLimit, StateWindow, Friction):
             check_effect(item, label)
         if item.place == "inside":
             _check_inside(item, label, simulation, states)
@@ -449,6 +464,12 @@ def _states_of(simulation) -> tuple[str, ...]:
     return tuple(dynamics[0].states)
 
 
+def _groups_of(simulation) -> dict[str, tuple[str, ...]]:
+    """The state groups of `simulation`'s state-space form (`AbstractStateSpace.state_groups`), or {}."""
+    dynamics = None if simulation is None else dynamics_of(simulation)
+    return {} if dynamics is None else dict(dynamics[0].state_groups)
+
+
 def _check_inside(effect: AbstractEffect, label: str, simulation, states) -> None:
     """An inside effect needs a simulation with states, and a state (or the output) it can act on."""
     if simulation is None:
@@ -460,6 +481,7 @@ def _check_inside(effect: AbstractEffect, label: str, simulation, states) -> Non
         )
     for what, state in (
         ("acts on", effect.acts_on),
+        *(("acts on", s) for s in (effect.states[1:] if isinstance(effect, StateWindow) else ())),
         ("spills into", getattr(effect, "into", None)),
         ("stops the velocity", getattr(effect, "velocity", None)),
     ):

@@ -27,7 +27,7 @@ from ..core._state_space import dynamics_of, integrate, own_forces
 from ..util._errors import InputError
 from ._effect_set import force_percent_of_drive, resolve_effects
 from ._effects import AbstractEffect, StartContext
-from ._inside_effects import StateLimit
+from ._inside_effects import StateLimit, StateWindow
 
 
 class EffectStack(AbstractWrapper):
@@ -75,7 +75,12 @@ class EffectStack(AbstractWrapper):
                     "has no state-space form: derive it from hybrid.AbstractStateSpace, or drop them"
                 )
             states = dynamics[0].states
-            missing = [e.name for e in inside if e.acts_on != "output" and e.acts_on not in states]
+            missing = [
+                e.name
+                for e in inside
+                if e.acts_on != "output"
+                and any(s not in states for s in (e.states if isinstance(e, StateWindow) else (e.acts_on,)))
+            ]
             if missing:
                 raise InputError(
                     f"{', '.join(missing)} act on states {type(inner).__name__} does not have "
@@ -266,7 +271,7 @@ class EffectStack(AbstractWrapper):
         for i, (on, e) in enumerate(zip(self.active, self.effects)):
             if not float(on):  # a switched-off effect leaves its signal unchanged: nothing to derive
                 continue
-            if isinstance(e, StateLimit):  # its rim from the state's rest, as it acts
+            if isinstance(e, StateLimit | StateWindow):  # its rim from the state's rest, as it acts
                 core = dynamics_of(self.inner)
                 assert core is not None  # an inside effect needs the state-space form
                 at_rest = float(_rest_state(core[0], jnp.float64)[core[0].states.index(e.acts_on)])
@@ -281,7 +286,12 @@ class EffectStack(AbstractWrapper):
                 free = self.with_active(np.where(np.arange(len(self.effects)) == i, 0.0, self.active))
                 unlimited = free.signals_into(v_in, dt, n)[e.name]
                 span = float(np.ptp(unlimited)) if len(unlimited) else 0.0
-                cut = float(np.max(unlimited) - np.max(signals[e.name])) if span > 0 else 0.0
+                if span <= 0:
+                    cut = 0.0
+                elif isinstance(e, StateWindow):  # both ends
+                    cut = e.cut(unlimited, signals[e.name])
+                else:
+                    cut = float(np.max(unlimited) - np.max(signals[e.name]))
                 out[e.name] = {
                     **out[e.name],
                     "cut_percent_of_range": 100.0 * max(cut, 0.0) / span if span else 0.0,
@@ -633,7 +643,7 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
             _named_state(e, "velocity", inner.states),
         )
         for i, e in inside
-        if e.role == "limit"
+        if e.role == "limit" and not isinstance(e, StateWindow)
     ]
 
     def force(x, y):
@@ -645,10 +655,18 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
 
     # Each limit's rim is measured from its state's rest, under no drive (`StateLimit._rim`): the
     # same whatever the zero of the state's unit.
-    rest = _rest_state(inner, jnp.asarray(u).dtype) if limits else ()
+    windows = [
+        (stack.active[i], e, [inner.states.index(s) for s in e.states])
+        for i, e in inside
+        if isinstance(e, StateWindow)
+    ]
+    rest = _rest_state(inner, jnp.asarray(u).dtype) if limits or windows else ()
 
     def bound(x):
         x = list(x)
+        for on, effect, ks in windows:  # one window on each of its states
+            for k in ks:
+                x[k] = jnp.where(on != 0, x[k] + on * (effect.apply(x[k], dt, rest[k]) - x[k]), x[k])
         for on, effect, k, j, m in limits:
             z = x[k]
             at = {"origin": rest[k]} if isinstance(effect, StateLimit) else {}  # a plug-in's: as it is
@@ -659,7 +677,9 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
                 x[m] = jnp.where(on != 0, x[m] + on * (effect.stopped(z, x[m], **at) - x[m]), x[m])
         return tuple(x)
 
-    return integrate(inner, u, dt, force if feedback else None, bound if limits else None, external)
+    return integrate(
+        inner, u, dt, force if feedback else None, bound if limits or windows else None, external
+    )
 
 
 @eqx.filter_jit

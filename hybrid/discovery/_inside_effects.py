@@ -14,6 +14,10 @@ name                   what it does                                parameters
                        cut into another state (`into`)             `into` per unit of the state)
 ``friction_<state>``   ẋ = f(x, u − F·tanh(v/v_s)), v the state    ``<state>_friction`` F ({drive}),
                        (a Coulomb friction on a velocity)          ``<state>_stick_speed`` v_s (its unit)
+``window_<group>``     each state z of a group (or one state,      ``<group>_window`` L (unit of the
+                       ``window_<state>``) held within z_rest ± L  states)
+                       after every step (an electrochemical
+                       window on double-layer voltages)
 =====================  ==========================================  =====================================
 
 - Stiffness: the spring of a mass–spring system that hardens (k₃ > 0) or
@@ -41,6 +45,10 @@ name                   what it does                                parameters
   found from the rates for the default set), the limit is an end stop: it
   takes away the part of the velocity that pushes into it, so the mass stays
   at the stop and leaves when the drive pulls it back.
+- Window: a limit of either sign, the same on every state of a group the
+  simulation names (`AbstractStateSpace.state_groups`: the RC network's
+  double-layer voltages, ``window_vc``), searched when named. Material as a
+  state limit, by ``cut_percent_of_range`` of its first state, both ends counted.
 - Friction: a dry (Coulomb) friction on a state that is a velocity, a force of
   nearly constant size F against its sign, smoothed over |v| ≲ v_s (a step has
   no gradient, and a real contact sticks over a small band of speeds). The
@@ -375,6 +383,144 @@ class StateLimit(AbstractEffect):
             f"the limit cuts {size:.1f} % off the range of state {self.state}, which sits at it {at:.1f} % of the "
             "time "
             f"(needs a cut ≥ {need} %)"
+        )
+
+
+class StateWindow(AbstractEffect):
+    """A two-sided limit ±L about rest on a group of states at once: an electrochemical window.
+
+    Every state of `states` is held within [x_rest − L, x_rest + L] after
+    every step (x_rest: where it rests under no drive), with one fitted
+    half-width L, ``<group>_window`` in the states' unit: the double-layer
+    voltages of the RC network's compartments, each of which stops charging
+    where the electrolyte starts to decompose (electrolysis, a Faradaic current
+    past the double layer) at the same voltage, of either sign. A limit on one
+    compartment moves the tip voltage by a few per cent of what the same limit
+    on all of them does (`experiments/inside_effects.py`'s ``rc_limit`` against
+    ``rc_window``). One state (`states` of one) is a symmetric limit on it.
+
+    `acts_on` is the first state, whose trajectory the report reads (the
+    RC network's clamp compartment, which swings furthest); `rim` as
+    `StateLimit`'s, a share of L.
+    """
+
+    raw: dict[str, Array]
+    group: str = eqx.field(static=True)
+    states: tuple[str, ...] = eqx.field(static=True)
+    rim: float = eqx.field(static=True)
+    place: ClassVar[str] = "inside"
+    role: ClassVar[str] = "limit"
+    n_screened: ClassVar[int] = 2
+
+    def __init__(self, group: str = "x", states=None, rim: float = RIM_WIDTH, **values):
+        if not isinstance(group, str) or not group.isidentifier():
+            raise InputError(f"StateWindow needs a name for its states (an identifier), got {group!r}")
+        states = (group,) if states is None else states
+        if (
+            isinstance(states, str)
+            or not all(isinstance(s, str) and s.isidentifier() for s in states)
+            or not states
+        ):
+            raise InputError(
+                f"StateWindow({group!r}): states must be a sequence of the states' names (identifiers), "
+                f"got {states!r}"
+            )
+        if isinstance(rim, bool) or not isinstance(rim, int | float) or not 0.0 < rim < 1.0:
+            raise InputError(
+                f"StateWindow({group!r}): rim is the rim's width as a share of the half-width, a number "
+                f"between 0 and 1 (default {RIM_WIDTH}), got {rim!r}"
+            )
+        self.group, self.states, self.rim = group, tuple(states), float(rim)
+        init_values(self, values)
+
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return f"window_{self.group}"
+
+    @property
+    def acts_on(self) -> str:  # type: ignore[override]
+        return self.states[0]
+
+    @property
+    def constraints(self) -> dict:  # type: ignore[override]
+        return {f"{self.group}_window": Positive()}
+
+    @property
+    def units(self) -> dict:  # type: ignore[override]
+        return {f"{self.group}_window": "{signal}"}
+
+    @property
+    def defaults(self) -> dict:  # type: ignore[override]
+        return {f"{self.group}_window": 1.0}
+
+    @property
+    def thresholds(self) -> dict:  # type: ignore[override]
+        return {"cut_percent_of_range": 3.0}
+
+    def config(self) -> dict:
+        return {"group": self.group, "states": list(self.states), "rim": self.rim}
+
+    def _half_width(self):
+        return self.parameters()[f"{self.group}_window"]
+
+    def apply(self, z, dt, origin=0.0):
+        half = self._half_width()
+        width = self.rim * half + 1e-12
+        top, bottom = origin + half, origin - half
+        below = top - width * jax.nn.softplus((top - z) / width)
+        return bottom + width * jax.nn.softplus((below - bottom) / width)
+
+    def cut(self, unlimited, limited) -> float:
+        """How far the window pulls the state's extremes in, both ends, in the state's unit."""
+        top = float(np.max(unlimited) - np.max(limited))
+        bottom = float(np.min(limited) - np.min(unlimited))
+        return max(top, 0.0) + max(bottom, 0.0)
+
+    def derived(self, z, dt, origin: float = 0.0):
+        half = float(self._half_width())
+        z = np.asarray(z, float)
+        near = np.abs(z - origin) >= half - 2.0 * self.rim * half
+        return {"level": half, "at_limit_percent": 100.0 * float(np.mean(near)) if z.size else 0.0}
+
+    def starts(self, context):
+        # Nine tenths, seven tenths and half of the first state's largest swing from where it starts.
+        z = np.asarray(context.signal, float)
+        swing = signal_top(z - z[0]) if z.size else 1.0
+        return [{f"{self.group}_window": f * swing} for f in (0.9, 0.7, 0.5)]
+
+    def screened_starts(self, context):
+        from ._starts import limit_starts
+
+        return limit_starts(context.problem, context.simulation, self, self.n_screened, context.frozen)
+
+    def unpinned_reason(self, name, signal):
+        z = np.asarray(signal, float)
+        half = float(self._half_width())
+        if z.size and np.max(np.abs(z - z[0])) < half - 2.0 * self.rim * half:
+            return "the states never reach the window in this recording"
+        return None
+
+    def reading(self, parameters, output_unit):
+        many = len(self.states) > 1
+        which = (
+            f"the {len(self.states)} states {self.states[0]} … {self.states[-1]}"
+            if many
+            else f"the state {self.states[0]}"
+        )
+        return (
+            f"a limit of either sign on {which} inside the dynamics, the same ±{self.group}_window about rest"
+            + (" on each" if many else "")
+            + ": on the double-layer voltages of an electrode, the electrolyte's electrochemical window "
+            "(past it a Faradaic current flows and the double layer charges no further); on an integrator, "
+            "its saturation"
+        )
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived.get("cut_percent_of_range", 0.0), thresholds["cut_percent_of_range"]
+        at = derived.get("at_limit_percent", 0.0)
+        return size >= need, (
+            f"the window cuts {size:.1f} % off the range of state {self.acts_on}, which sits at it {at:.1f} % of "
+            f"the time (needs a cut ≥ {need} %)"
         )
 
 

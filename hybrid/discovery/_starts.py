@@ -368,16 +368,23 @@ SPILL_SHARES = (0.02, 0.5, 1.0)
 
 
 @eqx.filter_jit
-def state_peaks(problem, simulation, state: str, raws):
-    """The largest value of `state` on the training part at each row of `raws` (the limit off)."""
+def state_peaks(problem, simulation, state: str | tuple[str, ...], raws):
+    """The largest value of `state` on the training part at each row of `raws` (the limit off).
+
+    A tuple of states (a `StateWindow`'s): the largest swing |x − x_rest| of any of them from where
+    it rests under no drive.
+    """
     from ..core._state_space import dynamics_of, integrate
 
     def one(raw):
         core, held, skip = dynamics_of(simulation.with_raw(raw))  # a state limit needs a state-space form
-        k = core.states.index(state)
+        group = isinstance(state, tuple)
+        ks = jnp.asarray([core.states.index(s) for s in (state if group else (state,))])
+        rest = jnp.asarray(core.initial_state(jnp.zeros(()), core.prepare(core.parameters())))[ks]
         peaks = []
         for series in problem.series:
-            x = integrate(core, held(series.v_in), series.dt)[1][skip:, k]
+            x = integrate(core, held(series.v_in), series.dt)[1][skip:][:, ks]
+            x = jnp.abs(x - rest) if group else x
             peaks += [jnp.max(x[a:b]) for a, b in series.segments_of("train")]
         return jnp.max(jnp.stack(peaks))
 
@@ -401,9 +408,10 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     design, names, raws, band = screen_design(problem, simulation, frozen, keep=N_JOINT_SCREEN)
     if not names:
         return []
-    level = f"{effect.state}_max"
+    window = getattr(effect, "states", None)  # a `StateWindow`: ± a share of its states' largest swing
+    level = f"{effect.group}_window" if window else f"{effect.state}_max"
     share = f"{effect.state}_spill" if getattr(effect, "into", None) is not None else None
-    peaks = np.asarray(state_peaks(problem, simulation, effect.state, raws))
+    peaks = np.asarray(state_peaks(problem, simulation, tuple(window) if window else effect.state, raws))
     stack = EffectStack(simulation, [effect])
     best = []
     for fraction in LIMIT_FRACTIONS:

@@ -50,7 +50,8 @@ discretisation* as `simulate`:
 Stepping 46 states one sample after another costs far more than the
 block-lifted cascade, so `diagnose` leaves the inside effects out of its
 default set for the network (`not_searched_inside` says so in the report) and
-searches them when asked (``--effects builtins,stiffness,limit_vc_0``).
+searches them when asked (``--effects builtins,stiffness,limit_vc_0,window_vc``: ``window_vc``, one
+window ±L on every compartment's double-layer voltage, `StateWindow`).
 """
 
 from __future__ import annotations
@@ -93,7 +94,8 @@ class RCNetwork(AbstractLinearStateSpace):
 
     Its state-space form has the states ``vc_0`` (the clamp compartment's
     double-layer voltage) to ``vc_N`` (the tip's), each in the drive's unit; a
-    limit is searched on the clamp's and the tip's (`limited_states`).
+    limit is searched on the clamp's and the tip's (`limited_states`), and a window on all of
+    them (``window_vc``, `state_groups`) where asked.
     """
 
     raw: dict[str, Array]
@@ -148,7 +150,7 @@ class RCNetwork(AbstractLinearStateSpace):
     linear_in_drive: ClassVar[bool] = True  # zero initial state: V_o is linear in V_i
     not_searched_inside: ClassVar[str | None] = (
         "its state-space form steps one state per section, sample after sample, far dearer than its "
-        "block-lifted cascade: ask for them by name (--effects builtins,stiffness,limit_vc_0)"
+        "block-lifted cascade: ask for them by name (--effects builtins,stiffness,limit_vc_0,window_vc)"
     )
 
     def __init__(
@@ -254,6 +256,11 @@ class RCNetwork(AbstractLinearStateSpace):
     def limited_states(self) -> tuple[str, ...]:  # type: ignore[override]
         """The clamp's double-layer voltage, the largest, and the tip's."""
         return ("vc_0", f"vc_{self.n_stages}")
+
+    @property
+    def state_groups(self) -> dict[str, tuple[str, ...]]:  # type: ignore[override]
+        """``vc``: every compartment's double-layer voltage, which one electrolyte's window bounds alike."""
+        return {"vc": self.states}
 
     @property
     def state_units(self) -> dict[str, str]:
