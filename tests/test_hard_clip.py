@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from hybrid.discovery._effect_set import NAMED_ONLY
+import hybrid
+from hybrid.discovery._effect_set import NAMED_ONLY, searched_places
 from hybrid.discovery._unexplained import named_only_hint
 
 Clip, DriveClip = NAMED_ONLY["clip"], NAMED_ONLY["drive_clip"]
@@ -147,6 +148,17 @@ def test_a_remainder_static_in_the_drive_or_monotone_in_the_output_names_the_cli
     searched = {**places, "drive": {"effects": ["drive_saturation", "drive_clip"]}}
     assert named_only_hint(described("static_drive"), searched) is None
     assert named_only_hint(described("state_map"), places) is None
+    # a simulation with a group of states (the RC network's double-layer voltages): a window on all of them
+    # reads from outside as a clip of the drive, and is pointed at beside it where it was not searched
+    network = searched_places(hybrid.resolve_effects(None, hybrid.RCNetwork()), hybrid.RCNetwork())
+    assert network["inside"]["windows"] == ["window_vc"]
+    assert "the built-in window_vc, searched when named" in named_only_hint(described("static_drive"), network)
+    assert "window" not in named_only_hint(described("static_output_monotone"), network)
+    assert "window" not in named_only_hint(described("static_drive"), places)  # no group: no window
+    tried = searched_places(
+        hybrid.resolve_effects(["builtins", "window_vc"], hybrid.RCNetwork()), hybrid.RCNetwork()
+    )
+    assert tried["inside"]["windows"] == [] and "window" not in named_only_hint(described("static_drive"), tried)
 
 
 def test_a_sensors_full_scale_is_given_as_recorded_through_the_readout(tmp_path):

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from jax import monitoring
 from scipy.integrate import solve_ivp
+from scipy.special import expit
 
 import hybrid
 from hybrid import EffectStack, Friction, InputError, PolynomialStiffness, StateLimit, StateWindow
@@ -254,6 +255,9 @@ def test_a_window_holds_every_compartment_of_the_network_after_every_step(method
     expected = np.max(free[:, 0]) - np.max(states) + np.min(states) - np.min(free[:, 0])  # both ends
     assert derived["cut_percent_of_range"] == pytest.approx(100 * expected / np.ptp(free[:, 0]), rel=1e-9)
     assert window.material(derived, {}, window.thresholds)[0] and derived["cut_percent_of_range"] > 40
+    rebuilt = build_simulation(describe_simulation(stack)).with_raw(stack.raw)  # as a saved model is read
+    assert rebuilt.effects[0].states == net.states and rebuilt.effects[0].rim == window.rim
+    np.testing.assert_allclose(np.asarray(rebuilt.simulate(jnp.asarray(u), dt)), y, rtol=0, atol=1e-12)
     wide = EffectStack(net, [StateWindow("vc", net.states, vc_window=100.0)])
     np.testing.assert_allclose(
         np.asarray(wide.simulate(jnp.asarray(u), dt)),
@@ -1208,3 +1212,78 @@ def test_a_damping_reading_says_the_form_fitted_not_one_drag_law():
     eases = PolynomialStiffness().reading({"stiffness_cube": -2.0}, "m/s")
     assert "grows faster than the speed, fitted as k₂·v² + k₃·v³" in grows and "or a cube" in grows
     assert "eases at speed, fitted as k₂·v² + k₃·v³" in eases and "drag" not in eases
+
+
+def _rc_behind_a_window(path, seconds: float = 30.0, rate: float = 30.0, seed: int = 4) -> float:
+    """The paper's network (Eqs 11–13 in numpy, `helpers.stage_zpk_np`) as an ODE in its 46 double-layer
+    voltages, each spilling past ±W (a steep smooth leak of the charging current, either sign), solved by
+    solve_ivp under random levels in [−2, 2] V held 0.1–1 s; W half the largest unlimited |v_C|; noise 0.5 %
+    of the range. Writes the CSV; returns W."""
+    G, Z, P = h.stage_zpk_np(10.0, 1.0, 0.5, 0.5, 0.5, 0.02, 45)
+    rng = np.random.default_rng(seed)
+    n = int(seconds * rate)
+    t = np.arange(n) / rate
+    u = h.held_levels(rng, t, -2.0, 2.0, 0.1, 1.0)
+
+    def rhs(time, x, window):
+        v = u[min(int(time * rate + 1e-9), n - 1)]
+        dx = np.empty(len(G))
+        for k in range(len(G)):
+            dx[k] = G[k] * Z[k] * v - P[k] * x[k]
+            v = G[k] * v + (1 - P[k] / Z[k]) * x[k]
+        if window is not None:
+            up, down = expit((x - window) / (0.002 * window)), expit((-window - x) / (0.002 * window))
+            dx = dx - np.maximum(dx, 0.0) * up - np.minimum(dx, 0.0) * down
+        return dx
+
+    def tip(states):  # V_o = the states' part plus the drive through every section's direct gain
+        out = np.zeros(states.shape[1])
+        for k in range(len(G)):
+            out = G[k] * out + (1 - P[k] / Z[k]) * states[k]
+        return out + np.prod(G) * u
+
+    def run(window):
+        sol = solve_ivp(
+            rhs,
+            (0, t[-1]),
+            np.zeros(len(G)),
+            t_eval=t,
+            args=(window,),
+            rtol=1e-9,
+            atol=1e-11,
+            max_step=0.25 / rate,
+        )
+        return sol.y
+
+    free = run(None)
+    window = 0.5 * float(np.max(np.abs(free)))
+    y = tip(run(window))
+    w = y + 0.005 * np.ptp(y) * rng.normal(size=n)
+    np.savetxt(path, np.c_[t, u, w], delimiter=",", header="t,v_in,w\ns,V,V", comments="")
+    return window
+
+
+def test_an_electrolytes_window_on_every_compartment_is_named_window_vc_not_a_drive_saturation(tmp_path):
+    """A window on every double-layer voltage looks from outside like a drive that stops at its levels:
+    searched beside the drive's saturation and clip and a limit on the clamp's compartment alone (what
+    named it, or pointed at it, before `window_vc`: `experiments/inside_effects.py`'s ``rc_window``),
+    the window is named, with its half-width."""
+    window = _rc_behind_a_window(tmp_path / "strip.csv")
+    run = h.run_hybrid(
+        tmp_path,
+        "diagnose",
+        "strip.csv",
+        "--physics",
+        "rc:zoh",
+        "--effects",
+        "drive_saturation,drive_clip,limit_vc_0,window_vc",
+        "--out",
+        "d",
+        "--quiet",
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert [c["name"] for c in report["causes"]] == ["window_vc"], report["verdict"]
+    half = report["parameters"]["vc_window"]
+    assert half["unit"] == "V" and half["value"] == pytest.approx(window, rel=0.05)
+    assert report["unexplained"] is None

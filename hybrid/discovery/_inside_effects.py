@@ -230,13 +230,8 @@ class StateLimit(AbstractEffect):
                     f"StateLimit({state!r}): {role} must name another state (an identifier) or be None, "
                     f"got {other!r}"
                 )
-        if isinstance(rim, bool) or not isinstance(rim, int | float) or not 0.0 < rim < 1.0:
-            raise InputError(
-                f"StateLimit({state!r}): rim is the rim's width as a share of the limit's distance from the "
-                f"state's rest, a number between 0 and 1 (default {RIM_WIDTH}), got {rim!r}"
-            )
         self.state, self.into, self.into_unit, self.velocity = state, into, str(into_unit), velocity
-        self.rim = float(rim)
+        self.rim = _checked_rim(rim, f"StateLimit({state!r})", "the limit's distance from the state's rest")
         init_values(self, values)
 
     # The facts depend on the state: properties, not class constants.
@@ -377,13 +372,7 @@ class StateLimit(AbstractEffect):
 
     def material(self, derived, parameters, thresholds):
         # ``cut_percent_of_range`` comes from the stack: the state's peak with the limit and without.
-        size, need = derived.get("cut_percent_of_range", 0.0), thresholds["cut_percent_of_range"]
-        at = derived.get("at_limit_percent", 0.0)
-        return size >= need, (
-            f"the limit cuts {size:.1f} % off the range of state {self.state}, which sits at it {at:.1f} % of the "
-            "time "
-            f"(needs a cut ≥ {need} %)"
-        )
+        return _cut_material("limit", self.state, derived, thresholds)
 
 
 class StateWindow(AbstractEffect):
@@ -425,12 +414,8 @@ class StateWindow(AbstractEffect):
                 f"StateWindow({group!r}): states must be a sequence of the states' names (identifiers), "
                 f"got {states!r}"
             )
-        if isinstance(rim, bool) or not isinstance(rim, int | float) or not 0.0 < rim < 1.0:
-            raise InputError(
-                f"StateWindow({group!r}): rim is the rim's width as a share of the half-width, a number "
-                f"between 0 and 1 (default {RIM_WIDTH}), got {rim!r}"
-            )
-        self.group, self.states, self.rim = group, tuple(states), float(rim)
+        self.group, self.states = group, tuple(states)
+        self.rim = _checked_rim(rim, f"StateWindow({group!r})", "the half-width")
         init_values(self, values)
 
     @property
@@ -516,12 +501,28 @@ class StateWindow(AbstractEffect):
         )
 
     def material(self, derived, parameters, thresholds):
-        size, need = derived.get("cut_percent_of_range", 0.0), thresholds["cut_percent_of_range"]
-        at = derived.get("at_limit_percent", 0.0)
-        return size >= need, (
-            f"the window cuts {size:.1f} % off the range of state {self.acts_on}, which sits at it {at:.1f} % of "
-            f"the time (needs a cut ≥ {need} %)"
+        # ``cut_percent_of_range`` comes from the stack, both ends (`cut`)
+        return _cut_material("window", self.acts_on, derived, thresholds)
+
+
+def _checked_rim(rim, owner: str, of: str) -> float:
+    """A limit's `rim` as a float, or an InputError: a share of `of`, between 0 and 1."""
+    if isinstance(rim, bool) or not isinstance(rim, int | float) or not 0.0 < rim < 1.0:
+        raise InputError(
+            f"{owner}: rim is the rim's width as a share of {of}, a number between 0 and 1 "
+            f"(default {RIM_WIDTH}), got {rim!r}"
         )
+    return float(rim)
+
+
+def _cut_material(what: str, state: str, derived: dict, thresholds: dict) -> tuple[bool, str]:
+    """A limit's materiality: how far it cuts the range of `state` (``cut_percent_of_range``, from the stack)."""
+    size, need = derived.get("cut_percent_of_range", 0.0), thresholds["cut_percent_of_range"]
+    at = derived.get("at_limit_percent", 0.0)
+    return size >= need, (
+        f"the {what} cuts {size:.1f} % off the range of state {state}, which sits at it {at:.1f} % of the time "
+        f"(needs a cut ≥ {need} %)"
+    )
 
 
 class Friction(AbstractEffect):

@@ -481,7 +481,16 @@ def named_only_hint(description: dict, places: dict) -> str | None:
     if pointer is None:
         return None
     effect, what = pointer
-    return f"{what} may also explain it: the built-in {effect} {_asked(effect)}"
+    hint = f"{what} may also explain it: the built-in {effect} {_asked(effect)}"
+    windows = (places.get("inside") or {}).get("windows") or []
+    if effect == "drive_clip" and windows:
+        # a limit of either sign on every state of a group reads from outside as a clip of the drive (an
+        # electrolyte's window on the RC network's compartments: `tests/test_inside_effects.py -k window`)
+        hint += (
+            f"; so may a window of either sign on every state of {windows[0].removeprefix('window_')} inside "
+            f"the dynamics, which reads alike from outside (the built-in {windows[0]}, searched when named)"
+        )
+    return hint
 
 
 def _asked(effect: str) -> str:
