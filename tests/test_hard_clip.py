@@ -152,13 +152,17 @@ def test_a_remainder_static_in_the_drive_or_monotone_in_the_output_names_the_cli
     # reads from outside as a clip of the drive, and is pointed at beside it where it was not searched
     network = searched_places(hybrid.resolve_effects(None, hybrid.RCNetwork()), hybrid.RCNetwork())
     assert network["inside"]["windows"] == ["window_vc"]
-    assert "the built-in window_vc, searched when named" in named_only_hint(described("static_drive"), network)
+    assert "the built-in window_vc, searched when named" in named_only_hint(
+        described("static_drive"), network
+    )
     assert "window" not in named_only_hint(described("static_output_monotone"), network)
     assert "window" not in named_only_hint(described("static_drive"), places)  # no group: no window
     tried = searched_places(
         hybrid.resolve_effects(["builtins", "window_vc"], hybrid.RCNetwork()), hybrid.RCNetwork()
     )
-    assert tried["inside"]["windows"] == [] and "window" not in named_only_hint(described("static_drive"), tried)
+    assert tried["inside"]["windows"] == [] and "window" not in named_only_hint(
+        described("static_drive"), tried
+    )
 
 
 def test_a_sensors_full_scale_is_given_as_recorded_through_the_readout(tmp_path):

@@ -1214,7 +1214,7 @@ def test_a_damping_reading_says_the_form_fitted_not_one_drag_law():
     assert "eases at speed, fitted as k₂·v² + k₃·v³" in eases and "drag" not in eases
 
 
-def _rc_behind_a_window(path, seconds: float = 30.0, rate: float = 30.0, seed: int = 4) -> float:
+def _rc_behind_a_window(path, seconds: float = 20.0, rate: float = 30.0, seed: int = 4) -> float:
     """The paper's network (Eqs 11–13 in numpy, `helpers.stage_zpk_np`) as an ODE in its 46 double-layer
     voltages, each spilling past ±W (a steep smooth leak of the charging current, either sign), solved by
     solve_ivp under random levels in [−2, 2] V held 0.1–1 s; W half the largest unlimited |v_C|; noise 0.5 %
@@ -1264,10 +1264,11 @@ def _rc_behind_a_window(path, seconds: float = 30.0, rate: float = 30.0, seed: i
 
 
 def test_an_electrolytes_window_on_every_compartment_is_named_window_vc_not_a_drive_saturation(tmp_path):
-    """A window on every double-layer voltage looks from outside like a drive that stops at its levels:
-    searched beside the drive's saturation and clip and a limit on the clamp's compartment alone (what
-    named it, or pointed at it, before `window_vc`: `experiments/inside_effects.py`'s ``rc_window``),
-    the window is named, with its half-width."""
+    """A window on every double-layer voltage looks from outside like a drive that stops at its levels
+    (before `window_vc`, a 60 s probe of it was named `drive_saturation` + `stiffness`, another pointed at
+    a clip of the drive): searched beside the drive's saturation, the window is named, with its
+    half-width. 20 s and two effects keep the network's 46 states stepped per sample affordable here;
+    `experiments/inside_effects.py --cases rc_window` diagnoses 60 s with every built-in beside it."""
     window = _rc_behind_a_window(tmp_path / "strip.csv")
     run = h.run_hybrid(
         tmp_path,
@@ -1276,7 +1277,7 @@ def test_an_electrolytes_window_on_every_compartment_is_named_window_vc_not_a_dr
         "--physics",
         "rc:zoh",
         "--effects",
-        "drive_saturation,drive_clip,limit_vc_0,window_vc",
+        "drive_saturation,window_vc",
         "--out",
         "d",
         "--quiet",

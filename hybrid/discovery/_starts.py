@@ -380,7 +380,8 @@ def state_peaks(problem, simulation, state: str | tuple[str, ...], raws):
         core, held, skip = dynamics_of(simulation.with_raw(raw))  # a state limit needs a state-space form
         group = isinstance(state, tuple)
         ks = jnp.asarray([core.states.index(s) for s in (state if group else (state,))])
-        rest = jnp.asarray(core.initial_state(jnp.zeros(()), core.prepare(core.parameters())))[ks]
+        if group:  # a swing from where each state rests under no drive
+            rest = jnp.asarray(core.initial_state(jnp.zeros(()), core.prepare(core.parameters())))[ks]
         peaks = []
         for series in problem.series:
             x = integrate(core, held(series.v_in), series.dt)[1][skip:][:, ks]
