@@ -1264,10 +1264,8 @@ def _rc_behind_a_window(path, seconds: float = 20.0, rate: float = 30.0, seed: i
 
 
 def test_an_electrolytes_window_on_every_compartment_is_named_window_vc_not_a_drive_saturation(tmp_path):
-    """A window on every double-layer voltage looks from outside like a drive that stops at its levels
-    (before `window_vc`, a 60 s probe of it was named `drive_saturation` + `stiffness`, another pointed at
-    a clip of the drive): searched beside the drive's saturation, the window is named, with its
-    half-width. 20 s and two effects keep the network's 46 states stepped per sample affordable here;
+    """A window on every double-layer voltage looks from outside like a drive that stops at its levels:
+    searched beside the drive's saturation, the window is named, with its half-width. 20 s and two effects keep the network's 46 states stepped per sample affordable here;
     `experiments/inside_effects.py --cases rc_window` diagnoses 60 s with every built-in beside it."""
     window = _rc_behind_a_window(tmp_path / "strip.csv")
     run = h.run_hybrid(

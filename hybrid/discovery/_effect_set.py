@@ -510,7 +510,7 @@ def searched_places(effects, simulation) -> dict[str, dict]:
         elif not names:
             why = "no effect given acts here"
         out[place] = {"effects": names, "not_searched": why}
-        groups = dict(dynamics[0].state_groups) if dynamics is not None and place == "inside" else {}
+        groups = _groups_of(simulation) if place == "inside" else {}
         if groups:  # the windows on its groups of states not searched, which a remainder's hint may name
             out[place]["windows"] = [f"window_{g}" for g in groups if f"window_{g}" not in names]
     return out

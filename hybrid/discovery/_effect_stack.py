@@ -274,7 +274,7 @@ class EffectStack(AbstractWrapper):
             if isinstance(e, StateLimit | StateWindow):  # its rim from the state's rest, as it acts
                 core = dynamics_of(self.inner)
                 assert core is not None  # an inside effect needs the state-space form
-                at_rest = float(_rest_state(core[0], jnp.float64)[core[0].states.index(e.acts_on)])
+                at_rest = float(rest_state(core[0], jnp.float64)[core[0].states.index(e.acts_on)])
                 out[e.name] = e.derived(signals[e.name], dt, origin=at_rest)
             else:
                 out[e.name] = e.derived(signals[e.name], dt)
@@ -621,7 +621,7 @@ def _named_state(effect, field: str, states) -> int | None:
     return None if name is None else states.index(name)
 
 
-def _rest_state(inner, dtype) -> tuple:
+def rest_state(inner, dtype) -> tuple:
     """The state-space simulation's initial state under no drive: where each state rests (a tank empty,
     a block at ambient), the origin of a limit's rim (`StateLimit._rim`)."""
     return tuple(inner.initial_state(jnp.zeros((), dtype), inner.prepare(inner.parameters())))
@@ -660,7 +660,7 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
         for i, e in inside
         if isinstance(e, StateWindow)
     ]
-    rest = _rest_state(inner, jnp.asarray(u).dtype) if limits or windows else ()
+    rest = rest_state(inner, jnp.asarray(u).dtype) if limits or windows else ()
 
     def bound(x):
         x = list(x)

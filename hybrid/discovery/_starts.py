@@ -375,13 +375,14 @@ def state_peaks(problem, simulation, state: str | tuple[str, ...], raws):
     it rests under no drive.
     """
     from ..core._state_space import dynamics_of, integrate
+    from ._effect_stack import rest_state
 
     def one(raw):
         core, held, skip = dynamics_of(simulation.with_raw(raw))  # a state limit needs a state-space form
         group = isinstance(state, tuple)
         ks = jnp.asarray([core.states.index(s) for s in (state if group else (state,))])
         if group:  # a swing from where each state rests under no drive
-            rest = jnp.asarray(core.initial_state(jnp.zeros(()), core.prepare(core.parameters())))[ks]
+            rest = jnp.stack(rest_state(core, jnp.result_type(float)))[ks]
         peaks = []
         for series in problem.series:
             x = integrate(core, held(series.v_in), series.dt)[1][skip:][:, ks]
@@ -405,14 +406,15 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     returned.
     """
     from ._effect_stack import EffectStack
+    from ._inside_effects import StateWindow
 
     design, names, raws, band = screen_design(problem, simulation, frozen, keep=N_JOINT_SCREEN)
     if not names:
         return []
-    window = getattr(effect, "states", None)  # a `StateWindow`: ± a share of its states' largest swing
+    window = isinstance(effect, StateWindow)  # ± a share of its states' largest swing from rest
     level = f"{effect.group}_window" if window else f"{effect.state}_max"
     share = f"{effect.state}_spill" if getattr(effect, "into", None) is not None else None
-    peaks = np.asarray(state_peaks(problem, simulation, tuple(window) if window else effect.state, raws))
+    peaks = np.asarray(state_peaks(problem, simulation, effect.states if window else effect.state, raws))
     stack = EffectStack(simulation, [effect])
     best = []
     for fraction in LIMIT_FRACTIONS:
