@@ -750,11 +750,17 @@ def drive_responses(stack: EffectStack, v_in, dt, directions, names=()) -> tuple
     def along(direction):
         return jax.jvp(lambda u: _output(stack, u, dt), (v_in,), (direction,))[1]
 
-    def by(name):
-        one = jnp.ones_like(raw[name])
-        return jax.jvp(lambda r: _output(stack.with_raw({name: r}), v_in, dt), (raw[name],), (one,))[1]
+    def by(tangent):
+        return jax.jvp(lambda r: _output(stack.with_raw(r), v_in, dt), (chosen,), (tangent,))[1]
 
-    parameters = jnp.stack([by(name) for name in names]) if names else jnp.zeros((0, v_in.shape[0]))
+    # Every parameter's direction through one traced copy of the model (vmapped over a one-hot
+    # basis of `chosen`): a copy per name made the program several times longer to compile.
+    chosen = {name: raw[name] for name in names}
+    basis = {
+        name: jnp.stack([jnp.full_like(value, float(k == j)) for k in range(len(names))])
+        for j, (name, value) in enumerate(chosen.items())
+    }
+    parameters = jax.vmap(by)(basis) if names else jnp.zeros((0, v_in.shape[0]))
     return map_rows(along, directions, batch_size=8), parameters
 
 
