@@ -810,3 +810,102 @@ def test_a_unit_template_that_brackets_its_placeholder_is_not_bracketed_twice():
     assert substitute_unit("{drive}/({signal})^2", "{signal}", "rad") == "{drive}/rad^2"
     assert substitute_unit("1/{signal}", "{signal}", "rad/s") == "1/(rad/s)"
     assert substitute_unit("{signal}", "{signal}", "rad/s") == "rad/s"
+
+
+#: A user's limit from below, written as a lab would: nothing in the library names it.
+FLOOR = '''
+"""A floor under a state: it cannot fall below a level (a stop under a position, a level at its outlet)."""
+
+from typing import ClassVar
+
+import jax
+import numpy as np
+
+from hybrid import AbstractEffect, Real, encode
+
+
+class Floor(AbstractEffect):
+    """Inside the dynamics: the state lag_1 held at or above floor_level after every step."""
+
+    raw: dict
+    name: ClassVar[str] = "floor"
+    place: ClassVar[str] = "inside"
+    role: ClassVar[str] = "limit"
+    acts_on: ClassVar[str] = "lag_1"
+    constraints: ClassVar = {"floor_level": Real()}
+    units: ClassVar = {"floor_level": "{signal}"}
+    defaults: ClassVar = {"floor_level": -1.0}
+    thresholds: ClassVar = {"cut_percent_of_range": 3.0}
+
+    def __init__(self, **values):
+        self.raw = encode({**self.defaults, **values}, self.constraints, self.name)
+
+    def apply(self, z, dt):
+        level = self.parameters()["floor_level"]
+        return level + 1e-3 * jax.nn.softplus((z - level) / 1e-3)
+
+    def starts(self, context):
+        z = np.asarray(context.signal)
+        low, span = float(np.min(z)), float(np.ptp(z))
+        return [{"floor_level": low + 0.1 * span}, {"floor_level": low + 0.3 * span}]
+
+    def material(self, derived, parameters, thresholds):
+        size, need = derived["cut_percent_of_range"], thresholds["cut_percent_of_range"]
+        return size >= need, f"lifts the state's bottom by {size:.1f} % of its range (needs >= {need} %)"
+'''
+FLOOR_LEVEL = -0.4  # the floor under the lag's state, in the drive's unit (the lag has unit DC gain)
+
+
+def _floor_class(folder):
+    (folder / "floor.py").write_text(FLOOR)
+    spec = importlib.util.spec_from_file_location("lab_floor", folder / "floor.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.Floor
+
+
+def _floored_lag(u: np.ndarray) -> np.ndarray:
+    """The exact ZOH lag (`helpers.zoh_lag`'s step) held at or above `FLOOR_LEVEL` after every step."""
+    a, x, state = np.exp(-1.0 / (RATE * TAU)), np.empty(len(u)), 0.0
+    for k, uk in enumerate(u):
+        x[k] = state
+        state = max(a * state + (1 - a) * uk, FLOOR_LEVEL)
+    return x
+
+
+def test_a_users_floor_is_held_under_its_state_and_its_cut_counts_the_bottom(tmp_path):
+    """A limit from below, written by a user: the stack holds the state on it after every step (against
+    the lag stepped in numpy with the floor) and measures its cut at the bottom of the state's range,
+    which the plug-in's materiality reads (an upper limit's cut alone read 0 % for it)."""
+    floor = _floor_class(tmp_path)(floor_level=FLOOR_LEVEL)
+    u = _drive(5, 20.0)
+    stack = hybrid.EffectStack(hybrid.LTI(1, tau_1=TAU), [floor])
+    np.testing.assert_allclose(
+        np.asarray(stack.simulate(jnp.asarray(u), 1 / RATE)), _floored_lag(u), atol=1e-3
+    )
+    free = h.zoh_lag(u, 1 / RATE, TAU)
+    lifted = 100 * (FLOOR_LEVEL - np.min(free)) / np.ptp(free)
+    cut = stack.derived(jnp.asarray(u), 1 / RATE)["floor"]["cut_percent_of_range"]
+    assert lifted > 10 and cut == pytest.approx(lifted, abs=0.2)
+
+
+def test_the_cli_names_a_users_floor_inside_the_dynamics(tmp_path):
+    _floor_class(tmp_path)
+    u = _drive(7, 40.0)
+    x = _floored_lag(u)
+    rng = np.random.default_rng(8)
+    w = GAIN * x + OFFSET + 0.005 * np.ptp(GAIN * x) * rng.normal(size=u.size)
+    hybrid.Recording.from_arrays(v_in=u, w=w, rate=RATE).save(tmp_path / "lab.csv")
+    run = _hybrid(
+        tmp_path, "diagnose", "lab.csv", "--physics", "lti:1", "--effects", "floor.py:Floor,saturation",
+        "--out", "report", "--quiet",
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    report = json.loads((tmp_path / "report" / "report.json").read_text())
+    assert [c["name"] for c in report["causes"]] == ["floor"], report["verdict"]
+    level = report["parameters"]["floor_level"]
+    assert level["value"] == pytest.approx(FLOOR_LEVEL, abs=0.02) and level["unit"] == "V", level
+    # the fitted floor's cut on the fitted state, against the state's lift in the recording's own lag
+    free = h.zoh_lag(u, 1 / RATE, TAU)
+    lifted = 100 * (FLOOR_LEVEL - np.min(free)) / np.ptp(free)
+    assert report["causes"][0]["derived"]["cut_percent_of_range"] == pytest.approx(lifted, abs=3.0)

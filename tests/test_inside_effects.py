@@ -336,7 +336,7 @@ def test_a_spilling_limits_screen_picks_the_share_the_data_were_made_with(made_w
     record = hybrid.Recording.from_arrays(v_in=u, w=0.3 * h2 + 0.1, rate=0.25)
     limit = hybrid.resolve_effects(["limit_h1"], TwoTank())[0]
     search = prepare_search([record], TwoTank(), hybrid.DiagnoseSettings(), [limit])
-    starts = limit_starts(search.problem, TwoTank(), limit, 2, search.frozen)
+    starts = limit_starts(search.problem, TwoTank(), limit, "h1_max", 2, search.frozen, "h1_spill")
     assert len(starts) == 2 and starts[0]["h1_spill"] == picked
 
 

@@ -481,7 +481,7 @@ def _check_inside(effect: AbstractEffect, label: str, simulation, states) -> Non
         )
     for what, state in (
         ("acts on", effect.acts_on),
-        *(("acts on", s) for s in (effect.states[1:] if isinstance(effect, StateWindow) else ())),
+        *(("acts on", s) for s in (effect.bounded_states[1:] if effect.role == "limit" else ())),
         ("spills into", getattr(effect, "into", None)),
         ("stops the velocity", getattr(effect, "velocity", None)),
     ):

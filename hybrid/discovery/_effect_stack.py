@@ -27,7 +27,6 @@ from ..core._state_space import dynamics_of, integrate, own_forces
 from ..util._errors import InputError
 from ._effect_set import force_percent_of_drive, resolve_effects
 from ._effects import AbstractEffect, StartContext
-from ._inside_effects import StateLimit, StateWindow
 
 
 class EffectStack(AbstractWrapper):
@@ -79,7 +78,7 @@ class EffectStack(AbstractWrapper):
                 e.name
                 for e in inside
                 if e.acts_on != "output"
-                and any(s not in states for s in (e.states if isinstance(e, StateWindow) else (e.acts_on,)))
+                and any(s not in states for s in (e.bounded_states if e.role == "limit" else (e.acts_on,)))
             ]
             if missing:
                 raise InputError(
@@ -271,13 +270,12 @@ class EffectStack(AbstractWrapper):
         for i, (on, e) in enumerate(zip(self.active, self.effects)):
             if not float(on):  # a switched-off effect leaves its signal unchanged: nothing to derive
                 continue
-            if isinstance(e, StateLimit | StateWindow):  # its rim from the state's rest, as it acts
+            at = {}
+            if e.place == "inside" and e.role == "limit" and e.from_rest:  # measured from the state's rest
                 core = dynamics_of(self.inner)
                 assert core is not None  # an inside effect needs the state-space form
-                at_rest = float(rest_state(core[0], jnp.float64)[core[0].states.index(e.acts_on)])
-                out[e.name] = e.derived(signals[e.name], dt, origin=at_rest)
-            else:
-                out[e.name] = e.derived(signals[e.name], dt)
+                at = {"origin": float(rest_state(core[0], jnp.float64)[core[0].states.index(e.acts_on)])}
+            out[e.name] = e.derived(signals[e.name], dt, **at)
             if e.place == "inside" and e.role == "feedback":
                 force = np.asarray(jax.vmap(lambda z, e=e: e.apply(z, dt))(jnp.asarray(signals[e.name])))
                 size = force_percent_of_drive(force, drive_forces(self, signals["drive"]), float(on))
@@ -286,12 +284,7 @@ class EffectStack(AbstractWrapper):
                 free = self.with_active(np.where(np.arange(len(self.effects)) == i, 0.0, self.active))
                 unlimited = free.signals_into(v_in, dt, n)[e.name]
                 span = float(np.ptp(unlimited)) if len(unlimited) else 0.0
-                if span <= 0:
-                    cut = 0.0
-                elif isinstance(e, StateWindow):  # both ends
-                    cut = e.cut(unlimited, signals[e.name])
-                else:
-                    cut = float(np.max(unlimited) - np.max(signals[e.name]))
+                cut = e.cut(unlimited, signals[e.name]) if span > 0 else 0.0
                 out[e.name] = {
                     **out[e.name],
                     "cut_percent_of_range": 100.0 * max(cut, 0.0) / span if span else 0.0,
@@ -638,12 +631,12 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
         (
             stack.active[i],
             e,
-            inner.states.index(e.acts_on),
+            [inner.states.index(s) for s in e.bounded_states],
             _named_state(e, "into", inner.states),
             _named_state(e, "velocity", inner.states),
         )
         for i, e in inside
-        if e.role == "limit" and not isinstance(e, StateWindow)
+        if e.role == "limit"
     ]
 
     def force(x, y):
@@ -653,33 +646,24 @@ def _inside_dynamics(stack, inner, inside, u, dt, external=None):
             total = total + jnp.where(on != 0, on * effect.apply(z, dt), 0.0)
         return total
 
-    # Each limit's rim is measured from its state's rest, under no drive (`StateLimit._rim`): the
+    # A limit `from_rest` measures from its state's rest under no drive (`StateLimit._rim`): the
     # same whatever the zero of the state's unit.
-    windows = [
-        (stack.active[i], e, [inner.states.index(s) for s in e.states])
-        for i, e in inside
-        if isinstance(e, StateWindow)
-    ]
-    rest = rest_state(inner, jnp.asarray(u).dtype) if limits or windows else ()
+    rest = rest_state(inner, jnp.asarray(u).dtype) if limits else ()
 
     def bound(x):
         x = list(x)
-        for on, effect, ks in windows:  # one window on each of its states
-            for k in ks:
-                x[k] = jnp.where(on != 0, x[k] + on * (effect.apply(x[k], dt, rest[k]) - x[k]), x[k])
-        for on, effect, k, j, m in limits:
-            z = x[k]
-            at = {"origin": rest[k]} if isinstance(effect, StateLimit) else {}  # a plug-in's: as it is
-            x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt, **at) - z), z)
-            if j is not None:  # a share of the cut lands in another state (a tank's spill below)
-                x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt, **at), x[j])
-            if m is not None:  # an end stop also stops the velocity that drove the state into it
-                x[m] = jnp.where(on != 0, x[m] + on * (effect.stopped(z, x[m], **at) - x[m]), x[m])
+        for on, effect, ks, j, m in limits:
+            for k in ks:  # each state it holds (a window's group: every one)
+                z = x[k]
+                at = {"origin": rest[k]} if effect.from_rest else {}
+                x[k] = jnp.where(on != 0, z + on * (effect.apply(z, dt, **at) - z), z)
+                if j is not None:  # a share of the cut lands in another state (a tank's spill below)
+                    x[j] = jnp.where(on != 0, x[j] + on * effect.spilled(z, dt, **at), x[j])
+                if m is not None:  # an end stop also stops the velocity that drove the state into it
+                    x[m] = jnp.where(on != 0, x[m] + on * (effect.stopped(z, x[m], **at) - x[m]), x[m])
         return tuple(x)
 
-    return integrate(
-        inner, u, dt, force if feedback else None, bound if limits or windows else None, external
-    )
+    return integrate(inner, u, dt, force if feedback else None, bound if limits else None, external)
 
 
 @eqx.filter_jit

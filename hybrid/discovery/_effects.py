@@ -187,6 +187,12 @@ class AbstractEffect(eqx.Module):
       spring: φ(y) = k·y³); or ``"limit"``, `apply` maps a state to its limited
       value after every integration step (an overflow: min(h, L)). `apply` of an
       inside effect works sample by sample (it gets a scalar inside the loop).
+    - A limit's `bounded_states` (default: `acts_on` alone) are the states it
+      holds, each after every step (`StateWindow`: every state of a group);
+      `cut(unlimited, limited)` says how far it pulls its state in (default:
+      both ends), which the stack turns into ``cut_percent_of_range`` for
+      `material`; with `from_rest`, `apply` and `derived` get ``origin=``, where
+      the state rests under no drive (`StateLimit`'s rim is measured from there).
     - `thresholds`: the smallest size that counts as a cause, by name (see
       `material`); `DiagnoseSettings.materiality` overrides them by name.
     - `of_time`: whether the effect is a function of time itself (a drift of
@@ -244,6 +250,23 @@ class AbstractEffect(eqx.Module):
     n_kept: ClassVar[int] = 0
     of_time: ClassVar[bool] = False
     refinement: ClassVar[str | None] = None
+    from_rest: ClassVar[bool] = False
+
+    @property
+    def bounded_states(self) -> tuple[str, ...]:
+        """The states a limit (``role = "limit"``) holds after every step: `acts_on` alone by default."""
+        return (self.acts_on,)
+
+    def cut(self, unlimited, limited) -> float:
+        """How far a limit pulls its state in, in the state's unit: the fall of its top plus the rise of its bottom.
+
+        `unlimited`, `limited`: the state of `acts_on` over the record without
+        the limit and with it. Both ends by default, so that a floor counts as
+        a ceiling does; an upper limit alone (`StateLimit`) counts its top.
+        """
+        top = float(np.max(unlimited) - np.max(limited))
+        bottom = float(np.min(limited) - np.min(unlimited))
+        return max(top, 0.0) + max(bottom, 0.0)
 
     @abc.abstractmethod
     def apply(self, s: Float[Array, " time"], dt: float) -> Float[Array, " time"]:

@@ -210,6 +210,7 @@ class StateLimit(AbstractEffect):
     place: ClassVar[str] = "inside"
     role: ClassVar[str] = "limit"
     n_screened: ClassVar[int] = 2
+    from_rest: ClassVar[bool] = True  # its rim: a share of the limit's distance from the state's rest
 
     def __init__(
         self,
@@ -301,6 +302,10 @@ class StateLimit(AbstractEffect):
     def _level(self):
         return self.parameters()[f"{self.state}_max"]
 
+    def cut(self, unlimited, limited) -> float:
+        """How far the limit pulls the state's peak down (an upper limit: its top alone)."""
+        return max(float(np.max(unlimited) - np.max(limited)), 0.0)
+
     def _rim(self, origin=0.0):
         """The limit L and the width δ = `rim`·|L − origin| over which it engages (traced: `apply`, `stopped`).
 
@@ -345,7 +350,16 @@ class StateLimit(AbstractEffect):
     def screened_starts(self, context):
         from ._starts import limit_starts
 
-        return limit_starts(context.problem, context.simulation, self, self.n_screened, context.frozen)
+        share = f"{self.state}_spill" if self.into is not None else None
+        return limit_starts(
+            context.problem,
+            context.simulation,
+            self,
+            f"{self.state}_max",
+            self.n_screened,
+            context.frozen,
+            share,
+        )
 
     def unpinned_reason(self, name, signal):
         z = np.asarray(signal, float)
@@ -401,6 +415,7 @@ class StateWindow(AbstractEffect):
     place: ClassVar[str] = "inside"
     role: ClassVar[str] = "limit"
     n_screened: ClassVar[int] = 2
+    from_rest: ClassVar[bool] = True  # ±L about where each state rests
 
     def __init__(self, group: str = "x", states=None, rim: float = RIM_WIDTH, **values):
         if not isinstance(group, str) or not group.isidentifier():
@@ -426,6 +441,10 @@ class StateWindow(AbstractEffect):
     @property
     def acts_on(self) -> str:  # type: ignore[override]
         return self.states[0]
+
+    @property
+    def bounded_states(self) -> tuple[str, ...]:
+        return self.states
 
     @property
     def constraints(self) -> dict:  # type: ignore[override]
@@ -456,12 +475,6 @@ class StateWindow(AbstractEffect):
         below = top - width * jax.nn.softplus((top - z) / width)
         return bottom + width * jax.nn.softplus((below - bottom) / width)
 
-    def cut(self, unlimited, limited) -> float:
-        """How far the window pulls the state's extremes in, both ends, in the state's unit."""
-        top = float(np.max(unlimited) - np.max(limited))
-        bottom = float(np.min(limited) - np.min(unlimited))
-        return max(top, 0.0) + max(bottom, 0.0)
-
     def derived(self, z, dt, origin: float = 0.0):
         half = float(self._half_width())
         z = np.asarray(z, float)
@@ -477,7 +490,11 @@ class StateWindow(AbstractEffect):
     def screened_starts(self, context):
         from ._starts import limit_starts
 
-        return limit_starts(context.problem, context.simulation, self, self.n_screened, context.frozen)
+        # ± a share of its states' largest swing from where they rest
+        level = f"{self.group}_window"
+        return limit_starts(
+            context.problem, context.simulation, self, level, self.n_screened, context.frozen, swing=True
+        )
 
     def unpinned_reason(self, name, signal):
         z = np.asarray(signal, float)

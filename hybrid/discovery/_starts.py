@@ -368,33 +368,40 @@ SPILL_SHARES = (0.02, 0.5, 1.0)
 
 
 @eqx.filter_jit
-def state_peaks(problem, simulation, state: str | tuple[str, ...], raws):
-    """The largest value of `state` on the training part at each row of `raws` (the limit off).
+def state_peaks(problem, simulation, states: str | tuple[str, ...], raws, swing: bool = False):
+    """The largest value of any of `states` on the training part at each row of `raws` (the limit off).
 
-    A tuple of states (a `StateWindow`'s): the largest swing |x − x_rest| of any of them from where
-    it rests under no drive.
+    `swing`: the largest swing |x − x_rest| from where each state rests under no drive instead.
     """
     from ..core._state_space import dynamics_of, integrate
     from ._effect_stack import rest_state
 
     def one(raw):
         core, held, skip = dynamics_of(simulation.with_raw(raw))  # a state limit needs a state-space form
-        group = isinstance(state, tuple)
-        ks = jnp.asarray([core.states.index(s) for s in (state if group else (state,))])
-        if group:  # a swing from where each state rests under no drive
+        ks = jnp.asarray([core.states.index(s) for s in ((states,) if isinstance(states, str) else states)])
+        if swing:
             rest = jnp.stack(rest_state(core, jnp.result_type(float)))[ks]
         peaks = []
         for series in problem.series:
             x = integrate(core, held(series.v_in), series.dt)[1][skip:][:, ks]
-            x = jnp.abs(x - rest) if group else x
+            x = jnp.abs(x - rest) if swing else x
             peaks += [jnp.max(x[a:b]) for a, b in series.segments_of("train")]
         return jnp.max(jnp.stack(peaks))
 
     return map_rows(one, raws, batch_size=16)
 
 
-def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset()) -> list[dict]:
-    """Starts for a state limit: the simulation's design screened jointly with the limit.
+def limit_starts(
+    problem,
+    simulation,
+    effect,
+    level: str,
+    n_starts: int,
+    frozen=frozenset(),
+    share: str | None = None,
+    swing: bool = False,
+) -> list[dict]:
+    """Starts for a limit on states (`effect.bounded_states`): the simulation's design screened jointly with it.
 
     From the effect-free fit a limit switched on rarely moves far: that fit has
     already bent its parameters to reach the clipped levels some other way (on
@@ -404,17 +411,18 @@ def limit_starts(problem, simulation, effect, n_starts: int, frozen=frozenset())
     of that point's own peak of the state (a spilling limit: with each of
     `SPILL_SHARES` too); the `n_starts` best, with distinct fractions, are
     returned.
+
+    `level`: the effect's parameter set to those fractions; `share`: its spill's
+    share, screened at each of `SPILL_SHARES` (None: it has none); `swing`: the
+    fractions are of the states' largest swing from where they rest (a window
+    ±L about rest) rather than of their peak (a ceiling L).
     """
     from ._effect_stack import EffectStack
-    from ._inside_effects import StateWindow
 
     design, names, raws, band = screen_design(problem, simulation, frozen, keep=N_JOINT_SCREEN)
     if not names:
         return []
-    window = isinstance(effect, StateWindow)  # ± a share of its states' largest swing from rest
-    level = f"{effect.group}_window" if window else f"{effect.state}_max"
-    share = f"{effect.state}_spill" if getattr(effect, "into", None) is not None else None
-    peaks = np.asarray(state_peaks(problem, simulation, effect.states if window else effect.state, raws))
+    peaks = np.asarray(state_peaks(problem, simulation, tuple(effect.bounded_states), raws, swing))
     stack = EffectStack(simulation, [effect])
     best = []
     for fraction in LIMIT_FRACTIONS:
