@@ -1,6 +1,6 @@
 """Missing physics on the drive and inside the dynamics, hidden in four plants: does `diagnose` name it?
 
-    python experiments/inside_effects.py [--seeds 4] [--cases cubic,end_stop,none,overflow,tank_none,
+    python experiments/inside_effects.py [--seeds 4] [--cases cubic,end_stop,end_stop_below,none,overflow,tank_none,
                                          lti_dead_zone,lti_square,lti_cubic,lti_limit,lti_none,
                                          rc_dead_zone,rc_square,rc_cubic,rc_limit,rc_window,rc_none]
                                          [--out experiments/results/inside_effects.json]
@@ -17,6 +17,8 @@ or its integrators, and diagnoses it with the examples' plug-in or `lti:N`
     the cubic force 15–30 % of the largest drive at the largest |y|;
   - ``end_stop``: a stiff one-sided wall at 55–75 % of the linear peak (a
     spring 300× the main one beyond it), not a clip of the state;
+  - ``end_stop_below``: the same wall below, at 55–75 % of the linear trough
+    (found as ``floor_position``);
   - ``none``: the linear oscillator.
 - two tanks (`examples/two_tank.py:TwoTank`): Torricelli outflow, a pump drive
   of random levels 0–10 V held 20–80 s, 600 samples at 2 s, the lower tank's
@@ -85,6 +87,7 @@ TANK_DT, TANK_SAMPLES = 2.0, 600
 EXPECTED = {
     "cubic": "stiffness",
     "end_stop": "limit_position",
+    "end_stop_below": "floor_position",
     "none": None,
     "overflow": "limit_h1",
     "tank_none": None,
@@ -133,6 +136,10 @@ def oscillator(rng, case: str) -> tuple[np.ndarray, np.ndarray, dict]:
     elif case == "end_stop":
         stop = rng.uniform(0.55, 0.75) * float(np.max(linear))
         y = run(lambda y: 300.0 * max(y - stop, 0.0))
+        truth["stop"] = stop
+    elif case == "end_stop_below":
+        stop = rng.uniform(0.55, 0.75) * float(np.min(linear))
+        y = run(lambda y: 300.0 * min(y - stop, 0.0))
         truth["stop"] = stop
     else:
         y = linear

@@ -230,7 +230,8 @@ def parse_params(items):
 
 #: What ``--effects`` takes, item by item.
 EFFECT_FORMS = (
-    "builtins, a built-in's name, limit_<state>, friction_<state>, window_<state> or window_<group>, "
+    "builtins, a built-in's name, limit_<state>, floor_<state>, friction_<state>, window_<state> or "
+    "window_<group>, "
     "path/to/file.py:ClassName or "
     "package.module:ClassName"
 )
@@ -260,7 +261,7 @@ def effects_from_spec(spec: str, simulation=None) -> tuple:
         if (
             text in EFFECTS
             or text in NAMED_ONLY
-            or (":" not in text and text.startswith(("limit_", "friction_", "window_")))
+            or (":" not in text and text.startswith(("limit_", "floor_", "friction_", "window_")))
         ):
             chosen.append(text)  # resolve_effects says which states there are
             continue

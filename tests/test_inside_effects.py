@@ -395,19 +395,50 @@ def test_an_end_stop_is_the_oscillator_meeting_a_stop():
     assert np.max(np.abs(held - reference)) > 0.2 * np.ptp(reference)  # the velocity left to run on: 32 %
 
 
-def test_an_end_stops_jacobian_matches_finite_differences():
+def test_an_end_stop_below_is_the_mirror_of_one_above():
+    """``floor_position`` (`StateLimit(below=True)`, stopping the velocity) against scipy's oscillator meeting
+    a stop below: `_wall_scipy` with the drive and the stop negated, read back negated. Its cut is the
+    trough's rise, its level ``position_min``, and it is saved and rebuilt with its side."""
+    rate, bottom = 200.0, -0.6
+    t = np.arange(int(8 * rate)) / rate
+
+    def drive(s):
+        return np.sin(2 * np.pi * 0.7 * s) + 0.3 * np.sin(2 * np.pi * 2.3 * s)
+
+    reference = -_wall_scipy(2.0, 0.1, lambda s: -drive(s), t, -bottom)
+    assert np.mean(reference <= bottom + 1e-9) > 0.05  # it does stay at the stop
+    oscillator, u = MassSpringDamper(frequency=2.0, zeta=0.1), jnp.asarray(drive(t))
+    stop = StateLimit("position", velocity="velocity", below=True, position_min=bottom)
+    assert stop.name == "floor_position" and list(stop.constraints) == ["position_min"]
+    stack = EffectStack(oscillator, [stop])
+    y = np.asarray(stack.simulate(u, 1 / rate))
+    assert np.max(np.abs(y - reference)) < 0.04 * np.ptp(reference)  # as the stop above it
+    free = np.asarray(oscillator.simulate(u, 1 / rate))
+    derived = stack.derived(u, 1 / rate)["floor_position"]
+    lifted = 100 * (np.min(y) - np.min(free)) / np.ptp(free)
+    assert derived["cut_percent_of_range"] == pytest.approx(lifted, rel=1e-6) and lifted > 10
+    assert derived["level"] == pytest.approx(bottom)
+    rebuilt = build_simulation(describe_simulation(stack)).with_raw(stack.raw)
+    assert [e.name for e in rebuilt.effects] == ["floor_position"]
+    np.testing.assert_allclose(np.asarray(rebuilt.simulate(u, 1 / rate)), y)
+
+
+@pytest.mark.parametrize("below", [False, True])
+def test_an_end_stops_jacobian_matches_finite_differences(below):
     rate = 100.0
     t = np.arange(int(6 * rate)) / rate
     u = jnp.asarray(np.sin(2 * np.pi * 0.7 * t) + 0.3 * np.sin(2 * np.pi * 2.3 * t))
-    stop = StateLimit("position", velocity="velocity", position_max=0.6)
+    level = "position_min" if below else "position_max"
+    stop = StateLimit("position", velocity="velocity", below=below, **{level: -0.6 if below else 0.6})
     stack = EffectStack(MassSpringDamper(frequency=2.0, zeta=0.1), [stop])
     # a step of 1e-6 in the level: the 0.5 % rim is curved enough that 1e-5 leaves central differences
     # themselves 4e-4 off at the record's end (1e-6 and 1e-7 agree with forward mode to 1e-8)
-    _assert_jacobian_is_central_differences(stack, u, 1 / rate, {"position_max": 1e-6, "frequency": 1e-6})
+    _assert_jacobian_is_central_differences(stack, u, 1 / rate, {level: 1e-6, "frequency": 1e-6})
 
 
 def test_a_limit_stops_the_velocity_that_moves_its_state():
-    """The default limits: on a position, its velocity found from the rates (∂ẋ/∂v > 0); none on a level."""
+    """The default limits: on a position, its velocity found from the rates (∂ẋ/∂v > 0), and a floor under
+    it (an end stop below); none on a level, and no floor under one."""
 
     class Pendulum(MassSpringDamper):  # the same rates under other names, as a user's plug-in names them
         states = ("angle", "rate")
@@ -418,9 +449,13 @@ def test_a_limit_stops_the_velocity_that_moves_its_state():
     def stops(simulation):
         return {e.name: e.velocity for e in hybrid.resolve_effects(None, simulation) if e.role == "limit"}
 
-    assert stops(MassSpringDamper()) == {"limit_position": "velocity"}
-    assert stops(Pendulum()) == {"limit_angle": "rate", "limit_rate": None}
-    assert stops(hybrid.LTI(3)) == {"limit_lag_1": None, "limit_low_2": "band_2"}  # ṗ = ω·q
+    assert stops(MassSpringDamper()) == {"limit_position": "velocity", "floor_position": "velocity"}
+    assert stops(Pendulum()) == {"limit_angle": "rate", "limit_rate": None, "floor_angle": "rate"}
+    assert stops(hybrid.LTI(3)) == {  # ṗ = ω·q
+        "limit_lag_1": None,
+        "limit_low_2": "band_2",
+        "floor_low_2": "band_2",
+    }
     assert stops(TwoTank()) == {"limit_h1": None, "limit_h2": None}
     stop = hybrid.resolve_effects(["limit_position"], MassSpringDamper())[0]  # by name too
     assert stop.velocity == "velocity"
@@ -514,8 +549,15 @@ def test_resolve_effects_adds_inside_effects_only_where_there_are_states():
     names = [e.name for e in hybrid.resolve_effects(None, TwoTank())]
     assert "stiffness" in names and names[-2:] == ["limit_h1", "limit_h2"]
     lti = [e.name for e in hybrid.resolve_effects(None, hybrid.LTI(3))]  # LTI has a (linear) state-space form
-    # limits on the low-pass states only, a friction on the band-pass one (its velocity_states)
-    assert "stiffness" in lti and lti[-3:] == ["limit_lag_1", "limit_low_2", "friction_band_2"]
+    # limits on the low-pass states only, a floor under the one a velocity moves (an end stop below), a
+    # friction on the band-pass one (its velocity_states); a tank's level gets no floor
+    assert "stiffness" in lti and lti[-4:] == ["limit_lag_1", "limit_low_2", "floor_low_2", "friction_band_2"]
+    oscillator = [e for e in hybrid.resolve_effects(None, MassSpringDamper()) if e.role == "limit"]
+    assert [(e.name, e.velocity) for e in oscillator] == [
+        ("limit_position", "velocity"),
+        ("floor_position", "velocity"),
+    ]
+    assert [e.name for e in hybrid.resolve_effects(["floor_h1"], TwoTank())] == ["floor_h1"]
     # the RC network has the form, but its inside effects are searched only when named (too dear a default)
     network = hybrid.RCNetwork(n_stages=4)
     assert not [e for e in hybrid.resolve_effects(None, network) if e.place == "inside"]
@@ -536,12 +578,17 @@ def test_resolve_effects_adds_inside_effects_only_where_there_are_states():
         (TwoTank(), [StateLimit("level")], "does not have: its states are h1, h2"),
         (TwoTank(), ["limit_h3"], "unknown effect 'limit_h3'"),
         # a few: each named
-        (TwoTank(), ["limit_h3"], "limit_h1, limit_h2, friction_h1, friction_h2, window_h1, window_h2;"),
+        (
+            TwoTank(),
+            ["limit_h3"],
+            "limit_h1, limit_h2, floor_h1, floor_h2, friction_h1, friction_h2, window_h1, window_h2;",
+        ),
         # The RC network's 46 states: one pattern, not 46 names
         (
             hybrid.RCNetwork(),
             ["limit_x"],
-            "limit_<state> (limit_vc_0 … limit_vc_45), friction_<state> (friction_vc_0 … friction_vc_45), "
+            "limit_<state> (limit_vc_0 … limit_vc_45), floor_<state> (floor_vc_0 … floor_vc_45), "
+            "friction_<state> (friction_vc_0 … friction_vc_45), "
             "window_<state> (window_vc_0 … window_vc_45), window_vc (a window on every state of vc);",
         ),
     ],
@@ -681,7 +728,7 @@ def test_a_remainder_that_lives_inside_the_dynamics_says_whether_that_place_was_
         cubic, searched_places(resolve_effects(None, held), held)
     )
     held = hybrid.HeldStart(hybrid.LTI(2), 20)  # LTI has a (linear) state-space form
-    assert "(stiffness, limit_low_1, friction_band_1), none explains the rest" in place_hint(
+    assert "(stiffness, limit_low_1, floor_low_1, friction_band_1), none explains the rest" in place_hint(
         cubic, searched_places(resolve_effects(None, held), held)
     )
     # level_limits' own shape: a side the record sits flat at is flagged

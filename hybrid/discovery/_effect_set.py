@@ -268,7 +268,7 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     """The effects `diagnose` searches: None gives every built-in ([`EFFECTS`][]) `simulation` can take.
 
     Each item is a built-in's name, ``limit_<state>`` (a limit on a state of
-    `simulation`), ``friction_<state>`` (a Coulomb friction on one),
+    `simulation`), ``floor_<state>`` (a limit below one), ``friction_<state>`` (a Coulomb friction on one),
     ``window_<state>`` or ``window_<group>`` (a limit of either sign on a state, or
     one on every state of a group of its `state_groups`: `StateWindow`; searched
     when named), an
@@ -278,7 +278,8 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     `simulation` in state-space form ([`AbstractStateSpace`][]): for None, the
     built-ins are the drive's and the output's effects, plus, for a
     simulation with states, the stiffness, a limit on each state (each
-    of its `limited_states`) and a friction on each of its velocities (`velocities`),
+    of its `limited_states`), a floor under each of those that one of its
+    velocities moves (an end stop below a position) and a friction on each of its velocities (`velocities`),
     unless it says why not (`not_searched_inside`: the RC network, whose
     stepped form is far dearer than its `simulate`).
     """
@@ -291,10 +292,11 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
         if not states or core is None:
             return tuple(built)
         limited = states if core[0].limited_states is None else core[0].limited_states
+        ceilings = tuple(state_limit(core[0], state) for state in limited if state in states)
+        # an end stop may sit on either side of a position; a level fed by a flow has no floor to meet
+        stops = tuple(state_limit(core[0], e.state, below=True) for e in ceilings if e.velocity is not None)
         moving = tuple(Friction(state) for state in velocities(core[0]) if state in states)
-        return (
-            tuple(built) + tuple(state_limit(core[0], state) for state in limited if state in states) + moving
-        )
+        return tuple(built) + ceilings + stops + moving
     if isinstance(effects, (str, AbstractEffect)) or isinstance(effects, type):
         effects = [effects]
     items: list = []
@@ -318,6 +320,7 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
             )
         if isinstance(item, str):
             limits = {f"limit_{state}": state for state in states}
+            floors = {f"floor_{state}": state for state in states}
             frictions = {f"friction_{state}": state for state in states}
             groups = _groups_of(simulation)
             windows = {f"window_{state}": (state, (state,)) for state in states} | {
@@ -325,24 +328,28 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
             }
             if item in limits:
                 item = state_limit(dynamics_of(simulation)[0], limits[item])  # type: ignore[index]
+            elif item in floors:
+                item = state_limit(dynamics_of(simulation)[0], floors[item], below=True)  # type: ignore[index]
             elif item in frictions:
                 item = Friction(frictions[item])
             elif item in windows:
                 item = StateWindow(windows[item][0], windows[item][1])
             elif item not in EFFECTS and item not in NAMED_ONLY:
                 # one per state: the RC network's 46 of each would bury the line
-                names = list(limits) + list(frictions) + list(windows)
+                names = list(limits) + list(floors) + list(frictions) + list(windows)
                 if len(limits) > 3:
+                    first, last = states[0], states[-1]
                     names = [
-                        f"limit_<state> ({names[0]} … {names[len(limits) - 1]})",
-                        f"friction_<state> ({names[len(limits)]} … {names[2 * len(limits) - 1]})",
+                        f"limit_<state> (limit_{first} … limit_{last})",
+                        f"floor_<state> (floor_{first} … floor_{last})",
+                        f"friction_<state> (friction_{first} … friction_{last})",
                         f"window_<state> (window_{states[0]} … window_{states[-1]})"
                         + "".join(
                             f", window_{group} (a window on every state of {group})" for group in groups
                         ),
                     ]
                 close = difflib.get_close_matches(
-                    item, [*EFFECTS, *NAMED_ONLY, *limits, *frictions, *windows], n=1
+                    item, [*EFFECTS, *NAMED_ONLY, *limits, *floors, *frictions, *windows], n=1
                 )
                 raise InputError(
                     f"unknown effect {item!r}"
@@ -422,15 +429,16 @@ def resolve_effects(effects=None, simulation=None) -> tuple[AbstractEffect, ...]
     return tuple(out)
 
 
-def state_limit(dynamics, state: str) -> StateLimit:
+def state_limit(dynamics, state: str, below: bool = False) -> StateLimit:
     """The built-in limit on `state` of `dynamics` (a state-space form), spilling where it says.
 
     Where one of its `velocity_states` moves `state` (`_velocity_of`), the limit
-    stops it too: an end stop on a position.
+    stops it too: an end stop on a position. `below`: a floor (`StateLimit`'s
+    `below`), which spills nothing.
     """
-    into = dynamics.spills_into.get(state)
+    into = None if below else dynamics.spills_into.get(state)
     spill = {} if into is None else {"into": into, "into_unit": dynamics.state_units.get(into, "")}
-    return StateLimit(state, velocity=_velocity_of(dynamics, state), **spill)
+    return StateLimit(state, velocity=_velocity_of(dynamics, state), below=below, **spill)
 
 
 def _velocity_of(dynamics, state: str) -> str | None:

@@ -12,6 +12,8 @@ name                   what it does                                parameters
 ``limit_<state>``      the state z ↦ min(z, L) after every step,   ``<state>_max`` L (unit of the state);
                        with a rim 2 % of |L| wide; a share of the  with `into`, ``<state>_spill`` (unit of
                        cut into another state (`into`)             `into` per unit of the state)
+``floor_<state>``      the state z ↦ max(z, L) after every step    ``<state>_min`` L (unit of the state)
+                       (an end stop below)
 ``friction_<state>``   ẋ = f(x, u − F·tanh(v/v_s)), v the state    ``<state>_friction`` F ({drive}),
                        (a Coulomb friction on a velocity)          ``<state>_stick_speed`` v_s (its unit)
 ``window_<group>``     each state z of a group (or one state,      ``<group>_window`` L (unit of the
@@ -33,8 +35,11 @@ name                   what it does                                parameters
   more (``cut_percent_of_range``, from the stack: the state with the limit and
   without). One
   effect per state of the simulation (`StateLimit("h1")`, named ``limit_h1``);
-  `diagnose` searches one per state by default. The limit is an upper one (a
-  lower limit is an upper one on −z: not built in yet). A rim of width
+  `diagnose` searches one per state by default. The limit is an upper one;
+  ``floor_<state>`` (`StateLimit("position", below=True)`, ``<state>_min``)
+  is the lower one, searched by default on each state that one of the
+  simulation's velocities moves (an end stop below a position as above it;
+  a tank's level has none), on any other when named. A rim of width
   δ = 2 % of |L| instead of a sharp edge, L − δ·softplus((L − z)/δ), so that
   a fit sees a finite slope with respect to L before the state reaches it.
   Where the simulation says where a state's excess goes
@@ -181,6 +186,10 @@ class PolynomialStiffness(AbstractEffect):
 class StateLimit(AbstractEffect):
     """An upper limit L on one state of the dynamics (an overflow, an end stop), applied after every step.
 
+    With `below`, a lower limit instead, a floor L under the state (``floor_<state>``,
+    ``<state>_min``): an end stop below a position, a valve seat, a charge that
+    cannot reverse.
+
     With `into` (another state), a share of what the limit cuts off goes there:
     the water over an upper tank's rim falls into the tank below. The share,
     ``<state>_spill``, is in the unit of `into` per unit of the state (1 for two
@@ -207,6 +216,7 @@ class StateLimit(AbstractEffect):
     into_unit: str = eqx.field(static=True)
     velocity: str | None = eqx.field(static=True)
     rim: float = eqx.field(static=True)
+    below: bool = eqx.field(static=True)
     place: ClassVar[str] = "inside"
     role: ClassVar[str] = "limit"
     n_screened: ClassVar[int] = 2
@@ -219,10 +229,18 @@ class StateLimit(AbstractEffect):
         into_unit: str = "",
         velocity: str | None = None,
         rim: float = RIM_WIDTH,
+        below: bool = False,
         **values,
     ):
         if not isinstance(state, str) or not state.isidentifier():
             raise InputError(f"StateLimit needs a state's name (an identifier), got {state!r}")
+        if not isinstance(below, bool):
+            raise InputError(f"StateLimit({state!r}): below must be True or False, got {below!r}")
+        if below and into is not None:
+            raise InputError(
+                f"StateLimit({state!r}, below=True): a floor spills nothing (into={into!r}); drop into"
+            )
+        self.below = below
         for role, other in (("into", into), ("velocity", velocity)):
             if other is not None and (
                 not isinstance(other, str) or not other.isidentifier() or other == state
@@ -238,25 +256,30 @@ class StateLimit(AbstractEffect):
     # The facts depend on the state: properties, not class constants.
     @property
     def name(self) -> str:  # type: ignore[override]
-        return f"limit_{self.state}"
+        return f"{'floor' if self.below else 'limit'}_{self.state}"
 
     @property
     def acts_on(self) -> str:  # type: ignore[override]
         return self.state
 
     @property
+    def level_name(self) -> str:
+        """The parameter of its level: ``<state>_max``, or ``<state>_min`` for a floor."""
+        return f"{self.state}_{'min' if self.below else 'max'}"
+
+    @property
     def constraints(self) -> dict:  # type: ignore[override]
-        level = {f"{self.state}_max": Real()}
+        level = {self.level_name: Real()}
         return level if self.into is None else {**level, f"{self.state}_spill": Positive()}
 
     @property
     def units(self) -> dict:  # type: ignore[override]
-        level = {f"{self.state}_max": "{signal}"}
+        level = {self.level_name: "{signal}"}
         return level if self.into is None else {**level, f"{self.state}_spill": "{into}/{signal}"}
 
     @property
     def defaults(self) -> dict:  # type: ignore[override]
-        level = {f"{self.state}_max": 1.0}
+        level = {self.level_name: -1.0 if self.below else 1.0}
         return level if self.into is None else {**level, f"{self.state}_spill": SPILL_START}
 
     @property
@@ -278,6 +301,8 @@ class StateLimit(AbstractEffect):
         out.update(rim=self.rim)
         if self.velocity is not None:
             out.update(velocity=self.velocity)
+        if self.below:  # a ceiling's config as before floors were built in
+            out.update(below=True)
         return out
 
     @classmethod
@@ -294,16 +319,21 @@ class StateLimit(AbstractEffect):
 
         The share taken is σ((z − L)/δ), δ the rim's width: none well below
         the limit, half at it, all beyond. Only a positive v (one that drives z
-        up, into the stop) is taken.
+        up, into the stop) is taken; under a floor, mirrored: σ((L − z)/δ) of a
+        negative v.
         """
-        top, width = self._rim(origin)
-        return v - jax.nn.sigmoid((z - top) / width) * jnp.maximum(v, 0.0)
+        level, width = self._rim(origin)
+        if self.below:
+            return v - jax.nn.sigmoid((level - z) / width) * jnp.minimum(v, 0.0)
+        return v - jax.nn.sigmoid((z - level) / width) * jnp.maximum(v, 0.0)
 
     def _level(self):
-        return self.parameters()[f"{self.state}_max"]
+        return self.parameters()[self.level_name]
 
     def cut(self, unlimited, limited) -> float:
-        """How far the limit pulls the state's peak down (an upper limit: its top alone)."""
+        """How far the limit pulls the state's peak down (a floor: its trough up), one end alone."""
+        if self.below:
+            return max(float(np.min(limited) - np.min(unlimited)), 0.0)
         return max(float(np.max(unlimited) - np.max(limited)), 0.0)
 
     def _rim(self, origin=0.0):
@@ -321,31 +351,29 @@ class StateLimit(AbstractEffect):
         return top, self.rim * jnp.abs(top - origin) + 1e-12
 
     def apply(self, z, dt, origin=0.0):
-        top, width = self._rim(origin)
-        return top - width * jax.nn.softplus((top - z) / width)
+        level, width = self._rim(origin)
+        if self.below:
+            return level + width * jax.nn.softplus((z - level) / width)
+        return level - width * jax.nn.softplus((level - z) / width)
 
     def derived(self, z, dt, origin: float = 0.0):
-        top = float(self._level())
+        level = float(self._level())
         z = np.asarray(z, float)
-        width = self.rim * abs(top - origin)  # from the state's rest (`_rim`), which the stack passes
-        return {
-            "level": top,
-            "at_limit_percent": 100.0 * float(np.mean(z >= top - 2.0 * width)) if z.size else 0.0,
-        }
+        width = self.rim * abs(level - origin)  # from the state's rest (`_rim`), which the stack passes
+        at = z <= level + 2.0 * width if self.below else z >= level - 2.0 * width
+        return {"level": level, "at_limit_percent": 100.0 * float(np.mean(at)) if z.size else 0.0}
 
     def starts(self, context):
         # Just below the state's peak under the current model, a quarter of its range below, and
         # the recorded output's peak in the simulation's unit: where an observed state that the
         # record shows flat at its top would sit (for a state upstream, one more level to try).
-        z = np.asarray(context.signal, float)
+        # A floor: the same from the state's trough up.
+        sign = -1.0 if self.below else 1.0
+        z = sign * np.asarray(context.signal, float)
         peak, span = float(np.max(z)), signal_span(z)
         seen = context.measured
-        top = float(np.max(seen)) if seen is not None and len(seen) else peak - 0.5 * span
-        return [
-            {f"{self.state}_max": peak - 0.05 * span},
-            {f"{self.state}_max": peak - 0.25 * span},
-            {f"{self.state}_max": top},
-        ]
+        top = float(np.max(sign * np.asarray(seen))) if seen is not None and len(seen) else peak - 0.5 * span
+        return [{self.level_name: sign * level} for level in (peak - 0.05 * span, peak - 0.25 * span, top)]
 
     def screened_starts(self, context):
         from ._starts import limit_starts
@@ -355,15 +383,17 @@ class StateLimit(AbstractEffect):
             context.problem,
             context.simulation,
             self,
-            f"{self.state}_max",
+            self.level_name,
             self.n_screened,
             context.frozen,
             share,
+            lowest=self.below,
         )
 
     def unpinned_reason(self, name, signal):
-        z = np.asarray(signal, float)
-        top = float(self._level())
+        sign = -1.0 if self.below else 1.0  # a floor: the ceiling of −z
+        z = sign * np.asarray(signal, float)
+        top = sign * float(self._level())
         if z.size and np.max(z) < top - 2.0 * self.rim * abs(top - float(np.min(z))):  # its least: near rest
             return "the state never reaches the limit in this recording"
         return None
@@ -372,14 +402,15 @@ class StateLimit(AbstractEffect):
         # A piezo stage's gauge that clipped at 85 µm was named an end stop on its position: where
         # the output reads the limited state, the two look alike (an end stop also stops the rate).
         where = " and spills into " + self.into if self.into is not None else ""
-        kind = "an end stop, an overflow"
+        kind = "an end stop below, a valve's seat" if self.below else "an end stop, an overflow"
         if self.velocity is not None:
             kind, where = (
                 "an end stop",
                 f"{where}, which also stops the state that moves it ({self.velocity}) there",
             )
         return (
-            f"an upper limit on the state {self.state} inside the dynamics ({kind}){where}; "
+            f"{'a lower' if self.below else 'an upper'} limit on the state {self.state} inside the dynamics "
+            f"({kind}){where}; "
             "where the output reads this state, a sensor that clips at that level looks alike on a recording "
             "unless the rate of the state shows the stop"
         )

@@ -368,10 +368,13 @@ SPILL_SHARES = (0.02, 0.5, 1.0)
 
 
 @eqx.filter_jit
-def state_peaks(problem, simulation, states: str | tuple[str, ...], raws, swing: bool = False):
+def state_peaks(
+    problem, simulation, states: str | tuple[str, ...], raws, swing: bool = False, lowest: bool = False
+):
     """The largest value of any of `states` on the training part at each row of `raws` (the limit off).
 
-    `swing`: the largest swing |x − x_rest| from where each state rests under no drive instead.
+    `swing`: the largest swing |x − x_rest| from where each state rests under no drive instead;
+    `lowest`: the largest of −x (minus the lowest value: a floor's screen).
     """
     from ..core._state_space import dynamics_of, integrate
     from ._effect_stack import rest_state
@@ -384,7 +387,7 @@ def state_peaks(problem, simulation, states: str | tuple[str, ...], raws, swing:
         peaks = []
         for series in problem.series:
             x = integrate(core, held(series.v_in), series.dt)[1][skip:][:, ks]
-            x = jnp.abs(x - rest) if swing else x
+            x = jnp.abs(x - rest) if swing else -x if lowest else x
             peaks += [jnp.max(x[a:b]) for a, b in series.segments_of("train")]
         return jnp.max(jnp.stack(peaks))
 
@@ -400,6 +403,7 @@ def limit_starts(
     frozen=frozenset(),
     share: str | None = None,
     swing: bool = False,
+    lowest: bool = False,
 ) -> list[dict]:
     """Starts for a limit on states (`effect.bounded_states`): the simulation's design screened jointly with it.
 
@@ -415,14 +419,18 @@ def limit_starts(
     `level`: the effect's parameter set to those fractions; `share`: its spill's
     share, screened at each of `SPILL_SHARES` (None: it has none); `swing`: the
     fractions are of the states' largest swing from where they rest (a window
-    ±L about rest) rather than of their peak (a ceiling L).
+    ±L about rest) rather than of their peak (a ceiling L); `lowest`: of their
+    trough (a floor L: each level the fraction of the lowest value).
     """
     from ._effect_stack import EffectStack
 
     design, names, raws, band = screen_design(problem, simulation, frozen, keep=N_JOINT_SCREEN)
     if not names:
         return []
-    peaks = np.asarray(state_peaks(problem, simulation, tuple(effect.bounded_states), raws, swing))
+    sign = -1.0 if lowest else 1.0
+    peaks = sign * np.asarray(
+        state_peaks(problem, simulation, tuple(effect.bounded_states), raws, swing, lowest)
+    )
     stack = EffectStack(simulation, [effect])
     best = []
     for fraction in LIMIT_FRACTIONS:
