@@ -60,7 +60,7 @@ class EffectStack(AbstractWrapper):
     def __init__(self, inner: AbstractSimulation, effects=(), active=None, drive_unit: str = "V"):
         built = []
         for effect in effects:
-            if isinstance(effect, str):  # a built-in's name, or limit_<state> (floor_, …) of a state-space inner
+            if isinstance(effect, str):  # a built-in, or limit_<state> etc. of a state-space inner
                 (effect,) = resolve_effects([effect], inner)
             if not isinstance(effect, AbstractEffect):
                 raise InputError(f"effects must be effect names or AbstractEffect instances, got {effect!r}")
