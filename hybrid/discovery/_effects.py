@@ -191,7 +191,8 @@ class AbstractEffect(eqx.Module):
       holds, each after every step (`StateWindow`: every state of a group);
       `cut(unlimited, limited)` says how far it pulls its state in (default:
       both ends), which the stack turns into ``cut_percent_of_range`` for
-      `material`; with `from_rest`, `apply` and `derived` get ``origin=``, where
+      `material`; with `from_rest`, `apply` and `derived` (and `spilled`,
+      `stopped`, where `into` or `velocity` name a state) get ``origin=``, where
       the state rests under no drive (`StateLimit`'s rim is measured from there).
     - `thresholds`: the smallest size that counts as a cause, by name (see
       `material`); `DiagnoseSettings.materiality` overrides them by name.
