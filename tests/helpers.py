@@ -315,3 +315,14 @@ class Leapfrog(AbstractSimulation):
 
         return lax.scan(step, (0.0 * v_in[0], 0.0 * v_in[0]), v_in)[1]
 """
+
+
+def import_file(path, name: str):
+    """The module in the file `path`, imported under `name` (a user's plug-in, as `--effects file.py:Class`
+    imports it; a saved model's plug-in is imported before the model is loaded)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -7,7 +7,6 @@ for a drive held over each sample), never by the effects under test.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 from typing import ClassVar
@@ -87,9 +86,7 @@ def test_the_cli_finds_a_user_effect_through_effects(lab):
     assert "negative_gain_change" in run.stdout  # the CLI prints the plug-in's parameters by name
 
     # The extended model comes back loadable, the plug-in's module imported first (as --effects does).
-    spec = importlib.util.spec_from_file_location("lab_asymmetric", lab / "asymmetric.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    h.import_file(lab / "asymmetric.py", "lab_asymmetric")
     extended = hybrid.load_model(lab / "report" / "extended.eqx")
     assert [e.name for e in extended.simulation.effects] == ["asymmetric_drive", "frame_timing"]
     loaded = float(extended.simulation.parameters()["negative_gain_change"])
@@ -858,10 +855,7 @@ FLOOR_LEVEL = -0.4  # the floor under the lag's state, in the drive's unit (the 
 
 def _floor_class(folder):
     (folder / "floor.py").write_text(FLOOR)
-    spec = importlib.util.spec_from_file_location("lab_floor", folder / "floor.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.Floor
+    return h.import_file(folder / "floor.py", "lab_floor").Floor
 
 
 def _floored_lag(u: np.ndarray) -> np.ndarray:

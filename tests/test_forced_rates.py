@@ -63,12 +63,7 @@ HEATER = textwrap.dedent(
 
 def _heater(tmp_path):
     (tmp_path / "heater.py").write_text(HEATER)
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("user_heater", tmp_path / "heater.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.Heater
+    return h.import_file(tmp_path / "heater.py", "user_heater").Heater
 
 
 def _drive(seed: int, n: int) -> np.ndarray:

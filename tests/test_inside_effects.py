@@ -11,7 +11,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import importlib
-import importlib.util
 import json
 from pathlib import Path
 
@@ -666,9 +665,7 @@ def test_the_docs_friction_effect_is_found_inside_an_oscillator_from_the_command
     assert force["value"] == pytest.approx(FRICTION_FORCE, rel=0.3)
     assert force["unit"] == "V" and report["parameters"]["stick_speed"]["unit"] == "V/s"
     assert report["places"]["inside"]["effects"] == ["coulomb_friction", "stiffness"]
-    spec = importlib.util.spec_from_file_location("lab_friction", tmp_path / "friction.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)  # a saved model's plug-in is imported before it is loaded
+    h.import_file(tmp_path / "friction.py", "lab_friction")  # a saved model's plug-in, before it is loaded
     extended = hybrid.load_model(tmp_path / "report" / "extended.eqx")
     assert extended.units["offset"] == "cm" and extended.units["friction_force"] == "V"
 
