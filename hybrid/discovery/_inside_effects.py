@@ -10,8 +10,8 @@ name                   what it does                                parameters
 ``stiffness``          ẋ = f(x, u − k₂y² − k₃y³), y the output     ``stiffness_square`` k₂ ({drive}/{signal}²),
                        (a restoring force that is not linear)      ``stiffness_cube`` k₃ ({drive}/{signal}³)
 ``limit_<state>``      the state z ↦ min(z, L) after every step,   ``<state>_max`` L (unit of the state);
-                       with a rim 2 % of |L| wide; a share of the  with `into`, ``<state>_spill`` (unit of
-                       cut into another state (`into`)             `into` per unit of the state)
+                       with a soft rim (`RIM_WIDTH`); a share of   with `into`, ``<state>_spill`` (unit of
+                       the cut into another state (`into`)         `into` per unit of the state)
 ``floor_<state>``      the state z ↦ max(z, L) after every step    ``<state>_min`` L (unit of the state)
                        (an end stop below)
 ``friction_<state>``   ẋ = f(x, u − F·tanh(v/v_s)), v the state    ``<state>_friction`` F ({drive}),
@@ -40,7 +40,7 @@ name                   what it does                                parameters
   is the lower one, searched by default on each state that one of the
   simulation's velocities moves (an end stop below a position as above it;
   a tank's level has none), on any other when named. A rim of width
-  δ = 2 % of |L| instead of a sharp edge, L − δ·softplus((L − z)/δ), so that
+  δ = `RIM_WIDTH` (0.5 %) of |L − z_rest| instead of a sharp edge, L − δ·softplus((L − z)/δ), so that
   a fit sees a finite slope with respect to L before the state reaches it.
   Where the simulation says where a state's excess goes
   (`AbstractStateSpace.spills_into`: water over the upper tank's rim falls
