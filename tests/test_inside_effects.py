@@ -601,6 +601,19 @@ def test_inside_effects_where_they_cannot_act_are_refused_in_one_line(simulation
             EffectStack(simulation, effects)
 
 
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [
+        ({"below": True, "into": "h2"}, "a floor spills nothing (into='h2'); drop into"),
+        ({"below": "yes"}, "below must be True or False, got 'yes'"),
+    ],
+)
+def test_a_floor_asked_to_spill_or_given_a_side_that_is_not_a_bool_is_refused_in_one_line(options, words):
+    with pytest.raises(InputError) as caught:
+        StateLimit("h1", **options)
+    assert words in str(caught.value) and "\n" not in str(caught.value)
+
+
 # --- a user's inside effect, from the docs, through the command line -------------------------------
 
 FRICTION_RATE, FRICTION_FORCE, STICK_SPEED = 30.0, 0.12, 0.3
