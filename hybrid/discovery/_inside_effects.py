@@ -323,18 +323,21 @@ class StateLimit(AbstractEffect):
         negative v.
         """
         level, width = self._rim(origin)
-        if self.below:
-            return v - jax.nn.sigmoid((level - z) / width) * jnp.minimum(v, 0.0)
-        return v - jax.nn.sigmoid((z - level) / width) * jnp.maximum(v, 0.0)
+        s = self._sign
+        return v - jax.nn.sigmoid(s * (z - level) / width) * s * jnp.maximum(s * v, 0.0)
+
+    @property
+    def _sign(self) -> float:
+        """+1 for a ceiling, −1 for a floor: a floor on z at L is the ceiling on −z at −L."""
+        return -1.0 if self.below else 1.0
 
     def _level(self):
         return self.parameters()[self.level_name]
 
     def cut(self, unlimited, limited) -> float:
         """How far the limit pulls the state's peak down (a floor: its trough up), one end alone."""
-        if self.below:
-            return max(float(np.min(limited) - np.min(unlimited)), 0.0)
-        return max(float(np.max(unlimited) - np.max(limited)), 0.0)
+        s = self._sign
+        return max(float(np.max(s * np.asarray(unlimited)) - np.max(s * np.asarray(limited))), 0.0)
 
     def _rim(self, origin=0.0):
         """The limit L and the width δ = `rim`·|L − origin| over which it engages (traced: `apply`, `stopped`).
@@ -352,15 +355,14 @@ class StateLimit(AbstractEffect):
 
     def apply(self, z, dt, origin=0.0):
         level, width = self._rim(origin)
-        if self.below:
-            return level + width * jax.nn.softplus((z - level) / width)
-        return level - width * jax.nn.softplus((level - z) / width)
+        s = self._sign
+        return level - s * width * jax.nn.softplus(s * (level - z) / width)
 
     def derived(self, z, dt, origin: float = 0.0):
         level = float(self._level())
         z = np.asarray(z, float)
         width = self.rim * abs(level - origin)  # from the state's rest (`_rim`), which the stack passes
-        at = z <= level + 2.0 * width if self.below else z >= level - 2.0 * width
+        at = self._sign * (z - level) >= -2.0 * width
         return {"level": level, "at_limit_percent": 100.0 * float(np.mean(at)) if z.size else 0.0}
 
     def starts(self, context):
@@ -368,7 +370,7 @@ class StateLimit(AbstractEffect):
         # the recorded output's peak in the simulation's unit: where an observed state that the
         # record shows flat at its top would sit (for a state upstream, one more level to try).
         # A floor: the same from the state's trough up.
-        sign = -1.0 if self.below else 1.0
+        sign = self._sign
         z = sign * np.asarray(context.signal, float)
         peak, span = float(np.max(z)), signal_span(z)
         seen = context.measured
@@ -391,7 +393,7 @@ class StateLimit(AbstractEffect):
         )
 
     def unpinned_reason(self, name, signal):
-        sign = -1.0 if self.below else 1.0  # a floor: the ceiling of −z
+        sign = self._sign  # a floor: the ceiling of −z
         z = sign * np.asarray(signal, float)
         top = sign * float(self._level())
         if z.size and np.max(z) < top - 2.0 * self.rim * abs(top - float(np.min(z))):  # its least: near rest
